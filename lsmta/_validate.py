@@ -1,0 +1,87 @@
+"""Argument checks shared by the public functions.
+
+Every check names the argument and says what was expected. The helpers return new
+float64 arrays (or the caller's array untouched when no conversion was needed), and
+nothing here writes into what the caller passed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def as_array(value, name: str, *, shape: tuple | None = None, finite: bool = True,
+             allow_nan: bool = False) -> np.ndarray:
+    """Return ``value`` as a float64 array after checking its shape and values.
+
+    Parameters
+    ----------
+    value : array_like
+        What the caller passed.
+    name : str
+        Argument name used in error messages.
+    shape : tuple, optional
+        Required shape; ``None`` entries match any length, e.g. ``(None, 3)``.
+    finite : bool
+        Reject infinities and NaN.
+    allow_nan : bool
+        With ``finite``, still accept NaN (for "missing" entries) but not infinities.
+    """
+    arr = np.asarray(value)
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
+        raise TypeError(f"{name}: expected a real numeric array, got dtype {arr.dtype}")
+    if np.iscomplexobj(arr):
+        raise TypeError(f"{name}: expected real numbers, got complex dtype {arr.dtype}")
+    arr = arr.astype(np.float64, copy=False)
+    if shape is not None and (
+        arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape))
+    ):
+        want = "(" + ", ".join("N" if s is None else str(s) for s in shape)
+        want += ",)" if len(shape) == 1 else ")"
+        raise ValueError(f"{name}: expected an array of shape {want}, got shape {arr.shape}")
+    if finite:
+        bad = ~np.isfinite(arr)
+        if allow_nan:
+            bad &= ~np.isnan(arr)
+        if bad.any():
+            what = "infinite values" if allow_nan else "non-finite values (NaN or inf)"
+            raise ValueError(f"{name}: contains {what}; expected finite numbers")
+    return arr
+
+
+def as_points(value, name: str, dim: int = 3, *, allow_nan: bool = False) -> np.ndarray:
+    """An ``(N, dim)`` float64 array of finite coordinates."""
+    return as_array(value, name, shape=(None, dim), allow_nan=allow_nan)
+
+
+def as_vector(value, name: str, n: int) -> np.ndarray:
+    """A finite float64 vector of length ``n``."""
+    return as_array(value, name, shape=(n,))
+
+
+def as_scalar(value, name: str, *, positive: bool = False, nonnegative: bool = False) -> float:
+    """A finite Python float, optionally > 0 or >= 0."""
+    x = float(as_array(value, name, shape=()))
+    if positive and not x > 0:
+        raise ValueError(f"{name}: expected a positive number, got {x}")
+    if nonnegative and not x >= 0:
+        raise ValueError(f"{name}: expected a number >= 0, got {x}")
+    return x
+
+
+def as_rotation(value, name: str) -> np.ndarray:
+    """A proper 3x3 rotation matrix (orthonormal, determinant +1, to 1e-6)."""
+    R = as_array(value, name, shape=(3, 3))
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+        raise ValueError(f"{name}: expected a proper rotation (R @ R.T == I, det(R) == +1)")
+    return R
+
+
+def as_rng(rng, name: str = "rng") -> np.random.Generator:
+    """Check that ``rng`` is a :class:`numpy.random.Generator`."""
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(
+            f"{name}: expected a numpy.random.Generator (e.g. numpy.random.default_rng(0)), "
+            f"got {type(rng).__name__}"
+        )
+    return rng

@@ -1,0 +1,239 @@
+"""The ``lsmta`` command: ``lsmta reproduce`` re-runs every notebook and gathers the results.
+
+``lsmta reproduce`` executes ``notebooks/NN_*.ipynb`` in order (each with its own folder as
+working directory, like nbmake), writes the executed notebooks and their HTML renderings
+to ``build/notebooks/``, every figure to ``build/figures/``, and the headline numbers the
+notebooks record (:mod:`lsmta.report`) to ``build/summary.md``, ``build/summary.json``
+and ``build/index.html``. It exits with status 1, naming the notebook and cell, if any
+cell fails.
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import html
+import json
+import os
+import platform
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+from . import report
+
+OFFSCREEN_ENV = {
+    "PYVISTA_OFF_SCREEN": "true",
+    "VTK_DEFAULT_OPENGL_WINDOW": "vtkEGLRenderWindow",
+    "PYDEVD_DISABLE_FILE_VALIDATION": "1",
+}
+
+
+def find_notebooks(folder: Path) -> list[Path]:
+    """The numbered notebooks ``NN_name.ipynb`` in ``folder``, in order."""
+    return sorted(p for p in folder.glob("[0-9][0-9]_*.ipynb") if p.is_file())
+
+
+def select(notebooks: list[Path], only: list[str] | None) -> list[Path]:
+    """Notebooks whose stem, number or name (without the number) is in ``only``."""
+    if not only:
+        return notebooks
+    chosen = []
+    for key in only:
+        hits = [p for p in notebooks if key in (p.stem, p.stem[:2], p.stem[3:])]
+        if not hits:
+            names = ", ".join(p.stem for p in notebooks)
+            raise SystemExit(f"lsmta reproduce: --only {key!r} matches no notebook ({names})")
+        chosen.extend(h for h in hits if h not in chosen)
+    return sorted(chosen)
+
+
+def default_notebook_dir() -> Path:
+    here = Path.cwd() / "notebooks"
+    if here.is_dir():
+        return here
+    return Path(__file__).resolve().parents[1] / "notebooks"
+
+
+def execute(path: Path, build: Path, timeout: int) -> dict:
+    """Execute one notebook; returns a status dict (never raises for a failing cell)."""
+    import nbformat
+    from nbclient import NotebookClient
+    from nbclient.exceptions import CellExecutionError, CellTimeoutError
+    from tqdm.auto import tqdm
+
+    nb = nbformat.read(path, as_version=4)
+    records_file = build / "records" / f"{path.stem}.jsonl"
+    records_file.parent.mkdir(parents=True, exist_ok=True)
+    records_file.unlink(missing_ok=True)
+    os.environ[report.RECORD_ENV] = str(records_file.resolve())
+    for key, value in OFFSCREEN_ENV.items():
+        os.environ.setdefault(key, value)
+
+    n_code = sum(c.cell_type == "code" for c in nb.cells)
+    bar = tqdm(total=n_code, desc=path.stem, unit="cell", leave=False, file=sys.stderr)
+    current = {"index": None}
+
+    def on_execute(cell, cell_index, **_):
+        current["index"] = cell_index
+
+    def on_executed(cell, cell_index, **_):
+        bar.update(1)
+
+    client = NotebookClient(nb, timeout=timeout, kernel_name="python3",
+                            resources={"metadata": {"path": str(path.parent)}},
+                            on_cell_execute=on_execute, on_cell_executed=on_executed)
+    status = {"notebook": path.stem, "ok": True, "error": None, "cell": None}
+    start = time.perf_counter()
+    try:
+        client.execute()
+    except (CellExecutionError, CellTimeoutError) as exc:
+        status.update(ok=False, cell=current["index"],
+                      error=str(exc).strip().splitlines()[-1] if str(exc).strip() else repr(exc))
+    except Exception as exc:  # kernel died, etc.
+        status.update(ok=False, cell=current["index"], error=f"{type(exc).__name__}: {exc}")
+    finally:
+        bar.close()
+        os.environ.pop(report.RECORD_ENV, None)
+    status["seconds"] = round(time.perf_counter() - start, 2)
+
+    out_dir = build / "notebooks"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    nbformat.write(nb, out_dir / path.name)
+    status["figures"] = save_figures(nb, path.stem, build / "figures")
+    status["html"] = write_html(nb, out_dir / f"{path.stem}.html")
+    status["records"] = ([asdict(r) for r in report.load_records(records_file)]
+                         if records_file.exists() else [])
+    return status
+
+
+def save_figures(nb, stem: str, folder: Path) -> list[str]:
+    """Write every PNG output of ``nb`` to ``folder``; returns the file names."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for old in folder.glob(f"{stem}_cell*.png"):
+        old.unlink()
+    names = []
+    for i, cell in enumerate(nb.cells):
+        k = 0
+        for output in cell.get("outputs", []):
+            data = output.get("data", {})
+            if "image/png" in data:
+                name = f"{stem}_cell{i:02d}_{k}.png"
+                (folder / name).write_bytes(base64.b64decode(data["image/png"]))
+                names.append(name)
+                k += 1
+    return names
+
+
+def write_html(nb, target: Path) -> str | None:
+    try:
+        from nbconvert import HTMLExporter
+
+        body, _ = HTMLExporter().from_notebook_node(nb)
+    except Exception as exc:  # pragma: no cover - nbconvert template problems
+        print(f"lsmta reproduce: could not render {target.name}: {exc}", file=sys.stderr)
+        return None
+    target.write_text(body, encoding="utf-8")
+    return target.name
+
+
+def write_summary(build: Path, results: list[dict]) -> None:
+    """``summary.json``, ``summary.md`` and ``index.html`` from the notebooks' results."""
+    records = [report.Record(**r) for res in results for r in res["records"]]
+    meta = {"python": platform.python_version(), "machine": platform.machine(),
+            "cpus": os.cpu_count(), "finished": time.strftime("%Y-%m-%d %H:%M:%S")}
+    (build / "summary.json").write_text(json.dumps(
+        {"meta": meta, "notebooks": results, "records": [asdict(r) for r in records]},
+        indent=2), encoding="utf-8")
+    lines = ["# lsmta — reproduced numbers next to the papers'", "",
+             report.table(records), "", "## Notebooks", "",
+             "| notebook | status | seconds | figures |", "|---|---|---|---|"]
+    for res in results:
+        state = "ok" if res["ok"] else f"FAILED at cell {res['cell']}: {res['error']}"
+        lines.append(f"| {res['notebook']} | {state} | {res['seconds']} | {len(res['figures'])} |")
+    (build / "summary.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+    esc = html.escape
+    rows = "".join(
+        "<tr>" + "".join(f"<td>{esc(report.format_value(v))}</td>" for v in
+                         (r.figure, r.quantity, r.paper, r.value, r.unit, r.note)) + "</tr>"
+        for r in records)
+    sections = []
+    for res in results:
+        link = (f'<a href="notebooks/{esc(res["html"])}">{esc(res["notebook"])}</a>'
+                if res.get("html") else esc(res["notebook"]))
+        state = "ok" if res["ok"] else f"<b>FAILED</b> at cell {res['cell']}: {esc(res['error'])}"
+        figs = "".join(f'<img src="figures/{esc(f)}" loading="lazy">' for f in res["figures"])
+        sections.append(f"<h2>{link}</h2><p>{state} — {res['seconds']} s</p>{figs}")
+    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>lsmta results</title>
+<style>body{{font-family:sans-serif;max-width:1200px;margin:auto}}
+table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:3px 8px}}
+img{{max-width:100%;margin:6px 0;border:1px solid #eee}}</style></head><body>
+<h1>lsmta — reproduced numbers next to the papers'</h1>
+<table><tr><th>figure</th><th>quantity</th><th>paper</th><th>ours</th><th>unit</th><th>note</th></tr>
+{rows}</table>{''.join(sections)}
+<p><small>Python {esc(meta['python'])}, {esc(str(meta['cpus']))} CPUs, {esc(meta['finished'])}</small></p>
+</body></html>"""
+    (build / "index.html").write_text(page, encoding="utf-8")
+
+
+def reproduce(args) -> int:
+    folder = Path(args.notebooks) if args.notebooks else default_notebook_dir()
+    notebooks = find_notebooks(folder)
+    if not notebooks:
+        print(f"lsmta reproduce: no notebooks NN_*.ipynb in {folder}", file=sys.stderr)
+        return 2
+    chosen = select(notebooks, args.only)
+    if args.list:
+        for p in chosen:
+            print(p.stem)
+        return 0
+    build = Path(args.build)
+    build.mkdir(parents=True, exist_ok=True)
+    from tqdm.auto import tqdm
+
+    results = []
+    with tqdm(chosen, desc="notebooks", unit="nb", file=sys.stderr) as bar:
+        for path in bar:
+            bar.set_postfix_str(path.stem)
+            res = execute(path, build, args.timeout)
+            results.append(res)
+            state = "ok" if res["ok"] else "FAILED"
+            tqdm.write(f"{path.stem}: {state} in {res['seconds']:.1f} s, "
+                       f"{len(res['figures'])} figure(s), {len(res['records'])} number(s)",
+                       file=sys.stderr)
+    if args.only:  # keep the other notebooks' earlier results in the summary
+        old = build / "summary.json"
+        if old.exists():
+            previous = json.loads(old.read_text(encoding="utf-8")).get("notebooks", [])
+            done = {r["notebook"] for r in results}
+            results = sorted([r for r in previous if r["notebook"] not in done] + results,
+                             key=lambda r: r["notebook"])
+    write_summary(build, results)
+    print(f"lsmta reproduce: wrote {build / 'index.html'} and {build / 'summary.md'}")
+    failed = [r for r in results if not r["ok"]]
+    for r in failed:
+        print(f"lsmta reproduce: {r['notebook']}.ipynb failed at cell {r['cell']}: {r['error']}",
+              file=sys.stderr)
+    return 1 if failed else 0
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="lsmta", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    rep = sub.add_parser("reproduce", help="execute the notebooks and gather figures and numbers")
+    rep.add_argument("--only", nargs="+", metavar="NAME",
+                     help="notebooks to run, by number (00), name or stem (00_synthetic_world)")
+    rep.add_argument("--list", action="store_true", help="list the notebooks and exit")
+    rep.add_argument("--build", default="build", help="output folder (default: build)")
+    rep.add_argument("--notebooks", default=None, help="folder of the notebooks")
+    rep.add_argument("--timeout", type=int, default=1200, help="seconds allowed per cell")
+    args = parser.parse_args(argv)
+    if args.command == "reproduce":
+        return reproduce(args)
+    return 2  # pragma: no cover
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

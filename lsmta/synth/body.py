@@ -1,0 +1,432 @@
+"""A textured articulated human: ellipsoidal body parts on a skeleton, and two motions.
+
+Body frame (rest pose)
+    x to the body's right, y forward (the direction the body faces), z up; mm. Every part
+    has its own frame whose origin is its proximal joint; limbs hang along -z at rest.
+Joint angles
+    Each part carries three angles ``(a, b, c)`` in radians, applied as
+    ``R = Rz(c) @ Ry(b) @ Rx(a)`` in the parent's frame: ``a`` is flexion (positive swings
+    a hanging limb forward), ``b`` is ab/adduction (positive swings it towards -x, i.e.
+    outwards for a left limb), ``c`` is twist about the limb. The root part (pelvis)
+    uses the same angles for the whole body's orientation in the world (``c`` is the
+    heading: 0 faces +Y, -pi/2 faces +X) and :attr:`Motion.root_position` for its place.
+Texture
+    Each part carries a solid texture: a sum of random 3-D sinusoids in the part's own
+    frame, so a surface point keeps its grey value however the part moves, and the
+    texture is band-limited by construction (wavelengths in a chosen band). ``contrast``
+    is the relative standard deviation of the albedo modulation: about 0.3 looks like
+    patterned clothing, 0.05 like skin or plain jeans.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validate import as_array, as_rng, as_scalar
+
+
+@dataclass(frozen=True)
+class Part:
+    """One rigid body part: an ellipsoid in the frame of its proximal joint.
+
+    Attributes
+    ----------
+    name : str
+    parent : int
+        Index of the parent part, -1 for the root.
+    joint : (3,) tuple
+        Position of this part's joint in the parent's frame (mm); for the root, in the
+        body frame relative to :attr:`Motion.root_position`.
+    centre : (3,) tuple
+        Ellipsoid centre in the part's frame (mm).
+    radii : (3,) tuple
+        Ellipsoid semi-axes along the part's x, y, z (mm).
+    albedo : float
+        Mean reflectance in [0, 1].
+    """
+
+    name: str
+    parent: int
+    joint: tuple
+    centre: tuple
+    radii: tuple
+    albedo: float
+
+
+# name, parent, joint (in parent frame), centre, radii, albedo
+_PARTS = [
+    ("pelvis", None, (0, 0, 0), (0, 0, 30), (165, 105, 115), 0.50),
+    ("torso", "pelvis", (0, 0, 100), (0, 0, 230), (175, 110, 260), 0.62),
+    ("head", "torso", (0, 0, 480), (0, 10, 125), (80, 95, 115), 0.70),
+    ("upper_arm_r", "torso", (205, 0, 430), (0, 0, -150), (50, 50, 165), 0.62),
+    ("forearm_r", "upper_arm_r", (0, 0, -300), (0, 0, -130), (40, 40, 145), 0.68),
+    ("hand_r", "forearm_r", (0, 0, -265), (0, 0, -80), (22, 45, 85), 0.72),
+    ("upper_arm_l", "torso", (-205, 0, 430), (0, 0, -150), (50, 50, 165), 0.62),
+    ("forearm_l", "upper_arm_l", (0, 0, -300), (0, 0, -130), (40, 40, 145), 0.68),
+    ("hand_l", "forearm_l", (0, 0, -265), (0, 0, -80), (22, 45, 85), 0.72),
+    ("thigh_r", "pelvis", (95, 0, -20), (0, 0, -220), (78, 78, 245), 0.40),
+    ("shank_r", "thigh_r", (0, 0, -440), (0, 0, -210), (55, 55, 230), 0.40),
+    ("foot_r", "shank_r", (0, 0, -430), (0, 60, -35), (45, 115, 38), 0.30),
+    ("thigh_l", "pelvis", (-95, 0, -20), (0, 0, -220), (78, 78, 245), 0.40),
+    ("shank_l", "thigh_l", (0, 0, -440), (0, 0, -210), (55, 55, 230), 0.40),
+    ("foot_l", "shank_l", (0, 0, -430), (0, 60, -35), (45, 115, 38), 0.30),
+]
+STANDING_PELVIS_HEIGHT = 960.0  # mm, with the feet on the floor
+
+
+@dataclass(frozen=True, eq=False)
+class SolidTexture:
+    """Band-limited solid texture: per part, a sum of random 3-D sinusoids.
+
+    ``value(part, p) = 1 + contrast[part] * sum_k a_k sin(2 pi (p . u_k) / lambda_k + phi_k)``
+    with unit directions ``u_k``, wavelengths ``lambda_k`` (mm), phases ``phi_k`` and
+    amplitudes ``a_k = sqrt(2 / n)``, so that the sum has unit variance.
+
+    Attributes
+    ----------
+    directions : (P, n, 3) array
+    wavelengths : (P, n) array, mm
+    phases : (P, n) array, radians
+    contrast : (P,) array
+    """
+
+    directions: np.ndarray
+    wavelengths: np.ndarray
+    phases: np.ndarray
+    contrast: np.ndarray
+
+    @classmethod
+    def random(cls, rng: np.random.Generator, n_parts: int, contrast, *,
+               wavelength=(25.0, 120.0), n_waves: int = 24) -> SolidTexture:
+        """Draw a texture for ``n_parts`` parts; ``contrast`` is a scalar or ``(n_parts,)``."""
+        as_rng(rng)
+        lo, hi = (as_scalar(w, "wavelength", positive=True) for w in wavelength)
+        if not lo <= hi:
+            raise ValueError(f"wavelength: expected (shortest, longest), got {wavelength}")
+        u = rng.normal(size=(n_parts, n_waves, 3))
+        u /= np.linalg.norm(u, axis=2, keepdims=True)
+        lam = np.exp(rng.uniform(np.log(lo), np.log(hi), size=(n_parts, n_waves)))
+        phi = rng.uniform(0, 2 * np.pi, size=(n_parts, n_waves))
+        c = np.broadcast_to(as_array(contrast, "contrast"), (n_parts,)).copy()
+        if np.any(c < 0):
+            raise ValueError("contrast: expected values >= 0")
+        return cls(directions=u, wavelengths=lam, phases=phi, contrast=c)
+
+    def value(self, part, points) -> np.ndarray:
+        """Texture values ``(M,)`` at part-local ``points`` ``(M, 3)`` of parts ``part`` ``(M,)``."""
+        part = np.asarray(part, dtype=int)
+        points = np.asarray(points, dtype=float)
+        out = np.zeros(len(points))
+        n = self.directions.shape[1]
+        amp = np.sqrt(2.0 / n)
+        for p in np.unique(part):
+            sel = part == p
+            pts = points[sel]
+            k = 2 * np.pi / self.wavelengths[p]
+            acc = np.zeros(len(pts))
+            for j in range(n):
+                acc += np.sin(k[j] * (pts @ self.directions[p, j]) + self.phases[p, j])
+            out[sel] = 1.0 + self.contrast[p] * amp * acc
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class Body:
+    """An articulated body: parts on a tree, and their solid texture.
+
+    Use :func:`make_body` for the standard adult.
+    """
+
+    parts: tuple
+    texture: SolidTexture
+
+    @property
+    def names(self) -> list[str]:
+        return [p.name for p in self.parts]
+
+    def index(self, name: str) -> int:
+        """Index of the part called ``name``."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise ValueError(f"part: unknown part {name!r}; parts are {self.names}") from None
+
+    def part_poses(self, motion: Motion, frames=None) -> np.ndarray:
+        """World transforms of every part, ``(T, P, 4, 4)``: part frame -> world (mm).
+
+        Parameters
+        ----------
+        motion : Motion
+        frames : int or sequence of int, optional
+            Frame indices (default: all frames of the motion).
+        """
+        frames = motion._frames(frames)
+        angles = motion.joint_angles[frames]                 # (T, P, 3)
+        T, P = angles.shape[:2]
+        if P != len(self.parts):
+            raise ValueError(f"motion: has angles for {P} parts, the body has {len(self.parts)}")
+        rot = _euler_zyx(angles)                              # (T, P, 3, 3)
+        poses = np.zeros((T, P, 4, 4))
+        poses[..., 3, 3] = 1.0
+        for i, part in enumerate(self.parts):
+            local = np.zeros((T, 4, 4))
+            local[:, :3, :3] = rot[:, i]
+            local[:, :3, 3] = part.joint
+            local[:, 3, 3] = 1.0
+            if part.parent < 0:
+                local[:, :3, 3] += motion.root_position[frames]
+                poses[:, i] = local
+            else:
+                poses[:, i] = poses[:, part.parent] @ local
+        return poses
+
+    def to_world(self, motion: Motion, part, local_points, frames=None) -> np.ndarray:
+        """World coordinates ``(T, N, 3)`` of part-local points ``(N, 3)`` on parts ``(N,)``."""
+        part = self._part_indices(part, local_points)
+        pts = as_array(local_points, "local_points", shape=(None, 3))
+        poses = self.part_poses(motion, frames)[:, part]     # (T, N, 4, 4)
+        return np.einsum("tnij,nj->tni", poses[..., :3, :3], pts) + poses[..., :3, 3]
+
+    def sample_surface(self, rng: np.random.Generator, n_per_part: int = 100, parts=None):
+        """Points on the part ellipsoids, in part-local coordinates.
+
+        Directions are drawn uniformly on the unit sphere and stretched by the radii (so
+        the points are denser where an ellipsoid is more curved).
+
+        Returns
+        -------
+        part : (M,) int array
+        local_points : (M, 3) array, mm
+        """
+        as_rng(rng)
+        idx = range(len(self.parts)) if parts is None else [
+            self.index(p) if isinstance(p, str) else int(p) for p in parts]
+        part_ids, points = [], []
+        for i in idx:
+            u = rng.normal(size=(n_per_part, 3))
+            u /= np.linalg.norm(u, axis=1, keepdims=True)
+            points.append(np.asarray(self.parts[i].centre) + u * np.asarray(self.parts[i].radii))
+            part_ids.append(np.full(n_per_part, i))
+        return np.concatenate(part_ids), np.concatenate(points)
+
+    def _part_indices(self, part, local_points) -> np.ndarray:
+        n = len(np.asarray(local_points))
+        if isinstance(part, str):
+            return np.full(n, self.index(part))
+        part = np.asarray(part)
+        if part.ndim == 0:
+            part = np.full(n, int(part))
+        if part.shape != (n,) or not np.issubdtype(part.dtype, np.integer):
+            raise ValueError(f"part: expected a part name, an index or ({n},) integer indices")
+        if part.size and (part.min() < 0 or part.max() >= len(self.parts)):
+            raise ValueError(f"part: indices must lie in [0, {len(self.parts) - 1}]")
+        return part
+
+
+def make_body(rng: np.random.Generator, *, contrast=0.3, wavelength=(25.0, 120.0),
+              n_waves: int = 24) -> Body:
+    """The standard adult (about 1.75 m) with a random solid texture.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Draws the texture.
+    contrast : float or mapping
+        Texture contrast (relative standard deviation of the albedo); a mapping from part
+        name to contrast sets parts individually, e.g. ``{"thigh_r": 0.05, ...}``, parts
+        not named get 0.3.
+    wavelength : (float, float)
+        Shortest and longest texture wavelength in mm. At 4.5 m from the triplet rig one
+        pixel covers about 4.7 mm, so the default band spans about 5 to 25 pixels.
+    n_waves : int
+        Sinusoids per part.
+    """
+    index = {}
+    parts = []
+    for name, parent, joint, centre, radii, albedo in _PARTS:
+        index[name] = len(parts)
+        parts.append(Part(name, -1 if parent is None else index[parent], joint, centre, radii,
+                          albedo))
+    if isinstance(contrast, Mapping):
+        unknown = set(contrast) - set(index)
+        if unknown:
+            raise ValueError(f"contrast: unknown part names {sorted(unknown)}")
+        contrast = [contrast.get(p.name, 0.3) for p in parts]
+    texture = SolidTexture.random(rng, len(parts), contrast, wavelength=wavelength,
+                                  n_waves=n_waves)
+    return Body(parts=tuple(parts), texture=texture)
+
+
+@dataclass(frozen=True, eq=False)
+class Motion:
+    """Joint angles and root position per frame: the ground truth of a motion.
+
+    Attributes
+    ----------
+    name : str
+    fps : float
+        Frame rate (Hz).
+    root_position : (T, 3) array
+        Position of the pelvis joint in the world (mm).
+    joint_angles : (T, P, 3) array
+        Angles ``(flexion, abduction, twist)`` per part in radians (module docstring).
+    part_names : tuple of str
+    """
+
+    name: str
+    fps: float
+    root_position: np.ndarray
+    joint_angles: np.ndarray
+    part_names: tuple
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.root_position)
+
+    @property
+    def times(self) -> np.ndarray:
+        """Frame times in seconds, ``(T,)``."""
+        return np.arange(self.n_frames) / self.fps
+
+    def angle(self, part: str) -> np.ndarray:
+        """The ``(T, 3)`` angles of the named part (radians)."""
+        if part not in self.part_names:
+            raise ValueError(f"part: unknown part {part!r}; parts are {list(self.part_names)}")
+        return self.joint_angles[:, self.part_names.index(part)]
+
+    def _frames(self, frames) -> np.ndarray:
+        if frames is None:
+            return np.arange(self.n_frames)
+        f = np.atleast_1d(np.asarray(frames))
+        if not np.issubdtype(f.dtype, np.integer) or f.ndim != 1:
+            raise ValueError("frames: expected an integer frame index or a 1-D sequence of them")
+        if f.size and (f.min() < 0 or f.max() >= self.n_frames):
+            raise ValueError(f"frames: indices must lie in [0, {self.n_frames - 1}]")
+        return f
+
+
+def _euler_zyx(angles: np.ndarray) -> np.ndarray:
+    """``Rz(c) @ Ry(b) @ Rx(a)`` for angles ``(..., 3)`` = (a, b, c)."""
+    a, b, c = angles[..., 0], angles[..., 1], angles[..., 2]
+    ca, sa, cb, sb, cc, sc = np.cos(a), np.sin(a), np.cos(b), np.sin(b), np.cos(c), np.sin(c)
+    R = np.empty(angles.shape[:-1] + (3, 3))
+    R[..., 0, 0] = cc * cb
+    R[..., 0, 1] = cc * sb * sa - sc * ca
+    R[..., 0, 2] = cc * sb * ca + sc * sa
+    R[..., 1, 0] = sc * cb
+    R[..., 1, 1] = sc * sb * sa + cc * ca
+    R[..., 1, 2] = sc * sb * ca - cc * sa
+    R[..., 2, 0] = -sb
+    R[..., 2, 1] = cb * sa
+    R[..., 2, 2] = cb * ca
+    return R
+
+
+def _empty_angles(n_frames: int):
+    names = tuple(p[0] for p in _PARTS)
+    return names, np.zeros((n_frames, len(names), 3))
+
+
+def walk(n_frames: int = 50, *, fps: float = 25.0, start=(-1300.0, 0.0), heading_deg=0.0,
+         speed: float = 1300.0, stride: float = 1.4e3, phase: float = 0.0) -> Motion:
+    """A walk cycle along a straight line across the volume.
+
+    Parameters
+    ----------
+    n_frames : int
+        Number of frames.
+    fps : float
+        Frame rate in Hz (25 Hz: the full frames of PAL video).
+    start : (float, float)
+        Starting (X, Y) of the pelvis on the floor plan, mm.
+    heading_deg : float
+        Walking direction on the floor plan, degrees anticlockwise from +X (0: walking to
+        the right across the cameras' view).
+    speed : float
+        Walking speed in mm/s.
+    stride : float
+        Length of one gait cycle (two steps) in mm.
+    phase : float
+        Gait phase at frame 0, radians.
+    """
+    if int(n_frames) != n_frames or n_frames < 1:
+        raise ValueError(f"n_frames: expected a positive integer, got {n_frames}")
+    fps = as_scalar(fps, "fps", positive=True)
+    speed = as_scalar(speed, "speed", nonnegative=True)
+    stride = as_scalar(stride, "stride", positive=True)
+    names, ang = _empty_angles(int(n_frames))
+    t = np.arange(n_frames) / fps
+    phi = 2 * np.pi * speed / stride * t + phase
+    h = np.radians(heading_deg)
+    direction = np.array([np.cos(h), np.sin(h)])
+    start = as_array(start, "start", shape=(2,))
+    root = np.zeros((int(n_frames), 3))
+    root[:, :2] = start + (speed * t)[:, None] * direction
+    root[:, 2] = STANDING_PELVIS_HEIGHT - 25 + 15 * np.cos(2 * phi)
+    i = {n: k for k, n in enumerate(names)}
+    ang[:, i["pelvis"], 2] = h - np.pi / 2 + 0.06 * np.sin(phi)
+    ang[:, i["pelvis"], 1] = 0.04 * np.sin(2 * phi)
+    ang[:, i["torso"], 2] = -0.10 * np.sin(phi)
+    ang[:, i["torso"], 0] = 0.05
+    ang[:, i["head"], 2] = 0.06 * np.sin(phi)
+    for side, sign in (("r", 1.0), ("l", -1.0)):
+        p = phi if side == "r" else phi + np.pi
+        ang[:, i[f"thigh_{side}"], 0] = 0.05 + 0.38 * np.sin(p)
+        ang[:, i[f"shank_{side}"], 0] = -(0.08 + 0.55 * (0.5 + 0.5 * np.sin(p + 1.2)) ** 2)
+        ang[:, i[f"foot_{side}"], 0] = 0.12 * np.sin(p - 0.6)
+        ang[:, i[f"upper_arm_{side}"], 0] = -0.35 * np.sin(p)
+        ang[:, i[f"upper_arm_{side}"], 1] = -sign * 0.12
+        ang[:, i[f"forearm_{side}"], 0] = 0.35 + 0.2 * (0.5 - 0.5 * np.sin(p))
+    return Motion("walk", fps, root, ang, names)
+
+
+def arm_wave(n_frames: int = 50, *, fps: float = 25.0, position=(0.0, 0.0),
+             heading_deg: float = -90.0, wave_hz: float = 0.8) -> Motion:
+    """A seated person, facing the rig, raising and waving the right arm.
+
+    The pelvis rests on an (invisible) seat 480 mm high; the left hand lies on the lap.
+    The right shoulder abducts from about 30 to 120 degrees and the elbow flexes and
+    extends while the arm waves.
+
+    Parameters
+    ----------
+    n_frames : int
+    fps : float
+        Frame rate in Hz.
+    position : (float, float)
+        (X, Y) of the pelvis on the floor plan, mm.
+    heading_deg : float
+        Facing direction, degrees anticlockwise from +X (-90: facing the rig at -Y).
+    wave_hz : float
+        Frequency of the elbow's waving motion.
+    """
+    if int(n_frames) != n_frames or n_frames < 1:
+        raise ValueError(f"n_frames: expected a positive integer, got {n_frames}")
+    fps = as_scalar(fps, "fps", positive=True)
+    names, ang = _empty_angles(int(n_frames))
+    t = np.arange(n_frames) / fps
+    position = as_array(position, "position", shape=(2,))
+    root = np.zeros((int(n_frames), 3))
+    root[:, :2] = position
+    root[:, 2] = 480.0 + 110.0
+    i = {n: k for k, n in enumerate(names)}
+    ang[:, i["pelvis"], 2] = np.radians(heading_deg) - np.pi / 2
+    for side in ("r", "l"):
+        ang[:, i[f"thigh_{side}"], 0] = 1.50
+        ang[:, i[f"shank_{side}"], 0] = -1.45
+        ang[:, i[f"foot_{side}"], 0] = 0.05
+    ang[:, i["thigh_r"], 1] = 0.08
+    ang[:, i["thigh_l"], 1] = -0.08
+    raise_ = 0.5 - 0.5 * np.cos(2 * np.pi * 0.25 * t)      # raise the arm over ~2 s
+    ang[:, i["upper_arm_r"], 1] = -(0.5 + 1.6 * raise_)
+    ang[:, i["upper_arm_r"], 0] = 0.3 * raise_
+    ang[:, i["forearm_r"], 0] = 0.3 + raise_ * (0.9 + 0.6 * np.sin(2 * np.pi * wave_hz * t))
+    ang[:, i["forearm_r"], 2] = 0.3 * raise_
+    ang[:, i["upper_arm_l"], 0] = 0.45
+    ang[:, i["upper_arm_l"], 1] = 0.1
+    ang[:, i["forearm_l"], 0] = 1.1
+    ang[:, i["head"], 2] = 0.15 * np.sin(2 * np.pi * 0.3 * t)
+    return Motion("arm_wave", fps, root, ang, names)

@@ -1,0 +1,393 @@
+"""Ray-cast renderer of the synthetic world, with per-pixel ground truth.
+
+Each pixel is the mean of ``s x s`` rays (``s`` = ``supersample``, odd) cast through a
+regular grid inside the pixel, every ray undistorted through the camera's own lens
+model, so images carry exactly the camera's distortion. A ray takes the nearest of its
+intersections with the body's ellipsoids and the static background (a textured wall
+and floor), which makes occlusion depth-correct. Grey value = albedo x solid texture x
+Lambertian shading (ambient plus one distant light), scaled to [0, 255], then optional
+additive Gaussian noise and rounding to 8 bits.
+
+Ground-truth maps come from the ray through the pixel *centre* (the middle ray of the
+odd supersampling grid): which part it hits (:data:`BACKGROUND` for wall and floor,
+:data:`NOTHING` for no hit), the part-local surface point, the world point and the
+depth (camera z, mm).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._validate import as_array, as_rng, as_scalar
+from ..camera import Camera
+from .body import Body, Motion, SolidTexture
+
+BACKGROUND = -1
+NOTHING = -2
+
+
+@dataclass(frozen=True, eq=False)
+class Background:
+    """A static textured wall (the plane Y = ``wall_y``) and floor (Z = 0).
+
+    Build with :func:`make_background`.
+    """
+
+    wall_y: float
+    floor: bool
+    albedo: float
+    texture: SolidTexture
+
+
+def make_background(rng: np.random.Generator, *, wall_y: float = 2500.0, floor: bool = True,
+                    albedo: float = 0.45, contrast: float = 0.15,
+                    wavelength=(80.0, 600.0)) -> Background:
+    """A wall behind the subject and a floor, with their own solid texture (world frame)."""
+    texture = SolidTexture.random(rng, 1, contrast, wavelength=wavelength, n_waves=24)
+    return Background(as_scalar(wall_y, "wall_y"), bool(floor),
+                      as_scalar(albedo, "albedo", nonnegative=True), texture)
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """What the cameras see: a body, its motion, an optional background and the light.
+
+    Attributes
+    ----------
+    body : Body
+    motion : Motion
+    background : Background or None
+    light : (3,) array
+        Direction towards the distant light (world frame; normalised on construction).
+    ambient : float
+        Share of ambient light in [0, 1]; the rest is Lambertian.
+    """
+
+    body: Body
+    motion: Motion
+    background: Background | None = None
+    light: np.ndarray = field(default_factory=lambda: np.array([0.3, -1.0, 1.2]))
+    ambient: float = 0.55
+
+    def __post_init__(self):
+        light = as_array(self.light, "light", shape=(3,))
+        if np.linalg.norm(light) == 0:
+            raise ValueError("light: expected a non-zero direction")
+        object.__setattr__(self, "light", light / np.linalg.norm(light))
+        a = as_scalar(self.ambient, "ambient")
+        if not 0 <= a <= 1:
+            raise ValueError(f"ambient: expected a value in [0, 1], got {a}")
+
+
+@dataclass(frozen=True, eq=False)
+class RenderedFrame:
+    """Images of one frame in K cameras, and their ground truth.
+
+    Attributes
+    ----------
+    frame : int
+    images : (K, H, W) array
+        Grey images, uint8 or float64 in [0, 255] (``dtype`` of :class:`Renderer`).
+    part_id : (K, H, W) int16 array
+        Part hit by the pixel-centre ray; :data:`BACKGROUND` (-1) or :data:`NOTHING` (-2).
+    local_xyz : (K, H, W, 3) array
+        Part-local coordinates of the surface point (mm), NaN off the body.
+    world_xyz : (K, H, W, 3) array
+        World coordinates of the surface point (mm), NaN where nothing is hit.
+    depth : (K, H, W) array
+        Camera z of the surface point (mm), NaN where nothing is hit.
+    """
+
+    frame: int
+    images: np.ndarray
+    part_id: np.ndarray
+    local_xyz: np.ndarray
+    world_xyz: np.ndarray
+    depth: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceProjection:
+    """True image positions of body-local surface points.
+
+    Attributes
+    ----------
+    xy : (T, K, N, 2) array
+        Pixel coordinates in each camera (NaN behind the camera).
+    visible : (T, K, N) bool array
+        In front of the camera, inside the image, and not hidden by any surface.
+    world : (T, N, 3) array
+        World coordinates (mm).
+    """
+
+    xy: np.ndarray
+    visible: np.ndarray
+    world: np.ndarray
+
+
+class Renderer:
+    """Renders a :class:`Scene` in a list of cameras, frame by frame.
+
+    The sample rays of every camera and the static background are computed once and
+    reused for every frame.
+
+    Parameters
+    ----------
+    scene : Scene
+    cameras : sequence of Camera
+    supersample : int
+        Odd number ``s``: each pixel averages ``s x s`` rays (default 3).
+    noise_sigma : float
+        Standard deviation of additive Gaussian noise, in grey levels.
+    dtype : numpy dtype
+        ``numpy.uint8`` (rounded and clipped, as a frame grabber delivers) or
+        ``numpy.float64`` (no quantisation).
+    """
+
+    def __init__(self, scene: Scene, cameras, *, supersample: int = 3, noise_sigma: float = 0.0,
+                 dtype=np.uint8):
+        if not isinstance(scene, Scene):
+            raise TypeError(f"scene: expected an lsmta.synth.Scene, got {type(scene).__name__}")
+        self.cameras = list(cameras)
+        if not self.cameras or not all(isinstance(c, Camera) for c in self.cameras):
+            raise TypeError("cameras: expected a non-empty sequence of lsmta.camera.Camera")
+        if int(supersample) != supersample or supersample < 1 or supersample % 2 == 0:
+            raise ValueError(f"supersample: expected an odd positive integer, got {supersample}")
+        dtype = np.dtype(dtype)
+        if dtype not in (np.dtype(np.uint8), np.dtype(np.float64)):
+            raise ValueError(f"dtype: expected numpy.uint8 or numpy.float64, got {dtype}")
+        self.scene = scene
+        self.supersample = int(supersample)
+        self.noise_sigma = as_scalar(noise_sigma, "noise_sigma", nonnegative=True)
+        self.dtype = dtype
+        self._cache: dict[int, dict] = {}
+
+    def _camera_cache(self, k: int) -> dict:
+        if k not in self._cache:
+            cam = self.cameras[k]
+            grid = cam.pixel_grid(self.supersample).reshape(-1, 2)
+            _, dirs = cam.rays(grid)
+            t_bg, grey_bg = _background_hits(self.scene, cam.C, dirs)
+            self._cache[k] = {"dirs": dirs, "t_bg": t_bg, "grey_bg": grey_bg}
+        return self._cache[k]
+
+    def render(self, frame: int, rng: np.random.Generator | None = None) -> RenderedFrame:
+        """Render one frame in every camera.
+
+        Parameters
+        ----------
+        frame : int
+            Frame index of the scene's motion.
+        rng : numpy.random.Generator, optional
+            Needed when ``noise_sigma > 0``: draws the image noise.
+        """
+        if self.noise_sigma > 0:
+            if rng is None:
+                raise ValueError("rng: a numpy.random.Generator is needed when noise_sigma > 0")
+            as_rng(rng)
+        frame = int(self.scene.motion._frames(frame)[0])
+        poses = self.scene.body.part_poses(self.scene.motion, frame)[0]
+        s = self.supersample
+        out = {key: [] for key in ("images", "part_id", "local_xyz", "world_xyz", "depth")}
+        for k, cam in enumerate(self.cameras):
+            cache = self._camera_cache(k)
+            dirs = cache["dirs"]
+            hit = cast_body(self.scene.body, poses, cam.C, dirs)
+            body_wins = hit.t < cache["t_bg"]
+            grey = cache["grey_bg"].copy()
+            if body_wins.any():
+                grey[body_wins] = _body_grey(self.scene, poses, hit, body_wins)
+            H, W = cam.height, cam.width
+            image = grey.reshape(H, s, W, s).mean(axis=(1, 3))
+            # ground truth from the central ray of each pixel
+            centre = np.zeros((H, s, W, s), dtype=bool)
+            centre[:, s // 2, :, s // 2] = True
+            centre = centre.ravel()
+            t = np.minimum(hit.t, cache["t_bg"])[centre]
+            t = np.where(np.isfinite(t), t, np.nan)
+            on_body = body_wins[centre]
+            part = np.where(on_body, hit.part[centre],
+                            np.where(np.isnan(t), NOTHING, BACKGROUND)).astype(np.int16)
+            world = cam.C + t[:, None] * dirs[centre]
+            local = np.where(on_body[:, None], hit.local[centre], np.nan)
+            depth = (world - cam.C) @ cam.R[2]
+            out["images"].append(image)
+            out["part_id"].append(part.reshape(H, W))
+            out["local_xyz"].append(local.reshape(H, W, 3))
+            out["world_xyz"].append(world.reshape(H, W, 3))
+            out["depth"].append(depth.reshape(H, W))
+        images = np.stack(out["images"])
+        if self.noise_sigma > 0:
+            images = images + rng.normal(0.0, self.noise_sigma, images.shape)
+        if self.dtype == np.uint8:
+            images = np.clip(np.rint(images), 0, 255).astype(np.uint8)
+        return RenderedFrame(frame=frame, images=images,
+                             **{k: np.stack(v) for k, v in out.items() if k != "images"})
+
+
+@dataclass(frozen=True)
+class BodyHits:
+    """Nearest ray-body intersections: ``t`` (M,) (inf for a miss), ``part`` (M,),
+    ``local`` (M, 3) part-local point, ``normal`` (M, 3) world unit normal."""
+
+    t: np.ndarray
+    part: np.ndarray
+    local: np.ndarray
+    normal: np.ndarray
+
+
+def cast_body(body: Body, poses: np.ndarray, origin: np.ndarray, dirs: np.ndarray) -> BodyHits:
+    """Nearest intersection of rays from one ``origin`` with the body's ellipsoids.
+
+    Parameters
+    ----------
+    body : Body
+    poses : (P, 4, 4) array
+        Part -> world transforms of one frame (:meth:`Body.part_poses`).
+    origin : (3,) array
+        Common origin of the rays (a projection centre), mm.
+    dirs : (M, 3) array
+        Unit ray directions.
+    """
+    M = len(dirs)
+    t_best = np.full(M, np.inf)
+    part = np.full(M, -1, dtype=np.int64)
+    local = np.full((M, 3), np.nan)
+    for p, spec in enumerate(body.parts):
+        R, T = poses[p, :3, :3], poses[p, :3, 3]
+        c = np.asarray(spec.centre, float)
+        r = np.asarray(spec.radii, float)
+        # cheap cone test with the bounding sphere, exact (never misses a hit)
+        centre_w = R @ c + T
+        to_c = centre_w - origin
+        dist = np.linalg.norm(to_c)
+        rad = r.max()
+        if dist > rad:
+            cos_half = np.sqrt(1 - (rad / dist) ** 2)
+            cand = np.flatnonzero(dirs @ (to_c / dist) >= cos_half - 1e-12)
+        else:
+            cand = np.arange(M)
+        if cand.size == 0:
+            continue
+        o_s = (R.T @ (origin - T) - c) / r                    # (3,) in unit-sphere frame
+        d_s = (dirs[cand] @ R) / r                             # (m, 3)
+        a = np.einsum("ij,ij->i", d_s, d_s)
+        b = d_s @ o_s
+        cc = o_s @ o_s - 1.0
+        disc = b * b - a * cc
+        ok = disc >= 0
+        if not ok.any():
+            continue
+        cand, a, b, d_s, disc = cand[ok], a[ok], b[ok], d_s[ok], disc[ok]
+        q = -(b + np.copysign(np.sqrt(disc), b))             # stable quadratic roots
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1, t2 = q / a, cc / q
+        lo, hi = np.minimum(t1, t2), np.maximum(t1, t2)
+        t = np.where(lo > 0, lo, hi)                           # origin inside: far root
+        better = (t > 0) & (t < t_best[cand])
+        if not better.any():
+            continue
+        idx = cand[better]
+        t_best[idx] = t[better]
+        part[idx] = p
+        local[idx] = (o_s + t[better, None] * d_s[better]) * r + c
+    normal = np.full((M, 3), np.nan)
+    hit = np.isfinite(t_best)
+    for p in np.unique(part[hit]):
+        sel = part == p
+        spec = body.parts[p]
+        n_local = (local[sel] - np.asarray(spec.centre)) / np.asarray(spec.radii, float) ** 2
+        n = n_local @ poses[p, :3, :3].T
+        normal[sel] = n / np.linalg.norm(n, axis=1, keepdims=True)
+    return BodyHits(t=t_best, part=part, local=local, normal=normal)
+
+
+def _background_hits(scene: Scene, origin: np.ndarray, dirs: np.ndarray):
+    """Distance along each ray to the wall or floor, and the grey value there (0-255)."""
+    M = len(dirs)
+    t = np.full(M, np.inf)
+    grey = np.zeros(M)
+    bg = scene.background
+    if bg is None:
+        return t, grey
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_wall = (bg.wall_y - origin[1]) / dirs[:, 1]
+        z_wall = origin[2] + t_wall * dirs[:, 2]
+        t_wall = np.where((t_wall > 0) & (z_wall >= 0 if bg.floor else True), t_wall, np.inf)
+        if bg.floor:
+            t_floor = -origin[2] / dirs[:, 2]
+            y_floor = origin[1] + t_floor * dirs[:, 1]
+            t_floor = np.where((t_floor > 0) & (y_floor <= bg.wall_y), t_floor, np.inf)
+        else:
+            t_floor = np.full(M, np.inf)
+    t = np.minimum(t_wall, t_floor)
+    hit = np.isfinite(t)
+    pts = origin + t[hit, None] * dirs[hit]
+    tex = bg.texture.value(np.zeros(hit.sum(), dtype=int), pts)
+    shade = np.where(t_floor[hit] < t_wall[hit], 0.85, 1.0)
+    grey[hit] = 255.0 * np.clip(bg.albedo * tex * shade, 0.0, 1.0)
+    return t, grey
+
+
+def _body_grey(scene: Scene, poses, hit: BodyHits, sel: np.ndarray) -> np.ndarray:
+    part = hit.part[sel]
+    tex = scene.body.texture.value(part, hit.local[sel])
+    albedo = np.array([p.albedo for p in scene.body.parts])[part]
+    lambert = np.clip(hit.normal[sel] @ scene.light, 0.0, None)
+    shade = scene.ambient + (1 - scene.ambient) * lambert
+    return 255.0 * np.clip(albedo * tex * shade, 0.0, 1.0)
+
+
+def project_surface_points(scene: Scene, cameras, part, local_points, frames=None, *,
+                           tol: float = 1e-3) -> SurfaceProjection:
+    """True image positions and visibility of body-local surface points.
+
+    Parameters
+    ----------
+    scene : Scene
+    cameras : sequence of K Camera
+    part : str, int or (N,) int array
+        Part of each point.
+    local_points : (N, 3) array
+        Points on the part ellipsoids, in part-local coordinates (mm), for example from
+        :meth:`Body.sample_surface` or a rendering's ``local_xyz``.
+    frames : int or sequence of int, optional
+        Frames (default: all).
+    tol : float
+        A point is hidden when a surface lies more than ``tol`` mm in front of it along
+        the viewing ray.
+
+    Returns
+    -------
+    SurfaceProjection
+    """
+    cameras = list(cameras)
+    if not cameras or not all(isinstance(c, Camera) for c in cameras):
+        raise TypeError("cameras: expected a non-empty sequence of lsmta.camera.Camera")
+    body, motion = scene.body, scene.motion
+    pts = as_array(local_points, "local_points", shape=(None, 3))
+    part_idx = body._part_indices(part, pts)
+    frames = motion._frames(frames)
+    world = body.to_world(motion, part_idx, pts, frames)         # (T, N, 3)
+    poses_all = body.part_poses(motion, frames)
+    T, N = world.shape[:2]
+    xy = np.full((T, len(cameras), N, 2), np.nan)
+    visible = np.zeros((T, len(cameras), N), dtype=bool)
+    for k, cam in enumerate(cameras):
+        for ti in range(T):
+            proj = cam.project(world[ti], behind="nan")
+            xy[ti, k] = proj
+            cand = np.flatnonzero(cam.in_image(proj))
+            if cand.size == 0:
+                continue
+            vec = world[ti, cand] - cam.C
+            dist = np.linalg.norm(vec, axis=1)
+            dirs = vec / dist[:, None]
+            t_body = cast_body(body, poses_all[ti], cam.C, dirs).t
+            t_bg, _ = _background_hits(scene, cam.C, dirs) if scene.background else (
+                np.full(len(cand), np.inf), None)
+            nearest = np.minimum(t_body, t_bg)
+            visible[ti, k, cand] = nearest >= dist - tol
+    return SurfaceProjection(xy=xy, visible=visible, world=world)

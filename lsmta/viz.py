@@ -1,0 +1,143 @@
+"""Plotting helpers: image rows and correspondences (matplotlib), 3-D scenes (pyvista, off-screen).
+
+pyvista renders off-screen through VTK's EGL window (Mesa's ``libEGL`` must be installed;
+``scripts/bootstrap.sh`` does it). :func:`scene_image` returns the picture as an array, so a
+notebook shows it with ``plt.imshow`` and needs no interactive 3-D backend.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+
+def _pyvista():
+    os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
+    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    import pyvista as pv
+
+    pv.OFF_SCREEN = True
+    return pv
+
+
+def show_images(images, titles=None, *, axes=None, cmap="gray", vmin=0, vmax=255,
+                figsize_per=(5.0, 3.9)):
+    """Show ``images`` ``(K, H, W)`` side by side; returns the matplotlib axes."""
+    import matplotlib.pyplot as plt
+
+    images = list(images)
+    if axes is None:
+        _, axes = plt.subplots(1, len(images), figsize=(figsize_per[0] * len(images),
+                                                        figsize_per[1]), squeeze=False)
+        axes = axes[0]
+    for k, (ax, img) in enumerate(zip(axes, images)):
+        ax.imshow(img, cmap=cmap, vmin=vmin, vmax=vmax, interpolation="nearest")
+        if titles is not None:
+            ax.set_title(titles[k])
+        ax.set_xlabel("x [px]")
+        ax.set_ylabel("y [px]")
+    return axes
+
+
+def draw_correspondences(axes, xy, *, colors=None, lines=True, size=18):
+    """Mark corresponding points ``xy`` ``(K, N, 2)`` in K image axes and join them.
+
+    Each of the N points gets one colour in every image; with ``lines``, a line joins its
+    positions across neighbouring images (drawn across the figure).
+    """
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import ConnectionPatch
+
+    xy = np.asarray(xy, float)
+    K, N, _ = xy.shape
+    if colors is None:
+        colors = plt.cm.turbo(np.linspace(0, 1, max(N, 1)))
+    for k in range(K):
+        axes[k].scatter(xy[k, :, 0], xy[k, :, 1], s=size, c=colors[:N], edgecolors="white",
+                        linewidths=0.6, zorder=3)
+    if lines:
+        for k in range(K - 1):
+            for n in range(N):
+                if np.all(np.isfinite(xy[[k, k + 1], n])):
+                    con = ConnectionPatch(xyA=xy[k, n], coordsA=axes[k].transData,
+                                          xyB=xy[k + 1, n], coordsB=axes[k + 1].transData,
+                                          color=colors[n], lw=0.6, alpha=0.7)
+                    axes[k + 1].figure.add_artist(con)
+    return axes
+
+
+def part_colours(part_id, n_parts: int):
+    """An RGB image ``(H, W, 3)`` of a part-id map: one colour per part, grey background."""
+    import matplotlib.pyplot as plt
+
+    part_id = np.asarray(part_id)
+    rgb = np.full(part_id.shape + (3,), 0.85)
+    rgb[part_id == -2] = 1.0
+    palette = plt.cm.tab20(np.arange(max(n_parts, 1)) % 20)[:, :3]
+    on = part_id >= 0
+    rgb[on] = palette[part_id[on]]
+    return rgb
+
+
+def scene_image(cameras, body=None, poses=None, *, background=None, frustum_depth=900.0,
+                window_size=(1100, 700), view_from=(-5200.0, -7500.0, 4200.0),
+                focal_point=(0.0, 0.0, 900.0), points=None) -> np.ndarray:
+    """An off-screen 3-D picture of a rig, a posed body and the floor; ``(H, W, 3)`` uint8.
+
+    Parameters
+    ----------
+    cameras : sequence of Camera
+        Drawn as pyramids of their field of view, ``frustum_depth`` mm deep.
+    body : Body, optional
+    poses : (P, 4, 4) array, optional
+        Part -> world transforms of one frame (``body.part_poses(motion, frame)[0]``).
+    background : Background, optional
+        Draws the floor and wall.
+    view_from, focal_point : (3,) mm
+        Viewpoint of the picture.
+    points : (N, 3) array, optional
+        Extra world points to draw (mm).
+    """
+    pv = _pyvista()
+    pl = pv.Plotter(off_screen=True, window_size=list(window_size))
+    pl.set_background("white")
+    for cam in cameras:
+        corners = np.array([[-0.5, -0.5], [cam.width - 0.5, -0.5],
+                            [cam.width - 0.5, cam.height - 0.5], [-0.5, cam.height - 0.5]])
+        _, d = cam.rays(corners)
+        depth = frustum_depth / (d @ cam.R[2])
+        far = cam.C + d * depth[:, None]
+        pts = np.vstack([cam.C, far])
+        faces = np.hstack([[3, 0, 1, 2], [3, 0, 2, 3], [3, 0, 3, 4], [3, 0, 4, 1],
+                           [4, 1, 2, 3, 4]])
+        pl.add_mesh(pv.PolyData(pts, faces), color="royalblue", opacity=0.35,
+                    show_edges=True, edge_color="navy")
+        if cam.name:
+            pl.add_point_labels(cam.C[None], [cam.name], font_size=14, point_size=8,
+                                shape_opacity=0.6)
+    if body is not None and poses is not None:
+        import matplotlib.pyplot as plt
+
+        palette = plt.cm.tab20(np.arange(len(body.parts)) % 20)[:, :3]
+        for p, spec in enumerate(body.parts):
+            mesh = pv.ParametricEllipsoid(*spec.radii, u_res=30, v_res=30)
+            mesh.translate(spec.centre, inplace=True)
+            mesh.transform(poses[p], inplace=True)
+            pl.add_mesh(mesh, color=palette[p], smooth_shading=True)
+    if background is not None:
+        if background.floor:
+            floor = pv.Plane(center=(0, background.wall_y / 2 - 2500, 0), direction=(0, 0, 1),
+                             i_size=7000, j_size=background.wall_y + 5000)
+            pl.add_mesh(floor, color="tan", opacity=0.5)
+        wall = pv.Plane(center=(0, background.wall_y, 1500), direction=(0, 1, 0),
+                        i_size=3000, j_size=7000)
+        pl.add_mesh(wall, color="lightgrey", opacity=0.5)
+    if points is not None:
+        pl.add_points(np.asarray(points, float), color="crimson", point_size=6,
+                      render_points_as_spheres=True)
+    pl.add_axes()
+    pl.camera_position = [tuple(view_from), tuple(focal_point), (0, 0, 1)]
+    image = pl.screenshot(return_img=True)
+    pl.close()
+    return image

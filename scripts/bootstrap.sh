@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Build everything lsmta needs on a fresh Debian machine (Python 3.10+; root or sudo for the
+# system libraries): Mesa's EGL for off-screen pyvista, then a virtual environment in .venv
+# with the package and its test tools. Safe to run again: steps already done are skipped.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+# 1. System libraries for headless 3-D rendering (VTK's EGL render window).
+egl_pkgs="libegl1 libegl-mesa0 libgl1-mesa-dri"
+missing=""
+for p in $egl_pkgs; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
+done
+if [ -n "$missing" ]; then
+  if command -v apt-get >/dev/null 2>&1; then
+    echo "bootstrap: installing system packages:$missing"
+    SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq $missing >/dev/null
+  else
+    echo "bootstrap: please install Mesa's EGL ($egl_pkgs on Debian) for off-screen pyvista" >&2
+  fi
+fi
+
+# 2. The virtual environment, rebuilt only when pyproject.toml changes.
+PY="${PYTHON:-}"
+if [ -z "$PY" ]; then
+  for cand in python3.11 python3.12 python3.10 python3; do
+    command -v "$cand" >/dev/null 2>&1 && { PY="$cand"; break; }
+  done
+fi
+[ -x .venv/bin/python ] || "$PY" -m venv .venv
+stamp=.venv/.lsmta-installed
+want=$(sha256sum pyproject.toml | cut -d' ' -f1)
+if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+  echo "bootstrap: installing lsmta and its dependencies into .venv"
+  .venv/bin/python -m pip install -q --upgrade pip 2>&1 | grep -v "^WARNING: Location" || true
+  .venv/bin/python -m pip install -q -e '.[test]' 2>&1 | grep -v "^WARNING: Location" || true
+  .venv/bin/python -c "import lsmta, numpy, scipy, cv2, skimage, pyvista, emcee, nbmake" \
+    || { echo "bootstrap: the install failed" >&2; exit 1; }
+  echo "$want" > "$stamp"
+fi

@@ -1,0 +1,22 @@
+import numpy as np
+import pytest
+
+from lsmta.camera import Camera
+
+
+def random_camera(rng: np.random.Generator, *, shear: bool = False, name: str = "") -> Camera:
+    """A camera with random pose, interior orientation and realistic distortion."""
+    eye = rng.uniform([-3000, -6000, 500], [3000, -3000, 2500])
+    target = rng.uniform([-300, -300, 700], [300, 300, 1300])
+    return Camera.look_at(
+        eye, target, f=rng.uniform(700, 1400), width=768, height=576,
+        cx=383.5 + rng.normal(0, 5), cy=287.5 + rng.normal(0, 5),
+        k1=rng.uniform(-0.15, 0.05), k2=rng.uniform(-0.05, 0.15), k3=rng.uniform(-0.03, 0.03),
+        p1=rng.normal(0, 5e-4), p2=rng.normal(0, 5e-4), b1=rng.normal(0, 5e-4),
+        b2=rng.normal(0, 5e-4) if shear else 0.0, name=name,
+    )
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(20261122)

@@ -1,4 +1,4 @@
-"""One camera: interior orientation, Brown lens distortion, affinity and shear, exterior orientation.
+"""One camera: interior orientation, Brown distortion, affinity and shear, exterior orientation.
 
 Conventions
 -----------
@@ -103,7 +103,7 @@ class Camera:
         for key in ("width", "height"):
             value = getattr(self, key)
             if int(value) != value or value < 1:
-                raise ValueError(f"{key}: expected a positive integer number of pixels, got {value}")
+                raise ValueError(f"{key}: expected a positive integer (pixels), got {value}")
             set_(self, key, int(value))
         if self.pixel_size is not None:
             set_(self, "pixel_size", as_scalar(self.pixel_size, "pixel_size", positive=True))
@@ -348,7 +348,8 @@ class Camera:
         return np.stack([gx, gy], axis=-1)
 
     def __repr__(self) -> str:
-        dist = ", ".join(f"{k}={getattr(self, k):.3g}" for k in DISTORTION_NAMES if getattr(self, k))
+        dist = ", ".join(f"{k}={getattr(self, k):.3g}" for k in DISTORTION_NAMES
+                         if getattr(self, k))
         return (f"Camera({self.name!r}, {self.width}x{self.height}, f={self.f:.1f}px, "
                 f"pp=({self.cx:.1f}, {self.cy:.1f}), C={np.round(self.C, 1).tolist()}"
                 + (f", {dist}" if dist else "") + ")")

@@ -173,7 +173,8 @@ img{{max-width:100%;margin:6px 0;border:1px solid #eee}}</style></head><body>
 <h1>lsmta — reproduced numbers next to the papers'</h1>
 <table><tr><th>figure</th><th>quantity</th><th>paper</th><th>ours</th><th>unit</th><th>note</th></tr>
 {rows}</table>{''.join(sections)}
-<p><small>Python {esc(meta['python'])}, {esc(str(meta['cpus']))} CPUs, {esc(meta['finished'])}</small></p>
+<p><small>Python {esc(meta['python'])}, {esc(str(meta['cpus']))} CPUs,
+{esc(meta['finished'])}</small></p>
 </body></html>"""
     (build / "index.html").write_text(page, encoding="utf-8")
 

@@ -2,7 +2,6 @@ import numpy as np
 import pytest
 
 from lsmta.synth import (
-    BACKGROUND,
     Renderer,
     Scene,
     arm_wave,

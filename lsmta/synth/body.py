@@ -81,8 +81,8 @@ STANDING_PELVIS_HEIGHT = 960.0  # mm, with the feet on the floor
 class SolidTexture:
     """Band-limited solid texture: per part, a sum of random 3-D sinusoids.
 
-    ``value(part, p) = 1 + contrast[part] * sum_k a_k sin(2 pi (p . u_k) / lambda_k + phi_k)``
-    with unit directions ``u_k``, wavelengths ``lambda_k`` (mm), phases ``phi_k`` and
+    ``value(part, p) = 1 + contrast[part] * sum_k a_k sin(2 pi (p . u_k) / l_k + phi_k)``
+    with unit directions ``u_k``, wavelengths ``l_k`` (mm), phases ``phi_k`` and
     amplitudes ``a_k = sqrt(2 / n)``, so that the sum has unit variance.
 
     Attributes
@@ -116,7 +116,10 @@ class SolidTexture:
         return cls(directions=u, wavelengths=lam, phases=phi, contrast=c)
 
     def value(self, part, points) -> np.ndarray:
-        """Texture values ``(M,)`` at part-local ``points`` ``(M, 3)`` of parts ``part`` ``(M,)``."""
+        """Texture values ``(M,)`` at part-local ``points`` ``(M, 3)`` on parts ``part`` ``(M,)``.
+
+        Both arguments are used as given (no validation: this is the renderer's inner loop).
+        """
         part = np.asarray(part, dtype=int)
         points = np.asarray(points, dtype=float)
         out = np.zeros(len(points))

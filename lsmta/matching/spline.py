@@ -1,0 +1,98 @@
+"""Cubic B-spline interpolation of a grey image, with exact gradients, batched over points.
+
+SciPy computes the spline coefficients (``scipy.ndimage.spline_filter``, mirror boundary);
+this module evaluates the interpolant and its two partial derivatives at arbitrary
+points from the 4 x 4 coefficient neighbourhood (a compiled loop, ``_kernels.sample``),
+which ``scipy.ndimage.map_coordinates`` cannot do for derivatives. Values agree with
+``map_coordinates(order=3, mode="mirror")`` to round-off (tested). The cubic B-spline
+interpolant reproduces the image exactly at pixel centres and is smooth between them; its
+error on band-limited texture is far below 0.01 px in position.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from . import _kernels
+
+PAD = 2  # coefficient padding, so that the 4 x 4 support never leaves the array
+
+
+def check_image(image, name: str) -> np.ndarray:
+    """A 2-D grey image of finite real values as float64 (a new array if converted)."""
+    arr = np.asarray(image)
+    if arr.ndim == 3 and arr.shape[2] in (3, 4):
+        raise ValueError(
+            f"{name}: expected a 2-D grey image, got a colour image of shape {arr.shape}; "
+            "convert it first, e.g. cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)")
+    if arr.ndim != 2:
+        raise ValueError(f"{name}: expected a 2-D grey image (H, W), got shape {arr.shape}")
+    if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer)
+                                 or np.issubdtype(arr.dtype, np.floating)):
+        raise TypeError(f"{name}: expected an image of a real dtype, got {arr.dtype}")
+    if min(arr.shape) < 5:
+        raise ValueError(f"{name}: expected an image of at least 5 x 5 pixels, got {arr.shape}")
+    arr = arr.astype(np.float64, copy=False)
+    if not np.isfinite(arr).all():
+        raise ValueError(f"{name}: contains NaN or infinite grey values")
+    return arr
+
+
+class SplineImage:
+    """The cubic B-spline interpolant of an image.
+
+    Parameters
+    ----------
+    image : (H, W) array
+        Grey image of any real dtype (converted to float64; the caller's array is kept).
+    name : str
+        Argument name for error messages.
+    """
+
+    def __init__(self, image, name: str = "image"):
+        img = check_image(image, name)
+        self.shape = img.shape
+        coeffs = ndimage.spline_filter(img, order=3, mode="mirror")
+        self._c = np.pad(coeffs, PAD, mode="reflect")
+
+    @property
+    def coefficients(self) -> np.ndarray:
+        """Spline coefficients padded by :attr:`pad` on every side (read them, don't write)."""
+        return self._c
+
+    @property
+    def pad(self) -> int:
+        return PAD
+
+    def inside(self, xy: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """Boolean mask: points at least ``margin`` pixels inside the pixel-centre grid."""
+        H, W = self.shape
+        x, y = xy[..., 0], xy[..., 1]
+        return (x >= margin) & (x <= W - 1 - margin) & (y >= margin) & (y <= H - 1 - margin)
+
+    def sample(self, xy: np.ndarray, gradient: bool = True):
+        """Interpolated values (and gradients) at points ``xy`` ``(..., 2)`` (x, y in pixels).
+
+        Points must lie inside the image (``inside(xy)``); outside it the mirror extension
+        is used up to ``PAD`` pixels and the result is meaningless beyond.
+
+        Returns
+        -------
+        value : (...) array
+        gx, gy : (...) arrays, only with ``gradient`` — derivatives along x and y, grey
+            levels per pixel.
+        """
+        shape = xy.shape[:-1]
+        H, W = self.shape
+        x = np.clip(np.ascontiguousarray(xy[..., 0], dtype=np.float64).ravel(), -PAD + 1,
+                    W + PAD - 3)
+        y = np.clip(np.ascontiguousarray(xy[..., 1], dtype=np.float64).ravel(), -PAD + 1,
+                    H + PAD - 3)
+        value = np.empty(x.size)
+        gx = np.empty(x.size if gradient else 0)
+        gy = np.empty(x.size if gradient else 0)
+        _kernels.sample(self._c, PAD, x, y, value, gx, gy, gradient)
+        if not gradient:
+            return value.reshape(shape)
+        return value.reshape(shape), gx.reshape(shape), gy.reshape(shape)

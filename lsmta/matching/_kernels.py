@@ -30,14 +30,15 @@ def _bspline(t, w, dw):
 
 
 @nb.njit(parallel=True, cache=True, fastmath=True)
-def normal_equations(coef, pad, height, width, f, c, A, r0, r1, U, geometry, radiometry,
+def normal_equations(coef, pad, height, width, idx, f, c, A, r0, r1, U, geometry, radiometry,
                      N_out, b_out, ee_out, ok_out):
-    """For every point i: ``N_out[i] = J^T J``, ``b_out[i] = J^T e``, ``ee_out[i] = e^T e`` and
-    ``ok_out[i]`` (the warped patch lies inside the image)."""
-    m = c.shape[0]
+    """For every active point ``i = idx[j]``: ``N_out[j] = J^T J``, ``b_out[j] = J^T e``,
+    ``ee_out[j] = e^T e`` and ``ok_out[j]`` (the warped patch lies inside the image)."""
+    m = idx.shape[0]
     P = U.shape[0]
     k = N_out.shape[1]
-    for i in nb.prange(m):
+    for j in nb.prange(m):
+        i = idx[j]
         wx = np.empty(4)
         dwx = np.empty(4)
         wy = np.empty(4)
@@ -82,22 +83,22 @@ def normal_equations(coef, pad, height, width, f, c, A, r0, r1, U, geometry, rad
             Gy = gain * gy
             row[0] = Gx
             row[1] = Gy
-            j = 2
+            col = 2
             if geometry == 1:
                 row[2] = Gx * ux + Gy * uy
                 row[3] = -Gx * uy + Gy * ux
-                j = 4
+                col = 4
             elif geometry == 2:
                 row[2] = Gx * ux
                 row[3] = Gx * uy
                 row[4] = Gy * ux
                 row[5] = Gy * uy
-                j = 6
+                col = 6
             if radiometry >= 1:
-                row[j] = 1.0
-                j += 1
+                row[col] = 1.0
+                col += 1
             if radiometry == 2:
-                row[j] = g
+                row[col] = g
             for a in range(k):
                 b[a] += row[a] * e
                 for bb in range(a, k):
@@ -105,10 +106,10 @@ def normal_equations(coef, pad, height, width, f, c, A, r0, r1, U, geometry, rad
         for a in range(k):
             for bb in range(a + 1, k):
                 N[bb, a] = N[a, bb]
-        N_out[i] = N
-        b_out[i] = b
-        ee_out[i] = ee
-        ok_out[i] = ok
+        N_out[j] = N
+        b_out[j] = b
+        ee_out[j] = ee
+        ok_out[j] = ok
 
 
 @nb.njit(parallel=True, cache=True)

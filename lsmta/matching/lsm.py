@@ -267,8 +267,8 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
         m = len(idx)
         N, b, ee = np.empty((m, k, k)), np.empty((m, k)), np.empty(m)
         ok = np.empty(m, dtype=np.bool_)
-        _kernels.normal_equations(g_img.coefficients, g_img.pad, H, W, f[idx], c[idx], A[idx],
-                                  r0[idx], r1[idx], U, geo_code, rad_code, N, b, ee, ok)
+        _kernels.normal_equations(g_img.coefficients, g_img.pad, H, W, idx, f, c, A, r0, r1, U,
+                                  geo_code, rad_code, N, b, ee, ok)
         return N, b, ee, ok
 
     if k_rad and fits.any():

@@ -9,13 +9,14 @@ and averaged down"). The search image shows the same texture through a known war
 
 i.e. a template point ``u`` appears at ``c + A u`` in the search image (``c`` here is the
 image of the template's origin). Noise is added to both images independently, then both
-are rounded to 8 bits. Values and gradients of the noise-free images are available
+are rounded to 8 bits; :meth:`WarpedPair.noisy` draws fresh noise for the same clean pair
+(cheap, for noise sweeps). Values and gradients of the noise-free images are available
 anywhere, for Cramér-Rao bounds.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -72,6 +73,8 @@ class WarpedPair:
     ----------
     template, search : (H, W) arrays
         The images handed to a matcher (uint8 unless ``quantise=False``).
+    clean_template, clean_search_image : (H, W) float arrays
+        The same before noise and rounding.
     A : (2, 2) array
     c : (2,) array
         Search position of template pixel (0, 0).
@@ -84,6 +87,8 @@ class WarpedPair:
 
     template: np.ndarray
     search: np.ndarray
+    clean_template: np.ndarray
+    clean_search_image: np.ndarray
     A: np.ndarray
     c: np.ndarray
     r0: float
@@ -91,6 +96,29 @@ class WarpedPair:
     noise_sigma: float
     texture: PlanarTexture
     supersample: int
+
+    def noisy(self, rng: np.random.Generator, noise_sigma: float, *,
+              quantise: bool = True) -> WarpedPair:
+        """The same pair with fresh Gaussian noise in both images (and 8-bit rounding)."""
+        as_rng(rng)
+        sigma = as_scalar(noise_sigma, "noise_sigma", nonnegative=True)
+        images = []
+        for img in (self.clean_template, self.clean_search_image):
+            img = img + rng.normal(0.0, sigma, img.shape) if sigma > 0 else img
+            images.append(np.clip(np.rint(img), 0, 255).astype(np.uint8) if quantise else img)
+        return replace(self, template=images[0], search=images[1], noise_sigma=sigma)
+
+    def with_amplitude(self, amplitude: float) -> WarpedPair:
+        """The same pair with the texture's contrast scaled to ``amplitude`` (noise-free)."""
+        k = as_scalar(amplitude, "amplitude", nonnegative=True) / self.texture.amplitude
+        m = self.texture.mean
+        tex = replace(self.texture, amplitude=self.texture.amplitude * k)
+        ms = (m - self.r0) / self.r1            # the texture mean seen in the search image
+        return replace(self, texture=tex, noise_sigma=0.0,
+                       template=m + k * (self.clean_template - m),
+                       search=ms + k * (self.clean_search_image - ms),
+                       clean_template=m + k * (self.clean_template - m),
+                       clean_search_image=ms + k * (self.clean_search_image - ms))
 
     def true_xy(self, template_xy) -> np.ndarray:
         """Where template points ``(N, 2)`` appear in the search image: ``c + A u``."""
@@ -176,14 +204,10 @@ def warped_pair(rng: np.random.Generator, shape=(256, 256), *, A=((1.0, 0.0), (0
     noise_sigma = as_scalar(noise_sigma, "noise_sigma", nonnegative=True)
     tex = texture if texture is not None else PlanarTexture.random(
         rng, amplitude=amplitude, wavelength=wavelength)
-    pair = WarpedPair(np.empty(0), np.empty(0), A, c, float(r0), r1, noise_sigma, tex,
-                      int(supersample))
+    pair = WarpedPair(np.empty(0), np.empty(0), np.empty(0), np.empty(0), A, c, float(r0), r1,
+                      0.0, tex, int(supersample))
     template = _render(lambda x, y: tex(x, y), shape, pair.supersample)
     yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
     search = pair.clean_search(np.stack([xx, yy], axis=-1))
-    images = []
-    for img in (template, search):
-        img = img + rng.normal(0.0, noise_sigma, img.shape) if noise_sigma > 0 else img
-        images.append(np.clip(np.rint(img), 0, 255).astype(np.uint8) if quantise else img)
-    return WarpedPair(images[0], images[1], A, c, float(r0), r1, noise_sigma, tex,
-                      pair.supersample)
+    pair = replace(pair, clean_template=template, clean_search_image=search)
+    return pair.noisy(rng, noise_sigma, quantise=quantise)

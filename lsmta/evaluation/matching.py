@@ -1,0 +1,207 @@
+"""Matching trials: generated image pairs, every method on the same patches, scored against truth.
+
+A trial draws patch centres on a :class:`~lsmta.synth.patches.WarpedPair`, starts every
+method from the same perturbed positions, and keeps each method's error vectors and run
+time, plus the Cramér-Rao covariance of the LSM parameter set from the noise-free images.
+Notebook 02 and ``experiments/lsm_benchmark.py`` are built from these trials.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..matching import lsm, peers
+from ..matching.bounds import cramer_rao_xy, patch_offsets
+from ..synth.patches import WarpedPair
+
+#: method name -> (callable(template, search, template_xy, search_xy, patch) -> result)
+METHODS = {
+    "lsm": lambda f, g, t, s, patch, **kw: lsm(f, g, t, s, patch=patch, **kw),
+    "ecc_affine": lambda f, g, t, s, patch, **kw: peers.ecc(f, g, t, s, patch=patch),
+    "ecc_translation": lambda f, g, t, s, patch, **kw: peers.ecc(f, g, t, s, patch=patch,
+                                                                 motion="translation"),
+    "klt": lambda f, g, t, s, patch, **kw: peers.klt(f, g, t, s, patch=patch),
+    "phase_correlation": lambda f, g, t, s, patch, **kw: peers.phase_correlation(f, g, t, s,
+                                                                                 patch=patch),
+    "ilk": lambda f, g, t, s, patch, **kw: peers.ilk(f, g, t, s, patch=patch),
+}
+
+
+@dataclass
+class MatchTrial:
+    """Errors of several methods on the same patches.
+
+    Attributes
+    ----------
+    truth : (N, 2) array
+        True positions in the search image.
+    start : (N, 2) array
+        Common starting positions.
+    errors : dict
+        Method name -> (N, 2) error vectors (NaN where the method gave no result or LSM
+        did not converge).
+    seconds : dict
+        Method name -> wall time of the whole batch.
+    crb : (N, 2, 2) array or None
+        Cramér-Rao covariance of the position for LSM's parameter set.
+    lsm_result : LSMResult or None
+    """
+
+    truth: np.ndarray
+    start: np.ndarray
+    errors: dict = field(default_factory=dict)
+    seconds: dict = field(default_factory=dict)
+    crb: np.ndarray | None = None
+    lsm_result: object = None
+
+    def summary(self, method: str, fail_px: float = 0.5) -> dict:
+        """Median and RMS error (px), failure rate (no result or error > ``fail_px``),
+        and time per point (µs)."""
+        e = np.linalg.norm(self.errors[method], axis=1)
+        good = e <= fail_px
+        return {
+            "median_px": float(np.median(e[good])) if good.any() else float("nan"),
+            "rms_px": float(np.sqrt(np.mean(e[good] ** 2))) if good.any() else float("nan"),
+            "failure_rate": float(1 - good.mean()),
+            "us_per_point": 1e6 * self.seconds[method] / len(e),
+        }
+
+    def crb_median(self, rng: np.random.Generator, mask=None) -> float:
+        """Median error that the Cramér-Rao covariance predicts (by drawing from it)."""
+        cov = self.crb if mask is None else self.crb[mask]
+        draws = np.einsum("nij,nkj->nki", np.linalg.cholesky(cov),
+                          rng.normal(size=(len(cov), 50, 2)))
+        return float(np.median(np.linalg.norm(draws, axis=2)))
+
+
+def random_starts(rng, truth, *, start_error=0.5, start_distance=None):
+    """Starts uniform in a square of half-width ``start_error`` around the truth, or at
+    exactly ``start_distance`` pixels in a random direction."""
+    if start_distance is None:
+        return truth + rng.uniform(-start_error, start_error, truth.shape)
+    angle = rng.uniform(0, 2 * np.pi, len(truth))
+    return truth + start_distance * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+
+
+def draw_points(rng, shape, n_points: int, margin: int = 30) -> np.ndarray:
+    """Whole-pixel patch centres ``(n, 2)`` at least ``margin`` pixels inside ``shape``."""
+    H, W = shape
+    return np.rint(rng.uniform(margin, [W - 1 - margin, H - 1 - margin], (n_points, 2)))
+
+
+def unit_bound(pair: WarpedPair, points, *, patch: int, geometry: str, radiometry: str):
+    """Cramér-Rao covariance ``(N, 2, 2)`` for noise 1 grey level (it scales with sigma²)."""
+    truth = pair.true_xy(points)
+    U = patch_offsets(patch)
+    g, gx, gy = pair.clean_search(truth[:, None, :] + U @ pair.A.T, gradient=True)
+    return cramer_rao_xy(g, gx, gy, patch=patch, r1=pair.r1, noise_sigma=1.0,
+                         geometry=geometry, radiometry=radiometry)
+
+
+def run_trial(pair: WarpedPair, rng: np.random.Generator, *, methods=("lsm",),
+              n_points: int = 200, patch: int = 13, start_error: float = 0.5,
+              start_distance: float | None = None, geometry: str = "affine",
+              radiometry: str = "linear", margin: int = 30, bound: bool = True,
+              points=None, bound_unit=None, **lsm_kwargs) -> MatchTrial:
+    """Run ``methods`` on ``n_points`` whole-pixel patch centres of ``pair``.
+
+    Parameters
+    ----------
+    pair : WarpedPair
+    rng : numpy.random.Generator
+        Draws the points and the starts.
+    methods : sequence of str
+        Keys of :data:`METHODS`.
+    geometry, radiometry : str
+        LSM's parameter set (and the bound's).
+    bound : bool
+        Compute the Cramér-Rao covariance (needs the noise-free images' gradients).
+    points : (N, 2) array, optional
+        Patch centres to use instead of drawing ``n_points``.
+    bound_unit : (N, 2, 2) array, optional
+        :func:`unit_bound` for these points, to save recomputing it.
+    **lsm_kwargs
+        Extra arguments for :func:`~lsmta.matching.lsm`.
+    """
+    pts = draw_points(rng, pair.template.shape, n_points, margin) if points is None else points
+    truth = pair.true_xy(pts)
+    start = random_starts(rng, truth, start_error=start_error, start_distance=start_distance)
+    trial = MatchTrial(truth=truth, start=start)
+    for name in methods:
+        kw = dict(geometry=geometry, radiometry=radiometry, **lsm_kwargs) if name == "lsm" else {}
+        t0 = time.perf_counter()
+        res = METHODS[name](pair.template, pair.search, pts, start, patch, **kw)
+        trial.seconds[name] = time.perf_counter() - t0
+        trial.errors[name] = np.where(res.ok[:, None], res.xy - truth, np.nan)
+        if name == "lsm":
+            trial.lsm_result = res
+    if bound and pair.noise_sigma > 0:
+        if bound_unit is None:
+            bound_unit = unit_bound(pair, pts, patch=patch, geometry=geometry,
+                                    radiometry=radiometry)
+        trial.crb = pair.noise_sigma**2 * bound_unit
+    return trial
+
+
+def noise_sweep(pair: WarpedPair, rng: np.random.Generator, sigmas, *, patch: int = 13,
+                geometry: str = "affine", radiometry: str = "linear", n_points: int = 200,
+                start_error: float = 0.5) -> dict:
+    """LSM against its Cramér-Rao bound over noise levels, on fresh noise of one clean pair.
+
+    Returns a dict of arrays over ``sigmas``: ``median_px`` (LSM's median error),
+    ``bound_median_px`` (the bound's), ``efficiency`` (their ratio), ``rms_ratio`` and
+    ``coverage_95`` (:func:`honesty`), ``failure_rate``.
+    """
+    pts = draw_points(rng, pair.template.shape, n_points)
+    unit = unit_bound(pair, pts, patch=patch, geometry=geometry, radiometry=radiometry)
+    keys = ("median_px", "bound_median_px", "efficiency", "rms_ratio", "coverage_95",
+            "failure_rate")
+    out = {k: [] for k in keys}
+    for sigma in sigmas:
+        trial = run_trial(pair.noisy(rng, sigma), rng, patch=patch, geometry=geometry,
+                          radiometry=radiometry, points=pts, bound_unit=unit,
+                          start_error=start_error)
+        summ = trial.summary("lsm")
+        out["median_px"].append(summ["median_px"])
+        out["failure_rate"].append(summ["failure_rate"])
+        if sigma > 0:
+            ok = trial.lsm_result.ok
+            out["bound_median_px"].append(trial.crb_median(rng, ok))
+            h = honesty(trial)
+            out["rms_ratio"].append(h["rms_ratio"])
+            out["coverage_95"].append(h["coverage_95"])
+        else:
+            for k in ("bound_median_px", "rms_ratio", "coverage_95"):
+                out[k].append(np.nan)
+        out["efficiency"].append(out["median_px"][-1] / out["bound_median_px"][-1])
+    return {"sigma": np.asarray(sigmas, float), **{k: np.asarray(v) for k, v in out.items()}}
+
+
+def honesty(trial: MatchTrial) -> dict:
+    """Is LSM's own precision estimate right? RMS actual / RMS predicted error, and the
+    share of true positions inside LSM's 95 % error ellipse (chi-square, 2 dof: 5.991)."""
+    res = trial.lsm_result
+    ok = res.ok & np.isfinite(res.sigma_xy).all(axis=1)
+    e = trial.errors["lsm"][ok]
+    cov = res.cov_xy[ok]
+    m2 = np.einsum("ni,nij,nj->n", e, np.linalg.inv(cov), e)
+    return {
+        "rms_ratio": float(np.sqrt(np.mean(np.sum(e**2, axis=1)))
+                           / np.sqrt(np.mean(np.trace(cov, axis1=1, axis2=2)))),
+        "coverage_95": float(np.mean(m2 <= 5.991)),
+    }
+
+
+def success_rate(pair: WarpedPair, rng: np.random.Generator, *, start_distance: float,
+                 patch: int = 13, geometry: str = "affine", radiometry: str = "linear",
+                 n_points: int = 200, tol_px: float = 0.1, margin: int = 30) -> float:
+    """Share of points where LSM converges to within ``tol_px`` of the truth when started
+    ``start_distance`` pixels away (random direction): the pull-in range's test."""
+    trial = run_trial(pair, rng, n_points=n_points, patch=patch, geometry=geometry,
+                      radiometry=radiometry, start_distance=start_distance, bound=False,
+                      margin=margin)
+    e = np.linalg.norm(trial.errors["lsm"], axis=1)
+    return float(np.mean(e <= tol_px))

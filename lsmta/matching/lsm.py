@@ -246,7 +246,7 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
     status[~fits] = Status.OUTSIDE
     f = np.zeros((n, P))
     if fits.any():
-        f[fits] = f_img.sample(t_xy[fits, None, :] + U[None], gradient=False)
+        f[fits] = f_img.patches(t_xy[fits], U)
 
     c = s_xy.copy()
     A = A0
@@ -263,13 +263,16 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
     rad_code = list(RADIOMETRIES).index(radiometry)
     H, W = g_img.shape
 
+    cols = [0, 1] + {"shift": [], "similarity": [2, 3], "affine": [2, 3, 4, 5]}[geometry] \
+        + {"none": [], "offset": [6], "linear": [6, 7]}[radiometry]
+
     def normal_equations(idx):
         m = len(idx)
-        N, b, ee = np.empty((m, k, k)), np.empty((m, k)), np.empty(m)
+        N, b, ee = np.empty((m, 8, 8)), np.empty((m, 8)), np.empty(m)
         ok = np.empty(m, dtype=np.bool_)
         _kernels.normal_equations(g_img.coefficients, g_img.pad, H, W, idx, f, c, A, r0, r1, U,
                                   geo_code, rad_code, N, b, ee, ok)
-        return N, b, ee, ok
+        return N[:, cols][:, :, cols], b[:, cols], ee, ok
 
     if k_rad and fits.any():
         # start the radiometry from the patches' means and spreads (Gruen: r0 = 0, r1 = 1)
@@ -296,14 +299,10 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
         N_last[idx], ee_last[idx] = N, ee
         if it == 0:  # which parameters can these patches determine?
             fixed[idx] = _adapt(N, fixed[idx], max_vif)
-        free = ~fixed[idx]
-        singular = (fixed[idx, 0] & fixed[idx, 1]) | ~free.any(axis=1)
-        Nf = np.where(free[:, :, None] & free[:, None, :], N, 0.0) + np.eye(k) * (~free)[:, :, None]
-        bf = np.where(free, b, 0.0)
-        try:
-            dx = np.linalg.solve(Nf, bf[..., None])[..., 0]
-        except np.linalg.LinAlgError:  # not after _adapt, but never fail the whole batch
-            dx = (np.linalg.pinv(Nf) @ bf[..., None])[..., 0]
+        dx = np.empty((len(idx), k))
+        solved = np.empty(len(idx), dtype=np.bool_)
+        _kernels.solve_free(N, b, ~fixed[idx], dx, solved)
+        singular = (fixed[idx, 0] & fixed[idx, 1]) | ~solved
 
         if singular.any():
             status[idx[singular]] = Status.SINGULAR

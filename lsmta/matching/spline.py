@@ -46,12 +46,18 @@ class SplineImage:
     ----------
     image : (H, W) array
         Grey image of any real dtype (converted to float64; the caller's array is kept).
+
+    Attributes
+    ----------
+    image : (H, W) float64 array
+        The image as float64 (the caller's array itself if it already was; don't write).
     name : str
         Argument name for error messages.
     """
 
     def __init__(self, image, name: str = "image"):
         img = check_image(image, name)
+        self.image = img
         self.shape = img.shape
         coeffs = ndimage.spline_filter(img, order=3, mode="mirror")
         self._c = np.pad(coeffs, PAD, mode="reflect")
@@ -64,6 +70,15 @@ class SplineImage:
     @property
     def pad(self) -> int:
         return PAD
+
+    def patches(self, centres: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """Values ``(N, P)`` at ``centres[:, None] + offsets[None]``; whole-pixel positions are
+        read directly from the image (the interpolant equals it there)."""
+        pts = centres[:, None, :] + offsets[None]
+        if np.all(pts == np.rint(pts)) and self.inside(pts).all():
+            ij = pts.astype(np.intp)
+            return self.image[ij[..., 1], ij[..., 0]]
+        return self.sample(pts, gradient=False)
 
     def inside(self, xy: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """Boolean mask: points at least ``margin`` pixels inside the pixel-centre grid."""
@@ -84,11 +99,8 @@ class SplineImage:
             levels per pixel.
         """
         shape = xy.shape[:-1]
-        H, W = self.shape
-        x = np.clip(np.ascontiguousarray(xy[..., 0], dtype=np.float64).ravel(), -PAD + 1,
-                    W + PAD - 3)
-        y = np.clip(np.ascontiguousarray(xy[..., 1], dtype=np.float64).ravel(), -PAD + 1,
-                    H + PAD - 3)
+        x = np.ascontiguousarray(xy[..., 0], dtype=np.float64).ravel()
+        y = np.ascontiguousarray(xy[..., 1], dtype=np.float64).ravel()
         value = np.empty(x.size)
         gx = np.empty(x.size if gradient else 0)
         gy = np.empty(x.size if gradient else 0)

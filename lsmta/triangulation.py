@@ -154,3 +154,50 @@ def triangulate(cameras, xy, *, min_angle_deg: float = 0.5) -> Intersection:
     return Intersection(points=result.points, valid=result.valid, n_rays=result.n_rays,
                         angle_deg=result.angle_deg, ray_distance=result.ray_distance,
                         reprojection_error=reproj)
+
+
+@dataclass(frozen=True)
+class VoxelCloud:
+    """Points thinned by :func:`voxel_filter`.
+
+    Attributes
+    ----------
+    points : (M, 3) array
+        Centre of gravity of the input points in each occupied voxel (mm).
+    members : (N,) int array
+        For each input point, the index of its output point.
+    counts : (M,) int array
+        Input points per output point.
+    """
+
+    points: np.ndarray
+    members: np.ndarray
+    counts: np.ndarray
+
+    def mean_of(self, values) -> np.ndarray:
+        """Per-voxel mean of per-input-point ``values`` ``(N, ...)``, e.g. image positions."""
+        values = np.asarray(values, float)
+        out = np.zeros((len(self.points),) + values.shape[1:])
+        used = self.members >= 0
+        np.add.at(out, self.members[used], values[used])
+        return out / self.counts.reshape((-1,) + (1,) * (values.ndim - 1))
+
+
+def voxel_filter(points, voxel: float) -> VoxelCloud:
+    """Replace the points in each cubic voxel of side ``voxel`` mm by their centre of gravity.
+
+    Evens out the density of a point cloud and averages noise (LSMTA paper, Section 2.2).
+    Non-finite rows are dropped (their ``members`` entry is -1).
+    """
+    P = as_array(points, "points", shape=(None, 3), allow_nan=True)
+    if not voxel > 0:
+        raise ValueError(f"voxel: expected a positive size in mm, got {voxel}")
+    finite = np.isfinite(P).all(axis=1)
+    keys = np.floor(P[finite] / voxel).astype(np.int64)
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    sums = np.zeros((len(counts), 3))
+    np.add.at(sums, inverse, P[finite])
+    members = np.full(len(P), -1, dtype=np.int64)
+    members[finite] = inverse
+    return VoxelCloud(points=sums / counts[:, None], members=members, counts=counts)

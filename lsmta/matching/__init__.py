@@ -3,16 +3,22 @@
 ``lsm`` matches N patches of a template in a search image at once; ``lsm_multi`` matches
 them in several search images (the triplet: centre template, left and right searches);
 ``correlation_search`` finds the best normalised cross-correlation position in a box;
-``LSMThresholds`` holds the quality indicators that accept or reject a match.
+``LSMThresholds`` holds the quality indicators that accept or reject a match;
+``grow_matches`` grows dense matches from seeds, ``measure_surface`` turns one multi-image
+frame into 3-D surface points.
 """
 
 from .correlation import CorrelationResult, CorrelationStatus, correlation_search
+from .filters import NeighbourhoodCheck, neighbourhood_filter
+from .grow import GrowResult, grow_matches
 from .lsm import GEOMETRIES, PARAM_NAMES, RADIOMETRIES, LSMResult, LSMThresholds, Status, lsm
 from .multi import lsm_multi
 from .spline import SplineImage
+from .surface import SurfaceResult, enhance_contrast, measure_surface
 
 __all__ = [
     "GEOMETRIES", "PARAM_NAMES", "RADIOMETRIES", "CorrelationResult", "CorrelationStatus",
-    "LSMResult", "LSMThresholds", "SplineImage", "Status", "correlation_search", "lsm",
-    "lsm_multi",
+    "GrowResult", "LSMResult", "LSMThresholds", "NeighbourhoodCheck", "SplineImage", "Status",
+    "SurfaceResult", "correlation_search", "enhance_contrast", "grow_matches", "lsm", "lsm_multi",
+    "measure_surface", "neighbourhood_filter",
 ]

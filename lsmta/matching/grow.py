@@ -1,0 +1,291 @@
+"""Dense matching by region growing from seed points (D'Apuzzo 1998; LSMTA paper, Section 2.2).
+
+The template's area is split into the Voronoi cells of the seeds. Starting from each seed,
+the matcher steps to neighbouring nodes of a regular grid (spacing ``step`` pixels),
+horizontally first and then vertically, and runs least squares matching there, starting
+from the neighbour's solution: the approximation is the neighbour's match moved by its
+affine matrix, ``search = parent_search + A_parent (node - parent_node)``, and the start
+of ``A`` is ``A_parent``. A match is kept when it passes the quality thresholds; otherwise
+it is tried once more with a bigger patch. Growth stays inside each seed's cell; when no
+cell can grow any more, holes are closed by growing into the remaining nodes from every
+side, across cell borders.
+
+Batched: each growth step sends the whole front (all candidate nodes of all cells) through
+one :func:`~lsmta.matching.lsm` call, so the number of calls grows with the width of the
+region in grid steps, not with the number of points.
+
+Choices where the paper is vague: the retry changes the patch size only (a smaller step
+would leave the grid); a node may be tried up to ``max_attempts`` times from different
+neighbours; nodes whose patch does not fit or whose template patch has no texture are
+never tried.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validate import as_array
+from .lsm import LSMThresholds, Status, _check_patch, lsm
+from .spline import SplineImage
+
+HORIZONTAL = ((1, 0), (-1, 0))
+VERTICAL = ((0, 1), (0, -1))
+
+
+@dataclass(frozen=True)
+class GrowResult:
+    """Matches grown from seeds.
+
+    Attributes
+    ----------
+    template_xy : (N, 2) array
+        Matched grid nodes in the template (pixels).
+    search_xy : (N, 2) array
+        Their matches in the search image (pixels).
+    A : (N, 2, 2) array
+        Affine matrices of the matches.
+    sigma0 : (N,) array
+        A-posteriori standard deviation of unit weight (grey levels).
+    sigma_xy : (N, 2) array
+        Standard deviations of ``search_xy`` (pixels).
+    seed : (N,) int array
+        The seed whose Voronoi cell holds the node.
+    wave : (N,) int array
+        Growth step in which the node was matched (0: the seeds' own nodes); the phase of
+        hole closing continues the count.
+    hole_closing : (N,) bool array
+        Matched while closing holes (across cell borders).
+    seeds_matched : (S,) bool array
+        Which seeds LSM could match (the others are reported, not grown from).
+    n_lsm : int
+        Number of points sent to LSM in all (attempts, including retries).
+    grid_shape : (int, int)
+        Rows and columns of the node grid; node ``(r, c)`` lies at ``(c * step, r * step)``.
+    node_index : (N, 2) int array
+        Grid row and column of each match.
+    """
+
+    template_xy: np.ndarray
+    search_xy: np.ndarray
+    A: np.ndarray
+    sigma0: np.ndarray
+    sigma_xy: np.ndarray
+    seed: np.ndarray
+    wave: np.ndarray
+    hole_closing: np.ndarray
+    seeds_matched: np.ndarray
+    n_lsm: int
+    grid_shape: tuple
+    node_index: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.template_xy)
+
+
+def voronoi_cells(seeds_xy: np.ndarray, nodes_xy: np.ndarray) -> np.ndarray:
+    """Index of the nearest seed for every node (the seeds' Voronoi cells)."""
+    from scipy.spatial import cKDTree
+
+    return cKDTree(seeds_xy).query(nodes_xy)[1]
+
+
+def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 4,
+                 patch: int = 13, retry_patch: int | None = None,
+                 thresholds: LSMThresholds | None = None, mask=None,
+                 geometry: str = "affine", radiometry: str = "linear", max_attempts: int = 3,
+                 min_texture: float = 2.0, close_holes: bool = True) -> GrowResult:
+    """Grow dense matches between two images from a few seed correspondences.
+
+    Parameters
+    ----------
+    template, search : (H, W) arrays
+        Grey images (any real dtype).
+    seeds_template : (S, 2) array
+        Seed positions in the template (pixels).
+    seeds_search : (S, 2) array
+        Approximate seed positions in the search image; refined by LSM first.
+    step : int
+        Grid spacing in pixels.
+    patch : int
+        LSM patch size (odd, >= 5).
+    retry_patch : int, optional
+        Patch size of the second attempt at a failed node (default ``patch + 6``).
+    thresholds : LSMThresholds, optional
+        Quality indicators a match must pass (default :class:`LSMThresholds` with
+        ``max_displacement = step``).
+    mask : (H, W) bool array, optional
+        Where in the template to grow (default: everywhere the patch fits).
+    geometry, radiometry : str
+        LSM model (see :func:`~lsmta.matching.lsm`).
+    max_attempts : int
+        How often a node may be tried from different neighbours.
+    min_texture : float
+        Nodes whose template patch has a grey-value standard deviation below this are
+        skipped (no texture to match).
+    close_holes : bool
+        After growing inside the cells, grow into the remaining nodes from every side.
+
+    Returns
+    -------
+    GrowResult
+    """
+    patch = _check_patch(patch)
+    retry_patch = _check_patch(patch + 6 if retry_patch is None else retry_patch)
+    if isinstance(step, bool) or int(step) != step or step < 1:
+        raise ValueError(f"step: expected a positive integer (pixels), got {step}")
+    step = int(step)
+    f_img = template if isinstance(template, SplineImage) else SplineImage(template, "template")
+    g_img = search if isinstance(search, SplineImage) else SplineImage(search, "search")
+    seeds_t = as_array(seeds_template, "seeds_template", shape=(None, 2))
+    seeds_s = as_array(seeds_search, "seeds_search", shape=(None, 2))
+    if len(seeds_t) != len(seeds_s):
+        raise ValueError(f"seeds_search: expected {len(seeds_t)} seeds like seeds_template, "
+                         f"got {len(seeds_s)}")
+    if len(seeds_t) == 0:
+        raise ValueError("seeds_template: expected at least one seed")
+    if thresholds is None:
+        thresholds = LSMThresholds(max_displacement=float(step))
+    H, W = f_img.shape
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != (H, W) or mask.dtype != bool:
+            raise ValueError(f"mask: expected a boolean array of shape {(H, W)}, got "
+                             f"{mask.dtype} {mask.shape}")
+
+    # the node grid and the nodes that can be tried at all
+    rows, cols = (H - 1) // step + 1, (W - 1) // step + 1
+    gr, gc = np.mgrid[0:rows, 0:cols]
+    nodes = np.stack([gc * step, gr * step], axis=-1).astype(float)        # (rows, cols, 2)
+    h = retry_patch // 2
+    usable = f_img.inside(nodes, margin=h)
+    if mask is not None:
+        usable &= mask[gr * step, gc * step]
+    flat = nodes.reshape(-1, 2)
+    texture = np.zeros(rows * cols)
+    idx_usable = np.flatnonzero(usable.ravel())
+    if idx_usable.size:
+        hp = patch // 2
+        yy, xx = np.mgrid[-hp:hp + 1, -hp:hp + 1]
+        U = np.stack([xx.ravel(), yy.ravel()], axis=1).astype(float)
+        texture[idx_usable] = f_img.patches(flat[idx_usable], U).std(axis=1)
+    usable &= (texture >= min_texture).reshape(rows, cols)
+    cell = voronoi_cells(seeds_t, flat).reshape(rows, cols)
+
+    # per-node state
+    state = np.zeros((rows, cols), dtype=np.int8)          # 0 open, 1 matched, 2 given up
+    attempts = np.zeros((rows, cols), dtype=np.int16)
+    s_xy = np.full((rows, cols, 2), np.nan)
+    A_all = np.full((rows, cols, 2, 2), np.nan)
+    sig0 = np.full((rows, cols), np.nan)
+    sigxy = np.full((rows, cols, 2), np.nan)
+    wave = np.full((rows, cols), -1)
+    holes = np.zeros((rows, cols), dtype=bool)
+    n_lsm = 0
+
+    def match(node_rc, approx, A0):
+        """LSM at grid nodes with a retry; returns the accepted mask and the results."""
+        nonlocal n_lsm
+        t_xy = nodes[node_rc[:, 0], node_rc[:, 1]]
+        res = lsm(f_img, g_img, t_xy, approx, patch=patch, initial_A=A0, geometry=geometry,
+                  radiometry=radiometry, thresholds=thresholds)
+        n_lsm += len(t_xy)
+        ok = res.status == Status.CONVERGED
+        xy, A, s0, sxy = res.xy.copy(), res.A.copy(), res.sigma0.copy(), res.sigma_xy.copy()
+        again = np.flatnonzero(~ok)
+        if again.size:
+            res2 = lsm(f_img, g_img, t_xy[again], approx[again], patch=retry_patch,
+                       initial_A=A0[again], geometry=geometry, radiometry=radiometry,
+                       thresholds=thresholds)
+            n_lsm += again.size
+            ok2 = res2.status == Status.CONVERGED
+            take = again[ok2]
+            ok[take] = True
+            xy[take], A[take] = res2.xy[ok2], res2.A[ok2]
+            s0[take], sxy[take] = res2.sigma0[ok2], res2.sigma_xy[ok2]
+        return ok, xy, A, s0, sxy
+
+    def store(node_rc, ok, xy, A, s0, sxy, w, hole):
+        r, c = node_rc[:, 0], node_rc[:, 1]
+        good = np.flatnonzero(ok)
+        state[r[good], c[good]] = 1
+        s_xy[r[good], c[good]] = xy[good]
+        A_all[r[good], c[good]] = A[good]
+        sig0[r[good], c[good]] = s0[good]
+        sigxy[r[good], c[good]] = sxy[good]
+        wave[r[good], c[good]] = w
+        holes[r[good], c[good]] = hole
+        bad = np.flatnonzero(~ok)
+        attempts[r[bad], c[bad]] += 1
+        state[r[bad], c[bad]] = np.where(attempts[r[bad], c[bad]] >= max_attempts, 2, 0)
+
+    # 1. the seeds: LSM at the seed itself, then its nearest usable node of its own cell
+    seed_res = lsm(f_img, g_img, seeds_t, seeds_s, patch=retry_patch, geometry=geometry,
+                   radiometry=radiometry)
+    n_lsm += len(seeds_t)
+    seeds_ok = seed_res.status == Status.CONVERGED
+    start_nodes, start_approx, start_A = [], [], []
+    for k in np.flatnonzero(seeds_ok):
+        cand = np.argwhere(usable & (cell == k) & (state == 0))
+        if cand.size == 0:
+            continue
+        d = np.linalg.norm(nodes[cand[:, 0], cand[:, 1]] - seeds_t[k], axis=1)
+        rc = cand[np.argmin(d)]
+        start_nodes.append(rc)
+        offset = nodes[rc[0], rc[1]] - seeds_t[k]
+        start_approx.append(seed_res.xy[k] + seed_res.A[k] @ offset)
+        start_A.append(seed_res.A[k])
+    if start_nodes:
+        rc = np.array(start_nodes)
+        store(rc, *match(rc, np.array(start_approx), np.array(start_A)), 0, False)
+
+    # 2. growth inside the cells, then 3. hole closing across cells
+    w = 1
+    for hole_phase in ((False, True) if close_holes else (False,)):
+        frontier = state == 1
+        while frontier.any():
+            grown = np.zeros_like(frontier)
+            for directions in (HORIZONTAL, VERTICAL):
+                cand_rc, parent_rc = _candidates(frontier | grown, state, usable, cell,
+                                                 directions, same_cell=not hole_phase)
+                if cand_rc.size == 0:
+                    continue
+                pr, pc = parent_rc[:, 0], parent_rc[:, 1]
+                offset = nodes[cand_rc[:, 0], cand_rc[:, 1]] - nodes[pr, pc]
+                approx = s_xy[pr, pc] + np.einsum("nij,nj->ni", A_all[pr, pc], offset)
+                ok, *out = match(cand_rc, approx, A_all[pr, pc])
+                store(cand_rc, ok, *out, w, hole_phase)
+                grown[cand_rc[ok, 0], cand_rc[ok, 1]] = True
+            frontier = grown
+            w += 1
+
+    r, c = np.nonzero(state == 1)
+    return GrowResult(template_xy=nodes[r, c], search_xy=s_xy[r, c], A=A_all[r, c],
+                      sigma0=sig0[r, c], sigma_xy=sigxy[r, c], seed=cell[r, c], wave=wave[r, c],
+                      hole_closing=holes[r, c], seeds_matched=seeds_ok, n_lsm=n_lsm,
+                      grid_shape=(rows, cols), node_index=np.stack([r, c], axis=1))
+
+
+def _candidates(frontier, state, usable, cell, directions, *, same_cell):
+    """Open usable neighbours of frontier nodes in the given directions, one parent each."""
+    rows, cols = state.shape
+    fr = np.argwhere(frontier)
+    cands, parents = [], []
+    for dc, dr in directions:
+        nb = fr + (dr, dc)
+        inside = (nb[:, 0] >= 0) & (nb[:, 0] < rows) & (nb[:, 1] >= 0) & (nb[:, 1] < cols)
+        nb, par = nb[inside], fr[inside]
+        keep = usable[nb[:, 0], nb[:, 1]] & (state[nb[:, 0], nb[:, 1]] == 0)
+        if same_cell:
+            keep &= cell[nb[:, 0], nb[:, 1]] == cell[par[:, 0], par[:, 1]]
+        cands.append(nb[keep])
+        parents.append(par[keep])
+    if not cands:
+        return np.empty((0, 2), int), np.empty((0, 2), int)
+    cand = np.concatenate(cands)
+    par = np.concatenate(parents)
+    if cand.size == 0:
+        return cand, par
+    _, first = np.unique(cand[:, 0] * cols + cand[:, 1], return_index=True)
+    return cand[first], par[first]

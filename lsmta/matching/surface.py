@@ -1,0 +1,175 @@
+"""Surface measurement from one multi-image frame (LSMTA paper, Section 2.2).
+
+The centre image is the template; dense matches are grown from the seeds into each search
+image independently (:func:`~lsmta.matching.grow.grow_matches`), merged into n-tuples at
+the common grid nodes, checked by the neighbourhood filter (outliers re-matched once from
+their neighbours' prediction), intersected with the calibrated cameras and thinned by the
+voxel filter.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validate import as_array
+from ..camera import Camera
+from ..triangulation import Intersection, VoxelCloud, triangulate, voxel_filter
+from .filters import neighbourhood_filter
+from .grow import GrowResult, grow_matches
+from .lsm import LSMThresholds, Status, lsm
+from .spline import check_image
+
+
+def enhance_contrast(image, *, clip_limit: float = 0.02, kernel_size: int | None = None):
+    """Local contrast enhancement (CLAHE, scikit-image's ``equalize_adapthist``).
+
+    Returns a float64 image in [0, 255]; the input is not modified. For poorly textured
+    images (skin, plain cloth), as in the paper's Fig. 4.
+    """
+    from skimage.exposure import equalize_adapthist
+
+    img = check_image(image, "image")
+    lo, hi = float(img.min()), float(img.max())
+    scaled = (img - lo) / (hi - lo) if hi > lo else np.zeros_like(img)
+    return 255.0 * equalize_adapthist(scaled, kernel_size=kernel_size, clip_limit=clip_limit)
+
+
+@dataclass(frozen=True)
+class SurfaceResult:
+    """One frame's surface measurement, with every stage kept for inspection.
+
+    Attributes
+    ----------
+    grown : list of GrowResult
+        Growth into each search image (in the order of ``search`` indices).
+    template_xy : (N, 2) array
+        Grid nodes matched in every search image (the n-tuples), template pixels.
+    xy : (K, N, 2) array
+        The n-tuples' image positions in all K images (template row included).
+    sigma_xy : (K, N, 2) array
+        LSM standard deviations (zero for the template row).
+    neighbourhood_ok : (N,) bool array
+        Passed the neighbourhood filter (after re-matching).
+    rematched : (N,) bool array
+        Removed by the filter, re-matched, and then accepted.
+    intersection : Intersection
+        Forward intersection of all n-tuples (before the filters).
+    cloud : VoxelCloud or None
+        The filtered, thinned points (None without ``voxel``).
+    points : (M, 3) array
+        The final points: voxel centres, or the filtered intersected points.
+    points_xy : (K, M, 2) array
+        Image positions of the final points (means within a voxel).
+    """
+
+    grown: list
+    template_xy: np.ndarray
+    xy: np.ndarray
+    sigma_xy: np.ndarray
+    neighbourhood_ok: np.ndarray
+    rematched: np.ndarray
+    intersection: Intersection
+    cloud: VoxelCloud | None
+    points: np.ndarray
+    points_xy: np.ndarray
+
+
+def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int = 4,
+                    patch: int = 13, thresholds: LSMThresholds | None = None, mask=None,
+                    enhance: bool = False, neighbourhood: bool = True,
+                    max_position: float = 0.5, max_affine: float = 0.1,
+                    voxel: float | None = None, **grow_kwargs) -> SurfaceResult:
+    """Dense surface points from K >= 2 images of one frame.
+
+    Parameters
+    ----------
+    images : sequence of K (H, W) arrays
+        One frame of the K cameras, all of one size.
+    cameras : sequence of K Camera
+    seeds_xy : (K, S, 2) array
+        Approximate seed correspondences (e.g. picked by hand); NaN seeds are skipped.
+    template : int
+        Index of the template image (the centre camera of the triplet).
+    step, patch, thresholds, mask
+        Passed to :func:`~lsmta.matching.grow.grow_matches`.
+    enhance : bool
+        Match on contrast-enhanced images (:func:`enhance_contrast`).
+    neighbourhood : bool
+        Apply the neighbourhood filter (``max_position`` px, ``max_affine``).
+    voxel : float, optional
+        Voxel size in mm for the final thinning; None keeps every filtered point.
+    """
+    images = list(images)
+    cameras = list(cameras)
+    K = len(images)
+    if K < 2:
+        raise ValueError(f"images: expected at least 2 images, got {K}")
+    if len(cameras) != K or not all(isinstance(c, Camera) for c in cameras):
+        raise ValueError(f"cameras: expected {K} lsmta.camera.Camera, one per image")
+    imgs = [check_image(im, f"images[{k}]") for k, im in enumerate(images)]
+    if any(im.shape != imgs[0].shape for im in imgs):
+        raise ValueError(f"images: expected one size, got {[im.shape for im in imgs]}")
+    if not 0 <= template < K:
+        raise ValueError(f"template: expected an index in [0, {K - 1}], got {template}")
+    seeds = as_array(seeds_xy, "seeds_xy", shape=(K, None, 2), allow_nan=True)
+    good_seeds = np.isfinite(seeds).all(axis=(0, 2))
+    if not good_seeds.any():
+        raise ValueError("seeds_xy: no seed is given in all images")
+    seeds = seeds[:, good_seeds]
+    if enhance:
+        imgs = [enhance_contrast(im) for im in imgs]
+    if thresholds is None:
+        thresholds = LSMThresholds(max_displacement=float(step))
+    searches = [k for k in range(K) if k != template]
+
+    grown: list[GrowResult] = [
+        grow_matches(imgs[template], imgs[k], seeds[template], seeds[k], step=step, patch=patch,
+                     thresholds=thresholds, mask=mask, **grow_kwargs) for k in searches]
+
+    # n-tuples: nodes matched in every search image
+    rows, cols = grown[0].grid_shape
+    keys = [g.node_index[:, 0] * cols + g.node_index[:, 1] for g in grown]
+    common = keys[0]
+    for k in keys[1:]:
+        common = np.intersect1d(common, k)
+    pos = [np.searchsorted(k, common) for k in keys]       # node keys come sorted
+    N = len(common)
+    xy = np.zeros((K, N, 2))
+    sig = np.zeros((K, N, 2))
+    t_xy = grown[0].template_xy[pos[0]]
+    xy[template] = t_xy
+    ok = np.ones(N, dtype=bool)
+    rematched = np.zeros(N, dtype=bool)
+    for g, p, k in zip(grown, pos, searches):
+        xy[k] = g.search_xy[p]
+        sig[k] = g.sigma_xy[p]
+        if neighbourhood:
+            check = neighbourhood_filter(g, max_position=max_position, max_affine=max_affine)
+            bad = np.flatnonzero(~check.keep[p] & np.isfinite(check.predicted_xy[p]).all(axis=1))
+            pass_k = check.keep[p].copy()
+            if bad.size:
+                # re-match the outliers once, starting from the neighbours' prediction
+                res = lsm(imgs[template], imgs[k], t_xy[bad], check.predicted_xy[p][bad],
+                          patch=patch, initial_A=check.mean_A[p][bad], thresholds=thresholds)
+                close = np.linalg.norm(res.xy - check.predicted_xy[p][bad], axis=1) <= max_position
+                fixed = (res.status == Status.CONVERGED) & close
+                xy[k, bad[fixed]] = res.xy[fixed]
+                sig[k, bad[fixed]] = res.sigma_xy[fixed]
+                pass_k[bad[fixed]] = True
+                rematched[bad[fixed]] = True
+            ok &= pass_k
+    intersection = triangulate(cameras, xy)
+    keep = ok & intersection.valid
+    if voxel is not None:
+        cloud = voxel_filter(np.where(keep[:, None], intersection.points, np.nan), voxel)
+        points = cloud.points
+        points_xy = np.stack([cloud.mean_of(xy[k]) for k in range(K)])
+    else:
+        cloud = None
+        points = intersection.points[keep]
+        points_xy = xy[:, keep]
+    return SurfaceResult(grown=grown, template_xy=t_xy, xy=xy, sigma_xy=sig,
+                         neighbourhood_ok=ok, rematched=rematched, intersection=intersection,
+                         cloud=cloud, points=points, points_xy=points_xy)

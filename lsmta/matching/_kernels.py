@@ -29,6 +29,32 @@ def _bspline(t, w, dw):
     dw[3] = t2 / 2.0
 
 
+@nb.njit(cache=True, inline="always")
+def _spline_at(coef, pad, x, y, wx, dwx, wy, dwy):
+    """Value and x, y derivatives of the cubic B-spline with coefficients ``coef`` (padded
+    by ``pad``) at ``(x, y)``; ``wx, dwx, wy, dwy`` are work arrays of length 4."""
+    ix = int(np.floor(x))
+    iy = int(np.floor(y))
+    _bspline(x - ix, wx, dwx)
+    _bspline(y - iy, wy, dwy)
+    g = 0.0
+    gx = 0.0
+    gy = 0.0
+    r = iy + pad - 1
+    q = ix + pad - 1
+    for mm in range(4):
+        v = 0.0
+        dv = 0.0
+        for nn in range(4):
+            cf = coef[r + mm, q + nn]
+            v += cf * wx[nn]
+            dv += cf * dwx[nn]
+        g += v * wy[mm]
+        gx += dv * wy[mm]
+        gy += v * dwy[mm]
+    return g, gx, gy
+
+
 @nb.njit(parallel=True, cache=True, fastmath=True)
 def normal_equations(coef, pad, height, width, idx, f, c, A, r0, r1, U, geometry, radiometry,
                      N_out, b_out, ee_out, ok_out):
@@ -65,25 +91,7 @@ def normal_equations(coef, pad, height, width, idx, f, c, A, r0, r1, U, geometry
             if not (x >= 0.0 and x <= width - 1.0 and y >= 0.0 and y <= height - 1.0):
                 ok = False
                 break
-            ix = int(np.floor(x))
-            iy = int(np.floor(y))
-            _bspline(x - ix, wx, dwx)
-            _bspline(y - iy, wy, dwy)
-            g = 0.0
-            gx = 0.0
-            gy = 0.0
-            r = iy + pad - 1
-            q = ix + pad - 1
-            for mm in range(4):
-                v = 0.0
-                dv = 0.0
-                for nn in range(4):
-                    cf = coef[r + mm, q + nn]
-                    v += cf * wx[nn]
-                    dv += cf * dwx[nn]
-                g += v * wy[mm]
-                gx += dv * wy[mm]
-                gy += v * dwy[mm]
+            g, gx, gy = _spline_at(coef, pad, x, y, wx, dwx, wy, dwy)
             e = f[i, p] - (offset + gain * g)
             ee += e * e
             Gx = gain * gx
@@ -178,25 +186,7 @@ def sample(coef, pad, x, y, value, gx, gy, gradient):
         dwy = np.empty(4)
         xs = min(max(x[s], lo_x), hi_x)
         ys = min(max(y[s], lo_y), hi_y)
-        ix = int(np.floor(xs))
-        iy = int(np.floor(ys))
-        _bspline(xs - ix, wx, dwx)
-        _bspline(ys - iy, wy, dwy)
-        g = 0.0
-        ggx = 0.0
-        ggy = 0.0
-        r = iy + pad - 1
-        q = ix + pad - 1
-        for mm in range(4):
-            v = 0.0
-            dv = 0.0
-            for nn in range(4):
-                cf = coef[r + mm, q + nn]
-                v += cf * wx[nn]
-                dv += cf * dwx[nn]
-            g += v * wy[mm]
-            ggx += dv * wy[mm]
-            ggy += v * dwy[mm]
+        g, ggx, ggy = _spline_at(coef, pad, xs, ys, wx, dwx, wy, dwy)
         value[s] = g
         if gradient:
             gx[s] = ggx

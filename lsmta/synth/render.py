@@ -304,14 +304,11 @@ def cast_body(body: Body, poses: np.ndarray, origin: np.ndarray, dirs: np.ndarra
     return BodyHits(t=t_best, part=part, local=local, normal=normal)
 
 
-def _background_hits(scene: Scene, origin: np.ndarray, dirs: np.ndarray):
-    """Distance along each ray to the wall or floor, and the grey value there (0-255)."""
+def _background_distances(bg: Background | None, origin: np.ndarray, dirs: np.ndarray):
+    """Distance along each ray to the wall and to the floor (inf where missed)."""
     M = len(dirs)
-    t = np.full(M, np.inf)
-    grey = np.zeros(M)
-    bg = scene.background
     if bg is None:
-        return t, grey
+        return np.full(M, np.inf), np.full(M, np.inf)
     with np.errstate(divide="ignore", invalid="ignore"):
         t_wall = (bg.wall_y - origin[1]) / dirs[:, 1]
         z_wall = origin[2] + t_wall * dirs[:, 2]
@@ -322,12 +319,21 @@ def _background_hits(scene: Scene, origin: np.ndarray, dirs: np.ndarray):
             t_floor = np.where((t_floor > 0) & (y_floor <= bg.wall_y), t_floor, np.inf)
         else:
             t_floor = np.full(M, np.inf)
+    return t_wall, t_floor
+
+
+def _background_hits(scene: Scene, origin: np.ndarray, dirs: np.ndarray):
+    """Distance along each ray to the wall or floor, and the grey value there (0-255)."""
+    t_wall, t_floor = _background_distances(scene.background, origin, dirs)
     t = np.minimum(t_wall, t_floor)
+    grey = np.zeros(len(dirs))
     hit = np.isfinite(t)
-    pts = origin + t[hit, None] * dirs[hit]
-    tex = bg.texture.value(np.zeros(hit.sum(), dtype=int), pts)
-    shade = np.where(t_floor[hit] < t_wall[hit], 0.85, 1.0)
-    grey[hit] = 255.0 * np.clip(bg.albedo * tex * shade, 0.0, 1.0)
+    if hit.any():
+        bg = scene.background
+        pts = origin + t[hit, None] * dirs[hit]
+        tex = bg.texture.value(np.zeros(hit.sum(), dtype=int), pts)
+        shade = np.where(t_floor[hit] < t_wall[hit], 0.85, 1.0)
+        grey[hit] = 255.0 * np.clip(bg.albedo * tex * shade, 0.0, 1.0)
     return t, grey
 
 
@@ -386,8 +392,7 @@ def project_surface_points(scene: Scene, cameras, part, local_points, frames=Non
             dist = np.linalg.norm(vec, axis=1)
             dirs = vec / dist[:, None]
             t_body = cast_body(body, poses_all[ti], cam.C, dirs).t
-            t_bg, _ = _background_hits(scene, cam.C, dirs) if scene.background else (
-                np.full(len(cand), np.inf), None)
-            nearest = np.minimum(t_body, t_bg)
+            t_wall, t_floor = _background_distances(scene.background, cam.C, dirs)
+            nearest = np.minimum(t_body, np.minimum(t_wall, t_floor))
             visible[ti, k, cand] = nearest >= dist - tol
     return SurfaceProjection(xy=xy, visible=visible, world=world)

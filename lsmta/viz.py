@@ -141,3 +141,34 @@ def scene_image(cameras, body=None, poses=None, *, background=None, frustum_dept
     image = pl.screenshot(return_img=True)
     pl.close()
     return image
+
+
+def cloud_image(points, scalars=None, *, cmap="viridis", clim=None, scalar_label="",
+                window_size=(900, 700), view_from=None, focal_point=None,
+                point_size=4.0) -> np.ndarray:
+    """An off-screen picture ``(H, W, 3)`` of a point cloud (mm), optionally coloured.
+
+    By default the view looks at the cloud's centre from the front (-Y) and a little above.
+    """
+    pv = _pyvista()
+    pts = np.asarray(points, float)
+    centre = np.nanmedian(pts, axis=0)
+    extent = float(np.nanmax(np.ptp(pts, axis=0)))
+    pl = pv.Plotter(off_screen=True, window_size=list(window_size))
+    pl.set_background("white")
+    cloud = pv.PolyData(pts)
+    if scalars is not None:
+        cloud[scalar_label or "value"] = np.asarray(scalars, float)
+        pl.add_mesh(cloud, scalars=scalar_label or "value", cmap=cmap, clim=clim,
+                    point_size=point_size, render_points_as_spheres=True,
+                    scalar_bar_args={"title": scalar_label, "color": "black"})
+    else:
+        pl.add_mesh(cloud, color="steelblue", point_size=point_size,
+                    render_points_as_spheres=True)
+    eye = view_from if view_from is not None else centre + [0.6 * extent, -2.2 * extent,
+                                                             0.5 * extent]
+    pl.camera_position = [tuple(eye), tuple(centre if focal_point is None else focal_point),
+                          (0, 0, 1)]
+    image = pl.screenshot(return_img=True)
+    pl.close()
+    return image

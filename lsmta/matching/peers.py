@@ -140,3 +140,64 @@ def ilk(template, search, template_xy, search_xy, *, patch: int = 13, margin: in
         v, u = optical_flow_ilk(T, S, radius=h, num_warp=num_warp)
         xy[i] = c[i] + (u[r, r], v[r, r])
     return PeerResult(xy, np.isfinite(xy).all(axis=1))
+
+
+@dataclass(frozen=True)
+class StereoPoints:
+    """3-D points from a rectified stereo matcher.
+
+    ``points`` (N, 3) world mm; ``xy_first`` (N, 2) their pixels in the first (original,
+    unrectified) image; ``seconds`` the matcher's run time (rectification included).
+    """
+
+    points: np.ndarray
+    xy_first: np.ndarray
+    seconds: float
+
+
+def sgbm(first, second, cam_first, cam_second, *, depth_range=(1800.0, 3500.0),
+         block_size: int = 5, uniqueness: int = 10) -> StereoPoints:
+    """OpenCV semi-global matching on a rectified pair, triangulated to world points.
+
+    ``first`` must be the left image of the pair (the second camera lies to its right).
+    OpenCV rectifies both images (``stereoRectify`` with the cameras' own distortion),
+    ``StereoSGBM`` computes disparities over the range that ``depth_range`` (mm from the
+    first camera) implies, and ``reprojectImageTo3D`` turns them into points, which are
+    mapped back to the world frame and to the first image's original pixels.
+    """
+    import time
+
+    f_img = check_image(first, "first")
+    s_img = check_image(second, "second")
+    if f_img.shape != s_img.shape:
+        raise ValueError("second: expected the size of first")
+    t0 = time.perf_counter()
+    K1, d1, _, _ = cam_first.to_opencv()
+    K2, d2, _, _ = cam_second.to_opencv()
+    R = np.asarray(cam_second.R) @ np.asarray(cam_first.R).T
+    T = np.asarray(cam_second.R) @ (cam_first.C - cam_second.C)
+    size = (cam_first.width, cam_first.height)
+    # alpha=1 keeps every pixel: with convergent cameras alpha=0 zooms in threefold
+    R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(K1, d1, K2, d2, size, R, T.reshape(3, 1),
+                                                alpha=1)
+    maps = [cv2.initUndistortRectifyMap(K, d, Rr, P, size, cv2.CV_32FC1)
+            for K, d, Rr, P in ((K1, d1, R1, P1), (K2, d2, R2, P2))]
+    rect = [cv2.remap(np.clip(img, 0, 255).astype(np.uint8), mx, my, cv2.INTER_LINEAR)
+            for img, (mx, my) in zip((f_img, s_img), maps)]
+    fb = abs(P2[0, 3])                                    # focal length x baseline
+    shift = P1[0, 2] - P2[0, 2]                           # principal points may differ
+    d_lo, d_hi = fb / depth_range[1] + shift, fb / depth_range[0] + shift
+    num = int(np.ceil((d_hi - d_lo) / 16.0)) * 16
+    matcher = cv2.StereoSGBM_create(minDisparity=int(np.floor(d_lo)), numDisparities=num,
+                                    blockSize=block_size, P1=8 * block_size**2,
+                                    P2=32 * block_size**2, uniquenessRatio=uniqueness,
+                                    mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+    disp = matcher.compute(rect[0], rect[1]).astype(np.float32) / 16.0
+    valid = disp > matcher.getMinDisparity()
+    xyz = cv2.reprojectImageTo3D(disp, Q)[valid]          # first rectified camera frame
+    cam1 = xyz @ R1                                        # R1^T x, as rows
+    world = cam1 @ np.asarray(cam_first.R) + cam_first.C
+    seconds = time.perf_counter() - t0
+    xy = cam_first.project(world, behind="nan")
+    keep = np.isfinite(xy).all(axis=1)
+    return StereoPoints(points=world[keep], xy_first=xy[keep], seconds=seconds)

@@ -173,7 +173,8 @@ class Renderer:
             self._cache[k] = {"dirs": dirs, "t_bg": t_bg, "grey_bg": grey_bg}
         return self._cache[k]
 
-    def render(self, frame: int, rng: np.random.Generator | None = None) -> RenderedFrame:
+    def render(self, frame: int, rng: np.random.Generator | None = None, *,
+               noise_sigma: float | None = None) -> RenderedFrame:
         """Render one frame in every camera.
 
         Parameters
@@ -181,9 +182,13 @@ class Renderer:
         frame : int
             Frame index of the scene's motion.
         rng : numpy.random.Generator, optional
-            Needed when ``noise_sigma > 0``: draws the image noise.
+            Needed when the noise is > 0: draws the image noise.
+        noise_sigma : float, optional
+            Noise for this frame only (default: the renderer's ``noise_sigma``).
         """
-        if self.noise_sigma > 0:
+        sigma = self.noise_sigma if noise_sigma is None else as_scalar(
+            noise_sigma, "noise_sigma", nonnegative=True)
+        if sigma > 0:
             if rng is None:
                 raise ValueError("rng: a numpy.random.Generator is needed when noise_sigma > 0")
             as_rng(rng)
@@ -219,8 +224,8 @@ class Renderer:
             out["world_xyz"].append(world.reshape(H, W, 3))
             out["depth"].append(depth.reshape(H, W))
         images = np.stack(out["images"])
-        if self.noise_sigma > 0:
-            images = images + rng.normal(0.0, self.noise_sigma, images.shape)
+        if sigma > 0:
+            images = images + rng.normal(0.0, sigma, images.shape)
         if self.dtype == np.uint8:
             images = np.clip(np.rint(images), 0, 255).astype(np.uint8)
         return RenderedFrame(frame=frame, images=images,

@@ -1,0 +1,114 @@
+"""Surface-measurement trials: seeds from the generator, scores against the true surface."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from ..matching.surface import SurfaceResult
+from ..synth.render import RenderedFrame, Scene, project_surface_points
+
+
+def seeds_from_truth(scene: Scene, cameras, frame: int, rng: np.random.Generator, *,
+                     per_part: int = 1, perturb_px: float = 1.0, min_px: int = 40):
+    """Seeds as a user would click them: points visible in every camera, one (or
+    ``per_part``) on each body part that shows at least ``min_px`` such points, moved by up
+    to ``perturb_px`` pixels in each image. Returns ``(K, S, 2)`` pixel positions."""
+    part, local = scene.body.sample_surface(rng, 200)
+    proj = project_surface_points(scene, cameras, part, local, frames=frame)
+    seen = proj.visible[0].all(axis=0)
+    chosen = []
+    for p in np.unique(part[seen]):
+        idx = np.flatnonzero(seen & (part == p))
+        if len(idx) < min_px // 5:
+            continue
+        # the most central visible points of the part (in the first camera's image)
+        centre = proj.xy[0, 0, idx].mean(axis=0)
+        order = np.argsort(np.linalg.norm(proj.xy[0, 0, idx] - centre, axis=1))
+        chosen.extend(idx[order[:per_part]])
+    xy = proj.xy[0][:, chosen]
+    return xy + rng.uniform(-perturb_px, perturb_px, xy.shape)
+
+
+def node_truth(rendered: RenderedFrame, scene: Scene, cameras, *, template: int = 1,
+               step: int = 4, patch: int = 13):
+    """Ground truth on the template's node grid.
+
+    Returns a dict of ``(rows, cols)`` grids: ``world`` (3-D truth at the node pixel),
+    ``on_body``, ``visible`` (the surface point at the node is seen by every camera) and
+    ``interior`` (the whole ``patch x patch`` window lies on the body).
+    """
+    pid = rendered.part_id[template]
+    H, W = pid.shape
+    rr, cc = np.mgrid[0:H:step, 0:W:step]
+    on_body = pid[rr, cc] >= 0
+    interior = ndimage.minimum_filter(pid, size=patch, mode="constant", cval=-2)[rr, cc] >= 0
+    visible = np.zeros_like(on_body)
+    parts = pid[rr, cc]
+    local = rendered.local_xyz[template][rr, cc]
+    for p in np.unique(parts[on_body]):
+        m = on_body & (parts == p)
+        pr = project_surface_points(scene, cameras, int(p), local[m], frames=rendered.frame)
+        visible[m] = pr.visible[0].all(axis=0)
+    return {"world": rendered.world_xyz[template][rr, cc], "on_body": on_body,
+            "visible": visible, "interior": interior, "step": step}
+
+
+def score_surface(result: SurfaceResult, truth: dict) -> dict:
+    """Density and 3-D errors of a surface measurement against :func:`node_truth`.
+
+    ``density``: share of the visible interior body nodes matched in every image and kept by
+    the filters; errors (mm) before the filters (``raw``), after the neighbourhood filter
+    (``filtered``) and after the voxel filter (``voxel``, each voxel centre against the
+    mean truth of its members); ``gross``: share of errors above 5 x the median.
+    """
+    step = truth["step"]
+    r = (result.template_xy[:, 1] // step).astype(int)
+    c = (result.template_xy[:, 0] // step).astype(int)
+    target = truth["visible"] & truth["interior"]
+    matched = np.zeros_like(target)
+    matched[r[result.neighbourhood_ok], c[result.neighbourhood_ok]] = True
+    world = truth["world"][r, c]
+    body = truth["on_body"][r, c]
+    err = np.linalg.norm(result.intersection.points - world, axis=1)
+    out = {"density": float(matched[target].mean()), "n_target": int(target.sum())}
+    for name, sel in (("raw", body & result.intersection.valid),
+                      ("filtered", body & result.neighbourhood_ok & result.intersection.valid)):
+        e = err[sel]
+        med = float(np.median(e))
+        out[name] = {"n": int(sel.sum()), "median_mm": med,
+                     "p95_mm": float(np.percentile(e, 95)),
+                     "gross": float(np.mean(e > 5 * med))}
+    if result.cloud is not None:
+        # a voxel's truth is the mean truth of its nodes; voxels holding an off-body node
+        # (no true surface there) get NaN and are left out
+        t = result.cloud.mean_of(np.where(body[:, None], world, np.nan))
+        good = np.isfinite(t).all(axis=1)
+        e = np.linalg.norm(result.cloud.points[good] - t[good], axis=1)
+        med = float(np.median(e))
+        out["voxel"] = {"n": int(good.sum()), "median_mm": med,
+                        "p95_mm": float(np.percentile(e, 95)), "gross": float(np.mean(e > 5 * med))}
+    return out
+
+
+def score_points(points, xy_first, truth: dict, rendered: RenderedFrame, *, template: int = 1):
+    """Density and 3-D error of any point cloud whose points carry a template pixel
+    (e.g. SGBM's): error against the true surface point at that (rounded) pixel; density:
+    share of the visible interior body nodes whose grid cell receives a point."""
+    step = truth["step"]
+    ij = np.rint(xy_first).astype(int)
+    H, W = rendered.part_id[template].shape
+    inside = (ij[:, 0] >= 0) & (ij[:, 0] < W) & (ij[:, 1] >= 0) & (ij[:, 1] < H)
+    ij, pts = ij[inside], points[inside]
+    on_body = rendered.part_id[template][ij[:, 1], ij[:, 0]] >= 0
+    gt = rendered.world_xyz[template][ij[:, 1], ij[:, 0]]
+    e = np.linalg.norm(pts - gt, axis=1)[on_body]
+    covered = np.zeros_like(truth["on_body"])
+    rr = np.clip((ij[on_body, 1] + step // 2) // step, 0, covered.shape[0] - 1)
+    cc = np.clip((ij[on_body, 0] + step // 2) // step, 0, covered.shape[1] - 1)
+    covered[rr, cc] = True
+    target = truth["visible"] & truth["interior"]
+    med = float(np.median(e))
+    return {"density": float(covered[target].mean()), "n": int(on_body.sum()),
+            "median_mm": med, "p95_mm": float(np.percentile(e, 95)),
+            "gross": float(np.mean(e > 5 * med))}

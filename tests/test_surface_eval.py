@@ -1,0 +1,31 @@
+import numpy as np
+
+from lsmta.evaluation.surface import node_truth, score_points, score_surface, seeds_from_truth
+from lsmta.matching import LSMThresholds, measure_surface, peers
+from lsmta.synth import Renderer, Scene, make_body, triplet_rig, walk
+
+
+def test_seeds_scores_and_sgbm_on_a_small_triplet():
+    rng = np.random.default_rng(5)
+    cams = triplet_rig(rng, distance=2500.0, baseline=700.0)
+    small = [c.replace(f=c.f / 2, cx=(c.cx + 0.5) / 2 - 0.5, cy=(c.cy + 0.5) / 2 - 0.5,
+                       width=c.width // 2, height=c.height // 2) for c in cams]
+    scene = Scene(make_body(rng, wavelength=(12.0, 50.0)), walk(20, start=(-300.0, 0.0)), None)
+    frame = Renderer(scene, small, noise_sigma=1.0).render(5, rng=rng)
+    seeds = seeds_from_truth(scene, small, 5, rng)
+    assert seeds.shape[0] == 3 and seeds.shape[1] >= 6
+    truth = node_truth(frame, scene, small, step=3, patch=9)
+    assert truth["visible"].sum() > 100 and not truth["visible"][~truth["on_body"]].any()
+    th = LSMThresholds(max_displacement=3.0, max_sigma_xy=0.3, scale_range=(0.5, 2.0),
+                       max_shear=0.5)
+    res = measure_surface(frame.images, small, seeds, step=3, patch=9, thresholds=th,
+                          voxel=25.0)
+    score = score_surface(res, truth)
+    assert 0.3 < score["density"] <= 1.0
+    assert score["filtered"]["median_mm"] < 5.0
+    assert score["voxel"]["n"] <= score["filtered"]["n"]
+    sg = peers.sgbm(frame.images[0], frame.images[1], small[0], small[1])
+    assert len(sg.points) > 100 and sg.seconds > 0
+    s = score_points(sg.points, sg.xy_first, node_truth(frame, scene, small, template=0,
+                                                        step=3, patch=9), frame, template=0)
+    assert 0 < s["density"] <= 1 and np.isfinite(s["median_mm"])

@@ -1,6 +1,12 @@
 import numpy as np
 
-from lsmta.evaluation.surface import node_truth, score_points, score_surface, seeds_from_truth
+from lsmta.evaluation.surface import (
+    classify_misses,
+    node_truth,
+    score_points,
+    score_surface,
+    seeds_from_truth,
+)
 from lsmta.matching import LSMThresholds, measure_surface, peers
 from lsmta.synth import Renderer, Scene, make_body, triplet_rig, walk
 
@@ -29,3 +35,6 @@ def test_seeds_scores_and_sgbm_on_a_small_triplet():
     s = score_points(sg.points, sg.xy_first, node_truth(frame, scene, small, template=0,
                                                         step=3, patch=9), frame, template=0)
     assert 0 < s["density"] <= 1 and np.isfinite(s["median_mm"])
+    misses = classify_misses(res, truth, frame)
+    assert misses["missed"] == misses["at_depth_jump"] + misses["smooth_missed"]
+    assert misses["missed"] <= misses["target"] == int((truth["visible"] & truth["interior"]).sum())

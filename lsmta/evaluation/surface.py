@@ -112,3 +112,29 @@ def score_points(points, xy_first, truth: dict, rendered: RenderedFrame, *, temp
     return {"density": float(covered[target].mean()), "n": int(on_body.sum()),
             "median_mm": med, "p95_mm": float(np.percentile(e, 95)),
             "gross": float(np.mean(e > 5 * med))}
+
+
+def classify_misses(result: SurfaceResult, truth: dict, rendered: RenderedFrame, *,
+                    template: int = 1, window: int = 9, jump_mm: float = 20.0) -> dict:
+    """Why were target nodes missed? Counts of missed nodes with a depth jump above
+    ``jump_mm`` inside a ``window x window`` neighbourhood (an occlusion border inside the
+    silhouette), and of the others, split by which search images matched them."""
+    step = truth["step"]
+    target = truth["visible"] & truth["interior"]
+    got = np.zeros_like(target)
+    r = (result.template_xy[:, 1] // step).astype(int)
+    c = (result.template_xy[:, 0] // step).astype(int)
+    got[r[result.neighbourhood_ok], c[result.neighbourhood_ok]] = True
+    depth = np.nan_to_num(rendered.depth[template], nan=1e9)
+    jump = (ndimage.maximum_filter(depth, size=window)
+            - ndimage.minimum_filter(depth, size=window))[::step, ::step] > jump_mm
+    miss = target & ~got
+    out = {"target": int(target.sum()), "missed": int(miss.sum()),
+           "at_depth_jump": int((miss & jump).sum())}
+    smooth = miss & ~jump
+    for k, g in enumerate(result.grown):
+        seen = np.zeros_like(target)
+        seen[g.node_index[:, 0], g.node_index[:, 1]] = True
+        out[f"smooth_missed_matched_in_search_{k}"] = int((smooth & seen).sum())
+    out["smooth_missed"] = int(smooth.sum())
+    return out

@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from lsmta.evaluation.surface import (
     classify_misses,
@@ -38,3 +39,23 @@ def test_seeds_scores_and_sgbm_on_a_small_triplet():
     misses = classify_misses(res, truth, frame)
     assert misses["missed"] == misses["at_depth_jump"] + misses["smooth_missed"]
     assert misses["missed"] <= misses["target"] == int((truth["visible"] & truth["interior"]).sum())
+
+
+def test_find_seeds_agree_with_truth():
+    from lsmta.matching.seeds import find_seeds
+
+    rng = np.random.default_rng(8)
+    cams = triplet_rig(rng, distance=2500.0, baseline=700.0)
+    small = [c.replace(f=c.f / 2, cx=(c.cx + 0.5) / 2 - 0.5, cy=(c.cy + 0.5) / 2 - 0.5,
+                       width=c.width // 2, height=c.height // 2) for c in cams]
+    scene = Scene(make_body(rng, wavelength=(12.0, 50.0)), walk(20, start=(-300.0, 0.0)), None)
+    frame = Renderer(scene, small, noise_sigma=1.0).render(5, rng=rng)
+    seeds = find_seeds(frame.images, small, n_seeds=8, patch=9, min_distance=12)
+    assert seeds.xy.shape[1] >= 4 and np.all(seeds.score >= 0.8)
+    ij = np.rint(seeds.xy[1]).astype(int)
+    world = frame.world_xyz[1][ij[:, 1], ij[:, 0]]
+    for k in (0, 2):
+        err = np.linalg.norm(small[k].project(world) - seeds.xy[k], axis=1)
+        assert np.median(err) < 1.0                 # depth sampling: well inside LSM's pull-in
+    with pytest.raises(ValueError, match="depth_range"):
+        find_seeds(frame.images, small, depth_range=(3000.0, 1000.0))

@@ -13,12 +13,13 @@ from .filters import NeighbourhoodCheck, neighbourhood_filter
 from .grow import GrowResult, grow_matches
 from .lsm import GEOMETRIES, PARAM_NAMES, RADIOMETRIES, LSMResult, LSMThresholds, Status, lsm
 from .multi import lsm_multi
+from .seeds import Seeds, find_seeds
 from .spline import SplineImage
 from .surface import SurfaceResult, enhance_contrast, measure_surface
 
 __all__ = [
     "GEOMETRIES", "PARAM_NAMES", "RADIOMETRIES", "CorrelationResult", "CorrelationStatus",
-    "GrowResult", "LSMResult", "LSMThresholds", "NeighbourhoodCheck", "SplineImage", "Status",
-    "SurfaceResult", "correlation_search", "enhance_contrast", "grow_matches", "lsm", "lsm_multi",
-    "measure_surface", "neighbourhood_filter",
+    "GrowResult", "LSMResult", "LSMThresholds", "NeighbourhoodCheck", "Seeds", "SplineImage",
+    "Status", "SurfaceResult", "correlation_search", "enhance_contrast", "find_seeds",
+    "grow_matches", "lsm", "lsm_multi", "measure_surface", "neighbourhood_filter",
 ]

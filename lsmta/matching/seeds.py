@@ -1,0 +1,135 @@
+"""Automatic seed points: correlation along epipolar lines, checked in every image.
+
+Candidate points are well-textured corners of the template (OpenCV's Shi-Tomasi
+``goodFeaturesToTrack``). For each candidate, the viewing ray of the template camera is
+sampled at depths evenly spaced in inverse depth over ``depth_range``; each sample is
+projected into every search image (through their distortion, so the "epipolar line" is
+the true curve) and the template patch is compared there by normalised cross-correlation.
+The depth that maximises the *mean* correlation over all search images wins; requiring
+all images to agree at one depth is what removes most false seeds. The best-scoring
+candidates become seeds; :func:`~lsmta.matching.grow.grow_matches` refines them by LSM.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..camera import Camera
+from .lsm import _check_patch
+from .spline import SplineImage, check_image
+
+
+@dataclass(frozen=True)
+class Seeds:
+    """Automatically found seeds.
+
+    Attributes
+    ----------
+    xy : (K, S, 2) array
+        Seed positions in all K images (the template row holds the corners).
+    score : (S,) array
+        Mean normalised cross-correlation over the search images at the chosen depth.
+    depth : (S,) array
+        Chosen distance along the template camera's ray, mm.
+    """
+
+    xy: np.ndarray
+    score: np.ndarray
+    depth: np.ndarray
+
+
+def _ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Normalised cross-correlation of patches along the last axis."""
+    a = a - a.mean(axis=-1, keepdims=True)
+    b = b - b.mean(axis=-1, keepdims=True)
+    den = np.sqrt((a * a).sum(axis=-1) * (b * b).sum(axis=-1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 0, (a * b).sum(axis=-1) / den, -1.0)
+
+
+def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: int = 11,
+               depth_range=(1500.0, 4000.0), n_depths: int = 400, min_score: float = 0.8,
+               mask=None, min_distance: int = 25) -> Seeds:
+    """Find seed correspondences in K >= 2 calibrated images without a user.
+
+    Parameters
+    ----------
+    images : sequence of K (H, W) arrays
+    cameras : sequence of K Camera
+    template : int
+        Index of the template image.
+    n_seeds : int
+        How many seeds to return at most (best scores first).
+    patch : int
+        Odd correlation patch size.
+    depth_range : (float, float)
+        Nearest and farthest distance along the template rays to search, mm.
+    n_depths : int
+        Samples along each ray (evenly in inverse depth).
+    min_score : float
+        Seeds whose mean correlation is lower are dropped.
+    mask : (H, W) bool array, optional
+        Where in the template to look for corners.
+    min_distance : int
+        Smallest distance between two candidate corners, pixels.
+    """
+    images = [check_image(im, f"images[{k}]") for k, im in enumerate(images)]
+    cameras = list(cameras)
+    K = len(images)
+    if K < 2 or len(cameras) != K or not all(isinstance(c, Camera) for c in cameras):
+        raise ValueError("cameras: expected one lsmta.camera.Camera per image, at least 2")
+    patch = _check_patch(patch)
+    near, far = (float(d) for d in depth_range)
+    if not 0 < near < far:
+        raise ValueError(f"depth_range: expected 0 < near < far (mm), got {depth_range}")
+    h = patch // 2
+    f = images[template]
+    f8 = np.clip(np.rint(255 * (f - f.min()) / max(np.ptp(f), 1e-9)), 0, 255).astype(np.uint8)
+    m8 = None if mask is None else np.asarray(mask, dtype=np.uint8)
+    corners = cv2.goodFeaturesToTrack(f8, maxCorners=4 * n_seeds, qualityLevel=0.05,
+                                      minDistance=min_distance, mask=m8, blockSize=patch)
+    empty = Seeds(np.zeros((K, 0, 2)), np.zeros(0), np.zeros(0))
+    if corners is None:
+        return empty
+    t_xy = corners[:, 0].astype(float)
+    spline_t = SplineImage(f)
+    t_xy = t_xy[spline_t.inside(t_xy, margin=h)]
+    if len(t_xy) == 0:
+        return empty
+    gy, gx = np.mgrid[-h:h + 1, -h:h + 1]
+    U = np.stack([gx.ravel(), gy.ravel()], axis=1).astype(float)
+    tpl = spline_t.patches(t_xy, U)                                   # (C, P)
+
+    o, d = cameras[template].rays(t_xy)
+    # distance along the ray whose camera depth goes evenly in inverse depth
+    inv = np.linspace(1.0 / near, 1.0 / far, n_depths)
+    along = (1.0 / inv)[None, :] / (d @ cameras[template].R[2])[:, None]    # (C, D)
+    X = o[:, None, :] + along[..., None] * d[:, None, :]                   # (C, D, 3)
+    score = np.zeros(along.shape)
+    projected = {}
+    for k, cam in enumerate(cameras):
+        if k == template:
+            continue
+        xy = cam.project(X.reshape(-1, 3), behind="nan").reshape(X.shape[:2] + (2,))
+        spline = SplineImage(images[k])
+        ok = np.isfinite(xy).all(axis=-1)
+        ok &= spline.inside(np.nan_to_num(xy), margin=h)
+        vals = spline.sample(np.where(ok[..., None], xy, 0.0)[:, :, None, :] + U,
+                             gradient=False)                                  # (C, D, P)
+        ncc = _ncc(tpl[:, None, :], vals)
+        score += np.where(ok, ncc, -1.0)
+        projected[k] = xy
+    score /= K - 1
+    best = score.argmax(axis=1)
+    best_score = score[np.arange(len(best)), best]
+    order = np.argsort(-best_score)
+    order = order[best_score[order] >= min_score][:n_seeds]
+    xy = np.zeros((K, len(order), 2))
+    xy[template] = t_xy[order]
+    for k, p in projected.items():
+        xy[k] = p[order, best[order]]
+    depth = 1.0 / inv[best[order]]
+    return Seeds(xy=xy, score=best_score[order], depth=depth)

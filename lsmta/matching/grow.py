@@ -110,8 +110,9 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         Grid spacing in pixels.
     patch : int
         LSM patch size (odd, >= 5).
-    retry_patch : int, optional
-        Patch size of the second attempt at a failed node (default ``patch + 6``).
+    retry_patch : int or sequence of int, optional
+        Patch sizes of further attempts at a failed node, in order (default
+        ``patch + 6``). A smaller patch can match closer to an occlusion border.
     thresholds : LSMThresholds, optional
         Quality indicators a match must pass (default :class:`LSMThresholds` with
         ``max_displacement = step``).
@@ -132,7 +133,9 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
     GrowResult
     """
     patch = _check_patch(patch)
-    retry_patch = _check_patch(patch + 6 if retry_patch is None else retry_patch)
+    if retry_patch is None:
+        retry_patch = (patch + 6,)
+    retry_patches = tuple(_check_patch(p) for p in np.atleast_1d(retry_patch))
     if isinstance(step, bool) or int(step) != step or step < 1:
         raise ValueError(f"step: expected a positive integer (pixels), got {step}")
     step = int(step)
@@ -158,7 +161,7 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
     rows, cols = (H - 1) // step + 1, (W - 1) // step + 1
     gr, gc = np.mgrid[0:rows, 0:cols]
     nodes = np.stack([gc * step, gr * step], axis=-1).astype(float)        # (rows, cols, 2)
-    h = retry_patch // 2
+    h = max((patch,) + retry_patches) // 2
     usable = f_img.inside(nodes, margin=h)
     if mask is not None:
         usable &= mask[gr * step, gc * step]
@@ -193,9 +196,11 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         n_lsm += len(t_xy)
         ok = res.status == Status.CONVERGED
         xy, A, s0, sxy = res.xy.copy(), res.A.copy(), res.sigma0.copy(), res.sigma_xy.copy()
-        again = np.flatnonzero(~ok)
-        if again.size:
-            res2 = lsm(f_img, g_img, t_xy[again], approx[again], patch=retry_patch,
+        for size in retry_patches:
+            again = np.flatnonzero(~ok)
+            if again.size == 0:
+                break
+            res2 = lsm(f_img, g_img, t_xy[again], approx[again], patch=size,
                        initial_A=A0[again], geometry=geometry, radiometry=radiometry,
                        thresholds=thresholds)
             n_lsm += again.size
@@ -221,7 +226,8 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         state[r[bad], c[bad]] = np.where(attempts[r[bad], c[bad]] >= max_attempts, 2, 0)
 
     # 1. the seeds: LSM at the seed itself, then its nearest usable node of its own cell
-    seed_res = lsm(f_img, g_img, seeds_t, seeds_s, patch=retry_patch, geometry=geometry,
+    seed_res = lsm(f_img, g_img, seeds_t, seeds_s, patch=max((patch,) + retry_patches),
+                   geometry=geometry,
                    radiometry=radiometry)
     n_lsm += len(seeds_t)
     seeds_ok = seed_res.status == Status.CONVERGED

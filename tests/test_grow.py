@@ -124,3 +124,16 @@ def test_measure_surface_bad_input(pair):
                         np.zeros((3, 1, 2)))
     with pytest.raises(ValueError, match="no seed"):
         measure_surface([pair.template] * 3, cams, np.full((3, 2, 2), np.nan))
+
+
+def test_retry_sequence_of_patch_sizes(pair):
+    seeds = np.array([[40.0, 40.0]])
+    one = grow_matches(pair.template, pair.search, seeds, pair.true_xy(seeds), patch=7,
+                       retry_patch=13)
+    two = grow_matches(pair.template, pair.search, seeds, pair.true_xy(seeds), patch=7,
+                       retry_patch=(9, 5))
+    assert len(one) > 100 and len(two) > 100
+    err = np.linalg.norm(two.search_xy - pair.true_xy(two.template_xy), axis=1)
+    assert np.median(err) < 0.1
+    with pytest.raises(ValueError, match="patch"):
+        grow_matches(pair.template, pair.search, seeds, seeds, retry_patch=(9, 4))

@@ -188,7 +188,8 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
     n_lsm = 0
 
     def match(node_rc, approx, A0):
-        """LSM at grid nodes with a retry; returns the accepted mask and the results."""
+        """LSM at grid nodes, then the retry patch sizes in turn; returns the accepted mask and
+        the results."""
         nonlocal n_lsm
         t_xy = nodes[node_rc[:, 0], node_rc[:, 1]]
         res = lsm(f_img, g_img, t_xy, approx, patch=patch, initial_A=A0, geometry=geometry,

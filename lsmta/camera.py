@@ -25,8 +25,10 @@ Distortion (Brown, 1971)
         yd = y (1 + k1 r2 + k2 r2² + k3 r2³) + p1 (r2 + 2 y²) + 2 p2 x y
 
     Photogrammetric software often states K1, K2, K3 for image coordinates in mm and as
-    corrections; with ours, ``K1_mm = k1 / c_mm²`` etc., and the sign is that of a
-    distortion, not a correction.
+    corrections; with ours, ``K1_mm = k1 / c_mm²``, ``K2_mm = k2 / c_mm⁴``,
+    ``K3_mm = k3 / c_mm⁶``, and the sign is that of a distortion, not a correction. The
+    decentring pair follows OpenCV's order, which is swapped against Brown's: OpenCV's
+    ``p2`` multiplies ``r2 + 2 x²``, Brown's P1 does.
 Affinity and shear (B1, B2)
     ``u = cx + f ((1 + b1) xd + b2 yd)``, ``v = cy + f yd``: b1 scales x against y
     (non-square pixels, a clock mismatch of the frame grabber), b2 shears x by y.
@@ -166,6 +168,10 @@ class Camera:
             raise ValueError("rvec, tvec: expected 3 numbers each")
         if len(image_size) != 2:
             raise ValueError("image_size: expected (width, height)")
+        taken = {"f", "cx", "cy", "width", "height", "R", "C", *DISTORTION_NAMES} & set(kwargs)
+        if taken:
+            raise ValueError(f"{sorted(taken)}: these come from K, dist, rvec, tvec and "
+                             "image_size; pass only name or pixel_size as extra arguments")
         R, _ = cv2.Rodrigues(rvec)
         return cls(f=K[1, 1], cx=K[0, 2], cy=K[1, 2], width=image_size[0], height=image_size[1],
                    R=R, C=-R.T @ tvec, k1=d[0], k2=d[1], p1=d[2], p2=d[3], k3=d[4],

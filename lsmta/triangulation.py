@@ -40,7 +40,8 @@ class Intersection:
     n_rays : (N,) int array
         How many rays each point had.
     angle_deg : (N,) array
-        Largest angle between two of the point's rays, in degrees (NaN with < 2 rays).
+        Largest acute angle between the lines of two of the point's rays, in degrees, in
+        [0, 90] (NaN with < 2 rays).
     ray_distance : (K, N) array
         Perpendicular distance from the point to each ray, in mm (NaN for missing rays).
     reprojection_error : (K, N) array or None

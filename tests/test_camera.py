@@ -128,3 +128,19 @@ def test_undistort_refuses_fold_over():
     # x (1 - 0.5 x^2) peaks at 0.544 for x = 0.816: larger distorted values have no preimage
     with pytest.raises(ValueError, match="folds over"):
         cam.undistort([[0.7, 0.0]])
+
+
+def test_field_camera_for_every_other_row(rng):
+    # notebook 00's recipe for interlaced cameras processed on one field (rows 0, 2, 4, ...)
+    cam = random_camera(rng)
+    half = cam.replace(f=cam.f / 2, b1=1 + 2 * cam.b1, cy=cam.cy / 2, height=cam.height // 2)
+    X = _points_in_front(rng, cam)
+    full, field = cam.project(X), half.project(X)
+    assert np.abs(field[:, 0] - full[:, 0]).max() < 1e-9
+    assert np.abs(field[:, 1] - full[:, 1] / 2).max() < 1e-9
+
+
+def test_from_opencv_names_conflicting_arguments(rng):
+    cam = random_camera(rng)
+    with pytest.raises(ValueError, match="k1"):
+        Camera.from_opencv(*cam.to_opencv(), cam.image_size, k1=0.1)

@@ -192,3 +192,11 @@ def test_bad_input(world, call, match):
     cams, scene = world
     with pytest.raises((ValueError, TypeError), match=match):
         call(scene, [_small(cams[1], 8)])
+
+
+def test_motion_ground_truth_is_read_only_and_frames_one_at_a_time(world):
+    cams, scene = world
+    with pytest.raises(ValueError):
+        scene.motion.angle("thigh_r")[0, 0] = 1.0
+    with pytest.raises(ValueError, match="one frame"):
+        Renderer(scene, [_small(cams[1], 8)]).render([3, 7])

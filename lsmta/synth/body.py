@@ -110,7 +110,11 @@ class SolidTexture:
         u /= np.linalg.norm(u, axis=2, keepdims=True)
         lam = np.exp(rng.uniform(np.log(lo), np.log(hi), size=(n_parts, n_waves)))
         phi = rng.uniform(0, 2 * np.pi, size=(n_parts, n_waves))
-        c = np.broadcast_to(as_array(contrast, "contrast"), (n_parts,)).copy()
+        c = as_array(contrast, "contrast")
+        if c.ndim > 1 or c.size not in (1, n_parts):
+            raise ValueError(f"contrast: expected a number or {n_parts} numbers (one per part), "
+                             f"got shape {c.shape}")
+        c = np.broadcast_to(c.reshape(-1), (n_parts,)).copy()
         if np.any(c < 0):
             raise ValueError("contrast: expected values >= 0")
         return cls(directions=u, wavelengths=lam, phases=phi, contrast=c)
@@ -284,6 +288,13 @@ class Motion:
     root_position: np.ndarray
     joint_angles: np.ndarray
     part_names: tuple
+
+    def __post_init__(self):
+        # ground truth: keep private, read-only copies
+        for key in ("root_position", "joint_angles"):
+            arr = np.array(getattr(self, key), dtype=float)
+            arr.flags.writeable = False
+            object.__setattr__(self, key, arr)
 
     @property
     def n_frames(self) -> int:

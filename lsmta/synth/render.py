@@ -89,7 +89,8 @@ class RenderedFrame:
     ----------
     frame : int
     images : (K, H, W) array
-        Grey images, uint8 or float64 in [0, 255] (``dtype`` of :class:`Renderer`).
+        Grey images: uint8 (rounded, clipped to 0-255) or float64 (0-255 before noise; the
+        noise is not clipped), the ``dtype`` of :class:`Renderer`.
     part_id : (K, H, W) int16 array
         Part hit by the pixel-centre ray; :data:`BACKGROUND` (-1) or :data:`NOTHING` (-2).
     local_xyz : (K, H, W, 3) array
@@ -192,6 +193,9 @@ class Renderer:
             if rng is None:
                 raise ValueError("rng: a numpy.random.Generator is needed when noise_sigma > 0")
             as_rng(rng)
+        if np.ndim(frame) != 0:
+            raise ValueError(f"frame: expected one frame index, got {frame!r}; render frames "
+                             "one at a time")
         frame = int(self.scene.motion._frames(frame)[0])
         poses = self.scene.body.part_poses(self.scene.motion, frame)[0]
         s = self.supersample

@@ -13,7 +13,8 @@ import numpy as np
 from .._validate import as_rng, as_scalar, as_vector
 from ..camera import Camera
 
-# A 2/3" CCD of the late 1990s behind an 8 mm lens: 768 x 576 pixels of about 8.4 um.
+# Our assumption (the paper gives no optics): a 1/2" CCD of the late 1990s, 768 x 576 pixels
+# of about 8.4 um, behind an 8 mm lens.
 TRIPLET_PIXEL_SIZE_MM = 0.0084
 TRIPLET_PRINCIPAL_DISTANCE_MM = 8.0
 
@@ -23,6 +24,7 @@ def _perturbed(cam: Camera, rng: np.random.Generator | None, *, pose_mm: float,
     """A copy of ``cam`` whose pose, principal point and distortion vary a little."""
     if rng is None:
         return cam
+    # distortion varies relative to its design value, so a zero coefficient stays zero
     angles = np.radians(rng.normal(0, pose_deg, 3))
     dR, _ = cv2.Rodrigues(angles)
     changes = {
@@ -38,12 +40,13 @@ def _perturbed(cam: Camera, rng: np.random.Generator | None, *, pose_mm: float,
 
 
 def triplet_rig(rng: np.random.Generator | None = None, *, distance: float = 4500.0,
-                baseline: float = 1200.0, height: float = 1100.0, target_height: float = 950.0,
-                width: int = 768, height_px: int = 576) -> list[Camera]:
+                baseline: float = 1200.0, camera_height: float = 1100.0,
+                target_height: float = 950.0, width: int = 768,
+                height_px: int = 576) -> list[Camera]:
     """The three-camera linear arrangement of the LSMTA paper (left, centre, right).
 
-    Three convergent cameras on a line parallel to X, ``baseline`` mm apart, at
-    ``Y = -distance`` and ``Z = height``, all aimed at ``(0, 0, target_height)``.
+    Three convergent cameras on a line parallel to X, neighbours ``baseline`` mm apart, at
+    ``Y = -distance`` and ``Z = camera_height``, all aimed at ``(0, 0, target_height)``.
     Images are ``width x height_px`` pixels (768 x 576 as in the paper) with a principal
     distance of 8 mm at 8.4 um pixels (about 952 px) and realistic lens distortion (about
     7 px of barrel distortion in the corners).
@@ -51,10 +54,11 @@ def triplet_rig(rng: np.random.Generator | None = None, *, distance: float = 450
     Parameters
     ----------
     rng : numpy.random.Generator, optional
-        If given, every camera's pose (about 20 mm, 0.5 degrees), principal point (about
-        3 px) and distortion (about 10 %) are perturbed from the nominal design, as in a
-        real, hand-built rig. ``None`` gives the nominal rig.
-    distance, baseline, height, target_height : float
+        If given, every camera's pose (standard deviations 20 mm and 0.5 degrees per axis),
+        principal point (3 px) and distortion (10 % of each nonzero coefficient) are
+        perturbed from the nominal design, as in a real, hand-built rig. ``None`` gives the
+        nominal rig.
+    distance, baseline, camera_height, target_height : float
         Geometry in mm.
 
     Returns
@@ -65,6 +69,8 @@ def triplet_rig(rng: np.random.Generator | None = None, *, distance: float = 450
         as_rng(rng)
     distance = as_scalar(distance, "distance", positive=True)
     baseline = as_scalar(baseline, "baseline", positive=True)
+    camera_height = as_scalar(camera_height, "camera_height")
+    target_height = as_scalar(target_height, "target_height")
     f = TRIPLET_PRINCIPAL_DISTANCE_MM / TRIPLET_PIXEL_SIZE_MM
     lens = {
         "left": dict(k1=-0.085, k2=0.11, k3=-0.02, p1=2.0e-4, p2=-1.5e-4, b1=1.5e-4, b2=0.0),
@@ -73,7 +79,7 @@ def triplet_rig(rng: np.random.Generator | None = None, *, distance: float = 450
     }
     cams = []
     for name, x in zip(("left", "centre", "right"), (-baseline, 0.0, baseline)):
-        cam = Camera.look_at([x, -distance, height], [0.0, 0.0, target_height], f=f,
+        cam = Camera.look_at([x, -distance, camera_height], [0.0, 0.0, target_height], f=f,
                              width=width, height=height_px, pixel_size=TRIPLET_PIXEL_SIZE_MM,
                              name=name, **lens[name])
         cams.append(_perturbed(cam, rng, pose_mm=20.0, pose_deg=0.5, pp_px=3.0,
@@ -82,11 +88,12 @@ def triplet_rig(rng: np.random.Generator | None = None, *, distance: float = 450
 
 
 def ring_rig(n: int = 8, rng: np.random.Generator | None = None, *, radius: float = 5000.0,
-             height: float = 2800.0, target=(0.0, 0.0, 1000.0), f: float = 600.0,
+             camera_height: float = 2800.0, target=(0.0, 0.0, 1000.0), f: float = 600.0,
              width: int = 640, height_px: int = 480, k1: float = -0.05) -> list[Camera]:
     """``n`` cameras evenly spaced on a ceiling ring, all looking at ``target``.
 
-    The generic n-camera rig: a room of radius ``radius`` mm with cameras at ``height`` mm,
+    The generic n-camera rig: a room of radius ``radius`` mm with cameras at
+    ``camera_height`` mm,
     as in wide-area tracking systems. With ``rng``, poses and lenses are perturbed as in
     :func:`triplet_rig`.
 
@@ -102,7 +109,7 @@ def ring_rig(n: int = 8, rng: np.random.Generator | None = None, *, radius: floa
     radius = as_scalar(radius, "radius", positive=True)
     cams = []
     for i, a in enumerate(np.linspace(0, 2 * np.pi, int(n), endpoint=False)):
-        eye = [radius * np.sin(a), -radius * np.cos(a), height]
+        eye = [radius * np.sin(a), -radius * np.cos(a), camera_height]
         cam = Camera.look_at(eye, target, f=f, width=width, height=height_px, k1=k1,
                              k2=0.5 * abs(k1), name=f"cam{i:02d}")
         cams.append(_perturbed(cam, rng, pose_mm=20.0, pose_deg=0.5, pp_px=3.0,

@@ -20,3 +20,10 @@ def random_camera(rng: np.random.Generator, *, shear: bool = False, name: str = 
 @pytest.fixture
 def rng():
     return np.random.default_rng(20261122)
+
+
+def smaller(cam: Camera, factor: int = 2) -> Camera:
+    """The same camera with a coarser sensor: same field of view, fewer pixels (fast tests)."""
+    return cam.replace(f=cam.f / factor, cx=(cam.cx + 0.5) / factor - 0.5,
+                       cy=(cam.cy + 0.5) / factor - 0.5, width=cam.width // factor,
+                       height=cam.height // factor)

@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+from conftest import smaller
 
 from lsmta.matching import LSMThresholds
 from lsmta.matching.filters import neighbourhood_filter
@@ -74,8 +75,7 @@ def test_measure_surface_on_a_rendered_triplet():
     body = make_body(rng, wavelength=(12.0, 50.0))
     scene = Scene(body, walk(20, start=(-300.0, 0.0)), None)
     # a quarter-size sensor keeps the test fast; same field of view
-    small = [c.replace(f=c.f / 2, cx=(c.cx + 0.5) / 2 - 0.5, cy=(c.cy + 0.5) / 2 - 0.5,
-                       width=c.width // 2, height=c.height // 2) for c in cams]
+    small = [smaller(c) for c in cams]
     frame = Renderer(scene, small, noise_sigma=1.0).render(5, rng=rng)
     part, local = body.sample_surface(np.random.default_rng(1), 20, parts=["torso", "thigh_r"])
     proj = project_surface_points(scene, small, part, local, frames=5)

@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+from conftest import smaller
 
 from lsmta.evaluation.surface import (
     classify_misses,
@@ -15,8 +16,7 @@ from lsmta.synth import Renderer, Scene, make_body, triplet_rig, walk
 def test_seeds_scores_and_sgbm_on_a_small_triplet():
     rng = np.random.default_rng(5)
     cams = triplet_rig(rng, distance=2500.0, baseline=700.0)
-    small = [c.replace(f=c.f / 2, cx=(c.cx + 0.5) / 2 - 0.5, cy=(c.cy + 0.5) / 2 - 0.5,
-                       width=c.width // 2, height=c.height // 2) for c in cams]
+    small = [smaller(c) for c in cams]
     scene = Scene(make_body(rng, wavelength=(12.0, 50.0)), walk(20, start=(-300.0, 0.0)), None)
     frame = Renderer(scene, small, noise_sigma=1.0).render(5, rng=rng)
     seeds = seeds_from_truth(scene, small, 5, rng)
@@ -46,8 +46,7 @@ def test_find_seeds_agree_with_truth():
 
     rng = np.random.default_rng(8)
     cams = triplet_rig(rng, distance=2500.0, baseline=700.0)
-    small = [c.replace(f=c.f / 2, cx=(c.cx + 0.5) / 2 - 0.5, cy=(c.cy + 0.5) / 2 - 0.5,
-                       width=c.width // 2, height=c.height // 2) for c in cams]
+    small = [smaller(c) for c in cams]
     scene = Scene(make_body(rng, wavelength=(12.0, 50.0)), walk(20, start=(-300.0, 0.0)), None)
     frame = Renderer(scene, small, noise_sigma=1.0).render(5, rng=rng)
     seeds = find_seeds(frame.images, small, n_seeds=8, patch=9, min_distance=12)

@@ -1,5 +1,6 @@
 import numpy as np
 import pytest
+from conftest import smaller
 
 from lsmta.synth import (
     Renderer,
@@ -16,10 +17,7 @@ from lsmta.triangulation import triangulate
 
 
 def _small(cam, factor=4):
-    """The same camera with a coarser sensor: same field of view, fewer pixels."""
-    return cam.replace(f=cam.f / factor, cx=(cam.cx + 0.5) / factor - 0.5,
-                       cy=(cam.cy + 0.5) / factor - 0.5, width=cam.width // factor,
-                       height=cam.height // factor)
+    return smaller(cam, factor)
 
 
 @pytest.fixture(scope="module")

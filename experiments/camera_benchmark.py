@@ -12,13 +12,12 @@ points per second; ratios are ours / OpenCV's. Writes build/benchmarks/camera.js
 from __future__ import annotations
 
 import argparse
-import json
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
 
+from lsmta.report import write_json
 from lsmta.synth import triplet_rig
 
 
@@ -74,9 +73,6 @@ def main(argv=None):
             "opencv_default_round_trip_px": float(np.abs(back(und_def) - xy).max()),
         },
     }
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"points": args.points, "results": rows}, indent=2))
     print(f"{args.points} points, best of {args.repeats} (speed ratio > 1: ours faster)")
     print(f"project   : ours {rows['project']['ours_pts_per_s']:.3g} pt/s, OpenCV "
           f"{rows['project']['opencv_pts_per_s']:.3g} pt/s, ratio "
@@ -88,7 +84,7 @@ def main(argv=None):
           f"({u['opencv_iter_round_trip_px']:.1e} px), ratio {u['speed_ratio_vs_iter']:.2f}; "
           f"OpenCV default {u['opencv_default_pts_per_s']:.3g} pt/s "
           f"({u['opencv_default_round_trip_px']:.1e} px), ratio {u['speed_ratio_vs_default']:.2f}")
-    print(f"wrote {out}")
+    write_json(args.out, {"points": args.points, "results": rows})
 
 
 if __name__ == "__main__":

@@ -14,12 +14,11 @@ median and RMS error of successful matches, the failure rate (no result or error
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
 
 import numpy as np
 
 from lsmta.evaluation.matching import METHODS, draw_points, run_trial
+from lsmta.report import write_json
 from lsmta.synth.patches import warped_pair
 
 
@@ -63,10 +62,7 @@ def main(argv=None):
             print(f"{name:>18} {s['points']:7d} {s['median_px']:10.4f} {s['rms_px']:8.4f} "
                   f"{s['failure_rate']:9.2%} {s['points_per_second']:10.0f}")
         print(f"LSM throughput / per-point ECC (affine): {ratio:.1f}x")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"args": vars(args), "results": results}, indent=2))
-    print(f"wrote {out}")
+    write_json(args.out, {"args": vars(args), "results": results})
 
 
 if __name__ == "__main__":

@@ -10,12 +10,11 @@ Writes build/benchmarks/render.json.
 from __future__ import annotations
 
 import argparse
-import json
 import time
-from pathlib import Path
 
 import numpy as np
 
+from lsmta.report import write_json
 from lsmta.synth import Renderer, Scene, make_background, make_body, triplet_rig, walk
 
 
@@ -40,10 +39,7 @@ def main(argv=None):
                      "per_triplet_s": float(np.mean(times[1:])) if len(times) > 1 else None})
         print(f"supersample {s}: first triplet {times[0]:.2f} s, then "
               f"{rows[-1]['per_triplet_s']:.2f} s per 768x576 triplet")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(rows, indent=2))
-    print(f"wrote {out}")
+    write_json(args.out, rows)
 
 
 if __name__ == "__main__":

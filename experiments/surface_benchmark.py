@@ -12,14 +12,13 @@ build/benchmarks/surface.json.
 from __future__ import annotations
 
 import argparse
-import json
 import time
-from pathlib import Path
 
 import numpy as np
 
 from lsmta.evaluation import surface as evaluate
 from lsmta.matching import LSMThresholds, measure_surface, peers
+from lsmta.report import write_json
 from lsmta.synth import Renderer, Scene, make_body, triplet_rig, walk
 
 
@@ -66,10 +65,7 @@ def main(argv=None):
                 print(f"{contrast:8.2f} {f:5d} {r['method']:>10} {r['density']:8.1%} "
                       f"{r['median_mm']:10.2f} {r['p95_mm']:8.2f} {r['gross']:7.1%} "
                       f"{r['seconds']:8.2f}")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"args": vars(args), "rows": rows}, indent=2))
-    print(f"wrote {out}")
+    write_json(args.out, {"args": vars(args), "rows": rows})
 
 
 if __name__ == "__main__":

@@ -54,6 +54,16 @@ def as_points(value, name: str, dim: int = 3, *, allow_nan: bool = False) -> np.
     return as_array(value, name, shape=(None, dim), allow_nan=allow_nan)
 
 
+def as_point_pairs(first, second, first_name: str, second_name: str):
+    """Two ``(N, 2)`` float64 arrays of finite image points with the same N."""
+    a = as_array(first, first_name, shape=(None, 2))
+    b = as_array(second, second_name, shape=(None, 2))
+    if len(a) != len(b):
+        raise ValueError(f"{second_name}: expected {len(a)} points like {first_name}, "
+                         f"got {len(b)}")
+    return a, b
+
+
 def as_vector(value, name: str, n: int) -> np.ndarray:
     """A finite float64 vector of length ``n``."""
     return as_array(value, name, shape=(n,))

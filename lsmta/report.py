@@ -116,3 +116,13 @@ def show(records):
     from IPython.display import Markdown
 
     return Markdown(table(records))
+
+
+def write_json(path, data) -> Path:
+    """Write ``data`` as indented JSON to ``path`` (folders made as needed), say so, and
+    return the path; used by the benchmarks in ``experiments/``."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(data, indent=2), encoding="utf-8")
+    print(f"wrote {out}")
+    return out

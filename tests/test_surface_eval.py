@@ -9,16 +9,22 @@ from lsmta.evaluation.surface import (
     score_surface,
     seeds_from_truth,
 )
-from lsmta.matching import LSMThresholds, measure_surface, peers
+from lsmta.matching import LSMThresholds, find_seeds, measure_surface, peers
 from lsmta.synth import Renderer, Scene, make_body, triplet_rig, walk
 
 
-def test_seeds_scores_and_sgbm_on_a_small_triplet():
+@pytest.fixture(scope="module")
+def triplet():
+    """A walking body in front of a half-resolution triplet at 2.5 m: cameras, scene, frame 5."""
     rng = np.random.default_rng(5)
-    cams = triplet_rig(rng, distance=2500.0, baseline=700.0)
-    small = [smaller(c) for c in cams]
+    cams = [smaller(c) for c in triplet_rig(rng, distance=2500.0, baseline=700.0)]
     scene = Scene(make_body(rng, wavelength=(12.0, 50.0)), walk(20, start=(-300.0, 0.0)), None)
-    frame = Renderer(scene, small, noise_sigma=1.0).render(5, rng=rng)
+    return cams, scene, Renderer(scene, cams, noise_sigma=1.0).render(5, rng=rng)
+
+
+def test_seeds_scores_and_sgbm_on_a_small_triplet(triplet):
+    small, scene, frame = triplet
+    rng = np.random.default_rng(6)
     seeds = seeds_from_truth(scene, small, 5, rng)
     assert seeds.shape[0] == 3 and seeds.shape[1] >= 6
     truth = node_truth(frame, scene, small, step=3, patch=9)
@@ -41,14 +47,8 @@ def test_seeds_scores_and_sgbm_on_a_small_triplet():
     assert misses["missed"] <= misses["target"] == int((truth["visible"] & truth["interior"]).sum())
 
 
-def test_find_seeds_agree_with_truth():
-    from lsmta.matching.seeds import find_seeds
-
-    rng = np.random.default_rng(8)
-    cams = triplet_rig(rng, distance=2500.0, baseline=700.0)
-    small = [smaller(c) for c in cams]
-    scene = Scene(make_body(rng, wavelength=(12.0, 50.0)), walk(20, start=(-300.0, 0.0)), None)
-    frame = Renderer(scene, small, noise_sigma=1.0).render(5, rng=rng)
+def test_find_seeds_agree_with_truth(triplet):
+    small, _, frame = triplet
     seeds = find_seeds(frame.images, small, n_seeds=8, patch=9, min_distance=12)
     assert seeds.xy.shape[1] >= 4 and np.all(seeds.score >= 0.8)
     ij = np.rint(seeds.xy[1]).astype(int)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .._validate import as_array
+from .._validate import as_point_pairs
 from .lsm import _check_patch
 from .spline import SplineImage, check_image
 
@@ -76,11 +76,7 @@ def correlation_search(template, search, template_xy, predicted_xy, *, patch: in
     radius = int(radius)
     f = check_image(template, "template")
     g = check_image(search, "search").astype(np.float32)
-    t_xy = as_array(template_xy, "template_xy", shape=(None, 2))
-    p_xy = as_array(predicted_xy, "predicted_xy", shape=(None, 2))
-    if len(t_xy) != len(p_xy):
-        raise ValueError(f"predicted_xy: expected {len(t_xy)} points like template_xy, "
-                         f"got {len(p_xy)}")
+    t_xy, p_xy = as_point_pairs(template_xy, predicted_xy, "template_xy", "predicted_xy")
     n = len(t_xy)
     h = patch // 2
     spline = SplineImage(f, "template")

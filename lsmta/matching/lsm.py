@@ -49,7 +49,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .._validate import as_array
+from .._validate import as_array, as_point_pairs
 from . import _kernels
 from .spline import SplineImage
 
@@ -216,11 +216,7 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
     patch = _check_patch(patch)
     f_img = template if isinstance(template, SplineImage) else SplineImage(template, "template")
     g_img = search if isinstance(search, SplineImage) else SplineImage(search, "search")
-    t_xy = as_array(template_xy, "template_xy", shape=(None, 2))
-    s_xy = as_array(search_xy, "search_xy", shape=(None, 2))
-    if len(t_xy) != len(s_xy):
-        raise ValueError(f"search_xy: expected {len(t_xy)} points like template_xy, "
-                         f"got {len(s_xy)}")
+    t_xy, s_xy = as_point_pairs(template_xy, search_xy, "template_xy", "search_xy")
     n = len(t_xy)
     if initial_A is None:
         A0 = np.broadcast_to(np.eye(2), (n, 2, 2)).copy()

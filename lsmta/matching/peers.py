@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .._validate import as_array
+from .._validate import as_point_pairs
 from .lsm import _check_patch
 from .spline import check_image
 
@@ -40,10 +40,8 @@ def _prepare(template, search, template_xy, search_xy, patch, margin):
     patch = _check_patch(patch)
     f = check_image(template, "template")
     g = check_image(search, "search")
-    t = np.rint(as_array(template_xy, "template_xy", shape=(None, 2))).astype(np.int64)
-    s = as_array(search_xy, "search_xy", shape=(None, 2))
-    if len(t) != len(s):
-        raise ValueError(f"search_xy: expected {len(t)} points like template_xy, got {len(s)}")
+    t, s = as_point_pairs(template_xy, search_xy, "template_xy", "search_xy")
+    t = np.rint(t).astype(np.int64)
     h = patch // 2
     c = np.rint(s).astype(np.int64)
     r = h + margin

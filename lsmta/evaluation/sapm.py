@@ -1,0 +1,240 @@
+"""SAPM trials: generated or real marker poses, identified and scored against the truth.
+
+Notebook 08 and ``experiments/sapm_surface.py`` are built from these functions. A pose is
+*fully correct* when every observed point carries its true label (extra points -1); the
+*point accuracy* is the share of observed points labelled correctly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..io import read_c3d
+from ..sapm import MarkerModel, global_assignment, identify
+from ..synth.markers import random_pose
+
+#: The marker set of Clouthier et al. (2021): 15 segments, 62 cluster markers, no marker
+#: shared between segments.
+CLOUTHIER_SEGMENTS = {
+    "torso": ["LBUL", "LBLL", "LBUR", "LBLR", "RAC", "LAC"],
+    "head": ["FHD", "RHD", "BHD", "LHD"],
+    "pelvis": ["PVUL", "PVLL", "PVLR", "PVUR"],
+    **{f"{S}{name}": [f"{S}{m}" for m in markers] for S in "RL" for name, markers in (
+        ("upper_arm", ("UAPA", "UAPP", "UADP", "UADA")),
+        ("forearm", ("FAPA", "FAPP", "FADP", "FADA")),
+        ("hand", ("RAD", "ULN", "HAND")),
+        ("thigh", ("THPA", "THPP", "THDP", "THDA")),
+        ("shank", ("SHPA", "SHPP", "SHDP", "SHDA")),
+        ("foot", ("ANL", "HEE", "FTB", "FTM", "FTF")))},
+}
+CLOUTHIER_PARENTS = {
+    "torso": None, "head": "torso", "pelvis": "torso",
+    **{k: v for S in "RL" for k, v in (
+        (f"{S}upper_arm", "torso"), (f"{S}forearm", f"{S}upper_arm"),
+        (f"{S}hand", f"{S}forearm"), (f"{S}thigh", "pelvis"), (f"{S}shank", f"{S}thigh"),
+        (f"{S}foot", f"{S}shank"))},
+}
+
+
+@dataclass(frozen=True)
+class Trials:
+    """Scores of one method on a set of poses, one entry per pose.
+
+    Attributes
+    ----------
+    correct : (P,) bool array
+        Pose fully correct.
+    accuracy : (P,) array
+        Share of observed points labelled correctly.
+    mislabelled : (P,) array
+        Share of observed points given a wrong label (the rest of the errors are points
+        left unlabelled).
+    seconds : (P,) array
+    tables, backtracks : (P,) int arrays
+        Search effort (zero for the baseline).
+    """
+
+    correct: np.ndarray
+    accuracy: np.ndarray
+    mislabelled: np.ndarray
+    seconds: np.ndarray
+    tables: np.ndarray
+    backtracks: np.ndarray
+
+    def summary(self) -> dict:
+        """Fractions and timing as plain numbers."""
+        return {"poses": len(self.correct), "poses_correct": float(self.correct.mean()),
+                "points_correct": float(self.accuracy.mean()),
+                "points_mislabelled": float(self.mislabelled.mean()),
+                "median_s": float(np.median(self.seconds)),
+                "p95_s": float(np.percentile(self.seconds, 95))}
+
+
+def _score(labels, truth, seconds, tables=0, backtracks=0):
+    ok = labels == truth
+    return (bool(ok.all()), float(ok.mean()), float(((labels >= 0) & ~ok).mean()), seconds,
+            tables, backtracks)
+
+
+def _trials(rows) -> Trials:
+    cols = list(zip(*rows)) if rows else [[]] * 6
+    kinds = (bool, float, float, float, int, int)
+    return Trials(*(np.asarray(c, dtype=k) for c, k in zip(cols, kinds)))
+
+
+def label_pose(model: MarkerModel, observed, method: str = "sapm", **identify_kw):
+    """Label one pose with ``method`` ("sapm" or "baseline"): (labels (N,), seconds,
+    tables, backtracks)."""
+    if method == "sapm":
+        r = identify(model, observed, **identify_kw)
+        return r.labels, r.seconds, r.tables, r.backtracks
+    if method == "baseline":
+        r = global_assignment(model, observed)
+        return r.labels, r.seconds, 0, 0
+    raise ValueError(f"method: expected 'sapm' or 'baseline', got {method!r}")
+
+
+def pose_trials(model: MarkerModel, rng: np.random.Generator, n_poses: int, *,
+                level: float = np.pi, distortion: float = 0.0, n_missing: int = 0,
+                n_extra: int = 0, methods=("sapm",), **identify_kw) -> dict:
+    """Generate ``n_poses`` random poses and score every method on the same poses.
+
+    Returns
+    -------
+    dict
+        method name -> :class:`Trials`.
+    """
+    rows = {m: [] for m in methods}
+    for _ in range(n_poses):
+        pose = random_pose(model, rng, level=level, distortion=distortion,
+                           n_missing=n_missing, n_extra=n_extra)
+        for m in methods:
+            lab, sec, tab, bt = label_pose(model, pose.observed, m,
+                                           **(identify_kw if m == "sapm" else {}))
+            rows[m].append(_score(lab, pose.truth, sec, tab, bt))
+    return {m: _trials(r) for m, r in rows.items()}
+
+
+@dataclass(frozen=True)
+class Surface:
+    """Identification over a grid of configuration and distortion levels (paper Fig. 3).
+
+    Attributes
+    ----------
+    levels : (L,) array
+        Configuration levels, rad.
+    distortions : (D,) array
+        ψ, fraction of l̄_s.
+    poses_correct, points_correct : (L, D) arrays
+        Mean over the poses of each cell.
+    n_poses : int
+    """
+
+    levels: np.ndarray
+    distortions: np.ndarray
+    poses_correct: np.ndarray
+    points_correct: np.ndarray
+    n_poses: int
+
+
+def surface_cell(model, seed: int, level: float, distortion: float, n_poses: int,
+                 **identify_kw) -> tuple[float, float]:
+    """One cell of the Fig. 3 grid, from its own seed: (poses correct, points correct)."""
+    t = pose_trials(model, np.random.default_rng(seed), n_poses, level=level,
+                    distortion=distortion, **identify_kw)["sapm"]
+    return float(t.correct.mean()), float(t.accuracy.mean())
+
+
+def cell_seeds(seed: int, shape) -> np.ndarray:
+    """Independent integer seeds for the cells of a grid (NumPy's SeedSequence)."""
+    children = np.random.SeedSequence(seed).spawn(int(np.prod(shape)))
+    return np.array([c.generate_state(1)[0] for c in children]).reshape(shape)
+
+
+def identification_surface(model: MarkerModel, seed: int, levels, distortions, n_poses: int,
+                           *, progress=None, **identify_kw) -> Surface:
+    """Fig. 3 serially: every (level, ψ) cell from its own seed (see ``cell_seeds``), so
+    the parallel experiment reproduces the same numbers."""
+    levels = np.asarray(levels, float)
+    distortions = np.asarray(distortions, float)
+    seeds = cell_seeds(seed, (len(levels), len(distortions)))
+    poses = np.zeros(seeds.shape)
+    points = np.zeros(seeds.shape)
+    cells = [(i, j) for i in range(len(levels)) for j in range(len(distortions))]
+    for i, j in (progress(cells) if progress else cells):
+        poses[i, j], points[i, j] = surface_cell(model, seeds[i, j], levels[i],
+                                                 distortions[j], n_poses, **identify_kw)
+    return Surface(levels, distortions, poses, points, n_poses)
+
+
+# ---------------------------------------------------------------------- real data
+def clouthier_model(path, frame: int = 0) -> tuple[MarkerModel, np.ndarray]:
+    """The model of the Clouthier et al. recording built from one labelled frame, and all
+    its frames.
+
+    Returns
+    -------
+    model : MarkerModel
+    points : (T, M, 3) array
+        Every frame, mm, with the model's marker order (NaN for gaps).
+    """
+    labels, points, _ = read_c3d(Path(path))
+    if np.isnan(points[frame]).any():
+        raise ValueError(f"frame: frame {frame} has gaps; the model needs a complete frame")
+    model = MarkerModel.from_labelled_frame(dict(zip(labels, points[frame])),
+                                            CLOUTHIER_SEGMENTS, CLOUTHIER_PARENTS)
+    order = [labels.index(k) for k in model.labels]
+    return model, points[:, order]
+
+
+@dataclass(frozen=True)
+class FrameTrials:
+    """Real frames identified after shuffling and dropping the labels.
+
+    Attributes
+    ----------
+    frames : (F,) int array
+    trials : dict
+        method -> :class:`Trials`, one entry per frame.
+    labels : dict
+        method -> (F, M) int array: the label given to each model marker's observed point
+        (marker index = correct, -1 = unlabelled or missing, other = wrong).
+    """
+
+    frames: np.ndarray
+    trials: dict
+    labels: dict
+
+    def per_marker_accuracy(self, method: str = "sapm") -> np.ndarray:
+        """(M,) share of frames in which each present marker was labelled correctly."""
+        lab = self.labels[method]
+        present = lab != -2
+        ok = (lab == np.arange(lab.shape[1])) & present
+        return ok.sum(axis=0) / np.maximum(present.sum(axis=0), 1)
+
+
+def frame_trials(model: MarkerModel, points, frames, rng: np.random.Generator,
+                 methods=("sapm",), **identify_kw) -> FrameTrials:
+    """Identify real frames: present markers shuffled, labels dropped.
+
+    ``points`` is (T, M, 3) in the model's marker order; in the returned label arrays a
+    marker absent from the frame is -2."""
+    rows = {m: [] for m in methods}
+    labels = {m: np.full((len(frames), model.n_points), -2) for m in methods}
+    for f_i, f in enumerate(frames):
+        present = np.flatnonzero(~np.isnan(points[f]).any(axis=1))
+        perm = rng.permutation(present)
+        for m in methods:
+            lab, sec, tab, bt = label_pose(model, points[f][perm], m,
+                                           **(identify_kw if m == "sapm" else {}))
+            rows[m].append(_score(lab, perm, sec, tab, bt))
+            labels[m][f_i, perm] = lab
+    return FrameTrials(np.asarray(frames), {m: _trials(r) for m, r in rows.items()}, labels)
+
+
+__all__ = ["CLOUTHIER_PARENTS", "CLOUTHIER_SEGMENTS", "FrameTrials", "Surface", "Trials",
+           "cell_seeds", "clouthier_model", "frame_trials", "identification_surface",
+           "label_pose", "pose_trials", "surface_cell"]

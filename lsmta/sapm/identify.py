@@ -1,0 +1,473 @@
+"""Segment-based articulated point matching (SAPM; Li & Holstein 2002, Section 3).
+
+Labels an unlabelled 3-D marker pose from one frame with a :class:`~lsmta.sapm.MarkerModel`:
+
+* **local matching** (3.1): for a segment, candidate tables (CTs) from the pivot-distance
+  criterion (Eq. 4), low-count tables discarded and the rest tried biggest first; partial
+  matches by SVD rigid fits that pass the matching-quality test (Eq. 2), found by
+  worst-pair replacement for segments of many points and by nearest–furthest-to-pivot
+  triples for small ones; then closest-neighbour completion over every unidentified point
+  (Eq. 5) and the matching-size test (Eq. 3);
+* **global hierarchical search** (3.2): depth first from the root segment; a child uses its
+  parent's identified joint marker as its only pivot, or, where that marker is missing (or
+  the marker set has no shared joints), the *virtual joint* carried by the parent's
+  transform as a gate on its pivots; a segment whose children fail is re-matched with its
+  next candidate (confirmation of ambiguous segments, backward correction of parents);
+  segments on broken chains are searched from scratch last.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from .._validate import as_points, as_rng, as_scalar
+from ..rigid import apply_rigid, fit_one
+from .model import MarkerModel
+
+
+@dataclass(frozen=True)
+class SAPMParams:
+    """Parameters of the search.
+
+    Attributes
+    ----------
+    eps : float
+        Tolerable segmental distortion ε of Eq. 2, a fraction of the segment's mean marker
+        distance (paper, humans: 0.10–0.15).
+    beta : float
+        Matching-size fraction β of Eq. 3: a segment needs more than β·M_s matched markers
+        (paper, humans: 0.8–0.9).
+    coarse_min_points : int
+        Segments with at least this many markers use worst-pair replacement; smaller ones
+        the nearest–furthest-to-pivot search (paper: 6).
+    max_alternatives : int
+        How many whole matches of one segment are tried when its children fail.
+    max_tables : int
+        At most this many candidate tables per pivot are tried (best first).
+    """
+
+    eps: float = 0.10
+    beta: float = 0.80
+    coarse_min_points: int = 6
+    max_alternatives: int = 3
+    max_tables: int = 30
+
+
+@dataclass(frozen=True)
+class Identification:
+    """The result of :func:`identify`.
+
+    Attributes
+    ----------
+    labels : (N,) int array
+        Index into ``model.labels`` for every observed point; -1 for points left
+        unidentified (extra points, points of segments not found, dropped NaN rows).
+    found : (S,) bool array
+        Which segments were identified.
+    rotation, translation : (S, 3, 3) and (S, 3) arrays
+        Rigid transform of each found segment, model -> observed (NaN where not found).
+    mean_error : (S,) array
+        ē_s of Eq. 2 (mean distance over l̄_s) of each found segment, NaN where not found.
+    matched : (S,) int array
+        Markers matched per segment.
+    dropped : (D,) int array
+        Rows of ``observed`` that held NaN and were left out.
+    tables, fits, backtracks : int
+        Search effort: candidate tables tried, rigid fits computed, and segment matches
+        undone because the segment's children failed.
+    seconds : float
+        Wall time of the search.
+    """
+
+    labels: np.ndarray
+    found: np.ndarray
+    rotation: np.ndarray
+    translation: np.ndarray
+    mean_error: np.ndarray
+    matched: np.ndarray
+    dropped: np.ndarray
+    tables: int
+    fits: int
+    backtracks: int
+    seconds: float
+
+    @property
+    def n_identified(self) -> int:
+        return int((self.labels >= 0).sum())
+
+
+class _State:
+    """What is identified so far; cheap to copy for backtracking."""
+
+    def __init__(self, n_obs: int, model: MarkerModel):
+        S = model.n_segments
+        self.obs_of = np.full(model.n_points, -1)          # model marker -> observed point
+        self.label_of = np.full(n_obs, -1)                 # observed point -> model marker
+        self.found = np.zeros(S, bool)
+        self.R = np.full((S, 3, 3), np.nan)
+        self.t = np.full((S, 3), np.nan)
+        self.err = np.full(S, np.nan)
+
+    def copy(self) -> _State:
+        new = object.__new__(_State)
+        new.__dict__ = {k: v.copy() for k, v in self.__dict__.items()}
+        return new
+
+    def restore(self, other: _State) -> None:
+        for k, v in other.__dict__.items():
+            self.__dict__[k] = v.copy()
+
+    @property
+    def free(self) -> np.ndarray:
+        return self.label_of < 0
+
+
+@dataclass
+class _Effort:
+    tables: int = 0
+    fits: int = 0
+    backtracks: int = 0
+
+
+@dataclass(frozen=True)
+class _Match:
+    members: np.ndarray   # (m,) model markers of the segment
+    obs: np.ndarray       # (m,) observed index per member, -1 = lost
+    R: np.ndarray
+    t: np.ndarray
+    err: float
+
+
+class _Search:
+    """One identification: the observed points, the model and the search state."""
+
+    def __init__(self, model: MarkerModel, Q: np.ndarray, params: SAPMParams,
+                 rng: np.random.Generator | None):
+        self.model, self.Q, self.p = model, Q, params
+        self.D = np.linalg.norm(Q[:, None] - Q[None], axis=-1)
+        self.state = _State(len(Q), model)
+        self.effort = _Effort()
+        self.rng = rng
+
+    # ------------------------------------------------------------------ local matching
+    def _fit(self, model_idx, obs_idx, s):
+        R, t, resid = fit_one(self.model.points[model_idx], self.Q[obs_idx])
+        self.effort.fits += 1
+        return R, t, resid, resid.mean() / self.model.mean_length[s]
+
+    def _whole(self, s, R, t, fixed: dict) -> _Match | None:
+        """Closest-neighbour completion (Eq. 5) from a partial match's motion, then the
+        quality (Eq. 2) and size (Eq. 3) tests. ``fixed``: member marker -> observed point
+        already known (an identified joint)."""
+        m = self.model.members[s]
+        eps, lbar = self.p.eps, self.model.mean_length[s]
+        gate = 2.0 * lbar * eps
+        allowed = self.state.free.copy()
+        allowed[list(fixed.values())] = True
+        cand = np.flatnonzero(allowed)
+        obs = np.full(len(m), -1)
+        err = np.inf
+        for _ in range(3):
+            pred = apply_rigid(R, t, self.model.points[m])
+            d = np.linalg.norm(pred[:, None] - self.Q[cand][None], axis=-1)
+            cost = np.where(d < gate, d, 1e6 * gate)
+            rows, cols = linear_sum_assignment(cost)
+            new = np.full(len(m), -1)
+            keep = cost[rows, cols] < gate
+            new[rows[keep]] = cand[cols[keep]]
+            for j, mi in enumerate(m):       # a joint found by the parent stays where it is
+                if mi in fixed:
+                    if new[j] != fixed[mi] and fixed[mi] in new:
+                        new[new == fixed[mi]] = -1
+                    new[j] = fixed[mi]
+            ok = new >= 0
+            if ok.sum() < 3:
+                return None
+            R, t, resid, err = self._fit(m[ok], new[ok], s)
+            if np.array_equal(new, obs):
+                break
+            obs = new
+        # trim: a pair that alone is off by more than the tolerated mean error is let go
+        # while the segment stays big enough (it is more likely another segment's point)
+        while True:
+            ok = np.flatnonzero(obs >= 0)
+            worst = int(np.argmax(resid))
+            if (resid[worst] <= eps * lbar or len(ok) - 1 <= max(2, self.p.beta * len(m))
+                    or m[ok[worst]] in fixed):
+                break
+            obs[ok[worst]] = -1
+            ok = obs >= 0
+            R, t, resid, err = self._fit(m[ok], obs[ok], s)
+        if err < eps and (obs >= 0).sum() > self.p.beta * len(m):
+            return _Match(m, obs, R, t, float(err))
+        return None
+
+    def _tables(self, s, l, pivots, gate):
+        """Candidate tables of segment ``s`` for pivot member ``l`` (local index) and
+        assumed pivot matches ``pivots`` (observed indices), best first.
+
+        Returns a list of (pivot observed index, columns), columns a list of (member local
+        index, candidates sorted best first) in the pivotal sequence (non-decreasing model
+        distance from the pivot)."""
+        m = self.model.members[s]
+        P = self.model.points[m]
+        eps2 = 2.0 * self.p.eps
+        others = np.array([i for i in range(len(m)) if i != l])
+        dm = np.linalg.norm(P[others] - P[l], axis=-1)
+        order = np.argsort(dm, kind="stable")
+        others, dm = others[order], dm[order]
+        free = np.flatnonzero(self.state.free)
+        if len(pivots) == 0 or len(free) == 0:
+            return []
+        ratio = np.abs(dm[None, :, None] - self.D[np.ix_(pivots, free)][:, None, :])
+        ratio /= dm[None, :, None]
+        ok = (ratio < eps2) & (free[None, None, :] != np.asarray(pivots)[:, None, None])
+        if gate is not None:                  # candidates must be within reach of the joint
+            V, J, tol = gate
+            reach = np.linalg.norm(P[others] - J, axis=-1)
+            dist = np.linalg.norm(self.Q[free] - V, axis=-1)
+            ok &= np.abs(dist[None, None, :] - reach[None, :, None]) <= (
+                eps2 * reach[None, :, None] + tol)
+        counts = ok.any(axis=2).sum(axis=1)
+        if len(pivots) > 1:                   # discard low-count tables (economy)
+            need = max(2, math.floor(self.p.beta * len(m)) - 1)
+            keep = np.flatnonzero(counts >= need)
+        else:
+            keep = np.flatnonzero(counts >= 2)
+        best = np.where(ok, ratio, np.inf).min(axis=2)
+        score = np.where(np.isfinite(best), best, 0).sum(axis=1)
+        keep = keep[np.lexsort((score[keep], -counts[keep]))][: self.p.max_tables]
+        out = []
+        for k in keep:
+            cols = []
+            for c, i in enumerate(others):
+                js = np.flatnonzero(ok[k, c])
+                if len(js):
+                    cols.append((int(i), free[js[np.argsort(ratio[k, c, js])]]))
+            out.append((int(pivots[k]), cols))
+        return out
+
+    def _coarse(self, s, l, k, cols, fixed):
+        """Worst-pair replacement on one CT; yields whole matches."""
+        m = self.model.members[s]
+        ptr = [0] * len(cols)
+        limit = sum(len(c) for _, c in cols) + len(cols)
+
+        def pick():
+            used, sel = {k}, []
+            for c, (i, cand) in enumerate(cols):
+                while ptr[c] < len(cand) and cand[ptr[c]] in used:
+                    ptr[c] += 1
+                if ptr[c] < len(cand):
+                    used.add(int(cand[ptr[c]]))
+                    sel.append((c, i, int(cand[ptr[c]])))
+            return sel
+
+        for _ in range(limit):
+            sel = pick()
+            if len(sel) + 1 < 3:
+                return
+            idx_m = np.array([l] + [i for _, i, _ in sel])
+            idx_q = np.array([k] + [q for _, _, q in sel])
+            R, t, resid, err = self._fit(m[idx_m], idx_q, s)
+            if err < self.p.eps:
+                match = self._whole(s, R, t, fixed)
+                if match is not None:
+                    yield match
+                return
+            worst = int(np.argmax(resid[1:]))
+            ptr[sel[worst][0]] += 1
+
+    def _near_far(self, s, l, k, cols, fixed):
+        """Triples (pivot, a near neighbour, a far neighbour); yields whole matches."""
+        m = self.model.members[s]
+        P = self.model.points[m]
+        eps2 = 2.0 * self.p.eps
+        n = len(cols)
+        pairs = [(a, b) for a in range(min(2, n)) for b in range(n - 1, max(n - 3, -1), -1)
+                 if a < b]
+        for a, b in pairs:
+            (ia, ca), (ib, cb) = cols[a], cols[b]
+            dab = np.linalg.norm(P[ia] - P[ib])
+            for qa in ca[:6]:
+                for qb in cb[:6]:
+                    if qa == qb or abs(self.D[qa, qb] - dab) >= eps2 * dab:
+                        continue
+                    R, t, _, err = self._fit(m[[l, ia, ib]], np.array([k, qa, qb]), s)
+                    if err < self.p.eps:
+                        match = self._whole(s, R, t, fixed)
+                        if match is not None:
+                            yield match
+
+    def segment_matches(self, s, via):
+        """Whole matches of segment ``s`` (a generator, best first), searched from the
+        joint with search-tree parent ``via`` (-1: from scratch)."""
+        model = self.model
+        m = model.members[s]
+        gate, fixed, pivot_order = None, {}, None
+        if via >= 0:
+            J, jl, tol = model.link(s, via)
+            if jl >= 0 and self.state.obs_of[jl] >= 0:          # identified joint marker
+                fixed = {int(jl): int(self.state.obs_of[jl])}
+                pivot_order = [(int(np.flatnonzero(m == jl)[0]), [fixed[int(jl)]])]
+            else:                                               # virtual joint
+                st = self.state
+                gate = (apply_rigid(st.R[via], st.t[via], J[None])[0], J, tol)
+        if pivot_order is None:
+            local = [i for i in range(len(m)) if gate is None or m[i] != model.link(s, via)[1]]
+            if gate is not None:
+                local.sort(key=lambda i: np.linalg.norm(model.points[m[i]] - gate[1]))
+            elif self.rng is not None:
+                local = list(self.rng.permutation(local))
+            n_piv = max(1, math.floor((1 - self.p.beta) * len(m)) + 1)
+            free = np.flatnonzero(self.state.free)
+            pivot_order = [(i, free) for i in local[:n_piv]]
+        methods = [self._near_far]
+        if len(m) >= self.p.coarse_min_points:
+            methods.insert(0, self._coarse)
+        seen = set()
+        for l, pivots in pivot_order:
+            if gate is not None:
+                V, J, tol = gate
+                reach = np.linalg.norm(model.points[m[l]] - J)
+                d = np.linalg.norm(self.Q[pivots] - V, axis=-1)
+                pivots = pivots[np.abs(d - reach) <= 2 * self.p.eps * reach + tol]
+            for k, cols in self._tables(s, l, np.asarray(pivots, int), gate):
+                self.effort.tables += 1
+                for method in methods:       # near-far triples where replacement fails
+                    hit = False
+                    for match in method(s, l, k, cols, fixed):
+                        # asked for more only when the children failed: before the next
+                        # table, the same match less one marker (which may be a child's)
+                        for alt in (match, *self._leave_one_out(s, match, fixed)):
+                            key = tuple(alt.obs)
+                            if key not in seen:
+                                seen.add(key)
+                                hit = True
+                                yield alt
+                    if hit:
+                        break
+
+    def _leave_one_out(self, s, match, fixed):
+        """Valid matches with one marker of ``match`` let go, worst fitting first."""
+        m, obs = match.members, match.obs
+        ok = np.flatnonzero(obs >= 0)
+        if len(ok) - 1 <= max(2, self.p.beta * len(m)):
+            return
+        _, _, resid, _ = self._fit(m[ok], obs[ok], s)
+        for j in ok[np.argsort(-resid)]:
+            if m[j] in fixed:
+                continue
+            new = obs.copy()
+            new[j] = -1
+            keep = new >= 0
+            R, t, _, err = self._fit(m[keep], new[keep], s)
+            if err < self.p.eps:
+                yield _Match(m, new, R, t, float(err))
+
+    # ------------------------------------------------------------------ global search
+    def _assign(self, s, match: _Match) -> None:
+        st = self.state
+        for mi, q in zip(match.members, match.obs):
+            if q >= 0:
+                st.obs_of[mi] = q
+                st.label_of[q] = mi
+        st.found[s] = True
+        st.R[s], st.t[s], st.err[s] = match.R, match.t, match.err
+
+    def solve(self, s, via) -> bool:
+        """Identify ``s`` and, depth first, its unfound children in the search tree."""
+        children = [c for c in self.model.neighbours[s] if c != via]
+        start = self.state.copy()
+        best, best_score, tried = None, -1, 0
+        for match in self.segment_matches(s, via):
+            self._assign(s, match)
+            complete = True
+            for c in children:
+                if not self.state.found[c]:
+                    complete &= self.solve(c, s)
+            score = int((self.state.label_of >= 0).sum())
+            if score > best_score:
+                best, best_score = self.state.copy(), score
+            tried += 1
+            if complete or tried >= self.p.max_alternatives:
+                break
+            self.effort.backtracks += 1
+            self.state.restore(start)
+        if best is None:
+            return False
+        self.state.restore(best)
+        return True
+
+    def run(self) -> None:
+        model = self.model
+        self.solve(model.search_root, -1)
+        # broken chains last: segments still unfound, searched from scratch in tree order
+        for s in model.tree_order(model.search_root):
+            if not self.state.found[s]:
+                via = model.search_parent[s]
+                self.solve(s, via if via >= 0 and self.state.found[via] else -1)
+
+
+def identify(model: MarkerModel, observed, *, eps: float = 0.10, beta: float = 0.80,
+             rng: np.random.Generator | None = None, **options) -> Identification:
+    """Label an unlabelled 3-D marker pose with SAPM.
+
+    Parameters
+    ----------
+    model : MarkerModel
+        The subject's articulated marker model.
+    observed : (N, 3) array_like
+        Observed points in any order, mm; may include extra points and miss markers.
+        Rows holding NaN are dropped and reported in ``Identification.dropped``. Not
+        modified.
+    eps : float
+        ε of Eq. 2, in (0, 1): tolerated mean fit error as a fraction of l̄_s.
+    beta : float
+        β of Eq. 3, in [0, 1): a segment needs more than β·M_s matched markers.
+    rng : numpy.random.Generator, optional
+        Randomises the choice of pivots for segments searched from scratch (the paper's
+        "arbitrary" pivot); ``None`` takes them in model order.
+    **options
+        Further fields of :class:`SAPMParams` (``coarse_min_points``, ``max_alternatives``,
+        ``max_tables``).
+
+    Returns
+    -------
+    Identification
+    """
+    if not isinstance(model, MarkerModel):
+        raise TypeError(f"model: expected a MarkerModel, got {type(model).__name__}")
+    Q = as_points(observed, "observed", allow_nan=True)
+    eps = as_scalar(eps, "eps")
+    beta = as_scalar(beta, "beta")
+    if not 0 < eps < 1:
+        raise ValueError(f"eps: expected a fraction in (0, 1) (paper: 0.10-0.15), got {eps}")
+    if not 0 <= beta < 1:
+        raise ValueError(f"beta: expected a fraction in [0, 1) (paper: 0.8-0.9), got {beta}")
+    if rng is not None:
+        as_rng(rng)
+    unknown = sorted(set(options) - set(SAPMParams.__dataclass_fields__))
+    if unknown:
+        raise TypeError(f"identify: unknown options {unknown}")
+    params = SAPMParams(eps=eps, beta=beta, **options)
+    bad = np.isnan(Q).any(axis=1)
+    keep = np.flatnonzero(~bad)
+    if len(keep) < 3:
+        raise ValueError(f"observed: expected at least 3 points without NaN, got {len(keep)}")
+    t0 = time.perf_counter()
+    search = _Search(model, Q[keep], params, rng)
+    search.run()
+    st = search.state
+    labels = np.full(len(Q), -1)
+    labels[keep] = st.label_of
+    matched = np.array([(st.obs_of[m] >= 0).sum() if st.found[s] else 0
+                        for s, m in enumerate(model.members)])
+    return Identification(labels, st.found.copy(), st.R, st.t, st.err, matched,
+                          np.flatnonzero(bad), search.effort.tables, search.effort.fits,
+                          search.effort.backtracks, time.perf_counter() - t0)

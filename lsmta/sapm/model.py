@@ -1,0 +1,292 @@
+"""The articulated marker model of SAPM (Li & Holstein 2002, Section 2).
+
+Labelled points with model coordinates, grouped into segments; the segments form a tree.
+Where a parent and a child share a marker (a joint marker) that label belongs to both.
+Where they share none, as with cluster marker sets, the joint is estimated from the model
+frame (the midpoint of the closest pair of markers across the two segments) and carries a
+tolerance, so that a child can still be searched near its parent.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from .._validate import as_array
+
+
+@dataclass(frozen=True, eq=False)
+class MarkerModel:
+    """A segment-based articulated model of labelled markers.
+
+    Attributes
+    ----------
+    labels : tuple of str, length M
+        Marker labels; ``points[i]`` is the model position of ``labels[i]``.
+    points : (M, 3) array
+        Model coordinates, mm (read-only).
+    segments : tuple of str, length S
+        Segment names.
+    members : tuple of S int arrays
+        Indices into ``labels`` of each segment's markers; a joint marker is a member of
+        both its segments.
+    parent : (S,) int array
+        Index of each segment's parent, -1 for the root of the given tree.
+    joint : (S, 3) array
+        Model position of the joint between each segment and its parent, mm (NaN for the
+        root): the shared marker's position, or the estimate described above.
+    joint_label : (S,) int array
+        Index of the shared joint marker, or -1 where parent and child share none.
+    joint_tolerance : (S,) array
+        How far, mm, the estimated joint may be from the true centre of rotation: 0 for a
+        shared marker, else the distance between the closest pair the estimate came from.
+    """
+
+    labels: tuple
+    points: np.ndarray
+    segments: tuple
+    members: tuple
+    parent: np.ndarray
+    joint: np.ndarray
+    joint_label: np.ndarray
+    joint_tolerance: np.ndarray
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_labelled_frame(cls, points_by_label: dict, segments: dict, parents: dict,
+                            *, joints: dict | None = None) -> MarkerModel:
+        """Build a model from one clear frame, as the paper does.
+
+        Parameters
+        ----------
+        points_by_label : dict
+            label -> (3,) model position, mm.
+        segments : dict
+            segment name -> list of labels (at least 3). A label in two segments must be
+            a joint marker of a parent and its child.
+        parents : dict
+            segment name -> parent segment name, or None for the root (exactly one).
+        joints : dict, optional
+            segment name -> (3,) joint position with its parent, mm, for links without a
+            shared marker (overrides the closest-pair estimate, tolerance 0).
+
+        Returns
+        -------
+        MarkerModel
+        """
+        if not isinstance(points_by_label, dict) or not points_by_label:
+            raise TypeError("points_by_label: expected a non-empty dict label -> (3,) position")
+        if not isinstance(segments, dict) or not segments:
+            raise TypeError("segments: expected a non-empty dict segment -> list of labels")
+        if not isinstance(parents, dict):
+            raise TypeError("parents: expected a dict segment -> parent segment or None")
+        labels = tuple(points_by_label)
+        points = np.stack([as_array(points_by_label[k], f"points_by_label[{k!r}]", shape=(3,))
+                           for k in labels])
+        index = {k: i for i, k in enumerate(labels)}
+        names = tuple(segments)
+        seg_index = {s: i for i, s in enumerate(names)}
+        if set(parents) != set(names):
+            missing = sorted(set(names) - set(parents))
+            extra = sorted(set(parents) - set(names))
+            raise ValueError(f"parents: expected one entry per segment; missing {missing}, "
+                             f"unknown {extra}")
+        parent = np.full(len(names), -1)
+        for s, p in parents.items():
+            if p is None:
+                continue
+            if p not in seg_index:
+                raise ValueError(f"parents: segment {s!r} has unknown parent {p!r}")
+            if p == s:
+                raise ValueError(f"parents: segment {s!r} is its own parent")
+            parent[seg_index[s]] = seg_index[p]
+        members = []
+        for s in names:
+            labs = list(segments[s])
+            if len(set(labs)) != len(labs):
+                raise ValueError(f"segments: segment {s!r} lists a label twice: {labs}")
+            unknown = [k for k in labs if k not in index]
+            if unknown:
+                raise ValueError(f"segments: segment {s!r} has labels not in points_by_label: "
+                                 f"{unknown}")
+            if len(labs) < 3:
+                raise ValueError(f"segments: segment {s!r} has {len(labs)} markers; SAPM fits "
+                                 f"a rigid motion per segment and needs at least 3")
+            members.append(np.array([index[k] for k in labs]))
+        unused = sorted(set(labels) - {labels[i] for m in members for i in m})
+        if unused:
+            raise ValueError(f"segments: labels in no segment: {unused}")
+        joints = {} if joints is None else dict(joints)
+        unknown = sorted(set(joints) - set(names))
+        if unknown:
+            raise ValueError(f"joints: unknown segments {unknown}")
+        return cls._build(labels, points, names, members, parent, joints)
+
+    @classmethod
+    def _build(cls, labels, points, names, members, parent, joints):
+        S = len(names)
+        roots = np.flatnonzero(parent < 0)
+        if len(roots) != 1:
+            raise ValueError(f"parents: expected exactly one root segment (parent None), got "
+                             f"{[names[i] for i in roots]}")
+        for s in range(S):                        # every chain must reach the root
+            seen, p = {s}, parent[s]
+            while p >= 0:
+                if p in seen:
+                    raise ValueError(f"parents: segments {sorted(names[i] for i in seen)} form "
+                                     f"a cycle; expected a tree")
+                seen.add(p)
+                p = parent[p]
+        owner = {}
+        for s, m in enumerate(members):
+            for i in m:
+                owner.setdefault(int(i), []).append(s)
+        for i, segs in owner.items():
+            if len(segs) == 1:
+                continue
+            a, b = segs[0], segs[-1]
+            if len(segs) > 2 or not (parent[a] == b or parent[b] == a):
+                raise ValueError(f"segments: label {labels[i]!r} is in segments "
+                                 f"{[names[s] for s in segs]}; a shared label must join one "
+                                 f"parent and its child")
+        joint = np.full((S, 3), np.nan)
+        joint_label = np.full(S, -1)
+        tol = np.zeros(S)
+        for s in range(S):
+            p = parent[s]
+            if p < 0:
+                continue
+            shared = np.intersect1d(members[s], members[p])
+            if len(shared) > 1:
+                raise ValueError(f"segments: {names[s]!r} and its parent {names[p]!r} share "
+                                 f"{len(shared)} labels; expected at most one joint marker")
+            if len(shared):
+                joint_label[s] = shared[0]
+                joint[s] = points[shared[0]]
+            elif names[s] in joints:
+                joint[s] = as_array(joints[names[s]], f"joints[{names[s]!r}]", shape=(3,))
+            else:
+                a, b = points[members[s]], points[members[p]]
+                d = np.linalg.norm(a[:, None] - b[None], axis=-1)
+                i, j = np.unravel_index(np.argmin(d), d.shape)
+                joint[s] = 0.5 * (a[i] + b[j])
+                tol[s] = d[i, j]
+        for arr in (points, parent, joint, joint_label, tol):
+            arr.setflags(write=False)
+        return cls(tuple(labels), points, tuple(names), tuple(np.asarray(m) for m in members),
+                   parent, joint, joint_label, tol)
+
+    # ------------------------------------------------------------------ derived structure
+    @property
+    def n_points(self) -> int:
+        return len(self.labels)
+
+    @property
+    def n_segments(self) -> int:
+        return len(self.segments)
+
+    @cached_property
+    def mean_length(self) -> np.ndarray:
+        """(S,) average distance between a segment's markers, mm (the paper's l̄_s)."""
+        out = np.empty(self.n_segments)
+        for s, m in enumerate(self.members):
+            p = self.points[m]
+            d = np.linalg.norm(p[:, None] - p[None], axis=-1)
+            out[s] = d[np.triu_indices(len(m), 1)].mean()
+        return out
+
+    @cached_property
+    def point_segment(self) -> np.ndarray:
+        """(M,) the segment that owns each marker (for a joint marker, the parent)."""
+        out = np.full(self.n_points, -1)
+        for s in self.tree_order(self.root_of_tree):
+            for i in self.members[s]:
+                if out[i] < 0:
+                    out[i] = s
+        return out
+
+    @property
+    def root_of_tree(self) -> int:
+        return int(np.flatnonzero(self.parent < 0)[0])
+
+    @cached_property
+    def neighbours(self) -> tuple:
+        """Linked segments of each segment (parent and children), as tuples."""
+        out = [[] for _ in range(self.n_segments)]
+        for s, p in enumerate(self.parent):
+            if p >= 0:
+                out[s].append(int(p))
+                out[p].append(s)
+        return tuple(tuple(n) for n in out)
+
+    @cached_property
+    def search_root(self) -> int:
+        """Where SAPM starts: the segment with the most markers plus links (ties: the
+        tree's root, then the first listed)."""
+        score = [len(m) + len(n) for m, n in zip(self.members, self.neighbours)]
+        best = max(score)
+        if score[self.root_of_tree] == best:
+            return self.root_of_tree
+        return int(score.index(best))
+
+    def tree_order(self, start: int) -> list[int]:
+        """Segments depth first from ``start`` over the undirected tree."""
+        order, stack, seen = [], [start], {start}
+        while stack:
+            s = stack.pop()
+            order.append(s)
+            for n in reversed(self.neighbours[s]):
+                if n not in seen:
+                    seen.add(n)
+                    stack.append(n)
+        return order
+
+    @cached_property
+    def search_parent(self) -> np.ndarray:
+        """(S,) parent of each segment in the tree re-rooted at :attr:`search_root`."""
+        out = np.full(self.n_segments, -1)
+        for s in self.tree_order(self.search_root):
+            for n in self.neighbours[s]:
+                if n != out[s] and n != self.search_root and out[n] < 0:
+                    out[n] = s
+        return out
+
+    def link(self, a: int, b: int):
+        """Joint between linked segments ``a`` and ``b``: (position (3,), label or -1,
+        tolerance mm)."""
+        child = a if self.parent[a] == b else b
+        if self.parent[child] not in (a, b) or a == b:
+            raise ValueError(f"segments {self.segments[a]!r} and {self.segments[b]!r} are "
+                             f"not linked")
+        return self.joint[child], int(self.joint_label[child]), float(self.joint_tolerance[child])
+
+    def label_index(self, label: str) -> int:
+        try:
+            return self.labels.index(label)
+        except ValueError:
+            raise KeyError(f"label: {label!r} is not in the model") from None
+
+    def segment_index(self, name: str) -> int:
+        try:
+            return self.segments.index(name)
+        except ValueError:
+            raise KeyError(f"segment: {name!r} is not in the model") from None
+
+    def edges(self) -> list[tuple[int, int]]:
+        """Stick links for drawing: every pair of markers within a segment that are
+        neighbours in the segment's minimum spanning tree."""
+        from scipy.sparse.csgraph import minimum_spanning_tree
+
+        out = []
+        for m in self.members:
+            p = self.points[m]
+            d = np.linalg.norm(p[:, None] - p[None], axis=-1)
+            mst = minimum_spanning_tree(d).tocoo()
+            out += [(int(m[i]), int(m[j])) for i, j in zip(mst.row, mst.col)]
+        return out
+
+    def __repr__(self) -> str:
+        return (f"MarkerModel({self.n_points} markers, {self.n_segments} segments, "
+                f"search root {self.segments[self.search_root]!r})")

@@ -43,8 +43,9 @@ def read_c3d(path) -> MarkerData:
     Returns
     -------
     MarkerData
-        Labels, (T, M, 3) points in mm (converted from the file's POINT:UNITS; gaps, which
-        C3D marks by a negative residual or NaN, become NaN) and the frame rate.
+        Labels, (T, M, 3) points in mm (converted from the file's POINT:UNITS; a gap,
+        which C3D marks by a negative residual or NaN in any coordinate, becomes a NaN
+        point) and the frame rate.
     """
     import ezc3d
 
@@ -62,5 +63,6 @@ def read_c3d(path) -> MarkerData:
     residuals = c["data"].get("meta_points", {}).get("residuals")
     if residuals is not None:
         xyz[np.asarray(residuals)[0].T < 0] = np.nan
+    xyz[np.isnan(xyz).any(axis=2)] = np.nan          # a gap is a whole point
     rate = float(np.ravel(point["RATE"]["value"])[0])
     return MarkerData(labels[: xyz.shape[1]], xyz, rate)

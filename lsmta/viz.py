@@ -172,3 +172,49 @@ def cloud_image(points, scalars=None, *, cmap="viridis", clim=None, scalar_label
     image = pl.screenshot(return_img=True)
     pl.close()
     return image
+
+
+def draw_marker_pose(ax, model, points, labels=None, *, colors=None, title="", size=14):
+    """Draw a marker pose on a matplotlib 3-D axis.
+
+    Parameters
+    ----------
+    ax : mpl_toolkits.mplot3d.Axes3D
+    model : lsmta.sapm.MarkerModel
+        Gives the segments and their stick links (:meth:`MarkerModel.edges`).
+    points : (N, 3) array
+        Points, mm.
+    labels : (N,) int array, optional
+        Model marker of each point (-1: unidentified). Identified points are coloured by
+        segment and joined by their segment's stick links; without ``labels`` every point
+        is drawn grey and unjoined (an unidentified pose).
+    colors : (N, 3 or 4) array, optional
+        Point colours overriding the segment colours (e.g. right/wrong).
+    """
+    import matplotlib.pyplot as plt
+
+    points = np.asarray(points, float)
+    palette = plt.cm.tab20(np.arange(model.n_segments) % 20)
+    if labels is None:
+        c = np.full((len(points), 4), (0.3, 0.3, 0.3, 1.0))
+    else:
+        labels = np.asarray(labels)
+        c = np.where((labels >= 0)[:, None],
+                     palette[model.point_segment[np.maximum(labels, 0)]], (0.6, 0.6, 0.6, 1))
+        where = {int(lab): i for i, lab in enumerate(labels) if lab >= 0}
+        for a, b in model.edges():
+            if a in where and b in where:
+                seg = model.point_segment[a]
+                ax.plot(*points[[where[a], where[b]]].T, color=palette[seg], lw=1.5)
+    if colors is not None:
+        c = colors
+    ax.scatter(*points.T, c=c, s=size, depthshade=False)
+    lo, hi = np.nanmin(points, axis=0), np.nanmax(points, axis=0)
+    mid, half = (lo + hi) / 2, (hi - lo).max() / 2
+    for setter, m in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), mid):
+        setter(m - half, m + half)
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    ax.set_zlabel("z [mm]")
+    ax.set_title(title)
+    return ax

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io import read_c3d
+from ..rigid import apply_rigid, fit_rigid
 from ..sapm import MarkerModel, global_assignment, identify
 from ..synth.markers import random_pose
 
@@ -73,10 +74,12 @@ class Trials:
                 "p95_s": float(np.percentile(self.seconds, 95))}
 
 
-def _score(labels, truth, seconds, tables=0, backtracks=0):
+def _scored(result, truth):
+    """One row of :class:`Trials` from a result of :func:`label_pose`."""
+    labels = result.labels
     ok = labels == truth
-    return (bool(ok.all()), float(ok.mean()), float(((labels >= 0) & ~ok).mean()), seconds,
-            tables, backtracks)
+    return (bool(ok.all()), float(ok.mean()), float(((labels >= 0) & ~ok).mean()),
+            result.seconds, getattr(result, "tables", 0), getattr(result, "backtracks", 0))
 
 
 def _trials(rows) -> Trials:
@@ -86,14 +89,12 @@ def _trials(rows) -> Trials:
 
 
 def label_pose(model: MarkerModel, observed, method: str = "sapm", **identify_kw):
-    """Label one pose with ``method`` ("sapm" or "baseline"): (labels (N,), seconds,
-    tables, backtracks)."""
+    """Label one pose with ``method``: "sapm" (:func:`~lsmta.sapm.identify`, returns an
+    ``Identification``) or "baseline" (:func:`~lsmta.sapm.global_assignment`)."""
     if method == "sapm":
-        r = identify(model, observed, **identify_kw)
-        return r.labels, r.seconds, r.tables, r.backtracks
+        return identify(model, observed, **identify_kw)
     if method == "baseline":
-        r = global_assignment(model, observed)
-        return r.labels, r.seconds, 0, 0
+        return global_assignment(model, observed)
     raise ValueError(f"method: expected 'sapm' or 'baseline', got {method!r}")
 
 
@@ -112,9 +113,8 @@ def pose_trials(model: MarkerModel, rng: np.random.Generator, n_poses: int, *,
         pose = random_pose(model, rng, level=level, distortion=distortion,
                            n_missing=n_missing, n_extra=n_extra)
         for m in methods:
-            lab, sec, tab, bt = label_pose(model, pose.observed, m,
-                                           **(identify_kw if m == "sapm" else {}))
-            rows[m].append(_score(lab, pose.truth, sec, tab, bt))
+            r = label_pose(model, pose.observed, m, **(identify_kw if m == "sapm" else {}))
+            rows[m].append(_scored(r, pose.truth))
     return {m: _trials(r) for m, r in rows.items()}
 
 
@@ -201,12 +201,16 @@ class FrameTrials:
         method -> :class:`Trials`, one entry per frame.
     labels : dict
         method -> (F, M) int array: the label given to each model marker's observed point
-        (marker index = correct, -1 = unlabelled or missing, other = wrong).
+        (marker index = correct, -1 = unlabelled, -2 = absent from the frame, other =
+        wrong).
+    results : dict
+        method -> list of the per-frame results (``Identification`` for "sapm").
     """
 
     frames: np.ndarray
     trials: dict
     labels: dict
+    results: dict
 
     def per_marker_accuracy(self, method: str = "sapm") -> np.ndarray:
         """(M,) share of frames in which each present marker was labelled correctly."""
@@ -224,17 +228,31 @@ def frame_trials(model: MarkerModel, points, frames, rng: np.random.Generator,
     marker absent from the frame is -2."""
     rows = {m: [] for m in methods}
     labels = {m: np.full((len(frames), model.n_points), -2) for m in methods}
+    results = {m: [] for m in methods}
     for f_i, f in enumerate(frames):
         present = np.flatnonzero(~np.isnan(points[f]).any(axis=1))
         perm = rng.permutation(present)
         for m in methods:
-            lab, sec, tab, bt = label_pose(model, points[f][perm], m,
-                                           **(identify_kw if m == "sapm" else {}))
-            rows[m].append(_score(lab, perm, sec, tab, bt))
-            labels[m][f_i, perm] = lab
-    return FrameTrials(np.asarray(frames), {m: _trials(r) for m, r in rows.items()}, labels)
+            r = label_pose(model, points[f][perm], m, **(identify_kw if m == "sapm" else {}))
+            rows[m].append(_scored(r, perm))
+            labels[m][f_i, perm] = r.labels
+            results[m].append(r)
+    return FrameTrials(np.asarray(frames), {m: _trials(r) for m, r in rows.items()}, labels,
+                       results)
 
 
-__all__ = ["CLOUTHIER_PARENTS", "CLOUTHIER_SEGMENTS", "FrameTrials", "Surface", "Trials",
-           "cell_seeds", "clouthier_model", "frame_trials", "identification_surface",
-           "label_pose", "pose_trials", "surface_cell"]
+
+
+def segment_fit_errors(model: MarkerModel, points) -> np.ndarray:
+    """(S,) ē_s (Eq. 2) of each segment under the *true* correspondence: how far a
+    labelled frame ``points`` (M, 3) mm, NaN for gaps, is from rigid per segment (NaN where
+    fewer than 3 markers are present). A segment with ē_s above ε cannot pass Eq. 2."""
+    out = np.full(model.n_segments, np.nan)
+    for s, m in enumerate(model.members):
+        q = np.asarray(points, float)[m]
+        ok = ~np.isnan(q).any(axis=1)
+        if ok.sum() >= 3:
+            R, t = fit_rigid(model.points[m][ok], q[ok])
+            resid = np.linalg.norm(apply_rigid(R, t, model.points[m][ok]) - q[ok], axis=1)
+            out[s] = resid.mean() / model.mean_length[s]
+    return out

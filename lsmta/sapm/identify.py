@@ -18,6 +18,7 @@ Labels an unlabelled 3-D marker pose from one frame with a :class:`~lsmta.sapm.M
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from dataclasses import dataclass
@@ -49,6 +50,12 @@ class SAPMParams:
         How many whole matches of one segment are tried when its children fail.
     max_tables : int
         At most this many candidate tables per pivot are tried (best first).
+    rank_root : bool
+        Our option, not the paper's: try the root segment's whole matches from all of a
+        pivot's tables in order of their fit error ē, instead of in the order the tables
+        give them (biggest table first). It helps on distorted poses of the code-built
+        model and hurts on cluster marker sets, whose alike clusters fit each other well
+        (notebook 08); slower.
     """
 
     eps: float = 0.10
@@ -56,6 +63,7 @@ class SAPMParams:
     coarse_min_points: int = 6
     max_alternatives: int = 3
     max_tables: int = 30
+    rank_root: bool = False
 
 
 @dataclass(frozen=True)
@@ -330,6 +338,7 @@ class _Search:
         methods = [self._near_far]
         if len(m) >= self.p.coarse_min_points:
             methods.insert(0, self._coarse)
+        rank = self.p.rank_root and s == model.search_root and via < 0
         seen = set()
         for l, pivots in pivot_order:
             if gate is not None:
@@ -337,21 +346,27 @@ class _Search:
                 reach = np.linalg.norm(model.points[m[l]] - J)
                 d = np.linalg.norm(self.Q[pivots] - V, axis=-1)
                 pivots = pivots[np.abs(d - reach) <= 2 * self.p.eps * reach + tol]
-            for k, cols in self._tables(s, l, np.asarray(pivots, int), gate):
-                self.effort.tables += 1
-                for method in methods:       # near-far triples where replacement fails
-                    hit = False
-                    for match in method(s, l, k, cols, fixed):
-                        # asked for more only when the children failed: before the next
-                        # table, the same match less one marker (which may be a child's)
-                        for alt in (match, *self._leave_one_out(s, match, fixed)):
-                            key = tuple(alt.obs)
-                            if key not in seen:
-                                seen.add(key)
-                                hit = True
-                                yield alt
-                    if hit:
-                        break
+            primary = self._table_matches(s, l, pivots, gate, fixed, methods)
+            if rank:        # our option: every table's match, best fitting first
+                primary = sorted(primary, key=lambda x: x.err)
+            for match in primary:
+                # asked for more only when the children failed: before the next match,
+                # the same one less a marker (which may be a child's)
+                for alt in itertools.chain([match], self._leave_one_out(s, match, fixed)):
+                    key = tuple(alt.obs)
+                    if key not in seen:
+                        seen.add(key)
+                        yield alt
+
+    def _table_matches(self, s, l, pivots, gate, fixed, methods):
+        """The first whole match of each candidate table of pivot ``l``."""
+        for k, cols in self._tables(s, l, np.asarray(pivots, int), gate):
+            self.effort.tables += 1
+            for method in methods:           # near-far triples where replacement fails
+                match = next(method(s, l, k, cols, fixed), None)
+                if match is not None:
+                    yield match
+                    break
 
     def _leave_one_out(self, s, match, fixed):
         """Valid matches with one marker of ``match`` let go, worst fitting first."""
@@ -407,11 +422,11 @@ class _Search:
     def run(self) -> None:
         model = self.model
         self.solve(model.search_root, -1)
-        # broken chains last: segments still unfound, searched from scratch in tree order
+        # broken chains last: segments whose parent was not found, searched from scratch
         for s in model.tree_order(model.search_root):
-            if not self.state.found[s]:
-                via = model.search_parent[s]
-                self.solve(s, via if via >= 0 and self.state.found[via] else -1)
+            via = model.search_parent[s]
+            if not self.state.found[s] and (via < 0 or not self.state.found[via]):
+                self.solve(s, -1)
 
 
 def identify(model: MarkerModel, observed, *, eps: float = 0.10, beta: float = 0.80,

@@ -1,0 +1,240 @@
+"""SAPM: rigid fits, the marker model, the pose generator, identification and its baseline,
+the C3D reader. Ground truth comes from the generator (or the labelled file)."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from lsmta.evaluation.sapm import cell_seeds, clouthier_model, frame_trials, pose_trials
+from lsmta.io import read_c3d
+from lsmta.rigid import apply_rigid, fit_rigid
+from lsmta.sapm import MarkerModel, global_assignment, identify
+from lsmta.synth.markers import human_model, random_pose
+
+C3D = Path(__file__).resolve().parents[1] / "data" / "clouthier2021" / "KneeltoProne01.c3d"
+
+
+@pytest.fixture(scope="module")
+def model():
+    return human_model()
+
+
+# ---------------------------------------------------------------------- rigid fit
+def test_fit_rigid_recovers_a_batch_of_motions(rng):
+    R_true = Rotation.random(5, random_state=rng).as_matrix()
+    t_true = rng.normal(0, 500, (5, 3))
+    P = rng.normal(0, 100, (5, 7, 3))
+    Q = apply_rigid(R_true, t_true, P)
+    R, t = fit_rigid(P, Q)
+    np.testing.assert_allclose(R, R_true, atol=1e-10)
+    np.testing.assert_allclose(t, t_true, atol=1e-8)
+
+
+def test_fit_rigid_returns_a_rotation_for_mirrored_points(rng):
+    P = rng.normal(0, 100, (6, 3))
+    R, _ = fit_rigid(P, P * [-1, 1, 1])
+    assert np.linalg.det(R) == pytest.approx(1.0)
+
+
+def test_fit_rigid_rejects_mismatched_shapes():
+    with pytest.raises(ValueError, match="source, target"):
+        fit_rigid(np.zeros((4, 3)), np.zeros((5, 3)))
+
+
+# ---------------------------------------------------------------------- model
+def test_human_models_have_the_papers_sizes():
+    m13, m15 = human_model(), human_model(hands=True)
+    assert (m13.n_segments, m13.n_points) == (13, 44)
+    assert (m15.n_segments, m15.n_points) == (15, 49)
+    assert max(len(m) for m in m13.members) == 6
+    assert m13.segments[m13.search_root] == "torso"
+    # every link of the code-built model has a shared joint marker
+    assert (m13.joint_label[m13.parent >= 0] >= 0).all()
+
+
+def _tiny(**change):
+    pts = {"a": [0, 0, 0], "b": [100, 0, 0], "c": [0, 80, 0], "d": [0, 0, 120],
+           "e": [200, 0, 0], "f": [150, 60, 0]}
+    segs = {"s1": ["a", "b", "c", "d"], "s2": ["b", "e", "f"]}
+    parents = {"s1": None, "s2": "s1"}
+    kw = {"points_by_label": pts, "segments": segs, "parents": parents}
+    kw.update(change)
+    return kw
+
+
+def test_model_from_a_labelled_frame_finds_joints_and_estimates_missing_ones():
+    m = MarkerModel.from_labelled_frame(**_tiny())
+    assert m.labels[m.joint_label[1]] == "b" and m.joint_tolerance[1] == 0
+    segs = {"s1": ["a", "b", "c", "d"], "s2": ["e", "f", "g"]}
+    pts = dict(_tiny()["points_by_label"], g=[180, 50, 30])
+    m2 = MarkerModel.from_labelled_frame(pts, segs, {"s1": None, "s2": "s1"})
+    assert m2.joint_label[1] == -1
+    # the closest pair across the link is b (100, 0, 0) and f (150, 60, 0)
+    np.testing.assert_allclose(m2.joint[1], [125, 30, 0])
+    assert m2.joint_tolerance[1] == pytest.approx(np.hypot(50, 60))
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"segments": {"s1": ["a", "b", "c", "c"], "s2": ["b", "e", "f"]}}, "lists a label twice"),
+    ({"segments": {"s1": ["a", "b", "c", "d"], "s2": ["b", "e"]}}, "at least 3"),
+    ({"segments": {"s1": ["a", "b", "c", "d"], "s2": ["b", "e", "x"]}}, "not in points_by_label"),
+    ({"segments": {"s1": ["a", "b", "c"], "s2": ["b", "e", "f"]}}, "labels in no segment"),
+    ({"parents": {"s1": None, "s2": None}}, "exactly one root"),
+    ({"parents": {"s1": "s2", "s2": "s1"}}, "exactly one root|cycle"),
+    ({"parents": {"s1": None, "s2": "zz"}}, "unknown parent"),
+    ({"parents": {"s1": None}}, "one entry per segment"),
+])
+def test_model_rejects_bad_definitions(change, message):
+    with pytest.raises(ValueError, match=message):
+        MarkerModel.from_labelled_frame(**_tiny(**change))
+
+
+def test_model_rejects_a_label_shared_by_unlinked_segments():
+    pts = dict(_tiny()["points_by_label"], g=[0, 50, 50], h=[30, 30, 30])
+    segs = {"s1": ["a", "b", "c", "d"], "s2": ["b", "e", "f"], "s3": ["e", "g", "h"]}
+    with pytest.raises(ValueError, match="shared label"):
+        MarkerModel.from_labelled_frame(pts, segs, {"s1": None, "s2": "s1", "s3": "s1"})
+
+
+# ---------------------------------------------------------------------- generator
+def test_random_pose_keeps_every_segment_rigid_and_shuffles(model, rng):
+    pose = random_pose(model, rng, level=4.0)
+    order = np.argsort(pose.truth)
+    assert not np.array_equal(pose.truth, np.sort(pose.truth))
+    pts = pose.observed[order]
+    for m in model.members:
+        d_model = np.linalg.norm(model.points[m][:, None] - model.points[m][None], axis=-1)
+        d_pose = np.linalg.norm(pts[m][:, None] - pts[m][None], axis=-1)
+        np.testing.assert_allclose(d_pose, d_model, atol=1e-9)
+
+
+def test_random_pose_at_level_zero_is_a_translation(model, rng):
+    pose = random_pose(model, rng, level=0.0)
+    shift = pose.observed - model.points[pose.truth]
+    np.testing.assert_allclose(shift, shift[0] + 0 * shift, atol=1e-9)
+
+
+def test_random_pose_missing_and_extra_points(model, rng):
+    pose = random_pose(model, rng, n_missing=3, n_extra=4, distortion=0.05)
+    assert len(pose.observed) == model.n_points - 3 + 4
+    assert (pose.truth == -1).sum() == 4
+    assert len(np.unique(pose.truth[pose.truth >= 0])) == model.n_points - 3
+
+
+# ---------------------------------------------------------------------- identification
+def test_identify_labels_noise_free_arbitrary_poses(model, rng):
+    for _ in range(20):
+        pose = random_pose(model, rng, level=np.pi)
+        result = identify(model, pose.observed, eps=0.05)
+        np.testing.assert_array_equal(result.labels, pose.truth)
+        assert result.found.all()
+        np.testing.assert_allclose(result.mean_error, 0, atol=1e-9)
+
+
+def test_identify_transforms_carry_the_model_onto_the_pose(model, rng):
+    pose = random_pose(model, rng, level=2.0)
+    r = identify(model, pose.observed, eps=0.05)
+    for s, m in enumerate(model.members):
+        pred = apply_rigid(r.rotation[s], r.translation[s], model.points[m])
+        np.testing.assert_allclose(pred, pose.points[m], atol=1e-6)
+
+
+def test_identify_leaves_extra_points_unlabelled_and_survives_missing(model, rng):
+    n_ok, n_total = 0, 0
+    for _ in range(10):
+        pose = random_pose(model, rng, level=2.0, n_missing=1, n_extra=4)
+        r = identify(model, pose.observed, eps=0.05, beta=0.7)
+        labelled = r.labels >= 0
+        assert (r.labels[labelled] == pose.truth[labelled]).all(), "a point got a wrong label"
+        n_ok += (r.labels == pose.truth).sum()
+        n_total += len(pose.truth)
+    assert n_ok / n_total > 0.9
+
+
+def test_identify_drops_nan_rows_and_leaves_the_input_alone(model, rng):
+    pose = random_pose(model, rng, level=1.0)
+    obs = pose.observed.copy()
+    obs[[3, 7]] = np.nan
+    before = obs.copy()
+    r = identify(model, obs, eps=0.05)
+    np.testing.assert_array_equal(obs, before)
+    np.testing.assert_array_equal(r.dropped, [3, 7])
+    assert (r.labels[[3, 7]] == -1).all()
+    ok = np.ones(len(obs), bool)
+    ok[[3, 7]] = False
+    assert (r.labels[ok] == pose.truth[ok]).mean() > 0.9
+
+
+@pytest.mark.parametrize("kw, error, message", [
+    ({"observed": np.zeros((2, 3))}, ValueError, "at least 3"),
+    ({"observed": np.zeros((5, 2))}, ValueError, r"shape \(N, 3\)"),
+    ({"eps": 1.5}, ValueError, "eps"),
+    ({"eps": 0.0}, ValueError, "eps"),
+    ({"beta": 1.0}, ValueError, "beta"),
+    ({"rng": 3}, TypeError, "Generator"),
+    ({"max_tabels": 3}, TypeError, "unknown options"),
+])
+def test_identify_rejects_bad_arguments(model, rng, kw, error, message):
+    args = {"observed": random_pose(model, rng).observed}
+    args.update(kw)
+    with pytest.raises(error, match=message):
+        identify(model, **args)
+
+
+def test_identify_rejects_a_non_model(rng):
+    with pytest.raises(TypeError, match="model"):
+        identify({"a": 1}, np.zeros((5, 3)))
+
+
+def test_baseline_works_for_rigid_poses_only(model, rng):
+    rigid = random_pose(model, rng, level=0.0)
+    np.testing.assert_array_equal(global_assignment(model, rigid.observed).labels, rigid.truth)
+    trials = pose_trials(model, rng, 10, level=2.0, methods=("sapm", "baseline"), eps=0.05)
+    assert trials["sapm"].accuracy.mean() > trials["baseline"].accuracy.mean() + 0.3
+
+
+def test_cell_seeds_are_reproducible_and_distinct():
+    a, b = cell_seeds(7, (3, 4)), cell_seeds(7, (3, 4))
+    np.testing.assert_array_equal(a, b)
+    assert len(np.unique(a)) == 12
+
+
+# ---------------------------------------------------------------------- real data
+def test_read_c3d_of_the_bundled_recording():
+    labels, points, rate = read_c3d(C3D)
+    assert len(labels) == 62 and points.shape == (1745, 62, 3) and rate == 240.0
+    assert np.isnan(points[:, labels.index("RAC")]).any(axis=1).sum() == 153
+    # mm: the back markers are centimetres apart, not metres or micrometres
+    d = np.linalg.norm(points[0, labels.index("LBUL")] - points[0, labels.index("LBLL")])
+    assert 20 < d < 500
+
+
+def test_read_c3d_converts_units_and_keeps_gaps(tmp_path):
+    ezc3d = pytest.importorskip("ezc3d")
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [100]
+    c["parameters"]["POINT"]["LABELS"]["value"] = ("A", "B")
+    c["parameters"]["POINT"]["UNITS"]["value"] = ["m"]
+    pts = np.ones((4, 2, 3))
+    pts[:3] *= 0.5
+    pts[0, 1, 2] = np.nan
+    c["data"]["points"] = pts
+    c.write(str(tmp_path / "x.c3d"))
+    data = read_c3d(tmp_path / "x.c3d")
+    assert data.labels == ("A", "B") and data.rate == 100
+    np.testing.assert_allclose(data.points[0, 0], [500, 500, 500])
+    assert np.isnan(data.points[2, 1]).all() and not np.isnan(data.points[1, 1]).any()
+
+
+def test_read_c3d_names_a_missing_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match="path"):
+        read_c3d(tmp_path / "nothing.c3d")
+
+
+def test_real_frames_are_mostly_identified():
+    model, points = clouthier_model(C3D)
+    assert (model.n_segments, model.n_points) == (15, 62)
+    ft = frame_trials(model, points, [0, 200, 800, 1600], np.random.default_rng(1), eps=0.1)
+    assert ft.trials["sapm"].accuracy.mean() > 0.9

@@ -211,6 +211,7 @@ def test_robust_loss_resists_outliers(head, data):
         med[loss] = np.median(np.hypot(*projection_errors(fit.model, ev.pan, ev.tilt, ev.X,
                                                           ev.xy).T))
     floor = np.median(np.hypot(*projection_errors(head, ev.pan, ev.tilt, ev.X, ev.xy).T))
+    assert med["linear"] > 1.2 * floor      # the outliers do hurt least squares
     assert med["soft_l1"] < med["linear"]
     assert med["soft_l1"] < 1.15 * floor
 

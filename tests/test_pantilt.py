@@ -378,6 +378,8 @@ def test_latency_parameters_are_checked(head):
         simulate_tracking(head, traj, 120.0, rng, motor=Motor(latency=-1))
     with pytest.raises(TypeError, match="rng"):
         simulate_tracking(head, traj, 120.0, 0)
+    with pytest.raises(ValueError, match="pan: expected angles in degrees"):
+        simulate_tracking(head, traj, 120.0, rng, start=(3.14 * 60, 0.0))
 
 
 # ---------------------------------------------------------------------- generator

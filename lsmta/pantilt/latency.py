@@ -169,7 +169,8 @@ def constant_velocity_filter(times, z, *, sigma: float, accel_density: float):
 def simulate_tracking(camera: PanTiltCamera, trajectory, rate: float,
                       rng: np.random.Generator, *, aim_model: PanTiltCamera | None = None,
                       motor: Motor = Motor(), control: Control = Control(),
-                      kalman: KalmanCV = KalmanCV(), video_rate: float = 30.0) -> TrackingRun:
+                      kalman: KalmanCV = KalmanCV(), video_rate: float = 30.0,
+                      start=(0.0, 0.0)) -> TrackingRun:
     """Simulate the pan-tilt camera following a target (see the module docstring).
 
     Parameters
@@ -189,6 +190,8 @@ def simulate_tracking(camera: PanTiltCamera, trajectory, rate: float,
         Parameters.
     video_rate : float
         Frame rate of the pan-tilt video, Hz.
+    start : (2,) array
+        The head's setting (pan, tilt in degrees) when the run starts.
 
     Returns
     -------
@@ -211,6 +214,8 @@ def simulate_tracking(camera: PanTiltCamera, trajectory, rate: float,
                         ("control.estimate_delay", control.estimate_delay)):
         if value < 0:
             raise ValueError(f"{name}: expected a time >= 0 s, got {value}")
+    start = np.array(as_array(start, "start", shape=(2,)))
+    camera.check(start[0], start[1])
     dt = 1.0 / rate
     n = len(traj)
     t = np.arange(n) * dt
@@ -229,7 +234,7 @@ def simulate_tracking(camera: PanTiltCamera, trajectory, rate: float,
     c_idx = schedule(control.command_rate)
     c_idx = c_idx[t[c_idx] >= available[0]]
     commands = np.empty((len(c_idx), 2))
-    setting = np.zeros(2)
+    setting = start.copy()
     smooth = None
     unreachable = 0
     for k, i in enumerate(c_idx):
@@ -245,7 +250,7 @@ def simulate_tracking(camera: PanTiltCamera, trajectory, rate: float,
     period = 1.0 / control.command_rate
     active_at = t[c_idx] + motor.latency
     max_rate = np.asarray(motor.max_rate, dtype=float)
-    pos = np.zeros(2)
+    pos = start.copy()
     goal = pos.copy()
     speed = np.zeros(2)
     next_cmd = 0

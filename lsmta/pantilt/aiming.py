@@ -23,6 +23,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .._validate import as_points, as_scalar
+from .fitting import _freeze
 from .model import PanTiltCamera
 
 _MOVES = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
@@ -54,6 +55,9 @@ class Aim:
     reachable: np.ndarray
     iterations: np.ndarray
     evaluations: int
+
+    def __post_init__(self):
+        _freeze(self, ("pan", "tilt", "error_px", "reachable", "iterations"))
 
     @property
     def settings(self) -> np.ndarray:

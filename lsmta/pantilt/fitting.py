@@ -81,6 +81,9 @@ class Fit:
     loss: str
     nfev: int
 
+    def __post_init__(self):
+        _freeze(self, ("params", "std", "covariance", "residuals"))
+
     @property
     def errors(self) -> np.ndarray:
         """Length of each residual ``(N,)``, pixels."""
@@ -92,6 +95,14 @@ class Fit:
 
 
 # ---------------------------------------------------------------------- helpers
+def _freeze(obj, names):
+    """Store read-only copies of the named array fields of a frozen dataclass."""
+    for name in names:
+        a = np.array(getattr(obj, name))
+        a.flags.writeable = False
+        object.__setattr__(obj, name, a)
+
+
 def _rot(omega_deg) -> np.ndarray:
     R, _ = cv2.Rodrigues(np.radians(np.asarray(omega_deg, dtype=float)))
     return R

@@ -31,6 +31,7 @@ import numpy as np
 
 from .._validate import as_array, as_points, as_rng, as_scalar
 from .aiming import aim
+from .fitting import _freeze
 from .model import PanTiltCamera
 
 
@@ -103,6 +104,10 @@ class TrackingRun:
     commands: np.ndarray
     unreachable: int
     estimate_error_mm: np.ndarray
+
+    def __post_init__(self):
+        _freeze(self, ("times", "xy", "deviation_px", "in_frame", "settings", "command_times",
+                       "commands", "estimate_error_mm"))
 
     @property
     def command_jitter_deg(self) -> float:

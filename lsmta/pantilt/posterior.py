@@ -17,7 +17,7 @@ import numpy as np
 
 from .._validate import as_rng, as_scalar
 from ..camera import Camera
-from .fitting import Fit, _observations, project_params
+from .fitting import Fit, _freeze, _observations, project_params
 
 
 @dataclass(frozen=True, eq=False)
@@ -37,6 +37,9 @@ class Posterior:
     names: tuple
     samples: np.ndarray
     acceptance: float
+
+    def __post_init__(self):
+        _freeze(self, ("samples",))
 
     @property
     def mean(self) -> np.ndarray:

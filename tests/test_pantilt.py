@@ -321,6 +321,16 @@ def test_unreachable_targets_are_reported(head, rng):
     assert np.all((res.tilt >= -25) & (res.tilt <= 25) & (np.abs(res.pan) <= 100))
 
 
+def test_aim_and_simulation_leave_inputs_alone(head, rng):
+    X, _ = on_axis_targets(head, np.array([10.0, -20.0]), np.array([0.0, 5.0]), rng)
+    X, current = readonly(X, [[9.0, 1.0], [-19.0, 4.0]])
+    aim(head, X, current)
+    aim_least_squares(head, X, current)
+    (traj,) = readonly(side_to_side(2.0, 120.0))
+    run = simulate_tracking(head, traj, 120.0, np.random.default_rng(0))
+    assert not run.deviation_px.flags.writeable
+
+
 def test_aim_checks_current(head):
     with pytest.raises(ValueError, match="current"):
         aim(head, np.zeros((2, 3)), np.zeros(3))

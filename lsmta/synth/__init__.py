@@ -3,6 +3,14 @@ and a ray-cast renderer. Library code outside ``lsmta.synth`` never imports it; 
 tests use it to make data and to score results."""
 
 from .body import Body, Motion, Part, SolidTexture, arm_wave, make_body, walk
+from .pantilt import (
+    PanTiltData,
+    calibration_sweeps,
+    evaluation_grid,
+    intrinsic_target,
+    pantilt_head,
+    side_to_side,
+)
 from .render import (
     BACKGROUND,
     NOTHING,
@@ -18,7 +26,9 @@ from .render import (
 from .rigs import ring_rig, triplet_rig
 
 __all__ = [
-    "BACKGROUND", "NOTHING", "Background", "Body", "Motion", "Part", "RenderedFrame", "Renderer",
-    "Scene", "SolidTexture", "SurfaceProjection", "arm_wave", "cast_body", "make_background",
-    "make_body", "project_surface_points", "ring_rig", "triplet_rig", "walk",
+    "BACKGROUND", "NOTHING", "Background", "Body", "Motion", "PanTiltData", "Part",
+    "RenderedFrame", "Renderer", "Scene", "SolidTexture", "SurfaceProjection", "arm_wave",
+    "calibration_sweeps", "cast_body", "evaluation_grid", "intrinsic_target", "make_background",
+    "make_body", "pantilt_head", "project_surface_points", "ring_rig", "side_to_side",
+    "triplet_rig", "walk",
 ]

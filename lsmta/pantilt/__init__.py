@@ -1,0 +1,48 @@
+"""Pan-tilt cameras (Davis 2002, ch. 4): models, calibration, aiming, latency.
+
+``model``      the simple (eq. 1) and general (eq. 2) models behind one interface
+``fitting``    intrinsics, then home pose and axes, by nonlinear least squares (eq. 4)
+``posterior``  emcee samples of the calibration parameters
+``aiming``     the setting that centres a world point: local search and direct solve
+``latency``    the control loop with motor latency, Kalman estimate, prediction, damping
+
+Angles are in degrees throughout.
+"""
+
+from .aiming import Aim, aim, aim_least_squares
+from .fitting import (
+    AXIS_NAMES,
+    POSE_NAMES,
+    Fit,
+    calibrate,
+    calibrate_intrinsics,
+    dlt_camera,
+    model_from_params,
+    params_from_model,
+    project_params,
+    projection_errors,
+)
+from .latency import (
+    Control,
+    KalmanCV,
+    Motor,
+    TrackingRun,
+    constant_velocity_filter,
+    simulate_tracking,
+)
+from .model import (
+    EVI_D30_PAN_LIMITS,
+    EVI_D30_TILT_LIMITS,
+    PanTiltCamera,
+    axis_rotations,
+    pose_arrays,
+)
+from .posterior import Posterior, sample_posterior
+
+__all__ = [
+    "AXIS_NAMES", "Aim", "Control", "EVI_D30_PAN_LIMITS", "EVI_D30_TILT_LIMITS", "Fit",
+    "KalmanCV", "Motor", "POSE_NAMES", "PanTiltCamera", "Posterior", "TrackingRun", "aim",
+    "aim_least_squares", "axis_rotations", "calibrate", "calibrate_intrinsics",
+    "constant_velocity_filter", "dlt_camera", "model_from_params", "params_from_model",
+    "pose_arrays", "project_params", "projection_errors", "sample_posterior", "simulate_tracking",
+]

@@ -174,7 +174,8 @@ def cloud_image(points, scalars=None, *, cmap="viridis", clim=None, scalar_label
     return image
 
 
-def draw_marker_pose(ax, model, points, labels=None, *, colors=None, title="", size=14):
+def draw_marker_pose(ax, model, points, labels=None, *, colors=None, link_color=None, title="",
+                     size=14):
     """Draw a marker pose on a matplotlib 3-D axis.
 
     Parameters
@@ -190,6 +191,8 @@ def draw_marker_pose(ax, model, points, labels=None, *, colors=None, title="", s
         is drawn grey and unjoined (an unidentified pose).
     colors : (N, 3 or 4) array, optional
         Point colours overriding the segment colours (e.g. right/wrong).
+    link_color : colour, optional
+        One colour for every stick link instead of the segment colours.
     """
     import matplotlib.pyplot as plt
 
@@ -205,7 +208,8 @@ def draw_marker_pose(ax, model, points, labels=None, *, colors=None, title="", s
         for a, b in model.edges():
             if a in where and b in where:
                 seg = model.point_segment[a]
-                ax.plot(*points[[where[a], where[b]]].T, color=palette[seg], lw=1.5)
+                ax.plot(*points[[where[a], where[b]]].T, lw=1.5,
+                        color=palette[seg] if link_color is None else link_color)
     if colors is not None:
         c = colors
     ax.scatter(*points.T, c=c, s=size, depthshade=False)

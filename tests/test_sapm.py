@@ -82,13 +82,28 @@ def test_model_from_a_labelled_frame_finds_joints_and_estimates_missing_ones():
     ({"segments": {"s1": ["a", "b", "c", "d"], "s2": ["b", "e", "x"]}}, "not in points_by_label"),
     ({"segments": {"s1": ["a", "b", "c"], "s2": ["b", "e", "f"]}}, "labels in no segment"),
     ({"parents": {"s1": None, "s2": None}}, "exactly one root"),
-    ({"parents": {"s1": "s2", "s2": "s1"}}, "exactly one root|cycle"),
+    ({"parents": {"s1": "s2", "s2": "s1"}}, "exactly one root"),
+    ({"parents": {"s1": None, "s2": "s2"}}, "its own parent"),
     ({"parents": {"s1": None, "s2": "zz"}}, "unknown parent"),
     ({"parents": {"s1": None}}, "one entry per segment"),
 ])
 def test_model_rejects_bad_definitions(change, message):
     with pytest.raises(ValueError, match=message):
         MarkerModel.from_labelled_frame(**_tiny(**change))
+
+
+def test_model_rejects_a_cycle_beside_the_root():
+    pts = dict(_tiny()["points_by_label"], g=[0, 50, 50], h=[30, 30, 30], i=[10, 90, 40])
+    segs = {"s1": ["a", "b", "c", "d"], "s2": ["e", "f", "g"], "s3": ["g", "h", "i"]}
+    with pytest.raises(ValueError, match="cycle"):
+        MarkerModel.from_labelled_frame(pts, segs, {"s1": None, "s2": "s3", "s3": "s2"})
+
+
+def test_model_rejects_two_joint_markers_on_one_link():
+    segs = {"s1": ["a", "b", "c", "d"], "s2": ["b", "c", "e", "f"]}
+    with pytest.raises(ValueError, match="at most one joint marker"):
+        MarkerModel.from_labelled_frame(_tiny()["points_by_label"], segs,
+                                        {"s1": None, "s2": "s1"})
 
 
 def test_model_rejects_a_label_shared_by_unlinked_segments():
@@ -114,6 +129,18 @@ def test_random_pose_at_level_zero_is_a_translation(model, rng):
     pose = random_pose(model, rng, level=0.0)
     shift = pose.observed - model.points[pose.truth]
     np.testing.assert_allclose(shift, shift[0] + 0 * shift, atol=1e-9)
+
+
+def test_random_pose_distortion_has_the_papers_spread(model, rng):
+    psi, resid, scale = 0.05, [], []
+    for _ in range(100):
+        pose = random_pose(model, rng, level=0.0, distortion=psi)
+        resid.append(pose.observed - pose.points[pose.truth])
+        scale.append(np.repeat(model.mean_length[model.point_segment[pose.truth]], 3))
+    z = np.concatenate([r.ravel() for r in resid]) / np.concatenate(scale)
+    # per coordinate N(0, ψ l̄_s / √6): 13,200 samples, so the sd is known to about 1 %
+    assert np.std(z) == pytest.approx(psi / np.sqrt(6), rel=0.04)
+    assert abs(np.mean(z)) < 0.01 * psi
 
 
 def test_random_pose_missing_and_extra_points(model, rng):
@@ -153,6 +180,41 @@ def test_identify_leaves_extra_points_unlabelled_and_survives_missing(model, rng
     assert n_ok / n_total > 0.9
 
 
+def _without(pose, model, names):
+    drop = np.isin(pose.truth, [model.label_index(n) for n in names])
+    return pose.observed[~drop], pose.truth[~drop]
+
+
+def test_virtual_joint_carries_a_child_past_a_missing_joint_marker(model, rng):
+    lower = model.segment_index("Lforearm")
+    for _ in range(5):
+        obs, truth = _without(random_pose(model, rng, level=2.0), model, ["Lelbow"])
+        r = identify(model, obs, eps=0.05, beta=0.7)
+        assert r.found[lower] and r.found[model.segment_index("Lupper_arm")]
+        np.testing.assert_array_equal(r.labels, truth)
+
+
+def test_broken_chain_is_searched_from_scratch(model, rng):
+    # the left upper arm keeps two markers and cannot be found; its forearm still is
+    obs, truth = _without(random_pose(model, rng, level=2.0), model, ["Luarm_lat", "Luarm_ant"])
+    r = identify(model, obs, eps=0.05)
+    assert not r.found[model.segment_index("Lupper_arm")]
+    assert r.found[model.segment_index("Lforearm")]
+    lab = r.labels >= 0
+    np.testing.assert_array_equal(r.labels[lab], truth[lab])
+    forearm = model.members[model.segment_index("Lforearm")]
+    assert set(forearm) - {model.label_index("Lelbow")} <= set(r.labels[lab])
+
+
+def test_effort_is_counted_and_ranking_the_root_still_labels(model, rng):
+    pose = random_pose(model, rng, level=np.pi)
+    for rank in (False, True):
+        r = identify(model, pose.observed, eps=0.05, rank_root=rank)
+        np.testing.assert_array_equal(r.labels, pose.truth)
+        assert r.tables >= model.n_segments and r.fits >= model.n_segments
+        assert r.backtracks >= 0 and r.seconds > 0
+
+
 def test_identify_drops_nan_rows_and_leaves_the_input_alone(model, rng):
     pose = random_pose(model, rng, level=1.0)
     obs = pose.observed.copy()
@@ -173,6 +235,10 @@ def test_identify_drops_nan_rows_and_leaves_the_input_alone(model, rng):
     ({"eps": 1.5}, ValueError, "eps"),
     ({"eps": 0.0}, ValueError, "eps"),
     ({"beta": 1.0}, ValueError, "beta"),
+    ({"beta": -0.1}, ValueError, "beta"),
+    ({"observed": np.full((6, 3), np.nan)}, ValueError, "at least 3"),
+    ({"max_tables": 0}, ValueError, "max_tables"),
+    ({"max_alternatives": 1.5}, ValueError, "max_alternatives"),
     ({"rng": 3}, TypeError, "Generator"),
     ({"max_tabels": 3}, TypeError, "unknown options"),
 ])
@@ -236,5 +302,5 @@ def test_read_c3d_names_a_missing_file(tmp_path):
 def test_real_frames_are_mostly_identified():
     model, points = clouthier_model(C3D)
     assert (model.n_segments, model.n_points) == (15, 62)
-    ft = frame_trials(model, points, [0, 200, 800, 1600], np.random.default_rng(1), eps=0.1)
+    ft = frame_trials(model, points, [150, 700, 1100, 1600], np.random.default_rng(1), eps=0.1)
     assert ft.trials["sapm"].accuracy.mean() > 0.9

@@ -17,20 +17,38 @@ from ..rigid import apply_rigid, fit_rigid
 from ..sapm import MarkerModel, global_assignment, identify
 from ..synth.markers import random_pose
 
-#: The marker set of Clouthier et al. (2021): 15 segments, 62 cluster markers, no marker
-#: shared between segments.
-CLOUTHIER_SEGMENTS = {
-    "torso": ["LBUL", "LBLL", "LBUR", "LBLR", "RAC", "LAC"],
-    "head": ["FHD", "RHD", "BHD", "LHD"],
-    "pelvis": ["PVUL", "PVLL", "PVLR", "PVUR"],
-    **{f"{S}{name}": [f"{S}{m}" for m in markers] for S in "RL" for name, markers in (
-        ("upper_arm", ("UAPA", "UAPP", "UADP", "UADA")),
-        ("forearm", ("FAPA", "FAPP", "FADP", "FADA")),
-        ("hand", ("RAD", "ULN", "HAND")),
-        ("thigh", ("THPA", "THPP", "THDP", "THDA")),
-        ("shank", ("SHPA", "SHPP", "SHDP", "SHDA")),
-        ("foot", ("ANL", "HEE", "FTB", "FTM", "FTF")))},
-}
+
+def clouthier_segments(acromion: str = "upper_arm") -> dict:
+    """The marker set of Clouthier et al. (2021) as SAPM segments: 15 segments, 62 cluster
+    markers, no marker shared between segments.
+
+    Parameters
+    ----------
+    acromion : {"upper_arm", "torso"}
+        Where the two acromion markers (RAC, LAC) go. They sit on the shoulder girdle, which
+        follows the arm: with the upper arms the segments stay closer to rigid over the
+        recording than with the four back markers (notebook 08 measures both).
+    """
+    if acromion not in ("upper_arm", "torso"):
+        raise ValueError(f"acromion: expected 'upper_arm' or 'torso', got {acromion!r}")
+    on_arm = acromion == "upper_arm"
+    segments = {
+        "torso": ["LBUL", "LBLL", "LBUR", "LBLR"] + ([] if on_arm else ["RAC", "LAC"]),
+        "head": ["FHD", "RHD", "BHD", "LHD"],
+        "pelvis": ["PVUL", "PVLL", "PVLR", "PVUR"],
+    }
+    for S in "RL":
+        segments[f"{S}upper_arm"] = [f"{S}UAPA", f"{S}UAPP", f"{S}UADP", f"{S}UADA"] + (
+            [f"{S}AC"] if on_arm else [])
+        for name, markers in (("forearm", ("FAPA", "FAPP", "FADP", "FADA")),
+                              ("hand", ("RAD", "ULN", "HAND")),
+                              ("thigh", ("THPA", "THPP", "THDP", "THDA")),
+                              ("shank", ("SHPA", "SHPP", "SHDP", "SHDA")),
+                              ("foot", ("ANL", "HEE", "FTB", "FTM", "FTF"))):
+            segments[f"{S}{name}"] = [f"{S}{m}" for m in markers]
+    return segments
+
+
 CLOUTHIER_PARENTS = {
     "torso": None, "head": "torso", "pelvis": "torso",
     **{k: v for S in "RL" for k, v in (
@@ -171,9 +189,10 @@ def identification_surface(model: MarkerModel, seed: int, levels, distortions, n
 
 
 # ---------------------------------------------------------------------- real data
-def clouthier_model(path, frame: int = 0) -> tuple[MarkerModel, np.ndarray]:
-    """The model of the Clouthier et al. recording built from one labelled frame, and all
-    its frames.
+def clouthier_model(path, frame: int = 0, *,
+                    acromion: str = "upper_arm") -> tuple[MarkerModel, np.ndarray]:
+    """The model of the Clouthier et al. recording built from one labelled frame (segments
+    from :func:`clouthier_segments`), and all its frames.
 
     Returns
     -------
@@ -182,10 +201,13 @@ def clouthier_model(path, frame: int = 0) -> tuple[MarkerModel, np.ndarray]:
         Every frame, mm, with the model's marker order (NaN for gaps).
     """
     labels, points, _ = read_c3d(Path(path))
+    twice = sorted({k for k in labels if labels.count(k) > 1})
+    if twice:
+        raise ValueError(f"path: labels occur more than once in {path}: {twice}")
     if np.isnan(points[frame]).any():
         raise ValueError(f"frame: frame {frame} has gaps; the model needs a complete frame")
     model = MarkerModel.from_labelled_frame(dict(zip(labels, points[frame])),
-                                            CLOUTHIER_SEGMENTS, CLOUTHIER_PARENTS)
+                                            clouthier_segments(acromion), CLOUTHIER_PARENTS)
     order = [labels.index(k) for k in model.labels]
     return model, points[:, order]
 

@@ -53,9 +53,9 @@ class SAPMParams:
     rank_root : bool
         Our option, not the paper's: try the root segment's whole matches from all of a
         pivot's tables in order of their fit error ē, instead of in the order the tables
-        give them (biggest table first). It helps on distorted poses of the code-built
-        model and hurts on cluster marker sets, whose alike clusters fit each other well
-        (notebook 08); slower.
+        give them (biggest table first). Slower. It helps on distorted poses of the
+        code-built model; it can hurt where segments look alike and fit each other well,
+        as clusters on similar plates do (notebook 08).
     """
 
     eps: float = 0.10
@@ -283,11 +283,10 @@ class _Search:
             idx_m = np.array([l] + [i for _, i, _ in sel])
             idx_q = np.array([k] + [q for _, _, q in sel])
             R, t, resid, err = self._fit(m[idx_m], idx_q, s)
-            if err < self.p.eps:
+            if err < self.p.eps:             # a partial match: complete it (Eq. 5)
                 match = self._whole(s, R, t, fixed)
                 if match is not None:
                     yield match
-                return
             worst = int(np.argmax(resid[1:]))
             ptr[sel[worst][0]] += 1
 
@@ -346,8 +345,8 @@ class _Search:
                 reach = np.linalg.norm(model.points[m[l]] - J)
                 d = np.linalg.norm(self.Q[pivots] - V, axis=-1)
                 pivots = pivots[np.abs(d - reach) <= 2 * self.p.eps * reach + tol]
-            primary = self._table_matches(s, l, pivots, gate, fixed, methods)
-            if rank:        # our option: every table's match, best fitting first
+            primary = self._table_matches(s, l, pivots, gate, fixed, methods, first_only=rank)
+            if rank:        # our option: every table's first match, best fitting first
                 primary = sorted(primary, key=lambda x: x.err)
             for match in primary:
                 # asked for more only when the children failed: before the next match,
@@ -358,14 +357,19 @@ class _Search:
                         seen.add(key)
                         yield alt
 
-    def _table_matches(self, s, l, pivots, gate, fixed, methods):
-        """The first whole match of each candidate table of pivot ``l``."""
+    def _table_matches(self, s, l, pivots, gate, fixed, methods, first_only=False):
+        """Whole matches from each candidate table of pivot ``l``, table by table (only the
+        first of each with ``first_only``)."""
         for k, cols in self._tables(s, l, np.asarray(pivots, int), gate):
             self.effort.tables += 1
             for method in methods:           # near-far triples where replacement fails
-                match = next(method(s, l, k, cols, fixed), None)
-                if match is not None:
+                hit = False
+                for match in method(s, l, k, cols, fixed):
+                    hit = True
                     yield match
+                    if first_only:
+                        break
+                if hit:
                     break
 
     def _leave_one_out(self, s, match, fixed):
@@ -422,11 +426,14 @@ class _Search:
     def run(self) -> None:
         model = self.model
         self.solve(model.search_root, -1)
-        # broken chains last: segments whose parent was not found, searched from scratch
-        for s in model.tree_order(model.search_root):
-            via = model.search_parent[s]
-            if not self.state.found[s] and (via < 0 or not self.state.found[via]):
-                self.solve(s, -1)
+        # broken chains last: first the segments whose parent was not found, then any
+        # still unfound, searched from scratch among the points left
+        for last_pass in (False, True):
+            for s in model.tree_order(model.search_root):
+                via = model.search_parent[s]
+                if not self.state.found[s] and (last_pass or via < 0
+                                                or not self.state.found[via]):
+                    self.solve(s, -1)
 
 
 def identify(model: MarkerModel, observed, *, eps: float = 0.10, beta: float = 0.80,
@@ -450,7 +457,7 @@ def identify(model: MarkerModel, observed, *, eps: float = 0.10, beta: float = 0
         "arbitrary" pivot); ``None`` takes them in model order.
     **options
         Further fields of :class:`SAPMParams` (``coarse_min_points``, ``max_alternatives``,
-        ``max_tables``).
+        ``max_tables``, ``rank_root``).
 
     Returns
     -------
@@ -470,6 +477,10 @@ def identify(model: MarkerModel, observed, *, eps: float = 0.10, beta: float = 0
     unknown = sorted(set(options) - set(SAPMParams.__dataclass_fields__))
     if unknown:
         raise TypeError(f"identify: unknown options {unknown}")
+    for name in ("coarse_min_points", "max_alternatives", "max_tables"):
+        value = options.get(name, 1)
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+            raise ValueError(f"{name}: expected a positive integer, got {value!r}")
     params = SAPMParams(eps=eps, beta=beta, **options)
     bad = np.isnan(Q).any(axis=1)
     keep = np.flatnonzero(~bad)

@@ -282,11 +282,17 @@ def test_reported_uncertainty_matches_the_scatter(head):
 
 
 def test_three_conditions_rank_and_general_reaches_the_floor(head):
-    trial = three_conditions(head, np.random.default_rng(2002))
-    home, simple, general = (trial.median(k) for k in ("home", "simple", "general"))
-    floor = trial.median("truth")
-    assert home > simple > general
-    assert general < 1.10 * floor
+    # several seeds (0.2 s each): the ranking must hold in every run, not in a lucky one
+    ratios = []
+    for seed in (2002, 0, 1, 2, 3, 4, 5, 6):
+        trial = three_conditions(head, np.random.default_rng(seed))
+        home, simple, general = (trial.median(k) for k in ("home", "simple", "general"))
+        floor = trial.median("truth")
+        assert home > simple > general, (seed, home, simple, general)
+        ratios.append(general / floor)
+    # one run's general / floor ratio scatters (1.00-1.18 over 20 seeds); typically within 10 %
+    assert np.median(ratios) < 1.10, np.round(ratios, 3)
+    assert max(ratios) < 1.25, np.round(ratios, 3)
 
 
 def test_robust_loss_resists_outliers(head, data):

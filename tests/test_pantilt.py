@@ -1,5 +1,6 @@
 """Pan-tilt cameras (lsmta.pantilt): models, calibration, aiming, latency."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -32,13 +33,34 @@ from lsmta.synth.pantilt import (
 )
 
 
-def readonly(*arrays):
-    out = []
-    for a in arrays:
-        a = np.array(a, dtype=float)
-        a.flags.writeable = False
-        out.append(a)
-    return out
+def writeable_copies(*arrays):
+    """Fresh writeable float arrays and separate copies to compare them with afterwards."""
+    inputs = [np.array(a, dtype=float) for a in arrays]
+    return inputs, [a.copy() for a in inputs]
+
+
+def assert_unchanged(inputs, copies):
+    for a, b in zip(inputs, copies):
+        assert a.flags.writeable  # not frozen in place
+        np.testing.assert_array_equal(a, b)
+
+
+def generator_truth(start: Camera) -> np.ndarray:
+    """The 14 calibration parameters (names in ``lsmta.pantilt.fitting``'s docstring) of
+    ``pantilt_head()``, from the generator's construction, relative to ``start``.
+
+    ``pantilt_head(rng=None, misalignment=1)``: camera at (0, -3000, 1500) mm; pan axis tilted
+    2° from the camera's y axis towards x, through 40 mm along (0.3, 0, -0.95) normalised;
+    tilt axis tilted 2° from x towards (0, 0.6, 0.8), through 40 mm along (0, 0.6, -0.8).
+    """
+    t = np.tan(np.radians(2.0))
+    n = np.hypot(0.3, 0.95)
+    R_true = Camera.look_at((0.0, -3000.0, 1500.0), (0.0, 0.0, 1000.0), f=1000, width=640,
+                            height=480).R
+    # by definition R_home = R_start @ rot(omega)^T
+    rvec, _ = cv2.Rodrigues(np.asarray(R_true).T @ np.asarray(start.R))
+    return np.r_[np.degrees(rvec.ravel()), 0.0, -3000.0, 1500.0,
+                 t, 0.0, 40 * 0.3 / n, -40 * 0.95 / n, 0.6 * t, 0.8 * t, 24.0, -32.0]
 
 
 @pytest.fixture(scope="module")
@@ -77,8 +99,74 @@ def test_fast_projection_matches_the_model(head, data):
     model = model_from_params(cam, p, "general")
     np.testing.assert_allclose(project_params(cam, p, "general", cal.X, cal.pan, cal.tilt),
                                model.project(cal.X, cal.pan, cal.tilt), atol=1e-9)
-    # the truth's intrinsics differ from the calibrated ones only slightly
-    assert np.abs(model.project(cal.X, cal.pan, cal.tilt) - cal.xy_true).max() < 60
+    # with the true intrinsics, the generator's parameters reproduce the generator's images
+    truth = generator_truth(head.camera)
+    np.testing.assert_allclose(params_from_model(head), truth, atol=1e-9)
+    np.testing.assert_allclose(
+        project_params(head.camera, truth, "general", cal.X_true, cal.pan, cal.tilt),
+        cal.xy_true, atol=1e-6)
+
+
+def test_axes_pointing_the_wrong_way_are_refused(head):
+    # a reversed axis would turn the head the other way; it cannot be a silent flip
+    with pytest.raises(ValueError, match="pan_axis: expected a direction"):
+        head.replace(pan_axis=-head.pan_axis)
+    with pytest.raises(ValueError, match="tilt_axis: expected a direction"):
+        head.replace(tilt_axis=-head.tilt_axis)
+
+
+# Analytic tests of the geometry: expected values derived by hand, not from the generator
+# (which builds its data with the same PanTiltCamera.poses as the fits).
+# ideal_camera() looks along world +Y from (0, -3000, 1000): camera x = world +X (right),
+# y = world -Z (down), z = world +Y (forward).
+CAM_X, CAM_Y, CAM_Z = np.eye(3)[0], -np.eye(3)[2], np.eye(3)[1]
+
+
+def test_optical_axis_of_the_ideal_head_at_pan_30_tilt_20():
+    cam = ideal_camera()
+    np.testing.assert_allclose(cam.R, np.stack([CAM_X, CAM_Y, CAM_Z]), atol=1e-15)
+    p, t = np.radians(30.0), np.radians(20.0)
+    # tilt 20° up about x, then pan 30° right about the (unmoved) vertical axis
+    expected_cam = np.array([np.sin(p) * np.cos(t), -np.sin(t), np.cos(p) * np.cos(t)])
+    expected_world = expected_cam @ np.stack([CAM_X, CAM_Y, CAM_Z])
+    for model in (PanTiltCamera.simple(cam), PanTiltCamera.from_offsets(cam)):
+        R, C = model.poses(30.0, 20.0)
+        np.testing.assert_allclose(R[0][2], expected_world, atol=1e-12)  # optical axis
+        np.testing.assert_allclose(C[0], cam.C, atol=1e-9)
+        # the image x axis stays horizontal (pan carries tilt), y turns with both
+        np.testing.assert_allclose(R[0][0], [np.cos(p), -np.sin(p), 0.0], atol=1e-12)
+
+
+def test_pan_180_about_an_offset_axis_mirrors_the_centre():
+    cam = ideal_camera()
+    q = cam.C + np.array([120.0, 80.0, -300.0])   # a vertical axis 144 mm from the centre
+    model = PanTiltCamera(cam, -np.eye(3)[2], q, CAM_X, cam.C, pan_limits=(-180.0, 180.0))
+    R, C = model.poses(180.0, 0.0)
+    mirror = np.array([2 * q[0] - cam.C[0], 2 * q[1] - cam.C[1], cam.C[2]])
+    np.testing.assert_allclose(C[0], mirror, atol=1e-9)
+    np.testing.assert_allclose(R[0][2], -CAM_Z, atol=1e-12)   # looks back
+    R, C = model.poses(90.0, 0.0)   # a quarter turn to the right: forward becomes +X
+    np.testing.assert_allclose(R[0][2], [1.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(C[0], [q[0] - 80.0, q[1] + 120.0, cam.C[2]], atol=1e-9)
+
+
+def test_pan_carries_tilt():
+    # pan axis vertical through the centre; tilt axis along x through a point 100 mm behind
+    cam = ideal_camera()
+    model = PanTiltCamera(cam, CAM_Y, cam.C, CAM_X, cam.C - 100.0 * CAM_Z)
+    pan, tilt = 30.0, 20.0
+    p, t = np.radians(pan), np.radians(tilt)
+    # tilt first (about the axis behind the lens: the centre rises and moves back), then the
+    # pan stage turns the tilted assembly, and the tilt axis with it, about the vertical
+    u = 100.0 * (np.cos(t) - 1.0)                   # forward shift from the tilt
+    expected = cam.C + np.array([u * np.sin(p), u * np.cos(p), 100.0 * np.sin(t)])
+    R, C = model.poses(pan, tilt)
+    np.testing.assert_allclose(C[0], expected, atol=1e-9)
+    np.testing.assert_allclose(R[0][2], [np.sin(p) * np.cos(t), np.cos(p) * np.cos(t),
+                                         np.sin(t)], atol=1e-12)
+    # the other joint order (tilt carries pan) would put the centre at
+    other = cam.C + np.array([0.0, u, 100.0 * np.sin(t)])
+    assert np.linalg.norm(C[0] - other) > 1.0
 
 
 def test_general_model_with_ideal_axes_is_the_simple_model(rng):
@@ -118,10 +206,12 @@ def test_project_is_vectorised_over_settings_and_reproduces_the_generator(head, 
 
 
 def test_project_leaves_inputs_alone(head, rng):
-    X, pan, tilt = readonly(rng.uniform([-500, 0, 500], [500, 500, 1500], (5, 3)),
-                            np.zeros(5), np.full(5, 3.0))
-    head.project(X, pan, tilt)
-    assert not X.flags.writeable
+    inputs, copies = writeable_copies(rng.uniform([-500, 0, 500], [500, 500, 1500], (5, 3)),
+                                      np.zeros(5), np.full(5, 3.0))
+    head.project(*inputs)
+    head.to_camera(*inputs)
+    head.poses(*inputs[1:])
+    assert_unchanged(inputs, copies)
 
 
 @pytest.mark.parametrize("pan, tilt, name", [(150.0, 0.0, "pan"), (0.0, 45.0, "tilt"),
@@ -164,7 +254,7 @@ def test_coplanar_target_is_refused(rng):
 def test_general_calibration_recovers_the_axes(head, data):
     cam, cal, _ = data
     fit = calibrate(cam, cal.pan, cal.tilt, cal.X, cal.xy)
-    truth = params_from_model(head, cam)
+    truth = generator_truth(cam)
     z = (fit.params - truth) / fit.std
     assert np.all(np.abs(z) < 4.5), dict(zip(fit.names, np.round(z, 2)))
     # the offsets are centimetres, the estimate resolves them
@@ -176,7 +266,7 @@ def test_reported_uncertainty_matches_the_scatter(head):
     rng = np.random.default_rng(7)
     t = intrinsic_target(head, rng)
     cam = calibrate_intrinsics(t.X, t.xy, head.camera.image_size).model
-    truth = params_from_model(head, cam)
+    truth = generator_truth(cam)
     errs, stds = [], []
     for _ in range(12):
         cal = calibration_sweeps(head, rng)
@@ -192,11 +282,17 @@ def test_reported_uncertainty_matches_the_scatter(head):
 
 
 def test_three_conditions_rank_and_general_reaches_the_floor(head):
-    trial = three_conditions(head, np.random.default_rng(2002))
-    home, simple, general = (trial.median(k) for k in ("home", "simple", "general"))
-    floor = trial.median("truth")
-    assert home > simple > general
-    assert general < 1.10 * floor
+    # several seeds (0.2 s each): the ranking must hold in every run, not in a lucky one
+    ratios = []
+    for seed in (2002, 0, 1, 2, 3, 4, 5, 6):
+        trial = three_conditions(head, np.random.default_rng(seed))
+        home, simple, general = (trial.median(k) for k in ("home", "simple", "general"))
+        floor = trial.median("truth")
+        assert home > simple > general, (seed, home, simple, general)
+        ratios.append(general / floor)
+    # one run's general / floor ratio scatters (1.00-1.18 over 20 seeds); typically within 10 %
+    assert np.median(ratios) < 1.10, np.round(ratios, 3)
+    assert max(ratios) < 1.25, np.round(ratios, 3)
 
 
 def test_robust_loss_resists_outliers(head, data):
@@ -256,9 +352,14 @@ def test_too_few_points(data):
 
 def test_calibration_leaves_inputs_alone(data):
     cam, cal, _ = data
-    pan, tilt, X, xy = readonly(cal.pan, cal.tilt, cal.X, cal.xy)
-    calibrate(cam, pan, tilt, X, xy, kind="simple")
-    np.testing.assert_array_equal(X, cal.X)
+    inputs, copies = writeable_copies(cal.pan, cal.tilt, cal.X, cal.xy)
+    calibrate(cam, *inputs, kind="simple")
+    calibrate(cam, *inputs, kind="general")
+    projection_errors(PanTiltCamera.simple(cam), *inputs)
+    assert_unchanged(inputs, copies)
+    target, target_copy = writeable_copies(cal.X[:40], cal.xy[:40])
+    calibrate_intrinsics(*target, cam.image_size)
+    assert_unchanged(target, target_copy)
 
 
 def test_bad_loss_is_named(data):
@@ -303,12 +404,19 @@ def test_aim_finds_the_setting(head, rng):
     np.testing.assert_allclose(direct.settings, res.settings, atol=0.02)
 
 
-def test_aim_stays_on_the_nearby_solution(head, rng):
-    X, _ = on_axis_targets(head, np.array([30.0]), np.array([5.0]), rng)
-    first = aim(head, X, (29.0, 4.0))
-    moved = aim(head, X + [[10.0, 0.0, 0.0]], first.settings[0])
-    assert np.abs(moved.settings - first.settings).max() < 0.5
-    assert moved.iterations[0] < first.iterations[0] + 20
+def test_aim_is_continuous_along_a_smooth_path(head, rng):
+    # targets that the true head centres along a smooth path of settings, each aimed from
+    # the previous answer: the answers must follow the path step by step, never jump
+    pans, tilts = np.linspace(20.0, 60.0, 41), np.linspace(-10.0, 10.0, 41)
+    X, _ = on_axis_targets(head, pans, tilts, rng)
+    found, current = [], (pans[0], tilts[0])
+    for x in X:
+        current = aim(head, x[None], current, tol_px=0.1).settings[0]
+        found.append(current)
+    steps = np.abs(np.diff(found, axis=0))
+    assert np.all(steps[:, 0] < (pans[1] - pans[0]) + 0.02)
+    assert np.all(steps[:, 1] < (tilts[1] - tilts[0]) + 0.02)
+    np.testing.assert_allclose(np.array(found), np.c_[pans, tilts], atol=0.01)
 
 
 def test_unreachable_targets_are_reported(head, rng):
@@ -323,12 +431,15 @@ def test_unreachable_targets_are_reported(head, rng):
 
 def test_aim_and_simulation_leave_inputs_alone(head, rng):
     X, _ = on_axis_targets(head, np.array([10.0, -20.0]), np.array([0.0, 5.0]), rng)
-    X, current = readonly(X, [[9.0, 1.0], [-19.0, 4.0]])
-    aim(head, X, current)
-    aim_least_squares(head, X, current)
-    (traj,) = readonly(side_to_side(2.0, 120.0))
-    run = simulate_tracking(head, traj, 120.0, np.random.default_rng(0))
-    assert not run.deviation_px.flags.writeable
+    inputs, copies = writeable_copies(X, [[9.0, 1.0], [-19.0, 4.0]])
+    aim(head, *inputs)
+    aim_least_squares(head, *inputs)
+    assert_unchanged(inputs, copies)
+    inputs, copies = writeable_copies(side_to_side(2.0, 120.0), (9.0, 1.0))
+    run = simulate_tracking(head, inputs[0], 120.0, np.random.default_rng(0),
+                            start=inputs[1])
+    assert_unchanged(inputs, copies)
+    assert not run.deviation_px.flags.writeable   # and the results are read-only
 
 
 def test_aim_checks_current(head):

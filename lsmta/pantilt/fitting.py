@@ -168,7 +168,11 @@ def project_params(start: Camera, params, kind: str, X, pan, tilt) -> np.ndarray
 
 
 def params_from_model(model: PanTiltCamera, start: Camera | None = None) -> np.ndarray:
-    """Inverse of :func:`model_from_params` for a general model (14 numbers)."""
+    """Inverse of :func:`model_from_params` for a general model (14 numbers).
+
+    Relies on the sign convention that :class:`PanTiltCamera` enforces (pan axis along the
+    camera's +y, tilt axis along +x), so the divisions by those components are safe and keep
+    each axis's sense."""
     start = model.camera if start is None else start
     R = np.asarray(model.camera.R)
     rvec, _ = cv2.Rodrigues(R.T @ np.asarray(start.R))

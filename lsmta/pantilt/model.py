@@ -26,6 +26,10 @@ Axes
     ``M = M_pan(pan) ∘ M_tilt(tilt)`` with ``M_axis(θ): X ↦ q + R(d, θ) (X - q)``. The thesis
     writes eq. 2 with the product in the other order; for the settings it calibrates with
     (pan at tilt 0, tilt at pan 0) the two orders agree, and ours is the mechanism's.
+    The sense of each axis is part of the convention: a general model's pan axis must point
+    along the camera's +y (a positive component, > 0.1) and its tilt axis along +x, else
+    :class:`PanTiltCamera` raises ``ValueError`` (a reversed axis turns the head the other
+    way, and :func:`lsmta.pantilt.params_from_model` could not represent it).
 """
 
 from __future__ import annotations
@@ -80,7 +84,10 @@ class PanTiltCamera:
     camera : Camera
         Intrinsics, distortion and the pose at the home setting ``pan = tilt = 0``.
     pan_axis, tilt_axis : (3,) array
-        Unit directions of the two axes in world coordinates at home (normalised here).
+        Unit directions of the two axes in world coordinates at home (normalised here). Their
+        sense is fixed by the sign convention: the pan axis must have a positive component
+        (> 0.1) along the home camera's +y axis and the tilt axis along its +x axis;
+        otherwise ``ValueError``.
     pan_point, tilt_point : (3,) array
         A point on each axis, world coordinates in mm.
     kind : {"simple", "general"}
@@ -120,6 +127,20 @@ class PanTiltCamera:
             object.__setattr__(self, key, (lo, hi))
         if abs(float(np.dot(self.pan_axis, self.tilt_axis))) > 0.99:
             raise ValueError("tilt_axis: must not be (nearly) parallel to pan_axis")
+        # Sign convention: positive pan turns the view right and positive tilt turns it up,
+        # which fixes the sense of each axis (pan along the camera's +y, tilt along its +x,
+        # give or take a misalignment). An axis pointing the other way would silently turn
+        # the head the other way, and the calibration's parameters could not represent it.
+        R_home = np.asarray(self.camera.R)
+        for key, row, image_axis in (("pan_axis", 1, "+y (down the image)"),
+                                     ("tilt_axis", 0, "+x (right in the image)")):
+            along = float(getattr(self, key) @ R_home[row])
+            if not along > 0.1:
+                raise ValueError(
+                    f"{key}: expected a direction within about 84° of the home camera's "
+                    f"{image_axis} axis, so that positive {key[:-5]} turns the view "
+                    f"{'right' if row == 1 else 'up'}; got a component of {along:.3f} along "
+                    "it (for an axis pointing the other way, negate it and the angles)")
         if self.kind == "simple":
             R, C = np.asarray(self.camera.R), self.camera.C
             if (not np.allclose(self.pan_axis, R[1], atol=1e-9)

@@ -59,11 +59,11 @@ def _plot(levels, distortions, grid, path):
     D, L = np.meshgrid(100 * distortions, levels)
     smooth = gaussian_filter1d(grid, max(1.0, len(distortions) / 30), axis=1, mode="nearest")
     ax.plot_surface(D, L, 100 * smooth, cmap="viridis", vmin=0, vmax=100, edgecolor="none")
-    ax.set_xlabel("distortion ψ [% of l̄_s]")
+    ax.set_xlabel(r"distortion ψ [% of $\bar{l}_s$]")
     ax.set_ylabel("configuration level [rad]")
     ax.set_zlabel("poses fully correct [%]")
     ax.set_zlim(0, 100)
-    ax.view_init(25, -130)
+    ax.view_init(25, -55)
     fig.savefig(path, dpi=100, bbox_inches="tight")
     print(f"wrote {path}")
 

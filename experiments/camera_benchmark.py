@@ -12,22 +12,12 @@ points per second; ratios are ours / OpenCV's. Writes build/benchmarks/camera.js
 from __future__ import annotations
 
 import argparse
-import time
 
 import cv2
 import numpy as np
 
-from lsmta.report import write_json
+from lsmta.report import best_time, write_json
 from lsmta.synth import triplet_rig
-
-
-def best_time(fn, repeats):
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - start)
-    return min(times), out
 
 
 def main(argv=None):

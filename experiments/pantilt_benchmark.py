@@ -15,22 +15,12 @@ the ratio general / simple. Writes build/benchmarks/pantilt.json.
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
 from lsmta.pantilt import aim, aim_least_squares, calibrate, calibrate_intrinsics
-from lsmta.report import write_json
+from lsmta.report import best_time, write_json
 from lsmta.synth.pantilt import calibration_sweeps, intrinsic_target, pantilt_head
-
-
-def best_time(fn, repeats):
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - start)
-    return min(times), out
 
 
 def centred_targets(head, pan, tilt, distance=3000.0):

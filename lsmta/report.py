@@ -126,3 +126,16 @@ def write_json(path, data) -> Path:
     out.write_text(json.dumps(data, indent=2), encoding="utf-8")
     print(f"wrote {out}")
     return out
+
+
+def best_time(fn, repeats: int = 3):
+    """Call ``fn()`` ``repeats`` times; return the shortest wall time (s) and the last
+    result. Used by the benchmarks in ``experiments/``."""
+    import time
+
+    times, out = [], None
+    for _ in range(max(1, int(repeats))):
+        start = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - start)
+    return min(times), out

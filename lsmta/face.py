@@ -31,7 +31,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from ._validate import as_array
-from .rigid import apply_rigid, fit_one, fit_rigid
+from .rigid import apply_rigid, fit_rigid
 
 __all__ = [
     "FaceBasis", "FaceFit", "GapFill", "fill_missing", "extreme_basis", "pca_basis",
@@ -150,9 +150,14 @@ def min_observed_markers(n_basis: int) -> int:
 
 # ---------------------------------------------------------------- the model fit
 def _fit_weights(A: np.ndarray, b: np.ndarray, constrain: bool) -> np.ndarray:
-    if constrain:
-        return lsq_linear(A, b, bounds=(0.0, 1.0), method="bvls").x
-    return np.linalg.lstsq(A, b, rcond=None)[0]
+    """Weights (n, K) for right-hand sides ``b`` (n, 3m) sharing the design ``A``
+    (3m, K)."""
+    if not constrain:
+        return np.linalg.lstsq(A, b.T, rcond=None)[0].T
+    # the same minimiser from the K x K triangular factor: much faster for a tall A
+    Q, R = np.linalg.qr(A)
+    rhs = b @ Q
+    return np.stack([lsq_linear(R, r, bounds=(0.0, 1.0), method="bvls").x for r in rhs])
 
 
 def fill_missing(frames, basis, *, constrain: bool | None = None, reference=None,
@@ -225,25 +230,24 @@ def fill_missing(frames, basis, *, constrain: bool | None = None, reference=None
     ts = np.full((T, 3), np.nan)
     resid = np.full(T, np.nan)
     model = np.full((T, M, 3), np.nan)
-    for f in np.flatnonzero(fitted):
-        o = obs[f]
-        P = np.ascontiguousarray(X[f, o])               # observed markers, frame coords
-        cols = np.repeat(o, 3)
-        A = Bflat[cols]
-        target = ref
+    # frames sharing a pattern of observed markers share the design matrix: fit together
+    patterns, group = np.unique(obs[fitted], axis=0, return_inverse=True)
+    frames_fitted = np.flatnonzero(fitted)
+    for g, o in enumerate(patterns):
+        idx = frames_fitted[np.ravel(group) == g]
+        P = X[idx][:, o]                                # (n, m, 3) observed, frame coords
+        A = Bflat[np.repeat(o, 3)]                      # (3m, K)
+        target = np.broadcast_to(ref[o], P.shape)
         for _ in range(int(n_iter)):
-            # rigid motion carrying the frame onto the target (head frame)
-            R, t, _ = fit_one(P, np.ascontiguousarray(target[o]))
-            head = P @ R.T + t
-            w = _fit_weights(A, head.ravel(), constrain)
-            face = (Bflat @ w).reshape(M, 3)
-            target = face
-        # final alignment head -> frame
-        R_hf, t_hf, d = fit_one(np.ascontiguousarray(face[o]), P)
-        W[f] = w
-        Rs[f], ts[f] = R_hf, t_hf
-        resid[f] = np.sqrt(np.mean(d ** 2))
-        model[f] = face @ R_hf.T + t_hf
+            R, t = fit_rigid(P, target)                 # frame -> head frame
+            head = apply_rigid(R, t, P)
+            w = _fit_weights(A, head.reshape(len(idx), -1), constrain)
+            face = (w @ Bflat.T).reshape(len(idx), M, 3)
+            target = face[:, o]
+        R_hf, t_hf = fit_rigid(face[:, o], P)           # head frame -> frame
+        model[idx] = apply_rigid(R_hf, t_hf, face)
+        W[idx], Rs[idx], ts[idx] = w, R_hf, t_hf
+        resid[idx] = np.sqrt(np.mean(np.sum((model[idx][:, o] - P) ** 2, axis=2), axis=1))
     out = X.copy()
     fill = ~obs & fitted[:, None]
     out[fill] = model[fill]
@@ -363,7 +367,7 @@ def pca_basis(training, n_components: int) -> FaceBasis:
 
 # ---------------------------------------------------------------- the peer
 def pca_gap_fill(frames, *, training=None, n_components: int | None = None,
-                 variance: float = 0.99) -> GapFill:
+                 variance: float = 0.99, scale: str = "std") -> GapFill:
     """Missing markers from marker intercorrelations: PCA gap filling after Federolf
     (2013) and Gløersen & Federolf (2016), the peer method from biomechanics.
 
@@ -389,6 +393,10 @@ def pca_gap_fill(frames, *, training=None, n_components: int | None = None,
         data. Capped per frame at the number of observed coordinates.
     variance : float
         Fraction of the variance to keep when ``n_components`` is None, in (0, 1].
+
+    scale : {"std", "none"}
+        Divide each centred coordinate column by its standard deviation (as the cited
+        papers do, so that every coordinate weighs alike) or leave it in mm.
 
     Returns
     -------
@@ -416,7 +424,9 @@ def pca_gap_fill(frames, *, training=None, n_components: int | None = None,
         raise ValueError(f"variance: expected a number in (0, 1], got {variance}")
     C = complete.reshape(len(complete), 3 * M)
     mu = C.mean(axis=0)
-    sd = C.std(axis=0)
+    if scale not in ("std", "none"):
+        raise ValueError(f"scale: expected 'std' or 'none', got {scale!r}")
+    sd = C.std(axis=0) if scale == "std" else np.ones(3 * M)
     sd[sd < 1e-9] = 1.0
     Z = (C - mu) / sd
     _, s, Vt = np.linalg.svd(Z, full_matrices=False)

@@ -1,0 +1,132 @@
+"""Face-model trials: generated or real face sequences, markers hidden, filled, scored.
+
+Notebook 13 is built from these functions. Errors are distances (mm) between a filled
+marker and its true position, over the markers that were missing only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..face import extreme_basis, fill_missing, pca_basis, pca_gap_fill
+from ..synth.face import face_cameras, visible
+from ..triangulation import triangulate_single_pair
+
+DATA = Path(__file__).resolve().parents[2] / "data" / "animface"
+
+METHODS = ("extremes, w in [0,1]", "extremes, w free", "PCA mean + k, w free",
+           "peer: PCA gap filling")
+
+
+@dataclass(frozen=True)
+class Observation:
+    """A face sequence as the small-scale system measures it.
+
+    Attributes
+    ----------
+    points : (T, M, 3) array
+        Triangulated markers, mm; NaN where the chosen pair does not see a marker.
+    pair : (T, 2) int array
+        Camera pair used in each frame.
+    n_visible : (T, K) int array
+        Markers each camera sees.
+    """
+
+    points: np.ndarray
+    pair: np.ndarray
+    n_visible: np.ndarray
+
+
+def _perturb(cam, rng, deg):
+    if deg <= 0:
+        return cam
+    dR, _ = cv2.Rodrigues(np.radians(rng.normal(0, deg, 3)))
+    return cam.replace(R=dR @ cam.R)
+
+
+def observe(seq, rng: np.random.Generator, *, pixel_noise: float = 0.5,
+            pose_noise_deg: float = 0.1, min_cos: float = 0.3, **camera_kw) -> Observation:
+    """Image, track and triangulate a generated face sequence (:mod:`lsmta.synth.face`).
+
+    In every frame four narrow-field cameras aim at the head (:func:`face_cameras`); the
+    images come from cameras whose orientation is off by ``pose_noise_deg`` per axis (the
+    thesis's 0.1 degree pan-tilt precision) while the triangulation uses the nominal
+    ones; tracked image positions carry ``pixel_noise`` px of Gaussian noise; markers
+    facing away (:func:`visible`) or outside the image are not seen. All markers of a
+    frame come from the single pair seeing the most of them.
+    """
+    T, M, _ = seq.world.shape
+    pts = np.full((T, M, 3), np.nan)
+    pairs = np.zeros((T, 2), dtype=int)
+    nvis = None
+    for f in range(T):
+        cams = face_cameras(seq.t[f], **camera_kw)
+        if nvis is None:
+            nvis = np.zeros((T, len(cams)), dtype=int)
+        xy = np.full((len(cams), M, 2), np.nan)
+        for k, cam in enumerate(cams):
+            true_cam = _perturb(cam, rng, pose_noise_deg)
+            p = true_cam.project(seq.world[f], behind="nan")
+            p = p + rng.normal(0, pixel_noise, p.shape)
+            ok = visible(seq.world[f], seq.normals[f], cam.C, min_cos=min_cos)
+            ok &= cam.in_image(p) & np.isfinite(p).all(axis=1)
+            xy[k, ok] = p[ok]
+            nvis[f, k] = ok.sum()
+        r = triangulate_single_pair(cams, xy)
+        pts[f] = r.intersection.points
+        pairs[f] = r.pair
+    return Observation(pts, pairs, nvis)
+
+
+def to_head(points, R, t):
+    """World points (T, M, 3) into each frame's head frame (``R``, ``t`` from the
+    generator)."""
+    return np.einsum("tji,tmj->tmi", R, np.asarray(points) - np.asarray(t)[:, None])
+
+
+def fill_all(gappy, training, *, n_basis: int, n_components: int,
+             peer_components: int | None = None) -> dict:
+    """Fill ``gappy`` (T, M, 3) with every method of :data:`METHODS`.
+
+    ``n_basis`` extreme faces (constrained and free weights), a PCA basis of
+    ``n_components`` (mean + k, free weights) and the peer, which learns from the
+    complete frames of ``training`` (and ``gappy``) with ``peer_components`` components
+    (default: 99 % of the variance). Returns ``{method: (T, M, 3) filled}``.
+    """
+    ext = extreme_basis(training, n_basis)
+    pca = pca_basis(training, n_components)
+    out = {
+        METHODS[0]: fill_missing(gappy, ext, constrain=True).frames,
+        METHODS[1]: fill_missing(gappy, ext, constrain=False).frames,
+        METHODS[2]: fill_missing(gappy, pca).frames,
+        METHODS[3]: pca_gap_fill(gappy, training=training,
+                                 n_components=peer_components).frames,
+    }
+    return out
+
+
+def missing_errors(filled, truth, observed):
+    """Distances (mm) of the filled markers from the truth: (T, M) with NaN where the
+    marker was observed."""
+    e = np.linalg.norm(np.asarray(filled) - np.asarray(truth), axis=2)
+    return np.where(observed, np.nan, e)
+
+
+def random_visibility(n_frames: int, n_markers: int, n_visible, rng) -> np.ndarray:
+    """(T, M) bool: in each frame ``n_visible`` (scalar or (T,)) markers chosen at random
+    are observed."""
+    nv = np.broadcast_to(np.asarray(n_visible), (n_frames,))
+    keys = rng.random((n_frames, n_markers))
+    rank = keys.argsort(axis=1).argsort(axis=1)
+    return rank < nv[:, None]
+
+
+def load_animface(name: str, step: int = 1):
+    """``labels``, ``points`` (T, 41, 3) float64 mm of the project's AnimFace copy
+    (``"JawMoCap"`` or ``"CheeksMoCap"``), every ``step``-th frame."""
+    d = np.load(DATA / f"{name}.npz")
+    return tuple(str(s) for s in d["labels"]), d["points"][::step].astype(float)

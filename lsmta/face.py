@@ -143,35 +143,74 @@ def _observed(frames: np.ndarray) -> np.ndarray:
 
 def min_observed_markers(n_basis: int) -> int:
     """Fewest observed markers a frame needs for :func:`fill_missing` with ``n_basis``
-    vectors: three for the rigid alignment, and at least as many coordinates as weights
-    so that the least-squares problem is (over)determined (the thesis's condition)."""
-    return max(3, -(-int(n_basis) // 3))
+    vectors: three for the rigid alignment, and at least as many coordinates as unknowns
+    (the weights and the six of the rigid motion), so that the least-squares problem is
+    (over)determined (the thesis's condition)."""
+    return max(3, -(-(int(n_basis) + 6) // 3))
 
 
 # ---------------------------------------------------------------- the model fit
-def _fit_weights(A: np.ndarray, b: np.ndarray, constrain: bool) -> np.ndarray:
-    """Weights (n, K) for right-hand sides ``b`` (n, 3m) sharing the design ``A``
-    (3m, K)."""
-    if not constrain:
-        return np.linalg.lstsq(A, b.T, rcond=None)[0].T
-    # the same minimiser from the K x K triangular factor: much faster for a tall A
-    Q, R = np.linalg.qr(A)
-    rhs = b @ Q
-    return np.stack([lsq_linear(R, r, bounds=(0.0, 1.0), method="bvls").x for r in rhs])
+def _skew_rows(Y: np.ndarray) -> np.ndarray:
+    """(m, 3) points -> (3m, 3) stacked matrices [y]_x (so [y]_x d = y x d)."""
+    m = len(Y)
+    S = np.zeros((m, 3, 3))
+    S[:, 0, 1], S[:, 0, 2] = -Y[:, 2], Y[:, 1]
+    S[:, 1, 0], S[:, 1, 2] = Y[:, 2], -Y[:, 0]
+    S[:, 2, 0], S[:, 2, 1] = -Y[:, 1], Y[:, 0]
+    return S.reshape(3 * m, 3)
+
+
+def _rotvec_to_matrix(d: np.ndarray) -> np.ndarray:
+    th = np.linalg.norm(d)
+    if th < 1e-300:
+        return np.eye(3)
+    k = d / th
+    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(th) * Kx + (1 - np.cos(th)) * Kx @ Kx
+
+
+def _gauss_newton_step(Y: np.ndarray, Bo: np.ndarray, constrain: bool):
+    """One linearised joint step for one frame: minimise over a small rotation ``d``, a
+    translation ``tau`` and the weights ``w`` the norm of
+    ``Y + d x Y + tau - Bo w`` (Y (m, 3) observed markers in the head frame, Bo (3m, K)).
+    Returns d (3,), tau (3,), w (K,)."""
+    m = len(Y)
+    A = np.hstack([-_skew_rows(Y), np.tile(np.eye(3), (m, 1)), -Bo])
+    rhs = -Y.ravel()
+    # normal equations (tiny: K + 6 unknowns); einsum and Cholesky stay fast on a busy
+    # machine where threaded LAPACK QR / lstsq of these sizes can stall for 0.5 s a call
+    G = np.einsum("ij,ik->jk", A, A)
+    g = np.einsum("ij,i->j", A, rhs)
+    try:
+        L = np.linalg.cholesky(G)
+    except np.linalg.LinAlgError:                  # dependent basis vectors: tiny ridge
+        G = G + 1e-10 * np.trace(G) / len(G) * np.eye(len(G))
+        L = np.linalg.cholesky(G)
+    if constrain:
+        K = Bo.shape[1]
+        lb = np.r_[np.full(6, -np.inf), np.zeros(K)]
+        ub = np.r_[np.full(6, np.inf), np.ones(K)]
+        # min |A x - rhs| == min |L^T x - L^-1 A^T rhs| up to a constant
+        x = lsq_linear(L.T, np.linalg.solve(L, g), bounds=(lb, ub), method="bvls").x
+    else:
+        x = np.linalg.solve(L.T, np.linalg.solve(L, g))
+    return x[:3], x[3:6], x[6:]
 
 
 def fill_missing(frames, basis, *, constrain: bool | None = None, reference=None,
-                 n_iter: int = 3) -> FaceFit:
+                 n_iter: int = 10) -> FaceFit:
     """Fill the missing markers of a sequence from a basis-face model.
 
-    For each frame: (1) the rigid motion carrying the reference shape onto the observed
-    markers is found (Kabsch, :func:`lsmta.rigid.fit_rigid`) and the observed markers are
-    carried into the model's head frame; (2) the weights ``w`` are fitted by least
-    squares on the observed markers only, within ``[0, 1]`` when ``constrain``
-    (``scipy.optimize.lsq_linear``, bounded-variable least squares); (3) the model face
-    ``sum_i w_i B_i`` is predicted for every marker and carried back. Steps (1)-(2) are
-    repeated ``n_iter`` times, aligning to the current model face instead of the reference
-    after the first pass (so that a large expression does not bias the alignment).
+    For each frame: (1) the rigid motion carrying the observed markers onto the same
+    markers of the reference shape is found (Kabsch, :func:`lsmta.rigid.fit_rigid`);
+    (2) the weights ``w`` are fitted by least squares on the observed markers only,
+    within ``[0, 1]`` when ``constrain`` (``scipy.optimize.lsq_linear``, bounded-variable
+    least squares), together with a small correction of the rigid motion: each of up to
+    ``n_iter`` Gauss-Newton passes solves one linear problem in a small rotation, a
+    translation and the weights, so that alignment and weights end up jointly optimal
+    (aligning once to the reference would bias the alignment whenever the expression
+    differs from it); (3) the model face ``sum_i w_i B_i`` is predicted for every marker
+    and carried back into the frame's coordinates.
 
     Parameters
     ----------
@@ -188,7 +227,7 @@ def fill_missing(frames, basis, *, constrain: bool | None = None, reference=None
         :class:`FaceBasis`, else the mean of the basis vectors (right for a basis of faces;
         pass the mean shape for a PCA basis).
     n_iter : int
-        Alignment / weight-fit passes (>= 1).
+        Most Gauss-Newton passes (>= 1); a frame stops early when the step vanishes.
 
     Returns
     -------
@@ -230,24 +269,22 @@ def fill_missing(frames, basis, *, constrain: bool | None = None, reference=None
     ts = np.full((T, 3), np.nan)
     resid = np.full(T, np.nan)
     model = np.full((T, M, 3), np.nan)
-    # frames sharing a pattern of observed markers share the design matrix: fit together
-    patterns, group = np.unique(obs[fitted], axis=0, return_inverse=True)
-    frames_fitted = np.flatnonzero(fitted)
-    for g, o in enumerate(patterns):
-        idx = frames_fitted[np.ravel(group) == g]
-        P = X[idx][:, o]                                # (n, m, 3) observed, frame coords
-        A = Bflat[np.repeat(o, 3)]                      # (3m, K)
-        target = np.broadcast_to(ref[o], P.shape)
+    for f in np.flatnonzero(fitted):
+        o = obs[f]
+        P = np.ascontiguousarray(X[f, o])               # observed markers, frame coords
+        Bo = Bflat[np.repeat(o, 3)]                     # (3m, K)
+        R, t = fit_rigid(P, np.ascontiguousarray(ref[o]))   # frame -> head frame
         for _ in range(int(n_iter)):
-            R, t = fit_rigid(P, target)                 # frame -> head frame
-            head = apply_rigid(R, t, P)
-            w = _fit_weights(A, head.reshape(len(idx), -1), constrain)
-            face = (w @ Bflat.T).reshape(len(idx), M, 3)
-            target = face[:, o]
-        R_hf, t_hf = fit_rigid(face[:, o], P)           # head frame -> frame
-        model[idx] = apply_rigid(R_hf, t_hf, face)
-        W[idx], Rs[idx], ts[idx] = w, R_hf, t_hf
-        resid[idx] = np.sqrt(np.mean(np.sum((model[idx][:, o] - P) ** 2, axis=2), axis=1))
+            d, tau, w = _gauss_newton_step(P @ R.T + t, Bo, constrain)
+            dR = _rotvec_to_matrix(d)
+            R, t = dR @ R, dR @ t + tau
+            if np.linalg.norm(d) < 1e-12 and np.linalg.norm(tau) < 1e-9:
+                break
+        face = (Bflat @ w).reshape(M, 3)                # head frame
+        # the rigid motion head frame -> frame is the inverse of (R, t)
+        W[f], Rs[f], ts[f] = w, R.T, -R.T @ t
+        model[f] = (face - t) @ R
+        resid[f] = np.sqrt(np.mean(np.sum((model[f, o] - P) ** 2, axis=1)))
     out = X.copy()
     fill = ~obs & fitted[:, None]
     out[fill] = model[fill]
@@ -447,7 +484,8 @@ def pca_gap_fill(frames, *, training=None, n_components: int | None = None,
         cols = np.repeat(obs[f], 3)
         kk = min(k, int(cols.sum()))
         z = (flat[f, cols] - mu[cols]) / sd[cols]
-        c = np.linalg.lstsq(V[cols, :kk], z, rcond=None)[0]
+        Vo = V[cols, :kk]
+        c = np.linalg.solve(np.einsum("ij,ik->jk", Vo, Vo), np.einsum("ij,i->j", Vo, z))
         full = (V[:, :kk] @ c) * sd + mu
         out[f, ~obs[f]] = full.reshape(M, 3)[~obs[f]]
         fitted[f] = True

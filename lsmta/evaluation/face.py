@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from ..face import extreme_basis, fill_missing, pca_basis, pca_gap_fill
+from ..rigid import apply_rigid, fit_rigid
 from ..synth.face import face_cameras, visible
 from ..triangulation import triangulate_single_pair
 
@@ -130,3 +131,47 @@ def load_animface(name: str, step: int = 1):
     (``"JawMoCap"`` or ``"CheeksMoCap"``), every ``step``-th frame."""
     d = np.load(DATA / f"{name}.npz")
     return tuple(str(s) for s in d["labels"]), d["points"][::step].astype(float)
+
+
+def truth_on_measured(truth, measured):
+    """The true markers carried rigidly onto each frame's measured (observed) markers.
+
+    The small-scale system is judged on relative geometry (thesis section 5.5): a bias
+    shared by the whole face, as from an error in the camera pair's pose, is removed by
+    fitting the rigid motion truth -> measured on the markers measured in that frame.
+
+    Parameters
+    ----------
+    truth : (T, M, 3) array
+        Complete true positions, mm.
+    measured : (T, M, 3) array
+        Measured positions, NaN where missing, mm.
+
+    Returns
+    -------
+    (T, M, 3) array
+        Every true marker in the measured frame's pose (NaN for frames with fewer than 3
+        measured markers).
+    """
+    truth = np.asarray(truth, dtype=float)
+    measured = np.asarray(measured, dtype=float)
+    ok = np.isfinite(measured).all(axis=2)
+    out = np.full_like(truth, np.nan)
+    for f in np.flatnonzero(ok.sum(axis=1) >= 3):
+        R, t = fit_rigid(truth[f, ok[f]], measured[f, ok[f]])
+        out[f] = apply_rigid(R, t, truth[f])
+    return out
+
+
+def binned_median(values, keys, edges):
+    """Median of the finite ``values`` (T, M) over frames whose ``keys`` (T,) fall in
+    each bin ``[edges[i], edges[i+1])``; NaN for an empty bin."""
+    values = np.asarray(values, dtype=float)
+    keys = np.asarray(keys)
+    out = np.full(len(edges) - 1, np.nan)
+    for i in range(len(edges) - 1):
+        v = values[(keys >= edges[i]) & (keys < edges[i + 1])]
+        v = v[np.isfinite(v)]
+        if v.size:
+            out[i] = np.median(v)
+    return out

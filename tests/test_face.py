@@ -241,3 +241,16 @@ def test_project_copy_of_animface():
     assert np.isfinite(jaw).all()
     width = np.ptp(jaw[0, :, 0])
     assert 100 < width < 200                                    # a face, in mm
+
+
+def test_mixing_camera_pairs_distorts_the_face(model):
+    seq = sf.face_sequence(model, 40, np.random.default_rng(11))
+    ue = model.group("under_eye")
+    pairs = np.array(list(itertools.combinations(ue, 2)))
+    dev = {}
+    for mode in ("single", "per_marker"):
+        o = ef.observe(seq, np.random.default_rng(12), pairing=mode)
+        dev[mode] = np.nanmedian(np.abs(face.distance_deviation(o.points, pairs)))
+    assert dev["per_marker"] > 2 * dev["single"]
+    with pytest.raises(ValueError, match="pairing"):
+        ef.observe(seq, np.random.default_rng(12), pairing="any")

@@ -7,6 +7,7 @@ marker and its true position, over the markers that were missing only.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import combinations
 from pathlib import Path
 
 import cv2
@@ -15,7 +16,7 @@ import numpy as np
 from ..face import extreme_basis, fill_missing, pca_basis, pca_gap_fill
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.face import face_cameras, visible
-from ..triangulation import triangulate_single_pair
+from ..triangulation import triangulate, triangulate_single_pair
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "animface"
 
@@ -50,16 +51,26 @@ def _perturb(cam, rng, deg):
 
 
 def observe(seq, rng: np.random.Generator, *, pixel_noise: float = 0.5,
-            pose_noise_deg: float = 0.1, min_cos: float = 0.3, **camera_kw) -> Observation:
+            pose_noise_deg: float = 0.1, min_cos: float = 0.3, pairing: str = "single",
+            **camera_kw) -> Observation:
     """Image, track and triangulate a generated face sequence (:mod:`lsmta.synth.face`).
 
     In every frame four narrow-field cameras aim at the head (:func:`face_cameras`); the
     images come from cameras whose orientation is off by ``pose_noise_deg`` per axis (the
     thesis's 0.1 degree pan-tilt precision) while the triangulation uses the nominal
     ones; tracked image positions carry ``pixel_noise`` px of Gaussian noise; markers
-    facing away (:func:`visible`) or outside the image are not seen. All markers of a
-    frame come from the single pair seeing the most of them.
+    facing away (:func:`visible`) or outside the image are not seen.
+
+    ``pairing="single"``: all markers of a frame come from the single pair seeing the most
+    of them (the thesis's choice). ``pairing="per_marker"``: each marker comes from a pair
+    drawn at random among the pairs that see it (what the thesis warns against: each
+    pair's pose error then shifts its markers differently). Both modes draw the same
+    image noise from ``rng``, so they can be compared on the same images. ``pair`` is
+    (-1, -1) for per-marker frames.
     """
+    if pairing not in ("single", "per_marker"):
+        raise ValueError(f"pairing: expected 'single' or 'per_marker', got {pairing!r}")
+    choice_rng = np.random.default_rng(rng.integers(2 ** 63))
     T, M, _ = seq.world.shape
     pts = np.full((T, M, 3), np.nan)
     pairs = np.zeros((T, 2), dtype=int)
@@ -77,9 +88,21 @@ def observe(seq, rng: np.random.Generator, *, pixel_noise: float = 0.5,
             ok &= cam.in_image(p) & np.isfinite(p).all(axis=1)
             xy[k, ok] = p[ok]
             nvis[f, k] = ok.sum()
-        r = triangulate_single_pair(cams, xy)
-        pts[f] = r.intersection.points
-        pairs[f] = r.pair
+        if pairing == "single":
+            r = triangulate_single_pair(cams, xy)
+            pts[f] = r.intersection.points
+            pairs[f] = r.pair
+            continue
+        pairs[f] = -1
+        cand = []
+        for i, j in combinations(range(len(cams)), 2):
+            cand.append(triangulate([cams[i], cams[j]], xy[[i, j]]).points)
+        cand = np.stack(cand)                           # (pairs, M, 3)
+        ok = np.isfinite(cand).all(axis=2)
+        keys = np.where(ok, choice_rng.random(ok.shape), -1.0)
+        pick = keys.argmax(axis=0)
+        has = ok.any(axis=0)
+        pts[f, has] = cand[pick[has], np.flatnonzero(has)]
     return Observation(pts, pairs, nvis)
 
 

@@ -485,7 +485,10 @@ def pca_gap_fill(frames, *, training=None, n_components: int | None = None,
         kk = min(k, int(cols.sum()))
         z = (flat[f, cols] - mu[cols]) / sd[cols]
         Vo = V[cols, :kk]
-        c = np.linalg.solve(np.einsum("ij,ik->jk", Vo, Vo), np.einsum("ij,i->j", Vo, z))
+        try:
+            c = np.linalg.solve(np.einsum("ij,ik->jk", Vo, Vo), np.einsum("ij,i->j", Vo, z))
+        except np.linalg.LinAlgError:              # observed rows do not span kk scores
+            c = np.linalg.lstsq(Vo, z, rcond=None)[0]
         full = (V[:, :kk] @ c) * sd + mu
         out[f, ~obs[f]] = full.reshape(M, 3)[~obs[f]]
         fitted[f] = True

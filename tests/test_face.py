@@ -157,6 +157,13 @@ def test_pca_gap_fill_exact_on_low_rank_data():
     np.testing.assert_array_equal(gappy, before)
     np.testing.assert_allclose(out.frames, frames, atol=1e-8)
     assert out.fitted.all() and out.n_components == 3
+    # a frame with one observed marker (3 coordinates for 3 scores) and one with none
+    sparse = frames.copy()
+    sparse[0, 1:] = np.nan
+    sparse[1] = np.nan
+    out = face.pca_gap_fill(sparse, n_components=3)
+    assert np.isfinite(out.frames[0]).all() and np.isnan(out.frames[1]).all()
+    np.testing.assert_array_equal(out.fitted[:2], [True, False])
     with pytest.raises(ValueError, match="complete frames"):
         face.pca_gap_fill(np.where(np.arange(20)[None, :, None] < 1, np.nan, frames))
 

@@ -53,7 +53,11 @@ def _perturb(cam, rng, deg):
 def observe(seq, rng: np.random.Generator, *, pixel_noise: float = 0.5,
             pose_noise_deg: float = 0.1, min_cos: float = 0.3, pairing: str = "single",
             **camera_kw) -> Observation:
-    """Image, track and triangulate a generated face sequence (:mod:`lsmta.synth.face`).
+    """Image and triangulate a generated face sequence (:mod:`lsmta.synth.face`).
+
+    No marker tracking is simulated (the thesis's section 5.1 tracker is not implemented):
+    the tracked image positions are the true projections plus Gaussian noise, with every
+    marker correctly identified.
 
     In every frame four narrow-field cameras aim at the head (:func:`face_cameras`); the
     images come from cameras whose orientation is off by ``pose_noise_deg`` per axis (the

@@ -7,8 +7,9 @@ sockets, lips and a chin; 76 markers sit on it at hand-placed positions (forehea
 around the eyes, nose, cheeks, lips, chin, jaw line). Six expression modes move them as
 smooth displacement fields: jaw open (a rotation of everything below the mouth about a
 hinge behind the cheeks), smile, brows up, pucker, frown and a sideways mouth shift. The
-four markers under the eyes and the upper two forehead rows are never moved by an
-expression (the thesis's Fig. 64 uses such markers to measure accuracy).
+four markers under the eyes, the eye corners, the temples and the upper two forehead rows
+are never moved by an expression (``FaceModel.rigid``; the thesis's Fig. 64 uses such
+markers to measure accuracy).
 
 World frame as in :mod:`lsmta.synth.rigs`: X right, Y away from the cameras, Z up. At zero
 head rotation the face looks along -Y (towards cameras placed at negative Y).
@@ -251,7 +252,8 @@ class FaceSequence:
     world : (T, M, 3) array
         Markers in the world, mm.
     normals : (T, M, 3) array
-        Outward unit normals in the world.
+        Outward unit normals in the world: those of the neutral face under the head pose
+        (expressions do not tilt them).
     weights : (T, E) array
         Expression weights.
     R : (T, 3, 3) array

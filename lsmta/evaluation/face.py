@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..face import extreme_basis, fill_missing, pca_basis, pca_gap_fill
+from ..face import align_sequence, extreme_basis, fill_missing, pca_basis, pca_gap_fill
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.face import face_cameras, visible
 from ..triangulation import triangulate, triangulate_single_pair
@@ -201,4 +201,41 @@ def binned_median(values, keys, edges):
         v = v[np.isfinite(v)]
         if v.size:
             out[i] = np.median(v)
+    return out
+
+
+def peer_after_alignment(gappy, training, *, n_components: int):
+    """The peer (:func:`lsmta.face.pca_gap_fill`) given the same per-frame rigid alignment
+    the basis-face fits make: each frame's observed markers are carried rigidly (Kabsch)
+    onto the training sequence's mean shape, the gaps are filled there from the aligned
+    training frames, and the frame is carried back. No oracle is needed.
+
+    Parameters
+    ----------
+    gappy : (T, M, 3) array
+        Marker positions with NaN gaps, mm. Not modified.
+    training : (S, M, 3) array
+        Complete training sequence, mm.
+    n_components : int
+
+    Returns
+    -------
+    (T, M, 3) array
+        ``gappy`` with its gaps filled (frames with fewer than 3 observed markers keep
+        their NaN), mm.
+    """
+    gappy = np.asarray(gappy, dtype=float)
+    train_al, ref = align_sequence(training)
+    ok = np.isfinite(gappy).all(axis=2)
+    aligned = np.full_like(gappy, np.nan)
+    Rs = np.full((len(gappy), 3, 3), np.nan)
+    ts = np.full((len(gappy), 3), np.nan)
+    for f in np.flatnonzero(ok.sum(axis=1) >= 3):
+        Rs[f], ts[f] = fit_rigid(gappy[f, ok[f]], ref[ok[f]])
+        aligned[f] = apply_rigid(Rs[f], ts[f], gappy[f])
+    filled = pca_gap_fill(aligned, training=train_al, n_components=n_components).frames
+    out = gappy.copy()
+    for f in np.flatnonzero(ok.sum(axis=1) >= 3):
+        back = (filled[f] - ts[f]) @ Rs[f]
+        out[f, ~ok[f]] = back[~ok[f]]
     return out

@@ -202,3 +202,55 @@ def voxel_filter(points, voxel: float) -> VoxelCloud:
     members = np.full(len(P), -1, dtype=np.int64)
     members[finite] = inverse
     return VoxelCloud(points=sums / counts[:, None], members=members, counts=counts)
+
+
+@dataclass(frozen=True)
+class PairIntersection:
+    """Result of :func:`triangulate_single_pair`.
+
+    Attributes
+    ----------
+    pair : (2,) int array
+        Indices of the two cameras used for every point.
+    intersection : Intersection
+        The forward intersection from that pair alone (NaN where not seen by both).
+    counts : (K, K) int array
+        Points seen by both cameras of each pair.
+    """
+
+    pair: np.ndarray
+    intersection: Intersection
+    counts: np.ndarray
+
+
+def triangulate_single_pair(cameras, xy, *, min_angle_deg: float = 0.5) -> PairIntersection:
+    """Intersect all points of one frame from a single camera pair (Davis 2002, sec. 5.2).
+
+    With camera poses known only approximately, points from different pairs carry
+    uncorrelated biases; from one pair the error is shared and the shape is kept. The
+    pair seeing the most points is used (ties: the lower indices).
+
+    Parameters
+    ----------
+    cameras : sequence of K >= 2 :class:`~lsmta.camera.Camera`
+    xy : (K, N, 2) array
+        Image points in pixels; NaN where a camera does not see the point.
+    min_angle_deg : float
+        As in :func:`triangulate`.
+
+    Returns
+    -------
+    PairIntersection
+    """
+    cameras = list(cameras)
+    if len(cameras) < 2 or not all(isinstance(c, Camera) for c in cameras):
+        raise TypeError("cameras: expected a sequence of at least two lsmta.camera.Camera")
+    xy = as_array(xy, "xy", shape=(len(cameras), None, 2), allow_nan=True)
+    seen = np.isfinite(xy).all(axis=2)
+    counts = (seen[:, None, :] & seen[None, :, :]).sum(axis=2)
+    np.fill_diagonal(counts, -1)
+    i, j = np.unravel_index(np.argmax(counts), counts.shape)
+    i, j = sorted((int(i), int(j)))
+    np.fill_diagonal(counts, seen.sum(axis=1))
+    inter = triangulate([cameras[i], cameras[j]], xy[[i, j]], min_angle_deg=min_angle_deg)
+    return PairIntersection(np.array([i, j]), inter, counts)

@@ -1,0 +1,241 @@
+"""Face-model trials: generated or real face sequences, markers hidden, filled, scored.
+
+Notebook 13 is built from these functions. Errors are distances (mm) between a filled
+marker and its true position, over the markers that were missing only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import combinations
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ..face import align_sequence, extreme_basis, fill_missing, pca_basis, pca_gap_fill
+from ..rigid import apply_rigid, fit_rigid
+from ..synth.face import face_cameras, visible
+from ..triangulation import triangulate, triangulate_single_pair
+
+DATA = Path(__file__).resolve().parents[2] / "data" / "animface"
+
+METHODS = ("extremes, w in [0,1]", "extremes, w free", "PCA mean + k, w free",
+           "peer: PCA gap filling")
+
+
+@dataclass(frozen=True)
+class Observation:
+    """A face sequence as the small-scale system measures it.
+
+    Attributes
+    ----------
+    points : (T, M, 3) array
+        Triangulated markers, mm; NaN where the chosen pair does not see a marker.
+    pair : (T, 2) int array
+        Camera pair used in each frame.
+    n_visible : (T, K) int array
+        Markers each camera sees.
+    """
+
+    points: np.ndarray
+    pair: np.ndarray
+    n_visible: np.ndarray
+
+
+def _perturb(cam, rng, deg):
+    if deg <= 0:
+        return cam
+    dR, _ = cv2.Rodrigues(np.radians(rng.normal(0, deg, 3)))
+    return cam.replace(R=dR @ cam.R)
+
+
+def observe(seq, rng: np.random.Generator, *, pixel_noise: float = 0.5,
+            pose_noise_deg: float = 0.1, min_cos: float = 0.3, pairing: str = "single",
+            **camera_kw) -> Observation:
+    """Image and triangulate a generated face sequence (:mod:`lsmta.synth.face`).
+
+    No marker tracking is simulated (the thesis's section 5.1 tracker is not implemented):
+    the tracked image positions are the true projections plus Gaussian noise, with every
+    marker correctly identified.
+
+    In every frame four narrow-field cameras aim at the head (:func:`face_cameras`); the
+    images come from cameras whose orientation is off by ``pose_noise_deg`` per axis (the
+    thesis's 0.1 degree pan-tilt precision) while the triangulation uses the nominal
+    ones; tracked image positions carry ``pixel_noise`` px of Gaussian noise; markers
+    facing away (:func:`visible`) or outside the image are not seen.
+
+    ``pairing="single"``: all markers of a frame come from the single pair seeing the most
+    of them (the thesis's choice). ``pairing="per_marker"``: each marker comes from a pair
+    drawn at random among the pairs that see it (what the thesis warns against: each
+    pair's pose error then shifts its markers differently). Both modes draw the same
+    image noise from ``rng``, so they can be compared on the same images. ``pair`` is
+    (-1, -1) for per-marker frames.
+    """
+    if pairing not in ("single", "per_marker"):
+        raise ValueError(f"pairing: expected 'single' or 'per_marker', got {pairing!r}")
+    choice_rng = np.random.default_rng(rng.integers(2 ** 63))
+    T, M, _ = seq.world.shape
+    pts = np.full((T, M, 3), np.nan)
+    pairs = np.zeros((T, 2), dtype=int)
+    nvis = None
+    for f in range(T):
+        cams = face_cameras(seq.t[f], **camera_kw)
+        if nvis is None:
+            nvis = np.zeros((T, len(cams)), dtype=int)
+        xy = np.full((len(cams), M, 2), np.nan)
+        for k, cam in enumerate(cams):
+            true_cam = _perturb(cam, rng, pose_noise_deg)
+            p = true_cam.project(seq.world[f], behind="nan")
+            p = p + rng.normal(0, pixel_noise, p.shape)
+            ok = visible(seq.world[f], seq.normals[f], cam.C, min_cos=min_cos)
+            ok &= cam.in_image(p) & np.isfinite(p).all(axis=1)
+            xy[k, ok] = p[ok]
+            nvis[f, k] = ok.sum()
+        if pairing == "single":
+            r = triangulate_single_pair(cams, xy)
+            pts[f] = r.intersection.points
+            pairs[f] = r.pair
+            continue
+        pairs[f] = -1
+        cand = []
+        for i, j in combinations(range(len(cams)), 2):
+            cand.append(triangulate([cams[i], cams[j]], xy[[i, j]]).points)
+        cand = np.stack(cand)                           # (pairs, M, 3)
+        ok = np.isfinite(cand).all(axis=2)
+        keys = np.where(ok, choice_rng.random(ok.shape), -1.0)
+        pick = keys.argmax(axis=0)
+        has = ok.any(axis=0)
+        pts[f, has] = cand[pick[has], np.flatnonzero(has)]
+    return Observation(pts, pairs, nvis)
+
+
+def to_head(points, R, t):
+    """World points (T, M, 3) into each frame's head frame (``R``, ``t`` from the
+    generator)."""
+    return np.einsum("tji,tmj->tmi", R, np.asarray(points) - np.asarray(t)[:, None])
+
+
+def fill_all(gappy, training, *, n_basis: int, n_components: int,
+             peer_components: int | None = None) -> dict:
+    """Fill ``gappy`` (T, M, 3) with every method of :data:`METHODS`.
+
+    ``n_basis`` extreme faces (constrained and free weights), a PCA basis of
+    ``n_components`` (mean + k, free weights) and the peer, which learns from the
+    complete frames of ``training`` (and ``gappy``) with ``peer_components`` components
+    (default: 99 % of the variance). Returns ``{method: (T, M, 3) filled}``.
+    """
+    ext = extreme_basis(training, n_basis)
+    pca = pca_basis(training, n_components)
+    out = {
+        METHODS[0]: fill_missing(gappy, ext, constrain=True).frames,
+        METHODS[1]: fill_missing(gappy, ext, constrain=False).frames,
+        METHODS[2]: fill_missing(gappy, pca).frames,
+        METHODS[3]: pca_gap_fill(gappy, training=training,
+                                 n_components=peer_components).frames,
+    }
+    return out
+
+
+def missing_errors(filled, truth, observed):
+    """Distances (mm) of the filled markers from the truth: (T, M) with NaN where the
+    marker was observed."""
+    e = np.linalg.norm(np.asarray(filled) - np.asarray(truth), axis=2)
+    return np.where(observed, np.nan, e)
+
+
+def random_visibility(n_frames: int, n_markers: int, n_visible, rng) -> np.ndarray:
+    """(T, M) bool: in each frame ``n_visible`` (scalar or (T,)) markers chosen at random
+    are observed."""
+    nv = np.broadcast_to(np.asarray(n_visible), (n_frames,))
+    keys = rng.random((n_frames, n_markers))
+    rank = keys.argsort(axis=1).argsort(axis=1)
+    return rank < nv[:, None]
+
+
+def load_animface(name: str, step: int = 1):
+    """``labels``, ``points`` (T, 41, 3) float64 mm of the project's AnimFace copy
+    (``"JawMoCap"`` or ``"CheeksMoCap"``), every ``step``-th frame."""
+    d = np.load(DATA / f"{name}.npz")
+    return tuple(str(s) for s in d["labels"]), d["points"][::step].astype(float)
+
+
+def truth_on_measured(truth, measured):
+    """The true markers carried rigidly onto each frame's measured (observed) markers.
+
+    The small-scale system is judged on relative geometry (thesis section 5.5): a bias
+    shared by the whole face, as from an error in the camera pair's pose, is removed by
+    fitting the rigid motion truth -> measured on the markers measured in that frame.
+
+    Parameters
+    ----------
+    truth : (T, M, 3) array
+        Complete true positions, mm.
+    measured : (T, M, 3) array
+        Measured positions, NaN where missing, mm.
+
+    Returns
+    -------
+    (T, M, 3) array
+        Every true marker in the measured frame's pose (NaN for frames with fewer than 3
+        measured markers).
+    """
+    truth = np.asarray(truth, dtype=float)
+    measured = np.asarray(measured, dtype=float)
+    ok = np.isfinite(measured).all(axis=2)
+    out = np.full_like(truth, np.nan)
+    for f in np.flatnonzero(ok.sum(axis=1) >= 3):
+        R, t = fit_rigid(truth[f, ok[f]], measured[f, ok[f]])
+        out[f] = apply_rigid(R, t, truth[f])
+    return out
+
+
+def binned_median(values, keys, edges):
+    """Median of the finite ``values`` (T, M) over frames whose ``keys`` (T,) fall in
+    each bin ``[edges[i], edges[i+1])``; NaN for an empty bin."""
+    values = np.asarray(values, dtype=float)
+    keys = np.asarray(keys)
+    out = np.full(len(edges) - 1, np.nan)
+    for i in range(len(edges) - 1):
+        v = values[(keys >= edges[i]) & (keys < edges[i + 1])]
+        v = v[np.isfinite(v)]
+        if v.size:
+            out[i] = np.median(v)
+    return out
+
+
+def peer_after_alignment(gappy, training, *, n_components: int):
+    """The peer (:func:`lsmta.face.pca_gap_fill`) given the same per-frame rigid alignment
+    the basis-face fits make: each frame's observed markers are carried rigidly (Kabsch)
+    onto the training sequence's mean shape, the gaps are filled there from the aligned
+    training frames, and the frame is carried back. No oracle is needed.
+
+    Parameters
+    ----------
+    gappy : (T, M, 3) array
+        Marker positions with NaN gaps, mm. Not modified.
+    training : (S, M, 3) array
+        Complete training sequence, mm.
+    n_components : int
+
+    Returns
+    -------
+    (T, M, 3) array
+        ``gappy`` with its gaps filled (frames with fewer than 3 observed markers keep
+        their NaN), mm.
+    """
+    gappy = np.asarray(gappy, dtype=float)
+    train_al, ref = align_sequence(training)
+    ok = np.isfinite(gappy).all(axis=2)
+    aligned = np.full_like(gappy, np.nan)
+    Rs = np.full((len(gappy), 3, 3), np.nan)
+    ts = np.full((len(gappy), 3), np.nan)
+    for f in np.flatnonzero(ok.sum(axis=1) >= 3):
+        Rs[f], ts[f] = fit_rigid(gappy[f, ok[f]], ref[ok[f]])
+        aligned[f] = apply_rigid(Rs[f], ts[f], gappy[f])
+    filled = pca_gap_fill(aligned, training=train_al, n_components=n_components).frames
+    out = gappy.copy()
+    for f in np.flatnonzero(ok.sum(axis=1) >= 3):
+        back = (filled[f] - ts[f]) @ Rs[f]
+        out[f, ~ok[f]] = back[~ok[f]]
+    return out

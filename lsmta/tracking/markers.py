@@ -1,0 +1,281 @@
+"""Small-scale marker tracking in video (Davis 2002, thesis section 5.1).
+
+Per frame: the image is stabilised by the dominant translation between the last good
+frame and this one (phase correlation, ``cv2.phaseCorrelate``, refined by the median LK
+displacement of a lattice of points); every marker is tracked
+with pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``) from its stabilised position;
+a marker whose first search fails (LK status, forward-backward error or patch error over
+a threshold) is searched a second time from the position predicted by its own image
+velocity; a blurred frame (variance of the Laplacian well below the running median) is
+skipped and the markers are searched again in the next frames, from the last good frame.
+Lost markers stay lost unless the caller (re)starts them with ``seeds`` (e.g. a marker
+identified again by hand when it reappears); there is no automatic re-acquisition.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .._validate import as_array, as_scalar
+
+TRACKED, SECOND_SEARCH, BLURRED, LOST, SEEDED = 0, 1, 2, 3, 4
+STATUS_NAMES = {TRACKED: "tracked", SECOND_SEARCH: "second search", BLURRED: "blurred frame",
+                LOST: "lost", SEEDED: "seeded"}
+
+
+@dataclass(frozen=True)
+class MarkerTracks:
+    """Result of :func:`track_markers`.
+
+    Attributes
+    ----------
+    xy : (T, M, 2) array
+        Marker positions, px; NaN when lost or in a skipped (blurred) frame.
+    status : (T, M) int array
+        ``TRACKED`` (first search), ``SECOND_SEARCH`` (found from the velocity
+        prediction), ``BLURRED`` (frame skipped), ``LOST``, ``SEEDED`` (position taken
+        from ``seeds``; frame 0 counts as ``TRACKED``).
+    shift : (T, 2) array
+        Dominant translation of each frame relative to the previous frame, px (summed
+        over skipped frames at the next good one); NaN for skipped frames, 0 for frame 0.
+    sharpness : (T,) array
+        Variance of the Laplacian of each frame.
+    blurred : (T,) bool array
+        Frames skipped as blurred.
+    """
+
+    xy: np.ndarray
+    status: np.ndarray
+    shift: np.ndarray
+    sharpness: np.ndarray
+    blurred: np.ndarray
+
+
+def _as_images(images) -> np.ndarray:
+    arr = np.asarray(images)
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number)):
+        raise TypeError(f"images: expected a real numeric array, got dtype {arr.dtype}")
+    if arr.ndim != 3 or min(arr.shape) < 1:
+        raise ValueError(f"images: expected a (T, H, W) array of grey images, got shape "
+                         f"{arr.shape}")
+    if arr.shape[1] < 32 or arr.shape[2] < 32:
+        raise ValueError(f"images: expected images of at least 32 x 32 px, got "
+                         f"{arr.shape[1:]}")
+    if arr.dtype == np.uint8:
+        return arr
+    if not np.isfinite(arr).all():
+        raise ValueError("images: contains non-finite values")
+    return np.clip(np.round(arr), 0, 255).astype(np.uint8)
+
+
+def sharpness(image) -> float:
+    """Variance of the Laplacian of a grey image after a 1.5 px Gaussian (which keeps
+    pixel noise from dominating); low for blurred frames."""
+    smooth = cv2.GaussianBlur(np.asarray(image, np.float32), (0, 0), 1.5)
+    return float(cv2.Laplacian(smooth, cv2.CV_32F).var())
+
+
+def dominant_shift(a, b, *, grid: int = 8) -> np.ndarray:
+    """Dominant translation (dx, dy) px taking grey image ``a`` to image ``b``.
+
+    Phase correlation (``cv2.phaseCorrelate``, Hanning window) on the images reduced by
+    2 gives a coarse shift; the median of pyramidal LK displacements of a
+    ``grid`` x ``grid`` lattice of points started from it (forward-backward error
+    < 0.5 px) refines it. Falls back to the coarse shift when no lattice point passes.
+    """
+    a8 = np.asarray(a, np.uint8)
+    b8 = np.asarray(b, np.uint8)
+    ha, hb = cv2.pyrDown(a8.astype(np.float32)), cv2.pyrDown(b8.astype(np.float32))
+    win = cv2.createHanningWindow(ha.shape[::-1], cv2.CV_32F)
+    (dx, dy), _ = cv2.phaseCorrelate(ha, hb, win)
+    coarse = 2.0 * np.array([dx, dy])
+    H, W = a8.shape
+    gx, gy = np.meshgrid(np.linspace(0.15, 0.85, grid) * (W - 1),
+                         np.linspace(0.15, 0.85, grid) * (H - 1))
+    p0 = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    lk = dict(winSize=(21, 21), maxLevel=2,
+              criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+    p1, ok, fb, _ = _lk(a8, b8, p0, p0 + coarse, lk)
+    ok &= fb < 0.5
+    if not ok.any():
+        return coarse
+    return np.median(p1[ok] - p0[ok], axis=0)
+
+
+def refine_centroid(image, xy, *, radius: int = 2, iterations: int = 2) -> np.ndarray:
+    """Move each position to the brightness-weighted centroid of the bright dot around it:
+    weights are the grey values above the window's median, in a ``(2 radius + 1)``
+    square window; windows reaching outside the image leave the position unchanged."""
+    img = np.asarray(image, np.float64)
+    H, W = img.shape
+    p = np.array(xy, dtype=float)
+    off = np.arange(-radius, radius + 1)
+    for _ in range(iterations):
+        c = np.round(p).astype(int)
+        ok = ((c[:, 0] >= radius) & (c[:, 0] < W - radius) & (c[:, 1] >= radius)
+              & (c[:, 1] < H - radius))
+        if not ok.any():
+            break
+        ix = c[ok, 0, None, None] + off[None, None, :]
+        iy = c[ok, 1, None, None] + off[None, :, None]
+        win = img[iy, ix]                                    # (n, k, k)
+        w = np.clip(win - np.median(win, axis=(1, 2), keepdims=True), 0, None)
+        tot = w.sum(axis=(1, 2))
+        good = tot > 0
+        gx = (w * np.broadcast_to(ix, w.shape)).sum(axis=(1, 2))
+        gy = (w * np.broadcast_to(iy, w.shape)).sum(axis=(1, 2))
+        sel = np.flatnonzero(ok)[good]
+        p[sel, 0] = gx[good] / tot[good]
+        p[sel, 1] = gy[good] / tot[good]
+    return p
+
+
+def _lk(prev, nxt, p0, guess, lk):
+    p1, st, err = cv2.calcOpticalFlowPyrLK(
+        prev, nxt, p0.astype(np.float32).reshape(-1, 1, 2),
+        guess.astype(np.float32).reshape(-1, 1, 2), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
+    back, st2, _ = cv2.calcOpticalFlowPyrLK(
+        nxt, prev, p1, p0.astype(np.float32).reshape(-1, 1, 2).copy(),
+        flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **lk)
+    p1 = p1.reshape(-1, 2).astype(float)
+    fb = np.linalg.norm(back.reshape(-1, 2) - p0, axis=1)
+    return p1, (st.ravel() == 1) & (st2.ravel() == 1), fb, err.ravel()
+
+
+def _seed(t, seeds, alive, pos, vel, xy, status, image, refine):
+    if seeds is None:
+        return
+    new = ~alive & np.isfinite(seeds[t]).all(axis=1)
+    alive[new] = True
+    pos[new] = refine_centroid(image, seeds[t, new]) if refine else seeds[t, new]
+    vel[new] = 0.0
+    xy[t, new] = pos[new]
+    status[t, new] = SEEDED
+
+
+def track_markers(images, initial_xy, *, window: int = 11, levels: int = 2,
+                  fb_threshold: float = 0.5, max_error: float = 12.0,
+                  stabilise: bool = True, second_search: bool = True, blur_retry: int = 3,
+                  blur_ratio: float = 0.5, blur_history: int = 10, seeds=None,
+                  refine: bool = True, max_jump: float = 4.0) -> MarkerTracks:
+    """Track markers through a grey video.
+
+    Parameters
+    ----------
+    images : (T, H, W) array
+        Grey frames (uint8, or numbers in 0..255).
+    initial_xy : (M, 2) array
+        Marker positions in frame 0, px; NaN for markers not tracked.
+    window : int
+        LK window side, px (odd).
+    levels : int
+        LK pyramid levels above the full image.
+    fb_threshold : float
+        Largest forward-backward error (px) of an accepted search.
+    max_error : float
+        Largest LK patch error (mean absolute grey difference) of an accepted search.
+    stabilise : bool
+        Start each search from the position moved by the frame's dominant translation.
+    second_search : bool
+        Search failed markers again at position + shift + their own image velocity.
+    blur_retry : int
+        Consecutive blurred frames skipped at most (0: never skip).
+    blur_ratio : float
+        A frame is blurred when its sharpness is below ``blur_ratio`` times the median
+        sharpness of the last ``blur_history`` good frames.
+    seeds : (T, M, 2) array, optional
+        Positions (px, NaN elsewhere) at which a marker that is not being tracked starts
+        again in that frame (not used in skipped blurred frames).
+    refine : bool
+        Move every found and every start position to the dot's brightness centroid
+        (:func:`refine_centroid`), so that a start error or LK drift does not persist.
+    max_jump : float
+        Largest distance (px) between a search's start and its result; a longer jump
+        is taken as a jump to a neighbouring marker and the search fails.
+
+    Returns
+    -------
+    MarkerTracks
+    """
+    imgs = _as_images(images)
+    T, H, W = imgs.shape
+    p0 = as_array(initial_xy, "initial_xy", shape=(None, 2), allow_nan=True)
+    if int(window) != window or window < 3 or window % 2 == 0:
+        raise ValueError(f"window: expected an odd integer >= 3, got {window}")
+    if int(levels) != levels or levels < 0:
+        raise ValueError(f"levels: expected an integer >= 0, got {levels}")
+    if int(blur_retry) != blur_retry or blur_retry < 0:
+        raise ValueError(f"blur_retry: expected an integer >= 0, got {blur_retry}")
+    if int(blur_history) != blur_history or blur_history < 1:
+        raise ValueError(f"blur_history: expected an integer >= 1, got {blur_history}")
+    fb_threshold = as_scalar(fb_threshold, "fb_threshold", positive=True)
+    max_error = as_scalar(max_error, "max_error", positive=True)
+    max_jump = as_scalar(max_jump, "max_jump", positive=True)
+    blur_ratio = as_scalar(blur_ratio, "blur_ratio", nonnegative=True)
+    lk = dict(winSize=(int(window), int(window)), maxLevel=int(levels),
+              criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+    M = len(p0)
+    if seeds is not None:
+        seeds = as_array(seeds, "seeds", shape=(T, M, 2), allow_nan=True)
+    xy = np.full((T, M, 2), np.nan)
+    status = np.full((T, M), LOST, dtype=int)
+    shift = np.full((T, 2), np.nan)
+    sharp = np.array([sharpness(im) for im in imgs])
+    blurred = np.zeros(T, bool)
+    alive = np.isfinite(p0).all(axis=1)
+    pos = p0.copy()
+    if refine and alive.any():
+        pos[alive] = refine_centroid(imgs[0], pos[alive])
+    vel = np.zeros((M, 2))               # per-frame image velocity, stabilised
+    xy[0, alive] = pos[alive]
+    status[0, alive] = TRACKED
+    shift[0] = 0.0
+    ref = 0
+    good = [sharp[0]]
+    for t in range(1, T):
+        gap = t - ref
+        if gap <= blur_retry and sharp[t] < blur_ratio * np.median(good[-blur_history:]):
+            blurred[t] = True
+            status[t] = BLURRED
+            continue
+        good.append(sharp[t])
+        s = dominant_shift(imgs[ref], imgs[t]) if stabilise else np.zeros(2)
+        shift[t] = s
+        idx = np.flatnonzero(alive)
+        if len(idx) == 0:
+            ref = t
+            _seed(t, seeds, alive, pos, vel, xy, status, imgs[t], refine)
+            continue
+        pred = pos[idx] + s
+        p1, ok, fb, err = _lk(imgs[ref], imgs[t], pos[idx], pred, lk)
+        ok &= (fb < fb_threshold) & (err < max_error)
+        ok &= np.linalg.norm(p1 - pred, axis=1) < max_jump
+        st = np.where(ok, TRACKED, LOST)
+        if second_search and not ok.all():
+            bad = np.flatnonzero(~ok)
+            pred2 = pos[idx[bad]] + s + vel[idx[bad]] * gap
+            q1, ok2, fb2, err2 = _lk(imgs[ref], imgs[t], pos[idx[bad]], pred2, lk)
+            ok2 &= (fb2 < fb_threshold) & (err2 < max_error)
+            ok2 &= np.linalg.norm(q1 - pred2, axis=1) < max_jump
+            p1[bad[ok2]] = q1[ok2]
+            ok[bad[ok2]] = True
+            st[bad[ok2]] = SECOND_SEARCH
+        inside = (p1[:, 0] >= 0) & (p1[:, 0] <= W - 1) & (p1[:, 1] >= 0) & (p1[:, 1] <= H - 1)
+        ok &= inside
+        if refine and ok.any():
+            p1[ok] = refine_centroid(imgs[t], p1[ok])
+        st[~ok] = LOST
+        found = idx[ok]
+        vel[found] = (p1[ok] - pos[found] - s) / gap
+        pos[found] = p1[ok]
+        lost = idx[~ok]
+        alive[lost] = False
+        pos[lost] = np.nan
+        xy[t, found] = p1[ok]
+        status[t, idx] = st
+        ref = t
+        _seed(t, seeds, alive, pos, vel, xy, status, imgs[t], refine)
+    return MarkerTracks(xy, status, shift, sharp, blurred)

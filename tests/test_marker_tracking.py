@@ -1,0 +1,122 @@
+"""Small-scale marker tracking in rendered video (Davis 2002, section 5.1)."""
+
+import numpy as np
+import pytest
+
+from lsmta.evaluation import face as ef
+from lsmta.synth import face as sf
+from lsmta.synth import marker_video as mv
+from lsmta.tracking import markers as tm
+
+
+def _dots(shape, xy, background, sigma=1.3, amp=110.0):
+    H, W = shape
+    gx, gy = np.meshgrid(np.arange(W), np.arange(H))
+    img = background.astype(float).copy()
+    for x, y in xy:
+        img += amp * np.exp(-((gx - x) ** 2 + (gy - y) ** 2) / (2 * sigma ** 2))
+    return np.clip(np.round(img), 0, 255).astype(np.uint8)
+
+
+def _clip(seq, n):
+    """The first ``n`` frames (head motion at the speed of a 150-frame sequence)."""
+    return sf.FaceSequence(*(getattr(seq, k)[:n] for k in
+                             ("head", "world", "normals", "weights", "R", "t")))
+
+
+@pytest.fixture(scope="module")
+def capture():
+    rng = np.random.default_rng(11)
+    seq = _clip(sf.face_sequence(sf.face_model(), 150, rng), 30)
+    return ef.observe_tracked(seq, np.random.default_rng(12), cameras=[1, 2])
+
+
+def test_tracking_error_against_truth(capture):
+    e = np.linalg.norm(capture.tracked_xy - capture.truth_xy, axis=3)
+    sep = e[~capture.crowded]
+    assert np.isfinite(sep).sum() > 0.5 * np.isfinite(capture.truth_xy[..., 0]).sum()
+    assert np.nanmedian(sep) < 0.3
+    assert np.nanpercentile(sep, 90) < 1.0
+    assert np.isfinite(capture.observation.points[1:]).all(axis=2).sum(axis=1).min() > 20
+
+
+def test_stabilisation_recovers_camera_shift():
+    rng = np.random.default_rng(3)
+    tex = mv.skin_texture((400, 480), rng, contrast=15)
+    shifts = np.array([[0.0, 0.0], [6.0, -3.0], [-5.0, 8.0], [9.0, 2.0]])
+    pos = np.cumsum(shifts, axis=0)
+    base = np.array([[120.0, 100.0], [160.0, 130.0], [200.0, 90.0]])
+    frames = []
+    for p in pos:
+        ox, oy = 80 - int(round(p[0])), 80 - int(round(p[1]))
+        bg = tex[oy:oy + 240, ox:ox + 320]
+        frames.append(_dots((240, 320), base + np.round(p), bg))
+    frames = np.stack(frames)
+    before = frames.copy()
+    tr = tm.track_markers(frames, base)
+    assert np.abs(tr.shift[1:] - shifts[1:]).max() < 0.1
+    assert np.abs(tr.xy - (base + np.round(pos)[:, None])).max() < 0.3
+    assert np.array_equal(frames, before)
+
+
+def test_blurred_frame_detected_and_tracks_survive():
+    rng = np.random.default_rng(5)
+    seq = _clip(sf.face_sequence(sf.face_model(), 150, rng), 20)
+    cap = ef.observe_tracked(seq, np.random.default_rng(6), cameras=[1, 2],
+                             blur_frames=[10])
+    st = cap.status[0]
+    assert (st[10] == tm.BLURRED).all()
+    assert (st[[f for f in range(1, 20) if f != 10]] != tm.BLURRED).all()
+    tracked = np.isin(st, (tm.TRACKED, tm.SECOND_SEARCH)).sum(axis=1)
+    assert tracked[11] >= tracked[9] - 3
+    e = np.linalg.norm(cap.tracked_xy[0, 11] - cap.truth_xy[0, 11], axis=1)
+    assert np.nanmedian(e[~cap.crowded[0, 11]]) < 0.3
+    # without the retry the blurred frame is tracked and markers are lost in it
+    video = mv.render_marker_video(
+        [sf.face_cameras(seq.t[f])[1] for f in range(20)], seq.world,
+        np.ones((20, seq.world.shape[1]), bool), seq.t, np.random.default_rng(7),
+        blur_frames=[10], blur_length=15)
+    start = video.xy[0]
+    a = tm.track_markers(video.images, start)
+    b = tm.track_markers(video.images, start, blur_retry=0)
+    assert a.blurred[10] and not b.blurred.any()
+    assert np.isfinite(a.xy[-1]).all(axis=1).sum() > np.isfinite(b.xy[-1]).all(axis=1).sum()
+
+
+def test_second_search_rescues_fast_marker():
+    rng = np.random.default_rng(8)
+    bg = mv.skin_texture((120, 400), rng, contrast=3)
+    steps = np.arange(1, 13) * 2.5                   # accelerating: 2.5 .. 30 px/frame
+    x = 20 + np.concatenate([[0.0], np.cumsum(steps)])
+    truth = np.stack([x, np.full_like(x, 60.0)], axis=1)
+    frames = np.stack([_dots(bg.shape, [p], bg) for p in truth])
+    kw = dict(window=7, levels=1, stabilise=False)
+    plain = tm.track_markers(frames, truth[:1], second_search=False, **kw)
+    both = tm.track_markers(frames, truth[:1], **kw)
+    assert (plain.status[:, 0] == tm.LOST).any()
+    assert (both.status[:, 0] == tm.SECOND_SEARCH).any()
+    assert not (both.status[:, 0] == tm.LOST).any()
+    assert np.abs(both.xy[:, 0] - truth).max() < 0.3
+
+
+def test_bad_input():
+    img = np.zeros((3, 40, 40), np.uint8)
+    with pytest.raises(ValueError, match="images"):
+        tm.track_markers(img[0], [[10.0, 10.0]])
+    with pytest.raises(TypeError, match="images"):
+        tm.track_markers(np.full((2, 20, 20), "a"), [[10.0, 10.0]])
+    with pytest.raises(ValueError, match="initial_xy"):
+        tm.track_markers(img, [10.0, 10.0])
+    with pytest.raises(ValueError, match="initial_xy"):
+        tm.track_markers(img, [[np.inf, 10.0]])
+    with pytest.raises(ValueError, match="window"):
+        tm.track_markers(img, [[10.0, 10.0]], window=8)
+    with pytest.raises(ValueError, match="seeds"):
+        tm.track_markers(img, [[10.0, 10.0]], seeds=np.zeros((2, 1, 2)))
+    with pytest.raises(ValueError, match="visible"):
+        cam = sf.face_cameras([0.0, 0.0, 1650.0])[0]
+        mv.render_marker_video([cam], np.zeros((1, 2, 3)), np.ones((1, 3), bool),
+                               np.zeros((1, 3)), np.random.default_rng(0))
+    start = np.array([[10.0, 10.0]])
+    tm.track_markers(img, start)
+    assert start.tolist() == [[10.0, 10.0]]

@@ -137,3 +137,52 @@ def test_retry_sequence_of_patch_sizes(pair):
     assert np.median(err) < 0.1
     with pytest.raises(ValueError, match="patch"):
         grow_matches(pair.template, pair.search, seeds, seeds, retry_patch=(9, 4))
+
+
+def _occlusion_pair(rng):
+    """Background moving 3 px, a foreground (x >= 100 in the template) moving 9 px over it."""
+    from scipy import ndimage
+
+    def texture():
+        t = ndimage.gaussian_filter(rng.normal(0, 1, (120, 220)), 1.5)
+        return 128 + 40 * t / t.std()
+
+    back, fore = texture(), texture()
+    template = np.where(np.arange(220) >= 100, fore, back)
+    xx = np.arange(220)
+    search = np.where(xx >= 109, np.roll(fore, 9, axis=1), np.roll(back, 3, axis=1))
+    noise = rng.normal(0, 1.0, (2, 120, 220))
+    return template + noise[0], search + noise[1]
+
+
+def test_shifted_windows_match_next_to_an_occlusion_border():
+    template, search = _occlusion_pair(np.random.default_rng(3))
+    seeds = np.array([[60.0, 60.0], [150.0, 60.0]])
+    approx = seeds + [[3.0, 0.0], [9.0, 0.0]]
+    th = LSMThresholds(max_sigma0=3.0, max_displacement=4.0)
+    near = {}
+    for shift in (0, 3):
+        res = grow_matches(template, search, seeds, approx, step=2, patch=7, thresholds=th,
+                           shift=shift)
+        x = res.template_xy[:, 0]
+        truth = res.template_xy + np.where(x >= 100, 9.0, 3.0)[:, None] * [1.0, 0.0]
+        err = np.linalg.norm(res.search_xy - truth, axis=1)
+        assert np.percentile(err, 99) < 0.3, (shift, np.sort(err)[-5:])
+        near[shift] = int((np.abs(x - 99.5) < 4).sum())
+    # within 3.5 px of the border a centred 7 x 7 window always straddles it
+    assert near[0] < near[3]
+
+
+def test_median_neighbourhood_filter(pair):
+    seeds = np.array([[80.0, 80.0]])
+    res = grow_matches(pair.template, pair.search, seeds, pair.true_xy(seeds))
+    bad = res.search_xy.copy()
+    k = len(res) // 2
+    bad[k] += [1.5, -1.0]
+    from dataclasses import replace
+    check = neighbourhood_filter(replace(res, search_xy=bad), statistic="median")
+    assert not check.keep[k] and check.keep.mean() > 0.97
+    with pytest.raises(ValueError, match="statistic"):
+        neighbourhood_filter(res, statistic="mode")
+    with pytest.raises(ValueError, match="shift"):
+        grow_matches(pair.template, pair.search, seeds, pair.true_xy(seeds), shift=-1)

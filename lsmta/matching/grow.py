@@ -95,7 +95,8 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
                  patch: int = 13, retry_patch: int | None = None,
                  thresholds: LSMThresholds | None = None, mask=None,
                  geometry: str = "affine", radiometry: str = "linear", max_attempts: int = 3,
-                 min_texture: float = 2.0, close_holes: bool = True) -> GrowResult:
+                 min_texture: float = 2.0, close_holes: bool = True,
+                 shift: int = 0) -> GrowResult:
     """Grow dense matches between two images from a few seed correspondences.
 
     Parameters
@@ -127,6 +128,13 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         skipped (no texture to match).
     close_holes : bool
         After growing inside the cells, grow into the remaining nodes from every side.
+    shift : int
+        If positive, a node that failed every patch size is tried once more with the
+        ``patch`` window moved by ``shift`` pixels in each of the 8 grid directions, so
+        that the window can lie on one side of an occlusion border; the node's match is
+        then the shifted match carried back by its affine matrix,
+        ``search = search_shifted - A (shift offset)``, from the passing window with the
+        smallest ``sigma0``. 0 (default) turns this off.
 
     Returns
     -------
@@ -139,6 +147,10 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
     if isinstance(step, bool) or int(step) != step or step < 1:
         raise ValueError(f"step: expected a positive integer (pixels), got {step}")
     step = int(step)
+    if isinstance(shift, bool) or int(shift) != shift or shift < 0:
+        raise ValueError(f"shift: expected a non-negative integer (pixels), got {shift}")
+    offsets = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)
+                        if dx or dy], dtype=float) * int(shift)
     f_img = template if isinstance(template, SplineImage) else SplineImage(template, "template")
     g_img = search if isinstance(search, SplineImage) else SplineImage(search, "search")
     seeds_t = as_array(seeds_template, "seeds_template", shape=(None, 2))
@@ -210,6 +222,25 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
             ok[take] = True
             xy[take], A[take] = res2.xy[ok2], res2.A[ok2]
             s0[take], sxy[take] = res2.sigma0[ok2], res2.sigma_xy[ok2]
+        again = np.flatnonzero(~ok)
+        if shift and again.size:
+            # every failed node in every shifted window, in one call
+            n_a, n_o = again.size, len(offsets)
+            A0a = np.repeat(A0[again], n_o, axis=0)
+            o = np.tile(offsets, (n_a, 1))
+            res3 = lsm(f_img, g_img, np.repeat(t_xy[again], n_o, axis=0) + o,
+                       np.repeat(approx[again], n_o, axis=0) + np.einsum("nij,nj->ni", A0a, o),
+                       patch=patch, initial_A=A0a, geometry=geometry, radiometry=radiometry,
+                       thresholds=thresholds)
+            n_lsm += n_a * n_o
+            passed = (res3.status == Status.CONVERGED).reshape(n_a, n_o)
+            node_xy = (res3.xy - np.einsum("nij,nj->ni", res3.A, o)).reshape(n_a, n_o, 2)
+            best = np.argmin(np.where(passed, res3.sigma0.reshape(n_a, n_o), np.inf), axis=1)
+            ok3 = passed[np.arange(n_a), best]
+            take, pick = again[ok3], (np.arange(n_a) * n_o + best)[ok3]
+            ok[take] = True
+            xy[take] = node_xy.reshape(-1, 2)[pick]
+            A[take], s0[take], sxy[take] = res3.A[pick], res3.sigma0[pick], res3.sigma_xy[pick]
         return ok, xy, A, s0, sxy
 
     def store(node_rc, ok, xy, A, s0, sxy, w, hole):

@@ -80,7 +80,8 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
                     patch: int = 13, thresholds: LSMThresholds | None = None, mask=None,
                     enhance: bool = False, neighbourhood: bool = True,
                     max_position: float = 0.5, max_affine: float = 0.1,
-                    voxel: float | None = None, **grow_kwargs) -> SurfaceResult:
+                    neighbourhood_statistic: str = "mean", voxel: float | None = None,
+                    **grow_kwargs) -> SurfaceResult:
     """Dense surface points from K >= 2 images of one frame.
 
     Parameters
@@ -97,7 +98,9 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
     enhance : bool
         Match on contrast-enhanced images (:func:`enhance_contrast`).
     neighbourhood : bool
-        Apply the neighbourhood filter (``max_position`` px, ``max_affine``).
+        Apply the neighbourhood filter (``max_position`` px, ``max_affine``, combining
+        the neighbours by ``neighbourhood_statistic``, "mean" or "median"; see
+        :func:`~lsmta.matching.filters.neighbourhood_filter`).
     voxel : float, optional
         Voxel size in mm for the final thinning; None keeps every filtered point.
     """
@@ -146,7 +149,8 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
         xy[k] = g.search_xy[p]
         sig[k] = g.sigma_xy[p]
         if neighbourhood:
-            check = neighbourhood_filter(g, max_position=max_position, max_affine=max_affine)
+            check = neighbourhood_filter(g, max_position=max_position, max_affine=max_affine,
+                                         statistic=neighbourhood_statistic)
             bad = np.flatnonzero(~check.keep[p] & np.isfinite(check.predicted_xy[p]).all(axis=1))
             pass_k = check.keep[p].copy()
             if bad.size:

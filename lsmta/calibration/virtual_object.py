@@ -1,0 +1,121 @@
+"""The virtual calibration object (Chen & Davis; Davis 2002, §3.2, Fig. 25).
+
+One LED is carried through the room and seen by many cameras, not all of them seeing the
+same part of its path. From a poor initial guess of the cameras, Davis *alternates*:
+triangulate the path with the current cameras, then re-solve every camera from the path
+(space resection; here a least-squares resection of the exterior orientation and the
+free interior parameters, :func:`~lsmta.calibration.bundle.bundle_adjust` with the points
+held), and repeat. The alternative is the *joint* bundle adjustment of cameras and path
+from the same guess (:func:`~lsmta.calibration.bundle.bundle_adjust`, one camera's
+exterior orientation and one coordinate of a second camera held as the datum).
+
+Both are scored after every iteration by the projection error on an independent path:
+the independent observations are triangulated with the current cameras and reprojected
+(RMS distance, px). This score does not depend on the datum, so the two methods, whose
+frames drift differently, are compared fairly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validate import as_array
+from ..triangulation import triangulate
+from .bundle import bundle_adjust, params_to_camera
+
+DAVIS_INTRINSICS = ("f", "cx", "cy", "k1", "k2")
+
+
+@dataclass(frozen=True, eq=False)
+class ConvergenceHistory:
+    """Cameras and scores after each iteration (index 0: the initial guess).
+
+    Attributes
+    ----------
+    cameras : list of lists of Camera
+    error : (n_iter + 1,) array
+        Projection error on the independent path (RMS distance, px) after each iteration.
+    fit_error : (n_iter + 1,) array
+        The same on the calibration path itself.
+    """
+
+    cameras: list
+    error: np.ndarray
+    fit_error: np.ndarray
+
+    def iterations_to(self, tolerance: float = 0.01) -> int:
+        """First iteration whose error is within ``tolerance`` (relative) of the final."""
+        final = self.error[-1]
+        return int(np.flatnonzero(self.error <= final * (1 + tolerance))[0])
+
+
+def projection_error(cameras, xy) -> float:
+    """RMS image distance (px) between observations ``xy`` ``(K, N, 2)`` and the
+    reprojection of the points triangulated from them with ``cameras``."""
+    xy = as_array(xy, "xy", shape=(len(cameras), None, 2), allow_nan=True)
+    inter = triangulate(cameras, xy, min_angle_deg=0.0)
+    return float(np.sqrt(np.nanmean(inter.reprojection_error ** 2)))
+
+
+def _history(cams_list, xy, xy_check):
+    err = np.array([projection_error(c, xy_check) if xy_check is not None else np.nan
+                    for c in cams_list])
+    fit = np.array([projection_error(c, xy) for c in cams_list])
+    return ConvergenceHistory(cams_list, err, fit)
+
+
+def alternate(cameras, xy, *, n_iter: int = 30, intrinsics=DAVIS_INTRINSICS,
+              xy_check=None, tol: float = 1e-6) -> ConvergenceHistory:
+    """Davis's alternation: triangulate the path, resect every camera, repeat.
+
+    Parameters
+    ----------
+    cameras : sequence of K Camera
+        The initial guess.
+    xy : (K, N, 2) array
+        Observations of the calibration path, px (NaN: not seen).
+    n_iter : int
+        Alternations (stops early when the fit error changes by less than ``tol``
+        relative).
+    intrinsics : sequence of str
+        Interior parameters re-solved with each camera's exterior orientation.
+    xy_check : (K, M, 2) array, optional
+        Independent path for the score.
+    """
+    cams = list(cameras)
+    xy = as_array(xy, "xy", shape=(len(cams), None, 2), allow_nan=True)
+    hist = [cams]
+    prev = projection_error(cams, xy)
+    for _ in range(int(n_iter)):
+        X = triangulate(cams, xy, min_angle_deg=0.0).points
+        new = []
+        for k, cam in enumerate(cams):
+            r = bundle_adjust([cam], xy[k:k + 1], X, intrinsics=intrinsics, fixed_exterior=(),
+                              fix_points=True, covariance=False)
+            new.append(r.cameras[0])
+        cams = new
+        hist.append(cams)
+        cur = projection_error(cams, xy)
+        if abs(prev - cur) < tol * cur:
+            break
+        prev = cur
+    return _history(hist, xy, xy_check)
+
+
+def joint_adjustment(cameras, xy, *, n_iter: int = 30, intrinsics=DAVIS_INTRINSICS,
+                     xy_check=None) -> ConvergenceHistory:
+    """Joint bundle adjustment of cameras and path from the same guess, scored after every
+    solver iteration (``least_squares`` callback)."""
+    cams = list(cameras)
+    xy = as_array(xy, "xy", shape=(len(cams), None, 2), allow_nan=True)
+    X0 = triangulate(cams, xy, min_angle_deg=0.0).points
+    far = int(np.argmax([np.linalg.norm(c.C - cams[0].C) for c in cams]))
+    r = bundle_adjust(cams, xy, X0, intrinsics=intrinsics, fixed_exterior=(0,),
+                      scale_camera=far, max_nfev=int(n_iter) + 1, covariance=False)
+    hist = [cams]
+    for p in r.history:
+        p = p.reshape(len(cams), 16)
+        hist.append([params_to_camera(p[k], cams[k]) for k in range(len(cams))])
+    return _history(hist, xy, xy_check)

@@ -38,8 +38,11 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import least_squares
-from scipy.sparse import coo_matrix
+from scipy.optimize._numdiff import approx_derivative, group_columns
+from scipy.sparse import coo_matrix, csc_matrix, diags
+from scipy.sparse.linalg import splu
 from scipy.spatial.transform import Rotation
 
 from .._validate import as_array, as_scalar
@@ -137,8 +140,10 @@ class BundleResult:
         ``n`` (image coordinates + bar lengths) and ``p`` (free parameters) of the final
         adjustment; the redundancy is ``n - p``.
     noise_limit : float
-        ``sigma_px * sqrt(1 - p / n)``: the per-coordinate RMS residual expected when the
-        only error is image noise of ``sigma_px``.
+        ``sigma_px * sqrt(1 - p / n)`` over the n image coordinates: the per-coordinate RMS
+        residual expected when the only error is image noise of ``sigma_px``; ``p`` is the
+        sum of the image coordinates' leverages (``p`` minus the bar lengths for a bar much
+        more precise than the images; ``p`` without a bar).
     expected_rms_per_camera : (K,) array
         The same limit per camera from the leverages of its observations (``sigma_px *
         sqrt(mean(1 - h_ii))``), px.
@@ -415,13 +420,15 @@ def _solve(cameras, xy, X0, params0, free, use, bar, sigma_px, loss, f_scale, fi
     x0 = np.concatenate([params0[free], X0[pts_free].ravel()])
     history = []
 
-    def callback(intermediate_result):
+    def callback(intermediate_result):  # noqa: D401 - scipy's callback protocol
         history.append(unpack(intermediate_result.x)[0].ravel().copy())
 
-    sol = least_squares(fun, x0, jac_sparsity=sparsity, method="trf", x_scale="jac",
-                        loss=loss, f_scale=f_scale, max_nfev=max_nfev, ftol=ftol, xtol=xtol,
-                        gtol=1e-12, tr_solver="exact" if n_par < 400 else "lsmr",
-                        callback=callback)
+    if loss == "linear":
+        sol = _levenberg_marquardt(fun, x0, sparsity, max_nfev, ftol, xtol, callback)
+    else:
+        sol = least_squares(fun, x0, jac_sparsity=sparsity, method="trf", x_scale="jac",
+                            loss=loss, f_scale=f_scale, max_nfev=max_nfev, ftol=ftol,
+                            xtol=xtol, tr_solver="lsmr", callback=callback)
     params, X = unpack(sol.x)
     r = fun(sol.x)
     sigma0 = float(np.sqrt(np.sum(r**2) / (n_obs - n_par)))
@@ -432,20 +439,29 @@ def _solve(cameras, xy, X0, params0, free, use, bar, sigma_px, loss, f_scale, fi
     lev = np.full(2 * n_img, np.nan)
     if covariance:
         J = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
-        Ninv = np.linalg.pinv(J.T @ J, rcond=1e-14, hermitian=True)
+        Nmat = J.T @ J
+        try:
+            Ninv = cho_solve(cho_factor(Nmat), np.eye(len(Nmat)))
+        except np.linalg.LinAlgError:
+            Ninv = np.linalg.pinv(Nmat, rcond=1e-14, hermitian=True)
         cov = sigma0**2 * Ninv
         std = np.sqrt(np.clip(np.diag(cov), 0, None))
         sc = std[:n_cam]
         with np.errstate(invalid="ignore", divide="ignore"):
             corr = cov[:n_cam, :n_cam] / np.outer(sc, sc)
         Jimg = J[: 2 * n_img]
-        lev = np.einsum("ij,jk,ik->i", Jimg, Ninv, Jimg)
+        lev = ((Jimg @ Ninv) * Jimg).sum(axis=1)
     exp_cam = np.full(K, np.nan)
     lev2 = lev.reshape(-1, 2)
     for k in range(K):
         m = kk == k
         if m.any():
             exp_cam[k] = sigma_px * np.sqrt(np.mean(1 - lev2[m]))
+    # sigma sqrt(1 - p/n) over the image coordinates; with bar lengths, p counts the
+    # redundancy the image coordinates give up (sum of their leverages), which is p minus
+    # the number of bar lengths when the bar is much more precise than the images
+    p_img = np.nansum(lev) if covariance else n_par - n_bar
+    noise_limit = float(sigma_px * np.sqrt(1 - p_img / (2 * n_img)))
     point_std = np.full((N, 3), np.nan)
     point_std[pts_free] = std[n_cam:].reshape(-1, 3)
     X_out = X.copy()
@@ -458,8 +474,65 @@ def _solve(cameras, xy, X0, params0, free, use, bar, sigma_px, loss, f_scale, fi
         bar_res = d - bar.length
     return dict(params=params, points=X_out, res_img=res_img, sigma0=sigma0, n_obs=n_obs,
                 n_par=n_par, std=std, corr=corr, free=free, point_std=point_std,
-                exp_cam=exp_cam, bar_res=bar_res, nfev=int(sol.nfev), history=history,
+                exp_cam=exp_cam, noise_limit=noise_limit, bar_res=bar_res, nfev=int(sol.nfev), history=history,
                 X_internal=X)
+
+
+@dataclass
+class _Solution:
+    x: np.ndarray
+    jac: object
+    nfev: int
+
+
+def _levenberg_marquardt(fun, x0, sparsity, max_iter, ftol, xtol, callback):
+    """Levenberg-Marquardt on the sparse normal equations (SuperLU factorisation), with
+    the Jacobian by finite differences over the sparsity pattern (scipy's grouped
+    differences, as ``least_squares(jac_sparsity=...)`` uses)."""
+    groups = group_columns(sparsity)
+    x = x0.copy()
+    r = fun(x)
+    cost = r @ r
+    lam = 1e-3
+    max_iter = 100 if max_iter is None else int(max_iter)
+    nfev = 1
+    J = None
+    for _ in range(max_iter):
+        J = approx_derivative(fun, x, method="2-point", f0=r, sparsity=(sparsity, groups))
+        nfev += 1
+        J = csc_matrix(J)
+        N = (J.T @ J).tocsc()
+        g = J.T @ r
+        d = N.diagonal().copy()
+        d[d == 0] = 1.0
+        improved = False
+        for _ in range(12):
+            A = (N + diags(lam * d)).tocsc()
+            try:
+                dx = -splu(A).solve(g)
+            except RuntimeError:
+                lam *= 10
+                continue
+            r_new = fun(x + dx)
+            nfev += 1
+            c_new = r_new @ r_new
+            if np.isfinite(c_new) and c_new < cost:
+                improved = True
+                break
+            lam *= 10
+        if not improved:
+            break
+        rel = (cost - c_new) / cost
+        x = x + dx
+        r, cost = r_new, c_new
+        lam = max(lam / 10, 1e-12)
+        if callback is not None:
+            callback(_Solution(x, None, nfev))
+        if rel < ftol or np.linalg.norm(dx) < xtol * (xtol + np.linalg.norm(x)):
+            break
+    J = csc_matrix(approx_derivative(fun, x, method="2-point", f0=r,
+                                     sparsity=(sparsity, groups)))
+    return _Solution(x, J, nfev)
 
 
 def _result(cameras, out, rejected, n_nan, sigma_px, bar):
@@ -476,7 +549,7 @@ def _result(cameras, out, rejected, n_nan, sigma_px, bar):
         cameras=cams, points=out["points"], residuals=res, rms_per_camera=rms_cam, rms=rms,
         bar_residuals=out["bar_res"], sigma0=out["sigma0"], n_observations=out["n_obs"],
         n_unknowns=out["n_par"],
-        noise_limit=float(sigma_px * np.sqrt(1 - out["n_par"] / out["n_obs"])),
+        noise_limit=out["noise_limit"],
         expected_rms_per_camera=out["exp_cam"], parameter_names=names,
         parameter_values=params[free], parameter_std=out["std"][:n_cam],
         correlation=out["corr"], point_std=out["point_std"], rejected=rejected,

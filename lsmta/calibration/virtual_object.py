@@ -51,11 +51,25 @@ class ConvergenceHistory:
         return int(np.flatnonzero(self.error <= final * (1 + tolerance))[0])
 
 
+def _triangulate(cameras, xy):
+    """Forward intersection that leaves out a camera whose current lens model cannot be
+    inverted at its observations (a poor guess can fold the distortion polynomial)."""
+    xy = xy.copy()
+    for k, cam in enumerate(cameras):
+        seen = np.isfinite(xy[k]).all(axis=1)
+        try:
+            cam.rays(xy[k, seen])
+        except ValueError:
+            xy[k] = np.nan
+    return triangulate(cameras, xy, min_angle_deg=0.0)
+
+
 def projection_error(cameras, xy) -> float:
     """RMS image distance (px) between observations ``xy`` ``(K, N, 2)`` and the
-    reprojection of the points triangulated from them with ``cameras``."""
+    reprojection of the points triangulated from them with ``cameras`` (a camera whose lens
+    model folds over at its observations is left out of the intersection)."""
     xy = as_array(xy, "xy", shape=(len(cameras), None, 2), allow_nan=True)
-    inter = triangulate(cameras, xy, min_angle_deg=0.0)
+    inter = _triangulate(cameras, xy)
     return float(np.sqrt(np.nanmean(inter.reprojection_error ** 2)))
 
 
@@ -89,7 +103,7 @@ def alternate(cameras, xy, *, n_iter: int = 30, intrinsics=DAVIS_INTRINSICS,
     hist = [cams]
     prev = projection_error(cams, xy)
     for _ in range(int(n_iter)):
-        X = triangulate(cams, xy, min_angle_deg=0.0).points
+        X = _triangulate(cams, xy).points
         new = []
         for k, cam in enumerate(cams):
             r = bundle_adjust([cam], xy[k:k + 1], X, intrinsics=intrinsics, fixed_exterior=(),
@@ -110,7 +124,7 @@ def joint_adjustment(cameras, xy, *, n_iter: int = 30, intrinsics=DAVIS_INTRINSI
     solver iteration (``least_squares`` callback)."""
     cams = list(cameras)
     xy = as_array(xy, "xy", shape=(len(cams), None, 2), allow_nan=True)
-    X0 = triangulate(cams, xy, min_angle_deg=0.0).points
+    X0 = _triangulate(cams, xy).points
     far = int(np.argmax([np.linalg.norm(c.C - cams[0].C) for c in cams]))
     r = bundle_adjust(cams, xy, X0, intrinsics=intrinsics, fixed_exterior=(0,),
                       scale_camera=far, max_nfev=int(n_iter) + 1, covariance=False)

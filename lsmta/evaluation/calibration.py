@@ -141,7 +141,8 @@ def bar_trial(seed: int = 0, *, n_positions: int = 150, n_heldout: int = 40,
     rng = np.random.default_rng(seed)
     truth = triplet_rig(rng)
     track = bar_track(rng, n_positions, length=length)
-    heldout = bar_track(rng, n_heldout, length=length)
+    # held-out positions inside the calibrated volume (check points are not extrapolated)
+    heldout = bar_track(rng, n_heldout, length=length, half_size=(800.0, 560.0, 400.0))
     times = {}
     t0 = time.perf_counter()
     xy = _measure(truth, track, rng, mode, sigma_px)

@@ -62,7 +62,7 @@ def _walk(rng, n, center, half_size, step):
 
 
 def bar_track(rng, n: int = 150, *, length: float = 800.0, center=(0.0, 0.0, 950.0),
-              half_size=(1000.0, 700.0, 500.0), step: float = 70.0,
+              half_size=(1000.0, 700.0, 500.0), step: float = 150.0,
               max_azimuth_deg: float = 45.0, max_elevation_deg: float = 75.0) -> BarTrack:
     """A reference bar moved by hand through the triplet volume.
 

@@ -135,9 +135,11 @@ def test_virtual_object_alternation_and_joint_adjustment_converge():
     xy_c = project_observations(truth, check, rng, sigma_px=0.3)
     floor = projection_error(truth, xy_c)
     guess = poor_guess(truth, np.random.default_rng(0))
-    alt = alternate(guess, xy, n_iter=20, xy_check=xy_c)
-    jnt = joint_adjustment(guess, xy, n_iter=20, xy_check=xy_c)
-    assert alt.error[0] > 10 * floor
+    alt = alternate(guess, xy, n_iter=8, xy_check=xy_c)
+    jnt = joint_adjustment(guess, xy, n_iter=15, xy_check=xy_c)
+    assert alt.error[0] > 20 * floor
     assert jnt.error[-1] < 1.1 * floor
-    assert alt.error[-1] < 1.2 * floor
-    assert jnt.iterations_to(0.01) < alt.iterations_to(0.01)
+    # the alternation improves at every step but is still well above the floor after 8
+    assert np.all(np.diff(alt.error) < 0)
+    assert alt.error[-1] < alt.error[0] / 10
+    assert jnt.error[8] < alt.error[-1]

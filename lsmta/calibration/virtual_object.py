@@ -20,10 +20,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from .._validate import as_array
 from ..triangulation import triangulate
-from .bundle import bundle_adjust, params_to_camera
+from .bundle import (
+    INTRINSIC_NAMES,
+    bundle_adjust,
+    camera_to_params,
+    min_points_per_camera,
+    params_to_camera,
+    project_params,
+)
 
 DAVIS_INTRINSICS = ("f", "cx", "cy", "k1", "k2")
 
@@ -80,6 +88,49 @@ def _history(cams_list, xy, xy_check):
     return ConvergenceHistory(cams_list, err, fit)
 
 
+def resect(camera, X, xy, *, intrinsics=DAVIS_INTRINSICS):
+    """Least-squares space resection: the exterior orientation and the free interior
+    parameters of one camera from known points.
+
+    Parameters
+    ----------
+    camera : Camera
+        Approximation.
+    X : (N, 3) array
+        Points, mm (NaN rows are left out).
+    xy : (N, 2) array
+        Their image coordinates, px (NaN rows are left out).
+    intrinsics : sequence of str
+        Free interior parameters (:data:`~lsmta.calibration.bundle.INTRINSIC_NAMES`).
+
+    Returns
+    -------
+    Camera
+        Unchanged when fewer than ``min_points_per_camera`` points are usable.
+    """
+    X = as_array(X, "X", shape=(None, 3), allow_nan=True)
+    xy = as_array(xy, "xy", shape=(len(X), 2), allow_nan=True)
+    ok = np.isfinite(X).all(axis=1) & np.isfinite(xy).all(axis=1)
+    free = np.zeros(16, bool)
+    free[:6] = True
+    for name in intrinsics:
+        free[6 + INTRINSIC_NAMES.index(name)] = True
+    if ok.sum() < min_points_per_camera(int(free.sum())):
+        return camera
+    p0 = camera_to_params(camera)
+    Xo, obs = X[ok], xy[ok]
+
+    def fun(x):
+        p = p0.copy()
+        p[free] = x
+        return (project_params(np.tile(p, (len(Xo), 1)), Xo) - obs).ravel()
+
+    sol = least_squares(fun, p0[free], method="lm", x_scale="jac")
+    p = p0.copy()
+    p[free] = sol.x
+    return params_to_camera(p, camera)
+
+
 def alternate(cameras, xy, *, n_iter: int = 30, intrinsics=DAVIS_INTRINSICS,
               xy_check=None, tol: float = 1e-6) -> ConvergenceHistory:
     """Davis's alternation: triangulate the path, resect every camera, repeat.
@@ -104,12 +155,7 @@ def alternate(cameras, xy, *, n_iter: int = 30, intrinsics=DAVIS_INTRINSICS,
     prev = projection_error(cams, xy)
     for _ in range(int(n_iter)):
         X = _triangulate(cams, xy).points
-        new = []
-        for k, cam in enumerate(cams):
-            r = bundle_adjust([cam], xy[k:k + 1], X, intrinsics=intrinsics, fixed_exterior=(),
-                              fix_points=True, covariance=False)
-            new.append(r.cameras[0])
-        cams = new
+        cams = [resect(cam, X, xy[k], intrinsics=intrinsics) for k, cam in enumerate(cams)]
         hist.append(cams)
         cur = projection_error(cams, xy)
         if abs(prev - cur) < tol * cur:

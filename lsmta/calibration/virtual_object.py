@@ -106,7 +106,8 @@ def resect(camera, X, xy, *, intrinsics=DAVIS_INTRINSICS):
     Returns
     -------
     Camera
-        Unchanged when fewer than ``min_points_per_camera`` points are usable.
+        Unchanged when fewer than ``min_points_per_camera`` points are usable, or when the
+        solution leaves the valid camera model (f <= 0).
     """
     X = as_array(X, "X", shape=(None, 3), allow_nan=True)
     xy = as_array(xy, "xy", shape=(len(X), 2), allow_nan=True)
@@ -128,7 +129,10 @@ def resect(camera, X, xy, *, intrinsics=DAVIS_INTRINSICS):
     sol = least_squares(fun, p0[free], method="lm", x_scale="jac")
     p = p0.copy()
     p[free] = sol.x
-    return params_to_camera(p, camera)
+    try:
+        return params_to_camera(p, camera)
+    except ValueError:          # left the valid model (f <= 0, b1 <= -1): keep the old one
+        return camera
 
 
 def alternate(cameras, xy, *, n_iter: int = 30, intrinsics=DAVIS_INTRINSICS,

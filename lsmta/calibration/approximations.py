@@ -15,7 +15,6 @@ import cv2
 import numpy as np
 
 from .._validate import as_array
-from ..camera import Camera
 from ..triangulation import triangulate
 from .bundle import Bar
 

@@ -474,7 +474,8 @@ def _solve(cameras, xy, X0, params0, free, use, bar, sigma_px, loss, f_scale, fi
         bar_res = d - bar.length
     return dict(params=params, points=X_out, res_img=res_img, sigma0=sigma0, n_obs=n_obs,
                 n_par=n_par, std=std, corr=corr, free=free, point_std=point_std,
-                exp_cam=exp_cam, noise_limit=noise_limit, bar_res=bar_res, nfev=int(sol.nfev), history=history,
+                exp_cam=exp_cam, noise_limit=noise_limit, bar_res=bar_res, nfev=int(sol.nfev),
+                history=history,
                 X_internal=X)
 
 

@@ -12,6 +12,7 @@ positions. :func:`ring_trial` is Davis's virtual calibration object on the ceili
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -81,7 +82,8 @@ class BarTrial:
         Image noise: the simulated sigma (projected) or the measured targets' RMS error
         against the truth (images).
     ours, peer : BundleResult
-        Joint bar adjustment; adjustment without the bar (its cameras already rescaled).
+        Joint bar adjustment; adjustment without the bar (its cameras and points already
+        rescaled; no standard deviations). ``peer`` and its errors are None without it.
     peer_scale : float
         Factor applied to the peer afterwards (known length / median adjusted length).
     bar_error, peer_bar_error : (T_h,) arrays
@@ -123,7 +125,7 @@ def _measure(cameras, track, rng, mode, sigma_px):
 def bar_trial(seed: int = 0, *, n_positions: int = 150, n_heldout: int = 40,
               mode: str = "images", sigma_px: float = 0.05, length: float = 800.0,
               intrinsics=DEFAULT_INTRINSICS, bar_sigma: float = 0.01,
-              reject_k: float | None = None) -> BarTrial:
+              reject_k: float | None = None, with_peer: bool = True) -> BarTrial:
     """Calibrate the (perturbed) triplet from a reference bar; see the module docstring.
 
     Parameters
@@ -135,6 +137,8 @@ def bar_trial(seed: int = 0, *, n_positions: int = 150, n_heldout: int = 40,
         project the targets and add Gaussian noise of ``sigma_px``.
     intrinsics : sequence of str
         Free interior/additional parameters (both adjustments).
+    with_peer : bool
+        Also run the peer (otherwise its fields are None).
     """
     if mode not in ("images", "projected"):
         raise ValueError(f"mode: expected 'images' or 'projected', got {mode!r}")
@@ -161,23 +165,26 @@ def bar_trial(seed: int = 0, *, n_positions: int = 150, n_heldout: int = 40,
     ours = bundle_adjust(cams0, xy, X0, intrinsics=intrinsics, bar=bar, sigma_px=sigma_px,
                          reject_k=reject_k)
     times["ours"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    peer = bundle_adjust(cams0, xy, X0, intrinsics=intrinsics, scale_camera=2,
-                         sigma_px=sigma_px, reject_k=reject_k)
-    d = np.linalg.norm(peer.points[pairs[:, 0]] - peer.points[pairs[:, 1]], axis=1)
-    scale = float(length / np.nanmedian(d))
-    pc, pX = scaled(peer.cameras, peer.points, scale)
-    import dataclasses
-    peer = dataclasses.replace(peer, cameras=pc, points=pX)
-    times["peer"] = time.perf_counter() - t0
     X_h = heldout.points.reshape(-1, 3)
+    peer = scale = peer_bar = peer_check = None
+    if with_peer:
+        t0 = time.perf_counter()
+        peer = bundle_adjust(cams0, xy, X0, intrinsics=intrinsics, scale_camera=2,
+                             sigma_px=sigma_px, reject_k=reject_k, covariance=False)
+        d = np.linalg.norm(peer.points[pairs[:, 0]] - peer.points[pairs[:, 1]], axis=1)
+        scale = float(length / np.nanmedian(d))
+        pc, pX = scaled(peer.cameras, peer.points, scale)
+        peer = dataclasses.replace(peer, cameras=pc, points=pX)
+        times["peer"] = time.perf_counter() - t0
+        peer_bar = heldout_bar_errors(pc, xy_h, length)
+        peer_check = check_point_errors(pc, xy_h, X_h)
     return BarTrial(
         truth=truth, track=track, heldout=heldout, xy=xy, xy_heldout=xy_h, xy_true=xy_true,
         sigma_px=sigma_px, ours=ours, peer=peer, peer_scale=scale,
         bar_error=heldout_bar_errors(ours.cameras, xy_h, length),
-        peer_bar_error=heldout_bar_errors(pc, xy_h, length),
+        peer_bar_error=peer_bar,
         check_error=check_point_errors(ours.cameras, xy_h, X_h),
-        peer_check_error=check_point_errors(pc, xy_h, X_h), times=times)
+        peer_check_error=peer_check, times=times)
 
 
 def parameter_table(trial: BarTrial, names=("f", "cx", "cy", "k1", "k2", "k3", "p1", "p2",

@@ -1,7 +1,7 @@
 """Measuring and tracking the bright targets of a reference bar in image sequences.
 
 Each frame is thresholded at ``background + k * noise`` (median and MAD of the image),
-bright connected regions (OpenCV ``connectedComponentsWithStats``) give a grey-value
+bright connected regions (:func:`scipy.ndimage.label`) give a grey-value
 weighted centroid, and the centroid is refined by fitting a 2-D Gaussian blob with a
 constant background (five parameters: centre, width, amplitude, background) to the
 pixels around it by Gauss-Newton, vectorised over all blobs of the sequence. Targets are
@@ -14,8 +14,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
+from scipy import ndimage
 from scipy.optimize import linear_sum_assignment
 
 from .._validate import as_scalar
@@ -125,16 +125,18 @@ def detect_blobs(image, *, k: float = 8.0, min_area: int = 3, max_area: int = 40
     med = float(np.median(f[::4, ::4]))
     mad = float(np.median(np.abs(f[::4, ::4] - med))) * 1.4826
     thr = med + k * max(mad, 0.5)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats((f > thr).astype(np.uint8), 8)
+    labels, n = ndimage.label(f > thr, structure=np.ones((3, 3), bool))
     H, W = f.shape
     cents = []
-    for lab in range(1, n):
-        x, y, w, h, area = stats[lab]
+    for lab, sl in enumerate(ndimage.find_objects(labels), start=1):
+        if sl is None:
+            continue
+        region = labels[sl] == lab
+        area = int(region.sum())
         if not min_area <= area <= max_area:
             continue
-        sub = f[y:y + h, x:x + w] - med
-        wgt = np.where(labels[y:y + h, x:x + w] == lab, np.clip(sub, 0, None), 0.0)
-        yy, xx = np.mgrid[y:y + h, x:x + w]
+        wgt = np.where(region, np.clip(f[sl] - med, 0, None), 0.0)
+        yy, xx = np.mgrid[sl]
         s = wgt.sum()
         cents.append((float((wgt * xx).sum() / s), float((wgt * yy).sum() / s)))
     cents = np.array(cents, dtype=float).reshape(-1, 2)
@@ -153,7 +155,7 @@ def detect_blobs(image, *, k: float = 8.0, min_area: int = 3, max_area: int = 40
     return Blobs(xy, cents, s, a, ok)
 
 
-def track_targets(images, n_targets: int = 2, *, gate: float = 40.0, **detect) -> TargetTracks:
+def track_targets(images, n_targets: int = 2, *, gate: float = 100.0, **detect) -> TargetTracks:
     """Measure ``n_targets`` bright targets in every frame and track them.
 
     Parameters

@@ -146,3 +146,16 @@ def test_virtual_object_alternation_and_joint_adjustment_converge():
     assert np.all(np.diff(alt.error) < 0)
     assert alt.error[-1] < alt.error[0] / 10
     assert jnt.error[8] < alt.error[-1]
+
+
+def test_robust_loss_downweights_an_outlier():
+    rng, truth, track, xy, bar = _bar_data(7, 30, 0.05)
+    xy = xy.copy()
+    xy[0, 5] += [10.0, 10.0]
+    cams0, X0 = relative_orientation_start(triplet_rig(None), xy, bar=bar, pair=(0, 2))
+    res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05, loss="cauchy", f_scale=3.0,
+                        covariance=False, intrinsics=("f", "cx", "cy", "k1", "k2", "k3"))
+    # the outlier keeps (nearly) its full error; the others stay at the noise level
+    assert np.linalg.norm(res.residuals[0, 5]) > 10.0
+    others = np.delete(res.residuals.reshape(-1, 2), 5, axis=0)
+    assert np.sqrt(np.nanmean(others**2)) < 0.06

@@ -25,10 +25,13 @@ names a second camera one of whose centre coordinates (the one along the largest
 component) is held too. Either way the datum is minimal: exactly the seven degrees of
 freedom of a similarity are fixed, so the network is not distorted by the datum.
 
-The solver is :func:`scipy.optimize.least_squares` (trust-region reflective) with the
-Jacobian's sparsity pattern (``jac_sparsity``): every image coordinate depends on one
-camera and one point only, so finite differences need a few dozen evaluations per
-Jacobian instead of one per unknown. Standard deviations and correlations come from the
+The solver is Levenberg-Marquardt on the sparse normal equations (SuperLU); the Jacobian
+comes from SciPy's finite differences over its sparsity pattern (the ``jac_sparsity``
+machinery of :func:`scipy.optimize.least_squares`): every image coordinate depends on one
+camera and one point only, so a Jacobian costs a few dozen residual evaluations instead
+of one per unknown. (``least_squares`` itself, trust-region reflective with LSMR, needed
+far more iterations on these ill-conditioned networks.) Robust losses by iteratively
+reweighted least squares. Standard deviations and correlations come from the
 final Jacobian: ``Cov = s0^2 (J^T J)^-1``.
 """
 
@@ -39,7 +42,6 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
-from scipy.optimize import least_squares
 from scipy.optimize._numdiff import approx_derivative, group_columns
 from scipy.sparse import coo_matrix, csc_matrix, diags
 from scipy.sparse.linalg import splu
@@ -252,7 +254,10 @@ def bundle_adjust(cameras, xy, points, *, intrinsics=DEFAULT_INTRINSICS, fixed_e
     sigma_px : float
         Standard deviation of an image coordinate, px (weights, and the noise limit).
     loss, f_scale : str, float
-        Robust loss of :func:`scipy.optimize.least_squares` on the standardised residuals.
+        Robust loss on the standardised residuals (the losses of
+        :func:`scipy.optimize.least_squares`: "huber", "soft_l1", "cauchy", "arctan"),
+        applied by iteratively reweighted least squares; ``f_scale`` is the residual (in
+        units of ``sigma_px``) where the loss starts to bend.
     reject_k : float, optional
         After the adjustment, reject observations whose residual vector is longer than
         ``reject_k * s0 * sigma_px * sqrt(2)`` and adjust again (once).
@@ -423,12 +428,18 @@ def _solve(cameras, xy, X0, params0, free, use, bar, sigma_px, loss, f_scale, fi
     def callback(intermediate_result):  # noqa: D401 - scipy's callback protocol
         history.append(unpack(intermediate_result.x)[0].ravel().copy())
 
-    if loss == "linear":
-        sol = _levenberg_marquardt(fun, x0, sparsity, max_nfev, ftol, xtol, callback)
-    else:
-        sol = least_squares(fun, x0, jac_sparsity=sparsity, method="trf", x_scale="jac",
-                            loss=loss, f_scale=f_scale, max_nfev=max_nfev, ftol=ftol,
-                            xtol=xtol, tr_solver="lsmr", callback=callback)
+    sol = _levenberg_marquardt(fun, x0, sparsity, max_nfev, ftol, xtol, callback)
+    if loss != "linear":
+        # iteratively reweighted least squares with scipy's loss functions: weights
+        # sqrt(rho'(z)), z = (r / f_scale)^2, from the previous solution
+        for _ in range(5):
+            z = (fun(sol.x) / f_scale) ** 2
+            w = np.sqrt(_LOSS_DERIVATIVE[loss](z))
+            x_prev = sol.x
+            sol = _levenberg_marquardt(lambda x, w=w: fun(x) * w, sol.x, sparsity, 20,
+                                       max(ftol, 1e-7), xtol, callback)
+            if np.linalg.norm(sol.x - x_prev) < 1e-8 * (1 + np.linalg.norm(x_prev)):
+                break
     params, X = unpack(sol.x)
     r = fun(sol.x)
     sigma0 = float(np.sqrt(np.sum(r**2) / (n_obs - n_par)))
@@ -477,6 +488,14 @@ def _solve(cameras, xy, X0, params0, free, use, bar, sigma_px, loss, f_scale, fi
                 exp_cam=exp_cam, noise_limit=noise_limit, bar_res=bar_res, nfev=int(sol.nfev),
                 history=history,
                 X_internal=X)
+
+
+_LOSS_DERIVATIVE = {
+    "huber": lambda z: np.where(z <= 1, 1.0, 1 / np.sqrt(np.maximum(z, 1e-300))),
+    "soft_l1": lambda z: 1 / np.sqrt(1 + z),
+    "cauchy": lambda z: 1 / (1 + z),
+    "arctan": lambda z: 1 / (1 + z**2),
+}
 
 
 @dataclass

@@ -14,10 +14,18 @@ from .bundle import (
     project_params,
 )
 from .targets import Blobs, TargetTracks, detect_blobs, track_targets
+from .virtual_object import (
+    ConvergenceHistory,
+    alternate,
+    joint_adjustment,
+    projection_error,
+    resect,
+)
 
 __all__ = [
     "DEFAULT_INTRINSICS", "INTRINSIC_NAMES", "PARAMETER_NAMES", "Bar", "Blobs",
-    "BundleResult", "TargetTracks", "bundle_adjust", "camera_to_params", "detect_blobs",
-    "params_to_camera", "project_params", "relative_orientation_start", "scaled",
+    "BundleResult", "ConvergenceHistory", "TargetTracks", "alternate", "bundle_adjust",
+    "camera_to_params", "detect_blobs", "joint_adjustment", "params_to_camera",
+    "project_params", "projection_error", "relative_orientation_start", "resect", "scaled",
     "track_targets",
 ]

@@ -6,8 +6,10 @@ and Davis's alternation run long against the joint adjustment.
 
 Reference bar (projected targets with Gaussian noise of 0.01 px, as measured in the
 rendered images of notebook 01): per seed, the image RMS residual against sigma*sqrt(1-p/n),
-held-out bar length error and 3-D check-point error for ours and the peer, their ratios
-peer / ours, and the wall times with the ratio peer / ours. Virtual calibration object:
+held-out bar length error and 3-D check-point error for ours, the no-bar-then-rescale peer
+and (if installed) aniposelib's ``CameraGroup.bundle_adjust_iter`` from the same
+approximations, their ratios peer / ours, and the wall times with the ratios peer / ours.
+``--alternations 0`` skips the virtual calibration object. Virtual calibration object:
 per seed of the initial guess, the alternation run for ``--alternations`` iterations and
 the joint adjustment, the final projection errors on the independent path, the iterations
 each needs to come within 1 % of its own final value, and whether the two agree within 1 %.
@@ -20,7 +22,9 @@ import argparse
 
 import numpy as np
 
-from lsmta.evaluation.calibration import bar_trial, ring_trial
+from lsmta.calibration import Bar, relative_orientation_start
+from lsmta.evaluation.calibration import aniposelib_peer, bar_trial, ring_trial
+from lsmta.synth.rigs import triplet_rig
 from lsmta.report import write_json
 
 
@@ -47,9 +51,23 @@ def main(argv=None):
         row["bar_ratio_peer_over_ours"] = row["peer_bar_rms_mm"] / row["bar_rms_mm"]
         row["check_ratio_peer_over_ours"] = row["peer_check_rms_mm"] / row["check_rms_mm"]
         row["time_ratio_peer_over_ours"] = row["time_peer_s"] / row["time_ours_s"]
+        try:
+            bar_ = Bar(np.arange(t.xy.shape[1]).reshape(-1, 2), t.track.length)
+            c0, _ = relative_orientation_start(triplet_rig(None), t.xy, bar=bar_, pair=(0, 2))
+            _, be, ce, sec = aniposelib_peer(t, c0)
+            row.update(aniposelib_bar_rms_mm=rms(be), aniposelib_check_rms_mm=rms(ce),
+                       time_aniposelib_s=sec,
+                       bar_ratio_aniposelib_over_ours=rms(be) / row["bar_rms_mm"],
+                       check_ratio_aniposelib_over_ours=rms(ce) / row["check_rms_mm"],
+                       time_ratio_aniposelib_over_ours=sec / row["time_ours_s"])
+        except ImportError as err:
+            print(f"aniposelib peer skipped: {err}")
         bar.append(row)
         print(row)
 
+    if args.alternations == 0:
+        write_json(args.out, dict(bar=bar))
+        return
     ring = ring_trial(tuple(range(args.seeds)), n_cameras=8, n_path=150, n_check=80,
                       n_alternation=args.alternations, n_joint=30)
     virt = []

@@ -254,5 +254,50 @@ def ring_trial(seeds=(0, 1, 2), *, n_cameras: int = 10, n_path: int = 300,
                      sigma_px)
 
 
-__all__ = ["BarTrial", "ConvergenceHistory", "RingTrial", "bar_observations", "bar_trial",
+__all__ = ["BarTrial", "ConvergenceHistory", "RingTrial", "aniposelib_peer", "bar_observations",
+           "bar_trial",
            "check_point_errors", "heldout_bar_errors", "parameter_table", "ring_trial"]
+
+
+def aniposelib_peer(trial: BarTrial, cameras0):
+    """aniposelib's ``CameraGroup.bundle_adjust_iter`` on the trial's observations, from the
+    same approximations as ours, scaled to the median bar length afterwards.
+
+    aniposelib's camera has one focal length, a fixed principal point and one radial term
+    (``k1``), and no bar constraint; it is optional (``pip install --no-deps aniposelib
+    toml pandas``: its bundle adjustment needs neither opencv-contrib nor jax).
+
+    Returns
+    -------
+    cameras : list of Camera
+    bar_error : (T_h,) array
+        Held-out bar length errors, mm.
+    check_error : (2 T_h,) array
+        Held-out check-point errors after a rigid alignment, mm.
+    seconds : float
+        Wall time of the adjustment.
+    """
+    from aniposelib.cameras import Camera as ACamera
+    from aniposelib.cameras import CameraGroup
+
+    from ..camera import Camera
+
+    acams = []
+    for c in cameras0:
+        K, dist, rvec, tvec = c.to_opencv()
+        acams.append(ACamera(matrix=K, dist=dist, size=c.image_size, rvec=rvec, tvec=tvec,
+                             name=c.name))
+    group = CameraGroup(acams)
+    t0 = time.perf_counter()
+    group.bundle_adjust_iter(np.array(trial.xy, dtype=np.float64), n_samp_full=10**6,
+                             n_samp_iter=10**6, verbose=False)
+    seconds = time.perf_counter() - t0
+    cams = [Camera.from_opencv(a.get_camera_matrix(), a.get_distortions(), a.get_rotation(),
+                               a.get_translation(), c.image_size, name=c.name)
+            for a, c in zip(group.cameras, cameras0)]
+    X = triangulate(cams, trial.xy).points
+    d = np.linalg.norm(X[0::2] - X[1::2], axis=1)
+    cams, _ = scaled(cams, X, trial.track.length / np.nanmedian(d))
+    X_h = trial.heldout.points.reshape(-1, 3)
+    return (cams, heldout_bar_errors(cams, trial.xy_heldout, trial.track.length),
+            check_point_errors(cams, trial.xy_heldout, X_h), seconds)

@@ -24,8 +24,8 @@ import numpy as np
 
 from lsmta.calibration import Bar, relative_orientation_start
 from lsmta.evaluation.calibration import aniposelib_peer, bar_trial, ring_trial
-from lsmta.synth.rigs import triplet_rig
 from lsmta.report import write_json
+from lsmta.synth.rigs import triplet_rig
 
 
 def rms(a):

@@ -1,0 +1,31 @@
+"""Multi-camera calibration: reference-bar self-calibrating bundle adjustment (LSMTA §2.1)
+and the virtual calibration object (Davis §3.2)."""
+
+from .approximations import relative_orientation_start, scaled
+from .bundle import (
+    DEFAULT_INTRINSICS,
+    INTRINSIC_NAMES,
+    PARAMETER_NAMES,
+    Bar,
+    BundleResult,
+    bundle_adjust,
+    camera_to_params,
+    params_to_camera,
+    project_params,
+)
+from .targets import Blobs, TargetTracks, detect_blobs, track_targets
+from .virtual_object import (
+    ConvergenceHistory,
+    alternate,
+    joint_adjustment,
+    projection_error,
+    resect,
+)
+
+__all__ = [
+    "DEFAULT_INTRINSICS", "INTRINSIC_NAMES", "PARAMETER_NAMES", "Bar", "Blobs",
+    "BundleResult", "ConvergenceHistory", "TargetTracks", "alternate", "bundle_adjust",
+    "camera_to_params", "detect_blobs", "joint_adjustment", "params_to_camera",
+    "project_params", "projection_error", "relative_orientation_start", "resect", "scaled",
+    "track_targets",
+]

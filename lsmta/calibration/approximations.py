@@ -1,0 +1,103 @@
+"""Approximate cameras and points for the bundle adjustment, without ground truth.
+
+From the nominal interior orientation only (principal distance from the lens and pixel
+size, principal point at the image centre, no distortion): the relative orientation of
+two cameras from the essential matrix (OpenCV ``findEssentialMat`` with RANSAC and
+``recoverPose``), the points they share by forward intersection, the scale from the
+median bar length, and every further camera by space resection (OpenCV ``solvePnP``).
+The first camera of the pair defines the world frame (its centre at the origin, its axes
+the world axes).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from .._validate import as_array
+from ..triangulation import triangulate
+from .bundle import Bar
+
+
+def relative_orientation_start(cameras, xy, *, bar: Bar | None = None, pair=(0, 1),
+                               threshold_px: float = 3.0):
+    """Approximations of all cameras and points from image observations.
+
+    Parameters
+    ----------
+    cameras : sequence of K Camera
+        Cameras with the *nominal* interior orientation (``f``, ``cx``, ``cy``, image
+        size, name); their exterior orientation and distortion are ignored.
+    xy : (K, N, 2) array
+        Image coordinates, px (NaN: not seen).
+    bar : Bar, optional
+        Scales the result to the bar's length (median over positions); otherwise the
+        base of ``pair`` is one millimetre.
+    pair : (int, int)
+        The two cameras of the relative orientation.
+    threshold_px : float
+        RANSAC threshold of the essential matrix, px.
+
+    Returns
+    -------
+    cameras : list of K Camera
+        Nominal interior orientation, no distortion, approximate exterior orientation.
+    points : (N, 3) array
+        Approximate points, mm (NaN where fewer than two cameras see them).
+    """
+    cameras = list(cameras)
+    K = len(cameras)
+    xy = as_array(xy, "xy", shape=(K, None, 2), allow_nan=True)
+    nominal = [c.replace(R=np.eye(3), C=np.zeros(3), k1=0.0, k2=0.0, k3=0.0, p1=0.0, p2=0.0,
+                         b1=0.0, b2=0.0) for c in cameras]
+    i, j = pair
+    both = np.isfinite(xy[i]).all(axis=1) & np.isfinite(xy[j]).all(axis=1)
+    if both.sum() < 8:
+        raise ValueError(f"xy: cameras {cameras[i].name or i} and {cameras[j].name or j} "
+                         f"share {both.sum()} point(s); the relative orientation needs >= 8")
+    ni = nominal[i].pixel_to_normalized(xy[i, both])
+    nj = nominal[j].pixel_to_normalized(xy[j, both])
+    thr = threshold_px / nominal[i].f
+    E, mask = cv2.findEssentialMat(ni, nj, np.eye(3), method=cv2.RANSAC, prob=0.9999,
+                                   threshold=thr)
+    if E is None or E.shape != (3, 3):
+        E = E[:3] if E is not None and E.shape[0] > 3 else E
+    if E is None:
+        raise ValueError("xy: the essential matrix could not be estimated")
+    _, R, t, _ = cv2.recoverPose(E, ni, nj, np.eye(3), mask=mask)
+    cams = list(nominal)
+    cams[j] = nominal[j].replace(R=R, C=-(R.T @ t.ravel()))
+    X = triangulate([cams[i], cams[j]], xy[[i, j]], min_angle_deg=0.0).points
+    scale = 1.0
+    if bar is not None:
+        d = np.linalg.norm(X[bar.pairs[:, 0]] - X[bar.pairs[:, 1]], axis=1)
+        d = d[np.isfinite(d)]
+        if not len(d):
+            raise ValueError("bar: no bar position is seen by both cameras of the pair")
+        scale = bar.length / np.median(d)
+    cams[j] = cams[j].replace(C=cams[j].C * scale)
+    X = X * scale
+    for k in range(K):
+        if k in (i, j):
+            continue
+        m = np.isfinite(xy[k]).all(axis=1) & np.isfinite(X).all(axis=1)
+        if m.sum() < 6:
+            raise ValueError(f"xy: camera {cameras[k].name or k} sees {m.sum()} of the "
+                             "points of the relative orientation; resection needs >= 6")
+        Km = np.array([[nominal[k].f, 0, nominal[k].cx], [0, nominal[k].f, nominal[k].cy],
+                       [0, 0, 1.0]])
+        ok, rvec, tvec, _ = cv2.solvePnPRansac(X[m], xy[k, m], Km, None,
+                                               reprojectionError=threshold_px * 2)
+        if not ok:
+            raise ValueError(f"xy: resection of camera {cameras[k].name or k} failed")
+        Rk, _ = cv2.Rodrigues(rvec)
+        cams[k] = nominal[k].replace(R=Rk, C=-(Rk.T @ tvec.ravel()))
+    X = triangulate(cams, xy, min_angle_deg=0.0).points
+    return cams, X
+
+
+def scaled(cameras, points, factor: float):
+    """Cameras and points scaled by ``factor`` about the world origin (the scale-afterwards
+    step of tools that adjust without the bar, e.g. easyWand, Argus)."""
+    cams = [c.replace(C=c.C * factor) for c in cameras]
+    return cams, np.asarray(points, dtype=float) * factor

@@ -1,0 +1,576 @@
+"""Self-calibrating bundle adjustment with an optional reference bar.
+
+Unknowns
+--------
+Per camera 16 parameters, in this order (:data:`PARAMETER_NAMES`): the exterior
+orientation as a rotation vector ``rx, ry, rz`` (OpenCV's Rodrigues vector of the
+world-to-camera rotation ``R``, radians) and the projection centre ``Cx, Cy, Cz`` (mm),
+then the interior orientation and additional parameters of :class:`~lsmta.camera.Camera`:
+principal distance ``f`` and principal point ``cx, cy`` (px), radial ``k1, k2, k3``,
+decentring ``p1, p2`` (OpenCV order, see :mod:`lsmta.camera`), affinity and shear
+``b1, b2``. Any subset can be free. Then the object points (mm), three per point.
+
+Observations
+------------
+Image coordinates (px) with standard deviation ``sigma_px``, and - with a reference bar -
+the known distance between the two targets of every bar position as an observation
+equation ``|A_i - B_i| - L = v`` with standard deviation ``bar_sigma`` (mm), adjusted
+jointly with the image coordinates (not applied as a scale afterwards).
+
+Datum
+-----
+The exterior orientation of the cameras in ``fixed_exterior`` (default: the first) is
+held at its approximation; the scale comes from the bar. Without a bar, ``scale_camera``
+names a second camera one of whose centre coordinates (the one along the largest baseline
+component) is held too. Either way the datum is minimal: exactly the seven degrees of
+freedom of a similarity are fixed, so the network is not distorted by the datum.
+
+The solver is Levenberg-Marquardt on the sparse normal equations (SuperLU); the Jacobian
+comes from SciPy's finite differences over its sparsity pattern (the ``jac_sparsity``
+machinery of :func:`scipy.optimize.least_squares`): every image coordinate depends on one
+camera and one point only, so a Jacobian costs a few dozen residual evaluations instead
+of one per unknown. (``least_squares`` itself, trust-region reflective with LSMR, needed
+far more iterations on these ill-conditioned networks.) Robust losses by iteratively
+reweighted least squares. Standard deviations and correlations come from the
+final Jacobian: ``Cov = s0^2 (J^T J)^-1``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+from scipy.optimize._numdiff import approx_derivative, group_columns
+from scipy.sparse import coo_matrix, csc_matrix, diags
+from scipy.sparse.linalg import splu
+from scipy.spatial.transform import Rotation
+
+from .._validate import as_array, as_scalar
+from ..camera import Camera
+
+EXTERIOR_NAMES = ("rx", "ry", "rz", "Cx", "Cy", "Cz")
+INTRINSIC_NAMES = ("f", "cx", "cy", "k1", "k2", "k3", "p1", "p2", "b1", "b2")
+PARAMETER_NAMES = EXTERIOR_NAMES + INTRINSIC_NAMES
+ALL_INTRINSICS = INTRINSIC_NAMES
+# the LSMTA default: interior orientation, K1-K3, P1-P2, B1 (B2 = shear is rarely
+# significant for CCD cameras; free it when needed)
+DEFAULT_INTRINSICS = ("f", "cx", "cy", "k1", "k2", "k3", "p1", "p2", "b1", "b2")
+
+
+# ---------------------------------------------------------------------- parameters
+def camera_to_params(cam: Camera) -> np.ndarray:
+    """The 16 parameters (:data:`PARAMETER_NAMES`) of a camera."""
+    rvec, _ = cv2.Rodrigues(np.asarray(cam.R))
+    return np.concatenate([rvec.ravel(), cam.C, [getattr(cam, k) for k in INTRINSIC_NAMES]])
+
+
+def params_to_camera(p, template: Camera) -> Camera:
+    """A camera with the 16 parameters ``p`` and the size and name of ``template``."""
+    p = np.asarray(p, dtype=float)
+    R = Rotation.from_rotvec(p[:3]).as_matrix()
+    return template.replace(R=R, C=p[3:6], **dict(zip(INTRINSIC_NAMES, p[6:].tolist())))
+
+
+def project_params(params, X) -> np.ndarray:
+    """Pixel coordinates ``(n, 2)`` of points ``X`` ``(n, 3)`` (mm) seen by cameras with
+    parameters ``params`` ``(n, 16)`` (one row per point; vectorised)."""
+    R = Rotation.from_rotvec(params[:, :3]).as_matrix()
+    Xc = np.einsum("nij,nj->ni", R, X - params[:, 3:6])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = Xc[:, 0] / Xc[:, 2]
+        y = Xc[:, 1] / Xc[:, 2]
+    f, cx, cy, k1, k2, k3, p1, p2, b1, b2 = params[:, 6:].T
+    r2 = x * x + y * y
+    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([cx + f * ((1 + b1) * xd + b2 * yd), cy + f * yd], axis=1)
+
+
+# ---------------------------------------------------------------------- inputs
+@dataclass(frozen=True)
+class Bar:
+    """A reference bar: which points are its two targets at each position.
+
+    Attributes
+    ----------
+    pairs : (M, 2) int array
+        Indices (into the adjustment's points) of the two targets at each of M positions.
+    length : float
+        Known distance between the targets, mm.
+    sigma : float
+        Standard deviation of the length observation, mm.
+    """
+
+    pairs: np.ndarray
+    length: float
+    sigma: float = 0.01
+
+    def __post_init__(self):
+        pairs = np.asarray(self.pairs)
+        if pairs.ndim != 2 or pairs.shape[1] != 2 or not np.issubdtype(pairs.dtype, np.integer):
+            raise ValueError(f"bar.pairs: expected an (M, 2) integer array, got {pairs.shape}")
+        object.__setattr__(self, "pairs", pairs.copy())
+        object.__setattr__(self, "length", as_scalar(self.length, "bar.length", positive=True))
+        object.__setattr__(self, "sigma", as_scalar(self.sigma, "bar.sigma", positive=True))
+
+
+@dataclass(frozen=True, eq=False)
+class BundleResult:
+    """Result of :func:`bundle_adjust`.
+
+    Attributes
+    ----------
+    cameras : list of Camera
+        The calibrated cameras.
+    points : (N, 3) array
+        Adjusted object points, mm (NaN for points without observations).
+    residuals : (K, N, 2) array
+        Image residuals ``projected - observed``, px; NaN where not observed (or dropped).
+    rms_per_camera : (K,) array
+        Per-coordinate RMS image residual of each camera, px (rejected observations left out).
+    rms : float
+        Per-coordinate RMS image residual over all cameras, px.
+    bar_residuals : (M,) array or None
+        Adjusted bar length minus the known length, mm.
+    sigma0 : float
+        A-posteriori standard deviation of unit weight (1 when the model and the stated
+        ``sigma_px``, ``bar_sigma`` fit the data).
+    n_observations, n_unknowns : int
+        ``n`` (image coordinates + bar lengths) and ``p`` (free parameters) of the final
+        adjustment; the redundancy is ``n - p``.
+    noise_limit : float
+        ``sigma_px * sqrt(1 - p / n)`` over the n image coordinates: the per-coordinate RMS
+        residual expected when the only error is image noise of ``sigma_px``; ``p`` is the
+        sum of the image coordinates' leverages (``p`` minus the bar lengths for a bar much
+        more precise than the images; ``p`` without a bar).
+    expected_rms_per_camera : (K,) array
+        The same limit per camera from the leverages of its observations (``sigma_px *
+        sqrt(mean(1 - h_ii))``), px.
+    parameter_names : list of str
+        ``"camera.param"`` for every free camera parameter.
+    parameter_values, parameter_std : (P,) arrays
+        Their adjusted values and standard deviations (``s0^2 (J^T J)^-1``).
+    correlation : (P, P) array
+        Correlation matrix of the free camera parameters.
+    point_std : (N, 3) array
+        Standard deviations of the object points, mm.
+    rejected : (K, N) bool array
+        Observations rejected as outliers.
+    n_nan_dropped : int
+        Observations (camera, point) given as NaN in either coordinate - not seen, or lost
+        by the target measurement - and left out.
+    nfev : int
+        Residual evaluations of the solver (last pass).
+    history : list of (16 K,) arrays
+        Camera parameters after each solver iteration of the last pass.
+    """
+
+    cameras: list
+    points: np.ndarray
+    residuals: np.ndarray
+    rms_per_camera: np.ndarray
+    rms: float
+    bar_residuals: np.ndarray | None
+    sigma0: float
+    n_observations: int
+    n_unknowns: int
+    noise_limit: float
+    expected_rms_per_camera: np.ndarray
+    parameter_names: list
+    parameter_values: np.ndarray
+    parameter_std: np.ndarray
+    correlation: np.ndarray
+    point_std: np.ndarray
+    rejected: np.ndarray
+    n_nan_dropped: int
+    nfev: int
+    history: list = field(default_factory=list, repr=False)
+
+    @property
+    def n_rejected(self) -> int:
+        return int(self.rejected.sum())
+
+    def std(self, camera: int, name: str) -> float:
+        """Standard deviation of parameter ``name`` of camera ``camera`` (NaN if fixed)."""
+        key = f"{self.cameras[camera].name or camera}.{name}"
+        if key not in self.parameter_names:
+            return float("nan")
+        return float(self.parameter_std[self.parameter_names.index(key)])
+
+
+# ---------------------------------------------------------------------- checks
+def _check_geometry(points, bar: Bar | None):
+    """Refuse a bar track whose targets all lie on one line."""
+    if bar is None:
+        return
+    P = points[bar.pairs.ravel()]
+    P = P[np.isfinite(P).all(axis=1)]
+    if len(P) < 3:
+        return
+    s = np.linalg.svd(P - P.mean(axis=0), compute_uv=False)
+    if s[1] < 1e-3 * s[0]:
+        raise ValueError(
+            f"bar: degenerate bar track - all {len(P)} target positions lie on one line "
+            f"(singular values {s[0]:.3g}, {s[1]:.3g}, {s[2]:.3g} mm); move the bar through "
+            "the volume in different directions")
+
+
+def min_points_per_camera(n_free: int) -> int:
+    """Fewest points a camera must see to determine its ``n_free`` parameters with
+    redundancy (two coordinates per point, plus three spare points)."""
+    return int(np.ceil(n_free / 2)) + 3
+
+
+# ---------------------------------------------------------------------- solver
+def bundle_adjust(cameras, xy, points, *, intrinsics=DEFAULT_INTRINSICS, fixed_exterior=(0,),
+                  bar: Bar | None = None, scale_camera: int | None = None,
+                  sigma_px: float = 1.0, loss: str = "linear", f_scale: float = 3.0,
+                  reject_k: float | None = None, fix_points: bool = False,
+                  max_nfev: int | None = None, ftol: float = 1e-10,
+                  xtol: float = 1e-10, covariance: bool = True) -> BundleResult:
+    """Adjust cameras and object points to image observations (and a reference bar).
+
+    Parameters
+    ----------
+    cameras : sequence of K Camera
+        Approximations (their sizes and names are kept).
+    xy : (K, N, 2) array
+        Image coordinates, px; NaN marks a point not seen by a camera (counted and dropped).
+    points : (N, 3) array
+        Approximate object points, mm.
+    intrinsics : sequence of str, or sequence of K such sequences
+        Names from :data:`INTRINSIC_NAMES` that are free (the same for all cameras, or one
+        list per camera); the others are held at the approximations' values.
+    fixed_exterior : sequence of int
+        Cameras whose exterior orientation is held (the datum).
+    bar : Bar, optional
+        Reference bar length observations (they define the scale).
+    scale_camera : int, optional
+        Without a bar: a camera whose largest baseline coordinate (relative to the first
+        fixed camera) is held, which fixes the scale.
+    sigma_px : float
+        Standard deviation of an image coordinate, px (weights, and the noise limit).
+    loss, f_scale : str, float
+        Robust loss on the standardised residuals (the losses of
+        :func:`scipy.optimize.least_squares`: "huber", "soft_l1", "cauchy", "arctan"),
+        applied by iteratively reweighted least squares; ``f_scale`` is the residual (in
+        units of ``sigma_px``) where the loss starts to bend.
+    reject_k : float, optional
+        After the adjustment, reject observations whose residual vector is longer than
+        ``reject_k * s0 * sigma_px * sqrt(2)`` and adjust again (once).
+    fix_points : bool
+        Hold the object points (a resection of all cameras at once).
+    covariance : bool
+        Compute standard deviations and correlations (needs a dense ``p x p`` inverse).
+
+    Returns
+    -------
+    BundleResult
+
+    Raises
+    ------
+    ValueError
+        For a camera that sees too few points (named, with its count), fewer observations
+        than unknowns, a degenerate (collinear) bar track, or no datum.
+    """
+    cameras = list(cameras)
+    if not cameras or not all(isinstance(c, Camera) for c in cameras):
+        raise TypeError("cameras: expected a non-empty sequence of lsmta.camera.Camera")
+    K = len(cameras)
+    xy = as_array(xy, "xy", shape=(K, None, 2), allow_nan=True)
+    N = xy.shape[1]
+    X0 = as_array(points, "points", shape=(N, 3), allow_nan=True).copy()
+    sigma_px = as_scalar(sigma_px, "sigma_px", positive=True)
+    if isinstance(intrinsics, str) or (len(intrinsics) and isinstance(intrinsics[0], str)) \
+            or len(intrinsics) == 0:
+        intrinsics = [tuple(intrinsics)] * K
+    if len(intrinsics) != K:
+        raise ValueError(f"intrinsics: expected one list of names or {K} lists")
+    for names in intrinsics:
+        bad = set(names) - set(INTRINSIC_NAMES)
+        if bad:
+            raise ValueError(f"intrinsics: unknown names {sorted(bad)}; expected some of "
+                             f"{INTRINSIC_NAMES}")
+    fixed_exterior = [int(i) for i in fixed_exterior]
+    if any(not 0 <= i < K for i in fixed_exterior):
+        raise ValueError(f"fixed_exterior: expected camera indices in [0, {K})")
+    if bar is not None and not isinstance(bar, Bar):
+        raise TypeError("bar: expected an lsmta.calibration.Bar")
+    if bar is not None and (bar.pairs.min() < 0 or bar.pairs.max() >= N):
+        raise ValueError(f"bar.pairs: expected point indices in [0, {N})")
+    if loss not in ("linear", "huber", "soft_l1", "cauchy", "arctan"):
+        raise ValueError(f"loss: expected one of scipy's losses, got {loss!r}")
+
+    seen = np.isfinite(xy).all(axis=2)
+    n_nan = int((~seen).sum())
+
+    free = np.zeros((K, 16), bool)
+    for k in range(K):
+        if k not in fixed_exterior:
+            free[k, :6] = True
+        for name in intrinsics[k]:
+            free[k, 6 + INTRINSIC_NAMES.index(name)] = True
+    if bar is None and not fix_points:
+        if scale_camera is None:
+            raise ValueError("scale_camera: without a bar the scale must be fixed; name a "
+                             "camera (scale_camera=) or pass a bar")
+        if not fixed_exterior:
+            raise ValueError("fixed_exterior: name at least one camera for the datum")
+        base = cameras[scale_camera].C - cameras[fixed_exterior[0]].C
+        free[scale_camera, 3 + int(np.argmax(np.abs(base)))] = False
+    if not fixed_exterior and not fix_points:
+        raise ValueError("fixed_exterior: name at least one camera for the datum")
+
+    # cameras must see enough points for their own unknowns
+    counts = seen.sum(axis=1)
+    for k in range(K):
+        need = min_points_per_camera(int(free[k].sum()))
+        if counts[k] < need:
+            raise ValueError(
+                f"xy: camera {cameras[k].name or k} sees {counts[k]} point(s); it needs at "
+                f"least {need} for its {int(free[k].sum())} free parameters")
+    used_pt = seen.sum(axis=0) >= (1 if fix_points else 2)
+    if not fix_points:
+        bad = np.flatnonzero(used_pt & ~np.isfinite(X0).all(axis=1))
+        if len(bad):
+            raise ValueError(f"points: {len(bad)} observed point(s) have no approximation "
+                             "(NaN)")
+    _check_geometry(X0, bar)
+
+    params0 = np.stack([camera_to_params(c) for c in cameras])
+    rejected = np.zeros((K, N), bool)
+    passes = 1 if reject_k is None else 2
+    for _ in range(passes):
+        use = seen & ~rejected & used_pt[None, :]
+        out = _solve(cameras, xy, X0, params0, free, use, bar, sigma_px, loss, f_scale,
+                     fix_points, max_nfev, ftol, xtol, covariance)
+        if reject_k is None:
+            break
+        res = out["res_img"]
+        lim = reject_k * out["sigma0"] * sigma_px * np.sqrt(2)
+        new = seen & (np.linalg.norm(np.nan_to_num(res, nan=0.0), axis=2) > lim)
+        if not new.any():
+            break
+        rejected |= new
+        params0, X0 = out["params"], out["points"]
+    return _result(cameras, out, rejected, n_nan, sigma_px, bar)
+
+
+def _solve(cameras, xy, X0, params0, free, use, bar, sigma_px, loss, f_scale, fix_points,
+           max_nfev, ftol, xtol, covariance):
+    K, N = use.shape
+    kk, ii = np.nonzero(use)
+    obs = xy[kk, ii]
+    n_img = len(kk)
+    pts_free = np.zeros(N, bool) if fix_points else use.sum(axis=0) >= 2
+    if bar is not None and not fix_points:
+        keep_bar = pts_free[bar.pairs].all(axis=1)
+        pairs = bar.pairs[keep_bar]
+    else:
+        pairs = np.zeros((0, 2), int)
+    n_bar = len(pairs)
+    cam_cols = np.full((K, 16), -1)
+    cam_cols[free] = np.arange(free.sum())
+    n_cam = int(free.sum())
+    pt_cols = np.full(N, -1)
+    pt_cols[pts_free] = n_cam + 3 * np.arange(pts_free.sum())
+    n_par = n_cam + 3 * int(pts_free.sum())
+    n_obs = 2 * n_img + n_bar
+    if n_obs <= n_par:
+        raise ValueError(
+            f"xy: {n_img} image points{' and ' + str(n_bar) + ' bar lengths' if bar else ''} "
+            f"give {n_obs} observations for {n_par} unknowns; more bar positions (or "
+            "points) are needed, or fewer free parameters")
+
+    def unpack(x):
+        params = params0.copy()
+        params[free] = x[:n_cam]
+        X = X0.copy()
+        X[pts_free] = x[n_cam:].reshape(-1, 3)
+        return params, X
+
+    def fun(x):
+        params, X = unpack(x)
+        r = (project_params(params[kk], X[ii]) - obs).ravel() / sigma_px
+        if n_bar:
+            d = np.linalg.norm(X[pairs[:, 0]] - X[pairs[:, 1]], axis=1)
+            r = np.concatenate([r, (d - bar.length) / bar.sigma])
+        return r
+
+    # sparsity pattern
+    rows, cols = [], []
+    for c in range(16):
+        col = cam_cols[kk, c]
+        m = col >= 0
+        for j in (0, 1):
+            rows.append(2 * np.flatnonzero(m) + j)
+            cols.append(col[m])
+    pc = pt_cols[ii]
+    m = pc >= 0
+    for a in range(3):
+        for j in (0, 1):
+            rows.append(2 * np.flatnonzero(m) + j)
+            cols.append(pc[m] + a)
+    for e in (0, 1):
+        for a in range(3):
+            rows.append(2 * n_img + np.arange(n_bar))
+            cols.append(pt_cols[pairs[:, e]] + a)
+    rows = np.concatenate(rows)
+    cols = np.concatenate(cols)
+    sparsity = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_obs, n_par)).tocsr()
+
+    x0 = np.concatenate([params0[free], X0[pts_free].ravel()])
+    history = []
+
+    def callback(intermediate_result):  # noqa: D401 - scipy's callback protocol
+        history.append(unpack(intermediate_result.x)[0].ravel().copy())
+
+    sol = _levenberg_marquardt(fun, x0, sparsity, max_nfev, ftol, xtol, callback)
+    if loss != "linear":
+        # iteratively reweighted least squares with scipy's loss functions: weights
+        # sqrt(rho'(z)), z = (r / f_scale)^2, from the previous solution
+        for _ in range(5):
+            z = (fun(sol.x) / f_scale) ** 2
+            w = np.sqrt(_LOSS_DERIVATIVE[loss](z))
+            x_prev = sol.x
+            sol = _levenberg_marquardt(lambda x, w=w: fun(x) * w, sol.x, sparsity, 20,
+                                       max(ftol, 1e-7), xtol, callback)
+            if np.linalg.norm(sol.x - x_prev) < 1e-8 * (1 + np.linalg.norm(x_prev)):
+                break
+    params, X = unpack(sol.x)
+    r = fun(sol.x)
+    sigma0 = float(np.sqrt(np.sum(r**2) / (n_obs - n_par)))
+    res_img = np.full((K, N, 2), np.nan)
+    res_img[kk, ii] = r[: 2 * n_img].reshape(-1, 2) * sigma_px
+    std = np.full(n_par, np.nan)
+    corr = np.full((n_cam, n_cam), np.nan)
+    lev = np.full(2 * n_img, np.nan)
+    if covariance:
+        J = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
+        Nmat = J.T @ J
+        try:
+            Ninv = cho_solve(cho_factor(Nmat), np.eye(len(Nmat)))
+        except np.linalg.LinAlgError:
+            Ninv = np.linalg.pinv(Nmat, rcond=1e-14, hermitian=True)
+        cov = sigma0**2 * Ninv
+        std = np.sqrt(np.clip(np.diag(cov), 0, None))
+        sc = std[:n_cam]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr = cov[:n_cam, :n_cam] / np.outer(sc, sc)
+        Jimg = J[: 2 * n_img]
+        lev = ((Jimg @ Ninv) * Jimg).sum(axis=1)
+    exp_cam = np.full(K, np.nan)
+    lev2 = lev.reshape(-1, 2)
+    for k in range(K):
+        m = kk == k
+        if m.any():
+            exp_cam[k] = sigma_px * np.sqrt(np.mean(1 - lev2[m]))
+    # sigma sqrt(1 - p/n) over the image coordinates; with bar lengths, p counts the
+    # redundancy the image coordinates give up (sum of their leverages), which is p minus
+    # the number of bar lengths when the bar is much more precise than the images
+    p_img = np.nansum(lev) if covariance else n_par - n_bar
+    noise_limit = float(sigma_px * np.sqrt(1 - p_img / (2 * n_img)))
+    point_std = np.full((N, 3), np.nan)
+    point_std[pts_free] = std[n_cam:].reshape(-1, 3)
+    X_out = X.copy()
+    if not fix_points:
+        X_out[~pts_free] = np.nan
+    bar_res = None
+    if bar is not None:
+        bar_res = np.full(len(bar.pairs), np.nan)
+        d = np.linalg.norm(X_out[bar.pairs[:, 0]] - X_out[bar.pairs[:, 1]], axis=1)
+        bar_res = d - bar.length
+    return dict(params=params, points=X_out, res_img=res_img, sigma0=sigma0, n_obs=n_obs,
+                n_par=n_par, std=std, corr=corr, free=free, point_std=point_std,
+                exp_cam=exp_cam, noise_limit=noise_limit, bar_res=bar_res, nfev=int(sol.nfev),
+                history=history,
+                X_internal=X)
+
+
+_LOSS_DERIVATIVE = {
+    "huber": lambda z: np.where(z <= 1, 1.0, 1 / np.sqrt(np.maximum(z, 1e-300))),
+    "soft_l1": lambda z: 1 / np.sqrt(1 + z),
+    "cauchy": lambda z: 1 / (1 + z),
+    "arctan": lambda z: 1 / (1 + z**2),
+}
+
+
+@dataclass
+class _Solution:
+    x: np.ndarray
+    jac: object
+    nfev: int
+
+
+def _levenberg_marquardt(fun, x0, sparsity, max_iter, ftol, xtol, callback):
+    """Levenberg-Marquardt on the sparse normal equations (SuperLU factorisation), with
+    the Jacobian by finite differences over the sparsity pattern (scipy's grouped
+    differences, as ``least_squares(jac_sparsity=...)`` uses)."""
+    groups = group_columns(sparsity)
+    x = x0.copy()
+    r = fun(x)
+    cost = r @ r
+    lam = 1e-3
+    max_iter = 100 if max_iter is None else int(max_iter)
+    nfev = 1
+    J = None
+    for _ in range(max_iter):
+        J = approx_derivative(fun, x, method="2-point", f0=r, sparsity=(sparsity, groups))
+        nfev += 1
+        J = csc_matrix(J)
+        N = (J.T @ J).tocsc()
+        g = J.T @ r
+        d = N.diagonal().copy()
+        d[d == 0] = 1.0
+        improved = False
+        for _ in range(12):
+            A = (N + diags(lam * d)).tocsc()
+            try:
+                dx = -splu(A).solve(g)
+            except RuntimeError:
+                lam *= 10
+                continue
+            r_new = fun(x + dx)
+            nfev += 1
+            c_new = r_new @ r_new
+            if np.isfinite(c_new) and c_new < cost:
+                improved = True
+                break
+            lam *= 10
+        if not improved:
+            break
+        rel = (cost - c_new) / cost
+        x = x + dx
+        r, cost = r_new, c_new
+        lam = max(lam / 10, 1e-12)
+        if callback is not None:
+            callback(_Solution(x, None, nfev))
+        if rel < ftol or np.linalg.norm(dx) < xtol * (xtol + np.linalg.norm(x)):
+            break
+    J = csc_matrix(approx_derivative(fun, x, method="2-point", f0=r,
+                                     sparsity=(sparsity, groups)))
+    return _Solution(x, J, nfev)
+
+
+def _result(cameras, out, rejected, n_nan, sigma_px, bar):
+    K = len(cameras)
+    params, free = out["params"], out["free"]
+    cams = [params_to_camera(params[k], cameras[k]) for k in range(K)]
+    res = out["res_img"]
+    with np.errstate(invalid="ignore"):
+        rms_cam = np.sqrt(np.nanmean(res.reshape(K, -1) ** 2, axis=1))
+    rms = float(np.sqrt(np.nanmean(res**2)))
+    names = [f"{cameras[k].name or k}.{PARAMETER_NAMES[c]}" for k, c in zip(*np.nonzero(free))]
+    n_cam = int(free.sum())
+    return BundleResult(
+        cameras=cams, points=out["points"], residuals=res, rms_per_camera=rms_cam, rms=rms,
+        bar_residuals=out["bar_res"], sigma0=out["sigma0"], n_observations=out["n_obs"],
+        n_unknowns=out["n_par"],
+        noise_limit=out["noise_limit"],
+        expected_rms_per_camera=out["exp_cam"], parameter_names=names,
+        parameter_values=params[free], parameter_std=out["std"][:n_cam],
+        correlation=out["corr"], point_std=out["point_std"], rejected=rejected,
+        n_nan_dropped=n_nan, nfev=out["nfev"], history=out["history"])

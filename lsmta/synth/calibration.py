@@ -1,0 +1,173 @@
+"""Calibration data of the synthetic world: a reference bar moved through the triplet
+volume (LSMTA §2.1), its rendered target images, an LED path for the ceiling ring (Davis
+§3.2), and a "tape-measured" poor initial guess of a rig.
+
+The truth here (target positions, cameras) reaches the library only through the
+evaluation harness (:mod:`lsmta.evaluation.calibration`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .._validate import as_rng, as_scalar, as_vector
+from ..camera import Camera
+
+
+@dataclass(frozen=True)
+class BarTrack:
+    """Reference bar positions.
+
+    Attributes
+    ----------
+    A, B : (T, 3) arrays
+        The two targets at each of T positions, mm (A starts on the -X side).
+    length : float
+        True distance between the targets, mm.
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    length: float
+
+    @property
+    def points(self) -> np.ndarray:
+        """``(T, 2, 3)`` targets A, B per position."""
+        return np.stack([self.A, self.B], axis=1)
+
+
+def _walk(rng, n, center, half_size, step):
+    """A smooth random walk of ``n`` points in a box (reflected at the walls), mm."""
+    center = np.asarray(center, float)
+    half = np.asarray(half_size, float)
+    p = center + rng.uniform(-0.5, 0.5, 3) * half
+    v = rng.normal(0, 1, 3)
+    v *= step / np.linalg.norm(v)
+    out = np.empty((n, 3))
+    for t in range(n):
+        out[t] = p
+        v = 0.85 * v + 0.5 * step * rng.normal(0, 1, 3) / np.sqrt(3)
+        v *= step / np.linalg.norm(v)
+        p = p + v
+        for a in range(3):
+            lo, hi = center[a] - half[a], center[a] + half[a]
+            if p[a] < lo or p[a] > hi:
+                v[a] = -v[a]
+                p[a] = np.clip(p[a], lo, hi)
+    return out
+
+
+def bar_track(rng, n: int = 150, *, length: float = 800.0, center=(0.0, 0.0, 950.0),
+              half_size=(1000.0, 700.0, 500.0), step: float = 150.0,
+              max_azimuth_deg: float = 45.0, max_elevation_deg: float = 75.0) -> BarTrack:
+    """A reference bar moved by hand through the triplet volume.
+
+    The bar's midpoint follows a smooth random walk (``step`` mm per position) inside the
+    box ``center +- half_size``; its direction turns smoothly (azimuth from +X towards +Y
+    within ``+-max_azimuth_deg``, elevation within ``+-max_elevation_deg``) so it never
+    points at the cameras (which look along +Y); it starts horizontal along +X.
+    """
+    rng = as_rng(rng)
+    if int(n) != n or n < 1:
+        raise ValueError(f"n: expected a positive integer, got {n}")
+    length = as_scalar(length, "length", positive=True)
+    mid = _walk(rng, int(n), as_vector(center, "center", 3), as_vector(half_size,
+                                                                          "half_size", 3), step)
+    az = np.zeros(n)
+    el = np.zeros(n)
+    va = ve = 0.0
+    for t in range(1, n):
+        va = 0.8 * va + rng.normal(0, 3.0)
+        ve = 0.8 * ve + rng.normal(0, 4.0)
+        az[t] = az[t - 1] + va
+        el[t] = el[t - 1] + ve
+        if abs(az[t]) > max_azimuth_deg:
+            az[t] = np.sign(az[t]) * max_azimuth_deg
+            va = -va
+        if abs(el[t]) > max_elevation_deg:
+            el[t] = np.sign(el[t]) * max_elevation_deg
+            ve = -ve
+    a, e = np.radians(az), np.radians(el)
+    d = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=1)
+    return BarTrack(mid - 0.5 * length * d, mid + 0.5 * length * d, length)
+
+
+def led_path(rng, n: int = 300, *, center=(0.0, 0.0, 1100.0),
+             half_size=(2600.0, 2600.0, 800.0), step: float = 120.0) -> np.ndarray:
+    """An LED carried through the room: ``(n, 3)`` positions, mm (smooth random walk)."""
+    rng = as_rng(rng)
+    if int(n) != n or n < 1:
+        raise ValueError(f"n: expected a positive integer, got {n}")
+    return _walk(rng, int(n), as_vector(center, "center", 3),
+                 as_vector(half_size, "half_size", 3), step)
+
+
+def project_observations(cameras, points, rng=None, *, sigma_px: float = 0.0) -> np.ndarray:
+    """``(K, N, 2)`` projections of ``points`` ``(N, 3)`` into K cameras plus Gaussian
+    noise of ``sigma_px`` per coordinate; NaN where outside the image or behind."""
+    out = []
+    for cam in cameras:
+        p = cam.project(points, behind="nan")
+        p[~cam.in_image(p)] = np.nan
+        if sigma_px > 0:
+            p = p + as_rng(rng).normal(0, sigma_px, p.shape)
+        out.append(p)
+    return np.stack(out)
+
+
+def render_bar_images(camera: Camera, track: BarTrack, rng, *, dot_sigma: float = 1.6,
+                      amplitude: float = 180.0, background: float = 25.0,
+                      noise: float = 2.0) -> np.ndarray:
+    """``(T, H, W)`` uint8 images of the two retro-reflective bar targets in one camera.
+
+    Each target is a Gaussian dot (``dot_sigma`` px, peak ``amplitude`` grey levels,
+    sampled at the pixel centres) at its projection through the camera's full model
+    (distortion included) on a dark uniform ``background`` with Gaussian ``noise`` (grey
+    levels), rounded to 8 bits - the dots of
+    :func:`lsmta.synth.marker_video.render_marker_video` without the skin texture, drawn
+    only where they are (so a sequence renders in a fraction of the time).
+    """
+    rng = as_rng(rng)
+    pts = track.points
+    T = len(pts)
+    H, W = camera.height, camera.width
+    sigma = as_scalar(dot_sigma, "dot_sigma", positive=True)
+    xy = camera.project(pts.reshape(-1, 3), behind="nan").reshape(T, 2, 2)
+    r = int(np.ceil(4 * sigma))
+    off = np.arange(-r, r + 1)
+    images = np.empty((T, H, W), np.uint8)
+    for t in range(T):
+        img = rng.standard_normal((H, W), dtype=np.float32)
+        img *= np.float32(noise)
+        img += np.float32(background)
+        for q in xy[t]:
+            if not (np.isfinite(q).all() and camera.in_image(q[None])[0]):
+                continue
+            c = np.round(q).astype(int)
+            xs, ys = c[0] + off, c[1] + off
+            mx, my = (xs >= 0) & (xs < W), (ys >= 0) & (ys < H)
+            gx = np.exp(-((xs[mx] - q[0]) ** 2) / (2 * sigma**2))
+            gy = np.exp(-((ys[my] - q[1]) ** 2) / (2 * sigma**2))
+            img[np.ix_(ys[my], xs[mx])] += (amplitude * np.outer(gy, gx)).astype(np.float32)
+        np.clip(np.round(img), 0, 255, out=img)
+        images[t] = img
+    return images
+
+
+def poor_guess(cameras, rng, *, pose_mm: float = 150.0, pose_deg: float = 3.0,
+               f_rel: float = 0.05) -> list[Camera]:
+    """A tape-measured rig: every camera's centre off by ``pose_mm`` (per axis, Gaussian),
+    its attitude by ``pose_deg`` per axis, its principal distance by ``f_rel`` (relative),
+    the principal point at the image centre and no lens distortion."""
+    rng = as_rng(rng)
+    out = []
+    for cam in cameras:
+        dR, _ = cv2.Rodrigues(np.radians(rng.normal(0, pose_deg, 3)))
+        out.append(cam.replace(R=dR @ cam.R, C=cam.C + rng.normal(0, pose_mm, 3),
+                               f=cam.f * (1 + rng.normal(0, f_rel)),
+                               cx=(cam.width - 1) / 2, cy=(cam.height - 1) / 2, k1=0.0, k2=0.0,
+                               k3=0.0, p1=0.0, p2=0.0, b1=0.0, b2=0.0))
+    return out

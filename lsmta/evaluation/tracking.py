@@ -135,3 +135,68 @@ def score_tracks(seq: Sequence, tracks: Tracks, part, local, traj: Trajectories 
     false_from = np.where(bad.any(axis=0), bad.argmax(axis=0), -1)
     return TrackScore(image_error=err, step_error=step, error_3d=e3, false_from=false_from,
                       truth_xy=truth_xy, truth_xyz=proj.world, visible=proj.visible)
+
+
+def by_age(values, start, *, reduce=np.nanmedian, min_count: int = 5):
+    """Reduce ``(T, N)`` values over the tracks by track age (frames since each track's start).
+
+    Returns ``(age (A,), value (A,), count (A,))``; ages with fewer than ``min_count``
+    finite values give NaN.
+    """
+    values = np.asarray(values, float)
+    T, N = values.shape
+    age = np.arange(T)[:, None] - np.asarray(start)[None, :]
+    ages = np.arange(T)
+    out = np.full(T, np.nan)
+    count = np.zeros(T, np.int64)
+    for a in ages:
+        v = values[(age == a) & np.isfinite(values)]
+        count[a] = v.size
+        if v.size >= min_count:
+            out[a] = reduce(v)
+    return ages, out, count
+
+
+@dataclass(frozen=True)
+class Trial:
+    """Both trackers on one sequence from the same start points (see :func:`run_trial`)."""
+
+    sequence: Sequence
+    tracks: Tracks
+    traj: Trajectories
+    score: TrackScore
+    klt: Tracks
+    klt_traj: Trajectories
+    klt_score: TrackScore
+    seconds: float
+    klt_seconds: float
+    part: np.ndarray
+    local: np.ndarray
+
+
+def run_trial(seq: Sequence, n_points: int, rng: np.random.Generator, *, params=None,
+              density: bool = True, false_mm: float = 10.0) -> Trial:
+    """Track ``n_points`` of frame 0's surface with LSMTA (with the density check unless
+    ``density`` is False) and with KLT; score both."""
+    import time
+
+    from ..tracking.klt import track_klt
+    from ..tracking.points import track_points
+    from ..tracking.trajectories import trajectories_from_tracks
+
+    xy0, part0, local0 = start_points(seq, n_points, rng)
+    t0 = time.perf_counter()
+    tracks = track_points(seq.images, xy0, params=params,
+                          new_points=candidates(seq) if density else None)
+    seconds = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    klt = track_klt(seq.images, xy0)
+    klt_seconds = time.perf_counter() - t0
+    part, local = track_identity(seq, tracks, part0, local0)
+    traj = trajectories_from_tracks(seq.cameras, tracks, seq.fps)
+    klt_traj = trajectories_from_tracks(seq.cameras, klt, seq.fps)
+    return Trial(sequence=seq, tracks=tracks, traj=traj,
+                 score=score_tracks(seq, tracks, part, local, traj, false_mm=false_mm),
+                 klt=klt, klt_traj=klt_traj,
+                 klt_score=score_tracks(seq, klt, part0, local0, klt_traj, false_mm=false_mm),
+                 seconds=seconds, klt_seconds=klt_seconds, part=part, local=local)

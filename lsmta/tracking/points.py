@@ -232,6 +232,8 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
                    origin=np.full(xy0.shape[1], -1, np.int64),
                    spatial_A=np.broadcast_to(np.eye(2), (K, xy0.shape[1], 2, 2)).copy())
     splines = [SplineImage(seq[k, 0], "images") for k in range(K)]
+    if K > 1:
+        state.spatial_A[:, started] = _spatial_affine(splines, xy0[:, started], p)
     for t in range(T - 1):
         nxt = [SplineImage(seq[k, t + 1], "images") for k in range(K)]
         live = np.flatnonzero(state.status == TrackStatus.ALIVE)
@@ -243,9 +245,9 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
                 has = np.isfinite(v).all(axis=(0, 2))
                 pred[:, has] = state.xy[0][:, live[has]] + v[:, has]
                 known |= has
-            ok, new_xy, A = _step(seq, splines, nxt, t, state.xy[t][:, live], pred,
-                                  np.where(known, p.radius, p.retry_radius), state.spatial_A[:, live],
-                                  p)
+            radius = np.where(known, p.radius, p.retry_radius)
+            ok, new_xy, A = _step(seq, splines, nxt, t, state.xy[t][:, live], pred, radius,
+                                  state.spatial_A[:, live], p)
             todo = ~ok
             if todo.any():
                 r2 = np.where(known[todo], p.retry_radius, 2 * p.retry_radius)
@@ -271,6 +273,8 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
                                         min_distance=p.min_distance)
                 if add.size:
                     state.append(cand[:, add], t + 1, add)
+                    if K > 1:
+                        state.spatial_A[:, -add.size:] = _spatial_affine(nxt, cand[:, add], p)
         splines = nxt
     return Tracks(xy=state.xy, start=state.start, end=state.end,
                   status=np.asarray(state.status, np.int64), retried=state.retried,
@@ -332,6 +336,20 @@ def _predict(xy, live, t, neighbours):
             vel[k, born] = np.median(vel[k, src][nn], axis=1)
         # a neighbour-based prediction is an estimate, not a history: keep the bigger box
     return cur + vel, known
+
+
+def _spatial_affine(splines, xy, p: TrackerParams):
+    """Affinities (K, n, 2, 2) from the template camera's patches into the others (spatial
+    LSM at the start positions; identity where it fails)."""
+    K, n = xy.shape[:2]
+    A = np.broadcast_to(np.eye(2), (K, n, 2, 2)).copy()
+    for k in range(K):
+        if k == p.template:
+            continue
+        res = lsm(splines[p.template], splines[k], xy[p.template], xy[k], patch=p.patch,
+                  geometry=p.geometry, thresholds=p.thresholds, max_iter=p.max_iter, tol=p.tol)
+        A[k, res.ok] = res.A[res.ok]
+    return A
 
 
 def _step(seq, splines, nxt, t, cur, pred, radius, spatial_A, p: TrackerParams):

@@ -94,6 +94,14 @@ class Trajectories:
         """``(T, N)`` speed in mm/s."""
         return np.linalg.norm(self.velocity, axis=2)
 
+    @property
+    def step_speed(self) -> np.ndarray:
+        """``(T, N)`` speed over the step from the previous frame, ``|x[t] - x[t-1]| fps``,
+        mm/s (NaN at a track's first frame): a jump shows at the frame it lands in."""
+        s = np.full(self.xyz.shape[:2], np.nan)
+        s[1:] = np.linalg.norm(self.xyz[1:] - self.xyz[:-1], axis=2) * self.fps
+        return s
+
     def keep_frames(self, keep) -> Trajectories:
         """A copy with positions outside ``keep`` ``(T, N)`` set to NaN."""
         keep = np.asarray(keep, bool)

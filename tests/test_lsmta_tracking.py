@@ -1,0 +1,207 @@
+"""LSMTA tracking (D'Apuzzo 2000, §2.3): tracker, density check, trajectories, filters, KLT."""
+
+import numba
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from lsmta.evaluation import tracking as et
+from lsmta.synth import triplet_rig
+from lsmta.tracking import (
+    Reason,
+    TrackerParams,
+    Trajectories,
+    TrackStatus,
+    threshold_filter,
+    track_klt,
+    track_points,
+    trajectories_from_tracks,
+    uniformity_filter,
+)
+from lsmta.tracking.density import sparse_candidates
+
+numba.set_num_threads(1)
+
+
+def _texture(rng, shape=(120, 160), sigma=1.5):
+    img = ndimage.gaussian_filter(rng.normal(size=shape), sigma)
+    return 128 + 60 * img / img.std()
+
+
+OFFSET = 0.2   # camera k sees the texture shifted by 0.2 k px in x and y
+
+
+def _shifted_sequence(rng, velocities, n_frames=5, K=3):
+    """K cameras see one texture, each translating at its own constant velocity (px/frame)."""
+    base = _texture(rng)
+    seqs = []
+    for k in range(K):
+        frames = [ndimage.shift(base, (OFFSET * k + velocities[k][1] * t,
+                                       OFFSET * k + velocities[k][0] * t), order=3,
+                                mode="reflect") for t in range(n_frames)]
+        seqs.append(np.stack(frames))
+    return np.stack(seqs)
+
+
+@pytest.fixture(scope="module")
+def translation():
+    rng = np.random.default_rng(5)
+    vel = np.array([[1.3, -0.7], [0.4, 0.9], [-1.1, 0.25]])
+    images = _shifted_sequence(rng, vel)
+    g = np.stack(np.meshgrid(np.arange(40, 121, 10.0), np.arange(35, 86, 10.0)), -1).reshape(-1, 2)
+    xy0 = np.stack([g + OFFSET * k for k in range(3)])
+    return images, xy0, vel
+
+
+def test_tracks_a_known_translation(translation):
+    images, xy0, vel = translation
+    before = (images.copy(), xy0.copy())
+    tr = track_points(images, xy0)
+    T = images.shape[1]
+    truth = xy0[None] + np.arange(T)[:, None, None, None] * vel[None, :, None, :]
+    assert (tr.status == TrackStatus.ALIVE).mean() > 0.9
+    ok = tr.status == TrackStatus.ALIVE
+    err = np.linalg.norm(tr.xy[:, :, ok] - truth[:, :, ok], axis=3)
+    assert np.median(err) < 0.02 and err.max() < 0.1
+    assert np.array_equal(images, before[0]) and np.array_equal(xy0, before[1])
+
+
+def test_two_d_mode_and_klt_on_a_translation(translation):
+    images, xy0, vel = translation
+    truth = xy0[0][None] + np.arange(images.shape[1])[:, None, None] * vel[0]
+    tr = track_points(images[:1], xy0[:1])
+    assert tr.xy.shape[1] == 1
+    assert np.nanmax(np.linalg.norm(tr.xy[:, 0] - truth, axis=2)) < 0.1
+    kl = track_klt(images, xy0)
+    e = np.linalg.norm(kl.xy[:, 0] - truth, axis=2)
+    assert np.isfinite(e).mean() > 0.9 and np.nanmedian(e) < 0.1
+
+
+def test_lost_point_becomes_nan_and_stops():
+    rng = np.random.default_rng(8)
+    images = _shifted_sequence(rng, np.zeros((3, 2)), n_frames=5)
+    images[:, 3, 20:60, 20:60] = _texture(rng, (40, 40), sigma=0.7)   # new texture at frame 3
+    xy0 = np.tile(np.array([[40.0, 40.0], [100.0, 70.0]]), (3, 1, 1))
+    tr = track_points(images, xy0)
+    assert tr.status[0] == TrackStatus.LOST and tr.end[0] == 2
+    assert np.isnan(tr.xy[3:, :, 0]).all() and np.isfinite(tr.xy[:3, :, 0]).all()
+    assert tr.status[1] == TrackStatus.ALIVE and tr.end[1] == 4
+
+
+def test_incomplete_start_point_is_not_tracked(translation):
+    images, xy0, _ = translation
+    xy = xy0.copy()
+    xy[2, 0] = np.nan
+    tr = track_points(images, xy)
+    assert tr.status[0] == TrackStatus.NOT_STARTED and np.isnan(tr.xy[:, :, 0]).all()
+
+
+def test_bad_input(translation):
+    images, xy0, _ = translation
+    with pytest.raises(ValueError, match="unequal lengths"):
+        track_points([images[0], images[1], images[2, :-1]], xy0)
+    with pytest.raises(ValueError, match="unequal sizes"):
+        track_points([images[0], images[1], images[2][:, :-2]], xy0)
+    with pytest.raises(ValueError, match="no point matched"):
+        track_points(images, np.full_like(xy0, np.nan))
+    with pytest.raises(ValueError, match="initial_xy"):
+        track_points(images, xy0[:2])
+    with pytest.raises(ValueError, match="radius"):
+        track_points(images, xy0, params=TrackerParams(radius=0))
+    with pytest.raises(ValueError, match="no point matched"):
+        track_klt(images, np.full_like(xy0, np.nan))
+    with pytest.raises(ValueError, match="fps"):
+        Trajectories(np.zeros((3, 2, 3)), 0.0)
+    tr = track_points(images[:, :2], xy0)
+    with pytest.raises(ValueError, match="fps"):
+        trajectories_from_tracks(triplet_rig(), tr, 0)
+
+
+def test_density_check_fills_sparse_cells_only():
+    tracked = np.array([[5.0, 5.0], [8.0, 9.0], [20.0, 5.0]])
+    cand = np.array([[6.0, 6.0],    # too close to a track
+                     [12.0, 12.0],  # cell (0, 0) already holds 2 tracks
+                     [25.0, 5.0],   # cell (1, 0) holds 1 -> gets one
+                     [28.0, 12.0],  # ... but only one
+                     [40.0, 40.0],  # empty cell -> two
+                     [44.0, 44.0], [46.0, 42.0]])
+    add = sparse_candidates(tracked, cand, cell=16, min_per_cell=2, min_distance=3)
+    assert sorted(add.tolist()) == [2, 4, 5]
+
+
+def test_surface_tracking_adds_new_points(translation):
+    images, xy0, vel = translation
+    T = images.shape[1]
+    new = {}
+    for t in range(T):
+        p = np.array([[130.0, 95.0], [135.0, 60.0]])      # right part, no start points
+        new[t] = np.stack([p + OFFSET * k + t * vel[k] for k in range(3)])
+    tr = track_points(images, xy0[:, :5], new_points=new, params=TrackerParams(density_every=2))
+    assert tr.added.sum() == 2 and (tr.start[tr.added] == 2).all()
+    assert (tr.origin[tr.added] == [0, 1]).all()
+    i = np.flatnonzero(tr.added)
+    truth = new[2][:, :, None, :] + (np.arange(T) - 2)[None, None, :, None] * vel[:, None, None]
+    got = tr.xy[2:, :, i].transpose(1, 2, 0, 3)          # (K, 2, T-2, 2)
+    assert np.nanmax(np.abs(got - truth[:, :, 2:])) < 0.1 and np.isnan(tr.xy[:2, :, i]).all()
+
+
+def test_trajectories_velocity_acceleration_and_gaps():
+    fps = 25.0
+    t = np.arange(8) / fps
+    x = np.zeros((8, 2, 3))
+    x[:, 0, 0] = 100 * t + 0.5 * 2000 * t ** 2          # a = 2000 mm/s^2
+    x[:, 1, 1] = 50.0
+    x[:2, 1] = np.nan
+    x[6:, 1] = np.nan
+    tr = Trajectories(x, fps)
+    assert tr.start.tolist() == [0, 2] and tr.end.tolist() == [7, 5]
+    assert tr.length.tolist() == [8, 4]
+    assert np.allclose(tr.velocity[1:-1, 0, 0], 100 + 2000 * t[1:-1])
+    assert np.allclose(tr.acceleration[1:-1, 0, 0], 2000)
+    assert np.isnan(tr.acceleration[[0, 7], 0]).all() and np.isnan(tr.acceleration[2, 1]).all()
+    assert np.isnan(tr.velocity[:2, 1]).all() and np.allclose(tr.velocity[2:6, 1], 0)
+
+
+def _field(rng, N=60, T=12):
+    """N points on a 300 mm patch moving together at 500 mm/s along x."""
+    p0 = rng.uniform(0, 300, (N, 3))
+    t = np.arange(T) / 25.0
+    return p0[None] + t[:, None, None] * np.array([500.0, 0, 0])
+
+
+def test_threshold_filter_truncates_at_a_jump_and_says_why():
+    rng = np.random.default_rng(3)
+    x = _field(rng)
+    x[6:, 0] += [0, 0, 80.0]           # jumps 80 mm at frame 6 -> 2000 mm/s more
+    x[2:, 1] += [0, 0, 80.0]           # jumps at frame 2 -> too short after truncation
+    rep = threshold_filter(Trajectories(x, 25.0), max_speed=1500, max_acceleration=1e5,
+                           min_length=3)
+    assert rep.truncated[0] and rep.cut_frame[0] == 6 and rep.reason[0] == Reason.SPEED
+    assert np.isfinite(rep.trajectories.xyz[:6, 0]).all()
+    assert np.isnan(rep.trajectories.xyz[6:, 0]).all()
+    assert rep.removed[1] and np.isnan(rep.trajectories.xyz[:, 1]).all()
+    assert not (rep.removed[2:] | rep.truncated[2:]).any()
+    assert rep.summary()["speed"] == {"removed": 1, "truncated": 1}
+
+
+def test_uniformity_filter_finds_a_point_moving_against_its_neighbours():
+    rng = np.random.default_rng(4)
+    x = _field(rng)
+    t = np.arange(x.shape[0]) / 25.0
+    x[4:, 0, 0] = x[4, 0, 0] - 400 * (t[4:] - t[4])     # from frame 4 on, moves backwards
+    before = x.copy()
+    rep = uniformity_filter(Trajectories(x, 25.0), voxel=400, max_deviation=300, window=1,
+                            min_neighbours=3, min_length=3)
+    assert rep.truncated[0] and rep.reason[0] == Reason.NOT_UNIFORM and rep.cut_frame[0] <= 4
+    assert not (rep.removed[1:] | rep.truncated[1:]).any()
+    assert np.array_equal(x, before)
+
+
+def test_rendered_walk_tracks_against_truth():
+    seq = et.walk_sequence(7, n_frames=4, surface_every=4)
+    trial = et.run_trial(seq, 80, np.random.default_rng(1), density=False)
+    sc = trial.score
+    assert trial.tracks.alive[-1].sum() >= 10
+    assert np.nanmedian(sc.step_error) < 0.2
+    assert np.nanmedian(sc.error_3d[1:]) < 5.0
+    assert np.nanmedian(sc.step_error) < np.nanmedian(trial.klt_score.step_error) * 1.5

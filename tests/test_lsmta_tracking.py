@@ -10,8 +10,8 @@ from lsmta.synth import triplet_rig
 from lsmta.tracking import (
     Reason,
     TrackerParams,
-    Trajectories,
     TrackStatus,
+    Trajectories,
     threshold_filter,
     track_klt,
     track_points,

@@ -200,3 +200,32 @@ def run_trial(seq: Sequence, n_points: int, rng: np.random.Generator, *, params=
                  klt=klt, klt_traj=klt_traj,
                  klt_score=score_tracks(seq, klt, part0, local0, klt_traj, false_mm=false_mm),
                  seconds=seconds, klt_seconds=klt_seconds, part=part, local=local)
+
+
+def score_filter(before: Trajectories, after: Trajectories, score: TrackScore) -> dict:
+    """How well a filtering removed false trajectories.
+
+    A trajectory is *false* when some frame of it lies more than the score's threshold from
+    its true surface point; it is *caught* when none of its false frames is left; it is
+    *touched* when the filtering removed any of its frames. Returns ``recall`` (caught /
+    false), ``precision`` (false / touched), ``correct_length_removed`` (share of the
+    correct frames removed), ``false_length_left`` (share of the remaining frames that are
+    false) and the counts.
+    """
+    pb, pa = before.present, after.present
+    false_b = score.false_frames(pb)
+    false_a = score.false_frames(pa)
+    is_false = false_b.any(axis=0)
+    caught = is_false & ~false_a.any(axis=0)
+    touched = (pb & ~pa).any(axis=0)
+    correct_b = pb & ~false_b
+    n_false, n_touched = int(is_false.sum()), int(touched.sum())
+    return {
+        "n_trajectories": int(pb.any(axis=0).sum()), "n_false": n_false,
+        "n_touched": n_touched, "n_caught": int(caught.sum()),
+        "recall": float(caught.sum() / n_false) if n_false else float("nan"),
+        "precision": float((touched & is_false).sum() / n_touched) if n_touched
+        else float("nan"),
+        "correct_length_removed": float((correct_b & ~pa).sum() / max(correct_b.sum(), 1)),
+        "false_length_left": float(false_a.sum() / max(pa.sum(), 1)),
+    }

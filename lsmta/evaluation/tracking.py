@@ -229,3 +229,51 @@ def score_filter(before: Trajectories, after: Trajectories, score: TrackScore) -
         "correct_length_removed": float((correct_b & ~pa).sum() / max(correct_b.sum(), 1)),
         "false_length_left": float(false_a.sum() / max(pa.sum(), 1)),
     }
+
+
+@dataclass(frozen=True)
+class FaceVideo:
+    """A single-camera face video (2-D mode) and its truth.
+
+    Attributes
+    ----------
+    images : (T, H, W) uint8 array
+    truth_xy : (T, M, 2) array
+        True image positions of the key points (NaN where not visible).
+    edges : (E, 2) int array
+        Lines joining neighbouring key points (Delaunay triangulation of frame 0).
+    """
+
+    images: np.ndarray
+    truth_xy: np.ndarray
+    edges: np.ndarray
+
+
+def face_video(seed: int = 14, *, n_frames: int = 40, dot_amplitude: float = 40.0,
+               noise: float = 2.0, hold: float = 12.0) -> FaceVideo:
+    """One fixed camera (a camcorder) filming a still head making expressions.
+
+    The key points are the 76 points of the face model, drawn as soft dots of
+    ``dot_amplitude`` grey levels on a skin texture (the generator's marker video; the
+    texture moves with the head only, not with the expressions).
+    """
+    from scipy.spatial import Delaunay
+
+    from ..synth.face import face_cameras, face_model, face_sequence, visible
+    from ..synth.marker_video import render_marker_video
+
+    rng = np.random.default_rng(seed)
+    seq = face_sequence(face_model(), n_frames, rng, moving=False, hold=hold)
+    cam = face_cameras(seq.t[0])[1]
+    vis = np.stack([visible(seq.world[f], seq.normals[f], cam.C) for f in range(n_frames)])
+    video = render_marker_video([cam] * n_frames, seq.world, vis, seq.t, rng,
+                                dot_amplitude=dot_amplitude, noise=noise)
+    seen = np.isfinite(video.xy[0]).all(axis=1)
+    tri = Delaunay(video.xy[0, seen])
+    idx = np.flatnonzero(seen)
+    e = np.concatenate([tri.simplices[:, [0, 1]], tri.simplices[:, [1, 2]],
+                        tri.simplices[:, [2, 0]]])
+    e = np.unique(np.sort(idx[e], axis=1), axis=0)
+    length = np.linalg.norm(video.xy[0, e[:, 0]] - video.xy[0, e[:, 1]], axis=1)
+    e = e[length < 2.5 * np.median(length)]
+    return FaceVideo(images=video.images, truth_xy=video.xy, edges=e)

@@ -90,7 +90,7 @@ class TrackerParams:
         max_sigma0=15.0, max_sigma_xy=0.4, max_displacement=3.0, scale_range=(0.5, 2.0),
         max_shear=0.6))
     geometry: str = "affine"
-    max_iter: int = 30
+    max_iter: int = 60
     tol: float = 0.01
     neighbours: int = 8
     density_every: int = 2

@@ -106,6 +106,8 @@ def test_bad_input(translation):
         track_points(images, np.full_like(xy0, np.nan))
     with pytest.raises(ValueError, match="initial_xy"):
         track_points(images, xy0[:2])
+    with pytest.raises(ValueError, match="density_every"):
+        track_points(images, xy0, params=TrackerParams(density_every=0))
     with pytest.raises(ValueError, match="radius"):
         track_points(images, xy0, params=TrackerParams(radius=0))
     with pytest.raises(ValueError, match="no point matched"):
@@ -205,3 +207,32 @@ def test_rendered_walk_tracks_against_truth():
     assert np.nanmedian(sc.step_error) < 0.2
     assert np.nanmedian(sc.error_3d[1:]) < 5.0
     assert np.nanmedian(sc.step_error) < np.nanmedian(trial.klt_score.step_error) * 1.5
+
+
+def test_score_filter_counts_caught_false_and_correct_length():
+    from lsmta.evaluation.tracking import TrackScore
+
+    T, N = 6, 3
+    x = np.zeros((T, N, 3))
+    before = Trajectories(x, 25.0)
+    false_from = np.array([-1, 3, 2])
+    score = TrackScore(image_error=None, step_error=None, error_3d=None, false_from=false_from,
+                       truth_xy=None, truth_xyz=None, visible=None)
+    keep = np.ones((T, N), bool)
+    keep[3:, 1] = False          # false part of trajectory 1 cut: caught
+    keep[4:, 0] = False          # 2 of 6 correct frames of trajectory 0 cut
+    s = et.score_filter(before, before.keep_frames(keep), score)
+    assert s["n_false"] == 2 and s["n_caught"] == 1 and s["recall"] == 0.5
+    assert s["precision"] == 0.5
+    correct = 6 + 3 + 2
+    assert s["correct_length_removed"] == pytest.approx(2 / correct)
+    assert s["false_length_left"] == pytest.approx(4 / keep.sum())
+
+
+def test_arm_sequence_and_bad_motion():
+    seq = et.walk_sequence(3, n_frames=2, scale=0.25, motion="arm", surface_every=1)
+    assert seq.images.shape[:2] == (3, 2) and len(seq.surface[0].part) > 0
+    pr = seq.truth(seq.surface[1].part, seq.surface[1].local)
+    assert np.allclose(pr.xy[1], seq.surface[1].xy)
+    with pytest.raises(ValueError, match="motion"):
+        et.walk_sequence(3, n_frames=2, motion="run")

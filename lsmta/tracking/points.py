@@ -207,6 +207,10 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
         r = getattr(p, name)
         if isinstance(r, bool) or int(r) != r or r < 1:
             raise ValueError(f"params.{name}: expected an integer >= 1 (pixels), got {r}")
+    if isinstance(p.density_every, bool) or int(p.density_every) != p.density_every \
+            or p.density_every < 1:
+        raise ValueError(f"params.density_every: expected an integer >= 1 (frames), got "
+                         f"{p.density_every}")
     seq = as_sequences(images)
     K, T = seq.shape[:2]
     if K > 1 and not 0 <= p.template < K:

@@ -34,7 +34,8 @@ class Trajectories:
     fps: float
 
     def __post_init__(self):
-        xyz = as_array(self.xyz, "xyz", shape=(None, None, 3), allow_nan=True)
+        xyz = np.array(as_array(self.xyz, "xyz", shape=(None, None, 3), allow_nan=True))
+        xyz.flags.writeable = False
         object.__setattr__(self, "xyz", xyz)
         object.__setattr__(self, "fps", as_scalar(self.fps, "fps", positive=True))
 

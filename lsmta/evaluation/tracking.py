@@ -165,19 +165,19 @@ class Trial:
     tracks: Tracks
     traj: Trajectories
     score: TrackScore
-    klt: Tracks
-    klt_traj: Trajectories
-    klt_score: TrackScore
+    klt: Tracks | None
+    klt_traj: Trajectories | None
+    klt_score: TrackScore | None
     seconds: float
-    klt_seconds: float
+    klt_seconds: float | None
     part: np.ndarray
     local: np.ndarray
 
 
 def run_trial(seq: Sequence, n_points: int, rng: np.random.Generator, *, params=None,
-              density: bool = True, false_mm: float = 10.0) -> Trial:
+              density: bool = True, false_mm: float = 10.0, klt: bool = True) -> Trial:
     """Track ``n_points`` of frame 0's surface with LSMTA (with the density check unless
-    ``density`` is False) and with KLT; score both."""
+    ``density`` is False) and, if ``klt``, with KLT; score both."""
     import time
 
     from ..tracking.klt import track_klt
@@ -189,17 +189,19 @@ def run_trial(seq: Sequence, n_points: int, rng: np.random.Generator, *, params=
     tracks = track_points(seq.images, xy0, params=params,
                           new_points=candidates(seq) if density else None)
     seconds = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    klt = track_klt(seq.images, xy0)
-    klt_seconds = time.perf_counter() - t0
     part, local = track_identity(seq, tracks, part0, local0)
     traj = trajectories_from_tracks(seq.cameras, tracks, seq.fps)
-    klt_traj = trajectories_from_tracks(seq.cameras, klt, seq.fps)
-    return Trial(sequence=seq, tracks=tracks, traj=traj,
-                 score=score_tracks(seq, tracks, part, local, traj, false_mm=false_mm),
-                 klt=klt, klt_traj=klt_traj,
-                 klt_score=score_tracks(seq, klt, part0, local0, klt_traj, false_mm=false_mm),
-                 seconds=seconds, klt_seconds=klt_seconds, part=part, local=local)
+    score = score_tracks(seq, tracks, part, local, traj, false_mm=false_mm)
+    peer = peer_traj = peer_score = peer_seconds = None
+    if klt:
+        t0 = time.perf_counter()
+        peer = track_klt(seq.images, xy0)
+        peer_seconds = time.perf_counter() - t0
+        peer_traj = trajectories_from_tracks(seq.cameras, peer, seq.fps)
+        peer_score = score_tracks(seq, peer, part0, local0, peer_traj, false_mm=false_mm)
+    return Trial(sequence=seq, tracks=tracks, traj=traj, score=score, klt=peer,
+                 klt_traj=peer_traj, klt_score=peer_score, seconds=seconds,
+                 klt_seconds=peer_seconds, part=part, local=local)
 
 
 def score_filter(before: Trajectories, after: Trajectories, score: TrackScore) -> dict:

@@ -16,7 +16,8 @@ frame ``t + 1``, starting at their temporal results (with each track's previous 
 affinity). A track is accepted when every temporal LSM passed its thresholds and every
 spatial LSM stayed within ``max_disagreement`` pixels of the temporal result. Rejected
 tracks are searched again in a box of half-width ``retry_radius``; rejected twice, the track
-stops and its later positions are NaN (never a made-up position).
+stops and its later positions are NaN (never a made-up position). A track without history
+is searched in the ``retry_radius`` box first and then in one twice as large.
 
 With one camera (2-D mode, paper Section 2.3.3) there is no spatial LSM: a track is accepted
 when the temporal LSM passes its thresholds (among them the largest distance from the
@@ -225,10 +226,10 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
     if initial_velocity is not None:
         vel0 = as_array(initial_velocity, "initial_velocity", shape=xy0.shape, allow_nan=True)
 
-    # growing state: lists of per-track arrays, stacked at the end
-    xy = [np.full((T, K, xy0.shape[1], 2), np.nan)]
-    xy[0][0] = np.where(started[None, :, None], xy0, np.nan)
-    state = _State(xy=xy[0], start=np.zeros(xy0.shape[1], np.int64),
+    # the state grows when the density check adds tracks
+    xy = np.full((T, K, xy0.shape[1], 2), np.nan)
+    xy[0] = np.where(started[None, :, None], xy0, np.nan)
+    state = _State(xy=xy, start=np.zeros(xy0.shape[1], np.int64),
                    end=np.where(started, 0, -1).astype(np.int64),
                    status=np.where(started, TrackStatus.ALIVE, TrackStatus.NOT_STARTED),
                    retried=np.zeros((T, xy0.shape[1]), bool),

@@ -12,6 +12,8 @@ from lsmta.tracking import (
     TrackerParams,
     TrackStatus,
     Trajectories,
+    drift_deviation,
+    drift_filter,
     threshold_filter,
     track_klt,
     track_points,
@@ -197,6 +199,64 @@ def test_uniformity_filter_finds_a_point_moving_against_its_neighbours():
     assert rep.truncated[0] and rep.reason[0] == Reason.NOT_UNIFORM and rep.cut_frame[0] <= 4
     assert not (rep.removed[1:] | rep.truncated[1:]).any()
     assert np.array_equal(x, before)
+
+
+def _rotating_patch(rng, T=30, fps=25.0, omega=1.5, noise=0.3):
+    """A 9 x 9 grid (40 mm spacing) of surface points on a plate rotating at ``omega`` rad/s
+    about the z axis 300 mm away while translating at 700 mm/s: (T, 81, 3) mm."""
+    g = np.arange(9) * 40.0
+    u, w = np.meshgrid(g, g)
+    p0 = np.stack([u.ravel() + 300.0, np.zeros(u.size), w.ravel()], axis=1)
+    a = omega * np.arange(T) / fps
+    c, s = np.cos(a)[:, None], np.sin(a)[:, None]
+    x = np.stack([c * p0[:, 0] - s * p0[:, 1], s * p0[:, 0] + c * p0[:, 1],
+                  np.broadcast_to(p0[:, 2], (T, len(p0)))], axis=2)
+    x[..., 0] += 700.0 * np.arange(T)[:, None] / fps
+    return x + rng.normal(scale=noise, size=x.shape)
+
+
+def test_drift_filter_truncates_a_slow_drift_that_the_paper_filter_misses():
+    rng = np.random.default_rng(5)
+    x = _rotating_patch(rng)
+    i, start = 40, 12                       # the middle point slides 1.5 mm a frame from 12 on
+    x[start:, i, 2] += 1.5 * np.arange(1, x.shape[0] - start + 1)
+    before = x.copy()
+    traj = Trajectories(x, 25.0)
+    rep = drift_filter(traj, max_drift=8.0, window=10, k=10, radius=200.0)
+    assert np.array_equal(x, before)
+    assert rep.truncated[i] and rep.reason[i] == Reason.DRIFT
+    # 8 mm of drift are reached about 5-6 frames after it starts
+    assert start + 3 <= rep.cut_frame[i] <= start + 8
+    assert np.isfinite(rep.trajectories.xyz[:rep.cut_frame[i], i]).all()
+    assert np.isnan(rep.trajectories.xyz[rep.cut_frame[i]:, i]).all()
+    others = np.arange(x.shape[1]) != i
+    assert not (rep.truncated[others] | rep.removed[others]).any()
+    # per frame the drift (37.5 mm/s) hides in the rotation's spread of velocities
+    paper = uniformity_filter(traj, voxel=400, max_deviation=150, min_neighbours=3)
+    assert not paper.truncated[i]
+    # a median of the neighbours ignores the rotation: it needs a much looser threshold
+    clean = Trajectories(_rotating_patch(np.random.default_rng(7)), 25.0)
+    dev_med = drift_deviation(clean, local="median")
+    dev_aff = drift_deviation(clean, local="affine")
+    assert np.nanmax(dev_aff) < 4.0 < 8.0 < np.nanmax(dev_med)
+
+
+def test_drift_filter_gives_no_verdict_without_neighbours_and_rejects_bad_input():
+    x = _rotating_patch(np.random.default_rng(6))[:, :4]
+    rep = drift_filter(Trajectories(x, 25.0), min_neighbours=5)
+    assert not (rep.truncated | rep.removed).any()
+    traj = Trajectories(_rotating_patch(np.random.default_rng(6), T=5), 25.0)
+    assert np.isnan(drift_deviation(traj, window=10)).all()      # shorter than the window
+    with pytest.raises(ValueError, match="window"):
+        drift_filter(traj, window=0)
+    with pytest.raises(ValueError, match="min_neighbours"):
+        drift_filter(traj, k=4, min_neighbours=5)
+    with pytest.raises(ValueError, match="local"):
+        drift_filter(traj, local="mean")
+    with pytest.raises(ValueError, match="max_drift"):
+        drift_filter(traj, max_drift=-1.0)
+    with pytest.raises(TypeError, match="trajectories"):
+        drift_filter(x)
 
 
 def test_rendered_walk_tracks_against_truth():

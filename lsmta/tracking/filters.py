@@ -11,6 +11,17 @@ mean (of the *other* trajectories: its own velocity is left out) by more than
 ``max_deviation`` mm/s fails in that frame; voxels with fewer than ``min_neighbours`` other
 trajectories give no verdict.
 
+*Drift filter* (ours, not in the paper): the uniformity test applied to the displacement
+accumulated over ``window`` frames instead of the per-frame velocity. A trajectory that slides
+slowly off its surface point (a millimetre a frame) looks slow and locally uniform in every
+single frame, but its drift adds up while its neighbours' local motion does not. For each
+frame t and each trajectory present at t - window and t, the displacement x[t] - x[t-window]
+is compared with the displacement predicted at its position from its ``k`` nearest
+neighbours (within ``radius`` mm at frame t - window, the trajectory itself left out): a
+local affine motion fitted by least squares (``local="affine"``; it follows the rotation of
+a limb, which a mean would not) or the component-wise median of their displacements
+(``local="median"``, robust). A deviation above ``max_drift`` mm fails the trajectory at t.
+
 A failing trajectory is *truncated* at its first failure (the positions from that frame on
 become NaN); if fewer than ``min_length`` frames remain, it is *removed*. Each filter
 reports what it removed or truncated, and why.
@@ -22,6 +33,7 @@ import enum
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .._validate import as_scalar
 from .trajectories import Trajectories
@@ -34,6 +46,7 @@ class Reason(enum.IntEnum):
     SPEED = 1          #: speed above the threshold
     ACCELERATION = 2   #: acceleration above the threshold
     NOT_UNIFORM = 3    #: velocity differs from the local mean
+    DRIFT = 4          #: accumulated displacement differs from the neighbours' local motion
 
 
 @dataclass(frozen=True)
@@ -196,3 +209,109 @@ def uniformity_filter(trajectories: Trajectories, *, voxel: float = 100.0,
     return _cut(trajectories, fail, np.full((T, N), int(Reason.NOT_UNIFORM)), min_length)
 
 
+
+
+def _local_prediction(centre, p, d, nb, valid, local: str, ridge: float):
+    """Displacement predicted at m points from their neighbours.
+
+    centre : (m, 3) the points; p, d : (n, 3) all positions and displacements;
+    nb, valid : (m, k) neighbour indices into p and which of them count. Returns (m, 3).
+    """
+    if local == "median":
+        return np.nanmedian(np.where(valid[..., None], d[nb], np.nan), axis=1)
+    # affine: d_j = b + A (p_j - p_i), weighted least squares with a small ridge on A
+    # (a patch of surface is nearly flat, so A is undetermined along its normal); b is the
+    # prediction at the point itself
+    w = valid.astype(float)[..., None]
+    rel = p[nb] - centre[:, None]
+    design = np.concatenate([np.ones(rel.shape[:2] + (1,)), rel], axis=2) * w
+    lhs = np.einsum("nki,nkj->nij", design, design) + np.diag([0.0, ridge, ridge, ridge])
+    rhs = np.einsum("nki,nkj->nij", design, d[nb] * w)
+    return np.linalg.solve(lhs, rhs)[:, 0]
+
+
+def drift_deviation(trajectories: Trajectories, *, window: int = 10, k: int = 10,
+                    radius: float = 200.0, min_neighbours: int = 5,
+                    local: str = "affine", ridge: float = 100.0) -> np.ndarray:
+    """Deviation of each trajectory's accumulated displacement from its neighbours' motion.
+
+    Parameters
+    ----------
+    trajectories : Trajectories
+    window : int
+        Frames over which the displacement is accumulated (>= 1).
+    k : int
+        Neighbours considered (nearest at frame t - window).
+    radius : float
+        Farthest neighbour, mm.
+    min_neighbours : int
+        Fewest neighbours within ``radius`` for a verdict.
+    local : {"affine", "median"}
+        Local motion model of the neighbours.
+    ridge : float
+        Ridge on the affine part (mm², per neighbour weight); ``"affine"`` only.
+
+    Returns
+    -------
+    (T, N) array
+        |displacement - predicted| in mm at frame t (NaN: no verdict).
+    """
+    if not isinstance(trajectories, Trajectories):
+        raise TypeError(f"trajectories: expected lsmta.tracking.Trajectories, got "
+                        f"{type(trajectories).__name__}")
+    for name, val, low in (("window", window, 1), ("k", k, 1),
+                           ("min_neighbours", min_neighbours, 1)):
+        if int(val) != val or val < low:
+            raise ValueError(f"{name}: expected an integer >= {low}, got {val}")
+    if min_neighbours > k:
+        raise ValueError(f"min_neighbours: expected at most k={k}, got {min_neighbours}")
+    radius = as_scalar(radius, "radius", positive=True)
+    ridge = as_scalar(ridge, "ridge", nonnegative=True)
+    if local not in ("affine", "median"):
+        raise ValueError(f"local: expected 'affine' or 'median', got {local!r}")
+    x = trajectories.xyz
+    T, N, _ = x.shape
+    window, k = int(window), int(k)
+    present = trajectories.present
+    dev = np.full((T, N), np.nan)
+    for t in range(window, T):
+        idx = np.flatnonzero(present[t - window] & present[t])
+        if len(idx) < min_neighbours + 1:
+            continue
+        p = x[t - window, idx]
+        d = x[t, idx] - p
+        dist, nb = cKDTree(p).query(p, k=min(k + 1, len(idx)), distance_upper_bound=radius)
+        # the nearest is the point itself: leave it out
+        dist, nb = dist[:, 1:], np.minimum(nb[:, 1:], len(idx) - 1)
+        valid = np.isfinite(dist)
+        judged = valid.sum(axis=1) >= min_neighbours
+        if not judged.any():
+            continue
+        pred = _local_prediction(p[judged], p, d, nb[judged], valid[judged], local, ridge)
+        dev[t, idx[judged]] = np.linalg.norm(d[judged] - pred, axis=1)
+    return dev
+
+
+def drift_filter(trajectories: Trajectories, *, max_drift: float = 8.0, window: int = 10,
+                 k: int = 10, radius: float = 200.0, min_neighbours: int = 5,
+                 local: str = "affine", ridge: float = 100.0,
+                 min_length: int = 3) -> FilterReport:
+    """Cut trajectories whose displacement over ``window`` frames leaves the local motion.
+
+    The uniformity test of the paper on accumulated instead of per-frame motion (ours; see
+    the module docstring). Parameters as :func:`drift_deviation`, and
+
+    max_drift : float
+        Largest accepted deviation, mm.
+    min_length : int
+        A trajectory left with fewer frames is removed.
+
+    The trajectory is truncated at the first frame t whose window fails.
+    """
+    _check(trajectories, min_length)
+    max_drift = as_scalar(max_drift, "max_drift", positive=True)
+    dev = drift_deviation(trajectories, window=window, k=k, radius=radius,
+                          min_neighbours=min_neighbours, local=local, ridge=ridge)
+    with np.errstate(invalid="ignore"):
+        fail = dev > max_drift
+    return _cut(trajectories, fail, np.full(fail.shape, int(Reason.DRIFT)), min_length)

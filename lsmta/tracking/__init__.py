@@ -1,2 +1,27 @@
-"""Tracking in image space. Built: small-scale marker tracking in video (``markers``);
-LSMTA tracking and 3-D trajectories are planned."""
+"""Tracking in image space and 3-D trajectories.
+
+``track_points`` is the LSMTA tracker (temporal and spatial LSM, density check for surface
+tracking, 2-D mode with one camera); ``track_klt`` the OpenCV KLT peer;
+``trajectories_from_tracks`` intersects tracks into :class:`Trajectories` (velocities,
+accelerations); ``threshold_filter`` and ``uniformity_filter`` (the paper's) and
+``drift_filter`` (ours) cut false trajectories.
+``markers`` is the small-scale marker tracker of Davis §5.1.
+"""
+
+from .filters import (
+    FilterReport,
+    Reason,
+    drift_deviation,
+    drift_filter,
+    threshold_filter,
+    uniformity_filter,
+)
+from .klt import track_klt
+from .points import TrackerParams, Tracks, TrackStatus, track_points
+from .trajectories import Trajectories, trajectories_from_tracks
+
+__all__ = [
+    "FilterReport", "Reason", "TrackStatus", "TrackerParams", "Tracks", "Trajectories",
+    "drift_deviation", "drift_filter", "threshold_filter", "track_klt", "track_points",
+    "trajectories_from_tracks", "uniformity_filter",
+]

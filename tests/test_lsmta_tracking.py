@@ -1,0 +1,298 @@
+"""LSMTA tracking (D'Apuzzo 2000, §2.3): tracker, density check, trajectories, filters, KLT."""
+
+import numba
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from lsmta.evaluation import tracking as et
+from lsmta.synth import triplet_rig
+from lsmta.tracking import (
+    Reason,
+    TrackerParams,
+    TrackStatus,
+    Trajectories,
+    drift_deviation,
+    drift_filter,
+    threshold_filter,
+    track_klt,
+    track_points,
+    trajectories_from_tracks,
+    uniformity_filter,
+)
+from lsmta.tracking.density import sparse_candidates
+
+numba.set_num_threads(1)
+
+
+def _texture(rng, shape=(120, 160), sigma=1.5):
+    img = ndimage.gaussian_filter(rng.normal(size=shape), sigma)
+    return 128 + 60 * img / img.std()
+
+
+OFFSET = 0.2   # camera k sees the texture shifted by 0.2 k px in x and y
+
+
+def _shifted_sequence(rng, velocities, n_frames=5, K=3):
+    """K cameras see one texture, each translating at its own constant velocity (px/frame)."""
+    base = _texture(rng)
+    seqs = []
+    for k in range(K):
+        frames = [ndimage.shift(base, (OFFSET * k + velocities[k][1] * t,
+                                       OFFSET * k + velocities[k][0] * t), order=3,
+                                mode="reflect") for t in range(n_frames)]
+        seqs.append(np.stack(frames))
+    return np.stack(seqs)
+
+
+@pytest.fixture(scope="module")
+def translation():
+    rng = np.random.default_rng(5)
+    vel = np.array([[1.3, -0.7], [0.4, 0.9], [-1.1, 0.25]])
+    images = _shifted_sequence(rng, vel)
+    g = np.stack(np.meshgrid(np.arange(40, 121, 10.0), np.arange(35, 86, 10.0)), -1).reshape(-1, 2)
+    xy0 = np.stack([g + OFFSET * k for k in range(3)])
+    return images, xy0, vel
+
+
+def test_tracks_a_known_translation(translation):
+    images, xy0, vel = translation
+    before = (images.copy(), xy0.copy())
+    tr = track_points(images, xy0)
+    T = images.shape[1]
+    truth = xy0[None] + np.arange(T)[:, None, None, None] * vel[None, :, None, :]
+    assert (tr.status == TrackStatus.ALIVE).mean() > 0.9
+    ok = tr.status == TrackStatus.ALIVE
+    err = np.linalg.norm(tr.xy[:, :, ok] - truth[:, :, ok], axis=3)
+    assert np.median(err) < 0.02 and err.max() < 0.1
+    assert np.array_equal(images, before[0]) and np.array_equal(xy0, before[1])
+
+
+def test_two_d_mode_and_klt_on_a_translation(translation):
+    images, xy0, vel = translation
+    truth = xy0[0][None] + np.arange(images.shape[1])[:, None, None] * vel[0]
+    tr = track_points(images[:1], xy0[:1])
+    assert tr.xy.shape[1] == 1
+    assert np.nanmax(np.linalg.norm(tr.xy[:, 0] - truth, axis=2)) < 0.1
+    kl = track_klt(images, xy0)
+    e = np.linalg.norm(kl.xy[:, 0] - truth, axis=2)
+    assert np.isfinite(e).mean() > 0.9 and np.nanmedian(e) < 0.1
+
+
+def test_lost_point_becomes_nan_and_stops():
+    rng = np.random.default_rng(8)
+    images = _shifted_sequence(rng, np.zeros((3, 2)), n_frames=5)
+    images[:, 3, 20:60, 20:60] = _texture(rng, (40, 40), sigma=0.7)   # new texture at frame 3
+    xy0 = np.tile(np.array([[40.0, 40.0], [100.0, 70.0]]), (3, 1, 1))
+    tr = track_points(images, xy0)
+    assert tr.status[0] == TrackStatus.LOST and tr.end[0] == 2
+    assert np.isnan(tr.xy[3:, :, 0]).all() and np.isfinite(tr.xy[:3, :, 0]).all()
+    assert tr.status[1] == TrackStatus.ALIVE and tr.end[1] == 4
+
+
+def test_incomplete_start_point_is_not_tracked(translation):
+    images, xy0, _ = translation
+    xy = xy0.copy()
+    xy[2, 0] = np.nan
+    tr = track_points(images, xy)
+    assert tr.status[0] == TrackStatus.NOT_STARTED and np.isnan(tr.xy[:, :, 0]).all()
+
+
+def test_bad_input(translation):
+    images, xy0, _ = translation
+    with pytest.raises(ValueError, match="unequal lengths"):
+        track_points([images[0], images[1], images[2, :-1]], xy0)
+    with pytest.raises(ValueError, match="unequal sizes"):
+        track_points([images[0], images[1], images[2][:, :-2]], xy0)
+    with pytest.raises(ValueError, match="no point matched"):
+        track_points(images, np.full_like(xy0, np.nan))
+    with pytest.raises(ValueError, match="initial_xy"):
+        track_points(images, xy0[:2])
+    with pytest.raises(ValueError, match="density_every"):
+        track_points(images, xy0, params=TrackerParams(density_every=0))
+    with pytest.raises(ValueError, match="radius"):
+        track_points(images, xy0, params=TrackerParams(radius=0))
+    with pytest.raises(ValueError, match="no point matched"):
+        track_klt(images, np.full_like(xy0, np.nan))
+    with pytest.raises(ValueError, match="fps"):
+        Trajectories(np.zeros((3, 2, 3)), 0.0)
+    tr = track_points(images[:, :2], xy0)
+    with pytest.raises(ValueError, match="fps"):
+        trajectories_from_tracks(triplet_rig(), tr, 0)
+
+
+def test_density_check_fills_sparse_cells_only():
+    tracked = np.array([[5.0, 5.0], [8.0, 9.0], [20.0, 5.0]])
+    cand = np.array([[6.0, 6.0],    # too close to a track
+                     [12.0, 12.0],  # cell (0, 0) already holds 2 tracks
+                     [25.0, 5.0],   # cell (1, 0) holds 1 -> gets one
+                     [28.0, 12.0],  # ... but only one
+                     [40.0, 40.0],  # empty cell -> two
+                     [44.0, 44.0], [46.0, 42.0]])
+    add = sparse_candidates(tracked, cand, cell=16, min_per_cell=2, min_distance=3)
+    assert sorted(add.tolist()) == [2, 4, 5]
+
+
+def test_surface_tracking_adds_new_points(translation):
+    images, xy0, vel = translation
+    T = images.shape[1]
+    new = {}
+    for t in range(T):
+        p = np.array([[130.0, 95.0], [135.0, 60.0]])      # right part, no start points
+        new[t] = np.stack([p + OFFSET * k + t * vel[k] for k in range(3)])
+    tr = track_points(images, xy0[:, :5], new_points=new, params=TrackerParams(density_every=2))
+    assert tr.added.sum() == 2 and (tr.start[tr.added] == 2).all()
+    assert (tr.origin[tr.added] == [0, 1]).all()
+    i = np.flatnonzero(tr.added)
+    truth = new[2][:, :, None, :] + (np.arange(T) - 2)[None, None, :, None] * vel[:, None, None]
+    got = tr.xy[2:, :, i].transpose(1, 2, 0, 3)          # (K, 2, T-2, 2)
+    assert np.nanmax(np.abs(got - truth[:, :, 2:])) < 0.1 and np.isnan(tr.xy[:2, :, i]).all()
+
+
+def test_trajectories_velocity_acceleration_and_gaps():
+    fps = 25.0
+    t = np.arange(8) / fps
+    x = np.zeros((8, 2, 3))
+    x[:, 0, 0] = 100 * t + 0.5 * 2000 * t ** 2          # a = 2000 mm/s^2
+    x[:, 1, 1] = 50.0
+    x[:2, 1] = np.nan
+    x[6:, 1] = np.nan
+    tr = Trajectories(x, fps)
+    assert tr.start.tolist() == [0, 2] and tr.end.tolist() == [7, 5]
+    assert tr.length.tolist() == [8, 4]
+    assert np.allclose(tr.velocity[1:-1, 0, 0], 100 + 2000 * t[1:-1])
+    assert np.allclose(tr.acceleration[1:-1, 0, 0], 2000)
+    assert np.isnan(tr.acceleration[[0, 7], 0]).all() and np.isnan(tr.acceleration[2, 1]).all()
+    assert np.isnan(tr.velocity[:2, 1]).all() and np.allclose(tr.velocity[2:6, 1], 0)
+
+
+def _field(rng, N=60, T=12):
+    """N points on a 300 mm patch moving together at 500 mm/s along x."""
+    p0 = rng.uniform(0, 300, (N, 3))
+    t = np.arange(T) / 25.0
+    return p0[None] + t[:, None, None] * np.array([500.0, 0, 0])
+
+
+def test_threshold_filter_truncates_at_a_jump_and_says_why():
+    rng = np.random.default_rng(3)
+    x = _field(rng)
+    x[6:, 0] += [0, 0, 80.0]           # jumps 80 mm at frame 6 -> 2000 mm/s more
+    x[2:, 1] += [0, 0, 80.0]           # jumps at frame 2 -> too short after truncation
+    rep = threshold_filter(Trajectories(x, 25.0), max_speed=1500, max_acceleration=1e5,
+                           min_length=3)
+    assert rep.truncated[0] and rep.cut_frame[0] == 6 and rep.reason[0] == Reason.SPEED
+    assert np.isfinite(rep.trajectories.xyz[:6, 0]).all()
+    assert np.isnan(rep.trajectories.xyz[6:, 0]).all()
+    assert rep.removed[1] and np.isnan(rep.trajectories.xyz[:, 1]).all()
+    assert not (rep.removed[2:] | rep.truncated[2:]).any()
+    assert rep.summary()["speed"] == {"removed": 1, "truncated": 1}
+
+
+def test_uniformity_filter_finds_a_point_moving_against_its_neighbours():
+    rng = np.random.default_rng(4)
+    x = _field(rng)
+    t = np.arange(x.shape[0]) / 25.0
+    x[4:, 0, 0] = x[4, 0, 0] - 400 * (t[4:] - t[4])     # from frame 4 on, moves backwards
+    before = x.copy()
+    rep = uniformity_filter(Trajectories(x, 25.0), voxel=400, max_deviation=300, window=1,
+                            min_neighbours=3, min_length=3)
+    assert rep.truncated[0] and rep.reason[0] == Reason.NOT_UNIFORM and rep.cut_frame[0] <= 4
+    assert not (rep.removed[1:] | rep.truncated[1:]).any()
+    assert np.array_equal(x, before)
+
+
+def _rotating_patch(rng, T=30, fps=25.0, omega=1.5, noise=0.3):
+    """A 9 x 9 grid (40 mm spacing) of surface points on a plate rotating at ``omega`` rad/s
+    about the z axis 300 mm away while translating at 700 mm/s: (T, 81, 3) mm."""
+    g = np.arange(9) * 40.0
+    u, w = np.meshgrid(g, g)
+    p0 = np.stack([u.ravel() + 300.0, np.zeros(u.size), w.ravel()], axis=1)
+    a = omega * np.arange(T) / fps
+    c, s = np.cos(a)[:, None], np.sin(a)[:, None]
+    x = np.stack([c * p0[:, 0] - s * p0[:, 1], s * p0[:, 0] + c * p0[:, 1],
+                  np.broadcast_to(p0[:, 2], (T, len(p0)))], axis=2)
+    x[..., 0] += 700.0 * np.arange(T)[:, None] / fps
+    return x + rng.normal(scale=noise, size=x.shape)
+
+
+def test_drift_filter_truncates_a_slow_drift_that_the_paper_filter_misses():
+    rng = np.random.default_rng(5)
+    x = _rotating_patch(rng)
+    i, start = 40, 12                       # the middle point slides 1.5 mm a frame from 12 on
+    x[start:, i, 2] += 1.5 * np.arange(1, x.shape[0] - start + 1)
+    before = x.copy()
+    traj = Trajectories(x, 25.0)
+    rep = drift_filter(traj, max_drift=8.0, window=10, k=10, radius=200.0)
+    assert np.array_equal(x, before)
+    assert rep.truncated[i] and rep.reason[i] == Reason.DRIFT
+    # 8 mm of drift are reached about 5-6 frames after it starts
+    assert start + 3 <= rep.cut_frame[i] <= start + 8
+    assert np.isfinite(rep.trajectories.xyz[:rep.cut_frame[i], i]).all()
+    assert np.isnan(rep.trajectories.xyz[rep.cut_frame[i]:, i]).all()
+    others = np.arange(x.shape[1]) != i
+    assert not (rep.truncated[others] | rep.removed[others]).any()
+    # per frame the drift (37.5 mm/s) hides in the rotation's spread of velocities
+    paper = uniformity_filter(traj, voxel=400, max_deviation=150, min_neighbours=3)
+    assert not paper.truncated[i]
+    # a median of the neighbours ignores the rotation: it needs a much looser threshold
+    clean = Trajectories(_rotating_patch(np.random.default_rng(7)), 25.0)
+    dev_med = drift_deviation(clean, local="median")
+    dev_aff = drift_deviation(clean, local="affine")
+    assert np.nanmax(dev_aff) < 4.0 < 8.0 < np.nanmax(dev_med)
+
+
+def test_drift_filter_gives_no_verdict_without_neighbours_and_rejects_bad_input():
+    x = _rotating_patch(np.random.default_rng(6))[:, :4]
+    rep = drift_filter(Trajectories(x, 25.0), min_neighbours=5)
+    assert not (rep.truncated | rep.removed).any()
+    traj = Trajectories(_rotating_patch(np.random.default_rng(6), T=5), 25.0)
+    assert np.isnan(drift_deviation(traj, window=10)).all()      # shorter than the window
+    with pytest.raises(ValueError, match="window"):
+        drift_filter(traj, window=0)
+    with pytest.raises(ValueError, match="min_neighbours"):
+        drift_filter(traj, k=4, min_neighbours=5)
+    with pytest.raises(ValueError, match="local"):
+        drift_filter(traj, local="mean")
+    with pytest.raises(ValueError, match="max_drift"):
+        drift_filter(traj, max_drift=-1.0)
+    with pytest.raises(TypeError, match="trajectories"):
+        drift_filter(x)
+
+
+def test_rendered_walk_tracks_against_truth():
+    seq = et.walk_sequence(7, n_frames=4, surface_every=4)
+    trial = et.run_trial(seq, 80, np.random.default_rng(1), density=False)
+    sc = trial.score
+    assert trial.tracks.alive[-1].sum() >= 10
+    assert np.nanmedian(sc.step_error) < 0.2
+    assert np.nanmedian(sc.error_3d[1:]) < 5.0
+    assert np.nanmedian(sc.step_error) < np.nanmedian(trial.klt_score.step_error) * 1.5
+
+
+def test_score_filter_counts_caught_false_and_correct_length():
+    from lsmta.evaluation.tracking import TrackScore
+
+    T, N = 6, 3
+    x = np.zeros((T, N, 3))
+    before = Trajectories(x, 25.0)
+    false_from = np.array([-1, 3, 2])
+    score = TrackScore(image_error=None, step_error=None, error_3d=None, false_from=false_from,
+                       truth_xy=None, truth_xyz=None, visible=None)
+    keep = np.ones((T, N), bool)
+    keep[3:, 1] = False          # false part of trajectory 1 cut: caught
+    keep[4:, 0] = False          # 2 of 6 correct frames of trajectory 0 cut
+    s = et.score_filter(before, before.keep_frames(keep), score)
+    assert s["n_false"] == 2 and s["n_caught"] == 1 and s["recall"] == 0.5
+    assert s["precision"] == 0.5
+    correct = 6 + 3 + 2
+    assert s["correct_length_removed"] == pytest.approx(2 / correct)
+    assert s["false_length_left"] == pytest.approx(4 / keep.sum())
+
+
+def test_arm_sequence_and_bad_motion():
+    seq = et.walk_sequence(3, n_frames=2, scale=0.25, motion="arm", surface_every=1)
+    assert seq.images.shape[:2] == (3, 2) and len(seq.surface[0].part) > 0
+    pr = seq.truth(seq.surface[1].part, seq.surface[1].local)
+    assert np.allclose(pr.xy[1], seq.surface[1].xy)
+    with pytest.raises(ValueError, match="motion"):
+        et.walk_sequence(3, n_frames=2, motion="run")

@@ -233,7 +233,9 @@ def walking_person(duration: float = 3.6, *, start=(0.0, -2000.0), heading_deg: 
     if on is None:
         k = np.arange(len(LED_NAMES))
         on = np.stack([0.1 + 0.05 * k, 2.8 + 0.05 * k], axis=1)
-    on = as_array(on, "on", shape=(len(LED_NAMES), 2))
+    on = as_array(on, "on", shape=(len(LED_NAMES), 2), finite=False)
+    if np.isnan(on).any():
+        raise ValueError("on: expected switch-on and switch-off times (inf: never off), got NaN")
     ell = np.array([[p.centre, p.radii] for p in body.parts], dtype=float)
     return LedScene("walking person", motion.times, pos, nrm, on, poses, ell, parts)
 

@@ -76,7 +76,7 @@ class TrackerParams:
     gate_px: float = 15.0
     gate_sigma: float = 4.0
     min_gate_px: float = 2.0
-    late_tolerance: float = 0.025
+    late_tolerance: float = 0.030
     birth_tolerance: float = 15.0
     staleness: float = 0.070
     timeout: float = 0.150

@@ -48,8 +48,8 @@ def _classes():
     from stonesoup.models.measurement.nonlinear import NonLinearGaussianMeasurement
     from stonesoup.types.array import StateVector, StateVectors
     from stonesoup.types.hypothesis import SingleHypothesis
-    from stonesoup.types.update import GaussianStateUpdate
     from stonesoup.types.track import Track
+    from stonesoup.types.update import GaussianStateUpdate
 
     class ProjectionModel(NonLinearGaussianMeasurement):
         """Pixel coordinates of the state's position seen by one :class:`Camera`."""
@@ -124,7 +124,7 @@ def _classes():
     return ProjectionModel, TwoRayInitiator
 
 
-def stonesoup_track(cameras, frames: Frames, params: TrackerParams = TrackerParams(), *,
+def stonesoup_track(cameras, frames: Frames, params: TrackerParams | None = None, *,
                     gate_sigma: float | None = None) -> TrackingResult:
     """Track ``frames`` with Stone Soup components (see the module docstring).
 
@@ -134,7 +134,7 @@ def stonesoup_track(cameras, frames: Frames, params: TrackerParams = TrackerPara
     frames : Frames
         Processed in time-stamp order; bad input is counted as by
         :func:`lsmta.widearea.tracker.track`.
-    params : TrackerParams
+    params : TrackerParams, optional
         The same settings as our tracker: ``sigma_px``, ``accel_density`` (Stone Soup's
         ``ConstantVelocity`` noise_diff_coeff), ``timeout`` (``UpdateTimeDeleter``),
         ``birth_tolerance``, ``staleness``, ``birth_sigma``, ``volume``.
@@ -164,7 +164,7 @@ def stonesoup_track(cameras, frames: Frames, params: TrackerParams = TrackerPara
     if not isinstance(frames, Frames):
         raise TypeError("frames: expected lsmta.widearea.Frames")
     ProjectionModel, TwoRayInitiator = _classes()
-    p = params
+    p = TrackerParams() if params is None else params
     K = len(cameras)
     R = p.sigma_px**2 * np.eye(2)
     models = [ProjectionModel(ndim_state=6, mapping=POSITION, noise_covar=R, camera=c)

@@ -19,11 +19,12 @@ class Frames:
     camera : (F,) int array
         Index of the camera that reported each frame.
     stamp : (F,) array
-        Capture time of each frame in seconds, by that camera's clock.
+        Capture time of each frame in seconds, by that camera's clock (non-finite
+        stamps are accepted here and counted and skipped by the tracker).
     start : (F + 1,) int array
         Frame ``f`` holds centroids ``xy[start[f]:start[f + 1]]``.
     xy : (M, 2) array
-        Centroids in pixels; NaN rows are counted and skipped by the tracker.
+        Centroids in pixels; non-finite rows are counted and skipped by the tracker.
     arrival : (F,) array or None
         When each frame reached the estimator (s, estimator clock); used by the queue
         policies of :mod:`lsmta.widearea.scheduler`.
@@ -40,12 +41,12 @@ class Frames:
         if cam.ndim != 1 or not np.issubdtype(cam.dtype, np.integer):
             raise ValueError("camera: expected a 1-D integer array (camera index per frame)")
         F = len(cam)
-        stamp = as_array(self.stamp, "stamp", shape=(F,), allow_nan=True)
+        stamp = as_array(self.stamp, "stamp", shape=(F,), finite=False)
         start = np.asarray(self.start)
         if (start.shape != (F + 1,) or not np.issubdtype(start.dtype, np.integer)
                 or (F >= 0 and start[0] != 0) or np.any(np.diff(start) < 0)):
             raise ValueError(f"start: expected {F + 1} non-decreasing integer offsets from 0")
-        xy = as_array(self.xy, "xy", shape=(int(start[-1]), 2), allow_nan=True)
+        xy = as_array(self.xy, "xy", shape=(int(start[-1]), 2), finite=False)
         arrival = None if self.arrival is None else as_array(self.arrival, "arrival",
                                                              shape=(F,))
         for key, value in (("camera", cam.astype(np.int64)), ("stamp", stamp),

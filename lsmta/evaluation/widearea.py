@@ -494,6 +494,191 @@ def walking_trial(rng: np.random.Generator, *, duration: float = 3.6, cameras=No
                         seconds_stonesoup=sec_ss)
 
 
+
+
+
+# ----------------------------------------------------------------------------- detection
+def _match_features(det, true_xy, radius: float = 2.0):
+    """Per frame: which true LEDs were found (within ``radius`` px) and how many features
+    matched no LED. Returns (found (T, N) bool, false (T,) int, error (T, N) px)."""
+    T, N = true_xy.shape[:2]
+    found = np.zeros((T, N), bool)
+    false = np.zeros(T, np.int64)
+    err = np.full((T, N), np.nan)
+    for t in range(T):
+        c = det.centroids(t)
+        vis = np.isfinite(true_xy[t]).all(axis=1)
+        if len(c) == 0:
+            continue
+        if vis.any():
+            d = np.linalg.norm(true_xy[t][vis][:, None] - c[None], axis=2)
+            r, k = linear_sum_assignment(d)
+            ok = d[r, k] <= radius
+            idx = np.flatnonzero(vis)[r[ok]]
+            found[t, idx] = True
+            err[t, idx] = d[r[ok], k[ok]]
+            false[t] = len(c) - ok.sum()
+        else:
+            false[t] = len(c)
+    return found, false, err
+
+
+@dataclass(frozen=True, eq=False)
+class DetectionTrial:
+    """The detector on rendered frames of the walking person in a camera with a monitor.
+
+    Attributes
+    ----------
+    video : LedVideo
+    threshold : Threshold
+    invalid : (H, W) bool array
+        The monitor's rectangle, marked invalid (as an operator would, Fig. 31).
+    runs : dict
+        Per run name (``"full"``, ``"full, masked"``, ``"subsampled, masked"``):
+        ``detections``, ``rate`` (found / visible LEDs), ``false_per_frame``,
+        ``ms_per_frame``, ``tested_fraction``, ``error_px`` (RMS centroid error).
+    """
+
+    video: object
+    threshold: object
+    invalid: np.ndarray
+    runs: dict
+
+
+def detection_trial(rng: np.random.Generator, *, camera: int = 3, duration: float = 2.0,
+                    rate: float = 30.0, offset: float = 20.0, minimum: float = 60.0,
+                    params=None) -> DetectionTrial:
+    """Render the walking person for ``duration`` s in one (half-size) camera with a monitor
+    and reflections, then detect with full and sub-sampled search, with and without the
+    monitor masked."""
+    import time
+
+    from ..synth.widearea import render_led_video, small_camera
+    from ..widearea import background_threshold, detect
+
+    rng = as_rng(rng)
+    cam = small_camera(ceiling_rig(np.random.default_rng(7))[camera])
+    scene = walking_person(duration + 0.1, on=np.stack([np.zeros(8), np.full(8, np.inf)], 1))
+    video = render_led_video(scene, cam, np.arange(0, duration, 1 / rate), rng)
+    thr = background_threshold(video.background, offset, minimum)
+    inv = np.zeros(video.frames.shape[1:], bool)
+    x0, y0, x1, y1 = video.monitor.astype(int)
+    inv[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = True
+    runs = {}
+    for name, mode, invalid in (("full", "full", None), ("full, masked", "full", inv),
+                                ("subsampled, masked", "subsampled", inv)):
+        t0 = time.perf_counter()
+        det = detect(video.frames, thr, params, invalid=invalid, mode=mode, rng=rng,
+                     predicted="previous" if mode == "subsampled" else None)
+        sec = time.perf_counter() - t0
+        found, false, err = _match_features(det, video.true_xy)
+        vis = np.isfinite(video.true_xy).all(axis=2)
+        runs[name] = {"detections": det, "rate": float(found.sum() / max(vis.sum(), 1)),
+                      "false_per_frame": float(false.mean()),
+                      "ms_per_frame": 1e3 * sec / len(video.frames),
+                      "tested_fraction": float(det.tested.mean() / inv.size),
+                      "error_px": float(np.sqrt(np.nanmean(err**2)))}
+    return DetectionTrial(video=video, threshold=thr, invalid=inv, runs=runs)
+
+
+def _line_deviation_2d(xy):
+    c = xy.mean(axis=0)
+    _, _, vt = np.linalg.svd(xy - c)
+    return np.abs((xy - c) @ vt[1])
+
+
+def stage_image_deviation(rng: np.random.Generator, *, cameras=(0, 9), duration: float = 3.0,
+                          rate: float = 30.0) -> dict:
+    """Figs. 36-39: the LED on the linear stage rendered in two cameras and detected; the
+    distance of each observation from the line fitted to that camera's observations, for
+    intensity centroids and for centroids rounded to whole pixels (the thesis's detector
+    had no sub-pixel estimate).
+
+    Returns
+    -------
+    dict
+        Per camera index: ``times``, ``xy`` (T, 2) detected centroids (NaN where missed),
+        ``deviation`` (T,), ``deviation_rounded`` (T,), ``mean``, ``mean_rounded`` (px),
+        ``truth`` (T, 2).
+    """
+    from ..synth.widearea import render_led_video, small_camera
+    from ..widearea import background_threshold, detect
+
+    rng = as_rng(rng)
+    rig = ceiling_rig(np.random.default_rng(7))
+    stage = linear_stage(duration, hold=0.3)
+    times = np.arange(0.35, duration - 0.35, 1 / rate)      # while the stage moves
+    out = {}
+    for k in cameras:
+        cam = small_camera(rig[k])
+        video = render_led_video(stage, cam, times, rng, monitor_flicker=0.0,
+                                 reflections=0.0)
+        thr = background_threshold(video.background, 20.0, 60.0)
+        det = detect(video.frames, thr)
+        xy = np.full((len(times), 2), np.nan)
+        for t in range(len(times)):
+            c = det.centroids(t)
+            if len(c) and np.isfinite(video.true_xy[t, 0]).all():
+                d = np.linalg.norm(c - video.true_xy[t, 0], axis=1)
+                if d.min() < 3:
+                    xy[t] = c[np.argmin(d)]
+        ok = np.isfinite(xy).all(axis=1)
+        dev = np.full(len(times), np.nan)
+        dev_r = np.full(len(times), np.nan)
+        dev[ok] = _line_deviation_2d(xy[ok])
+        dev_r[ok] = _line_deviation_2d(np.rint(xy[ok]))
+        out[k] = {"times": times, "xy": xy, "deviation": dev, "deviation_rounded": dev_r,
+                  "mean": float(np.nanmean(dev)), "mean_rounded": float(np.nanmean(dev_r)),
+                  "truth": video.true_xy[:, 0], "detected": float(ok.mean())}
+    return out
+
+
+def lighting_change_trial(rng: np.random.Generator, *, n_frames: int = 30, change: int = 10,
+                          fraction: float = 0.01) -> dict:
+    """The room lights go up at frame ``change``: the fraction of pixels over threshold
+    jumps, :func:`lsmta.widearea.needs_new_threshold` fires, and thresholds recomputed from
+    the next five frames, with small bright spots replaced by the local background (grey
+    opening, 7 px), bring the false features back down while the LED stays detectable.
+
+    Returns
+    -------
+    dict
+        ``over`` (T,) fraction of pixels over the current threshold, ``recomputed`` (frame
+        index or None), ``features`` (T,) features per frame, ``visible`` (T,) LEDs in view.
+    """
+    from scipy import ndimage
+
+    from ..synth.widearea import render_led_video, small_camera
+    from ..widearea import background_threshold, detect, needs_new_threshold
+
+    rng = as_rng(rng)
+    cam = small_camera(ceiling_rig(np.random.default_rng(7))[3])
+    scene = still_led(2.0, position=(300.0, 200.0, 1200.0))
+    video = render_led_video(scene, cam, np.arange(n_frames) / 30.0, rng, lighting_change=change,
+                             monitor_flicker=0.0, reflections=0.0)
+    inv = np.zeros(video.frames.shape[1:], bool)
+    x0, y0, x1, y1 = video.monitor.astype(int)
+    inv[y0:y1, x0:x1] = True
+    thr = background_threshold(video.background, 20.0, 60.0)
+    over, feats, recomputed = [], [], None
+    for t in range(n_frames):
+        frame = video.frames[t]
+        over.append(float((frame > thr.threshold).mean()))
+        if recomputed is None and needs_new_threshold(frame, thr, fraction):
+            recomputed = t
+            # learn from the next frames with small bright spots (LEDs) replaced by the local
+            # background: a grey opening removes spots narrower than 7 px, not the lamp
+            nxt = video.frames[t:t + 5].astype(float)
+            opened = np.stack([ndimage.grey_opening(f, size=(7, 7)) for f in nxt])
+            spot = np.stack([ndimage.binary_dilation(m, iterations=2)
+                             for m in (nxt - opened > 20.0)])
+            thr = background_threshold(np.where(spot, opened, nxt), 20.0, 60.0)
+        feats.append(len(detect(frame, thr, invalid=inv).xy))
+    return {"over": np.array(over), "recomputed": recomputed, "features": np.array(feats),
+            "visible": np.isfinite(video.true_xy).all(axis=2).sum(axis=1)}
+
+
 __all__ = ["MATCH_MM", "StarvationTrial", "StillStage", "TrackScore", "WalkingTrial",
            "circle_models", "fig35_starvation", "offset_sweep", "queue_policies",
-           "score_tracks", "still_and_stage", "stonesoup_metrics", "walking_trial"]
+           "score_tracks", "still_and_stage", "stonesoup_metrics", "walking_trial",
+           "DetectionTrial", "detection_trial", "lighting_change_trial", "stage_image_deviation"]

@@ -368,3 +368,120 @@ def observe(scene: LedScene, cameras, clocks: Clocks, rng: np.random.Generator, 
         frames=frames, true_time=np.array([r[0] for r in rows]),
         truth=np.concatenate([r[5] for r in rows]).astype(np.int64),
         visible=np.array([r[6] for r in rows], dtype=bool).reshape(len(rows), -1))
+
+
+# ----------------------------------------------------------------------------- images
+@dataclass(frozen=True, eq=False)
+class LedVideo:
+    """Rendered grey frames of one camera and their ground truth.
+
+    Attributes
+    ----------
+    camera : Camera
+    times : (T,) array
+        Capture times, s.
+    frames : (T, H, W) uint8 array
+    background : (B, H, W) uint8 array
+        Frames of the empty room (no LEDs), for learning thresholds.
+    true_xy : (T, N, 2) array
+        Projected LED positions, px (NaN where not visible).
+    monitor : (4,) array
+        The monitor's rectangle (x0, y0, x1, y1), px.
+    lighting_change : int or None
+        First frame after the room lights were turned up.
+    """
+
+    camera: Camera
+    times: np.ndarray
+    frames: np.ndarray
+    background: np.ndarray
+    true_xy: np.ndarray
+    monitor: np.ndarray
+    lighting_change: int | None
+
+
+def small_camera(camera: Camera, scale: float = 0.5) -> Camera:
+    """The same camera with its image scaled by ``scale`` (fewer, larger pixels)."""
+    w, h = int(round(camera.width * scale)), int(round(camera.height * scale))
+    return camera.replace(f=camera.f * scale, width=w, height=h,
+                          cx=(camera.cx + 0.5) * scale - 0.5, cy=(camera.cy + 0.5) * scale - 0.5)
+
+
+def render_led_video(scene: LedScene, camera: Camera, times, rng: np.random.Generator, *,
+                     led_peak: float = 230.0, led_sigma: float = 0.9, led_range: float = 4500.0,
+                     led_exponent: float = 1.5, noise: float = 2.0, monitor=(0.08, 0.55, 0.3, 0.8),
+                     monitor_flicker: float = 0.3, reflections: float = 0.03,
+                     lighting_change: int | None = None, n_background: int = 20
+                     ) -> LedVideo:
+    """Render small grey frames of LEDs for the detector.
+
+    The room is a smooth grey texture with a lamp; a monitor (rectangle given as fractions
+    of the image, x0, y0, x1, y1) shows a changing picture and, in a fraction
+    ``monitor_flicker`` of the frames, a bright white window that exceeds anything it
+    showed while the thresholds were learnt. LEDs are Gaussian spots (``led_sigma`` px) whose
+    peak falls with distance and angle as in :func:`observe`, occluded by the body;
+    ``reflections`` bright specks per frame appear anywhere. From frame
+    ``lighting_change`` on, the room is 35 % brighter. Grey levels are rounded to uint8.
+    """
+    rng = as_rng(rng)
+    times = np.asarray(times, dtype=float)
+    H, W = camera.height, camera.width
+    yy, xx = np.mgrid[0:H, 0:W].astype(float)
+    room = 50 + 15 * np.sin(xx / 23.0 + 1.3 * np.sin(yy / 37.0)) + 10 * np.cos(yy / 17.0)
+    room += 120 * np.exp(-((xx - 0.8 * W) ** 2 + (yy - 0.15 * H) ** 2) / (2 * (0.03 * W) ** 2))
+    mx0, my0, mx1, my1 = (np.array(monitor) * [W, H, W, H]).round().astype(int)
+    in_mon = (xx >= mx0) & (xx < mx1) & (yy >= my0) & (yy < my1)
+
+    def base(n, lit):
+        out = np.repeat(room[None], n, axis=0)
+        pic = 120 + 40 * rng.random((n, 1))
+        out[:, in_mon] = pic + 30 * np.sin(xx[in_mon] / 5.0)[None]
+        out *= lit[:, None, None]
+        return out
+
+    T = len(times)
+    lit = np.ones(T)
+    if lighting_change is not None:
+        lit[lighting_change:] = 1.35
+    frames = base(T, lit)
+    # the monitor's white window
+    for t in np.flatnonzero(rng.random(T) < monitor_flicker):
+        w0 = rng.integers(mx0, max(mx0 + 1, mx1 - 8))
+        h0 = rng.integers(my0, max(my0 + 1, my1 - 6))
+        frames[t, h0:h0 + 6, w0:w0 + 8] = 250
+    # LEDs
+    pos = scene.positions_at(times)
+    nrm = scene.normals[scene._nearest(times)]
+    N = pos.shape[1]
+    on = np.isfinite(pos).all(axis=2)
+    safe = np.where(on[..., None], pos, 0.0)
+    xy = camera.project(safe.reshape(-1, 3), behind="nan").reshape(T, N, 2)
+    to_cam = camera.C - safe
+    dist = np.linalg.norm(to_cam, axis=2)
+    cos = np.einsum("tnc,tnc->tn", nrm, to_cam) / dist
+    bright = (led_range / dist) ** 2 * np.clip(cos, 0, None) ** led_exponent
+    vis = on & camera.in_image(xy.reshape(-1, 2)).reshape(T, N) & ~_occluded(
+        scene, camera.C, times, safe, nrm) & (bright > 0.05)
+    r = int(np.ceil(4 * led_sigma))
+    for t, n in zip(*np.nonzero(vis)):
+        x, y = xy[t, n]
+        c0, r0 = int(round(x)) - r, int(round(y)) - r
+        cs, rs = np.arange(c0, c0 + 2 * r + 1), np.arange(r0, r0 + 2 * r + 1)
+        ok_c, ok_r = (cs >= 0) & (cs < W), (rs >= 0) & (rs < H)
+        g = np.exp(-((cs[None, ok_c] - x) ** 2 + (rs[ok_r, None] - y) ** 2)
+                   / (2 * led_sigma**2))
+        frames[t, rs[ok_r][:, None], cs[ok_c][None, :]] += led_peak * min(bright[t, n], 1.5) * g
+    for t in range(T):
+        for _ in range(rng.poisson(reflections)):
+            x, y = rng.uniform(0, W - 1), rng.uniform(0, H - 1)
+            g = np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * 0.7**2))
+            frames[t] += 180 * g
+    frames += rng.normal(0, noise, frames.shape)
+    background = base(n_background, np.ones(n_background)) + rng.normal(
+        0, noise, (n_background, H, W))
+    true_xy = np.where(vis[..., None], xy, np.nan)
+    return LedVideo(camera=camera, times=times,
+                    frames=np.clip(np.rint(frames), 0, 255).astype(np.uint8),
+                    background=np.clip(np.rint(background), 0, 255).astype(np.uint8),
+                    true_xy=true_xy, monitor=np.array([mx0, my0, mx1, my1], float),
+                    lighting_change=lighting_change)

@@ -359,18 +359,19 @@ def _single_track_estimate(result, times):
 
 
 def still_and_stage(rng: np.random.Generator, *, quantize: bool = True,
-                    params: TrackerParams | None = None, duration: float = 4.0
-                    ) -> StillStage:
-    """Track a still LED (2 s) and an LED on a linear stage (``duration`` s) with the rig;
-    centroids rounded to whole pixels by default, as the thesis's detector reported them."""
+                    params: TrackerParams | None = None, duration: float = 4.0,
+                    still_duration: float = 2.0) -> StillStage:
+    """Track a still LED (``still_duration`` s, scored after the first 0.5 s) and an LED on a
+    linear stage (``duration`` s: 0.5 s hold, motion, 0.5 s hold) with the rig; centroids
+    rounded to whole pixels by default, as the thesis's detector reported them."""
     rng = as_rng(rng)
     params = TrackerParams() if params is None else params
     cams = ceiling_rig(np.random.default_rng(7))
     clocks = make_clocks(len(cams), rng)
-    still = still_led(2.0)
+    still = still_led(still_duration)
     res = track(cams, observe(still, cams, clocks, rng, quantize=quantize,
                               reflections=0.0).frames, params)
-    ts = np.arange(0.5, 2.0, 0.01)
+    ts = np.arange(0.5, still_duration, 0.01)
     est = _single_track_estimate(res, ts)
     stage = linear_stage(duration, hold=0.5)
     res2 = track(cams, observe(stage, cams, clocks, rng, quantize=quantize,

@@ -281,3 +281,96 @@ def test_stonesoup_baseline_tracks_a_still_led(rig):
     score = score_tracks(still_led(0.6), res, np.arange(0.2, 0.6, 0.02))
     assert len(res.tracks) == 1
     assert score.rms_mm < 5.0
+
+
+# ----------------------------------------------------------------------------- detection
+def _spot_frames(centres, shape=(60, 80), peak=200.0, sigma=1.0, base=40.0):
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
+    out = []
+    for cs in centres:
+        img = np.full(shape, base)
+        for x, y in cs:
+            img += peak * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * sigma**2))
+        out.append(img)
+    return np.array(out)
+
+
+def test_background_threshold_and_lighting_test():
+    from lsmta.widearea import background_threshold, needs_new_threshold
+
+    bg = np.zeros((3, 4, 5))
+    bg[1, 2, 3] = 50.0
+    thr = background_threshold(bg, 20.0, 30.0)
+    assert thr.threshold[2, 3] == 70.0 and thr.threshold[0, 0] == 30.0
+    ex = np.zeros_like(bg, bool)
+    ex[1, 2, 3] = True
+    assert background_threshold(bg, 20.0, 30.0, exclude=ex).threshold[2, 3] == 30.0
+    assert not needs_new_threshold(np.zeros((4, 5)), thr, 0.01)
+    assert needs_new_threshold(np.full((4, 5), 40.0), thr, 0.01)
+    with pytest.raises(ValueError, match="frames"):
+        background_threshold(np.zeros(5), 1.0, 1.0)
+
+
+def test_detect_full_gives_subpixel_centroids_and_respects_masks():
+    from lsmta.widearea import Threshold, detect
+
+    truth = [[(20.3, 30.6), (60.7, 12.2)], [(21.1, 31.4)], []]
+    frames = _spot_frames(truth)
+    bg = np.full(frames.shape[1:], 40.0)
+    # a low threshold (2.5 % of the peak) keeps nearly the whole spot: the intensity centroid
+    # is then unbiased; higher thresholds truncate the spot and bias it by a few 0.01 px
+    thr = Threshold(background=bg, threshold=bg + 5.0)
+    frames_copy = frames.copy()
+    det = detect(frames, thr)
+    np.testing.assert_array_equal(frames, frames_copy)
+    assert np.diff(det.start).tolist() == [2, 1, 0]
+    for t, cs in enumerate(truth):
+        got = det.centroids(t)
+        for c in cs:
+            assert np.linalg.norm(got - c, axis=1).min() < 0.02
+    invalid = np.zeros(frames.shape[1:], bool)
+    invalid[5:20, 50:70] = True                       # masks the second spot of frame 0
+    masked = detect(frames, thr, invalid=invalid)
+    assert np.diff(masked.start).tolist() == [1, 1, 0]
+    with pytest.raises(ValueError, match="mode"):
+        detect(frames, thr, mode="sparse")
+    with pytest.raises(ValueError, match="threshold"):
+        detect(frames[:, :10], thr)
+    with pytest.raises(ValueError, match="invalid"):
+        detect(frames, thr, invalid=invalid[:5])
+
+
+def test_subsampled_search_tests_fewer_pixels_and_finds_predicted_spots():
+    from lsmta.widearea import Threshold, detect, search_mask
+
+    # a one-pixel spot the grid may miss, but the window around its prediction finds
+    truth = [[(40.0, 25.0)]] * 4
+    frames = _spot_frames(truth, sigma=0.3)
+    bg = np.full(frames.shape[1:], 40.0)
+    thr = Threshold(background=bg, threshold=bg + 30.0)
+    full = detect(frames, thr)
+    sub = detect(frames, thr, mode="subsampled", rng=np.random.default_rng(0),
+                 predicted=[np.array([[41.0, 26.0]])] * 4)
+    assert (sub.tested < full.tested).all()
+    for t in range(4):
+        np.testing.assert_allclose(sub.centroids(t), full.centroids(t), atol=1e-9)
+    m = search_mask((60, 80), 5, (1, 2), np.array([[40.0, 30.0]]), 10)
+    assert m[1::5, 2::5].all() and m[25:35, 35:45].all()
+    assert m.sum() == 12 * 16 + 100 - m[25:35, 35:45][(np.arange(25, 35) % 5 == 1)[:, None]
+                                                        & (np.arange(35, 45) % 5 == 2)].sum()
+    with pytest.raises(TypeError, match="rng"):
+        detect(frames, thr, mode="subsampled")
+
+
+def test_rendered_video_detected_at_truth():
+    from lsmta.synth.widearea import render_led_video, small_camera
+    from lsmta.widearea import background_threshold, detect
+
+    rng = np.random.default_rng(8)
+    cam = small_camera(ceiling_rig(np.random.default_rng(7))[0])
+    video = render_led_video(still_led(0.3), cam, np.arange(5) / 30, rng, monitor_flicker=0.0,
+                             reflections=0.0)
+    thr = background_threshold(video.background, 20.0, 60.0)
+    det = detect(video.frames, thr)
+    for t in range(5):
+        assert np.linalg.norm(det.centroids(t) - video.true_xy[t, 0], axis=1).min() < 0.3

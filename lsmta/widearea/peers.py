@@ -213,7 +213,8 @@ def stonesoup_track(cameras, frames: Frames, params: TrackerParams | None = None
         when = seconds_to_datetime(t)
         detections = {Detection(xy[j][:, None], timestamp=when, measurement_model=models[c])
                       for j in range(len(xy))}
-        hyps = associator.associate(tracks, detections, when)
+        with np.errstate(invalid="ignore"):   # Stone Soup's Mahalanobis sqrt of a NaN
+            hyps = associator.associate(tracks, detections, when)
         used = set()
         for trk, hyp in hyps.items():
             if hyp:

@@ -6,14 +6,17 @@
   lighting has changed and the thresholds are recomputed (:func:`needs_new_threshold`).
 * **Invalid regions.** A boolean mask of pixels never to report (monitors, lamps).
 * **Features.** Pixels above threshold are grouped into 8-connected components (OpenCV's
-  ``connectedComponents`` for a whole frame, ``scipy.ndimage.label`` in the small crops of
-  the sub-sampled search); each component's centroid is weighted by its intensity above
-  the background.
+  ``connectedComponents``, once per frame on the image of the pixels found); each
+  component's centroid is weighted by its intensity above the background (``bincount``
+  over those pixels only).
 * **Sub-sampled search.** Instead of every pixel, test one pixel per ``k x k`` block on a
   grid jittered anew every frame, plus every pixel of a window around each predicted
   position; a hit on the grid is grown in a small neighbourhood to find its whole spot
-  (:func:`detect` with ``mode="subsampled"``). The pixels tested are counted so the saving
-  can be measured (:func:`search_mask` draws them, Fig. 32).
+  (:func:`detect` with ``mode="subsampled"``). Vectorised: the grids of all frames are
+  tested in one gather; per frame, the grown hits (an OpenCV dilation) and the windows form
+  one region whose pixels are tested with one gather, and the components are labelled once.
+  The pixels tested are counted so the saving can be measured
+  (:func:`search_mask` draws them, Fig. 32).
 """
 
 from __future__ import annotations
@@ -22,11 +25,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 from .._validate import as_rng, as_scalar
-
-_STRUCTURE_2D = np.ones((3, 3), bool)     # 8-connected
 
 
 @dataclass(frozen=True)
@@ -178,16 +178,34 @@ def search_mask(shape, k: int, jitter, windows=None, window: int = 40) -> np.nda
     return m
 
 
-def _components(weights, mask, params, offset_rc=(0, 0)):
-    """Centroids (x, y) and areas of the 8-connected components of a 2-D ``mask``."""
-    lab, n = ndimage.label(mask, structure=_STRUCTURE_2D)
-    if n == 0:
-        return np.zeros((0, 2)), np.zeros(0, np.int64), lab
-    idx = np.arange(1, n + 1)
-    area = ndimage.sum_labels(np.ones_like(weights), lab, idx).astype(np.int64)
-    com = np.array(ndimage.center_of_mass(weights + 1e-9 * mask, lab, idx)).reshape(-1, 2)
-    xy = com[:, ::-1] + np.array([offset_rc[1], offset_rc[0]])
-    return xy, area, lab
+def _windows(shape, centres, window: int) -> np.ndarray:
+    """(H, W) bool: ``window`` x ``window`` squares around the finite ``centres`` (x, y)."""
+    H, W = shape
+    m = np.zeros((H, W), bool)
+    if centres is None:
+        return m
+    c = np.asarray(centres, float).reshape(-1, 2)
+    c = c[np.isfinite(c).all(axis=1)]
+    half = window // 2
+    for x, y in np.rint(c).astype(np.int64).tolist():   # a handful of windows per frame
+        r0, c0 = y - half, x - half
+        m[max(r0, 0):max(r0 + window, 0), max(c0, 0):max(c0 + window, 0)] = True
+    return m
+
+
+def _features(img, bg, sel, H, W):
+    """Centroids (x, y), weighted by intensity above ``bg``, and areas of the 8-connected
+    components of the pixels ``sel`` (flat indices into an ``(H, W)`` image)."""
+    on = np.zeros(H * W, np.uint8)
+    on[sel] = 1
+    n, lab = cv2.connectedComponents(on.reshape(H, W), connectivity=8, ltype=cv2.CV_32S)
+    r, c = np.divmod(sel, W)
+    lab = lab.reshape(-1)[sel]
+    w = np.clip(img.reshape(-1)[sel] - bg.reshape(-1)[sel], 0, None) + 1e-9
+    sw = np.bincount(lab, w, n)[1:]
+    xy = np.stack([np.bincount(lab, w * c, n)[1:] / sw,
+                   np.bincount(lab, w * r, n)[1:] / sw], axis=1)
+    return xy, np.bincount(lab, None, n)[1:].astype(np.int64)
 
 
 def detect(frames, threshold: Threshold, params: DetectionParams | None = None, *,
@@ -229,89 +247,65 @@ def detect(frames, threshold: Threshold, params: DetectionParams | None = None, 
         valid = ~inv
     if mode not in ("full", "subsampled"):
         raise ValueError(f"mode: expected 'full' or 'subsampled', got {mode!r}")
-    thr, bg = threshold.threshold, threshold.background
-    if mode == "full":
-        xy_all, area_all, start = [], [], [0]
-        ramp_x, ramp_y = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
-        for t in range(T):
-            mask = ((f[t] > thr) & valid).astype(np.uint8)
-            n, lab = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
-            if n > 1:
-                lab = lab.ravel()
-                w = np.clip(f[t] - bg, 0, None).ravel() + 1e-9
-                sw = np.bincount(lab, w, n)[1:]
-                sx = np.bincount(lab, w * ramp_x.ravel(), n)[1:]
-                sy = np.bincount(lab, w * ramp_y.ravel(), n)[1:]
-                area = np.bincount(lab, None, n)[1:].astype(np.int64)
-                xy = np.stack([sx / sw, sy / sw], axis=1)
-                ok = (area >= p.min_area) & (area <= p.max_area)
-                xy, area = xy[ok], area[ok]
-            else:
-                xy, area = np.zeros((0, 2)), np.zeros(0, np.int64)
-            xy_all.append(xy)
-            area_all.append(area)
-            start.append(start[-1] + len(xy))
-        return Detections(start=np.asarray(start, np.int64), xy=np.concatenate(xy_all),
-                          area=np.concatenate(area_all).astype(np.int64),
-                          tested=np.full(T, H * W, np.int64))
-    rng = as_rng(rng)
-    previous = isinstance(predicted, str) and predicted == "previous"
-    if isinstance(predicted, str) and not previous:
-        raise ValueError(f"predicted: expected position arrays or 'previous', got {predicted!r}")
-    if predicted is not None and not previous and len(predicted) != T:
-        raise ValueError(f"predicted: expected one array of positions per frame ({T})")
+    thr = np.asarray(threshold.threshold, float)
+    bg = np.asarray(threshold.background, float)
+    empty = (np.zeros((0, 2)), np.zeros(0, np.int64))
     xy_all, area_all, start, tested = [], [], [0], []
-    k, g = p.k, p.grow
-    for t in range(T):
-        img = f[t]
-        jr, jc = rng.integers(0, k, 2)
-        rows = np.arange(jr, H, k)
-        cols = np.arange(jc, W, k)
-        n_test = len(rows) * len(cols)
-        hit = (img[np.ix_(rows, cols)] > thr[np.ix_(rows, cols)]) & valid[np.ix_(rows, cols)]
-        boxes = [(int(rows[i]) - g, int(cols[j]) - g, 2 * g + 1)
-                 for i, j in zip(*np.nonzero(hit))]
-        centres = (xy_all[-1] if previous and xy_all else np.zeros((0, 2))) if previous else (
-            None if predicted is None else predicted[t])
-        if centres is not None:
-            for x, y in np.asarray(centres, float).reshape(-1, 2):
-                if np.isfinite(x) and np.isfinite(y):
-                    boxes.append((int(round(y)) - p.window // 2, int(round(x)) - p.window // 2,
-                                  p.window))
-        seen = np.zeros((H, W), bool)
-        found_xy, found_area = [], []
-        for r0, c0, size in boxes:
-            r0c, c0c = max(r0, 0), max(c0, 0)
-            r1, c1 = min(r0 + size, H), min(c0 + size, W)
-            if r1 <= r0c or c1 <= c0c:
+
+    def _keep(feat):
+        xy, area = feat
+        ok = (area >= p.min_area) & (area <= p.max_area)
+        xy_all.append(xy[ok])
+        area_all.append(area[ok])
+        start.append(start[-1] + int(ok.sum()))
+
+    if mode == "full":
+        for t in range(T):
+            sel = np.flatnonzero((f[t] > thr) & valid)
+            _keep(_features(f[t], bg, sel, H, W) if len(sel) else empty)
+            tested.append(H * W)
+    else:
+        rng = as_rng(rng)
+        previous = isinstance(predicted, str) and predicted == "previous"
+        if isinstance(predicted, str) and not previous:
+            raise ValueError(f"predicted: expected position arrays or 'previous', "
+                             f"got {predicted!r}")
+        if predicted is not None and not previous and len(predicted) != T:
+            raise ValueError(f"predicted: expected one array of positions per frame ({T})")
+        k, g = p.k, p.grow
+        # the jittered grids of all frames, tested in one gather: (T, nr, nc)
+        jit = rng.integers(0, k, (T, 2))
+        nr, nc = -(-H // k), -(-W // k)
+        rows = jit[:, :1] + k * np.arange(nr)[None]                  # (T, nr)
+        cols = jit[:, 1:] + k * np.arange(nc)[None]                  # (T, nc)
+        inside = (rows < H)[:, :, None] & (cols < W)[:, None, :]
+        rows, cols = np.minimum(rows, H - 1), np.minimum(cols, W - 1)
+        tt = np.arange(T)[:, None, None]
+        r3, c3 = rows[:, :, None], cols[:, None, :]
+        hits = (f[tt, r3, c3] > thr[r3, c3]) & valid[r3, c3] & inside
+        n_grid = inside.sum(axis=(1, 2))
+        kernel = np.ones((2 * g + 1, 2 * g + 1), np.uint8)
+        for t in range(T):
+            centres = ((xy_all[-1] if xy_all else None) if previous
+                       else None if predicted is None else predicted[t])
+            region = _windows((H, W), centres, p.window)
+            any_hit = bool(hits[t].any())
+            if any_hit:
+                grown = np.zeros((H, W), np.uint8)
+                grown[rows[t][:, None], cols[t][None, :]] = hits[t]
+                region |= cv2.dilate(grown, kernel).astype(bool)
+            if not (any_hit or region.any()):
+                tested.append(int(n_grid[t]))
+                _keep(empty)
                 continue
-            n_test += int((~seen[r0c:r1, c0c:c1]).sum())
-            seen[r0c:r1, c0c:c1] = True
-            crop = img[r0c:r1, c0c:c1].astype(float)
-            m = (crop > thr[r0c:r1, c0c:c1]) & valid[r0c:r1, c0c:c1]
-            if not m.any():
-                continue
-            xy, area, _ = _components(np.clip(crop - bg[r0c:r1, c0c:c1], 0, None), m, p,
-                                      (r0c, c0c))
-            found_xy.append(xy)
-            found_area.append(area)
-        if found_xy:
-            xy = np.concatenate(found_xy)
-            area = np.concatenate(found_area)
-            # one spot reached from several grid hits or windows: keep the largest view of it
-            order = np.argsort(-area, kind="stable")
-            xy, area = xy[order], area[order]
-            d = np.linalg.norm(xy[:, None] - xy[None], axis=2)
-            dup = np.triu(d < 2.0, k=1).any(axis=0)
-            xy, area = xy[~dup], area[~dup]
-            ok = (area >= p.min_area) & (area <= p.max_area)
-            xy, area = xy[ok], area[ok]
-        else:
-            xy, area = np.zeros((0, 2)), np.zeros(0, np.int64)
-        xy_all.append(xy)
-        area_all.append(area)
-        start.append(start[-1] + len(xy))
-        tested.append(n_test)
+            # every pixel of the region, plus the grid pixels outside it
+            on_grid = region[jit[t, 0]::k, jit[t, 1]::k].sum()
+            idx = np.flatnonzero(region)
+            tested.append(int(n_grid[t] - on_grid + len(idx)))
+            img = f[t].reshape(-1)
+            sel = idx[(img[idx] > thr.reshape(-1)[idx]) & valid.reshape(-1)[idx]]
+            # grid hits outside any grown box cannot exist, so sel holds every feature pixel
+            _keep(_features(f[t], bg, sel, H, W) if len(sel) else empty)
     return Detections(start=np.asarray(start, np.int64),
                       xy=np.concatenate(xy_all) if xy_all else np.zeros((0, 2)),
                       area=np.concatenate(area_all).astype(np.int64) if area_all

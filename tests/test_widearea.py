@@ -374,3 +374,66 @@ def test_rendered_video_detected_at_truth():
     det = detect(video.frames, thr)
     for t in range(5):
         assert np.linalg.norm(det.centroids(t) - video.true_xy[t, 0], axis=1).min() < 0.3
+
+
+def test_vectorised_subsampled_matches_full_on_wide_spots_and_counts_tests():
+    from lsmta.widearea import Threshold, detect
+
+    # an image size not divisible by k (the grid's last row/column depends on the jitter),
+    # spots wider than k so that the grid always hits them, one at the image border
+    shape, k = (61, 83), 5
+    truth = [[(20.3, 30.6), (60.7, 12.2)], [(81.5, 59.2)], [], [(40.0, 40.0)]]
+    frames = _spot_frames(truth, shape=shape, sigma=2.0)
+    bg = np.full(shape, 40.0)
+    thr = Threshold(background=bg, threshold=bg + 20.0)
+    full = detect(frames, thr)
+    sub = detect(frames, thr, mode="subsampled", rng=np.random.default_rng(5))
+    assert np.diff(sub.start).tolist() == np.diff(full.start).tolist() == [2, 1, 0, 1]
+    for t in range(len(truth)):
+        np.testing.assert_allclose(sub.centroids(t), full.centroids(t), atol=1e-9)
+    # the empty frame tests exactly its jittered grid
+    grids = {len(range(a, shape[0], k)) * len(range(b, shape[1], k))
+             for a in range(k) for b in range(k)}
+    assert sub.tested[2] in grids
+    # frames with a spot test the grid plus the grown neighbourhoods, far fewer than all
+    assert (sub.tested[[0, 1, 3]] > min(grids)).all()
+    assert (sub.tested < 0.3 * full.tested).all()
+
+
+def test_subsampled_previous_windows_follow_a_spot_the_grid_misses():
+    from lsmta.widearea import Threshold, detect
+
+    # frame 0: a wide spot (the grid finds it); then a one-pixel spot nearby, which only the
+    # window around the previous frame's feature can be relied on to find
+    big = _spot_frames([[(40.0, 25.0)]], sigma=2.0)
+    small = _spot_frames([[(42.0, 27.0)]] * 5, sigma=0.3)
+    frames = np.concatenate([big, small])
+    bg = np.full(frames.shape[1:], 40.0)
+    thr = Threshold(background=bg, threshold=bg + 30.0)
+    full = detect(frames, thr)
+    for seed in range(4):
+        sub = detect(frames, thr, mode="subsampled", rng=np.random.default_rng(seed),
+                     predicted="previous")
+        for t in range(len(frames)):
+            np.testing.assert_allclose(sub.centroids(t), full.centroids(t), atol=1e-9)
+    with pytest.raises(ValueError, match="predicted"):
+        detect(frames, thr, mode="subsampled", rng=np.random.default_rng(0), predicted="next")
+    with pytest.raises(ValueError, match="predicted"):
+        detect(frames, thr, mode="subsampled", rng=np.random.default_rng(0),
+               predicted=[np.zeros((0, 2))])
+
+
+def test_rendered_images_detected_and_tracked_in_3d():
+    from lsmta.evaluation.widearea import rendered_tracking_trial
+
+    trial = rendered_tracking_trial(np.random.default_rng(11), n_cameras=5, duration=1.0,
+                                    hold=0.2, modes=("subsampled",))
+    r = trial.results["subsampled"]
+    # one LED: one target, followed all the time, within the thesis's ~10 mm
+    assert r["tracks"] == 1
+    assert r["coverage"] == 1.0
+    assert r["rms_mm"] < 10.0
+    assert r["tested_fraction"] < 0.2
+    # the truth comes from the generator: the LED moves ~1.2 m over the scored window
+    assert np.linalg.norm(trial.truth[-1] - trial.truth[0]) > 500.0
+    assert trial.frames["subsampled"].n_frames > 3 * 25

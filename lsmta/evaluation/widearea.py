@@ -9,7 +9,9 @@
 * :func:`circle_models` — weak, medium and stiff motion models on a circular path;
 * :func:`walking_trial` — eight LEDs on a walking person, scored with our own matching
   (identity changes, birth and death delays, RMS error) and with Stone Soup's metrics
-  (OSPA, SIAP completeness and spuriousness).
+  (OSPA, SIAP completeness and spuriousness);
+* :func:`rendered_tracking_trial` — the end-to-end path: an LED on the linear stage rendered
+  in a few cameras, detected (full or sub-sampled search), tracked, and scored in 3-D.
 """
 
 from __future__ import annotations
@@ -679,7 +681,120 @@ def lighting_change_trial(rng: np.random.Generator, *, n_frames: int = 30, chang
             "visible": np.isfinite(video.true_xy).all(axis=2).sum(axis=1)}
 
 
+@dataclass(frozen=True, eq=False)
+class RenderedTrackingTrial:
+    """Rendered images through detection into the tracker (the end-to-end path).
+
+    Attributes
+    ----------
+    cameras : list of Camera
+        The (half-size) cameras used, as the tracker knows them.
+    frames : dict
+        Per search mode (``"full"``, ``"subsampled"``): the :class:`Frames` the detector
+        produced for the tracker (arrival order).
+    results : dict
+        Per search mode: ``tracks`` (targets created), ``rms_mm`` (3-D RMS error of the
+        longest-lived track against truth over ``times``), ``coverage`` (fraction of
+        ``times`` with an estimate), ``detect_ms_per_frame``, ``tested_fraction``,
+        ``false_per_frame`` (features farther than 3 px from the LED), ``estimate``
+        (T, 3) mm.
+    centroid_only : dict
+        The same scene, cameras and clocks through :func:`observe` (generated centroids,
+        rounded to pixels) and the tracker: ``tracks``, ``rms_mm``, ``coverage``.
+    times : (T,) array
+        Scoring times, s.
+    truth : (T, 3) array
+        The LED's true position, mm.
+    """
+
+    cameras: list
+    frames: dict
+    results: dict
+    centroid_only: dict
+    times: np.ndarray
+    truth: np.ndarray
+
+
+def rendered_tracking_trial(rng: np.random.Generator, *, n_cameras: int = 5,
+                            duration: float = 1.5, hold: float = 0.3,
+                            params: TrackerParams | None = None,
+                            modes=("full", "subsampled")) -> RenderedTrackingTrial:
+    """An LED on the linear stage rendered in ``n_cameras`` half-size cameras of the rig
+    (each at its own rate, phase, clock offset and latency; each with a flickering monitor,
+    masked as an operator would, and reflections), detected in every frame, and tracked.
+
+    The cameras are the ``n_cameras`` of the rig that see the stage's path best. The
+    sub-sampled search uses windows around the previous frame's features (the tracker runs
+    after detection, in batch, so its predictions cannot steer the search here).
+    """
+    import time
+
+    from ..synth.widearea import render_led_video, small_camera
+    from ..widearea import background_threshold, detect
+
+    rng = as_rng(rng)
+    params = TrackerParams() if params is None else params
+    stage = linear_stage(duration, hold=hold)
+    rig = [small_camera(c) for c in ceiling_rig(np.random.default_rng(7))]
+    path = stage.positions[::50, 0]
+    seen = [cam.in_image(cam.project(path, behind="nan")).mean()
+            - 1e-4 * np.linalg.norm(cam.C - path.mean(axis=0)) for cam in rig]
+    chosen = np.sort(np.argsort(seen)[::-1][:n_cameras])
+    cams = [rig[k] for k in chosen]
+    clocks = make_clocks(len(cams), rng)
+    videos = []
+    for k, cam in enumerate(cams):
+        tt = clocks.phase[k] + np.arange(0, duration * clocks.rate[k]) / clocks.rate[k]
+        tt = tt[tt < duration]
+        videos.append(render_led_video(stage, cam, tt, rng))
+    times = np.arange(hold + 0.2, duration - 0.05, 0.01)
+    truth = stage.positions_at(times)[:, 0]
+    frames, results = {}, {}
+    for mode in modes:
+        cam_i, stamp, cents, arrival, tested, false, sec = [], [], [], [], [], [], 0.0
+        for k, video in enumerate(videos):
+            thr = background_threshold(video.background, 20.0, 60.0)
+            inv = np.zeros(video.frames.shape[1:], bool)
+            x0, y0, x1, y1 = video.monitor.astype(int)
+            inv[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = True
+            t0 = time.perf_counter()
+            det = detect(video.frames, thr, invalid=inv, mode=mode, rng=rng,
+                         predicted="previous" if mode == "subsampled" else None)
+            sec += time.perf_counter() - t0
+            _, fp, _ = _match_features(det, video.true_xy, radius=3.0)
+            false.append(fp)
+            tested.append(det.tested / inv.size)
+            n = len(video.times)
+            cam_i.append(np.full(n, k))
+            stamp.append(video.times + clocks.offset[k])
+            arrival.append(video.times + clocks.latency[k]
+                           + clocks.jitter * np.abs(rng.normal(size=n)))
+            cents += [det.centroids(t) for t in range(n)]
+        arrival = np.concatenate(arrival)
+        fr = Frames.from_lists(np.concatenate(cam_i), np.concatenate(stamp), cents,
+                               arrival=arrival).reordered(np.argsort(arrival, kind="stable"))
+        res = track(cams, fr, params)
+        est = _single_track_estimate(res, times)
+        frames[mode] = fr
+        results[mode] = {
+            "tracks": len(res.tracks), "estimate": est,
+            "rms_mm": float(np.sqrt(np.nanmean(np.sum((est - truth) ** 2, axis=1)))),
+            "coverage": float(np.isfinite(est).all(axis=1).mean()),
+            "detect_ms_per_frame": 1e3 * sec / fr.n_frames,
+            "tested_fraction": float(np.concatenate(tested).mean()),
+            "false_per_frame": float(np.concatenate(false).mean())}
+    obs = observe(stage, cams, clocks, rng, quantize=True, reflections=0.0)
+    res = track(cams, obs.frames, params)
+    est = _single_track_estimate(res, times)
+    centroid_only = {"tracks": len(res.tracks),
+                     "rms_mm": float(np.sqrt(np.nanmean(np.sum((est - truth) ** 2, axis=1)))),
+                     "coverage": float(np.isfinite(est).all(axis=1).mean())}
+    return RenderedTrackingTrial(cameras=cams, frames=frames, results=results,
+                                 centroid_only=centroid_only, times=times, truth=truth)
+
+
 __all__ = ["MATCH_MM", "StarvationTrial", "StillStage", "TrackScore", "WalkingTrial",
            "circle_models", "fig35_starvation", "offset_sweep", "queue_policies",
            "score_tracks", "still_and_stage", "stonesoup_metrics", "walking_trial",
-           "DetectionTrial", "detection_trial", "lighting_change_trial", "stage_image_deviation"]
+           "DetectionTrial", "detection_trial", "lighting_change_trial", "stage_image_deviation",
+           "RenderedTrackingTrial", "rendered_tracking_trial"]

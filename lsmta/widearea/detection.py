@@ -13,7 +13,8 @@
   grid jittered anew every frame, plus every pixel of a window around each predicted
   position; a hit on the grid is grown in a small neighbourhood to find its whole spot
   (:func:`detect` with ``mode="subsampled"``). Vectorised: the grids of all frames are
-  tested in one gather; per frame, the grown hits (an OpenCV dilation) and the windows form
+  tested in one gather; per frame, the boxes around the hits (one fancy index) and the
+  windows form
   one region whose pixels are tested with one gather, and the components are labelled once.
   The pixels tested are counted so the saving can be measured
   (:func:`search_mask` draws them, Fig. 32).
@@ -169,38 +170,34 @@ def search_mask(shape, k: int, jitter, windows=None, window: int = 40) -> np.nda
     H, W = shape
     m = np.zeros((H, W), bool)
     m[int(jitter[0])::k, int(jitter[1])::k] = True
-    if windows is not None:
-        for x, y in np.asarray(windows, float).reshape(-1, 2):
-            if not (np.isfinite(x) and np.isfinite(y)):
-                continue
-            r0, c0 = int(round(y)) - window // 2, int(round(x)) - window // 2
-            m[max(r0, 0):max(r0 + window, 0), max(c0, 0):max(c0 + window, 0)] = True
+    _add_windows(m, windows, window)
     return m
 
 
-def _windows(shape, centres, window: int) -> np.ndarray:
-    """(H, W) bool: ``window`` x ``window`` squares around the finite ``centres`` (x, y)."""
-    H, W = shape
-    m = np.zeros((H, W), bool)
+def _add_windows(m, centres, window: int) -> int:
+    """Mark ``window`` x ``window`` squares around the finite ``centres`` (x, y) in the
+    ``(H, W)`` bool image ``m`` (in place); returns how many were marked."""
     if centres is None:
-        return m
+        return 0
+    H, W = m.shape
     c = np.asarray(centres, float).reshape(-1, 2)
     c = c[np.isfinite(c).all(axis=1)]
     half = window // 2
     for x, y in np.rint(c).astype(np.int64).tolist():   # a handful of windows per frame
         r0, c0 = y - half, x - half
         m[max(r0, 0):max(r0 + window, 0), max(c0, 0):max(c0 + window, 0)] = True
-    return m
+    return len(c)
 
 
 def _features(img, bg, sel, H, W):
     """Centroids (x, y), weighted by intensity above ``bg``, and areas of the 8-connected
     components of the pixels ``sel`` (flat indices into an ``(H, W)`` image)."""
-    on = np.zeros(H * W, np.uint8)
-    on[sel] = 1
-    n, lab = cv2.connectedComponents(on.reshape(H, W), connectivity=8, ltype=cv2.CV_32S)
     r, c = np.divmod(sel, W)
-    lab = lab.reshape(-1)[sel]
+    r0, c0 = r.min(), c.min()
+    on = np.zeros((r.max() - r0 + 1, c.max() - c0 + 1), np.uint8)   # the pixels' bounding box
+    on[r - r0, c - c0] = 1
+    n, lab = cv2.connectedComponents(on, connectivity=8, ltype=cv2.CV_32S)
+    lab = lab[r - r0, c - c0]
     w = np.clip(img.reshape(-1)[sel] - bg.reshape(-1)[sel], 0, None) + 1e-9
     sw = np.bincount(lab, w, n)[1:]
     xy = np.stack([np.bincount(lab, w * c, n)[1:] / sw,
@@ -249,6 +246,11 @@ def detect(frames, threshold: Threshold, params: DetectionParams | None = None, 
         raise ValueError(f"mode: expected 'full' or 'subsampled', got {mode!r}")
     thr = np.asarray(threshold.threshold, float)
     bg = np.asarray(threshold.background, float)
+    if np.issubdtype(f.dtype, np.integer):
+        # for integer grey levels, value > thr  <=>  value > floor(thr): compare in integers
+        info = np.iinfo(f.dtype)
+        thr = np.clip(np.floor(thr), info.min - 1, info.max).astype(np.int64 if info.bits > 16
+                                                                      else np.int32)
     empty = (np.zeros((0, 2)), np.zeros(0, np.int64))
     xy_all, area_all, start, tested = [], [], [0], []
 
@@ -273,34 +275,42 @@ def detect(frames, threshold: Threshold, params: DetectionParams | None = None, 
         if predicted is not None and not previous and len(predicted) != T:
             raise ValueError(f"predicted: expected one array of positions per frame ({T})")
         k, g = p.k, p.grow
-        # the jittered grids of all frames, tested in one gather: (T, nr, nc)
+        # the jittered grids of all frames: one strided test per jitter value, over all the
+        # frames drawn with it (at most k * k slices); hits[t] is (nr, nc), padded with False
         jit = rng.integers(0, k, (T, 2))
         nr, nc = -(-H // k), -(-W // k)
         rows = jit[:, :1] + k * np.arange(nr)[None]                  # (T, nr)
         cols = jit[:, 1:] + k * np.arange(nc)[None]                  # (T, nc)
-        inside = (rows < H)[:, :, None] & (cols < W)[:, None, :]
-        rows, cols = np.minimum(rows, H - 1), np.minimum(cols, W - 1)
-        tt = np.arange(T)[:, None, None]
-        r3, c3 = rows[:, :, None], cols[:, None, :]
-        hits = (f[tt, r3, c3] > thr[r3, c3]) & valid[r3, c3] & inside
-        n_grid = inside.sum(axis=(1, 2))
-        kernel = np.ones((2 * g + 1, 2 * g + 1), np.uint8)
+        hits = np.zeros((T, nr, nc), bool)
+        n_grid = np.zeros(T, np.int64)
+        code = jit[:, 0] * k + jit[:, 1]
+        for j in np.unique(code):
+            ts = np.flatnonzero(code == j)
+            jr, jc = divmod(int(j), k)
+            g_hit = (f[ts, jr::k, jc::k] > thr[jr::k, jc::k]) & valid[jr::k, jc::k]
+            hits[ts, :g_hit.shape[1], :g_hit.shape[2]] = g_hit
+            n_grid[ts] = g_hit.shape[1] * g_hit.shape[2]
+        # the (2g + 1)^2 boxes around every grid hit of every frame, in one fancy index
+        region = np.zeros((T, H, W), bool)
+        ht, hr, hc = np.nonzero(hits)
+        off = np.arange(-g, g + 1)
+        rr = np.minimum(np.maximum(rows[ht, hr][:, None] + off, 0), H - 1)   # (n_hits, 2g+1)
+        cc = np.minimum(np.maximum(cols[ht, hc][:, None] + off, 0), W - 1)
+        region[ht[:, None, None], rr[:, :, None], cc[:, None, :]] = True
+        any_hit = np.zeros(T, bool)
+        any_hit[ht] = True
         for t in range(T):
             centres = ((xy_all[-1] if xy_all else None) if previous
                        else None if predicted is None else predicted[t])
-            region = _windows((H, W), centres, p.window)
-            any_hit = bool(hits[t].any())
-            if any_hit:
-                grown = np.zeros((H, W), np.uint8)
-                grown[rows[t][:, None], cols[t][None, :]] = hits[t]
-                region |= cv2.dilate(grown, kernel).astype(bool)
-            if not (any_hit or region.any()):
+            reg = region[t]
+            windows = _add_windows(reg, centres, p.window)
+            if not (any_hit[t] or windows):
                 tested.append(int(n_grid[t]))
                 _keep(empty)
                 continue
             # every pixel of the region, plus the grid pixels outside it
-            on_grid = region[jit[t, 0]::k, jit[t, 1]::k].sum()
-            idx = np.flatnonzero(region)
+            on_grid = reg[jit[t, 0]::k, jit[t, 1]::k].sum()
+            idx = np.flatnonzero(reg)
             tested.append(int(n_grid[t] - on_grid + len(idx)))
             img = f[t].reshape(-1)
             sel = idx[(img[idx] > thr.reshape(-1)[idx]) & valid.reshape(-1)[idx]]

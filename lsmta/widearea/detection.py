@@ -13,9 +13,8 @@
   grid jittered anew every frame, plus every pixel of a window around each predicted
   position; a hit on the grid is grown in a small neighbourhood to find its whole spot
   (:func:`detect` with ``mode="subsampled"``). Vectorised: the grids of all frames are
-  tested in one gather; per frame, the boxes around the hits (one fancy index) and the
-  windows form
-  one region whose pixels are tested with one gather, and the components are labelled once.
+  tested by strided slicing; per frame, the flat indices of the boxes around the hits and of
+  the windows are tested with one gather, and the components are labelled once.
   The pixels tested are counted so the saving can be measured
   (:func:`search_mask` draws them, Fig. 32).
 """
@@ -189,6 +188,26 @@ def _add_windows(m, centres, window: int) -> int:
     return len(c)
 
 
+def _window_indices(shape, centres, window: int) -> np.ndarray:
+    """Flat pixel indices of the ``window`` x ``window`` squares around the finite
+    ``centres`` (x, y), clipped at the border (so pixels may repeat)."""
+    if centres is None:
+        return np.zeros(0, np.int64)
+    H, W = shape
+    c = np.asarray(centres, float).reshape(-1, 2)
+    c = np.rint(c[np.isfinite(c).all(axis=1)]).astype(np.int64)
+    if len(c) == 0:
+        return np.zeros(0, np.int64)
+    o = np.arange(window) - window // 2
+    rr = c[:, 1:] + o                                                 # (n, window)
+    cc = c[:, :1] + o
+    # squares wholly outside the image contribute nothing
+    c = (rr[:, -1] >= 0) & (rr[:, 0] < H) & (cc[:, -1] >= 0) & (cc[:, 0] < W)
+    rr = np.minimum(np.maximum(rr[c], 0), H - 1)
+    cc = np.minimum(np.maximum(cc[c], 0), W - 1)
+    return (rr[:, :, None] * W + cc[:, None, :]).reshape(-1)
+
+
 def _features(img, bg, sel, H, W):
     """Centroids (x, y), weighted by intensity above ``bg``, and areas of the 8-connected
     components of the pixels ``sel`` (flat indices into an ``(H, W)`` image)."""
@@ -290,31 +309,37 @@ def detect(frames, threshold: Threshold, params: DetectionParams | None = None, 
             g_hit = (f[ts, jr::k, jc::k] > thr[jr::k, jc::k]) & valid[jr::k, jc::k]
             hits[ts, :g_hit.shape[1], :g_hit.shape[2]] = g_hit
             n_grid[ts] = g_hit.shape[1] * g_hit.shape[2]
-        # the (2g + 1)^2 boxes around every grid hit of every frame, in one fancy index
-        region = np.zeros((T, H, W), bool)
-        ht, hr, hc = np.nonzero(hits)
+        # the flat pixel indices of the (2g + 1)^2 box around every grid hit of every frame
+        # (clipped at the border, so a box may repeat pixels: harmless)
+        ht, hr, hc = np.nonzero(hits)                                 # ht is sorted
         off = np.arange(-g, g + 1)
         rr = np.minimum(np.maximum(rows[ht, hr][:, None] + off, 0), H - 1)   # (n_hits, 2g+1)
         cc = np.minimum(np.maximum(cols[ht, hc][:, None] + off, 0), W - 1)
-        region[ht[:, None, None], rr[:, :, None], cc[:, None, :]] = True
-        any_hit = np.zeros(T, bool)
-        any_hit[ht] = True
+        box_idx = (rr[:, :, None] * W + cc[:, None, :]).reshape(len(ht), -1)
+        box_start = np.searchsorted(ht, np.arange(T + 1))
+        img_all = f.reshape(T, H * W)
+        thr_flat, valid_flat = thr.reshape(-1), valid.reshape(-1)
+        seen = np.zeros(H * W, bool)             # scratch, to count distinct tested pixels
         for t in range(T):
             centres = ((xy_all[-1] if xy_all else None) if previous
                        else None if predicted is None else predicted[t])
-            reg = region[t]
-            windows = _add_windows(reg, centres, p.window)
-            if not (any_hit[t] or windows):
+            idx = box_idx[box_start[t]:box_start[t + 1]].reshape(-1)
+            win = _window_indices((H, W), centres, p.window)
+            if len(win):
+                idx = np.concatenate([idx, win])
+            if len(idx) == 0:
                 tested.append(int(n_grid[t]))
                 _keep(empty)
                 continue
-            # every pixel of the region, plus the grid pixels outside it
-            on_grid = reg[jit[t, 0]::k, jit[t, 1]::k].sum()
-            idx = np.flatnonzero(reg)
-            tested.append(int(n_grid[t] - on_grid + len(idx)))
-            img = f[t].reshape(-1)
-            sel = idx[(img[idx] > thr.reshape(-1)[idx]) & valid.reshape(-1)[idx]]
-            # grid hits outside any grown box cannot exist, so sel holds every feature pixel
+            # tested: every pixel of the boxes and windows, plus the grid pixels outside them
+            seen[idx] = True
+            n_region = np.count_nonzero(seen)
+            on_grid = np.count_nonzero(seen.reshape(H, W)[jit[t, 0]::k, jit[t, 1]::k])
+            seen[idx] = False
+            tested.append(int(n_grid[t] - on_grid + n_region))
+            img = img_all[t]
+            # grid hits outside any box cannot exist, so these are all the feature pixels
+            sel = np.unique(idx[(img[idx] > thr_flat[idx]) & valid_flat[idx]])
             _keep(_features(f[t], bg, sel, H, W) if len(sel) else empty)
     return Detections(start=np.asarray(start, np.int64),
                       xy=np.concatenate(xy_all) if xy_all else np.zeros((0, 2)),

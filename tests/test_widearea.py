@@ -398,6 +398,22 @@ def test_vectorised_subsampled_matches_full_on_wide_spots_and_counts_tests():
     # frames with a spot test the grid plus the grown neighbourhoods, far fewer than all
     assert (sub.tested[[0, 1, 3]] > min(grids)).all()
     assert (sub.tested < 0.3 * full.tested).all()
+    # masks hold in the sub-sampled search too
+    invalid = np.zeros(shape, bool)
+    invalid[25:36, 15:26] = True                      # the spot at (20.3, 30.6)
+    masked = detect(frames, thr, mode="subsampled", invalid=invalid,
+                    rng=np.random.default_rng(5))
+    assert np.diff(masked.start).tolist() == [1, 1, 0, 1]
+    kept = full.centroids(0)[np.linalg.norm(full.centroids(0) - (20.3, 30.6), axis=1) > 5]
+    np.testing.assert_allclose(masked.centroids(0), kept, atol=1e-9)
+    # integer frames are compared with integer thresholds: same features as in floats
+    frames8 = np.rint(frames).astype(np.uint8)
+    thr_frac = Threshold(background=bg, threshold=bg + 20.5)
+    for mode in ("full", "subsampled"):
+        a = detect(frames8, thr_frac, mode=mode, rng=np.random.default_rng(1))
+        b = detect(frames8.astype(float), thr_frac, mode=mode, rng=np.random.default_rng(1))
+        np.testing.assert_array_equal(a.start, b.start)
+        np.testing.assert_allclose(a.xy, b.xy, atol=1e-9)
 
 
 def test_subsampled_previous_windows_follow_a_spot_the_grid_misses():

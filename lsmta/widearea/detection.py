@@ -263,13 +263,14 @@ def detect(frames, threshold: Threshold, params: DetectionParams | None = None, 
         valid = ~inv
     if mode not in ("full", "subsampled"):
         raise ValueError(f"mode: expected 'full' or 'subsampled', got {mode!r}")
-    thr = np.asarray(threshold.threshold, float)
     bg = np.asarray(threshold.background, float)
+    # invalid pixels get a threshold no value exceeds, so one comparison does both tests
+    thr = np.where(valid, np.asarray(threshold.threshold, float), np.inf)
     if np.issubdtype(f.dtype, np.integer):
         # for integer grey levels, value > thr  <=>  value > floor(thr): compare in integers
         info = np.iinfo(f.dtype)
-        thr = np.clip(np.floor(thr), info.min - 1, info.max).astype(np.int64 if info.bits > 16
-                                                                      else np.int32)
+        dtype = np.int16 if info.bits <= 8 else np.int32 if info.bits <= 16 else np.int64
+        thr = np.clip(np.floor(np.minimum(thr, info.max)), info.min - 1, info.max).astype(dtype)
     empty = (np.zeros((0, 2)), np.zeros(0, np.int64))
     xy_all, area_all, start, tested = [], [], [0], []
 
@@ -282,7 +283,7 @@ def detect(frames, threshold: Threshold, params: DetectionParams | None = None, 
 
     if mode == "full":
         for t in range(T):
-            sel = np.flatnonzero((f[t] > thr) & valid)
+            sel = np.flatnonzero(f[t] > thr)
             _keep(_features(f[t], bg, sel, H, W) if len(sel) else empty)
             tested.append(H * W)
     else:
@@ -306,7 +307,7 @@ def detect(frames, threshold: Threshold, params: DetectionParams | None = None, 
         for j in np.unique(code):
             ts = np.flatnonzero(code == j)
             jr, jc = divmod(int(j), k)
-            g_hit = (f[ts, jr::k, jc::k] > thr[jr::k, jc::k]) & valid[jr::k, jc::k]
+            g_hit = f[ts, jr::k, jc::k] > thr[jr::k, jc::k]
             hits[ts, :g_hit.shape[1], :g_hit.shape[2]] = g_hit
             n_grid[ts] = g_hit.shape[1] * g_hit.shape[2]
         # the flat pixel indices of the (2g + 1)^2 box around every grid hit of every frame
@@ -318,7 +319,7 @@ def detect(frames, threshold: Threshold, params: DetectionParams | None = None, 
         box_idx = (rr[:, :, None] * W + cc[:, None, :]).reshape(len(ht), -1)
         box_start = np.searchsorted(ht, np.arange(T + 1))
         img_all = f.reshape(T, H * W)
-        thr_flat, valid_flat = thr.reshape(-1), valid.reshape(-1)
+        thr_flat = thr.reshape(-1)
         seen = np.zeros(H * W, bool)             # scratch, to count distinct tested pixels
         for t in range(T):
             centres = ((xy_all[-1] if xy_all else None) if previous
@@ -339,7 +340,7 @@ def detect(frames, threshold: Threshold, params: DetectionParams | None = None, 
             tested.append(int(n_grid[t] - on_grid + n_region))
             img = img_all[t]
             # grid hits outside any box cannot exist, so these are all the feature pixels
-            sel = np.unique(idx[(img[idx] > thr_flat[idx]) & valid_flat[idx]])
+            sel = np.unique(idx[img[idx] > thr_flat[idx]])
             _keep(_features(f[t], bg, sel, H, W) if len(sel) else empty)
     return Detections(start=np.asarray(start, np.int64),
                       xy=np.concatenate(xy_all) if xy_all else np.zeros((0, 2)),

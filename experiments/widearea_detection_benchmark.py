@@ -1,0 +1,68 @@
+"""LED detection: full search against the jittered sub-sampled search, by the clock.
+
+    .venv/bin/python experiments/widearea_detection_benchmark.py [--repeats 7] [--scales 0.5 1]
+
+The walking person (eight LEDs) rendered for 2 s at 30 Hz in camera 3 of the rig (with its
+monitor masked and reflections), at each image scale (0.5: 320 x 240, 1: 640 x 480).
+Each search runs ``repeats`` times, interleaved; we report the fastest and the median time
+per frame, the fraction of pixels tested, and the ratio sub-sampled / full (below 1: the
+sub-sampled search is faster). Writes build/benchmarks/widearea_detection.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from lsmta.report import write_json
+from lsmta.synth.widearea import ceiling_rig, render_led_video, small_camera, walking_person
+from lsmta.widearea import background_threshold, detect
+
+SEARCHES = {"full": ("full", None), "subsampled, previous windows": ("subsampled", "previous"),
+            "subsampled, no windows": ("subsampled", None)}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--scales", type=float, nargs="+", default=[0.5, 1.0])
+    parser.add_argument("--out", default="build/benchmarks/widearea_detection.json")
+    args = parser.parse_args(argv)
+    rows = []
+    for scale in args.scales:
+        rng = np.random.default_rng(2002)
+        cam = small_camera(ceiling_rig(np.random.default_rng(7))[3], scale)
+        scene = walking_person(2.1, on=np.stack([np.zeros(8), np.full(8, np.inf)], 1))
+        video = render_led_video(scene, cam, np.arange(0, 2.0, 1 / 30), rng)
+        thr = background_threshold(video.background, 20.0, 60.0)
+        inv = np.zeros(video.frames.shape[1:], bool)
+        x0, y0, x1, y1 = video.monitor.astype(int)
+        inv[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = True
+        times = {name: [] for name in SEARCHES}
+        tested = {}
+        for rep in range(args.repeats):
+            for name, (mode, pred) in SEARCHES.items():
+                t0 = time.perf_counter()
+                det = detect(video.frames, thr, invalid=inv, mode=mode, predicted=pred,
+                             rng=np.random.default_rng(rep))
+                times[name].append(1e3 * (time.perf_counter() - t0) / len(video.frames))
+                tested[name] = float(det.tested.mean() / inv.size)
+        full = np.min(times["full"])
+        for name in SEARCHES:
+            row = {"scale": scale, "image": f"{cam.width}x{cam.height}", "search": name,
+                   "ms_per_frame_min": float(np.min(times[name])),
+                   "ms_per_frame_median": float(np.median(times[name])),
+                   "tested_fraction": tested[name],
+                   "ratio_to_full": float(np.min(times[name]) / full)}
+            rows.append(row)
+            print(f"{row['image']:8s} {name:30s} {row['ms_per_frame_min']:6.3f} ms/frame (min), "
+                  f"{row['ms_per_frame_median']:6.3f} (median), tested "
+                  f"{100 * row['tested_fraction']:5.1f} %, "
+                  f"ratio to full {row['ratio_to_full']:.2f}")
+    write_json(args.out, {"repeats": args.repeats, "rows": rows})
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,349 @@
+"""LED feature detection in camera images (Davis 2002, §3.3).
+
+* **Thresholds.** Per pixel, the maximum background intensity seen over a set of frames
+  without LEDs, plus an additive offset, and never below a minimum
+  (:func:`background_threshold`). When many pixels exceed their thresholds at once, the
+  lighting has changed and the thresholds are recomputed (:func:`needs_new_threshold`).
+* **Invalid regions.** A boolean mask of pixels never to report (monitors, lamps).
+* **Features.** Pixels above threshold are grouped into 8-connected components (OpenCV's
+  ``connectedComponents``, once per frame on the image of the pixels found); each
+  component's centroid is weighted by its intensity above the background (``bincount``
+  over those pixels only).
+* **Sub-sampled search.** Instead of every pixel, test one pixel per ``k x k`` block on a
+  grid jittered anew every frame, plus every pixel of a window around each predicted
+  position; a hit on the grid is grown in a small neighbourhood to find its whole spot
+  (:func:`detect` with ``mode="subsampled"``). Vectorised: the grids of all frames are
+  tested by strided slicing; per frame, the flat indices of the boxes around the hits and of
+  the windows are tested with one gather, and the components are labelled once.
+  The pixels tested are counted so the saving can be measured
+  (:func:`search_mask` draws them, Fig. 32).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .._validate import as_rng, as_scalar
+
+
+@dataclass(frozen=True)
+class Threshold:
+    """Per-pixel detection thresholds.
+
+    Attributes
+    ----------
+    background : (H, W) array
+        Maximum background intensity per pixel.
+    threshold : (H, W) array
+        ``max(background + offset, minimum)``.
+    """
+
+    background: np.ndarray
+    threshold: np.ndarray
+
+
+@dataclass(frozen=True)
+class DetectionParams:
+    """Settings of the detector (intensities in grey levels, sizes in pixels).
+
+    Attributes
+    ----------
+    k : int
+        Sub-sampling: one tested pixel per ``k x k`` block (thesis: 5).
+    window : int
+        Side of the fully searched window around a predicted position (thesis: 40).
+    grow : int
+        Half-size of the neighbourhood searched around a grid hit.
+    min_area : int
+        Smallest component reported, pixels.
+    max_area : int
+        Largest component reported (bigger blobs are not LEDs), pixels.
+    """
+
+    k: int = 5
+    window: int = 40
+    grow: int = 5
+    min_area: int = 1
+    max_area: int = 400
+
+    def __post_init__(self):
+        for key in ("k", "window", "grow", "min_area", "max_area"):
+            v = getattr(self, key)
+            if int(v) != v or v < 1:
+                raise ValueError(f"{key}: expected a positive integer, got {v}")
+
+
+@dataclass(frozen=True)
+class Detections:
+    """Features found in ``T`` frames.
+
+    Attributes
+    ----------
+    start : (T + 1,) int array
+        Frame ``t`` holds features ``start[t]:start[t + 1]``.
+    xy : (M, 2) array
+        Intensity centroids in pixels.
+    area : (M,) int array
+        Pixels per feature.
+    tested : (T,) int array
+        Pixels compared with their threshold in each frame.
+    """
+
+    start: np.ndarray
+    xy: np.ndarray
+    area: np.ndarray
+    tested: np.ndarray
+
+    def centroids(self, t: int) -> np.ndarray:
+        """The ``(n, 2)`` centroids of frame ``t``."""
+        return self.xy[self.start[t]:self.start[t + 1]]
+
+
+def _frames(frames, name="frames") -> np.ndarray:
+    arr = np.asarray(frames)
+    if arr.ndim == 2:
+        arr = arr[None]
+    if arr.ndim != 3:
+        raise ValueError(f"{name}: expected grey images of shape (T, H, W) or (H, W), "
+                         f"got shape {arr.shape}")
+    if not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
+        raise TypeError(f"{name}: expected a real numeric image, got dtype {arr.dtype}")
+    return arr
+
+
+def background_threshold(frames, offset: float, minimum: float, *, exclude=None) -> Threshold:
+    """Thresholds from frames of the background.
+
+    Parameters
+    ----------
+    frames : (T, H, W) array
+        Frames without LEDs (or with ``exclude`` masking them).
+    offset : float
+        Added to the per-pixel maximum, grey levels.
+    minimum : float
+        No threshold below this, grey levels.
+    exclude : (T, H, W) bool array, optional
+        Pixels to leave out of the maximum (e.g. features found in those frames).
+    """
+    f = _frames(frames).astype(float)
+    offset = as_scalar(offset, "offset", nonnegative=True)
+    minimum = as_scalar(minimum, "minimum")
+    if exclude is not None:
+        ex = np.asarray(exclude, bool)
+        if ex.shape != f.shape:
+            raise ValueError(f"exclude: expected shape {f.shape}, got {ex.shape}")
+        f = np.where(ex, -np.inf, f)
+    bg = f.max(axis=0)
+    bg = np.where(np.isfinite(bg), bg, minimum - offset)
+    return Threshold(background=bg, threshold=np.maximum(bg + offset, minimum))
+
+
+def needs_new_threshold(frame, threshold: Threshold, fraction: float = 0.01) -> bool:
+    """True when more than ``fraction`` of the pixels exceed their thresholds (a lighting
+    change, not LEDs)."""
+    f = _frames(frame, "frame")
+    if f.shape[1:] != threshold.threshold.shape:
+        raise ValueError("frame: expected the image size of the threshold")
+    return bool((f > threshold.threshold).mean() > as_scalar(fraction, "fraction"))
+
+
+def search_mask(shape, k: int, jitter, windows=None, window: int = 40) -> np.ndarray:
+    """Pixels the sub-sampled search tests in one frame, ``(H, W)`` bool.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Image height and width.
+    k : int
+        One pixel per ``k x k`` block.
+    jitter : (int, int)
+        Row and column offset of the grid in ``[0, k)``.
+    windows : (n, 2) array, optional
+        Predicted positions (x, y) in pixels; a ``window`` x ``window`` square around each is
+        searched fully.
+    window : int
+    """
+    H, W = shape
+    m = np.zeros((H, W), bool)
+    m[int(jitter[0])::k, int(jitter[1])::k] = True
+    _add_windows(m, windows, window)
+    return m
+
+
+def _add_windows(m, centres, window: int) -> int:
+    """Mark ``window`` x ``window`` squares around the finite ``centres`` (x, y) in the
+    ``(H, W)`` bool image ``m`` (in place); returns how many were marked."""
+    if centres is None:
+        return 0
+    H, W = m.shape
+    c = np.asarray(centres, float).reshape(-1, 2)
+    c = c[np.isfinite(c).all(axis=1)]
+    half = window // 2
+    for x, y in np.rint(c).astype(np.int64).tolist():   # a handful of windows per frame
+        r0, c0 = y - half, x - half
+        m[max(r0, 0):max(r0 + window, 0), max(c0, 0):max(c0 + window, 0)] = True
+    return len(c)
+
+
+def _window_indices(shape, centres, window: int) -> np.ndarray:
+    """Flat pixel indices of the ``window`` x ``window`` squares around the finite
+    ``centres`` (x, y), clipped at the border (so pixels may repeat)."""
+    if centres is None:
+        return np.zeros(0, np.int64)
+    H, W = shape
+    c = np.asarray(centres, float).reshape(-1, 2)
+    c = np.rint(c[np.isfinite(c).all(axis=1)]).astype(np.int64)
+    if len(c) == 0:
+        return np.zeros(0, np.int64)
+    o = np.arange(window) - window // 2
+    rr = c[:, 1:] + o                                                 # (n, window)
+    cc = c[:, :1] + o
+    # squares wholly outside the image contribute nothing
+    c = (rr[:, -1] >= 0) & (rr[:, 0] < H) & (cc[:, -1] >= 0) & (cc[:, 0] < W)
+    rr = np.minimum(np.maximum(rr[c], 0), H - 1)
+    cc = np.minimum(np.maximum(cc[c], 0), W - 1)
+    return (rr[:, :, None] * W + cc[:, None, :]).reshape(-1)
+
+
+def _features(img, bg, sel, H, W):
+    """Centroids (x, y), weighted by intensity above ``bg``, and areas of the 8-connected
+    components of the pixels ``sel`` (flat indices into an ``(H, W)`` image)."""
+    r, c = np.divmod(sel, W)
+    r0, c0 = r.min(), c.min()
+    on = np.zeros((r.max() - r0 + 1, c.max() - c0 + 1), np.uint8)   # the pixels' bounding box
+    on[r - r0, c - c0] = 1
+    n, lab = cv2.connectedComponents(on, connectivity=8, ltype=cv2.CV_32S)
+    lab = lab[r - r0, c - c0]
+    w = np.clip(img.reshape(-1)[sel] - bg.reshape(-1)[sel], 0, None) + 1e-9
+    sw = np.bincount(lab, w, n)[1:]
+    xy = np.stack([np.bincount(lab, w * c, n)[1:] / sw,
+                   np.bincount(lab, w * r, n)[1:] / sw], axis=1)
+    return xy, np.bincount(lab, None, n)[1:].astype(np.int64)
+
+
+def detect(frames, threshold: Threshold, params: DetectionParams | None = None, *,
+           invalid=None, mode: str = "full", predicted=None,
+           rng: np.random.Generator | None = None) -> Detections:
+    """Find LED features in a batch of frames.
+
+    Parameters
+    ----------
+    frames : (T, H, W) array
+        Grey images.
+    threshold : Threshold
+    params : DetectionParams, optional
+    invalid : (H, W) bool array, optional
+        Pixels never reported (masked regions).
+    mode : {"full", "subsampled"}
+        Test every pixel, or the jittered grid plus windows around ``predicted``.
+    predicted : sequence of T arrays (n_t, 2), or "previous", optional
+        Predicted positions (x, y) per frame, for the windows of the sub-sampled search;
+        ``"previous"`` uses the features found in the previous frame (the thesis's simplest
+        prediction).
+    rng : numpy.random.Generator
+        Jitter of the grid (required for ``"subsampled"``).
+
+    Returns
+    -------
+    Detections
+    """
+    f = _frames(frames)
+    T, H, W = f.shape
+    p = DetectionParams() if params is None else params
+    if not isinstance(threshold, Threshold) or threshold.threshold.shape != (H, W):
+        raise ValueError("threshold: expected a Threshold of the frames' image size")
+    valid = np.ones((H, W), bool)
+    if invalid is not None:
+        inv = np.asarray(invalid)
+        if inv.shape != (H, W) or inv.dtype != bool:
+            raise ValueError(f"invalid: expected a boolean mask of shape {(H, W)}")
+        valid = ~inv
+    if mode not in ("full", "subsampled"):
+        raise ValueError(f"mode: expected 'full' or 'subsampled', got {mode!r}")
+    bg = np.asarray(threshold.background, float)
+    # invalid pixels get a threshold no value exceeds, so one comparison does both tests
+    thr = np.where(valid, np.asarray(threshold.threshold, float), np.inf)
+    if np.issubdtype(f.dtype, np.integer):
+        # for integer grey levels, value > thr  <=>  value > floor(thr): compare in integers
+        info = np.iinfo(f.dtype)
+        dtype = np.int16 if info.bits <= 8 else np.int32 if info.bits <= 16 else np.int64
+        thr = np.clip(np.floor(np.minimum(thr, info.max)), info.min - 1, info.max).astype(dtype)
+    empty = (np.zeros((0, 2)), np.zeros(0, np.int64))
+    xy_all, area_all, start, tested = [], [], [0], []
+
+    def _keep(feat):
+        xy, area = feat
+        ok = (area >= p.min_area) & (area <= p.max_area)
+        xy_all.append(xy[ok])
+        area_all.append(area[ok])
+        start.append(start[-1] + int(ok.sum()))
+
+    if mode == "full":
+        for t in range(T):
+            sel = np.flatnonzero(f[t] > thr)
+            _keep(_features(f[t], bg, sel, H, W) if len(sel) else empty)
+            tested.append(H * W)
+    else:
+        rng = as_rng(rng)
+        previous = isinstance(predicted, str) and predicted == "previous"
+        if isinstance(predicted, str) and not previous:
+            raise ValueError(f"predicted: expected position arrays or 'previous', "
+                             f"got {predicted!r}")
+        if predicted is not None and not previous and len(predicted) != T:
+            raise ValueError(f"predicted: expected one array of positions per frame ({T})")
+        k, g = p.k, p.grow
+        # the jittered grids of all frames: one strided test per jitter value, over all the
+        # frames drawn with it (at most k * k slices); hits[t] is (nr, nc), padded with False
+        jit = rng.integers(0, k, (T, 2))
+        nr, nc = -(-H // k), -(-W // k)
+        rows = jit[:, :1] + k * np.arange(nr)[None]                  # (T, nr)
+        cols = jit[:, 1:] + k * np.arange(nc)[None]                  # (T, nc)
+        hits = np.zeros((T, nr, nc), bool)
+        n_grid = np.zeros(T, np.int64)
+        code = jit[:, 0] * k + jit[:, 1]
+        for j in np.unique(code):
+            ts = np.flatnonzero(code == j)
+            jr, jc = divmod(int(j), k)
+            g_hit = f[ts, jr::k, jc::k] > thr[jr::k, jc::k]
+            hits[ts, :g_hit.shape[1], :g_hit.shape[2]] = g_hit
+            n_grid[ts] = g_hit.shape[1] * g_hit.shape[2]
+        # the flat pixel indices of the (2g + 1)^2 box around every grid hit of every frame
+        # (clipped at the border, so a box may repeat pixels: harmless)
+        ht, hr, hc = np.nonzero(hits)                                 # ht is sorted
+        off = np.arange(-g, g + 1)
+        rr = np.minimum(np.maximum(rows[ht, hr][:, None] + off, 0), H - 1)   # (n_hits, 2g+1)
+        cc = np.minimum(np.maximum(cols[ht, hc][:, None] + off, 0), W - 1)
+        box_idx = (rr[:, :, None] * W + cc[:, None, :]).reshape(len(ht), -1)
+        box_start = np.searchsorted(ht, np.arange(T + 1))
+        img_all = f.reshape(T, H * W)
+        thr_flat = thr.reshape(-1)
+        seen = np.zeros(H * W, bool)             # scratch, to count distinct tested pixels
+        for t in range(T):
+            centres = ((xy_all[-1] if xy_all else None) if previous
+                       else None if predicted is None else predicted[t])
+            idx = box_idx[box_start[t]:box_start[t + 1]].reshape(-1)
+            win = _window_indices((H, W), centres, p.window)
+            if len(win):
+                idx = np.concatenate([idx, win])
+            if len(idx) == 0:
+                tested.append(int(n_grid[t]))
+                _keep(empty)
+                continue
+            # tested: every pixel of the boxes and windows, plus the grid pixels outside them
+            seen[idx] = True
+            n_region = np.count_nonzero(seen)
+            on_grid = np.count_nonzero(seen.reshape(H, W)[jit[t, 0]::k, jit[t, 1]::k])
+            seen[idx] = False
+            tested.append(int(n_grid[t] - on_grid + n_region))
+            img = img_all[t]
+            # grid hits outside any box cannot exist, so these are all the feature pixels
+            sel = np.unique(idx[img[idx] > thr_flat[idx]])
+            _keep(_features(f[t], bg, sel, H, W) if len(sel) else empty)
+    return Detections(start=np.asarray(start, np.int64),
+                      xy=np.concatenate(xy_all) if xy_all else np.zeros((0, 2)),
+                      area=np.concatenate(area_all).astype(np.int64) if area_all
+                      else np.zeros(0, np.int64),
+                      tested=np.asarray(tested, np.int64))

@@ -1,0 +1,138 @@
+"""Arm-fitting trials: ground truth of the generated arm, tracked joints, scores.
+
+The generator's arm is the textured ellipsoid body of :mod:`lsmta.synth.body` (one
+ellipsoid per part): the fitted three-ball model never has the exact true shape, as with a
+real arm. Its truth in the fit's convention: the torso frame, the shoulder in it, bone
+lengths (upper arm 300 mm, forearm 265 mm), and the angles ``(b, a, c, elbow)`` of
+:mod:`lsmta.body.arm` (the generator's forearm twist is a rotation about the upper arm's
+axis, so it joins the shoulder's ``c``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..body import ModelState, arm_model, iso_surface, shoulder_angles
+from ..body.arm import base_poses
+from ..body.fitting import BodyFit
+from ..synth.body import Body, Motion, inside_parts
+
+ARM_PARTS = ("upper_arm_r", "forearm_r", "hand_r")
+
+
+@dataclass(frozen=True, eq=False)
+class ArmTruth:
+    """Ground truth of the right arm over T frames.
+
+    Attributes
+    ----------
+    frames : (T,) int array
+    torso_poses : (T, 4, 4) array
+    shoulder_local : (3,) array
+        Shoulder in the torso frame, mm.
+    lengths : (2,) array
+        Upper-arm and forearm lengths, mm.
+    angles : (T, 5) array
+        ``(b, a, c, elbow, wrist)`` radians, the convention of :func:`lsmta.body.arm_model`.
+    joints : (T, 3, 3) array
+        World shoulder, elbow, wrist per frame, mm.
+    """
+
+    frames: np.ndarray
+    torso_poses: np.ndarray
+    shoulder_local: np.ndarray
+    lengths: np.ndarray
+    angles: np.ndarray
+    joints: np.ndarray
+
+
+def arm_truth(body: Body, motion: Motion, frames) -> ArmTruth:
+    """The right arm's truth in the frames ``frames``."""
+    frames = np.atleast_1d(np.asarray(frames, int))
+    poses = body.part_poses(motion, frames)
+    it, iu, iff, ih = (body.index(n) for n in ("torso",) + ARM_PARTS)
+    torso = poses[:, it]
+    fore_a = motion.angle("forearm_r")[frames]                  # (T, 3)
+    Rf = poses[:, iff, :3, :3]
+    c, s = np.cos(fore_a[:, 0]), np.sin(fore_a[:, 0])
+    Rx_inv = np.zeros((len(frames), 3, 3))
+    Rx_inv[:, 0, 0] = 1
+    Rx_inv[:, 1, 1] = c
+    Rx_inv[:, 1, 2] = s
+    Rx_inv[:, 2, 1] = -s
+    Rx_inv[:, 2, 2] = c
+    U = np.einsum("tji,tjk->tik", torso[:, :3, :3], Rf @ Rx_inv)
+    angles = np.concatenate([shoulder_angles(U), fore_a[:, :1], np.zeros((len(frames), 1))],
+                            axis=1)
+    joints = np.stack([poses[:, iu, :3, 3], poses[:, iff, :3, 3], poses[:, ih, :3, 3]], axis=1)
+    return ArmTruth(frames, torso, np.asarray(body.parts[iu].joint, float),
+                    np.array([-body.parts[iff].joint[2], -body.parts[ih].joint[2]], float),
+                    angles, joints)
+
+
+def initial_state(truth: ArmTruth, rng: np.random.Generator, *, joint_noise_mm: float = 15.0,
+                  width_mm: float = 70.0, model=None) -> tuple[ModelState, np.ndarray]:
+    """A starting state as from tracked joints: the true joints plus Gaussian noise, inverse
+    kinematics, template lengths scaled to the tracked mean lengths, round template balls.
+
+    Returns the state and the tracked joints ``(T, 3, 3)``.
+    """
+    from ..body import angles_from_joints
+
+    model = arm_model() if model is None else model
+    tracked = truth.joints + rng.normal(0, joint_noise_mm, truth.joints.shape)
+    angles, shoulder, lengths = angles_from_joints(truth.torso_poses, tracked[:, 0],
+                                                   tracked[:, 1], tracked[:, 2])
+    scales = np.array([lengths[:, 0].mean() / model.segments[0].length,
+                       lengths[:, 1].mean() / model.segments[1].length, 1.0])
+    size = np.array([[width_mm, width_mm], [width_mm, width_mm],
+                     [width_mm * 0.6, width_mm * 0.6]])
+    state = ModelState(angles, shoulder, scales, model.simplified_radii(size, scales))
+    return state, tracked
+
+
+def true_skin(body: Body, motion: Motion, frame: int, rng: np.random.Generator,
+              n: int = 30000) -> np.ndarray:
+    """Dense samples ``(M, 3)`` of the arm's outer skin in one frame (world mm)."""
+    poses = body.part_poses(motion, frame)[0]
+    part, local = body.sample_surface(rng, n // 3, parts=ARM_PARTS)
+    world = np.einsum("nij,nj->ni", poses[part, :3, :3], local) + poses[part, :3, 3]
+    return world[~inside_parts(body, poses, world, exclude=part)]
+
+
+def skin_error(fit_state: ModelState, t: int, model, truth: ArmTruth, body: Body,
+               motion: Motion, rng: np.random.Generator, *, spacing: float = 5.0) -> np.ndarray:
+    """Distances (mm) from the fitted skin of frame ``t`` of the fit to the true arm skin.
+
+    Vertices of the fitted iso-surface hidden inside non-arm body parts (the torso) are
+    left out; so are vertices beyond the hand's true tip region that the data never saw.
+    """
+    base = base_poses(truth.torso_poses[t:t + 1], fit_state.shoulder[t])
+    verts, _ = iso_surface(model, fit_state.angles[t:t + 1], fit_state.scales,
+                           fit_state.radii, base, spacing=spacing)
+    frame = int(truth.frames[t])
+    poses = body.part_poses(motion, frame)[0]
+    others = np.array([i for i, p in enumerate(body.parts) if p.name not in ARM_PARTS])
+    hidden = np.zeros(len(verts), bool)
+    for i in others:
+        spec = body.parts[i]
+        loc = (verts - poses[i, :3, 3]) @ poses[i, :3, :3] - np.asarray(spec.centre)
+        hidden |= np.sum((loc / np.asarray(spec.radii)) ** 2, axis=1) < 1.0
+    skin = true_skin(body, motion, frame, rng)
+    d, _ = cKDTree(skin).query(verts[~hidden])
+    return d
+
+
+def score_fit(fit: BodyFit, truth: ArmTruth) -> dict:
+    """Errors of a fit against the truth: angles (degrees, per frame and joint), bone lengths
+    (mm and %), shoulder position (mm)."""
+    st = fit.state
+    da = np.degrees(np.angle(np.exp(1j * (st.angles[:, :4] - truth.angles[:, :4]))))
+    dl = fit.lengths[:2] - truth.lengths
+    return {"angle_err_deg": da, "max_angle_err_deg": float(np.abs(da).max()),
+            "length_err_mm": dl, "length_err_pct": 100 * dl / truth.lengths,
+            "shoulder_err_mm": float(np.linalg.norm(st.shoulder.mean(axis=0)
+                                                    - truth.shoulder_local))}

@@ -5,10 +5,12 @@ Observation equations
     segment's three metaballs. We write it as the signed distance of the point to that
     skin in mm (:func:`~lsmta.body.metaballs.surface_distance`, the log form of eq. 14), so
     that the weight of eq. 11 is ``1 / sigma_mm^2`` with ``sigma_mm`` the a-priori standard
-    deviation of a point: the residual vector is ``r / sigma_mm``.
+    deviation of a point: the residual vector is ``r / sigma_mm``. Optionally, tracked
+    joint positions (Section 4.2) enter as a second observation type, three equations per
+    joint, weighted by eq. 11 through their own ``sigma_joint_mm``.
 Unknowns
-    Metaball radii (the simplified model's width/depth/length radius per segment, or all
-    nine radii per segment for the full model), limb scales, the shoulder position in the
+    Metaball sizes (the simplified model's width and depth per segment, or width and depth
+    of each ball for the full model), limb scales, the shoulder position in the
     torso frame, and the free joint angles of every frame. In sequence mode the static
     state (radii, scales and, by default, the shoulder) is shared by all frames; each
     frame has its own angles.
@@ -16,14 +18,16 @@ Solver
     :func:`scipy.optimize.least_squares`, ``method="trf"`` (a trust-region
     Levenberg–Marquardt relative that accepts robust losses and sparse Jacobians) with a
     robust loss (``soft_l1`` by default, scale ``2 sigma_mm``) against outlier points. The
-    Jacobian is by finite differences (scipy's 2-point scheme); for a sequence its sparsity
-    pattern (a frame's angles touch only that frame's points, a segment's radii only that
-    segment's points) is passed as ``jac_sparsity`` so that scipy groups columns and the
-    cost grows with the number of static parameters, not with the number of frames.
+    Jacobian is analytic (:func:`_residuals`). For a sequence it is mostly empty (a
+    frame's angles touch only that frame's points, a segment's radii only that segment's
+    points); it is then handed to scipy as a sparse matrix, which switches the trust-region
+    subproblem to LSMR instead of a dense SVD.
 Segmentation
     Each point goes to the segment whose skin is nearest; points farther than ``gate_mm``
     from every segment are left out (torso, background, gross outliers). The segmentation
-    is redone after every ``nfev_per_round`` model evaluations, as in Section 3.3.
+    is redone after every ``nfev_per_round`` model evaluations, as in Section 3.3; the fit
+    has converged when the solver has and at most 0.2 % of the points (or 2) changed
+    segment.
 Alternation
     ``strategy="alternating"`` fits the primitives' radii with the skeleton held, then
     the skeleton (angles, scales, shoulder) with the radii held, round after round (the
@@ -47,7 +51,7 @@ from scipy.optimize import least_squares
 
 from .._validate import as_array, as_scalar
 from .arm import base_poses
-from .metaballs import MetaballModel
+from .metaballs import MetaballModel, surface_distance
 
 LOSSES = ("linear", "soft_l1", "huber", "cauchy")
 STATUSES = ("ok", "not_converged", "poor_fit", "init_far")
@@ -175,6 +179,16 @@ class _Layout:
             for j in self.free_joints:
                 add(f"{jn[j]}[{t}]", "skeleton", -1, t)
         self.names = tuple(names)
+        J = model.skeleton.n_joints
+        self.i_sh = np.arange(3 * n_sh).reshape(n_sh, 3)
+        self.i_scale = 3 * n_sh + np.arange(L)
+        n_shape = (2 if shape == "simplified" else 6) * S
+        self.i_shape = 3 * n_sh + L + np.arange(n_shape).reshape(S, -1)
+        self.i_ang = np.full((T, J), -1)
+        start = 3 * n_sh + L + n_shape
+        for t in range(T):
+            self.i_ang[t, self.free_joints] = start + t * len(self.free_joints) + np.arange(
+                len(self.free_joints))
         self.kind = np.array(kind)
         self.seg = np.array(seg)
         self.frame = np.array(frame)
@@ -215,6 +229,119 @@ def _distances(model, st, bases, pts, frame, segment):
     return model.distance(pts, segment, st.angles, st.scales, st.radii, bases, frame)
 
 
+def _residuals(model: MetaballModel, lay: _Layout, st: ModelState, torso, pts, frame,
+               segment, *, jac: bool):
+    """Distances (mm) of the points to their segments' skins and, with ``jac``, their
+    analytic derivatives ``(N, P)`` with respect to all parameters of ``lay``.
+
+    ``r = l (sqrt(psi) - sqrt(psi_T))``, so ``dr = dr/dpsi dpsi (+ root dl for the
+    middle ball's width and depth)``. A change of the
+    skeleton moves a segment's frame rigidly (``dX = z_j x (X - o_j)`` for an angle,
+    ``dX = R_parent offset`` for a scale, ``dX = R_torso dq`` for the shoulder), which
+    changes ``psi`` by ``-grad_world . dX``; a limb's own scale also slides its balls
+    along the bone and stretches their length radius.
+    """
+    sk = model.skeleton
+    bases = base_poses(torso, st.shoulder)
+    W = sk.transforms(st.angles, st.scales, bases)             # (T, J, 4, 4)
+    C = model.centres(st.scales)
+    N = len(pts)
+    r = np.empty(N)
+    Jm = np.zeros((N, len(lay.names))) if jac else None
+    prof = np.asarray(model.profile) / model.profile[1]
+    fr = np.asarray(model.fractions)
+    for k, segm in enumerate(model.segments):
+        idx = np.flatnonzero(segment == k)
+        if idx.size == 0:
+            continue
+        f = frame[idx]
+        Rb = np.asarray(segm.rotation, float)
+        R = W[f, segm.joint, :3, :3] @ Rb                       # bone -> world rotation
+        o = W[f, segm.joint, :3, 3]
+        X = pts[idx]
+        x = np.einsum("nji,nj->ni", R, X - o)
+        local = x[:, None, :] - C[k][None]
+        radii = st.radii[k]
+        rk, det = surface_distance(local, radii, details=True)
+        r[idx] = rk
+        if not jac:
+            continue
+        inv = det["dr_dpsi"]
+        n = np.einsum("nij,nj->ni", R, det["grad"])             # world gradient of psi
+        pb = det["p"]
+        # shoulder position (torso frame)
+        dq = -np.einsum("ni,nij->nj", n, torso[f, :3, :3])
+        sh_rows = lay.i_sh[0 if lay.share_shoulder else f]     # (3,) or (n, 3)
+        if lay.share_shoulder:
+            Jm[idx[:, None], sh_rows[None]] = dq * inv[:, None]
+        else:
+            Jm[idx[:, None], sh_rows] = dq * inv[:, None]
+        chain = sk.chain(segm.joint)
+        for j in chain:
+            cols = lay.i_ang[f, j]
+            if (cols >= 0).any():
+                z, oj = W[f, j, :3, 2], W[f, j, :3, 3]
+                dpsi = -np.sum(n * np.cross(z, X - oj), axis=1)
+                Jm[idx, cols] = dpsi * inv
+            limb = sk.joints[j].limb
+            if limb >= 0:
+                parent = sk.joints[j].parent
+                Rp = bases[f, :3, :3] if parent < 0 else W[f, parent, :3, :3]
+                dO = Rp @ np.asarray(sk.joints[j].offset, float)
+                Jm[idx, lay.i_scale[limb]] += -np.sum(n * dO, axis=1) * inv
+        # the segment's own scale: balls slide along the bone, lz stretches
+        L0 = segm.length
+        lz = radii[:, 2]
+        own = np.sum(pb * (2 * local[:, :, 2] / lz ** 2 * fr * L0
+                           - 2 * local[:, :, 2] ** 2 / lz ** 3 * model.length_radius * L0),
+                     axis=1)
+        Jm[idx, lay.i_scale[segm.limb]] += own * inv
+        # widths and depths
+        dl = -2 * local[:, :, :2] ** 2 / radii[None, :, :2] ** 3 * pb[:, :, None]  # (n, B, 2)
+        mid = radii[1, :2]
+        dell = det["root"][:, None] * (det["ell"] / (2 * mid))[None]    # (n, 2)
+        if lay.shape == "simplified":
+            Jm[idx[:, None], lay.i_shape[k][None]] = np.einsum("nba,b->na", dl, prof) \
+                * inv[:, None] + dell
+        else:
+            block = dl.reshape(len(idx), 6) * inv[:, None]
+            block[:, 2:4] += dell
+            Jm[idx[:, None], lay.i_shape[k][None]] = block
+    return r, Jm
+
+
+def _joint_residuals(model: MetaballModel, lay: _Layout, st: ModelState, torso, tracked,
+                     joints):
+    """Tracked joint positions as a second observation type: model joint minus tracked
+    joint (mm), ``(M,)`` for the finite entries of ``tracked (T, K, 3)``, and the
+    derivatives ``(M, P)``."""
+    sk = model.skeleton
+    bases = base_poses(torso, st.shoulder)
+    W = sk.transforms(st.angles, st.scales, bases)
+    rows_r, rows_J = [], []
+    for k, j in enumerate(joints):
+        for t in range(lay.T):
+            obs = tracked[t, k]
+            if not np.isfinite(obs).all():
+                continue
+            X = W[t, j, :3, 3]
+            D = np.zeros((3, len(lay.names)))
+            D[:, lay.i_sh[0 if lay.share_shoulder else t]] = torso[t, :3, :3]
+            for i in sk.chain(j):
+                if lay.i_ang[t, i] >= 0:
+                    D[:, lay.i_ang[t, i]] = np.cross(W[t, i, :3, 2], X - W[t, i, :3, 3])
+                limb = sk.joints[i].limb
+                if limb >= 0:
+                    parent = sk.joints[i].parent
+                    Rp = bases[t, :3, :3] if parent < 0 else W[t, parent, :3, :3]
+                    D[:, lay.i_scale[limb]] += Rp @ np.asarray(sk.joints[i].offset, float)
+            rows_r.append(X - obs)
+            rows_J.append(D)
+    if not rows_r:
+        return np.zeros(0), np.zeros((0, len(lay.names)))
+    return np.concatenate(rows_r), np.concatenate(rows_J)
+
+
 def _segment(model, st, bases, pts, frame, gate):
     D = np.abs(model.all_distances(pts, st.angles, st.scales, st.radii, bases, frame))
     seg = np.argmin(D, axis=1)
@@ -245,7 +372,9 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
                  share_shoulder: bool = True, free_joints=(0, 1, 2, 3),
                  sigma_mm: float = 3.0, loss: str = "soft_l1", gate_mm: float = 60.0,
                  min_inlier_share: float = 0.5, nfev_per_round: int = 30,
-                 max_rounds: int = 6, sparse_jacobian: bool | None = None) -> BodyFit:
+                 max_rounds: int = 6, sparse_jacobian: bool | None = None,
+                 jacobian: str = "analytic", tracked=None, tracked_joints=(0, 3, 4),
+                 sigma_joint_mm: float = 15.0, max_radius_mm: float = 300.0) -> BodyFit:
     """Fit shape and motion of ``model`` to T frames of 3-D points.
 
     Parameters
@@ -277,7 +406,19 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
     nfev_per_round, max_rounds : int
         Model evaluations between re-segmentations; number of rounds.
     sparse_jacobian : bool, optional
-        Pass the Jacobian's sparsity to scipy (default: when T > 1).
+        Hand scipy the Jacobian as a sparse matrix (default: when T > 1).
+    jacobian : {"analytic", "2-point"}
+        Analytic Jacobian or scipy's finite differences (for checks).
+    tracked : (T, K, 3) array, optional
+        Tracked world positions of the joints ``tracked_joints`` (NaN: not tracked): a
+        second observation type (Section 4.2) weighted against the points by eq. 11,
+        ``p_joint / p_point = sigma_mm² / sigma_joint_mm²``.
+    tracked_joints : sequence of K int
+        Skeleton joints of ``tracked`` (default: the arm's shoulder, elbow, wrist).
+    sigma_joint_mm : float
+        A-priori standard deviation of a tracked joint, mm.
+    max_radius_mm : float
+        Upper bound of a ball's width and depth (mm); scales are kept in [0.3, 3].
 
     Returns
     -------
@@ -300,7 +441,15 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
     if loss not in LOSSES:
         raise ValueError(f"loss: expected one of {LOSSES}, got {loss!r}")
     sigma = as_scalar(sigma_mm, "sigma_mm", positive=True)
+    sigma_j = as_scalar(sigma_joint_mm, "sigma_joint_mm", positive=True)
+    max_radius = as_scalar(max_radius_mm, "max_radius_mm", positive=True)
     gate = as_scalar(gate_mm, "gate_mm", positive=True)
+    if tracked is not None:
+        tracked_joints = [int(j) for j in tracked_joints]
+        tracked = as_array(tracked, "tracked", shape=(T, len(tracked_joints), 3),
+                           allow_nan=True)
+        if any(not 0 <= j < model.skeleton.n_joints for j in tracked_joints):
+            raise ValueError("tracked_joints: expected skeleton joint indices")
     st = _check_state(init, model, T)
     fj = np.asarray(free_joints, int)
     if fj.ndim != 1 or fj.size and (fj.min() < 0 or fj.max() >= model.skeleton.n_joints):
@@ -385,21 +534,42 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
             if not mask.any():
                 continue
 
-            def fun(xf, mask=mask):
-                xx = x.copy()
-                xx[mask] = xf
-                s = lay.unpack(xx, st, model)
-                return _distances(model, s, bases_of(s), p_use, f_use, s_use) / sigma
+            cache = {}
 
-            kw = {}
-            if use_sparse:
-                kw["jac_sparsity"] = _sparsity(lay, mask, f_use, s_use, model)
+            def evaluate(xf, mask=mask, cache=cache):
+                key = xf.tobytes()
+                if key not in cache:
+                    xx = x.copy()
+                    xx[mask] = xf
+                    s = lay.unpack(xx, st, model)
+                    res, Jm = _residuals(model, lay, s, P, p_use, f_use, s_use, jac=True)
+                    res, Jm = res / sigma, Jm / sigma
+                    if tracked is not None:
+                        rj, Jj = _joint_residuals(model, lay, s, P, tracked, tracked_joints)
+                        res = np.concatenate([res, rj / sigma_j])
+                        Jm = np.concatenate([Jm, Jj / sigma_j])
+                    cache.clear()
+                    cache[key] = (res, Jm[:, mask])
+                return cache[key]
+
+            def fun(xf, evaluate=evaluate):
+                return evaluate(xf)[0]
+
+            def jac(xf, evaluate=evaluate):
+                Jm = evaluate(xf)[1]
+                return sparse.csr_matrix(Jm) if use_sparse else Jm
+
+            kw = {"jac": jac if jacobian == "analytic" else "2-point"}
             lower = np.full(mask.sum(), -np.inf)
-            lower[lay.kind[mask] == "shape"] = 1.0
-            lower[[n.startswith("scale_") for n in np.array(lay.names)[mask]]] = 0.3
-            sol = least_squares(fun, np.maximum(x[mask], lower + 1e-9), loss=loss,
+            upper = np.full(mask.sum(), np.inf)
+            is_shape = lay.kind[mask] == "shape"
+            is_scale = np.array([n.startswith("scale_") for n in np.array(lay.names)[mask]],
+                                bool)
+            lower[is_shape], upper[is_shape] = 1.0, max_radius
+            lower[is_scale], upper[is_scale] = 0.3, 3.0
+            sol = least_squares(fun, np.clip(x[mask], lower + 1e-9, upper - 1e-9), loss=loss,
                                 f_scale=2.0, method="trf", x_scale="jac",
-                                max_nfev=nfev_per_round, bounds=(lower, np.inf), **kw)
+                                max_nfev=nfev_per_round, bounds=(lower, upper), **kw)
             nfev += sol.nfev
             x[mask] = sol.x
             round_converged &= sol.status > 0
@@ -408,10 +578,8 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
         new_seg = _segment(model, st, bases_of(st), pts, frame, gate)
         changed = int(np.sum(new_seg != seg))
         seg = new_seg
-        if round_converged and changed == 0 and strategy == "simultaneous":
-            converged = True
-            break
-        if strategy == "alternating" and changed == 0 and round_converged and rounds > 1:
+        settled = changed <= max(2, int(0.002 * len(pts)))
+        if round_converged and settled and (strategy == "simultaneous" or rounds > 1):
             converged = True
             break
 
@@ -437,20 +605,6 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
     if sum(n_nan):
         msg += f"; {sum(n_nan)} NaN points dropped"
     return finish(status, msg, st, seg, nfev, rounds, names, sol.x, cov)
-
-
-def _sparsity(lay: _Layout, mask, frame, segment, model):
-    """Rows (points) x free columns that can be non-zero."""
-    cols = np.flatnonzero(mask)
-    A = sparse.lil_matrix((len(frame), len(cols)), dtype=int)
-    for c, j in enumerate(cols):
-        rows = np.ones(len(frame), bool)
-        if lay.frame[j] >= 0:
-            rows &= frame == lay.frame[j]
-        if lay.kind[j] == "shape":
-            rows &= segment == lay.seg[j]
-        A[np.flatnonzero(rows), c] = 1
-    return A.tocsr()
 
 
 def fit_frame(model: MetaballModel, points, torso_pose, init: ModelState, **kwargs) -> BodyFit:

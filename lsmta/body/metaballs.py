@@ -15,11 +15,14 @@ the bone length or by the end balls' radius alike, and the fit trades one for th
 
 Distance to the skin in millimetres
     The fit needs a residual per 3-D point. Eq. 14 uses ``F - T`` itself, which is in field
-    units and vanishes far from the limb (``exp`` underflows). We use its logarithm,
-    ``psi = -ln(F) / 2`` (for a single ball ``psi = d``), and the first-order geometric
-    distance ``r = (psi - psi_T) / |grad psi|`` with ``psi_T = -ln(T) / 2``: exact for a
-    sphere, zero on the same surface as eq. 14, defined everywhere (``ln F`` is evaluated
-    as a log-sum-exp), in mm, so a-priori standard deviations in mm weigh it (eq. 11).
+    units and vanishes far from the limb (``exp`` underflows), so distant points barely
+    pull. We use its logarithm, ``psi = -ln(F) / 2`` (for a single ball ``psi = d``,
+    evaluated as a log-sum-exp), and ``r = l (sqrt(psi) - sqrt(psi_T))`` with
+    ``psi_T = -ln(T) / 2`` and ``l = sqrt(lx ly)`` of the segment's middle ball: the exact
+    distance for a round ball, zero on the same surface as eq. 14, and in mm, so that
+    a-priori standard deviations in mm weigh it (eq. 11). (A first-order distance
+    ``(psi - psi_T) / |grad psi|`` was tried first; its analytic derivative needs the
+    Hessian of ``psi``, and dropping that term stalled the fit away from the skin.)
 """
 
 from __future__ import annotations
@@ -53,8 +56,12 @@ def field(local, radii) -> np.ndarray:
     return potential(ellipsoid_distance(local, radii)).sum(axis=-1)
 
 
-def surface_distance(local, radii, threshold: float = THRESHOLD):
-    """First-order distance (mm) of points to the skin ``F = T`` of one segment's balls.
+def surface_distance(local, radii, threshold: float = THRESHOLD, *, details: bool = False):
+    """Distance-like residual (mm) of points to the skin ``F = T`` of one segment's balls.
+
+    ``r = l (sqrt(psi) - sqrt(psi_T))`` with ``psi = -ln(F) / 2``, ``psi_T = -ln(T) / 2``
+    and ``l = sqrt(lx ly)`` of the middle ball: exactly the distance to the surface for a
+    single round ball, zero exactly on the surface of eq. 14 (module docstring).
 
     Parameters
     ----------
@@ -65,11 +72,17 @@ def surface_distance(local, radii, threshold: float = THRESHOLD):
         Ball radii, mm.
     threshold : float
         ``T``.
+    details : bool
+        Also return the intermediate quantities the analytic Jacobian needs.
 
     Returns
     -------
     r : (N,) array
         Positive outside, negative inside (mm).
+    details : dict, only with ``details``
+        ``grad`` (N, 3): ``d psi / d x`` in the segment's frame; ``p`` (N, B): each ball's
+        share of the field (``d psi / d d_b``); ``dr_dpsi`` (N,); ``ell``; ``root`` (N,):
+        ``sqrt(psi) - sqrt(psi_T)``.
     """
     q = local / radii                                     # (N, B, 3)
     d = np.sum(q * q, axis=-1)                            # (N, B)
@@ -79,10 +92,17 @@ def surface_distance(local, radii, threshold: float = THRESHOLD):
     total = p.sum(axis=1, keepdims=True)
     lnF = (top + np.log(total))[:, 0]                     # log-sum-exp, (N,)
     psi = -0.5 * lnF
-    p /= total                                            # softmax weights
-    grad = np.einsum("nb,nbk->nk", p, 2.0 * q / radii)    # d psi / d x
-    g = np.maximum(np.linalg.norm(grad, axis=1), 1e-9)
-    return (psi + 0.5 * np.log(threshold)) / g
+    inside = psi < 1e-9                                   # deep inside a blend (F > 1)
+    sq = np.sqrt(np.where(inside, 1e-9, psi))
+    ell = float(np.sqrt(radii[len(radii) // 2, 0] * radii[len(radii) // 2, 1]))
+    root = sq - np.sqrt(-0.5 * np.log(threshold))
+    r = ell * root
+    if details:
+        p /= total                                        # softmax weights
+        grad = np.einsum("nb,nbk->nk", p, 2.0 * q / radii)
+        dr = np.where(inside, 0.0, ell / (2 * sq))
+        return r, {"grad": grad, "p": p, "dr_dpsi": dr, "ell": ell, "root": root}
+    return r
 
 
 @dataclass(frozen=True)

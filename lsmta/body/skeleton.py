@@ -185,19 +185,20 @@ class Skeleton:
         W = self.transforms(angles, scales, base)
         th, s, B = self._check(angles, scales, base)
         T, N, J, L = len(W), len(local), self.n_joints, len(self.limbs)
-        X = np.einsum("tnij,nj->tni", W[:, joint, :3, :3], local) + W[:, joint, :3, 3]
+        Wp = W[:, joint]
+        X = np.einsum("tnij,nj->tni", Wp[..., :3, :3], local) + Wp[..., :3, 3]
         d_th = np.zeros((T, N, 3, J))
         d_s = np.zeros((T, N, 3, L))
         for k in np.unique(joint):
-            sel = joint == k
+            sel = np.flatnonzero(joint == k)
             for j in self.chain(int(k)):
                 z, o = W[:, j, :3, 2], W[:, j, :3, 3]                 # (T, 3)
-                d_th[:, sel, :, j] = np.cross(z[:, None], X[:, sel] - o[:, None])
+                d_th[..., j][:, sel] = np.cross(z[:, None], X[:, sel] - o[:, None])
                 limb = self.joints[j].limb
                 if limb >= 0:
                     parent = self.joints[j].parent
                     Rp = B[:, :3, :3] if parent < 0 else W[:, parent, :3, :3]
-                    d_s[:, sel, :, limb] += (Rp @ np.asarray(self.joints[j].offset,
+                    d_s[..., limb][:, sel] += (Rp @ np.asarray(self.joints[j].offset,
                                                             float))[:, None]
         return d_th, d_s
 

@@ -33,8 +33,8 @@ Alternation
     the skeleton (angles, scales, shoulder) with the radii held, round after round (the
     paper's choice, Section 4.3); ``"simultaneous"`` frees everything at once.
 Checks
-    NaN points are dropped and counted; a segment with fewer points than its free shape
-    parameters keeps its shape and scale (named in ``fixed_segments``); if fewer than
+    NaN points are dropped and counted; a segment with fewer than ``min_points_per_param``
+    points per free shape parameter keeps its shape and scale (named in ``fixed_segments``); if fewer than
     ``min_inlier_share`` of the points lie within ``gate_mm`` of the initial model the fit
     is not run (status ``"init_far"``), and a fit that ends with fewer inliers than that
     is reported as ``"poor_fit"``.
@@ -103,6 +103,10 @@ class BodyFit:
         NaN points dropped per frame.
     fixed_segments : tuple of str
         Segments whose shape and scale were held (too few points).
+    unobserved : tuple of (int, str)
+        ``(frame, segment)`` pairs with fewer than ``min_points_per_param`` points at the
+        end: that segment's pose in that frame rests on its neighbours, the tracked joints
+        or the start, not on its own points.
     inlier_share : (T,) array
         Share of the finite points within ``gate_mm`` of the final model.
     sigma_mm : float
@@ -128,6 +132,7 @@ class BodyFit:
     residuals: list
     n_nan: np.ndarray
     fixed_segments: tuple
+    unobserved: tuple
     inlier_share: np.ndarray
     sigma_mm: float
     nfev: int
@@ -374,7 +379,8 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
                  min_inlier_share: float = 0.5, nfev_per_round: int = 30,
                  max_rounds: int = 6, sparse_jacobian: bool | None = None,
                  jacobian: str = "analytic", tracked=None, tracked_joints=(0, 3, 4),
-                 sigma_joint_mm: float = 15.0, max_radius_mm: float = 300.0) -> BodyFit:
+                 sigma_joint_mm: float = 15.0, max_radius_mm: float = 300.0,
+                 min_points_per_param: int = 5) -> BodyFit:
     """Fit shape and motion of ``model`` to T frames of 3-D points.
 
     Parameters
@@ -419,6 +425,9 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
         A-priori standard deviation of a tracked joint, mm.
     max_radius_mm : float
         Upper bound of a ball's width and depth (mm); scales are kept in [0.3, 3].
+    min_points_per_param : int
+        A segment with fewer points than this many per free shape parameter keeps its
+        shape and scale (the bare minimum would be one point per parameter).
 
     Returns
     -------
@@ -492,8 +501,13 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
                         for t in range(T)])
         assigned = res_all[np.isfinite(res_all)]
         sig = float(1.4826 * np.median(np.abs(assigned))) if assigned.size else np.nan
+        unobs = tuple((t, model.names[k]) for t in range(T) for k in range(model.n_segments)
+                      if np.sum(seg[frame == t] == k) < min_points_per_param)
+        if unobs and status != "init_far":
+            message += "; no points of its own for " + ", ".join(
+                f"{n} in frame {t}" for t, n in unobs)
         return BodyFit(status, message, state, model.bone_lengths(state.scales), seg_out,
-                       res_out, np.array(n_nan), tuple(fixed), inl, sig, nfev, rounds,
+                       res_out, np.array(n_nan), tuple(fixed), unobs, inl, sig, nfev, rounds,
                        time.perf_counter() - t0, names, params, cov)
 
     fixed: list[str] = []
@@ -515,7 +529,8 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
     for rounds in range(1, max_rounds + 1):
         # limbs with too few points keep their shape and scale
         n_on = np.bincount(seg[seg >= 0], minlength=model.n_segments)
-        held = [k for k in range(model.n_segments) if n_on[k] < per_seg_shape + 1]
+        held = [k for k in range(model.n_segments)
+                if n_on[k] < min_points_per_param * per_seg_shape]
         for k in held:
             if model.names[k] not in fixed:
                 fixed.append(model.names[k])
@@ -536,7 +551,8 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
 
             cache = {}
 
-            def evaluate(xf, mask=mask, cache=cache):
+            def evaluate(xf, mask=mask, cache=cache, p_use=p_use, f_use=f_use, s_use=s_use,
+                         st=st):
                 key = xf.tobytes()
                 if key not in cache:
                     xx = x.copy()

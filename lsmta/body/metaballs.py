@@ -248,7 +248,7 @@ class MetaballModel:
 
 
 def iso_surface(model: MetaballModel, angles, scales, radii, base=None, *,
-                spacing: float = 6.0, threshold: float = THRESHOLD, margin: float = 60.0):
+                spacing: float = 8.0, threshold: float = THRESHOLD, margin: float = 10.0):
     """The skin ``F = T`` of one frame as a triangle mesh (marching cubes, scikit-image).
 
     Returns
@@ -260,7 +260,8 @@ def iso_surface(model: MetaballModel, angles, scales, radii, base=None, *,
 
     spacing = as_scalar(spacing, "spacing", positive=True)
     poses = model.ball_poses(angles, scales, base)[0].reshape(-1, 4, 4)
-    reach = float(np.max(radii)) + margin
+    # a lone ball's skin lies at 0.59 of its radii; three blended ones stay inside 1.0
+    reach = float(np.max(radii)) + margin + spacing
     lo = poses[:, :3, 3].min(axis=0) - reach
     hi = poses[:, :3, 3].max(axis=0) + reach
     axes = [np.arange(a, b + spacing, spacing) for a, b in zip(lo, hi)]

@@ -103,12 +103,34 @@ def true_skin(body: Body, motion: Motion, frame: int, rng: np.random.Generator,
     return world[~inside_parts(body, poses, world, exclude=part)]
 
 
+def arm_distance(body: Body, motion: Motion, frame: int, points) -> np.ndarray:
+    """Distance (mm) of world points ``(N, 3)`` to the true arm skin: the smallest
+    first-order distance ``|k - 1| / |grad k|`` (``k`` the ellipsoid's implicit function
+    ``sum (x / r)^2``, halved gradient) over the three arm ellipsoids."""
+    poses = body.part_poses(motion, frame)[0]
+    pts = np.asarray(points, float)
+    best = np.full(len(pts), np.inf)
+    for name in ARM_PARTS:
+        i = body.index(name)
+        spec = body.parts[i]
+        r = np.asarray(spec.radii, float)
+        loc = (pts - poses[i, :3, 3]) @ poses[i, :3, :3] - np.asarray(spec.centre)
+        k = np.sum((loc / r) ** 2, axis=1)
+        g = 2 * np.linalg.norm(loc / r**2, axis=1)
+        # distance along the gradient to the level k = 1 (exact for a sphere)
+        d = np.abs(np.sqrt(k) - 1) * np.sqrt(k) * 2 / np.maximum(g, 1e-12)
+        best = np.minimum(best, d)
+    return best
+
+
 def skin_error(fit_state: ModelState, t: int, model, truth: ArmTruth, body: Body,
-               motion: Motion, rng: np.random.Generator, *, spacing: float = 5.0) -> np.ndarray:
+               motion: Motion, *, spacing: float = 8.0, near=None,
+               near_mm: float = 15.0) -> np.ndarray:
     """Distances (mm) from the fitted skin of frame ``t`` of the fit to the true arm skin.
 
     Vertices of the fitted iso-surface hidden inside non-arm body parts (the torso) are
-    left out; so are vertices beyond the hand's true tip region that the data never saw.
+    left out. With ``near`` (points ``(N, 3)``), only vertices within ``near_mm`` of one of
+    them are scored: the skin where there was data.
     """
     base = base_poses(truth.torso_poses[t:t + 1], fit_state.shoulder[t])
     verts, _ = iso_surface(model, fit_state.angles[t:t + 1], fit_state.scales,
@@ -116,14 +138,17 @@ def skin_error(fit_state: ModelState, t: int, model, truth: ArmTruth, body: Body
     frame = int(truth.frames[t])
     poses = body.part_poses(motion, frame)[0]
     others = np.array([i for i, p in enumerate(body.parts) if p.name not in ARM_PARTS])
-    hidden = np.zeros(len(verts), bool)
+    keep = np.ones(len(verts), bool)
     for i in others:
         spec = body.parts[i]
         loc = (verts - poses[i, :3, 3]) @ poses[i, :3, :3] - np.asarray(spec.centre)
-        hidden |= np.sum((loc / np.asarray(spec.radii)) ** 2, axis=1) < 1.0
-    skin = true_skin(body, motion, frame, rng)
-    d, _ = cKDTree(skin).query(verts[~hidden])
-    return d
+        keep &= np.sum((loc / np.asarray(spec.radii)) ** 2, axis=1) >= 1.0
+    if near is not None:
+        pts = np.asarray(near, float)
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        d, _ = cKDTree(pts).query(verts)
+        keep &= d < near_mm
+    return arm_distance(body, motion, frame, verts[keep])
 
 
 def score_fit(fit: BodyFit, truth: ArmTruth) -> dict:
@@ -136,3 +161,52 @@ def score_fit(fit: BodyFit, truth: ArmTruth) -> dict:
             "length_err_mm": dl, "length_err_pct": 100 * dl / truth.lengths,
             "shoulder_err_mm": float(np.linalg.norm(st.shoulder.mean(axis=0)
                                                     - truth.shoulder_local))}
+
+
+RIG_CENTRE = (0.0, -2500.0, 1100.0)   # the triplet rig's centre camera in the notebook (mm)
+
+
+def controlled_points(body: Body, motion: Motion, truth: ArmTruth, rng: np.random.Generator,
+                      *, n: int = 400, noise_mm: float = 2.0, outlier_share: float = 0.1,
+                      view_from=RIG_CENTRE) -> list:
+    """Noisy samples of the arm's skin seen from the rig, one ``(n, 3)`` array per frame."""
+    from ..synth.body import surface_samples
+
+    return [surface_samples(body, motion, int(f), rng, n=n, noise_mm=noise_mm,
+                            outlier_share=outlier_share, view_from=view_from)[0]
+            for f in truth.frames]
+
+
+def fit_arm(points, truth: ArmTruth, init: ModelState, *, model=None, full: bool = True,
+            **kwargs):
+    """Simplified fit of a sequence (or one frame), then the full model from it.
+
+    Returns ``(simplified, full)`` :class:`~lsmta.body.BodyFit` (``full`` is None without
+    ``full``).
+    """
+    from ..body import fit_sequence
+
+    model = arm_model() if model is None else model
+    simple = fit_sequence(model, points, truth.torso_poses, init, **kwargs)
+    if not full or simple.status == "init_far":
+        return simple, None
+    return simple, fit_sequence(model, points, truth.torso_poses, simple.state, shape="full",
+                                **kwargs)
+
+
+def skin_errors(fit: BodyFit, truth: ArmTruth, body: Body, motion: Motion, *, model=None,
+                frames=None, spacing: float = 8.0, points=None, near_mm: float = 15.0):
+    """Distances (mm) of the fitted skin to the true skin, pooled over ``frames``
+    (indices into the fit; default all); with ``points`` (one array per frame), only where
+    there was data (:func:`skin_error`)."""
+    model = arm_model() if model is None else model
+    frames = range(len(truth.frames)) if frames is None else frames
+    return np.concatenate([skin_error(fit.state, t, model, truth, body, motion,
+                                      spacing=spacing, near_mm=near_mm,
+                                      near=None if points is None else points[t])
+                           for t in frames])
+
+
+def point_errors(points, body: Body, motion: Motion, frame: int) -> np.ndarray:
+    """Distance (mm) of measured points ``(N, 3)`` to the true arm skin."""
+    return arm_distance(body, motion, frame, points)

@@ -206,6 +206,12 @@ def test_bad_input(world):
     assert "hand" in fit2.fixed_segments
     np.testing.assert_allclose(fit2.state.radii[2], init.radii[2])
     assert fit2.state.scales[2] == init.scales[2]
+    # a segment without points in a frame is named, and the message says so
+    upper = surface_samples(*world, 30, rng, parts=("upper_arm_r",), n=300, noise_mm=1.0)[0]
+    upper = upper[np.linalg.norm(upper - truth.joints[0, 1], axis=1) > 120]
+    fit3 = fit_frame(m, upper, P, init, sigma_mm=2.0)
+    assert (0, "forearm") in fit3.unobserved and "forearm in frame 0" in fit3.message
+    assert "forearm" in fit3.fixed_segments
     # a far initial posture: a clear failure, not a silent wrong fit
     far = ModelState(init.angles + np.array([[2.0, 1.0, 0.0, 1.2, 0.0]]), init.shoulder,
                      init.scales, init.radii)

@@ -34,10 +34,11 @@ Alternation
     paper's choice, Section 4.3); ``"simultaneous"`` frees everything at once.
 Checks
     NaN points are dropped and counted; a segment with fewer than ``min_points_per_param``
-    points per free shape parameter keeps its shape and scale (named in ``fixed_segments``); if fewer than
-    ``min_inlier_share`` of the points lie within ``gate_mm`` of the initial model the fit
-    is not run (status ``"init_far"``), and a fit that ends with fewer inliers than that
-    is reported as ``"poor_fit"``.
+    points per free shape parameter keeps its shape and scale (named in
+    ``fixed_segments``); if fewer than ``min_inlier_share`` of the points lie within
+    ``gate_mm`` of the initial model the fit is not run (status ``"init_far"``), and a fit
+    that ends with fewer inliers than that is reported as ``"poor_fit"``. Segments without
+    points of their own in a frame are named in ``unobserved``.
 """
 
 from __future__ import annotations

@@ -178,8 +178,9 @@ def controlled_points(body: Body, motion: Motion, truth: ArmTruth, rng: np.rando
 
 
 def fit_arm(points, truth: ArmTruth, init: ModelState, *, model=None, full: bool = True,
-            **kwargs):
-    """Simplified fit of a sequence (or one frame), then the full model from it.
+            full_rounds: int = 3, **kwargs):
+    """Simplified fit of a sequence (or one frame), then the full model from it (at most
+    ``full_rounds`` segmentation rounds).
 
     Returns ``(simplified, full)`` :class:`~lsmta.body.BodyFit` (``full`` is None without
     ``full``).
@@ -190,6 +191,7 @@ def fit_arm(points, truth: ArmTruth, init: ModelState, *, model=None, full: bool
     simple = fit_sequence(model, points, truth.torso_poses, init, **kwargs)
     if not full or simple.status == "init_far":
         return simple, None
+    kwargs["max_rounds"] = full_rounds
     return simple, fit_sequence(model, points, truth.torso_poses, simple.state, shape="full",
                                 **kwargs)
 

@@ -266,7 +266,7 @@ def metaball_image(ball_poses, radii, *, threshold_scale: float = 0.589, mesh=No
         pl.add_points(np.asarray(points, float), point_size=4, render_points_as_spheres=True,
                       **kw)
     centre = poses[:, :3, 3].mean(axis=0) if focal_point is None else np.asarray(focal_point)
-    eye = centre + np.array([300.0, -1500.0, 300.0]) if view_from is None else view_from
+    eye = centre + np.array([250.0, -1000.0, 250.0]) if view_from is None else view_from
     pl.camera_position = [tuple(eye), tuple(centre), (0, 0, 1)]
     image = pl.screenshot(return_img=True)
     pl.close()

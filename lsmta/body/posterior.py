@@ -127,7 +127,8 @@ def sample_limb_posterior(model: MetaballModel, fit: BodyFit, points, torso_pose
     start = x0[free] + 0.5 * ls_std * rng.standard_normal((n_walkers, ndim))
     sampler = emcee.EnsembleSampler(n_walkers, ndim, log_prob)
     sampler.random_state = np.random.RandomState(int(rng.integers(2**32))).get_state()
-    sampler.run_mcmc(start, n_steps, progress=False)
+    with np.errstate(invalid="ignore"):       # -inf - -inf for proposals outside the bounds
+        sampler.run_mcmc(start, n_steps, progress=False)
     samples = sampler.get_chain(discard=burn, thin=thin, flat=True) * to_phys
     names = tuple(f"length_{n}" for n in model.skeleton.limbs) + tuple(
         np.array(lay.names)[lay.i_shape.ravel()])

@@ -20,8 +20,10 @@ Solver
     robust loss (``soft_l1`` by default, scale ``2 sigma_mm``) against outlier points. The
     Jacobian is analytic (:func:`_residuals`). For a sequence it is mostly empty (a
     frame's angles touch only that frame's points, a segment's radii only that segment's
-    points); it is then handed to scipy as a sparse matrix, which switches the trust-region
-    subproblem to LSMR instead of a dense SVD.
+    points); ``sparse_jacobian=True`` hands it to scipy as a sparse matrix (LSMR instead of
+    a dense SVD for the trust-region step). It does not pay at our sizes
+    (``experiments/body_benchmark.py``: half the speed at 9 frames, equal at 40), so the
+    default is dense.
 Segmentation
     Each point goes to the segment whose skin is nearest; points farther than ``gate_mm``
     from every segment are left out (torso, background, gross outliers). The segmentation
@@ -378,7 +380,7 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
                  share_shoulder: bool = True, free_joints=(0, 1, 2, 3),
                  sigma_mm: float = 3.0, loss: str = "soft_l1", gate_mm: float = 60.0,
                  min_inlier_share: float = 0.5, nfev_per_round: int = 30,
-                 max_rounds: int = 6, sparse_jacobian: bool | None = None,
+                 max_rounds: int = 6, sparse_jacobian: bool = False,
                  jacobian: str = "analytic", tracked=None, tracked_joints=(0, 3, 4),
                  sigma_joint_mm: float = 15.0, max_radius_mm: float = 300.0,
                  min_points_per_param: int = 5) -> BodyFit:
@@ -412,8 +414,8 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
         Minimum share of finite points within ``gate_mm``, at the start and at the end.
     nfev_per_round, max_rounds : int
         Model evaluations between re-segmentations; number of rounds.
-    sparse_jacobian : bool, optional
-        Hand scipy the Jacobian as a sparse matrix (default: when T > 1).
+    sparse_jacobian : bool
+        Hand scipy the Jacobian as a sparse matrix.
     jacobian : {"analytic", "2-point"}
         Analytic Jacobian or scipy's finite differences (for checks).
     tracked : (T, K, 3) array, optional
@@ -526,7 +528,7 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
     converged = False
     last = None
     groups = [None] if strategy == "simultaneous" else ["shape", "skeleton"]
-    use_sparse = T > 1 if sparse_jacobian is None else bool(sparse_jacobian)
+    use_sparse = bool(sparse_jacobian)
     for rounds in range(1, max_rounds + 1):
         # limbs with too few points keep their shape and scale
         n_on = np.bincount(seg[seg >= 0], minlength=model.n_segments)

@@ -38,7 +38,14 @@ def world():
     return cameras, body, arm_wave(50), rng
 
 
-def main():
+def main(argv=None):
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--per-part", type=int, default=2, help="seeds per arm part")
+    parser.add_argument("--out", default=str(OUT))
+    args = parser.parse_args(argv)
+    out = Path(args.out)
     cameras, body, motion, rng = world()
     scene = Scene(body, motion, None)
     renderer = Renderer(scene, cameras, noise_sigma=NOISE)
@@ -48,7 +55,7 @@ def main():
     points, frame_of, crops, boxes, seconds, errors = [], [], [], [], [], []
     for f in FRAMES:
         shot = renderer.render(f, rng=rng)
-        seeds = evaluate.seeds_from_truth(scene, cameras, f, rng, per_part=2)
+        seeds = evaluate.seeds_from_truth(scene, cameras, f, rng, per_part=args.per_part)
         px = np.round(seeds[1]).astype(int)
         on_arm = np.isin(shot.part_id[1][px[:, 1], px[:, 0]], arm)
         t0 = time.perf_counter()
@@ -71,11 +78,11 @@ def main():
     stack = np.zeros((len(crops), h, w), np.uint8)
     for k, c in enumerate(crops):
         stack[k, :c.shape[0], :c.shape[1]] = c
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(OUT, frames=np.array(FRAMES), points=np.concatenate(points),
+    out.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(out, frames=np.array(FRAMES), points=np.concatenate(points),
                         frame=np.concatenate(frame_of), crops=stack, boxes=np.array(boxes),
                         seconds=np.array(seconds), median_error_mm=np.array(errors))
-    print(f"wrote {OUT}")
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":

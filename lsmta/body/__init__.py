@@ -21,11 +21,12 @@ from .metaballs import (
     potential,
     surface_distance,
 )
+from .posterior import LimbPosterior, sample_limb_posterior
 from .skeleton import Joint, Skeleton, rot_x, rot_y, rot_z
 
 __all__ = [
-    "JOINTS", "LIMBS", "THRESHOLD", "BodyFit", "Joint", "MetaballModel", "ModelState",
-    "Segment", "Skeleton", "angles_from_joints", "arm_model", "base_poses",
+    "JOINTS", "LIMBS", "THRESHOLD", "BodyFit", "Joint", "LimbPosterior", "MetaballModel",
+    "ModelState", "Segment", "Skeleton", "angles_from_joints", "arm_model", "base_poses",
     "ellipsoid_distance", "field", "fit_frame", "fit_sequence", "iso_surface", "potential",
-    "rot_x", "rot_y", "rot_z", "shoulder_angles", "surface_distance",
+    "rot_x", "rot_y", "rot_z", "sample_limb_posterior", "shoulder_angles", "surface_distance",
 ]

@@ -123,8 +123,9 @@ class BodyFit:
         Names of the parameters of the last solve (see :attr:`covariance`).
     params : (P,) array
     covariance : (P, P) array
-        ``s² (JᵀJ)⁻¹`` of the last solve's free parameters at the solution (``s`` from the
-        robust residual scale); units as in :attr:`names`.
+        ``s² (JᵀJ)⁻¹`` of the last solve's free parameters at the solution, with ``J``
+        scipy's loss-weighted Jacobian and ``s²`` the residual variance per degree of
+        freedom (approximate under a robust loss); units as in :attr:`names`.
     """
 
     status: str

@@ -222,3 +222,52 @@ def draw_marker_pose(ax, model, points, labels=None, *, colors=None, link_color=
     ax.set_zlabel("z [mm]")
     ax.set_title(title)
     return ax
+
+
+def metaball_image(ball_poses, radii, *, threshold_scale: float = 0.589, mesh=None,
+                   points=None, point_colors=None, window_size=(900, 700), view_from=None,
+                   focal_point=None, mesh_opacity=0.35) -> np.ndarray:
+    """Off-screen picture of metaballs as ellipsoids, with an optional skin mesh and points.
+
+    Parameters
+    ----------
+    ball_poses : (B, 4, 4) array
+        Ball frame -> world transforms (mm), e.g. ``model.ball_poses(...)[0].reshape(-1, 4, 4)``.
+    radii : (B, 3) array
+        Ball radii (mm); each ellipsoid is drawn at ``threshold_scale`` times them, the size
+        of a lone ball's own surface ``F = 1/2`` (``sqrt(ln 2 / 2)``).
+    mesh : (vertices (V, 3), faces (F, 3)), optional
+        A skin surface drawn translucent over the balls.
+    points : (N, 3) array, optional
+    point_colors : (N, 3) array of RGB in [0, 1], optional
+    view_from, focal_point : (3,) mm, optional
+        Camera of the picture (default: in front of the balls).
+    """
+    import matplotlib.pyplot as plt
+
+    pv = _pyvista()
+    pl = pv.Plotter(off_screen=True, window_size=list(window_size))
+    pl.set_background("white")
+    poses = np.asarray(ball_poses, float)
+    radii = np.asarray(radii, float)
+    palette = plt.cm.tab10(np.arange(len(poses)) // 3 % 10)[:, :3]
+    for k, (T, r) in enumerate(zip(poses, radii)):
+        e = pv.ParametricEllipsoid(*(threshold_scale * r), u_res=24, v_res=24)
+        e.transform(T, inplace=True)
+        pl.add_mesh(e, color=palette[k], smooth_shading=True, opacity=0.9)
+    if mesh is not None:
+        v, f = mesh
+        faces = np.hstack([np.full((len(f), 1), 3), np.asarray(f)]).ravel()
+        pl.add_mesh(pv.PolyData(np.asarray(v, float), faces), color="wheat",
+                    opacity=mesh_opacity, smooth_shading=True)
+    if points is not None:
+        kw = {"color": "crimson"} if point_colors is None else {
+            "scalars": np.asarray(point_colors), "rgb": True}
+        pl.add_points(np.asarray(points, float), point_size=4, render_points_as_spheres=True,
+                      **kw)
+    centre = poses[:, :3, 3].mean(axis=0) if focal_point is None else np.asarray(focal_point)
+    eye = centre + np.array([250.0, -1000.0, 250.0]) if view_from is None else view_from
+    pl.camera_position = [tuple(eye), tuple(centre), (0, 0, 1)]
+    image = pl.screenshot(return_img=True)
+    pl.close()
+    return image

@@ -444,3 +444,79 @@ def arm_wave(n_frames: int = 50, *, fps: float = 25.0, position=(0.0, 0.0),
     ang[:, i["forearm_l"], 0] = 1.1
     ang[:, i["head"], 2] = 0.15 * np.sin(2 * np.pi * 0.3 * t)
     return Motion("arm_wave", fps, root, ang, names)
+
+
+def inside_parts(body: Body, poses, points, *, exclude=None) -> np.ndarray:
+    """Which world points ``(N, 3)`` lie inside any part ellipsoid of one frame.
+
+    Parameters
+    ----------
+    poses : (P, 4, 4) array
+        Part -> world transforms of one frame.
+    exclude : (N,) int array, optional
+        For each point, a part not to test (the part it was sampled on).
+    """
+    pts = as_array(points, "points", shape=(None, 3))
+    out = np.zeros(len(pts), bool)
+    for p, spec in enumerate(body.parts):
+        local = (pts - poses[p, :3, 3]) @ poses[p, :3, :3] - np.asarray(spec.centre)
+        inside = np.sum((local / np.asarray(spec.radii)) ** 2, axis=1) < 1.0
+        if exclude is not None:
+            inside &= exclude != p
+        out |= inside
+    return out
+
+
+def surface_samples(body: Body, motion: Motion, frame: int, rng: np.random.Generator, *,
+                    parts=("upper_arm_r", "forearm_r", "hand_r"), n: int = 1500,
+                    noise_mm: float = 0.0, outlier_share: float = 0.0,
+                    outlier_range_mm: float = 150.0, view_from=None):
+    """Noisy samples of the true skin of some parts in one frame, with planted outliers.
+
+    Points are drawn on the part ellipsoids (uniform in direction), those inside another
+    part are discarded (so the samples lie on the body's outer surface), optionally only
+    those facing ``view_from`` (a world point: the rig) are kept, and ``n`` are returned.
+    Isotropic Gaussian noise of ``noise_mm`` per coordinate is added; a share
+    ``outlier_share`` of the points is replaced by points drawn uniformly in the samples'
+    bounding box grown by ``outlier_range_mm``.
+
+    Returns
+    -------
+    points : (n, 3) array, world mm
+    truth : (n, 3) array
+        The noise-free surface point (NaN for outliers).
+    part : (n,) int array
+        Part of each sample (-1 for outliers).
+    """
+    as_rng(rng)
+    noise = as_scalar(noise_mm, "noise_mm", nonnegative=True)
+    share = as_scalar(outlier_share, "outlier_share", nonnegative=True)
+    if share >= 1:
+        raise ValueError(f"outlier_share: expected a value in [0, 1), got {share}")
+    poses = body.part_poses(motion, frame)[0]
+    part, local = body.sample_surface(rng, 4 * n, parts=parts)
+    world = np.einsum("nij,nj->ni", poses[part, :3, :3], local) + poses[part, :3, 3]
+    keep = ~inside_parts(body, poses, world, exclude=part)
+    if view_from is not None:
+        c = np.asarray([body.parts[p].centre for p in part])
+        r = np.asarray([body.parts[p].radii for p in part])
+        normal_local = (local - c) / r ** 2
+        normal = np.einsum("nij,nj->ni", poses[part, :3, :3], normal_local)
+        keep &= np.sum(normal * (np.asarray(view_from, float) - world), axis=1) > 0
+    idx = np.flatnonzero(keep)
+    if len(idx) < n:
+        raise ValueError(f"n: only {len(idx)} surface samples survive; ask for fewer")
+    idx = rng.choice(idx, n, replace=False)
+    truth = world[idx]
+    part = part[idx].copy()
+    points = truth + rng.normal(0.0, noise, truth.shape) if noise > 0 else truth.copy()
+    n_out = int(round(share * n))
+    if n_out:
+        which = rng.choice(n, n_out, replace=False)
+        lo = truth.min(axis=0) - outlier_range_mm
+        hi = truth.max(axis=0) + outlier_range_mm
+        points[which] = rng.uniform(lo, hi, (n_out, 3))
+        truth = truth.copy()
+        truth[which] = np.nan
+        part[which] = -1
+    return points, truth, part

@@ -1,0 +1,32 @@
+"""Body modelling (Plänkers, Fua & D'Apuzzo 1999): skeleton, metaballs, fitting to 3-D data.
+
+``skeleton``   single-DoF joints about local z; forward kinematics and analytic Jacobians
+``metaballs``  ellipsoidal metaballs (eqs. 4-7), the three-ball limb, skin distance, iso-surface
+``arm``        the arm model (3-DoF shoulder, elbow, wrist) and its initialisation from joints
+``fitting``    weighted robust least squares over radii, limb scales and joint angles (eq. 14)
+``posterior``  emcee posterior of one frame's radii and lengths
+
+Angles are in radians, lengths in mm.
+"""
+
+from .arm import JOINTS, LIMBS, angles_from_joints, arm_model, base_poses, shoulder_angles
+from .fitting import BodyFit, ModelState, fit_frame, fit_sequence
+from .metaballs import (
+    THRESHOLD,
+    MetaballModel,
+    Segment,
+    ellipsoid_distance,
+    field,
+    iso_surface,
+    potential,
+    surface_distance,
+)
+from .posterior import LimbPosterior, sample_limb_posterior
+from .skeleton import Joint, Skeleton, rot_x, rot_y, rot_z
+
+__all__ = [
+    "JOINTS", "LIMBS", "THRESHOLD", "BodyFit", "Joint", "LimbPosterior", "MetaballModel",
+    "ModelState", "Segment", "Skeleton", "angles_from_joints", "arm_model", "base_poses",
+    "ellipsoid_distance", "field", "fit_frame", "fit_sequence", "iso_surface", "potential",
+    "rot_x", "rot_y", "rot_z", "sample_limb_posterior", "shoulder_angles", "surface_distance",
+]

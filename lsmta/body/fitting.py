@@ -1,0 +1,637 @@
+"""Least-squares fit of a metaball model to 3-D points (Plänkers et al. 1999, Section 4).
+
+Observation equations
+    One per 3-D point on its body part (eq. 14): the point should lie on the skin of its
+    segment's three metaballs. We write it as the signed distance of the point to that
+    skin in mm (:func:`~lsmta.body.metaballs.surface_distance`, the log form of eq. 14), so
+    that the weight of eq. 11 is ``1 / sigma_mm^2`` with ``sigma_mm`` the a-priori standard
+    deviation of a point: the residual vector is ``r / sigma_mm``. Optionally, tracked
+    joint positions (Section 4.2) enter as a second observation type, three equations per
+    joint, weighted by eq. 11 through their own ``sigma_joint_mm``.
+Unknowns
+    Metaball sizes (the simplified model's width and depth per segment, or width and depth
+    of each ball for the full model), limb scales, the shoulder position in the
+    torso frame, and the free joint angles of every frame. In sequence mode the static
+    state (radii, scales and, by default, the shoulder) is shared by all frames; each
+    frame has its own angles.
+Solver
+    :func:`scipy.optimize.least_squares`, ``method="trf"`` (a trust-region
+    Levenberg–Marquardt relative that accepts robust losses and sparse Jacobians) with a
+    robust loss (``soft_l1`` by default, scale ``2 sigma_mm``) against outlier points. The
+    Jacobian is analytic (:func:`_residuals`). For a sequence it is mostly empty (a
+    frame's angles touch only that frame's points, a segment's radii only that segment's
+    points); ``sparse_jacobian=True`` hands it to scipy as a sparse matrix (LSMR instead of
+    a dense SVD for the trust-region step). It does not pay at our sizes
+    (``experiments/body_benchmark.py``: half the speed at 9 frames, equal at 40), so the
+    default is dense.
+Segmentation
+    Each point goes to the segment whose skin is nearest; points farther than ``gate_mm``
+    from every segment are left out (torso, background, gross outliers). The segmentation
+    is redone after every ``nfev_per_round`` model evaluations, as in Section 3.3; the fit
+    has converged when the solver has and at most 0.2 % of the points (or 2) changed
+    segment.
+Alternation
+    ``strategy="alternating"`` fits the primitives' radii with the skeleton held, then
+    the skeleton (angles, scales, shoulder) with the radii held, round after round (the
+    paper's choice, Section 4.3); ``"simultaneous"`` frees everything at once.
+Checks
+    NaN points are dropped and counted; a segment with fewer than ``min_points_per_param``
+    points per free shape parameter keeps its shape and scale (named in
+    ``fixed_segments``); if fewer than ``min_inlier_share`` of the points lie within
+    ``gate_mm`` of the initial model the fit is not run (status ``"init_far"``), and a fit
+    that ends with fewer inliers than that is reported as ``"poor_fit"``. Segments without
+    points of their own in a frame are named in ``unobserved``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+from scipy.optimize import least_squares
+
+from .._validate import as_array, as_scalar
+from .arm import base_poses
+from .metaballs import MetaballModel, surface_distance
+
+LOSSES = ("linear", "soft_l1", "huber", "cauchy")
+STATUSES = ("ok", "not_converged", "poor_fit", "init_far")
+
+
+@dataclass(frozen=True, eq=False)
+class ModelState:
+    """Shape and motion of a metaball model over T frames.
+
+    Attributes
+    ----------
+    angles : (T, J) array
+        Joint angles, radians.
+    shoulder : (T, 3) array
+        Root joint position in the torso frame, mm.
+    scales : (L,) array
+        Limb scales.
+    radii : (S, 3, 3) array
+        Metaball radii, mm.
+    """
+
+    angles: np.ndarray
+    shoulder: np.ndarray
+    scales: np.ndarray
+    radii: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class BodyFit:
+    """Result of :func:`fit_sequence` / :func:`fit_frame`.
+
+    Attributes
+    ----------
+    status : str
+        ``"ok"``; ``"not_converged"`` (iteration budget used up, result usable with care);
+        ``"poor_fit"`` (too few points near the final model: do not trust it);
+        ``"init_far"`` (the initial posture is too far from the data; nothing was fitted
+        and :attr:`state` is the initial state).
+    message : str
+    state : ModelState
+        The estimate (or the initial state when ``status == "init_far"``).
+    lengths : (S,) array
+        Bone lengths, mm.
+    segment : list of T (N_t,) int arrays
+        Segment of each given point (-1: outside the gate or NaN).
+    residuals : list of T (N_t,) arrays
+        Signed distance of each point to its segment's skin, mm (NaN where unassigned).
+    n_nan : (T,) int array
+        NaN points dropped per frame.
+    fixed_segments : tuple of str
+        Segments whose shape and scale were held (too few points).
+    unobserved : tuple of (int, str)
+        ``(frame, segment)`` pairs with fewer than ``min_points_per_param`` points at the
+        end: that segment's pose in that frame rests on its neighbours, the tracked joints
+        or the start, not on its own points.
+    inlier_share : (T,) array
+        Share of the finite points within ``gate_mm`` of the final model.
+    sigma_mm : float
+        Robust residual scale (1.4826 x median absolute residual of assigned points), mm.
+    nfev : int
+        Model evaluations in all rounds.
+    rounds : int
+        Segmentation rounds.
+    seconds : float
+    names : tuple of str
+        Names of the parameters of the last solve (see :attr:`covariance`).
+    params : (P,) array
+    covariance : (P, P) array
+        ``s² (JᵀJ)⁻¹`` of the last solve's free parameters at the solution, with ``J``
+        scipy's loss-weighted Jacobian and ``s²`` the residual variance per degree of
+        freedom (approximate under a robust loss); units as in :attr:`names`.
+    """
+
+    status: str
+    message: str
+    state: ModelState
+    lengths: np.ndarray
+    segment: list
+    residuals: list
+    n_nan: np.ndarray
+    fixed_segments: tuple
+    unobserved: tuple
+    inlier_share: np.ndarray
+    sigma_mm: float
+    nfev: int
+    rounds: int
+    seconds: float
+    names: tuple
+    params: np.ndarray
+    covariance: np.ndarray
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+
+class _Layout:
+    """Where each unknown sits in the parameter vector."""
+
+    def __init__(self, model: MetaballModel, T: int, shape: str, share_shoulder: bool,
+                 free_joints):
+        S, L = model.n_segments, len(model.skeleton.limbs)
+        self.T, self.S, self.L, self.shape = T, S, L, shape
+        self.free_joints = np.asarray(free_joints, int)
+        names, kind, seg, frame = [], [], [], []
+
+        def add(n, k, s=-1, f=-1):
+            names.append(n)
+            kind.append(k)
+            seg.append(s)
+            frame.append(f)
+
+        n_sh = 1 if share_shoulder else T
+        for t in range(n_sh):
+            for a in "xyz":
+                add(f"shoulder_{a}" + ("" if share_shoulder else f"[{t}]"), "skeleton",
+                    -1, -1 if share_shoulder else t)
+        for limb in model.skeleton.limbs:
+            add(f"scale_{limb}", "skeleton", model.skeleton.limbs.index(limb))
+        if shape == "simplified":
+            for k, sname in enumerate(model.names):
+                for a in ("width", "depth"):
+                    add(f"{sname}_{a}", "shape", k)
+        else:
+            for k, sname in enumerate(model.names):
+                for b in range(3):
+                    for a in ("width", "depth"):
+                        add(f"{sname}_ball{b}_{a}", "shape", k)
+        jn = model.skeleton.names
+        for t in range(T):
+            for j in self.free_joints:
+                add(f"{jn[j]}[{t}]", "skeleton", -1, t)
+        self.names = tuple(names)
+        J = model.skeleton.n_joints
+        self.i_sh = np.arange(3 * n_sh).reshape(n_sh, 3)
+        self.i_scale = 3 * n_sh + np.arange(L)
+        n_shape = (2 if shape == "simplified" else 6) * S
+        self.i_shape = 3 * n_sh + L + np.arange(n_shape).reshape(S, -1)
+        self.i_ang = np.full((T, J), -1)
+        start = 3 * n_sh + L + n_shape
+        for t in range(T):
+            self.i_ang[t, self.free_joints] = start + t * len(self.free_joints) + np.arange(
+                len(self.free_joints))
+        self.kind = np.array(kind)
+        self.seg = np.array(seg)
+        self.frame = np.array(frame)
+        self.share_shoulder = share_shoulder
+        # scale parameters carry their limb index in ``seg``; map limb -> segments
+        self.limb_of_segment = np.array([s.limb for s in model.segments])
+
+    def pack(self, st: ModelState) -> np.ndarray:
+        sh = st.shoulder[:1] if self.share_shoulder else st.shoulder
+        if self.shape == "simplified":
+            shape = st.radii[:, 1, :2].ravel()          # the middle ball = the size
+        else:
+            shape = st.radii[:, :, :2].ravel()
+        return np.concatenate([sh.ravel(), st.scales, shape,
+                               st.angles[:, self.free_joints].ravel()])
+
+    def unpack(self, x, template: ModelState, model: MetaballModel) -> ModelState:
+        i = 0
+        n_sh = 3 if self.share_shoulder else 3 * self.T
+        sh = x[:n_sh].reshape(-1, 3)
+        sh = np.broadcast_to(sh, (self.T, 3))
+        i = n_sh
+        scales = x[i:i + self.L]
+        i += self.L
+        if self.shape == "simplified":
+            radii = model.simplified_radii(x[i:i + 2 * self.S].reshape(self.S, 2)
+                                           / model.profile[1], scales)
+            i += 2 * self.S
+        else:
+            radii = model.full_radii(x[i:i + 6 * self.S].reshape(self.S, 3, 2), scales)
+            i += 6 * self.S
+        angles = template.angles.copy()
+        angles[:, self.free_joints] = x[i:].reshape(self.T, len(self.free_joints))
+        return ModelState(angles, np.array(sh), scales, radii)
+
+
+def _distances(model, st, bases, pts, frame, segment):
+    return model.distance(pts, segment, st.angles, st.scales, st.radii, bases, frame)
+
+
+def _residuals(model: MetaballModel, lay: _Layout, st: ModelState, torso, pts, frame,
+               segment, *, jac: bool):
+    """Distances (mm) of the points to their segments' skins and, with ``jac``, their
+    analytic derivatives ``(N, P)`` with respect to all parameters of ``lay``.
+
+    ``r = l (sqrt(psi) - sqrt(psi_T))``, so ``dr = dr/dpsi dpsi (+ root dl for the
+    middle ball's width and depth)``. A change of the
+    skeleton moves a segment's frame rigidly (``dX = z_j x (X - o_j)`` for an angle,
+    ``dX = R_parent offset`` for a scale, ``dX = R_torso dq`` for the shoulder), which
+    changes ``psi`` by ``-grad_world . dX``; a limb's own scale also slides its balls
+    along the bone and stretches their length radius.
+    """
+    sk = model.skeleton
+    bases = base_poses(torso, st.shoulder)
+    W = sk.transforms(st.angles, st.scales, bases)             # (T, J, 4, 4)
+    C = model.centres(st.scales)
+    N = len(pts)
+    r = np.empty(N)
+    Jm = np.zeros((N, len(lay.names))) if jac else None
+    prof = np.asarray(model.profile) / model.profile[1]
+    fr = np.asarray(model.fractions)
+    for k, segm in enumerate(model.segments):
+        idx = np.flatnonzero(segment == k)
+        if idx.size == 0:
+            continue
+        f = frame[idx]
+        Rb = np.asarray(segm.rotation, float)
+        R = W[f, segm.joint, :3, :3] @ Rb                       # bone -> world rotation
+        o = W[f, segm.joint, :3, 3]
+        X = pts[idx]
+        x = np.einsum("nji,nj->ni", R, X - o)
+        local = x[:, None, :] - C[k][None]
+        radii = st.radii[k]
+        rk, det = surface_distance(local, radii, details=True)
+        r[idx] = rk
+        if not jac:
+            continue
+        inv = det["dr_dpsi"]
+        n = np.einsum("nij,nj->ni", R, det["grad"])             # world gradient of psi
+        pb = det["p"]
+        # shoulder position (torso frame)
+        dq = -np.einsum("ni,nij->nj", n, torso[f, :3, :3])
+        sh_rows = lay.i_sh[0 if lay.share_shoulder else f]     # (3,) or (n, 3)
+        if lay.share_shoulder:
+            Jm[idx[:, None], sh_rows[None]] = dq * inv[:, None]
+        else:
+            Jm[idx[:, None], sh_rows] = dq * inv[:, None]
+        chain = sk.chain(segm.joint)
+        for j in chain:
+            cols = lay.i_ang[f, j]
+            if (cols >= 0).any():
+                z, oj = W[f, j, :3, 2], W[f, j, :3, 3]
+                dpsi = -np.sum(n * np.cross(z, X - oj), axis=1)
+                Jm[idx, cols] = dpsi * inv
+            limb = sk.joints[j].limb
+            if limb >= 0:
+                parent = sk.joints[j].parent
+                Rp = bases[f, :3, :3] if parent < 0 else W[f, parent, :3, :3]
+                dO = Rp @ np.asarray(sk.joints[j].offset, float)
+                Jm[idx, lay.i_scale[limb]] += -np.sum(n * dO, axis=1) * inv
+        # the segment's own scale: balls slide along the bone, lz stretches
+        L0 = segm.length
+        lz = radii[:, 2]
+        own = np.sum(pb * (2 * local[:, :, 2] / lz ** 2 * fr * L0
+                           - 2 * local[:, :, 2] ** 2 / lz ** 3 * model.length_radius * L0),
+                     axis=1)
+        Jm[idx, lay.i_scale[segm.limb]] += own * inv
+        # widths and depths
+        dl = -2 * local[:, :, :2] ** 2 / radii[None, :, :2] ** 3 * pb[:, :, None]  # (n, B, 2)
+        mid = radii[1, :2]
+        dell = det["root"][:, None] * (det["ell"] / (2 * mid))[None]    # (n, 2)
+        if lay.shape == "simplified":
+            Jm[idx[:, None], lay.i_shape[k][None]] = np.einsum("nba,b->na", dl, prof) \
+                * inv[:, None] + dell
+        else:
+            block = dl.reshape(len(idx), 6) * inv[:, None]
+            block[:, 2:4] += dell
+            Jm[idx[:, None], lay.i_shape[k][None]] = block
+    return r, Jm
+
+
+def _joint_residuals(model: MetaballModel, lay: _Layout, st: ModelState, torso, tracked,
+                     joints):
+    """Tracked joint positions as a second observation type: model joint minus tracked
+    joint (mm), ``(M,)`` for the finite entries of ``tracked (T, K, 3)``, and the
+    derivatives ``(M, P)``."""
+    sk = model.skeleton
+    bases = base_poses(torso, st.shoulder)
+    W = sk.transforms(st.angles, st.scales, bases)
+    rows_r, rows_J = [], []
+    for k, j in enumerate(joints):
+        for t in range(lay.T):
+            obs = tracked[t, k]
+            if not np.isfinite(obs).all():
+                continue
+            X = W[t, j, :3, 3]
+            D = np.zeros((3, len(lay.names)))
+            D[:, lay.i_sh[0 if lay.share_shoulder else t]] = torso[t, :3, :3]
+            for i in sk.chain(j):
+                if lay.i_ang[t, i] >= 0:
+                    D[:, lay.i_ang[t, i]] = np.cross(W[t, i, :3, 2], X - W[t, i, :3, 3])
+                limb = sk.joints[i].limb
+                if limb >= 0:
+                    parent = sk.joints[i].parent
+                    Rp = bases[t, :3, :3] if parent < 0 else W[t, parent, :3, :3]
+                    D[:, lay.i_scale[limb]] += Rp @ np.asarray(sk.joints[i].offset, float)
+            rows_r.append(X - obs)
+            rows_J.append(D)
+    if not rows_r:
+        return np.zeros(0), np.zeros((0, len(lay.names)))
+    return np.concatenate(rows_r), np.concatenate(rows_J)
+
+
+def _segment(model, st, bases, pts, frame, gate):
+    D = np.abs(model.all_distances(pts, st.angles, st.scales, st.radii, bases, frame))
+    seg = np.argmin(D, axis=1)
+    seg[D[np.arange(len(pts)), seg] > gate] = -1
+    return seg
+
+
+def _check_state(init: ModelState, model: MetaballModel, T: int) -> ModelState:
+    if not isinstance(init, ModelState):
+        raise TypeError(f"init: expected a ModelState, got {type(init).__name__}")
+    J, L, S = model.skeleton.n_joints, len(model.skeleton.limbs), model.n_segments
+    angles = as_array(init.angles, "init.angles", shape=(T, J))
+    sh = as_array(init.shoulder, "init.shoulder")
+    if sh.shape == (3,):
+        sh = np.tile(sh, (T, 1))
+    if sh.shape != (T, 3):
+        raise ValueError(f"init.shoulder: expected shape (3,) or ({T}, 3), got {sh.shape}")
+    scales = as_array(init.scales, "init.scales", shape=(L,))
+    radii = as_array(init.radii, "init.radii", shape=(S, 3, 3))
+    if np.any(scales <= 0) or np.any(radii <= 0):
+        raise ValueError("init: scales and radii must be positive")
+    radii = model.full_radii(radii[:, :, :2], scales)        # lz follows the bone
+    return ModelState(angles.copy(), sh.copy(), scales.copy(), radii)
+
+
+def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
+                 shape: str = "simplified", strategy: str = "simultaneous",
+                 share_shoulder: bool = True, free_joints=(0, 1, 2, 3),
+                 sigma_mm: float = 3.0, loss: str = "soft_l1", gate_mm: float = 60.0,
+                 min_inlier_share: float = 0.5, nfev_per_round: int = 30,
+                 max_rounds: int = 6, sparse_jacobian: bool = False,
+                 jacobian: str = "analytic", tracked=None, tracked_joints=(0, 3, 4),
+                 sigma_joint_mm: float = 15.0, max_radius_mm: float = 300.0,
+                 min_points_per_param: int = 5) -> BodyFit:
+    """Fit shape and motion of ``model`` to T frames of 3-D points.
+
+    Parameters
+    ----------
+    model : MetaballModel
+        E.g. :func:`~lsmta.body.arm.arm_model`.
+    points : sequence of T (N_t, 3) arrays
+        World points per frame, mm; NaN rows are dropped (and counted).
+    torso_poses : (T, 4, 4) array
+        Torso frame -> world per frame (the frame the root joint sits in), mm.
+    init : ModelState
+        Starting state, e.g. from :func:`~lsmta.body.arm.angles_from_joints` of tracked
+        joints and template radii.
+    shape : {"simplified", "full"}
+        Three size parameters per segment (Section 3.3) or all nine ball radii.
+    strategy : {"simultaneous", "alternating"}
+    share_shoulder : bool
+        One shoulder position (torso frame) for all frames (static state) or one per frame.
+    free_joints : sequence of int
+        Joints whose angles are estimated (the others keep their initial angles).
+    sigma_mm : float
+        A-priori standard deviation of a 3-D point (mm): residuals are divided by it.
+    loss : str
+        ``"linear"``, ``"soft_l1"``, ``"huber"`` or ``"cauchy"``; robust scale ``2 sigma_mm``.
+    gate_mm : float
+        Points farther than this from every segment's skin are not used.
+    min_inlier_share : float
+        Minimum share of finite points within ``gate_mm``, at the start and at the end.
+    nfev_per_round, max_rounds : int
+        Model evaluations between re-segmentations; number of rounds.
+    sparse_jacobian : bool
+        Hand scipy the Jacobian as a sparse matrix.
+    jacobian : {"analytic", "2-point"}
+        Analytic Jacobian or scipy's finite differences (for checks).
+    tracked : (T, K, 3) array, optional
+        Tracked world positions of the joints ``tracked_joints`` (NaN: not tracked): a
+        second observation type (Section 4.2) weighted against the points by eq. 11,
+        ``p_joint / p_point = sigma_mm² / sigma_joint_mm²``.
+    tracked_joints : sequence of K int
+        Skeleton joints of ``tracked`` (default: the arm's shoulder, elbow, wrist).
+    sigma_joint_mm : float
+        A-priori standard deviation of a tracked joint, mm.
+    max_radius_mm : float
+        Upper bound of a ball's width and depth (mm); scales are kept in [0.3, 3].
+    min_points_per_param : int
+        A segment with fewer points than this many per free shape parameter keeps its
+        shape and scale (the bare minimum would be one point per parameter).
+
+    Returns
+    -------
+    BodyFit
+    """
+    t0 = time.perf_counter()
+    if not isinstance(model, MetaballModel):
+        raise TypeError(f"model: expected a MetaballModel, got {type(model).__name__}")
+    pts_in = list(points) if not isinstance(points, np.ndarray) or points.ndim == 3 else None
+    if pts_in is None:
+        raise ValueError("points: expected a sequence of (N_t, 3) arrays, one per frame")
+    T = len(pts_in)
+    if T == 0:
+        raise ValueError("points: expected at least one frame")
+    P = as_array(torso_poses, "torso_poses", shape=(T, 4, 4))
+    if shape not in ("simplified", "full"):
+        raise ValueError(f"shape: expected 'simplified' or 'full', got {shape!r}")
+    if strategy not in ("simultaneous", "alternating"):
+        raise ValueError(f"strategy: expected 'simultaneous' or 'alternating', got {strategy!r}")
+    if loss not in LOSSES:
+        raise ValueError(f"loss: expected one of {LOSSES}, got {loss!r}")
+    sigma = as_scalar(sigma_mm, "sigma_mm", positive=True)
+    sigma_j = as_scalar(sigma_joint_mm, "sigma_joint_mm", positive=True)
+    max_radius = as_scalar(max_radius_mm, "max_radius_mm", positive=True)
+    gate = as_scalar(gate_mm, "gate_mm", positive=True)
+    if tracked is not None:
+        tracked_joints = [int(j) for j in tracked_joints]
+        tracked = as_array(tracked, "tracked", shape=(T, len(tracked_joints), 3),
+                           allow_nan=True)
+        if any(not 0 <= j < model.skeleton.n_joints for j in tracked_joints):
+            raise ValueError("tracked_joints: expected skeleton joint indices")
+    st = _check_state(init, model, T)
+    fj = np.asarray(free_joints, int)
+    if fj.ndim != 1 or fj.size and (fj.min() < 0 or fj.max() >= model.skeleton.n_joints):
+        raise ValueError(f"free_joints: expected joint indices in [0, "
+                         f"{model.skeleton.n_joints - 1}]")
+
+    clouds, n_nan, keep_idx = [], [], []
+    for t, p in enumerate(pts_in):
+        a = as_array(p, f"points[{t}]", shape=(None, 3), allow_nan=True)
+        good = np.isfinite(a).all(axis=1)
+        n_nan.append(int((~good).sum()))
+        keep_idx.append(np.flatnonzero(good))
+        clouds.append(a[good])
+    pts = np.concatenate(clouds) if clouds else np.zeros((0, 3))
+    frame = np.concatenate([np.full(len(c), t) for t, c in enumerate(clouds)])
+    counts = np.array([len(c) for c in clouds])
+    if pts.shape[0] == 0:
+        raise ValueError("points: no finite point in any frame")
+
+    lay = _Layout(model, T, shape, share_shoulder, fj)
+    bases_of = lambda s: base_poses(P, s.shoulder)   # noqa: E731
+    seg = _segment(model, st, bases_of(st), pts, frame, gate)
+    share0 = np.array([np.mean(seg[frame == t] >= 0) if counts[t] else 0.0 for t in range(T)])
+
+    def finish(status, message, state, seg, nfev, rounds, names, params, cov):
+        res_all = np.full(len(pts), np.nan)
+        if (seg >= 0).any():
+            res_all[seg >= 0] = _distances(model, state, bases_of(state), pts[seg >= 0],
+                                           frame[seg >= 0], seg[seg >= 0])
+        seg_out, res_out = [], []
+        for t in range(T):
+            n_all = len(pts_in[t])
+            s_t = np.full(n_all, -1)
+            r_t = np.full(n_all, np.nan)
+            s_t[keep_idx[t]] = seg[frame == t]
+            r_t[keep_idx[t]] = res_all[frame == t]
+            seg_out.append(s_t)
+            res_out.append(r_t)
+        inl = np.array([np.mean(seg[frame == t] >= 0) if counts[t] else 0.0
+                        for t in range(T)])
+        assigned = res_all[np.isfinite(res_all)]
+        sig = float(1.4826 * np.median(np.abs(assigned))) if assigned.size else np.nan
+        unobs = tuple((t, model.names[k]) for t in range(T) for k in range(model.n_segments)
+                      if np.sum(seg[frame == t] == k) < min_points_per_param)
+        if unobs and status != "init_far":
+            message += "; no points of its own for " + ", ".join(
+                f"{n} in frame {t}" for t, n in unobs)
+        return BodyFit(status, message, state, model.bone_lengths(state.scales), seg_out,
+                       res_out, np.array(n_nan), tuple(fixed), unobs, inl, sig, nfev, rounds,
+                       time.perf_counter() - t0, names, params, cov)
+
+    fixed: list[str] = []
+    if share0.min() < min_inlier_share:
+        worst = int(np.argmin(share0))
+        return finish("init_far", f"only {share0[worst]:.0%} of the points of frame {worst} lie "
+                      f"within {gate:g} mm of the initial model (need "
+                      f"{min_inlier_share:.0%}); initialise closer to the data", st, seg, 0, 0,
+                      (), np.zeros(0), np.zeros((0, 0)))
+
+    per_seg_shape = 2 if shape == "simplified" else 6
+    x = lay.pack(st)
+    nfev = 0
+    rounds = 0
+    converged = False
+    last = None
+    groups = [None] if strategy == "simultaneous" else ["shape", "skeleton"]
+    use_sparse = bool(sparse_jacobian)
+    for rounds in range(1, max_rounds + 1):
+        # limbs with too few points keep their shape and scale
+        n_on = np.bincount(seg[seg >= 0], minlength=model.n_segments)
+        held = [k for k in range(model.n_segments)
+                if n_on[k] < min_points_per_param * per_seg_shape]
+        for k in held:
+            if model.names[k] not in fixed:
+                fixed.append(model.names[k])
+        free = np.ones(len(x), bool)
+        for k in held:
+            free[(lay.kind == "shape") & (lay.seg == k)] = False
+            limb = model.segments[k].limb
+            free[np.array([n == f"scale_{model.skeleton.limbs[limb]}" for n in lay.names])] = False
+        use = seg >= 0
+        p_use, f_use, s_use = pts[use], frame[use], seg[use]
+        round_converged = True
+        for g in groups:
+            mask = free.copy()
+            if g is not None:
+                mask &= lay.kind == g
+            if not mask.any():
+                continue
+
+            cache = {}
+
+            def evaluate(xf, mask=mask, cache=cache, p_use=p_use, f_use=f_use, s_use=s_use,
+                         st=st):
+                key = xf.tobytes()
+                if key not in cache:
+                    xx = x.copy()
+                    xx[mask] = xf
+                    s = lay.unpack(xx, st, model)
+                    res, Jm = _residuals(model, lay, s, P, p_use, f_use, s_use, jac=True)
+                    res, Jm = res / sigma, Jm / sigma
+                    if tracked is not None:
+                        rj, Jj = _joint_residuals(model, lay, s, P, tracked, tracked_joints)
+                        res = np.concatenate([res, rj / sigma_j])
+                        Jm = np.concatenate([Jm, Jj / sigma_j])
+                    cache.clear()
+                    cache[key] = (res, Jm[:, mask])
+                return cache[key]
+
+            def fun(xf, evaluate=evaluate):
+                return evaluate(xf)[0]
+
+            def jac(xf, evaluate=evaluate):
+                Jm = evaluate(xf)[1]
+                return sparse.csr_matrix(Jm) if use_sparse else Jm
+
+            kw = {"jac": jac if jacobian == "analytic" else "2-point"}
+            lower = np.full(mask.sum(), -np.inf)
+            upper = np.full(mask.sum(), np.inf)
+            is_shape = lay.kind[mask] == "shape"
+            is_scale = np.array([n.startswith("scale_") for n in np.array(lay.names)[mask]],
+                                bool)
+            lower[is_shape], upper[is_shape] = 1.0, max_radius
+            lower[is_scale], upper[is_scale] = 0.3, 3.0
+            sol = least_squares(fun, np.clip(x[mask], lower + 1e-9, upper - 1e-9), loss=loss,
+                                f_scale=2.0, method="trf", x_scale="jac",
+                                max_nfev=nfev_per_round, bounds=(lower, upper), **kw)
+            nfev += sol.nfev
+            x[mask] = sol.x
+            round_converged &= sol.status > 0
+            last = (sol, mask)
+        st = lay.unpack(x, st, model)
+        new_seg = _segment(model, st, bases_of(st), pts, frame, gate)
+        changed = int(np.sum(new_seg != seg))
+        seg = new_seg
+        settled = changed <= max(2, int(0.002 * len(pts)))
+        if round_converged and settled and (strategy == "simultaneous" or rounds > 1):
+            converged = True
+            break
+
+    sol, mask = last
+    names = tuple(np.array(lay.names)[mask])
+    J = sol.jac.toarray() if sparse.issparse(sol.jac) else np.asarray(sol.jac)
+    m, n = J.shape
+    s2 = float(np.sum(sol.fun ** 2) / max(m - n, 1)) * sigma ** 2
+    try:
+        cov = np.linalg.pinv(J.T @ J) * s2 / sigma ** 2
+    except np.linalg.LinAlgError:
+        cov = np.full((n, n), np.nan)
+    inl = np.array([np.mean(seg[frame == t] >= 0) if counts[t] else 0.0 for t in range(T)])
+    if inl.min() < min_inlier_share:
+        status, msg = "poor_fit", (f"only {inl.min():.0%} of the points of a frame lie within "
+                                   f"{gate:g} mm of the fitted model; the fit is not trusted")
+    elif not converged:
+        status, msg = "not_converged", f"stopped after {rounds} rounds ({nfev} evaluations)"
+    else:
+        status, msg = "ok", f"converged in {rounds} rounds ({nfev} evaluations)"
+    if fixed:
+        msg += f"; shape held for {', '.join(fixed)} (too few points)"
+    if sum(n_nan):
+        msg += f"; {sum(n_nan)} NaN points dropped"
+    return finish(status, msg, st, seg, nfev, rounds, names, sol.x, cov)
+
+
+def fit_frame(model: MetaballModel, points, torso_pose, init: ModelState, **kwargs) -> BodyFit:
+    """:func:`fit_sequence` for one frame: ``points (N, 3)``, ``torso_pose (4, 4)``, and an
+    ``init`` with ``angles (1, J)`` (or ``(J,)``) and ``shoulder (3,)``."""
+    P = as_array(torso_pose, "torso_pose", shape=(4, 4))
+    pts = as_array(points, "points", shape=(None, 3), allow_nan=True)
+    if isinstance(init, ModelState) and np.ndim(init.angles) == 1:
+        init = ModelState(np.asarray(init.angles)[None], init.shoulder, init.scales, init.radii)
+    return fit_sequence(model, [pts], P[None], init, **kwargs)

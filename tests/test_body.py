@@ -1,0 +1,249 @@
+"""Body modelling (Plänkers et al. 1999): skeleton, metaballs, fitting, posterior."""
+
+import numpy as np
+import pytest
+
+from lsmta.body import (
+    Joint,
+    ModelState,
+    Skeleton,
+    angles_from_joints,
+    arm_model,
+    base_poses,
+    ellipsoid_distance,
+    field,
+    fit_frame,
+    fit_sequence,
+    iso_surface,
+    surface_distance,
+)
+from lsmta.body.fitting import _Layout, _residuals
+from lsmta.body.skeleton import as_tuple, rot_x
+from lsmta.evaluation import body as eb
+from lsmta.synth.body import arm_wave, make_body, surface_samples
+
+RIG = (0.0, -2500.0, 1200.0)
+
+
+@pytest.fixture(scope="module")
+def world():
+    body = make_body(np.random.default_rng(3))
+    return body, arm_wave(50)
+
+
+def test_fk_hand_computed_single_joint():
+    sk = Skeleton((Joint("a", -1, (10.0, 0, 0), as_tuple(np.eye(3))),
+                   Joint("b", 0, (100.0, 0, 0), as_tuple(np.eye(3)), limb=0)), ("l",))
+    # 90 degrees at the root: the child's offset (100, 0, 0) turns onto +y
+    X = sk.forward([np.pi / 2, 0.0], [1.0], [1], [[5.0, 0, 0]])
+    np.testing.assert_allclose(X[0, 0], [10.0, 105.0, 0.0], atol=1e-12)
+    # scale 2 doubles the bone, the child's own angle turns its point
+    X = sk.forward([0.0, np.pi / 2], [2.0], [1], [[5.0, 0, 0]])
+    np.testing.assert_allclose(X[0, 0], [210.0, 5.0, 0.0], atol=1e-12)
+    # a fixed re-orientation: Rx(90 deg) makes the joint's z the parent's -y
+    sk2 = Skeleton((Joint("a", -1, (0, 0, 0), as_tuple(rot_x(np.pi / 2))),), ())
+    X = sk2.forward([np.pi / 2], [], [0], [[1.0, 0, 0]])
+    np.testing.assert_allclose(X[0, 0], [0.0, 0.0, 1.0], atol=1e-12)
+
+
+def test_arm_fk_hand_computed():
+    m = arm_model()
+    W = m.skeleton.transforms(np.zeros(5), [1, 1, 1])
+    np.testing.assert_allclose(W[0, 3, :3, 3], [0, 0, -300], atol=1e-9)     # elbow
+    np.testing.assert_allclose(W[0, 4, :3, 3], [0, 0, -565], atol=1e-9)     # wrist
+    # abduction b = 90 deg swings the arm to -x; flexion a = 90 deg swings it forward (+y)
+    W = m.skeleton.transforms([np.pi / 2, 0, 0, 0, 0], [1, 1, 1])
+    np.testing.assert_allclose(W[0, 3, :3, 3], [-300, 0, 0], atol=1e-9)
+    W = m.skeleton.transforms([0, np.pi / 2, 0, 0, 0], [1, 1, 1])
+    np.testing.assert_allclose(W[0, 3, :3, 3], [0, 300, 0], atol=1e-9)
+    # elbow at 90 deg, scale 1.1 on the forearm: the wrist 291.5 mm forward of the elbow
+    W = m.skeleton.transforms([0, 0, 0, np.pi / 2, 0], [1, 1.1, 1])
+    np.testing.assert_allclose(W[0, 4, :3, 3], [0, 291.5, -300], atol=1e-9)
+
+
+def test_fk_matches_generator(world):
+    body, motion = world
+    truth = eb.arm_truth(body, motion, [0, 20, 40])
+    W = arm_model().skeleton.transforms(truth.angles, [1, 1, 1],
+                                        base_poses(truth.torso_poses, truth.shoulder_local))
+    np.testing.assert_allclose(W[:, 3, :3, 3], truth.joints[:, 1], atol=1e-9)
+    np.testing.assert_allclose(W[:, 4, :3, 3], truth.joints[:, 2], atol=1e-9)
+
+
+def test_skeleton_jacobian_vs_finite_differences():
+    rng = np.random.default_rng(0)
+    sk = arm_model().skeleton
+    th = rng.uniform(-1, 1, (2, 5))
+    s = np.array([1.1, 0.9, 1.0])
+    joint = np.array([0, 2, 3, 4, 4])
+    local = rng.normal(0, 50, (5, 3))
+    d_th, d_s = sk.jacobian(th, s, joint, local)
+    h = 1e-6
+    for j in range(5):
+        e = np.zeros(5)
+        e[j] = h
+        num = (sk.forward(th + e, s, joint, local) - sk.forward(th - e, s, joint, local)) / 2 / h
+        np.testing.assert_allclose(d_th[..., j], num, atol=1e-5)
+    for k in range(3):
+        e = np.zeros(3)
+        e[k] = h
+        num = (sk.forward(th, s + e, joint, local) - sk.forward(th, s - e, joint, local)) / 2 / h
+        np.testing.assert_allclose(d_s[..., k], num, atol=1e-5)
+
+
+def test_metaball_field_and_surface():
+    radii = np.array([[30.0, 20.0, 50.0]])
+    assert field(np.zeros((1, 1, 3)), radii)[0] == pytest.approx(1.0)
+    assert ellipsoid_distance([30.0, 20.0, 0.0], radii[0]) == pytest.approx(2.0)
+    # one round ball: F = 1/2 at |x| = l sqrt(ln 2 / 2); the residual is the distance
+    ball = np.array([[40.0, 40.0, 40.0]])
+    rho = 40.0 * np.sqrt(np.log(2) / 2)
+    x = np.array([[[0, 0, rho]], [[rho + 7.0, 0, 0]], [[0, rho - 3.0, 0]]])
+    assert field(x[:1], ball)[0] == pytest.approx(0.5)
+    np.testing.assert_allclose(surface_distance(x, ball), [0.0, 7.0, -3.0], atol=1e-9)
+
+
+def test_iso_surface_lies_on_threshold():
+    m = arm_model()
+    radii = m.simplified_radii([[80, 80], [65, 65], [35, 70]], [1, 1, 1])
+    v, f = iso_surface(m, np.zeros((1, 5)), [1, 1, 1], radii, spacing=8.0)
+    assert len(f) > 100
+    F = m.world_field(v, np.zeros((1, 5)), [1, 1, 1], radii)
+    assert np.median(np.abs(F - 0.5)) < 0.02
+
+
+def test_residual_jacobian_vs_finite_differences(world):
+    body, motion = world
+    rng = np.random.default_rng(1)
+    m = arm_model()
+    truth = eb.arm_truth(body, motion, [15, 35])
+    st, _ = eb.initial_state(truth, rng)
+    pts = np.concatenate([surface_samples(body, motion, int(f), rng, n=60)[0]
+                          for f in truth.frames])
+    frame = np.repeat([0, 1], 60)
+    for shape, share in (("simplified", True), ("full", False)):
+        lay = _Layout(m, 2, shape, share, (0, 1, 2, 3))
+        x = lay.pack(st)
+        seg = rng.integers(0, 3, len(pts))
+        r, J = _residuals(m, lay, lay.unpack(x, st, m), truth.torso_poses, pts, frame, seg,
+                          jac=True)
+        num = np.zeros_like(J)
+        for i in range(len(x)):
+            h = 1e-5 * max(1.0, abs(x[i]))
+            xp, xm = x.copy(), x.copy()
+            xp[i] += h
+            xm[i] -= h
+            rp = _residuals(m, lay, lay.unpack(xp, st, m), truth.torso_poses, pts, frame, seg,
+                            jac=False)[0]
+            rm = _residuals(m, lay, lay.unpack(xm, st, m), truth.torso_poses, pts, frame, seg,
+                            jac=False)[0]
+            num[:, i] = (rp - rm) / (2 * h)
+        scale = np.abs(num).max(axis=0) + 1e-9
+        assert np.max(np.abs(J - num) / scale) < 1e-4, shape
+
+
+def test_angles_from_joints_inverts_fk(world):
+    body, motion = world
+    truth = eb.arm_truth(body, motion, [5, 25, 45])
+    ang, sh, lengths = angles_from_joints(truth.torso_poses, *truth.joints.transpose(1, 0, 2))
+    np.testing.assert_allclose(ang[:, :4], truth.angles[:, :4], atol=1e-9)
+    np.testing.assert_allclose(sh, np.tile(truth.shoulder_local, (3, 1)), atol=1e-9)
+    np.testing.assert_allclose(lengths, np.tile(truth.lengths, (3, 1)), atol=1e-9)
+
+
+def _data(world, frames, n, rng, noise=2.0, outliers=0.1):
+    body, motion = world
+    truth = eb.arm_truth(body, motion, frames)
+    pts = [surface_samples(body, motion, int(f), rng, n=n, noise_mm=noise,
+                           outlier_share=outliers, view_from=RIG)[0] for f in frames]
+    return truth, pts
+
+
+def test_sequence_recovers_lengths_and_angles(world):
+    rng = np.random.default_rng(7)
+    truth, pts = _data(world, [8, 20, 32, 44], 400, rng)
+    init, _ = eb.initial_state(truth, rng, joint_noise_mm=15.0)
+    fit = fit_sequence(arm_model(), pts, truth.torso_poses, init, sigma_mm=2.0)
+    assert fit.ok, fit.message
+    score = eb.score_fit(fit, truth)
+    # the start is 15 mm of joint noise away: several degrees and centimetres
+    start = eb.score_fit(fit_sequence(arm_model(), pts, truth.torso_poses, init,
+                                      max_rounds=1, nfev_per_round=1), truth)
+    assert start["max_angle_err_deg"] > 3.0
+    assert score["max_angle_err_deg"] < 3.0
+    assert np.all(np.abs(score["length_err_pct"]) < 2.0)
+    assert fit.sigma_mm < 5.0
+
+
+def test_frame_fit_and_full_refinement(world):
+    rng = np.random.default_rng(8)
+    truth, pts = _data(world, [30], 500, rng)
+    init, _ = eb.initial_state(truth, rng)
+    fit = fit_frame(arm_model(), pts[0], truth.torso_poses[0], init, sigma_mm=2.0)
+    assert fit.ok, fit.message
+    full = fit_frame(arm_model(), pts[0], truth.torso_poses[0], fit.state, shape="full",
+                     sigma_mm=2.0)
+    assert full.status in ("ok", "not_converged")
+    assert eb.score_fit(full, truth)["max_angle_err_deg"] < 3.0
+
+
+def test_bad_input(world):
+    rng = np.random.default_rng(9)
+    truth, pts = _data(world, [30], 400, rng, outliers=0.0)
+    init, _ = eb.initial_state(truth, rng)
+    m = arm_model()
+    P = truth.torso_poses[0]
+    # NaN points: dropped and reported
+    p = pts[0].copy()
+    p[:7] = np.nan
+    fit = fit_frame(m, p, P, init, sigma_mm=2.0)
+    assert fit.n_nan[0] == 7 and "7 NaN" in fit.message
+    assert np.all(fit.segment[0][:7] == -1) and np.all(np.isnan(fit.residuals[0][:7]))
+    # too few points on the hand: its shape and length held and named
+    hand = fit.segment[0] == 2
+    keep = ~hand | (np.cumsum(hand) <= 1)
+    fit2 = fit_frame(m, p[keep], P, init, sigma_mm=2.0)
+    assert "hand" in fit2.fixed_segments
+    np.testing.assert_allclose(fit2.state.radii[2], init.radii[2])
+    assert fit2.state.scales[2] == init.scales[2]
+    # a segment without points in a frame is named, and the message says so
+    upper = surface_samples(*world, 30, rng, parts=("upper_arm_r",), n=300, noise_mm=1.0)[0]
+    upper = upper[np.linalg.norm(upper - truth.joints[0, 1], axis=1) > 120]
+    fit3 = fit_frame(m, upper, P, init, sigma_mm=2.0)
+    assert (0, "forearm") in fit3.unobserved and "forearm in frame 0" in fit3.message
+    assert "forearm" in fit3.fixed_segments
+    # a far initial posture: a clear failure, not a silent wrong fit
+    far = ModelState(init.angles + np.array([[2.0, 1.0, 0.0, 1.2, 0.0]]), init.shoulder,
+                     init.scales, init.radii)
+    bad = fit_frame(m, p, P, far, sigma_mm=2.0)
+    assert not bad.ok and bad.status in ("init_far", "poor_fit")
+    # argument errors
+    with pytest.raises(ValueError, match="shape"):
+        fit_frame(m, p, P, init, shape="round")
+    with pytest.raises(ValueError, match="points"):
+        fit_frame(m, p[:, :2], P, init)
+    with pytest.raises(ValueError, match="torso_pose"):
+        fit_frame(m, p, np.eye(3), init)
+    with pytest.raises(ValueError, match="loss"):
+        fit_frame(m, p, P, init, loss="l7")
+    with pytest.raises(TypeError, match="init"):
+        fit_frame(m, p, P, {"angles": 0})
+    with pytest.raises(ValueError, match="scales"):
+        fit_frame(m, p, P, ModelState(init.angles, init.shoulder, -init.scales, init.radii))
+    with pytest.raises(ValueError, match="outlier_share"):
+        surface_samples(*world, 0, rng, outlier_share=1.0)
+
+
+def test_posterior_agrees_with_least_squares(world):
+    from lsmta.body.posterior import sample_limb_posterior
+
+    rng = np.random.default_rng(10)
+    truth, pts = _data(world, [30], 300, rng)
+    init, _ = eb.initial_state(truth, rng)
+    m = arm_model()
+    fit = fit_frame(m, pts[0], truth.torso_poses[0], init, sigma_mm=2.0)
+    post = sample_limb_posterior(m, fit, pts[0], truth.torso_poses[0], rng, n_walkers=20,
+                                 n_steps=120, burn=60)
+    assert 0.1 < post.acceptance < 0.9
+    assert np.all(np.abs(post.mean - post.ls_mean) < 3 * post.ls_std)
+    assert np.all((post.std > 0.4 * post.ls_std) & (post.std < 2.5 * post.ls_std))

@@ -4,13 +4,14 @@
 tracking, 2-D mode with one camera); ``track_klt`` the OpenCV KLT peer;
 ``trajectories_from_tracks`` intersects tracks into :class:`Trajectories` (velocities,
 accelerations); ``threshold_filter`` and ``uniformity_filter`` (the paper's) and
-``drift_filter`` (ours) cut false trajectories.
+``drift_filter`` (ours) cut false trajectories, ``apply_filters`` chains the three.
 ``markers`` is the small-scale marker tracker of Davis §5.1.
 """
 
 from .filters import (
     FilterReport,
     Reason,
+    apply_filters,
     drift_deviation,
     drift_filter,
     threshold_filter,
@@ -22,6 +23,6 @@ from .trajectories import Trajectories, trajectories_from_tracks
 
 __all__ = [
     "FilterReport", "Reason", "TrackStatus", "TrackerParams", "Tracks", "Trajectories",
-    "drift_deviation", "drift_filter", "threshold_filter", "track_klt", "track_points",
-    "trajectories_from_tracks", "uniformity_filter",
+    "apply_filters", "drift_deviation", "drift_filter", "threshold_filter", "track_klt",
+    "track_points", "trajectories_from_tracks", "uniformity_filter",
 ]

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._validate import as_array
+from .._validate import as_array, as_scalar
 from ..matching.correlation import CorrelationStatus, correlation_search
 from ..matching.lsm import LSMThresholds, _check_patch, lsm
 from ..matching.spline import SplineImage, check_image
@@ -212,6 +212,11 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
             or p.density_every < 1:
         raise ValueError(f"params.density_every: expected an integer >= 1 (frames), got "
                          f"{p.density_every}")
+    if isinstance(p.neighbours, bool) or int(p.neighbours) != p.neighbours or p.neighbours < 1:
+        raise ValueError(f"params.neighbours: expected an integer >= 1 (tracks), got "
+                         f"{p.neighbours}")
+    as_scalar(p.max_disagreement, "params.max_disagreement", positive=True)
+    as_scalar(p.min_distance, "params.min_distance", nonnegative=True)
     seq = as_sequences(images)
     K, T = seq.shape[:2]
     if K > 1 and not 0 <= p.template < K:

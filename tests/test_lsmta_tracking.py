@@ -17,6 +17,7 @@ from lsmta.tracking import (
     threshold_filter,
     track_klt,
     track_points,
+    track_step,
     trajectories_from_tracks,
     uniformity_filter,
 )
@@ -77,6 +78,23 @@ def test_two_d_mode_and_klt_on_a_translation(translation):
     kl = track_klt(images, xy0)
     e = np.linalg.norm(kl.xy[:, 0] - truth, axis=2)
     assert np.isfinite(e).mean() > 0.9 and np.nanmedian(e) < 0.1
+
+
+def test_track_step_is_the_trackers_first_step(translation):
+    images, xy0, vel = translation
+    tr = track_points(images[:, :2], xy0, initial_velocity=np.broadcast_to(vel[:, None],
+                                                                              xy0.shape))
+    p = TrackerParams()
+    st = track_step(images[:, 0], images[:, 1], xy0, xy0 + vel[:, None], p.radius, params=p)
+    assert np.array_equal(st.ok, tr.alive[1])
+    assert np.allclose(st.xy[:, st.ok], tr.xy[1][:, st.ok])
+    assert np.isfinite(st.correlation_xy[:, st.ok]).all()
+    assert np.isnan(st.spatial_xy[p.template]).all()
+    assert np.isfinite(st.spatial_xy[0, st.ok]).all() and st.temporal_A.shape[-2:] == (2, 2)
+    with pytest.raises(ValueError, match="next_frame"):
+        track_step(images[:, 0], images[:2, 1], xy0, xy0, 4)
+    with pytest.raises(ValueError, match="radius"):
+        track_step(images[:, 0], images[:, 1], xy0, xy0, 0)
 
 
 def test_lost_point_becomes_nan_and_stops():

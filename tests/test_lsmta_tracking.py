@@ -17,6 +17,7 @@ from lsmta.tracking import (
     threshold_filter,
     track_klt,
     track_points,
+    track_step,
     trajectories_from_tracks,
     uniformity_filter,
 )
@@ -79,6 +80,23 @@ def test_two_d_mode_and_klt_on_a_translation(translation):
     assert np.isfinite(e).mean() > 0.9 and np.nanmedian(e) < 0.1
 
 
+def test_track_step_is_the_trackers_first_step(translation):
+    images, xy0, vel = translation
+    tr = track_points(images[:, :2], xy0, initial_velocity=np.broadcast_to(vel[:, None],
+                                                                              xy0.shape))
+    p = TrackerParams()
+    st = track_step(images[:, 0], images[:, 1], xy0, xy0 + vel[:, None], p.radius, params=p)
+    assert np.array_equal(st.ok, tr.alive[1])
+    assert np.allclose(st.xy[:, st.ok], tr.xy[1][:, st.ok])
+    assert np.isfinite(st.correlation_xy[:, st.ok]).all()
+    assert np.isnan(st.spatial_xy[p.template]).all()
+    assert np.isfinite(st.spatial_xy[0, st.ok]).all() and st.temporal_A.shape[-2:] == (2, 2)
+    with pytest.raises(ValueError, match="next_frame"):
+        track_step(images[:, 0], images[:2, 1], xy0, xy0, 4)
+    with pytest.raises(ValueError, match="radius"):
+        track_step(images[:, 0], images[:, 1], xy0, xy0, 0)
+
+
 def test_lost_point_becomes_nan_and_stops():
     rng = np.random.default_rng(8)
     images = _shifted_sequence(rng, np.zeros((3, 2)), n_frames=5)
@@ -114,6 +132,23 @@ def test_bad_input(translation):
         track_points(images, xy0, params=TrackerParams(radius=0))
     with pytest.raises(ValueError, match="no point matched"):
         track_klt(images, np.full_like(xy0, np.nan))
+    for bad in (TrackerParams(neighbours=0), TrackerParams(neighbours=2.5)):
+        with pytest.raises(ValueError, match="params.neighbours"):
+            track_points(images, xy0, params=bad)
+    for v in (0.0, -1.0, np.nan):
+        with pytest.raises(ValueError, match="params.max_disagreement"):
+            track_points(images, xy0, params=TrackerParams(max_disagreement=v))
+    with pytest.raises(ValueError, match="params.min_distance"):
+        track_points(images, xy0, params=TrackerParams(min_distance=-1.0))
+    for w in (1, 4, 20, 3.5, True):
+        with pytest.raises(ValueError, match="window"):
+            track_klt(images, xy0, window=w)
+    for lv in (-1, 1.5):
+        with pytest.raises(ValueError, match="levels"):
+            track_klt(images, xy0, levels=lv)
+    for fb in (0.0, -0.5):
+        with pytest.raises(ValueError, match="fb_threshold"):
+            track_klt(images, xy0, fb_threshold=fb)
     with pytest.raises(ValueError, match="fps"):
         Trajectories(np.zeros((3, 2, 3)), 0.0)
     tr = track_points(images[:, :2], xy0)
@@ -238,7 +273,8 @@ def test_drift_filter_truncates_a_slow_drift_that_the_paper_filter_misses():
     clean = Trajectories(_rotating_patch(np.random.default_rng(7)), 25.0)
     dev_med = drift_deviation(clean, local="median")
     dev_aff = drift_deviation(clean, local="affine")
-    assert np.nanmax(dev_aff) < 4.0 < 8.0 < np.nanmax(dev_med)
+    assert np.nanmax(dev_aff) < 4.0              # half the 8 mm threshold: no false cut
+    assert np.nanmax(dev_med) > 8.0              # the median alone would cut clean points
 
 
 def test_drift_filter_gives_no_verdict_without_neighbours_and_rejects_bad_input():
@@ -266,7 +302,13 @@ def test_rendered_walk_tracks_against_truth():
     assert trial.tracks.alive[-1].sum() >= 10
     assert np.nanmedian(sc.step_error) < 0.2
     assert np.nanmedian(sc.error_3d[1:]) < 5.0
-    assert np.nanmedian(sc.step_error) < np.nanmedian(trial.klt_score.step_error) * 1.5
+    # LSMTA's per-frame error is at most half KLT's, also on the entries alive in both
+    # (its own survivors alone would flatter it: it drops the hard points KLT keeps)
+    ls, kl = sc.step_error, trial.klt_score.step_error
+    both = np.isfinite(ls) & np.isfinite(kl)
+    assert both.sum() >= 50
+    assert np.median(ls[both]) < 0.5 * np.median(kl[both])
+    assert np.nanmedian(ls) < 0.5 * np.nanmedian(kl)
 
 
 def test_score_filter_counts_caught_false_and_correct_length():

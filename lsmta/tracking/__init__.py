@@ -1,27 +1,30 @@
 """Tracking in image space and 3-D trajectories.
 
 ``track_points`` is the LSMTA tracker (temporal and spatial LSM, density check for surface
-tracking, 2-D mode with one camera); ``track_klt`` the OpenCV KLT peer;
+tracking, 2-D mode with one camera; ``track_step``: one step of it); ``track_klt`` the
+OpenCV KLT peer;
 ``trajectories_from_tracks`` intersects tracks into :class:`Trajectories` (velocities,
 accelerations); ``threshold_filter`` and ``uniformity_filter`` (the paper's) and
-``drift_filter`` (ours) cut false trajectories.
+``drift_filter`` (ours) cut false trajectories, ``apply_filters`` chains the three.
 ``markers`` is the small-scale marker tracker of Davis §5.1.
 """
 
 from .filters import (
     FilterReport,
     Reason,
+    apply_filters,
     drift_deviation,
     drift_filter,
     threshold_filter,
     uniformity_filter,
 )
 from .klt import track_klt
-from .points import TrackerParams, Tracks, TrackStatus, track_points
+from .points import StepResult, TrackerParams, Tracks, TrackStatus, track_points, track_step
 from .trajectories import Trajectories, trajectories_from_tracks
 
 __all__ = [
-    "FilterReport", "Reason", "TrackStatus", "TrackerParams", "Tracks", "Trajectories",
-    "drift_deviation", "drift_filter", "threshold_filter", "track_klt", "track_points",
-    "trajectories_from_tracks", "uniformity_filter",
+    "FilterReport", "Reason", "StepResult", "TrackStatus", "TrackerParams", "Tracks",
+    "Trajectories",
+    "apply_filters", "drift_deviation", "drift_filter", "threshold_filter", "track_klt",
+    "track_points", "track_step", "trajectories_from_tracks", "uniformity_filter",
 ]

@@ -315,3 +315,25 @@ def drift_filter(trajectories: Trajectories, *, max_drift: float = 8.0, window: 
     with np.errstate(invalid="ignore"):
         fail = dev > max_drift
     return _cut(trajectories, fail, np.full(fail.shape, int(Reason.DRIFT)), min_length)
+
+
+def apply_filters(trajectories: Trajectories, *, max_speed: float = 2000.0,
+                  max_acceleration: float = 40000.0, voxel: float = 150.0,
+                  max_deviation: float = 400.0, window: int = 10, max_drift: float = 8.0,
+                  local: str = "affine") -> tuple[FilterReport, FilterReport, FilterReport]:
+    """The paper's two filters, then ours, in a chain (notebook 05's committed values).
+
+    :func:`threshold_filter` (``max_speed`` mm/s, ``max_acceleration`` mm/s²), then
+    :func:`uniformity_filter` on its result (``voxel`` mm, ``max_deviation`` mm/s), then
+    :func:`drift_filter` on that (``window`` frames, ``max_drift`` mm, ``local``).
+
+    Returns
+    -------
+    (FilterReport, FilterReport, FilterReport)
+        The three reports; the last one's ``trajectories`` is the final result.
+    """
+    first = threshold_filter(trajectories, max_speed=max_speed,
+                             max_acceleration=max_acceleration)
+    second = uniformity_filter(first.trajectories, voxel=voxel, max_deviation=max_deviation)
+    third = drift_filter(second.trajectories, window=window, max_drift=max_drift, local=local)
+    return first, second, third

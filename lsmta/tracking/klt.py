@@ -12,7 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .._validate import as_array
+from .._validate import as_array, as_scalar
 from .points import Tracks, TrackStatus, as_sequences
 
 
@@ -26,16 +26,21 @@ def track_klt(images, initial_xy, *, window: int = 21, levels: int = 3,
     initial_xy : (K, N, 2) array
         Positions at frame 0 (pixels).
     window : int
-        LK window size in pixels.
+        LK window size in pixels (odd, >= 3).
     levels : int
-        Pyramid levels above the full image.
+        Pyramid levels above the full image (>= 0).
     fb_threshold : float
-        Largest forward-backward error in pixels.
+        Largest forward-backward error in pixels (> 0).
 
     Returns
     -------
     Tracks
     """
+    if isinstance(window, bool) or int(window) != window or window < 3 or window % 2 == 0:
+        raise ValueError(f"window: expected an odd integer >= 3 (pixels), got {window}")
+    if isinstance(levels, bool) or int(levels) != levels or levels < 0:
+        raise ValueError(f"levels: expected an integer >= 0 (pyramid levels), got {levels}")
+    fb_threshold = as_scalar(fb_threshold, "fb_threshold", positive=True)
     seq = as_sequences(images)
     K, T = seq.shape[:2]
     xy0 = as_array(initial_xy, "initial_xy", shape=(K, None, 2), allow_nan=True)

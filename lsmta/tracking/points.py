@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._validate import as_array
+from .._validate import as_array, as_scalar
 from ..matching.correlation import CorrelationStatus, correlation_search
 from ..matching.lsm import LSMThresholds, _check_patch, lsm
 from ..matching.spline import SplineImage, check_image
@@ -212,6 +212,11 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
             or p.density_every < 1:
         raise ValueError(f"params.density_every: expected an integer >= 1 (frames), got "
                          f"{p.density_every}")
+    if isinstance(p.neighbours, bool) or int(p.neighbours) != p.neighbours or p.neighbours < 1:
+        raise ValueError(f"params.neighbours: expected an integer >= 1 (tracks), got "
+                         f"{p.neighbours}")
+    as_scalar(p.max_disagreement, "params.max_disagreement", positive=True)
+    as_scalar(p.min_distance, "params.min_distance", nonnegative=True)
     seq = as_sequences(images)
     K, T = seq.shape[:2]
     if K > 1 and not 0 <= p.template < K:
@@ -251,13 +256,15 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
                 pred[:, has] = state.xy[0][:, live[has]] + v[:, has]
                 known |= has
             radius = np.where(known, p.radius, p.retry_radius)
-            ok, new_xy, A = _step(seq, splines, nxt, t, state.xy[t][:, live], pred, radius,
-                                  state.spatial_A[:, live], p)
+            st = _step(seq, splines, nxt, t, state.xy[t][:, live], pred, radius,
+                       state.spatial_A[:, live], p)
+            ok, new_xy, A = st.ok, st.xy, st.spatial_A
             todo = ~ok
             if todo.any():
                 r2 = np.where(known[todo], p.retry_radius, 2 * p.retry_radius)
-                ok2, xy2, A2 = _step(seq, splines, nxt, t, state.xy[t][:, live[todo]],
-                                     pred[:, todo], r2, state.spatial_A[:, live[todo]], p)
+                st2 = _step(seq, splines, nxt, t, state.xy[t][:, live[todo]], pred[:, todo], r2,
+                            state.spatial_A[:, live[todo]], p)
+                ok2, xy2, A2 = st2.ok, st2.xy, st2.spatial_A
                 idx = np.flatnonzero(todo)
                 ok[idx[ok2]] = True
                 new_xy[:, idx[ok2]] = xy2[:, ok2]
@@ -357,13 +364,97 @@ def _spatial_affine(splines, xy, p: TrackerParams):
     return A
 
 
-def _step(seq, splines, nxt, t, cur, pred, radius, spatial_A, p: TrackerParams):
-    """One attempt: correlation + temporal LSM per camera, spatial LSM; (ok, xy, A)."""
+@dataclass(frozen=True)
+class StepResult:
+    """One attempt of one temporal step for n tracks in K cameras (see :func:`track_step`).
+
+    Attributes
+    ----------
+    ok : (n,) bool array
+        Accepted: correlation found, every temporal LSM passed its thresholds and (K > 1)
+        every spatial LSM stayed within ``max_disagreement`` of the temporal result.
+    correlation_xy : (K, n, 2) array
+        Best correlation positions in the next frame, px (NaN: none, or not reached).
+    xy : (K, n, 2) array
+        Temporal LSM results, px (NaN where the correlation or the LSM failed).
+    temporal_A : (K, n, 2, 2) array
+        Affine parts of the temporal LSM (NaN where not computed).
+    spatial_xy : (K, n, 2) array
+        Spatial LSM results (template camera matched into camera k), px; NaN for the
+        template camera and where not computed.
+    spatial_A : (K, n, 2, 2) array
+        Spatial affinities after the step (the input's where the step failed).
+    """
+
+    ok: np.ndarray
+    correlation_xy: np.ndarray
+    xy: np.ndarray
+    temporal_A: np.ndarray
+    spatial_xy: np.ndarray
+    spatial_A: np.ndarray
+
+
+def track_step(frame, next_frame, xy, predicted, radius, *, params: TrackerParams | None = None,
+               spatial_A=None) -> StepResult:
+    """One temporal step of the tracker (Fig. 7), exactly as :func:`track_points` makes it.
+
+    Correlation search around the prediction, temporal LSM from the best correlation
+    position, then (K > 1) the spatial LSM check; no retry in a bigger box (call again with
+    ``params.retry_radius``).
+
+    Parameters
+    ----------
+    frame, next_frame : (K, H, W) arrays
+        The K cameras' images at frames t and t + 1.
+    xy : (K, n, 2) array
+        Positions at frame t, px.
+    predicted : (K, n, 2) array
+        Predicted positions at frame t + 1, px.
+    radius : int or (n,) int array
+        Half-width of the search box, px.
+    params : TrackerParams, optional
+    spatial_A : (K, n, 2, 2) array, optional
+        Spatial affinities from the template camera into each camera (default: identity).
+
+    Returns
+    -------
+    StepResult
+    """
+    p = params or TrackerParams()
+    _check_patch(p.patch)
+    if len(frame) != len(next_frame):
+        raise ValueError(f"next_frame: expected {len(frame)} images (one per camera), got "
+                         f"{len(next_frame)}")
+    seq = as_sequences([[a, b] for a, b in zip(frame, next_frame)])      # (K, 2, H, W)
+    K = seq.shape[0]
+    cur = as_array(xy, "xy", shape=(K, None, 2))
+    pred = as_array(predicted, "predicted", shape=cur.shape)
+    n = cur.shape[1]
+    r = np.broadcast_to(np.asarray(radius), (n,))
+    if r.size and (r.dtype == bool or np.any(r != np.rint(r)) or np.any(r < 1)):
+        raise ValueError(f"radius: expected integers >= 1 (pixels), got {radius}")
+    if spatial_A is None:
+        spatial_A = np.broadcast_to(np.eye(2), (K, n, 2, 2))
+    A = as_array(spatial_A, "spatial_A", shape=(K, n, 2, 2))
+    splines = [SplineImage(seq[k, 0], "frame") for k in range(K)]
+    nxt = [SplineImage(seq[k, 1], "next_frame") for k in range(K)]
+    return _step(seq, splines, nxt, 0, cur, pred, r.astype(np.int64), A, p)
+
+
+def _step(seq, splines, nxt, t, cur, pred, radius, spatial_A, p: TrackerParams) -> StepResult:
+    """One attempt: correlation + temporal LSM per camera, spatial LSM."""
     K, n = cur.shape[:2]
     new_xy = np.full((K, n, 2), np.nan)
     ok = np.ones(n, bool)
-    A_out = spatial_A.copy()
+    A_out = np.array(spatial_A, float)
     corr_xy = np.full((K, n, 2), np.nan)
+    tA = np.full((K, n, 2, 2), np.nan)
+    sp_xy = np.full((K, n, 2), np.nan)
+
+    def result():
+        return StepResult(ok=ok, correlation_xy=corr_xy, xy=new_xy, temporal_A=tA,
+                          spatial_xy=sp_xy, spatial_A=A_out)
+
     for k in range(K):
         found = np.zeros(n, bool)
         for r in np.unique(radius):
@@ -378,16 +469,14 @@ def _step(seq, splines, nxt, t, cur, pred, radius, spatial_A, p: TrackerParams):
         ok &= found
         sel = np.flatnonzero(ok)
         if sel.size == 0:
-            return ok, new_xy, A_out
+            return result()
         res = lsm(splines[k], nxt[k], cur[k, sel], corr_xy[k, sel], patch=p.patch,
                   geometry=p.geometry, thresholds=p.thresholds, max_iter=p.max_iter, tol=p.tol)
+        tA[k, sel] = res.A
         ok[sel[~res.ok]] = False
         new_xy[k, sel[res.ok]] = res.xy[res.ok]
-    sel = np.flatnonzero(ok)
-    if sel.size == 0:
-        return ok, new_xy, A_out
-    if K == 1:
-        return ok, new_xy, A_out
+    if K == 1 or not ok.any():
+        return result()
     tm = p.template
     for k in range(K):
         if k == tm:
@@ -398,8 +487,9 @@ def _step(seq, splines, nxt, t, cur, pred, radius, spatial_A, p: TrackerParams):
         res = lsm(nxt[tm], nxt[k], new_xy[tm, sel], new_xy[k, sel], patch=p.patch,
                   geometry=p.geometry, initial_A=spatial_A[k, sel], thresholds=p.thresholds,
                   max_iter=p.max_iter, tol=p.tol)
+        sp_xy[k, sel] = res.xy
         d = np.linalg.norm(res.xy - new_xy[k, sel], axis=1)
         agree = res.ok & (d <= p.max_disagreement)
         ok[sel[~agree]] = False
         A_out[k, sel[agree]] = res.A[agree]
-    return ok, new_xy, A_out
+    return result()

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from lsmta.calibration import Bar, bundle_adjust, relative_orientation_start, track_targets
+from lsmta.calibration.approximations import scaled
 from lsmta.calibration.virtual_object import alternate, joint_adjustment, projection_error
 from lsmta.evaluation.calibration import heldout_bar_errors
 from lsmta.synth.calibration import (
@@ -125,6 +126,26 @@ def test_bad_input_is_refused_with_clear_errors():
         bundle_adjust(cams0, xy, X0, bar=bar, intrinsics=("f", "k9"))
     with pytest.raises(ValueError, match="xy: expected an array of shape"):
         bundle_adjust(cams0, xy[:2], X0, bar=bar)
+    with pytest.raises(ValueError, match="pair: expected two different"):
+        relative_orientation_start(triplet_rig(None), xy, bar=bar, pair=(1, 1))
+    with pytest.raises(ValueError, match="pair: expected two different"):
+        relative_orientation_start(triplet_rig(None), xy, bar=bar, pair=(0, 3))
+    with pytest.raises(ValueError, match="threshold_px"):
+        relative_orientation_start(triplet_rig(None), xy, bar=bar, threshold_px=0.0)
+    with pytest.raises(ValueError, match="factor"):
+        scaled(cams0, X0, -1.0)
+    with pytest.raises(ValueError, match="n_targets"):
+        track_targets(np.zeros((2, 8, 8)), n_targets=0)
+
+
+def test_bundle_adjust_leaves_the_callers_arrays_alone():
+    rng, truth, track, xy, bar = _bar_data(7, 40, 0.05)
+    cams0, X0 = relative_orientation_start(triplet_rig(None), xy, bar=bar, pair=(0, 2))
+    xy_before, X0_before = xy.copy(), X0.copy()
+    res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05, covariance=False)
+    assert np.array_equal(xy, xy_before, equal_nan=True)
+    assert np.array_equal(X0, X0_before, equal_nan=True)
+    assert not np.allclose(res.points, X0, equal_nan=True)
 
 
 def test_virtual_object_alternation_and_joint_adjustment_converge():

@@ -50,7 +50,16 @@ def relative_orientation_start(cameras, xy, *, bar: Bar | None = None, pair=(0, 
     xy = as_array(xy, "xy", shape=(K, None, 2), allow_nan=True)
     nominal = [c.replace(R=np.eye(3), C=np.zeros(3), k1=0.0, k2=0.0, k3=0.0, p1=0.0, p2=0.0,
                          b1=0.0, b2=0.0) for c in cameras]
-    i, j = pair
+    try:
+        i, j = (int(v) for v in pair)
+    except (TypeError, ValueError):
+        raise ValueError(f"pair: expected two camera indices, got {pair!r}") from None
+    if i == j or not (0 <= i < K and 0 <= j < K):
+        raise ValueError(f"pair: expected two different camera indices in [0, {K - 1}], "
+                         f"got {pair!r}")
+    if not (np.isfinite(threshold_px) and threshold_px > 0):
+        raise ValueError(f"threshold_px: expected a positive number of pixels, got "
+                         f"{threshold_px}")
     both = np.isfinite(xy[i]).all(axis=1) & np.isfinite(xy[j]).all(axis=1)
     if both.sum() < 8:
         raise ValueError(f"xy: cameras {cameras[i].name or i} and {cameras[j].name or j} "
@@ -99,5 +108,7 @@ def relative_orientation_start(cameras, xy, *, bar: Bar | None = None, pair=(0, 
 def scaled(cameras, points, factor: float):
     """Cameras and points scaled by ``factor`` about the world origin (the scale-afterwards
     step of tools that adjust without the bar, e.g. easyWand, Argus)."""
+    if not (np.isfinite(factor) and factor > 0):
+        raise ValueError(f"factor: expected a positive finite scale, got {factor}")
     cams = [c.replace(C=c.C * factor) for c in cameras]
     return cams, np.asarray(points, dtype=float) * factor

@@ -164,6 +164,9 @@ def track_targets(images, n_targets: int = 2, *, gate: float = 100.0, **detect) 
         One camera's sequence.
     n_targets : int
         Targets to follow; in the first frame they are labelled left to right (image x).
+        Labels are per camera: with several cameras, their left-to-right orders must agree
+        (true for side-by-side cameras facing one way); a swapped camera shows up as large
+        residuals and rejected observations in :func:`~lsmta.calibration.bundle_adjust`.
     gate : float
         Largest distance (px) between a target's constant-velocity prediction and the blob
         assigned to it; beyond it the target is lost in that frame (NaN, re-acquired from
@@ -180,6 +183,8 @@ def track_targets(images, n_targets: int = 2, *, gate: float = 100.0, **detect) 
         raise ValueError(f"images: expected (T, H, W), got shape {images.shape}")
     gate = as_scalar(gate, "gate", positive=True)
     T = len(images)
+    if isinstance(n_targets, bool) or int(n_targets) != n_targets or n_targets < 1:
+        raise ValueError(f"n_targets: expected a positive integer, got {n_targets!r}")
     M = int(n_targets)
     xy = np.full((T, M, 2), np.nan)
     status = np.full((T, M), STATUS_LOST)

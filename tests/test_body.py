@@ -1,5 +1,7 @@
 """Body modelling (Plänkers et al. 1999): skeleton, metaballs, fitting, posterior."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -185,6 +187,14 @@ def test_frame_fit_and_full_refinement(world):
                      sigma_mm=2.0)
     assert full.status in ("ok", "not_converged")
     assert eb.score_fit(full, truth)["max_angle_err_deg"] < 3.0
+    # skin scored both ways, where there were points: the fit is near the true skin, and
+    # much nearer than its start
+    body, motion = world
+    back = eb.true_skin_to_fit(full, truth, body, motion, pts, n=6000)
+    start = eb.true_skin_to_fit(SimpleNamespace(state=init), truth, body, motion, pts, n=6000)
+    fwd = eb.skin_errors(full, truth, body, motion, points=pts)
+    assert len(back) > 100 and np.median(back) < 4.0 and np.median(fwd) < 4.0
+    assert np.median(start) > 2 * np.median(back)
 
 
 def test_bad_input(world):

@@ -2,8 +2,10 @@
 
 Renders three frames of :func:`lsmta.synth.arm_wave` in the triplet rig and measures the
 surface with the project's own pipeline (:func:`lsmta.matching.measure_surface`: region
-growing LSM in the three images, neighbourhood filter, forward intersection), seeded on
-the three arm parts as a user would click them. This takes several minutes on a loaded
+growing LSM in the three images, neighbourhood filter, forward intersection) with the
+generator's exact cameras. The seeds come from the truth
+(:func:`lsmta.evaluation.surface.seeds_from_truth`, kept where the renderer's part id is an
+arm part), not from a user's clicks. This takes several minutes on a loaded
 two-core machine, too long for the notebook's 60 s budget, so the points (and a crop of
 each centre image) are written to ``data/arm_stereo/arm_wave_stereo.npz``, which the
 notebook reads. Run from the repository root:

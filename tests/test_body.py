@@ -1,5 +1,7 @@
 """Body modelling (Plänkers et al. 1999): skeleton, metaballs, fitting, posterior."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -185,6 +187,14 @@ def test_frame_fit_and_full_refinement(world):
                      sigma_mm=2.0)
     assert full.status in ("ok", "not_converged")
     assert eb.score_fit(full, truth)["max_angle_err_deg"] < 3.0
+    # skin scored both ways, where there were points: the fit is near the true skin, and
+    # much nearer than its start
+    body, motion = world
+    back = eb.true_skin_to_fit(full, truth, body, motion, pts, n=6000)
+    start = eb.true_skin_to_fit(SimpleNamespace(state=init), truth, body, motion, pts, n=6000)
+    fwd = eb.skin_errors(full, truth, body, motion, points=pts)
+    assert len(back) > 100 and np.median(back) < 4.0 and np.median(fwd) < 4.0
+    assert np.median(start) > 2 * np.median(back)
 
 
 def test_bad_input(world):
@@ -247,3 +257,49 @@ def test_posterior_agrees_with_least_squares(world):
     assert 0.1 < post.acceptance < 0.9
     assert np.all(np.abs(post.mean - post.ls_mean) < 3 * post.ls_std)
     assert np.all((post.std > 0.4 * post.ls_std) & (post.std < 2.5 * post.ls_std))
+
+
+def test_metaball_argument_errors():
+    m = arm_model()
+    radii = m.simplified_radii([[80, 80], [65, 65], [35, 70]], [1, 1, 1])
+    ball = np.array([[40.0, 40.0, 40.0]])
+    x = np.zeros((2, 1, 3))
+    with pytest.raises(ValueError, match="radii.*positive"):
+        ellipsoid_distance([1.0, 2.0, 3.0], [30.0, 0.0, 10.0])
+    with pytest.raises(ValueError, match="radii.*finite"):
+        field(x, [[30.0, np.inf, 10.0]])
+    with pytest.raises(ValueError, match="radii.*shape"):
+        field(x, np.ones((2, 3)))          # two balls' radii for one ball
+    with pytest.raises(ValueError, match="local.*shape"):
+        field(np.zeros((2, 3)), ball)
+    with pytest.raises(ValueError, match="radii.*positive"):
+        surface_distance(x, -ball)
+    with pytest.raises(ValueError, match="threshold"):
+        surface_distance(x, ball, threshold=1.5)
+    with pytest.raises(ValueError, match="radii.*positive"):
+        m.distance(np.zeros((2, 3)), np.zeros(2, int), np.zeros((1, 5)), [1, 1, 1], -radii)
+    with pytest.raises(ValueError, match="segment.*indices"):
+        m.distance(np.zeros((2, 3)), np.array([0, 3]), np.zeros((1, 5)), [1, 1, 1], radii)
+    with pytest.raises(ValueError, match="frame.*indices"):
+        m.distance(np.zeros((2, 3)), np.zeros(2, int), np.zeros((1, 5)), [1, 1, 1], radii,
+                   frame=np.array([0, 1]))
+    with pytest.raises(ValueError, match="points.*shape"):
+        m.world_field(np.zeros((4, 2)), np.zeros((1, 5)), [1, 1, 1], radii)
+    with pytest.raises(ValueError, match="radii.*shape"):
+        iso_surface(m, np.zeros((1, 5)), [1, 1, 1], radii[:2])
+    with pytest.raises(ValueError, match="angles.*shape"):
+        iso_surface(m, np.zeros((2, 5)), [1, 1, 1], radii)
+    with pytest.raises(ValueError, match="spacing"):
+        iso_surface(m, np.zeros((1, 5)), [1, 1, 1], radii, spacing=0.0)
+
+
+def test_angles_from_joints_coincident_joints(world):
+    body, motion = world
+    truth = eb.arm_truth(body, motion, [5, 25])
+    s, e, w = (j.copy() for j in truth.joints.transpose(1, 0, 2))
+    w[1] = e[1]
+    with pytest.raises(ValueError, match=r"wrist: coincides with elbow in frame\(s\) \[1\]"):
+        angles_from_joints(truth.torso_poses, s, e, w)
+    e[0] = s[0]
+    with pytest.raises(ValueError, match="elbow: coincides with shoulder"):
+        angles_from_joints(truth.torso_poses, s, e, truth.joints[:, 2])

@@ -87,6 +87,11 @@ def angles_from_joints(torso_poses, shoulder, elbow, wrist):
     u = to_local(e - s)
     f = to_local(w - e)
     lengths = np.stack([np.linalg.norm(u, axis=1), np.linalg.norm(f, axis=1)], axis=1)
+    for j, (a, b) in enumerate((("shoulder", "elbow"), ("elbow", "wrist"))):
+        bad = np.flatnonzero(lengths[:, j] < 1e-6)
+        if bad.size:
+            raise ValueError(f"{b}: coincides with {a} in frame(s) {bad.tolist()}; expected "
+                             f"distinct joints (a bone of non-zero length)")
     ez = -u / lengths[:, :1]
     fp = f - np.sum(f * ez, axis=1, keepdims=True) * ez
     n = np.linalg.norm(fp, axis=1, keepdims=True)

@@ -399,7 +399,10 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
         Starting state, e.g. from :func:`~lsmta.body.arm.angles_from_joints` of tracked
         joints and template radii.
     shape : {"simplified", "full"}
-        Three size parameters per segment (Section 3.3) or all nine ball radii.
+        Simplified: two size parameters per segment (one width and one depth scaling a
+        fixed three-ball profile, Section 3.3); full: six (width and depth of each of the
+        three balls). In both, the radius along the bone is not free: it is tied to the
+        bone length (``MetaballModel.length_radius`` times it).
     strategy : {"simultaneous", "alternating"}
     share_shoulder : bool
         One shoulder position (torso frame) for all frames (static state) or one per frame.

@@ -40,9 +40,30 @@ PROFILE = (0.9, 1.0, 0.9)            # relative size of the three balls (simplif
 LENGTH_RADIUS = 0.3                  # ball radius along the bone, share of the bone length
 
 
+def _radii(radii, name: str = "radii", shape=None) -> np.ndarray:
+    """Radii as a float array: finite, positive, last axis 3 (mm)."""
+    r = as_array(radii, name, shape=shape)
+    if r.ndim == 0 or r.shape[-1] != 3:
+        raise ValueError(f"{name}: expected radii with a last axis of length 3, got shape "
+                         f"{r.shape}")
+    if not (r > 0).all():
+        raise ValueError(f"{name}: expected positive radii (mm), got min {r.min()}")
+    return r
+
+
+def _local(local, name: str = "local", ndim: int | None = None) -> np.ndarray:
+    """Local coordinates, last axis 3 (NaN allowed: it propagates)."""
+    q = as_array(local, name, allow_nan=True)
+    if q.ndim == 0 or q.shape[-1] != 3 or (ndim is not None and q.ndim != ndim):
+        want = "(..., 3)" if ndim is None else "(" + ", ".join(["N", "B", "3"][-ndim:]) + ")"
+        raise ValueError(f"{name}: expected an array of shape {want}, got shape {q.shape}")
+    return q
+
+
 def ellipsoid_distance(local, radii) -> np.ndarray:
-    """Eq. 6: ``(x/lx)^2 + (y/ly)^2 + (z/lz)^2`` for ``local (..., 3)``, ``radii (..., 3)``."""
-    q = np.asarray(local, float) / np.asarray(radii, float)
+    """Eq. 6: ``(x/lx)^2 + (y/ly)^2 + (z/lz)^2`` for ``local (..., 3)`` and ``radii (..., 3)``
+    (mm, broadcast against each other; radii positive)."""
+    q = _local(local) / _radii(radii)
     return np.sum(q * q, axis=-1)
 
 
@@ -52,8 +73,11 @@ def potential(d, weight=1.0) -> np.ndarray:
 
 
 def field(local, radii) -> np.ndarray:
-    """Eq. 5: the summed field ``(N,)`` of B balls; ``local (N, B, 3)``, ``radii (B, 3)``."""
-    return potential(ellipsoid_distance(local, radii)).sum(axis=-1)
+    """Eq. 5: the summed field ``(N,)`` of B balls; ``local (N, B, 3)`` and ``radii (B, 3)``
+    in mm (radii positive)."""
+    q = _local(local, ndim=3)
+    r = _radii(radii, shape=(q.shape[1], 3))
+    return potential(ellipsoid_distance(q, r)).sum(axis=-1)
 
 
 def surface_distance(local, radii, threshold: float = THRESHOLD, *, details: bool = False):
@@ -84,6 +108,11 @@ def surface_distance(local, radii, threshold: float = THRESHOLD, *, details: boo
         share of the field (``d psi / d d_b``); ``dr_dpsi`` (N,); ``ell``; ``root`` (N,):
         ``sqrt(psi) - sqrt(psi_T)``.
     """
+    local = _local(local, ndim=3)
+    radii = _radii(radii, shape=(local.shape[1], 3))
+    threshold = as_scalar(threshold, "threshold", positive=True)
+    if not threshold < 1:
+        raise ValueError(f"threshold: expected a number in (0, 1), got {threshold}")
     q = local / radii                                     # (N, B, 3)
     d = np.sum(q * q, axis=-1)                            # (N, B)
     e = -2.0 * d
@@ -209,10 +238,14 @@ class MetaballModel:
         frame : (N,) int array, optional
             Frame of each point (default all 0).
         """
+        points = as_array(points, "points", shape=(None, 3), allow_nan=True)
+        N = len(points)
+        segment = self._indices(segment, "segment", N, self.n_segments)
+        radii = _radii(radii, shape=(self.n_segments, 3, 3))
         F = self.frames(angles, scales, base)
         C = self.centres(scales)
-        frame = np.zeros(len(points), int) if frame is None else frame
-        out = np.empty(len(points))
+        frame = np.zeros(N, int) if frame is None else self._indices(frame, "frame", N, len(F))
+        out = np.empty(N)
         for k in range(self.n_segments):
             sel = segment == k
             if not sel.any():
@@ -222,14 +255,30 @@ class MetaballModel:
             out[sel] = surface_distance(local[:, None, :] - C[k][None], radii[k])
         return out
 
+    @staticmethod
+    def _indices(value, name: str, n: int, upper: int) -> np.ndarray:
+        """``(n,)`` integer indices in ``[0, upper)``."""
+        v = np.asarray(value)
+        if v.shape != (n,) or not (np.issubdtype(v.dtype, np.integer) or v.size == 0):
+            raise ValueError(f"{name}: expected an integer array of shape ({n},), got "
+                             f"{v.dtype} of shape {v.shape}")
+        if v.size and (v.min() < 0 or v.max() >= upper):
+            raise ValueError(f"{name}: expected indices in [0, {upper}), got "
+                             f"[{v.min()}, {v.max()}]")
+        return v
+
     def all_distances(self, points, angles, scales, radii, base=None, frame=None):
         """Distances ``(N, S)`` of every point to every segment's skin (for segmentation)."""
+        points = as_array(points, "points", shape=(None, 3), allow_nan=True)
         N = len(points)
         return np.stack([self.distance(points, np.full(N, k), angles, scales, radii, base,
                                        frame) for k in range(self.n_segments)], axis=1)
 
     def world_field(self, points, angles, scales, radii, base=None) -> np.ndarray:
-        """The whole model's field ``(N,)`` at world points for one frame (display)."""
+        """The whole model's field ``(N,)`` at world points ``(N, 3)`` (mm) for one frame
+        (display); radii ``(S, 3, 3)`` mm, positive."""
+        points = as_array(points, "points", shape=(None, 3))
+        radii = _radii(radii, shape=(self.n_segments, 3, 3))
         F = self.frames(angles, scales, base)[0]
         C = self.centres(scales)
         total = np.zeros(len(points))
@@ -251,14 +300,40 @@ def iso_surface(model: MetaballModel, angles, scales, radii, base=None, *,
                 spacing: float = 8.0, threshold: float = THRESHOLD, margin: float = 10.0):
     """The skin ``F = T`` of one frame as a triangle mesh (marching cubes, scikit-image).
 
+    Parameters
+    ----------
+    model : MetaballModel
+    angles : (1, J) array
+        Joint angles of the one frame, radians.
+    scales : (L,) array
+        Limb scales (dimensionless).
+    radii : (S, 3, 3) array
+        Ball radii, mm, positive.
+    base : (1, 4, 4) array, optional
+        Root frame -> world, mm.
+    spacing : float
+        Grid step of the field samples, mm (the mesh's resolution).
+    threshold : float
+        ``T`` of eq. 4, in (0, 1).
+    margin : float
+        Extra grid around the balls, mm (>= 0).
+
     Returns
     -------
-    vertices : (V, 3) array, world mm
+    vertices : (V, 3) array
+        World coordinates, mm.
     faces : (F, 3) int array
+        Vertex indices of each triangle.
     """
     from skimage.measure import marching_cubes
 
     spacing = as_scalar(spacing, "spacing", positive=True)
+    margin = as_scalar(margin, "margin", nonnegative=True)
+    threshold = as_scalar(threshold, "threshold", positive=True)
+    if not threshold < 1:
+        raise ValueError(f"threshold: expected a number in (0, 1), got {threshold}")
+    angles = as_array(angles, "angles", shape=(1, None))
+    radii = _radii(radii, shape=(model.n_segments, 3, 3))
     poses = model.ball_poses(angles, scales, base)[0].reshape(-1, 4, 4)
     # a lone ball's skin lies at 0.59 of its radii; three blended ones stay inside 1.0
     reach = float(np.max(radii)) + margin + spacing

@@ -177,10 +177,14 @@ def controlled_points(body: Body, motion: Motion, truth: ArmTruth, rng: np.rando
             for f in truth.frames]
 
 
-def fit_arm(points, truth: ArmTruth, init: ModelState, *, model=None, full: bool = True,
+def fit_arm(points, torso_poses, init: ModelState, *, model=None, full: bool = True,
             full_rounds: int = 3, **kwargs):
     """Simplified fit of a sequence (or one frame), then the full model from it (at most
     ``full_rounds`` segmentation rounds).
+
+    ``torso_poses`` ``(T, 4, 4)`` are given to the fit as known (in the notebook: the
+    generator's exact torso poses, ``ArmTruth.torso_poses``); nothing else of the truth is
+    used.
 
     Returns ``(simplified, full)`` :class:`~lsmta.body.BodyFit` (``full`` is None without
     ``full``).
@@ -188,11 +192,11 @@ def fit_arm(points, truth: ArmTruth, init: ModelState, *, model=None, full: bool
     from ..body import fit_sequence
 
     model = arm_model() if model is None else model
-    simple = fit_sequence(model, points, truth.torso_poses, init, **kwargs)
+    simple = fit_sequence(model, points, torso_poses, init, **kwargs)
     if not full or simple.status == "init_far":
         return simple, None
     kwargs["max_rounds"] = full_rounds
-    return simple, fit_sequence(model, points, truth.torso_poses, simple.state, shape="full",
+    return simple, fit_sequence(model, points, torso_poses, simple.state, shape="full",
                                 **kwargs)
 
 
@@ -207,6 +211,39 @@ def skin_errors(fit: BodyFit, truth: ArmTruth, body: Body, motion: Motion, *, mo
                                       spacing=spacing, near_mm=near_mm,
                                       near=None if points is None else points[t])
                            for t in frames])
+
+
+def true_skin_to_fit(fit: BodyFit, truth: ArmTruth, body: Body, motion: Motion, points, *,
+                     model=None, frames=None, spacing: float = 8.0, near_mm: float = 15.0,
+                     n: int = 30000, seed: int = 0) -> np.ndarray:
+    """Distances (mm) from samples of the TRUE arm skin to the fitted skin, pooled over
+    ``frames`` (indices into the fit; default all): the reverse of :func:`skin_errors`.
+
+    Only true-skin samples within ``near_mm`` of a data point of their frame are scored
+    (where there was data); the fitted skin is the marching-cubes mesh of
+    :func:`lsmta.body.iso_surface` and the distance is to its triangles (VTK's implicit
+    poly-data distance via pyvista), not to its vertices.
+    """
+    import pyvista as pv
+
+    model = arm_model() if model is None else model
+    frames = range(len(truth.frames)) if frames is None else frames
+    rng = np.random.default_rng(seed)
+    out = []
+    for t in frames:
+        st = fit.state
+        base = base_poses(truth.torso_poses[t:t + 1], st.shoulder[t])
+        verts, faces = iso_surface(model, st.angles[t:t + 1], st.scales, st.radii, base,
+                                   spacing=spacing)
+        mesh = pv.PolyData(verts, np.hstack([np.full((len(faces), 1), 3), faces]).ravel())
+        skin = true_skin(body, motion, int(truth.frames[t]), rng, n=n)
+        pts = np.asarray(points[t], float)
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        d, _ = cKDTree(pts).query(skin)
+        skin = skin[d < near_mm]
+        probe = pv.PolyData(skin).compute_implicit_distance(mesh)
+        out.append(np.abs(np.asarray(probe["implicit_distance"])))
+    return np.concatenate(out)
 
 
 def point_errors(points, body: Body, motion: Motion, frame: int) -> np.ndarray:

@@ -209,7 +209,28 @@ def test_walking_person_short(rig):
     assert np.nanmax(s.birth_delay) <= 0.070 + 1 / 30
     assert np.all(s.death_delay <= 0.150 + 0.010)     # timeout + clock offsets (±4 ms)
     assert s.coverage > 0.95
-    assert 0 <= w.metrics_ours["siap_completeness"] <= 1
+    assert s.never_born == 0 and s.never_deleted == 0
+    assert w.metrics_ours["siap_completeness"] > 0.9
+
+
+def test_score_counts_failed_births_and_deaths():
+    from lsmta.synth.widearea import LedScene
+    from lsmta.widearea import TrackingResult, WideAreaTrack
+
+    t = np.linspace(0.0, 1.0, 101)
+    pos = np.zeros((101, 2, 3))
+    pos[:, 1, 0] = 1000.0                       # LED 1 is 1 m from LED 0
+    scene = LedScene("two", t, pos, np.tile([0.0, 0.0, -1.0], (101, 2, 1)),
+                     on=np.array([[0.0, 0.5], [0.0, 0.5]]))
+    # one track on LED 0 that never dies; nothing on LED 1
+    trk = WideAreaTrack(id=0, times=np.array([0.0]), states=np.zeros((1, 6)),
+                        birth_time=0.0, death_time=np.nan)
+    z = np.zeros(1)
+    res = TrackingResult((trk,), z, z, z, z, z, 0, 0, 0, 0, 0)
+    s = score_tracks(scene, res, np.arange(0.0, 1.0, 0.05))
+    assert s.never_born == 1 and s.never_deleted == 1
+    assert np.isnan(s.birth_delay[1]) and np.isnan(s.death_delay[0])
+    assert s.coverage == pytest.approx(0.5)
 
 
 def _frames(rig, rng):

@@ -316,6 +316,27 @@ def _spot_frames(centres, shape=(60, 80), peak=200.0, sigma=1.0, base=40.0):
     return np.array(out)
 
 
+def test_relearn_threshold_ignores_small_spots_not_large_areas():
+    from lsmta.widearea import detect, relearn_threshold
+
+    rng = np.random.default_rng(4)
+    frames = np.full((3, 40, 50), 80.0) + rng.normal(0, 1, (3, 40, 50))
+    yy, xx = np.mgrid[:40, :50]
+    frames[:, 5:25, 30:48] = 200.0                       # a lamp, 20 x 18 px
+    led = 150.0 * np.exp(-((xx - 10) ** 2 + (yy - 30) ** 2) / (2 * 0.9**2))
+    frames_led = frames + led                             # an LED in view while relearning
+    thr = relearn_threshold(frames_led, 20.0, 60.0)
+    assert thr.threshold[30, 10] < 110.0                  # the LED did not enter the background
+    assert thr.threshold[15, 40] > 215.0                  # the lamp did
+    det = detect(frames_led[0], thr)
+    assert len(det.xy) == 1 and np.allclose(det.xy[0], [10, 30], atol=0.1)
+    np.testing.assert_array_equal(frames_led, frames + led)   # input untouched
+    with pytest.raises(ValueError, match="spot_px"):
+        relearn_threshold(frames, 20.0, 60.0, spot_px=2)
+    with pytest.raises(ValueError, match="grow_px"):
+        relearn_threshold(frames, 20.0, 60.0, grow_px=-1)
+
+
 def test_background_threshold_and_lighting_test():
     from lsmta.widearea import background_threshold, needs_new_threshold
 

@@ -685,10 +685,8 @@ def lighting_change_trial(rng: np.random.Generator, *, n_frames: int = 30, chang
         ``over`` (T,) fraction of pixels over the current threshold, ``recomputed`` (frame
         index or None), ``features`` (T,) features per frame, ``visible`` (T,) LEDs in view.
     """
-    from scipy import ndimage
-
     from ..synth.widearea import render_led_video, small_camera
-    from ..widearea import background_threshold, detect, needs_new_threshold
+    from ..widearea import background_threshold, detect, needs_new_threshold, relearn_threshold
 
     rng = as_rng(rng)
     cam = small_camera(ceiling_rig(np.random.default_rng(7))[3])
@@ -705,13 +703,7 @@ def lighting_change_trial(rng: np.random.Generator, *, n_frames: int = 30, chang
         over.append(float((frame > thr.threshold).mean()))
         if recomputed is None and needs_new_threshold(frame, thr, fraction):
             recomputed = t
-            # learn from the next frames with small bright spots (LEDs) replaced by the local
-            # background: a grey opening removes spots narrower than 7 px, not the lamp
-            nxt = video.frames[t:t + 5].astype(float)
-            opened = np.stack([ndimage.grey_opening(f, size=(7, 7)) for f in nxt])
-            spot = np.stack([ndimage.binary_dilation(m, iterations=2)
-                             for m in (nxt - opened > 20.0)])
-            thr = background_threshold(np.where(spot, opened, nxt), 20.0, 60.0)
+            thr = relearn_threshold(video.frames[t:t + 5], 20.0, 60.0)
         feats.append(len(detect(frame, thr, invalid=inv).xy))
     return {"over": np.array(over), "recomputed": recomputed, "features": np.array(feats),
             "visible": np.isfinite(video.true_xy).all(axis=2).sum(axis=1)}

@@ -5,7 +5,9 @@
 Eighteen cameras, eight LEDs (on at 0.10-0.45 s, off at 2.80-3.15 s), clock offsets of
 ±4 ms, reflections and a monitor; the same frames go to our estimator (arrival order, 30 ms
 late tolerance) and to the Stone Soup baseline (time-stamp order). Reports, per tracker and
-seed: RMS error, identity changes, largest birth and death delays, OSPA, SIAP completeness
+seed: RMS error and coverage, identity changes, largest birth and death delays (among LEDs
+that got a track / whose track died), LEDs never tracked, LEDs whose track outlived them to
+the end of the run, OSPA, SIAP completeness
 and spuriousness, and wall-clock time; the time ratio is ours / Stone Soup's.
 Writes build/benchmarks/widearea.json. Takes a few minutes (Stone Soup ~20 ms a frame).
 """
@@ -24,7 +26,8 @@ def _row(score, metrics, seconds):
     return {"rms_mm": score.rms_mm, "identity_changes": score.identity_changes,
             "max_birth_delay_ms": 1e3 * float(np.nanmax(score.birth_delay)),
             "max_death_delay_ms": 1e3 * float(np.nanmax(score.death_delay)),
-            "coverage": score.coverage, **metrics, "seconds": seconds}
+            "coverage": score.coverage, "never_born": score.never_born,
+            "never_deleted": score.never_deleted, **metrics, "seconds": seconds}
 
 
 def main(argv=None):

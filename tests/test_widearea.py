@@ -209,7 +209,28 @@ def test_walking_person_short(rig):
     assert np.nanmax(s.birth_delay) <= 0.070 + 1 / 30
     assert np.all(s.death_delay <= 0.150 + 0.010)     # timeout + clock offsets (±4 ms)
     assert s.coverage > 0.95
-    assert 0 <= w.metrics_ours["siap_completeness"] <= 1
+    assert s.never_born == 0 and s.never_deleted == 0
+    assert w.metrics_ours["siap_completeness"] > 0.9
+
+
+def test_score_counts_failed_births_and_deaths():
+    from lsmta.synth.widearea import LedScene
+    from lsmta.widearea import TrackingResult, WideAreaTrack
+
+    t = np.linspace(0.0, 1.0, 101)
+    pos = np.zeros((101, 2, 3))
+    pos[:, 1, 0] = 1000.0                       # LED 1 is 1 m from LED 0
+    scene = LedScene("two", t, pos, np.tile([0.0, 0.0, -1.0], (101, 2, 1)),
+                     on=np.array([[0.0, 0.5], [0.0, 0.5]]))
+    # one track on LED 0 that never dies; nothing on LED 1
+    trk = WideAreaTrack(id=0, times=np.array([0.0]), states=np.zeros((1, 6)),
+                        birth_time=0.0, death_time=np.nan)
+    z = np.zeros(1)
+    res = TrackingResult((trk,), z, z, z, z, z, 0, 0, 0, 0, 0)
+    s = score_tracks(scene, res, np.arange(0.0, 1.0, 0.05))
+    assert s.never_born == 1 and s.never_deleted == 1
+    assert np.isnan(s.birth_delay[1]) and np.isnan(s.death_delay[0])
+    assert s.coverage == pytest.approx(0.5)
 
 
 def _frames(rig, rng):
@@ -293,6 +314,27 @@ def _spot_frames(centres, shape=(60, 80), peak=200.0, sigma=1.0, base=40.0):
             img += peak * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * sigma**2))
         out.append(img)
     return np.array(out)
+
+
+def test_relearn_threshold_ignores_small_spots_not_large_areas():
+    from lsmta.widearea import detect, relearn_threshold
+
+    rng = np.random.default_rng(4)
+    frames = np.full((3, 40, 50), 80.0) + rng.normal(0, 1, (3, 40, 50))
+    yy, xx = np.mgrid[:40, :50]
+    frames[:, 5:25, 30:48] = 200.0                       # a lamp, 20 x 18 px
+    led = 150.0 * np.exp(-((xx - 10) ** 2 + (yy - 30) ** 2) / (2 * 0.9**2))
+    frames_led = frames + led                             # an LED in view while relearning
+    thr = relearn_threshold(frames_led, 20.0, 60.0)
+    assert thr.threshold[30, 10] < 110.0                  # the LED did not enter the background
+    assert thr.threshold[15, 40] > 215.0                  # the lamp did
+    det = detect(frames_led[0], thr)
+    assert len(det.xy) == 1 and np.allclose(det.xy[0], [10, 30], atol=0.1)
+    np.testing.assert_array_equal(frames_led, frames + led)   # input untouched
+    with pytest.raises(ValueError, match="spot_px"):
+        relearn_threshold(frames, 20.0, 60.0, spot_px=2)
+    with pytest.raises(ValueError, match="grow_px"):
+        relearn_threshold(frames, 20.0, 60.0, grow_px=-1)
 
 
 def test_background_threshold_and_lighting_test():

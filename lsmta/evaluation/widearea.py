@@ -52,7 +52,8 @@ class TrackScore:
     error : (T, N) array
         Distance of the assigned track from the LED, mm (NaN when none).
     rms_mm : float
-        Root mean square of ``error`` over assigned (LED, time) pairs.
+        Root mean square of ``error`` over assigned (LED, time) pairs only; read it with
+        ``coverage`` (an LED without a track within ``MATCH_MM`` adds nothing to it).
     identity_changes : int
         Times an LED's assigned track id changed to another id (gaps not counted).
     birth_delay, death_delay : (N,) arrays
@@ -62,6 +63,13 @@ class TrackScore:
         Fraction of (LED on, time) pairs with an assigned track.
     spurious_tracks : int
         Tracks never assigned to any LED.
+    never_born : int
+        LEDs on at some scoring time that were never assigned a track (a failed birth;
+        their ``birth_delay`` is NaN).
+    never_deleted : int
+        LEDs switched off before the last scoring time whose last track was still alive
+        at the end of the run (a failed death; their ``death_delay`` is NaN). An LED that
+        was never born is not counted here.
     """
 
     times: np.ndarray
@@ -73,6 +81,8 @@ class TrackScore:
     death_delay: np.ndarray
     coverage: float
     spurious_tracks: int
+    never_born: int = 0
+    never_deleted: int = 0
 
 
 def score_tracks(scene: LedScene, result: TrackingResult, times) -> TrackScore:
@@ -99,20 +109,25 @@ def score_tracks(scene: LedScene, result: TrackingResult, times) -> TrackScore:
     birth = np.full(N, np.nan)
     death = np.full(N, np.nan)
     by_id = {tr.id: tr for tr in result.tracks}
+    never_born = never_deleted = 0
     for n in range(N):
         seq = assigned[:, n][assigned[:, n] >= 0]
         if len(seq):
             changes += int(np.count_nonzero(np.diff(seq)))
             birth[n] = by_id[seq[0]].birth_time - scene.on[n, 0]
-            if np.isfinite(scene.on[n, 1]):
+            if np.isfinite(scene.on[n, 1]) and scene.on[n, 1] < times[-1]:
                 death[n] = by_id[seq[-1]].death_time - scene.on[n, 1]
+                never_deleted += int(np.isnan(death[n]))
+        elif on[:, n].any():
+            never_born += 1
     used = set(assigned[assigned >= 0].tolist())
     e = error[np.isfinite(error)]
     return TrackScore(times=times, assigned=assigned, error=error,
                       rms_mm=float(np.sqrt(np.mean(e**2))) if len(e) else np.nan,
                       identity_changes=changes, birth_delay=birth, death_delay=death,
                       coverage=float((assigned >= 0).sum() / max(on.sum(), 1)),
-                      spurious_tracks=len(ids) - len(used & set(ids.tolist())))
+                      spurious_tracks=len(ids) - len(used & set(ids.tolist())),
+                      never_born=never_born, never_deleted=never_deleted)
 
 
 def stonesoup_metrics(scene: LedScene, result: TrackingResult, times, *, c_mm: float = 100.0,
@@ -591,18 +606,24 @@ def _line_deviation_2d(xy):
 
 
 def stage_image_deviation(rng: np.random.Generator, *, cameras=(0, 9), duration: float = 3.0,
-                          rate: float = 30.0) -> dict:
+                          rate: float = 30.0, reflections: float = 0.03) -> dict:
     """Figs. 36-39: the LED on the linear stage rendered in two cameras and detected; the
     distance of each observation from the line fitted to that camera's observations, for
     intensity centroids and for centroids rounded to whole pixels (the thesis's detector
-    had no sub-pixel estimate).
+    had no sub-pixel estimate). Specular reflections (``reflections``, as in
+    :func:`lsmta.synth.widearea.render_led_video`) add false features; the monitor stays dark.
+
+    The observation of a frame is chosen without the truth: its only feature, or the
+    feature nearest the previous frame's pick. Outliers (false features picked) stay in.
 
     Returns
     -------
     dict
         Per camera index: ``times``, ``xy`` (T, 2) detected centroids (NaN where missed),
         ``deviation`` (T,), ``deviation_rounded`` (T,), ``mean``, ``mean_rounded`` (px),
-        ``truth`` (T, 2).
+        ``truth`` (T, 2), ``detected`` (fraction of frames with a pick), ``frames_none`` and
+        ``frames_several`` (frames with no feature / more than one), ``picked_far`` (picks
+        more than 3 px from the true LED, counted after the fact with the truth).
     """
     from ..synth.widearea import render_led_video, small_camera
     from ..widearea import background_threshold, detect
@@ -615,24 +636,39 @@ def stage_image_deviation(rng: np.random.Generator, *, cameras=(0, 9), duration:
     for k in cameras:
         cam = small_camera(rig[k])
         video = render_led_video(stage, cam, times, rng, monitor_flicker=0.0,
-                                 reflections=0.0)
+                                 reflections=reflections)
         thr = background_threshold(video.background, 20.0, 60.0)
         det = detect(video.frames, thr)
+        # the observation is picked without the truth: the only feature of a frame, or,
+        # when there are several, the one nearest the previous pick (the first such frame
+        # before any pick: the largest feature); outliers stay in
         xy = np.full((len(times), 2), np.nan)
+        n_feat = np.zeros(len(times), int)
+        last = None
         for t in range(len(times)):
             c = det.centroids(t)
-            if len(c) and np.isfinite(video.true_xy[t, 0]).all():
-                d = np.linalg.norm(c - video.true_xy[t, 0], axis=1)
-                if d.min() < 3:
-                    xy[t] = c[np.argmin(d)]
+            n_feat[t] = len(c)
+            if len(c) == 1:
+                xy[t] = c[0]
+            elif len(c) > 1:
+                if last is None:
+                    xy[t] = c[np.argmax(det.area[det.start[t]:det.start[t + 1]])]
+                else:
+                    xy[t] = c[np.argmin(np.linalg.norm(c - last, axis=1))]
+            if len(c):
+                last = xy[t]
         ok = np.isfinite(xy).all(axis=1)
+        err = np.linalg.norm(xy - video.true_xy[:, 0], axis=1)
         dev = np.full(len(times), np.nan)
         dev_r = np.full(len(times), np.nan)
         dev[ok] = _line_deviation_2d(xy[ok])
         dev_r[ok] = _line_deviation_2d(np.rint(xy[ok]))
         out[k] = {"times": times, "xy": xy, "deviation": dev, "deviation_rounded": dev_r,
                   "mean": float(np.nanmean(dev)), "mean_rounded": float(np.nanmean(dev_r)),
-                  "truth": video.true_xy[:, 0], "detected": float(ok.mean())}
+                  "truth": video.true_xy[:, 0], "detected": float(ok.mean()),
+                  "frames_none": int((n_feat == 0).sum()),
+                  "frames_several": int((n_feat > 1).sum()),
+                  "picked_far": int((err[ok] > 3.0).sum()) if ok.any() else 0}
     return out
 
 
@@ -649,10 +685,8 @@ def lighting_change_trial(rng: np.random.Generator, *, n_frames: int = 30, chang
         ``over`` (T,) fraction of pixels over the current threshold, ``recomputed`` (frame
         index or None), ``features`` (T,) features per frame, ``visible`` (T,) LEDs in view.
     """
-    from scipy import ndimage
-
     from ..synth.widearea import render_led_video, small_camera
-    from ..widearea import background_threshold, detect, needs_new_threshold
+    from ..widearea import background_threshold, detect, needs_new_threshold, relearn_threshold
 
     rng = as_rng(rng)
     cam = small_camera(ceiling_rig(np.random.default_rng(7))[3])
@@ -669,13 +703,7 @@ def lighting_change_trial(rng: np.random.Generator, *, n_frames: int = 30, chang
         over.append(float((frame > thr.threshold).mean()))
         if recomputed is None and needs_new_threshold(frame, thr, fraction):
             recomputed = t
-            # learn from the next frames with small bright spots (LEDs) replaced by the local
-            # background: a grey opening removes spots narrower than 7 px, not the lamp
-            nxt = video.frames[t:t + 5].astype(float)
-            opened = np.stack([ndimage.grey_opening(f, size=(7, 7)) for f in nxt])
-            spot = np.stack([ndimage.binary_dilation(m, iterations=2)
-                             for m in (nxt - opened > 20.0)])
-            thr = background_threshold(np.where(spot, opened, nxt), 20.0, 60.0)
+            thr = relearn_threshold(video.frames[t:t + 5], 20.0, 60.0)
         feats.append(len(detect(frame, thr, invalid=inv).xy))
     return {"over": np.array(over), "recomputed": recomputed, "features": np.array(feats),
             "visible": np.isfinite(video.true_xy).all(axis=2).sum(axis=1)}

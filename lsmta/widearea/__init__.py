@@ -10,6 +10,7 @@ from .detection import (
     background_threshold,
     detect,
     needs_new_threshold,
+    relearn_threshold,
     search_mask,
 )
 from .kalman import ekf_update, predict, projection_jacobian, transition
@@ -21,7 +22,7 @@ from .tracker import TrackerParams, TrackingResult, WideAreaTrack, track
 __all__ = [
     "POLICIES", "Association", "Birth", "DetectionParams", "Detections", "Frames",
     "Schedule", "Threshold", "background_threshold", "detect", "needs_new_threshold",
-    "search_mask",
+    "relearn_threshold", "search_mask",
     "TrackerParams", "TrackingResult", "WideAreaTrack", "associate",
     "ekf_update", "find_birth", "predict",
     "projection_jacobian", "ray_distance", "schedule", "starved", "track",

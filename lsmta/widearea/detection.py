@@ -3,7 +3,9 @@
 * **Thresholds.** Per pixel, the maximum background intensity seen over a set of frames
   without LEDs, plus an additive offset, and never below a minimum
   (:func:`background_threshold`). When many pixels exceed their thresholds at once, the
-  lighting has changed and the thresholds are recomputed (:func:`needs_new_threshold`).
+  lighting has changed and the thresholds are recomputed (:func:`needs_new_threshold`)
+  from the next frames, with small bright spots (LEDs) replaced by the local background
+  (:func:`relearn_threshold`, SciPy's grey opening).
 * **Invalid regions.** A boolean mask of pixels never to report (monitors, lamps).
 * **Features.** Pixels above threshold are grouped into 8-connected components (OpenCV's
   ``connectedComponents``, once per frame on the image of the pixels found); each
@@ -148,6 +150,48 @@ def needs_new_threshold(frame, threshold: Threshold, fraction: float = 0.01) -> 
     if f.shape[1:] != threshold.threshold.shape:
         raise ValueError("frame: expected the image size of the threshold")
     return bool((f > threshold.threshold).mean() > as_scalar(fraction, "fraction"))
+
+
+def relearn_threshold(frames, offset: float, minimum: float, *, spot_px: int = 7,
+                      spot_level: float = 20.0, grow_px: int = 2) -> Threshold:
+    """Thresholds relearnt from frames that may contain LEDs (after a lighting change).
+
+    In each frame, small bright spots are replaced by the local background before the
+    maximum is taken, so that an LED in view does not become part of the background: a grey
+    opening (``scipy.ndimage.grey_opening``, ``spot_px`` x ``spot_px``) removes spots
+    narrower than ``spot_px``; pixels more than ``spot_level`` above the opened image, grown
+    by ``grow_px`` pixels, take the opened value. Larger bright areas (a lamp) are kept.
+
+    Parameters
+    ----------
+    frames : (T, H, W) or (H, W) array
+        Frames taken after the change, grey levels.
+    offset, minimum : float
+        As in :func:`background_threshold`, grey levels.
+    spot_px : int
+        Width of the opening, px (odd, >= 3).
+    spot_level : float
+        How far above the opened image a pixel must be to count as a spot, grey levels.
+    grow_px : int
+        Dilation of the spots, px.
+
+    Returns
+    -------
+    Threshold
+    """
+    from scipy import ndimage
+
+    f = _frames(frames).astype(float)
+    spot_level = as_scalar(spot_level, "spot_level", nonnegative=True)
+    if int(spot_px) != spot_px or spot_px < 3:
+        raise ValueError(f"spot_px: expected an integer >= 3, got {spot_px}")
+    if int(grow_px) != grow_px or grow_px < 0:
+        raise ValueError(f"grow_px: expected a non-negative integer, got {grow_px}")
+    opened = np.stack([ndimage.grey_opening(x, size=(int(spot_px),) * 2) for x in f])
+    spot = f - opened > spot_level
+    if grow_px:
+        spot = np.stack([ndimage.binary_dilation(m, iterations=int(grow_px)) for m in spot])
+    return background_threshold(np.where(spot, opened, f), offset, minimum)
 
 
 def search_mask(shape, k: int, jitter, windows=None, window: int = 40) -> np.ndarray:

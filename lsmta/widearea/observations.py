@@ -84,3 +84,33 @@ class Frames:
         xy = np.concatenate(pts) if pts else np.zeros((0, 2))
         return cls(camera=np.asarray(camera, dtype=np.int64), stamp=np.asarray(stamp, float),
                    start=start, xy=xy, arrival=arrival)
+
+
+def screen_frame(frames: Frames, f: int, n_cameras: int, last_stamp: np.ndarray,
+                 received: np.ndarray, bad: dict) -> np.ndarray | None:
+    """The finite centroids of frame ``f``, or None if the frame is refused.
+
+    Refused frames come from an unknown camera, carry a non-finite stamp, or a stamp not
+    after that camera's previous one; each refusal, NaN centroid and empty frame is
+    counted in ``bad`` (keys ``unknown_camera``, ``nonfinite_stamp``, ``backwards_time``,
+    ``nan_centroids``, ``empty_frames``). ``last_stamp`` and ``received`` (per camera) are
+    the caller's running state and are updated for accepted frames.
+    """
+    c, t = int(frames.camera[f]), float(frames.stamp[f])
+    if not 0 <= c < n_cameras:
+        bad["unknown_camera"] += 1
+        return None
+    if not np.isfinite(t):
+        bad["nonfinite_stamp"] += 1
+        return None
+    if t <= last_stamp[c]:
+        bad["backwards_time"] += 1
+        return None
+    last_stamp[c] = t
+    received[c] += 1
+    xy = frames.centroids(f)
+    finite = np.isfinite(xy).all(axis=1)
+    bad["nan_centroids"] += int((~finite).sum())
+    if not finite.any():
+        bad["empty_frames"] += 1
+    return xy[finite]

@@ -30,7 +30,7 @@ import numpy as np
 from ..camera import Camera
 from .kalman import projection_jacobian
 from .management import find_birth
-from .observations import Frames
+from .observations import Frames, screen_frame
 from .tracker import TrackerParams, TrackingResult, WideAreaTrack
 
 EPOCH = datetime.datetime(2002, 1, 1)
@@ -192,24 +192,10 @@ def stonesoup_track(cameras, frames: Frames, params: TrackerParams | None = None
     all_tracks: list = []
     death: dict = {}
     for f in order:
+        xy = screen_frame(frames, f, K, last_stamp, received, bad)
+        if xy is None:
+            continue
         c, t = int(frames.camera[f]), float(frames.stamp[f])
-        if not 0 <= c < K:
-            bad["unknown_camera"] += 1
-            continue
-        if not np.isfinite(t):
-            bad["nonfinite_stamp"] += 1
-            continue
-        if t <= last_stamp[c]:
-            bad["backwards_time"] += 1
-            continue
-        last_stamp[c] = t
-        received[c] += 1
-        xy = frames.centroids(f)
-        finite = np.isfinite(xy).all(axis=1)
-        bad["nan_centroids"] += int((~finite).sum())
-        xy = xy[finite]
-        if len(xy) == 0:
-            bad["empty_frames"] += 1
         when = seconds_to_datetime(t)
         detections = {Detection(xy[j][:, None], timestamp=when, measurement_model=models[c])
                       for j in range(len(xy))}

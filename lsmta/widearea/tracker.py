@@ -32,7 +32,7 @@ from ..camera import Camera
 from .association import associate
 from .kalman import _kalman_update, _measurement, _predict, innovation_covariance
 from .management import find_birth
-from .observations import Frames
+from .observations import Frames, screen_frame
 
 
 @dataclass(frozen=True)
@@ -220,25 +220,10 @@ def track(cameras, frames: Frames, params: TrackerParams = TrackerParams()) -> T
     log = {"target": [], "camera": [], "time": [], "predicted": [], "observed": []}
 
     for f in range(frames.n_frames):
-        c = int(frames.camera[f])
-        t = float(frames.stamp[f])
-        if not 0 <= c < K:
-            bad["unknown_camera"] += 1
+        xy = screen_frame(frames, f, K, last_stamp, received, bad)
+        if xy is None:
             continue
-        if not np.isfinite(t):
-            bad["nonfinite_stamp"] += 1
-            continue
-        if t <= last_stamp[c]:
-            bad["backwards_time"] += 1
-            continue
-        last_stamp[c] = t
-        received[c] += 1
-        xy = frames.centroids(f)
-        finite = np.isfinite(xy).all(axis=1)
-        bad["nan_centroids"] += int((~finite).sum())
-        xy = xy[finite]
-        if len(xy) == 0:
-            bad["empty_frames"] += 1
+        c, t = int(frames.camera[f]), float(frames.stamp[f])
         lag = now - t
         if lag > p.late_tolerance:
             dropped[c] += 1

@@ -198,3 +198,20 @@ def test_motion_ground_truth_is_read_only_and_frames_one_at_a_time(world):
         scene.motion.angle("thigh_r")[0, 0] = 1.0
     with pytest.raises(ValueError, match="one frame"):
         Renderer(scene, [_small(cams[1], 8)]).render([3, 7])
+
+
+def test_with_scene_shares_the_rays_and_renders_like_a_new_renderer(world):
+    cams, scene = world
+    cam = [_small(cams[1])]
+    first = Renderer(scene, cam, dtype=np.float64)
+    first.render(12)
+    other_scene = Scene(make_body(np.random.default_rng(5), contrast=0.05), scene.motion,
+                        scene.background)
+    shared = first.with_scene(other_scene)
+    assert shared._cache[0]["dirs"] is first._cache[0]["dirs"]
+    fresh = Renderer(other_scene, cam, dtype=np.float64)
+    assert np.array_equal(shared.render(12).images, fresh.render(12).images)
+    no_background = first.with_scene(Scene(other_scene.body, scene.motion, None))
+    assert np.array_equal(no_background.render(12).images,
+                          Renderer(Scene(other_scene.body, scene.motion, None), cam,
+                                   dtype=np.float64).render(12).images)

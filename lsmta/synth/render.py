@@ -165,11 +165,27 @@ class Renderer:
         self.dtype = dtype
         self._cache: dict[int, dict] = {}
 
+    def with_scene(self, scene: Scene) -> Renderer:
+        """The same cameras and settings on another scene (e.g. another texture).
+
+        The per-camera rays (and background hits, when ``scene`` has the same background
+        object) are shared, so the new renderer's first frame costs no set-up.
+        """
+        other = Renderer(scene, self.cameras, supersample=self.supersample,
+                         noise_sigma=self.noise_sigma, dtype=self.dtype)
+        if scene.background is self.scene.background:
+            other._cache = self._cache
+        else:
+            other._cache = {k: {"dirs": c["dirs"]} for k, c in self._cache.items()}
+        return other
+
     def _camera_cache(self, k: int) -> dict:
-        if k not in self._cache:
+        entry = self._cache.get(k, {})
+        if "t_bg" not in entry:
             cam = self.cameras[k]
-            grid = cam.pixel_grid(self.supersample).reshape(-1, 2)
-            _, dirs = cam.rays(grid)
+            dirs = entry.get("dirs")
+            if dirs is None:
+                _, dirs = cam.rays(cam.pixel_grid(self.supersample).reshape(-1, 2))
             t_bg, grey_bg = _background_hits(self.scene, cam.C, dirs)
             self._cache[k] = {"dirs": dirs, "t_bg": t_bg, "grey_bg": grey_bg}
         return self._cache[k]

@@ -72,10 +72,12 @@ class ConvergenceHistory:
         final = self.error[-1]
         return int(np.flatnonzero(self.error <= final * (1 + tolerance))[0])
 
-    def iterations_to_value(self, value: float, tolerance: float = 0.01) -> int | None:
-        """First iteration whose error is within ``tolerance`` (relative) of ``value`` (for
-        example another method's optimum); None if never."""
-        hit = np.flatnonzero(self.error <= value * (1 + tolerance))
+    def iterations_to_value(self, value: float, tolerance: float = 0.01, *,
+                            fit: bool = False) -> int | None:
+        """First iteration whose error (``fit``: the fit error) is within ``tolerance``
+        (relative) of ``value`` (for example another method's optimum); None if never."""
+        e = self.fit_error if fit else self.error
+        hit = np.flatnonzero(e <= value * (1 + tolerance))
         return int(hit[0]) if len(hit) else None
 
 

@@ -9,7 +9,8 @@ rendered images of notebook 01): per seed, the image RMS residual against sigma*
 held-out bar length error and 3-D check-point error for ours, the no-bar-then-rescale peer
 and (if installed) aniposelib's ``CameraGroup.bundle_adjust_iter`` from the same
 approximations, their ratios peer / ours, and the wall times with the ratios peer / ours.
-``--alternations 0`` skips the virtual calibration object, ``--no-bar`` the reference bar. Virtual calibration object:
+``--alternations 0`` skips the virtual calibration object, ``--no-bar`` the reference bar.
+Virtual calibration object:
 per seed of the initial guess, the alternation (reprojection-optimal point step: block-
 coordinate descent on the joint objective) run for ``--alternations`` iterations, Davis's
 linear-intersection variant for ``--linear-alternations``, and the joint adjustment: final

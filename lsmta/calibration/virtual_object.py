@@ -211,11 +211,12 @@ def _check_triangulation(triangulation):
         raise ValueError(f"triangulation: expected 'optimal' or 'linear', got {triangulation!r}")
 
 
-def _history(cams_list, xy, xy_check):
+def _history(cams_list, xy, xy_check, fit=None):
     err = np.array([projection_error(c, xy_check) if xy_check is not None else np.nan
                     for c in cams_list])
-    fit = np.array([projection_error(c, xy) for c in cams_list])
-    return ConvergenceHistory(cams_list, err, fit)
+    if fit is None:
+        fit = [projection_error(c, xy) for c in cams_list]
+    return ConvergenceHistory(cams_list, err, np.array(fit))
 
 
 def resect(camera, X, xy, *, intrinsics=DAVIS_INTRINSICS):
@@ -277,8 +278,8 @@ def alternate(cameras, xy, *, n_iter: int = 30, intrinsics=DAVIS_INTRINSICS,
     xy : (K, N, 2) array
         Observations of the calibration path, px (NaN: not seen).
     n_iter : int
-        Alternations (stops early when the fit error changes by less than ``tol``
-        relative).
+        Alternations (stops early when the fit error - the objective - changes by less
+        than ``tol`` relative).
     intrinsics : sequence of str
         Interior parameters re-solved with each camera's exterior orientation (the same
         as the joint adjustment's).
@@ -295,7 +296,7 @@ def alternate(cameras, xy, *, n_iter: int = 30, intrinsics=DAVIS_INTRINSICS,
     cams = list(cameras)
     xy = as_array(xy, "xy", shape=(len(cams), None, 2), allow_nan=True)
     hist = [cams]
-    prev = projection_error(cams, xy, triangulation=triangulation)
+    fit = [projection_error(cams, xy)]
     X = None
     for _ in range(int(n_iter)):
         if triangulation == "linear":
@@ -304,11 +305,10 @@ def alternate(cameras, xy, *, n_iter: int = 30, intrinsics=DAVIS_INTRINSICS,
             X = triangulate_optimal(cams, xy, X)
         cams = [resect(cam, X, xy[k], intrinsics=intrinsics) for k, cam in enumerate(cams)]
         hist.append(cams)
-        cur = projection_error(cams, xy, triangulation=triangulation)
-        if abs(prev - cur) < tol * cur:
+        fit.append(projection_error(cams, xy))
+        if abs(fit[-2] - fit[-1]) < tol * fit[-1]:
             break
-        prev = cur
-    return _history(hist, xy, xy_check)
+    return _history(hist, xy, xy_check, fit)
 
 
 def joint_adjustment(cameras, xy, *, n_iter: int = 30, intrinsics=DAVIS_INTRINSICS,

@@ -10,7 +10,6 @@ from lsmta.calibration.virtual_object import (
     projection_error,
     triangulate_optimal,
 )
-from lsmta.triangulation import triangulate
 from lsmta.evaluation.calibration import heldout_bar_errors
 from lsmta.synth.calibration import (
     bar_track,
@@ -20,6 +19,7 @@ from lsmta.synth.calibration import (
     render_bar_images,
 )
 from lsmta.synth.rigs import ring_rig, triplet_rig
+from lsmta.triangulation import triangulate
 
 
 def _bar_data(seed, n, sigma, length=800.0):

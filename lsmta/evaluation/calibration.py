@@ -27,6 +27,7 @@ from ..calibration import (
     scaled,
     track_targets,
 )
+from ..calibration.bundle import INTRINSIC_NAMES
 from ..calibration.virtual_object import ConvergenceHistory, alternate, joint_adjustment
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.calibration import (
@@ -236,11 +237,15 @@ class RingTrial:
 def ring_trial(seeds=(0, 1, 2), *, n_cameras: int = 10, n_path: int = 300,
                n_check: int = 150, sigma_px: float = 0.3, n_alternation: int = 30,
                n_joint: int = 30, intrinsics=("f", "cx", "cy", "k1", "k2"),
-               data_seed: int = 100, n_linear: int = 0) -> RingTrial:
+               data_seed: int = 100, n_linear: int = 0,
+               true_fixed: bool = False) -> RingTrial:
     """The alternation and the joint adjustment from the same poor guesses (one per
     seed), scored per iteration on an independent LED path; with ``n_linear`` > 0 also
-    Davis's linear-intersection variant of the alternation for that many iterations."""
-    from ..calibration.virtual_object import projection_error
+    Davis's linear-intersection variant of the alternation for that many iterations.
+    ``true_fixed``: the interior parameters that are not free are set to the truth in
+    the guess (a diagnostic: fewer free parameters without unmodelled lens error)."""
+    from ..calibration.bundle import INTRINSIC_NAMES
+from ..calibration.virtual_object import projection_error
 
     rng = np.random.default_rng(data_seed)
     truth = ring_rig(n_cameras, rng)
@@ -251,6 +256,10 @@ def ring_trial(seeds=(0, 1, 2), *, n_cameras: int = 10, n_path: int = 300,
     alt, jnt, lin = [], [], []
     for s in seeds:
         guess = poor_guess(truth, np.random.default_rng(s))
+        if true_fixed:
+            fixed = [n for n in INTRINSIC_NAMES if n not in intrinsics]
+            guess = [g.replace(**{n: getattr(t, n) for n in fixed})
+                     for g, t in zip(guess, truth)]
         alt.append(alternate(guess, xy, n_iter=n_alternation, intrinsics=intrinsics,
                              xy_check=xy_c))
         if n_linear:

@@ -244,8 +244,7 @@ def ring_trial(seeds=(0, 1, 2), *, n_cameras: int = 10, n_path: int = 300,
     Davis's linear-intersection variant of the alternation for that many iterations.
     ``true_fixed``: the interior parameters that are not free are set to the truth in
     the guess (a diagnostic: fewer free parameters without unmodelled lens error)."""
-    from ..calibration.bundle import INTRINSIC_NAMES
-from ..calibration.virtual_object import projection_error
+    from ..calibration.virtual_object import projection_error
 
     rng = np.random.default_rng(data_seed)
     truth = ring_rig(n_cameras, rng)

@@ -201,8 +201,7 @@ def projection_error(cameras, xy, *, triangulation: str = "optimal") -> float:
     for k, cam in enumerate(cams):
         ok = np.isfinite(xy[k]).all(axis=1) & np.isfinite(X).all(axis=1)
         p = camera_to_params(cam)
-        d[k, ok] = np.linalg.norm(project_params(np.tile(p, (ok.sum(), 1)), X[ok]) - xy[k, ok],
-                                  axis=1)
+        d[k, ok] = np.linalg.norm(project_params(p[None], X[ok]) - xy[k, ok], axis=1)
     return float(np.sqrt(np.nanmean(d**2)))
 
 
@@ -255,7 +254,7 @@ def resect(camera, X, xy, *, intrinsics=DAVIS_INTRINSICS):
     def fun(x):
         p = p0.copy()
         p[free] = x
-        return (project_params(np.tile(p, (len(Xo), 1)), Xo) - obs).ravel()
+        return (project_params(p[None], Xo) - obs).ravel()
 
     sol = least_squares(fun, p0[free], method="lm", x_scale="jac")
     p = p0.copy()

@@ -20,6 +20,7 @@ from .virtual_object import (
     joint_adjustment,
     projection_error,
     resect,
+    triangulate_optimal,
 )
 
 __all__ = [
@@ -27,5 +28,5 @@ __all__ = [
     "BundleResult", "ConvergenceHistory", "TargetTracks", "alternate", "bundle_adjust",
     "camera_to_params", "detect_blobs", "joint_adjustment", "params_to_camera",
     "project_params", "projection_error", "relative_orientation_start", "resect", "scaled",
-    "track_targets",
+    "track_targets", "triangulate_optimal",
 ]

@@ -75,9 +75,10 @@ def params_to_camera(p, template: Camera) -> Camera:
 
 def project_params(params, X) -> np.ndarray:
     """Pixel coordinates ``(n, 2)`` of points ``X`` ``(n, 3)`` (mm) seen by cameras with
-    parameters ``params`` ``(n, 16)`` (one row per point; vectorised)."""
+    parameters ``params`` ``(n, 16)`` (one row per point; vectorised), or ``(1, 16)`` for
+    one camera and all points."""
     R = Rotation.from_rotvec(params[:, :3]).as_matrix()
-    Xc = np.einsum("nij,nj->ni", R, X - params[:, 3:6])
+    Xc = (R @ (X - params[:, 3:6])[:, :, None])[:, :, 0]
     with np.errstate(divide="ignore", invalid="ignore"):
         x = Xc[:, 0] / Xc[:, 2]
         y = Xc[:, 1] / Xc[:, 2]

@@ -27,6 +27,7 @@ from ..calibration import (
     scaled,
     track_targets,
 )
+from ..calibration.bundle import INTRINSIC_NAMES
 from ..calibration.virtual_object import ConvergenceHistory, alternate, joint_adjustment
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.calibration import (
@@ -212,7 +213,10 @@ class RingTrial:
     xy, xy_check : (K, N, 2) arrays
         Their noisy observations, px.
     alternation, joint : list of ConvergenceHistory
-        One per initial-guess seed.
+        One per initial-guess seed (the alternation with reprojection-optimal points).
+    linear : list of ConvergenceHistory
+        Davis's variant (linear intersection of the rays as the point step), one per seed;
+        empty unless asked for.
     truth_error : float
         Projection error of the true cameras on the independent path, px (the floor).
     sigma_px : float
@@ -227,14 +231,19 @@ class RingTrial:
     joint: list
     truth_error: float
     sigma_px: float
+    linear: list = dataclasses.field(default_factory=list)
 
 
 def ring_trial(seeds=(0, 1, 2), *, n_cameras: int = 10, n_path: int = 300,
                n_check: int = 150, sigma_px: float = 0.3, n_alternation: int = 30,
                n_joint: int = 30, intrinsics=("f", "cx", "cy", "k1", "k2"),
-               data_seed: int = 100) -> RingTrial:
+               data_seed: int = 100, n_linear: int = 0,
+               true_fixed: bool = False) -> RingTrial:
     """The alternation and the joint adjustment from the same poor guesses (one per
-    seed), scored per iteration on an independent LED path."""
+    seed), scored per iteration on an independent LED path; with ``n_linear`` > 0 also
+    Davis's linear-intersection variant of the alternation for that many iterations.
+    ``true_fixed``: the interior parameters that are not free are set to the truth in
+    the guess (a diagnostic: fewer free parameters without unmodelled lens error)."""
     from ..calibration.virtual_object import projection_error
 
     rng = np.random.default_rng(data_seed)
@@ -243,15 +252,22 @@ def ring_trial(seeds=(0, 1, 2), *, n_cameras: int = 10, n_path: int = 300,
     check = led_path(rng, n_check)
     xy = project_observations(truth, path, rng, sigma_px=sigma_px)
     xy_c = project_observations(truth, check, rng, sigma_px=sigma_px)
-    alt, jnt = [], []
+    alt, jnt, lin = [], [], []
     for s in seeds:
         guess = poor_guess(truth, np.random.default_rng(s))
+        if true_fixed:
+            fixed = [n for n in INTRINSIC_NAMES if n not in intrinsics]
+            guess = [g.replace(**{n: getattr(t, n) for n in fixed})
+                     for g, t in zip(guess, truth)]
         alt.append(alternate(guess, xy, n_iter=n_alternation, intrinsics=intrinsics,
                              xy_check=xy_c))
+        if n_linear:
+            lin.append(alternate(guess, xy, n_iter=n_linear, intrinsics=intrinsics,
+                                 xy_check=xy_c, triangulation="linear"))
         jnt.append(joint_adjustment(guess, xy, n_iter=n_joint, intrinsics=intrinsics,
                                     xy_check=xy_c))
     return RingTrial(truth, path, check, xy, xy_c, alt, jnt, projection_error(truth, xy_c),
-                     sigma_px)
+                     sigma_px, lin)
 
 
 __all__ = ["BarTrial", "ConvergenceHistory", "RingTrial", "aniposelib_peer", "bar_observations",

@@ -313,7 +313,8 @@ def alternate(cameras, xy, *, n_iter: int = 30, intrinsics=DAVIS_INTRINSICS,
 def joint_adjustment(cameras, xy, *, n_iter: int = 30, intrinsics=DAVIS_INTRINSICS,
                      xy_check=None) -> ConvergenceHistory:
     """Joint bundle adjustment of cameras and path from the same guess, scored after every
-    solver iteration (``least_squares`` callback)."""
+    Levenberg–Marquardt iteration of :func:`~lsmta.calibration.bundle_adjust` (its
+    ``callback``)."""
     cams = list(cameras)
     xy = as_array(xy, "xy", shape=(len(cams), None, 2), allow_nan=True)
     X0 = _triangulate(cams, xy).points

@@ -27,3 +27,19 @@ def smaller(cam: Camera, factor: int = 2) -> Camera:
     return cam.replace(f=cam.f / factor, cx=(cam.cx + 0.5) / factor - 0.5,
                        cy=(cam.cy + 0.5) / factor - 0.5, width=cam.width // factor,
                        height=cam.height // factor)
+
+
+def occlusion_pair(rng: np.random.Generator):
+    """Background moving 3 px, a foreground (x >= 100 in the template) moving 9 px over it."""
+    from scipy import ndimage
+
+    def texture():
+        t = ndimage.gaussian_filter(rng.normal(0, 1, (120, 220)), 1.5)
+        return 128 + 40 * t / t.std()
+
+    back, fore = texture(), texture()
+    template = np.where(np.arange(220) >= 100, fore, back)
+    xx = np.arange(220)
+    search = np.where(xx >= 109, np.roll(fore, 9, axis=1), np.roll(back, 3, axis=1))
+    noise = rng.normal(0, 1.0, (2, 120, 220))
+    return template + noise[0], search + noise[1]

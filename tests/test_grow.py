@@ -1,6 +1,6 @@
 import numpy as np
 import pytest
-from conftest import smaller
+from conftest import occlusion_pair, smaller
 
 from lsmta.matching import LSMThresholds
 from lsmta.matching.filters import neighbourhood_filter
@@ -69,7 +69,8 @@ def test_voxel_filter():
         voxel_filter(pts, 0.0)
 
 
-def test_measure_surface_on_a_rendered_triplet():
+@pytest.fixture(scope="module")
+def rendered_triplet():
     rng = np.random.default_rng(3)
     cams = triplet_rig(rng, distance=2500.0, baseline=700.0)
     body = make_body(rng, wavelength=(12.0, 50.0))
@@ -83,8 +84,12 @@ def test_measure_surface_on_a_rendered_triplet():
     seeds = proj.xy[0][:, seen] + rng.uniform(-0.5, 0.5, (3, len(seen), 2))
     th = LSMThresholds(max_displacement=3.0, max_sigma_xy=0.2, scale_range=(0.5, 2.0),
                        max_shear=0.5)
-    res = measure_surface(frame.images, small, seeds, step=3, patch=9, thresholds=th,
-                          voxel=30.0)  # nodes lie about 15 mm apart
+    return frame, small, seeds, dict(step=3, patch=9, thresholds=th)
+
+
+def test_measure_surface_on_a_rendered_triplet(rendered_triplet):
+    frame, small, seeds, kw = rendered_triplet
+    res = measure_surface(frame.images, small, seeds, voxel=30.0, **kw)  # nodes ~15 mm apart
     assert len(res.template_xy) > 100
     tx = res.template_xy.astype(int)
     truth = frame.world_xyz[1][tx[:, 1], tx[:, 0]]
@@ -93,6 +98,17 @@ def test_measure_surface_on_a_rendered_triplet():
     assert np.median(err) < 5.0                      # mm, at about 5 mm per pixel
     assert len(res.points) < res.neighbourhood_ok.sum()   # the voxel filter thins
     assert res.points_xy.shape == (3, len(res.points), 2)
+
+
+def test_geometric_check_drops_triplets_that_do_not_meet(rendered_triplet):
+    frame, small, seeds, kw = rendered_triplet
+    free = measure_surface(frame.images, small, seeds, **kw)
+    checked = measure_surface(frame.images, small, seeds, max_reprojection=0.1, **kw)
+    rep = np.nanmax(checked.intersection.reprojection_error, axis=0)
+    assert np.all(rep[checked.neighbourhood_ok] <= 0.1)
+    assert 0 < checked.neighbourhood_ok.sum() < free.neighbourhood_ok.sum()
+    with pytest.raises(ValueError, match="max_reprojection"):
+        measure_surface(frame.images, small, seeds, max_reprojection=0.0, **kw)
 
 
 def test_enhance_contrast_keeps_input(pair):
@@ -139,24 +155,8 @@ def test_retry_sequence_of_patch_sizes(pair):
         grow_matches(pair.template, pair.search, seeds, seeds, retry_patch=(9, 4))
 
 
-def _occlusion_pair(rng):
-    """Background moving 3 px, a foreground (x >= 100 in the template) moving 9 px over it."""
-    from scipy import ndimage
-
-    def texture():
-        t = ndimage.gaussian_filter(rng.normal(0, 1, (120, 220)), 1.5)
-        return 128 + 40 * t / t.std()
-
-    back, fore = texture(), texture()
-    template = np.where(np.arange(220) >= 100, fore, back)
-    xx = np.arange(220)
-    search = np.where(xx >= 109, np.roll(fore, 9, axis=1), np.roll(back, 3, axis=1))
-    noise = rng.normal(0, 1.0, (2, 120, 220))
-    return template + noise[0], search + noise[1]
-
-
 def test_shifted_windows_match_next_to_an_occlusion_border():
-    template, search = _occlusion_pair(np.random.default_rng(3))
+    template, search = occlusion_pair(np.random.default_rng(3))
     seeds = np.array([[60.0, 60.0], [150.0, 60.0]])
     approx = seeds + [[3.0, 0.0], [9.0, 0.0]]
     th = LSMThresholds(max_sigma0=3.0, max_displacement=4.0)
@@ -186,3 +186,23 @@ def test_median_neighbourhood_filter(pair):
         neighbourhood_filter(res, statistic="mode")
     with pytest.raises(ValueError, match="shift"):
         grow_matches(pair.template, pair.search, seeds, pair.true_xy(seeds), shift=-1)
+
+
+def test_robust_retry_matches_next_to_an_occlusion_border():
+    template, search = occlusion_pair(np.random.default_rng(4))
+    seeds = np.array([[60.0, 60.0], [150.0, 60.0]])
+    approx = seeds + [[3.0, 0.0], [9.0, 0.0]]
+    th = LSMThresholds(max_sigma0=3.0, max_displacement=4.0)
+    near = {}
+    for robust in (None, 6.6):        # 4.7 * sqrt(2) * the noise of 1 grey level
+        res = grow_matches(template, search, seeds, approx, step=2, patch=7, retry_patch=9,
+                           thresholds=th, robust=robust, robust_patch=9)
+        x = res.template_xy[:, 0]
+        truth = res.template_xy + np.where(x >= 100, 9.0, 3.0)[:, None] * [1.0, 0.0]
+        err = np.linalg.norm(res.search_xy - truth, axis=1)
+        assert np.percentile(err, 99) < 0.3, (robust, np.sort(err)[-5:])
+        near[robust] = int((np.abs(x - 99.5) < 5).sum())
+        assert (res.method == "robust").any() == (robust is not None)
+    assert near[None] < near[6.6]
+    with pytest.raises(ValueError, match="robust_patch"):
+        grow_matches(template, search, seeds, approx, robust=6.6, robust_patch=6)

@@ -177,6 +177,8 @@ def test_correlation_search(rng):
     (dict(search=np.full((30, 30), np.nan)), "search: contains NaN"),
     (dict(template_xy=np.zeros((2, 3))), r"template_xy: expected an array of shape \(N, 2\)"),
     (dict(initial_A=np.eye(3)), "initial_A"),
+    (dict(robust=0.0), "robust: expected a positive"),
+    (dict(robust=np.nan), "robust: expected a positive"),
 ])
 def test_bad_input(rng, kwargs, match):
     args = dict(template=rng.normal(size=(30, 30)), search=rng.normal(size=(30, 30)),
@@ -206,3 +208,31 @@ def test_integer_and_float_images_agree(rng):
     b = lsm(pair.template.astype(np.float32), pair.search.astype(np.int32), pts,
             pair.true_xy(pts))
     assert np.allclose(a.xy, b.xy, atol=1e-6)
+
+
+def test_robust_lsm_lets_an_occluded_part_drop_out():
+    from conftest import occlusion_pair
+
+    template, search = occlusion_pair(np.random.default_rng(7))
+    # 11 x 11 patches whose 3 right-hand columns lie on the foreground (x >= 100)
+    t_xy = np.stack([np.full(20, 97.0), np.linspace(20, 100, 20)], axis=1)
+    start = t_xy + [3.4, 0.3]
+    plain = lsm(template, search, t_xy, start, patch=11)
+    rob = lsm(template, search, t_xy, start, patch=11, robust=6.6)
+    err_plain = np.linalg.norm(plain.xy - (t_xy + [3.0, 0.0]), axis=1)
+    err_rob = np.linalg.norm(rob.xy - (t_xy + [3.0, 0.0]), axis=1)
+    assert rob.ok.all() and np.max(err_rob) < 0.1
+    # plain LSM, pulled by the foreground columns, fails or is off by more than 0.1 px
+    assert np.all(~plain.ok | (err_plain > 0.1))
+    # the match rests on the 8 background columns of 11, roughly
+    assert np.all((rob.weight_share > 0.55) & (rob.weight_share < 0.85)), rob.weight_share
+    assert np.all(plain.weight_share == 1.0)
+    # on clean patches the robust estimate agrees with the plain one
+    clean = t_xy - [30.0, 0.0]
+    a = lsm(template, search, clean, clean + [3.4, 0.3], patch=11)
+    b = lsm(template, search, clean, clean + [3.4, 0.3], patch=11, robust=6.6)
+    assert np.max(np.linalg.norm(a.xy - b.xy, axis=1)) < 0.03
+    assert np.all(b.weight_share > 0.85)
+    # and a threshold on the weight share rejects what rests on too little of the patch
+    strict = LSMThresholds(max_sigma0=10.0, min_weight_share=0.9).apply(rob)
+    assert not strict.ok.any()

@@ -60,7 +60,9 @@ def score_surface(result: SurfaceResult, truth: dict) -> dict:
     ``density``: share of the visible interior body nodes matched in every image and kept by
     the filters; errors (mm) before the filters (``raw``), after the neighbourhood filter
     (``filtered``) and after the voxel filter (``voxel``, each voxel centre against the
-    mean truth of its members); ``gross``: share of errors above 5 x the median.
+    mean truth of its members); ``gross``: share of errors above 5 x the median;
+    ``gross_target``: the same share among the target nodes only (the population of
+    ``density``; nodes near the silhouette, whose windows reach off the body, left out).
     """
     step = truth["step"]
     r = (result.template_xy[:, 1] // step).astype(int)
@@ -72,13 +74,15 @@ def score_surface(result: SurfaceResult, truth: dict) -> dict:
     body = truth["on_body"][r, c]
     err = np.linalg.norm(result.intersection.points - world, axis=1)
     out = {"density": float(matched[target].mean()), "n_target": int(target.sum())}
+    in_target = target[r, c]
     for name, sel in (("raw", body & result.intersection.valid),
                       ("filtered", body & result.neighbourhood_ok & result.intersection.valid)):
         e = err[sel]
         med = float(np.median(e))
         out[name] = {"n": int(sel.sum()), "median_mm": med,
                      "p95_mm": float(np.percentile(e, 95)),
-                     "gross": float(np.mean(e > 5 * med))}
+                     "gross": float(np.mean(e > 5 * med)),
+                     "gross_target": float(np.mean(e[in_target[sel]] > 5 * med))}
     if result.cloud is not None:
         # a voxel's truth is the mean truth of its nodes; voxels holding an off-body node
         # (no true surface there) get NaN and are left out

@@ -57,9 +57,12 @@ def _spline_at(coef, pad, x, y, wx, dwx, wy, dwy):
 
 @nb.njit(parallel=True, cache=True, fastmath=True)
 def normal_equations(coef, pad, height, width, idx, f, c, A, r0, r1, U, geometry, radiometry,
-                     N_out, b_out, ee_out, ok_out):
-    """For every active point ``i = idx[j]``: ``N_out[j] = J^T J`` (8 x 8), ``b_out[j] = J^T e``,
-    ``ee_out[j] = e^T e`` and ``ok_out[j]`` (the warped patch lies inside the image).
+                     tukey_c, N_out, b_out, ee_out, sw_out, ok_out):
+    """For every active point ``i = idx[j]``: ``N_out[j] = J^T W J`` (8 x 8),
+    ``b_out[j] = J^T W e``, ``ee_out[j] = e^T W e``, ``sw_out[j] = trace W`` and ``ok_out[j]``
+    (the warped patch lies inside the image). ``W`` holds Tukey biweights of the current
+    residuals, ``(1 - (e / tukey_c)^2)^2`` inside ``|e| < tukey_c`` and 0 outside; with
+    ``tukey_c <= 0`` every weight is 1 (ordinary least squares).
 
     The design row always has 8 columns ``[x, y, g2, g3, g4, g5, r0, r1]``; columns the
     model does not use stay zero (fixed loop bounds let the compiler keep the sums in
@@ -77,6 +80,7 @@ def normal_equations(coef, pad, height, width, idx, f, c, A, r0, r1, U, geometry
         N = np.zeros((8, 8))
         b = np.zeros(8)
         ee = 0.0
+        sw = 0.0
         ok = True
         a11, a12, a21, a22 = A[i, 0, 0], A[i, 0, 1], A[i, 1, 0], A[i, 1, 1]
         gain = r1[i]
@@ -93,7 +97,13 @@ def normal_equations(coef, pad, height, width, idx, f, c, A, r0, r1, U, geometry
                 break
             g, gx, gy = _spline_at(coef, pad, x, y, wx, dwx, wy, dwy)
             e = f[i, p] - (offset + gain * g)
-            ee += e * e
+            wgt = 1.0
+            if tukey_c > 0.0:
+                t = e / tukey_c
+                t = 1.0 - t * t
+                wgt = t * t if t > 0.0 else 0.0
+            sw += wgt
+            ee += wgt * e * e
             Gx = gain * gx
             Gy = gain * gy
             row[0] = Gx
@@ -111,7 +121,7 @@ def normal_equations(coef, pad, height, width, idx, f, c, A, r0, r1, U, geometry
             if radiometry == 2:
                 row[7] = g
             for a in range(8):
-                ra = row[a]
+                ra = row[a] * wgt
                 b[a] += ra * e
                 for bb in range(a, 8):
                     N[a, bb] += ra * row[bb]
@@ -121,6 +131,7 @@ def normal_equations(coef, pad, height, width, idx, f, c, A, r0, r1, U, geometry
         N_out[j] = N
         b_out[j] = b
         ee_out[j] = ee
+        sw_out[j] = sw
         ok_out[j] = ok
 
 

@@ -32,6 +32,7 @@ from .spline import SplineImage
 
 HORIZONTAL = ((1, 0), (-1, 0))
 VERTICAL = ((0, 1), (0, -1))
+METHODS = ("patch", "retry", "robust", "shifted")
 
 
 @dataclass(frozen=True)
@@ -65,6 +66,9 @@ class GrowResult:
         Rows and columns of the node grid; node ``(r, c)`` lies at ``(c * step, r * step)``.
     node_index : (N, 2) int array
         Grid row and column of each match.
+    method : (N,) str array
+        Which attempt matched the node: ``"patch"`` (the main patch), ``"retry"`` (a retry
+        patch size), ``"robust"`` or ``"shifted"``.
     """
 
     template_xy: np.ndarray
@@ -79,6 +83,7 @@ class GrowResult:
     n_lsm: int
     grid_shape: tuple
     node_index: np.ndarray
+    method: np.ndarray
 
     def __len__(self) -> int:
         return len(self.template_xy)
@@ -96,7 +101,8 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
                  thresholds: LSMThresholds | None = None, mask=None,
                  geometry: str = "affine", radiometry: str = "linear", max_attempts: int = 3,
                  min_texture: float = 2.0, close_holes: bool = True,
-                 shift: int = 0) -> GrowResult:
+                 shift: int = 0, robust: float | None = None,
+                 robust_patch: int | None = None) -> GrowResult:
     """Grow dense matches between two images from a few seed correspondences.
 
     Parameters
@@ -135,6 +141,12 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         then the shifted match carried back by its affine matrix,
         ``search = search_shifted - A (shift offset)``, from the passing window with the
         smallest ``sigma0``. 0 (default) turns this off.
+    robust : float, optional
+        If given, a node that failed every patch size is tried once more by robust LSM
+        (Tukey cut-off ``robust`` grey levels, see :func:`~lsmta.matching.lsm`), which
+        lets the pixels across an occlusion border drop out; before the shifted windows.
+    robust_patch : int, optional
+        Patch size of the robust attempt (default ``patch``).
 
     Returns
     -------
@@ -143,7 +155,8 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
     patch = _check_patch(patch)
     if retry_patch is None:
         retry_patch = (patch + 6,)
-    retry_patches = tuple(_check_patch(p) for p in np.atleast_1d(retry_patch))
+    retry_patches = tuple(_check_patch(p, "retry_patch") for p in np.atleast_1d(retry_patch))
+    robust_patch = patch if robust_patch is None else _check_patch(robust_patch, "robust_patch")
     if isinstance(step, bool) or int(step) != step or step < 1:
         raise ValueError(f"step: expected a positive integer (pixels), got {step}")
     step = int(step)
@@ -173,7 +186,7 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
     rows, cols = (H - 1) // step + 1, (W - 1) // step + 1
     gr, gc = np.mgrid[0:rows, 0:cols]
     nodes = np.stack([gc * step, gr * step], axis=-1).astype(float)        # (rows, cols, 2)
-    h = max((patch,) + retry_patches) // 2
+    h = max((patch, robust_patch) + retry_patches) // 2
     usable = f_img.inside(nodes, margin=h)
     if mask is not None:
         usable &= mask[gr * step, gc * step]
@@ -197,6 +210,7 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
     sigxy = np.full((rows, cols, 2), np.nan)
     wave = np.full((rows, cols), -1)
     holes = np.zeros((rows, cols), dtype=bool)
+    method = np.zeros((rows, cols), dtype=np.int8)
     n_lsm = 0
 
     def match(node_rc, approx, A0):
@@ -209,6 +223,7 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         n_lsm += len(t_xy)
         ok = res.status == Status.CONVERGED
         xy, A, s0, sxy = res.xy.copy(), res.A.copy(), res.sigma0.copy(), res.sigma_xy.copy()
+        how = np.full(len(t_xy), METHODS.index("patch"), dtype=np.int8)
         for size in retry_patches:
             again = np.flatnonzero(~ok)
             if again.size == 0:
@@ -220,8 +235,21 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
             ok2 = res2.status == Status.CONVERGED
             take = again[ok2]
             ok[take] = True
+            how[take] = METHODS.index("retry")
             xy[take], A[take] = res2.xy[ok2], res2.A[ok2]
             s0[take], sxy[take] = res2.sigma0[ok2], res2.sigma_xy[ok2]
+        again = np.flatnonzero(~ok)
+        if robust is not None and again.size:
+            res4 = lsm(f_img, g_img, t_xy[again], approx[again], patch=robust_patch,
+                       initial_A=A0[again], geometry=geometry, radiometry=radiometry,
+                       robust=robust, thresholds=thresholds)
+            n_lsm += again.size
+            ok4 = res4.status == Status.CONVERGED
+            take = again[ok4]
+            ok[take] = True
+            how[take] = METHODS.index("robust")
+            xy[take], A[take] = res4.xy[ok4], res4.A[ok4]
+            s0[take], sxy[take] = res4.sigma0[ok4], res4.sigma_xy[ok4]
         again = np.flatnonzero(~ok)
         if shift and again.size:
             # every failed node in every shifted window, in one call
@@ -239,11 +267,12 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
             ok3 = passed[np.arange(n_a), best]
             take, pick = again[ok3], (np.arange(n_a) * n_o + best)[ok3]
             ok[take] = True
+            how[take] = METHODS.index("shifted")
             xy[take] = node_xy.reshape(-1, 2)[pick]
             A[take], s0[take], sxy[take] = res3.A[pick], res3.sigma0[pick], res3.sigma_xy[pick]
-        return ok, xy, A, s0, sxy
+        return ok, xy, A, s0, sxy, how
 
-    def store(node_rc, ok, xy, A, s0, sxy, w, hole):
+    def store(node_rc, ok, xy, A, s0, sxy, how, w, hole):
         r, c = node_rc[:, 0], node_rc[:, 1]
         good = np.flatnonzero(ok)
         state[r[good], c[good]] = 1
@@ -253,6 +282,7 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         sigxy[r[good], c[good]] = sxy[good]
         wave[r[good], c[good]] = w
         holes[r[good], c[good]] = hole
+        method[r[good], c[good]] = how[good]
         bad = np.flatnonzero(~ok)
         attempts[r[bad], c[bad]] += 1
         state[r[bad], c[bad]] = np.where(attempts[r[bad], c[bad]] >= max_attempts, 2, 0)
@@ -302,7 +332,8 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
     return GrowResult(template_xy=nodes[r, c], search_xy=s_xy[r, c], A=A_all[r, c],
                       sigma0=sig0[r, c], sigma_xy=sigxy[r, c], seed=cell[r, c], wave=wave[r, c],
                       hole_closing=holes[r, c], seeds_matched=seeds_ok, n_lsm=n_lsm,
-                      grid_shape=(rows, cols), node_index=np.stack([r, c], axis=1))
+                      grid_shape=(rows, cols), node_index=np.stack([r, c], axis=1),
+                      method=np.array(METHODS)[method[r, c]])
 
 
 def _candidates(frontier, state, usable, cell, directions, *, same_cell):

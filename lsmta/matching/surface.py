@@ -18,7 +18,7 @@ from ..camera import Camera
 from ..triangulation import Intersection, VoxelCloud, triangulate, voxel_filter
 from .filters import neighbourhood_filter
 from .grow import GrowResult, grow_matches
-from .lsm import LSMThresholds, Status, lsm
+from .lsm import LSMThresholds, lsm
 from .spline import check_image
 
 
@@ -51,7 +51,8 @@ class SurfaceResult:
     sigma_xy : (K, N, 2) array
         LSM standard deviations (zero for the template row).
     neighbourhood_ok : (N,) bool array
-        Passed the neighbourhood filter (after re-matching).
+        Passed the neighbourhood filter (after re-matching) and, with ``max_reprojection``,
+        the geometric check.
     rematched : (N,) bool array
         Removed by the filter, re-matched, and then accepted.
     intersection : Intersection
@@ -80,7 +81,8 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
                     patch: int = 13, thresholds: LSMThresholds | None = None, mask=None,
                     enhance: bool = False, neighbourhood: bool = True,
                     max_position: float = 0.5, max_affine: float = 0.1,
-                    neighbourhood_statistic: str = "mean", voxel: float | None = None,
+                    neighbourhood_statistic: str = "mean",
+                    max_reprojection: float | None = None, voxel: float | None = None,
                     **grow_kwargs) -> SurfaceResult:
     """Dense surface points from K >= 2 images of one frame.
 
@@ -101,8 +103,21 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
         Apply the neighbourhood filter (``max_position`` px, ``max_affine``, combining
         the neighbours by ``neighbourhood_statistic``, "mean" or "median"; see
         :func:`~lsmta.matching.filters.neighbourhood_filter`).
+    max_reprojection : float, optional
+        Geometric check (beyond the paper, which names geometric constraints as its next
+        step): an n-tuple whose intersected point reprojects further than this many pixels
+        from its match in any image is dropped. The search images are matched
+        independently, so a match that slid along its patch's texture rarely agrees with
+        the other image's. None (default) turns the check off.
     voxel : float, optional
         Voxel size in mm for the final thinning; None keeps every filtered point.
+    **grow_kwargs
+        Further options of :func:`~lsmta.matching.grow.grow_matches` (``retry_patch``,
+        ``shift``, ``robust``, ...).
+
+    Returns
+    -------
+    SurfaceResult
     """
     images = list(images)
     cameras = list(cameras)
@@ -114,6 +129,10 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
     imgs = [check_image(im, f"images[{k}]") for k, im in enumerate(images)]
     if any(im.shape != imgs[0].shape for im in imgs):
         raise ValueError(f"images: expected one size, got {[im.shape for im in imgs]}")
+    if max_reprojection is not None and not (np.isfinite(max_reprojection)
+                                             and max_reprojection > 0):
+        raise ValueError(f"max_reprojection: expected a positive number of pixels or None, "
+                         f"got {max_reprojection}")
     if not 0 <= template < K:
         raise ValueError(f"template: expected an index in [0, {K - 1}], got {template}")
     seeds = as_array(seeds_xy, "seeds_xy", shape=(K, None, 2), allow_nan=True)
@@ -126,6 +145,8 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
     if thresholds is None:
         thresholds = LSMThresholds(max_displacement=float(step))
     searches = [k for k in range(K) if k != template]
+    robust = grow_kwargs.get("robust")
+    robust_patch = grow_kwargs.get("robust_patch") or patch
 
     grown: list[GrowResult] = [
         grow_matches(imgs[template], imgs[k], seeds[template], seeds[k], step=step, patch=patch,
@@ -154,17 +175,27 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
             bad = np.flatnonzero(~check.keep[p] & np.isfinite(check.predicted_xy[p]).all(axis=1))
             pass_k = check.keep[p].copy()
             if bad.size:
-                # re-match the outliers once, starting from the neighbours' prediction
-                res = lsm(imgs[template], imgs[k], t_xy[bad], check.predicted_xy[p][bad],
-                          patch=patch, initial_A=check.mean_A[p][bad], thresholds=thresholds)
-                close = np.linalg.norm(res.xy - check.predicted_xy[p][bad], axis=1) <= max_position
-                fixed = (res.status == Status.CONVERGED) & close
-                xy[k, bad[fixed]] = res.xy[fixed]
-                sig[k, bad[fixed]] = res.sigma_xy[fixed]
+                # re-match the outliers once, starting from the neighbours' prediction (by
+                # robust LSM too, where the grower used it and the plain re-match failed)
+                start, A0 = check.predicted_xy[p][bad], check.mean_A[p][bad]
+                res = lsm(imgs[template], imgs[k], t_xy[bad], start, patch=patch,
+                          initial_A=A0, thresholds=thresholds)
+                got, new_xy, new_sig = res.ok, res.xy.copy(), res.sigma_xy.copy()
+                if robust is not None and not got.all():
+                    j = np.flatnonzero(~got)
+                    res2 = lsm(imgs[template], imgs[k], t_xy[bad[j]], start[j], patch=robust_patch,
+                               initial_A=A0[j], robust=robust, thresholds=thresholds)
+                    got[j], new_xy[j], new_sig[j] = res2.ok, res2.xy, res2.sigma_xy
+                fixed = got & (np.linalg.norm(new_xy - start, axis=1) <= max_position)
+                xy[k, bad[fixed]] = new_xy[fixed]
+                sig[k, bad[fixed]] = new_sig[fixed]
                 pass_k[bad[fixed]] = True
                 rematched[bad[fixed]] = True
             ok &= pass_k
     intersection = triangulate(cameras, xy)
+    if max_reprojection is not None:
+        with np.errstate(invalid="ignore"):
+            ok &= ~(np.nanmax(intersection.reprojection_error, axis=0) > max_reprojection)
     keep = ok & intersection.valid
     if voxel is not None:
         cloud = voxel_filter(np.where(keep[:, None], intersection.points, np.nan), voxel)

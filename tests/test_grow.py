@@ -123,6 +123,8 @@ def test_enhance_contrast_keeps_input(pair):
     (dict(seeds_search=np.zeros((3, 2))), "seeds_search"),
     (dict(mask=np.ones((5, 5), bool)), "mask"),
     (dict(patch=4), "patch"),
+    (dict(template_mask=np.ones((5, 5), bool)), "template_mask"),
+    (dict(robust=-1.0), "robust"),
 ])
 def test_grow_bad_input(pair, kwargs, match):
     args = dict(seeds_template=np.array([[50.0, 50.0]]), seeds_search=np.array([[50.0, 50.0]]))

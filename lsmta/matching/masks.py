@@ -11,9 +11,10 @@ from .spline import check_image
 def backdrop_mask(image, threshold: float, *, smooth: float = 1.0) -> np.ndarray:
     """Pixels of an object in front of a dark, untextured backdrop.
 
-    The image is smoothed by a Gaussian of ``smooth`` pixels (so that noise on the
-    backdrop does not pass), thresholded, and holes inside the object are filled (SciPy's
-    ``gaussian_filter`` and ``binary_fill_holes``). Pass the result as ``template_mask``
+    The image is smoothed by a Gaussian of ``smooth`` pixels (SciPy's ``gaussian_filter``,
+    so that noise on the backdrop does not pass) and thresholded. Holes are not filled: the
+    backdrop shows through the gaps between arm and torso or between the legs, and dark
+    spots on the object only leave a few pixels out. Pass the result as ``template_mask``
     to :func:`~lsmta.matching.grow.grow_matches` or
     :func:`~lsmta.matching.surface.measure_surface`.
 
@@ -37,4 +38,4 @@ def backdrop_mask(image, threshold: float, *, smooth: float = 1.0) -> np.ndarray
         raise ValueError(f"smooth: expected a non-negative number of pixels, got {smooth}")
     if smooth > 0:
         img = ndimage.gaussian_filter(img, smooth)
-    return ndimage.binary_fill_holes(img > threshold)
+    return img > threshold

@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from lsmta.evaluation import surface as evaluate
-from lsmta.matching import LSMThresholds, backdrop_mask, measure_surface, peers
+from lsmta.matching import LSMThresholds, measure_surface, peers
 from lsmta.report import write_json
 from lsmta.synth import Renderer, Scene, make_body, triplet_rig, walk
 
@@ -41,10 +41,7 @@ def main(argv=None):
     cams = triplet_rig(rng, distance=2500.0, baseline=700.0)
     th = LSMThresholds(max_sigma0=2 * args.noise, max_displacement=4.0, max_sigma_xy=0.2,
                        scale_range=(0.5, 2.0), max_shear=0.5)
-    beyond = dict(retry_patch=(9, 5), robust=4.7 * np.sqrt(2) * args.noise, robust_patch=9,
-                  shift=3, neighbourhood_statistic="median", max_affine=0.3,
-                  max_reprojection=0.2)
-    methods = [("lsm", {})] + ([("beyond", beyond)] if args.beyond else [])
+    methods = ["lsm"] + (["beyond"] if args.beyond else [])
     rows = []
     print(f"{'contrast':>8} {'frame':>5} {'method':>13} {'density':>8} {'median mm':>10} "
           f"{'p95 mm':>8} {'gross':>7} {'in target':>9} {'seconds':>8}")
@@ -59,9 +56,10 @@ def main(argv=None):
             first = len(rows)
             for step in args.steps:
                 truth = evaluate.node_truth(frame, scene, cams, step=step, patch=13)
-                for name, extra in methods:
-                    if name == "beyond":       # the body in front of the black backdrop
-                        extra = extra | {"template_mask": backdrop_mask(frame.images[1], 12.0)}
+                for name in methods:
+                    extra = {} if name == "lsm" else dict(
+                        retry_patch=(9, 5),
+                        **evaluate.beyond_the_paper(args.noise, frame.images[1]))
                     t0 = time.perf_counter()
                     res = measure_surface(frame.images, cams, seeds, step=step, patch=7,
                                           thresholds=th, **extra)

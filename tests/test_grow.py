@@ -171,6 +171,7 @@ def test_shifted_windows_match_next_to_an_occlusion_border():
         err = np.linalg.norm(res.search_xy - truth, axis=1)
         assert np.percentile(err, 99) < 0.3, (shift, np.sort(err)[-5:])
         near[shift] = int((np.abs(x - 99.5) < 4).sum())
+        assert (res.method == "shifted").any() == bool(shift)
     # within 3.5 px of the border a centred 7 x 7 window always straddles it
     assert near[0] < near[3]
 

@@ -179,6 +179,9 @@ def test_correlation_search(rng):
     (dict(initial_A=np.eye(3)), "initial_A"),
     (dict(robust=0.0), "robust: expected a positive"),
     (dict(robust=np.nan), "robust: expected a positive"),
+    (dict(robust=True), "robust: expected a positive"),
+    (dict(robust="12"), "robust: expected a positive"),
+    (dict(robust=12.0, max_iter=3), "max_iter: expected more than 3"),
 ])
 def test_bad_input(rng, kwargs, match):
     args = dict(template=rng.normal(size=(30, 30)), search=rng.normal(size=(30, 30)),
@@ -268,6 +271,8 @@ def test_template_mask_ignores_the_backdrop_next_to_a_silhouette():
     assert np.median(np.where(plain.ok, err_plain, np.inf)) > 0.3, err_plain
     assert np.allclose(masked.weight_share, 9 / 11)                # columns 60-68 of 58-68
     assert np.array_equal(mask, keep)
+    # a match that rests on less of its patch than min_weight_share is rejected
+    assert not LSMThresholds(min_weight_share=0.9).apply(masked).ok.any()
     with pytest.raises(ValueError, match="template_mask"):
         lsm(template, search, t_xy, start, template_mask=mask[:, :50])
     with pytest.raises(ValueError, match="template_mask"):

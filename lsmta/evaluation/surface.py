@@ -5,8 +5,21 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from ..matching.masks import backdrop_mask
 from ..matching.surface import SurfaceResult
 from ..synth.render import RenderedFrame, Scene, project_surface_points
+
+
+def beyond_the_paper(noise_sigma: float, template_image, *, backdrop: float = 12.0) -> dict:
+    """Options of :func:`~lsmta.matching.measure_surface` for the "beyond the paper" variant
+    of notebook 03 and ``experiments/surface_benchmark.py``: a robust retry (Tukey cut-off
+    4.7 sqrt(2) ``noise_sigma`` grey levels, 9 x 9 patch), shifted windows (3 px), the median
+    neighbourhood filter with an affine limit of 0.3, the geometric check at 0.2 px and a
+    template mask from :func:`~lsmta.matching.backdrop_mask` at grey level ``backdrop``.
+    """
+    return dict(robust=4.7 * np.sqrt(2.0) * noise_sigma, robust_patch=9, shift=3,
+                neighbourhood_statistic="median", max_affine=0.3, max_reprojection=0.2,
+                template_mask=backdrop_mask(template_image, backdrop))
 
 
 def seeds_from_truth(scene: Scene, cameras, frame: int, rng: np.random.Generator, *,

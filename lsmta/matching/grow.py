@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validate import as_array
-from .lsm import LSMThresholds, Status, _check_patch, lsm
+from .lsm import LSMThresholds, Status, _check_patch, _check_robust, lsm
 from .spline import SplineImage
 
 HORIZONTAL = ((1, 0), (-1, 0))
@@ -150,7 +150,8 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
     template_mask : (H, W) bool array, optional
         Template pixels on the object: every LSM ignores the others (see
         :func:`~lsmta.matching.lsm`), so a patch next to the silhouette rests on the
-        object alone. Unlike ``mask``, it does not say where to grow.
+        object alone (a patch with less than ``thresholds.min_weight_share`` of object
+        pixels is rejected). Unlike ``mask``, it does not say where to grow.
 
     Returns
     -------
@@ -161,9 +162,7 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         retry_patch = (patch + 6,)
     retry_patches = tuple(_check_patch(p, "retry_patch") for p in np.atleast_1d(retry_patch))
     robust_patch = patch if robust_patch is None else _check_patch(robust_patch, "robust_patch")
-    if robust is not None and not (np.isfinite(robust) and robust > 0):
-        raise ValueError(f"robust: expected a positive Tukey cut-off in grey levels or None, "
-                         f"got {robust}")
+    _check_robust(robust)
     if isinstance(step, bool) or int(step) != step or step < 1:
         raise ValueError(f"step: expected a positive integer (pixels), got {step}")
     step = int(step)
@@ -222,62 +221,51 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
     n_lsm = 0
 
     def match(node_rc, approx, A0):
-        """LSM at grid nodes, then the retry patch sizes in turn; returns the accepted mask and
-        the results."""
+        """LSM at grid nodes, then the retry patch sizes, the robust attempt and the shifted
+        windows in turn; returns the accepted mask, the results and how each was matched."""
         nonlocal n_lsm
         t_xy = nodes[node_rc[:, 0], node_rc[:, 1]]
-        res = lsm(f_img, g_img, t_xy, approx, patch=patch, initial_A=A0, **model,
-                  thresholds=thresholds)
-        n_lsm += len(t_xy)
-        ok = res.status == Status.CONVERGED
-        xy, A, s0, sxy = res.xy.copy(), res.A.copy(), res.sigma0.copy(), res.sigma_xy.copy()
-        how = np.full(len(t_xy), METHODS.index("patch"), dtype=np.int8)
-        for size in retry_patches:
+        ok = np.zeros(len(t_xy), dtype=bool)
+        xy, A = np.full((len(t_xy), 2), np.nan), np.full((len(t_xy), 2, 2), np.nan)
+        s0, sxy = np.full(len(t_xy), np.nan), np.full((len(t_xy), 2), np.nan)
+        how = np.zeros(len(t_xy), dtype=np.int8)
+
+        def adopt(again, res, label, pick=None, node_xy=None):
+            """Take the converged results ``res[pick]`` for the nodes ``again``."""
+            pick = np.arange(len(again)) if pick is None else pick
+            good = res.status[pick] == Status.CONVERGED
+            take, pick = again[good], pick[good]
+            ok[take] = True
+            how[take] = METHODS.index(label)
+            xy[take] = (res.xy if node_xy is None else node_xy)[pick]
+            A[take], s0[take], sxy[take] = res.A[pick], res.sigma0[pick], res.sigma_xy[pick]
+
+        attempts = [(patch, None, "patch")] + [(size, None, "retry") for size in retry_patches]
+        if robust is not None:
+            attempts.append((robust_patch, robust, "robust"))
+        for size, cut, label in attempts:
             again = np.flatnonzero(~ok)
             if again.size == 0:
                 break
-            res2 = lsm(f_img, g_img, t_xy[again], approx[again], patch=size,
-                       initial_A=A0[again], **model,
-                       thresholds=thresholds)
+            res = lsm(f_img, g_img, t_xy[again], approx[again], patch=size, initial_A=A0[again],
+                      robust=cut, thresholds=thresholds, **model)
             n_lsm += again.size
-            ok2 = res2.status == Status.CONVERGED
-            take = again[ok2]
-            ok[take] = True
-            how[take] = METHODS.index("retry")
-            xy[take], A[take] = res2.xy[ok2], res2.A[ok2]
-            s0[take], sxy[take] = res2.sigma0[ok2], res2.sigma_xy[ok2]
-        again = np.flatnonzero(~ok)
-        if robust is not None and again.size:
-            res4 = lsm(f_img, g_img, t_xy[again], approx[again], patch=robust_patch,
-                       initial_A=A0[again], **model,
-                       robust=robust, thresholds=thresholds)
-            n_lsm += again.size
-            ok4 = res4.status == Status.CONVERGED
-            take = again[ok4]
-            ok[take] = True
-            how[take] = METHODS.index("robust")
-            xy[take], A[take] = res4.xy[ok4], res4.A[ok4]
-            s0[take], sxy[take] = res4.sigma0[ok4], res4.sigma_xy[ok4]
+            adopt(again, res, label)
         again = np.flatnonzero(~ok)
         if shift and again.size:
             # every failed node in every shifted window, in one call
             n_a, n_o = again.size, len(offsets)
             A0a = np.repeat(A0[again], n_o, axis=0)
             o = np.tile(offsets, (n_a, 1))
-            res3 = lsm(f_img, g_img, np.repeat(t_xy[again], n_o, axis=0) + o,
-                       np.repeat(approx[again], n_o, axis=0) + np.einsum("nij,nj->ni", A0a, o),
-                       patch=patch, initial_A=A0a, **model,
-                       thresholds=thresholds)
+            res = lsm(f_img, g_img, np.repeat(t_xy[again], n_o, axis=0) + o,
+                      np.repeat(approx[again], n_o, axis=0) + np.einsum("nij,nj->ni", A0a, o),
+                      patch=patch, initial_A=A0a, thresholds=thresholds, **model)
             n_lsm += n_a * n_o
-            passed = (res3.status == Status.CONVERGED).reshape(n_a, n_o)
-            node_xy = (res3.xy - np.einsum("nij,nj->ni", res3.A, o)).reshape(n_a, n_o, 2)
-            best = np.argmin(np.where(passed, res3.sigma0.reshape(n_a, n_o), np.inf), axis=1)
-            ok3 = passed[np.arange(n_a), best]
-            take, pick = again[ok3], (np.arange(n_a) * n_o + best)[ok3]
-            ok[take] = True
-            how[take] = METHODS.index("shifted")
-            xy[take] = node_xy.reshape(-1, 2)[pick]
-            A[take], s0[take], sxy[take] = res3.A[pick], res3.sigma0[pick], res3.sigma_xy[pick]
+            passed = (res.status == Status.CONVERGED).reshape(n_a, n_o)
+            best = np.argmin(np.where(passed, res.sigma0.reshape(n_a, n_o), np.inf), axis=1)
+            # the node's match: the best window's match carried back by its affine matrix
+            adopt(again, res, "shifted", pick=np.arange(n_a) * n_o + best,
+                  node_xy=res.xy - np.einsum("nij,nj->ni", res.A, o))
         return ok, xy, A, s0, sxy, how
 
     def store(node_rc, ok, xy, A, s0, sxy, how, w, hole):

@@ -49,7 +49,10 @@ iterations, so that the start, still misaligned by a fraction of a pixel, is not
 away; a point is not declared converged before the cut-off has reached ``c``.
 ``sigma0`` and the covariance are then the weighted ones,
 ``sigma0**2 = e^T W e / (trace W - u)``, and ``weight_share = trace W / n`` says how much
-of the patch the match rests on.
+of the patch the match rests on. On clean patches with ``c`` about 4.7 times the residual
+standard deviation, this ``sigma0`` comes out about 9 % below the plain one and
+``weight_share`` about 0.92; a ``max_sigma0`` threshold is correspondingly a little
+easier to pass.
 
 Parameter vector (``LSMResult.params``), always 8 columns whatever the model:
 ``[x, y, a11, a12, a21, a22, r0, r1]`` — ``(x, y) = c`` and ``A = [[a11, a12], [a21, a22]]``.
@@ -58,6 +61,7 @@ Parameter vector (``LSMResult.params``), always 8 columns whatever the model:
 from __future__ import annotations
 
 import enum
+import numbers
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -107,8 +111,10 @@ class LSMResult:
     status : (N,) int array
         :class:`Status` codes.
     weight_share : (N,) array
-        Sum of the pixel weights over the number of patch pixels: 1 without ``robust``,
-        the share of the patch the match rests on with it.
+        Sum of the pixel weights over the number of patch pixels: 1 without ``robust`` and
+        ``template_mask``. With ``robust`` about 0.92 on a clean patch (Tukey weights of
+        inliers are below 1) and lower where part of the patch drops out; with
+        ``template_mask`` at most the patch's share of object pixels.
     """
 
     xy: np.ndarray
@@ -153,8 +159,9 @@ class LSMThresholds:
     max_shear : float
         Largest ``|cos|`` of the angle between the columns of ``A``.
     min_weight_share : float
-        Smallest share of the patch a robust match may rest on
-        (:attr:`LSMResult.weight_share`; always 1 without ``robust``).
+        Smallest :attr:`LSMResult.weight_share` accepted: a robust or masked match must
+        rest on this share of its patch (always passed without ``robust`` and
+        ``template_mask``).
     """
 
     max_sigma0: float = 20.0
@@ -183,6 +190,13 @@ class LSMThresholds:
         status = result.status.copy()
         status[result.ok & ~self.accept(result)] = Status.REJECTED
         return replace(result, status=status)
+
+
+def _check_robust(robust) -> None:
+    if robust is not None and (isinstance(robust, bool) or not isinstance(robust, numbers.Real)
+                               or not np.isfinite(robust) or robust <= 0):
+        raise ValueError(f"robust: expected a positive Tukey cut-off in grey levels or None, "
+                         f"got {robust!r}")
 
 
 def _check_patch(patch, name: str = "patch") -> int:
@@ -232,7 +246,8 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
     template_mask : (H, W) bool array, optional
         Template pixels that belong to the object; the others (e.g. the backdrop around a
         silhouette) get zero weight in every patch (nearest pixel). Without it every patch
-        pixel counts.
+        pixel counts. A patch with less than ``thresholds.min_weight_share`` (default 0.5)
+        of object pixels is rejected.
     thresholds : LSMThresholds, optional
         Applied to the result (:meth:`LSMThresholds.apply`).
 
@@ -265,11 +280,12 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
     if int(max_iter) != max_iter or max_iter < 1:
         raise ValueError(f"max_iter: expected a positive integer, got {max_iter}")
     max_disp = float(patch) if max_displacement is None else float(max_displacement)
-    if robust is not None and not (np.isfinite(robust) and robust > 0):
-        raise ValueError(f"robust: expected a positive Tukey cut-off in grey levels or None, "
-                         f"got {robust}")
+    _check_robust(robust)
     # Tukey cut-off per iteration: 4c, 3c, 2c, then c (0 switches the weights off)
     ramp = 3 if robust is not None else 0
+    if max_iter <= ramp:
+        raise ValueError(f"max_iter: expected more than {ramp} iterations with robust, "
+                         f"got {max_iter}")
 
     h = patch // 2
     gy, gx = np.mgrid[-h:h + 1, -h:h + 1]
@@ -324,13 +340,15 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
         # start the radiometry from the patches' means and spreads (Gruen: r0 = 0, r1 = 1)
         # (over the template mask's pixels)
         g0 = g_img.sample(s_xy[fits, None, :] + U @ A[fits].transpose(0, 2, 1), gradient=False)
-        w = fw[fits] / np.maximum(fw[fits].sum(axis=1, keepdims=True), 1.0)
-        fm, gm = (w * f[fits]).sum(axis=1), (w * g0).sum(axis=1)
+        fa = f[fits]
+        if template_mask is not None:
+            m = fw[fits] > 0
+            fa, g0 = np.ma.masked_array(fa, ~m), np.ma.masked_array(g0, ~m)
+        fm, gm = fa.mean(axis=1), g0.mean(axis=1)
         if k_rad == 2:
-            fs = np.sqrt((w * (f[fits] - fm[:, None]) ** 2).sum(axis=1))
-            gs = np.sqrt((w * (g0 - gm[:, None]) ** 2).sum(axis=1))
-            r1[fits] = np.where(gs > 1e-9, fs / np.maximum(gs, 1e-9), 1.0)
-        r0[fits] = fm - r1[fits] * gm
+            fs, gs = fa.std(axis=1), g0.std(axis=1)
+            r1[fits] = np.ma.filled(np.ma.where(gs > 1e-9, fs / np.maximum(gs, 1e-9), 1.0), 1.0)
+        r0[fits] = np.ma.filled(fm - r1[fits] * gm, 0.0)
 
     N_last = np.full((n, k, k), np.nan)
     ee_last = np.full(n, np.nan)

@@ -54,7 +54,8 @@ class SurfaceResult:
         Passed the neighbourhood filter (after re-matching) and, with ``max_reprojection``,
         the geometric check.
     rematched : (N,) bool array
-        Removed by the filter, re-matched, and then accepted.
+        Removed by the neighbourhood filter, re-matched, and then accepted by it (the
+        geometric check may still drop the node).
     intersection : Intersection
         Forward intersection of all n-tuples (before the filters).
     cloud : VoxelCloud or None
@@ -147,7 +148,9 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
     searches = [k for k in range(K) if k != template]
     robust = grow_kwargs.get("robust")
     robust_patch = grow_kwargs.get("robust_patch") or patch
-    template_mask = grow_kwargs.get("template_mask")
+    # the re-match uses the grower's LSM model
+    model = {k: grow_kwargs[k] for k in ("geometry", "radiometry", "template_mask")
+             if k in grow_kwargs}
 
     grown: list[GrowResult] = [
         grow_matches(imgs[template], imgs[k], seeds[template], seeds[k], step=step, patch=patch,
@@ -180,13 +183,12 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
                 # robust LSM too, where the grower used it and the plain re-match failed)
                 start, A0 = check.predicted_xy[p][bad], check.mean_A[p][bad]
                 res = lsm(imgs[template], imgs[k], t_xy[bad], start, patch=patch,
-                          initial_A=A0, template_mask=template_mask, thresholds=thresholds)
+                          initial_A=A0, thresholds=thresholds, **model)
                 got, new_xy, new_sig = res.ok, res.xy.copy(), res.sigma_xy.copy()
                 if robust is not None and not got.all():
                     j = np.flatnonzero(~got)
                     res2 = lsm(imgs[template], imgs[k], t_xy[bad[j]], start[j], patch=robust_patch,
-                               initial_A=A0[j], robust=robust, template_mask=template_mask,
-                               thresholds=thresholds)
+                               initial_A=A0[j], robust=robust, thresholds=thresholds, **model)
                     got[j], new_xy[j], new_sig[j] = res2.ok, res2.xy, res2.sigma_xy
                 fixed = got & (np.linalg.norm(new_xy - start, axis=1) <= max_position)
                 xy[k, bad[fixed]] = new_xy[fixed]
@@ -196,8 +198,9 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
             ok &= pass_k
     intersection = triangulate(cameras, xy)
     if max_reprojection is not None:
-        with np.errstate(invalid="ignore"):
-            ok &= ~(np.nanmax(intersection.reprojection_error, axis=0) > max_reprojection)
+        worst = np.where(np.isnan(intersection.reprojection_error), -np.inf,
+                         intersection.reprojection_error).max(axis=0)
+        ok &= worst <= max_reprojection
     keep = ok & intersection.valid
     if voxel is not None:
         cloud = voxel_filter(np.where(keep[:, None], intersection.points, np.nan), voxel)

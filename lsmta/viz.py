@@ -225,8 +225,9 @@ def draw_marker_pose(ax, model, points, labels=None, *, colors=None, link_color=
 
 
 def metaball_image(ball_poses, radii, *, threshold_scale: float = 0.589, mesh=None,
-                   points=None, point_colors=None, window_size=(900, 700), view_from=None,
-                   focal_point=None, mesh_opacity=0.35) -> np.ndarray:
+                   points=None, point_colors=None, lines=None, line_color="steelblue",
+                   window_size=(900, 700), view_from=None, focal_point=None,
+                   mesh_opacity=0.35) -> np.ndarray:
     """Off-screen picture of metaballs as ellipsoids, with an optional skin mesh and points.
 
     Parameters
@@ -240,6 +241,8 @@ def metaball_image(ball_poses, radii, *, threshold_scale: float = 0.589, mesh=No
         A skin surface drawn translucent over the balls.
     points : (N, 3) array, optional
     point_colors : (N, 3) array of RGB in [0, 1], optional
+    lines : sequence of (M, 3) arrays, optional
+        Polylines (e.g. 3-D trajectories), drawn in ``line_color``; NaN rows break a line.
     view_from, focal_point : (3,) mm, optional
         Camera of the picture (default: in front of the balls).
     """
@@ -265,6 +268,20 @@ def metaball_image(ball_poses, radii, *, threshold_scale: float = 0.589, mesh=No
             "scalars": np.asarray(point_colors), "rgb": True}
         pl.add_points(np.asarray(points, float), point_size=4, render_points_as_spheres=True,
                       **kw)
+    if lines is not None:
+        # one poly-data: a polyline per run of known positions
+        verts, cells, n = [], [], 0
+        for line in lines:
+            line = np.asarray(line, float)
+            idx = np.flatnonzero(np.isfinite(line).all(axis=1))
+            for run in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
+                if len(run) >= 2:
+                    verts.append(line[run])
+                    cells.append(np.concatenate([[len(run)], n + np.arange(len(run))]))
+                    n += len(run)
+        if verts:
+            pl.add_mesh(pv.PolyData(np.concatenate(verts), lines=np.concatenate(cells)),
+                        color=line_color, line_width=2)
     centre = poses[:, :3, 3].mean(axis=0) if focal_point is None else np.asarray(focal_point)
     eye = centre + np.array([250.0, -1000.0, 250.0]) if view_from is None else view_from
     pl.camera_position = [tuple(eye), tuple(centre), (0, 0, 1)]

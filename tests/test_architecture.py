@@ -29,6 +29,18 @@ def test_library_never_imports_the_generator():
     assert not offenders, f"library modules importing lsmta.synth: {offenders}"
 
 
+def test_systems_never_see_the_truth():
+    """A system runs from what a user has: it imports neither the generator nor the
+    evaluation code, not even indirectly through a module of its own package."""
+    offenders = []
+    for path in (PACKAGE / "systems").rglob("*.py"):
+        names = _imports(path)
+        if any({"synth", "evaluation"} & set(name.split(".")) for name in names):
+            offenders.append(str(path.relative_to(PACKAGE)))
+    assert (PACKAGE / "systems" / "__init__.py").exists()
+    assert not offenders, f"lsmta.systems modules importing synth or evaluation: {offenders}"
+
+
 def test_every_built_module_is_on_the_map():
     text = (PACKAGE.parent / "ARCHITECTURE.md").read_text(encoding="utf-8")
     for path in PACKAGE.rglob("*.py"):

@@ -4,10 +4,15 @@ Each frame is thresholded at ``background + k * noise`` (median and MAD of the i
 bright connected regions (:func:`scipy.ndimage.label`) give a grey-value
 weighted centroid, and the centroid is refined by fitting a 2-D Gaussian blob with a
 constant background (five parameters: centre, width, amplitude, background) to the
-pixels around it by Gauss-Newton, vectorised over all blobs of the sequence. Targets are
-then tracked from frame to frame: the first frame's targets are labelled left to right
-(image x), and each later frame's blobs are assigned to the constant-velocity predictions
-by the Hungarian method (:func:`scipy.optimize.linear_sum_assignment`) within a gate.
+pixels around it by Gauss-Newton, vectorised over all blobs of the sequence. The fit's own
+residuals give each centre's precision, ``s0² (JᵀJ)⁻¹`` (``s0`` the residual RMS: the
+image noise around the blob), with no ground truth. Targets are then tracked from frame
+to frame: the first frame's targets are labelled left to right (image x), and each later
+frame's blobs are assigned to the constant-velocity predictions by the Hungarian method
+(:func:`scipy.optimize.linear_sum_assignment`) within a gate. A target that has left the
+image and comes back far from where it was lost takes one of the frame's remaining
+strongest blobs. Which end of a bar is which may then differ between cameras:
+:func:`~lsmta.calibration.labels.consistent_bar_labels` settles that geometrically.
 """
 
 from __future__ import annotations
@@ -38,6 +43,11 @@ class Blobs:
     sigma, amplitude : (n,) arrays
         Fitted Gaussian width (px) and peak above background (grey levels).
     converged : (n,) bool array
+    std : (n,) array
+        Standard deviation of a coordinate of the refined centre, px, from the fit:
+        ``sqrt((var_x + var_y) / 2)`` of ``s0² (JᵀJ)⁻¹`` (NaN where not converged).
+    noise : (n,) array
+        The fit's residual RMS ``s0``, grey levels: the image noise around the blob.
     """
 
     xy: np.ndarray
@@ -45,6 +55,8 @@ class Blobs:
     sigma: np.ndarray
     amplitude: np.ndarray
     converged: np.ndarray
+    std: np.ndarray
+    noise: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -59,11 +71,15 @@ class TargetTracks:
         :data:`STATUS_OK`, :data:`STATUS_LOST` or :data:`STATUS_NOT_CONVERGED`.
     n_blobs : (T,) int array
         Blobs found in each frame.
+    std : (T, M) array
+        Standard deviation of a coordinate of each measured position, px (from the
+        Gaussian fit, :attr:`Blobs.std`; NaN where lost or not converged).
     """
 
     xy: np.ndarray
     status: np.ndarray
     n_blobs: np.ndarray
+    std: np.ndarray
 
     @property
     def n_lost(self) -> int:
@@ -72,7 +88,8 @@ class TargetTracks:
 
 def _gaussian_fit(patches, x0, y0, n_iter: int = 12):
     """Fit ``B + A exp(-((x-x0)^2 + (y-y0)^2) / (2 s^2))`` to patches ``(n, m, m)``
-    (coordinates relative to the patch's top-left pixel); returns centres, s, A, ok."""
+    (coordinates relative to the patch's top-left pixel); returns centres, s, A, ok, the
+    centres' standard deviation per coordinate and the residual RMS."""
     n, m, _ = patches.shape
     gy, gx = np.mgrid[0:m, 0:m].astype(float)
     gx, gy = gx.ravel(), gy.ravel()
@@ -100,7 +117,22 @@ def _gaussian_fit(patches, x0, y0, n_iter: int = 12):
             break
     ok = (np.isfinite(p).all(axis=1) & (p[:, 2] > 0.3) & (p[:, 2] < m / 2) & (p[:, 3] > 0)
           & (p[:, 0] > 0) & (p[:, 0] < m - 1) & (p[:, 1] > 0) & (p[:, 1] < m - 1))
-    return p[:, :2], p[:, 2], p[:, 3], ok
+    # precision at the solution: s0^2 (J^T J)^-1 with s0 from the residuals
+    dx, dy = gx[None] - p[:, 0:1], gy[None] - p[:, 1:2]
+    s2 = p[:, 2:3] ** 2
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        e = np.exp(-(dx**2 + dy**2) / (2 * s2))
+        r = g - (p[:, 4:5] + p[:, 3:4] * e)
+        Ae = p[:, 3:4] * e
+        J = np.stack([Ae * dx / s2, Ae * dy / s2, Ae * (dx**2 + dy**2) / (s2 * p[:, 2:3]), e,
+                      np.ones_like(e)], axis=2)
+        s0 = np.sqrt(np.sum(r**2, axis=1) / (m * m - 5))
+    std = np.full(n, np.nan)
+    if ok.any():
+        N = np.einsum("nki,nkj->nij", J[ok], J[ok])
+        var = np.linalg.inv(N)[:, [0, 1], [0, 1]] * s0[ok, None] ** 2
+        std[ok] = np.sqrt(var.mean(axis=1))
+    return p[:, :2], p[:, 2], p[:, 3], ok, std, s0
 
 
 def detect_blobs(image, *, k: float = 8.0, min_area: int = 3, max_area: int = 400,
@@ -145,14 +177,16 @@ def detect_blobs(image, *, k: float = 8.0, min_area: int = 3, max_area: int = 40
     cents = cents[inside]
     if not len(cents):
         e = np.zeros((0, 2))
-        return Blobs(e, e, np.zeros(0), np.zeros(0), np.zeros(0, bool))
+        return Blobs(e, e, np.zeros(0), np.zeros(0), np.zeros(0, bool), np.zeros(0),
+                     np.zeros(0))
     corner = np.round(cents).astype(int) - half
     off = np.arange(2 * half + 1)
     patches = f[corner[:, 1, None, None] + off[None, :, None],
                 corner[:, 0, None, None] + off[None, None, :]]
-    c, s, a, ok = _gaussian_fit(patches, cents[:, 0] - corner[:, 0], cents[:, 1] - corner[:, 1])
+    c, s, a, ok, std, s0 = _gaussian_fit(patches, cents[:, 0] - corner[:, 0],
+                                         cents[:, 1] - corner[:, 1])
     xy = np.where(ok[:, None], c + corner, cents)
-    return Blobs(xy, cents, s, a, ok)
+    return Blobs(xy, cents, s, a, ok, std, s0)
 
 
 def track_targets(images, n_targets: int = 2, *, gate: float = 100.0, **detect) -> TargetTracks:
@@ -164,13 +198,16 @@ def track_targets(images, n_targets: int = 2, *, gate: float = 100.0, **detect) 
         One camera's sequence.
     n_targets : int
         Targets to follow; in the first frame they are labelled left to right (image x).
-        Labels are per camera: with several cameras, their left-to-right orders must agree
-        (true for side-by-side cameras facing one way); a swapped camera shows up as large
-        residuals and rejected observations in :func:`~lsmta.calibration.bundle_adjust`.
+        Labels are per camera: with several cameras, their left-to-right orders usually
+        agree (side-by-side cameras facing one way), and
+        :func:`~lsmta.calibration.labels.consistent_bar_labels` corrects the frames where
+        they do not.
     gate : float
         Largest distance (px) between a target's constant-velocity prediction and the blob
-        assigned to it; beyond it the target is lost in that frame (NaN, re-acquired from
-        its last position later).
+        assigned to it. A target with no blob in its gate is lost in that frame (NaN);
+        it takes one of the frame's ``n_targets`` strongest blobs that no other target
+        claimed (left to right when several targets are lost), so a target that leaves the
+        image is found again wherever it comes back.
     **detect
         Passed to :func:`detect_blobs`.
 
@@ -187,34 +224,49 @@ def track_targets(images, n_targets: int = 2, *, gate: float = 100.0, **detect) 
         raise ValueError(f"n_targets: expected a positive integer, got {n_targets!r}")
     M = int(n_targets)
     xy = np.full((T, M, 2), np.nan)
+    std = np.full((T, M), np.nan)
     status = np.full((T, M), STATUS_LOST)
     n_blobs = np.zeros(T, int)
     last = np.full((M, 2), np.nan)
     vel = np.zeros((M, 2))
-    started = False
     for t in range(T):
         b = detect_blobs(images[t], **detect)
         n_blobs[t] = len(b.xy)
-        if not started:
-            if len(b.xy) < M:
+        pick = _assign(b, last, vel, gate, M)
+        for r, c in enumerate(pick):
+            if c < 0:
+                vel[r] = 0.0                       # predict from the last position only
                 continue
-            order = np.argsort(b.xy[:, 0])
-            strongest = np.argsort(-b.amplitude)[:M]
-            pick = [i for i in order if i in strongest]
-            xy[t] = b.xy[pick]
-            status[t] = np.where(b.converged[pick], STATUS_OK, STATUS_NOT_CONVERGED)
-            last = xy[t].copy()
-            started = True
-            continue
-        if not len(b.xy):
-            continue
-        pred = last + vel
-        cost = np.linalg.norm(pred[:, None] - b.xy[None], axis=2)
+            xy[t, r] = b.xy[c]
+            std[t, r] = b.std[c]
+            status[t, r] = STATUS_OK if b.converged[c] else STATUS_NOT_CONVERGED
+            vel[r] = b.xy[c] - last[r] if np.isfinite(last[r]).all() else 0.0
+            last[r] = b.xy[c]
+    return TargetTracks(xy, status, n_blobs, std)
+
+
+def _assign(blobs: Blobs, last, vel, gate: float, M: int) -> np.ndarray:
+    """Blob index for each of the M targets in one frame (-1: lost).
+
+    Targets seen before take the blob nearest their prediction within the gate (Hungarian
+    method); the others take the remaining blobs among the M strongest, left to right.
+    """
+    pick = np.full(M, -1)
+    if not len(blobs.xy):
+        return pick
+    known = np.flatnonzero(np.isfinite(last).all(axis=1))
+    if known.size:
+        cost = np.linalg.norm((last + vel)[known, None] - blobs.xy[None], axis=2)
         rows, cols = linear_sum_assignment(cost)
-        for r, c in zip(rows, cols):
-            if cost[r, c] <= gate:
-                xy[t, r] = b.xy[c]
-                status[t, r] = STATUS_OK if b.converged[c] else STATUS_NOT_CONVERGED
-                vel[r] = b.xy[c] - last[r]
-                last[r] = b.xy[c]
-    return TargetTracks(xy, status, n_blobs)
+        ok = cost[rows, cols] <= gate
+        pick[known[rows[ok]]] = cols[ok]
+    lost = np.flatnonzero(pick < 0)
+    strongest = np.argsort(-blobs.amplitude)[:M]
+    free = strongest[~np.isin(strongest, pick)]
+    if lost.size and free.size:
+        free = free[np.argsort(blobs.xy[free, 0])]
+        if free.size > lost.size:               # keep the strongest of them
+            keep = np.sort(np.argsort(-blobs.amplitude[free])[:lost.size])
+            free = free[keep]
+        pick[lost[:free.size]] = free
+    return pick

@@ -63,6 +63,11 @@ class Scene:
         Direction towards the distant light (world frame; normalised on construction).
     ambient : float
         Share of ambient light in [0, 1]; the rest is Lambertian.
+    backdrop : float
+        Grey level (0-255, before noise) of rays that hit nothing: a dark backdrop. 0 is
+        pure black, where 8-bit rounding clips half the noise; a real camera's black level
+        (pedestal) keeps a dark backdrop a few grey levels above 0, so its noise stays
+        measurable.
     """
 
     body: Body
@@ -70,6 +75,7 @@ class Scene:
     background: Background | None = None
     light: np.ndarray = field(default_factory=lambda: np.array([0.3, -1.0, 1.2]))
     ambient: float = 0.55
+    backdrop: float = 0.0
 
     def __post_init__(self):
         light = as_array(self.light, "light", shape=(3,))
@@ -79,6 +85,9 @@ class Scene:
         a = as_scalar(self.ambient, "ambient")
         if not 0 <= a <= 1:
             raise ValueError(f"ambient: expected a value in [0, 1], got {a}")
+        b = as_scalar(self.backdrop, "backdrop")
+        if not 0 <= b <= 255:
+            raise ValueError(f"backdrop: expected a grey level in [0, 255], got {b}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -169,11 +178,12 @@ class Renderer:
         """The same cameras and settings on another scene (e.g. another texture).
 
         The per-camera rays (and background hits, when ``scene`` has the same background
-        object) are shared, so the new renderer's first frame costs no set-up.
+        object and backdrop) are shared, so the new renderer's first frame costs no set-up.
         """
         other = Renderer(scene, self.cameras, supersample=self.supersample,
                          noise_sigma=self.noise_sigma, dtype=self.dtype)
-        if scene.background is self.scene.background:
+        if (scene.background is self.scene.background
+                and scene.backdrop == self.scene.backdrop):
             other._cache = self._cache
         else:
             other._cache = {k: {"dirs": c["dirs"]} for k, c in self._cache.items()}
@@ -351,7 +361,7 @@ def _background_hits(scene: Scene, origin: np.ndarray, dirs: np.ndarray):
     """Distance along each ray to the wall or floor, and the grey value there (0-255)."""
     t_wall, t_floor = _background_distances(scene.background, origin, dirs)
     t = np.minimum(t_wall, t_floor)
-    grey = np.zeros(len(dirs))
+    grey = np.full(len(dirs), float(scene.backdrop))
     hit = np.isfinite(t)
     if hit.any():
         bg = scene.background

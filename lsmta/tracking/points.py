@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
+from tqdm.auto import tqdm
 
 from .._validate import as_array, as_scalar
 from ..matching.correlation import CorrelationStatus, correlation_search
@@ -179,7 +180,7 @@ def as_sequences(images) -> np.ndarray:
 
 
 def track_points(images, initial_xy, *, params: TrackerParams | None = None,
-                 new_points=None, initial_velocity=None) -> Tracks:
+                 new_points=None, initial_velocity=None, progress: bool = False) -> Tracks:
     """Track points through K synchronised image sequences (LSMTA, Fig. 7 and Fig. 9).
 
     Parameters
@@ -197,6 +198,8 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
     initial_velocity : (K, N, 2) array, optional
         Image velocity (pixels/frame) for the first prediction; default: none (the first
         search uses the bigger box).
+    progress : bool
+        Show a progress bar over the frames.
 
     Returns
     -------
@@ -244,7 +247,7 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
     splines = [SplineImage(seq[k, 0], "images") for k in range(K)]
     if K > 1:
         state.spatial_A[:, started] = _spatial_affine(splines, xy0[:, started], p)
-    for t in range(T - 1):
+    for t in tqdm(range(T - 1), desc="tracking", disable=not progress):
         nxt = [SplineImage(seq[k, t + 1], "images") for k in range(K)]
         live = np.flatnonzero(state.status == TrackStatus.ALIVE)
         live = live[state.end[live] == t]

@@ -1,0 +1,230 @@
+"""A start for the arm model found in 3-D trajectories, with no user and no true pose.
+
+Plänkers et al. start their fit from joints a user clicks in the first triplet and the
+tracker follows (Section 4.2). We find them in the data instead:
+
+1. the filtered trajectories are split into rigidly moving groups
+   (:func:`~lsmta.tracking.segmentation.rigid_groups`); the largest is the torso;
+2. a functional joint centre (:func:`~lsmta.body.joints.functional_joint`) is estimated
+   between the torso and every other group, and between every two other groups, each
+   held near the limbs' long axes (:func:`~lsmta.body.joints.segment_axis`); the arm
+   is the chain torso -> upper arm -> forearm whose two joints fit best (RMS below
+   ``max_joint_rms``) with the shoulder on the body's right (the model is a right arm);
+3. the shoulder and the elbow follow from those joints in every frame; the wrist lies on
+   the forearm group's long axis (its members' principal direction, pointing away from
+   the elbow) at ``forearm_ratio`` times the upper arm's length (the hand is rarely
+   tracked, so nothing in the data marks the wrist);
+4. the torso frame is the torso group's motion applied to a frame whose z axis is the
+   world's ``up`` and whose y axis (forward) is ``forward`` made horizontal (the person
+   faces the cameras); :func:`~lsmta.body.arm.angles_from_joints` then gives the angles
+   and the shoulder's place in it, and the limb scales follow from the joints' distances.
+
+The arm's points in each frame are the positions of the two arm groups' trajectories.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .._validate import as_array, as_scalar
+from ..tracking.segmentation import RigidGroups, rigid_groups
+from ..tracking.trajectories import Trajectories
+from .arm import angles_from_joints, arm_model
+from .fitting import ModelState
+from .joints import FunctionalJoint, functional_joint, segment_axis
+from .metaballs import MetaballModel
+
+
+@dataclass(frozen=True, eq=False)
+class ArmStart:
+    """The arm model's start from trajectories.
+
+    Attributes
+    ----------
+    state : ModelState
+        Angles per frame, the shoulder in the torso frame, limb scales and template radii.
+    torso_poses : (T, 4, 4) array
+        Torso frame -> world per frame, mm.
+    joints : (T, 3, 3) array
+        Shoulder, elbow and wrist in the world per frame, mm.
+    points : list of T (N_t, 3) arrays
+        The arm groups' points in each frame, mm.
+    groups : RigidGroups
+    torso, upper_arm, forearm : int
+        Their groups.
+    shoulder, elbow : FunctionalJoint
+    """
+
+    state: ModelState
+    torso_poses: np.ndarray
+    joints: np.ndarray
+    points: list
+    groups: RigidGroups
+    torso: int
+    upper_arm: int
+    forearm: int
+    shoulder: FunctionalJoint
+    elbow: FunctionalJoint
+
+
+def _fill(x: np.ndarray) -> np.ndarray:
+    """Fill NaN frames of ``(T, ...)`` by linear interpolation (nearest at the ends)."""
+    x = np.array(x, float)
+    T = len(x)
+    flat = x.reshape(T, -1)
+    ok = np.isfinite(flat).all(axis=1)
+    t = np.arange(T)
+    for j in range(flat.shape[1]):
+        flat[:, j] = np.interp(t, t[ok], flat[ok, j])
+    return flat.reshape(x.shape)
+
+
+def _between(groups: RigidGroups, X: np.ndarray, a: int, b: int):
+    """A world point between groups a and b (midpoint of their nearest members in the first
+    frame they share) and that frame."""
+    both = groups.known[a] & groups.known[b]
+    for f in np.flatnonzero(both):
+        pa = X[f, (groups.label == a) & np.isfinite(X[f]).all(axis=1)]
+        pb = X[f, (groups.label == b) & np.isfinite(X[f]).all(axis=1)]
+        if len(pa) and len(pb):
+            d, j = cKDTree(pb).query(pa)
+            i = int(np.argmin(d))
+            return (pa[i] + pb[j[i]]) / 2
+    return None
+
+
+def _joint(groups: RigidGroups, X: np.ndarray, a: int, b: int, axes: dict) \
+        -> FunctionalJoint | None:
+    if (groups.known[a] & groups.known[b]).sum() < 3:
+        return None
+    return functional_joint(groups.rotation[a], groups.translation[a], groups.rotation[b],
+                            groups.translation[b], parent_line=axes.get(a),
+                            child_line=axes.get(b),
+                            prior=None if a in axes or b in axes else _between(groups, X, a, b))
+
+
+def torso_frame(up, forward) -> np.ndarray:
+    """Rotation ``(3, 3)`` whose columns are the torso's x (right), y (forward), z (up)."""
+    z = as_array(up, "up", shape=(3,))
+    z = z / np.linalg.norm(z)
+    y = as_array(forward, "forward", shape=(3,))
+    y = y - (y @ z) * z
+    if np.linalg.norm(y) < 1e-9:
+        raise ValueError("forward: expected a direction that is not along up")
+    y = y / np.linalg.norm(y)
+    return np.stack([np.cross(y, z), y, z], axis=1)
+
+
+def arm_start(trajectories: Trajectories, *, forward, up=(0.0, 0.0, 1.0),
+              model: MetaballModel | None = None, groups: RigidGroups | None = None,
+              tolerance: float = 4.0, max_joint_rms: float = 15.0,
+              forearm_ratio: float = 265.0 / 300.0, size=((70.0, 70.0), (70.0, 70.0),
+                                                        (42.0, 42.0)),
+              rng: np.random.Generator | int | None = None) -> ArmStart:
+    """Find the right arm in trajectories and start the arm model there.
+
+    Parameters
+    ----------
+    trajectories : Trajectories
+        Filtered 3-D trajectories of the body, mm.
+    forward : (3,) array
+        The direction the person faces, world (e.g. towards the cameras); made horizontal.
+    up : (3,) array
+        The world's up direction.
+    model : MetaballModel, optional
+        The arm model (default :func:`~lsmta.body.arm.arm_model`).
+    groups : RigidGroups, optional
+        Rigid groups already found; default: :func:`rigid_groups` with ``tolerance``.
+    tolerance : float
+        Rigidity tolerance of :func:`rigid_groups`, mm.
+    max_joint_rms : float
+        A joint whose two images stay further apart than this (RMS, mm) does not connect
+        two groups.
+    forearm_ratio : float
+        Forearm length over upper-arm length (the model's template ratio by default).
+    size : (3, 2) array
+        Width and depth of each segment's template balls, mm.
+    rng : numpy.random.Generator, int or None
+        For :func:`rigid_groups`' sample.
+
+    Returns
+    -------
+    ArmStart
+
+    Raises
+    ------
+    ValueError
+        When no chain torso -> upper arm -> forearm is found: say which groups there were.
+    """
+    if not isinstance(trajectories, Trajectories):
+        raise TypeError(f"trajectories: expected lsmta.tracking.Trajectories, got "
+                        f"{type(trajectories).__name__}")
+    model = arm_model() if model is None else model
+    max_joint_rms = as_scalar(max_joint_rms, "max_joint_rms", positive=True)
+    forearm_ratio = as_scalar(forearm_ratio, "forearm_ratio", positive=True)
+    frame0 = torso_frame(up, forward)
+    X = np.asarray(trajectories.xyz)
+    T = X.shape[0]
+    if groups is None:
+        groups = rigid_groups(trajectories, tolerance=tolerance, rng=rng)
+    G = groups.n_groups
+    if G < 3:
+        raise ValueError(f"trajectories: {G} rigidly moving group(s) found (sizes "
+                         f"{groups.sizes.tolist()}); the arm needs a torso, an upper arm and a "
+                         "forearm that move differently")
+    torso = 0
+    centre = np.nanmean(X[groups.reference[torso], groups.label == torso], axis=0)
+    # a limb's bone runs along its long axis, through its joints (not the torso's)
+    axes = {g: segment_axis(groups.local[groups.label == g]) for g in range(1, G)}
+    to_torso = {g: _joint(groups, X, torso, g, axes) for g in range(1, G)}
+    best, report = None, []
+    for a, ja in to_torso.items():
+        if ja is None:
+            continue
+        right = (np.nanmean(ja.world, axis=0) - centre) @ frame0[:, 0] > 0
+        for b in range(1, G):
+            if b == a:
+                continue
+            jb = _joint(groups, X, a, b, axes)
+            if jb is None:
+                continue
+            report.append(f"{a}->{b}: {ja.rms:.1f} / {jb.rms:.1f} mm")
+            score = ja.rms + jb.rms
+            if right and max(ja.rms, jb.rms) < max_joint_rms and (best is None
+                                                                   or score < best[0]):
+                best = (score, a, b, ja, jb)
+    if best is None:
+        raise ValueError(f"trajectories: no chain torso -> upper arm -> forearm with joints "
+                         f"closer than {max_joint_rms:g} mm on the body's right among "
+                         f"{G} groups (sizes {groups.sizes.tolist()}; chains: "
+                         f"{'; '.join(report) or 'none'})")
+    _, upper, fore, j_sh, j_el = best
+    R_torso = _fill(groups.rotation[torso])
+    t_torso = _fill(groups.translation[torso])
+    torso_poses = np.tile(np.eye(4), (T, 1, 1))
+    torso_poses[:, :3, :3] = R_torso @ frame0
+    torso_poses[:, :3, 3] = np.einsum("tij,j->ti", R_torso, centre) + t_torso
+    shoulder, elbow = _fill(j_sh.world), _fill(j_el.world)
+    # the forearm's long axis, pointing away from the elbow
+    axis_local = axes[fore].direction
+    mid_local = groups.local[groups.label == fore].mean(axis=0)
+    if (mid_local - j_el.child_local) @ axis_local < 0:
+        axis_local = -axis_local
+    axis = _fill(np.einsum("tij,j->ti", groups.rotation[fore], axis_local))
+    upper_len = float(np.median(np.linalg.norm(elbow - shoulder, axis=1)))
+    wrist = elbow + forearm_ratio * upper_len * axis / np.linalg.norm(axis, axis=1,
+                                                                      keepdims=True)
+    angles, shoulder_local, lengths = angles_from_joints(torso_poses, shoulder, elbow, wrist)
+    scales = np.array([lengths[:, 0].mean() / model.segments[0].length,
+                       lengths[:, 1].mean() / model.segments[1].length, 1.0])
+    size = as_array(size, "size", shape=(model.n_segments, 2))
+    state = ModelState(angles, shoulder_local, scales, model.simplified_radii(size, scales))
+    arm = np.isin(groups.label, [upper, fore])
+    points = [X[t, arm & np.isfinite(X[t]).all(axis=1)] for t in range(T)]
+    return ArmStart(state=state, torso_poses=torso_poses,
+                    joints=np.stack([shoulder, elbow, wrist], axis=1), points=points,
+                    groups=groups, torso=torso, upper_arm=upper, forearm=fore,
+                    shoulder=j_sh, elbow=j_el)

@@ -1,0 +1,422 @@
+"""The LSMTA system on a generated capture session, scored against the truth after the fact.
+
+:func:`arm_wave_session` makes what a user would bring to :func:`lsmta.systems.capture_body`
+- the triplet's videos of a seated person waving the right arm, a bar video, the bar's
+length and the cameras as built (a tape-measured pose, the lens's nominal focal length) -
+and keeps the truth beside it. The other functions score each stage of a
+:class:`~lsmta.systems.BodyCapture` against that truth, and run the same stage fed with
+truth instead of its predecessor's output, as notebooks 01-07 do (true cameras, seeds and
+start points from the truth, the generator's noise, the exact torso pose), so that the
+error each stage adds can be read off.
+
+The system's world is the tape-measured one, a few centimetres and degrees from the true
+world; before 3-D errors are taken, the system's results are carried into the true world by
+the rigid motion that best maps its check points onto theirs (:func:`world_alignment`; the
+scale is left as the bar made it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..body import arm_model, shoulder_angles
+from ..body.arm import base_poses
+from ..calibration import track_targets
+from ..calibration.labels import consistent_bar_labels
+from ..matching import LSMThresholds, measure_surface
+from ..rigid import fit_rigid
+from ..synth import Scene, arm_wave, make_body, triplet_rig
+from ..synth.body import Motion
+from ..synth.calibration import BarTrack, bar_track, poor_guess, render_bar_images
+from ..synth.render import Renderer, cast_body
+from ..synth.sequence import Sequence, render_sequence, scaled_camera
+from ..systems import ArmFitSettings, BodyCapture
+from ..tracking import TrackerParams, Trajectories, apply_filters, track_points
+from ..tracking.trajectories import trajectories_from_tracks
+from ..triangulation import triangulate
+from . import body as eb
+from .calibration import check_point_errors, heldout_bar_errors
+from .surface import node_truth, score_surface, seeds_from_truth
+from .tracking import TrackScore, score_tracks
+
+ARM_PARTS = eb.ARM_PARTS
+
+
+@dataclass(frozen=True, eq=False)
+class ArmWaveSession:
+    """A generated capture session: what a user has, and the truth.
+
+    Attributes
+    ----------
+    videos : (K, T, H, W) uint8 array
+        The person, from the three cameras.
+    bar_videos : (K, Tb, H, W) uint8 array
+        The reference bar.
+    bar_length : float
+        mm.
+    nominal : list of Camera
+        The cameras as built: tape-measured pose, nominal focal length, principal point at
+        the image centre, no distortion.
+    fps : float
+    cameras : list of Camera
+        The true cameras.
+    sequence : Sequence
+        The rendered sequence with its scene and the visible surface points of the frames
+        the density check looks at (the truth-fed tracker's candidates).
+    bar, heldout : BarTrack
+        The bar's true positions, and held-out positions (check points).
+    heldout_videos : (K, Th, H, W) uint8 array
+    noise_sigma : float
+        The generator's image noise, grey levels (before rounding).
+    first : int
+        Frame of :func:`lsmta.synth.arm_wave` shown as frame 0.
+    seed : int
+    """
+
+    videos: np.ndarray
+    bar_videos: np.ndarray
+    bar_length: float
+    nominal: list
+    fps: float
+    cameras: list
+    sequence: Sequence
+    bar: BarTrack
+    heldout: BarTrack
+    heldout_videos: np.ndarray
+    noise_sigma: float
+    first: int
+    seed: int
+
+    @property
+    def scene(self) -> Scene:
+        return self.sequence.scene
+
+
+def roi_camera(camera, width: int, height: int):
+    """The camera's centred ``width x height`` region of interest (a sensor read-out window:
+    same lens and pose, smaller image)."""
+    return camera.replace(width=width, height=height,
+                          cx=camera.cx - (camera.width - width) / 2,
+                          cy=camera.cy - (camera.height - height) / 2)
+
+
+def arm_wave_session(seed: int = 1998, *, n_frames: int = 24, first: int = 10,
+                     roi=(576, 432), distance: float = 1700.0, baseline: float = 480.0,
+                     height: float = 1150.0, person=(450.0, 0.0), noise: float = 2.0,
+                     backdrop: float = 20.0, bar_length: float = 400.0, n_bar: int = 150,
+                     n_heldout: int = 40, bar_half_size=(380.0, 250.0, 300.0),
+                     tape_mm: float = 30.0, tape_deg: float = 2.0, lens_rel: float = 0.01,
+                     every: int = 4, scale: float = 1.0) -> ArmWaveSession:
+    """Render the arm wave in the triplet and a bar video, and make the tape-measured rig.
+
+    The triplet of :func:`~lsmta.synth.triplet_rig` (perturbed as a hand-built rig) stands
+    ``distance`` mm from the person with ``baseline`` mm between neighbours, its cameras
+    reading a centred ``roi`` window of their 768 x 576 sensors (the arm fills the frames
+    as in the paper's Fig. 8). The person sits at ``person`` facing the rig, so that the
+    right arm sweeps across the view; frames ``first`` to ``first + n_frames - 1`` of
+    :func:`~lsmta.synth.arm_wave` (25 Hz) are shown. The backdrop is dark but
+    ``backdrop`` grey levels above black, like a camera's black level. The nominal cameras
+    are the true ones moved by ``tape_mm`` per axis and turned by ``tape_deg`` per axis,
+    with the focal length off by ``lens_rel`` and no lens model
+    (:func:`~lsmta.synth.calibration.poor_guess`). ``scale`` shrinks the images (fewer,
+    coarser pixels: for quick tests).
+    """
+    rng = np.random.default_rng(seed)
+    full = triplet_rig(rng, distance=distance, baseline=baseline, camera_height=height,
+                       target_height=height)
+    cams = [scaled_camera(roi_camera(c, *roi), scale) for c in full]
+    body = make_body(np.random.default_rng(seed), contrast=0.3, wavelength=(12.0, 50.0))
+    wave = arm_wave(first + n_frames, position=person)
+    motion = Motion(wave.name, wave.fps, wave.root_position[first:],
+                    wave.joint_angles[first:], wave.part_names)
+    scene = Scene(body, motion, None, backdrop=backdrop)
+    seq = render_sequence(scene, cams, rng, noise_sigma=noise,
+                          surface_frames=range(0, n_frames, every), step=4)
+    centre = (0.0, 0.0, height)
+    bar = bar_track(rng, n_bar, length=bar_length, center=centre, half_size=bar_half_size,
+                    step=70.0)
+    held = bar_track(rng, n_heldout, length=bar_length, center=centre,
+                     half_size=0.8 * np.asarray(bar_half_size), step=70.0)
+    bar_videos = np.stack([render_bar_images(c, bar, rng, noise=noise) for c in cams])
+    held_videos = np.stack([render_bar_images(c, held, rng, noise=noise) for c in cams])
+    nominal = poor_guess(cams, rng, pose_mm=tape_mm, pose_deg=tape_deg, f_rel=lens_rel)
+    return ArmWaveSession(videos=seq.images, bar_videos=bar_videos, bar_length=bar_length,
+                          nominal=nominal, fps=motion.fps, cameras=cams, sequence=seq,
+                          bar=bar, heldout=held, heldout_videos=held_videos,
+                          noise_sigma=noise, first=first, seed=seed)
+
+
+# ------------------------------------------------------------------ alignment
+@dataclass(frozen=True)
+class Alignment:
+    """Rigid motion from the system's world to the true world: ``x_true = R x + t``."""
+
+    R: np.ndarray
+    t: np.ndarray
+
+    def points(self, x) -> np.ndarray:
+        return np.asarray(x, float) @ self.R.T + self.t
+
+    def cameras(self, cameras) -> list:
+        return [c.replace(R=c.R @ self.R.T, C=self.R @ c.C + self.t) for c in cameras]
+
+
+def heldout_points(cameras, session: ArmWaveSession) -> np.ndarray:
+    """``(K, 2 Th, 2)`` held-out bar targets measured in their video, ends made consistent
+    with ``cameras`` (targets A, B interleaved)."""
+    xy = np.stack([track_targets(v).xy for v in session.heldout_videos])
+    xy = consistent_bar_labels(cameras, xy, session.bar_length).xy
+    return xy.reshape(len(cameras), -1, 2)
+
+
+def world_alignment(cameras, session: ArmWaveSession) -> Alignment:
+    """The rigid motion (no scale) that best maps the held-out bar targets, intersected with
+    ``cameras``, onto their true positions: the check points of notebook 01. (Aligning by
+    the camera attitudes instead would be a milliradian off: an attitude trades off against
+    the principal point.)"""
+    X = triangulate(cameras, heldout_points(cameras, session)).points
+    truth = session.heldout.points.reshape(-1, 3)
+    ok = np.isfinite(X).all(axis=1)
+    R, t = fit_rigid(X[ok], truth[ok])
+    return Alignment(R, t)
+
+
+# ------------------------------------------------------------------ calibration
+def calibration_scores(cameras, session: ArmWaveSession) -> dict:
+    """Held-out bar lengths and check points measured with ``cameras``: the held-out bar
+    video's targets (ends made consistent), intersected; check points after the best rigid
+    motion onto the truth (no scale), as in notebook 01. Returns mm values:
+    ``bar_error`` (T_h,), ``check_error`` (2 T_h,), ``check_rms``, ``centre_error`` (K,)
+    (camera centres after :func:`world_alignment`)."""
+    xy = heldout_points(cameras, session)
+    bar = heldout_bar_errors(cameras, xy, session.bar_length)
+    check = check_point_errors(cameras, xy, session.heldout.points.reshape(-1, 3))
+    al = world_alignment(cameras, session)
+    centres = np.array([np.linalg.norm(al.points(c.C) - t.C)
+                        for c, t in zip(cameras, session.cameras)])
+    return {"bar_error": bar, "check_error": check,
+            "check_rms": float(np.sqrt(np.nanmean(check**2))), "centre_error": centres}
+
+
+def target_sigma(capture: BodyCapture, session: ArmWaveSession) -> float:
+    """RMS error of the measured bar targets against their true projections, per
+    coordinate, px (the truth the a-priori sigma estimates)."""
+    xy = capture.calibration.targets                                  # (K, Tb, 2, 2)
+    true = np.stack([c.project(session.bar.points.reshape(-1, 3), behind="nan")
+                     for c in session.cameras]).reshape(xy.shape)
+    d = xy - true
+    ok = np.isfinite(d).all(axis=3) & (np.linalg.norm(np.nan_to_num(d, nan=9e9), axis=3) < 1)
+    return float(np.sqrt(np.mean(d[ok] ** 2)))
+
+
+# ------------------------------------------------------------------ surface
+def surface_truth(session: ArmWaveSession, frame: int, *, step: int = 4, patch: int = 13):
+    """:func:`~lsmta.evaluation.surface.node_truth` of one frame (noise-free render)."""
+    shot = Renderer(session.scene, session.cameras, supersample=1).render(frame)
+    return node_truth(shot, session.scene, session.cameras, step=step, patch=patch)
+
+
+def score_system_surface(result, truth: dict, alignment: Alignment) -> dict:
+    """:func:`~lsmta.evaluation.surface.score_surface` of a surface measured in the system's
+    world, after carrying its points into the true world."""
+    inter = dataclasses.replace(result.intersection,
+                                points=alignment.points(result.intersection.points))
+    return score_surface(dataclasses.replace(result, intersection=inter), truth)
+
+
+def truth_fed_surface(session: ArmWaveSession, frame: int, *, step: int = 4, patch: int = 7,
+                      retry_patch=(9, 5), per_part: int = 1):
+    """The surface of notebook 03's setting: true cameras, seeds from the truth, LSM
+    thresholds from the generator's noise."""
+    rng = np.random.default_rng(session.seed + frame)
+    seeds = seeds_from_truth(session.scene, session.cameras, frame, rng, per_part=per_part)
+    thresholds = LSMThresholds(max_sigma0=2.0 * session.noise_sigma, max_displacement=step,
+                               max_sigma_xy=0.2, scale_range=(0.5, 2.0), max_shear=0.5)
+    return measure_surface(session.videos[:, frame], session.cameras, seeds, step=step,
+                           patch=patch, retry_patch=retry_patch, thresholds=thresholds)
+
+
+# ------------------------------------------------------------------ tracking
+def track_identity(session: ArmWaveSession, tracks, *, template: int = 1):
+    """``(part (N,), local (N, 3))``: the body surface point under each track's first
+    template position (the template camera's ray cast at the exact sub-pixel position)."""
+    body, motion = session.scene.body, session.scene.motion
+    cam = session.cameras[template]
+    N = len(tracks)
+    part = np.full(N, -1)
+    local = np.full((N, 3), np.nan)
+    for f in np.unique(tracks.start):
+        sel = np.flatnonzero(tracks.start == f)
+        xy = tracks.xy[f, template, sel]
+        ok = np.isfinite(xy).all(axis=1)
+        if not ok.any():
+            continue
+        _, dirs = cam.rays(xy[ok])
+        hit = cast_body(body, body.part_poses(motion, int(f))[0], cam.C, dirs)
+        part[sel[ok]] = np.where(np.isfinite(hit.t), hit.part, -1)
+        local[sel[ok]] = hit.local
+    return part, local
+
+
+def score_system_tracks(session: ArmWaveSession, tracks, trajectories: Trajectories,
+                        alignment: Alignment | None = None, *, template: int = 1,
+                        false_mm: float = 10.0) -> tuple[TrackScore, np.ndarray, np.ndarray]:
+    """Score tracks and their trajectories against the surface points they started on;
+    trajectories in the system's world are first carried into the true world. Tracks that
+    did not start on the body get NaN errors. Returns ``(score, part, local)``."""
+    part, local = track_identity(session, tracks, template=template)
+    xyz = trajectories.xyz if alignment is None else alignment.points(trajectories.xyz)
+    traj = Trajectories(xyz, trajectories.fps)
+    on = part >= 0
+    safe_part = np.where(on, part, 0)
+    safe_local = np.where(on[:, None], local, 0.0)
+    score = score_tracks(session.sequence, tracks, safe_part, safe_local, traj,
+                         false_mm=false_mm)
+    score = dataclasses.replace(
+        score, image_error=np.where(on, score.image_error, np.nan),
+        step_error=np.where(on, score.step_error, np.nan),
+        error_3d=np.where(on, score.error_3d, np.nan),
+        false_from=np.where(on, score.false_from, -1))
+    return score, part, local
+
+
+def last_frame_error(score: TrackScore, present) -> tuple[float, int]:
+    """Median 3-D error (mm) of the trajectories present in the last frame, and their count."""
+    e = score.error_3d[-1][present[-1] & np.isfinite(score.error_3d[-1])]
+    return (float(np.median(e)) if e.size else float("nan")), int(e.size)
+
+
+@dataclass(frozen=True, eq=False)
+class TruthFedTracking:
+    """Notebook 04's tracking on the session's video: true cameras, start points and density
+    candidates from the truth, the same tracker and filters as the system."""
+
+    tracks: object
+    trajectories: Trajectories
+    filters: tuple
+    score: TrackScore
+    part: np.ndarray
+    local: np.ndarray
+    seconds: float
+
+
+def truth_fed_tracking(session: ArmWaveSession, *, params: TrackerParams | None = None,
+                       filters: dict | None = None, every: int = 4) -> TruthFedTracking:
+    """Track all of frame 0's visible grid points with the true cameras (see the class)."""
+    import time
+
+    seq = session.sequence
+    s0 = seq.surface[0]
+    p = params or TrackerParams(density_every=every)
+    t0 = time.perf_counter()
+    tracks = track_points(session.videos, s0.xy, params=p,
+                          new_points={t: s.xy for t, s in seq.surface.items() if t > 0})
+    seconds = time.perf_counter() - t0
+    part = np.empty(len(tracks), np.int64)
+    local = np.empty((len(tracks), 3))
+    part[:len(s0.part)], local[:len(s0.part)] = s0.part, s0.local
+    for i in np.flatnonzero(tracks.added):
+        s = seq.surface[int(tracks.start[i])]
+        part[i], local[i] = s.part[tracks.origin[i]], s.local[tracks.origin[i]]
+    traj = trajectories_from_tracks(session.cameras, tracks, session.fps)
+    reports = apply_filters(traj, **(filters or {}))
+    score = score_tracks(seq, tracks, part, local, reports[-1].trajectories)
+    return TruthFedTracking(tracks=tracks, trajectories=traj, filters=reports, score=score,
+                            part=part, local=local, seconds=seconds)
+
+
+# ------------------------------------------------------------------ arm model
+def arm_truth(session: ArmWaveSession) -> eb.ArmTruth:
+    """The arm's truth in every frame of the session."""
+    return eb.arm_truth(session.scene.body, session.scene.motion,
+                        np.arange(session.videos.shape[1]))
+
+
+def score_arm(fit, torso_poses, truth: eb.ArmTruth, alignment: Alignment | None = None) -> dict:
+    """Angle and length errors of an arm fit, its posture compared in the TRUE torso frame.
+
+    The fitted upper arm's attitude in the world (the fit's torso frame times its shoulder
+    angles), carried into the true world, is expressed in the true torso frame and turned
+    into the angles ``(b, a, c)``; the elbow angle is intrinsic. So the score does not
+    depend on how the system chose its torso frame. Returns ``angle_err_deg`` (T, 4),
+    ``max_angle_err_deg``, per-joint worst ``joint_max_deg`` (4,), ``length_err_pct`` (2,)
+    and ``lengths`` (2,) mm.
+    """
+    st = fit.state
+    model = arm_model()
+    W = model.skeleton.transforms(st.angles, st.scales, base_poses(torso_poses, st.shoulder))
+    U = W[:, 2, :3, :3]                                   # upper arm after the rotation c
+    if alignment is not None:
+        U = np.einsum("ij,tjk->tik", alignment.R, U)
+    U_true = np.einsum("tji,tjk->tik", truth.torso_poses[:, :3, :3], U)
+    ang = np.concatenate([shoulder_angles(U_true), st.angles[:, 3:4]], axis=1)
+    d = np.degrees(np.angle(np.exp(1j * (ang - truth.angles[:, :4]))))
+    lengths = np.asarray(fit.lengths[:2], float)
+    return {"angle_err_deg": d, "max_angle_err_deg": float(np.abs(d).max()),
+            "joint_max_deg": np.abs(d).max(axis=0), "lengths": lengths,
+            "length_err_pct": 100 * (lengths - truth.lengths) / truth.lengths}
+
+
+@dataclass(frozen=True, eq=False)
+class TruthFedArm:
+    """Notebook 07's arm fit on the truth-fed tracking's arm points: exact torso poses,
+    true joints with noise as the start, the arm's points picked by their true part."""
+
+    simplified: object
+    full: object
+    sigma_mm: float
+    points: list
+
+
+def truth_fed_arm(session: ArmWaveSession, tracking: TruthFedTracking, *,
+                  settings: ArmFitSettings | None = None,
+                  joint_noise_mm: float = 15.0) -> TruthFedArm:
+    """The arm fit as notebook 07 feeds it (see :class:`TruthFedArm`), with the system's
+    settings (the same sigma rule, the same rounds)."""
+    from ..body import fit_sequence
+
+    s = settings or ArmFitSettings()
+    truth = arm_truth(session)
+    rng = np.random.default_rng(session.seed)
+    init, tracked = eb.initial_state(truth, rng, joint_noise_mm=joint_noise_mm)
+    arm = np.isin(tracking.part, [session.scene.body.index(n) for n in ARM_PARTS])
+    X = tracking.filters[-1].trajectories.xyz
+    points = [X[t, arm & np.isfinite(X[t]).all(axis=1)] for t in range(len(X))]
+    model = arm_model()
+    common = dict(tracked=tracked, sigma_joint_mm=s.sigma_joint_mm)
+    sigma = s.sigma_prior_mm
+    simple = fit_sequence(model, points, truth.torso_poses, init, sigma_mm=sigma, **common)
+    if abs(simple.sigma_mm - sigma) > 0.1 * sigma:
+        sigma = simple.sigma_mm
+        simple = fit_sequence(model, points, truth.torso_poses, init, sigma_mm=sigma, **common)
+    full = fit_sequence(model, points, truth.torso_poses, simple.state, shape="full",
+                        max_rounds=s.full_rounds, sigma_mm=sigma, **common)
+    return TruthFedArm(simplified=simple, full=full, sigma_mm=float(sigma), points=points)
+
+
+def joint_errors(start, truth: eb.ArmTruth, alignment: Alignment) -> np.ndarray:
+    """``(T, 3)`` distances (mm) of the start's shoulder, elbow and wrist from the truth."""
+    return np.linalg.norm(alignment.points(start.joints) - truth.joints, axis=2)
+
+
+def group_parts(session: ArmWaveSession, groups, part) -> list:
+    """For each rigid group, ``{part name: count}`` of its trajectories' true parts."""
+    names = session.scene.body.names
+    out = []
+    for g in range(groups.n_groups):
+        p = part[groups.label == g]
+        u, c = np.unique(p, return_counts=True)
+        out.append({(names[a] if a >= 0 else "off body"): int(n) for a, n in zip(u, c)})
+    return out
+
+
+__all__ = [
+    "Alignment", "ArmWaveSession", "TruthFedArm", "TruthFedTracking", "arm_truth",
+    "arm_wave_session", "calibration_scores", "group_parts", "heldout_points", "joint_errors",
+    "last_frame_error", "roi_camera", "score_arm", "score_system_surface",
+    "score_system_tracks", "surface_truth", "target_sigma", "track_identity",
+    "truth_fed_arm", "truth_fed_surface", "truth_fed_tracking", "world_alignment",
+]

@@ -1,0 +1,30 @@
+"""The papers' whole systems, pixels in, models out, calling the rooms of the library.
+
+A system receives what a user has (videos, a bar and its length, the cameras as built) and
+never the generator's truth: nothing here imports :mod:`lsmta.synth` or
+:mod:`lsmta.evaluation` (a test checks it).
+
+``body``      the LSMTA system (D'Apuzzo, Plänkers & Fua 2000): bar calibration, image
+              noise, surfaces, surface tracking, trajectories and filters, arm model
+``rig``       its first stage: the rig calibrated from a bar video, in the user's world
+``surfaces``  surfaces of chosen frames from automatic seeds
+"""
+
+from .body import (
+    ArmFit,
+    ArmFitSettings,
+    BodyCapture,
+    BodySystemParams,
+    FilterSettings,
+    capture_body,
+    fit_arm,
+    track_surface,
+)
+from .rig import RigCalibration, calibrate_rig
+from .surfaces import SurfaceParams, measure_surfaces, working_distance
+
+__all__ = [
+    "ArmFit", "ArmFitSettings", "BodyCapture", "BodySystemParams", "FilterSettings",
+    "RigCalibration", "SurfaceParams", "calibrate_rig", "capture_body", "fit_arm",
+    "measure_surfaces", "track_surface", "working_distance",
+]

@@ -1,0 +1,181 @@
+"""Stage 1 of the LSMTA system: the rig calibrated from a video of the reference bar.
+
+What a user has: K synchronised videos of a bar with two bright targets moved through the
+volume, the bar's length, and the cameras as built - the lens's nominal focal length, the
+image size and the camera positions and directions measured with a tape (tens of
+millimetres and a few degrees off). From that, with no ground truth:
+
+1. *targets*: the two targets measured and tracked in every camera
+   (:func:`~lsmta.calibration.track_targets`); each position's precision comes from its
+   Gaussian fit, and their RMS is the a-priori ``sigma_px`` of the adjustment;
+2. *approximations*: relative orientation of the pair of cameras with the longest nominal
+   baseline, resection of the others (:func:`~lsmta.calibration.relative_orientation_start`,
+   RANSAC), then the bar's ends made consistent across cameras
+   (:func:`~lsmta.calibration.labels.consistent_bar_labels`) and the approximations again;
+3. *bundle adjustment* with the bar length as an observation
+   (:func:`~lsmta.calibration.bundle_adjust`);
+4. *datum*: the adjustment's frame (its first camera at the origin) is turned and moved onto
+   the tape-measured cameras (the rotation that best maps the adjusted camera attitudes
+   onto the measured ones, then the mean shift of the centres); the scale stays the bar's.
+   So the calibrated rig lives in the user's world (its floor, its up direction), as well
+   as a tape measure fixes that world.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from tqdm.auto import tqdm
+
+from .._validate import as_scalar
+from ..calibration import DEFAULT_INTRINSICS, Bar, BundleResult, bundle_adjust
+from ..calibration.approximations import relative_orientation_start
+from ..calibration.labels import BarLabels, consistent_bar_labels
+from ..calibration.targets import track_targets
+from .checks import check_cameras, check_videos
+
+MIN_BAR_FRAMES = 10
+
+
+@dataclass(frozen=True, eq=False)
+class RigCalibration:
+    """The rig calibrated from a bar video (see the module docstring).
+
+    Attributes
+    ----------
+    cameras : list of K Camera
+        Calibrated cameras in the user's world (the tape-measured cameras' frame), mm.
+    bundle : BundleResult
+        The adjustment, in its own frame (its first camera at the origin).
+    targets : (K, Tb, 2, 2) array
+        The bar's targets per camera and frame, px, with consistent ends (NaN: not seen).
+    labels : BarLabels
+        Which frames had their ends exchanged in which camera.
+    sigma_px : float
+        A-priori standard deviation of a target coordinate, px: the RMS of the Gaussian
+        fits' own precisions.
+    pair : (int, int)
+        The cameras of the relative orientation.
+    datum_rotation : (3, 3) array
+        Rotation from the adjustment's frame to the user's world.
+    datum_translation : (3,) array
+        Its translation, mm.
+    datum_residual : (K,) array
+        Distance of each calibrated camera centre from its tape-measured place, mm.
+    n_positions : int
+        Bar positions whose two targets are seen by at least two cameras.
+    seconds : float
+    """
+
+    cameras: list
+    bundle: BundleResult
+    targets: np.ndarray
+    labels: BarLabels
+    sigma_px: float
+    pair: tuple
+    datum_rotation: np.ndarray
+    datum_translation: np.ndarray
+    datum_residual: np.ndarray
+    n_positions: int
+    seconds: float
+
+    @property
+    def rms_over_limit(self) -> float:
+        """Image RMS residual over the noise limit ``sigma_px sqrt(1 - p/n)`` (1: the
+        residuals are what the targets' own precision predicts)."""
+        return float(self.bundle.rms / self.bundle.noise_limit)
+
+
+def _datum(adjusted, nominal):
+    """Rotation and translation carrying the adjusted cameras onto the nominal ones."""
+    Q = Rotation.from_matrix(np.stack([n.R.T @ a.R for a, n in zip(adjusted, nominal)]))
+    Q = Q.mean().as_matrix()
+    t = np.mean([n.C - Q @ a.C for a, n in zip(adjusted, nominal)], axis=0)
+    return Q, t
+
+
+def _pair(nominal, seen) -> tuple:
+    """The two cameras sharing at least 8 targets with the longest nominal baseline."""
+    K = len(nominal)
+    best, pair = -1.0, None
+    for i in range(K):
+        for j in range(i + 1, K):
+            if (seen[i] & seen[j]).sum() < 8:
+                continue
+            d = np.linalg.norm(nominal[i].C - nominal[j].C)
+            if d > best:
+                best, pair = d, (i, j)
+    return pair
+
+
+def calibrate_rig(bar_videos, bar_length: float, nominal_cameras, *,
+                  intrinsics=DEFAULT_INTRINSICS, bar_sigma: float = 0.01,
+                  reject_k: float | None = None, progress: bool = False) -> RigCalibration:
+    """Calibrate K cameras from videos of a reference bar (see the module docstring).
+
+    Parameters
+    ----------
+    bar_videos : (K, Tb, H, W) array or sequence of K (Tb, H, W) arrays
+        Grey frames of the bar from each camera (uint8 or float); each camera's frames are
+        of its nominal image size.
+    bar_length : float
+        Distance between the bar's two targets, mm.
+    nominal_cameras : sequence of K Camera
+        The cameras as built: nominal focal length and image size, tape-measured pose (in a
+        world with +Z up); their distortion and principal point are ignored.
+    intrinsics : sequence of str
+        Interior and additional parameters adjusted (all by default, as in the paper).
+    bar_sigma : float
+        Standard deviation of the bar length, mm.
+    reject_k : float, optional
+        Outlier rejection of :func:`~lsmta.calibration.bundle_adjust`.
+    progress : bool
+        Show a progress bar over the cameras' target measurement.
+
+    Returns
+    -------
+    RigCalibration
+
+    Raises
+    ------
+    ValueError
+        Too few bar frames, a bar never seen by two cameras, or image sizes that do not
+        match the cameras.
+    """
+    t0 = time.perf_counter()
+    nominal = check_cameras(nominal_cameras, "nominal_cameras")
+    K = len(nominal)
+    videos = check_videos(bar_videos, "bar_videos", nominal, min_frames=MIN_BAR_FRAMES)
+    length = as_scalar(bar_length, "bar_length", positive=True)
+    tracks = [track_targets(videos[k]) for k in tqdm(range(K), desc="bar targets",
+                                                      disable=not progress)]
+    xy = np.stack([tr.xy for tr in tracks])                         # (K, Tb, 2, 2)
+    Tb = xy.shape[1]
+    seen = np.isfinite(xy).all(axis=3)                               # (K, Tb, 2)
+    both = seen.all(axis=2)                                          # (K, Tb)
+    n_pos = int((both.sum(axis=0) >= 2).sum())
+    if n_pos < MIN_BAR_FRAMES:
+        raise ValueError(f"bar_videos: both targets are seen by at least two cameras in "
+                         f"{n_pos} of {Tb} frames; the calibration needs >= {MIN_BAR_FRAMES}")
+    std = np.concatenate([tr.std.ravel() for tr in tracks])
+    sigma_px = float(np.sqrt(np.nanmean(std**2)))
+    pair = _pair(nominal, seen.reshape(K, -1))
+    if pair is None:
+        raise ValueError("bar_videos: no two cameras see 8 or more bar targets in common")
+    bar = Bar(np.arange(2 * Tb).reshape(Tb, 2), length, bar_sigma)
+    cams0, _ = relative_orientation_start(nominal, xy.reshape(K, -1, 2), bar=bar, pair=pair)
+    labels = consistent_bar_labels(cams0, xy, length)
+    flat = labels.xy.reshape(K, -1, 2)
+    cams0, X0 = relative_orientation_start(nominal, flat, bar=bar, pair=pair)
+    bundle = bundle_adjust(cams0, flat, X0, intrinsics=intrinsics, fixed_exterior=(pair[0],),
+                           bar=bar, sigma_px=sigma_px, reject_k=reject_k)
+    Q, t = _datum(bundle.cameras, nominal)
+    cameras = [c.replace(R=c.R @ Q.T, C=Q @ c.C + t) for c in bundle.cameras]
+    residual = np.array([np.linalg.norm(c.C - n.C) for c, n in zip(cameras, nominal)])
+    return RigCalibration(cameras=cameras, bundle=bundle, targets=labels.xy, labels=labels,
+                          sigma_px=sigma_px, pair=pair, datum_rotation=Q,
+                          datum_translation=t, datum_residual=residual, n_positions=n_pos,
+                          seconds=time.perf_counter() - t0)

@@ -1,0 +1,113 @@
+"""The LSMTA system from pixels (lsmta.systems): a small generated session end to end,
+scored against the generator's truth after the fact, and bad input for every argument."""
+
+import numpy as np
+import pytest
+
+from lsmta.evaluation import body_system as bs
+from lsmta.systems import SurfaceParams, calibrate_rig, capture_body, measure_surfaces
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    """A 12-frame session at half the image size (quick), and the system run on it."""
+    session = bs.arm_wave_session(7, n_frames=12, first=20, scale=0.5, n_bar=60, n_heldout=20)
+    videos, bars = session.videos.copy(), session.bar_videos.copy()
+    poses = [(c.R.copy(), c.C.copy(), c.f) for c in session.nominal]
+    capture = capture_body(session.videos, session.bar_videos, session.bar_length,
+                           session.nominal, fps=session.fps, progress=False)
+    unchanged = (np.array_equal(videos, session.videos)
+                 and np.array_equal(bars, session.bar_videos)
+                 and all(np.array_equal(R, c.R) and np.array_equal(C, c.C) and f == c.f
+                         for (R, C, f), c in zip(poses, session.nominal)))
+    return session, capture, unchanged
+
+
+@pytest.mark.slow
+def test_capture_body_against_the_truth(tiny):
+    session, capture, unchanged = tiny
+    assert unchanged
+    al = bs.world_alignment(capture.cameras, session)
+    # calibration: check points, and residuals at the targets' own noise level
+    assert bs.calibration_scores(capture.cameras, session)["check_rms"] < 0.3
+    assert 0.85 < capture.calibration.rms_over_limit < 1.15
+    assert abs(capture.noise.sigma / np.sqrt(session.noise_sigma**2 + 1 / 12) - 1) < 0.1
+    # the first frame's surface
+    s = bs.score_system_surface(capture.surfaces[0], bs.surface_truth(session, 0), al)
+    assert s["density"] > 0.8 and s["filtered"]["median_mm"] < 0.6
+    # trajectories at the last frame
+    score, part, _ = bs.score_system_tracks(session, capture.tracks, capture.filtered, al)
+    last, n = bs.last_frame_error(score, capture.filtered.present)
+    assert n > 100 and last < 1.5
+    # the arm: groups found by their true parts, joints near the truth, a fit near the truth
+    start = capture.arm.start
+    parts = bs.group_parts(session, start.groups, part)
+    for g, want in ((start.torso, "torso"), (start.upper_arm, "upper_arm_r"),
+                    (start.forearm, "forearm_r")):
+        assert max(parts[g], key=parts[g].get) == want
+    truth = bs.arm_truth(session)
+    err = np.median(bs.joint_errors(start, truth, al), axis=0)
+    assert err[0] < 20 and err[1] < 20
+    fit = bs.score_arm(capture.arm.simplified, start.torso_poses, truth, al)
+    assert fit["max_angle_err_deg"] < 6.0
+    assert np.abs(fit["length_err_pct"]).max() < 10.0
+    # the summary names every stage with its time
+    rows = capture.summary()
+    assert [r["stage"] for r in rows] == list(capture.seconds)
+    assert all(np.isfinite(r["seconds"]) for r in rows)
+
+
+@pytest.fixture(scope="module")
+def small():
+    return bs.arm_wave_session(8, n_frames=4, first=20, scale=0.5, n_bar=20, n_heldout=2)
+
+
+def test_capture_body_bad_input(small):
+    s = small
+    v, b, L, cams = s.videos, s.bar_videos, s.bar_length, s.nominal
+    with pytest.raises(ValueError, match="videos: expected 3 videos"):
+        capture_body(v[:2], b, L, cams)
+    with pytest.raises(ValueError, match=r"videos: expected an array of shape \(K, T, H, W\)"):
+        capture_body(v[0], b, L, cams)
+    with pytest.raises(ValueError, match="videos: camera .* but its frames are"):
+        capture_body(v[:, :, :-1], b, L, cams)
+    with pytest.raises(TypeError, match="videos: expected grey values"):
+        capture_body(v.astype(bool), b, L, cams)
+    with pytest.raises(ValueError, match="videos: contains non-finite"):
+        bad = v.astype(float)
+        bad[0, 0, 0, 0] = np.nan
+        capture_body(bad, b, L, cams)
+    with pytest.raises(ValueError, match="videos: expected at least 3 frames"):
+        capture_body(v[:, :2], b, L, cams)
+    with pytest.raises(TypeError, match="nominal_cameras"):
+        capture_body(v, b, L, ["left", "centre", "right"])
+    with pytest.raises(ValueError, match="fps"):
+        capture_body(v, b, L, cams, fps=0.0)
+    with pytest.raises(ValueError, match="frames: expected consecutive"):
+        capture_body(v, b, L, cams, frames=[0, 2, 3])
+    with pytest.raises(ValueError, match=r"frames: expected indices in \[0, 3\]"):
+        capture_body(v, b, L, cams, frames=range(2, 6))
+    with pytest.raises(TypeError, match="params"):
+        capture_body(v, b, L, cams, params={"density_every": 2})
+    with pytest.raises(ValueError, match="bar_videos: expected 3 videos"):
+        capture_body(v, b[:2], L, cams, progress=False)
+    with pytest.raises(ValueError, match="bar_videos: expected at least 10 frames"):
+        capture_body(v, b[:, :5], L, cams, progress=False)
+    with pytest.raises(ValueError, match="bar_length"):
+        capture_body(v, b, -400.0, cams, progress=False)
+    blank = np.full_like(b, 25)
+    blank[0] = b[0]                          # the bar only in one camera
+    with pytest.raises(ValueError, match="seen by at least two cameras in 0 of"):
+        capture_body(v, blank, L, cams, progress=False)
+
+
+def test_stage_functions_bad_input(small):
+    s = small
+    with pytest.raises(ValueError, match="bar_videos: camera .* but its frames are"):
+        calibrate_rig(s.bar_videos[:, :, :10], s.bar_length, s.nominal)
+    with pytest.raises(ValueError, match=r"frames: expected frame indices in \[0, 3\]"):
+        measure_surfaces(s.videos, s.cameras, [0, 9], sigma=2.0)
+    with pytest.raises(ValueError, match="sigma"):
+        measure_surfaces(s.videos, s.cameras, [0], sigma=-1.0)
+    with pytest.raises(ValueError, match="params.template"):
+        measure_surfaces(s.videos, s.cameras, [0], sigma=2.0, params=SurfaceParams(template=5))

@@ -104,3 +104,20 @@ def test_failing_cell_is_named(notebooks, tmp_path, capsys):
     assert code == 1
     err = capsys.readouterr().err
     assert "02_broken.ipynb failed at cell 2" in err and "boom" in err
+
+
+def test_two_runs_of_a_notebook_give_identical_records(tmp_path):
+    """Reproducibility: every record of a (fast) notebook but its timings is the same in two
+    executions, to the last digit."""
+    from pathlib import Path
+
+    folder = Path(__file__).resolve().parents[1] / "notebooks"
+    runs = []
+    for name in ("a", "b"):
+        build = tmp_path / name
+        assert cli.main(["reproduce", "--notebooks", str(folder), "--build", str(build),
+                         "--only", "09"]) == 0
+        runs.append([r for r in json.loads((build / "summary.json").read_text())["records"]
+                     if r["kind"] != "timing"])
+    assert len(runs[0]) >= 5
+    assert runs[0] == runs[1]

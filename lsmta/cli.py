@@ -214,9 +214,7 @@ def write_summary(build: Path, results: list[dict], meta: dict | None = None) ->
     compared = [r for r in records if r.kind != "setting"]
     settings = [r for r in records if r.kind == "setting"]
     meta = dict(provenance(Path.cwd()) if meta is None else meta)
-    meta.update(python=platform.python_version(), machine=meta.get("machine") or
-                platform.machine(), cpus=os.cpu_count(),
-                finished=time.strftime("%Y-%m-%d %H:%M:%S"),
+    meta.update(python=platform.python_version(), finished=time.strftime("%Y-%m-%d %H:%M:%S"),
                 seeds={res["notebook"]: res.get("seed") for res in results})
     (build / "summary.json").write_text(json.dumps(
         {"meta": meta, "notebooks": results, "records": [asdict(r) for r in records]},
@@ -268,18 +266,15 @@ img{{max-width:100%;margin:6px 0;border:1px solid #eee}}</style></head><body>
 
 def _provenance_lines(meta: dict) -> list[tuple[str, str]]:
     """(label, text) pairs of the provenance for summary.md and index.html."""
-    dirty = {True: " (uncommitted changes)", False: "", None: ""}[meta.get("git_dirty")]
-    machine = meta.get("machine")
-    if isinstance(machine, dict):
-        machine = (f"{machine.get('system')} {machine.get('release')}, "
-                   f"{machine.get('architecture')}, {machine.get('cpus')} CPUs, "
-                   f"host {machine.get('hostname')}")
-    versions = ", ".join(f"{k} {v}" for k, v in (meta.get("versions") or {}).items())
-    seeds = ", ".join(f"{k} {v}" for k, v in (meta.get("seeds") or {}).items())
-    return [("git commit", f"{meta.get('git_commit') or 'unknown'}{dirty}"),
-            ("versions", versions or f"Python {meta.get('python')}"),
-            ("seeds", seeds or "—"), ("machine", str(machine)),
-            ("finished", str(meta.get("finished")))]
+    dirty = " (uncommitted changes)" if meta["git_dirty"] else ""
+    m = meta["machine"]
+    machine = (f"{m['system']} {m['release']}, {m['architecture']}, {m['cpus']} CPUs, "
+               f"host {m['hostname']}")
+    versions = ", ".join(f"{k} {v}" for k, v in meta["versions"].items())
+    seeds = ", ".join(f"{k} {v}" for k, v in meta["seeds"].items())
+    return [("git commit", f"{meta['git_commit'] or 'unknown'}{dirty}"),
+            ("versions", versions), ("seeds", seeds or "—"), ("machine", machine),
+            ("finished", meta["finished"])]
 
 
 def reproduce(args) -> int:

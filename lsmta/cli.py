@@ -4,8 +4,13 @@
 working directory, like nbmake), writes the executed notebooks and their HTML renderings
 to ``build/notebooks/``, every figure to ``build/figures/``, and the headline numbers the
 notebooks record (:mod:`lsmta.report`) to ``build/summary.md``, ``build/summary.json``
-and ``build/index.html``. It exits with status 1, naming the notebook and cell, if any
-cell fails.
+and ``build/index.html``, with the provenance of the run (git commit and whether the tree
+had uncommitted changes, the versions of the main libraries, each notebook's ``SEED``,
+the machine). It exits with status 1, naming the notebook and cell, if any cell fails.
+
+The kernels talk to the command over IPC (Unix sockets in a private temporary folder),
+not over TCP, so nothing listens on the network. ``LSMTA_BUILD_DIR`` is set to the build
+folder while the notebooks run (:func:`lsmta.report.build_dir`).
 """
 
 from __future__ import annotations
@@ -16,9 +21,14 @@ import html
 import json
 import os
 import platform
+import re
+import shutil
+import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import asdict
+from importlib import metadata
 from pathlib import Path
 
 from . import report
@@ -49,6 +59,53 @@ def select(notebooks: list[Path], only: list[str] | None) -> list[Path]:
     return sorted(chosen)
 
 
+#: distribution names whose versions go into the provenance, by the name a reader knows
+VERSIONS = {"numpy": "numpy", "scipy": "scipy", "OpenCV": "opencv-python-headless",
+            "scikit-image": "scikit-image", "numba": "numba", "pyvista": "pyvista",
+            "emcee": "emcee", "lsmta": "lsmta"}
+SEED_LINE = re.compile(r"^SEED\s*=\s*([^#\n]+?)\s*(?:#.*)?$", re.MULTILINE)
+
+
+def notebook_seed(nb) -> str | None:
+    """The ``SEED = ...`` assignment of a notebook's code cells (as written), or None."""
+    for cell in nb.cells:
+        if cell.cell_type == "code":
+            hit = SEED_LINE.search(cell.source)
+            if hit:
+                return hit.group(1)
+    return None
+
+
+def _git(*args: str, cwd: Path) -> str | None:
+    try:
+        out = subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True,
+                             timeout=30, check=True)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip()
+
+
+def provenance(repo: Path) -> dict:
+    """Where and with what the notebooks ran: git commit and dirty flag of ``repo`` (None
+    outside a git checkout), Python and library versions, the machine."""
+    versions = {"Python": platform.python_version()}
+    for label, dist in VERSIONS.items():
+        try:
+            versions[label] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            versions[label] = None
+    commit = _git("rev-parse", "HEAD", cwd=repo)
+    status = _git("status", "--porcelain", "--untracked-files=no", cwd=repo)
+    return {
+        "git_commit": commit,
+        "git_dirty": None if status is None else bool(status),
+        "versions": versions,
+        "machine": {"system": platform.system(), "release": platform.release(),
+                    "architecture": platform.machine(), "processor": platform.processor(),
+                    "cpus": os.cpu_count(), "hostname": platform.node()},
+    }
+
+
 def default_notebook_dir() -> Path:
     here = Path.cwd() / "notebooks"
     if here.is_dir():
@@ -59,6 +116,7 @@ def default_notebook_dir() -> Path:
 def execute(path: Path, build: Path, timeout: int) -> dict:
     """Execute one notebook; returns a status dict (never raises for a failing cell)."""
     import nbformat
+    from jupyter_client.manager import AsyncKernelManager
     from nbclient import NotebookClient
     from nbclient.exceptions import CellExecutionError, CellTimeoutError
     from tqdm.auto import tqdm
@@ -68,6 +126,7 @@ def execute(path: Path, build: Path, timeout: int) -> dict:
     records_file.parent.mkdir(parents=True, exist_ok=True)
     records_file.unlink(missing_ok=True)
     os.environ[report.RECORD_ENV] = str(records_file.resolve())
+    os.environ[report.BUILD_ENV] = str(build.resolve())
     for key, value in OFFSCREEN_ENV.items():
         os.environ.setdefault(key, value)
 
@@ -81,10 +140,15 @@ def execute(path: Path, build: Path, timeout: int) -> dict:
     def on_executed(cell, cell_index, **_):
         bar.update(1)
 
-    client = NotebookClient(nb, timeout=timeout, kernel_name="python3",
+    # IPC transport: Unix sockets at an absolute path (the kernel runs in the notebook's
+    # folder, so a relative one would not meet), in a short private folder
+    sockets = Path(tempfile.mkdtemp(prefix="lsmta-ipc-"))
+    km = AsyncKernelManager(kernel_name="python3", transport="ipc", ip=str(sockets / "kernel"))
+    client = NotebookClient(nb, km=km, timeout=timeout, kernel_name="python3",
                             resources={"metadata": {"path": str(path.parent)}},
                             on_cell_execute=on_execute, on_cell_executed=on_executed)
-    status = {"notebook": path.stem, "ok": True, "error": None, "cell": None}
+    status = {"notebook": path.stem, "ok": True, "error": None, "cell": None,
+              "seed": notebook_seed(nb)}
     start = time.perf_counter()
     try:
         client.execute()
@@ -96,6 +160,8 @@ def execute(path: Path, build: Path, timeout: int) -> dict:
     finally:
         bar.close()
         os.environ.pop(report.RECORD_ENV, None)
+        os.environ.pop(report.BUILD_ENV, None)
+        shutil.rmtree(sockets, ignore_errors=True)
     status["seconds"] = round(time.perf_counter() - start, 2)
 
     out_dir = build / "notebooks"
@@ -138,45 +204,77 @@ def write_html(nb, target: Path) -> str | None:
     return target.name
 
 
-def write_summary(build: Path, results: list[dict]) -> None:
-    """``summary.json``, ``summary.md`` and ``index.html`` from the notebooks' results."""
+def write_summary(build: Path, results: list[dict], meta: dict | None = None) -> None:
+    """``summary.json``, ``summary.md`` and ``index.html`` from the notebooks' results.
+
+    Results and timings stand next to the papers' numbers; records of kind ``"setting"``
+    (numbers the notebooks chose) are listed apart, under "Settings". ``meta`` is the
+    run's :func:`provenance` (computed here if not given)."""
     records = [report.Record(**r) for res in results for r in res["records"]]
-    meta = {"python": platform.python_version(), "machine": platform.machine(),
-            "cpus": os.cpu_count(), "finished": time.strftime("%Y-%m-%d %H:%M:%S")}
+    compared = [r for r in records if r.kind != "setting"]
+    settings = [r for r in records if r.kind == "setting"]
+    meta = dict(provenance(Path.cwd()) if meta is None else meta)
+    meta.update(python=platform.python_version(), finished=time.strftime("%Y-%m-%d %H:%M:%S"),
+                seeds={res["notebook"]: res.get("seed") for res in results})
     (build / "summary.json").write_text(json.dumps(
         {"meta": meta, "notebooks": results, "records": [asdict(r) for r in records]},
         indent=2), encoding="utf-8")
+    prov = _provenance_lines(meta)
     lines = ["# lsmta — reproduced numbers next to the papers'", "",
-             report.table(records), "", "## Notebooks", "",
-             "| notebook | status | seconds | figures |", "|---|---|---|---|"]
+             report.table(compared), "", "## Settings (chosen, not measured)", "",
+             report.table(settings), "", "## Notebooks", "",
+             "| notebook | status | seconds | seed | figures |", "|---|---|---|---|---|"]
     for res in results:
         state = "ok" if res["ok"] else f"FAILED at cell {res['cell']}: {res['error']}"
-        lines.append(f"| {res['notebook']} | {state} | {res['seconds']} | {len(res['figures'])} |")
+        lines.append(f"| {res['notebook']} | {state} | {res['seconds']} | "
+                     f"{res.get('seed') or '—'} | {len(res['figures'])} |")
+    lines += ["", "## Provenance", ""] + [f"- {k}: {v}" for k, v in prov]
     (build / "summary.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
 
     esc = html.escape
-    rows = "".join(
-        "<tr>" + "".join(f"<td>{esc(report.format_value(v))}</td>" for v in
-                         (r.figure, r.quantity, r.paper, r.value, r.unit, r.note)) + "</tr>"
-        for r in records)
+
+    def rows(recs):
+        return "".join(
+            "<tr>" + "".join(f"<td>{esc(report.format_value(v))}</td>" for v in
+                             (r.figure, r.quantity, r.paper, r.value, r.unit,
+                              r.note if r.kind == "result" else f"({r.kind}) {r.note}"))
+            + "</tr>" for r in recs)
+
+    header = ("<tr><th>figure</th><th>quantity</th><th>paper</th><th>ours</th><th>unit</th>"
+              "<th>note</th></tr>")
     sections = []
     for res in results:
         link = (f'<a href="notebooks/{esc(res["html"])}">{esc(res["notebook"])}</a>'
                 if res.get("html") else esc(res["notebook"]))
         state = "ok" if res["ok"] else f"<b>FAILED</b> at cell {res['cell']}: {esc(res['error'])}"
+        seed = f", seed {esc(str(res['seed']))}" if res.get("seed") else ""
         figs = "".join(f'<img src="figures/{esc(f)}" loading="lazy">' for f in res["figures"])
-        sections.append(f"<h2>{link}</h2><p>{state} — {res['seconds']} s</p>{figs}")
+        sections.append(f"<h2>{link}</h2><p>{state} — {res['seconds']} s{seed}</p>{figs}")
+    prov_html = "".join(f"<li>{esc(k)}: {esc(str(v))}</li>" for k, v in prov)
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>lsmta results</title>
 <style>body{{font-family:sans-serif;max-width:1200px;margin:auto}}
 table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:3px 8px}}
 img{{max-width:100%;margin:6px 0;border:1px solid #eee}}</style></head><body>
 <h1>lsmta — reproduced numbers next to the papers'</h1>
-<table><tr><th>figure</th><th>quantity</th><th>paper</th><th>ours</th><th>unit</th><th>note</th></tr>
-{rows}</table>{''.join(sections)}
-<p><small>Python {esc(meta['python'])}, {esc(str(meta['cpus']))} CPUs,
-{esc(meta['finished'])}</small></p>
+<table>{header}{rows(compared)}</table>
+<h2>Settings (chosen, not measured)</h2><table>{header}{rows(settings)}</table>
+{''.join(sections)}
+<h2>Provenance</h2><ul>{prov_html}</ul>
 </body></html>"""
     (build / "index.html").write_text(page, encoding="utf-8")
+
+
+def _provenance_lines(meta: dict) -> list[tuple[str, str]]:
+    """(label, text) pairs of the provenance for summary.md and index.html."""
+    dirty = " (uncommitted changes)" if meta["git_dirty"] else ""
+    m = meta["machine"]
+    machine = (f"{m['system']} {m['release']}, {m['architecture']}, {m['cpus']} CPUs, "
+               f"host {m['hostname']}")
+    versions = ", ".join(f"{k} {v}" for k, v in meta["versions"].items())
+    seeds = ", ".join(f"{k} {v}" for k, v in meta["seeds"].items())
+    return [("git commit", f"{meta['git_commit'] or 'unknown'}{dirty}"),
+            ("versions", versions), ("seeds", seeds or "—"), ("machine", machine),
+            ("finished", meta["finished"])]
 
 
 def reproduce(args) -> int:
@@ -211,7 +309,7 @@ def reproduce(args) -> int:
             done = {r["notebook"] for r in results}
             results = sorted([r for r in previous if r["notebook"] not in done] + results,
                              key=lambda r: r["notebook"])
-    write_summary(build, results)
+    write_summary(build, results, provenance(folder.resolve().parent))
     print(f"lsmta reproduce: wrote {build / 'index.html'} and {build / 'summary.md'}")
     failed = [r for r in results if not r["ok"]]
     for r in failed:

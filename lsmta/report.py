@@ -5,6 +5,13 @@ the records are appended to the file named by the environment variable
 ``LSMTA_RECORD_FILE`` (one JSON object per line), and the command gathers them into
 ``build/summary.md``, ``build/summary.json`` and ``build/index.html``. Run interactively,
 :func:`record` only returns the record; :func:`table` shows a list of them.
+
+A record has a ``kind``: ``"result"`` (a measured number, the default), ``"setting"`` (a
+number the notebook chose, such as an image size or a noise level picked to match the
+paper: not a result, so it stays out of the paper-against-ours table) or ``"timing"`` (a
+wall-clock time, which differs from run to run). :func:`verdict` writes a target's
+"met" / "NOT met" from a computed truth value, and :func:`build_dir` says where
+``lsmta reproduce`` writes (``LSMTA_BUILD_DIR``), for a notebook that quotes a benchmark.
 """
 
 from __future__ import annotations
@@ -16,12 +23,17 @@ from dataclasses import asdict, dataclass
 from numbers import Real
 from pathlib import Path
 
+import numpy as np
+
 RECORD_ENV = "LSMTA_RECORD_FILE"
+BUILD_ENV = "LSMTA_BUILD_DIR"
+KINDS = ("result", "setting", "timing")
 
 
 @dataclass(frozen=True)
 class Record:
-    """One reproduced number. ``value`` and ``paper`` are numbers or short strings."""
+    """One reproduced number. ``value`` and ``paper`` are numbers or short strings;
+    ``kind`` is one of :data:`KINDS`."""
 
     figure: str
     quantity: str
@@ -29,6 +41,7 @@ class Record:
     unit: str = ""
     paper: float | int | str | None = None
     note: str = ""
+    kind: str = "result"
 
     def _repr_markdown_(self) -> str:
         return table([self])
@@ -45,7 +58,7 @@ def _check_value(value, name: str):
 
 
 def record(figure: str, quantity: str, value, unit: str = "", *, paper=None,
-           note: str = "") -> Record:
+           note: str = "", kind: str = "result") -> Record:
     """Record one headline number of a figure next to the paper's.
 
     Parameters
@@ -62,17 +75,22 @@ def record(figure: str, quantity: str, value, unit: str = "", *, paper=None,
         The paper's number, or None where the paper gives none.
     note : str
         Where and why we differ, in a few words.
+    kind : {"result", "setting", "timing"}
+        ``"setting"`` for a number the notebook chose rather than measured (kept out of
+        the paper-against-ours table), ``"timing"`` for a wall-clock time.
 
     Returns
     -------
     Record
     """
     for name, text in (("figure", figure), ("quantity", quantity), ("unit", unit),
-                       ("note", note)):
+                       ("note", note), ("kind", kind)):
         if not isinstance(text, str):
             raise TypeError(f"{name}: expected a string, got {type(text).__name__}")
+    if kind not in KINDS:
+        raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
     rec = Record(figure, quantity, _check_value(value, "value"), unit,
-                 None if paper is None else _check_value(paper, "paper"), note)
+                 None if paper is None else _check_value(paper, "paper"), note, kind)
     path = os.environ.get(RECORD_ENV)
     if path:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
@@ -91,6 +109,48 @@ def load_records(path) -> list[Record]:
     return out
 
 
+def verdict(ok, target: str | None = None) -> str:
+    """``"met"`` or ``"NOT met"`` from a computed truth value, optionally after the target.
+
+    Parameters
+    ----------
+    ok : bool or numpy.bool_
+        Whether the target holds, computed from the numbers (never typed).
+    target : str, optional
+        The target in words, e.g. ``"< 0.1 px"``; gives ``"target < 0.1 px: met"``.
+
+    Examples
+    --------
+    >>> verdict(0.05 < 0.1, "< 0.1 px")
+    'target < 0.1 px: met'
+    """
+    if not isinstance(ok, (bool, np.bool_)):
+        raise TypeError(f"ok: expected a bool, got {type(ok).__name__}")
+    if target is not None and not isinstance(target, str):
+        raise TypeError(f"target: expected a string, got {type(target).__name__}")
+    word = "met" if ok else "NOT met"
+    return word if target is None else f"target {target}: {word}"
+
+
+def build_dir() -> Path:
+    """The folder ``lsmta reproduce`` writes to, for notebooks that read what it wrote
+    (e.g. ``build/benchmarks/`` from ``experiments/``).
+
+    ``LSMTA_BUILD_DIR`` if set (``lsmta reproduce`` sets it to its ``--build``); otherwise
+    ``build/`` in the nearest folder at or above the working directory that holds a
+    ``pyproject.toml`` (the repository, from a notebook's own folder); otherwise
+    ``build/`` in the working directory. The folder need not exist.
+    """
+    env = os.environ.get(BUILD_ENV)
+    if env:
+        return Path(env).resolve()
+    here = Path.cwd().resolve()
+    for folder in (here, *here.parents):
+        if (folder / "pyproject.toml").is_file():
+            return folder / "build"
+    return here / "build"
+
+
 def format_value(value) -> str:
     """Numbers to four significant digits; strings as they are; None as an em dash."""
     if value is None:
@@ -101,12 +161,14 @@ def format_value(value) -> str:
 
 
 def table(records) -> str:
-    """A Markdown table (figure, quantity, paper, ours, unit, note) of ``records``."""
+    """A Markdown table (figure, quantity, paper, ours, unit, note) of ``records``; a
+    setting or timing says so in its note."""
     rows = ["| figure | quantity | paper | ours | unit | note |",
             "|---|---|---|---|---|---|"]
     for r in records:
+        note = r.note if r.kind == "result" else f"({r.kind}) {r.note}".strip()
         cells = [r.figure, r.quantity, format_value(r.paper), format_value(r.value), r.unit,
-                 r.note]
+                 note]
         rows.append("| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |")
     return "\n".join(rows)
 

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Build everything lsmta needs on a fresh Debian machine (Python 3.10+; root or sudo for the
 # system libraries): Mesa's EGL for off-screen pyvista, then a virtual environment in .venv
-# with the package and its test tools. Safe to run again: steps already done are skipped.
+# with the exact versions of requirements.lock (made by pip-compile, see ENVIRONMENT.md) and
+# the package itself. LSMTA_UNLOCKED=1 installs the newest versions pyproject.toml allows
+# instead. Safe to run again: steps already done are skipped.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -22,7 +24,7 @@ if [ -n "$missing" ]; then
   fi
 fi
 
-# 2. The virtual environment, rebuilt only when pyproject.toml changes.
+# 2. The virtual environment, rebuilt only when pyproject.toml or requirements.lock changes.
 PY="${PYTHON:-}"
 if [ -z "$PY" ]; then
   for cand in python3.11 python3.12 python3.10 python3; do
@@ -31,11 +33,19 @@ if [ -z "$PY" ]; then
 fi
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 stamp=.venv/.lsmta-installed
-want=$(sha256sum pyproject.toml | cut -d' ' -f1)
+unlocked="${LSMTA_UNLOCKED:-}"
+want="$(cat pyproject.toml requirements.lock | sha256sum | cut -d' ' -f1)${unlocked:+-unlocked}"
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
-  echo "bootstrap: installing lsmta and its dependencies into .venv"
-  .venv/bin/python -m pip install -q --upgrade pip 2>&1 | grep -v "^WARNING: Location" || true
-  .venv/bin/python -m pip install -q -e '.[test]' 2>&1 | grep -v "^WARNING: Location" || true
+  pip_q() { .venv/bin/python -m pip install -q "$@" 2>&1 | grep -v "^WARNING: Location" || true; }
+  pip_q --upgrade pip
+  if [ -n "$unlocked" ]; then
+    echo "bootstrap: installing lsmta and the newest allowed dependencies into .venv"
+    pip_q -e '.[test]'
+  else
+    echo "bootstrap: installing the locked dependencies (requirements.lock) and lsmta into .venv"
+    pip_q -r requirements.lock
+    pip_q --no-deps -e .
+  fi
   .venv/bin/python -c "import lsmta, numpy, scipy, cv2, skimage, pyvista, emcee, nbmake" \
     || { echo "bootstrap: the install failed" >&2; exit 1; }
   echo "$want" > "$stamp"

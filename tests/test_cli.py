@@ -20,9 +20,12 @@ def notebooks(tmp_path):
     folder = tmp_path / "notebooks"
     folder.mkdir()
     _notebook(folder / "00_first.ipynb", [
-        "import matplotlib\nimport matplotlib.pyplot as plt\n%matplotlib inline",
-        "from lsmta.report import record\n"
-        "record('F0', 'answer', 42, 'units', paper=41, note='close')",
+        "import matplotlib\nimport matplotlib.pyplot as plt\n%matplotlib inline\n"
+        "SEED = 7   # the notebook's seed",
+        "from lsmta.report import build_dir, record\n"
+        "record('F0', 'answer', 42, 'units', paper=41, note='close')\n"
+        "record('F0', 'image size', '8x8', 'px', paper='8x8', kind='setting')\n"
+        "open('build.txt', 'w').write(str(build_dir()))",
         "plt.plot([0, 1], [1, 0]); plt.xlabel('x [px]'); plt.show()",
         "import os; open('cwd.txt', 'w').write(os.getcwd())",
     ])
@@ -41,20 +44,56 @@ def test_list(notebooks, capsys):
         cli.main(["reproduce", "--list", "--notebooks", str(notebooks), "--only", "99"])
 
 
-def test_reproduce_writes_summary_and_figures(notebooks, tmp_path):
+def test_reproduce_writes_summary_and_figures(notebooks, tmp_path, capfd):
     build = tmp_path / "build"
     assert cli.main(["reproduce", "--notebooks", str(notebooks), "--build", str(build)]) == 0
     summary = json.loads((build / "summary.json").read_text())
-    assert summary["records"] == [{"figure": "F0", "quantity": "answer", "value": 42,
-                                   "unit": "units", "paper": 41, "note": "close"}]
-    assert "| F0 | answer | 41 | 42 | units | close |" in (build / "summary.md").read_text()
+    assert summary["records"] == [
+        {"figure": "F0", "quantity": "answer", "value": 42, "unit": "units", "paper": 41,
+         "note": "close", "kind": "result"},
+        {"figure": "F0", "quantity": "image size", "value": "8x8", "unit": "px",
+         "paper": "8x8", "note": "", "kind": "setting"}]
+    md = (build / "summary.md").read_text()
+    assert "| F0 | answer | 41 | 42 | units | close |" in md
+    # a setting is listed apart, after the paper-against-ours table
+    assert md.index("image size") > md.index("## Settings") > md.index("answer")
     figures = list((build / "figures").glob("00_first_cell*.png"))
     assert len(figures) == 1
     page = (build / "index.html").read_text()
     assert figures[0].name in page and "notebooks/00_first.html" in page
     assert (build / "notebooks" / "01_second.ipynb").exists()
-    # each notebook runs in its own folder, as under nbmake
+    # each notebook runs in its own folder, as under nbmake, told where the build is
     assert (notebooks / "cwd.txt").read_text() == str(notebooks)
+    assert (notebooks / "build.txt").read_text() == str(build.resolve())
+    # provenance: seeds, versions, machine (no git repository here)
+    meta = summary["meta"]
+    assert meta["seeds"] == {"00_first": "7", "01_second": None}
+    assert [n["seed"] for n in summary["notebooks"]] == ["7", None]
+    for name in ("Python", "numpy", "scipy", "OpenCV", "scikit-image", "numba", "pyvista",
+                 "emcee"):
+        assert meta["versions"][name], name
+    assert meta["git_commit"] is None and meta["git_dirty"] is None
+    assert meta["machine"]["cpus"] >= 1
+    assert f"numpy {meta['versions']['numpy']}" in page and "00_first 7" in md
+    # the kernels run over IPC: no warning about unencrypted TCP
+    assert "without encryption" not in capfd.readouterr().err
+
+
+def test_provenance_of_a_git_checkout(tmp_path):
+    import subprocess
+
+    def git(*args):
+        subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *args],
+                       cwd=tmp_path, check=True, capture_output=True)
+
+    git("init", "-q")
+    (tmp_path / "a.txt").write_text("1")
+    git("add", "a.txt")
+    git("commit", "-qm", "one")
+    meta = cli.provenance(tmp_path)
+    assert len(meta["git_commit"]) == 40 and meta["git_dirty"] is False
+    (tmp_path / "a.txt").write_text("2")
+    assert cli.provenance(tmp_path)["git_dirty"] is True
 
 
 def test_failing_cell_is_named(notebooks, tmp_path, capsys):
@@ -65,3 +104,20 @@ def test_failing_cell_is_named(notebooks, tmp_path, capsys):
     assert code == 1
     err = capsys.readouterr().err
     assert "02_broken.ipynb failed at cell 2" in err and "boom" in err
+
+
+def test_two_runs_of_a_notebook_give_identical_records(tmp_path):
+    """Reproducibility: every record of a (fast) notebook but its timings is the same in two
+    executions, to the last digit."""
+    from pathlib import Path
+
+    folder = Path(__file__).resolve().parents[1] / "notebooks"
+    runs = []
+    for name in ("a", "b"):
+        build = tmp_path / name
+        assert cli.main(["reproduce", "--notebooks", str(folder), "--build", str(build),
+                         "--only", "09"]) == 0
+        runs.append([r for r in json.loads((build / "summary.json").read_text())["records"]
+                     if r["kind"] != "timing"])
+    assert len(runs[0]) >= 5
+    assert runs[0] == runs[1]

@@ -380,3 +380,26 @@ def test_peer_after_alignment_undoes_head_motion(model):
     # one Kabsch fit on the observed markers absorbs some expression: millimetres, not 0
     assert np.median(err) < 3.0 and 100 < np.median(err_raw)
     np.testing.assert_array_equal(out[vis], gappy[vis])
+
+
+def test_removal_trials_match_the_experiment_by_hand(model):
+    """removal_trials (notebook 13, Figs. 65/66) is the loop it replaced: same draws, same
+    errors; and the constrained extreme faces fill the removed markers to a few mm."""
+    seed = [5, 65, 0]
+    got = ef.removal_trials(model, [seed], n_train=60, n_test=20, n_removed=11, n_basis=12,
+                            n_components=5, noise_mm=0.5)
+    r = np.random.default_rng(seed)
+    tr = sf.face_sequence(model, 60, r, moving=False).head
+    tr = tr + r.normal(0, 0.5, tr.shape)
+    te = sf.face_sequence(model, 20, r, moving=False).head
+    gappy = te + r.normal(0, 0.5, te.shape)
+    removed = r.choice(len(model.labels), 11, replace=False)
+    np.testing.assert_array_equal(got.removed[0], removed)
+    gappy[:, removed] = np.nan
+    filled = ef.fill_all(gappy, tr, n_basis=12, n_components=5, peer_components=5)
+    for name in ef.METHODS:
+        want = (filled[name] - te)[:, np.sort(removed)][..., :2].reshape(-1, 2)
+        np.testing.assert_allclose(np.sort(got.errors[name][0]),
+                                   np.sort(np.linalg.norm(want, axis=1)), rtol=1e-12)
+        assert got.xy[name][0].shape == (20 * 11, 2)
+    assert np.median(got.errors[ef.METHODS[2]][0]) < 3.0      # PCA basis: a few mm at most

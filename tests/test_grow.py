@@ -95,7 +95,10 @@ def test_measure_surface_on_a_rendered_triplet(rendered_triplet):
     truth = frame.world_xyz[1][tx[:, 1], tx[:, 0]]
     on_body = frame.part_id[1][tx[:, 1], tx[:, 0]] >= 0
     err = np.linalg.norm(res.intersection.points - truth, axis=1)[res.neighbourhood_ok & on_body]
-    assert np.median(err) < 5.0                      # mm, at about 5 mm per pixel
+    # mm, at about 5 mm per pixel: under 0.6 px. Notebook 03 gets under 0.5 mm at 2.6 mm per
+    # pixel and a 7 px patch; this 9 px patch on half-size images covers 2.5 times the
+    # surface, and the curvature bias grows with its square
+    assert np.median(err) < 3.0 and np.percentile(err, 90) < 10.0
     assert len(res.points) < res.neighbourhood_ok.sum()   # the voxel filter thins
     assert res.points_xy.shape == (3, len(res.points), 2)
 

@@ -124,9 +124,15 @@ def test_flat_patch_is_singular_and_edges_are_outside(rng):
 def test_far_start_does_not_raise_and_is_flagged(rng):
     pair = warped_pair(rng, quantise=False)
     pts = _points(rng, 50, margin=40)
-    res = lsm(pair.template, pair.search, pts, pts + 12.0, patch=13, max_displacement=5.0)
-    assert np.all(res.status != Status.CONVERGED) or np.all(res.displacement[res.ok] <= 5.0)
-    assert (res.status == Status.DIVERGED).any()
+    truth = pair.true_xy(pts)
+    res = lsm(pair.template, pair.search, pts, truth + 12.0, patch=13, max_displacement=5.0)
+    # the truth is 17 px away, beyond what may move: most points are flagged as diverged and
+    # none moved further than allowed; the few accepted ones sit in a neighbouring minimum
+    # (why tracking runs a correlation search before LSM)
+    assert res.ok.mean() <= 0.2
+    assert np.all(res.displacement[res.ok] <= 5.0)
+    assert (res.status == Status.DIVERGED).mean() > 0.5
+    assert np.all(np.linalg.norm(res.xy[res.ok] - truth[res.ok], axis=1) > 1.0)
 
 
 def test_thresholds_reject(rng):

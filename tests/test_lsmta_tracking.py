@@ -86,6 +86,12 @@ def test_track_step_is_the_trackers_first_step(translation):
                                                                               xy0.shape))
     p = TrackerParams()
     st = track_step(images[:, 0], images[:, 1], xy0, xy0 + vel[:, None], p.radius, params=p)
+    # against the truth: the step moves (almost) every point by the known translation
+    assert st.ok.mean() > 0.9
+    err = np.linalg.norm(st.xy[:, st.ok] - (xy0 + vel[:, None])[:, st.ok], axis=2)
+    assert np.median(err) < 0.02 and err.max() < 0.1
+    c_err = np.linalg.norm(st.correlation_xy[:, st.ok] - (xy0 + vel[:, None])[:, st.ok], axis=2)
+    assert c_err.max() <= 1.0                      # correlation: to the nearest pixel or so
     assert np.array_equal(st.ok, tr.alive[1])
     assert np.allclose(st.xy[:, st.ok], tr.xy[1][:, st.ok])
     assert np.isfinite(st.correlation_xy[:, st.ok]).all()

@@ -22,10 +22,19 @@ def test_peers_find_a_shift(shifted, name):
     assert np.median(np.linalg.norm(res.xy[res.ok] - truth[res.ok], axis=1)) < 0.15
 
 
-def test_phase_correlation_returns_integer_scale_answers(shifted):
-    pts = np.array([[60.0, 60.0]])
-    res = peers.phase_correlation(shifted.template, shifted.search, pts, shifted.true_xy(pts))
-    assert res.ok.all() and np.isfinite(res.xy).all()
+def test_phase_correlation_exact_for_whole_pixel_shifts_within_a_pixel_otherwise(shifted):
+    # a whole-pixel shift is found to a few hundredths of a pixel; a fractional one (the
+    # fixture's 1.6, -0.8) only to within a pixel: on small, unwindowed patches the phase
+    # correlation peak is biased (notebook 02: the peer's large median error)
+    whole = warped_pair(np.random.default_rng(3), shape=(128, 128), c=(2.0, -1.0),
+                        noise_sigma=1.0)
+    pts = np.rint(np.random.default_rng(0).uniform(35, 93, (20, 2)))
+    for pair, tol in ((whole, 0.1), (shifted, 1.0)):
+        truth = pair.true_xy(pts)
+        res = peers.phase_correlation(pair.template, pair.search, pts, truth + 0.4, patch=31)
+        assert res.ok.all()
+        assert np.abs(res.xy - truth).max() < tol
+    assert np.median(np.linalg.norm(res.xy - truth, axis=1)) > 0.1   # the bias is real
 
 
 def test_peers_refuse_bad_input(shifted):
@@ -42,8 +51,10 @@ def test_trial_scores_every_method_on_the_same_starts(shifted):
     assert trial.crb.shape == (12, 2, 2)
     s = trial.summary("lsm")
     assert s["failure_rate"] == 0 and s["median_px"] < 0.1
-    h = honesty(trial)
-    assert 0 < h["rms_ratio"] < 5 and 0 <= h["coverage_95"] <= 1
+    # LSM's own precision estimate is about right: on 100 patches the RMS error is within
+    # 0.8-1.5 times the predicted one and most true positions lie in the 95 % ellipses
+    h = honesty(run_trial(shifted, rng, methods=["lsm"], n_points=100, margin=25))
+    assert 0.8 < h["rms_ratio"] < 1.5 and h["coverage_95"] > 0.8
 
 
 def test_noise_sweep_and_success_rate(shifted):

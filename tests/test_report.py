@@ -35,3 +35,41 @@ def test_table_lists_paper_next_to_ours():
 def test_record_bad_input(kwargs, exc):
     with pytest.raises(exc):
         report.record("F", "q", unit="", **kwargs)
+
+
+def test_kind_marks_settings_and_old_calls_still_work(tmp_path, monkeypatch):
+    path = tmp_path / "r.jsonl"
+    monkeypatch.setenv(report.RECORD_ENV, str(path))
+    assert report.record("F", "q", 1.0).kind == "result"          # an old call
+    report.record("F", "image size", "8x8", "px", kind="setting")
+    assert [r.kind for r in report.load_records(path)] == ["result", "setting"]
+    # a JSON line written before records had a kind still loads, as a result
+    path.write_text(json.dumps({"figure": "F", "quantity": "q", "value": 1, "unit": "",
+                                "paper": None, "note": ""}) + "\n")
+    assert report.load_records(path)[0].kind == "result"
+    assert "(setting) chosen" in report.table([report.Record("F", "q", 1, kind="setting",
+                                                             note="chosen")])
+    with pytest.raises(ValueError, match="kind"):
+        report.record("F", "q", 1.0, kind="guess")
+
+
+def test_verdict_is_computed_from_a_truth_value():
+    assert report.verdict(True) == "met"
+    assert report.verdict(np.float64(0.2) < 0.1) == "NOT met"
+    assert report.verdict(3 > 2, "> 2 px") == "target > 2 px: met"
+    with pytest.raises(TypeError, match="ok"):
+        report.verdict("met")
+    with pytest.raises(TypeError, match="ok"):
+        report.verdict(np.array([True, False]))
+    with pytest.raises(TypeError, match="target"):
+        report.verdict(True, 0.1)
+
+
+def test_build_dir(tmp_path, monkeypatch):
+    monkeypatch.setenv(report.BUILD_ENV, str(tmp_path / "out"))
+    assert report.build_dir() == (tmp_path / "out").resolve()
+    monkeypatch.delenv(report.BUILD_ENV)
+    (tmp_path / "repo" / "notebooks").mkdir(parents=True)
+    (tmp_path / "repo" / "pyproject.toml").write_text("")
+    monkeypatch.chdir(tmp_path / "repo" / "notebooks")
+    assert report.build_dir() == (tmp_path / "repo" / "build").resolve()

@@ -34,14 +34,18 @@ def test_seeds_scores_and_sgbm_on_a_small_triplet(triplet):
     res = measure_surface(frame.images, small, seeds, step=3, patch=9, thresholds=th,
                           voxel=25.0)
     score = score_surface(res, truth)
-    assert 0.3 < score["density"] <= 1.0
-    assert score["filtered"]["median_mm"] < 5.0
+    assert 0.6 < score["density"] <= 1.0
+    assert score["filtered"]["median_mm"] < 4.0
     assert score["voxel"]["n"] <= score["filtered"]["n"]
     sg = peers.sgbm(frame.images[0], frame.images[1], small[0], small[1])
     assert len(sg.points) > 100 and sg.seconds > 0
     s = score_points(sg.points, sg.xy_first, node_truth(frame, scene, small, template=0,
                                                         step=3, patch=9), frame, template=0)
-    assert 0 < s["density"] <= 1 and np.isfinite(s["median_mm"])
+    # SGBM covers nearly every grid cell, but is less accurate than LSM and has more gross
+    # errors (notebook 03's comparison, on the small triplet)
+    assert 0.9 < s["density"] <= 1
+    assert score["filtered"]["median_mm"] < s["median_mm"] < 20.0
+    assert s["gross"] > score["filtered"]["gross"]
     misses = classify_misses(res, truth, frame)
     assert misses["missed"] == misses["at_depth_jump"] + misses["smooth_missed"]
     assert misses["missed"] <= misses["target"] == int((truth["visible"] & truth["interior"]).sum())

@@ -292,6 +292,22 @@ def test_generator_truth_and_visibility(rig):
     proj = rig[fr.camera[f]].project(X[labels])
     np.testing.assert_allclose(xy, proj, atol=1e-9)
     assert 0.2 < obs.visible.mean() < 1.0        # occlusion, dim LEDs and LEDs off
+    # without clutter, every frame holds exactly one centroid per visible LED, labelled so
+    counts = np.diff(fr.start)
+    np.testing.assert_array_equal(counts, obs.visible.sum(axis=1))
+    for g in range(0, fr.n_frames, 50):
+        np.testing.assert_array_equal(np.sort(obs.truth[fr.start[g]:fr.start[g + 1]]),
+                                      np.flatnonzero(obs.visible[g]))
+    # an LED that is off, or projects outside the image, is never visible
+    pos = scene.positions_at(obs.true_time)                      # (F, N, 3)
+    off = ~np.isfinite(pos).all(axis=2)
+    assert not obs.visible[off].any()
+    for k, cam in enumerate(rig):
+        rows = np.flatnonzero(fr.camera == k)
+        p = pos[rows]
+        inside = cam.in_image(cam.project(np.where(off[rows, :, None], 0.0, p).reshape(-1, 3),
+                                          behind="nan")).reshape(len(rows), -1)
+        assert not obs.visible[rows][~inside].any()
 
 
 def test_stonesoup_baseline_tracks_a_still_led(rig):

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..face import align_sequence, extreme_basis, fill_missing, pca_basis, pca_gap_fill
 from ..rigid import apply_rigid, fit_rigid
-from ..synth.face import face_cameras, visible
+from ..synth.face import face_cameras, face_sequence, visible
 from ..synth.marker_video import render_marker_video
 from ..tracking.markers import SECOND_SEARCH, TRACKED, track_markers
 from ..triangulation import triangulate, triangulate_single_pair
@@ -137,6 +137,60 @@ def fill_all(gappy, training, *, n_basis: int, n_components: int,
                                  n_components=peer_components).frames,
     }
     return out
+
+
+@dataclass(frozen=True)
+class RemovalTrials:
+    """Figs. 65/66: the same markers removed from every frame of a still head, filled by
+    every method of :data:`METHODS`, one entry per run.
+
+    Attributes
+    ----------
+    xy : dict
+        Method -> list (one per run) of ``(n, 2)`` errors of the filled markers in the
+        head's frontal XY plane (mm), as Fig. 66 plots them.
+    removed : list of (n_removed,) int arrays
+        The markers removed in each run.
+    """
+
+    xy: dict
+    removed: list
+
+    @property
+    def errors(self) -> dict:
+        """Method -> list of ``(n,)`` XY error lengths (mm)."""
+        return {m: [np.linalg.norm(d, axis=1) for d in v] for m, v in self.xy.items()}
+
+
+def removal_trials(model, seeds, *, n_train: int, n_test: int, n_removed: int,
+                   n_basis: int, n_components: int, noise_mm: float) -> RemovalTrials:
+    """Run the Fig. 65/66 experiment once per entry of ``seeds``.
+
+    Per run, with ``numpy.random.default_rng(seed)``: a still-head training sequence of
+    ``n_train`` frames and a test sequence of ``n_test`` frames (``face_sequence``), both
+    with Gaussian noise of ``noise_mm`` per axis; ``n_removed`` markers removed from every
+    test frame; every method of :func:`fill_all` (``n_basis`` extreme faces,
+    ``n_components`` for the PCA basis and the peer) fills them; errors against the
+    noise-free test frames.
+    """
+    xy = {m: [] for m in METHODS}
+    removed_all = []
+    M = len(model.labels)
+    for seed in seeds:
+        r = np.random.default_rng(seed)
+        tr = face_sequence(model, n_train, r, moving=False).head
+        tr = tr + r.normal(0, noise_mm, tr.shape)
+        te = face_sequence(model, n_test, r, moving=False).head
+        gappy = te + r.normal(0, noise_mm, te.shape)
+        removed = r.choice(M, n_removed, replace=False)
+        observed = np.ones((n_test, M), bool)
+        observed[:, removed] = False
+        gappy[~observed] = np.nan
+        for name, filled in fill_all(gappy, tr, n_basis=n_basis, n_components=n_components,
+                                     peer_components=n_components).items():
+            xy[name].append((filled - te)[~observed][:, :2])   # frontal plane of the head
+        removed_all.append(removed)
+    return RemovalTrials(xy=xy, removed=removed_all)
 
 
 def missing_errors(filled, truth, observed):

@@ -177,8 +177,8 @@ def detect_blobs(image, *, k: float = 8.0, min_area: int = 3, max_area: int = 40
     cents = cents[inside]
     if not len(cents):
         e = np.zeros((0, 2))
-        return Blobs(e, e, np.zeros(0), np.zeros(0), np.zeros(0, bool), np.zeros(0),
-                     np.zeros(0))
+        return Blobs(xy=e, centroid=e, sigma=np.zeros(0), amplitude=np.zeros(0),
+                     converged=np.zeros(0, bool), std=np.zeros(0), noise=np.zeros(0))
     corner = np.round(cents).astype(int) - half
     off = np.arange(2 * half + 1)
     patches = f[corner[:, 1, None, None] + off[None, :, None],
@@ -186,7 +186,7 @@ def detect_blobs(image, *, k: float = 8.0, min_area: int = 3, max_area: int = 40
     c, s, a, ok, std, s0 = _gaussian_fit(patches, cents[:, 0] - corner[:, 0],
                                          cents[:, 1] - corner[:, 1])
     xy = np.where(ok[:, None], c + corner, cents)
-    return Blobs(xy, cents, s, a, ok, std, s0)
+    return Blobs(xy=xy, centroid=cents, sigma=s, amplitude=a, converged=ok, std=std, noise=s0)
 
 
 def track_targets(images, n_targets: int = 2, *, gate: float = 100.0, **detect) -> TargetTracks:
@@ -242,7 +242,7 @@ def track_targets(images, n_targets: int = 2, *, gate: float = 100.0, **detect) 
             status[t, r] = STATUS_OK if b.converged[c] else STATUS_NOT_CONVERGED
             vel[r] = b.xy[c] - last[r] if np.isfinite(last[r]).all() else 0.0
             last[r] = b.xy[c]
-    return TargetTracks(xy, status, n_blobs, std)
+    return TargetTracks(xy=xy, status=status, n_blobs=n_blobs, std=std)
 
 
 def _assign(blobs: Blobs, last, vel, gate: float, M: int) -> np.ndarray:

@@ -239,7 +239,7 @@ def test_identify_drops_nan_rows_and_leaves_the_input_alone(model, rng):
     ({"observed": np.full((6, 3), np.nan)}, ValueError, "at least 3"),
     ({"max_tables": 0}, ValueError, "max_tables"),
     ({"max_alternatives": 1.5}, ValueError, "max_alternatives"),
-    ({"rng": 3}, TypeError, "Generator"),
+    ({"rng": "3"}, TypeError, "Generator"),
     ({"max_tabels": 3}, TypeError, "unknown options"),
 ])
 def test_identify_rejects_bad_arguments(model, rng, kw, error, message):

@@ -23,8 +23,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .._validate import as_point_pairs
-from .lsm import _check_patch
+from .._validate import as_point_pairs, check_patch
 from .spline import check_image
 
 
@@ -37,7 +36,7 @@ class PeerResult:
 
 
 def _prepare(template, search, template_xy, search_xy, patch, margin):
-    patch = _check_patch(patch)
+    patch = check_patch(patch)
     f = check_image(template, "template")
     g = check_image(search, "search")
     t, s = as_point_pairs(template_xy, search_xy, "template_xy", "search_xy")

@@ -22,8 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from .._validate import as_points, as_scalar
-from .fitting import _freeze
+from .._validate import as_points, as_scalar, freeze
 from .model import PanTiltCamera
 
 _MOVES = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
@@ -57,7 +56,7 @@ class Aim:
     evaluations: int
 
     def __post_init__(self):
-        _freeze(self, ("pan", "tilt", "error_px", "reachable", "iterations"))
+        freeze(self, ("pan", "tilt", "error_px", "reachable", "iterations"))
 
     @property
     def settings(self) -> np.ndarray:

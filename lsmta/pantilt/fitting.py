@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from .._validate import as_array, as_points
+from .._validate import as_array, as_points, freeze
 from ..camera import Camera
 from .model import PanTiltCamera, _image, check_angles, pose_arrays
 
@@ -82,7 +82,7 @@ class Fit:
     nfev: int
 
     def __post_init__(self):
-        _freeze(self, ("params", "std", "covariance", "residuals"))
+        freeze(self, ("params", "std", "covariance", "residuals"))
 
     @property
     def errors(self) -> np.ndarray:
@@ -95,14 +95,6 @@ class Fit:
 
 
 # ---------------------------------------------------------------------- helpers
-def _freeze(obj, names):
-    """Store read-only copies of the named array fields of a frozen dataclass."""
-    for name in names:
-        a = np.array(getattr(obj, name))
-        a.flags.writeable = False
-        object.__setattr__(obj, name, a)
-
-
 def _rot(omega_deg) -> np.ndarray:
     R, _ = cv2.Rodrigues(np.radians(np.asarray(omega_deg, dtype=float)))
     return R

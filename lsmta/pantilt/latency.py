@@ -29,9 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array, as_points, as_rng, as_scalar
+from .._validate import as_array, as_points, as_rng, as_scalar, freeze
 from .aiming import aim
-from .fitting import _freeze
 from .model import PanTiltCamera
 
 
@@ -106,7 +105,7 @@ class TrackingRun:
     estimate_error_mm: np.ndarray
 
     def __post_init__(self):
-        _freeze(self, ("times", "xy", "deviation_px", "in_frame", "settings", "command_times",
+        freeze(self, ("times", "xy", "deviation_px", "in_frame", "settings", "command_times",
                        "commands", "estimate_error_mm"))
 
     @property

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import emcee
 import numpy as np
 
-from .._validate import as_rng, as_scalar
+from .._validate import as_rng, as_scalar, freeze
 from ..camera import Camera
-from .fitting import Fit, _freeze, _observations, project_params
+from .fitting import Fit, _observations, project_params
 
 
 @dataclass(frozen=True, eq=False)
@@ -39,7 +39,7 @@ class Posterior:
     acceptance: float
 
     def __post_init__(self):
-        _freeze(self, ("samples",))
+        freeze(self, ("samples",))
 
     @property
     def mean(self) -> np.ndarray:

@@ -37,9 +37,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._validate import as_array, as_scalar
+from .._validate import as_array, as_scalar, check_patch
 from ..matching.correlation import CorrelationStatus, correlation_search
-from ..matching.lsm import LSMThresholds, _check_patch, lsm
+from ..matching.lsm import LSMThresholds, lsm
 from ..matching.spline import SplineImage, check_image
 from .density import sparse_candidates
 
@@ -203,7 +203,7 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
     Tracks
     """
     p = params or TrackerParams()
-    _check_patch(p.patch)
+    check_patch(p.patch)
     for name in ("radius", "retry_radius"):
         r = getattr(p, name)
         if isinstance(r, bool) or int(r) != r or r < 1:
@@ -421,7 +421,7 @@ def track_step(frame, next_frame, xy, predicted, radius, *, params: TrackerParam
     StepResult
     """
     p = params or TrackerParams()
-    _check_patch(p.patch)
+    check_patch(p.patch)
     if len(frame) != len(next_frame):
         raise ValueError(f"next_frame: expected {len(frame)} images (one per camera), got "
                          f"{len(next_frame)}")

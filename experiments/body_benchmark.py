@@ -50,7 +50,7 @@ def main(argv=None):
             return fit_sequence(model, points, truth.torso_poses, init, sigma_mm=2.0, **kw)
         seconds, fit = best_time(run, args.repeats)
         s = eb.score_fit(fit, truth)
-        out["variants"][name] = {"seconds": seconds, "status": fit.status, "nfev": fit.nfev,
+        out["variants"][name] = {"seconds": seconds, "status": fit.status.name, "nfev": fit.nfev,
                                  "max_angle_err_deg": s["max_angle_err_deg"],
                                  "max_length_err_pct": float(np.abs(s["length_err_pct"]).max())}
     base = out["variants"]["analytic, sparse"]["seconds"]

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from lsmta.body import (
+    FitStatus,
     Joint,
     ModelState,
     Skeleton,
@@ -185,7 +186,7 @@ def test_frame_fit_and_full_refinement(world):
     assert fit.ok, fit.message
     full = fit_frame(arm_model(), pts[0], truth.torso_poses[0], fit.state, shape="full",
                      sigma_mm=2.0)
-    assert full.status in ("ok", "not_converged")
+    assert full.status in (FitStatus.OK, FitStatus.NOT_CONVERGED)
     assert eb.score_fit(full, truth)["max_angle_err_deg"] < 3.0
     # skin scored both ways, where there were points: the fit is near the true skin, and
     # much nearer than its start
@@ -226,7 +227,7 @@ def test_bad_input(world):
     far = ModelState(init.angles + np.array([[2.0, 1.0, 0.0, 1.2, 0.0]]), init.shoulder,
                      init.scales, init.radii)
     bad = fit_frame(m, p, P, far, sigma_mm=2.0)
-    assert not bad.ok and bad.status in ("init_far", "poor_fit")
+    assert not bad.ok and bad.status in (FitStatus.INIT_FAR, FitStatus.POOR_FIT)
     # argument errors
     with pytest.raises(ValueError, match="shape"):
         fit_frame(m, p, P, init, shape="round")

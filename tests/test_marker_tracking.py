@@ -65,9 +65,9 @@ def test_blurred_frame_detected_and_tracks_survive():
     cap = ef.observe_tracked(seq, np.random.default_rng(6), cameras=[1, 2],
                              blur_frames=[10])
     st = cap.status[0]
-    assert (st[10] == tm.BLURRED).all()
-    assert (st[[f for f in range(1, 20) if f != 10]] != tm.BLURRED).all()
-    tracked = np.isin(st, (tm.TRACKED, tm.SECOND_SEARCH)).sum(axis=1)
+    assert (st[10] == tm.MarkerStatus.BLURRED).all()
+    assert (st[[f for f in range(1, 20) if f != 10]] != tm.MarkerStatus.BLURRED).all()
+    tracked = np.isin(st, (tm.MarkerStatus.TRACKED, tm.MarkerStatus.SECOND_SEARCH)).sum(axis=1)
     assert tracked[11] >= tracked[9] - 3
     e = np.linalg.norm(cap.tracked_xy[0, 11] - cap.truth_xy[0, 11], axis=1)
     assert np.nanmedian(e[~cap.crowded[0, 11]]) < 0.3
@@ -93,9 +93,9 @@ def test_second_search_rescues_fast_marker():
     kw = dict(window=7, levels=1, stabilise=False)
     plain = tm.track_markers(frames, truth[:1], second_search=False, **kw)
     both = tm.track_markers(frames, truth[:1], **kw)
-    assert (plain.status[:, 0] == tm.LOST).any()
-    assert (both.status[:, 0] == tm.SECOND_SEARCH).any()
-    assert not (both.status[:, 0] == tm.LOST).any()
+    assert (plain.status[:, 0] == tm.MarkerStatus.LOST).any()
+    assert (both.status[:, 0] == tm.MarkerStatus.SECOND_SEARCH).any()
+    assert not (both.status[:, 0] == tm.MarkerStatus.LOST).any()
     assert np.abs(both.xy[:, 0] - truth).max() < 0.3
 
 

@@ -38,13 +38,14 @@ Checks
     NaN points are dropped and counted; a segment with fewer than ``min_points_per_param``
     points per free shape parameter keeps its shape and scale (named in
     ``fixed_segments``); if fewer than ``min_inlier_share`` of the points lie within
-    ``gate_mm`` of the initial model the fit is not run (status ``"init_far"``), and a fit
-    that ends with fewer inliers than that is reported as ``"poor_fit"``. Segments without
+    ``gate_mm`` of the initial model the fit is not run (``FitStatus.INIT_FAR``), and a fit
+    that ends with fewer inliers than that is reported as ``FitStatus.POOR_FIT``. Segments without
     points of their own in a frame are named in ``unobserved``.
 """
 
 from __future__ import annotations
 
+import enum
 import time
 from dataclasses import dataclass
 
@@ -57,7 +58,15 @@ from .arm import base_poses
 from .metaballs import MetaballModel, surface_distance
 
 LOSSES = ("linear", "soft_l1", "huber", "cauchy")
-STATUSES = ("ok", "not_converged", "poor_fit", "init_far")
+
+
+class FitStatus(enum.IntEnum):
+    """How a fit ended."""
+
+    OK = 0             #: converged
+    NOT_CONVERGED = 1  #: iteration budget used up; the result is usable with care
+    POOR_FIT = 2       #: too few points near the final model: do not trust it
+    INIT_FAR = 3       #: the initial posture is too far from the data; nothing was fitted
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,14 +97,11 @@ class BodyFit:
 
     Attributes
     ----------
-    status : str
-        ``"ok"``; ``"not_converged"`` (iteration budget used up, result usable with care);
-        ``"poor_fit"`` (too few points near the final model: do not trust it);
-        ``"init_far"`` (the initial posture is too far from the data; nothing was fitted
-        and :attr:`state` is the initial state).
+    status : FitStatus
+        ``INIT_FAR``: nothing was fitted and :attr:`state` is the initial state.
     message : str
     state : ModelState
-        The estimate (or the initial state when ``status == "init_far"``).
+        The estimate (or the initial state when ``status == FitStatus.INIT_FAR``).
     lengths : (S,) array
         Bone lengths, mm.
     segment : list of T (N_t,) int arrays
@@ -128,7 +134,7 @@ class BodyFit:
         freedom (approximate under a robust loss); units as in :attr:`names`.
     """
 
-    status: str
+    status: FitStatus
     message: str
     state: ModelState
     lengths: np.ndarray
@@ -148,7 +154,7 @@ class BodyFit:
 
     @property
     def ok(self) -> bool:
-        return self.status == "ok"
+        return self.status == FitStatus.OK
 
 
 class _Layout:
@@ -510,7 +516,7 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
         sig = float(1.4826 * np.median(np.abs(assigned))) if assigned.size else np.nan
         unobs = tuple((t, model.names[k]) for t in range(T) for k in range(model.n_segments)
                       if np.sum(seg[frame == t] == k) < min_points_per_param)
-        if unobs and status != "init_far":
+        if unobs and status != FitStatus.INIT_FAR:
             message += "; no points of its own for " + ", ".join(
                 f"{n} in frame {t}" for t, n in unobs)
         return BodyFit(status, message, state, model.bone_lengths(state.scales), seg_out,
@@ -520,8 +526,8 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
     fixed: list[str] = []
     if share0.min() < min_inlier_share:
         worst = int(np.argmin(share0))
-        return finish("init_far", f"only {share0[worst]:.0%} of the points of frame {worst} lie "
-                      f"within {gate:g} mm of the initial model (need "
+        return finish(FitStatus.INIT_FAR, f"only {share0[worst]:.0%} of the points of frame "
+                      f"{worst} lie within {gate:g} mm of the initial model (need "
                       f"{min_inlier_share:.0%}); initialise closer to the data", st, seg, 0, 0,
                       (), np.zeros(0), np.zeros((0, 0)))
 
@@ -617,12 +623,13 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
         cov = np.full((n, n), np.nan)
     inl = np.array([np.mean(seg[frame == t] >= 0) if counts[t] else 0.0 for t in range(T)])
     if inl.min() < min_inlier_share:
-        status, msg = "poor_fit", (f"only {inl.min():.0%} of the points of a frame lie within "
-                                   f"{gate:g} mm of the fitted model; the fit is not trusted")
+        status, msg = FitStatus.POOR_FIT, (f"only {inl.min():.0%} of the points of a frame "
+                                           f"lie within {gate:g} mm of the fitted model; the fit "
+                                           "is not trusted")
     elif not converged:
-        status, msg = "not_converged", f"stopped after {rounds} rounds ({nfev} evaluations)"
+        status, msg = FitStatus.NOT_CONVERGED, f"stopped after {rounds} rounds ({nfev} evaluations)"
     else:
-        status, msg = "ok", f"converged in {rounds} rounds ({nfev} evaluations)"
+        status, msg = FitStatus.OK, f"converged in {rounds} rounds ({nfev} evaluations)"
     if fixed:
         msg += f"; shape held for {', '.join(fixed)} (too few points)"
     if sum(n_nan):

@@ -12,6 +12,7 @@ by the Hungarian method (:func:`scipy.optimize.linear_sum_assignment`) within a 
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,9 +21,13 @@ from scipy.optimize import linear_sum_assignment
 
 from .._validate import as_scalar
 
-STATUS_OK = 0
-STATUS_LOST = 1          # no blob within the gate
-STATUS_NOT_CONVERGED = 2  # the Gaussian fit failed; the weighted centroid is kept
+
+class TargetStatus(enum.IntEnum):
+    """What was measured for a target in a frame."""
+
+    OK = 0             #: a blob, located by the Gaussian fit
+    LOST = 1           #: no blob within the gate
+    NOT_CONVERGED = 2  #: the Gaussian fit failed; the weighted centroid is kept
 
 
 @dataclass(frozen=True)
@@ -56,7 +61,7 @@ class TargetTracks:
     xy : (T, M, 2) array
         Image positions of the M targets in each of T frames, px; NaN where lost.
     status : (T, M) int array
-        :data:`STATUS_OK`, :data:`STATUS_LOST` or :data:`STATUS_NOT_CONVERGED`.
+        :class:`TargetStatus` codes.
     n_blobs : (T,) int array
         Blobs found in each frame.
     """
@@ -67,7 +72,7 @@ class TargetTracks:
 
     @property
     def n_lost(self) -> int:
-        return int(np.count_nonzero(self.status == STATUS_LOST))
+        return int(np.count_nonzero(self.status == TargetStatus.LOST))
 
 
 def _gaussian_fit(patches, x0, y0, n_iter: int = 12):
@@ -187,7 +192,7 @@ def track_targets(images, n_targets: int = 2, *, gate: float = 100.0, **detect) 
         raise ValueError(f"n_targets: expected a positive integer, got {n_targets!r}")
     M = int(n_targets)
     xy = np.full((T, M, 2), np.nan)
-    status = np.full((T, M), STATUS_LOST)
+    status = np.full((T, M), TargetStatus.LOST, dtype=np.int64)
     n_blobs = np.zeros(T, int)
     last = np.full((M, 2), np.nan)
     vel = np.zeros((M, 2))
@@ -202,7 +207,7 @@ def track_targets(images, n_targets: int = 2, *, gate: float = 100.0, **detect) 
             strongest = np.argsort(-b.amplitude)[:M]
             pick = [i for i in order if i in strongest]
             xy[t] = b.xy[pick]
-            status[t] = np.where(b.converged[pick], STATUS_OK, STATUS_NOT_CONVERGED)
+            status[t] = np.where(b.converged[pick], TargetStatus.OK, TargetStatus.NOT_CONVERGED)
             last = xy[t].copy()
             started = True
             continue
@@ -214,7 +219,7 @@ def track_targets(images, n_targets: int = 2, *, gate: float = 100.0, **detect) 
         for r, c in zip(rows, cols):
             if cost[r, c] <= gate:
                 xy[t, r] = b.xy[c]
-                status[t, r] = STATUS_OK if b.converged[c] else STATUS_NOT_CONVERGED
+                status[t, r] = TargetStatus.OK if b.converged[c] else TargetStatus.NOT_CONVERGED
                 vel[r] = b.xy[c] - last[r]
                 last[r] = b.xy[c]
     return TargetTracks(xy, status, n_blobs)

@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 
 from ..body import ModelState, arm_model, iso_surface, shoulder_angles
 from ..body.arm import base_poses
-from ..body.fitting import BodyFit
+from ..body.fitting import BodyFit, FitStatus
 from ..synth.body import Body, Motion, inside_parts
 
 ARM_PARTS = ("upper_arm_r", "forearm_r", "hand_r")
@@ -193,7 +193,7 @@ def fit_arm(points, torso_poses, init: ModelState, *, model=None, full: bool = T
 
     model = arm_model() if model is None else model
     simple = fit_sequence(model, points, torso_poses, init, **kwargs)
-    if not full or simple.status == "init_far":
+    if not full or simple.status == FitStatus.INIT_FAR:
         return simple, None
     kwargs["max_rounds"] = full_rounds
     return simple, fit_sequence(model, points, torso_poses, simple.state, shape="full",

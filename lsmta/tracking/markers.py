@@ -14,6 +14,7 @@ identified again by hand when it reappears); there is no automatic re-acquisitio
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass
 
 import cv2
@@ -21,9 +22,19 @@ import numpy as np
 
 from .._validate import as_array, as_scalar
 
-TRACKED, SECOND_SEARCH, BLURRED, LOST, SEEDED = 0, 1, 2, 3, 4
-STATUS_NAMES = {TRACKED: "tracked", SECOND_SEARCH: "second search", BLURRED: "blurred frame",
-                LOST: "lost", SEEDED: "seeded"}
+
+class MarkerStatus(enum.IntEnum):
+    """What happened to a marker in a frame."""
+
+    TRACKED = 0        #: found by the first search (frame 0: the start position)
+    SECOND_SEARCH = 1  #: found by the search from its own velocity prediction
+    BLURRED = 2        #: the frame was skipped as blurred
+    LOST = 3           #: not found, or not being tracked
+    SEEDED = 4         #: (re)started from ``seeds``
+
+
+# the names lsmta.evaluation.face imports
+TRACKED, SECOND_SEARCH = MarkerStatus.TRACKED, MarkerStatus.SECOND_SEARCH
 
 
 @dataclass(frozen=True)
@@ -35,9 +46,7 @@ class MarkerTracks:
     xy : (T, M, 2) array
         Marker positions, px; NaN when lost or in a skipped (blurred) frame.
     status : (T, M) int array
-        ``TRACKED`` (first search), ``SECOND_SEARCH`` (found from the velocity
-        prediction), ``BLURRED`` (frame skipped), ``LOST``, ``SEEDED`` (position taken
-        from ``seeds``; frame 0 counts as ``TRACKED``).
+        :class:`MarkerStatus` codes.
     shift : (T, 2) array
         Dominant translation of each frame relative to the previous frame, px (summed
         over skipped frames at the next good one); NaN for skipped frames, 0 for frame 0.
@@ -153,7 +162,7 @@ def _seed(t, seeds, alive, pos, vel, xy, status, image, refine):
     pos[new] = refine_centroid(image, seeds[t, new]) if refine else seeds[t, new]
     vel[new] = 0.0
     xy[t, new] = pos[new]
-    status[t, new] = SEEDED
+    status[t, new] = MarkerStatus.SEEDED
 
 
 def track_markers(images, initial_xy, *, window: int = 11, levels: int = 2,
@@ -221,7 +230,7 @@ def track_markers(images, initial_xy, *, window: int = 11, levels: int = 2,
     if seeds is not None:
         seeds = as_array(seeds, "seeds", shape=(T, M, 2), allow_nan=True)
     xy = np.full((T, M, 2), np.nan)
-    status = np.full((T, M), LOST, dtype=int)
+    status = np.full((T, M), MarkerStatus.LOST, dtype=np.int64)
     shift = np.full((T, 2), np.nan)
     sharp = np.array([sharpness(im) for im in imgs])
     blurred = np.zeros(T, bool)
@@ -231,7 +240,7 @@ def track_markers(images, initial_xy, *, window: int = 11, levels: int = 2,
         pos[alive] = refine_centroid(imgs[0], pos[alive])
     vel = np.zeros((M, 2))               # per-frame image velocity, stabilised
     xy[0, alive] = pos[alive]
-    status[0, alive] = TRACKED
+    status[0, alive] = MarkerStatus.TRACKED
     shift[0] = 0.0
     ref = 0
     good = [sharp[0]]
@@ -239,7 +248,7 @@ def track_markers(images, initial_xy, *, window: int = 11, levels: int = 2,
         gap = t - ref
         if gap <= blur_retry and sharp[t] < blur_ratio * np.median(good[-blur_history:]):
             blurred[t] = True
-            status[t] = BLURRED
+            status[t] = MarkerStatus.BLURRED
             continue
         good.append(sharp[t])
         s = dominant_shift(imgs[ref], imgs[t]) if stabilise else np.zeros(2)
@@ -253,7 +262,7 @@ def track_markers(images, initial_xy, *, window: int = 11, levels: int = 2,
         p1, ok, fb, err = _lk(imgs[ref], imgs[t], pos[idx], pred, lk)
         ok &= (fb < fb_threshold) & (err < max_error)
         ok &= np.linalg.norm(p1 - pred, axis=1) < max_jump
-        st = np.where(ok, TRACKED, LOST)
+        st = np.where(ok, MarkerStatus.TRACKED, MarkerStatus.LOST)
         if second_search and not ok.all():
             bad = np.flatnonzero(~ok)
             pred2 = pos[idx[bad]] + s + vel[idx[bad]] * gap
@@ -262,12 +271,12 @@ def track_markers(images, initial_xy, *, window: int = 11, levels: int = 2,
             ok2 &= np.linalg.norm(q1 - pred2, axis=1) < max_jump
             p1[bad[ok2]] = q1[ok2]
             ok[bad[ok2]] = True
-            st[bad[ok2]] = SECOND_SEARCH
+            st[bad[ok2]] = MarkerStatus.SECOND_SEARCH
         inside = (p1[:, 0] >= 0) & (p1[:, 0] <= W - 1) & (p1[:, 1] >= 0) & (p1[:, 1] <= H - 1)
         ok &= inside
         if refine and ok.any():
             p1[ok] = refine_centroid(imgs[t], p1[ok])
-        st[~ok] = LOST
+        st[~ok] = MarkerStatus.LOST
         found = idx[ok]
         vel[found] = (p1[ok] - pos[found] - s) / gap
         pos[found] = p1[ok]

@@ -32,12 +32,12 @@ def main(argv=None):
     parser.add_argument("--out", default="build/benchmarks/body.json")
     args = parser.parse_args(argv)
     rng = np.random.default_rng(1998)
-    body = make_body(np.random.default_rng(1998))
+    body = make_body(rng=np.random.default_rng(1998))
     motion = arm_wave(50)
     frames = np.linspace(4, 49, args.frames).astype(int)
     truth = eb.arm_truth(body, motion, frames)
-    init, _ = eb.initial_state(truth, rng)
-    points = eb.controlled_points(body, motion, truth, rng, n=args.points)
+    init, _ = eb.initial_state(truth, rng=rng)
+    points = eb.controlled_points(body, motion, truth, rng=rng, n=args.points)
     model = arm_model()
     variants = {"analytic, sparse": dict(sparse_jacobian=True),
                 "analytic, dense": dict(sparse_jacobian=False),

@@ -66,7 +66,7 @@ def main(argv=None):
         row["time_ratio_peer_over_ours"] = row["time_peer_s"] / row["time_ours_s"]
         try:
             bar_ = Bar(np.arange(t.xy.shape[1]).reshape(-1, 2), t.track.length)
-            c0, _ = relative_orientation_start(triplet_rig(None), t.xy, bar=bar_, pair=(0, 2))
+            c0, _ = relative_orientation_start(triplet_rig(), t.xy, bar=bar_, pair=(0, 2))
             _, be, ce, sec = aniposelib_peer(t, c0)
             row.update(aniposelib_bar_rms_mm=rms(be), aniposelib_check_rms_mm=rms(ce),
                        time_aniposelib_s=sec,

@@ -78,10 +78,10 @@ def main(argv=None):
     rows["aim_time_ratio_direct_over_local"] = t_direct / t_local
     rows["aim_time_ratio_direct_over_batched"] = t_direct / t_batch
 
-    target = intrinsic_target(head, rng)
+    target = intrinsic_target(head, rng=rng)
     t_intr, intr = best_time(lambda: calibrate_intrinsics(target.X, target.xy,
                                                           head.camera.image_size), args.repeats)
-    cal = calibration_sweeps(head, rng)
+    cal = calibration_sweeps(head, rng=rng)
     cam = intr.model
     t_simple, _ = best_time(lambda: calibrate(cam, cal.pan, cal.tilt, cal.X, cal.xy,
                                               kind="simple"), args.repeats)

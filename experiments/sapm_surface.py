@@ -32,7 +32,7 @@ from lsmta.synth.markers import human_model
 
 def noise_free_chunk(model, seed: int, n_poses: int, eps: float, beta: float):
     """One chunk of the noise-free test: SAPM and the baseline on the same poses."""
-    trials = ev.pose_trials(model, np.random.default_rng(seed), n_poses, level=np.pi,
+    trials = ev.pose_trials(model, n_poses, rng=np.random.default_rng(seed), level=np.pi,
                             methods=("sapm", "baseline"), eps=eps, beta=beta)
     return {m: (t.correct, t.accuracy, t.seconds) for m, t in trials.items()}
 

@@ -49,8 +49,8 @@ def main(argv=None):
                            min_distance=3.0 * s)
     # warm-up: load the compiled kernels once, outside the timings
     et.run_trial(et.walk_sequence(args.seed, n_frames=2, scale=0.25), 5,
-                 np.random.default_rng(0))
-    trial = et.run_trial(seq, args.points, np.random.default_rng(args.seed), params=params)
+                 rng=np.random.default_rng(0))
+    trial = et.run_trial(seq, args.points, rng=np.random.default_rng(args.seed), params=params)
     sc, ks = trial.score, trial.klt_score
     age, e_ls, n_ls = et.by_age(sc.error_3d, trial.tracks.start)
     _, e_kl, n_kl = et.by_age(ks.error_3d, trial.klt.start)

@@ -30,7 +30,7 @@ RIG = (0.0, -2500.0, 1200.0)
 
 @pytest.fixture(scope="module")
 def world():
-    body = make_body(np.random.default_rng(3))
+    body = make_body(rng=np.random.default_rng(3))
     return body, arm_wave(50)
 
 
@@ -120,8 +120,8 @@ def test_residual_jacobian_vs_finite_differences(world):
     rng = np.random.default_rng(1)
     m = arm_model()
     truth = eb.arm_truth(body, motion, [15, 35])
-    st, _ = eb.initial_state(truth, rng)
-    pts = np.concatenate([surface_samples(body, motion, int(f), rng, n=60)[0]
+    st, _ = eb.initial_state(truth, rng=rng)
+    pts = np.concatenate([surface_samples(body, motion, int(f), rng=rng, n=60)[0]
                           for f in truth.frames])
     frame = np.repeat([0, 1], 60)
     for shape, share in (("simplified", True), ("full", False)):
@@ -157,7 +157,7 @@ def test_angles_from_joints_inverts_fk(world):
 def _data(world, frames, n, rng, noise=2.0, outliers=0.1):
     body, motion = world
     truth = eb.arm_truth(body, motion, frames)
-    pts = [surface_samples(body, motion, int(f), rng, n=n, noise_mm=noise,
+    pts = [surface_samples(body, motion, int(f), rng=rng, n=n, noise_mm=noise,
                            outlier_share=outliers, view_from=RIG)[0] for f in frames]
     return truth, pts
 
@@ -165,7 +165,7 @@ def _data(world, frames, n, rng, noise=2.0, outliers=0.1):
 def test_sequence_recovers_lengths_and_angles(world):
     rng = np.random.default_rng(7)
     truth, pts = _data(world, [8, 20, 32, 44], 400, rng)
-    init, _ = eb.initial_state(truth, rng, joint_noise_mm=15.0)
+    init, _ = eb.initial_state(truth, rng=rng, joint_noise_mm=15.0)
     fit = fit_sequence(arm_model(), pts, truth.torso_poses, init, sigma_mm=2.0)
     assert fit.ok, fit.message
     score = eb.score_fit(fit, truth)
@@ -181,7 +181,7 @@ def test_sequence_recovers_lengths_and_angles(world):
 def test_frame_fit_and_full_refinement(world):
     rng = np.random.default_rng(8)
     truth, pts = _data(world, [30], 500, rng)
-    init, _ = eb.initial_state(truth, rng)
+    init, _ = eb.initial_state(truth, rng=rng)
     fit = fit_frame(arm_model(), pts[0], truth.torso_poses[0], init, sigma_mm=2.0)
     assert fit.ok, fit.message
     full = fit_frame(arm_model(), pts[0], truth.torso_poses[0], fit.state, shape="full",
@@ -201,7 +201,7 @@ def test_frame_fit_and_full_refinement(world):
 def test_bad_input(world):
     rng = np.random.default_rng(9)
     truth, pts = _data(world, [30], 400, rng, outliers=0.0)
-    init, _ = eb.initial_state(truth, rng)
+    init, _ = eb.initial_state(truth, rng=rng)
     m = arm_model()
     P = truth.torso_poses[0]
     # NaN points: dropped and reported
@@ -218,7 +218,7 @@ def test_bad_input(world):
     np.testing.assert_allclose(fit2.state.radii[2], init.radii[2])
     assert fit2.state.scales[2] == init.scales[2]
     # a segment without points in a frame is named, and the message says so
-    upper = surface_samples(*world, 30, rng, parts=("upper_arm_r",), n=300, noise_mm=1.0)[0]
+    upper = surface_samples(*world, 30, rng=rng, parts=("upper_arm_r",), n=300, noise_mm=1.0)[0]
     upper = upper[np.linalg.norm(upper - truth.joints[0, 1], axis=1) > 120]
     fit3 = fit_frame(m, upper, P, init, sigma_mm=2.0)
     assert (0, "forearm") in fit3.unobserved and "forearm in frame 0" in fit3.message
@@ -242,7 +242,7 @@ def test_bad_input(world):
     with pytest.raises(ValueError, match="scales"):
         fit_frame(m, p, P, ModelState(init.angles, init.shoulder, -init.scales, init.radii))
     with pytest.raises(ValueError, match="outlier_share"):
-        surface_samples(*world, 0, rng, outlier_share=1.0)
+        surface_samples(*world, 0, rng=rng, outlier_share=1.0)
 
 
 def test_posterior_agrees_with_least_squares(world):
@@ -250,10 +250,10 @@ def test_posterior_agrees_with_least_squares(world):
 
     rng = np.random.default_rng(10)
     truth, pts = _data(world, [30], 300, rng)
-    init, _ = eb.initial_state(truth, rng)
+    init, _ = eb.initial_state(truth, rng=rng)
     m = arm_model()
     fit = fit_frame(m, pts[0], truth.torso_poses[0], init, sigma_mm=2.0)
-    post = sample_limb_posterior(m, fit, pts[0], truth.torso_poses[0], rng, n_walkers=20,
+    post = sample_limb_posterior(m, fit, pts[0], truth.torso_poses[0], rng=rng, n_walkers=20,
                                  n_steps=120, burn=60)
     assert 0.1 < post.acceptance < 0.9
     assert np.all(np.abs(post.mean - post.ls_mean) < 3 * post.ls_std)

@@ -297,7 +297,7 @@ def test_drift_filter_gives_no_verdict_without_neighbours_and_rejects_bad_input(
 
 def test_rendered_walk_tracks_against_truth():
     seq = et.walk_sequence(7, n_frames=4, surface_every=4)
-    trial = et.run_trial(seq, 80, np.random.default_rng(1), density=False)
+    trial = et.run_trial(seq, 80, rng=np.random.default_rng(1), density=False)
     sc = trial.score
     assert trial.tracks.alive[-1].sum() >= 10
     assert np.nanmedian(sc.step_error) < 0.2

@@ -31,7 +31,7 @@ from lsmta.widearea import (
 
 @pytest.fixture(scope="module")
 def rig():
-    return ceiling_rig(np.random.default_rng(3))
+    return ceiling_rig(rng=np.random.default_rng(3))
 
 
 # ----------------------------------------------------------------------------- kalman
@@ -181,7 +181,7 @@ def test_schedule_policies():
     rr = schedule(t, cam, stamp, "round_robin", 0.015)
     served = np.bincount(cam[rr.order], minlength=3)
     assert served.min() >= 5 and served.max() - served.min() <= 1     # cameras in turn
-    rnd = schedule(t, cam, stamp, "random_recent", 0.015, np.random.default_rng(0))
+    rnd = schedule(t, cam, stamp, "random_recent", 0.015, rng=np.random.default_rng(0))
     assert (np.bincount(cam[rnd.order], minlength=3) > 2).all()
     assert np.all(np.diff(rnd.started) > 0)
     with pytest.raises(ValueError, match="rng"):
@@ -192,7 +192,7 @@ def test_schedule_policies():
 
 # ----------------------------------------------------------------------------- tracker
 def test_fig35_discard_late_starves_and_tolerance_cures():
-    trial = fig35_starvation(np.random.default_rng(1), duration=1.0)
+    trial = fig35_starvation(rng=np.random.default_rng(1), duration=1.0)
     np.testing.assert_allclose(trial.used_discard, [1.0, 0.0, 0.0])
     np.testing.assert_allclose(trial.used_tolerant, [1.0, 1.0, 1.0])
     assert trial.tracks_discard == 0 and trial.tracks_tolerant == 1
@@ -201,7 +201,7 @@ def test_fig35_discard_late_starves_and_tolerance_cures():
 
 def test_walking_person_short(rig):
     k = np.arange(8)
-    w = walking_trial(np.random.default_rng(5), duration=1.2,
+    w = walking_trial(rng=np.random.default_rng(5), duration=1.2,
                       on=np.stack([0.05 + 0.02 * k, 0.9 + 0.02 * k], axis=1))
     s = w.score_ours
     assert s.identity_changes == 0
@@ -235,7 +235,7 @@ def test_score_counts_failed_births_and_deaths():
 
 def _frames(rig, rng):
     cams = rig[:6]
-    obs = observe(still_led(0.6), cams, make_clocks(6, rng), rng, reflections=0.0)
+    obs = observe(still_led(0.6), cams, make_clocks(6, rng=rng), rng=rng, reflections=0.0)
     return cams, obs
 
 
@@ -282,7 +282,7 @@ def test_tracker_argument_errors(rig):
 def test_generator_truth_and_visibility(rig):
     rng = np.random.default_rng(4)
     scene = walking_person(0.6)
-    obs = observe(scene, rig, make_clocks(18, rng), rng, reflections=0.0, noise_px=0.0)
+    obs = observe(scene, rig, make_clocks(18, rng=rng), rng=rng, reflections=0.0, noise_px=0.0)
     # every centroid with a truth label lies on the projection of that LED at capture time
     fr = obs.frames
     f = int(np.argmax(np.diff(fr.start)))
@@ -401,7 +401,7 @@ def test_subsampled_search_tests_fewer_pixels_and_finds_predicted_spots():
     assert m.sum() == 12 * 16 + 100 - m[25:35, 35:45][(np.arange(25, 35) % 5 == 1)[:, None]
                                                         & (np.arange(35, 45) % 5 == 2)].sum()
     with pytest.raises(TypeError, match="rng"):
-        detect(frames, thr, mode="subsampled")
+        detect(frames, thr, mode="subsampled", rng="0")
 
 
 def test_rendered_video_detected_at_truth():
@@ -409,8 +409,8 @@ def test_rendered_video_detected_at_truth():
     from lsmta.widearea import background_threshold, detect
 
     rng = np.random.default_rng(8)
-    cam = small_camera(ceiling_rig(np.random.default_rng(7))[0])
-    video = render_led_video(still_led(0.3), cam, np.arange(5) / 30, rng, monitor_flicker=0.0,
+    cam = small_camera(ceiling_rig(rng=np.random.default_rng(7))[0])
+    video = render_led_video(still_led(0.3), cam, np.arange(5) / 30, rng=rng, monitor_flicker=0.0,
                              reflections=0.0)
     thr = background_threshold(video.background, 20.0, 60.0)
     det = detect(video.frames, thr)
@@ -484,7 +484,7 @@ def test_subsampled_previous_windows_follow_a_spot_the_grid_misses():
 def test_rendered_images_detected_and_tracked_in_3d():
     from lsmta.evaluation.widearea import rendered_tracking_trial
 
-    trial = rendered_tracking_trial(np.random.default_rng(11), n_cameras=5, duration=1.0,
+    trial = rendered_tracking_trial(rng=np.random.default_rng(11), n_cameras=5, duration=1.0,
                                     hold=0.2, modes=("subsampled",))
     r = trial.results["subsampled"]
     # one LED: one target, followed all the time, within the thesis's ~10 mm

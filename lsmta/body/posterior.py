@@ -53,10 +53,10 @@ class LimbPosterior:
         return self.samples.std(axis=0, ddof=1)
 
 
-def sample_limb_posterior(model: MetaballModel, fit: BodyFit, points, torso_pose,
-                          rng: np.random.Generator, *, sigma_mm: float | None = None,
-                          n_walkers: int = 24, n_steps: int = 300, burn: int = 100,
-                          thin: int = 5) -> LimbPosterior:
+def sample_limb_posterior(model: MetaballModel, fit: BodyFit, points, torso_pose, *,
+                          rng: np.random.Generator | int | None = None,
+                          sigma_mm: float | None = None, n_walkers: int = 24, n_steps: int = 300,
+                          burn: int = 100, thin: int = 5) -> LimbPosterior:
     """Sample lengths and sizes of a one-frame simplified fit with emcee.
 
     Parameters
@@ -67,7 +67,7 @@ def sample_limb_posterior(model: MetaballModel, fit: BodyFit, points, torso_pose
     points : (N, 3) array
         The points that were fitted (world mm; NaN rows allowed, as in the fit).
     torso_pose : (4, 4) array
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
         Seeds the walkers' start and emcee's own generator.
     sigma_mm : float, optional
         Point noise (default: the fit's robust residual scale).

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .._validate import as_rng
 from ..body import ModelState, arm_model, iso_surface, shoulder_angles
 from ..body.arm import base_poses
 from ..body.fitting import BodyFit, FitStatus
@@ -73,13 +74,15 @@ def arm_truth(body: Body, motion: Motion, frames) -> ArmTruth:
                     angles, joints)
 
 
-def initial_state(truth: ArmTruth, rng: np.random.Generator, *, joint_noise_mm: float = 15.0,
-                  width_mm: float = 70.0, model=None) -> tuple[ModelState, np.ndarray]:
+def initial_state(truth: ArmTruth, *, rng: np.random.Generator | int | None = None,
+                  joint_noise_mm: float = 15.0, width_mm: float = 70.0,
+                  model=None) -> tuple[ModelState, np.ndarray]:
     """A starting state as from tracked joints: the true joints plus Gaussian noise, inverse
     kinematics, template lengths scaled to the tracked mean lengths, round template balls.
 
     Returns the state and the tracked joints ``(T, 3, 3)``.
     """
+    rng = as_rng(rng)
     from ..body import angles_from_joints
 
     model = arm_model() if model is None else model
@@ -94,11 +97,12 @@ def initial_state(truth: ArmTruth, rng: np.random.Generator, *, joint_noise_mm: 
     return state, tracked
 
 
-def true_skin(body: Body, motion: Motion, frame: int, rng: np.random.Generator,
-              n: int = 30000) -> np.ndarray:
+def true_skin(body: Body, motion: Motion, frame: int, n: int = 30000, *,
+              rng: np.random.Generator | int | None = None) -> np.ndarray:
     """Dense samples ``(M, 3)`` of the arm's outer skin in one frame (world mm)."""
+    rng = as_rng(rng)
     poses = body.part_poses(motion, frame)[0]
-    part, local = body.sample_surface(rng, n // 3, parts=ARM_PARTS)
+    part, local = body.sample_surface(n // 3, rng=rng, parts=ARM_PARTS)
     world = np.einsum("nij,nj->ni", poses[part, :3, :3], local) + poses[part, :3, 3]
     return world[~inside_parts(body, poses, world, exclude=part)]
 
@@ -166,13 +170,15 @@ def score_fit(fit: BodyFit, truth: ArmTruth) -> dict:
 RIG_CENTRE = (0.0, -2500.0, 1100.0)   # the triplet rig's centre camera in the notebook (mm)
 
 
-def controlled_points(body: Body, motion: Motion, truth: ArmTruth, rng: np.random.Generator,
-                      *, n: int = 400, noise_mm: float = 2.0, outlier_share: float = 0.1,
+def controlled_points(body: Body, motion: Motion, truth: ArmTruth, *,
+                      rng: np.random.Generator | int | None = None, n: int = 400,
+                      noise_mm: float = 2.0, outlier_share: float = 0.1,
                       view_from=RIG_CENTRE) -> list:
     """Noisy samples of the arm's skin seen from the rig, one ``(n, 3)`` array per frame."""
+    rng = as_rng(rng)
     from ..synth.body import surface_samples
 
-    return [surface_samples(body, motion, int(f), rng, n=n, noise_mm=noise_mm,
+    return [surface_samples(body, motion, int(f), rng=rng, n=n, noise_mm=noise_mm,
                             outlier_share=outlier_share, view_from=view_from)[0]
             for f in truth.frames]
 
@@ -236,7 +242,7 @@ def true_skin_to_fit(fit: BodyFit, truth: ArmTruth, body: Body, motion: Motion, 
         verts, faces = iso_surface(model, st.angles[t:t + 1], st.scales, st.radii, base,
                                    spacing=spacing)
         mesh = pv.PolyData(verts, np.hstack([np.full((len(faces), 1), 3), faces]).ravel())
-        skin = true_skin(body, motion, int(truth.frames[t]), rng, n=n)
+        skin = true_skin(body, motion, int(truth.frames[t]), rng=rng, n=n)
         pts = np.asarray(points[t], float)
         pts = pts[np.isfinite(pts).all(axis=1)]
         d, _ = cKDTree(pts).query(skin)

@@ -116,10 +116,10 @@ def _measure(cameras, track, rng, mode, sigma_px):
     K = len(cameras)
     pts = track.points.reshape(-1, 3)
     if mode == "projected":
-        return project_observations(cameras, pts, rng, sigma_px=sigma_px)
+        return project_observations(cameras, pts, rng=rng, sigma_px=sigma_px)
     out = np.empty((K, len(pts), 2))
     for k, cam in enumerate(cameras):
-        out[k] = track_targets(render_bar_images(cam, track, rng)).xy.reshape(-1, 2)
+        out[k] = track_targets(render_bar_images(cam, track, rng=rng)).xy.reshape(-1, 2)
     return out
 
 
@@ -144,10 +144,10 @@ def bar_trial(seed: int = 0, *, n_positions: int = 150, n_heldout: int = 40,
     if mode not in ("images", "projected"):
         raise ValueError(f"mode: expected 'images' or 'projected', got {mode!r}")
     rng = np.random.default_rng(seed)
-    truth = triplet_rig(rng)
-    track = bar_track(rng, n_positions, length=length)
+    truth = triplet_rig(rng=rng)
+    track = bar_track(n_positions, rng=rng, length=length)
     # held-out positions inside the calibrated volume (check points are not extrapolated)
-    heldout = bar_track(rng, n_heldout, length=length, half_size=(800.0, 560.0, 400.0))
+    heldout = bar_track(n_heldout, rng=rng, length=length, half_size=(800.0, 560.0, 400.0))
     times = {}
     t0 = time.perf_counter()
     xy = _measure(truth, track, rng, mode, sigma_px)
@@ -158,7 +158,7 @@ def bar_trial(seed: int = 0, *, n_positions: int = 150, n_heldout: int = 40,
         sigma_px = float(np.sqrt(np.nanmean((xy - xy_true) ** 2)))
     pairs = np.arange(2 * n_positions).reshape(-1, 2)
     bar = Bar(pairs, length, bar_sigma)
-    nominal = triplet_rig(None)
+    nominal = triplet_rig()
     t0 = time.perf_counter()
     cams0, X0 = relative_orientation_start(nominal, xy, bar=bar, pair=(0, 2))
     times["approximations"] = time.perf_counter() - t0
@@ -247,14 +247,14 @@ def ring_trial(seeds=(0, 1, 2), *, n_cameras: int = 10, n_path: int = 300,
     from ..calibration.virtual_object import projection_error
 
     rng = np.random.default_rng(data_seed)
-    truth = ring_rig(n_cameras, rng)
-    path = led_path(rng, n_path)
-    check = led_path(rng, n_check)
-    xy = project_observations(truth, path, rng, sigma_px=sigma_px)
-    xy_c = project_observations(truth, check, rng, sigma_px=sigma_px)
+    truth = ring_rig(n_cameras, rng=rng)
+    path = led_path(n_path, rng=rng)
+    check = led_path(n_check, rng=rng)
+    xy = project_observations(truth, path, rng=rng, sigma_px=sigma_px)
+    xy_c = project_observations(truth, check, rng=rng, sigma_px=sigma_px)
     alt, jnt, lin = [], [], []
     for s in seeds:
-        guess = poor_guess(truth, np.random.default_rng(s))
+        guess = poor_guess(truth, rng=np.random.default_rng(s))
         if true_fixed:
             fixed = [n for n in INTRINSIC_NAMES if n not in intrinsics]
             guess = [g.replace(**{n: getattr(t, n) for n in fixed})

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validate import as_rng
 from ..io import read_c3d
 from ..rigid import apply_rigid, fit_rigid
 from ..sapm import MarkerModel, global_assignment, identify
@@ -116,9 +117,9 @@ def label_pose(model: MarkerModel, observed, method: str = "sapm", **identify_kw
     raise ValueError(f"method: expected 'sapm' or 'baseline', got {method!r}")
 
 
-def pose_trials(model: MarkerModel, rng: np.random.Generator, n_poses: int, *,
-                level: float = np.pi, distortion: float = 0.0, n_missing: int = 0,
-                n_extra: int = 0, methods=("sapm",), **identify_kw) -> dict:
+def pose_trials(model: MarkerModel, n_poses: int, *, rng: np.random.Generator | int | None = None,
+                level: float = np.pi, distortion: float = 0.0, n_missing: int = 0, n_extra: int = 0,
+                methods=("sapm",), **identify_kw) -> dict:
     """Generate ``n_poses`` random poses and score every method on the same poses.
 
     Returns
@@ -126,10 +127,11 @@ def pose_trials(model: MarkerModel, rng: np.random.Generator, n_poses: int, *,
     dict
         method name -> :class:`Trials`.
     """
+    rng = as_rng(rng)
     rows = {m: [] for m in methods}
     for _ in range(n_poses):
-        pose = random_pose(model, rng, level=level, distortion=distortion,
-                           n_missing=n_missing, n_extra=n_extra)
+        pose = random_pose(model, rng=rng, level=level, distortion=distortion, n_missing=n_missing,
+                           n_extra=n_extra)
         for m in methods:
             r = label_pose(model, pose.observed, m, **(identify_kw if m == "sapm" else {}))
             rows[m].append(_scored(r, pose.truth))
@@ -161,7 +163,7 @@ class Surface:
 def surface_cell(model, seed: int, level: float, distortion: float, n_poses: int,
                  **identify_kw) -> tuple[float, float]:
     """One cell of the Fig. 3 grid, from its own seed: (poses correct, points correct)."""
-    t = pose_trials(model, np.random.default_rng(seed), n_poses, level=level,
+    t = pose_trials(model, n_poses, rng=np.random.default_rng(seed), level=level,
                     distortion=distortion, **identify_kw)["sapm"]
     return float(t.correct.mean()), float(t.accuracy.mean())
 
@@ -242,12 +244,13 @@ class FrameTrials:
         return ok.sum(axis=0) / np.maximum(present.sum(axis=0), 1)
 
 
-def frame_trials(model: MarkerModel, points, frames, rng: np.random.Generator,
-                 methods=("sapm",), **identify_kw) -> FrameTrials:
+def frame_trials(model: MarkerModel, points, frames, methods=("sapm",), *,
+                 rng: np.random.Generator | int | None = None, **identify_kw) -> FrameTrials:
     """Identify real frames: present markers shuffled, labels dropped.
 
     ``points`` is (T, M, 3) in the model's marker order; in the returned label arrays a
     marker absent from the frame is -2."""
+    rng = as_rng(rng)
     rows = {m: [] for m in methods}
     labels = {m: np.full((len(frames), model.n_points), -2) for m in methods}
     results = {m: [] for m in methods}

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._validate import as_rng
 from ..synth import Scene, arm_wave, make_body, triplet_rig, walk
 from ..synth.sequence import Sequence, render_sequence, scaled_camera
 from ..tracking.points import Tracks
@@ -29,7 +30,7 @@ def walk_sequence(seed: int = 2000, *, n_frames: int = 30, scale: float = 0.5,
     candidates) on a ``step`` pixel grid of the centre image.
     """
     rng = np.random.default_rng(seed)
-    cams = [scaled_camera(c, scale) for c in triplet_rig(rng, distance=3000.0, baseline=800.0)]
+    cams = [scaled_camera(c, scale) for c in triplet_rig(rng=rng, distance=3000.0, baseline=800.0)]
     if motion == "walk":
         mot = walk(n_frames, start=(-250.0, 0.0), speed=speed, stride=1.2e3)
     elif motion == "arm":
@@ -37,18 +38,20 @@ def walk_sequence(seed: int = 2000, *, n_frames: int = 30, scale: float = 0.5,
     else:
         raise ValueError(f"motion: expected 'walk' or 'arm', got {motion!r}")
     # the texture band is scaled with the image so it stays a few pixels per wavelength
-    body = make_body(np.random.default_rng(seed + 1), contrast=0.3,
+    body = make_body(rng=np.random.default_rng(seed + 1), contrast=0.3,
                      wavelength=(20.0 / scale, 80.0 / scale))
     frames = range(0, n_frames, surface_every)
-    return render_sequence(Scene(body, mot, None), cams, rng, noise_sigma=noise_sigma,
+    return render_sequence(Scene(body, mot, None), cams, rng=rng, noise_sigma=noise_sigma,
                            surface_frames=frames, step=step)
 
 
-def start_points(seq: Sequence, n: int, rng: np.random.Generator, *, frame: int = 0):
+def start_points(seq: Sequence, n: int, *, rng: np.random.Generator | int | None = None,
+                 frame: int = 0):
     """``n`` (or all, if fewer) of frame ``frame``'s visible surface points, spread at random.
 
     Returns ``(xy (K, n, 2), part (n,), local (n, 3))``.
     """
+    rng = as_rng(rng)
     s = seq.surface[frame]
     m = len(s.part)
     pick = np.sort(rng.choice(m, size=min(n, m), replace=False))
@@ -174,17 +177,18 @@ class Trial:
     local: np.ndarray
 
 
-def run_trial(seq: Sequence, n_points: int, rng: np.random.Generator, *, params=None,
-              density: bool = True, false_mm: float = 10.0, klt: bool = True) -> Trial:
+def run_trial(seq: Sequence, n_points: int, *, rng: np.random.Generator | int | None = None,
+              params=None, density: bool = True, false_mm: float = 10.0, klt: bool = True) -> Trial:
     """Track ``n_points`` of frame 0's surface with LSMTA (with the density check unless
     ``density`` is False) and, if ``klt``, with KLT; score both."""
+    rng = as_rng(rng)
     import time
 
     from ..tracking.klt import track_klt
     from ..tracking.points import track_points
     from ..tracking.trajectories import trajectories_from_tracks
 
-    xy0, part0, local0 = start_points(seq, n_points, rng)
+    xy0, part0, local0 = start_points(seq, n_points, rng=rng)
     t0 = time.perf_counter()
     tracks = track_points(seq.images, xy0, params=params,
                           new_points=candidates(seq) if density else None)
@@ -265,7 +269,7 @@ def face_video(seed: int = 14, *, n_frames: int = 40, dot_amplitude: float = 40.
     from ..synth.marker_video import render_marker_video
 
     rng = np.random.default_rng(seed)
-    seq = face_sequence(face_model(), n_frames, rng, moving=False, hold=hold)
+    seq = face_sequence(face_model(), n_frames, rng=rng, moving=False, hold=hold)
     cam = face_cameras(seq.t[0])[1]
     vis = np.stack([visible(seq.world[f], seq.normals[f], cam.C) for f in range(n_frames)])
     video = render_marker_video([cam] * n_frames, seq.world, vis, seq.t, rng,

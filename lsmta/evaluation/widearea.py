@@ -231,7 +231,7 @@ def _run_policies(scene, cams, obs, params, tolerance, times) -> StarvationTrial
     return StarvationTrial(out[0][0], out[1][0], out[0][1], out[1][1], out[0][2], out[1][2])
 
 
-def fig35_starvation(rng: np.random.Generator, *, offset: float = 0.004,
+def fig35_starvation(*, rng: np.random.Generator | int | None = None, offset: float = 0.004,
                      tolerance: float = 0.010, duration: float = 2.0) -> StarvationTrial:
     """The thesis's Fig. 35: cameras A, B, C at 60 Hz capture at 2, 3 and 4 ms of every
     frame period; A's clock runs ``offset`` s ahead; equal latencies (5 ms). A still LED
@@ -242,13 +242,13 @@ def fig35_starvation(rng: np.random.Generator, *, offset: float = 0.004,
     clocks = Clocks(rate=np.full(3, 60.0), phase=np.array([0.002, 0.003, 0.004]),
                     offset=np.array([offset, 0.0, 0.0]), latency=np.full(3, 0.005))
     scene = still_led(duration)
-    obs = observe(scene, cams, clocks, rng, reflections=0.0)
+    obs = observe(scene, cams, clocks, rng=rng, reflections=0.0)
     times = np.arange(0.3, duration, 0.01)
     return _run_policies(scene, cams, obs, TrackerParams(), tolerance, times)
 
 
-def offset_sweep(max_offsets, rng: np.random.Generator, *, tolerance: float = 0.030,
-                 duration: float = 1.5) -> dict:
+def offset_sweep(max_offsets, *, rng: np.random.Generator | int | None = None,
+                 tolerance: float = 0.030, duration: float = 1.5) -> dict:
     """Eighteen cameras (30-60 Hz, latencies 6-10 ms) watching the walking person, with clock
     offsets uniform in ``±max_offset`` for each value of ``max_offsets`` (s).
 
@@ -260,14 +260,14 @@ def offset_sweep(max_offsets, rng: np.random.Generator, *, tolerance: float = 0.
         cameras with fewer than half their frames used; ``rms_discard``/``rms_tolerant``.
     """
     rng = as_rng(rng)
-    cams = ceiling_rig(np.random.default_rng(7))
+    cams = ceiling_rig(rng=np.random.default_rng(7))
     on = np.stack([np.full(8, 0.05), np.full(8, np.inf)], axis=1)
     scene = walking_person(duration + 0.05, on=on)
     times = np.arange(0.4, duration, 0.01)
     rows = []
     for m in max_offsets:
-        clocks = make_clocks(len(cams), rng, max_offset=m, latency=(0.006, 0.010))
-        obs = observe(scene, cams, clocks, rng, duration=duration)
+        clocks = make_clocks(len(cams), rng=rng, max_offset=m, latency=(0.006, 0.010))
+        obs = observe(scene, cams, clocks, rng=rng, duration=duration)
         trial = _run_policies(scene, cams, obs, TrackerParams(), tolerance, times)
         rows.append((m, trial.used_discard.min(), trial.used_tolerant.min(),
                      int((trial.used_discard < 0.5).sum()),
@@ -278,7 +278,7 @@ def offset_sweep(max_offsets, rng: np.random.Generator, *, tolerance: float = 0.
     return {k: np.array(v) for k, v in zip(keys, zip(*rows))}
 
 
-def queue_policies(rng: np.random.Generator, *, service_time: float = 0.0025,
+def queue_policies(*, rng: np.random.Generator | int | None = None, service_time: float = 0.0025,
                    duration: float = 4.0, max_offset: float = 0.004, policies=None) -> dict:
     """An overloaded estimator (one frame every ``service_time`` s) fed by 17 cameras at
     60 Hz and one slow camera at 10 Hz (the thesis's example). Only the queues are
@@ -312,7 +312,7 @@ def queue_policies(rng: np.random.Generator, *, service_time: float = 0.0025,
                + clocks.jitter * np.abs(rng.normal(size=len(true_time))))
     out = {}
     for policy in policies or ("fifo", "newest", "round_robin", "random_recent"):
-        sch = schedule(arrival, camera, stamp, policy, service_time, rng)
+        sch = schedule(arrival, camera, stamp, policy, service_time, rng=rng)
         cam = camera[sch.order]
         counts = np.bincount(camera, minlength=K)
         done = np.bincount(cam, minlength=K)
@@ -375,7 +375,7 @@ def _single_track_estimate(result, times):
     return est[:, best]
 
 
-def still_and_stage(rng: np.random.Generator, *, quantize: bool = True,
+def still_and_stage(*, rng: np.random.Generator | int | None = None, quantize: bool = True,
                     params: TrackerParams | None = None, duration: float = 4.0,
                     still_duration: float = 2.0) -> StillStage:
     """Track a still LED (``still_duration`` s, scored after the first 0.5 s) and an LED on a
@@ -383,15 +383,15 @@ def still_and_stage(rng: np.random.Generator, *, quantize: bool = True,
     rounded to whole pixels by default, as the thesis's detector reported them."""
     rng = as_rng(rng)
     params = TrackerParams() if params is None else params
-    cams = ceiling_rig(np.random.default_rng(7))
-    clocks = make_clocks(len(cams), rng)
+    cams = ceiling_rig(rng=np.random.default_rng(7))
+    clocks = make_clocks(len(cams), rng=rng)
     still = still_led(still_duration)
-    res = track(cams, observe(still, cams, clocks, rng, quantize=quantize,
+    res = track(cams, observe(still, cams, clocks, rng=rng, quantize=quantize,
                               reflections=0.0).frames, params)
     ts = np.arange(0.5, still_duration, 0.01)
     est = _single_track_estimate(res, ts)
     stage = linear_stage(duration, hold=0.5)
-    res2 = track(cams, observe(stage, cams, clocks, rng, quantize=quantize,
+    res2 = track(cams, observe(stage, cams, clocks, rng=rng, quantize=quantize,
                                reflections=0.0).frames, params)
     tg = np.arange(0.6, duration - 0.6, 0.01)
     est2 = _single_track_estimate(res2, tg)
@@ -406,8 +406,8 @@ def still_and_stage(rng: np.random.Generator, *, quantize: bool = True,
         stage_error_rms=float(np.sqrt(np.nanmean(np.sum((est2 - truth2) ** 2, axis=1)))))
 
 
-def circle_models(rng: np.random.Generator, densities: dict, *, duration: float = 3.0,
-                  camera: int = 0) -> dict:
+def circle_models(densities: dict, *, rng: np.random.Generator | int | None = None,
+                  duration: float = 3.0, camera: int = 0) -> dict:
     """Figs. 42-44: one LED moved in a circle (radius 300 mm, 1 s per turn), tracked with
     motion models of different strength (``densities``: name -> acceleration spectral
     density, mm²/s³). The same observations for every model.
@@ -421,10 +421,10 @@ def circle_models(rng: np.random.Generator, densities: dict, *, duration: float 
         centroids), plus ``truth`` (T, 3).
     """
     rng = as_rng(rng)
-    cams = ceiling_rig(np.random.default_rng(7))
-    clocks = make_clocks(len(cams), rng)
+    cams = ceiling_rig(rng=np.random.default_rng(7))
+    clocks = make_clocks(len(cams), rng=rng)
     scene = circle_led(duration)
-    obs = observe(scene, cams, clocks, rng, reflections=0.0)
+    obs = observe(scene, cams, clocks, rng=rng, reflections=0.0)
     times = np.arange(0.2, duration, 0.005)
     out = {"truth": scene.positions_at(times)[:, 0], "times": times}
     for name, q in densities.items():
@@ -470,8 +470,8 @@ class WalkingTrial:
     seconds_stonesoup: float
 
 
-def walking_trial(rng: np.random.Generator, *, duration: float = 3.6, cameras=None,
-                  params: TrackerParams | None = None, with_stonesoup: bool = False,
+def walking_trial(*, rng: np.random.Generator | int | None = None, duration: float = 3.6,
+                  cameras=None, params: TrackerParams | None = None, with_stonesoup: bool = False,
                   on=None, monitors=None, reflections: float = 0.05,
                   max_offset: float = 0.004) -> WalkingTrial:
     """Eight LEDs on a walking person, 18 cameras at 30-60 Hz with clock offsets of
@@ -484,13 +484,13 @@ def walking_trial(rng: np.random.Generator, *, duration: float = 3.6, cameras=No
 
     rng = as_rng(rng)
     params = TrackerParams() if params is None else params
-    rig = ceiling_rig(np.random.default_rng(7))
+    rig = ceiling_rig(rng=np.random.default_rng(7))
     cams = rig if cameras is None else [rig[i] for i in cameras]
-    clocks = make_clocks(len(cams), rng, max_offset=max_offset)
+    clocks = make_clocks(len(cams), rng=rng, max_offset=max_offset)
     scene = walking_person(duration, on=on)
     if monitors is None:
         monitors = {3: (40.0, 300.0, 140.0, 380.0)} if len(cams) > 3 else {}
-    obs = observe(scene, cams, clocks, rng, reflections=reflections, monitors=monitors)
+    obs = observe(scene, cams, clocks, rng=rng, reflections=reflections, monitors=monitors)
     times = np.arange(0.0, duration, 1 / 60)
     t0 = time.perf_counter()
     ours = track(cams, obs.frames, params)
@@ -563,9 +563,9 @@ class DetectionTrial:
     runs: dict
 
 
-def detection_trial(rng: np.random.Generator, *, camera: int = 3, duration: float = 2.0,
-                    rate: float = 30.0, offset: float = 20.0, minimum: float = 60.0,
-                    params=None) -> DetectionTrial:
+def detection_trial(*, rng: np.random.Generator | int | None = None, camera: int = 3,
+                    duration: float = 2.0, rate: float = 30.0, offset: float = 20.0,
+                    minimum: float = 60.0, params=None) -> DetectionTrial:
     """Render the walking person for ``duration`` s in one (half-size) camera with a monitor
     and reflections, then detect with full and sub-sampled search, with and without the
     monitor masked."""
@@ -575,9 +575,9 @@ def detection_trial(rng: np.random.Generator, *, camera: int = 3, duration: floa
     from ..widearea import background_threshold, detect
 
     rng = as_rng(rng)
-    cam = small_camera(ceiling_rig(np.random.default_rng(7))[camera])
+    cam = small_camera(ceiling_rig(rng=np.random.default_rng(7))[camera])
     scene = walking_person(duration + 0.1, on=np.stack([np.zeros(8), np.full(8, np.inf)], 1))
-    video = render_led_video(scene, cam, np.arange(0, duration, 1 / rate), rng)
+    video = render_led_video(scene, cam, np.arange(0, duration, 1 / rate), rng=rng)
     thr = background_threshold(video.background, offset, minimum)
     inv = np.zeros(video.frames.shape[1:], bool)
     x0, y0, x1, y1 = video.monitor.astype(int)
@@ -605,8 +605,9 @@ def _line_deviation_2d(xy):
     return np.abs((xy - c) @ vt[1])
 
 
-def stage_image_deviation(rng: np.random.Generator, *, cameras=(0, 9), duration: float = 3.0,
-                          rate: float = 30.0, reflections: float = 0.03) -> dict:
+def stage_image_deviation(*, rng: np.random.Generator | int | None = None, cameras=(0, 9),
+                          duration: float = 3.0, rate: float = 30.0,
+                          reflections: float = 0.03) -> dict:
     """Figs. 36-39: the LED on the linear stage rendered in two cameras and detected; the
     distance of each observation from the line fitted to that camera's observations, for
     intensity centroids and for centroids rounded to whole pixels (the thesis's detector
@@ -629,13 +630,13 @@ def stage_image_deviation(rng: np.random.Generator, *, cameras=(0, 9), duration:
     from ..widearea import background_threshold, detect
 
     rng = as_rng(rng)
-    rig = ceiling_rig(np.random.default_rng(7))
+    rig = ceiling_rig(rng=np.random.default_rng(7))
     stage = linear_stage(duration, hold=0.3)
     times = np.arange(0.35, duration - 0.35, 1 / rate)      # while the stage moves
     out = {}
     for k in cameras:
         cam = small_camera(rig[k])
-        video = render_led_video(stage, cam, times, rng, monitor_flicker=0.0,
+        video = render_led_video(stage, cam, times, rng=rng, monitor_flicker=0.0,
                                  reflections=reflections)
         thr = background_threshold(video.background, 20.0, 60.0)
         det = detect(video.frames, thr)
@@ -672,8 +673,8 @@ def stage_image_deviation(rng: np.random.Generator, *, cameras=(0, 9), duration:
     return out
 
 
-def lighting_change_trial(rng: np.random.Generator, *, n_frames: int = 30, change: int = 10,
-                          fraction: float = 0.01) -> dict:
+def lighting_change_trial(*, rng: np.random.Generator | int | None = None, n_frames: int = 30,
+                          change: int = 10, fraction: float = 0.01) -> dict:
     """The room lights go up at frame ``change``: the fraction of pixels over threshold
     jumps, :func:`lsmta.widearea.needs_new_threshold` fires, and thresholds recomputed from
     the next five frames, with small bright spots replaced by the local background (grey
@@ -689,10 +690,10 @@ def lighting_change_trial(rng: np.random.Generator, *, n_frames: int = 30, chang
     from ..widearea import background_threshold, detect, needs_new_threshold, relearn_threshold
 
     rng = as_rng(rng)
-    cam = small_camera(ceiling_rig(np.random.default_rng(7))[3])
+    cam = small_camera(ceiling_rig(rng=np.random.default_rng(7))[3])
     scene = still_led(2.0, position=(300.0, 200.0, 1200.0))
-    video = render_led_video(scene, cam, np.arange(n_frames) / 30.0, rng, lighting_change=change,
-                             monitor_flicker=0.0, reflections=0.0)
+    video = render_led_video(scene, cam, np.arange(n_frames) / 30.0, rng=rng,
+                             lighting_change=change, monitor_flicker=0.0, reflections=0.0)
     inv = np.zeros(video.frames.shape[1:], bool)
     x0, y0, x1, y1 = video.monitor.astype(int)
     inv[y0:y1, x0:x1] = True
@@ -743,7 +744,7 @@ class RenderedTrackingTrial:
     truth: np.ndarray
 
 
-def rendered_tracking_trial(rng: np.random.Generator, *, n_cameras: int = 5,
+def rendered_tracking_trial(*, rng: np.random.Generator | int | None = None, n_cameras: int = 5,
                             duration: float = 1.5, hold: float = 0.3,
                             params: TrackerParams | None = None,
                             modes=("full", "subsampled")) -> RenderedTrackingTrial:
@@ -763,18 +764,18 @@ def rendered_tracking_trial(rng: np.random.Generator, *, n_cameras: int = 5,
     rng = as_rng(rng)
     params = TrackerParams() if params is None else params
     stage = linear_stage(duration, hold=hold)
-    rig = [small_camera(c) for c in ceiling_rig(np.random.default_rng(7))]
+    rig = [small_camera(c) for c in ceiling_rig(rng=np.random.default_rng(7))]
     path = stage.positions[::50, 0]
     seen = [cam.in_image(cam.project(path, behind="nan")).mean()
             - 1e-4 * np.linalg.norm(cam.C - path.mean(axis=0)) for cam in rig]
     chosen = np.sort(np.argsort(seen)[::-1][:n_cameras])
     cams = [rig[k] for k in chosen]
-    clocks = make_clocks(len(cams), rng)
+    clocks = make_clocks(len(cams), rng=rng)
     videos = []
     for k, cam in enumerate(cams):
         tt = clocks.phase[k] + np.arange(0, duration * clocks.rate[k]) / clocks.rate[k]
         tt = tt[tt < duration]
-        videos.append(render_led_video(stage, cam, tt, rng))
+        videos.append(render_led_video(stage, cam, tt, rng=rng))
     times = np.arange(hold + 0.2, duration - 0.05, 0.01)
     truth = stage.positions_at(times)[:, 0]
     frames, results = {}, {}
@@ -811,7 +812,7 @@ def rendered_tracking_trial(rng: np.random.Generator, *, n_cameras: int = 5,
             "detect_ms_per_frame": 1e3 * sec / fr.n_frames,
             "tested_fraction": float(np.concatenate(tested).mean()),
             "false_per_frame": float(np.concatenate(false).mean())}
-    obs = observe(stage, cams, clocks, rng, quantize=True, reflections=0.0)
+    obs = observe(stage, cams, clocks, rng=rng, quantize=True, reflections=0.0)
     res = track(cams, obs.frames, params)
     est = _single_track_estimate(res, times)
     centroid_only = {"tracks": len(res.tracks),

@@ -170,11 +170,11 @@ def constant_velocity_filter(times, z, *, sigma: float, accel_density: float):
     return P, V
 
 
-def simulate_tracking(camera: PanTiltCamera, trajectory, rate: float,
-                      rng: np.random.Generator, *, aim_model: PanTiltCamera | None = None,
-                      motor: Motor = Motor(), control: Control = Control(),
-                      kalman: KalmanCV = KalmanCV(), video_rate: float = 30.0,
-                      start=(0.0, 0.0)) -> TrackingRun:
+def simulate_tracking(camera: PanTiltCamera, trajectory, rate: float, *,
+                      rng: np.random.Generator | int | None = None,
+                      aim_model: PanTiltCamera | None = None, motor: Motor = Motor(),
+                      control: Control = Control(), kalman: KalmanCV = KalmanCV(),
+                      video_rate: float = 30.0, start=(0.0, 0.0)) -> TrackingRun:
     """Simulate the pan-tilt camera following a target (see the module docstring).
 
     Parameters
@@ -186,7 +186,7 @@ def simulate_tracking(camera: PanTiltCamera, trajectory, rate: float,
         four times the video, measurement and command rates is sensible).
     rate : float
         Sampling rate of ``trajectory``, Hz.
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
         For the measurement noise.
     aim_model : PanTiltCamera, optional
         The calibrated model the controller aims with (default: ``camera``).

@@ -50,9 +50,10 @@ class Posterior:
         return self.samples.std(axis=0, ddof=1)
 
 
-def sample_posterior(fit: Fit, camera: Camera, pan, tilt, X, xy, rng: np.random.Generator, *,
-                     sigma_px: float | None = None, n_walkers: int = 32, n_steps: int = 400,
-                     burn: int = 150, thin: int = 5) -> Posterior:
+def sample_posterior(fit: Fit, camera: Camera, pan, tilt, X, xy, *,
+                     rng: np.random.Generator | int | None = None, sigma_px: float | None = None,
+                     n_walkers: int = 32, n_steps: int = 400, burn: int = 150,
+                     thin: int = 5) -> Posterior:
     """Sample the posterior of a :func:`~lsmta.pantilt.calibrate` fit with emcee.
 
     Parameters
@@ -63,7 +64,7 @@ def sample_posterior(fit: Fit, camera: Camera, pan, tilt, X, xy, rng: np.random.
         The ``camera`` that was passed to :func:`calibrate` (intrinsics, starting pose).
     pan, tilt, X, xy : arrays
         The observations that were passed to :func:`calibrate`.
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
         Seeds the walkers' start and emcee's own generator.
     sigma_px : float, optional
         Image noise per coordinate, pixels (default: the fit's residual ``sigma_px``).

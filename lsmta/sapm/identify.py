@@ -436,8 +436,8 @@ class _Search:
                     self.solve(s, -1)
 
 
-def identify(model: MarkerModel, observed, *, eps: float = 0.10, beta: float = 0.80,
-             rng: np.random.Generator | None = None, **options) -> Identification:
+def identify(model: MarkerModel, observed, *, rng: np.random.Generator | int | None = None,
+             eps: float = 0.10, beta: float = 0.80, **options) -> Identification:
     """Label an unlabelled 3-D marker pose with SAPM.
 
     Parameters
@@ -452,7 +452,7 @@ def identify(model: MarkerModel, observed, *, eps: float = 0.10, beta: float = 0
         ε of Eq. 2, in (0, 1): tolerated mean fit error as a fraction of l̄_s.
     beta : float
         β of Eq. 3, in [0, 1): a segment needs more than β·M_s matched markers.
-    rng : numpy.random.Generator, optional
+    rng : numpy.random.Generator, int or None
         Randomises the choice of pivots for segments searched from scratch (the paper's
         "arbitrary" pivot); ``None`` takes them in model order.
     **options
@@ -473,7 +473,7 @@ def identify(model: MarkerModel, observed, *, eps: float = 0.10, beta: float = 0
     if not 0 <= beta < 1:
         raise ValueError(f"beta: expected a fraction in [0, 1) (paper: 0.8-0.9), got {beta}")
     if rng is not None:
-        as_rng(rng)
+        rng = as_rng(rng)
     unknown = sorted(set(options) - set(SAPMParams.__dataclass_fields__))
     if unknown:
         raise TypeError(f"identify: unknown options {unknown}")

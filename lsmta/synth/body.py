@@ -99,10 +99,10 @@ class SolidTexture:
     contrast: np.ndarray
 
     @classmethod
-    def random(cls, rng: np.random.Generator, n_parts: int, contrast, *,
+    def random(cls, n_parts: int, contrast, *, rng: np.random.Generator | int | None = None,
                wavelength=(25.0, 120.0), n_waves: int = 24) -> SolidTexture:
         """Draw a texture for ``n_parts`` parts; ``contrast`` is a scalar or ``(n_parts,)``."""
-        as_rng(rng)
+        rng = as_rng(rng)
         lo, hi = (as_scalar(w, "wavelength", positive=True) for w in wavelength)
         if not lo <= hi:
             raise ValueError(f"wavelength: expected (shortest, longest), got {wavelength}")
@@ -197,7 +197,8 @@ class Body:
         poses = self.part_poses(motion, frames)[:, part]     # (T, N, 4, 4)
         return np.einsum("tnij,nj->tni", poses[..., :3, :3], pts) + poses[..., :3, 3]
 
-    def sample_surface(self, rng: np.random.Generator, n_per_part: int = 100, parts=None):
+    def sample_surface(self, n_per_part: int = 100, parts=None, *,
+                       rng: np.random.Generator | int | None = None):
         """Points on the part ellipsoids, in part-local coordinates.
 
         Directions are drawn uniformly on the unit sphere and stretched by the radii (so
@@ -208,7 +209,7 @@ class Body:
         part : (M,) int array
         local_points : (M, 3) array, mm
         """
-        as_rng(rng)
+        rng = as_rng(rng)
         idx = range(len(self.parts)) if parts is None else [
             self.index(p) if isinstance(p, str) else int(p) for p in parts]
         part_ids, points = [], []
@@ -233,13 +234,13 @@ class Body:
         return part
 
 
-def make_body(rng: np.random.Generator, *, contrast=0.3, wavelength=(25.0, 120.0),
-              n_waves: int = 24) -> Body:
+def make_body(*, rng: np.random.Generator | int | None = None, contrast=0.3,
+              wavelength=(25.0, 120.0), n_waves: int = 24) -> Body:
     """The standard adult (about 1.75 m) with a random solid texture.
 
     Parameters
     ----------
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
         Draws the texture.
     contrast : float or mapping
         Texture contrast (relative standard deviation of the albedo); a mapping from part
@@ -251,6 +252,7 @@ def make_body(rng: np.random.Generator, *, contrast=0.3, wavelength=(25.0, 120.0
     n_waves : int
         Sinusoids per part.
     """
+    rng = as_rng(rng)
     index = {}
     parts = []
     for name, parent, joint, centre, radii, albedo in _PARTS:
@@ -262,7 +264,7 @@ def make_body(rng: np.random.Generator, *, contrast=0.3, wavelength=(25.0, 120.0
         if unknown:
             raise ValueError(f"contrast: unknown part names {sorted(unknown)}")
         contrast = [contrast.get(p.name, 0.3) for p in parts]
-    texture = SolidTexture.random(rng, len(parts), contrast, wavelength=wavelength,
+    texture = SolidTexture.random(len(parts), contrast, rng=rng, wavelength=wavelength,
                                   n_waves=n_waves)
     return Body(parts=tuple(parts), texture=texture)
 
@@ -467,7 +469,8 @@ def inside_parts(body: Body, poses, points, *, exclude=None) -> np.ndarray:
     return out
 
 
-def surface_samples(body: Body, motion: Motion, frame: int, rng: np.random.Generator, *,
+def surface_samples(body: Body, motion: Motion, frame: int, *,
+                    rng: np.random.Generator | int | None = None,
                     parts=("upper_arm_r", "forearm_r", "hand_r"), n: int = 1500,
                     noise_mm: float = 0.0, outlier_share: float = 0.0,
                     outlier_range_mm: float = 150.0, view_from=None):
@@ -488,13 +491,13 @@ def surface_samples(body: Body, motion: Motion, frame: int, rng: np.random.Gener
     part : (n,) int array
         Part of each sample (-1 for outliers).
     """
-    as_rng(rng)
+    rng = as_rng(rng)
     noise = as_scalar(noise_mm, "noise_mm", nonnegative=True)
     share = as_scalar(outlier_share, "outlier_share", nonnegative=True)
     if share >= 1:
         raise ValueError(f"outlier_share: expected a value in [0, 1), got {share}")
     poses = body.part_poses(motion, frame)[0]
-    part, local = body.sample_surface(rng, 4 * n, parts=parts)
+    part, local = body.sample_surface(4 * n, rng=rng, parts=parts)
     world = np.einsum("nij,nj->ni", poses[part, :3, :3], local) + poses[part, :3, 3]
     keep = ~inside_parts(body, poses, world, exclude=part)
     if view_from is not None:

@@ -41,11 +41,12 @@ class Background:
     texture: SolidTexture
 
 
-def make_background(rng: np.random.Generator, *, wall_y: float = 2500.0, floor: bool = True,
-                    albedo: float = 0.45, contrast: float = 0.15,
+def make_background(*, rng: np.random.Generator | int | None = None, wall_y: float = 2500.0,
+                    floor: bool = True, albedo: float = 0.45, contrast: float = 0.15,
                     wavelength=(80.0, 600.0)) -> Background:
     """A wall behind the subject and a floor, with their own solid texture (world frame)."""
-    texture = SolidTexture.random(rng, 1, contrast, wavelength=wavelength, n_waves=24)
+    rng = as_rng(rng)
+    texture = SolidTexture.random(1, contrast, rng=rng, wavelength=wavelength, n_waves=24)
     return Background(as_scalar(wall_y, "wall_y"), bool(floor),
                       as_scalar(albedo, "albedo", nonnegative=True), texture)
 
@@ -190,7 +191,7 @@ class Renderer:
             self._cache[k] = {"dirs": dirs, "t_bg": t_bg, "grey_bg": grey_bg}
         return self._cache[k]
 
-    def render(self, frame: int, rng: np.random.Generator | None = None, *,
+    def render(self, frame: int, *, rng: np.random.Generator | int | None = None,
                noise_sigma: float | None = None) -> RenderedFrame:
         """Render one frame in every camera.
 
@@ -198,7 +199,7 @@ class Renderer:
         ----------
         frame : int
             Frame index of the scene's motion.
-        rng : numpy.random.Generator, optional
+        rng : numpy.random.Generator, int or None
             Needed when the noise is > 0: draws the image noise.
         noise_sigma : float, optional
             Noise for this frame only (default: the renderer's ``noise_sigma``).
@@ -207,8 +208,9 @@ class Renderer:
             noise_sigma, "noise_sigma", nonnegative=True)
         if sigma > 0:
             if rng is None:
-                raise ValueError("rng: a numpy.random.Generator is needed when noise_sigma > 0")
-            as_rng(rng)
+                raise ValueError("rng: a numpy.random.Generator or a seed is needed when "
+                                 "noise_sigma > 0")
+            rng = as_rng(rng)
         if np.ndim(frame) != 0:
             raise ValueError(f"frame: expected one frame index, got {frame!r}; render frames "
                              "one at a time")

@@ -269,8 +269,8 @@ def _features(img, bg, sel, H, W):
 
 
 def detect(frames, threshold: Threshold, params: DetectionParams | None = None, *,
-           invalid=None, mode: str = "full", predicted=None,
-           rng: np.random.Generator | None = None) -> Detections:
+           rng: np.random.Generator | int | None = None, invalid=None, mode: str = "full",
+           predicted=None) -> Detections:
     """Find LED features in a batch of frames.
 
     Parameters
@@ -287,7 +287,7 @@ def detect(frames, threshold: Threshold, params: DetectionParams | None = None, 
         Predicted positions (x, y) per frame, for the windows of the sub-sampled search;
         ``"previous"`` uses the features found in the previous frame (the thesis's simplest
         prediction).
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
         Jitter of the grid (required for ``"subsampled"``).
 
     Returns
@@ -360,7 +360,7 @@ def detect(frames, threshold: Threshold, params: DetectionParams | None = None, 
         off = np.arange(-g, g + 1)
         rr = np.minimum(np.maximum(rows[ht, hr][:, None] + off, 0), H - 1)   # (n_hits, 2g+1)
         cc = np.minimum(np.maximum(cols[ht, hc][:, None] + off, 0), W - 1)
-        box_idx = (rr[:, :, None] * W + cc[:, None, :]).reshape(len(ht), -1)
+        box_idx = (rr[:, :, None] * W + cc[:, None, :]).reshape(len(ht), (2 * g + 1) ** 2)
         box_start = np.searchsorted(ht, np.arange(T + 1))
         img_all = f.reshape(T, H * W)
         thr_flat = thr.reshape(-1)

@@ -37,7 +37,7 @@ def world():
     rng = np.random.default_rng(SEED)
     cameras = triplet_rig(rng=rng, distance=2500.0, baseline=700.0)
     body = make_body(rng=np.random.default_rng(SEED), contrast=0.3, wavelength=(12.0, 50.0))
-    return cameras, body, arm_wave(50), rng
+    return cameras, body, arm_wave(n_frames=50), rng
 
 
 def main(argv=None):

@@ -33,7 +33,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     rng = np.random.default_rng(1998)
     body = make_body(rng=np.random.default_rng(1998))
-    motion = arm_wave(50)
+    motion = arm_wave(n_frames=50)
     frames = np.linspace(4, 49, args.frames).astype(int)
     truth = eb.arm_truth(body, motion, frames)
     init, _ = eb.initial_state(truth, rng=rng)

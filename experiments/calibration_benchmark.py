@@ -55,7 +55,7 @@ def main(argv=None):
 
     bar = []
     for s in range(0 if args.no_bar else args.seeds):
-        t = bar_trial(s, n_positions=args.positions, n_heldout=40, mode="projected",
+        t = bar_trial(seed=s, n_positions=args.positions, n_heldout=40, mode="projected",
                       sigma_px=0.01)
         row = dict(seed=s, rms_over_limit=t.ours.rms / t.ours.noise_limit,
                    bar_rms_mm=rms(t.bar_error), peer_bar_rms_mm=rms(t.peer_bar_error),
@@ -81,7 +81,7 @@ def main(argv=None):
     if args.alternations == 0:
         write_json(args.out, dict(bar=bar))
         return
-    ring = ring_trial(tuple(range(args.seeds)), n_cameras=8, n_path=150, n_check=80,
+    ring = ring_trial(seeds=tuple(range(args.seeds)), n_cameras=8, n_path=150, n_check=80,
                       n_alternation=args.alternations, n_joint=30,
                       n_linear=args.linear_alternations,
                       intrinsics=tuple(args.intrinsics.split(",")), true_fixed=args.true_fixed)
@@ -89,7 +89,7 @@ def main(argv=None):
     for s, (a, j) in enumerate(zip(ring.alternation, ring.joint)):
         row = dict(seed=s, joint_final_px=float(j.error[-1]),
                    joint_fit_px=float(j.fit_error[-1]),
-                   joint_iterations_to_1pct=j.iterations_to(0.01))
+                   joint_iterations_to_1pct=j.iterations_to(tolerance=0.01))
         variants = [("alternation", a)]
         if ring.linear:
             variants.append(("linear_alternation", ring.linear[s]))

@@ -50,11 +50,11 @@ def main(argv=None):
     start = np.clip(start, [-100, -25], [100, 25])
 
     def one_by_one():
-        return [aim(head, X[i:i + 1], start[i]) for i in range(n)]
+        return [aim(head, X[i:i + 1], current=start[i]) for i in range(n)]
 
     t_local, local = best_time(one_by_one, args.repeats)
-    t_batch, batch = best_time(lambda: aim(head, X, start), args.repeats)
-    t_direct, direct = best_time(lambda: aim_least_squares(head, X, start), args.repeats)
+    t_batch, batch = best_time(lambda: aim(head, X, current=start), args.repeats)
+    t_direct, direct = best_time(lambda: aim_least_squares(head, X, current=start), args.repeats)
     local_set = np.vstack([a.settings for a in local])
     truth = np.c_[pan, tilt]
 

@@ -48,7 +48,7 @@ def main(argv=None):
     for contrast in args.contrast:
         body = make_body(rng=np.random.default_rng(args.seed), contrast=contrast,
                          wavelength=(12.0, 50.0))
-        scene = Scene(body, walk(30, start=(-300.0, 0.0)), None)
+        scene = Scene(body, walk(n_frames=30, start=(-300.0, 0.0)), None)
         renderer = Renderer(scene, cams, noise_sigma=args.noise)
         for f in args.frames:
             frame = renderer.render(f, rng=rng)

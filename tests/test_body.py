@@ -31,7 +31,7 @@ RIG = (0.0, -2500.0, 1200.0)
 @pytest.fixture(scope="module")
 def world():
     body = make_body(rng=np.random.default_rng(3))
-    return body, arm_wave(50)
+    return body, arm_wave(n_frames=50)
 
 
 def test_fk_hand_computed_single_joint():
@@ -68,7 +68,7 @@ def test_fk_matches_generator(world):
     body, motion = world
     truth = eb.arm_truth(body, motion, [0, 20, 40])
     W = arm_model().skeleton.transforms(truth.angles, [1, 1, 1],
-                                        base_poses(truth.torso_poses, truth.shoulder_local))
+                                        base=base_poses(truth.torso_poses, truth.shoulder_local))
     np.testing.assert_allclose(W[:, 3, :3, 3], truth.joints[:, 1], atol=1e-9)
     np.testing.assert_allclose(W[:, 4, :3, 3], truth.joints[:, 2], atol=1e-9)
 

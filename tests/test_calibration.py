@@ -26,7 +26,7 @@ from lsmta.triangulation import triangulate
 def _bar_data(seed, n, sigma, length=800.0):
     rng = np.random.default_rng(seed)
     truth = triplet_rig(rng=rng)
-    track = bar_track(n, rng=rng, length=length)
+    track = bar_track(n=n, rng=rng, length=length)
     xy = project_observations(truth, track.points.reshape(-1, 3), rng=rng, sigma_px=sigma)
     bar = Bar(np.arange(2 * n).reshape(-1, 2), length, 0.01)
     return rng, truth, track, xy, bar
@@ -40,7 +40,7 @@ def noisy():
     xy_in = xy.copy()
     res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.01)
     assert np.array_equal(xy, xy_in)  # input untouched
-    held = bar_track(30, rng=rng, half_size=(800.0, 560.0, 400.0))
+    held = bar_track(n=30, rng=rng, half_size=(800.0, 560.0, 400.0))
     xy_h = project_observations(truth, held.points.reshape(-1, 3), rng=rng, sigma_px=0.01)
     return truth, res, heldout_bar_errors(res.cameras, xy_h, 800.0)
 
@@ -48,7 +48,7 @@ def noisy():
 def test_targets_measured_to_subpixel_in_rendered_images():
     rng = np.random.default_rng(0)
     cam = triplet_rig(rng=rng)[1]
-    track = bar_track(25, rng=rng)
+    track = bar_track(n=25, rng=rng)
     tracks = track_targets(render_bar_images(cam, track, rng=rng))
     truth = cam.project(track.points.reshape(-1, 3)).reshape(-1, 2, 2)
     assert tracks.n_lost == 0
@@ -159,8 +159,8 @@ def test_virtual_object_alternation_and_joint_adjustment_converge():
     # adjustment fits its own path to the noise but not an independent one (seed 2, 120
     # positions: 0.37 px on the path, 1.8 px on the check path)
     rng = np.random.default_rng(100)
-    truth = ring_rig(8, rng=rng)
-    path, check = led_path(150, rng=rng), led_path(80, rng=rng)
+    truth = ring_rig(n=8, rng=rng)
+    path, check = led_path(n=150, rng=rng), led_path(n=80, rng=rng)
     xy = project_observations(truth, path, rng=rng, sigma_px=0.3)
     xy_c = project_observations(truth, check, rng=rng, sigma_px=0.3)
     floor = projection_error(truth, xy_c)
@@ -181,8 +181,8 @@ def test_alternation_reaches_the_joint_optimum_on_a_small_ring():
     # so the alternation ends at the joint optimum; Davis's linear point step (3-D ray
     # distances, not image residuals) settles above it
     rng = np.random.default_rng(100)
-    truth = ring_rig(6, rng=rng)
-    xy = project_observations(truth, led_path(80, rng=rng), rng=rng, sigma_px=0.3)
+    truth = ring_rig(n=6, rng=rng)
+    xy = project_observations(truth, led_path(n=80, rng=rng), rng=rng, sigma_px=0.3)
     guess = poor_guess(truth, rng=np.random.default_rng(0), pose_mm=50.0, pose_deg=1.0, f_rel=0.02)
     jnt = joint_adjustment(guess, xy, n_iter=15)
     alt = alternate(guess, xy, n_iter=16)
@@ -201,8 +201,8 @@ def test_alternation_reaches_the_joint_optimum_on_a_small_ring():
 
 def test_reprojection_optimal_triangulation():
     rng = np.random.default_rng(8)
-    cams = ring_rig(5, rng=rng)
-    X = led_path(60, rng=rng)
+    cams = ring_rig(n=5, rng=rng)
+    X = led_path(n=60, rng=rng)
     exact = project_observations(cams, X)
     Xo = triangulate_optimal(cams, exact)
     ok = np.isfinite(Xo).all(axis=1)

@@ -74,11 +74,12 @@ def rendered_triplet():
     rng = np.random.default_rng(3)
     cams = triplet_rig(rng=rng, distance=2500.0, baseline=700.0)
     body = make_body(rng=rng, wavelength=(12.0, 50.0))
-    scene = Scene(body, walk(20, start=(-300.0, 0.0)), None)
+    scene = Scene(body, walk(n_frames=20, start=(-300.0, 0.0)), None)
     # a quarter-size sensor keeps the test fast; same field of view
     small = [smaller(c) for c in cams]
     frame = Renderer(scene, small, noise_sigma=1.0).render(5, rng=rng)
-    part, local = body.sample_surface(20, rng=np.random.default_rng(1), parts=["torso", "thigh_r"])
+    part, local = body.sample_surface(n_per_part=20, rng=np.random.default_rng(1),
+                                      parts=["torso", "thigh_r"])
     proj = project_surface_points(scene, small, part, local, frames=5)
     seen = np.flatnonzero(proj.visible[0].all(axis=0))[:6]
     seeds = proj.xy[0][:, seen] + rng.uniform(-0.5, 0.5, (3, len(seen), 2))

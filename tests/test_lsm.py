@@ -30,11 +30,11 @@ def test_spline_matches_scipy_and_finite_differences(rng):
     ref = ndimage.map_coordinates(img, [xy[:, 1], xy[:, 0]], order=3, mode="mirror")
     assert np.abs(v - ref).max() < 1e-9
     e = 1e-5
-    fx = (s.sample(xy + [e, 0], False) - s.sample(xy - [e, 0], False)) / (2 * e)
-    fy = (s.sample(xy + [0, e], False) - s.sample(xy - [0, e], False)) / (2 * e)
+    fx = (s.sample(xy + [e, 0], gradient=False) - s.sample(xy - [e, 0], gradient=False)) / (2 * e)
+    fy = (s.sample(xy + [0, e], gradient=False) - s.sample(xy - [0, e], gradient=False)) / (2 * e)
     assert np.abs(fx - gx).max() < 1e-4 and np.abs(fy - gy).max() < 1e-4
     ij = np.array([[3.0, 4.0], [10.0, 20.0]])
-    assert np.allclose(s.sample(ij, False), img[[4, 20], [3, 10]])
+    assert np.allclose(s.sample(ij, gradient=False), img[[4, 20], [3, 10]])
 
 
 def test_noise_free_affine_radiometric_warp(rng):

@@ -95,7 +95,7 @@ def test_pan_turns_the_view_right_by_the_angle():
 
 def test_fast_projection_matches_the_model(head, data):
     cam, cal, _ = data
-    p = params_from_model(head, cam)
+    p = params_from_model(head, start=cam)
     model = model_from_params(cam, p, "general")
     np.testing.assert_allclose(project_params(cam, p, "general", cal.X, cal.pan, cal.tilt),
                                model.project(cal.X, cal.pan, cal.tilt), atol=1e-9)
@@ -395,12 +395,12 @@ def on_axis_targets(head, pan, tilt, rng):
 def test_aim_finds_the_setting(head, rng):
     pan, tilt = rng.uniform(-80, 80, 20), rng.uniform(-20, 20, 20)
     X, _ = on_axis_targets(head, pan, tilt, rng)
-    res = aim(head, X, (0.0, 0.0), tol_px=0.1)
+    res = aim(head, X, current=(0.0, 0.0), tol_px=0.1)
     assert res.reachable.all()
     np.testing.assert_allclose(res.pan, pan, atol=0.02)
     np.testing.assert_allclose(res.tilt, tilt, atol=0.02)
     assert np.all(res.error_px <= 0.1)
-    direct = aim_least_squares(head, X, (0.0, 0.0), tol_px=0.1)
+    direct = aim_least_squares(head, X, current=(0.0, 0.0), tol_px=0.1)
     np.testing.assert_allclose(direct.settings, res.settings, atol=0.02)
 
 
@@ -411,7 +411,7 @@ def test_aim_is_continuous_along_a_smooth_path(head, rng):
     X, _ = on_axis_targets(head, pans, tilts, rng)
     found, current = [], (pans[0], tilts[0])
     for x in X:
-        current = aim(head, x[None], current, tol_px=0.1).settings[0]
+        current = aim(head, x[None], current=current, tol_px=0.1).settings[0]
         found.append(current)
     steps = np.abs(np.diff(found, axis=0))
     assert np.all(steps[:, 0] < (pans[1] - pans[0]) + 0.02)
@@ -432,10 +432,10 @@ def test_unreachable_targets_are_reported(head, rng):
 def test_aim_and_simulation_leave_inputs_alone(head, rng):
     X, _ = on_axis_targets(head, np.array([10.0, -20.0]), np.array([0.0, 5.0]), rng)
     inputs, copies = writeable_copies(X, [[9.0, 1.0], [-19.0, 4.0]])
-    aim(head, *inputs)
-    aim_least_squares(head, *inputs)
+    aim(head, inputs[0], current=inputs[1])
+    aim_least_squares(head, inputs[0], current=inputs[1])
     assert_unchanged(inputs, copies)
-    inputs, copies = writeable_copies(side_to_side(2.0, 120.0), (9.0, 1.0))
+    inputs, copies = writeable_copies(side_to_side(duration=2.0, rate=120.0), (9.0, 1.0))
     run = simulate_tracking(head, inputs[0], 120.0, rng=np.random.default_rng(0), start=inputs[1])
     assert_unchanged(inputs, copies)
     assert not run.deviation_px.flags.writeable   # and the results are read-only
@@ -443,9 +443,9 @@ def test_aim_and_simulation_leave_inputs_alone(head, rng):
 
 def test_aim_checks_current(head):
     with pytest.raises(ValueError, match="current"):
-        aim(head, np.zeros((2, 3)), np.zeros(3))
+        aim(head, np.zeros((2, 3)), current=np.zeros(3))
     with pytest.raises(ValueError, match="pan: expected angles in degrees"):
-        aim(head, np.zeros((1, 3)), (500.0, 0.0))
+        aim(head, np.zeros((1, 3)), current=(500.0, 0.0))
 
 
 # ---------------------------------------------------------------------- latency
@@ -461,7 +461,7 @@ def test_kalman_filter_tracks_constant_velocity():
 
 
 def test_prediction_keeps_the_target_nearer_the_centre(head):
-    traj = side_to_side(10.0, 240.0, amplitude=600.0, period=2.5)
+    traj = side_to_side(duration=10.0, rate=240.0, amplitude=600.0, period=2.5)
     runs = {lead: simulate_tracking(head, traj, 240.0, rng=np.random.default_rng(0),
                                     control=Control(lead=lead)) for lead in (0.0, 0.3)}
     assert runs[0.3].mean_deviation_px < 0.7 * runs[0.0].mean_deviation_px
@@ -481,14 +481,14 @@ def test_a_still_target_ends_centred(head):
 
 
 def test_damping_smooths_the_commands(head):
-    traj = side_to_side(10.0, 240.0)
+    traj = side_to_side(duration=10.0, rate=240.0)
     runs = [simulate_tracking(head, traj, 240.0, rng=np.random.default_rng(4),
                               control=Control(damping=d)) for d in (1.0, 0.3)]
     assert runs[1].command_jitter_deg < 0.5 * runs[0].command_jitter_deg
 
 
 def test_latency_parameters_are_checked(head):
-    traj = side_to_side(2.0, 120.0)
+    traj = side_to_side(duration=2.0, rate=120.0)
     rng = np.random.default_rng(0)
     with pytest.raises(ValueError, match="control.damping"):
         simulate_tracking(head, traj, 120.0, rng=rng, control=Control(damping=0.0))

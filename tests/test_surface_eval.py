@@ -18,7 +18,8 @@ def triplet():
     """A walking body in front of a half-resolution triplet at 2.5 m: cameras, scene, frame 5."""
     rng = np.random.default_rng(5)
     cams = [smaller(c) for c in triplet_rig(rng=rng, distance=2500.0, baseline=700.0)]
-    scene = Scene(make_body(rng=rng, wavelength=(12.0, 50.0)), walk(20, start=(-300.0, 0.0)), None)
+    scene = Scene(make_body(rng=rng, wavelength=(12.0, 50.0)),
+                  walk(n_frames=20, start=(-300.0, 0.0)), None)
     return cams, scene, Renderer(scene, cams, noise_sigma=1.0).render(5, rng=rng)
 
 

@@ -25,7 +25,7 @@ def world():
     rng = np.random.default_rng(7)
     cams = triplet_rig(rng=rng)
     body = make_body(rng=rng)
-    scene = Scene(body, walk(30), make_background(rng=rng))
+    scene = Scene(body, walk(n_frames=30), make_background(rng=rng))
     return cams, scene
 
 
@@ -43,7 +43,7 @@ def test_rigs_are_seeded_and_named():
     assert all(np.array_equal(x.R, y.R) and x.k1 == y.k1 for x, y in zip(a, b))
     assert not np.array_equal(a[0].C, c[0].C)
     assert a[0].image_size == (768, 576)
-    ring = ring_rig(6, rng=np.random.default_rng(0))
+    ring = ring_rig(n=6, rng=np.random.default_rng(0))
     assert len(ring) == 6
     # every ring camera sees the volume centre near its image centre
     for cam in ring:
@@ -112,7 +112,7 @@ def test_noise_level_and_texture_move_with_the_body(world):
 
 def test_surface_points_triangulate_exactly(world):
     cams, scene = world
-    part, local = scene.body.sample_surface(60, rng=np.random.default_rng(0))
+    part, local = scene.body.sample_surface(n_per_part=60, rng=np.random.default_rng(0))
     proj = project_surface_points(scene, cams, part, local, frames=[0, 10, 20])
     both = proj.visible[:, 0] & proj.visible[:, 2]
     assert both.sum() > 100
@@ -127,7 +127,7 @@ def test_surface_points_triangulate_exactly(world):
 def test_visibility_agrees_with_rendering(world, centre_frame):
     cams, scene = world
     cam = cams[1]
-    part, local = scene.body.sample_surface(200, rng=np.random.default_rng(1))
+    part, local = scene.body.sample_surface(n_per_part=200, rng=np.random.default_rng(1))
     proj = project_surface_points(scene, [cam], part, local, frames=12)
     xy = proj.xy[0, 0]
     px = np.rint(xy).astype(int)
@@ -152,7 +152,7 @@ def test_visibility_agrees_with_rendering(world, centre_frame):
 
 def test_skeleton_keeps_bone_lengths():
     body = make_body(rng=np.random.default_rng(0))
-    for motion in (walk(40), arm_wave(40)):
+    for motion in (walk(n_frames=40), arm_wave(n_frames=40)):
         poses = body.part_poses(motion)
         for i, spec in enumerate(body.parts):
             if spec.parent < 0:
@@ -167,9 +167,10 @@ def test_skeleton_keeps_bone_lengths():
 
 def test_walk_moves_across_and_feet_stay_near_floor():
     body = make_body(rng=np.random.default_rng(0))
-    m = walk(50, speed=1300.0)
+    m = walk(n_frames=50, speed=1300.0)
     assert m.root_position[-1, 0] - m.root_position[0, 0] == pytest.approx(1300 * 49 / 25)
-    part, local = body.sample_surface(400, rng=np.random.default_rng(0), parts=["foot_l", "foot_r"])
+    part, local = body.sample_surface(n_per_part=400, rng=np.random.default_rng(0),
+                                      parts=["foot_l", "foot_r"])
     z = body.to_world(m, part, local)[..., 2]
     lowest = z.min(axis=1)
     assert np.all(lowest > -60) and np.all(lowest < 80)

@@ -235,7 +235,7 @@ def test_score_counts_failed_births_and_deaths():
 
 def _frames(rig, rng):
     cams = rig[:6]
-    obs = observe(still_led(0.6), cams, make_clocks(6, rng=rng), rng=rng, reflections=0.0)
+    obs = observe(still_led(duration=0.6), cams, make_clocks(6, rng=rng), rng=rng, reflections=0.0)
     return cams, obs
 
 
@@ -281,7 +281,7 @@ def test_tracker_argument_errors(rig):
 
 def test_generator_truth_and_visibility(rig):
     rng = np.random.default_rng(4)
-    scene = walking_person(0.6)
+    scene = walking_person(duration=0.6)
     obs = observe(scene, rig, make_clocks(18, rng=rng), rng=rng, reflections=0.0, noise_px=0.0)
     # every centroid with a truth label lies on the projection of that LED at capture time
     fr = obs.frames
@@ -299,7 +299,7 @@ def test_stonesoup_baseline_tracks_a_still_led(rig):
 
     cams, obs = _frames(rig, np.random.default_rng(6))
     res = stonesoup_track(cams, obs.frames)
-    score = score_tracks(still_led(0.6), res, np.arange(0.2, 0.6, 0.02))
+    score = score_tracks(still_led(duration=0.6), res, np.arange(0.2, 0.6, 0.02))
     assert len(res.tracks) == 1
     assert score.rms_mm < 5.0
 
@@ -347,8 +347,8 @@ def test_background_threshold_and_lighting_test():
     ex = np.zeros_like(bg, bool)
     ex[1, 2, 3] = True
     assert background_threshold(bg, 20.0, 30.0, exclude=ex).threshold[2, 3] == 30.0
-    assert not needs_new_threshold(np.zeros((4, 5)), thr, 0.01)
-    assert needs_new_threshold(np.full((4, 5), 40.0), thr, 0.01)
+    assert not needs_new_threshold(np.zeros((4, 5)), thr, fraction=0.01)
+    assert needs_new_threshold(np.full((4, 5), 40.0), thr, fraction=0.01)
     with pytest.raises(ValueError, match="frames"):
         background_threshold(np.zeros(5), 1.0, 1.0)
 
@@ -396,7 +396,7 @@ def test_subsampled_search_tests_fewer_pixels_and_finds_predicted_spots():
     assert (sub.tested < full.tested).all()
     for t in range(4):
         np.testing.assert_allclose(sub.centroids(t), full.centroids(t), atol=1e-9)
-    m = search_mask((60, 80), 5, (1, 2), np.array([[40.0, 30.0]]), 10)
+    m = search_mask((60, 80), 5, (1, 2), windows=np.array([[40.0, 30.0]]), window=10)
     assert m[1::5, 2::5].all() and m[25:35, 35:45].all()
     assert m.sum() == 12 * 16 + 100 - m[25:35, 35:45][(np.arange(25, 35) % 5 == 1)[:, None]
                                                         & (np.arange(35, 45) % 5 == 2)].sum()
@@ -410,8 +410,8 @@ def test_rendered_video_detected_at_truth():
 
     rng = np.random.default_rng(8)
     cam = small_camera(ceiling_rig(rng=np.random.default_rng(7))[0])
-    video = render_led_video(still_led(0.3), cam, np.arange(5) / 30, rng=rng, monitor_flicker=0.0,
-                             reflections=0.0)
+    video = render_led_video(still_led(duration=0.3), cam, np.arange(5) / 30, rng=rng,
+                             monitor_flicker=0.0, reflections=0.0)
     thr = background_threshold(video.background, 20.0, 60.0)
     det = detect(video.frames, thr)
     for t in range(5):

@@ -30,7 +30,7 @@ _QX = rot_y(np.pi / 2)          # maps z onto x
 _QY = rot_x(-np.pi / 2)         # maps z onto y
 
 
-def arm_model(upper: float = 300.0, forearm: float = 265.0, hand: float = 170.0) -> \
+def arm_model(*, upper: float = 300.0, forearm: float = 265.0, hand: float = 170.0) -> \
         MetaballModel:
     """The right-arm model with template bone lengths (mm)."""
     bone = _QX.T                                      # flexion frame -> bone frame

@@ -241,7 +241,7 @@ class _Layout:
 
 
 def _distances(model, st, bases, pts, frame, segment):
-    return model.distance(pts, segment, st.angles, st.scales, st.radii, bases, frame)
+    return model.distance(pts, segment, st.angles, st.scales, st.radii, base=bases, frame=frame)
 
 
 def _residuals(model: MetaballModel, lay: _Layout, st: ModelState, torso, pts, frame,
@@ -258,7 +258,7 @@ def _residuals(model: MetaballModel, lay: _Layout, st: ModelState, torso, pts, f
     """
     sk = model.skeleton
     bases = base_poses(torso, st.shoulder)
-    W = sk.transforms(st.angles, st.scales, bases)             # (T, J, 4, 4)
+    W = sk.transforms(st.angles, st.scales, base=bases)             # (T, J, 4, 4)
     C = model.centres(st.scales)
     N = len(pts)
     r = np.empty(N)
@@ -332,7 +332,7 @@ def _joint_residuals(model: MetaballModel, lay: _Layout, st: ModelState, torso, 
     derivatives ``(M, P)``."""
     sk = model.skeleton
     bases = base_poses(torso, st.shoulder)
-    W = sk.transforms(st.angles, st.scales, bases)
+    W = sk.transforms(st.angles, st.scales, base=bases)
     rows_r, rows_J = [], []
     for k, j in enumerate(joints):
         for t in range(lay.T):
@@ -358,7 +358,7 @@ def _joint_residuals(model: MetaballModel, lay: _Layout, st: ModelState, torso, 
 
 
 def _segment(model, st, bases, pts, frame, gate):
-    D = np.abs(model.all_distances(pts, st.angles, st.scales, st.radii, bases, frame))
+    D = np.abs(model.all_distances(pts, st.angles, st.scales, st.radii, base=bases, frame=frame))
     seg = np.argmin(D, axis=1)
     seg[D[np.arange(len(pts)), seg] > gate] = -1
     return seg

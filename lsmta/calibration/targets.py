@@ -160,7 +160,7 @@ def detect_blobs(image, *, k: float = 8.0, min_area: int = 3, max_area: int = 40
     return Blobs(xy, cents, s, a, ok)
 
 
-def track_targets(images, n_targets: int = 2, *, gate: float = 100.0, **detect) -> TargetTracks:
+def track_targets(images, *, n_targets: int = 2, gate: float = 100.0, **detect) -> TargetTracks:
     """Measure ``n_targets`` bright targets in every frame and track them.
 
     Parameters

@@ -53,7 +53,7 @@ class ArmTruth:
 def arm_truth(body: Body, motion: Motion, frames) -> ArmTruth:
     """The right arm's truth in the frames ``frames``."""
     frames = np.atleast_1d(np.asarray(frames, int))
-    poses = body.part_poses(motion, frames)
+    poses = body.part_poses(motion, frames=frames)
     it, iu, iff, ih = (body.index(n) for n in ("torso",) + ARM_PARTS)
     torso = poses[:, it]
     fore_a = motion.angle("forearm_r")[frames]                  # (T, 3)
@@ -97,12 +97,12 @@ def initial_state(truth: ArmTruth, *, rng: np.random.Generator | int | None = No
     return state, tracked
 
 
-def true_skin(body: Body, motion: Motion, frame: int, n: int = 30000, *,
+def true_skin(body: Body, motion: Motion, frame: int, *, n: int = 30000,
               rng: np.random.Generator | int | None = None) -> np.ndarray:
     """Dense samples ``(M, 3)`` of the arm's outer skin in one frame (world mm)."""
     rng = as_rng(rng)
-    poses = body.part_poses(motion, frame)[0]
-    part, local = body.sample_surface(n // 3, rng=rng, parts=ARM_PARTS)
+    poses = body.part_poses(motion, frames=frame)[0]
+    part, local = body.sample_surface(n_per_part=n // 3, rng=rng, parts=ARM_PARTS)
     world = np.einsum("nij,nj->ni", poses[part, :3, :3], local) + poses[part, :3, 3]
     return world[~inside_parts(body, poses, world, exclude=part)]
 
@@ -111,7 +111,7 @@ def arm_distance(body: Body, motion: Motion, frame: int, points) -> np.ndarray:
     """Distance (mm) of world points ``(N, 3)`` to the true arm skin: the smallest
     first-order distance ``|k - 1| / |grad k|`` (``k`` the ellipsoid's implicit function
     ``sum (x / r)^2``, halved gradient) over the three arm ellipsoids."""
-    poses = body.part_poses(motion, frame)[0]
+    poses = body.part_poses(motion, frames=frame)[0]
     pts = np.asarray(points, float)
     best = np.full(len(pts), np.inf)
     for name in ARM_PARTS:
@@ -137,10 +137,10 @@ def skin_error(fit_state: ModelState, t: int, model, truth: ArmTruth, body: Body
     them are scored: the skin where there was data.
     """
     base = base_poses(truth.torso_poses[t:t + 1], fit_state.shoulder[t])
-    verts, _ = iso_surface(model, fit_state.angles[t:t + 1], fit_state.scales,
-                           fit_state.radii, base, spacing=spacing)
+    verts, _ = iso_surface(model, fit_state.angles[t:t + 1], fit_state.scales, fit_state.radii,
+                           base=base, spacing=spacing)
     frame = int(truth.frames[t])
-    poses = body.part_poses(motion, frame)[0]
+    poses = body.part_poses(motion, frames=frame)[0]
     others = np.array([i for i, p in enumerate(body.parts) if p.name not in ARM_PARTS])
     keep = np.ones(len(verts), bool)
     for i in others:
@@ -239,7 +239,7 @@ def true_skin_to_fit(fit: BodyFit, truth: ArmTruth, body: Body, motion: Motion, 
     for t in frames:
         st = fit.state
         base = base_poses(truth.torso_poses[t:t + 1], st.shoulder[t])
-        verts, faces = iso_surface(model, st.angles[t:t + 1], st.scales, st.radii, base,
+        verts, faces = iso_surface(model, st.angles[t:t + 1], st.scales, st.radii, base=base,
                                    spacing=spacing)
         mesh = pv.PolyData(verts, np.hstack([np.full((len(faces), 1), 3), faces]).ravel())
         skin = true_skin(body, motion, int(truth.frames[t]), rng=rng, n=n)

@@ -123,10 +123,10 @@ def _measure(cameras, track, rng, mode, sigma_px):
     return out
 
 
-def bar_trial(seed: int = 0, *, n_positions: int = 150, n_heldout: int = 40,
-              mode: str = "images", sigma_px: float = 0.05, length: float = 800.0,
-              intrinsics=DEFAULT_INTRINSICS, bar_sigma: float = 0.01,
-              reject_k: float | None = None, with_peer: bool = True) -> BarTrial:
+def bar_trial(*, seed: int = 0, n_positions: int = 150, n_heldout: int = 40, mode: str = "images",
+              sigma_px: float = 0.05, length: float = 800.0, intrinsics=DEFAULT_INTRINSICS,
+              bar_sigma: float = 0.01, reject_k: float | None = None,
+              with_peer: bool = True) -> BarTrial:
     """Calibrate the (perturbed) triplet from a reference bar; see the module docstring.
 
     Parameters
@@ -145,9 +145,9 @@ def bar_trial(seed: int = 0, *, n_positions: int = 150, n_heldout: int = 40,
         raise ValueError(f"mode: expected 'images' or 'projected', got {mode!r}")
     rng = np.random.default_rng(seed)
     truth = triplet_rig(rng=rng)
-    track = bar_track(n_positions, rng=rng, length=length)
+    track = bar_track(n=n_positions, rng=rng, length=length)
     # held-out positions inside the calibrated volume (check points are not extrapolated)
-    heldout = bar_track(n_heldout, rng=rng, length=length, half_size=(800.0, 560.0, 400.0))
+    heldout = bar_track(n=n_heldout, rng=rng, length=length, half_size=(800.0, 560.0, 400.0))
     times = {}
     t0 = time.perf_counter()
     xy = _measure(truth, track, rng, mode, sigma_px)
@@ -188,7 +188,8 @@ def bar_trial(seed: int = 0, *, n_positions: int = 150, n_heldout: int = 40,
         peer_check_error=peer_check, times=times)
 
 
-def parameter_table(trial: BarTrial, names=("f", "cx", "cy", "k1", "k2", "k3", "p1", "p2",
+def parameter_table(trial: BarTrial, *,
+                    names=("f", "cx", "cy", "k1", "k2", "k3", "p1", "p2",
                                              "b1", "b2")):
     """Rows ``(camera, parameter, true, adjusted, std, error / std)`` of the interior and
     additional parameters (frame-independent) of the joint adjustment."""
@@ -234,10 +235,9 @@ class RingTrial:
     linear: list = dataclasses.field(default_factory=list)
 
 
-def ring_trial(seeds=(0, 1, 2), *, n_cameras: int = 10, n_path: int = 300,
-               n_check: int = 150, sigma_px: float = 0.3, n_alternation: int = 30,
-               n_joint: int = 30, intrinsics=("f", "cx", "cy", "k1", "k2"),
-               data_seed: int = 100, n_linear: int = 0,
+def ring_trial(*, seeds=(0, 1, 2), n_cameras: int = 10, n_path: int = 300, n_check: int = 150,
+               sigma_px: float = 0.3, n_alternation: int = 30, n_joint: int = 30,
+               intrinsics=("f", "cx", "cy", "k1", "k2"), data_seed: int = 100, n_linear: int = 0,
                true_fixed: bool = False) -> RingTrial:
     """The alternation and the joint adjustment from the same poor guesses (one per
     seed), scored per iteration on an independent LED path; with ``n_linear`` > 0 also
@@ -247,9 +247,9 @@ def ring_trial(seeds=(0, 1, 2), *, n_cameras: int = 10, n_path: int = 300,
     from ..calibration.virtual_object import projection_error
 
     rng = np.random.default_rng(data_seed)
-    truth = ring_rig(n_cameras, rng=rng)
-    path = led_path(n_path, rng=rng)
-    check = led_path(n_check, rng=rng)
+    truth = ring_rig(n=n_cameras, rng=rng)
+    path = led_path(n=n_path, rng=rng)
+    check = led_path(n=n_check, rng=rng)
     xy = project_observations(truth, path, rng=rng, sigma_px=sigma_px)
     xy_c = project_observations(truth, check, rng=rng, sigma_px=sigma_px)
     alt, jnt, lin = [], [], []

@@ -58,7 +58,7 @@ class MatchTrial:
     crb: np.ndarray | None = None
     lsm_result: object = None
 
-    def summary(self, method: str, fail_px: float = 0.5) -> dict:
+    def summary(self, method: str, *, fail_px: float = 0.5) -> dict:
         """Median and RMS error (px), failure rate (no result or error > ``fail_px``),
         and time per point (µs)."""
         e = np.linalg.norm(self.errors[method], axis=1)
@@ -70,7 +70,7 @@ class MatchTrial:
             "us_per_point": 1e6 * self.seconds[method] / len(e),
         }
 
-    def crb_median(self, mask=None, *, rng: np.random.Generator | int | None = None) -> float:
+    def crb_median(self, *, mask=None, rng: np.random.Generator | int | None = None) -> float:
         """Median error that the Cramér-Rao covariance predicts (by drawing from it)."""
         rng = as_rng(rng)
         cov = self.crb if mask is None else self.crb[mask]
@@ -90,7 +90,7 @@ def random_starts(truth, *, rng: np.random.Generator | int | None = None, start_
     return truth + start_distance * np.stack([np.cos(angle), np.sin(angle)], axis=1)
 
 
-def draw_points(shape, n_points: int, margin: int = 30, *,
+def draw_points(shape, n_points: int, *, margin: int = 30,
                 rng: np.random.Generator | int | None = None) -> np.ndarray:
     """Whole-pixel patch centres ``(n, 2)`` at least ``margin`` pixels inside ``shape``."""
     rng = as_rng(rng)
@@ -133,7 +133,10 @@ def run_trial(pair: WarpedPair, *, rng: np.random.Generator | int | None = None,
         Extra arguments for :func:`~lsmta.matching.lsm`.
     """
     rng = as_rng(rng)
-    pts = draw_points(pair.template.shape, n_points, margin, rng=rng) if points is None else points
+    if points is None:
+        pts = draw_points(pair.template.shape, n_points, margin=margin, rng=rng)
+    else:
+        pts = points
     truth = pair.true_xy(pts)
     start = random_starts(truth, rng=rng, start_error=start_error, start_distance=start_distance)
     trial = MatchTrial(truth=truth, start=start)
@@ -177,7 +180,7 @@ def noise_sweep(pair: WarpedPair, sigmas, *, rng: np.random.Generator | int | No
         out["failure_rate"].append(summ["failure_rate"])
         if sigma > 0:
             ok = trial.lsm_result.ok
-            out["bound_median_px"].append(trial.crb_median(ok, rng=rng))
+            out["bound_median_px"].append(trial.crb_median(mask=ok, rng=rng))
             h = honesty(trial)
             out["rms_ratio"].append(h["rms_ratio"])
             out["coverage_95"].append(h["coverage_95"])

@@ -19,7 +19,7 @@ from ..sapm import MarkerModel, global_assignment, identify
 from ..synth.markers import random_pose
 
 
-def clouthier_segments(acromion: str = "upper_arm") -> dict:
+def clouthier_segments(*, acromion: str = "upper_arm") -> dict:
     """The marker set of Clouthier et al. (2021) as SAPM segments: 15 segments, 62 cluster
     markers, no marker shared between segments.
 
@@ -107,7 +107,7 @@ def _trials(rows) -> Trials:
     return Trials(*(np.asarray(c, dtype=k) for c, k in zip(cols, kinds)))
 
 
-def label_pose(model: MarkerModel, observed, method: str = "sapm", **identify_kw):
+def label_pose(model: MarkerModel, observed, *, method: str = "sapm", **identify_kw):
     """Label one pose with ``method``: "sapm" (:func:`~lsmta.sapm.identify`, returns an
     ``Identification``) or "baseline" (:func:`~lsmta.sapm.global_assignment`)."""
     if method == "sapm":
@@ -133,7 +133,7 @@ def pose_trials(model: MarkerModel, n_poses: int, *, rng: np.random.Generator | 
         pose = random_pose(model, rng=rng, level=level, distortion=distortion, n_missing=n_missing,
                            n_extra=n_extra)
         for m in methods:
-            r = label_pose(model, pose.observed, m, **(identify_kw if m == "sapm" else {}))
+            r = label_pose(model, pose.observed, method=m, **identify_kw if m == "sapm" else {})
             rows[m].append(_scored(r, pose.truth))
     return {m: _trials(r) for m, r in rows.items()}
 
@@ -191,7 +191,7 @@ def identification_surface(model: MarkerModel, seed: int, levels, distortions, n
 
 
 # ---------------------------------------------------------------------- real data
-def clouthier_model(path, frame: int = 0, *,
+def clouthier_model(path, *, frame: int = 0,
                     acromion: str = "upper_arm") -> tuple[MarkerModel, np.ndarray]:
     """The model of the Clouthier et al. recording built from one labelled frame (segments
     from :func:`clouthier_segments`), and all its frames.
@@ -209,7 +209,8 @@ def clouthier_model(path, frame: int = 0, *,
     if np.isnan(points[frame]).any():
         raise ValueError(f"frame: frame {frame} has gaps; the model needs a complete frame")
     model = MarkerModel.from_labelled_frame(dict(zip(labels, points[frame])),
-                                            clouthier_segments(acromion), CLOUTHIER_PARENTS)
+                                            clouthier_segments(acromion=acromion),
+                                            CLOUTHIER_PARENTS)
     order = [labels.index(k) for k in model.labels]
     return model, points[:, order]
 
@@ -236,7 +237,7 @@ class FrameTrials:
     labels: dict
     results: dict
 
-    def per_marker_accuracy(self, method: str = "sapm") -> np.ndarray:
+    def per_marker_accuracy(self, *, method: str = "sapm") -> np.ndarray:
         """(M,) share of frames in which each present marker was labelled correctly."""
         lab = self.labels[method]
         present = lab != -2
@@ -244,7 +245,7 @@ class FrameTrials:
         return ok.sum(axis=0) / np.maximum(present.sum(axis=0), 1)
 
 
-def frame_trials(model: MarkerModel, points, frames, methods=("sapm",), *,
+def frame_trials(model: MarkerModel, points, frames, *, methods=("sapm",),
                  rng: np.random.Generator | int | None = None, **identify_kw) -> FrameTrials:
     """Identify real frames: present markers shuffled, labels dropped.
 
@@ -258,7 +259,7 @@ def frame_trials(model: MarkerModel, points, frames, methods=("sapm",), *,
         present = np.flatnonzero(~np.isnan(points[f]).any(axis=1))
         perm = rng.permutation(present)
         for m in methods:
-            r = label_pose(model, points[f][perm], m, **(identify_kw if m == "sapm" else {}))
+            r = label_pose(model, points[f][perm], method=m, **identify_kw if m == "sapm" else {})
             rows[m].append(_scored(r, perm))
             labels[m][f_i, perm] = r.labels
             results[m].append(r)

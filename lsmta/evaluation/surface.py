@@ -30,7 +30,7 @@ def seeds_from_truth(scene: Scene, cameras, frame: int, *,
     ``per_part``) on each body part that shows at least ``min_px`` such points, moved by up
     to ``perturb_px`` pixels in each image. Returns ``(K, S, 2)`` pixel positions."""
     rng = as_rng(rng)
-    part, local = scene.body.sample_surface(200, rng=rng)
+    part, local = scene.body.sample_surface(n_per_part=200, rng=rng)
     proj = project_surface_points(scene, cameras, part, local, frames=frame)
     seen = proj.visible[0].all(axis=0)
     chosen = []

@@ -18,9 +18,9 @@ from ..tracking.points import Tracks
 from ..tracking.trajectories import Trajectories
 
 
-def walk_sequence(seed: int = 2000, *, n_frames: int = 30, scale: float = 0.5,
-                  motion: str = "walk", noise_sigma: float = 2.0, step: int = 4,
-                  surface_every: int = 2, speed: float = 700.0) -> Sequence:
+def walk_sequence(*, seed: int = 2000, n_frames: int = 30, scale: float = 0.5, motion: str = "walk",
+                  noise_sigma: float = 2.0, step: int = 4, surface_every: int = 2,
+                  speed: float = 700.0) -> Sequence:
     """A rendered triplet sequence of the textured body.
 
     ``scale`` shrinks the 768 x 576 images of the rig (0.5: 384 x 288, four times faster to
@@ -32,9 +32,9 @@ def walk_sequence(seed: int = 2000, *, n_frames: int = 30, scale: float = 0.5,
     rng = np.random.default_rng(seed)
     cams = [scaled_camera(c, scale) for c in triplet_rig(rng=rng, distance=3000.0, baseline=800.0)]
     if motion == "walk":
-        mot = walk(n_frames, start=(-250.0, 0.0), speed=speed, stride=1.2e3)
+        mot = walk(n_frames=n_frames, start=(-250.0, 0.0), speed=speed, stride=1.2e3)
     elif motion == "arm":
-        mot = arm_wave(n_frames)
+        mot = arm_wave(n_frames=n_frames)
     else:
         raise ValueError(f"motion: expected 'walk' or 'arm', got {motion!r}")
     # the texture band is scaled with the image so it stays a few pixels per wavelength
@@ -114,8 +114,8 @@ class TrackScore:
         return present & (np.arange(T)[:, None] >= f[None, :])
 
 
-def score_tracks(seq: Sequence, tracks: Tracks, part, local, traj: Trajectories | None = None,
-                 *, false_mm: float = 10.0, false_px: float = 2.0) -> TrackScore:
+def score_tracks(seq: Sequence, tracks: Tracks, part, local, *, traj: Trajectories | None = None,
+                 false_mm: float = 10.0, false_px: float = 2.0) -> TrackScore:
     """Score tracks (and their trajectories) against the generator's truth.
 
     Without trajectories (2-D mode) a track is false from the first frame whose image error
@@ -195,14 +195,14 @@ def run_trial(seq: Sequence, n_points: int, *, rng: np.random.Generator | int | 
     seconds = time.perf_counter() - t0
     part, local = track_identity(seq, tracks, part0, local0)
     traj = trajectories_from_tracks(seq.cameras, tracks, seq.fps)
-    score = score_tracks(seq, tracks, part, local, traj, false_mm=false_mm)
+    score = score_tracks(seq, tracks, part, local, traj=traj, false_mm=false_mm)
     peer = peer_traj = peer_score = peer_seconds = None
     if klt:
         t0 = time.perf_counter()
         peer = track_klt(seq.images, xy0)
         peer_seconds = time.perf_counter() - t0
         peer_traj = trajectories_from_tracks(seq.cameras, peer, seq.fps)
-        peer_score = score_tracks(seq, peer, part0, local0, peer_traj, false_mm=false_mm)
+        peer_score = score_tracks(seq, peer, part0, local0, traj=peer_traj, false_mm=false_mm)
     return Trial(sequence=seq, tracks=tracks, traj=traj, score=score, klt=peer,
                  klt_traj=peer_traj, klt_score=peer_score, seconds=seconds,
                  klt_seconds=peer_seconds, part=part, local=local)
@@ -255,7 +255,7 @@ class FaceVideo:
     edges: np.ndarray
 
 
-def face_video(seed: int = 14, *, n_frames: int = 40, dot_amplitude: float = 40.0,
+def face_video(*, seed: int = 14, n_frames: int = 40, dot_amplitude: float = 40.0,
                noise: float = 2.0, hold: float = 12.0) -> FaceVideo:
     """One fixed camera (a camcorder) filming a still head making expressions.
 

@@ -226,7 +226,7 @@ class StarvationTrial:
 def _run_policies(scene, cams, obs, params, tolerance, times) -> StarvationTrial:
     out = []
     for tol in (0.0, tolerance):
-        res = track(cams, obs.frames, replace(params, late_tolerance=tol))
+        res = track(cams, obs.frames, params=replace(params, late_tolerance=tol))
         out.append((_used_fraction(res), len(res.tracks), score_tracks(scene, res, times).rms_mm))
     return StarvationTrial(out[0][0], out[1][0], out[0][1], out[1][1], out[0][2], out[1][2])
 
@@ -241,7 +241,7 @@ def fig35_starvation(*, rng: np.random.Generator | int | None = None, offset: fl
     cams = [rig[i] for i in (0, 7, 12)]
     clocks = Clocks(rate=np.full(3, 60.0), phase=np.array([0.002, 0.003, 0.004]),
                     offset=np.array([offset, 0.0, 0.0]), latency=np.full(3, 0.005))
-    scene = still_led(duration)
+    scene = still_led(duration=duration)
     obs = observe(scene, cams, clocks, rng=rng, reflections=0.0)
     times = np.arange(0.3, duration, 0.01)
     return _run_policies(scene, cams, obs, TrackerParams(), tolerance, times)
@@ -262,7 +262,7 @@ def offset_sweep(max_offsets, *, rng: np.random.Generator | int | None = None,
     rng = as_rng(rng)
     cams = ceiling_rig(rng=np.random.default_rng(7))
     on = np.stack([np.full(8, 0.05), np.full(8, np.inf)], axis=1)
-    scene = walking_person(duration + 0.05, on=on)
+    scene = walking_person(duration=duration + 0.05, on=on)
     times = np.arange(0.4, duration, 0.01)
     rows = []
     for m in max_offsets:
@@ -385,14 +385,18 @@ def still_and_stage(*, rng: np.random.Generator | int | None = None, quantize: b
     params = TrackerParams() if params is None else params
     cams = ceiling_rig(rng=np.random.default_rng(7))
     clocks = make_clocks(len(cams), rng=rng)
-    still = still_led(still_duration)
-    res = track(cams, observe(still, cams, clocks, rng=rng, quantize=quantize,
-                              reflections=0.0).frames, params)
+    still = still_led(duration=still_duration)
+    res = track(cams,
+                observe(still, cams, clocks, rng=rng, quantize=quantize,
+                              reflections=0.0).frames,
+                params=params)
     ts = np.arange(0.5, still_duration, 0.01)
     est = _single_track_estimate(res, ts)
-    stage = linear_stage(duration, hold=0.5)
-    res2 = track(cams, observe(stage, cams, clocks, rng=rng, quantize=quantize,
-                               reflections=0.0).frames, params)
+    stage = linear_stage(duration=duration, hold=0.5)
+    res2 = track(cams,
+                 observe(stage, cams, clocks, rng=rng, quantize=quantize,
+                               reflections=0.0).frames,
+                 params=params)
     tg = np.arange(0.6, duration - 0.6, 0.01)
     est2 = _single_track_estimate(res2, tg)
     truth2 = stage.positions_at(tg)[:, 0]
@@ -423,12 +427,12 @@ def circle_models(densities: dict, *, rng: np.random.Generator | int | None = No
     rng = as_rng(rng)
     cams = ceiling_rig(rng=np.random.default_rng(7))
     clocks = make_clocks(len(cams), rng=rng)
-    scene = circle_led(duration)
+    scene = circle_led(duration=duration)
     obs = observe(scene, cams, clocks, rng=rng, reflections=0.0)
     times = np.arange(0.2, duration, 0.005)
     out = {"truth": scene.positions_at(times)[:, 0], "times": times}
     for name, q in densities.items():
-        res = track(cams, obs.frames, TrackerParams(accel_density=q))
+        res = track(cams, obs.frames, params=TrackerParams(accel_density=q))
         sc = score_tracks(scene, res, times)
         sel = res.updates["camera"] == camera
         out[name] = {"tracks": len(res.tracks), "coverage": sc.coverage, "rms_mm": sc.rms_mm,
@@ -487,13 +491,13 @@ def walking_trial(*, rng: np.random.Generator | int | None = None, duration: flo
     rig = ceiling_rig(rng=np.random.default_rng(7))
     cams = rig if cameras is None else [rig[i] for i in cameras]
     clocks = make_clocks(len(cams), rng=rng, max_offset=max_offset)
-    scene = walking_person(duration, on=on)
+    scene = walking_person(duration=duration, on=on)
     if monitors is None:
         monitors = {3: (40.0, 300.0, 140.0, 380.0)} if len(cams) > 3 else {}
     obs = observe(scene, cams, clocks, rng=rng, reflections=reflections, monitors=monitors)
     times = np.arange(0.0, duration, 1 / 60)
     t0 = time.perf_counter()
-    ours = track(cams, obs.frames, params)
+    ours = track(cams, obs.frames, params=params)
     sec = time.perf_counter() - t0
     ss = ss_score = ss_metrics = None
     sec_ss = np.nan
@@ -501,7 +505,7 @@ def walking_trial(*, rng: np.random.Generator | int | None = None, duration: flo
         from ..widearea.peers import stonesoup_track
 
         t0 = time.perf_counter()
-        ss = stonesoup_track(cams, obs.frames, params)
+        ss = stonesoup_track(cams, obs.frames, params=params)
         sec_ss = time.perf_counter() - t0
         ss_score = score_tracks(scene, ss, times)
         ss_metrics = stonesoup_metrics(scene, ss, times[::2])
@@ -576,7 +580,8 @@ def detection_trial(*, rng: np.random.Generator | int | None = None, camera: int
 
     rng = as_rng(rng)
     cam = small_camera(ceiling_rig(rng=np.random.default_rng(7))[camera])
-    scene = walking_person(duration + 0.1, on=np.stack([np.zeros(8), np.full(8, np.inf)], 1))
+    scene = walking_person(duration=duration + 0.1,
+                           on=np.stack([np.zeros(8), np.full(8, np.inf)], 1))
     video = render_led_video(scene, cam, np.arange(0, duration, 1 / rate), rng=rng)
     thr = background_threshold(video.background, offset, minimum)
     inv = np.zeros(video.frames.shape[1:], bool)
@@ -586,7 +591,7 @@ def detection_trial(*, rng: np.random.Generator | int | None = None, camera: int
     for name, mode, invalid in (("full", "full", None), ("full, masked", "full", inv),
                                 ("subsampled, masked", "subsampled", inv)):
         t0 = time.perf_counter()
-        det = detect(video.frames, thr, params, invalid=invalid, mode=mode, rng=rng,
+        det = detect(video.frames, thr, params=params, invalid=invalid, mode=mode, rng=rng,
                      predicted="previous" if mode == "subsampled" else None)
         sec = time.perf_counter() - t0
         found, false, err = _match_features(det, video.true_xy)
@@ -631,7 +636,7 @@ def stage_image_deviation(*, rng: np.random.Generator | int | None = None, camer
 
     rng = as_rng(rng)
     rig = ceiling_rig(rng=np.random.default_rng(7))
-    stage = linear_stage(duration, hold=0.3)
+    stage = linear_stage(duration=duration, hold=0.3)
     times = np.arange(0.35, duration - 0.35, 1 / rate)      # while the stage moves
     out = {}
     for k in cameras:
@@ -691,7 +696,7 @@ def lighting_change_trial(*, rng: np.random.Generator | int | None = None, n_fra
 
     rng = as_rng(rng)
     cam = small_camera(ceiling_rig(rng=np.random.default_rng(7))[3])
-    scene = still_led(2.0, position=(300.0, 200.0, 1200.0))
+    scene = still_led(duration=2.0, position=(300.0, 200.0, 1200.0))
     video = render_led_video(scene, cam, np.arange(n_frames) / 30.0, rng=rng,
                              lighting_change=change, monitor_flicker=0.0, reflections=0.0)
     inv = np.zeros(video.frames.shape[1:], bool)
@@ -702,7 +707,7 @@ def lighting_change_trial(*, rng: np.random.Generator | int | None = None, n_fra
     for t in range(n_frames):
         frame = video.frames[t]
         over.append(float((frame > thr.threshold).mean()))
-        if recomputed is None and needs_new_threshold(frame, thr, fraction):
+        if recomputed is None and needs_new_threshold(frame, thr, fraction=fraction):
             recomputed = t
             thr = relearn_threshold(video.frames[t:t + 5], 20.0, 60.0)
         feats.append(len(detect(frame, thr, invalid=inv).xy))
@@ -763,7 +768,7 @@ def rendered_tracking_trial(*, rng: np.random.Generator | int | None = None, n_c
 
     rng = as_rng(rng)
     params = TrackerParams() if params is None else params
-    stage = linear_stage(duration, hold=hold)
+    stage = linear_stage(duration=duration, hold=hold)
     rig = [small_camera(c) for c in ceiling_rig(rng=np.random.default_rng(7))]
     path = stage.positions[::50, 0]
     seen = [cam.in_image(cam.project(path, behind="nan")).mean()
@@ -802,7 +807,7 @@ def rendered_tracking_trial(*, rng: np.random.Generator | int | None = None, n_c
         arrival = np.concatenate(arrival)
         fr = Frames.from_lists(np.concatenate(cam_i), np.concatenate(stamp), cents,
                                arrival=arrival).reordered(np.argsort(arrival, kind="stable"))
-        res = track(cams, fr, params)
+        res = track(cams, fr, params=params)
         est = _single_track_estimate(res, times)
         frames[mode] = fr
         results[mode] = {
@@ -813,7 +818,7 @@ def rendered_tracking_trial(*, rng: np.random.Generator | int | None = None, n_c
             "tested_fraction": float(np.concatenate(tested).mean()),
             "false_per_frame": float(np.concatenate(false).mean())}
     obs = observe(stage, cams, clocks, rng=rng, quantize=True, reflections=0.0)
-    res = track(cams, obs.frames, params)
+    res = track(cams, obs.frames, params=params)
     est = _single_track_estimate(res, times)
     centroid_only = {"tracks": len(res.tracks),
                      "rms_mm": float(np.sqrt(np.nanmean(np.sum((est - truth) ** 2, axis=1)))),

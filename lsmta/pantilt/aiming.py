@@ -83,7 +83,7 @@ def _centre_error(model, X, pan, tilt):
     return np.where(np.isfinite(e), e, np.inf)
 
 
-def aim(model: PanTiltCamera, X, current=(0.0, 0.0), *, tol_px: float = 0.5,
+def aim(model: PanTiltCamera, X, *, current=(0.0, 0.0), tol_px: float = 0.5,
         step_deg: float | None = None, min_step_deg: float = 1e-4, max_iter: int = 200) -> Aim:
     """The (pan, tilt) that puts each world point at the principal point, by local search.
 
@@ -146,8 +146,7 @@ def aim(model: PanTiltCamera, X, current=(0.0, 0.0), *, tol_px: float = 0.5,
     return Aim(cur[:, 0].copy(), cur[:, 1].copy(), err, err <= tol_px, iters, evaluations)
 
 
-def aim_least_squares(model: PanTiltCamera, X, current=(0.0, 0.0), *,
-                      tol_px: float = 0.5) -> Aim:
+def aim_least_squares(model: PanTiltCamera, X, *, current=(0.0, 0.0), tol_px: float = 0.5) -> Aim:
     """The same problem as :func:`aim`, solved per target by ``scipy.optimize.least_squares``
     (trust-region, bounded by the head's range) from ``current``."""
     X, cur = _targets_and_start(model, X, current)

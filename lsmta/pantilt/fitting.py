@@ -159,7 +159,7 @@ def project_params(start: Camera, params, kind: str, X, pan, tilt) -> np.ndarray
     return _image(start, np.einsum("nij,nj->ni", R, X - C), "nan")
 
 
-def params_from_model(model: PanTiltCamera, start: Camera | None = None) -> np.ndarray:
+def params_from_model(model: PanTiltCamera, *, start: Camera | None = None) -> np.ndarray:
     """Inverse of :func:`model_from_params` for a general model (14 numbers).
 
     Relies on the sign convention that :class:`PanTiltCamera` enforces (pan axis along the
@@ -272,7 +272,7 @@ def calibrate(camera: Camera, pan, tilt, X, xy, *, kind: str = "general",
         return least_squares(fun, p0, loss=loss, f_scale=f_scale, x_scale="jac", method="trf")
 
     if kind == "general" and start is not None:
-        p0 = params_from_model(start, camera)
+        p0 = params_from_model(start, start=camera)
     else:
         simple = solve(np.r_[np.zeros(3), camera.C], "simple")
         p0 = np.r_[simple.x, np.zeros(8)] if kind == "general" else None
@@ -285,7 +285,7 @@ def calibrate(camera: Camera, pan, tilt, X, xy, *, kind: str = "general",
     return Fit(model, names, res.x, std, cov, r, sigma, loss, int(res.nfev))
 
 
-def dlt_camera(X, xy, image_size, name: str = "") -> Camera:
+def dlt_camera(X, xy, image_size, *, name: str = "") -> Camera:
     """A distortion-free camera from the direct linear transform of >= 6 non-coplanar points.
 
     The starting point of :func:`calibrate_intrinsics`; principal distance from the mean of
@@ -355,7 +355,7 @@ def calibrate_intrinsics(X, xy, image_size, *, distortion=("k1", "k2", "p1", "p2
     if 2 * len(X) <= len(names):
         raise ValueError(f"X: expected more than {len(names) // 2} points for {len(names)} "
                          f"parameters, got {len(X)}")
-    start = dlt_camera(X, xy, image_size, name)
+    start = dlt_camera(X, xy, image_size, name=name)
 
     def build(p):
         return start.replace(f=p[0], cx=p[1], cy=p[2], **dict(zip(distortion, p[3:-6])),

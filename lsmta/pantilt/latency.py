@@ -245,7 +245,7 @@ def simulate_tracking(camera: PanTiltCamera, trajectory, rate: float, *,
         j = np.searchsorted(available, t[i], side="right") - 1
         target = P[j] + control.lead * V[j]
         smooth = target if smooth is None else smooth + control.damping * (target - smooth)
-        a = aim(aim_model, smooth[None], setting)
+        a = aim(aim_model, smooth[None], current=setting)
         unreachable += int(not a.reachable[0])
         setting = a.settings[0]
         commands[k] = setting

@@ -161,7 +161,7 @@ class Body:
         except ValueError:
             raise ValueError(f"part: unknown part {name!r}; parts are {self.names}") from None
 
-    def part_poses(self, motion: Motion, frames=None) -> np.ndarray:
+    def part_poses(self, motion: Motion, *, frames=None) -> np.ndarray:
         """World transforms of every part, ``(T, P, 4, 4)``: part frame -> world (mm).
 
         Parameters
@@ -190,14 +190,14 @@ class Body:
                 poses[:, i] = poses[:, part.parent] @ local
         return poses
 
-    def to_world(self, motion: Motion, part, local_points, frames=None) -> np.ndarray:
+    def to_world(self, motion: Motion, part, local_points, *, frames=None) -> np.ndarray:
         """World coordinates ``(T, N, 3)`` of part-local points ``(N, 3)`` on parts ``(N,)``."""
         part = self._part_indices(part, local_points)
         pts = as_array(local_points, "local_points", shape=(None, 3))
-        poses = self.part_poses(motion, frames)[:, part]     # (T, N, 4, 4)
+        poses = self.part_poses(motion, frames=frames)[:, part]     # (T, N, 4, 4)
         return np.einsum("tnij,nj->tni", poses[..., :3, :3], pts) + poses[..., :3, 3]
 
-    def sample_surface(self, n_per_part: int = 100, parts=None, *,
+    def sample_surface(self, *, n_per_part: int = 100, parts=None,
                        rng: np.random.Generator | int | None = None):
         """Points on the part ellipsoids, in part-local coordinates.
 
@@ -346,7 +346,7 @@ def _empty_angles(n_frames: int):
     return names, np.zeros((n_frames, len(names), 3))
 
 
-def walk(n_frames: int = 50, *, fps: float = 25.0, start=(-1300.0, 0.0), heading_deg=0.0,
+def walk(*, n_frames: int = 50, fps: float = 25.0, start=(-1300.0, 0.0), heading_deg=0.0,
          speed: float = 1300.0, stride: float = 1.4e3, phase: float = 0.0) -> Motion:
     """A walk cycle along a straight line across the volume.
 
@@ -399,7 +399,7 @@ def walk(n_frames: int = 50, *, fps: float = 25.0, start=(-1300.0, 0.0), heading
     return Motion("walk", fps, root, ang, names)
 
 
-def arm_wave(n_frames: int = 50, *, fps: float = 25.0, position=(0.0, 0.0),
+def arm_wave(*, n_frames: int = 50, fps: float = 25.0, position=(0.0, 0.0),
              heading_deg: float = -90.0, wave_hz: float = 0.8) -> Motion:
     """A seated person, facing the rig, raising and waving the right arm.
 
@@ -496,8 +496,8 @@ def surface_samples(body: Body, motion: Motion, frame: int, *,
     share = as_scalar(outlier_share, "outlier_share", nonnegative=True)
     if share >= 1:
         raise ValueError(f"outlier_share: expected a value in [0, 1), got {share}")
-    poses = body.part_poses(motion, frame)[0]
-    part, local = body.sample_surface(4 * n, rng=rng, parts=parts)
+    poses = body.part_poses(motion, frames=frame)[0]
+    part, local = body.sample_surface(n_per_part=4 * n, rng=rng, parts=parts)
     world = np.einsum("nij,nj->ni", poses[part, :3, :3], local) + poses[part, :3, 3]
     keep = ~inside_parts(body, poses, world, exclude=part)
     if view_from is not None:

@@ -60,7 +60,7 @@ def _walk(rng, n, center, half_size, step):
     return out
 
 
-def bar_track(n: int = 150, *, rng: np.random.Generator | int | None = None, length: float = 800.0,
+def bar_track(*, n: int = 150, rng: np.random.Generator | int | None = None, length: float = 800.0,
               center=(0.0, 0.0, 950.0), half_size=(1000.0, 700.0, 500.0), step: float = 150.0,
               max_azimuth_deg: float = 45.0, max_elevation_deg: float = 75.0) -> BarTrack:
     """A reference bar moved by hand through the triplet volume.
@@ -95,7 +95,7 @@ def bar_track(n: int = 150, *, rng: np.random.Generator | int | None = None, len
     return BarTrack(mid - 0.5 * length * d, mid + 0.5 * length * d, length)
 
 
-def led_path(n: int = 300, *, rng: np.random.Generator | int | None = None,
+def led_path(*, n: int = 300, rng: np.random.Generator | int | None = None,
              center=(0.0, 0.0, 1100.0), half_size=(2600.0, 2600.0, 800.0),
              step: float = 120.0) -> np.ndarray:
     """An LED carried through the room: ``(n, 3)`` positions, mm (smooth random walk)."""

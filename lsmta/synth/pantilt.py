@@ -208,7 +208,7 @@ def intrinsic_target(head: PanTiltCamera, *, rng: np.random.Generator | int | No
                    world_sigma=world_sigma, depth=depth, margin=0.02)
 
 
-def side_to_side(duration: float = 30.0, rate: float = 240.0, *,
+def side_to_side(*, duration: float = 30.0, rate: float = 240.0,
                  rng: np.random.Generator | int | None = None, centre=(0.0, 0.0, 1000.0),
                  amplitude: float = 600.0, period: float = 3.0, reversal: float = 0.5,
                  period_jitter: float = 0.0) -> np.ndarray:

@@ -125,7 +125,7 @@ class WarpedPair:
         u = as_array(template_xy, "template_xy", shape=(None, 2))
         return self.c + u @ self.A.T
 
-    def clean_search(self, xy, gradient: bool = False):
+    def clean_search(self, xy, *, gradient: bool = False):
         """The noise-free search image as a continuous function of ``xy`` ``(..., 2)``.
 
         It is the pixel average of the warped texture, so at pixel centres it equals the
@@ -166,7 +166,7 @@ def _render(fn, shape, s):
     return acc / (s * s)
 
 
-def warped_pair(shape=(256, 256), *, rng: np.random.Generator | int | None = None,
+def warped_pair(*, shape=(256, 256), rng: np.random.Generator | int | None = None,
                 A=((1.0, 0.0), (0.0, 1.0)), c=(0.0, 0.0), r0: float = 0.0, r1: float = 1.0,
                 noise_sigma: float = 0.0, amplitude: float = 30.0, wavelength=(4.0, 24.0),
                 supersample: int = 4, quantise: bool = True,

@@ -186,7 +186,7 @@ class Renderer:
             cam = self.cameras[k]
             dirs = entry.get("dirs")
             if dirs is None:
-                _, dirs = cam.rays(cam.pixel_grid(self.supersample).reshape(-1, 2))
+                _, dirs = cam.rays(cam.pixel_grid(supersample=self.supersample).reshape(-1, 2))
             t_bg, grey_bg = _background_hits(self.scene, cam.C, dirs)
             self._cache[k] = {"dirs": dirs, "t_bg": t_bg, "grey_bg": grey_bg}
         return self._cache[k]
@@ -215,7 +215,7 @@ class Renderer:
             raise ValueError(f"frame: expected one frame index, got {frame!r}; render frames "
                              "one at a time")
         frame = int(self.scene.motion._frames(frame)[0])
-        poses = self.scene.body.part_poses(self.scene.motion, frame)[0]
+        poses = self.scene.body.part_poses(self.scene.motion, frames=frame)[0]
         s = self.supersample
         out = {key: [] for key in ("images", "part_id", "local_xyz", "world_xyz", "depth")}
         for k, cam in enumerate(self.cameras):
@@ -373,7 +373,7 @@ def _body_grey(scene: Scene, poses, hit: BodyHits, sel: np.ndarray) -> np.ndarra
     return 255.0 * np.clip(albedo * tex * shade, 0.0, 1.0)
 
 
-def project_surface_points(scene: Scene, cameras, part, local_points, frames=None, *,
+def project_surface_points(scene: Scene, cameras, part, local_points, *, frames=None,
                            tol: float = 1e-3) -> SurfaceProjection:
     """True image positions and visibility of body-local surface points.
 
@@ -403,8 +403,8 @@ def project_surface_points(scene: Scene, cameras, part, local_points, frames=Non
     pts = as_array(local_points, "local_points", shape=(None, 3))
     part_idx = body._part_indices(part, pts)
     frames = motion._frames(frames)
-    world = body.to_world(motion, part_idx, pts, frames)         # (T, N, 3)
-    poses_all = body.part_poses(motion, frames)
+    world = body.to_world(motion, part_idx, pts, frames=frames)         # (T, N, 3)
+    poses_all = body.part_poses(motion, frames=frames)
     T, N = world.shape[:2]
     xy = np.full((T, len(cameras), N, 2), np.nan)
     visible = np.zeros((T, len(cameras), N), dtype=bool)

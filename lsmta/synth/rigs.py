@@ -87,7 +87,7 @@ def triplet_rig(*, rng: np.random.Generator | int | None = None, distance: float
     return cams
 
 
-def ring_rig(n: int = 8, *, rng: np.random.Generator | int | None = None, radius: float = 5000.0,
+def ring_rig(*, n: int = 8, rng: np.random.Generator | int | None = None, radius: float = 5000.0,
              camera_height: float = 2800.0, target=(0.0, 0.0, 1000.0), f: float = 600.0,
              width: int = 640, height_px: int = 480, k1: float = -0.05) -> list[Camera]:
     """``n`` cameras evenly spaced on a ceiling ring, all looking at ``target``.

@@ -158,7 +158,7 @@ def _grid(duration: float, rate: float = 1000.0) -> np.ndarray:
     return np.arange(int(round(duration * rate)) + 1) / rate
 
 
-def still_led(duration: float = 2.0, position=(300.0, 200.0, 1000.0)) -> LedScene:
+def still_led(*, duration: float = 2.0, position=(300.0, 200.0, 1000.0)) -> LedScene:
     """One LED held still, pointing up."""
     t = _grid(duration)
     pos = np.broadcast_to(as_array(position, "position", shape=(3,)), (len(t), 1, 3)).copy()
@@ -167,7 +167,7 @@ def still_led(duration: float = 2.0, position=(300.0, 200.0, 1000.0)) -> LedScen
     return LedScene("still", t, pos, nrm, np.array([[0.0, np.inf]]))
 
 
-def linear_stage(duration: float = 6.0, *, start=(-600.0, -400.0, 900.0),
+def linear_stage(*, duration: float = 6.0, start=(-600.0, -400.0, 900.0),
                  end=(600.0, 600.0, 1100.0), hold: float = 1.0) -> LedScene:
     """An LED on a linear translation stage: still for ``hold`` s, then moving at constant
     speed from ``start`` to ``end`` (mm), then still again for ``hold`` s."""
@@ -183,7 +183,7 @@ def linear_stage(duration: float = 6.0, *, start=(-600.0, -400.0, 900.0),
     return LedScene("linear stage", t, pos, nrm, np.array([[0.0, np.inf]]))
 
 
-def circle_led(duration: float = 4.0, *, centre=(0.0, 0.0, 1000.0), radius: float = 300.0,
+def circle_led(*, duration: float = 4.0, centre=(0.0, 0.0, 1000.0), radius: float = 300.0,
                period: float = 1.0) -> LedScene:
     """An LED moved in a horizontal circle of ``radius`` mm once every ``period`` s."""
     t = _grid(duration)
@@ -197,7 +197,7 @@ def circle_led(duration: float = 4.0, *, centre=(0.0, 0.0, 1000.0), radius: floa
     return LedScene("circle", t, pos, nrm, np.array([[0.0, np.inf]]))
 
 
-def walking_person(duration: float = 3.6, *, rng: np.random.Generator | int | None = None,
+def walking_person(*, duration: float = 3.6, rng: np.random.Generator | int | None = None,
                    start=(0.0, -2000.0), heading_deg: float = 90.0, speed: float = 1200.0,
                    on=None) -> LedScene:
     """Eight LEDs (:data:`LED_NAMES`: head, shoulders, elbows, wrists, waist) on the walking,
@@ -220,7 +220,7 @@ def walking_person(duration: float = 3.6, *, rng: np.random.Generator | int | No
     rate = 1000.0
     n = int(round(duration * rate)) + 1
     body = make_body(rng=np.random.default_rng(0) if rng is None else rng)
-    motion = walk(n, fps=rate, start=start, heading_deg=heading_deg, speed=speed)
+    motion = walk(n_frames=n, fps=rate, start=start, heading_deg=heading_deg, speed=speed)
     poses = body.part_poses(motion)                                   # (S, P, 4, 4)
     parts = np.array([body.index(p) for p, _, _ in _LED_PLACES])
     local = np.array([q for _, q, _ in _LED_PLACES])
@@ -400,7 +400,7 @@ class LedVideo:
     lighting_change: int | None
 
 
-def small_camera(camera: Camera, scale: float = 0.5) -> Camera:
+def small_camera(camera: Camera, *, scale: float = 0.5) -> Camera:
     """The same camera with its image scaled by ``scale`` (fewer, larger pixels)."""
     w, h = int(round(camera.width * scale)), int(round(camera.height * scale))
     return camera.replace(f=camera.f * scale, width=w, height=h,

@@ -143,7 +143,7 @@ def background_threshold(frames, offset: float, minimum: float, *, exclude=None)
     return Threshold(background=bg, threshold=np.maximum(bg + offset, minimum))
 
 
-def needs_new_threshold(frame, threshold: Threshold, fraction: float = 0.01) -> bool:
+def needs_new_threshold(frame, threshold: Threshold, *, fraction: float = 0.01) -> bool:
     """True when more than ``fraction`` of the pixels exceed their thresholds (a lighting
     change, not LEDs)."""
     f = _frames(frame, "frame")
@@ -194,7 +194,7 @@ def relearn_threshold(frames, offset: float, minimum: float, *, spot_px: int = 7
     return background_threshold(np.where(spot, opened, f), offset, minimum)
 
 
-def search_mask(shape, k: int, jitter, windows=None, window: int = 40) -> np.ndarray:
+def search_mask(shape, k: int, jitter, *, windows=None, window: int = 40) -> np.ndarray:
     """Pixels the sub-sampled search tests in one frame, ``(H, W)`` bool.
 
     Parameters
@@ -268,7 +268,7 @@ def _features(img, bg, sel, H, W):
     return xy, np.bincount(lab, None, n)[1:].astype(np.int64)
 
 
-def detect(frames, threshold: Threshold, params: DetectionParams | None = None, *,
+def detect(frames, threshold: Threshold, *, params: DetectionParams | None = None,
            rng: np.random.Generator | int | None = None, invalid=None, mode: str = "full",
            predicted=None) -> Detections:
     """Find LED features in a batch of frames.

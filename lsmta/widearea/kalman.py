@@ -118,7 +118,7 @@ def projection_jacobian(camera: Camera, X) -> np.ndarray:
     return np.transpose((xy[:, :3] - xy[:, 3:]) / (2 * STEP_MM), (0, 2, 1))
 
 
-def ekf_update(x, P, camera: Camera, z, sigma_px: float, lag: float = 0.0):
+def ekf_update(x, P, camera: Camera, z, sigma_px: float, *, lag: float = 0.0):
     """Extended Kalman update of ``A`` targets, each by one centroid of the same frame.
 
     The targets are independent, so the ``A`` updates are done at once.
@@ -157,7 +157,7 @@ def ekf_update(x, P, camera: Camera, z, sigma_px: float, lag: float = 0.0):
     return _ekf_update(x, P, camera, z, sigma_px, lag)
 
 
-def measurement(camera: Camera, x, lag: float = 0.0):
+def measurement(camera: Camera, x, *, lag: float = 0.0):
     """Predicted centroids and measurement Jacobians of ``A`` targets in one camera.
 
     Parameters

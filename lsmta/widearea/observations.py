@@ -77,7 +77,7 @@ class Frames:
                       arrival=None if self.arrival is None else self.arrival[order])
 
     @classmethod
-    def from_lists(cls, camera, stamp, centroids, arrival=None) -> Frames:
+    def from_lists(cls, camera, stamp, centroids, *, arrival=None) -> Frames:
         """Frames from per-frame lists: ``centroids[f]`` is an ``(n_f, 2)`` array."""
         pts = [np.asarray(c, dtype=float).reshape(-1, 2) for c in centroids]
         start = np.concatenate([[0], np.cumsum([len(p) for p in pts])]).astype(np.int64)

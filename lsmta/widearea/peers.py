@@ -124,7 +124,7 @@ def _classes():
     return ProjectionModel, TwoRayInitiator
 
 
-def stonesoup_track(cameras, frames: Frames, params: TrackerParams | None = None, *,
+def stonesoup_track(cameras, frames: Frames, *, params: TrackerParams | None = None,
                     gate_sigma: float | None = None) -> TrackingResult:
     """Track ``frames`` with Stone Soup components (see the module docstring).
 

@@ -175,7 +175,7 @@ class TrackingResult:
         return np.stack([tr.positions_at(t) for tr in self.tracks], axis=1)
 
 
-def track(cameras, frames: Frames, params: TrackerParams = TrackerParams()) -> TrackingResult:
+def track(cameras, frames: Frames, *, params: TrackerParams = TrackerParams()) -> TrackingResult:
     """Run the estimator over ``frames`` in the given order.
 
     Parameters

@@ -5,7 +5,9 @@ import cv2
 import numpy as np
 import pytest
 
-from lsmta.evaluation.widearea import fig35_starvation, score_tracks, walking_trial
+from lsmta.evaluation.track_scores import score_tracks
+from lsmta.evaluation.widearea import fig35_starvation, walking_trial
+from lsmta.evaluation.widearea_images import rendered_tracking_trial
 from lsmta.synth.widearea import (
     ceiling_rig,
     make_clocks,
@@ -14,8 +16,8 @@ from lsmta.synth.widearea import (
     walking_person,
 )
 from lsmta.widearea import (
+    EstimatorParams,
     Frames,
-    TrackerParams,
     associate,
     ekf_update,
     find_birth,
@@ -270,7 +272,7 @@ def test_tracker_argument_errors(rig):
     with pytest.raises(TypeError, match="frames"):
         track(cams, obs.frames.xy)
     with pytest.raises(ValueError, match="sigma_px"):
-        TrackerParams(sigma_px=0.0)
+        EstimatorParams(sigma_px=0.0)
     with pytest.raises(ValueError, match="start"):
         Frames(camera=np.array([0]), stamp=np.array([0.0]), start=np.array([1, 1]),
                xy=np.zeros((0, 2)))
@@ -482,8 +484,6 @@ def test_subsampled_previous_windows_follow_a_spot_the_grid_misses():
 
 
 def test_rendered_images_detected_and_tracked_in_3d():
-    from lsmta.evaluation.widearea import rendered_tracking_trial
-
     trial = rendered_tracking_trial(rng=np.random.default_rng(11), n_cameras=5, duration=1.0,
                                     hold=0.2, modes=("subsampled",))
     r = trial.results["subsampled"]

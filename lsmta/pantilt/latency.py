@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validate import as_array, as_points, as_rng, as_scalar, freeze
+from ..widearea.kalman import process_noise
 from .aiming import aim
 from .model import PanTiltCamera
 
@@ -160,7 +161,7 @@ def constant_velocity_filter(times, z, *, sigma: float, accel_density: float):
     for k in range(1, len(z)):
         dt = times[k] - times[k - 1]
         F = np.array([[1.0, dt], [0.0, 1.0]])
-        Q = q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
+        Q = process_noise(dt, q)
         x = F @ x
         cov = F @ cov @ F.T + Q
         gain = cov[:, 0] / (cov[0, 0] + r)

@@ -36,6 +36,17 @@ class Association:
     unassociated: np.ndarray
 
 
+def innovation_gate(S, *, n_sigma: float, lower: float, upper: float) -> np.ndarray:
+    """Per-target gate, px: ``n_sigma`` times the larger semi-axis of each innovation
+    ellipse ``S`` (A, 2, 2) in px², kept within [``lower``, ``upper``] px."""
+    S = np.asarray(S, dtype=float)
+    if S.ndim != 3 or S.shape[1:] != (2, 2):
+        raise ValueError(f"S: expected an (A, 2, 2) array of covariances, got {S.shape}")
+    tr, det = S[:, 0, 0] + S[:, 1, 1], np.linalg.det(S)
+    big_axis = np.sqrt(0.5 * tr + np.sqrt(np.maximum(0.25 * tr**2 - det, 0.0)))
+    return np.clip(n_sigma * big_axis, lower, upper)
+
+
 def associate(predicted, observed, gate_px: float) -> Association:
     """Pair projected targets with observed centroids, nearest first, inside a gate.
 

@@ -17,7 +17,7 @@ import argparse
 
 import numpy as np
 
-from lsmta.body import arm_model, fit_sequence
+from lsmta.body import FitParams, arm_model, fit_sequence
 from lsmta.evaluation import body as eb
 from lsmta.report import best_time, write_json
 from lsmta.synth import arm_wave, make_body
@@ -47,7 +47,8 @@ def main(argv=None):
     out = {"frames": int(args.frames), "points_per_frame": int(args.points), "variants": {}}
     for name, kw in variants.items():
         def run(kw=kw):
-            return fit_sequence(model, points, truth.torso_poses, init, sigma_mm=2.0, **kw)
+            return fit_sequence(model, points, truth.torso_poses, init,
+                                params=FitParams(sigma_mm=2.0, **kw))
         seconds, fit = best_time(run, args.repeats)
         s = eb.score_fit(fit, truth)
         out["variants"][name] = {"seconds": seconds, "status": fit.status.name, "nfev": fit.nfev,

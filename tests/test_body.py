@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from lsmta.body import (
+    FitParams,
     FitStatus,
     Joint,
     ModelState,
@@ -166,12 +167,12 @@ def test_sequence_recovers_lengths_and_angles(world):
     rng = np.random.default_rng(7)
     truth, pts = _data(world, [8, 20, 32, 44], 400, rng)
     init, _ = eb.initial_state(truth, rng=rng, joint_noise_mm=15.0)
-    fit = fit_sequence(arm_model(), pts, truth.torso_poses, init, sigma_mm=2.0)
+    fit = fit_sequence(arm_model(), pts, truth.torso_poses, init, params=FitParams(sigma_mm=2.0))
     assert fit.ok, fit.message
     score = eb.score_fit(fit, truth)
     # the start is 15 mm of joint noise away: several degrees and centimetres
     start = eb.score_fit(fit_sequence(arm_model(), pts, truth.torso_poses, init,
-                                      max_rounds=1, nfev_per_round=1), truth)
+                                      params=FitParams(max_rounds=1, nfev_per_round=1)), truth)
     assert start["max_angle_err_deg"] > 3.0
     assert score["max_angle_err_deg"] < 3.0
     assert np.all(np.abs(score["length_err_pct"]) < 2.0)
@@ -182,10 +183,10 @@ def test_frame_fit_and_full_refinement(world):
     rng = np.random.default_rng(8)
     truth, pts = _data(world, [30], 500, rng)
     init, _ = eb.initial_state(truth, rng=rng)
-    fit = fit_frame(arm_model(), pts[0], truth.torso_poses[0], init, sigma_mm=2.0)
+    fit = fit_frame(arm_model(), pts[0], truth.torso_poses[0], init, params=FitParams(sigma_mm=2.0))
     assert fit.ok, fit.message
-    full = fit_frame(arm_model(), pts[0], truth.torso_poses[0], fit.state, shape="full",
-                     sigma_mm=2.0)
+    full = fit_frame(arm_model(), pts[0], truth.torso_poses[0], fit.state,
+                     params=FitParams(shape="full", sigma_mm=2.0))
     assert full.status in (FitStatus.OK, FitStatus.NOT_CONVERGED)
     assert eb.score_fit(full, truth)["max_angle_err_deg"] < 3.0
     # skin scored both ways, where there were points: the fit is near the true skin, and
@@ -207,36 +208,40 @@ def test_bad_input(world):
     # NaN points: dropped and reported
     p = pts[0].copy()
     p[:7] = np.nan
-    fit = fit_frame(m, p, P, init, sigma_mm=2.0)
+    fit = fit_frame(m, p, P, init, params=FitParams(sigma_mm=2.0))
     assert fit.n_nan[0] == 7 and "7 NaN" in fit.message
     assert np.all(fit.segment[0][:7] == -1) and np.all(np.isnan(fit.residuals[0][:7]))
     # too few points on the hand: its shape and length held and named
     hand = fit.segment[0] == 2
     keep = ~hand | (np.cumsum(hand) <= 1)
-    fit2 = fit_frame(m, p[keep], P, init, sigma_mm=2.0)
+    fit2 = fit_frame(m, p[keep], P, init, params=FitParams(sigma_mm=2.0))
     assert "hand" in fit2.fixed_segments
     np.testing.assert_allclose(fit2.state.radii[2], init.radii[2])
     assert fit2.state.scales[2] == init.scales[2]
     # a segment without points in a frame is named, and the message says so
     upper = surface_samples(*world, 30, rng=rng, parts=("upper_arm_r",), n=300, noise_mm=1.0)[0]
     upper = upper[np.linalg.norm(upper - truth.joints[0, 1], axis=1) > 120]
-    fit3 = fit_frame(m, upper, P, init, sigma_mm=2.0)
+    fit3 = fit_frame(m, upper, P, init, params=FitParams(sigma_mm=2.0))
     assert (0, "forearm") in fit3.unobserved and "forearm in frame 0" in fit3.message
     assert "forearm" in fit3.fixed_segments
     # a far initial posture: a clear failure, not a silent wrong fit
     far = ModelState(init.angles + np.array([[2.0, 1.0, 0.0, 1.2, 0.0]]), init.shoulder,
                      init.scales, init.radii)
-    bad = fit_frame(m, p, P, far, sigma_mm=2.0)
+    bad = fit_frame(m, p, P, far, params=FitParams(sigma_mm=2.0))
     assert not bad.ok and bad.status in (FitStatus.INIT_FAR, FitStatus.POOR_FIT)
     # argument errors
     with pytest.raises(ValueError, match="shape"):
-        fit_frame(m, p, P, init, shape="round")
+        FitParams(shape="round")
     with pytest.raises(ValueError, match="points"):
         fit_frame(m, p[:, :2], P, init)
     with pytest.raises(ValueError, match="torso_pose"):
         fit_frame(m, p, np.eye(3), init)
     with pytest.raises(ValueError, match="loss"):
-        fit_frame(m, p, P, init, loss="l7")
+        FitParams(loss="l7")
+    with pytest.raises(ValueError, match="sigma_mm"):
+        FitParams(sigma_mm=0.0)
+    with pytest.raises(TypeError, match="params"):
+        fit_frame(m, p, P, init, params={"sigma_mm": 2.0})
     with pytest.raises(TypeError, match="init"):
         fit_frame(m, p, P, {"angles": 0})
     with pytest.raises(ValueError, match="scales"):
@@ -252,7 +257,7 @@ def test_posterior_agrees_with_least_squares(world):
     truth, pts = _data(world, [30], 300, rng)
     init, _ = eb.initial_state(truth, rng=rng)
     m = arm_model()
-    fit = fit_frame(m, pts[0], truth.torso_poses[0], init, sigma_mm=2.0)
+    fit = fit_frame(m, pts[0], truth.torso_poses[0], init, params=FitParams(sigma_mm=2.0))
     post = sample_limb_posterior(m, fit, pts[0], truth.torso_poses[0], rng=rng, n_walkers=20,
                                  n_steps=120, burn=60)
     assert 0.1 < post.acceptance < 0.9

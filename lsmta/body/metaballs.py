@@ -80,7 +80,7 @@ def field(local, radii) -> np.ndarray:
     return potential(ellipsoid_distance(q, r)).sum(axis=-1)
 
 
-def surface_distance(local, radii, *, threshold: float = THRESHOLD, details: bool = False):
+def surface_distance(local, radii, *, threshold: float = THRESHOLD) -> np.ndarray:
     """Distance-like residual (mm) of points to the skin ``F = T`` of one segment's balls.
 
     ``r = l (sqrt(psi) - sqrt(psi_T))`` with ``psi = -ln(F) / 2``, ``psi_T = -ln(T) / 2``
@@ -96,18 +96,65 @@ def surface_distance(local, radii, *, threshold: float = THRESHOLD, details: boo
         Ball radii, mm.
     threshold : float
         ``T``.
-    details : bool
-        Also return the intermediate quantities the analytic Jacobian needs.
 
     Returns
     -------
-    r : (N,) array
+    (N,) array
         Positive outside, negative inside (mm).
-    details : dict, only with ``details``
-        ``grad`` (N, 3): ``d psi / d x`` in the segment's frame; ``p`` (N, B): each ball's
-        share of the field (``d psi / d d_b``); ``dr_dpsi`` (N,); ``ell``; ``root`` (N,):
+    """
+    return _skin(local, radii, threshold).r
+
+
+@dataclass(frozen=True, eq=False)
+class SkinDistance:
+    """:func:`surface_distance` and the quantities its analytic Jacobian needs.
+
+    Attributes
+    ----------
+    r : (N,) array
+        The distance-like residual, mm.
+    grad : (N, 3) array
+        ``d psi / d x`` in the segment's frame.
+    p : (N, B) array
+        Each ball's share of the field (``d psi / d d_b``).
+    dr_dpsi : (N,) array
+    ell : float
+        ``l``, mm.
+    root : (N,) array
         ``sqrt(psi) - sqrt(psi_T)``.
     """
+
+    r: np.ndarray
+    grad: np.ndarray
+    p: np.ndarray
+    dr_dpsi: np.ndarray
+    ell: float
+    root: np.ndarray
+
+
+def surface_distance_terms(local, radii, *, threshold: float = THRESHOLD) -> SkinDistance:
+    """:func:`surface_distance` (same arguments) with its derivatives (:class:`SkinDistance`)."""
+    sk = _skin(local, radii, threshold)
+    p = sk.p / sk.total                                   # softmax weights
+    grad = np.einsum("nb,nbk->nk", p, 2.0 * sk.q / sk.radii)
+    dr = np.where(sk.inside, 0.0, sk.ell / (2 * sk.sq))
+    return SkinDistance(r=sk.r, grad=grad, p=p, dr_dpsi=dr, ell=sk.ell, root=sk.root)
+
+
+@dataclass(frozen=True, eq=False)
+class _Skin:
+    r: np.ndarray
+    q: np.ndarray        # (N, B, 3) local / radii
+    radii: np.ndarray
+    p: np.ndarray        # (N, B) exp(-2 d_b - max), not normalised
+    total: np.ndarray    # (N, 1) their sum
+    inside: np.ndarray   # (N,) deep inside a blend (F > 1)
+    sq: np.ndarray       # (N,) sqrt(psi)
+    ell: float
+    root: np.ndarray
+
+
+def _skin(local, radii, threshold) -> _Skin:
     local = _local(local, ndim=3)
     radii = _radii(radii, shape=(local.shape[1], 3))
     threshold = as_scalar(threshold, "threshold", positive=True)
@@ -125,13 +172,8 @@ def surface_distance(local, radii, *, threshold: float = THRESHOLD, details: boo
     sq = np.sqrt(np.where(inside, 1e-9, psi))
     ell = float(np.sqrt(radii[len(radii) // 2, 0] * radii[len(radii) // 2, 1]))
     root = sq - np.sqrt(-0.5 * np.log(threshold))
-    r = ell * root
-    if details:
-        p /= total                                        # softmax weights
-        grad = np.einsum("nb,nbk->nk", p, 2.0 * q / radii)
-        dr = np.where(inside, 0.0, ell / (2 * sq))
-        return r, {"grad": grad, "p": p, "dr_dpsi": dr, "ell": ell, "root": root}
-    return r
+    return _Skin(r=ell * root, q=q, radii=radii, p=p, total=total, inside=inside, sq=sq,
+                 ell=ell, root=root)
 
 
 @dataclass(frozen=True)

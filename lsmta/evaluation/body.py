@@ -10,16 +10,16 @@ axis, so it joins the shoulder's ``c``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from .._validate import as_rng
-from ..body import ModelState, arm_model, iso_surface, shoulder_angles
+from ..body import ModelState, angles_from_joints, arm_model, iso_surface, shoulder_angles
 from ..body.arm import base_poses
-from ..body.fitting import BodyFit, FitStatus
-from ..synth.body import Body, Motion, inside_parts
+from ..body.fitting import BodyFit, FitParams, FitStatus, fit_sequence
+from ..synth.body import Body, Motion, inside_parts, surface_samples
 
 ARM_PARTS = ("upper_arm_r", "forearm_r", "hand_r")
 
@@ -83,8 +83,6 @@ def initial_state(truth: ArmTruth, *, rng: np.random.Generator | int | None = No
     Returns the state and the tracked joints ``(T, 3, 3)``.
     """
     rng = as_rng(rng)
-    from ..body import angles_from_joints
-
     model = arm_model() if model is None else model
     tracked = truth.joints + rng.normal(0, joint_noise_mm, truth.joints.shape)
     angles, shoulder, lengths = angles_from_joints(truth.torso_poses, tracked[:, 0],
@@ -176,17 +174,18 @@ def controlled_points(body: Body, motion: Motion, truth: ArmTruth, *,
                       view_from=RIG_CENTRE) -> list:
     """Noisy samples of the arm's skin seen from the rig, one ``(n, 3)`` array per frame."""
     rng = as_rng(rng)
-    from ..synth.body import surface_samples
+
 
     return [surface_samples(body, motion, int(f), rng=rng, n=n, noise_mm=noise_mm,
                             outlier_share=outlier_share, view_from=view_from)[0]
             for f in truth.frames]
 
 
-def fit_arm(points, torso_poses, init: ModelState, *, model=None, full: bool = True,
-            full_rounds: int = 3, **kwargs):
-    """Simplified fit of a sequence (or one frame), then the full model from it (at most
-    ``full_rounds`` segmentation rounds).
+def fit_arm(points, torso_poses, init: ModelState, *, params: FitParams | None = None,
+            tracked=None, model=None, full: bool = True, full_rounds: int = 3):
+    """Simplified fit of a sequence (or one frame) with ``params`` (and ``tracked`` joints),
+    then the full model from it (the same settings, at most ``full_rounds`` segmentation
+    rounds).
 
     ``torso_poses`` ``(T, 4, 4)`` are given to the fit as known (in the notebook: the
     generator's exact torso poses, ``ArmTruth.torso_poses``); nothing else of the truth is
@@ -195,15 +194,13 @@ def fit_arm(points, torso_poses, init: ModelState, *, model=None, full: bool = T
     Returns ``(simplified, full)`` :class:`~lsmta.body.BodyFit` (``full`` is None without
     ``full``).
     """
-    from ..body import fit_sequence
-
     model = arm_model() if model is None else model
-    simple = fit_sequence(model, points, torso_poses, init, **kwargs)
+    params = FitParams() if params is None else params
+    simple = fit_sequence(model, points, torso_poses, init, params=params, tracked=tracked)
     if not full or simple.status == FitStatus.INIT_FAR:
         return simple, None
-    kwargs["max_rounds"] = full_rounds
-    return simple, fit_sequence(model, points, torso_poses, simple.state, shape="full",
-                                **kwargs)
+    return simple, fit_sequence(model, points, torso_poses, simple.state, tracked=tracked,
+                                params=replace(params, shape="full", max_rounds=full_rounds))
 
 
 def skin_errors(fit: BodyFit, truth: ArmTruth, body: Body, motion: Motion, *, model=None,

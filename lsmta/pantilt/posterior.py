@@ -12,11 +12,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import emcee
 import numpy as np
 
 from .._validate import as_rng, as_scalar, freeze
 from ..camera import Camera
+from ..mcmc import sample_ensemble
 from .fitting import Fit, _observations, project_params
 
 
@@ -84,21 +84,12 @@ def sample_posterior(fit: Fit, camera: Camera, pan, tilt, X, xy, *,
     pan, tilt, X, xy = _observations(pan, tilt, X, xy, (limits["pan_limits"],
                                                         limits["tilt_limits"]))
     sigma = fit.sigma_px if sigma_px is None else as_scalar(sigma_px, "sigma_px", positive=True)
-    ndim = len(fit.params)
-    if n_walkers < 2 * ndim:
-        raise ValueError(f"n_walkers: expected at least {2 * ndim} (twice the {ndim} "
-                         f"parameters), got {n_walkers}")
-    if not 0 <= burn < n_steps:
-        raise ValueError(f"burn: expected 0 <= burn < n_steps = {n_steps}, got {burn}")
 
     def log_prob(p):
         r = project_params(camera, p, kind, X, pan, tilt) - xy
         chi2 = float(np.sum(r * r))
         return -0.5 * chi2 / sigma**2 if np.isfinite(chi2) else -np.inf
 
-    start = fit.params + 0.1 * fit.std * rng.standard_normal((n_walkers, ndim))
-    sampler = emcee.EnsembleSampler(n_walkers, ndim, log_prob)
-    sampler.random_state = np.random.RandomState(int(rng.integers(2**32))).get_state()
-    sampler.run_mcmc(start, n_steps, progress=False)
-    samples = sampler.get_chain(discard=burn, thin=thin, flat=True)
-    return Posterior(fit.names, samples, float(np.mean(sampler.acceptance_fraction)))
+    chain = sample_ensemble(log_prob, fit.params, 0.1 * fit.std, n_walkers=n_walkers,
+                            n_steps=n_steps, burn=burn, thin=thin, rng=rng)
+    return Posterior(names=fit.names, samples=chain.samples, acceptance=chain.acceptance)

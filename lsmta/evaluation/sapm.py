@@ -15,7 +15,7 @@ import numpy as np
 from .._validate import as_rng
 from ..io import read_c3d
 from ..rigid import apply_rigid, fit_rigid
-from ..sapm import MarkerModel, global_assignment, identify
+from ..sapm import MarkerModel, SAPMParams, global_assignment, identify
 from ..synth.markers import random_pose
 
 
@@ -107,11 +107,13 @@ def _trials(rows) -> Trials:
     return Trials(*(np.asarray(c, dtype=k) for c, k in zip(cols, kinds)))
 
 
-def label_pose(model: MarkerModel, observed, *, method: str = "sapm", **identify_kw):
+def label_pose(model: MarkerModel, observed, *, method: str = "sapm",
+               params: SAPMParams | None = None):
     """Label one pose with ``method``: "sapm" (:func:`~lsmta.sapm.identify`, returns an
-    ``Identification``) or "baseline" (:func:`~lsmta.sapm.global_assignment`)."""
+    ``Identification``, with ``params``) or "baseline"
+    (:func:`~lsmta.sapm.global_assignment`)."""
     if method == "sapm":
-        return identify(model, observed, **identify_kw)
+        return identify(model, observed, params=params)
     if method == "baseline":
         return global_assignment(model, observed)
     raise ValueError(f"method: expected 'sapm' or 'baseline', got {method!r}")
@@ -119,7 +121,7 @@ def label_pose(model: MarkerModel, observed, *, method: str = "sapm", **identify
 
 def pose_trials(model: MarkerModel, n_poses: int, *, rng: np.random.Generator | int | None = None,
                 level: float = np.pi, distortion: float = 0.0, n_missing: int = 0, n_extra: int = 0,
-                methods=("sapm",), **identify_kw) -> dict:
+                methods=("sapm",), params: SAPMParams | None = None) -> dict:
     """Generate ``n_poses`` random poses and score every method on the same poses.
 
     Returns
@@ -133,7 +135,7 @@ def pose_trials(model: MarkerModel, n_poses: int, *, rng: np.random.Generator | 
         pose = random_pose(model, rng=rng, level=level, distortion=distortion, n_missing=n_missing,
                            n_extra=n_extra)
         for m in methods:
-            r = label_pose(model, pose.observed, method=m, **identify_kw if m == "sapm" else {})
+            r = label_pose(model, pose.observed, method=m, params=params)
             rows[m].append(_scored(r, pose.truth))
     return {m: _trials(r) for m, r in rows.items()}
 
@@ -160,11 +162,11 @@ class Surface:
     n_poses: int
 
 
-def surface_cell(model, seed: int, level: float, distortion: float, n_poses: int,
-                 **identify_kw) -> tuple[float, float]:
+def surface_cell(model, seed: int, level: float, distortion: float, n_poses: int, *,
+                 params: SAPMParams | None = None) -> tuple[float, float]:
     """One cell of the Fig. 3 grid, from its own seed: (poses correct, points correct)."""
     t = pose_trials(model, n_poses, rng=np.random.default_rng(seed), level=level,
-                    distortion=distortion, **identify_kw)["sapm"]
+                    distortion=distortion, params=params)["sapm"]
     return float(t.correct.mean()), float(t.accuracy.mean())
 
 
@@ -175,7 +177,7 @@ def cell_seeds(seed: int, shape) -> np.ndarray:
 
 
 def identification_surface(model: MarkerModel, seed: int, levels, distortions, n_poses: int,
-                           *, progress=None, **identify_kw) -> Surface:
+                           *, progress=None, params: SAPMParams | None = None) -> Surface:
     """Fig. 3 serially: every (level, ψ) cell from its own seed (see ``cell_seeds``), so
     the parallel experiment reproduces the same numbers."""
     levels = np.asarray(levels, float)
@@ -186,7 +188,7 @@ def identification_surface(model: MarkerModel, seed: int, levels, distortions, n
     cells = [(i, j) for i in range(len(levels)) for j in range(len(distortions))]
     for i, j in (progress(cells) if progress else cells):
         poses[i, j], points[i, j] = surface_cell(model, seeds[i, j], levels[i],
-                                                 distortions[j], n_poses, **identify_kw)
+                                                 distortions[j], n_poses, params=params)
     return Surface(levels, distortions, poses, points, n_poses)
 
 
@@ -246,7 +248,8 @@ class FrameTrials:
 
 
 def frame_trials(model: MarkerModel, points, frames, *, methods=("sapm",),
-                 rng: np.random.Generator | int | None = None, **identify_kw) -> FrameTrials:
+                 rng: np.random.Generator | int | None = None,
+                 params: SAPMParams | None = None) -> FrameTrials:
     """Identify real frames: present markers shuffled, labels dropped.
 
     ``points`` is (T, M, 3) in the model's marker order; in the returned label arrays a
@@ -259,7 +262,7 @@ def frame_trials(model: MarkerModel, points, frames, *, methods=("sapm",),
         present = np.flatnonzero(~np.isnan(points[f]).any(axis=1))
         perm = rng.permutation(present)
         for m in methods:
-            r = label_pose(model, points[f][perm], method=m, **identify_kw if m == "sapm" else {})
+            r = label_pose(model, points[f][perm], method=m, params=params)
             rows[m].append(_scored(r, perm))
             labels[m][f_i, perm] = r.labels
             results[m].append(r)

@@ -496,7 +496,7 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
     if any(not 0 <= j < model.skeleton.n_joints for j in p.free_joints):
         raise ValueError(f"free_joints: expected joint indices in [0, "
                          f"{model.skeleton.n_joints - 1}]")
-    fit = _Fit.start(model, data, _check_state(init, model, data.T), p)
+    fit = _Fit.initial(model, data, _check_state(init, model, data.T), p)
     share0 = _inlier_share(fit.seg, data)
     if share0.min() < p.min_inlier_share:
         worst = int(np.argmin(share0))
@@ -581,7 +581,7 @@ class _Fit:
     last: tuple | None = None    # (scipy solution, mask of its parameters) of the last solve
 
     @classmethod
-    def start(cls, model, data: _Data, state: ModelState, p: FitParams) -> _Fit:
+    def initial(cls, model, data: _Data, state: ModelState, p: FitParams) -> _Fit:
         lay = _Layout(model, data.T, p.shape, p.share_shoulder, np.asarray(p.free_joints, int))
         fit = cls(model=model, data=data, p=p, lay=lay, state=state, x=lay.pack(state),
                   seg=np.zeros(0, int))

@@ -219,7 +219,7 @@ def track_markers(images, initial_xy, *, window: int = 11, levels: int = 2,
     blur_ratio = as_scalar(blur_ratio, "blur_ratio", nonnegative=True)
     if seeds is not None:
         seeds = as_array(seeds, "seeds", shape=(T, len(p0), 2), allow_nan=True)
-    state = _State.start(imgs, p0, search.refine)
+    state = _State.initial(imgs, p0, search.refine)
     for t in range(1, T):
         if _blurred(state, t, blur_retry, blur_ratio, blur_history):
             continue
@@ -261,7 +261,7 @@ class _State:
     good: list = field(default_factory=list)   # sharpness of the good frames
 
     @classmethod
-    def start(cls, imgs, p0, refine: bool) -> _State:
+    def initial(cls, imgs, p0, refine: bool) -> _State:
         T, M = len(imgs), len(p0)
         alive = np.isfinite(p0).all(axis=1)
         pos = p0.copy()

@@ -135,7 +135,7 @@ class FrameIntake:
     nan_centroids: int = 0
 
     @classmethod
-    def start(cls, n_cameras: int) -> FrameIntake:
+    def initial(cls, n_cameras: int) -> FrameIntake:
         return cls(last_stamp=np.full(n_cameras, -np.inf),
                    received=np.zeros(n_cameras, np.int64))
 

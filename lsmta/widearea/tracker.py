@@ -199,7 +199,7 @@ def track(cameras, frames: Frames, *, params: EstimatorParams | None = None) -> 
     p = EstimatorParams() if params is None else params
     if not isinstance(p, EstimatorParams):
         raise TypeError("params: expected lsmta.widearea.EstimatorParams")
-    state = _State.start(len(cameras), p)
+    state = _State.initial(len(cameras), p)
     for f in range(frames.n_frames):
         xy = state.intake.take(frames, f)
         if xy is None:
@@ -241,9 +241,9 @@ class _State:
         "target", "camera", "time", "predicted", "observed")})
 
     @classmethod
-    def start(cls, K: int, p: EstimatorParams) -> _State:
+    def initial(cls, K: int, p: EstimatorParams) -> _State:
         s0, v0 = p.birth_sigma
-        return cls(intake=FrameIntake.start(K), P0=np.diag([s0**2] * 3 + [v0**2] * 3),
+        return cls(intake=FrameIntake.initial(K), P0=np.diag([s0**2] * 3 + [v0**2] * 3),
                    X=np.zeros((0, 6)), P=np.zeros((0, 6, 6)), ids=np.zeros(0, np.int64),
                    last_seen=np.zeros((0, K)), pool=RayPool(),
                    used=np.zeros(K, np.int64), dropped=np.zeros(K, np.int64),

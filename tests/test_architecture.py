@@ -132,3 +132,14 @@ def test_statuses_are_int_enums():
     names = {s.__name__ for s in statuses}
     assert {"TrackStatus", "MarkerStatus", "TargetStatus", "FitStatus", "Status"} <= names
 
+
+
+def test_no_public_function_is_longer_than_100_lines():
+    import inspect
+
+    long = []
+    for qual, func in _public_functions():
+        lines, _ = inspect.getsourcelines(func)
+        if len(lines) > 100 and qual not in EXEMPT_LENGTH:
+            long.append(f"{qual} ({len(lines)} lines)")
+    assert not long, f"public functions longer than 100 lines: {long}"

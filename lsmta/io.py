@@ -65,7 +65,7 @@ def read_c3d(path) -> MarkerData:
         xyz[np.asarray(residuals)[0].T < 0] = np.nan
     xyz[np.isnan(xyz).any(axis=2)] = np.nan          # a gap is a whole point
     rate = float(np.ravel(point["RATE"]["value"])[0])
-    return MarkerData(labels[: xyz.shape[1]], xyz, rate)
+    return MarkerData(labels=labels[: xyz.shape[1]], points=xyz, rate=rate)
 
 
 _MAYA_LINEAR_TO_MM = {"mm": 1.0, "millimeter": 1.0, "cm": 10.0, "centimeter": 10.0,
@@ -153,4 +153,4 @@ def read_maya_curves(path) -> MayaCurves:
             k = curves[(n, a)]
             pts[[index[t] for t in k], j, a] = np.fromiter(k.values(), float, len(k)) * scale
     pts[np.isnan(pts).any(axis=2)] = np.nan
-    return MayaCurves(labels, pts, times)
+    return MayaCurves(labels=labels, points=pts, times=times)

@@ -143,3 +143,26 @@ def test_no_public_function_is_longer_than_100_lines():
         if len(lines) > 100 and qual not in EXEMPT_LENGTH:
             long.append(f"{qual} ({len(lines)} lines)")
     assert not long, f"public functions longer than 100 lines: {long}"
+
+
+def test_results_are_built_by_keyword():
+    """No dataclass of lsmta is constructed with more than two positional arguments."""
+    dataclasses, plain = set(), set()
+    trees = {p: ast.parse(p.read_text(encoding="utf-8")) for p in PACKAGE.rglob("*.py")}
+    for tree in trees.values():
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ClassDef):
+                is_dc = any("dataclass" in ast.unparse(d) for d in node.decorator_list)
+                (dataclasses if is_dc else plain).add(node.name)
+    names = dataclasses - plain          # a name also used by a plain class is ambiguous
+    exempt = {m.replace(".", "/") + ".py" for m in EXEMPT_MODULES}
+    offenders = []
+    for path, tree in trees.items():
+        rel = str(path.relative_to(PACKAGE.parent))
+        if rel in exempt:
+            continue
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) \
+                    and node.func.id in names and len(node.args) > 2:
+                offenders.append(f"{rel}:{node.lineno} {node.func.id}")
+    assert not offenders, f"dataclasses built from positional arguments: {offenders}"

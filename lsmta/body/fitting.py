@@ -237,7 +237,7 @@ class _Layout:
             i += 6 * self.S
         angles = template.angles.copy()
         angles[:, self.free_joints] = x[i:].reshape(self.T, len(self.free_joints))
-        return ModelState(angles, np.array(sh), scales, radii)
+        return ModelState(angles=angles, shoulder=np.array(sh), scales=scales, radii=radii)
 
 
 def _distances(model, st, bases, pts, frame, segment):
@@ -380,7 +380,7 @@ def _check_state(init: ModelState, model: MetaballModel, T: int) -> ModelState:
     if np.any(scales <= 0) or np.any(radii <= 0):
         raise ValueError("init: scales and radii must be positive")
     radii = model.full_radii(radii[:, :, :2], scales)        # lz follows the bone
-    return ModelState(angles.copy(), sh.copy(), scales.copy(), radii)
+    return ModelState(angles=angles.copy(), shoulder=sh.copy(), scales=scales.copy(), radii=radii)
 
 
 @dataclass(frozen=True)
@@ -767,5 +767,6 @@ def fit_frame(model: MetaballModel, points, torso_pose, init: ModelState, *,
     P = as_array(torso_pose, "torso_pose", shape=(4, 4))
     pts = as_array(points, "points", shape=(None, 3), allow_nan=True)
     if isinstance(init, ModelState) and np.ndim(init.angles) == 1:
-        init = ModelState(np.asarray(init.angles)[None], init.shoulder, init.scales, init.radii)
+        init = ModelState(angles=np.asarray(init.angles)[None], shoulder=init.shoulder,
+                          scales=init.scales, radii=init.radii)
     return fit_sequence(model, [pts], P[None], init, params=params)

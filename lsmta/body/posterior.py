@@ -98,7 +98,7 @@ def sample_limb_posterior(model: MetaballModel, fit: BodyFit, points, torso_pose
                    for li in range(len(model.skeleton.limbs))])
     to_phys = np.ones(free.sum())
     to_phys[:len(L0)] = L0                                  # scale -> length (mm)
-    template = ModelState(st.angles, st.shoulder, st.scales, st.radii)
+    template = ModelState(angles=st.angles, shoulder=st.shoulder, scales=st.scales, radii=st.radii)
 
     def resid(theta, jac=False):
         xx = x0.copy()

@@ -644,12 +644,12 @@ def _levenberg_marquardt(fun, x0, sparsity, max_iter, ftol, xtol, callback):
         r, cost = r_new, c_new
         lam = max(lam / 10, 1e-12)
         if callback is not None:
-            callback(_Solution(x, None, nfev))
+            callback(_Solution(x=x, jac=None, nfev=nfev))
         if rel < ftol or np.linalg.norm(dx) < xtol * (xtol + np.linalg.norm(x)):
             break
     J = csc_matrix(approx_derivative(fun, x, method="2-point", f0=r,
                                      sparsity=(sparsity, groups)))
-    return _Solution(x, J, nfev)
+    return _Solution(x=x, jac=J, nfev=nfev)
 
 
 def _result(pr: _Problem, adj: _Adjusted, rejected) -> BundleResult:

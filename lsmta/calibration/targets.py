@@ -150,14 +150,15 @@ def detect_blobs(image, *, k: float = 8.0, min_area: int = 3, max_area: int = 40
     cents = cents[inside]
     if not len(cents):
         e = np.zeros((0, 2))
-        return Blobs(e, e, np.zeros(0), np.zeros(0), np.zeros(0, bool))
+        return Blobs(xy=e, centroid=e, sigma=np.zeros(0), amplitude=np.zeros(0),
+                     converged=np.zeros(0, bool))
     corner = np.round(cents).astype(int) - half
     off = np.arange(2 * half + 1)
     patches = f[corner[:, 1, None, None] + off[None, :, None],
                 corner[:, 0, None, None] + off[None, None, :]]
     c, s, a, ok = _gaussian_fit(patches, cents[:, 0] - corner[:, 0], cents[:, 1] - corner[:, 1])
     xy = np.where(ok[:, None], c + corner, cents)
-    return Blobs(xy, cents, s, a, ok)
+    return Blobs(xy=xy, centroid=cents, sigma=s, amplitude=a, converged=ok)
 
 
 def track_targets(images, *, n_targets: int = 2, gate: float = 100.0, **detect) -> TargetTracks:
@@ -222,4 +223,4 @@ def track_targets(images, *, n_targets: int = 2, gate: float = 100.0, **detect) 
                 status[t, r] = TargetStatus.OK if b.converged[c] else TargetStatus.NOT_CONVERGED
                 vel[r] = b.xy[c] - last[r]
                 last[r] = b.xy[c]
-    return TargetTracks(xy, status, n_blobs)
+    return TargetTracks(xy=xy, status=status, n_blobs=n_blobs)

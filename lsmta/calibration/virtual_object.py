@@ -215,7 +215,7 @@ def _history(cams_list, xy, xy_check, fit=None):
                     for c in cams_list])
     if fit is None:
         fit = [projection_error(c, xy) for c in cams_list]
-    return ConvergenceHistory(cams_list, err, np.array(fit))
+    return ConvergenceHistory(cameras=cams_list, error=err, fit_error=np.array(fit))
 
 
 def resect(camera, X, xy, *, intrinsics=DAVIS_INTRINSICS):

@@ -69,9 +69,10 @@ def arm_truth(body: Body, motion: Motion, frames) -> ArmTruth:
     angles = np.concatenate([shoulder_angles(U), fore_a[:, :1], np.zeros((len(frames), 1))],
                             axis=1)
     joints = np.stack([poses[:, iu, :3, 3], poses[:, iff, :3, 3], poses[:, ih, :3, 3]], axis=1)
-    return ArmTruth(frames, torso, np.asarray(body.parts[iu].joint, float),
-                    np.array([-body.parts[iff].joint[2], -body.parts[ih].joint[2]], float),
-                    angles, joints)
+    return ArmTruth(frames=frames, torso_poses=torso,
+                    shoulder_local=np.asarray(body.parts[iu].joint, float),
+                    lengths=np.array([-body.parts[iff].joint[2], -body.parts[ih].joint[2]], float),
+                    angles=angles, joints=joints)
 
 
 def initial_state(truth: ArmTruth, *, rng: np.random.Generator | int | None = None,
@@ -91,7 +92,8 @@ def initial_state(truth: ArmTruth, *, rng: np.random.Generator | int | None = No
                        lengths[:, 1].mean() / model.segments[1].length, 1.0])
     size = np.array([[width_mm, width_mm], [width_mm, width_mm],
                      [width_mm * 0.6, width_mm * 0.6]])
-    state = ModelState(angles, shoulder, scales, model.simplified_radii(size, scales))
+    state = ModelState(angles=angles, shoulder=shoulder, scales=scales,
+                       radii=model.simplified_radii(size, scales))
     return state, tracked
 
 

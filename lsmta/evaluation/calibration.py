@@ -157,7 +157,7 @@ def bar_trial(*, seed: int = 0, n_positions: int = 150, n_heldout: int = 40, mod
     if mode == "images":
         sigma_px = float(np.sqrt(np.nanmean((xy - xy_true) ** 2)))
     pairs = np.arange(2 * n_positions).reshape(-1, 2)
-    bar = Bar(pairs, length, bar_sigma)
+    bar = Bar(pairs=pairs, length=length, sigma=bar_sigma)
     nominal = triplet_rig()
     t0 = time.perf_counter()
     cams0, X0 = relative_orientation_start(nominal, xy, bar=bar, pair=(0, 2))
@@ -266,8 +266,9 @@ def ring_trial(*, seeds=(0, 1, 2), n_cameras: int = 10, n_path: int = 300, n_che
                                  xy_check=xy_c, triangulation="linear"))
         jnt.append(joint_adjustment(guess, xy, n_iter=n_joint, intrinsics=intrinsics,
                                     xy_check=xy_c))
-    return RingTrial(truth, path, check, xy, xy_c, alt, jnt, projection_error(truth, xy_c),
-                     sigma_px, lin)
+    return RingTrial(truth=truth, path=path, check_path=check, xy=xy, xy_check=xy_c,
+                     alternation=alt, joint=jnt, truth_error=projection_error(truth, xy_c),
+                     sigma_px=sigma_px, linear=lin)
 
 
 __all__ = ["BarTrial", "ConvergenceHistory", "RingTrial", "aniposelib_peer", "bar_observations",

@@ -80,7 +80,8 @@ def three_conditions(head: PanTiltCamera, *, rng: np.random.Generator | int | No
             "general": calibrate(cam, cal.pan, cal.tilt, cal.X, cal.xy, kind="general", **kw)}
     errors = {k: projection_errors(f.model, ev.pan, ev.tilt, ev.X, ev.xy) for k, f in fits.items()}
     errors["truth"] = projection_errors(head, ev.pan, ev.tilt, ev.X, ev.xy)
-    return PanTiltTrial(head, intr, cal, ev, fits, errors)
+    return PanTiltTrial(head=head, intrinsics=intr, calibration=cal, evaluation=ev, fits=fits,
+                        errors=errors)
 
 
 def misalignment_sweep(scales, *, rng: np.random.Generator | int | None = None, repeats: int = 1,

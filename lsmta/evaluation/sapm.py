@@ -189,7 +189,8 @@ def identification_surface(model: MarkerModel, seed: int, levels, distortions, n
     for i, j in (progress(cells) if progress else cells):
         poses[i, j], points[i, j] = surface_cell(model, seeds[i, j], levels[i],
                                                  distortions[j], n_poses, params=params)
-    return Surface(levels, distortions, poses, points, n_poses)
+    return Surface(levels=levels, distortions=distortions, poses_correct=poses,
+                   points_correct=points, n_poses=n_poses)
 
 
 # ---------------------------------------------------------------------- real data
@@ -266,8 +267,8 @@ def frame_trials(model: MarkerModel, points, frames, *, methods=("sapm",),
             rows[m].append(_scored(r, perm))
             labels[m][f_i, perm] = r.labels
             results[m].append(r)
-    return FrameTrials(np.asarray(frames), {m: _trials(r) for m, r in rows.items()}, labels,
-                       results)
+    return FrameTrials(frames=np.asarray(frames), trials={m: _trials(r) for m, r in rows.items()},
+                       labels=labels, results=results)
 
 
 

@@ -41,7 +41,8 @@ def walk_sequence(*, seed: int = 2000, n_frames: int = 30, scale: float = 0.5, m
     body = make_body(rng=np.random.default_rng(seed + 1), contrast=0.3,
                      wavelength=(20.0 / scale, 80.0 / scale))
     frames = range(0, n_frames, surface_every)
-    return render_sequence(Scene(body, mot, None), cams, rng=rng, noise_sigma=noise_sigma,
+    return render_sequence(Scene(body=body, motion=mot, background=None), cams, rng=rng,
+                           noise_sigma=noise_sigma,
                            surface_frames=frames, step=step)
 
 

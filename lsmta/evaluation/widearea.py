@@ -84,7 +84,9 @@ def _run_policies(scene, cams, obs, params, tolerance, times) -> StarvationTrial
     for tol in (0.0, tolerance):
         res = track(cams, obs.frames, params=replace(params, late_tolerance=tol))
         out.append((_used_fraction(res), len(res.tracks), score_tracks(scene, res, times).rms_mm))
-    return StarvationTrial(out[0][0], out[1][0], out[0][1], out[1][1], out[0][2], out[1][2])
+    return StarvationTrial(used_discard=out[0][0], used_tolerant=out[1][0],
+                           tracks_discard=out[0][1], tracks_tolerant=out[1][1],
+                           rms_discard=out[0][2], rms_tolerant=out[1][2])
 
 
 def fig35_starvation(*, rng: np.random.Generator | int | None = None, rig=None,

@@ -91,7 +91,7 @@ def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: 
     m8 = None if mask is None else np.asarray(mask, dtype=np.uint8)
     corners = cv2.goodFeaturesToTrack(f8, maxCorners=4 * n_seeds, qualityLevel=0.05,
                                       minDistance=min_distance, mask=m8, blockSize=patch)
-    empty = Seeds(np.zeros((K, 0, 2)), np.zeros(0), np.zeros(0))
+    empty = Seeds(xy=np.zeros((K, 0, 2)), score=np.zeros(0), depth=np.zeros(0))
     if corners is None:
         return empty
     t_xy = corners[:, 0].astype(float)

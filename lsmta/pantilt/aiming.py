@@ -143,7 +143,8 @@ def aim(model: PanTiltCamera, X, *, current=(0.0, 0.0), tol_px: float = 0.5,
         step[idx[~better]] /= 3.0
         iters[idx] += 1
         active = (err > tol_px) & (step >= min_step_deg) & (iters < max_iter)
-    return Aim(cur[:, 0].copy(), cur[:, 1].copy(), err, err <= tol_px, iters, evaluations)
+    return Aim(pan=cur[:, 0].copy(), tilt=cur[:, 1].copy(), error_px=err, reachable=err <= tol_px,
+               iterations=iters, evaluations=evaluations)
 
 
 def aim_least_squares(model: PanTiltCamera, X, *, current=(0.0, 0.0), tol_px: float = 0.5) -> Aim:
@@ -169,4 +170,5 @@ def aim_least_squares(model: PanTiltCamera, X, *, current=(0.0, 0.0), tol_px: fl
         iters[i] = res.nfev
         evaluations += res.nfev + 2 * res.njev  # a forward-difference Jacobian costs two
     err = _centre_error(model, X, out[:, 0], out[:, 1])
-    return Aim(out[:, 0], out[:, 1], err, err <= tol_px, iters, evaluations)
+    return Aim(pan=out[:, 0], tilt=out[:, 1], error_px=err, reachable=err <= tol_px,
+               iterations=iters, evaluations=evaluations)

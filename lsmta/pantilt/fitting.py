@@ -282,7 +282,8 @@ def calibrate(camera: Camera, pan, tilt, X, xy, *, kind: str = "general",
     cov, std, sigma = _covariance(res, names)
     model = model_from_params(camera, res.x, kind, **limits)
     r = (model._project(X, pan, tilt) - xy)
-    return Fit(model, names, res.x, std, cov, r, sigma, loss, int(res.nfev))
+    return Fit(model=model, names=names, params=res.x, std=std, covariance=cov, residuals=r,
+               sigma_px=sigma, loss=loss, nfev=int(res.nfev))
 
 
 def dlt_camera(X, xy, image_size, *, name: str = "") -> Camera:
@@ -369,7 +370,8 @@ def calibrate_intrinsics(X, xy, image_size, *, distortion=("k1", "k2", "p1", "p2
     res = least_squares(fun, p0, loss=loss, f_scale=f_scale, x_scale="jac")
     cov, std, sigma = _covariance(res, names)
     cam = build(res.x)
-    return Fit(cam, names, res.x, std, cov, cam.project(X) - xy, sigma, loss, int(res.nfev))
+    return Fit(model=cam, names=names, params=res.x, std=std, covariance=cov,
+               residuals=cam.project(X) - xy, sigma_px=sigma, loss=loss, nfev=int(res.nfev))
 
 
 def projection_errors(model: PanTiltCamera, pan, tilt, X, xy) -> np.ndarray:

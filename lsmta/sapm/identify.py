@@ -225,7 +225,7 @@ class _Search:
             ok = obs >= 0
             R, t, resid, err = self._fit(m[ok], obs[ok], s)
         if err < eps and (obs >= 0).sum() > self.p.beta * len(m):
-            return _Match(m, obs, R, t, float(err))
+            return _Match(members=m, obs=obs, R=R, t=t, err=float(err))
         return None
 
     def _tables(self, s, l, pivots, gate):
@@ -400,7 +400,7 @@ class _Search:
             keep = new >= 0
             R, t, _, err = self._fit(m[keep], new[keep], s)
             if err < self.p.eps:
-                yield _Match(m, new, R, t, float(err))
+                yield _Match(members=m, obs=new, R=R, t=t, err=float(err))
 
     # ------------------------------------------------------------------ global search
     def _assign(self, s, match: _Match) -> None:

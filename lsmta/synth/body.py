@@ -257,8 +257,8 @@ def make_body(*, rng: np.random.Generator | int | None = None, contrast=0.3,
     parts = []
     for name, parent, joint, centre, radii, albedo in _PARTS:
         index[name] = len(parts)
-        parts.append(Part(name, -1 if parent is None else index[parent], joint, centre, radii,
-                          albedo))
+        parts.append(Part(name=name, parent=-1 if parent is None else index[parent], joint=joint,
+                          centre=centre, radii=radii, albedo=albedo))
     if isinstance(contrast, Mapping):
         unknown = set(contrast) - set(index)
         if unknown:
@@ -396,7 +396,7 @@ def walk(*, n_frames: int = 50, fps: float = 25.0, start=(-1300.0, 0.0), heading
         ang[:, i[f"upper_arm_{side}"], 0] = -0.35 * np.sin(p)
         ang[:, i[f"upper_arm_{side}"], 1] = -sign * 0.12
         ang[:, i[f"forearm_{side}"], 0] = 0.35 + 0.2 * (0.5 - 0.5 * np.sin(p))
-    return Motion("walk", fps, root, ang, names)
+    return Motion(name="walk", fps=fps, root_position=root, joint_angles=ang, part_names=names)
 
 
 def arm_wave(*, n_frames: int = 50, fps: float = 25.0, position=(0.0, 0.0),
@@ -445,7 +445,7 @@ def arm_wave(*, n_frames: int = 50, fps: float = 25.0, position=(0.0, 0.0),
     ang[:, i["upper_arm_l"], 1] = 0.1
     ang[:, i["forearm_l"], 0] = 1.1
     ang[:, i["head"], 2] = 0.15 * np.sin(2 * np.pi * 0.3 * t)
-    return Motion("arm_wave", fps, root, ang, names)
+    return Motion(name="arm_wave", fps=fps, root_position=root, joint_angles=ang, part_names=names)
 
 
 def inside_parts(body: Body, poses, points, *, exclude=None) -> np.ndarray:

@@ -92,7 +92,7 @@ def bar_track(*, n: int = 150, rng: np.random.Generator | int | None = None, len
             ve = -ve
     a, e = np.radians(az), np.radians(el)
     d = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=1)
-    return BarTrack(mid - 0.5 * length * d, mid + 0.5 * length * d, length)
+    return BarTrack(A=mid - 0.5 * length * d, B=mid + 0.5 * length * d, length=length)
 
 
 def led_path(*, n: int = 300, rng: np.random.Generator | int | None = None,

@@ -174,7 +174,8 @@ def face_model() -> FaceModel:
     modes[5, :, 0] = 8 * gm
     modes[5, :, 2] = -1.5 * gm * np.tanh(x / 15)
     modes[:, rigid] = 0.0
-    return FaceModel(tuple(labels), tuple(groups), neutral, normals, modes, MODES, rigid)
+    return FaceModel(labels=tuple(labels), groups=tuple(groups), neutral=neutral, normals=normals,
+                     modes=modes, mode_names=MODES, rigid=rigid)
 
 
 def expression_weights(n_frames: int, *, rng: np.random.Generator | int | None = None,
@@ -285,7 +286,7 @@ def face_sequence(model: FaceModel, n_frames: int, *, rng: np.random.Generator |
         t = np.tile([0.0, 0.0, 1650.0], (n_frames, 1))
     world = np.einsum("tij,tmj->tmi", R, head) + t[:, None]
     normals = np.einsum("tij,mj->tmi", R, model.normals)
-    return FaceSequence(head, world, normals, w, R, t)
+    return FaceSequence(head=head, world=world, normals=normals, weights=w, R=R, t=t)
 
 
 def face_cameras(target, *, positions=None, f: float = 2400.0, width: int = 640,

@@ -150,7 +150,7 @@ def render_marker_video(cameras, points, visible, anchor, rng, *, dot_sigma: flo
         if noise > 0:
             img = img + np.float32(noise) * rng.standard_normal(img.shape, dtype=np.float32)
         images[f] = np.clip(np.round(img), 0, 255).astype(np.uint8)
-    return MarkerVideo(images, xy, anchor_xy, blur)
+    return MarkerVideo(images=images, xy=xy, anchor_xy=anchor_xy, blurred=blur)
 
 
 def shaken(camera: Camera, deg: float, *, rng: np.random.Generator | int | None = None) -> Camera:

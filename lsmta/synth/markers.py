@@ -175,4 +175,4 @@ def random_pose(model: MarkerModel, *, rng: np.random.Generator | int | None = N
         truth = np.concatenate([truth, np.full(n_extra, -1)])
     order = rng.permutation(len(obs))
     points.setflags(write=False)
-    return MarkerPose(obs[order], truth[order], points)
+    return MarkerPose(observed=obs[order], truth=truth[order], points=points)

@@ -168,7 +168,7 @@ def observe(head: PanTiltCamera, pan, tilt, *, rng: np.random.Generator | int | 
     X_true = C + d_world * rng.uniform(depth[0], depth[1], (n, 1))
     X = X_true + rng.normal(0, as_scalar(world_sigma, "world_sigma", nonnegative=True), (n, 3))
     xy = xy_true + rng.normal(0, as_scalar(image_sigma, "image_sigma", nonnegative=True), (n, 2))
-    return PanTiltData(pan, tilt, X, xy, X_true, xy_true)
+    return PanTiltData(pan=pan, tilt=tilt, X=X, xy=xy, X_true=X_true, xy_true=xy_true)
 
 
 def calibration_sweeps(head: PanTiltCamera, *, rng: np.random.Generator | int | None = None,

@@ -205,8 +205,9 @@ def warped_pair(*, shape=(256, 256), rng: np.random.Generator | int | None = Non
     noise_sigma = as_scalar(noise_sigma, "noise_sigma", nonnegative=True)
     tex = texture if texture is not None else PlanarTexture.random(rng=rng, amplitude=amplitude,
                                                                    wavelength=wavelength)
-    pair = WarpedPair(np.empty(0), np.empty(0), np.empty(0), np.empty(0), A, c, float(r0), r1,
-                      0.0, tex, int(supersample))
+    pair = WarpedPair(template=np.empty(0), search=np.empty(0), clean_template=np.empty(0),
+                      clean_search_image=np.empty(0), A=A, c=c, r0=float(r0), r1=r1,
+                      noise_sigma=0.0, texture=tex, supersample=int(supersample))
     template = _render(lambda x, y: tex(x, y), shape, pair.supersample)
     yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
     search = pair.clean_search(np.stack([xx, yy], axis=-1))

@@ -47,8 +47,8 @@ def make_background(*, rng: np.random.Generator | int | None = None, wall_y: flo
     """A wall behind the subject and a floor, with their own solid texture (world frame)."""
     rng = as_rng(rng)
     texture = SolidTexture.random(1, contrast, rng=rng, wavelength=wavelength, n_waves=24)
-    return Background(as_scalar(wall_y, "wall_y"), bool(floor),
-                      as_scalar(albedo, "albedo", nonnegative=True), texture)
+    return Background(wall_y=as_scalar(wall_y, "wall_y"), floor=bool(floor),
+                      albedo=as_scalar(albedo, "albedo", nonnegative=True), texture=texture)
 
 
 @dataclass(frozen=True, eq=False)

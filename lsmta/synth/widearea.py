@@ -164,7 +164,7 @@ def still_led(*, duration: float = 2.0, position=(300.0, 200.0, 1000.0)) -> LedS
     pos = np.broadcast_to(as_array(position, "position", shape=(3,)), (len(t), 1, 3)).copy()
     nrm = np.zeros_like(pos)
     nrm[..., 2] = 1
-    return LedScene("still", t, pos, nrm, np.array([[0.0, np.inf]]))
+    return LedScene(name="still", times=t, positions=pos, normals=nrm, on=np.array([[0.0, np.inf]]))
 
 
 def linear_stage(*, duration: float = 6.0, start=(-600.0, -400.0, 900.0),
@@ -180,7 +180,8 @@ def linear_stage(*, duration: float = 6.0, start=(-600.0, -400.0, 900.0),
     pos = (a + s[:, None] * (b - a))[:, None, :]
     nrm = np.zeros_like(pos)
     nrm[..., 2] = 1
-    return LedScene("linear stage", t, pos, nrm, np.array([[0.0, np.inf]]))
+    return LedScene(name="linear stage", times=t, positions=pos, normals=nrm,
+                    on=np.array([[0.0, np.inf]]))
 
 
 def circle_led(*, duration: float = 4.0, centre=(0.0, 0.0, 1000.0), radius: float = 300.0,
@@ -194,7 +195,8 @@ def circle_led(*, duration: float = 4.0, centre=(0.0, 0.0, 1000.0), radius: floa
                     np.full_like(t, c[2])], axis=1)[:, None, :]
     nrm = np.zeros_like(pos)
     nrm[..., 2] = 1
-    return LedScene("circle", t, pos, nrm, np.array([[0.0, np.inf]]))
+    return LedScene(name="circle", times=t, positions=pos, normals=nrm,
+                    on=np.array([[0.0, np.inf]]))
 
 
 def walking_person(*, duration: float = 3.6, rng: np.random.Generator | int | None = None,
@@ -237,7 +239,8 @@ def walking_person(*, duration: float = 3.6, rng: np.random.Generator | int | No
     if np.isnan(on).any():
         raise ValueError("on: expected switch-on and switch-off times (inf: never off), got NaN")
     ell = np.array([[p.centre, p.radii] for p in body.parts], dtype=float)
-    return LedScene("walking person", motion.times, pos, nrm, on, poses, ell, parts)
+    return LedScene(name="walking person", times=motion.times, positions=pos, normals=nrm, on=on,
+                    occluders=poses, ellipsoids=ell, led_part=parts)
 
 
 @dataclass(frozen=True)

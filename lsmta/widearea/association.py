@@ -70,7 +70,8 @@ def associate(predicted, observed, gate_px: float) -> Association:
         raise ValueError("gate_px: expected positive pixel distances")
     empty = np.zeros(0, np.int64)
     if len(pred) == 0 or len(obs) == 0:
-        return Association(empty, empty, np.zeros(0), np.ones(len(obs), bool))
+        return Association(target=empty, centroid=empty, distance=np.zeros(0),
+                           unassociated=np.ones(len(obs), bool))
     d = np.linalg.norm(pred[:, None, :] - obs[None, :, :], axis=2)
     d = np.where(np.isfinite(d), d, np.inf)
     big = 1e6 * (gate.max() + d[np.isfinite(d)].max(initial=0.0) + 1.0)
@@ -80,4 +81,5 @@ def associate(predicted, observed, gate_px: float) -> Association:
     rows, cols = rows[keep], cols[keep]
     free = np.ones(len(obs), bool)
     free[cols] = False
-    return Association(rows.astype(np.int64), cols.astype(np.int64), d[rows, cols], free)
+    return Association(target=rows.astype(np.int64), centroid=cols.astype(np.int64),
+                       distance=d[rows, cols], unassociated=free)

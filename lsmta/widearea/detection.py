@@ -314,8 +314,8 @@ def detect(frames, threshold: Threshold, *, params: DetectionParams | None = Non
                              f"got {predicted!r}")
         if predicted is not None and not previous and len(predicted) != T:
             raise ValueError(f"predicted: expected one array of positions per frame ({T})")
-    found = _Found(f, np.asarray(threshold.background, float),
-                   _test_threshold(threshold, valid, f.dtype), p)
+    found = _Found(frames=f, background=np.asarray(threshold.background, float),
+                   thr=_test_threshold(threshold, valid, f.dtype), p=p)
     if mode == "full":
         for t in range(T):
             found.keep(t, np.flatnonzero(found.frames[t] > found.thr), H * W)

@@ -109,7 +109,8 @@ def find_birth(origins, directions, stamp: float, camera: int, pool_origins, poo
     staleness = as_scalar(staleness, "staleness", nonnegative=True)
     pool_stamps = as_array(pool_stamps, "pool_stamps", shape=(None,))
     pool_cameras = np.asarray(pool_cameras)
-    empty = Birth(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
+    empty = Birth(points=np.zeros((0, 3)), new=np.zeros(0, np.int64), pool=np.zeros(0, np.int64),
+                  distance=np.zeros(0))
     if len(origins) == 0 or len(pool_stamps) == 0:
         return empty
     dist, mid = ray_distance(origins, directions, pool_origins, pool_directions)
@@ -130,8 +131,8 @@ def find_birth(origins, directions, stamp: float, camera: int, pool_origins, poo
         cost[:, j] = np.inf
     if not new:
         return empty
-    return Birth(np.asarray(points), np.asarray(new, np.int64), np.asarray(pool, np.int64),
-                 np.asarray(dists))
+    return Birth(points=np.asarray(points), new=np.asarray(new, np.int64),
+                 pool=np.asarray(pool, np.int64), distance=np.asarray(dists))
 
 
 @dataclass

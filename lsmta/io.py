@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -113,8 +114,6 @@ def read_maya_curves(path) -> MayaCurves:
     -------
     MayaCurves
     """
-    import re
-
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"path: no Maya ASCII file at {path}")

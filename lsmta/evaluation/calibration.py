@@ -28,7 +28,12 @@ from ..calibration import (
     track_targets,
 )
 from ..calibration.bundle import INTRINSIC_NAMES
-from ..calibration.virtual_object import ConvergenceHistory, alternate, joint_adjustment
+from ..calibration.virtual_object import (
+    ConvergenceHistory,
+    alternate,
+    joint_adjustment,
+    projection_error,
+)
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.calibration import (
     bar_track,
@@ -244,8 +249,6 @@ def ring_trial(*, seeds=(0, 1, 2), n_cameras: int = 10, n_path: int = 300, n_che
     Davis's linear-intersection variant of the alternation for that many iterations.
     ``true_fixed``: the interior parameters that are not free are set to the truth in
     the guess (a diagnostic: fewer free parameters without unmodelled lens error)."""
-    from ..calibration.virtual_object import projection_error
-
     rng = np.random.default_rng(data_seed)
     truth = ring_rig(n=n_cameras, rng=rng)
     path = led_path(n=n_path, rng=rng)

@@ -7,15 +7,20 @@ where its 3-D position lies more than ``false_mm`` from its true surface point.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import Delaunay
 
 from .._validate import as_rng
 from ..synth import Scene, arm_wave, make_body, triplet_rig, walk
+from ..synth.face import face_cameras, face_model, face_sequence, visible
+from ..synth.marker_video import render_marker_video
 from ..synth.sequence import Sequence, render_sequence, scaled_camera
-from ..tracking.points import Tracks
-from ..tracking.trajectories import Trajectories
+from ..tracking.klt import track_klt
+from ..tracking.points import Tracks, track_points
+from ..tracking.trajectories import Trajectories, trajectories_from_tracks
 
 
 def walk_sequence(*, seed: int = 2000, n_frames: int = 30, scale: float = 0.5, motion: str = "walk",
@@ -183,12 +188,6 @@ def run_trial(seq: Sequence, n_points: int, *, rng: np.random.Generator | int | 
     """Track ``n_points`` of frame 0's surface with LSMTA (with the density check unless
     ``density`` is False) and, if ``klt``, with KLT; score both."""
     rng = as_rng(rng)
-    import time
-
-    from ..tracking.klt import track_klt
-    from ..tracking.points import track_points
-    from ..tracking.trajectories import trajectories_from_tracks
-
     xy0, part0, local0 = start_points(seq, n_points, rng=rng)
     t0 = time.perf_counter()
     tracks = track_points(seq.images, xy0, params=params,
@@ -264,11 +263,6 @@ def face_video(*, seed: int = 14, n_frames: int = 40, dot_amplitude: float = 40.
     ``dot_amplitude`` grey levels on a skin texture (the generator's marker video; the
     texture moves with the head only, not with the expressions).
     """
-    from scipy.spatial import Delaunay
-
-    from ..synth.face import face_cameras, face_model, face_sequence, visible
-    from ..synth.marker_video import render_marker_video
-
     rng = np.random.default_rng(seed)
     seq = face_sequence(face_model(), n_frames, rng=rng, moving=False, hold=hold)
     cam = face_cameras(seq.t[0])[1]

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from skimage.exposure import equalize_adapthist
 
 from .._validate import as_array
 from ..camera import Camera
@@ -28,8 +29,6 @@ def enhance_contrast(image, *, clip_limit: float = 0.02, kernel_size: int | None
     Returns a float64 image in [0, 255]; the input is not modified. For poorly textured
     images (skin, plain cloth), as in the paper's Fig. 4.
     """
-    from skimage.exposure import equalize_adapthist
-
     img = check_image(image, "image")
     lo, hi = float(img.min()), float(img.max())
     scaled = (img - lo) / (hi - lo) if hi > lo else np.zeros_like(img)

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from .._validate import as_rng, as_scalar
 
@@ -179,8 +180,6 @@ def relearn_threshold(frames, offset: float, minimum: float, *, spot_px: int = 7
     -------
     Threshold
     """
-    from scipy import ndimage
-
     f = _frames(frames).astype(float)
     spot_level = as_scalar(spot_level, "spot_level", nonnegative=True)
     if int(spot_px) != spot_px or spot_px < 3:

@@ -179,6 +179,7 @@ def test_sequence_recovers_lengths_and_angles(world):
     assert fit.sigma_mm < 5.0
 
 
+@pytest.mark.slow
 def test_frame_fit_and_full_refinement(world):
     rng = np.random.default_rng(8)
     truth, pts = _data(world, [30], 500, rng)

@@ -87,6 +87,7 @@ def test_noisy_residuals_match_the_noise_limit(noisy):
     assert np.sqrt(np.mean(bar_err**2)) < 0.0005 * 800
 
 
+@pytest.mark.slow
 def test_outliers_rejected_and_reported():
     rng, truth, track, xy, bar = _bar_data(4, 40, 0.05)
     xy = xy.copy()
@@ -154,6 +155,7 @@ def test_bundle_adjust_leaves_the_callers_arrays_alone():
     assert not np.allclose(res.points, X0, equal_nan=True)
 
 
+@pytest.mark.slow
 def test_virtual_object_alternation_and_joint_adjustment_converge():
     # a calibration path long enough to cover the room: with fewer positions the joint
     # adjustment fits its own path to the noise but not an independent one (seed 2, 120
@@ -176,6 +178,7 @@ def test_virtual_object_alternation_and_joint_adjustment_converge():
     assert jnt.error[8] < alt.error[-1]
 
 
+@pytest.mark.slow
 def test_alternation_reaches_the_joint_optimum_on_a_small_ring():
     # six cameras, a milder guess: both blocks minimise the joint adjustment's objective,
     # so the alternation ends at the joint optimum; Davis's linear point step (3-D ray

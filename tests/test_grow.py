@@ -88,6 +88,7 @@ def rendered_triplet():
     return frame, small, seeds, dict(step=3, patch=9, thresholds=th)
 
 
+@pytest.mark.slow
 def test_measure_surface_on_a_rendered_triplet(rendered_triplet):
     frame, small, seeds, kw = rendered_triplet
     res = measure_surface(frame.images, small, seeds, voxel=30.0, **kw)  # nodes ~15 mm apart
@@ -101,6 +102,7 @@ def test_measure_surface_on_a_rendered_triplet(rendered_triplet):
     assert res.points_xy.shape == (3, len(res.points), 2)
 
 
+@pytest.mark.slow
 def test_geometric_check_drops_triplets_that_do_not_meet(rendered_triplet):
     frame, small, seeds, kw = rendered_triplet
     free = measure_surface(frame.images, small, seeds, **kw)

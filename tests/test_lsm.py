@@ -74,6 +74,7 @@ def test_precision_estimate_is_honest(rng):
     assert 0.8 < actual / predicted < 1.2
 
 
+@pytest.mark.slow
 def test_error_near_cramer_rao_bound(rng):
     # issue target: median error within 1.15 x the bound's median (noise >= 2 grey levels)
     sigma = 2.0
@@ -143,6 +144,7 @@ def test_thresholds_reject(rng):
     assert np.array_equal(thresholds.accept(plain), np.arange(200) < 100)
 
 
+@pytest.mark.slow
 def test_multi_image_returns_one_result_per_search(rng):
     left = warped_pair(rng=rng, c=(1.5, 0.0), quantise=False)
     right = warped_pair(rng=rng, c=(-2.0, 0.5), quantise=False, texture=left.texture)
@@ -154,6 +156,7 @@ def test_multi_image_returns_one_result_per_search(rng):
         assert np.abs(res.xy - pair.true_xy(pts)).max() < 0.01
 
 
+@pytest.mark.slow
 def test_correlation_search(rng):
     pair = warped_pair(rng=rng, c=(3.0, -2.0), quantise=False)
     pts = np.rint(_points(rng, 50, margin=40))

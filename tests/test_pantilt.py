@@ -262,6 +262,7 @@ def test_general_calibration_recovers_the_axes(head, data):
     assert fit.std[i] < 10 and abs(truth[i]) > 30
 
 
+@pytest.mark.slow
 def test_reported_uncertainty_matches_the_scatter(head):
     rng = np.random.default_rng(7)
     t = intrinsic_target(head, rng=rng)
@@ -281,6 +282,7 @@ def test_reported_uncertainty_matches_the_scatter(head):
     assert np.all((spread > 0.5) & (spread < 2.0)), dict(zip(fit.names, np.round(spread, 2)))
 
 
+@pytest.mark.slow
 def test_three_conditions_rank_and_general_reaches_the_floor(head):
     # several seeds (0.2 s each): the ranking must hold in every run, not in a lucky one
     ratios = []
@@ -368,6 +370,7 @@ def test_bad_loss_is_named(data):
         calibrate(cam, cal.pan, cal.tilt, cal.X, cal.xy, loss="l1")
 
 
+@pytest.mark.slow
 def test_posterior_agrees_with_the_jacobian(data):
     cam, cal, _ = data
     sub = cal.subset(np.arange(len(cal)) % 2 == 0)

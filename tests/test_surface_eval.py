@@ -23,6 +23,7 @@ def triplet():
     return cams, scene, Renderer(scene, cams, noise_sigma=1.0).render(5, rng=rng)
 
 
+@pytest.mark.slow
 def test_seeds_scores_and_sgbm_on_a_small_triplet(triplet):
     small, scene, frame = triplet
     rng = np.random.default_rng(6)
@@ -48,6 +49,7 @@ def test_seeds_scores_and_sgbm_on_a_small_triplet(triplet):
     assert misses["missed"] <= misses["target"] == int((truth["visible"] & truth["interior"]).sum())
 
 
+@pytest.mark.slow
 def test_find_seeds_agree_with_truth(triplet):
     small, _, frame = triplet
     seeds = find_seeds(frame.images, small, n_seeds=8, patch=9, min_distance=12)

@@ -51,6 +51,7 @@ def test_rigs_are_seeded_and_named():
         assert np.hypot(xy[0] - cam.cx, xy[1] - cam.cy) < 60
 
 
+@pytest.mark.slow
 def test_ground_truth_world_point_projects_to_pixel_centre(world, centre_frame):
     cams, _ = world
     f = centre_frame
@@ -68,6 +69,7 @@ def test_ground_truth_world_point_projects_to_pixel_centre(world, centre_frame):
     assert np.allclose(z, f.depth[0][ii, jj])
 
 
+@pytest.mark.slow
 def test_local_points_lie_on_their_ellipsoids(world, centre_frame):
     _, scene = world
     f = centre_frame
@@ -79,6 +81,7 @@ def test_local_points_lie_on_their_ellipsoids(world, centre_frame):
     assert np.allclose(np.sum(((local - c) / r) ** 2, axis=1), 1.0, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_same_seed_same_images(world):
     cams, scene = world
     small = [_small(c) for c in cams]
@@ -90,6 +93,7 @@ def test_same_seed_same_images(world):
     assert not np.array_equal(a.images, c.images)
 
 
+@pytest.mark.slow
 def test_noise_level_and_texture_move_with_the_body(world):
     cams, scene = world
     small = [_small(cams[1], 2)]
@@ -124,6 +128,7 @@ def test_surface_points_triangulate_exactly(world):
         assert np.abs(res.points - proj.world[t, sel]).max() < 1e-6
 
 
+@pytest.mark.slow
 def test_visibility_agrees_with_rendering(world, centre_frame):
     cams, scene = world
     cam = cams[1]

@@ -20,6 +20,7 @@ from lsmta.body import (
     fit_sequence,
     iso_surface,
     surface_distance,
+    surface_distance_terms,
 )
 from lsmta.body.fitting import _Layout, _residuals
 from lsmta.body.skeleton import as_tuple, rot_x
@@ -105,6 +106,18 @@ def test_metaball_field_and_surface():
     x = np.array([[[0, 0, rho]], [[rho + 7.0, 0, 0]], [[0, rho - 3.0, 0]]])
     assert field(x[:1], ball)[0] == pytest.approx(0.5)
     np.testing.assert_allclose(surface_distance(x, ball), [0.0, 7.0, -3.0], atol=1e-9)
+    # the terms of the analytic Jacobian: the same residual, dr/dx = dr/dpsi grad psi
+    three = np.array([[20.0, 15.0, 30.0], [25.0, 18.0, 35.0], [20.0, 15.0, 30.0]])
+    local = np.array([[[10.0, 5.0, 40.0 - 35.0 * b] for b in range(3)]]) + [[[3.0, 0, 0]]]
+    terms = surface_distance_terms(local, three)
+    np.testing.assert_array_equal(terms.r, surface_distance(local, three))
+    e = 1e-6
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = e
+        num = (surface_distance(local + d, three) - surface_distance(local - d, three)) / (2 * e)
+        np.testing.assert_allclose(num, terms.dr_dpsi * terms.grad[:, k], rtol=1e-5)
+    np.testing.assert_allclose(terms.p.sum(axis=1), 1.0)
 
 
 def test_iso_surface_lies_on_threshold():

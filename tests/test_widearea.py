@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from lsmta.evaluation.track_scores import score_tracks
-from lsmta.evaluation.widearea import fig35_starvation, walking_trial
+from lsmta.evaluation.widearea import RIG_SEED, fig35_starvation, trial_rig, walking_trial
 from lsmta.evaluation.widearea_images import rendered_tracking_trial
 from lsmta.synth.widearea import (
     ceiling_rig,
@@ -17,14 +17,21 @@ from lsmta.synth.widearea import (
 )
 from lsmta.widearea import (
     EstimatorParams,
+    FrameIntake,
     Frames,
+    RayPool,
     associate,
     ekf_update,
     find_birth,
+    innovation_gate,
+    kalman_update,
+    measurement,
     predict,
+    process_noise,
     projection_jacobian,
     ray_distance,
     schedule,
+    screen_frame,
     starved,
     track,
     transition,
@@ -168,6 +175,70 @@ def test_starved_needs_two_cameras():
         starved(1.0, last, 0.0)
 
 
+def test_process_noise_is_the_one_of_transition_and_predict():
+    dt = np.array([0.01, 0.2])
+    Q2 = process_noise(dt, 4e6)
+    np.testing.assert_allclose(Q2[1], 4e6 * np.array([[0.2**3 / 3, 0.2**2 / 2],
+                                                      [0.2**2 / 2, 0.2]]))
+    _, Q = transition(dt, 4e6)
+    np.testing.assert_array_equal(Q[:, [0, 3]][:, :, [0, 3]], Q2)
+    x = np.zeros((2, 6))
+    _, P = predict(x, np.zeros((2, 6, 6)), dt, 4e6)
+    np.testing.assert_array_equal(P, Q)
+
+
+def test_kalman_update_from_the_measurement_equals_ekf_update(rig):
+    rng = np.random.default_rng(4)
+    x = np.c_[rng.uniform(-500, 500, (3, 3)) + [0, 0, 1200], rng.normal(0, 100, (3, 3))]
+    P = np.tile(np.diag([100.0] * 3 + [1e4] * 3), (3, 1, 1))
+    h, H = measurement(rig[0], x, lag=0.01)
+    z = h + rng.normal(0, 0.5, h.shape)
+    a = kalman_update(x, P, H, h, z, sigma_px=0.5)
+    b = ekf_update(x, P, rig[0], z, 0.5, lag=0.01)
+    for u, v in zip(a, b):
+        np.testing.assert_array_equal(u, v)
+    with pytest.raises(ValueError, match="H"):
+        kalman_update(x, P, H[:, :, :3], h, z, sigma_px=0.5)
+
+
+def test_innovation_gate_is_n_sigma_of_the_larger_axis_within_limits():
+    S = np.array([np.diag([4.0, 1.0]), np.diag([400.0, 1.0]), np.diag([0.01, 0.01])])
+    np.testing.assert_allclose(innovation_gate(S, n_sigma=3.0, lower=1.0, upper=15.0),
+                               [6.0, 15.0, 1.0])
+    with pytest.raises(ValueError, match="S"):
+        innovation_gate(np.eye(2), n_sigma=3.0, lower=1.0, upper=15.0)
+
+
+def test_screening_leaves_the_callers_arrays_and_counts_in_the_intake():
+    fr = Frames.from_lists([0, 0, 5, 1], [0.1, 0.05, 0.2, np.nan],
+                           [[[1.0, 2.0], [np.nan, 1.0]], [[3.0, 4.0]], [[0.0, 0.0]], []])
+    last = np.array([0.2, -np.inf])
+    s = screen_frame(fr, 0, 2, last)
+    assert s.refused == "backwards_time" and s.xy is None
+    np.testing.assert_array_equal(last, [0.2, -np.inf])          # untouched
+    s = screen_frame(fr, 0, 2, np.full(2, -np.inf))
+    assert s.refused is None and s.nan_centroids == 1 and s.xy.shape == (1, 2)
+    intake = FrameIntake.initial(2)
+    taken = [intake.take(fr, f) for f in range(fr.n_frames)]
+    assert taken[0].shape == (1, 2) and taken[1] is None and taken[2] is None
+    assert taken[3] is None
+    assert intake.rejected == {"unknown_camera": 1, "backwards_time": 1, "nonfinite_stamp": 1,
+                               "empty_frames": 0, "nan_centroids": 1}
+    np.testing.assert_array_equal(intake.received, [1, 0])
+
+
+def test_ray_pool_forgets_stale_and_own_rays(rig):
+    pool = RayPool()
+    o, d = rig[0].rays(np.array([[320.0, 240.0], [100.0, 100.0]]))
+    pool.add(o, d, 0.0, 0)
+    pool.add(o[:1], d[:1], 0.05, 1)
+    pool.refresh(0.1, 1, 0.07)               # camera 0's rays are stale, camera 1's own
+    assert len(pool.stamps) == 0
+    pool.add(o, d, 0.2, 2)
+    pool.refresh(0.25, 0, 0.07)
+    np.testing.assert_array_equal(pool.cameras, [2, 2])
+
+
 # ----------------------------------------------------------------------------- scheduler
 def test_schedule_policies():
     # three cameras, frames every 10 ms, service takes 15 ms: the estimator is overloaded
@@ -199,6 +270,15 @@ def test_fig35_discard_late_starves_and_tolerance_cures():
     np.testing.assert_allclose(trial.used_tolerant, [1.0, 1.0, 1.0])
     assert trial.tracks_discard == 0 and trial.tracks_tolerant == 1
     assert trial.rms_tolerant < 10.0
+
+
+def test_trials_take_their_rig(rig):
+    default = trial_rig(None)
+    np.testing.assert_array_equal([c.C for c in default],
+                                  [c.C for c in ceiling_rig(rng=RIG_SEED)])
+    assert trial_rig(rig[:4]) == list(rig[:4])
+    with pytest.raises(TypeError, match="rig"):
+        trial_rig([1, 2])
 
 
 def test_walking_person_short(rig):

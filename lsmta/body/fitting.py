@@ -258,7 +258,7 @@ def _residuals(model: MetaballModel, lay: _Layout, st: ModelState, torso, pts, f
     """
     sk = model.skeleton
     bases = base_poses(torso, st.shoulder)
-    W = sk.transforms(st.angles, st.scales, base=bases)             # (T, J, 4, 4)
+    W = sk.transforms(st.angles, st.scales, base=bases)        # (T, J, 4, 4)
     C = model.centres(st.scales)
     N = len(pts)
     r = np.empty(N)
@@ -315,7 +315,7 @@ def _residuals(model: MetaballModel, lay: _Layout, st: ModelState, torso, pts, f
         # widths and depths
         dl = -2 * local[:, :, :2] ** 2 / radii[None, :, :2] ** 3 * pb[:, :, None]  # (n, B, 2)
         mid = radii[1, :2]
-        dell = det.root[:, None] * (det.ell / (2 * mid))[None]          # (n, 2)
+        dell = det.root[:, None] * (det.ell / (2 * mid))[None]     # (n, 2)
         if lay.shape == "simplified":
             Jm[idx[:, None], lay.i_shape[k][None]] = np.einsum("nba,b->na", dl, prof) \
                 * inv[:, None] + dell

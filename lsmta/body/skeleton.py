@@ -157,7 +157,7 @@ class Skeleton:
             The points in their joint's frame (mm).
         """
         joint, local = self._points(joint, local)
-        W = self.transforms(angles, scales, base=base)[:, joint]           # (T, N, 4, 4)
+        W = self.transforms(angles, scales, base=base)[:, joint]      # (T, N, 4, 4)
         return np.einsum("tnij,nj->tni", W[..., :3, :3], local) + W[..., :3, 3]
 
     def _points(self, joint, local):

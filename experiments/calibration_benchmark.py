@@ -55,7 +55,7 @@ def main(argv=None):
 
     bar = []
     for s in range(0 if args.no_bar else args.seeds):
-        t = bar_trial(s, n_positions=args.positions, n_heldout=40, mode="projected",
+        t = bar_trial(seed=s, n_positions=args.positions, n_heldout=40, mode="projected",
                       sigma_px=0.01)
         row = dict(seed=s, rms_over_limit=t.ours.rms / t.ours.noise_limit,
                    bar_rms_mm=rms(t.bar_error), peer_bar_rms_mm=rms(t.peer_bar_error),
@@ -66,7 +66,7 @@ def main(argv=None):
         row["time_ratio_peer_over_ours"] = row["time_peer_s"] / row["time_ours_s"]
         try:
             bar_ = Bar(np.arange(t.xy.shape[1]).reshape(-1, 2), t.track.length)
-            c0, _ = relative_orientation_start(triplet_rig(None), t.xy, bar=bar_, pair=(0, 2))
+            c0, _ = relative_orientation_start(triplet_rig(), t.xy, bar=bar_, pair=(0, 2))
             _, be, ce, sec = aniposelib_peer(t, c0)
             row.update(aniposelib_bar_rms_mm=rms(be), aniposelib_check_rms_mm=rms(ce),
                        time_aniposelib_s=sec,
@@ -81,7 +81,7 @@ def main(argv=None):
     if args.alternations == 0:
         write_json(args.out, dict(bar=bar))
         return
-    ring = ring_trial(tuple(range(args.seeds)), n_cameras=8, n_path=150, n_check=80,
+    ring = ring_trial(seeds=tuple(range(args.seeds)), n_cameras=8, n_path=150, n_check=80,
                       n_alternation=args.alternations, n_joint=30,
                       n_linear=args.linear_alternations,
                       intrinsics=tuple(args.intrinsics.split(",")), true_fixed=args.true_fixed)
@@ -89,7 +89,7 @@ def main(argv=None):
     for s, (a, j) in enumerate(zip(ring.alternation, ring.joint)):
         row = dict(seed=s, joint_final_px=float(j.error[-1]),
                    joint_fit_px=float(j.fit_error[-1]),
-                   joint_iterations_to_1pct=j.iterations_to(0.01))
+                   joint_iterations_to_1pct=j.iterations_to(tolerance=0.01))
         variants = [("alternation", a)]
         if ring.linear:
             variants.append(("linear_alternation", ring.linear[s]))

@@ -28,7 +28,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
 
     rng = np.random.default_rng(0)
-    cam = triplet_rig(rng)[0]
+    cam = triplet_rig(rng=rng)[0]
     K, dist, rvec, tvec = cam.to_opencv()
     xy = rng.uniform([-0.5, -0.5], [cam.width - 0.5, cam.height - 0.5], (args.points, 2))
     o, d = cam.rays(xy)

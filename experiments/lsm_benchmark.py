@@ -32,20 +32,20 @@ def main(argv=None):
     args = parser.parse_args(argv)
 
     rng = np.random.default_rng(args.seed)
-    pair = warped_pair(rng, shape=(512, 512), A=[[1.04, 0.06], [-0.05, 0.97]], c=(2.3, -1.4),
+    pair = warped_pair(rng=rng, shape=(512, 512), A=[[1.04, 0.06], [-0.05, 0.97]], c=(2.3, -1.4),
                        r0=10.0, r1=0.9, noise_sigma=args.noise)
     # warm-up: load the compiled kernels once, outside the timings
-    run_trial(pair, rng, n_points=10, bound=False)
+    run_trial(pair, rng=rng, n_points=10, bound=False)
     results = {}
     for patch in (13, 21):
-        pts = draw_points(rng, pair.template.shape, args.points, margin=40)
+        pts = draw_points(pair.template.shape, args.points, rng=rng, margin=40)
         trials = {}
         for name in METHODS:
             n = args.points if name == "lsm" else args.peer_points
             if name in ("ilk", "phase_correlation"):
                 n = max(args.peer_points // 10, 10)
             trial_rng = np.random.default_rng(args.seed + 1)  # same starts for every method
-            trials[name] = run_trial(pair, trial_rng, methods=(name,), points=pts[:n],
+            trials[name] = run_trial(pair, rng=trial_rng, methods=(name,), points=pts[:n],
                                      patch=patch, start_error=1.0, bound=False)
         rows = {}
         for name, trial in trials.items():

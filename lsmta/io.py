@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -65,7 +66,7 @@ def read_c3d(path) -> MarkerData:
         xyz[np.asarray(residuals)[0].T < 0] = np.nan
     xyz[np.isnan(xyz).any(axis=2)] = np.nan          # a gap is a whole point
     rate = float(np.ravel(point["RATE"]["value"])[0])
-    return MarkerData(labels[: xyz.shape[1]], xyz, rate)
+    return MarkerData(labels=labels[: xyz.shape[1]], points=xyz, rate=rate)
 
 
 _MAYA_LINEAR_TO_MM = {"mm": 1.0, "millimeter": 1.0, "cm": 10.0, "centimeter": 10.0,
@@ -113,8 +114,6 @@ def read_maya_curves(path) -> MayaCurves:
     -------
     MayaCurves
     """
-    import re
-
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"path: no Maya ASCII file at {path}")
@@ -153,4 +152,4 @@ def read_maya_curves(path) -> MayaCurves:
             k = curves[(n, a)]
             pts[[index[t] for t in k], j, a] = np.fromiter(k.values(), float, len(k)) * scale
     pts[np.isnan(pts).any(axis=2)] = np.nan
-    return MayaCurves(labels, pts, times)
+    return MayaCurves(labels=labels, points=pts, times=times)

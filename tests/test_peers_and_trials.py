@@ -8,7 +8,7 @@ from lsmta.synth.patches import warped_pair
 
 @pytest.fixture(scope="module")
 def shifted():
-    return warped_pair(np.random.default_rng(3), shape=(128, 128), c=(1.6, -0.8),
+    return warped_pair(rng=np.random.default_rng(3), shape=(128, 128), c=(1.6, -0.8),
                        noise_sigma=1.0)
 
 
@@ -46,7 +46,7 @@ def test_peers_refuse_bad_input(shifted):
 
 def test_trial_scores_every_method_on_the_same_starts(shifted):
     rng = np.random.default_rng(1)
-    trial = run_trial(shifted, rng, methods=list(METHODS), n_points=12, margin=25)
+    trial = run_trial(shifted, rng=rng, methods=list(METHODS), n_points=12, margin=25)
     assert set(trial.errors) == set(METHODS)
     assert trial.crb.shape == (12, 2, 2)
     s = trial.summary("lsm")
@@ -59,12 +59,12 @@ def test_trial_scores_every_method_on_the_same_starts(shifted):
 
 def test_noise_sweep_and_success_rate(shifted):
     rng = np.random.default_rng(2)
-    sweep = noise_sweep(shifted, rng, [0.0, 2.0], n_points=30, geometry="shift",
+    sweep = noise_sweep(shifted, [0.0, 2.0], rng=rng, n_points=30, geometry="shift",
                         radiometry="none")
     assert np.isnan(sweep["bound_median_px"][0]) and sweep["bound_median_px"][1] > 0
     assert sweep["median_px"][1] > sweep["median_px"][0]
-    near = success_rate(shifted, rng, start_distance=0.5, geometry="shift", radiometry="none",
+    near = success_rate(shifted, rng=rng, start_distance=0.5, geometry="shift", radiometry="none",
                         n_points=30, margin=20)
-    far = success_rate(shifted, rng, start_distance=8.0, geometry="shift", radiometry="none",
+    far = success_rate(shifted, rng=rng, start_distance=8.0, geometry="shift", radiometry="none",
                        n_points=30, margin=20)
     assert near > 0.9 and far < near

@@ -13,7 +13,7 @@ from .bundle import (
     params_to_camera,
     project_params,
 )
-from .targets import Blobs, TargetTracks, detect_blobs, track_targets
+from .targets import Blobs, TargetStatus, TargetTracks, detect_blobs, track_targets
 from .virtual_object import (
     ConvergenceHistory,
     alternate,
@@ -25,7 +25,8 @@ from .virtual_object import (
 
 __all__ = [
     "DEFAULT_INTRINSICS", "INTRINSIC_NAMES", "PARAMETER_NAMES", "Bar", "Blobs",
-    "BundleResult", "ConvergenceHistory", "TargetTracks", "alternate", "bundle_adjust",
+    "BundleResult", "ConvergenceHistory", "TargetStatus", "TargetTracks", "alternate",
+    "bundle_adjust",
     "camera_to_params", "detect_blobs", "joint_adjustment", "params_to_camera",
     "project_params", "projection_error", "relative_orientation_start", "resect", "scaled",
     "track_targets", "triangulate_optimal",

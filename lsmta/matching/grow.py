@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array
-from .lsm import LSMThresholds, Status, _check_patch, _check_robust, lsm
+from .._validate import as_array, check_patch
+from .lsm import LSMThresholds, Status, _check_robust, lsm
 from .spline import SplineImage
 
 HORIZONTAL = ((1, 0), (-1, 0))
@@ -157,11 +157,11 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
     -------
     GrowResult
     """
-    patch = _check_patch(patch)
+    patch = check_patch(patch)
     if retry_patch is None:
         retry_patch = (patch + 6,)
-    retry_patches = tuple(_check_patch(p, "retry_patch") for p in np.atleast_1d(retry_patch))
-    robust_patch = patch if robust_patch is None else _check_patch(robust_patch, "robust_patch")
+    retry_patches = tuple(check_patch(p, "retry_patch") for p in np.atleast_1d(retry_patch))
+    robust_patch = patch if robust_patch is None else check_patch(robust_patch, "robust_patch")
     _check_robust(robust)
     if isinstance(step, bool) or int(step) != step or step < 1:
         raise ValueError(f"step: expected a positive integer (pixels), got {step}")

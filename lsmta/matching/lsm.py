@@ -66,7 +66,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .._validate import as_array, as_point_pairs
+from .._validate import as_array, as_point_pairs, check_patch
 from . import _kernels
 from .spline import SplineImage
 
@@ -199,12 +199,6 @@ def _check_robust(robust) -> None:
                          f"got {robust!r}")
 
 
-def _check_patch(patch, name: str = "patch") -> int:
-    if isinstance(patch, bool) or int(patch) != patch or patch < 5 or patch % 2 == 0:
-        raise ValueError(f"{name}: expected an odd integer >= 5 (pixels), got {patch}")
-    return int(patch)
-
-
 def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: str = "affine",
         radiometry: str = "linear", initial_A=None, max_iter: int | None = None, tol: float = 1e-4,
         max_displacement: float | None = None, max_vif: float = 1e3,
@@ -260,7 +254,7 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
         raise ValueError(f"geometry: expected one of {list(GEOMETRIES)}, got {geometry!r}")
     if radiometry not in RADIOMETRIES:
         raise ValueError(f"radiometry: expected one of {list(RADIOMETRIES)}, got {radiometry!r}")
-    patch = _check_patch(patch)
+    patch = check_patch(patch)
     f_img = template if isinstance(template, SplineImage) else SplineImage(template, "template")
     g_img = search if isinstance(search, SplineImage) else SplineImage(search, "search")
     t_xy, s_xy = as_point_pairs(template_xy, search_xy, "template_xy", "search_xy")

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from .._validate import check_patch
 from ..camera import Camera
-from .lsm import _check_patch
 from .spline import SplineImage, check_image
 
 
@@ -81,7 +81,7 @@ def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: 
     K = len(images)
     if K < 2 or len(cameras) != K or not all(isinstance(c, Camera) for c in cameras):
         raise ValueError("cameras: expected one lsmta.camera.Camera per image, at least 2")
-    patch = _check_patch(patch)
+    patch = check_patch(patch)
     near, far = (float(d) for d in depth_range)
     if not 0 < near < far:
         raise ValueError(f"depth_range: expected 0 < near < far (mm), got {depth_range}")
@@ -91,7 +91,7 @@ def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: 
     m8 = None if mask is None else np.asarray(mask, dtype=np.uint8)
     corners = cv2.goodFeaturesToTrack(f8, maxCorners=4 * n_seeds, qualityLevel=0.05,
                                       minDistance=min_distance, mask=m8, blockSize=patch)
-    empty = Seeds(np.zeros((K, 0, 2)), np.zeros(0), np.zeros(0))
+    empty = Seeds(xy=np.zeros((K, 0, 2)), score=np.zeros(0), depth=np.zeros(0))
     if corners is None:
         return empty
     t_xy = corners[:, 0].astype(float)

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from skimage.exposure import equalize_adapthist
 
 from .._validate import as_array
 from ..camera import Camera
@@ -28,8 +29,6 @@ def enhance_contrast(image, *, clip_limit: float = 0.02, kernel_size: int | None
     Returns a float64 image in [0, 255]; the input is not modified. For poorly textured
     images (skin, plain cloth), as in the paper's Fig. 4.
     """
-    from skimage.exposure import equalize_adapthist
-
     img = check_image(image, "image")
     lo, hi = float(img.min()), float(img.max())
     scaled = (img - lo) / (hi - lo) if hi > lo else np.zeros_like(img)
@@ -120,6 +119,53 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
     -------
     SurfaceResult
     """
+    imgs, cameras, seeds = _checked(images, cameras, seeds_xy, template, max_reprojection)
+    K = len(imgs)
+    if enhance:
+        imgs = [enhance_contrast(im) for im in imgs]
+    if thresholds is None:
+        thresholds = LSMThresholds(max_displacement=float(step))
+    searches = [k for k in range(K) if k != template]
+    grown: list[GrowResult] = [
+        grow_matches(imgs[template], imgs[k], seeds[template], seeds[k], step=step, patch=patch,
+                     thresholds=thresholds, mask=mask, **grow_kwargs) for k in searches]
+    t_xy, xy, sig, pos = _tuples(grown, template, searches)
+    ok = np.ones(len(t_xy), dtype=bool)
+    rematched = np.zeros(len(t_xy), dtype=bool)
+    if neighbourhood:
+        # the re-match uses the grower's LSM model (and its robust LSM, where it used one)
+        model = {k: grow_kwargs[k] for k in ("geometry", "radiometry", "template_mask")
+                 if k in grow_kwargs}
+        robust = grow_kwargs.get("robust")
+        robust_patch = grow_kwargs.get("robust_patch") or patch
+        for g, p, k in zip(grown, pos, searches):
+            check = neighbourhood_filter(g, max_position=max_position, max_affine=max_affine,
+                                         statistic=neighbourhood_statistic)
+            ok &= _rematch_outliers(check, p, imgs[template], imgs[k], t_xy, xy[k], sig[k],
+                                    rematched, patch=patch, thresholds=thresholds,
+                                    max_position=max_position, robust=robust,
+                                    robust_patch=robust_patch, model=model)
+    intersection = triangulate(cameras, xy)
+    if max_reprojection is not None:
+        worst = np.where(np.isnan(intersection.reprojection_error), -np.inf,
+                         intersection.reprojection_error).max(axis=0)
+        ok &= worst <= max_reprojection
+    keep = ok & intersection.valid
+    if voxel is not None:
+        cloud = voxel_filter(np.where(keep[:, None], intersection.points, np.nan), voxel)
+        points = cloud.points
+        points_xy = np.stack([cloud.mean_of(xy[k]) for k in range(K)])
+    else:
+        cloud = None
+        points = intersection.points[keep]
+        points_xy = xy[:, keep]
+    return SurfaceResult(grown=grown, template_xy=t_xy, xy=xy, sigma_xy=sig,
+                         neighbourhood_ok=ok, rematched=rematched, intersection=intersection,
+                         cloud=cloud, points=points, points_xy=points_xy)
+
+
+def _checked(images, cameras, seeds_xy, template, max_reprojection):
+    """The images (checked, one size), the cameras and the seeds given in every image."""
     images = list(images)
     cameras = list(cameras)
     K = len(images)
@@ -140,76 +186,52 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
     good_seeds = np.isfinite(seeds).all(axis=(0, 2))
     if not good_seeds.any():
         raise ValueError("seeds_xy: no seed is given in all images")
-    seeds = seeds[:, good_seeds]
-    if enhance:
-        imgs = [enhance_contrast(im) for im in imgs]
-    if thresholds is None:
-        thresholds = LSMThresholds(max_displacement=float(step))
-    searches = [k for k in range(K) if k != template]
-    robust = grow_kwargs.get("robust")
-    robust_patch = grow_kwargs.get("robust_patch") or patch
-    # the re-match uses the grower's LSM model
-    model = {k: grow_kwargs[k] for k in ("geometry", "radiometry", "template_mask")
-             if k in grow_kwargs}
+    return imgs, cameras, seeds[:, good_seeds]
 
-    grown: list[GrowResult] = [
-        grow_matches(imgs[template], imgs[k], seeds[template], seeds[k], step=step, patch=patch,
-                     thresholds=thresholds, mask=mask, **grow_kwargs) for k in searches]
 
-    # n-tuples: nodes matched in every search image
+def _tuples(grown, template: int, searches):
+    """n-tuples: the nodes matched in every search image. Returns their template positions
+    (N, 2), all images' positions and standard deviations (K, N, 2), and each grower's
+    row of every tuple."""
     rows, cols = grown[0].grid_shape
     keys = [g.node_index[:, 0] * cols + g.node_index[:, 1] for g in grown]
     common = keys[0]
     for k in keys[1:]:
         common = np.intersect1d(common, k)
     pos = [np.searchsorted(k, common) for k in keys]       # node keys come sorted
-    N = len(common)
+    K, N = len(searches) + 1, len(common)
     xy = np.zeros((K, N, 2))
     sig = np.zeros((K, N, 2))
     t_xy = grown[0].template_xy[pos[0]]
     xy[template] = t_xy
-    ok = np.ones(N, dtype=bool)
-    rematched = np.zeros(N, dtype=bool)
     for g, p, k in zip(grown, pos, searches):
         xy[k] = g.search_xy[p]
         sig[k] = g.sigma_xy[p]
-        if neighbourhood:
-            check = neighbourhood_filter(g, max_position=max_position, max_affine=max_affine,
-                                         statistic=neighbourhood_statistic)
-            bad = np.flatnonzero(~check.keep[p] & np.isfinite(check.predicted_xy[p]).all(axis=1))
-            pass_k = check.keep[p].copy()
-            if bad.size:
-                # re-match the outliers once, starting from the neighbours' prediction (by
-                # robust LSM too, where the grower used it and the plain re-match failed)
-                start, A0 = check.predicted_xy[p][bad], check.mean_A[p][bad]
-                res = lsm(imgs[template], imgs[k], t_xy[bad], start, patch=patch,
-                          initial_A=A0, thresholds=thresholds, **model)
-                got, new_xy, new_sig = res.ok, res.xy.copy(), res.sigma_xy.copy()
-                if robust is not None and not got.all():
-                    j = np.flatnonzero(~got)
-                    res2 = lsm(imgs[template], imgs[k], t_xy[bad[j]], start[j], patch=robust_patch,
-                               initial_A=A0[j], robust=robust, thresholds=thresholds, **model)
-                    got[j], new_xy[j], new_sig[j] = res2.ok, res2.xy, res2.sigma_xy
-                fixed = got & (np.linalg.norm(new_xy - start, axis=1) <= max_position)
-                xy[k, bad[fixed]] = new_xy[fixed]
-                sig[k, bad[fixed]] = new_sig[fixed]
-                pass_k[bad[fixed]] = True
-                rematched[bad[fixed]] = True
-            ok &= pass_k
-    intersection = triangulate(cameras, xy)
-    if max_reprojection is not None:
-        worst = np.where(np.isnan(intersection.reprojection_error), -np.inf,
-                         intersection.reprojection_error).max(axis=0)
-        ok &= worst <= max_reprojection
-    keep = ok & intersection.valid
-    if voxel is not None:
-        cloud = voxel_filter(np.where(keep[:, None], intersection.points, np.nan), voxel)
-        points = cloud.points
-        points_xy = np.stack([cloud.mean_of(xy[k]) for k in range(K)])
-    else:
-        cloud = None
-        points = intersection.points[keep]
-        points_xy = xy[:, keep]
-    return SurfaceResult(grown=grown, template_xy=t_xy, xy=xy, sigma_xy=sig,
-                         neighbourhood_ok=ok, rematched=rematched, intersection=intersection,
-                         cloud=cloud, points=points, points_xy=points_xy)
+    return t_xy, xy, sig, pos
+
+
+def _rematch_outliers(check, p, template_img, search_img, t_xy, xy_k, sig_k, rematched, *,
+                      patch, thresholds, max_position, robust, robust_patch, model):
+    """Nodes the neighbourhood filter rejects are matched once more from the neighbours'
+    prediction (by robust LSM too where the grower used it and the plain re-match failed);
+    ``xy_k``, ``sig_k`` and ``rematched`` (this function's own arrays) take the re-matches.
+    Returns which tuples pass in this search image."""
+    bad = np.flatnonzero(~check.keep[p] & np.isfinite(check.predicted_xy[p]).all(axis=1))
+    passed = check.keep[p].copy()
+    if not bad.size:
+        return passed
+    start, A0 = check.predicted_xy[p][bad], check.mean_A[p][bad]
+    res = lsm(template_img, search_img, t_xy[bad], start, patch=patch, initial_A=A0,
+              thresholds=thresholds, **model)
+    got, new_xy, new_sig = res.ok, res.xy.copy(), res.sigma_xy.copy()
+    if robust is not None and not got.all():
+        j = np.flatnonzero(~got)
+        res2 = lsm(template_img, search_img, t_xy[bad[j]], start[j], patch=robust_patch,
+                   initial_A=A0[j], robust=robust, thresholds=thresholds, **model)
+        got[j], new_xy[j], new_sig[j] = res2.ok, res2.xy, res2.sigma_xy
+    fixed = got & (np.linalg.norm(new_xy - start, axis=1) <= max_position)
+    xy_k[bad[fixed]] = new_xy[fixed]
+    sig_k[bad[fixed]] = new_sig[fixed]
+    passed[bad[fixed]] = True
+    rematched[bad[fixed]] = True
+    return passed

@@ -65,6 +65,19 @@ class SAPMParams:
     max_tables: int = 30
     rank_root: bool = False
 
+    def __post_init__(self):
+        eps, beta = as_scalar(self.eps, "eps"), as_scalar(self.beta, "beta")
+        if not 0 < eps < 1:
+            raise ValueError(f"eps: expected a fraction in (0, 1) (paper: 0.10-0.15), got {eps}")
+        if not 0 <= beta < 1:
+            raise ValueError(f"beta: expected a fraction in [0, 1) (paper: 0.8-0.9), got {beta}")
+        for name in ("coarse_min_points", "max_alternatives", "max_tables"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+                raise ValueError(f"{name}: expected a positive integer, got {value!r}")
+        object.__setattr__(self, "eps", eps)
+        object.__setattr__(self, "beta", beta)
+
 
 @dataclass(frozen=True)
 class Identification:
@@ -212,7 +225,7 @@ class _Search:
             ok = obs >= 0
             R, t, resid, err = self._fit(m[ok], obs[ok], s)
         if err < eps and (obs >= 0).sum() > self.p.beta * len(m):
-            return _Match(m, obs, R, t, float(err))
+            return _Match(members=m, obs=obs, R=R, t=t, err=float(err))
         return None
 
     def _tables(self, s, l, pivots, gate):
@@ -387,7 +400,7 @@ class _Search:
             keep = new >= 0
             R, t, _, err = self._fit(m[keep], new[keep], s)
             if err < self.p.eps:
-                yield _Match(m, new, R, t, float(err))
+                yield _Match(members=m, obs=new, R=R, t=t, err=float(err))
 
     # ------------------------------------------------------------------ global search
     def _assign(self, s, match: _Match) -> None:
@@ -436,8 +449,8 @@ class _Search:
                     self.solve(s, -1)
 
 
-def identify(model: MarkerModel, observed, *, eps: float = 0.10, beta: float = 0.80,
-             rng: np.random.Generator | None = None, **options) -> Identification:
+def identify(model: MarkerModel, observed, *, params: SAPMParams | None = None,
+             rng: np.random.Generator | int | None = None) -> Identification:
     """Label an unlabelled 3-D marker pose with SAPM.
 
     Parameters
@@ -448,16 +461,11 @@ def identify(model: MarkerModel, observed, *, eps: float = 0.10, beta: float = 0
         Observed points in any order, mm; may include extra points and miss markers.
         Rows holding NaN are dropped and reported in ``Identification.dropped``. Not
         modified.
-    eps : float
-        ε of Eq. 2, in (0, 1): tolerated mean fit error as a fraction of l̄_s.
-    beta : float
-        β of Eq. 3, in [0, 1): a segment needs more than β·M_s matched markers.
-    rng : numpy.random.Generator, optional
+    params : SAPMParams, optional
+        ε (Eq. 2), β (Eq. 3) and the search's limits.
+    rng : numpy.random.Generator, int or None
         Randomises the choice of pivots for segments searched from scratch (the paper's
         "arbitrary" pivot); ``None`` takes them in model order.
-    **options
-        Further fields of :class:`SAPMParams` (``coarse_min_points``, ``max_alternatives``,
-        ``max_tables``, ``rank_root``).
 
     Returns
     -------
@@ -465,23 +473,12 @@ def identify(model: MarkerModel, observed, *, eps: float = 0.10, beta: float = 0
     """
     if not isinstance(model, MarkerModel):
         raise TypeError(f"model: expected a MarkerModel, got {type(model).__name__}")
+    params = SAPMParams() if params is None else params
+    if not isinstance(params, SAPMParams):
+        raise TypeError(f"params: expected an SAPMParams, got {type(params).__name__}")
     Q = as_points(observed, "observed", allow_nan=True)
-    eps = as_scalar(eps, "eps")
-    beta = as_scalar(beta, "beta")
-    if not 0 < eps < 1:
-        raise ValueError(f"eps: expected a fraction in (0, 1) (paper: 0.10-0.15), got {eps}")
-    if not 0 <= beta < 1:
-        raise ValueError(f"beta: expected a fraction in [0, 1) (paper: 0.8-0.9), got {beta}")
     if rng is not None:
-        as_rng(rng)
-    unknown = sorted(set(options) - set(SAPMParams.__dataclass_fields__))
-    if unknown:
-        raise TypeError(f"identify: unknown options {unknown}")
-    for name in ("coarse_min_points", "max_alternatives", "max_tables"):
-        value = options.get(name, 1)
-        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-            raise ValueError(f"{name}: expected a positive integer, got {value!r}")
-    params = SAPMParams(eps=eps, beta=beta, **options)
+        rng = as_rng(rng)
     bad = np.isnan(Q).any(axis=1)
     keep = np.flatnonzero(~bad)
     if len(keep) < 3:
@@ -494,6 +491,8 @@ def identify(model: MarkerModel, observed, *, eps: float = 0.10, beta: float = 0
     labels[keep] = st.label_of
     matched = np.array([(st.obs_of[m] >= 0).sum() if st.found[s] else 0
                         for s, m in enumerate(model.members)])
-    return Identification(labels, st.found.copy(), st.R, st.t, st.err, matched,
-                          np.flatnonzero(bad), search.effort.tables, search.effort.fits,
-                          search.effort.backtracks, time.perf_counter() - t0)
+    return Identification(labels=labels, found=st.found.copy(), rotation=st.R,
+                          translation=st.t, mean_error=st.err, matched=matched,
+                          dropped=np.flatnonzero(bad), tables=search.effort.tables,
+                          fits=search.effort.fits, backtracks=search.effort.backtracks,
+                          seconds=time.perf_counter() - t0)

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
+from scipy.sparse.csgraph import minimum_spanning_tree
 
 from .._validate import as_array
 
@@ -277,8 +278,6 @@ class MarkerModel:
     def edges(self) -> list[tuple[int, int]]:
         """Stick links for drawing: every pair of markers within a segment that are
         neighbours in the segment's minimum spanning tree."""
-        from scipy.sparse.csgraph import minimum_spanning_tree
-
         out = []
         for m in self.members:
             p = self.points[m]

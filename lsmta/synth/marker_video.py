@@ -42,8 +42,8 @@ class MarkerVideo:
     blurred: np.ndarray
 
 
-def skin_texture(shape, rng, *, scale: float = 4.0, mean: float = 105.0,
-                 contrast: float = 6.0) -> np.ndarray:
+def skin_texture(shape, *, rng: np.random.Generator | int | None = None, scale: float = 4.0,
+                 mean: float = 105.0, contrast: float = 6.0) -> np.ndarray:
     """A smooth random grey texture ``shape`` (rows, cols), float32: white noise blurred
     with a Gaussian of ``scale`` px, normalised to ``mean`` +- ``contrast`` (std)."""
     rng = as_rng(rng)
@@ -82,7 +82,7 @@ def render_marker_video(cameras, points, visible, anchor, rng, *, dot_sigma: flo
         Markers drawn in each frame (e.g. :func:`lsmta.synth.face.visible`).
     anchor : (T, 3) array
         World point the skin texture moves with (e.g. the head position).
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
         Texture and image noise.
     dot_sigma, dot_amplitude : float
         Gaussian dot radius (px) and peak brightness added to the texture (grey levels).
@@ -110,7 +110,7 @@ def render_marker_video(cameras, points, visible, anchor, rng, *, dot_sigma: flo
         raise ValueError("cameras: expected one image size for all frames")
     T, M = pts.shape[:2]
     if texture is None:
-        texture = skin_texture((2 * H, 2 * W), rng)
+        texture = skin_texture((2 * H, 2 * W), rng=rng)
     texture = np.asarray(texture, dtype=np.float32)
     blur = np.zeros(T, bool)
     blur[np.asarray(blur_frames, dtype=int)] = True
@@ -150,10 +150,10 @@ def render_marker_video(cameras, points, visible, anchor, rng, *, dot_sigma: flo
         if noise > 0:
             img = img + np.float32(noise) * rng.standard_normal(img.shape, dtype=np.float32)
         images[f] = np.clip(np.round(img), 0, 255).astype(np.uint8)
-    return MarkerVideo(images, xy, anchor_xy, blur)
+    return MarkerVideo(images=images, xy=xy, anchor_xy=anchor_xy, blurred=blur)
 
 
-def shaken(camera: Camera, rng, deg: float) -> Camera:
+def shaken(camera: Camera, deg: float, *, rng: np.random.Generator | int | None = None) -> Camera:
     """``camera`` rotated about its centre by a random small rotation (``deg`` per axis,
     Gaussian): pan-tilt jitter between frames."""
     rng = as_rng(rng)

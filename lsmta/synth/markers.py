@@ -119,15 +119,15 @@ def _random_rotations(rng, n, level):
     return Rotation.from_rotvec(axis * angle[:, None]).as_matrix()
 
 
-def random_pose(model: MarkerModel, rng: np.random.Generator, *, level: float = np.pi,
-                distortion: float = 0.0, n_missing: int = 0, n_extra: int = 0,
+def random_pose(model: MarkerModel, *, rng: np.random.Generator | int | None = None,
+                level: float = np.pi, distortion: float = 0.0, n_missing: int = 0, n_extra: int = 0,
                 translation: float = 2000.0) -> MarkerPose:
     """A random articulated pose of ``model`` (Section 4.1 of the paper).
 
     Parameters
     ----------
     model : MarkerModel
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
     level : float
         Configuration level: rotation angles uniform in [0, level] rad (paper: 0..4).
     distortion : float
@@ -175,4 +175,4 @@ def random_pose(model: MarkerModel, rng: np.random.Generator, *, level: float = 
         truth = np.concatenate([truth, np.full(n_extra, -1)])
     order = rng.permutation(len(obs))
     points.setflags(write=False)
-    return MarkerPose(obs[order], truth[order], points)
+    return MarkerPose(observed=obs[order], truth=truth[order], points=points)

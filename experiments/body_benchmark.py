@@ -49,7 +49,7 @@ def main(argv=None):
         def run(kw=kw):
             return fit_sequence(model, points, truth.torso_poses, init,
                                 params=FitParams(sigma_mm=2.0, **kw))
-        seconds, fit = best_time(run, args.repeats)
+        seconds, fit = best_time(run, repeats=args.repeats)
         s = eb.score_fit(fit, truth)
         out["variants"][name] = {"seconds": seconds, "status": fit.status.name, "nfev": fit.nfev,
                                  "max_angle_err_deg": s["max_angle_err_deg"],

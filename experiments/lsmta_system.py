@@ -38,7 +38,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
 
     t0 = time.perf_counter()
-    session = bs.arm_wave_session(args.seed, n_frames=args.frames, first=args.first,
+    session = bs.arm_wave_session(seed=args.seed, n_frames=args.frames, first=args.first,
                                   roi=(args.width, args.height), every=args.every)
     render_s = time.perf_counter() - t0
     print(f"rendered {args.frames} frames of {args.width} x {args.height} px in {render_s:.0f} s")
@@ -53,10 +53,10 @@ def main(argv=None):
     cal = bs.calibration_scores(cap.cameras, session)
     truth0 = bs.surface_truth(session, 0)
     surf = bs.score_system_surface(cap.surfaces[0], truth0, al)
-    score, part, _ = bs.score_system_tracks(session, cap.tracks, cap.filtered, al)
+    score, part, _ = bs.score_system_tracks(session, cap.tracks, cap.filtered, alignment=al)
     last, n_last = bs.last_frame_error(score, cap.filtered.present)
     truth = bs.arm_truth(session)
-    arm = {n: bs.score_arm(f, cap.arm.start.torso_poses, truth, al)
+    arm = {n: bs.score_arm(f, cap.arm.start.torso_poses, truth, alignment=al)
            for n, f in (("simplified", cap.arm.simplified), ("full", cap.arm.full))}
     out = {
         "frames": args.frames, "first": args.first, "image_size": [args.width, args.height],

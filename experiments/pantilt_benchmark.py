@@ -52,9 +52,10 @@ def main(argv=None):
     def one_by_one():
         return [aim(head, X[i:i + 1], current=start[i]) for i in range(n)]
 
-    t_local, local = best_time(one_by_one, args.repeats)
-    t_batch, batch = best_time(lambda: aim(head, X, current=start), args.repeats)
-    t_direct, direct = best_time(lambda: aim_least_squares(head, X, current=start), args.repeats)
+    t_local, local = best_time(one_by_one, repeats=args.repeats)
+    t_batch, batch = best_time(lambda: aim(head, X, current=start), repeats=args.repeats)
+    t_direct, direct = best_time(lambda: aim_least_squares(head, X, current=start),
+                                 repeats=args.repeats)
     local_set = np.vstack([a.settings for a in local])
     truth = np.c_[pan, tilt]
 
@@ -80,13 +81,14 @@ def main(argv=None):
 
     target = intrinsic_target(head, rng=rng)
     t_intr, intr = best_time(lambda: calibrate_intrinsics(target.X, target.xy,
-                                                          head.camera.image_size), args.repeats)
+                                                          head.camera.image_size),
+                             repeats=args.repeats)
     cal = calibration_sweeps(head, rng=rng)
     cam = intr.model
     t_simple, _ = best_time(lambda: calibrate(cam, cal.pan, cal.tilt, cal.X, cal.xy,
-                                              kind="simple"), args.repeats)
+                                              kind="simple"), repeats=args.repeats)
     t_general, fit = best_time(lambda: calibrate(cam, cal.pan, cal.tilt, cal.X, cal.xy),
-                               args.repeats)
+                               repeats=args.repeats)
     rows["calibration"] = {"observations": len(cal), "intrinsics_s": t_intr,
                            "simple_s": t_simple, "general_s": t_general,
                            "time_ratio_general_over_simple": t_general / t_simple,

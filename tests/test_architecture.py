@@ -55,9 +55,11 @@ def test_every_built_module_is_on_the_map():
 # ---------------------------------------------------------------------- house style
 # Modules whose conventions are owned by other open work (see ARCHITECTURE.md, house style):
 # they join these checks when that work lands.
-EXEMPT_MODULES = {"lsmta.cli", "lsmta.report", "lsmta.evaluation.face"}
-# rng positional only because lsmta.evaluation.face calls it so
-EXEMPT_RNG = {"lsmta.synth.marker_video.render_marker_video"}
+EXEMPT_MODULES: set = set()
+EXEMPT_RNG: set = set()
+# the notebooks' vocabulary: record(figure, quantity, value, unit), verdict(ok, target); and
+# the command line's entry point
+EXEMPT_ARGS = {"lsmta.report.record(unit)", "lsmta.report.verdict(target)", "lsmta.cli.main(argv)"}
 # drivers of the dense-matching issue, to be staged there
 EXEMPT_LENGTH = {"lsmta.matching.lsm.lsm", "lsmta.matching.grow.grow_matches"}
 
@@ -103,7 +105,7 @@ def test_tuning_arguments_are_keyword_only():
     for qual, func in _public_functions():
         for p in inspect.signature(func).parameters.values():
             if p.default is not p.empty and p.kind is not p.KEYWORD_ONLY \
-                    and qual not in EXEMPT_RNG:
+                    and qual not in EXEMPT_RNG and f"{qual}({p.name})" not in EXEMPT_ARGS:
                 offenders.append(f"{qual}({p.name})")
     assert not offenders, f"arguments with defaults taken positionally: {offenders}"
 

@@ -212,7 +212,7 @@ def test_distance_deviation_zero_for_rigid_markers(model):
 
 def test_single_pair_triangulation_noise_free(model):
     seq = sf.face_sequence(model, 3, rng=np.random.default_rng(9))
-    obs = ef.observe(seq, np.random.default_rng(10), pixel_noise=0.0, pose_noise_deg=0.0)
+    obs = ef.observe(seq, rng=np.random.default_rng(10), pixel_noise=0.0, pose_noise_deg=0.0)
     ok = np.isfinite(obs.points).all(axis=2)
     assert ok.sum(axis=1).min() > 30
     np.testing.assert_allclose(obs.points[ok], seq.world[ok], atol=1e-6)
@@ -256,11 +256,11 @@ def test_mixing_camera_pairs_distorts_the_face(model):
     pairs = np.array(list(itertools.combinations(ue, 2)))
     dev = {}
     for mode in ("single", "per_marker"):
-        o = ef.observe(seq, np.random.default_rng(12), pairing=mode)
+        o = ef.observe(seq, rng=np.random.default_rng(12), pairing=mode)
         dev[mode] = np.nanmedian(np.abs(face.distance_deviation(o.points, pairs)))
     assert dev["per_marker"] > 2 * dev["single"]
     with pytest.raises(ValueError, match="pairing"):
-        ef.observe(seq, np.random.default_rng(12), pairing="any")
+        ef.observe(seq, rng=np.random.default_rng(12), pairing="any")
 
 
 def test_fill_missing_needs_enough_observed_markers(model):
@@ -389,9 +389,9 @@ def test_removal_trials_match_the_experiment_by_hand(model):
     got = ef.removal_trials(model, [seed], n_train=60, n_test=20, n_removed=11, n_basis=12,
                             n_components=5, noise_mm=0.5)
     r = np.random.default_rng(seed)
-    tr = sf.face_sequence(model, 60, r, moving=False).head
+    tr = sf.face_sequence(model, 60, rng=r, moving=False).head
     tr = tr + r.normal(0, 0.5, tr.shape)
-    te = sf.face_sequence(model, 20, r, moving=False).head
+    te = sf.face_sequence(model, 20, rng=r, moving=False).head
     gappy = te + r.normal(0, 0.5, te.shape)
     removed = r.choice(len(model.labels), 11, replace=False)
     np.testing.assert_array_equal(got.removed[0], removed)

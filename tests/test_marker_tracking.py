@@ -28,7 +28,7 @@ def _clip(seq, n):
 def capture():
     rng = np.random.default_rng(11)
     seq = _clip(sf.face_sequence(sf.face_model(), 150, rng=rng), 30)
-    return ef.observe_tracked(seq, np.random.default_rng(12), cameras=[1, 2])
+    return ef.observe_tracked(seq, rng=np.random.default_rng(12), cameras=[1, 2])
 
 
 def test_tracking_error_against_truth(capture):
@@ -62,7 +62,7 @@ def test_stabilisation_recovers_camera_shift():
 def test_blurred_frame_detected_and_tracks_survive():
     rng = np.random.default_rng(5)
     seq = _clip(sf.face_sequence(sf.face_model(), 150, rng=rng), 20)
-    cap = ef.observe_tracked(seq, np.random.default_rng(6), cameras=[1, 2],
+    cap = ef.observe_tracked(seq, rng=np.random.default_rng(6), cameras=[1, 2],
                              blur_frames=[10])
     st = cap.status[0]
     assert (st[10] == tm.MarkerStatus.BLURRED).all()
@@ -74,7 +74,7 @@ def test_blurred_frame_detected_and_tracks_survive():
     # without the retry the blurred frame is tracked and markers are lost in it
     video = mv.render_marker_video(
         [sf.face_cameras(seq.t[f])[1] for f in range(20)], seq.world,
-        np.ones((20, seq.world.shape[1]), bool), seq.t, np.random.default_rng(7),
+        np.ones((20, seq.world.shape[1]), bool), seq.t, rng=np.random.default_rng(7),
         blur_frames=[10], blur_length=15)
     start = video.xy[0]
     a = tm.track_markers(video.images, start)
@@ -116,7 +116,7 @@ def test_bad_input():
     with pytest.raises(ValueError, match="visible"):
         cam = sf.face_cameras([0.0, 0.0, 1650.0])[0]
         mv.render_marker_video([cam], np.zeros((1, 2, 3)), np.ones((1, 3), bool),
-                               np.zeros((1, 3)), np.random.default_rng(0))
+                               np.zeros((1, 3)), rng=np.random.default_rng(0))
     start = np.array([[10.0, 10.0]])
     tm.track_markers(img, start)
     assert start.tolist() == [[10.0, 10.0]]

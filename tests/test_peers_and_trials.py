@@ -26,7 +26,7 @@ def test_phase_correlation_exact_for_whole_pixel_shifts_within_a_pixel_otherwise
     # a whole-pixel shift is found to a few hundredths of a pixel; a fractional one (the
     # fixture's 1.6, -0.8) only to within a pixel: on small, unwindowed patches the phase
     # correlation peak is biased (notebook 02: the peer's large median error)
-    whole = warped_pair(np.random.default_rng(3), shape=(128, 128), c=(2.0, -1.0),
+    whole = warped_pair(rng=np.random.default_rng(3), shape=(128, 128), c=(2.0, -1.0),
                         noise_sigma=1.0)
     pts = np.rint(np.random.default_rng(0).uniform(35, 93, (20, 2)))
     for pair, tol in ((whole, 0.1), (shifted, 1.0)):
@@ -53,7 +53,7 @@ def test_trial_scores_every_method_on_the_same_starts(shifted):
     assert s["failure_rate"] == 0 and s["median_px"] < 0.1
     # LSM's own precision estimate is about right: on 100 patches the RMS error is within
     # 0.8-1.5 times the predicted one and most true positions lie in the 95 % ellipses
-    h = honesty(run_trial(shifted, rng, methods=["lsm"], n_points=100, margin=25))
+    h = honesty(run_trial(shifted, rng=rng, methods=["lsm"], n_points=100, margin=25))
     assert 0.8 < h["rms_ratio"] < 1.5 and h["coverage_95"] > 0.8
 
 

@@ -118,6 +118,54 @@ def torso_frame(up, forward) -> np.ndarray:
     return np.stack([np.cross(y, z), y, z], axis=1)
 
 
+def _arm_chain(groups: RigidGroups, X, axes: dict, centre, right, max_joint_rms: float):
+    """The chain torso (group 0) -> upper arm -> forearm whose two joints fit best, with the
+    shoulder on the body's ``right`` side of the torso's ``centre``."""
+    best, report = None, []
+    for a in range(1, groups.n_groups):
+        ja = _joint(groups, X, 0, a, axes)
+        if ja is None:
+            continue
+        on_right = (np.nanmean(ja.world, axis=0) - centre) @ right > 0
+        for b in range(1, groups.n_groups):
+            jb = None if b == a else _joint(groups, X, a, b, axes)
+            if jb is None:
+                continue
+            report.append(f"{a}->{b}: {ja.rms:.1f} / {jb.rms:.1f} mm")
+            score = ja.rms + jb.rms
+            if on_right and max(ja.rms, jb.rms) < max_joint_rms and (best is None
+                                                                      or score < best[0]):
+                best = (score, a, b, ja, jb)
+    if best is None:
+        raise ValueError(f"trajectories: no chain torso -> upper arm -> forearm with joints "
+                         f"closer than {max_joint_rms:g} mm on the body's right among "
+                         f"{groups.n_groups} groups (sizes {groups.sizes.tolist()}; chains: "
+                         f"{'; '.join(report) or 'none'})")
+    return best[1:]
+
+
+def _torso_poses(groups: RigidGroups, torso: int, frame0, centre) -> np.ndarray:
+    """``(T, 4, 4)``: the torso group's motion applied to ``frame0`` placed at ``centre``."""
+    R = _fill(groups.rotation[torso])
+    t = _fill(groups.translation[torso])
+    poses = np.tile(np.eye(4), (len(R), 1, 1))
+    poses[:, :3, :3] = R @ frame0
+    poses[:, :3, 3] = np.einsum("tij,j->ti", R, centre) + t
+    return poses
+
+
+def _wrist(groups: RigidGroups, fore: int, axis, elbow_joint, shoulder, elbow,
+           ratio: float) -> np.ndarray:
+    """``(T, 3)``: on the forearm's long axis, pointing away from the elbow, ``ratio`` times
+    the upper arm's length from the elbow."""
+    u = axis.direction
+    if (groups.local[groups.label == fore].mean(axis=0) - elbow_joint.child_local) @ u < 0:
+        u = -u
+    d = _fill(np.einsum("tij,j->ti", groups.rotation[fore], u))
+    upper_len = float(np.median(np.linalg.norm(elbow - shoulder, axis=1)))
+    return elbow + ratio * upper_len * d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
 def arm_start(trajectories: Trajectories, *, forward, up=(0.0, 0.0, 1.0),
               model: MetaballModel | None = None, groups: RigidGroups | None = None,
               tolerance: float = 4.0, max_joint_rms: float = 15.0,
@@ -179,49 +227,16 @@ def arm_start(trajectories: Trajectories, *, forward, up=(0.0, 0.0, 1.0),
     centre = np.nanmean(X[groups.reference[torso], groups.label == torso], axis=0)
     # a limb's bone runs along its long axis, through its joints (not the torso's)
     axes = {g: segment_axis(groups.local[groups.label == g]) for g in range(1, G)}
-    to_torso = {g: _joint(groups, X, torso, g, axes) for g in range(1, G)}
-    best, report = None, []
-    for a, ja in to_torso.items():
-        if ja is None:
-            continue
-        right = (np.nanmean(ja.world, axis=0) - centre) @ frame0[:, 0] > 0
-        for b in range(1, G):
-            if b == a:
-                continue
-            jb = _joint(groups, X, a, b, axes)
-            if jb is None:
-                continue
-            report.append(f"{a}->{b}: {ja.rms:.1f} / {jb.rms:.1f} mm")
-            score = ja.rms + jb.rms
-            if right and max(ja.rms, jb.rms) < max_joint_rms and (best is None
-                                                                   or score < best[0]):
-                best = (score, a, b, ja, jb)
-    if best is None:
-        raise ValueError(f"trajectories: no chain torso -> upper arm -> forearm with joints "
-                         f"closer than {max_joint_rms:g} mm on the body's right among "
-                         f"{G} groups (sizes {groups.sizes.tolist()}; chains: "
-                         f"{'; '.join(report) or 'none'})")
-    _, upper, fore, j_sh, j_el = best
-    R_torso = _fill(groups.rotation[torso])
-    t_torso = _fill(groups.translation[torso])
-    torso_poses = np.tile(np.eye(4), (T, 1, 1))
-    torso_poses[:, :3, :3] = R_torso @ frame0
-    torso_poses[:, :3, 3] = np.einsum("tij,j->ti", R_torso, centre) + t_torso
+    upper, fore, j_sh, j_el = _arm_chain(groups, X, axes, centre, frame0[:, 0], max_joint_rms)
+    torso_poses = _torso_poses(groups, torso, frame0, centre)
     shoulder, elbow = _fill(j_sh.world), _fill(j_el.world)
-    # the forearm's long axis, pointing away from the elbow
-    axis_local = axes[fore].direction
-    mid_local = groups.local[groups.label == fore].mean(axis=0)
-    if (mid_local - j_el.child_local) @ axis_local < 0:
-        axis_local = -axis_local
-    axis = _fill(np.einsum("tij,j->ti", groups.rotation[fore], axis_local))
-    upper_len = float(np.median(np.linalg.norm(elbow - shoulder, axis=1)))
-    wrist = elbow + forearm_ratio * upper_len * axis / np.linalg.norm(axis, axis=1,
-                                                                      keepdims=True)
+    wrist = _wrist(groups, fore, axes[fore], j_el, shoulder, elbow, forearm_ratio)
     angles, shoulder_local, lengths = angles_from_joints(torso_poses, shoulder, elbow, wrist)
     scales = np.array([lengths[:, 0].mean() / model.segments[0].length,
                        lengths[:, 1].mean() / model.segments[1].length, 1.0])
     size = as_array(size, "size", shape=(model.n_segments, 2))
-    state = ModelState(angles, shoulder_local, scales, model.simplified_radii(size, scales))
+    state = ModelState(angles=angles, shoulder=shoulder_local, scales=scales,
+                       radii=model.simplified_radii(size, scales))
     arm = np.isin(groups.label, [upper, fore])
     points = [X[t, arm & np.isfinite(X[t]).all(axis=1)] for t in range(T)]
     return ArmStart(state=state, torso_poses=torso_poses,

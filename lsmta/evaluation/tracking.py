@@ -267,7 +267,7 @@ def face_video(*, seed: int = 14, n_frames: int = 40, dot_amplitude: float = 40.
     seq = face_sequence(face_model(), n_frames, rng=rng, moving=False, hold=hold)
     cam = face_cameras(seq.t[0])[1]
     vis = np.stack([visible(seq.world[f], seq.normals[f], cam.C) for f in range(n_frames)])
-    video = render_marker_video([cam] * n_frames, seq.world, vis, seq.t, rng,
+    video = render_marker_video([cam] * n_frames, seq.world, vis, seq.t, rng=rng,
                                 dot_amplitude=dot_amplitude, noise=noise)
     seen = np.isfinite(video.xy[0]).all(axis=1)
     tri = Delaunay(video.xy[0, seen])

@@ -66,7 +66,8 @@ def _line_kernel(dx: float, dy: float, length: float) -> np.ndarray:
     return k / k.sum()
 
 
-def render_marker_video(cameras, points, visible, anchor, rng, *, dot_sigma: float = 1.3,
+def render_marker_video(cameras, points, visible, anchor, *,
+                        rng: np.random.Generator | int | None = None, dot_sigma: float = 1.3,
                         dot_amplitude: float = 110.0, noise: float = 2.0, blur_frames=(),
                         blur_length: float = 9.0, texture=None) -> MarkerVideo:
     """Render one camera's view of markers over ``T`` frames.

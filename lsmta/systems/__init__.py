@@ -18,6 +18,7 @@ from .body import (
     FilterSettings,
     capture_body,
     fit_arm,
+    fit_self_consistent,
     track_surface,
 )
 from .rig import RigCalibration, calibrate_rig
@@ -26,5 +27,5 @@ from .surfaces import SurfaceParams, measure_surfaces, working_distance
 __all__ = [
     "ArmFit", "ArmFitSettings", "BodyCapture", "BodySystemParams", "FilterSettings",
     "RigCalibration", "SurfaceParams", "calibrate_rig", "capture_body", "fit_arm",
-    "measure_surfaces", "track_surface", "working_distance",
+    "fit_self_consistent", "measure_surfaces", "track_surface", "working_distance",
 ]

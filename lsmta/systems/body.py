@@ -30,7 +30,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .._validate import as_scalar
-from ..body import BodyFit, arm_model, fit_sequence
+from ..body import BodyFit, FitParams, arm_model, fit_sequence
 from ..body.start import ArmStart, arm_start
 from ..calibration import DEFAULT_INTRINSICS
 from ..noise import NoiseEstimate, temporal_noise
@@ -238,20 +238,49 @@ def fit_arm(trajectories: Trajectories, cameras, *, template: int = 1,
     centre = np.nanmean(X[:, seen].reshape(-1, 3), axis=0)
     start = arm_start(trajectories, forward=cams[template].C - centre, up=(0.0, 0.0, 1.0),
                       tolerance=s.rigidity_mm, rng=rng)
+    simple, full, sigma = fit_self_consistent(start.points, start.torso_poses, start.state,
+                                              tracked=start.joints, settings=s)
+    return ArmFit(start=start, simplified=simple, full=full, sigma_mm=sigma)
+
+
+def fit_self_consistent(points, torso_poses, init, *, tracked=None,
+                        settings: ArmFitSettings | None = None):
+    """The simplified model, then the full one, with a point sigma the fit agrees with.
+
+    The simplified fit runs with ``settings.sigma_prior_mm``; if its own robust residual
+    scale differs by more than 10 %, it runs again with that scale (notebook 07's rule), and
+    the full model starts from it with the same sigma.
+
+    Parameters
+    ----------
+    points : sequence of T (N_t, 3) arrays
+    torso_poses : (T, 4, 4) array
+    init : ModelState
+    tracked : (T, 3, 3) array, optional
+        Shoulder, elbow and wrist as observations (the wrist is left out: NaN).
+    settings : ArmFitSettings, optional
+
+    Returns
+    -------
+    (simplified BodyFit, full BodyFit, sigma_mm float)
+    """
+    s = settings or ArmFitSettings()
     model = arm_model()
-    tracked = start.joints.copy()
-    tracked[:, 2] = np.nan                  # the wrist is a guess, not a measurement
-    common = dict(tracked=tracked, sigma_joint_mm=s.sigma_joint_mm)
+    if tracked is not None:
+        tracked = np.array(tracked, float)
+        tracked[:, 2] = np.nan              # the wrist is a guess, not a measurement
     sigma = as_scalar(s.sigma_prior_mm, "settings.sigma_prior_mm", positive=True)
-    simple = fit_sequence(model, start.points, start.torso_poses, start.state, sigma_mm=sigma,
-                          **common)
+
+    def fit(state, **params):
+        return fit_sequence(model, points, torso_poses, state, tracked=tracked,
+                            params=FitParams(sigma_joint_mm=s.sigma_joint_mm, **params))
+
+    simple = fit(init, sigma_mm=sigma)
     if abs(simple.sigma_mm - sigma) > 0.1 * sigma:
         sigma = simple.sigma_mm
-        simple = fit_sequence(model, start.points, start.torso_poses, start.state,
-                              sigma_mm=sigma, **common)
-    full = fit_sequence(model, start.points, start.torso_poses, simple.state, shape="full",
-                        max_rounds=s.full_rounds, sigma_mm=sigma, **common)
-    return ArmFit(start=start, simplified=simple, full=full, sigma_mm=float(sigma))
+        simple = fit(init, sigma_mm=sigma)
+    full = fit(simple.state, sigma_mm=sigma, shape="full", max_rounds=s.full_rounds)
+    return simple, full, float(sigma)
 
 
 @dataclass

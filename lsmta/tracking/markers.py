@@ -33,9 +33,6 @@ class MarkerStatus(enum.IntEnum):
     SEEDED = 4         #: (re)started from ``seeds``
 
 
-# the names lsmta.evaluation.face imports
-TRACKED, SECOND_SEARCH = MarkerStatus.TRACKED, MarkerStatus.SECOND_SEARCH
-
 
 @dataclass(frozen=True)
 class MarkerTracks:

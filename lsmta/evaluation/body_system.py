@@ -258,7 +258,7 @@ def track_identity(session: ArmWaveSession, tracks, *, template: int = 1):
         if not ok.any():
             continue
         _, dirs = cam.rays(xy[ok])
-        hit = cast_body(body, body.part_poses(motion, int(f))[0], cam.C, dirs)
+        hit = cast_body(body, body.part_poses(motion, frames=int(f))[0], cam.C, dirs)
         part[sel[ok]] = np.where(np.isfinite(hit.t), hit.part, -1)
         local[sel[ok]] = hit.local
     return part, local

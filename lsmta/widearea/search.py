@@ -143,7 +143,7 @@ def search_frame(frame, setup: SearchSetup, *, windows=None, half_sizes=None,
         jr, jc = jitter
         if not (0 <= jr < k and 0 <= jc < k):
             raise ValueError(f"jitter: expected two offsets in [0, {k}), got {jitter}")
-    centres = np.zeros((0, 2)) if windows is None else np.asarray(windows, float)
+    centres = np.zeros((0, 2)) if windows is None else np.ascontiguousarray(windows, float)
     if centres.ndim != 2 or centres.shape[1] != 2:
         raise ValueError(f"windows: expected an (n, 2) array of positions, got shape "
                          f"{centres.shape}")

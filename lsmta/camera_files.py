@@ -345,8 +345,10 @@ def dlt_coefficients(camera: Camera, *, y_up: bool = True) -> np.ndarray:
     if y_up:
         P = np.array([[1.0, 0, 0], [0, -1.0, camera.height], [0, 0, 1.0]]) @ P
     if abs(P[2, 3]) < 1e-12 * np.abs(P[2, :3]).max() * (1 + np.abs(camera.C).max()):
-        raise ValueError("camera: the world origin lies in the camera's focal plane; DLT "
-                         "(normalised by L12 = 1) cannot describe it")
+        raise ValueError("camera: the world origin lies in the camera's focal plane (e.g. at "
+                         "its centre, the datum of calibrate_wand); DLT (normalised by L12 = 1) "
+                         "cannot describe it: move the origin first, e.g. C - mean of the "
+                         "measured points")
     P = P / P[2, 3]
     return np.concatenate([P[0], P[1], P[2, :3]])
 

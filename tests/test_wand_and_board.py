@@ -1,5 +1,5 @@
-"""Wand calibration in one call (issue 24): generated recordings against the truth, and
-clear errors for bad input."""
+"""Wand and board calibration (issue 24): generated wand recordings against the truth, the real
+caliscope recording against its own calibration, and clear errors for bad input."""
 
 import numpy as np
 import pytest
@@ -82,3 +82,34 @@ def test_bad_input_is_refused_with_clear_errors():
     tie[0, 0] = (100.0, 100.0)
     with pytest.raises(ValueError, match="tie_xy: 1 tie point"):
         calibrate_wand(xy, L, SIZE, tie_xy=tie)
+
+
+# ---------------------------------------------------------------------- board recordings
+def test_caliscope_recording_calibrated_from_its_corners_alone():
+    from lsmta.calibration.board import calibrate_board
+    from lsmta.camera_files import read_camera_toml
+    from lsmta.evaluation.board import CALISCOPE_DIR, board_scores, position_differences
+    from lsmta.io import read_caliscope_points
+
+    pts = read_caliscope_points(CALISCOPE_DIR / "xy.csv")
+    ref = read_camera_toml(CALISCOPE_DIR / "camera_array.toml", unit="m")
+    ours = calibrate_board(pts.xy, pts.board, [c.image_size for c in ref])
+    mine, theirs = board_scores(ours.cameras, pts), board_scores(ref, pts)
+    # the issue's targets on the same corners: reprojection and board distances
+    assert np.all(mine.rms_px <= theirs.rms_px)
+    assert mine.distance_rms <= theirs.distance_rms
+    dist, _ = position_differences(ours.cameras, ref)
+    assert np.all(dist < 30.0)                                      # mm
+
+
+def test_board_calibration_refuses_bad_input():
+    from lsmta.calibration.board import calibrate_board
+
+    board = np.array([[0, 0, 0], [54, 0, 0], [0, 54, 0]], float)
+    xy = np.full((2, 3, 3, 2), np.nan)
+    with pytest.raises(ValueError, match="image_sizes"):
+        calibrate_board(xy, board, [(1280, 720)])
+    with pytest.raises(ValueError, match="board: expected a plane"):
+        calibrate_board(xy, board + [0, 0, 1], [(1280, 720)] * 2)
+    with pytest.raises(ValueError, match="xy: expected an array of shape"):
+        calibrate_board(xy[:, :, :2], board, [(1280, 720)] * 2)

@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from ..calibration import bundle_adjust
 from ..calibration.board import BoardCalibration, calibrate_board
-from ..camera_files import read_camera_toml
+from ..camera_files import read_camera_toml, tomllib
 from ..io import BoardPoints, read_caliscope_points
 from ..rigid import apply_rigid, fit_rigid
 from ..triangulation import triangulate
@@ -134,8 +134,6 @@ class CaliscopeComparison:
 
 def caliscope_comparison(folder=CALISCOPE_DIR) -> CaliscopeComparison:
     """Calibrate caliscope's four-camera recording and compare with its calibration."""
-    import tomllib
-
     folder = Path(folder)
     pts = read_caliscope_points(folder / "xy.csv")
     ref = read_camera_toml(folder / "camera_array.toml", unit="m")

@@ -83,10 +83,10 @@ def real_rigs(seeds: int, out: str):
         cams, sec = aniposelib_board_peer(comp.points, comp.ours.start)
         half = calibrate_board(comp.points.xy[:, even], comp.points.board,
                                [c.image_size for c in comp.caliscope])
-        cams_h, _ = aniposelib_board_peer(comp.points, half.start, even)
+        cams_h, _ = aniposelib_board_peer(comp.points, half.start, frames=even)
         dist, ang = position_differences(cams, comp.caliscope)
         board.update(aniposelib_all=_scores(board_scores(cams, comp.points)),
-                     aniposelib_heldout=_scores(board_scores(cams_h, comp.points, odd)),
+                     aniposelib_heldout=_scores(board_scores(cams_h, comp.points, frames=odd)),
                      aniposelib_centre_difference_mm=dist.tolist(),
                      aniposelib_attitude_difference_deg=ang.tolist(),
                      time_aniposelib_s=sec, time_ratio_aniposelib_over_ours=sec / ours_s)
@@ -104,7 +104,7 @@ def real_rigs(seeds: int, out: str):
     print(board)
     wand = []
     for s in range(seeds):
-        t = wand_trial(s)
+        t = wand_trial(seed=s)
         wand.append(dict(seed=s, std_percent=t.result.wand_length_std_percent,
                          floor_percent=t.floor_std_percent,
                          heldout_rms_percent=rms(t.heldout_error_percent),

@@ -14,7 +14,7 @@ SIZE = (1280, 720)
 @pytest.fixture(scope="module")
 def trial():
     # 25 frames, each seen by 2-3 of 4 cameras, 10 % of the ends mislabelled, f guessed
-    return wand_trial(3, n_frames=25, n_heldout=30, swap_fraction=0.1)
+    return wand_trial(seed=3, n_frames=25, n_heldout=30, swap_fraction=0.1)
 
 
 def test_wand_calibration_recovers_the_rig(trial):
@@ -37,7 +37,7 @@ def test_wand_calibration_recovers_the_rig(trial):
 
 
 def test_tie_points_and_given_focal_lengths(trial):
-    rec = wand_recording(7, n_frames=25, n_tie=12)
+    rec = wand_recording(rng=7, n_frames=25, n_tie=12)
     f = [c.f for c in rec.cameras]
     out = calibrate_wand(rec.xy, rec.length, SIZE, focal_px=f, tie_xy=rec.tie_xy)
     assert not out.focal_guessed
@@ -46,14 +46,14 @@ def test_tie_points_and_given_focal_lengths(trial):
 
 
 def test_inputs_are_not_modified():
-    rec = wand_recording(1, n_frames=20, swap_fraction=0.2)
+    rec = wand_recording(rng=1, n_frames=20, swap_fraction=0.2)
     xy = rec.xy.copy()
     calibrate_wand(rec.xy, rec.length, SIZE)
     np.testing.assert_array_equal(rec.xy, xy)
 
 
 def test_bad_input_is_refused_with_clear_errors():
-    rec = wand_recording(1, n_frames=20)
+    rec = wand_recording(rng=1, n_frames=20)
     xy, L = rec.xy, rec.length
     with pytest.raises(ValueError, match="wand_xy: .* needs >= 10"):
         calibrate_wand(xy[:, :8], L, SIZE)                           # too few frames

@@ -186,7 +186,7 @@ def calibrate_board(xy, board, image_sizes, *, cameras=None, intrinsics=BOARD_IN
     frames = np.arange(F)[:, None] * C
     pairs = np.stack([(frames + ci).ravel(), (frames + cj).ravel()], axis=1)
     ok = np.isfinite(X0[pairs]).all(axis=(1, 2))
-    bar = Bar(pairs[ok], square, bar_sigma)
+    bar = Bar(pairs=pairs[ok], length=square, sigma=bar_sigma)
     bundle = bundle_adjust(cams0, flat, X0, intrinsics=tuple(intrinsics),
                            fixed_exterior=(ref,), bar=bar, sigma_px=sigma_px)
     return BoardCalibration(cameras=bundle.cameras, start=cams0, bundle=bundle,

@@ -313,121 +313,172 @@ def calibrate_wand(wand_xy, length: float, image_sizes, *, focal_px=None, tie_xy
         point seen by fewer than two cameras.
     """
     t0 = time.perf_counter()
-    xy = as_array(wand_xy, "wand_xy", shape=(None, None, 2, 2), allow_nan=True).copy()
-    K, T = xy.shape[:2]
-    if K < 2:
-        raise ValueError(f"wand_xy: expected observations of at least 2 cameras, got {K}")
-    length = as_scalar(length, "length", positive=True)
-    sigma_px = as_scalar(sigma_px, "sigma_px", positive=True)
-    sizes = _image_sizes(image_sizes, K)
-    if distortion not in DISTORTION_MODELS:
-        raise ValueError(f"distortion: expected one of {sorted(DISTORTION_MODELS)}, got "
-                         f"{distortion!r}")
-    names = [f"cam{k + 1}" for k in range(K)]
-    _check_observations(xy, sizes, "wand_xy", names)
-    if tie_xy is None:
-        tie = np.zeros((K, 0, 2))
-    else:
-        tie = as_array(tie_xy, "tie_xy", shape=(K, None, 2), allow_nan=True)
-        _check_observations(tie, sizes, "tie_xy", names)
-        few = np.isfinite(tie).all(axis=2).sum(axis=0) < 2
-        if few.any():
-            raise ValueError(f"tie_xy: {int(few.sum())} tie point(s) are seen by fewer than "
-                             "2 cameras; each must be seen by at least 2")
-    messages: list[str] = []
+    st = _State.initial(wand_xy, length, image_sizes, tie_xy, distortion, sigma_px)
+    _usable_frames(st)
+    _approximations_and_ends(st, focal_px)
+    _bundle(st, robust)
+    return _result(st, t0)
 
-    # 1. frames: both ends seen by at least two cameras
-    seen_end = np.isfinite(xy).all(axis=3)                           # (K, T, 2)
+
+@dataclass
+class _State:
+    """What the stages of :func:`calibrate_wand` hand on."""
+
+    xy: np.ndarray                 # (K, T, 2, 2), frames without two views set to NaN
+    tie: np.ndarray                # (K, N, 2)
+    sizes: np.ndarray              # (K, 2)
+    names: list
+    length: float
+    sigma_px: float
+    distortion: str
+    messages: list
+    used: np.ndarray | None = None
+    bar: Bar | None = None
+    pair: tuple | None = None
+    guessed: bool = False
+    cams0: list | None = None
+    X0: np.ndarray | None = None
+    labels: object = None
+    bundle: BundleResult | None = None
+
+    @property
+    def K(self) -> int:
+        return self.xy.shape[0]
+
+    @property
+    def T(self) -> int:
+        return self.xy.shape[1]
+
+    def flat(self, w) -> np.ndarray:
+        """Wand ends ``(K, T, 2, 2)`` and tie points as one ``(K, 2T + N, 2)`` array."""
+        return np.concatenate([w.reshape(self.K, 2 * self.T, 2), self.tie], axis=1)
+
+    @classmethod
+    def initial(cls, wand_xy, length, image_sizes, tie_xy, distortion, sigma_px) -> _State:
+        xy = as_array(wand_xy, "wand_xy", shape=(None, None, 2, 2), allow_nan=True).copy()
+        K = xy.shape[0]
+        if K < 2:
+            raise ValueError(f"wand_xy: expected observations of at least 2 cameras, got {K}")
+        length = as_scalar(length, "length", positive=True)
+        sigma_px = as_scalar(sigma_px, "sigma_px", positive=True)
+        sizes = _image_sizes(image_sizes, K)
+        if distortion not in DISTORTION_MODELS:
+            raise ValueError(f"distortion: expected one of {sorted(DISTORTION_MODELS)}, got "
+                             f"{distortion!r}")
+        names = [f"cam{k + 1}" for k in range(K)]
+        _check_observations(xy, sizes, "wand_xy", names)
+        if tie_xy is None:
+            tie = np.zeros((K, 0, 2))
+        else:
+            tie = as_array(tie_xy, "tie_xy", shape=(K, None, 2), allow_nan=True)
+            _check_observations(tie, sizes, "tie_xy", names)
+            few = np.isfinite(tie).all(axis=2).sum(axis=0) < 2
+            if few.any():
+                raise ValueError(f"tie_xy: {int(few.sum())} tie point(s) are seen by fewer "
+                                 "than 2 cameras; each must be seen by at least 2")
+        return cls(xy=xy, tie=tie, sizes=sizes, names=names, length=length,
+                   sigma_px=sigma_px, distortion=distortion, messages=[])
+
+
+def _usable_frames(st: _State) -> None:
+    """Frames whose two ends are seen by at least two cameras; every camera must see
+    enough of them (and tie points) for its parameters."""
+    seen_end = np.isfinite(st.xy).all(axis=3)                        # (K, T, 2)
     used = (seen_end.sum(axis=0) >= 2).all(axis=1)                   # (T,)
     if used.sum() < MIN_FRAMES:
         raise ValueError(f"wand_xy: both ends of the wand are seen by at least two cameras "
-                         f"in {int(used.sum())} of {T} frames; calibrate_wand needs >= "
+                         f"in {int(used.sum())} of {st.T} frames; calibrate_wand needs >= "
                          f"{MIN_FRAMES}")
     if (~used).any():
-        messages.append(f"{int((~used).sum())} of {T} frames dropped: an end seen by fewer "
-                        "than two cameras")
-    xy[:, ~used] = np.nan
-    free = 6 + 1 + len(DISTORTION_MODELS[distortion])
-    for k in range(K):
-        n_pts = int(seen_end[k, used].sum() + np.isfinite(tie[k]).all(axis=1).sum())
+        st.messages.append(f"{int((~used).sum())} of {st.T} frames dropped: an end seen by "
+                           "fewer than two cameras")
+    st.xy[:, ~used] = np.nan
+    free = 6 + 1 + len(DISTORTION_MODELS[st.distortion])
+    for k in range(st.K):
+        n_pts = int(seen_end[k, used].sum() + np.isfinite(st.tie[k]).all(axis=1).sum())
         if n_pts == 0:
-            raise ValueError(f"wand_xy: camera {names[k]} sees the wand in none of the "
+            raise ValueError(f"wand_xy: camera {st.names[k]} sees the wand in none of the "
                              "usable frames (and no tie point)")
         if n_pts < min_points_per_camera(free):
-            raise ValueError(f"wand_xy: camera {names[k]} sees {n_pts} wand ends and tie "
+            raise ValueError(f"wand_xy: camera {st.names[k]} sees {n_pts} wand ends and tie "
                              f"points; its {free} parameters need >= "
                              f"{min_points_per_camera(free)}")
+    st.used = used
 
-    # 2. approximations
-    f0, guessed = _focal(focal_px, sizes, messages)
+
+def _approximations_and_ends(st: _State, focal_px) -> None:
+    """Approximations from a guessed (or given) focal length, the ends made consistent
+    across cameras, then the approximations again."""
+    f0, st.guessed = _focal(focal_px, st.sizes, st.messages)
     nominal = [Camera(f=f0[k], cx=(w - 1) / 2, cy=(h - 1) / 2, width=w, height=h,
-                      R=np.eye(3), C=np.zeros(3), name=names[k])
-               for k, (w, h) in enumerate(sizes)]
-    pairs_all = np.arange(2 * T).reshape(T, 2)
-    bar = Bar(pairs_all[used], length, BAR_SIGMA_REL * length)
+                      R=np.eye(3), C=np.zeros(3), name=st.names[k])
+               for k, (w, h) in enumerate(st.sizes)]
+    pairs_all = np.arange(2 * st.T).reshape(st.T, 2)
+    st.bar = Bar(pairs=pairs_all[st.used], length=st.length,
+                 sigma=BAR_SIGMA_REL * st.length)
     # RANSAC threshold: generous, the approximations know neither the lens nor f
-    threshold = 0.015 * float(sizes.max())
+    threshold = 0.015 * float(st.sizes.max())
+    st.pair = _pair(nominal, st.flat(st.xy), st.bar, threshold)
+    cams0, _ = _approximations(nominal, st.flat(st.xy), st.bar, st.pair, threshold)
+    st.labels = consistent_bar_labels(cams0, st.xy, st.length)
+    st.cams0, st.X0 = _approximations(nominal, st.flat(st.labels.xy), st.bar, st.pair,
+                                      threshold)
 
-    def flat(w):
-        return np.concatenate([w.reshape(K, 2 * T, 2), tie], axis=1)
 
-    pair = _pair(nominal, flat(xy), bar, threshold)
-    cams0, _ = _approximations(nominal, flat(xy), bar, pair, threshold)
-
-    # 3. consistent ends, then the approximations again
-    labels = consistent_bar_labels(cams0, xy, length)
-    cams0, X0 = _approximations(nominal, flat(labels.xy), bar, pair, threshold)
-
-    # 4. bundle adjustment; the ends checked again with its cameras, and once more
-    # adjusted if that changed any labels
-    intrinsics = ("f",) + DISTORTION_MODELS[distortion]
+def _bundle(st: _State, robust: bool) -> None:
+    """The bundle adjustment; the ends checked again with its cameras, and once more
+    adjusted if that changed any labels."""
+    intrinsics = ("f",) + DISTORTION_MODELS[st.distortion]
 
     def adjust(cams, X, w):
-        return bundle_adjust(cams, flat(w), X, intrinsics=intrinsics,
-                             fixed_exterior=(pair[0],), bar=bar, sigma_px=sigma_px,
+        return bundle_adjust(cams, st.flat(w), X, intrinsics=intrinsics,
+                             fixed_exterior=(st.pair[0],), bar=st.bar, sigma_px=st.sigma_px,
                              loss="soft_l1" if robust else "linear", f_scale=3.0,
                              reject_k=REJECT_K if robust else None)
 
-    bundle = adjust(cams0, X0, labels.xy)
+    bundle = adjust(st.cams0, st.X0, st.labels.xy)
     try:
-        again = consistent_bar_labels(bundle.cameras, xy, length)
+        again = consistent_bar_labels(bundle.cameras, st.xy, st.length)
     except ValueError as err:            # the lens model folds over inside the image
-        raise ValueError(f"distortion: the adjusted {distortion!r} lens model cannot be "
+        raise ValueError(f"distortion: the adjusted {st.distortion!r} lens model cannot be "
                          f"inverted at some observed points ({err}); too few points near "
                          "the image edges for it - try distortion='k1'") from None
-    if not np.array_equal(again.swapped, labels.swapped):
-        labels = again
-        bundle = adjust(bundle.cameras, _start_points(bundle, labels.xy, K, T, tie), labels.xy)
-    if labels.n_swapped:
-        messages.append(f"the two ends were exchanged in {labels.n_swapped} camera frame(s) "
-                        "to agree with the other cameras")
+    if not np.array_equal(again.swapped, st.labels.swapped):
+        st.labels = again
+        bundle = adjust(bundle.cameras, _start_points(bundle, again.xy, st.K, st.T, st.tie),
+                        again.xy)
+    if st.labels.n_swapped:
+        st.messages.append(f"the two ends were exchanged in {st.labels.n_swapped} camera "
+                           "frame(s) to agree with the other cameras")
     if bundle.n_rejected:
-        messages.append(f"{bundle.n_rejected} observation(s) rejected as outliers (beyond "
-                        f"{REJECT_K:g} sigma)")
+        st.messages.append(f"{bundle.n_rejected} observation(s) rejected as outliers "
+                           f"(beyond {REJECT_K:g} sigma)")
+    st.bundle = bundle
 
-    # 5. datum: the first camera's frame
+
+def _result(st: _State, t0: float) -> WandCalibration:
+    """The datum (the first camera's frame), the wand scores and the status."""
+    bundle, K, T = st.bundle, st.K, st.T
     R0, C0 = np.asarray(bundle.cameras[0].R), bundle.cameras[0].C
     cameras = [c.replace(R=np.asarray(c.R) @ R0.T, C=R0 @ (c.C - C0)) for c in bundle.cameras]
     tie_points = None
-    if tie.shape[1]:
+    if st.tie.shape[1]:
         tie_points = (bundle.points[2 * T:] - C0) @ R0.T
-
-    # 6. scores
-    ends = triangulate(cameras, labels.xy.reshape(K, 2 * T, 2), min_angle_deg=0.0).points
+    ends = triangulate(cameras, st.labels.xy.reshape(K, 2 * T, 2), min_angle_deg=0.0).points
     ends = ends.reshape(T, 2, 3)
     lengths = np.linalg.norm(ends[:, 0] - ends[:, 1], axis=1)
-    std_pct = float(100 * np.nanstd(lengths, ddof=1) / length)
+    std_pct = float(100 * np.nanstd(lengths, ddof=1) / st.length)
     rms = _rms_2d(np.where(bundle.rejected[..., None], np.nan, bundle.residuals))
     status = WandStatus.OK
     if bundle.sigma0 > 3:
         status = WandStatus.LARGE_RESIDUALS
-        messages.append(f"residuals {bundle.sigma0:.1f} times sigma_px = {sigma_px:g} px")
+        st.messages.append(f"residuals {bundle.sigma0:.1f} times sigma_px = {st.sigma_px:g} px")
     elif std_pct > 1.0:
         status = WandStatus.WAND_SCATTER
-        messages.append(f"the wand lengths scatter by {std_pct:.2f} % (> 1 %)")
+        st.messages.append(f"the wand lengths scatter by {std_pct:.2f} % (> 1 %)")
     return WandCalibration(
         cameras=cameras, wand_points=ends, wand_lengths=lengths,
         wand_length_std_percent=std_pct, rms_px=rms, tie_points=tie_points,
-        wand_xy=labels.xy, swapped=labels.swapped, used=used, bundle=bundle, pair=pair,
-        focal_guessed=guessed, status=status, messages=tuple(messages),
+        wand_xy=st.labels.xy, swapped=st.labels.swapped, used=st.used, bundle=bundle,
+        pair=st.pair, focal_guessed=st.guessed, status=status, messages=tuple(st.messages),
         seconds=time.perf_counter() - t0)

@@ -61,7 +61,7 @@ class BoardScores:
         return float(100 * np.sqrt(np.mean((self.distance_error / self.distance_true)**2)))
 
 
-def board_scores(cameras, points: BoardPoints, frames=None) -> BoardScores:
+def board_scores(cameras, points: BoardPoints, *, frames=None) -> BoardScores:
     """Score ``cameras`` on the corners of ``points`` (all frames, or the ``frames``
     indices)."""
     xy = points.xy if frames is None else points.xy[:, frames]
@@ -132,7 +132,7 @@ class CaliscopeComparison:
     attitude_difference: np.ndarray
 
 
-def caliscope_comparison(folder=CALISCOPE_DIR) -> CaliscopeComparison:
+def caliscope_comparison(*, folder=CALISCOPE_DIR) -> CaliscopeComparison:
     """Calibrate caliscope's four-camera recording and compare with its calibration."""
     folder = Path(folder)
     pts = read_caliscope_points(folder / "xy.csv")
@@ -150,16 +150,16 @@ def caliscope_comparison(folder=CALISCOPE_DIR) -> CaliscopeComparison:
                                  intrinsics=(), names=names)
     scores = {"caliscope": board_scores(ref, pts), "ours": board_scores(ours.cameras, pts),
               "ours_fixed": board_scores(fixed.cameras, pts)}
-    heldout = {"caliscope": board_scores(ref, pts, odd),
-               "ours": board_scores(half.cameras, pts, odd),
-               "ours_fixed": board_scores(half_fixed.cameras, pts, odd)}
+    heldout = {"caliscope": board_scores(ref, pts, frames=odd),
+               "ours": board_scores(half.cameras, pts, frames=odd),
+               "ours_fixed": board_scores(half_fixed.cameras, pts, frames=odd)}
     dist, ang = position_differences(ours.cameras, ref)
     return CaliscopeComparison(points=pts, caliscope=ref, ours=ours, ours_fixed=fixed,
                                scores=scores, heldout=heldout, file_error_px=file_error,
                                centre_difference=dist, attitude_difference=ang)
 
 
-def aniposelib_board_peer(points: BoardPoints, start, frames=None):
+def aniposelib_board_peer(points: BoardPoints, start, *, frames=None):
     """aniposelib's ``CameraGroup.bundle_adjust_iter`` on the board corners, from the same
     approximations as ours (``start``: :attr:`BoardCalibration.start`), scaled afterwards
     so that the median intersected distance of neighbouring corners is the square size

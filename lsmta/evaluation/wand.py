@@ -63,7 +63,7 @@ def length_scatter_percent(cameras, xy, length: float) -> float:
     return float(100 * np.nanstd(d, ddof=1) / length)
 
 
-def wand_trial(seed: int = 0, *, n_frames: int = 25, n_heldout: int = 40,
+def wand_trial(*, seed: int = 0, n_frames: int = 25, n_heldout: int = 40,
                sigma_px: float = 0.3, seen_by=(2, 3), swap_fraction: float = 0.1,
                n_tie: int = 0, length: float = 600.0, focal_px=None,
                distortion: str = "k1", robust: bool = True) -> WandTrial:
@@ -73,10 +73,11 @@ def wand_trial(seed: int = 0, *, n_frames: int = 25, n_heldout: int = 40,
     the wand's length, the image sizes and, if given, ``focal_px``.
     """
     rng = np.random.default_rng(seed)
-    cameras = wand_rig(rng)
-    rec = wand_recording(rng, cameras, n_frames=n_frames, length=length, sigma_px=sigma_px,
-                         seen_by=seen_by, swap_fraction=swap_fraction, n_tie=n_tie)
-    held = wand_recording(rng, cameras, n_frames=n_heldout, length=length,
+    cameras = wand_rig(rng=rng)
+    rec = wand_recording(cameras=cameras, rng=rng, n_frames=n_frames, length=length,
+                         sigma_px=sigma_px, seen_by=seen_by, swap_fraction=swap_fraction,
+                         n_tie=n_tie)
+    held = wand_recording(cameras=cameras, rng=rng, n_frames=n_heldout, length=length,
                           sigma_px=sigma_px, seen_by=seen_by)
     result = calibrate_wand(rec.xy, length, [c.image_size for c in cameras],
                             focal_px=focal_px, tie_xy=rec.tie_xy if n_tie else None,

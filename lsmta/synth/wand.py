@@ -25,7 +25,8 @@ from ..camera import Camera
 WAND_IMAGE_SIZE = (1280, 720)
 
 
-def wand_rig(rng=None, *, n_cameras: int = 4, distance: float = 3200.0,
+def wand_rig(*, rng: np.random.Generator | int | None = None, n_cameras: int = 4,
+             distance: float = 3200.0,
              height: float = 1900.0, target=(0.0, 0.0, 900.0)) -> list[Camera]:
     """Cameras in the corners of a room, aimed at ``target`` (mm).
 
@@ -110,7 +111,8 @@ def _project(cameras, X):
     return out
 
 
-def wand_recording(rng, cameras=None, *, n_frames: int = 25, length: float = 600.0,
+def wand_recording(*, cameras=None, rng: np.random.Generator | int | None = None,
+                   n_frames: int = 25, length: float = 600.0,
                    sigma_px: float = 0.3, seen_by=(2, 3), swap_fraction: float = 0.0,
                    n_tie: int = 0, center=(0.0, 0.0, 900.0),
                    half_size=(900.0, 900.0, 600.0), margin_px: float = 20.0) -> WandRecording:
@@ -139,8 +141,8 @@ def wand_recording(rng, cameras=None, *, n_frames: int = 25, length: float = 600
         Background points (on the floor and walls around the volume), each seen by every
         camera that has it in view (at least two).
     """
-    rng = np.random.default_rng(rng) if not isinstance(rng, np.random.Generator) else rng
-    cameras = wand_rig(rng) if cameras is None else list(cameras)
+    rng = as_rng(rng)
+    cameras = wand_rig(rng=rng) if cameras is None else list(cameras)
     K = len(cameras)
     length = as_scalar(length, "length", positive=True)
     lo, hi = (int(v) for v in seen_by)

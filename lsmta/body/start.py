@@ -10,10 +10,12 @@ tracker follows (Section 4.2). We find them in the data instead:
    held near the limbs' long axes (:func:`~lsmta.body.joints.segment_axis`); the arm
    is the chain torso -> upper arm -> forearm whose two joints fit best (RMS below
    ``max_joint_rms``) with the shoulder on the body's right (the model is a right arm);
-3. the shoulder and the elbow follow from those joints in every frame; the wrist lies on
+3. the shoulder and the elbow follow from those joints in every frame (from either
+   segment's pose where only one is known: a joint is fixed in both); the wrist lies on
    the forearm group's long axis (its members' principal direction, pointing away from
    the elbow) at ``forearm_ratio`` times the upper arm's length (the hand is rarely
-   tracked, so nothing in the data marks the wrist);
+   tracked, so nothing in the data marks the wrist); where the forearm is not tracked,
+   it keeps its last pose relative to the upper arm;
 4. the torso frame is the torso group's motion applied to a frame whose z axis is the
    world's ``up`` and whose y axis (forward) is ``forward`` made horizontal (the person
    faces the cameras); :func:`~lsmta.body.arm.angles_from_joints` then gives the angles
@@ -154,14 +156,39 @@ def _torso_poses(groups: RigidGroups, torso: int, frame0, centre) -> np.ndarray:
     return poses
 
 
-def _wrist(groups: RigidGroups, fore: int, axis, elbow_joint, shoulder, elbow,
+def _joint_world(groups: RigidGroups, parent: int, child: int, joint) -> np.ndarray:
+    """``(T, 3)`` world positions of a joint: the mean of its two images where both
+    segments' poses are known, the one segment's image where only it is known (a joint is
+    fixed in both), interpolated over frames where neither is."""
+    a = np.einsum("tij,j->ti", groups.rotation[parent], joint.parent_local) \
+        + groups.translation[parent]
+    b = np.einsum("tij,j->ti", groups.rotation[child], joint.child_local) \
+        + groups.translation[child]
+    both = np.stack([a, b])
+    n = np.isfinite(both).all(axis=2).sum(axis=0)
+    mean = np.where(n[:, None] > 0, np.nansum(both, axis=0) / np.maximum(n, 1)[:, None],
+                    np.nan)
+    return _fill(mean)
+
+
+def _relative_rotation(groups: RigidGroups, parent: int, child: int) -> np.ndarray:
+    """``(T, 3, 3)`` the child's rotation, where unknown held at its nearest known pose
+    relative to the parent (a limb that stops being tracked keeps its last joint angle)."""
+    Rp, Rc = _fill(groups.rotation[parent]), groups.rotation[child]
+    rel = np.einsum("tji,tjk->tik", Rp, Rc)                   # parent -> child, per frame
+    known = np.flatnonzero(np.isfinite(rel).all(axis=(1, 2)))
+    nearest = known[np.abs(np.arange(len(rel))[:, None] - known[None]).argmin(axis=1)]
+    return Rp @ rel[nearest]
+
+
+def _wrist(groups: RigidGroups, upper: int, fore: int, axis, elbow_joint, shoulder, elbow,
            ratio: float) -> np.ndarray:
     """``(T, 3)``: on the forearm's long axis, pointing away from the elbow, ``ratio`` times
     the upper arm's length from the elbow."""
     u = axis.direction
     if (groups.local[groups.label == fore].mean(axis=0) - elbow_joint.child_local) @ u < 0:
         u = -u
-    d = _fill(np.einsum("tij,j->ti", groups.rotation[fore], u))
+    d = np.einsum("tij,j->ti", _relative_rotation(groups, upper, fore), u)
     upper_len = float(np.median(np.linalg.norm(elbow - shoulder, axis=1)))
     return elbow + ratio * upper_len * d / np.linalg.norm(d, axis=1, keepdims=True)
 
@@ -229,8 +256,9 @@ def arm_start(trajectories: Trajectories, *, forward, up=(0.0, 0.0, 1.0),
     axes = {g: segment_axis(groups.local[groups.label == g]) for g in range(1, G)}
     upper, fore, j_sh, j_el = _arm_chain(groups, X, axes, centre, frame0[:, 0], max_joint_rms)
     torso_poses = _torso_poses(groups, torso, frame0, centre)
-    shoulder, elbow = _fill(j_sh.world), _fill(j_el.world)
-    wrist = _wrist(groups, fore, axes[fore], j_el, shoulder, elbow, forearm_ratio)
+    shoulder = _joint_world(groups, torso, upper, j_sh)
+    elbow = _joint_world(groups, upper, fore, j_el)
+    wrist = _wrist(groups, upper, fore, axes[fore], j_el, shoulder, elbow, forearm_ratio)
     angles, shoulder_local, lengths = angles_from_joints(torso_poses, shoulder, elbow, wrist)
     scales = np.array([lengths[:, 0].mean() / model.segments[0].length,
                        lengths[:, 1].mean() / model.segments[1].length, 1.0])

@@ -35,7 +35,7 @@ from ..synth.calibration import BarTrack, bar_track, poor_guess, render_bar_imag
 from ..synth.render import Renderer, cast_body
 from ..synth.sequence import Sequence, render_sequence, scaled_camera
 from ..systems import ArmFitSettings, BodyCapture
-from ..systems.body import fit_self_consistent
+from ..systems.body import fit_self_consistent, observed_frames
 from ..tracking import TrackerParams, Trajectories, apply_filters, track_points
 from ..tracking.trajectories import trajectories_from_tracks
 from ..triangulation import triangulate
@@ -336,17 +336,24 @@ def arm_truth(session: ArmWaveSession) -> eb.ArmTruth:
                         np.arange(session.videos.shape[1]))
 
 
-def score_arm(fit, torso_poses, truth: eb.ArmTruth, *,
+def score_arm(fit, torso_poses, truth: eb.ArmTruth, *, frames=None,
               alignment: Alignment | None = None) -> dict:
     """Angle and length errors of an arm fit, its posture compared in the TRUE torso frame.
 
     The fitted upper arm's attitude in the world (the fit's torso frame times its shoulder
     angles), carried into the true world, is expressed in the true torso frame and turned
     into the angles ``(b, a, c)``; the elbow angle is intrinsic. So the score does not
-    depend on how the system chose its torso frame. Returns ``angle_err_deg`` (T, 4),
-    ``max_angle_err_deg``, per-joint worst ``joint_max_deg`` (4,), ``length_err_pct`` (2,)
-    and ``lengths`` (2,) mm.
+    depend on how the system chose its torso frame. ``torso_poses`` and ``truth`` cover all
+    frames; ``frames`` are the ones the fit covers (default: all). Returns
+    ``angle_err_deg`` (F, 4), ``max_angle_err_deg``, per-joint worst ``joint_max_deg``
+    (4,), ``length_err_pct`` (2,) and ``lengths`` (2,) mm.
     """
+    if frames is not None:
+        frames = np.asarray(frames, int)
+        torso_poses = np.asarray(torso_poses)[frames]
+        truth = dataclasses.replace(truth, frames=truth.frames[frames],
+                                    torso_poses=truth.torso_poses[frames],
+                                    angles=truth.angles[frames], joints=truth.joints[frames])
     st = fit.state
     model = arm_model()
     W = model.skeleton.transforms(st.angles, st.scales,
@@ -366,8 +373,11 @@ def score_arm(fit, torso_poses, truth: eb.ArmTruth, *,
 @dataclass(frozen=True, eq=False)
 class TruthFedArm:
     """Notebook 07's arm fit on the truth-fed tracking's arm points: exact torso poses,
-    true joints with noise as the start, the arm's points picked by their true part."""
+    true joints with noise as the start, the arm's points picked by their true part, fitted
+    in the frames where the upper arm and the forearm (with the hand) each have enough
+    points (the system's rule)."""
 
+    frames: np.ndarray
     simplified: object
     full: object
     sigma_mm: float
@@ -381,12 +391,20 @@ def truth_fed_arm(session: ArmWaveSession, tracking: TruthFedTracking, *,
     settings (the same sigma rule, the same rounds)."""
     truth = arm_truth(session)
     init, tracked = eb.initial_state(truth, rng=session.seed, joint_noise_mm=joint_noise_mm)
-    arm = np.isin(tracking.part, [session.scene.body.index(n) for n in ARM_PARTS])
+    s = settings or ArmFitSettings()
+    body = session.scene.body
+    arm = np.isin(tracking.part, [body.index(n) for n in ARM_PARTS])
     X = tracking.filters[-1].trajectories.xyz
-    points = [X[t, arm & np.isfinite(X[t]).all(axis=1)] for t in range(len(X))]
+    present = np.isfinite(X).all(axis=2)
+    points = [X[t, arm & present[t]] for t in range(len(X))]
+    upper = tracking.part == body.index(ARM_PARTS[0])
+    fore = np.isin(tracking.part, [body.index(n) for n in ARM_PARTS[1:]])
+    counts = np.stack([(present & upper).sum(axis=1), (present & fore).sum(axis=1)], axis=1)
+    frames = observed_frames(counts, min_points=s.min_segment_points)
     simple, full, sigma = fit_self_consistent(points, truth.torso_poses, init, tracked=tracked,
-                                              settings=settings)
-    return TruthFedArm(simplified=simple, full=full, sigma_mm=sigma, points=points)
+                                              frames=frames, settings=s)
+    return TruthFedArm(frames=frames, simplified=simple, full=full, sigma_mm=sigma,
+                       points=points)
 
 
 def joint_errors(start, truth: eb.ArmTruth, alignment: Alignment) -> np.ndarray:

@@ -30,7 +30,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .._validate import as_scalar
-from ..body import BodyFit, FitParams, arm_model, fit_sequence
+from ..body import BodyFit, FitParams, ModelState, arm_model, fit_sequence
 from ..body.start import ArmStart, arm_start
 from ..calibration import DEFAULT_INTRINSICS
 from ..noise import NoiseEstimate, temporal_noise
@@ -74,12 +74,17 @@ class ArmFitSettings:
         Segmentation rounds of the full model after the simplified one.
     rigidity_mm : float
         Tolerance of the rigid groups (:func:`~lsmta.tracking.segmentation.rigid_groups`).
+    min_segment_points : int
+        The model is fitted in the frames where the upper arm and the forearm each have at
+        least this many points: without points of its own a segment's angle is free (a
+        forearm that stops being tracked has no elbow angle to recover).
     """
 
     sigma_prior_mm: float = 2.0
     sigma_joint_mm: float = 15.0
     full_rounds: int = 3
     rigidity_mm: float = 4.0
+    min_segment_points: int = 10
 
 
 @dataclass(frozen=True)
@@ -101,7 +106,10 @@ class ArmFit:
     Attributes
     ----------
     start : ArmStart
-        Where the data put the arm: rigid groups, joints, torso poses, the arm's points.
+        Where the data put the arm: rigid groups, joints, torso poses, the arm's points
+        (all frames).
+    frames : (F,) int array
+        The frames fitted (both arm segments tracked); the fits' frame i is ``frames[i]``.
     simplified, full : BodyFit
         The simplified model, then the full model started from it.
     sigma_mm : float
@@ -109,6 +117,7 @@ class ArmFit:
     """
 
     start: ArmStart
+    frames: np.ndarray
     simplified: BodyFit
     full: BodyFit
     sigma_mm: float
@@ -136,6 +145,8 @@ class BodyCapture:
     arm : ArmFit
     seconds : dict of str -> float
         Wall time per stage.
+    params : BodySystemParams
+        The settings it ran with.
     """
 
     cameras: list
@@ -148,6 +159,7 @@ class BodyCapture:
     filters: tuple
     arm: ArmFit
     seconds: dict
+    params: BodySystemParams
 
     @property
     def filtered(self) -> Trajectories:
@@ -170,9 +182,10 @@ class BodyCapture:
                          f"the density check), {int(self.tracks.alive[-1].sum())} alive at "
                          "the end"),
             ("trajectories", f"{int(kept)} of {len(self.trajectories)} kept by the filters"),
-            ("arm model", f"{full.status} after {full.rounds} rounds; bone lengths "
-                          f"{full.lengths[0]:.1f} / {full.lengths[1]:.1f} mm; "
-                          f"sigma {self.arm.sigma_mm:.2f} mm"),
+            ("arm model", f"{full.status.name} after {full.rounds} round(s) in "
+                          f"{len(self.arm.frames)} of {len(self.frames)} frames (both arm "
+                          f"segments tracked); bone lengths {full.lengths[0]:.1f} / "
+                          f"{full.lengths[1]:.1f} mm; sigma {self.arm.sigma_mm:.2f} mm"),
         ]
         return [{"stage": s, "seconds": self.seconds.get(s, float("nan")), "result": r}
                 for s, r in rows]
@@ -238,12 +251,37 @@ def fit_arm(trajectories: Trajectories, cameras, *, template: int = 1,
     centre = np.nanmean(X[:, seen].reshape(-1, 3), axis=0)
     start = arm_start(trajectories, forward=cams[template].C - centre, up=(0.0, 0.0, 1.0),
                       tolerance=s.rigidity_mm, rng=rng)
+    present = np.isfinite(X).all(axis=2)
+    counts = np.stack([(present & (start.groups.label == g)).sum(axis=1)
+                       for g in (start.upper_arm, start.forearm)], axis=1)
+    frames = observed_frames(counts, min_points=s.min_segment_points)
     simple, full, sigma = fit_self_consistent(start.points, start.torso_poses, start.state,
-                                              tracked=start.joints, settings=s)
-    return ArmFit(start=start, simplified=simple, full=full, sigma_mm=sigma)
+                                              tracked=start.joints, frames=frames, settings=s)
+    return ArmFit(start=start, frames=frames, simplified=simple, full=full, sigma_mm=sigma)
 
 
-def fit_self_consistent(points, torso_poses, init, *, tracked=None,
+def observed_frames(counts, *, min_points: int = 10) -> np.ndarray:
+    """Frames in which every segment has at least ``min_points`` points.
+
+    Parameters
+    ----------
+    counts : (T, S) int array
+        Points per frame and segment.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 3 such frames.
+    """
+    counts = np.asarray(counts)
+    frames = np.flatnonzero((counts >= min_points).all(axis=1))
+    if len(frames) < 3:
+        raise ValueError(f"trajectories: every arm segment has >= {min_points} points in only "
+                         f"{len(frames)} of {len(counts)} frames; the arm model needs >= 3")
+    return frames
+
+
+def fit_self_consistent(points, torso_poses, init, *, tracked=None, frames=None,
                         settings: ArmFitSettings | None = None):
     """The simplified model, then the full one, with a point sigma the fit agrees with.
 
@@ -258,6 +296,8 @@ def fit_self_consistent(points, torso_poses, init, *, tracked=None,
     init : ModelState
     tracked : (T, 3, 3) array, optional
         Shoulder, elbow and wrist as observations (the wrist is left out: NaN).
+    frames : sequence of int, optional
+        Fit only these frames (default: all).
     settings : ArmFitSettings, optional
 
     Returns
@@ -266,8 +306,15 @@ def fit_self_consistent(points, torso_poses, init, *, tracked=None,
     """
     s = settings or ArmFitSettings()
     model = arm_model()
+    if frames is not None:
+        frames = np.asarray(frames, int)
+        points = [points[t] for t in frames]
+        torso_poses = np.asarray(torso_poses)[frames]
+        init = ModelState(angles=init.angles[frames], shoulder=init.shoulder[frames],
+                          scales=init.scales, radii=init.radii)
     if tracked is not None:
         tracked = np.array(tracked, float)
+        tracked = tracked if frames is None else tracked[frames]
         tracked[:, 2] = np.nan              # the wrist is a guess, not a measurement
     sigma = as_scalar(s.sigma_prior_mm, "settings.sigma_prior_mm", positive=True)
 
@@ -413,4 +460,4 @@ def capture_body(videos, bar_videos, bar_length: float, nominal_cameras, *, fps:
     return BodyCapture(cameras=st.calibration.cameras, calibration=st.calibration,
                        noise=st.noise, frames=idx, surfaces=st.surfaces, tracks=st.tracks,
                        trajectories=st.trajectories, filters=st.filters, arm=st.arm,
-                       seconds=seconds)
+                       seconds=seconds, params=p)

@@ -89,9 +89,24 @@ class ArmFitSettings:
 
 @dataclass(frozen=True)
 class BodySystemParams:
-    """Settings of :func:`capture_body`, one bundle per stage."""
+    """Settings of :func:`capture_body`, one bundle per stage.
+
+    Attributes
+    ----------
+    intrinsics, bar_sigma, reject_k
+        The calibration (:func:`~lsmta.systems.rig.calibrate_rig`): free interior
+        parameters, the bar length's standard deviation (mm), outlier rejection.
+    surface : SurfaceParams
+    density_every : int
+        Frames between density checks (and so between measured surfaces).
+    tracker : TrackerParams
+    filters : FilterSettings
+    arm : ArmFitSettings
+    """
 
     intrinsics: tuple = DEFAULT_INTRINSICS
+    bar_sigma: float = 0.01
+    reject_k: float | None = None
     surface: SurfaceParams = field(default_factory=SurfaceParams)
     density_every: int = 4
     tracker: TrackerParams = field(default_factory=TrackerParams)
@@ -218,13 +233,12 @@ def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None
     return track_points(videos, start, params=params, new_points=new, progress=progress)
 
 
-def fit_arm(trajectories: Trajectories, cameras, *, template: int = 1,
-            settings: ArmFitSettings | None = None,
+def fit_arm(trajectories: Trajectories, cameras, *, settings: ArmFitSettings | None = None,
             rng: np.random.Generator | int | None = None) -> ArmFit:
     """Fit the arm model to filtered trajectories, started from the data.
 
-    The person is taken to face the ``template`` camera, in a world whose +Z is up (the
-    tape-measured rig's world): that fixes the torso frame's axes
+    The person is taken to face the rig (against the cameras' mean viewing direction), in a
+    world whose +Z is up (the tape-measured rig's world): that fixes the torso frame's axes
     (:func:`~lsmta.body.start.torso_frame`); everything else comes from the trajectories.
 
     Parameters
@@ -232,8 +246,6 @@ def fit_arm(trajectories: Trajectories, cameras, *, template: int = 1,
     trajectories : Trajectories
     cameras : sequence of Camera
         Calibrated cameras in the world of the trajectories.
-    template : int
-        The camera the person faces.
     settings : ArmFitSettings, optional
     rng : numpy.random.Generator, int or None
         For the rigid groups' sample.
@@ -245,11 +257,10 @@ def fit_arm(trajectories: Trajectories, cameras, *, template: int = 1,
     cams = check_cameras(cameras, "cameras")
     s = settings or ArmFitSettings()
     X = np.asarray(trajectories.xyz)
-    seen = np.isfinite(X).all(axis=2).any(axis=0)
-    if not seen.any():
+    if not np.isfinite(X).all(axis=2).any():
         raise ValueError("trajectories: no trajectory has a position")
-    centre = np.nanmean(X[:, seen].reshape(-1, 3), axis=0)
-    start = arm_start(trajectories, forward=cams[template].C - centre, up=(0.0, 0.0, 1.0),
+    facing = -np.mean([c.R[2] for c in cams], axis=0)      # against the viewing direction
+    start = arm_start(trajectories, forward=facing, up=(0.0, 0.0, 1.0),
                       tolerance=s.rigidity_mm, rng=rng)
     present = np.isfinite(X).all(axis=2)
     counts = np.stack([(present & (start.groups.label == g)).sum(axis=1)
@@ -352,8 +363,10 @@ class _State:
 
 
 def _calibration(st: _State) -> None:
+    p = st.params
     st.calibration = calibrate_rig(st.bar_videos, st.bar_length, st.nominal,
-                                   intrinsics=st.params.intrinsics, progress=st.progress)
+                                   intrinsics=p.intrinsics, bar_sigma=p.bar_sigma,
+                                   reject_k=p.reject_k, progress=st.progress)
 
 
 def _image_noise(st: _State) -> None:
@@ -381,8 +394,7 @@ def _trajectories(st: _State) -> None:
 
 def _arm_model(st: _State) -> None:
     st.arm = fit_arm(st.filters[-1].trajectories, st.calibration.cameras,
-                     template=st.params.surface.template, settings=st.params.arm,
-                     rng=st.seed)
+                     settings=st.params.arm, rng=st.seed)
 
 
 STAGES = (("calibration", _calibration), ("image noise", _image_noise),

@@ -276,8 +276,9 @@ def segment_candidates(model: MarkerModel, s: int, Q, D, *, eps: float, beta: fl
     obs, R, t, err, n, ok = _complete(P, base, tr, np.ascontiguousarray(Q, dtype=float), free,
                                       float(eps), float(model.mean_length[s]), float(beta))
     keep = np.flatnonzero(ok)
-    if len(keep):
-        _, first = np.unique(obs[keep], axis=0, return_index=True)
+    if len(keep):                                       # each match once: rows as keys
+        key = ((obs[keep] + 1) * (N + 1) ** np.arange(len(m))).sum(axis=1)
+        _, first = np.unique(key, return_index=True)
         keep = keep[first]
         keep = keep[np.lexsort((err[keep], -n[keep]))][:limit]
     return Candidates(obs=obs[keep], R=R[keep], t=t[keep], err=err[keep], n=n[keep])

@@ -20,30 +20,50 @@ is dropped and the tree is solved again.
 
 from __future__ import annotations
 
+import numba as nb
 import numpy as np
 
 from .candidates import Candidates, segment_candidates
 from .model import MarkerModel
 
 
-def _usage(obs, n: int) -> np.ndarray:
-    """(K, W) uint64 bit sets: which of the n observed points each match (K, m) uses."""
-    U = np.zeros((len(obs), (n + 63) // 64), np.uint64)
-    k, i = np.nonzero(obs >= 0)
-    q = obs[k, i]
-    np.bitwise_or.at(U, (k, q // 64), np.left_shift(np.uint64(1), (q % 64).astype(np.uint64)))
-    return U
-
-
-def _overlap(A, B) -> np.ndarray:
-    """(Ka, Kb) bool: bit sets of A (Ka, W) and B (Kb, W) that share a bit."""
-    return (np.bitwise_and(A[:, None], B[None]) != 0).any(axis=2)
+@nb.njit(cache=True)
+def _pair_kernel(op, oc, sp, sc, a, b, limit, penalty):
+    """(Kp, Kc) scores from the matches' points: ``op``, ``oc`` the parent's and child's
+    points of their own (not shared) markers, ``sp``, ``sc`` the points of the shared
+    markers in the same order (-1: none), ``a``, ``b`` the joint carried by each."""
+    Kp, Kc = len(op), len(oc)
+    out = np.empty((Kp, Kc))
+    for i in range(Kp):
+        for j in range(Kc):
+            bad = False
+            for x in range(sp.shape[1]):                    # shared: the same points
+                if sp[i, x] >= 0 and sc[j, x] >= 0 and sp[i, x] != sc[j, x]:
+                    bad = True
+            for u in range(op.shape[1] + sp.shape[1]):       # no point used twice
+                q = op[i, u] if u < op.shape[1] else sp[i, u - op.shape[1]]
+                if q < 0 or bad:
+                    continue
+                for v in range(oc.shape[1] + sc.shape[1]):
+                    r = oc[j, v] if v < oc.shape[1] else sc[j, v - oc.shape[1]]
+                    if r == q and (u < op.shape[1] or v < oc.shape[1]
+                                   or u - op.shape[1] != v - oc.shape[1]):
+                        bad = True
+                        break
+            if bad:
+                out[i, j] = -np.inf
+                continue
+            gap = np.sqrt((a[i, 0] - b[j, 0]) ** 2 + (a[i, 1] - b[j, 1]) ** 2
+                          + (a[i, 2] - b[j, 2]) ** 2)
+            out[i, j] = -penalty if gap > limit else -0.5 * gap / limit
+    return out
 
 
 def _pair(model: MarkerModel, p: int, c: int, cp: Candidates, cc: Candidates, eps,
-          penalty: float, n: int):
-    """(Kp, Kc) pair scores of parent ``p`` and child ``c`` (-inf: incompatible; a joint
-    gap beyond its limit costs ``penalty``); ``n`` observed points."""
+          penalty: float):
+    """(Kp, Kc) pair scores of parent ``p`` and child ``c`` (-inf: incompatible, their
+    matches use a point twice or disagree on a shared marker; a joint gap beyond its limit
+    costs ``penalty``)."""
     J, shared, tol = model.link(p, c)
     mp, mc = model.members[p], model.members[c]
     jp = np.array([int(np.flatnonzero(mp == j)[0]) for j in shared], int)
@@ -51,22 +71,15 @@ def _pair(model: MarkerModel, p: int, c: int, cp: Candidates, cc: Candidates, ep
     limit = tol + 2 * eps[p] * model.mean_length[p] + 2 * eps[c] * model.mean_length[c]
     a = np.einsum("kij,j->ki", cp.R, J) + cp.t
     b = np.einsum("kij,j->ki", cc.R, J) + cc.t
-    gap = np.linalg.norm(a[:, None] - b[None], axis=-1)
-    score = np.where(gap > limit, -penalty, -0.5 * gap / limit)
-    Up = _usage(np.delete(cp.obs, jp, axis=1), n)
-    Uc = _usage(np.delete(cc.obs, jc, axis=1), n)
-    Sp, Sc = _usage(cp.obs[:, jp], n), _usage(cc.obs[:, jc], n)
-    # no point used by both, and a shared marker's point is no other marker of the other
-    bad = _overlap(Up, Uc) | _overlap(Sp, Uc) | _overlap(Up, Sc)
-    for x, y in zip(jp, jc):                               # shared markers: the same points
-        a_, b_ = cp.obs[:, x][:, None], cc.obs[:, y][None]
-        bad |= (a_ >= 0) & (b_ >= 0) & (a_ != b_)
-    return np.where(bad, -np.inf, score)
+    return _pair_kernel(np.ascontiguousarray(np.delete(cp.obs, jp, axis=1)),
+                        np.ascontiguousarray(np.delete(cc.obs, jc, axis=1)),
+                        np.ascontiguousarray(cp.obs[:, jp]), np.ascontiguousarray(cc.obs[:, jc]),
+                        a, b, float(limit), float(penalty))
 
 
-def pair_scores(model: MarkerModel, cands: list, eps, *, penalty: float, n: int) -> dict:
+def pair_scores(model: MarkerModel, cands: list, eps, *, penalty: float) -> dict:
     """Pair scores of every link, {(parent, child): (Kp, Kc)}."""
-    return {(int(p), c): _pair(model, int(p), c, cands[p], cands[c], eps, penalty, n)
+    return {(int(p), c): _pair(model, int(p), c, cands[p], cands[c], eps, penalty)
             for c, p in enumerate(model.parent) if p >= 0}
 
 
@@ -150,7 +163,7 @@ def tree_search(model: MarkerModel, Q, eps, *, beta: float, limit: int, free=Non
     D = np.linalg.norm(Q[:, None] - Q[None], axis=-1)
     cands = [segment_candidates(model, s, Q, D, eps=eps[s], beta=beta, limit=limit, free=free)
              for s in range(model.n_segments)]
-    pairs = pair_scores(model, cands, eps, penalty=penalty, n=len(Q))
+    pairs = pair_scores(model, cands, eps, penalty=penalty)
     choice, rounds = configure(model, cands, eps, pairs)
     return labelled_points(model, cands, choice, len(Q)), choice, cands, rounds
 
@@ -163,3 +176,76 @@ def labelled_points(model: MarkerModel, cands: list, choice, n: int) -> np.ndarr
             o = cands[s].obs[k]
             labels[o[o >= 0]] = model.members[s][o >= 0]
     return labels
+
+
+def complete_partial(model: MarkerModel, Q, eps, cands: list, choice, labels, *,
+                     beta: float):
+    """Our last step: a segment left out, one of whose markers is missing, is matched on
+    the two markers it has and the joint with a found neighbour (the neighbour's motion
+    carries the joint): pairs of free points at the model's distance from each other and
+    from the joint, fitted rigidly with the joint as a third point (Eq. 2 on the pair,
+    the joint within its limit). Only joints the training clip fixed (``joint_prior`` at
+    most 0.5) are used; a match is accepted only where exactly one assignment passes, and
+    only where two markers are more than ``beta`` of the segment (a 3-marker segment at the
+    tree search's β of 0.5). Returns the updated labels (n,) and {segment:
+    (R, t, err, matched)} of the segments completed."""
+    labels = labels.copy()
+    out = {}
+    for s in range(model.n_segments):
+        m = model.members[s]
+        if choice[s] >= 0 or not 2 > beta * len(m):
+            continue
+        for f in model.neighbours[s]:
+            J, shared, tol = model.link(s, f)
+            child = s if model.parent[s] == f else f
+            if choice[f] < 0 or len(shared) or model.joint_prior[child] > 0.5:
+                continue
+            c = cands[f]
+            V = c.R[choice[f]] @ J + c.t[choice[f]]
+            found = _pair_with_joint(model, s, Q, labels < 0, V, J,
+                                     tol + 2 * eps[s] * model.mean_length[s], eps[s])
+            if found is not None:
+                (a, i), (b, j), R, t, err = found
+                labels[[i, j]] = m[[a, b]]
+                out[s] = (R, t, err, 2)
+                break
+    return labels, out
+
+
+def _pair_with_joint(model, s, Q, free, V, J, limit, eps):
+    """The unique (marker, point) pair assignment of segment ``s`` around the joint image
+    ``V``, or None."""
+    m = model.members[s]
+    P = model.points[m]
+    lbar = model.mean_length[s]
+    idx = np.flatnonzero(free)
+    if len(idx) < 2:
+        return None
+    reach = np.linalg.norm(P - J, axis=1)
+    dist = np.linalg.norm(Q[idx] - V, axis=1)
+    near = np.abs(dist[None] - reach[:, None]) <= limit                  # (m, n)
+    D = np.linalg.norm(Q[idx][:, None] - Q[idx][None], axis=-1)
+    hits = []
+    for a in range(len(m)):
+        for b in range(a + 1, len(m)):
+            dab = np.linalg.norm(P[a] - P[b])
+            ii, jj = np.nonzero(near[a][:, None] & near[b][None]
+                                & (np.abs(D - dab) < 2 * eps * dab))
+            for i, j in zip(ii, jj):
+                src = np.stack([P[a], P[b], J])
+                dst = np.stack([Q[idx[i]], Q[idx[j]], V])
+                R, t = _rigid3(src, dst)
+                r = np.linalg.norm(src @ R.T + t - dst, axis=1)
+                if r[:2].mean() < eps * lbar and r[2] <= limit:
+                    hits.append(((a, idx[i]), (b, idx[j]), R, t, float(r[:2].mean() / lbar)))
+    points = {frozenset((h[0][1], h[1][1])) for h in hits}
+    return hits[0] if len(points) == 1 and len({(h[0], h[1]) for h in hits}) == 1 else None
+
+
+def _rigid3(src, dst):
+    """Least-squares rigid motion of three points (Kabsch)."""
+    ps, pd = src.mean(axis=0), dst.mean(axis=0)
+    U, _, Vt = np.linalg.svd((src - ps).T @ (dst - pd))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0])
+    R = Vt.T @ D @ U.T
+    return R, pd - R @ ps

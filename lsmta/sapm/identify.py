@@ -28,7 +28,7 @@ from scipy.optimize import linear_sum_assignment
 
 from .._validate import as_points, as_rng, as_scalar
 from ..rigid import apply_rigid, fit_one
-from .configuration import tree_search
+from .configuration import complete_partial, tree_search
 from .model import MarkerModel
 
 
@@ -551,6 +551,7 @@ def _tree_identify(model, Q, keep, bad, params, t0) -> Identification:
     lab, choice, cands, rounds = tree_search(model, Q[keep], eps, beta=params.beta,
                                              limit=params.max_candidates,
                                              penalty=params.link_penalty)
+    lab, partial = complete_partial(model, Q[keep], eps, cands, choice, lab, beta=params.beta)
     S = model.n_segments
     labels = np.full(len(Q), -1)
     labels[keep] = lab
@@ -560,7 +561,9 @@ def _tree_identify(model, Q, keep, bad, params, t0) -> Identification:
         if k >= 0:
             R[s], t[s], err[s], matched[s] = cands[s].R[k], cands[s].t[k], cands[s].err[k], \
                 cands[s].n[k]
-    return Identification(labels=labels, found=choice >= 0, rotation=R, translation=t,
+    for s, (Rs, ts, es, ns) in partial.items():
+        R[s], t[s], err[s], matched[s] = Rs, ts, es, ns
+    return Identification(labels=labels, found=matched > 0, rotation=R, translation=t,
                           mean_error=err, matched=matched, dropped=np.flatnonzero(bad),
                           tables=sum(len(c) for c in cands), fits=0, backtracks=rounds - 1,
                           seconds=time.perf_counter() - t0)

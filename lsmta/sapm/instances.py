@@ -100,7 +100,7 @@ def identify_instances(model: MarkerModel, observed, *, n_instances: int | None 
     cands = [segment_candidates(model, s, Qk, D, eps=eps[s], beta=params.beta,
                                 limit=params.max_candidates * most)
              for s in range(model.n_segments)]
-    pairs = pair_scores(model, cands, eps, penalty=params.link_penalty, n=len(Qk))
+    pairs = pair_scores(model, cands, eps, penalty=params.link_penalty)
     used = np.zeros(len(Qk), bool)
     labels = np.full(len(Qk), -1)
     instance = np.full(len(Qk), -1)

@@ -187,8 +187,10 @@ class Link(NamedTuple):
     """A learned link: the mean relative motion child -> parent shape coordinates
     (``R``, ``t``), assembled at the ``joint`` (parent's shape coordinates, mm) with its
     ``tolerance`` (mm); ``gap`` is the RMS distance between the joint's two images over
-    the clip, ``closest`` the distance of the closest pair across the link (mm) and
-    ``turn`` the largest angle by which the link turned away from its mean (degrees)."""
+    the clip, ``closest`` the distance of the closest pair across the link (mm),
+    ``turn`` the largest angle by which the link turned away from its mean (degrees) and
+    ``prior`` the share of the one-frame estimate left in the joint where the clip fixes it
+    least (0: fixed by the clip's motion, 1: the one-frame estimate)."""
 
     R: np.ndarray
     t: np.ndarray
@@ -197,6 +199,7 @@ class Link(NamedTuple):
     gap: float
     closest: float
     turn: float
+    prior: float
 
 
 def learn_link(shape_p, pose_p, shape_c, pose_c, shared_p, shared_c, params: LearnParams) -> Link:
@@ -214,7 +217,7 @@ def learn_link(shape_p, pose_p, shape_c, pose_c, shared_p, shared_c, params: Lea
     if len(shared_p):
         cp, cc = shape_p[shared_p], shape_c[shared_c]
         return Link(R=R, t=(cp - cc @ R.T).mean(axis=0), joint=cp.mean(axis=0), tolerance=0.0,
-                    gap=0.0, closest=0.0, turn=turn)
+                    gap=0.0, closest=0.0, turn=turn, prior=0.0)
     t0 = np.einsum("tji,tj->ti", Rp, tc - tp).mean(axis=0)
     # the one-frame estimate on the mean relative placement: the closest pair's midpoint
     placed = shape_c @ R.T + t0
@@ -234,17 +237,19 @@ def learn_link(shape_p, pose_p, shape_c, pose_c, shared_p, shared_c, params: Lea
     kept = lam / (lam + np.linalg.eigvalsh(N)[1])
     return Link(R=R, t=c[:3] - R @ c[3:], joint=c[:3],
                 tolerance=max(params.margin * gap.max(), 2 * kept * tol0),
-                gap=float(np.sqrt(np.mean(gap ** 2))), closest=float(tol0), turn=turn)
+                gap=float(np.sqrt(np.mean(gap ** 2))), closest=float(tol0), turn=turn,
+                prior=float(kept))
 
 
 def _model_pose(X, members, parent, order, names, params: LearnParams):
     """Mean shapes placed down the tree, assembled at the joints: the model points (M, 3),
-    the joints of links without shared markers (name -> (3,)), their tolerances, and the
-    least any of a segment's links turned (S,) degrees."""
+    the joints of links without shared markers (name -> (3,)), their tolerances and the
+    share of the one-frame prior left in them, and the least any of a segment's links
+    turned (S,) degrees."""
     shapes = [mean_shape(X[:, m], params.n_iter, names[s]) for s, m in enumerate(members)]
     poses = [segment_poses(shapes[s], X[:, m])[:2] for s, m in enumerate(members)]
     place = {order[0]: (np.eye(3), np.zeros(3))}
-    joints, tolerances = {}, {}
+    joints, tolerances, priors = {}, {}, {}
     turn = np.full(len(members), np.inf)
     for c in order[1:]:
         p = parent[c]
@@ -261,13 +266,14 @@ def _model_pose(X, members, parent, order, names, params: LearnParams):
         turn[[p, c]] = np.minimum(turn[[p, c]], link.turn)
         if not len(common):
             joints[names[c]], tolerances[names[c]] = Rp @ link.joint + tp, link.tolerance
+            priors[names[c]] = link.prior
     M = X.shape[1]
     total, count = np.zeros((M, 3)), np.zeros(M)
     for s, m in enumerate(members):
         Rs, ts = place[s]
         np.add.at(total, m, shapes[s] @ Rs.T + ts)
         np.add.at(count, m, 1)
-    return total / count[:, None], joints, tolerances, turn
+    return total / count[:, None], joints, tolerances, priors, turn
 
 
 def learn_model(cls, labels, points, segments, parents, *, params=None):
@@ -280,7 +286,7 @@ def learn_model(cls, labels, points, segments, parents, *, params=None):
     labels, X = check_clip(labels, points)
     names, members, parent = definition(labels, segments, parents)
     order = _tree_order(parent, int(np.flatnonzero(parent < 0)[0]))
-    P, joints, tolerances, turn = _model_pose(X, members, parent, order, names, params)
+    P, joints, tolerances, priors, turn = _model_pose(X, members, parent, order, names, params)
     lbar = cls._build(labels, P, names, members, parent, joints).mean_length
     eps = np.empty(len(names))
     for s, m in enumerate(members):
@@ -290,7 +296,7 @@ def learn_model(cls, labels, points, segments, parents, *, params=None):
         floor = params.eps_min if turn[s] >= params.turned else params.eps_floor
         eps[s] = np.clip(params.margin * ebar.max() / lbar[s], floor, params.eps_ceiling)
     return cls._build(labels, P, names, members, parent, joints, tolerances=tolerances,
-                      eps=eps)
+                      priors=priors, eps=eps)
 
 
 def _tree_order(parent, root):

@@ -45,6 +45,10 @@ class MarkerModel:
         How far, mm, the estimated joint may be from the true centre of rotation: 0 for
         shared markers, else the distance between the closest pair the estimate came from
         (or, for a model learned from a clip, the joint's learned spread).
+    joint_prior : (S,) array
+        For a joint without shared markers, the share of the one-frame estimate left in it
+        where the clip fixes it least: 1 for a model from one frame, near 0 where the clip
+        turned the link enough to find its centre; 0 for shared markers and the root.
     eps : (S,) array
         Each segment's own tolerable distortion ε_s of Eq. 2 (a fraction of its l̄_s),
         learned from a clip (:meth:`from_labelled_frames`); NaN where the search's
@@ -59,6 +63,7 @@ class MarkerModel:
     joint: np.ndarray
     shared: tuple
     joint_tolerance: np.ndarray
+    joint_prior: np.ndarray
     eps: np.ndarray
 
     # ------------------------------------------------------------------ construction
@@ -134,10 +139,11 @@ class MarkerModel:
 
     @classmethod
     def _build(cls, labels, points, names, members, parent, joints, *, tolerances=None,
-               eps=None):
+               priors=None, eps=None):
         """The model from checked parts. ``joints``: segment name -> joint position for
-        links without shared markers (``tolerances``: name -> its tolerance, default 0);
-        ``eps``: (S,) learned ε_s (default NaN: the search's ε)."""
+        links without shared markers (``tolerances``: name -> its tolerance, default 0;
+        ``priors``: name -> the share of the one-frame estimate left in it, default 0 for a
+        given joint); ``eps``: (S,) learned ε_s (default NaN: the search's ε)."""
         S = len(names)
         owner = {}
         for s, m in enumerate(members):
@@ -154,7 +160,9 @@ class MarkerModel:
         joint = np.full((S, 3), np.nan)
         shared = [np.zeros(0, int) for _ in range(S)]
         tol = np.zeros(S)
+        prior = np.zeros(S)
         tolerances = {} if tolerances is None else tolerances
+        priors = {} if priors is None else priors
         for s in range(S):
             p = parent[s]
             if p < 0:
@@ -165,18 +173,20 @@ class MarkerModel:
             elif names[s] in joints:
                 joint[s] = as_array(joints[names[s]], f"joints[{names[s]!r}]", shape=(3,))
                 tol[s] = tolerances.get(names[s], 0.0)
+                prior[s] = priors.get(names[s], 0.0)
             else:
                 a, b = points[members[s]], points[members[p]]
                 d = np.linalg.norm(a[:, None] - b[None], axis=-1)
                 i, j = np.unravel_index(np.argmin(d), d.shape)
                 joint[s] = 0.5 * (a[i] + b[j])
                 tol[s] = d[i, j]
+                prior[s] = 1.0
         eps = np.full(S, np.nan) if eps is None else np.asarray(eps, float).copy()
-        for arr in (points, parent, joint, tol, eps, *shared):
+        for arr in (points, parent, joint, tol, prior, eps, *shared):
             arr.setflags(write=False)
         return cls(labels=tuple(labels), points=points, segments=tuple(names),
                    members=tuple(np.asarray(m) for m in members), parent=parent, joint=joint,
-                   shared=tuple(shared), joint_tolerance=tol, eps=eps)
+                   shared=tuple(shared), joint_tolerance=tol, joint_prior=prior, eps=eps)
 
     # ------------------------------------------------------------------ derived structure
     @property

@@ -163,13 +163,26 @@ def _core(X, complete, n_components, variance, scale) -> GapFill:
     return GapFill(frames=out, n_components=k, observed=obs, fitted=fitted)
 
 
+def _top(cov, k=None):
+    """Eigenvectors (columns) and square-rooted eigenvalues of a symmetric matrix, largest
+    first (the right singular vectors and singular values of the data behind it)."""
+    ev, V = np.linalg.eigh(cov)
+    return V[:, ::-1], np.sqrt(np.maximum(ev[::-1], 0.0))
+
+
 def _weighted(X, complete, n_components, variance, sigma, missing_weight) -> GapFill:
-    """Gløersen & Federolf (2016), strategy R1 per pattern of missing markers."""
+    """Gløersen & Federolf (2016), strategy R1 per pattern of missing markers. The two PCAs
+    come from one covariance of the complete frames, carried to each pattern's moving
+    coordinates, normalisation and weights (the same components as an SVD of the
+    normalised frames, at the cost of a 3M x 3M eigendecomposition)."""
     T, M, _ = X.shape
     obs = _observed(X)
     out = X.copy()
     fitted = obs.all(axis=1).copy()
     dist = np.linalg.norm(complete[:, :, None] - complete[:, None], axis=-1).mean(axis=0)
+    C = complete.reshape(len(complete), 3 * M)
+    mu_x = C.mean(axis=0)
+    cov_x = (C - mu_x).T @ (C - mu_x) / len(C)
     todo = ~obs.all(axis=1) & (obs.sum(axis=1) >= 1)
     patterns, which = np.unique(obs[todo], axis=0, return_inverse=True)
     frames_todo = np.flatnonzero(todo)
@@ -177,31 +190,31 @@ def _weighted(X, complete, n_components, variance, sigma, missing_weight) -> Gap
     for p, seen in enumerate(patterns):
         rows = frames_todo[which.ravel() == p]
         miss = ~seen
-        # a coordinate system moving with the subject: the observed markers' centroid
-        N = complete - complete[:, seen].mean(axis=1, keepdims=True)
-        G = X[rows] - X[rows][:, seen].mean(axis=1, keepdims=True)
+        cols = np.repeat(miss, 3)
+        # a coordinate system moving with the subject: minus the observed markers' centroid
+        A = np.eye(3 * M) - np.kron(np.outer(np.ones(M), seen / seen.sum()), np.eye(3))
+        mu = A @ mu_x
+        cov = A @ cov_x @ A.T
+        sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        sd[sd < 1e-9] = 1.0
         w = np.exp(-dist[miss].min(axis=0) ** 2 / (2 * sigma ** 2))
         w[miss] = missing_weight
         w3 = np.repeat(w, 3)
-        cols = np.repeat(miss, 3)
-        Nf = N.reshape(len(N), 3 * M)
-        mu = Nf.mean(axis=0)
-        sd = Nf.std(axis=0)
-        sd[sd < 1e-9] = 1.0
-        Z = (Nf - mu) / sd * w3
-        Nz = np.where(cols, 0.0, Nf)
-        mz = Nz.mean(axis=0)
-        Zz = (Nz - mz) / sd * w3
-        Gz = (np.where(cols, 0.0, G.reshape(len(rows), 3 * M)) - mz) / sd * w3
-        _, s_full, Vt_full = np.linalg.svd(Z / np.sqrt(len(Z) - 1), full_matrices=False)
-        _, s_zero, Vt_zero = np.linalg.svd(Zz / np.sqrt(len(Z) - 1), full_matrices=False)
+        d = w3 / sd
+        cov_z = cov * np.outer(d, d)                       # the weighted, normalised frames
+        cov_zz = np.where(cols[:, None] | cols[None], 0.0, cov_z)   # ... missing columns zeroed
+        mz = np.where(cols, 0.0, mu)
+        G = X[rows] - X[rows][:, seen].mean(axis=1, keepdims=True)
+        Gz = (np.where(cols, 0.0, G.reshape(len(rows), 3 * M)) - mz) * d
+        V_full, s_full = _top(cov_z)
+        V_zero, s_zero = _top(cov_zz)
         k = max(_n_kept(s_full, variance), _n_kept(s_zero, variance)) \
             if n_components is None else int(n_components)
-        k = min(k, len(s_full), 3 * int(seen.sum()))
+        k = min(k, len(C), 3 * M, 3 * int(seen.sum()))
         most = max(most, k)
-        Vf, Vz = Vt_full[:k].T, Vt_zero[:k].T
+        Vf, Vz = V_full[:, :k], V_zero[:, :k]
         R = Gz @ Vz @ (Vf.T @ Vz) @ Vf.T
-        filled = (mu + R * sd / w3).reshape(len(rows), M, 3)
+        filled = (mu + R / d).reshape(len(rows), M, 3)
         filled += X[rows][:, seen].mean(axis=1, keepdims=True)
         out[np.ix_(rows, np.flatnonzero(miss))] = filled[:, miss]
         fitted[rows] = True

@@ -131,7 +131,8 @@ class Identification:
         Rows of ``observed`` that held NaN and were left out.
     tables, fits, backtracks : int
         Search effort: candidate tables tried, rigid fits computed, and segment matches
-        undone because the segment's children failed.
+        undone because the segment's children failed. The tree search reports the whole
+        matches it found, 0, and the rounds it took to settle clashes beyond the first.
     seconds : float
         Wall time of the search.
     """

@@ -496,6 +496,16 @@ class _Search:
                     self.solve(s, -1)
 
 
+def checked_params(model, params) -> SAPMParams:
+    """``params`` (default ``SAPMParams()``) after checking it and ``model``."""
+    if not isinstance(model, MarkerModel):
+        raise TypeError(f"model: expected a MarkerModel, got {type(model).__name__}")
+    params = SAPMParams() if params is None else params
+    if not isinstance(params, SAPMParams):
+        raise TypeError(f"params: expected an SAPMParams, got {type(params).__name__}")
+    return params
+
+
 def identify(model: MarkerModel, observed, *, params: SAPMParams | None = None,
              rng: np.random.Generator | int | None = None) -> Identification:
     """Label an unlabelled 3-D marker pose with SAPM.
@@ -518,11 +528,7 @@ def identify(model: MarkerModel, observed, *, params: SAPMParams | None = None,
     -------
     Identification
     """
-    if not isinstance(model, MarkerModel):
-        raise TypeError(f"model: expected a MarkerModel, got {type(model).__name__}")
-    params = SAPMParams() if params is None else params
-    if not isinstance(params, SAPMParams):
-        raise TypeError(f"params: expected an SAPMParams, got {type(params).__name__}")
+    params = checked_params(model, params)
     Q = as_points(observed, "observed", allow_nan=True)
     if rng is not None:
         rng = as_rng(rng)

@@ -22,7 +22,7 @@ import numpy as np
 from .._validate import as_points, as_scalar
 from .candidates import segment_candidates
 from .configuration import configure, labelled_points, pair_scores
-from .identify import SAPMParams
+from .identify import SAPMParams, checked_params
 from .model import MarkerModel
 
 
@@ -77,11 +77,7 @@ def identify_instances(model: MarkerModel, observed, *, n_instances: int | None 
     -------
     Instances
     """
-    if not isinstance(model, MarkerModel):
-        raise TypeError(f"model: expected a MarkerModel, got {type(model).__name__}")
-    params = SAPMParams() if params is None else params
-    if not isinstance(params, SAPMParams):
-        raise TypeError(f"params: expected an SAPMParams, got {type(params).__name__}")
+    params = checked_params(model, params)
     min_share = as_scalar(min_share, "min_share", positive=True)
     if min_share > 1:
         raise ValueError(f"min_share: expected a share in (0, 1], got {min_share}")

@@ -519,7 +519,8 @@ def identify(model: MarkerModel, observed, *, params: SAPMParams | None = None,
         Rows holding NaN are dropped and reported in ``Identification.dropped``. Not
         modified.
     params : SAPMParams, optional
-        ε (Eq. 2), β (Eq. 3) and the search's limits.
+        ε (Eq. 2), β (Eq. 3), the search (the paper's depth-first one or our tree search)
+        and its limits.
     rng : numpy.random.Generator, int or None
         Randomises the choice of pivots for segments searched from scratch (the paper's
         "arbitrary" pivot); ``None`` takes them in model order.

@@ -7,17 +7,21 @@ frame. From the clip (T, M, 3), with NaN gaps, :func:`learn_model` learns
   three of its markers are seen (a marker's position is the mean of its aligned positions
   over the frames that see it);
 * the **model pose**: the root's shape, and down the tree each child carried by the mean
-  relative motion parent -> child over the clip (chordal mean of the rotations); a marker
+  relative motion parent -> child over the clip (chordal mean of the rotations), placed so
+  that its joint with the parent coincides in both (*assembled at the joint*); a marker
   shared by two segments sits at the mean of its two placements;
-* each segment's **rigidity tolerance** ε_s: Eq. 2's ē_s of every training frame against
-  the model's shape, ``ε_s = max(eps_floor, margin · max_t ē_s(t))``;
-* the **joints** of links without shared markers: the point fixed in both segments over
-  the clip (SCoRE, as :func:`lsmta.body.joints.functional_joint`) in model coordinates,
-  pulled towards the one-frame estimate (the midpoint of the closest pair across the link)
-  with the weight of ``joint_rotation`` of relative rotation per frame, so that a clip in
-  which the link hardly turns keeps the one-frame estimate. Its tolerance is ``margin`` times
-  the largest distance between the joint's two images (one carried by each segment) over
-  the clip, and at least the share of the one-frame tolerance the clip could not remove.
+* each segment's **rigidity tolerance**: Eq. 2's ē_s(t) of every training frame against the
+  model's shape, ``ε_s = clip(margin · max_t ē_s(t), floor, eps_ceiling)``; the floor is
+  ``eps_min`` if every link of the segment turned by at least ``turned`` degrees in the clip
+  (the clip shows the deformation the joints cause), else ``eps_floor``;
+* the **joints** of links without shared markers: the point fixed in both segments over the
+  clip (SCoRE, as :func:`lsmta.body.joints.functional_joint`), pulled towards the one-frame
+  estimate (the midpoint of the closest pair across the link, ``d0`` apart) with the weight
+  of every frame turning the link by ``joint_rotation``, so that a clip in which the link
+  hardly turns keeps the one-frame estimate. ``joint_prior`` is the share of that estimate
+  left where the clip fixes the joint least but one (a hinge leaves the centre free along
+  its axis); the tolerance is ``max(margin · max_t gap(t), 2 · joint_prior · d0)``, gap the
+  distance between the joint's two images (one carried by each segment).
 """
 
 from __future__ import annotations
@@ -257,9 +261,8 @@ def _model_pose(X, members, parent, order, names, params: LearnParams):
             raise ValueError(f"points: segments {names[p]!r} and {names[c]!r} (a link of "
                              f"parents) are never both seen (3 markers each) in one frame")
         common = np.intersect1d(members[p], members[c])
-        rows_p = np.searchsorted(members[p], common, sorter=np.argsort(members[p]))
-        rows_p = np.argsort(members[p])[rows_p]
-        rows_c = np.array([int(np.flatnonzero(members[c] == i)[0]) for i in common], int)
+        rows_p, rows_c = (np.array([int(np.flatnonzero(m == i)[0]) for i in common], int)
+                          for m in (members[p], members[c]))
         link = learn_link(shapes[p], poses[p], shapes[c], poses[c], rows_p, rows_c, params)
         Rp, tp = place[p]
         place[c] = (Rp @ link.R, Rp @ link.t + tp)

@@ -1,10 +1,13 @@
 """The articulated marker model of SAPM (Li & Holstein 2002, Section 2).
 
 Labelled points with model coordinates, grouped into segments; the segments form a tree.
-Where a parent and a child share a marker (a joint marker) that label belongs to both.
-Where they share none, as with cluster marker sets, the joint is estimated from the model
-frame (the midpoint of the closest pair of markers across the two segments) and carries a
-tolerance, so that a child can still be searched near its parent.
+Where a parent and a child share markers (joint markers: one, or a pair such as two wrist
+markers) those labels belong to both. Where they share none, as with cluster marker sets,
+the joint is estimated from the model frame (the midpoint of the closest pair of markers
+across the two segments) and carries a tolerance, so that a child can still be searched
+near its parent. A model comes from one clear frame, as in the paper, or is learned from a
+labelled clip (:meth:`MarkerModel.from_labelled_frames`, :mod:`lsmta.sapm.learning`), which
+also gives every segment its own tolerance ε_s and finds the joints from the motion.
 """
 
 from __future__ import annotations

@@ -213,3 +213,23 @@ def test_bad_input_gets_clear_errors():
         suggest_segments(labels, clip, groups={"x": ["a0", "a1", "a2"], "y": ["a2", "b0", "b1"]})
     with pytest.raises(ValueError, match="n_instances"):
         identify_instances(model, clip[0], n_instances=0)
+
+
+def test_real_recording_protocol_and_scores():
+    from lsmta.evaluation import marker_recordings as mr
+
+    rec = mr.load_recording("racing", step=50)
+    assert rec.n_train == 70 and rec.frames[0] == 70 and np.all(np.diff(rec.frames) == 50)
+    assert not any(k.startswith("Probe") for k in rec.labels)      # absent from every frame
+    model, segments = mr.learned_model(rec)
+    assert "Sternum" not in model.labels                           # too rare in the clip
+    before = rec.points.copy()
+    trials = mr.recording_trials(model, rec, params=TREE, rng=1)
+    np.testing.assert_array_equal(rec.points, before)
+    present = np.isfinite(rec.points[rec.frames]).all(axis=2)
+    np.testing.assert_array_equal(trials.points, present.sum(axis=1))
+    assert (trials.correct <= trials.markers).all() and (trials.given[~present] == -2).all()
+    s = trials.summary()
+    assert s["correct"] > 0.9 and s["wrong"] < 0.02
+    with pytest.raises(ValueError, match="name"):
+        mr.load_recording("golf")

@@ -4,15 +4,15 @@ Section 3.1, vectorised).
 The paper builds a candidate table per assumed pivot and tries trial correspondences one
 by one. Here the same tests run for all pivots together:
 
-1. a **base triple** of the segment's markers (the largest triangle, and for segments of
-   four or more markers also the largest triangle without each of its corners, so that any
-   one missing marker is survived) is matched to every ordered triple of observed points
-   whose three distances agree with the model's to within 2ε of each distance (Eq. 4's
-   relative test, applied to all three sides);
-2. each triple gives a rigid motion (batched SVD fits) and is kept as a partial match if
-   its mean residual passes Eq. 2; the segment's markers are carried by the motion and each
-   takes the closest observed point within 2 ε l̄_s (Eq. 5); the motion is refitted to all
-   markers matched (twice);
+1. a **base triple** of the segment's markers (:attr:`MarkerModel.base_triples`: the
+   largest triangle, and for segments of four or more markers also the largest triangle
+   without each of its corners, so that any one missing marker is survived) is matched to
+   every ordered triple of observed points whose three distances agree with the model's
+   to within 2ε of each distance (Eq. 4's relative test, applied to all three sides);
+2. each triple gives a rigid motion (Horn's quaternion fit, compiled) and is kept as a
+   partial match if its mean residual passes Eq. 2; the segment's markers are carried by
+   the motion and each takes the closest observed point within 2 ε l̄_s (Eq. 5); the motion
+   is refitted to all markers matched (twice);
 3. a match is kept if it passes the matching-quality (Eq. 2, ē_s < ε_s) and size tests
    (Eq. 3, more than β·M_s markers). Identical matches found from several triples are kept
    once.
@@ -21,7 +21,6 @@ by one. Here the same tests run for all pivots together:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from itertools import combinations
 
 import numba as nb
 import numpy as np
@@ -53,33 +52,6 @@ class Candidates:
 
     def __len__(self) -> int:
         return len(self.err)
-
-
-def base_triples(points) -> list[tuple[int, int, int]]:
-    """Rows of ``points`` (m, 3) to start matches from: the largest triangle and, for four
-    or more points, the largest triangle without each of its corners."""
-    m = len(points)
-    tri = list(combinations(range(m), 3))
-    area = np.array([np.linalg.norm(np.cross(points[b] - points[a], points[c] - points[a]))
-                     for a, b, c in tri])
-    order = np.argsort(-area, kind="stable")
-    best = tri[order[0]]
-    out = [best]
-    if m >= 4:
-        for corner in best:
-            out.append(next(tri[k] for k in order if corner not in tri[k]))
-    return list(dict.fromkeys(out))
-
-
-_BASES: dict = {}
-
-
-def _bases(model: MarkerModel, s: int):
-    """:func:`base_triples` of segment ``s``, computed once per model."""
-    key = (id(model), s)
-    if key not in _BASES or _BASES[key][0] is not model:
-        _BASES[key] = (model, base_triples(model.points[model.members[s]]))
-    return _BASES[key][1]
 
 
 def _triples(D, d, eps):
@@ -266,7 +238,7 @@ def segment_candidates(model: MarkerModel, s: int, Q, D, *, eps: float, beta: fl
     free = np.ones(N, bool) if free is None else free
     Dm = np.where(free[:, None] & free[None, :], D, np.inf)
     starts, rows = [], []
-    for a, b, c in _bases(model, s):
+    for a, b, c in model.base_triples[s]:
         d = (np.linalg.norm(P[a] - P[b]), np.linalg.norm(P[a] - P[c]),
              np.linalg.norm(P[b] - P[c]))
         tr = _triples(Dm, d, eps)

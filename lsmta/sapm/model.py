@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from itertools import combinations
 
 import numpy as np
 from scipy.sparse.csgraph import minimum_spanning_tree
@@ -209,6 +210,23 @@ class MarkerModel:
             d = np.linalg.norm(p[:, None] - p[None], axis=-1)
             out[s] = d[np.triu_indices(len(m), 1)].mean()
         return out
+
+    @cached_property
+    def base_triples(self) -> tuple:
+        """Per segment, the triples of its markers (local indices) the tree search starts
+        its matches from: the largest triangle and, for four or more markers, the largest
+        triangle without each of its corners (so one missing marker is survived)."""
+        out = []
+        for m in self.members:
+            p = self.points[m]
+            tri = list(combinations(range(len(m)), 3))
+            area = [np.linalg.norm(np.cross(p[b] - p[a], p[c] - p[a])) for a, b, c in tri]
+            order = np.argsort(-np.asarray(area), kind="stable")
+            best = tri[order[0]]
+            picks = [best] + ([next(tri[k] for k in order if corner not in tri[k])
+                               for corner in best] if len(m) >= 4 else [])
+            out.append(tuple(dict.fromkeys(picks)))
+        return tuple(out)
 
     @cached_property
     def point_segment(self) -> np.ndarray:

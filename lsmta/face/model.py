@@ -50,7 +50,7 @@ from .basis import (
 METHODS = ("extremes", "pca", "prior", "box")
 #: the method and size ``learn(method="auto")`` uses: the lowest mean error of the hidden
 #: markers, averaged over both directions of AnimFace JawMoCap <-> CheeksMoCap (6 of 41
-#: hidden per frame; notebook 18 repeats the comparison)
+#: hidden per frame, 5 draws pooled: experiments/face_models.py; notebook 18 shows one)
 DEFAULT_METHOD, DEFAULT_SIZE = "box", 20
 
 

@@ -94,10 +94,25 @@ def search_kernel(img, thr, bg, centres, half, k, jr, jc, min_area, max_area):
         tested, stack = _fill(img, thr, bg, seeds[i], flag, stack, out, area, n_out, tested,
                               k, jr, jc)
         n_out += 1
-    keep = (area[:n_out] >= min_area) & (area[:n_out] <= max_area)
-    kept = out[:n_out][keep]
-    order = np.argsort(kept[:, 2])
-    return kept[order, :2].copy(), area[:n_out][keep][order].copy(), tested
+    # the features within the area limits, by first pixel (insertion sort: a few features;
+    # NumPy's masks and argsort cost microseconds per call here)
+    xy = np.empty((n_out, 2))
+    kept_area = np.empty(n_out, np.int64)
+    n_kept = 0
+    for i in range(n_out):
+        if area[i] < min_area or area[i] > max_area:
+            continue
+        x, y, first, a = out[i, 0], out[i, 1], out[i, 2], area[i]   # out[:n_kept]: sorted
+        j = n_kept
+        while j > 0 and out[j - 1, 2] > first:
+            out[j] = out[j - 1]
+            kept_area[j] = kept_area[j - 1]
+            j -= 1
+        out[j, 0], out[j, 1], out[j, 2] = x, y, first
+        kept_area[j] = a
+        n_kept += 1
+    xy[:n_kept] = out[:n_kept, :2]
+    return xy[:n_kept], kept_area[:n_kept], tested
 
 
 @nb.njit(cache=True)

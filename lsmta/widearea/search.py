@@ -20,7 +20,7 @@ import numpy as np
 
 from .._validate import as_rng
 from ._kernels import search_kernel
-from .detection import DetectionParams, Threshold, _test_threshold
+from .detection import DetectionParams, Threshold, _test_threshold, _valid_mask
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,12 +81,7 @@ def search_setup(threshold: Threshold, *, invalid=None, dtype=np.uint8,
     if not isinstance(threshold, Threshold):
         raise TypeError("threshold: expected an lsmta.widearea.Threshold")
     H, W = threshold.threshold.shape
-    valid = np.ones((H, W), bool)
-    if invalid is not None:
-        inv = np.asarray(invalid)
-        if inv.shape != (H, W) or inv.dtype != bool:
-            raise ValueError(f"invalid: expected a boolean mask of shape {(H, W)}")
-        valid = ~inv
+    valid = _valid_mask(invalid, (H, W))
     dtype = np.dtype(dtype)
     if not (np.issubdtype(dtype, np.integer) or np.issubdtype(dtype, np.floating)):
         raise TypeError(f"dtype: expected a real numeric image dtype, got {dtype}")

@@ -49,7 +49,7 @@ def track_klt(images, initial_xy, *, window: int = 21, levels: int = 3,
     if not started.any():
         raise ValueError("initial_xy: the first frame has no point matched in every camera; "
                          "nothing to track")
-    u8 = np.clip(np.rint(seq), 0, 255).astype(np.uint8)
+    u8 = seq if seq.dtype == np.uint8 else np.clip(np.rint(seq), 0, 255).astype(np.uint8)
     xy = np.full((T, K, N, 2), np.nan)
     xy[0][:, started] = xy0[:, started]
     alive = started.copy()

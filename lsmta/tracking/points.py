@@ -205,7 +205,8 @@ class Tracks:
 
 
 def as_sequences(images) -> np.ndarray:
-    """Image sequences as a ``(K, T, H, W)`` array, after checking their lengths and sizes.
+    """Image sequences as a ``(K, T, H, W)`` array of their own dtype, after checking their
+    lengths, sizes and grey values.
 
     ``images`` may be a ``(K, T, H, W)`` array or a sequence of K sequences of images
     (a ``(T, H, W)`` stack is one camera: pass ``[stack]``).
@@ -228,7 +229,9 @@ def as_sequences(images) -> np.ndarray:
         raise ValueError(f"images: expected at least 2 frames, got {lengths[0]}")
     out = []
     for k, s in enumerate(seqs):
-        frames = [check_image(im, f"images[{k}][{t}]") for t, im in enumerate(s)]
+        frames = [np.asarray(im) for im in s]
+        for t, im in enumerate(frames):        # checked one at a time: 8-bit video stays 8-bit
+            check_image(im, f"images[{k}][{t}]")
         sizes = {f.shape for f in frames}
         out.append(frames)
         if len(sizes) != 1:

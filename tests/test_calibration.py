@@ -5,19 +5,26 @@ import pytest
 
 from lsmta.calibration import Bar, bundle_adjust, relative_orientation_start, track_targets
 from lsmta.calibration.approximations import scaled
+from lsmta.calibration.chain import chain_cameras, datum_from_distance, shared_points
 from lsmta.calibration.virtual_object import (
+    IMPROVED_ALTERNATION,
+    AlternationParams,
     alternate,
     joint_adjustment,
     projection_error,
+    resect,
+    resect_all,
     triangulate_optimal,
 )
-from lsmta.evaluation.calibration import heldout_bar_errors
+from lsmta.evaluation.calibration import check_point_errors, heldout_bar_errors
 from lsmta.synth.calibration import (
     bar_track,
     led_path,
+    long_room_rig,
     poor_guess,
     project_observations,
     render_bar_images,
+    sweep_path,
 )
 from lsmta.synth.rigs import ring_rig, triplet_rig
 from lsmta.triangulation import triangulate
@@ -167,7 +174,7 @@ def test_virtual_object_alternation_and_joint_adjustment_converge():
     xy_c = project_observations(truth, check, rng=rng, sigma_px=0.3)
     floor = projection_error(truth, xy_c)
     guess = poor_guess(truth, rng=np.random.default_rng(0))
-    alt = alternate(guess, xy, n_iter=8, xy_check=xy_c)
+    alt = alternate(guess, xy, params=AlternationParams(n_iter=8), xy_check=xy_c)
     jnt = joint_adjustment(guess, xy, n_iter=15, xy_check=xy_c)
     assert alt.error[0] > 20 * floor
     assert jnt.error[-1] < 1.1 * floor
@@ -188,8 +195,8 @@ def test_alternation_reaches_the_joint_optimum_on_a_small_ring():
     xy = project_observations(truth, led_path(n=80, rng=rng), rng=rng, sigma_px=0.3)
     guess = poor_guess(truth, rng=np.random.default_rng(0), pose_mm=50.0, pose_deg=1.0, f_rel=0.02)
     jnt = joint_adjustment(guess, xy, n_iter=15)
-    alt = alternate(guess, xy, n_iter=16)
-    lin = alternate(guess, xy, n_iter=16, triangulation="linear")
+    alt = alternate(guess, xy, params=AlternationParams(n_iter=16))
+    lin = alternate(guess, xy, params=AlternationParams(n_iter=16, triangulation="linear"))
     opt = jnt.fit_error[-1]
     assert opt < projection_error(truth, xy)          # the optimum fits better than the truth
     assert np.all(np.diff(alt.fit_error) <= 1e-9)
@@ -199,7 +206,93 @@ def test_alternation_reaches_the_joint_optimum_on_a_small_ring():
     assert abs(lin.fit_error[-1] / lin.fit_error[-3] - 1) < 1e-4
     assert lin.fit_error[-1] > 1.001 * opt
     with pytest.raises(ValueError, match="triangulation"):
-        alternate(guess, xy, n_iter=1, triangulation="dlt")
+        AlternationParams(n_iter=1, triangulation="dlt")
+
+
+def _long_room(seed, n_path=500):
+    rng = np.random.default_rng(seed)
+    truth = long_room_rig(rng=rng, n_per_side=3, length=7000.0)
+    path = sweep_path(n=n_path, rng=rng, passes=3, half_size=(3300.0, 1800.0, 700.0))
+    check = sweep_path(n=120, rng=rng, half_size=(3300.0, 1800.0, 700.0))
+    xy, xy_c = (project_observations(truth, p, rng=rng, sigma_px=0.3) for p in (path, check))
+    return rng, truth, path, check, xy, xy_c
+
+
+@pytest.mark.slow
+def test_partial_overlap_calibration_against_the_truth():
+    # six cameras in a 7 m room: each sees part of the path, some pairs nothing in common
+    rng, truth, path, check, xy, xy_c = _long_room(3)
+    shared = shared_points(xy)
+    assert (shared == 0).any() and (np.diag(shared) < 0.7 * xy.shape[1]).all()
+    guess = poor_guess(truth, rng=rng)
+    chain = chain_cameras(guess, xy)
+    assert sorted(chain.order.tolist()) == list(range(6)) and chain.parent[chain.order[0]] == -1
+    marks = np.array([[-1500.0, 0.0, 1000.0], [1500.0, 0.0, 1000.0]])
+    m_xy = project_observations(truth, marks, rng=rng, sigma_px=0.3)
+    start = datum_from_distance(chain.cameras, m_xy, 3000.0, pose=guess[0])
+    assert np.allclose(start[0].C, guess[0].C) and np.allclose(start[0].R, guess[0].R)
+    X = triangulate(start, m_xy).points
+    assert abs(np.linalg.norm(X[1] - X[0]) - 3000.0) < 1e-6
+    floor = projection_error(truth, xy_c)
+    jnt = joint_adjustment(start, xy, n_iter=40, xy_check=xy_c)
+    imp = alternate(start, xy, params=IMPROVED_ALTERNATION, xy_check=xy_c)
+    plain = alternate(start, xy, params=AlternationParams(n_iter=10), xy_check=xy_c)
+    assert jnt.error[-1] < 1.1 * floor
+    opt = jnt.fit_error[-1]
+    assert imp.iterations_to_value(opt, fit=True) <= 50
+    assert plain.fit_error[-1] > 1.05 * opt               # the paper's alternation creeps
+    assert set(imp.steps[1:4]) == {"exterior sweep"} and "joint" in imp.steps
+    # against the truth: the independent path in 3-D after a rigid alignment (the datum
+    # is camera 0's tape-measured pose), and the scale from the known distance
+    cal = datum_from_distance(jnt.cameras[-1], m_xy, 3000.0, pose=guess[0])
+    err = check_point_errors(cal, xy_c, check)
+    ref = check_point_errors(truth, xy_c, check)
+    assert np.sqrt(np.nanmean(err**2)) < 2.5 * np.sqrt(np.nanmean(ref**2))
+    assert np.sqrt(np.nanmean(err**2)) < 10.0
+
+
+def test_chain_and_datum_refuse_bad_input():
+    rng, truth, path, check, xy, xy_c = _long_room(4, n_path=200)
+    cut = xy.copy()
+    cut[5] = np.nan                                        # camera 5 sees nothing
+    with pytest.raises(ValueError, match="cam05"):
+        chain_cameras(truth, cut)
+    with pytest.raises(ValueError, match="first"):
+        chain_cameras(truth, xy, first=9)
+    with pytest.raises(ValueError, match="xy"):
+        chain_cameras(truth, xy[:, :, :1])
+    m_xy = np.full((6, 2, 2), np.nan)
+    with pytest.raises(ValueError, match="marks_xy"):
+        datum_from_distance(truth, m_xy, 1000.0, pose=truth[0])
+    with pytest.raises(ValueError, match="distance"):
+        datum_from_distance(truth, m_xy, -1.0, pose=truth[0])
+    with pytest.raises(TypeError, match="pose"):
+        datum_from_distance(truth, m_xy, 1000.0, pose=None)
+    for bad in ({"n_iter": -1}, {"joint_every": 0}, {"joint_steps": 0},
+                {"intrinsics": ("focal",)}, {"joint_every": 2, "triangulation": "linear"}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            AlternationParams(**bad)
+    with pytest.raises(TypeError, match="params"):
+        alternate(truth, xy, params={"n_iter": 3})
+
+
+def test_resection_of_all_cameras_at_once_recovers_the_truth():
+    rng = np.random.default_rng(11)
+    truth = ring_rig(n=5, rng=rng)
+    X = led_path(n=120, rng=rng)
+    xy = project_observations(truth, X)
+    guess = poor_guess(truth, rng=rng, pose_mm=40.0, pose_deg=1.0, f_rel=0.01)
+    guess = [g.replace(k1=t.k1, k2=t.k2) for g, t in zip(guess, truth)]
+    xy_before = xy.copy()
+    cams = resect_all(guess, X, xy, intrinsics=("f", "cx", "cy"))
+    assert np.array_equal(xy, xy_before, equal_nan=True)
+    for c, t in zip(cams, truth):
+        assert np.linalg.norm(c.C - t.C) < 1e-3 and abs(c.f - t.f) < 1e-4
+    one = resect(guess[2], X, xy[2], intrinsics=("f", "cx", "cy"))
+    assert np.allclose(one.C, cams[2].C, atol=1e-6)
+    blind = xy.copy()
+    blind[1, 5:] = np.nan                                 # too few points: unchanged
+    assert resect_all(guess, X, blind)[1] is guess[1]
 
 
 def test_reprojection_optimal_triangulation():

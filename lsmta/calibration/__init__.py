@@ -13,22 +13,27 @@ from .bundle import (
     params_to_camera,
     project_params,
 )
+from .chain import ChainStart, chain_cameras, datum_from_distance, shared_points
 from .targets import Blobs, TargetStatus, TargetTracks, detect_blobs, track_targets
 from .virtual_object import (
+    IMPROVED_ALTERNATION,
+    AlternationParams,
     ConvergenceHistory,
     alternate,
     joint_adjustment,
     projection_error,
     resect,
+    resect_all,
     triangulate_optimal,
 )
 from .wand import WandCalibration, WandStatus, calibrate_wand
 
 __all__ = [
-    "DEFAULT_INTRINSICS", "INTRINSIC_NAMES", "PARAMETER_NAMES", "Bar", "Blobs",
-    "BundleResult", "ConvergenceHistory", "TargetStatus", "TargetTracks", "alternate",
-    "bundle_adjust",
-    "camera_to_params", "detect_blobs", "joint_adjustment", "params_to_camera",
-    "project_params", "projection_error", "relative_orientation_start", "resect", "scaled",
-    "track_targets", "triangulate_optimal", "WandCalibration", "WandStatus", "calibrate_wand",
+    "DEFAULT_INTRINSICS", "IMPROVED_ALTERNATION", "INTRINSIC_NAMES", "PARAMETER_NAMES",
+    "AlternationParams", "Bar", "Blobs", "BundleResult", "ChainStart", "ConvergenceHistory",
+    "TargetStatus", "TargetTracks", "WandCalibration", "WandStatus", "alternate",
+    "bundle_adjust", "calibrate_wand", "camera_to_params", "chain_cameras",
+    "datum_from_distance", "detect_blobs", "joint_adjustment", "params_to_camera",
+    "project_params", "projection_error", "relative_orientation_start", "resect", "resect_all",
+    "scaled", "shared_points", "track_targets", "triangulate_optimal",
 ]

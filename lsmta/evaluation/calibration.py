@@ -7,7 +7,9 @@ Gaussian noise of a known sigma), measured and tracked in the images, approximat
 a relative orientation, then the self-calibrating bundle adjustment with the bar length as
 an observation equation (ours) next to the same adjustment without the bar, scaled to the
 bar afterwards (the peer: what easyWand and Argus do). Both are scored on held-out bar
-positions. :func:`ring_trial` is Davis's virtual calibration object on the ceiling ring.
+positions. :func:`ring_trial` is Davis's virtual calibration object on the ceiling ring,
+:func:`partial_overlap_trial` the same on a long room whose cameras see only parts of the
+LED path (chained through shared segments, datum and scale from a known distance).
 """
 
 from __future__ import annotations
@@ -28,7 +30,10 @@ from ..calibration import (
     track_targets,
 )
 from ..calibration.bundle import INTRINSIC_NAMES
+from ..calibration.chain import ChainStart, chain_cameras, datum_from_distance
 from ..calibration.virtual_object import (
+    IMPROVED_ALTERNATION,
+    AlternationParams,
     ConvergenceHistory,
     alternate,
     joint_adjustment,
@@ -38,9 +43,11 @@ from ..rigid import apply_rigid, fit_rigid
 from ..synth.calibration import (
     bar_track,
     led_path,
+    long_room_rig,
     poor_guess,
     project_observations,
     render_bar_images,
+    sweep_path,
 )
 from ..synth.rigs import ring_rig, triplet_rig
 from ..triangulation import triangulate
@@ -223,6 +230,9 @@ class RingTrial:
     linear : list of ConvergenceHistory
         Davis's variant (linear intersection of the rays as the point step), one per seed;
         empty unless asked for.
+    improved : list of ConvergenceHistory
+        The improved alternation (:data:`~lsmta.calibration.virtual_object.IMPROVED_ALTERNATION`),
+        one per seed; empty unless asked for.
     truth_error : float
         Projection error of the true cameras on the independent path, px (the floor).
     sigma_px : float
@@ -238,45 +248,165 @@ class RingTrial:
     truth_error: float
     sigma_px: float
     linear: list = dataclasses.field(default_factory=list)
+    improved: list = dataclasses.field(default_factory=list)
 
 
 def ring_trial(*, seeds=(0, 1, 2), n_cameras: int = 10, n_path: int = 300, n_check: int = 150,
                sigma_px: float = 0.3, n_alternation: int = 30, n_joint: int = 30,
                intrinsics=("f", "cx", "cy", "k1", "k2"), data_seed: int = 100, n_linear: int = 0,
+               improved: AlternationParams | None = None,
                true_fixed: bool = False) -> RingTrial:
     """The alternation and the joint adjustment from the same poor guesses (one per
     seed), scored per iteration on an independent LED path; with ``n_linear`` > 0 also
-    Davis's linear-intersection variant of the alternation for that many iterations.
-    ``true_fixed``: the interior parameters that are not free are set to the truth in
-    the guess (a diagnostic: fewer free parameters without unmodelled lens error)."""
+    Davis's linear-intersection variant of the alternation for that many iterations, with
+    ``improved`` also the alternation with those settings. ``true_fixed``: the interior
+    parameters that are not free are set to the truth in the guess (a diagnostic: fewer
+    free parameters without unmodelled lens error)."""
     rng = np.random.default_rng(data_seed)
     truth = ring_rig(n=n_cameras, rng=rng)
     path = led_path(n=n_path, rng=rng)
     check = led_path(n=n_check, rng=rng)
     xy = project_observations(truth, path, rng=rng, sigma_px=sigma_px)
     xy_c = project_observations(truth, check, rng=rng, sigma_px=sigma_px)
-    alt, jnt, lin = [], [], []
+    intrinsics = tuple(intrinsics)
+    alt, jnt, lin, imp = [], [], [], []
     for s in seeds:
         guess = poor_guess(truth, rng=np.random.default_rng(s))
         if true_fixed:
             fixed = [n for n in INTRINSIC_NAMES if n not in intrinsics]
             guess = [g.replace(**{n: getattr(t, n) for n in fixed})
                      for g, t in zip(guess, truth)]
-        alt.append(alternate(guess, xy, n_iter=n_alternation, intrinsics=intrinsics,
-                             xy_check=xy_c))
+        alt.append(alternate(guess, xy, xy_check=xy_c, params=AlternationParams(
+            n_iter=n_alternation, intrinsics=intrinsics)))
         if n_linear:
-            lin.append(alternate(guess, xy, n_iter=n_linear, intrinsics=intrinsics,
-                                 xy_check=xy_c, triangulation="linear"))
+            lin.append(alternate(guess, xy, xy_check=xy_c, params=AlternationParams(
+                n_iter=n_linear, intrinsics=intrinsics, triangulation="linear")))
+        if improved is not None:
+            imp.append(alternate(guess, xy, xy_check=xy_c,
+                                 params=dataclasses.replace(improved, intrinsics=intrinsics)))
         jnt.append(joint_adjustment(guess, xy, n_iter=n_joint, intrinsics=intrinsics,
                                     xy_check=xy_c))
     return RingTrial(truth=truth, path=path, check_path=check, xy=xy, xy_check=xy_c,
                      alternation=alt, joint=jnt, truth_error=projection_error(truth, xy_c),
-                     sigma_px=sigma_px, linear=lin)
+                     sigma_px=sigma_px, linear=lin, improved=imp)
 
 
-__all__ = ["BarTrial", "ConvergenceHistory", "RingTrial", "aniposelib_peer", "bar_observations",
-           "bar_trial",
-           "check_point_errors", "heldout_bar_errors", "parameter_table", "ring_trial"]
+# ----------------------------------------------------------------------- partial overlap
+@dataclass(frozen=True, eq=False)
+class OverlapRun:
+    """One calibration of the long room (:func:`partial_overlap_trial`), one seed.
+
+    Attributes
+    ----------
+    seed : int
+    truth : list of Camera
+    path, check_path : (N, 3), (M, 3) arrays
+        Calibration and independent LED paths, mm.
+    xy, xy_check : (K, N, 2), (K, M, 2) arrays
+        Their noisy observations, px.
+    marks, marks_xy : (2, 3), (K, 2, 2) arrays
+        The two marks at the known distance and their observations.
+    check_marks, check_marks_xy : (2, 3), (K, 2, 2) arrays
+        Two more marks whose distance is only used to score the scale.
+    guess : list of Camera
+        Tape-measured rig: nominal interior orientation (and camera 0's pose, the datum).
+    chain : ChainStart
+    start : list of Camera
+        The chain with the datum: the start of every method.
+    plain, improved, joint : ConvergenceHistory
+        The paper's alternation, the improved alternation, the joint adjustment.
+    calibrated : dict
+        Method name -> final cameras with the datum (camera 0's tape pose, the marks'
+        distance).
+    floor : float
+        Projection error of the true cameras on the independent path, px.
+    error_3d : dict
+        Method name (and ``"truth"``) -> RMS 3-D error of the independent path intersected
+        with those cameras, after a rigid (not scaled) alignment to the truth, mm.
+    scale_error : dict
+        Method name -> intersected distance of the check marks minus the true one, mm.
+    """
+
+    seed: int
+    truth: list
+    path: np.ndarray
+    check_path: np.ndarray
+    xy: np.ndarray
+    xy_check: np.ndarray
+    marks: np.ndarray
+    marks_xy: np.ndarray
+    check_marks: np.ndarray
+    check_marks_xy: np.ndarray
+    guess: list
+    chain: ChainStart
+    start: list
+    plain: ConvergenceHistory
+    improved: ConvergenceHistory
+    joint: ConvergenceHistory
+    calibrated: dict
+    floor: float
+    error_3d: dict
+    scale_error: dict
+
+
+MARKS = np.array([[-2000.0, 0.0, 1000.0], [2000.0, 0.0, 1000.0]])         # 4 m apart
+CHECK_MARKS = np.array([[-3000.0, -800.0, 600.0], [3000.0, 900.0, 1500.0]])
+
+
+def partial_overlap_trial(*, seeds=(0, 1, 2), n_path: int = 800, n_check: int = 200,
+                          sigma_px: float = 0.3, n_plain: int = 50,
+                          improved: AlternationParams = IMPROVED_ALTERNATION,
+                          n_joint: int = 40) -> list:
+    """The virtual calibration object where no camera sees the whole path: per seed, the
+    long room (:func:`lsmta.synth.calibration.long_room_rig`, perturbed), an LED path
+    sweeping it (:func:`~lsmta.synth.calibration.sweep_path`, ``n_path`` positions, 4
+    passes) and an independent one, observed with Gaussian noise of ``sigma_px``; a
+    tape-measured guess (:func:`~lsmta.synth.calibration.poor_guess`) gives the nominal
+    interior orientation and camera 0's pose. The cameras are chained through shared path
+    segments (:func:`lsmta.calibration.chain.chain_cameras`), given the datum (camera 0's
+    tape pose, the LED on two marks 4 m apart:
+    :func:`~lsmta.calibration.chain.datum_from_distance`), and calibrated by the paper's
+    alternation (``n_plain`` iterations), the improved alternation and the joint
+    adjustment, all from that start; each result gets the datum again.
+
+    Returns
+    -------
+    list of OverlapRun
+    """
+    runs = []
+    distance = float(np.linalg.norm(MARKS[1] - MARKS[0]))
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        truth = long_room_rig(rng=rng)
+        path = sweep_path(n=n_path, rng=rng, passes=4)
+        check = sweep_path(n=n_check, rng=rng)
+        xy, xy_c, m_xy, c_xy = (project_observations(truth, p, rng=rng, sigma_px=sigma_px)
+                                for p in (path, check, MARKS, CHECK_MARKS))
+        guess = poor_guess(truth, rng=rng)
+        chain = chain_cameras(guess, xy)
+        start = datum_from_distance(chain.cameras, m_xy, distance, pose=guess[0])
+        hist = {"plain": alternate(start, xy, xy_check=xy_c,
+                                   params=AlternationParams(n_iter=n_plain)),
+                "improved": alternate(start, xy, xy_check=xy_c, params=improved),
+                "joint": joint_adjustment(start, xy, n_iter=n_joint, xy_check=xy_c)}
+        calibrated = {k: datum_from_distance(h.cameras[-1], m_xy, distance, pose=guess[0])
+                      for k, h in hist.items()}
+        true_check = np.linalg.norm(CHECK_MARKS[1] - CHECK_MARKS[0])
+        err3 = {k: float(np.sqrt(np.nanmean(check_point_errors(c, xy_c, check) ** 2)))
+                for k, c in {**calibrated, "truth": truth}.items()}
+        scale = {k: float(np.linalg.norm(np.subtract(*triangulate(c, c_xy).points))
+                          - true_check) for k, c in calibrated.items()}
+        runs.append(OverlapRun(
+            seed=seed, truth=truth, path=path, check_path=check, xy=xy, xy_check=xy_c,
+            marks=MARKS, marks_xy=m_xy, check_marks=CHECK_MARKS, check_marks_xy=c_xy,
+            guess=guess, chain=chain, start=start, calibrated=calibrated,
+            floor=projection_error(truth, xy_c), error_3d=err3, scale_error=scale, **hist))
+    return runs
+
+
+__all__ = ["BarTrial", "ConvergenceHistory", "OverlapRun", "RingTrial", "aniposelib_peer",
+           "bar_observations", "bar_trial", "check_point_errors", "heldout_bar_errors",
+           "parameter_table", "partial_overlap_trial", "ring_trial"]
 
 
 def aniposelib_peer(trial: BarTrial, cameras0):

@@ -9,7 +9,11 @@
 * :func:`still_and_stage` — 3-D jitter of a still LED, deviation from a linear stage's line;
 * :func:`circle_models` — weak, medium and stiff motion models on a circular path;
 * :func:`walking_trial` — eight LEDs on a walking person, scored with our own matching
-  and with Stone Soup's metrics, optionally against Stone Soup's tracker.
+  and with Stone Soup's metrics, optionally against Stone Soup's tracker;
+* :func:`cameras_come_and_go` — the walk with one camera joining while tracking
+  (calibrated against the tracked LEDs) and one camera that stops delivering;
+* :func:`synchronised_offset_sweep` — Fig. 33: per-instant ray intersection against the
+  Kalman integration on the same unsynchronised frames, error against camera time offset.
 
 The trials take their cameras as ``rig`` (default: :func:`trial_rig`).
 """
@@ -20,9 +24,11 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from .._validate import as_rng
 from ..camera import Camera
+from ..synth.calibration import poor_guess
 from ..synth.widearea import (
     Clocks,
     LedScene,
@@ -34,7 +40,16 @@ from ..synth.widearea import (
     still_led,
     walking_person,
 )
-from ..widearea import EstimatorParams, Frames, TrackingResult, schedule, track
+from ..widearea import (
+    EstimatorParams,
+    Frames,
+    JoinParams,
+    TrackingResult,
+    WideAreaTracker,
+    schedule,
+    track,
+)
+from ..widearea.intersection import intersect_instants
 from ..widearea.peers import stonesoup_track
 from .track_scores import TrackScore, longest_track_estimate, score_tracks, stonesoup_metrics
 
@@ -363,3 +378,222 @@ def walking_trial(*, rng: np.random.Generator | int | None = None, rig=None,
                         metrics_ours=stonesoup_metrics(scene, ours, times[::2]),
                         metrics_stonesoup=ss_metrics, seconds_ours=sec,
                         seconds_stonesoup=sec_ss)
+
+
+# ----------------------------------------------------------------------------- come and go
+@dataclass(frozen=True, eq=False)
+class ComeAndGo:
+    """The walk with one camera joining and one leaving (see :func:`cameras_come_and_go`).
+
+    Attributes
+    ----------
+    scene : LedScene
+    joined : int
+        Index of the joining camera in the tracker (the last).
+    dropped : int
+        Index of the camera that stops delivering.
+    added_at, stop_at : float
+        When the joining camera was added (its first frame fed), when the other camera's
+        last frame was stamped, s.
+    joined_at, dropped_at : float
+        When the tracker calibrated the joining camera and put it to use, and when it
+        dropped the silent camera (clock times; NaN if never), s.
+    join : CameraJoin or None
+        The successful calibration (None if none).
+    come_and_go, without : TrackingResult
+        The run with both events, and the same run without the joining camera.
+    score, score_without : TrackScore
+    innovation_rms : (K,) array
+        Per camera, RMS of (observed - predicted centroid) of its updates after
+        ``joined_at``, px (NaN for cameras without updates then).
+    calibration_error_px : float
+        RMS image distance between the LEDs' projections through the joined camera and
+        through the true one (after the fact, truth as input), px.
+    rms_after, rms_after_without : float
+        3-D RMS error of the matched tracks from ``joined_at`` on, with and without the
+        joined camera, mm.
+    used_after_drop : (K,) array
+        Per camera (of the cameras known when ``drop_camera`` stopped), the fraction of
+        the frames it delivered after that which the tracker used (NaN: none delivered).
+    """
+
+    scene: LedScene
+    joined: int
+    dropped: int
+    added_at: float
+    stop_at: float
+    joined_at: float
+    dropped_at: float
+    join: object
+    come_and_go: TrackingResult
+    without: TrackingResult
+    score: TrackScore
+    score_without: TrackScore
+    innovation_rms: np.ndarray
+    calibration_error_px: float
+    rms_after: float
+    rms_after_without: float
+    used_after_drop: np.ndarray
+
+
+def cameras_come_and_go(*, rng: np.random.Generator | int | None = None, rig=None,
+                        duration: float = 2.4, join_camera: int = 5, add_at: float = 0.6,
+                        drop_camera: int = 11, stop_at: float = 1.4,
+                        camera_timeout: float = 0.25, join: JoinParams | None = None,
+                        max_offset: float = 0.004) -> ComeAndGo:
+    """Eight LEDs on the walking person (on from 0.10-0.45 s to the end), the 18-camera rig
+    with clock offsets of ``±max_offset`` s and reflections. The tracker starts with 17
+    cameras; camera ``join_camera`` is installed at ``add_at`` s with a tape-measured pose
+    (:func:`lsmta.synth.calibration.poor_guess`: 150 mm, 3 degrees, 5 % focal length, no
+    distortion) and joins once calibrated against the tracked LEDs
+    (:meth:`lsmta.widearea.WideAreaTracker.add_camera`). Camera ``drop_camera`` delivers no
+    frame stamped after ``stop_at`` s; the tracker drops it after ``camera_timeout`` s of
+    silence. The same frames without the joining camera are the comparison."""
+    rng = as_rng(rng)
+    rig = trial_rig(rig)
+    k = np.arange(8)
+    scene = walking_person(duration=duration,
+                           on=np.stack([0.1 + 0.05 * k, np.full(8, np.inf)], axis=1))
+    clocks = make_clocks(len(rig), rng=rng, max_offset=max_offset)
+    obs = observe(scene, rig, clocks, rng=rng)
+    guess = poor_guess([rig[join_camera]], rng=rng)[0]
+    start = [c for i, c in enumerate(rig) if i != join_camera]
+    index = np.array([i - (i > join_camera) for i in range(len(rig))])
+    index[join_camera] = len(start)
+    fr = obs.frames
+    keep = ~((fr.camera == drop_camera) & (fr.stamp > stop_at))
+    params = EstimatorParams(camera_timeout=camera_timeout)
+    results, snapshot = [], None
+    for with_join in (True, False):
+        tracker = WideAreaTracker(start, params=params)
+        added = False
+        for f in np.flatnonzero(keep):
+            c = int(fr.camera[f])
+            if c == join_camera:
+                if not with_join or fr.arrival[f] < add_at:
+                    continue
+                if not added:
+                    added = True
+                    tracker.add_camera(guess, calibrated=False, join=join)
+            if with_join and snapshot is None and fr.arrival[f] > stop_at:
+                snapshot = tracker.result()          # the counters when the camera stops
+            tracker.feed(index[c], fr.stamp[f], fr.centroids(f))
+        results.append(tracker.result())
+    res, res0 = results
+    used = res.frames_used[:len(snapshot.frames_used)] - snapshot.frames_used
+    got = res.frames_received[:len(snapshot.frames_used)] - snapshot.frames_received
+    return _come_and_go(scene, res, res0, rig[join_camera], index, join_camera, drop_camera,
+                        add_at, stop_at, duration,
+                        np.where(got > 0, used / np.maximum(got, 1), np.nan))
+
+
+def _event_time(res: TrackingResult, camera: int, what: str) -> float:
+    t = [e[0] for e in res.camera_events if e[1] == camera and e[2] == what]
+    return float(t[0]) if t else np.nan
+
+
+def _come_and_go(scene, res, res0, true_camera, index, join_camera, drop_camera, add_at,
+                 stop_at, duration, used_after) -> ComeAndGo:
+    """Score the two runs of :func:`cameras_come_and_go`."""
+    j, d = int(index[join_camera]), int(index[drop_camera])
+    joined_at = _event_time(res, j, "joined")
+    join = next((r for c, r in res.joins if c == j and r.status == 0), None)
+    times = np.arange(0.0, duration, 1 / 60)
+    score, score0 = score_tracks(scene, res, times), score_tracks(scene, res0, times)
+    after = times >= joined_at if np.isfinite(joined_at) else np.zeros(len(times), bool)
+
+    def rms(sc):
+        e = sc.error[after]
+        e = e[np.isfinite(e)]
+        return float(np.sqrt(np.mean(e**2))) if len(e) else np.nan
+
+    u = res.updates
+    late = u["time"] >= joined_at if np.isfinite(joined_at) else np.zeros(len(u["time"]), bool)
+    innov = np.linalg.norm(u["observed"] - u["predicted"], axis=1)
+    K = len(res.cameras)
+    inno = np.array([np.sqrt(np.mean(innov[late & (u["camera"] == c)] ** 2))
+                     if (late & (u["camera"] == c)).any() else np.nan for c in range(K)])
+    cal = np.nan
+    if join is not None:
+        X = scene.positions.reshape(-1, 3)[::97]
+        a, b = true_camera.project(X, behind="nan"), join.camera.project(X, behind="nan")
+        ok = np.isfinite(a).all(axis=1) & true_camera.in_image(a)
+        cal = float(np.sqrt(np.mean(np.sum((a[ok] - b[ok]) ** 2, axis=1))))
+    return ComeAndGo(
+        scene=scene, joined=j, dropped=d, added_at=float(add_at), stop_at=float(stop_at),
+        joined_at=joined_at, dropped_at=_event_time(res, d, "dropped"), join=join,
+        come_and_go=res, without=res0, score=score, score_without=score0,
+        innovation_rms=inno, calibration_error_px=cal, rms_after=rms(score),
+        rms_after_without=rms(score0), used_after_drop=used_after)
+
+
+# ----------------------------------------------------------------------------- Fig. 33
+def synchronised_offset_sweep(offsets, *, rng: np.random.Generator | int | None = None,
+                              rig=None, duration: float = 1.6, rate: float = 60.0,
+                              tolerance: float = 15.0, match_mm: float = 100.0) -> dict:
+    """Fig. 33: the walking person's eight LEDs seen by the 18 cameras, all at ``rate`` Hz
+    with correct time stamps, but capturing at different moments: camera k's frames are
+    taken ``phase_k`` after the frame grid, ``phase_k`` uniform in ``[0, offset]`` for each
+    value of ``offsets`` (s). The same frames go to the Kalman integration (the tracker, in
+    arrival order) and to the synchronised method, which intersects at each instant of the
+    grid the rays of every camera's frame nearest to it
+    (:func:`lsmta.widearea.intersection.intersect_instants`, ``tolerance`` mm). At every
+    instant both sets of points are matched to the true LEDs (Hungarian, within
+    ``match_mm``).
+
+    Returns
+    -------
+    dict
+        ``offset`` (n,) s; per method (``"kalman"``, ``"synchronised"``): ``rms_mm`` (n,)
+        RMS 3-D error of the matched points, ``completeness`` (n,) the share of (LED,
+        instant) pairs with a point within ``match_mm``, ``extra`` (n,) points per instant
+        matched to no LED.
+    """
+    rng = as_rng(rng)
+    cams = trial_rig(rig)
+    K = len(cams)
+    scene = walking_person(duration=duration + 0.1,
+                           on=np.stack([np.zeros(8), np.full(8, np.inf)], axis=1))
+    times = np.arange(0.3, duration - 0.05, 1 / rate)
+    truth = scene.positions_at(times)
+    out = {"offset": np.asarray(offsets, float)}
+    for name in ("kalman", "synchronised"):
+        out[name] = {key: [] for key in ("rms_mm", "completeness", "extra")}
+    for off in offsets:
+        clocks = Clocks(rate=np.full(K, rate), phase=rng.uniform(0.0, off, K) if off > 0
+                        else np.zeros(K), offset=np.zeros(K),
+                        latency=rng.uniform(0.004, 0.008, K), jitter=0.0005)
+        obs = observe(scene, cams, clocks, rng=rng, duration=duration, reflections=0.0)
+        res = track(cams, obs.frames)
+        pts = intersect_instants(cams, obs.frames, times, window=1 / rate,
+                                 tolerance=tolerance)
+        est = res.positions_at(times)
+        for name, per in (("kalman", [e[np.isfinite(e).all(axis=1)] for e in est]),
+                          ("synchronised", [pts.at(t) for t in range(len(times))])):
+            err, extra = _match_points(truth, per, match_mm)
+            ok = np.isfinite(err)
+            out[name]["rms_mm"].append(float(np.sqrt(np.mean(err[ok] ** 2))) if ok.any()
+                                       else np.nan)
+            out[name]["completeness"].append(float(ok.mean()))
+            out[name]["extra"].append(float(np.mean(extra)))
+    for name in ("kalman", "synchronised"):
+        out[name] = {k: np.array(v) for k, v in out[name].items()}
+    return out
+
+
+def _match_points(truth, points, match_mm: float):
+    """Errors (T, N) of the points matched to the true LEDs per instant (NaN: none within
+    ``match_mm``) and the unmatched points per instant (T,)."""
+    T, N = truth.shape[:2]
+    err = np.full((T, N), np.nan)
+    extra = np.zeros(T)
+    for t in range(T):
+        P = points[t]
+        if not len(P):
+            continue
+        dist = np.linalg.norm(truth[t][:, None] - P[None], axis=2)
+        r, c = linear_sum_assignment(np.where(dist <= match_mm, dist, 1e9))
+        ok = dist[r, c] <= match_mm
+        err[t, r[ok]] = dist[r[ok], c[ok]]
+        extra[t] = len(P) - ok.sum()
+    return err, extra

@@ -7,7 +7,10 @@ and the end-to-end path rendered frames -> detection -> tracker -> 3-D error.
 * :func:`lighting_change_trial` — the lights go up; thresholds relearnt;
 * :func:`stage_image_deviation` — Figs. 36-39, intensity centroids against whole pixels;
 * :func:`rendered_tracking_trial` — an LED on the stage rendered in several cameras,
-  detected, tracked and scored in 3-D.
+  detected, tracked and scored in 3-D;
+* :func:`guided_detection_trial` — the walking person rendered in several cameras, frame by
+  frame through the streaming tracker, whose predictions place the search windows; timed
+  against the full search of the same frames.
 """
 
 from __future__ import annotations
@@ -29,15 +32,19 @@ from ..synth.widearea import (
     walking_person,
 )
 from ..widearea import (
+    DetectionParams,
     EstimatorParams,
     Frames,
+    WideAreaTracker,
     background_threshold,
     detect,
     needs_new_threshold,
     relearn_threshold,
+    search_frame,
+    search_setup,
     track,
 )
-from .track_scores import longest_track_estimate
+from .track_scores import longest_track_estimate, score_tracks
 from .widearea import trial_rig
 
 
@@ -112,6 +119,8 @@ def detection_trial(*, rng: np.random.Generator | int | None = None, rig=None, c
     x0, y0, x1, y1 = video.monitor.astype(int)
     inv[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = True
     runs = {}
+    detect(video.frames[:1], thr, params=params, invalid=inv, mode="subsampled",
+           rng=0)                                   # compile the search before timing it
     for name, mode, invalid in (("full", "full", None), ("full, masked", "full", inv),
                                 ("subsampled, masked", "subsampled", inv)):
         t0 = time.perf_counter()
@@ -341,3 +350,175 @@ def rendered_tracking_trial(*, rng: np.random.Generator | int | None = None, rig
                      "coverage": float(np.isfinite(est).all(axis=1).mean())}
     return RenderedTrackingTrial(cameras=cams, frames=frames, results=results,
                                  centroid_only=centroid_only, times=times, truth=truth)
+
+
+# ----------------------------------------------------------------------------- guided search
+@dataclass(frozen=True, eq=False)
+class GuidedDetectionTrial:
+    """Rendered frames of the walking person, searched fully (batch, per camera) and by the
+    tracker-guided search (frame by frame, in arrival order, inside the streaming tracker's
+    step: :meth:`lsmta.widearea.WideAreaTracker.feed_detect`).
+
+    Attributes
+    ----------
+    cameras : list of Camera
+        The cameras used (as the tracker knows them).
+    n_frames : int
+    seconds : dict
+        Wall time of each search over all frames, s, the fastest of ``repeats`` replays of
+        the same frames (windows and grid offsets as in the tracked run): ``"full"`` (NumPy
+        comparison and OpenCV components, each camera's frames as one batch),
+        ``"compiled full"`` (the compiled loop testing every pixel), ``"guided"`` (the
+        thesis's 40 x 40 windows around the tracker's predictions, as in the tracked run),
+        ``"guided, gate windows"`` (windows of the tracker's gate plus 3 px around the same
+        predictions); ``"tracker"``: the tracker's own work in the guided run (prediction,
+        association, update, births; compilation on first use included).
+    tested_fraction : dict
+        Mean fraction of the pixels tested per frame, per search.
+    full_found : int
+        LEDs the full search found (a feature within 3 px of the LED's true projection).
+    guided_found : int
+        Of those, the ones the guided search found at the same place (within 0.01 px).
+    scores : dict
+        ``"full"`` (the full search's features tracked by the batch tracker) and
+        ``"guided"`` (the streaming run): TrackScore against the LEDs.
+    """
+
+    cameras: list
+    n_frames: int
+    seconds: dict
+    tested_fraction: dict
+    full_found: int
+    guided_found: int
+    scores: dict
+
+    @property
+    def speedup(self) -> float:
+        """Full search time / guided search time."""
+        return self.seconds["full"] / self.seconds["guided"]
+
+
+def _walk_videos(rng, rig, n_cameras, duration, scale):
+    """The walking person rendered in the cameras that see its path best, each at its own
+    rate, phase, clock offset and latency; per video its invalid mask (the monitor, grown
+    by 2 px); the frames in arrival order as (arrival, camera, frame)."""
+    k = np.arange(8)
+    scene = walking_person(duration=duration + 0.1,
+                           on=np.stack([0.1 + 0.05 * k, np.full(8, np.inf)], axis=1))
+    rig = [small_camera(c, scale=scale) for c in trial_rig(rig)]
+    path = scene.positions[::50].reshape(-1, 3)
+    seen = [cam.in_image(cam.project(path, behind="nan")).mean() for cam in rig]
+    cams = [rig[i] for i in np.sort(np.argsort(seen)[::-1][:n_cameras])]
+    clocks = make_clocks(len(cams), rng=rng)
+    videos, masks, order = [], [], []
+    for c, cam in enumerate(cams):
+        tt = clocks.phase[c] + np.arange(0, duration * clocks.rate[c]) / clocks.rate[c]
+        tt = tt[tt < duration]
+        v = render_led_video(scene, cam, tt, rng=rng)
+        inv = np.zeros(v.frames.shape[1:], bool)
+        x0, y0, x1, y1 = v.monitor.astype(int)
+        inv[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = True
+        videos.append(v)
+        masks.append(inv)
+        arrival = tt + clocks.latency[c] + clocks.jitter * np.abs(rng.normal(size=len(tt)))
+        order += [(a, c, i) for i, a in enumerate(arrival)]
+    order.sort()
+    return scene, cams, clocks, videos, masks, order
+
+
+def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=None,
+                           n_cameras: int = 8, duration: float = 1.6, scale: float = 0.5,
+                           repeats: int = 3, params: EstimatorParams | None = None,
+                           detection: DetectionParams | None = None) -> GuidedDetectionTrial:
+    """The walking person (eight LEDs, on from 0.1-0.45 s) rendered in the ``n_cameras``
+    cameras of the rig (``scale``: 0.5 for 320 x 240) that see its path best (truth as
+    input: an operator would pick them), with a flickering monitor (masked) and reflections.
+    Every frame is searched fully, and by the guided search inside the streaming tracker's
+    step, frame by frame in arrival order (40 x 40 windows around the tracker's predictions
+    for that camera and stamp, the jittered 5 x 5 grid for new LEDs). The searches are then
+    timed on the same frames, windows and grid offsets."""
+    rng = as_rng(rng)
+    params = EstimatorParams() if params is None else params
+    det = DetectionParams() if detection is None else detection
+    scene, cams, clocks, videos, masks, order = _walk_videos(rng, rig, n_cameras, duration,
+                                                              scale)
+    thr = [background_threshold(v.background, 20.0, 60.0) for v in videos]
+    full = [detect(v.frames, t_, invalid=m, params=det) for v, t_, m in zip(videos, thr, masks)]
+    setups = [search_setup(t_, invalid=m, params=det) for t_, m in zip(thr, masks)]
+    tracker = WideAreaTracker(cams, params=params)
+    runs = []                 # (camera, frame, centres, half-sizes, jitter)
+    guided = [[np.zeros((0, 2))] * len(v.frames) for v in videos]
+    tested = []
+
+    def guided_search(c, i):
+        def search(pred):
+            jit = tuple(int(j) for j in rng.integers(0, det.k, 2))
+            f = search_frame(videos[c].frames[i], setups[c], windows=pred.xy, jitter=jit)
+            runs.append((c, i, pred.xy, pred.gate_px + 3.0, jit))
+            guided[c][i] = f.xy
+            tested.append(f.tested)
+            return f.xy
+        return search
+
+    for v, st in zip(videos, setups):                         # compile before timing
+        search_frame(v.frames[0], st, windows=np.zeros((1, 2)), jitter=(0, 0))
+    t0 = time.perf_counter()
+    for _, c, i in order:
+        tracker.feed_detect(c, videos[c].times[i] + clocks.offset[c], guided_search(c, i))
+    seconds = {"tracker + guided": time.perf_counter() - t0}
+    seconds.update(_replay_times(videos, thr, masks, setups, runs, det, repeats))
+    seconds["tracker"] = seconds.pop("tracker + guided") - seconds["guided"]
+    full_found, guided_found = _same_detections(videos, full, guided)
+    stamps = [v.times + clocks.offset[c] for c, v in enumerate(videos)]
+    fr = Frames.from_lists([c for _, c, _ in order], [stamps[c][i] for _, c, i in order],
+                           [full[c].centroids(i) for _, c, i in order])
+    times = np.arange(0.0, duration, 1 / 60)
+    scores = {"full": score_tracks(scene, track(cams, fr, params=params), times),
+              "guided": score_tracks(scene, tracker.result(), times)}
+    size = videos[0].frames[0].size
+    return GuidedDetectionTrial(
+        cameras=cams, n_frames=len(order), seconds=seconds,
+        tested_fraction={"full": 1.0, "guided": float(np.mean(tested)) / size},
+        full_found=full_found, guided_found=guided_found, scores=scores)
+
+
+def _replay_times(videos, thr, masks, setups, runs, det, repeats: int) -> dict:
+    """Fastest of ``repeats`` timings of each search over all frames (interleaved). Every
+    search goes through one camera's frames after the other, as the full search's batches
+    do (and as Davis's cameras, each digitised by its own machine, did)."""
+    out = {"full": [], "compiled full": [], "guided": [], "guided, gate windows": []}
+    runs = sorted(runs, key=lambda r: (r[0], r[1]))
+    for _ in range(int(repeats)):
+        t0 = time.perf_counter()
+        for v, t_, m in zip(videos, thr, masks):
+            detect(v.frames, t_, invalid=m, params=det)
+        t1 = time.perf_counter()
+        for v, st in zip(videos, setups):
+            for f in v.frames:
+                search_frame(f, st, full=True)
+        t2 = time.perf_counter()
+        for c, i, xy, _, jit in runs:
+            search_frame(videos[c].frames[i], setups[c], windows=xy, jitter=jit)
+        t3 = time.perf_counter()
+        for c, i, xy, half, jit in runs:
+            search_frame(videos[c].frames[i], setups[c], windows=xy, half_sizes=half,
+                         jitter=jit)
+        t4 = time.perf_counter()
+        for key, dt in zip(out, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):
+            out[key].append(dt)
+    return {k: float(min(v)) for k, v in out.items()}
+
+
+def _same_detections(videos, full, guided):
+    """LEDs the full search found (within 3 px of the truth), and how many of them the
+    guided search found at the same place (0.01 px)."""
+    n_full = n_same = 0
+    for c, v in enumerate(videos):
+        found, _, _ = match_features(full[c], v.true_xy, radius=3.0)
+        for i in range(len(v.frames)):
+            fx, g = full[c].centroids(i), guided[c][i]
+            for n in np.flatnonzero(found[i]):
+                j = np.argmin(np.linalg.norm(fx - v.true_xy[i, n], axis=1))
+                n_full += 1
+                n_same += int(len(g) > 0 and np.linalg.norm(g - fx[j], axis=1).min() < 0.01)
+    return n_full, n_same

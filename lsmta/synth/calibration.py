@@ -1,6 +1,7 @@
 """Calibration data of the synthetic world: a reference bar moved through the triplet
 volume (LSMTA §2.1), its rendered target images, an LED path for the ceiling ring (Davis
-§3.2), and a "tape-measured" poor initial guess of a rig.
+§3.2), a long room whose cameras see only parts of an LED path that sweeps it (partial
+overlap, Fig. 24), and a "tape-measured" poor initial guess of a rig.
 
 The truth here (target positions, cameras) reaches the library only through the
 evaluation harness (:mod:`lsmta.evaluation.calibration`).
@@ -15,6 +16,7 @@ import numpy as np
 
 from .._validate import as_rng, as_scalar, as_vector
 from ..camera import Camera
+from .rigs import _perturbed
 
 
 @dataclass(frozen=True)
@@ -104,6 +106,60 @@ def led_path(*, n: int = 300, rng: np.random.Generator | int | None = None,
         raise ValueError(f"n: expected a positive integer, got {n}")
     return _walk(rng, int(n), as_vector(center, "center", 3),
                  as_vector(half_size, "half_size", 3), step)
+
+
+def sweep_path(*, n: int = 400, rng: np.random.Generator | int | None = None,
+               center=(0.0, 0.0, 1100.0), half_size=(4300.0, 1800.0, 700.0),
+               passes: float = 2.0, step: float = 150.0) -> np.ndarray:
+    """An LED carried up and down a long room: ``(n, 3)`` positions, mm.
+
+    Along X (the room's length) the LED goes from one end to the other and back,
+    ``passes`` times in all (a triangle wave over 97 % of ``half_size[0]``); across the
+    room and in height it wanders as :func:`led_path`'s smooth random walk inside the box
+    ``center +- half_size``. So the path covers the whole working volume, as Davis's Fig. 24
+    asks, also where no camera sees it all.
+    """
+    rng = as_rng(rng)
+    if int(n) != n or n < 2:
+        raise ValueError(f"n: expected an integer >= 2, got {n}")
+    passes = as_scalar(passes, "passes", positive=True)
+    center = as_vector(center, "center", 3)
+    half = as_vector(half_size, "half_size", 3)
+    out = _walk(rng, int(n), center, half, step)
+    s = np.linspace(0.0, passes, int(n))
+    out[:, 0] = center[0] + 0.97 * half[0] * (1 - 2 * np.abs(s % 2 - 1))
+    return out
+
+
+def long_room_rig(*, rng: np.random.Generator | int | None = None, n_per_side: int = 4,
+                  length: float = 9000.0, width: float = 4000.0, camera_height: float = 2800.0,
+                  f: float = 400.0, width_px: int = 640, height_px: int = 480,
+                  k1: float = -0.05) -> list[Camera]:
+    """Ceiling cameras along both long walls of a ``length`` x ``width`` mm room, each
+    looking across and down at the far half of the room (1 m high): a camera sees a few
+    metres of the room, so it shares parts of an LED path with its neighbours only
+    (partial overlap, Davis §3.2: "cameras not all of which have overlapping working
+    volumes"). Numbered around the room: 0 .. n-1 along the wall at -Y (towards +X), then
+    back along the wall at +Y. With ``rng``, poses and lenses are perturbed as in
+    :func:`lsmta.synth.rigs.triplet_rig` (20 mm, 0.5 degrees, 3 px, 10 %).
+    """
+    if int(n_per_side) != n_per_side or n_per_side < 2:
+        raise ValueError(f"n_per_side: expected an integer >= 2, got {n_per_side}")
+    if rng is not None:
+        rng = as_rng(rng)
+    length = as_scalar(length, "length", positive=True)
+    width = as_scalar(width, "width", positive=True)
+    xs = (np.arange(int(n_per_side)) + 0.5) * length / n_per_side - length / 2
+    cams = []
+    for side, row in ((-1.0, xs), (1.0, xs[::-1])):
+        for x in row:
+            cam = Camera.look_at((x, side * width / 2, camera_height),
+                                 (x, -0.1 * side * width, 1000.0), f=f, width=width_px,
+                                 height=height_px, k1=k1, k2=0.5 * abs(k1),
+                                 name=f"cam{len(cams):02d}")
+            cams.append(_perturbed(cam, rng, pose_mm=20.0, pose_deg=0.5, pp_px=3.0,
+                                   distortion_rel=0.1))
+    return cams
 
 
 def project_observations(cameras, points, *, rng: np.random.Generator | int | None = None,

@@ -13,6 +13,7 @@ from .detection import (
     relearn_threshold,
     search_mask,
 )
+from .joining import CameraJoin, JoinParams, JoinStatus, calibrate_from_targets
 from .kalman import (
     ekf_update,
     kalman_update,
@@ -23,15 +24,29 @@ from .kalman import (
     transition,
 )
 from .management import Birth, RayPool, find_birth, ray_distance, starved
-from .observations import FrameIntake, Frames, Screened, screen_frame
+from .observations import FrameIntake, Frames, Screened, screen_frame, screen_values
 from .scheduler import POLICIES, Schedule, schedule
-from .tracker import EstimatorParams, TrackingResult, WideAreaTrack, track
+from .search import FrameFeatures, SearchSetup, search_frame, search_setup
+from .stages import CameraStatus
+from .tracker import (
+    EstimatorParams,
+    FrameStatus,
+    ImagePrediction,
+    TargetEstimate,
+    TrackingResult,
+    WideAreaTrack,
+    WideAreaTracker,
+    track,
+)
 
 __all__ = [
-    "POLICIES", "Association", "Birth", "DetectionParams", "Detections", "EstimatorParams",
-    "FrameIntake", "Frames", "RayPool", "Schedule", "Screened", "Threshold", "TrackingResult",
-    "WideAreaTrack", "associate", "background_threshold", "detect", "ekf_update", "find_birth",
-    "innovation_gate", "kalman_update", "measurement", "needs_new_threshold", "predict",
-    "process_noise", "projection_jacobian", "ray_distance", "relearn_threshold", "schedule",
-    "screen_frame", "search_mask", "starved", "track", "transition",
+    "POLICIES", "Association", "Birth", "CameraJoin", "CameraStatus", "DetectionParams",
+    "Detections", "EstimatorParams", "FrameFeatures", "FrameIntake", "FrameStatus", "Frames",
+    "ImagePrediction", "JoinParams", "JoinStatus", "RayPool", "Schedule", "Screened",
+    "SearchSetup", "TargetEstimate", "Threshold", "TrackingResult", "WideAreaTrack",
+    "WideAreaTracker", "associate", "background_threshold", "calibrate_from_targets", "detect",
+    "ekf_update", "find_birth", "innovation_gate", "kalman_update", "measurement",
+    "needs_new_threshold", "predict", "process_noise", "projection_jacobian", "ray_distance",
+    "relearn_threshold", "schedule", "screen_frame", "screen_values", "search_frame",
+    "search_mask", "search_setup", "starved", "track", "transition",
 ]

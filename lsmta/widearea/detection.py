@@ -13,12 +13,12 @@
   over those pixels only).
 * **Sub-sampled search.** Instead of every pixel, test one pixel per ``k x k`` block on a
   grid jittered anew every frame, plus every pixel of a window around each predicted
-  position; a hit on the grid is grown in a small neighbourhood to find its whole spot
-  (:func:`detect` with ``mode="subsampled"``). Vectorised: the grids of all frames are
-  tested by strided slicing; per frame, the flat indices of the boxes around the hits and of
-  the windows are tested with one gather, and the components are labelled once.
-  The pixels tested are counted so the saving can be measured
-  (:func:`search_mask` draws them, Fig. 32).
+  position; a hit starts a flood fill over the pixels over threshold, so its whole spot is
+  found (:func:`detect` with ``mode="subsampled"``; the compiled loop of
+  :mod:`lsmta.widearea._kernels`, one frame at a time through
+  :func:`lsmta.widearea.search_frame` when a tracker's predictions place the windows).
+  The pixels tested are counted so the saving can be measured (:func:`search_mask` draws
+  the grid and windows, Fig. 32).
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ import numpy as np
 from scipy import ndimage
 
 from .._validate import as_rng, as_scalar
+from ._kernels import search_kernel
 
 
 @dataclass(frozen=True)
@@ -58,8 +59,6 @@ class DetectionParams:
         Sub-sampling: one tested pixel per ``k x k`` block (thesis: 5).
     window : int
         Side of the fully searched window around a predicted position (thesis: 40).
-    grow : int
-        Half-size of the neighbourhood searched around a grid hit.
     min_area : int
         Smallest component reported, pixels.
     max_area : int
@@ -68,12 +67,11 @@ class DetectionParams:
 
     k: int = 5
     window: int = 40
-    grow: int = 5
     min_area: int = 1
     max_area: int = 400
 
     def __post_init__(self):
-        for key in ("k", "window", "grow", "min_area", "max_area"):
+        for key in ("k", "window", "min_area", "max_area"):
             v = getattr(self, key)
             if int(v) != v or v < 1:
                 raise ValueError(f"{key}: expected a positive integer, got {v}")
@@ -206,7 +204,7 @@ def search_mask(shape, k: int, jitter, *, windows=None, window: int = 40) -> np.
         Row and column offset of the grid in ``[0, k)``.
     windows : (n, 2) array, optional
         Predicted positions (x, y) in pixels; a ``window`` x ``window`` square around each is
-        searched fully.
+        searched fully (rows and columns ``y - window // 2`` to ``y + window // 2 - 1``).
     window : int
     """
     H, W = shape
@@ -227,28 +225,8 @@ def _add_windows(m, centres, window: int) -> int:
     half = window // 2
     for x, y in np.rint(c).astype(np.int64).tolist():   # a handful of windows per frame
         r0, c0 = y - half, x - half
-        m[max(r0, 0):max(r0 + window, 0), max(c0, 0):max(c0 + window, 0)] = True
+        m[max(r0, 0):max(y + half, 0), max(c0, 0):max(x + half, 0)] = True
     return len(c)
-
-
-def _window_indices(shape, centres, window: int) -> np.ndarray:
-    """Flat pixel indices of the ``window`` x ``window`` squares around the finite
-    ``centres`` (x, y), clipped at the border (so pixels may repeat)."""
-    if centres is None:
-        return np.zeros(0, np.int64)
-    H, W = shape
-    c = np.asarray(centres, float).reshape(-1, 2)
-    c = np.rint(c[np.isfinite(c).all(axis=1)]).astype(np.int64)
-    if len(c) == 0:
-        return np.zeros(0, np.int64)
-    o = np.arange(window) - window // 2
-    rr = c[:, 1:] + o                                                 # (n, window)
-    cc = c[:, :1] + o
-    # squares wholly outside the image contribute nothing
-    c = (rr[:, -1] >= 0) & (rr[:, 0] < H) & (cc[:, -1] >= 0) & (cc[:, 0] < W)
-    rr = np.minimum(np.maximum(rr[c], 0), H - 1)
-    cc = np.minimum(np.maximum(cc[c], 0), W - 1)
-    return (rr[:, :, None] * W + cc[:, None, :]).reshape(-1)
 
 
 def _features(img, bg, sel, H, W):
@@ -298,12 +276,7 @@ def detect(frames, threshold: Threshold, *, params: DetectionParams | None = Non
     p = DetectionParams() if params is None else params
     if not isinstance(threshold, Threshold) or threshold.threshold.shape != (H, W):
         raise ValueError("threshold: expected a Threshold of the frames' image size")
-    valid = np.ones((H, W), bool)
-    if invalid is not None:
-        inv = np.asarray(invalid)
-        if inv.shape != (H, W) or inv.dtype != bool:
-            raise ValueError(f"invalid: expected a boolean mask of shape {(H, W)}")
-        valid = ~inv
+    valid = _valid_mask(invalid, (H, W))
     if mode not in ("full", "subsampled"):
         raise ValueError(f"mode: expected 'full' or 'subsampled', got {mode!r}")
     previous = isinstance(predicted, str) and predicted == "previous"
@@ -313,8 +286,8 @@ def detect(frames, threshold: Threshold, *, params: DetectionParams | None = Non
                              f"got {predicted!r}")
         if predicted is not None and not previous and len(predicted) != T:
             raise ValueError(f"predicted: expected one array of positions per frame ({T})")
-    found = _Found(frames=f, background=np.asarray(threshold.background, float),
-                   thr=_test_threshold(threshold, valid, f.dtype), p=p)
+    found = _Found(frames=f, background=np.ascontiguousarray(threshold.background, float),
+                   thr=np.ascontiguousarray(_test_threshold(threshold, valid, f.dtype)), p=p)
     if mode == "full":
         for t in range(T):
             found.keep(t, np.flatnonzero(found.frames[t] > found.thr), H * W)
@@ -330,8 +303,12 @@ def _test_threshold(threshold: Threshold, valid, dtype) -> np.ndarray:
     thr = np.where(valid, np.asarray(threshold.threshold, float), np.inf)
     if np.issubdtype(dtype, np.integer):
         info = np.iinfo(dtype)
-        out = np.int16 if info.bits <= 8 else np.int32 if info.bits <= 16 else np.int64
-        thr = np.clip(np.floor(np.minimum(thr, info.max)), info.min - 1, info.max).astype(out)
+        thr = np.clip(np.floor(np.minimum(thr, info.max)), info.min - 1, info.max)
+        # the images' own type when no threshold lies below their range (half the memory
+        # of the next wider type: the sparse searches read it pixel by pixel)
+        out = dtype if thr.min() >= info.min else (
+            np.int16 if info.bits <= 8 else np.int32 if info.bits <= 16 else np.int64)
+        thr = thr.astype(out)
     return thr
 
 
@@ -356,6 +333,10 @@ class _Found:
             xy, area = _features(self.frames[t], self.background, sel, H, W)
         else:
             xy, area = np.zeros((0, 2)), np.zeros(0, np.int64)
+        self.add(xy, area, tested)
+
+    def add(self, xy, area, tested: int) -> None:
+        """Record the next frame's components within the area limits."""
         ok = (area >= self.p.min_area) & (area <= self.p.max_area)
         self.xy.append(xy[ok])
         self.area.append(area[ok])
@@ -370,66 +351,29 @@ class _Found:
                           tested=np.asarray(self.tested, np.int64))
 
 
-def _grid_hits(f, thr, k: int, jit):
-    """The jittered grids of all frames, tested by one strided comparison per jitter value
-    (at most k * k slices): hits (T, nr, nc) padded with False, the grid's rows (T, nr) and
-    columns (T, nc), and the grid pixels per frame (T,)."""
-    T, H, W = f.shape
-    nr, nc = -(-H // k), -(-W // k)
-    rows = jit[:, :1] + k * np.arange(nr)[None]
-    cols = jit[:, 1:] + k * np.arange(nc)[None]
-    hits = np.zeros((T, nr, nc), bool)
-    n_grid = np.zeros(T, np.int64)
-    code = jit[:, 0] * k + jit[:, 1]
-    for j in np.unique(code):
-        ts = np.flatnonzero(code == j)
-        jr, jc = divmod(int(j), k)
-        g_hit = f[ts, jr::k, jc::k] > thr[jr::k, jc::k]
-        hits[ts, :g_hit.shape[1], :g_hit.shape[2]] = g_hit
-        n_grid[ts] = g_hit.shape[1] * g_hit.shape[2]
-    return hits, rows, cols, n_grid
-
-
-def _hit_boxes(hits, rows, cols, g: int, H: int, W: int):
-    """Flat pixel indices of the (2g + 1)² box around every grid hit of every frame
-    (clipped at the border, so a box may repeat pixels: harmless), and where each frame's
-    boxes start (T + 1,)."""
-    ht, hr, hc = np.nonzero(hits)                                     # ht is sorted
-    off = np.arange(-g, g + 1)
-    rr = np.minimum(np.maximum(rows[ht, hr][:, None] + off, 0), H - 1)   # (n_hits, 2g+1)
-    cc = np.minimum(np.maximum(cols[ht, hc][:, None] + off, 0), W - 1)
-    box_idx = (rr[:, :, None] * W + cc[:, None, :]).reshape(len(ht), (2 * g + 1) ** 2)
-    return box_idx, np.searchsorted(ht, np.arange(len(hits) + 1))
-
-
 def _search_subsampled(found: _Found, rng, predicted, previous: bool) -> None:
-    """The jittered grid plus windows around the predicted positions, frame by frame; a
-    grid hit is grown to its whole spot by testing the box around it."""
-    f, thr, p = found.frames, found.thr, found.p
-    T, H, W = f.shape
-    k = p.k
-    jit = rng.integers(0, k, (T, 2))
-    hits, rows, cols, n_grid = _grid_hits(f, thr, k, jit)
-    box_idx, box_start = _hit_boxes(hits, rows, cols, p.grow, H, W)
-    img_all = f.reshape(T, H * W)
-    thr_flat = thr.reshape(-1)
-    seen = np.zeros(H * W, bool)             # scratch, to count distinct tested pixels
+    """The jittered grid plus windows around the predicted positions, frame by frame (the
+    compiled search of :mod:`lsmta.widearea._kernels`)."""
+    f, p = found.frames, found.p
+    T = len(f)
+    jit = rng.integers(0, p.k, (T, 2))
     for t in range(T):
         centres = ((found.xy[-1] if found.xy else None) if previous
                    else None if predicted is None else predicted[t])
-        idx = box_idx[box_start[t]:box_start[t + 1]].reshape(-1)
-        win = _window_indices((H, W), centres, p.window)
-        if len(win):
-            idx = np.concatenate([idx, win])
-        if len(idx) == 0:
-            found.keep(t, idx, int(n_grid[t]))
-            continue
-        # tested: every pixel of the boxes and windows, plus the grid pixels outside them
-        seen[idx] = True
-        n_region = np.count_nonzero(seen)
-        on_grid = np.count_nonzero(seen.reshape(H, W)[jit[t, 0]::k, jit[t, 1]::k])
-        seen[idx] = False
-        # grid hits outside any box cannot exist, so these are all the feature pixels
-        img = img_all[t]
-        found.keep(t, np.unique(idx[img[idx] > thr_flat[idx]]),
-                   int(n_grid[t] - on_grid + n_region))
+        c = np.zeros((0, 2)) if centres is None else np.asarray(centres, float).reshape(-1, 2)
+        half = np.full(len(c), p.window // 2, np.int64)
+        xy, area, tested = search_kernel(np.ascontiguousarray(f[t]), found.thr,
+                                         found.background, c, half, p.k,
+                                         int(jit[t, 0]), int(jit[t, 1]), p.min_area,
+                                         p.max_area)
+        found.add(xy, area, int(tested))
+
+
+def _valid_mask(invalid, shape) -> np.ndarray:
+    """The pixels to report: the complement of the boolean mask ``invalid`` (or all)."""
+    if invalid is None:
+        return np.ones(shape, bool)
+    inv = np.asarray(invalid)
+    if inv.shape != tuple(shape) or inv.dtype != bool:
+        raise ValueError(f"invalid: expected a boolean mask of shape {tuple(shape)}")
+    return ~inv

@@ -109,14 +109,29 @@ class Screened:
 def screen_frame(frames: Frames, f: int, n_cameras: int, last_stamp) -> Screened:
     """Check frame ``f`` against the cameras known and ``last_stamp`` (K,), the last accepted
     stamp of each camera (s); nothing passed in is changed."""
-    c, t = int(frames.camera[f]), float(frames.stamp[f])
-    if not 0 <= c < n_cameras:
+    return screen_values(frames.camera[f], frames.stamp[f], frames.centroids(f), n_cameras,
+                         last_stamp)
+
+
+def screen_values(camera, stamp, xy, n_cameras: int, last_stamp) -> Screened:
+    """:func:`screen_frame` for one frame given by its camera index, stamp (s) and
+    centroids ``xy`` (n, 2) px, as a streaming tracker receives it."""
+    try:
+        c = int(camera)
+        ok = c == camera and 0 <= c < n_cameras
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
         return Screened(xy=None, refused="unknown_camera")
+    try:
+        t = float(stamp)
+    except (TypeError, ValueError):
+        t = np.nan
     if not np.isfinite(t):
         return Screened(xy=None, refused="nonfinite_stamp")
     if t <= last_stamp[c]:
         return Screened(xy=None, refused="backwards_time")
-    xy = frames.centroids(f)
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
     finite = np.isfinite(xy).all(axis=1)
     return Screened(xy=xy[finite], refused=None, nan_centroids=int((~finite).sum()))
 
@@ -141,16 +156,31 @@ class FrameIntake:
 
     def take(self, frames: Frames, f: int) -> np.ndarray | None:
         """Frame ``f``'s finite centroids (counted as received), or None if refused."""
-        s = screen_frame(frames, f, len(self.received), self.last_stamp)
+        return self.take_values(frames.camera[f], frames.stamp[f], frames.centroids(f))
+
+    def take_values(self, camera, stamp, xy) -> np.ndarray | None:
+        """:meth:`take` for one frame given by its camera, stamp and centroids."""
+        s = screen_values(camera, stamp, xy, len(self.received), self.last_stamp)
         if s.refused is not None:
             setattr(self, s.refused, getattr(self, s.refused) + 1)
             return None
-        c = int(frames.camera[f])
-        self.last_stamp[c] = float(frames.stamp[f])
+        c = int(camera)
+        self.last_stamp[c] = float(stamp)
         self.received[c] += 1
         self.nan_centroids += s.nan_centroids
         self.empty_frames += int(len(s.xy) == 0)
         return s.xy
+
+    def take_unsearched(self, camera: int, stamp: float) -> None:
+        """Count a valid frame whose centroids were never looked for (a streaming tracker
+        skips the search of a frame it would drop)."""
+        self.last_stamp[camera] = float(stamp)
+        self.received[camera] += 1
+
+    def add_camera(self) -> None:
+        """Make room for one more camera."""
+        self.last_stamp = np.append(self.last_stamp, -np.inf)
+        self.received = np.append(self.received, 0)
 
     @property
     def rejected(self) -> dict:

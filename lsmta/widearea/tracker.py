@@ -1,38 +1,53 @@
-"""The central estimator of the wide-area system (Davis 2002, §§3.4-3.6).
+"""The central estimator of the wide-area system (Davis 2002, §§3.4-3.6), frame by frame.
 
-One loop over the frames in the order the estimator takes them up (see
-:mod:`lsmta.widearea.scheduler` for the queue policies). The estimator keeps a single
-clock, ``now``: the newest time stamp it has used. For each frame:
+:class:`WideAreaTracker` takes frames as they arrive (:meth:`~WideAreaTracker.feed`: a
+camera index, its time stamp, its centroids) and can be read at any time: the current
+estimate of every live target (:meth:`~WideAreaTracker.estimate`), its prediction to any
+time (:meth:`~WideAreaTracker.predict`) and into any camera's image, with the image-plane
+velocity (:meth:`~WideAreaTracker.predict_image`, which steers the detector's windows).
+Cameras come and go while it runs: :meth:`~WideAreaTracker.add_camera` (a camera calibrated
+already, or one to be calibrated against the tracked targets first, see
+:mod:`lsmta.widearea.joining`), :meth:`~WideAreaTracker.remove_camera`, and cameras that
+stop delivering frames are dropped after ``camera_timeout``. :meth:`~WideAreaTracker.result`
+returns a frozen snapshot. The batch :func:`track` is a loop of ``feed`` over
+:class:`~lsmta.widearea.Frames` in the order the estimator takes them up (see
+:mod:`lsmta.widearea.scheduler` for the queue policies).
 
-1. reject bad input, counting it (unknown camera, time stamp not after that camera's
-   previous one, non-finite stamp, NaN centroids; empty frames are counted and only
-   advance the clock);
-2. a frame older than ``now`` by more than ``late_tolerance`` is dropped (the naive
-   "discard late" policy is ``late_tolerance = 0``); a newer one predicts every target to
-   its stamp (:func:`lsmta.widearea.kalman.predict`);
-3. targets seen by fewer than two cameras within ``timeout`` die
-   (:func:`lsmta.widearea.management.starved`);
-4. targets are projected into the camera, retrodicted by the frame's lag, and paired with
-   centroids (:func:`lsmta.widearea.association.associate`); each pair is one extended
-   Kalman update (:func:`lsmta.widearea.kalman.ekf_update`);
-5. centroids no target took become rays; a ray that meets a fresh ray of another camera
-   within ``birth_tolerance`` starts a target (:func:`lsmta.widearea.management.find_birth`).
-
-Target identities are integers that are never reused.
+The estimator keeps a single clock, ``now``: the newest time stamp it has used. The stages
+of one frame are those of :mod:`lsmta.widearea.stages`: reject bad input (counted:
+unknown camera, time stamp not after that camera's previous one, non-finite stamp, NaN
+centroids; empty frames only advance the clock), drop a frame older than ``now`` by more
+than ``late_tolerance`` (the naive "discard late" policy is ``late_tolerance = 0``) or
+predict every target to its stamp, drop silent cameras, end starved targets, gate and
+update, births. Target identities are integers that are never reused.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from enum import IntEnum
 
 import numpy as np
 
 from .._validate import as_array, as_scalar
 from ..camera import Camera
-from .association import associate, innovation_gate
-from .kalman import innovation_covariance, kalman_update, measurement, predict
-from .management import RayPool, starved
-from .observations import FrameIntake, Frames
+from .association import innovation_gate
+from .joining import JoinParams
+from .kalman import _measurement, _predict, innovation_covariance
+from .observations import Frames, screen_values
+from .stages import (
+    CameraStatus,
+    EstimatorState,
+    _Joining,
+    advance,
+    births,
+    collect_join,
+    drop_silent,
+    end_starved,
+    frame_measurement,
+    gate_and_update,
+    update_pairs,
+)
 
 
 @dataclass(frozen=True)
@@ -69,6 +84,9 @@ class EstimatorParams:
         No birth closer than this to an existing target, mm.
     volume : ((3,), (3,)) or None
         Box (lower, upper corner, mm) where births may happen.
+    camera_timeout : float or None
+        An active camera whose newest frame is this much older than the clock is dropped
+        (s); None: cameras are never dropped for silence.
     """
 
     sigma_px: float = 0.5
@@ -83,6 +101,7 @@ class EstimatorParams:
     birth_sigma: tuple = (15.0, 1500.0)
     min_separation: float = 40.0
     volume: tuple | None = ((-2500.0, -3000.0, 0.0), (2500.0, 3000.0, 2500.0))
+    camera_timeout: float | None = None
 
     def __post_init__(self):
         for key in ("sigma_px", "gate_px", "gate_sigma", "min_gate_px", "birth_tolerance",
@@ -93,6 +112,8 @@ class EstimatorParams:
         as_array(self.birth_sigma, "birth_sigma", shape=(2,))
         if self.volume is not None:
             as_array(self.volume, "volume", shape=(2, 3))
+        if self.camera_timeout is not None:
+            as_scalar(self.camera_timeout, "camera_timeout", positive=True)
 
 
 @dataclass(frozen=True)
@@ -144,6 +165,18 @@ class TrackingResult:
     updates : dict of arrays
         One row per Kalman update: ``target`` id, ``camera``, ``time`` (s), ``predicted``
         and ``observed`` centroids (px) — for plots like the thesis's Fig. 44.
+    cameras : tuple of Camera
+        The cameras at the end (a joined camera as calibrated).
+    camera_status : (K,) int array
+        :class:`CameraStatus` codes at the end.
+    camera_events : tuple of (float, int, str)
+        (clock time, camera, what): ``"added"``, ``"joined"``, ``"join failed"``,
+        ``"dropped"`` (silent), ``"back"`` (a dropped camera delivered again),
+        ``"removed"``.
+    joins : tuple of (int, CameraJoin)
+        Every calibration attempt of a joining camera.
+    not_active : (K,) int array
+        Frames refused because their camera had been removed.
     """
 
     tracks: tuple
@@ -158,6 +191,11 @@ class TrackingResult:
     empty_frames: int
     nan_centroids: int
     updates: dict = field(default_factory=dict)
+    cameras: tuple = ()
+    camera_status: np.ndarray | None = None
+    camera_events: tuple = ()
+    joins: tuple = ()
+    not_active: np.ndarray | None = None
 
     @property
     def rejected(self) -> dict:
@@ -175,8 +213,284 @@ class TrackingResult:
         return np.stack([tr.positions_at(t) for tr in self.tracks], axis=1)
 
 
+class FrameStatus(IntEnum):
+    """What :meth:`WideAreaTracker.feed` did with a frame."""
+
+    USED = 0            # in time (or the newest): targets predicted to it, updated, births
+    USED_LATE = 1       # older than the clock by less than the late tolerance: used as it is
+    DROPPED_LATE = 2    # older than the clock by more than the late tolerance
+    REFUSED = 3         # bad input (unknown camera, stamp not after the last, non-finite)
+    NOT_ACTIVE = 4      # its camera was removed
+    COLLECTED = 5       # its camera is joining: kept for its calibration
+
+
+@dataclass(frozen=True)
+class TargetEstimate:
+    """The live targets at one time.
+
+    Attributes
+    ----------
+    time : float
+        s (the tracker's clock, or the time predicted to).
+    ids : (M,) int array
+    states : (M, 6) array
+        Position (mm) and velocity (mm/s).
+    covariances : (M, 6, 6) array
+    """
+
+    time: float
+    ids: np.ndarray
+    states: np.ndarray
+    covariances: np.ndarray
+
+    @property
+    def positions(self) -> np.ndarray:
+        """``(M, 3)`` positions, mm."""
+        return self.states[:, :3]
+
+
+@dataclass(frozen=True)
+class ImagePrediction:
+    """The live targets predicted into one camera's image at one time.
+
+    Attributes
+    ----------
+    camera : int
+    time : float
+        s.
+    ids : (M,) int array
+    xy : (M, 2) array
+        Predicted centroids, px (NaN behind the camera).
+    velocity : (M, 2) array
+        Image-plane velocity, px/s (the projection's Jacobian times the target's velocity).
+    gate_px : (M,) array
+        The association gate the tracker will use for each target in this frame:
+        ``gate_sigma`` times the larger semi-axis of the predicted centroid's innovation
+        ellipse, within ``[min_gate_px, gate_px]``.
+    """
+
+    camera: int
+    time: float
+    ids: np.ndarray
+    xy: np.ndarray
+    velocity: np.ndarray
+    gate_px: np.ndarray
+
+    def windows(self, *, margin_px: float = 3.0):
+        """Search windows for :func:`lsmta.widearea.search_frame`: the predicted centroids
+        and half-sizes of the gate plus ``margin_px`` (a spot's radius), px."""
+        return self.xy, self.gate_px + margin_px
+
+
+class WideAreaTracker:
+    """The wide-area tracker, frame by frame (see the module).
+
+    Parameters
+    ----------
+    cameras : sequence of K Camera
+        Calibrated cameras; a frame's camera index refers to them (cameras added later get
+        the next indices).
+    params : EstimatorParams, optional
+    """
+
+    def __init__(self, cameras, *, params: EstimatorParams | None = None):
+        cameras = list(cameras)
+        if not cameras or not all(isinstance(c, Camera) for c in cameras):
+            raise TypeError("cameras: expected a non-empty sequence of lsmta.camera.Camera")
+        p = EstimatorParams() if params is None else params
+        if not isinstance(p, EstimatorParams):
+            raise TypeError("params: expected lsmta.widearea.EstimatorParams")
+        self._p = p
+        self._s = EstimatorState.initial(cameras, p.birth_sigma)
+
+    @property
+    def params(self) -> EstimatorParams:
+        return self._p
+
+    @property
+    def now(self) -> float:
+        """The estimator's clock: the newest time stamp used, s (-inf before any)."""
+        return self._s.now
+
+    @property
+    def cameras(self) -> tuple:
+        """The cameras as the tracker uses them (a joined camera as calibrated)."""
+        return tuple(self._s.cameras)
+
+    @property
+    def camera_status(self) -> np.ndarray:
+        """``(K,)`` :class:`CameraStatus` codes."""
+        return self._s.status.copy()
+
+    def feed(self, camera, stamp, xy) -> FrameStatus:
+        """Take up one frame: camera index, capture time stamp by its clock (s), and its
+        centroids ``(n, 2)`` px (NaN rows are counted and left out). Nothing passed in is
+        changed."""
+        s = self._s
+        xy = s.intake.take_values(camera, stamp, xy)
+        if xy is None:
+            return FrameStatus.REFUSED
+        c, t = int(camera), float(stamp)
+        status = self._camera_gate(c, t, xy)
+        if status is not None:
+            return status
+        lag = self._advance(c, t)
+        if lag is None:
+            return FrameStatus.DROPPED_LATE
+        if len(xy):
+            free = gate_and_update(s, c, t, xy, lag, self._p)
+            births(s, c, t, xy[free], self._p)
+        return FrameStatus.USED_LATE if lag > 0 else FrameStatus.USED
+
+    def feed_detect(self, camera, stamp, detect) -> FrameStatus:
+        """Take up one frame whose centroids are still to be found, the detection steered by
+        the prediction (Davis §3.3): ``detect(prediction)`` gets the
+        :class:`ImagePrediction` of the live targets for this frame (centroids at its time,
+        image-plane velocities, and the gates the association then uses: computed once, for
+        both) and returns the frame's centroids ``(n, 2)``. The same as :meth:`feed` of the
+        centroids found, except that a frame that is refused, dropped as late or of a
+        removed camera is not searched (and not counted as empty); a joining camera's frame
+        is searched without windows."""
+        s, p = self._s, self._p
+        if screen_values(camera, stamp, np.zeros((0, 2)), len(s.cameras),
+                         s.intake.last_stamp).refused is not None:
+            s.intake.take_values(camera, stamp, np.zeros((0, 2)))      # counted there
+            return FrameStatus.REFUSED
+        c, t = int(camera), float(stamp)
+        if s.status[c] == CameraStatus.JOINING:
+            return self.feed(c, t, detect(self._no_prediction(c, t)))
+        if s.status[c] == CameraStatus.REMOVED or s.now - t > p.late_tolerance:
+            s.intake.take_unsearched(c, t)
+            return self._camera_gate(c, t, None) or (
+                FrameStatus.DROPPED_LATE if self._advance(c, t) is None else FrameStatus.USED)
+        self._camera_gate(c, t, None)
+        lag = self._advance(c, t)
+        fm = frame_measurement(s, c, lag, p)
+        v = np.einsum("aij,aj->ai", fm.H[:, :, :3], s.X[:, 3:])
+        v[~np.isfinite(fm.predicted).all(axis=1)] = np.nan
+        xy = s.intake.take_values(c, t, detect(ImagePrediction(
+            camera=c, time=t, ids=s.ids.copy(), xy=fm.predicted, velocity=v,
+            gate_px=fm.gate)))
+        if len(xy):
+            free = update_pairs(s, c, t, xy, fm, p)
+            births(s, c, t, xy[free], p)
+        return FrameStatus.USED_LATE if lag > 0 else FrameStatus.USED
+
+    def _no_prediction(self, c: int, t: float) -> ImagePrediction:
+        z = np.zeros((0, 2))
+        return ImagePrediction(camera=c, time=t, ids=np.zeros(0, np.int64), xy=z,
+                               velocity=z.copy(), gate_px=np.zeros(0))
+
+    def _camera_gate(self, c: int, t: float, xy) -> FrameStatus | None:
+        """Frames of removed and joining cameras; a silent camera is back."""
+        s = self._s
+        if s.status[c] == CameraStatus.REMOVED:
+            s.not_active[c] += 1
+            return FrameStatus.NOT_ACTIVE
+        if s.status[c] == CameraStatus.JOINING:
+            collect_join(s, c, t, xy)
+            return FrameStatus.COLLECTED
+        if s.status[c] == CameraStatus.SILENT:
+            s.status[c] = CameraStatus.ACTIVE
+            s.events.append((s.now, c, "back"))
+        return None
+
+    def _advance(self, c: int, t: float) -> float | None:
+        """The clock's stages of a frame: advance, silent cameras, starved targets."""
+        s, p = self._s, self._p
+        s.heard[c] = t
+        lag = advance(s, c, t, p)
+        if lag is None:
+            return None
+        s.heard[np.isnan(s.heard)] = s.now          # the silence of a camera counts from here
+        drop_silent(s, p)
+        end_starved(s, p)
+        return lag
+
+    def estimate(self) -> TargetEstimate:
+        """The live targets at the clock ``now`` (copies)."""
+        s = self._s
+        return TargetEstimate(time=s.now, ids=s.ids.copy(), states=s.X.copy(),
+                              covariances=s.P.copy())
+
+    def predict(self, t) -> TargetEstimate:
+        """The live targets predicted to time ``t`` (s) by the constant-velocity model (the
+        covariances grow by the process noise; for ``t`` before the clock the states are
+        carried back along their velocity, covariances unchanged)."""
+        s = self._s
+        t = as_scalar(t, "t")
+        if not len(s.X) or not np.isfinite(s.now):
+            return replace(self.estimate(), time=t)
+        dt = t - s.now
+        if dt >= 0:
+            X, P = _predict(s.X, s.P, np.full(len(s.X), dt), self._p.accel_density)
+        else:
+            X, P = s.X.copy(), s.P.copy()
+            X[:, :3] += dt * X[:, 3:]
+        return TargetEstimate(time=t, ids=s.ids.copy(), states=X, covariances=P)
+
+    def predict_image(self, camera: int, t) -> ImagePrediction:
+        """The live targets predicted into camera ``camera`` at time ``t`` (s, that camera's
+        clock): centroids, image-plane velocities and the gates the association will use
+        (for the windows of the guided search, :func:`lsmta.widearea.search_frame`)."""
+        s, p = self._s, self._p
+        if int(camera) != camera or not 0 <= camera < len(s.cameras):
+            raise ValueError(f"camera: expected an index in [0, {len(s.cameras) - 1}], "
+                             f"got {camera}")
+        e = self.predict(t)
+        if not len(e.ids):
+            return self._no_prediction(int(camera), e.time)
+        h, H = _measurement(s.cameras[camera], e.states, 0.0)
+        gate = innovation_gate(innovation_covariance(e.covariances, H, p.sigma_px),
+                               n_sigma=p.gate_sigma, lower=p.min_gate_px, upper=p.gate_px)
+        v = np.einsum("aij,aj->ai", H[:, :, :3], e.states[:, 3:])
+        v[~np.isfinite(h).all(axis=1)] = np.nan
+        return ImagePrediction(camera=int(camera), time=e.time, ids=e.ids, xy=h, velocity=v,
+                               gate_px=gate)
+
+    def add_camera(self, camera: Camera, *, calibrated: bool = True,
+                   join: JoinParams | None = None) -> int:
+        """Add a camera while tracking; its index (the next one).
+
+        ``calibrated``: use it at once. Otherwise ``camera`` is an approximation (nominal
+        interior orientation, tape-measured pose): its frames are collected with the live
+        targets' positions until it can be calibrated against them
+        (:func:`lsmta.widearea.joining.calibrate_from_targets` with ``join``), and it is
+        used from then on.
+        """
+        if not isinstance(camera, Camera):
+            raise TypeError("camera: expected an lsmta.camera.Camera")
+        j = JoinParams() if join is None else join
+        if not isinstance(j, JoinParams):
+            raise TypeError("join: expected a JoinParams")
+        s = self._s
+        k = s.add_camera(camera, CameraStatus.ACTIVE if calibrated else CameraStatus.JOINING)
+        if not calibrated:
+            s.joining[k] = _Joining(guess=camera, params=j)
+        s.events.append((s.now, k, "added"))
+        return k
+
+    def remove_camera(self, camera: int) -> None:
+        """Stop using a camera (its later frames are refused and counted)."""
+        s = self._s
+        if int(camera) != camera or not 0 <= camera < len(s.cameras):
+            raise ValueError(f"camera: expected an index in [0, {len(s.cameras) - 1}], "
+                             f"got {camera}")
+        c = int(camera)
+        s.status[c] = CameraStatus.REMOVED
+        s.joining.pop(c, None)
+        s.last_seen[:, c] = -np.inf
+        s.pool.keep(s.pool.cameras != c)
+        s.events.append((s.now, c, "removed"))
+
+    def result(self) -> TrackingResult:
+        """A frozen snapshot of the tracks and the bookkeeping so far."""
+        return _result(self._s)
+
+
 def track(cameras, frames: Frames, *, params: EstimatorParams | None = None) -> TrackingResult:
-    """Run the estimator over ``frames`` in the given order.
+    """Run the estimator over ``frames`` in the given order: :meth:`WideAreaTracker.feed`
+    for every frame.
 
     Parameters
     ----------
@@ -191,160 +505,15 @@ def track(cameras, frames: Frames, *, params: EstimatorParams | None = None) -> 
     -------
     TrackingResult
     """
-    cameras = list(cameras)
-    if not cameras or not all(isinstance(c, Camera) for c in cameras):
-        raise TypeError("cameras: expected a non-empty sequence of lsmta.camera.Camera")
+    tracker = WideAreaTracker(cameras, params=params)
     if not isinstance(frames, Frames):
         raise TypeError("frames: expected lsmta.widearea.Frames")
-    p = EstimatorParams() if params is None else params
-    if not isinstance(p, EstimatorParams):
-        raise TypeError("params: expected lsmta.widearea.EstimatorParams")
-    state = _State.initial(len(cameras), p)
     for f in range(frames.n_frames):
-        xy = state.intake.take(frames, f)
-        if xy is None:
-            continue
-        c, t = int(frames.camera[f]), float(frames.stamp[f])
-        lag = _advance(state, c, t, p)
-        if lag is None:                                      # too late: dropped
-            continue
-        _end_starved(state, p)
-        if len(xy) == 0:
-            continue
-        free = _gate_and_update(state, cameras[c], c, t, xy, lag, p)
-        _births(state, cameras[c], c, t, xy[free], p)
-    return _result(state)
+        tracker.feed(frames.camera[f], frames.stamp[f], frames.centroids(f))
+    return tracker.result()
 
 
-@dataclass
-class _State:
-    """Everything one run of :func:`track` changes."""
-
-    intake: FrameIntake
-    P0: np.ndarray                  # (6, 6) covariance of a new target
-    now: float = -np.inf            # the estimator's clock, s
-    X: np.ndarray = None            # (M, 6) live targets' states
-    P: np.ndarray = None            # (M, 6, 6)
-    ids: np.ndarray = None          # (M,) target identities
-    last_seen: np.ndarray = None    # (M, K) when each camera last updated each target
-    pool: RayPool = None
-    next_id: int = 0
-    times: dict = field(default_factory=dict)     # id -> recorded times
-    states: dict = field(default_factory=dict)    # id -> recorded states
-    born: dict = field(default_factory=dict)
-    died: dict = field(default_factory=dict)
-    used: np.ndarray = None         # (K,) frame counters
-    dropped: np.ndarray = None
-    late_used: np.ndarray = None
-    observations: np.ndarray = None
-    log: dict = field(default_factory=lambda: {k: [] for k in (
-        "target", "camera", "time", "predicted", "observed")})
-
-    @classmethod
-    def initial(cls, K: int, p: EstimatorParams) -> _State:
-        s0, v0 = p.birth_sigma
-        return cls(intake=FrameIntake.initial(K), P0=np.diag([s0**2] * 3 + [v0**2] * 3),
-                   X=np.zeros((0, 6)), P=np.zeros((0, 6, 6)), ids=np.zeros(0, np.int64),
-                   last_seen=np.zeros((0, K)), pool=RayPool(),
-                   used=np.zeros(K, np.int64), dropped=np.zeros(K, np.int64),
-                   late_used=np.zeros(K, np.int64), observations=np.zeros(K, np.int64))
-
-
-def _advance(state: _State, c: int, t: float, p: EstimatorParams) -> float | None:
-    """Drop a frame older than the clock by more than the late tolerance (None); use an
-    older one as it is (its lag, s); for a newer one predict every target to its stamp and
-    move the clock (lag 0)."""
-    lag = state.now - t
-    if lag > p.late_tolerance:
-        state.dropped[c] += 1
-        return None
-    state.used[c] += 1
-    if lag > 0:
-        state.late_used[c] += 1
-        return lag
-    if len(state.X) and np.isfinite(state.now):
-        state.X, state.P = predict(state.X, state.P, np.full(len(state.X), t - state.now),
-                                   p.accel_density)
-    state.now = t
-    return 0.0
-
-
-def _end_starved(state: _State, p: EstimatorParams) -> None:
-    """Targets seen by fewer than two cameras within the timeout die."""
-    if not len(state.X):
-        return
-    dead = starved(state.now, state.last_seen, p.timeout)
-    for i in state.ids[dead]:
-        state.died[int(i)] = state.now
-    keep = ~dead
-    state.X, state.P = state.X[keep], state.P[keep]
-    state.ids, state.last_seen = state.ids[keep], state.last_seen[keep]
-
-
-def _gate_and_update(state: _State, cam: Camera, c: int, t: float, xy, lag: float,
-                     p: EstimatorParams) -> np.ndarray:
-    """Pair the targets' projections with the centroids inside each target's gate and
-    update each pair (one extended Kalman update); the centroids no target took."""
-    if not len(state.X):
-        return np.ones(len(xy), bool)
-    pred, H = measurement(cam, state.X, lag=lag)
-    gate = innovation_gate(innovation_covariance(state.P, H, p.sigma_px),
-                           n_sigma=p.gate_sigma, lower=p.min_gate_px, upper=p.gate_px)
-    a = associate(pred, xy, gate)
-    m, j = a.target, a.centroid
-    if len(m):
-        x_new, P_new, _ = kalman_update(state.X[m], state.P[m], H[m], pred[m], xy[j],
-                                        sigma_px=p.sigma_px)
-        state.X[m], state.P[m] = x_new, P_new
-        state.last_seen[m, c] = np.maximum(state.last_seen[m, c], t)
-        state.observations[c] += len(m)
-        for k, i in enumerate(state.ids[m].tolist()):
-            state.times[i].append(state.now)
-            state.states[i].append(x_new[k])
-        log = state.log
-        log["target"] += state.ids[m].tolist()
-        log["camera"] += [c] * len(m)
-        log["time"] += [t] * len(m)
-        log["predicted"] += list(pred[m])
-        log["observed"] += list(xy[j])
-    return a.unassociated
-
-
-def _births(state: _State, cam: Camera, c: int, t: float, xy, p: EstimatorParams) -> None:
-    """The frame's free centroids become rays; a ray that meets a fresh ray of another
-    camera (and is not near a live target) starts a target; the rest wait in the pool."""
-    o, d = cam.rays(xy) if len(xy) else (np.zeros((0, 3)), np.zeros((0, 3)))
-    pool = state.pool
-    pool.refresh(t, c, p.staleness)
-    b = pool.births(o, d, t, c, tolerance=p.birth_tolerance, staleness=p.staleness,
-                    volume=p.volume)
-    taken_new = np.zeros(len(o), bool)
-    taken_pool = np.zeros(len(pool.stamps), bool)
-    for point, i, j in zip(b.points, b.new, b.pool):
-        if len(state.X) and np.min(np.linalg.norm(state.X[:, :3] - point, axis=1)) \
-                < p.min_separation:
-            continue
-        taken_new[i] = taken_pool[j] = True
-        seen = np.full(state.last_seen.shape[1], -np.inf)
-        seen[c], seen[pool.cameras[j]] = t, pool.stamps[j]
-        _start_target(state, np.concatenate([point, np.zeros(3)]), seen)
-    pool.keep(~taken_pool)
-    pool.add(o[~taken_new], d[~taken_new], t, c)
-
-
-def _start_target(state: _State, x0, seen) -> None:
-    i = state.next_id
-    state.next_id += 1
-    state.X = np.vstack([state.X, x0])
-    state.P = np.concatenate([state.P, state.P0[None]])
-    state.ids = np.append(state.ids, i)
-    state.last_seen = np.vstack([state.last_seen, seen])
-    state.born[i] = state.now
-    state.times[i] = [state.now]
-    state.states[i] = [x0]
-
-
-def _result(state: _State) -> TrackingResult:
+def _result(state: EstimatorState) -> TrackingResult:
     tracks = tuple(
         WideAreaTrack(id=i, times=np.asarray(state.times[i]), states=np.asarray(state.states[i]),
                       birth_time=state.born[i], death_time=state.died.get(i, np.nan))
@@ -353,7 +522,10 @@ def _result(state: _State) -> TrackingResult:
     if len(updates["predicted"]) == 0:
         updates["predicted"] = np.zeros((0, 2))
         updates["observed"] = np.zeros((0, 2))
-    return TrackingResult(tracks=tracks, frames_received=state.intake.received,
-                          frames_used=state.used, late_dropped=state.dropped,
-                          late_used=state.late_used, observations_used=state.observations,
-                          updates=updates, **state.intake.rejected)
+    return TrackingResult(tracks=tracks, frames_received=state.intake.received.copy(),
+                          frames_used=state.used.copy(), late_dropped=state.dropped.copy(),
+                          late_used=state.late_used.copy(),
+                          observations_used=state.observations.copy(), updates=updates,
+                          cameras=tuple(state.cameras), camera_status=state.status.copy(),
+                          camera_events=tuple(state.events), joins=tuple(state.joins),
+                          not_active=state.not_active.copy(), **state.intake.rejected)

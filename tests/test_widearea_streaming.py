@@ -1,0 +1,308 @@
+"""The streaming wide-area tracker (lsmta.widearea.WideAreaTracker): the same results as the
+batch tracker, reads that change nothing, guided detection, cameras that join and leave,
+the synchronised per-instant intersection (Fig. 33), bad input."""
+
+import numpy as np
+import pytest
+
+from lsmta.evaluation.track_scores import score_tracks
+from lsmta.evaluation.widearea import walking_trial
+from lsmta.synth.calibration import poor_guess
+from lsmta.synth.widearea import (
+    Clocks,
+    ceiling_rig,
+    circle_led,
+    make_clocks,
+    observe,
+    render_led_video,
+    small_camera,
+    walking_person,
+)
+from lsmta.widearea import (
+    CameraStatus,
+    EstimatorParams,
+    Frames,
+    FrameStatus,
+    JoinParams,
+    JoinStatus,
+    WideAreaTracker,
+    background_threshold,
+    calibrate_from_targets,
+    detect,
+    predict,
+    search_frame,
+    search_setup,
+    track,
+)
+from lsmta.widearea.intersection import intersect_instants
+
+
+@pytest.fixture(scope="module")
+def walk():
+    k = np.arange(8)
+    return walking_trial(rng=np.random.default_rng(21), duration=0.9,
+                         cameras=list(range(0, 18, 2)),
+                         on=np.stack([0.05 + 0.02 * k, 0.6 + 0.02 * k], axis=1))
+
+
+def _same(a, b, *, counters=True):
+    assert len(a.tracks) == len(b.tracks) > 0
+    for x, y in zip(a.tracks, b.tracks):
+        assert x.id == y.id and x.birth_time == y.birth_time
+        assert np.array_equal(x.times, y.times) and np.array_equal(x.states, y.states)
+        assert x.death_time == y.death_time or (np.isnan(x.death_time)
+                                                and np.isnan(y.death_time))
+    for key in a.updates:
+        assert np.array_equal(a.updates[key], b.updates[key])
+    if counters:
+        for key in ("frames_received", "frames_used", "late_dropped", "late_used",
+                    "observations_used"):
+            assert np.array_equal(getattr(a, key), getattr(b, key))
+        assert a.rejected == b.rejected
+
+
+def test_streaming_tracker_equals_the_batch_tracker(walk):
+    fr = walk.frames
+    batch = track(walk.cameras, fr)
+    tracker = WideAreaTracker(walk.cameras)
+    statuses = []
+    for f in range(fr.n_frames):
+        xy = fr.centroids(f)
+        before = xy.copy()
+        statuses.append(tracker.feed(fr.camera[f], fr.stamp[f], xy))
+        np.testing.assert_array_equal(xy, before)
+        if f % 7 == 0:                              # reading changes nothing
+            tracker.estimate()
+            tracker.predict(tracker.now + 0.02)
+            tracker.predict_image(int(fr.camera[f]), fr.stamp[f] + 0.01)
+            tracker.result()
+    _same(tracker.result(), batch)
+    assert FrameStatus.USED_LATE in statuses and FrameStatus.USED in statuses
+    # the detection steered by the prediction: the same centroids give the same run
+    guided = WideAreaTracker(walk.cameras)
+    seen = []
+    for f in range(fr.n_frames):
+        def found(pred, f=f):
+            seen.append(len(pred.ids))
+            assert pred.xy.shape == pred.velocity.shape == (len(pred.ids), 2)
+            return fr.centroids(f)
+        guided.feed_detect(fr.camera[f], fr.stamp[f], found)
+    _same(guided.result(), batch, counters=False)
+    assert max(seen) >= 6
+
+
+def test_estimate_prediction_and_image_velocity(walk):
+    tracker = WideAreaTracker(walk.cameras)
+    fr = walk.frames
+    for f in range(fr.n_frames // 2):
+        tracker.feed(fr.camera[f], fr.stamp[f], fr.centroids(f))
+    e = tracker.estimate()
+    assert e.time == tracker.now and len(e.ids) >= 6
+    dt = 0.02
+    p = tracker.predict(tracker.now + dt)
+    np.testing.assert_allclose(p.positions, e.positions + dt * e.states[:, 3:])
+    X, P = predict(e.states, e.covariances, dt, tracker.params.accel_density)
+    np.testing.assert_allclose(p.states, X)
+    np.testing.assert_allclose(p.covariances, P)
+    assert np.all(np.trace(P[:, :3, :3], axis1=1, axis2=2)
+                  > np.trace(e.covariances[:, :3, :3], axis1=1, axis2=2))
+    back = tracker.predict(tracker.now - dt)
+    np.testing.assert_allclose(back.positions, e.positions - dt * e.states[:, 3:])
+    cam = walk.cameras[3]
+    im = tracker.predict_image(3, tracker.now + dt)
+    ok = np.isfinite(im.xy).all(axis=1)
+    np.testing.assert_allclose(im.xy[ok], cam.project(p.positions[ok]), atol=1e-9)
+    # image velocity: the projection's derivative along the target's motion
+    h = 1e-4
+    ahead = cam.project(p.positions[ok] + h * p.states[ok, 3:])
+    np.testing.assert_allclose(im.velocity[ok], (ahead - im.xy[ok]) / h, rtol=1e-3,
+                               atol=1e-2)
+    assert np.all((im.gate_px >= tracker.params.min_gate_px)
+                  & (im.gate_px <= tracker.params.gate_px))
+
+
+def test_a_camera_joins_and_another_is_dropped_on_a_small_scene():
+    rig = ceiling_rig(rng=np.random.default_rng(9))
+    scene = circle_led(duration=2.5, radius=600.0, period=1.0)
+    clocks = make_clocks(len(rig), rng=np.random.default_rng(1), max_offset=0.002)
+    obs = observe(scene, rig, clocks, rng=np.random.default_rng(2), reflections=0.0)
+    new, gone, stop = 5, 2, 1.0
+    start = [c for i, c in enumerate(rig) if i != new]
+    index = np.array([i - (i > new) for i in range(len(rig))])
+    index[new] = len(start)
+    guess = poor_guess([rig[new]], rng=np.random.default_rng(4))[0]
+    tracker = WideAreaTracker(start, params=EstimatorParams(camera_timeout=0.2))
+    fr = obs.frames
+    added = False
+    for f in range(fr.n_frames):
+        c = int(fr.camera[f])
+        if c == gone and fr.stamp[f] > stop:
+            continue                                       # camera 2 fails at 1 s
+        if c == new and not added:
+            if fr.arrival[f] < 0.3:
+                continue
+            added = True
+            assert tracker.add_camera(guess, calibrated=False,
+                                      join=JoinParams(min_frames=25, min_pairs=20,
+                                                     intrinsics=())) == 17
+            assert tracker.camera_status[17] == CameraStatus.JOINING
+        tracker.feed(index[c], fr.stamp[f], fr.centroids(f))
+    res = tracker.result()
+    what = {(e[1], e[2]): e[0] for e in res.camera_events}
+    assert (17, "joined") in what and res.camera_status[17] == CameraStatus.ACTIVE
+    cal = res.cameras[17]
+    X = scene.positions[::40, 0]
+    err = np.sqrt(np.mean((cal.project(X) - rig[new].project(X)) ** 2))
+    assert err < 0.5 * np.sqrt(np.mean((guess.project(X) - rig[new].project(X)) ** 2))
+    # one LED covers too little of the image for the lens: only the pose is resected here;
+    # the joined camera's innovations are those of the calibrated cameras
+    u = res.updates
+    late = u["time"] > what[(17, "joined")]
+    innov = np.linalg.norm(u["observed"] - u["predicted"], axis=1)
+    rms = [np.sqrt(np.mean(innov[late & (u["camera"] == c)] ** 2)) for c in range(18)
+           if (late & (u["camera"] == c)).sum() > 5]
+    assert (late & (u["camera"] == 17)).sum() > 10
+    assert np.sqrt(np.mean(innov[late & (u["camera"] == 17)] ** 2)) < 1.5 * np.median(rms)
+    last = fr.stamp[(fr.camera == gone) & (fr.stamp <= stop)].max()
+    assert 0.2 <= what[(index[gone], "dropped")] - last < 0.2 + 0.02   # timeout + a frame
+    assert res.camera_status[index[gone]] == CameraStatus.SILENT
+    score = score_tracks(scene, res, np.arange(0.2, 2.5, 0.01))
+    assert score.identity_changes == 0 and score.coverage > 0.98 and score.rms_mm < 10.0
+    # a removed camera's frames are refused and counted
+    tracker.remove_camera(0)
+    assert tracker.feed(0, fr.stamp[-1] + 1.0, np.zeros((0, 2))) == FrameStatus.NOT_ACTIVE
+    assert tracker.result().not_active[0] == 1
+
+
+def test_calibration_against_targets_refuses_too_little():
+    rig = ceiling_rig()
+    guess = poor_guess([rig[0]], rng=np.random.default_rng(0))[0]
+    X = np.array([[0.0, 0.0, 1000.0]])
+    few = calibrate_from_targets(guess, [rig[0].project(X)] * 3, [X] * 3)
+    assert few.status == JoinStatus.TOO_FEW_PAIRS and few.camera is guess
+    with pytest.raises(ValueError, match="positions"):
+        calibrate_from_targets(guess, [rig[0].project(X)], [X, X])
+    with pytest.raises(TypeError, match="guess"):
+        calibrate_from_targets(None, [], [])
+    with pytest.raises(ValueError, match="min_pairs"):
+        JoinParams(min_pairs=0)
+
+
+def test_windowed_search_finds_what_the_full_search_finds():
+    cam = small_camera(ceiling_rig(rng=np.random.default_rng(7))[3])
+    scene = walking_person(duration=0.5, on=np.stack([np.zeros(8), np.full(8, np.inf)], 1))
+    video = render_led_video(scene, cam, np.arange(12) / 30, rng=np.random.default_rng(3))
+    thr = background_threshold(video.background, 20.0, 60.0)
+    inv = np.zeros(video.frames.shape[1:], bool)
+    x0, y0, x1, y1 = video.monitor.astype(int)
+    inv[y0:y1, x0:x1] = True
+    full = detect(video.frames, thr, invalid=inv)
+    setup = search_setup(thr, invalid=inv)
+    frames_before = video.frames.copy()
+    for t in range(len(video.frames)):
+        truth = video.true_xy[t][np.isfinite(video.true_xy[t]).all(axis=1)]
+        g = search_frame(video.frames[t], setup, windows=truth, rng=np.random.default_rng(t))
+        f = full.centroids(t)
+        near = np.linalg.norm(f[:, None] - truth[None], axis=2).min(axis=1) < 3 \
+            if len(truth) else np.zeros(len(f), bool)
+        # every feature at an LED is found, at exactly the full search's centroid
+        for c in f[near]:
+            assert np.linalg.norm(g.xy - c, axis=1).min() < 1e-9
+        assert g.tested < 0.25 * video.frames[t].size
+        everything = search_frame(video.frames[t], setup, full=True)
+        np.testing.assert_allclose(everything.xy, f, atol=1e-9)
+        assert everything.tested == video.frames[t].size
+    np.testing.assert_array_equal(video.frames, frames_before)
+    # gate-sized windows: half-sizes per window
+    one = search_frame(video.frames[0], setup, windows=np.array([[100.0, 100.0]]),
+                       half_sizes=[3.0], jitter=(0, 0))
+    none = search_frame(video.frames[0], setup, jitter=(0, 0))
+    grid_in_window = len(range(100 - 3, 103)) ** 2 - len([r for r in range(97, 103)
+                                                           if r % 5 == 0]) ** 2
+    assert one.tested - none.tested == grid_in_window
+
+
+def test_search_refuses_bad_input():
+    thr = background_threshold(np.full((1, 20, 30), 50, np.uint8), 20.0, 60.0)
+    setup = search_setup(thr)
+    frame = np.zeros((20, 30), np.uint8)
+    with pytest.raises(ValueError, match="frame"):
+        search_frame(frame[:5], setup)
+    with pytest.raises(TypeError, match="frame"):
+        search_frame(frame.astype(float), setup)
+    with pytest.raises(ValueError, match="jitter"):
+        search_frame(frame, setup, jitter=(5, 0))
+    with pytest.raises(ValueError, match="windows"):
+        search_frame(frame, setup, windows=np.zeros(3))
+    with pytest.raises(ValueError, match="half_sizes"):
+        search_frame(frame, setup, windows=np.zeros((2, 2)), half_sizes=[3.0])
+    with pytest.raises(TypeError, match="setup"):
+        search_frame(frame, thr)
+    with pytest.raises(ValueError, match="invalid"):
+        search_setup(thr, invalid=np.zeros((3, 3), bool))
+    with pytest.raises(TypeError, match="threshold"):
+        search_setup(frame)
+
+
+def test_streaming_tracker_refuses_bad_input(walk):
+    with pytest.raises(TypeError, match="cameras"):
+        WideAreaTracker([])
+    with pytest.raises(TypeError, match="params"):
+        WideAreaTracker(walk.cameras, params={"sigma_px": 1.0})
+    with pytest.raises(ValueError, match="camera_timeout"):
+        EstimatorParams(camera_timeout=0.0)
+    tracker = WideAreaTracker(walk.cameras)
+    assert tracker.feed(99, 0.1, np.zeros((0, 2))) == FrameStatus.REFUSED
+    assert tracker.feed("a", 0.1, np.zeros((0, 2))) == FrameStatus.REFUSED
+    assert tracker.feed(0, np.nan, np.zeros((0, 2))) == FrameStatus.REFUSED
+    assert tracker.feed_detect(0, np.inf, lambda p: np.zeros((0, 2))) == FrameStatus.REFUSED
+    r = tracker.result()
+    assert r.unknown_camera == 2 and r.nonfinite_stamp == 2
+    with pytest.raises(ValueError, match="camera"):
+        tracker.predict_image(len(walk.cameras), 0.0)
+    with pytest.raises(ValueError, match="camera"):
+        tracker.remove_camera(-1)
+    with pytest.raises(TypeError, match="camera"):
+        tracker.add_camera("cam")
+    with pytest.raises(TypeError, match="join"):
+        tracker.add_camera(walk.cameras[0], join={"min_frames": 3})
+    with pytest.raises(ValueError, match="t"):
+        tracker.predict(np.nan)
+
+
+def test_synchronised_intersection_is_exact_when_synchronised():
+    rig = ceiling_rig(rng=np.random.default_rng(5))     # (a mirror-symmetric rig has exact
+    # ghost intersections of mirrored LEDs)
+    k = np.arange(8)
+    scene = walking_person(duration=0.5, on=np.stack([0 * k, np.full(8, np.inf)], axis=1))
+    K = len(rig)
+    sync = Clocks(rate=np.full(K, 60.0), phase=np.zeros(K), offset=np.zeros(K),
+                  latency=np.full(K, 0.005))
+    obs = observe(scene, rig, sync, rng=np.random.default_rng(0), noise_px=0.0,
+                  reflections=0.0)
+    times = np.arange(5) / 60.0
+    pts = intersect_instants(rig, obs.frames, times, window=1 / 60)
+    truth = scene.positions_at(times)
+    for t in range(len(times)):
+        P = pts.at(t)
+        d = np.linalg.norm(truth[t][:, None] - P[None], axis=2)
+        seen = obs.visible[np.isclose(obs.true_time, times[t])].sum(axis=0) >= 2
+        assert seen.sum() >= 5
+        assert (d.min(axis=1)[seen] < 1e-6).all()         # every LED seen twice, exactly
+        assert (pts.n_rays[pts.start[t]:pts.start[t + 1]] >= 2).all()
+    # unsynchronised by 10 ms: the moving LEDs' rays no longer meet where the LEDs are
+    late = Clocks(rate=np.full(K, 60.0), phase=np.random.default_rng(1).uniform(0, 0.01, K),
+                  offset=np.zeros(K), latency=np.full(K, 0.005))
+    obs2 = observe(scene, rig, late, rng=np.random.default_rng(0), noise_px=0.0,
+                   reflections=0.0)
+    pts2 = intersect_instants(rig, obs2.frames, times + 0.01, window=1 / 60)
+    d2 = [np.linalg.norm(scene.positions_at(times + 0.01)[t][:, None] - pts2.at(t)[None],
+                         axis=2).min(axis=1) for t in range(len(times))]
+    assert np.nanmax(np.concatenate(d2)) > 1.0
+    with pytest.raises(ValueError, match="window"):
+        intersect_instants(rig, obs.frames, times, window=0.0)
+    with pytest.raises(TypeError, match="frames"):
+        intersect_instants(rig, obs.frames.xy, times, window=0.01)
+    with pytest.raises(ValueError, match="min_rays"):
+        intersect_instants(rig, obs.frames, times, window=0.01, min_rays=1)
+    assert isinstance(obs.frames, Frames)

@@ -13,11 +13,14 @@ Two ways to iterate:
 
 * **forward additive** (Gruen 1985): the design matrix is built from the search image's
   gradient at the warped pixels in every iteration;
-* **inverse compositional** (Baker & Matthews 2001): the model is written the other way
-  round, ``g(c + A u) = alpha + beta f(u) + e``, and the increment is a warp of the
-  *template*, composed with the current warp by its inverse. The design matrix then comes
-  from the template's gradient and is the same in every iteration (up to a scaling by
-  ``beta``), so an iteration only samples the search image's values.
+* **inverse compositional** (Baker & Matthews 2001): the geometric increment is a warp of
+  the *template*, ``f(u + du(dp)) = r0 + r1 g(c + A u) + e``, composed with the current warp
+  by its inverse. The geometric columns of the design matrix then come from the
+  template's gradient and stay the same in every iteration; only the gain's column (the
+  search values ``g``) changes, so an iteration samples the search image's values, without
+  gradients, and updates one column of the normal matrix. The radiometry stays on the
+  search side as in the forward model (putting the gain on the template instead made the
+  first step explode on flat patches with one strong edge).
 
 Per-image normal equations use a fixed layout of 8 columns ``[x, y, g2, g3, g4, g5, r0, r1]``
 (unused columns zero; fixed bounds keep the sums in registers); they are mapped into the
@@ -37,7 +40,7 @@ from ._kernels import _spline_at
 CONVERGED, MAX_ITERATIONS, DIVERGED, OUTSIDE, SINGULAR = 0, 1, 2, 3, 4
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _value_at(coef, pad, x, y):
     """Value of the cubic B-spline with coefficients ``coef`` (padded by ``pad``) at
     ``(x, y)``, without the gradient (the inverse compositional iterations need no more)."""
@@ -69,7 +72,7 @@ def _value_at(coef, pad, x, y):
     return v0 * wy0 + v1 * wy1 + v2 * wy2 + v3 * wy3
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _fill(a, value):
     """Set every element of ``a`` (any shape) to ``value``."""
     flat = a.reshape(a.size)
@@ -77,7 +80,7 @@ def _fill(a, value):
         flat[j] = value
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _copy(src, dst):
     """``dst[...] = src`` for arrays of one shape."""
     s = src.reshape(src.size)
@@ -86,13 +89,13 @@ def _copy(src, dst):
         d[j] = s[j]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _value_grad(coef, pad, x, y, wx, dwx, wy, dwy):
     """Value and gradient of the spline (:func:`lsmta.matching._kernels._spline_at`)."""
     return _spline_at(coef, pad, x, y, wx, dwx, wy, dwy)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _invert(M, n, out, W):
     """Gauss-Jordan inverse of the leading ``n x n`` block of ``M`` into ``out`` (partial
     pivoting; ``W`` is an ``(>= n, >= 2 n)`` work array); False if a pivot vanishes."""
@@ -129,7 +132,7 @@ def _invert(M, n, out, W):
     return True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _adapt(N, n, fixed, max_vif, C, Ci, s, W):
     """Fix badly determined unknowns, worst variance inflation factor first (lsm's
     adaptive parameter control); ``fixed`` is updated in place, the rest is work space."""
@@ -161,7 +164,7 @@ def _adapt(N, n, fixed, max_vif, C, Ci, s, W):
         fixed[worst] = True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _solve_free(N, b, n, fixed, dx, sel, L, z, x):
     """Cholesky solution of ``N dx = b`` over the free unknowns (fixed ones get 0);
     False if the free block is not positive definite (``sel, L, z, x``: work space)."""
@@ -199,7 +202,7 @@ def _solve_free(N, b, n, fixed, dx, sel, L, z, x):
     return True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _row(row, geometry, radiometry, Gx, Gy, ux, uy, value):
     row[0] = Gx
     row[1] = Gy
@@ -211,13 +214,16 @@ def _row(row, geometry, radiometry, Gx, Gy, ux, uy, value):
         row[3] = Gx * uy
         row[4] = Gy * ux
         row[5] = Gy * uy
+    elif geometry == 3:
+        row[2] = Gx * ux
+        row[3] = Gx * uy
     if radiometry >= 1:
         row[6] = 1.0
     if radiometry == 2:
         row[7] = value
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _accumulate(N8, b8, row, wgt, e):
     for a in range(8):
         ra = row[a] * wgt
@@ -226,36 +232,47 @@ def _accumulate(N8, b8, row, wgt, e):
             N8[a, bb] += ra * row[bb]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _curve(base, direction, quad, k, t, t_exp, out):
     d = t - t_exp
     out[0] = base[k, 0] + direction[k, 0] * d + quad[k, 0] * d * d
     out[1] = base[k, 1] + direction[k, 1] * d + quad[k, 1] * d * d
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _tangent(direction, quad, k, t, t_exp, out):
     d = t - t_exp
     out[0] = direction[k, 0] + 2.0 * quad[k, 0] * d
     out[1] = direction[k, 1] + 2.0 * quad[k, 1] * d
 
 
-FAST = {"contract", "arcp", "nsz", "reassoc"}   # no nnan/ninf: the tests must see NaN
+FAST = {"contract", "arcp", "nsz", "reassoc"}
+#: inverse compositional: iterations whose radiometry follows the patches' means and spreads
+MOMENT_ITERATIONS = 3   # no nnan/ninf: the tests must see NaN
 
 
-@nb.njit(cache=True, fastmath=FAST)
-def _sample_patch(coef, pad, height, width, cx, cy, a11, a12, a21, a22, U, gv):
-    """Search image values at ``c + A u`` into ``gv``; False if a pixel leaves the image."""
+@nb.njit(cache=True, error_model="numpy", fastmath=FAST)
+def _sample_patch(coef, pad, height, width, cx, cy, a11, a12, a21, a22, U, gv, ins, partial):
+    """Search image values at ``c + A u`` into ``gv`` and 1 into ``ins`` for the pixels
+    inside the image. A pixel outside fails the patch (False), or with ``partial`` gets
+    ``ins = 0`` (then only the centre must be inside)."""
+    if partial and not (cx >= 0.0 and cx <= width - 1.0 and cy >= 0.0 and cy <= height - 1.0):
+        return False
     for p in range(U.shape[0]):
         x = cx + a11 * U[p, 0] + a12 * U[p, 1]
         y = cy + a21 * U[p, 0] + a22 * U[p, 1]
         if not (x >= 0.0 and x <= width - 1.0 and y >= 0.0 and y <= height - 1.0):
-            return False
+            if not partial:
+                return False
+            gv[p] = 0.0
+            ins[p] = 0.0
+            continue
         gv[p] = _value_at(coef, pad, x, y)
+        ins[p] = 1.0
     return True
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _radiometric_start(f, fw, gv, radiometry):
     """``(r0, r1)`` from the means and spreads of the weighted pixels (``f = r0 + r1 g``)."""
     sf = 0.0
@@ -283,19 +300,24 @@ def _radiometric_start(f, fw, gv, radiometry):
     return fm - r1 * gm, r1
 
 
-@nb.njit(cache=True, fastmath=FAST)
+@nb.njit(cache=True, error_model="numpy", fastmath=FAST)
 def _forward_equations(coef, pad, height, width, f, fw, U, cx, cy, a11, a12, a21, a22, r0, r1,
-                       geometry, radiometry, cut, N8, b8, row, wx, dwx, wy, dwy):
+                       geometry, radiometry, cut, partial, N8, b8, row, wx, dwx, wy, dwy):
     """One image's normal equations (upper triangle) with the search image's gradients at
-    the warped pixels; returns (inside, e^T W e, trace W)."""
+    the warped pixels; returns (inside, e^T W e, trace W). With ``partial`` pixels outside
+    the image are left out (only the centre must be inside)."""
     ee = 0.0
     sw = 0.0
+    if partial and not (cx >= 0.0 and cx <= width - 1.0 and cy >= 0.0 and cy <= height - 1.0):
+        return False, ee, sw
     for p in range(U.shape[0]):
         ux = U[p, 0]
         uy = U[p, 1]
         x = cx + a11 * ux + a12 * uy
         y = cy + a21 * ux + a22 * uy
         if not (x >= 0.0 and x <= width - 1.0 and y >= 0.0 and y <= height - 1.0):
+            if partial:
+                continue
             return False, ee, sw
         g, gx, gy = _value_grad(coef, pad, x, y, wx, dwx, wy, dwy)
         e = f[p] - (r0 + r1 * g)
@@ -311,16 +333,21 @@ def _forward_equations(coef, pad, height, width, f, fw, U, cx, cy, a11, a12, a21
     return True, ee, sw
 
 
-@nb.njit(cache=True, fastmath=FAST)
-def _inverse_equations(gv, f, fw, Jt, alpha, beta, cut, N8, b8, we, wt):
-    """One image's right-hand side (and with a Tukey cut-off its normal matrix) from the
-    template's design rows ``Jt`` (8, P) and the sampled search values ``gv``, residuals
-    ``g - alpha - beta f``; returns (e^T W e, trace W). ``we, wt``: (P,) work space."""
+@nb.njit(cache=True, error_model="numpy", fastmath=FAST)
+def _inverse_equations(gv, f, fw, Jt, r0, r1, radiometry, cut, full, H0, N8, b8, we, wt):
+    """One image's normal equations (upper triangle) from the template's design rows ``Jt``
+    (8, P; the gain's row is set here to the sampled search values ``gv``), residuals
+    ``f - r0 - r1 g``; returns (e^T W e, trace W). ``we, wt``: (P,) work space. Without a
+    Tukey cut-off and unless ``full`` (the weights ``fw`` differ from ``H0``'s), the normal
+    matrix is ``H0`` except for the gain's column."""
     P = f.shape[0]
+    if radiometry == 2:
+        for p in range(P):
+            Jt[7, p] = gv[p]
     ee = 0.0
     sw = 0.0
     for p in range(P):
-        e = gv[p] - alpha - beta * f[p]
+        e = f[p] - r0 - r1 * gv[p]
         wgt = fw[p]
         if cut > 0.0:
             q = e / cut
@@ -335,12 +362,20 @@ def _inverse_equations(gv, f, fw, Jt, alpha, beta, cut, N8, b8, we, wt):
         for p in range(P):
             acc += Jt[a, p] * we[p]
         b8[a] = acc
-    if cut > 0.0:
+    if cut > 0.0 or full:
         _gram(Jt, wt, N8)
+        return ee, sw
+    _copy(H0, N8)
+    if radiometry == 2:
+        for a in range(8):
+            acc = 0.0
+            for p in range(P):
+                acc += Jt[a, p] * wt[p] * Jt[7, p]
+            N8[a, 7] = acc
     return ee, sw
 
 
-@nb.njit(cache=True, fastmath=FAST)
+@nb.njit(cache=True, error_model="numpy", fastmath=FAST)
 def _gram(Jt, wt, N8):
     """Upper triangle of ``Jt diag(wt) Jt^T`` (8 x 8)."""
     P = Jt.shape[1]
@@ -352,7 +387,7 @@ def _gram(Jt, wt, N8):
             N8[a, bb] = acc
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, error_model="numpy")
 def _covariance_factor(N, n, fixed, Q, M, W):
     """``Q = N^-1`` over the free unknowns (zero rows and columns for fixed ones)."""
     for a in range(n):
@@ -373,7 +408,7 @@ def _covariance_factor(N, n, fixed, Q, M, W):
 def solve(coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy, U,
           geometry, radiometry, inverse, constrained, start_radiometry,
           c, A, r0, r1, t, base, direction, quad, t_exp,
-          order, active, max_iter, tol, max_disp, max_vif, tukey_c, ramp,
+          order, active, settings,
           status, iterations, fixed, Q_out, ee_last, sw_last, ee_img):
     """Match every point ``i`` with ``active[i]``, in the sequence ``order``; see the
     module docstring.
@@ -386,7 +421,8 @@ def solve(coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy, U,
     t_gx, t_gy : the template spline's gradient at the pixel centres (``(0, 0)`` arrays in
     the forward mode); t_mask : (H, W) 0/1 template pixel weights, or a ``(0, 0)`` array.
     t_xy : (n, 2) patch centres in the template; U : (P, 2) patch offsets.
-    geometry : 0 shift, 1 similarity, 2 affine; radiometry : 0 none, 1 offset, 2 linear.
+    geometry : 0 shift, 1 similarity, 2 affine, 3 row-affine (only A's first row moves);
+    radiometry : 0 none, 1 offset, 2 linear.
     inverse : inverse compositional (else forward additive); constrained : shared ``t``.
     start_radiometry : start r0, r1 from the patches' mean and spread.
     c (n, K, 2), A (n, K, 2, 2), r0 (n, K), r1 (n, K), t (n,) : *in/out* start and solution
@@ -394,8 +430,14 @@ def solve(coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy, U,
     base, direction, quad : (n, K, 2); t_exp : (n,) the constraint curves (constrained).
     order : (n,) int, the points in an order that keeps neighbours together (cache reuse).
     active : (n,) bool, points to match.
-    tukey_c, ramp : Tukey cut-off (0: least squares) and its ramp (cut-off ``(1 + ramp - it)
-    tukey_c`` in the first iterations).
+    settings : float array ``[max_iter, tol, max_disp, max_vif, tukey_c, ramp, support,
+    partial]``:
+    iteration limit, convergence (px), divergence distance (px), the adaptive control's
+    variance inflation limit, the Tukey cut-off (0: least squares) and its ramp (cut-off
+    ``(1 + ramp - it) tukey_c`` in the first iterations), and the support weights' grey-level
+    scale (0: none; else template pixels weigh ``exp(-|f - f_centre| / support)``), and
+    whether patches may reach over the image borders (1: pixels outside either image get
+    zero weight).
     status, iterations : (n,) *out*; fixed : (n, k) bool *out* unknowns fixed by the
     adaptive control; Q_out : (n, k, k) *out* the inverse of the joint normal matrix of the
     last iteration over the free unknowns; ee_last, sw_last : (n,) *out* weighted squared
@@ -403,36 +445,47 @@ def solve(coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy, U,
     image's share of ee.
     """
     n = t_xy.shape[0]
-    n_chunks = min(n, 64)
     args = (coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy, U, geometry,
             radiometry, inverse, constrained, start_radiometry, c, A, r0, r1, t, base,
-            direction, quad, t_exp, order, active, max_iter, tol, max_disp, max_vif, tukey_c,
-            ramp, status, iterations, fixed, Q_out, ee_last, sw_last, ee_img)
-    threads = min(nb.get_num_threads(), n_chunks)
-    if threads <= 1 or n < 32:
-        for ch in range(n_chunks):
-            _chunk(ch, n_chunks, *args)
+            direction, quad, t_exp, order, active, settings, status, iterations, fixed, Q_out,
+            ee_last, sw_last, ee_img)
+    threads = nb.get_num_threads()
+    if threads <= 1 or n < MIN_PARALLEL:
+        _chunk(0, 1, *args)
         return
-    with ThreadPoolExecutor(threads) as pool:
-        list(pool.map(lambda ch: _chunk(ch, n_chunks, *args), range(n_chunks)))
+    # a few chunks per thread balance points that need more iterations than others
+    n_chunks = min(4 * threads, n)
+    list(_pool(threads).map(lambda ch: _chunk(ch, n_chunks, *args), range(n_chunks)))
 
 
-@nb.njit(cache=True, nogil=True)
+#: fewer points than this are solved on the calling thread (a thread hand-over costs more)
+MIN_PARALLEL = 64
+_POOLS: dict = {}
+
+
+def _pool(threads: int) -> ThreadPoolExecutor:
+    """One thread pool per thread count, kept for the process (the compiled chunks release
+    the GIL, so the threads run in parallel)."""
+    if threads not in _POOLS:
+        _POOLS[threads] = ThreadPoolExecutor(threads, thread_name_prefix="lsmta-lsm")
+    return _POOLS[threads]
+
+
+@nb.njit(cache=True, error_model="numpy", nogil=True)
 def _chunk(ch, n_chunks, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
            U, geometry, radiometry, inverse, constrained, start_radiometry,
-           c, A, r0, r1, t, base, direction, quad, t_exp, order, active, max_iter, tol,
-           max_disp, max_vif, tukey_c, ramp, status, iterations, fixed, Q_out, ee_last,
-           sw_last, ee_img):
+           c, A, r0, r1, t, base, direction, quad, t_exp, order, active, settings, status,
+           iterations, fixed, Q_out, ee_last, sw_last, ee_img):
     """The points of chunk ``ch`` of ``n_chunks``, one after the other; they share their
     work space (few allocations; chunks balance the threads)."""
     n = t_xy.shape[0]
     K = coef.shape[0]
     P = U.shape[0]
-    ns = 0 if geometry == 0 else (2 if geometry == 1 else 4)
+    ns = 4 if geometry == 2 else (0 if geometry == 0 else 2)
     kj = (1 if constrained else 2) + K * (ns + radiometry)
     lo = ch * n // n_chunks
     hi = (ch + 1) * n // n_chunks
-    fv = np.empty((4, P))           # f, fw, gv, we
+    fv = np.empty((6, P))           # f, fw, gv, we, inside, fw x inside
     wt = np.empty(P)
     Jt = np.zeros((8, P))
     w4 = np.empty((4, 4))           # spline weights
@@ -444,36 +497,42 @@ def _chunk(ch, n_chunks, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_
     sel = np.empty(kj, dtype=np.int64)
     W = np.zeros((kj, 2 * kj))
     fx_i = np.zeros(kj, dtype=np.bool_)
-    kv = np.empty((4, K))           # start x, start y, alpha, beta
+    kv = np.empty((2, K))           # start x, start y
     v2 = np.empty((2, 2))           # tangent, curve point
     for j in range(lo, hi):
         i = order[j]
         if active[i]:
             _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy, U,
                    geometry, radiometry, inverse, constrained, start_radiometry,
-                   c, A, r0, r1, t, base, direction, quad, t_exp, max_iter, tol,
-                   max_disp, max_vif, tukey_c, ramp, status, iterations, fixed, Q_out,
-                   ee_last, sw_last, ee_img, K, P, ns, kj,
+                   c, A, r0, r1, t, base, direction, quad, t_exp, settings, status,
+                   iterations, fixed, Q_out, ee_last, sw_last, ee_img, K, P, ns, kj,
                    fv, wt, Jt, w4, m8, v8, jmap, mk, vk, sel, W, fx_i, kv, v2)
 
 
-@nb.njit(cache=True, fastmath=FAST)
+@nb.njit(cache=True, error_model="numpy", fastmath=FAST)
 def _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy, U,
            geometry, radiometry, inverse, constrained, start_radiometry,
-           c, A, r0, r1, t, base, direction, quad, t_exp, max_iter, tol,
-           max_disp, max_vif, tukey_c, ramp, status, iterations, fixed, Q_out,
-           ee_last, sw_last, ee_img, K, P, ns, kj,
+           c, A, r0, r1, t, base, direction, quad, t_exp, settings, status,
+           iterations, fixed, Q_out, ee_last, sw_last, ee_img, K, P, ns, kj,
            fv, wt, Jt, w4, m8, v8, jmap, mk, vk, sel, W, fx_i, kv, v2):
     """Gauss-Newton iterations of point ``i`` (the arguments after ``kj`` are work space)."""
+    max_iter = int(settings[0])
+    tol = settings[1]
+    max_disp = settings[2]
+    max_vif = settings[3]
+    tukey_c = settings[4]
+    ramp = int(settings[5])
+    support = settings[6]
+    partial = settings[7] > 0.0
     nr = radiometry
     nshift = 1 if constrained else 2
-    f, fw, gv, we = fv[0], fv[1], fv[2], fv[3]
+    f, fw, gv, we, ins, fwi = fv[0], fv[1], fv[2], fv[3], fv[4], fv[5]
     wx, dwx, wy, dwy = w4[0], w4[1], w4[2], w4[3]
     H0, N8 = m8[0], m8[1]
     b8, row, coefm = v8[0], v8[1], v8[2]
     N, N_keep, C, Ci, L, M = mk[0], mk[1], mk[2], mk[3], mk[4], mk[5]
     b, dx, s, z, x_ = vk[0], vk[1], vk[2], vk[3], vk[4]
-    start_x, start_y, alpha, beta = kv[0], kv[1], kv[2], kv[3]
+    start_x, start_y = kv[0], kv[1]
     w, cc = v2[0], v2[1]
     h = 0.0
     for p in range(P):
@@ -484,11 +543,19 @@ def _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
     whole = tx == np.floor(tx) and ty == np.floor(ty)
     use_mask = t_mask.shape[0] > 0
     _fill(row, 0.0)
+    t_h, t_w = t_img.shape
     for p in range(P):
         x = tx + U[p, 0]
         y = ty + U[p, 1]
         fxp = 0.0
         fyp = 0.0
+        if not (x >= 0.0 and x <= t_w - 1.0 and y >= 0.0 and y <= t_h - 1.0):
+            # (partial patches only) a pixel outside the template does not count
+            f[p] = 0.0
+            fw[p] = 0.0
+            for a in range(8):
+                Jt[a, p] = 0.0
+            continue
         if whole:
             ix = int(x)
             iy = int(y)
@@ -499,14 +566,23 @@ def _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
         else:
             f[p], fxp, fyp = _value_grad(t_coef, pad, x, y, wx, dwx, wy, dwy)
         if inverse:
-            _row(row, geometry, radiometry, fxp, fyp, U[p, 0], U[p, 1], f[p])
+            # geometric rows -grad f du/dp (the template's increment), the offset's 1; the
+            # gain's row (the search values) is filled in every iteration
+            _row(row, geometry, radiometry, fxp, fyp, U[p, 0], U[p, 1], 0.0)
             for a in range(8):
-                Jt[a, p] = row[a]
+                Jt[a, p] = -row[a] if a < 6 else row[a]
         fw[p] = 1.0
         if use_mask:
             ix = min(max(int(np.rint(x)), 0), t_mask.shape[1] - 1)
             iy = min(max(int(np.rint(y)), 0), t_mask.shape[0] - 1)
             fw[p] = t_mask[iy, ix]
+    if support > 0.0:
+        # adaptive support: pixels unlike the centre (another surface) weigh less
+        fc = f[P // 2]
+        for p in range(P):
+            fw[p] *= np.exp(-abs(f[p] - fc) / support)
+    for p in range(P):
+        ins[p] = 1.0
     for k in range(K):
         start_x[k] = c[i, k, 0]
         start_y[k] = c[i, k, 1]
@@ -516,16 +592,14 @@ def _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
         for k in range(K):
             if not _sample_patch(coef[k], pad, height, width, c[i, k, 0], c[i, k, 1],
                                  A[i, k, 0, 0], A[i, k, 0, 1], A[i, k, 1, 0], A[i, k, 1, 1],
-                                 U, gv):
+                                 U, gv, ins, partial):
                 status[i] = OUTSIDE
                 return
-            r0[i, k], r1[i, k] = _radiometric_start(f, fw, gv, radiometry)
-    # inverse mode: g = alpha + beta f, the template's constant normal matrix H0
-    for k in range(K):
-        beta[k] = 1.0 / r1[i, k]
-        alpha[k] = -r0[i, k] / r1[i, k]
+            for p in range(P):
+                fwi[p] = fw[p] * ins[p]
+            r0[i, k], r1[i, k] = _radiometric_start(f, fwi, gv, radiometry)
     if inverse and tukey_c <= 0.0:
-        _gram(Jt, fw, H0)
+        _gram(Jt, fw, H0)            # the template's normal matrix (gain column: per iteration)
     status[i] = MAX_ITERATIONS
     for it in range(max_iter):
         cut = 0.0
@@ -544,28 +618,23 @@ def _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
             a22 = A[i, k, 1, 1]
             if inverse:
                 if not _sample_patch(coef[k], pad, height, width, c[i, k, 0], c[i, k, 1],
-                                     a11, a12, a21, a22, U, gv):
+                                     a11, a12, a21, a22, U, gv, ins, partial):
                     status[i] = OUTSIDE
                     return
-                if it == 0 and start_radiometry:
-                    r0k, r1k = _radiometric_start(f, fw, gv, radiometry)
-                    beta[k] = 1.0 / r1k
-                    alpha[k] = -r0k / r1k
-                eek, swk = _inverse_equations(gv, f, fw, Jt, alpha[k], beta[k], cut, N8, b8,
-                                              we, wt)
-                if cut <= 0.0:
-                    _copy(H0, N8)
-                # the geometric columns scale with beta
-                for a in range(8):
-                    sa = beta[k] if a < 6 else 1.0
-                    b8[a] *= sa
-                    for bb in range(a, 8):
-                        N8[a, bb] *= sa * (beta[k] if bb < 6 else 1.0)
+                full = False
+                for p in range(P):
+                    fwi[p] = fw[p] * ins[p]
+                    full = full or ins[p] == 0.0
+                if it < MOMENT_ITERATIONS and start_radiometry:
+                    # the first iterations take the radiometry from the patches' moments
+                    r0[i, k], r1[i, k] = _radiometric_start(f, fwi, gv, radiometry)
+                eek, swk = _inverse_equations(gv, f, fwi, Jt, r0[i, k], r1[i, k], radiometry,
+                                              cut, full, H0, N8, b8, we, wt)
             else:
                 ok, eek, swk = _forward_equations(
                     coef[k], pad, height, width, f, fw, U, c[i, k, 0], c[i, k, 1],
                     a11, a12, a21, a22, r0[i, k], r1[i, k], geometry, radiometry, cut,
-                    N8, b8, row, wx, dwx, wy, dwy)
+                    partial, N8, b8, row, wx, dwx, wy, dwy)
                 if not ok:
                     status[i] = OUTSIDE
                     return
@@ -643,6 +712,9 @@ def _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
                 d12 = dx[off + 1]
                 d21 = dx[off + 2]
                 d22 = dx[off + 3]
+            elif geometry == 3:
+                d11 = dx[off]
+                d12 = dx[off + 1]
             old_x = c[i, k, 0]
             old_y = c[i, k, 1]
             o11 = A[i, k, 0, 0]
@@ -665,14 +737,6 @@ def _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
                 if not constrained:
                     c[i, k, 0] = old_x - (n11 * dx[0] + n12 * dx[1])
                     c[i, k, 1] = old_y - (n21 * dx[0] + n22 * dx[1])
-                if nr >= 1:
-                    alpha[k] += dx[off + ns]
-                if nr == 2:
-                    beta[k] += dx[off + ns + 1]
-                if not beta[k] > 1e-6:
-                    bad = True
-                r1[i, k] = 1.0 / beta[k]
-                r0[i, k] = -alpha[k] / beta[k]
             else:
                 A[i, k, 0, 0] = o11 + d11
                 A[i, k, 0, 1] = o12 + d12
@@ -681,10 +745,10 @@ def _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
                 if not constrained:
                     c[i, k, 0] = old_x + dx[0]
                     c[i, k, 1] = old_y + dx[1]
-                if nr >= 1:
-                    r0[i, k] += dx[off + ns]
-                if nr == 2:
-                    r1[i, k] += dx[off + ns + 1]
+            if nr >= 1:
+                r0[i, k] += dx[off + ns]
+            if nr == 2:
+                r1[i, k] += dx[off + ns + 1]
             if constrained:
                 _curve(base[i], direction[i], quad[i], k, t[i], t_exp[i], cc)
                 c[i, k, 0] = cc[0]

@@ -11,7 +11,9 @@ the search image by a geometric and a radiometric transformation::
 offset of a patch pixel from the patch centre (pixels, x then y), ``c`` the matched
 position in the search image, ``A`` a 2 x 2 matrix, ``r0, r1`` offset and gain, ``e``
 noise. ``geometry`` chooses what ``A`` may do: ``"shift"`` (A fixed at its start value,
-2 parameters), ``"similarity"`` (rotation and scale, 4), ``"affine"`` (6); ``radiometry``
+2 parameters), ``"similarity"`` (rotation and scale, 4), ``"affine"`` (6), or
+``"row-affine"`` (4: only the first row of ``A`` moves, every patch row stays a row — the
+exact model between the images of a rectified pair); ``radiometry``
 chooses ``"none"`` (r0 = 0, r1 = 1), ``"offset"`` (r0) or ``"linear"`` (r0 and r1).
 
 The parameters are estimated by Gauss-Newton iterations on the linearised observation
@@ -22,17 +24,16 @@ over points.
 
 Inverse compositional iterations (``method="inverse"``, beyond the paper)
 --------------------------------------------------------------------------
-Baker & Matthews (2001) write the model the other way round, ``g(c + A u) = alpha + beta
-f(u) + e`` (so ``r1 = 1 / beta``, ``r0 = -alpha / beta``), and solve for an increment of a
-warp of the *template*, which is then composed with the current warp by its inverse:
-``A <- A (I + dA)^-1``, ``c <- c - A dc``. The design matrix is built from the template's
-gradient; it is the same in every iteration (up to the gain ``beta`` of its geometric
-columns), so an iteration only samples the search image's grey values, and the normal
-matrix is formed once. It is about three times faster than the forward iterations and
+Baker & Matthews (2001) solve for an increment of a warp of the *template*,
+``f(u + dc + dA u) = r0 + r1 g(c + A u) + e``, and compose it with the current warp by its
+inverse: ``A <- A (I + dA)^-1``, ``c <- c - A dc``. The geometric columns of the design
+matrix are then the template's gradients, the same in every iteration, so an iteration
+samples only the search image's grey values and updates only the gain's column of the
+normal matrix. It is about three times faster than the forward iterations and
 statistically as good (``experiments/lsm_benchmark.py`` compares both with the
-Cramér-Rao bound). ``sigma0`` is reported in template grey levels as in the forward mode;
-the adaptive control works on the template's normal matrix, and a fixed parameter then
-means "no increment in that direction of the template warp".
+Cramér-Rao bound). The radiometric parameters and ``sigma0`` keep their forward meaning;
+the adaptive control works on the template's normal matrix, and a fixed parameter there
+means "no increment in that direction of the template's warp".
 
 Adaptive parameter control
 --------------------------
@@ -85,7 +86,7 @@ from . import _solver
 from .spline import PAD, SplineImage
 
 PARAM_NAMES = ("x", "y", "a11", "a12", "a21", "a22", "r0", "r1")
-GEOMETRIES = {"shift": 2, "similarity": 4, "affine": 6}
+GEOMETRIES = {"shift": 2, "similarity": 4, "affine": 6, "row-affine": 4}
 RADIOMETRIES = {"none": 0, "offset": 1, "linear": 2}
 
 
@@ -232,6 +233,8 @@ class _Model:
     method: str
     max_iter: int
     robust: float | None
+    support: float | None = None
+    partial: bool = False
 
     @property
     def ramp(self) -> int:
@@ -246,11 +249,12 @@ class _Model:
 
     def unknowns(self, K: int, constrained: bool) -> int:
         """Joint unknowns of one point: the shift block, then shape and radiometry per image."""
-        shape = {"shift": 0, "similarity": 2, "affine": 4}[self.geometry]
+        shape = GEOMETRIES[self.geometry] - 2
         return (1 if constrained else 2) + K * (shape + RADIOMETRIES[self.radiometry])
 
 
-def _model(patch, geometry, radiometry, method, max_iter, robust) -> _Model:
+def _model(patch, geometry, radiometry, method, max_iter, robust, support=None,
+           partial=False) -> _Model:
     """Check the model arguments shared by :func:`lsm` and constrained matching."""
     if geometry not in GEOMETRIES:
         raise ValueError(f"geometry: expected one of {list(GEOMETRIES)}, got {geometry!r}")
@@ -264,8 +268,14 @@ def _model(patch, geometry, radiometry, method, max_iter, robust) -> _Model:
         max_iter = 40 if robust is None else 100
     if isinstance(max_iter, bool) or int(max_iter) != max_iter or max_iter < 1:
         raise ValueError(f"max_iter: expected a positive integer, got {max_iter}")
+    if support is not None and (isinstance(support, bool) or not isinstance(support, numbers.Real)
+                                or not np.isfinite(support) or support <= 0):
+        raise ValueError(f"support: expected a positive grey-level scale or None, got {support!r}")
+    if not isinstance(partial, (bool, np.bool_)):
+        raise ValueError(f"partial: expected True or False, got {partial!r}")
     model = _Model(patch, geometry, radiometry, method, int(max_iter),
-                   None if robust is None else float(robust))
+                   None if robust is None else float(robust),
+                   None if support is None else float(support), bool(partial))
     if model.max_iter <= model.ramp:
         raise ValueError(f"max_iter: expected more than {model.ramp} iterations with robust, "
                          f"got {max_iter}")
@@ -328,7 +338,8 @@ class _State:
         n, K = c0.shape[:2]
         k = model.unknowns(K, curves is not None)
         status = np.full(n, Status.MAX_ITERATIONS, dtype=np.int64)
-        status[~f_img.inside(t_xy, margin=model.patch // 2)] = Status.OUTSIDE
+        status[~f_img.inside(t_xy, margin=0 if model.partial else model.patch // 2)] = \
+            Status.OUTSIDE
         zeros = np.zeros((n, K, 2))
         t, base, direction, quad, t_exp = (np.zeros(n), zeros, zeros, zeros, np.zeros(n)) \
             if curves is None else curves
@@ -345,9 +356,11 @@ class _State:
 
 
 def _solve(state: _State, model: _Model, f_img: SplineImage, g_imgs, weights, *,
-           max_disp: float, tol: float, max_vif: float, active=None) -> None:
+           max_disp: float, tol: float, max_vif: float, active=None,
+           start_radiometry: bool = True) -> None:
     """Gauss-Newton iterations of every point (``active``, default: all that fit) in one
-    compiled call (:func:`lsmta.matching._solver.solve`)."""
+    compiled call (:func:`lsmta.matching._solver.solve`); the radiometry starts from the
+    patches' means and spreads, or (``start_radiometry=False``) from ``state``."""
     if active is None:
         active = state.status != Status.OUTSIDE
     shape = g_imgs[0].shape
@@ -360,12 +373,15 @@ def _solve(state: _State, model: _Model, f_img: SplineImage, g_imgs, weights, *,
     _solver.solve(coef, PAD, shape[0], shape[1], f_img.coefficients, f_img.image, gx, gy,
                   weights, state.t_xy, model.U, list(GEOMETRIES).index(model.geometry),
                   RADIOMETRIES[model.radiometry], inverse, state.constrained,
-                  model.radiometry != "none", state.c, state.A, state.r0, state.r1, state.t,
+                  start_radiometry and model.radiometry != "none", state.c, state.A,
+                  state.r0, state.r1, state.t,
                   state.base, state.direction, state.quad, state.t_exp,
                   np.lexsort((state.t_xy[:, 0], np.floor(state.t_xy[:, 1] / 16))), active,
-                  model.max_iter,
-                  float(tol), float(max_disp), float(max_vif),
-                  0.0 if model.robust is None else model.robust, model.ramp, state.status,
+                  np.array([model.max_iter, tol, max_disp, max_vif,
+                            0.0 if model.robust is None else model.robust, model.ramp,
+                            0.0 if model.support is None else model.support,
+                            float(model.partial)], dtype=float),
+                  state.status,
                   state.iterations, state.fixed, state.Q, state.ee_last, state.sw_last,
                   state.ee_img)
 
@@ -384,6 +400,7 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
         radiometry: str = "linear", method: str = "forward", initial_A=None,
         max_iter: int | None = None, tol: float = 1e-4, max_displacement: float | None = None,
         max_vif: float = 1e3, robust: float | None = None, template_mask=None,
+        support: float | None = None, partial: bool = False,
         thresholds: LSMThresholds | None = None) -> LSMResult:
     """Least squares matching of N template patches in a search image, all at once.
 
@@ -399,7 +416,7 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
         Approximate positions in the search image (pixels).
     patch : int
         Odd patch size in pixels, at least 5.
-    geometry : {"shift", "similarity", "affine"}
+    geometry : {"shift", "similarity", "affine", "row-affine"}
     radiometry : {"none", "offset", "linear"}
     method : {"forward", "inverse"}
         How to iterate (see the module docstring): ``"forward"`` (Gruen's forward additive
@@ -427,6 +444,17 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
         silhouette) get zero weight in every patch (nearest pixel). Without it every patch
         pixel counts. A patch with less than ``thresholds.min_weight_share`` (default 0.5)
         of object pixels is rejected.
+    support : float, optional
+        Adaptive support weights (beyond the paper; Yoon & Kweon 2006): every template
+        pixel weighs ``exp(-|f - f_centre| / support)``, so that the part of a patch that
+        looks unlike its centre — likely another surface, across a depth edge — pulls less.
+        Grey levels; None (default): equal weights.
+    partial : bool
+        Let patches reach over the images' borders (beyond the paper): pixels outside the
+        template or the search image get zero weight, and only the patch centres must lie
+        inside. ``weight_share`` then says how much of the patch was inside, and
+        ``thresholds.min_weight_share`` rejects patches that were mostly outside. False
+        (default): a patch must lie inside both images.
     thresholds : LSMThresholds, optional
         Applied to the result (:meth:`LSMThresholds.apply`).
 
@@ -435,7 +463,7 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
     LSMResult
         One row per point; a point that fails gets a status code, never an exception.
     """
-    model = _model(patch, geometry, radiometry, method, max_iter, robust)
+    model = _model(patch, geometry, radiometry, method, max_iter, robust, support, partial)
     f_img, g_img = _spline(template, "template"), _spline(search, "search")
     t_xy, s_xy = as_point_pairs(template_xy, search_xy, "template_xy", "search_xy")
     n = len(t_xy)
@@ -457,10 +485,8 @@ def _result(state: _State, model: _Model, s_xy: np.ndarray) -> LSMResult:
     sigma0, cov = _precision(state)
     cov_xy = cov[:, :2, :2]
     if model.method == "inverse":
-        # the shift was solved as a template increment dc, the position moves by -A dc;
-        # residuals were in search grey levels, g - alpha - beta f = -(f - r0 - r1 g) / r1
+        # the shift was solved as a template increment dc; the position moves by -A dc
         cov_xy = A @ cov_xy @ A.transpose(0, 2, 1)
-        sigma0 = sigma0 * r1
     fixed = state.fixed
     k_geo = GEOMETRIES[model.geometry]
     fixed8 = np.zeros((n, 8), dtype=bool)
@@ -469,6 +495,8 @@ def _result(state: _State, model: _Model, s_xy: np.ndarray) -> LSMResult:
         fixed8[:, 2:6] = (fixed[:, 2] | fixed[:, 3])[:, None]
     elif model.geometry == "affine":
         fixed8[:, 2:6] = fixed[:, 2:6]
+    elif model.geometry == "row-affine":
+        fixed8[:, 2:4] = fixed[:, 2:4]
     if model.radiometry == "offset":
         fixed8[:, 6] = fixed[:, k_geo]
     elif model.radiometry == "linear":

@@ -131,8 +131,8 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
                  shift: int = 0, robust: float | None = None,
                  robust_patch: int | None = None, template_mask=None,
                  method: str = "forward", support: float | None = None,
-                 partial: bool = False, max_iter: int | None = None, reach: bool = False,
-                 constraint=None) -> GrowResult:
+                 partial: bool = False, max_iter: int | None = None, tol: float = 1e-4,
+                 reach: bool = False, constraint=None) -> GrowResult:
     """Grow dense matches between two images from a few seed correspondences.
 
     Parameters
@@ -192,6 +192,8 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
     max_iter : int, optional
         LSM's iteration limit (default: :func:`~lsmta.matching.lsm`'s). Nodes that need many
         iterations rarely pass the thresholds; a lower limit saves their time.
+    tol : float
+        LSM's convergence limit, pixels (see :func:`~lsmta.matching.lsm`).
     reach : bool
         After closing holes, grow once more from diagonal neighbours and from nodes two
         steps away, into open nodes that no direct neighbour could reach (all of theirs
@@ -220,7 +222,7 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         geometry=geometry, radiometry=radiometry, max_attempts=max_attempts,
         min_texture=min_texture, close_holes=close_holes, shift=shift, robust=robust,
         robust_patch=robust_patch, template_mask=template_mask, method=method,
-        support=support, partial=partial, max_iter=max_iter, reach=reach,
+        support=support, partial=partial, max_iter=max_iter, tol=tol, reach=reach,
         constraint=constraint))[0]
 
 
@@ -242,7 +244,8 @@ def grow_joint(template, searches, seeds_template, seeds_search, constraint,
         The tuning of :func:`grow_matches` (``step``, ``patch``, ``retry_patch``,
         ``thresholds``, ``mask``, ``geometry``, ``radiometry``, ``max_attempts``,
         ``min_texture``, ``close_holes``, ``shift``, ``robust``, ``robust_patch``,
-        ``template_mask``, ``method``, ``support``, ``partial``, ``max_iter``, ``reach``).
+        ``template_mask``, ``method``, ``support``, ``partial``, ``max_iter``, ``tol``,
+        ``reach``).
 
     Returns
     -------
@@ -268,7 +271,7 @@ _DEFAULTS = dict(step=4, patch=13, retry_patch=None, thresholds=None, mask=None,
                  geometry="affine", radiometry="linear", max_attempts=3, min_texture=2.0,
                  close_holes=True, shift=0, robust=None, robust_patch=None,
                  template_mask=None, method="forward", support=None, partial=False,
-                 max_iter=None, reach=False)
+                 max_iter=None, tol=1e-4, reach=False)
 
 
 @dataclass(frozen=True)
@@ -321,7 +324,7 @@ def _options(o: dict) -> _Options:
                     model=dict(geometry=o["geometry"], radiometry=o["radiometry"],
                                template_mask=o["template_mask"], method=o["method"],
                                support=o["support"], partial=o["partial"],
-                               max_iter=o["max_iter"]),
+                               max_iter=o["max_iter"], tol=o["tol"]),
                     constraint=o["constraint"])
 
 
@@ -516,10 +519,9 @@ class _Matcher:
         out = _Matches(ok=res.ok[pick], xy=back[pick], A=res.A[pick], sigma0=res.sigma0[pick],
                        sigma_xy=res.sigma_xy[pick], t=res.t[pick], sigma_t=res.sigma_t[pick],
                        how=res.how[pick])
-        if o.constraint is not None:
+        if o.constraint is not None and out.ok.any():
             # the node's own parameter: its carried-back positions on its own curve
-            out.t = np.where(out.ok, o.constraint.parameter(t_xy, np.nan_to_num(out.xy)),
-                             np.nan)
+            out.t[out.ok] = o.constraint.parameter(t_xy[out.ok], out.xy[out.ok])
         return out
 
 

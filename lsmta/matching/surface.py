@@ -4,7 +4,9 @@ The centre image is the template; dense matches are grown from the seeds into ea
 image independently (:func:`~lsmta.matching.grow.grow_matches`), merged into n-tuples at
 the common grid nodes, checked by the neighbourhood filter (outliers re-matched once from
 their neighbours' prediction), intersected with the calibrated cameras and thinned by the
-voxel filter.
+voxel filter. With ``joint=True`` (beyond the paper) every node is matched in all search
+images at once under the epipolar condition (:func:`~lsmta.matching.grow.grow_joint`,
+Gruen & Baltsavias 1988), so the n-tuples' rays meet by construction.
 """
 
 from __future__ import annotations
@@ -17,8 +19,9 @@ from .._validate import as_array
 from ..camera import Camera
 from ..triangulation import Intersection, VoxelCloud, triangulate, voxel_filter
 from .filters import neighbourhood_filter
-from .grow import GrowResult, grow_matches
+from .grow import grow_joint, grow_matches
 from .lsm import LSMThresholds, lsm
+from .mpgc import CameraGeometry, mpgc
 from .spline import check_image
 
 
@@ -84,7 +87,7 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
                     max_position: float = 0.5, max_affine: float = 0.1,
                     neighbourhood_statistic: str = "mean",
                     max_reprojection: float | None = None, voxel: float | None = None,
-                    **grow_kwargs) -> SurfaceResult:
+                    joint: bool = False, **grow_kwargs) -> SurfaceResult:
     """Dense surface points from K >= 2 images of one frame.
 
     Parameters
@@ -112,6 +115,12 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
         the other image's. None (default) turns the check off.
     voxel : float, optional
         Voxel size in mm for the final thinning; None keeps every filtered point.
+    joint : bool
+        Geometrically constrained multi-photo matching (beyond the paper): grow into all
+        search images at once, each node matched jointly with one depth along its template
+        ray (:func:`~lsmta.matching.grow.grow_joint`, :class:`~lsmta.matching.mpgc.CameraGeometry`).
+        The neighbourhood filter's re-match is joint too. False (default): the paper's
+        independent matching into each search image.
     **grow_kwargs
         Further options of :func:`~lsmta.matching.grow.grow_matches` (``retry_patch``,
         ``shift``, ``robust``, ...).
@@ -146,15 +155,15 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
     if thresholds is None:
         thresholds = LSMThresholds(max_displacement=float(step))
     searches = [k for k in range(K) if k != template]
-    robust = grow_kwargs.get("robust")
-    robust_patch = grow_kwargs.get("robust_patch") or patch
-    # the re-match uses the grower's LSM model
-    model = {k: grow_kwargs[k] for k in ("geometry", "radiometry", "template_mask")
-             if k in grow_kwargs}
-
-    grown: list[GrowResult] = [
-        grow_matches(imgs[template], imgs[k], seeds[template], seeds[k], step=step, patch=patch,
-                     thresholds=thresholds, mask=mask, **grow_kwargs) for k in searches]
+    if joint:
+        geometry = CameraGeometry(cameras, template)
+        grown = grow_joint(imgs[template], [imgs[k] for k in searches], seeds[template],
+                           seeds[searches], geometry, step=step, patch=patch,
+                           thresholds=thresholds, mask=mask, **grow_kwargs)
+    else:
+        grown = [grow_matches(imgs[template], imgs[k], seeds[template], seeds[k], step=step,
+                              patch=patch, thresholds=thresholds, mask=mask, **grow_kwargs)
+                 for k in searches]
 
     # n-tuples: nodes matched in every search image
     rows, cols = grown[0].grid_shape
@@ -168,34 +177,19 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
     sig = np.zeros((K, N, 2))
     t_xy = grown[0].template_xy[pos[0]]
     xy[template] = t_xy
-    ok = np.ones(N, dtype=bool)
-    rematched = np.zeros(N, dtype=bool)
     for g, p, k in zip(grown, pos, searches):
         xy[k] = g.search_xy[p]
         sig[k] = g.sigma_xy[p]
-        if neighbourhood:
-            check = neighbourhood_filter(g, max_position=max_position, max_affine=max_affine,
-                                         statistic=neighbourhood_statistic)
-            bad = np.flatnonzero(~check.keep[p] & np.isfinite(check.predicted_xy[p]).all(axis=1))
-            pass_k = check.keep[p].copy()
-            if bad.size:
-                # re-match the outliers once, starting from the neighbours' prediction (by
-                # robust LSM too, where the grower used it and the plain re-match failed)
-                start, A0 = check.predicted_xy[p][bad], check.mean_A[p][bad]
-                res = lsm(imgs[template], imgs[k], t_xy[bad], start, patch=patch,
-                          initial_A=A0, thresholds=thresholds, **model)
-                got, new_xy, new_sig = res.ok, res.xy.copy(), res.sigma_xy.copy()
-                if robust is not None and not got.all():
-                    j = np.flatnonzero(~got)
-                    res2 = lsm(imgs[template], imgs[k], t_xy[bad[j]], start[j], patch=robust_patch,
-                               initial_A=A0[j], robust=robust, thresholds=thresholds, **model)
-                    got[j], new_xy[j], new_sig[j] = res2.ok, res2.xy, res2.sigma_xy
-                fixed = got & (np.linalg.norm(new_xy - start, axis=1) <= max_position)
-                xy[k, bad[fixed]] = new_xy[fixed]
-                sig[k, bad[fixed]] = new_sig[fixed]
-                pass_k[bad[fixed]] = True
-                rematched[bad[fixed]] = True
-            ok &= pass_k
+    ok = np.ones(N, dtype=bool)
+    rematched = np.zeros(N, dtype=bool)
+    if neighbourhood:
+        checks = [neighbourhood_filter(g, max_position=max_position, max_affine=max_affine,
+                                       statistic=neighbourhood_statistic) for g in grown]
+        rematch = _rematch_joint if joint else _rematch_each
+        ok, rematched = rematch(imgs, template, searches, grown, pos, checks, xy, sig, t_xy,
+                                geometry if joint else None, patch=patch,
+                                thresholds=thresholds, max_position=max_position,
+                                grow_kwargs=grow_kwargs)
     intersection = triangulate(cameras, xy)
     if max_reprojection is not None:
         worst = np.where(np.isnan(intersection.reprojection_error), -np.inf,
@@ -213,3 +207,70 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
     return SurfaceResult(grown=grown, template_xy=t_xy, xy=xy, sigma_xy=sig,
                          neighbourhood_ok=ok, rematched=rematched, intersection=intersection,
                          cloud=cloud, points=points, points_xy=points_xy)
+
+
+def _model_of(grow_kwargs: dict) -> dict:
+    """The grower's LSM model, for the re-match."""
+    return {k: grow_kwargs[k] for k in ("geometry", "radiometry", "template_mask", "method",
+                                        "support", "partial") if k in grow_kwargs}
+
+
+def _rematch_each(imgs, template, searches, grown, pos, checks, xy, sig, t_xy, geometry, *,
+                  patch, thresholds, max_position, grow_kwargs):
+    """The paper's neighbourhood filter, image by image: a node the filter removes is
+    re-matched once from its neighbours' prediction (by robust LSM too, where the grower
+    used it and the plain re-match failed); it passes when the new match stays within
+    ``max_position`` of the prediction. Updates ``xy, sig``; returns (ok, rematched)."""
+    N = len(t_xy)
+    ok = np.ones(N, dtype=bool)
+    rematched = np.zeros(N, dtype=bool)
+    robust = grow_kwargs.get("robust")
+    robust_patch = grow_kwargs.get("robust_patch") or patch
+    model = _model_of(grow_kwargs)
+    for check, p, k in zip(checks, pos, searches):
+        bad = np.flatnonzero(~check.keep[p] & np.isfinite(check.predicted_xy[p]).all(axis=1))
+        pass_k = check.keep[p].copy()
+        if bad.size:
+            start, A0 = check.predicted_xy[p][bad], check.mean_A[p][bad]
+            res = lsm(imgs[template], imgs[k], t_xy[bad], start, patch=patch,
+                      initial_A=A0, thresholds=thresholds, **model)
+            got, new_xy, new_sig = res.ok, res.xy.copy(), res.sigma_xy.copy()
+            if robust is not None and not got.all():
+                j = np.flatnonzero(~got)
+                res2 = lsm(imgs[template], imgs[k], t_xy[bad[j]], start[j], patch=robust_patch,
+                           initial_A=A0[j], robust=robust, thresholds=thresholds, **model)
+                got[j], new_xy[j], new_sig[j] = res2.ok, res2.xy, res2.sigma_xy
+            fixed = got & (np.linalg.norm(new_xy - start, axis=1) <= max_position)
+            xy[k, bad[fixed]] = new_xy[fixed]
+            sig[k, bad[fixed]] = new_sig[fixed]
+            pass_k[bad[fixed]] = True
+            rematched[bad[fixed]] = True
+        ok &= pass_k
+    return ok, rematched
+
+
+def _rematch_joint(imgs, template, searches, grown, pos, checks, xy, sig, t_xy, geometry, *,
+                   patch, thresholds, max_position, grow_kwargs):
+    """The neighbourhood filter for joint matches: a node that fails in any search image is
+    re-matched once in all of them jointly (:func:`~lsmta.matching.mpgc.mpgc`), from its
+    neighbours' predictions; it passes when every new position stays within
+    ``max_position`` of its prediction."""
+    keep = np.stack([c.keep[p] for c, p in zip(checks, pos)])                  # (K-1, N)
+    pred = np.stack([c.predicted_xy[p] for c, p in zip(checks, pos)], axis=1)  # (N, K-1, 2)
+    A0 = np.stack([c.mean_A[p] for c, p in zip(checks, pos)], axis=1)
+    ok = keep.all(axis=0)
+    rematched = np.zeros(len(t_xy), dtype=bool)
+    bad = np.flatnonzero(~ok & np.isfinite(pred).all(axis=(1, 2)))
+    if bad.size:
+        t0 = geometry.parameter(t_xy[bad], pred[bad])
+        res = mpgc(imgs[template], [imgs[k] for k in searches], t_xy[bad], t0, geometry,
+                   patch=patch, initial_A=A0[bad], thresholds=thresholds,
+                   **_model_of(grow_kwargs))
+        new = res.xy.transpose(1, 0, 2)                                        # (n, K-1, 2)
+        fixed = res.ok & (np.linalg.norm(new - pred[bad], axis=2) <= max_position).all(axis=1)
+        for j, k in enumerate(searches):
+            xy[k, bad[fixed]] = res.xy[j, fixed]
+            sig[k, bad[fixed]] = res.sigma_xy[j, fixed]
+        ok[bad[fixed]] = True
+        rematched[bad[fixed]] = True
+    return ok, rematched

@@ -255,9 +255,7 @@ MOMENT_ITERATIONS = 3   # no nnan/ninf: the tests must see NaN
 def _sample_patch(coef, pad, height, width, cx, cy, a11, a12, a21, a22, U, gv, ins, partial):
     """Search image values at ``c + A u`` into ``gv`` and 1 into ``ins`` for the pixels
     inside the image. A pixel outside fails the patch (False), or with ``partial`` gets
-    ``ins = 0`` (then only the centre must be inside)."""
-    if partial and not (cx >= 0.0 and cx <= width - 1.0 and cy >= 0.0 and cy <= height - 1.0):
-        return False
+    ``ins = 0``."""
     for p in range(U.shape[0]):
         x = cx + a11 * U[p, 0] + a12 * U[p, 1]
         y = cy + a21 * U[p, 0] + a22 * U[p, 1]
@@ -305,11 +303,9 @@ def _forward_equations(coef, pad, height, width, f, fw, U, cx, cy, a11, a12, a21
                        geometry, radiometry, cut, partial, N8, b8, row, wx, dwx, wy, dwy):
     """One image's normal equations (upper triangle) with the search image's gradients at
     the warped pixels; returns (inside, e^T W e, trace W). With ``partial`` pixels outside
-    the image are left out (only the centre must be inside)."""
+    the image are left out."""
     ee = 0.0
     sw = 0.0
-    if partial and not (cx >= 0.0 and cx <= width - 1.0 and cy >= 0.0 and cy <= height - 1.0):
-        return False, ee, sw
     for p in range(U.shape[0]):
         ux = U[p, 0]
         uy = U[p, 1]

@@ -451,8 +451,8 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
         Grey levels; None (default): equal weights.
     partial : bool
         Let patches reach over the images' borders (beyond the paper): pixels outside the
-        template or the search image get zero weight, and only the patch centres must lie
-        inside. ``weight_share`` then says how much of the patch was inside, and
+        template or the search image get zero weight, and only the patch centre must lie
+        inside the template. ``weight_share`` then says how much of the patch was inside, and
         ``thresholds.min_weight_share`` rejects patches that were mostly outside. False
         (default): a patch must lie inside both images.
     thresholds : LSMThresholds, optional

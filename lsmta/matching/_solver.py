@@ -40,7 +40,7 @@ from ._kernels import _spline_at
 CONVERGED, MAX_ITERATIONS, DIVERGED, OUTSIDE, SINGULAR = 0, 1, 2, 3, 4
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, error_model="numpy", inline="always")
 def _value_at(coef, pad, x, y):
     """Value of the cubic B-spline with coefficients ``coef`` (padded by ``pad``) at
     ``(x, y)``, without the gradient (the inverse compositional iterations need no more)."""
@@ -246,9 +246,7 @@ def _tangent(direction, quad, k, t, t_exp, out):
     out[1] = direction[k, 1] + 2.0 * quad[k, 1] * d
 
 
-FAST = {"contract", "arcp", "nsz", "reassoc"}
-#: inverse compositional: iterations whose radiometry follows the patches' means and spreads
-MOMENT_ITERATIONS = 3   # no nnan/ninf: the tests must see NaN
+FAST = {"contract", "arcp", "nsz", "reassoc"}   # no nnan/ninf: the tests must see NaN
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=FAST)
@@ -621,8 +619,8 @@ def _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
                 for p in range(P):
                     fwi[p] = fw[p] * ins[p]
                     full = full or ins[p] == 0.0
-                if it < MOMENT_ITERATIONS and start_radiometry:
-                    # the first iterations take the radiometry from the patches' moments
+                if it == 0 and start_radiometry:
+                    # the radiometry starts from the patches' means and spreads
                     r0[i, k], r1[i, k] = _radiometric_start(f, fwi, gv, radiometry)
                 eek, swk = _inverse_equations(gv, f, fwi, Jt, r0[i, k], r1[i, k], radiometry,
                                               cut, full, H0, N8, b8, we, wt)

@@ -328,12 +328,14 @@ def _forward_equations(coef, pad, height, width, f, fw, U, cx, cy, a11, a12, a21
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=FAST)
-def _inverse_equations(gv, f, fw, Jt, r0, r1, radiometry, cut, full, H0, N8, b8, we, wt):
+def _inverse_equations(gv, f, fw, Jt, used, r0, r1, radiometry, cut, full, H0, N8, b8, we,
+                       wt):
     """One image's normal equations (upper triangle) from the template's design rows ``Jt``
     (8, P; the gain's row is set here to the sampled search values ``gv``), residuals
-    ``f - r0 - r1 g``; returns (e^T W e, trace W). ``we, wt``: (P,) work space. Without a
-    Tukey cut-off and unless ``full`` (the weights ``fw`` differ from ``H0``'s), the normal
-    matrix is ``H0`` except for the gain's column."""
+    ``f - r0 - r1 g``; returns (e^T W e, trace W). ``used``: the model's rows (the others are
+    zero); ``we, wt``: (P,) work space. Without a Tukey cut-off and unless ``full`` (the
+    weights ``fw`` differ from ``H0``'s), the normal matrix is ``H0`` except for the gain's
+    column."""
     P = f.shape[0]
     if radiometry == 2:
         for p in range(P):
@@ -353,31 +355,34 @@ def _inverse_equations(gv, f, fw, Jt, r0, r1, radiometry, cut, full, H0, N8, b8,
         ee += wgt * e * e
     for a in range(8):
         acc = 0.0
-        for p in range(P):
-            acc += Jt[a, p] * we[p]
+        if used[a]:
+            for p in range(P):
+                acc += Jt[a, p] * we[p]
         b8[a] = acc
     if cut > 0.0 or full:
-        _gram(Jt, wt, N8)
+        _gram(Jt, used, wt, N8)
         return ee, sw
     _copy(H0, N8)
     if radiometry == 2:
         for a in range(8):
-            acc = 0.0
-            for p in range(P):
-                acc += Jt[a, p] * wt[p] * Jt[7, p]
-            N8[a, 7] = acc
+            if used[a]:
+                acc = 0.0
+                for p in range(P):
+                    acc += Jt[a, p] * wt[p] * Jt[7, p]
+                N8[a, 7] = acc
     return ee, sw
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=FAST)
-def _gram(Jt, wt, N8):
-    """Upper triangle of ``Jt diag(wt) Jt^T`` (8 x 8)."""
+def _gram(Jt, used, wt, N8):
+    """Upper triangle of ``Jt diag(wt) Jt^T`` (8 x 8) over the ``used`` rows (zero else)."""
     P = Jt.shape[1]
     for a in range(8):
         for bb in range(a, 8):
             acc = 0.0
-            for p in range(P):
-                acc += Jt[a, p] * wt[p] * Jt[bb, p]
+            if used[a] and used[bb]:
+                for p in range(P):
+                    acc += Jt[a, p] * wt[p] * Jt[bb, p]
             N8[a, bb] = acc
 
 
@@ -443,7 +448,7 @@ def solve(coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy, U,
             radiometry, inverse, constrained, start_radiometry, c, A, r0, r1, t, base,
             direction, quad, t_exp, order, active, settings, status, iterations, fixed, Q_out,
             ee_last, sw_last, ee_img)
-    threads = nb.get_num_threads()
+    threads = nb.config.NUMBA_NUM_THREADS      # (get_num_threads() costs 0.2 ms a call)
     if threads <= 1 or n < MIN_PARALLEL:
         _chunk(0, 1, *args)
         return
@@ -453,7 +458,7 @@ def solve(coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy, U,
 
 
 #: fewer points than this are solved on the calling thread (a thread hand-over costs more)
-MIN_PARALLEL = 64
+MIN_PARALLEL = 8
 _POOLS: dict = {}
 
 
@@ -486,6 +491,12 @@ def _chunk(ch, n_chunks, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_
     m8 = np.zeros((2, 8, 8))        # H0, N8
     v8 = np.zeros((3, 8))           # b8, row, coefm
     jmap = np.empty(8, dtype=np.int64)
+    used = np.zeros(8, dtype=np.bool_)  # the model's rows of the 8-column layout
+    used[0] = used[1] = True
+    for a in range(ns):
+        used[2 + a] = True
+    for a in range(radiometry):
+        used[6 + a] = True
     mk = np.zeros((6, kj, kj))      # N, N_keep, C, Ci, L, M
     vk = np.zeros((5, kj))          # b, dx, s, z, x
     sel = np.empty(kj, dtype=np.int64)
@@ -500,7 +511,7 @@ def _chunk(ch, n_chunks, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_
                    geometry, radiometry, inverse, constrained, start_radiometry,
                    c, A, r0, r1, t, base, direction, quad, t_exp, settings, status,
                    iterations, fixed, Q_out, ee_last, sw_last, ee_img, K, P, ns, kj,
-                   fv, wt, Jt, w4, m8, v8, jmap, mk, vk, sel, W, fx_i, kv, v2)
+                   fv, wt, Jt, w4, m8, v8, jmap, used, mk, vk, sel, W, fx_i, kv, v2)
 
 
 @nb.njit(cache=True, error_model="numpy", fastmath=FAST)
@@ -508,7 +519,7 @@ def _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
            geometry, radiometry, inverse, constrained, start_radiometry,
            c, A, r0, r1, t, base, direction, quad, t_exp, settings, status,
            iterations, fixed, Q_out, ee_last, sw_last, ee_img, K, P, ns, kj,
-           fv, wt, Jt, w4, m8, v8, jmap, mk, vk, sel, W, fx_i, kv, v2):
+           fv, wt, Jt, w4, m8, v8, jmap, used, mk, vk, sel, W, fx_i, kv, v2):
     """Gauss-Newton iterations of point ``i`` (the arguments after ``kj`` are work space)."""
     max_iter = int(settings[0])
     tol = settings[1]
@@ -593,7 +604,7 @@ def _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
                 fwi[p] = fw[p] * ins[p]
             r0[i, k], r1[i, k] = _radiometric_start(f, fwi, gv, radiometry)
     if inverse and tukey_c <= 0.0:
-        _gram(Jt, fw, H0)            # the template's normal matrix (gain column: per iteration)
+        _gram(Jt, used, fw, H0)      # the template's normal matrix (gain column: per iteration)
     status[i] = MAX_ITERATIONS
     for it in range(max_iter):
         cut = 0.0
@@ -622,8 +633,8 @@ def _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
                 if it == 0 and start_radiometry:
                     # the radiometry starts from the patches' means and spreads
                     r0[i, k], r1[i, k] = _radiometric_start(f, fwi, gv, radiometry)
-                eek, swk = _inverse_equations(gv, f, fwi, Jt, r0[i, k], r1[i, k], radiometry,
-                                              cut, full, H0, N8, b8, we, wt)
+                eek, swk = _inverse_equations(gv, f, fwi, Jt, used, r0[i, k], r1[i, k],
+                                              radiometry, cut, full, H0, N8, b8, we, wt)
             else:
                 ok, eek, swk = _forward_equations(
                     coef[k], pad, height, width, f, fw, U, c[i, k, 0], c[i, k, 1],

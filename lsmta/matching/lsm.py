@@ -76,6 +76,7 @@ Parameter vector (``LSMResult.params``), always 8 columns whatever the model:
 from __future__ import annotations
 
 import enum
+import functools
 import numbers
 from dataclasses import dataclass, replace
 
@@ -188,7 +189,7 @@ class LSMThresholds:
 
     def accept(self, result: LSMResult) -> np.ndarray:
         """Boolean ``(N,)``: converged and passing every threshold."""
-        sv = np.linalg.svd(result.A, compute_uv=False)
+        sv = _singular_values(result.A)
         cols = result.A.transpose(0, 2, 1)
         with np.errstate(invalid="ignore", divide="ignore"):
             cos = np.abs(np.einsum("ni,ni->n", cols[:, 0], cols[:, 1])) / (
@@ -197,7 +198,7 @@ class LSMThresholds:
         return (result.ok & (result.sigma0 <= self.max_sigma0)
                 & (sxy.max(axis=1) <= self.max_sigma_xy)
                 & (result.displacement <= self.max_displacement)
-                & (sv.min(axis=1) >= self.scale_range[0]) & (sv.max(axis=1) <= self.scale_range[1])
+                & (sv[:, 1] >= self.scale_range[0]) & (sv[:, 0] <= self.scale_range[1])
                 & (cos <= self.max_shear) & (result.weight_share >= self.min_weight_share))
 
     def apply(self, result: LSMResult) -> LSMResult:
@@ -205,6 +206,15 @@ class LSMThresholds:
         status = result.status.copy()
         status[result.ok & ~self.accept(result)] = Status.REJECTED
         return replace(result, status=status)
+
+
+def _singular_values(A: np.ndarray) -> np.ndarray:
+    """Singular values ``(N, 2)`` (larger first) of ``(N, 2, 2)`` matrices, in closed form:
+    ``s² = (q ± sqrt(q² - 4 det²)) / 2`` with ``q`` the squared Frobenius norm."""
+    q = np.einsum("nij,nij->n", A, A)
+    det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
+    root = np.sqrt(np.maximum(q * q - 4 * det * det, 0.0))
+    return np.sqrt(np.stack([(q + root) / 2, np.maximum(q - root, 0.0) / 2], axis=1))
 
 
 def _check_robust(robust) -> None:
@@ -243,14 +253,22 @@ class _Model:
 
     @property
     def U(self) -> np.ndarray:
-        h = self.patch // 2
-        gy, gx = np.mgrid[-h:h + 1, -h:h + 1]
-        return np.stack([gx.ravel(), gy.ravel()], axis=1).astype(float)
+        """Offsets ``(P, 2)`` (x, y) of the patch pixels, row by row (don't write)."""
+        return _offsets(self.patch)
 
     def unknowns(self, K: int, constrained: bool) -> int:
         """Joint unknowns of one point: the shift block, then shape and radiometry per image."""
         shape = GEOMETRIES[self.geometry] - 2
         return (1 if constrained else 2) + K * (shape + RADIOMETRIES[self.radiometry])
+
+
+@functools.lru_cache(maxsize=16)
+def _offsets(patch: int) -> np.ndarray:
+    h = patch // 2
+    gy, gx = np.mgrid[-h:h + 1, -h:h + 1]
+    out = np.stack([gx.ravel(), gy.ravel()], axis=1).astype(float)
+    out.flags.writeable = False
+    return out
 
 
 def _model(patch, geometry, radiometry, method, max_iter, robust, support=None,

@@ -158,14 +158,17 @@ class StereoPoints:
 
 
 def sgbm(first, second, cam_first, cam_second, *, depth_range=(1800.0, 3500.0),
-         block_size: int = 5, uniqueness: int = 10) -> StereoPoints:
+         block_size: int = 5, uniqueness: int = 10, filters: bool = False) -> StereoPoints:
     """OpenCV semi-global matching on a rectified pair, triangulated to world points.
 
     ``first`` must be the left image of the pair (the second camera lies to its right).
     OpenCV rectifies both images (``stereoRectify`` with the cameras' own distortion),
     ``StereoSGBM`` computes disparities over the range that ``depth_range`` (mm from the
     first camera) implies, and ``reprojectImageTo3D`` turns them into points, which are
-    mapped back to the world frame and to the first image's original pixels.
+    mapped back to the world frame and to the first image's original pixels (exact,
+    sub-pixel: the projection of each point). With ``filters`` OpenCV's usual post-filters
+    are on, as in :func:`stereo_sgbm`: the speckle filter (window 100, range 2) and the
+    left-right check (``disp12MaxDiff = 1``).
     """
     import time
 
@@ -193,6 +196,9 @@ def sgbm(first, second, cam_first, cam_second, *, depth_range=(1800.0, 3500.0),
     matcher = cv2.StereoSGBM_create(minDisparity=int(np.floor(d_lo)), numDisparities=num,
                                     blockSize=block_size, P1=8 * block_size**2,
                                     P2=32 * block_size**2, uniquenessRatio=uniqueness,
+                                    disp12MaxDiff=1 if filters else -1,
+                                    speckleWindowSize=100 if filters else 0,
+                                    speckleRange=2 if filters else 0,
                                     mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
     disp = matcher.compute(rect[0], rect[1]).astype(np.float32) / 16.0
     valid = disp > matcher.getMinDisparity()

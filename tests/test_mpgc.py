@@ -242,3 +242,18 @@ def test_inputs_not_modified(rectified):
     measure_disparity(f, g, disparity_range=(0, 16), n_seeds=5)
     assert np.array_equal(f, rectified.template) and np.array_equal(g, rectified.search)
     assert all(np.array_equal(a, b) for a, b in zip(keep, (pts, t0, A0)))
+
+
+def test_stereo_scores_and_the_cones_copy():
+    truth = np.array([[10.0, 10.25, np.nan], [20.0, 20.0, 20.0]])
+    scored = np.isfinite(truth)
+    est = np.array([[10.0, 11.5, 3.0], [np.nan, 22.5, 20.1]])
+    s = stereo.scores(est, truth, scored)
+    assert s["density"] == 4 / 5 and s["n"] == 4
+    assert s["bad1"] == 0.5 and s["bad2"] == 0.25 and s["bad1_all"] == 3 / 5
+    assert np.isclose(s["median"], (0.1 + 1.25) / 2)
+    assert stereo.quantisation_median() == 0.0625
+    cones = stereo.load_cones()
+    assert cones.left.shape == cones.right.shape == (375, 450)
+    d = cones.disparity[np.isfinite(cones.disparity)]
+    assert np.all(d * 4 == np.rint(d * 4)) and 0.8 < cones.nonoccluded.mean() < 0.9

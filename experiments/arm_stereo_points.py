@@ -35,9 +35,9 @@ OUT = Path(__file__).resolve().parents[1] / "data" / "arm_stereo" / "arm_wave_st
 def world():
     """The rig, body and motion of the notebook (same seeds)."""
     rng = np.random.default_rng(SEED)
-    cameras = triplet_rig(rng, distance=2500.0, baseline=700.0)
-    body = make_body(np.random.default_rng(SEED), contrast=0.3, wavelength=(12.0, 50.0))
-    return cameras, body, arm_wave(50), rng
+    cameras = triplet_rig(rng=rng, distance=2500.0, baseline=700.0)
+    body = make_body(rng=np.random.default_rng(SEED), contrast=0.3, wavelength=(12.0, 50.0))
+    return cameras, body, arm_wave(n_frames=50), rng
 
 
 def main(argv=None):
@@ -57,7 +57,7 @@ def main(argv=None):
     points, frame_of, crops, boxes, seconds, errors = [], [], [], [], [], []
     for f in FRAMES:
         shot = renderer.render(f, rng=rng)
-        seeds = evaluate.seeds_from_truth(scene, cameras, f, rng, per_part=args.per_part)
+        seeds = evaluate.seeds_from_truth(scene, cameras, f, rng=rng, per_part=args.per_part)
         px = np.round(seeds[1]).astype(int)
         on_arm = np.isin(shot.part_id[1][px[:, 1], px[:, 0]], arm)
         t0 = time.perf_counter()

@@ -17,7 +17,7 @@ import argparse
 
 import numpy as np
 
-from lsmta.body import arm_model, fit_sequence
+from lsmta.body import FitParams, arm_model, fit_sequence
 from lsmta.evaluation import body as eb
 from lsmta.report import best_time, write_json
 from lsmta.synth import arm_wave, make_body
@@ -32,12 +32,12 @@ def main(argv=None):
     parser.add_argument("--out", default="build/benchmarks/body.json")
     args = parser.parse_args(argv)
     rng = np.random.default_rng(1998)
-    body = make_body(np.random.default_rng(1998))
-    motion = arm_wave(50)
+    body = make_body(rng=np.random.default_rng(1998))
+    motion = arm_wave(n_frames=50)
     frames = np.linspace(4, 49, args.frames).astype(int)
     truth = eb.arm_truth(body, motion, frames)
-    init, _ = eb.initial_state(truth, rng)
-    points = eb.controlled_points(body, motion, truth, rng, n=args.points)
+    init, _ = eb.initial_state(truth, rng=rng)
+    points = eb.controlled_points(body, motion, truth, rng=rng, n=args.points)
     model = arm_model()
     variants = {"analytic, sparse": dict(sparse_jacobian=True),
                 "analytic, dense": dict(sparse_jacobian=False),
@@ -47,10 +47,11 @@ def main(argv=None):
     out = {"frames": int(args.frames), "points_per_frame": int(args.points), "variants": {}}
     for name, kw in variants.items():
         def run(kw=kw):
-            return fit_sequence(model, points, truth.torso_poses, init, sigma_mm=2.0, **kw)
-        seconds, fit = best_time(run, args.repeats)
+            return fit_sequence(model, points, truth.torso_poses, init,
+                                params=FitParams(sigma_mm=2.0, **kw))
+        seconds, fit = best_time(run, repeats=args.repeats)
         s = eb.score_fit(fit, truth)
-        out["variants"][name] = {"seconds": seconds, "status": fit.status, "nfev": fit.nfev,
+        out["variants"][name] = {"seconds": seconds, "status": fit.status.name, "nfev": fit.nfev,
                                  "max_angle_err_deg": s["max_angle_err_deg"],
                                  "max_length_err_pct": float(np.abs(s["length_err_pct"]).max())}
     base = out["variants"]["analytic, sparse"]["seconds"]

@@ -28,26 +28,28 @@ def main(argv=None):
     args = parser.parse_args(argv)
 
     rng = np.random.default_rng(0)
-    cam = triplet_rig(rng)[0]
+    cam = triplet_rig(rng=rng)[0]
     K, dist, rvec, tvec = cam.to_opencv()
     xy = rng.uniform([-0.5, -0.5], [cam.width - 0.5, cam.height - 0.5], (args.points, 2))
     o, d = cam.rays(xy)
     X = o + d * rng.uniform(2000, 8000, (args.points, 1))
 
-    t_ours, p_ours = best_time(lambda: cam.project(X), args.repeats)
+    t_ours, p_ours = best_time(lambda: cam.project(X), repeats=args.repeats)
     t_cv, p_cv = best_time(lambda: cv2.projectPoints(X, rvec, tvec, K, dist)[0][:, 0],
-                           args.repeats)
+                           repeats=args.repeats)
 
     def back(xn):  # normalised undistorted -> pixels through our forward model
         return cam.project(cam.C + np.c_[xn, np.ones(len(xn))] @ cam.R)
 
-    t_rays, (_, dirs) = best_time(lambda: cam.rays(xy), args.repeats)
+    t_rays, (_, dirs) = best_time(lambda: cam.rays(xy), repeats=args.repeats)
     err_rays = np.abs(cam.project(cam.C + 3000 * dirs) - xy).max()
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
     pts = xy.reshape(-1, 1, 2)
     t_iter, und_iter = best_time(
-        lambda: cv2.undistortPoints(pts, K, dist, None, None, None, crit)[:, 0], args.repeats)
-    t_def, und_def = best_time(lambda: cv2.undistortPoints(pts, K, dist)[:, 0], args.repeats)
+        lambda: cv2.undistortPoints(pts, K, dist, None, None, None, crit)[:, 0],
+        repeats=args.repeats)
+    t_def, und_def = best_time(lambda: cv2.undistortPoints(pts, K, dist)[:, 0],
+                               repeats=args.repeats)
     rows = {
         "project": {"ours_pts_per_s": args.points / t_ours, "opencv_pts_per_s": args.points / t_cv,
                     "speed_ratio": t_cv / t_ours,

@@ -32,21 +32,23 @@ from lsmta.synth.patches import warped_pair
 OURS = ("lsm", "lsm_inverse")
 
 
-def efficiency(rng, *, n_points: int, sigmas=(2.0, 4.0), patch: int = 13) -> dict:
+def efficiency(*, n_points: int, sigmas=(2.0, 4.0), patch: int = 13,
+               rng: np.random.Generator | int | None = None) -> dict:
     """Median error over all accepted points / the bound's median, per LSM variant."""
-    clean = warped_pair(rng, shape=(512, 512), A=[[1.04, 0.06], [-0.05, 0.97]], c=(2.3, -1.4),
+    rng = np.random.default_rng(rng)
+    clean = warped_pair(rng=rng, shape=(512, 512), A=[[1.04, 0.06], [-0.05, 0.97]], c=(2.3, -1.4),
                         r0=10.0, r1=0.9, noise_sigma=0.0, quantise=False)
-    pts = draw_points(rng, clean.template.shape, n_points, margin=40)
+    pts = draw_points(clean.template.shape, n_points, rng=rng, margin=40)
     unit = unit_bound(clean, pts, patch=patch, geometry="affine", radiometry="linear")
     out = {}
     for sigma in sigmas:
-        pair = clean.noisy(rng, sigma)
+        pair = clean.noisy(sigma, rng=rng)
         for name in OURS:
-            trial = run_trial(pair, np.random.default_rng(1), methods=(name,), points=pts,
+            trial = run_trial(pair, rng=1, methods=(name,), points=pts,
                               patch=patch, start_error=0.5, bound_unit=unit)
             ok = trial.lsm_result.ok
             e = np.linalg.norm(trial.errors[name], axis=1)[ok]
-            bound = trial.crb_median(np.random.default_rng(2), ok)
+            bound = trial.crb_median(mask=ok, rng=2)
             out[f"{name} sigma {sigma:g}"] = {"accepted": float(ok.mean()),
                                              "median_px": float(np.median(e)),
                                              "bound_median_px": bound,
@@ -64,21 +66,21 @@ def main(argv=None):
     args = parser.parse_args(argv)
 
     rng = np.random.default_rng(args.seed)
-    pair = warped_pair(rng, shape=(512, 512), A=[[1.04, 0.06], [-0.05, 0.97]], c=(2.3, -1.4),
+    pair = warped_pair(rng=rng, shape=(512, 512), A=[[1.04, 0.06], [-0.05, 0.97]], c=(2.3, -1.4),
                        r0=10.0, r1=0.9, noise_sigma=args.noise)
     # warm-up: load the compiled kernels once, outside the timings
     for name in OURS:
-        run_trial(pair, rng, methods=(name,), n_points=10, bound=False)
+        run_trial(pair, rng=rng, methods=(name,), n_points=10, bound=False)
     results = {"cpu_count": os.cpu_count()}
     for patch in (13, 21):
-        pts = draw_points(rng, pair.template.shape, args.points, margin=40)
+        pts = draw_points(pair.template.shape, args.points, rng=rng, margin=40)
         trials = {}
         for name in METHODS:
             n = args.points if name in OURS else args.peer_points
             if name in ("ilk", "phase_correlation"):
                 n = max(args.peer_points // 10, 10)
             trial_rng = np.random.default_rng(args.seed + 1)  # same starts for every method
-            trials[name] = run_trial(pair, trial_rng, methods=(name,), points=pts[:n],
+            trials[name] = run_trial(pair, rng=trial_rng, methods=(name,), points=pts[:n],
                                      patch=patch, start_error=1.0, bound=False)
         rows = {}
         for name, trial in trials.items():
@@ -99,8 +101,7 @@ def main(argv=None):
                   f"{s['failure_rate']:9.2%} {s['points_per_second']:10.0f}")
         print("throughput / per-point ECC (affine): "
               + ", ".join(f"{name} {r:.1f}x" for name, r in ratios.items()))
-    results["efficiency"] = efficiency(np.random.default_rng(args.seed + 2),
-                                       n_points=min(args.points, 3000))
+    results["efficiency"] = efficiency(n_points=min(args.points, 3000), rng=args.seed + 2)
     print("\nmedian error over all accepted points / Cramér-Rao median (13 x 13, starts <= 0.5 px)")
     for key, e in results["efficiency"].items():
         print(f"{key:>22}: accepted {e['accepted']:6.1%}, median {e['median_px']:.4f} px, "

@@ -50,11 +50,12 @@ def main(argv=None):
     start = np.clip(start, [-100, -25], [100, 25])
 
     def one_by_one():
-        return [aim(head, X[i:i + 1], start[i]) for i in range(n)]
+        return [aim(head, X[i:i + 1], current=start[i]) for i in range(n)]
 
-    t_local, local = best_time(one_by_one, args.repeats)
-    t_batch, batch = best_time(lambda: aim(head, X, start), args.repeats)
-    t_direct, direct = best_time(lambda: aim_least_squares(head, X, start), args.repeats)
+    t_local, local = best_time(one_by_one, repeats=args.repeats)
+    t_batch, batch = best_time(lambda: aim(head, X, current=start), repeats=args.repeats)
+    t_direct, direct = best_time(lambda: aim_least_squares(head, X, current=start),
+                                 repeats=args.repeats)
     local_set = np.vstack([a.settings for a in local])
     truth = np.c_[pan, tilt]
 
@@ -78,15 +79,16 @@ def main(argv=None):
     rows["aim_time_ratio_direct_over_local"] = t_direct / t_local
     rows["aim_time_ratio_direct_over_batched"] = t_direct / t_batch
 
-    target = intrinsic_target(head, rng)
+    target = intrinsic_target(head, rng=rng)
     t_intr, intr = best_time(lambda: calibrate_intrinsics(target.X, target.xy,
-                                                          head.camera.image_size), args.repeats)
-    cal = calibration_sweeps(head, rng)
+                                                          head.camera.image_size),
+                             repeats=args.repeats)
+    cal = calibration_sweeps(head, rng=rng)
     cam = intr.model
     t_simple, _ = best_time(lambda: calibrate(cam, cal.pan, cal.tilt, cal.X, cal.xy,
-                                              kind="simple"), args.repeats)
+                                              kind="simple"), repeats=args.repeats)
     t_general, fit = best_time(lambda: calibrate(cam, cal.pan, cal.tilt, cal.X, cal.xy),
-                               args.repeats)
+                               repeats=args.repeats)
     rows["calibration"] = {"observations": len(cal), "intrinsics_s": t_intr,
                            "simple_s": t_simple, "general_s": t_general,
                            "time_ratio_general_over_simple": t_general / t_simple,

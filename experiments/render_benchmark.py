@@ -25,8 +25,8 @@ def main(argv=None):
     parser.add_argument("--out", default="build/benchmarks/render.json")
     args = parser.parse_args(argv)
     rng = np.random.default_rng(0)
-    cams = triplet_rig(rng)
-    scene = Scene(make_body(rng), walk(50), make_background(rng))
+    cams = triplet_rig(rng=rng)
+    scene = Scene(make_body(rng=rng), walk(n_frames=50), make_background(rng=rng))
     rows = []
     for s in args.supersample:
         renderer = Renderer(scene, cams, supersample=s, noise_sigma=2.0)

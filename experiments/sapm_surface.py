@@ -27,13 +27,14 @@ from tqdm import tqdm
 
 from lsmta.evaluation import sapm as ev
 from lsmta.report import write_json
+from lsmta.sapm import SAPMParams
 from lsmta.synth.markers import human_model
 
 
 def noise_free_chunk(model, seed: int, n_poses: int, eps: float, beta: float):
     """One chunk of the noise-free test: SAPM and the baseline on the same poses."""
-    trials = ev.pose_trials(model, np.random.default_rng(seed), n_poses, level=np.pi,
-                            methods=("sapm", "baseline"), eps=eps, beta=beta)
+    trials = ev.pose_trials(model, n_poses, rng=np.random.default_rng(seed), level=np.pi,
+                            methods=("sapm", "baseline"), params=SAPMParams(eps=eps, beta=beta))
     return {m: (t.correct, t.accuracy, t.seconds) for m, t in trials.items()}
 
 
@@ -107,8 +108,8 @@ def main(argv=None):
         for i in range(len(levels)):
             for j in range(len(distortions)):
                 fut = client.submit(ev.surface_cell, model_f, int(seeds[i, j]), levels[i],
-                                    distortions[j], args.poses, eps=args.eps, beta=args.beta,
-                                    pure=False)
+                                    distortions[j], args.poses,
+                                    params=SAPMParams(eps=args.eps, beta=args.beta), pure=False)
                 futures[fut] = ("cell", i, j)
         for c in range(n_chunks):
             n = min(chunk, args.noise_free - c * chunk)

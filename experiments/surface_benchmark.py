@@ -48,7 +48,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
 
     rng = np.random.default_rng(args.seed)
-    cams = triplet_rig(rng, distance=2500.0, baseline=700.0)
+    cams = triplet_rig(rng=rng, distance=2500.0, baseline=700.0)
     th = LSMThresholds(max_sigma0=2 * args.noise, max_displacement=4.0, max_sigma_xy=0.2,
                        scale_range=(0.5, 2.0), max_shear=0.5)
     methods = ["lsm"] + (["beyond"] if args.beyond else []) + (["joint"] if args.joint else [])
@@ -56,13 +56,13 @@ def main(argv=None):
     print(f"{'contrast':>8} {'frame':>5} {'method':>13} {'density':>8} {'median mm':>10} "
           f"{'p95 mm':>8} {'gross':>7} {'in target':>9} {'seconds':>8}")
     for contrast in args.contrast:
-        body = make_body(np.random.default_rng(args.seed), contrast=contrast,
+        body = make_body(rng=np.random.default_rng(args.seed), contrast=contrast,
                          wavelength=(12.0, 50.0))
-        scene = Scene(body, walk(30, start=(-300.0, 0.0)), None)
+        scene = Scene(body, walk(n_frames=30, start=(-300.0, 0.0)), None)
         renderer = Renderer(scene, cams, noise_sigma=args.noise)
         for f in args.frames:
             frame = renderer.render(f, rng=rng)
-            seeds = evaluate.seeds_from_truth(scene, cams, f, rng)
+            seeds = evaluate.seeds_from_truth(scene, cams, f, rng=rng)
             first = len(rows)
             for step in args.steps:
                 truth = evaluate.node_truth(frame, scene, cams, step=step, patch=13)

@@ -38,7 +38,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     runs = []
     for seed in args.seeds:
-        w = walking_trial(np.random.default_rng(seed), duration=args.duration,
+        w = walking_trial(rng=np.random.default_rng(seed), duration=args.duration,
                           with_stonesoup=True)
         ours = _row(w.score_ours, w.metrics_ours, w.seconds_ours)
         ss = _row(w.score_stonesoup, w.metrics_stonesoup, w.seconds_stonesoup)

@@ -33,9 +33,9 @@ def main(argv=None):
     rows = []
     for scale in args.scales:
         rng = np.random.default_rng(2002)
-        cam = small_camera(ceiling_rig(np.random.default_rng(7))[3], scale)
-        scene = walking_person(2.1, on=np.stack([np.zeros(8), np.full(8, np.inf)], 1))
-        video = render_led_video(scene, cam, np.arange(0, 2.0, 1 / 30), rng)
+        cam = small_camera(ceiling_rig(rng=np.random.default_rng(7))[3], scale=scale)
+        scene = walking_person(duration=2.1, on=np.stack([np.zeros(8), np.full(8, np.inf)], 1))
+        video = render_led_video(scene, cam, np.arange(0, 2.0, 1 / 30), rng=rng)
         thr = background_threshold(video.background, 20.0, 60.0)
         inv = np.zeros(video.frames.shape[1:], bool)
         x0, y0, x1, y1 = video.monitor.astype(int)

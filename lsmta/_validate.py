@@ -88,10 +88,31 @@ def as_rotation(value, name: str) -> np.ndarray:
 
 
 def as_rng(rng, name: str = "rng") -> np.random.Generator:
-    """Check that ``rng`` is a :class:`numpy.random.Generator`."""
-    if not isinstance(rng, np.random.Generator):
-        raise TypeError(
-            f"{name}: expected a numpy.random.Generator (e.g. numpy.random.default_rng(0)), "
-            f"got {type(rng).__name__}"
-        )
-    return rng
+    """A :class:`numpy.random.Generator` from ``rng``: a Generator (returned as it is), an
+    integer seed, or None (a fresh, unseeded generator)."""
+    if isinstance(rng, np.random.Generator):
+        return rng
+    if rng is None:
+        return np.random.default_rng()
+    if isinstance(rng, int | np.integer) and not isinstance(rng, bool):
+        return np.random.default_rng(int(rng))
+    raise TypeError(
+        f"{name}: expected a numpy.random.Generator, an integer seed or None, "
+        f"got {type(rng).__name__}"
+    )
+
+
+def check_patch(patch, name: str = "patch") -> int:
+    """An odd patch size >= 5 (pixels), as a Python int."""
+    if isinstance(patch, bool) or int(patch) != patch or patch < 5 or patch % 2 == 0:
+        raise ValueError(f"{name}: expected an odd integer >= 5 (pixels), got {patch}")
+    return int(patch)
+
+
+def freeze(obj, names) -> None:
+    """Store read-only copies of the named array fields of a frozen dataclass (call it
+    from ``__post_init__``); the caller's arrays are not touched."""
+    for key in names:
+        a = np.array(getattr(obj, key))
+        a.flags.writeable = False
+        object.__setattr__(obj, key, a)

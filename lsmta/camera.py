@@ -342,7 +342,7 @@ class Camera:
             return ((xy[:, 0] >= -0.5) & (xy[:, 0] <= self.width - 0.5)
                     & (xy[:, 1] >= -0.5) & (xy[:, 1] <= self.height - 0.5))
 
-    def pixel_grid(self, supersample: int = 1) -> np.ndarray:
+    def pixel_grid(self, *, supersample: int = 1) -> np.ndarray:
         """Sample positions ``(H*s, W*s, 2)`` on a regular ``s x s`` grid inside every pixel."""
         if int(supersample) != supersample or supersample < 1:
             raise ValueError(f"supersample: expected a positive integer, got {supersample}")

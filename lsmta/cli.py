@@ -204,7 +204,7 @@ def write_html(nb, target: Path) -> str | None:
     return target.name
 
 
-def write_summary(build: Path, results: list[dict], meta: dict | None = None) -> None:
+def write_summary(build: Path, results: list[dict], *, meta: dict | None = None) -> None:
     """``summary.json``, ``summary.md`` and ``index.html`` from the notebooks' results.
 
     Results and timings stand next to the papers' numbers; records of kind ``"setting"``
@@ -309,7 +309,7 @@ def reproduce(args) -> int:
             done = {r["notebook"] for r in results}
             results = sorted([r for r in previous if r["notebook"] not in done] + results,
                              key=lambda r: r["notebook"])
-    write_summary(build, results, provenance(folder.resolve().parent))
+    write_summary(build, results, meta=provenance(folder.resolve().parent))
     print(f"lsmta reproduce: wrote {build / 'index.html'} and {build / 'summary.md'}")
     failed = [r for r in results if not r["ok"]]
     for r in failed:

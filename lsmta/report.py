@@ -89,8 +89,9 @@ def record(figure: str, quantity: str, value, unit: str = "", *, paper=None,
             raise TypeError(f"{name}: expected a string, got {type(text).__name__}")
     if kind not in KINDS:
         raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
-    rec = Record(figure, quantity, _check_value(value, "value"), unit,
-                 None if paper is None else _check_value(paper, "paper"), note, kind)
+    rec = Record(figure=figure, quantity=quantity, value=_check_value(value, "value"),
+                 unit=unit, paper=None if paper is None else _check_value(paper, "paper"),
+                 note=note, kind=kind)
     path = os.environ.get(RECORD_ENV)
     if path:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
@@ -190,7 +191,7 @@ def write_json(path, data) -> Path:
     return out
 
 
-def best_time(fn, repeats: int = 3):
+def best_time(fn, *, repeats: int = 3):
     """Call ``fn()`` ``repeats`` times; return the shortest wall time (s) and the last
     result. Used by the benchmarks in ``experiments/``."""
     import time

@@ -253,4 +253,4 @@ def triangulate_single_pair(cameras, xy, *, min_angle_deg: float = 0.5) -> PairI
     i, j = sorted((int(i), int(j)))
     np.fill_diagonal(counts, seen.sum(axis=1))
     inter = triangulate([cameras[i], cameras[j]], xy[[i, j]], min_angle_deg=min_angle_deg)
-    return PairIntersection(np.array([i, j]), inter, counts)
+    return PairIntersection(pair=np.array([i, j]), intersection=inter, counts=counts)

@@ -21,7 +21,7 @@ def _pyvista():
     return pv
 
 
-def show_images(images, titles=None, *, axes=None, cmap="gray", vmin=0, vmax=255,
+def show_images(images, *, titles=None, axes=None, cmap="gray", vmin=0, vmax=255,
                 figsize_per=(5.0, 3.9)):
     """Show ``images`` ``(K, H, W)`` side by side; returns the matplotlib axes."""
     import matplotlib.pyplot as plt
@@ -80,7 +80,7 @@ def part_colours(part_id, n_parts: int):
     return rgb
 
 
-def scene_image(cameras, body=None, poses=None, *, background=None, frustum_depth=900.0,
+def scene_image(cameras, *, body=None, poses=None, background=None, frustum_depth=900.0,
                 window_size=(1100, 700), view_from=(-5200.0, -7500.0, 4200.0),
                 focal_point=(0.0, 0.0, 900.0), points=None) -> np.ndarray:
     """An off-screen 3-D picture of a rig, a posed body and the floor; ``(H, W, 3)`` uint8.
@@ -143,7 +143,7 @@ def scene_image(cameras, body=None, poses=None, *, background=None, frustum_dept
     return image
 
 
-def cloud_image(points, scalars=None, *, cmap="viridis", clim=None, scalar_label="",
+def cloud_image(points, *, scalars=None, cmap="viridis", clim=None, scalar_label="",
                 window_size=(900, 700), view_from=None, focal_point=None,
                 point_size=4.0) -> np.ndarray:
     """An off-screen picture ``(H, W, 3)`` of a point cloud (mm), optionally coloured.
@@ -174,7 +174,7 @@ def cloud_image(points, scalars=None, *, cmap="viridis", clim=None, scalar_label
     return image
 
 
-def draw_marker_pose(ax, model, points, labels=None, *, colors=None, link_color=None, title="",
+def draw_marker_pose(ax, model, points, *, labels=None, colors=None, link_color=None, title="",
                      size=14):
     """Draw a marker pose on a matplotlib 3-D axis.
 

@@ -43,3 +43,10 @@ def occlusion_pair(rng: np.random.Generator):
     search = np.where(xx >= 109, np.roll(fore, 9, axis=1), np.roll(back, 3, axis=1))
     noise = rng.normal(0, 1.0, (2, 120, 220))
     return template + noise[0], search + noise[1]
+
+
+def pytest_collection_modifyitems(config, items):
+    """Every notebook run (nbmake) is slow: ``-m "not slow"`` leaves the notebooks out."""
+    for item in items:
+        if item.path.suffix == ".ipynb":
+            item.add_marker(pytest.mark.slow)

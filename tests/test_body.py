@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from lsmta.body import (
+    FitParams,
+    FitStatus,
     Joint,
     ModelState,
     Skeleton,
@@ -18,6 +20,7 @@ from lsmta.body import (
     fit_sequence,
     iso_surface,
     surface_distance,
+    surface_distance_terms,
 )
 from lsmta.body.fitting import _Layout, _residuals
 from lsmta.body.skeleton import as_tuple, rot_x
@@ -29,8 +32,8 @@ RIG = (0.0, -2500.0, 1200.0)
 
 @pytest.fixture(scope="module")
 def world():
-    body = make_body(np.random.default_rng(3))
-    return body, arm_wave(50)
+    body = make_body(rng=np.random.default_rng(3))
+    return body, arm_wave(n_frames=50)
 
 
 def test_fk_hand_computed_single_joint():
@@ -67,7 +70,7 @@ def test_fk_matches_generator(world):
     body, motion = world
     truth = eb.arm_truth(body, motion, [0, 20, 40])
     W = arm_model().skeleton.transforms(truth.angles, [1, 1, 1],
-                                        base_poses(truth.torso_poses, truth.shoulder_local))
+                                        base=base_poses(truth.torso_poses, truth.shoulder_local))
     np.testing.assert_allclose(W[:, 3, :3, 3], truth.joints[:, 1], atol=1e-9)
     np.testing.assert_allclose(W[:, 4, :3, 3], truth.joints[:, 2], atol=1e-9)
 
@@ -103,6 +106,18 @@ def test_metaball_field_and_surface():
     x = np.array([[[0, 0, rho]], [[rho + 7.0, 0, 0]], [[0, rho - 3.0, 0]]])
     assert field(x[:1], ball)[0] == pytest.approx(0.5)
     np.testing.assert_allclose(surface_distance(x, ball), [0.0, 7.0, -3.0], atol=1e-9)
+    # the terms of the analytic Jacobian: the same residual, dr/dx = dr/dpsi grad psi
+    three = np.array([[20.0, 15.0, 30.0], [25.0, 18.0, 35.0], [20.0, 15.0, 30.0]])
+    local = np.array([[[10.0, 5.0, 40.0 - 35.0 * b] for b in range(3)]]) + [[[3.0, 0, 0]]]
+    terms = surface_distance_terms(local, three)
+    np.testing.assert_array_equal(terms.r, surface_distance(local, three))
+    e = 1e-6
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = e
+        num = (surface_distance(local + d, three) - surface_distance(local - d, three)) / (2 * e)
+        np.testing.assert_allclose(num, terms.dr_dpsi * terms.grad[:, k], rtol=1e-5)
+    np.testing.assert_allclose(terms.p.sum(axis=1), 1.0)
 
 
 def test_iso_surface_lies_on_threshold():
@@ -119,8 +134,8 @@ def test_residual_jacobian_vs_finite_differences(world):
     rng = np.random.default_rng(1)
     m = arm_model()
     truth = eb.arm_truth(body, motion, [15, 35])
-    st, _ = eb.initial_state(truth, rng)
-    pts = np.concatenate([surface_samples(body, motion, int(f), rng, n=60)[0]
+    st, _ = eb.initial_state(truth, rng=rng)
+    pts = np.concatenate([surface_samples(body, motion, int(f), rng=rng, n=60)[0]
                           for f in truth.frames])
     frame = np.repeat([0, 1], 60)
     for shape, share in (("simplified", True), ("full", False)):
@@ -156,7 +171,7 @@ def test_angles_from_joints_inverts_fk(world):
 def _data(world, frames, n, rng, noise=2.0, outliers=0.1):
     body, motion = world
     truth = eb.arm_truth(body, motion, frames)
-    pts = [surface_samples(body, motion, int(f), rng, n=n, noise_mm=noise,
+    pts = [surface_samples(body, motion, int(f), rng=rng, n=n, noise_mm=noise,
                            outlier_share=outliers, view_from=RIG)[0] for f in frames]
     return truth, pts
 
@@ -164,28 +179,29 @@ def _data(world, frames, n, rng, noise=2.0, outliers=0.1):
 def test_sequence_recovers_lengths_and_angles(world):
     rng = np.random.default_rng(7)
     truth, pts = _data(world, [8, 20, 32, 44], 400, rng)
-    init, _ = eb.initial_state(truth, rng, joint_noise_mm=15.0)
-    fit = fit_sequence(arm_model(), pts, truth.torso_poses, init, sigma_mm=2.0)
+    init, _ = eb.initial_state(truth, rng=rng, joint_noise_mm=15.0)
+    fit = fit_sequence(arm_model(), pts, truth.torso_poses, init, params=FitParams(sigma_mm=2.0))
     assert fit.ok, fit.message
     score = eb.score_fit(fit, truth)
     # the start is 15 mm of joint noise away: several degrees and centimetres
     start = eb.score_fit(fit_sequence(arm_model(), pts, truth.torso_poses, init,
-                                      max_rounds=1, nfev_per_round=1), truth)
+                                      params=FitParams(max_rounds=1, nfev_per_round=1)), truth)
     assert start["max_angle_err_deg"] > 3.0
     assert score["max_angle_err_deg"] < 3.0
     assert np.all(np.abs(score["length_err_pct"]) < 2.0)
     assert fit.sigma_mm < 5.0
 
 
+@pytest.mark.slow
 def test_frame_fit_and_full_refinement(world):
     rng = np.random.default_rng(8)
     truth, pts = _data(world, [30], 500, rng)
-    init, _ = eb.initial_state(truth, rng)
-    fit = fit_frame(arm_model(), pts[0], truth.torso_poses[0], init, sigma_mm=2.0)
+    init, _ = eb.initial_state(truth, rng=rng)
+    fit = fit_frame(arm_model(), pts[0], truth.torso_poses[0], init, params=FitParams(sigma_mm=2.0))
     assert fit.ok, fit.message
-    full = fit_frame(arm_model(), pts[0], truth.torso_poses[0], fit.state, shape="full",
-                     sigma_mm=2.0)
-    assert full.status == "ok", full.message
+    full = fit_frame(arm_model(), pts[0], truth.torso_poses[0], fit.state,
+                     params=FitParams(shape="full", sigma_mm=2.0))
+    assert full.status == FitStatus.OK, full.message
     s_fit, s_full = eb.score_fit(fit, truth), eb.score_fit(full, truth)
     assert s_full["max_angle_err_deg"] < 3.0      # (one frame: lengths follow the shoulder)
     assert full.sigma_mm <= fit.sigma_mm * 1.01          # free ball sizes fit at least as well
@@ -203,48 +219,52 @@ def test_frame_fit_and_full_refinement(world):
 def test_bad_input(world):
     rng = np.random.default_rng(9)
     truth, pts = _data(world, [30], 400, rng, outliers=0.0)
-    init, _ = eb.initial_state(truth, rng)
+    init, _ = eb.initial_state(truth, rng=rng)
     m = arm_model()
     P = truth.torso_poses[0]
     # NaN points: dropped and reported
     p = pts[0].copy()
     p[:7] = np.nan
-    fit = fit_frame(m, p, P, init, sigma_mm=2.0)
+    fit = fit_frame(m, p, P, init, params=FitParams(sigma_mm=2.0))
     assert fit.n_nan[0] == 7 and "7 NaN" in fit.message
     assert np.all(fit.segment[0][:7] == -1) and np.all(np.isnan(fit.residuals[0][:7]))
     # too few points on the hand: its shape and length held and named
     hand = fit.segment[0] == 2
     keep = ~hand | (np.cumsum(hand) <= 1)
-    fit2 = fit_frame(m, p[keep], P, init, sigma_mm=2.0)
+    fit2 = fit_frame(m, p[keep], P, init, params=FitParams(sigma_mm=2.0))
     assert "hand" in fit2.fixed_segments
     np.testing.assert_allclose(fit2.state.radii[2], init.radii[2])
     assert fit2.state.scales[2] == init.scales[2]
     # a segment without points in a frame is named, and the message says so
-    upper = surface_samples(*world, 30, rng, parts=("upper_arm_r",), n=300, noise_mm=1.0)[0]
+    upper = surface_samples(*world, 30, rng=rng, parts=("upper_arm_r",), n=300, noise_mm=1.0)[0]
     upper = upper[np.linalg.norm(upper - truth.joints[0, 1], axis=1) > 120]
-    fit3 = fit_frame(m, upper, P, init, sigma_mm=2.0)
+    fit3 = fit_frame(m, upper, P, init, params=FitParams(sigma_mm=2.0))
     assert (0, "forearm") in fit3.unobserved and "forearm in frame 0" in fit3.message
     assert "forearm" in fit3.fixed_segments
     # a far initial posture: a clear failure, not a silent wrong fit
     far = ModelState(init.angles + np.array([[2.0, 1.0, 0.0, 1.2, 0.0]]), init.shoulder,
                      init.scales, init.radii)
-    bad = fit_frame(m, p, P, far, sigma_mm=2.0)
-    assert not bad.ok and bad.status in ("init_far", "poor_fit")
+    bad = fit_frame(m, p, P, far, params=FitParams(sigma_mm=2.0))
+    assert not bad.ok and bad.status in (FitStatus.INIT_FAR, FitStatus.POOR_FIT)
     # argument errors
     with pytest.raises(ValueError, match="shape"):
-        fit_frame(m, p, P, init, shape="round")
+        FitParams(shape="round")
     with pytest.raises(ValueError, match="points"):
         fit_frame(m, p[:, :2], P, init)
     with pytest.raises(ValueError, match="torso_pose"):
         fit_frame(m, p, np.eye(3), init)
     with pytest.raises(ValueError, match="loss"):
-        fit_frame(m, p, P, init, loss="l7")
+        FitParams(loss="l7")
+    with pytest.raises(ValueError, match="sigma_mm"):
+        FitParams(sigma_mm=0.0)
+    with pytest.raises(TypeError, match="params"):
+        fit_frame(m, p, P, init, params={"sigma_mm": 2.0})
     with pytest.raises(TypeError, match="init"):
         fit_frame(m, p, P, {"angles": 0})
     with pytest.raises(ValueError, match="scales"):
         fit_frame(m, p, P, ModelState(init.angles, init.shoulder, -init.scales, init.radii))
     with pytest.raises(ValueError, match="outlier_share"):
-        surface_samples(*world, 0, rng, outlier_share=1.0)
+        surface_samples(*world, 0, rng=rng, outlier_share=1.0)
 
 
 def test_posterior_agrees_with_least_squares(world):
@@ -252,10 +272,10 @@ def test_posterior_agrees_with_least_squares(world):
 
     rng = np.random.default_rng(10)
     truth, pts = _data(world, [30], 300, rng)
-    init, _ = eb.initial_state(truth, rng)
+    init, _ = eb.initial_state(truth, rng=rng)
     m = arm_model()
-    fit = fit_frame(m, pts[0], truth.torso_poses[0], init, sigma_mm=2.0)
-    post = sample_limb_posterior(m, fit, pts[0], truth.torso_poses[0], rng, n_walkers=20,
+    fit = fit_frame(m, pts[0], truth.torso_poses[0], init, params=FitParams(sigma_mm=2.0))
+    post = sample_limb_posterior(m, fit, pts[0], truth.torso_poses[0], rng=rng, n_walkers=20,
                                  n_steps=120, burn=60)
     assert 0.1 < post.acceptance < 0.9
     assert np.all(np.abs(post.mean - post.ls_mean) < 3 * post.ls_std)

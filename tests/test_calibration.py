@@ -25,9 +25,9 @@ from lsmta.triangulation import triangulate
 
 def _bar_data(seed, n, sigma, length=800.0):
     rng = np.random.default_rng(seed)
-    truth = triplet_rig(rng)
-    track = bar_track(rng, n, length=length)
-    xy = project_observations(truth, track.points.reshape(-1, 3), rng, sigma_px=sigma)
+    truth = triplet_rig(rng=rng)
+    track = bar_track(n=n, rng=rng, length=length)
+    xy = project_observations(truth, track.points.reshape(-1, 3), rng=rng, sigma_px=sigma)
     bar = Bar(np.arange(2 * n).reshape(-1, 2), length, 0.01)
     return rng, truth, track, xy, bar
 
@@ -36,20 +36,20 @@ def _bar_data(seed, n, sigma, length=800.0):
 def noisy():
     # 0.01 px: about what the target measurement reaches in the rendered images
     rng, truth, track, xy, bar = _bar_data(3, 100, 0.01)
-    cams0, X0 = relative_orientation_start(triplet_rig(None), xy, bar=bar, pair=(0, 2))
+    cams0, X0 = relative_orientation_start(triplet_rig(), xy, bar=bar, pair=(0, 2))
     xy_in = xy.copy()
     res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.01)
     assert np.array_equal(xy, xy_in)  # input untouched
-    held = bar_track(rng, 30, half_size=(800.0, 560.0, 400.0))
-    xy_h = project_observations(truth, held.points.reshape(-1, 3), rng, sigma_px=0.01)
+    held = bar_track(n=30, rng=rng, half_size=(800.0, 560.0, 400.0))
+    xy_h = project_observations(truth, held.points.reshape(-1, 3), rng=rng, sigma_px=0.01)
     return truth, res, heldout_bar_errors(res.cameras, xy_h, 800.0)
 
 
 def test_targets_measured_to_subpixel_in_rendered_images():
     rng = np.random.default_rng(0)
-    cam = triplet_rig(rng)[1]
-    track = bar_track(rng, 25)
-    tracks = track_targets(render_bar_images(cam, track, rng))
+    cam = triplet_rig(rng=rng)[1]
+    track = bar_track(n=25, rng=rng)
+    tracks = track_targets(render_bar_images(cam, track, rng=rng))
     truth = cam.project(track.points.reshape(-1, 3)).reshape(-1, 2, 2)
     assert tracks.n_lost == 0
     err = np.linalg.norm(tracks.xy - truth, axis=2)
@@ -59,7 +59,7 @@ def test_targets_measured_to_subpixel_in_rendered_images():
 
 def test_noise_free_bar_recovers_the_interior_orientation():
     rng, truth, track, xy, bar = _bar_data(1, 80, 0.0)
-    cams0, X0 = relative_orientation_start(triplet_rig(None), xy, bar=bar, pair=(0, 2))
+    cams0, X0 = relative_orientation_start(triplet_rig(), xy, bar=bar, pair=(0, 2))
     res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05, covariance=False)
     assert res.rms < 1e-4
     for est, true in zip(res.cameras, truth):
@@ -87,12 +87,13 @@ def test_noisy_residuals_match_the_noise_limit(noisy):
     assert np.sqrt(np.mean(bar_err**2)) < 0.0005 * 800
 
 
+@pytest.mark.slow
 def test_outliers_rejected_and_reported():
     rng, truth, track, xy, bar = _bar_data(4, 40, 0.05)
     xy = xy.copy()
     xy[1, 10] += [6.0, -4.0]
     xy[2, 33] += [0.0, 8.0]
-    cams0, X0 = relative_orientation_start(triplet_rig(None), xy, bar=bar, pair=(0, 2))
+    cams0, X0 = relative_orientation_start(triplet_rig(), xy, bar=bar, pair=(0, 2))
     res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05, reject_k=4.0,
                         covariance=False)
     assert res.rejected[1, 10] and res.rejected[2, 33]
@@ -105,7 +106,7 @@ def test_nan_observations_dropped_and_counted():
     xy = xy.copy()
     xy[0, :7] = np.nan
     xy[1, 20, 0] = np.nan
-    cams0, X0 = relative_orientation_start(triplet_rig(None), xy, bar=bar, pair=(0, 2))
+    cams0, X0 = relative_orientation_start(triplet_rig(), xy, bar=bar, pair=(0, 2))
     res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05, covariance=False)
     assert res.n_nan_dropped == 8
     assert np.isnan(res.residuals[0, :7]).all() and res.rms < 0.06
@@ -113,7 +114,7 @@ def test_nan_observations_dropped_and_counted():
 
 def test_bad_input_is_refused_with_clear_errors():
     rng, truth, track, xy, bar = _bar_data(6, 40, 0.05)
-    cams0, X0 = relative_orientation_start(triplet_rig(None), xy, bar=bar, pair=(0, 2))
+    cams0, X0 = relative_orientation_start(triplet_rig(), xy, bar=bar, pair=(0, 2))
     few = xy.copy()
     few[2, 5:] = np.nan
     with pytest.raises(ValueError, match="camera right sees 5 point"):
@@ -133,11 +134,11 @@ def test_bad_input_is_refused_with_clear_errors():
     with pytest.raises(ValueError, match="xy: expected an array of shape"):
         bundle_adjust(cams0, xy[:2], X0, bar=bar)
     with pytest.raises(ValueError, match="pair: expected two different"):
-        relative_orientation_start(triplet_rig(None), xy, bar=bar, pair=(1, 1))
+        relative_orientation_start(triplet_rig(), xy, bar=bar, pair=(1, 1))
     with pytest.raises(ValueError, match="pair: expected two different"):
-        relative_orientation_start(triplet_rig(None), xy, bar=bar, pair=(0, 3))
+        relative_orientation_start(triplet_rig(), xy, bar=bar, pair=(0, 3))
     with pytest.raises(ValueError, match="threshold_px"):
-        relative_orientation_start(triplet_rig(None), xy, bar=bar, threshold_px=0.0)
+        relative_orientation_start(triplet_rig(), xy, bar=bar, threshold_px=0.0)
     with pytest.raises(ValueError, match="factor"):
         scaled(cams0, X0, -1.0)
     with pytest.raises(ValueError, match="n_targets"):
@@ -146,7 +147,7 @@ def test_bad_input_is_refused_with_clear_errors():
 
 def test_bundle_adjust_leaves_the_callers_arrays_alone():
     rng, truth, track, xy, bar = _bar_data(7, 40, 0.05)
-    cams0, X0 = relative_orientation_start(triplet_rig(None), xy, bar=bar, pair=(0, 2))
+    cams0, X0 = relative_orientation_start(triplet_rig(), xy, bar=bar, pair=(0, 2))
     xy_before, X0_before = xy.copy(), X0.copy()
     res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05, covariance=False)
     assert np.array_equal(xy, xy_before, equal_nan=True)
@@ -154,17 +155,18 @@ def test_bundle_adjust_leaves_the_callers_arrays_alone():
     assert not np.allclose(res.points, X0, equal_nan=True)
 
 
+@pytest.mark.slow
 def test_virtual_object_alternation_and_joint_adjustment_converge():
     # a calibration path long enough to cover the room: with fewer positions the joint
     # adjustment fits its own path to the noise but not an independent one (seed 2, 120
     # positions: 0.37 px on the path, 1.8 px on the check path)
     rng = np.random.default_rng(100)
-    truth = ring_rig(8, rng)
-    path, check = led_path(rng, 150), led_path(rng, 80)
-    xy = project_observations(truth, path, rng, sigma_px=0.3)
-    xy_c = project_observations(truth, check, rng, sigma_px=0.3)
+    truth = ring_rig(n=8, rng=rng)
+    path, check = led_path(n=150, rng=rng), led_path(n=80, rng=rng)
+    xy = project_observations(truth, path, rng=rng, sigma_px=0.3)
+    xy_c = project_observations(truth, check, rng=rng, sigma_px=0.3)
     floor = projection_error(truth, xy_c)
-    guess = poor_guess(truth, np.random.default_rng(0))
+    guess = poor_guess(truth, rng=np.random.default_rng(0))
     alt = alternate(guess, xy, n_iter=8, xy_check=xy_c)
     jnt = joint_adjustment(guess, xy, n_iter=15, xy_check=xy_c)
     assert alt.error[0] > 20 * floor
@@ -176,15 +178,15 @@ def test_virtual_object_alternation_and_joint_adjustment_converge():
     assert jnt.error[8] < alt.error[-1]
 
 
+@pytest.mark.slow
 def test_alternation_reaches_the_joint_optimum_on_a_small_ring():
     # six cameras, a milder guess: both blocks minimise the joint adjustment's objective,
     # so the alternation ends at the joint optimum; Davis's linear point step (3-D ray
     # distances, not image residuals) settles above it
     rng = np.random.default_rng(100)
-    truth = ring_rig(6, rng)
-    xy = project_observations(truth, led_path(rng, 80), rng, sigma_px=0.3)
-    guess = poor_guess(truth, np.random.default_rng(0), pose_mm=50.0, pose_deg=1.0,
-                       f_rel=0.02)
+    truth = ring_rig(n=6, rng=rng)
+    xy = project_observations(truth, led_path(n=80, rng=rng), rng=rng, sigma_px=0.3)
+    guess = poor_guess(truth, rng=np.random.default_rng(0), pose_mm=50.0, pose_deg=1.0, f_rel=0.02)
     jnt = joint_adjustment(guess, xy, n_iter=15)
     alt = alternate(guess, xy, n_iter=16)
     lin = alternate(guess, xy, n_iter=16, triangulation="linear")
@@ -202,14 +204,14 @@ def test_alternation_reaches_the_joint_optimum_on_a_small_ring():
 
 def test_reprojection_optimal_triangulation():
     rng = np.random.default_rng(8)
-    cams = ring_rig(5, rng)
-    X = led_path(rng, 60)
+    cams = ring_rig(n=5, rng=rng)
+    X = led_path(n=60, rng=rng)
     exact = project_observations(cams, X)
     Xo = triangulate_optimal(cams, exact)
     ok = np.isfinite(Xo).all(axis=1)
     assert ok.sum() > 40
     assert np.abs(Xo[ok] - X[ok]).max() < 1e-6
-    noisy = project_observations(cams, X, rng, sigma_px=0.5)
+    noisy = project_observations(cams, X, rng=rng, sigma_px=0.5)
     noisy[1:, 0] = np.nan                              # seen once: not intersected
     Xo = triangulate_optimal(cams, noisy)
     Xl = triangulate(cams, noisy, min_angle_deg=0.0).points
@@ -230,7 +232,7 @@ def test_robust_loss_downweights_an_outlier():
     rng, truth, track, xy, bar = _bar_data(7, 30, 0.05)
     xy = xy.copy()
     xy[0, 5] += [10.0, 10.0]
-    cams0, X0 = relative_orientation_start(triplet_rig(None), xy, bar=bar, pair=(0, 2))
+    cams0, X0 = relative_orientation_start(triplet_rig(), xy, bar=bar, pair=(0, 2))
     res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05, loss="cauchy", f_scale=3.0,
                         covariance=False, intrinsics=("f", "cx", "cy", "k1", "k2", "k3"))
     # the outlier keeps (nearly) its full error; the others stay at the noise level

@@ -36,7 +36,7 @@ def test_opencv_round_trip(seed):
 def test_ray_round_trip_over_whole_image(seed):
     rng = np.random.default_rng(200 + seed)
     cam = random_camera(rng, shear=True)
-    grid = cam.pixel_grid(1)[::7, ::7].reshape(-1, 2)
+    grid = cam.pixel_grid(supersample=1)[::7, ::7].reshape(-1, 2)
     corners = np.array([[-0.5, -0.5], [cam.width - 0.5, -0.5], [-0.5, cam.height - 0.5],
                         [cam.width - 0.5, cam.height - 0.5]])
     xy = np.vstack([grid, corners])

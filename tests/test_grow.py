@@ -15,7 +15,7 @@ A_TRUE = np.array([[1.03, 0.05], [-0.04, 0.98]])
 
 @pytest.fixture(scope="module")
 def pair():
-    return warped_pair(np.random.default_rng(0), shape=(160, 200), A=A_TRUE, c=(5.3, -3.2),
+    return warped_pair(rng=np.random.default_rng(0), shape=(160, 200), A=A_TRUE, c=(5.3, -3.2),
                        r0=5.0, r1=0.9, noise_sigma=2.0)
 
 
@@ -72,13 +72,14 @@ def test_voxel_filter():
 @pytest.fixture(scope="module")
 def rendered_triplet():
     rng = np.random.default_rng(3)
-    cams = triplet_rig(rng, distance=2500.0, baseline=700.0)
-    body = make_body(rng, wavelength=(12.0, 50.0))
-    scene = Scene(body, walk(20, start=(-300.0, 0.0)), None)
+    cams = triplet_rig(rng=rng, distance=2500.0, baseline=700.0)
+    body = make_body(rng=rng, wavelength=(12.0, 50.0))
+    scene = Scene(body, walk(n_frames=20, start=(-300.0, 0.0)), None)
     # a quarter-size sensor keeps the test fast; same field of view
     small = [smaller(c) for c in cams]
     frame = Renderer(scene, small, noise_sigma=1.0).render(5, rng=rng)
-    part, local = body.sample_surface(np.random.default_rng(1), 20, parts=["torso", "thigh_r"])
+    part, local = body.sample_surface(n_per_part=20, rng=np.random.default_rng(1),
+                                      parts=["torso", "thigh_r"])
     proj = project_surface_points(scene, small, part, local, frames=5)
     seen = np.flatnonzero(proj.visible[0].all(axis=0))[:6]
     seeds = proj.xy[0][:, seen] + rng.uniform(-0.5, 0.5, (3, len(seen), 2))
@@ -87,6 +88,7 @@ def rendered_triplet():
     return frame, small, seeds, dict(step=3, patch=9, thresholds=th)
 
 
+@pytest.mark.slow
 def test_measure_surface_on_a_rendered_triplet(rendered_triplet):
     frame, small, seeds, kw = rendered_triplet
     res = measure_surface(frame.images, small, seeds, voxel=30.0, **kw)  # nodes ~15 mm apart
@@ -103,6 +105,7 @@ def test_measure_surface_on_a_rendered_triplet(rendered_triplet):
     assert res.points_xy.shape == (3, len(res.points), 2)
 
 
+@pytest.mark.slow
 def test_geometric_check_drops_triplets_that_do_not_meet(rendered_triplet):
     frame, small, seeds, kw = rendered_triplet
     free = measure_surface(frame.images, small, seeds, **kw)

@@ -302,8 +302,8 @@ def test_drift_filter_gives_no_verdict_without_neighbours_and_rejects_bad_input(
 
 
 def test_rendered_walk_tracks_against_truth():
-    seq = et.walk_sequence(7, n_frames=4, surface_every=4)
-    trial = et.run_trial(seq, 80, np.random.default_rng(1), density=False)
+    seq = et.walk_sequence(seed=7, n_frames=4, surface_every=4)
+    trial = et.run_trial(seq, 80, rng=np.random.default_rng(1), density=False)
     sc = trial.score
     assert trial.tracks.alive[-1].sum() >= 10
     assert np.nanmedian(sc.step_error) < 0.2
@@ -338,9 +338,9 @@ def test_score_filter_counts_caught_false_and_correct_length():
 
 
 def test_arm_sequence_and_bad_motion():
-    seq = et.walk_sequence(3, n_frames=2, scale=0.25, motion="arm", surface_every=1)
+    seq = et.walk_sequence(seed=3, n_frames=2, scale=0.25, motion="arm", surface_every=1)
     assert seq.images.shape[:2] == (3, 2) and len(seq.surface[0].part) > 0
     pr = seq.truth(seq.surface[1].part, seq.surface[1].local)
     assert np.allclose(pr.xy[1], seq.surface[1].xy)
     with pytest.raises(ValueError, match="motion"):
-        et.walk_sequence(3, n_frames=2, motion="run")
+        et.walk_sequence(seed=3, n_frames=2, motion="run")

@@ -27,8 +27,8 @@ def _clip(seq, n):
 @pytest.fixture(scope="module")
 def capture():
     rng = np.random.default_rng(11)
-    seq = _clip(sf.face_sequence(sf.face_model(), 150, rng), 30)
-    return ef.observe_tracked(seq, np.random.default_rng(12), cameras=[1, 2])
+    seq = _clip(sf.face_sequence(sf.face_model(), 150, rng=rng), 30)
+    return ef.observe_tracked(seq, rng=np.random.default_rng(12), cameras=[1, 2])
 
 
 def test_tracking_error_against_truth(capture):
@@ -42,7 +42,7 @@ def test_tracking_error_against_truth(capture):
 
 def test_stabilisation_recovers_camera_shift():
     rng = np.random.default_rng(3)
-    tex = mv.skin_texture((400, 480), rng, contrast=15)
+    tex = mv.skin_texture((400, 480), rng=rng, contrast=15)
     shifts = np.array([[0.0, 0.0], [6.0, -3.0], [-5.0, 8.0], [9.0, 2.0]])
     pos = np.cumsum(shifts, axis=0)
     base = np.array([[120.0, 100.0], [160.0, 130.0], [200.0, 90.0]])
@@ -61,20 +61,20 @@ def test_stabilisation_recovers_camera_shift():
 
 def test_blurred_frame_detected_and_tracks_survive():
     rng = np.random.default_rng(5)
-    seq = _clip(sf.face_sequence(sf.face_model(), 150, rng), 20)
-    cap = ef.observe_tracked(seq, np.random.default_rng(6), cameras=[1, 2],
+    seq = _clip(sf.face_sequence(sf.face_model(), 150, rng=rng), 20)
+    cap = ef.observe_tracked(seq, rng=np.random.default_rng(6), cameras=[1, 2],
                              blur_frames=[10])
     st = cap.status[0]
-    assert (st[10] == tm.BLURRED).all()
-    assert (st[[f for f in range(1, 20) if f != 10]] != tm.BLURRED).all()
-    tracked = np.isin(st, (tm.TRACKED, tm.SECOND_SEARCH)).sum(axis=1)
+    assert (st[10] == tm.MarkerStatus.BLURRED).all()
+    assert (st[[f for f in range(1, 20) if f != 10]] != tm.MarkerStatus.BLURRED).all()
+    tracked = np.isin(st, (tm.MarkerStatus.TRACKED, tm.MarkerStatus.SECOND_SEARCH)).sum(axis=1)
     assert tracked[11] >= tracked[9] - 3
     e = np.linalg.norm(cap.tracked_xy[0, 11] - cap.truth_xy[0, 11], axis=1)
     assert np.nanmedian(e[~cap.crowded[0, 11]]) < 0.3
     # without the retry the blurred frame is tracked and markers are lost in it
     video = mv.render_marker_video(
         [sf.face_cameras(seq.t[f])[1] for f in range(20)], seq.world,
-        np.ones((20, seq.world.shape[1]), bool), seq.t, np.random.default_rng(7),
+        np.ones((20, seq.world.shape[1]), bool), seq.t, rng=np.random.default_rng(7),
         blur_frames=[10], blur_length=15)
     start = video.xy[0]
     a = tm.track_markers(video.images, start)
@@ -85,7 +85,7 @@ def test_blurred_frame_detected_and_tracks_survive():
 
 def test_second_search_rescues_fast_marker():
     rng = np.random.default_rng(8)
-    bg = mv.skin_texture((120, 400), rng, contrast=3)
+    bg = mv.skin_texture((120, 400), rng=rng, contrast=3)
     steps = np.arange(1, 13) * 2.5                   # accelerating: 2.5 .. 30 px/frame
     x = 20 + np.concatenate([[0.0], np.cumsum(steps)])
     truth = np.stack([x, np.full_like(x, 60.0)], axis=1)
@@ -93,9 +93,9 @@ def test_second_search_rescues_fast_marker():
     kw = dict(window=7, levels=1, stabilise=False)
     plain = tm.track_markers(frames, truth[:1], second_search=False, **kw)
     both = tm.track_markers(frames, truth[:1], **kw)
-    assert (plain.status[:, 0] == tm.LOST).any()
-    assert (both.status[:, 0] == tm.SECOND_SEARCH).any()
-    assert not (both.status[:, 0] == tm.LOST).any()
+    assert (plain.status[:, 0] == tm.MarkerStatus.LOST).any()
+    assert (both.status[:, 0] == tm.MarkerStatus.SECOND_SEARCH).any()
+    assert not (both.status[:, 0] == tm.MarkerStatus.LOST).any()
     assert np.abs(both.xy[:, 0] - truth).max() < 0.3
 
 
@@ -116,7 +116,7 @@ def test_bad_input():
     with pytest.raises(ValueError, match="visible"):
         cam = sf.face_cameras([0.0, 0.0, 1650.0])[0]
         mv.render_marker_video([cam], np.zeros((1, 2, 3)), np.ones((1, 3), bool),
-                               np.zeros((1, 3)), np.random.default_rng(0))
+                               np.zeros((1, 3)), rng=np.random.default_rng(0))
     start = np.array([[10.0, 10.0]])
     tm.track_markers(img, start)
     assert start.tolist() == [[10.0, 10.0]]

@@ -71,9 +71,9 @@ def head():
 @pytest.fixture(scope="module")
 def data(head):
     rng = np.random.default_rng(44)
-    target = intrinsic_target(head, rng)
+    target = intrinsic_target(head, rng=rng)
     cam = calibrate_intrinsics(target.X, target.xy, head.camera.image_size).model
-    return cam, calibration_sweeps(head, rng), evaluation_grid(head, rng)
+    return cam, calibration_sweeps(head, rng=rng), evaluation_grid(head, rng=rng)
 
 
 def ideal_camera(**kw):
@@ -95,7 +95,7 @@ def test_pan_turns_the_view_right_by_the_angle():
 
 def test_fast_projection_matches_the_model(head, data):
     cam, cal, _ = data
-    p = params_from_model(head, cam)
+    p = params_from_model(head, start=cam)
     model = model_from_params(cam, p, "general")
     np.testing.assert_allclose(project_params(cam, p, "general", cal.X, cal.pan, cal.tilt),
                                model.project(cal.X, cal.pan, cal.tilt), atol=1e-9)
@@ -197,7 +197,7 @@ def test_centre_moves_on_a_circle_about_each_axis(head):
 
 def test_project_is_vectorised_over_settings_and_reproduces_the_generator(head, rng):
     pan, tilt = rng.uniform(-90, 90, 30), rng.uniform(-25, 25, 30)
-    obs = observe(head, pan, tilt, rng)
+    obs = observe(head, pan, tilt, rng=rng)
     xy = head.project(obs.X_true, obs.pan, obs.tilt)
     np.testing.assert_allclose(xy, obs.xy_true, atol=1e-6)
     one_by_one = np.array([head.camera_at(p, t).project(x[None])[0]
@@ -236,7 +236,7 @@ def test_simple_kind_requires_ideal_axes():
 # ---------------------------------------------------------------------- calibration
 def test_intrinsics_recover_the_truth(head):
     rng = np.random.default_rng(3)
-    t = intrinsic_target(head, rng)
+    t = intrinsic_target(head, rng=rng)
     fit = calibrate_intrinsics(t.X, t.xy, head.camera.image_size)
     truth = {"f": head.camera.f, "cx": head.camera.cx, "cy": head.camera.cy}
     for i, name in enumerate(fit.names[:3]):
@@ -262,14 +262,15 @@ def test_general_calibration_recovers_the_axes(head, data):
     assert fit.std[i] < 10 and abs(truth[i]) > 30
 
 
+@pytest.mark.slow
 def test_reported_uncertainty_matches_the_scatter(head):
     rng = np.random.default_rng(7)
-    t = intrinsic_target(head, rng)
+    t = intrinsic_target(head, rng=rng)
     cam = calibrate_intrinsics(t.X, t.xy, head.camera.image_size).model
     truth = generator_truth(cam)
     errs, stds = [], []
     for _ in range(12):
-        cal = calibration_sweeps(head, rng)
+        cal = calibration_sweeps(head, rng=rng)
         fit = calibrate(cam, cal.pan, cal.tilt, cal.X, cal.xy)
         errs.append(fit.params - truth)
         stds.append(fit.std)
@@ -281,11 +282,12 @@ def test_reported_uncertainty_matches_the_scatter(head):
     assert np.all((spread > 0.5) & (spread < 2.0)), dict(zip(fit.names, np.round(spread, 2)))
 
 
+@pytest.mark.slow
 def test_three_conditions_rank_and_general_reaches_the_floor(head):
     # several seeds (0.2 s each): the ranking must hold in every run, not in a lucky one
     ratios = []
     for seed in (2002, 0, 1, 2, 3, 4, 5, 6):
-        trial = three_conditions(head, np.random.default_rng(seed))
+        trial = three_conditions(head, rng=np.random.default_rng(seed))
         home, simple, general = (trial.median(k) for k in ("home", "simple", "general"))
         floor = trial.median("truth")
         assert home > simple > general, (seed, home, simple, general)
@@ -338,7 +340,7 @@ def test_too_few_settings_for_the_axes(data):
 def test_settings_that_confound_the_axes_are_refused(head):
     # two settings, (0, 0) and (20, 10): pan and tilt always move together
     rng = np.random.default_rng(9)
-    obs = observe(head, np.repeat([0.0, 20.0], 30), np.repeat([0.0, 10.0], 30), rng,
+    obs = observe(head, np.repeat([0.0, 20.0], 30), np.repeat([0.0, 10.0], 30), rng=rng,
                   image_sigma=1.0, world_sigma=1.0)
     with pytest.raises(ValueError, match="do not determine"):
         calibrate(head.camera, obs.pan, obs.tilt, obs.X, obs.xy)
@@ -368,12 +370,13 @@ def test_bad_loss_is_named(data):
         calibrate(cam, cal.pan, cal.tilt, cal.X, cal.xy, loss="l1")
 
 
+@pytest.mark.slow
 def test_posterior_agrees_with_the_jacobian(data):
     cam, cal, _ = data
     sub = cal.subset(np.arange(len(cal)) % 2 == 0)
     fit = calibrate(cam, sub.pan, sub.tilt, sub.X, sub.xy)
     post = sample_posterior(fit, cam, sub.pan, sub.tilt, sub.X, sub.xy,
-                            np.random.default_rng(1), n_walkers=30, n_steps=500, burn=250)
+                            rng=np.random.default_rng(1), n_walkers=30, n_steps=500, burn=250)
     ratio = post.std / fit.std
     assert 0.1 < post.acceptance < 0.9
     assert np.median(ratio) == pytest.approx(1.0, abs=0.35), ratio
@@ -383,7 +386,7 @@ def test_posterior_agrees_with_the_jacobian(data):
 # ---------------------------------------------------------------------- aiming
 def on_axis_targets(head, pan, tilt, rng):
     """Targets that the true head centres at the given settings (the generator's truth)."""
-    obs = observe(head, pan, tilt, rng, image_sigma=0.0, world_sigma=0.0, margin=0.0)
+    obs = observe(head, pan, tilt, rng=rng, image_sigma=0.0, world_sigma=0.0, margin=0.0)
     c = np.array([[head.camera.cx, head.camera.cy]])
     # a second observation straight through the principal point
     cam = head.camera
@@ -395,12 +398,12 @@ def on_axis_targets(head, pan, tilt, rng):
 def test_aim_finds_the_setting(head, rng):
     pan, tilt = rng.uniform(-80, 80, 20), rng.uniform(-20, 20, 20)
     X, _ = on_axis_targets(head, pan, tilt, rng)
-    res = aim(head, X, (0.0, 0.0), tol_px=0.1)
+    res = aim(head, X, current=(0.0, 0.0), tol_px=0.1)
     assert res.reachable.all()
     np.testing.assert_allclose(res.pan, pan, atol=0.02)
     np.testing.assert_allclose(res.tilt, tilt, atol=0.02)
     assert np.all(res.error_px <= 0.1)
-    direct = aim_least_squares(head, X, (0.0, 0.0), tol_px=0.1)
+    direct = aim_least_squares(head, X, current=(0.0, 0.0), tol_px=0.1)
     np.testing.assert_allclose(direct.settings, res.settings, atol=0.02)
 
 
@@ -411,7 +414,7 @@ def test_aim_is_continuous_along_a_smooth_path(head, rng):
     X, _ = on_axis_targets(head, pans, tilts, rng)
     found, current = [], (pans[0], tilts[0])
     for x in X:
-        current = aim(head, x[None], current, tol_px=0.1).settings[0]
+        current = aim(head, x[None], current=current, tol_px=0.1).settings[0]
         found.append(current)
     steps = np.abs(np.diff(found, axis=0))
     assert np.all(steps[:, 0] < (pans[1] - pans[0]) + 0.02)
@@ -432,21 +435,20 @@ def test_unreachable_targets_are_reported(head, rng):
 def test_aim_and_simulation_leave_inputs_alone(head, rng):
     X, _ = on_axis_targets(head, np.array([10.0, -20.0]), np.array([0.0, 5.0]), rng)
     inputs, copies = writeable_copies(X, [[9.0, 1.0], [-19.0, 4.0]])
-    aim(head, *inputs)
-    aim_least_squares(head, *inputs)
+    aim(head, inputs[0], current=inputs[1])
+    aim_least_squares(head, inputs[0], current=inputs[1])
     assert_unchanged(inputs, copies)
-    inputs, copies = writeable_copies(side_to_side(2.0, 120.0), (9.0, 1.0))
-    run = simulate_tracking(head, inputs[0], 120.0, np.random.default_rng(0),
-                            start=inputs[1])
+    inputs, copies = writeable_copies(side_to_side(duration=2.0, rate=120.0), (9.0, 1.0))
+    run = simulate_tracking(head, inputs[0], 120.0, rng=np.random.default_rng(0), start=inputs[1])
     assert_unchanged(inputs, copies)
     assert not run.deviation_px.flags.writeable   # and the results are read-only
 
 
 def test_aim_checks_current(head):
     with pytest.raises(ValueError, match="current"):
-        aim(head, np.zeros((2, 3)), np.zeros(3))
+        aim(head, np.zeros((2, 3)), current=np.zeros(3))
     with pytest.raises(ValueError, match="pan: expected angles in degrees"):
-        aim(head, np.zeros((1, 3)), (500.0, 0.0))
+        aim(head, np.zeros((1, 3)), current=(500.0, 0.0))
 
 
 # ---------------------------------------------------------------------- latency
@@ -462,8 +464,8 @@ def test_kalman_filter_tracks_constant_velocity():
 
 
 def test_prediction_keeps_the_target_nearer_the_centre(head):
-    traj = side_to_side(10.0, 240.0, amplitude=600.0, period=2.5)
-    runs = {lead: simulate_tracking(head, traj, 240.0, np.random.default_rng(0),
+    traj = side_to_side(duration=10.0, rate=240.0, amplitude=600.0, period=2.5)
+    runs = {lead: simulate_tracking(head, traj, 240.0, rng=np.random.default_rng(0),
                                     control=Control(lead=lead)) for lead in (0.0, 0.3)}
     assert runs[0.3].mean_deviation_px < 0.7 * runs[0.0].mean_deviation_px
     assert runs[0.0].unreachable == 0
@@ -474,7 +476,7 @@ def test_prediction_keeps_the_target_nearer_the_centre(head):
 def test_a_still_target_ends_centred(head):
     X, _ = on_axis_targets(head, np.array([20.0]), np.array([-5.0]), np.random.default_rng(2))
     traj = np.repeat(X, 240 * 4, axis=0)
-    run = simulate_tracking(head, traj, 240.0, np.random.default_rng(3),
+    run = simulate_tracking(head, traj, 240.0, rng=np.random.default_rng(3),
                             control=Control(lead=0.0), kalman=KalmanCV(measurement_sigma=1.0))
     # 0.1 degree steps at f = 1000 px are 1.7 px; the last second is settled (prediction
     # off: P + 0.3 V would amplify the velocity noise of the responsive filter)
@@ -482,33 +484,33 @@ def test_a_still_target_ends_centred(head):
 
 
 def test_damping_smooths_the_commands(head):
-    traj = side_to_side(10.0, 240.0)
-    runs = [simulate_tracking(head, traj, 240.0, np.random.default_rng(4),
+    traj = side_to_side(duration=10.0, rate=240.0)
+    runs = [simulate_tracking(head, traj, 240.0, rng=np.random.default_rng(4),
                               control=Control(damping=d)) for d in (1.0, 0.3)]
     assert runs[1].command_jitter_deg < 0.5 * runs[0].command_jitter_deg
 
 
 def test_latency_parameters_are_checked(head):
-    traj = side_to_side(2.0, 120.0)
+    traj = side_to_side(duration=2.0, rate=120.0)
     rng = np.random.default_rng(0)
     with pytest.raises(ValueError, match="control.damping"):
-        simulate_tracking(head, traj, 120.0, rng, control=Control(damping=0.0))
+        simulate_tracking(head, traj, 120.0, rng=rng, control=Control(damping=0.0))
     with pytest.raises(ValueError, match="video_rate"):
-        simulate_tracking(head, traj, 120.0, rng, video_rate=500.0)
+        simulate_tracking(head, traj, 120.0, rng=rng, video_rate=500.0)
     with pytest.raises(ValueError, match="motor.latency"):
-        simulate_tracking(head, traj, 120.0, rng, motor=Motor(latency=-1))
+        simulate_tracking(head, traj, 120.0, rng=rng, motor=Motor(latency=-1))
     with pytest.raises(TypeError, match="rng"):
-        simulate_tracking(head, traj, 120.0, 0)
+        simulate_tracking(head, traj, 120.0, rng="0")
     with pytest.raises(ValueError, match="pan: expected angles in degrees"):
-        simulate_tracking(head, traj, 120.0, rng, start=(3.14 * 60, 0.0))
+        simulate_tracking(head, traj, 120.0, rng=rng, start=(3.14 * 60, 0.0))
 
 
 # ---------------------------------------------------------------------- generator
 def test_generator_follows_the_thesis_protocol(head, rng):
-    cal = calibration_sweeps(head, rng)
+    cal = calibration_sweeps(head, rng=rng)
     assert sorted(set(cal.pan[cal.tilt == 0])) == list(range(-50, 51, 10))
     assert sorted(set(cal.tilt[cal.pan == 0])) == list(range(-20, 16, 5))
-    ev = evaluation_grid(head, rng)
+    ev = evaluation_grid(head, rng=rng)
     assert len(ev) == 361
     assert ev.pan.min() == head.pan_limits[0] and ev.tilt.max() == head.tilt_limits[1]
     assert not cal.X.flags.writeable

@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from lsmta.evaluation.sapm import cell_seeds, clouthier_model, frame_trials, pose_trials
 from lsmta.io import read_c3d
 from lsmta.rigid import apply_rigid, fit_rigid
-from lsmta.sapm import MarkerModel, global_assignment, identify
+from lsmta.sapm import MarkerModel, SAPMParams, global_assignment, identify
 from lsmta.synth.markers import human_model, random_pose
 
 C3D = Path(__file__).resolve().parents[1] / "data" / "clouthier2021" / "KneeltoProne01.c3d"
@@ -99,11 +99,12 @@ def test_model_rejects_a_cycle_beside_the_root():
         MarkerModel.from_labelled_frame(pts, segs, {"s1": None, "s2": "s3", "s3": "s2"})
 
 
-def test_model_rejects_two_joint_markers_on_one_link():
+def test_model_takes_two_joint_markers_on_one_link():
     segs = {"s1": ["a", "b", "c", "d"], "s2": ["b", "c", "e", "f"]}
-    with pytest.raises(ValueError, match="at most one joint marker"):
-        MarkerModel.from_labelled_frame(_tiny()["points_by_label"], segs,
+    m = MarkerModel.from_labelled_frame(_tiny()["points_by_label"], segs,
                                         {"s1": None, "s2": "s1"})
+    assert [m.labels[i] for i in m.shared[1]] == ["b", "c"] and m.joint_tolerance[1] == 0
+    np.testing.assert_allclose(m.joint[1], [50, 40, 0])       # the pair's centroid
 
 
 def test_model_rejects_a_label_shared_by_unlinked_segments():
@@ -115,7 +116,7 @@ def test_model_rejects_a_label_shared_by_unlinked_segments():
 
 # ---------------------------------------------------------------------- generator
 def test_random_pose_keeps_every_segment_rigid_and_shuffles(model, rng):
-    pose = random_pose(model, rng, level=4.0)
+    pose = random_pose(model, rng=rng, level=4.0)
     order = np.argsort(pose.truth)
     assert not np.array_equal(pose.truth, np.sort(pose.truth))
     pts = pose.observed[order]
@@ -126,7 +127,7 @@ def test_random_pose_keeps_every_segment_rigid_and_shuffles(model, rng):
 
 
 def test_random_pose_at_level_zero_is_a_translation(model, rng):
-    pose = random_pose(model, rng, level=0.0)
+    pose = random_pose(model, rng=rng, level=0.0)
     shift = pose.observed - model.points[pose.truth]
     np.testing.assert_allclose(shift, shift[0] + 0 * shift, atol=1e-9)
 
@@ -134,7 +135,7 @@ def test_random_pose_at_level_zero_is_a_translation(model, rng):
 def test_random_pose_distortion_has_the_papers_spread(model, rng):
     psi, resid, scale = 0.05, [], []
     for _ in range(100):
-        pose = random_pose(model, rng, level=0.0, distortion=psi)
+        pose = random_pose(model, rng=rng, level=0.0, distortion=psi)
         resid.append(pose.observed - pose.points[pose.truth])
         scale.append(np.repeat(model.mean_length[model.point_segment[pose.truth]], 3))
     z = np.concatenate([r.ravel() for r in resid]) / np.concatenate(scale)
@@ -144,7 +145,7 @@ def test_random_pose_distortion_has_the_papers_spread(model, rng):
 
 
 def test_random_pose_missing_and_extra_points(model, rng):
-    pose = random_pose(model, rng, n_missing=3, n_extra=4, distortion=0.05)
+    pose = random_pose(model, rng=rng, n_missing=3, n_extra=4, distortion=0.05)
     assert len(pose.observed) == model.n_points - 3 + 4
     assert (pose.truth == -1).sum() == 4
     assert len(np.unique(pose.truth[pose.truth >= 0])) == model.n_points - 3
@@ -153,16 +154,16 @@ def test_random_pose_missing_and_extra_points(model, rng):
 # ---------------------------------------------------------------------- identification
 def test_identify_labels_noise_free_arbitrary_poses(model, rng):
     for _ in range(20):
-        pose = random_pose(model, rng, level=np.pi)
-        result = identify(model, pose.observed, eps=0.05)
+        pose = random_pose(model, rng=rng, level=np.pi)
+        result = identify(model, pose.observed, params=SAPMParams(eps=0.05))
         np.testing.assert_array_equal(result.labels, pose.truth)
         assert result.found.all()
         np.testing.assert_allclose(result.mean_error, 0, atol=1e-9)
 
 
 def test_identify_transforms_carry_the_model_onto_the_pose(model, rng):
-    pose = random_pose(model, rng, level=2.0)
-    r = identify(model, pose.observed, eps=0.05)
+    pose = random_pose(model, rng=rng, level=2.0)
+    r = identify(model, pose.observed, params=SAPMParams(eps=0.05))
     for s, m in enumerate(model.members):
         pred = apply_rigid(r.rotation[s], r.translation[s], model.points[m])
         np.testing.assert_allclose(pred, pose.points[m], atol=1e-6)
@@ -171,8 +172,8 @@ def test_identify_transforms_carry_the_model_onto_the_pose(model, rng):
 def test_identify_leaves_extra_points_unlabelled_and_survives_missing(model, rng):
     n_ok, n_total = 0, 0
     for _ in range(10):
-        pose = random_pose(model, rng, level=2.0, n_missing=1, n_extra=4)
-        r = identify(model, pose.observed, eps=0.05, beta=0.7)
+        pose = random_pose(model, rng=rng, level=2.0, n_missing=1, n_extra=4)
+        r = identify(model, pose.observed, params=SAPMParams(eps=0.05, beta=0.7))
         labelled = r.labels >= 0
         assert (r.labels[labelled] == pose.truth[labelled]).all(), "a point got a wrong label"
         n_ok += (r.labels == pose.truth).sum()
@@ -188,16 +189,16 @@ def _without(pose, model, names):
 def test_virtual_joint_carries_a_child_past_a_missing_joint_marker(model, rng):
     lower = model.segment_index("Lforearm")
     for _ in range(5):
-        obs, truth = _without(random_pose(model, rng, level=2.0), model, ["Lelbow"])
-        r = identify(model, obs, eps=0.05, beta=0.7)
+        obs, truth = _without(random_pose(model, rng=rng, level=2.0), model, ["Lelbow"])
+        r = identify(model, obs, params=SAPMParams(eps=0.05, beta=0.7))
         assert r.found[lower] and r.found[model.segment_index("Lupper_arm")]
         np.testing.assert_array_equal(r.labels, truth)
 
 
 def test_broken_chain_is_searched_from_scratch(model, rng):
     # the left upper arm keeps two markers and cannot be found; its forearm still is
-    obs, truth = _without(random_pose(model, rng, level=2.0), model, ["Luarm_lat", "Luarm_ant"])
-    r = identify(model, obs, eps=0.05)
+    obs, truth = _without(random_pose(model, rng=rng, level=2.0), model, ["Luarm_lat", "Luarm_ant"])
+    r = identify(model, obs, params=SAPMParams(eps=0.05))
     assert not r.found[model.segment_index("Lupper_arm")]
     assert r.found[model.segment_index("Lforearm")]
     lab = r.labels >= 0
@@ -207,20 +208,20 @@ def test_broken_chain_is_searched_from_scratch(model, rng):
 
 
 def test_effort_is_counted_and_ranking_the_root_still_labels(model, rng):
-    pose = random_pose(model, rng, level=np.pi)
+    pose = random_pose(model, rng=rng, level=np.pi)
     for rank in (False, True):
-        r = identify(model, pose.observed, eps=0.05, rank_root=rank)
+        r = identify(model, pose.observed, params=SAPMParams(eps=0.05, rank_root=rank))
         np.testing.assert_array_equal(r.labels, pose.truth)
         assert r.tables >= model.n_segments and r.fits >= model.n_segments
         assert r.backtracks >= 0 and r.seconds > 0
 
 
 def test_identify_drops_nan_rows_and_leaves_the_input_alone(model, rng):
-    pose = random_pose(model, rng, level=1.0)
+    pose = random_pose(model, rng=rng, level=1.0)
     obs = pose.observed.copy()
     obs[[3, 7]] = np.nan
     before = obs.copy()
-    r = identify(model, obs, eps=0.05)
+    r = identify(model, obs, params=SAPMParams(eps=0.05))
     np.testing.assert_array_equal(obs, before)
     np.testing.assert_array_equal(r.dropped, [3, 7])
     assert (r.labels[[3, 7]] == -1).all()
@@ -232,21 +233,29 @@ def test_identify_drops_nan_rows_and_leaves_the_input_alone(model, rng):
 @pytest.mark.parametrize("kw, error, message", [
     ({"observed": np.zeros((2, 3))}, ValueError, "at least 3"),
     ({"observed": np.zeros((5, 2))}, ValueError, r"shape \(N, 3\)"),
+    ({"observed": np.full((6, 3), np.nan)}, ValueError, "at least 3"),
+    ({"rng": "3"}, TypeError, "Generator"),
+    ({"params": {"eps": 0.1}}, TypeError, "SAPMParams"),
+])
+def test_identify_rejects_bad_arguments(model, rng, kw, error, message):
+    args = {"observed": random_pose(model, rng=rng).observed}
+    args.update(kw)
+    with pytest.raises(error, match=message):
+        identify(model, **args)
+
+
+@pytest.mark.parametrize("kw, error, message", [
     ({"eps": 1.5}, ValueError, "eps"),
     ({"eps": 0.0}, ValueError, "eps"),
     ({"beta": 1.0}, ValueError, "beta"),
     ({"beta": -0.1}, ValueError, "beta"),
-    ({"observed": np.full((6, 3), np.nan)}, ValueError, "at least 3"),
     ({"max_tables": 0}, ValueError, "max_tables"),
     ({"max_alternatives": 1.5}, ValueError, "max_alternatives"),
-    ({"rng": 3}, TypeError, "Generator"),
-    ({"max_tabels": 3}, TypeError, "unknown options"),
+    ({"max_tabels": 3}, TypeError, "max_tabels"),
 ])
-def test_identify_rejects_bad_arguments(model, rng, kw, error, message):
-    args = {"observed": random_pose(model, rng).observed}
-    args.update(kw)
+def test_sapm_params_are_checked(kw, error, message):
     with pytest.raises(error, match=message):
-        identify(model, **args)
+        SAPMParams(**kw)
 
 
 def test_identify_rejects_a_non_model(rng):
@@ -255,9 +264,10 @@ def test_identify_rejects_a_non_model(rng):
 
 
 def test_baseline_works_for_rigid_poses_only(model, rng):
-    rigid = random_pose(model, rng, level=0.0)
+    rigid = random_pose(model, rng=rng, level=0.0)
     np.testing.assert_array_equal(global_assignment(model, rigid.observed).labels, rigid.truth)
-    trials = pose_trials(model, rng, 10, level=2.0, methods=("sapm", "baseline"), eps=0.05)
+    trials = pose_trials(model, 10, rng=rng, level=2.0, methods=("sapm", "baseline"),
+                         params=SAPMParams(eps=0.05))
     assert trials["sapm"].accuracy.mean() > trials["baseline"].accuracy.mean() + 0.3
 
 
@@ -302,5 +312,6 @@ def test_read_c3d_names_a_missing_file(tmp_path):
 def test_real_frames_are_mostly_identified():
     model, points = clouthier_model(C3D)
     assert (model.n_segments, model.n_points) == (15, 62)
-    ft = frame_trials(model, points, [150, 700, 1100, 1600], np.random.default_rng(1), eps=0.1)
+    ft = frame_trials(model, points, [150, 700, 1100, 1600], rng=np.random.default_rng(1),
+                      params=SAPMParams(eps=0.1))
     assert ft.trials["sapm"].accuracy.mean() > 0.9

@@ -17,15 +17,17 @@ from lsmta.synth import Renderer, Scene, make_body, triplet_rig, walk
 def triplet():
     """A walking body in front of a half-resolution triplet at 2.5 m: cameras, scene, frame 5."""
     rng = np.random.default_rng(5)
-    cams = [smaller(c) for c in triplet_rig(rng, distance=2500.0, baseline=700.0)]
-    scene = Scene(make_body(rng, wavelength=(12.0, 50.0)), walk(20, start=(-300.0, 0.0)), None)
+    cams = [smaller(c) for c in triplet_rig(rng=rng, distance=2500.0, baseline=700.0)]
+    scene = Scene(make_body(rng=rng, wavelength=(12.0, 50.0)),
+                  walk(n_frames=20, start=(-300.0, 0.0)), None)
     return cams, scene, Renderer(scene, cams, noise_sigma=1.0).render(5, rng=rng)
 
 
+@pytest.mark.slow
 def test_seeds_scores_and_sgbm_on_a_small_triplet(triplet):
     small, scene, frame = triplet
     rng = np.random.default_rng(6)
-    seeds = seeds_from_truth(scene, small, 5, rng)
+    seeds = seeds_from_truth(scene, small, 5, rng=rng)
     assert seeds.shape[0] == 3 and seeds.shape[1] >= 6
     truth = node_truth(frame, scene, small, step=3, patch=9)
     assert truth["visible"].sum() > 100 and not truth["visible"][~truth["on_body"]].any()
@@ -51,6 +53,7 @@ def test_seeds_scores_and_sgbm_on_a_small_triplet(triplet):
     assert misses["missed"] <= misses["target"] == int((truth["visible"] & truth["interior"]).sum())
 
 
+@pytest.mark.slow
 def test_find_seeds_agree_with_truth(triplet):
     small, _, frame = triplet
     seeds = find_seeds(frame.images, small, n_seeds=8, patch=9, min_distance=12)

@@ -23,9 +23,9 @@ def _small(cam, factor=4):
 @pytest.fixture(scope="module")
 def world():
     rng = np.random.default_rng(7)
-    cams = triplet_rig(rng)
-    body = make_body(rng)
-    scene = Scene(body, walk(30), make_background(rng))
+    cams = triplet_rig(rng=rng)
+    body = make_body(rng=rng)
+    scene = Scene(body, walk(n_frames=30), make_background(rng=rng))
     return cams, scene
 
 
@@ -36,14 +36,14 @@ def centre_frame(world):
 
 
 def test_rigs_are_seeded_and_named():
-    a = triplet_rig(np.random.default_rng(3))
-    b = triplet_rig(np.random.default_rng(3))
-    c = triplet_rig(np.random.default_rng(4))
+    a = triplet_rig(rng=np.random.default_rng(3))
+    b = triplet_rig(rng=np.random.default_rng(3))
+    c = triplet_rig(rng=np.random.default_rng(4))
     assert [x.name for x in a] == ["left", "centre", "right"]
     assert all(np.array_equal(x.R, y.R) and x.k1 == y.k1 for x, y in zip(a, b))
     assert not np.array_equal(a[0].C, c[0].C)
     assert a[0].image_size == (768, 576)
-    ring = ring_rig(6, np.random.default_rng(0))
+    ring = ring_rig(n=6, rng=np.random.default_rng(0))
     assert len(ring) == 6
     # every ring camera sees the volume centre near its image centre
     for cam in ring:
@@ -51,6 +51,7 @@ def test_rigs_are_seeded_and_named():
         assert np.hypot(xy[0] - cam.cx, xy[1] - cam.cy) < 60
 
 
+@pytest.mark.slow
 def test_ground_truth_world_point_projects_to_pixel_centre(world, centre_frame):
     cams, _ = world
     f = centre_frame
@@ -68,6 +69,7 @@ def test_ground_truth_world_point_projects_to_pixel_centre(world, centre_frame):
     assert np.allclose(z, f.depth[0][ii, jj])
 
 
+@pytest.mark.slow
 def test_local_points_lie_on_their_ellipsoids(world, centre_frame):
     _, scene = world
     f = centre_frame
@@ -79,6 +81,7 @@ def test_local_points_lie_on_their_ellipsoids(world, centre_frame):
     assert np.allclose(np.sum(((local - c) / r) ** 2, axis=1), 1.0, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_same_seed_same_images(world):
     cams, scene = world
     small = [_small(c) for c in cams]
@@ -90,6 +93,7 @@ def test_same_seed_same_images(world):
     assert not np.array_equal(a.images, c.images)
 
 
+@pytest.mark.slow
 def test_noise_level_and_texture_move_with_the_body(world):
     cams, scene = world
     small = [_small(cams[1], 2)]
@@ -112,7 +116,7 @@ def test_noise_level_and_texture_move_with_the_body(world):
 
 def test_surface_points_triangulate_exactly(world):
     cams, scene = world
-    part, local = scene.body.sample_surface(np.random.default_rng(0), 60)
+    part, local = scene.body.sample_surface(n_per_part=60, rng=np.random.default_rng(0))
     proj = project_surface_points(scene, cams, part, local, frames=[0, 10, 20])
     both = proj.visible[:, 0] & proj.visible[:, 2]
     assert both.sum() > 100
@@ -124,10 +128,11 @@ def test_surface_points_triangulate_exactly(world):
         assert np.abs(res.points - proj.world[t, sel]).max() < 1e-6
 
 
+@pytest.mark.slow
 def test_visibility_agrees_with_rendering(world, centre_frame):
     cams, scene = world
     cam = cams[1]
-    part, local = scene.body.sample_surface(np.random.default_rng(1), 200)
+    part, local = scene.body.sample_surface(n_per_part=200, rng=np.random.default_rng(1))
     proj = project_surface_points(scene, [cam], part, local, frames=12)
     xy = proj.xy[0, 0]
     px = np.rint(xy).astype(int)
@@ -151,8 +156,8 @@ def test_visibility_agrees_with_rendering(world, centre_frame):
 
 
 def test_skeleton_keeps_bone_lengths():
-    body = make_body(np.random.default_rng(0))
-    for motion in (walk(40), arm_wave(40)):
+    body = make_body(rng=np.random.default_rng(0))
+    for motion in (walk(n_frames=40), arm_wave(n_frames=40)):
         poses = body.part_poses(motion)
         for i, spec in enumerate(body.parts):
             if spec.parent < 0:
@@ -166,10 +171,11 @@ def test_skeleton_keeps_bone_lengths():
 
 
 def test_walk_moves_across_and_feet_stay_near_floor():
-    body = make_body(np.random.default_rng(0))
-    m = walk(50, speed=1300.0)
+    body = make_body(rng=np.random.default_rng(0))
+    m = walk(n_frames=50, speed=1300.0)
     assert m.root_position[-1, 0] - m.root_position[0, 0] == pytest.approx(1300 * 49 / 25)
-    part, local = body.sample_surface(np.random.default_rng(0), 400, parts=["foot_l", "foot_r"])
+    part, local = body.sample_surface(n_per_part=400, rng=np.random.default_rng(0),
+                                      parts=["foot_l", "foot_r"])
     z = body.to_world(m, part, local)[..., 2]
     lowest = z.min(axis=1)
     assert np.all(lowest > -60) and np.all(lowest < 80)
@@ -183,8 +189,8 @@ def test_walk_moves_across_and_feet_stay_near_floor():
     (lambda s, c: Renderer(s, ["cam"]), "cameras"),
     (lambda s, c: project_surface_points(s, c, "elbow", np.zeros((2, 3))), "unknown part"),
     (lambda s, c: project_surface_points(s, c, 0, np.zeros((2, 2))), "local_points"),
-    (lambda s, c: make_body(np.random.default_rng(0), contrast={"tail": 0.1}), "tail"),
-    (lambda s, c: make_body(0), "numpy.random.Generator"),
+    (lambda s, c: make_body(rng=np.random.default_rng(0), contrast={"tail": 0.1}), "tail"),
+    (lambda s, c: make_body(rng="0"), "numpy.random.Generator"),
 ])
 def test_bad_input(world, call, match):
     cams, scene = world
@@ -205,7 +211,7 @@ def test_with_scene_shares_the_rays_and_renders_like_a_new_renderer(world):
     cam = [_small(cams[1])]
     first = Renderer(scene, cam, dtype=np.float64)
     first.render(12)
-    other_scene = Scene(make_body(np.random.default_rng(5), contrast=0.05), scene.motion,
+    other_scene = Scene(make_body(rng=np.random.default_rng(5), contrast=0.05), scene.motion,
                         scene.background)
     shared = first.with_scene(other_scene)
     assert shared._cache[0]["dirs"] is first._cache[0]["dirs"]

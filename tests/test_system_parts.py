@@ -60,19 +60,19 @@ def test_temporal_noise_bad_input():
 # ------------------------------------------------------------------ bar targets
 def _bar(seed, n=60):
     rng = np.random.default_rng(seed)
-    cams = triplet_rig(rng)
-    track = bar_track(rng, n, length=800.0)
+    cams = triplet_rig(rng=rng)
+    track = bar_track(n=n, rng=rng, length=800.0)
     return rng, cams, track
 
 
 def test_blob_precision_matches_its_scatter():
     rng = np.random.default_rng(3)
-    cam = triplet_rig(rng)[1]
-    track = bar_track(rng, 1)
+    cam = triplet_rig(rng=rng)[1]
+    track = bar_track(n=1, rng=rng)
     truth = cam.project(track.points.reshape(-1, 3))
     errs, stds = [], []
     for _ in range(150):
-        b = detect_blobs(render_bar_images(cam, track, rng)[0])
+        b = detect_blobs(render_bar_images(cam, track, rng=rng)[0])
         d = np.linalg.norm(b.xy[:, None] - truth[None], axis=2)
         j = d.argmin(axis=0)
         errs.append(b.xy[j] - truth)
@@ -86,7 +86,7 @@ def test_blob_precision_matches_its_scatter():
 def test_target_leaving_the_image_is_found_again_far_away():
     rng, cams, track = _bar(4, 30)
     cam = cams[1]
-    images = render_bar_images(cam, track, rng)
+    images = render_bar_images(cam, track, rng=rng)
     images[10:14] = 25                       # the bar is out of sight for four frames
     tracks = track_targets(images, gate=30.0)
     truth = cam.project(track.points.reshape(-1, 3)).reshape(-1, 2, 2)
@@ -101,14 +101,14 @@ def test_target_leaving_the_image_is_found_again_far_away():
 def test_swapped_bar_ends_are_made_consistent():
     rng, cams, track = _bar(5)
     n = len(track.A)
-    xy = project_observations(cams, track.points.reshape(-1, 3), rng, sigma_px=0.05)
+    xy = project_observations(cams, track.points.reshape(-1, 3), rng=rng, sigma_px=0.05)
     xy = xy.reshape(3, n, 2, 2)
     swap = rng.random((3, n)) < 0.15
     swap[0] = False
     mixed = np.where(swap[..., None, None], xy[:, :, ::-1], xy)
     before = mixed.copy()
     bar = Bar(np.arange(2 * n).reshape(n, 2), 800.0)
-    cams0, _ = relative_orientation_start(triplet_rig(None), mixed.reshape(3, -1, 2), bar=bar,
+    cams0, _ = relative_orientation_start(triplet_rig(), mixed.reshape(3, -1, 2), bar=bar,
                                           pair=(0, 2))
     labels = consistent_bar_labels(cams0, mixed, 800.0)
     assert np.array_equal(mixed, before)
@@ -233,12 +233,12 @@ def _arm_trajectories(seed=10, T=20):
     from lsmta.synth import arm_wave, make_body
 
     rng = np.random.default_rng(seed)
-    body = make_body(rng)
-    motion = arm_wave(14 + T, position=(450.0, 0.0))
+    body = make_body(rng=rng)
+    motion = arm_wave(n_frames=14 + T, position=(450.0, 0.0))
     frames = np.arange(14, 14 + T)
     names = ("torso", "upper_arm_r", "forearm_r")
-    part, local = body.sample_surface(rng, 150, parts=names)
-    X = body.to_world(motion, part, local, frames)
+    part, local = body.sample_surface(n_per_part=150, parts=names, rng=rng)
+    X = body.to_world(motion, part, local, frames=frames)
     X = X + rng.normal(0, 0.5, X.shape)
     return Trajectories(X, 25.0), eb.arm_truth(body, motion, frames), part, body
 
@@ -270,3 +270,25 @@ def test_arm_start_says_when_there_is_no_arm():
     with pytest.raises(TypeError, match="trajectories"):
         arm_start(np.zeros((3, 3, 3)), forward=(0, -1, 0))
 
+
+
+def test_forearm_length_ends_where_the_forearm_points_end():
+    from lsmta.body.start import forearm_length
+
+    rng = np.random.default_rng(11)
+    forearm = rng.uniform(15, 262, 150)
+    hand = rng.uniform(295, 400, 15)                     # beyond the unmatched wrist
+    assert abs(forearm_length(np.r_[forearm, hand]) - forearm.max()) < 1e-9
+    assert forearm_length(forearm) == forearm.max()     # no hand: the distal end
+    stray = np.r_[forearm, 300.0, 310.0]                 # two stray points are no hand
+    assert forearm_length(stray) == 310.0
+    assert forearm_length(forearm[:10]) is None
+
+
+def test_observed_frames_need_every_segment():
+    from lsmta.systems import observed_frames
+
+    counts = np.array([[30, 12], [30, 9], [25, 40], [11, 10], [40, 40]])
+    assert observed_frames(counts, min_points=10).tolist() == [0, 2, 3, 4]
+    with pytest.raises(ValueError, match="only 1 of 5 frames"):
+        observed_frames(counts, min_points=35)

@@ -5,7 +5,9 @@ import cv2
 import numpy as np
 import pytest
 
-from lsmta.evaluation.widearea import fig35_starvation, score_tracks, walking_trial
+from lsmta.evaluation.track_scores import score_tracks
+from lsmta.evaluation.widearea import RIG_SEED, fig35_starvation, trial_rig, walking_trial
+from lsmta.evaluation.widearea_images import rendered_tracking_trial
 from lsmta.synth.widearea import (
     ceiling_rig,
     make_clocks,
@@ -14,15 +16,22 @@ from lsmta.synth.widearea import (
     walking_person,
 )
 from lsmta.widearea import (
+    EstimatorParams,
+    FrameIntake,
     Frames,
-    TrackerParams,
+    RayPool,
     associate,
     ekf_update,
     find_birth,
+    innovation_gate,
+    kalman_update,
+    measurement,
     predict,
+    process_noise,
     projection_jacobian,
     ray_distance,
     schedule,
+    screen_frame,
     starved,
     track,
     transition,
@@ -31,7 +40,7 @@ from lsmta.widearea import (
 
 @pytest.fixture(scope="module")
 def rig():
-    return ceiling_rig(np.random.default_rng(3))
+    return ceiling_rig(rng=np.random.default_rng(3))
 
 
 # ----------------------------------------------------------------------------- kalman
@@ -166,6 +175,70 @@ def test_starved_needs_two_cameras():
         starved(1.0, last, 0.0)
 
 
+def test_process_noise_is_the_one_of_transition_and_predict():
+    dt = np.array([0.01, 0.2])
+    Q2 = process_noise(dt, 4e6)
+    np.testing.assert_allclose(Q2[1], 4e6 * np.array([[0.2**3 / 3, 0.2**2 / 2],
+                                                      [0.2**2 / 2, 0.2]]))
+    _, Q = transition(dt, 4e6)
+    np.testing.assert_array_equal(Q[:, [0, 3]][:, :, [0, 3]], Q2)
+    x = np.zeros((2, 6))
+    _, P = predict(x, np.zeros((2, 6, 6)), dt, 4e6)
+    np.testing.assert_array_equal(P, Q)
+
+
+def test_kalman_update_from_the_measurement_equals_ekf_update(rig):
+    rng = np.random.default_rng(4)
+    x = np.c_[rng.uniform(-500, 500, (3, 3)) + [0, 0, 1200], rng.normal(0, 100, (3, 3))]
+    P = np.tile(np.diag([100.0] * 3 + [1e4] * 3), (3, 1, 1))
+    h, H = measurement(rig[0], x, lag=0.01)
+    z = h + rng.normal(0, 0.5, h.shape)
+    a = kalman_update(x, P, H, h, z, sigma_px=0.5)
+    b = ekf_update(x, P, rig[0], z, 0.5, lag=0.01)
+    for u, v in zip(a, b):
+        np.testing.assert_array_equal(u, v)
+    with pytest.raises(ValueError, match="H"):
+        kalman_update(x, P, H[:, :, :3], h, z, sigma_px=0.5)
+
+
+def test_innovation_gate_is_n_sigma_of_the_larger_axis_within_limits():
+    S = np.array([np.diag([4.0, 1.0]), np.diag([400.0, 1.0]), np.diag([0.01, 0.01])])
+    np.testing.assert_allclose(innovation_gate(S, n_sigma=3.0, lower=1.0, upper=15.0),
+                               [6.0, 15.0, 1.0])
+    with pytest.raises(ValueError, match="S"):
+        innovation_gate(np.eye(2), n_sigma=3.0, lower=1.0, upper=15.0)
+
+
+def test_screening_leaves_the_callers_arrays_and_counts_in_the_intake():
+    fr = Frames.from_lists([0, 0, 5, 1], [0.1, 0.05, 0.2, np.nan],
+                           [[[1.0, 2.0], [np.nan, 1.0]], [[3.0, 4.0]], [[0.0, 0.0]], []])
+    last = np.array([0.2, -np.inf])
+    s = screen_frame(fr, 0, 2, last)
+    assert s.refused == "backwards_time" and s.xy is None
+    np.testing.assert_array_equal(last, [0.2, -np.inf])          # untouched
+    s = screen_frame(fr, 0, 2, np.full(2, -np.inf))
+    assert s.refused is None and s.nan_centroids == 1 and s.xy.shape == (1, 2)
+    intake = FrameIntake.initial(2)
+    taken = [intake.take(fr, f) for f in range(fr.n_frames)]
+    assert taken[0].shape == (1, 2) and taken[1] is None and taken[2] is None
+    assert taken[3] is None
+    assert intake.rejected == {"unknown_camera": 1, "backwards_time": 1, "nonfinite_stamp": 1,
+                               "empty_frames": 0, "nan_centroids": 1}
+    np.testing.assert_array_equal(intake.received, [1, 0])
+
+
+def test_ray_pool_forgets_stale_and_own_rays(rig):
+    pool = RayPool()
+    o, d = rig[0].rays(np.array([[320.0, 240.0], [100.0, 100.0]]))
+    pool.add(o, d, 0.0, 0)
+    pool.add(o[:1], d[:1], 0.05, 1)
+    pool.refresh(0.1, 1, 0.07)               # camera 0's rays are stale, camera 1's own
+    assert len(pool.stamps) == 0
+    pool.add(o, d, 0.2, 2)
+    pool.refresh(0.25, 0, 0.07)
+    np.testing.assert_array_equal(pool.cameras, [2, 2])
+
+
 # ----------------------------------------------------------------------------- scheduler
 def test_schedule_policies():
     # three cameras, frames every 10 ms, service takes 15 ms: the estimator is overloaded
@@ -181,7 +254,7 @@ def test_schedule_policies():
     rr = schedule(t, cam, stamp, "round_robin", 0.015)
     served = np.bincount(cam[rr.order], minlength=3)
     assert served.min() >= 5 and served.max() - served.min() <= 1     # cameras in turn
-    rnd = schedule(t, cam, stamp, "random_recent", 0.015, np.random.default_rng(0))
+    rnd = schedule(t, cam, stamp, "random_recent", 0.015, rng=np.random.default_rng(0))
     assert (np.bincount(cam[rnd.order], minlength=3) > 2).all()
     assert np.all(np.diff(rnd.started) > 0)
     with pytest.raises(ValueError, match="rng"):
@@ -192,16 +265,25 @@ def test_schedule_policies():
 
 # ----------------------------------------------------------------------------- tracker
 def test_fig35_discard_late_starves_and_tolerance_cures():
-    trial = fig35_starvation(np.random.default_rng(1), duration=1.0)
+    trial = fig35_starvation(rng=np.random.default_rng(1), duration=1.0)
     np.testing.assert_allclose(trial.used_discard, [1.0, 0.0, 0.0])
     np.testing.assert_allclose(trial.used_tolerant, [1.0, 1.0, 1.0])
     assert trial.tracks_discard == 0 and trial.tracks_tolerant == 1
     assert trial.rms_tolerant < 10.0
 
 
+def test_trials_take_their_rig(rig):
+    default = trial_rig(None)
+    np.testing.assert_array_equal([c.C for c in default],
+                                  [c.C for c in ceiling_rig(rng=RIG_SEED)])
+    assert trial_rig(rig[:4]) == list(rig[:4])
+    with pytest.raises(TypeError, match="rig"):
+        trial_rig([1, 2])
+
+
 def test_walking_person_short(rig):
     k = np.arange(8)
-    w = walking_trial(np.random.default_rng(5), duration=1.2,
+    w = walking_trial(rng=np.random.default_rng(5), duration=1.2,
                       on=np.stack([0.05 + 0.02 * k, 0.9 + 0.02 * k], axis=1))
     s = w.score_ours
     assert s.identity_changes == 0
@@ -235,7 +317,7 @@ def test_score_counts_failed_births_and_deaths():
 
 def _frames(rig, rng):
     cams = rig[:6]
-    obs = observe(still_led(0.6), cams, make_clocks(6, rng), rng, reflections=0.0)
+    obs = observe(still_led(duration=0.6), cams, make_clocks(6, rng=rng), rng=rng, reflections=0.0)
     return cams, obs
 
 
@@ -270,7 +352,7 @@ def test_tracker_argument_errors(rig):
     with pytest.raises(TypeError, match="frames"):
         track(cams, obs.frames.xy)
     with pytest.raises(ValueError, match="sigma_px"):
-        TrackerParams(sigma_px=0.0)
+        EstimatorParams(sigma_px=0.0)
     with pytest.raises(ValueError, match="start"):
         Frames(camera=np.array([0]), stamp=np.array([0.0]), start=np.array([1, 1]),
                xy=np.zeros((0, 2)))
@@ -281,8 +363,8 @@ def test_tracker_argument_errors(rig):
 
 def test_generator_truth_and_visibility(rig):
     rng = np.random.default_rng(4)
-    scene = walking_person(0.6)
-    obs = observe(scene, rig, make_clocks(18, rng), rng, reflections=0.0, noise_px=0.0)
+    scene = walking_person(duration=0.6)
+    obs = observe(scene, rig, make_clocks(18, rng=rng), rng=rng, reflections=0.0, noise_px=0.0)
     # every centroid with a truth label lies on the projection of that LED at capture time
     fr = obs.frames
     f = int(np.argmax(np.diff(fr.start)))
@@ -315,7 +397,7 @@ def test_stonesoup_baseline_tracks_a_still_led(rig):
 
     cams, obs = _frames(rig, np.random.default_rng(6))
     res = stonesoup_track(cams, obs.frames)
-    score = score_tracks(still_led(0.6), res, np.arange(0.2, 0.6, 0.02))
+    score = score_tracks(still_led(duration=0.6), res, np.arange(0.2, 0.6, 0.02))
     assert len(res.tracks) == 1
     assert score.rms_mm < 5.0
 
@@ -363,8 +445,8 @@ def test_background_threshold_and_lighting_test():
     ex = np.zeros_like(bg, bool)
     ex[1, 2, 3] = True
     assert background_threshold(bg, 20.0, 30.0, exclude=ex).threshold[2, 3] == 30.0
-    assert not needs_new_threshold(np.zeros((4, 5)), thr, 0.01)
-    assert needs_new_threshold(np.full((4, 5), 40.0), thr, 0.01)
+    assert not needs_new_threshold(np.zeros((4, 5)), thr, fraction=0.01)
+    assert needs_new_threshold(np.full((4, 5), 40.0), thr, fraction=0.01)
     with pytest.raises(ValueError, match="frames"):
         background_threshold(np.zeros(5), 1.0, 1.0)
 
@@ -412,12 +494,12 @@ def test_subsampled_search_tests_fewer_pixels_and_finds_predicted_spots():
     assert (sub.tested < full.tested).all()
     for t in range(4):
         np.testing.assert_allclose(sub.centroids(t), full.centroids(t), atol=1e-9)
-    m = search_mask((60, 80), 5, (1, 2), np.array([[40.0, 30.0]]), 10)
+    m = search_mask((60, 80), 5, (1, 2), windows=np.array([[40.0, 30.0]]), window=10)
     assert m[1::5, 2::5].all() and m[25:35, 35:45].all()
     assert m.sum() == 12 * 16 + 100 - m[25:35, 35:45][(np.arange(25, 35) % 5 == 1)[:, None]
                                                         & (np.arange(35, 45) % 5 == 2)].sum()
     with pytest.raises(TypeError, match="rng"):
-        detect(frames, thr, mode="subsampled")
+        detect(frames, thr, mode="subsampled", rng="0")
 
 
 def test_rendered_video_detected_at_truth():
@@ -425,9 +507,9 @@ def test_rendered_video_detected_at_truth():
     from lsmta.widearea import background_threshold, detect
 
     rng = np.random.default_rng(8)
-    cam = small_camera(ceiling_rig(np.random.default_rng(7))[0])
-    video = render_led_video(still_led(0.3), cam, np.arange(5) / 30, rng, monitor_flicker=0.0,
-                             reflections=0.0)
+    cam = small_camera(ceiling_rig(rng=np.random.default_rng(7))[0])
+    video = render_led_video(still_led(duration=0.3), cam, np.arange(5) / 30, rng=rng,
+                             monitor_flicker=0.0, reflections=0.0)
     thr = background_threshold(video.background, 20.0, 60.0)
     det = detect(video.frames, thr)
     for t in range(5):
@@ -498,9 +580,7 @@ def test_subsampled_previous_windows_follow_a_spot_the_grid_misses():
 
 
 def test_rendered_images_detected_and_tracked_in_3d():
-    from lsmta.evaluation.widearea import rendered_tracking_trial
-
-    trial = rendered_tracking_trial(np.random.default_rng(11), n_cameras=5, duration=1.0,
+    trial = rendered_tracking_trial(rng=np.random.default_rng(11), n_cameras=5, duration=1.0,
                                     hold=0.2, modes=("subsampled",))
     r = trial.results["subsampled"]
     # one LED: one target, followed all the time, within the thesis's ~10 mm

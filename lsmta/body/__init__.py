@@ -10,23 +10,27 @@ Angles are in radians, lengths in mm.
 """
 
 from .arm import JOINTS, LIMBS, angles_from_joints, arm_model, base_poses, shoulder_angles
-from .fitting import BodyFit, ModelState, fit_frame, fit_sequence
+from .fitting import BodyFit, FitParams, FitStatus, ModelState, fit_frame, fit_sequence
 from .metaballs import (
     THRESHOLD,
     MetaballModel,
     Segment,
+    SkinDistance,
     ellipsoid_distance,
     field,
     iso_surface,
     potential,
     surface_distance,
+    surface_distance_terms,
 )
 from .posterior import LimbPosterior, sample_limb_posterior
 from .skeleton import Joint, Skeleton, rot_x, rot_y, rot_z
 
 __all__ = [
-    "JOINTS", "LIMBS", "THRESHOLD", "BodyFit", "Joint", "LimbPosterior", "MetaballModel",
+    "JOINTS", "LIMBS", "THRESHOLD", "BodyFit", "FitStatus", "Joint", "LimbPosterior",
+    "MetaballModel",
     "ModelState", "Segment", "Skeleton", "angles_from_joints", "arm_model", "base_poses",
     "ellipsoid_distance", "field", "fit_frame", "fit_sequence", "iso_surface", "potential",
     "rot_x", "rot_y", "rot_z", "sample_limb_posterior", "shoulder_angles", "surface_distance",
+    "surface_distance_terms", "SkinDistance", "FitParams",
 ]

@@ -30,21 +30,23 @@ _QX = rot_y(np.pi / 2)          # maps z onto x
 _QY = rot_x(-np.pi / 2)         # maps z onto y
 
 
-def arm_model(upper: float = 300.0, forearm: float = 265.0, hand: float = 170.0) -> \
+def arm_model(*, upper: float = 300.0, forearm: float = 265.0, hand: float = 170.0) -> \
         MetaballModel:
     """The right-arm model with template bone lengths (mm)."""
     bone = _QX.T                                      # flexion frame -> bone frame
     joints = (
-        Joint("shoulder_b", -1, (0.0, 0.0, 0.0), as_tuple(_QY)),
-        Joint("shoulder_a", 0, (0.0, 0.0, 0.0), as_tuple(_QY.T @ _QX)),
-        Joint("shoulder_c", 1, (0.0, 0.0, 0.0), as_tuple(_QX.T)),
-        Joint("elbow", 2, (0.0, 0.0, -upper), as_tuple(_QX), limb=0),
-        Joint("wrist", 3, tuple(bone @ (0.0, 0.0, -forearm)), as_tuple(np.eye(3)), limb=1),
+        Joint(name="shoulder_b", parent=-1, offset=(0.0, 0.0, 0.0), rotation=as_tuple(_QY)),
+        Joint(name="shoulder_a", parent=0, offset=(0.0, 0.0, 0.0), rotation=as_tuple(_QY.T @ _QX)),
+        Joint(name="shoulder_c", parent=1, offset=(0.0, 0.0, 0.0), rotation=as_tuple(_QX.T)),
+        Joint(name="elbow", parent=2, offset=(0.0, 0.0, -upper), rotation=as_tuple(_QX), limb=0),
+        Joint(name="wrist", parent=3, offset=tuple(bone @ (0.0, 0.0, -forearm)),
+              rotation=as_tuple(np.eye(3)), limb=1),
     )
     skeleton = Skeleton(joints, LIMBS)
-    segments = (Segment("upper_arm", 2, as_tuple(np.eye(3)), upper, 0),
-                Segment("forearm", 3, as_tuple(bone), forearm, 1),
-                Segment("hand", 4, as_tuple(bone), hand, 2))
+    segments = (Segment(name="upper_arm", joint=2, rotation=as_tuple(np.eye(3)), length=upper,
+                        limb=0),
+                Segment(name="forearm", joint=3, rotation=as_tuple(bone), length=forearm, limb=1),
+                Segment(name="hand", joint=4, rotation=as_tuple(bone), length=hand, limb=2))
     return MetaballModel(skeleton, segments)
 
 

@@ -38,15 +38,16 @@ Checks
     NaN points are dropped and counted; a segment with fewer than ``min_points_per_param``
     points per free shape parameter keeps its shape and scale (named in
     ``fixed_segments``); if fewer than ``min_inlier_share`` of the points lie within
-    ``gate_mm`` of the initial model the fit is not run (status ``"init_far"``), and a fit
-    that ends with fewer inliers than that is reported as ``"poor_fit"``. Segments without
+    ``gate_mm`` of the initial model the fit is not run (``FitStatus.INIT_FAR``), and a fit
+    that ends with fewer inliers than that is reported as ``FitStatus.POOR_FIT``. Segments without
     points of their own in a frame are named in ``unobserved``.
 """
 
 from __future__ import annotations
 
+import enum
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import sparse
@@ -54,10 +55,18 @@ from scipy.optimize import least_squares
 
 from .._validate import as_array, as_scalar
 from .arm import base_poses
-from .metaballs import MetaballModel, surface_distance
+from .metaballs import MetaballModel, surface_distance, surface_distance_terms
 
 LOSSES = ("linear", "soft_l1", "huber", "cauchy")
-STATUSES = ("ok", "not_converged", "poor_fit", "init_far")
+
+
+class FitStatus(enum.IntEnum):
+    """How a fit ended."""
+
+    OK = 0             #: converged
+    NOT_CONVERGED = 1  #: iteration budget used up; the result is usable with care
+    POOR_FIT = 2       #: too few points near the final model: do not trust it
+    INIT_FAR = 3       #: the initial posture is too far from the data; nothing was fitted
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,14 +97,11 @@ class BodyFit:
 
     Attributes
     ----------
-    status : str
-        ``"ok"``; ``"not_converged"`` (iteration budget used up, result usable with care);
-        ``"poor_fit"`` (too few points near the final model: do not trust it);
-        ``"init_far"`` (the initial posture is too far from the data; nothing was fitted
-        and :attr:`state` is the initial state).
+    status : FitStatus
+        ``INIT_FAR``: nothing was fitted and :attr:`state` is the initial state.
     message : str
     state : ModelState
-        The estimate (or the initial state when ``status == "init_far"``).
+        The estimate (or the initial state when ``status == FitStatus.INIT_FAR``).
     lengths : (S,) array
         Bone lengths, mm.
     segment : list of T (N_t,) int arrays
@@ -128,7 +134,7 @@ class BodyFit:
         freedom (approximate under a robust loss); units as in :attr:`names`.
     """
 
-    status: str
+    status: FitStatus
     message: str
     state: ModelState
     lengths: np.ndarray
@@ -148,7 +154,7 @@ class BodyFit:
 
     @property
     def ok(self) -> bool:
-        return self.status == "ok"
+        return self.status == FitStatus.OK
 
 
 class _Layout:
@@ -231,11 +237,11 @@ class _Layout:
             i += 6 * self.S
         angles = template.angles.copy()
         angles[:, self.free_joints] = x[i:].reshape(self.T, len(self.free_joints))
-        return ModelState(angles, np.array(sh), scales, radii)
+        return ModelState(angles=angles, shoulder=np.array(sh), scales=scales, radii=radii)
 
 
 def _distances(model, st, bases, pts, frame, segment):
-    return model.distance(pts, segment, st.angles, st.scales, st.radii, bases, frame)
+    return model.distance(pts, segment, st.angles, st.scales, st.radii, base=bases, frame=frame)
 
 
 def _residuals(model: MetaballModel, lay: _Layout, st: ModelState, torso, pts, frame,
@@ -252,7 +258,7 @@ def _residuals(model: MetaballModel, lay: _Layout, st: ModelState, torso, pts, f
     """
     sk = model.skeleton
     bases = base_poses(torso, st.shoulder)
-    W = sk.transforms(st.angles, st.scales, bases)             # (T, J, 4, 4)
+    W = sk.transforms(st.angles, st.scales, base=bases)        # (T, J, 4, 4)
     C = model.centres(st.scales)
     N = len(pts)
     r = np.empty(N)
@@ -271,13 +277,14 @@ def _residuals(model: MetaballModel, lay: _Layout, st: ModelState, torso, pts, f
         x = np.einsum("nji,nj->ni", R, X - o)
         local = x[:, None, :] - C[k][None]
         radii = st.radii[k]
-        rk, det = surface_distance(local, radii, details=True)
-        r[idx] = rk
         if not jac:
+            r[idx] = surface_distance(local, radii)
             continue
-        inv = det["dr_dpsi"]
-        n = np.einsum("nij,nj->ni", R, det["grad"])             # world gradient of psi
-        pb = det["p"]
+        det = surface_distance_terms(local, radii)
+        r[idx] = det.r
+        inv = det.dr_dpsi
+        n = np.einsum("nij,nj->ni", R, det.grad)                # world gradient of psi
+        pb = det.p
         # shoulder position (torso frame)
         dq = -np.einsum("ni,nij->nj", n, torso[f, :3, :3])
         sh_rows = lay.i_sh[0 if lay.share_shoulder else f]     # (3,) or (n, 3)
@@ -308,7 +315,7 @@ def _residuals(model: MetaballModel, lay: _Layout, st: ModelState, torso, pts, f
         # widths and depths
         dl = -2 * local[:, :, :2] ** 2 / radii[None, :, :2] ** 3 * pb[:, :, None]  # (n, B, 2)
         mid = radii[1, :2]
-        dell = det["root"][:, None] * (det["ell"] / (2 * mid))[None]    # (n, 2)
+        dell = det.root[:, None] * (det.ell / (2 * mid))[None]     # (n, 2)
         if lay.shape == "simplified":
             Jm[idx[:, None], lay.i_shape[k][None]] = np.einsum("nba,b->na", dl, prof) \
                 * inv[:, None] + dell
@@ -326,7 +333,7 @@ def _joint_residuals(model: MetaballModel, lay: _Layout, st: ModelState, torso, 
     derivatives ``(M, P)``."""
     sk = model.skeleton
     bases = base_poses(torso, st.shoulder)
-    W = sk.transforms(st.angles, st.scales, bases)
+    W = sk.transforms(st.angles, st.scales, base=bases)
     rows_r, rows_J = [], []
     for k, j in enumerate(joints):
         for t in range(lay.T):
@@ -352,7 +359,7 @@ def _joint_residuals(model: MetaballModel, lay: _Layout, st: ModelState, torso, 
 
 
 def _segment(model, st, bases, pts, frame, gate):
-    D = np.abs(model.all_distances(pts, st.angles, st.scales, st.radii, bases, frame))
+    D = np.abs(model.all_distances(pts, st.angles, st.scales, st.radii, base=bases, frame=frame))
     seg = np.argmin(D, axis=1)
     seg[D[np.arange(len(pts)), seg] > gate] = -1
     return seg
@@ -373,18 +380,88 @@ def _check_state(init: ModelState, model: MetaballModel, T: int) -> ModelState:
     if np.any(scales <= 0) or np.any(radii <= 0):
         raise ValueError("init: scales and radii must be positive")
     radii = model.full_radii(radii[:, :, :2], scales)        # lz follows the bone
-    return ModelState(angles.copy(), sh.copy(), scales.copy(), radii)
+    return ModelState(angles=angles.copy(), shoulder=sh.copy(), scales=scales.copy(), radii=radii)
+
+
+@dataclass(frozen=True)
+class FitParams:
+    """Settings of :func:`fit_sequence` (lengths in mm).
+
+    Attributes
+    ----------
+    shape : {"simplified", "full"}
+        Simplified: two size parameters per segment (one width and one depth scaling a
+        fixed three-ball profile, Section 3.3); full: six (width and depth of each of the
+        three balls). In both, the radius along the bone is not free: it is tied to the
+        bone length (``MetaballModel.length_radius`` times it).
+    strategy : {"simultaneous", "alternating"}
+    share_shoulder : bool
+        One shoulder position (torso frame) for all frames (static state) or one per frame.
+    free_joints : tuple of int
+        Joints whose angles are estimated (the others keep their initial angles).
+    sigma_mm : float
+        A-priori standard deviation of a 3-D point: residuals are divided by it.
+    loss : str
+        ``"linear"``, ``"soft_l1"``, ``"huber"`` or ``"cauchy"``; robust scale ``2 sigma_mm``.
+    gate_mm : float
+        Points farther than this from every segment's skin are not used.
+    min_inlier_share : float
+        Minimum share of finite points within ``gate_mm``, at the start and at the end.
+    nfev_per_round, max_rounds : int
+        Model evaluations between re-segmentations; number of rounds.
+    sparse_jacobian : bool
+        Hand scipy the Jacobian as a sparse matrix.
+    jacobian : {"analytic", "2-point"}
+        Analytic Jacobian or scipy's finite differences (for checks).
+    sigma_joint_mm : float
+        A-priori standard deviation of a tracked joint (weight of ``tracked`` by eq. 11,
+        ``p_joint / p_point = sigma_mm² / sigma_joint_mm²``).
+    max_radius_mm : float
+        Upper bound of a ball's width and depth; scales are kept in [0.3, 3].
+    min_points_per_param : int
+        A segment with fewer points than this many per free shape parameter keeps its
+        shape and scale (the bare minimum would be one point per parameter).
+    """
+
+    shape: str = "simplified"
+    strategy: str = "simultaneous"
+    share_shoulder: bool = True
+    free_joints: tuple = (0, 1, 2, 3)
+    sigma_mm: float = 3.0
+    loss: str = "soft_l1"
+    gate_mm: float = 60.0
+    min_inlier_share: float = 0.5
+    nfev_per_round: int = 30
+    max_rounds: int = 6
+    sparse_jacobian: bool = False
+    jacobian: str = "analytic"
+    sigma_joint_mm: float = 15.0
+    max_radius_mm: float = 300.0
+    min_points_per_param: int = 5
+
+    def __post_init__(self):
+        if self.shape not in ("simplified", "full"):
+            raise ValueError(f"shape: expected 'simplified' or 'full', got {self.shape!r}")
+        if self.strategy not in ("simultaneous", "alternating"):
+            raise ValueError(f"strategy: expected 'simultaneous' or 'alternating', got "
+                             f"{self.strategy!r}")
+        if self.loss not in LOSSES:
+            raise ValueError(f"loss: expected one of {LOSSES}, got {self.loss!r}")
+        if self.jacobian not in ("analytic", "2-point"):
+            raise ValueError(f"jacobian: expected 'analytic' or '2-point', got "
+                             f"{self.jacobian!r}")
+        for key in ("sigma_mm", "sigma_joint_mm", "max_radius_mm", "gate_mm"):
+            object.__setattr__(self, key, as_scalar(getattr(self, key), key, positive=True))
+        fj = np.asarray(self.free_joints)
+        if fj.ndim != 1 or (fj.size and not np.issubdtype(fj.dtype, np.integer)):
+            raise ValueError(f"free_joints: expected a sequence of joint indices, got "
+                             f"{self.free_joints!r}")
+        object.__setattr__(self, "free_joints", tuple(int(j) for j in fj))
 
 
 def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
-                 shape: str = "simplified", strategy: str = "simultaneous",
-                 share_shoulder: bool = True, free_joints=(0, 1, 2, 3),
-                 sigma_mm: float = 3.0, loss: str = "soft_l1", gate_mm: float = 60.0,
-                 min_inlier_share: float = 0.5, nfev_per_round: int = 30,
-                 max_rounds: int = 6, sparse_jacobian: bool = False,
-                 jacobian: str = "analytic", tracked=None, tracked_joints=(0, 3, 4),
-                 sigma_joint_mm: float = 15.0, max_radius_mm: float = 300.0,
-                 min_points_per_param: int = 5) -> BodyFit:
+                 params: FitParams | None = None, tracked=None,
+                 tracked_joints=(0, 3, 4)) -> BodyFit:
     """Fit shape and motion of ``model`` to T frames of 3-D points.
 
     Parameters
@@ -398,51 +475,64 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
     init : ModelState
         Starting state, e.g. from :func:`~lsmta.body.arm.angles_from_joints` of tracked
         joints and template radii.
-    shape : {"simplified", "full"}
-        Simplified: two size parameters per segment (one width and one depth scaling a
-        fixed three-ball profile, Section 3.3); full: six (width and depth of each of the
-        three balls). In both, the radius along the bone is not free: it is tied to the
-        bone length (``MetaballModel.length_radius`` times it).
-    strategy : {"simultaneous", "alternating"}
-    share_shoulder : bool
-        One shoulder position (torso frame) for all frames (static state) or one per frame.
-    free_joints : sequence of int
-        Joints whose angles are estimated (the others keep their initial angles).
-    sigma_mm : float
-        A-priori standard deviation of a 3-D point (mm): residuals are divided by it.
-    loss : str
-        ``"linear"``, ``"soft_l1"``, ``"huber"`` or ``"cauchy"``; robust scale ``2 sigma_mm``.
-    gate_mm : float
-        Points farther than this from every segment's skin are not used.
-    min_inlier_share : float
-        Minimum share of finite points within ``gate_mm``, at the start and at the end.
-    nfev_per_round, max_rounds : int
-        Model evaluations between re-segmentations; number of rounds.
-    sparse_jacobian : bool
-        Hand scipy the Jacobian as a sparse matrix.
-    jacobian : {"analytic", "2-point"}
-        Analytic Jacobian or scipy's finite differences (for checks).
+    params : FitParams, optional
     tracked : (T, K, 3) array, optional
         Tracked world positions of the joints ``tracked_joints`` (NaN: not tracked): a
-        second observation type (Section 4.2) weighted against the points by eq. 11,
-        ``p_joint / p_point = sigma_mm² / sigma_joint_mm²``.
+        second observation type (Section 4.2), weighted by ``params.sigma_joint_mm``.
     tracked_joints : sequence of K int
         Skeleton joints of ``tracked`` (default: the arm's shoulder, elbow, wrist).
-    sigma_joint_mm : float
-        A-priori standard deviation of a tracked joint, mm.
-    max_radius_mm : float
-        Upper bound of a ball's width and depth (mm); scales are kept in [0.3, 3].
-    min_points_per_param : int
-        A segment with fewer points than this many per free shape parameter keeps its
-        shape and scale (the bare minimum would be one point per parameter).
 
     Returns
     -------
     BodyFit
     """
     t0 = time.perf_counter()
+    p = FitParams() if params is None else params
+    if not isinstance(p, FitParams):
+        raise TypeError(f"params: expected a FitParams, got {type(p).__name__}")
     if not isinstance(model, MetaballModel):
         raise TypeError(f"model: expected a MetaballModel, got {type(model).__name__}")
+    data = _data(model, points, torso_poses, tracked, tracked_joints)
+    if any(not 0 <= j < model.skeleton.n_joints for j in p.free_joints):
+        raise ValueError(f"free_joints: expected joint indices in [0, "
+                         f"{model.skeleton.n_joints - 1}]")
+    fit = _Fit.initial(model, data, _check_state(init, model, data.T), p)
+    share0 = _inlier_share(fit.seg, data)
+    if share0.min() < p.min_inlier_share:
+        worst = int(np.argmin(share0))
+        return _finish(fit, FitStatus.INIT_FAR, f"only {share0[worst]:.0%} of the points of "
+                       f"frame {worst} lie within {p.gate_mm:g} mm of the initial model (need "
+                       f"{p.min_inlier_share:.0%}); initialise closer to the data", t0)
+    groups = [None] if p.strategy == "simultaneous" else ["shape", "skeleton"]
+    for fit.rounds in range(1, p.max_rounds + 1):
+        free = _hold_thin_segments(fit)
+        solved = [_solve_group(fit, free, g) for g in groups]
+        settled = _resegment(fit)
+        if all(solved) and settled and (p.strategy == "simultaneous" or fit.rounds > 1):
+            fit.converged = True
+            break
+    status, message = _verdict(fit)
+    return _finish(fit, status, message, t0)
+
+
+@dataclass(frozen=True, eq=False)
+class _Data:
+    """The points of all frames as one cloud, and what the result needs to give them back
+    frame by frame."""
+
+    T: int
+    torso: np.ndarray          # (T, 4, 4)
+    pts: np.ndarray            # (N, 3) finite points of all frames
+    frame: np.ndarray          # (N,) their frame
+    counts: np.ndarray         # (T,) finite points per frame
+    keep: list                 # per frame: indices of the finite points among the given
+    n_given: list              # per frame: points given
+    n_nan: np.ndarray          # (T,) NaN points dropped
+    tracked: np.ndarray | None
+    tracked_joints: list
+
+
+def _data(model, points, torso_poses, tracked, tracked_joints) -> _Data:
     pts_in = list(points) if not isinstance(points, np.ndarray) or points.ndim == 3 else None
     if pts_in is None:
         raise ValueError("points: expected a sequence of (N_t, 3) arrays, one per frame")
@@ -450,191 +540,233 @@ def fit_sequence(model: MetaballModel, points, torso_poses, init: ModelState, *,
     if T == 0:
         raise ValueError("points: expected at least one frame")
     P = as_array(torso_poses, "torso_poses", shape=(T, 4, 4))
-    if shape not in ("simplified", "full"):
-        raise ValueError(f"shape: expected 'simplified' or 'full', got {shape!r}")
-    if strategy not in ("simultaneous", "alternating"):
-        raise ValueError(f"strategy: expected 'simultaneous' or 'alternating', got {strategy!r}")
-    if loss not in LOSSES:
-        raise ValueError(f"loss: expected one of {LOSSES}, got {loss!r}")
-    sigma = as_scalar(sigma_mm, "sigma_mm", positive=True)
-    sigma_j = as_scalar(sigma_joint_mm, "sigma_joint_mm", positive=True)
-    max_radius = as_scalar(max_radius_mm, "max_radius_mm", positive=True)
-    gate = as_scalar(gate_mm, "gate_mm", positive=True)
+    tracked_joints = [int(j) for j in tracked_joints]
     if tracked is not None:
-        tracked_joints = [int(j) for j in tracked_joints]
         tracked = as_array(tracked, "tracked", shape=(T, len(tracked_joints), 3),
                            allow_nan=True)
         if any(not 0 <= j < model.skeleton.n_joints for j in tracked_joints):
             raise ValueError("tracked_joints: expected skeleton joint indices")
-    st = _check_state(init, model, T)
-    fj = np.asarray(free_joints, int)
-    if fj.ndim != 1 or fj.size and (fj.min() < 0 or fj.max() >= model.skeleton.n_joints):
-        raise ValueError(f"free_joints: expected joint indices in [0, "
-                         f"{model.skeleton.n_joints - 1}]")
-
-    clouds, n_nan, keep_idx = [], [], []
+    clouds, n_nan, keep = [], [], []
     for t, p in enumerate(pts_in):
         a = as_array(p, f"points[{t}]", shape=(None, 3), allow_nan=True)
         good = np.isfinite(a).all(axis=1)
         n_nan.append(int((~good).sum()))
-        keep_idx.append(np.flatnonzero(good))
+        keep.append(np.flatnonzero(good))
         clouds.append(a[good])
-    pts = np.concatenate(clouds) if clouds else np.zeros((0, 3))
-    frame = np.concatenate([np.full(len(c), t) for t, c in enumerate(clouds)])
-    counts = np.array([len(c) for c in clouds])
+    pts = np.concatenate(clouds)
     if pts.shape[0] == 0:
         raise ValueError("points: no finite point in any frame")
+    return _Data(T=T, torso=P, pts=pts,
+                 frame=np.concatenate([np.full(len(c), t) for t, c in enumerate(clouds)]),
+                 counts=np.array([len(c) for c in clouds]), keep=keep,
+                 n_given=[len(p) for p in pts_in], n_nan=np.array(n_nan), tracked=tracked,
+                 tracked_joints=tracked_joints)
 
-    lay = _Layout(model, T, shape, share_shoulder, fj)
-    bases_of = lambda s: base_poses(P, s.shoulder)   # noqa: E731
-    seg = _segment(model, st, bases_of(st), pts, frame, gate)
-    share0 = np.array([np.mean(seg[frame == t] >= 0) if counts[t] else 0.0 for t in range(T)])
 
-    def finish(status, message, state, seg, nfev, rounds, names, params, cov):
-        res_all = np.full(len(pts), np.nan)
-        if (seg >= 0).any():
-            res_all[seg >= 0] = _distances(model, state, bases_of(state), pts[seg >= 0],
-                                           frame[seg >= 0], seg[seg >= 0])
-        seg_out, res_out = [], []
-        for t in range(T):
-            n_all = len(pts_in[t])
-            s_t = np.full(n_all, -1)
-            r_t = np.full(n_all, np.nan)
-            s_t[keep_idx[t]] = seg[frame == t]
-            r_t[keep_idx[t]] = res_all[frame == t]
-            seg_out.append(s_t)
-            res_out.append(r_t)
-        inl = np.array([np.mean(seg[frame == t] >= 0) if counts[t] else 0.0
-                        for t in range(T)])
-        assigned = res_all[np.isfinite(res_all)]
-        sig = float(1.4826 * np.median(np.abs(assigned))) if assigned.size else np.nan
-        unobs = tuple((t, model.names[k]) for t in range(T) for k in range(model.n_segments)
-                      if np.sum(seg[frame == t] == k) < min_points_per_param)
-        if unobs and status != "init_far":
-            message += "; no points of its own for " + ", ".join(
-                f"{n} in frame {t}" for t, n in unobs)
-        return BodyFit(status, message, state, model.bone_lengths(state.scales), seg_out,
-                       res_out, np.array(n_nan), tuple(fixed), unobs, inl, sig, nfev, rounds,
-                       time.perf_counter() - t0, names, params, cov)
+@dataclass
+class _Fit:
+    """The state of one fit, changed round by round."""
 
-    fixed: list[str] = []
-    if share0.min() < min_inlier_share:
-        worst = int(np.argmin(share0))
-        return finish("init_far", f"only {share0[worst]:.0%} of the points of frame {worst} lie "
-                      f"within {gate:g} mm of the initial model (need "
-                      f"{min_inlier_share:.0%}); initialise closer to the data", st, seg, 0, 0,
-                      (), np.zeros(0), np.zeros((0, 0)))
+    model: MetaballModel
+    data: _Data
+    p: FitParams
+    lay: _Layout
+    state: ModelState
+    x: np.ndarray                # the parameter vector of ``lay``
+    seg: np.ndarray              # (N,) segment of each point, -1 outside the gate
+    fixed: list = field(default_factory=list)   # segments whose shape was held
+    nfev: int = 0
+    rounds: int = 0
+    converged: bool = False
+    last: tuple | None = None    # (scipy solution, mask of its parameters) of the last solve
 
-    per_seg_shape = 2 if shape == "simplified" else 6
-    x = lay.pack(st)
-    nfev = 0
-    rounds = 0
-    converged = False
-    last = None
-    groups = [None] if strategy == "simultaneous" else ["shape", "skeleton"]
-    use_sparse = bool(sparse_jacobian)
-    for rounds in range(1, max_rounds + 1):
-        # limbs with too few points keep their shape and scale
-        n_on = np.bincount(seg[seg >= 0], minlength=model.n_segments)
-        held = [k for k in range(model.n_segments)
-                if n_on[k] < min_points_per_param * per_seg_shape]
-        for k in held:
-            if model.names[k] not in fixed:
-                fixed.append(model.names[k])
-        free = np.ones(len(x), bool)
-        for k in held:
-            free[(lay.kind == "shape") & (lay.seg == k)] = False
-            limb = model.segments[k].limb
-            free[np.array([n == f"scale_{model.skeleton.limbs[limb]}" for n in lay.names])] = False
-        use = seg >= 0
-        p_use, f_use, s_use = pts[use], frame[use], seg[use]
-        round_converged = True
-        for g in groups:
-            mask = free.copy()
-            if g is not None:
-                mask &= lay.kind == g
-            if not mask.any():
-                continue
+    @classmethod
+    def initial(cls, model, data: _Data, state: ModelState, p: FitParams) -> _Fit:
+        lay = _Layout(model, data.T, p.shape, p.share_shoulder, np.asarray(p.free_joints, int))
+        fit = cls(model=model, data=data, p=p, lay=lay, state=state, x=lay.pack(state),
+                  seg=np.zeros(0, int))
+        fit.seg = fit.segment(state)
+        return fit
 
-            cache = {}
+    def bases(self, st: ModelState) -> np.ndarray:
+        return base_poses(self.data.torso, st.shoulder)
 
-            def evaluate(xf, mask=mask, cache=cache, p_use=p_use, f_use=f_use, s_use=s_use,
-                         st=st):
-                key = xf.tobytes()
-                if key not in cache:
-                    xx = x.copy()
-                    xx[mask] = xf
-                    s = lay.unpack(xx, st, model)
-                    res, Jm = _residuals(model, lay, s, P, p_use, f_use, s_use, jac=True)
-                    res, Jm = res / sigma, Jm / sigma
-                    if tracked is not None:
-                        rj, Jj = _joint_residuals(model, lay, s, P, tracked, tracked_joints)
-                        res = np.concatenate([res, rj / sigma_j])
-                        Jm = np.concatenate([Jm, Jj / sigma_j])
-                    cache.clear()
-                    cache[key] = (res, Jm[:, mask])
-                return cache[key]
+    def segment(self, st: ModelState) -> np.ndarray:
+        return _segment(self.model, st, self.bases(st), self.data.pts, self.data.frame,
+                        self.p.gate_mm)
 
-            def fun(xf, evaluate=evaluate):
-                return evaluate(xf)[0]
 
-            def jac(xf, evaluate=evaluate):
-                Jm = evaluate(xf)[1]
-                return sparse.csr_matrix(Jm) if use_sparse else Jm
+def _inlier_share(seg, data: _Data) -> np.ndarray:
+    """(T,) share of each frame's finite points assigned to a segment."""
+    return np.array([np.mean(seg[data.frame == t] >= 0) if data.counts[t] else 0.0
+                     for t in range(data.T)])
 
-            kw = {"jac": jac if jacobian == "analytic" else "2-point"}
-            lower = np.full(mask.sum(), -np.inf)
-            upper = np.full(mask.sum(), np.inf)
-            is_shape = lay.kind[mask] == "shape"
-            is_scale = np.array([n.startswith("scale_") for n in np.array(lay.names)[mask]],
-                                bool)
-            lower[is_shape], upper[is_shape] = 1.0, max_radius
-            lower[is_scale], upper[is_scale] = 0.3, 3.0
-            sol = least_squares(fun, np.clip(x[mask], lower + 1e-9, upper - 1e-9), loss=loss,
-                                f_scale=2.0, method="trf", x_scale="jac",
-                                max_nfev=nfev_per_round, bounds=(lower, upper), **kw)
-            nfev += sol.nfev
-            x[mask] = sol.x
-            round_converged &= sol.status > 0
-            last = (sol, mask)
-        st = lay.unpack(x, st, model)
-        new_seg = _segment(model, st, bases_of(st), pts, frame, gate)
-        changed = int(np.sum(new_seg != seg))
-        seg = new_seg
-        settled = changed <= max(2, int(0.002 * len(pts)))
-        if round_converged and settled and (strategy == "simultaneous" or rounds > 1):
-            converged = True
-            break
 
-    sol, mask = last
-    names = tuple(np.array(lay.names)[mask])
+def _hold_thin_segments(fit: _Fit) -> np.ndarray:
+    """Segments with too few points keep their shape and scale: the free parameters."""
+    model, lay = fit.model, fit.lay
+    per_segment = 2 if fit.p.shape == "simplified" else 6
+    n_on = np.bincount(fit.seg[fit.seg >= 0], minlength=model.n_segments)
+    held = [k for k in range(model.n_segments)
+            if n_on[k] < fit.p.min_points_per_param * per_segment]
+    free = np.ones(len(fit.x), bool)
+    for k in held:
+        if model.names[k] not in fit.fixed:
+            fit.fixed.append(model.names[k])
+        free[(lay.kind == "shape") & (lay.seg == k)] = False
+        limb = model.skeleton.limbs[model.segments[k].limb]
+        free[np.array([n == f"scale_{limb}" for n in lay.names])] = False
+    return free
+
+
+class _Objective:
+    """Weighted residuals and their Jacobian over the parameters ``mask`` of ``fit.x``
+    (point distances, and tracked joints), evaluated once per parameter vector."""
+
+    def __init__(self, fit: _Fit, mask):
+        self.fit, self.mask = fit, mask
+        use = fit.seg >= 0
+        self.pts, self.frame, self.seg = fit.data.pts[use], fit.data.frame[use], fit.seg[use]
+        self.template = fit.state
+        self.key, self.value = None, None
+
+    def evaluate(self, xf):
+        key = xf.tobytes()
+        if key != self.key:
+            f, p = self.fit, self.fit.p
+            xx = f.x.copy()
+            xx[self.mask] = xf
+            s = f.lay.unpack(xx, self.template, f.model)
+            res, Jm = _residuals(f.model, f.lay, s, f.data.torso, self.pts, self.frame,
+                                 self.seg, jac=True)
+            res, Jm = res / p.sigma_mm, Jm / p.sigma_mm
+            if f.data.tracked is not None:
+                rj, Jj = _joint_residuals(f.model, f.lay, s, f.data.torso, f.data.tracked,
+                                          f.data.tracked_joints)
+                res = np.concatenate([res, rj / p.sigma_joint_mm])
+                Jm = np.concatenate([Jm, Jj / p.sigma_joint_mm])
+            self.key, self.value = key, (res, Jm[:, self.mask])
+        return self.value
+
+    def fun(self, xf):
+        return self.evaluate(xf)[0]
+
+    def jac(self, xf):
+        Jm = self.evaluate(xf)[1]
+        return sparse.csr_matrix(Jm) if self.fit.p.sparse_jacobian else Jm
+
+
+def _solve_group(fit: _Fit, free, group) -> bool:
+    """One bounded robust least-squares solve over the free parameters of ``group``
+    (None: all); True when scipy reports convergence (or there was nothing to solve)."""
+    lay, p = fit.lay, fit.p
+    mask = free.copy()
+    if group is not None:
+        mask &= lay.kind == group
+    if not mask.any():
+        return True
+    obj = _Objective(fit, mask)
+    lower = np.full(mask.sum(), -np.inf)
+    upper = np.full(mask.sum(), np.inf)
+    is_shape = lay.kind[mask] == "shape"
+    is_scale = np.array([n.startswith("scale_") for n in np.array(lay.names)[mask]], bool)
+    lower[is_shape], upper[is_shape] = 1.0, p.max_radius_mm
+    lower[is_scale], upper[is_scale] = 0.3, 3.0
+    sol = least_squares(obj.fun, np.clip(fit.x[mask], lower + 1e-9, upper - 1e-9),
+                        jac=obj.jac if p.jacobian == "analytic" else "2-point", loss=p.loss,
+                        f_scale=2.0, method="trf", x_scale="jac", max_nfev=p.nfev_per_round,
+                        bounds=(lower, upper))
+    fit.nfev += sol.nfev
+    fit.x[mask] = sol.x
+    fit.last = (sol, mask)
+    return sol.status > 0
+
+
+def _resegment(fit: _Fit) -> bool:
+    """Take the new state and segment the points again; True when at most 0.2 % of them
+    (or 2) changed segment."""
+    fit.state = fit.lay.unpack(fit.x, fit.state, fit.model)
+    new = fit.segment(fit.state)
+    changed = int(np.sum(new != fit.seg))
+    fit.seg = new
+    return changed <= max(2, int(0.002 * len(fit.data.pts)))
+
+
+def _verdict(fit: _Fit) -> tuple[FitStatus, str]:
+    inl = _inlier_share(fit.seg, fit.data)
+    if inl.min() < fit.p.min_inlier_share:
+        status, msg = FitStatus.POOR_FIT, (f"only {inl.min():.0%} of the points of a frame "
+                                           f"lie within {fit.p.gate_mm:g} mm of the fitted "
+                                           "model; the fit is not trusted")
+    elif not fit.converged:
+        status, msg = FitStatus.NOT_CONVERGED, (f"stopped after {fit.rounds} rounds "
+                                                f"({fit.nfev} evaluations)")
+    else:
+        status, msg = FitStatus.OK, f"converged in {fit.rounds} rounds ({fit.nfev} evaluations)"
+    if fit.fixed:
+        msg += f"; shape held for {', '.join(fit.fixed)} (too few points)"
+    n_nan = int(fit.data.n_nan.sum())
+    if n_nan:
+        msg += f"; {n_nan} NaN points dropped"
+    return status, msg
+
+
+def _covariance(fit: _Fit):
+    """Names, values and ``s² (JᵀJ)⁻¹`` of the last solve's parameters (empty before any)."""
+    if fit.last is None:
+        return (), np.zeros(0), np.zeros((0, 0))
+    sol, mask = fit.last
     J = sol.jac.toarray() if sparse.issparse(sol.jac) else np.asarray(sol.jac)
     m, n = J.shape
+    sigma = fit.p.sigma_mm
     s2 = float(np.sum(sol.fun ** 2) / max(m - n, 1)) * sigma ** 2
     try:
         cov = np.linalg.pinv(J.T @ J) * s2 / sigma ** 2
     except np.linalg.LinAlgError:
         cov = np.full((n, n), np.nan)
-    inl = np.array([np.mean(seg[frame == t] >= 0) if counts[t] else 0.0 for t in range(T)])
-    if inl.min() < min_inlier_share:
-        status, msg = "poor_fit", (f"only {inl.min():.0%} of the points of a frame lie within "
-                                   f"{gate:g} mm of the fitted model; the fit is not trusted")
-    elif not converged:
-        status, msg = "not_converged", f"stopped after {rounds} rounds ({nfev} evaluations)"
-    else:
-        status, msg = "ok", f"converged in {rounds} rounds ({nfev} evaluations)"
-    if fixed:
-        msg += f"; shape held for {', '.join(fixed)} (too few points)"
-    if sum(n_nan):
-        msg += f"; {sum(n_nan)} NaN points dropped"
-    return finish(status, msg, st, seg, nfev, rounds, names, sol.x, cov)
+    return tuple(np.array(fit.lay.names)[mask]), sol.x, cov
 
 
-def fit_frame(model: MetaballModel, points, torso_pose, init: ModelState, **kwargs) -> BodyFit:
+def _finish(fit: _Fit, status: FitStatus, message: str, t0: float) -> BodyFit:
+    """The result: per-frame segments and residuals in the caller's point order."""
+    model, data, seg, st = fit.model, fit.data, fit.seg, fit.state
+    res_all = np.full(len(data.pts), np.nan)
+    if (seg >= 0).any():
+        res_all[seg >= 0] = _distances(model, st, fit.bases(st), data.pts[seg >= 0],
+                                       data.frame[seg >= 0], seg[seg >= 0])
+    seg_out, res_out = [], []
+    for t in range(data.T):
+        s_t = np.full(data.n_given[t], -1)
+        r_t = np.full(data.n_given[t], np.nan)
+        s_t[data.keep[t]] = seg[data.frame == t]
+        r_t[data.keep[t]] = res_all[data.frame == t]
+        seg_out.append(s_t)
+        res_out.append(r_t)
+    assigned = res_all[np.isfinite(res_all)]
+    unobs = tuple((t, model.names[k]) for t in range(data.T) for k in range(model.n_segments)
+                  if np.sum(seg[data.frame == t] == k) < fit.p.min_points_per_param)
+    if unobs and status != FitStatus.INIT_FAR:
+        message += "; no points of its own for " + ", ".join(
+            f"{n} in frame {t}" for t, n in unobs)
+    names, values, cov = _covariance(fit) if status != FitStatus.INIT_FAR \
+        else ((), np.zeros(0), np.zeros((0, 0)))
+    return BodyFit(status=status, message=message, state=st,
+                   lengths=model.bone_lengths(st.scales), segment=seg_out, residuals=res_out,
+                   n_nan=data.n_nan, fixed_segments=tuple(fit.fixed), unobserved=unobs,
+                   inlier_share=_inlier_share(seg, data),
+                   sigma_mm=float(1.4826 * np.median(np.abs(assigned))) if assigned.size
+                   else np.nan, nfev=fit.nfev, rounds=fit.rounds,
+                   seconds=time.perf_counter() - t0, names=names, params=values,
+                   covariance=cov)
+
+
+def fit_frame(model: MetaballModel, points, torso_pose, init: ModelState, *,
+              params: FitParams | None = None) -> BodyFit:
     """:func:`fit_sequence` for one frame: ``points (N, 3)``, ``torso_pose (4, 4)``, and an
     ``init`` with ``angles (1, J)`` (or ``(J,)``) and ``shoulder (3,)``."""
     P = as_array(torso_pose, "torso_pose", shape=(4, 4))
     pts = as_array(points, "points", shape=(None, 3), allow_nan=True)
     if isinstance(init, ModelState) and np.ndim(init.angles) == 1:
-        init = ModelState(np.asarray(init.angles)[None], init.shoulder, init.scales, init.radii)
-    return fit_sequence(model, [pts], P[None], init, **kwargs)
+        init = ModelState(angles=np.asarray(init.angles)[None], shoulder=init.shoulder,
+                          scales=init.scales, radii=init.radii)
+    return fit_sequence(model, [pts], P[None], init, params=params)

@@ -67,7 +67,7 @@ def ellipsoid_distance(local, radii) -> np.ndarray:
     return np.sum(q * q, axis=-1)
 
 
-def potential(d, weight=1.0) -> np.ndarray:
+def potential(d, *, weight=1.0) -> np.ndarray:
     """Eq. 7: ``w exp(-2 d)``."""
     return weight * np.exp(-2.0 * np.asarray(d, float))
 
@@ -80,7 +80,7 @@ def field(local, radii) -> np.ndarray:
     return potential(ellipsoid_distance(q, r)).sum(axis=-1)
 
 
-def surface_distance(local, radii, threshold: float = THRESHOLD, *, details: bool = False):
+def surface_distance(local, radii, *, threshold: float = THRESHOLD) -> np.ndarray:
     """Distance-like residual (mm) of points to the skin ``F = T`` of one segment's balls.
 
     ``r = l (sqrt(psi) - sqrt(psi_T))`` with ``psi = -ln(F) / 2``, ``psi_T = -ln(T) / 2``
@@ -96,18 +96,65 @@ def surface_distance(local, radii, threshold: float = THRESHOLD, *, details: boo
         Ball radii, mm.
     threshold : float
         ``T``.
-    details : bool
-        Also return the intermediate quantities the analytic Jacobian needs.
 
     Returns
     -------
-    r : (N,) array
+    (N,) array
         Positive outside, negative inside (mm).
-    details : dict, only with ``details``
-        ``grad`` (N, 3): ``d psi / d x`` in the segment's frame; ``p`` (N, B): each ball's
-        share of the field (``d psi / d d_b``); ``dr_dpsi`` (N,); ``ell``; ``root`` (N,):
+    """
+    return _skin(local, radii, threshold).r
+
+
+@dataclass(frozen=True, eq=False)
+class SkinDistance:
+    """:func:`surface_distance` and the quantities its analytic Jacobian needs.
+
+    Attributes
+    ----------
+    r : (N,) array
+        The distance-like residual, mm.
+    grad : (N, 3) array
+        ``d psi / d x`` in the segment's frame.
+    p : (N, B) array
+        Each ball's share of the field (``d psi / d d_b``).
+    dr_dpsi : (N,) array
+    ell : float
+        ``l``, mm.
+    root : (N,) array
         ``sqrt(psi) - sqrt(psi_T)``.
     """
+
+    r: np.ndarray
+    grad: np.ndarray
+    p: np.ndarray
+    dr_dpsi: np.ndarray
+    ell: float
+    root: np.ndarray
+
+
+def surface_distance_terms(local, radii, *, threshold: float = THRESHOLD) -> SkinDistance:
+    """:func:`surface_distance` (same arguments) with its derivatives (:class:`SkinDistance`)."""
+    sk = _skin(local, radii, threshold)
+    p = sk.p / sk.total                                   # softmax weights
+    grad = np.einsum("nb,nbk->nk", p, 2.0 * sk.q / sk.radii)
+    dr = np.where(sk.inside, 0.0, sk.ell / (2 * sk.sq))
+    return SkinDistance(r=sk.r, grad=grad, p=p, dr_dpsi=dr, ell=sk.ell, root=sk.root)
+
+
+@dataclass(frozen=True, eq=False)
+class _Skin:
+    r: np.ndarray
+    q: np.ndarray        # (N, B, 3) local / radii
+    radii: np.ndarray
+    p: np.ndarray        # (N, B) exp(-2 d_b - max), not normalised
+    total: np.ndarray    # (N, 1) their sum
+    inside: np.ndarray   # (N,) deep inside a blend (F > 1)
+    sq: np.ndarray       # (N,) sqrt(psi)
+    ell: float
+    root: np.ndarray
+
+
+def _skin(local, radii, threshold) -> _Skin:
     local = _local(local, ndim=3)
     radii = _radii(radii, shape=(local.shape[1], 3))
     threshold = as_scalar(threshold, "threshold", positive=True)
@@ -125,13 +172,8 @@ def surface_distance(local, radii, threshold: float = THRESHOLD, *, details: boo
     sq = np.sqrt(np.where(inside, 1e-9, psi))
     ell = float(np.sqrt(radii[len(radii) // 2, 0] * radii[len(radii) // 2, 1]))
     root = sq - np.sqrt(-0.5 * np.log(threshold))
-    r = ell * root
-    if details:
-        p /= total                                        # softmax weights
-        grad = np.einsum("nb,nbk->nk", p, 2.0 * q / radii)
-        dr = np.where(inside, 0.0, ell / (2 * sq))
-        return r, {"grad": grad, "p": p, "dr_dpsi": dr, "ell": ell, "root": root}
-    return r
+    return _Skin(r=ell * root, q=q, radii=radii, p=p, total=total, inside=inside, sq=sq,
+                 ell=ell, root=root)
 
 
 @dataclass(frozen=True)
@@ -204,9 +246,9 @@ class MetaballModel:
         return np.concatenate([widths, np.broadcast_to(lz[:, None, None],
                                                        (self.n_segments, 3, 1))], axis=2)
 
-    def frames(self, angles, scales, base=None) -> np.ndarray:
+    def frames(self, angles, scales, *, base=None) -> np.ndarray:
         """Bone frame -> world transforms ``(T, S, 4, 4)``."""
-        W = self.skeleton.transforms(angles, scales, base)
+        W = self.skeleton.transforms(angles, scales, base=base)
         out = np.empty(W.shape[:1] + (self.n_segments, 4, 4))
         for k, seg in enumerate(self.segments):
             R = np.eye(4)
@@ -226,7 +268,7 @@ class MetaballModel:
         """Segment lengths ``(S,)`` in mm."""
         return np.array([seg.length * scales[seg.limb] for seg in self.segments])
 
-    def distance(self, points, segment, angles, scales, radii, base=None, frame=None):
+    def distance(self, points, segment, angles, scales, radii, *, base=None, frame=None):
         """Signed distance (mm) of world points to their segment's skin.
 
         Parameters
@@ -242,7 +284,7 @@ class MetaballModel:
         N = len(points)
         segment = self._indices(segment, "segment", N, self.n_segments)
         radii = _radii(radii, shape=(self.n_segments, 3, 3))
-        F = self.frames(angles, scales, base)
+        F = self.frames(angles, scales, base=base)
         C = self.centres(scales)
         frame = np.zeros(N, int) if frame is None else self._indices(frame, "frame", N, len(F))
         out = np.empty(N)
@@ -267,19 +309,19 @@ class MetaballModel:
                              f"[{v.min()}, {v.max()}]")
         return v
 
-    def all_distances(self, points, angles, scales, radii, base=None, frame=None):
+    def all_distances(self, points, angles, scales, radii, *, base=None, frame=None):
         """Distances ``(N, S)`` of every point to every segment's skin (for segmentation)."""
         points = as_array(points, "points", shape=(None, 3), allow_nan=True)
         N = len(points)
-        return np.stack([self.distance(points, np.full(N, k), angles, scales, radii, base,
-                                       frame) for k in range(self.n_segments)], axis=1)
+        return np.stack([self.distance(points, np.full(N, k), angles, scales, radii, base=base,
+                                       frame=frame) for k in range(self.n_segments)], axis=1)
 
-    def world_field(self, points, angles, scales, radii, base=None) -> np.ndarray:
+    def world_field(self, points, angles, scales, radii, *, base=None) -> np.ndarray:
         """The whole model's field ``(N,)`` at world points ``(N, 3)`` (mm) for one frame
         (display); radii ``(S, 3, 3)`` mm, positive."""
         points = as_array(points, "points", shape=(None, 3))
         radii = _radii(radii, shape=(self.n_segments, 3, 3))
-        F = self.frames(angles, scales, base)[0]
+        F = self.frames(angles, scales, base=base)[0]
         C = self.centres(scales)
         total = np.zeros(len(points))
         for k in range(self.n_segments):
@@ -287,17 +329,17 @@ class MetaballModel:
             total += field(local[:, None, :] - C[k][None], radii[k])
         return total
 
-    def ball_poses(self, angles, scales, base=None) -> np.ndarray:
+    def ball_poses(self, angles, scales, *, base=None) -> np.ndarray:
         """World pose of every ball ``(T, S, 3, 4, 4)`` (for drawing the ellipsoids)."""
-        F = self.frames(angles, scales, base)
+        F = self.frames(angles, scales, base=base)
         C = self.centres(scales)
         T = np.tile(np.eye(4), C.shape[:2] + (1, 1))
         T[..., :3, 3] = C
         return F[:, :, None] @ T[None]
 
 
-def iso_surface(model: MetaballModel, angles, scales, radii, base=None, *,
-                spacing: float = 8.0, threshold: float = THRESHOLD, margin: float = 10.0):
+def iso_surface(model: MetaballModel, angles, scales, radii, *, base=None, spacing: float = 8.0,
+                threshold: float = THRESHOLD, margin: float = 10.0):
     """The skin ``F = T`` of one frame as a triangle mesh (marching cubes, scikit-image).
 
     Parameters
@@ -334,14 +376,14 @@ def iso_surface(model: MetaballModel, angles, scales, radii, base=None, *,
         raise ValueError(f"threshold: expected a number in (0, 1), got {threshold}")
     angles = as_array(angles, "angles", shape=(1, None))
     radii = _radii(radii, shape=(model.n_segments, 3, 3))
-    poses = model.ball_poses(angles, scales, base)[0].reshape(-1, 4, 4)
+    poses = model.ball_poses(angles, scales, base=base)[0].reshape(-1, 4, 4)
     # a lone ball's skin lies at 0.59 of its radii; three blended ones stay inside 1.0
     reach = float(np.max(radii)) + margin + spacing
     lo = poses[:, :3, 3].min(axis=0) - reach
     hi = poses[:, :3, 3].max(axis=0) + reach
     axes = [np.arange(a, b + spacing, spacing) for a, b in zip(lo, hi)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
-    values = model.world_field(grid.reshape(-1, 3), angles, scales, radii, base)
+    values = model.world_field(grid.reshape(-1, 3), angles, scales, radii, base=base)
     values = values.reshape(grid.shape[:3])
     verts, faces, _, _ = marching_cubes(values, threshold, spacing=(spacing,) * 3)
     return verts + lo, faces

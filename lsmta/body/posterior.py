@@ -12,10 +12,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import emcee
 import numpy as np
 
 from .._validate import as_array, as_rng, as_scalar
+from ..mcmc import sample_ensemble
 from .fitting import BodyFit, ModelState, _Layout, _residuals
 from .metaballs import MetaballModel
 
@@ -53,10 +53,10 @@ class LimbPosterior:
         return self.samples.std(axis=0, ddof=1)
 
 
-def sample_limb_posterior(model: MetaballModel, fit: BodyFit, points, torso_pose,
-                          rng: np.random.Generator, *, sigma_mm: float | None = None,
-                          n_walkers: int = 24, n_steps: int = 300, burn: int = 100,
-                          thin: int = 5) -> LimbPosterior:
+def sample_limb_posterior(model: MetaballModel, fit: BodyFit, points, torso_pose, *,
+                          rng: np.random.Generator | int | None = None,
+                          sigma_mm: float | None = None, n_walkers: int = 24, n_steps: int = 300,
+                          burn: int = 100, thin: int = 5) -> LimbPosterior:
     """Sample lengths and sizes of a one-frame simplified fit with emcee.
 
     Parameters
@@ -67,7 +67,7 @@ def sample_limb_posterior(model: MetaballModel, fit: BodyFit, points, torso_pose
     points : (N, 3) array
         The points that were fitted (world mm; NaN rows allowed, as in the fit).
     torso_pose : (4, 4) array
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
         Seeds the walkers' start and emcee's own generator.
     sigma_mm : float, optional
         Point noise (default: the fit's robust residual scale).
@@ -98,12 +98,7 @@ def sample_limb_posterior(model: MetaballModel, fit: BodyFit, points, torso_pose
                    for li in range(len(model.skeleton.limbs))])
     to_phys = np.ones(free.sum())
     to_phys[:len(L0)] = L0                                  # scale -> length (mm)
-    ndim = int(free.sum())
-    if n_walkers < 2 * ndim:
-        raise ValueError(f"n_walkers: expected at least {2 * ndim}, got {n_walkers}")
-    if not 0 <= burn < n_steps:
-        raise ValueError(f"burn: expected 0 <= burn < n_steps = {n_steps}, got {burn}")
-    template = ModelState(st.angles, st.shoulder, st.scales, st.radii)
+    template = ModelState(angles=st.angles, shoulder=st.shoulder, scales=st.scales, radii=st.radii)
 
     def resid(theta, jac=False):
         xx = x0.copy()
@@ -124,13 +119,10 @@ def sample_limb_posterior(model: MetaballModel, fit: BodyFit, points, torso_pose
     J = J[:, free]
     cov = np.linalg.pinv(J.T @ J) * sigma**2
     ls_std = np.sqrt(np.diag(cov))
-    start = x0[free] + 0.5 * ls_std * rng.standard_normal((n_walkers, ndim))
-    sampler = emcee.EnsembleSampler(n_walkers, ndim, log_prob)
-    sampler.random_state = np.random.RandomState(int(rng.integers(2**32))).get_state()
-    with np.errstate(invalid="ignore"):       # -inf - -inf for proposals outside the bounds
-        sampler.run_mcmc(start, n_steps, progress=False)
-    samples = sampler.get_chain(discard=burn, thin=thin, flat=True) * to_phys
+    chain = sample_ensemble(log_prob, x0[free], 0.5 * ls_std, n_walkers=n_walkers,
+                            n_steps=n_steps, burn=burn, thin=thin, rng=rng)
     names = tuple(f"length_{n}" for n in model.skeleton.limbs) + tuple(
         np.array(lay.names)[lay.i_shape.ravel()])
-    return LimbPosterior(names, samples, float(np.mean(sampler.acceptance_fraction)),
-                         x0[free] * to_phys, ls_std * to_phys, int(len(X)))
+    return LimbPosterior(names=names, samples=chain.samples * to_phys,
+                         acceptance=chain.acceptance, ls_mean=x0[free] * to_phys,
+                         ls_std=ls_std * to_phys, n_points=int(len(X)))

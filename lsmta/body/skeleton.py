@@ -112,7 +112,7 @@ class Skeleton:
             raise ValueError(f"base: expected shape (4, 4) or ({T}, 4, 4), got {B.shape}")
         return th, s, B
 
-    def transforms(self, angles, scales, base=None) -> np.ndarray:
+    def transforms(self, angles, scales, *, base=None) -> np.ndarray:
         """Joint frame -> world transforms ``(T, J, 4, 4)``.
 
         Parameters
@@ -144,7 +144,7 @@ class Skeleton:
             out[:, j] = parent @ A
         return out
 
-    def forward(self, angles, scales, joint, local, base=None) -> np.ndarray:
+    def forward(self, angles, scales, joint, local, *, base=None) -> np.ndarray:
         """World coordinates ``(T, N, 3)`` of points fixed in joint frames.
 
         Parameters
@@ -157,7 +157,7 @@ class Skeleton:
             The points in their joint's frame (mm).
         """
         joint, local = self._points(joint, local)
-        W = self.transforms(angles, scales, base)[:, joint]           # (T, N, 4, 4)
+        W = self.transforms(angles, scales, base=base)[:, joint]      # (T, N, 4, 4)
         return np.einsum("tnij,nj->tni", W[..., :3, :3], local) + W[..., :3, 3]
 
     def _points(self, joint, local):
@@ -171,7 +171,7 @@ class Skeleton:
             raise ValueError(f"joint: indices must lie in [0, {self.n_joints - 1}]")
         return joint, local
 
-    def jacobian(self, angles, scales, joint, local, base=None):
+    def jacobian(self, angles, scales, joint, local, *, base=None):
         """Analytic derivatives of :meth:`forward`.
 
         Returns
@@ -182,7 +182,7 @@ class Skeleton:
             mm per unit scale.
         """
         joint, local = self._points(joint, local)
-        W = self.transforms(angles, scales, base)
+        W = self.transforms(angles, scales, base=base)
         th, s, B = self._check(angles, scales, base)
         T, N, J, L = len(W), len(local), self.n_joints, len(self.limbs)
         Wp = W[:, joint]

@@ -1,5 +1,5 @@
-"""Multi-camera calibration: reference-bar self-calibrating bundle adjustment (LSMTA §2.1)
-and the virtual calibration object (Davis §3.2)."""
+"""Multi-camera calibration: reference-bar self-calibrating bundle adjustment (LSMTA §2.1),
+the virtual calibration object (Davis §3.2) and the one-call wand calibration."""
 
 from .approximations import relative_orientation_start, scaled
 from .bundle import (
@@ -13,7 +13,7 @@ from .bundle import (
     params_to_camera,
     project_params,
 )
-from .targets import Blobs, TargetTracks, detect_blobs, track_targets
+from .targets import Blobs, TargetStatus, TargetTracks, detect_blobs, track_targets
 from .virtual_object import (
     ConvergenceHistory,
     alternate,
@@ -22,11 +22,13 @@ from .virtual_object import (
     resect,
     triangulate_optimal,
 )
+from .wand import WandCalibration, WandStatus, calibrate_wand
 
 __all__ = [
     "DEFAULT_INTRINSICS", "INTRINSIC_NAMES", "PARAMETER_NAMES", "Bar", "Blobs",
-    "BundleResult", "ConvergenceHistory", "TargetTracks", "alternate", "bundle_adjust",
+    "BundleResult", "ConvergenceHistory", "TargetStatus", "TargetTracks", "alternate",
+    "bundle_adjust",
     "camera_to_params", "detect_blobs", "joint_adjustment", "params_to_camera",
     "project_params", "projection_error", "relative_orientation_start", "resect", "scaled",
-    "track_targets", "triangulate_optimal",
+    "track_targets", "triangulate_optimal", "WandCalibration", "WandStatus", "calibrate_wand",
 ]

@@ -277,6 +277,57 @@ def bundle_adjust(cameras, xy, points, *, intrinsics=DEFAULT_INTRINSICS, fixed_e
         For a camera that sees too few points (named, with its count), fewer observations
         than unknowns, a degenerate (collinear) bar track, or no datum.
     """
+    pr = _problem(cameras, xy, points, intrinsics=intrinsics, fixed_exterior=fixed_exterior,
+                  bar=bar, scale_camera=scale_camera, sigma_px=sigma_px, loss=loss,
+                  fix_points=fix_points)
+    settings = _Settings(loss=loss, f_scale=f_scale, max_nfev=max_nfev, ftol=ftol, xtol=xtol,
+                         covariance=covariance)
+    params0 = np.stack([camera_to_params(c) for c in pr.cameras])
+    X0 = pr.points
+    rejected = np.zeros(pr.seen.shape, bool)
+    for _ in range(1 if reject_k is None else 2):
+        use = pr.seen & ~rejected & pr.used_point[None, :]
+        adj = _solve(pr, params0, X0, use, settings)
+        if reject_k is None:
+            break
+        lim = reject_k * adj.sigma0 * pr.sigma_px * np.sqrt(2)
+        new = pr.seen & (np.linalg.norm(np.nan_to_num(adj.residuals, nan=0.0), axis=2) > lim)
+        if not new.any():
+            break
+        rejected |= new
+        params0, X0 = adj.params, adj.points
+    return _result(pr, adj, rejected)
+
+
+@dataclass(frozen=True, eq=False)
+class _Problem:
+    """The checked inputs of :func:`bundle_adjust` and which unknowns are free."""
+
+    cameras: list
+    xy: np.ndarray            # (K, N, 2)
+    points: np.ndarray        # (N, 3) approximations
+    seen: np.ndarray          # (K, N) finite observations
+    used_point: np.ndarray    # (N,) observed often enough to enter
+    free: np.ndarray          # (K, 16) free camera parameters
+    bar: Bar | None
+    sigma_px: float
+    fix_points: bool
+    n_nan: int
+
+
+@dataclass(frozen=True)
+class _Settings:
+    loss: str
+    f_scale: float
+    max_nfev: int | None
+    ftol: float
+    xtol: float
+    covariance: bool
+
+
+def _problem(cameras, xy, points, *, intrinsics, fixed_exterior, bar, scale_camera, sigma_px,
+             loss, fix_points) -> _Problem:
+    """Check the arguments, choose the free parameters and the datum."""
     cameras = list(cameras)
     if not cameras or not all(isinstance(c, Camera) for c in cameras):
         raise TypeError("cameras: expected a non-empty sequence of lsmta.camera.Camera")
@@ -304,10 +355,34 @@ def bundle_adjust(cameras, xy, points, *, intrinsics=DEFAULT_INTRINSICS, fixed_e
         raise ValueError(f"bar.pairs: expected point indices in [0, {N})")
     if loss not in ("linear", "huber", "soft_l1", "cauchy", "arctan"):
         raise ValueError(f"loss: expected one of scipy's losses, got {loss!r}")
-
     seen = np.isfinite(xy).all(axis=2)
-    n_nan = int((~seen).sum())
+    free = _free_parameters(cameras, intrinsics, fixed_exterior, bar, scale_camera, fix_points)
+    # cameras must see enough points for their own unknowns
+    counts = seen.sum(axis=1)
+    for k in range(K):
+        need = min_points_per_camera(int(free[k].sum()))
+        if counts[k] < need:
+            raise ValueError(
+                f"xy: camera {cameras[k].name or k} sees {counts[k]} point(s); it needs at "
+                f"least {need} for its {int(free[k].sum())} free parameters")
+    used_pt = seen.sum(axis=0) >= (1 if fix_points else 2)
+    if not fix_points:
+        bad = np.flatnonzero(used_pt & ~np.isfinite(X0).all(axis=1))
+        if len(bad):
+            raise ValueError(f"points: {len(bad)} observed point(s) have no approximation "
+                             "(NaN)")
+    _check_geometry(X0, bar)
+    return _Problem(cameras=cameras, xy=xy, points=X0, seen=seen, used_point=used_pt,
+                    free=free, bar=bar, sigma_px=sigma_px, fix_points=bool(fix_points),
+                    n_nan=int((~seen).sum()))
 
+
+def _free_parameters(cameras, intrinsics, fixed_exterior, bar, scale_camera,
+                     fix_points) -> np.ndarray:
+    """(K, 16) free camera parameters: the named intrinsics, the exterior orientation of
+    the cameras not in the datum, less one centre coordinate of ``scale_camera`` without
+    a bar."""
+    K = len(cameras)
     free = np.zeros((K, 16), bool)
     for k in range(K):
         if k not in fixed_exterior:
@@ -324,128 +399,151 @@ def bundle_adjust(cameras, xy, points, *, intrinsics=DEFAULT_INTRINSICS, fixed_e
         free[scale_camera, 3 + int(np.argmax(np.abs(base)))] = False
     if not fixed_exterior and not fix_points:
         raise ValueError("fixed_exterior: name at least one camera for the datum")
-
-    # cameras must see enough points for their own unknowns
-    counts = seen.sum(axis=1)
-    for k in range(K):
-        need = min_points_per_camera(int(free[k].sum()))
-        if counts[k] < need:
-            raise ValueError(
-                f"xy: camera {cameras[k].name or k} sees {counts[k]} point(s); it needs at "
-                f"least {need} for its {int(free[k].sum())} free parameters")
-    used_pt = seen.sum(axis=0) >= (1 if fix_points else 2)
-    if not fix_points:
-        bad = np.flatnonzero(used_pt & ~np.isfinite(X0).all(axis=1))
-        if len(bad):
-            raise ValueError(f"points: {len(bad)} observed point(s) have no approximation "
-                             "(NaN)")
-    _check_geometry(X0, bar)
-
-    params0 = np.stack([camera_to_params(c) for c in cameras])
-    rejected = np.zeros((K, N), bool)
-    passes = 1 if reject_k is None else 2
-    for _ in range(passes):
-        use = seen & ~rejected & used_pt[None, :]
-        out = _solve(cameras, xy, X0, params0, free, use, bar, sigma_px, loss, f_scale,
-                     fix_points, max_nfev, ftol, xtol, covariance)
-        if reject_k is None:
-            break
-        res = out["res_img"]
-        lim = reject_k * out["sigma0"] * sigma_px * np.sqrt(2)
-        new = seen & (np.linalg.norm(np.nan_to_num(res, nan=0.0), axis=2) > lim)
-        if not new.any():
-            break
-        rejected |= new
-        params0, X0 = out["params"], out["points"]
-    return _result(cameras, out, rejected, n_nan, sigma_px, bar)
+    return free
 
 
-def _solve(cameras, xy, X0, params0, free, use, bar, sigma_px, loss, f_scale, fix_points,
-           max_nfev, ftol, xtol, covariance):
+@dataclass(frozen=True, eq=False)
+class _Layout:
+    """Where the observations and the unknowns of one adjustment sit."""
+
+    kk: np.ndarray            # (n_img,) camera of each image observation
+    ii: np.ndarray            # (n_img,) point of each image observation
+    pts_free: np.ndarray      # (N,) points adjusted
+    pairs: np.ndarray         # (n_bar, 2) bar positions used
+    cam_cols: np.ndarray      # (K, 16) column of each free camera parameter, -1 if held
+    pt_cols: np.ndarray       # (N,) first column of each free point, -1 if held
+    n_cam: int
+    n_par: int
+    n_obs: int
+
+    @property
+    def n_img(self) -> int:
+        return len(self.kk)
+
+    def unpack(self, x, params0, X0):
+        params = params0.copy()
+        params[self.cam_cols >= 0] = x[:self.n_cam]
+        X = X0.copy()
+        X[self.pts_free] = x[self.n_cam:].reshape(-1, 3)
+        return params, X
+
+
+def _layout(pr: _Problem, use) -> _Layout:
     K, N = use.shape
     kk, ii = np.nonzero(use)
-    obs = xy[kk, ii]
-    n_img = len(kk)
-    pts_free = np.zeros(N, bool) if fix_points else use.sum(axis=0) >= 2
-    if bar is not None and not fix_points:
-        keep_bar = pts_free[bar.pairs].all(axis=1)
-        pairs = bar.pairs[keep_bar]
+    pts_free = np.zeros(N, bool) if pr.fix_points else use.sum(axis=0) >= 2
+    if pr.bar is not None and not pr.fix_points:
+        pairs = pr.bar.pairs[pts_free[pr.bar.pairs].all(axis=1)]
     else:
         pairs = np.zeros((0, 2), int)
-    n_bar = len(pairs)
     cam_cols = np.full((K, 16), -1)
-    cam_cols[free] = np.arange(free.sum())
-    n_cam = int(free.sum())
+    cam_cols[pr.free] = np.arange(pr.free.sum())
+    n_cam = int(pr.free.sum())
     pt_cols = np.full(N, -1)
     pt_cols[pts_free] = n_cam + 3 * np.arange(pts_free.sum())
     n_par = n_cam + 3 * int(pts_free.sum())
-    n_obs = 2 * n_img + n_bar
+    n_obs = 2 * len(kk) + len(pairs)
     if n_obs <= n_par:
+        bars = f" and {len(pairs)} bar lengths" if pr.bar else ""
         raise ValueError(
-            f"xy: {n_img} image points{' and ' + str(n_bar) + ' bar lengths' if bar else ''} "
-            f"give {n_obs} observations for {n_par} unknowns; more bar positions (or "
-            "points) are needed, or fewer free parameters")
+            f"xy: {len(kk)} image points{bars} give {n_obs} observations for {n_par} "
+            "unknowns; more bar positions (or points) are needed, or fewer free parameters")
+    return _Layout(kk=kk, ii=ii, pts_free=pts_free, pairs=pairs, cam_cols=cam_cols,
+                   pt_cols=pt_cols, n_cam=n_cam, n_par=n_par, n_obs=n_obs)
 
-    def unpack(x):
-        params = params0.copy()
-        params[free] = x[:n_cam]
-        X = X0.copy()
-        X[pts_free] = x[n_cam:].reshape(-1, 3)
-        return params, X
 
-    def fun(x):
-        params, X = unpack(x)
-        r = (project_params(params[kk], X[ii]) - obs).ravel() / sigma_px
-        if n_bar:
-            d = np.linalg.norm(X[pairs[:, 0]] - X[pairs[:, 1]], axis=1)
-            r = np.concatenate([r, (d - bar.length) / bar.sigma])
-        return r
-
-    # sparsity pattern
+def _sparsity(lay: _Layout):
+    """Which unknowns each observation depends on, ``(n_obs, n_par)`` CSR."""
     rows, cols = [], []
     for c in range(16):
-        col = cam_cols[kk, c]
+        col = lay.cam_cols[lay.kk, c]
         m = col >= 0
         for j in (0, 1):
             rows.append(2 * np.flatnonzero(m) + j)
             cols.append(col[m])
-    pc = pt_cols[ii]
+    pc = lay.pt_cols[lay.ii]
     m = pc >= 0
     for a in range(3):
         for j in (0, 1):
             rows.append(2 * np.flatnonzero(m) + j)
             cols.append(pc[m] + a)
+    n_bar = len(lay.pairs)
     for e in (0, 1):
         for a in range(3):
-            rows.append(2 * n_img + np.arange(n_bar))
-            cols.append(pt_cols[pairs[:, e]] + a)
+            rows.append(2 * lay.n_img + np.arange(n_bar))
+            cols.append(lay.pt_cols[lay.pairs[:, e]] + a)
     rows = np.concatenate(rows)
     cols = np.concatenate(cols)
-    sparsity = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n_obs, n_par)).tocsr()
+    return coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(lay.n_obs, lay.n_par)).tocsr()
 
-    x0 = np.concatenate([params0[free], X0[pts_free].ravel()])
+
+@dataclass(frozen=True, eq=False)
+class _Adjusted:
+    """One adjustment's solution and statistics (see :class:`BundleResult`)."""
+
+    params: np.ndarray        # (K, 16)
+    points: np.ndarray        # (N, 3), NaN for points not adjusted
+    residuals: np.ndarray     # (K, N, 2) px
+    sigma0: float
+    n_obs: int
+    n_par: int
+    std: np.ndarray           # (n_par,)
+    corr: np.ndarray          # (n_cam, n_cam)
+    point_std: np.ndarray     # (N, 3)
+    expected_rms: np.ndarray  # (K,)
+    noise_limit: float
+    bar_residuals: np.ndarray | None
+    nfev: int
+    history: list
+
+
+def _solve(pr: _Problem, params0, X0, use, st: _Settings) -> _Adjusted:
+    """Adjust the observations ``use`` (K, N) from ``params0`` and ``X0``: Levenberg-Marquardt,
+    then iteratively reweighted with the robust loss."""
+    lay = _layout(pr, use)
+    obs = pr.xy[lay.kk, lay.ii]
+    bar = pr.bar
+
+    def fun(x):
+        params, X = lay.unpack(x, params0, X0)
+        r = (project_params(params[lay.kk], X[lay.ii]) - obs).ravel() / pr.sigma_px
+        if len(lay.pairs):
+            d = np.linalg.norm(X[lay.pairs[:, 0]] - X[lay.pairs[:, 1]], axis=1)
+            r = np.concatenate([r, (d - bar.length) / bar.sigma])
+        return r
+
+    sparsity = _sparsity(lay)
     history = []
 
     def callback(intermediate_result):  # noqa: D401 - scipy's callback protocol
-        history.append(unpack(intermediate_result.x)[0].ravel().copy())
+        history.append(lay.unpack(intermediate_result.x, params0, X0)[0].ravel().copy())
 
-    sol = _levenberg_marquardt(fun, x0, sparsity, max_nfev, ftol, xtol, callback)
-    if loss != "linear":
+    x0 = np.concatenate([params0[pr.free], X0[lay.pts_free].ravel()])
+    sol = _levenberg_marquardt(fun, x0, sparsity, st.max_nfev, st.ftol, st.xtol, callback)
+    if st.loss != "linear":
         # iteratively reweighted least squares with scipy's loss functions: weights
         # sqrt(rho'(z)), z = (r / f_scale)^2, from the previous solution
         for _ in range(5):
-            z = (fun(sol.x) / f_scale) ** 2
-            w = np.sqrt(_LOSS_DERIVATIVE[loss](z))
+            z = (fun(sol.x) / st.f_scale) ** 2
+            w = np.sqrt(_LOSS_DERIVATIVE[st.loss](z))
             x_prev = sol.x
             sol = _levenberg_marquardt(lambda x, w=w: fun(x) * w, sol.x, sparsity, 20,
-                                       max(ftol, 1e-7), xtol, callback)
+                                       max(st.ftol, 1e-7), st.xtol, callback)
             if np.linalg.norm(sol.x - x_prev) < 1e-8 * (1 + np.linalg.norm(x_prev)):
                 break
-    params, X = unpack(sol.x)
-    r = fun(sol.x)
-    sigma0 = float(np.sqrt(np.sum(r**2) / (n_obs - n_par)))
+    return _statistics(pr, lay, sol, fun(sol.x), params0, X0, st.covariance, history)
+
+
+def _statistics(pr: _Problem, lay: _Layout, sol, r, params0, X0, covariance: bool,
+                history) -> _Adjusted:
+    """Residuals, s0, and (with ``covariance``) standard deviations, correlations and the
+    leverages of the image observations (noise limit) at the solution ``sol``."""
+    K, N = pr.seen.shape
+    sigma_px, n_img, n_cam, n_par = pr.sigma_px, lay.n_img, lay.n_cam, lay.n_par
+    params, X = lay.unpack(sol.x, params0, X0)
+    sigma0 = float(np.sqrt(np.sum(r**2) / (lay.n_obs - n_par)))
     res_img = np.full((K, N, 2), np.nan)
-    res_img[kk, ii] = r[: 2 * n_img].reshape(-1, 2) * sigma_px
+    res_img[lay.kk, lay.ii] = r[: 2 * n_img].reshape(-1, 2) * sigma_px
     std = np.full(n_par, np.nan)
     corr = np.full((n_cam, n_cam), np.nan)
     lev = np.full(2 * n_img, np.nan)
@@ -466,29 +564,27 @@ def _solve(cameras, xy, X0, params0, free, use, bar, sigma_px, loss, f_scale, fi
     exp_cam = np.full(K, np.nan)
     lev2 = lev.reshape(-1, 2)
     for k in range(K):
-        m = kk == k
+        m = lay.kk == k
         if m.any():
             exp_cam[k] = sigma_px * np.sqrt(np.mean(1 - lev2[m]))
     # sigma sqrt(1 - p/n) over the image coordinates; with bar lengths, p counts the
     # redundancy the image coordinates give up (sum of their leverages), which is p minus
     # the number of bar lengths when the bar is much more precise than the images
-    p_img = np.nansum(lev) if covariance else n_par - n_bar
-    noise_limit = float(sigma_px * np.sqrt(1 - p_img / (2 * n_img)))
+    p_img = np.nansum(lev) if covariance else n_par - len(lay.pairs)
     point_std = np.full((N, 3), np.nan)
-    point_std[pts_free] = std[n_cam:].reshape(-1, 3)
+    point_std[lay.pts_free] = std[n_cam:].reshape(-1, 3)
     X_out = X.copy()
-    if not fix_points:
-        X_out[~pts_free] = np.nan
+    if not pr.fix_points:
+        X_out[~lay.pts_free] = np.nan
     bar_res = None
-    if bar is not None:
-        bar_res = np.full(len(bar.pairs), np.nan)
-        d = np.linalg.norm(X_out[bar.pairs[:, 0]] - X_out[bar.pairs[:, 1]], axis=1)
-        bar_res = d - bar.length
-    return dict(params=params, points=X_out, res_img=res_img, sigma0=sigma0, n_obs=n_obs,
-                n_par=n_par, std=std, corr=corr, free=free, point_std=point_std,
-                exp_cam=exp_cam, noise_limit=noise_limit, bar_res=bar_res, nfev=int(sol.nfev),
-                history=history,
-                X_internal=X)
+    if pr.bar is not None:
+        d = np.linalg.norm(X_out[pr.bar.pairs[:, 0]] - X_out[pr.bar.pairs[:, 1]], axis=1)
+        bar_res = d - pr.bar.length
+    return _Adjusted(params=params, points=X_out, residuals=res_img, sigma0=sigma0,
+                     n_obs=lay.n_obs, n_par=n_par, std=std, corr=corr, point_std=point_std,
+                     expected_rms=exp_cam,
+                     noise_limit=float(sigma_px * np.sqrt(1 - p_img / (2 * n_img))),
+                     bar_residuals=bar_res, nfev=int(sol.nfev), history=history)
 
 
 _LOSS_DERIVATIVE = {
@@ -548,30 +644,28 @@ def _levenberg_marquardt(fun, x0, sparsity, max_iter, ftol, xtol, callback):
         r, cost = r_new, c_new
         lam = max(lam / 10, 1e-12)
         if callback is not None:
-            callback(_Solution(x, None, nfev))
+            callback(_Solution(x=x, jac=None, nfev=nfev))
         if rel < ftol or np.linalg.norm(dx) < xtol * (xtol + np.linalg.norm(x)):
             break
     J = csc_matrix(approx_derivative(fun, x, method="2-point", f0=r,
                                      sparsity=(sparsity, groups)))
-    return _Solution(x, J, nfev)
+    return _Solution(x=x, jac=J, nfev=nfev)
 
 
-def _result(cameras, out, rejected, n_nan, sigma_px, bar):
-    K = len(cameras)
-    params, free = out["params"], out["free"]
-    cams = [params_to_camera(params[k], cameras[k]) for k in range(K)]
-    res = out["res_img"]
+def _result(pr: _Problem, adj: _Adjusted, rejected) -> BundleResult:
+    K = len(pr.cameras)
+    cams = [params_to_camera(adj.params[k], pr.cameras[k]) for k in range(K)]
+    res = adj.residuals
     with np.errstate(invalid="ignore"):
         rms_cam = np.sqrt(np.nanmean(res.reshape(K, -1) ** 2, axis=1))
-    rms = float(np.sqrt(np.nanmean(res**2)))
-    names = [f"{cameras[k].name or k}.{PARAMETER_NAMES[c]}" for k, c in zip(*np.nonzero(free))]
-    n_cam = int(free.sum())
+    names = [f"{pr.cameras[k].name or k}.{PARAMETER_NAMES[c]}"
+             for k, c in zip(*np.nonzero(pr.free))]
+    n_cam = int(pr.free.sum())
     return BundleResult(
-        cameras=cams, points=out["points"], residuals=res, rms_per_camera=rms_cam, rms=rms,
-        bar_residuals=out["bar_res"], sigma0=out["sigma0"], n_observations=out["n_obs"],
-        n_unknowns=out["n_par"],
-        noise_limit=out["noise_limit"],
-        expected_rms_per_camera=out["exp_cam"], parameter_names=names,
-        parameter_values=params[free], parameter_std=out["std"][:n_cam],
-        correlation=out["corr"], point_std=out["point_std"], rejected=rejected,
-        n_nan_dropped=n_nan, nfev=out["nfev"], history=out["history"])
+        cameras=cams, points=adj.points, residuals=res, rms_per_camera=rms_cam,
+        rms=float(np.sqrt(np.nanmean(res**2))), bar_residuals=adj.bar_residuals,
+        sigma0=adj.sigma0, n_observations=adj.n_obs, n_unknowns=adj.n_par,
+        noise_limit=adj.noise_limit, expected_rms_per_camera=adj.expected_rms,
+        parameter_names=names, parameter_values=adj.params[pr.free],
+        parameter_std=adj.std[:n_cam], correlation=adj.corr, point_std=adj.point_std,
+        rejected=rejected, n_nan_dropped=pr.n_nan, nfev=adj.nfev, history=adj.history)

@@ -17,6 +17,7 @@ strongest blobs. Which end of a bar is which may then differ between cameras:
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,9 +26,13 @@ from scipy.optimize import linear_sum_assignment
 
 from .._validate import as_scalar
 
-STATUS_OK = 0
-STATUS_LOST = 1          # no blob within the gate
-STATUS_NOT_CONVERGED = 2  # the Gaussian fit failed; the weighted centroid is kept
+
+class TargetStatus(enum.IntEnum):
+    """What was measured for a target in a frame."""
+
+    OK = 0             #: a blob, located by the Gaussian fit
+    LOST = 1           #: no blob within the gate
+    NOT_CONVERGED = 2  #: the Gaussian fit failed; the weighted centroid is kept
 
 
 @dataclass(frozen=True)
@@ -68,7 +73,7 @@ class TargetTracks:
     xy : (T, M, 2) array
         Image positions of the M targets in each of T frames, px; NaN where lost.
     status : (T, M) int array
-        :data:`STATUS_OK`, :data:`STATUS_LOST` or :data:`STATUS_NOT_CONVERGED`.
+        :class:`TargetStatus` codes.
     n_blobs : (T,) int array
         Blobs found in each frame.
     std : (T, M) array
@@ -83,7 +88,7 @@ class TargetTracks:
 
     @property
     def n_lost(self) -> int:
-        return int(np.count_nonzero(self.status == STATUS_LOST))
+        return int(np.count_nonzero(self.status == TargetStatus.LOST))
 
 
 def _gaussian_fit(patches, x0, y0, n_iter: int = 12):
@@ -177,8 +182,8 @@ def detect_blobs(image, *, k: float = 8.0, min_area: int = 3, max_area: int = 40
     cents = cents[inside]
     if not len(cents):
         e = np.zeros((0, 2))
-        return Blobs(e, e, np.zeros(0), np.zeros(0), np.zeros(0, bool), np.zeros(0),
-                     np.zeros(0))
+        return Blobs(xy=e, centroid=e, sigma=np.zeros(0), amplitude=np.zeros(0),
+                     converged=np.zeros(0, bool), std=np.zeros(0), noise=np.zeros(0))
     corner = np.round(cents).astype(int) - half
     off = np.arange(2 * half + 1)
     patches = f[corner[:, 1, None, None] + off[None, :, None],
@@ -186,10 +191,10 @@ def detect_blobs(image, *, k: float = 8.0, min_area: int = 3, max_area: int = 40
     c, s, a, ok, std, s0 = _gaussian_fit(patches, cents[:, 0] - corner[:, 0],
                                          cents[:, 1] - corner[:, 1])
     xy = np.where(ok[:, None], c + corner, cents)
-    return Blobs(xy, cents, s, a, ok, std, s0)
+    return Blobs(xy=xy, centroid=cents, sigma=s, amplitude=a, converged=ok, std=std, noise=s0)
 
 
-def track_targets(images, n_targets: int = 2, *, gate: float = 100.0, **detect) -> TargetTracks:
+def track_targets(images, *, n_targets: int = 2, gate: float = 100.0, **detect) -> TargetTracks:
     """Measure ``n_targets`` bright targets in every frame and track them.
 
     Parameters
@@ -225,7 +230,7 @@ def track_targets(images, n_targets: int = 2, *, gate: float = 100.0, **detect) 
     M = int(n_targets)
     xy = np.full((T, M, 2), np.nan)
     std = np.full((T, M), np.nan)
-    status = np.full((T, M), STATUS_LOST)
+    status = np.full((T, M), TargetStatus.LOST, dtype=np.int64)
     n_blobs = np.zeros(T, int)
     last = np.full((M, 2), np.nan)
     vel = np.zeros((M, 2))
@@ -239,10 +244,10 @@ def track_targets(images, n_targets: int = 2, *, gate: float = 100.0, **detect) 
                 continue
             xy[t, r] = b.xy[c]
             std[t, r] = b.std[c]
-            status[t, r] = STATUS_OK if b.converged[c] else STATUS_NOT_CONVERGED
+            status[t, r] = TargetStatus.OK if b.converged[c] else TargetStatus.NOT_CONVERGED
             vel[r] = b.xy[c] - last[r] if np.isfinite(last[r]).all() else 0.0
             last[r] = b.xy[c]
-    return TargetTracks(xy, status, n_blobs, std)
+    return TargetTracks(xy=xy, status=status, n_blobs=n_blobs, std=std)
 
 
 def _assign(blobs: Blobs, last, vel, gate: float, M: int) -> np.ndarray:

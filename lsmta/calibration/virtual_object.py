@@ -67,12 +67,12 @@ class ConvergenceHistory:
     error: np.ndarray
     fit_error: np.ndarray
 
-    def iterations_to(self, tolerance: float = 0.01) -> int:
+    def iterations_to(self, *, tolerance: float = 0.01) -> int:
         """First iteration whose error is within ``tolerance`` (relative) of the final."""
         final = self.error[-1]
         return int(np.flatnonzero(self.error <= final * (1 + tolerance))[0])
 
-    def iterations_to_value(self, value: float, tolerance: float = 0.01, *,
+    def iterations_to_value(self, value: float, *, tolerance: float = 0.01,
                             fit: bool = False) -> int | None:
         """First iteration whose error (``fit``: the fit error) is within ``tolerance``
         (relative) of ``value`` (for example another method's optimum); None if never."""
@@ -94,7 +94,7 @@ def _triangulate(cameras, xy):
     return triangulate(cameras, xy, min_angle_deg=0.0)
 
 
-def triangulate_optimal(cameras, xy, points=None, *, n_iter: int = 10,
+def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
                         tol: float = 1e-10) -> np.ndarray:
     """Reprojection-optimal forward intersection: every point minimises the sum of squared
     image distances to its observations (per-point Levenberg-Marquardt, vectorised over
@@ -215,7 +215,7 @@ def _history(cams_list, xy, xy_check, fit=None):
                     for c in cams_list])
     if fit is None:
         fit = [projection_error(c, xy) for c in cams_list]
-    return ConvergenceHistory(cams_list, err, np.array(fit))
+    return ConvergenceHistory(cameras=cams_list, error=err, fit_error=np.array(fit))
 
 
 def resect(camera, X, xy, *, intrinsics=DAVIS_INTRINSICS):
@@ -301,7 +301,7 @@ def alternate(cameras, xy, *, n_iter: int = 30, intrinsics=DAVIS_INTRINSICS,
         if triangulation == "linear":
             X = _triangulate(cams, xy).points
         else:
-            X = triangulate_optimal(cams, xy, X)
+            X = triangulate_optimal(cams, xy, points=X)
         cams = [resect(cam, X, xy[k], intrinsics=intrinsics) for k, cam in enumerate(cams)]
         hist.append(cams)
         fit.append(projection_error(cams, xy))

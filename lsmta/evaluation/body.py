@@ -10,15 +10,16 @@ axis, so it joins the shoulder's ``c``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..body import ModelState, arm_model, iso_surface, shoulder_angles
+from .._validate import as_rng
+from ..body import ModelState, angles_from_joints, arm_model, iso_surface, shoulder_angles
 from ..body.arm import base_poses
-from ..body.fitting import BodyFit
-from ..synth.body import Body, Motion, inside_parts
+from ..body.fitting import BodyFit, FitParams, FitStatus, fit_sequence
+from ..synth.body import Body, Motion, inside_parts, surface_samples
 
 ARM_PARTS = ("upper_arm_r", "forearm_r", "hand_r")
 
@@ -52,7 +53,7 @@ class ArmTruth:
 def arm_truth(body: Body, motion: Motion, frames) -> ArmTruth:
     """The right arm's truth in the frames ``frames``."""
     frames = np.atleast_1d(np.asarray(frames, int))
-    poses = body.part_poses(motion, frames)
+    poses = body.part_poses(motion, frames=frames)
     it, iu, iff, ih = (body.index(n) for n in ("torso",) + ARM_PARTS)
     torso = poses[:, it]
     fore_a = motion.angle("forearm_r")[frames]                  # (T, 3)
@@ -68,20 +69,21 @@ def arm_truth(body: Body, motion: Motion, frames) -> ArmTruth:
     angles = np.concatenate([shoulder_angles(U), fore_a[:, :1], np.zeros((len(frames), 1))],
                             axis=1)
     joints = np.stack([poses[:, iu, :3, 3], poses[:, iff, :3, 3], poses[:, ih, :3, 3]], axis=1)
-    return ArmTruth(frames, torso, np.asarray(body.parts[iu].joint, float),
-                    np.array([-body.parts[iff].joint[2], -body.parts[ih].joint[2]], float),
-                    angles, joints)
+    return ArmTruth(frames=frames, torso_poses=torso,
+                    shoulder_local=np.asarray(body.parts[iu].joint, float),
+                    lengths=np.array([-body.parts[iff].joint[2], -body.parts[ih].joint[2]], float),
+                    angles=angles, joints=joints)
 
 
-def initial_state(truth: ArmTruth, rng: np.random.Generator, *, joint_noise_mm: float = 15.0,
-                  width_mm: float = 70.0, model=None) -> tuple[ModelState, np.ndarray]:
+def initial_state(truth: ArmTruth, *, rng: np.random.Generator | int | None = None,
+                  joint_noise_mm: float = 15.0, width_mm: float = 70.0,
+                  model=None) -> tuple[ModelState, np.ndarray]:
     """A starting state as from tracked joints: the true joints plus Gaussian noise, inverse
     kinematics, template lengths scaled to the tracked mean lengths, round template balls.
 
     Returns the state and the tracked joints ``(T, 3, 3)``.
     """
-    from ..body import angles_from_joints
-
+    rng = as_rng(rng)
     model = arm_model() if model is None else model
     tracked = truth.joints + rng.normal(0, joint_noise_mm, truth.joints.shape)
     angles, shoulder, lengths = angles_from_joints(truth.torso_poses, tracked[:, 0],
@@ -90,15 +92,17 @@ def initial_state(truth: ArmTruth, rng: np.random.Generator, *, joint_noise_mm: 
                        lengths[:, 1].mean() / model.segments[1].length, 1.0])
     size = np.array([[width_mm, width_mm], [width_mm, width_mm],
                      [width_mm * 0.6, width_mm * 0.6]])
-    state = ModelState(angles, shoulder, scales, model.simplified_radii(size, scales))
+    state = ModelState(angles=angles, shoulder=shoulder, scales=scales,
+                       radii=model.simplified_radii(size, scales))
     return state, tracked
 
 
-def true_skin(body: Body, motion: Motion, frame: int, rng: np.random.Generator,
-              n: int = 30000) -> np.ndarray:
+def true_skin(body: Body, motion: Motion, frame: int, *, n: int = 30000,
+              rng: np.random.Generator | int | None = None) -> np.ndarray:
     """Dense samples ``(M, 3)`` of the arm's outer skin in one frame (world mm)."""
-    poses = body.part_poses(motion, frame)[0]
-    part, local = body.sample_surface(rng, n // 3, parts=ARM_PARTS)
+    rng = as_rng(rng)
+    poses = body.part_poses(motion, frames=frame)[0]
+    part, local = body.sample_surface(n_per_part=n // 3, rng=rng, parts=ARM_PARTS)
     world = np.einsum("nij,nj->ni", poses[part, :3, :3], local) + poses[part, :3, 3]
     return world[~inside_parts(body, poses, world, exclude=part)]
 
@@ -107,7 +111,7 @@ def arm_distance(body: Body, motion: Motion, frame: int, points) -> np.ndarray:
     """Distance (mm) of world points ``(N, 3)`` to the true arm skin: the smallest
     first-order distance ``|k - 1| / |grad k|`` (``k`` the ellipsoid's implicit function
     ``sum (x / r)^2``, halved gradient) over the three arm ellipsoids."""
-    poses = body.part_poses(motion, frame)[0]
+    poses = body.part_poses(motion, frames=frame)[0]
     pts = np.asarray(points, float)
     best = np.full(len(pts), np.inf)
     for name in ARM_PARTS:
@@ -133,10 +137,10 @@ def skin_error(fit_state: ModelState, t: int, model, truth: ArmTruth, body: Body
     them are scored: the skin where there was data.
     """
     base = base_poses(truth.torso_poses[t:t + 1], fit_state.shoulder[t])
-    verts, _ = iso_surface(model, fit_state.angles[t:t + 1], fit_state.scales,
-                           fit_state.radii, base, spacing=spacing)
+    verts, _ = iso_surface(model, fit_state.angles[t:t + 1], fit_state.scales, fit_state.radii,
+                           base=base, spacing=spacing)
     frame = int(truth.frames[t])
-    poses = body.part_poses(motion, frame)[0]
+    poses = body.part_poses(motion, frames=frame)[0]
     others = np.array([i for i, p in enumerate(body.parts) if p.name not in ARM_PARTS])
     keep = np.ones(len(verts), bool)
     for i in others:
@@ -166,21 +170,24 @@ def score_fit(fit: BodyFit, truth: ArmTruth) -> dict:
 RIG_CENTRE = (0.0, -2500.0, 1100.0)   # the triplet rig's centre camera in the notebook (mm)
 
 
-def controlled_points(body: Body, motion: Motion, truth: ArmTruth, rng: np.random.Generator,
-                      *, n: int = 400, noise_mm: float = 2.0, outlier_share: float = 0.1,
+def controlled_points(body: Body, motion: Motion, truth: ArmTruth, *,
+                      rng: np.random.Generator | int | None = None, n: int = 400,
+                      noise_mm: float = 2.0, outlier_share: float = 0.1,
                       view_from=RIG_CENTRE) -> list:
     """Noisy samples of the arm's skin seen from the rig, one ``(n, 3)`` array per frame."""
-    from ..synth.body import surface_samples
+    rng = as_rng(rng)
 
-    return [surface_samples(body, motion, int(f), rng, n=n, noise_mm=noise_mm,
+
+    return [surface_samples(body, motion, int(f), rng=rng, n=n, noise_mm=noise_mm,
                             outlier_share=outlier_share, view_from=view_from)[0]
             for f in truth.frames]
 
 
-def fit_arm(points, torso_poses, init: ModelState, *, model=None, full: bool = True,
-            full_rounds: int = 3, **kwargs):
-    """Simplified fit of a sequence (or one frame), then the full model from it (at most
-    ``full_rounds`` segmentation rounds).
+def fit_arm(points, torso_poses, init: ModelState, *, params: FitParams | None = None,
+            tracked=None, model=None, full: bool = True, full_rounds: int = 3):
+    """Simplified fit of a sequence (or one frame) with ``params`` (and ``tracked`` joints),
+    then the full model from it (the same settings, at most ``full_rounds`` segmentation
+    rounds).
 
     ``torso_poses`` ``(T, 4, 4)`` are given to the fit as known (in the notebook: the
     generator's exact torso poses, ``ArmTruth.torso_poses``); nothing else of the truth is
@@ -189,15 +196,13 @@ def fit_arm(points, torso_poses, init: ModelState, *, model=None, full: bool = T
     Returns ``(simplified, full)`` :class:`~lsmta.body.BodyFit` (``full`` is None without
     ``full``).
     """
-    from ..body import fit_sequence
-
     model = arm_model() if model is None else model
-    simple = fit_sequence(model, points, torso_poses, init, **kwargs)
-    if not full or simple.status == "init_far":
+    params = FitParams() if params is None else params
+    simple = fit_sequence(model, points, torso_poses, init, params=params, tracked=tracked)
+    if not full or simple.status == FitStatus.INIT_FAR:
         return simple, None
-    kwargs["max_rounds"] = full_rounds
-    return simple, fit_sequence(model, points, torso_poses, simple.state, shape="full",
-                                **kwargs)
+    return simple, fit_sequence(model, points, torso_poses, simple.state, tracked=tracked,
+                                params=replace(params, shape="full", max_rounds=full_rounds))
 
 
 def skin_errors(fit: BodyFit, truth: ArmTruth, body: Body, motion: Motion, *, model=None,
@@ -233,10 +238,10 @@ def true_skin_to_fit(fit: BodyFit, truth: ArmTruth, body: Body, motion: Motion, 
     for t in frames:
         st = fit.state
         base = base_poses(truth.torso_poses[t:t + 1], st.shoulder[t])
-        verts, faces = iso_surface(model, st.angles[t:t + 1], st.scales, st.radii, base,
+        verts, faces = iso_surface(model, st.angles[t:t + 1], st.scales, st.radii, base=base,
                                    spacing=spacing)
         mesh = pv.PolyData(verts, np.hstack([np.full((len(faces), 1), 3), faces]).ravel())
-        skin = true_skin(body, motion, int(truth.frames[t]), rng, n=n)
+        skin = true_skin(body, motion, int(truth.frames[t]), rng=rng, n=n)
         pts = np.asarray(points[t], float)
         pts = pts[np.isfinite(pts).all(axis=1)]
         d, _ = cKDTree(pts).query(skin)

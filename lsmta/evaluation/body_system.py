@@ -18,6 +18,7 @@ scale is left as the bar made it).
 from __future__ import annotations
 
 import dataclasses
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,7 +34,8 @@ from ..synth.body import Motion
 from ..synth.calibration import BarTrack, bar_track, poor_guess, render_bar_images
 from ..synth.render import Renderer, cast_body
 from ..synth.sequence import Sequence, render_sequence, scaled_camera
-from ..systems import ArmFitSettings, BodyCapture
+from ..systems import ArmFitSettings, BodyCapture, FilterSettings
+from ..systems.body import fit_self_consistent, observed_frames
 from ..tracking import TrackerParams, Trajectories, apply_filters, track_points
 from ..tracking.trajectories import trajectories_from_tracks
 from ..triangulation import triangulate
@@ -103,7 +105,7 @@ def roi_camera(camera, width: int, height: int):
                           cy=camera.cy - (camera.height - height) / 2)
 
 
-def arm_wave_session(seed: int = 1998, *, n_frames: int = 24, first: int = 10,
+def arm_wave_session(*, seed: int = 1998, n_frames: int = 24, first: int = 10,
                      roi=(576, 432), distance: float = 1700.0, baseline: float = 480.0,
                      height: float = 1150.0, person=(450.0, 0.0), noise: float = 2.0,
                      backdrop: float = 20.0, bar_length: float = 400.0, n_bar: int = 150,
@@ -125,24 +127,24 @@ def arm_wave_session(seed: int = 1998, *, n_frames: int = 24, first: int = 10,
     coarser pixels: for quick tests).
     """
     rng = np.random.default_rng(seed)
-    full = triplet_rig(rng, distance=distance, baseline=baseline, camera_height=height,
+    full = triplet_rig(rng=rng, distance=distance, baseline=baseline, camera_height=height,
                        target_height=height)
     cams = [scaled_camera(roi_camera(c, *roi), scale) for c in full]
-    body = make_body(np.random.default_rng(seed), contrast=0.3, wavelength=(12.0, 50.0))
-    wave = arm_wave(first + n_frames, position=person)
-    motion = Motion(wave.name, wave.fps, wave.root_position[first:],
-                    wave.joint_angles[first:], wave.part_names)
-    scene = Scene(body, motion, None, backdrop=backdrop)
-    seq = render_sequence(scene, cams, rng, noise_sigma=noise,
+    body = make_body(rng=np.random.default_rng(seed), contrast=0.3, wavelength=(12.0, 50.0))
+    wave = arm_wave(n_frames=first + n_frames, position=person)
+    motion = Motion(name=wave.name, fps=wave.fps, root_position=wave.root_position[first:],
+                    joint_angles=wave.joint_angles[first:], part_names=wave.part_names)
+    scene = Scene(body=body, motion=motion, backdrop=backdrop)
+    seq = render_sequence(scene, cams, rng=rng, noise_sigma=noise,
                           surface_frames=range(0, n_frames, every), step=4)
     centre = (0.0, 0.0, height)
-    bar = bar_track(rng, n_bar, length=bar_length, center=centre, half_size=bar_half_size,
+    bar = bar_track(n=n_bar, rng=rng, length=bar_length, center=centre, half_size=bar_half_size,
                     step=70.0)
-    held = bar_track(rng, n_heldout, length=bar_length, center=centre,
+    held = bar_track(n=n_heldout, rng=rng, length=bar_length, center=centre,
                      half_size=0.8 * np.asarray(bar_half_size), step=70.0)
-    bar_videos = np.stack([render_bar_images(c, bar, rng, noise=noise) for c in cams])
-    held_videos = np.stack([render_bar_images(c, held, rng, noise=noise) for c in cams])
-    nominal = poor_guess(cams, rng, pose_mm=tape_mm, pose_deg=tape_deg, f_rel=lens_rel)
+    bar_videos = np.stack([render_bar_images(c, bar, rng=rng, noise=noise) for c in cams])
+    held_videos = np.stack([render_bar_images(c, held, rng=rng, noise=noise) for c in cams])
+    nominal = poor_guess(cams, rng=rng, pose_mm=tape_mm, pose_deg=tape_deg, f_rel=lens_rel)
     return ArmWaveSession(videos=seq.images, bar_videos=bar_videos, bar_length=bar_length,
                           nominal=nominal, fps=motion.fps, cameras=cams, sequence=seq,
                           bar=bar, heldout=held, heldout_videos=held_videos,
@@ -181,7 +183,7 @@ def world_alignment(cameras, session: ArmWaveSession) -> Alignment:
     truth = session.heldout.points.reshape(-1, 3)
     ok = np.isfinite(X).all(axis=1)
     R, t = fit_rigid(X[ok], truth[ok])
-    return Alignment(R, t)
+    return Alignment(R=R, t=t)
 
 
 # ------------------------------------------------------------------ calibration
@@ -232,7 +234,8 @@ def truth_fed_surface(session: ArmWaveSession, frame: int, *, step: int = 4, pat
     """The surface of notebook 03's setting: true cameras, seeds from the truth, LSM
     thresholds from the generator's noise."""
     rng = np.random.default_rng(session.seed + frame)
-    seeds = seeds_from_truth(session.scene, session.cameras, frame, rng, per_part=per_part)
+    seeds = seeds_from_truth(session.scene, session.cameras, frame, rng=rng,
+                             per_part=per_part)
     thresholds = LSMThresholds(max_sigma0=2.0 * session.noise_sigma, max_displacement=step,
                                max_sigma_xy=0.2, scale_range=(0.5, 2.0), max_shear=0.5)
     return measure_surface(session.videos[:, frame], session.cameras, seeds, step=step,
@@ -255,14 +258,14 @@ def track_identity(session: ArmWaveSession, tracks, *, template: int = 1):
         if not ok.any():
             continue
         _, dirs = cam.rays(xy[ok])
-        hit = cast_body(body, body.part_poses(motion, int(f))[0], cam.C, dirs)
+        hit = cast_body(body, body.part_poses(motion, frames=int(f))[0], cam.C, dirs)
         part[sel[ok]] = np.where(np.isfinite(hit.t), hit.part, -1)
         local[sel[ok]] = hit.local
     return part, local
 
 
-def score_system_tracks(session: ArmWaveSession, tracks, trajectories: Trajectories,
-                        alignment: Alignment | None = None, *, template: int = 1,
+def score_system_tracks(session: ArmWaveSession, tracks, trajectories: Trajectories, *,
+                        alignment: Alignment | None = None, template: int = 1,
                         false_mm: float = 10.0) -> tuple[TrackScore, np.ndarray, np.ndarray]:
     """Score tracks and their trajectories against the surface points they started on;
     trajectories in the system's world are first carried into the true world. Tracks that
@@ -273,7 +276,7 @@ def score_system_tracks(session: ArmWaveSession, tracks, trajectories: Trajector
     on = part >= 0
     safe_part = np.where(on, part, 0)
     safe_local = np.where(on[:, None], local, 0.0)
-    score = score_tracks(session.sequence, tracks, safe_part, safe_local, traj,
+    score = score_tracks(session.sequence, tracks, safe_part, safe_local, traj=traj,
                          false_mm=false_mm)
     score = dataclasses.replace(
         score, image_error=np.where(on, score.image_error, np.nan),
@@ -304,13 +307,12 @@ class TruthFedTracking:
 
 
 def truth_fed_tracking(session: ArmWaveSession, *, params: TrackerParams | None = None,
-                       filters: dict | None = None, every: int = 4) -> TruthFedTracking:
+                       filters: FilterSettings | None = None,
+                       every: int = 4) -> TruthFedTracking:
     """Track all of frame 0's visible grid points with the true cameras (see the class)."""
-    import time
-
     seq = session.sequence
     s0 = seq.surface[0]
-    p = params or TrackerParams(density_every=every)
+    p = dataclasses.replace(params or TrackerParams(), density_every=every)
     t0 = time.perf_counter()
     tracks = track_points(session.videos, s0.xy, params=p,
                           new_points={t: s.xy for t, s in seq.surface.items() if t > 0})
@@ -322,8 +324,8 @@ def truth_fed_tracking(session: ArmWaveSession, *, params: TrackerParams | None 
         s = seq.surface[int(tracks.start[i])]
         part[i], local[i] = s.part[tracks.origin[i]], s.local[tracks.origin[i]]
     traj = trajectories_from_tracks(session.cameras, tracks, session.fps)
-    reports = apply_filters(traj, **(filters or {}))
-    score = score_tracks(seq, tracks, part, local, reports[-1].trajectories)
+    reports = apply_filters(traj, **dataclasses.asdict(filters or FilterSettings()))
+    score = score_tracks(seq, tracks, part, local, traj=reports[-1].trajectories)
     return TruthFedTracking(tracks=tracks, trajectories=traj, filters=reports, score=score,
                             part=part, local=local, seconds=seconds)
 
@@ -335,25 +337,41 @@ def arm_truth(session: ArmWaveSession) -> eb.ArmTruth:
                         np.arange(session.videos.shape[1]))
 
 
-def score_arm(fit, torso_poses, truth: eb.ArmTruth, alignment: Alignment | None = None) -> dict:
+def score_arm(fit, torso_poses, truth: eb.ArmTruth, *, frames=None, score_frames=None,
+              alignment: Alignment | None = None) -> dict:
     """Angle and length errors of an arm fit, its posture compared in the TRUE torso frame.
 
     The fitted upper arm's attitude in the world (the fit's torso frame times its shoulder
     angles), carried into the true world, is expressed in the true torso frame and turned
     into the angles ``(b, a, c)``; the elbow angle is intrinsic. So the score does not
-    depend on how the system chose its torso frame. Returns ``angle_err_deg`` (T, 4),
-    ``max_angle_err_deg``, per-joint worst ``joint_max_deg`` (4,), ``length_err_pct`` (2,)
-    and ``lengths`` (2,) mm.
+    depend on how the system chose its torso frame. ``torso_poses`` and ``truth`` cover all
+    frames; ``frames`` are the ones the fit covers (default: all); ``score_frames`` (a
+    subset of them) restricts the angle scores, so that two fits can be compared on the
+    frames both cover. Returns ``angle_err_deg`` (F, 4), ``max_angle_err_deg``, per-joint
+    worst ``joint_max_deg`` (4,), ``length_err_pct`` (2,) and ``lengths`` (2,) mm.
     """
+    if frames is not None:
+        frames = np.asarray(frames, int)
+        torso_poses = np.asarray(torso_poses)[frames]
+        truth = dataclasses.replace(truth, frames=truth.frames[frames],
+                                    torso_poses=truth.torso_poses[frames],
+                                    angles=truth.angles[frames], joints=truth.joints[frames])
     st = fit.state
     model = arm_model()
-    W = model.skeleton.transforms(st.angles, st.scales, base_poses(torso_poses, st.shoulder))
+    W = model.skeleton.transforms(st.angles, st.scales,
+                                  base=base_poses(torso_poses, st.shoulder))
     U = W[:, 2, :3, :3]                                   # upper arm after the rotation c
     if alignment is not None:
         U = np.einsum("ij,tjk->tik", alignment.R, U)
     U_true = np.einsum("tji,tjk->tik", truth.torso_poses[:, :3, :3], U)
     ang = np.concatenate([shoulder_angles(U_true), st.angles[:, 3:4]], axis=1)
     d = np.degrees(np.angle(np.exp(1j * (ang - truth.angles[:, :4]))))
+    if score_frames is not None:
+        fr = np.arange(len(d)) if frames is None else np.asarray(frames, int)
+        keep = np.isin(fr, score_frames)
+        if not np.isin(score_frames, fr).all():
+            raise ValueError("score_frames: expected a subset of the fit's frames")
+        d = d[keep]
     lengths = np.asarray(fit.lengths[:2], float)
     return {"angle_err_deg": d, "max_angle_err_deg": float(np.abs(d).max()),
             "joint_max_deg": np.abs(d).max(axis=0), "lengths": lengths,
@@ -362,9 +380,13 @@ def score_arm(fit, torso_poses, truth: eb.ArmTruth, alignment: Alignment | None 
 
 @dataclass(frozen=True, eq=False)
 class TruthFedArm:
-    """Notebook 07's arm fit on the truth-fed tracking's arm points: exact torso poses,
-    true joints with noise as the start, the arm's points picked by their true part."""
+    """Notebook 07's arm fit on the truth-fed tracking's arm points: exact torso poses, the
+    true joints (exact by default) as the start and as observations, the arm's points
+    picked by their true part, fitted
+    in the frames where the upper arm and the forearm (with the hand) each have enough
+    points (the system's rule)."""
 
+    frames: np.ndarray
     simplified: object
     full: object
     sigma_mm: float
@@ -373,28 +395,48 @@ class TruthFedArm:
 
 def truth_fed_arm(session: ArmWaveSession, tracking: TruthFedTracking, *,
                   settings: ArmFitSettings | None = None,
-                  joint_noise_mm: float = 15.0) -> TruthFedArm:
+                  joint_noise_mm: float = 0.0) -> TruthFedArm:
     """The arm fit as notebook 07 feeds it (see :class:`TruthFedArm`), with the system's
     settings (the same sigma rule, the same rounds)."""
-    from ..body import fit_sequence
-
-    s = settings or ArmFitSettings()
     truth = arm_truth(session)
-    rng = np.random.default_rng(session.seed)
-    init, tracked = eb.initial_state(truth, rng, joint_noise_mm=joint_noise_mm)
-    arm = np.isin(tracking.part, [session.scene.body.index(n) for n in ARM_PARTS])
+    init, tracked = eb.initial_state(truth, rng=session.seed, joint_noise_mm=joint_noise_mm)
+    s = settings or ArmFitSettings()
+    body = session.scene.body
+    arm = np.isin(tracking.part, [body.index(n) for n in ARM_PARTS])
     X = tracking.filters[-1].trajectories.xyz
-    points = [X[t, arm & np.isfinite(X[t]).all(axis=1)] for t in range(len(X))]
-    model = arm_model()
-    common = dict(tracked=tracked, sigma_joint_mm=s.sigma_joint_mm)
-    sigma = s.sigma_prior_mm
-    simple = fit_sequence(model, points, truth.torso_poses, init, sigma_mm=sigma, **common)
-    if abs(simple.sigma_mm - sigma) > 0.1 * sigma:
-        sigma = simple.sigma_mm
-        simple = fit_sequence(model, points, truth.torso_poses, init, sigma_mm=sigma, **common)
-    full = fit_sequence(model, points, truth.torso_poses, simple.state, shape="full",
-                        max_rounds=s.full_rounds, sigma_mm=sigma, **common)
-    return TruthFedArm(simplified=simple, full=full, sigma_mm=float(sigma), points=points)
+    present = np.isfinite(X).all(axis=2)
+    points = [X[t, arm & present[t]] for t in range(len(X))]
+    upper = tracking.part == body.index(ARM_PARTS[0])
+    fore = np.isin(tracking.part, [body.index(n) for n in ARM_PARTS[1:]])
+    counts = np.stack([(present & upper).sum(axis=1), (present & fore).sum(axis=1)], axis=1)
+    frames = observed_frames(counts, min_points=s.min_segment_points)
+    simple, full, sigma = fit_self_consistent(points, truth.torso_poses, init, tracked=tracked,
+                                              frames=frames, settings=s)
+    return TruthFedArm(frames=frames, simplified=simple, full=full, sigma_mm=sigma,
+                       points=points)
+
+
+def torso_frame_error(torso_poses, truth: eb.ArmTruth, alignment: Alignment, *,
+                      frames=None) -> np.ndarray:
+    """``(F,)`` angle (degrees) between a torso frame carried into the true world and the
+    true torso frame, per frame."""
+    P = np.asarray(torso_poses)
+    R_true = truth.torso_poses[:, :3, :3]
+    if frames is not None:
+        P, R_true = P[np.asarray(frames, int)], R_true[np.asarray(frames, int)]
+    R = np.einsum("ij,tjk->tik", alignment.R, P[:, :3, :3])
+    cos = (np.einsum("tji,tji->t", R_true, R) - 1) / 2
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def centre_errors(cameras, true_cameras) -> np.ndarray:
+    """``(K,)`` distances (mm) of camera centres from the true ones after the best rigid
+    motion of the centres onto them: the rig's own geometry, whatever its datum (the same
+    measure for a tape-measured and a calibrated rig)."""
+    C = np.stack([c.C for c in cameras])
+    Ct = np.stack([c.C for c in true_cameras])
+    R, t = fit_rigid(C, Ct)
+    return np.linalg.norm(C @ R.T + t - Ct, axis=1)
 
 
 def joint_errors(start, truth: eb.ArmTruth, alignment: Alignment) -> np.ndarray:
@@ -415,8 +457,10 @@ def group_parts(session: ArmWaveSession, groups, part) -> list:
 
 __all__ = [
     "Alignment", "ArmWaveSession", "TruthFedArm", "TruthFedTracking", "arm_truth",
-    "arm_wave_session", "calibration_scores", "group_parts", "heldout_points", "joint_errors",
+    "arm_wave_session", "calibration_scores", "centre_errors", "group_parts",
+    "heldout_points", "joint_errors",
     "last_frame_error", "roi_camera", "score_arm", "score_system_surface",
-    "score_system_tracks", "surface_truth", "target_sigma", "track_identity",
+    "score_system_tracks", "surface_truth", "target_sigma", "torso_frame_error",
+    "track_identity",
     "truth_fed_arm", "truth_fed_surface", "truth_fed_tracking", "world_alignment",
 ]

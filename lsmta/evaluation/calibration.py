@@ -28,7 +28,12 @@ from ..calibration import (
     track_targets,
 )
 from ..calibration.bundle import INTRINSIC_NAMES
-from ..calibration.virtual_object import ConvergenceHistory, alternate, joint_adjustment
+from ..calibration.virtual_object import (
+    ConvergenceHistory,
+    alternate,
+    joint_adjustment,
+    projection_error,
+)
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.calibration import (
     bar_track,
@@ -116,17 +121,17 @@ def _measure(cameras, track, rng, mode, sigma_px):
     K = len(cameras)
     pts = track.points.reshape(-1, 3)
     if mode == "projected":
-        return project_observations(cameras, pts, rng, sigma_px=sigma_px)
+        return project_observations(cameras, pts, rng=rng, sigma_px=sigma_px)
     out = np.empty((K, len(pts), 2))
     for k, cam in enumerate(cameras):
-        out[k] = track_targets(render_bar_images(cam, track, rng)).xy.reshape(-1, 2)
+        out[k] = track_targets(render_bar_images(cam, track, rng=rng)).xy.reshape(-1, 2)
     return out
 
 
-def bar_trial(seed: int = 0, *, n_positions: int = 150, n_heldout: int = 40,
-              mode: str = "images", sigma_px: float = 0.05, length: float = 800.0,
-              intrinsics=DEFAULT_INTRINSICS, bar_sigma: float = 0.01,
-              reject_k: float | None = None, with_peer: bool = True) -> BarTrial:
+def bar_trial(*, seed: int = 0, n_positions: int = 150, n_heldout: int = 40, mode: str = "images",
+              sigma_px: float = 0.05, length: float = 800.0, intrinsics=DEFAULT_INTRINSICS,
+              bar_sigma: float = 0.01, reject_k: float | None = None,
+              with_peer: bool = True) -> BarTrial:
     """Calibrate the (perturbed) triplet from a reference bar; see the module docstring.
 
     Parameters
@@ -144,10 +149,10 @@ def bar_trial(seed: int = 0, *, n_positions: int = 150, n_heldout: int = 40,
     if mode not in ("images", "projected"):
         raise ValueError(f"mode: expected 'images' or 'projected', got {mode!r}")
     rng = np.random.default_rng(seed)
-    truth = triplet_rig(rng)
-    track = bar_track(rng, n_positions, length=length)
+    truth = triplet_rig(rng=rng)
+    track = bar_track(n=n_positions, rng=rng, length=length)
     # held-out positions inside the calibrated volume (check points are not extrapolated)
-    heldout = bar_track(rng, n_heldout, length=length, half_size=(800.0, 560.0, 400.0))
+    heldout = bar_track(n=n_heldout, rng=rng, length=length, half_size=(800.0, 560.0, 400.0))
     times = {}
     t0 = time.perf_counter()
     xy = _measure(truth, track, rng, mode, sigma_px)
@@ -157,8 +162,8 @@ def bar_trial(seed: int = 0, *, n_positions: int = 150, n_heldout: int = 40,
     if mode == "images":
         sigma_px = float(np.sqrt(np.nanmean((xy - xy_true) ** 2)))
     pairs = np.arange(2 * n_positions).reshape(-1, 2)
-    bar = Bar(pairs, length, bar_sigma)
-    nominal = triplet_rig(None)
+    bar = Bar(pairs=pairs, length=length, sigma=bar_sigma)
+    nominal = triplet_rig()
     t0 = time.perf_counter()
     cams0, X0 = relative_orientation_start(nominal, xy, bar=bar, pair=(0, 2))
     times["approximations"] = time.perf_counter() - t0
@@ -188,7 +193,8 @@ def bar_trial(seed: int = 0, *, n_positions: int = 150, n_heldout: int = 40,
         peer_check_error=peer_check, times=times)
 
 
-def parameter_table(trial: BarTrial, names=("f", "cx", "cy", "k1", "k2", "k3", "p1", "p2",
+def parameter_table(trial: BarTrial, *,
+                    names=("f", "cx", "cy", "k1", "k2", "k3", "p1", "p2",
                                              "b1", "b2")):
     """Rows ``(camera, parameter, true, adjusted, std, error / std)`` of the interior and
     additional parameters (frame-independent) of the joint adjustment."""
@@ -234,27 +240,24 @@ class RingTrial:
     linear: list = dataclasses.field(default_factory=list)
 
 
-def ring_trial(seeds=(0, 1, 2), *, n_cameras: int = 10, n_path: int = 300,
-               n_check: int = 150, sigma_px: float = 0.3, n_alternation: int = 30,
-               n_joint: int = 30, intrinsics=("f", "cx", "cy", "k1", "k2"),
-               data_seed: int = 100, n_linear: int = 0,
+def ring_trial(*, seeds=(0, 1, 2), n_cameras: int = 10, n_path: int = 300, n_check: int = 150,
+               sigma_px: float = 0.3, n_alternation: int = 30, n_joint: int = 30,
+               intrinsics=("f", "cx", "cy", "k1", "k2"), data_seed: int = 100, n_linear: int = 0,
                true_fixed: bool = False) -> RingTrial:
     """The alternation and the joint adjustment from the same poor guesses (one per
     seed), scored per iteration on an independent LED path; with ``n_linear`` > 0 also
     Davis's linear-intersection variant of the alternation for that many iterations.
     ``true_fixed``: the interior parameters that are not free are set to the truth in
     the guess (a diagnostic: fewer free parameters without unmodelled lens error)."""
-    from ..calibration.virtual_object import projection_error
-
     rng = np.random.default_rng(data_seed)
-    truth = ring_rig(n_cameras, rng)
-    path = led_path(rng, n_path)
-    check = led_path(rng, n_check)
-    xy = project_observations(truth, path, rng, sigma_px=sigma_px)
-    xy_c = project_observations(truth, check, rng, sigma_px=sigma_px)
+    truth = ring_rig(n=n_cameras, rng=rng)
+    path = led_path(n=n_path, rng=rng)
+    check = led_path(n=n_check, rng=rng)
+    xy = project_observations(truth, path, rng=rng, sigma_px=sigma_px)
+    xy_c = project_observations(truth, check, rng=rng, sigma_px=sigma_px)
     alt, jnt, lin = [], [], []
     for s in seeds:
-        guess = poor_guess(truth, np.random.default_rng(s))
+        guess = poor_guess(truth, rng=np.random.default_rng(s))
         if true_fixed:
             fixed = [n for n in INTRINSIC_NAMES if n not in intrinsics]
             guess = [g.replace(**{n: getattr(t, n) for n in fixed})
@@ -266,8 +269,9 @@ def ring_trial(seeds=(0, 1, 2), *, n_cameras: int = 10, n_path: int = 300,
                                  xy_check=xy_c, triangulation="linear"))
         jnt.append(joint_adjustment(guess, xy, n_iter=n_joint, intrinsics=intrinsics,
                                     xy_check=xy_c))
-    return RingTrial(truth, path, check, xy, xy_c, alt, jnt, projection_error(truth, xy_c),
-                     sigma_px, lin)
+    return RingTrial(truth=truth, path=path, check_path=check, xy=xy, xy_check=xy_c,
+                     alternation=alt, joint=jnt, truth_error=projection_error(truth, xy_c),
+                     sigma_px=sigma_px, linear=lin)
 
 
 __all__ = ["BarTrial", "ConvergenceHistory", "RingTrial", "aniposelib_peer", "bar_observations",

@@ -13,17 +13,18 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ..face import align_sequence, extreme_basis, fill_missing, pca_basis, pca_gap_fill
+from .._validate import as_rng
+from ..face import align_sequence, extreme_basis, fill_missing, learn, pca_basis, pca_gap_fill
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.face import face_cameras, face_sequence, visible
 from ..synth.marker_video import render_marker_video
-from ..tracking.markers import SECOND_SEARCH, TRACKED, track_markers
+from ..tracking.markers import MarkerStatus, track_markers
 from ..triangulation import triangulate, triangulate_single_pair
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "animface"
 
 METHODS = ("extremes, w in [0,1]", "extremes, w free", "PCA mean + k, w free",
-           "peer: PCA gap filling")
+           "peer: PCA gap filling", "learned default (face.learn)")
 
 
 @dataclass(frozen=True)
@@ -52,7 +53,7 @@ def _perturb(cam, rng, deg):
     return cam.replace(R=dR @ cam.R)
 
 
-def observe(seq, rng: np.random.Generator, *, pixel_noise: float = 0.5,
+def observe(seq, *, rng: np.random.Generator | int | None = None, pixel_noise: float = 0.5,
             pose_noise_deg: float = 0.1, min_cos: float = 0.3, pairing: str = "single",
             **camera_kw) -> Observation:
     """Image and triangulate a generated face sequence (:mod:`lsmta.synth.face`).
@@ -74,6 +75,7 @@ def observe(seq, rng: np.random.Generator, *, pixel_noise: float = 0.5,
     image noise from ``rng``, so they can be compared on the same images. ``pair`` is
     (-1, -1) for per-marker frames.
     """
+    rng = as_rng(rng)
     if pairing not in ("single", "per_marker"):
         raise ValueError(f"pairing: expected 'single' or 'per_marker', got {pairing!r}")
     choice_rng = np.random.default_rng(rng.integers(2 ** 63))
@@ -109,7 +111,7 @@ def observe(seq, rng: np.random.Generator, *, pixel_noise: float = 0.5,
         pick = keys.argmax(axis=0)
         has = ok.any(axis=0)
         pts[f, has] = cand[pick[has], np.flatnonzero(has)]
-    return Observation(pts, pairs, nvis)
+    return Observation(points=pts, pair=pairs, n_visible=nvis)
 
 
 def to_head(points, R, t):
@@ -123,9 +125,11 @@ def fill_all(gappy, training, *, n_basis: int, n_components: int,
     """Fill ``gappy`` (T, M, 3) with every method of :data:`METHODS`.
 
     ``n_basis`` extreme faces (constrained and free weights), a PCA basis of
-    ``n_components`` (mean + k, free weights) and the peer, which learns from the
-    complete frames of ``training`` (and ``gappy``) with ``peer_components`` components
-    (default: 99 % of the variance). Returns ``{method: (T, M, 3) filled}``.
+    ``n_components`` (mean + k, free weights), the peer (Gløersen & Federolf's full
+    method), which learns from the complete frames of ``training`` (and ``gappy``) with
+    ``peer_components`` components (default: as the authors' code chooses), and the
+    default model of :func:`lsmta.face.learn` trained on ``training``. Returns
+    ``{method: (T, M, 3) filled}``.
     """
     ext = extreme_basis(training, n_basis)
     pca = pca_basis(training, n_components)
@@ -135,6 +139,7 @@ def fill_all(gappy, training, *, n_basis: int, n_components: int,
         METHODS[2]: fill_missing(gappy, pca).frames,
         METHODS[3]: pca_gap_fill(gappy, training=training,
                                  n_components=peer_components).frames,
+        METHODS[4]: learn(training).fill(gappy).frames,
     }
     return out
 
@@ -178,9 +183,9 @@ def removal_trials(model, seeds, *, n_train: int, n_test: int, n_removed: int,
     M = len(model.labels)
     for seed in seeds:
         r = np.random.default_rng(seed)
-        tr = face_sequence(model, n_train, r, moving=False).head
+        tr = face_sequence(model, n_train, rng=r, moving=False).head
         tr = tr + r.normal(0, noise_mm, tr.shape)
-        te = face_sequence(model, n_test, r, moving=False).head
+        te = face_sequence(model, n_test, rng=r, moving=False).head
         gappy = te + r.normal(0, noise_mm, te.shape)
         removed = r.choice(M, n_removed, replace=False)
         observed = np.ones((n_test, M), bool)
@@ -200,16 +205,17 @@ def missing_errors(filled, truth, observed):
     return np.where(observed, np.nan, e)
 
 
-def random_visibility(n_frames: int, n_markers: int, n_visible, rng) -> np.ndarray:
+def random_visibility(n_frames: int, n_markers: int, n_visible, *,
+                      rng: np.random.Generator | int | None = None) -> np.ndarray:
     """(T, M) bool: in each frame ``n_visible`` (scalar or (T,)) markers chosen at random
     are observed."""
     nv = np.broadcast_to(np.asarray(n_visible), (n_frames,))
-    keys = rng.random((n_frames, n_markers))
+    keys = as_rng(rng).random((n_frames, n_markers))
     rank = keys.argsort(axis=1).argsort(axis=1)
     return rank < nv[:, None]
 
 
-def load_animface(name: str, step: int = 1):
+def load_animface(name: str, *, step: int = 1):
     """``labels``, ``points`` (T, 41, 3) float64 mm of the project's AnimFace copy
     (``"JawMoCap"`` or ``"CheeksMoCap"``), every ``step``-th frame."""
     d = np.load(DATA / f"{name}.npz")
@@ -334,7 +340,7 @@ class TrackedCapture:
     seeds: np.ndarray
 
 
-def crowded_markers(xy, crowd_px: float = 6.0) -> np.ndarray:
+def crowded_markers(xy, *, crowd_px: float = 6.0) -> np.ndarray:
     """``(..., M)`` bool: image points ``(..., M, 2)`` with another point (not NaN)
     closer than ``crowd_px``."""
     xy = np.asarray(xy, dtype=float)
@@ -344,7 +350,8 @@ def crowded_markers(xy, crowd_px: float = 6.0) -> np.ndarray:
         return np.nan_to_num(d, nan=np.inf).min(axis=-1) < crowd_px
 
 
-def observe_tracked(seq, rng: np.random.Generator, *, pose_noise_deg: float = 0.1,
+def observe_tracked(seq, *, rng: np.random.Generator | int | None = None,
+                    pose_noise_deg: float = 0.1,
                     min_cos: float = 0.3, cameras=None, blur_frames=(),
                     image_noise: float = 2.0, seed_noise: float = 0.5,
                     keep_images: bool = False, tracker=None, **camera_kw) -> TrackedCapture:
@@ -361,6 +368,7 @@ def observe_tracked(seq, rng: np.random.Generator, *, pose_noise_deg: float = 0.
     triangulated, with the nominal cameras, from the single pair seeing the most.
     ``cameras``: indices of the :func:`face_cameras` used (default all).
     """
+    rng = as_rng(rng)
     T, M, _ = seq.world.shape
     nominal = [face_cameras(seq.t[f], **camera_kw) for f in range(T)]
     ks = list(range(len(nominal[0]))) if cameras is None else list(cameras)
@@ -375,7 +383,7 @@ def observe_tracked(seq, rng: np.random.Generator, *, pose_noise_deg: float = 0.
         true_cams = [_perturb(nominal[f][k], rng, pose_noise_deg) for f in range(T)]
         vis = np.stack([visible(seq.world[f], seq.normals[f], nominal[f][k].C,
                                 min_cos=min_cos) for f in range(T)])
-        video = render_marker_video(true_cams, seq.world, vis, seq.t, rng,
+        video = render_marker_video(true_cams, seq.world, vis, seq.t, rng=rng,
                                     noise=image_noise, blur_frames=blur_frames)
         drawn = np.isfinite(video.xy).all(axis=2)
         start = drawn & ~np.vstack([np.zeros((1, M), bool), drawn[:-1]])
@@ -383,7 +391,7 @@ def observe_tracked(seq, rng: np.random.Generator, *, pose_noise_deg: float = 0.
                          np.nan)
         all_seeds[i] = seeds
         tr = track_markers(video.images, seeds[0], seeds=seeds, **(tracker or {}))
-        ok = np.isin(tr.status, (TRACKED, SECOND_SEARCH))
+        ok = np.isin(tr.status, (MarkerStatus.TRACKED, MarkerStatus.SECOND_SEARCH))
         ok[0] = False
         found[i][ok] = tr.xy[ok]
         truth[i] = video.xy
@@ -399,8 +407,9 @@ def observe_tracked(seq, rng: np.random.Generator, *, pose_noise_deg: float = 0.
         r = triangulate_single_pair(cams, found[:, f])
         pts[f] = r.intersection.points
         pairs[f] = [ks[j] for j in r.pair]
-    return TrackedCapture(Observation(pts, pairs, nvis), truth, found, status, images,
-                          blurred, crowded_markers(truth), all_seeds)
+    return TrackedCapture(observation=Observation(points=pts, pair=pairs, n_visible=nvis),
+                          truth_xy=truth, tracked_xy=found, status=status, images=images,
+                          blurred=blurred, crowded=crowded_markers(truth), seeds=all_seeds)
 
 
 def tracking_errors(capture: TrackedCapture, *, n_frames: int | None = None,
@@ -421,7 +430,7 @@ def tracking_errors(capture: TrackedCapture, *, n_frames: int | None = None,
         if tracker or n_frames is not None:
             tr = track_markers(images[:T], capture.seeds[k, 0],
                                seeds=capture.seeds[k, :T], **tracker)
-            ok = np.isin(tr.status, (TRACKED, SECOND_SEARCH))
+            ok = np.isin(tr.status, (MarkerStatus.TRACKED, MarkerStatus.SECOND_SEARCH))
             xy = np.where(ok[..., None], tr.xy, np.nan)
         else:
             xy = capture.tracked_xy[k]

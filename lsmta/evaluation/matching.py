@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._validate import as_rng
 from ..matching import lsm, peers
 from ..matching.bounds import cramer_rao_xy, patch_offsets
 from ..synth.patches import WarpedPair
@@ -60,7 +61,7 @@ class MatchTrial:
     crb: np.ndarray | None = None
     lsm_result: object = None
 
-    def summary(self, method: str, fail_px: float = 0.5) -> dict:
+    def summary(self, method: str, *, fail_px: float = 0.5) -> dict:
         """Median and RMS error (px), failure rate (no result or error > ``fail_px``),
         and time per point (µs)."""
         e = np.linalg.norm(self.errors[method], axis=1)
@@ -72,25 +73,30 @@ class MatchTrial:
             "us_per_point": 1e6 * self.seconds[method] / len(e),
         }
 
-    def crb_median(self, rng: np.random.Generator, mask=None) -> float:
+    def crb_median(self, *, mask=None, rng: np.random.Generator | int | None = None) -> float:
         """Median error that the Cramér-Rao covariance predicts (by drawing from it)."""
+        rng = as_rng(rng)
         cov = self.crb if mask is None else self.crb[mask]
         draws = np.einsum("nij,nkj->nki", np.linalg.cholesky(cov),
                           rng.normal(size=(len(cov), 50, 2)))
         return float(np.median(np.linalg.norm(draws, axis=2)))
 
 
-def random_starts(rng, truth, *, start_error=0.5, start_distance=None):
+def random_starts(truth, *, rng: np.random.Generator | int | None = None, start_error=0.5,
+                  start_distance=None):
     """Starts uniform in a square of half-width ``start_error`` around the truth, or at
     exactly ``start_distance`` pixels in a random direction."""
+    rng = as_rng(rng)
     if start_distance is None:
         return truth + rng.uniform(-start_error, start_error, truth.shape)
     angle = rng.uniform(0, 2 * np.pi, len(truth))
     return truth + start_distance * np.stack([np.cos(angle), np.sin(angle)], axis=1)
 
 
-def draw_points(rng, shape, n_points: int, margin: int = 30) -> np.ndarray:
+def draw_points(shape, n_points: int, *, margin: int = 30,
+                rng: np.random.Generator | int | None = None) -> np.ndarray:
     """Whole-pixel patch centres ``(n, 2)`` at least ``margin`` pixels inside ``shape``."""
+    rng = as_rng(rng)
     H, W = shape
     return np.rint(rng.uniform(margin, [W - 1 - margin, H - 1 - margin], (n_points, 2)))
 
@@ -104,17 +110,17 @@ def unit_bound(pair: WarpedPair, points, *, patch: int, geometry: str, radiometr
                          geometry=geometry, radiometry=radiometry)
 
 
-def run_trial(pair: WarpedPair, rng: np.random.Generator, *, methods=("lsm",),
+def run_trial(pair: WarpedPair, *, rng: np.random.Generator | int | None = None, methods=("lsm",),
               n_points: int = 200, patch: int = 13, start_error: float = 0.5,
               start_distance: float | None = None, geometry: str = "affine",
-              radiometry: str = "linear", margin: int = 30, bound: bool = True,
-              points=None, bound_unit=None, **lsm_kwargs) -> MatchTrial:
+              radiometry: str = "linear", margin: int = 30, bound: bool = True, points=None,
+              bound_unit=None, **lsm_kwargs) -> MatchTrial:
     """Run ``methods`` on ``n_points`` whole-pixel patch centres of ``pair``.
 
     Parameters
     ----------
     pair : WarpedPair
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
         Draws the points and the starts.
     methods : sequence of str
         Keys of :data:`METHODS`.
@@ -129,9 +135,13 @@ def run_trial(pair: WarpedPair, rng: np.random.Generator, *, methods=("lsm",),
     **lsm_kwargs
         Extra arguments for :func:`~lsmta.matching.lsm`.
     """
-    pts = draw_points(rng, pair.template.shape, n_points, margin) if points is None else points
+    rng = as_rng(rng)
+    if points is None:
+        pts = draw_points(pair.template.shape, n_points, margin=margin, rng=rng)
+    else:
+        pts = points
     truth = pair.true_xy(pts)
-    start = random_starts(rng, truth, start_error=start_error, start_distance=start_distance)
+    start = random_starts(truth, rng=rng, start_error=start_error, start_distance=start_distance)
     trial = MatchTrial(truth=truth, start=start)
     for name in methods:
         ours = name.startswith("lsm")
@@ -150,9 +160,9 @@ def run_trial(pair: WarpedPair, rng: np.random.Generator, *, methods=("lsm",),
     return trial
 
 
-def noise_sweep(pair: WarpedPair, rng: np.random.Generator, sigmas, *, patch: int = 13,
-                geometry: str = "affine", radiometry: str = "linear", n_points: int = 200,
-                start_error: float = 0.5) -> dict:
+def noise_sweep(pair: WarpedPair, sigmas, *, rng: np.random.Generator | int | None = None,
+                patch: int = 13, geometry: str = "affine", radiometry: str = "linear",
+                n_points: int = 200, start_error: float = 0.5) -> dict:
     """LSM against its Cramér-Rao bound over noise levels, on fresh noise of one clean pair.
 
     Returns a dict of arrays over ``sigmas``: ``median_px`` (LSM's median error),
@@ -161,13 +171,14 @@ def noise_sweep(pair: WarpedPair, rng: np.random.Generator, sigmas, *, patch: in
     same points, those LSM matched to within 0.5 px; ``failure_rate`` is the share of the
     others (no result, or farther off), which the efficiency leaves out.
     """
-    pts = draw_points(rng, pair.template.shape, n_points)
+    rng = as_rng(rng)
+    pts = draw_points(pair.template.shape, n_points, rng=rng)
     unit = unit_bound(pair, pts, patch=patch, geometry=geometry, radiometry=radiometry)
     keys = ("median_px", "bound_median_px", "efficiency", "rms_ratio", "coverage_95",
             "failure_rate")
     out = {k: [] for k in keys}
     for sigma in sigmas:
-        trial = run_trial(pair.noisy(rng, sigma), rng, patch=patch, geometry=geometry,
+        trial = run_trial(pair.noisy(sigma, rng=rng), rng=rng, patch=patch, geometry=geometry,
                           radiometry=radiometry, points=pts, bound_unit=unit,
                           start_error=start_error)
         summ = trial.summary("lsm")
@@ -175,7 +186,7 @@ def noise_sweep(pair: WarpedPair, rng: np.random.Generator, sigmas, *, patch: in
         out["failure_rate"].append(summ["failure_rate"])
         if sigma > 0:
             good = np.linalg.norm(trial.errors["lsm"], axis=1) <= 0.5   # as summary()'s
-            out["bound_median_px"].append(trial.crb_median(rng, good))
+            out["bound_median_px"].append(trial.crb_median(mask=good, rng=rng))
             h = honesty(trial)
             out["rms_ratio"].append(h["rms_ratio"])
             out["coverage_95"].append(h["coverage_95"])
@@ -201,12 +212,14 @@ def honesty(trial: MatchTrial) -> dict:
     }
 
 
-def success_rate(pair: WarpedPair, rng: np.random.Generator, *, start_distance: float,
-                 patch: int = 13, geometry: str = "affine", radiometry: str = "linear",
-                 n_points: int = 200, tol_px: float = 0.1, margin: int = 30) -> float:
+def success_rate(pair: WarpedPair, *, rng: np.random.Generator | int | None = None,
+                 start_distance: float, patch: int = 13, geometry: str = "affine",
+                 radiometry: str = "linear", n_points: int = 200, tol_px: float = 0.1,
+                 margin: int = 30) -> float:
     """Share of points where LSM converges to within ``tol_px`` of the truth when started
     ``start_distance`` pixels away (random direction): the pull-in range's test."""
-    trial = run_trial(pair, rng, n_points=n_points, patch=patch, geometry=geometry,
+    rng = as_rng(rng)
+    trial = run_trial(pair, rng=rng, n_points=n_points, patch=patch, geometry=geometry,
                       radiometry=radiometry, start_distance=start_distance, bound=False,
                       margin=margin)
     e = np.linalg.norm(trial.errors["lsm"], axis=1)

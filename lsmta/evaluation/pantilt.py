@@ -58,8 +58,8 @@ class PanTiltTrial:
         return float(np.nanmedian(np.hypot(*self.errors[key].T)))
 
 
-def three_conditions(head: PanTiltCamera, rng: np.random.Generator, *, loss: str = "linear",
-                     f_scale: float = 10.0, points_per_setting: int = 20,
+def three_conditions(head: PanTiltCamera, *, rng: np.random.Generator | int | None = None,
+                     loss: str = "linear", f_scale: float = 10.0, points_per_setting: int = 20,
                      **noise) -> PanTiltTrial:
     """The thesis's three calibration conditions on data generated from ``head``.
 
@@ -67,10 +67,10 @@ def three_conditions(head: PanTiltCamera, rng: np.random.Generator, *, loss: str
     observations; ``loss`` and ``f_scale`` to the three pose/axis calibrations.
     """
     rng = as_rng(rng)
-    target = intrinsic_target(head, rng)
+    target = intrinsic_target(head, rng=rng)
     intr = calibrate_intrinsics(target.X, target.xy, head.camera.image_size)
-    cal = calibration_sweeps(head, rng, points_per_setting=points_per_setting, **noise)
-    ev = evaluation_grid(head, rng, **noise)
+    cal = calibration_sweeps(head, rng=rng, points_per_setting=points_per_setting, **noise)
+    ev = evaluation_grid(head, rng=rng, **noise)
     h = cal.home
     cam = intr.model
     kw = dict(loss=loss, f_scale=f_scale)
@@ -80,10 +80,11 @@ def three_conditions(head: PanTiltCamera, rng: np.random.Generator, *, loss: str
             "general": calibrate(cam, cal.pan, cal.tilt, cal.X, cal.xy, kind="general", **kw)}
     errors = {k: projection_errors(f.model, ev.pan, ev.tilt, ev.X, ev.xy) for k, f in fits.items()}
     errors["truth"] = projection_errors(head, ev.pan, ev.tilt, ev.X, ev.xy)
-    return PanTiltTrial(head, intr, cal, ev, fits, errors)
+    return PanTiltTrial(head=head, intrinsics=intr, calibration=cal, evaluation=ev, fits=fits,
+                        errors=errors)
 
 
-def misalignment_sweep(scales, rng: np.random.Generator, *, repeats: int = 1,
+def misalignment_sweep(scales, *, rng: np.random.Generator | int | None = None, repeats: int = 1,
                        **kwargs) -> dict:
     """Median errors of the three conditions for heads with ``misalignment`` in ``scales``.
 
@@ -100,7 +101,7 @@ def misalignment_sweep(scales, rng: np.random.Generator, *, repeats: int = 1,
     out = {k: np.zeros(len(scales)) for k in (*CONDITIONS, "truth")}
     for i, s in enumerate(scales):
         for _ in range(repeats):
-            trial = three_conditions(pantilt_head(misalignment=s), rng, **kwargs)
+            trial = three_conditions(pantilt_head(misalignment=s), rng=rng, **kwargs)
             for k in out:
                 out[k][i] += trial.median(k) / repeats
     out["scale"] = np.asarray(scales, dtype=float)

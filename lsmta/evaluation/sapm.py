@@ -12,13 +12,14 @@ from pathlib import Path
 
 import numpy as np
 
+from .._validate import as_rng
 from ..io import read_c3d
 from ..rigid import apply_rigid, fit_rigid
-from ..sapm import MarkerModel, global_assignment, identify
+from ..sapm import MarkerModel, SAPMParams, global_assignment, identify
 from ..synth.markers import random_pose
 
 
-def clouthier_segments(acromion: str = "upper_arm") -> dict:
+def clouthier_segments(*, acromion: str = "upper_arm") -> dict:
     """The marker set of Clouthier et al. (2021) as SAPM segments: 15 segments, 62 cluster
     markers, no marker shared between segments.
 
@@ -106,19 +107,21 @@ def _trials(rows) -> Trials:
     return Trials(*(np.asarray(c, dtype=k) for c, k in zip(cols, kinds)))
 
 
-def label_pose(model: MarkerModel, observed, method: str = "sapm", **identify_kw):
+def label_pose(model: MarkerModel, observed, *, method: str = "sapm",
+               params: SAPMParams | None = None):
     """Label one pose with ``method``: "sapm" (:func:`~lsmta.sapm.identify`, returns an
-    ``Identification``) or "baseline" (:func:`~lsmta.sapm.global_assignment`)."""
+    ``Identification``, with ``params``) or "baseline"
+    (:func:`~lsmta.sapm.global_assignment`)."""
     if method == "sapm":
-        return identify(model, observed, **identify_kw)
+        return identify(model, observed, params=params)
     if method == "baseline":
         return global_assignment(model, observed)
     raise ValueError(f"method: expected 'sapm' or 'baseline', got {method!r}")
 
 
-def pose_trials(model: MarkerModel, rng: np.random.Generator, n_poses: int, *,
-                level: float = np.pi, distortion: float = 0.0, n_missing: int = 0,
-                n_extra: int = 0, methods=("sapm",), **identify_kw) -> dict:
+def pose_trials(model: MarkerModel, n_poses: int, *, rng: np.random.Generator | int | None = None,
+                level: float = np.pi, distortion: float = 0.0, n_missing: int = 0, n_extra: int = 0,
+                methods=("sapm",), params: SAPMParams | None = None) -> dict:
     """Generate ``n_poses`` random poses and score every method on the same poses.
 
     Returns
@@ -126,12 +129,13 @@ def pose_trials(model: MarkerModel, rng: np.random.Generator, n_poses: int, *,
     dict
         method name -> :class:`Trials`.
     """
+    rng = as_rng(rng)
     rows = {m: [] for m in methods}
     for _ in range(n_poses):
-        pose = random_pose(model, rng, level=level, distortion=distortion,
-                           n_missing=n_missing, n_extra=n_extra)
+        pose = random_pose(model, rng=rng, level=level, distortion=distortion, n_missing=n_missing,
+                           n_extra=n_extra)
         for m in methods:
-            r = label_pose(model, pose.observed, m, **(identify_kw if m == "sapm" else {}))
+            r = label_pose(model, pose.observed, method=m, params=params)
             rows[m].append(_scored(r, pose.truth))
     return {m: _trials(r) for m, r in rows.items()}
 
@@ -158,11 +162,11 @@ class Surface:
     n_poses: int
 
 
-def surface_cell(model, seed: int, level: float, distortion: float, n_poses: int,
-                 **identify_kw) -> tuple[float, float]:
+def surface_cell(model, seed: int, level: float, distortion: float, n_poses: int, *,
+                 params: SAPMParams | None = None) -> tuple[float, float]:
     """One cell of the Fig. 3 grid, from its own seed: (poses correct, points correct)."""
-    t = pose_trials(model, np.random.default_rng(seed), n_poses, level=level,
-                    distortion=distortion, **identify_kw)["sapm"]
+    t = pose_trials(model, n_poses, rng=np.random.default_rng(seed), level=level,
+                    distortion=distortion, params=params)["sapm"]
     return float(t.correct.mean()), float(t.accuracy.mean())
 
 
@@ -173,7 +177,7 @@ def cell_seeds(seed: int, shape) -> np.ndarray:
 
 
 def identification_surface(model: MarkerModel, seed: int, levels, distortions, n_poses: int,
-                           *, progress=None, **identify_kw) -> Surface:
+                           *, progress=None, params: SAPMParams | None = None) -> Surface:
     """Fig. 3 serially: every (level, ψ) cell from its own seed (see ``cell_seeds``), so
     the parallel experiment reproduces the same numbers."""
     levels = np.asarray(levels, float)
@@ -184,12 +188,13 @@ def identification_surface(model: MarkerModel, seed: int, levels, distortions, n
     cells = [(i, j) for i in range(len(levels)) for j in range(len(distortions))]
     for i, j in (progress(cells) if progress else cells):
         poses[i, j], points[i, j] = surface_cell(model, seeds[i, j], levels[i],
-                                                 distortions[j], n_poses, **identify_kw)
-    return Surface(levels, distortions, poses, points, n_poses)
+                                                 distortions[j], n_poses, params=params)
+    return Surface(levels=levels, distortions=distortions, poses_correct=poses,
+                   points_correct=points, n_poses=n_poses)
 
 
 # ---------------------------------------------------------------------- real data
-def clouthier_model(path, frame: int = 0, *,
+def clouthier_model(path, *, frame: int = 0,
                     acromion: str = "upper_arm") -> tuple[MarkerModel, np.ndarray]:
     """The model of the Clouthier et al. recording built from one labelled frame (segments
     from :func:`clouthier_segments`), and all its frames.
@@ -207,7 +212,8 @@ def clouthier_model(path, frame: int = 0, *,
     if np.isnan(points[frame]).any():
         raise ValueError(f"frame: frame {frame} has gaps; the model needs a complete frame")
     model = MarkerModel.from_labelled_frame(dict(zip(labels, points[frame])),
-                                            clouthier_segments(acromion), CLOUTHIER_PARENTS)
+                                            clouthier_segments(acromion=acromion),
+                                            CLOUTHIER_PARENTS)
     order = [labels.index(k) for k in model.labels]
     return model, points[:, order]
 
@@ -234,7 +240,7 @@ class FrameTrials:
     labels: dict
     results: dict
 
-    def per_marker_accuracy(self, method: str = "sapm") -> np.ndarray:
+    def per_marker_accuracy(self, *, method: str = "sapm") -> np.ndarray:
         """(M,) share of frames in which each present marker was labelled correctly."""
         lab = self.labels[method]
         present = lab != -2
@@ -242,12 +248,14 @@ class FrameTrials:
         return ok.sum(axis=0) / np.maximum(present.sum(axis=0), 1)
 
 
-def frame_trials(model: MarkerModel, points, frames, rng: np.random.Generator,
-                 methods=("sapm",), **identify_kw) -> FrameTrials:
+def frame_trials(model: MarkerModel, points, frames, *, methods=("sapm",),
+                 rng: np.random.Generator | int | None = None,
+                 params: SAPMParams | None = None) -> FrameTrials:
     """Identify real frames: present markers shuffled, labels dropped.
 
     ``points`` is (T, M, 3) in the model's marker order; in the returned label arrays a
     marker absent from the frame is -2."""
+    rng = as_rng(rng)
     rows = {m: [] for m in methods}
     labels = {m: np.full((len(frames), model.n_points), -2) for m in methods}
     results = {m: [] for m in methods}
@@ -255,12 +263,12 @@ def frame_trials(model: MarkerModel, points, frames, rng: np.random.Generator,
         present = np.flatnonzero(~np.isnan(points[f]).any(axis=1))
         perm = rng.permutation(present)
         for m in methods:
-            r = label_pose(model, points[f][perm], m, **(identify_kw if m == "sapm" else {}))
+            r = label_pose(model, points[f][perm], method=m, params=params)
             rows[m].append(_scored(r, perm))
             labels[m][f_i, perm] = r.labels
             results[m].append(r)
-    return FrameTrials(np.asarray(frames), {m: _trials(r) for m, r in rows.items()}, labels,
-                       results)
+    return FrameTrials(frames=np.asarray(frames), trials={m: _trials(r) for m, r in rows.items()},
+                       labels=labels, results=results)
 
 
 

@@ -40,7 +40,7 @@ class StereoPair:
         return d, self.nonoccluded[::step, ::step] & np.isfinite(d)
 
 
-def load_cones(path=None) -> StereoPair:
+def load_cones(*, path=None) -> StereoPair:
     """The Middlebury "Cones" pair from ``data/middlebury_cones/cones.npz`` (see its README)."""
     d = np.load(Path(path) if path is not None else DATA / "cones.npz")
     disparity = d["disparity4"].astype(float) / 4.0
@@ -70,7 +70,7 @@ def scores(estimate, truth, scored) -> dict:
             "bad1_all": float((np.sum(e > 1) + scored.sum() - n) / scored.sum())}
 
 
-def quantisation_median(step: float = TRUTH_STEP) -> float:
+def quantisation_median(*, step: float = TRUTH_STEP) -> float:
     """Median absolute error of an exact estimate against truth rounded to ``step``: the
     rounding error is uniform on ``[-step/2, step/2]``, so its magnitude's median is
     ``step / 4`` (0.0625 px for Middlebury's 0.25 px)."""

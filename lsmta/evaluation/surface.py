@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from .._validate import as_rng
 from ..matching.masks import backdrop_mask
 from ..matching.surface import SurfaceResult
 from ..synth.render import RenderedFrame, Scene, project_surface_points
@@ -32,20 +33,20 @@ def joint_beyond(noise_sigma: float, template_image, *, backdrop: float = 12.0,
     shifted windows (their carried-back positions leave the epipolar curves) and no
     geometric check (jointly matched rays meet by construction).
     """
-    from scipy import ndimage
-
     mask = backdrop_mask(template_image, backdrop)
     return dict(joint=True, mask=ndimage.binary_erosion(mask, iterations=border),
                 robust=4.7 * np.sqrt(2.0) * noise_sigma, robust_patch=9, template_mask=mask,
                 neighbourhood_statistic="median", max_affine=0.3, max_position=0.4)
 
 
-def seeds_from_truth(scene: Scene, cameras, frame: int, rng: np.random.Generator, *,
-                     per_part: int = 1, perturb_px: float = 1.0, min_px: int = 40):
+def seeds_from_truth(scene: Scene, cameras, frame: int, *,
+                     rng: np.random.Generator | int | None = None, per_part: int = 1,
+                     perturb_px: float = 1.0, min_px: int = 40):
     """Seeds as a user would click them: points visible in every camera, one (or
     ``per_part``) on each body part that shows at least ``min_px`` such points, moved by up
     to ``perturb_px`` pixels in each image. Returns ``(K, S, 2)`` pixel positions."""
-    part, local = scene.body.sample_surface(rng, 200)
+    rng = as_rng(rng)
+    part, local = scene.body.sample_surface(n_per_part=200, rng=rng)
     proj = project_surface_points(scene, cameras, part, local, frames=frame)
     seen = proj.visible[0].all(axis=0)
     chosen = []

@@ -7,19 +7,25 @@ where its 3-D position lies more than ``false_mm`` from its true surface point.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import Delaunay
 
+from .._validate import as_rng
 from ..synth import Scene, arm_wave, make_body, triplet_rig, walk
+from ..synth.face import face_cameras, face_model, face_sequence, visible
+from ..synth.marker_video import render_marker_video
 from ..synth.sequence import Sequence, render_sequence, scaled_camera
-from ..tracking.points import Tracks
-from ..tracking.trajectories import Trajectories
+from ..tracking.klt import track_klt
+from ..tracking.points import Tracks, track_points
+from ..tracking.trajectories import Trajectories, trajectories_from_tracks
 
 
-def walk_sequence(seed: int = 2000, *, n_frames: int = 30, scale: float = 0.5,
-                  motion: str = "walk", noise_sigma: float = 2.0, step: int = 4,
-                  surface_every: int = 2, speed: float = 700.0) -> Sequence:
+def walk_sequence(*, seed: int = 2000, n_frames: int = 30, scale: float = 0.5, motion: str = "walk",
+                  noise_sigma: float = 2.0, step: int = 4, surface_every: int = 2,
+                  speed: float = 700.0) -> Sequence:
     """A rendered triplet sequence of the textured body.
 
     ``scale`` shrinks the 768 x 576 images of the rig (0.5: 384 x 288, four times faster to
@@ -29,26 +35,29 @@ def walk_sequence(seed: int = 2000, *, n_frames: int = 30, scale: float = 0.5,
     candidates) on a ``step`` pixel grid of the centre image.
     """
     rng = np.random.default_rng(seed)
-    cams = [scaled_camera(c, scale) for c in triplet_rig(rng, distance=3000.0, baseline=800.0)]
+    cams = [scaled_camera(c, scale) for c in triplet_rig(rng=rng, distance=3000.0, baseline=800.0)]
     if motion == "walk":
-        mot = walk(n_frames, start=(-250.0, 0.0), speed=speed, stride=1.2e3)
+        mot = walk(n_frames=n_frames, start=(-250.0, 0.0), speed=speed, stride=1.2e3)
     elif motion == "arm":
-        mot = arm_wave(n_frames)
+        mot = arm_wave(n_frames=n_frames)
     else:
         raise ValueError(f"motion: expected 'walk' or 'arm', got {motion!r}")
     # the texture band is scaled with the image so it stays a few pixels per wavelength
-    body = make_body(np.random.default_rng(seed + 1), contrast=0.3,
+    body = make_body(rng=np.random.default_rng(seed + 1), contrast=0.3,
                      wavelength=(20.0 / scale, 80.0 / scale))
     frames = range(0, n_frames, surface_every)
-    return render_sequence(Scene(body, mot, None), cams, rng, noise_sigma=noise_sigma,
+    return render_sequence(Scene(body=body, motion=mot, background=None), cams, rng=rng,
+                           noise_sigma=noise_sigma,
                            surface_frames=frames, step=step)
 
 
-def start_points(seq: Sequence, n: int, rng: np.random.Generator, *, frame: int = 0):
+def start_points(seq: Sequence, n: int, *, rng: np.random.Generator | int | None = None,
+                 frame: int = 0):
     """``n`` (or all, if fewer) of frame ``frame``'s visible surface points, spread at random.
 
     Returns ``(xy (K, n, 2), part (n,), local (n, 3))``.
     """
+    rng = as_rng(rng)
     s = seq.surface[frame]
     m = len(s.part)
     pick = np.sort(rng.choice(m, size=min(n, m), replace=False))
@@ -111,8 +120,8 @@ class TrackScore:
         return present & (np.arange(T)[:, None] >= f[None, :])
 
 
-def score_tracks(seq: Sequence, tracks: Tracks, part, local, traj: Trajectories | None = None,
-                 *, false_mm: float = 10.0, false_px: float = 2.0) -> TrackScore:
+def score_tracks(seq: Sequence, tracks: Tracks, part, local, *, traj: Trajectories | None = None,
+                 false_mm: float = 10.0, false_px: float = 2.0) -> TrackScore:
     """Score tracks (and their trajectories) against the generator's truth.
 
     Without trajectories (2-D mode) a track is false from the first frame whose image error
@@ -174,31 +183,26 @@ class Trial:
     local: np.ndarray
 
 
-def run_trial(seq: Sequence, n_points: int, rng: np.random.Generator, *, params=None,
-              density: bool = True, false_mm: float = 10.0, klt: bool = True) -> Trial:
+def run_trial(seq: Sequence, n_points: int, *, rng: np.random.Generator | int | None = None,
+              params=None, density: bool = True, false_mm: float = 10.0, klt: bool = True) -> Trial:
     """Track ``n_points`` of frame 0's surface with LSMTA (with the density check unless
     ``density`` is False) and, if ``klt``, with KLT; score both."""
-    import time
-
-    from ..tracking.klt import track_klt
-    from ..tracking.points import track_points
-    from ..tracking.trajectories import trajectories_from_tracks
-
-    xy0, part0, local0 = start_points(seq, n_points, rng)
+    rng = as_rng(rng)
+    xy0, part0, local0 = start_points(seq, n_points, rng=rng)
     t0 = time.perf_counter()
     tracks = track_points(seq.images, xy0, params=params,
                           new_points=candidates(seq) if density else None)
     seconds = time.perf_counter() - t0
     part, local = track_identity(seq, tracks, part0, local0)
     traj = trajectories_from_tracks(seq.cameras, tracks, seq.fps)
-    score = score_tracks(seq, tracks, part, local, traj, false_mm=false_mm)
+    score = score_tracks(seq, tracks, part, local, traj=traj, false_mm=false_mm)
     peer = peer_traj = peer_score = peer_seconds = None
     if klt:
         t0 = time.perf_counter()
         peer = track_klt(seq.images, xy0)
         peer_seconds = time.perf_counter() - t0
         peer_traj = trajectories_from_tracks(seq.cameras, peer, seq.fps)
-        peer_score = score_tracks(seq, peer, part0, local0, peer_traj, false_mm=false_mm)
+        peer_score = score_tracks(seq, peer, part0, local0, traj=peer_traj, false_mm=false_mm)
     return Trial(sequence=seq, tracks=tracks, traj=traj, score=score, klt=peer,
                  klt_traj=peer_traj, klt_score=peer_score, seconds=seconds,
                  klt_seconds=peer_seconds, part=part, local=local)
@@ -251,7 +255,7 @@ class FaceVideo:
     edges: np.ndarray
 
 
-def face_video(seed: int = 14, *, n_frames: int = 40, dot_amplitude: float = 40.0,
+def face_video(*, seed: int = 14, n_frames: int = 40, dot_amplitude: float = 40.0,
                noise: float = 2.0, hold: float = 12.0) -> FaceVideo:
     """One fixed camera (a camcorder) filming a still head making expressions.
 
@@ -259,16 +263,11 @@ def face_video(seed: int = 14, *, n_frames: int = 40, dot_amplitude: float = 40.
     ``dot_amplitude`` grey levels on a skin texture (the generator's marker video; the
     texture moves with the head only, not with the expressions).
     """
-    from scipy.spatial import Delaunay
-
-    from ..synth.face import face_cameras, face_model, face_sequence, visible
-    from ..synth.marker_video import render_marker_video
-
     rng = np.random.default_rng(seed)
-    seq = face_sequence(face_model(), n_frames, rng, moving=False, hold=hold)
+    seq = face_sequence(face_model(), n_frames, rng=rng, moving=False, hold=hold)
     cam = face_cameras(seq.t[0])[1]
     vis = np.stack([visible(seq.world[f], seq.normals[f], cam.C) for f in range(n_frames)])
-    video = render_marker_video([cam] * n_frames, seq.world, vis, seq.t, rng,
+    video = render_marker_video([cam] * n_frames, seq.world, vis, seq.t, rng=rng,
                                 dot_amplitude=dot_amplitude, noise=noise)
     seen = np.isfinite(video.xy[0]).all(axis=1)
     tri = Delaunay(video.xy[0, seen])

@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._validate import as_array, as_scalar
-from .lsm import GEOMETRIES, RADIOMETRIES, _check_patch
+from .._validate import as_array, as_scalar, check_patch
+from .lsm import GEOMETRIES, RADIOMETRIES
 
 
 def patch_offsets(patch: int) -> np.ndarray:
     """Offsets ``u`` ``(P, 2)`` (x, y) of the pixels of a ``patch x patch`` patch, row by row."""
-    h = _check_patch(patch) // 2
+    h = check_patch(patch) // 2
     gy, gx = np.mgrid[-h:h + 1, -h:h + 1]
     return np.stack([gx.ravel(), gy.ravel()], axis=1).astype(float)
 

@@ -14,8 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .._validate import as_point_pairs
-from .lsm import _check_patch
+from .._validate import as_point_pairs, check_patch
 from .spline import SplineImage, check_image
 
 
@@ -70,7 +69,7 @@ def correlation_search(template, search, template_xy, predicted_xy, *, patch: in
     -------
     CorrelationResult
     """
-    patch = _check_patch(patch)
+    patch = check_patch(patch)
     if isinstance(radius, bool) or int(radius) != radius or radius < 1:
         raise ValueError(f"radius: expected an integer >= 1 (pixels), got {radius}")
     radius = int(radius)

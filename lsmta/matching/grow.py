@@ -37,9 +37,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import as_array
+from .._validate import as_array, check_patch
 from .lsm import METHODS as LSM_METHODS
-from .lsm import LSMThresholds, Status, _check_patch, _check_robust, lsm
+from .lsm import LSMThresholds, Status, _check_robust, lsm
 from .mpgc import _check_constraint, mpgc
 from .spline import SplineImage
 
@@ -160,8 +160,7 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
     max_attempts : int
         How often a node may be tried from different neighbours.
     min_texture : float
-        Nodes whose template patch has a grey-value standard deviation below this are
-        skipped (no texture to match).
+        Nodes whose template patch's grey-value standard deviation is below this are skipped.
     close_holes : bool
         After growing inside the cells, grow into the remaining nodes from every side.
     shift : int
@@ -298,10 +297,10 @@ class _Options:
 
 
 def _options(o: dict) -> _Options:
-    patch = _check_patch(o["patch"])
+    patch = check_patch(o["patch"])
     retry = (patch + 6,) if o["retry_patch"] is None else o["retry_patch"]
-    retry_patches = tuple(_check_patch(p, "retry_patch") for p in np.atleast_1d(retry))
-    robust_patch = patch if o["robust_patch"] is None else _check_patch(o["robust_patch"],
+    retry_patches = tuple(check_patch(p, "retry_patch") for p in np.atleast_1d(retry))
+    robust_patch = patch if o["robust_patch"] is None else check_patch(o["robust_patch"],
                                                                           "robust_patch")
     _check_robust(o["robust"])
     step, shift = o["step"], o["shift"]

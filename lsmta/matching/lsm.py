@@ -82,7 +82,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .._validate import as_array, as_point_pairs
+from .._validate import as_array, as_point_pairs, check_patch
 from . import _solver
 from .spline import PAD, SplineImage
 
@@ -224,12 +224,6 @@ def _check_robust(robust) -> None:
                          f"got {robust!r}")
 
 
-def _check_patch(patch, name: str = "patch") -> int:
-    if isinstance(patch, bool) or int(patch) != patch or patch < 5 or patch % 2 == 0:
-        raise ValueError(f"{name}: expected an odd integer >= 5 (pixels), got {patch}")
-    return int(patch)
-
-
 METHODS = ("forward", "inverse")
 
 
@@ -280,7 +274,7 @@ def _model(patch, geometry, radiometry, method, max_iter, robust, support=None,
         raise ValueError(f"radiometry: expected one of {list(RADIOMETRIES)}, got {radiometry!r}")
     if method not in METHODS:
         raise ValueError(f"method: expected one of {list(METHODS)}, got {method!r}")
-    patch = _check_patch(patch)
+    patch = check_patch(patch)
     _check_robust(robust)
     if max_iter is None:
         max_iter = 40 if robust is None else 100
@@ -291,9 +285,9 @@ def _model(patch, geometry, radiometry, method, max_iter, robust, support=None,
         raise ValueError(f"support: expected a positive grey-level scale or None, got {support!r}")
     if not isinstance(partial, (bool, np.bool_)):
         raise ValueError(f"partial: expected True or False, got {partial!r}")
-    model = _Model(patch, geometry, radiometry, method, int(max_iter),
-                   None if robust is None else float(robust),
-                   None if support is None else float(support), bool(partial))
+    model = _Model(patch=patch, geometry=geometry, radiometry=radiometry, method=method,
+                   max_iter=int(max_iter), robust=None if robust is None else float(robust),
+                   support=None if support is None else float(support), partial=bool(partial))
     if model.max_iter <= model.ramp:
         raise ValueError(f"max_iter: expected more than {model.ramp} iterations with robust, "
                          f"got {max_iter}")

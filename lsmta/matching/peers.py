@@ -22,13 +22,14 @@ without its usual post-filters) and :func:`stereo_bm` (block matching).
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from skimage.registration import optical_flow_ilk, phase_cross_correlation
 
-from .._validate import as_point_pairs
-from .lsm import _check_patch
+from .._validate import as_point_pairs, check_patch
 from .spline import check_image
 
 
@@ -41,7 +42,7 @@ class PeerResult:
 
 
 def _prepare(template, search, template_xy, search_xy, patch, margin):
-    patch = _check_patch(patch)
+    patch = check_patch(patch)
     f = check_image(template, "template")
     g = check_image(search, "search")
     t, s = as_point_pairs(template_xy, search_xy, "template_xy", "search_xy")
@@ -115,8 +116,6 @@ def phase_correlation(template, search, template_xy, search_xy, *, patch: int = 
                       upsample: int = 100) -> PeerResult:
     """scikit-image's phase cross-correlation of the template patch with the search patch
     at the rounded start, refined by ``upsample``-fold matrix-multiply DFT up-sampling."""
-    from skimage.registration import phase_cross_correlation
-
     f, g, t, s, c, h, usable = _prepare(template, search, template_xy, search_xy, patch, 0)
     xy = np.full((len(t), 2), np.nan)
     for i in np.flatnonzero(usable):
@@ -131,8 +130,6 @@ def ilk(template, search, template_xy, search_xy, *, patch: int = 13, margin: in
         num_warp: int = 10) -> PeerResult:
     """scikit-image's iterative Lucas-Kanade optical flow on windows of
     ``patch + 2 * margin`` pixels, with ``radius = patch // 2``, read at the window centre."""
-    from skimage.registration import optical_flow_ilk
-
     f, g, t, s, c, h, usable = _prepare(template, search, template_xy, search_xy, patch, margin)
     xy = np.full((len(t), 2), np.nan)
     r = h + margin
@@ -170,8 +167,6 @@ def sgbm(first, second, cam_first, cam_second, *, depth_range=(1800.0, 3500.0),
     are on, as in :func:`stereo_sgbm`: the speckle filter (window 100, range 2) and the
     left-right check (``disp12MaxDiff = 1``).
     """
-    import time
-
     f_img = check_image(first, "first")
     s_img = check_image(second, "second")
     if f_img.shape != s_img.shape:

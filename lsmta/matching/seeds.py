@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from .._validate import check_patch
 from ..camera import Camera
-from .lsm import _check_patch
 from .spline import SplineImage, check_image
 
 
@@ -89,7 +89,7 @@ def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: 
     K = len(images)
     if K < 2 or len(cameras) != K or not all(isinstance(c, Camera) for c in cameras):
         raise ValueError("cameras: expected one lsmta.camera.Camera per image, at least 2")
-    patch = _check_patch(patch)
+    patch = check_patch(patch)
     near, far = (float(d) for d in depth_range)
     if not 0 < near < far:
         raise ValueError(f"depth_range: expected 0 < near < far (mm), got {depth_range}")
@@ -99,7 +99,7 @@ def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: 
     m8 = None if mask is None else np.asarray(mask, dtype=np.uint8)
     corners = cv2.goodFeaturesToTrack(f8, maxCorners=4 * n_seeds, qualityLevel=0.05,
                                       minDistance=min_distance, mask=m8, blockSize=patch)
-    empty = Seeds(np.zeros((K, 0, 2)), np.zeros(0), np.zeros(0))
+    empty = Seeds(xy=np.zeros((K, 0, 2)), score=np.zeros(0), depth=np.zeros(0))
     if corners is None:
         return empty
     t_xy = corners[:, 0].astype(float)
@@ -184,7 +184,7 @@ def find_disparity_seeds(left, right, *, disparity_range, n_seeds: int = 30, pat
     g = check_image(right, "right")
     if g.shape != f.shape:
         raise ValueError(f"right: expected the shape of left {f.shape}, got {g.shape}")
-    patch = _check_patch(patch)
+    patch = check_patch(patch)
     lo, hi = (int(d) for d in disparity_range)
     if not 0 <= lo < hi:
         raise ValueError(f"disparity_range: expected 0 <= smallest < largest (pixels), got "
@@ -195,7 +195,8 @@ def find_disparity_seeds(left, right, *, disparity_range, n_seeds: int = 30, pat
     m8 = None if mask is None else np.asarray(mask, dtype=np.uint8)
     corners = cv2.goodFeaturesToTrack(f8, maxCorners=4 * n_seeds, qualityLevel=0.05,
                                       minDistance=min_distance, mask=m8, blockSize=patch)
-    empty = Seeds(np.zeros((2, 0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
+    empty = Seeds(xy=np.zeros((2, 0, 2)), score=np.zeros(0), depth=np.zeros(0),
+                  disparity=np.zeros(0))
     if corners is None:
         return empty
     f32, g32 = f.astype(np.float32), g.astype(np.float32)

@@ -95,13 +95,13 @@ class SplineImage:
             return self.image[ij[..., 1], ij[..., 0]]
         return self.sample(pts, gradient=False)
 
-    def inside(self, xy: np.ndarray, margin: float = 0.0) -> np.ndarray:
+    def inside(self, xy: np.ndarray, *, margin: float = 0.0) -> np.ndarray:
         """Boolean mask: points at least ``margin`` pixels inside the pixel-centre grid."""
         H, W = self.shape
         x, y = xy[..., 0], xy[..., 1]
         return (x >= margin) & (x <= W - 1 - margin) & (y >= margin) & (y <= H - 1 - margin)
 
-    def sample(self, xy: np.ndarray, gradient: bool = True):
+    def sample(self, xy: np.ndarray, *, gradient: bool = True):
         """Interpolated values (and gradients) at points ``xy`` ``(..., 2)`` (x, y in pixels).
 
         Points must lie inside the image (``inside(xy)``); outside it the mirror extension

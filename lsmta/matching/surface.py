@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from skimage.exposure import equalize_adapthist
 
 from .._validate import as_array
 from ..camera import Camera
@@ -31,8 +32,6 @@ def enhance_contrast(image, *, clip_limit: float = 0.02, kernel_size: int | None
     Returns a float64 image in [0, 255]; the input is not modified. For poorly textured
     images (skin, plain cloth), as in the paper's Fig. 4.
     """
-    from skimage.exposure import equalize_adapthist
-
     img = check_image(image, "image")
     lo, hi = float(img.min()), float(img.max())
     scaled = (img - lo) / (hi - lo) if hi > lo else np.zeros_like(img)
@@ -129,6 +128,76 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
     -------
     SurfaceResult
     """
+    imgs, cameras, seeds = _checked(images, cameras, seeds_xy, template, max_reprojection)
+    K = len(imgs)
+    if enhance:
+        imgs = [enhance_contrast(im) for im in imgs]
+    if thresholds is None:
+        thresholds = LSMThresholds(max_displacement=float(step))
+    searches = [k for k in range(K) if k != template]
+    geometry = CameraGeometry(cameras, template) if joint else None
+    grown = _grow(imgs, seeds, template, searches, geometry, step=step, patch=patch,
+                  thresholds=thresholds, mask=mask, grow_kwargs=grow_kwargs)
+    t_xy, xy, sig, pos = _tuples(grown, template, searches)
+    ok = np.ones(len(t_xy), dtype=bool)
+    rematched = np.zeros(len(t_xy), dtype=bool)
+    if neighbourhood:
+        checks = [neighbourhood_filter(g, max_position=max_position, max_affine=max_affine,
+                                       statistic=neighbourhood_statistic) for g in grown]
+        # the re-match uses the grower's LSM model (and its robust LSM, where it used one)
+        model = _model_of(grow_kwargs)
+        if joint:
+            ok, rematched = _rematch_joint(imgs, template, searches, pos, checks, xy, sig, t_xy,
+                                           geometry, patch=patch, thresholds=thresholds,
+                                           max_position=max_position, model=model)
+        else:
+            robust = grow_kwargs.get("robust")
+            robust_patch = grow_kwargs.get("robust_patch") or patch
+            for check, p, k in zip(checks, pos, searches):
+                ok &= _rematch_outliers(check, p, imgs[template], imgs[k], t_xy, xy[k], sig[k],
+                                        rematched, patch=patch, thresholds=thresholds,
+                                        max_position=max_position, robust=robust,
+                                        robust_patch=robust_patch, model=model)
+    intersection = triangulate(cameras, xy)
+    if max_reprojection is not None:
+        worst = np.where(np.isnan(intersection.reprojection_error), -np.inf,
+                         intersection.reprojection_error).max(axis=0)
+        ok &= worst <= max_reprojection
+    keep = ok & intersection.valid
+    if voxel is not None:
+        cloud = voxel_filter(np.where(keep[:, None], intersection.points, np.nan), voxel)
+        points = cloud.points
+        points_xy = np.stack([cloud.mean_of(xy[k]) for k in range(K)])
+    else:
+        cloud = None
+        points = intersection.points[keep]
+        points_xy = xy[:, keep]
+    return SurfaceResult(grown=grown, template_xy=t_xy, xy=xy, sigma_xy=sig,
+                         neighbourhood_ok=ok, rematched=rematched, intersection=intersection,
+                         cloud=cloud, points=points, points_xy=points_xy)
+
+
+def _grow(imgs, seeds, template: int, searches, geometry, *, step, patch, thresholds, mask,
+          grow_kwargs) -> list:
+    """Growth into each search image: jointly under the epipolar condition (``geometry``
+    given) or independently, image by image (the paper)."""
+    if geometry is not None:
+        return grow_joint(imgs[template], [imgs[k] for k in searches], seeds[template],
+                          seeds[searches], geometry, step=step, patch=patch,
+                          thresholds=thresholds, mask=mask, **grow_kwargs)
+    return [grow_matches(imgs[template], imgs[k], seeds[template], seeds[k], step=step,
+                         patch=patch, thresholds=thresholds, mask=mask, **grow_kwargs)
+            for k in searches]
+
+
+def _model_of(grow_kwargs: dict) -> dict:
+    """The grower's LSM model, for the re-match."""
+    return {k: grow_kwargs[k] for k in ("geometry", "radiometry", "template_mask", "method",
+                                        "support", "partial") if k in grow_kwargs}
+
+
+def _checked(images, cameras, seeds_xy, template, max_reprojection):
+    """The images (checked, one size), the cameras and the seeds given in every image."""
     images = list(images)
     cameras = list(cameras)
     K = len(images)
@@ -149,30 +218,20 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
     good_seeds = np.isfinite(seeds).all(axis=(0, 2))
     if not good_seeds.any():
         raise ValueError("seeds_xy: no seed is given in all images")
-    seeds = seeds[:, good_seeds]
-    if enhance:
-        imgs = [enhance_contrast(im) for im in imgs]
-    if thresholds is None:
-        thresholds = LSMThresholds(max_displacement=float(step))
-    searches = [k for k in range(K) if k != template]
-    if joint:
-        geometry = CameraGeometry(cameras, template)
-        grown = grow_joint(imgs[template], [imgs[k] for k in searches], seeds[template],
-                           seeds[searches], geometry, step=step, patch=patch,
-                           thresholds=thresholds, mask=mask, **grow_kwargs)
-    else:
-        grown = [grow_matches(imgs[template], imgs[k], seeds[template], seeds[k], step=step,
-                              patch=patch, thresholds=thresholds, mask=mask, **grow_kwargs)
-                 for k in searches]
+    return imgs, cameras, seeds[:, good_seeds]
 
-    # n-tuples: nodes matched in every search image
+
+def _tuples(grown, template: int, searches):
+    """n-tuples: the nodes matched in every search image. Returns their template positions
+    (N, 2), all images' positions and standard deviations (K, N, 2), and each grower's
+    row of every tuple."""
     rows, cols = grown[0].grid_shape
     keys = [g.node_index[:, 0] * cols + g.node_index[:, 1] for g in grown]
     common = keys[0]
     for k in keys[1:]:
         common = np.intersect1d(common, k)
     pos = [np.searchsorted(k, common) for k in keys]       # node keys come sorted
-    N = len(common)
+    K, N = len(searches) + 1, len(common)
     xy = np.zeros((K, N, 2))
     sig = np.zeros((K, N, 2))
     t_xy = grown[0].template_xy[pos[0]]
@@ -180,77 +239,38 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
     for g, p, k in zip(grown, pos, searches):
         xy[k] = g.search_xy[p]
         sig[k] = g.sigma_xy[p]
-    ok = np.ones(N, dtype=bool)
-    rematched = np.zeros(N, dtype=bool)
-    if neighbourhood:
-        checks = [neighbourhood_filter(g, max_position=max_position, max_affine=max_affine,
-                                       statistic=neighbourhood_statistic) for g in grown]
-        rematch = _rematch_joint if joint else _rematch_each
-        ok, rematched = rematch(imgs, template, searches, grown, pos, checks, xy, sig, t_xy,
-                                geometry if joint else None, patch=patch,
-                                thresholds=thresholds, max_position=max_position,
-                                grow_kwargs=grow_kwargs)
-    intersection = triangulate(cameras, xy)
-    if max_reprojection is not None:
-        worst = np.where(np.isnan(intersection.reprojection_error), -np.inf,
-                         intersection.reprojection_error).max(axis=0)
-        ok &= worst <= max_reprojection
-    keep = ok & intersection.valid
-    if voxel is not None:
-        cloud = voxel_filter(np.where(keep[:, None], intersection.points, np.nan), voxel)
-        points = cloud.points
-        points_xy = np.stack([cloud.mean_of(xy[k]) for k in range(K)])
-    else:
-        cloud = None
-        points = intersection.points[keep]
-        points_xy = xy[:, keep]
-    return SurfaceResult(grown=grown, template_xy=t_xy, xy=xy, sigma_xy=sig,
-                         neighbourhood_ok=ok, rematched=rematched, intersection=intersection,
-                         cloud=cloud, points=points, points_xy=points_xy)
+    return t_xy, xy, sig, pos
 
 
-def _model_of(grow_kwargs: dict) -> dict:
-    """The grower's LSM model, for the re-match."""
-    return {k: grow_kwargs[k] for k in ("geometry", "radiometry", "template_mask", "method",
-                                        "support", "partial") if k in grow_kwargs}
+def _rematch_outliers(check, p, template_img, search_img, t_xy, xy_k, sig_k, rematched, *,
+                      patch, thresholds, max_position, robust, robust_patch, model):
+    """Nodes the neighbourhood filter rejects are matched once more from the neighbours'
+    prediction (by robust LSM too where the grower used it and the plain re-match failed);
+    ``xy_k``, ``sig_k`` and ``rematched`` (this function's own arrays) take the re-matches.
+    Returns which tuples pass in this search image."""
+    bad = np.flatnonzero(~check.keep[p] & np.isfinite(check.predicted_xy[p]).all(axis=1))
+    passed = check.keep[p].copy()
+    if not bad.size:
+        return passed
+    start, A0 = check.predicted_xy[p][bad], check.mean_A[p][bad]
+    res = lsm(template_img, search_img, t_xy[bad], start, patch=patch, initial_A=A0,
+              thresholds=thresholds, **model)
+    got, new_xy, new_sig = res.ok, res.xy.copy(), res.sigma_xy.copy()
+    if robust is not None and not got.all():
+        j = np.flatnonzero(~got)
+        res2 = lsm(template_img, search_img, t_xy[bad[j]], start[j], patch=robust_patch,
+                   initial_A=A0[j], robust=robust, thresholds=thresholds, **model)
+        got[j], new_xy[j], new_sig[j] = res2.ok, res2.xy, res2.sigma_xy
+    fixed = got & (np.linalg.norm(new_xy - start, axis=1) <= max_position)
+    xy_k[bad[fixed]] = new_xy[fixed]
+    sig_k[bad[fixed]] = new_sig[fixed]
+    passed[bad[fixed]] = True
+    rematched[bad[fixed]] = True
+    return passed
 
 
-def _rematch_each(imgs, template, searches, grown, pos, checks, xy, sig, t_xy, geometry, *,
-                  patch, thresholds, max_position, grow_kwargs):
-    """The paper's neighbourhood filter, image by image: a node the filter removes is
-    re-matched once from its neighbours' prediction (by robust LSM too, where the grower
-    used it and the plain re-match failed); it passes when the new match stays within
-    ``max_position`` of the prediction. Updates ``xy, sig``; returns (ok, rematched)."""
-    N = len(t_xy)
-    ok = np.ones(N, dtype=bool)
-    rematched = np.zeros(N, dtype=bool)
-    robust = grow_kwargs.get("robust")
-    robust_patch = grow_kwargs.get("robust_patch") or patch
-    model = _model_of(grow_kwargs)
-    for check, p, k in zip(checks, pos, searches):
-        bad = np.flatnonzero(~check.keep[p] & np.isfinite(check.predicted_xy[p]).all(axis=1))
-        pass_k = check.keep[p].copy()
-        if bad.size:
-            start, A0 = check.predicted_xy[p][bad], check.mean_A[p][bad]
-            res = lsm(imgs[template], imgs[k], t_xy[bad], start, patch=patch,
-                      initial_A=A0, thresholds=thresholds, **model)
-            got, new_xy, new_sig = res.ok, res.xy.copy(), res.sigma_xy.copy()
-            if robust is not None and not got.all():
-                j = np.flatnonzero(~got)
-                res2 = lsm(imgs[template], imgs[k], t_xy[bad[j]], start[j], patch=robust_patch,
-                           initial_A=A0[j], robust=robust, thresholds=thresholds, **model)
-                got[j], new_xy[j], new_sig[j] = res2.ok, res2.xy, res2.sigma_xy
-            fixed = got & (np.linalg.norm(new_xy - start, axis=1) <= max_position)
-            xy[k, bad[fixed]] = new_xy[fixed]
-            sig[k, bad[fixed]] = new_sig[fixed]
-            pass_k[bad[fixed]] = True
-            rematched[bad[fixed]] = True
-        ok &= pass_k
-    return ok, rematched
-
-
-def _rematch_joint(imgs, template, searches, grown, pos, checks, xy, sig, t_xy, geometry, *,
-                   patch, thresholds, max_position, grow_kwargs):
+def _rematch_joint(imgs, template, searches, pos, checks, xy, sig, t_xy, geometry, *, patch,
+                   thresholds, max_position, model):
     """The neighbourhood filter for joint matches: a node that fails in any search image is
     re-matched once in all of them jointly (:func:`~lsmta.matching.mpgc.mpgc`), from its
     neighbours' predictions; it passes when every new position stays within
@@ -264,8 +284,7 @@ def _rematch_joint(imgs, template, searches, grown, pos, checks, xy, sig, t_xy, 
     if bad.size:
         t0 = geometry.parameter(t_xy[bad], pred[bad])
         res = mpgc(imgs[template], [imgs[k] for k in searches], t_xy[bad], t0, geometry,
-                   patch=patch, initial_A=A0[bad], thresholds=thresholds,
-                   **_model_of(grow_kwargs))
+                   patch=patch, initial_A=A0[bad], thresholds=thresholds, **model)
         new = res.xy.transpose(1, 0, 2)                                        # (n, K-1, 2)
         fixed = res.ok & (np.linalg.norm(new - pred[bad], axis=2) <= max_position).all(axis=1)
         for j, k in enumerate(searches):

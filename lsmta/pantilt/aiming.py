@@ -22,8 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from .._validate import as_points, as_scalar
-from .fitting import _freeze
+from .._validate import as_points, as_scalar, freeze
 from .model import PanTiltCamera
 
 _MOVES = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
@@ -57,7 +56,7 @@ class Aim:
     evaluations: int
 
     def __post_init__(self):
-        _freeze(self, ("pan", "tilt", "error_px", "reachable", "iterations"))
+        freeze(self, ("pan", "tilt", "error_px", "reachable", "iterations"))
 
     @property
     def settings(self) -> np.ndarray:
@@ -84,7 +83,7 @@ def _centre_error(model, X, pan, tilt):
     return np.where(np.isfinite(e), e, np.inf)
 
 
-def aim(model: PanTiltCamera, X, current=(0.0, 0.0), *, tol_px: float = 0.5,
+def aim(model: PanTiltCamera, X, *, current=(0.0, 0.0), tol_px: float = 0.5,
         step_deg: float | None = None, min_step_deg: float = 1e-4, max_iter: int = 200) -> Aim:
     """The (pan, tilt) that puts each world point at the principal point, by local search.
 
@@ -144,11 +143,11 @@ def aim(model: PanTiltCamera, X, current=(0.0, 0.0), *, tol_px: float = 0.5,
         step[idx[~better]] /= 3.0
         iters[idx] += 1
         active = (err > tol_px) & (step >= min_step_deg) & (iters < max_iter)
-    return Aim(cur[:, 0].copy(), cur[:, 1].copy(), err, err <= tol_px, iters, evaluations)
+    return Aim(pan=cur[:, 0].copy(), tilt=cur[:, 1].copy(), error_px=err, reachable=err <= tol_px,
+               iterations=iters, evaluations=evaluations)
 
 
-def aim_least_squares(model: PanTiltCamera, X, current=(0.0, 0.0), *,
-                      tol_px: float = 0.5) -> Aim:
+def aim_least_squares(model: PanTiltCamera, X, *, current=(0.0, 0.0), tol_px: float = 0.5) -> Aim:
     """The same problem as :func:`aim`, solved per target by ``scipy.optimize.least_squares``
     (trust-region, bounded by the head's range) from ``current``."""
     X, cur = _targets_and_start(model, X, current)
@@ -171,4 +170,5 @@ def aim_least_squares(model: PanTiltCamera, X, current=(0.0, 0.0), *,
         iters[i] = res.nfev
         evaluations += res.nfev + 2 * res.njev  # a forward-difference Jacobian costs two
     err = _centre_error(model, X, out[:, 0], out[:, 1])
-    return Aim(out[:, 0], out[:, 1], err, err <= tol_px, iters, evaluations)
+    return Aim(pan=out[:, 0], tilt=out[:, 1], error_px=err, reachable=err <= tol_px,
+               iterations=iters, evaluations=evaluations)

@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from .._validate import as_array, as_points
+from .._validate import as_array, as_points, freeze
 from ..camera import Camera
 from .model import PanTiltCamera, _image, check_angles, pose_arrays
 
@@ -82,7 +82,7 @@ class Fit:
     nfev: int
 
     def __post_init__(self):
-        _freeze(self, ("params", "std", "covariance", "residuals"))
+        freeze(self, ("params", "std", "covariance", "residuals"))
 
     @property
     def errors(self) -> np.ndarray:
@@ -95,14 +95,6 @@ class Fit:
 
 
 # ---------------------------------------------------------------------- helpers
-def _freeze(obj, names):
-    """Store read-only copies of the named array fields of a frozen dataclass."""
-    for name in names:
-        a = np.array(getattr(obj, name))
-        a.flags.writeable = False
-        object.__setattr__(obj, name, a)
-
-
 def _rot(omega_deg) -> np.ndarray:
     R, _ = cv2.Rodrigues(np.radians(np.asarray(omega_deg, dtype=float)))
     return R
@@ -167,7 +159,7 @@ def project_params(start: Camera, params, kind: str, X, pan, tilt) -> np.ndarray
     return _image(start, np.einsum("nij,nj->ni", R, X - C), "nan")
 
 
-def params_from_model(model: PanTiltCamera, start: Camera | None = None) -> np.ndarray:
+def params_from_model(model: PanTiltCamera, *, start: Camera | None = None) -> np.ndarray:
     """Inverse of :func:`model_from_params` for a general model (14 numbers).
 
     Relies on the sign convention that :class:`PanTiltCamera` enforces (pan axis along the
@@ -280,7 +272,7 @@ def calibrate(camera: Camera, pan, tilt, X, xy, *, kind: str = "general",
         return least_squares(fun, p0, loss=loss, f_scale=f_scale, x_scale="jac", method="trf")
 
     if kind == "general" and start is not None:
-        p0 = params_from_model(start, camera)
+        p0 = params_from_model(start, start=camera)
     else:
         simple = solve(np.r_[np.zeros(3), camera.C], "simple")
         p0 = np.r_[simple.x, np.zeros(8)] if kind == "general" else None
@@ -290,10 +282,11 @@ def calibrate(camera: Camera, pan, tilt, X, xy, *, kind: str = "general",
     cov, std, sigma = _covariance(res, names)
     model = model_from_params(camera, res.x, kind, **limits)
     r = (model._project(X, pan, tilt) - xy)
-    return Fit(model, names, res.x, std, cov, r, sigma, loss, int(res.nfev))
+    return Fit(model=model, names=names, params=res.x, std=std, covariance=cov, residuals=r,
+               sigma_px=sigma, loss=loss, nfev=int(res.nfev))
 
 
-def dlt_camera(X, xy, image_size, name: str = "") -> Camera:
+def dlt_camera(X, xy, image_size, *, name: str = "") -> Camera:
     """A distortion-free camera from the direct linear transform of >= 6 non-coplanar points.
 
     The starting point of :func:`calibrate_intrinsics`; principal distance from the mean of
@@ -363,7 +356,7 @@ def calibrate_intrinsics(X, xy, image_size, *, distortion=("k1", "k2", "p1", "p2
     if 2 * len(X) <= len(names):
         raise ValueError(f"X: expected more than {len(names) // 2} points for {len(names)} "
                          f"parameters, got {len(X)}")
-    start = dlt_camera(X, xy, image_size, name)
+    start = dlt_camera(X, xy, image_size, name=name)
 
     def build(p):
         return start.replace(f=p[0], cx=p[1], cy=p[2], **dict(zip(distortion, p[3:-6])),
@@ -377,7 +370,8 @@ def calibrate_intrinsics(X, xy, image_size, *, distortion=("k1", "k2", "p1", "p2
     res = least_squares(fun, p0, loss=loss, f_scale=f_scale, x_scale="jac")
     cov, std, sigma = _covariance(res, names)
     cam = build(res.x)
-    return Fit(cam, names, res.x, std, cov, cam.project(X) - xy, sigma, loss, int(res.nfev))
+    return Fit(model=cam, names=names, params=res.x, std=std, covariance=cov,
+               residuals=cam.project(X) - xy, sigma_px=sigma, loss=loss, nfev=int(res.nfev))
 
 
 def projection_errors(model: PanTiltCamera, pan, tilt, X, xy) -> np.ndarray:

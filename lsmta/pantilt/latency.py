@@ -29,9 +29,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array, as_points, as_rng, as_scalar
+from .._validate import as_array, as_points, as_rng, as_scalar, freeze
+from ..widearea.kalman import process_noise
 from .aiming import aim
-from .fitting import _freeze
 from .model import PanTiltCamera
 
 
@@ -106,7 +106,7 @@ class TrackingRun:
     estimate_error_mm: np.ndarray
 
     def __post_init__(self):
-        _freeze(self, ("times", "xy", "deviation_px", "in_frame", "settings", "command_times",
+        freeze(self, ("times", "xy", "deviation_px", "in_frame", "settings", "command_times",
                        "commands", "estimate_error_mm"))
 
     @property
@@ -161,7 +161,7 @@ def constant_velocity_filter(times, z, *, sigma: float, accel_density: float):
     for k in range(1, len(z)):
         dt = times[k] - times[k - 1]
         F = np.array([[1.0, dt], [0.0, 1.0]])
-        Q = q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
+        Q = process_noise(dt, q)
         x = F @ x
         cov = F @ cov @ F.T + Q
         gain = cov[:, 0] / (cov[0, 0] + r)
@@ -171,11 +171,11 @@ def constant_velocity_filter(times, z, *, sigma: float, accel_density: float):
     return P, V
 
 
-def simulate_tracking(camera: PanTiltCamera, trajectory, rate: float,
-                      rng: np.random.Generator, *, aim_model: PanTiltCamera | None = None,
-                      motor: Motor = Motor(), control: Control = Control(),
-                      kalman: KalmanCV = KalmanCV(), video_rate: float = 30.0,
-                      start=(0.0, 0.0)) -> TrackingRun:
+def simulate_tracking(camera: PanTiltCamera, trajectory, rate: float, *,
+                      rng: np.random.Generator | int | None = None,
+                      aim_model: PanTiltCamera | None = None, motor: Motor = Motor(),
+                      control: Control = Control(), kalman: KalmanCV = KalmanCV(),
+                      video_rate: float = 30.0, start=(0.0, 0.0)) -> TrackingRun:
     """Simulate the pan-tilt camera following a target (see the module docstring).
 
     Parameters
@@ -187,7 +187,7 @@ def simulate_tracking(camera: PanTiltCamera, trajectory, rate: float,
         four times the video, measurement and command rates is sensible).
     rate : float
         Sampling rate of ``trajectory``, Hz.
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
         For the measurement noise.
     aim_model : PanTiltCamera, optional
         The calibrated model the controller aims with (default: ``camera``).
@@ -222,21 +222,38 @@ def simulate_tracking(camera: PanTiltCamera, trajectory, rate: float,
     start = np.array(as_array(start, "start", shape=(2,)))
     camera.check(start[0], start[1])
     dt = 1.0 / rate
-    n = len(traj)
-    t = np.arange(n) * dt
-
-    def schedule(r):
-        return np.flatnonzero(np.diff(np.floor(t * r + 1e-9), prepend=-1) > 0)
-
+    t = np.arange(len(traj)) * dt
     # 1. wide-area estimate
-    m_idx = schedule(kalman.rate)
+    m_idx = _ticks(t, kalman.rate)
     z = traj[m_idx] + rng.normal(0, kalman.measurement_sigma, (len(m_idx), 3))
     P, V = constant_velocity_filter(t[m_idx], z, sigma=kalman.measurement_sigma,
                                     accel_density=kalman.accel_density)
-    available = t[m_idx] + control.estimate_delay
+    # 2. commands, 3. motor, 4. video
+    c_idx, commands, unreachable = _commands(aim_model, t, P, V,
+                                             t[m_idx] + control.estimate_delay, control, start)
+    frames, settings = _drive_and_film(t, dt, t[c_idx] + motor.latency, commands, motor,
+                                       1.0 / control.command_rate, _ticks(t, video_rate), start)
+    settings = np.clip(settings, [camera.pan_limits[0], camera.tilt_limits[0]],
+                       [camera.pan_limits[1], camera.tilt_limits[1]])
+    xy = camera.project(traj[frames], settings[:, 0], settings[:, 1], behind="nan")
+    dev = np.hypot(xy[:, 0] - camera.camera.cx, xy[:, 1] - camera.camera.cy)
+    return TrackingRun(times=t[frames], xy=xy,
+                       deviation_px=np.where(np.isfinite(dev), dev, np.inf),
+                       in_frame=camera.camera.in_image(xy), settings=settings,
+                       command_times=t[c_idx], commands=commands, unreachable=unreachable,
+                       estimate_error_mm=np.linalg.norm(P - traj[m_idx], axis=1))
 
-    # 2. commands
-    c_idx = schedule(control.command_rate)
+
+def _ticks(t, r: float) -> np.ndarray:
+    """Indices of the simulation steps ``t`` at which a clock of ``r`` Hz ticks."""
+    return np.flatnonzero(np.diff(np.floor(t * r + 1e-9), prepend=-1) > 0)
+
+
+def _commands(aim_model, t, P, V, available, control: Control, start):
+    """At the command rate, once an estimate has arrived: predict the latest estimate
+    ``P + lead V``, damp it, and aim at it from the previous command. Returns the command
+    steps, the commands (pan, tilt degrees) and how many targets were unreachable."""
+    c_idx = _ticks(t, control.command_rate)
     c_idx = c_idx[t[c_idx] >= available[0]]
     commands = np.empty((len(c_idx), 2))
     setting = start.copy()
@@ -246,22 +263,26 @@ def simulate_tracking(camera: PanTiltCamera, trajectory, rate: float,
         j = np.searchsorted(available, t[i], side="right") - 1
         target = P[j] + control.lead * V[j]
         smooth = target if smooth is None else smooth + control.damping * (target - smooth)
-        a = aim(aim_model, smooth[None], setting)
+        a = aim(aim_model, smooth[None], current=setting)
         unreachable += int(not a.reachable[0])
         setting = a.settings[0]
         commands[k] = setting
+    return c_idx, commands, unreachable
 
-    # 3. motor, 4. video
-    period = 1.0 / control.command_rate
-    active_at = t[c_idx] + motor.latency
+
+def _drive_and_film(t, dt: float, active_at, commands, motor: Motor, period: float, video,
+                    start):
+    """The head moves towards each command from its active time on, at a speed that reaches
+    it in one command period but at most the motor's rate; at the video steps its
+    (quantised) setting is recorded. Returns the video steps and the settings."""
     max_rate = np.asarray(motor.max_rate, dtype=float)
     pos = start.copy()
     goal = pos.copy()
     speed = np.zeros(2)
     next_cmd = 0
-    v_idx = set(schedule(video_rate).tolist())
+    v_idx = set(video.tolist())
     frames, settings = [], []
-    for i in range(n):
+    for i in range(len(t)):
         while next_cmd < len(active_at) and active_at[next_cmd] <= t[i] + 1e-12:
             goal = commands[next_cmd]
             speed = np.minimum(np.abs(goal - pos) / period, max_rate)
@@ -270,13 +291,4 @@ def simulate_tracking(camera: PanTiltCamera, trajectory, rate: float,
         if i in v_idx:
             frames.append(i)
             settings.append(np.round(pos / motor.quantum) * motor.quantum)
-    frames = np.array(frames)
-    settings = np.clip(np.array(settings), [camera.pan_limits[0], camera.tilt_limits[0]],
-                       [camera.pan_limits[1], camera.tilt_limits[1]])
-    xy = camera.project(traj[frames], settings[:, 0], settings[:, 1], behind="nan")
-    dev = np.hypot(xy[:, 0] - camera.camera.cx, xy[:, 1] - camera.camera.cy)
-    dev = np.where(np.isfinite(dev), dev, np.inf)
-    in_frame = camera.camera.in_image(xy)
-    est_err = np.linalg.norm(P - traj[m_idx], axis=1)
-    return TrackingRun(t[frames], xy, dev, in_frame, settings, t[c_idx], commands, unreachable,
-                       est_err)
+    return np.array(frames), np.array(settings)

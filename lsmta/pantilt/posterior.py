@@ -12,12 +12,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import emcee
 import numpy as np
 
-from .._validate import as_rng, as_scalar
+from .._validate import as_rng, as_scalar, freeze
 from ..camera import Camera
-from .fitting import Fit, _freeze, _observations, project_params
+from ..mcmc import sample_ensemble
+from .fitting import Fit, _observations, project_params
 
 
 @dataclass(frozen=True, eq=False)
@@ -39,7 +39,7 @@ class Posterior:
     acceptance: float
 
     def __post_init__(self):
-        _freeze(self, ("samples",))
+        freeze(self, ("samples",))
 
     @property
     def mean(self) -> np.ndarray:
@@ -50,9 +50,10 @@ class Posterior:
         return self.samples.std(axis=0, ddof=1)
 
 
-def sample_posterior(fit: Fit, camera: Camera, pan, tilt, X, xy, rng: np.random.Generator, *,
-                     sigma_px: float | None = None, n_walkers: int = 32, n_steps: int = 400,
-                     burn: int = 150, thin: int = 5) -> Posterior:
+def sample_posterior(fit: Fit, camera: Camera, pan, tilt, X, xy, *,
+                     rng: np.random.Generator | int | None = None, sigma_px: float | None = None,
+                     n_walkers: int = 32, n_steps: int = 400, burn: int = 150,
+                     thin: int = 5) -> Posterior:
     """Sample the posterior of a :func:`~lsmta.pantilt.calibrate` fit with emcee.
 
     Parameters
@@ -63,7 +64,7 @@ def sample_posterior(fit: Fit, camera: Camera, pan, tilt, X, xy, rng: np.random.
         The ``camera`` that was passed to :func:`calibrate` (intrinsics, starting pose).
     pan, tilt, X, xy : arrays
         The observations that were passed to :func:`calibrate`.
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
         Seeds the walkers' start and emcee's own generator.
     sigma_px : float, optional
         Image noise per coordinate, pixels (default: the fit's residual ``sigma_px``).
@@ -83,21 +84,12 @@ def sample_posterior(fit: Fit, camera: Camera, pan, tilt, X, xy, rng: np.random.
     pan, tilt, X, xy = _observations(pan, tilt, X, xy, (limits["pan_limits"],
                                                         limits["tilt_limits"]))
     sigma = fit.sigma_px if sigma_px is None else as_scalar(sigma_px, "sigma_px", positive=True)
-    ndim = len(fit.params)
-    if n_walkers < 2 * ndim:
-        raise ValueError(f"n_walkers: expected at least {2 * ndim} (twice the {ndim} "
-                         f"parameters), got {n_walkers}")
-    if not 0 <= burn < n_steps:
-        raise ValueError(f"burn: expected 0 <= burn < n_steps = {n_steps}, got {burn}")
 
     def log_prob(p):
         r = project_params(camera, p, kind, X, pan, tilt) - xy
         chi2 = float(np.sum(r * r))
         return -0.5 * chi2 / sigma**2 if np.isfinite(chi2) else -np.inf
 
-    start = fit.params + 0.1 * fit.std * rng.standard_normal((n_walkers, ndim))
-    sampler = emcee.EnsembleSampler(n_walkers, ndim, log_prob)
-    sampler.random_state = np.random.RandomState(int(rng.integers(2**32))).get_state()
-    sampler.run_mcmc(start, n_steps, progress=False)
-    samples = sampler.get_chain(discard=burn, thin=thin, flat=True)
-    return Posterior(fit.names, samples, float(np.mean(sampler.acceptance_fraction)))
+    chain = sample_ensemble(log_prob, fit.params, 0.1 * fit.std, n_walkers=n_walkers,
+                            n_steps=n_steps, burn=burn, thin=thin, rng=rng)
+    return Posterior(names=fit.names, samples=chain.samples, acceptance=chain.acceptance)

@@ -79,4 +79,5 @@ def global_assignment(model: MarkerModel, observed, *, max_iter: int = 50) -> Gl
     cost, R, t, rows, cols = best
     labels = np.full(len(Q), -1)
     labels[keep[cols]] = rows
-    return GlobalAssignment(labels, R, t, float(cost), time.perf_counter() - t0)
+    return GlobalAssignment(labels=labels, rotation=R, translation=t, mean_distance=float(cost),
+                            seconds=time.perf_counter() - t0)

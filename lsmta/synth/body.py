@@ -99,10 +99,10 @@ class SolidTexture:
     contrast: np.ndarray
 
     @classmethod
-    def random(cls, rng: np.random.Generator, n_parts: int, contrast, *,
+    def random(cls, n_parts: int, contrast, *, rng: np.random.Generator | int | None = None,
                wavelength=(25.0, 120.0), n_waves: int = 24) -> SolidTexture:
         """Draw a texture for ``n_parts`` parts; ``contrast`` is a scalar or ``(n_parts,)``."""
-        as_rng(rng)
+        rng = as_rng(rng)
         lo, hi = (as_scalar(w, "wavelength", positive=True) for w in wavelength)
         if not lo <= hi:
             raise ValueError(f"wavelength: expected (shortest, longest), got {wavelength}")
@@ -161,7 +161,7 @@ class Body:
         except ValueError:
             raise ValueError(f"part: unknown part {name!r}; parts are {self.names}") from None
 
-    def part_poses(self, motion: Motion, frames=None) -> np.ndarray:
+    def part_poses(self, motion: Motion, *, frames=None) -> np.ndarray:
         """World transforms of every part, ``(T, P, 4, 4)``: part frame -> world (mm).
 
         Parameters
@@ -190,14 +190,15 @@ class Body:
                 poses[:, i] = poses[:, part.parent] @ local
         return poses
 
-    def to_world(self, motion: Motion, part, local_points, frames=None) -> np.ndarray:
+    def to_world(self, motion: Motion, part, local_points, *, frames=None) -> np.ndarray:
         """World coordinates ``(T, N, 3)`` of part-local points ``(N, 3)`` on parts ``(N,)``."""
         part = self._part_indices(part, local_points)
         pts = as_array(local_points, "local_points", shape=(None, 3))
-        poses = self.part_poses(motion, frames)[:, part]     # (T, N, 4, 4)
+        poses = self.part_poses(motion, frames=frames)[:, part]     # (T, N, 4, 4)
         return np.einsum("tnij,nj->tni", poses[..., :3, :3], pts) + poses[..., :3, 3]
 
-    def sample_surface(self, rng: np.random.Generator, n_per_part: int = 100, parts=None):
+    def sample_surface(self, *, n_per_part: int = 100, parts=None,
+                       rng: np.random.Generator | int | None = None):
         """Points on the part ellipsoids, in part-local coordinates.
 
         Directions are drawn uniformly on the unit sphere and stretched by the radii (so
@@ -208,7 +209,7 @@ class Body:
         part : (M,) int array
         local_points : (M, 3) array, mm
         """
-        as_rng(rng)
+        rng = as_rng(rng)
         idx = range(len(self.parts)) if parts is None else [
             self.index(p) if isinstance(p, str) else int(p) for p in parts]
         part_ids, points = [], []
@@ -233,13 +234,13 @@ class Body:
         return part
 
 
-def make_body(rng: np.random.Generator, *, contrast=0.3, wavelength=(25.0, 120.0),
-              n_waves: int = 24) -> Body:
+def make_body(*, rng: np.random.Generator | int | None = None, contrast=0.3,
+              wavelength=(25.0, 120.0), n_waves: int = 24) -> Body:
     """The standard adult (about 1.75 m) with a random solid texture.
 
     Parameters
     ----------
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
         Draws the texture.
     contrast : float or mapping
         Texture contrast (relative standard deviation of the albedo); a mapping from part
@@ -251,18 +252,19 @@ def make_body(rng: np.random.Generator, *, contrast=0.3, wavelength=(25.0, 120.0
     n_waves : int
         Sinusoids per part.
     """
+    rng = as_rng(rng)
     index = {}
     parts = []
     for name, parent, joint, centre, radii, albedo in _PARTS:
         index[name] = len(parts)
-        parts.append(Part(name, -1 if parent is None else index[parent], joint, centre, radii,
-                          albedo))
+        parts.append(Part(name=name, parent=-1 if parent is None else index[parent], joint=joint,
+                          centre=centre, radii=radii, albedo=albedo))
     if isinstance(contrast, Mapping):
         unknown = set(contrast) - set(index)
         if unknown:
             raise ValueError(f"contrast: unknown part names {sorted(unknown)}")
         contrast = [contrast.get(p.name, 0.3) for p in parts]
-    texture = SolidTexture.random(rng, len(parts), contrast, wavelength=wavelength,
+    texture = SolidTexture.random(len(parts), contrast, rng=rng, wavelength=wavelength,
                                   n_waves=n_waves)
     return Body(parts=tuple(parts), texture=texture)
 
@@ -344,7 +346,7 @@ def _empty_angles(n_frames: int):
     return names, np.zeros((n_frames, len(names), 3))
 
 
-def walk(n_frames: int = 50, *, fps: float = 25.0, start=(-1300.0, 0.0), heading_deg=0.0,
+def walk(*, n_frames: int = 50, fps: float = 25.0, start=(-1300.0, 0.0), heading_deg=0.0,
          speed: float = 1300.0, stride: float = 1.4e3, phase: float = 0.0) -> Motion:
     """A walk cycle along a straight line across the volume.
 
@@ -394,10 +396,10 @@ def walk(n_frames: int = 50, *, fps: float = 25.0, start=(-1300.0, 0.0), heading
         ang[:, i[f"upper_arm_{side}"], 0] = -0.35 * np.sin(p)
         ang[:, i[f"upper_arm_{side}"], 1] = -sign * 0.12
         ang[:, i[f"forearm_{side}"], 0] = 0.35 + 0.2 * (0.5 - 0.5 * np.sin(p))
-    return Motion("walk", fps, root, ang, names)
+    return Motion(name="walk", fps=fps, root_position=root, joint_angles=ang, part_names=names)
 
 
-def arm_wave(n_frames: int = 50, *, fps: float = 25.0, position=(0.0, 0.0),
+def arm_wave(*, n_frames: int = 50, fps: float = 25.0, position=(0.0, 0.0),
              heading_deg: float = -90.0, wave_hz: float = 0.8) -> Motion:
     """A seated person, facing the rig, raising and waving the right arm.
 
@@ -443,7 +445,7 @@ def arm_wave(n_frames: int = 50, *, fps: float = 25.0, position=(0.0, 0.0),
     ang[:, i["upper_arm_l"], 1] = 0.1
     ang[:, i["forearm_l"], 0] = 1.1
     ang[:, i["head"], 2] = 0.15 * np.sin(2 * np.pi * 0.3 * t)
-    return Motion("arm_wave", fps, root, ang, names)
+    return Motion(name="arm_wave", fps=fps, root_position=root, joint_angles=ang, part_names=names)
 
 
 def inside_parts(body: Body, poses, points, *, exclude=None) -> np.ndarray:
@@ -467,7 +469,8 @@ def inside_parts(body: Body, poses, points, *, exclude=None) -> np.ndarray:
     return out
 
 
-def surface_samples(body: Body, motion: Motion, frame: int, rng: np.random.Generator, *,
+def surface_samples(body: Body, motion: Motion, frame: int, *,
+                    rng: np.random.Generator | int | None = None,
                     parts=("upper_arm_r", "forearm_r", "hand_r"), n: int = 1500,
                     noise_mm: float = 0.0, outlier_share: float = 0.0,
                     outlier_range_mm: float = 150.0, view_from=None):
@@ -488,13 +491,13 @@ def surface_samples(body: Body, motion: Motion, frame: int, rng: np.random.Gener
     part : (n,) int array
         Part of each sample (-1 for outliers).
     """
-    as_rng(rng)
+    rng = as_rng(rng)
     noise = as_scalar(noise_mm, "noise_mm", nonnegative=True)
     share = as_scalar(outlier_share, "outlier_share", nonnegative=True)
     if share >= 1:
         raise ValueError(f"outlier_share: expected a value in [0, 1), got {share}")
-    poses = body.part_poses(motion, frame)[0]
-    part, local = body.sample_surface(rng, 4 * n, parts=parts)
+    poses = body.part_poses(motion, frames=frame)[0]
+    part, local = body.sample_surface(n_per_part=4 * n, rng=rng, parts=parts)
     world = np.einsum("nij,nj->ni", poses[part, :3, :3], local) + poses[part, :3, 3]
     keep = ~inside_parts(body, poses, world, exclude=part)
     if view_from is not None:

@@ -60,8 +60,8 @@ def _walk(rng, n, center, half_size, step):
     return out
 
 
-def bar_track(rng, n: int = 150, *, length: float = 800.0, center=(0.0, 0.0, 950.0),
-              half_size=(1000.0, 700.0, 500.0), step: float = 150.0,
+def bar_track(*, n: int = 150, rng: np.random.Generator | int | None = None, length: float = 800.0,
+              center=(0.0, 0.0, 950.0), half_size=(1000.0, 700.0, 500.0), step: float = 150.0,
               max_azimuth_deg: float = 45.0, max_elevation_deg: float = 75.0) -> BarTrack:
     """A reference bar moved by hand through the triplet volume.
 
@@ -92,11 +92,12 @@ def bar_track(rng, n: int = 150, *, length: float = 800.0, center=(0.0, 0.0, 950
             ve = -ve
     a, e = np.radians(az), np.radians(el)
     d = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=1)
-    return BarTrack(mid - 0.5 * length * d, mid + 0.5 * length * d, length)
+    return BarTrack(A=mid - 0.5 * length * d, B=mid + 0.5 * length * d, length=length)
 
 
-def led_path(rng, n: int = 300, *, center=(0.0, 0.0, 1100.0),
-             half_size=(2600.0, 2600.0, 800.0), step: float = 120.0) -> np.ndarray:
+def led_path(*, n: int = 300, rng: np.random.Generator | int | None = None,
+             center=(0.0, 0.0, 1100.0), half_size=(2600.0, 2600.0, 800.0),
+             step: float = 120.0) -> np.ndarray:
     """An LED carried through the room: ``(n, 3)`` positions, mm (smooth random walk)."""
     rng = as_rng(rng)
     if int(n) != n or n < 1:
@@ -105,7 +106,8 @@ def led_path(rng, n: int = 300, *, center=(0.0, 0.0, 1100.0),
                  as_vector(half_size, "half_size", 3), step)
 
 
-def project_observations(cameras, points, rng=None, *, sigma_px: float = 0.0) -> np.ndarray:
+def project_observations(cameras, points, *, rng: np.random.Generator | int | None = None,
+                         sigma_px: float = 0.0) -> np.ndarray:
     """``(K, N, 2)`` projections of ``points`` ``(N, 3)`` into K cameras plus Gaussian
     noise of ``sigma_px`` per coordinate; NaN where outside the image or behind."""
     out = []
@@ -118,7 +120,8 @@ def project_observations(cameras, points, rng=None, *, sigma_px: float = 0.0) ->
     return np.stack(out)
 
 
-def render_bar_images(camera: Camera, track: BarTrack, rng, *, dot_sigma: float = 1.6,
+def render_bar_images(camera: Camera, track: BarTrack, *,
+                      rng: np.random.Generator | int | None = None, dot_sigma: float = 1.6,
                       amplitude: float = 180.0, background: float = 25.0,
                       noise: float = 2.0) -> np.ndarray:
     """``(T, H, W)`` uint8 images of the two retro-reflective bar targets in one camera.
@@ -157,8 +160,8 @@ def render_bar_images(camera: Camera, track: BarTrack, rng, *, dot_sigma: float 
     return images
 
 
-def poor_guess(cameras, rng, *, pose_mm: float = 150.0, pose_deg: float = 3.0,
-               f_rel: float = 0.05) -> list[Camera]:
+def poor_guess(cameras, *, rng: np.random.Generator | int | None = None, pose_mm: float = 150.0,
+               pose_deg: float = 3.0, f_rel: float = 0.05) -> list[Camera]:
     """A tape-measured rig: every camera's centre off by ``pose_mm`` (per axis, Gaussian),
     its attitude by ``pose_deg`` per axis, its principal distance by ``f_rel`` (relative),
     the principal point at the image centre and no lens distortion."""

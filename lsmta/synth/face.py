@@ -174,11 +174,13 @@ def face_model() -> FaceModel:
     modes[5, :, 0] = 8 * gm
     modes[5, :, 2] = -1.5 * gm * np.tanh(x / 15)
     modes[:, rigid] = 0.0
-    return FaceModel(tuple(labels), tuple(groups), neutral, normals, modes, MODES, rigid)
+    return FaceModel(labels=tuple(labels), groups=tuple(groups), neutral=neutral, normals=normals,
+                     modes=modes, mode_names=MODES, rigid=rigid)
 
 
-def expression_weights(n_frames: int, rng: np.random.Generator, *, hold: float = 25.0,
-                       activity: float = 0.5, modes: int = len(MODES)) -> np.ndarray:
+def expression_weights(n_frames: int, *, rng: np.random.Generator | int | None = None,
+                       hold: float = 25.0, activity: float = 0.5,
+                       modes: int = len(MODES)) -> np.ndarray:
     """Smooth, combined expression weights in [0, 1].
 
     Each mode gets knots every ``hold`` frames on average; a knot is 0 with probability
@@ -208,9 +210,9 @@ def expression_weights(n_frames: int, rng: np.random.Generator, *, hold: float =
     return out
 
 
-def head_motion(n_frames: int, rng: np.random.Generator, *, travel: float = 2000.0,
-                height: float = 1650.0, yaw_deg: float = 50.0, pitch_deg: float = 12.0,
-                roll_deg: float = 8.0):
+def head_motion(n_frames: int, *, rng: np.random.Generator | int | None = None,
+                travel: float = 2000.0, height: float = 1650.0, yaw_deg: float = 50.0,
+                pitch_deg: float = 12.0, roll_deg: float = 8.0):
     """Rigid head motion over a room-scale path.
 
     The head walks ``travel`` mm along X (with a gentle sway in Y) at ``height`` mm,
@@ -269,22 +271,22 @@ class FaceSequence:
     t: np.ndarray
 
 
-def face_sequence(model: FaceModel, n_frames: int, rng: np.random.Generator, *,
+def face_sequence(model: FaceModel, n_frames: int, *, rng: np.random.Generator | int | None = None,
                   moving: bool = True, **expression_kw) -> FaceSequence:
     """Expressions (:func:`expression_weights`) on the face, with :func:`head_motion` if
     ``moving`` else a still head facing the cameras at the room's centre."""
     rng = as_rng(rng)
-    w = expression_weights(n_frames, rng, **expression_kw)
+    w = expression_weights(n_frames, rng=rng, **expression_kw)
     head = model.shapes(w)
     if moving:
-        R, t = head_motion(n_frames, rng)
+        R, t = head_motion(n_frames, rng=rng)
     else:
         base = np.stack([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]], axis=1)
         R = np.broadcast_to(base, (n_frames, 3, 3)).copy()
         t = np.tile([0.0, 0.0, 1650.0], (n_frames, 1))
     world = np.einsum("tij,tmj->tmi", R, head) + t[:, None]
     normals = np.einsum("tij,mj->tmi", R, model.normals)
-    return FaceSequence(head, world, normals, w, R, t)
+    return FaceSequence(head=head, world=world, normals=normals, weights=w, R=R, t=t)
 
 
 def face_cameras(target, *, positions=None, f: float = 2400.0, width: int = 640,
@@ -323,8 +325,8 @@ def visible(points, normals, centre, *, min_cos: float = 0.3) -> np.ndarray:
     return (v * n).sum(axis=-1) > min_cos
 
 
-def occlusion_schedule(n_frames: int, n_markers: int, start: int, end: int,
-                       rng: np.random.Generator) -> np.ndarray:
+def occlusion_schedule(n_frames: int, n_markers: int, start: int, end: int, *,
+                       rng: np.random.Generator | int | None = None) -> np.ndarray:
     """Markers removed at will: ``start`` visible at the first frame falling linearly to
     ``end`` at the last; markers disappear in a random order and stay hidden.
 

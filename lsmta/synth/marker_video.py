@@ -42,8 +42,8 @@ class MarkerVideo:
     blurred: np.ndarray
 
 
-def skin_texture(shape, rng, *, scale: float = 4.0, mean: float = 105.0,
-                 contrast: float = 6.0) -> np.ndarray:
+def skin_texture(shape, *, rng: np.random.Generator | int | None = None, scale: float = 4.0,
+                 mean: float = 105.0, contrast: float = 6.0) -> np.ndarray:
     """A smooth random grey texture ``shape`` (rows, cols), float32: white noise blurred
     with a Gaussian of ``scale`` px, normalised to ``mean`` +- ``contrast`` (std)."""
     rng = as_rng(rng)
@@ -66,7 +66,8 @@ def _line_kernel(dx: float, dy: float, length: float) -> np.ndarray:
     return k / k.sum()
 
 
-def render_marker_video(cameras, points, visible, anchor, rng, *, dot_sigma: float = 1.3,
+def render_marker_video(cameras, points, visible, anchor, *,
+                        rng: np.random.Generator | int | None = None, dot_sigma: float = 1.3,
                         dot_amplitude: float = 110.0, noise: float = 2.0, blur_frames=(),
                         blur_length: float = 9.0, texture=None) -> MarkerVideo:
     """Render one camera's view of markers over ``T`` frames.
@@ -82,7 +83,7 @@ def render_marker_video(cameras, points, visible, anchor, rng, *, dot_sigma: flo
         Markers drawn in each frame (e.g. :func:`lsmta.synth.face.visible`).
     anchor : (T, 3) array
         World point the skin texture moves with (e.g. the head position).
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
         Texture and image noise.
     dot_sigma, dot_amplitude : float
         Gaussian dot radius (px) and peak brightness added to the texture (grey levels).
@@ -110,7 +111,7 @@ def render_marker_video(cameras, points, visible, anchor, rng, *, dot_sigma: flo
         raise ValueError("cameras: expected one image size for all frames")
     T, M = pts.shape[:2]
     if texture is None:
-        texture = skin_texture((2 * H, 2 * W), rng)
+        texture = skin_texture((2 * H, 2 * W), rng=rng)
     texture = np.asarray(texture, dtype=np.float32)
     blur = np.zeros(T, bool)
     blur[np.asarray(blur_frames, dtype=int)] = True
@@ -150,10 +151,10 @@ def render_marker_video(cameras, points, visible, anchor, rng, *, dot_sigma: flo
         if noise > 0:
             img = img + np.float32(noise) * rng.standard_normal(img.shape, dtype=np.float32)
         images[f] = np.clip(np.round(img), 0, 255).astype(np.uint8)
-    return MarkerVideo(images, xy, anchor_xy, blur)
+    return MarkerVideo(images=images, xy=xy, anchor_xy=anchor_xy, blurred=blur)
 
 
-def shaken(camera: Camera, rng, deg: float) -> Camera:
+def shaken(camera: Camera, deg: float, *, rng: np.random.Generator | int | None = None) -> Camera:
     """``camera`` rotated about its centre by a random small rotation (``deg`` per axis,
     Gaussian): pan-tilt jitter between frames."""
     rng = as_rng(rng)

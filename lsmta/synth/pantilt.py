@@ -90,7 +90,7 @@ def _unit_in_plane(rng, e1, e2):
     return np.cos(a) * np.asarray(e1, float) + np.sin(a) * np.asarray(e2, float)
 
 
-def pantilt_head(rng: np.random.Generator | None = None, *, misalignment: float = 1.0,
+def pantilt_head(*, rng: np.random.Generator | int | None = None, misalignment: float = 1.0,
                  offset_mm: float = 40.0, axis_tilt_deg: float = 2.0,
                  position=(0.0, -3000.0, 1500.0), look_at=(0.0, 0.0, 1000.0),
                  f: float = PANTILT_F_PX, name: str = "pantilt") -> PanTiltCamera:
@@ -98,7 +98,7 @@ def pantilt_head(rng: np.random.Generator | None = None, *, misalignment: float 
 
     Parameters
     ----------
-    rng : numpy.random.Generator, optional
+    rng : numpy.random.Generator, int or None
         Draws the directions of the axis offsets and tilts; ``None`` gives a fixed,
         typical head (offsets forward/down, tilts about the camera's z and y axes).
     misalignment : float
@@ -113,7 +113,7 @@ def pantilt_head(rng: np.random.Generator | None = None, *, misalignment: float 
         Principal distance, pixels (image 640 x 480, mild barrel distortion).
     """
     if rng is not None:
-        as_rng(rng)
+        rng = as_rng(rng)
     misalignment = as_scalar(misalignment, "misalignment", nonnegative=True)
     offset = as_scalar(offset_mm, "offset_mm", nonnegative=True) * misalignment
     tilt = np.radians(as_scalar(axis_tilt_deg, "axis_tilt_deg", nonnegative=True)) * misalignment
@@ -141,7 +141,7 @@ def pantilt_head(rng: np.random.Generator | None = None, *, misalignment: float 
     )
 
 
-def observe(head: PanTiltCamera, pan, tilt, rng: np.random.Generator, *,
+def observe(head: PanTiltCamera, pan, tilt, *, rng: np.random.Generator | int | None = None,
             image_sigma: float = 8.0, world_sigma: float = 25.0, depth=(1500.0, 4500.0),
             margin: float = 0.05) -> PanTiltData:
     """One observation per setting: a world point seen at a random image position.
@@ -168,46 +168,50 @@ def observe(head: PanTiltCamera, pan, tilt, rng: np.random.Generator, *,
     X_true = C + d_world * rng.uniform(depth[0], depth[1], (n, 1))
     X = X_true + rng.normal(0, as_scalar(world_sigma, "world_sigma", nonnegative=True), (n, 3))
     xy = xy_true + rng.normal(0, as_scalar(image_sigma, "image_sigma", nonnegative=True), (n, 2))
-    return PanTiltData(pan, tilt, X, xy, X_true, xy_true)
+    return PanTiltData(pan=pan, tilt=tilt, X=X, xy=xy, X_true=X_true, xy_true=xy_true)
 
 
-def calibration_sweeps(head: PanTiltCamera, rng: np.random.Generator, *,
+def calibration_sweeps(head: PanTiltCamera, *, rng: np.random.Generator | int | None = None,
                        points_per_setting: int = 20, pans=tuple(range(-50, 51, 10)),
                        tilts=tuple(range(-20, 16, 5)), **noise) -> PanTiltData:
     """The thesis's calibration data: ``points_per_setting`` points at each pan of ``pans``
     (tilt 0) and each tilt of ``tilts`` (pan 0); the home setting appears in both sweeps.
     ``noise`` goes to :func:`observe`."""
+    rng = as_rng(rng)
     pans = np.asarray(pans, dtype=float)
     tilts = np.asarray(tilts, dtype=float)
     k = int(points_per_setting)
     pan = np.r_[np.repeat(pans, k), np.zeros(len(tilts) * k)]
     tilt = np.r_[np.zeros(len(pans) * k), np.repeat(tilts, k)]
-    return observe(head, pan, tilt, rng, **noise)
+    return observe(head, pan, tilt, rng=rng, **noise)
 
 
-def evaluation_grid(head: PanTiltCamera, rng: np.random.Generator, *, n_pan: int = 19,
-                    n_tilt: int = 19, **noise) -> PanTiltData:
+def evaluation_grid(head: PanTiltCamera, *, rng: np.random.Generator | int | None = None,
+                    n_pan: int = 19, n_tilt: int = 19, **noise) -> PanTiltData:
     """``n_pan x n_tilt`` settings (19 x 19 = 361, as the thesis's evaluation set) evenly over
     the head's full range, one point each; ``noise`` goes to :func:`observe`."""
+    rng = as_rng(rng)
     pans = np.linspace(*head.pan_limits, n_pan)
     tilts = np.linspace(*head.tilt_limits, n_tilt)
     pan, tilt = (a.ravel() for a in np.meshgrid(pans, tilts))
-    return observe(head, pan, tilt, rng, **noise)
+    return observe(head, pan, tilt, rng=rng, **noise)
 
 
-def intrinsic_target(head: PanTiltCamera, rng: np.random.Generator, *, n: int = 200,
-                     image_sigma: float = 0.3, world_sigma: float = 0.1,
+def intrinsic_target(head: PanTiltCamera, *, rng: np.random.Generator | int | None = None,
+                     n: int = 200, image_sigma: float = 0.3, world_sigma: float = 0.1,
                      depth=(2000.0, 3500.0)) -> PanTiltData:
     """A precisely known 3-D target seen at home, for the intrinsics: ``n`` points spread
     over the image and ``depth`` (mm), measured to ``world_sigma`` mm and detected to
     ``image_sigma`` pixels (a printed target, not the tracked feature)."""
-    return observe(head, np.zeros(n), np.zeros(n), rng, image_sigma=image_sigma,
+    rng = as_rng(rng)
+    return observe(head, np.zeros(n), np.zeros(n), rng=rng, image_sigma=image_sigma,
                    world_sigma=world_sigma, depth=depth, margin=0.02)
 
 
-def side_to_side(duration: float = 30.0, rate: float = 240.0, *, centre=(0.0, 0.0, 1000.0),
+def side_to_side(*, duration: float = 30.0, rate: float = 240.0,
+                 rng: np.random.Generator | int | None = None, centre=(0.0, 0.0, 1000.0),
                  amplitude: float = 600.0, period: float = 3.0, reversal: float = 0.5,
-                 rng: np.random.Generator | None = None, period_jitter: float = 0.0) -> np.ndarray:
+                 period_jitter: float = 0.0) -> np.ndarray:
     """A target moved by hand from side to side along X: ``(T, 3)`` positions (mm) at ``rate``.
 
     Each half period the target sweeps ``2 amplitude`` mm, at constant speed

@@ -37,10 +37,10 @@ class PlanarTexture:
     amplitude: float
 
     @classmethod
-    def random(cls, rng: np.random.Generator, *, amplitude: float = 30.0, mean: float = 128.0,
-               wavelength=(4.0, 24.0), n_waves: int = 40) -> PlanarTexture:
+    def random(cls, *, rng: np.random.Generator | int | None = None, amplitude: float = 30.0,
+               mean: float = 128.0, wavelength=(4.0, 24.0), n_waves: int = 40) -> PlanarTexture:
         """Random directions, log-uniform wavelengths (pixels) and phases."""
-        as_rng(rng)
+        rng = as_rng(rng)
         lo, hi = (as_scalar(w, "wavelength", positive=True) for w in wavelength)
         d = rng.normal(size=(n_waves, 2))
         d /= np.linalg.norm(d, axis=1, keepdims=True)
@@ -97,10 +97,10 @@ class WarpedPair:
     texture: PlanarTexture
     supersample: int
 
-    def noisy(self, rng: np.random.Generator, noise_sigma: float, *,
+    def noisy(self, noise_sigma: float, *, rng: np.random.Generator | int | None = None,
               quantise: bool = True) -> WarpedPair:
         """The same pair with fresh Gaussian noise in both images (and 8-bit rounding)."""
-        as_rng(rng)
+        rng = as_rng(rng)
         sigma = as_scalar(noise_sigma, "noise_sigma", nonnegative=True)
         images = []
         for img in (self.clean_template, self.clean_search_image):
@@ -125,7 +125,7 @@ class WarpedPair:
         u = as_array(template_xy, "template_xy", shape=(None, 2))
         return self.c + u @ self.A.T
 
-    def clean_search(self, xy, gradient: bool = False):
+    def clean_search(self, xy, *, gradient: bool = False):
         """The noise-free search image as a continuous function of ``xy`` ``(..., 2)``.
 
         It is the pixel average of the warped texture, so at pixel centres it equals the
@@ -166,15 +166,16 @@ def _render(fn, shape, s):
     return acc / (s * s)
 
 
-def warped_pair(rng: np.random.Generator, shape=(256, 256), *, A=((1.0, 0.0), (0.0, 1.0)),
-                c=(0.0, 0.0), r0: float = 0.0, r1: float = 1.0, noise_sigma: float = 0.0,
-                amplitude: float = 30.0, wavelength=(4.0, 24.0), supersample: int = 4,
-                quantise: bool = True, texture: PlanarTexture | None = None) -> WarpedPair:
+def warped_pair(*, shape=(256, 256), rng: np.random.Generator | int | None = None,
+                A=((1.0, 0.0), (0.0, 1.0)), c=(0.0, 0.0), r0: float = 0.0, r1: float = 1.0,
+                noise_sigma: float = 0.0, amplitude: float = 30.0, wavelength=(4.0, 24.0),
+                supersample: int = 4, quantise: bool = True,
+                texture: PlanarTexture | None = None) -> WarpedPair:
     """Make a template and a search image of one random texture under a known warp.
 
     Parameters
     ----------
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
         Draws the texture (unless given) and the noise.
     shape : (int, int)
         Image size (H, W), both images.
@@ -195,19 +196,20 @@ def warped_pair(rng: np.random.Generator, shape=(256, 256), *, A=((1.0, 0.0), (0
     quantise : bool
         Round to uint8 (clipping to 0..255).
     """
-    as_rng(rng)
+    rng = as_rng(rng)
     A = as_array(A, "A", shape=(2, 2))
     if np.linalg.det(A) <= 0:
         raise ValueError("A: expected an orientation-preserving warp (det(A) > 0)")
     c = as_array(c, "c", shape=(2,))
     r1 = as_scalar(r1, "r1", positive=True)
     noise_sigma = as_scalar(noise_sigma, "noise_sigma", nonnegative=True)
-    tex = texture if texture is not None else PlanarTexture.random(
-        rng, amplitude=amplitude, wavelength=wavelength)
-    pair = WarpedPair(np.empty(0), np.empty(0), np.empty(0), np.empty(0), A, c, float(r0), r1,
-                      0.0, tex, int(supersample))
+    tex = texture if texture is not None else PlanarTexture.random(rng=rng, amplitude=amplitude,
+                                                                   wavelength=wavelength)
+    pair = WarpedPair(template=np.empty(0), search=np.empty(0), clean_template=np.empty(0),
+                      clean_search_image=np.empty(0), A=A, c=c, r0=float(r0), r1=r1,
+                      noise_sigma=0.0, texture=tex, supersample=int(supersample))
     template = _render(lambda x, y: tex(x, y), shape, pair.supersample)
     yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
     search = pair.clean_search(np.stack([xx, yy], axis=-1))
     pair = replace(pair, clean_template=template, clean_search_image=search)
-    return pair.noisy(rng, noise_sigma, quantise=quantise)
+    return pair.noisy(noise_sigma, rng=rng, quantise=quantise)

@@ -41,13 +41,14 @@ class Background:
     texture: SolidTexture
 
 
-def make_background(rng: np.random.Generator, *, wall_y: float = 2500.0, floor: bool = True,
-                    albedo: float = 0.45, contrast: float = 0.15,
+def make_background(*, rng: np.random.Generator | int | None = None, wall_y: float = 2500.0,
+                    floor: bool = True, albedo: float = 0.45, contrast: float = 0.15,
                     wavelength=(80.0, 600.0)) -> Background:
     """A wall behind the subject and a floor, with their own solid texture (world frame)."""
-    texture = SolidTexture.random(rng, 1, contrast, wavelength=wavelength, n_waves=24)
-    return Background(as_scalar(wall_y, "wall_y"), bool(floor),
-                      as_scalar(albedo, "albedo", nonnegative=True), texture)
+    rng = as_rng(rng)
+    texture = SolidTexture.random(1, contrast, rng=rng, wavelength=wavelength, n_waves=24)
+    return Background(wall_y=as_scalar(wall_y, "wall_y"), floor=bool(floor),
+                      albedo=as_scalar(albedo, "albedo", nonnegative=True), texture=texture)
 
 
 @dataclass(frozen=True, eq=False)
@@ -195,12 +196,12 @@ class Renderer:
             cam = self.cameras[k]
             dirs = entry.get("dirs")
             if dirs is None:
-                _, dirs = cam.rays(cam.pixel_grid(self.supersample).reshape(-1, 2))
+                _, dirs = cam.rays(cam.pixel_grid(supersample=self.supersample).reshape(-1, 2))
             t_bg, grey_bg = _background_hits(self.scene, cam.C, dirs)
             self._cache[k] = {"dirs": dirs, "t_bg": t_bg, "grey_bg": grey_bg}
         return self._cache[k]
 
-    def render(self, frame: int, rng: np.random.Generator | None = None, *,
+    def render(self, frame: int, *, rng: np.random.Generator | int | None = None,
                noise_sigma: float | None = None) -> RenderedFrame:
         """Render one frame in every camera.
 
@@ -208,7 +209,7 @@ class Renderer:
         ----------
         frame : int
             Frame index of the scene's motion.
-        rng : numpy.random.Generator, optional
+        rng : numpy.random.Generator, int or None
             Needed when the noise is > 0: draws the image noise.
         noise_sigma : float, optional
             Noise for this frame only (default: the renderer's ``noise_sigma``).
@@ -217,13 +218,14 @@ class Renderer:
             noise_sigma, "noise_sigma", nonnegative=True)
         if sigma > 0:
             if rng is None:
-                raise ValueError("rng: a numpy.random.Generator is needed when noise_sigma > 0")
-            as_rng(rng)
+                raise ValueError("rng: a numpy.random.Generator or a seed is needed when "
+                                 "noise_sigma > 0")
+            rng = as_rng(rng)
         if np.ndim(frame) != 0:
             raise ValueError(f"frame: expected one frame index, got {frame!r}; render frames "
                              "one at a time")
         frame = int(self.scene.motion._frames(frame)[0])
-        poses = self.scene.body.part_poses(self.scene.motion, frame)[0]
+        poses = self.scene.body.part_poses(self.scene.motion, frames=frame)[0]
         s = self.supersample
         out = {key: [] for key in ("images", "part_id", "local_xyz", "world_xyz", "depth")}
         for k, cam in enumerate(self.cameras):
@@ -381,7 +383,7 @@ def _body_grey(scene: Scene, poses, hit: BodyHits, sel: np.ndarray) -> np.ndarra
     return 255.0 * np.clip(albedo * tex * shade, 0.0, 1.0)
 
 
-def project_surface_points(scene: Scene, cameras, part, local_points, frames=None, *,
+def project_surface_points(scene: Scene, cameras, part, local_points, *, frames=None,
                            tol: float = 1e-3) -> SurfaceProjection:
     """True image positions and visibility of body-local surface points.
 
@@ -411,8 +413,8 @@ def project_surface_points(scene: Scene, cameras, part, local_points, frames=Non
     pts = as_array(local_points, "local_points", shape=(None, 3))
     part_idx = body._part_indices(part, pts)
     frames = motion._frames(frames)
-    world = body.to_world(motion, part_idx, pts, frames)         # (T, N, 3)
-    poses_all = body.part_poses(motion, frames)
+    world = body.to_world(motion, part_idx, pts, frames=frames)         # (T, N, 3)
+    poses_all = body.part_poses(motion, frames=frames)
     T, N = world.shape[:2]
     xy = np.full((T, len(cameras), N, 2), np.nan)
     visible = np.zeros((T, len(cameras), N), dtype=bool)

@@ -39,7 +39,7 @@ def _perturbed(cam: Camera, rng: np.random.Generator | None, *, pose_mm: float,
     return cam.replace(**changes)
 
 
-def triplet_rig(rng: np.random.Generator | None = None, *, distance: float = 4500.0,
+def triplet_rig(*, rng: np.random.Generator | int | None = None, distance: float = 4500.0,
                 baseline: float = 1200.0, camera_height: float = 1100.0,
                 target_height: float = 950.0, width: int = 768,
                 height_px: int = 576) -> list[Camera]:
@@ -53,7 +53,7 @@ def triplet_rig(rng: np.random.Generator | None = None, *, distance: float = 450
 
     Parameters
     ----------
-    rng : numpy.random.Generator, optional
+    rng : numpy.random.Generator, int or None
         If given, every camera's pose (standard deviations 20 mm and 0.5 degrees per axis),
         principal point (3 px) and distortion (10 % of each nonzero coefficient) are
         perturbed from the nominal design, as in a real, hand-built rig. ``None`` gives the
@@ -66,7 +66,7 @@ def triplet_rig(rng: np.random.Generator | None = None, *, distance: float = 450
     list of three :class:`~lsmta.camera.Camera`, named "left", "centre", "right".
     """
     if rng is not None:
-        as_rng(rng)
+        rng = as_rng(rng)
     distance = as_scalar(distance, "distance", positive=True)
     baseline = as_scalar(baseline, "baseline", positive=True)
     camera_height = as_scalar(camera_height, "camera_height")
@@ -87,7 +87,7 @@ def triplet_rig(rng: np.random.Generator | None = None, *, distance: float = 450
     return cams
 
 
-def ring_rig(n: int = 8, rng: np.random.Generator | None = None, *, radius: float = 5000.0,
+def ring_rig(*, n: int = 8, rng: np.random.Generator | int | None = None, radius: float = 5000.0,
              camera_height: float = 2800.0, target=(0.0, 0.0, 1000.0), f: float = 600.0,
              width: int = 640, height_px: int = 480, k1: float = -0.05) -> list[Camera]:
     """``n`` cameras evenly spaced on a ceiling ring, all looking at ``target``.
@@ -104,7 +104,7 @@ def ring_rig(n: int = 8, rng: np.random.Generator | None = None, *, radius: floa
     if int(n) != n or n < 2:
         raise ValueError(f"n: expected an integer >= 2 cameras, got {n}")
     if rng is not None:
-        as_rng(rng)
+        rng = as_rng(rng)
     target = as_vector(target, "target", 3)
     radius = as_scalar(radius, "radius", positive=True)
     cams = []

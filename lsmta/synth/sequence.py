@@ -79,16 +79,16 @@ class Sequence:
         return project_surface_points(self.scene, self.cameras, part, local)
 
 
-def render_sequence(scene: Scene, cameras, rng: np.random.Generator, *, noise_sigma: float = 2.0,
-                    supersample: int = 1, surface_frames=(0,), template: int = 1,
-                    step: int = 4, margin: int = 6) -> Sequence:
+def render_sequence(scene: Scene, cameras, *, rng: np.random.Generator | int | None = None,
+                    noise_sigma: float = 2.0, supersample: int = 1, surface_frames=(0,),
+                    template: int = 1, step: int = 4, margin: int = 6) -> Sequence:
     """Render every frame of ``scene`` in ``cameras``, and sample visible surface points.
 
     Parameters
     ----------
     scene : Scene
     cameras : sequence of K Camera
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
         Draws the image noise.
     noise_sigma : float
         Image noise, grey levels.
@@ -101,14 +101,14 @@ def render_sequence(scene: Scene, cameras, rng: np.random.Generator, *, noise_si
     template : int
         The template camera (for K = 1, use 0).
     """
-    as_rng(rng)
+    rng = as_rng(rng)
     cameras = list(cameras)
     renderer = Renderer(scene, cameras, supersample=supersample, noise_sigma=noise_sigma)
     T = scene.motion.n_frames
     wanted = set(int(f) for f in surface_frames)
     images, surface = [], {}
     for t in range(T):
-        fr = renderer.render(t, rng)
+        fr = renderer.render(t, rng=rng)
         images.append(fr.images)
         if t in wanted:
             pid = fr.part_id[template]

@@ -38,14 +38,14 @@ _LED_PLACES = (
 )
 
 
-def ceiling_rig(rng: np.random.Generator | None = None, *, f: float = 480.0,
-                width: int = 640, height: int = 480, k1: float = -0.04) -> list[Camera]:
+def ceiling_rig(*, rng: np.random.Generator | int | None = None, f: float = 480.0, width: int = 640,
+                height: int = 480, k1: float = -0.04) -> list[Camera]:
     """Eighteen cameras at the ceiling (2.8 m) around a 3.5 m x 5 m floor, looking inwards
     and down at the volume 0.5-2 m high: five along each long side, four along each short
     side. With ``rng``, poses and lenses are perturbed as in :func:`lsmta.synth.rigs.triplet_rig`.
     """
     if rng is not None:
-        as_rng(rng)
+        rng = as_rng(rng)
     eyes = []
     for x in (-2000.0, 2000.0):
         for y in (-2300.0, -1150.0, 0.0, 1150.0, 2300.0):
@@ -88,8 +88,8 @@ class Clocks:
     jitter: float = 0.0
 
 
-def make_clocks(n: int, rng: np.random.Generator, *, rate=(30.0, 60.0), max_offset=0.004,
-                latency=(0.004, 0.012), jitter=0.001) -> Clocks:
+def make_clocks(n: int, *, rng: np.random.Generator | int | None = None, rate=(30.0, 60.0),
+                max_offset=0.004, latency=(0.004, 0.012), jitter=0.001) -> Clocks:
     """Random timing for ``n`` cameras: rates uniform in ``rate`` (Hz), clock offsets
     uniform in ``±max_offset`` (s), latencies uniform in ``latency`` (s)."""
     rng = as_rng(rng)
@@ -158,16 +158,16 @@ def _grid(duration: float, rate: float = 1000.0) -> np.ndarray:
     return np.arange(int(round(duration * rate)) + 1) / rate
 
 
-def still_led(duration: float = 2.0, position=(300.0, 200.0, 1000.0)) -> LedScene:
+def still_led(*, duration: float = 2.0, position=(300.0, 200.0, 1000.0)) -> LedScene:
     """One LED held still, pointing up."""
     t = _grid(duration)
     pos = np.broadcast_to(as_array(position, "position", shape=(3,)), (len(t), 1, 3)).copy()
     nrm = np.zeros_like(pos)
     nrm[..., 2] = 1
-    return LedScene("still", t, pos, nrm, np.array([[0.0, np.inf]]))
+    return LedScene(name="still", times=t, positions=pos, normals=nrm, on=np.array([[0.0, np.inf]]))
 
 
-def linear_stage(duration: float = 6.0, *, start=(-600.0, -400.0, 900.0),
+def linear_stage(*, duration: float = 6.0, start=(-600.0, -400.0, 900.0),
                  end=(600.0, 600.0, 1100.0), hold: float = 1.0) -> LedScene:
     """An LED on a linear translation stage: still for ``hold`` s, then moving at constant
     speed from ``start`` to ``end`` (mm), then still again for ``hold`` s."""
@@ -180,10 +180,11 @@ def linear_stage(duration: float = 6.0, *, start=(-600.0, -400.0, 900.0),
     pos = (a + s[:, None] * (b - a))[:, None, :]
     nrm = np.zeros_like(pos)
     nrm[..., 2] = 1
-    return LedScene("linear stage", t, pos, nrm, np.array([[0.0, np.inf]]))
+    return LedScene(name="linear stage", times=t, positions=pos, normals=nrm,
+                    on=np.array([[0.0, np.inf]]))
 
 
-def circle_led(duration: float = 4.0, *, centre=(0.0, 0.0, 1000.0), radius: float = 300.0,
+def circle_led(*, duration: float = 4.0, centre=(0.0, 0.0, 1000.0), radius: float = 300.0,
                period: float = 1.0) -> LedScene:
     """An LED moved in a horizontal circle of ``radius`` mm once every ``period`` s."""
     t = _grid(duration)
@@ -194,12 +195,13 @@ def circle_led(duration: float = 4.0, *, centre=(0.0, 0.0, 1000.0), radius: floa
                     np.full_like(t, c[2])], axis=1)[:, None, :]
     nrm = np.zeros_like(pos)
     nrm[..., 2] = 1
-    return LedScene("circle", t, pos, nrm, np.array([[0.0, np.inf]]))
+    return LedScene(name="circle", times=t, positions=pos, normals=nrm,
+                    on=np.array([[0.0, np.inf]]))
 
 
-def walking_person(duration: float = 3.6, *, start=(0.0, -2000.0), heading_deg: float = 90.0,
-                   speed: float = 1200.0, on=None, rng: np.random.Generator | None = None
-                   ) -> LedScene:
+def walking_person(*, duration: float = 3.6, rng: np.random.Generator | int | None = None,
+                   start=(0.0, -2000.0), heading_deg: float = 90.0, speed: float = 1200.0,
+                   on=None) -> LedScene:
     """Eight LEDs (:data:`LED_NAMES`: head, shoulders, elbows, wrists, waist) on the walking,
     arm-swinging body of :mod:`lsmta.synth.body`, crossing the floor.
 
@@ -219,8 +221,8 @@ def walking_person(duration: float = 3.6, *, start=(0.0, -2000.0), heading_deg: 
     """
     rate = 1000.0
     n = int(round(duration * rate)) + 1
-    body = make_body(np.random.default_rng(0) if rng is None else rng)
-    motion = walk(n, fps=rate, start=start, heading_deg=heading_deg, speed=speed)
+    body = make_body(rng=np.random.default_rng(0) if rng is None else rng)
+    motion = walk(n_frames=n, fps=rate, start=start, heading_deg=heading_deg, speed=speed)
     poses = body.part_poses(motion)                                   # (S, P, 4, 4)
     parts = np.array([body.index(p) for p, _, _ in _LED_PLACES])
     local = np.array([q for _, q, _ in _LED_PLACES])
@@ -237,7 +239,8 @@ def walking_person(duration: float = 3.6, *, start=(0.0, -2000.0), heading_deg: 
     if np.isnan(on).any():
         raise ValueError("on: expected switch-on and switch-off times (inf: never off), got NaN")
     ell = np.array([[p.centre, p.radii] for p in body.parts], dtype=float)
-    return LedScene("walking person", motion.times, pos, nrm, on, poses, ell, parts)
+    return LedScene(name="walking person", times=motion.times, positions=pos, normals=nrm, on=on,
+                    occluders=poses, ellipsoids=ell, led_part=parts)
 
 
 @dataclass(frozen=True)
@@ -288,11 +291,11 @@ def _occluded(scene: LedScene, cam_C, t, positions, normals) -> np.ndarray:
     return hit.any(axis=2)
 
 
-def observe(scene: LedScene, cameras, clocks: Clocks, rng: np.random.Generator, *,
-            duration: float | None = None, noise_px: float = 0.3, quantize: bool = False,
-            led_range: float = 4500.0, led_exponent: float = 1.5, min_brightness: float = 0.1,
-            reflections: float = 0.05, monitors: dict | None = None,
-            monitor_rate: float = 1.0) -> WideAreaObservations:
+def observe(scene: LedScene, cameras, clocks: Clocks, *,
+            rng: np.random.Generator | int | None = None, duration: float | None = None,
+            noise_px: float = 0.3, quantize: bool = False, led_range: float = 4500.0,
+            led_exponent: float = 1.5, min_brightness: float = 0.1, reflections: float = 0.05,
+            monitors: dict | None = None, monitor_rate: float = 1.0) -> WideAreaObservations:
     """Per-frame LED centroids from every camera (projection + noise, no images).
 
     Parameters
@@ -300,7 +303,7 @@ def observe(scene: LedScene, cameras, clocks: Clocks, rng: np.random.Generator, 
     scene : LedScene
     cameras : sequence of K Camera
     clocks : Clocks
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
     duration : float, optional
         Seconds to observe (default: the scene's length).
     noise_px : float
@@ -400,19 +403,19 @@ class LedVideo:
     lighting_change: int | None
 
 
-def small_camera(camera: Camera, scale: float = 0.5) -> Camera:
+def small_camera(camera: Camera, *, scale: float = 0.5) -> Camera:
     """The same camera with its image scaled by ``scale`` (fewer, larger pixels)."""
     w, h = int(round(camera.width * scale)), int(round(camera.height * scale))
     return camera.replace(f=camera.f * scale, width=w, height=h,
                           cx=(camera.cx + 0.5) * scale - 0.5, cy=(camera.cy + 0.5) * scale - 0.5)
 
 
-def render_led_video(scene: LedScene, camera: Camera, times, rng: np.random.Generator, *,
-                     led_peak: float = 230.0, led_sigma: float = 0.9, led_range: float = 4500.0,
-                     led_exponent: float = 1.5, noise: float = 2.0, monitor=(0.08, 0.55, 0.3, 0.8),
+def render_led_video(scene: LedScene, camera: Camera, times, *,
+                     rng: np.random.Generator | int | None = None, led_peak: float = 230.0,
+                     led_sigma: float = 0.9, led_range: float = 4500.0, led_exponent: float = 1.5,
+                     noise: float = 2.0, monitor=(0.08, 0.55, 0.3, 0.8),
                      monitor_flicker: float = 0.3, reflections: float = 0.03,
-                     lighting_change: int | None = None, n_background: int = 20
-                     ) -> LedVideo:
+                     lighting_change: int | None = None, n_background: int = 20) -> LedVideo:
     """Render small grey frames of LEDs for the detector.
 
     The room is a smooth grey texture with a lamp; a monitor (rectangle given as fractions

@@ -165,7 +165,7 @@ def calibrate_rig(bar_videos, bar_length: float, nominal_cameras, *,
     pair = _pair(nominal, seen.reshape(K, -1))
     if pair is None:
         raise ValueError("bar_videos: no two cameras see 8 or more bar targets in common")
-    bar = Bar(np.arange(2 * Tb).reshape(Tb, 2), length, bar_sigma)
+    bar = Bar(pairs=np.arange(2 * Tb).reshape(Tb, 2), length=length, sigma=bar_sigma)
     cams0, _ = relative_orientation_start(nominal, xy.reshape(K, -1, 2), bar=bar, pair=pair)
     labels = consistent_bar_labels(cams0, xy, length)
     flat = labels.xy.reshape(K, -1, 2)

@@ -14,16 +14,24 @@ identified again by hand when it reappears); there is no automatic re-acquisitio
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import enum
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
 from .._validate import as_array, as_scalar
 
-TRACKED, SECOND_SEARCH, BLURRED, LOST, SEEDED = 0, 1, 2, 3, 4
-STATUS_NAMES = {TRACKED: "tracked", SECOND_SEARCH: "second search", BLURRED: "blurred frame",
-                LOST: "lost", SEEDED: "seeded"}
+
+class MarkerStatus(enum.IntEnum):
+    """What happened to a marker in a frame."""
+
+    TRACKED = 0        #: found by the first search (frame 0: the start position)
+    SECOND_SEARCH = 1  #: found by the search from its own velocity prediction
+    BLURRED = 2        #: the frame was skipped as blurred
+    LOST = 3           #: not found, or not being tracked
+    SEEDED = 4         #: (re)started from ``seeds``
+
 
 
 @dataclass(frozen=True)
@@ -35,9 +43,7 @@ class MarkerTracks:
     xy : (T, M, 2) array
         Marker positions, px; NaN when lost or in a skipped (blurred) frame.
     status : (T, M) int array
-        ``TRACKED`` (first search), ``SECOND_SEARCH`` (found from the velocity
-        prediction), ``BLURRED`` (frame skipped), ``LOST``, ``SEEDED`` (position taken
-        from ``seeds``; frame 0 counts as ``TRACKED``).
+        :class:`MarkerStatus` codes.
     shift : (T, 2) array
         Dominant translation of each frame relative to the previous frame, px (summed
         over skipped frames at the next good one); NaN for skipped frames, 0 for frame 0.
@@ -145,17 +151,6 @@ def _lk(prev, nxt, p0, guess, lk):
     return p1, (st.ravel() == 1) & (st2.ravel() == 1), fb, err.ravel()
 
 
-def _seed(t, seeds, alive, pos, vel, xy, status, image, refine):
-    if seeds is None:
-        return
-    new = ~alive & np.isfinite(seeds[t]).all(axis=1)
-    alive[new] = True
-    pos[new] = refine_centroid(image, seeds[t, new]) if refine else seeds[t, new]
-    vel[new] = 0.0
-    xy[t, new] = pos[new]
-    status[t, new] = SEEDED
-
-
 def track_markers(images, initial_xy, *, window: int = 11, levels: int = 2,
                   fb_threshold: float = 0.5, max_error: float = 12.0,
                   stabilise: bool = True, second_search: bool = True, blur_retry: int = 3,
@@ -201,7 +196,7 @@ def track_markers(images, initial_xy, *, window: int = 11, levels: int = 2,
     MarkerTracks
     """
     imgs = _as_images(images)
-    T, H, W = imgs.shape
+    T = len(imgs)
     p0 = as_array(initial_xy, "initial_xy", shape=(None, 2), allow_nan=True)
     if int(window) != window or window < 3 or window % 2 == 0:
         raise ValueError(f"window: expected an odd integer >= 3, got {window}")
@@ -211,71 +206,131 @@ def track_markers(images, initial_xy, *, window: int = 11, levels: int = 2,
         raise ValueError(f"blur_retry: expected an integer >= 0, got {blur_retry}")
     if int(blur_history) != blur_history or blur_history < 1:
         raise ValueError(f"blur_history: expected an integer >= 1, got {blur_history}")
-    fb_threshold = as_scalar(fb_threshold, "fb_threshold", positive=True)
-    max_error = as_scalar(max_error, "max_error", positive=True)
-    max_jump = as_scalar(max_jump, "max_jump", positive=True)
+    search = _Search(
+        lk=dict(winSize=(int(window), int(window)), maxLevel=int(levels),
+                criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)),
+        fb_threshold=as_scalar(fb_threshold, "fb_threshold", positive=True),
+        max_error=as_scalar(max_error, "max_error", positive=True),
+        max_jump=as_scalar(max_jump, "max_jump", positive=True),
+        second_search=bool(second_search), refine=bool(refine))
     blur_ratio = as_scalar(blur_ratio, "blur_ratio", nonnegative=True)
-    lk = dict(winSize=(int(window), int(window)), maxLevel=int(levels),
-              criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
-    M = len(p0)
     if seeds is not None:
-        seeds = as_array(seeds, "seeds", shape=(T, M, 2), allow_nan=True)
-    xy = np.full((T, M, 2), np.nan)
-    status = np.full((T, M), LOST, dtype=int)
-    shift = np.full((T, 2), np.nan)
-    sharp = np.array([sharpness(im) for im in imgs])
-    blurred = np.zeros(T, bool)
-    alive = np.isfinite(p0).all(axis=1)
-    pos = p0.copy()
-    if refine and alive.any():
-        pos[alive] = refine_centroid(imgs[0], pos[alive])
-    vel = np.zeros((M, 2))               # per-frame image velocity, stabilised
-    xy[0, alive] = pos[alive]
-    status[0, alive] = TRACKED
-    shift[0] = 0.0
-    ref = 0
-    good = [sharp[0]]
+        seeds = as_array(seeds, "seeds", shape=(T, len(p0), 2), allow_nan=True)
+    state = _State.initial(imgs, p0, search.refine)
     for t in range(1, T):
-        gap = t - ref
-        if gap <= blur_retry and sharp[t] < blur_ratio * np.median(good[-blur_history:]):
-            blurred[t] = True
-            status[t] = BLURRED
+        if _blurred(state, t, blur_retry, blur_ratio, blur_history):
             continue
-        good.append(sharp[t])
-        s = dominant_shift(imgs[ref], imgs[t]) if stabilise else np.zeros(2)
-        shift[t] = s
-        idx = np.flatnonzero(alive)
-        if len(idx) == 0:
-            ref = t
-            _seed(t, seeds, alive, pos, vel, xy, status, imgs[t], refine)
-            continue
-        pred = pos[idx] + s
-        p1, ok, fb, err = _lk(imgs[ref], imgs[t], pos[idx], pred, lk)
-        ok &= (fb < fb_threshold) & (err < max_error)
-        ok &= np.linalg.norm(p1 - pred, axis=1) < max_jump
-        st = np.where(ok, TRACKED, LOST)
-        if second_search and not ok.all():
-            bad = np.flatnonzero(~ok)
-            pred2 = pos[idx[bad]] + s + vel[idx[bad]] * gap
-            q1, ok2, fb2, err2 = _lk(imgs[ref], imgs[t], pos[idx[bad]], pred2, lk)
-            ok2 &= (fb2 < fb_threshold) & (err2 < max_error)
-            ok2 &= np.linalg.norm(q1 - pred2, axis=1) < max_jump
-            p1[bad[ok2]] = q1[ok2]
-            ok[bad[ok2]] = True
-            st[bad[ok2]] = SECOND_SEARCH
-        inside = (p1[:, 0] >= 0) & (p1[:, 0] <= W - 1) & (p1[:, 1] >= 0) & (p1[:, 1] <= H - 1)
-        ok &= inside
-        if refine and ok.any():
-            p1[ok] = refine_centroid(imgs[t], p1[ok])
-        st[~ok] = LOST
-        found = idx[ok]
-        vel[found] = (p1[ok] - pos[found] - s) / gap
-        pos[found] = p1[ok]
-        lost = idx[~ok]
-        alive[lost] = False
-        pos[lost] = np.nan
-        xy[t, found] = p1[ok]
-        status[t, idx] = st
-        ref = t
-        _seed(t, seeds, alive, pos, vel, xy, status, imgs[t], refine)
-    return MarkerTracks(xy, status, shift, sharp, blurred)
+        shift = dominant_shift(imgs[state.ref], imgs[t]) if stabilise else np.zeros(2)
+        state.shift[t] = shift
+        if state.alive.any():
+            _follow(state, imgs, t, shift, search)
+        state.ref = t
+        _seed(state, t, seeds, imgs[t], search.refine)
+    return MarkerTracks(xy=state.xy, status=state.status, shift=state.shift,
+                        sharpness=state.sharp, blurred=state.blurred)
+
+
+@dataclass(frozen=True)
+class _Search:
+    """How a marker is searched (see :func:`track_markers`)."""
+
+    lk: dict
+    fb_threshold: float
+    max_error: float
+    max_jump: float
+    second_search: bool
+    refine: bool
+
+
+@dataclass
+class _State:
+    """The result arrays, filled frame by frame, and the markers being tracked."""
+
+    xy: np.ndarray          # (T, M, 2)
+    status: np.ndarray      # (T, M)
+    shift: np.ndarray       # (T, 2)
+    sharp: np.ndarray       # (T,)
+    blurred: np.ndarray     # (T,)
+    alive: np.ndarray       # (M,) being tracked
+    pos: np.ndarray         # (M, 2) last position
+    vel: np.ndarray         # (M, 2) image velocity per frame, stabilised
+    ref: int = 0            # the last good frame
+    good: list = field(default_factory=list)   # sharpness of the good frames
+
+    @classmethod
+    def initial(cls, imgs, p0, refine: bool) -> _State:
+        T, M = len(imgs), len(p0)
+        alive = np.isfinite(p0).all(axis=1)
+        pos = p0.copy()
+        if refine and alive.any():
+            pos[alive] = refine_centroid(imgs[0], pos[alive])
+        sharp = np.array([sharpness(im) for im in imgs])
+        st = cls(xy=np.full((T, M, 2), np.nan),
+                 status=np.full((T, M), MarkerStatus.LOST, dtype=np.int64),
+                 shift=np.full((T, 2), np.nan), sharp=sharp, blurred=np.zeros(T, bool),
+                 alive=alive, pos=pos, vel=np.zeros((M, 2)), good=[sharp[0]])
+        st.xy[0, alive] = pos[alive]
+        st.status[0, alive] = MarkerStatus.TRACKED
+        st.shift[0] = 0.0
+        return st
+
+
+def _blurred(state: _State, t: int, blur_retry: int, ratio: float, history: int) -> bool:
+    """Skip frame ``t`` as blurred (sharpness well below the recent good frames') while
+    fewer than ``blur_retry`` frames have been skipped; otherwise count it as good."""
+    if t - state.ref <= blur_retry and state.sharp[t] < ratio * np.median(state.good[-history:]):
+        state.blurred[t] = True
+        state.status[t] = MarkerStatus.BLURRED
+        return True
+    state.good.append(state.sharp[t])
+    return False
+
+
+def _lk_search(prev, nxt, start, guess, search: _Search):
+    """LK from ``start`` with the initial ``guess``; found and accepted (LK status,
+    forward-backward error, patch error, jump from the guess)."""
+    p1, ok, fb, err = _lk(prev, nxt, start, guess, search.lk)
+    ok &= (fb < search.fb_threshold) & (err < search.max_error)
+    ok &= np.linalg.norm(p1 - guess, axis=1) < search.max_jump
+    return p1, ok
+
+
+def _follow(state: _State, imgs, t: int, shift, search: _Search) -> None:
+    """Search the tracked markers in frame ``t`` from the last good frame: first at the
+    stabilised position, then (failed ones) at the position predicted by their velocity."""
+    H, W = imgs.shape[1:]
+    gap = t - state.ref
+    idx = np.flatnonzero(state.alive)
+    pos = state.pos[idx]
+    p1, ok = _lk_search(imgs[state.ref], imgs[t], pos, pos + shift, search)
+    st = np.where(ok, MarkerStatus.TRACKED, MarkerStatus.LOST)
+    if search.second_search and not ok.all():
+        bad = np.flatnonzero(~ok)
+        q1, ok2 = _lk_search(imgs[state.ref], imgs[t], pos[bad],
+                             pos[bad] + shift + state.vel[idx[bad]] * gap, search)
+        p1[bad[ok2]] = q1[ok2]
+        ok[bad[ok2]] = True
+        st[bad[ok2]] = MarkerStatus.SECOND_SEARCH
+    ok &= (p1[:, 0] >= 0) & (p1[:, 0] <= W - 1) & (p1[:, 1] >= 0) & (p1[:, 1] <= H - 1)
+    if search.refine and ok.any():
+        p1[ok] = refine_centroid(imgs[t], p1[ok])
+    st[~ok] = MarkerStatus.LOST
+    found, lost = idx[ok], idx[~ok]
+    state.vel[found] = (p1[ok] - state.pos[found] - shift) / gap
+    state.pos[found] = p1[ok]
+    state.alive[lost] = False
+    state.pos[lost] = np.nan
+    state.xy[t, found] = p1[ok]
+    state.status[t, idx] = st
+
+
+def _seed(state: _State, t: int, seeds, image, refine: bool) -> None:
+    """(Re)start the markers not being tracked that have a seed in frame ``t``."""
+    if seeds is None:
+        return
+    new = ~state.alive & np.isfinite(seeds[t]).all(axis=1)
+    state.alive[new] = True
+    state.pos[new] = refine_centroid(image, seeds[t, new]) if refine else seeds[t, new]
+    state.vel[new] = 0.0
+    state.xy[t, new] = state.pos[new]
+    state.status[t, new] = MarkerStatus.SEEDED

@@ -38,9 +38,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 from tqdm.auto import tqdm
 
-from .._validate import as_array, as_scalar
+from .._validate import as_array, as_scalar, check_patch
 from ..matching.correlation import CorrelationStatus, correlation_search
-from ..matching.lsm import LSMThresholds, _check_patch, lsm
+from ..matching.lsm import LSMThresholds, lsm
 from ..matching.spline import SplineImage, check_image
 from .density import sparse_candidates
 
@@ -206,20 +206,7 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
     Tracks
     """
     p = params or TrackerParams()
-    _check_patch(p.patch)
-    for name in ("radius", "retry_radius"):
-        r = getattr(p, name)
-        if isinstance(r, bool) or int(r) != r or r < 1:
-            raise ValueError(f"params.{name}: expected an integer >= 1 (pixels), got {r}")
-    if isinstance(p.density_every, bool) or int(p.density_every) != p.density_every \
-            or p.density_every < 1:
-        raise ValueError(f"params.density_every: expected an integer >= 1 (frames), got "
-                         f"{p.density_every}")
-    if isinstance(p.neighbours, bool) or int(p.neighbours) != p.neighbours or p.neighbours < 1:
-        raise ValueError(f"params.neighbours: expected an integer >= 1 (tracks), got "
-                         f"{p.neighbours}")
-    as_scalar(p.max_disagreement, "params.max_disagreement", positive=True)
-    as_scalar(p.min_distance, "params.min_distance", nonnegative=True)
+    _check_params(p)
     seq = as_sequences(images)
     K, T = seq.shape[:2]
     if K > 1 and not 0 <= p.template < K:
@@ -233,67 +220,87 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
     vel0 = None
     if initial_velocity is not None:
         vel0 = as_array(initial_velocity, "initial_velocity", shape=xy0.shape, allow_nan=True)
-
-    # the state grows when the density check adds tracks
-    xy = np.full((T, K, xy0.shape[1], 2), np.nan)
-    xy[0] = np.where(started[None, :, None], xy0, np.nan)
-    state = _State(xy=xy, start=np.zeros(xy0.shape[1], np.int64),
-                   end=np.where(started, 0, -1).astype(np.int64),
-                   status=np.where(started, TrackStatus.ALIVE, TrackStatus.NOT_STARTED),
-                   retried=np.zeros((T, xy0.shape[1]), bool),
-                   added=np.zeros(xy0.shape[1], bool),
-                   origin=np.full(xy0.shape[1], -1, np.int64),
-                   spatial_A=np.broadcast_to(np.eye(2), (K, xy0.shape[1], 2, 2)).copy())
+    state = _State.initial(xy0, started, T)
     splines = [SplineImage(seq[k, 0], "images") for k in range(K)]
     if K > 1:
         state.spatial_A[:, started] = _spatial_affine(splines, xy0[:, started], p)
     for t in tqdm(range(T - 1), desc="tracking", disable=not progress):
         nxt = [SplineImage(seq[k, t + 1], "images") for k in range(K)]
-        live = np.flatnonzero(state.status == TrackStatus.ALIVE)
-        live = live[state.end[live] == t]
-        if live.size:
-            pred, known = _predict(state.xy, live, t, p.neighbours)
-            if t == 0 and vel0 is not None:
-                v = vel0[:, live]
-                has = np.isfinite(v).all(axis=(0, 2))
-                pred[:, has] = state.xy[0][:, live[has]] + v[:, has]
-                known |= has
-            radius = np.where(known, p.radius, p.retry_radius)
-            st = _step(seq, splines, nxt, t, state.xy[t][:, live], pred, radius,
-                       state.spatial_A[:, live], p)
-            ok, new_xy, A = st.ok, st.xy, st.spatial_A
-            todo = ~ok
-            if todo.any():
-                r2 = np.where(known[todo], p.retry_radius, 2 * p.retry_radius)
-                st2 = _step(seq, splines, nxt, t, state.xy[t][:, live[todo]], pred[:, todo], r2,
-                            state.spatial_A[:, live[todo]], p)
-                ok2, xy2, A2 = st2.ok, st2.xy, st2.spatial_A
-                idx = np.flatnonzero(todo)
-                ok[idx[ok2]] = True
-                new_xy[:, idx[ok2]] = xy2[:, ok2]
-                A[:, idx[ok2]] = A2[:, ok2]
-                state.retried[t + 1, live[idx[ok2]]] = True
-            acc = live[ok]
-            state.xy[t + 1][:, acc] = new_xy[:, ok]
-            state.spatial_A[:, acc] = A[:, ok]
-            state.end[acc] = t + 1
-            state.status[live[~ok]] = TrackStatus.LOST
+        _advance(state, seq, splines, nxt, t, p, vel0 if t == 0 else None)
         if new_points is not None and (t + 1) % p.density_every == 0:
-            cand = _candidates(new_points, t + 1, K)
-            if cand is not None:
-                tmpl = p.template if K > 1 else 0
-                alive_now = state.xy[t + 1][tmpl][state.end == t + 1]
-                add = sparse_candidates(alive_now, cand[tmpl], cell=p.cell,
-                                        min_per_cell=p.min_per_cell,
-                                        min_distance=p.min_distance)
-                if add.size:
-                    state.append(cand[:, add], t + 1, add)
-                    if K > 1:
-                        state.spatial_A[:, -add.size:] = _spatial_affine(nxt, cand[:, add], p)
+            _add_where_sparse(state, new_points, nxt, t + 1, p)
         splines = nxt
     return Tracks(xy=state.xy, start=state.start, end=state.end,
                   status=np.asarray(state.status, np.int64), retried=state.retried,
                   added=state.added, origin=state.origin)
+
+
+def _check_params(p: TrackerParams) -> None:
+    check_patch(p.patch)
+    for name in ("radius", "retry_radius"):
+        r = getattr(p, name)
+        if isinstance(r, bool) or int(r) != r or r < 1:
+            raise ValueError(f"params.{name}: expected an integer >= 1 (pixels), got {r}")
+    if isinstance(p.density_every, bool) or int(p.density_every) != p.density_every \
+            or p.density_every < 1:
+        raise ValueError(f"params.density_every: expected an integer >= 1 (frames), got "
+                         f"{p.density_every}")
+    if isinstance(p.neighbours, bool) or int(p.neighbours) != p.neighbours or p.neighbours < 1:
+        raise ValueError(f"params.neighbours: expected an integer >= 1 (tracks), got "
+                         f"{p.neighbours}")
+    as_scalar(p.max_disagreement, "params.max_disagreement", positive=True)
+    as_scalar(p.min_distance, "params.min_distance", nonnegative=True)
+
+
+def _advance(state: _State, seq, splines, nxt, t: int, p: TrackerParams, vel0) -> None:
+    """Frame ``t`` -> ``t + 1`` for the live tracks: prediction, a step in the normal box,
+    the rejected ones again in the bigger box; tracks rejected twice are lost."""
+    live = np.flatnonzero(state.status == TrackStatus.ALIVE)
+    live = live[state.end[live] == t]
+    if not live.size:
+        return
+    pred, known = _predict(state.xy, live, t, p.neighbours)
+    if vel0 is not None:
+        v = vel0[:, live]
+        has = np.isfinite(v).all(axis=(0, 2))
+        pred[:, has] = state.xy[0][:, live[has]] + v[:, has]
+        known |= has
+    radius = np.where(known, p.radius, p.retry_radius)
+    st = _step(seq, splines, nxt, t, state.xy[t][:, live], pred, radius,
+               state.spatial_A[:, live], p)
+    ok, new_xy, A = st.ok, st.xy, st.spatial_A
+    todo = ~ok
+    if todo.any():
+        r2 = np.where(known[todo], p.retry_radius, 2 * p.retry_radius)
+        st2 = _step(seq, splines, nxt, t, state.xy[t][:, live[todo]], pred[:, todo], r2,
+                    state.spatial_A[:, live[todo]], p)
+        idx = np.flatnonzero(todo)
+        ok[idx[st2.ok]] = True
+        new_xy[:, idx[st2.ok]] = st2.xy[:, st2.ok]
+        A[:, idx[st2.ok]] = st2.spatial_A[:, st2.ok]
+        state.retried[t + 1, live[idx[st2.ok]]] = True
+    acc = live[ok]
+    state.xy[t + 1][:, acc] = new_xy[:, ok]
+    state.spatial_A[:, acc] = A[:, ok]
+    state.end[acc] = t + 1
+    state.status[live[~ok]] = TrackStatus.LOST
+
+
+def _add_where_sparse(state: _State, new_points, nxt, t: int, p: TrackerParams) -> None:
+    """Density check at frame ``t`` (Fig. 9): frame ``t``'s surface points where the live
+    tracks have thinned out in the template image start new tracks."""
+    K = len(nxt)
+    cand = _candidates(new_points, t, K)
+    if cand is None:
+        return
+    tmpl = p.template if K > 1 else 0
+    alive_now = state.xy[t][tmpl][state.end == t]
+    add = sparse_candidates(alive_now, cand[tmpl], cell=p.cell, min_per_cell=p.min_per_cell,
+                            min_distance=p.min_distance)
+    if add.size:
+        state.append(cand[:, add], t, add)
+        if K > 1:
+            state.spatial_A[:, -add.size:] = _spatial_affine(nxt, cand[:, add], p)
 
 
 @dataclass
@@ -306,6 +313,19 @@ class _State:
     added: np.ndarray
     origin: np.ndarray
     spatial_A: np.ndarray
+
+    @classmethod
+    def initial(cls, xy0, started, T: int) -> _State:
+        """The initial points at frame 0 (the state grows when the density check adds)."""
+        K, N = xy0.shape[:2]
+        xy = np.full((T, K, N, 2), np.nan)
+        xy[0] = np.where(started[None, :, None], xy0, np.nan)
+        return cls(xy=xy, start=np.zeros(N, np.int64),
+                   end=np.where(started, 0, -1).astype(np.int64),
+                   status=np.where(started, TrackStatus.ALIVE, TrackStatus.NOT_STARTED),
+                   retried=np.zeros((T, N), bool), added=np.zeros(N, bool),
+                   origin=np.full(N, -1, np.int64),
+                   spatial_A=np.broadcast_to(np.eye(2), (K, N, 2, 2)).copy())
 
     def append(self, new_xy, t, origin):
         K, M = new_xy.shape[:2]
@@ -424,7 +444,7 @@ def track_step(frame, next_frame, xy, predicted, radius, *, params: TrackerParam
     StepResult
     """
     p = params or TrackerParams()
-    _check_patch(p.patch)
+    check_patch(p.patch)
     if len(frame) != len(next_frame):
         raise ValueError(f"next_frame: expected {len(frame)} images (one per camera), got "
                          f"{len(next_frame)}")

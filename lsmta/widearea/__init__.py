@@ -2,7 +2,7 @@
 Kalman filter per target updated by single-camera 2-D observations from unsynchronised
 cameras, association, the late-observation and queue policies, track birth and death."""
 
-from .association import Association, associate
+from .association import Association, associate, innovation_gate
 from .detection import (
     DetectionParams,
     Detections,
@@ -13,18 +13,25 @@ from .detection import (
     relearn_threshold,
     search_mask,
 )
-from .kalman import ekf_update, predict, projection_jacobian, transition
-from .management import Birth, find_birth, ray_distance, starved
-from .observations import Frames
+from .kalman import (
+    ekf_update,
+    kalman_update,
+    measurement,
+    predict,
+    process_noise,
+    projection_jacobian,
+    transition,
+)
+from .management import Birth, RayPool, find_birth, ray_distance, starved
+from .observations import FrameIntake, Frames, Screened, screen_frame
 from .scheduler import POLICIES, Schedule, schedule
-from .tracker import TrackerParams, TrackingResult, WideAreaTrack, track
+from .tracker import EstimatorParams, TrackingResult, WideAreaTrack, track
 
 __all__ = [
-    "POLICIES", "Association", "Birth", "DetectionParams", "Detections", "Frames",
-    "Schedule", "Threshold", "background_threshold", "detect", "needs_new_threshold",
-    "relearn_threshold", "search_mask",
-    "TrackerParams", "TrackingResult", "WideAreaTrack", "associate",
-    "ekf_update", "find_birth", "predict",
-    "projection_jacobian", "ray_distance", "schedule", "starved", "track",
-    "transition",
+    "POLICIES", "Association", "Birth", "DetectionParams", "Detections", "EstimatorParams",
+    "FrameIntake", "Frames", "RayPool", "Schedule", "Screened", "Threshold", "TrackingResult",
+    "WideAreaTrack", "associate", "background_threshold", "detect", "ekf_update", "find_birth",
+    "innovation_gate", "kalman_update", "measurement", "needs_new_threshold", "predict",
+    "process_noise", "projection_jacobian", "ray_distance", "relearn_threshold", "schedule",
+    "screen_frame", "search_mask", "starved", "track", "transition",
 ]

@@ -36,6 +36,17 @@ class Association:
     unassociated: np.ndarray
 
 
+def innovation_gate(S, *, n_sigma: float, lower: float, upper: float) -> np.ndarray:
+    """Per-target gate, px: ``n_sigma`` times the larger semi-axis of each innovation
+    ellipse ``S`` (A, 2, 2) in px², kept within [``lower``, ``upper``] px."""
+    S = np.asarray(S, dtype=float)
+    if S.ndim != 3 or S.shape[1:] != (2, 2):
+        raise ValueError(f"S: expected an (A, 2, 2) array of covariances, got {S.shape}")
+    tr, det = S[:, 0, 0] + S[:, 1, 1], np.linalg.det(S)
+    big_axis = np.sqrt(0.5 * tr + np.sqrt(np.maximum(0.25 * tr**2 - det, 0.0)))
+    return np.clip(n_sigma * big_axis, lower, upper)
+
+
 def associate(predicted, observed, gate_px: float) -> Association:
     """Pair projected targets with observed centroids, nearest first, inside a gate.
 
@@ -59,7 +70,8 @@ def associate(predicted, observed, gate_px: float) -> Association:
         raise ValueError("gate_px: expected positive pixel distances")
     empty = np.zeros(0, np.int64)
     if len(pred) == 0 or len(obs) == 0:
-        return Association(empty, empty, np.zeros(0), np.ones(len(obs), bool))
+        return Association(target=empty, centroid=empty, distance=np.zeros(0),
+                           unassociated=np.ones(len(obs), bool))
     d = np.linalg.norm(pred[:, None, :] - obs[None, :, :], axis=2)
     d = np.where(np.isfinite(d), d, np.inf)
     big = 1e6 * (gate.max() + d[np.isfinite(d)].max(initial=0.0) + 1.0)
@@ -69,4 +81,5 @@ def associate(predicted, observed, gate_px: float) -> Association:
     rows, cols = rows[keep], cols[keep]
     free = np.ones(len(obs), bool)
     free[cols] = False
-    return Association(rows.astype(np.int64), cols.astype(np.int64), d[rows, cols], free)
+    return Association(target=rows.astype(np.int64), centroid=cols.astype(np.int64),
+                       distance=d[rows, cols], unassociated=free)

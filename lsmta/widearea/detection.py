@@ -23,10 +23,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from .._validate import as_rng, as_scalar
 
@@ -143,7 +144,7 @@ def background_threshold(frames, offset: float, minimum: float, *, exclude=None)
     return Threshold(background=bg, threshold=np.maximum(bg + offset, minimum))
 
 
-def needs_new_threshold(frame, threshold: Threshold, fraction: float = 0.01) -> bool:
+def needs_new_threshold(frame, threshold: Threshold, *, fraction: float = 0.01) -> bool:
     """True when more than ``fraction`` of the pixels exceed their thresholds (a lighting
     change, not LEDs)."""
     f = _frames(frame, "frame")
@@ -179,8 +180,6 @@ def relearn_threshold(frames, offset: float, minimum: float, *, spot_px: int = 7
     -------
     Threshold
     """
-    from scipy import ndimage
-
     f = _frames(frames).astype(float)
     spot_level = as_scalar(spot_level, "spot_level", nonnegative=True)
     if int(spot_px) != spot_px or spot_px < 3:
@@ -194,7 +193,7 @@ def relearn_threshold(frames, offset: float, minimum: float, *, spot_px: int = 7
     return background_threshold(np.where(spot, opened, f), offset, minimum)
 
 
-def search_mask(shape, k: int, jitter, windows=None, window: int = 40) -> np.ndarray:
+def search_mask(shape, k: int, jitter, *, windows=None, window: int = 40) -> np.ndarray:
     """Pixels the sub-sampled search tests in one frame, ``(H, W)`` bool.
 
     Parameters
@@ -268,9 +267,9 @@ def _features(img, bg, sel, H, W):
     return xy, np.bincount(lab, None, n)[1:].astype(np.int64)
 
 
-def detect(frames, threshold: Threshold, params: DetectionParams | None = None, *,
-           invalid=None, mode: str = "full", predicted=None,
-           rng: np.random.Generator | None = None) -> Detections:
+def detect(frames, threshold: Threshold, *, params: DetectionParams | None = None,
+           rng: np.random.Generator | int | None = None, invalid=None, mode: str = "full",
+           predicted=None) -> Detections:
     """Find LED features in a batch of frames.
 
     Parameters
@@ -279,6 +278,8 @@ def detect(frames, threshold: Threshold, params: DetectionParams | None = None, 
         Grey images.
     threshold : Threshold
     params : DetectionParams, optional
+    rng : numpy.random.Generator, int or None
+        Jitter of the grid (``"subsampled"`` only).
     invalid : (H, W) bool array, optional
         Pixels never reported (masked regions).
     mode : {"full", "subsampled"}
@@ -287,8 +288,6 @@ def detect(frames, threshold: Threshold, params: DetectionParams | None = None, 
         Predicted positions (x, y) per frame, for the windows of the sub-sampled search;
         ``"previous"`` uses the features found in the previous frame (the thesis's simplest
         prediction).
-    rng : numpy.random.Generator
-        Jitter of the grid (required for ``"subsampled"``).
 
     Returns
     -------
@@ -307,87 +306,130 @@ def detect(frames, threshold: Threshold, params: DetectionParams | None = None, 
         valid = ~inv
     if mode not in ("full", "subsampled"):
         raise ValueError(f"mode: expected 'full' or 'subsampled', got {mode!r}")
-    bg = np.asarray(threshold.background, float)
-    # invalid pixels get a threshold no value exceeds, so one comparison does both tests
-    thr = np.where(valid, np.asarray(threshold.threshold, float), np.inf)
-    if np.issubdtype(f.dtype, np.integer):
-        # for integer grey levels, value > thr  <=>  value > floor(thr): compare in integers
-        info = np.iinfo(f.dtype)
-        dtype = np.int16 if info.bits <= 8 else np.int32 if info.bits <= 16 else np.int64
-        thr = np.clip(np.floor(np.minimum(thr, info.max)), info.min - 1, info.max).astype(dtype)
-    empty = (np.zeros((0, 2)), np.zeros(0, np.int64))
-    xy_all, area_all, start, tested = [], [], [0], []
-
-    def _keep(feat):
-        xy, area = feat
-        ok = (area >= p.min_area) & (area <= p.max_area)
-        xy_all.append(xy[ok])
-        area_all.append(area[ok])
-        start.append(start[-1] + int(ok.sum()))
-
-    if mode == "full":
-        for t in range(T):
-            sel = np.flatnonzero(f[t] > thr)
-            _keep(_features(f[t], bg, sel, H, W) if len(sel) else empty)
-            tested.append(H * W)
-    else:
-        rng = as_rng(rng)
-        previous = isinstance(predicted, str) and predicted == "previous"
+    previous = isinstance(predicted, str) and predicted == "previous"
+    if mode == "subsampled":
         if isinstance(predicted, str) and not previous:
             raise ValueError(f"predicted: expected position arrays or 'previous', "
                              f"got {predicted!r}")
         if predicted is not None and not previous and len(predicted) != T:
             raise ValueError(f"predicted: expected one array of positions per frame ({T})")
-        k, g = p.k, p.grow
-        # the jittered grids of all frames: one strided test per jitter value, over all the
-        # frames drawn with it (at most k * k slices); hits[t] is (nr, nc), padded with False
-        jit = rng.integers(0, k, (T, 2))
-        nr, nc = -(-H // k), -(-W // k)
-        rows = jit[:, :1] + k * np.arange(nr)[None]                  # (T, nr)
-        cols = jit[:, 1:] + k * np.arange(nc)[None]                  # (T, nc)
-        hits = np.zeros((T, nr, nc), bool)
-        n_grid = np.zeros(T, np.int64)
-        code = jit[:, 0] * k + jit[:, 1]
-        for j in np.unique(code):
-            ts = np.flatnonzero(code == j)
-            jr, jc = divmod(int(j), k)
-            g_hit = f[ts, jr::k, jc::k] > thr[jr::k, jc::k]
-            hits[ts, :g_hit.shape[1], :g_hit.shape[2]] = g_hit
-            n_grid[ts] = g_hit.shape[1] * g_hit.shape[2]
-        # the flat pixel indices of the (2g + 1)^2 box around every grid hit of every frame
-        # (clipped at the border, so a box may repeat pixels: harmless)
-        ht, hr, hc = np.nonzero(hits)                                 # ht is sorted
-        off = np.arange(-g, g + 1)
-        rr = np.minimum(np.maximum(rows[ht, hr][:, None] + off, 0), H - 1)   # (n_hits, 2g+1)
-        cc = np.minimum(np.maximum(cols[ht, hc][:, None] + off, 0), W - 1)
-        box_idx = (rr[:, :, None] * W + cc[:, None, :]).reshape(len(ht), -1)
-        box_start = np.searchsorted(ht, np.arange(T + 1))
-        img_all = f.reshape(T, H * W)
-        thr_flat = thr.reshape(-1)
-        seen = np.zeros(H * W, bool)             # scratch, to count distinct tested pixels
+    found = _Found(frames=f, background=np.asarray(threshold.background, float),
+                   thr=_test_threshold(threshold, valid, f.dtype), p=p)
+    if mode == "full":
         for t in range(T):
-            centres = ((xy_all[-1] if xy_all else None) if previous
-                       else None if predicted is None else predicted[t])
-            idx = box_idx[box_start[t]:box_start[t + 1]].reshape(-1)
-            win = _window_indices((H, W), centres, p.window)
-            if len(win):
-                idx = np.concatenate([idx, win])
-            if len(idx) == 0:
-                tested.append(int(n_grid[t]))
-                _keep(empty)
-                continue
-            # tested: every pixel of the boxes and windows, plus the grid pixels outside them
-            seen[idx] = True
-            n_region = np.count_nonzero(seen)
-            on_grid = np.count_nonzero(seen.reshape(H, W)[jit[t, 0]::k, jit[t, 1]::k])
-            seen[idx] = False
-            tested.append(int(n_grid[t] - on_grid + n_region))
-            img = img_all[t]
-            # grid hits outside any box cannot exist, so these are all the feature pixels
-            sel = np.unique(idx[img[idx] > thr_flat[idx]])
-            _keep(_features(f[t], bg, sel, H, W) if len(sel) else empty)
-    return Detections(start=np.asarray(start, np.int64),
-                      xy=np.concatenate(xy_all) if xy_all else np.zeros((0, 2)),
-                      area=np.concatenate(area_all).astype(np.int64) if area_all
-                      else np.zeros(0, np.int64),
-                      tested=np.asarray(tested, np.int64))
+            found.keep(t, np.flatnonzero(found.frames[t] > found.thr), H * W)
+    else:
+        _search_subsampled(found, as_rng(rng), predicted, previous)
+    return found.result()
+
+
+def _test_threshold(threshold: Threshold, valid, dtype) -> np.ndarray:
+    """The threshold every pixel is compared with: ``inf`` at invalid pixels (so one
+    comparison does both tests); for integer images floored into the images' integer
+    range (``value > thr  <=>  value > floor(thr)``), so the comparison is in integers."""
+    thr = np.where(valid, np.asarray(threshold.threshold, float), np.inf)
+    if np.issubdtype(dtype, np.integer):
+        info = np.iinfo(dtype)
+        out = np.int16 if info.bits <= 8 else np.int32 if info.bits <= 16 else np.int64
+        thr = np.clip(np.floor(np.minimum(thr, info.max)), info.min - 1, info.max).astype(out)
+    return thr
+
+
+@dataclass
+class _Found:
+    """The frames, their test threshold, and the features found so far (frame by frame)."""
+
+    frames: np.ndarray
+    background: np.ndarray
+    thr: np.ndarray
+    p: DetectionParams
+    xy: list = field(default_factory=list)
+    area: list = field(default_factory=list)
+    start: list = field(default_factory=lambda: [0])
+    tested: list = field(default_factory=list)
+
+    def keep(self, t: int, sel, tested: int) -> None:
+        """Record frame ``t``: the features of the pixels ``sel`` (flat indices over
+        threshold) within the area limits, and the number of pixels tested."""
+        H, W = self.thr.shape
+        if len(sel):
+            xy, area = _features(self.frames[t], self.background, sel, H, W)
+        else:
+            xy, area = np.zeros((0, 2)), np.zeros(0, np.int64)
+        ok = (area >= self.p.min_area) & (area <= self.p.max_area)
+        self.xy.append(xy[ok])
+        self.area.append(area[ok])
+        self.start.append(self.start[-1] + int(ok.sum()))
+        self.tested.append(tested)
+
+    def result(self) -> Detections:
+        return Detections(start=np.asarray(self.start, np.int64),
+                          xy=np.concatenate(self.xy) if self.xy else np.zeros((0, 2)),
+                          area=np.concatenate(self.area).astype(np.int64) if self.area
+                          else np.zeros(0, np.int64),
+                          tested=np.asarray(self.tested, np.int64))
+
+
+def _grid_hits(f, thr, k: int, jit):
+    """The jittered grids of all frames, tested by one strided comparison per jitter value
+    (at most k * k slices): hits (T, nr, nc) padded with False, the grid's rows (T, nr) and
+    columns (T, nc), and the grid pixels per frame (T,)."""
+    T, H, W = f.shape
+    nr, nc = -(-H // k), -(-W // k)
+    rows = jit[:, :1] + k * np.arange(nr)[None]
+    cols = jit[:, 1:] + k * np.arange(nc)[None]
+    hits = np.zeros((T, nr, nc), bool)
+    n_grid = np.zeros(T, np.int64)
+    code = jit[:, 0] * k + jit[:, 1]
+    for j in np.unique(code):
+        ts = np.flatnonzero(code == j)
+        jr, jc = divmod(int(j), k)
+        g_hit = f[ts, jr::k, jc::k] > thr[jr::k, jc::k]
+        hits[ts, :g_hit.shape[1], :g_hit.shape[2]] = g_hit
+        n_grid[ts] = g_hit.shape[1] * g_hit.shape[2]
+    return hits, rows, cols, n_grid
+
+
+def _hit_boxes(hits, rows, cols, g: int, H: int, W: int):
+    """Flat pixel indices of the (2g + 1)² box around every grid hit of every frame
+    (clipped at the border, so a box may repeat pixels: harmless), and where each frame's
+    boxes start (T + 1,)."""
+    ht, hr, hc = np.nonzero(hits)                                     # ht is sorted
+    off = np.arange(-g, g + 1)
+    rr = np.minimum(np.maximum(rows[ht, hr][:, None] + off, 0), H - 1)   # (n_hits, 2g+1)
+    cc = np.minimum(np.maximum(cols[ht, hc][:, None] + off, 0), W - 1)
+    box_idx = (rr[:, :, None] * W + cc[:, None, :]).reshape(len(ht), (2 * g + 1) ** 2)
+    return box_idx, np.searchsorted(ht, np.arange(len(hits) + 1))
+
+
+def _search_subsampled(found: _Found, rng, predicted, previous: bool) -> None:
+    """The jittered grid plus windows around the predicted positions, frame by frame; a
+    grid hit is grown to its whole spot by testing the box around it."""
+    f, thr, p = found.frames, found.thr, found.p
+    T, H, W = f.shape
+    k = p.k
+    jit = rng.integers(0, k, (T, 2))
+    hits, rows, cols, n_grid = _grid_hits(f, thr, k, jit)
+    box_idx, box_start = _hit_boxes(hits, rows, cols, p.grow, H, W)
+    img_all = f.reshape(T, H * W)
+    thr_flat = thr.reshape(-1)
+    seen = np.zeros(H * W, bool)             # scratch, to count distinct tested pixels
+    for t in range(T):
+        centres = ((found.xy[-1] if found.xy else None) if previous
+                   else None if predicted is None else predicted[t])
+        idx = box_idx[box_start[t]:box_start[t + 1]].reshape(-1)
+        win = _window_indices((H, W), centres, p.window)
+        if len(win):
+            idx = np.concatenate([idx, win])
+        if len(idx) == 0:
+            found.keep(t, idx, int(n_grid[t]))
+            continue
+        # tested: every pixel of the boxes and windows, plus the grid pixels outside them
+        seen[idx] = True
+        n_region = np.count_nonzero(seen)
+        on_grid = np.count_nonzero(seen.reshape(H, W)[jit[t, 0]::k, jit[t, 1]::k])
+        seen[idx] = False
+        # grid hits outside any box cannot exist, so these are all the feature pixels
+        img = img_all[t]
+        found.keep(t, np.unique(idx[img[idx] > thr_flat[idx]]),
+                   int(n_grid[t] - on_grid + n_region))

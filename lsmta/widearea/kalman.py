@@ -16,7 +16,7 @@ measurement function, ``h(x) = project(X - lag V)``, i.e. the position the targe
 ``lag`` seconds ago on its current straight-line motion, which Stone Soup's updaters do not
 offer (they predict forwards to the detection's timestamp). The predictions are vectorised
 over targets, which Stone Soup's per-track objects are not. Stone Soup runs the same
-observations as a baseline in :mod:`lsmta.evaluation.widearea`.
+observations as a baseline in :mod:`lsmta.widearea.peers`.
 """
 
 from __future__ import annotations
@@ -27,6 +27,18 @@ from .._validate import as_array, as_points, as_scalar
 from ..camera import Camera
 
 STEP_MM = 0.5  # central-difference step of the projection Jacobian
+
+
+def process_noise(dt, q: float) -> np.ndarray:
+    """Per-axis process noise of the constant-velocity (white-acceleration) model,
+    ``q [[dt³/3, dt²/2], [dt²/2, dt]]``, ``(M, 2, 2)`` for time steps ``dt`` (M,) in s and the
+    acceleration spectral density ``q`` in mm²/s³ (no argument checks)."""
+    dt = np.asarray(dt, dtype=float)
+    Q = np.empty(dt.shape + (2, 2))
+    Q[..., 0, 0] = q * dt**3 / 3
+    Q[..., 0, 1] = Q[..., 1, 0] = q * dt**2 / 2
+    Q[..., 1, 1] = q * dt
+    return Q
 
 
 def transition(dt, q: float) -> tuple[np.ndarray, np.ndarray]:
@@ -51,10 +63,7 @@ def transition(dt, q: float) -> tuple[np.ndarray, np.ndarray]:
     M = len(dt)
     F = np.tile(np.eye(6), (M, 1, 1))
     F[:, :3, 3:] = dt[:, None, None] * eye
-    Q = np.empty((M, 6, 6))
-    Q[:, :3, :3] = q * dt[:, None, None] ** 3 / 3 * eye
-    Q[:, :3, 3:] = Q[:, 3:, :3] = q * dt[:, None, None] ** 2 / 2 * eye
-    Q[:, 3:, 3:] = q * dt[:, None, None] * eye
+    Q = np.kron(process_noise(dt, q), eye)               # (M, 6, 6): blocks times I
     return F, Q
 
 
@@ -97,11 +106,7 @@ def _predict(x, P, dt, q):
     P_new[:, :3, 3:] = Ppv + d3 * Pvv
     P_new[:, 3:, :3] = np.transpose(P_new[:, :3, 3:], (0, 2, 1))
     P_new[:, 3:, 3:] = Pvv
-    eye = np.eye(3)
-    P_new[:, :3, :3] += q * d3**3 / 3 * eye
-    P_new[:, :3, 3:] += q * d3**2 / 2 * eye
-    P_new[:, 3:, :3] += q * d3**2 / 2 * eye
-    P_new[:, 3:, 3:] += q * d3 * eye
+    P_new += np.kron(process_noise(dt[:, 0], q), np.eye(3))
     return x_new, P_new
 
 
@@ -118,7 +123,7 @@ def projection_jacobian(camera: Camera, X) -> np.ndarray:
     return np.transpose((xy[:, :3] - xy[:, 3:]) / (2 * STEP_MM), (0, 2, 1))
 
 
-def ekf_update(x, P, camera: Camera, z, sigma_px: float, lag: float = 0.0):
+def ekf_update(x, P, camera: Camera, z, sigma_px: float, *, lag: float = 0.0):
     """Extended Kalman update of ``A`` targets, each by one centroid of the same frame.
 
     The targets are independent, so the ``A`` updates are done at once.
@@ -157,7 +162,7 @@ def ekf_update(x, P, camera: Camera, z, sigma_px: float, lag: float = 0.0):
     return _ekf_update(x, P, camera, z, sigma_px, lag)
 
 
-def measurement(camera: Camera, x, lag: float = 0.0):
+def measurement(camera: Camera, x, *, lag: float = 0.0):
     """Predicted centroids and measurement Jacobians of ``A`` targets in one camera.
 
     Parameters
@@ -201,8 +206,37 @@ def innovation_covariance(P, H, sigma_px: float) -> np.ndarray:
     return np.einsum("aij,ajk,alk->ail", H, P, H) + sigma_px**2 * np.eye(2)
 
 
+def kalman_update(x, P, H, h, z, *, sigma_px: float):
+    """Kalman update of ``A`` independent targets from their measurement prediction.
+
+    Parameters
+    ----------
+    x, P : (A, 6), (A, 6, 6) arrays
+        States and covariances.
+    H : (A, 2, 6) array
+        Measurement Jacobians (:func:`measurement`).
+    h : (A, 2) array
+        Predicted centroids, px (NaN: the target is left unchanged).
+    z : (A, 2) array
+        Observed centroids, px.
+    sigma_px : float
+        Standard deviation of a centroid per image axis, px.
+
+    Returns
+    -------
+    x, P, innovation
+        As :func:`ekf_update` (Joseph form; new arrays).
+    """
+    x = as_array(x, "x", shape=(None, 6))
+    A = len(x)
+    P = as_array(P, "P", shape=(A, 6, 6))
+    H = as_array(H, "H", shape=(A, 2, 6))
+    h = as_array(h, "h", shape=(A, 2), allow_nan=True)
+    z = as_array(z, "z", shape=(A, 2))
+    return _kalman_update(x, P, H, h, z, as_scalar(sigma_px, "sigma_px", positive=True))
+
+
 def _kalman_update(x, P, H, h, z, sigma_px):
-    """Kalman update of ``A`` independent targets given ``h``, ``H`` (Joseph form)."""
     ok = np.isfinite(h).all(axis=1)
     R = sigma_px**2 * np.eye(2)
     PHt = np.einsum("aij,akj->aik", P, H)                                   # (A, 6, 2)

@@ -10,7 +10,7 @@ only places it on a ray.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -109,7 +109,8 @@ def find_birth(origins, directions, stamp: float, camera: int, pool_origins, poo
     staleness = as_scalar(staleness, "staleness", nonnegative=True)
     pool_stamps = as_array(pool_stamps, "pool_stamps", shape=(None,))
     pool_cameras = np.asarray(pool_cameras)
-    empty = Birth(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
+    empty = Birth(points=np.zeros((0, 3)), new=np.zeros(0, np.int64), pool=np.zeros(0, np.int64),
+                  distance=np.zeros(0))
     if len(origins) == 0 or len(pool_stamps) == 0:
         return empty
     dist, mid = ray_distance(origins, directions, pool_origins, pool_directions)
@@ -130,8 +131,52 @@ def find_birth(origins, directions, stamp: float, camera: int, pool_origins, poo
         cost[:, j] = np.inf
     if not new:
         return empty
-    return Birth(np.asarray(points), np.asarray(new, np.int64), np.asarray(pool, np.int64),
-                 np.asarray(dists))
+    return Birth(points=np.asarray(points), new=np.asarray(new, np.int64),
+                 pool=np.asarray(pool, np.int64), distance=np.asarray(dists))
+
+
+@dataclass
+class RayPool:
+    """Unassociated rays waiting for a partner from another camera (mutable; one per run).
+
+    Attributes
+    ----------
+    origins, directions : (P, 3) arrays
+        Ray origins (mm) and unit directions.
+    stamps : (P,) array
+        Their time stamps, s.
+    cameras : (P,) int array
+        Their cameras.
+    """
+
+    origins: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    directions: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    stamps: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    cameras: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+    def refresh(self, stamp: float, camera: int, staleness: float) -> None:
+        """Forget rays older than ``staleness`` s before ``stamp`` and rays of ``camera``."""
+        self.keep((self.stamps >= stamp - staleness) & (self.cameras != camera))
+
+    def keep(self, mask) -> None:
+        """Keep the rays where ``mask`` (P,) is True."""
+        self.origins, self.directions = self.origins[mask], self.directions[mask]
+        self.stamps, self.cameras = self.stamps[mask], self.cameras[mask]
+
+    def add(self, origins, directions, stamp: float, camera: int) -> None:
+        """Add one frame's rays."""
+        n = len(origins)
+        self.origins = np.concatenate([self.origins, origins])
+        self.directions = np.concatenate([self.directions, directions])
+        self.stamps = np.concatenate([self.stamps, np.full(n, stamp)])
+        self.cameras = np.concatenate([self.cameras, np.full(n, camera, dtype=np.int64)])
+
+    def births(self, origins, directions, stamp: float, camera: int, *, tolerance: float,
+               staleness: float, volume=None) -> Birth:
+        """:func:`find_birth` of a frame's rays against this pool."""
+        return find_birth(origins, directions, stamp, camera, self.origins, self.directions,
+                          self.stamps, self.cameras, tolerance=tolerance, staleness=staleness,
+                          volume=volume)
 
 
 def starved(now: float, last_seen, timeout: float) -> np.ndarray:

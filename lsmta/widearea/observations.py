@@ -77,7 +77,7 @@ class Frames:
                       arrival=None if self.arrival is None else self.arrival[order])
 
     @classmethod
-    def from_lists(cls, camera, stamp, centroids, arrival=None) -> Frames:
+    def from_lists(cls, camera, stamp, centroids, *, arrival=None) -> Frames:
         """Frames from per-frame lists: ``centroids[f]`` is an ``(n_f, 2)`` array."""
         pts = [np.asarray(c, dtype=float).reshape(-1, 2) for c in centroids]
         start = np.concatenate([[0], np.cumsum([len(p) for p in pts])]).astype(np.int64)
@@ -86,31 +86,75 @@ class Frames:
                    start=start, xy=xy, arrival=arrival)
 
 
-def screen_frame(frames: Frames, f: int, n_cameras: int, last_stamp: np.ndarray,
-                 received: np.ndarray, bad: dict) -> np.ndarray | None:
-    """The finite centroids of frame ``f``, or None if the frame is refused.
+@dataclass(frozen=True)
+class Screened:
+    """What :func:`screen_frame` found in one frame.
 
-    Refused frames come from an unknown camera, carry a non-finite stamp, or a stamp not
-    after that camera's previous one; each refusal, NaN centroid and empty frame is
-    counted in ``bad`` (keys ``unknown_camera``, ``nonfinite_stamp``, ``backwards_time``,
-    ``nan_centroids``, ``empty_frames``). ``last_stamp`` and ``received`` (per camera) are
-    the caller's running state and are updated for accepted frames.
+    Attributes
+    ----------
+    xy : (n, 2) array or None
+        The frame's finite centroids, px; None when the frame is refused.
+    refused : str or None
+        Why the frame was refused: ``"unknown_camera"``, ``"nonfinite_stamp"`` or
+        ``"backwards_time"`` (a stamp not after that camera's previous one).
+    nan_centroids : int
+        Centroids left out for holding NaN.
     """
+
+    xy: np.ndarray | None
+    refused: str | None
+    nan_centroids: int = 0
+
+
+def screen_frame(frames: Frames, f: int, n_cameras: int, last_stamp) -> Screened:
+    """Check frame ``f`` against the cameras known and ``last_stamp`` (K,), the last accepted
+    stamp of each camera (s); nothing passed in is changed."""
     c, t = int(frames.camera[f]), float(frames.stamp[f])
     if not 0 <= c < n_cameras:
-        bad["unknown_camera"] += 1
-        return None
+        return Screened(xy=None, refused="unknown_camera")
     if not np.isfinite(t):
-        bad["nonfinite_stamp"] += 1
-        return None
+        return Screened(xy=None, refused="nonfinite_stamp")
     if t <= last_stamp[c]:
-        bad["backwards_time"] += 1
-        return None
-    last_stamp[c] = t
-    received[c] += 1
+        return Screened(xy=None, refused="backwards_time")
     xy = frames.centroids(f)
     finite = np.isfinite(xy).all(axis=1)
-    bad["nan_centroids"] += int((~finite).sum())
-    if not finite.any():
-        bad["empty_frames"] += 1
-    return xy[finite]
+    return Screened(xy=xy[finite], refused=None, nan_centroids=int((~finite).sum()))
+
+
+@dataclass
+class FrameIntake:
+    """A tracker's running record of its input: the last accepted stamp and the frames
+    received per camera, and the counters of bad input (one object per run; mutable)."""
+
+    last_stamp: np.ndarray
+    received: np.ndarray
+    unknown_camera: int = 0
+    backwards_time: int = 0
+    nonfinite_stamp: int = 0
+    empty_frames: int = 0
+    nan_centroids: int = 0
+
+    @classmethod
+    def initial(cls, n_cameras: int) -> FrameIntake:
+        return cls(last_stamp=np.full(n_cameras, -np.inf),
+                   received=np.zeros(n_cameras, np.int64))
+
+    def take(self, frames: Frames, f: int) -> np.ndarray | None:
+        """Frame ``f``'s finite centroids (counted as received), or None if refused."""
+        s = screen_frame(frames, f, len(self.received), self.last_stamp)
+        if s.refused is not None:
+            setattr(self, s.refused, getattr(self, s.refused) + 1)
+            return None
+        c = int(frames.camera[f])
+        self.last_stamp[c] = float(frames.stamp[f])
+        self.received[c] += 1
+        self.nan_centroids += s.nan_centroids
+        self.empty_frames += int(len(s.xy) == 0)
+        return s.xy
+
+    @property
+    def rejected(self) -> dict:
+        """The counters of bad input, by name."""
+        return {k: getattr(self, k) for k in ("unknown_camera", "backwards_time",
+                                              "nonfinite_stamp", "empty_frames",
+                                              "nan_centroids")}

@@ -24,14 +24,15 @@ Stone Soup is imported only when this module's functions run.
 from __future__ import annotations
 
 import datetime
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..camera import Camera
 from .kalman import projection_jacobian
-from .management import find_birth
-from .observations import Frames, screen_frame
-from .tracker import TrackerParams, TrackingResult, WideAreaTrack
+from .management import RayPool
+from .observations import FrameIntake, Frames
+from .tracker import EstimatorParams, TrackingResult, WideAreaTrack
 
 EPOCH = datetime.datetime(2002, 1, 1)
 POSITION = (0, 2, 4)  # Stone Soup's state order is (x, vx, y, vy, z, vz)
@@ -86,24 +87,21 @@ def _classes():
 
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs)
-            self._pool = (np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
-                          np.zeros(0, np.int64))
+            self._pool = RayPool()
 
         def initiate(self, detections, timestamp, **kwargs):
-            o_p, d_p, t_p, c_p = self._pool
             t = (timestamp - EPOCH).total_seconds()
             cam = kwargs["camera"]
-            xy = np.array([np.asarray(d.state_vector, float)[:, 0] for d in list(detections)]
-                          ).reshape(-1, 2)
+            dets = list(detections)
+            xy = np.array([np.asarray(d.state_vector, float)[:, 0] for d in dets]).reshape(-1, 2)
             o, d = (self.cameras[cam].rays(xy) if len(xy)
                     else (np.zeros((0, 3)), np.zeros((0, 3))))
-            stale = (t_p < t - self.staleness) | (c_p == cam)
-            o_p, d_p, t_p, c_p = o_p[~stale], d_p[~stale], t_p[~stale], c_p[~stale]
-            b = find_birth(o, d, t, cam, o_p, d_p, t_p, c_p, tolerance=self.tolerance,
-                           staleness=self.staleness, volume=self.volume)
+            pool = self._pool
+            pool.refresh(t, cam, self.staleness)
+            b = pool.births(o, d, t, cam, tolerance=self.tolerance, staleness=self.staleness,
+                            volume=self.volume)
             tracks = set()
             P0 = np.diag([self.sigma[0] ** 2, self.sigma[1] ** 2] * 3)
-            dets = list(detections)
             for point, i in zip(b.points, b.new):
                 sv = np.zeros(6)
                 sv[list(POSITION)] = point
@@ -112,19 +110,16 @@ def _classes():
                                                       timestamp=timestamp)]))
             keep_new = np.ones(len(o), bool)
             keep_new[b.new] = False
-            keep_pool = np.ones(len(t_p), bool)
+            keep_pool = np.ones(len(pool.stamps), bool)
             keep_pool[b.pool] = False
-            self._pool = (np.concatenate([o_p[keep_pool], o[keep_new]]),
-                          np.concatenate([d_p[keep_pool], d[keep_new]]),
-                          np.concatenate([t_p[keep_pool], np.full(keep_new.sum(), t)]),
-                          np.concatenate([c_p[keep_pool],
-                                          np.full(keep_new.sum(), cam, dtype=np.int64)]))
+            pool.keep(keep_pool)
+            pool.add(o[keep_new], d[keep_new], t, cam)
             return tracks
 
     return ProjectionModel, TwoRayInitiator
 
 
-def stonesoup_track(cameras, frames: Frames, params: TrackerParams | None = None, *,
+def stonesoup_track(cameras, frames: Frames, *, params: EstimatorParams | None = None,
                     gate_sigma: float | None = None) -> TrackingResult:
     """Track ``frames`` with Stone Soup components (see the module docstring).
 
@@ -134,7 +129,7 @@ def stonesoup_track(cameras, frames: Frames, params: TrackerParams | None = None
     frames : Frames
         Processed in time-stamp order; bad input is counted as by
         :func:`lsmta.widearea.tracker.track`.
-    params : TrackerParams, optional
+    params : EstimatorParams, optional
         The same settings as our tracker: ``sigma_px``, ``accel_density`` (Stone Soup's
         ``ConstantVelocity`` noise_diff_coeff), ``timeout`` (``UpdateTimeDeleter``),
         ``birth_tolerance``, ``staleness``, ``birth_sigma``, ``volume``.
@@ -146,6 +141,65 @@ def stonesoup_track(cameras, frames: Frames, params: TrackerParams | None = None
     TrackingResult
         Tracks in our units and state order; counters as for our tracker (``late_*`` zero).
     """
+    from stonesoup.types.detection import Detection
+
+    cameras = list(cameras)
+    if not cameras or not all(isinstance(c, Camera) for c in cameras):
+        raise TypeError("cameras: expected a non-empty sequence of lsmta.camera.Camera")
+    if not isinstance(frames, Frames):
+        raise TypeError("frames: expected lsmta.widearea.Frames")
+    p = EstimatorParams() if params is None else params
+    parts = _components(cameras, p, p.gate_sigma if gate_sigma is None else gate_sigma)
+    K = len(cameras)
+    intake = FrameIntake.initial(K)
+    obs_used = np.zeros(K, np.int64)
+    live: set = set()
+    born: list = []
+    death: dict = {}
+    order = np.argsort(np.where(np.isfinite(frames.stamp), frames.stamp, np.inf),
+                       kind="stable")
+    for f in order:
+        xy = intake.take(frames, f)
+        if xy is None:
+            continue
+        c, t = int(frames.camera[f]), float(frames.stamp[f])
+        when = seconds_to_datetime(t)
+        detections = {Detection(z[:, None], timestamp=when, measurement_model=parts.models[c])
+                      for z in xy}
+        with np.errstate(invalid="ignore"):   # Stone Soup's Mahalanobis sqrt of a NaN
+            hyps = parts.associator.associate(live, detections, when)
+        used = set()
+        for trk, hyp in hyps.items():
+            if hyp:
+                trk.append(parts.updater.update(hyp))
+                used.add(hyp.measurement)
+                obs_used[c] += 1
+        # MultiTargetTracker appends a prediction to every missed track so that the deleter
+        # sees time pass; giving the deleter the frame's time stamp does the same, faster
+        for trk in parts.deleter.delete_tracks(live, timestamp=when):
+            death[id(trk)] = t
+            live.discard(trk)
+        new = parts.initiator.initiate(detections - used, when, camera=c)
+        live |= new
+        born.extend(new)
+    zeros = np.zeros(K, np.int64)
+    return TrackingResult(tracks=_our_tracks(born, death), frames_received=intake.received,
+                          frames_used=intake.received.copy(), late_dropped=zeros,
+                          late_used=zeros.copy(), observations_used=obs_used,
+                          **intake.rejected)
+
+
+@dataclass(frozen=True)
+class _Components:
+    models: list
+    updater: object
+    associator: object
+    deleter: object
+    initiator: object
+
+
+def _components(cameras, p: EstimatorParams, gate_sigma: float) -> _Components:
+    """Stone Soup's pieces with our settings, and our camera model and initiator."""
     from stonesoup.dataassociator.neighbour import GNNWith2DAssignment
     from stonesoup.deleter.time import UpdateTimeDeleter
     from stonesoup.hypothesiser.distance import DistanceHypothesiser
@@ -155,17 +209,9 @@ def stonesoup_track(cameras, frames: Frames, params: TrackerParams | None = None
         ConstantVelocity,
     )
     from stonesoup.predictor.kalman import ExtendedKalmanPredictor
-    from stonesoup.types.detection import Detection
     from stonesoup.updater.kalman import ExtendedKalmanUpdater
 
-    cameras = list(cameras)
-    if not cameras or not all(isinstance(c, Camera) for c in cameras):
-        raise TypeError("cameras: expected a non-empty sequence of lsmta.camera.Camera")
-    if not isinstance(frames, Frames):
-        raise TypeError("frames: expected lsmta.widearea.Frames")
     ProjectionModel, TwoRayInitiator = _classes()
-    p = TrackerParams() if params is None else params
-    K = len(cameras)
     R = p.sigma_px**2 * np.eye(2)
     models = [ProjectionModel(ndim_state=6, mapping=POSITION, noise_covar=R, camera=c)
               for c in cameras]
@@ -174,57 +220,23 @@ def stonesoup_track(cameras, frames: Frames, params: TrackerParams | None = None
     predictor = ExtendedKalmanPredictor(transition)
     updater = ExtendedKalmanUpdater(measurement_model=None)
     hypothesiser = DistanceHypothesiser(predictor, updater, measure=Mahalanobis(),
-                                        missed_distance=p.gate_sigma if gate_sigma is None
-                                        else gate_sigma)
-    associator = GNNWith2DAssignment(hypothesiser)
-    deleter = UpdateTimeDeleter(datetime.timedelta(seconds=p.timeout))
-    initiator = TwoRayInitiator(cameras=cameras, tolerance=p.birth_tolerance,
-                                staleness=p.staleness, sigma=tuple(p.birth_sigma),
-                                volume=p.volume)
+                                        missed_distance=gate_sigma)
+    return _Components(
+        models=models, updater=updater, associator=GNNWith2DAssignment(hypothesiser),
+        deleter=UpdateTimeDeleter(datetime.timedelta(seconds=p.timeout)),
+        initiator=TwoRayInitiator(cameras=cameras, tolerance=p.birth_tolerance,
+                                  staleness=p.staleness, sigma=tuple(p.birth_sigma),
+                                  volume=p.volume))
 
-    bad = {"unknown_camera": 0, "backwards_time": 0, "nonfinite_stamp": 0,
-           "empty_frames": 0, "nan_centroids": 0}
-    received, obs_used = np.zeros(K, np.int64), np.zeros(K, np.int64)
-    order = np.argsort(np.where(np.isfinite(frames.stamp), frames.stamp, np.inf),
-                       kind="stable")
-    last_stamp = np.full(K, -np.inf)
-    tracks: set = set()
-    all_tracks: list = []
-    death: dict = {}
-    for f in order:
-        xy = screen_frame(frames, f, K, last_stamp, received, bad)
-        if xy is None:
-            continue
-        c, t = int(frames.camera[f]), float(frames.stamp[f])
-        when = seconds_to_datetime(t)
-        detections = {Detection(xy[j][:, None], timestamp=when, measurement_model=models[c])
-                      for j in range(len(xy))}
-        with np.errstate(invalid="ignore"):   # Stone Soup's Mahalanobis sqrt of a NaN
-            hyps = associator.associate(tracks, detections, when)
-        used = set()
-        for trk, hyp in hyps.items():
-            if hyp:
-                trk.append(updater.update(hyp))
-                used.add(hyp.measurement)
-                obs_used[c] += 1
-        # MultiTargetTracker appends a prediction to every missed track so that the deleter
-        # sees time pass; giving the deleter the frame's time stamp does the same, faster
-        for trk in deleter.delete_tracks(tracks, timestamp=when):
-            death[id(trk)] = t
-            tracks.discard(trk)
-        new = initiator.initiate(detections - used, when, camera=c)
-        tracks |= new
-        all_tracks.extend(new)
 
+def _our_tracks(born, death) -> tuple:
+    """Stone Soup tracks as :class:`WideAreaTrack` (our state order, seconds)."""
     out = []
-    for i, trk in enumerate(all_tracks):
+    for i, trk in enumerate(born):
         states = [s for s in trk.states if hasattr(s, "hypothesis")]
         times = np.array([(s.timestamp - EPOCH).total_seconds() for s in states])
         sv = np.array([np.asarray(s.state_vector, float)[:, 0] for s in states])
         x = np.concatenate([sv[:, [0, 2, 4]], sv[:, [1, 3, 5]]], axis=1)
         out.append(WideAreaTrack(id=i, times=times, states=x, birth_time=times[0],
                                  death_time=death.get(id(trk), np.nan)))
-    zeros = np.zeros(K, np.int64)
-    return TrackingResult(tracks=tuple(out), frames_received=received,
-                          frames_used=received.copy(), late_dropped=zeros,
-                          late_used=zeros.copy(), observations_used=obs_used, **bad)
+    return tuple(out)

@@ -48,8 +48,8 @@ class Schedule:
     skipped: np.ndarray
 
 
-def schedule(arrival, camera, stamp, policy: str, service_time: float,
-             rng: np.random.Generator | None = None) -> Schedule:
+def schedule(arrival, camera, stamp, policy: str, service_time: float, *,
+             rng: np.random.Generator | int | None = None) -> Schedule:
     """Simulate the estimator's queues for ``F`` frames.
 
     Parameters
@@ -64,7 +64,7 @@ def schedule(arrival, camera, stamp, policy: str, service_time: float,
         One of :data:`POLICIES`.
     service_time : float
         Seconds the estimator spends on one frame (> 0).
-    rng : numpy.random.Generator
+    rng : numpy.random.Generator, int or None
         Required for ``"random_recent"``.
 
     Returns
@@ -82,8 +82,9 @@ def schedule(arrival, camera, stamp, policy: str, service_time: float,
     service = as_scalar(service_time, "service_time", positive=True)
     if policy == "random_recent":
         if rng is None:
-            raise ValueError("rng: the 'random_recent' policy needs a numpy.random.Generator")
-        as_rng(rng)
+            raise ValueError("rng: the 'random_recent' policy needs a numpy.random.Generator or "
+                             "a seed")
+        rng = as_rng(rng)
     by_arrival = np.argsort(arrival, kind="stable")
     cameras = np.unique(cam)
     queued = np.zeros(F, bool)

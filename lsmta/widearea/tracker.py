@@ -29,14 +29,14 @@ import numpy as np
 
 from .._validate import as_array, as_scalar
 from ..camera import Camera
-from .association import associate
-from .kalman import _kalman_update, _measurement, _predict, innovation_covariance
-from .management import find_birth
-from .observations import Frames, screen_frame
+from .association import associate, innovation_gate
+from .kalman import innovation_covariance, kalman_update, measurement, predict
+from .management import RayPool, starved
+from .observations import FrameIntake, Frames
 
 
 @dataclass(frozen=True)
-class TrackerParams:
+class EstimatorParams:
     """Settings of the estimator (units: px, mm, s, mm²/s³).
 
     Attributes
@@ -175,7 +175,7 @@ class TrackingResult:
         return np.stack([tr.positions_at(t) for tr in self.tracks], axis=1)
 
 
-def track(cameras, frames: Frames, params: TrackerParams = TrackerParams()) -> TrackingResult:
+def track(cameras, frames: Frames, *, params: EstimatorParams | None = None) -> TrackingResult:
     """Run the estimator over ``frames`` in the given order.
 
     Parameters
@@ -185,7 +185,7 @@ def track(cameras, frames: Frames, params: TrackerParams = TrackerParams()) -> T
     frames : Frames
         Frames in processing order (reorder them with :meth:`Frames.reordered` and a
         :class:`~lsmta.widearea.scheduler.Schedule`).
-    params : TrackerParams
+    params : EstimatorParams, optional
 
     Returns
     -------
@@ -196,121 +196,164 @@ def track(cameras, frames: Frames, params: TrackerParams = TrackerParams()) -> T
         raise TypeError("cameras: expected a non-empty sequence of lsmta.camera.Camera")
     if not isinstance(frames, Frames):
         raise TypeError("frames: expected lsmta.widearea.Frames")
-    if not isinstance(params, TrackerParams):
-        raise TypeError("params: expected lsmta.widearea.TrackerParams")
-    p = params
-    K = len(cameras)
-    P0 = np.diag([p.birth_sigma[0] ** 2] * 3 + [p.birth_sigma[1] ** 2] * 3)
-    now = -np.inf
-    X = np.zeros((0, 6))
-    P = np.zeros((0, 6, 6))
-    ids: list[int] = []
-    last_seen = np.zeros((0, K))
-    hist_t: dict[int, list] = {}
-    hist_x: dict[int, list] = {}
-    born: dict[int, float] = {}
-    died: dict[int, float] = {}
-    next_id = 0
-    pool_o, pool_d = np.zeros((0, 3)), np.zeros((0, 3))
-    pool_t, pool_c = np.zeros(0), np.zeros(0, np.int64)
-    last_stamp = np.full(K, -np.inf)
-    received, used, dropped, late_used, obs_used = (np.zeros(K, np.int64) for _ in range(5))
-    bad = {"unknown_camera": 0, "backwards_time": 0, "nonfinite_stamp": 0,
-           "empty_frames": 0, "nan_centroids": 0}
-    log = {"target": [], "camera": [], "time": [], "predicted": [], "observed": []}
-
+    p = EstimatorParams() if params is None else params
+    if not isinstance(p, EstimatorParams):
+        raise TypeError("params: expected lsmta.widearea.EstimatorParams")
+    state = _State.initial(len(cameras), p)
     for f in range(frames.n_frames):
-        xy = screen_frame(frames, f, K, last_stamp, received, bad)
+        xy = state.intake.take(frames, f)
         if xy is None:
             continue
         c, t = int(frames.camera[f]), float(frames.stamp[f])
-        lag = now - t
-        if lag > p.late_tolerance:
-            dropped[c] += 1
+        lag = _advance(state, c, t, p)
+        if lag is None:                                      # too late: dropped
             continue
-        used[c] += 1
-        if lag > 0:
-            late_used[c] += 1
-        else:
-            if len(X) and np.isfinite(now):
-                X, P = _predict(X, P, np.full(len(X), t - now), p.accel_density)
-            now = t
-            lag = 0.0
-        # deaths
-        if len(X):
-            dead = (last_seen > now - p.timeout).sum(axis=1) < 2   # management.starved
-            for m in np.flatnonzero(dead):
-                died[ids[m]] = now
-            keep = ~dead
-            X, P, last_seen = X[keep], P[keep], last_seen[keep]
-            ids = [i for i, k in zip(ids, keep) if k]
+        _end_starved(state, p)
         if len(xy) == 0:
             continue
-        cam = cameras[c]
-        free = np.ones(len(xy), bool)
-        if len(X):
-            pred, H = _measurement(cam, X, lag)
-            S = innovation_covariance(P, H, p.sigma_px)
-            # per-target gate: n_sigma times the larger axis of the innovation ellipse
-            tr, det = S[:, 0, 0] + S[:, 1, 1], np.linalg.det(S)
-            big_axis = np.sqrt(0.5 * tr + np.sqrt(np.maximum(0.25 * tr**2 - det, 0.0)))
-            gate = np.clip(p.gate_sigma * big_axis, p.min_gate_px, p.gate_px)
-            a = associate(pred, xy, gate)
-            if len(a.target):
-                m_, j_ = a.target, a.centroid
-                x_new, P_new, _ = _kalman_update(X[m_], P[m_], H[m_], pred[m_], xy[j_],
-                                                 p.sigma_px)
-                X[m_], P[m_] = x_new, P_new
-                last_seen[m_, c] = np.maximum(last_seen[m_, c], t)
-                obs_used[c] += len(m_)
-                for m, j, xn in zip(m_, j_, x_new):
-                    hist_t[ids[m]].append(now)
-                    hist_x[ids[m]].append(xn)
-                    log["target"].append(ids[m])
-                    log["camera"].append(c)
-                    log["time"].append(t)
-                    log["predicted"].append(pred[m])
-                    log["observed"].append(xy[j])
-            free = a.unassociated
-        # births from the unassociated centroids
-        o, d = cam.rays(xy[free]) if free.any() else (np.zeros((0, 3)), np.zeros((0, 3)))
-        stale = (pool_t < t - p.staleness) | (pool_c == c)
-        pool_o, pool_d, pool_t, pool_c = (pool_o[~stale], pool_d[~stale], pool_t[~stale],
-                                          pool_c[~stale])
-        b = find_birth(o, d, t, c, pool_o, pool_d, pool_t, pool_c,
-                       tolerance=p.birth_tolerance, staleness=p.staleness, volume=p.volume)
-        taken_new = np.zeros(len(o), bool)
-        taken_pool = np.zeros(len(pool_t), bool)
-        for point, i, j in zip(b.points, b.new, b.pool):
-            if len(X) and np.min(np.linalg.norm(X[:, :3] - point, axis=1)) < p.min_separation:
-                continue
-            taken_new[i] = taken_pool[j] = True
-            x0 = np.concatenate([point, np.zeros(3)])
-            X = np.vstack([X, x0])
-            P = np.concatenate([P, P0[None]])
-            row = np.full(K, -np.inf)
-            row[c] = t
-            row[pool_c[j]] = pool_t[j]
-            last_seen = np.vstack([last_seen, row])
-            ids.append(next_id)
-            born[next_id] = now
-            hist_t[next_id] = [now]
-            hist_x[next_id] = [x0]
-            next_id += 1
-        pool_o = np.concatenate([pool_o[~taken_pool], o[~taken_new]])
-        pool_d = np.concatenate([pool_d[~taken_pool], d[~taken_new]])
-        pool_t = np.concatenate([pool_t[~taken_pool], np.full((~taken_new).sum(), t)])
-        pool_c = np.concatenate([pool_c[~taken_pool],
-                                 np.full((~taken_new).sum(), c, dtype=np.int64)])
+        free = _gate_and_update(state, cameras[c], c, t, xy, lag, p)
+        _births(state, cameras[c], c, t, xy[free], p)
+    return _result(state)
 
+
+@dataclass
+class _State:
+    """Everything one run of :func:`track` changes."""
+
+    intake: FrameIntake
+    P0: np.ndarray                  # (6, 6) covariance of a new target
+    now: float = -np.inf            # the estimator's clock, s
+    X: np.ndarray = None            # (M, 6) live targets' states
+    P: np.ndarray = None            # (M, 6, 6)
+    ids: np.ndarray = None          # (M,) target identities
+    last_seen: np.ndarray = None    # (M, K) when each camera last updated each target
+    pool: RayPool = None
+    next_id: int = 0
+    times: dict = field(default_factory=dict)     # id -> recorded times
+    states: dict = field(default_factory=dict)    # id -> recorded states
+    born: dict = field(default_factory=dict)
+    died: dict = field(default_factory=dict)
+    used: np.ndarray = None         # (K,) frame counters
+    dropped: np.ndarray = None
+    late_used: np.ndarray = None
+    observations: np.ndarray = None
+    log: dict = field(default_factory=lambda: {k: [] for k in (
+        "target", "camera", "time", "predicted", "observed")})
+
+    @classmethod
+    def initial(cls, K: int, p: EstimatorParams) -> _State:
+        s0, v0 = p.birth_sigma
+        return cls(intake=FrameIntake.initial(K), P0=np.diag([s0**2] * 3 + [v0**2] * 3),
+                   X=np.zeros((0, 6)), P=np.zeros((0, 6, 6)), ids=np.zeros(0, np.int64),
+                   last_seen=np.zeros((0, K)), pool=RayPool(),
+                   used=np.zeros(K, np.int64), dropped=np.zeros(K, np.int64),
+                   late_used=np.zeros(K, np.int64), observations=np.zeros(K, np.int64))
+
+
+def _advance(state: _State, c: int, t: float, p: EstimatorParams) -> float | None:
+    """Drop a frame older than the clock by more than the late tolerance (None); use an
+    older one as it is (its lag, s); for a newer one predict every target to its stamp and
+    move the clock (lag 0)."""
+    lag = state.now - t
+    if lag > p.late_tolerance:
+        state.dropped[c] += 1
+        return None
+    state.used[c] += 1
+    if lag > 0:
+        state.late_used[c] += 1
+        return lag
+    if len(state.X) and np.isfinite(state.now):
+        state.X, state.P = predict(state.X, state.P, np.full(len(state.X), t - state.now),
+                                   p.accel_density)
+    state.now = t
+    return 0.0
+
+
+def _end_starved(state: _State, p: EstimatorParams) -> None:
+    """Targets seen by fewer than two cameras within the timeout die."""
+    if not len(state.X):
+        return
+    dead = starved(state.now, state.last_seen, p.timeout)
+    for i in state.ids[dead]:
+        state.died[int(i)] = state.now
+    keep = ~dead
+    state.X, state.P = state.X[keep], state.P[keep]
+    state.ids, state.last_seen = state.ids[keep], state.last_seen[keep]
+
+
+def _gate_and_update(state: _State, cam: Camera, c: int, t: float, xy, lag: float,
+                     p: EstimatorParams) -> np.ndarray:
+    """Pair the targets' projections with the centroids inside each target's gate and
+    update each pair (one extended Kalman update); the centroids no target took."""
+    if not len(state.X):
+        return np.ones(len(xy), bool)
+    pred, H = measurement(cam, state.X, lag=lag)
+    gate = innovation_gate(innovation_covariance(state.P, H, p.sigma_px),
+                           n_sigma=p.gate_sigma, lower=p.min_gate_px, upper=p.gate_px)
+    a = associate(pred, xy, gate)
+    m, j = a.target, a.centroid
+    if len(m):
+        x_new, P_new, _ = kalman_update(state.X[m], state.P[m], H[m], pred[m], xy[j],
+                                        sigma_px=p.sigma_px)
+        state.X[m], state.P[m] = x_new, P_new
+        state.last_seen[m, c] = np.maximum(state.last_seen[m, c], t)
+        state.observations[c] += len(m)
+        for k, i in enumerate(state.ids[m].tolist()):
+            state.times[i].append(state.now)
+            state.states[i].append(x_new[k])
+        log = state.log
+        log["target"] += state.ids[m].tolist()
+        log["camera"] += [c] * len(m)
+        log["time"] += [t] * len(m)
+        log["predicted"] += list(pred[m])
+        log["observed"] += list(xy[j])
+    return a.unassociated
+
+
+def _births(state: _State, cam: Camera, c: int, t: float, xy, p: EstimatorParams) -> None:
+    """The frame's free centroids become rays; a ray that meets a fresh ray of another
+    camera (and is not near a live target) starts a target; the rest wait in the pool."""
+    o, d = cam.rays(xy) if len(xy) else (np.zeros((0, 3)), np.zeros((0, 3)))
+    pool = state.pool
+    pool.refresh(t, c, p.staleness)
+    b = pool.births(o, d, t, c, tolerance=p.birth_tolerance, staleness=p.staleness,
+                    volume=p.volume)
+    taken_new = np.zeros(len(o), bool)
+    taken_pool = np.zeros(len(pool.stamps), bool)
+    for point, i, j in zip(b.points, b.new, b.pool):
+        if len(state.X) and np.min(np.linalg.norm(state.X[:, :3] - point, axis=1)) \
+                < p.min_separation:
+            continue
+        taken_new[i] = taken_pool[j] = True
+        seen = np.full(state.last_seen.shape[1], -np.inf)
+        seen[c], seen[pool.cameras[j]] = t, pool.stamps[j]
+        _start_target(state, np.concatenate([point, np.zeros(3)]), seen)
+    pool.keep(~taken_pool)
+    pool.add(o[~taken_new], d[~taken_new], t, c)
+
+
+def _start_target(state: _State, x0, seen) -> None:
+    i = state.next_id
+    state.next_id += 1
+    state.X = np.vstack([state.X, x0])
+    state.P = np.concatenate([state.P, state.P0[None]])
+    state.ids = np.append(state.ids, i)
+    state.last_seen = np.vstack([state.last_seen, seen])
+    state.born[i] = state.now
+    state.times[i] = [state.now]
+    state.states[i] = [x0]
+
+
+def _result(state: _State) -> TrackingResult:
     tracks = tuple(
-        WideAreaTrack(id=i, times=np.asarray(hist_t[i]), states=np.asarray(hist_x[i]),
-                      birth_time=born[i], death_time=died.get(i, np.nan))
-        for i in sorted(born))
-    updates = {k: np.asarray(v) for k, v in log.items()}
+        WideAreaTrack(id=i, times=np.asarray(state.times[i]), states=np.asarray(state.states[i]),
+                      birth_time=state.born[i], death_time=state.died.get(i, np.nan))
+        for i in sorted(state.born))
+    updates = {k: np.asarray(v) for k, v in state.log.items()}
     if len(updates["predicted"]) == 0:
         updates["predicted"] = np.zeros((0, 2))
         updates["observed"] = np.zeros((0, 2))
-    return TrackingResult(tracks=tracks, frames_received=received, frames_used=used,
-                          late_dropped=dropped, late_used=late_used,
-                          observations_used=obs_used, updates=updates, **bad)
+    return TrackingResult(tracks=tracks, frames_received=state.intake.received,
+                          frames_used=state.used, late_dropped=state.dropped,
+                          late_used=state.late_used, observations_used=state.observations,
+                          updates=updates, **state.intake.rejected)

@@ -14,7 +14,9 @@ the peers one point at a time); the speed ratios are LSM's points per second ove
 
 Efficiency: at noise 2 and 4 (13 x 13, fresh noise on the noise-free pair, starts within
 0.5 px), both LSM variants' median error over *all accepted* (converged) points, divided by
-the median the Cramér-Rao bound predicts for the same points. Writes
+the median the Cramér-Rao bound predicts for the same points. Issue 21's targets (>= 10x
+ECC, <= 1.15x the bound) get computed verdicts; the machine's load average and numba's
+thread count are written next to them (the speed ratio moves with the load). Writes
 build/benchmarks/lsm.json.
 """
 
@@ -23,6 +25,7 @@ from __future__ import annotations
 import argparse
 import os
 
+import numba as nb
 import numpy as np
 
 from lsmta.evaluation.matching import METHODS, draw_points, run_trial, unit_bound
@@ -106,7 +109,23 @@ def main(argv=None):
     for key, e in results["efficiency"].items():
         print(f"{key:>22}: accepted {e['accepted']:6.1%}, median {e['median_px']:.4f} px, "
               f"bound {e['bound_median_px']:.4f} px, ratio {e['efficiency']:.3f}")
-    write_json(args.out, {"args": vars(args), "results": results})
+    results["targets"] = targets(results)
+    print("\nissue 21's targets: " + ", ".join(f"{k} {'met' if v else 'NOT met'}"
+                                                for k, v in results["targets"].items()))
+    write_json(args.out, {"args": vars(args), "results": results,
+                          "numba_threads": nb.config.NUMBA_NUM_THREADS,
+                          "load_average": list(os.getloadavg())})
+
+
+def targets(results: dict) -> dict:
+    """Issue 21's LSM targets from one run: the faster LSM variant at >= 10x the per-point
+    ECC throughput (13 x 13), and every variant's median error over all accepted points
+    within 1.15x the Cramér-Rao median at noise 2 and 4."""
+    r13 = results["13x13"]
+    speed = max(r13["lsm_speed_over_ecc_affine"], r13["lsm_inverse_speed_over_ecc_affine"])
+    return {"speed >= 10x ECC (13x13)": bool(speed >= 10.0),
+            "median <= 1.15x bound (sigma 2, 4)": bool(all(
+                e["efficiency"] <= 1.15 for e in results["efficiency"].values()))}
 
 
 if __name__ == "__main__":

@@ -94,7 +94,7 @@ def main(argv=None):
     write_json(args.out, {"args": vars(args), "rows": rows, "real_pair": real})
 
 
-def real_pair(step: int = 4, disparities=(0, 64)) -> list[dict]:
+def real_pair(*, step: int = 4, disparities=(0, 64)) -> list[dict]:
     """Middlebury Cones: ours against SGBM (filters on, off) and BM on the same grid nodes."""
     cones = stereo.load_cones()
     truth, scored = cones.grid(step)

@@ -395,7 +395,7 @@ class _State:
     n_lsm: int = 0
 
     @classmethod
-    def empty(cls, shape, K: int) -> _State:
+    def initial(cls, shape, K: int) -> _State:
         rows, cols = shape
         return cls(state=np.zeros(shape, dtype=np.int8), attempts=np.zeros(shape, np.int16),
                    xy=np.full((rows, cols, K, 2), np.nan),
@@ -532,7 +532,7 @@ def _grow_driver(template, searches, seeds_t, seeds_s, options: dict) -> list[Gr
     if len(seeds_t) == 0:
         raise ValueError("seeds_template: expected at least one seed")
     grid = _grid(f_img, opts, options["mask"], seeds_t)
-    state = _State.empty(grid.shape, len(g_imgs))
+    state = _State.initial(grid.shape, len(g_imgs))
     matcher = _Matcher(f_img, g_imgs, opts)
     seeds_ok = _start_from_seeds(state, grid, matcher, seeds_t, seeds_s, opts)
     _grow(state, grid, matcher, opts)

@@ -345,7 +345,7 @@ class _State:
     ee_img: np.ndarray      # (n, K) each image's share of ee_last
 
     @classmethod
-    def start(cls, model: _Model, f_img: SplineImage, t_xy, c0, A0, *, curves=None) -> _State:
+    def initial(cls, model: _Model, f_img: SplineImage, t_xy, c0, A0, *, curves=None) -> _State:
         """Starting values; points whose template patch does not fit are OUTSIDE."""
         n, K = c0.shape[:2]
         k = model.unknowns(K, curves is not None)
@@ -483,7 +483,7 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
     weights = _template_weights(template_mask, f_img)
     max_disp = float(model.patch) if max_displacement is None else float(max_displacement)
 
-    state = _State.start(model, f_img, t_xy, s_xy[:, None], A0[:, None])
+    state = _State.initial(model, f_img, t_xy, s_xy[:, None], A0[:, None])
     _solve(state, model, f_img, [g_img], weights, max_disp=max_disp, tol=tol, max_vif=max_vif)
     result = _result(state, model, s_xy)
     return thresholds.apply(result) if thresholds is not None else result

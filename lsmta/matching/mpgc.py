@@ -314,7 +314,7 @@ def mpgc(template, searches, template_xy, t0, constraint, *, patch: int = 13,
     max_disp = float(model.patch) if max_displacement is None else float(max_displacement)
 
     c0 = constraint.positions(t_xy, t_start)
-    state = _State.start(model, f_img, t_xy, np.nan_to_num(c0, nan=-1e6), A0,
+    state = _State.initial(model, f_img, t_xy, np.nan_to_num(c0, nan=-1e6), A0,
                          curves=(t_start, *constraint.curves(t_xy, t_start)))
     state.status[~(np.isfinite(t_start) & np.isfinite(c0).all(axis=(1, 2)))] = Status.OUTSIDE
     _solve(state, model, f_img, g_imgs, weights, max_disp=max_disp, tol=tol, max_vif=max_vif)

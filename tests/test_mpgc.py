@@ -16,6 +16,7 @@ from lsmta.matching import (
     grow_matches,
     lsm,
     measure_disparity,
+    measure_surface,
     mpgc,
 )
 from lsmta.synth import triplet_rig
@@ -139,6 +140,23 @@ def test_joint_growth_over_the_plane(plane_triplet):
     assert len(grown[0]) > 500 and np.array_equal(grown[0].t, grown[1].t)
     X = CameraGeometry(cams, template=1).points(grown[0].template_xy, grown[0].t)
     err = np.linalg.norm(X - intersect(cams[1], grown[0].template_xy), axis=1)
+    assert np.median(err) < 0.5 and np.percentile(err, 99) < 3.0
+
+
+def test_measure_surface_joint_over_the_plane(plane_triplet):
+    """measure_surface(joint=True): grown jointly, filtered with the joint re-match; the rays
+    of every tuple meet (positions on the epipolar curves) and the points lie on the plane."""
+    cams, images, intersect = plane_triplet
+    seeds_t = np.array([[170.0, 130.0], [210.0, 170.0]])
+    truth = intersect(cams[1], seeds_t)
+    seeds = np.stack([cams[k].project(truth) + (0.5 if k != 1 else 0.0) for k in range(3)])
+    th = LSMThresholds(max_displacement=4.0, max_sigma_xy=0.2, scale_range=(0.5, 2.0),
+                       max_shear=0.5)
+    res = measure_surface(images, cams, seeds, step=4, patch=9, thresholds=th, joint=True)
+    kept = res.neighbourhood_ok & res.intersection.valid
+    assert kept.sum() > 500 and kept.mean() > 0.9
+    assert np.nanmax(res.intersection.reprojection_error[:, kept]) < 0.01
+    err = np.linalg.norm(res.points - intersect(cams[1], res.xy[1, kept]), axis=1)
     assert np.median(err) < 0.5 and np.percentile(err, 99) < 3.0
 
 

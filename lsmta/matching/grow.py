@@ -36,6 +36,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .._validate import as_array, check_patch
 from .lsm import METHODS as LSM_METHODS
@@ -118,8 +119,6 @@ class GrowResult:
 
 def voronoi_cells(seeds_xy: np.ndarray, nodes_xy: np.ndarray) -> np.ndarray:
     """Index of the nearest seed for every node (the seeds' Voronoi cells)."""
-    from scipy.spatial import cKDTree
-
     return cKDTree(seeds_xy).query(nodes_xy)[1]
 
 

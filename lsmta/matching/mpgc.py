@@ -39,12 +39,13 @@ Two geometries:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .._validate import as_array
 from ..camera import Camera
+from ..triangulation import triangulate
 from .lsm import (
     LSMResult,
     LSMThresholds,
@@ -159,8 +160,6 @@ class CameraGeometry:
     def parameter(self, template_xy: np.ndarray, search_xy: np.ndarray) -> np.ndarray:
         """Inverse depth of the point intersected from the template pixel and approximate
         positions ``search_xy`` (n, K, 2) in the search images."""
-        from ..triangulation import triangulate
-
         K1 = len(self.cameras)
         xy = np.empty((K1, len(template_xy), 2))
         xy[self.template] = template_xy
@@ -386,8 +385,6 @@ def _constrained_result(state: _State, model, constraint, c0) -> ConstrainedResu
 
 
 def _apply(thresholds: LSMThresholds, result: ConstrainedResult) -> ConstrainedResult:
-    from dataclasses import replace
-
     accept = np.ones(len(result), dtype=bool)
     for k in range(result.xy.shape[0]):
         accept &= thresholds.accept(result.image(k))

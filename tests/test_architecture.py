@@ -60,8 +60,7 @@ EXEMPT_RNG: set = set()
 # the notebooks' vocabulary: record(figure, quantity, value, unit), verdict(ok, target); and
 # the command line's entry point
 EXEMPT_ARGS = {"lsmta.report.record(unit)", "lsmta.report.verdict(target)", "lsmta.cli.main(argv)"}
-# drivers of the dense-matching issue, to be staged there
-EXEMPT_LENGTH = {"lsmta.matching.lsm.lsm", "lsmta.matching.grow.grow_matches"}
+EXEMPT_LENGTH: set = set()
 
 
 def _modules():

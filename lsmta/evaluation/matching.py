@@ -21,6 +21,8 @@ from ..synth.patches import WarpedPair
 #: method name -> (callable(template, search, template_xy, search_xy, patch) -> result)
 METHODS = {
     "lsm": lambda f, g, t, s, patch, **kw: lsm(f, g, t, s, patch=patch, **kw),
+    "lsm_inverse": lambda f, g, t, s, patch, **kw: lsm(f, g, t, s, patch=patch, method="inverse",
+                                                       **kw),
     "ecc_affine": lambda f, g, t, s, patch, **kw: peers.ecc(f, g, t, s, patch=patch),
     "ecc_translation": lambda f, g, t, s, patch, **kw: peers.ecc(f, g, t, s, patch=patch,
                                                                  motion="translation"),
@@ -49,6 +51,7 @@ class MatchTrial:
     crb : (N, 2, 2) array or None
         Cramér-Rao covariance of the position for LSM's parameter set.
     lsm_result : LSMResult or None
+        The result of the (last) LSM variant run.
     """
 
     truth: np.ndarray
@@ -141,12 +144,13 @@ def run_trial(pair: WarpedPair, *, rng: np.random.Generator | int | None = None,
     start = random_starts(truth, rng=rng, start_error=start_error, start_distance=start_distance)
     trial = MatchTrial(truth=truth, start=start)
     for name in methods:
-        kw = dict(geometry=geometry, radiometry=radiometry, **lsm_kwargs) if name == "lsm" else {}
+        ours = name.startswith("lsm")
+        kw = dict(geometry=geometry, radiometry=radiometry, **lsm_kwargs) if ours else {}
         t0 = time.perf_counter()
         res = METHODS[name](pair.template, pair.search, pts, start, patch, **kw)
         trial.seconds[name] = time.perf_counter() - t0
         trial.errors[name] = np.where(res.ok[:, None], res.xy - truth, np.nan)
-        if name == "lsm":
+        if ours:
             trial.lsm_result = res
     if bound and pair.noise_sigma > 0:
         if bound_unit is None:

@@ -23,6 +23,22 @@ def beyond_the_paper(noise_sigma: float, template_image, *, backdrop: float = 12
                 template_mask=backdrop_mask(template_image, backdrop))
 
 
+def joint_beyond(noise_sigma: float, template_image, *, backdrop: float = 12.0,
+                 border: int = 7) -> dict:
+    """Options of :func:`~lsmta.matching.measure_surface` for the joint variant of notebook 03
+    and ``experiments/surface_benchmark.py``: geometrically constrained matching of the
+    triplet (``joint=True``), growth only at least ``border`` px inside the backdrop mask
+    (no windows across the silhouette), the robust retry, the template mask and the median
+    neighbourhood filter of :func:`beyond_the_paper` with a position limit of 0.4 px. No
+    shifted windows (their carried-back positions leave the epipolar curves) and no
+    geometric check (jointly matched rays meet by construction).
+    """
+    mask = backdrop_mask(template_image, backdrop)
+    return dict(joint=True, mask=ndimage.binary_erosion(mask, iterations=border),
+                robust=4.7 * np.sqrt(2.0) * noise_sigma, robust_patch=9, template_mask=mask,
+                neighbourhood_statistic="median", max_affine=0.3, max_position=0.4)
+
+
 def seeds_from_truth(scene: Scene, cameras, frame: int, *,
                      rng: np.random.Generator | int | None = None, per_part: int = 1,
                      perturb_px: float = 1.0, min_px: int = 40):
@@ -158,3 +174,78 @@ def classify_misses(result: SurfaceResult, truth: dict, rendered: RenderedFrame,
         out[f"smooth_missed_matched_in_search_{k}"] = int((smooth & seen).sum())
     out["smooth_missed"] = int(smooth.sum())
     return out
+
+
+def surface_truth_at(rendered: RenderedFrame, xy, *, template: int = 1) -> np.ndarray:
+    """The true surface point ``(N, 3)`` seen at sub-pixel positions ``xy`` ``(N, 2)`` of the
+    template image: the rendered per-pixel world points, bilinearly interpolated; NaN where
+    the four pixels around ``xy`` are not all on one body part (silhouettes, depth jumps)."""
+    xy = np.asarray(xy, dtype=float)
+    pid = rendered.part_id[template]
+    world = rendered.world_xyz[template]
+    H, W = pid.shape
+    x0 = np.floor(xy[:, 0]).astype(int)
+    y0 = np.floor(xy[:, 1]).astype(int)
+    ok = (x0 >= 0) & (y0 >= 0) & (x0 < W - 1) & (y0 < H - 1)
+    x0, y0 = np.where(ok, x0, 0), np.where(ok, y0, 0)
+    fx, fy = (xy[:, 0] - x0)[:, None], (xy[:, 1] - y0)[:, None]
+    corners = [(y0, x0), (y0, x0 + 1), (y0 + 1, x0), (y0 + 1, x0 + 1)]
+    parts = np.stack([pid[r, c] for r, c in corners])
+    ok &= (parts[0] >= 0) & np.all(parts == parts[0], axis=0)
+    w = [(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy]
+    out = sum(wi * world[r, c] for wi, (r, c) in zip(w, corners))
+    out[~ok] = np.nan
+    return out
+
+
+def node_errors(result: SurfaceResult, truth: dict) -> np.ndarray:
+    """3-D error (mm) of every kept node of a surface measurement, as a ``(rows, cols)``
+    grid of :func:`node_truth`'s nodes (NaN: not kept or not on the body)."""
+    step = truth["step"]
+    grid = np.full(truth["on_body"].shape, np.nan)
+    keep = result.neighbourhood_ok & result.intersection.valid
+    r = (result.template_xy[keep, 1] // step).astype(int)
+    c = (result.template_xy[keep, 0] // step).astype(int)
+    err = np.linalg.norm(result.intersection.points[keep] - truth["world"][r, c], axis=1)
+    grid[r, c] = np.where(truth["on_body"][r, c], err, np.nan)
+    return grid
+
+
+def point_errors(points, xy, truth: dict, rendered: RenderedFrame, *, template: int = 1,
+                 radius: float | None = None) -> np.ndarray:
+    """3-D error (mm) of a dense method's points at the nodes of :func:`node_truth`, as a
+    ``(rows, cols)`` grid: each node takes the point whose template position ``xy`` is
+    nearest to it, if within ``radius`` px (default half the grid step: the node's cell),
+    scored against the true surface at that point's exact position
+    (:func:`surface_truth_at`; no rounding to pixels)."""
+    from scipy.spatial import cKDTree
+
+    step = truth["step"]
+    radius = step / 2 if radius is None else radius
+    rows, cols = truth["on_body"].shape
+    grid = np.full((rows, cols), np.nan)
+    xy = np.asarray(xy, dtype=float)
+    if len(xy) == 0:
+        return grid
+    rr, cc = np.mgrid[0:rows, 0:cols]
+    nodes = np.stack([cc.ravel() * step, rr.ravel() * step], axis=1).astype(float)
+    dist, j = cKDTree(xy).query(nodes, distance_upper_bound=radius)
+    has = np.isfinite(dist)
+    err = np.linalg.norm(np.asarray(points)[j[has]]
+                         - surface_truth_at(rendered, xy[j[has]], template=template), axis=1)
+    grid.ravel()[np.flatnonzero(has)] = err
+    return grid
+
+
+def grid_scores(errors: np.ndarray, truth: dict, *, population=None, gross_mm: float = 2.0):
+    """Scores of a ``(rows, cols)`` error grid over a population of nodes (default: the
+    target nodes, visible and interior): ``density`` (share of the population with an
+    error, i.e. an estimate scored against a known surface), and over those ``median_mm``,
+    ``p95_mm`` and ``gross`` (share above ``gross_mm``)."""
+    pop = truth["visible"] & truth["interior"] if population is None else population
+    e = errors[pop & np.isfinite(errors)]
+    if e.size == 0:
+        return {"density": 0.0, "n": 0, "median_mm": np.nan, "p95_mm": np.nan, "gross": np.nan}
+    return {"density": float(e.size / pop.sum()), "n": int(e.size),
+            "median_mm": float(np.median(e)), "p95_mm": float(np.percentile(e, 95)),
+            "gross": float(np.mean(e > gross_mm))}

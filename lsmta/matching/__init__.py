@@ -6,22 +6,29 @@ them in several search images (the triplet: centre template, left and right sear
 ``LSMThresholds`` holds the quality indicators that accept or reject a match;
 ``grow_matches`` grows dense matches from seeds, ``measure_surface`` turns one multi-image
 frame into 3-D surface points; ``backdrop_mask`` finds an object in front of a dark backdrop
-(a ``template_mask`` for matching next to its silhouette).
+(a ``template_mask`` for matching next to its silhouette). Beyond the paper: ``mpgc``
+matches one template in all search images jointly under the epipolar condition (Gruen &
+Baltsavias 1988; ``RectifiedPair``, ``CameraGeometry``), ``grow_joint`` grows that way, and
+``measure_disparity`` gives the dense disparity of a rectified pair.
 """
 
 from .correlation import CorrelationResult, CorrelationStatus, correlation_search
+from .disparity import DisparityResult, measure_disparity
 from .filters import NeighbourhoodCheck, neighbourhood_filter
-from .grow import GrowResult, grow_matches
+from .grow import GrowResult, grow_joint, grow_matches
 from .lsm import GEOMETRIES, PARAM_NAMES, RADIOMETRIES, LSMResult, LSMThresholds, Status, lsm
 from .masks import backdrop_mask
+from .mpgc import CameraGeometry, ConstrainedResult, RectifiedPair, mpgc
 from .multi import lsm_multi
-from .seeds import Seeds, find_seeds
+from .seeds import Seeds, find_disparity_seeds, find_seeds
 from .spline import SplineImage
 from .surface import SurfaceResult, enhance_contrast, measure_surface
 
 __all__ = [
-    "GEOMETRIES", "PARAM_NAMES", "RADIOMETRIES", "CorrelationResult", "CorrelationStatus",
-    "GrowResult", "LSMResult", "LSMThresholds", "NeighbourhoodCheck", "Seeds", "SplineImage",
-    "Status", "SurfaceResult", "backdrop_mask", "correlation_search", "enhance_contrast",
-    "find_seeds", "grow_matches", "lsm", "lsm_multi", "measure_surface", "neighbourhood_filter",
+    "GEOMETRIES", "PARAM_NAMES", "RADIOMETRIES", "CameraGeometry", "ConstrainedResult",
+    "CorrelationResult", "CorrelationStatus", "DisparityResult", "GrowResult", "LSMResult",
+    "LSMThresholds", "NeighbourhoodCheck", "RectifiedPair", "Seeds", "SplineImage", "Status",
+    "SurfaceResult", "backdrop_mask", "correlation_search", "enhance_contrast",
+    "find_disparity_seeds", "find_seeds", "grow_joint", "grow_matches", "lsm", "lsm_multi",
+    "measure_disparity", "measure_surface", "mpgc", "neighbourhood_filter",
 ]

@@ -56,6 +56,8 @@ def cramer_rao_xy(g, gx, gy, *, patch: int, r1=1.0, noise_sigma: float,
         cols += [Gx * ux + Gy * uy, -Gx * uy + Gy * ux]
     elif geometry == "affine":
         cols += [Gx * ux, Gx * uy, Gy * ux, Gy * uy]
+    elif geometry == "row-affine":
+        cols += [Gx * ux, Gx * uy]
     if radiometry != "none":
         cols.append(np.ones_like(g))
     if radiometry == "linear":

@@ -18,20 +18,36 @@ Choices where the paper is vague: the retry changes the patch size only (a small
 would leave the grid); a node may be tried up to ``max_attempts`` times from different
 neighbours; nodes whose patch does not fit or whose template patch has no texture are
 never tried.
+
+Geometrically constrained growth (beyond the paper; ``constraint=``): every node is matched
+by :func:`~lsmta.matching.mpgc.mpgc`, one parameter ``t`` along the epipolar curve instead of
+a free 2-D shift — a disparity for a rectified pair, a depth for calibrated cameras.
+:func:`grow_joint` grows into several search images at once, each node matched in all of
+them jointly (Gruen & Baltsavias 1988).
+
+The driver reads as its stages: check the arguments (``_Options``), lay out the node grid
+(``_grid``), match the seeds and their first nodes (``_start_from_seeds``), grow inside the
+cells and then across them (``_grow``), and freeze the result (``_results``); the state of
+the nodes lives in ``_State`` and every matching attempt goes through ``_Matcher``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .._validate import as_array, check_patch
+from .lsm import METHODS as LSM_METHODS
 from .lsm import LSMThresholds, Status, _check_robust, lsm
+from .mpgc import _check_constraint, mpgc
 from .spline import SplineImage
 
 HORIZONTAL = ((1, 0), (-1, 0))
 VERTICAL = ((0, 1), (0, -1))
+#: the reach of the last phase (``reach=True``): diagonal neighbours and nodes two steps away
+FAR = ((1, 1), (-1, 1), (1, -1), (-1, -1), (2, 0), (-2, 0), (0, 2), (0, -2))
 METHODS = ("patch", "retry", "robust", "shifted")
 
 
@@ -69,6 +85,11 @@ class GrowResult:
     method : (N,) str array
         Which attempt matched the node: ``"patch"`` (the main patch), ``"retry"`` (a retry
         patch size), ``"robust"`` or ``"shifted"``.
+    t : (N,) array
+        With a ``constraint``: the node's parameter along the epipolar curve (disparity in
+        px, or inverse depth in 1/m); NaN without one.
+    sigma_t : (N,) array
+        Its standard deviation from the joint adjustment (NaN without a constraint).
     """
 
     template_xy: np.ndarray
@@ -84,6 +105,13 @@ class GrowResult:
     grid_shape: tuple
     node_index: np.ndarray
     method: np.ndarray
+    t: np.ndarray = field(default=None)
+    sigma_t: np.ndarray = field(default=None)
+
+    def __post_init__(self):
+        for name in ("t", "sigma_t"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full(len(self.template_xy), np.nan))
 
     def __len__(self) -> int:
         return len(self.template_xy)
@@ -91,8 +119,6 @@ class GrowResult:
 
 def voronoi_cells(seeds_xy: np.ndarray, nodes_xy: np.ndarray) -> np.ndarray:
     """Index of the nearest seed for every node (the seeds' Voronoi cells)."""
-    from scipy.spatial import cKDTree
-
     return cKDTree(seeds_xy).query(nodes_xy)[1]
 
 
@@ -102,7 +128,10 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
                  geometry: str = "affine", radiometry: str = "linear", max_attempts: int = 3,
                  min_texture: float = 2.0, close_holes: bool = True,
                  shift: int = 0, robust: float | None = None,
-                 robust_patch: int | None = None, template_mask=None) -> GrowResult:
+                 robust_patch: int | None = None, template_mask=None,
+                 method: str = "forward", support: float | None = None,
+                 partial: bool = False, max_iter: int | None = None, tol: float = 1e-4,
+                 reach: bool = False, constraint=None) -> GrowResult:
     """Grow dense matches between two images from a few seed correspondences.
 
     Parameters
@@ -130,8 +159,7 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
     max_attempts : int
         How often a node may be tried from different neighbours.
     min_texture : float
-        Nodes whose template patch has a grey-value standard deviation below this are
-        skipped (no texture to match).
+        Nodes whose template patch's grey-value standard deviation is below this are skipped.
     close_holes : bool
         After growing inside the cells, grow into the remaining nodes from every side.
     shift : int
@@ -152,183 +180,431 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         :func:`~lsmta.matching.lsm`), so a patch next to the silhouette rests on the
         object alone (a patch with less than ``thresholds.min_weight_share`` of object
         pixels is rejected). Unlike ``mask``, it does not say where to grow.
+    method : {"forward", "inverse"}
+        LSM's iterations (see :func:`~lsmta.matching.lsm`).
+    support : float, optional
+        Adaptive support weights in every LSM (see :func:`~lsmta.matching.lsm`).
+    partial : bool
+        Let patches reach over the image borders (see :func:`~lsmta.matching.lsm`), so that
+        nodes next to the border are tried too.
+    max_iter : int, optional
+        LSM's iteration limit (default: :func:`~lsmta.matching.lsm`'s). Nodes that need many
+        iterations rarely pass the thresholds; a lower limit saves their time.
+    tol : float
+        LSM's convergence limit, pixels (see :func:`~lsmta.matching.lsm`).
+    reach : bool
+        After closing holes, grow once more from diagonal neighbours and from nodes two
+        steps away, into open nodes that no direct neighbour could reach (all of theirs
+        failed).
+    constraint : RectifiedPair or CameraGeometry, optional
+        Match every node under the epipolar condition (:func:`~lsmta.matching.mpgc.mpgc`):
+        one disparity or depth per node instead of a free shift. The geometry must have
+        one search image.
 
     Returns
     -------
     GrowResult
     """
-    patch = check_patch(patch)
-    if retry_patch is None:
-        retry_patch = (patch + 6,)
-    retry_patches = tuple(check_patch(p, "retry_patch") for p in np.atleast_1d(retry_patch))
-    robust_patch = patch if robust_patch is None else check_patch(robust_patch, "robust_patch")
-    _check_robust(robust)
-    if isinstance(step, bool) or int(step) != step or step < 1:
-        raise ValueError(f"step: expected a positive integer (pixels), got {step}")
-    step = int(step)
-    if isinstance(shift, bool) or int(shift) != shift or shift < 0:
-        raise ValueError(f"shift: expected a non-negative integer (pixels), got {shift}")
-    offsets = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)
-                        if dx or dy], dtype=float) * int(shift)
-    f_img = template if isinstance(template, SplineImage) else SplineImage(template, "template")
-    g_img = search if isinstance(search, SplineImage) else SplineImage(search, "search")
     seeds_t = as_array(seeds_template, "seeds_template", shape=(None, 2))
     seeds_s = as_array(seeds_search, "seeds_search", shape=(None, 2))
     if len(seeds_t) != len(seeds_s):
         raise ValueError(f"seeds_search: expected {len(seeds_t)} seeds like seeds_template, "
                          f"got {len(seeds_s)}")
-    if len(seeds_t) == 0:
-        raise ValueError("seeds_template: expected at least one seed")
+    if constraint is not None:
+        _check_constraint(constraint)
+        if constraint.n_search != 1:
+            raise ValueError(f"constraint: expected a geometry with one search image, got "
+                             f"{constraint.n_search} (use grow_joint)")
+    return _grow_driver(template, [search], seeds_t, seeds_s[:, None], dict(
+        step=step, patch=patch, retry_patch=retry_patch, thresholds=thresholds, mask=mask,
+        geometry=geometry, radiometry=radiometry, max_attempts=max_attempts,
+        min_texture=min_texture, close_holes=close_holes, shift=shift, robust=robust,
+        robust_patch=robust_patch, template_mask=template_mask, method=method,
+        support=support, partial=partial, max_iter=max_iter, tol=tol, reach=reach,
+        constraint=constraint))[0]
+
+
+def grow_joint(template, searches, seeds_template, seeds_search, constraint,
+               **options) -> list[GrowResult]:
+    """Grow dense matches into K search images at once, every node matched jointly in all
+    of them under the epipolar condition (:func:`~lsmta.matching.mpgc.mpgc`).
+
+    Parameters
+    ----------
+    template : (H, W) array
+    searches : sequence of K (H, W) arrays
+    seeds_template : (S, 2) array
+    seeds_search : (K, S, 2) array
+        Approximate seed positions in every search image.
+    constraint : RectifiedPair or CameraGeometry
+        With ``constraint.n_search == K``.
+    **options
+        The tuning of :func:`grow_matches` (``step``, ``patch``, ``retry_patch``,
+        ``thresholds``, ``mask``, ``geometry``, ``radiometry``, ``max_attempts``,
+        ``min_texture``, ``close_holes``, ``shift``, ``robust``, ``robust_patch``,
+        ``template_mask``, ``method``, ``support``, ``partial``, ``max_iter``, ``tol``,
+        ``reach``).
+
+    Returns
+    -------
+    list of K GrowResult
+        One per search image, over the same nodes (each with the shared ``t``).
+    """
+    _check_constraint(constraint)
+    unknown = set(options) - set(_DEFAULTS)
+    if unknown:
+        raise TypeError(f"grow_joint: unexpected options {sorted(unknown)}")
+    searches = list(searches)
+    K = constraint.n_search
+    if len(searches) != K:
+        raise ValueError(f"searches: expected {K} search images for this constraint, "
+                         f"got {len(searches)}")
+    seeds_t = as_array(seeds_template, "seeds_template", shape=(None, 2))
+    seeds_s = as_array(seeds_search, "seeds_search", shape=(K, len(seeds_t), 2))
+    return _grow_driver(template, searches, seeds_t, seeds_s.transpose(1, 0, 2),
+                        {**_DEFAULTS, **options, "constraint": constraint})
+
+
+_DEFAULTS = dict(step=4, patch=13, retry_patch=None, thresholds=None, mask=None,
+                 geometry="affine", radiometry="linear", max_attempts=3, min_texture=2.0,
+                 close_holes=True, shift=0, robust=None, robust_patch=None,
+                 template_mask=None, method="forward", support=None, partial=False,
+                 max_iter=None, tol=1e-4, reach=False)
+
+
+@dataclass(frozen=True)
+class _Options:
+    """The checked tuning of one growth."""
+
+    step: int
+    patch: int
+    retry_patches: tuple
+    robust: float | None
+    robust_patch: int
+    offsets: np.ndarray            # (8, 2) shifted-window offsets, or empty
+    thresholds: LSMThresholds
+    max_attempts: int
+    min_texture: float
+    close_holes: bool
+    reach: bool
+    model: dict                    # lsm's geometry, radiometry, template_mask, method, ...
+    constraint: object
+
+    @property
+    def largest_patch(self) -> int:
+        return max((self.patch, self.robust_patch) + self.retry_patches)
+
+
+def _options(o: dict) -> _Options:
+    patch = check_patch(o["patch"])
+    retry = (patch + 6,) if o["retry_patch"] is None else o["retry_patch"]
+    retry_patches = tuple(check_patch(p, "retry_patch") for p in np.atleast_1d(retry))
+    robust_patch = patch if o["robust_patch"] is None else check_patch(o["robust_patch"],
+                                                                          "robust_patch")
+    _check_robust(o["robust"])
+    step, shift = o["step"], o["shift"]
+    if isinstance(step, bool) or int(step) != step or step < 1:
+        raise ValueError(f"step: expected a positive integer (pixels), got {step}")
+    if isinstance(shift, bool) or int(shift) != shift or shift < 0:
+        raise ValueError(f"shift: expected a non-negative integer (pixels), got {shift}")
+    if o["method"] not in LSM_METHODS:
+        raise ValueError(f"method: expected one of {list(LSM_METHODS)}, got {o['method']!r}")
+    offsets = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)
+                        if dx or dy], dtype=float) * int(shift) if shift else np.zeros((0, 2))
+    thresholds = o["thresholds"]
     if thresholds is None:
         thresholds = LSMThresholds(max_displacement=float(step))
-    model = dict(geometry=geometry, radiometry=radiometry, template_mask=template_mask)
+    return _Options(step=int(step), patch=patch, retry_patches=retry_patches,
+                    robust=o["robust"], robust_patch=robust_patch, offsets=offsets,
+                    thresholds=thresholds, max_attempts=o["max_attempts"],
+                    min_texture=o["min_texture"], close_holes=o["close_holes"],
+                    reach=bool(o["reach"]),
+                    model=dict(geometry=o["geometry"], radiometry=o["radiometry"],
+                               template_mask=o["template_mask"], method=o["method"],
+                               support=o["support"], partial=o["partial"],
+                               max_iter=o["max_iter"], tol=o["tol"]),
+                    constraint=o["constraint"])
+
+
+@dataclass(frozen=True)
+class _Grid:
+    """The node grid: node ``(r, c)`` at ``(c * step, r * step)``; which nodes can be tried;
+    the seed cell of every node."""
+
+    nodes: np.ndarray      # (rows, cols, 2)
+    usable: np.ndarray     # (rows, cols) bool
+    cell: np.ndarray       # (rows, cols) int
+
+    @property
+    def shape(self) -> tuple:
+        return self.usable.shape
+
+
+def _grid(f_img: SplineImage, opts: _Options, mask, seeds_t) -> _Grid:
     H, W = f_img.shape
     if mask is not None:
         mask = np.asarray(mask)
         if mask.shape != (H, W) or mask.dtype != bool:
             raise ValueError(f"mask: expected a boolean array of shape {(H, W)}, got "
                              f"{mask.dtype} {mask.shape}")
-
-    # the node grid and the nodes that can be tried at all
+    step = opts.step
     rows, cols = (H - 1) // step + 1, (W - 1) // step + 1
     gr, gc = np.mgrid[0:rows, 0:cols]
-    nodes = np.stack([gc * step, gr * step], axis=-1).astype(float)        # (rows, cols, 2)
-    h = max((patch, robust_patch) + retry_patches) // 2
-    usable = f_img.inside(nodes, margin=h)
+    nodes = np.stack([gc * step, gr * step], axis=-1).astype(float)
+    usable = f_img.inside(nodes, margin=0 if opts.model["partial"] else opts.largest_patch // 2)
     if mask is not None:
         usable &= mask[gr * step, gc * step]
     flat = nodes.reshape(-1, 2)
     texture = np.zeros(rows * cols)
-    idx_usable = np.flatnonzero(usable.ravel())
-    if idx_usable.size:
-        hp = patch // 2
+    idx = np.flatnonzero(usable.ravel())
+    if idx.size:
+        # the grey-value spread of each node's patch (the part inside the image)
+        hp = opts.patch // 2
         yy, xx = np.mgrid[-hp:hp + 1, -hp:hp + 1]
-        U = np.stack([xx.ravel(), yy.ravel()], axis=1).astype(float)
-        texture[idx_usable] = f_img.patches(flat[idx_usable], U).std(axis=1)
-    usable &= (texture >= min_texture).reshape(rows, cols)
-    cell = voronoi_cells(seeds_t, flat).reshape(rows, cols)
+        ix = flat[idx, None, 0].astype(np.intp) + xx.ravel()
+        iy = flat[idx, None, 1].astype(np.intp) + yy.ravel()
+        inside = (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
+        if inside.all():
+            texture[idx] = f_img.image[iy, ix].std(axis=1)
+        else:
+            v = f_img.image[np.clip(iy, 0, H - 1), np.clip(ix, 0, W - 1)]
+            n = inside.sum(axis=1)
+            mean = (v * inside).sum(axis=1) / n
+            texture[idx] = np.sqrt((inside * (v - mean[:, None]) ** 2).sum(axis=1) / n)
+    usable &= (texture >= opts.min_texture).reshape(rows, cols)
+    return _Grid(nodes=nodes, usable=usable,
+                 cell=voronoi_cells(seeds_t, flat).reshape(rows, cols))
 
-    # per-node state
-    state = np.zeros((rows, cols), dtype=np.int8)          # 0 open, 1 matched, 2 given up
-    attempts = np.zeros((rows, cols), dtype=np.int16)
-    s_xy = np.full((rows, cols, 2), np.nan)
-    A_all = np.full((rows, cols, 2, 2), np.nan)
-    sig0 = np.full((rows, cols), np.nan)
-    sigxy = np.full((rows, cols, 2), np.nan)
-    wave = np.full((rows, cols), -1)
-    holes = np.zeros((rows, cols), dtype=bool)
-    method = np.zeros((rows, cols), dtype=np.int8)
-    n_lsm = 0
 
-    def match(node_rc, approx, A0):
-        """LSM at grid nodes, then the retry patch sizes, the robust attempt and the shifted
-        windows in turn; returns the accepted mask, the results and how each was matched."""
-        nonlocal n_lsm
-        t_xy = nodes[node_rc[:, 0], node_rc[:, 1]]
-        ok = np.zeros(len(t_xy), dtype=bool)
-        xy, A = np.full((len(t_xy), 2), np.nan), np.full((len(t_xy), 2, 2), np.nan)
-        s0, sxy = np.full(len(t_xy), np.nan), np.full((len(t_xy), 2), np.nan)
-        how = np.zeros(len(t_xy), dtype=np.int8)
+@dataclass
+class _State:
+    """Per-node state of the growth (``K`` search images)."""
 
-        def adopt(again, res, label, pick=None, node_xy=None):
-            """Take the converged results ``res[pick]`` for the nodes ``again``."""
-            pick = np.arange(len(again)) if pick is None else pick
-            good = res.status[pick] == Status.CONVERGED
-            take, pick = again[good], pick[good]
-            ok[take] = True
-            how[take] = METHODS.index(label)
-            xy[take] = (res.xy if node_xy is None else node_xy)[pick]
-            A[take], s0[take], sxy[take] = res.A[pick], res.sigma0[pick], res.sigma_xy[pick]
+    state: np.ndarray          # (rows, cols) int8: 0 open, 1 matched, 2 given up
+    attempts: np.ndarray       # (rows, cols)
+    xy: np.ndarray             # (rows, cols, K, 2)
+    A: np.ndarray              # (rows, cols, K, 2, 2)
+    sigma0: np.ndarray         # (rows, cols)
+    sigma_xy: np.ndarray       # (rows, cols, K, 2)
+    t: np.ndarray              # (rows, cols)
+    sigma_t: np.ndarray        # (rows, cols)
+    wave: np.ndarray           # (rows, cols)
+    holes: np.ndarray          # (rows, cols) bool
+    method: np.ndarray         # (rows, cols) index into METHODS
+    n_lsm: int = 0
 
-        attempts = [(patch, None, "patch")] + [(size, None, "retry") for size in retry_patches]
-        if robust is not None:
-            attempts.append((robust_patch, robust, "robust"))
+    @classmethod
+    def initial(cls, shape, K: int) -> _State:
+        rows, cols = shape
+        return cls(state=np.zeros(shape, dtype=np.int8), attempts=np.zeros(shape, np.int16),
+                   xy=np.full((rows, cols, K, 2), np.nan),
+                   A=np.full((rows, cols, K, 2, 2), np.nan), sigma0=np.full(shape, np.nan),
+                   sigma_xy=np.full((rows, cols, K, 2), np.nan), t=np.full(shape, np.nan),
+                   sigma_t=np.full(shape, np.nan), wave=np.full(shape, -1),
+                   holes=np.zeros(shape, dtype=bool), method=np.zeros(shape, dtype=np.int8))
+
+    def store(self, rc, m: _Matches, wave: int, hole: bool, max_attempts: int) -> None:
+        """Keep the accepted matches; count an attempt at the others (given up after
+        ``max_attempts``)."""
+        r, c = rc[:, 0], rc[:, 1]
+        g = np.flatnonzero(m.ok)
+        rg, cg = r[g], c[g]
+        self.state[rg, cg] = 1
+        self.xy[rg, cg], self.A[rg, cg] = m.xy[g], m.A[g]
+        self.sigma0[rg, cg], self.sigma_xy[rg, cg] = m.sigma0[g], m.sigma_xy[g]
+        self.t[rg, cg], self.sigma_t[rg, cg] = m.t[g], m.sigma_t[g]
+        self.wave[rg, cg], self.holes[rg, cg], self.method[rg, cg] = wave, hole, m.how[g]
+        b = np.flatnonzero(~m.ok)
+        self.attempts[r[b], c[b]] += 1
+        self.state[r[b], c[b]] = np.where(self.attempts[r[b], c[b]] >= max_attempts, 2, 0)
+
+
+@dataclass
+class _Matches:
+    """Matches of m nodes in K search images (NaN where not ``ok``)."""
+
+    ok: np.ndarray             # (m,)
+    xy: np.ndarray             # (m, K, 2)
+    A: np.ndarray              # (m, K, 2, 2)
+    sigma0: np.ndarray         # (m,)
+    sigma_xy: np.ndarray       # (m, K, 2)
+    t: np.ndarray              # (m,)
+    sigma_t: np.ndarray        # (m,)
+    how: np.ndarray            # (m,) index into METHODS
+
+    @classmethod
+    def none(cls, m: int, K: int) -> _Matches:
+        return cls(ok=np.zeros(m, dtype=bool), xy=np.full((m, K, 2), np.nan),
+                   A=np.full((m, K, 2, 2), np.nan), sigma0=np.full(m, np.nan),
+                   sigma_xy=np.full((m, K, 2), np.nan), t=np.full(m, np.nan),
+                   sigma_t=np.full(m, np.nan), how=np.zeros(m, dtype=np.int8))
+
+    def adopt(self, again, res: _Matches, label: str) -> None:
+        """Take the converged ``res`` rows for the nodes ``again``."""
+        good = res.ok
+        take = again[good]
+        self.ok[take] = True
+        self.how[take] = METHODS.index(label)
+        for name in ("xy", "A", "sigma0", "sigma_xy", "t", "sigma_t"):
+            getattr(self, name)[take] = getattr(res, name)[good]
+
+
+class _Matcher:
+    """Every matching attempt of the growth: LSM into one search image, or constrained
+    matching into all of them (:func:`~lsmta.matching.mpgc.mpgc`)."""
+
+    def __init__(self, f_img, g_imgs, opts: _Options):
+        self.f_img, self.g_imgs, self.opts = f_img, g_imgs, opts
+        self.K = len(g_imgs)
+        self.n_lsm = 0
+
+    def once(self, t_xy, approx, A0, *, patch, robust=None, thresholds=None) -> _Matches:
+        """One attempt at m template points from approximations ``approx`` (m, K, 2) and
+        starting affinities ``A0`` (m, K, 2, 2); ``ok`` means converged and accepted."""
+        self.n_lsm += len(t_xy)
+        con = self.opts.constraint
+        if con is None:
+            res = lsm(self.f_img, self.g_imgs[0], t_xy, approx[:, 0], patch=patch,
+                      initial_A=A0[:, 0], robust=robust, thresholds=thresholds,
+                      **self.opts.model)
+            nan = np.full(len(t_xy), np.nan)
+            return _Matches(ok=res.status == Status.CONVERGED, xy=res.xy[:, None],
+                            A=res.A[:, None], sigma0=res.sigma0,
+                            sigma_xy=res.sigma_xy[:, None], t=nan, sigma_t=nan.copy(),
+                            how=np.zeros(len(t_xy), dtype=np.int8))
+        t0 = con.parameter(t_xy, approx)
+        res = mpgc(self.f_img, self.g_imgs, t_xy, t0, con, patch=patch, initial_A=A0,
+                   robust=robust, thresholds=thresholds, **self.opts.model)
+        return _Matches(ok=res.status == Status.CONVERGED, xy=res.xy.transpose(1, 0, 2),
+                        A=res.A.transpose(1, 0, 2, 3), sigma0=res.sigma0,
+                        sigma_xy=res.sigma_xy.transpose(1, 0, 2), t=res.t, sigma_t=res.sigma_t,
+                        how=np.zeros(len(t_xy), dtype=np.int8))
+
+    def match(self, t_xy, approx, A0) -> _Matches:
+        """The attempts in turn: the patch, the retry patch sizes, the robust attempt and
+        the shifted windows; each only for the nodes still unmatched."""
+        o = self.opts
+        out = _Matches.none(len(t_xy), self.K)
+        attempts = [(o.patch, None, "patch")] + [(size, None, "retry")
+                                                  for size in o.retry_patches]
+        if o.robust is not None:
+            attempts.append((o.robust_patch, o.robust, "robust"))
         for size, cut, label in attempts:
-            again = np.flatnonzero(~ok)
+            again = np.flatnonzero(~out.ok)
             if again.size == 0:
                 break
-            res = lsm(f_img, g_img, t_xy[again], approx[again], patch=size, initial_A=A0[again],
-                      robust=cut, thresholds=thresholds, **model)
-            n_lsm += again.size
-            adopt(again, res, label)
-        again = np.flatnonzero(~ok)
-        if shift and again.size:
-            # every failed node in every shifted window, in one call
-            n_a, n_o = again.size, len(offsets)
-            A0a = np.repeat(A0[again], n_o, axis=0)
-            o = np.tile(offsets, (n_a, 1))
-            res = lsm(f_img, g_img, np.repeat(t_xy[again], n_o, axis=0) + o,
-                      np.repeat(approx[again], n_o, axis=0) + np.einsum("nij,nj->ni", A0a, o),
-                      patch=patch, initial_A=A0a, thresholds=thresholds, **model)
-            n_lsm += n_a * n_o
-            passed = (res.status == Status.CONVERGED).reshape(n_a, n_o)
-            best = np.argmin(np.where(passed, res.sigma0.reshape(n_a, n_o), np.inf), axis=1)
-            # the node's match: the best window's match carried back by its affine matrix
-            adopt(again, res, "shifted", pick=np.arange(n_a) * n_o + best,
-                  node_xy=res.xy - np.einsum("nij,nj->ni", res.A, o))
-        return ok, xy, A, s0, sxy, how
+            out.adopt(again, self.once(t_xy[again], approx[again], A0[again], patch=size,
+                                       robust=cut, thresholds=o.thresholds), label)
+        again = np.flatnonzero(~out.ok)
+        if len(o.offsets) and again.size:
+            out.adopt(again, self._shifted(t_xy[again], approx[again], A0[again]), "shifted")
+        return out
 
-    def store(node_rc, ok, xy, A, s0, sxy, how, w, hole):
-        r, c = node_rc[:, 0], node_rc[:, 1]
-        good = np.flatnonzero(ok)
-        state[r[good], c[good]] = 1
-        s_xy[r[good], c[good]] = xy[good]
-        A_all[r[good], c[good]] = A[good]
-        sig0[r[good], c[good]] = s0[good]
-        sigxy[r[good], c[good]] = sxy[good]
-        wave[r[good], c[good]] = w
-        holes[r[good], c[good]] = hole
-        method[r[good], c[good]] = how[good]
-        bad = np.flatnonzero(~ok)
-        attempts[r[bad], c[bad]] += 1
-        state[r[bad], c[bad]] = np.where(attempts[r[bad], c[bad]] >= max_attempts, 2, 0)
+    def _shifted(self, t_xy, approx, A0) -> _Matches:
+        """Every node in every shifted window, in one call; a node's match is its best
+        passing window's (smallest sigma0) carried back by that window's affine matrices."""
+        o = self.opts
+        n_a, n_o = len(t_xy), len(o.offsets)
+        off = np.tile(o.offsets, (n_a, 1))                                    # (n_a n_o, 2)
+        A0r = np.repeat(A0, n_o, axis=0)                                      # (.., K, 2, 2)
+        res = self.once(np.repeat(t_xy, n_o, axis=0) + off,
+                        np.repeat(approx, n_o, axis=0) + np.einsum("nkij,nj->nki", A0r, off),
+                        A0r, patch=o.patch, thresholds=o.thresholds)
+        passed = res.ok.reshape(n_a, n_o)
+        best = np.argmin(np.where(passed, res.sigma0.reshape(n_a, n_o), np.inf), axis=1)
+        pick = np.arange(n_a) * n_o + best
+        back = res.xy - np.einsum("nkij,nj->nki", res.A, off)
+        out = _Matches(ok=res.ok[pick], xy=back[pick], A=res.A[pick], sigma0=res.sigma0[pick],
+                       sigma_xy=res.sigma_xy[pick], t=res.t[pick], sigma_t=res.sigma_t[pick],
+                       how=res.how[pick])
+        if o.constraint is not None and out.ok.any():
+            # the node's own parameter: its carried-back positions on its own curve
+            out.t[out.ok] = o.constraint.parameter(t_xy[out.ok], out.xy[out.ok])
+        return out
 
-    # 1. the seeds: LSM at the seed itself, then its nearest usable node of its own cell
-    seed_res = lsm(f_img, g_img, seeds_t, seeds_s, patch=max((patch,) + retry_patches),
-                   **model)
-    n_lsm += len(seeds_t)
-    seeds_ok = seed_res.status == Status.CONVERGED
+
+def _grow_driver(template, searches, seeds_t, seeds_s, options: dict) -> list[GrowResult]:
+    """Check the arguments, lay out the grid, start from the seeds, grow, freeze."""
+    opts = _options(options)
+    f_img = template if isinstance(template, SplineImage) else SplineImage(template, "template")
+    g_imgs = [g if isinstance(g, SplineImage) else SplineImage(g, "search") for g in searches]
+    if len(seeds_t) == 0:
+        raise ValueError("seeds_template: expected at least one seed")
+    grid = _grid(f_img, opts, options["mask"], seeds_t)
+    state = _State.initial(grid.shape, len(g_imgs))
+    matcher = _Matcher(f_img, g_imgs, opts)
+    seeds_ok = _start_from_seeds(state, grid, matcher, seeds_t, seeds_s, opts)
+    _grow(state, grid, matcher, opts)
+    state.n_lsm = matcher.n_lsm
+    return _results(state, grid, seeds_ok)
+
+
+def _start_from_seeds(state: _State, grid: _Grid, matcher: _Matcher, seeds_t, seeds_s,
+                      opts: _Options) -> np.ndarray:
+    """LSM at every seed (the largest patch, no thresholds), then at the nearest usable node
+    of each matched seed's cell, starting from the seed's solution; returns which seeds
+    matched."""
+    seed = matcher.once(seeds_t, seeds_s, np.broadcast_to(np.eye(2), seeds_s.shape + (2,)),
+                        patch=max((opts.patch,) + opts.retry_patches))
     start_nodes, start_approx, start_A = [], [], []
-    for k in np.flatnonzero(seeds_ok):
-        cand = np.argwhere(usable & (cell == k) & (state == 0))
+    for k in np.flatnonzero(seed.ok):
+        cand = np.argwhere(grid.usable & (grid.cell == k) & (state.state == 0))
         if cand.size == 0:
             continue
-        d = np.linalg.norm(nodes[cand[:, 0], cand[:, 1]] - seeds_t[k], axis=1)
+        d = np.linalg.norm(grid.nodes[cand[:, 0], cand[:, 1]] - seeds_t[k], axis=1)
         rc = cand[np.argmin(d)]
         start_nodes.append(rc)
-        offset = nodes[rc[0], rc[1]] - seeds_t[k]
-        start_approx.append(seed_res.xy[k] + seed_res.A[k] @ offset)
-        start_A.append(seed_res.A[k])
+        offset = grid.nodes[rc[0], rc[1]] - seeds_t[k]
+        start_approx.append(seed.xy[k] + seed.A[k] @ offset)
+        start_A.append(seed.A[k])
     if start_nodes:
         rc = np.array(start_nodes)
-        store(rc, *match(rc, np.array(start_approx), np.array(start_A)), 0, False)
+        state.store(rc, matcher.match(grid.nodes[rc[:, 0], rc[:, 1]], np.array(start_approx),
+                                      np.array(start_A)), 0, False, opts.max_attempts)
+    return seed.ok
 
-    # 2. growth inside the cells, then 3. hole closing across cells
+
+def _grow(state: _State, grid: _Grid, matcher: _Matcher, opts: _Options) -> None:
+    """Growth inside the cells, then (``close_holes``) across them, then (``reach``) from
+    further neighbours: each step matches the whole front, from the neighbours' solutions
+    (horizontally and then vertically in the first two phases)."""
+    phases = [(False, (HORIZONTAL, VERTICAL))]
+    if opts.close_holes:
+        phases.append((True, (HORIZONTAL, VERTICAL)))
+    if opts.reach:
+        phases.append((True, (HORIZONTAL + VERTICAL + FAR,)))
     w = 1
-    for hole_phase in ((False, True) if close_holes else (False,)):
-        frontier = state == 1
+    for across, steps in phases:
+        frontier = state.state == 1
         while frontier.any():
             grown = np.zeros_like(frontier)
-            for directions in (HORIZONTAL, VERTICAL):
-                cand_rc, parent_rc = _candidates(frontier | grown, state, usable, cell,
-                                                 directions, same_cell=not hole_phase)
-                if cand_rc.size == 0:
+            for directions in steps:
+                cand, parent = _candidates(frontier | grown, state.state, grid.usable,
+                                           grid.cell, directions, same_cell=not across)
+                if cand.size == 0:
                     continue
-                pr, pc = parent_rc[:, 0], parent_rc[:, 1]
-                offset = nodes[cand_rc[:, 0], cand_rc[:, 1]] - nodes[pr, pc]
-                approx = s_xy[pr, pc] + np.einsum("nij,nj->ni", A_all[pr, pc], offset)
-                ok, *out = match(cand_rc, approx, A_all[pr, pc])
-                store(cand_rc, ok, *out, w, hole_phase)
-                grown[cand_rc[ok, 0], cand_rc[ok, 1]] = True
+                pr, pc = parent[:, 0], parent[:, 1]
+                offset = grid.nodes[cand[:, 0], cand[:, 1]] - grid.nodes[pr, pc]
+                A_par = state.A[pr, pc]
+                approx = state.xy[pr, pc] + np.einsum("nkij,nj->nki", A_par, offset)
+                m = matcher.match(grid.nodes[cand[:, 0], cand[:, 1]], approx, A_par)
+                state.store(cand, m, w, across, opts.max_attempts)
+                grown[cand[m.ok, 0], cand[m.ok, 1]] = True
             frontier = grown
             w += 1
 
-    r, c = np.nonzero(state == 1)
-    return GrowResult(template_xy=nodes[r, c], search_xy=s_xy[r, c], A=A_all[r, c],
-                      sigma0=sig0[r, c], sigma_xy=sigxy[r, c], seed=cell[r, c], wave=wave[r, c],
-                      hole_closing=holes[r, c], seeds_matched=seeds_ok, n_lsm=n_lsm,
-                      grid_shape=(rows, cols), node_index=np.stack([r, c], axis=1),
-                      method=np.array(METHODS)[method[r, c]])
+
+def _results(state: _State, grid: _Grid, seeds_ok) -> list[GrowResult]:
+    r, c = np.nonzero(state.state == 1)
+    common = dict(template_xy=grid.nodes[r, c], sigma0=state.sigma0[r, c], seed=grid.cell[r, c],
+                  wave=state.wave[r, c], hole_closing=state.holes[r, c],
+                  seeds_matched=seeds_ok, n_lsm=state.n_lsm, grid_shape=grid.shape,
+                  node_index=np.stack([r, c], axis=1),
+                  method=np.array(METHODS)[state.method[r, c]], t=state.t[r, c],
+                  sigma_t=state.sigma_t[r, c])
+    return [GrowResult(search_xy=state.xy[r, c, k], A=state.A[r, c, k],
+                       sigma_xy=state.sigma_xy[r, c, k], **common)
+            for k in range(state.xy.shape[2])]
 
 
 def _candidates(frontier, state, usable, cell, directions, *, same_cell):

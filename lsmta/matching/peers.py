@@ -14,6 +14,10 @@ compared on the same patches and the same starting positions:
   per point on small windows, read at the window centre.
 
 Template centres are rounded to whole pixels (the peers cut patches from the pixel grid).
+
+Dense stereo peers: :func:`sgbm` (semi-global matching on a pair rectified from calibrated
+cameras, triangulated), and for an already rectified pair :func:`stereo_sgbm` (with and
+without its usual post-filters) and :func:`stereo_bm` (block matching).
 """
 
 from __future__ import annotations
@@ -151,14 +155,17 @@ class StereoPoints:
 
 
 def sgbm(first, second, cam_first, cam_second, *, depth_range=(1800.0, 3500.0),
-         block_size: int = 5, uniqueness: int = 10) -> StereoPoints:
+         block_size: int = 5, uniqueness: int = 10, filters: bool = False) -> StereoPoints:
     """OpenCV semi-global matching on a rectified pair, triangulated to world points.
 
     ``first`` must be the left image of the pair (the second camera lies to its right).
     OpenCV rectifies both images (``stereoRectify`` with the cameras' own distortion),
     ``StereoSGBM`` computes disparities over the range that ``depth_range`` (mm from the
     first camera) implies, and ``reprojectImageTo3D`` turns them into points, which are
-    mapped back to the world frame and to the first image's original pixels.
+    mapped back to the world frame and to the first image's original pixels (exact,
+    sub-pixel: the projection of each point). With ``filters`` OpenCV's usual post-filters
+    are on, as in :func:`stereo_sgbm`: the speckle filter (window 100, range 2) and the
+    left-right check (``disp12MaxDiff = 1``).
     """
     f_img = check_image(first, "first")
     s_img = check_image(second, "second")
@@ -184,6 +191,9 @@ def sgbm(first, second, cam_first, cam_second, *, depth_range=(1800.0, 3500.0),
     matcher = cv2.StereoSGBM_create(minDisparity=int(np.floor(d_lo)), numDisparities=num,
                                     blockSize=block_size, P1=8 * block_size**2,
                                     P2=32 * block_size**2, uniquenessRatio=uniqueness,
+                                    disp12MaxDiff=1 if filters else -1,
+                                    speckleWindowSize=100 if filters else 0,
+                                    speckleRange=2 if filters else 0,
                                     mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
     disp = matcher.compute(rect[0], rect[1]).astype(np.float32) / 16.0
     valid = disp > matcher.getMinDisparity()
@@ -194,3 +204,60 @@ def sgbm(first, second, cam_first, cam_second, *, depth_range=(1800.0, 3500.0),
     xy = cam_first.project(world, behind="nan")
     keep = np.isfinite(xy).all(axis=1)
     return StereoPoints(points=world[keep], xy_first=xy[keep], seconds=seconds)
+
+
+@dataclass(frozen=True)
+class DisparityMap:
+    """A rectified matcher's disparity of every left pixel (``x_left - x_right``, NaN where
+    it gives none) and its run time in seconds."""
+
+    disparity: np.ndarray
+    seconds: float
+
+
+def _as_uint8(image, name: str) -> np.ndarray:
+    img = check_image(image, name)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def stereo_sgbm(left, right, *, num_disparities: int = 64, min_disparity: int = 0,
+                block_size: int = 5, uniqueness: int = 5, filters: bool = True,
+                speckle_window: int = 100, speckle_range: int = 2) -> DisparityMap:
+    """OpenCV's semi-global matching on a rectified pair, run as a user would.
+
+    ``P1 = 8 block_size²``, ``P2 = 32 block_size²`` (OpenCV's recommendation for grey
+    images), full 8-path mode (``MODE_HH``). With ``filters`` the usual post-filters are on:
+    OpenCV's speckle filter (regions under ``speckle_window`` pixels whose disparity varies
+    by more than ``speckle_range`` are removed) and its left-right check
+    (``disp12MaxDiff = 1``); without, both are off. Images are rounded to 8 bits.
+    """
+    import time
+
+    f8, g8 = _as_uint8(left, "left"), _as_uint8(right, "right")
+    if f8.shape != g8.shape:
+        raise ValueError(f"right: expected the shape of left {f8.shape}, got {g8.shape}")
+    matcher = cv2.StereoSGBM_create(
+        minDisparity=min_disparity, numDisparities=num_disparities, blockSize=block_size,
+        P1=8 * block_size**2, P2=32 * block_size**2, uniquenessRatio=uniqueness,
+        disp12MaxDiff=1 if filters else -1, speckleWindowSize=speckle_window if filters else 0,
+        speckleRange=speckle_range if filters else 0, mode=cv2.STEREO_SGBM_MODE_HH)
+    t0 = time.perf_counter()
+    raw = matcher.compute(f8, g8)
+    seconds = time.perf_counter() - t0
+    disparity = raw.astype(float) / 16.0
+    return DisparityMap(np.where(raw >= 16 * min_disparity, disparity, np.nan), seconds)
+
+
+def stereo_bm(left, right, *, num_disparities: int = 64, block_size: int = 15) -> DisparityMap:
+    """OpenCV's block matching on a rectified pair with its default filters (prefilter,
+    texture threshold, uniqueness 15); images rounded to 8 bits."""
+    import time
+
+    f8, g8 = _as_uint8(left, "left"), _as_uint8(right, "right")
+    if f8.shape != g8.shape:
+        raise ValueError(f"right: expected the shape of left {f8.shape}, got {g8.shape}")
+    matcher = cv2.StereoBM_create(numDisparities=num_disparities, blockSize=block_size)
+    t0 = time.perf_counter()
+    raw = matcher.compute(f8, g8)
+    seconds = time.perf_counter() - t0
+    return DisparityMap(np.where(raw >= 0, raw.astype(float) / 16.0, np.nan), seconds)

@@ -1,5 +1,10 @@
 """Automatic seed points: correlation along epipolar lines, checked in every image.
 
+Two finders: :func:`find_seeds` for calibrated cameras (any number, with distortion) and
+:func:`find_disparity_seeds` for a rectified pair, where the epipolar lines are the rows
+and OpenCV's ``matchTemplate`` correlates a whole row segment at once.
+
+
 Candidate points are well-textured corners of the template (OpenCV's Shi-Tomasi
 ``goodFeaturesToTrack``). For each candidate, the viewing ray of the template camera is
 sampled at depths evenly spaced in inverse depth over ``depth_range``; each sample is
@@ -33,12 +38,15 @@ class Seeds:
     score : (S,) array
         Mean normalised cross-correlation over the search images at the chosen depth.
     depth : (S,) array
-        Chosen distance along the template camera's ray, mm.
+        Chosen distance along the template camera's ray, mm (NaN for a rectified pair).
+    disparity : (S,) array or None
+        For a rectified pair (:func:`find_disparity_seeds`): ``x_left - x_right``, pixels.
     """
 
     xy: np.ndarray
     score: np.ndarray
     depth: np.ndarray
+    disparity: np.ndarray | None = None
 
 
 def _ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -133,3 +141,102 @@ def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: 
         xy[k] = p[order, best[order]]
     depth = 1.0 / inv[best[order]]
     return Seeds(xy=xy, score=best_score[order], depth=depth)
+
+
+def find_disparity_seeds(left, right, *, disparity_range, n_seeds: int = 30, patch: int = 11,
+                         min_score: float = 0.8, uniqueness: float = 0.05, mask=None,
+                         min_distance: int = 15) -> Seeds:
+    """Seeds for a rectified pair: corners of the left image, found in the right image on
+    the same row by normalised cross-correlation.
+
+    For each well-textured corner (Shi-Tomasi) the ``patch x patch`` window is correlated
+    (``cv2.matchTemplate``, ``TM_CCOEFF_NORMED``) with the right image's row band over
+    ``disparity_range``; the peak is refined to sub-pixel by a parabola. A corner is kept
+    when its peak reaches ``min_score`` and beats every other peak of its row (more than
+    two pixels away) by ``uniqueness`` — a repeated pattern gives two peaks and no seed —
+    and when the right window, correlated back along the left row, finds the corner again
+    within a pixel (left-right check: a corner that the right image does not see finds
+    something else).
+
+    Parameters
+    ----------
+    left, right : (H, W) arrays
+        The rectified pair; a left pixel ``(x, y)`` appears at ``(x - d, y)`` on the right.
+    disparity_range : (int, int)
+        Smallest and largest disparity to search, pixels.
+    n_seeds : int
+        How many seeds to return at most (best scores first).
+    patch : int
+        Odd correlation window.
+    min_score, uniqueness : float
+        Smallest peak correlation, and its smallest lead over the row's second peak.
+    mask : (H, W) bool array, optional
+        Where in the left image to look for corners.
+    min_distance : int
+        Smallest distance between two corners, pixels.
+
+    Returns
+    -------
+    Seeds
+        ``xy`` (2, S, 2): left and right positions; ``disparity`` (S,); ``depth`` NaN.
+    """
+    f = check_image(left, "left")
+    g = check_image(right, "right")
+    if g.shape != f.shape:
+        raise ValueError(f"right: expected the shape of left {f.shape}, got {g.shape}")
+    patch = check_patch(patch)
+    lo, hi = (int(d) for d in disparity_range)
+    if not 0 <= lo < hi:
+        raise ValueError(f"disparity_range: expected 0 <= smallest < largest (pixels), got "
+                         f"{disparity_range}")
+    h = patch // 2
+    H, W = f.shape
+    f8 = np.clip(np.rint(255 * (f - f.min()) / max(np.ptp(f), 1e-9)), 0, 255).astype(np.uint8)
+    m8 = None if mask is None else np.asarray(mask, dtype=np.uint8)
+    corners = cv2.goodFeaturesToTrack(f8, maxCorners=4 * n_seeds, qualityLevel=0.05,
+                                      minDistance=min_distance, mask=m8, blockSize=patch)
+    empty = Seeds(xy=np.zeros((2, 0, 2)), score=np.zeros(0), depth=np.zeros(0),
+                  disparity=np.zeros(0))
+    if corners is None:
+        return empty
+    f32, g32 = f.astype(np.float32), g.astype(np.float32)
+    found = []
+    for x, y in np.rint(corners[:, 0]).astype(int):
+        if not (h <= y < H - h and x - lo + h < W and x - h >= 0):
+            continue
+        x0 = max(x - hi - h, 0)                          # the band's first column
+        x1 = x - lo + h + 1
+        if x1 - x0 < patch + 2:
+            continue
+        tpl = f32[y - h:y + h + 1, x - h:x + h + 1]
+        ncc = cv2.matchTemplate(g32[y - h:y + h + 1, x0:x1], tpl, cv2.TM_CCOEFF_NORMED)[0]
+        best = int(np.argmax(ncc))
+        others = np.abs(np.arange(len(ncc)) - best) > 2
+        second = ncc[others].max() if others.any() else -1.0
+        if ncc[best] < min_score or ncc[best] - second < uniqueness:
+            continue
+        sub = 0.0
+        if 0 < best < len(ncc) - 1:                      # parabola through the peak
+            a, b, c = ncc[best - 1], ncc[best], ncc[best + 1]
+            den = a - 2 * b + c
+            sub = 0.5 * (a - c) / den if den < 0 else 0.0
+        xr = x0 + h + best + sub
+        # left-right check: the right window, correlated back along the left row, must
+        # find the corner again (an occluded corner finds something else)
+        xi = int(round(xr))
+        if not h <= xi < W - h:
+            continue
+        b0 = max(xi + lo - h, 0)
+        b1 = min(xi + hi + h + 1, W)
+        back = cv2.matchTemplate(f32[y - h:y + h + 1, b0:b1],
+                                 g32[y - h:y + h + 1, xi - h:xi + h + 1], cv2.TM_CCOEFF_NORMED)[0]
+        if abs(b0 + h + int(np.argmax(back)) - x) > 1:
+            continue
+        found.append((ncc[best], x, y, xr))
+    if not found:
+        return empty
+    found.sort(key=lambda s: -s[0])
+    found = np.array(found[:n_seeds])
+    xy = np.stack([found[:, 1:3], np.stack([found[:, 3], found[:, 2]], axis=1)])
+    return Seeds(xy=xy, score=found[:, 0], depth=np.full(len(found), np.nan),
+                 disparity=found[:, 1] - found[:, 3])

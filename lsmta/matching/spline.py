@@ -61,6 +61,7 @@ class SplineImage:
         self.shape = img.shape
         coeffs = ndimage.spline_filter(img, order=3, mode="mirror")
         self._c = np.pad(coeffs, PAD, mode="reflect")
+        self._grad = None
 
     @property
     def coefficients(self) -> np.ndarray:
@@ -70,6 +71,20 @@ class SplineImage:
     @property
     def pad(self) -> int:
         return PAD
+
+    def pixel_gradients(self) -> tuple[np.ndarray, np.ndarray]:
+        """The interpolant's exact x and y derivatives at every pixel centre, ``(H, W)``
+        each (computed once, then kept; read them, don't write)."""
+        if self._grad is None:
+            H, W = self.shape
+            c, p = self._c, PAD
+            w = (1 / 6, 4 / 6, 1 / 6)
+            gx = sum(wm * (c[p - 1 + m:p - 1 + m + H, p + 1:p + 1 + W]
+                           - c[p - 1 + m:p - 1 + m + H, p - 1:p - 1 + W]) for m, wm in enumerate(w))
+            gy = sum(wn * (c[p + 1:p + 1 + H, p - 1 + n:p - 1 + n + W]
+                           - c[p - 1:p - 1 + H, p - 1 + n:p - 1 + n + W]) for n, wn in enumerate(w))
+            self._grad = (np.ascontiguousarray(gx / 2), np.ascontiguousarray(gy / 2))
+        return self._grad
 
     def patches(self, centres: np.ndarray, offsets: np.ndarray) -> np.ndarray:
         """Values ``(N, P)`` at ``centres[:, None] + offsets[None]``; whole-pixel positions are

@@ -4,7 +4,9 @@ The centre image is the template; dense matches are grown from the seeds into ea
 image independently (:func:`~lsmta.matching.grow.grow_matches`), merged into n-tuples at
 the common grid nodes, checked by the neighbourhood filter (outliers re-matched once from
 their neighbours' prediction), intersected with the calibrated cameras and thinned by the
-voxel filter.
+voxel filter. With ``joint=True`` (beyond the paper) every node is matched in all search
+images at once under the epipolar condition (:func:`~lsmta.matching.grow.grow_joint`,
+Gruen & Baltsavias 1988), so the n-tuples' rays meet by construction.
 """
 
 from __future__ import annotations
@@ -18,8 +20,9 @@ from .._validate import as_array
 from ..camera import Camera
 from ..triangulation import Intersection, VoxelCloud, triangulate, voxel_filter
 from .filters import neighbourhood_filter
-from .grow import GrowResult, grow_matches
+from .grow import grow_joint, grow_matches
 from .lsm import LSMThresholds, lsm
+from .mpgc import CameraGeometry, mpgc
 from .spline import check_image
 
 
@@ -83,7 +86,7 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
                     max_position: float = 0.5, max_affine: float = 0.1,
                     neighbourhood_statistic: str = "mean",
                     max_reprojection: float | None = None, voxel: float | None = None,
-                    **grow_kwargs) -> SurfaceResult:
+                    joint: bool = False, **grow_kwargs) -> SurfaceResult:
     """Dense surface points from K >= 2 images of one frame.
 
     Parameters
@@ -111,6 +114,12 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
         the other image's. None (default) turns the check off.
     voxel : float, optional
         Voxel size in mm for the final thinning; None keeps every filtered point.
+    joint : bool
+        Geometrically constrained multi-photo matching (beyond the paper): grow into all
+        search images at once, each node matched jointly with one depth along its template
+        ray (:func:`~lsmta.matching.grow.grow_joint`, :class:`~lsmta.matching.mpgc.CameraGeometry`).
+        The neighbourhood filter's re-match is joint too. False (default): the paper's
+        independent matching into each search image.
     **grow_kwargs
         Further options of :func:`~lsmta.matching.grow.grow_matches` (``retry_patch``,
         ``shift``, ``robust``, ...).
@@ -126,25 +135,29 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
     if thresholds is None:
         thresholds = LSMThresholds(max_displacement=float(step))
     searches = [k for k in range(K) if k != template]
-    grown: list[GrowResult] = [
-        grow_matches(imgs[template], imgs[k], seeds[template], seeds[k], step=step, patch=patch,
-                     thresholds=thresholds, mask=mask, **grow_kwargs) for k in searches]
+    geometry = CameraGeometry(cameras, template) if joint else None
+    grown = _grow(imgs, seeds, template, searches, geometry, step=step, patch=patch,
+                  thresholds=thresholds, mask=mask, grow_kwargs=grow_kwargs)
     t_xy, xy, sig, pos = _tuples(grown, template, searches)
     ok = np.ones(len(t_xy), dtype=bool)
     rematched = np.zeros(len(t_xy), dtype=bool)
     if neighbourhood:
+        checks = [neighbourhood_filter(g, max_position=max_position, max_affine=max_affine,
+                                       statistic=neighbourhood_statistic) for g in grown]
         # the re-match uses the grower's LSM model (and its robust LSM, where it used one)
-        model = {k: grow_kwargs[k] for k in ("geometry", "radiometry", "template_mask")
-                 if k in grow_kwargs}
-        robust = grow_kwargs.get("robust")
-        robust_patch = grow_kwargs.get("robust_patch") or patch
-        for g, p, k in zip(grown, pos, searches):
-            check = neighbourhood_filter(g, max_position=max_position, max_affine=max_affine,
-                                         statistic=neighbourhood_statistic)
-            ok &= _rematch_outliers(check, p, imgs[template], imgs[k], t_xy, xy[k], sig[k],
-                                    rematched, patch=patch, thresholds=thresholds,
-                                    max_position=max_position, robust=robust,
-                                    robust_patch=robust_patch, model=model)
+        model = _model_of(grow_kwargs)
+        if joint:
+            ok, rematched = _rematch_joint(imgs, template, searches, pos, checks, xy, sig, t_xy,
+                                           geometry, patch=patch, thresholds=thresholds,
+                                           max_position=max_position, model=model)
+        else:
+            robust = grow_kwargs.get("robust")
+            robust_patch = grow_kwargs.get("robust_patch") or patch
+            for check, p, k in zip(checks, pos, searches):
+                ok &= _rematch_outliers(check, p, imgs[template], imgs[k], t_xy, xy[k], sig[k],
+                                        rematched, patch=patch, thresholds=thresholds,
+                                        max_position=max_position, robust=robust,
+                                        robust_patch=robust_patch, model=model)
     intersection = triangulate(cameras, xy)
     if max_reprojection is not None:
         worst = np.where(np.isnan(intersection.reprojection_error), -np.inf,
@@ -162,6 +175,25 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
     return SurfaceResult(grown=grown, template_xy=t_xy, xy=xy, sigma_xy=sig,
                          neighbourhood_ok=ok, rematched=rematched, intersection=intersection,
                          cloud=cloud, points=points, points_xy=points_xy)
+
+
+def _grow(imgs, seeds, template: int, searches, geometry, *, step, patch, thresholds, mask,
+          grow_kwargs) -> list:
+    """Growth into each search image: jointly under the epipolar condition (``geometry``
+    given) or independently, image by image (the paper)."""
+    if geometry is not None:
+        return grow_joint(imgs[template], [imgs[k] for k in searches], seeds[template],
+                          seeds[searches], geometry, step=step, patch=patch,
+                          thresholds=thresholds, mask=mask, **grow_kwargs)
+    return [grow_matches(imgs[template], imgs[k], seeds[template], seeds[k], step=step,
+                         patch=patch, thresholds=thresholds, mask=mask, **grow_kwargs)
+            for k in searches]
+
+
+def _model_of(grow_kwargs: dict) -> dict:
+    """The grower's LSM model, for the re-match."""
+    return {k: grow_kwargs[k] for k in ("geometry", "radiometry", "template_mask", "method",
+                                        "support", "partial") if k in grow_kwargs}
 
 
 def _checked(images, cameras, seeds_xy, template, max_reprojection):
@@ -235,3 +267,29 @@ def _rematch_outliers(check, p, template_img, search_img, t_xy, xy_k, sig_k, rem
     passed[bad[fixed]] = True
     rematched[bad[fixed]] = True
     return passed
+
+
+def _rematch_joint(imgs, template, searches, pos, checks, xy, sig, t_xy, geometry, *, patch,
+                   thresholds, max_position, model):
+    """The neighbourhood filter for joint matches: a node that fails in any search image is
+    re-matched once in all of them jointly (:func:`~lsmta.matching.mpgc.mpgc`), from its
+    neighbours' predictions; it passes when every new position stays within
+    ``max_position`` of its prediction."""
+    keep = np.stack([c.keep[p] for c, p in zip(checks, pos)])                  # (K-1, N)
+    pred = np.stack([c.predicted_xy[p] for c, p in zip(checks, pos)], axis=1)  # (N, K-1, 2)
+    A0 = np.stack([c.mean_A[p] for c, p in zip(checks, pos)], axis=1)
+    ok = keep.all(axis=0)
+    rematched = np.zeros(len(t_xy), dtype=bool)
+    bad = np.flatnonzero(~ok & np.isfinite(pred).all(axis=(1, 2)))
+    if bad.size:
+        t0 = geometry.parameter(t_xy[bad], pred[bad])
+        res = mpgc(imgs[template], [imgs[k] for k in searches], t_xy[bad], t0, geometry,
+                   patch=patch, initial_A=A0[bad], thresholds=thresholds, **model)
+        new = res.xy.transpose(1, 0, 2)                                        # (n, K-1, 2)
+        fixed = res.ok & (np.linalg.norm(new - pred[bad], axis=2) <= max_position).all(axis=1)
+        for j, k in enumerate(searches):
+            xy[k, bad[fixed]] = res.xy[j, fixed]
+            sig[k, bad[fixed]] = res.sigma_xy[j, fixed]
+        ok[bad[fixed]] = True
+        rematched[bad[fixed]] = True
+    return ok, rematched

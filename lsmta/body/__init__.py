@@ -3,6 +3,8 @@
 ``skeleton``   single-DoF joints about local z; forward kinematics and analytic Jacobians
 ``metaballs``  ellipsoidal metaballs (eqs. 4-7), the three-ball limb, skin distance, iso-surface
 ``arm``        the arm model (3-DoF shoulder, elbow, wrist) and its initialisation from joints
+``skin``       B-spline skin: ray-cast cross-sections of the implicit surface, one bicubic
+               patch per part, closed triangle meshes (pyvista merge)
 ``fitting``    weighted robust least squares over radii, limb scales and joint angles (eq. 14)
 ``posterior``  emcee posterior of one frame's radii and lengths
 
@@ -25,6 +27,7 @@ from .metaballs import (
 )
 from .posterior import LimbPosterior, sample_limb_posterior
 from .skeleton import Joint, Skeleton, rot_x, rot_y, rot_z
+from .skin import SkinParams, SkinPatch, merge_patches, model_skin, skin_patch
 
 __all__ = [
     "JOINTS", "LIMBS", "THRESHOLD", "BodyFit", "FitStatus", "Joint", "LimbPosterior",
@@ -32,5 +35,6 @@ __all__ = [
     "ModelState", "Segment", "Skeleton", "angles_from_joints", "arm_model", "base_poses",
     "ellipsoid_distance", "field", "fit_frame", "fit_sequence", "iso_surface", "potential",
     "rot_x", "rot_y", "rot_z", "sample_limb_posterior", "shoulder_angles", "surface_distance",
-    "surface_distance_terms", "SkinDistance", "FitParams",
+    "surface_distance_terms", "SkinDistance", "FitParams", "SkinParams", "SkinPatch",
+    "merge_patches", "model_skin", "skin_patch",
 ]

@@ -5,6 +5,8 @@
 ``arm``        the arm model (3-DoF shoulder, elbow, wrist) and its initialisation from joints
 ``skin``       B-spline skin: ray-cast cross-sections of the implicit surface, one bicubic
                patch per part, closed triangle meshes (pyvista merge)
+``silhouette`` the silhouette term: closest approach of a line of sight to the skin and its
+               analytic derivative by the joint angles (envelope theorem)
 ``fitting``    weighted robust least squares over radii, limb scales and joint angles (eq. 14)
 ``posterior``  emcee posterior of one frame's radii and lengths
 
@@ -26,6 +28,7 @@ from .metaballs import (
     surface_distance_terms,
 )
 from .posterior import LimbPosterior, sample_limb_posterior
+from .silhouette import SilhouetteTerms, silhouette_terms
 from .skeleton import Joint, Skeleton, rot_x, rot_y, rot_z
 from .skin import SkinParams, SkinPatch, merge_patches, model_skin, skin_patch
 
@@ -36,5 +39,5 @@ __all__ = [
     "ellipsoid_distance", "field", "fit_frame", "fit_sequence", "iso_surface", "potential",
     "rot_x", "rot_y", "rot_z", "sample_limb_posterior", "shoulder_angles", "surface_distance",
     "surface_distance_terms", "SkinDistance", "FitParams", "SkinParams", "SkinPatch",
-    "merge_patches", "model_skin", "skin_patch",
+    "merge_patches", "model_skin", "skin_patch", "SilhouetteTerms", "silhouette_terms",
 ]

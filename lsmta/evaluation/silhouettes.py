@@ -25,6 +25,7 @@ from ..silhouettes import (
     ContourTracks,
     SilhouetteParams,
     SnakeParams,
+    largest_region,
     learn_background,
     mask_contour,
     silhouettes,
@@ -85,6 +86,21 @@ def silhouette_walk(*, seed: int = 25, n_frames: int = 12, scale: float = 0.5, c
     tracks = np.where(proj.visible[:, 0, :, None], xy, np.nan)
     return SilhouetteWalk(scene=scene, camera=cam, images=images, empty=empty, true_masks=truth,
                           supersample=int(supersample), tracks=tracks)
+
+
+def mog2_silhouettes(empty, images, *, learning_rate: float = -1.0,
+                     closing: int = 2) -> np.ndarray:
+    """The peer: OpenCV's MOG2 subtractor (no shadow detection) trained on the empty frames,
+    then run over ``images (T, H, W)`` with ``learning_rate`` (-1: OpenCV's automatic rate,
+    as a user would run it); the same clean-up as ours (closing, largest region, holes)."""
+    import cv2
+
+    sub = cv2.createBackgroundSubtractorMOG2(history=len(empty), detectShadows=False)
+    for frame in np.asarray(empty, np.uint8):
+        sub.apply(frame, learningRate=1.0 / len(empty))
+    fg = np.stack([sub.apply(f, learningRate=learning_rate) > 0
+                   for f in np.asarray(images, np.uint8)])
+    return largest_region(fg, closing=closing)
 
 
 def true_outline(true_mask, supersample: int) -> np.ndarray:

@@ -10,7 +10,13 @@ Image points are ``(x, y)`` pixels (x right, y down, origin at the centre of the
 pixel), as everywhere in lsmta; scikit-image's ``(row, col)`` stays inside this package.
 """
 
-from .background import BackgroundModel, SilhouetteParams, learn_background, silhouettes
+from .background import (
+    BackgroundModel,
+    SilhouetteParams,
+    largest_region,
+    learn_background,
+    silhouettes,
+)
 from .contours import (
     ContourTracks,
     SnakeParams,
@@ -22,5 +28,6 @@ from .contours import (
 
 __all__ = [
     "BackgroundModel", "ContourTracks", "SilhouetteParams", "SnakeParams", "fit_snake",
+    "largest_region",
     "learn_background", "mask_contour", "predict_contour", "silhouettes", "track_contours",
 ]

@@ -98,8 +98,16 @@ def silhouettes(images, background: BackgroundModel, *,
     if not isinstance(params, SilhouetteParams):
         raise TypeError(f"params: expected SilhouetteParams, got {type(params).__name__}")
     thr = np.maximum(params.k_sigma * background.spread, params.min_difference)
-    fg = np.abs(images - background.median) > thr
-    r = params.closing
+    return largest_region(np.abs(images - background.median) > thr, closing=params.closing)
+
+
+def largest_region(foreground, *, closing: int = 0) -> np.ndarray:
+    """The largest connected region of each mask of ``foreground (T, H, W)`` bool, after a
+    closing with a disc of radius ``closing`` (pixels), with its holes filled."""
+    fg = np.asarray(foreground, bool)
+    if fg.ndim != 3:
+        raise ValueError(f"foreground: expected (T, H, W) masks, got shape {fg.shape}")
+    r = int(closing)
     disc = None
     if r:
         yy, xx = np.mgrid[-r:r + 1, -r:r + 1]

@@ -66,3 +66,44 @@ def test_bad_input_is_named(arm):
         silhouette_terms(m, o, d, angles, SCALES, radii, near=10.0, far=5.0)
     with pytest.raises(ValueError, match="angles"):
         silhouette_terms(m, o, d, angles[:, :3], SCALES, radii, near=0.0, far=10.0)
+
+
+@pytest.mark.slow
+def test_points_and_silhouettes_beat_points_alone_from_a_perturbed_start():
+    """Points on the upper arm and the forearm's first third only (the rest unseen), and
+    the arm's outline in two views: the outline pins the forearm, the points alone leave
+    it free to take the mirrored pose."""
+    from lsmta.body import model_skin
+    from lsmta.body.silhouette import PoseFitParams, fit_pose
+    from lsmta.evaluation.silhouettes import outline_rays
+
+    m = arm_model()
+    radii = m.simplified_radii([[80, 80], [65, 65], [35, 70]], SCALES)
+    truth = np.array([[0.4, 0.3, 0.2, 1.2, 0.0]])
+    patches = model_skin(m, truth, SCALES, radii)
+    rng = np.random.default_rng(0)
+    upper = patches[0].vertices[rng.choice(len(patches[0].vertices), 300, replace=False)]
+    fore = patches[1].vertices
+    F = m.frames(truth, SCALES)[0, 1]
+    fore = fore[(fore - F[:3, 3]) @ F[:3, 2] > -0.35 * 265]         # the first third
+    fore = fore[rng.choice(len(fore), 100, replace=False)]
+    points = np.vstack([upper, fore]) + rng.normal(0, 1.0, (400, 3))
+    centre = np.vstack([p.vertices for p in patches]).mean(axis=0)
+    rays = outline_rays(m, truth, SCALES, radii, centre + np.array([[0, -2500.0, 0],
+                                                                    [2500.0, 0, 0]]),
+                        look_at=centre)
+    free = np.array([True, True, True, True, False])
+    params = PoseFitParams(near=1500.0, far=3500.0)
+    worst = {}
+    starts = {"near": [0.1, -0.1, 0.1, -0.15, 0], "far": [0.15, -0.15, 0.15, -0.2, 0]}
+    for name, start in starts.items():
+        a0 = truth + np.array([start])
+        alone = fit_pose(m, a0, SCALES, radii, points=points, free=free, params=params)
+        both = fit_pose(m, a0, SCALES, radii, points=points, rays=rays, free=free, params=params)
+        worst[name] = (np.degrees(np.abs(alone.angles - truth).max()),
+                       np.degrees(np.abs(both.angles - truth).max()))
+        assert both.used.sum() > 100 and both.n_point_outliers < 40
+    assert worst["near"][1] < 0.2 < worst["near"][0]          # both converge, silhouettes closer
+    assert worst["far"][1] < 0.5 and worst["far"][0] > 90     # points alone: the mirrored pose
+    with pytest.raises(ValueError, match="points, rays"):
+        fit_pose(m, truth, SCALES, radii)

@@ -6,7 +6,7 @@
 ``skin``       B-spline skin: ray-cast cross-sections of the implicit surface, one bicubic
                patch per part, closed triangle meshes (pyvista merge)
 ``silhouette`` the silhouette term: closest approach of a line of sight to the skin and its
-               analytic derivative by the joint angles (envelope theorem)
+               analytic derivative by the joint angles (envelope theorem); fit_pose
 ``fitting``    weighted robust least squares over radii, limb scales and joint angles (eq. 14)
 ``posterior``  emcee posterior of one frame's radii and lengths
 
@@ -28,7 +28,7 @@ from .metaballs import (
     surface_distance_terms,
 )
 from .posterior import LimbPosterior, sample_limb_posterior
-from .silhouette import SilhouetteTerms, silhouette_terms
+from .silhouette import PoseFit, PoseFitParams, SilhouetteTerms, fit_pose, silhouette_terms
 from .skeleton import Joint, Skeleton, rot_x, rot_y, rot_z
 from .skin import SkinParams, SkinPatch, merge_patches, model_skin, skin_patch
 
@@ -40,4 +40,5 @@ __all__ = [
     "rot_x", "rot_y", "rot_z", "sample_limb_posterior", "shoulder_angles", "surface_distance",
     "surface_distance_terms", "SkinDistance", "FitParams", "SkinParams", "SkinPatch",
     "merge_patches", "model_skin", "skin_patch", "SilhouetteTerms", "silhouette_terms",
+    "PoseFit", "PoseFitParams", "fit_pose",
 ]

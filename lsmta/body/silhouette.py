@@ -16,6 +16,8 @@ Its derivative needs no derivative of the minimiser (envelope theorem): at the m
 ``dD/dl = 0``, so ``dr/dtheta = dD_s/dtheta`` at the fixed world point ``x*``; moving the
 segment by ``dX/dtheta`` (a point carried by the segment, :meth:`Skeleton.jacobian`) is
 moving ``x*`` the other way in the segment's frame: ``dr/dtheta = -grad_x D_s(x*) . dX/dtheta``.
+The same holds for a 3-D point's skin distance, so :func:`fit_pose` fits joint angles to
+points, lines of sight, or both.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from .._validate import as_array, as_scalar, freeze
 from .metaballs import MetaballModel, _radii, surface_distance_terms
@@ -141,3 +144,198 @@ def _angle_derivative(model, x, segment, angles, scales, radii, base) -> np.ndar
                                           base=base)
         out[sel] = -np.einsum("nk,nkj->nj", grad, d_th[0])
     return out
+
+
+@dataclass(frozen=True)
+class PoseFitParams:
+    """Settings of :func:`fit_pose`.
+
+    Attributes
+    ----------
+    sigma_point : float
+        A-priori standard deviation of a 3-D point's skin distance (mm).
+    sigma_silhouette : float
+        A-priori standard deviation of a line of sight's closest approach (mm).
+    loss : str
+        ``scipy.optimize.least_squares`` loss on the weighted residuals ("linear" for plain
+        least squares; "soft_l1", "huber", "cauchy" are robust).
+    outlier_k : float
+        A weighted residual above ``outlier_k`` at the solution counts as an outlier.
+    near, far : float
+        Depth range searched along the lines of sight (mm).
+    n_steps : int
+        Depth grid of :func:`silhouette_terms` (its step must be finer than the thinnest
+        part, or a line through it is missed).
+    max_nfev : int
+        Function evaluations of the solver per round.
+    n_rounds : int
+        Rounds of segmentation (points to their nearest segment) and solve.
+    gate : float
+        A line of sight takes part in a round only when its closest approach at the
+        round's start is within ``gate`` mm of the skin (its contour point is near the
+        model's outline: the association of contour points with the model).
+    """
+
+    sigma_point: float = 2.0
+    sigma_silhouette: float = 2.0
+    loss: str = "soft_l1"
+    outlier_k: float = 3.0
+    near: float = 0.0
+    far: float = 10000.0
+    n_steps: int = 160
+    max_nfev: int = 100
+    n_rounds: int = 3
+    gate: float = 30.0
+
+    def __post_init__(self):
+        if int(self.n_rounds) != self.n_rounds or self.n_rounds < 1:
+            raise ValueError(f"n_rounds: expected a positive integer, got {self.n_rounds}")
+        for name in ("sigma_point", "sigma_silhouette", "outlier_k", "far", "gate"):
+            as_scalar(getattr(self, name), name, positive=True)
+        as_scalar(self.near, "near", nonnegative=True)
+        if self.loss not in ("linear", "soft_l1", "huber", "cauchy", "arctan"):
+            raise ValueError(f"loss: expected a least_squares loss name, got {self.loss!r}")
+        if int(self.n_steps) != self.n_steps or self.n_steps < 3:
+            raise ValueError(f"n_steps: expected an integer >= 3, got {self.n_steps}")
+        if int(self.max_nfev) != self.max_nfev or self.max_nfev < 1:
+            raise ValueError(f"max_nfev: expected a positive integer, got {self.max_nfev}")
+
+
+@dataclass(frozen=True, eq=False)
+class PoseFit:
+    """Result of :func:`fit_pose`.
+
+    Attributes
+    ----------
+    angles : (1, J) array
+        Fitted joint angles (radians).
+    point_residuals : (N,) array
+        Skin distances of the points at the solution (mm).
+    silhouette_residuals : (M,) array
+        Closest approaches of all the lines of sight at the solution (mm).
+    used : (M,) bool array
+        The lines inside the gate in the last round.
+    n_point_outliers, n_silhouette_outliers : int
+        Residuals above ``outlier_k`` standard deviations (lines outside the gate count).
+    nfev : int
+    """
+
+    angles: np.ndarray
+    point_residuals: np.ndarray
+    silhouette_residuals: np.ndarray
+    used: np.ndarray
+    n_point_outliers: int
+    n_silhouette_outliers: int
+    nfev: int
+
+    def __post_init__(self):
+        freeze(self, ("angles", "point_residuals", "silhouette_residuals", "used"))
+
+
+def fit_pose(model: MetaballModel, angles, scales, radii, *, points=None, rays=None, base=None,
+             free=None, params: PoseFitParams | None = None) -> PoseFit:
+    """Joint angles of one frame from 3-D points and/or silhouette lines of sight.
+
+    Robust weighted least squares (``scipy.optimize.least_squares``, analytic Jacobian) in
+    ``n_rounds`` rounds: each round assigns the points to their nearest segment and keeps
+    the lines of sight whose closest approach lies within ``gate`` of the skin, then
+    solves for each point's skin distance divided by ``sigma_point`` and each kept line's
+    closest approach (:func:`silhouette_terms`) divided by ``sigma_silhouette``. The shape
+    (``scales``, ``radii``) is held.
+
+    Parameters
+    ----------
+    model : MetaballModel
+    angles : (1, J) array
+        Start (radians).
+    scales : (L,) array; radii : (S, 3, 3) array (mm); base : (1, 4, 4) array, optional
+    points : (N, 3) array, optional
+        3-D points on the skin (world mm).
+    rays : (origins (M, 3), directions (M, 3)), optional
+        Lines of sight through observed contour points.
+    free : (J,) bool array, optional
+        Angles the fit may change (default all).
+    params : PoseFitParams, optional
+    """
+    p = PoseFitParams() if params is None else params
+    if not isinstance(p, PoseFitParams):
+        raise TypeError(f"params: expected PoseFitParams, got {type(p).__name__}")
+    J = model.skeleton.n_joints
+    start = as_array(angles, "angles", shape=(1, J))
+    pts = np.zeros((0, 3)) if points is None else as_array(points, "points", shape=(None, 3))
+    if rays is None:
+        origins = directions = np.zeros((0, 3))
+    else:
+        origins = as_array(rays[0], "rays[0]", shape=(None, 3))
+        directions = as_array(rays[1], "rays[1]", shape=origins.shape)
+    if len(pts) + len(origins) < 1:
+        raise ValueError("points, rays: expected at least one observation")
+    mask = np.ones(J, bool) if free is None else np.asarray(free, bool)
+    if mask.shape != (J,) or not mask.any():
+        raise ValueError(f"free: expected ({J},) bools with at least one True")
+    current, nfev = start.copy(), 0
+    for _ in range(int(p.n_rounds)):
+        seg = (np.argmin(model.all_distances(pts, current, scales, radii, base=base), axis=1)
+               if len(pts) else np.zeros(0, int))
+        near_outline = np.ones(len(origins), bool)
+        if len(origins):
+            r0 = silhouette_terms(model, origins, directions, current, scales, radii,
+                                  near=p.near, far=p.far, base=base, n_steps=p.n_steps).r
+            near_outline = np.abs(r0) <= p.gate
+        solve = _Residuals(model, current, mask, seg, pts, origins[near_outline],
+                           directions[near_outline], scales, radii, base, p)
+        sol = least_squares(solve.r, current[0, mask], jac=solve.jac, loss=p.loss,
+                            max_nfev=int(p.max_nfev), x_scale="jac")
+        current = solve.angles(sol.x)
+        nfev += int(sol.nfev)
+    r_p = solve.terms(current[0, mask])[2]
+    r_s = (silhouette_terms(model, origins, directions, current, scales, radii, near=p.near,
+                            far=p.far, base=base, n_steps=p.n_steps).r
+           if len(origins) else np.zeros(0))
+    out = current
+    return PoseFit(angles=out, point_residuals=r_p, silhouette_residuals=r_s, used=near_outline,
+                   n_point_outliers=int((np.abs(r_p) > p.outlier_k * p.sigma_point).sum()),
+                   n_silhouette_outliers=int((np.abs(r_s) > p.outlier_k * p.sigma_silhouette)
+                                             .sum()),
+                   nfev=nfev)
+
+
+class _Residuals:
+    """Weighted residuals and Jacobian of one round of :func:`fit_pose` (last one cached)."""
+
+    def __init__(self, model, start, mask, seg, pts, origins, directions, scales, radii, base,
+                 params):
+        self.model, self.start, self.mask, self.seg = model, start, mask, seg
+        self.pts, self.origins, self.directions = pts, origins, directions
+        self.scales, self.radii, self.base, self.p = scales, radii, base, params
+        self._key, self._value = None, None
+
+    def angles(self, x) -> np.ndarray:
+        a = self.start.copy()
+        a[0, self.mask] = x
+        return a
+
+    def terms(self, x):
+        if self._key == x.tobytes():
+            return self._value
+        m, p, a = self.model, self.p, self.angles(x)
+        J = m.skeleton.n_joints
+        r_p, j_p = np.zeros(0), np.zeros((0, J))
+        if len(self.pts):
+            r_p = m.distance(self.pts, self.seg, a, self.scales, self.radii, base=self.base)
+            j_p = _angle_derivative(m, self.pts, self.seg, a, self.scales, self.radii, self.base)
+        r_s, j_s = np.zeros(0), np.zeros((0, J))
+        if len(self.origins):
+            s = silhouette_terms(m, self.origins, self.directions, a, self.scales, self.radii,
+                                 near=p.near, far=p.far, base=self.base, n_steps=p.n_steps)
+            r_s, j_s = s.r, s.d_angles
+        r = np.concatenate([r_p / p.sigma_point, r_s / p.sigma_silhouette])
+        jac = np.vstack([j_p / p.sigma_point, j_s / p.sigma_silhouette])[:, self.mask]
+        self._key, self._value = x.tobytes(), (r, jac, r_p, r_s)
+        return self._value
+
+    def r(self, x):
+        return self.terms(x)[0]
+
+    def jac(self, x):
+        return self.terms(x)[1]

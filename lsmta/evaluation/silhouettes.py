@@ -20,6 +20,7 @@ from scipy.spatial import cKDTree
 from skimage.measure import find_contours
 
 from .._validate import as_array
+from ..body import silhouette_terms
 from ..camera import Camera
 from ..silhouettes import (
     ContourTracks,
@@ -185,3 +186,41 @@ def run_contour_trial(data: SilhouetteWalk, *, n_points: int = 400,
                         median_previous=scores["previous"][0],
                         median_from_truth_predicted=scores["predicted"][1],
                         median_from_truth_previous=scores["previous"][1], mask_iou=iou)
+
+
+def outline_rays(model, angles, scales, radii, eyes, *, look_at, focal: float = 900.0,
+                 size: int = 120, n_points: int = 120):
+    """Lines of sight through a metaball model's own outline in ideal pinhole views.
+
+    The model is the generator here (its pose ``angles (1, J)`` is the truth): each eye
+    ``(3,)`` of ``eyes (K, 3)`` looks at ``look_at (3,)`` with a ``size x size`` image of
+    principal distance ``focal`` pixels; a pixel is inside the outline when its line of
+    sight passes through the skin; the outline's ``n_points`` contour points give the lines.
+
+    Returns
+    -------
+    origins, directions : (K n_points, 3) arrays
+    """
+    eyes = as_array(eyes, "eyes", shape=(None, 3))
+    look_at = as_array(look_at, "look_at", shape=(3,))
+    origins, directions = [], []
+    for eye in eyes:
+        z = (look_at - eye) / np.linalg.norm(look_at - eye)
+        x = np.cross(z, [0.0, 0.0, 1.0])
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        c = (size - 1) / 2
+
+        def dirs(xy, x=x, y=y, z=z, c=c):
+            d = ((xy[:, :1] - c) / focal) * x + ((xy[:, 1:] - c) / focal) * y + z
+            return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+        yy, xx = np.mgrid[0:size, 0:size]
+        d = dirs(np.stack([xx.ravel(), yy.ravel()], 1).astype(float))
+        dist = float(np.linalg.norm(look_at - eye))
+        r = silhouette_terms(model, np.broadcast_to(eye, d.shape), d, angles, scales, radii,
+                             near=max(dist - 500.0, 0.0), far=dist + 500.0, n_steps=160).r
+        contour = mask_contour((r < 0).reshape(size, size), n_points=n_points)
+        directions.append(dirs(contour))
+        origins.append(np.broadcast_to(eye, (n_points, 3)))
+    return np.vstack(origins), np.vstack(directions)

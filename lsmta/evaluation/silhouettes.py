@@ -6,6 +6,10 @@ silhouettes, and tracks their contour with snakes, once with each start predicte
 the projected 3-D trajectories of surface points and once from the previous contour.
 The contours are scored after the fact against the generator's true silhouettes.
 
+The peer is OpenCV's MOG2 subtractor on the same frames (:func:`mog2_silhouettes`).
+:func:`outline_rays` makes lines of sight through a metaball model's own outline (for the
+silhouette term's fits, where the model is the generator).
+
 Truth as an input: the trajectories that predict the contour are the generator's true
 surface points, projected and with Gaussian image noise added (the LSMTA system's tracked
 trajectories would take this place; notebook 14 runs that system on the arm wave).

@@ -74,3 +74,19 @@ def test_bad_input_is_named():
         SkinParams(n_around=3)
     with pytest.raises(ValueError, match="radii"):
         distance_to_ellipsoid(np.zeros((1, 3)), [1.0, 0.0, 1.0])
+
+
+def test_distance_to_the_true_body():
+    from lsmta.synth import make_body, walk
+    from lsmta.synth.body import surface_samples
+    from lsmta.synth.surface import distance_to_body
+
+    body, motion = make_body(rng=0), walk(n_frames=2)
+    poses = body.part_poses(motion, frames=0)[0]
+    on, _, _ = surface_samples(body, motion, 0, rng=1, parts=("torso", "thigh_r", "head"), n=200)
+    assert np.abs(distance_to_body(body, poses, on)).max() < 1e-6
+    head = poses[body.index("head")]
+    top = head[:3, :3] @ (np.array(body.parts[body.index("head")].centre)
+                          + [0, 0, body.parts[body.index("head")].radii[2]]) + head[:3, 3]
+    above = top + 100.0 * head[:3, 2]
+    assert distance_to_body(body, poses, above[None])[0] == pytest.approx(100.0, abs=1e-6)

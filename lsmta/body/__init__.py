@@ -3,6 +3,12 @@
 ``skeleton``   single-DoF joints about local z; forward kinematics and analytic Jacobians
 ``metaballs``  ellipsoidal metaballs (eqs. 4-7), the three-ball limb, skin distance, iso-surface
 ``arm``        the arm model (3-DoF shoulder, elbow, wrist) and its initialisation from joints
+``full_body``  the full-body skeleton (28 single-DoF joints, 15 segments) with anatomical
+               joint limits and template ball sizes
+``skin``       B-spline skin: ray-cast cross-sections of the implicit surface, one bicubic
+               patch per part, closed triangle meshes (pyvista merge)
+``silhouette`` the silhouette term: closest approach of a line of sight to the skin and its
+               analytic derivative by the joint angles (envelope theorem); fit_pose
 ``fitting``    weighted robust least squares over radii, limb scales and joint angles (eq. 14)
 ``posterior``  emcee posterior of one frame's radii and lengths
 
@@ -11,6 +17,7 @@ Angles are in radians, lengths in mm.
 
 from .arm import JOINTS, LIMBS, angles_from_joints, arm_model, base_poses, shoulder_angles
 from .fitting import BodyFit, FitParams, FitStatus, ModelState, fit_frame, fit_sequence
+from .full_body import full_body_model, limit_violations, limits, template_size
 from .metaballs import (
     THRESHOLD,
     MetaballModel,
@@ -24,7 +31,9 @@ from .metaballs import (
     surface_distance_terms,
 )
 from .posterior import LimbPosterior, sample_limb_posterior
+from .silhouette import PoseFit, PoseFitParams, SilhouetteTerms, fit_pose, silhouette_terms
 from .skeleton import Joint, Skeleton, rot_x, rot_y, rot_z
+from .skin import SkinParams, SkinPatch, merge_patches, model_skin, skin_patch
 
 __all__ = [
     "JOINTS", "LIMBS", "THRESHOLD", "BodyFit", "FitStatus", "Joint", "LimbPosterior",
@@ -32,5 +41,8 @@ __all__ = [
     "ModelState", "Segment", "Skeleton", "angles_from_joints", "arm_model", "base_poses",
     "ellipsoid_distance", "field", "fit_frame", "fit_sequence", "iso_surface", "potential",
     "rot_x", "rot_y", "rot_z", "sample_limb_posterior", "shoulder_angles", "surface_distance",
-    "surface_distance_terms", "SkinDistance", "FitParams",
+    "surface_distance_terms", "SkinDistance", "FitParams", "SkinParams", "SkinPatch",
+    "merge_patches", "model_skin", "skin_patch", "SilhouetteTerms", "silhouette_terms",
+    "PoseFit", "PoseFitParams", "fit_pose", "full_body_model", "limit_violations", "limits",
+    "template_size",
 ]

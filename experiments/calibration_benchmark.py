@@ -20,22 +20,100 @@ projection errors on the independent path and fit errors on the calibration path
 objective), their ratios to the joint optimum, the iterations each alternation needs to
 come within 1 % of the joint optimum (None: not within the run), and whether it ends there.
 Writes build/benchmarks/calibration.json.
+
+Real rigs (issue 24; ``--only-real-rigs`` runs just this part): caliscope's real four-camera
+ChArUco recording (data/caliscope_4cam) calibrated by us (everything from the recording;
+and poses only with caliscope's interior orientation), by caliscope (its file) and by
+aniposelib's ``bundle_adjust_iter`` from our approximations: reprojection RMS per camera,
+board-corner distance errors on all frames and on held-out (odd) frames, camera position
+differences, wall times; and ``calibrate_wand`` on generated wand recordings (25 frames,
+each seen by 2-3 of 4 cameras) per seed: wand length scatter against the floor of the true
+cameras. Writes build/benchmarks/calibration_real_rigs.json, which notebook 19 quotes.
 """
 
 from __future__ import annotations
 
 import argparse
+import time
 
 import numpy as np
 
 from lsmta.calibration import Bar, relative_orientation_start
+from lsmta.calibration.board import calibrate_board
+from lsmta.evaluation.board import (
+    aniposelib_board_peer,
+    board_scores,
+    caliscope_comparison,
+    position_differences,
+)
 from lsmta.evaluation.calibration import aniposelib_peer, bar_trial, ring_trial
+from lsmta.evaluation.wand import wand_trial
 from lsmta.report import write_json
 from lsmta.synth.rigs import triplet_rig
 
 
 def rms(a):
     return float(np.sqrt(np.nanmean(np.asarray(a) ** 2)))
+
+
+def _scores(s):
+    return dict(rms_px=s.rms_px.tolist(), distance_rms_mm=s.distance_rms,
+                distance_rms_percent=s.distance_rms_percent,
+                distance_max_abs_mm=float(np.abs(s.distance_error).max()))
+
+
+def real_rigs(seeds: int, out: str):
+    """Caliscope's recording by us, caliscope and aniposelib; generated wand recordings."""
+    t0 = time.perf_counter()
+    comp = caliscope_comparison()
+    seconds = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    calibrate_board(comp.points.xy, comp.points.board, [c.image_size for c in comp.caliscope],
+                    names=[c.name for c in comp.caliscope])
+    ours_s = time.perf_counter() - t0
+    board = dict(file_error_px=comp.file_error_px.tolist(), time_ours_s=ours_s,
+                 time_comparison_s=seconds,
+                 centre_difference_mm=comp.centre_difference.tolist(),
+                 attitude_difference_deg=comp.attitude_difference.tolist(),
+                 **{f"{k}_all": _scores(v) for k, v in comp.scores.items()},
+                 **{f"{k}_heldout": _scores(v) for k, v in comp.heldout.items()})
+    try:
+        odd = np.arange(1, comp.points.xy.shape[1], 2)
+        even = np.arange(0, comp.points.xy.shape[1], 2)
+        cams, sec = aniposelib_board_peer(comp.points, comp.ours.start)
+        half = calibrate_board(comp.points.xy[:, even], comp.points.board,
+                               [c.image_size for c in comp.caliscope])
+        cams_h, _ = aniposelib_board_peer(comp.points, half.start, frames=even)
+        dist, ang = position_differences(cams, comp.caliscope)
+        board.update(aniposelib_all=_scores(board_scores(cams, comp.points)),
+                     aniposelib_heldout=_scores(board_scores(cams_h, comp.points, frames=odd)),
+                     aniposelib_centre_difference_mm=dist.tolist(),
+                     aniposelib_attitude_difference_deg=ang.tolist(),
+                     time_aniposelib_s=sec, time_ratio_aniposelib_over_ours=sec / ours_s)
+    except ImportError as err:
+        print(f"aniposelib peer skipped: {err}")
+        board["aniposelib_skipped"] = str(err)
+    for key in ("ours", "ours_fixed", "aniposelib"):
+        if f"{key}_all" in board:
+            board[f"distance_ratio_{key}_over_caliscope_all"] = (
+                board[f"{key}_all"]["distance_rms_mm"]
+                / board["caliscope_all"]["distance_rms_mm"])
+            board[f"distance_ratio_{key}_over_caliscope_heldout"] = (
+                board[f"{key}_heldout"]["distance_rms_mm"]
+                / board["caliscope_heldout"]["distance_rms_mm"])
+    print(board)
+    wand = []
+    for s in range(seeds):
+        t = wand_trial(seed=s)
+        wand.append(dict(seed=s, std_percent=t.result.wand_length_std_percent,
+                         floor_percent=t.floor_std_percent,
+                         heldout_rms_percent=rms(t.heldout_error_percent),
+                         centre_error_max_mm=float(t.centre_error.max()),
+                         focal_error_max_percent=float(np.abs(t.focal_error_percent).max()),
+                         labels_consistent=t.labels_consistent, seconds=t.result.seconds,
+                         status=t.result.status.name))
+        print(wand[-1])
+    write_json(out, dict(caliscope=board, wand=wand))
 
 
 def main(argv=None):
@@ -51,7 +129,13 @@ def main(argv=None):
     parser.add_argument("--no-bar", action="store_true",
                         help="only the virtual calibration object")
     parser.add_argument("--out", default="build/benchmarks/calibration.json")
+    parser.add_argument("--real-out", default="build/benchmarks/calibration_real_rigs.json")
+    parser.add_argument("--only-real-rigs", action="store_true",
+                        help="only the real-rig part (caliscope recording, wand recordings)")
     args = parser.parse_args(argv)
+    real_rigs(max(args.seeds, 5), args.real_out)
+    if args.only_real_rigs:
+        return
 
     bar = []
     for s in range(0 if args.no_bar else args.seeds):

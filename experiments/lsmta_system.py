@@ -56,7 +56,8 @@ def main(argv=None):
     score, part, _ = bs.score_system_tracks(session, cap.tracks, cap.filtered, alignment=al)
     last, n_last = bs.last_frame_error(score, cap.filtered.present)
     truth = bs.arm_truth(session)
-    arm = {n: bs.score_arm(f, cap.arm.start.torso_poses, truth, alignment=al)
+    arm = {n: bs.score_arm(f, cap.arm.start.torso_poses, truth, frames=cap.arm.frames,
+                           alignment=al)
            for n, f in (("simplified", cap.arm.simplified), ("full", cap.arm.full))}
     out = {
         "frames": args.frames, "first": args.first, "image_size": [args.width, args.height],
@@ -68,6 +69,7 @@ def main(argv=None):
         "surface": {"density": surf["density"], "median_mm": surf["filtered"]["median_mm"]},
         "trajectories": {"last_frame_median_mm": last, "n": n_last},
         "groups": bs.group_parts(session, cap.arm.start.groups, part),
+        "arm_frames": len(cap.arm.frames),
         "arm": {n: {"max_angle_deg": s["max_angle_err_deg"],
                     "joint_max_deg": s["joint_max_deg"].tolist(),
                     "length_err_pct": s["length_err_pct"].tolist()} for n, s in arm.items()},
@@ -77,6 +79,7 @@ def main(argv=None):
     print(f"surface frame 0: density {surf['density']:.3f}, median "
           f"{surf['filtered']['median_mm']:.3f} mm; trajectories at the last frame "
           f"{last:.2f} mm ({n_last})")
+    print(f"arm fitted in {len(cap.arm.frames)} of {args.frames} frames (both segments tracked)")
     for n, s in arm.items():
         print(f"arm {n}: worst angle {s['max_angle_err_deg']:.2f} deg, lengths "
               f"{s['length_err_pct'].round(2)} %")
@@ -86,13 +89,14 @@ def main(argv=None):
         fed = bs.truth_fed_tracking(session, every=args.every)
         fed_last, fed_n = bs.last_frame_error(fed.score, fed.filters[-1].trajectories.present)
         fed_arm = bs.truth_fed_arm(session, fed)
-        fed_scores = {n: bs.score_arm(f, truth.torso_poses, truth)
+        fed_scores = {n: bs.score_arm(f, truth.torso_poses, truth, frames=fed_arm.frames)
                       for n, f in (("simplified", fed_arm.simplified), ("full", fed_arm.full))}
         out["truth_fed"] = {
             "seconds": time.perf_counter() - t1,
             "surface": {"density": fed_surface["density"],
                         "median_mm": fed_surface["filtered"]["median_mm"]},
             "trajectories": {"last_frame_median_mm": fed_last, "n": fed_n},
+            "arm_frames": len(fed_arm.frames),
             "arm": {n: {"max_angle_deg": s["max_angle_err_deg"],
                         "length_err_pct": s["length_err_pct"].tolist()}
                     for n, s in fed_scores.items()},

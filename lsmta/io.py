@@ -1,4 +1,5 @@
-"""Reading marker data: C3D files (through ezc3d) and Maya ASCII animation curves."""
+"""Reading marker data (C3D files through ezc3d, Maya ASCII animation curves) and 2-D point
+files: DLTdv / Argus xypts CSV, caliscope's board corners."""
 
 from __future__ import annotations
 
@@ -153,3 +154,211 @@ def read_maya_curves(path) -> MayaCurves:
             pts[[index[t] for t in k], j, a] = np.fromiter(k.values(), float, len(k)) * scale
     pts[np.isnan(pts).any(axis=2)] = np.nan
     return MayaCurves(labels=labels, points=pts, times=times)
+
+
+# ---------------------------------------------------------------------- 2-D point files
+_XYPTS_COLUMN = re.compile(r"^(?P<point>.+?)_cam_?(?P<camera>\d+)_(?P<axis>[XYxy])$")
+
+
+def _image_heights(image_heights, n_cameras: int) -> np.ndarray:
+    h = np.asarray(image_heights, dtype=float)
+    h = np.broadcast_to(h, (n_cameras,)) if h.ndim == 0 else h
+    if h.shape != (n_cameras,) or not np.all(np.isfinite(h)) or np.any(h < 1) \
+            or np.any(h != np.round(h)):
+        raise ValueError(f"image_heights: expected one positive whole number of pixels or "
+                         f"{n_cameras} of them, got {image_heights!r}")
+    return h
+
+
+def read_xypts(path, n_cameras: int, *, image_heights, flip_y: bool = True) -> np.ndarray:
+    """Read a DLTdv / Argus "xypts" CSV of digitised 2-D points.
+
+    The file has a header row and one row per frame; its columns are ``pt1_cam1_X,
+    pt1_cam1_Y, pt1_cam2_X, ...`` (DLTdv; Argus writes ``<name>_cam_1_x``): for every point
+    the x and y of every camera. An unseen point is ``NaN`` (or an empty cell).
+
+    DLTdv and Argus measure y *upwards from the bottom edge* of the image; this project
+    (like OpenCV) measures it downwards from the top. With ``flip_y`` the reader converts::
+
+        y = H_k - y_file
+
+    for camera k of height ``H_k`` px; x is kept. Argus writes ``H - y`` of its top-left
+    coordinates, which this reverses exactly. A constant shift of a tool's pixel origin
+    (MATLAB numbers pixel centres from 1) moves all of a camera's points alike; a
+    self-calibration absorbs it in the principal point.
+
+    Parameters
+    ----------
+    path : str or Path
+    n_cameras : int
+        K; the file's camera numbers must be 1..K.
+    image_heights : int or sequence of K ints
+        Image heights in pixels (needed for the flip; ignored without it).
+    flip_y : bool
+        Convert y from the bottom-left origin (False: the file is already top-left).
+
+    Returns
+    -------
+    (K, T, P, 2) array
+        Pixel coordinates of P points in T frames per camera, this project's convention;
+        NaN where unseen.
+
+    Raises
+    ------
+    ValueError
+        A header that is not of this form, cameras other than 1..K, a point without both
+        coordinates of every camera, or a row of the wrong length.
+    """
+    import csv
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"path: no xypts file at {path}")
+    if int(n_cameras) != n_cameras or n_cameras < 1:
+        raise ValueError(f"n_cameras: expected a positive integer, got {n_cameras!r}")
+    K = int(n_cameras)
+    heights = _image_heights(image_heights, K) if flip_y else None
+    with open(path, newline="", encoding="utf-8-sig") as fh:
+        rows = [r for r in csv.reader(fh) if any(c.strip() for c in r)]
+    if not rows:
+        raise ValueError(f"path: {path} is empty")
+    header = [c.strip() for c in rows[0]]
+    points: list[str] = []
+    slots = {}
+    for j, name in enumerate(header):
+        m = _XYPTS_COLUMN.match(name)
+        if m is None:
+            raise ValueError(f"path: column {j + 1} of {path} is {name!r}; expected "
+                             "<point>_cam<k>_X or <point>_cam<k>_Y (DLTdv / Argus xypts)")
+        cam = int(m["camera"])
+        if not 1 <= cam <= K:
+            raise ValueError(f"n_cameras: the file names camera {cam}, outside 1..{K}")
+        if m["point"] not in points:
+            points.append(m["point"])
+        slots[(m["point"], cam - 1, m["axis"].upper())] = j
+    P = len(points)
+    missing = [f"{p}_cam{k + 1}_{a}" for p in points for k in range(K) for a in "XY"
+               if (p, k, a) not in slots]
+    if missing:
+        raise ValueError(f"path: {path} lacks the columns {missing[:4]}"
+                         + (" ..." if len(missing) > 4 else ""))
+    T = len(rows) - 1
+    values = np.full((T, len(header)), np.nan)
+    for t, row in enumerate(rows[1:]):
+        if len(row) != len(header):
+            raise ValueError(f"path: row {t + 2} of {path} has {len(row)} cells; the header "
+                             f"has {len(header)}")
+        for j, cell in enumerate(row):
+            cell = cell.strip()
+            if cell and cell.lower() != "nan":
+                try:
+                    values[t, j] = float(cell)
+                except ValueError:
+                    raise ValueError(f"path: row {t + 2}, column {header[j]} of {path} is "
+                                     f"{cell!r}, not a number") from None
+    xy = np.full((K, T, P, 2), np.nan)
+    for i, p in enumerate(points):
+        for k in range(K):
+            xy[k, :, i, 0] = values[:, slots[(p, k, "X")]]
+            xy[k, :, i, 1] = values[:, slots[(p, k, "Y")]]
+    xy[np.isnan(xy).any(axis=-1)] = np.nan          # a point is seen with both coordinates
+    if flip_y:
+        xy[..., 1] = heights[:, None, None] - xy[..., 1]
+    return xy
+
+
+def write_xypts(path, xy, *, image_heights, flip_y: bool = True) -> Path:
+    """Write ``(K, T, P, 2)`` pixel coordinates as a DLTdv xypts CSV (the inverse of
+    :func:`read_xypts`: header ``pt1_cam1_X, pt1_cam1_Y, ...``, y flipped to the bottom-left
+    origin with ``flip_y``, ``NaN`` where unseen, numbers written to round-trip exactly)."""
+    from ._validate import as_array
+
+    xy = as_array(xy, "xy", shape=(None, None, None, 2), allow_nan=True)
+    K, T, P, _ = xy.shape
+    out = xy.copy()
+    if flip_y:
+        out[..., 1] = _image_heights(image_heights, K)[:, None, None] - out[..., 1]
+    header = [f"pt{p + 1}_cam{k + 1}_{a}" for p in range(P) for k in range(K) for a in "XY"]
+    table = out.transpose(1, 2, 0, 3).reshape(T, -1)       # (T, P*K*2) in header order
+    path = Path(path)
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write(",".join(header) + "\n")
+        for row in table:
+            fh.write(",".join("NaN" if np.isnan(v) else repr(float(v)) for v in row) + "\n")
+    return path
+
+
+@dataclass(frozen=True)
+class BoardPoints:
+    """Corners of a calibration board seen by K cameras in F synchronised frames.
+
+    Attributes
+    ----------
+    xy : (K, F, C, 2) array
+        Image positions of the C corners, px (top-left origin); NaN where not detected.
+    board : (C, 3) array
+        The corners' coordinates on the board, mm (z = 0: a plane board).
+    frames : (F,) int array
+        The recording's frame (synchronisation) numbers.
+    camera_ids : (K,) int array
+        The recording's camera numbers, in the order of ``xy``.
+    """
+
+    xy: np.ndarray
+    board: np.ndarray
+    frames: np.ndarray
+    camera_ids: np.ndarray
+
+    @property
+    def n_observations(self) -> int:
+        return int(np.isfinite(self.xy[..., 0]).sum())
+
+
+def read_caliscope_points(path, *, unit: str = "m") -> BoardPoints:
+    """Read the board corners of a caliscope recording (its ``xy.csv``).
+
+    One row per detected corner: ``sync_index`` (synchronised frame), ``cam_id``,
+    ``keypoint_id`` (the corner), ``img_loc_x, img_loc_y`` (px, top-left origin, as
+    OpenCV) and ``obj_loc_x, obj_loc_y`` (the corner on the board, in ``unit``; the board
+    is plane, z = 0). The board coordinates of each corner must agree between rows.
+
+    Parameters
+    ----------
+    path : str or Path
+    unit : {"mm", "cm", "m"}
+        Unit of the board coordinates (caliscope writes metres).
+
+    Returns
+    -------
+    BoardPoints
+        Board coordinates converted to mm.
+    """
+    import csv
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"path: no caliscope point file at {path}")
+    if unit not in _UNIT_TO_MM:
+        raise ValueError(f"unit: expected one of {sorted(_UNIT_TO_MM)}, got {unit!r}")
+    need = ("sync_index", "cam_id", "keypoint_id", "img_loc_x", "img_loc_y", "obj_loc_x",
+            "obj_loc_y")
+    with open(path, newline="", encoding="utf-8-sig") as fh:
+        reader = csv.DictReader(fh)
+        lacking = [c for c in need if c not in (reader.fieldnames or ())]
+        if lacking:
+            raise ValueError(f"path: {path} lacks the columns {lacking}")
+        rows = [[float(r[c]) for c in need] for r in reader]
+    if not rows:
+        raise ValueError(f"path: {path} has no corners")
+    a = np.array(rows)
+    frames, f_idx = np.unique(a[:, 0].astype(int), return_inverse=True)
+    cams, k_idx = np.unique(a[:, 1].astype(int), return_inverse=True)
+    corners, c_idx = np.unique(a[:, 2].astype(int), return_inverse=True)
+    board = np.zeros((len(corners), 3))
+    board[c_idx, :2] = a[:, 5:7] * _UNIT_TO_MM[unit]
+    if not np.allclose(board[c_idx, :2], a[:, 5:7] * _UNIT_TO_MM[unit], atol=1e-6):
+        raise ValueError(f"path: a corner of {path} has different board coordinates in "
+                         "different rows")
+    xy = np.full((len(cams), len(frames), len(corners), 2), np.nan)
+    xy[k_idx, f_idx, c_idx] = a[:, 3:5]
+    return BoardPoints(xy=xy, board=board, frames=frames, camera_ids=cams)

@@ -34,6 +34,8 @@ def _wanted():
 
 @pytest.mark.parametrize("req", _wanted(), ids=str)
 def test_lock_pins_every_dependency_within_its_range(req):
+    if req.marker is not None and not req.marker.evaluate():
+        pytest.skip(f"{req} does not apply to this Python (the lock is made for 3.11)")
     pins = _lock()
     assert _norm(req.name) in pins, f"{req.name} is not in requirements.lock: re-run pip-compile"
     assert req.specifier.contains(pins[_norm(req.name)], prereleases=True), (

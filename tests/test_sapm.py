@@ -99,11 +99,12 @@ def test_model_rejects_a_cycle_beside_the_root():
         MarkerModel.from_labelled_frame(pts, segs, {"s1": None, "s2": "s3", "s3": "s2"})
 
 
-def test_model_rejects_two_joint_markers_on_one_link():
+def test_model_takes_two_joint_markers_on_one_link():
     segs = {"s1": ["a", "b", "c", "d"], "s2": ["b", "c", "e", "f"]}
-    with pytest.raises(ValueError, match="at most one joint marker"):
-        MarkerModel.from_labelled_frame(_tiny()["points_by_label"], segs,
+    m = MarkerModel.from_labelled_frame(_tiny()["points_by_label"], segs,
                                         {"s1": None, "s2": "s1"})
+    assert [m.labels[i] for i in m.shared[1]] == ["b", "c"] and m.joint_tolerance[1] == 0
+    np.testing.assert_allclose(m.joint[1], [50, 40, 0])       # the pair's centroid
 
 
 def test_model_rejects_a_label_shared_by_unlinked_segments():

@@ -270,3 +270,25 @@ def test_arm_start_says_when_there_is_no_arm():
     with pytest.raises(TypeError, match="trajectories"):
         arm_start(np.zeros((3, 3, 3)), forward=(0, -1, 0))
 
+
+
+def test_forearm_length_ends_where_the_forearm_points_end():
+    from lsmta.body.start import forearm_length
+
+    rng = np.random.default_rng(11)
+    forearm = rng.uniform(15, 262, 150)
+    hand = rng.uniform(295, 400, 15)                     # beyond the unmatched wrist
+    assert abs(forearm_length(np.r_[forearm, hand]) - forearm.max()) < 1e-9
+    assert forearm_length(forearm) == forearm.max()     # no hand: the distal end
+    stray = np.r_[forearm, 300.0, 310.0]                 # two stray points are no hand
+    assert forearm_length(stray) == 310.0
+    assert forearm_length(forearm[:10]) is None
+
+
+def test_observed_frames_need_every_segment():
+    from lsmta.systems import observed_frames
+
+    counts = np.array([[30, 12], [30, 9], [25, 40], [11, 10], [40, 40]])
+    assert observed_frames(counts, min_points=10).tolist() == [0, 2, 3, 4]
+    with pytest.raises(ValueError, match="only 1 of 5 frames"):
+        observed_frames(counts, min_points=35)

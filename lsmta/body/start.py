@@ -10,13 +10,19 @@ tracker follows (Section 4.2). We find them in the data instead:
    held near the limbs' long axes (:func:`~lsmta.body.joints.segment_axis`); the arm
    is the chain torso -> upper arm -> forearm whose two joints fit best (RMS below
    ``max_joint_rms``) with the shoulder on the body's right (the model is a right arm);
-3. the shoulder and the elbow follow from those joints in every frame; the wrist lies on
+3. the shoulder and the elbow follow from those joints in every frame (from either
+   segment's pose where only one is known: a joint is fixed in both); the wrist lies on
    the forearm group's long axis (its members' principal direction, pointing away from
-   the elbow) at ``forearm_ratio`` times the upper arm's length (the hand is rarely
-   tracked, so nothing in the data marks the wrist);
+   the elbow) where the forearm's points end (:func:`forearm_length`: the narrow wrist is
+   rarely matched, so a hand carried along shows beyond a gap). With too few points it
+   lies at ``forearm_ratio`` times the upper arm's length, an anthropometric ratio by
+   default: 0.146 / 0.186 of body height for forearm and upper arm (Winter 2009,
+   *Biomechanics and Motor Control of Human Movement*, Table 4.1). Where the forearm is
+   not tracked, it keeps its last pose relative to the upper arm;
 4. the torso frame is the torso group's motion applied to a frame whose z axis is the
    world's ``up`` and whose y axis (forward) is ``forward`` made horizontal (the person
-   faces the cameras); :func:`~lsmta.body.arm.angles_from_joints` then gives the angles
+   faces the cameras; a torso seen from the front gives no better direction: only part
+   of it is in view); :func:`~lsmta.body.arm.angles_from_joints` then gives the angles
    and the shoulder's place in it, and the limb scales follow from the joints' distances.
 
 The arm's points in each frame are the positions of the two arm groups' trajectories.
@@ -36,6 +42,9 @@ from .arm import angles_from_joints, arm_model
 from .fitting import ModelState
 from .joints import FunctionalJoint, functional_joint, segment_axis
 from .metaballs import MetaballModel
+
+# forearm / upper-arm length from Winter's segment lengths (fractions of body height)
+FOREARM_RATIO = 0.146 / 0.186
 
 
 @dataclass(frozen=True, eq=False)
@@ -154,22 +163,75 @@ def _torso_poses(groups: RigidGroups, torso: int, frame0, centre) -> np.ndarray:
     return poses
 
 
-def _wrist(groups: RigidGroups, fore: int, axis, elbow_joint, shoulder, elbow,
+def _joint_world(groups: RigidGroups, parent: int, child: int, joint) -> np.ndarray:
+    """``(T, 3)`` world positions of a joint: the mean of its two images where both
+    segments' poses are known, the one segment's image where only it is known (a joint is
+    fixed in both), interpolated over frames where neither is."""
+    a = np.einsum("tij,j->ti", groups.rotation[parent], joint.parent_local) \
+        + groups.translation[parent]
+    b = np.einsum("tij,j->ti", groups.rotation[child], joint.child_local) \
+        + groups.translation[child]
+    both = np.stack([a, b])
+    n = np.isfinite(both).all(axis=2).sum(axis=0)
+    mean = np.where(n[:, None] > 0, np.nansum(both, axis=0) / np.maximum(n, 1)[:, None],
+                    np.nan)
+    return _fill(mean)
+
+
+def _relative_rotation(groups: RigidGroups, parent: int, child: int) -> np.ndarray:
+    """``(T, 3, 3)`` the child's rotation, where unknown held at its nearest known pose
+    relative to the parent (a limb that stops being tracked keeps its last joint angle)."""
+    Rp, Rc = _fill(groups.rotation[parent]), groups.rotation[child]
+    rel = np.einsum("tji,tjk->tik", Rp, Rc)                   # parent -> child, per frame
+    known = np.flatnonzero(np.isfinite(rel).all(axis=(1, 2)))
+    nearest = known[np.abs(np.arange(len(rel))[:, None] - known[None]).argmin(axis=1)]
+    return Rp @ rel[nearest]
+
+
+def forearm_length(along, *, min_gap: float = 20.0) -> float | None:
+    """Where a forearm's surface points end, mm from the elbow, or None.
+
+    ``along`` are the forearm group's points projected on its axis (mm from the elbow).
+    The wrist is narrow and rarely matched, so a hand carried along rigidly shows as a
+    second cluster beyond a gap: the forearm ends where the widest gap of the distal half
+    that is wider than ``min_gap`` and has at least 5 % of the points (and 3) beyond it
+    begins (a few stray points near a tapering tip are no hand; sparse points leave gaps
+    of a centimetre by chance, a wrist two or three); without one, at the distal end of
+    the points. None with fewer than 20 points.
+    """
+    a = np.sort(np.asarray(along, float))
+    if len(a) < 20:
+        return None
+    half = len(a) // 2
+    gaps = np.diff(a[half:])
+    beyond = len(a) - (half + 1 + np.arange(len(gaps)))          # points after each gap
+    ok = (gaps > min_gap) & (beyond >= max(3, 0.05 * len(a)))
+    if not ok.any():
+        return float(a[-1])
+    k = int(np.argmax(np.where(ok, gaps, -np.inf)))
+    return float(a[half + k])
+
+
+def _wrist(groups: RigidGroups, upper: int, fore: int, axis, elbow_joint, shoulder, elbow,
            ratio: float) -> np.ndarray:
-    """``(T, 3)``: on the forearm's long axis, pointing away from the elbow, ``ratio`` times
-    the upper arm's length from the elbow."""
+    """``(T, 3)``: on the forearm's long axis, pointing away from the elbow, where the
+    forearm's points end (:func:`forearm_length`), or ``ratio`` times the upper arm's
+    length when too few points say."""
     u = axis.direction
-    if (groups.local[groups.label == fore].mean(axis=0) - elbow_joint.child_local) @ u < 0:
+    local = groups.local[groups.label == fore]
+    if (local.mean(axis=0) - elbow_joint.child_local) @ u < 0:
         u = -u
-    d = _fill(np.einsum("tij,j->ti", groups.rotation[fore], u))
-    upper_len = float(np.median(np.linalg.norm(elbow - shoulder, axis=1)))
-    return elbow + ratio * upper_len * d / np.linalg.norm(d, axis=1, keepdims=True)
+    d = np.einsum("tij,j->ti", _relative_rotation(groups, upper, fore), u)
+    length = forearm_length((local - elbow_joint.child_local) @ u)
+    if length is None:
+        length = ratio * float(np.median(np.linalg.norm(elbow - shoulder, axis=1)))
+    return elbow + length * d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
 def arm_start(trajectories: Trajectories, *, forward, up=(0.0, 0.0, 1.0),
               model: MetaballModel | None = None, groups: RigidGroups | None = None,
               tolerance: float = 4.0, max_joint_rms: float = 15.0,
-              forearm_ratio: float = 265.0 / 300.0, size=((70.0, 70.0), (70.0, 70.0),
+              forearm_ratio: float = FOREARM_RATIO, size=((70.0, 70.0), (70.0, 70.0),
                                                         (42.0, 42.0)),
               rng: np.random.Generator | int | None = None) -> ArmStart:
     """Find the right arm in trajectories and start the arm model there.
@@ -192,7 +254,8 @@ def arm_start(trajectories: Trajectories, *, forward, up=(0.0, 0.0, 1.0),
         A joint whose two images stay further apart than this (RMS, mm) does not connect
         two groups.
     forearm_ratio : float
-        Forearm length over upper-arm length (the model's template ratio by default).
+        Forearm length over upper-arm length (anthropometric by default, see the module
+        docstring).
     size : (3, 2) array
         Width and depth of each segment's template balls, mm.
     rng : numpy.random.Generator, int or None
@@ -213,7 +276,6 @@ def arm_start(trajectories: Trajectories, *, forward, up=(0.0, 0.0, 1.0),
     model = arm_model() if model is None else model
     max_joint_rms = as_scalar(max_joint_rms, "max_joint_rms", positive=True)
     forearm_ratio = as_scalar(forearm_ratio, "forearm_ratio", positive=True)
-    frame0 = torso_frame(up, forward)
     X = np.asarray(trajectories.xyz)
     T = X.shape[0]
     if groups is None:
@@ -225,12 +287,14 @@ def arm_start(trajectories: Trajectories, *, forward, up=(0.0, 0.0, 1.0),
                          "forearm that move differently")
     torso = 0
     centre = np.nanmean(X[groups.reference[torso], groups.label == torso], axis=0)
+    frame0 = torso_frame(up, forward)
     # a limb's bone runs along its long axis, through its joints (not the torso's)
     axes = {g: segment_axis(groups.local[groups.label == g]) for g in range(1, G)}
     upper, fore, j_sh, j_el = _arm_chain(groups, X, axes, centre, frame0[:, 0], max_joint_rms)
     torso_poses = _torso_poses(groups, torso, frame0, centre)
-    shoulder, elbow = _fill(j_sh.world), _fill(j_el.world)
-    wrist = _wrist(groups, fore, axes[fore], j_el, shoulder, elbow, forearm_ratio)
+    shoulder = _joint_world(groups, torso, upper, j_sh)
+    elbow = _joint_world(groups, upper, fore, j_el)
+    wrist = _wrist(groups, upper, fore, axes[fore], j_el, shoulder, elbow, forearm_ratio)
     angles, shoulder_local, lengths = angles_from_joints(torso_poses, shoulder, elbow, wrist)
     scales = np.array([lengths[:, 0].mean() / model.segments[0].length,
                        lengths[:, 1].mean() / model.segments[1].length, 1.0])

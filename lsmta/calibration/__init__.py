@@ -1,5 +1,5 @@
-"""Multi-camera calibration: reference-bar self-calibrating bundle adjustment (LSMTA §2.1)
-and the virtual calibration object (Davis §3.2)."""
+"""Multi-camera calibration: reference-bar self-calibrating bundle adjustment (LSMTA §2.1),
+the virtual calibration object (Davis §3.2) and the one-call wand calibration."""
 
 from .approximations import relative_orientation_start, scaled
 from .bundle import (
@@ -26,12 +26,14 @@ from .virtual_object import (
     resect_all,
     triangulate_optimal,
 )
+from .wand import WandCalibration, WandStatus, calibrate_wand
 
 __all__ = [
     "DEFAULT_INTRINSICS", "IMPROVED_ALTERNATION", "INTRINSIC_NAMES", "PARAMETER_NAMES",
     "AlternationParams", "Bar", "Blobs", "BundleResult", "ChainStart", "ConvergenceHistory",
-    "TargetStatus", "TargetTracks", "alternate", "bundle_adjust", "camera_to_params",
-    "chain_cameras", "datum_from_distance", "detect_blobs", "joint_adjustment",
-    "params_to_camera", "project_params", "projection_error", "relative_orientation_start",
-    "resect", "resect_all", "scaled", "shared_points", "track_targets", "triangulate_optimal",
+    "TargetStatus", "TargetTracks", "WandCalibration", "WandStatus", "alternate",
+    "bundle_adjust", "calibrate_wand", "camera_to_params", "chain_cameras",
+    "datum_from_distance", "detect_blobs", "joint_adjustment", "params_to_camera",
+    "project_params", "projection_error", "relative_orientation_start", "resect", "resect_all",
+    "scaled", "shared_points", "track_targets", "triangulate_optimal",
 ]

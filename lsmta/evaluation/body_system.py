@@ -34,8 +34,8 @@ from ..synth.body import Motion
 from ..synth.calibration import BarTrack, bar_track, poor_guess, render_bar_images
 from ..synth.render import Renderer, cast_body
 from ..synth.sequence import Sequence, render_sequence, scaled_camera
-from ..systems import ArmFitSettings, BodyCapture
-from ..systems.body import fit_self_consistent
+from ..systems import ArmFitSettings, BodyCapture, FilterSettings
+from ..systems.body import fit_self_consistent, observed_frames
 from ..tracking import TrackerParams, Trajectories, apply_filters, track_points
 from ..tracking.trajectories import trajectories_from_tracks
 from ..triangulation import triangulate
@@ -307,11 +307,12 @@ class TruthFedTracking:
 
 
 def truth_fed_tracking(session: ArmWaveSession, *, params: TrackerParams | None = None,
-                       filters: dict | None = None, every: int = 4) -> TruthFedTracking:
+                       filters: FilterSettings | None = None,
+                       every: int = 4) -> TruthFedTracking:
     """Track all of frame 0's visible grid points with the true cameras (see the class)."""
     seq = session.sequence
     s0 = seq.surface[0]
-    p = params or TrackerParams(density_every=every)
+    p = dataclasses.replace(params or TrackerParams(), density_every=every)
     t0 = time.perf_counter()
     tracks = track_points(session.videos, s0.xy, params=p,
                           new_points={t: s.xy for t, s in seq.surface.items() if t > 0})
@@ -323,7 +324,7 @@ def truth_fed_tracking(session: ArmWaveSession, *, params: TrackerParams | None 
         s = seq.surface[int(tracks.start[i])]
         part[i], local[i] = s.part[tracks.origin[i]], s.local[tracks.origin[i]]
     traj = trajectories_from_tracks(session.cameras, tracks, session.fps)
-    reports = apply_filters(traj, **(filters or {}))
+    reports = apply_filters(traj, **dataclasses.asdict(filters or FilterSettings()))
     score = score_tracks(seq, tracks, part, local, traj=reports[-1].trajectories)
     return TruthFedTracking(tracks=tracks, trajectories=traj, filters=reports, score=score,
                             part=part, local=local, seconds=seconds)
@@ -336,17 +337,25 @@ def arm_truth(session: ArmWaveSession) -> eb.ArmTruth:
                         np.arange(session.videos.shape[1]))
 
 
-def score_arm(fit, torso_poses, truth: eb.ArmTruth, *,
+def score_arm(fit, torso_poses, truth: eb.ArmTruth, *, frames=None, score_frames=None,
               alignment: Alignment | None = None) -> dict:
     """Angle and length errors of an arm fit, its posture compared in the TRUE torso frame.
 
     The fitted upper arm's attitude in the world (the fit's torso frame times its shoulder
     angles), carried into the true world, is expressed in the true torso frame and turned
     into the angles ``(b, a, c)``; the elbow angle is intrinsic. So the score does not
-    depend on how the system chose its torso frame. Returns ``angle_err_deg`` (T, 4),
-    ``max_angle_err_deg``, per-joint worst ``joint_max_deg`` (4,), ``length_err_pct`` (2,)
-    and ``lengths`` (2,) mm.
+    depend on how the system chose its torso frame. ``torso_poses`` and ``truth`` cover all
+    frames; ``frames`` are the ones the fit covers (default: all); ``score_frames`` (a
+    subset of them) restricts the angle scores, so that two fits can be compared on the
+    frames both cover. Returns ``angle_err_deg`` (F, 4), ``max_angle_err_deg``, per-joint
+    worst ``joint_max_deg`` (4,), ``length_err_pct`` (2,) and ``lengths`` (2,) mm.
     """
+    if frames is not None:
+        frames = np.asarray(frames, int)
+        torso_poses = np.asarray(torso_poses)[frames]
+        truth = dataclasses.replace(truth, frames=truth.frames[frames],
+                                    torso_poses=truth.torso_poses[frames],
+                                    angles=truth.angles[frames], joints=truth.joints[frames])
     st = fit.state
     model = arm_model()
     W = model.skeleton.transforms(st.angles, st.scales,
@@ -357,6 +366,12 @@ def score_arm(fit, torso_poses, truth: eb.ArmTruth, *,
     U_true = np.einsum("tji,tjk->tik", truth.torso_poses[:, :3, :3], U)
     ang = np.concatenate([shoulder_angles(U_true), st.angles[:, 3:4]], axis=1)
     d = np.degrees(np.angle(np.exp(1j * (ang - truth.angles[:, :4]))))
+    if score_frames is not None:
+        fr = np.arange(len(d)) if frames is None else np.asarray(frames, int)
+        keep = np.isin(fr, score_frames)
+        if not np.isin(score_frames, fr).all():
+            raise ValueError("score_frames: expected a subset of the fit's frames")
+        d = d[keep]
     lengths = np.asarray(fit.lengths[:2], float)
     return {"angle_err_deg": d, "max_angle_err_deg": float(np.abs(d).max()),
             "joint_max_deg": np.abs(d).max(axis=0), "lengths": lengths,
@@ -365,9 +380,13 @@ def score_arm(fit, torso_poses, truth: eb.ArmTruth, *,
 
 @dataclass(frozen=True, eq=False)
 class TruthFedArm:
-    """Notebook 07's arm fit on the truth-fed tracking's arm points: exact torso poses,
-    true joints with noise as the start, the arm's points picked by their true part."""
+    """Notebook 07's arm fit on the truth-fed tracking's arm points: exact torso poses, the
+    true joints (exact by default) as the start and as observations, the arm's points
+    picked by their true part, fitted
+    in the frames where the upper arm and the forearm (with the hand) each have enough
+    points (the system's rule)."""
 
+    frames: np.ndarray
     simplified: object
     full: object
     sigma_mm: float
@@ -376,17 +395,48 @@ class TruthFedArm:
 
 def truth_fed_arm(session: ArmWaveSession, tracking: TruthFedTracking, *,
                   settings: ArmFitSettings | None = None,
-                  joint_noise_mm: float = 15.0) -> TruthFedArm:
+                  joint_noise_mm: float = 0.0) -> TruthFedArm:
     """The arm fit as notebook 07 feeds it (see :class:`TruthFedArm`), with the system's
     settings (the same sigma rule, the same rounds)."""
     truth = arm_truth(session)
     init, tracked = eb.initial_state(truth, rng=session.seed, joint_noise_mm=joint_noise_mm)
-    arm = np.isin(tracking.part, [session.scene.body.index(n) for n in ARM_PARTS])
+    s = settings or ArmFitSettings()
+    body = session.scene.body
+    arm = np.isin(tracking.part, [body.index(n) for n in ARM_PARTS])
     X = tracking.filters[-1].trajectories.xyz
-    points = [X[t, arm & np.isfinite(X[t]).all(axis=1)] for t in range(len(X))]
+    present = np.isfinite(X).all(axis=2)
+    points = [X[t, arm & present[t]] for t in range(len(X))]
+    upper = tracking.part == body.index(ARM_PARTS[0])
+    fore = np.isin(tracking.part, [body.index(n) for n in ARM_PARTS[1:]])
+    counts = np.stack([(present & upper).sum(axis=1), (present & fore).sum(axis=1)], axis=1)
+    frames = observed_frames(counts, min_points=s.min_segment_points)
     simple, full, sigma = fit_self_consistent(points, truth.torso_poses, init, tracked=tracked,
-                                              settings=settings)
-    return TruthFedArm(simplified=simple, full=full, sigma_mm=sigma, points=points)
+                                              frames=frames, settings=s)
+    return TruthFedArm(frames=frames, simplified=simple, full=full, sigma_mm=sigma,
+                       points=points)
+
+
+def torso_frame_error(torso_poses, truth: eb.ArmTruth, alignment: Alignment, *,
+                      frames=None) -> np.ndarray:
+    """``(F,)`` angle (degrees) between a torso frame carried into the true world and the
+    true torso frame, per frame."""
+    P = np.asarray(torso_poses)
+    R_true = truth.torso_poses[:, :3, :3]
+    if frames is not None:
+        P, R_true = P[np.asarray(frames, int)], R_true[np.asarray(frames, int)]
+    R = np.einsum("ij,tjk->tik", alignment.R, P[:, :3, :3])
+    cos = (np.einsum("tji,tji->t", R_true, R) - 1) / 2
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def centre_errors(cameras, true_cameras) -> np.ndarray:
+    """``(K,)`` distances (mm) of camera centres from the true ones after the best rigid
+    motion of the centres onto them: the rig's own geometry, whatever its datum (the same
+    measure for a tape-measured and a calibrated rig)."""
+    C = np.stack([c.C for c in cameras])
+    Ct = np.stack([c.C for c in true_cameras])
+    R, t = fit_rigid(C, Ct)
+    return np.linalg.norm(C @ R.T + t - Ct, axis=1)
 
 
 def joint_errors(start, truth: eb.ArmTruth, alignment: Alignment) -> np.ndarray:
@@ -407,8 +457,10 @@ def group_parts(session: ArmWaveSession, groups, part) -> list:
 
 __all__ = [
     "Alignment", "ArmWaveSession", "TruthFedArm", "TruthFedTracking", "arm_truth",
-    "arm_wave_session", "calibration_scores", "group_parts", "heldout_points", "joint_errors",
+    "arm_wave_session", "calibration_scores", "centre_errors", "group_parts",
+    "heldout_points", "joint_errors",
     "last_frame_error", "roi_camera", "score_arm", "score_system_surface",
-    "score_system_tracks", "surface_truth", "target_sigma", "track_identity",
+    "score_system_tracks", "surface_truth", "target_sigma", "torso_frame_error",
+    "track_identity",
     "truth_fed_arm", "truth_fed_surface", "truth_fed_tracking", "world_alignment",
 ]

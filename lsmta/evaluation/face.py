@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from .._validate import as_rng
-from ..face import align_sequence, extreme_basis, fill_missing, pca_basis, pca_gap_fill
+from ..face import align_sequence, extreme_basis, fill_missing, learn, pca_basis, pca_gap_fill
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.face import face_cameras, face_sequence, visible
 from ..synth.marker_video import render_marker_video
@@ -24,7 +24,7 @@ from ..triangulation import triangulate, triangulate_single_pair
 DATA = Path(__file__).resolve().parents[2] / "data" / "animface"
 
 METHODS = ("extremes, w in [0,1]", "extremes, w free", "PCA mean + k, w free",
-           "peer: PCA gap filling")
+           "peer: PCA gap filling", "learned default (face.learn)")
 
 
 @dataclass(frozen=True)
@@ -125,9 +125,11 @@ def fill_all(gappy, training, *, n_basis: int, n_components: int,
     """Fill ``gappy`` (T, M, 3) with every method of :data:`METHODS`.
 
     ``n_basis`` extreme faces (constrained and free weights), a PCA basis of
-    ``n_components`` (mean + k, free weights) and the peer, which learns from the
-    complete frames of ``training`` (and ``gappy``) with ``peer_components`` components
-    (default: 99 % of the variance). Returns ``{method: (T, M, 3) filled}``.
+    ``n_components`` (mean + k, free weights), the peer (Gløersen & Federolf's full
+    method), which learns from the complete frames of ``training`` (and ``gappy``) with
+    ``peer_components`` components (default: as the authors' code chooses), and the
+    default model of :func:`lsmta.face.learn` trained on ``training``. Returns
+    ``{method: (T, M, 3) filled}``.
     """
     ext = extreme_basis(training, n_basis)
     pca = pca_basis(training, n_components)
@@ -137,6 +139,7 @@ def fill_all(gappy, training, *, n_basis: int, n_components: int,
         METHODS[2]: fill_missing(gappy, pca).frames,
         METHODS[3]: pca_gap_fill(gappy, training=training,
                                  n_components=peer_components).frames,
+        METHODS[4]: learn(training).fill(gappy).frames,
     }
     return out
 

@@ -28,6 +28,7 @@ from scipy.optimize import linear_sum_assignment
 
 from .._validate import as_points, as_rng, as_scalar
 from ..rigid import apply_rigid, fit_one
+from .configuration import complete_partial, tree_search
 from .model import MarkerModel
 
 
@@ -56,6 +57,22 @@ class SAPMParams:
         give them (biggest table first). Slower. It helps on distorted poses of the
         code-built model; it can hurt where segments look alike and fit each other well,
         as clusters on similar plates do (notebook 08).
+    joint_test : bool
+        Our option for the depth-first search: a child's match must also carry the joint
+        to within its tolerance plus 2 ε_s l̄_s of where the parent's motion carries it
+        (the paper only gates the child's pivot by its distance from that joint).
+    search : {"depth_first", "tree"}
+        "depth_first": the paper's global search (Section 3.2). "tree": ours: every
+        segment's matches first (:mod:`lsmta.sapm.candidates`), then the best
+        configuration of the whole tree by dynamic programming
+        (:mod:`lsmta.sapm.configuration`). It needs a smaller β where markers go missing:
+        a match is only accepted together with its linked segments.
+    max_candidates : int
+        Tree search: most matches kept per segment (per instance).
+    link_penalty : float
+        Tree search: what a link whose joint gap exceeds its limit costs, in markers
+        (``inf``: such links are never accepted). A finite cost lets two well-matched
+        segments stand together when the joint learned from a still clip was wrong.
     """
 
     eps: float = 0.10
@@ -64,6 +81,10 @@ class SAPMParams:
     max_alternatives: int = 3
     max_tables: int = 30
     rank_root: bool = False
+    joint_test: bool = False
+    search: str = "depth_first"
+    max_candidates: int = 100
+    link_penalty: float = 3.0
 
     def __post_init__(self):
         eps, beta = as_scalar(self.eps, "eps"), as_scalar(self.beta, "beta")
@@ -71,12 +92,22 @@ class SAPMParams:
             raise ValueError(f"eps: expected a fraction in (0, 1) (paper: 0.10-0.15), got {eps}")
         if not 0 <= beta < 1:
             raise ValueError(f"beta: expected a fraction in [0, 1) (paper: 0.8-0.9), got {beta}")
-        for name in ("coarse_min_points", "max_alternatives", "max_tables"):
+        if self.search not in ("depth_first", "tree"):
+            raise ValueError(f"search: expected 'depth_first' or 'tree', got {self.search!r}")
+        for name in ("coarse_min_points", "max_alternatives", "max_tables", "max_candidates"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
                 raise ValueError(f"{name}: expected a positive integer, got {value!r}")
         object.__setattr__(self, "eps", eps)
         object.__setattr__(self, "beta", beta)
+        try:
+            penalty = float(self.link_penalty)
+        except (TypeError, ValueError):
+            raise TypeError(f"link_penalty: expected a number >= 0 or inf, got "
+                            f"{self.link_penalty!r}") from None
+        if not penalty >= 0:
+            raise ValueError(f"link_penalty: expected a cost >= 0 or inf, got {penalty}")
+        object.__setattr__(self, "link_penalty", penalty)
 
 
 @dataclass(frozen=True)
@@ -100,7 +131,8 @@ class Identification:
         Rows of ``observed`` that held NaN and were left out.
     tables, fits, backtracks : int
         Search effort: candidate tables tried, rigid fits computed, and segment matches
-        undone because the segment's children failed.
+        undone because the segment's children failed. The tree search reports the whole
+        matches it found, 0, and the rounds it took to settle clashes beyond the first.
     seconds : float
         Wall time of the search.
     """
@@ -174,6 +206,7 @@ class _Search:
         self.state = _State(len(Q), model)
         self.effort = _Effort()
         self.rng = rng
+        self.eps = model.segment_eps(params.eps)         # ε_s: learned, else the params'
 
     # ------------------------------------------------------------------ local matching
     def _fit(self, model_idx, obs_idx, s):
@@ -181,13 +214,14 @@ class _Search:
         self.effort.fits += 1
         return R, t, resid, resid.mean() / self.model.mean_length[s]
 
-    def _whole(self, s, R, t, fixed: dict) -> _Match | None:
+    def _whole(self, s, R, t, fixed: dict, gate) -> _Match | None:
         """Closest-neighbour completion (Eq. 5) from a partial match's motion, then the
         quality (Eq. 2) and size (Eq. 3) tests. ``fixed``: member marker -> observed point
-        already known (an identified joint)."""
+        already known (an identified joint); ``gate``: the parent's virtual joint (V, J,
+        tol) or None."""
         m = self.model.members[s]
-        eps, lbar = self.p.eps, self.model.mean_length[s]
-        gate = 2.0 * lbar * eps
+        eps, lbar = self.eps[s], self.model.mean_length[s]
+        reach = 2.0 * lbar * eps
         allowed = self.state.free.copy()
         allowed[list(fixed.values())] = True
         cand = np.flatnonzero(allowed)
@@ -196,10 +230,10 @@ class _Search:
         for _ in range(3):
             pred = apply_rigid(R, t, self.model.points[m])
             d = np.linalg.norm(pred[:, None] - self.Q[cand][None], axis=-1)
-            cost = np.where(d < gate, d, 1e6 * gate)
+            cost = np.where(d < reach, d, 1e6 * reach)
             rows, cols = linear_sum_assignment(cost)
             new = np.full(len(m), -1)
-            keep = cost[rows, cols] < gate
+            keep = cost[rows, cols] < reach
             new[rows[keep]] = cand[cols[keep]]
             for j, mi in enumerate(m):       # a joint found by the parent stays where it is
                 if mi in fixed:
@@ -224,30 +258,41 @@ class _Search:
             obs[ok[worst]] = -1
             ok = obs >= 0
             R, t, resid, err = self._fit(m[ok], obs[ok], s)
-        if err < eps and (obs >= 0).sum() > self.p.beta * len(m):
-            return _Match(members=m, obs=obs, R=R, t=t, err=float(err))
-        return None
+        if err >= eps or (obs >= 0).sum() <= self.p.beta * len(m):
+            return None
+        if gate is not None and self.p.joint_test:      # our option: the joint must fit too
+            V, J, tol = gate
+            if np.linalg.norm(R @ J + t - V) > tol + 2.0 * eps * lbar:
+                return None
+        return _Match(members=m, obs=obs, R=R, t=t, err=float(err))
 
-    def _tables(self, s, l, pivots, gate):
+    def _tables(self, s, l, pivots, gate, fixed):
         """Candidate tables of segment ``s`` for pivot member ``l`` (local index) and
-        assumed pivot matches ``pivots`` (observed indices), best first.
+        assumed pivot matches ``pivots`` (observed indices), best first. A member in
+        ``fixed`` (a joint marker the parent identified) has its known point as its only
+        candidate.
 
         Returns a list of (pivot observed index, columns), columns a list of (member local
         index, candidates sorted best first) in the pivotal sequence (non-decreasing model
         distance from the pivot)."""
         m = self.model.members[s]
         P = self.model.points[m]
-        eps2 = 2.0 * self.p.eps
+        eps2 = 2.0 * self.eps[s]
         others = np.array([i for i in range(len(m)) if i != l])
         dm = np.linalg.norm(P[others] - P[l], axis=-1)
         order = np.argsort(dm, kind="stable")
         others, dm = others[order], dm[order]
+        known = np.array([fixed.get(int(m[i]), -1) for i in others])
         free = np.flatnonzero(self.state.free)
+        free = np.union1d(free, known[known >= 0])
         if len(pivots) == 0 or len(free) == 0:
             return []
         ratio = np.abs(dm[None, :, None] - self.D[np.ix_(pivots, free)][:, None, :])
         ratio /= dm[None, :, None]
         ok = (ratio < eps2) & (free[None, None, :] != np.asarray(pivots)[:, None, None])
+        # a known joint marker is its own only candidate, and nobody else's
+        ok &= np.where(known[:, None] >= 0, free[None, :] == known[:, None],
+                       ~np.isin(free, known)[None, :])[None]
         if gate is not None:                  # candidates must be within reach of the joint
             V, J, tol = gate
             reach = np.linalg.norm(P[others] - J, axis=-1)
@@ -273,7 +318,7 @@ class _Search:
             out.append((int(pivots[k]), cols))
         return out
 
-    def _coarse(self, s, l, k, cols, fixed):
+    def _coarse(self, s, l, k, cols, fixed, gate):
         """Worst-pair replacement on one CT; yields whole matches."""
         m = self.model.members[s]
         ptr = [0] * len(cols)
@@ -296,18 +341,18 @@ class _Search:
             idx_m = np.array([l] + [i for _, i, _ in sel])
             idx_q = np.array([k] + [q for _, _, q in sel])
             R, t, resid, err = self._fit(m[idx_m], idx_q, s)
-            if err < self.p.eps:             # a partial match: complete it (Eq. 5)
-                match = self._whole(s, R, t, fixed)
+            if err < self.eps[s]:             # a partial match: complete it (Eq. 5)
+                match = self._whole(s, R, t, fixed, gate)
                 if match is not None:
                     yield match
             worst = int(np.argmax(resid[1:]))
             ptr[sel[worst][0]] += 1
 
-    def _near_far(self, s, l, k, cols, fixed):
+    def _near_far(self, s, l, k, cols, fixed, gate):
         """Triples (pivot, a near neighbour, a far neighbour); yields whole matches."""
         m = self.model.members[s]
         P = self.model.points[m]
-        eps2 = 2.0 * self.p.eps
+        eps2 = 2.0 * self.eps[s]
         n = len(cols)
         pairs = [(a, b) for a in range(min(2, n)) for b in range(n - 1, max(n - 3, -1), -1)
                  if a < b]
@@ -319,8 +364,8 @@ class _Search:
                     if qa == qb or abs(self.D[qa, qb] - dab) >= eps2 * dab:
                         continue
                     R, t, _, err = self._fit(m[[l, ia, ib]], np.array([k, qa, qb]), s)
-                    if err < self.p.eps:
-                        match = self._whole(s, R, t, fixed)
+                    if err < self.eps[s]:
+                        match = self._whole(s, R, t, fixed, gate)
                         if match is not None:
                             yield match
 
@@ -329,17 +374,19 @@ class _Search:
         joint with search-tree parent ``via`` (-1: from scratch)."""
         model = self.model
         m = model.members[s]
-        gate, fixed, pivot_order = None, {}, None
+        gate, fixed, pivot_order, shared = None, {}, None, ()
         if via >= 0:
-            J, jl, tol = model.link(s, via)
-            if jl >= 0 and self.state.obs_of[jl] >= 0:          # identified joint marker
-                fixed = {int(jl): int(self.state.obs_of[jl])}
-                pivot_order = [(int(np.flatnonzero(m == jl)[0]), [fixed[int(jl)]])]
-            else:                                               # virtual joint
+            J, shared, tol = model.link(s, via)
+            fixed = {int(j): int(self.state.obs_of[j]) for j in shared
+                     if self.state.obs_of[j] >= 0}
+            if fixed:                                       # identified joint markers
+                first = next(iter(fixed))
+                pivot_order = [(int(np.flatnonzero(m == first)[0]), [fixed[first]])]
+            else:                                           # virtual joint
                 st = self.state
                 gate = (apply_rigid(st.R[via], st.t[via], J[None])[0], J, tol)
         if pivot_order is None:
-            local = [i for i in range(len(m)) if gate is None or m[i] != model.link(s, via)[1]]
+            local = [i for i in range(len(m)) if m[i] not in shared]
             if gate is not None:
                 local.sort(key=lambda i: np.linalg.norm(model.points[m[i]] - gate[1]))
             elif self.rng is not None:
@@ -357,7 +404,7 @@ class _Search:
                 V, J, tol = gate
                 reach = np.linalg.norm(model.points[m[l]] - J)
                 d = np.linalg.norm(self.Q[pivots] - V, axis=-1)
-                pivots = pivots[np.abs(d - reach) <= 2 * self.p.eps * reach + tol]
+                pivots = pivots[np.abs(d - reach) <= 2 * self.eps[s] * reach + tol]
             primary = self._table_matches(s, l, pivots, gate, fixed, methods, first_only=rank)
             if rank:        # our option: every table's first match, best fitting first
                 primary = sorted(primary, key=lambda x: x.err)
@@ -373,11 +420,11 @@ class _Search:
     def _table_matches(self, s, l, pivots, gate, fixed, methods, first_only=False):
         """Whole matches from each candidate table of pivot ``l``, table by table (only the
         first of each with ``first_only``)."""
-        for k, cols in self._tables(s, l, np.asarray(pivots, int), gate):
+        for k, cols in self._tables(s, l, np.asarray(pivots, int), gate, fixed):
             self.effort.tables += 1
             for method in methods:           # near-far triples where replacement fails
                 hit = False
-                for match in method(s, l, k, cols, fixed):
+                for match in method(s, l, k, cols, fixed, gate):
                     hit = True
                     yield match
                     if first_only:
@@ -399,7 +446,7 @@ class _Search:
             new[j] = -1
             keep = new >= 0
             R, t, _, err = self._fit(m[keep], new[keep], s)
-            if err < self.p.eps:
+            if err < self.eps[s]:
                 yield _Match(members=m, obs=new, R=R, t=t, err=float(err))
 
     # ------------------------------------------------------------------ global search
@@ -449,6 +496,16 @@ class _Search:
                     self.solve(s, -1)
 
 
+def checked_params(model, params) -> SAPMParams:
+    """``params`` (default ``SAPMParams()``) after checking it and ``model``."""
+    if not isinstance(model, MarkerModel):
+        raise TypeError(f"model: expected a MarkerModel, got {type(model).__name__}")
+    params = SAPMParams() if params is None else params
+    if not isinstance(params, SAPMParams):
+        raise TypeError(f"params: expected an SAPMParams, got {type(params).__name__}")
+    return params
+
+
 def identify(model: MarkerModel, observed, *, params: SAPMParams | None = None,
              rng: np.random.Generator | int | None = None) -> Identification:
     """Label an unlabelled 3-D marker pose with SAPM.
@@ -462,7 +519,8 @@ def identify(model: MarkerModel, observed, *, params: SAPMParams | None = None,
         Rows holding NaN are dropped and reported in ``Identification.dropped``. Not
         modified.
     params : SAPMParams, optional
-        ε (Eq. 2), β (Eq. 3) and the search's limits.
+        ε (Eq. 2), β (Eq. 3), the search (the paper's depth-first one or our tree search)
+        and its limits.
     rng : numpy.random.Generator, int or None
         Randomises the choice of pivots for segments searched from scratch (the paper's
         "arbitrary" pivot); ``None`` takes them in model order.
@@ -471,11 +529,7 @@ def identify(model: MarkerModel, observed, *, params: SAPMParams | None = None,
     -------
     Identification
     """
-    if not isinstance(model, MarkerModel):
-        raise TypeError(f"model: expected a MarkerModel, got {type(model).__name__}")
-    params = SAPMParams() if params is None else params
-    if not isinstance(params, SAPMParams):
-        raise TypeError(f"params: expected an SAPMParams, got {type(params).__name__}")
+    params = checked_params(model, params)
     Q = as_points(observed, "observed", allow_nan=True)
     if rng is not None:
         rng = as_rng(rng)
@@ -484,6 +538,8 @@ def identify(model: MarkerModel, observed, *, params: SAPMParams | None = None,
     if len(keep) < 3:
         raise ValueError(f"observed: expected at least 3 points without NaN, got {len(keep)}")
     t0 = time.perf_counter()
+    if params.search == "tree":
+        return _tree_identify(model, Q, keep, bad, params, t0)
     search = _Search(model, Q[keep], params, rng)
     search.run()
     st = search.state
@@ -495,4 +551,27 @@ def identify(model: MarkerModel, observed, *, params: SAPMParams | None = None,
                           translation=st.t, mean_error=st.err, matched=matched,
                           dropped=np.flatnonzero(bad), tables=search.effort.tables,
                           fits=search.effort.fits, backtracks=search.effort.backtracks,
+                          seconds=time.perf_counter() - t0)
+
+
+def _tree_identify(model, Q, keep, bad, params, t0) -> Identification:
+    eps = model.segment_eps(params.eps)
+    lab, choice, cands, rounds = tree_search(model, Q[keep], eps, beta=params.beta,
+                                             limit=params.max_candidates,
+                                             penalty=params.link_penalty)
+    lab, partial = complete_partial(model, Q[keep], eps, cands, choice, lab, beta=params.beta)
+    S = model.n_segments
+    labels = np.full(len(Q), -1)
+    labels[keep] = lab
+    R, t, err = np.full((S, 3, 3), np.nan), np.full((S, 3), np.nan), np.full(S, np.nan)
+    matched = np.zeros(S, int)
+    for s, k in enumerate(choice):
+        if k >= 0:
+            R[s], t[s], err[s], matched[s] = cands[s].R[k], cands[s].t[k], cands[s].err[k], \
+                cands[s].n[k]
+    for s, (Rs, ts, es, ns) in partial.items():
+        R[s], t[s], err[s], matched[s] = Rs, ts, es, ns
+    return Identification(labels=labels, found=matched > 0, rotation=R, translation=t,
+                          mean_error=err, matched=matched, dropped=np.flatnonzero(bad),
+                          tables=sum(len(c) for c in cands), fits=0, backtracks=rounds - 1,
                           seconds=time.perf_counter() - t0)

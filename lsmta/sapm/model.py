@@ -1,16 +1,20 @@
 """The articulated marker model of SAPM (Li & Holstein 2002, Section 2).
 
 Labelled points with model coordinates, grouped into segments; the segments form a tree.
-Where a parent and a child share a marker (a joint marker) that label belongs to both.
-Where they share none, as with cluster marker sets, the joint is estimated from the model
-frame (the midpoint of the closest pair of markers across the two segments) and carries a
-tolerance, so that a child can still be searched near its parent.
+Where a parent and a child share markers (joint markers: one, or a pair such as two wrist
+markers) those labels belong to both. Where they share none, as with cluster marker sets,
+the joint is estimated from the model frame (the midpoint of the closest pair of markers
+across the two segments) and carries a tolerance, so that a child can still be searched
+near its parent. A model comes from one clear frame, as in the paper, or is learned from a
+labelled clip (:meth:`MarkerModel.from_labelled_frames`, :mod:`lsmta.sapm.learning`), which
+also gives every segment its own tolerance ε_s and finds the joints from the motion.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from itertools import combinations
 
 import numpy as np
 from scipy.sparse.csgraph import minimum_spanning_tree
@@ -37,12 +41,22 @@ class MarkerModel:
         Index of each segment's parent, -1 for the root of the given tree.
     joint : (S, 3) array
         Model position of the joint between each segment and its parent, mm (NaN for the
-        root): the shared marker's position, or the estimate described above.
-    joint_label : (S,) int array
-        Index of the shared joint marker, or -1 where parent and child share none.
+        root): the shared markers' centroid, or the estimate described above.
+    shared : tuple of S int arrays
+        Indices into ``labels`` of the markers each segment shares with its parent (joint
+        markers; empty where they share none, and for the root).
     joint_tolerance : (S,) array
-        How far, mm, the estimated joint may be from the true centre of rotation: 0 for a
-        shared marker, else the distance between the closest pair the estimate came from.
+        How far, mm, the estimated joint may be from the true centre of rotation: 0 for
+        shared markers, else the distance between the closest pair the estimate came from
+        (or, for a model learned from a clip, the joint's learned spread).
+    joint_prior : (S,) array
+        For a joint without shared markers, the share of the one-frame estimate left in it
+        where the clip fixes it least: 1 for a model from one frame, near 0 where the clip
+        turned the link enough to find its centre; 0 for shared markers and the root.
+    eps : (S,) array
+        Each segment's own tolerable distortion ε_s of Eq. 2 (a fraction of its l̄_s),
+        learned from a clip (:meth:`from_labelled_frames`); NaN where the search's
+        ``SAPMParams.eps`` applies (a model from one frame).
     """
 
     labels: tuple
@@ -51,8 +65,10 @@ class MarkerModel:
     members: tuple
     parent: np.ndarray
     joint: np.ndarray
-    joint_label: np.ndarray
+    shared: tuple
     joint_tolerance: np.ndarray
+    joint_prior: np.ndarray
+    eps: np.ndarray
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -79,46 +95,11 @@ class MarkerModel:
         """
         if not isinstance(points_by_label, dict) or not points_by_label:
             raise TypeError("points_by_label: expected a non-empty dict label -> (3,) position")
-        if not isinstance(segments, dict) or not segments:
-            raise TypeError("segments: expected a non-empty dict segment -> list of labels")
-        if not isinstance(parents, dict):
-            raise TypeError("parents: expected a dict segment -> parent segment or None")
         labels = tuple(points_by_label)
         points = np.stack([as_array(points_by_label[k], f"points_by_label[{k!r}]", shape=(3,))
                            for k in labels])
-        index = {k: i for i, k in enumerate(labels)}
-        names = tuple(segments)
-        seg_index = {s: i for i, s in enumerate(names)}
-        if set(parents) != set(names):
-            missing = sorted(set(names) - set(parents))
-            extra = sorted(set(parents) - set(names))
-            raise ValueError(f"parents: expected one entry per segment; missing {missing}, "
-                             f"unknown {extra}")
-        parent = np.full(len(names), -1)
-        for s, p in parents.items():
-            if p is None:
-                continue
-            if p not in seg_index:
-                raise ValueError(f"parents: segment {s!r} has unknown parent {p!r}")
-            if p == s:
-                raise ValueError(f"parents: segment {s!r} is its own parent")
-            parent[seg_index[s]] = seg_index[p]
-        members = []
-        for s in names:
-            labs = list(segments[s])
-            if len(set(labs)) != len(labs):
-                raise ValueError(f"segments: segment {s!r} lists a label twice: {labs}")
-            unknown = [k for k in labs if k not in index]
-            if unknown:
-                raise ValueError(f"segments: segment {s!r} has labels not in points_by_label: "
-                                 f"{unknown}")
-            if len(labs) < 3:
-                raise ValueError(f"segments: segment {s!r} has {len(labs)} markers; SAPM fits "
-                                 f"a rigid motion per segment and needs at least 3")
-            members.append(np.array([index[k] for k in labs]))
-        unused = sorted(set(labels) - {labels[i] for m in members for i in m})
-        if unused:
-            raise ValueError(f"segments: labels in no segment: {unused}")
+        names, members, parent = definition(labels, segments, parents,
+                                            labels_name="points_by_label")
         joints = {} if joints is None else dict(joints)
         unknown = sorted(set(joints) - set(names))
         if unknown:
@@ -126,20 +107,48 @@ class MarkerModel:
         return cls._build(labels, points, names, members, parent, joints)
 
     @classmethod
-    def _build(cls, labels, points, names, members, parent, joints):
+    def from_labelled_frames(cls, labels, points, segments: dict, parents: dict, *,
+                             params=None) -> MarkerModel:
+        """Learn a model from a labelled clip, as a user has from a range-of-motion trial.
+
+        Learns each segment's mean shape, its rigidity tolerance ε_s (from the spread of
+        Eq. 2's ē_s over the clip) and the joints of links without shared markers (the
+        point fixed in both segments over the clip) with their tolerances; see
+        :mod:`lsmta.sapm.learning`. A link may share several markers (two wrist markers,
+        a medial/lateral pair).
+
+        Parameters
+        ----------
+        labels : sequence of str, length M
+            Marker names, one per column of ``points``.
+        points : (T, M, 3) array_like
+            The labelled clip, mm; NaN for a gap (a marker with any NaN coordinate is
+            missing in that frame). Not modified.
+        segments : dict
+            segment name -> list of labels (at least 3); a label in two segments must be
+            shared by a parent and its child. :func:`suggest_segments` proposes one.
+        parents : dict
+            segment name -> parent segment name, or None for the root (exactly one).
+        params : LearnParams, optional
+            Margins and floors of the learned tolerances.
+
+        Returns
+        -------
+        MarkerModel
+            With ``eps`` (ε_s) learned; ``points`` is the clip's mean pose.
+        """
+        from .learning import learn_model
+
+        return learn_model(cls, labels, points, segments, parents, params=params)
+
+    @classmethod
+    def _build(cls, labels, points, names, members, parent, joints, *, tolerances=None,
+               priors=None, eps=None):
+        """The model from checked parts. ``joints``: segment name -> joint position for
+        links without shared markers (``tolerances``: name -> its tolerance, default 0;
+        ``priors``: name -> the share of the one-frame estimate left in it, default 0 for a
+        given joint); ``eps``: (S,) learned ε_s (default NaN: the search's ε)."""
         S = len(names)
-        roots = np.flatnonzero(parent < 0)
-        if len(roots) != 1:
-            raise ValueError(f"parents: expected exactly one root segment (parent None), got "
-                             f"{[names[i] for i in roots]}")
-        for s in range(S):                        # every chain must reach the root
-            seen, p = {s}, parent[s]
-            while p >= 0:
-                if p in seen:
-                    raise ValueError(f"parents: segments {sorted(names[i] for i in seen)} form "
-                                     f"a cycle; expected a tree")
-                seen.add(p)
-                p = parent[p]
         owner = {}
         for s, m in enumerate(members):
             for i in m:
@@ -153,31 +162,35 @@ class MarkerModel:
                                  f"{[names[s] for s in segs]}; a shared label must join one "
                                  f"parent and its child")
         joint = np.full((S, 3), np.nan)
-        joint_label = np.full(S, -1)
+        shared = [np.zeros(0, int) for _ in range(S)]
         tol = np.zeros(S)
+        prior = np.zeros(S)
+        tolerances = {} if tolerances is None else tolerances
+        priors = {} if priors is None else priors
         for s in range(S):
             p = parent[s]
             if p < 0:
                 continue
-            shared = np.intersect1d(members[s], members[p])
-            if len(shared) > 1:
-                raise ValueError(f"segments: {names[s]!r} and its parent {names[p]!r} share "
-                                 f"{len(shared)} labels; expected at most one joint marker")
-            if len(shared):
-                joint_label[s] = shared[0]
-                joint[s] = points[shared[0]]
+            shared[s] = np.intersect1d(members[s], members[p])
+            if len(shared[s]):
+                joint[s] = points[shared[s]].mean(axis=0)
             elif names[s] in joints:
                 joint[s] = as_array(joints[names[s]], f"joints[{names[s]!r}]", shape=(3,))
+                tol[s] = tolerances.get(names[s], 0.0)
+                prior[s] = priors.get(names[s], 0.0)
             else:
                 a, b = points[members[s]], points[members[p]]
                 d = np.linalg.norm(a[:, None] - b[None], axis=-1)
                 i, j = np.unravel_index(np.argmin(d), d.shape)
                 joint[s] = 0.5 * (a[i] + b[j])
                 tol[s] = d[i, j]
-        for arr in (points, parent, joint, joint_label, tol):
+                prior[s] = 1.0
+        eps = np.full(S, np.nan) if eps is None else np.asarray(eps, float).copy()
+        for arr in (points, parent, joint, tol, prior, eps, *shared):
             arr.setflags(write=False)
-        return cls(tuple(labels), points, tuple(names), tuple(np.asarray(m) for m in members),
-                   parent, joint, joint_label, tol)
+        return cls(labels=tuple(labels), points=points, segments=tuple(names),
+                   members=tuple(np.asarray(m) for m in members), parent=parent, joint=joint,
+                   shared=tuple(shared), joint_tolerance=tol, joint_prior=prior, eps=eps)
 
     # ------------------------------------------------------------------ derived structure
     @property
@@ -197,6 +210,23 @@ class MarkerModel:
             d = np.linalg.norm(p[:, None] - p[None], axis=-1)
             out[s] = d[np.triu_indices(len(m), 1)].mean()
         return out
+
+    @cached_property
+    def base_triples(self) -> tuple:
+        """Per segment, the triples of its markers (local indices) the tree search starts
+        its matches from: the largest triangle and, for four or more markers, the largest
+        triangle without each of its corners (so one missing marker is survived)."""
+        out = []
+        for m in self.members:
+            p = self.points[m]
+            tri = list(combinations(range(len(m)), 3))
+            area = [np.linalg.norm(np.cross(p[b] - p[a], p[c] - p[a])) for a, b, c in tri]
+            order = np.argsort(-np.asarray(area), kind="stable")
+            best = tri[order[0]]
+            picks = [best] + ([next(tri[k] for k in order if corner not in tri[k])
+                               for corner in best] if len(m) >= 4 else [])
+            out.append(tuple(dict.fromkeys(picks)))
+        return tuple(out)
 
     @cached_property
     def point_segment(self) -> np.ndarray:
@@ -254,14 +284,23 @@ class MarkerModel:
                     out[n] = s
         return out
 
+    @property
+    def joint_label(self) -> np.ndarray:
+        """(S,) the first marker each segment shares with its parent, -1 where none."""
+        return np.array([m[0] if len(m) else -1 for m in self.shared])
+
     def link(self, a: int, b: int):
-        """Joint between linked segments ``a`` and ``b``: (position (3,), label or -1,
-        tolerance mm)."""
+        """Joint between linked segments ``a`` and ``b``: (position (3,), shared markers
+        (int array, may be empty), tolerance mm)."""
         child = a if self.parent[a] == b else b
         if self.parent[child] not in (a, b) or a == b:
             raise ValueError(f"segments {self.segments[a]!r} and {self.segments[b]!r} are "
                              f"not linked")
-        return self.joint[child], int(self.joint_label[child]), float(self.joint_tolerance[child])
+        return self.joint[child], self.shared[child], float(self.joint_tolerance[child])
+
+    def segment_eps(self, default: float) -> np.ndarray:
+        """(S,) ε_s of each segment: the learned one, else ``default``."""
+        return np.where(np.isfinite(self.eps), self.eps, default)
 
     def label_index(self, label: str) -> int:
         try:
@@ -289,3 +328,63 @@ class MarkerModel:
     def __repr__(self) -> str:
         return (f"MarkerModel({self.n_points} markers, {self.n_segments} segments, "
                 f"search root {self.segments[self.search_root]!r})")
+
+
+def definition(labels: tuple, segments: dict, parents: dict, *, labels_name: str = "labels"):
+    """Segment names, member index arrays and the (S,) parent array of a model definition,
+    checked against ``labels``."""
+    if not isinstance(segments, dict) or not segments:
+        raise TypeError("segments: expected a non-empty dict segment -> list of labels")
+    if not isinstance(parents, dict):
+        raise TypeError("parents: expected a dict segment -> parent segment or None")
+    index = {k: i for i, k in enumerate(labels)}
+    names = tuple(segments)
+    seg_index = {s: i for i, s in enumerate(names)}
+    if set(parents) != set(names):
+        missing = sorted(set(names) - set(parents))
+        extra = sorted(set(parents) - set(names))
+        raise ValueError(f"parents: expected one entry per segment; missing {missing}, "
+                         f"unknown {extra}")
+    parent = np.full(len(names), -1)
+    for s, p in parents.items():
+        if p is None:
+            continue
+        if p not in seg_index:
+            raise ValueError(f"parents: segment {s!r} has unknown parent {p!r}")
+        if p == s:
+            raise ValueError(f"parents: segment {s!r} is its own parent")
+        parent[seg_index[s]] = seg_index[p]
+    members = []
+    for s in names:
+        labs = list(segments[s])
+        if len(set(labs)) != len(labs):
+            raise ValueError(f"segments: segment {s!r} lists a label twice: {labs}")
+        unknown = [k for k in labs if k not in index]
+        if unknown:
+            raise ValueError(f"segments: segment {s!r} has labels not in {labels_name}: "
+                             f"{unknown}")
+        if len(labs) < 3:
+            raise ValueError(f"segments: segment {s!r} has {len(labs)} markers; SAPM fits "
+                             f"a rigid motion per segment and needs at least 3")
+        members.append(np.array([index[k] for k in labs]))
+    unused = sorted(set(labels) - {labels[i] for m in members for i in m})
+    if unused:
+        raise ValueError(f"segments: labels in no segment: {unused}")
+    _check_tree(names, parent)
+    return names, members, parent
+
+
+def _check_tree(names, parent) -> None:
+    """One root, and every chain reaches it."""
+    roots = np.flatnonzero(parent < 0)
+    if len(roots) != 1:
+        raise ValueError(f"parents: expected exactly one root segment (parent None), got "
+                         f"{[names[i] for i in roots]}")
+    for s in range(len(names)):
+        seen, p = {s}, parent[s]
+        while p >= 0:
+            if p in seen:
+                raise ValueError(f"parents: segments {sorted(names[i] for i in seen)} form "
+                                 f"a cycle; expected a tree")
+            seen.add(p)
+            p = parent[p]

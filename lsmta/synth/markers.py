@@ -176,3 +176,81 @@ def random_pose(model: MarkerModel, *, rng: np.random.Generator | int | None = N
     order = rng.permutation(len(obs))
     points.setflags(write=False)
     return MarkerPose(observed=obs[order], truth=truth[order], points=points)
+
+
+@dataclass(frozen=True)
+class MarkerClip:
+    """A generated labelled clip and its truth.
+
+    Attributes
+    ----------
+    points : (T, M, 3) array
+        Every marker in every frame (the model's order), mm, with the segmental distortion.
+    joints : (T, S, 3) array
+        The true centre of rotation of each segment with its parent per frame, mm (NaN for
+        the root).
+    rotations : (T, S, 3, 3) array
+        Each segment's true rotation, model -> world.
+    """
+
+    points: np.ndarray
+    joints: np.ndarray
+    rotations: np.ndarray
+
+
+def marker_clip(model: MarkerModel, n_frames: int, *, rng: np.random.Generator | int | None = None,
+                amplitude: float = 1.0, distortion=0.0, speed: float = 1.0) -> MarkerClip:
+    """A smooth articulated motion of ``model`` (a labelled range-of-motion clip).
+
+    Every segment turns about its joint with its parent (the root about its centroid) like
+    a ball joint: its rotation vector is ``amplitude * sin(2 pi f_k t + phase_k) u_k``
+    summed over two random perpendicular axes u_k, ``f_k`` uniform in [0.5, 1.5] ``speed``
+    cycles over the clip; children move with their parents. Each
+    marker of segment s then gets N(0, ψ_s l̄_s)/√6 per coordinate and frame, ψ =
+    ``distortion`` (a scalar or (S,) per segment; a joint marker takes its parent's).
+
+    Parameters
+    ----------
+    model : MarkerModel
+    n_frames : int
+    rng : numpy.random.Generator, int or None
+    amplitude : float
+        Largest turn of a joint, rad (0: a still clip).
+    distortion : float or (S,) array
+        ψ_s, a fraction of l̄_s.
+    speed : float
+        Cycles of the slowest joint over the clip, about.
+    """
+    rng = as_rng(rng)
+    amplitude = as_scalar(amplitude, "amplitude", nonnegative=True)
+    if int(n_frames) != n_frames or n_frames < 1:
+        raise ValueError(f"n_frames: expected a positive integer, got {n_frames}")
+    S, T = model.n_segments, int(n_frames)
+    psi = np.broadcast_to(np.asarray(distortion, float), (S,))
+    if (psi < 0).any() or not np.isfinite(psi).all():
+        raise ValueError(f"distortion: expected finite fractions >= 0, got {distortion}")
+    axes = Rotation.random(S, random_state=rng.integers(1 << 31)).as_matrix()[:, :2]  # (S, 2, 3)
+    freq = speed * rng.uniform(0.5, 1.5, (S, 2))
+    phase = rng.uniform(0, 2 * np.pi, (S, 2))
+    t = np.linspace(0, 1, T)
+    angle = amplitude * np.sin(2 * np.pi * freq[None] * t[:, None, None] + phase[None])  # (T,S,2)
+    rotvec = np.einsum("tsk,skj->tsj", angle, axes)
+    rot = Rotation.from_rotvec(rotvec.reshape(-1, 3)).as_matrix().reshape(T, S, 3, 3)
+    A = np.zeros((T, S, 3, 3))
+    b = np.zeros((T, S, 3))
+    joints = np.full((T, S, 3), np.nan)
+    for s in model.tree_order(model.root_of_tree):
+        p = model.parent[s]
+        c = model.points[model.members[s]].mean(axis=0) if p < 0 else model.joint[s]
+        La, Lb = rot[:, s], c - rot[:, s] @ c
+        if p < 0:
+            A[:, s], b[:, s] = La, Lb
+        else:
+            A[:, s] = A[:, p] @ La
+            b[:, s] = np.einsum("tij,tj->ti", A[:, p], Lb) + b[:, p]
+            joints[:, s] = np.einsum("tij,j->ti", A[:, p], c) + b[:, p]
+    owner = model.point_segment
+    points = np.einsum("tmij,mj->tmi", A[:, owner], model.points) + b[:, owner]
+    sigma = psi[owner] * model.mean_length[owner] / np.sqrt(6.0)
+    points = points + rng.normal(size=points.shape) * sigma[None, :, None]
+    return MarkerClip(points=points, joints=joints, rotations=A)

@@ -19,6 +19,7 @@ from .body import (
     capture_body,
     fit_arm,
     fit_self_consistent,
+    observed_frames,
     track_surface,
 )
 from .rig import RigCalibration, calibrate_rig
@@ -27,5 +28,6 @@ from .surfaces import SurfaceParams, measure_surfaces, working_distance
 __all__ = [
     "ArmFit", "ArmFitSettings", "BodyCapture", "BodySystemParams", "FilterSettings",
     "RigCalibration", "SurfaceParams", "calibrate_rig", "capture_body", "fit_arm",
-    "fit_self_consistent", "measure_surfaces", "track_surface", "working_distance",
+    "fit_self_consistent", "measure_surfaces", "observed_frames", "track_surface",
+    "working_distance",
 ]

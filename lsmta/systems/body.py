@@ -30,7 +30,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .._validate import as_scalar
-from ..body import BodyFit, FitParams, arm_model, fit_sequence
+from ..body import BodyFit, FitParams, ModelState, arm_model, fit_sequence
 from ..body.start import ArmStart, arm_start
 from ..calibration import DEFAULT_INTRINSICS
 from ..noise import NoiseEstimate, temporal_noise
@@ -74,19 +74,39 @@ class ArmFitSettings:
         Segmentation rounds of the full model after the simplified one.
     rigidity_mm : float
         Tolerance of the rigid groups (:func:`~lsmta.tracking.segmentation.rigid_groups`).
+    min_segment_points : int
+        The model is fitted in the frames where the upper arm and the forearm each have at
+        least this many points: without points of its own a segment's angle is free (a
+        forearm that stops being tracked has no elbow angle to recover).
     """
 
     sigma_prior_mm: float = 2.0
     sigma_joint_mm: float = 15.0
     full_rounds: int = 3
     rigidity_mm: float = 4.0
+    min_segment_points: int = 10
 
 
 @dataclass(frozen=True)
 class BodySystemParams:
-    """Settings of :func:`capture_body`, one bundle per stage."""
+    """Settings of :func:`capture_body`, one bundle per stage.
+
+    Attributes
+    ----------
+    intrinsics, bar_sigma, reject_k
+        The calibration (:func:`~lsmta.systems.rig.calibrate_rig`): free interior
+        parameters, the bar length's standard deviation (mm), outlier rejection.
+    surface : SurfaceParams
+    density_every : int
+        Frames between density checks (and so between measured surfaces).
+    tracker : TrackerParams
+    filters : FilterSettings
+    arm : ArmFitSettings
+    """
 
     intrinsics: tuple = DEFAULT_INTRINSICS
+    bar_sigma: float = 0.01
+    reject_k: float | None = None
     surface: SurfaceParams = field(default_factory=SurfaceParams)
     density_every: int = 4
     tracker: TrackerParams = field(default_factory=TrackerParams)
@@ -101,7 +121,10 @@ class ArmFit:
     Attributes
     ----------
     start : ArmStart
-        Where the data put the arm: rigid groups, joints, torso poses, the arm's points.
+        Where the data put the arm: rigid groups, joints, torso poses, the arm's points
+        (all frames).
+    frames : (F,) int array
+        The frames fitted (both arm segments tracked); the fits' frame i is ``frames[i]``.
     simplified, full : BodyFit
         The simplified model, then the full model started from it.
     sigma_mm : float
@@ -109,6 +132,7 @@ class ArmFit:
     """
 
     start: ArmStart
+    frames: np.ndarray
     simplified: BodyFit
     full: BodyFit
     sigma_mm: float
@@ -136,6 +160,8 @@ class BodyCapture:
     arm : ArmFit
     seconds : dict of str -> float
         Wall time per stage.
+    params : BodySystemParams
+        The settings it ran with.
     """
 
     cameras: list
@@ -148,6 +174,7 @@ class BodyCapture:
     filters: tuple
     arm: ArmFit
     seconds: dict
+    params: BodySystemParams
 
     @property
     def filtered(self) -> Trajectories:
@@ -170,9 +197,10 @@ class BodyCapture:
                          f"the density check), {int(self.tracks.alive[-1].sum())} alive at "
                          "the end"),
             ("trajectories", f"{int(kept)} of {len(self.trajectories)} kept by the filters"),
-            ("arm model", f"{full.status} after {full.rounds} rounds; bone lengths "
-                          f"{full.lengths[0]:.1f} / {full.lengths[1]:.1f} mm; "
-                          f"sigma {self.arm.sigma_mm:.2f} mm"),
+            ("arm model", f"{full.status.name} after {full.rounds} round(s) in "
+                          f"{len(self.arm.frames)} of {len(self.frames)} frames (both arm "
+                          f"segments tracked); bone lengths {full.lengths[0]:.1f} / "
+                          f"{full.lengths[1]:.1f} mm; sigma {self.arm.sigma_mm:.2f} mm"),
         ]
         return [{"stage": s, "seconds": self.seconds.get(s, float("nan")), "result": r}
                 for s, r in rows]
@@ -205,13 +233,12 @@ def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None
     return track_points(videos, start, params=params, new_points=new, progress=progress)
 
 
-def fit_arm(trajectories: Trajectories, cameras, *, template: int = 1,
-            settings: ArmFitSettings | None = None,
+def fit_arm(trajectories: Trajectories, cameras, *, settings: ArmFitSettings | None = None,
             rng: np.random.Generator | int | None = None) -> ArmFit:
     """Fit the arm model to filtered trajectories, started from the data.
 
-    The person is taken to face the ``template`` camera, in a world whose +Z is up (the
-    tape-measured rig's world): that fixes the torso frame's axes
+    The person is taken to face the rig (against the cameras' mean viewing direction), in a
+    world whose +Z is up (the tape-measured rig's world): that fixes the torso frame's axes
     (:func:`~lsmta.body.start.torso_frame`); everything else comes from the trajectories.
 
     Parameters
@@ -219,8 +246,6 @@ def fit_arm(trajectories: Trajectories, cameras, *, template: int = 1,
     trajectories : Trajectories
     cameras : sequence of Camera
         Calibrated cameras in the world of the trajectories.
-    template : int
-        The camera the person faces.
     settings : ArmFitSettings, optional
     rng : numpy.random.Generator, int or None
         For the rigid groups' sample.
@@ -232,18 +257,42 @@ def fit_arm(trajectories: Trajectories, cameras, *, template: int = 1,
     cams = check_cameras(cameras, "cameras")
     s = settings or ArmFitSettings()
     X = np.asarray(trajectories.xyz)
-    seen = np.isfinite(X).all(axis=2).any(axis=0)
-    if not seen.any():
+    if not np.isfinite(X).all(axis=2).any():
         raise ValueError("trajectories: no trajectory has a position")
-    centre = np.nanmean(X[:, seen].reshape(-1, 3), axis=0)
-    start = arm_start(trajectories, forward=cams[template].C - centre, up=(0.0, 0.0, 1.0),
+    facing = -np.mean([c.R[2] for c in cams], axis=0)      # against the viewing direction
+    start = arm_start(trajectories, forward=facing, up=(0.0, 0.0, 1.0),
                       tolerance=s.rigidity_mm, rng=rng)
+    present = np.isfinite(X).all(axis=2)
+    counts = np.stack([(present & (start.groups.label == g)).sum(axis=1)
+                       for g in (start.upper_arm, start.forearm)], axis=1)
+    frames = observed_frames(counts, min_points=s.min_segment_points)
     simple, full, sigma = fit_self_consistent(start.points, start.torso_poses, start.state,
-                                              tracked=start.joints, settings=s)
-    return ArmFit(start=start, simplified=simple, full=full, sigma_mm=sigma)
+                                              tracked=start.joints, frames=frames, settings=s)
+    return ArmFit(start=start, frames=frames, simplified=simple, full=full, sigma_mm=sigma)
 
 
-def fit_self_consistent(points, torso_poses, init, *, tracked=None,
+def observed_frames(counts, *, min_points: int = 10) -> np.ndarray:
+    """Frames in which every segment has at least ``min_points`` points.
+
+    Parameters
+    ----------
+    counts : (T, S) int array
+        Points per frame and segment.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 3 such frames.
+    """
+    counts = np.asarray(counts)
+    frames = np.flatnonzero((counts >= min_points).all(axis=1))
+    if len(frames) < 3:
+        raise ValueError(f"trajectories: every arm segment has >= {min_points} points in only "
+                         f"{len(frames)} of {len(counts)} frames; the arm model needs >= 3")
+    return frames
+
+
+def fit_self_consistent(points, torso_poses, init, *, tracked=None, frames=None,
                         settings: ArmFitSettings | None = None):
     """The simplified model, then the full one, with a point sigma the fit agrees with.
 
@@ -258,6 +307,8 @@ def fit_self_consistent(points, torso_poses, init, *, tracked=None,
     init : ModelState
     tracked : (T, 3, 3) array, optional
         Shoulder, elbow and wrist as observations (the wrist is left out: NaN).
+    frames : sequence of int, optional
+        Fit only these frames (default: all).
     settings : ArmFitSettings, optional
 
     Returns
@@ -266,8 +317,15 @@ def fit_self_consistent(points, torso_poses, init, *, tracked=None,
     """
     s = settings or ArmFitSettings()
     model = arm_model()
+    if frames is not None:
+        frames = np.asarray(frames, int)
+        points = [points[t] for t in frames]
+        torso_poses = np.asarray(torso_poses)[frames]
+        init = ModelState(angles=init.angles[frames], shoulder=init.shoulder[frames],
+                          scales=init.scales, radii=init.radii)
     if tracked is not None:
         tracked = np.array(tracked, float)
+        tracked = tracked if frames is None else tracked[frames]
         tracked[:, 2] = np.nan              # the wrist is a guess, not a measurement
     sigma = as_scalar(s.sigma_prior_mm, "settings.sigma_prior_mm", positive=True)
 
@@ -305,8 +363,10 @@ class _State:
 
 
 def _calibration(st: _State) -> None:
+    p = st.params
     st.calibration = calibrate_rig(st.bar_videos, st.bar_length, st.nominal,
-                                   intrinsics=st.params.intrinsics, progress=st.progress)
+                                   intrinsics=p.intrinsics, bar_sigma=p.bar_sigma,
+                                   reject_k=p.reject_k, progress=st.progress)
 
 
 def _image_noise(st: _State) -> None:
@@ -334,8 +394,7 @@ def _trajectories(st: _State) -> None:
 
 def _arm_model(st: _State) -> None:
     st.arm = fit_arm(st.filters[-1].trajectories, st.calibration.cameras,
-                     template=st.params.surface.template, settings=st.params.arm,
-                     rng=st.seed)
+                     settings=st.params.arm, rng=st.seed)
 
 
 STAGES = (("calibration", _calibration), ("image noise", _image_noise),
@@ -413,4 +472,4 @@ def capture_body(videos, bar_videos, bar_length: float, nominal_cameras, *, fps:
     return BodyCapture(cameras=st.calibration.cameras, calibration=st.calibration,
                        noise=st.noise, frames=idx, surfaces=st.surfaces, tracks=st.tracks,
                        trajectories=st.trajectories, filters=st.filters, arm=st.arm,
-                       seconds=seconds)
+                       seconds=seconds, params=p)

@@ -12,9 +12,9 @@ Two ways to build the basis from a complete training sequence, both from the the
 the first principal components: real faces, weights constrained) and :func:`pca_basis`
 (mean shape plus the first principal components: not faces, weights free).
 
-The peer method from biomechanics, :func:`pca_gap_fill`, predicts missing coordinates from
-the intercorrelations of all marker coordinates (Federolf 2013; Gløersen & Federolf 2016)
-without a rigid alignment and without constraints.
+The peer method from biomechanics, PCA gap filling, is in :mod:`lsmta.face.peer`; a model
+chosen by cross-validation among these and a PCA basis with a prior on its weights, in
+:mod:`lsmta.face.model`.
 
 :func:`distance_deviation` is the accuracy measure of the thesis's Fig. 64: how much the
 distances between markers that should stay rigid vary about their mean.
@@ -30,12 +30,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import lsq_linear
 
-from ._validate import as_array
-from .rigid import apply_rigid, fit_rigid
+from .._validate import as_array
+from ..rigid import apply_rigid, fit_rigid
 
 __all__ = [
-    "FaceBasis", "FaceFit", "GapFill", "fill_missing", "extreme_basis", "pca_basis",
-    "align_sequence", "pca_gap_fill", "distance_deviation", "min_observed_markers",
+    "FaceBasis", "FaceFit", "fill_missing", "extreme_basis", "pca_basis", "align_sequence",
+    "distance_deviation", "min_observed_markers",
 ]
 
 
@@ -106,28 +106,6 @@ class FaceFit:
     fitted: np.ndarray
 
 
-@dataclass(frozen=True)
-class GapFill:
-    """Result of :func:`pca_gap_fill`.
-
-    Attributes
-    ----------
-    frames : (T, M, 3) array
-        The input with its missing markers filled, mm (observed markers unchanged;
-        frames that could not be filled keep their NaN).
-    n_components : int
-        Principal components used.
-    observed : (T, M) bool array
-    fitted : (T,) bool array
-        Frames that were filled (or needed no filling).
-    """
-
-    frames: np.ndarray
-    n_components: int
-    observed: np.ndarray
-    fitted: np.ndarray
-
-
 # ---------------------------------------------------------------- checks
 def _as_sequence(value, name: str, *, allow_nan: bool) -> np.ndarray:
     arr = as_array(value, name, shape=(None, None, 3), allow_nan=allow_nan)
@@ -169,10 +147,12 @@ def _rotvec_to_matrix(d: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(th) * Kx + (1 - np.cos(th)) * Kx @ Kx
 
 
-def _gauss_newton_step(Y: np.ndarray, Bo: np.ndarray, constrain: bool):
+def _gauss_newton_step(Y: np.ndarray, Bo: np.ndarray, bounds=None, prior=None):
     """One linearised joint step for one frame: minimise over a small rotation ``d``, a
     translation ``tau`` and the weights ``w`` the norm of
-    ``Y + d x Y + tau - Bo w`` (Y (m, 3) observed markers in the head frame, Bo (3m, K)).
+    ``Y + d x Y + tau - Bo w`` (Y (m, 3) observed markers in the head frame, Bo (3m, K)),
+    plus ``sum_k r_k (w_k - w0_k)^2`` for a ``prior`` (w0 (K,), r (K,)), with the weights
+    within ``bounds`` (lower (K,), upper (K,)) if given.
     Returns d (3,), tau (3,), w (K,)."""
     m = len(Y)
     A = np.hstack([-_skew_rows(Y), np.tile(np.eye(3), (m, 1)), -Bo])
@@ -181,19 +161,22 @@ def _gauss_newton_step(Y: np.ndarray, Bo: np.ndarray, constrain: bool):
     # machine where threaded LAPACK QR / lstsq of these sizes can stall for 0.5 s a call
     G = np.einsum("ij,ik->jk", A, A)
     g = np.einsum("ij,i->j", A, rhs)
+    if prior is not None:
+        w0, r = prior
+        G[6:, 6:] += np.diag(r)
+        g[6:] += r * w0
     try:
         L = np.linalg.cholesky(G)
     except np.linalg.LinAlgError:                  # dependent basis vectors: tiny ridge
         G = G + 1e-10 * np.trace(G) / len(G) * np.eye(len(G))
         L = np.linalg.cholesky(G)
-    if constrain:
-        K = Bo.shape[1]
-        lb = np.r_[np.full(6, -np.inf), np.zeros(K)]
-        ub = np.r_[np.full(6, np.inf), np.ones(K)]
-        # min |A x - rhs| == min |L^T x - L^-1 A^T rhs| up to a constant
+    x = np.linalg.solve(L.T, np.linalg.solve(L, g))
+    if bounds is not None and ((x[6:] < bounds[0]).any() or (x[6:] > bounds[1]).any()):
+        lb = np.r_[np.full(6, -np.inf), bounds[0]]
+        ub = np.r_[np.full(6, np.inf), bounds[1]]
+        # min |A x - rhs| == min |L^T x - L^-1 A^T rhs| up to a constant (convex: the free
+        # optimum, when inside the bounds, is the bounded one)
         x = lsq_linear(L.T, np.linalg.solve(L, g), bounds=(lb, ub), method="bvls").x
-    else:
-        x = np.linalg.solve(L.T, np.linalg.solve(L, g))
     return x[:3], x[3:6], x[6:]
 
 
@@ -251,14 +234,25 @@ def fill_missing(frames, basis, *, constrain: bool | None = None, reference=None
     constrain = True if constrain is None else bool(constrain)
     X = _as_sequence(frames, "frames", allow_nan=True)
     B = _as_sequence(basis, "basis", allow_nan=False)
-    T, M, _ = X.shape
-    K = B.shape[0]
+    M = X.shape[1]
     if B.shape[1] != M:
         raise ValueError(f"basis: expected {M} markers like frames, got {B.shape[1]}")
     ref = B.mean(axis=0) if reference is None else as_array(reference, "reference",
                                                             shape=(M, 3))
     if int(n_iter) != n_iter or n_iter < 1:
         raise ValueError(f"n_iter: expected an integer >= 1, got {n_iter}")
+    K = len(B)
+    bounds = (np.zeros(K), np.ones(K)) if constrain else None
+    return fit_frames(X, B, ref, bounds=bounds, n_iter=int(n_iter))
+
+
+def fit_frames(X, B, ref, *, n_iter: int, bounds=None, prior=None) -> FaceFit:
+    """The fit of :func:`fill_missing` on checked arrays: frames ``X`` (T, M, 3), basis
+    ``B`` (K, M, 3), reference ``ref`` (M, 3); weights within ``bounds`` (lower (K,),
+    upper (K,)) if given; ``prior`` (w0 (K,), r (K,)) adds ``sum_k r_k (w_k - w0_k)^2`` to
+    each frame's least squares (a Gaussian prior on the weights)."""
+    T, M, _ = X.shape
+    K = B.shape[0]
     obs = _observed(X)
     need = min_observed_markers(K)
     fitted = obs.sum(axis=1) >= need
@@ -274,8 +268,8 @@ def fill_missing(frames, basis, *, constrain: bool | None = None, reference=None
         P = np.ascontiguousarray(X[f, o])               # observed markers, frame coords
         Bo = Bflat[np.repeat(o, 3)]                     # (3m, K)
         R, t = fit_rigid(P, np.ascontiguousarray(ref[o]))   # frame -> head frame
-        for _ in range(int(n_iter)):
-            d, tau, w = _gauss_newton_step(P @ R.T + t, Bo, constrain)
+        for _ in range(n_iter):
+            d, tau, w = _gauss_newton_step(P @ R.T + t, Bo, bounds, prior)
             dR = _rotvec_to_matrix(d)
             R, t = dR @ R, dR @ t + tau
             if np.linalg.norm(d) < 1e-12 and np.linalg.norm(tau) < 1e-9:
@@ -400,99 +394,6 @@ def pca_basis(training, n_components: int) -> FaceBasis:
     vectors = np.concatenate([mean[None], Vt[:k].reshape(k, M, 3)], axis=0)
     return FaceBasis(vectors=vectors, reference=mean, kind="pca", constrain=False,
                      frames=np.full(k + 1, -1), explained=explained[:k])
-
-
-# ---------------------------------------------------------------- the peer
-def pca_gap_fill(frames, *, training=None, n_components: int | None = None,
-                 variance: float = 0.99, scale: str = "std") -> GapFill:
-    """Missing markers from marker intercorrelations: PCA gap filling after Federolf
-    (2013) and Gløersen & Federolf (2016), the peer method from biomechanics.
-
-    All marker coordinates of a frame form one vector. Its columns are centred and
-    scaled to unit standard deviation over the complete frames (those of ``frames`` plus
-    ``training``); the principal components of the complete frames describe how the
-    coordinates co-vary. For a frame with gaps, the component scores are fitted by least
-    squares to its observed (normalised) coordinates and the missing coordinates read off
-    the components. No rigid alignment and no constraint: rigid head motion, if present,
-    is just more co-variation for the components to carry. This is the reconstruction
-    core of the cited methods; their distance weighting of markers near the gap (the
-    2016 paper's refinement) and iterative re-estimation are not included.
-
-    Parameters
-    ----------
-    frames : (T, M, 3) array
-        Marker positions with NaN gaps, mm. Not modified.
-    training : (S, M, 3) array, optional
-        Further complete frames to learn the intercorrelations from (e.g. the training
-        sequence the basis-face model uses), mm. Frames of it with a gap are ignored.
-    n_components : int, optional
-        Components to use; default: the fewest explaining ``variance`` of the normalised
-        data. Capped per frame at the number of observed coordinates.
-    variance : float
-        Fraction of the variance to keep when ``n_components`` is None, in (0, 1].
-
-    scale : {"std", "none"}
-        Divide each centred coordinate column by its standard deviation (as the cited
-        papers do, so that every coordinate weighs alike) or leave it in mm.
-
-    Returns
-    -------
-    GapFill
-
-    Raises
-    ------
-    ValueError
-        No complete frame to learn from, wrong shapes, infinities.
-    """
-    X = _as_sequence(frames, "frames", allow_nan=True)
-    T, M, _ = X.shape
-    pool = [X]
-    if training is not None:
-        Y = _as_sequence(training, "training", allow_nan=True)
-        if Y.shape[1] != M:
-            raise ValueError(f"training: expected {M} markers like frames, got {Y.shape[1]}")
-        pool.append(Y)
-    allf = np.concatenate(pool, axis=0)
-    complete = allf[_observed(allf).all(axis=1)]
-    if len(complete) < 2:
-        raise ValueError("frames, training: need at least two complete frames to learn the "
-                         "marker intercorrelations from")
-    if not 0 < variance <= 1:
-        raise ValueError(f"variance: expected a number in (0, 1], got {variance}")
-    C = complete.reshape(len(complete), 3 * M)
-    mu = C.mean(axis=0)
-    if scale not in ("std", "none"):
-        raise ValueError(f"scale: expected 'std' or 'none', got {scale!r}")
-    sd = C.std(axis=0) if scale == "std" else np.ones(3 * M)
-    sd[sd < 1e-9] = 1.0
-    Z = (C - mu) / sd
-    _, s, Vt = np.linalg.svd(Z, full_matrices=False)
-    var = s ** 2 / max((s ** 2).sum(), 1e-300)
-    if n_components is None:
-        k = int(np.searchsorted(np.cumsum(var), variance - 1e-12) + 1)
-    else:
-        k = int(n_components)
-        if k != n_components or k < 1:
-            raise ValueError(f"n_components: expected a positive integer, got {n_components}")
-    k = min(k, Vt.shape[0])
-    V = Vt[:k].T                                        # (3M, k)
-    obs = _observed(X)
-    out = X.copy()
-    fitted = obs.all(axis=1).copy()
-    flat = X.reshape(T, 3 * M)
-    for f in np.flatnonzero(~obs.all(axis=1) & obs.any(axis=1)):
-        cols = np.repeat(obs[f], 3)
-        kk = min(k, int(cols.sum()))
-        z = (flat[f, cols] - mu[cols]) / sd[cols]
-        Vo = V[cols, :kk]
-        try:
-            c = np.linalg.solve(np.einsum("ij,ik->jk", Vo, Vo), np.einsum("ij,i->j", Vo, z))
-        except np.linalg.LinAlgError:              # observed rows do not span kk scores
-            c = np.linalg.lstsq(Vo, z, rcond=None)[0]
-        full = (V[:, :kk] @ c) * sd + mu
-        out[f, ~obs[f]] = full.reshape(M, 3)[~obs[f]]
-        fitted[f] = True
-    return GapFill(frames=out, n_components=k, observed=obs, fitted=fitted)
 
 
 # ---------------------------------------------------------------- accuracy measure

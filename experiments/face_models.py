@@ -1,0 +1,91 @@
+"""Which face model fills occluded facial markers best on real captures: the evidence behind
+``lsmta.face.learn``'s default, with the peer and a plain PCA basis beside it.
+
+    OPENBLAS_NUM_THREADS=1 .venv/bin/python experiments/face_models.py [--draws 5] [--quick]
+
+AnimFace (``data/animface``): train on JawMoCap (every 4th frame) and fill CheeksMoCap
+(every 8th frame), and the other way round; in every test frame 6 of the 41 markers are
+hidden at random (one draw of hidden markers per ``--draws``, the same draws for every
+method). Every family of ``lsmta.face.model`` at every size, then the default
+(``learn(training)``) against the peer's full method (Gløersen & Federolf 2016, as it stands
+and after the per-frame rigid alignment, with the authors' number of components and with 5)
+and a plain PCA basis (5 components, and the size cross-validation picks on the training
+sequence). Reports, per method, the median and the mean error of the hidden markers (mm),
+pooled over the draws, for each direction.
+
+Writes ``build/face_models/study.json``. ``--quick``: 2 draws, sizes 10 and 20.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from lsmta import face
+from lsmta.evaluation import face as ef
+from lsmta.face.model import METHODS, _build
+from lsmta.report import build_dir, write_json
+
+HIDDEN = 6
+
+
+def errors(filled, truth, visible) -> np.ndarray:
+    e = ef.missing_errors(filled, truth, visible)
+    return e[np.isfinite(e)]
+
+
+def fill_every_method(train, gap, draw: int, sizes) -> dict:
+    """method -> (T, M, 3) ``gap`` filled, every family and size, the default, the peer's
+    variants and the plain PCA bases."""
+    out = {f"{m} {k}": _build(train, m, k, 5).fill(gap).frames for m in METHODS for k in sizes}
+    out["default: learn(training)"] = face.learn(train).fill(gap).frames
+    out["plain PCA basis, 5"] = face.fill_missing(gap, face.pca_basis(train, 5)).frames
+    out["plain PCA basis, size by CV"] = face.learn(train, method="pca", rng=draw).fill(gap).frames
+    out["peer, full method"] = face.pca_gap_fill(gap, training=train).frames
+    out["peer, aligned"] = ef.peer_after_alignment(gap, train, n_components=None)
+    out["peer, aligned, 5"] = ef.peer_after_alignment(gap, train, n_components=5)
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--draws", type=int, default=5)
+    ap.add_argument("--quick", action="store_true")
+    args = ap.parse_args(argv)
+    draws = 2 if args.quick else args.draws
+    sizes = (10, 20) if args.quick else (5, 10, 20, 30)
+    _, jaw = ef.load_animface("JawMoCap", step=4)
+    _, cheeks = ef.load_animface("CheeksMoCap", step=4)
+    splits = {"Jaw -> Cheeks": (jaw, cheeks[::2]), "Cheeks -> Jaw": (cheeks, jaw[::2])}
+    pooled: dict = {}
+    t0 = time.perf_counter()
+    for name, (train, test) in splits.items():
+        for d in range(draws):
+            vis = ef.random_visibility(len(test), 41, 41 - HIDDEN,
+                                       rng=np.random.default_rng([41, d]))
+            gap = np.where(vis[..., None], test, np.nan)
+            for method, filled in fill_every_method(train, gap, d, sizes).items():
+                pooled.setdefault((name, method), []).append(errors(filled, test, vis))
+            print(f"{name}, draw {d + 1}/{draws}: {time.perf_counter() - t0:.0f} s", flush=True)
+    table = {}
+    for (name, method), parts in pooled.items():
+        e = np.concatenate(parts)
+        table.setdefault(method, {})[name] = {"median": float(np.median(e)),
+                                              "mean": float(e.mean())}
+    for method, row in table.items():
+        row["mean of both"] = float(np.mean([v["mean"] for v in row.values()]))
+        print(f"{method:30s} " + "  ".join(f"{n}: {v['median']:.3f} / {v['mean']:.3f}"
+                                           for n, v in row.items() if n != "mean of both")
+              + f"  both: {row['mean of both']:.3f}")
+    families = {m: v for m, v in table.items() if m.split()[0] in METHODS}
+    best = min(families, key=lambda m: families[m]["mean of both"])
+    print(f"lowest mean error over both directions: {best}")
+    write_json(build_dir() / "face_models" / "study.json",
+               {"draws": draws, "hidden": HIDDEN, "sizes": list(sizes), "best": best,
+                "table": table})
+
+
+if __name__ == "__main__":
+    main()

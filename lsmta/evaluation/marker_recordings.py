@@ -1,0 +1,291 @@
+"""SAPM on real recordings: a model from the first tenth of a recording, later frames
+labelled one by one (notebook 18).
+
+Protocol: the first ``train_share`` of the frames is the labelled training clip; every
+``step``-th later frame is a test frame, its present points shuffled and their labels
+dropped, with the gaps it has. A point's truth is its model marker, or -1 for a marker the
+model leaves out (a marker absent from the whole training clip). Scores are pooled over the
+test frames: *correct* is the share of present model markers given their own label;
+*wrong* is the share of present points given another marker's label.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .._validate import as_rng
+from ..io import read_c3d
+from ..sapm import MarkerModel, SAPMParams, identify, identify_instances, suggest_segments
+from .sapm import CLOUTHIER_PARENTS, clouthier_segments
+
+DATA = Path(__file__).resolve().parents[2] / "data"
+FILES = {
+    "tennis": DATA / "kineticstoolkit" / "kinematics_tennis_serve.c3d",
+    "two players": DATA / "kineticstoolkit" / "kinematics_tennis_serve_2players.c3d",
+    "racing": DATA / "kineticstoolkit" / "kinematics_racing_propulsion.c3d",
+    "clouthier": DATA / "clouthier2021" / "KneeltoProne01.c3d",
+}
+
+
+# ---------------------------------------------------------------------- marker sets
+def plug_in_gait() -> tuple[dict, dict]:
+    """The tennis marker set (Plug-in-Gait-like, 39 markers) as SAPM segments, as a user
+    would write it from anatomy: both wrist markers in forearm and hand, the knee marker in
+    thigh and shank, the ankle marker in shank and foot, the anterior iliac spine in pelvis
+    and thigh (the thigh has only two markers of its own). Returns (segments, parents)."""
+    segments = {"torso": ["C7", "T10", "CLAV", "STRN", "RBAK"],
+                "head": ["LFHD", "RFHD", "LBHD", "RBHD"],
+                "pelvis": ["LASI", "RASI", "LPSI", "RPSI"]}
+    parents = {"torso": None, "head": "torso", "pelvis": "torso"}
+    for S in "LR":
+        for name, markers, parent in (
+                ("upper_arm", ("SHO", "UPA", "ELB"), "torso"),
+                ("forearm", ("ELB", "FRM", "WRA", "WRB"), f"{S}upper_arm"),
+                ("hand", ("WRA", "WRB", "FIN"), f"{S}forearm"),
+                ("thigh", ("ASI", "THI", "KNE"), "pelvis"),
+                ("shank", ("KNE", "TIB", "ANK"), f"{S}thigh"),
+                ("foot", ("ANK", "HEE", "TOE"), f"{S}shank")):
+            segments[f"{S}{name}"] = [f"{S}{m}" for m in markers]
+            parents[f"{S}{name}"] = parent
+    return segments, parents
+
+
+def racing_plates(labels) -> dict:
+    """The wheelchair recording's rigid groups a user knows: each numbered cluster
+    (``Head1..3``, ``ArmL1..3``, ...) and the wheelchair's three markers."""
+    groups = {}
+    for k in labels:
+        m = re.fullmatch(r"(.*?)(\d)", k)
+        if m and not k.startswith("Probe"):
+            groups.setdefault(m.group(1), []).append(k)
+    groups["Wheelchair"] = [k for k in labels if k.startswith("Wheelchair")]
+    return groups
+
+
+def clouthier_plates() -> tuple[dict, dict]:
+    """The Clouthier recording's rigid groups (the four-marker plates and the shoes) and
+    their anatomical tree; the acromion, wrist and hand skin markers are left loose."""
+    loose = {"RAC", "LAC", "RRAD", "RULN", "RHAND", "LRAD", "LULN", "LHAND"}
+    groups = {k: [m for m in v if m not in loose]
+              for k, v in clouthier_segments(acromion="torso").items()}
+    groups = {k: v for k, v in groups.items() if len(v) >= 3}
+    return groups, {k: v for k, v in CLOUTHIER_PARENTS.items() if k in groups}
+
+
+# ---------------------------------------------------------------------- recordings
+@dataclass(frozen=True)
+class Recording:
+    """One recording split for the protocol.
+
+    Attributes
+    ----------
+    name : str
+    labels : tuple of str
+        Marker labels (a two-player file's ``Name:`` prefix removed for the player's own).
+    points : (T, L, 3) array
+        Every frame, mm, NaN for gaps (markers absent from every frame removed).
+    rate : float
+        Frames per second.
+    n_train : int
+        Frames of the training clip (the first ``train_share``).
+    frames : (F,) int array
+        Test frames: every ``step``-th frame after the training clip.
+    """
+
+    name: str
+    labels: tuple
+    points: np.ndarray
+    rate: float
+    n_train: int
+    frames: np.ndarray
+
+    @property
+    def training(self) -> np.ndarray:
+        return self.points[: self.n_train]
+
+
+def load_recording(name: str, *, train_share: float = 0.1, step: int = 10) -> Recording:
+    """A recording of :data:`FILES` ("tennis", "two players", "racing", "clouthier"),
+    split for the protocol. The two-player file keeps its 78 labels (``Derrick:C7``, ...)."""
+    if name not in FILES:
+        raise ValueError(f"name: expected one of {sorted(FILES)}, got {name!r}")
+    labels, points, rate = read_c3d(FILES[name])
+    if name == "tennis":
+        labels = tuple(k.split(":")[-1] for k in labels)
+    seen = np.isfinite(points).all(axis=2).any(axis=0)
+    labels = tuple(k for k, s in zip(labels, seen) if s)
+    points = points[:, seen]
+    n_train = int(round(train_share * len(points)))
+    return Recording(name=name, labels=labels, points=points, rate=rate, n_train=n_train,
+                     frames=np.arange(n_train, len(points), step))
+
+
+def learned_model(rec: Recording) -> tuple[MarkerModel, dict]:
+    """The model of a recording learned from its training clip, with the segments each
+    recording gets: the anatomical Plug-in-Gait definition for the tennis files (the clip
+    is the player standing: nothing to learn a grouping from), and for the cluster sets
+    the plates a user knows with every loose marker placed by :func:`suggest_segments`
+    (the racing tree proposed from the clip too). Returns (model, segments)."""
+    if rec.name in ("tennis", "two players"):
+        segments, parents = plug_in_gait()
+        if rec.name == "tennis":
+            return MarkerModel.from_labelled_frames(rec.labels, rec.training, segments,
+                                                    parents), segments
+        # two instances of one marker set: one model learned from both players' clips
+        own = [k.split(":")[-1] for k in rec.labels[:39]]
+        clip = np.concatenate([rec.training[:, :39], rec.training[:, 39:]])
+        return MarkerModel.from_labelled_frames(own, clip, segments, parents), segments
+    if rec.name == "racing":
+        sug = suggest_segments(rec.labels, rec.training, groups=racing_plates(rec.labels))
+    else:
+        groups, parents = clouthier_plates()
+        sug = suggest_segments(rec.labels, rec.training, groups=groups, parents=parents)
+    keep = [i for i, k in enumerate(rec.labels) if k not in sug.unplaced]
+    model = MarkerModel.from_labelled_frames([rec.labels[i] for i in keep],
+                                             rec.training[:, keep], sug.segments, sug.parents)
+    return model, sug.segments
+
+
+def one_frame_model(rec: Recording, segments: dict, parents: dict) -> MarkerModel:
+    """The paper's model: the first training frame that sees every marker of ``segments``."""
+    names = sorted({k for v in segments.values() for k in v})
+    cols = [rec.labels.index(k) for k in names]
+    full = np.flatnonzero(np.isfinite(rec.training[:, cols]).all(axis=(1, 2)))
+    if not len(full):
+        raise ValueError(f"rec: no training frame of {rec.name!r} sees every marker")
+    frame = rec.training[full[0]][cols]
+    return MarkerModel.from_labelled_frame(dict(zip(names, frame)), segments, parents)
+
+
+# ---------------------------------------------------------------------- trials
+@dataclass(frozen=True)
+class RecordingTrials:
+    """Scores of one method on the test frames of a recording.
+
+    Attributes
+    ----------
+    frames : (F,) int array
+    correct, wrong : (F,) int arrays
+        Present model markers given their own label; present points given another's.
+    markers, points : (F,) int arrays
+        Present model markers; present points.
+    seconds : (F,) array
+    given : (F, L) int array
+        Label index (into the recording's labels) given to each present marker, -1
+        unlabelled, -2 absent.
+    """
+
+    frames: np.ndarray
+    correct: np.ndarray
+    wrong: np.ndarray
+    markers: np.ndarray
+    points: np.ndarray
+    seconds: np.ndarray
+    given: np.ndarray
+
+    def summary(self) -> dict:
+        """Pooled shares and timing as plain numbers."""
+        return {"frames": len(self.frames),
+                "correct": float(self.correct.sum() / max(self.markers.sum(), 1)),
+                "wrong": float(self.wrong.sum() / max(self.points.sum(), 1)),
+                "frames_correct": float(np.mean(self.correct == self.markers)),
+                "median_ms": float(1000 * np.median(self.seconds)),
+                "p95_ms": float(1000 * np.percentile(self.seconds, 95))}
+
+
+def _score(labels_rec, model_labels, present, given_model):
+    """(correct, wrong, markers, given as recording indices) of one frame."""
+    truth = np.array([model_labels.index(labels_rec[i]) if labels_rec[i] in model_labels
+                      else -1 for i in present])
+    ok = given_model == truth
+    to_rec = np.array([labels_rec.index(k) for k in model_labels])
+    given = np.where(given_model >= 0, to_rec[np.maximum(given_model, 0)], -1)
+    return (int((ok & (truth >= 0)).sum()), int(((given_model >= 0) & ~ok).sum()),
+            int((truth >= 0).sum()), given)
+
+
+def recording_trials(model: MarkerModel, rec: Recording, *, params: SAPMParams | None = None,
+                     rng: np.random.Generator | int | None = None,
+                     frames=None) -> RecordingTrials:
+    """Identify the test frames of ``rec`` (or ``frames``) with ``model`` and ``params``
+    (:func:`lsmta.sapm.identify`), present points shuffled."""
+    rng = as_rng(rng)
+    frames = rec.frames if frames is None else np.asarray(frames)
+    L = len(rec.labels)
+    rows = []
+    given = np.full((len(frames), L), -2)
+    for k, f in enumerate(frames):
+        present = np.flatnonzero(np.isfinite(rec.points[f]).all(axis=1))
+        perm = rng.permutation(present)
+        r = identify(model, rec.points[f, perm], params=params)
+        c, w, m, g = _score(rec.labels, model.labels, perm, r.labels)
+        given[k, perm] = g
+        rows.append((c, w, m, len(perm), r.seconds))
+    c, w, m, n, s = (np.array(x) for x in zip(*rows))
+    return RecordingTrials(frames=frames, correct=c, wrong=w, markers=m, points=n, seconds=s,
+                           given=given)
+
+
+@dataclass(frozen=True)
+class PlayerTrials:
+    """Two instances of one model in each test frame (:func:`player_trials`).
+
+    Attributes
+    ----------
+    correct, wrong : (F, P) int arrays
+        Per player: markers given their own label *and* their own player's instance;
+        points given a wrong label or the other player's instance.
+    markers : (F, P) int array
+    seconds : (F,) array
+    instances : (F,) int array
+        Instances found.
+    """
+
+    correct: np.ndarray
+    wrong: np.ndarray
+    markers: np.ndarray
+    seconds: np.ndarray
+    instances: np.ndarray
+
+    def summary(self) -> list[dict]:
+        """Per player: pooled shares; the timing is per frame (both players)."""
+        return [{"correct": float(self.correct[:, p].sum() / self.markers[:, p].sum()),
+                 "wrong": float(self.wrong[:, p].sum() / self.markers[:, p].sum()),
+                 "median_ms": float(1000 * np.median(self.seconds))}
+                for p in range(self.correct.shape[1])]
+
+
+def player_trials(model: MarkerModel, rec: Recording, *, n_players: int = 2,
+                  params: SAPMParams | None = None,
+                  rng: np.random.Generator | int | None = None) -> PlayerTrials:
+    """Label both players of each test frame of the two-player file at once
+    (:func:`lsmta.sapm.identify_instances`). Instances are matched to players by the
+    majority of their points; a point counts as correct when its label and its player are."""
+    rng = as_rng(rng)
+    M = len(rec.labels) // n_players
+    own = [k.split(":")[-1] for k in rec.labels]
+    truth = np.array([model.labels.index(k) for k in own])
+    player = np.repeat(np.arange(n_players), M)
+    rows = []
+    for f in rec.frames:
+        present = np.flatnonzero(np.isfinite(rec.points[f]).all(axis=1))
+        perm = rng.permutation(present)
+        r = identify_instances(model, rec.points[f, perm], n_instances=n_players, params=params)
+        who = player[perm]
+        votes = np.array([[((r.instance == i) & (who == p)).sum() for p in range(n_players)]
+                          for i in range(r.n_instances)]).reshape(-1, n_players)
+        owner = votes.argmax(axis=1) if len(votes) else np.zeros(0, int)
+        inst_player = np.where(r.instance >= 0, owner[np.maximum(r.instance, 0)]
+                               if len(owner) else -1, -1)
+        ok = (r.labels == truth[perm]) & (inst_player == who)
+        bad = (r.labels >= 0) & ~ok
+        rows.append(([int((ok & (who == p)).sum()) for p in range(n_players)],
+                     [int((bad & (who == p)).sum()) for p in range(n_players)],
+                     [int((who == p).sum()) for p in range(n_players)],
+                     r.seconds, r.n_instances))
+    c, w, m, s, i = (np.array(x) for x in zip(*rows))
+    return PlayerTrials(correct=c, wrong=w, markers=m, seconds=s, instances=i)

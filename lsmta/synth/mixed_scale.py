@@ -110,11 +110,11 @@ def _walk_path(times, start_x, end_x, walk_start, walk_end, y, height, rng):
 
 
 def mixed_scale_scene(*, rng: np.random.Generator | int | None = None, travel: float = 4000.0,
-                      speed: float = 1200.0, stand: float = 0.6, rate: float = 200.0,
+                      speed: float = 1200.0, stand: float = 1.0, rate: float = 200.0,
                       y: float = 300.0, height: float = 1650.0, yaw_deg: float = 12.0,
                       pitch_deg: float = 5.0, n_ceiling: int = 6,
                       head_positions=((-1000.0, -2300.0, 1700.0), (1000.0, -2300.0, 1700.0)),
-                      head_f: float = 3600.0) -> MixedScaleScene:
+                      head_f: float = 3000.0) -> MixedScaleScene:
     """A person walks ``travel`` mm along X at ``speed`` mm/s, standing ``stand`` s before
     and after, looking towards -Y (the pan-tilt heads) and turning the head a little, with
     expressions (:func:`lsmta.synth.face.expression_weights`).
@@ -128,8 +128,8 @@ def mixed_scale_scene(*, rng: np.random.Generator | int | None = None, travel: f
         Home projection centres of the pan-tilt heads, mm; each looks at the middle of the
         walk at home and has the misaligned axes of :func:`lsmta.synth.pantilt.pantilt_head`.
     head_f : float
-        The heads' principal distance, px (zoomed in: the face fills about half the
-        640 x 480 frame at 2.6 m).
+        The heads' principal distance, px (zoomed in: at 2.5-3.5 m the face is 120-170 px
+        wide in the 640 x 480 frame, 1 px about 1 mm).
     """
     rng = as_rng(rng)
     travel = as_scalar(travel, "travel", positive=True)
@@ -155,7 +155,7 @@ def mixed_scale_scene(*, rng: np.random.Generator | int | None = None, travel: f
     pos[:, 1:] = np.einsum("tij,nj->tni", Ry, LED_HEAD[1:]) + t[:, None]
     normals = np.broadcast_to([0.0, 0.0, 1.0], pos.shape).copy()
     leds = LedScene(name="walk with a face", times=times, positions=pos, normals=normals,
-                    on=np.tile([-np.inf, np.inf], (len(LED_HEAD), 1)))
+                    on=np.tile([0.0, np.inf], (len(LED_HEAD), 1)))
     rig = [small_camera(c) for c in ceiling_rig(rng=rng)]
     path = pos[::10, 0]
     seen = [cam.in_image(cam.project(path, behind="nan")).mean() for cam in rig]

@@ -54,43 +54,81 @@ class SceneCalibration:
     head_rms_px: np.ndarray
 
 
-def calibrate_scene(scene: MixedScaleScene, *, rng: np.random.Generator | int | None = None,
-                    image_sigma: float = 0.3, world_sigma: float = 0.3,
-                    n_survey: int = 80) -> SceneCalibration:
-    """Calibrate the ceiling rig and the heads of ``scene`` (see the module).
+def calibrate_ceiling(scene: MixedScaleScene, *, rng: np.random.Generator | int | None = None,
+                      image_sigma: float = 0.3, world_sigma: float = 0.3, n_survey: int = 300):
+    """The ceiling cameras resected from a tape-measured guess
+    (:func:`lsmta.synth.calibration.poor_guess`) with ``n_survey`` LED positions surveyed to
+    ``world_sigma`` mm and seen with ``image_sigma`` px (:func:`lsmta.calibration.resect_all`).
 
-    The ceiling cameras are resected from a tape-measured guess
-    (:func:`lsmta.synth.calibration.poor_guess`) with ``n_survey`` LED positions surveyed
-    to ``world_sigma`` mm and seen with ``image_sigma`` px; each head's intrinsics come
-    from :func:`lsmta.synth.pantilt.intrinsic_target`, its pose and axes from
-    :func:`lsmta.synth.pantilt.calibration_sweeps` with the same noise.
+    Returns
+    -------
+    (list of Camera, (K,) image RMS on an independent path against the true cameras, px)
     """
     rng = as_rng(rng)
-    X = led_path(n=n_survey, rng=rng, center=(0.0, 0.0, 1300.0),
-                 half_size=(1900.0, 2500.0, 500.0))
+    box = dict(center=(0.0, 0.0, 1300.0), half_size=(1900.0, 2500.0, 500.0))
+    X = led_path(n=n_survey, rng=rng, **box)
     xy = project_observations(scene.ceiling, X, rng=rng, sigma_px=image_sigma)
     Xs = X + rng.normal(0, world_sigma, X.shape)
     guess = poor_guess(scene.ceiling, rng=rng, pose_mm=100.0, pose_deg=2.0, f_rel=0.03)
     ceiling = resect_all(guess, Xs, xy, n_iter=60)
-    check = led_path(n=100, rng=rng, center=(0.0, 0.0, 1300.0), half_size=(1900.0, 2500.0, 500.0))
-    xy_true = project_observations(scene.ceiling, check)
-    xy_cal = project_observations(ceiling, check)
-    c_rms = np.sqrt(np.nanmean(np.sum((xy_true - xy_cal) ** 2, axis=2), axis=1))
-    heads, h_rms = [], []
-    for head in scene.heads:
+    check = led_path(n=100, rng=rng, **box)
+    d = project_observations(scene.ceiling, check) - project_observations(ceiling, check)
+    return ceiling, np.sqrt(np.nanmean(np.sum(d**2, axis=2), axis=1))
+
+
+def calibrate_heads(heads, *, rng: np.random.Generator | int | None = None,
+                    image_sigma: float = 0.3, world_sigma: float = 0.3,
+                    distortion=("k1",)):
+    """Each head calibrated by notebook 11's procedure with a precise target: intrinsics
+    (``distortion`` terms) from one view of a 3-D target
+    (:func:`lsmta.pantilt.calibrate_intrinsics`), then home pose and axes of the general
+    model from the thesis's sweeps (:func:`lsmta.pantilt.calibrate`). A zoomed lens sees
+    only the middle of its distortion: one radial term keeps the model monotonic where
+    the aiming search looks outside the image.
+
+    Returns
+    -------
+    (list of PanTiltCamera, (K,) image RMS on held-out sweep settings, true points, px)
+    """
+    rng = as_rng(rng)
+    models, rms = [], []
+    for head in heads:
         target = intrinsic_target(head, rng=rng, image_sigma=image_sigma, world_sigma=0.1)
         intr = calibrate_intrinsics(target.X, target.xy, head.camera.image_size,
-                                    distortion=("k1",))
+                                    distortion=tuple(distortion))
         cal = calibration_sweeps(head, rng=rng, image_sigma=image_sigma,
                                  world_sigma=world_sigma, depth=(2000.0, 4000.0))
         fit = calibrate(intr.model, cal.pan, cal.tilt, cal.X, cal.xy, kind="general")
         held = calibration_sweeps(head, rng=rng, points_per_setting=5, image_sigma=0.0,
                                   world_sigma=0.0, depth=(2000.0, 4000.0))
         e = fit.model.project(held.X_true, held.pan, held.tilt) - held.xy_true
-        heads.append(fit.model)
-        h_rms.append(float(np.sqrt(np.mean(np.sum(e**2, axis=1)))))
+        models.append(fit.model)
+        rms.append(float(np.sqrt(np.mean(np.sum(e**2, axis=1)))))
+    return models, np.array(rms)
+
+
+def calibrate_scene(scene: MixedScaleScene, *, rng: np.random.Generator | int | None = None,
+                    **noise) -> SceneCalibration:
+    """The ceiling rig and the heads of ``scene`` calibrated (:func:`calibrate_ceiling`,
+    :func:`calibrate_heads`; ``noise``: ``image_sigma``, ``world_sigma``)."""
+    rng = as_rng(rng)
+    ceiling, c_rms = calibrate_ceiling(scene, rng=rng, **noise)
+    heads, h_rms = calibrate_heads(scene.heads, rng=rng, **noise)
     return SceneCalibration(ceiling=ceiling, heads=heads, ceiling_rms_px=c_rms,
-                            head_rms_px=np.array(h_rms))
+                            head_rms_px=h_rms)
+
+
+def head_devices(scene: MixedScaleScene, heads=None, *,
+                 rng: np.random.Generator | int | None = None, video_rate: float = 30.0,
+                 fixed: bool = False, start=(0.0, 0.0)):
+    """The true heads (default ``scene.heads``) as devices
+    (:class:`lsmta.synth.mixed_scale.SimulatedHead`) and an operator's hand labels of each
+    (0.5 px). ``fixed``: cameras on fixed mounts at ``start``."""
+    rng = as_rng(rng)
+    heads = scene.heads if heads is None else heads
+    devices = [SimulatedHead(h, scene, period=1.0 / video_rate, rng=rng, fixed=fixed,
+                             start=start) for h in heads]
+    return devices, [hand_labels(d, rng=rng) for d in devices]
 
 
 @dataclass(frozen=True, eq=False)
@@ -122,8 +160,7 @@ def walk_inputs(scene: MixedScaleScene, calibration: SceneCalibration, *,
     feed = CeilingFeed(cameras=calibration.ceiling, frames=[v.frames for v in cv.videos],
                        stamps=cv.stamps, backgrounds=[v.background for v in cv.videos],
                        arrival=cv.arrival, invalid=invalid)
-    devices = [SimulatedHead(h, scene, period=1.0 / video_rate, rng=rng) for h in scene.heads]
-    identify = [hand_labels(d, rng=rng) for d in devices]
+    devices, identify = head_devices(scene, rng=rng, video_rate=video_rate)
     training = face_sequence(scene.face, n_train, rng=rng, moving=False).head
     return WalkInputs(ceiling=feed, devices=devices, identify=identify,
                       face_model=learn(training), videos=cv)
@@ -153,8 +190,8 @@ class MixedScaleScores:
     centre_px : (K, F) array
         Distance of the face centre's image from the principal point, px.
     aim_error : (F,) array
-        Distance of the aim point from the true face centre ``lead`` s later (the time it
-        was predicted for), mm.
+        Distance of the aim point from the true face centre ``horizon`` s later (when the
+        heads get there), mm.
     led : TrackScore
         The LED tracks against the LEDs (identity changes, RMS).
     led_rms_mm : float
@@ -186,8 +223,12 @@ class MixedScaleScores:
         return float(self.in_frame.all(axis=0).mean())
 
 
-def score_capture(capture: MixedScaleCapture, scene: MixedScaleScene, devices) -> MixedScaleScores:
-    """Score a capture of ``scene`` against its truth (the devices give the true heads)."""
+def score_capture(capture: MixedScaleCapture, scene: MixedScaleScene, devices, *,
+                  horizon: float = 0.3) -> MixedScaleScores:
+    """Score a capture of ``scene`` against its truth (the devices give the true heads).
+    ``horizon``: when the heads get where they were sent, s after the command (the motors'
+    dead time and about one command period); the aim point is scored against the face
+    then."""
     t = capture.times
     world, _, centre = scene.face_at(t)
     err = np.linalg.norm(capture.face.frames - world, axis=2)
@@ -208,7 +249,7 @@ def score_capture(capture: MixedScaleCapture, scene: MixedScaleScene, devices) -
             e_all.append(np.linalg.norm(capture.xy[k, f] - tru, axis=1))
         e = np.concatenate(e_all)
         marker_px[k] = np.nanmedian(e) if np.isfinite(e).any() else np.nan
-    ahead, _, _ = scene.face_at(t + capture.params.lead)
+    ahead, _, _ = scene.face_at(t + horizon)
     aim_error = np.linalg.norm(capture.aim_points - ahead.mean(axis=1), axis=1)
     led = score_tracks(scene.leds, capture.tracking, t)
     return MixedScaleScores(face_error=err, measured=measured,

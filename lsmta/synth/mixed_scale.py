@@ -168,6 +168,18 @@ def mixed_scale_scene(*, rng: np.random.Generator | int | None = None, travel: f
                            walk_end=stand + walk_time)
 
 
+def wide_heads(scene: MixedScaleScene, *, f: float = 270.0,
+               rng: np.random.Generator | int | None = None) -> list:
+    """Wide-angle cameras where the scene's heads are, each looking at the middle of the
+    walk with principal distance ``f`` px (270: the whole 4 m walk inside the 640 x 480
+    frame), misaligned like :func:`lsmta.synth.pantilt.pantilt_head` (on fixed mounts, the
+    axes do not matter)."""
+    rng = as_rng(rng)
+    middle = np.array([0.0, float(scene.t[0, 1]), float(scene.t[:, 2].mean())])
+    return [pantilt_head(rng=rng, position=h.camera.C, look_at=middle, f=f,
+                         name=f"wide{i}") for i, h in enumerate(scene.heads)]
+
+
 def render_pantilt_video(head: PanTiltCamera, settings, points, normals, anchor, *,
                          rng: np.random.Generator | int | None = None, min_cos: float = 0.3,
                          texture=None, noise: float = 2.0) -> MarkerVideo:
@@ -219,11 +231,14 @@ class SimulatedHead:
         Skin texture and image noise.
     start : (2,)
         The setting at time 0, degrees.
+    fixed : bool
+        A camera on a fixed mount: commands are ignored, it stays at ``start``.
     """
 
     def __init__(self, head: PanTiltCamera, scene: MixedScaleScene, *, motor: Motor | None = None,
                  period: float = 1 / 30, rng: np.random.Generator | int | None = None,
-                 start=(0.0, 0.0), noise: float = 2.0, step: float = 1e-3):
+                 start=(0.0, 0.0), noise: float = 2.0, step: float = 1e-3,
+                 fixed: bool = False):
         self.head, self.scene = head, scene
         self.motor = Motor() if motor is None else motor
         self.period = as_scalar(period, "period", positive=True)
@@ -236,10 +251,13 @@ class SimulatedHead:
         self._pending = []              # (active time, setting)
         self._noise = noise
         self._step = step
+        self.fixed = bool(fixed)
         self.settings = []              # (time, pan, tilt) of every frame grabbed
 
     def command(self, t: float, setting) -> None:
         """Send a setting (pan, tilt degrees) at time ``t`` (s)."""
+        if self.fixed:
+            return
         s = np.clip(np.asarray(setting, float), [self.head.pan_limits[0],
                     self.head.tilt_limits[0]], [self.head.pan_limits[1],
                                                self.head.tilt_limits[1]])

@@ -70,6 +70,8 @@ class MixedScaleParams:
     threshold_offset, threshold_minimum : float
         The LED thresholds (:func:`~lsmta.widearea.background_threshold`), grey levels.
     estimator : EstimatorParams
+        The wide-area tracker's settings; default: a walking head's acceleration density
+        (1e6 mm²/s³, notebook 12's), the rest :class:`~lsmta.widearea.EstimatorParams`'s.
     tol_px : float
         Aiming tolerance (:func:`~lsmta.pantilt.aim`), px.
     min_angle_deg : float
@@ -78,13 +80,14 @@ class MixedScaleParams:
 
     video_rate: float = 30.0
     lead: float = 0.3
-    damping: float = 0.3
+    damping: float = 0.5
     start: float = 0.9
     stop: float | None = None
     aim_offset: tuple = (0.0, -80.0, -150.0)
     threshold_offset: float = 20.0
     threshold_minimum: float = 60.0
-    estimator: EstimatorParams = field(default_factory=EstimatorParams)
+    estimator: EstimatorParams = field(
+        default_factory=lambda: EstimatorParams(accel_density=1e6))
     tol_px: float = 0.5
     min_angle_deg: float = 2.0
 
@@ -225,13 +228,14 @@ class _State:
     body: np.ndarray | None = None
 
 
-def head_target(tracker: WideAreaTracker, lead: float):
-    """The head (the highest live target) and its aim point ``P + lead V`` (mm), or
-    ``(-1, None)`` when no target is alive."""
+def head_target(tracker: WideAreaTracker, lead: float, *, previous: int = -1):
+    """The head and its aim point ``P + lead V`` (mm), or ``(-1, None)`` when no target is
+    alive. The head is the ``previous`` target while it lives, else the highest one."""
     e = tracker.estimate()
     if not len(e.ids):
         return -1, None
-    i = int(np.argmax(e.states[:, 2]))
+    same = np.flatnonzero(e.ids == previous)
+    i = int(same[0]) if len(same) else int(np.argmax(e.states[:, 2]))
     return int(e.ids[i]), e.states[i, :3] + lead * e.states[i, 3:]
 
 
@@ -257,7 +261,7 @@ def _closed_loop(st: _State) -> None:
     st.settings = np.full((K, F, 2), np.nan)
     images = []
     current = [np.zeros(2) for _ in st.heads]
-    smooth = None
+    smooth, hid = None, -1
     # the loop runs from the first ceiling frame; frames are kept from params.start on
     ticks = np.r_[np.arange(queue[0, 0], st.times[0] - 1e-9, 1.0 / p.video_rate), st.times]
     first = len(ticks) - F
@@ -266,7 +270,7 @@ def _closed_loop(st: _State) -> None:
         while q < len(queue) and queue[q, 0] <= t:
             _feed_ceiling(st, int(queue[q, 1]), int(queue[q, 2]))
             q += 1
-        hid, X = head_target(st.tracker, p.lead)
+        hid, X = head_target(st.tracker, p.lead, previous=hid)
         if X is not None:
             X = X + np.asarray(p.aim_offset, float)
             smooth = X if smooth is None else smooth + p.damping * (X - smooth)

@@ -22,7 +22,8 @@ enters. :func:`capture_mixed_scale` runs the stages:
    (:func:`~lsmta.triangulation.triangulate_single_pair`), each head the calibrated model
    at its read-back angles (:meth:`~lsmta.pantilt.PanTiltCamera.camera_at`);
 4. *fill*: occluded and lost markers from the face model
-   (:meth:`lsmta.face.FaceModel.fill`), the face per frame;
+   (:meth:`lsmta.face.FaceModel.fill`), the face per frame; measured markers far from the
+   fitted face are dropped as wrong and the face is filled again;
 5. *body*: every LED track sampled at the frame times.
 """
 
@@ -76,6 +77,12 @@ class MixedScaleParams:
         Aiming tolerance (:func:`~lsmta.pantilt.aim`), px.
     min_angle_deg : float
         Smallest ray angle of a triangulated marker, degrees.
+    max_reprojection_px : float
+        A triangulated marker whose intersection reprojects farther than this from its
+        image in either head is dropped (a marker tracked onto its neighbour in one head), px.
+    max_fill_mm : float
+        After a first fill, measured markers farther than this from the fitted face are
+        dropped as wrong, and the face is filled again, mm.
     """
 
     video_rate: float = 30.0
@@ -90,10 +97,12 @@ class MixedScaleParams:
         default_factory=lambda: EstimatorParams(accel_density=1e6))
     tol_px: float = 0.5
     min_angle_deg: float = 2.0
+    max_reprojection_px: float = 1.0
+    max_fill_mm: float = 3.0
 
     def __post_init__(self):
         for key in ("video_rate", "threshold_offset", "threshold_minimum", "tol_px",
-                    "min_angle_deg"):
+                    "min_angle_deg", "max_reprojection_px", "max_fill_mm"):
             as_scalar(getattr(self, key), key, positive=True)
         for key in ("lead", "start"):
             as_scalar(getattr(self, key), key, nonnegative=True)
@@ -155,7 +164,8 @@ class MixedScaleCapture:
     xy : (K, F, M, 2) array
         Marker positions found (tracked or second search), px; NaN elsewhere.
     points : (F, M, 3) array
-        Triangulated markers, mm (NaN: not seen by both heads of the pair).
+        Triangulated markers, mm (NaN: not seen by both heads of the pair, or dropped by
+        the reprojection or the fill check).
     pairs : (F, 2) int array
         The heads used in each frame.
     face : FaceFit
@@ -329,11 +339,19 @@ def _triangulation(st: _State) -> None:
     for f in range(F):
         cams = [h.camera_at(*st.settings[k, f]) for k, h in enumerate(st.heads)]
         r = triangulate_single_pair(cams, st.xy[:, f], min_angle_deg=st.params.min_angle_deg)
-        st.points[f], st.pairs[f] = r.intersection.points, r.pair
+        with np.errstate(invalid="ignore"):
+            bad = np.nanmax(r.intersection.reprojection_error, axis=0) \
+                > st.params.max_reprojection_px
+        st.points[f] = np.where(bad[:, None], np.nan, r.intersection.points)
+        st.pairs[f] = r.pair
 
 
 def _fill(st: _State) -> None:
-    st.face = st.face_model.fill(st.points)
+    first = st.face_model.fill(st.points)
+    with np.errstate(invalid="ignore"):
+        wrong = np.linalg.norm(st.points - first.model, axis=2) > st.params.max_fill_mm
+    st.points = np.where(wrong[..., None], np.nan, st.points)
+    st.face = st.face_model.fill(st.points) if wrong.any() else first
 
 
 def _body(st: _State) -> None:

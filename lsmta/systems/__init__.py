@@ -31,6 +31,7 @@ from .mixed_scale import (
     MixedScaleParams,
     capture_mixed_scale,
     head_target,
+    reacquisition_seeds,
 )
 from .rig import RigCalibration, calibrate_rig
 from .surfaces import SurfaceParams, measure_surfaces, working_distance
@@ -38,7 +39,7 @@ from .surfaces import SurfaceParams, measure_surfaces, working_distance
 __all__ = [
     "ArmFit", "ArmFitSettings", "BodyCapture", "BodySystemParams", "CeilingFeed",
     "FilterSettings", "MixedScaleCapture", "MixedScaleParams", "capture_mixed_scale",
-    "head_target",
+    "head_target", "reacquisition_seeds",
     "RigCalibration", "SurfaceParams", "calibrate_rig", "capture_body", "fit_arm",
     "fit_self_consistent", "measure_surfaces", "observed_frames", "track_surface",
     "working_distance",

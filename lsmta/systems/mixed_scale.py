@@ -24,7 +24,10 @@ enters. :func:`capture_mixed_scale` runs the stages:
 4. *fill*: occluded and lost markers from the face model
    (:meth:`lsmta.face.FaceModel.fill`), the face per frame; measured markers far from the
    fitted face are dropped as wrong and the face is filled again;
-5. *body*: every LED track sampled at the frame times.
+5. *re-acquisition* (``params.reacquire`` passes): lost markers start again where the
+   filled face, projected into a head at its read-back angles, falls on a dot
+   (:func:`reacquisition_seeds`); tracking, triangulation and fill run again;
+6. *body*: every LED track sampled at the frame times.
 """
 
 from __future__ import annotations
@@ -83,6 +86,13 @@ class MixedScaleParams:
     max_fill_mm : float
         After a first fill, measured markers farther than this from the fitted face are
         dropped as wrong, and the face is filled again, mm.
+    reacquire : int
+        Passes of re-acquisition: lost markers restarted where the filled face, projected
+        into a head at its read-back angles, falls on a dot, then tracking, triangulation
+        and fill again (0: markers lost stay lost, notebook 13's rule).
+    dot_contrast : float
+        A projected marker starts again only where the image is brighter than its 9 x 9
+        neighbourhood's median by this much, grey levels (a dot is there, not skin).
     """
 
     video_rate: float = 30.0
@@ -99,13 +109,18 @@ class MixedScaleParams:
     min_angle_deg: float = 2.0
     max_reprojection_px: float = 1.0
     max_fill_mm: float = 3.0
+    reacquire: int = 2
+    dot_contrast: float = 30.0
 
     def __post_init__(self):
         for key in ("video_rate", "threshold_offset", "threshold_minimum", "tol_px",
-                    "min_angle_deg", "max_reprojection_px", "max_fill_mm"):
+                    "min_angle_deg", "max_reprojection_px", "max_fill_mm", "dot_contrast"):
             as_scalar(getattr(self, key), key, positive=True)
         for key in ("lead", "start"):
             as_scalar(getattr(self, key), key, nonnegative=True)
+        if isinstance(self.reacquire, bool) or int(self.reacquire) != self.reacquire \
+                or self.reacquire < 0:
+            raise ValueError(f"reacquire: expected an integer >= 0, got {self.reacquire!r}")
         if not 0 < as_scalar(self.damping, "damping") <= 1:
             raise ValueError(f"damping: expected a number in (0, 1], got {self.damping}")
         if self.stop is not None and not as_scalar(self.stop, "stop") > self.start:
@@ -161,6 +176,7 @@ class MixedScaleCapture:
     images : (K, F, H, W) uint8 array or None
         The close-up videos (``keep_images``).
     markers : list of K MarkerTracks
+        The last pass of the marker tracker.
     xy : (K, F, M, 2) array
         Marker positions found (tracked or second search), px; NaN elsewhere.
     points : (F, M, 3) array
@@ -204,6 +220,8 @@ class MixedScaleCapture:
             ("triangulation", f"{np.isfinite(self.points).all(axis=2).mean():.1%} of markers "
                               "triangulated"),
             ("fill", f"{int(self.face.fitted.sum())} of {len(self.times)} frames fitted"),
+            ("re-acquisition", f"{self.params.reacquire} pass(es): lost markers restarted "
+                               "from the filled face"),
             ("body", f"{self.body.shape[1]} LED tracks at the frame times"),
         ]
         return [{"stage": s, "seconds": self.seconds.get(s, float("nan")), "result": r}
@@ -231,6 +249,7 @@ class _State:
     settings: np.ndarray | None = None
     images: list | None = None
     markers: list | None = None
+    starts: list | None = None
     xy: np.ndarray | None = None
     points: np.ndarray | None = None
     pairs: np.ndarray | None = None
@@ -320,16 +339,80 @@ def _grab(device, t: float, k: int):
 
 
 def _marker_tracking(st: _State) -> None:
-    K, F = st.images.shape[:2]
+    st.starts = [as_array(f(st.times[0], st.settings[k, 0]), f"identify[{k}](...)",
+                          shape=(None, 2), allow_nan=True) for k, f in enumerate(st.identify)]
+    _track(st, None)
+
+
+def _track(st: _State, seeds) -> None:
     st.markers, xy = [], []
-    for k in range(K):
-        start = as_array(st.identify[k](st.times[0], st.settings[k, 0]),
-                         f"identify[{k}](...)", shape=(None, 2), allow_nan=True)
-        tr = track_markers(st.images[k], start)
+    for k, start in enumerate(st.starts):
+        tr = track_markers(st.images[k], start, seeds=None if seeds is None else seeds[k])
         ok = np.isin(tr.status, (MarkerStatus.TRACKED, MarkerStatus.SECOND_SEARCH))
         st.markers.append(tr)
         xy.append(np.where(ok[..., None], tr.xy, np.nan))
     st.xy = np.stack(xy)
+
+
+_NINE = np.stack(np.meshgrid(np.arange(-4, 5), np.arange(-4, 5)), -1).reshape(-1, 2)  # (x, y)
+
+
+def reacquisition_seeds(images, heads, settings, face, found, *, dot_contrast: float = 30.0,
+                        crowd_px: float = 6.0) -> np.ndarray:
+    """Where lost markers may start again: the filled face projected into each head.
+
+    Parameters
+    ----------
+    images : (K, F, H, W) array
+    heads : sequence of K PanTiltCamera
+        As calibrated.
+    settings : (K, F, 2) array
+        Read-back angles, degrees.
+    face : (F, M, 3) array
+        The filled face, mm (NaN where not fitted).
+    found : (K, F, M) bool array
+        Markers the tracker has in each frame (they are not restarted).
+    dot_contrast : float
+        The image at the projection must exceed the median of its 9 x 9 neighbourhood by
+        this many grey levels (a dot, not skin; a marker turned away draws none).
+    crowd_px : float
+        Projections closer than this to another one are not used (their dots merge).
+
+    Returns
+    -------
+    (K, F, M, 2) array
+        Seeds for :func:`~lsmta.tracking.markers.track_markers`, px (NaN elsewhere).
+    """
+    K, F, H, W = np.shape(images)
+    M = face.shape[1]
+    seeds = np.full((K, F, M, 2), np.nan)
+    for k, head in enumerate(heads):
+        for f in np.flatnonzero(np.isfinite(face).all(axis=(1, 2))):
+            cam = head.camera_at(*settings[k, f])
+            p = cam.project(face[f], behind="nan")
+            finite = np.isfinite(p).all(axis=1)
+            d = np.nan_to_num(np.linalg.norm(p[:, None] - p[None], axis=2), nan=np.inf)
+            np.fill_diagonal(d, np.inf)
+            c = np.rint(np.where(finite[:, None], p, -100.0)).astype(int)
+            ok = finite & ~found[k, f] & (c[:, 0] >= 4) & (c[:, 0] < W - 4) & (c[:, 1] >= 4) \
+                & (c[:, 1] < H - 4) & (d.min(axis=1) >= crowd_px)
+            m = np.flatnonzero(ok)
+            patch = images[k, f][c[m, 1, None] + _NINE[:, 1], c[m, 0, None] + _NINE[:, 0]]
+            dot = patch[:, 40].astype(float) - np.median(patch, axis=1) >= dot_contrast
+            seeds[k, f, m[dot]] = p[m[dot]]
+    return seeds
+
+
+def _reacquisition(st: _State) -> None:
+    for _ in range(st.params.reacquire):
+        seeds = reacquisition_seeds(st.images, st.heads, st.settings, st.face.frames,
+                                    np.isfinite(st.xy).all(axis=3),
+                                    dot_contrast=st.params.dot_contrast)
+        if not np.isfinite(seeds).any():
+            break
+        _track(st, seeds)
+        _triangulation(st)
+        _fill(st)
 
 
 def _triangulation(st: _State) -> None:
@@ -340,7 +423,7 @@ def _triangulation(st: _State) -> None:
         cams = [h.camera_at(*st.settings[k, f]) for k, h in enumerate(st.heads)]
         r = triangulate_single_pair(cams, st.xy[:, f], min_angle_deg=st.params.min_angle_deg)
         with np.errstate(invalid="ignore"):
-            bad = np.nanmax(r.intersection.reprojection_error, axis=0) \
+            bad = np.fmax.reduce(r.intersection.reprojection_error, axis=0) \
                 > st.params.max_reprojection_px
         st.points[f] = np.where(bad[:, None], np.nan, r.intersection.points)
         st.pairs[f] = r.pair
@@ -359,7 +442,8 @@ def _body(st: _State) -> None:
 
 
 STAGES = (("closed loop", _closed_loop), ("marker tracking", _marker_tracking),
-          ("triangulation", _triangulation), ("fill", _fill), ("body", _body))
+          ("triangulation", _triangulation), ("fill", _fill),
+          ("re-acquisition", _reacquisition), ("body", _body))
 
 
 def _check_feed(feed) -> CeilingFeed:

@@ -118,7 +118,7 @@ def calibrate_scene(scene: MixedScaleScene, *, rng: np.random.Generator | int | 
                             head_rms_px=h_rms)
 
 
-def head_devices(scene: MixedScaleScene, heads=None, *,
+def head_devices(scene: MixedScaleScene, *, heads=None,
                  rng: np.random.Generator | int | None = None, video_rate: float = 30.0,
                  fixed: bool = False, start=(0.0, 0.0)):
     """The true heads (default ``scene.heads``) as devices

@@ -1,12 +1,13 @@
 """The mixed-scale system on a longer walk: time per stage and the error budget, with and
 without prediction.
 
-    .venv/bin/python experiments/mixed_scale_system.py [--travel 4400] [--speed 900]
+    .venv/bin/python experiments/mixed_scale_system.py [--travel 4000] [--speed 900]
         [--ceiling 8] [--seed 18] [--lead 0.3] [--no-baseline]
 
 Builds the walk of notebook 15 (`lsmta.synth.mixed_scale.mixed_scale_scene`), by default
-slower and so longer (the ceiling cameras stand at X = +-2 m: a walk along X much beyond
-4.4 m leaves the rig), with more ceiling cameras; calibrates the ceiling rig and the
+slower and so longer, with more ceiling cameras (they stand at X = +-2 m: a walk along X
+beyond 4 m takes the head LED out of the rig's view, its track dies and the system aims at a
+shoulder); calibrates the ceiling rig and the
 heads by the library's procedures (`lsmta.evaluation.mixed_scale.calibrate_scene`), runs
 `lsmta.systems.capture_mixed_scale` with prediction and, unless ``--no-baseline``, without
 it, and scores both after the fact. Prints and writes
@@ -40,7 +41,7 @@ def _scores(cap, sc) -> dict:
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--travel", type=float, default=4400.0, help="mm")
+    parser.add_argument("--travel", type=float, default=4000.0, help="mm")
     parser.add_argument("--speed", type=float, default=900.0, help="mm/s")
     parser.add_argument("--ceiling", type=int, default=8, help="ceiling cameras")
     parser.add_argument("--seed", type=int, default=18)

@@ -9,7 +9,7 @@ import pytest
 from lsmta.evaluation import mixed_scale as ms
 from lsmta.pantilt import Motor
 from lsmta.synth.mixed_scale import SimulatedHead, mixed_scale_scene, render_pantilt_video
-from lsmta.systems import MixedScaleParams, capture_mixed_scale
+from lsmta.systems import MixedScaleParams, capture_mixed_scale, reacquisition_seeds
 
 
 @pytest.fixture(scope="module")
@@ -126,3 +126,26 @@ def test_bad_input_names_the_argument(tiny):
                       (dict(aim_offset=(0.0, 1.0)), "aim_offset")):
         with pytest.raises(ValueError, match=name):
             MixedScaleParams(**bad)
+
+
+def test_reacquisition_seeds_fall_on_drawn_markers_only(tiny, run):
+    scene, cal, inputs = tiny
+    cap, _, _ = run
+    K, F, M = cap.xy.shape[:3]
+    frames = np.arange(0, F, 5)
+    world, _, _ = scene.face_at(cap.times[frames])
+    seeds = reacquisition_seeds(cap.images[:, frames], cal.heads, cap.settings[:, frames],
+                                world, np.zeros((K, len(frames), M), bool))
+    for k, dev in enumerate(inputs.devices):
+        for i, f in enumerate(frames):
+            truth = dev.true_xy(cap.times[f], cap.settings[k, f])
+            s = seeds[k, i]
+            has = np.isfinite(s[:, 0])
+            assert has.sum() > 20
+            # a seed only where a marker is drawn, within a pixel of its image
+            assert np.isfinite(truth[has, 0]).all()
+            assert np.nanmax(np.linalg.norm(s[has] - truth[has], axis=1)) < 1.0
+    # markers already tracked are not restarted
+    none = reacquisition_seeds(cap.images[:, :2], cal.heads, cap.settings[:, :2], world[:2],
+                               np.ones((K, 2, M), bool))
+    assert not np.isfinite(none).any()

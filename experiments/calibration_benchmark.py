@@ -19,6 +19,11 @@ linear-intersection variant for ``--linear-alternations``, and the joint adjustm
 projection errors on the independent path and fit errors on the calibration path (the
 objective), their ratios to the joint optimum, the iterations each alternation needs to
 come within 1 % of the joint optimum (None: not within the run), and whether it ends there.
+The improved alternation (exterior-only sweeps first, joint steps every four sweeps) runs
+beside them, and ``--partial-seeds`` seeds of the long room whose cameras see only parts of
+the path (chain, datum from a 4 m distance; plain, improved and joint from the chain): the
+joint adjustment against the true-camera floor, the improved alternation's iterations to
+within 1 % of the joint optimum, 3-D and scale errors, and the wall times.
 Writes build/benchmarks/calibration.json.
 
 Real rigs (issue 24; ``--only-real-rigs`` runs just this part): caliscope's real four-camera
@@ -38,7 +43,7 @@ import time
 
 import numpy as np
 
-from lsmta.calibration import Bar, relative_orientation_start
+from lsmta.calibration import IMPROVED_ALTERNATION, Bar, relative_orientation_start
 from lsmta.calibration.board import calibrate_board
 from lsmta.evaluation.board import (
     aniposelib_board_peer,
@@ -46,7 +51,12 @@ from lsmta.evaluation.board import (
     caliscope_comparison,
     position_differences,
 )
-from lsmta.evaluation.calibration import aniposelib_peer, bar_trial, ring_trial
+from lsmta.evaluation.calibration import (
+    aniposelib_peer,
+    bar_trial,
+    partial_overlap_trial,
+    ring_trial,
+)
 from lsmta.evaluation.wand import wand_trial
 from lsmta.report import write_json
 from lsmta.synth.rigs import triplet_rig
@@ -128,6 +138,8 @@ def main(argv=None):
                         help="hold the other interior parameters at the truth (diagnostic)")
     parser.add_argument("--no-bar", action="store_true",
                         help="only the virtual calibration object")
+    parser.add_argument("--partial-seeds", type=int, default=3,
+                        help="seeds of the partial-overlap room (0: skip)")
     parser.add_argument("--out", default="build/benchmarks/calibration.json")
     parser.add_argument("--real-out", default="build/benchmarks/calibration_real_rigs.json")
     parser.add_argument("--only-real-rigs", action="store_true",
@@ -167,14 +179,14 @@ def main(argv=None):
         return
     ring = ring_trial(seeds=tuple(range(args.seeds)), n_cameras=8, n_path=150, n_check=80,
                       n_alternation=args.alternations, n_joint=30,
-                      n_linear=args.linear_alternations,
+                      n_linear=args.linear_alternations, improved=IMPROVED_ALTERNATION,
                       intrinsics=tuple(args.intrinsics.split(",")), true_fixed=args.true_fixed)
     virt = []
     for s, (a, j) in enumerate(zip(ring.alternation, ring.joint)):
         row = dict(seed=s, joint_final_px=float(j.error[-1]),
                    joint_fit_px=float(j.fit_error[-1]),
                    joint_iterations_to_1pct=j.iterations_to(tolerance=0.01))
-        variants = [("alternation", a)]
+        variants = [("alternation", a), ("improved_alternation", ring.improved[s])]
         if ring.linear:
             variants.append(("linear_alternation", ring.linear[s]))
         for name, h in variants:
@@ -194,7 +206,18 @@ def main(argv=None):
                 f"{name}_fit_monotone": bool(np.all(np.diff(h.fit_error) <= 1e-12))})
         virt.append(row)
         print(row)
-    write_json(args.out, dict(bar=bar, virtual_object=virt, floor_px=ring.truth_error))
+    partial = []
+    for r in partial_overlap_trial(seeds=tuple(range(args.partial_seeds)), n_plain=50):
+        opt = r.joint.fit_error[-1]
+        row = dict(seed=r.seed, joint_over_floor=float(r.joint.error[-1] / r.floor),
+                   improved_iterations_to_1pct=r.improved.iterations_to_value(opt, fit=True),
+                   plain_fit_over_joint_after_50=float(r.plain.fit_error[-1] / opt),
+                   error_3d_mm=r.error_3d, scale_error_mm=r.scale_error,
+                   seconds={k: getattr(r, k).seconds for k in ("plain", "improved", "joint")})
+        partial.append(row)
+        print(row)
+    write_json(args.out, dict(bar=bar, virtual_object=virt, floor_px=ring.truth_error,
+                              partial_overlap=partial))
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
     .venv/bin/python experiments/sapm_surface.py [--quick] [--scheduler ADDRESS] [--workers 2]
 
-Fig. 3 of Li & Holstein (2002): identification rate over 5 configuration levels (0..4
+Fig. 3 of Holstein & Li (2002): identification rate over 5 configuration levels (0..4
 rad) x 100 distortion levels (0..10 % of l̄_s) x 10 random poses per cell, with the
 13-segment, 44-marker model; plus about 2000 noise-free arbitrary poses, SAPM beside the
 one-rigid-fit baseline. Every grid cell and every chunk of noise-free poses is one Dask

@@ -6,7 +6,11 @@ The walking person (eight LEDs) rendered for 2 s at 30 Hz in camera 3 of the rig
 monitor masked and reflections), at each image scale (0.5: 320 x 240, 1: 640 x 480).
 Each search runs ``repeats`` times, interleaved; we report the fastest and the median time
 per frame, the fraction of pixels tested, and the ratio sub-sampled / full (below 1: the
-sub-sampled search is faster). Writes build/benchmarks/widearea_detection.json.
+sub-sampled search is faster). Then the guided search of notebook 09 at each scale
+(:func:`lsmta.evaluation.widearea_images.guided_detection_trial`: eight cameras, windows
+around the streaming tracker's predictions, replayed ``repeats`` times): full / guided time
+(issue 26's target: at least 3) and the share of the full search's LEDs found at the same
+place (target: at least 99 %). Writes build/benchmarks/widearea_detection.json.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import time
 
 import numpy as np
 
+from lsmta.evaluation.widearea_images import guided_detection_trial
 from lsmta.report import write_json
 from lsmta.synth.widearea import ceiling_rig, render_led_video, small_camera, walking_person
 from lsmta.widearea import background_threshold, detect
@@ -61,7 +66,23 @@ def main(argv=None):
                   f"{row['ms_per_frame_median']:6.3f} (median), tested "
                   f"{100 * row['tested_fraction']:5.1f} %, "
                   f"ratio to full {row['ratio_to_full']:.2f}")
-    write_json(args.out, {"repeats": args.repeats, "rows": rows})
+    guided = []
+    for scale in args.scales:
+        g = guided_detection_trial(rng=np.random.default_rng(2002), scale=scale,
+                                   repeats=args.repeats)
+        per = {k: 1e3 * v / g.n_frames for k, v in g.seconds.items()}
+        row = {"scale": scale, "ms_per_frame_min": per,
+               "full_over_guided": g.seconds["full"] / g.seconds["guided"],
+               "full_over_guided_gate_windows":
+                   g.seconds["full"] / g.seconds["guided, gate windows"],
+               "tested_fraction": g.tested_fraction["guided"],
+               "same_detections": g.guided_found / g.full_found}
+        guided.append(row)
+        print(f"guided, scale {scale}: full / guided {row['full_over_guided']:.2f} (gate windows "
+              f"{row['full_over_guided_gate_windows']:.2f}), tested "
+              f"{100 * row['tested_fraction']:.1f} %, same detections "
+              f"{100 * row['same_detections']:.2f} %")
+    write_json(args.out, {"repeats": args.repeats, "rows": rows, "guided": guided})
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """lsmta: recovering human shape and motion from multi-camera video.
 
 A notebook-first compendium that re-implements D'Apuzzo, Plaenkers & Fua (2000),
-Li & Holstein (2002), Davis (2002) and Plaenkers & Fua (1999). See README.md and
+Holstein & Li (2002), Davis (2002) and Plaenkers & Fua (1999). See README.md and
 ARCHITECTURE.md for the layout.
 """
 

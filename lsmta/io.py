@@ -1,5 +1,5 @@
-"""Reading marker data (C3D files through ezc3d, Maya ASCII animation curves) and 2-D point
-files: DLTdv / Argus xypts CSV, caliscope's board corners."""
+"""Reading marker data (C3D files through ezc3d, Maya ASCII animation curves), 2-D point
+files (DLTdv / Argus xypts CSV, caliscope's board corners) and a Qualisys calibration."""
 
 from __future__ import annotations
 
@@ -8,6 +8,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from .camera_files import read_qca
 
 _UNIT_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
 
@@ -154,6 +156,28 @@ def read_maya_curves(path) -> MayaCurves:
             pts[[index[t] for t in k], j, a] = np.fromiter(k.values(), float, len(k)) * scale
     pts[np.isnan(pts).any(axis=2)] = np.nan
     return MayaCurves(labels=labels, points=pts, times=times)
+
+
+# ---------------------------------------------------------------------- Qualisys
+def read_qualisys_calibration(path) -> list:
+    """The cameras of a Qualisys (QTM) calibration file, ``.qca`` / ``.qca.txt`` (XML).
+
+    The documented entry point for Qualisys calibrations; the parser is
+    :func:`lsmta.camera_files.read_qca`, whose docstring gives the conventions (rotation
+    rows as camera axes turned to this project's y-down camera, intrinsics in sensor units
+    of 64 per pixel, the video window's offset, Brown distortion read as it stands:
+    Pose2Sim's converter divides the distortion by 64, this reader does not).
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    list of :class:`~lsmta.camera.Camera`
+        One per ``<camera>``, in the file's order, named by its ``serial``; millimetres.
+    """
+    return read_qca(path)
 
 
 # ---------------------------------------------------------------------- 2-D point files

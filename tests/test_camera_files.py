@@ -168,3 +168,39 @@ def test_caliscope_points_are_read_per_camera_frame_and_corner():
     assert pts.n_observations == 1725
     np.testing.assert_allclose(pts.board[:3, :2], [[54, 54], [108, 54], [162, 54]], atol=1e-4)
     assert np.all(pts.board[:, 2] == 0)
+
+
+def test_qualisys_reader_projects_as_the_file_says():
+    """One camera's projection of a point computed by hand from the numbers in the file."""
+    from lsmta.io import read_qualisys_calibration
+
+    cams = read_qualisys_calibration(QCA)
+    assert len(cams) == 4
+    # cam02 as written in Calib.qca.txt: rows of M are the camera axes (y up, z backwards)
+    M = np.array([[-0.1966832217091926, 0.979523227309506, -0.043011131806342306],
+                  [-0.31478107085300017, -0.02153908797812718, 0.9489198834051846],
+                  [0.9285626460991909, 0.20017570994064315, 0.3125717476340885]])
+    C = np.array([2582.0136248568124, 706.5662881637625, 1690.9818366061595])
+    fu, fv, cu, cv = 107118.695313 / 64, 107123.023438 / 64, 34207.652344 / 64, 61646.457031 / 64
+    k1, k2, p1, p2 = -0.047847, 0.136786, 0.000972, 0.000291
+    X = np.array([150.0, -220.0, 900.0])                 # mm, in front of cam02
+    xc = M @ (X - C)
+    x, y = xc[0] / -xc[2], -xc[1] / -xc[2]               # y down, z forward
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2 * r2
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    by_hand = np.array([fu * xd + cu, fv * yd + cv])
+    np.testing.assert_allclose(cams[1].project(X[None])[0], by_hand, atol=0.05)
+    assert 0 < by_hand[0] < 1088 and 0 < by_hand[1] < 1920
+
+
+def test_qualisys_reader_bad_input(tmp_path):
+    from lsmta.io import read_qualisys_calibration
+
+    with pytest.raises(FileNotFoundError, match="path"):
+        read_qualisys_calibration(tmp_path / "missing.qca.txt")
+    empty = tmp_path / "empty.qca.txt"
+    empty.write_text("<calibration><cameras/></calibration>")
+    with pytest.raises(ValueError, match="path"):
+        read_qualisys_calibration(empty)

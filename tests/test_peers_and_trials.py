@@ -63,6 +63,7 @@ def test_noise_sweep_and_success_rate(shifted):
                         radiometry="none")
     assert np.isnan(sweep["bound_median_px"][0]) and sweep["bound_median_px"][1] > 0
     assert sweep["median_px"][1] > sweep["median_px"][0]
+    assert 0.5 < sweep["error_ratio"][1] < 2, "the shift-only model near its Cramér-Rao bound"
     near = success_rate(shifted, rng=rng, start_distance=0.5, geometry="shift", radiometry="none",
                         n_points=30, margin=20)
     far = success_rate(shifted, rng=rng, start_distance=8.0, geometry="shift", radiometry="none",

@@ -447,7 +447,7 @@ class AlternationParams:
 
 
 # The documented change that brings the alternation to the joint optimum (notebook 01)
-IMPROVED_ALTERNATION = AlternationParams(n_iter=50, tol=1e-5, exterior_first=3,
+IMPROVED_ALTERNATION = AlternationParams(n_iter=50, tol=1e-4, exterior_first=3,
                                          joint_every=4, joint_steps=2)
 
 

@@ -162,15 +162,15 @@ def noise_sweep(pair: WarpedPair, sigmas, *, rng: np.random.Generator | int | No
     """LSM against its Cramér-Rao bound over noise levels, on fresh noise of one clean pair.
 
     Returns a dict of arrays over ``sigmas``: ``median_px`` (LSM's median error),
-    ``bound_median_px`` (the bound's), ``efficiency`` (their ratio), ``rms_ratio`` and
-    ``coverage_95`` (:func:`honesty`), ``failure_rate``. Both medians are taken over the
-    same points, those LSM matched to within 0.5 px; ``failure_rate`` is the share of the
-    others (no result, or farther off), which the efficiency leaves out.
+    ``bound_median_px`` (the bound's), ``error_ratio`` (their ratio; 1: at the bound),
+    ``rms_ratio`` and ``coverage_95`` (:func:`honesty`), ``failure_rate``. Both medians are
+    taken over the same points, those LSM matched to within 0.5 px; ``failure_rate`` is the
+    share of the others (no result, or farther off), which the error ratio leaves out.
     """
     rng = as_rng(rng)
     pts = draw_points(pair.template.shape, n_points, rng=rng)
     unit = unit_bound(pair, pts, patch=patch, geometry=geometry, radiometry=radiometry)
-    keys = ("median_px", "bound_median_px", "efficiency", "rms_ratio", "coverage_95",
+    keys = ("median_px", "bound_median_px", "error_ratio", "rms_ratio", "coverage_95",
             "failure_rate")
     out = {k: [] for k in keys}
     for sigma in sigmas:
@@ -189,7 +189,7 @@ def noise_sweep(pair: WarpedPair, sigmas, *, rng: np.random.Generator | int | No
         else:
             for k in ("bound_median_px", "rms_ratio", "coverage_95"):
                 out[k].append(np.nan)
-        out["efficiency"].append(out["median_px"][-1] / out["bound_median_px"][-1])
+        out["error_ratio"].append(out["median_px"][-1] / out["bound_median_px"][-1])
     return {"sigma": np.asarray(sigmas, float), **{k: np.asarray(v) for k, v in out.items()}}
 
 

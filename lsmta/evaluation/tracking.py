@@ -184,14 +184,17 @@ class Trial:
 
 
 def run_trial(seq: Sequence, n_points: int, *, rng: np.random.Generator | int | None = None,
-              params=None, density: bool = True, false_mm: float = 10.0, klt: bool = True) -> Trial:
+              params=None, density: bool = True, false_mm: float = 10.0, klt: bool = True,
+              geometric: bool = False) -> Trial:
     """Track ``n_points`` of frame 0's surface with LSMTA (with the density check unless
-    ``density`` is False) and, if ``klt``, with KLT; score both."""
+    ``density`` is False; with the geometric check through the sequence's true cameras if
+    ``geometric``) and, if ``klt``, with KLT; score both."""
     rng = as_rng(rng)
     xy0, part0, local0 = start_points(seq, n_points, rng=rng)
     t0 = time.perf_counter()
     tracks = track_points(seq.images, xy0, params=params,
-                          new_points=candidates(seq) if density else None)
+                          new_points=candidates(seq) if density else None,
+                          cameras=seq.cameras if geometric else None)
     seconds = time.perf_counter() - t0
     part, local = track_identity(seq, tracks, part0, local0)
     traj = trajectories_from_tracks(seq.cameras, tracks, seq.fps)

@@ -119,6 +119,8 @@ def detection_trial(*, rng: np.random.Generator | int | None = None, rig=None, c
     x0, y0, x1, y1 = video.monitor.astype(int)
     inv[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = True
     runs = {}
+    detect(video.frames[:1], thr, params=params, invalid=inv, mode="subsampled",
+           rng=0)                                   # compile the search before timing it
     for name, mode, invalid in (("full", "full", None), ("full, masked", "full", inv),
                                 ("subsampled, masked", "subsampled", inv)):
         t0 = time.perf_counter()

@@ -1,4 +1,4 @@
-"""Segment-based articulated point matching (Li & Holstein 2002): label an unlabelled 3-D
+"""Segment-based articulated point matching (Holstein & Li 2002): label an unlabelled 3-D
 marker pose from one frame with an articulated marker model, and the baseline a user might
 try instead (one global rigid fit plus optimal assignment). A model comes from one clear
 frame (the paper) or is learned from a labelled clip (:meth:`MarkerModel.from_labelled_frames`,

@@ -1,4 +1,4 @@
-"""Segment-based articulated point matching (SAPM; Li & Holstein 2002, Section 3).
+"""Segment-based articulated point matching (SAPM; Holstein & Li 2002, Section 3).
 
 Labels an unlabelled 3-D marker pose from one frame with a :class:`~lsmta.sapm.MarkerModel`:
 

@@ -1,4 +1,4 @@
-"""The articulated marker model of SAPM (Li & Holstein 2002, Section 2).
+"""The articulated marker model of SAPM (Holstein & Li 2002, Section 2).
 
 Labelled points with model coordinates, grouped into segments; the segments form a tree.
 Where a parent and a child share markers (joint markers: one, or a pair such as two wrist

@@ -1,4 +1,4 @@
-"""Marker models and random articulated poses with ground truth (Li & Holstein 2002, 4.1).
+"""Marker models and random articulated poses with ground truth (Holstein & Li 2002, 4.1).
 
 Two human marker models built in code: the paper's 13-segment, 44-marker model (up to 6
 markers a segment, torso the root; no hands) and a 15-segment, 49-marker full-body model

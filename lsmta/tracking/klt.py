@@ -49,7 +49,7 @@ def track_klt(images, initial_xy, *, window: int = 21, levels: int = 3,
     if not started.any():
         raise ValueError("initial_xy: the first frame has no point matched in every camera; "
                          "nothing to track")
-    u8 = np.clip(np.rint(seq), 0, 255).astype(np.uint8)
+    u8 = seq if seq.dtype == np.uint8 else np.clip(np.rint(seq), 0, 255).astype(np.uint8)
     xy = np.full((T, K, N, 2), np.nan)
     xy[0][:, started] = xy0[:, started]
     alive = started.copy()
@@ -78,6 +78,9 @@ def track_klt(images, initial_xy, *, window: int = 21, levels: int = 3,
         alive[idx[~ok]] = False
     status = np.where(~started, TrackStatus.NOT_STARTED,
                       np.where(end == T - 1, TrackStatus.ALIVE, TrackStatus.LOST))
+    # KLT's template is the previous frame's window: "anchored" in every tracked frame
+    anchor = np.where(np.isfinite(xy).all(axis=(1, 3)), np.arange(T)[:, None], -1)
     return Tracks(xy=xy, start=np.zeros(N, np.int64), end=end.astype(np.int64),
                   status=status.astype(np.int64), retried=np.zeros((T, N), bool),
-                  added=np.zeros(N, bool), origin=np.full(N, -1, np.int64))
+                  added=np.zeros(N, bool), origin=np.full(N, -1, np.int64), anchor=anchor,
+                  recovered=np.zeros((T, N), bool))

@@ -1,27 +1,54 @@
-"""LSMTA point and surface tracking in image space (D'Apuzzo 2000, Section 2.3, Figs. 6-9).
+"""LSMTA point and surface tracking in image space (D'Apuzzo 2000, Section 2.3, Figs. 6-9),
+with drift-free anchored templates and recovery of lost points (beyond the paper).
 
-For every live track and every camera independently, from frame ``t`` to ``t + 1``:
+*Anchored templates* (Matthews, Ishikawa & Baker 2004, "The template update problem").
+The paper matches frame ``t``'s patch into frame ``t + 1``; each match errs a little and the
+errors add up, a random walk of the position (``anchor="previous"`` keeps that). Here
+every track keeps, per camera, its *first template* (its patch in its first frame, with the
+affinity ``A`` accumulated since; :mod:`~lsmta.tracking.templates`) and matches it into
+every new frame; the previous frame's solution is only the start. From frame ``t`` to
+``t + 1``, for every track and camera:
 
-1. *prediction*: ``x_t + (x_t - x_{t-1})`` (linear, from the two previous positions); a
-   track born at ``t`` has no history and takes the median image velocity of its
-   ``neighbours`` nearest live tracks (zero if there are none);
-2. *correlation*: the patch at ``x_t`` in frame ``t`` is searched in a box of half-width
-   ``radius`` around the prediction in frame ``t + 1`` (normalised cross-correlation,
-   :func:`~lsmta.matching.correlation_search`);
-3. *temporal LSM*: frame ``t``'s patch is matched into frame ``t + 1`` starting at the best
-   correlation position (:func:`~lsmta.matching.lsm`, affine, quality thresholds).
+1. *prediction*: ``x_t + (x_t - x_{t-1})`` (linear, from the trajectory); a track without
+   history takes the median image velocity of its ``neighbours`` nearest tracks, and a
+   track missing since frame ``e`` is predicted ``t + 1 - e`` steps ahead;
+2. *anchored temporal LSM* of the first template from the prediction, started with ``A``;
+3. where it fails, the track's *fallback template*: its patch in frame ``t`` (the last frame
+   its first template matched, so the fallback starts where no drift has accumulated), or
+   the fallback it already holds; matched from the prediction, then, where that fails, from
+   the best *correlation* position in a box of half-width ``radius`` around the prediction
+   (the paper's step 2). A track without history is searched in the box with its first
+   template.
 
-Then the *spatial LSM* matches the template camera's new patch into the other cameras'
-frame ``t + 1``, starting at their temporal results (with each track's previous spatial
-affinity). A track is accepted when every temporal LSM passed its thresholds and every
-spatial LSM stayed within ``max_disagreement`` pixels of the temporal result. Rejected
-tracks are searched again in a box of half-width ``retry_radius``; rejected twice, the track
-stops and its later positions are NaN (never a made-up position). A track without history
-is searched in the ``retry_radius`` box first and then in one twice as large.
+Matches with the fallback can drift, as the paper's do, until the first template matches
+again (it is tried first in every frame: that is the drift correction). *Re-anchoring
+rule*: a fallback template is replaced by the track's patch in the current frame when its
+``sigma0`` grows beyond ``reanchor_sigma0`` times its value at its first match, or when its
+affinity departs from the identity by more than ``reanchor_distortion`` (spectral norm of
+``A - I``: about 14 degrees of rotation or 25 % of scale). ``Tracks.anchor`` records the
+frame of the template that matched each frame (the track's start where it matched its
+first template).
 
-With one camera (2-D mode, paper Section 2.3.3) there is no spatial LSM: a track is accepted
-when the temporal LSM passes its thresholds (among them the largest distance from the
-correlation peak, ``thresholds.max_displacement``).
+*Spatial check* (K > 1): the template camera's template (of the set that matched) is
+matched into camera ``k``'s frame ``t + 1``, started where the spatial relation measured
+when the templates were anchored puts it (affinity ``A_k S_k``, offset ``A_k D_k``). A track
+is accepted when every temporal LSM passed its thresholds and every spatial LSM stayed
+within ``max_disagreement`` pixels of that relation: the spatial LSM's own bias between
+two views of a curved surface is measured at the anchor and does not count. With the
+calibrated ``cameras`` (beyond the paper) every accepted frame must also intersect with a
+reprojection error of at most ``max_reprojection``. Rejected live tracks are searched again
+in a box of half-width ``retry_radius`` (twice that for a track without history). A start
+point whose templates are flat or whose spatial LSM does not land within
+``max_disagreement`` of it is not tracked.
+
+*Recovery.* A track not found in a frame is *missing*, not ended: in every following frame
+its first template is matched at the position its trajectory predicts, and at each
+density check it is searched in the ``retry_radius`` box there (before the check adds new
+points, so a recovered point is not tracked twice); it ends (status LOST; later positions
+NaN, never a made-up position) when it has been missing for more than ``max_gap`` frames.
+The missing frames of a recovered track stay NaN.
+
+With one camera (2-D mode, paper Section 2.3.3) there is no spatial check.
 
 *Surface tracking* (Fig. 9): with ``new_points``, every ``density_every`` frames the live
 tracks are checked for density in the template image
@@ -39,18 +66,23 @@ from scipy.spatial import cKDTree
 from tqdm.auto import tqdm
 
 from .._validate import as_array, as_scalar, check_patch
-from ..matching.correlation import CorrelationStatus, correlation_search
-from ..matching.lsm import LSMThresholds, lsm
+from ..camera import Camera
+from ..matching.lsm import LSMThresholds
 from ..matching.spline import SplineImage, check_image
+from ..triangulation import triangulate
 from .density import sparse_candidates
+from .templates import match_templates, sample_templates, search_templates
+
+ANCHORS = ("first", "previous")
 
 
 class TrackStatus(enum.IntEnum):
     """How a track ended."""
 
-    ALIVE = 0        #: tracked to the last frame
-    LOST = 1         #: rejected in the normal and in the bigger search box
+    ALIVE = 0        #: tracked in the last frame
+    LOST = 1         #: missing for more than ``max_gap`` frames, then ended
     NOT_STARTED = 2  #: its start position was incomplete (NaN in some camera)
+    MISSING = 3      #: not found in the last frame, missing for at most ``max_gap`` frames
 
 
 @dataclass(frozen=True)
@@ -69,21 +101,32 @@ class TrackerParams:
         Camera whose patch is the template of the spatial LSM (the centre camera).
     thresholds : LSMThresholds
         Quality thresholds of the temporal and spatial LSM.
-    geometry : str
-        LSM geometry (``"affine"`` as in the paper).
     max_iter : int
         LSM iteration limit (a match still moving after it is rejected).
     tol : float
         LSM convergence tolerance, pixels.
     neighbours : int
         Neighbours whose median velocity predicts a track without history.
+    anchor : {"first", "previous"}
+        ``"first"``: drift-free anchored templates, re-anchored by the rule below;
+        ``"previous"``: the previous frame's patch is the template (the paper's).
+    reanchor_sigma0 : float
+        Re-anchor when ``sigma0`` grows beyond this factor of its value at the first match
+        after anchoring.
+    reanchor_distortion : float
+        Re-anchor when the accumulated affinity departs from the identity by more than
+        this (spectral norm of ``A - I``).
+    max_gap : int
+        Frames a track may be missing before it ends (0: it ends when first lost).
+    max_reprojection : float
+        Largest reprojection error of an accepted frame, px (only with ``cameras``).
     density_every : int
         Frequency of the density check, frames (surface tracking only).
     cell, min_per_cell, min_distance
         Density check (:func:`~lsmta.tracking.density.sparse_candidates`).
     """
 
-    patch: int = 9
+    patch: int = 11
     radius: int = 4
     retry_radius: int = 10
     max_disagreement: float = 1.0
@@ -91,10 +134,14 @@ class TrackerParams:
     thresholds: LSMThresholds = field(default_factory=lambda: LSMThresholds(
         max_sigma0=15.0, max_sigma_xy=0.4, max_displacement=3.0, scale_range=(0.5, 2.0),
         max_shear=0.6))
-    geometry: str = "affine"
-    max_iter: int = 60
+    max_iter: int = 20
     tol: float = 0.01
     neighbours: int = 8
+    anchor: str = "first"
+    reanchor_sigma0: float = 2.0
+    reanchor_distortion: float = 0.25
+    max_gap: int = 10
+    max_reprojection: float = 1.0
     density_every: int = 2
     cell: float = 16.0
     min_per_cell: int = 2
@@ -108,7 +155,8 @@ class Tracks:
     Attributes
     ----------
     xy : (T, K, N, 2) array
-        Pixel positions; NaN before a track's start and after its end.
+        Pixel positions; NaN before a track's start, after its end and in the frames where
+        it was missing.
     start, end : (N,) int arrays
         First and last tracked frame (inclusive).
     status : (N,) int array
@@ -120,6 +168,11 @@ class Tracks:
     origin : (N,) int array
         For an added track, its index in ``new_points[start]`` (after dropping the
         candidates with NaN); -1 for the initial points.
+    anchor : (T, N) int array
+        Frame of the template the track holds after frame t (t itself where it was
+        anchored or re-anchored in frame t); -1 where untracked.
+    recovered : (T, N) bool array
+        Found again in frame t after missing frames.
     """
 
     xy: np.ndarray
@@ -129,6 +182,8 @@ class Tracks:
     retried: np.ndarray
     added: np.ndarray
     origin: np.ndarray
+    anchor: np.ndarray
+    recovered: np.ndarray
 
     @property
     def n_frames(self) -> int:
@@ -139,12 +194,19 @@ class Tracks:
         """``(T, N)`` bool: tracked in that frame."""
         return np.isfinite(self.xy).all(axis=(1, 3))
 
+    @property
+    def reanchored(self) -> np.ndarray:
+        """``(T, N)`` bool: the track took a new template in frame t (after its start)."""
+        t = np.arange(self.n_frames)[:, None]
+        return (self.anchor == t) & (t > self.start[None, :])
+
     def __len__(self) -> int:
         return self.xy.shape[2]
 
 
 def as_sequences(images) -> np.ndarray:
-    """Image sequences as a ``(K, T, H, W)`` array, after checking their lengths and sizes.
+    """Image sequences as a ``(K, T, H, W)`` array of their own dtype, after checking their
+    lengths, sizes and grey values.
 
     ``images`` may be a ``(K, T, H, W)`` array or a sequence of K sequences of images
     (a ``(T, H, W)`` stack is one camera: pass ``[stack]``).
@@ -167,7 +229,9 @@ def as_sequences(images) -> np.ndarray:
         raise ValueError(f"images: expected at least 2 frames, got {lengths[0]}")
     out = []
     for k, s in enumerate(seqs):
-        frames = [check_image(im, f"images[{k}][{t}]") for t, im in enumerate(s)]
+        frames = [np.asarray(im) for im in s]
+        for t, im in enumerate(frames):        # checked one at a time: 8-bit video stays 8-bit
+            check_image(im, f"images[{k}][{t}]")
         sizes = {f.shape for f in frames}
         out.append(frames)
         if len(sizes) != 1:
@@ -180,7 +244,8 @@ def as_sequences(images) -> np.ndarray:
 
 
 def track_points(images, initial_xy, *, params: TrackerParams | None = None,
-                 new_points=None, initial_velocity=None, progress: bool = False) -> Tracks:
+                 new_points=None, initial_velocity=None, cameras=None,
+                 progress: bool = False) -> Tracks:
     """Track points through K synchronised image sequences (LSMTA, Fig. 7 and Fig. 9).
 
     Parameters
@@ -198,6 +263,10 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
     initial_velocity : (K, N, 2) array, optional
         Image velocity (pixels/frame) for the first prediction; default: none (the first
         search uses the bigger box).
+    cameras : sequence of K Camera, optional
+        The calibrated cameras (K > 1): a frame is accepted only if its K positions
+        intersect with every reprojection error at most ``params.max_reprojection`` px
+        (a geometric check beyond the paper's spatial LSM).
     progress : bool
         Show a progress bar over the frames.
 
@@ -206,12 +275,9 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
     Tracks
     """
     p = params or TrackerParams()
-    _check_params(p)
     seq = as_sequences(images)
     K, T = seq.shape[:2]
-    if K > 1 and not 0 <= p.template < K:
-        raise ValueError(f"params.template: expected a camera index in [0, {K - 1}], "
-                         f"got {p.template}")
+    _check_params(p, K)
     xy0 = as_array(initial_xy, "initial_xy", shape=(K, None, 2), allow_nan=True)
     started = np.isfinite(xy0).all(axis=(0, 2))
     if not started.any():
@@ -220,70 +286,211 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
     vel0 = None
     if initial_velocity is not None:
         vel0 = as_array(initial_velocity, "initial_velocity", shape=xy0.shape, allow_nan=True)
-    state = _State.initial(xy0, started, T)
+    if cameras is not None:
+        cameras = list(cameras)
+        if K < 2 or len(cameras) != K or not all(isinstance(c, Camera) for c in cameras):
+            raise ValueError(f"cameras: expected {K} lsmta.camera.Camera (one per image "
+                             "sequence, at least 2), or None")
     splines = [SplineImage(seq[k, 0], "images") for k in range(K)]
-    if K > 1:
-        state.spatial_A[:, started] = _spatial_affine(splines, xy0[:, started], p)
+    first = _Anchors.sampled(splines, xy0, 0, p.patch)
+    started &= _spatial_start(first, splines, xy0, p)
+    state = _State.initial(xy0, started, T, first, cameras)
     for t in tqdm(range(T - 1), desc="tracking", disable=not progress):
         nxt = [SplineImage(seq[k, t + 1], "images") for k in range(K)]
         _advance(state, seq, splines, nxt, t, p, vel0 if t == 0 else None)
         if new_points is not None and (t + 1) % p.density_every == 0:
+            _search_missing(state, seq, nxt, t + 1, p)
             _add_where_sparse(state, new_points, nxt, t + 1, p)
+        _end_missing(state, t + 1, p.max_gap)
         splines = nxt
-    return Tracks(xy=state.xy, start=state.start, end=state.end,
-                  status=np.asarray(state.status, np.int64), retried=state.retried,
-                  added=state.added, origin=state.origin)
+    return state.result()
 
 
-def _check_params(p: TrackerParams) -> None:
-    check_patch(p.patch)
-    for name in ("radius", "retry_radius"):
-        r = getattr(p, name)
-        if isinstance(r, bool) or int(r) != r or r < 1:
-            raise ValueError(f"params.{name}: expected an integer >= 1 (pixels), got {r}")
-    if isinstance(p.density_every, bool) or int(p.density_every) != p.density_every \
-            or p.density_every < 1:
-        raise ValueError(f"params.density_every: expected an integer >= 1 (frames), got "
-                         f"{p.density_every}")
-    if isinstance(p.neighbours, bool) or int(p.neighbours) != p.neighbours or p.neighbours < 1:
-        raise ValueError(f"params.neighbours: expected an integer >= 1 (tracks), got "
-                         f"{p.neighbours}")
+def _check_params(p: TrackerParams, K: int) -> None:
+    check_patch(p.patch, "params.patch")
+    for name, low, unit in (("radius", 1, "pixels"), ("retry_radius", 1, "pixels"),
+                            ("density_every", 1, "frames"), ("neighbours", 1, "tracks"),
+                            ("max_gap", 0, "frames"), ("max_iter", 1, "iterations")):
+        v = getattr(p, name)
+        if isinstance(v, bool) or int(v) != v or v < low:
+            raise ValueError(f"params.{name}: expected an integer >= {low} ({unit}), got {v}")
+    if K > 1 and not (isinstance(p.template, int | np.integer) and 0 <= p.template < K):
+        raise ValueError(f"params.template: expected a camera index in [0, {K - 1}], "
+                         f"got {p.template}")
+    if p.anchor not in ANCHORS:
+        raise ValueError(f"params.anchor: expected one of {list(ANCHORS)}, got {p.anchor!r}")
     as_scalar(p.max_disagreement, "params.max_disagreement", positive=True)
     as_scalar(p.min_distance, "params.min_distance", nonnegative=True)
+    as_scalar(p.tol, "params.tol", positive=True)
+    as_scalar(p.max_reprojection, "params.max_reprojection", positive=True)
+    as_scalar(p.reanchor_distortion, "params.reanchor_distortion", positive=True)
+    if not as_scalar(p.reanchor_sigma0, "params.reanchor_sigma0") > 1:
+        raise ValueError(f"params.reanchor_sigma0: expected a factor > 1, got "
+                         f"{p.reanchor_sigma0}")
 
 
-def _advance(state: _State, seq, splines, nxt, t: int, p: TrackerParams, vel0) -> None:
-    """Frame ``t`` -> ``t + 1`` for the live tracks: prediction, a step in the normal box,
-    the rejected ones again in the bigger box; tracks rejected twice are lost."""
-    live = np.flatnonzero(state.status == TrackStatus.ALIVE)
-    live = live[state.end[live] == t]
-    if not live.size:
+# ---------------------------------------------------------------------- state
+@dataclass
+class _Anchors:
+    """One anchor template per track and camera, and the affinities that go with it."""
+
+    templates: list           # K Templates
+    A: np.ndarray             # (K, N, 2, 2) template -> the last frame it matched
+    S: np.ndarray             # (K, N, 2, 2) template camera's template -> camera k's
+    D: np.ndarray             # (K, N, 2) spatial LSM result - own position, when anchored
+    frame: np.ndarray         # (N,) anchor frame (-1: none yet)
+    sigma_ref: np.ndarray     # (K, N) sigma0 of the first match after anchoring
+
+    @classmethod
+    def sampled(cls, splines, xy, frame: int, patch: int) -> _Anchors:
+        """Templates at ``xy`` ``(K, n, 2)`` of the images ``splines`` (frame ``frame``)."""
+        K, n = xy.shape[:2]
+        return cls(templates=[sample_templates(s, xy[k], patch) for k, s in enumerate(splines)],
+                   A=_eye(K, n), S=_eye(K, n), D=np.zeros((K, n, 2)),
+                   frame=np.full(n, frame, np.int64), sigma_ref=np.full((K, n), np.nan))
+
+    def take(self, rows) -> _Anchors:
+        return _Anchors(templates=[tm.take(rows) for tm in self.templates], A=self.A[:, rows],
+                        S=self.S[:, rows], D=self.D[:, rows], frame=self.frame[rows],
+                        sigma_ref=self.sigma_ref[:, rows])
+
+    def extend(self, other: _Anchors) -> None:
+        self.templates = [a.extend(b) for a, b in zip(self.templates, other.templates)]
+        for name, axis in (("A", 1), ("S", 1), ("D", 1), ("frame", 0), ("sigma_ref", 1)):
+            setattr(self, name, np.concatenate([getattr(self, name), getattr(other, name)],
+                                               axis=axis))
+
+    def put(self, rows, other: _Anchors) -> None:
+        for a, b in zip(self.templates, other.templates):
+            a.put(rows, b)
+        self.A[:, rows], self.S[:, rows], self.D[:, rows] = other.A, other.S, other.D
+        self.frame[rows], self.sigma_ref[:, rows] = other.frame, other.sigma_ref
+
+
+@dataclass
+class _State:
+    xy: np.ndarray            # (T, K, N, 2)
+    start: np.ndarray
+    end: np.ndarray
+    status: np.ndarray
+    retried: np.ndarray
+    added: np.ndarray
+    origin: np.ndarray
+    anchor: np.ndarray        # (T, N) frame of the template that matched frame t
+    recovered: np.ndarray
+    first: _Anchors           # the first templates: A maps them to the last tracked frame
+    fallback: _Anchors        # used where the first ones fail (see the module docstring)
+    link: np.ndarray          # (K, N, 2, 2) first template -> the fallback's anchor frame
+    on_fallback: np.ndarray   # (N,) the last tracked frame was matched with the fallback
+    cameras: list | None      # for the geometric check
+
+    @classmethod
+    def initial(cls, xy0, started, T: int, first: _Anchors, cameras=None) -> _State:
+        """The initial points at frame 0 (the state grows when the density check adds)."""
+        K, N = xy0.shape[:2]
+        xy = np.full((T, K, N, 2), np.nan)
+        xy[0] = np.where(started[None, :, None], xy0, np.nan)
+        anchor = np.full((T, N), -1, np.int64)
+        anchor[0, started] = 0
+        fallback = _Anchors(templates=[tm.take(np.arange(N)) for tm in first.templates],
+                            A=_eye(K, N), S=_eye(K, N), D=np.zeros((K, N, 2)),
+                            frame=np.full(N, -1, np.int64), sigma_ref=np.full((K, N), np.nan))
+        return cls(xy=xy, start=np.zeros(N, np.int64),
+                   end=np.where(started, 0, -1).astype(np.int64),
+                   status=np.where(started, TrackStatus.ALIVE, TrackStatus.NOT_STARTED),
+                   retried=np.zeros((T, N), bool), added=np.zeros(N, bool),
+                   origin=np.full(N, -1, np.int64), anchor=anchor,
+                   recovered=np.zeros((T, N), bool), first=first, fallback=fallback,
+                   link=_eye(K, N), on_fallback=np.zeros(N, bool), cameras=cameras)
+
+    def append(self, new_xy, t: int, origin, first: _Anchors) -> np.ndarray:
+        """Add tracks starting at frame ``t``; returns their indices."""
+        K, M = new_xy.shape[:2]
+        T, N = self.xy.shape[0], self.xy.shape[2]
+        block = np.full((T, K, M, 2), np.nan)
+        block[t] = new_xy
+        anchor = np.full((T, M), -1, np.int64)
+        anchor[t] = t
+        self.xy = np.concatenate([self.xy, block], axis=2)
+        self.start = np.concatenate([self.start, np.full(M, t)])
+        self.end = np.concatenate([self.end, np.full(M, t)])
+        self.status = np.concatenate([self.status, np.full(M, TrackStatus.ALIVE)])
+        self.retried = np.concatenate([self.retried, np.zeros((T, M), bool)], axis=1)
+        self.added = np.concatenate([self.added, np.ones(M, bool)])
+        self.origin = np.concatenate([self.origin, origin])
+        self.anchor = np.concatenate([self.anchor, anchor], axis=1)
+        self.recovered = np.concatenate([self.recovered, np.zeros((T, M), bool)], axis=1)
+        self.first.extend(first)
+        self.fallback.extend(_Anchors(
+            templates=[tm.take(np.arange(M)) for tm in first.templates], A=_eye(K, M),
+            S=_eye(K, M), D=np.zeros((K, M, 2)), frame=np.full(M, -1, np.int64),
+            sigma_ref=np.full((K, M), np.nan)))
+        self.link = np.concatenate([self.link, _eye(K, M)], axis=1)
+        self.on_fallback = np.concatenate([self.on_fallback, np.zeros(M, bool)])
+        return np.arange(N, N + M)
+
+    def in_play(self) -> np.ndarray:
+        return np.flatnonzero((self.status == TrackStatus.ALIVE)
+                              | (self.status == TrackStatus.MISSING))
+
+    def result(self) -> Tracks:
+        return Tracks(xy=self.xy, start=self.start, end=self.end,
+                      status=np.asarray(self.status, np.int64), retried=self.retried,
+                      added=self.added, origin=self.origin, anchor=self.anchor,
+                      recovered=self.recovered)
+
+
+def _lsm(p: TrackerParams) -> dict:
+    """Settings of every template match: the paper's forward additive LSM for templates that
+    change every frame (``anchor="previous"``, see :func:`match_templates`)."""
+    return dict(thresholds=p.thresholds, max_iter=p.max_iter, tol=p.tol,
+                inverse=p.anchor == "first")
+
+
+def _eye(K, n):
+    return np.broadcast_to(np.eye(2), (K, n, 2, 2)).copy()
+
+
+# ---------------------------------------------------------------------- stages
+def _advance(state: _State, seq, prev, nxt, t: int, p: TrackerParams, vel0) -> None:
+    """Frame ``t`` -> ``t + 1`` for the tracks in play: prediction, the first templates from
+    it (the fallback templates where they fail), the others in the normal box, the live ones
+    that still fail in the bigger box; what is not found is missing."""
+    idx = state.in_play()
+    if not idx.size:
         return
-    pred, known = _predict(state.xy, live, t, p.neighbours)
-    if vel0 is not None:
-        v = vel0[:, live]
-        has = np.isfinite(v).all(axis=(0, 2))
-        pred[:, has] = state.xy[0][:, live[has]] + v[:, has]
-        known |= has
-    radius = np.where(known, p.radius, p.retry_radius)
-    st = _step(seq, splines, nxt, t, state.xy[t][:, live], pred, radius,
-               state.spatial_A[:, live], p)
-    ok, new_xy, A = st.ok, st.xy, st.spatial_A
-    todo = ~ok
-    if todo.any():
-        r2 = np.where(known[todo], p.retry_radius, 2 * p.retry_radius)
-        st2 = _step(seq, splines, nxt, t, state.xy[t][:, live[todo]], pred[:, todo], r2,
-                    state.spatial_A[:, live[todo]], p)
-        idx = np.flatnonzero(todo)
-        ok[idx[st2.ok]] = True
-        new_xy[:, idx[st2.ok]] = st2.xy[:, st2.ok]
-        A[:, idx[st2.ok]] = st2.spatial_A[:, st2.ok]
-        state.retried[t + 1, live[idx[st2.ok]]] = True
-    acc = live[ok]
-    state.xy[t + 1][:, acc] = new_xy[:, ok]
-    state.spatial_A[:, acc] = A[:, ok]
-    state.end[acc] = t + 1
-    state.status[live[~ok]] = TrackStatus.LOST
+    pred, known = _predict(state, idx, t + 1, p.neighbours, vel0)
+    live = state.end[idx] == t
+    first = p.anchor == "first"
+    ok = _attempt(state, seq, prev, nxt, t + 1, idx, pred,
+                  np.where(known, p.radius, p.retry_radius), p, direct=known | ~live,
+                  box=live & (~known | (not first)), fallback=live & known & first)
+    again = live & ~ok
+    if again.any():
+        r2 = np.where(known[again], p.retry_radius, 2 * p.retry_radius)
+        ok2 = _attempt(state, seq, prev, nxt, t + 1, idx[again], pred[:, again], r2, p,
+                       direct=np.zeros(again.sum(), bool), box=~(known[again] & first),
+                       fallback=known[again] & first)
+        state.retried[t + 1, idx[again][ok2]] = True
+    state.status[idx[state.end[idx] < t + 1]] = TrackStatus.MISSING
+
+
+def _search_missing(state: _State, seq, nxt, t: int, p: TrackerParams) -> None:
+    """Density check at frame ``t``, first part: the missing tracks are searched in the
+    ``retry_radius`` box around their predicted positions before sparse cells get new
+    points."""
+    idx = np.flatnonzero(state.status == TrackStatus.MISSING)
+    if idx.size:
+        n = idx.size
+        pred, _ = _predict(state, idx, t, p.neighbours, None)
+        ok = _attempt(state, seq, None, nxt, t, idx, pred, np.full(n, p.retry_radius), p,
+                      direct=np.zeros(n, bool), box=np.ones(n, bool), fallback=np.zeros(n, bool))
+        state.retried[t, idx[ok]] = True
+
+
+def _end_missing(state: _State, t: int, max_gap: int) -> None:
+    gone = (state.status == TrackStatus.MISSING) & (t - state.end > max_gap)
+    state.status[gone] = TrackStatus.LOST
 
 
 def _add_where_sparse(state: _State, new_points, nxt, t: int, p: TrackerParams) -> None:
@@ -298,49 +505,11 @@ def _add_where_sparse(state: _State, new_points, nxt, t: int, p: TrackerParams) 
     add = sparse_candidates(alive_now, cand[tmpl], cell=p.cell, min_per_cell=p.min_per_cell,
                             min_distance=p.min_distance)
     if add.size:
-        state.append(cand[:, add], t, add)
-        if K > 1:
-            state.spatial_A[:, -add.size:] = _spatial_affine(nxt, cand[:, add], p)
-
-
-@dataclass
-class _State:
-    xy: np.ndarray
-    start: np.ndarray
-    end: np.ndarray
-    status: np.ndarray
-    retried: np.ndarray
-    added: np.ndarray
-    origin: np.ndarray
-    spatial_A: np.ndarray
-
-    @classmethod
-    def initial(cls, xy0, started, T: int) -> _State:
-        """The initial points at frame 0 (the state grows when the density check adds)."""
-        K, N = xy0.shape[:2]
-        xy = np.full((T, K, N, 2), np.nan)
-        xy[0] = np.where(started[None, :, None], xy0, np.nan)
-        return cls(xy=xy, start=np.zeros(N, np.int64),
-                   end=np.where(started, 0, -1).astype(np.int64),
-                   status=np.where(started, TrackStatus.ALIVE, TrackStatus.NOT_STARTED),
-                   retried=np.zeros((T, N), bool), added=np.zeros(N, bool),
-                   origin=np.full(N, -1, np.int64),
-                   spatial_A=np.broadcast_to(np.eye(2), (K, N, 2, 2)).copy())
-
-    def append(self, new_xy, t, origin):
-        K, M = new_xy.shape[:2]
-        T = self.xy.shape[0]
-        block = np.full((T, K, M, 2), np.nan)
-        block[t] = new_xy
-        self.xy = np.concatenate([self.xy, block], axis=2)
-        self.start = np.concatenate([self.start, np.full(M, t)])
-        self.end = np.concatenate([self.end, np.full(M, t)])
-        self.status = np.concatenate([self.status, np.full(M, TrackStatus.ALIVE)])
-        self.retried = np.concatenate([self.retried, np.zeros((T, M), bool)], axis=1)
-        self.added = np.concatenate([self.added, np.ones(M, bool)])
-        self.origin = np.concatenate([self.origin, origin])
-        self.spatial_A = np.concatenate(
-            [self.spatial_A, np.broadcast_to(np.eye(2), (K, M, 2, 2))], axis=1)
+        first = _Anchors.sampled(nxt, cand[:, add], t, p.patch)
+        confirmed = _spatial_start(first, nxt, cand[:, add], p)
+        if confirmed.any():
+            keep = np.flatnonzero(confirmed)
+            state.append(cand[:, add[keep]], t, add[keep], first.take(keep))
 
 
 def _candidates(new_points, t, K):
@@ -355,38 +524,230 @@ def _candidates(new_points, t, K):
     return c[:, good] if good.any() else None
 
 
-def _predict(xy, live, t, neighbours):
-    """Linear prediction (K, n, 2) and whether the track had a history (n,)."""
-    cur = xy[t][:, live]
-    prev = xy[t - 1][:, live] if t >= 1 else np.full_like(cur, np.nan)
+def _predict(state: _State, idx, t: int, neighbours: int, vel0):
+    """Predicted positions ``(K, n, 2)`` at frame ``t`` from each track's last two tracked
+    frames, extrapolated over its gap, and whether the track had a history ``(n,)``."""
+    last = state.end[idx]
+    cur = state.xy[last, :, idx].transpose(1, 0, 2)               # (K, n, 2)
+    prev = np.full_like(cur, np.nan)
+    has = last >= 1
+    prev[:, has] = state.xy[last[has] - 1, :, idx[has]].transpose(1, 0, 2)
     known = np.isfinite(prev).all(axis=(0, 2))
     vel = np.where(known[None, :, None], cur - prev, 0.0)
     born = np.flatnonzero(~known)
-    if born.size and known.sum() >= 1:
-        src = np.flatnonzero(known)
+    src = np.flatnonzero(known & (last == t - 1))
+    if born.size and src.size:
+        # a neighbour-based prediction is an estimate, not a history: keep the bigger box
         for k in range(cur.shape[0]):
-            tree = cKDTree(cur[k, src])
-            _, nn = tree.query(cur[k, born], k=min(neighbours, len(src)))
+            _, nn = cKDTree(cur[k, src]).query(cur[k, born], k=min(neighbours, len(src)))
             nn = np.atleast_2d(nn.reshape(len(born), -1))
             vel[k, born] = np.median(vel[k, src][nn], axis=1)
-        # a neighbour-based prediction is an estimate, not a history: keep the bigger box
-    return cur + vel, known
+    if vel0 is not None:
+        v = vel0[:, idx]
+        given = np.isfinite(v).all(axis=(0, 2))
+        vel[:, given] = v[:, given]
+        known = known | given
+    return cur + vel * (t - last)[None, :, None], known
 
 
-def _spatial_affine(splines, xy, p: TrackerParams):
-    """Affinities (K, n, 2, 2) from the template camera's patches into the others (spatial
-    LSM at the start positions; identity where it fails)."""
-    K, n = xy.shape[:2]
-    A = np.broadcast_to(np.eye(2), (K, n, 2, 2)).copy()
+@dataclass(frozen=True)
+class _Temporal:
+    ok: np.ndarray              # (n,) every camera accepted
+    xy: np.ndarray              # (K, n, 2)
+    temporal_A: np.ndarray      # (K, n, 2, 2)
+    sigma0: np.ndarray          # (K, n)
+    correlation_xy: np.ndarray  # (K, n, 2) NaN where not searched
+    direct: np.ndarray          # (K, n) matched from the prediction
+
+
+def _attempt(state: _State, seq, prev, nxt, t: int, idx, pred, radius, p: TrackerParams, *,
+             direct, box, fallback) -> np.ndarray:
+    """One attempt at frame ``t`` for the tracks ``idx``; the accepted tracks are written
+    into the state. Returns ``ok (n,)``.
+
+    The first templates are matched from the prediction where ``direct``, and searched in
+    the box of ``radius`` where ``box`` (where the direct match failed or was not tried);
+    where they fail and ``fallback``, the fallback templates (anchored in frame ``t - 1``
+    unless the track holds a fresh one) are matched from the prediction (where ``direct``)
+    and in the box. Then the spatial check per template set and (with cameras) the
+    geometric check.
+    """
+    st = _temporal(state.first, seq, nxt, t, idx, pred, radius, p, direct=direct, box=box)
+    use_fb = fallback & ~st.ok
+    if use_fb.any():
+        _anchor_fallback(state, prev, t - 1, idx[use_fb & ~state.on_fallback[idx]], p)
+        sel = np.flatnonzero(use_fb)
+        st = _merge(st, sel, _temporal(state.fallback, seq, nxt, t, idx[sel], pred[:, sel],
+                                       radius[sel], p, direct=direct[sel],
+                                       box=np.ones(sel.size, bool)))
+    ok = st.ok.copy()
+    M, off = st.temporal_A.copy(), np.zeros(st.xy.shape)
+    if len(nxt) > 1:
+        for anchors, mask in ((state.first, ok & ~use_fb), (state.fallback, ok & use_fb)):
+            sel = np.flatnonzero(mask)
+            if sel.size:
+                agree, M[:, sel], pos = _spatial(anchors, nxt, idx[sel], st.xy[:, sel],
+                                                 st.temporal_A[:, sel], p)
+                off[:, sel] = np.nan_to_num(pos - st.xy[:, sel])
+                ok[sel[~agree]] = False
+    if state.cameras is not None and ok.any():
+        sel = np.flatnonzero(ok)
+        res = triangulate(state.cameras, st.xy[:, sel])
+        ok[sel] = res.valid & (np.nanmax(res.reprojection_error, axis=0) <= p.max_reprojection)
+    if ok.any():
+        _accept(state, nxt, t, idx[ok], st.xy[:, ok], st.temporal_A[:, ok], st.sigma0[:, ok],
+                M[:, ok], off[:, ok], use_fb[ok], p)
+    return ok
+
+
+def _merge(st: _Temporal, sel, other: _Temporal) -> _Temporal:
+    """``st`` with the tracks ``sel`` replaced by ``other``'s."""
+    fields = {}
+    for name in _Temporal.__dataclass_fields__:
+        a = getattr(st, name).copy()
+        a[(slice(None),) * (a.ndim > 1) + (sel,)] = getattr(other, name)
+        fields[name] = a
+    return _Temporal(**fields)
+
+
+def _temporal(anchors: _Anchors, seq, nxt, t: int, idx, pred, radius, p: TrackerParams, *,
+              direct, box) -> _Temporal:
+    """Temporal LSM of the ``anchors`` templates in every camera: from the prediction where
+    ``direct`` (inverse compositional only where not ``box``), else (or when that fails,
+    where ``box``) from the best correlation position in the box of ``radius``."""
+    K, n = pred.shape[:2]
+    xy = np.full((K, n, 2), np.nan)
+    A = np.full((K, n, 2, 2), np.nan)
+    sigma0 = np.full((K, n), np.nan)
+    corr = np.full((K, n, 2), np.nan)
+    by_pred = np.zeros((K, n), bool)
+    ok = np.ones(n, bool)
+
+    def match(k, sel, start, fallback):
+        res = match_templates(anchors.templates[k], idx[sel], nxt[k], start,
+                              anchors.A[k, idx[sel]], fallback=fallback, **_lsm(p))
+        good = res.ok
+        xy[k, sel[good]], A[k, sel[good]] = res.xy[good], res.A[good]
+        sigma0[k, sel[good]] = res.sigma0[good]
+        return sel[good]
+
     for k in range(K):
-        if k == p.template:
+        got = np.zeros(n, bool)
+        sel = np.flatnonzero(direct & ok)
+        got[match(k, sel, pred[k, sel], bool(box[sel].any()))] = True
+        by_pred[k] = got
+        for r in np.unique(radius[~got & ok & box]):
+            sel = np.flatnonzero(~got & ok & box & (radius == r))
+            c = search_templates(anchors.templates[k], idx[sel], seq[k, t], pred[k, sel], int(r))
+            corr[k, sel] = c
+            found = np.isfinite(c).all(axis=1)
+            got[match(k, sel[found], c[found], True)] = True
+        ok &= got
+    return _Temporal(ok=ok, xy=xy, temporal_A=A, sigma0=sigma0, correlation_xy=corr,
+                     direct=by_pred)
+
+
+def _spatial(anchors: _Anchors, nxt, idx, xy, A, p: TrackerParams):
+    """Spatial LSM: the template camera's template into every other camera's frame, started
+    where the spatial relation at the anchor (``S``, ``D``) puts it. Returns ``agree (m,)``
+    (within ``max_disagreement`` of that), the affinities ``M (K, m, 2, 2)`` from the
+    template camera's template into each camera's frame and the positions ``(K, m, 2)``
+    (NaN for the template camera)."""
+    K, m = xy.shape[:2]
+    tm = p.template
+    agree = np.ones(m, bool)
+    M = A.copy()
+    pos = np.full((K, m, 2), np.nan)
+    for k in range(K):
+        if k == tm:
             continue
-        res = lsm(splines[p.template], splines[k], xy[p.template], xy[k], patch=p.patch,
-                  geometry=p.geometry, thresholds=p.thresholds, max_iter=p.max_iter, tol=p.tol)
-        A[k, res.ok] = res.A[res.ok]
-    return A
+        expect = xy[k] + np.einsum("nij,nj->ni", A[k], anchors.D[k, idx])
+        res = match_templates(anchors.templates[tm], idx, nxt[k], expect,
+                              A[k] @ anchors.S[k, idx], **_lsm(p))
+        pos[k] = res.xy
+        agree &= res.ok & (np.linalg.norm(res.xy - expect, axis=1) <= p.max_disagreement)
+        M[k] = res.A
+    return agree, M, pos
 
 
+def _spatial_start(anchors: _Anchors, splines, xy, p: TrackerParams) -> np.ndarray:
+    """Spatial relation ``S``, ``D`` of freshly sampled templates (all rows of ``anchors``)
+    at their positions ``xy`` ``(K, n, 2)``. Returns ``confirmed (n,)``: every template is
+    textured and (K > 1) the spatial LSM lands within ``max_disagreement`` of each
+    camera's start position."""
+    K, n = xy.shape[:2]
+    confirmed = np.all([tm.ok for tm in anchors.templates], axis=0)
+    tm, rows = p.template, np.arange(n)
+    for k in range(K if K > 1 and n else 0):
+        if k == tm:
+            continue
+        res = match_templates(anchors.templates[tm], rows, splines[k], xy[k], _eye(1, n)[0],
+                              **_lsm(p))
+        anchors.S[k, res.ok] = res.A[res.ok]
+        anchors.D[k, res.ok] = res.xy[res.ok] - xy[k, res.ok]
+        confirmed &= res.ok & (np.linalg.norm(res.xy - xy[k], axis=1) <= p.max_disagreement)
+    return confirmed
+
+
+def _anchor_fallback(state: _State, splines, t: int, rows, p: TrackerParams) -> None:
+    """Fallback templates from frame ``t`` (the tracks' last frame, matched with their first
+    templates): the spatial relation is carried over from the first templates."""
+    if not rows.size:
+        return
+    K = len(splines)
+    new = _Anchors.sampled(splines, state.xy[t][:, rows], t, p.patch)
+    A1 = state.first.A[:, rows]
+    if K > 1:
+        new.S[:] = A1 @ state.first.S[:, rows] @ np.linalg.inv(A1[p.template])[None]
+        new.D[:] = np.einsum("knij,knj->kni", A1, state.first.D[:, rows])
+    state.fallback.put(rows, new)
+    state.link[:, rows] = A1
+    state.on_fallback[rows] = True
+
+
+def _accept(state: _State, nxt, t: int, rows, xy, A, sigma0, M, off, fb,
+            p: TrackerParams) -> None:
+    """Write the accepted tracks at frame ``t``; re-anchor the fallback templates that are
+    due (every accepted track's first templates with ``anchor="previous"``)."""
+    state.recovered[t, rows] = state.end[rows] < t - 1
+    state.xy[t][:, rows] = xy
+    state.end[rows] = t
+    state.status[rows] = TrackStatus.ALIVE
+    state.on_fallback[rows] = fb
+    r1, r2 = rows[~fb], rows[fb]
+    state.first.A[:, r1] = A[:, ~fb]
+    state.fallback.A[:, r2] = A[:, fb]
+    state.first.A[:, r2] = A[:, fb] @ state.link[:, r2]
+    state.anchor[t, r1] = state.first.frame[r1]
+    state.anchor[t, r2] = state.fallback.frame[r2]
+    for anchors, r, s in ((state.first, r1, sigma0[:, ~fb]), (state.fallback, r2, sigma0[:, fb])):
+        anchors.sigma_ref[:, r] = np.where(np.isnan(anchors.sigma_ref[:, r]), s,
+                                           anchors.sigma_ref[:, r])
+    if p.anchor == "previous":
+        _reanchor(state.first, nxt, t, rows, xy, A, M, off, p)
+        return
+    Af = A[:, fb]
+    grown = (sigma0[:, fb] > p.reanchor_sigma0 * state.fallback.sigma_ref[:, r2]).any(axis=0)
+    bent = (np.linalg.norm(Af - np.eye(2), ord=2, axis=(2, 3)) > p.reanchor_distortion).any(0)
+    due = grown | bent
+    if due.any():
+        _reanchor(state.fallback, nxt, t, r2[due], xy[:, fb][:, due], Af[:, due],
+                  M[:, fb][:, due], off[:, fb][:, due], p)
+        state.link[:, r2[due]] = state.first.A[:, r2[due]]
+
+
+def _reanchor(anchors: _Anchors, nxt, t: int, rows, xy, A, M, off, p: TrackerParams) -> None:
+    """New templates at ``xy`` ``(K, n, 2)`` of frame ``t`` for ``rows`` (matched there with
+    the affinities ``A``); the spatial relation follows from the spatial results
+    (``S_k = M_k A_tm^-1``, ``D = off``), ``A`` restarts at the identity."""
+    new = _Anchors.sampled(nxt, xy, t, p.patch)
+    if len(nxt) > 1:
+        new.S[:] = M @ np.linalg.inv(A[p.template])[None]
+        new.D[:] = off
+    anchors.put(rows, new)
+
+
+# ---------------------------------------------------------------------- one step
 @dataclass(frozen=True)
 class StepResult:
     """One attempt of one temporal step for n tracks in K cameras (see :func:`track_step`).
@@ -394,22 +755,26 @@ class StepResult:
     Attributes
     ----------
     ok : (n,) bool array
-        Accepted: correlation found, every temporal LSM passed its thresholds and (K > 1)
-        every spatial LSM stayed within ``max_disagreement`` of the temporal result.
+        Accepted: every temporal LSM passed its thresholds and (K > 1) every spatial LSM
+        stayed within ``max_disagreement`` of the temporal result.
+    direct : (K, n) bool array
+        Matched from the prediction, without the correlation search.
     correlation_xy : (K, n, 2) array
-        Best correlation positions in the next frame, px (NaN: none, or not reached).
+        Best correlation positions in the next frame, px (NaN: not searched, or no peak
+        inside the box).
     xy : (K, n, 2) array
-        Temporal LSM results, px (NaN where the correlation or the LSM failed).
+        Temporal LSM results, px (NaN where the LSM failed or was not reached).
     temporal_A : (K, n, 2, 2) array
-        Affine parts of the temporal LSM (NaN where not computed).
+        Affinities of the temporal LSM (anchor template to next frame; NaN where failed).
     spatial_xy : (K, n, 2) array
         Spatial LSM results (template camera matched into camera k), px; NaN for the
         template camera and where not computed.
     spatial_A : (K, n, 2, 2) array
-        Spatial affinities after the step (the input's where the step failed).
+        Spatial affinities of the anchor templates (template camera to camera k) used.
     """
 
     ok: np.ndarray
+    direct: np.ndarray
     correlation_xy: np.ndarray
     xy: np.ndarray
     temporal_A: np.ndarray
@@ -418,12 +783,14 @@ class StepResult:
 
 
 def track_step(frame, next_frame, xy, predicted, radius, *, params: TrackerParams | None = None,
-               spatial_A=None) -> StepResult:
-    """One temporal step of the tracker (Fig. 7), exactly as :func:`track_points` makes it.
+               direct: bool = True) -> StepResult:
+    """One temporal step of tracks anchored in ``frame``, exactly as :func:`track_points`
+    makes its first step (Fig. 7).
 
-    Correlation search around the prediction, temporal LSM from the best correlation
-    position, then (K > 1) the spatial LSM check; no retry in a bigger box (call again with
-    ``params.retry_radius``).
+    Templates are anchored at ``xy`` (with the spatial LSM between the cameras); each is
+    matched into ``next_frame`` from ``predicted`` (if ``direct``) and, where that fails,
+    from the best correlation position in the box of ``radius``; then (K > 1) the spatial
+    check. No retry in a bigger box (call again with ``params.retry_radius``).
 
     Parameters
     ----------
@@ -436,83 +803,40 @@ def track_step(frame, next_frame, xy, predicted, radius, *, params: TrackerParam
     radius : int or (n,) int array
         Half-width of the search box, px.
     params : TrackerParams, optional
-    spatial_A : (K, n, 2, 2) array, optional
-        Spatial affinities from the template camera into each camera (default: identity).
+    direct : bool
+        Try the anchored LSM from the prediction first (the tracker does for every track
+        with a history).
 
     Returns
     -------
     StepResult
     """
     p = params or TrackerParams()
-    check_patch(p.patch)
     if len(frame) != len(next_frame):
         raise ValueError(f"next_frame: expected {len(frame)} images (one per camera), got "
                          f"{len(next_frame)}")
     seq = as_sequences([[a, b] for a, b in zip(frame, next_frame)])      # (K, 2, H, W)
     K = seq.shape[0]
+    _check_params(p, K)
     cur = as_array(xy, "xy", shape=(K, None, 2))
     pred = as_array(predicted, "predicted", shape=cur.shape)
     n = cur.shape[1]
     r = np.broadcast_to(np.asarray(radius), (n,))
     if r.size and (r.dtype == bool or np.any(r != np.rint(r)) or np.any(r < 1)):
         raise ValueError(f"radius: expected integers >= 1 (pixels), got {radius}")
-    if spatial_A is None:
-        spatial_A = np.broadcast_to(np.eye(2), (K, n, 2, 2))
-    A = as_array(spatial_A, "spatial_A", shape=(K, n, 2, 2))
     splines = [SplineImage(seq[k, 0], "frame") for k in range(K)]
     nxt = [SplineImage(seq[k, 1], "next_frame") for k in range(K)]
-    return _step(seq, splines, nxt, 0, cur, pred, r.astype(np.int64), A, p)
-
-
-def _step(seq, splines, nxt, t, cur, pred, radius, spatial_A, p: TrackerParams) -> StepResult:
-    """One attempt: correlation + temporal LSM per camera, spatial LSM."""
-    K, n = cur.shape[:2]
-    new_xy = np.full((K, n, 2), np.nan)
-    ok = np.ones(n, bool)
-    A_out = np.array(spatial_A, float)
-    corr_xy = np.full((K, n, 2), np.nan)
-    tA = np.full((K, n, 2, 2), np.nan)
+    first = _Anchors.sampled(splines, cur, 0, p.patch)
+    _spatial_start(first, splines, cur, p)
+    rows = np.arange(n)
+    st = _temporal(first, seq, nxt, 1, rows, pred, r.astype(np.int64), p,
+                   direct=np.full(n, bool(direct)), box=np.ones(n, bool))
+    ok = st.ok.copy()
     sp_xy = np.full((K, n, 2), np.nan)
-
-    def result():
-        return StepResult(ok=ok, correlation_xy=corr_xy, xy=new_xy, temporal_A=tA,
-                          spatial_xy=sp_xy, spatial_A=A_out)
-
-    for k in range(K):
-        found = np.zeros(n, bool)
-        for r in np.unique(radius):
-            sel = np.flatnonzero((radius == r) & ok)
-            if sel.size == 0:
-                continue
-            c = correlation_search(seq[k, t], seq[k, t + 1], cur[k, sel], pred[k, sel],
-                                   patch=p.patch, radius=int(r))
-            good = c.status == CorrelationStatus.OK
-            corr_xy[k, sel[good]] = c.xy[good]
-            found[sel[good]] = True
-        ok &= found
+    if K > 1 and ok.any():
         sel = np.flatnonzero(ok)
-        if sel.size == 0:
-            return result()
-        res = lsm(splines[k], nxt[k], cur[k, sel], corr_xy[k, sel], patch=p.patch,
-                  geometry=p.geometry, thresholds=p.thresholds, max_iter=p.max_iter, tol=p.tol)
-        tA[k, sel] = res.A
-        ok[sel[~res.ok]] = False
-        new_xy[k, sel[res.ok]] = res.xy[res.ok]
-    if K == 1 or not ok.any():
-        return result()
-    tm = p.template
-    for k in range(K):
-        if k == tm:
-            continue
-        sel = np.flatnonzero(ok)
-        if sel.size == 0:
-            break
-        res = lsm(nxt[tm], nxt[k], new_xy[tm, sel], new_xy[k, sel], patch=p.patch,
-                  geometry=p.geometry, initial_A=spatial_A[k, sel], thresholds=p.thresholds,
-                  max_iter=p.max_iter, tol=p.tol)
-        sp_xy[k, sel] = res.xy
-        d = np.linalg.norm(res.xy - new_xy[k, sel], axis=1)
-        agree = res.ok & (d <= p.max_disagreement)
+        agree, _, sp_xy[:, sel] = _spatial(first, nxt, sel, st.xy[:, sel], st.temporal_A[:, sel],
+                                           p)
         ok[sel[~agree]] = False
-        A_out[k, sel[agree]] = res.A[agree]
-    return result()
+    return StepResult(ok=ok, direct=st.direct, correlation_xy=st.correlation_xy, xy=st.xy,
+                      temporal_A=st.temporal_A, spatial_xy=sp_xy, spatial_A=first.S.copy())

@@ -276,12 +276,7 @@ def detect(frames, threshold: Threshold, *, params: DetectionParams | None = Non
     p = DetectionParams() if params is None else params
     if not isinstance(threshold, Threshold) or threshold.threshold.shape != (H, W):
         raise ValueError("threshold: expected a Threshold of the frames' image size")
-    valid = np.ones((H, W), bool)
-    if invalid is not None:
-        inv = np.asarray(invalid)
-        if inv.shape != (H, W) or inv.dtype != bool:
-            raise ValueError(f"invalid: expected a boolean mask of shape {(H, W)}")
-        valid = ~inv
+    valid = _valid_mask(invalid, (H, W))
     if mode not in ("full", "subsampled"):
         raise ValueError(f"mode: expected 'full' or 'subsampled', got {mode!r}")
     previous = isinstance(predicted, str) and predicted == "previous"
@@ -372,3 +367,13 @@ def _search_subsampled(found: _Found, rng, predicted, previous: bool) -> None:
                                          int(jit[t, 0]), int(jit[t, 1]), p.min_area,
                                          p.max_area)
         found.add(xy, area, int(tested))
+
+
+def _valid_mask(invalid, shape) -> np.ndarray:
+    """The pixels to report: the complement of the boolean mask ``invalid`` (or all)."""
+    if invalid is None:
+        return np.ones(shape, bool)
+    inv = np.asarray(invalid)
+    if inv.shape != tuple(shape) or inv.dtype != bool:
+        raise ValueError(f"invalid: expected a boolean mask of shape {tuple(shape)}")
+    return ~inv

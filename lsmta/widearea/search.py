@@ -20,7 +20,7 @@ import numpy as np
 
 from .._validate import as_rng
 from ._kernels import search_kernel
-from .detection import DetectionParams, Threshold, _test_threshold
+from .detection import DetectionParams, Threshold, _test_threshold, _valid_mask
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,12 +81,7 @@ def search_setup(threshold: Threshold, *, invalid=None, dtype=np.uint8,
     if not isinstance(threshold, Threshold):
         raise TypeError("threshold: expected an lsmta.widearea.Threshold")
     H, W = threshold.threshold.shape
-    valid = np.ones((H, W), bool)
-    if invalid is not None:
-        inv = np.asarray(invalid)
-        if inv.shape != (H, W) or inv.dtype != bool:
-            raise ValueError(f"invalid: expected a boolean mask of shape {(H, W)}")
-        valid = ~inv
+    valid = _valid_mask(invalid, (H, W))
     dtype = np.dtype(dtype)
     if not (np.issubdtype(dtype, np.integer) or np.issubdtype(dtype, np.floating)):
         raise TypeError(f"dtype: expected a real numeric image dtype, got {dtype}")
@@ -143,7 +138,7 @@ def search_frame(frame, setup: SearchSetup, *, windows=None, half_sizes=None,
         jr, jc = jitter
         if not (0 <= jr < k and 0 <= jc < k):
             raise ValueError(f"jitter: expected two offsets in [0, {k}), got {jitter}")
-    centres = np.zeros((0, 2)) if windows is None else np.asarray(windows, float)
+    centres = np.zeros((0, 2)) if windows is None else np.ascontiguousarray(windows, float)
     if centres.ndim != 2 or centres.shape[1] != 2:
         raise ValueError(f"windows: expected an (n, 2) array of positions, got shape "
                          f"{centres.shape}")

@@ -1,0 +1,176 @@
+"""Tracking in real video without truth: the four synchronised views of Pose2Sim's demo.
+
+The copy in ``data/pose2sim_demo/`` holds the four videos (1080-1088 x 1920 px, 60 fps,
+100 frames, one person walking on a treadmill with skin markers) and their Qualisys
+calibration. Without truth, tracking is judged by what needs none:
+
+* the *forward-backward error*: a point tracked from frame 0 to the last frame and back
+  from its end position should return to its start (for a frame-to-frame tracker this
+  measures how reversible each step is, not its drift: going back retraces the same frame
+  pairs; for anchored templates the way back uses the last frame's template, so the error
+  also contains the change of appearance over the sequence);
+* the *multi-view reprojection residual*: a marker tracked in several views and
+  intersected with the calibrated cameras should reproject onto its tracked positions;
+* the *epipolar consistency* of the calibration itself, measured with the markers found in
+  two views (:func:`epipolar_partners`), which says how far that residual can go down.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .._validate import as_rng, as_scalar
+from ..camera_files import read_qca
+from ..synth.sequence import scaled_camera
+from ..tracking.correspondence import _ray_distance
+from ..tracking.points import Tracks
+from ..triangulation import triangulate
+
+DATA = Path(__file__).resolve().parents[2] / "data" / "pose2sim_demo"
+VIEWS = ("cam01", "cam02", "cam03", "cam04")
+
+
+@dataclass(frozen=True)
+class RealVideo:
+    """The demo's four views, grey and scaled.
+
+    Attributes
+    ----------
+    grey : list of K (T, H_k, W_k) uint8 arrays
+        Every frame, grey, scaled by ``scale`` (the views' widths differ by a few px).
+    first : list of K (H, W, 3) uint8 arrays
+        Frame 0 in colour (BGR), full size: for finding markers.
+    cameras : list of K Camera
+        The Qualisys calibration scaled by ``scale``.
+    scale : float
+    fps : float
+    """
+
+    grey: list
+    first: list
+    cameras: list
+    scale: float
+    fps: float
+
+
+def read_video(path, *, scale: float = 1.0, frames: int | None = None):
+    """A video's frames as grey ``(T, H, W)`` uint8 (scaled by ``scale``, area
+    interpolation), its frame 0 in colour (BGR, full size) and its frame rate."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"path: no video at {path}")
+    scale = as_scalar(scale, "scale", positive=True)
+    cap = cv2.VideoCapture(str(path))
+    fps = float(cap.get(cv2.CAP_PROP_FPS))
+    grey, first = [], None
+    while frames is None or len(grey) < frames:
+        ok, f = cap.read()
+        if not ok:
+            break
+        first = f if first is None else first
+        g = cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
+        if scale != 1.0:
+            g = cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        grey.append(g)
+    cap.release()
+    if not grey:
+        raise ValueError(f"path: {path} holds no frame OpenCV can decode")
+    return np.stack(grey), first, fps
+
+
+def load_demo(*, scale: float = 0.5, frames: int | None = None,
+              folder: Path | None = None) -> RealVideo:
+    """The four views of the demo (``folder`` defaults to the project's copy)."""
+    folder = Path(folder) if folder is not None else DATA
+    cams = read_qca(folder / "Calib.qca.txt")
+    grey, first, fps = zip(*(read_video(folder / f"{v}.mp4", scale=scale, frames=frames)
+                             for v in VIEWS))
+    if len(set(fps)) != 1:
+        raise ValueError(f"folder: the views' frame rates differ: {fps}")
+    return RealVideo(grey=list(grey), first=list(first),
+                     cameras=[scaled_camera(c, scale) for c in cams], scale=float(scale),
+                     fps=fps[0])
+
+
+def skin_points(colour, *, avoid=None, max_points: int = 150, min_distance: float = 12.0,
+                quality: float = 0.02, min_skin: float = 60.0,
+                max_hue: float = 25.0) -> np.ndarray:
+    """Natural skin texture worth tracking: Shi-Tomasi corners
+    (``cv2.goodFeaturesToTrack``) of a colour frame inside its skin (a 17 px mean of the
+    saturation above ``min_skin`` and of the hue below ``max_hue``), at least
+    ``min_distance`` px from each other and from the points ``avoid`` (e.g. the markers).
+    Returns ``(M, 2)`` positions, px."""
+    hsv = cv2.cvtColor(colour, cv2.COLOR_BGR2HSV).astype(np.float64)
+    skin = (cv2.blur(hsv[..., 1], (17, 17)) > min_skin) & (cv2.blur(hsv[..., 0], (17, 17))
+                                                          < max_hue)
+    mask = cv2.erode(skin.astype(np.uint8), np.ones((9, 9), np.uint8))
+    if avoid is not None:
+        for x, y in np.asarray(avoid, float).reshape(-1, 2):
+            cv2.circle(mask, (int(round(x)), int(round(y))), int(min_distance), 0, -1)
+    grey = cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY)
+    pts = cv2.goodFeaturesToTrack(grey, maxCorners=max_points, qualityLevel=quality,
+                                  minDistance=min_distance, mask=mask)
+    return np.zeros((0, 2)) if pts is None else pts.reshape(-1, 2).astype(float)
+
+
+def forward_backward(track, grey, xy0) -> tuple[Tracks, np.ndarray]:
+    """Track forward with ``track(frames, xy0)`` and back from the end positions of the
+    tracks alive in the last frame; returns the forward tracks and the error ``(N,)`` at
+    frame 0, px (NaN where the track did not reach the end or did not come back).
+
+    ``track`` takes a ``(T, H, W)`` sequence and ``(N, 2)`` start positions and returns
+    single-view :class:`~lsmta.tracking.Tracks`."""
+    fwd = track(grey, xy0)
+    end = fwd.xy[-1, 0]
+    alive = np.isfinite(end).all(axis=1)
+    err = np.full(len(xy0), np.nan)
+    if alive.any():
+        back = track(grey[::-1], end[alive])
+        err[alive] = np.linalg.norm(back.xy[-1, 0] - xy0[alive], axis=1)
+    return fwd, err
+
+
+def epipolar_partners(cameras, detections, a: int, b: int, *, max_ray_distance: float,
+                      shift: float = 0.0, rng: np.random.Generator | int | None = None) -> int:
+    """How many detections of views ``a`` and ``b`` pair up, one to one, with rays passing
+    within ``max_ray_distance`` mm of each other (greedy, closest first). With ``shift``
+    every detection is first moved by a uniform random offset of up to ``shift`` px: the
+    control, the count that chance alone gives."""
+    da = np.asarray(detections[a], float)
+    db = np.asarray(detections[b], float)
+    if shift:
+        rng = as_rng(rng)
+        da = da + rng.uniform(-shift, shift, da.shape)
+        db = db + rng.uniform(-shift, shift, db.shape)
+    if not len(da) or not len(db):
+        return 0
+    D = _ray_distance(cameras[a].rays(da), cameras[b].rays(db))
+    used_a, used_b, n = set(), set(), 0
+    for i, j in zip(*np.unravel_index(np.argsort(D, axis=None), D.shape)):
+        if D[i, j] > max_ray_distance:
+            break
+        if i not in used_a and j not in used_b:
+            used_a.add(i)
+            used_b.add(j)
+            n += 1
+    return n
+
+
+def reprojection_residuals(cameras, xy) -> np.ndarray:
+    """Largest reprojection error ``(T, P)`` of P points tracked in K views over T frames,
+    ``xy`` ``(T, K, P, 2)``, px: each frame's positions seen in at least two views are
+    intersected (NaN where fewer)."""
+    T, K, P, _ = xy.shape
+    out = np.full((T, P), np.nan)
+    for t in range(T):
+        seen = np.isfinite(xy[t]).all(axis=2).sum(axis=0) >= 2
+        if seen.any():
+            res = triangulate(cameras, xy[t][:, seen])
+            with np.errstate(invalid="ignore"):
+                out[t, seen] = np.where(res.valid, np.nanmax(res.reprojection_error, axis=0),
+                                        np.nan)
+    return out

@@ -1,0 +1,398 @@
+"""Anchored templates: a track's patch from its anchor frame, matched into any later frame.
+
+Drift-free temporal matching (Matthews, Ishikawa & Baker 2004, "The template update
+problem", IEEE PAMI 26(6)): instead of matching frame ``t``'s patch into frame ``t + 1``
+(whose small errors add up frame after frame, a random walk of the position), every frame
+is matched against the *anchor* patch ``f`` sampled once, at the track's anchor position
+in its anchor frame; the previous frame's solution is only the start. The model is the
+affine least squares matching model of :func:`~lsmta.matching.lsm` with linear radiometry,
+
+    r0 + r1 g(c + A u) = f(u) + e(u),
+
+``u`` the offset of a patch pixel (px), ``c`` the position in the search image, ``A`` the
+affinity accumulated since the anchor frame.
+
+Because ``f`` never changes, the inverse compositional iteration (Baker & Matthews 2004,
+"Lucas-Kanade 20 years on") pays off: the steepest-descent images ``f_x, f_y, f_x u_x,
+f_x u_y, f_y u_x, f_y u_y`` of the template and the inverse of their normal matrix are
+computed once, when the track is anchored, and each iteration only resamples the search
+image. The radiometry is *projected out* (Hager & Belhumeur 1998): each iteration fits
+``g = a + b f`` over the patch, the residual ``e = (g - a) / b - f`` is then orthogonal to
+``1`` and ``f``, and the steepest-descent images are orthogonalised against both; the
+update ``dp = H^-1 sum SD(u)^T e(u)`` is composed inversely, ``W <- W o W(dp)^-1``.
+
+The inverse compositional step linearises about the template. Where the search patch is
+not close to an affine copy of it (weak texture, noise, shading or a fold), that step can
+point the wrong way and the iterations diverge although the forward additive LSM, which
+linearises about the search image, converges; so every match that fails its thresholds
+is tried again with :func:`~lsmta.matching.lsm` from the same start (the stored patches,
+stacked into one image, are its template).
+
+Parameters whose variance inflation exceeds ``MAX_VIF`` in the normal matrix (a shift
+along an edge, a scale in parallel stripes) get no update (the pseudo-inverse with a
+relative eigenvalue cut); their variance still counts in the precision, so such a patch
+fails the ``max_sigma_xy`` threshold instead of sliding.
+
+Precision, as in :func:`~lsmta.matching.lsm`: ``sigma0^2 = e^T e / (n - 8)`` with ``e``
+the residual of the best fit ``f = r0 + r1 g`` at the final geometry (grey levels of the
+template; the projected residual above is that divided by the correlation coefficient),
+and the position covariance ``sigma0^2 A Q A^T``, ``Q`` the position block of the inverse
+normal matrix.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from ..matching.correlation import CorrelationStatus, correlation_search
+from ..matching.lsm import LSMResult, LSMThresholds, Status, lsm
+from ..matching.spline import SplineImage
+
+_ARRAYS = ("values", "gx", "gy", "update", "q_xy", "ok")
+MAX_VIF = 1e3  #: eigenvalues below 1 / MAX_VIF of the largest (unit-diagonal scaling) are cut
+
+
+@dataclass(frozen=True)
+class Templates:
+    """Anchor patches of N tracks in one camera, with what inverse compositional matching
+    needs of them (see the module docstring).
+
+    Attributes
+    ----------
+    values : (N, P) array
+        Template grey levels, patch pixels in row order (P = patch²).
+    gx, gy : (N, P) arrays
+        Their gradients, grey levels per pixel.
+    update : (N, 6, 6) array
+        Pseudo-inverse of the normal matrix of the projected steepest-descent images
+        (badly determined directions cut, see ``MAX_VIF``).
+    q_xy : (N, 2, 2) array
+        Position block of the (full) inverse normal matrix, for the precision.
+    ok : (N,) bool array
+        Textured enough to be matched (the template's grey levels vary).
+    patch : int
+    """
+
+    values: np.ndarray
+    gx: np.ndarray
+    gy: np.ndarray
+    update: np.ndarray
+    q_xy: np.ndarray
+    ok: np.ndarray
+    patch: int
+
+    def __len__(self) -> int:
+        return len(self.values)
+
+    def put(self, rows, other: Templates) -> None:
+        """Write ``other``'s templates into ``rows`` (in place: re-anchoring)."""
+        for name in _ARRAYS:
+            getattr(self, name)[rows] = getattr(other, name)
+
+    def take(self, rows) -> Templates:
+        """A new store of the templates ``rows``."""
+        rows = np.asarray(rows, np.int64)
+        return Templates(**{name: getattr(self, name)[rows] for name in _ARRAYS},
+                         patch=self.patch)
+
+    def extend(self, other: Templates) -> Templates:
+        """A new store with ``other``'s templates appended (tracks added)."""
+        return Templates(**{name: np.concatenate([getattr(self, name), getattr(other, name)])
+                            for name in _ARRAYS}, patch=self.patch)
+
+
+def search_templates(templates: Templates, rows, search, predicted_xy, radius: int):
+    """Best normalised cross-correlation positions ``(n, 2)`` of the (unwarped) templates
+    ``rows`` in a box of half-width ``radius`` around ``predicted_xy`` in ``search`` (an
+    ``(H, W)`` image); NaN where the peak is on the box's border or the box leaves the image.
+
+    The stored patches, stacked into one image, are the templates of
+    :func:`~lsmta.matching.correlation_search`.
+    """
+    rows = np.asarray(rows, np.int64)
+    xy = np.full((len(rows), 2), np.nan)
+    if not len(rows):
+        return xy
+    tiles, centres = _mosaic(templates, rows)
+    res = correlation_search(tiles, search, centres, predicted_xy, patch=templates.patch,
+                             radius=int(radius))
+    good = res.status == CorrelationStatus.OK
+    xy[good] = res.xy[good]
+    return xy
+
+
+def offsets(patch: int) -> np.ndarray:
+    """``(P, 2)`` pixel offsets ``u`` (x, y) of a square patch, in row order."""
+    h = patch // 2
+    gy, gx = np.mgrid[-h:h + 1, -h:h + 1]
+    return np.stack([gx.ravel(), gy.ravel()], axis=1).astype(float)
+
+
+def sample_templates(image: SplineImage, xy, patch: int) -> Templates:
+    """Anchor ``N`` templates at the positions ``xy`` ``(N, 2)`` of ``image``.
+
+    A position whose patch leaves the image, or whose patch is flat, gets ``ok = False``.
+    """
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    U = offsets(patch)
+    n, P = len(xy), len(U)
+    values, gx, gy = np.zeros((n, P)), np.zeros((n, P)), np.zeros((n, P))
+    ok = image.inside(xy, margin=patch // 2) & np.isfinite(xy).all(axis=1)
+    if ok.any():
+        values[ok], gx[ok], gy[ok] = image.sample(xy[ok, None, :] + U, gradient=True)
+    f = values - values.mean(axis=1, keepdims=True)
+    ff = (f * f).sum(axis=1)
+    ok &= ff > 1e-9 * P
+    sd = np.stack([gx, gy, gx * U[:, 0], gx * U[:, 1], gy * U[:, 0], gy * U[:, 1]], axis=2)
+    # project out the radiometry: orthogonal to the constant and to the template itself
+    sd = sd - sd.mean(axis=1, keepdims=True)
+    fh = f / np.sqrt(np.maximum(ff, 1e-300))[:, None]
+    sd = sd - fh[:, :, None] * np.einsum("np,npk->nk", fh, sd)[:, None, :]
+    H = np.einsum("npk,npl->nkl", sd, sd)
+    update, q_xy = _inverses(H, ok)
+    return Templates(values=values, gx=gx, gy=gy, update=update, q_xy=q_xy, ok=ok, patch=patch)
+
+
+def _inverses(H, ok):
+    """Cut pseudo-inverse (for the update) and the position block of the ridge inverse
+    (for the precision) of the normal matrices ``H`` (n, 6, 6)."""
+    if not len(H):
+        return np.zeros((0, 6, 6)), np.zeros((0, 2, 2))
+    d = np.sqrt(np.maximum(np.diagonal(H, axis1=1, axis2=2), 1e-300))
+    C = H / d[:, :, None] / d[:, None, :]
+    C[~ok] = np.eye(6)
+    w, V = np.linalg.eigh(C)
+    keep = w > w[:, -1:] / MAX_VIF
+    winv = np.where(keep, 1.0 / np.where(keep, w, 1.0), 0.0)
+    cut = np.einsum("nij,nj,nkj->nik", V, winv, V) / d[:, :, None] / d[:, None, :]
+    full = np.einsum("nij,nj,nkj->nik", V, 1.0 / np.maximum(w, 1e-12 * w[:, -1:]), V)
+    q = full[:, :2, :2] / d[:, :2, None] / d[:, None, :2]
+    cut[~ok] = 0.0
+    q[~ok] = np.nan
+    return cut, q
+
+
+def match_templates(templates: Templates, rows, search: SplineImage, start_xy, start_A, *,
+                    thresholds: LSMThresholds | None = None, max_iter: int = 30,
+                    tol: float = 0.01, max_displacement: float | None = None,
+                    fallback: bool = True, inverse: bool = True) -> LSMResult:
+    """Match the templates ``rows`` into ``search``, started at ``start_xy`` with ``start_A``.
+
+    Parameters
+    ----------
+    templates : Templates
+    rows : (n,) int array
+        Which templates.
+    search : SplineImage
+    start_xy : (n, 2) array
+        Start positions in the search image, px.
+    start_A : (n, 2, 2) array
+        Start affinities (template offsets to search-image offsets).
+    thresholds : LSMThresholds, optional
+        Applied to the result.
+    max_iter : int
+    tol : float
+        Convergence: largest change of the position and of ``A u`` over the patch, px.
+    max_displacement : float, optional
+        A point moving further than this from its start has diverged (default: the patch
+        size).
+    fallback : bool
+        Where the inverse compositional match fails (or fails ``thresholds``), run the
+        forward additive :func:`~lsmta.matching.lsm` from the same start.
+    inverse : bool
+        False: the forward additive LSM for every match (no inverse compositional
+        iterations, whatever ``fallback`` says). With a template that changes every frame,
+        the inverse compositional step, whose Jacobian comes from the noisy template, is
+        biased by that noise, and the bias adds up from frame to frame.
+
+    Returns
+    -------
+    LSMResult
+        As :func:`~lsmta.matching.lsm` reports it; for the inverse compositional matches
+        ``fixed`` is all False and ``weight_share`` 1. ``displacement`` is measured from
+        ``start_xy``.
+    """
+    rows = np.asarray(rows, np.int64)
+    n = len(rows)
+    c = np.array(start_xy, float).reshape(n, 2)
+    A = np.array(start_A, float).reshape(n, 2, 2)
+    status = np.full(n, Status.MAX_ITERATIONS, np.int64)
+    iterations = np.zeros(n, np.int64)
+    ee, r0, r1 = np.full(n, np.nan), np.zeros(n), np.ones(n)
+    max_disp = float(templates.patch if max_displacement is None else max_displacement)
+    H, W = search.shape
+    if inverse:
+        _solve(search.coefficients, search.pad, H, W, rows, templates.values, templates.gx,
+               templates.gy, templates.update, templates.ok, offsets(templates.patch), c, A,
+               int(max_iter), float(tol), max_disp, float(templates.patch // 2), status,
+               iterations, ee, r0, r1)
+    P = templates.values.shape[1]
+    sigma0 = np.sqrt(ee / (P - 8))
+    cov = sigma0[:, None, None] ** 2 * (A @ templates.q_xy[rows] @ A.transpose(0, 2, 1))
+    with np.errstate(invalid="ignore"):
+        sigma_xy = np.sqrt(np.diagonal(cov, axis1=1, axis2=2)).copy()
+    start = np.asarray(start_xy, float).reshape(n, 2)
+    outside = status == Status.OUTSIDE
+    result = LSMResult(
+        xy=c, params=np.concatenate([c, A.reshape(n, 4), r0[:, None], r1[:, None]], axis=1),
+        fixed=np.zeros((n, 8), bool), sigma0=sigma0, sigma_xy=sigma_xy, cov_xy=cov,
+        iterations=iterations,
+        displacement=np.where(outside, np.nan, np.linalg.norm(c - start, axis=1)),
+        status=status, weight_share=np.ones(n))
+    if thresholds is not None:
+        result = thresholds.apply(result)
+    redo = np.flatnonzero(~result.ok & templates.ok[rows] & ~outside)
+    if not (fallback or not inverse) or not redo.size:
+        return result
+    tiles, centres = _mosaic(templates, rows[redo])
+    fa = lsm(tiles, search, centres, start[redo], patch=templates.patch,
+             initial_A=np.asarray(start_A, float).reshape(n, 2, 2)[redo], max_iter=max_iter,
+             tol=tol, max_displacement=max_disp, thresholds=thresholds)
+    merged = {}
+    for name in LSMResult.__dataclass_fields__:
+        merged[name] = getattr(result, name).copy()
+        merged[name][redo] = getattr(fa, name)
+    return LSMResult(**merged)
+
+
+def _mosaic(templates: Templates, rows):
+    """The patches ``rows`` stacked into one image ``(n * patch, patch)``, and their centres
+    ``(n, 2)`` in it (whole pixels: read as they are, never interpolated)."""
+    n, patch = len(rows), templates.patch
+    tiles = templates.values[rows].reshape(n * patch, patch)
+    centres = np.stack([np.full(n, patch // 2), np.arange(n) * patch + patch // 2], axis=1)
+    return tiles, centres.astype(float)
+
+
+@nb.njit(cache=True, inline="always")
+def _value(coef, pad, x, y):
+    """Cubic B-spline value at (x, y) from the padded coefficients."""
+    ix = int(np.floor(x))
+    iy = int(np.floor(y))
+    tx = x - ix
+    ty = y - iy
+    sx = 1.0 - tx
+    sy = 1.0 - ty
+    wx0 = sx * sx * sx / 6.0
+    wx1 = (3.0 * tx * tx * tx - 6.0 * tx * tx + 4.0) / 6.0
+    wx2 = (-3.0 * tx * tx * tx + 3.0 * tx * tx + 3.0 * tx + 1.0) / 6.0
+    wx3 = tx * tx * tx / 6.0
+    wy0 = sy * sy * sy / 6.0
+    wy1 = (3.0 * ty * ty * ty - 6.0 * ty * ty + 4.0) / 6.0
+    wy2 = (-3.0 * ty * ty * ty + 3.0 * ty * ty + 3.0 * ty + 1.0) / 6.0
+    wy3 = ty * ty * ty / 6.0
+    r = iy + pad - 1
+    q = ix + pad - 1
+    return (wy0 * (wx0 * coef[r, q] + wx1 * coef[r, q + 1] + wx2 * coef[r, q + 2]
+                   + wx3 * coef[r, q + 3])
+            + wy1 * (wx0 * coef[r + 1, q] + wx1 * coef[r + 1, q + 1]
+                     + wx2 * coef[r + 1, q + 2] + wx3 * coef[r + 1, q + 3])
+            + wy2 * (wx0 * coef[r + 2, q] + wx1 * coef[r + 2, q + 1]
+                     + wx2 * coef[r + 2, q + 2] + wx3 * coef[r + 2, q + 3])
+            + wy3 * (wx0 * coef[r + 3, q] + wx1 * coef[r + 3, q + 1]
+                     + wx2 * coef[r + 3, q + 2] + wx3 * coef[r + 3, q + 3]))
+
+
+@nb.njit(parallel=True, cache=True, fastmath=True)
+def _solve(coef, pad, height, width, rows, f, fx, fy, update, ok, U, c, A, max_iter, tol,
+           max_disp, h, status, iterations, ee_out, r0_out, r1_out):
+    """Inverse compositional iterations for every point j (template ``rows[j]``); writes
+    ``c``, ``A`` in place and the status, iterations, residual square sum and radiometry."""
+    n = rows.shape[0]
+    P = U.shape[0]
+    for j in nb.prange(n):
+        i = rows[j]
+        if not ok[i]:
+            status[j] = 4                                   # SINGULAR: flat template
+            continue
+        g = np.empty(P)
+        b = np.zeros(6)
+        fm = 0.0
+        for p in range(P):
+            fm += f[i, p]
+        fm /= P
+        ff = 0.0
+        for p in range(P):
+            ff += (f[i, p] - fm) * (f[i, p] - fm)
+        sx, sy = c[j, 0], c[j, 1]
+        cx, cy = sx, sy
+        a11, a12, a21, a22 = A[j, 0, 0], A[j, 0, 1], A[j, 1, 0], A[j, 1, 1]
+        st = 1
+        for it in range(max_iter):
+            iterations[j] = it + 1
+            gm = 0.0
+            inside = True
+            for p in range(P):
+                x = cx + a11 * U[p, 0] + a12 * U[p, 1]
+                y = cy + a21 * U[p, 0] + a22 * U[p, 1]
+                if not (x >= 0.0 and x <= width - 1.0 and y >= 0.0 and y <= height - 1.0):
+                    inside = False
+                    break
+                g[p] = _value(coef, pad, x, y)
+                gm += g[p]
+            if not inside:
+                st = 3                                      # OUTSIDE
+                break
+            gm /= P
+            fg = 0.0
+            gg = 0.0
+            for p in range(P):
+                fg += (f[i, p] - fm) * (g[p] - gm)
+                gg += (g[p] - gm) * (g[p] - gm)
+            gain = fg / ff                                  # g = a + gain f
+            if not gain > 1e-6:
+                st = 4                                      # SINGULAR: no positive correlation
+                break
+            off = gm - gain * fm
+            for k in range(6):
+                b[k] = 0.0
+            for p in range(P):
+                e = (g[p] - off) / gain - f[i, p]
+                ex = fx[i, p] * e
+                ey = fy[i, p] * e
+                b[0] += ex
+                b[1] += ey
+                b[2] += ex * U[p, 0]
+                b[3] += ex * U[p, 1]
+                b[4] += ey * U[p, 0]
+                b[5] += ey * U[p, 1]
+            # residual and radiometry of the best fit f = r0 + r1 g, as lsm reports them
+            r1_out[j] = fg / gg
+            r0_out[j] = fm - fg / gg * gm
+            ee_out[j] = max(ff - fg * fg / gg, 0.0)
+            d = np.zeros(6)
+            for k in range(6):
+                for m in range(6):
+                    d[k] += update[i, k, m] * b[m]
+            # W <- W o W(d)^-1: A' = A (I + dA)^-1, c' = c - A' dc
+            m11, m12, m21, m22 = 1.0 + d[2], d[3], d[4], 1.0 + d[5]
+            det = m11 * m22 - m12 * m21
+            if not abs(det) > 1e-9:
+                st = 2
+                break
+            i11, i12, i21, i22 = m22 / det, -m12 / det, -m21 / det, m11 / det
+            n11 = a11 * i11 + a12 * i21
+            n12 = a11 * i12 + a12 * i22
+            n21 = a21 * i11 + a22 * i21
+            n22 = a21 * i12 + a22 * i22
+            dcx = -(n11 * d[0] + n12 * d[1])
+            dcy = -(n21 * d[0] + n22 * d[1])
+            d0 = max(abs(dcx), abs(dcy)) + (abs(n11 - a11) + abs(n12 - a12) + abs(n21 - a21)
+                                              + abs(n22 - a22)) * h
+            cx += dcx
+            cy += dcy
+            a11, a12, a21, a22 = n11, n12, n21, n22
+            detA = a11 * a22 - a12 * a21
+            moved = np.sqrt((cx - sx) ** 2 + (cy - sy) ** 2)
+            if not (moved <= max_disp and detA > 0.2 and detA < 5.0):
+                st = 2                                      # DIVERGED
+                break
+            if d0 < tol:
+                st = 0                                      # CONVERGED
+                break
+        status[j] = st
+        c[j, 0], c[j, 1] = cx, cy
+        A[j, 0, 0], A[j, 0, 1], A[j, 1, 0], A[j, 1, 1] = a11, a12, a21, a22

@@ -188,7 +188,7 @@ class MixedScaleScores:
     in_frame : (K, F) bool array
         The whole face (every marker) inside head k's frame.
     centre_px : (K, F) array
-        Distance of the face centre's image from the principal point, px.
+        Distance of the face centre's image (the markers' mean) from the principal point, px.
     aim_error : (F,) array
         Distance of the aim point from the true face centre ``horizon`` s later (when the
         heads get there), mm.
@@ -211,10 +211,13 @@ class MixedScaleScores:
 
     @property
     def face_median_mm(self) -> float:
+        """Median 3-D error of the face's markers, mm, over the frames the face was
+        reconstructed in (their share: the capture's ``face.fitted``)."""
         return float(np.nanmedian(self.face_error))
 
     @property
     def rigid_median_mm(self) -> float:
+        """The thesis's measure: median absolute distance deviation of the rigid pairs, mm."""
         return float(np.nanmedian(np.abs(self.rigid_deviation)))
 
     @property
@@ -230,7 +233,8 @@ def score_capture(capture: MixedScaleCapture, scene: MixedScaleScene, devices, *
     dead time and about one command period); the aim point is scored against the face
     then."""
     t = capture.times
-    world, _, centre = scene.face_at(t)
+    world, _, _ = scene.face_at(t)
+    centre = world.mean(axis=1)
     err = np.linalg.norm(capture.face.frames - world, axis=2)
     measured = np.isfinite(capture.points).all(axis=2)
     K, F = len(devices), len(t)

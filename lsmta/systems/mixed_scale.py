@@ -71,6 +71,9 @@ class MixedScaleParams:
         Clock times of the first pan-tilt frame and of the end of the recording, s.
     aim_offset : (3,)
         From the head LED to the face, world mm (measured once on the person).
+    head_margin : float
+        The head is the highest live target; the current one is kept unless another is
+        higher by more than this, mm (:func:`head_target`).
     threshold_offset, threshold_minimum : float
         The LED thresholds (:func:`~lsmta.widearea.background_threshold`), grey levels.
     estimator : EstimatorParams
@@ -101,6 +104,7 @@ class MixedScaleParams:
     start: float = 0.9
     stop: float | None = None
     aim_offset: tuple = (0.0, -80.0, -150.0)
+    head_margin: float = 200.0
     threshold_offset: float = 20.0
     threshold_minimum: float = 60.0
     estimator: EstimatorParams = field(
@@ -114,7 +118,8 @@ class MixedScaleParams:
 
     def __post_init__(self):
         for key in ("video_rate", "threshold_offset", "threshold_minimum", "tol_px",
-                    "min_angle_deg", "max_reprojection_px", "max_fill_mm", "dot_contrast"):
+                    "min_angle_deg", "max_reprojection_px", "max_fill_mm", "dot_contrast",
+                    "head_margin"):
             as_scalar(getattr(self, key), key, positive=True)
         for key in ("lead", "start"):
             as_scalar(getattr(self, key), key, nonnegative=True)
@@ -257,14 +262,20 @@ class _State:
     body: np.ndarray | None = None
 
 
-def head_target(tracker: WideAreaTracker, lead: float, *, previous: int = -1):
+def head_target(tracker: WideAreaTracker, lead: float, *, previous: int = -1,
+                margin: float = 200.0):
     """The head and its aim point ``P + lead V`` (mm), or ``(-1, None)`` when no target is
-    alive. The head is the ``previous`` target while it lives, else the highest one."""
+    alive. The head is the highest live target; the ``previous`` head stays the head while
+    it lives and no other target is more than ``margin`` mm higher (so the aim does not
+    flap between targets at the same height, and moves to the head LED once its track is
+    born when a shoulder had to stand in for it)."""
     e = tracker.estimate()
     if not len(e.ids):
         return -1, None
+    i = int(np.argmax(e.states[:, 2]))
     same = np.flatnonzero(e.ids == previous)
-    i = int(same[0]) if len(same) else int(np.argmax(e.states[:, 2]))
+    if len(same) and e.states[i, 2] - e.states[same[0], 2] <= margin:
+        i = int(same[0])
     return int(e.ids[i]), e.states[i, :3] + lead * e.states[i, 3:]
 
 
@@ -299,7 +310,7 @@ def _closed_loop(st: _State) -> None:
         while q < len(queue) and queue[q, 0] <= t:
             _feed_ceiling(st, int(queue[q, 1]), int(queue[q, 2]))
             q += 1
-        hid, X = head_target(st.tracker, p.lead, previous=hid)
+        hid, X = head_target(st.tracker, p.lead, previous=hid, margin=p.head_margin)
         if X is not None:
             X = X + np.asarray(p.aim_offset, float)
             smooth = X if smooth is None else smooth + p.damping * (X - smooth)

@@ -30,6 +30,7 @@ from .mixed_scale import (
     MixedScaleCapture,
     MixedScaleParams,
     capture_mixed_scale,
+    first_settled,
     head_target,
     reacquisition_seeds,
 )
@@ -39,7 +40,7 @@ from .surfaces import SurfaceParams, measure_surfaces, working_distance
 __all__ = [
     "ArmFit", "ArmFitSettings", "BodyCapture", "BodySystemParams", "CeilingFeed",
     "FilterSettings", "MixedScaleCapture", "MixedScaleParams", "capture_mixed_scale",
-    "head_target", "reacquisition_seeds",
+    "first_settled", "head_target", "reacquisition_seeds",
     "RigCalibration", "SurfaceParams", "calibrate_rig", "capture_body", "fit_arm",
     "fit_self_consistent", "measure_surfaces", "observed_frames", "track_surface",
     "working_distance",

@@ -17,7 +17,8 @@ enters. :func:`capture_mixed_scale` runs the stages:
    command (:func:`~lsmta.pantilt.aim`); each head then grabs its frame at the angles its
    motors reached and reports them;
 2. *marker tracking* in each head's close-up video (:func:`~lsmta.tracking.markers.
-   track_markers`), started from the hand identification of its first frame;
+   track_markers`), started from the hand identification of the first frame at which the
+   heads have followed the same target for ``params.settle`` s;
 3. *triangulation* of every frame from a single pair of heads
    (:func:`~lsmta.triangulation.triangulate_single_pair`), each head the calibrated model
    at its read-back angles (:meth:`~lsmta.pantilt.PanTiltCamera.camera_at`);
@@ -89,6 +90,9 @@ class MixedScaleParams:
     max_fill_mm : float
         After a first fill, measured markers farther than this from the fitted face are
         dropped as wrong, and the face is filled again, mm.
+    settle : float
+        The markers are identified in the first frame at which the same head target has
+        been aimed at for this long (its motors have caught up), s.
     reacquire : int
         Passes of re-acquisition: lost markers restarted where the filled face, projected
         into a head at its read-back angles, falls on a dot, then tracking, triangulation
@@ -113,6 +117,7 @@ class MixedScaleParams:
     min_angle_deg: float = 2.0
     max_reprojection_px: float = 1.0
     max_fill_mm: float = 3.0
+    settle: float = 0.5
     reacquire: int = 2
     dot_contrast: float = 30.0
 
@@ -121,7 +126,7 @@ class MixedScaleParams:
                     "min_angle_deg", "max_reprojection_px", "max_fill_mm", "dot_contrast",
                     "head_margin"):
             as_scalar(getattr(self, key), key, positive=True)
-        for key in ("lead", "start"):
+        for key in ("lead", "start", "settle"):
             as_scalar(getattr(self, key), key, nonnegative=True)
         if isinstance(self.reacquire, bool) or int(self.reacquire) != self.reacquire \
                 or self.reacquire < 0:
@@ -249,12 +254,14 @@ class _State:
     thresholds: list | None = None
     tracker: WideAreaTracker | None = None
     head_id: np.ndarray | None = None
+    head_since: np.ndarray | None = None
     aim_points: np.ndarray | None = None
     commands: np.ndarray | None = None
     settings: np.ndarray | None = None
     images: list | None = None
     markers: list | None = None
     starts: list | None = None
+    first: int = 0
     xy: np.ndarray | None = None
     points: np.ndarray | None = None
     pairs: np.ndarray | None = None
@@ -296,12 +303,13 @@ def _closed_loop(st: _State) -> None:
     queue, q = _ceiling_queue(feed), 0
     K, F = len(st.heads), len(st.times)
     st.head_id = np.full(F, -1)
+    st.head_since = np.full(F, np.nan)
     st.aim_points = np.full((F, 3), np.nan)
     st.commands = np.full((K, F, 2), np.nan)
     st.settings = np.full((K, F, 2), np.nan)
     images = []
     current = [np.zeros(2) for _ in st.heads]
-    smooth, hid = None, -1
+    smooth, hid, since = None, -1, np.nan
     # the loop runs from the first ceiling frame; frames are kept from params.start on
     ticks = np.r_[np.arange(queue[0, 0], st.times[0] - 1e-9, 1.0 / p.video_rate), st.times]
     first = len(ticks) - F
@@ -310,7 +318,9 @@ def _closed_loop(st: _State) -> None:
         while q < len(queue) and queue[q, 0] <= t:
             _feed_ceiling(st, int(queue[q, 1]), int(queue[q, 2]))
             q += 1
-        hid, X = head_target(st.tracker, p.lead, previous=hid, margin=p.head_margin)
+        new, X = head_target(st.tracker, p.lead, previous=hid, margin=p.head_margin)
+        if new != hid:
+            hid, since = new, (t if new >= 0 else np.nan)
         if X is not None:
             X = X + np.asarray(p.aim_offset, float)
             smooth = X if smooth is None else smooth + p.damping * (X - smooth)
@@ -321,7 +331,7 @@ def _closed_loop(st: _State) -> None:
         if i < first:
             continue
         f = i - first
-        st.head_id[f] = hid
+        st.head_id[f], st.head_since[f] = hid, since
         if X is not None:
             st.aim_points[f] = X
             st.commands[:, f] = current
@@ -349,16 +359,32 @@ def _grab(device, t: float, k: int):
     return img, s
 
 
+def first_settled(times, head_since, settle: float) -> int:
+    """The first frame at which the heads have been aimed at the same target for
+    ``settle`` s (``head_since``: when the frame's head target became the head, NaN for
+    none), or 0 when there is none."""
+    with np.errstate(invalid="ignore"):
+        ok = np.flatnonzero(np.asarray(times) - np.asarray(head_since) >= settle)
+    return int(ok[0]) if len(ok) else 0
+
+
 def _marker_tracking(st: _State) -> None:
-    st.starts = [as_array(f(st.times[0], st.settings[k, 0]), f"identify[{k}](...)",
-                          shape=(None, 2), allow_nan=True) for k, f in enumerate(st.identify)]
+    p = st.params
+    st.first = first_settled(st.times, st.head_since, p.settle)
+    st.starts = [as_array(f(st.times[st.first], st.settings[k, st.first]),
+                          f"identify[{k}](...)", shape=(None, 2), allow_nan=True)
+                 for k, f in enumerate(st.identify)]
     _track(st, None)
 
 
 def _track(st: _State, seeds) -> None:
     st.markers, xy = [], []
+    K, F = st.images.shape[:2]
     for k, start in enumerate(st.starts):
-        tr = track_markers(st.images[k], start, seeds=None if seeds is None else seeds[k])
+        s = np.full((F, len(start), 2), np.nan) if seeds is None else seeds[k].copy()
+        s[st.first] = start                     # frame 0's start is its initial position
+        initial = start if st.first == 0 else np.full((len(start), 2), np.nan)
+        tr = track_markers(st.images[k], initial, seeds=s)
         ok = np.isin(tr.status, (MarkerStatus.TRACKED, MarkerStatus.SECOND_SEARCH))
         st.markers.append(tr)
         xy.append(np.where(ok[..., None], tr.xy, np.nan))
@@ -519,8 +545,9 @@ def capture_mixed_scale(ceiling: CeilingFeed, heads, devices, identify, face_mod
         ``t`` (s); ``grab(t)`` returns the frame ``(H, W)`` at ``t`` and the setting the head
         reports (its motors' angles, degrees).
     identify : sequence of K callables
-        ``identify[k](t, setting)``: the M face markers identified in head k's first frame
-        (by hand), ``(M, 2)`` px, NaN for markers not seen.
+        ``identify[k](t, setting)``: the M face markers identified by hand in head k's frame
+        at time ``t`` (the first frame at which the heads have followed the same target
+        for ``params.settle`` s), ``(M, 2)`` px, NaN for markers not seen.
     face_model : lsmta.face.FaceModel
         Learnt from an earlier capture of the same markers (:func:`lsmta.face.learn`).
     params : MixedScaleParams, optional

@@ -7,7 +7,7 @@ after the fact against the truth.
   each head: intrinsics from one view of a 3-D target, then home pose and axes from sweeps,
   :func:`lsmta.pantilt.calibrate` — notebook 11's procedure with a precise target);
 * :func:`walk_inputs` — what the system receives for a walk: the ceiling feed, the heads
-  as devices, hand labels of their first frames, a face model learnt from another capture;
+  as devices, hand labels of a frame of each, a face model learnt from another capture;
 * :func:`score_capture` — the error budget per stage against the truth.
 """
 

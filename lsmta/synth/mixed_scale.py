@@ -301,7 +301,7 @@ class SimulatedHead:
 
 def hand_labels(device: SimulatedHead, *, sigma_px: float = 0.5,
                 rng: np.random.Generator | int | None = None):
-    """An operator who identifies the markers in a head's first frame by hand: a callable
+    """An operator who identifies the markers in a head's frame by hand: a callable
     ``(t, setting) -> (M, 2)`` giving the drawn markers' positions with ``sigma_px`` of
     click noise (NaN for markers not seen). The only truth that enters the system, as in
     the thesis (markers are labelled once, by hand)."""

@@ -8,6 +8,9 @@ never the generator's truth: nothing here imports :mod:`lsmta.synth` or
               noise, surfaces, surface tracking, trajectories and filters, arm model
 ``rig``       its first stage: the rig calibrated from a bar video, in the user's world
 ``surfaces``  surfaces of chosen frames from automatic seeds
+``mixed_scale`` Davis's mixed-scale system, closed: ceiling LED frames, the streaming
+              wide-area tracker, predicted aim of pan-tilt heads, close-up marker video,
+              triangulation at the read-back angles, the face filled per frame
 """
 
 from .body import (
@@ -22,11 +25,22 @@ from .body import (
     observed_frames,
     track_surface,
 )
+from .mixed_scale import (
+    CeilingFeed,
+    MixedScaleCapture,
+    MixedScaleParams,
+    capture_mixed_scale,
+    first_settled,
+    head_target,
+    reacquisition_seeds,
+)
 from .rig import RigCalibration, calibrate_rig
 from .surfaces import SurfaceParams, measure_surfaces, working_distance
 
 __all__ = [
-    "ArmFit", "ArmFitSettings", "BodyCapture", "BodySystemParams", "FilterSettings",
+    "ArmFit", "ArmFitSettings", "BodyCapture", "BodySystemParams", "CeilingFeed",
+    "FilterSettings", "MixedScaleCapture", "MixedScaleParams", "capture_mixed_scale",
+    "first_settled", "head_target", "reacquisition_seeds",
     "RigCalibration", "SurfaceParams", "calibrate_rig", "capture_body", "fit_arm",
     "fit_self_consistent", "measure_surfaces", "observed_frames", "track_surface",
     "working_distance",

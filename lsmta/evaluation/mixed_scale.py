@@ -1,0 +1,264 @@
+"""The mixed-scale system (Davis 2002, Figs. 4, 5, 50) run on a generated walk and scored
+after the fact against the truth.
+
+* :func:`calibrate_scene` — the ceiling rig and the pan-tilt heads calibrated by the
+  library's own procedures from generated observations (the ceiling: resection of a
+  tape-measured guess from surveyed LED positions, :func:`lsmta.calibration.resect_all`;
+  each head: intrinsics from one view of a 3-D target, then home pose and axes from sweeps,
+  :func:`lsmta.pantilt.calibrate` — notebook 11's procedure with a precise target);
+* :func:`walk_inputs` — what the system receives for a walk: the ceiling feed, the heads
+  as devices, hand labels of a frame of each, a face model learnt from another capture;
+* :func:`score_capture` — the error budget per stage against the truth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validate import as_rng
+from ..calibration import resect_all
+from ..face import distance_deviation, learn
+from ..pantilt import calibrate, calibrate_intrinsics
+from ..synth.calibration import led_path, poor_guess, project_observations
+from ..synth.face import face_sequence
+from ..synth.mixed_scale import (
+    MixedScaleScene,
+    SimulatedHead,
+    ceiling_videos,
+    hand_labels,
+)
+from ..synth.pantilt import calibration_sweeps, intrinsic_target
+from ..systems.mixed_scale import CeilingFeed, MixedScaleCapture
+from .track_scores import score_tracks
+
+
+@dataclass(frozen=True, eq=False)
+class SceneCalibration:
+    """The cameras as the library calibrated them.
+
+    Attributes
+    ----------
+    ceiling : list of Camera
+    heads : list of PanTiltCamera
+    ceiling_rms_px : (K,) array
+        Image RMS of each ceiling camera on an independent LED path, px.
+    head_rms_px : (K,) array
+        Image RMS of each head on held-out sweep points (true points, true images), px.
+    """
+
+    ceiling: list
+    heads: list
+    ceiling_rms_px: np.ndarray
+    head_rms_px: np.ndarray
+
+
+def calibrate_ceiling(scene: MixedScaleScene, *, rng: np.random.Generator | int | None = None,
+                      image_sigma: float = 0.3, world_sigma: float = 0.3, n_survey: int = 300):
+    """The ceiling cameras resected from a tape-measured guess
+    (:func:`lsmta.synth.calibration.poor_guess`) with ``n_survey`` LED positions surveyed to
+    ``world_sigma`` mm and seen with ``image_sigma`` px (:func:`lsmta.calibration.resect_all`).
+
+    Returns
+    -------
+    (list of Camera, (K,) image RMS on an independent path against the true cameras, px)
+    """
+    rng = as_rng(rng)
+    box = dict(center=(0.0, 0.0, 1300.0), half_size=(1900.0, 2500.0, 500.0))
+    X = led_path(n=n_survey, rng=rng, **box)
+    xy = project_observations(scene.ceiling, X, rng=rng, sigma_px=image_sigma)
+    Xs = X + rng.normal(0, world_sigma, X.shape)
+    guess = poor_guess(scene.ceiling, rng=rng, pose_mm=100.0, pose_deg=2.0, f_rel=0.03)
+    ceiling = resect_all(guess, Xs, xy, n_iter=60)
+    check = led_path(n=100, rng=rng, **box)
+    d = project_observations(scene.ceiling, check) - project_observations(ceiling, check)
+    return ceiling, np.sqrt(np.nanmean(np.sum(d**2, axis=2), axis=1))
+
+
+def calibrate_heads(heads, *, rng: np.random.Generator | int | None = None,
+                    image_sigma: float = 0.3, world_sigma: float = 0.3,
+                    distortion=("k1",)):
+    """Each head calibrated by notebook 11's procedure with a precise target: intrinsics
+    (``distortion`` terms) from one view of a 3-D target
+    (:func:`lsmta.pantilt.calibrate_intrinsics`), then home pose and axes of the general
+    model from the thesis's sweeps (:func:`lsmta.pantilt.calibrate`). A zoomed lens sees
+    only the middle of its distortion: one radial term keeps the model monotonic where
+    the aiming search looks outside the image.
+
+    Returns
+    -------
+    (list of PanTiltCamera, (K,) image RMS on held-out sweep settings, true points, px)
+    """
+    rng = as_rng(rng)
+    models, rms = [], []
+    for head in heads:
+        target = intrinsic_target(head, rng=rng, image_sigma=image_sigma, world_sigma=0.1)
+        intr = calibrate_intrinsics(target.X, target.xy, head.camera.image_size,
+                                    distortion=tuple(distortion))
+        cal = calibration_sweeps(head, rng=rng, image_sigma=image_sigma,
+                                 world_sigma=world_sigma, depth=(2000.0, 4000.0))
+        fit = calibrate(intr.model, cal.pan, cal.tilt, cal.X, cal.xy, kind="general")
+        held = calibration_sweeps(head, rng=rng, points_per_setting=5, image_sigma=0.0,
+                                  world_sigma=0.0, depth=(2000.0, 4000.0))
+        e = fit.model.project(held.X_true, held.pan, held.tilt) - held.xy_true
+        models.append(fit.model)
+        rms.append(float(np.sqrt(np.mean(np.sum(e**2, axis=1)))))
+    return models, np.array(rms)
+
+
+def calibrate_scene(scene: MixedScaleScene, *, rng: np.random.Generator | int | None = None,
+                    **noise) -> SceneCalibration:
+    """The ceiling rig and the heads of ``scene`` calibrated (:func:`calibrate_ceiling`,
+    :func:`calibrate_heads`; ``noise``: ``image_sigma``, ``world_sigma``)."""
+    rng = as_rng(rng)
+    ceiling, c_rms = calibrate_ceiling(scene, rng=rng, **noise)
+    heads, h_rms = calibrate_heads(scene.heads, rng=rng, **noise)
+    return SceneCalibration(ceiling=ceiling, heads=heads, ceiling_rms_px=c_rms,
+                            head_rms_px=h_rms)
+
+
+def head_devices(scene: MixedScaleScene, *, heads=None,
+                 rng: np.random.Generator | int | None = None, video_rate: float = 30.0,
+                 fixed: bool = False, start=(0.0, 0.0)):
+    """The true heads (default ``scene.heads``) as devices
+    (:class:`lsmta.synth.mixed_scale.SimulatedHead`) and an operator's hand labels of each
+    (0.5 px). ``fixed``: cameras on fixed mounts at ``start``."""
+    rng = as_rng(rng)
+    heads = scene.heads if heads is None else heads
+    devices = [SimulatedHead(h, scene, period=1.0 / video_rate, rng=rng, fixed=fixed,
+                             start=start) for h in heads]
+    return devices, [hand_labels(d, rng=rng) for d in devices]
+
+
+@dataclass(frozen=True, eq=False)
+class WalkInputs:
+    """What :func:`lsmta.systems.capture_mixed_scale` gets for a walk (and the devices, to
+    read their truth afterwards)."""
+
+    ceiling: CeilingFeed
+    devices: list
+    identify: list
+    face_model: object
+    videos: object
+
+
+def walk_inputs(scene: MixedScaleScene, calibration: SceneCalibration, *,
+                rng: np.random.Generator | int | None = None, n_train: int = 300,
+                video_rate: float = 30.0) -> WalkInputs:
+    """Render the ceiling frames, make the heads' devices (the true heads, the motor model
+    of :class:`lsmta.pantilt.Motor`), the hand labels (0.5 px) and a face model learnt from
+    a separate still capture of ``n_train`` frames (:func:`lsmta.face.learn`)."""
+    rng = as_rng(rng)
+    cv = ceiling_videos(scene, rng=rng)
+    invalid = []
+    for v in cv.videos:
+        m = np.zeros(v.frames.shape[1:], bool)
+        x0, y0, x1, y1 = v.monitor.astype(int)
+        m[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = True
+        invalid.append(m)
+    feed = CeilingFeed(cameras=calibration.ceiling, frames=[v.frames for v in cv.videos],
+                       stamps=cv.stamps, backgrounds=[v.background for v in cv.videos],
+                       arrival=cv.arrival, invalid=invalid)
+    devices, identify = head_devices(scene, rng=rng, video_rate=video_rate)
+    training = face_sequence(scene.face, n_train, rng=rng, moving=False).head
+    return WalkInputs(ceiling=feed, devices=devices, identify=identify,
+                      face_model=learn(training), videos=cv)
+
+
+def rigid_pairs(scene: MixedScaleScene) -> np.ndarray:
+    """All pairs of the markers no expression moves (thesis Fig. 64's measure)."""
+    r = np.flatnonzero(scene.face.rigid)
+    i, j = np.triu_indices(len(r), 1)
+    return np.stack([r[i], r[j]], axis=1)
+
+
+@dataclass(frozen=True, eq=False)
+class MixedScaleScores:
+    """A capture scored against the truth.
+
+    Attributes
+    ----------
+    face_error : (F, M) array
+        3-D error of every marker of the filled face, mm (NaN: frame not fitted).
+    measured : (F, M) bool array
+        Markers triangulated (the rest filled from the model).
+    rigid_deviation : (F, P) array
+        Distance deviation of the rigid pairs in the measured markers, mm.
+    in_frame : (K, F) bool array
+        The whole face (every marker) inside head k's frame.
+    centre_px : (K, F) array
+        Distance of the face centre's image (the markers' mean) from the principal point, px.
+    aim_error : (F,) array
+        Distance of the aim point from the true face centre ``horizon`` s later (when the
+        heads get there), mm.
+    led : TrackScore
+        The LED tracks against the LEDs (identity changes, RMS).
+    led_rms_mm : float
+    marker_px : (K,) array
+        Median image error of the markers found, px.
+    """
+
+    face_error: np.ndarray
+    measured: np.ndarray
+    rigid_deviation: np.ndarray
+    in_frame: np.ndarray
+    centre_px: np.ndarray
+    aim_error: np.ndarray
+    led: object
+    led_rms_mm: float
+    marker_px: np.ndarray
+
+    @property
+    def face_median_mm(self) -> float:
+        """Median 3-D error of the face's markers, mm, over the frames the face was
+        reconstructed in (their share: the capture's ``face.fitted``)."""
+        return float(np.nanmedian(self.face_error))
+
+    @property
+    def rigid_median_mm(self) -> float:
+        """The thesis's measure: median absolute distance deviation of the rigid pairs, mm."""
+        return float(np.nanmedian(np.abs(self.rigid_deviation)))
+
+    @property
+    def both_in_frame(self) -> float:
+        """Share of frames with the face inside every head's frame."""
+        return float(self.in_frame.all(axis=0).mean())
+
+
+def score_capture(capture: MixedScaleCapture, scene: MixedScaleScene, devices, *,
+                  horizon: float = 0.3) -> MixedScaleScores:
+    """Score a capture of ``scene`` against its truth (the devices give the true heads).
+    ``horizon``: when the heads get where they were sent, s after the command (the motors'
+    dead time and about one command period); the aim point is scored against the face
+    then."""
+    t = capture.times
+    world, _, _ = scene.face_at(t)
+    centre = world.mean(axis=1)
+    err = np.linalg.norm(capture.face.frames - world, axis=2)
+    measured = np.isfinite(capture.points).all(axis=2)
+    K, F = len(devices), len(t)
+    in_frame = np.zeros((K, F), bool)
+    centre_px = np.full((K, F), np.nan)
+    marker_px = np.full(K, np.nan)
+    for k, d in enumerate(devices):
+        e_all = []
+        for f in range(F):
+            cam = d.head.camera_at(*capture.settings[k, f])
+            p = cam.project(world[f], behind="nan")
+            in_frame[k, f] = bool(cam.in_image(p).all())
+            c = cam.project(centre[f][None], behind="nan")[0]
+            centre_px[k, f] = np.hypot(c[0] - cam.cx, c[1] - cam.cy)
+            tru = d.true_xy(t[f], capture.settings[k, f])
+            e_all.append(np.linalg.norm(capture.xy[k, f] - tru, axis=1))
+        e = np.concatenate(e_all)
+        marker_px[k] = np.nanmedian(e) if np.isfinite(e).any() else np.nan
+    ahead, _, _ = scene.face_at(t + horizon)
+    aim_error = np.linalg.norm(capture.aim_points - ahead.mean(axis=1), axis=1)
+    led = score_tracks(scene.leds, capture.tracking, t)
+    return MixedScaleScores(face_error=err, measured=measured,
+                            rigid_deviation=distance_deviation(
+                                np.where(measured[..., None], capture.points, np.nan),
+                                rigid_pairs(scene)),
+                            in_frame=in_frame, centre_px=centre_px, aim_error=aim_error,
+                            led=led, led_rms_mm=float(led.rms_mm), marker_px=marker_px)

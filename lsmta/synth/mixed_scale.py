@@ -1,0 +1,358 @@
+"""The mixed-scale scene of Davis (2002, Figs. 4, 5): a person walks across the room making
+expressions, LEDs on the head and shoulders for the ceiling cameras, painted markers on the
+face for the pan-tilt heads.
+
+* :func:`mixed_scale_scene` — the truth: the face (76 markers, expressions, head pose) and
+  the LEDs sampled finely in time, the true ceiling rig and the true pan-tilt heads;
+* :func:`render_pantilt_video` — the face-marker video a pan-tilt camera makes at the angles
+  its motors reached (:func:`lsmta.synth.marker_video.render_marker_video` through
+  :meth:`lsmta.pantilt.PanTiltCamera.camera_at`);
+* :class:`SimulatedHead` — one head as a device: it takes commands, its motors follow them
+  (dead time, rate limit, steps: :class:`lsmta.pantilt.Motor`), and it grabs a frame at the
+  angles reached, read back as the head reports them;
+* :func:`ceiling_videos` — each ceiling camera's rendered LED frames at its own clock.
+
+The generator only renders: no calibration, detection or estimate is made here.
+World frame as in :mod:`lsmta.synth.widearea`: X along the room, Y across, Z up, mm, s.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from .._validate import as_array, as_rng, as_scalar
+from ..pantilt import Motor, PanTiltCamera
+from .face import FaceModel, expression_weights, face_model, visible
+from .marker_video import MarkerVideo, render_marker_video, skin_texture
+from .pantilt import pantilt_head
+from .widearea import Clocks, LedScene, ceiling_rig, make_clocks, render_led_video, small_camera
+
+#: LEDs in the head frame (x right, y up, z forward out of the face), mm: top of the head
+#: and the two shoulders; they shine upwards, to the ceiling.
+LED_HEAD = np.array([[0.0, 140.0, -20.0], [-190.0, -260.0, -60.0], [190.0, -260.0, -60.0]])
+LED_NAMES = ("head", "shoulder_r", "shoulder_l")
+#: The face looks along world -Y (towards the pan-tilt heads): head x -> X, y -> Z, z -> -Y.
+_BASE = np.stack([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]], axis=1)
+
+
+@dataclass(frozen=True, eq=False)
+class MixedScaleScene:
+    """The truth of one walk.
+
+    Attributes
+    ----------
+    times : (S,) array
+        Sample times, s (uniform, ``rate`` Hz).
+    face : FaceModel
+    head : (S, M, 3) array
+        Markers in the head frame (expressions), mm.
+    R : (S, 3, 3) array
+    t : (S, 3) array
+        Head pose, ``world = head @ R.T + t``.
+    leds : LedScene
+        The LEDs (always on).
+    ceiling : list of Camera
+        The true ceiling cameras (half size).
+    heads : list of PanTiltCamera
+        The true pan-tilt heads.
+    walk_start, walk_end : float
+        When the person starts and stops walking, s.
+    """
+
+    times: np.ndarray
+    face: FaceModel
+    head: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    leds: LedScene
+    ceiling: list
+    heads: list
+    walk_start: float
+    walk_end: float
+
+    def _index(self, t):
+        u = np.clip((np.atleast_1d(np.asarray(t, float)) - self.times[0])
+                    / (self.times[1] - self.times[0]), 0, len(self.times) - 1)
+        return np.rint(u).astype(int)
+
+    def face_at(self, t):
+        """World markers ``(T, M, 3)``, normals ``(T, M, 3)`` and head origins ``(T, 3)`` at
+        times ``t`` (nearest sample)."""
+        i = self._index(t)
+        world = np.einsum("tij,tmj->tmi", self.R[i], self.head[i]) + self.t[i, None]
+        normals = np.einsum("tij,mj->tmi", self.R[i], self.face.normals)
+        return world, normals, self.t[i].copy()
+
+    def head_led_at(self, t) -> np.ndarray:
+        """The head LED's position ``(T, 3)`` at times ``t``, mm."""
+        return self.leds.positions_at(t)[:, 0]
+
+
+def _walk_path(times, start_x, end_x, walk_start, walk_end, y, height, rng):
+    """Head origin: standing, walking at constant speed with smooth 0.3 s ramps, standing;
+    a vertical bob of 20 mm at the step frequency while walking."""
+    ramp = 0.3
+    d = end_x - start_x
+    v = d / (walk_end - walk_start - ramp)
+    s = np.clip(times - walk_start, 0, walk_end - walk_start)
+    T = walk_end - walk_start
+    # piecewise: accelerate over ramp, cruise, decelerate over ramp (area = d)
+    x = np.where(s < ramp, 0.5 * v / ramp * s**2,
+                 np.where(s < T - ramp, 0.5 * v * ramp + v * (s - ramp),
+                          d - 0.5 * v / ramp * (T - s) ** 2))
+    walking = (times > walk_start) & (times < walk_end)
+    bob = 20.0 * np.sin(2 * np.pi * 1.8 * (times - walk_start)) * walking
+    sway = 25.0 * np.sin(2 * np.pi * 0.9 * (times - walk_start) + rng.uniform(0, 2 * np.pi))
+    return np.stack([start_x + x, y + sway * walking, height + bob], axis=1)
+
+
+def mixed_scale_scene(*, rng: np.random.Generator | int | None = None, travel: float = 4000.0,
+                      speed: float = 1200.0, stand: float = 1.0, rate: float = 200.0,
+                      y: float = 300.0, height: float = 1650.0, yaw_deg: float = 12.0,
+                      pitch_deg: float = 5.0, n_ceiling: int = 6,
+                      head_positions=((-1000.0, -2300.0, 1700.0), (1000.0, -2300.0, 1700.0)),
+                      head_f: float = 3000.0) -> MixedScaleScene:
+    """A person walks ``travel`` mm along X at ``speed`` mm/s, standing ``stand`` s before
+    and after, looking towards -Y (the pan-tilt heads) and turning the head a little, with
+    expressions (:func:`lsmta.synth.face.expression_weights`).
+
+    Parameters
+    ----------
+    n_ceiling : int
+        Ceiling cameras kept (those of :func:`lsmta.synth.widearea.ceiling_rig` that see the
+        head LED's path best), at half size.
+    head_positions : sequence of (3,)
+        Home projection centres of the pan-tilt heads, mm; each looks at the middle of the
+        walk at home and has the misaligned axes of :func:`lsmta.synth.pantilt.pantilt_head`.
+    head_f : float
+        The heads' principal distance, px (zoomed in: at 2.5-3.5 m the face is 120-170 px
+        wide in the 640 x 480 frame, 1 px about 1 mm).
+    """
+    rng = as_rng(rng)
+    travel = as_scalar(travel, "travel", positive=True)
+    speed = as_scalar(speed, "speed", positive=True)
+    stand = as_scalar(stand, "stand", nonnegative=True)
+    rate = as_scalar(rate, "rate", positive=True)
+    walk_time = travel / speed + 0.3
+    duration = 2 * stand + walk_time
+    times = np.arange(int(np.ceil(duration * rate)) + 1) / rate
+    fm = face_model()
+    w = expression_weights(len(times), rng=rng, hold=0.6 * rate)
+    head = fm.shapes(w)
+    t = _walk_path(times, -travel / 2, travel / 2, stand, stand + walk_time, y, height, rng)
+    ph = rng.uniform(0, 2 * np.pi, 3)
+    yaw = yaw_deg * np.sin(2 * np.pi * 0.4 * times + ph[0])
+    pitch = pitch_deg * np.sin(2 * np.pi * 0.6 * times + ph[1])
+    roll = 3.0 * np.sin(2 * np.pi * 0.5 * times + ph[2])
+    R = _BASE @ Rotation.from_euler("YXZ", np.stack([yaw, pitch, roll], 1),
+                                    degrees=True).as_matrix()
+    pos = np.einsum("tij,nj->tni", R, LED_HEAD) + t[:, None]
+    # shoulders do not nod with the head: keep only the yaw for them
+    Ry = _BASE @ Rotation.from_euler("Y", yaw[:, None], degrees=True).as_matrix()
+    pos[:, 1:] = np.einsum("tij,nj->tni", Ry, LED_HEAD[1:]) + t[:, None]
+    normals = np.broadcast_to([0.0, 0.0, 1.0], pos.shape).copy()
+    leds = LedScene(name="walk with a face", times=times, positions=pos, normals=normals,
+                    on=np.tile([0.0, np.inf], (len(LED_HEAD), 1)))
+    rig = [small_camera(c) for c in ceiling_rig(rng=rng)]
+    path = pos[::10, 0]
+    seen = [cam.in_image(cam.project(path, behind="nan")).mean() for cam in rig]
+    ceiling = [rig[i] for i in np.sort(np.argsort(seen)[::-1][:int(n_ceiling)])]
+    middle = np.array([0.0, y, height])
+    heads = [pantilt_head(rng=rng, position=p, look_at=middle, f=head_f, name=f"head{i}")
+             for i, p in enumerate(head_positions)]
+    return MixedScaleScene(times=times, face=fm, head=head, R=R, t=t, leds=leds,
+                           ceiling=ceiling, heads=heads, walk_start=stand,
+                           walk_end=stand + walk_time)
+
+
+def wide_heads(scene: MixedScaleScene, *, f: float = 270.0,
+               rng: np.random.Generator | int | None = None) -> list:
+    """Wide-angle cameras where the scene's heads are, each looking at the middle of the
+    walk with principal distance ``f`` px (270: the whole 4 m walk inside the 640 x 480
+    frame), misaligned like :func:`lsmta.synth.pantilt.pantilt_head` (on fixed mounts, the
+    axes do not matter)."""
+    rng = as_rng(rng)
+    middle = np.array([0.0, float(scene.t[0, 1]), float(scene.t[:, 2].mean())])
+    return [pantilt_head(rng=rng, position=h.camera.C, look_at=middle, f=f,
+                         name=f"wide{i}") for i, h in enumerate(scene.heads)]
+
+
+def render_pantilt_video(head: PanTiltCamera, settings, points, normals, anchor, *,
+                         rng: np.random.Generator | int | None = None, min_cos: float = 0.3,
+                         texture=None, noise: float = 2.0) -> MarkerVideo:
+    """The face-marker video of a pan-tilt camera at the settings its motors reached.
+
+    Parameters
+    ----------
+    head : PanTiltCamera
+        The true head.
+    settings : (T, 2) array
+        Pan and tilt of each frame, degrees (the angles reached, not the commands).
+    points, normals : (T, M, 3) arrays
+        World markers and their unit normals, mm.
+    anchor : (T, 3) array
+        Head origin (the skin texture moves with it).
+    min_cos : float
+        A marker is drawn where its surface faces the camera
+        (:func:`lsmta.synth.face.visible`).
+    texture, noise, rng
+        As :func:`lsmta.synth.marker_video.render_marker_video`.
+    """
+    if not isinstance(head, PanTiltCamera):
+        raise TypeError(f"head: expected a PanTiltCamera, got {type(head).__name__}")
+    s = as_array(settings, "settings", shape=(None, 2))
+    pts = as_array(points, "points", shape=(len(s), None, 3))
+    nrm = as_array(normals, "normals", shape=pts.shape)
+    cams = [head.camera_at(p, q) for p, q in s]
+    vis = np.stack([visible(pts[f], nrm[f], cams[f].C, min_cos=min_cos) for f in range(len(s))])
+    return render_marker_video(cams, pts, vis, anchor, rng=rng, noise=noise, texture=texture)
+
+
+class SimulatedHead:
+    """A pan-tilt head as a device (the system talks to it; the truth stays inside).
+
+    :meth:`command` sends a setting at a time; the motors start towards it ``motor.latency``
+    s later at a speed that would reach it in ``period`` s, at most ``motor.max_rate``, in
+    steps of ``motor.quantum`` degrees (a stepper: the angle reached is on the steps).
+    :meth:`grab` returns the frame at a time and the angles the head reports then.
+
+    Parameters
+    ----------
+    head : PanTiltCamera
+        The true head.
+    scene : MixedScaleScene
+    motor : Motor
+    period : float
+        The command period, s.
+    rng : numpy.random.Generator, int or None
+        Skin texture and image noise.
+    start : (2,)
+        The setting at time 0, degrees.
+    fixed : bool
+        A camera on a fixed mount: commands are ignored, it stays at ``start``.
+    """
+
+    def __init__(self, head: PanTiltCamera, scene: MixedScaleScene, *, motor: Motor | None = None,
+                 period: float = 1 / 30, rng: np.random.Generator | int | None = None,
+                 start=(0.0, 0.0), noise: float = 2.0, step: float = 1e-3,
+                 fixed: bool = False):
+        self.head, self.scene = head, scene
+        self.motor = Motor() if motor is None else motor
+        self.period = as_scalar(period, "period", positive=True)
+        self._rng = as_rng(rng)
+        self._texture = skin_texture((960, 1280), rng=self._rng)
+        self._pos = np.array(as_array(start, "start", shape=(2,)))
+        self._goal = self._pos.copy()
+        self._speed = np.zeros(2)
+        self._now = 0.0
+        self._pending = []              # (active time, setting)
+        self._noise = noise
+        self._step = step
+        self.fixed = bool(fixed)
+        self.settings = []              # (time, pan, tilt) of every frame grabbed
+
+    def command(self, t: float, setting) -> None:
+        """Send a setting (pan, tilt degrees) at time ``t`` (s)."""
+        if self.fixed:
+            return
+        s = np.clip(np.asarray(setting, float), [self.head.pan_limits[0],
+                    self.head.tilt_limits[0]], [self.head.pan_limits[1],
+                                               self.head.tilt_limits[1]])
+        self._pending.append((float(t) + self.motor.latency, s))
+
+    def _run_to(self, t: float) -> None:
+        rate = np.asarray(self.motor.max_rate, float)
+        while self._now < t - 1e-12:
+            dt = min(self._step, t - self._now)
+            while self._pending and self._pending[0][0] <= self._now + 1e-12:
+                self._goal = self._pending.pop(0)[1]
+                self._speed = np.minimum(np.abs(self._goal - self._pos) / self.period, rate)
+            self._pos += np.clip(self._goal - self._pos, -self._speed * dt, self._speed * dt)
+            self._now += dt
+
+    def reached(self, t: float) -> np.ndarray:
+        """The setting at time ``t`` (s), on the motor's steps, degrees."""
+        self._run_to(t)
+        q = self.motor.quantum
+        return np.round(self._pos / q) * q
+
+    def grab(self, t: float):
+        """The frame at time ``t``: ``(image (H, W) uint8, setting read back (2,))``."""
+        s = self.reached(t)
+        world, normals, anchor = self.scene.face_at(t)
+        video = render_pantilt_video(self.head, s[None], world, normals, anchor,
+                                     rng=self._rng, texture=self._texture, noise=self._noise)
+        self.settings.append((float(t), *s))
+        return video.images[0], s.copy()
+
+    def true_xy(self, t: float, setting) -> np.ndarray:
+        """True image positions ``(M, 2)`` of the drawn markers at time ``t`` and a setting
+        (NaN where not drawn) — the truth behind a frame, and what an operator clicks."""
+        world, normals, _ = self.scene.face_at(t)
+        cam = self.head.camera_at(*setting)
+        p = cam.project(world[0], behind="nan")
+        ok = visible(world[0], normals[0], cam.C) & np.isfinite(p).all(axis=1) \
+            & cam.in_image(p)
+        return np.where(ok[:, None], p, np.nan)
+
+
+def hand_labels(device: SimulatedHead, *, sigma_px: float = 0.5,
+                rng: np.random.Generator | int | None = None):
+    """An operator who identifies the markers in a head's frame by hand: a callable
+    ``(t, setting) -> (M, 2)`` giving the drawn markers' positions with ``sigma_px`` of
+    click noise (NaN for markers not seen). The only truth that enters the system, as in
+    the thesis (markers are labelled once, by hand)."""
+    rng = as_rng(rng)
+    sigma_px = as_scalar(sigma_px, "sigma_px", nonnegative=True)
+
+    def label(t, setting):
+        xy = device.true_xy(t, setting)
+        return xy + rng.normal(0, sigma_px, xy.shape)
+
+    return label
+
+
+@dataclass(frozen=True, eq=False)
+class CeilingVideos:
+    """The ceiling cameras' rendered frames.
+
+    Attributes
+    ----------
+    videos : list of LedVideo
+        One per camera (``times``: true capture times).
+    clocks : Clocks
+    stamps : list of (T_k,) arrays
+        Each frame's time stamp by its camera's clock, s.
+    arrival : list of (T_k,) arrays
+        When each frame reaches the estimator, s.
+    """
+
+    videos: list
+    clocks: Clocks
+    stamps: list
+    arrival: list
+
+
+def ceiling_videos(scene: MixedScaleScene, *, rng: np.random.Generator | int | None = None,
+                   duration: float | None = None, monitor_flicker: float = 0.0,
+                   reflections: float = 0.0) -> CeilingVideos:
+    """Render every ceiling camera of ``scene`` at its own rate, phase and clock offset
+    (:func:`lsmta.synth.widearea.make_clocks`) for ``duration`` s (default: the scene)."""
+    rng = as_rng(rng)
+    duration = scene.times[-1] if duration is None else as_scalar(duration, "duration",
+                                                                   positive=True)
+    clocks = make_clocks(len(scene.ceiling), rng=rng)
+    videos, stamps, arrival = [], [], []
+    for k, cam in enumerate(scene.ceiling):
+        tt = clocks.phase[k] + np.arange(0, duration * clocks.rate[k]) / clocks.rate[k]
+        tt = tt[tt < duration]
+        v = render_led_video(scene.leds, cam, tt, rng=rng, monitor_flicker=monitor_flicker,
+                             reflections=reflections)
+        videos.append(v)
+        stamps.append(tt + clocks.offset[k])
+        arrival.append(tt + clocks.latency[k]
+                       + clocks.jitter * np.abs(rng.normal(size=len(tt))))
+    return CeilingVideos(videos=videos, clocks=clocks, stamps=stamps, arrival=arrival)

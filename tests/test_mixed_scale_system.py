@@ -1,0 +1,151 @@
+"""The mixed-scale system (issue 18): the pan-tilt rendering, the head as a device, a short
+closed loop on a tiny scene checked against the truth, and bad input."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from lsmta.evaluation import mixed_scale as ms
+from lsmta.pantilt import Motor
+from lsmta.synth.mixed_scale import SimulatedHead, mixed_scale_scene, render_pantilt_video
+from lsmta.systems import MixedScaleParams, capture_mixed_scale, reacquisition_seeds
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    scene = mixed_scale_scene(rng=5, travel=700.0, stand=0.8, n_ceiling=4)
+    cal = ms.calibrate_scene(scene, rng=6)
+    inputs = ms.walk_inputs(scene, cal, rng=7, n_train=120)
+    return scene, cal, inputs
+
+
+@pytest.fixture(scope="module")
+def run(tiny):
+    scene, cal, inputs = tiny
+    frames = [f.copy() for f in inputs.ceiling.frames]
+    params = MixedScaleParams(start=0.7)
+    cap = capture_mixed_scale(inputs.ceiling, cal.heads, inputs.devices, inputs.identify,
+                              inputs.face_model, params=params, progress=False)
+    return cap, ms.score_capture(cap, scene, inputs.devices), frames
+
+
+def test_pantilt_video_draws_the_markers_where_the_head_at_its_angles_sees_them():
+    scene = mixed_scale_scene(rng=1, travel=500.0, stand=0.2, n_ceiling=2)
+    head = scene.heads[0]
+    world, normals, anchor = scene.face_at([0.1, 0.1])
+    settings = np.array([[-8.0, 0.5], [-8.5, 0.0]])
+    video = render_pantilt_video(head, settings, world, normals, anchor, rng=0)
+    for f, (p, t) in enumerate(settings):
+        xy = head.camera_at(p, t).project(world[f])
+        drawn = np.isfinite(video.xy[f, :, 0])
+        assert drawn.sum() > 30
+        assert np.allclose(video.xy[f, drawn], xy[drawn])
+    # half a degree of pan moves the face by about f * 0.5 deg in the image
+    shift = np.nanmedian(video.xy[1, :, 0] - video.xy[0, :, 0])
+    assert abs(abs(shift) - head.camera.f * np.radians(0.5)) < 5.0
+
+
+def test_head_device_has_dead_time_rate_limit_and_steps():
+    scene = mixed_scale_scene(rng=1, travel=500.0, stand=0.2, n_ceiling=2)
+    motor = Motor(latency=0.25, max_rate=(80.0, 50.0), quantum=0.1)
+    dev = SimulatedHead(scene.heads[0], scene, motor=motor, rng=0)
+    dev.command(0.0, (30.0, 10.0))
+    assert np.allclose(dev.reached(0.24), 0.0)                  # dead time
+    s = dev.reached(0.35)                                       # 0.1 s of motion
+    assert s[0] <= 80.0 * 0.1 + 0.1 and s[1] <= 50.0 * 0.1 + 0.1
+    assert s[0] > 0 and np.allclose(s / 0.1, np.round(s / 0.1))  # on the steps
+    assert np.allclose(dev.reached(2.0), (30.0, 10.0))
+    fixed = SimulatedHead(scene.heads[0], scene, rng=0, fixed=True, start=(5.0, 1.0))
+    fixed.command(0.0, (30.0, 10.0))
+    assert np.allclose(fixed.reached(2.0), (5.0, 1.0))
+
+
+def test_short_closed_loop_against_the_truth(tiny, run):
+    scene, cal, inputs = tiny
+    cap, sc, frames = run
+    # the loop ran: the tracker found the LEDs, the heads were commanded, the face came out
+    assert len(cap.tracking.tracks) >= scene.leds.n_leds
+    assert (cap.head_id >= 0).all()
+    assert cap.face.fitted.mean() > 0.9
+    # against the truth
+    assert sc.both_in_frame > 0.9
+    assert sc.face_median_mm < 1.0
+    assert np.nanmedian(sc.face_error[sc.measured]) < 0.5
+    assert sc.led_rms_mm < 20.0
+    assert np.nanmedian(sc.aim_error) < 150.0
+    # the settings read back are where the true heads were
+    for k, dev in enumerate(inputs.devices):
+        grabbed = np.array(dev.settings)[-len(cap.times):, 1:]
+        assert np.allclose(grabbed, cap.settings[k])
+    # body and face time-stamped together
+    assert cap.body.shape[0] == cap.face.frames.shape[0] == len(cap.times)
+    # nothing passed in was modified
+    assert all(np.array_equal(a, b) for a, b in zip(frames, inputs.ceiling.frames))
+
+
+def test_bad_input_names_the_argument(tiny):
+    scene, cal, inputs = tiny
+    feed, heads, devs, ident, fm = (inputs.ceiling, cal.heads, inputs.devices, inputs.identify,
+                                    inputs.face_model)
+
+    def call(**kw):
+        args = dict(ceiling=feed, heads=heads, devices=devs, identify=ident, face_model=fm)
+        args.update(kw)
+        return capture_mixed_scale(args.pop("ceiling"), args.pop("heads"), args.pop("devices"),
+                                   args.pop("identify"), args.pop("face_model"),
+                                   progress=False, **args)
+
+    with pytest.raises(TypeError, match="ceiling"):
+        call(ceiling=feed.frames)
+    with pytest.raises(TypeError, match="ceiling.cameras"):
+        call(ceiling=replace(feed, cameras=feed.cameras[:1]))
+    with pytest.raises(ValueError, match=r"ceiling.stamps\[0\]"):
+        call(ceiling=replace(feed, stamps=[s[::-1] for s in feed.stamps]))
+    with pytest.raises(ValueError, match=r"ceiling.frames\[1\]"):
+        call(ceiling=replace(feed, frames=[feed.frames[0], feed.frames[1][:, :10]]
+                             + list(feed.frames[2:])))
+    with pytest.raises(ValueError, match="ceiling.backgrounds"):
+        call(ceiling=replace(feed, backgrounds=feed.backgrounds[:2]))
+    with pytest.raises(TypeError, match="heads"):
+        call(heads=[h.camera for h in heads])
+    with pytest.raises(ValueError, match="devices"):
+        call(devices=devs[:1])
+    with pytest.raises(TypeError, match=r"devices\[0\]"):
+        call(devices=[object(), devs[1]])
+    with pytest.raises(TypeError, match=r"identify\[1\]"):
+        call(identify=[ident[0], "by hand"])
+    with pytest.raises(TypeError, match="face_model"):
+        call(face_model=None)
+    with pytest.raises(TypeError, match="params"):
+        call(params={"lead": 0.3})
+    with pytest.raises(ValueError, match="params.start"):
+        call(params=MixedScaleParams(start=100.0))
+    for bad, name in ((dict(damping=0.0), "damping"), (dict(lead=-0.1), "lead"),
+                      (dict(start=1.0, stop=0.5), "stop"), (dict(video_rate=0.0), "video_rate"),
+                      (dict(aim_offset=(0.0, 1.0)), "aim_offset")):
+        with pytest.raises(ValueError, match=name):
+            MixedScaleParams(**bad)
+
+
+def test_reacquisition_seeds_fall_on_drawn_markers_only(tiny, run):
+    scene, cal, inputs = tiny
+    cap, _, _ = run
+    K, F, M = cap.xy.shape[:3]
+    frames = np.arange(0, F, 5)
+    world, _, _ = scene.face_at(cap.times[frames])
+    seeds = reacquisition_seeds(cap.images[:, frames], cal.heads, cap.settings[:, frames],
+                                world, np.zeros((K, len(frames), M), bool))
+    for k, dev in enumerate(inputs.devices):
+        for i, f in enumerate(frames):
+            truth = dev.true_xy(cap.times[f], cap.settings[k, f])
+            s = seeds[k, i]
+            has = np.isfinite(s[:, 0])
+            assert has.sum() > 20
+            # a seed only where a marker is drawn, within a pixel of its image
+            assert np.isfinite(truth[has, 0]).all()
+            assert np.nanmax(np.linalg.norm(s[has] - truth[has], axis=1)) < 1.0
+    # markers already tracked are not restarted
+    none = reacquisition_seeds(cap.images[:, :2], cal.heads, cap.settings[:, :2], world[:2],
+                               np.ones((K, 2, M), bool))
+    assert not np.isfinite(none).any()

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_rng
+from .._validate import as_rng, as_scalar
 from ..calibration import resect_all
 from ..face import distance_deviation, learn
 from ..pantilt import calibrate, calibrate_intrinsics
@@ -145,11 +145,19 @@ class WalkInputs:
 
 def walk_inputs(scene: MixedScaleScene, calibration: SceneCalibration, *,
                 rng: np.random.Generator | int | None = None, n_train: int = 300,
-                video_rate: float = 30.0) -> WalkInputs:
+                train_noise: float = 0.2, video_rate: float = 30.0) -> WalkInputs:
     """Render the ceiling frames, make the heads' devices (the true heads, the motor model
     of :class:`lsmta.pantilt.Motor`), the hand labels (0.5 px) and a face model learnt from
-    a separate still capture of ``n_train`` frames (:func:`lsmta.face.learn`)."""
+    a separate still capture of ``n_train`` frames (:func:`lsmta.face.learn`), measured with
+    ``train_noise`` mm of Gaussian noise per coordinate (the generator's shapes with the
+    error of a capture like this one's, not the exact shapes).
+
+    Truth in these inputs, stated: the ceiling cameras' masks cover the renderer's monitor
+    box (an operator's mask); the devices report the angles their motors reached exactly
+    (no encoder noise); the hand labels are the true image positions with 0.5 px noise and
+    no mislabel."""
     rng = as_rng(rng)
+    as_scalar(train_noise, "train_noise", nonnegative=True)
     cv = ceiling_videos(scene, rng=rng)
     invalid = []
     for v in cv.videos:
@@ -162,6 +170,7 @@ def walk_inputs(scene: MixedScaleScene, calibration: SceneCalibration, *,
                        arrival=cv.arrival, invalid=invalid)
     devices, identify = head_devices(scene, rng=rng, video_rate=video_rate)
     training = face_sequence(scene.face, n_train, rng=rng, moving=False).head
+    training = training + rng.normal(0.0, train_noise, training.shape)
     return WalkInputs(ceiling=feed, devices=devices, identify=identify,
                       face_model=learn(training), videos=cv)
 

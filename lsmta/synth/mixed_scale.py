@@ -303,8 +303,8 @@ def hand_labels(device: SimulatedHead, *, sigma_px: float = 0.5,
                 rng: np.random.Generator | int | None = None):
     """An operator who identifies the markers in a head's frame by hand: a callable
     ``(t, setting) -> (M, 2)`` giving the drawn markers' positions with ``sigma_px`` of
-    click noise (NaN for markers not seen). The only truth that enters the system, as in
-    the thesis (markers are labelled once, by hand)."""
+    click noise (NaN for markers not seen) and no mislabel: the true projections, as an
+    operator would click them (the thesis labels the markers once, by hand)."""
     rng = as_rng(rng)
     sigma_px = as_scalar(sigma_px, "sigma_px", nonnegative=True)
 

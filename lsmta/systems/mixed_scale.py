@@ -5,14 +5,16 @@ What goes in is what a user has: the ceiling cameras' frames with their time sta
 frames of the empty room, the ceiling cameras and the pan-tilt heads as the library
 calibrated them, the heads themselves as devices (they take commands and return a frame and
 the angles they report), a first-frame identification of the face markers per head (by
-hand), and a face model learnt from an earlier capture. Nothing of the generator's truth
-enters. :func:`capture_mixed_scale` runs the stages:
+hand), and a face model learnt from an earlier capture. The system sees nothing else; how
+realistic those inputs are is the caller's affair (notebook 15 says what its simulation
+gives). :func:`capture_mixed_scale` runs the stages:
 
 1. *closed loop*, one tick per pan-tilt frame (``params.video_rate``): every ceiling frame
    that has arrived is searched for LEDs (:func:`~lsmta.widearea.detect`, thresholds
    learnt from the empty room) and fed to the streaming tracker
    (:class:`~lsmta.widearea.WideAreaTracker`); the head is the highest live target; its
-   position is predicted ``params.lead`` s ahead, ``P + lead V`` (0: no prediction), moved
+   position is predicted to the tick plus ``params.lead`` s from the tracker's newest frame
+   (constant velocity; 0: the newest estimate, no prediction), moved
    by ``params.aim_offset`` to the face, and every head is aimed at it from its previous
    command (:func:`~lsmta.pantilt.aim`); each head then grabs its frame at the angles its
    motors reached and reports them;
@@ -64,7 +66,8 @@ class MixedScaleParams:
     video_rate : float
         Pan-tilt frames and commands per second, Hz.
     lead : float
-        Prediction time Δt of the aim point, s (thesis: 0.3; 0: aim at the latest estimate).
+        Prediction time Δt of the aim point beyond the tick, s (thesis: 0.3; 0: aim at the
+        latest estimate).
     damping : float
         The damping filter's α in (0, 1], ``S <- S + α (P' - S)`` on the aim point (1: none;
         :class:`lsmta.pantilt.Control`).
@@ -269,21 +272,27 @@ class _State:
     body: np.ndarray | None = None
 
 
-def head_target(tracker: WideAreaTracker, lead: float, *, previous: int = -1,
+def head_target(tracker: WideAreaTracker, t: float, lead: float, *, previous: int = -1,
                 margin: float = 200.0):
-    """The head and its aim point ``P + lead V`` (mm), or ``(-1, None)`` when no target is
-    alive. The head is the highest live target; the ``previous`` head stays the head while
-    it lives and no other target is more than ``margin`` mm higher (so the aim does not
-    flap between targets at the same height, and moves to the head LED once its track is
-    born when a shoulder had to stand in for it)."""
-    e = tracker.estimate()
+    """The head and its aim point (mm): the live targets predicted to ``t + lead`` (the
+    tick plus the heads' latency, by the tracker's constant-velocity model, from its newest
+    ceiling frame; with ``lead`` 0 the newest estimate, no prediction at all), or
+    ``(-1, None)`` when no target is alive. The head is the highest
+    target; the ``previous`` head stays the head while it lives and no other target is more
+    than ``margin`` mm higher (so the aim does not flap between targets at the same height,
+    and moves to the head LED once its track is born when a shoulder had to stand in for
+    it)."""
+    t = as_scalar(t, "t")
+    as_scalar(lead, "lead", nonnegative=True)
+    as_scalar(margin, "margin", nonnegative=True)
+    e = tracker.predict(t + lead) if lead > 0 else tracker.estimate()
     if not len(e.ids):
         return -1, None
     i = int(np.argmax(e.states[:, 2]))
     same = np.flatnonzero(e.ids == previous)
     if len(same) and e.states[i, 2] - e.states[same[0], 2] <= margin:
         i = int(same[0])
-    return int(e.ids[i]), e.states[i, :3] + lead * e.states[i, 3:]
+    return int(e.ids[i]), e.states[i, :3].copy()
 
 
 def _ceiling_queue(feed: CeilingFeed) -> np.ndarray:
@@ -318,7 +327,7 @@ def _closed_loop(st: _State) -> None:
         while q < len(queue) and queue[q, 0] <= t:
             _feed_ceiling(st, int(queue[q, 1]), int(queue[q, 2]))
             q += 1
-        new, X = head_target(st.tracker, p.lead, previous=hid, margin=p.head_margin)
+        new, X = head_target(st.tracker, t, p.lead, previous=hid, margin=p.head_margin)
         if new != hid:
             hid, since = new, (t if new >= 0 else np.nan)
         if X is not None:

@@ -116,7 +116,7 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
     points : (N, 3) array, optional
         Starting points, mm (default: the linear intersection).
     n_iter : int
-        Most Gauss-Newton steps per point.
+        Most Levenberg-Marquardt steps per point (each damped per point).
     tol : float
         A point stops when its step is below ``tol`` times its distance from the origin
         (relative, mm).

@@ -124,3 +124,16 @@ def test_a_cyan_blob_is_found_at_its_centre_and_rays_meet_at_a_point(rng):
     cams = [random_camera(rng) for _ in range(3)]
     X = np.array([[10.0, -20.0, 1000.0]])
     assert rv.pair_ray_distances(cams, np.vstack([c.project(X) for c in cams])).max() < 1e-6
+
+
+def test_tracks_of_one_marker_stay_paired_at_the_right_time_offset(rng):
+    cams = [random_camera(rng) for _ in range(2)]
+    T, N = 40, 6
+    t = np.arange(T)[:, None, None]
+    X = rng.uniform([-200, -200, 900], [200, 200, 1100], (1, N, 3)) + \
+        150.0 * np.sin(0.3 * t + rng.uniform(0, 6, (1, N, 3)))        # moving markers, mm
+    xy = [np.stack([cam.project(X[k]) for k in range(T)]) for cam in cams]     # (T, N, 2)
+    assert rv.persistent_pairs(cams[0], cams[1], xy[0], xy[1], lag=0) == N
+    assert rv.persistent_pairs(cams[0], cams[1], xy[0], xy[1], lag=8) < N / 2
+    late = np.concatenate([np.full((3, N, 2), np.nan), xy[1][:-3]])   # view b 3 frames late
+    assert rv.persistent_pairs(cams[0], cams[1], xy[0], late, lag=3) == N

@@ -286,3 +286,47 @@ def pair_ray_distances(cameras, xy) -> np.ndarray:
     xy = np.asarray(xy, float).reshape(len(cameras), 2)
     return np.array([_ray_distance(cameras[a].rays(xy[[a]]), cameras[b].rays(xy[[b]]))[0, 0]
                      for a, b in itertools.combinations(range(len(cameras)), 2)])
+
+
+def persistent_pairs(camera_a, camera_b, xy_a, xy_b, *, lag: int = 0,
+                     max_ray_distance: float = 8.0, min_frames: int = 8,
+                     min_motion: float = 15.0, step: int = 2) -> int:
+    """How many pairs of moving tracks of two views stay on meeting rays through time.
+
+    Frame ``t`` of view a is paired with frame ``t + lag`` of view b. A pair of tracks
+    counts when, over at least ``min_frames`` of the frames ``0, step, 2 step, ...`` where
+    both are alive, the median distance of their rays is below ``max_ray_distance`` (mm).
+    Only tracks alive in 20 frames or more that move by more than ``min_motion`` px take
+    part (a static background point pairs at every lag). Markers that truly correspond
+    stay paired at the right lag and drift apart at others, so the count against ``lag``
+    peaks at the views' time offset; the counts far from the peak are chance.
+
+    Parameters
+    ----------
+    camera_a, camera_b : Camera
+    xy_a, xy_b : (T, N_a, 2), (T, N_b, 2) arrays
+        Tracks in each view, px in the cameras' pixels, NaN where not tracked.
+    """
+    def moving(xy):
+        alive = np.isfinite(xy).all(axis=2)
+        keep = alive.sum(axis=0) >= 20
+        span = np.zeros(xy.shape[1])
+        span[keep] = (np.nanmax(xy[:, keep], axis=0)
+                      - np.nanmin(xy[:, keep], axis=0)).max(axis=1)
+        return xy[:, span > min_motion]
+
+    xa, xb = moving(np.asarray(xy_a, float)), moving(np.asarray(xy_b, float))
+    T = min(len(xa), len(xb))
+    frames = np.arange(max(0, -lag), min(T, T - lag), step)
+    if not xa.shape[1] or not xb.shape[1] or not len(frames):
+        return 0
+    D = np.full((len(frames), xa.shape[1], xb.shape[1]), np.nan)
+    for n, t in enumerate(frames):
+        pa, pb = xa[t], xb[t + lag]
+        fa, fb = np.isfinite(pa).all(axis=1), np.isfinite(pb).all(axis=1)
+        if fa.any() and fb.any():
+            D[n][np.ix_(fa, fb)] = _ray_distance(camera_a.rays(pa[fa]), camera_b.rays(pb[fb]))
+    enough = np.isfinite(D).sum(axis=0) >= min_frames
+    med = np.full(enough.shape, np.inf)
+    med[enough] = np.nanmedian(D[:, enough], axis=0)
+    return int((med < max_ray_distance).sum())

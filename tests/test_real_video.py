@@ -137,3 +137,5 @@ def test_tracks_of_one_marker_stay_paired_at_the_right_time_offset(rng):
     assert rv.persistent_pairs(cams[0], cams[1], xy[0], xy[1], lag=8) < N / 2
     late = np.concatenate([np.full((3, N, 2), np.nan), xy[1][:-3]])   # view b 3 frames late
     assert rv.persistent_pairs(cams[0], cams[1], xy[0], late, lag=3) == N
+    with pytest.raises(ValueError, match="xy_b"):
+        rv.persistent_pairs(cams[0], cams[1], xy[0], xy[1][:, :, 0])

@@ -12,7 +12,11 @@ calibration. Without truth, tracking is judged by what needs none:
 * the *multi-view reprojection residual*: a marker tracked in several views and
   intersected with the calibrated cameras should reproject onto its tracked positions;
 * the *epipolar consistency* of the calibration itself, measured with the markers found in
-  two views (:func:`epipolar_partners`), which says how far that residual can go down.
+  two views (:func:`epipolar_partners`), which says how far that residual can go down;
+  :func:`score_hypotheses` asks it of every reading of the file (image flips, camera
+  orders) against chance, :func:`blob_centre` / :func:`pair_ray_distances` of one large
+  object all views see (coarse), and :func:`persistent_pairs` of tracks through time (which
+  also finds the views' time offset).
 """
 
 from __future__ import annotations
@@ -186,7 +190,7 @@ def transform_xy(xy, size, kind: str) -> np.ndarray:
     turned by 180 degrees (both) or left as they are (``"identity"``)."""
     if kind not in IMAGE_TRANSFORMS:
         raise ValueError(f"kind: expected one of {IMAGE_TRANSFORMS}, got {kind!r}")
-    out = as_array(xy, "xy", shape=(None, 2)).astype(float, copy=True)
+    out = as_array(xy, "xy", shape=(None, 2), allow_nan=True).copy()
     W, H = size
     if kind in ("flip_u", "rotate_180"):
         out[:, 0] = W - 1 - out[:, 0]
@@ -315,7 +319,8 @@ def persistent_pairs(camera_a, camera_b, xy_a, xy_b, *, lag: int = 0,
                       - np.nanmin(xy[:, keep], axis=0)).max(axis=1)
         return xy[:, span > min_motion]
 
-    xa, xb = moving(np.asarray(xy_a, float)), moving(np.asarray(xy_b, float))
+    xa = moving(as_array(xy_a, "xy_a", shape=(None, None, 2), allow_nan=True))
+    xb = moving(as_array(xy_b, "xy_b", shape=(None, None, 2), allow_nan=True))
     T = min(len(xa), len(xb))
     frames = np.arange(max(0, -lag), min(T, T - lag), step)
     if not xa.shape[1] or not xb.shape[1] or not len(frames):

@@ -85,3 +85,57 @@ def test_demo_is_read_with_its_calibration():
 def test_load_demo_names_a_missing_folder(tmp_path):
     with pytest.raises(FileNotFoundError):
         rv.load_demo(folder=tmp_path)
+
+
+def test_image_transforms_flip_within_the_image():
+    xy = np.array([[0.0, 0.0], [9.0, 4.0], [2.5, 1.0]])
+    assert np.array_equal(rv.transform_xy(xy, (10, 5), "identity"), xy)
+    assert np.array_equal(rv.transform_xy(xy, (10, 5), "flip_u")[:, 0], [9.0, 0.0, 6.5])
+    assert np.array_equal(rv.transform_xy(xy, (10, 5), "flip_v")[:, 1], [4.0, 0.0, 3.0])
+    back = rv.transform_xy(rv.transform_xy(xy, (10, 5), "rotate_180"), (10, 5), "rotate_180")
+    assert np.array_equal(back, xy)
+    with pytest.raises(ValueError, match="kind"):
+        rv.transform_xy(xy, (10, 5), "rotate_90")
+
+
+def test_the_right_reading_scores_far_above_chance_and_a_flip_does_not(rng):
+    cams = [random_camera(rng, name=f"c{k}") for k in range(3)]
+    X = rng.uniform([-300, -300, 700], [300, 300, 1300], (25, 3))
+    det = [np.vstack([cam.project(X), rng.uniform([0, 0], [cam.width, cam.height], (10, 2))])
+           for cam in cams]
+    sizes = [(cam.width, cam.height) for cam in cams]
+    s = rv.score_hypotheses(cams, det, sizes, max_ray_distance=1.0, rng=1)
+    assert len(s.names) == 4 * 6 and s.counts.shape == (24, 3)
+    right = s.names.index("identity 012")
+    assert np.all(s.counts[right] >= 25) and s.z[right].min() > 5
+    flipped = s.names.index("flip_v 012")
+    assert s.z[flipped].min() < 3
+    assert int(np.argmax(s.z.min(axis=1))) == right
+    with pytest.raises(ValueError, match="detections, sizes"):
+        rv.score_hypotheses(cams, det[:2], sizes)
+
+
+def test_a_cyan_blob_is_found_at_its_centre_and_rays_meet_at_a_point(rng):
+    img = np.full((80, 120, 3), (110, 150, 215), np.uint8)
+    cv2.circle(img, (70, 30), 8, (200, 180, 0), -1)          # cyan (BGR)
+    cv2.circle(img, (20, 60), 3, (200, 180, 0), -1)          # a smaller one
+    assert np.allclose(rv.blob_centre(img), [70, 30], atol=0.1)
+    assert np.isnan(rv.blob_centre(np.full_like(img, 128))).all()
+    cams = [random_camera(rng) for _ in range(3)]
+    X = np.array([[10.0, -20.0, 1000.0]])
+    assert rv.pair_ray_distances(cams, np.vstack([c.project(X) for c in cams])).max() < 1e-6
+
+
+def test_tracks_of_one_marker_stay_paired_at_the_right_time_offset(rng):
+    cams = [random_camera(rng) for _ in range(2)]
+    T, N = 40, 6
+    t = np.arange(T)[:, None, None]
+    X = rng.uniform([-200, -200, 900], [200, 200, 1100], (1, N, 3)) + \
+        150.0 * np.sin(0.3 * t + rng.uniform(0, 6, (1, N, 3)))        # moving markers, mm
+    xy = [np.stack([cam.project(X[k]) for k in range(T)]) for cam in cams]     # (T, N, 2)
+    assert rv.persistent_pairs(cams[0], cams[1], xy[0], xy[1], lag=0) == N
+    assert rv.persistent_pairs(cams[0], cams[1], xy[0], xy[1], lag=8) < N / 2
+    late = np.concatenate([np.full((3, N, 2), np.nan), xy[1][:-3]])   # view b 3 frames late
+    assert rv.persistent_pairs(cams[0], cams[1], xy[0], late, lag=3) == N
+    with pytest.raises(ValueError, match="xy_b"):
+        rv.persistent_pairs(cams[0], cams[1], xy[0], xy[1][:, :, 0])

@@ -3,8 +3,8 @@
 ``skeleton``   single-DoF joints about local z; forward kinematics and analytic Jacobians
 ``metaballs``  ellipsoidal metaballs (eqs. 4-7), the three-ball limb, skin distance, iso-surface
 ``arm``        the arm model (3-DoF shoulder, elbow, wrist) and its initialisation from joints
-``full_body``  the full-body skeleton (28 single-DoF joints, 15 segments) with anatomical
-               joint limits and template ball sizes
+``full_body``  the full-body template (30 single-DoF joints, 15 segments; lengths from
+               anthropometric ratios of one stature) with anatomical joint limits
 ``skin``       B-spline skin: ray-cast cross-sections of the implicit surface, one bicubic
                patch per part, closed triangle meshes (pyvista merge)
 ``silhouette`` the silhouette term: closest approach of a line of sight to the skin and its

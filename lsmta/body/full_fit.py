@@ -3,8 +3,8 @@ shape shared across the frames (Plänkers et al. 1999, Section 4; D'Apuzzo et al
 Fig. 17).
 
 Unknowns
-    per frame: the pelvis' position (3, mm) and the joint angles (radians; the clavicles
-    held at 0 unless freed); shared by all frames: the limb scales ``s`` (the template's
+    per frame: the pelvis' position (3, mm) and the joint angles (radians; ``hold`` names
+    joints kept at their start); shared by all frames: the limb scales ``s`` (the template's
     lengths times ``s``, :mod:`lsmta.body.full_body`) and a width and a depth factor per
     limb (times the template's ball sizes).
 Start from the data, no pose given
@@ -95,7 +95,7 @@ class FullBodyFitParams:
     neighbour_radius: float = 30.0
     min_neighbours: int = 5
     knee_start: float = -0.1
-    hold: tuple = ("clavicle_r", "clavicle_l")
+    hold: tuple = ()
 
     def __post_init__(self):
         for name in ("n_rounds", "n_inner", "max_nfev", "min_neighbours"):

@@ -268,7 +268,7 @@ class _Frame:
         return a, b, int(sol.nfev)
 
 
-def _radii(model, template, scales, factors):
+def _ball_radii(model, template, scales, factors):
     return model.simplified_radii(template * factors.reshape(-1, 2)[_limb_rows(model)], scales)
 
 
@@ -280,13 +280,13 @@ def _solve_shape(model, frames, angles, base, scales, factors, template, p):
     """Limb scales and size factors ``(L, 2)`` over all frames' points, poses held."""
     L = len(scales)
     segs = [np.argmin(model.all_distances(f.pts, angles[[t]], scales,
-                                          _radii(model, template, scales, factors),
+                                          _ball_radii(model, template, scales, factors),
                                           base=base[[t]]), axis=1)
             for t, f in enumerate(frames)]
 
     def residual(x):
         s, k = x[:L], x[L:].reshape(L, 2)
-        radii = _radii(model, template, s, k)
+        radii = _ball_radii(model, template, s, k)
         return np.concatenate([model.distance(f.pts, seg, angles[[t]], s, radii, base=base[[t]])
                                for t, (f, seg) in enumerate(zip(frames, segs))]) / p.sigma_point
 
@@ -352,7 +352,7 @@ def fit_full_body(points, *, rays=None, camera_centre=None, heading=None,
     free = ~np.isin(model.skeleton.names, p.hold)
     nfev = 0
     for k in range(int(p.n_rounds)):
-        radii = _radii(model, template, scales, factors)
+        radii = _ball_radii(model, template, scales, factors)
         for t, f in enumerate(frames):
             for _ in range(int(p.n_inner)):
                 a, b, n = f.solve(angles[[t]], base[[t]], scales, radii, free, bounds,
@@ -367,7 +367,7 @@ def fit_full_body(points, *, rays=None, camera_centre=None, heading=None,
 
 def _finish(model, frames, stature, angles, base, scales, factors, template, start_angles,
             start_base, nfev, p) -> FullBodyFit:
-    radii = _radii(model, template, scales, factors)
+    radii = _ball_radii(model, template, scales, factors)
     r_p, r_s = [], []
     for t, f in enumerate(frames):
         d = model.all_distances(f.pts, angles[[t]], scales, radii, base=base[[t]])

@@ -29,7 +29,7 @@ import numpy as np
 
 from ..body.full_fit import FullBodyFit
 from ..body.skin import SkinParams, merge_patches, model_skin
-from ..synth.body import Body, Motion, inside_parts
+from ..synth.body import Body, Motion, inside_parts, surface_samples
 from ..synth.surface import distance_to_body
 
 # fitted segment -> generator part, and each part's bone direction in its own frame
@@ -168,8 +168,6 @@ def walk_observations(data, contours, frames, *, n_points: int = 1500, noise_mm:
     """Points and lines of sight for ``frames`` of a
     :class:`~lsmta.evaluation.silhouettes.SilhouetteWalk` whose snake contours are
     ``contours (T_all, n, 2)`` (pixels)."""
-    from ..synth.body import surface_samples
-
     rng = np.random.default_rng(rng)
     body, motion, cam = data.scene.body, data.scene.motion, data.camera
     pts, out, rays = [], [], []

@@ -78,3 +78,23 @@ def test_bad_input():
         FullBodyFitParams(scale_bounds=(1.1, 1.2))
     with pytest.raises(ValueError, match="loss"):
         FullBodyFitParams(loss="l2")
+
+
+def test_translation_derivative_matches_differences():
+    from lsmta.body.silhouette import point_derivatives
+
+    model = full_body_model()
+    J = model.skeleton.n_joints
+    angles = np.random.default_rng(3).uniform(-0.2, 0.2, (1, J))
+    S = np.ones(len(model.skeleton.limbs))
+    radii = model.simplified_radii(template_size(model), S)
+    x = np.random.default_rng(4).normal(0, 200, (30, 3)) + [0, 0, 300]
+    seg = np.argmin(model.all_distances(x, angles, S, radii), axis=1)
+    _, d_t = point_derivatives(model, x, seg, angles, S, radii)
+    eps, numeric = 1e-3, []
+    for k in range(3):
+        b = np.eye(4)[None].repeat(2, 0)
+        b[0, k, 3], b[1, k, 3] = eps, -eps
+        up, down = (model.distance(x, seg, angles, S, radii, base=b[[i]]) for i in (0, 1))
+        numeric.append((up - down) / (2 * eps))
+    np.testing.assert_allclose(d_t, np.stack(numeric, axis=1), atol=1e-5)

@@ -5,8 +5,10 @@ Fig. 17).
 Unknowns
     per frame: the pelvis' position (3, mm) and the joint angles (radians; ``hold`` names
     joints kept at their start); shared by all frames: the limb scales ``s`` (the template's
-    lengths times ``s``, :mod:`lsmta.body.full_body`) and a width and a depth factor per
-    limb (times the template's ball sizes).
+    lengths times ``s``, :mod:`lsmta.body.full_body`) and a width, a depth and a
+    length-radius factor per limb (times the template's ball sizes and the radius along the
+    bone, which :mod:`lsmta.body.metaballs` ties to the bone length: the generator's parts
+    are not shaped like three balls, and one tie cannot suit the hand and the thigh).
 Start from the data, no pose given
     The stature is the height above the floor (``z = floor``) of the highest point with
     ``min_neighbours`` others within ``neighbour_radius`` (lone outliers above the head do
@@ -133,7 +135,8 @@ class FullBodyFit:
     scales : (L,) array
         Limb scales (shared).
     size : (S, 2) array
-        Width and depth of each segment's middle ball (mm, shared).
+        Width and depth of each segment's middle ball (mm, shared); ``radii`` also holds
+        the fitted radius along the bone.
     radii : (S, 3, 3) array
         Ball radii (mm).
     start_angles : (T, J) array; start_base : (T, 4, 4) array
@@ -269,7 +272,12 @@ class _Frame:
 
 
 def _ball_radii(model, template, scales, factors):
-    return model.simplified_radii(template * factors.reshape(-1, 2)[_limb_rows(model)], scales)
+    """Radii ``(S, 3, 3)``: the template's widths and depths and the length radius of the
+    bone, each times its limb's factor (``factors (L, 3)``)."""
+    k = factors.reshape(-1, 3)[_limb_rows(model)]
+    radii = model.simplified_radii(template * k[:, :2], scales)
+    radii[..., 2] *= k[:, 2:3]
+    return radii
 
 
 def _limb_rows(model):
@@ -277,7 +285,7 @@ def _limb_rows(model):
 
 
 def _solve_shape(model, frames, angles, base, scales, factors, template, p):
-    """Limb scales and size factors ``(L, 2)`` over all frames' points, poses held."""
+    """Limb scales and size factors ``(L, 3)`` over all frames' points, poses held."""
     L = len(scales)
     segs = [np.argmin(model.all_distances(f.pts, angles[[t]], scales,
                                           _ball_radii(model, template, scales, factors),
@@ -285,17 +293,17 @@ def _solve_shape(model, frames, angles, base, scales, factors, template, p):
             for t, f in enumerate(frames)]
 
     def residual(x):
-        s, k = x[:L], x[L:].reshape(L, 2)
+        s, k = x[:L], x[L:].reshape(L, 3)
         radii = _ball_radii(model, template, s, k)
         return np.concatenate([model.distance(f.pts, seg, angles[[t]], s, radii, base=base[[t]])
                                for t, (f, seg) in enumerate(zip(frames, segs))]) / p.sigma_point
 
     x0 = np.concatenate([scales, factors.ravel()])
-    lo = np.concatenate([np.full(L, p.scale_bounds[0]), np.full(2 * L, p.size_bounds[0])])
-    hi = np.concatenate([np.full(L, p.scale_bounds[1]), np.full(2 * L, p.size_bounds[1])])
+    lo = np.concatenate([np.full(L, p.scale_bounds[0]), np.full(3 * L, p.size_bounds[0])])
+    hi = np.concatenate([np.full(L, p.scale_bounds[1]), np.full(3 * L, p.size_bounds[1])])
     sol = least_squares(residual, np.clip(x0, lo, hi), bounds=(lo, hi), loss=p.loss,
                         max_nfev=int(p.max_nfev), x_scale=1.0)
-    return sol.x[:L], sol.x[L:].reshape(L, 2), int(sol.nfev)
+    return sol.x[:L], sol.x[L:].reshape(L, 3), int(sol.nfev)
 
 
 def _check(points, rays, camera_centre):
@@ -345,7 +353,7 @@ def fit_full_body(points, *, rays=None, camera_centre=None, heading=None,
     frames = [_Frame(model, x, r, centre, p) for x, r in zip(pts, rays)]
     template = template_size(model, stature=stature)
     L = len(LIMBS)
-    scales, factors = np.ones(L), np.ones((L, 2))
+    scales, factors = np.ones(L), np.ones((L, 3))
     bounds = limits(model)
     bounds[[model.skeleton.names.index(n) for n in ("pelvis_b", "pelvis_a", "pelvis_c")]] = \
         [-np.inf, np.inf]
@@ -374,7 +382,7 @@ def _finish(model, frames, stature, angles, base, scales, factors, template, sta
         r_p.append(d[np.arange(len(d)), np.argmin(np.abs(d), axis=1)])
         r_s.append(f.sil(angles[[t]], base[[t]], scales, radii).r if len(f.origins)
                    else np.zeros(0))
-    size = (template * factors[_limb_rows(model)])
+    size = template * factors[_limb_rows(model), :2]
     return FullBodyFit(
         model=model, stature=stature, angles=angles, base=base, scales=scales, size=size,
         radii=radii, start_angles=start_angles, start_base=start_base,

@@ -1,12 +1,10 @@
-"""The full-body skeleton: layout against the generator's body, limits, skin (issue 25)."""
+"""The full-body template: built from anthropometric ratios of a stature, limits, skin."""
 
 import numpy as np
 import pytest
 
-from lsmta.body.full_body import full_body_model, limit_violations, limits, template_size
+from lsmta.body.full_body import LIMBS, full_body_model, limit_violations, limits, template_size
 from lsmta.body.skin import merge_patches, model_skin
-from lsmta.synth import make_body
-from lsmta.synth.body import Motion
 
 
 @pytest.fixture(scope="module")
@@ -14,19 +12,34 @@ def model():
     return full_body_model()
 
 
-def test_rest_pose_joints_match_the_generators_body(model):
-    body = make_body(rng=0)
-    P = len(body.parts)
-    rest = Motion(name="rest", fps=25.0, root_position=np.zeros((1, 3)),
-                  joint_angles=np.zeros((1, P, 3)), part_names=tuple(body.names))
-    true = body.part_poses(rest)[0, :, :3, 3]                      # each part's joint
-    ours = model.skeleton.transforms(np.zeros((1, model.skeleton.n_joints)),
-                                     np.ones(len(model.skeleton.limbs)))[0, :, :3, 3]
-    names = model.skeleton.names
-    pairs = {"shoulder_r_c": "upper_arm_r", "elbow_l": "forearm_l", "wrist_r": "hand_r",
-             "hip_l_c": "thigh_l", "knee_r": "shank_r", "ankle_l": "foot_l", "neck_c": "head"}
-    for joint, part in pairs.items():
-        np.testing.assert_allclose(ours[names.index(joint)], true[body.index(part)], atol=1e-9)
+def test_template_is_built_from_the_stature_ratios(model):
+    """At rest the joints sit at Winter's heights and widths times the stature, relative to
+    the hip joints; a taller template is the same shape, larger; the scales stretch it."""
+    names, J = model.skeleton.names, model.skeleton.n_joints
+
+    def joints(m, scales=None):
+        s = np.ones(len(m.skeleton.limbs)) if scales is None else scales
+        return m.skeleton.transforms(np.zeros((1, J)), s)[0, :, :3, 3]
+
+    H = 1750.0
+    X = joints(model)
+    height = {"shoulder_r_c": 0.818, "elbow_r": 0.818 - 0.186, "wrist_l": 0.818 - 0.186 - 0.146,
+              "knee_r": 0.530 - 0.245, "ankle_l": 0.530 - 0.245 - 0.246,
+              "neck_c": (0.818 + 0.870) / 2, "hip_l_c": 0.530}
+    for joint, h in height.items():
+        assert X[names.index(joint), 2] == pytest.approx((h - 0.530) * H, abs=1e-6), joint
+    assert X[names.index("shoulder_l_c"), 0] == pytest.approx(-0.259 / 2 * H)
+    assert X[names.index("hip_r_c"), 0] == pytest.approx(0.191 / 4 * H)
+    assert model.names == [s.name for s in model.segments] and model.n_segments == 15
+    tall = full_body_model(stature=1.1 * H)
+    np.testing.assert_allclose(joints(tall), 1.1 * X, atol=1e-9)
+    scales = np.ones(len(LIMBS))
+    scales[LIMBS.index("thigh")] = 1.2
+    Y = joints(model, scales)
+    knee, hip = names.index("knee_r"), names.index("hip_r_c")
+    assert Y[knee, 2] - Y[hip, 2] == pytest.approx(-1.2 * 0.245 * H)
+    with pytest.raises(ValueError, match="stature"):
+        full_body_model(stature=-1.0)
 
 
 def test_joint_axes_and_limits(model):

@@ -3,8 +3,9 @@
 ``skeleton``   single-DoF joints about local z; forward kinematics and analytic Jacobians
 ``metaballs``  ellipsoidal metaballs (eqs. 4-7), the three-ball limb, skin distance, iso-surface
 ``arm``        the arm model (3-DoF shoulder, elbow, wrist) and its initialisation from joints
-``full_body``  the full-body skeleton (28 single-DoF joints, 15 segments) with anatomical
-               joint limits and template ball sizes
+``full_body``  the full-body template (30 single-DoF joints, 15 segments; lengths from
+               anthropometric ratios of one stature) with anatomical joint limits
+``full_fit``   the full body fitted to frames of points and lines of sight (shape shared)
 ``skin``       B-spline skin: ray-cast cross-sections of the implicit surface, one bicubic
                patch per part, closed triangle meshes (pyvista merge)
 ``silhouette`` the silhouette term: closest approach of a line of sight to the skin and its
@@ -18,6 +19,7 @@ Angles are in radians, lengths in mm.
 from .arm import JOINTS, LIMBS, angles_from_joints, arm_model, base_poses, shoulder_angles
 from .fitting import BodyFit, FitParams, FitStatus, ModelState, fit_frame, fit_sequence
 from .full_body import full_body_model, limit_violations, limits, template_size
+from .full_fit import FullBodyFit, FullBodyFitParams, fit_full_body
 from .metaballs import (
     THRESHOLD,
     MetaballModel,
@@ -43,6 +45,7 @@ __all__ = [
     "rot_x", "rot_y", "rot_z", "sample_limb_posterior", "shoulder_angles", "surface_distance",
     "surface_distance_terms", "SkinDistance", "FitParams", "SkinParams", "SkinPatch",
     "merge_patches", "model_skin", "skin_patch", "SilhouetteTerms", "silhouette_terms",
-    "PoseFit", "PoseFitParams", "fit_pose", "full_body_model", "limit_violations", "limits",
+    "PoseFit", "PoseFitParams", "fit_pose", "FullBodyFit", "FullBodyFitParams", "fit_full_body",
+    "full_body_model", "limit_violations", "limits",
     "template_size",
 ]

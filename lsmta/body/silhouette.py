@@ -43,6 +43,8 @@ class SilhouetteTerms:
         Closest approach of each line to the skin (mm; negative: through the model).
     d_angles : (N, J) array
         ``dr / dtheta`` (mm per radian).
+    d_translation : (N, 3) array
+        ``dr / dt`` for a translation ``t`` of the whole model (dimensionless).
     closest : (N, 3) array
         The point of closest approach (world mm).
     segment : (N,) int array
@@ -51,11 +53,12 @@ class SilhouetteTerms:
 
     r: np.ndarray
     d_angles: np.ndarray
+    d_translation: np.ndarray
     closest: np.ndarray
     segment: np.ndarray
 
     def __post_init__(self):
-        freeze(self, ("r", "d_angles", "closest", "segment"))
+        freeze(self, ("r", "d_angles", "d_translation", "closest", "segment"))
 
 
 def _distance(model, origins, directions, depth, segment, angles, scales, radii, base):
@@ -121,17 +124,21 @@ def silhouette_terms(model: MetaballModel, origins, directions, angles, scales, 
     depth = 0.5 * (lo + hi)
     closest = origins + depth[:, None] * directions
     r = model.distance(closest, segment, angles, scales, radii, base=base)
-    return SilhouetteTerms(r=r, d_angles=_angle_derivative(model, closest, segment, angles,
-                                                           scales, radii, base),
-                           closest=closest, segment=segment)
+    d_th, d_t = point_derivatives(model, closest, segment, angles, scales, radii, base=base)
+    return SilhouetteTerms(r=r, d_angles=d_th, d_translation=d_t, closest=closest,
+                           segment=segment)
 
 
-def _angle_derivative(model, x, segment, angles, scales, radii, base) -> np.ndarray:
-    """``-grad_x D_s(x) . dX/dtheta`` for world points ``x (N, 3)`` on segments ``(N,)``."""
+def point_derivatives(model: MetaballModel, x, segment, angles, scales, radii, *, base=None):
+    """Derivatives of the skin distance of world points ``x (N, 3)`` (mm) on segments
+    ``(N,)`` held fixed while the model moves: by the joint angles, ``-grad_x D_s(x) .
+    dX/dtheta`` ``(N, J)`` (mm per radian), and by a translation of the whole model,
+    ``-grad_x D_s(x)`` ``(N, 3)``; ``angles (1, J)``, ``base (1, 4, 4)``."""
     F = model.frames(angles, scales, base=base)[0]
     W = model.skeleton.transforms(angles, scales, base=base)[0]
     C = model.centres(scales)
     out = np.zeros((len(x), model.skeleton.n_joints))
+    out_t = np.zeros((len(x), 3))
     for s in np.unique(segment):
         sel = segment == s
         R, o = F[s, :3, :3], F[s, :3, 3]
@@ -143,7 +150,8 @@ def _angle_derivative(model, x, segment, angles, scales, radii, base) -> np.ndar
         d_th, _ = model.skeleton.jacobian(angles, scales, np.full(sel.sum(), j), in_joint,
                                           base=base)
         out[sel] = -np.einsum("nk,nkj->nj", grad, d_th[0])
-    return out
+        out_t[sel] = -grad
+    return out, out_t
 
 
 @dataclass(frozen=True)
@@ -323,7 +331,8 @@ class _Residuals:
         r_p, j_p = np.zeros(0), np.zeros((0, J))
         if len(self.pts):
             r_p = m.distance(self.pts, self.seg, a, self.scales, self.radii, base=self.base)
-            j_p = _angle_derivative(m, self.pts, self.seg, a, self.scales, self.radii, self.base)
+            j_p = point_derivatives(m, self.pts, self.seg, a, self.scales, self.radii,
+                                    base=self.base)[0]
         r_s, j_s = np.zeros(0), np.zeros((0, J))
         if len(self.origins):
             s = silhouette_terms(m, self.origins, self.directions, a, self.scales, self.radii,

@@ -1,0 +1,100 @@
+"""The full-body fit: stature and start from the data, a fit of the template's own pose,
+bad input (issue 25)."""
+
+import numpy as np
+import pytest
+
+from lsmta.body.full_body import full_body_model, template_size
+from lsmta.body.full_fit import (
+    FullBodyFitParams,
+    body_start,
+    fit_full_body,
+    measure_stature,
+)
+from lsmta.body.skin import SkinParams, model_skin
+
+
+def test_stature_ignores_lone_points_above_the_head():
+    rng = np.random.default_rng(0)
+    body = rng.uniform([-200, -100, 0], [200, 100, 1700], (3000, 3))
+    stray = np.array([[0.0, 0.0, 1900.0], [50.0, 0.0, 2100.0]])
+    h = measure_stature(np.vstack([body, stray]), floor=0.0)
+    assert 1650 < h <= 1700
+    assert measure_stature(body + [0, 0, 100], floor=100.0) == pytest.approx(h, abs=30)
+
+
+def test_start_faces_the_direction_of_motion():
+    model = full_body_model()
+    pts = [np.random.default_rng(1).normal(0, 100, (200, 3)) + [x, 0, 900] for x in (0, 300)]
+    angles, base = body_start(model, pts, stature=1750.0)
+    names = model.skeleton.names
+    assert angles[0, names.index("pelvis_c")] == pytest.approx(-np.pi / 2)   # faces +x
+    assert base[1, 0, 3] - base[0, 0, 3] == pytest.approx(300, abs=30)
+    assert 850 < base[0, 2, 3] < 1000                                        # hip height
+    with pytest.raises(ValueError, match="heading"):
+        body_start(model, pts[:1], stature=1750.0)
+
+
+@pytest.mark.slow
+def test_fit_recovers_a_pose_of_the_model_itself():
+    """Points on the template's own skin in a stride: the fit, started from the data,
+    comes back to the pose."""
+    model = full_body_model(stature=1750.0)
+    names = model.skeleton.names
+    truth = np.zeros((1, model.skeleton.n_joints))
+    for joint, a in {"pelvis_c": -np.pi / 2, "hip_r_a": 0.3, "knee_r": -0.3, "hip_l_a": -0.2,
+                     "knee_l": -0.5, "shoulder_r_a": -0.3, "shoulder_l_a": 0.3,
+                     "elbow_r": 0.4, "elbow_l": 0.3}.items():
+        truth[0, names.index(joint)] = a
+    base = np.eye(4)[None].copy()
+    base[0, :3, 3] = (100.0, 50.0, 920.0)
+    S = np.ones(len(model.skeleton.limbs))
+    radii = model.simplified_radii(template_size(model), S)
+    patches = model_skin(model, truth, S, radii, base=base, params=SkinParams(n_u=30, n_v=20))
+    rng = np.random.default_rng(2)
+    pts = np.vstack([p.vertices for p in patches])
+    pts = pts[rng.choice(len(pts), 2500, replace=False)] + rng.normal(0, 1.0, (2500, 3))
+    fit = fit_full_body([pts], heading=0.0, params=FullBodyFitParams(n_rounds=2))
+    for joint in ("hip_r_a", "knee_r", "hip_l_a", "knee_l", "elbow_r", "elbow_l"):
+        k = names.index(joint)
+        assert abs(fit.angles[0, k] - truth[0, k]) < np.radians(4), joint
+    assert np.abs(fit.scales - 1).max() < 0.08
+    assert np.median(np.abs(fit.point_residuals[0])) < 2.0
+
+
+def test_bad_input():
+    pts = [np.zeros((10, 3))]
+    with pytest.raises(ValueError, match="points"):
+        fit_full_body([])
+    with pytest.raises(ValueError, match=r"points\[0\]"):
+        fit_full_body([np.zeros((10, 2))])
+    with pytest.raises(ValueError, match="rays"):
+        fit_full_body(pts, rays=[], camera_centre=np.zeros(3))
+    with pytest.raises(ValueError, match="camera_centre"):
+        fit_full_body(pts, rays=[(np.zeros((2, 3)), np.ones((2, 3)))])
+    with pytest.raises(TypeError, match="params"):
+        fit_full_body(pts, params={})
+    with pytest.raises(ValueError, match="scale_bounds"):
+        FullBodyFitParams(scale_bounds=(1.1, 1.2))
+    with pytest.raises(ValueError, match="loss"):
+        FullBodyFitParams(loss="l2")
+
+
+def test_translation_derivative_matches_differences():
+    from lsmta.body.silhouette import point_derivatives
+
+    model = full_body_model()
+    J = model.skeleton.n_joints
+    angles = np.random.default_rng(3).uniform(-0.2, 0.2, (1, J))
+    S = np.ones(len(model.skeleton.limbs))
+    radii = model.simplified_radii(template_size(model), S)
+    x = np.random.default_rng(4).normal(0, 200, (30, 3)) + [0, 0, 300]
+    seg = np.argmin(model.all_distances(x, angles, S, radii), axis=1)
+    _, d_t = point_derivatives(model, x, seg, angles, S, radii)
+    eps, numeric = 1e-3, []
+    for k in range(3):
+        b = np.eye(4)[None].repeat(2, 0)
+        b[0, k, 3], b[1, k, 3] = eps, -eps
+        up, down = (model.distance(x, seg, angles, S, radii, base=b[[i]]) for i in (0, 1))
+        numeric.append((up - down) / (2 * eps))
+    np.testing.assert_allclose(d_t, np.stack(numeric, axis=1), atol=1e-5)

@@ -9,7 +9,13 @@ import pytest
 from lsmta.evaluation import mixed_scale as ms
 from lsmta.pantilt import Motor
 from lsmta.synth.mixed_scale import SimulatedHead, mixed_scale_scene, render_pantilt_video
-from lsmta.systems import MixedScaleParams, capture_mixed_scale, reacquisition_seeds
+from lsmta.systems import (
+    MixedScaleParams,
+    body_offsets,
+    capture_mixed_scale,
+    coast_head,
+    reacquisition_seeds,
+)
 
 
 @pytest.fixture(scope="module")
@@ -150,3 +156,24 @@ def test_reacquisition_seeds_fall_on_drawn_markers_only(tiny, run):
     none = reacquisition_seeds(cap.images[:, :2], cal.heads, cap.settings[:, :2], world[:2],
                                np.ones((K, 2, M), bool))
     assert not np.isfinite(none).any()
+
+
+def test_a_dead_head_coasts_on_the_body_with_its_last_offsets():
+    ids = np.array([3, 5, 7])
+    X = np.array([[0.0, 0.0, 1700.0], [-190.0, 0.0, 1300.0], [190.0, 0.0, 1300.0]])
+    off = body_offsets(ids, X, 0, 600.0)
+    assert set(off) == {5, 7} and np.allclose(off[5], [190.0, 0.0, 400.0])
+    assert body_offsets(ids, X, 0, 100.0) == {}
+    # the head LED is gone; one shoulder moved on by (100, 50, 0), the other is gone too
+    moved = X[1:2] + [100.0, 50.0, 0.0]
+    assert np.allclose(coast_head([5], moved, off, [0.0, 0.0, 0.0]), [100.0, 50.0, 1700.0])
+    both = X[1:] + [100.0, 50.0, 0.0]
+    assert np.allclose(coast_head([5, 7], both, off, [0.0, 0.0, 0.0]), [100.0, 50.0, 1700.0])
+    # no body target alive: the head is held where it was last aimed
+    assert np.allclose(coast_head([9], moved, off, [1.0, 2.0, 3.0]), [1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match="head"):
+        body_offsets(ids, X, 3, 600.0)
+    with pytest.raises(ValueError, match="positions"):
+        coast_head(ids, X[:, :2], off, [0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="coast"):
+        MixedScaleParams(coast=-1.0)

@@ -65,6 +65,14 @@ def test_head_device_has_dead_time_rate_limit_and_steps():
     fixed = SimulatedHead(scene.heads[0], scene, rng=0, fixed=True, start=(5.0, 1.0))
     fixed.command(0.0, (30.0, 10.0))
     assert np.allclose(fixed.reached(2.0), (5.0, 1.0))
+    # a head's clock does not go back
+    with pytest.raises(ValueError, match="t: expected a time at or after"):
+        dev.reached(1.0)
+    with pytest.raises(ValueError, match="t: expected a time at or after"):
+        dev.command(1.5, (0.0, 0.0))
+    dev.command(2.5, (1.0, 1.0))
+    with pytest.raises(ValueError, match="t: expected a time at or after"):
+        dev.command(2.2, (0.0, 0.0))
 
 
 def test_short_closed_loop_against_the_truth(tiny, run):
@@ -152,6 +160,14 @@ def test_reacquisition_seeds_fall_on_drawn_markers_only(tiny, run):
             # a seed only where a marker is drawn, within a pixel of its image
             assert np.isfinite(truth[has, 0]).all()
             assert np.nanmax(np.linalg.norm(s[has] - truth[has], axis=1)) < 1.0
+    # bad input names the argument
+    args = (cap.images[:, :2], cal.heads, cap.settings[:, :2], world[:2],
+            np.zeros((K, 2, M), bool))
+    for i, name, bad in ((0, "images", cap.images[0, :2]), (1, "heads", cal.heads[:1]),
+                         (2, "settings", cap.settings[:, :3]), (3, "face", world[:2, :, :2]),
+                         (4, "found", np.zeros((K, 2, M)))):
+        with pytest.raises((TypeError, ValueError), match=name):
+            reacquisition_seeds(*args[:i], bad, *args[i + 1:])
     # markers already tracked are not restarted
     none = reacquisition_seeds(cap.images[:, :2], cal.heads, cap.settings[:, :2], world[:2],
                                np.ones((K, 2, M), bool))

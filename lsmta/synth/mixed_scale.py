@@ -254,8 +254,19 @@ class SimulatedHead:
         self.fixed = bool(fixed)
         self.settings = []              # (time, pan, tilt) of every frame grabbed
 
+    def _check_time(self, t) -> float:
+        t = as_scalar(t, "t")
+        last = max(self._now, self._pending[-1][0] - self.motor.latency if self._pending
+                   else -np.inf)
+        if t < last - 1e-12:
+            raise ValueError(f"t: expected a time at or after the head's clock ({last:.4f} s: "
+                             f"its last command or frame), got {t}")
+        return t
+
     def command(self, t: float, setting) -> None:
-        """Send a setting (pan, tilt degrees) at time ``t`` (s)."""
+        """Send a setting (pan, tilt degrees) at time ``t`` (s, not before the last command
+        or frame)."""
+        t = self._check_time(t)
         if self.fixed:
             return
         s = np.clip(np.asarray(setting, float), [self.head.pan_limits[0],
@@ -274,7 +285,12 @@ class SimulatedHead:
             self._now += dt
 
     def reached(self, t: float) -> np.ndarray:
-        """The setting at time ``t`` (s), on the motor's steps, degrees."""
+        """The setting at time ``t`` (s, not before the head's clock), on the motor's
+        steps, degrees."""
+        t = as_scalar(t, "t")
+        if t < self._now - 1e-12:
+            raise ValueError(f"t: expected a time at or after the head's clock "
+                             f"({self._now:.4f} s), got {t}")
         self._run_to(t)
         q = self.motor.quantum
         return np.round(self._pos / q) * q

@@ -401,10 +401,11 @@ def _closed_loop(st: _State) -> None:
     st.commands = np.full((K, F, 2), np.nan)
     st.settings = np.full((K, F, 2), np.nan)
     images = []
-    current = [np.zeros(2) for _ in st.heads]
     smooth, hid, since = None, -1, np.nan
     # the loop runs from the first ceiling frame; frames are kept from params.start on
     ticks = np.r_[np.arange(queue[0, 0], st.times[0] - 1e-9, 1.0 / p.video_rate), st.times]
+    # the aim's search starts from the angles each head reports before its first command
+    current = [_grab(device, ticks[0], k)[1] for k, device in enumerate(st.devices)]
     first = len(ticks) - F
     for i, t in enumerate(tqdm(ticks, desc="closed loop", disable=not st.progress,
                                leave=False)):
@@ -513,8 +514,23 @@ def reacquisition_seeds(images, heads, settings, face, found, *, dot_contrast: f
     (K, F, M, 2) array
         Seeds for :func:`~lsmta.tracking.markers.track_markers`, px (NaN elsewhere).
     """
+    if np.ndim(images) != 4:
+        raise ValueError(f"images: expected an array of shape (K, F, H, W), got shape "
+                         f"{np.shape(images)}")
     K, F, H, W = np.shape(images)
+    heads = list(heads)
+    if len(heads) != K or not all(isinstance(h, PanTiltCamera) for h in heads):
+        raise TypeError(f"heads: expected {K} lsmta.pantilt.PanTiltCamera (one per image "
+                        "sequence)")
+    settings = as_array(settings, "settings", shape=(K, F, 2))
+    face = as_array(face, "face", shape=(F, None, 3), allow_nan=True)
     M = face.shape[1]
+    found = np.asarray(found)
+    if found.dtype != bool or found.shape != (K, F, M):
+        raise ValueError(f"found: expected a bool array of shape ({K}, {F}, {M}), got "
+                         f"{found.dtype} {found.shape}")
+    as_scalar(dot_contrast, "dot_contrast", nonnegative=True)
+    as_scalar(crowd_px, "crowd_px", nonnegative=True)
     seeds = np.full((K, F, M, 2), np.nan)
     for k, head in enumerate(heads):
         for f in np.flatnonzero(np.isfinite(face).all(axis=(1, 2))):

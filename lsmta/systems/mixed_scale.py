@@ -16,8 +16,11 @@ gives). :func:`capture_mixed_scale` runs the stages:
    position is predicted to the tick plus ``params.lead`` s from the tracker's newest frame
    (constant velocity; 0: the newest estimate, no prediction), moved
    by ``params.aim_offset`` to the face, and every head is aimed at it from its previous
-   command (:func:`~lsmta.pantilt.aim`); each head then grabs its frame at the angles its
-   motors reached and reports them;
+   command (:func:`~lsmta.pantilt.aim`; the first search starts from the angles the heads
+   report before any command); each head then grabs its frame at the angles its
+   motors reached and reports them. When the head's target dies, the head is coasted on the
+   body's other targets plus their last offsets from it (:func:`coast_head`) for up to
+   ``params.coast`` s;
 2. *marker tracking* in each head's close-up video (:func:`~lsmta.tracking.markers.
    track_markers`), started from the hand identification of the first frame at which the
    heads have followed the same target for ``params.settle`` s;
@@ -70,7 +73,9 @@ class MixedScaleParams:
         latest estimate).
     damping : float
         The damping filter's α in (0, 1], ``S <- S + α (P' - S)`` on the aim point (1: none;
-        :class:`lsmta.pantilt.Control`).
+        :class:`lsmta.pantilt.Control`). Default 1: a damped aim lags a moving head by
+        (1 - α) / α ticks, and the frames the loop loses are at the walk's start, where the
+        motors' dead time already lags the acceleration.
     start, stop : float
         Clock times of the first pan-tilt frame and of the end of the recording, s.
     aim_offset : (3,)
@@ -114,7 +119,7 @@ class MixedScaleParams:
 
     video_rate: float = 30.0
     lead: float = 0.3
-    damping: float = 0.5
+    damping: float = 1.0
     start: float = 0.9
     stop: float | None = None
     aim_offset: tuple = (0.0, -80.0, -150.0)

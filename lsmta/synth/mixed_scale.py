@@ -248,16 +248,15 @@ class SimulatedHead:
         self._goal = self._pos.copy()
         self._speed = np.zeros(2)
         self._now = 0.0
+        self._commanded = -np.inf       # time of the last command
         self._pending = []              # (active time, setting)
         self._noise = noise
         self._step = step
         self.fixed = bool(fixed)
         self.settings = []              # (time, pan, tilt) of every frame grabbed
 
-    def _check_time(self, t) -> float:
+    def _check_time(self, t, last: float) -> float:
         t = as_scalar(t, "t")
-        last = max(self._now, self._pending[-1][0] - self.motor.latency if self._pending
-                   else -np.inf)
         if t < last - 1e-12:
             raise ValueError(f"t: expected a time at or after the head's clock ({last:.4f} s: "
                              f"its last command or frame), got {t}")
@@ -266,7 +265,8 @@ class SimulatedHead:
     def command(self, t: float, setting) -> None:
         """Send a setting (pan, tilt degrees) at time ``t`` (s, not before the last command
         or frame)."""
-        t = self._check_time(t)
+        t = self._check_time(t, max(self._now, self._commanded))
+        self._commanded = t
         if self.fixed:
             return
         s = np.clip(np.asarray(setting, float), [self.head.pan_limits[0],
@@ -287,11 +287,7 @@ class SimulatedHead:
     def reached(self, t: float) -> np.ndarray:
         """The setting at time ``t`` (s, not before the head's clock), on the motor's
         steps, degrees."""
-        t = as_scalar(t, "t")
-        if t < self._now - 1e-12:
-            raise ValueError(f"t: expected a time at or after the head's clock "
-                             f"({self._now:.4f} s), got {t}")
-        self._run_to(t)
+        self._run_to(self._check_time(t, self._now))
         q = self.motor.quantum
         return np.round(self._pos / q) * q
 

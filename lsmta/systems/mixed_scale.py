@@ -74,8 +74,9 @@ class MixedScaleParams:
     damping : float
         The damping filter's α in (0, 1], ``S <- S + α (P' - S)`` on the aim point (1: none;
         :class:`lsmta.pantilt.Control`). Default 1: a damped aim lags a moving head by
-        (1 - α) / α ticks, and the frames the loop loses are at the walk's start, where the
-        motors' dead time already lags the acceleration.
+        (1 - α) / α ticks, and most frames the loop loses are at the walk's start, where the
+        motors' dead time already lags the acceleration (undamped, a stop is overshot a
+        little more).
     start, stop : float
         Clock times of the first pan-tilt frame and of the end of the recording, s.
     aim_offset : (3,)

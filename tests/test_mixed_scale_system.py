@@ -9,7 +9,13 @@ import pytest
 from lsmta.evaluation import mixed_scale as ms
 from lsmta.pantilt import Motor
 from lsmta.synth.mixed_scale import SimulatedHead, mixed_scale_scene, render_pantilt_video
-from lsmta.systems import MixedScaleParams, capture_mixed_scale, reacquisition_seeds
+from lsmta.systems import (
+    MixedScaleParams,
+    body_offsets,
+    capture_mixed_scale,
+    coast_head,
+    reacquisition_seeds,
+)
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +65,14 @@ def test_head_device_has_dead_time_rate_limit_and_steps():
     fixed = SimulatedHead(scene.heads[0], scene, rng=0, fixed=True, start=(5.0, 1.0))
     fixed.command(0.0, (30.0, 10.0))
     assert np.allclose(fixed.reached(2.0), (5.0, 1.0))
+    # a head's clock does not go back
+    with pytest.raises(ValueError, match="t: expected a time at or after"):
+        dev.reached(1.0)
+    with pytest.raises(ValueError, match="t: expected a time at or after"):
+        dev.command(1.5, (0.0, 0.0))
+    dev.command(2.5, (1.0, 1.0))
+    with pytest.raises(ValueError, match="t: expected a time at or after"):
+        dev.command(2.2, (0.0, 0.0))
 
 
 def test_short_closed_loop_against_the_truth(tiny, run):
@@ -146,7 +160,36 @@ def test_reacquisition_seeds_fall_on_drawn_markers_only(tiny, run):
             # a seed only where a marker is drawn, within a pixel of its image
             assert np.isfinite(truth[has, 0]).all()
             assert np.nanmax(np.linalg.norm(s[has] - truth[has], axis=1)) < 1.0
+    # bad input names the argument
+    args = (cap.images[:, :2], cal.heads, cap.settings[:, :2], world[:2],
+            np.zeros((K, 2, M), bool))
+    for i, name, bad in ((0, "images", cap.images[0, :2]), (1, "heads", cal.heads[:1]),
+                         (2, "settings", cap.settings[:, :3]), (3, "face", world[:2, :, :2]),
+                         (4, "found", np.zeros((K, 2, M)))):
+        with pytest.raises((TypeError, ValueError), match=name):
+            reacquisition_seeds(*args[:i], bad, *args[i + 1:])
     # markers already tracked are not restarted
     none = reacquisition_seeds(cap.images[:, :2], cal.heads, cap.settings[:, :2], world[:2],
                                np.ones((K, 2, M), bool))
     assert not np.isfinite(none).any()
+
+
+def test_a_dead_head_coasts_on_the_body_with_its_last_offsets():
+    ids = np.array([3, 5, 7])
+    X = np.array([[0.0, 0.0, 1700.0], [-190.0, 0.0, 1300.0], [190.0, 0.0, 1300.0]])
+    off = body_offsets(ids, X, 0, 600.0)
+    assert set(off) == {5, 7} and np.allclose(off[5], [190.0, 0.0, 400.0])
+    assert body_offsets(ids, X, 0, 100.0) == {}
+    # the head LED is gone; one shoulder moved on by (100, 50, 0), the other is gone too
+    moved = X[1:2] + [100.0, 50.0, 0.0]
+    assert np.allclose(coast_head([5], moved, off, [0.0, 0.0, 0.0]), [100.0, 50.0, 1700.0])
+    both = X[1:] + [100.0, 50.0, 0.0]
+    assert np.allclose(coast_head([5, 7], both, off, [0.0, 0.0, 0.0]), [100.0, 50.0, 1700.0])
+    # no body target alive: the head is held where it was last aimed
+    assert np.allclose(coast_head([9], moved, off, [1.0, 2.0, 3.0]), [1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match="head"):
+        body_offsets(ids, X, 3, 600.0)
+    with pytest.raises(ValueError, match="positions"):
+        coast_head(ids, X[:, :2], off, [0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="coast"):
+        MixedScaleParams(coast=-1.0)

@@ -248,14 +248,25 @@ class SimulatedHead:
         self._goal = self._pos.copy()
         self._speed = np.zeros(2)
         self._now = 0.0
+        self._commanded = -np.inf       # time of the last command
         self._pending = []              # (active time, setting)
         self._noise = noise
         self._step = step
         self.fixed = bool(fixed)
         self.settings = []              # (time, pan, tilt) of every frame grabbed
 
+    def _check_time(self, t, last: float) -> float:
+        t = as_scalar(t, "t")
+        if t < last - 1e-12:
+            raise ValueError(f"t: expected a time at or after the head's clock ({last:.4f} s: "
+                             f"its last command or frame), got {t}")
+        return t
+
     def command(self, t: float, setting) -> None:
-        """Send a setting (pan, tilt degrees) at time ``t`` (s)."""
+        """Send a setting (pan, tilt degrees) at time ``t`` (s, not before the last command
+        or frame)."""
+        t = self._check_time(t, max(self._now, self._commanded))
+        self._commanded = t
         if self.fixed:
             return
         s = np.clip(np.asarray(setting, float), [self.head.pan_limits[0],
@@ -274,8 +285,9 @@ class SimulatedHead:
             self._now += dt
 
     def reached(self, t: float) -> np.ndarray:
-        """The setting at time ``t`` (s), on the motor's steps, degrees."""
-        self._run_to(t)
+        """The setting at time ``t`` (s, not before the head's clock), on the motor's
+        steps, degrees."""
+        self._run_to(self._check_time(t, self._now))
         q = self.motor.quantum
         return np.round(self._pos / q) * q
 

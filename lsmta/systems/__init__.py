@@ -29,7 +29,9 @@ from .mixed_scale import (
     CeilingFeed,
     MixedScaleCapture,
     MixedScaleParams,
+    body_offsets,
     capture_mixed_scale,
+    coast_head,
     first_settled,
     head_target,
     reacquisition_seeds,
@@ -40,7 +42,7 @@ from .surfaces import SurfaceParams, measure_surfaces, working_distance
 __all__ = [
     "ArmFit", "ArmFitSettings", "BodyCapture", "BodySystemParams", "CeilingFeed",
     "FilterSettings", "MixedScaleCapture", "MixedScaleParams", "capture_mixed_scale",
-    "first_settled", "head_target", "reacquisition_seeds",
+    "body_offsets", "coast_head", "first_settled", "head_target", "reacquisition_seeds",
     "RigCalibration", "SurfaceParams", "calibrate_rig", "capture_body", "fit_arm",
     "fit_self_consistent", "measure_surfaces", "observed_frames", "track_surface",
     "working_distance",

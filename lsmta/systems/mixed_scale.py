@@ -16,8 +16,11 @@ gives). :func:`capture_mixed_scale` runs the stages:
    position is predicted to the tick plus ``params.lead`` s from the tracker's newest frame
    (constant velocity; 0: the newest estimate, no prediction), moved
    by ``params.aim_offset`` to the face, and every head is aimed at it from its previous
-   command (:func:`~lsmta.pantilt.aim`); each head then grabs its frame at the angles its
-   motors reached and reports them;
+   command (:func:`~lsmta.pantilt.aim`; the first search starts from the angles the heads
+   report before any command); each head then grabs its frame at the angles its
+   motors reached and reports them. When the head's target dies, the head is coasted on the
+   body's other targets plus their last offsets from it (:func:`coast_head`) for up to
+   ``params.coast`` s;
 2. *marker tracking* in each head's close-up video (:func:`~lsmta.tracking.markers.
    track_markers`), started from the hand identification of the first frame at which the
    heads have followed the same target for ``params.settle`` s;
@@ -70,7 +73,10 @@ class MixedScaleParams:
         latest estimate).
     damping : float
         The damping filter's α in (0, 1], ``S <- S + α (P' - S)`` on the aim point (1: none;
-        :class:`lsmta.pantilt.Control`).
+        :class:`lsmta.pantilt.Control`). Default 1: a damped aim lags a moving head by
+        (1 - α) / α ticks, and most frames the loop loses are at the walk's start, where the
+        motors' dead time already lags the acceleration (undamped, a stop is overshot a
+        little more).
     start, stop : float
         Clock times of the first pan-tilt frame and of the end of the recording, s.
     aim_offset : (3,)
@@ -93,6 +99,13 @@ class MixedScaleParams:
     max_fill_mm : float
         After a first fill, measured markers farther than this from the fitted face are
         dropped as wrong, and the face is filled again, mm.
+    coast : float
+        When the head's target dies (the LED seen by fewer than two ceiling cameras, at the
+        rig's edge), the aim follows the body's other targets, each plus its last offset
+        from the head, for up to this long, s (0: the highest live target at once, a
+        shoulder; :func:`coast_head`).
+    body_radius : float
+        The targets within this distance of the head are the body it coasts on, mm.
     settle : float
         The markers are identified in the first frame at which the same head target has
         been aimed at for this long (its motors have caught up), s.
@@ -107,7 +120,7 @@ class MixedScaleParams:
 
     video_rate: float = 30.0
     lead: float = 0.3
-    damping: float = 0.5
+    damping: float = 1.0
     start: float = 0.9
     stop: float | None = None
     aim_offset: tuple = (0.0, -80.0, -150.0)
@@ -120,6 +133,8 @@ class MixedScaleParams:
     min_angle_deg: float = 2.0
     max_reprojection_px: float = 1.0
     max_fill_mm: float = 3.0
+    coast: float = 2.0
+    body_radius: float = 600.0
     settle: float = 0.5
     reacquire: int = 2
     dot_contrast: float = 30.0
@@ -127,9 +142,9 @@ class MixedScaleParams:
     def __post_init__(self):
         for key in ("video_rate", "threshold_offset", "threshold_minimum", "tol_px",
                     "min_angle_deg", "max_reprojection_px", "max_fill_mm", "dot_contrast",
-                    "head_margin"):
+                    "head_margin", "body_radius"):
             as_scalar(getattr(self, key), key, positive=True)
-        for key in ("lead", "start", "settle"):
+        for key in ("lead", "start", "settle", "coast"):
             as_scalar(getattr(self, key), key, nonnegative=True)
         if isinstance(self.reacquire, bool) or int(self.reacquire) != self.reacquire \
                 or self.reacquire < 0:
@@ -182,6 +197,9 @@ class MixedScaleCapture:
         The wide-area tracker at the end.
     head_id : (F,) int array
         The target taken for the head at each tick (-1: none alive, no command).
+    coasted : (F,) bool array
+        The head's target had died and the aim came from the body's other targets
+        (``params.coast``).
     aim_points : (F, 3) array
         Where the heads were aimed (predicted head + offset), mm; NaN without a command.
     commands, settings : (K, F, 2) arrays
@@ -208,6 +226,7 @@ class MixedScaleCapture:
     times: np.ndarray
     tracking: TrackingResult
     head_id: np.ndarray
+    coasted: np.ndarray
     aim_points: np.ndarray
     commands: np.ndarray
     settings: np.ndarray
@@ -228,7 +247,8 @@ class MixedScaleCapture:
         rows = [
             ("closed loop", f"{len(self.times)} ticks, {len(tr.tracks)} LED tracks, "
                             f"{int(tr.frames_used.sum())} ceiling frames used; commands in "
-                            f"{int((self.head_id >= 0).sum())} ticks"),
+                            f"{int((self.head_id >= 0).sum())} ticks "
+                            f"({int(self.coasted.sum())} coasted on the body)"),
             ("marker tracking", f"{found.mean():.1%} of marker images found per head"),
             ("triangulation", f"{np.isfinite(self.points).all(axis=2).mean():.1%} of markers "
                               "triangulated"),
@@ -257,7 +277,12 @@ class _State:
     thresholds: list | None = None
     tracker: WideAreaTracker | None = None
     head_id: np.ndarray | None = None
+    coasted: np.ndarray | None = None
     head_since: np.ndarray | None = None
+    hid: int = -1
+    offsets: dict = field(default_factory=dict)
+    last_head: np.ndarray | None = None
+    lost_at: float = np.nan
     aim_points: np.ndarray | None = None
     commands: np.ndarray | None = None
     settings: np.ndarray | None = None
@@ -283,16 +308,80 @@ def head_target(tracker: WideAreaTracker, t: float, lead: float, *, previous: in
     and moves to the head LED once its track is born when a shoulder had to stand in for
     it)."""
     t = as_scalar(t, "t")
-    as_scalar(lead, "lead", nonnegative=True)
     as_scalar(margin, "margin", nonnegative=True)
-    e = tracker.predict(t + lead) if lead > 0 else tracker.estimate()
+    e = _targets_at(tracker, t, lead)
+    i = _highest(e, previous, margin)
+    return (-1, None) if i < 0 else (int(e.ids[i]), e.states[i, :3].copy())
+
+
+def _targets_at(tracker: WideAreaTracker, t: float, lead: float):
+    as_scalar(lead, "lead", nonnegative=True)
+    return tracker.predict(t + lead) if lead > 0 else tracker.estimate()
+
+
+def _highest(e, previous: int, margin: float) -> int:
+    """Row of the head in the estimate ``e`` (:func:`head_target`'s rule), -1 for none."""
     if not len(e.ids):
-        return -1, None
+        return -1
     i = int(np.argmax(e.states[:, 2]))
     same = np.flatnonzero(e.ids == previous)
     if len(same) and e.states[i, 2] - e.states[same[0], 2] <= margin:
         i = int(same[0])
-    return int(e.ids[i]), e.states[i, :3].copy()
+    return i
+
+
+def body_offsets(ids, positions, head: int, radius: float) -> dict:
+    """``{id: head position - its position}`` (mm) of the targets within ``radius`` mm of
+    the head (row ``head`` of ``positions``, ``(N, 3)`` mm; ``ids`` ``(N,)``), the head
+    excepted: the body the head coasts on when its target dies (:func:`coast_head`)."""
+    X = as_array(positions, "positions", shape=(None, 3))
+    ids = as_array(ids, "ids", shape=(len(X),))
+    if not 0 <= head < len(X):
+        raise ValueError(f"head: expected a row of positions (0 to {len(X) - 1}), got {head}")
+    as_scalar(radius, "radius", positive=True)
+    d = X[head] - X
+    near = np.linalg.norm(d, axis=1) <= radius
+    near[head] = False
+    return {int(i): d[j].copy() for j, i in zip(np.flatnonzero(near), ids[near].astype(int))}
+
+
+def coast_head(ids, positions, offsets: dict, held) -> np.ndarray:
+    """The head while its target is dead, mm: the mean over the body's targets still alive
+    (``ids`` ``(N,)``, ``positions`` ``(N, 3)`` mm) of their position plus their offset from
+    the head (``offsets``, :func:`body_offsets` of the last tick the head lived); ``held``
+    (the head's last aim, ``(3,)`` mm) when none of them lives."""
+    X = as_array(positions, "positions", shape=(None, 3))
+    ids = as_array(ids, "ids", shape=(len(X),))
+    held = as_array(held, "held", shape=(3,))
+    rows = [j for j, i in enumerate(ids.astype(int)) if int(i) in offsets]
+    if not rows:
+        return held.copy()
+    return np.mean([X[j] + offsets[int(ids[j])] for j in rows], axis=0)
+
+
+def _aim_head(st: _State, t: float):
+    """The head's target and point at tick ``t`` (stage of the closed loop): the head rule
+    of :func:`head_target` while the head's target lives; when it dies, coasting on the
+    body (:func:`coast_head`) for up to ``params.coast`` s, until a target about as high as
+    the coasted head (within ``params.head_margin``) appears. Returns ``(id, point or None,
+    coasted)``."""
+    p = st.params
+    e = _targets_at(st.tracker, t, p.lead)
+    if st.hid >= 0 and st.hid not in e.ids and p.coast > 0:
+        st.lost_at = t if np.isnan(st.lost_at) else st.lost_at
+        if t - st.lost_at <= p.coast:
+            X = coast_head(e.ids, e.states[:, :3], st.offsets, st.last_head)
+            if not len(e.ids) or e.states[:, 2].max() < X[2] - p.head_margin:
+                st.last_head = X
+                return st.hid, X, True
+    i = _highest(e, st.hid, p.head_margin)
+    if i < 0:
+        st.hid, st.lost_at = -1, np.nan
+        return -1, None, False
+    st.hid, st.lost_at = int(e.ids[i]), np.nan
+    st.last_head = e.states[i, :3].copy()
+    st.offsets = body_offsets(e.ids, e.states[:, :3], i, p.body_radius)
+    return st.hid, st.last_head.copy(), False
 
 
 def _ceiling_queue(feed: CeilingFeed) -> np.ndarray:
@@ -312,22 +401,24 @@ def _closed_loop(st: _State) -> None:
     queue, q = _ceiling_queue(feed), 0
     K, F = len(st.heads), len(st.times)
     st.head_id = np.full(F, -1)
+    st.coasted = np.zeros(F, bool)
     st.head_since = np.full(F, np.nan)
     st.aim_points = np.full((F, 3), np.nan)
     st.commands = np.full((K, F, 2), np.nan)
     st.settings = np.full((K, F, 2), np.nan)
     images = []
-    current = [np.zeros(2) for _ in st.heads]
     smooth, hid, since = None, -1, np.nan
     # the loop runs from the first ceiling frame; frames are kept from params.start on
     ticks = np.r_[np.arange(queue[0, 0], st.times[0] - 1e-9, 1.0 / p.video_rate), st.times]
+    # the aim's search starts from the angles each head reports before its first command
+    current = [_grab(device, ticks[0], k)[1] for k, device in enumerate(st.devices)]
     first = len(ticks) - F
     for i, t in enumerate(tqdm(ticks, desc="closed loop", disable=not st.progress,
                                leave=False)):
         while q < len(queue) and queue[q, 0] <= t:
             _feed_ceiling(st, int(queue[q, 1]), int(queue[q, 2]))
             q += 1
-        new, X = head_target(st.tracker, t, p.lead, previous=hid, margin=p.head_margin)
+        new, X, coasted = _aim_head(st, t)
         if new != hid:
             hid, since = new, (t if new >= 0 else np.nan)
         if X is not None:
@@ -340,7 +431,7 @@ def _closed_loop(st: _State) -> None:
         if i < first:
             continue
         f = i - first
-        st.head_id[f], st.head_since[f] = hid, since
+        st.head_id[f], st.head_since[f], st.coasted[f] = hid, since, coasted
         if X is not None:
             st.aim_points[f] = X
             st.commands[:, f] = current
@@ -429,8 +520,23 @@ def reacquisition_seeds(images, heads, settings, face, found, *, dot_contrast: f
     (K, F, M, 2) array
         Seeds for :func:`~lsmta.tracking.markers.track_markers`, px (NaN elsewhere).
     """
+    if np.ndim(images) != 4:
+        raise ValueError(f"images: expected an array of shape (K, F, H, W), got shape "
+                         f"{np.shape(images)}")
     K, F, H, W = np.shape(images)
+    heads = list(heads)
+    if len(heads) != K or not all(isinstance(h, PanTiltCamera) for h in heads):
+        raise TypeError(f"heads: expected {K} lsmta.pantilt.PanTiltCamera (one per image "
+                        "sequence)")
+    settings = as_array(settings, "settings", shape=(K, F, 2))
+    face = as_array(face, "face", shape=(F, None, 3), allow_nan=True)
     M = face.shape[1]
+    found = np.asarray(found)
+    if found.dtype != bool or found.shape != (K, F, M):
+        raise ValueError(f"found: expected a bool array of shape ({K}, {F}, {M}), got "
+                         f"{found.dtype} {found.shape}")
+    as_scalar(dot_contrast, "dot_contrast", nonnegative=True)
+    as_scalar(crowd_px, "crowd_px", nonnegative=True)
     seeds = np.full((K, F, M, 2), np.nan)
     for k, head in enumerate(heads):
         for f in np.flatnonzero(np.isfinite(face).all(axis=(1, 2))):
@@ -592,7 +698,7 @@ def capture_mixed_scale(ceiling: CeilingFeed, heads, devices, identify, face_mod
         stage(st)
         seconds[name] = time.perf_counter() - t0
     return MixedScaleCapture(times=times, tracking=st.tracker.result(), head_id=st.head_id,
-                             aim_points=st.aim_points, commands=st.commands,
+                             coasted=st.coasted, aim_points=st.aim_points, commands=st.commands,
                              settings=st.settings,
                              images=st.images if keep_images else None, markers=st.markers,
                              xy=st.xy, points=st.points, pairs=st.pairs, face=st.face,

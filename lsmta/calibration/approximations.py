@@ -15,6 +15,7 @@ import cv2
 import numpy as np
 
 from .._validate import as_array
+from ..camera import Camera
 from ..triangulation import triangulate
 from .bundle import Bar
 
@@ -112,3 +113,64 @@ def scaled(cameras, points, factor: float):
         raise ValueError(f"factor: expected a positive finite scale, got {factor}")
     cams = [c.replace(C=c.C * factor) for c in cameras]
     return cams, np.asarray(points, dtype=float) * factor
+
+
+def next_camera(cameras, placed, xy, *, min_angle_deg: float = 0.0):
+    """The camera not yet placed that sees most of the points the placed ones intersect.
+
+    Parameters
+    ----------
+    cameras : sequence of K Camera
+        The placed ones as oriented so far.
+    placed : sequence of int
+        Indices of the placed cameras (at least two).
+    xy : (K, N, 2) array
+        Observations, px (NaN: not seen).
+    min_angle_deg : float
+        Smallest intersection angle of a point, degrees.
+
+    Returns
+    -------
+    k : int
+        The next camera.
+    seen : (N,) bool array
+        The points camera ``k`` sees that the placed cameras intersect.
+    points : (N, 3) array
+        The intersected points, mm (NaN where fewer than two placed cameras see one).
+    """
+    X = triangulate([cameras[k] for k in placed], xy[list(placed)],
+                    min_angle_deg=min_angle_deg).points
+    known = np.isfinite(X).all(axis=1)
+    visible = np.isfinite(xy).all(axis=2)
+    rest = [k for k in range(len(cameras)) if k not in placed]
+    counts = [int((visible[k] & known).sum()) for k in rest]
+    k = rest[int(np.argmax(counts))]
+    return k, visible[k] & known, X
+
+
+def resect(camera: Camera, points, xy, *, max_error_px: float, arg: str = "xy") -> Camera:
+    """Exterior orientation of ``camera`` from 3-D points, its interior orientation kept
+    and its distortion ignored: RANSAC PnP, then all points when RANSAC keeps fewer than 6.
+
+    Parameters
+    ----------
+    camera : Camera
+    points : (M, 3) array
+        Points, mm.
+    xy : (M, 2) array
+        Their images, px.
+    max_error_px : float
+        RANSAC's inlier limit, px.
+    arg : str
+        The caller's argument named in the error when the resection fails.
+    """
+    Km = np.array([[camera.f, 0, camera.cx], [0, camera.f, camera.cy], [0, 0, 1.0]])
+    ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+        points, xy, Km, None, reprojectionError=max_error_px, iterationsCount=500,
+        flags=cv2.SOLVEPNP_SQPNP)
+    if not ok or inliers is None or len(inliers) < 6:
+        ok, rvec, tvec = cv2.solvePnP(points, xy, Km, None, flags=cv2.SOLVEPNP_SQPNP)
+    if not ok:
+        raise ValueError(f"{arg}: the resection of camera {camera.name} failed")
+    R, _ = cv2.Rodrigues(rvec)
+    return camera.replace(R=R, C=-(R.T @ tvec.ravel()))

@@ -22,13 +22,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from .._validate import as_array, as_scalar
 from ..camera import Camera
 from ..triangulation import triangulate
-from .approximations import relative_orientation_start
+from .approximations import next_camera, relative_orientation_start, resect
 
 
 @dataclass(frozen=True, eq=False)
@@ -114,34 +113,17 @@ def chain_cameras(cameras, xy, *, first: int = 0, min_shared: int = 12,
     out[first], out[second] = pair
     order, parent = [first, second], np.full(K, -1, np.int64)
     parent[second] = first
-    seen = np.isfinite(xy).all(axis=2)
     while len(order) < K:
-        X = triangulate([out[k] for k in order], xy[order], min_angle_deg=0.0).points
-        known = np.isfinite(X).all(axis=1)
-        rest = [k for k in range(K) if k not in order]
-        counts = [int((seen[k] & known).sum()) for k in rest]
-        k = rest[int(np.argmax(counts))]
-        if max(counts) < min_shared:
-            raise ValueError(f"xy: camera {cams[k].name or k} sees {max(counts)} intersected "
+        k, m, X = next_camera(out, order, xy)
+        if m.sum() < min_shared:
+            raise ValueError(f"xy: camera {cams[k].name or k} sees {int(m.sum())} intersected "
                              f"point(s) of the chain; it needs >= {min_shared} to join")
-        out[k] = _resect_pnp(out[k], X[seen[k] & known], xy[k, seen[k] & known],
-                             threshold_px)
+        out[k] = resect(out[k], X[m], xy[k, m], max_error_px=2 * threshold_px)
         parent[k] = order[int(np.argmax(shared[k, order]))]
         order.append(k)
     X = triangulate(out, xy, min_angle_deg=0.0).points
     return ChainStart(cameras=out, points=X, order=np.asarray(order, np.int64), parent=parent,
                       shared=shared)
-
-
-def _resect_pnp(camera: Camera, X, xy, threshold_px: float) -> Camera:
-    """Exterior orientation of ``camera`` (nominal interior, no distortion) from points."""
-    Km = np.array([[camera.f, 0, camera.cx], [0, camera.f, camera.cy], [0, 0, 1.0]])
-    ok, rvec, tvec, _ = cv2.solvePnPRansac(X, xy, Km, None,
-                                           reprojectionError=2 * threshold_px)
-    if not ok:
-        raise ValueError(f"xy: resection of camera {camera.name} failed")
-    R, _ = cv2.Rodrigues(rvec)
-    return camera.replace(R=R, C=-(R.T @ tvec.ravel()))
 
 
 def datum_from_distance(cameras, marks_xy, distance: float, *, pose: Camera,

@@ -38,13 +38,12 @@ import time
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-import cv2
 import numpy as np
 
 from .._validate import as_array, as_scalar
 from ..camera import Camera
 from ..triangulation import triangulate
-from .approximations import relative_orientation_start
+from .approximations import next_camera, relative_orientation_start, resect
 from .bundle import Bar, BundleResult, bundle_adjust, min_points_per_camera
 from .labels import consistent_bar_labels
 
@@ -210,34 +209,15 @@ def _approximations(nominal, xy, bar, pair, threshold_px):
     cams = list(nominal)
     cams[i], cams[j] = two
     placed = [i, j]
-    seen = np.isfinite(xy).all(axis=2)
     while len(placed) < K:
-        X = triangulate([cams[k] for k in placed], xy[placed], min_angle_deg=1.0).points
-        known = np.isfinite(X).all(axis=1)
-        rest = [k for k in range(K) if k not in placed]
-        counts = [int((seen[k] & known).sum()) for k in rest]
-        k = rest[int(np.argmax(counts))]
-        m = seen[k] & known
+        k, m, X = next_camera(cams, placed, xy, min_angle_deg=1.0)
         if m.sum() >= 6:
-            cams[k] = _resect(nominal[k], X[m], xy[k, m], threshold_px)
+            cams[k] = resect(nominal[k], X[m], xy[k, m], max_error_px=4 * threshold_px,
+                             arg="wand_xy")
         else:
             cams[k] = _relative_to_placed(nominal, cams, placed, k, xy, bar, threshold_px)
         placed.append(k)
     return cams, triangulate(cams, xy, min_angle_deg=0.0).points
-
-
-def _resect(nominal: Camera, X, xy, threshold_px) -> Camera:
-    """Space resection with the nominal interior orientation (RANSAC, then all inliers)."""
-    Km = np.array([[nominal.f, 0, nominal.cx], [0, nominal.f, nominal.cy], [0, 0, 1.0]])
-    ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-        X, xy, Km, None, reprojectionError=4 * threshold_px, iterationsCount=500,
-        flags=cv2.SOLVEPNP_SQPNP)
-    if not ok or inliers is None or len(inliers) < 6:
-        ok, rvec, tvec = cv2.solvePnP(X, xy, Km, None, flags=cv2.SOLVEPNP_SQPNP)
-    if not ok:
-        raise ValueError(f"wand_xy: the resection of camera {nominal.name} failed")
-    R, _ = cv2.Rodrigues(rvec)
-    return nominal.replace(R=R, C=-(R.T @ tvec.ravel()))
 
 
 def _relative_to_placed(nominal, cams, placed, k, xy, bar, threshold_px) -> Camera:

@@ -193,3 +193,43 @@ def test_a_dead_head_coasts_on_the_body_with_its_last_offsets():
         coast_head(ids, X[:, :2], off, [0.0, 0.0, 0.0])
     with pytest.raises(ValueError, match="coast"):
         MixedScaleParams(coast=-1.0)
+
+
+def test_the_lead_prediction_brakes_with_a_stopping_head_and_never_turns_back():
+    from lsmta.systems import lead_displacement
+
+    # a head walking at 1200 mm/s along X brakes to a stop at 4000 mm/s² (0.3 s ramp)
+    dt = 1 / 240
+    t = np.arange(0, 1.5, dt)
+    v = np.clip(1200.0 - 4000.0 * np.clip(t - 0.5, 0, None), 0, None)
+    x = np.cumsum(v) * dt
+    stop = x[-1]
+    w = int(round(0.2 / dt))                    # velocity change over 0.2 s, as the loop does
+    vel = np.c_[v, np.zeros((len(t), 2))][w:]
+    acc = (vel - np.c_[v, np.zeros((len(t), 2))][:-w]) / 0.2
+    lead = 0.33
+    braked = x[w:] + lead_displacement(vel, acc, lead)[:, 0]
+    constant = x[w:] + lead_displacement(vel, np.zeros_like(acc), lead)[:, 0]
+    # constant velocity leads to where the head would have been had it not stopped; from
+    # 0.1 s into the stop (when the velocity estimate has begun to fall) braking takes at
+    # least half of that overshoot away, and it never predicts behind the head
+    late = t[w:] >= 0.6
+    assert constant.max() - stop > 150.0
+    assert braked[late].max() - stop < 0.5 * (constant[late].max() - stop)
+    assert np.all(braked >= x[w:] - 1e-9) and np.all(braked <= constant + 1e-9)
+    # exact on a constant deceleration: 600 mm/s at -4000 mm/s² stops after 45 mm
+    d = lead_displacement([[600.0, 0.0, 0.0]], [[-4000.0, 0.0, 0.0]], 0.3)
+    assert np.allclose(d, [[45.0, 0.0, 0.0]])
+    # speeding up keeps constant velocity unless asked
+    up = lead_displacement([[600.0, 0.0, 0.0]], [[4000.0, 0.0, 0.0]], 0.3)
+    assert np.allclose(up, [[180.0, 0.0, 0.0]])
+    assert np.allclose(lead_displacement([[600.0, 0.0, 0.0]], [[4000.0, 0.0, 0.0]], 0.3,
+                                         speed_up=True), [[360.0, 0.0, 0.0]])
+    with pytest.raises(ValueError, match="acceleration"):
+        lead_displacement([[1.0, 0.0, 0.0]], [[1.0, 0.0]], 0.3)
+    with pytest.raises(ValueError, match="dt"):
+        lead_displacement([[1.0, 0.0, 0.0]], [[1.0, 0.0, 0.0]], -0.1)
+    with pytest.raises(ValueError, match="accel_window"):
+        MixedScaleParams(accel_window=-0.1)
+    with pytest.raises(TypeError, match="speed_up"):
+        MixedScaleParams(speed_up="yes")

@@ -451,6 +451,46 @@ def test_background_threshold_and_lighting_test():
         background_threshold(np.zeros(5), 1.0, 1.0)
 
 
+def test_noise_threshold_finds_a_dim_led_the_fixed_floor_misses():
+    from lsmta.widearea import background_threshold, detect, noise_threshold
+
+    rng = np.random.default_rng(3)
+    H, W = 48, 64
+    room = 30.0 + 5.0 * np.sin(np.arange(W) / 9.0)[None] + np.zeros((H, W))
+
+    def shoot(n, spot=0.0):
+        return np.clip(np.rint(room + spot + rng.normal(0, 2.0, (n, H, W))), 0, 255).astype(
+            np.uint8)
+
+    empty = shoot(20)
+    kept = empty.copy()
+    yy, xx = np.mgrid[0:H, 0:W]
+    # a far camera's LED: 23 grey levels at its peak over a background of about 30
+    spot = 23.0 * np.exp(-((xx - 40.3) ** 2 + (yy - 20.6) ** 2) / (2 * 0.9**2))
+    led = shoot(10, spot)
+    fixed = detect(led, background_threshold(empty, 20.0, 60.0))
+    assert len(fixed.xy) == 0                           # under the floor of 60
+    thr = noise_threshold(empty, 5.0)
+    # the offset is 5 noise levels measured in the frames (noise 2, rounding included)
+    offset = np.median(thr.threshold - thr.background)
+    assert 9.5 < offset < 10.8
+    found = detect(led, thr)
+    assert np.all(np.diff(found.start) == 1)            # once in every frame
+    assert np.allclose(found.xy, [40.3, 20.6], atol=0.4)
+    # noise alone: no false detection in 200 frames of empty room
+    assert len(detect(shoot(200), thr).xy) == 0
+    ex = np.zeros_like(empty, bool)
+    ex[:, 5, 7] = True                                  # excluded in every frame
+    assert noise_threshold(empty, 5.0, exclude=ex).threshold[5, 7] >= empty.max()
+    np.testing.assert_array_equal(empty, kept)            # input untouched
+    with pytest.raises(ValueError, match="sigmas"):
+        noise_threshold(empty, 0.0)
+    with pytest.raises(ValueError, match="frames"):
+        noise_threshold(empty[:1], 5.0)
+    with pytest.raises(ValueError, match="exclude"):
+        noise_threshold(empty, 5.0, exclude=ex[:3])
+
+
 def test_detect_full_gives_subpixel_centroids_and_respects_masks():
     from lsmta.widearea import Threshold, detect
 

@@ -34,6 +34,7 @@ from .mixed_scale import (
     coast_head,
     first_settled,
     head_target,
+    lead_displacement,
     reacquisition_seeds,
 )
 from .rig import RigCalibration, calibrate_rig
@@ -42,7 +43,8 @@ from .surfaces import SurfaceParams, measure_surfaces, working_distance
 __all__ = [
     "ArmFit", "ArmFitSettings", "BodyCapture", "BodySystemParams", "CeilingFeed",
     "FilterSettings", "MixedScaleCapture", "MixedScaleParams", "capture_mixed_scale",
-    "body_offsets", "coast_head", "first_settled", "head_target", "reacquisition_seeds",
+    "body_offsets", "coast_head", "first_settled", "head_target", "lead_displacement",
+    "reacquisition_seeds",
     "RigCalibration", "SurfaceParams", "calibrate_rig", "capture_body", "fit_arm",
     "fit_self_consistent", "measure_surfaces", "observed_frames", "track_surface",
     "working_distance",

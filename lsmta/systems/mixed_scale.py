@@ -11,10 +11,11 @@ gives). :func:`capture_mixed_scale` runs the stages:
 
 1. *closed loop*, one tick per pan-tilt frame (``params.video_rate``): every ceiling frame
    that has arrived is searched for LEDs (:func:`~lsmta.widearea.detect`, thresholds
-   learnt from the empty room) and fed to the streaming tracker
-   (:class:`~lsmta.widearea.WideAreaTracker`); the head is the highest live target; its
-   position is predicted to the tick plus ``params.lead`` s from the tracker's newest frame
-   (constant velocity; 0: the newest estimate, no prediction), moved
+   learnt from the empty room: its maximum plus a multiple of its measured noise) and fed
+   to the streaming tracker (:class:`~lsmta.widearea.WideAreaTracker`); the head is the
+   highest live target; its position is predicted to the tick plus ``params.lead`` s from
+   the tracker's newest frame (its velocity, braking with the head when it slows down:
+   :func:`lead_displacement`; 0: the newest estimate, no prediction), moved
    by ``params.aim_offset`` to the face, and every head is aimed at it from its previous
    command (:func:`~lsmta.pantilt.aim`; the first search starts from the angles the heads
    report before any command); each head then grabs its frame at the angles its
@@ -39,7 +40,7 @@ gives). :func:`capture_mixed_scale` runs the stages:
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -55,8 +56,8 @@ from ..widearea import (
     EstimatorParams,
     TrackingResult,
     WideAreaTracker,
-    background_threshold,
     detect,
+    noise_threshold,
 )
 
 
@@ -71,6 +72,19 @@ class MixedScaleParams:
     lead : float
         Prediction time Δt of the aim point beyond the tick, s (thesis: 0.3; 0: aim at the
         latest estimate).
+    accel_window : float
+        The lead prediction brakes with the head: each target's acceleration is the change
+        of the tracker's velocity estimate over this long, s, and an axis whose speed falls
+        is extrapolated at that deceleration until it stops (:func:`lead_displacement`);
+        0: constant velocity (which leads to where the head would be had it not stopped:
+        a stop is overshot by up to the speed times the lead).
+    speed_up : bool
+        Also extrapolate an axis whose speed grows at its acceleration (default: constant
+        velocity there).
+    lead_height : bool
+        Also predict the height (default: the newest estimate's height; a walking head
+        bobs with each step, faster than a lead of 0.3 s can follow, and its vertical
+        velocity extrapolated that far misplaces it by more than the bob).
     damping : float
         The damping filter's α in (0, 1], ``S <- S + α (P' - S)`` on the aim point (1: none;
         :class:`lsmta.pantilt.Control`). Default 1: a damped aim lags a moving head by
@@ -84,8 +98,11 @@ class MixedScaleParams:
     head_margin : float
         The head is the highest live target; the current one is kept unless another is
         higher by more than this, mm (:func:`head_target`).
-    threshold_offset, threshold_minimum : float
-        The LED thresholds (:func:`~lsmta.widearea.background_threshold`), grey levels.
+    threshold_sigmas : float
+        The LED thresholds: each pixel's maximum over the empty-room frames plus this many
+        times the image noise measured in them (:func:`~lsmta.widearea.noise_threshold`),
+        no fixed floor (a floor of 60 grey levels over a background of 30 missed the head
+        LED seen dim by a far ceiling camera; 4 to 5 keep noise from passing).
     estimator : EstimatorParams
         The wide-area tracker's settings; default: a walking head's acceleration density
         (1e6 mm²/s³, notebook 12's), the rest :class:`~lsmta.widearea.EstimatorParams`'s.
@@ -120,13 +137,15 @@ class MixedScaleParams:
 
     video_rate: float = 30.0
     lead: float = 0.3
+    accel_window: float = 0.2
+    speed_up: bool = False
+    lead_height: bool = False
     damping: float = 1.0
     start: float = 0.9
     stop: float | None = None
     aim_offset: tuple = (0.0, -80.0, -150.0)
     head_margin: float = 200.0
-    threshold_offset: float = 20.0
-    threshold_minimum: float = 60.0
+    threshold_sigmas: float = 5.0
     estimator: EstimatorParams = field(
         default_factory=lambda: EstimatorParams(accel_density=1e6))
     tol_px: float = 0.5
@@ -140,15 +159,18 @@ class MixedScaleParams:
     dot_contrast: float = 30.0
 
     def __post_init__(self):
-        for key in ("video_rate", "threshold_offset", "threshold_minimum", "tol_px",
+        for key in ("video_rate", "threshold_sigmas", "tol_px",
                     "min_angle_deg", "max_reprojection_px", "max_fill_mm", "dot_contrast",
                     "head_margin", "body_radius"):
             as_scalar(getattr(self, key), key, positive=True)
-        for key in ("lead", "start", "settle", "coast"):
+        for key in ("lead", "start", "settle", "coast", "accel_window"):
             as_scalar(getattr(self, key), key, nonnegative=True)
         if isinstance(self.reacquire, bool) or int(self.reacquire) != self.reacquire \
                 or self.reacquire < 0:
             raise ValueError(f"reacquire: expected an integer >= 0, got {self.reacquire!r}")
+        for key in ("speed_up", "lead_height"):
+            if not isinstance(getattr(self, key), (bool, np.bool_)):
+                raise TypeError(f"{key}: expected a bool, got {getattr(self, key)!r}")
         if not 0 < as_scalar(self.damping, "damping") <= 1:
             raise ValueError(f"damping: expected a number in (0, 1], got {self.damping}")
         if self.stop is not None and not as_scalar(self.stop, "stop") > self.start:
@@ -281,6 +303,7 @@ class _State:
     head_since: np.ndarray | None = None
     hid: int = -1
     offsets: dict = field(default_factory=dict)
+    velocities: dict = field(default_factory=dict)
     last_head: np.ndarray | None = None
     lost_at: float = np.nan
     aim_points: np.ndarray | None = None
@@ -317,6 +340,69 @@ def head_target(tracker: WideAreaTracker, t: float, lead: float, *, previous: in
 def _targets_at(tracker: WideAreaTracker, t: float, lead: float):
     as_scalar(lead, "lead", nonnegative=True)
     return tracker.predict(t + lead) if lead > 0 else tracker.estimate()
+
+
+def lead_displacement(velocity, acceleration, dt, *, speed_up: bool = False) -> np.ndarray:
+    """How far targets move in ``dt`` s, axis by axis: on an axis whose speed falls
+    (acceleration against velocity) at constant deceleration until that axis's velocity
+    reaches zero, then still (a braking head stops; the displacement never turns back);
+    on an axis whose speed grows, at constant velocity (``speed_up``: at constant
+    acceleration).
+
+    Parameters
+    ----------
+    velocity, acceleration : (N, 3) arrays
+        mm/s and mm/s².
+    dt : float or (N,) array
+        Prediction time, s (>= 0).
+    speed_up : bool
+
+    Returns
+    -------
+    (N, 3) array
+        Displacement, mm.
+    """
+    v = as_array(velocity, "velocity", shape=(None, 3))
+    a = as_array(acceleration, "acceleration", shape=v.shape)
+    dt = np.broadcast_to(np.asarray(dt, float), (len(v),))[:, None]
+    if not (np.isfinite(dt).all() and (dt >= 0).all()):
+        raise ValueError("dt: expected finite prediction times >= 0")
+    braking = a * v < 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tau = np.where(braking, np.minimum(dt, -v / np.where(braking, a, 1.0)), dt)
+    a = np.where(braking | speed_up, a, 0.0)
+    return v * tau + 0.5 * a * tau**2
+
+
+def _predicted(st: _State, t: float):
+    """The live targets at ``t + params.lead`` (the newest estimate when ``lead`` is 0): the
+    tracker's newest estimate moved by :func:`lead_displacement`, each target's acceleration
+    the change of its estimated velocity over the last ``params.accel_window`` s (0, or a
+    target younger than that: constant velocity). Logs the velocities."""
+    p = st.params
+    e = st.tracker.estimate()
+    log = st.velocities
+    for i, x in zip(e.ids.tolist(), e.states):
+        h = log.setdefault(i, [])
+        if not h or e.time > h[-1][0]:
+            h.append((e.time, x[3:].copy()))
+        while len(h) > 2 and h[1][0] <= e.time - p.accel_window - 0.5:
+            h.pop(0)
+    if p.lead == 0 or not len(e.ids):
+        return e
+    acc = np.zeros((len(e.ids), 3))
+    if p.accel_window > 0:
+        for j, i in enumerate(e.ids.tolist()):
+            old = [(s, v) for s, v in log[i] if s <= e.time - p.accel_window]
+            if old:
+                acc[j] = (e.states[j, 3:] - old[-1][1]) / (e.time - old[-1][0])
+    states = e.states.copy()
+    d = lead_displacement(e.states[:, 3:], acc, max(t + p.lead - e.time, 0.0),
+                          speed_up=p.speed_up)
+    if not p.lead_height:
+        d[:, 2] = 0.0
+    states[:, :3] += d
+    return replace(e, time=t + p.lead, states=states)
 
 
 def _highest(e, previous: int, margin: float) -> int:
@@ -366,7 +452,7 @@ def _aim_head(st: _State, t: float):
     the coasted head (within ``params.head_margin``) appears. Returns ``(id, point or None,
     coasted)``."""
     p = st.params
-    e = _targets_at(st.tracker, t, p.lead)
+    e = _predicted(st, t)
     if st.hid >= 0 and st.hid not in e.ids and p.coast > 0:
         st.lost_at = t if np.isnan(st.lost_at) else st.lost_at
         if t - st.lost_at <= p.coast:
@@ -395,8 +481,7 @@ def _ceiling_queue(feed: CeilingFeed) -> np.ndarray:
 
 def _closed_loop(st: _State) -> None:
     p, feed = st.params, st.feed
-    st.thresholds = [background_threshold(b, p.threshold_offset, p.threshold_minimum)
-                     for b in feed.backgrounds]
+    st.thresholds = [noise_threshold(b, p.threshold_sigmas) for b in feed.backgrounds]
     st.tracker = WideAreaTracker(feed.cameras, params=p.estimator)
     queue, q = _ceiling_queue(feed), 0
     K, F = len(st.heads), len(st.times)

@@ -10,6 +10,7 @@ from .detection import (
     background_threshold,
     detect,
     needs_new_threshold,
+    noise_threshold,
     relearn_threshold,
     search_mask,
 )
@@ -46,7 +47,8 @@ __all__ = [
     "SearchSetup", "TargetEstimate", "Threshold", "TrackingResult", "WideAreaTrack",
     "WideAreaTracker", "associate", "background_threshold", "calibrate_from_targets", "detect",
     "ekf_update", "find_birth", "innovation_gate", "kalman_update", "measurement",
-    "needs_new_threshold", "predict", "process_noise", "projection_jacobian", "ray_distance",
-    "relearn_threshold", "schedule", "screen_frame", "screen_values", "search_frame",
-    "search_mask", "search_setup", "starved", "track", "transition",
+    "needs_new_threshold", "noise_threshold", "predict", "process_noise",
+    "projection_jacobian", "ray_distance", "relearn_threshold", "schedule", "screen_frame",
+    "screen_values", "search_frame", "search_mask", "search_setup", "starved", "track",
+    "transition",
 ]

@@ -5,7 +5,10 @@
   (:func:`background_threshold`). When many pixels exceed their thresholds at once, the
   lighting has changed and the thresholds are recomputed (:func:`needs_new_threshold`)
   from the next frames, with small bright spots (LEDs) replaced by the local background
-  (:func:`relearn_threshold`, SciPy's grey opening).
+  (:func:`relearn_threshold`, SciPy's grey opening). Instead of a fixed offset and floor,
+  the offset can come from the images: ``k`` times the image noise measured in the empty
+  room's frames (:func:`noise_threshold`, :func:`lsmta.noise.temporal_noise`), so that an
+  LED only a little brighter than a dark background is found.
 * **Invalid regions.** A boolean mask of pixels never to report (monitors, lamps).
 * **Features.** Pixels above threshold are grouped into 8-connected components (OpenCV's
   ``connectedComponents``, once per frame on the image of the pixels found); each
@@ -30,6 +33,7 @@ import numpy as np
 from scipy import ndimage
 
 from .._validate import as_rng, as_scalar
+from ..noise import temporal_noise
 from ._kernels import search_kernel
 
 
@@ -129,17 +133,57 @@ def background_threshold(frames, offset: float, minimum: float, *, exclude=None)
     exclude : (T, H, W) bool array, optional
         Pixels to leave out of the maximum (e.g. features found in those frames).
     """
-    f = _frames(frames).astype(float)
+    f = _frames(frames)
     offset = as_scalar(offset, "offset", nonnegative=True)
     minimum = as_scalar(minimum, "minimum")
+    bg = _background_max(f, exclude)
+    bg = np.where(np.isfinite(bg), bg, minimum - offset)
+    return Threshold(background=bg, threshold=np.maximum(bg + offset, minimum))
+
+
+def _background_max(f, exclude) -> np.ndarray:
+    """Per-pixel maximum of the frames ``f`` over those not ``exclude``d (-inf if none)."""
+    g = f.astype(float)
     if exclude is not None:
         ex = np.asarray(exclude, bool)
         if ex.shape != f.shape:
             raise ValueError(f"exclude: expected shape {f.shape}, got {ex.shape}")
-        f = np.where(ex, -np.inf, f)
-    bg = f.max(axis=0)
-    bg = np.where(np.isfinite(bg), bg, minimum - offset)
-    return Threshold(background=bg, threshold=np.maximum(bg + offset, minimum))
+        g = np.where(ex, -np.inf, g)
+    return g.max(axis=0)
+
+
+def noise_threshold(frames, sigmas: float = 5.0, *, exclude=None) -> Threshold:
+    """Thresholds from frames of the background, with the offset measured in them.
+
+    ``threshold = max over the frames + sigmas * sigma`` per pixel, where ``sigma`` is the
+    image noise of the frames (:func:`lsmta.noise.temporal_noise`, from differences of
+    consecutive frames) and there is no floor: a pixel over a dark background needs only
+    a few noise levels more than the background ever showed, so a dim LED is found, while
+    with ``sigmas`` 4 to 5 a pixel of noise alone rarely passes (the maximum of the
+    frames is already about two sigmas above the mean).
+
+    Parameters
+    ----------
+    frames : (T, H, W) array
+        Frames of the empty room, T >= 2.
+    sigmas : float
+        The offset in units of the measured noise (> 0).
+    exclude : (T, H, W) bool array, optional
+        As in :func:`background_threshold`.
+
+    Returns
+    -------
+    Threshold
+    """
+    f = _frames(frames)
+    sigmas = as_scalar(sigmas, "sigmas", positive=True)
+    if len(f) < 2:
+        raise ValueError(f"frames: expected at least 2 frames to measure the noise, got {len(f)}")
+    offset = sigmas * temporal_noise(f).sigma
+    bg = _background_max(f, exclude)
+    # a pixel excluded in every frame: the brightest background seen anywhere
+    bg = np.where(np.isfinite(bg), bg, float(np.max(f)))
+    return Threshold(background=bg, threshold=bg + offset)
 
 
 def needs_new_threshold(frame, threshold: Threshold, *, fraction: float = 0.01) -> bool:

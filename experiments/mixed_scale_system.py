@@ -2,7 +2,8 @@
 without prediction.
 
     .venv/bin/python experiments/mixed_scale_system.py [--travel 4000] [--speed 900]
-        [--ceiling 8] [--seed 18] [--lead 0.3] [--no-baseline] [--seeds 1 2 3]
+        [--ceiling 8] [--seed 18] [--lead 0.3] [--constant-velocity] [--no-baseline]
+        [--seeds 1 2 3]
 
 Builds the walk of notebook 15 (`lsmta.synth.mixed_scale.mixed_scale_scene`), by default
 slower and so longer, with more ceiling cameras (they stand at X = +-2 m: a walk along X
@@ -53,12 +54,13 @@ def _run(args, seed: int, *, baseline: bool) -> dict:
     out = {"prepare_s": prep_s, "ceiling_rms_px": cal.ceiling_rms_px.tolist(),
            "head_rms_px": cal.head_rms_px.tolist()}
     runs = [("prediction", args.lead, inputs.devices, inputs.identify)]
+    extra = dict(accel_window=0.0, lead_height=True) if args.constant_velocity else {}
     if baseline:
         devices, identify = ms.head_devices(scene, rng=seed + 3)
         runs.append(("no prediction", 0.0, devices, identify))
     for name, lead, devices, identify in runs:
         cap = capture_mixed_scale(inputs.ceiling, cal.heads, devices, identify,
-                                  inputs.face_model, params=MixedScaleParams(lead=lead),
+                                  inputs.face_model, params=MixedScaleParams(lead=lead, **extra),
                                   progress=False)
         sc = ms.score_capture(cap, scene, devices)
         out[name] = _scores(cap, sc)
@@ -81,6 +83,9 @@ def main(argv=None):
     parser.add_argument("--ceiling", type=int, default=8, help="ceiling cameras")
     parser.add_argument("--seed", type=int, default=18)
     parser.add_argument("--lead", type=float, default=0.3, help="prediction time, s")
+    parser.add_argument("--constant-velocity", action="store_true",
+                        help="the thesis's constant-velocity prediction, height included "
+                        "(default: braking with the head, height held)")
     parser.add_argument("--no-baseline", action="store_true", help="skip the run without "
                         "prediction")
     parser.add_argument("--seeds", type=int, nargs="*", default=[],
@@ -89,7 +94,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
 
     out = {"travel_mm": args.travel, "speed_mm_s": args.speed, "ceiling": args.ceiling,
-           "seed": args.seed}
+           "seed": args.seed, "constant_velocity": args.constant_velocity}
     out.update(_run(args, args.seed, baseline=not args.no_baseline))
     if args.seeds:
         out["seeds"] = {str(seed): _run(args, seed, baseline=not args.no_baseline)

@@ -306,3 +306,40 @@ def test_synchronised_intersection_is_exact_when_synchronised():
     with pytest.raises(ValueError, match="min_rays"):
         intersect_instants(rig, obs.frames, times, window=0.01, min_rays=1)
     assert isinstance(obs.frames, Frames)
+
+
+def test_a_target_that_dies_for_a_moment_rejoins_under_its_own_identity():
+    rig = [small_camera(c) for c in ceiling_rig(rng=0)]
+    start, v = np.array([-300.0, 100.0, 1600.0]), np.array([800.0, 0.0, 0.0])
+    seen = [c for c in rig if c.in_image(c.project(np.array([start, start + 1.2 * v]))).all()]
+    cams = seen[:3]
+    assert len(cams) == 3
+    t = np.arange(0.0, 1.2, 1 / 60)
+    # from 0.4 s to 0.7 s only camera 0 sees the LED: fewer than two cameras, it dies
+    gap = (t >= 0.4) & (t < 0.7)
+
+    def run(**kw):
+        tr = WideAreaTracker(cams, params=EstimatorParams(**kw))
+        for f, s in enumerate(t):
+            for k, cam in enumerate(cams):
+                xy = cam.project((start + (s + k / 180) * v)[None])
+                tr.feed(k, s + k / 180, xy if k == 0 or not gap[f] else np.zeros((0, 2)))
+        return tr.result()
+
+    apart = run()
+    assert len(apart.tracks) == 2 and np.isfinite(apart.tracks[0].death_time)
+    back = run(rejoin=0.4)
+    assert len(back.tracks) == 1 and np.isnan(back.tracks[0].death_time)
+    trk = back.tracks[0]
+    assert trk.id == apart.tracks[0].id
+    # not alive while dead; where the LED is before and after
+    died, again = apart.tracks[0].death_time, apart.tracks[1].birth_time
+    mid = 0.5 * (died + again)
+    assert np.isnan(trk.positions_at([mid])).all()
+    for s in (0.3, 1.0):
+        assert np.linalg.norm(trk.positions_at([s])[0] - (start + s * v)) < 10.0
+    # a death longer ago than rejoin, or a birth farther than rejoin_mm, starts a new target
+    assert len(run(rejoin=0.4, rejoin_mm=1e-3).tracks) == 2
+    assert len(run(rejoin=0.01).tracks) == 2
+    with pytest.raises(ValueError, match="rejoin"):
+        EstimatorParams(rejoin=-1.0)

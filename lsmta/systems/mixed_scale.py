@@ -105,7 +105,9 @@ class MixedScaleParams:
         LED seen dim by a far ceiling camera; 4 to 5 keep noise from passing).
     estimator : EstimatorParams
         The wide-area tracker's settings; default: a walking head's acceleration density
-        (1e6 mm²/s³, notebook 12's), the rest :class:`~lsmta.widearea.EstimatorParams`'s.
+        (1e6 mm²/s³, notebook 12's), a target that dies and is born again within 0.3 s and
+        100 mm of where it would be keeps its identity (``rejoin``), the rest
+        :class:`~lsmta.widearea.EstimatorParams`'s.
     tol_px : float
         Aiming tolerance (:func:`~lsmta.pantilt.aim`), px.
     min_angle_deg : float
@@ -147,7 +149,7 @@ class MixedScaleParams:
     head_margin: float = 200.0
     threshold_sigmas: float = 5.0
     estimator: EstimatorParams = field(
-        default_factory=lambda: EstimatorParams(accel_density=1e6))
+        default_factory=lambda: EstimatorParams(accel_density=1e6, rejoin=0.3))
     tol_px: float = 0.5
     min_angle_deg: float = 2.0
     max_reprojection_px: float = 1.0

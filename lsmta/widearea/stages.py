@@ -15,7 +15,8 @@ For each frame the estimator takes up:
    update (:func:`update_pairs`);
 5. :func:`births` — centroids no target took become rays; a ray that meets a fresh ray of
    another camera within ``birth_tolerance`` starts a target
-   (:func:`lsmta.widearea.management.find_birth`).
+   (:func:`lsmta.widearea.management.find_birth`), or resumes one that has just died near
+   there (``rejoin``).
 
 A joining camera's frames go to :func:`collect_join` instead: they are kept with the live
 targets' positions at their stamps until the camera can be calibrated
@@ -238,7 +239,11 @@ def births(state: EstimatorState, c: int, t: float, xy, p) -> None:
         taken_new[i] = taken_pool[j] = True
         seen = np.full(state.last_seen.shape[1], -np.inf)
         seen[c], seen[pool.cameras[j]] = t, pool.stamps[j]
-        _start_target(state, np.concatenate([point, np.zeros(3)]), seen)
+        back = _rejoining(state, point, p)
+        if back is None:
+            _start_target(state, np.concatenate([point, np.zeros(3)]), seen)
+        else:
+            _resume_target(state, back, point, seen)
     pool.keep(~taken_pool)
     pool.add(o[~taken_new], d[~taken_new], t, c)
 
@@ -253,6 +258,34 @@ def _start_target(state: EstimatorState, x0, seen) -> None:
     state.born[i] = state.now
     state.times[i] = [state.now]
     state.states[i] = [x0]
+
+
+def _rejoining(state: EstimatorState, point, p) -> int | None:
+    """The target that died less than ``p.rejoin`` s ago nearest to ``point`` where its last
+    state, carried on at constant velocity, would be now, if within ``p.rejoin_mm``."""
+    if p.rejoin <= 0:
+        return None
+    best, best_d = None, p.rejoin_mm
+    for i, died in state.died.items():
+        if state.now - died > p.rejoin:
+            continue
+        x = state.states[i][-1]
+        d = float(np.linalg.norm(x[:3] + (state.now - state.times[i][-1]) * x[3:] - point))
+        if d <= best_d:
+            best, best_d = i, d
+    return best
+
+
+def _resume_target(state: EstimatorState, i: int, point, seen) -> None:
+    """Target ``i`` lives again at ``point`` with its last velocity (a NaN row marks the
+    gap in its record)."""
+    x0 = np.concatenate([point, state.states[i][-1][3:]])
+    state.X = np.vstack([state.X, x0])
+    state.P = np.concatenate([state.P, state.P0[None]])
+    state.ids = np.append(state.ids, i)
+    state.last_seen = np.vstack([state.last_seen, seen])
+    state.times[i] += [state.died.pop(i), state.now]
+    state.states[i] += [np.full(6, np.nan), x0]
 
 
 def collect_join(state: EstimatorState, c: int, t: float, xy) -> CameraJoin | None:

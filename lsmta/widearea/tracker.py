@@ -19,7 +19,8 @@ unknown camera, time stamp not after that camera's previous one, non-finite stam
 centroids; empty frames only advance the clock), drop a frame older than ``now`` by more
 than ``late_tolerance`` (the naive "discard late" policy is ``late_tolerance = 0``) or
 predict every target to its stamp, drop silent cameras, end starved targets, gate and
-update, births. Target identities are integers that are never reused.
+update, births. Target identities are integers that are never reused (a target that comes
+back soon after its death, ``EstimatorParams.rejoin``, keeps its own).
 """
 
 from __future__ import annotations
@@ -87,6 +88,14 @@ class EstimatorParams:
     camera_timeout : float or None
         An active camera whose newest frame is this much older than the clock is dropped
         (s); None: cameras are never dropped for silence.
+    rejoin : float
+        A birth within ``rejoin_mm`` of where a target that died less than this long ago
+        would be now (its last state carried on at constant velocity) resumes that target,
+        identity and velocity, instead of starting a new one, s (0, the thesis: never; an
+        LED seen by one camera for a moment, at the rig's edge or dim in a far camera,
+        would otherwise come back under a new identity).
+    rejoin_mm : float
+        See ``rejoin``, mm.
     """
 
     sigma_px: float = 0.5
@@ -102,12 +111,15 @@ class EstimatorParams:
     min_separation: float = 40.0
     volume: tuple | None = ((-2500.0, -3000.0, 0.0), (2500.0, 3000.0, 2500.0))
     camera_timeout: float | None = None
+    rejoin: float = 0.0
+    rejoin_mm: float = 100.0
 
     def __post_init__(self):
         for key in ("sigma_px", "gate_px", "gate_sigma", "min_gate_px", "birth_tolerance",
                     "timeout"):
             as_scalar(getattr(self, key), key, positive=True)
-        for key in ("accel_density", "late_tolerance", "staleness", "min_separation"):
+        for key in ("accel_density", "late_tolerance", "staleness", "min_separation",
+                    "rejoin", "rejoin_mm"):
             as_scalar(getattr(self, key), key, nonnegative=True)
         as_array(self.birth_sigma, "birth_sigma", shape=(2,))
         if self.volume is not None:
@@ -126,7 +138,8 @@ class WideAreaTrack:
     times : (n,) array
         Times of the recorded states (birth and every update), s.
     states : (n, 6) array
-        Filtered states at those times (mm, mm/s).
+        Filtered states at those times (mm, mm/s); a row of NaN at a death the target
+        came back from (``EstimatorParams.rejoin``): not alive until its next row.
     birth_time, death_time : float
         s; ``death_time`` is NaN for a target alive at the end.
     """

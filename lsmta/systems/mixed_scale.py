@@ -80,7 +80,9 @@ class MixedScaleParams:
         a stop is overshot by up to the speed times the lead).
     speed_up : bool
         Also extrapolate an axis whose speed grows at its acceleration (default: constant
-        velocity there).
+        velocity there: an acceleration term overshoots the end of every speed-up and
+        follows the step's sway; over walks it saved a few frames at a start but raised the
+        median aim error).
     lead_height : bool
         Also predict the height (default: the newest estimate's height; a walking head
         bobs with each step, faster than a lead of 0.3 s can follow, and its vertical
@@ -326,7 +328,8 @@ def head_target(tracker: WideAreaTracker, t: float, lead: float, *, previous: in
                 margin: float = 200.0):
     """The head and its aim point (mm): the live targets predicted to ``t + lead`` (the
     tick plus the heads' latency, by the tracker's constant-velocity model, from its newest
-    ceiling frame; with ``lead`` 0 the newest estimate, no prediction at all), or
+    ceiling frame; with ``lead`` 0 the newest estimate, no prediction at all; the loop of
+    :func:`capture_mixed_scale` moves them by :func:`lead_displacement` instead), or
     ``(-1, None)`` when no target is alive. The head is the highest
     target; the ``previous`` head stays the head while it lives and no other target is more
     than ``margin`` mm higher (so the aim does not flap between targets at the same height,

@@ -251,13 +251,20 @@ def births(state: EstimatorState, c: int, t: float, xy, p) -> None:
 def _start_target(state: EstimatorState, x0, seen) -> None:
     i = state.next_id
     state.next_id += 1
+    state.born[i] = state.now
+    state.times[i], state.states[i] = [], []
+    _add_live(state, i, x0, seen)
+
+
+def _add_live(state: EstimatorState, i: int, x0, seen) -> None:
+    """Target ``i`` joins the live targets with state ``x0`` (recorded) and a new target's
+    covariance."""
     state.X = np.vstack([state.X, x0])
     state.P = np.concatenate([state.P, state.P0[None]])
     state.ids = np.append(state.ids, i)
     state.last_seen = np.vstack([state.last_seen, seen])
-    state.born[i] = state.now
-    state.times[i] = [state.now]
-    state.states[i] = [x0]
+    state.times[i].append(state.now)
+    state.states[i].append(x0)
 
 
 def _rejoining(state: EstimatorState, point, p) -> int | None:
@@ -277,15 +284,11 @@ def _rejoining(state: EstimatorState, point, p) -> int | None:
 
 
 def _resume_target(state: EstimatorState, i: int, point, seen) -> None:
-    """Target ``i`` lives again at ``point`` with its last velocity (a NaN row marks the
-    gap in its record)."""
-    x0 = np.concatenate([point, state.states[i][-1][3:]])
-    state.X = np.vstack([state.X, x0])
-    state.P = np.concatenate([state.P, state.P0[None]])
-    state.ids = np.append(state.ids, i)
-    state.last_seen = np.vstack([state.last_seen, seen])
-    state.times[i] += [state.died.pop(i), state.now]
-    state.states[i] += [np.full(6, np.nan), x0]
+    """Target ``i`` lives again at ``point`` with its last velocity (a NaN row at its death
+    marks the gap in its record)."""
+    state.times[i].append(state.died.pop(i))
+    state.states[i].append(np.full(6, np.nan))
+    _add_live(state, i, np.concatenate([point, state.states[i][-2][3:]]), seen)
 
 
 def collect_join(state: EstimatorState, c: int, t: float, xy) -> CameraJoin | None:

@@ -138,7 +138,8 @@ def test_bad_input_names_the_argument(tiny):
         call(params=MixedScaleParams(start=100.0))
     for bad, name in ((dict(damping=0.0), "damping"), (dict(lead=-0.1), "lead"),
                       (dict(start=1.0, stop=0.5), "stop"), (dict(video_rate=0.0), "video_rate"),
-                      (dict(aim_offset=(0.0, 1.0)), "aim_offset")):
+                      (dict(aim_offset=(0.0, 1.0)), "aim_offset"),
+                      (dict(threshold_sigmas=0.0), "threshold_sigmas")):
         with pytest.raises(ValueError, match=name):
             MixedScaleParams(**bad)
 

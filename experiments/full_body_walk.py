@@ -2,12 +2,15 @@
 silhouettes, scored against the truth after the fact.
 
     .venv/bin/python experiments/full_body_walk.py [--frames 1 6 11] [--walk-frames 12]
+        [--around] [--free-rounds 2]
 
 Renders the walk in one camera of the triplet rig (``--scale`` of 768 x 576) and the empty
 studio, cuts out the silhouettes and tracks their contour with snakes (trajectory
 prediction), draws noisy surface points with outliers facing that camera (a truth input:
-the LSMTA system measures only the arm), fits the full-body template twice (points alone;
-points and the contours' lines of sight) with the shape shared across ``--frames``, and
+the LSMTA system measures only the arm; with ``--around`` from all round the body), fits
+the full-body template twice (points alone;
+points and the contours' lines of sight) with the shape shared across ``--frames``
+(``--free-rounds`` rounds with the free shape after the tied ones), and
 prints and writes build/benchmarks/full_body.json: worst and per-joint angle errors, length
 errors, the skin's median distances to the true body both ways, outliers, times.
 """
@@ -31,17 +34,21 @@ def main(argv=None):
     parser.add_argument("--walk-frames", type=int, default=12)
     parser.add_argument("--scale", type=float, default=0.5)
     parser.add_argument("--seed", type=int, default=25)
+    parser.add_argument("--around", action="store_true", help="points from all round the body")
+    parser.add_argument("--free-rounds", type=int, default=0)
     parser.add_argument("--out", default="build/benchmarks/full_body.json")
     args = parser.parse_args(argv)
     data = es.silhouette_walk(seed=args.seed, n_frames=args.walk_frames, scale=args.scale)
     trial = es.run_contour_trial(data, n_points=400)
-    obs = ef.walk_observations(data, trial.predicted.contours, args.frames, rng=args.seed)
+    obs = ef.walk_observations(data, trial.predicted.contours, args.frames, around=args.around,
+                               rng=args.seed)
     body, motion = data.scene.body, data.scene.motion
-    out = {"frames": args.frames, "scale": args.scale}
+    out = {"frames": args.frames, "scale": args.scale, "around": args.around,
+           "free_rounds": args.free_rounds}
     for name, rays in (("points", None), ("points+silhouettes", obs.rays)):
         t0 = time.perf_counter()
         fit = fit_full_body(obs.points, rays=rays, camera_centre=obs.camera_centre,
-                            params=FullBodyFitParams())
+                            params=FullBodyFitParams(free_rounds=args.free_rounds))
         seconds = time.perf_counter() - t0
         errors = ef.joint_errors(fit, body, motion, obs.frames)
         skins = [ef.skin_score(fit, body, motion, t, int(f), rng=args.seed)

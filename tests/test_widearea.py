@@ -470,7 +470,7 @@ def test_noise_threshold_finds_a_dim_led_the_fixed_floor_misses():
     led = shoot(10, spot)
     fixed = detect(led, background_threshold(empty, 20.0, 60.0))
     assert len(fixed.xy) == 0                           # under the floor of 60
-    thr = noise_threshold(empty, 5.0)
+    thr = noise_threshold(empty, sigmas=5.0)
     # the offset is 5 noise levels measured in the frames (noise 2, rounding included)
     offset = np.median(thr.threshold - thr.background)
     assert 9.5 < offset < 10.8
@@ -481,14 +481,14 @@ def test_noise_threshold_finds_a_dim_led_the_fixed_floor_misses():
     assert len(detect(shoot(200), thr).xy) == 0
     ex = np.zeros_like(empty, bool)
     ex[:, 5, 7] = True                                  # excluded in every frame
-    assert noise_threshold(empty, 5.0, exclude=ex).threshold[5, 7] >= empty.max()
+    assert noise_threshold(empty, sigmas=5.0, exclude=ex).threshold[5, 7] >= empty.max()
     np.testing.assert_array_equal(empty, kept)            # input untouched
     with pytest.raises(ValueError, match="sigmas"):
-        noise_threshold(empty, 0.0)
+        noise_threshold(empty, sigmas=0.0)
     with pytest.raises(ValueError, match="frames"):
-        noise_threshold(empty[:1], 5.0)
+        noise_threshold(empty[:1], sigmas=5.0)
     with pytest.raises(ValueError, match="exclude"):
-        noise_threshold(empty, 5.0, exclude=ex[:3])
+        noise_threshold(empty, sigmas=5.0, exclude=ex[:3])
 
 
 def test_detect_full_gives_subpixel_centroids_and_respects_masks():

@@ -5,10 +5,30 @@ Fig. 17).
 Unknowns
     per frame: the pelvis' position (3, mm) and the joint angles (radians; ``hold`` names
     joints kept at their start); shared by all frames: the limb scales ``s`` (the template's
-    lengths times ``s``, :mod:`lsmta.body.full_body`) and a width, a depth and a
-    length-radius factor per limb (times the template's ball sizes and the radius along the
-    bone, which :mod:`lsmta.body.metaballs` ties to the bone length: the generator's parts
-    are not shaped like three balls, and one tie cannot suit the hand and the thigh).
+    lengths times ``s``, :mod:`lsmta.body.full_body`) and a shape per limb (left and right
+    share it), in two forms:
+
+    * tied: one width, one depth and one length-radius factor for the limb's three balls
+      (times the template's ball sizes and the radius along the bone, which
+      :mod:`lsmta.body.metaballs` ties to the bone length);
+    * free (Plänkers' full model, which frees each ball's size): a width and a depth factor
+      per ball, the length-radius factor and a shift of the balls along the bone frame's y
+      axis (mm; forward for an arm or a leg, backward for the trunk and head, up for a
+      foot). No sideways shift: a limb's joints swing about the sideways axis in a walk,
+      which does not show where along that axis they sit, so a sideways shift would trade
+      freely with the shoulder and hip widths.
+      Each free entry is drawn towards the tied solution by a prior (``size_prior``,
+      ``offset_prior``): the points do not constrain every ball alike.
+
+    The free shape starts from the tied solution. Its rounds use ``free_loss`` (the model
+    then lies near the points, and a redescending loss lets far outliers go: with the
+    soft-l1 loss of the tied rounds, outliers near the feet and hands blew those balls up
+    and the fit ran off). Measured on the generated walk (notebook 20,
+    ``experiments/full_body_walk.py``): with points all round the body the free shape
+    brings the skin within 2 mm of the true body; with points from the front only it
+    helps the seen side but the back stays the template's guess. ``free_rounds=0`` by
+    default: each free round costs about as much as a tied one again.
+
 Start from the data, no pose given
     The stature is the height above the floor (``z = floor``) of the highest point with
     ``min_neighbours`` others within ``neighbour_radius`` (lone outliers above the head do
@@ -16,14 +36,16 @@ Start from the data, no pose given
     (x, y) at the template's hip height, the body upright, limbs at rest (knees bent by
     ``knee_start``), facing the direction in which the points' median moves over the
     frames (the person walks forwards; with one frame, the heading must be given).
-Stages, in ``n_rounds`` rounds
+Stages, in ``n_rounds`` rounds with the tied shape, then ``free_rounds`` with the free one
     1. per frame, ``n_inner`` times: assign the points to their nearest segment, gate the
        lines of sight (closest approach within ``gate`` mm of the skin), solve the pose by
        robust least squares (analytic Jacobian; joint limits as bounds). Lines of sight
        join from round ``silhouette_from`` on (the start is too far from the outline
        before).
-    2. the shape: limb scales and ball sizes over all frames' points at once (finite
-       differences; the poses held).
+    2. the shape: limb scales and the shape over all frames' points at once, the poses
+       held (forward differences, one residual call for a whole group of columns: a
+       limb's shape moves only its own segments' points, so one entry of every limb's
+       shape is stepped at once).
     The residuals are skin distances over ``sigma_point`` and closest approaches over
     ``sigma_silhouette`` (:mod:`lsmta.body.silhouette`); a weighted residual above
     ``outlier_k`` at the solution counts as an outlier.
@@ -56,7 +78,14 @@ class FullBodyFitParams:
         ``least_squares`` loss ("soft_l1", "huber", "cauchy", "arctan" or "linear").
     outlier_k : float
     n_rounds, n_inner : int
-        Rounds of (poses, shape); pose solves per frame and round.
+        Rounds of (poses, tied shape); pose solves per frame and round.
+    free_rounds : int
+        Rounds of (poses, free shape) after those (module docstring; 0 with points from one
+        side only).
+    free_loss : str
+        Loss of the free rounds. By then the model lies near the points, and a loss that
+        redescends ("cauchy") lets far outliers go; from the start it would let the model
+        go too.
     silhouette_from : int
         First round (0-based) that uses the lines of sight.
     max_nfev : int
@@ -70,6 +99,11 @@ class FullBodyFitParams:
         Lines of sight further than this from the skin at a solve's start are left out (mm).
     scale_bounds, size_bounds : (float, float)
         Bounds of the limb scales and of the ball-size factors.
+    offset_bound : float
+        Bound of the balls' shift along the bone frame's y axis (mm, either way).
+    size_prior, offset_prior : float
+        Standard deviations of the priors that draw the free shape's size factors and shift
+        (mm) towards the tied solution.
     floor : float
         Height of the floor (mm).
     neighbour_radius, min_neighbours
@@ -85,6 +119,8 @@ class FullBodyFitParams:
     loss: str = "soft_l1"
     outlier_k: float = 3.0
     n_rounds: int = 3
+    free_rounds: int = 0
+    free_loss: str = "cauchy"
     n_inner: int = 2
     silhouette_from: int = 1
     max_nfev: int = 25
@@ -93,6 +129,9 @@ class FullBodyFitParams:
     gate: float = 40.0
     scale_bounds: tuple = (0.7, 1.4)
     size_bounds: tuple = (0.5, 2.0)
+    offset_bound: float = 50.0
+    size_prior: float = 0.15
+    offset_prior: float = 10.0
     floor: float = 0.0
     neighbour_radius: float = 30.0
     min_neighbours: int = 5
@@ -104,14 +143,18 @@ class FullBodyFitParams:
             v = getattr(self, name)
             if int(v) != v or v < 1:
                 raise ValueError(f"{name}: expected a positive integer, got {v}")
+        if int(self.free_rounds) != self.free_rounds or self.free_rounds < 0:
+            raise ValueError(f"free_rounds: expected an integer >= 0, got {self.free_rounds}")
         if int(self.n_steps) != self.n_steps or self.n_steps < 3:
             raise ValueError(f"n_steps: expected an integer >= 3, got {self.n_steps}")
         for name in ("sigma_point", "sigma_silhouette", "outlier_k", "depth_margin", "gate",
-                     "neighbour_radius"):
+                     "neighbour_radius", "offset_bound", "size_prior", "offset_prior"):
             as_scalar(getattr(self, name), name, positive=True)
         as_scalar(self.floor, "floor")
-        if self.loss not in ("linear", "soft_l1", "huber", "cauchy", "arctan"):
-            raise ValueError(f"loss: expected a least_squares loss name, got {self.loss!r}")
+        for name in ("loss", "free_loss"):
+            if getattr(self, name) not in ("linear", "soft_l1", "huber", "cauchy", "arctan"):
+                raise ValueError(f"{name}: expected a least_squares loss name, got "
+                                 f"{getattr(self, name)!r}")
         for name in ("scale_bounds", "size_bounds"):
             lo, hi = getattr(self, name)
             if not 0 < lo < 1 < hi:
@@ -125,7 +168,7 @@ class FullBodyFit:
     Attributes
     ----------
     model : MetaballModel
-        The template built for the measured stature.
+        The template built for the measured stature, its balls shifted as fitted.
     stature : float
         Measured from the points (mm).
     angles : (T, J) array
@@ -135,8 +178,8 @@ class FullBodyFit:
     scales : (L,) array
         Limb scales (shared).
     size : (S, 2) array
-        Width and depth of each segment's middle ball (mm, shared); ``radii`` also holds
-        the fitted radius along the bone.
+        Width and depth of each segment's middle ball (mm, shared); ``radii`` holds every
+        ball's.
     radii : (S, 3, 3) array
         Ball radii (mm).
     start_angles : (T, J) array; start_base : (T, 4, 4) array
@@ -212,8 +255,8 @@ def body_start(model: MetaballModel, points, *, stature: float, heading=None,
 class _Frame:
     """One frame's data and its pose solve."""
 
-    def __init__(self, model, points, rays, camera_centre, params):
-        self.model, self.pts, self.p = model, points, params
+    def __init__(self, points, rays, camera_centre, params):
+        self.pts, self.p = points, params
         if rays is None:
             self.origins = self.dirs = np.zeros((0, 3))
         else:
@@ -223,18 +266,18 @@ class _Frame:
         self.near = max(d - params.depth_margin, 0.0)
         self.far = d + params.depth_margin
 
-    def sil(self, angles, base, scales, radii):
-        return silhouette_terms(self.model, self.origins, self.dirs, angles, scales, radii,
+    def sil(self, model, angles, base, scales, radii):
+        return silhouette_terms(model, self.origins, self.dirs, angles, scales, radii,
                                 near=self.near, far=self.far, base=base,
                                 n_steps=self.p.n_steps)
 
-    def solve(self, angles, base, scales, radii, free, bounds, use_rays):
+    def solve(self, m, angles, base, scales, radii, free, bounds, use_rays, loss):
         """Assign, gate, solve; returns the new angles (1, J), base (1, 4, 4), nfev."""
-        m, p = self.model, self.p
+        p = self.p
         seg = np.argmin(m.all_distances(self.pts, angles, scales, radii, base=base), axis=1)
         keep = np.zeros(len(self.origins), bool)
         if use_rays and len(self.origins):
-            keep = np.abs(self.sil(angles, base, scales, radii).r) <= p.gate
+            keep = np.abs(self.sil(m, angles, base, scales, radii).r) <= p.gate
         origins, dirs = self.origins[keep], self.dirs[keep]
 
         def unpack(x):
@@ -265,45 +308,98 @@ class _Frame:
         lo = np.concatenate([np.full(3, -np.inf), bounds[free, 0]])
         hi = np.concatenate([np.full(3, np.inf), bounds[free, 1]])
         sol = least_squares(lambda x: terms(x)[0], np.clip(x0, lo, hi),
-                            jac=lambda x: terms(x)[1], bounds=(lo, hi), loss=p.loss,
+                            jac=lambda x: terms(x)[1], bounds=(lo, hi), loss=loss,
                             max_nfev=int(p.max_nfev), x_scale="jac")
         a, b = unpack(sol.x)
         return a, b, int(sol.nfev)
 
 
-def _ball_radii(model, template, scales, factors):
-    """Radii ``(S, 3, 3)``: the template's widths and depths and the length radius of the
-    bone, each times its limb's factor (``factors (L, 3)``)."""
-    k = factors.reshape(-1, 3)[_limb_rows(model)]
-    radii = model.simplified_radii(template * k[:, :2], scales)
-    radii[..., 2] *= k[:, 2:3]
-    return radii
+_SHAPE = 8          # per limb: 3 balls x (width, depth) factors, length-radius factor, shift
+
+
+def _shaped(model, template, scales, shape):
+    """The model with its balls shifted, and radii ``(S, 3, 3)``, from the limb scales and
+    the per-limb ``shape (L, 8)`` (module docstring)."""
+    rows = shape[_limb_rows(model)]
+    radii = model.simplified_radii(template, scales)
+    radii[..., :2] *= rows[:, :6].reshape(-1, 3, 2)
+    radii[..., 2] *= rows[:, 6:7]
+    shift = np.zeros((model.n_segments, 3, 2))
+    shift[..., 1] = rows[:, 7:8]
+    return model.with_offsets(shift), radii
 
 
 def _limb_rows(model):
     return np.array([s.limb for s in model.segments])
 
 
-def _solve_shape(model, frames, angles, base, scales, factors, template, p):
-    """Limb scales and size factors ``(L, 3)`` over all frames' points, poses held."""
+def _shape_start():
+    shape = np.ones((len(LIMBS), _SHAPE))
+    shape[:, 7] = 0.0
+    return shape
+
+
+# the tied shape: one width, one depth and one length factor per limb for all three balls
+_TIED = np.zeros((3, _SHAPE))
+_TIED[0, 0:6:2] = _TIED[1, 1:6:2] = _TIED[2, 6] = 1.0
+
+
+def _solve_shape(model, frames, angles, base, scales, shape, template, p, *, free, loss):
+    """Limb scales and shapes ``(L, 9)`` over all frames' points, poses held; ``free``: every
+    entry of the shape, drawn towards its start by the priors; else the tied shape."""
     L = len(scales)
-    segs = [np.argmin(model.all_distances(f.pts, angles[[t]], scales,
-                                          _ball_radii(model, template, scales, factors),
-                                          base=base[[t]]), axis=1)
+    basis = np.eye(_SHAPE) if free else _TIED
+    q = len(basis)
+    keep = shape * (basis.sum(axis=0) == 0)             # entries this stage leaves alone
+    k0 = shape @ basis.T / basis.sum(axis=1)
+    m, radii = _shaped(model, template, scales, shape)
+    segs = [np.argmin(m.all_distances(f.pts, angles[[t]], scales, radii, base=base[[t]]), axis=1)
             for t, f in enumerate(frames)]
+    limb_of_point = np.concatenate([_limb_rows(model)[seg] for seg in segs])
+    sparsity = np.hstack([np.ones((len(limb_of_point), L), bool),
+                          np.repeat(limb_of_point[:, None] == np.arange(L), q, axis=1)])
+    prior_sigma = np.r_[np.full(7, p.size_prior), p.offset_prior]
+    if free:
+        sparsity = np.vstack([sparsity, np.hstack([np.zeros((L * q, L), bool),
+                                                   np.eye(L * q, dtype=bool)])])
 
     def residual(x):
-        s, k = x[:L], x[L:].reshape(L, 3)
-        radii = _ball_radii(model, template, s, k)
-        return np.concatenate([model.distance(f.pts, seg, angles[[t]], s, radii, base=base[[t]])
-                               for t, (f, seg) in enumerate(zip(frames, segs))]) / p.sigma_point
+        s, k = x[:L], x[L:].reshape(L, q)
+        m, radii = _shaped(model, template, s, k @ basis + keep)
+        r = [m.distance(f.pts, seg, angles[[t]], s, radii, base=base[[t]]) / p.sigma_point
+             for t, (f, seg) in enumerate(zip(frames, segs))]
+        if free:
+            r.append(((k - k0) / prior_sigma).ravel())
+        return np.concatenate(r)
 
-    x0 = np.concatenate([scales, factors.ravel()])
-    lo = np.concatenate([np.full(L, p.scale_bounds[0]), np.full(3 * L, p.size_bounds[0])])
-    hi = np.concatenate([np.full(L, p.scale_bounds[1]), np.full(3 * L, p.size_bounds[1])])
-    sol = least_squares(residual, np.clip(x0, lo, hi), bounds=(lo, hi), loss=p.loss,
-                        max_nfev=int(p.max_nfev), x_scale=1.0)
-    return sol.x[:L], sol.x[L:].reshape(L, 3), int(sol.nfev)
+    sizes = basis[:, :7].any(axis=1)
+    lo_k = np.where(sizes, p.size_bounds[0], -p.offset_bound)
+    hi_k = np.where(sizes, p.size_bounds[1], p.offset_bound)
+    lo = np.r_[np.full(L, p.scale_bounds[0]), np.tile(lo_k, L)]
+    hi = np.r_[np.full(L, p.scale_bounds[1]), np.tile(hi_k, L)]
+    groups = [np.array([j]) for j in range(L)] + [L + j + q * np.arange(L) for j in range(q)]
+    sol = least_squares(residual, np.clip(np.r_[scales, k0.ravel()], lo, hi), bounds=(lo, hi),
+                        jac=lambda x: _grouped_jacobian(residual, x, groups, sparsity, hi),
+                        loss=loss, max_nfev=int(p.max_nfev),
+                        x_scale=np.r_[np.ones(L), np.tile(np.where(sizes, 1.0, 10.0), L)])
+    return sol.x[:L], sol.x[L:].reshape(L, q) @ basis + keep, int(sol.nfev)
+
+
+def _grouped_jacobian(residual, x, groups, sparsity, upper):
+    """Forward differences, one residual call per group of columns that share no row of
+    ``sparsity`` (dense result; steps turned back at the upper bounds)."""
+    r0 = residual(x)
+    J = np.zeros((len(r0), len(x)))
+    h = 1e-6 * np.maximum(1.0, np.abs(x))
+    h = np.where(x + h > upper, -h, h)
+    for g in groups:
+        dx = np.zeros_like(x)
+        dx[g] = h[g]
+        diff = residual(x + dx) - r0
+        for j in g:
+            rows = sparsity[:, j]
+            J[rows, j] = diff[rows] / h[j]
+    return J
 
 
 def _check(points, rays, camera_centre):
@@ -350,39 +446,40 @@ def fit_full_body(points, *, rays=None, camera_centre=None, heading=None,
     angles, base = body_start(model, pts, stature=stature, heading=heading,
                               knee_start=p.knee_start)
     start_angles, start_base = angles.copy(), base.copy()
-    frames = [_Frame(model, x, r, centre, p) for x, r in zip(pts, rays)]
+    frames = [_Frame(x, r, centre, p) for x, r in zip(pts, rays)]
     template = template_size(model, stature=stature)
     L = len(LIMBS)
-    scales, factors = np.ones(L), np.ones((L, 3))
+    scales, shape = np.ones(L), _shape_start()
     bounds = limits(model)
     bounds[[model.skeleton.names.index(n) for n in ("pelvis_b", "pelvis_a", "pelvis_c")]] = \
         [-np.inf, np.inf]
     free = ~np.isin(model.skeleton.names, p.hold)
     nfev = 0
-    for k in range(int(p.n_rounds)):
-        radii = _ball_radii(model, template, scales, factors)
+    for k in range(int(p.n_rounds) + int(p.free_rounds)):
+        m, radii = _shaped(model, template, scales, shape)
+        loss = p.loss if k < p.n_rounds else p.free_loss
         for t, f in enumerate(frames):
             for _ in range(int(p.n_inner)):
-                a, b, n = f.solve(angles[[t]], base[[t]], scales, radii, free, bounds,
-                                  k >= p.silhouette_from)
+                a, b, n = f.solve(m, angles[[t]], base[[t]], scales, radii, free, bounds,
+                                  k >= p.silhouette_from, loss)
                 angles[t], base[t], nfev = a[0], b[0], nfev + n
-        scales, factors, n = _solve_shape(model, frames, angles, base, scales, factors,
-                                          template, p)
+        scales, shape, n = _solve_shape(model, frames, angles, base, scales, shape, template, p,
+                                        free=k >= p.n_rounds, loss=loss)
         nfev += n
-    return _finish(model, frames, stature, angles, base, scales, factors, template,
-                   start_angles, start_base, nfev, p)
+    model, radii = _shaped(model, template, scales, shape)
+    return _finish(model, frames, stature, angles, base, scales, radii, start_angles,
+                   start_base, nfev, p)
 
 
-def _finish(model, frames, stature, angles, base, scales, factors, template, start_angles,
-            start_base, nfev, p) -> FullBodyFit:
-    radii = _ball_radii(model, template, scales, factors)
+def _finish(model, frames, stature, angles, base, scales, radii, start_angles, start_base,
+            nfev, p) -> FullBodyFit:
     r_p, r_s = [], []
     for t, f in enumerate(frames):
         d = model.all_distances(f.pts, angles[[t]], scales, radii, base=base[[t]])
         r_p.append(d[np.arange(len(d)), np.argmin(np.abs(d), axis=1)])
-        r_s.append(f.sil(angles[[t]], base[[t]], scales, radii).r if len(f.origins)
+        r_s.append(f.sil(model, angles[[t]], base[[t]], scales, radii).r if len(f.origins)
                    else np.zeros(0))
-    size = template * factors[_limb_rows(model), :2]
+    size = radii[:, 1, :2]
     return FullBodyFit(
         model=model, stature=stature, angles=angles, base=base, scales=scales, size=size,
         radii=radii, start_angles=start_angles, start_base=start_base,

@@ -27,7 +27,7 @@ Distance to the skin in millimetres
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -214,12 +214,20 @@ class MetaballModel:
         Ball centres along each bone, as shares of its (scaled) length.
     profile : (3,) tuple
         Relative ball sizes of the simplified model.
+    length_radius : float
+        Ball radius along the bone, as a share of the bone length.
+    offsets : tuple or None
+        ``(S, 3, 2)`` nested tuple: each ball's shift across its bone (bone-frame x and y,
+        mm), for parts that do not sit on their bone (a foot below the ankle, a head in
+        front of the neck); None: every ball on its bone (:meth:`with_offsets`).
     """
 
     skeleton: Skeleton
     segments: tuple
     fractions: tuple = FRACTIONS
     profile: tuple = PROFILE
+    length_radius: float = LENGTH_RADIUS
+    offsets: tuple | None = None
 
     @property
     def n_segments(self) -> int:
@@ -229,7 +237,10 @@ class MetaballModel:
     def names(self) -> list[str]:
         return [s.name for s in self.segments]
 
-    length_radius: float = LENGTH_RADIUS
+    def with_offsets(self, offsets) -> MetaballModel:
+        """This model with its balls shifted across their bones by ``offsets (S, 3, 2)`` mm."""
+        o = as_array(offsets, "offsets", shape=(self.n_segments, 3, 2))
+        return replace(self, offsets=tuple(tuple(map(tuple, b)) for b in o.tolist()))
 
     def simplified_radii(self, size, scales) -> np.ndarray:
         """Radii ``(S, 3, 3)`` from the higher-level sizes ``(S, 2)`` = (width, depth) per
@@ -262,6 +273,8 @@ class MetaballModel:
         out = np.zeros((self.n_segments, 3, 3))
         for k, seg in enumerate(self.segments):
             out[k, :, 2] = -np.asarray(self.fractions) * seg.length * scales[seg.limb]
+        if self.offsets is not None:
+            out[..., :2] = self.offsets
         return out
 
     def bone_lengths(self, scales) -> np.ndarray:

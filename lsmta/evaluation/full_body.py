@@ -1,7 +1,8 @@
 """The full-body fit on the generated walk, scored against the truth after the fact.
 
 Data (truth as an input, said here and in notebook 20): the 3-D points are the generator's
-surface samples of every part facing the silhouette camera (no occlusion test), with
+surface samples of every part facing the silhouette camera (no occlusion test; or from all
+round the body, :func:`walk_observations`), with
 Gaussian noise and planted outliers (:func:`lsmta.synth.body.surface_samples`): the LSMTA
 system measures only the arm. The silhouettes are the snakes' contours of
 :mod:`lsmta.evaluation.silhouettes` (background model, trajectory prediction), turned into
@@ -164,17 +165,20 @@ class WalkObservations:
 
 
 def walk_observations(data, contours, frames, *, n_points: int = 1500, noise_mm: float = 1.0,
-                      outlier_share: float = 0.05, rng=None) -> WalkObservations:
+                      outlier_share: float = 0.05, around: bool = False,
+                      rng=None) -> WalkObservations:
     """Points and lines of sight for ``frames`` of a
     :class:`~lsmta.evaluation.silhouettes.SilhouetteWalk` whose snake contours are
-    ``contours (T_all, n, 2)`` (pixels)."""
+    ``contours (T_all, n, 2)`` (pixels); the points face the camera (the papers' rig in
+    front of the person) or, with ``around``, come from all round the body (a studio with
+    cameras on every side)."""
     rng = np.random.default_rng(rng)
     body, motion, cam = data.scene.body, data.scene.motion, data.camera
     pts, out, rays = [], [], []
     for t in frames:
         p, _, part = surface_samples(body, motion, int(t), rng=rng, parts=body.names, n=n_points,
                                      noise_mm=noise_mm, outlier_share=outlier_share,
-                                     view_from=cam.C)
+                                     view_from=None if around else cam.C)
         pts.append(p)
         out.append(part < 0)
         rays.append(cam.rays(np.asarray(contours[int(t)], float)))

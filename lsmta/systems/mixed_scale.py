@@ -486,7 +486,7 @@ def _ceiling_queue(feed: CeilingFeed) -> np.ndarray:
 
 def _closed_loop(st: _State) -> None:
     p, feed = st.params, st.feed
-    st.thresholds = [noise_threshold(b, p.threshold_sigmas) for b in feed.backgrounds]
+    st.thresholds = [noise_threshold(b, sigmas=p.threshold_sigmas) for b in feed.backgrounds]
     st.tracker = WideAreaTracker(feed.cameras, params=p.estimator)
     queue, q = _ceiling_queue(feed), 0
     K, F = len(st.heads), len(st.times)

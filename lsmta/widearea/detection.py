@@ -152,7 +152,7 @@ def _background_max(f, exclude) -> np.ndarray:
     return g.max(axis=0)
 
 
-def noise_threshold(frames, sigmas: float = 5.0, *, exclude=None) -> Threshold:
+def noise_threshold(frames, *, sigmas: float = 5.0, exclude=None) -> Threshold:
     """Thresholds from frames of the background, with the offset measured in them.
 
     ``threshold = max over the frames + sigmas * sigma`` per pixel, where ``sigma`` is the

@@ -103,6 +103,9 @@ def test_grouped_differences_match_dense_differences():
                           A != 0, np.full(4, np.inf))
     np.testing.assert_allclose(J, A * (1 + 0.2 * (A @ x))[:, None], atol=1e-5)
     assert len(calls) == 4                            # the base point and three groups
+    step_back = _grouped_jacobian(residual, x, [np.array([0]), np.array([1]), np.array([2, 3])],
+                                  A != 0, x.copy())  # every x at its upper bound: steps back
+    np.testing.assert_allclose(step_back, A * (1 + 0.2 * (A @ x))[:, None], atol=1e-5)
 
 
 def test_model_offsets_shift_the_skin():

@@ -25,9 +25,10 @@ Unknowns
     soft-l1 loss of the tied rounds, outliers near the feet and hands blew those balls up
     and the fit ran off). Measured on the generated walk (notebook 20,
     ``experiments/full_body_walk.py``): with points all round the body the free shape
-    brings the skin within 2 mm of the true body; with points from the front only it
-    helps the seen side but the back stays the template's guess. ``free_rounds=0`` by
-    default: each free round costs about as much as a tied one again.
+    brought the skin within 2 mm of the true body; with points from the front only it
+    came closer too, but the back is never seen there and rests on the template's depths
+    and the priors. ``free_rounds=0`` by default: each free round costs about as much as a
+    tied one again.
 
 Start from the data, no pose given
     The stature is the height above the floor (``z = floor``) of the highest point with
@@ -344,10 +345,12 @@ _TIED = np.zeros((3, _SHAPE))
 _TIED[0, 0:6:2] = _TIED[1, 1:6:2] = _TIED[2, 6] = 1.0
 
 
-def _solve_shape(model, frames, angles, base, scales, shape, template, p, *, free, loss):
-    """Limb scales and shapes ``(L, 9)`` over all frames' points, poses held; ``free``: every
-    entry of the shape, drawn towards its start by the priors; else the tied shape."""
+def _solve_shape(model, frames, angles, base, scales, shape, template, p, *, loss, prior=None):
+    """Limb scales and shapes ``(L, 8)`` over all frames' points, poses held; with a
+    ``prior (L, 8)`` (the tied solution) every entry of the shape, drawn towards it; else
+    the tied shape."""
     L = len(scales)
+    free = prior is not None
     basis = np.eye(_SHAPE) if free else _TIED
     q = len(basis)
     keep = shape * (basis.sum(axis=0) == 0)             # entries this stage leaves alone
@@ -358,8 +361,8 @@ def _solve_shape(model, frames, angles, base, scales, shape, template, p, *, fre
     limb_of_point = np.concatenate([_limb_rows(model)[seg] for seg in segs])
     sparsity = np.hstack([np.ones((len(limb_of_point), L), bool),
                           np.repeat(limb_of_point[:, None] == np.arange(L), q, axis=1)])
-    prior_sigma = np.r_[np.full(7, p.size_prior), p.offset_prior]
     if free:
+        prior_sigma = np.r_[np.full(_SHAPE - 1, p.size_prior), p.offset_prior]
         sparsity = np.vstack([sparsity, np.hstack([np.zeros((L * q, L), bool),
                                                    np.eye(L * q, dtype=bool)])])
 
@@ -369,10 +372,10 @@ def _solve_shape(model, frames, angles, base, scales, shape, template, p, *, fre
         r = [m.distance(f.pts, seg, angles[[t]], s, radii, base=base[[t]]) / p.sigma_point
              for t, (f, seg) in enumerate(zip(frames, segs))]
         if free:
-            r.append(((k - k0) / prior_sigma).ravel())
+            r.append(((k - prior) / prior_sigma).ravel())
         return np.concatenate(r)
 
-    sizes = basis[:, :7].any(axis=1)
+    sizes = basis[:, :_SHAPE - 1].any(axis=1)
     lo_k = np.where(sizes, p.size_bounds[0], -p.offset_bound)
     hi_k = np.where(sizes, p.size_bounds[1], p.offset_bound)
     lo = np.r_[np.full(L, p.scale_bounds[0]), np.tile(lo_k, L)]
@@ -454,7 +457,7 @@ def fit_full_body(points, *, rays=None, camera_centre=None, heading=None,
     bounds[[model.skeleton.names.index(n) for n in ("pelvis_b", "pelvis_a", "pelvis_c")]] = \
         [-np.inf, np.inf]
     free = ~np.isin(model.skeleton.names, p.hold)
-    nfev = 0
+    nfev, tied = 0, None
     for k in range(int(p.n_rounds) + int(p.free_rounds)):
         m, radii = _shaped(model, template, scales, shape)
         loss = p.loss if k < p.n_rounds else p.free_loss
@@ -463,8 +466,10 @@ def fit_full_body(points, *, rays=None, camera_centre=None, heading=None,
                 a, b, n = f.solve(m, angles[[t]], base[[t]], scales, radii, free, bounds,
                                   k >= p.silhouette_from, loss)
                 angles[t], base[t], nfev = a[0], b[0], nfev + n
+        if k == p.n_rounds:
+            tied = shape.copy()
         scales, shape, n = _solve_shape(model, frames, angles, base, scales, shape, template, p,
-                                        free=k >= p.n_rounds, loss=loss)
+                                        loss=loss, prior=tied)
         nfev += n
     model, radii = _shaped(model, template, scales, shape)
     return _finish(model, frames, stature, angles, base, scales, radii, start_angles,

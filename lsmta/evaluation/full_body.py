@@ -107,6 +107,8 @@ class SkinScore:
     ----------
     to_truth : (V,) array
         |distance| of the skin's outer vertices to the true surface.
+    segment : (V,) int array
+        The fitted segment of each of those vertices.
     from_truth : (N,) array
         Distance of true outer-surface samples to the skin mesh.
     open_edges : int
@@ -114,6 +116,7 @@ class SkinScore:
     """
 
     to_truth: np.ndarray
+    segment: np.ndarray
     from_truth: np.ndarray
     open_edges: int
 
@@ -136,7 +139,8 @@ def skin_score(fit: FullBodyFit, body: Body, motion: Motion, frame_index: int, f
     world = np.einsum("nij,nj->ni", poses[part, :3, :3], local) + poses[part, :3, 3]
     world = world[~inside_parts(body, poses, world, exclude=part)]
     _, closest = mesh.find_closest_cell(world, return_closest_point=True)
-    return SkinScore(to_truth=to_truth, from_truth=np.linalg.norm(world - closest, axis=1),
+    return SkinScore(to_truth=to_truth, segment=seg[outer],
+                     from_truth=np.linalg.norm(world - closest, axis=1),
                      open_edges=int(mesh.n_open_edges))
 
 

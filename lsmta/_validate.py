@@ -7,6 +7,8 @@ nothing here writes into what the caller passed.
 
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 
 
@@ -77,6 +79,38 @@ def as_scalar(value, name: str, *, positive: bool = False, nonnegative: bool = F
     if nonnegative and not x >= 0:
         raise ValueError(f"{name}: expected a number >= 0, got {x}")
     return x
+
+
+def as_int(value, name: str, *, minimum: int | None = 1, odd: bool = False,
+           allow_none: bool = False, unit: str = "") -> int | None:
+    """A Python int from an integral number (``bool`` refused), optionally ``>= minimum``
+    (default 1: a positive integer) and odd; ``None`` passes through when ``allow_none``.
+
+    The error names the argument, what was expected and what came, e.g.
+    ``"step: expected an integer >= 1 (pixels), got 0.5"``.
+    """
+    if value is None and allow_none:
+        return None
+    ok = isinstance(value, numbers.Real) and not isinstance(value, bool)
+    if ok:
+        try:
+            ok = bool(np.isfinite(value)) and int(value) == value
+        except (TypeError, ValueError, OverflowError):
+            ok = False
+    if ok and minimum is not None:
+        ok = int(value) >= minimum
+    if ok and odd:
+        ok = int(value) % 2 == 1
+    if not ok:
+        what = "an odd integer" if odd else "an integer"
+        if minimum is not None:
+            what += f" >= {minimum}"
+        if allow_none:
+            what = f"None or {what}"
+        if unit:
+            what += f" ({unit})"
+        raise ValueError(f"{name}: expected {what}, got {value!r}")
+    return int(value)
 
 
 def as_rotation(value, name: str) -> np.ndarray:

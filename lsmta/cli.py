@@ -31,6 +31,8 @@ from dataclasses import asdict
 from importlib import metadata
 from pathlib import Path
 
+from tqdm.auto import tqdm
+
 from . import report
 
 OFFSCREEN_ENV = {
@@ -115,11 +117,10 @@ def default_notebook_dir() -> Path:
 
 def execute(path: Path, build: Path, timeout: int) -> dict:
     """Execute one notebook; returns a status dict (never raises for a failing cell)."""
-    import nbformat
-    from jupyter_client.manager import AsyncKernelManager
-    from nbclient import NotebookClient
-    from nbclient.exceptions import CellExecutionError, CellTimeoutError
-    from tqdm.auto import tqdm
+    import nbformat  # deferred: the notebook machinery takes seconds to import
+    from jupyter_client.manager import AsyncKernelManager  # deferred: as above
+    from nbclient import NotebookClient  # deferred: as above
+    from nbclient.exceptions import CellExecutionError, CellTimeoutError  # deferred: as above
 
     nb = nbformat.read(path, as_version=4)
     records_file = build / "records" / f"{path.stem}.jsonl"
@@ -194,7 +195,7 @@ def save_figures(nb, stem: str, folder: Path) -> list[str]:
 
 def write_html(nb, target: Path) -> str | None:
     try:
-        from nbconvert import HTMLExporter
+        from nbconvert import HTMLExporter  # deferred: seconds to import, only for HTML
 
         body, _ = HTMLExporter().from_notebook_node(nb)
     except Exception as exc:  # pragma: no cover - nbconvert template problems
@@ -290,8 +291,6 @@ def reproduce(args) -> int:
         return 0
     build = Path(args.build)
     build.mkdir(parents=True, exist_ok=True)
-    from tqdm.auto import tqdm
-
     results = []
     with tqdm(chosen, desc="notebooks", unit="nb", file=sys.stderr) as bar:
         for path in bar:

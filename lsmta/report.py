@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import time
 from dataclasses import asdict, dataclass
 from numbers import Real
 from pathlib import Path
@@ -176,7 +177,7 @@ def table(records) -> str:
 
 def show(records):
     """Display ``records`` as a table in a notebook (returns an IPython Markdown object)."""
-    from IPython.display import Markdown
+    from IPython.display import Markdown  # deferred: only in a notebook
 
     return Markdown(table(records))
 
@@ -194,8 +195,6 @@ def write_json(path, data) -> Path:
 def best_time(fn, *, repeats: int = 3):
     """Call ``fn()`` ``repeats`` times; return the shortest wall time (s) and the last
     result. Used by the benchmarks in ``experiments/``."""
-    import time
-
     times, out = [], None
     for _ in range(max(1, int(repeats))):
         start = time.perf_counter()

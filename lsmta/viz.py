@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import os
 
+import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.patches import ConnectionPatch
 
 
 def _pyvista():
     os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
     os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
-    import pyvista as pv
+    import pyvista as pv  # deferred: the EGL window must be chosen before VTK loads
 
     pv.OFF_SCREEN = True
     return pv
@@ -24,8 +26,6 @@ def _pyvista():
 def show_images(images, *, titles=None, axes=None, cmap="gray", vmin=0, vmax=255,
                 figsize_per=(5.0, 3.9)):
     """Show ``images`` ``(K, H, W)`` side by side; returns the matplotlib axes."""
-    import matplotlib.pyplot as plt
-
     images = list(images)
     if axes is None:
         _, axes = plt.subplots(1, len(images), figsize=(figsize_per[0] * len(images),
@@ -46,9 +46,6 @@ def draw_correspondences(axes, xy, *, colors=None, lines=True, size=18):
     Each of the N points gets one colour in every image; with ``lines``, a line joins its
     positions across neighbouring images (drawn across the figure).
     """
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import ConnectionPatch
-
     xy = np.asarray(xy, float)
     K, N, _ = xy.shape
     if colors is None:
@@ -69,8 +66,6 @@ def draw_correspondences(axes, xy, *, colors=None, lines=True, size=18):
 
 def part_colours(part_id, n_parts: int):
     """An RGB image ``(H, W, 3)`` of a part-id map: one colour per part, grey background."""
-    import matplotlib.pyplot as plt
-
     part_id = np.asarray(part_id)
     rgb = np.full(part_id.shape + (3,), 0.85)
     rgb[part_id == -2] = 1.0
@@ -117,8 +112,6 @@ def scene_image(cameras, *, body=None, poses=None, background=None, frustum_dept
             pl.add_point_labels(cam.C[None], [cam.name], font_size=14, point_size=8,
                                 shape_opacity=0.6)
     if body is not None and poses is not None:
-        import matplotlib.pyplot as plt
-
         palette = plt.cm.tab20(np.arange(len(body.parts)) % 20)[:, :3]
         for p, spec in enumerate(body.parts):
             mesh = pv.ParametricEllipsoid(*spec.radii, u_res=30, v_res=30)
@@ -194,8 +187,6 @@ def draw_marker_pose(ax, model, points, *, labels=None, colors=None, link_color=
     link_color : colour, optional
         One colour for every stick link instead of the segment colours.
     """
-    import matplotlib.pyplot as plt
-
     points = np.asarray(points, float)
     palette = plt.cm.tab20(np.arange(model.n_segments) % 20)
     if labels is None:
@@ -246,8 +237,6 @@ def metaball_image(ball_poses, radii, *, threshold_scale: float = 0.589, mesh=No
     view_from, focal_point : (3,) mm, optional
         Camera of the picture (default: in front of the balls).
     """
-    import matplotlib.pyplot as plt
-
     pv = _pyvista()
     pl = pv.Plotter(off_screen=True, window_size=list(window_size))
     pl.set_background("white")

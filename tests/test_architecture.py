@@ -147,15 +147,142 @@ def test_statuses_are_int_enums():
 
 
 
-def test_no_public_function_is_longer_than_100_lines():
+MAX_LINES = 80
+MAX_PARAMETERS = 12
+# public functions that keep **kwargs, each with its reason
+EXEMPT_KWARGS: dict = {}
+DEFERRED = "# deferred:"  # the marker of an import left inside a function on purpose
+
+
+def test_no_public_function_is_longer_than_80_lines():
     import inspect
 
     long = []
     for qual, func in _public_functions():
         lines, _ = inspect.getsourcelines(func)
-        if len(lines) > 100 and qual not in EXEMPT_LENGTH:
+        if len(lines) > MAX_LINES and qual not in EXEMPT_LENGTH:
             long.append(f"{qual} ({len(lines)} lines)")
-    assert not long, f"public functions longer than 100 lines: {long}"
+    assert not long, f"public functions longer than {MAX_LINES} lines: {long}"
+
+
+def test_public_functions_take_no_loose_keywords():
+    """No ``**kwargs`` forwarded unchecked: tuning goes in a ``...Params`` dataclass."""
+    import inspect
+
+    offenders = []
+    for qual, func in _public_functions():
+        if any(p.kind is p.VAR_KEYWORD for p in inspect.signature(func).parameters.values()) \
+                and qual not in EXEMPT_KWARGS:
+            offenders.append(qual)
+    assert not offenders, f"public functions with **kwargs: {offenders}"
+
+
+def test_public_functions_take_at_most_12_parameters():
+    import inspect
+
+    offenders = []
+    for qual, func in _public_functions():
+        params = [p for p in inspect.signature(func).parameters.values()
+                  if p.name not in ("self", "cls")]
+        if len(params) > MAX_PARAMETERS:
+            offenders.append(f"{qual} ({len(params)})")
+    assert not offenders, f"public functions with more than {MAX_PARAMETERS} parameters: " \
+                          f"{offenders}"
+
+
+def _public_module_files():
+    for path in sorted(PACKAGE.rglob("*.py")):
+        parts = path.relative_to(PACKAGE).parts
+        if not any(part.startswith("_") and part != "__init__.py" for part in parts):
+            yield path
+
+
+def test_every_public_name_has_one_owner():
+    """No public class or function name is defined in two modules of lsmta."""
+    owners: dict[str, list[str]] = {}
+    for path in _public_module_files():
+        for node in ast.parse(path.read_text(encoding="utf-8")).body:
+            if isinstance(node, ast.FunctionDef | ast.ClassDef) and not node.name.startswith("_"):
+                owners.setdefault(node.name, []).append(str(path.relative_to(PACKAGE)))
+    twice = {name: where for name, where in owners.items() if len(where) > 1}
+    assert not twice, f"public names defined in more than one module: {twice}"
+
+
+def test_imports_sit_at_the_top():
+    """Imports inside functions hide dependencies and cycles; the only exception is a
+    heavy optional dependency deferred on purpose, marked ``# deferred: <why>``."""
+    offenders = []
+    for path in PACKAGE.rglob("*.py"):
+        text = path.read_text(encoding="utf-8")
+        lines = text.splitlines()
+        for node in ast.walk(ast.parse(text)):
+            if not isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                continue
+            for sub in ast.walk(node):
+                if isinstance(sub, ast.Import | ast.ImportFrom):
+                    span = lines[sub.lineno - 1:sub.end_lineno]
+                    if not any(DEFERRED in line for line in span):
+                        offenders.append(f"{path.relative_to(PACKAGE)}:{sub.lineno}")
+    assert not sorted(set(offenders)), f"imports inside functions: {sorted(set(offenders))}"
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def test_no_import_cycles():
+    """The modules of lsmta (packages' ``__init__`` aside) import each other without a
+    cycle, counting every import wherever it sits."""
+    modules = {_module_name(p): p for p in PACKAGE.rglob("*.py")}
+    graph: dict[str, set[str]] = {}
+    for name, path in modules.items():
+        if path.name == "__init__.py":
+            continue
+        package = name.rsplit(".", 1)[0]
+        edges = set()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            targets = []
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                    base = f"{base}.{node.module}" if node.module else base
+                else:
+                    base = node.module or ""
+                targets = [base] + [f"{base}.{a.name}" for a in node.names]
+            for t in targets:
+                if t in modules and modules[t].name != "__init__.py" and t != name:
+                    edges.add(t)
+        graph[name] = edges
+    state: dict[str, int] = {}
+    cycles = []
+
+    def visit(node, stack):
+        state[node] = 1
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                cycles.append(stack[stack.index(nxt):] + [nxt])
+            elif nxt not in state:
+                visit(nxt, stack + [nxt])
+        state[node] = 2
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [node])
+    assert not cycles, f"import cycles: {cycles}"
+
+
+def test_settings_are_params_dataclasses():
+    """Settings bundles are named ``...Params`` (not ``...Settings``, ``...Options``)."""
+    offenders = []
+    for path in _public_module_files():
+        for node in ast.parse(path.read_text(encoding="utf-8")).body:
+            if isinstance(node, ast.ClassDef) and not node.name.startswith("_") \
+                    and node.name.endswith(("Settings", "Options", "Config")):
+                offenders.append(f"{path.relative_to(PACKAGE)}:{node.name}")
+    assert not offenders, f"settings classes not named ...Params: {offenders}"
 
 
 def test_results_are_built_by_keyword():

@@ -306,3 +306,34 @@ def test_results_are_built_by_keyword():
                     and node.func.id in names and len(node.args) > 2:
                 offenders.append(f"{rel}:{node.lineno} {node.func.id}")
     assert not offenders, f"dataclasses built from positional arguments: {offenders}"
+
+
+def test_no_private_name_crosses_a_package():
+    """A private (``_name``) function, class or module of one package is not imported by
+    another; what packages share lives in ``lsmta/_validate.py`` or is made public."""
+    offenders = []
+    for path in PACKAGE.rglob("*.py"):
+        name = _module_name(path)
+        package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not isinstance(node, ast.ImportFrom):
+                continue
+            if node.level:
+                base = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                module = f"{base}.{node.module}" if node.module else base
+            elif (node.module or "").startswith("lsmta"):
+                module = node.module
+            else:
+                continue
+            for alias in node.names:
+                parts = f"{module}.{alias.name}".split(".")
+                private = [i for i, p in enumerate(parts) if p.startswith("_")
+                           and p not in ("_validate", "__init__")]
+                if not private:
+                    continue
+                home = ".".join(parts[:private[0]])     # what holds the private name ...
+                if not (PACKAGE.parent / home.replace(".", "/")).is_dir():
+                    home = home.rsplit(".", 1)[0]       # ... a module: its package
+                if not (package == home or package.startswith(home + ".")):
+                    offenders.append(f"{path.relative_to(PACKAGE)}: {'.'.join(parts)}")
+    assert not offenders, f"private names imported across packages: {offenders}"

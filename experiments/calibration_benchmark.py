@@ -45,12 +45,6 @@ import numpy as np
 
 from lsmta.calibration import IMPROVED_ALTERNATION, Bar, relative_orientation_start
 from lsmta.calibration.board import calibrate_board
-from lsmta.evaluation.board import (
-    aniposelib_board_peer,
-    board_scores,
-    caliscope_comparison,
-    position_differences,
-)
 from lsmta.evaluation.calibration import (
     aniposelib_peer,
     bar_trial,
@@ -58,6 +52,12 @@ from lsmta.evaluation.calibration import (
     ring_trial,
 )
 from lsmta.evaluation.wand import wand_trial
+from lsmta.real.board import (
+    aniposelib_board_peer,
+    board_scores,
+    caliscope_comparison,
+    position_differences,
+)
 from lsmta.report import write_json
 from lsmta.synth.rigs import triplet_rig
 

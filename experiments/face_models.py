@@ -24,6 +24,7 @@ import time
 import numpy as np
 
 from lsmta import face
+from lsmta.data import load_animface
 from lsmta.evaluation import face as ef
 from lsmta.face.model import METHODS, _build
 from lsmta.report import build_dir, write_json
@@ -56,8 +57,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     draws = 2 if args.quick else args.draws
     sizes = (10, 20) if args.quick else (5, 10, 20, 30)
-    _, jaw = ef.load_animface("JawMoCap", step=4)
-    _, cheeks = ef.load_animface("CheeksMoCap", step=4)
+    _, jaw = load_animface("JawMoCap", step=4)
+    _, cheeks = load_animface("CheeksMoCap", step=4)
     splits = {"Jaw -> Cheeks": (jaw, cheeks[::2]), "Cheeks -> Jaw": (cheeks, jaw[::2])}
     pooled: dict = {}
     t0 = time.perf_counter()

@@ -50,7 +50,7 @@ def main(argv=None):
         fit = fit_full_body(obs.points, rays=rays, camera_centre=obs.camera_centre,
                             params=FullBodyFitParams(free_rounds=args.free_rounds))
         seconds = time.perf_counter() - t0
-        errors = ef.joint_errors(fit, body, motion, obs.frames)
+        errors = ef.joint_angle_errors(fit, body, motion, obs.frames)
         skins = [ef.skin_score(fit, body, motion, t, int(f), rng=args.seed)
                  for t, f in enumerate(obs.frames)]
         out[name] = {

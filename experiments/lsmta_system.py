@@ -39,7 +39,8 @@ def main(argv=None):
 
     t0 = time.perf_counter()
     session = bs.arm_wave_session(seed=args.seed, n_frames=args.frames, first=args.first,
-                                  roi=(args.width, args.height), every=args.every)
+                                  every=args.every,
+                                  params=bs.ArmWaveSessionParams(roi=(args.width, args.height)))
     render_s = time.perf_counter() - t0
     print(f"rendered {args.frames} frames of {args.width} x {args.height} px in {render_s:.0f} s")
     cap = capture_body(session.videos, session.bar_videos, session.bar_length, session.nominal,
@@ -55,7 +56,7 @@ def main(argv=None):
     surf = bs.score_system_surface(cap.surfaces[0], truth0, al)
     score, part, _ = bs.score_system_tracks(session, cap.tracks, cap.filtered, alignment=al)
     last, n_last = bs.last_frame_error(score, cap.filtered.present)
-    truth = bs.arm_truth(session)
+    truth = bs.session_arm_truth(session)
     arm = {n: bs.score_arm(f, cap.arm.start.torso_poses, truth, frames=cap.arm.frames,
                            alignment=al)
            for n, f in (("simplified", cap.arm.simplified), ("full", cap.arm.full))}

@@ -26,9 +26,10 @@ import time
 
 import numpy as np
 
-from lsmta.evaluation import stereo
+from lsmta.data import load_cones
 from lsmta.evaluation import surface as evaluate
 from lsmta.matching import LSMThresholds, measure_disparity, measure_surface, peers
+from lsmta.real import stereo
 from lsmta.report import best_time, write_json
 from lsmta.synth import Renderer, Scene, make_body, triplet_rig, walk
 
@@ -96,7 +97,7 @@ def main(argv=None):
 
 def real_pair(*, step: int = 4, disparities=(0, 64)) -> list[dict]:
     """Middlebury Cones: ours against SGBM (filters on, off) and BM on the same grid nodes."""
-    cones = stereo.load_cones()
+    cones = load_cones()
     truth, scored = cones.grid(step)
     measure_disparity(cones.left, cones.right, disparity_range=disparities)   # compile once
     runs = {

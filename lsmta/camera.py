@@ -359,3 +359,18 @@ class Camera:
         return (f"Camera({self.name!r}, {self.width}x{self.height}, f={self.f:.1f}px, "
                 f"pp=({self.cx:.1f}, {self.cy:.1f}), C={np.round(self.C, 1).tolist()}"
                 + (f", {dist}" if dist else "") + ")")
+
+
+def scaled_camera(camera: Camera, factor: float) -> Camera:
+    """The same camera with an image ``factor`` times as large in each direction.
+
+    Principal distance, principal point and image size scale; distortion (in normalised
+    coordinates) and pose stay. ``factor = 0.5`` renders four times faster.
+    """
+    factor = as_scalar(factor, "factor", positive=True)
+    return camera.replace(f=camera.f * factor, cx=(camera.cx + 0.5) * factor - 0.5,
+                          cy=(camera.cy + 0.5) * factor - 0.5,
+                          width=int(round(camera.width * factor)),
+                          height=int(round(camera.height * factor)),
+                          pixel_size=None if camera.pixel_size is None
+                          else camera.pixel_size / factor)

@@ -1,18 +1,21 @@
 """Reading marker data (C3D files through ezc3d, Maya ASCII animation curves), 2-D point
-files (DLTdv / Argus xypts CSV, caliscope's board corners), a Qualisys calibration, and a
-multi-camera recording's videos (OpenCV, decoded as needed)."""
+files (DLTdv / Argus xypts CSV, caliscope's board corners), a Qualisys calibration, one
+video's frames and a multi-camera recording's videos (OpenCV, decoded as needed). The
+project's own recordings under ``data/`` are loaded by :mod:`lsmta.data`."""
 
 from __future__ import annotations
 
+import csv
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
+import ezc3d
 import numpy as np
 from tqdm.auto import tqdm
 
-from ._validate import as_int, as_scalar
+from ._validate import as_array, as_int, as_scalar
 from .camera_files import read_qca
 
 _UNIT_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
@@ -55,8 +58,6 @@ def read_c3d(path) -> MarkerData:
         which C3D marks by a negative residual or NaN in any coordinate, becomes a NaN
         point) and the frame rate.
     """
-    import ezc3d
-
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"path: no C3D file at {path}")
@@ -184,6 +185,32 @@ def read_qualisys_calibration(path) -> list:
     return read_qca(path)
 
 
+# ---------------------------------------------------------------------- video
+def read_video(path, *, scale: float = 1.0, frames: int | None = None):
+    """A video's frames as grey ``(T, H, W)`` uint8 (scaled by ``scale``, area
+    interpolation), its frame 0 in colour (BGR, full size) and its frame rate."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"path: no video at {path}")
+    scale = as_scalar(scale, "scale", positive=True)
+    cap = cv2.VideoCapture(str(path))
+    fps = float(cap.get(cv2.CAP_PROP_FPS))
+    grey, first = [], None
+    while frames is None or len(grey) < frames:
+        ok, f = cap.read()
+        if not ok:
+            break
+        first = f if first is None else first
+        g = cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
+        if scale != 1.0:
+            g = cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        grey.append(g)
+    cap.release()
+    if not grey:
+        raise ValueError(f"path: {path} holds no frame OpenCV can decode")
+    return np.stack(grey), first, fps
+
+
 # ---------------------------------------------------------------------- 2-D point files
 _XYPTS_COLUMN = re.compile(r"^(?P<point>.+?)_cam_?(?P<camera>\d+)_(?P<axis>[XYxy])$")
 
@@ -237,20 +264,33 @@ def read_xypts(path, n_cameras: int, *, image_heights, flip_y: bool = True) -> n
         A header that is not of this form, cameras other than 1..K, a point without both
         coordinates of every camera, or a row of the wrong length.
     """
-    import csv
-
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"path: no xypts file at {path}")
-    if int(n_cameras) != n_cameras or n_cameras < 1:
-        raise ValueError(f"n_cameras: expected a positive integer, got {n_cameras!r}")
-    K = int(n_cameras)
+    K = as_int(n_cameras, "n_cameras")
     heights = _image_heights(image_heights, K) if flip_y else None
     with open(path, newline="", encoding="utf-8-sig") as fh:
         rows = [r for r in csv.reader(fh) if any(c.strip() for c in r)]
     if not rows:
         raise ValueError(f"path: {path} is empty")
     header = [c.strip() for c in rows[0]]
+    points, slots = _xypts_columns(header, K, path)
+    values = _xypts_values(rows[1:], header, path)
+    xy = np.full((K, len(values), len(points), 2), np.nan)
+    for i, p in enumerate(points):
+        for k in range(K):
+            xy[k, :, i, 0] = values[:, slots[(p, k, "X")]]
+            xy[k, :, i, 1] = values[:, slots[(p, k, "Y")]]
+    xy[np.isnan(xy).any(axis=-1)] = np.nan          # a point is seen with both coordinates
+    if flip_y:
+        xy[..., 1] = heights[:, None, None] - xy[..., 1]
+    return xy
+
+
+def _xypts_columns(header, K: int, path) -> tuple[list, dict]:
+    """The points named by an xypts header, in order, and the column of each
+    ``(point, camera index, "X" | "Y")``; every point needs both coordinates of every
+    camera."""
     points: list[str] = []
     slots = {}
     for j, name in enumerate(header):
@@ -264,15 +304,19 @@ def read_xypts(path, n_cameras: int, *, image_heights, flip_y: bool = True) -> n
         if m["point"] not in points:
             points.append(m["point"])
         slots[(m["point"], cam - 1, m["axis"].upper())] = j
-    P = len(points)
     missing = [f"{p}_cam{k + 1}_{a}" for p in points for k in range(K) for a in "XY"
                if (p, k, a) not in slots]
     if missing:
         raise ValueError(f"path: {path} lacks the columns {missing[:4]}"
                          + (" ..." if len(missing) > 4 else ""))
-    T = len(rows) - 1
-    values = np.full((T, len(header)), np.nan)
-    for t, row in enumerate(rows[1:]):
+    return points, slots
+
+
+def _xypts_values(rows, header, path) -> np.ndarray:
+    """The cells of the data rows as numbers ``(T, columns)``: NaN for an empty or ``NaN``
+    cell."""
+    values = np.full((len(rows), len(header)), np.nan)
+    for t, row in enumerate(rows):
         if len(row) != len(header):
             raise ValueError(f"path: row {t + 2} of {path} has {len(row)} cells; the header "
                              f"has {len(header)}")
@@ -284,23 +328,13 @@ def read_xypts(path, n_cameras: int, *, image_heights, flip_y: bool = True) -> n
                 except ValueError:
                     raise ValueError(f"path: row {t + 2}, column {header[j]} of {path} is "
                                      f"{cell!r}, not a number") from None
-    xy = np.full((K, T, P, 2), np.nan)
-    for i, p in enumerate(points):
-        for k in range(K):
-            xy[k, :, i, 0] = values[:, slots[(p, k, "X")]]
-            xy[k, :, i, 1] = values[:, slots[(p, k, "Y")]]
-    xy[np.isnan(xy).any(axis=-1)] = np.nan          # a point is seen with both coordinates
-    if flip_y:
-        xy[..., 1] = heights[:, None, None] - xy[..., 1]
-    return xy
+    return values
 
 
 def write_xypts(path, xy, *, image_heights, flip_y: bool = True) -> Path:
     """Write ``(K, T, P, 2)`` pixel coordinates as a DLTdv xypts CSV (the inverse of
     :func:`read_xypts`: header ``pt1_cam1_X, pt1_cam1_Y, ...``, y flipped to the bottom-left
     origin with ``flip_y``, ``NaN`` where unseen, numbers written to round-trip exactly)."""
-    from ._validate import as_array
-
     xy = as_array(xy, "xy", shape=(None, None, None, 2), allow_nan=True)
     K, T, P, _ = xy.shape
     out = xy.copy()
@@ -361,8 +395,6 @@ def read_caliscope_points(path, *, unit: str = "m") -> BoardPoints:
     BoardPoints
         Board coordinates converted to mm.
     """
-    import csv
-
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"path: no caliscope point file at {path}")

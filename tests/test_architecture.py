@@ -337,3 +337,23 @@ def test_no_private_name_crosses_a_package():
                 if not (package == home or package.startswith(home + ".")):
                     offenders.append(f"{path.relative_to(PACKAGE)}: {'.'.join(parts)}")
     assert not offenders, f"private names imported across packages: {offenders}"
+
+
+def test_real_data_studies_never_see_the_generator():
+    """lsmta.real (studies of real recordings) and the loaders it uses import neither the
+    generator nor the controlled studies, directly or through any module they load."""
+    import subprocess
+    import sys
+
+    offenders = [str(p.relative_to(PACKAGE)) for p in (PACKAGE / "real").rglob("*.py")
+                 if any({"synth", "evaluation"} & set(n.split(".")) for n in _imports(p))]
+    assert not offenders, f"lsmta.real modules importing synth or evaluation: {offenders}"
+    names = ["lsmta.data"] + [f"lsmta.real.{p.stem}" for p in (PACKAGE / "real").glob("*.py")
+                              if p.stem != "__init__"]
+    code = ("import importlib, sys\n"
+            f"for name in {names!r}:\n    importlib.import_module(name)\n"
+            "print(sorted(m for m in sys.modules if m.startswith(('lsmta.synth', "
+            "'lsmta.evaluation'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=PACKAGE.parent, check=True).stdout.strip()
+    assert out == "[]", f"importing lsmta.real loads {out}"

@@ -7,6 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lsmta import face
+from lsmta.data import load_animface
 from lsmta.evaluation import face as ef
 from lsmta.io import read_maya_curves
 from lsmta.synth import face as sf
@@ -217,7 +218,7 @@ def test_distance_deviation_zero_for_rigid_markers(model):
 
 def test_single_pair_triangulation_noise_free(model):
     seq = sf.face_sequence(model, 3, rng=np.random.default_rng(9))
-    obs = ef.observe(seq, rng=np.random.default_rng(10), pixel_noise=0.0, pose_noise_deg=0.0)
+    obs = ef.observe_face(seq, rng=np.random.default_rng(10), pixel_noise=0.0, pose_noise_deg=0.0)
     ok = np.isfinite(obs.points).all(axis=2)
     assert ok.sum(axis=1).min() > 30
     np.testing.assert_allclose(obs.points[ok], seq.world[ok], atol=1e-6)
@@ -248,7 +249,7 @@ def test_read_maya_curves(tmp_path):
 
 
 def test_project_copy_of_animface():
-    labels, jaw = ef.load_animface("JawMoCap")
+    labels, jaw = load_animface("JawMoCap")
     assert len(labels) == 41 and jaw.shape == (1590, 41, 3)
     assert np.isfinite(jaw).all()
     width = np.ptp(jaw[0, :, 0])
@@ -261,11 +262,11 @@ def test_mixing_camera_pairs_distorts_the_face(model):
     pairs = np.array(list(itertools.combinations(ue, 2)))
     dev = {}
     for mode in ("single", "per_marker"):
-        o = ef.observe(seq, rng=np.random.default_rng(12), pairing=mode)
+        o = ef.observe_face(seq, rng=np.random.default_rng(12), pairing=mode)
         dev[mode] = np.nanmedian(np.abs(face.distance_deviation(o.points, pairs)))
     assert dev["per_marker"] > 2 * dev["single"]
     with pytest.raises(ValueError, match="pairing"):
-        ef.observe(seq, rng=np.random.default_rng(12), pairing="any")
+        ef.observe_face(seq, rng=np.random.default_rng(12), pairing="any")
 
 
 def test_fill_missing_needs_enough_observed_markers(model):

@@ -384,9 +384,9 @@ def test_drift_filter_gives_no_verdict_without_neighbours_and_rejects_bad_input(
 
 def test_rendered_walk_tracks_against_truth():
     seq = et.walk_sequence(seed=7, n_frames=4, surface_every=4)
-    trial = et.run_trial(seq, 80, rng=np.random.default_rng(1), density=False)
+    trial = et.run_tracking_trial(seq, 80, rng=np.random.default_rng(1), density=False)
     # with the cameras, every accepted frame intersects within max_reprojection
-    geo = et.run_trial(seq, 80, rng=np.random.default_rng(1), density=False, klt=False,
+    geo = et.run_tracking_trial(seq, 80, rng=np.random.default_rng(1), density=False, klt=False,
                        geometric=True, params=TrackerParams(max_reprojection=0.3))
     alive = geo.tracks.alive[1:]
     assert alive.sum() >= 20

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from conftest import smaller
 
-from lsmta.evaluation import stereo
+from lsmta.data import load_cones
 from lsmta.matching import (
     CameraGeometry,
     LSMThresholds,
@@ -19,6 +19,7 @@ from lsmta.matching import (
     measure_surface,
     mpgc,
 )
+from lsmta.real import stereo
 from lsmta.synth import triplet_rig
 from lsmta.synth.patches import PlanarTexture, warped_pair
 from lsmta.triangulation import triangulate
@@ -271,7 +272,7 @@ def test_stereo_scores_and_the_cones_copy():
     assert s["bad1"] == 0.5 and s["bad2"] == 0.25 and s["bad1_all"] == 3 / 5
     assert np.isclose(s["median"], (0.1 + 1.25) / 2)
     assert stereo.quantisation_median() == 0.0625
-    cones = stereo.load_cones()
+    cones = load_cones()
     assert cones.left.shape == cones.right.shape == (375, 450)
     d = cones.disparity[np.isfinite(cones.disparity)]
     assert np.all(d * 4 == np.rint(d * 4)) and 0.8 < cones.nonoccluded.mean() < 0.9

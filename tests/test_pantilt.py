@@ -27,7 +27,7 @@ from lsmta.synth.pantilt import (
     calibration_sweeps,
     evaluation_grid,
     intrinsic_target,
-    observe,
+    observe_settings,
     pantilt_head,
     side_to_side,
 )
@@ -197,7 +197,7 @@ def test_centre_moves_on_a_circle_about_each_axis(head):
 
 def test_project_is_vectorised_over_settings_and_reproduces_the_generator(head, rng):
     pan, tilt = rng.uniform(-90, 90, 30), rng.uniform(-25, 25, 30)
-    obs = observe(head, pan, tilt, rng=rng)
+    obs = observe_settings(head, pan, tilt, rng=rng)
     xy = head.project(obs.X_true, obs.pan, obs.tilt)
     np.testing.assert_allclose(xy, obs.xy_true, atol=1e-6)
     one_by_one = np.array([head.camera_at(p, t).project(x[None])[0]
@@ -340,7 +340,7 @@ def test_too_few_settings_for_the_axes(data):
 def test_settings_that_confound_the_axes_are_refused(head):
     # two settings, (0, 0) and (20, 10): pan and tilt always move together
     rng = np.random.default_rng(9)
-    obs = observe(head, np.repeat([0.0, 20.0], 30), np.repeat([0.0, 10.0], 30), rng=rng,
+    obs = observe_settings(head, np.repeat([0.0, 20.0], 30), np.repeat([0.0, 10.0], 30), rng=rng,
                   image_sigma=1.0, world_sigma=1.0)
     with pytest.raises(ValueError, match="do not determine"):
         calibrate(head.camera, obs.pan, obs.tilt, obs.X, obs.xy)
@@ -386,7 +386,7 @@ def test_posterior_agrees_with_the_jacobian(data):
 # ---------------------------------------------------------------------- aiming
 def on_axis_targets(head, pan, tilt, rng):
     """Targets that the true head centres at the given settings (the generator's truth)."""
-    obs = observe(head, pan, tilt, rng=rng, image_sigma=0.0, world_sigma=0.0, margin=0.0)
+    obs = observe_settings(head, pan, tilt, rng=rng, image_sigma=0.0, world_sigma=0.0, margin=0.0)
     c = np.array([[head.camera.cx, head.camera.cy]])
     # a second observation straight through the principal point
     cam = head.camera

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from conftest import random_camera
 
-from lsmta.evaluation import real_video as rv
+from lsmta.data import load_demo
+from lsmta.real import pose2sim_video as rv
 from lsmta.tracking.correspondence import match_views
 from lsmta.tracking.markers import find_markers
 
@@ -69,7 +70,7 @@ def test_find_markers_bad_input():
 
 @pytest.mark.skipif(not (DEMO / "cam01.mp4").is_file(), reason="demo videos not copied")
 def test_demo_is_read_with_its_calibration():
-    demo = rv.load_demo(scale=0.5, frames=3)
+    demo = load_demo(scale=0.5, frames=3)
     assert demo.fps == pytest.approx(60.0)
     assert len(demo.grey) == len(demo.cameras) == 4
     for g, cam, f in zip(demo.grey, demo.cameras, demo.first):
@@ -84,7 +85,7 @@ def test_demo_is_read_with_its_calibration():
 
 def test_load_demo_names_a_missing_folder(tmp_path):
     with pytest.raises(FileNotFoundError):
-        rv.load_demo(folder=tmp_path)
+        load_demo(folder=tmp_path)
 
 
 def test_image_transforms_flip_within_the_image():

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lsmta.evaluation.sapm import cell_seeds, clouthier_model, frame_trials, pose_trials
+from lsmta.evaluation.sapm import cell_seeds, frame_trials, pose_trials
 from lsmta.io import read_c3d
+from lsmta.real.marker_captures import clouthier_model
 from lsmta.rigid import apply_rigid, fit_rigid
 from lsmta.sapm import MarkerModel, SAPMParams, global_assignment, identify
 from lsmta.synth.markers import human_model, random_pose

@@ -216,9 +216,10 @@ def test_bad_input_gets_clear_errors():
 
 
 def test_real_recording_protocol_and_scores():
-    from lsmta.evaluation import marker_recordings as mr
+    from lsmta.data import load_recording
+    from lsmta.real import marker_captures as mr
 
-    rec = mr.load_recording("racing", step=50)
+    rec = load_recording("racing", step=50)
     assert rec.n_train == 70 and rec.frames[0] == 70 and np.all(np.diff(rec.frames) == 50)
     assert not any(k.startswith("Probe") for k in rec.labels)      # absent from every frame
     model, segments = mr.learned_model(rec)
@@ -232,4 +233,4 @@ def test_real_recording_protocol_and_scores():
     s = trials.summary()
     assert s["correct"] > 0.9 and s["wrong"] < 0.02
     with pytest.raises(ValueError, match="name"):
-        mr.load_recording("golf")
+        load_recording("golf")

@@ -11,7 +11,8 @@ from lsmta.systems import SurfaceParams, calibrate_rig, capture_body, measure_su
 @pytest.fixture(scope="module")
 def tiny():
     """A 12-frame session at half the image size (quick), and the system run on it."""
-    session = bs.arm_wave_session(seed=7, n_frames=12, first=20, scale=0.5, n_bar=60, n_heldout=20)
+    session = bs.arm_wave_session(seed=7, n_frames=12, first=20, scale=0.5,
+                                  params=bs.ArmWaveSessionParams(n_bar=60, n_heldout=20))
     videos, bars = session.videos.copy(), session.bar_videos.copy()
     poses = [(c.R.copy(), c.C.copy(), c.f) for c in session.nominal]
     capture = capture_body(session.videos, session.bar_videos, session.bar_length,
@@ -46,8 +47,8 @@ def test_capture_body_against_the_truth(tiny):
     for g, want in ((start.torso, "torso"), (start.upper_arm, "upper_arm_r"),
                     (start.forearm, "forearm_r")):
         assert max(parts[g], key=parts[g].get) == want
-    truth = bs.arm_truth(session)
-    err = np.median(bs.joint_errors(start, truth, al), axis=0)
+    truth = bs.session_arm_truth(session)
+    err = np.median(bs.joint_position_errors(start, truth, al), axis=0)
     assert err[0] < 20 and err[1] < 20
     assert len(capture.arm.frames) >= 8                  # both segments tracked in most
     fit = bs.score_arm(capture.arm.simplified, start.torso_poses, truth,
@@ -62,7 +63,8 @@ def test_capture_body_against_the_truth(tiny):
 
 @pytest.fixture(scope="module")
 def small():
-    return bs.arm_wave_session(seed=8, n_frames=4, first=20, scale=0.5, n_bar=20, n_heldout=2)
+    return bs.arm_wave_session(seed=8, n_frames=4, first=20, scale=0.5,
+                               params=bs.ArmWaveSessionParams(n_bar=20, n_heldout=2))
 
 
 def test_capture_body_bad_input(small):

@@ -88,8 +88,9 @@ def test_bad_input_is_refused_with_clear_errors():
 def test_caliscope_recording_calibrated_from_its_corners_alone():
     from lsmta.calibration.board import calibrate_board
     from lsmta.camera_files import read_camera_toml
-    from lsmta.evaluation.board import CALISCOPE_DIR, board_scores, position_differences
+    from lsmta.data import CALISCOPE_DIR
     from lsmta.io import read_caliscope_points
+    from lsmta.real.board import board_scores, position_differences
 
     pts = read_caliscope_points(CALISCOPE_DIR / "xy.csv")
     ref = read_camera_toml(CALISCOPE_DIR / "camera_array.toml", unit="m")

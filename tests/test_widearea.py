@@ -5,13 +5,14 @@ import cv2
 import numpy as np
 import pytest
 
-from lsmta.evaluation.track_scores import score_tracks
+from lsmta.evaluation.track_scores import score_led_tracks
 from lsmta.evaluation.widearea import RIG_SEED, fig35_starvation, trial_rig, walking_trial
 from lsmta.evaluation.widearea_images import rendered_tracking_trial
 from lsmta.synth.widearea import (
+    LedCentroidParams,
     ceiling_rig,
     make_clocks,
-    observe,
+    observe_leds,
     still_led,
     walking_person,
 )
@@ -309,7 +310,7 @@ def test_score_counts_failed_births_and_deaths():
                         birth_time=0.0, death_time=np.nan)
     z = np.zeros(1)
     res = TrackingResult((trk,), z, z, z, z, z, 0, 0, 0, 0, 0)
-    s = score_tracks(scene, res, np.arange(0.0, 1.0, 0.05))
+    s = score_led_tracks(scene, res, np.arange(0.0, 1.0, 0.05))
     assert s.never_born == 1 and s.never_deleted == 1
     assert np.isnan(s.birth_delay[1]) and np.isnan(s.death_delay[0])
     assert s.coverage == pytest.approx(0.5)
@@ -317,7 +318,8 @@ def test_score_counts_failed_births_and_deaths():
 
 def _frames(rig, rng):
     cams = rig[:6]
-    obs = observe(still_led(duration=0.6), cams, make_clocks(6, rng=rng), rng=rng, reflections=0.0)
+    obs = observe_leds(still_led(duration=0.6), cams, make_clocks(6, rng=rng), rng=rng,
+                       params=LedCentroidParams(reflections=0.0))
     return cams, obs
 
 
@@ -364,7 +366,8 @@ def test_tracker_argument_errors(rig):
 def test_generator_truth_and_visibility(rig):
     rng = np.random.default_rng(4)
     scene = walking_person(duration=0.6)
-    obs = observe(scene, rig, make_clocks(18, rng=rng), rng=rng, reflections=0.0, noise_px=0.0)
+    obs = observe_leds(scene, rig, make_clocks(18, rng=rng), rng=rng,
+                       params=LedCentroidParams(reflections=0.0, noise_px=0.0))
     # every centroid with a truth label lies on the projection of that LED at capture time
     fr = obs.frames
     f = int(np.argmax(np.diff(fr.start)))
@@ -397,7 +400,7 @@ def test_stonesoup_baseline_tracks_a_still_led(rig):
 
     cams, obs = _frames(rig, np.random.default_rng(6))
     res = stonesoup_track(cams, obs.frames)
-    score = score_tracks(still_led(duration=0.6), res, np.arange(0.2, 0.6, 0.02))
+    score = score_led_tracks(still_led(duration=0.6), res, np.arange(0.2, 0.6, 0.02))
     assert len(res.tracks) == 1
     assert score.rms_mm < 5.0
 
@@ -543,13 +546,13 @@ def test_subsampled_search_tests_fewer_pixels_and_finds_predicted_spots():
 
 
 def test_rendered_video_detected_at_truth():
-    from lsmta.synth.widearea import render_led_video, small_camera
+    from lsmta.synth.widearea import LedVideoParams, render_led_video, small_camera
     from lsmta.widearea import background_threshold, detect
 
     rng = np.random.default_rng(8)
     cam = small_camera(ceiling_rig(rng=np.random.default_rng(7))[0])
     video = render_led_video(still_led(duration=0.3), cam, np.arange(5) / 30, rng=rng,
-                             monitor_flicker=0.0, reflections=0.0)
+                             params=LedVideoParams(monitor_flicker=0.0, reflections=0.0))
     thr = background_threshold(video.background, 20.0, 60.0)
     det = detect(video.frames, thr)
     for t in range(5):

@@ -5,15 +5,16 @@ the synchronised per-instant intersection (Fig. 33), bad input."""
 import numpy as np
 import pytest
 
-from lsmta.evaluation.track_scores import score_tracks
+from lsmta.evaluation.track_scores import score_led_tracks
 from lsmta.evaluation.widearea import walking_trial
 from lsmta.synth.calibration import poor_guess
 from lsmta.synth.widearea import (
     Clocks,
+    LedCentroidParams,
     ceiling_rig,
     circle_led,
     make_clocks,
-    observe,
+    observe_leds,
     render_led_video,
     small_camera,
     walking_person,
@@ -125,7 +126,8 @@ def test_a_camera_joins_and_another_is_dropped_on_a_small_scene():
     rig = ceiling_rig(rng=np.random.default_rng(9))
     scene = circle_led(duration=2.5, radius=600.0, period=1.0)
     clocks = make_clocks(len(rig), rng=np.random.default_rng(1), max_offset=0.002)
-    obs = observe(scene, rig, clocks, rng=np.random.default_rng(2), reflections=0.0)
+    obs = observe_leds(scene, rig, clocks, rng=np.random.default_rng(2),
+                       params=LedCentroidParams(reflections=0.0))
     new, gone, stop = 5, 2, 1.0
     start = [c for i, c in enumerate(rig) if i != new]
     index = np.array([i - (i > new) for i in range(len(rig))])
@@ -166,7 +168,7 @@ def test_a_camera_joins_and_another_is_dropped_on_a_small_scene():
     last = fr.stamp[(fr.camera == gone) & (fr.stamp <= stop)].max()
     assert 0.2 <= what[(index[gone], "dropped")] - last < 0.2 + 0.02   # timeout + a frame
     assert res.camera_status[index[gone]] == CameraStatus.SILENT
-    score = score_tracks(scene, res, np.arange(0.2, 2.5, 0.01))
+    score = score_led_tracks(scene, res, np.arange(0.2, 2.5, 0.01))
     assert score.identity_changes == 0 and score.coverage > 0.98 and score.rms_mm < 10.0
     # a removed camera's frames are refused and counted
     tracker.remove_camera(0)
@@ -278,8 +280,8 @@ def test_synchronised_intersection_is_exact_when_synchronised():
     K = len(rig)
     sync = Clocks(rate=np.full(K, 60.0), phase=np.zeros(K), offset=np.zeros(K),
                   latency=np.full(K, 0.005))
-    obs = observe(scene, rig, sync, rng=np.random.default_rng(0), noise_px=0.0,
-                  reflections=0.0)
+    obs = observe_leds(scene, rig, sync, rng=np.random.default_rng(0),
+                       params=LedCentroidParams(noise_px=0.0, reflections=0.0))
     times = np.arange(5) / 60.0
     pts = intersect_instants(rig, obs.frames, times, window=1 / 60)
     truth = scene.positions_at(times)
@@ -293,8 +295,8 @@ def test_synchronised_intersection_is_exact_when_synchronised():
     # unsynchronised by 10 ms: the moving LEDs' rays no longer meet where the LEDs are
     late = Clocks(rate=np.full(K, 60.0), phase=np.random.default_rng(1).uniform(0, 0.01, K),
                   offset=np.zeros(K), latency=np.full(K, 0.005))
-    obs2 = observe(scene, rig, late, rng=np.random.default_rng(0), noise_px=0.0,
-                   reflections=0.0)
+    obs2 = observe_leds(scene, rig, late, rng=np.random.default_rng(0),
+                        params=LedCentroidParams(noise_px=0.0, reflections=0.0))
     pts2 = intersect_instants(rig, obs2.frames, times + 0.01, window=1 / 60)
     d2 = [np.linalg.norm(scene.positions_at(times + 0.01)[t][:, None] - pts2.at(t)[None],
                          axis=2).min(axis=1) for t in range(len(times))]

@@ -183,8 +183,8 @@ def controlled_points(body: Body, motion: Motion, truth: ArmTruth, *,
             for f in truth.frames]
 
 
-def fit_arm(points, torso_poses, init: ModelState, *, params: FitParams | None = None,
-            tracked=None, model=None, full: bool = True, full_rounds: int = 3):
+def fit_arm_trial(points, torso_poses, init: ModelState, *, params: FitParams | None = None,
+                  tracked=None, model=None, full: bool = True, full_rounds: int = 3):
     """Simplified fit of a sequence (or one frame) with ``params`` (and ``tracked`` joints),
     then the full model from it (the same settings, at most ``full_rounds`` segmentation
     rounds).
@@ -229,7 +229,7 @@ def true_skin_to_fit(fit: BodyFit, truth: ArmTruth, body: Body, motion: Motion, 
     :func:`lsmta.body.iso_surface` and the distance is to its triangles (VTK's implicit
     poly-data distance via pyvista), not to its vertices.
     """
-    import pyvista as pv
+    import pyvista as pv  # deferred: heavy (about 1 s to import), only this score needs it
 
     model = arm_model() if model is None else model
     frames = range(len(truth.frames)) if frames is None else frames
@@ -251,6 +251,6 @@ def true_skin_to_fit(fit: BodyFit, truth: ArmTruth, body: Body, motion: Motion, 
     return np.concatenate(out)
 
 
-def point_errors(points, body: Body, motion: Motion, frame: int) -> np.ndarray:
+def arm_point_errors(points, body: Body, motion: Motion, frame: int) -> np.ndarray:
     """Distance (mm) of measured points ``(N, 3)`` to the true arm skin."""
     return arm_distance(body, motion, frame, points)

@@ -23,17 +23,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._validate import as_int, as_scalar, as_vector
 from ..body import arm_model, shoulder_angles
 from ..body.arm import base_poses
 from ..calibration import track_targets
 from ..calibration.labels import consistent_bar_labels
+from ..camera import scaled_camera
 from ..matching import LSMThresholds, measure_surface
 from ..rigid import fit_rigid
 from ..synth import Scene, arm_wave, make_body, triplet_rig
 from ..synth.body import Motion
 from ..synth.calibration import BarTrack, bar_track, poor_guess, render_bar_images
 from ..synth.render import Renderer, cast_body
-from ..synth.sequence import Sequence, render_sequence, scaled_camera
+from ..synth.sequence import Sequence, render_sequence
 from ..systems import ArmFitSettings, BodyCapture, FilterSettings
 from ..systems.body import fit_self_consistent, observed_frames
 from ..tracking import TrackerParams, Trajectories, apply_filters, track_points
@@ -42,7 +44,7 @@ from ..triangulation import triangulate
 from . import body as eb
 from .calibration import check_point_errors, heldout_bar_errors
 from .surface import node_truth, score_surface, seeds_from_truth
-from .tracking import TrackScore, score_tracks
+from .tracking import TrackScore, score_tracks, track_identity
 
 ARM_PARTS = eb.ARM_PARTS
 
@@ -105,13 +107,66 @@ def roi_camera(camera, width: int, height: int):
                           cy=camera.cy - (camera.height - height) / 2)
 
 
-def arm_wave_session(*, seed: int = 1998, n_frames: int = 24, first: int = 10,
-                     roi=(576, 432), distance: float = 1700.0, baseline: float = 480.0,
-                     height: float = 1150.0, person=(450.0, 0.0), noise: float = 2.0,
-                     backdrop: float = 20.0, bar_length: float = 400.0, n_bar: int = 150,
-                     n_heldout: int = 40, bar_half_size=(380.0, 250.0, 300.0),
-                     tape_mm: float = 30.0, tape_deg: float = 2.0, lens_rel: float = 0.01,
-                     every: int = 4, scale: float = 1.0) -> ArmWaveSession:
+@dataclass(frozen=True)
+class ArmWaveSessionParams:
+    """The studio, the bar and the tape measure of :func:`arm_wave_session`.
+
+    Attributes
+    ----------
+    roi : (2,) ints
+        Width and height of the centred read-out window of the 768 x 576 sensors, px.
+    distance, baseline, height : float
+        Rig to person, between neighbouring cameras, and camera height, mm.
+    person : (2,) floats
+        Where the person sits (x, y), mm.
+    noise : float
+        Image noise, grey levels.
+    backdrop : float
+        The dark backdrop's grey level (a camera's black level).
+    bar_length : float
+        mm.
+    n_bar, n_heldout : int
+        Bar positions filmed for the calibration and held out for the check points.
+    bar_half_size : (3,) floats
+        Half size of the volume the bar moves in, mm.
+    tape_mm, tape_deg, lens_rel : float
+        The nominal cameras' errors: position per axis (mm), attitude per axis (degrees),
+        relative focal length.
+    """
+
+    roi: tuple = (576, 432)
+    distance: float = 1700.0
+    baseline: float = 480.0
+    height: float = 1150.0
+    person: tuple = (450.0, 0.0)
+    noise: float = 2.0
+    backdrop: float = 20.0
+    bar_length: float = 400.0
+    n_bar: int = 150
+    n_heldout: int = 40
+    bar_half_size: tuple = (380.0, 250.0, 300.0)
+    tape_mm: float = 30.0
+    tape_deg: float = 2.0
+    lens_rel: float = 0.01
+
+    def __post_init__(self):
+        if len(self.roi) != 2:
+            raise ValueError(f"roi: expected (width, height), got {self.roi!r}")
+        for k, v in zip(("roi width", "roi height"), self.roi):
+            as_int(v, k, unit="px")
+        for key in ("distance", "baseline", "height", "bar_length"):
+            as_scalar(getattr(self, key), key, positive=True)
+        for key in ("noise", "backdrop", "tape_mm", "tape_deg", "lens_rel"):
+            as_scalar(getattr(self, key), key, nonnegative=True)
+        as_vector(self.person, "person", 2)
+        as_vector(self.bar_half_size, "bar_half_size", 3)
+        as_int(self.n_bar, "n_bar")
+        as_int(self.n_heldout, "n_heldout")
+
+
+def arm_wave_session(*, seed: int = 1998, n_frames: int = 24, first: int = 10, every: int = 4,
+                     scale: float = 1.0,
+                     params: ArmWaveSessionParams | None = None) -> ArmWaveSession:
     """Render the arm wave in the triplet and a bar video, and make the tape-measured rig.
 
     The triplet of :func:`~lsmta.synth.triplet_rig` (perturbed as a hand-built rig) stands
@@ -119,13 +174,21 @@ def arm_wave_session(*, seed: int = 1998, n_frames: int = 24, first: int = 10,
     reading a centred ``roi`` window of their 768 x 576 sensors (the arm fills the frames
     as in the paper's Fig. 8). The person sits at ``person`` facing the rig, so that the
     right arm sweeps across the view; frames ``first`` to ``first + n_frames - 1`` of
-    :func:`~lsmta.synth.arm_wave` (25 Hz) are shown. The backdrop is dark but
-    ``backdrop`` grey levels above black, like a camera's black level. The nominal cameras
-    are the true ones moved by ``tape_mm`` per axis and turned by ``tape_deg`` per axis,
-    with the focal length off by ``lens_rel`` and no lens model
-    (:func:`~lsmta.synth.calibration.poor_guess`). ``scale`` shrinks the images (fewer,
-    coarser pixels: for quick tests).
+    :func:`~lsmta.synth.arm_wave` (25 Hz) are shown, with the density check's surface
+    points every ``every`` frames. The backdrop is dark but ``backdrop`` grey levels above
+    black, like a camera's black level. The nominal cameras are the true ones moved by
+    ``tape_mm`` per axis and turned by ``tape_deg`` per axis, with the focal length off by
+    ``lens_rel`` and no lens model (:func:`~lsmta.synth.calibration.poor_guess`).
+    ``scale`` shrinks the images (fewer, coarser pixels: for quick tests). The settings
+    named here are those of ``params`` (default: ``ArmWaveSessionParams()``).
     """
+    p = ArmWaveSessionParams() if params is None else params
+    roi, distance, baseline, height, person = (p.roi, p.distance, p.baseline, p.height,
+                                               p.person)
+    noise, backdrop, bar_length, n_bar, n_heldout = (p.noise, p.backdrop, p.bar_length,
+                                                     p.n_bar, p.n_heldout)
+    bar_half_size, tape_mm, tape_deg, lens_rel = (p.bar_half_size, p.tape_mm, p.tape_deg,
+                                                  p.lens_rel)
     rng = np.random.default_rng(seed)
     full = triplet_rig(rng=rng, distance=distance, baseline=baseline, camera_height=height,
                        target_height=height)
@@ -243,7 +306,7 @@ def truth_fed_surface(session: ArmWaveSession, frame: int, *, step: int = 4, pat
 
 
 # ------------------------------------------------------------------ tracking
-def track_identity(session: ArmWaveSession, tracks, *, template: int = 1):
+def track_identity_from_rays(session: ArmWaveSession, tracks, *, template: int = 1):
     """``(part (N,), local (N, 3))``: the body surface point under each track's first
     template position (the template camera's ray cast at the exact sub-pixel position)."""
     body, motion = session.scene.body, session.scene.motion
@@ -270,7 +333,7 @@ def score_system_tracks(session: ArmWaveSession, tracks, trajectories: Trajector
     """Score tracks and their trajectories against the surface points they started on;
     trajectories in the system's world are first carried into the true world. Tracks that
     did not start on the body get NaN errors. Returns ``(score, part, local)``."""
-    part, local = track_identity(session, tracks, template=template)
+    part, local = track_identity_from_rays(session, tracks, template=template)
     xyz = trajectories.xyz if alignment is None else alignment.points(trajectories.xyz)
     traj = Trajectories(xyz, trajectories.fps)
     on = part >= 0
@@ -317,12 +380,7 @@ def truth_fed_tracking(session: ArmWaveSession, *, params: TrackerParams | None 
     tracks = track_points(session.videos, s0.xy, params=p,
                           new_points={t: s.xy for t, s in seq.surface.items() if t > 0})
     seconds = time.perf_counter() - t0
-    part = np.empty(len(tracks), np.int64)
-    local = np.empty((len(tracks), 3))
-    part[:len(s0.part)], local[:len(s0.part)] = s0.part, s0.local
-    for i in np.flatnonzero(tracks.added):
-        s = seq.surface[int(tracks.start[i])]
-        part[i], local[i] = s.part[tracks.origin[i]], s.local[tracks.origin[i]]
+    part, local = track_identity(seq, tracks, s0.part, s0.local)
     traj = trajectories_from_tracks(session.cameras, tracks, session.fps)
     reports = apply_filters(traj, **dataclasses.asdict(filters or FilterSettings()))
     score = score_tracks(seq, tracks, part, local, traj=reports[-1].trajectories)
@@ -331,7 +389,7 @@ def truth_fed_tracking(session: ArmWaveSession, *, params: TrackerParams | None 
 
 
 # ------------------------------------------------------------------ arm model
-def arm_truth(session: ArmWaveSession) -> eb.ArmTruth:
+def session_arm_truth(session: ArmWaveSession) -> eb.ArmTruth:
     """The arm's truth in every frame of the session."""
     return eb.arm_truth(session.scene.body, session.scene.motion,
                         np.arange(session.videos.shape[1]))
@@ -398,7 +456,7 @@ def truth_fed_arm(session: ArmWaveSession, tracking: TruthFedTracking, *,
                   joint_noise_mm: float = 0.0) -> TruthFedArm:
     """The arm fit as notebook 07 feeds it (see :class:`TruthFedArm`), with the system's
     settings (the same sigma rule, the same rounds)."""
-    truth = arm_truth(session)
+    truth = session_arm_truth(session)
     init, tracked = eb.initial_state(truth, rng=session.seed, joint_noise_mm=joint_noise_mm)
     s = settings or ArmFitSettings()
     body = session.scene.body
@@ -439,7 +497,7 @@ def centre_errors(cameras, true_cameras) -> np.ndarray:
     return np.linalg.norm(C @ R.T + t - Ct, axis=1)
 
 
-def joint_errors(start, truth: eb.ArmTruth, alignment: Alignment) -> np.ndarray:
+def joint_position_errors(start, truth: eb.ArmTruth, alignment: Alignment) -> np.ndarray:
     """``(T, 3)`` distances (mm) of the start's shoulder, elbow and wrist from the truth."""
     return np.linalg.norm(alignment.points(start.joints) - truth.joints, axis=2)
 
@@ -456,11 +514,10 @@ def group_parts(session: ArmWaveSession, groups, part) -> list:
 
 
 __all__ = [
-    "Alignment", "ArmWaveSession", "TruthFedArm", "TruthFedTracking", "arm_truth",
+    "Alignment", "ArmWaveSession", "ArmWaveSessionParams", "TruthFedArm", "TruthFedTracking",
     "arm_wave_session", "calibration_scores", "centre_errors", "group_parts",
-    "heldout_points", "joint_errors",
-    "last_frame_error", "roi_camera", "score_arm", "score_system_surface",
-    "score_system_tracks", "surface_truth", "target_sigma", "torso_frame_error",
-    "track_identity",
-    "truth_fed_arm", "truth_fed_surface", "truth_fed_tracking", "world_alignment",
+    "heldout_points", "joint_position_errors", "last_frame_error", "roi_camera", "score_arm",
+    "score_system_surface", "score_system_tracks", "session_arm_truth", "surface_truth",
+    "target_sigma", "torso_frame_error", "track_identity_from_rays", "truth_fed_arm",
+    "truth_fed_surface", "truth_fed_tracking", "world_alignment",
 ]

@@ -39,6 +39,7 @@ from ..calibration.virtual_object import (
     joint_adjustment,
     projection_error,
 )
+from ..camera import Camera
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.calibration import (
     bar_track,
@@ -427,10 +428,8 @@ def aniposelib_peer(trial: BarTrial, cameras0):
     seconds : float
         Wall time of the adjustment.
     """
-    from aniposelib.cameras import Camera as ACamera
-    from aniposelib.cameras import CameraGroup
-
-    from ..camera import Camera
+    from aniposelib.cameras import Camera as ACamera  # deferred: optional peer, not installed
+    from aniposelib.cameras import CameraGroup  # deferred: optional peer, not installed
 
     acams = []
     for c in cameras0:

@@ -8,20 +8,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from itertools import combinations
-from pathlib import Path
 
 import cv2
 import numpy as np
 
-from .._validate import as_rng
+from .._validate import as_int, as_rng
 from ..face import align_sequence, extreme_basis, fill_missing, learn, pca_basis, pca_gap_fill
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.face import face_cameras, face_sequence, visible
 from ..synth.marker_video import render_marker_video
 from ..tracking.markers import MarkerStatus, track_markers
 from ..triangulation import triangulate, triangulate_single_pair
-
-DATA = Path(__file__).resolve().parents[2] / "data" / "animface"
 
 METHODS = ("extremes, w in [0,1]", "extremes, w free", "PCA mean + k, w free",
            "peer: PCA gap filling", "learned default (face.learn)")
@@ -53,16 +50,17 @@ def _perturb(cam, rng, deg):
     return cam.replace(R=dR @ cam.R)
 
 
-def observe(seq, *, rng: np.random.Generator | int | None = None, pixel_noise: float = 0.5,
-            pose_noise_deg: float = 0.1, min_cos: float = 0.3, pairing: str = "single",
-            **camera_kw) -> Observation:
+def observe_face(seq, *, rng: np.random.Generator | int | None = None,
+                 pixel_noise: float = 0.5, pose_noise_deg: float = 0.1, min_cos: float = 0.3,
+                 pairing: str = "single", positions=None) -> Observation:
     """Image and triangulate a generated face sequence (:mod:`lsmta.synth.face`).
 
     No marker tracking is simulated here (see :func:`observe_tracked` for the section 5.1
     tracker on rendered video): the tracked image positions are the true projections plus
     Gaussian noise, with every marker correctly identified.
 
-    In every frame four narrow-field cameras aim at the head (:func:`face_cameras`); the
+    In every frame four narrow-field cameras aim at the head (:func:`face_cameras`, at
+    ``positions`` if given: ``(K, 3)`` camera centres, mm); the
     images come from cameras whose orientation is off by ``pose_noise_deg`` per axis (the
     thesis's 0.1 degree pan-tilt precision) while the triangulation uses the nominal
     ones; tracked image positions carry ``pixel_noise`` px of Gaussian noise; markers
@@ -84,7 +82,7 @@ def observe(seq, *, rng: np.random.Generator | int | None = None, pixel_noise: f
     pairs = np.zeros((T, 2), dtype=int)
     nvis = None
     for f in range(T):
-        cams = face_cameras(seq.t[f], **camera_kw)
+        cams = face_cameras(seq.t[f], positions=positions)
         if nvis is None:
             nvis = np.zeros((T, len(cams)), dtype=int)
         xy = np.full((len(cams), M, 2), np.nan)
@@ -213,13 +211,6 @@ def random_visibility(n_frames: int, n_markers: int, n_visible, *,
     keys = as_rng(rng).random((n_frames, n_markers))
     rank = keys.argsort(axis=1).argsort(axis=1)
     return rank < nv[:, None]
-
-
-def load_animface(name: str, *, step: int = 1):
-    """``labels``, ``points`` (T, 41, 3) float64 mm of the project's AnimFace copy
-    (``"JawMoCap"`` or ``"CheeksMoCap"``), every ``step``-th frame."""
-    d = np.load(DATA / f"{name}.npz")
-    return tuple(str(s) for s in d["labels"]), d["points"][::step].astype(float)
 
 
 def truth_on_measured(truth, measured):
@@ -354,8 +345,9 @@ def observe_tracked(seq, *, rng: np.random.Generator | int | None = None,
                     pose_noise_deg: float = 0.1,
                     min_cos: float = 0.3, cameras=None, blur_frames=(),
                     image_noise: float = 2.0, seed_noise: float = 0.5,
-                    keep_images: bool = False, tracker=None, **camera_kw) -> TrackedCapture:
-    """Like :func:`observe`, but the image positions come from tracking rendered video.
+                    keep_images: bool = False, tracker: dict | None = None,
+                    positions=None) -> TrackedCapture:
+    """Like :func:`observe_face`, but the image positions come from tracking rendered video.
 
     Each camera's video is rendered (:func:`lsmta.synth.marker_video.render_marker_video`)
     from cameras aimed at the head in every frame and off by ``pose_noise_deg`` per axis
@@ -366,11 +358,12 @@ def observe_tracked(seq, *, rng: np.random.Generator | int | None = None,
     and whenever it becomes visible again (a stand-in for identifying it by hand; the
     tracker does not re-acquire markers). Only positions the tracker found are
     triangulated, with the nominal cameras, from the single pair seeing the most.
-    ``cameras``: indices of the :func:`face_cameras` used (default all).
+    ``cameras``: indices of the :func:`face_cameras` used (default all; at ``positions``
+    if given, as in :func:`observe_face`).
     """
     rng = as_rng(rng)
     T, M, _ = seq.world.shape
-    nominal = [face_cameras(seq.t[f], **camera_kw) for f in range(T)]
+    nominal = [face_cameras(seq.t[f], positions=positions) for f in range(T)]
     ks = list(range(len(nominal[0]))) if cameras is None else list(cameras)
     K = len(ks)
     truth = np.full((K, T, M, 2), np.nan)
@@ -413,18 +406,20 @@ def observe_tracked(seq, *, rng: np.random.Generator | int | None = None,
 
 
 def tracking_errors(capture: TrackedCapture, *, n_frames: int | None = None,
-                    **tracker) -> dict:
+                    tracker: dict | None = None) -> dict:
     """Track the kept videos of ``capture`` again (first ``n_frames``, same start
-    positions) with tracker options ``tracker`` and score against the truth.
+    positions) with the keyword arguments ``tracker`` of
+    :func:`lsmta.tracking.markers.track_markers` and score against the truth.
 
     Returns a dict: ``median``, ``p95`` (px, markers found in frames 1.., crowded markers
     excluded), ``wrong`` (share of those more than 2 px off: jumped to another marker),
     ``found`` (share of drawn, uncrowded marker images in frames 1.. the tracker found).
-    Without keyword arguments (and ``n_frames=None``) it scores the capture as made.
+    Without ``tracker`` options (and ``n_frames=None``) it scores the capture as made.
     """
     if capture.images is None:
         raise ValueError("capture: made without keep_images=True")
-    T = capture.truth_xy.shape[1] if n_frames is None else int(n_frames)
+    tracker = {} if tracker is None else dict(tracker)
+    T = capture.truth_xy.shape[1] if n_frames is None else as_int(n_frames, "n_frames")
     errs, found, drawn = [], 0, 0
     for k, images in enumerate(capture.images):
         if tracker or n_frames is not None:

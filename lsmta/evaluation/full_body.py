@@ -65,7 +65,8 @@ def _model_frames(fit: FullBodyFit) -> np.ndarray:
     return F @ np.swapaxes(F0, -1, -2)[None]
 
 
-def joint_errors(fit: FullBodyFit, body: Body, motion: Motion, frames, *, joints=None) -> dict:
+def joint_angle_errors(fit: FullBodyFit, body: Body, motion: Motion, frames, *,
+                       joints=None) -> dict:
     """Angle errors ``(T,)`` in degrees per joint (module docstring) and for the pelvis."""
     joints = MAJOR if joints is None else joints
     m = fit.model

@@ -31,7 +31,7 @@ from ..synth.mixed_scale import (
 )
 from ..synth.pantilt import calibration_sweeps, intrinsic_target
 from ..systems.mixed_scale import CeilingFeed, MixedScaleCapture
-from .track_scores import score_tracks
+from .track_scores import score_led_tracks
 
 
 @dataclass(frozen=True, eq=False)
@@ -201,7 +201,7 @@ class MixedScaleScores:
     aim_error : (F,) array
         Distance of the aim point from the true face centre ``horizon`` s later (when the
         heads get there), mm.
-    led : TrackScore
+    led : LedTrackScore
         The LED tracks against the LEDs (identity changes, RMS).
     led_rms_mm : float
     marker_px : (K,) array
@@ -264,7 +264,7 @@ def score_capture(capture: MixedScaleCapture, scene: MixedScaleScene, devices, *
         marker_px[k] = np.nanmedian(e) if np.isfinite(e).any() else np.nan
     ahead, _, _ = scene.face_at(t + horizon)
     aim_error = np.linalg.norm(capture.aim_points - ahead.mean(axis=1), axis=1)
-    led = score_tracks(scene.leds, capture.tracking, t)
+    led = score_led_tracks(scene.leds, capture.tracking, t)
     return MixedScaleScores(face_error=err, measured=measured,
                             rigid_deviation=distance_deviation(
                                 np.where(measured[..., None], capture.points, np.nan),

@@ -1,4 +1,6 @@
-"""SAPM trials: generated or real marker poses, identified and scored against the truth.
+"""SAPM trials: generated marker poses (or the labelled frames of a recording, e.g. those
+of :func:`lsmta.real.marker_captures.clouthier_model`), identified and scored against the
+truth.
 
 Notebook 08 and ``experiments/sapm_surface.py`` are built from these functions. A pose is
 *fully correct* when every observed point carries its true label (extra points -1); the
@@ -8,55 +10,13 @@ Notebook 08 and ``experiments/sapm_surface.py`` are built from these functions. 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from .._validate import as_rng
-from ..io import read_c3d
 from ..rigid import apply_rigid, fit_rigid
 from ..sapm import MarkerModel, SAPMParams, global_assignment, identify
 from ..synth.markers import random_pose
-
-
-def clouthier_segments(*, acromion: str = "upper_arm") -> dict:
-    """The marker set of Clouthier et al. (2021) as SAPM segments: 15 segments, 62 cluster
-    markers, no marker shared between segments.
-
-    Parameters
-    ----------
-    acromion : {"upper_arm", "torso"}
-        Where the two acromion markers (RAC, LAC) go. They sit on the shoulder girdle, which
-        follows the arm: with the upper arms the segments stay closer to rigid over the
-        recording than with the four back markers (notebook 08 measures both).
-    """
-    if acromion not in ("upper_arm", "torso"):
-        raise ValueError(f"acromion: expected 'upper_arm' or 'torso', got {acromion!r}")
-    on_arm = acromion == "upper_arm"
-    segments = {
-        "torso": ["LBUL", "LBLL", "LBUR", "LBLR"] + ([] if on_arm else ["RAC", "LAC"]),
-        "head": ["FHD", "RHD", "BHD", "LHD"],
-        "pelvis": ["PVUL", "PVLL", "PVLR", "PVUR"],
-    }
-    for S in "RL":
-        segments[f"{S}upper_arm"] = [f"{S}UAPA", f"{S}UAPP", f"{S}UADP", f"{S}UADA"] + (
-            [f"{S}AC"] if on_arm else [])
-        for name, markers in (("forearm", ("FAPA", "FAPP", "FADP", "FADA")),
-                              ("hand", ("RAD", "ULN", "HAND")),
-                              ("thigh", ("THPA", "THPP", "THDP", "THDA")),
-                              ("shank", ("SHPA", "SHPP", "SHDP", "SHDA")),
-                              ("foot", ("ANL", "HEE", "FTB", "FTM", "FTF"))):
-            segments[f"{S}{name}"] = [f"{S}{m}" for m in markers]
-    return segments
-
-
-CLOUTHIER_PARENTS = {
-    "torso": None, "head": "torso", "pelvis": "torso",
-    **{k: v for S in "RL" for k, v in (
-        (f"{S}upper_arm", "torso"), (f"{S}forearm", f"{S}upper_arm"),
-        (f"{S}hand", f"{S}forearm"), (f"{S}thigh", "pelvis"), (f"{S}shank", f"{S}thigh"),
-        (f"{S}foot", f"{S}shank"))},
-}
 
 
 @dataclass(frozen=True)
@@ -193,34 +153,11 @@ def identification_surface(model: MarkerModel, seed: int, levels, distortions, n
                    points_correct=points, n_poses=n_poses)
 
 
-# ---------------------------------------------------------------------- real data
-def clouthier_model(path, *, frame: int = 0,
-                    acromion: str = "upper_arm") -> tuple[MarkerModel, np.ndarray]:
-    """The model of the Clouthier et al. recording built from one labelled frame (segments
-    from :func:`clouthier_segments`), and all its frames.
-
-    Returns
-    -------
-    model : MarkerModel
-    points : (T, M, 3) array
-        Every frame, mm, with the model's marker order (NaN for gaps).
-    """
-    labels, points, _ = read_c3d(Path(path))
-    twice = sorted({k for k in labels if labels.count(k) > 1})
-    if twice:
-        raise ValueError(f"path: labels occur more than once in {path}: {twice}")
-    if np.isnan(points[frame]).any():
-        raise ValueError(f"frame: frame {frame} has gaps; the model needs a complete frame")
-    model = MarkerModel.from_labelled_frame(dict(zip(labels, points[frame])),
-                                            clouthier_segments(acromion=acromion),
-                                            CLOUTHIER_PARENTS)
-    order = [labels.index(k) for k in model.labels]
-    return model, points[:, order]
-
-
+# ---------------------------------------------------------------------- labelled frames
 @dataclass(frozen=True)
 class FrameTrials:
-    """Real frames identified after shuffling and dropping the labels.
+    """Labelled frames (a real recording's) identified after shuffling and dropping the
+    labels.
 
     Attributes
     ----------
@@ -251,7 +188,8 @@ class FrameTrials:
 def frame_trials(model: MarkerModel, points, frames, *, methods=("sapm",),
                  rng: np.random.Generator | int | None = None,
                  params: SAPMParams | None = None) -> FrameTrials:
-    """Identify real frames: present markers shuffled, labels dropped.
+    """Identify labelled frames (a real recording's): present markers shuffled, labels
+    dropped.
 
     ``points`` is (T, M, 3) in the model's marker order; in the returned label arrays a
     marker absent from the frame is -2."""
@@ -269,8 +207,6 @@ def frame_trials(model: MarkerModel, points, frames, *, methods=("sapm",),
             results[m].append(r)
     return FrameTrials(frames=np.asarray(frames), trials={m: _trials(r) for m, r in rows.items()},
                        labels=labels, results=results)
-
-
 
 
 def segment_fit_errors(model: MarkerModel, points) -> np.ndarray:

@@ -19,13 +19,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 from skimage.measure import find_contours
 
 from .._validate import as_array
 from ..body import silhouette_terms
-from ..camera import Camera
+from ..camera import Camera, scaled_camera
 from ..silhouettes import (
     ContourTracks,
     SilhouetteParams,
@@ -38,7 +39,6 @@ from ..silhouettes import (
 )
 from ..synth import Renderer, Scene, make_background, make_body, project_surface_points, walk
 from ..synth.rigs import triplet_rig
-from ..synth.sequence import scaled_camera
 from ..synth.silhouette import empty_scene, true_silhouettes
 
 
@@ -98,8 +98,6 @@ def mog2_silhouettes(empty, images, *, learning_rate: float = -1.0,
     """The peer: OpenCV's MOG2 subtractor (no shadow detection) trained on the empty frames,
     then run over ``images (T, H, W)`` with ``learning_rate`` (-1: OpenCV's automatic rate,
     as a user would run it); the same clean-up as ours (closing, largest region, holes)."""
-    import cv2
-
     sub = cv2.createBackgroundSubtractorMOG2(history=len(empty), detectShadows=False)
     for frame in np.asarray(empty, np.uint8):
         sub.apply(frame, learningRate=1.0 / len(empty))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from .._validate import as_rng
 from ..matching.masks import backdrop_mask
@@ -218,8 +219,6 @@ def point_errors(points, xy, truth: dict, rendered: RenderedFrame, *, template: 
     nearest to it, if within ``radius`` px (default half the grid step: the node's cell),
     scored against the true surface at that point's exact position
     (:func:`surface_truth_at`; no rounding to pixels)."""
-    from scipy.spatial import cKDTree
-
     step = truth["step"]
     radius = step / 2 if radius is None else radius
     rows, cols = truth["on_body"].shape

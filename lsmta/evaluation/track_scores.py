@@ -25,7 +25,7 @@ MATCH_MM = 60.0   # a track within this distance of an LED may be that LED's tra
 
 
 @dataclass(frozen=True)
-class TrackScore:
+class LedTrackScore:
     """A tracking run scored against the LEDs' ground truth.
 
     Attributes
@@ -70,7 +70,7 @@ class TrackScore:
     never_deleted: int = 0
 
 
-def score_tracks(scene: LedScene, result: TrackingResult, times) -> TrackScore:
+def score_led_tracks(scene: LedScene, result: TrackingResult, times) -> LedTrackScore:
     """Match tracks to LEDs at ``times`` (Hungarian on distances, gated at ``MATCH_MM``)."""
     times = np.asarray(times, dtype=float)
     truth = scene.positions_at(times)                                  # (T, N, 3)
@@ -107,7 +107,7 @@ def score_tracks(scene: LedScene, result: TrackingResult, times) -> TrackScore:
             never_born += 1
     used = set(assigned[assigned >= 0].tolist())
     e = error[np.isfinite(error)]
-    return TrackScore(times=times, assigned=assigned, error=error,
+    return LedTrackScore(times=times, assigned=assigned, error=error,
                       rms_mm=float(np.sqrt(np.mean(e**2))) if len(e) else np.nan,
                       identity_changes=changes, birth_delay=birth, death_delay=death,
                       coverage=float((assigned >= 0).sum() / max(on.sum(), 1)),

@@ -14,10 +14,11 @@ import numpy as np
 from scipy.spatial import Delaunay
 
 from .._validate import as_rng
+from ..camera import scaled_camera
 from ..synth import Scene, arm_wave, make_body, triplet_rig, walk
 from ..synth.face import face_cameras, face_model, face_sequence, visible
 from ..synth.marker_video import render_marker_video
-from ..synth.sequence import Sequence, render_sequence, scaled_camera
+from ..synth.sequence import Sequence, render_sequence
 from ..tracking.klt import track_klt
 from ..tracking.points import Tracks, track_points
 from ..tracking.trajectories import Trajectories, trajectories_from_tracks
@@ -168,7 +169,7 @@ def by_age(values, start, *, reduce=np.nanmedian, min_count: int = 5):
 
 @dataclass(frozen=True)
 class Trial:
-    """Both trackers on one sequence from the same start points (see :func:`run_trial`)."""
+    """Both trackers on one sequence from the same start points (see :func:`run_tracking_trial`)."""
 
     sequence: Sequence
     tracks: Tracks
@@ -183,9 +184,10 @@ class Trial:
     local: np.ndarray
 
 
-def run_trial(seq: Sequence, n_points: int, *, rng: np.random.Generator | int | None = None,
-              params=None, density: bool = True, false_mm: float = 10.0, klt: bool = True,
-              geometric: bool = False) -> Trial:
+def run_tracking_trial(seq: Sequence, n_points: int, *,
+                       rng: np.random.Generator | int | None = None, params=None,
+                       density: bool = True, false_mm: float = 10.0, klt: bool = True,
+                       geometric: bool = False) -> Trial:
     """Track ``n_points`` of frame 0's surface with LSMTA (with the density check unless
     ``density`` is False; with the geometric check through the sequence's true cameras if
     ``geometric``) and, if ``klt``, with KLT; score both."""

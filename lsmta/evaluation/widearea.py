@@ -31,12 +31,13 @@ from ..camera import Camera
 from ..synth.calibration import poor_guess
 from ..synth.widearea import (
     Clocks,
+    LedCentroidParams,
     LedScene,
     ceiling_rig,
     circle_led,
     linear_stage,
     make_clocks,
-    observe,
+    observe_leds,
     still_led,
     walking_person,
 )
@@ -51,7 +52,7 @@ from ..widearea import (
 )
 from ..widearea.intersection import intersect_instants
 from ..widearea.peers import stonesoup_track
-from .track_scores import TrackScore, longest_track_estimate, score_tracks, stonesoup_metrics
+from .track_scores import LedTrackScore, longest_track_estimate, score_led_tracks, stonesoup_metrics
 
 RIG_SEED = 7   # seed of the perturbed ceiling rig the trials use unless given cameras
 
@@ -98,7 +99,8 @@ def _run_policies(scene, cams, obs, params, tolerance, times) -> StarvationTrial
     out = []
     for tol in (0.0, tolerance):
         res = track(cams, obs.frames, params=replace(params, late_tolerance=tol))
-        out.append((_used_fraction(res), len(res.tracks), score_tracks(scene, res, times).rms_mm))
+        out.append((_used_fraction(res), len(res.tracks),
+                    score_led_tracks(scene, res, times).rms_mm))
     return StarvationTrial(used_discard=out[0][0], used_tolerant=out[1][0],
                            tracks_discard=out[0][1], tracks_tolerant=out[1][1],
                            rms_discard=out[0][2], rms_tolerant=out[1][2])
@@ -117,7 +119,7 @@ def fig35_starvation(*, rng: np.random.Generator | int | None = None, rig=None,
     clocks = Clocks(rate=np.full(3, 60.0), phase=np.array([0.002, 0.003, 0.004]),
                     offset=np.array([offset, 0.0, 0.0]), latency=np.full(3, 0.005))
     scene = still_led(duration=duration)
-    obs = observe(scene, cams, clocks, rng=rng, reflections=0.0)
+    obs = observe_leds(scene, cams, clocks, rng=rng, params=LedCentroidParams(reflections=0.0))
     times = np.arange(0.3, duration, 0.01)
     return _run_policies(scene, cams, obs, EstimatorParams(), tolerance, times)
 
@@ -142,7 +144,7 @@ def offset_sweep(max_offsets, *, rng: np.random.Generator | int | None = None, r
     rows = []
     for m in max_offsets:
         clocks = make_clocks(len(cams), rng=rng, max_offset=m, latency=(0.006, 0.010))
-        obs = observe(scene, cams, clocks, rng=rng, duration=duration)
+        obs = observe_leds(scene, cams, clocks, rng=rng, duration=duration)
         trial = _run_policies(scene, cams, obs, EstimatorParams(), tolerance, times)
         rows.append((m, trial.used_discard.min(), trial.used_tolerant.min(),
                      int((trial.used_discard < 0.5).sum()),
@@ -252,17 +254,16 @@ def still_and_stage(*, rng: np.random.Generator | int | None = None, rig=None,
     params = EstimatorParams() if params is None else params
     cams = trial_rig(rig)
     clocks = make_clocks(len(cams), rng=rng)
+    centroids = LedCentroidParams(quantize=quantize, reflections=0.0)
     still = still_led(duration=still_duration)
     res = track(cams,
-                observe(still, cams, clocks, rng=rng, quantize=quantize,
-                              reflections=0.0).frames,
+                observe_leds(still, cams, clocks, rng=rng, params=centroids).frames,
                 params=params)
     ts = np.arange(0.5, still_duration, 0.01)
     est = longest_track_estimate(res, ts)
     stage = linear_stage(duration=duration, hold=0.5)
     res2 = track(cams,
-                 observe(stage, cams, clocks, rng=rng, quantize=quantize,
-                               reflections=0.0).frames,
+                 observe_leds(stage, cams, clocks, rng=rng, params=centroids).frames,
                  params=params)
     tg = np.arange(0.6, duration - 0.6, 0.01)
     est2 = longest_track_estimate(res2, tg)
@@ -295,12 +296,12 @@ def circle_models(densities: dict, *, rng: np.random.Generator | int | None = No
     cams = trial_rig(rig)
     clocks = make_clocks(len(cams), rng=rng)
     scene = circle_led(duration=duration)
-    obs = observe(scene, cams, clocks, rng=rng, reflections=0.0)
+    obs = observe_leds(scene, cams, clocks, rng=rng, params=LedCentroidParams(reflections=0.0))
     times = np.arange(0.2, duration, 0.005)
     out = {"truth": scene.positions_at(times)[:, 0], "times": times}
     for name, q in densities.items():
         res = track(cams, obs.frames, params=EstimatorParams(accel_density=q))
-        sc = score_tracks(scene, res, times)
+        sc = score_led_tracks(scene, res, times)
         sel = res.updates["camera"] == camera
         out[name] = {"tracks": len(res.tracks), "coverage": sc.coverage, "rms_mm": sc.rms_mm,
                      "estimate": res.positions_at(times),
@@ -322,7 +323,7 @@ class WalkingTrial:
     frames : Frames
         The observations both trackers received.
     ours, stonesoup : TrackingResult (stonesoup None when not run)
-    score_ours, score_stonesoup : TrackScore
+    score_ours, score_stonesoup : LedTrackScore
     metrics_ours, metrics_stonesoup : dict (Stone Soup's metrics; see stonesoup_metrics)
     seconds_ours, seconds_stonesoup : float
         Wall-clock time of each tracker.
@@ -333,8 +334,8 @@ class WalkingTrial:
     frames: Frames
     ours: TrackingResult
     stonesoup: TrackingResult | None
-    score_ours: TrackScore
-    score_stonesoup: TrackScore | None
+    score_ours: LedTrackScore
+    score_stonesoup: LedTrackScore | None
     metrics_ours: dict
     metrics_stonesoup: dict | None
     seconds_ours: float
@@ -360,7 +361,8 @@ def walking_trial(*, rng: np.random.Generator | int | None = None, rig=None,
     scene = walking_person(duration=duration, on=on)
     if monitors is None:
         monitors = {3: (40.0, 300.0, 140.0, 380.0)} if len(cams) > 3 else {}
-    obs = observe(scene, cams, clocks, rng=rng, reflections=reflections, monitors=monitors)
+    obs = observe_leds(scene, cams, clocks, rng=rng,
+                       params=LedCentroidParams(reflections=reflections, monitors=monitors))
     times = np.arange(0.0, duration, 1 / 60)
     t0 = time.perf_counter()
     ours = track(cams, obs.frames, params=params)
@@ -371,10 +373,10 @@ def walking_trial(*, rng: np.random.Generator | int | None = None, rig=None,
         t0 = time.perf_counter()
         ss = stonesoup_track(cams, obs.frames, params=params)
         sec_ss = time.perf_counter() - t0
-        ss_score = score_tracks(scene, ss, times)
+        ss_score = score_led_tracks(scene, ss, times)
         ss_metrics = stonesoup_metrics(scene, ss, times[::2])
     return WalkingTrial(cameras=cams, scene=scene, frames=obs.frames, ours=ours, stonesoup=ss,
-                        score_ours=score_tracks(scene, ours, times), score_stonesoup=ss_score,
+                        score_ours=score_led_tracks(scene, ours, times), score_stonesoup=ss_score,
                         metrics_ours=stonesoup_metrics(scene, ours, times[::2]),
                         metrics_stonesoup=ss_metrics, seconds_ours=sec,
                         seconds_stonesoup=sec_ss)
@@ -402,7 +404,7 @@ class ComeAndGo:
         The successful calibration (None if none).
     come_and_go, without : TrackingResult
         The run with both events, and the same run without the joining camera.
-    score, score_without : TrackScore
+    score, score_without : LedTrackScore
     innovation_rms : (K,) array
         Per camera, RMS of (observed - predicted centroid) of its updates after
         ``joined_at``, px (NaN for cameras without updates then).
@@ -427,8 +429,8 @@ class ComeAndGo:
     join: object
     come_and_go: TrackingResult
     without: TrackingResult
-    score: TrackScore
-    score_without: TrackScore
+    score: LedTrackScore
+    score_without: LedTrackScore
     innovation_rms: np.ndarray
     calibration_error_px: float
     rms_after: float
@@ -455,7 +457,7 @@ def cameras_come_and_go(*, rng: np.random.Generator | int | None = None, rig=Non
     scene = walking_person(duration=duration,
                            on=np.stack([0.1 + 0.05 * k, np.full(8, np.inf)], axis=1))
     clocks = make_clocks(len(rig), rng=rng, max_offset=max_offset)
-    obs = observe(scene, rig, clocks, rng=rng)
+    obs = observe_leds(scene, rig, clocks, rng=rng)
     guess = poor_guess([rig[join_camera]], rng=rng)[0]
     start = [c for i, c in enumerate(rig) if i != join_camera]
     index = np.array([i - (i > join_camera) for i in range(len(rig))])
@@ -499,7 +501,7 @@ def _come_and_go(scene, res, res0, true_camera, index, join_camera, drop_camera,
     joined_at = _event_time(res, j, "joined")
     join = next((r for c, r in res.joins if c == j and r.status == 0), None)
     times = np.arange(0.0, duration, 1 / 60)
-    score, score0 = score_tracks(scene, res, times), score_tracks(scene, res0, times)
+    score, score0 = score_led_tracks(scene, res, times), score_led_tracks(scene, res0, times)
     after = times >= joined_at if np.isfinite(joined_at) else np.zeros(len(times), bool)
 
     def rms(sc):
@@ -563,7 +565,8 @@ def synchronised_offset_sweep(offsets, *, rng: np.random.Generator | int | None 
         clocks = Clocks(rate=np.full(K, rate), phase=rng.uniform(0.0, off, K) if off > 0
                         else np.zeros(K), offset=np.zeros(K),
                         latency=rng.uniform(0.004, 0.008, K), jitter=0.0005)
-        obs = observe(scene, cams, clocks, rng=rng, duration=duration, reflections=0.0)
+        obs = observe_leds(scene, cams, clocks, rng=rng, duration=duration,
+                           params=LedCentroidParams(reflections=0.0))
         res = track(cams, obs.frames)
         pts = intersect_instants(cams, obs.frames, times, window=1 / rate,
                                  tolerance=tolerance)

@@ -23,9 +23,11 @@ from scipy.optimize import linear_sum_assignment
 
 from .._validate import as_rng
 from ..synth.widearea import (
+    LedCentroidParams,
+    LedVideoParams,
     linear_stage,
     make_clocks,
-    observe,
+    observe_leds,
     render_led_video,
     small_camera,
     still_led,
@@ -44,7 +46,7 @@ from ..widearea import (
     search_setup,
     track,
 )
-from .track_scores import longest_track_estimate, score_tracks
+from .track_scores import longest_track_estimate, score_led_tracks
 from .widearea import trial_rig
 
 
@@ -172,8 +174,9 @@ def stage_image_deviation(*, rng: np.random.Generator | int | None = None, rig=N
     out = {}
     for k in cameras:
         cam = small_camera(rig[k])
-        video = render_led_video(stage, cam, times, rng=rng, monitor_flicker=0.0,
-                                 reflections=reflections)
+        video = render_led_video(stage, cam, times, rng=rng,
+                                 params=LedVideoParams(monitor_flicker=0.0,
+                                                       reflections=reflections))
         thr = background_threshold(video.background, 20.0, 60.0)
         det = detect(video.frames, thr)
         # the observation is picked without the truth: the only feature of a frame, or,
@@ -227,7 +230,8 @@ def lighting_change_trial(*, rng: np.random.Generator | int | None = None, rig=N
     cam = small_camera(trial_rig(rig)[3])
     scene = still_led(duration=2.0, position=(300.0, 200.0, 1200.0))
     video = render_led_video(scene, cam, np.arange(n_frames) / 30.0, rng=rng,
-                             lighting_change=change, monitor_flicker=0.0, reflections=0.0)
+                             lighting_change=change,
+                             params=LedVideoParams(monitor_flicker=0.0, reflections=0.0))
     inv = np.zeros(video.frames.shape[1:], bool)
     x0, y0, x1, y1 = video.monitor.astype(int)
     inv[y0:y1, x0:x1] = True
@@ -262,8 +266,9 @@ class RenderedTrackingTrial:
         ``false_per_frame`` (features farther than 3 px from the LED), ``estimate``
         (T, 3) mm.
     centroid_only : dict
-        The same scene, cameras and clocks through :func:`observe` (generated centroids,
-        rounded to pixels) and the tracker: ``tracks``, ``rms_mm``, ``coverage``.
+        The same scene, cameras and clocks through
+        :func:`~lsmta.synth.widearea.observe_leds` (generated centroids, rounded to pixels)
+        and the tracker: ``tracks``, ``rms_mm``, ``coverage``.
     times : (T,) array
         Scoring times, s.
     truth : (T, 3) array
@@ -342,7 +347,8 @@ def rendered_tracking_trial(*, rng: np.random.Generator | int | None = None, rig
             "detect_ms_per_frame": 1e3 * sec / fr.n_frames,
             "tested_fraction": float(np.concatenate(tested).mean()),
             "false_per_frame": float(np.concatenate(false).mean())}
-    obs = observe(stage, cams, clocks, rng=rng, quantize=True, reflections=0.0)
+    obs = observe_leds(stage, cams, clocks, rng=rng,
+                       params=LedCentroidParams(quantize=True, reflections=0.0))
     res = track(cams, obs.frames, params=params)
     est = longest_track_estimate(res, times)
     centroid_only = {"tracks": len(res.tracks),
@@ -381,7 +387,7 @@ class GuidedDetectionTrial:
         Of those, the ones the guided search found at the same place (within 0.01 px).
     scores : dict
         ``"full"`` (the full search's features tracked by the batch tracker) and
-        ``"guided"`` (the streaming run): TrackScore against the LEDs.
+        ``"guided"`` (the streaming run): LedTrackScore against the LEDs.
     """
 
     cameras: list
@@ -473,8 +479,8 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     fr = Frames.from_lists([c for _, c, _ in order], [stamps[c][i] for _, c, i in order],
                            [full[c].centroids(i) for _, c, i in order])
     times = np.arange(0.0, duration, 1 / 60)
-    scores = {"full": score_tracks(scene, track(cams, fr, params=params), times),
-              "guided": score_tracks(scene, tracker.result(), times)}
+    scores = {"full": score_led_tracks(scene, track(cams, fr, params=params), times),
+              "guided": score_led_tracks(scene, tracker.result(), times)}
     size = videos[0].frames[0].size
     return GuidedDetectionTrial(
         cameras=cams, n_frames=len(order), seconds=seconds,

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array, as_rng, as_scalar
+from .._validate import as_array, as_int, as_rng, as_scalar
 
 
 @dataclass(frozen=True)
@@ -368,8 +368,7 @@ def walk(*, n_frames: int = 50, fps: float = 25.0, start=(-1300.0, 0.0), heading
     phase : float
         Gait phase at frame 0, radians.
     """
-    if int(n_frames) != n_frames or n_frames < 1:
-        raise ValueError(f"n_frames: expected a positive integer, got {n_frames}")
+    as_int(n_frames, "n_frames")
     fps = as_scalar(fps, "fps", positive=True)
     speed = as_scalar(speed, "speed", nonnegative=True)
     stride = as_scalar(stride, "stride", positive=True)
@@ -419,8 +418,7 @@ def arm_wave(*, n_frames: int = 50, fps: float = 25.0, position=(0.0, 0.0),
     wave_hz : float
         Frequency of the elbow's waving motion.
     """
-    if int(n_frames) != n_frames or n_frames < 1:
-        raise ValueError(f"n_frames: expected a positive integer, got {n_frames}")
+    as_int(n_frames, "n_frames")
     fps = as_scalar(fps, "fps", positive=True)
     names, ang = _empty_angles(int(n_frames))
     t = np.arange(n_frames) / fps

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .._validate import as_rng, as_scalar, as_vector
+from .._validate import as_int, as_rng, as_scalar, as_vector
 from ..camera import Camera
 from .rigs import _perturbed
 
@@ -73,8 +73,7 @@ def bar_track(*, n: int = 150, rng: np.random.Generator | int | None = None, len
     points at the cameras (which look along +Y); it starts horizontal along +X.
     """
     rng = as_rng(rng)
-    if int(n) != n or n < 1:
-        raise ValueError(f"n: expected a positive integer, got {n}")
+    as_int(n, "n")
     length = as_scalar(length, "length", positive=True)
     mid = _walk(rng, int(n), as_vector(center, "center", 3), as_vector(half_size,
                                                                           "half_size", 3), step)
@@ -102,8 +101,7 @@ def led_path(*, n: int = 300, rng: np.random.Generator | int | None = None,
              step: float = 120.0) -> np.ndarray:
     """An LED carried through the room: ``(n, 3)`` positions, mm (smooth random walk)."""
     rng = as_rng(rng)
-    if int(n) != n or n < 1:
-        raise ValueError(f"n: expected a positive integer, got {n}")
+    as_int(n, "n")
     return _walk(rng, int(n), as_vector(center, "center", 3),
                  as_vector(half_size, "half_size", 3), step)
 
@@ -120,8 +118,7 @@ def sweep_path(*, n: int = 400, rng: np.random.Generator | int | None = None,
     asks, also where no camera sees it all.
     """
     rng = as_rng(rng)
-    if int(n) != n or n < 2:
-        raise ValueError(f"n: expected an integer >= 2, got {n}")
+    as_int(n, "n", minimum=2)
     passes = as_scalar(passes, "passes", positive=True)
     center = as_vector(center, "center", 3)
     half = as_vector(half_size, "half_size", 3)
@@ -143,8 +140,7 @@ def long_room_rig(*, rng: np.random.Generator | int | None = None, n_per_side: i
     back along the wall at +Y. With ``rng``, poses and lenses are perturbed as in
     :func:`lsmta.synth.rigs.triplet_rig` (20 mm, 0.5 degrees, 3 px, 10 %).
     """
-    if int(n_per_side) != n_per_side or n_per_side < 2:
-        raise ValueError(f"n_per_side: expected an integer >= 2, got {n_per_side}")
+    as_int(n_per_side, "n_per_side", minimum=2)
     if rng is not None:
         rng = as_rng(rng)
     length = as_scalar(length, "length", positive=True)

@@ -8,7 +8,7 @@ around the eyes, nose, cheeks, lips, chin, jaw line). Six expression modes move 
 smooth displacement fields: jaw open (a rotation of everything below the mouth about a
 hinge behind the cheeks), smile, brows up, pucker, frown and a sideways mouth shift. The
 four markers under the eyes, the eye corners, the temples and the upper two forehead rows
-are never moved by an expression (``FaceModel.rigid``; the thesis's Fig. 64 uses such
+are never moved by an expression (``MarkedFace.rigid``; the thesis's Fig. 64 uses such
 markers to measure accuracy).
 
 World frame as in :mod:`lsmta.synth.rigs`: X right, Y away from the cameras, Z up. At zero
@@ -23,7 +23,7 @@ import numpy as np
 from scipy.interpolate import PchipInterpolator
 from scipy.spatial.transform import Rotation
 
-from .._validate import as_array, as_rng, as_scalar
+from .._validate import as_array, as_int, as_rng, as_scalar
 from ..camera import Camera
 
 MODES = ("jaw_open", "smile", "brows_up", "pucker", "frown", "mouth_shift")
@@ -81,8 +81,9 @@ def _normals(x, y, h=0.5):
 
 
 @dataclass(frozen=True)
-class FaceModel:
-    """The marked face.
+class MarkedFace:
+    """The generator's marked face (the library's learned face model is
+    :class:`lsmta.face.FaceModel`).
 
     Attributes
     ----------
@@ -127,7 +128,7 @@ def _gauss(x, y, cx, cy, s):
     return np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * s ** 2))
 
 
-def face_model() -> FaceModel:
+def face_model() -> MarkedFace:
     """The 76-marker face (deterministic)."""
     labels, groups, xy = [], [], []
     for g, pts in _LAYOUT.items():
@@ -174,7 +175,7 @@ def face_model() -> FaceModel:
     modes[5, :, 0] = 8 * gm
     modes[5, :, 2] = -1.5 * gm * np.tanh(x / 15)
     modes[:, rigid] = 0.0
-    return FaceModel(labels=tuple(labels), groups=tuple(groups), neutral=neutral, normals=normals,
+    return MarkedFace(labels=tuple(labels), groups=tuple(groups), neutral=neutral, normals=normals,
                      modes=modes, mode_names=MODES, rigid=rigid)
 
 
@@ -192,9 +193,7 @@ def expression_weights(n_frames: int, *, rng: np.random.Generator | int | None =
     (n_frames, modes) array
     """
     rng = as_rng(rng)
-    T = int(n_frames)
-    if T < 1:
-        raise ValueError(f"n_frames: expected a positive integer, got {n_frames}")
+    T = as_int(n_frames, "n_frames")
     hold = as_scalar(hold, "hold", positive=True)
     out = np.empty((T, modes))
     t = np.arange(T)
@@ -271,12 +270,14 @@ class FaceSequence:
     t: np.ndarray
 
 
-def face_sequence(model: FaceModel, n_frames: int, *, rng: np.random.Generator | int | None = None,
-                  moving: bool = True, **expression_kw) -> FaceSequence:
-    """Expressions (:func:`expression_weights`) on the face, with :func:`head_motion` if
-    ``moving`` else a still head facing the cameras at the room's centre."""
+def face_sequence(model: MarkedFace, n_frames: int, *, rng: np.random.Generator | int | None = None,
+                  moving: bool = True, hold: float = 25.0, activity: float = 0.5,
+                  modes: int = len(MODES)) -> FaceSequence:
+    """Expressions (:func:`expression_weights` with ``hold``, ``activity`` and ``modes``)
+    on the face, with :func:`head_motion` if ``moving`` else a still head facing the
+    cameras at the room's centre."""
     rng = as_rng(rng)
-    w = expression_weights(n_frames, rng=rng, **expression_kw)
+    w = expression_weights(n_frames, rng=rng, hold=hold, activity=activity, modes=modes)
     head = model.shapes(w)
     if moving:
         R, t = head_motion(n_frames, rng=rng)

@@ -115,13 +115,7 @@ def render_marker_video(cameras, points, visible, anchor, *,
     texture = np.asarray(texture, dtype=np.float32)
     blur = np.zeros(T, bool)
     blur[np.asarray(blur_frames, dtype=int)] = True
-    xy = np.full((T, M, 2), np.nan)
-    anchor_xy = np.full((T, 2), np.nan)
-    for f, cam in enumerate(cameras):
-        p = cam.project(pts[f], behind="nan")
-        ok = vis[f] & np.isfinite(p).all(axis=1) & cam.in_image(p)
-        xy[f, ok] = p[ok]
-        anchor_xy[f] = cam.project(anc[f][None], behind="nan")[0]
+    xy, anchor_xy = _project_markers(cameras, pts, vis, anc)
     gx, gy = np.meshgrid(np.arange(W, dtype=np.float32), np.arange(H, dtype=np.float32))
     r = int(np.ceil(4 * sigma))
     off = np.arange(-r, r + 1)
@@ -131,16 +125,7 @@ def render_marker_video(cameras, points, visible, anchor, *,
         a = anchor_xy[f] if np.isfinite(anchor_xy[f]).all() else np.array([W / 2, H / 2])
         img = cv2.remap(texture, gx - np.float32(a[0] - tc[0]), gy - np.float32(a[1] - tc[1]),
                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-        q = xy[f][np.isfinite(xy[f]).all(axis=1)]
-        if len(q):
-            c = np.round(q).astype(int)
-            ix = c[:, 0, None, None] + off[None, None, :]           # (n, 1, k)
-            iy = c[:, 1, None, None] + off[None, :, None]           # (n, k, 1)
-            val = dot_amplitude * np.exp(-((ix - q[:, 0, None, None]) ** 2
-                                           + (iy - q[:, 1, None, None]) ** 2) / (2 * sigma ** 2))
-            ix, iy = np.broadcast_arrays(ix, iy)
-            inside = (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
-            np.add.at(img, (iy[inside], ix[inside]), val[inside].astype(np.float32))
+        _add_dots(img, xy[f][np.isfinite(xy[f]).all(axis=1)], off, sigma, dot_amplitude)
         if blur[f]:
             prev, nxt = anchor_xy[max(f - 1, 0)], anchor_xy[min(f + 1, T - 1)]
             d = nxt - prev
@@ -152,6 +137,37 @@ def render_marker_video(cameras, points, visible, anchor, *,
             img = img + np.float32(noise) * rng.standard_normal(img.shape, dtype=np.float32)
         images[f] = np.clip(np.round(img), 0, 255).astype(np.uint8)
     return MarkerVideo(images=images, xy=xy, anchor_xy=anchor_xy, blurred=blur)
+
+
+def _project_markers(cameras, pts, vis, anc):
+    """True image positions ``(T, M, 2)`` of the drawn markers (NaN where not drawn: not
+    visible, behind the camera or outside the image) and of the texture anchor ``(T, 2)``."""
+    T, M = pts.shape[:2]
+    xy = np.full((T, M, 2), np.nan)
+    anchor_xy = np.full((T, 2), np.nan)
+    for f, cam in enumerate(cameras):
+        p = cam.project(pts[f], behind="nan")
+        ok = vis[f] & np.isfinite(p).all(axis=1) & cam.in_image(p)
+        xy[f, ok] = p[ok]
+        anchor_xy[f] = cam.project(anc[f][None], behind="nan")[0]
+    return xy, anchor_xy
+
+
+def _add_dots(img, q, off, sigma: float, dot_amplitude: float) -> None:
+    """Add a Gaussian dot (``sigma`` px, peak ``dot_amplitude``) at each position ``q``
+    ``(n, 2)`` to the float32 image ``img`` ``(H, W)`` in place, over the window ``off``
+    around its nearest pixel."""
+    if not len(q):
+        return
+    H, W = img.shape
+    c = np.round(q).astype(int)
+    ix = c[:, 0, None, None] + off[None, None, :]           # (n, 1, k)
+    iy = c[:, 1, None, None] + off[None, :, None]           # (n, k, 1)
+    val = dot_amplitude * np.exp(-((ix - q[:, 0, None, None]) ** 2
+                                   + (iy - q[:, 1, None, None]) ** 2) / (2 * sigma ** 2))
+    ix, iy = np.broadcast_arrays(ix, iy)
+    inside = (ix >= 0) & (ix < W) & (iy >= 0) & (iy < H)
+    np.add.at(img, (iy[inside], ix[inside]), val[inside].astype(np.float32))
 
 
 def shaken(camera: Camera, deg: float, *, rng: np.random.Generator | int | None = None) -> Camera:

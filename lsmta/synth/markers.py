@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .._validate import as_rng, as_scalar
+from .._validate import as_int, as_rng, as_scalar
 from ..sapm.model import MarkerModel
 
 _AXIAL = {
@@ -223,8 +223,7 @@ def marker_clip(model: MarkerModel, n_frames: int, *, rng: np.random.Generator |
     """
     rng = as_rng(rng)
     amplitude = as_scalar(amplitude, "amplitude", nonnegative=True)
-    if int(n_frames) != n_frames or n_frames < 1:
-        raise ValueError(f"n_frames: expected a positive integer, got {n_frames}")
+    as_int(n_frames, "n_frames")
     S, T = model.n_segments, int(n_frames)
     psi = np.broadcast_to(np.asarray(distortion, float), (S,))
     if (psi < 0).any() or not np.isfinite(psi).all():

@@ -25,10 +25,18 @@ from scipy.spatial.transform import Rotation
 
 from .._validate import as_array, as_rng, as_scalar
 from ..pantilt import Motor, PanTiltCamera
-from .face import FaceModel, expression_weights, face_model, visible
+from .face import MarkedFace, expression_weights, face_model, visible
 from .marker_video import MarkerVideo, render_marker_video, skin_texture
 from .pantilt import pantilt_head
-from .widearea import Clocks, LedScene, ceiling_rig, make_clocks, render_led_video, small_camera
+from .widearea import (
+    Clocks,
+    LedScene,
+    LedVideoParams,
+    ceiling_rig,
+    make_clocks,
+    render_led_video,
+    small_camera,
+)
 
 #: LEDs in the head frame (x right, y up, z forward out of the face), mm: top of the head
 #: and the two shoulders; they shine upwards, to the ceiling.
@@ -46,7 +54,7 @@ class MixedScaleScene:
     ----------
     times : (S,) array
         Sample times, s (uniform, ``rate`` Hz).
-    face : FaceModel
+    face : MarkedFace
     head : (S, M, 3) array
         Markers in the head frame (expressions), mm.
     R : (S, 3, 3) array
@@ -63,7 +71,7 @@ class MixedScaleScene:
     """
 
     times: np.ndarray
-    face: FaceModel
+    face: MarkedFace
     head: np.ndarray
     R: np.ndarray
     t: np.ndarray
@@ -361,8 +369,9 @@ def ceiling_videos(scene: MixedScaleScene, *, rng: np.random.Generator | int | N
     for k, cam in enumerate(scene.ceiling):
         tt = clocks.phase[k] + np.arange(0, duration * clocks.rate[k]) / clocks.rate[k]
         tt = tt[tt < duration]
-        v = render_led_video(scene.leds, cam, tt, rng=rng, monitor_flicker=monitor_flicker,
-                             reflections=reflections)
+        v = render_led_video(scene.leds, cam, tt, rng=rng,
+                             params=LedVideoParams(monitor_flicker=monitor_flicker,
+                                                   reflections=reflections))
         videos.append(v)
         stamps.append(tt + clocks.offset[k])
         arrival.append(tt + clocks.latency[k]

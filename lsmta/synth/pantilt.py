@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_rng, as_scalar, as_vector
+from .._validate import as_int, as_rng, as_scalar, as_vector
 from ..camera import Camera
 from ..pantilt import PanTiltCamera
 
@@ -141,9 +141,10 @@ def pantilt_head(*, rng: np.random.Generator | int | None = None, misalignment: 
     )
 
 
-def observe(head: PanTiltCamera, pan, tilt, *, rng: np.random.Generator | int | None = None,
-            image_sigma: float = 8.0, world_sigma: float = 25.0, depth=(1500.0, 4500.0),
-            margin: float = 0.05) -> PanTiltData:
+def observe_settings(head: PanTiltCamera, pan, tilt, *,
+                     rng: np.random.Generator | int | None = None, image_sigma: float = 8.0,
+                     world_sigma: float = 25.0, depth=(1500.0, 4500.0),
+                     margin: float = 0.05) -> PanTiltData:
     """One observation per setting: a world point seen at a random image position.
 
     The true image point is uniform over the image (less ``margin`` of its size on each
@@ -173,28 +174,36 @@ def observe(head: PanTiltCamera, pan, tilt, *, rng: np.random.Generator | int | 
 
 def calibration_sweeps(head: PanTiltCamera, *, rng: np.random.Generator | int | None = None,
                        points_per_setting: int = 20, pans=tuple(range(-50, 51, 10)),
-                       tilts=tuple(range(-20, 16, 5)), **noise) -> PanTiltData:
+                       tilts=tuple(range(-20, 16, 5)), image_sigma: float = 8.0,
+                       world_sigma: float = 25.0, depth=(1500.0, 4500.0),
+                       margin: float = 0.05) -> PanTiltData:
     """The thesis's calibration data: ``points_per_setting`` points at each pan of ``pans``
     (tilt 0) and each tilt of ``tilts`` (pan 0); the home setting appears in both sweeps.
-    ``noise`` goes to :func:`observe`."""
+    ``image_sigma``, ``world_sigma``, ``depth`` and ``margin`` as in
+    :func:`observe_settings`."""
     rng = as_rng(rng)
     pans = np.asarray(pans, dtype=float)
     tilts = np.asarray(tilts, dtype=float)
-    k = int(points_per_setting)
+    k = as_int(points_per_setting, "points_per_setting")
     pan = np.r_[np.repeat(pans, k), np.zeros(len(tilts) * k)]
     tilt = np.r_[np.zeros(len(pans) * k), np.repeat(tilts, k)]
-    return observe(head, pan, tilt, rng=rng, **noise)
+    return observe_settings(head, pan, tilt, rng=rng, image_sigma=image_sigma,
+                            world_sigma=world_sigma, depth=depth, margin=margin)
 
 
 def evaluation_grid(head: PanTiltCamera, *, rng: np.random.Generator | int | None = None,
-                    n_pan: int = 19, n_tilt: int = 19, **noise) -> PanTiltData:
+                    n_pan: int = 19, n_tilt: int = 19, image_sigma: float = 8.0,
+                    world_sigma: float = 25.0, depth=(1500.0, 4500.0),
+                    margin: float = 0.05) -> PanTiltData:
     """``n_pan x n_tilt`` settings (19 x 19 = 361, as the thesis's evaluation set) evenly over
-    the head's full range, one point each; ``noise`` goes to :func:`observe`."""
+    the head's full range, one point each; ``image_sigma``, ``world_sigma``, ``depth`` and
+    ``margin`` as in :func:`observe_settings`."""
     rng = as_rng(rng)
     pans = np.linspace(*head.pan_limits, n_pan)
     tilts = np.linspace(*head.tilt_limits, n_tilt)
     pan, tilt = (a.ravel() for a in np.meshgrid(pans, tilts))
-    return observe(head, pan, tilt, rng=rng, **noise)
+    return observe_settings(head, pan, tilt, rng=rng, image_sigma=image_sigma,
+                            world_sigma=world_sigma, depth=depth, margin=margin)
 
 
 def intrinsic_target(head: PanTiltCamera, *, rng: np.random.Generator | int | None = None,
@@ -204,8 +213,8 @@ def intrinsic_target(head: PanTiltCamera, *, rng: np.random.Generator | int | No
     over the image and ``depth`` (mm), measured to ``world_sigma`` mm and detected to
     ``image_sigma`` pixels (a printed target, not the tracked feature)."""
     rng = as_rng(rng)
-    return observe(head, np.zeros(n), np.zeros(n), rng=rng, image_sigma=image_sigma,
-                   world_sigma=world_sigma, depth=depth, margin=0.02)
+    return observe_settings(head, np.zeros(n), np.zeros(n), rng=rng, image_sigma=image_sigma,
+                            world_sigma=world_sigma, depth=depth, margin=0.02)
 
 
 def side_to_side(*, duration: float = 30.0, rate: float = 240.0,

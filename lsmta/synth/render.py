@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import as_array, as_rng, as_scalar
+from .._validate import as_array, as_int, as_rng, as_scalar
 from ..camera import Camera
 from .body import Body, Motion, SolidTexture
 
@@ -164,8 +164,7 @@ class Renderer:
         self.cameras = list(cameras)
         if not self.cameras or not all(isinstance(c, Camera) for c in self.cameras):
             raise TypeError("cameras: expected a non-empty sequence of lsmta.camera.Camera")
-        if int(supersample) != supersample or supersample < 1 or supersample % 2 == 0:
-            raise ValueError(f"supersample: expected an odd positive integer, got {supersample}")
+        as_int(supersample, "supersample", odd=True)
         dtype = np.dtype(dtype)
         if dtype not in (np.dtype(np.uint8), np.dtype(np.float64)):
             raise ValueError(f"dtype: expected numpy.uint8 or numpy.float64, got {dtype}")

@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .._validate import as_rng, as_scalar, as_vector
+from .._validate import as_int, as_rng, as_scalar, as_vector
 from ..camera import Camera
 
 # Our assumption (the paper gives no optics): a 1/2" CCD of the late 1990s, 768 x 576 pixels
@@ -101,8 +101,7 @@ def ring_rig(*, n: int = 8, rng: np.random.Generator | int | None = None, radius
     -------
     list of ``n`` :class:`~lsmta.camera.Camera`, named "cam00", "cam01", ...
     """
-    if int(n) != n or n < 2:
-        raise ValueError(f"n: expected an integer >= 2 cameras, got {n}")
+    as_int(n, "n", minimum=2, unit="cameras")
     if rng is not None:
         rng = as_rng(rng)
     target = as_vector(target, "target", 3)

@@ -12,24 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from .._validate import as_rng, as_scalar
-from ..camera import Camera
+from .._validate import as_rng
 from .render import Renderer, Scene, SurfaceProjection, project_surface_points
-
-
-def scaled_camera(camera: Camera, factor: float) -> Camera:
-    """The same camera with an image ``factor`` times as large in each direction.
-
-    Principal distance, principal point and image size scale; distortion (in normalised
-    coordinates) and pose stay. ``factor = 0.5`` renders four times faster.
-    """
-    factor = as_scalar(factor, "factor", positive=True)
-    return camera.replace(f=camera.f * factor, cx=(camera.cx + 0.5) * factor - 0.5,
-                          cy=(camera.cy + 0.5) * factor - 0.5,
-                          width=int(round(camera.width * factor)),
-                          height=int(round(camera.height * factor)),
-                          pixel_size=None if camera.pixel_size is None
-                          else camera.pixel_size / factor)
 
 
 @dataclass(frozen=True, eq=False)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validate import as_int
 from ..camera import Camera
 from .body import Body, Motion
 from .render import Scene, cast_body
@@ -23,8 +24,7 @@ def true_silhouettes(scene: Scene, cameras, frames, *, supersample: int = 4) -> 
     cameras = list(cameras)
     if not cameras or not all(isinstance(c, Camera) for c in cameras):
         raise TypeError("cameras: expected a non-empty sequence of lsmta.camera.Camera")
-    if int(supersample) != supersample or supersample < 1:
-        raise ValueError(f"supersample: expected a positive integer, got {supersample}")
+    as_int(supersample, "supersample")
     poses = scene.body.part_poses(scene.motion, frames=frames)         # (T, P, 4, 4)
     masks = []
     for cam in cameras:

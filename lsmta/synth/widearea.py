@@ -4,8 +4,9 @@ walking, arm-swinging person (the body and walk of :mod:`lsmta.synth.body`), on 
 translation stage, moved in a circle, or held still; LED brightness falling with distance
 and angle, occlusion by the body, clutter (monitors, reflections).
 
-Two ways to observe: :func:`observe` gives per-frame 2-D centroids directly (projection +
-noise, no images), :func:`render_led_image` renders small grey images for the detector.
+Two ways to observe: :func:`observe_leds` gives per-frame 2-D centroids directly
+(projection + noise, no images; :class:`LedCentroidParams`), :func:`render_led_video`
+renders small grey images for the detector (:class:`LedVideoParams`).
 Ground truth stays here; the library gets cameras and frames only.
 """
 
@@ -15,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array, as_rng, as_scalar
+from .._validate import as_array, as_int, as_rng, as_scalar, as_vector
 from ..camera import Camera
 from ..widearea.observations import Frames
 from .body import make_body, walk
@@ -291,11 +292,50 @@ def _occluded(scene: LedScene, cam_C, t, positions, normals) -> np.ndarray:
     return hit.any(axis=2)
 
 
-def observe(scene: LedScene, cameras, clocks: Clocks, *,
-            rng: np.random.Generator | int | None = None, duration: float | None = None,
-            noise_px: float = 0.3, quantize: bool = False, led_range: float = 4500.0,
-            led_exponent: float = 1.5, min_brightness: float = 0.1, reflections: float = 0.05,
-            monitors: dict | None = None, monitor_rate: float = 1.0) -> WideAreaObservations:
+@dataclass(frozen=True)
+class LedCentroidParams:
+    """Settings of :func:`observe_leds` (the centroids a detector would report).
+
+    Attributes
+    ----------
+    noise_px : float
+        Centroid noise (px, per axis) of an LED at unit brightness; it grows as
+        ``1 / sqrt(brightness)``, up to three times.
+    quantize : bool
+        Round centroids to whole pixels (the thesis's detector had no sub-pixel estimate).
+    led_range : float
+        Distance (mm) at which an on-axis LED has unit brightness; brightness falls as
+        ``(led_range / distance)² * cos(angle)^led_exponent``.
+    led_exponent : float
+    min_brightness : float
+        LEDs dimmer than this are not detected.
+    reflections : float
+        Mean number of spurious centroids per frame anywhere in the image.
+    monitors : dict, optional
+        ``{camera index: (x0, y0, x1, y1)}`` pixel rectangles of bright monitors, each
+        giving Poisson(``monitor_rate``) false centroids per frame.
+    monitor_rate : float
+    """
+
+    noise_px: float = 0.3
+    quantize: bool = False
+    led_range: float = 4500.0
+    led_exponent: float = 1.5
+    min_brightness: float = 0.1
+    reflections: float = 0.05
+    monitors: dict | None = None
+    monitor_rate: float = 1.0
+
+    def __post_init__(self):
+        for key in ("noise_px", "min_brightness", "reflections", "monitor_rate"):
+            as_scalar(getattr(self, key), key, nonnegative=True)
+        as_scalar(self.led_range, "led_range", positive=True)
+        as_scalar(self.led_exponent, "led_exponent")
+
+
+def observe_leds(scene: LedScene, cameras, clocks: Clocks, *,
+                 rng: np.random.Generator | int | None = None, duration: float | None = None,
+                 params: LedCentroidParams | None = None) -> WideAreaObservations:
     """Per-frame LED centroids from every camera (projection + noise, no images).
 
     Parameters
@@ -306,22 +346,14 @@ def observe(scene: LedScene, cameras, clocks: Clocks, *,
     rng : numpy.random.Generator, int or None
     duration : float, optional
         Seconds to observe (default: the scene's length).
-    noise_px : float
-        Centroid noise (px, per axis) of an LED at unit brightness; it grows as
-        ``1 / sqrt(brightness)``, up to three times.
-    quantize : bool
-        Round centroids to whole pixels (the thesis's detector had no sub-pixel estimate).
-    led_range : float
-        Distance (mm) at which an on-axis LED has unit brightness; brightness falls as
-        ``(led_range / distance)² * cos(angle)^led_exponent``.
-    min_brightness : float
-        LEDs dimmer than this are not detected.
-    reflections : float
-        Mean number of spurious centroids per frame anywhere in the image.
-    monitors : dict, optional
-        ``{camera index: (x0, y0, x1, y1)}`` pixel rectangles of bright monitors, each
-        giving Poisson(``monitor_rate``) false centroids per frame.
+    params : LedCentroidParams, optional
+        Noise, brightness, clutter (default: ``LedCentroidParams()``).
     """
+    p = LedCentroidParams() if params is None else params
+    noise_px, quantize, led_range, led_exponent = (p.noise_px, p.quantize, p.led_range,
+                                                   p.led_exponent)
+    min_brightness, reflections, monitors, monitor_rate = (p.min_brightness, p.reflections,
+                                                           p.monitors, p.monitor_rate)
     rng = as_rng(rng)
     cameras = list(cameras)
     duration = float(scene.times[-1] if duration is None else duration)
@@ -410,22 +442,68 @@ def small_camera(camera: Camera, *, scale: float = 0.5) -> Camera:
                           cx=(camera.cx + 0.5) * scale - 0.5, cy=(camera.cy + 0.5) * scale - 0.5)
 
 
+@dataclass(frozen=True)
+class LedVideoParams:
+    """Settings of :func:`render_led_video` (grey levels, pixels, millimetres).
+
+    Attributes
+    ----------
+    led_peak : float
+        Peak grey level of an LED spot at unit brightness.
+    led_sigma : float
+        Spot radius (Gaussian sigma), px.
+    led_range, led_exponent : float
+        Brightness falling with distance and angle, as in :class:`LedCentroidParams`.
+    noise : float
+        Image noise, grey levels.
+    monitor : (4,) tuple
+        The monitor's rectangle as fractions of the image, (x0, y0, x1, y1).
+    monitor_flicker : float
+        Fraction of frames in which the monitor shows a bright white window.
+    reflections : float
+        Mean number of bright specks per frame anywhere in the image.
+    n_background : int
+        Frames of the empty room rendered for learning thresholds.
+    """
+
+    led_peak: float = 230.0
+    led_sigma: float = 0.9
+    led_range: float = 4500.0
+    led_exponent: float = 1.5
+    noise: float = 2.0
+    monitor: tuple = (0.08, 0.55, 0.3, 0.8)
+    monitor_flicker: float = 0.3
+    reflections: float = 0.03
+    n_background: int = 20
+
+    def __post_init__(self):
+        for key in ("led_sigma", "led_range"):
+            as_scalar(getattr(self, key), key, positive=True)
+        for key in ("led_peak", "noise", "monitor_flicker", "reflections"):
+            as_scalar(getattr(self, key), key, nonnegative=True)
+        as_scalar(self.led_exponent, "led_exponent")
+        as_vector(self.monitor, "monitor", 4)
+        as_int(self.n_background, "n_background")
+
+
 def render_led_video(scene: LedScene, camera: Camera, times, *,
-                     rng: np.random.Generator | int | None = None, led_peak: float = 230.0,
-                     led_sigma: float = 0.9, led_range: float = 4500.0, led_exponent: float = 1.5,
-                     noise: float = 2.0, monitor=(0.08, 0.55, 0.3, 0.8),
-                     monitor_flicker: float = 0.3, reflections: float = 0.03,
-                     lighting_change: int | None = None, n_background: int = 20) -> LedVideo:
+                     rng: np.random.Generator | int | None = None,
+                     lighting_change: int | None = None,
+                     params: LedVideoParams | None = None) -> LedVideo:
     """Render small grey frames of LEDs for the detector.
 
     The room is a smooth grey texture with a lamp; a monitor (rectangle given as fractions
     of the image, x0, y0, x1, y1) shows a changing picture and, in a fraction
     ``monitor_flicker`` of the frames, a bright white window that exceeds anything it
     showed while the thresholds were learnt. LEDs are Gaussian spots (``led_sigma`` px) whose
-    peak falls with distance and angle as in :func:`observe`, occluded by the body;
+    peak falls with distance and angle as in :func:`observe_leds`, occluded by the body;
     ``reflections`` bright specks per frame appear anywhere. From frame
     ``lighting_change`` on, the room is 35 % brighter. Grey levels are rounded to uint8.
+    The settings are ``params`` (default: ``LedVideoParams()``).
     """
+    p = LedVideoParams() if params is None else params
+    noise, monitor, monitor_flicker, reflections, n_background = (
+        p.noise, p.monitor, p.monitor_flicker, p.reflections, p.n_background)
     rng = as_rng(rng)
     times = np.asarray(times, dtype=float)
     H, W = camera.height, camera.width
@@ -452,7 +530,28 @@ def render_led_video(scene: LedScene, camera: Camera, times, *,
         w0 = rng.integers(mx0, max(mx0 + 1, mx1 - 8))
         h0 = rng.integers(my0, max(my0 + 1, my1 - 6))
         frames[t, h0:h0 + 6, w0:w0 + 8] = 250
-    # LEDs
+    true_xy = _draw_leds(frames, scene, camera, times, p)
+    for t in range(T):
+        for _ in range(rng.poisson(reflections)):
+            x, y = rng.uniform(0, W - 1), rng.uniform(0, H - 1)
+            g = np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * 0.7**2))
+            frames[t] += 180 * g
+    frames += rng.normal(0, noise, frames.shape)
+    background = base(n_background, np.ones(n_background)) + rng.normal(
+        0, noise, (n_background, H, W))
+    return LedVideo(camera=camera, times=times,
+                    frames=np.clip(np.rint(frames), 0, 255).astype(np.uint8),
+                    background=np.clip(np.rint(background), 0, 255).astype(np.uint8),
+                    true_xy=true_xy, monitor=np.array([mx0, my0, mx1, my1], float),
+                    lighting_change=lighting_change)
+
+
+def _draw_leds(frames, scene: LedScene, camera: Camera, times, p: LedVideoParams) -> np.ndarray:
+    """Add the visible LEDs' Gaussian spots to ``frames`` ``(T, H, W)`` float in place;
+    returns their true image positions ``(T, N, 2)`` px (NaN where not visible)."""
+    led_peak, led_sigma, led_range, led_exponent = (p.led_peak, p.led_sigma, p.led_range,
+                                                    p.led_exponent)
+    T, H, W = frames.shape
     pos = scene.positions_at(times)
     nrm = scene.normals[scene._nearest(times)]
     N = pos.shape[1]
@@ -474,17 +573,4 @@ def render_led_video(scene: LedScene, camera: Camera, times, *,
         g = np.exp(-((cs[None, ok_c] - x) ** 2 + (rs[ok_r, None] - y) ** 2)
                    / (2 * led_sigma**2))
         frames[t, rs[ok_r][:, None], cs[ok_c][None, :]] += led_peak * min(bright[t, n], 1.5) * g
-    for t in range(T):
-        for _ in range(rng.poisson(reflections)):
-            x, y = rng.uniform(0, W - 1), rng.uniform(0, H - 1)
-            g = np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * 0.7**2))
-            frames[t] += 180 * g
-    frames += rng.normal(0, noise, frames.shape)
-    background = base(n_background, np.ones(n_background)) + rng.normal(
-        0, noise, (n_background, H, W))
-    true_xy = np.where(vis[..., None], xy, np.nan)
-    return LedVideo(camera=camera, times=times,
-                    frames=np.clip(np.rint(frames), 0, 255).astype(np.uint8),
-                    background=np.clip(np.rint(background), 0, 255).astype(np.uint8),
-                    true_xy=true_xy, monitor=np.array([mx0, my0, mx1, my1], float),
-                    lighting_change=lighting_change)
+    return np.where(vis[..., None], xy, np.nan)

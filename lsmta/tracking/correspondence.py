@@ -54,7 +54,7 @@ def match_views(cameras, detections, *, max_ray_distance: float = 30.0, max_px: 
     for a, b in itertools.combinations(range(K), 2):
         if rays[a] is None or rays[b] is None:
             continue
-        ia, ib = np.nonzero(_ray_distance(rays[a], rays[b]) < max_ray)
+        ia, ib = np.nonzero(ray_distances(rays[a], rays[b]) < max_ray)
         if not ia.size:
             continue
         members = np.full((len(ia), K), -1)
@@ -87,8 +87,10 @@ def match_views(cameras, detections, *, max_ray_distance: float = 30.0, max_px: 
     return np.array(points, float).reshape(-1, K, 2).transpose(1, 0, 2)
 
 
-def _ray_distance(r1, r2):
-    """Distances ``(n1, n2)`` between the lines of two ray bundles ``(origins, directions)``."""
+def ray_distances(r1, r2):
+    """Distances ``(n1, n2)`` between the lines of two ray bundles, each
+    ``(origins (n, 3), directions (n, 3))`` as :meth:`lsmta.camera.Camera.rays` gives them,
+    in the origins' unit (mm)."""
     (o1, d1), (o2, d2) = r1, r2
     d1 = d1 / np.linalg.norm(d1, axis=1, keepdims=True)
     d2 = d2 / np.linalg.norm(d2, axis=1, keepdims=True)

@@ -1,5 +1,6 @@
-"""SAPM on real recordings: a model from the first tenth of a recording, later frames
-labelled one by one (notebook 18).
+"""SAPM on real marker captures: the marker sets of the bundled recordings as SAPM
+segments, a model from the first tenth of a recording, later frames labelled one by one
+(notebooks 08 and 18; the recordings are loaded by :func:`lsmta.data.load_recording`).
 
 Protocol: the first ``train_share`` of the frames is the labelled training clip; every
 ``step``-th later frame is a test frame, its present points shuffled and their labels
@@ -18,20 +19,53 @@ from pathlib import Path
 import numpy as np
 
 from .._validate import as_rng
+from ..data import Recording
 from ..io import read_c3d
 from ..sapm import MarkerModel, SAPMParams, identify, identify_instances, suggest_segments
-from .sapm import CLOUTHIER_PARENTS, clouthier_segments
-
-DATA = Path(__file__).resolve().parents[2] / "data"
-FILES = {
-    "tennis": DATA / "kineticstoolkit" / "kinematics_tennis_serve.c3d",
-    "two players": DATA / "kineticstoolkit" / "kinematics_tennis_serve_2players.c3d",
-    "racing": DATA / "kineticstoolkit" / "kinematics_racing_propulsion.c3d",
-    "clouthier": DATA / "clouthier2021" / "KneeltoProne01.c3d",
-}
 
 
 # ---------------------------------------------------------------------- marker sets
+def clouthier_segments(*, acromion: str = "upper_arm") -> dict:
+    """The marker set of Clouthier et al. (2021) as SAPM segments: 15 segments, 62 cluster
+    markers, no marker shared between segments.
+
+    Parameters
+    ----------
+    acromion : {"upper_arm", "torso"}
+        Where the two acromion markers (RAC, LAC) go. They sit on the shoulder girdle, which
+        follows the arm: with the upper arms the segments stay closer to rigid over the
+        recording than with the four back markers (notebook 08 measures both).
+    """
+    if acromion not in ("upper_arm", "torso"):
+        raise ValueError(f"acromion: expected 'upper_arm' or 'torso', got {acromion!r}")
+    on_arm = acromion == "upper_arm"
+    segments = {
+        "torso": ["LBUL", "LBLL", "LBUR", "LBLR"] + ([] if on_arm else ["RAC", "LAC"]),
+        "head": ["FHD", "RHD", "BHD", "LHD"],
+        "pelvis": ["PVUL", "PVLL", "PVLR", "PVUR"],
+    }
+    for S in "RL":
+        segments[f"{S}upper_arm"] = [f"{S}UAPA", f"{S}UAPP", f"{S}UADP", f"{S}UADA"] + (
+            [f"{S}AC"] if on_arm else [])
+        for name, markers in (("forearm", ("FAPA", "FAPP", "FADP", "FADA")),
+                              ("hand", ("RAD", "ULN", "HAND")),
+                              ("thigh", ("THPA", "THPP", "THDP", "THDA")),
+                              ("shank", ("SHPA", "SHPP", "SHDP", "SHDA")),
+                              ("foot", ("ANL", "HEE", "FTB", "FTM", "FTF"))):
+            segments[f"{S}{name}"] = [f"{S}{m}" for m in markers]
+    return segments
+
+
+CLOUTHIER_PARENTS = {
+    "torso": None, "head": "torso", "pelvis": "torso",
+    **{k: v for S in "RL" for k, v in (
+        (f"{S}upper_arm", "torso"), (f"{S}forearm", f"{S}upper_arm"),
+        (f"{S}hand", f"{S}forearm"), (f"{S}thigh", "pelvis"), (f"{S}shank", f"{S}thigh"),
+        (f"{S}foot", f"{S}shank"))},
+}
+
+
+
 def plug_in_gait() -> tuple[dict, dict]:
     """The tennis marker set (Plug-in-Gait-like, 39 markers) as SAPM segments, as a user
     would write it from anatomy: both wrist markers in forearm and hand, the knee marker in
@@ -76,52 +110,29 @@ def clouthier_plates() -> tuple[dict, dict]:
     return groups, {k: v for k, v in CLOUTHIER_PARENTS.items() if k in groups}
 
 
-# ---------------------------------------------------------------------- recordings
-@dataclass(frozen=True)
-class Recording:
-    """One recording split for the protocol.
+# ---------------------------------------------------------------------- models
+def clouthier_model(path, *, frame: int = 0,
+                    acromion: str = "upper_arm") -> tuple[MarkerModel, np.ndarray]:
+    """The model of the Clouthier et al. recording built from one labelled frame (segments
+    from :func:`clouthier_segments`), and all its frames.
 
-    Attributes
-    ----------
-    name : str
-    labels : tuple of str
-        Marker labels (a two-player file's ``Name:`` prefix removed for the player's own).
-    points : (T, L, 3) array
-        Every frame, mm, NaN for gaps (markers absent from every frame removed).
-    rate : float
-        Frames per second.
-    n_train : int
-        Frames of the training clip (the first ``train_share``).
-    frames : (F,) int array
-        Test frames: every ``step``-th frame after the training clip.
+    Returns
+    -------
+    model : MarkerModel
+    points : (T, M, 3) array
+        Every frame, mm, with the model's marker order (NaN for gaps).
     """
-
-    name: str
-    labels: tuple
-    points: np.ndarray
-    rate: float
-    n_train: int
-    frames: np.ndarray
-
-    @property
-    def training(self) -> np.ndarray:
-        return self.points[: self.n_train]
-
-
-def load_recording(name: str, *, train_share: float = 0.1, step: int = 10) -> Recording:
-    """A recording of :data:`FILES` ("tennis", "two players", "racing", "clouthier"),
-    split for the protocol. The two-player file keeps its 78 labels (``Derrick:C7``, ...)."""
-    if name not in FILES:
-        raise ValueError(f"name: expected one of {sorted(FILES)}, got {name!r}")
-    labels, points, rate = read_c3d(FILES[name])
-    if name == "tennis":
-        labels = tuple(k.split(":")[-1] for k in labels)
-    seen = np.isfinite(points).all(axis=2).any(axis=0)
-    labels = tuple(k for k, s in zip(labels, seen) if s)
-    points = points[:, seen]
-    n_train = int(round(train_share * len(points)))
-    return Recording(name=name, labels=labels, points=points, rate=rate, n_train=n_train,
-                     frames=np.arange(n_train, len(points), step))
+    labels, points, _ = read_c3d(Path(path))
+    twice = sorted({k for k in labels if labels.count(k) > 1})
+    if twice:
+        raise ValueError(f"path: labels occur more than once in {path}: {twice}")
+    if np.isnan(points[frame]).any():
+        raise ValueError(f"frame: frame {frame} has gaps; the model needs a complete frame")
+    model = MarkerModel.from_labelled_frame(dict(zip(labels, points[frame])),
+                                            clouthier_segments(acromion=acromion),
+                                            CLOUTHIER_PARENTS)
+    order = [labels.index(k) for k in model.labels]
+    return model, points[:, order]
 
 
 def learned_model(rec: Recording) -> tuple[MarkerModel, dict]:

@@ -1,4 +1,5 @@
-"""Rectified stereo against ground truth: the Middlebury "Cones" pair and its measures.
+"""Dense stereo on a real pair scored against its published truth: the Middlebury measures
+(the "Cones" pair itself is loaded by :func:`lsmta.data.load_cones`).
 
 Scores follow the Middlebury evaluation (Scharstein & Szeliski 2002, 2003): over the
 non-occluded pixels with known disparity, the share of estimates more than 1 px (bad 1.0)
@@ -9,44 +10,10 @@ nodes of a grid of spacing ``step``; dense maps are read at the nodes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from pathlib import Path
-
 import numpy as np
-
-DATA = Path(__file__).resolve().parents[2] / "data" / "middlebury_cones"
 
 #: the truth is quantised to this step (px); a perfect estimate is up to half of it off
 TRUTH_STEP = 0.25
-
-
-@dataclass(frozen=True)
-class StereoPair:
-    """A rectified pair with ground truth for the left image.
-
-    ``left``, ``right`` (H, W) uint8; ``disparity`` (H, W) float, NaN where unknown;
-    ``nonoccluded`` (H, W) bool.
-    """
-
-    left: np.ndarray
-    right: np.ndarray
-    disparity: np.ndarray
-    nonoccluded: np.ndarray
-
-    def grid(self, step: int):
-        """Truth on the grid of spacing ``step``: ``(disparity, scored)``, both
-        ``(rows, cols)``; ``scored`` marks the non-occluded nodes with known disparity."""
-        d = self.disparity[::step, ::step]
-        return d, self.nonoccluded[::step, ::step] & np.isfinite(d)
-
-
-def load_cones(*, path=None) -> StereoPair:
-    """The Middlebury "Cones" pair from ``data/middlebury_cones/cones.npz`` (see its README)."""
-    d = np.load(Path(path) if path is not None else DATA / "cones.npz")
-    disparity = d["disparity4"].astype(float) / 4.0
-    disparity[d["disparity4"] == 0] = np.nan
-    return StereoPair(left=d["left"], right=d["right"], disparity=disparity,
-                      nonoccluded=d["nonoccluded"])
 
 
 def scores(estimate, truth, scored) -> dict:

@@ -1,5 +1,6 @@
 """Board recordings: our calibration next to another tool's, scored on the same corners
-(notebook 19, experiments/calibration_benchmark.py).
+(notebook 19, experiments/calibration_benchmark.py; the recording is
+:data:`lsmta.data.CALISCOPE_DIR`).
 
 Scores of a set of cameras on a board recording, the same for every calibration:
 
@@ -17,20 +18,21 @@ Scores of a set of cameras on a board recording, the same for every calibration:
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..calibration import bundle_adjust
+from ..calibration import bundle_adjust, scaled
 from ..calibration.board import BoardCalibration, calibrate_board
+from ..camera import Camera
 from ..camera_files import read_camera_toml, tomllib
+from ..data import CALISCOPE_DIR
 from ..io import BoardPoints, read_caliscope_points
 from ..rigid import apply_rigid, fit_rigid
 from ..triangulation import triangulate
-
-CALISCOPE_DIR = Path(__file__).resolve().parents[2] / "data" / "caliscope_4cam"
 
 
 @dataclass(frozen=True, eq=False)
@@ -172,13 +174,8 @@ def aniposelib_board_peer(points: BoardPoints, start, *, frames=None):
     seconds : float
         Wall time of the adjustment.
     """
-    import time
-
-    from aniposelib.cameras import Camera as ACamera
-    from aniposelib.cameras import CameraGroup
-
-    from ..calibration import scaled
-    from ..camera import Camera
+    from aniposelib.cameras import Camera as ACamera  # deferred: optional peer, not installed
+    from aniposelib.cameras import CameraGroup  # deferred: optional peer, not installed
 
     xy = points.xy if frames is None else points.xy[:, frames]
     K, F, C = xy.shape[:3]

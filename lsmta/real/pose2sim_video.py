@@ -2,7 +2,8 @@
 
 The copy in ``data/pose2sim_demo/`` holds the four videos (1080-1088 x 1920 px, 60 fps,
 100 frames, one person walking on a treadmill with skin markers) and their Qualisys
-calibration. Without truth, tracking is judged by what needs none:
+calibration (loaded by :func:`lsmta.data.load_demo`). Without truth, tracking is judged by
+what needs none:
 
 * the *forward-backward error*: a point tracked from frame 0 to the last frame and back
   from its end position should return to its start (for a frame-to-frame tracker this
@@ -23,82 +24,14 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
 
-from .._validate import as_array, as_rng, as_scalar
-from ..camera_files import read_qca
-from ..synth.sequence import scaled_camera
-from ..tracking.correspondence import _ray_distance
+from .._validate import as_array, as_rng
+from ..tracking.correspondence import ray_distances
 from ..tracking.points import Tracks
 from ..triangulation import triangulate
-
-DATA = Path(__file__).resolve().parents[2] / "data" / "pose2sim_demo"
-VIEWS = ("cam01", "cam02", "cam03", "cam04")
-
-
-@dataclass(frozen=True)
-class RealVideo:
-    """The demo's four views, grey and scaled.
-
-    Attributes
-    ----------
-    grey : list of K (T, H_k, W_k) uint8 arrays
-        Every frame, grey, scaled by ``scale`` (the views' widths differ by a few px).
-    first : list of K (H, W, 3) uint8 arrays
-        Frame 0 in colour (BGR), full size: for finding markers.
-    cameras : list of K Camera
-        The Qualisys calibration scaled by ``scale``.
-    scale : float
-    fps : float
-    """
-
-    grey: list
-    first: list
-    cameras: list
-    scale: float
-    fps: float
-
-
-def read_video(path, *, scale: float = 1.0, frames: int | None = None):
-    """A video's frames as grey ``(T, H, W)`` uint8 (scaled by ``scale``, area
-    interpolation), its frame 0 in colour (BGR, full size) and its frame rate."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"path: no video at {path}")
-    scale = as_scalar(scale, "scale", positive=True)
-    cap = cv2.VideoCapture(str(path))
-    fps = float(cap.get(cv2.CAP_PROP_FPS))
-    grey, first = [], None
-    while frames is None or len(grey) < frames:
-        ok, f = cap.read()
-        if not ok:
-            break
-        first = f if first is None else first
-        g = cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
-        if scale != 1.0:
-            g = cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-        grey.append(g)
-    cap.release()
-    if not grey:
-        raise ValueError(f"path: {path} holds no frame OpenCV can decode")
-    return np.stack(grey), first, fps
-
-
-def load_demo(*, scale: float = 0.5, frames: int | None = None,
-              folder: Path | None = None) -> RealVideo:
-    """The four views of the demo (``folder`` defaults to the project's copy)."""
-    folder = Path(folder) if folder is not None else DATA
-    cams = read_qca(folder / "Calib.qca.txt")
-    grey, first, fps = zip(*(read_video(folder / f"{v}.mp4", scale=scale, frames=frames)
-                             for v in VIEWS))
-    if len(set(fps)) != 1:
-        raise ValueError(f"folder: the views' frame rates differ: {fps}")
-    return RealVideo(grey=list(grey), first=list(first),
-                     cameras=[scaled_camera(c, scale) for c in cams], scale=float(scale),
-                     fps=fps[0])
 
 
 def skin_points(colour, *, avoid=None, max_points: int = 150, min_distance: float = 12.0,
@@ -153,7 +86,7 @@ def epipolar_partners(cameras, detections, a: int, b: int, *, max_ray_distance: 
         db = db + rng.uniform(-shift, shift, db.shape)
     if not len(da) or not len(db):
         return 0
-    D = _ray_distance(cameras[a].rays(da), cameras[b].rays(db))
+    D = ray_distances(cameras[a].rays(da), cameras[b].rays(db))
     used_a, used_b, n = set(), set(), 0
     for i, j in zip(*np.unravel_index(np.argsort(D, axis=None), D.shape)):
         if D[i, j] > max_ray_distance:
@@ -288,7 +221,7 @@ def pair_ray_distances(cameras, xy) -> np.ndarray:
     """How close the rays through one point seen in each of K views pass, per view pair
     (in ``itertools.combinations`` order): ``xy`` ``(K, 2)`` px -> ``(K (K - 1) / 2,)`` mm."""
     xy = np.asarray(xy, float).reshape(len(cameras), 2)
-    return np.array([_ray_distance(cameras[a].rays(xy[[a]]), cameras[b].rays(xy[[b]]))[0, 0]
+    return np.array([ray_distances(cameras[a].rays(xy[[a]]), cameras[b].rays(xy[[b]]))[0, 0]
                      for a, b in itertools.combinations(range(len(cameras)), 2)])
 
 
@@ -330,7 +263,7 @@ def persistent_pairs(camera_a, camera_b, xy_a, xy_b, *, lag: int = 0,
         pa, pb = xa[t], xb[t + lag]
         fa, fb = np.isfinite(pa).all(axis=1), np.isfinite(pb).all(axis=1)
         if fa.any() and fb.any():
-            D[n][np.ix_(fa, fb)] = _ray_distance(camera_a.rays(pa[fa]), camera_b.rays(pb[fb]))
+            D[n][np.ix_(fa, fb)] = ray_distances(camera_a.rays(pa[fa]), camera_b.rays(pb[fb]))
     enough = np.isfinite(D).sum(axis=0) >= min_frames
     med = np.full(enough.shape, np.inf)
     med[enough] = np.nanmedian(D[:, enough], axis=0)

@@ -1,0 +1,366 @@
+"""Cameras refined from tie points, with the given cameras as weighted priors.
+
+A self-calibrating bundle adjustment for a rig that already has a calibration (a camera
+file from another tool) which is a few pixels off. Unknowns: every camera's exterior
+orientation (rotation vector, centre), its principal distance ``f`` and, where the data
+determines them, its principal point and radial distortion; and the tie points. The
+observations are the tie points' image coordinates (standard deviation ``sigma_px``) and
+the given cameras' parameters as observations of themselves (a prior with the standard
+deviations of :class:`RefineParams`). The priors on the camera centres give the datum and
+the scale: nothing is held fixed, so the network is not bent by a datum.
+
+Which intrinsics are freed (per camera)
+----------------------------------------
+The exterior orientation and ``f`` are always free. Every group of :attr:`RefineParams.groups`
+(default: the principal point ``cx, cy``, and ``k1, k2``) is tried: the adjustment is run
+with all groups free, and the posterior standard deviation of each parameter is read from
+its covariance (points eliminated by the Schur complement). A group is freed for a camera
+when every parameter of it has a posterior standard deviation below
+``information_ratio`` times its prior's, that is when the tie points, not the prior,
+carry most of what is known about it (at the default 0.5, more than three quarters of
+its information). The others are held at the file's values, and the adjustment is
+run again with those choices.
+
+Solver: the Levenberg-Marquardt of :mod:`lsmta.calibration.bundle` on the sparse normal
+equations (the Jacobian by SciPy's grouped finite differences over its sparsity pattern),
+then iteratively reweighted with one of SciPy's robust losses on the image residuals;
+observations whose residual exceeds ``reject_k`` robust standard deviations are
+dropped and the adjustment run once more.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+
+from .._validate import as_array, as_int, as_scalar, freeze
+from ..camera import Camera
+from ..triangulation import triangulate
+from .bundle import (_LOSS_DERIVATIVE, INTRINSIC_NAMES, PARAMETER_NAMES, _levenberg_marquardt,
+                     camera_to_params, params_to_camera, project_params)
+
+_LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
+
+
+@dataclass(frozen=True)
+class RefineParams:
+    """Settings of :func:`refine_cameras`.
+
+    Attributes
+    ----------
+    sigma_px : float
+        Standard deviation of a tie point's image coordinate, px.
+    sigma_position : float
+        Prior standard deviation of each camera-centre coordinate, mm.
+    sigma_angle : float
+        Prior standard deviation of each rotation-vector component, degrees.
+    sigma_f : float
+        Prior standard deviation of the principal distance, relative (0.02 = 2 %).
+    sigma_principal : float
+        Prior standard deviation of the principal point, px.
+    sigma_k : float
+        Prior standard deviation of k1 and k2.
+    groups : tuple of tuple of str
+        Intrinsic groups tried beyond ``f``, each freed per camera where the data
+        determines it (see the module docstring).
+    information_ratio : float
+        A group is freed where every posterior standard deviation is below this share of
+        its prior's (0 < ratio <= 1).
+    loss, f_scale : str, float
+        Robust loss of :func:`scipy.optimize.least_squares` on the standardised image
+        residuals, and where it bends (in units of ``sigma_px``).
+    reject_k : float
+        Observations farther than ``reject_k`` robust standard deviations (1.4826 MAD of
+        the residual lengths, at least ``sigma_px``) are dropped before the last run.
+    max_nfev : int
+        Most residual evaluations per run.
+    """
+
+    sigma_px: float = 0.5
+    sigma_position: float = 50.0
+    sigma_angle: float = 1.0
+    sigma_f: float = 0.02
+    sigma_principal: float = 20.0
+    sigma_k: float = 0.1
+    groups: tuple = (("cx", "cy"), ("k1", "k2"))
+    information_ratio: float = 0.5
+    loss: str = "soft_l1"
+    f_scale: float = 3.0
+    reject_k: float = 4.0
+    max_nfev: int = 200
+
+    def __post_init__(self):
+        for name in ("sigma_px", "sigma_position", "sigma_angle", "sigma_f",
+                     "sigma_principal", "sigma_k", "f_scale", "reject_k"):
+            as_scalar(getattr(self, name), name, positive=True)
+        ratio = as_scalar(self.information_ratio, "information_ratio", positive=True)
+        if ratio > 1:
+            raise ValueError(f"information_ratio: expected a number in (0, 1], got {ratio}")
+        if self.loss not in _LOSSES:
+            raise ValueError(f"loss: expected one of {_LOSSES}, got {self.loss!r}")
+        as_int(self.max_nfev, "max_nfev")
+        bad = [g for g in self.groups
+               if not g or any(n not in INTRINSIC_NAMES or n == "f" for n in g)]
+        if bad:
+            raise ValueError(f"groups: expected groups of intrinsic names other than 'f' "
+                             f"(from {INTRINSIC_NAMES}), got {bad}")
+
+    def prior_sigmas(self, camera: Camera) -> np.ndarray:
+        """The 16 prior standard deviations (:data:`PARAMETER_NAMES` order) of a camera."""
+        s = np.full(16, np.inf)
+        s[:3] = np.deg2rad(self.sigma_angle)
+        s[3:6] = self.sigma_position
+        index = {n: i for i, n in enumerate(PARAMETER_NAMES)}
+        s[index["f"]] = self.sigma_f * camera.f
+        s[index["cx"]] = s[index["cy"]] = self.sigma_principal
+        s[index["k1"]] = s[index["k2"]] = self.sigma_k
+        return s
+
+
+@dataclass(frozen=True)
+class CameraRefinement:
+    """Result of :func:`refine_cameras`.
+
+    Attributes
+    ----------
+    cameras : tuple of K Camera
+        The refined cameras (sizes and names of the given ones).
+    points : (N, 3) array
+        The adjusted tie points, mm (NaN for a point that lost its observations).
+    residuals_before, residuals : (K, N, 2) arrays
+        Image residuals (measured - projected, px) of the tie points triangulated with the
+        given cameras, and after the adjustment; NaN where not observed.
+    used : (K, N) bool array
+        Observations kept in the last run.
+    freed : tuple of K tuple of str
+        The intrinsics adjusted per camera (always ``f``; the groups the data determined).
+    ratios : (K, P) array
+        Posterior over prior standard deviation of each tried group's parameters
+        (columns in the order of :attr:`ratio_names`), from the run with all groups free.
+    ratio_names : tuple of str
+    sigma0 : float
+        Standard deviation of unit weight of the last run (1 when ``sigma_px`` was right).
+    """
+
+    cameras: tuple
+    points: np.ndarray
+    residuals_before: np.ndarray
+    residuals: np.ndarray
+    used: np.ndarray
+    freed: tuple
+    ratios: np.ndarray
+    ratio_names: tuple
+    sigma0: float
+
+    def __post_init__(self):
+        freeze(self, ("points", "residuals_before", "residuals", "used", "ratios"))
+
+    def median_residual(self, *, before: bool = False) -> np.ndarray:
+        """Median residual length per camera ``(K,)``, px (observations kept, or all the
+        observed ones before the adjustment)."""
+        r = np.linalg.norm(self.residuals_before if before else self.residuals, axis=2)
+        if not before:
+            r = np.where(self.used, r, np.nan)
+        with np.errstate(all="ignore"):
+            return np.array([np.nanmedian(row) if np.isfinite(row).any() else np.nan
+                             for row in r])
+
+
+@dataclass
+class _Problem:
+    params0: np.ndarray        # (K, 16) given cameras
+    sigmas: np.ndarray         # (K, 16) prior standard deviations
+    cam: np.ndarray            # (M,) camera of each observation
+    pt: np.ndarray             # (M,) point of each observation
+    obs: np.ndarray            # (M, 2) image coordinates
+    n_points: int
+    sigma_px: float
+
+
+def _residuals(x, pr: _Problem, free: np.ndarray):
+    params = pr.params0.copy()
+    nf = int(free.sum())
+    params[free] = x[:nf]
+    X = x[nf:].reshape(pr.n_points, 3)
+    proj = project_params(params[pr.cam], X[pr.pt])
+    image = ((pr.obs - proj) / pr.sigma_px).ravel()
+    prior = (params[free] - pr.params0[free]) / pr.sigmas[free]
+    return np.concatenate([image, prior])
+
+
+def _sparsity(pr: _Problem, free: np.ndarray):
+    M, nf = len(pr.obs), int(free.sum())
+    col = -np.ones(free.shape, int)
+    col[free] = np.arange(nf)
+    rows, cols = [], []
+    cam_cols = col[pr.cam]                                    # (M, 16)
+    for j in range(16):
+        ok = cam_cols[:, j] >= 0
+        for axis in (0, 1):
+            rows.append(2 * np.nonzero(ok)[0] + axis)
+            cols.append(cam_cols[ok, j])
+    for d in range(3):
+        for axis in (0, 1):
+            rows.append(2 * np.arange(M) + axis)
+            cols.append(nf + 3 * pr.pt + d)
+    rows.append(2 * M + np.arange(nf))
+    cols.append(np.arange(nf))
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    return coo_matrix((np.ones(len(r)), (r, c)), shape=(2 * M + nf, nf + 3 * pr.n_points))
+
+
+def _solve(pr: _Problem, free, X0, params: RefineParams):
+    """Levenberg-Marquardt on the sparse normal equations, then iteratively reweighted
+    with the robust loss on the image residuals (the priors keep weight 1)."""
+    x0 = np.concatenate([pr.params0[free], X0.ravel()])
+    sparsity = _sparsity(pr, free).tocsc()
+    n_image = 2 * len(pr.obs)
+
+    def fun(x):
+        return _residuals(x, pr, free)
+
+    sol = _levenberg_marquardt(fun, x0, sparsity, params.max_nfev, 1e-10, 1e-10, None)
+    if params.loss != "linear":
+        for _ in range(5):
+            z = (fun(sol.x)[:n_image] / params.f_scale) ** 2
+            w = np.ones(n_image + int(free.sum()))
+            w[:n_image] = np.sqrt(_LOSS_DERIVATIVE[params.loss](z))
+            x_prev = sol.x
+            sol = _levenberg_marquardt(lambda x, w=w: fun(x) * w, sol.x, sparsity, 20,
+                                       1e-7, 1e-10, None)
+            if np.linalg.norm(sol.x - x_prev) < 1e-8 * (1 + np.linalg.norm(x_prev)):
+                break
+    nf = int(free.sum())
+    cams = pr.params0.copy()
+    cams[free] = sol.x[:nf]
+    return cams, sol.x[nf:].reshape(-1, 3), sol, fun(sol.x)
+
+
+def _posterior_sigmas(sol, free: np.ndarray, n_points: int) -> np.ndarray:
+    """Standard deviations of the free camera parameters, points eliminated (Schur)."""
+    nf = int(free.sum())
+    J = sol.jac.tocsc()
+    Jc, Jp = J[:, :nf], J[:, nf:]
+    Hcc = (Jc.T @ Jc).toarray()
+    Hcp = (Jc.T @ Jp).toarray()
+    Hpp = (Jp.T @ Jp).tocoo()
+    same = Hpp.row // 3 == Hpp.col // 3                          # block diagonal
+    blocks = np.zeros((n_points, 3, 3))
+    np.add.at(blocks, (Hpp.row[same] // 3, Hpp.row[same] % 3, Hpp.col[same] % 3),
+              Hpp.data[same])
+    inv = np.linalg.pinv(blocks)
+    Hcp3 = Hcp.reshape(nf, n_points, 3)
+    S = Hcc - np.einsum("anj,njk,bnk->ab", Hcp3, inv, Hcp3)
+    cov = np.linalg.pinv(S)
+    out = np.full(free.shape, np.nan)
+    out[free] = np.sqrt(np.clip(np.diag(cov), 0, None))
+    return out
+
+
+def _observations(xy):
+    K, N, _ = xy.shape
+    seen = np.isfinite(xy).all(axis=2)
+    cam, pt = np.nonzero(seen)
+    return cam, pt, xy[cam, pt]
+
+
+def _image_residuals(params, X, xy, used):
+    K, N, _ = xy.shape
+    out = np.full((K, N, 2), np.nan)
+    for k in range(K):
+        ok = used[k] & np.isfinite(X).all(axis=1)
+        if ok.any():
+            out[k, ok] = xy[k, ok] - project_params(params[k][None], X[ok])
+    return out
+
+
+def refine_cameras(cameras, xy, *, params: RefineParams | None = None) -> CameraRefinement:
+    """Refine a rig's cameras from tie points, the given cameras acting as priors.
+
+    Parameters
+    ----------
+    cameras : sequence of K Camera
+        The rig as given (e.g. read from another tool's camera file).
+    xy : (K, N, 2) array
+        Tie points' image coordinates, px; NaN where a camera does not see a point. Points
+        seen by fewer than two cameras are ignored.
+    params : RefineParams, optional
+
+    Returns
+    -------
+    CameraRefinement
+
+    Raises
+    ------
+    ValueError
+        Fewer than two cameras, a camera with fewer than 6 tie points, or tie points that
+        cannot be triangulated with the given cameras.
+    """
+    params = RefineParams() if params is None else params
+    cameras = tuple(cameras)
+    if len(cameras) < 2 or not all(isinstance(c, Camera) for c in cameras):
+        raise ValueError("cameras: expected a sequence of at least two lsmta Camera")
+    xy = as_array(xy, "xy", shape=(len(cameras), None, 2), allow_nan=True)
+    seen = np.isfinite(xy).all(axis=2)
+    keep = seen.sum(axis=0) >= 2
+    xy = np.where(keep[None, :, None], xy, np.nan)
+    seen &= keep[None]
+    counts = seen.sum(axis=1)
+    if (counts < 6).any():
+        k = int(np.argmin(counts))
+        raise ValueError(f"xy: camera {k} ({cameras[k].name or 'unnamed'}) sees {counts[k]} "
+                         "tie points seen by another camera too; at least 6 are needed")
+    inter = triangulate(cameras, xy, min_angle_deg=0.0)
+    X0 = np.asarray(inter.points, float)
+    if not np.isfinite(X0).any():
+        raise ValueError("xy: no tie point can be triangulated with the given cameras")
+    params0 = np.stack([camera_to_params(c) for c in cameras])
+    sigmas = np.stack([params.prior_sigmas(c) for c in cameras])
+    before = _image_residuals(params0, X0, xy, seen)
+    good = np.isfinite(X0).all(axis=1)
+    tried = [n for g in params.groups for n in g]
+    index = {n: i for i, n in enumerate(PARAMETER_NAMES)}
+
+    def run(free_intrinsics, used, X_start):
+        sub = np.where(used[:, good].sum(axis=0) >= 2)[0]
+        xy_used = np.where(used[:, :, None], xy, np.nan)[:, good][:, sub]
+        cam, pt, obs = _observations(xy_used)
+        pr = _Problem(params0=params0, sigmas=sigmas, cam=cam, pt=pt, obs=obs,
+                      n_points=len(sub), sigma_px=params.sigma_px)
+        free = np.zeros((len(cameras), 16), bool)
+        free[:, :6] = True
+        for k, names in enumerate(free_intrinsics):
+            free[k, [index[n] for n in names]] = True
+        cams, Xs, sol, fun = _solve(pr, free, X_start[good][sub], params)
+        X = np.full_like(X0, np.nan)
+        X[np.where(good)[0][sub]] = Xs
+        return cams, X, sol, free, pr, fun
+
+    used = seen & good[None]
+    # 1. every tried group free: which does the data determine?
+    cams, X, sol, free, pr, fun = run([("f", *tried)] * len(cameras), used, X0)
+    post = _posterior_sigmas(sol, free, pr.n_points)
+    cols = [index[n] for n in tried]
+    ratios = post[:, cols] / sigmas[:, cols]
+    chosen = []
+    for k in range(len(cameras)):
+        names = ["f"]
+        for g in params.groups:
+            if all(ratios[k, tried.index(n)] < params.information_ratio for n in g):
+                names += list(g)
+        chosen.append(tuple(names))
+    # 2. with the chosen groups; 3. outliers dropped, once more
+    cams, X, sol, free, pr, fun = run(chosen, used, X)
+    r = np.linalg.norm(_image_residuals(cams, X, xy, used), axis=2)
+    scale = max(params.sigma_px, 1.4826 * float(np.nanmedian(r[used])))
+    used = used & ~(r > params.reject_k * scale)
+    cams, X, sol, free, pr, fun = run(chosen, used, X)
+    after = _image_residuals(cams, X, xy, used)
+    dof = max(1, 2 * len(pr.obs) - 3 * pr.n_points)    # the priors add as many as they fix
+    sigma0 = float(np.sqrt(np.sum(fun ** 2) / dof))
+    refined = tuple(params_to_camera(p, c) for p, c in zip(cams, cameras))
+    return CameraRefinement(cameras=refined, points=X, residuals_before=before,
+                            residuals=after, used=used, freed=tuple(chosen), ratios=ratios,
+                            ratio_names=tuple(tried), sigma0=sigma0)

@@ -342,7 +342,7 @@ def _params(params, cls):
     if params is None:
         return cls()
     if not isinstance(params, cls):
-        raise TypeError(f"params: expected a {cls.__name__} or None, got "
+        raise TypeError(f"params: expected {cls.__name__} or None, got "
                         f"{type(params).__name__}")
     return params
 

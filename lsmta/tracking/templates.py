@@ -248,10 +248,9 @@ def match_templates(templates: Templates, rows, search: SplineImage, start_xy, s
     if not (fallback or not inverse) or not redo.size:
         return result
     tiles, centres = _mosaic(templates, rows[redo])
-    fa = lsm(tiles, search, centres, start[redo],
-             initial_A=np.asarray(start_A, float).reshape(n, 2, 2)[redo],
-             params=LSMParams(patch=templates.patch, max_iter=max_iter, tol=tol,
-                              max_displacement=max_disp, thresholds=thresholds))
+    fa = lsm(tiles, search, centres, start[redo], params=LSMParams(
+        patch=templates.patch, max_iter=max_iter, tol=tol, max_displacement=max_disp,
+        thresholds=thresholds), initial_A=np.asarray(start_A, float).reshape(n, 2, 2)[redo])
     merged = {}
     for name in LSMResult.__dataclass_fields__:
         merged[name] = getattr(result, name).copy()

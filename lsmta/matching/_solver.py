@@ -404,7 +404,7 @@ def _covariance_factor(N, n, fixed, Q, M, W):
                 Q[a, b] = 0.0
 
 
-def solve(images, points, model, unknowns, out):
+def solve(images, points, spec, unknowns, out):
     """Match every point ``i`` with ``active[i]``, in the sequence ``order``; see the
     module docstring.
 
@@ -424,12 +424,13 @@ def solve(images, points, model, unknowns, out):
         ``order`` (n,) int: the points in an order that keeps neighbours together (cache
         reuse); ``active`` (n,) bool: points to match; ``base, direction, quad`` (n, K, 2)
         and ``t_exp`` (n,): the constraint curves (constrained matching).
-    model : tuple ``(geometry, radiometry, inverse, constrained, start_radiometry, settings)``
-        ``geometry``: 0 shift, 1 similarity, 2 affine, 3 row-affine (only A's first row
-        moves); ``radiometry``: 0 none, 1 offset, 2 linear; ``inverse``: inverse
-        compositional (else forward additive); ``constrained``: shared ``t``;
-        ``start_radiometry``: start r0, r1 from the patches' mean and spread. ``settings``:
-        float array ``[max_iter, tol, max_disp, max_vif, tukey_c, ramp, support, partial]``:
+    spec : tuple ``(geometry, radiometry, inverse, constrained, start_radiometry, settings)``
+        The model and its settings. ``geometry``: 0 shift, 1 similarity, 2 affine,
+        3 row-affine (only A's first row moves); ``radiometry``: 0 none, 1 offset, 2 linear;
+        ``inverse``: inverse compositional (else forward additive); ``constrained``: shared
+        ``t``; ``start_radiometry``: start r0, r1 from the patches' mean and spread.
+        ``settings``: float array
+        ``[max_iter, tol, max_disp, max_vif, tukey_c, ramp, support, partial]``:
         iteration limit, convergence (px), divergence distance (px), the adaptive control's
         variance inflation limit, the Tukey cut-off (0: least squares) and its ramp (cut-off
         ``(1 + ramp - it) tukey_c`` in the first iterations), and the support weights'
@@ -449,11 +450,11 @@ def solve(images, points, model, unknowns, out):
     n = points[0].shape[0]
     threads = nb.config.NUMBA_NUM_THREADS      # (get_num_threads() costs 0.2 ms a call)
     if threads <= 1 or n < MIN_PARALLEL:
-        _chunk(0, 1, images, points, model, unknowns, out)
+        _chunk(0, 1, images, points, spec, unknowns, out)
         return
     # a few chunks per thread balance points that need more iterations than others
     n_chunks = min(4 * threads, n)
-    list(_pool(threads).map(lambda ch: _chunk(ch, n_chunks, images, points, model, unknowns,
+    list(_pool(threads).map(lambda ch: _chunk(ch, n_chunks, images, points, spec, unknowns,
                                               out), range(n_chunks)))
 
 
@@ -471,13 +472,13 @@ def _pool(threads: int) -> ThreadPoolExecutor:
 
 
 @nb.njit(cache=True, error_model="numpy", nogil=True)
-def _chunk(ch, n_chunks, images, points, model, unknowns, out):
+def _chunk(ch, n_chunks, images, points, spec, unknowns, out):
     """The points of chunk ``ch`` of ``n_chunks``, one after the other; they share their
     work space (few allocations; chunks balance the threads). The tuples are
     :func:`solve`'s."""
     coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask = images
     t_xy, U, order, active, base, direction, quad, t_exp = points
-    geometry, radiometry, inverse, constrained, start_radiometry, settings = model
+    geometry, radiometry, inverse, constrained, start_radiometry, settings = spec
     c, A, r0, r1, t = unknowns
     status, iterations, fixed, Q_out, ee_last, sw_last, ee_img = out
     n = t_xy.shape[0]

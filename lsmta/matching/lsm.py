@@ -499,12 +499,12 @@ def _solve(state: _State, model: _Model, f_img: SplineImage, g_imgs, weights, *,
                          0.0 if model.robust is None else model.robust, model.ramp,
                          0.0 if model.support is None else model.support,
                          float(model.partial)], dtype=float)
-    kind = (list(GEOMETRIES).index(model.geometry), RADIOMETRIES[model.radiometry], inverse,
+    spec = (list(GEOMETRIES).index(model.geometry), RADIOMETRIES[model.radiometry], inverse,
             state.constrained, start_radiometry and model.radiometry != "none", settings)
     unknowns = (state.c, state.A, state.r0, state.r1, state.t)
     out = (state.status, state.iterations, state.fixed, state.Q, state.ee_last, state.sw_last,
            state.ee_img)
-    _solver.solve(images, points, kind, unknowns, out)
+    _solver.solve(images, points, spec, unknowns, out)
 
 
 def _precision(state: _State) -> tuple[np.ndarray, np.ndarray]:

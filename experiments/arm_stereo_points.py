@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from lsmta.evaluation import surface as evaluate
-from lsmta.matching import LSMThresholds, measure_surface
+from lsmta.matching import GrowParams, LSMThresholds, MeasureSurfaceParams, measure_surface
 from lsmta.synth import Renderer, Scene, arm_wave, make_body, triplet_rig
 
 SEED = 1998
@@ -61,8 +61,9 @@ def main(argv=None):
         px = np.round(seeds[1]).astype(int)
         on_arm = np.isin(shot.part_id[1][px[:, 1], px[:, 0]], arm)
         t0 = time.perf_counter()
-        res = measure_surface(shot.images, cameras, seeds[:, on_arm], step=STEP, patch=PATCH,
-                              retry_patch=RETRY, thresholds=thresholds, voxel=None)
+        grow = GrowParams(step=STEP, patch=PATCH, retry_patch=RETRY, thresholds=thresholds)
+        res = measure_surface(shot.images, cameras, seeds[:, on_arm],
+                              params=MeasureSurfaceParams(grow=grow, voxel=None))
         seconds.append(time.perf_counter() - t0)
         truth = evaluate.node_truth(shot, scene, cameras, step=STEP, patch=13)
         errors.append(evaluate.score_surface(res, truth)["filtered"]["median_mm"])

@@ -29,6 +29,7 @@ import numba as nb
 import numpy as np
 
 from lsmta.evaluation.matching import METHODS, draw_points, run_trial, unit_bound
+from lsmta.matching import LSMParams
 from lsmta.report import write_json
 from lsmta.synth.patches import warped_pair
 
@@ -47,8 +48,8 @@ def error_ratio(*, n_points: int, sigmas=(2.0, 4.0), patch: int = 13,
     for sigma in sigmas:
         pair = clean.noisy(sigma, rng=rng)
         for name in OURS:
-            trial = run_trial(pair, rng=1, methods=(name,), points=pts,
-                              patch=patch, start_error=0.5, bound_unit=unit)
+            trial = run_trial(pair, rng=1, methods=(name,), points=pts, start_error=0.5,
+                              bound_unit=unit, params=LSMParams(patch=patch))
             ok = trial.lsm_result.ok
             e = np.linalg.norm(trial.errors[name], axis=1)[ok]
             bound = trial.crb_median(mask=ok, rng=2)
@@ -84,7 +85,8 @@ def main(argv=None):
                 n = max(args.peer_points // 10, 10)
             trial_rng = np.random.default_rng(args.seed + 1)  # same starts for every method
             trials[name] = run_trial(pair, rng=trial_rng, methods=(name,), points=pts[:n],
-                                     patch=patch, start_error=1.0, bound=False)
+                                     start_error=1.0, bound=False,
+                                     params=LSMParams(patch=patch))
         rows = {}
         for name, trial in trials.items():
             s = trial.summary(name)

@@ -23,12 +23,20 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from lsmta.data import load_cones
 from lsmta.evaluation import surface as evaluate
-from lsmta.matching import LSMThresholds, measure_disparity, measure_surface, peers
+from lsmta.matching import (
+    GrowParams,
+    LSMThresholds,
+    MeasureSurfaceParams,
+    measure_disparity,
+    measure_surface,
+    peers,
+)
 from lsmta.real import stereo
 from lsmta.report import best_time, write_json
 from lsmta.synth import Renderer, Scene, make_body, triplet_rig, walk
@@ -68,14 +76,16 @@ def main(argv=None):
             for step in args.steps:
                 truth = evaluate.node_truth(frame, scene, cams, step=step, patch=13)
                 for name in methods:
-                    extra = {}
+                    paper = MeasureSurfaceParams(grow=GrowParams(step=step, patch=7,
+                                                                 thresholds=th))
+                    call = dict(params=paper)
                     if name != "lsm":
                         options = (evaluate.beyond_the_paper if name == "beyond"
                                    else evaluate.joint_beyond)
-                        extra = dict(retry_patch=(9, 5), **options(args.noise, frame.images[1]))
+                        retry = replace(paper, grow=replace(paper.grow, retry_patch=(9, 5)))
+                        call = options(args.noise, frame.images[1], retry)
                     t0 = time.perf_counter()
-                    res = measure_surface(frame.images, cams, seeds, step=step, patch=7,
-                                          thresholds=th, **extra)
+                    res = measure_surface(frame.images, cams, seeds, **call)
                     seconds = time.perf_counter() - t0
                     s = evaluate.score_surface(res, truth)
                     rows.append({"contrast": contrast, "frame": f,

@@ -1,11 +1,13 @@
+from dataclasses import fields
+
 import numpy as np
 import pytest
 from conftest import occlusion_pair, smaller
 
 from lsmta.matching import LSMThresholds
 from lsmta.matching.filters import neighbourhood_filter
-from lsmta.matching.grow import grow_matches
-from lsmta.matching.surface import enhance_contrast, measure_surface
+from lsmta.matching.grow import GrowParams, grow_matches
+from lsmta.matching.surface import MeasureSurfaceParams, enhance_contrast, measure_surface
 from lsmta.synth import Renderer, Scene, make_body, project_surface_points, triplet_rig, walk
 from lsmta.synth.patches import warped_pair
 from lsmta.triangulation import voxel_filter
@@ -22,7 +24,8 @@ def pair():
 def test_grows_over_a_textured_plane(pair):
     seeds = np.array([[40.0, 40.0], [150.0, 110.0]])
     approx = pair.true_xy(seeds) + [[0.8, -0.6], [-0.7, 0.5]]
-    res = grow_matches(pair.template, pair.search, seeds, approx, step=4, patch=13)
+    res = grow_matches(pair.template, pair.search, seeds, approx,
+                       params=GrowParams(step=4, patch=13))
     rows, cols = res.grid_shape
     # every node whose retry patch (19 px) fits in the template and whose match stays inside
     assert len(res) > 0.9 * (rows - 5) * (cols - 5)
@@ -85,13 +88,14 @@ def rendered_triplet():
     seeds = proj.xy[0][:, seen] + rng.uniform(-0.5, 0.5, (3, len(seen), 2))
     th = LSMThresholds(max_displacement=3.0, max_sigma_xy=0.2, scale_range=(0.5, 2.0),
                        max_shear=0.5)
-    return frame, small, seeds, dict(step=3, patch=9, thresholds=th)
+    return frame, small, seeds, GrowParams(step=3, patch=9, thresholds=th)
 
 
 @pytest.mark.slow
 def test_measure_surface_on_a_rendered_triplet(rendered_triplet):
-    frame, small, seeds, kw = rendered_triplet
-    res = measure_surface(frame.images, small, seeds, voxel=30.0, **kw)  # nodes ~15 mm apart
+    frame, small, seeds, grow = rendered_triplet
+    res = measure_surface(frame.images, small, seeds,      # nodes ~15 mm apart
+                          params=MeasureSurfaceParams(grow=grow, voxel=30.0))
     assert len(res.template_xy) > 100
     tx = res.template_xy.astype(int)
     truth = frame.world_xyz[1][tx[:, 1], tx[:, 0]]
@@ -107,14 +111,16 @@ def test_measure_surface_on_a_rendered_triplet(rendered_triplet):
 
 @pytest.mark.slow
 def test_geometric_check_drops_triplets_that_do_not_meet(rendered_triplet):
-    frame, small, seeds, kw = rendered_triplet
-    free = measure_surface(frame.images, small, seeds, **kw)
-    checked = measure_surface(frame.images, small, seeds, max_reprojection=0.1, **kw)
+    frame, small, seeds, grow = rendered_triplet
+    free = measure_surface(frame.images, small, seeds, params=MeasureSurfaceParams(grow=grow))
+    checked = measure_surface(frame.images, small, seeds,
+                              params=MeasureSurfaceParams(grow=grow, max_reprojection=0.1))
     rep = np.nanmax(checked.intersection.reprojection_error, axis=0)
     assert np.all(rep[checked.neighbourhood_ok] <= 0.1)
     assert 0 < checked.neighbourhood_ok.sum() < free.neighbourhood_ok.sum()
     with pytest.raises(ValueError, match="max_reprojection"):
-        measure_surface(frame.images, small, seeds, max_reprojection=0.0, **kw)
+        measure_surface(frame.images, small, seeds,
+                        params=MeasureSurfaceParams(grow=grow, max_reprojection=0.0))
 
 
 def test_enhance_contrast_keeps_input(pair):
@@ -135,8 +141,9 @@ def test_enhance_contrast_keeps_input(pair):
 def test_grow_bad_input(pair, kwargs, match):
     args = dict(seeds_template=np.array([[50.0, 50.0]]), seeds_search=np.array([[50.0, 50.0]]))
     args.update(kwargs)
+    settings = {k: args.pop(k) for k in [f.name for f in fields(GrowParams)] if k in args}
     with pytest.raises(ValueError, match=match):
-        grow_matches(pair.template, pair.search, **args)
+        grow_matches(pair.template, pair.search, params=GrowParams(**settings), **args)
 
 
 def test_measure_surface_bad_input(pair):
@@ -152,15 +159,16 @@ def test_measure_surface_bad_input(pair):
 
 def test_retry_sequence_of_patch_sizes(pair):
     seeds = np.array([[40.0, 40.0]])
-    one = grow_matches(pair.template, pair.search, seeds, pair.true_xy(seeds), patch=7,
-                       retry_patch=13)
-    two = grow_matches(pair.template, pair.search, seeds, pair.true_xy(seeds), patch=7,
-                       retry_patch=(9, 5))
+    one = grow_matches(pair.template, pair.search, seeds, pair.true_xy(seeds),
+                       params=GrowParams(patch=7, retry_patch=13))
+    two = grow_matches(pair.template, pair.search, seeds, pair.true_xy(seeds),
+                       params=GrowParams(patch=7, retry_patch=(9, 5)))
     assert len(one) > 100 and len(two) > 100
     err = np.linalg.norm(two.search_xy - pair.true_xy(two.template_xy), axis=1)
     assert np.median(err) < 0.1
     with pytest.raises(ValueError, match="patch"):
-        grow_matches(pair.template, pair.search, seeds, seeds, retry_patch=(9, 4))
+        grow_matches(pair.template, pair.search, seeds, seeds,
+                     params=GrowParams(retry_patch=(9, 4)))
 
 
 def test_shifted_windows_match_next_to_an_occlusion_border():
@@ -170,8 +178,8 @@ def test_shifted_windows_match_next_to_an_occlusion_border():
     th = LSMThresholds(max_sigma0=3.0, max_displacement=4.0)
     near = {}
     for shift in (0, 3):
-        res = grow_matches(template, search, seeds, approx, step=2, patch=7, thresholds=th,
-                           shift=shift)
+        res = grow_matches(template, search, seeds, approx,
+                           params=GrowParams(step=2, patch=7, thresholds=th, shift=shift))
         x = res.template_xy[:, 0]
         truth = res.template_xy + np.where(x >= 100, 9.0, 3.0)[:, None] * [1.0, 0.0]
         err = np.linalg.norm(res.search_xy - truth, axis=1)
@@ -194,7 +202,8 @@ def test_median_neighbourhood_filter(pair):
     with pytest.raises(ValueError, match="statistic"):
         neighbourhood_filter(res, statistic="mode")
     with pytest.raises(ValueError, match="shift"):
-        grow_matches(pair.template, pair.search, seeds, pair.true_xy(seeds), shift=-1)
+        grow_matches(pair.template, pair.search, seeds, pair.true_xy(seeds),
+                     params=GrowParams(shift=-1))
 
 
 def test_robust_retry_matches_next_to_an_occlusion_border():
@@ -204,8 +213,8 @@ def test_robust_retry_matches_next_to_an_occlusion_border():
     th = LSMThresholds(max_sigma0=3.0, max_displacement=4.0)
     near = {}
     for robust in (None, 6.6):        # 4.7 * sqrt(2) * the noise of 1 grey level
-        res = grow_matches(template, search, seeds, approx, step=2, patch=7, retry_patch=9,
-                           thresholds=th, robust=robust, robust_patch=9)
+        res = grow_matches(template, search, seeds, approx, params=GrowParams(
+            step=2, patch=7, retry_patch=9, thresholds=th, robust=robust, robust_patch=9))
         x = res.template_xy[:, 0]
         truth = res.template_xy + np.where(x >= 100, 9.0, 3.0)[:, None] * [1.0, 0.0]
         err = np.linalg.norm(res.search_xy - truth, axis=1)
@@ -214,4 +223,5 @@ def test_robust_retry_matches_next_to_an_occlusion_border():
         assert (res.method == "robust").any() == (robust is not None)
     assert near[None] < near[6.6]
     with pytest.raises(ValueError, match="robust_patch"):
-        grow_matches(template, search, seeds, approx, robust=6.6, robust_patch=6)
+        grow_matches(template, search, seeds, approx,
+                     params=GrowParams(robust=6.6, robust_patch=6))

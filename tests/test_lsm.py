@@ -1,8 +1,11 @@
+from dataclasses import fields
+
 import numpy as np
 import pytest
 
 from lsmta.matching import (
     CorrelationStatus,
+    LSMParams,
     LSMThresholds,
     SplineImage,
     Status,
@@ -42,7 +45,7 @@ def test_noise_free_affine_radiometric_warp(rng):
     pts = _points(rng, 300, margin=40)
     truth = pair.true_xy(pts)
     start = truth + rng.uniform(-1.0, 1.0, truth.shape)
-    res = lsm(pair.template, pair.search, pts, start, patch=13)
+    res = lsm(pair.template, pair.search, pts, start, params=LSMParams(patch=13))
     assert np.all(res.status == Status.CONVERGED)
     err = np.linalg.norm(res.xy - truth, axis=1)
     assert np.median(err) < 0.005
@@ -54,8 +57,8 @@ def test_noise_free_affine_radiometric_warp(rng):
 def test_shift_only_matches_a_pure_shift(rng):
     pair = warped_pair(rng=rng, c=(2.37, -1.61), quantise=False)
     pts = _points(rng, 100)
-    res = lsm(pair.template, pair.search, pts, pair.true_xy(pts) + 0.8, geometry="shift",
-              radiometry="none")
+    res = lsm(pair.template, pair.search, pts, pair.true_xy(pts) + 0.8,
+              params=LSMParams(geometry="shift", radiometry="none"))
     assert np.all(res.ok)
     assert np.median(np.linalg.norm(res.xy - pair.true_xy(pts), axis=1)) < 0.002
     assert np.array_equal(res.A, np.broadcast_to(np.eye(2), res.A.shape))
@@ -102,8 +105,8 @@ def test_adaptive_control_fixes_the_shift_along_stripes(rng):
     shifted = np.tile(100 + 40 * np.sin(2 * np.pi * (x - 1.3) / 9.0)
                       + 20 * np.sin(2 * np.pi * (x - 1.3) / 5.3), (64, 1))
     pts = np.array([[30.0, 30.0], [20.0, 40.0]])
-    res = lsm(stripes, shifted, pts, pts + [0.5, 0.7], patch=11, geometry="shift",
-              radiometry="none")
+    res = lsm(stripes, shifted, pts, pts + [0.5, 0.7],
+              params=LSMParams(patch=11, geometry="shift", radiometry="none"))
     assert np.all(res.ok)
     assert res.fixed[:, 1].all() and not res.fixed[:, 0].any()
     assert np.allclose(res.xy[:, 0], pts[:, 0] + 1.3, atol=1e-3)
@@ -115,7 +118,8 @@ def test_flat_patch_is_singular_and_edges_are_outside(rng):
     img = np.full((60, 60), 90.0)
     img[:, 40:] = rng.normal(100, 20, (60, 20))
     pts = np.array([[15.0, 30.0], [2.0, 30.0], [50.0, 30.0]])
-    res = lsm(img, img, pts, np.array([[15.0, 30.0], [2.0, 30.0], [56.0, 30.0]]), patch=9)
+    res = lsm(img, img, pts, np.array([[15.0, 30.0], [2.0, 30.0], [56.0, 30.0]]),
+              params=LSMParams(patch=9))
     assert res.status[0] == Status.SINGULAR
     assert res.status[1] == Status.OUTSIDE        # template patch does not fit
     assert res.status[2] == Status.OUTSIDE        # search patch leaves the image
@@ -126,7 +130,8 @@ def test_far_start_does_not_raise_and_is_flagged(rng):
     pair = warped_pair(rng=rng, quantise=False)
     pts = _points(rng, 50, margin=40)
     truth = pair.true_xy(pts)
-    res = lsm(pair.template, pair.search, pts, truth + 12.0, patch=13, max_displacement=5.0)
+    res = lsm(pair.template, pair.search, pts, truth + 12.0,
+              params=LSMParams(patch=13, max_displacement=5.0))
     # the truth is 17 px away, beyond what may move: most points are flagged as diverged and
     # none moved further than allowed; the few accepted ones sit in a neighbouring minimum
     # (why tracking runs a correlation search before LSM)
@@ -143,7 +148,7 @@ def test_thresholds_reject(rng):
     start = truth + np.where(np.arange(200)[:, None] < 100, 0.1, 0.6)
     thresholds = LSMThresholds(max_displacement=0.4, max_sigma_xy=1.0)
     plain = lsm(pair.template, pair.search, pts, start)
-    res = lsm(pair.template, pair.search, pts, start, thresholds=thresholds)
+    res = lsm(pair.template, pair.search, pts, start, params=LSMParams(thresholds=thresholds))
     assert plain.ok.all()
     # converged 0.14 px or 0.85 px away from their approximations
     assert np.array_equal(res.status == Status.REJECTED, np.arange(200) >= 100)
@@ -156,7 +161,8 @@ def test_multi_image_returns_one_result_per_search(rng):
     right = warped_pair(rng=rng, c=(-2.0, 0.5), quantise=False, texture=left.texture)
     pts = _points(rng, 20)
     out = lsm_multi(left.template, [left.search, right.search], pts,
-                    [left.true_xy(pts) + 0.3, right.true_xy(pts) - 0.3], geometry="shift")
+                    [left.true_xy(pts) + 0.3, right.true_xy(pts) - 0.3],
+                    params=LSMParams(geometry="shift"))
     assert len(out) == 2
     for res, pair in zip(out, (left, right)):
         assert np.abs(res.xy - pair.true_xy(pts)).max() < 0.01
@@ -196,9 +202,10 @@ def test_bad_input(rng, kwargs, match):
     args = dict(template=rng.normal(size=(30, 30)), search=rng.normal(size=(30, 30)),
                 template_xy=np.full((2, 2), 15.0), search_xy=np.full((2, 2), 15.0))
     args.update(kwargs)
+    settings = {k: args.pop(k) for k in [f.name for f in fields(LSMParams)] if k in args}
     with pytest.raises((ValueError, TypeError), match=match):
         lsm(args.pop("template"), args.pop("search"), args.pop("template_xy"),
-            args.pop("search_xy"), **args)
+            args.pop("search_xy"), params=LSMParams(**settings), **args)
 
 
 def test_inputs_not_modified(rng):
@@ -229,8 +236,8 @@ def test_robust_lsm_lets_an_occluded_part_drop_out():
     # 11 x 11 patches whose 3 right-hand columns lie on the foreground (x >= 100)
     t_xy = np.stack([np.full(20, 97.0), np.linspace(20, 100, 20)], axis=1)
     start = t_xy + [3.4, 0.3]
-    plain = lsm(template, search, t_xy, start, patch=11)
-    rob = lsm(template, search, t_xy, start, patch=11, robust=6.6)
+    plain = lsm(template, search, t_xy, start, params=LSMParams(patch=11))
+    rob = lsm(template, search, t_xy, start, params=LSMParams(patch=11, robust=6.6))
     err_plain = np.linalg.norm(plain.xy - (t_xy + [3.0, 0.0]), axis=1)
     err_rob = np.linalg.norm(rob.xy - (t_xy + [3.0, 0.0]), axis=1)
     assert rob.ok.all() and np.max(err_rob) < 0.1
@@ -241,8 +248,8 @@ def test_robust_lsm_lets_an_occluded_part_drop_out():
     assert np.all(plain.weight_share == 1.0)
     # on clean patches the robust estimate agrees with the plain one
     clean = t_xy - [30.0, 0.0]
-    a = lsm(template, search, clean, clean + [3.4, 0.3], patch=11)
-    b = lsm(template, search, clean, clean + [3.4, 0.3], patch=11, robust=6.6)
+    a = lsm(template, search, clean, clean + [3.4, 0.3], params=LSMParams(patch=11))
+    b = lsm(template, search, clean, clean + [3.4, 0.3], params=LSMParams(patch=11, robust=6.6))
     assert np.max(np.linalg.norm(a.xy - b.xy, axis=1)) < 0.03
     assert np.all(b.weight_share > 0.85)
     # and a threshold on the weight share rejects what rests on too little of the patch
@@ -270,8 +277,8 @@ def test_template_mask_ignores_the_backdrop_next_to_a_silhouette():
     keep = mask.copy()
     t_xy = np.stack([np.full(15, 63.0), np.linspace(20, 80, 15)], axis=1)   # 2 backdrop columns
     start = t_xy + [3.4, 0.3]
-    plain = lsm(template, search, t_xy, start, patch=11)
-    masked = lsm(template, search, t_xy, start, patch=11, template_mask=mask)
+    plain = lsm(template, search, t_xy, start, params=LSMParams(patch=11))
+    masked = lsm(template, search, t_xy, start, template_mask=mask, params=LSMParams(patch=11))
     truth = t_xy + [3.0, 0.0]
     err_plain = np.linalg.norm(plain.xy - truth, axis=1)
     err_masked = np.linalg.norm(masked.xy - truth, axis=1)

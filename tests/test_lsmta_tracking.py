@@ -446,7 +446,7 @@ def _warped_pair(rng, A, c0, p0=(100.0, 100.0), gain=1.2, offset=10.0):
 
 
 def test_inverse_compositional_templates_recover_a_known_affinity_and_radiometry():
-    from lsmta.matching import lsm
+    from lsmta.matching import LSMParams, lsm
     from lsmta.matching.spline import SplineImage
     from lsmta.tracking.templates import match_templates, sample_templates
 
@@ -461,7 +461,8 @@ def test_inverse_compositional_templates_recover_a_known_affinity_and_radiometry
     assert np.abs(res.xy[0] - c0).max() < 2e-3 and np.abs(res.A[0] - A).max() < 2e-3
     # the radiometry as lsm reports it, f = r0 + r1 g: r1 = 1 / 1.2, r0 = -10 / 1.2
     assert res.params[0, 7] == pytest.approx(1 / 1.2, abs=2e-3)
-    fa = lsm(img, search, np.array([[100.0, 100.0]]), start, patch=15, tol=1e-4)
+    fa = lsm(img, search, np.array([[100.0, 100.0]]), start,
+             params=LSMParams(patch=15, tol=1e-4))
     assert np.abs(res.xy - fa.xy).max() < 1e-3 and res.sigma0[0] == pytest.approx(
         fa.sigma0[0], rel=0.05)
     # the forward path alone (inverse=False) reaches the same match

@@ -1,6 +1,8 @@
 """Geometrically constrained matching (mpgc), constrained growth, rectified pairs, and the
 inverse compositional / partial-patch options of lsm, against generated truth."""
 
+from dataclasses import fields
+
 import numpy as np
 import pytest
 from conftest import smaller
@@ -8,7 +10,11 @@ from conftest import smaller
 from lsmta.data import load_cones
 from lsmta.matching import (
     CameraGeometry,
+    DisparityParams,
+    GrowParams,
+    LSMParams,
     LSMThresholds,
+    MeasureSurfaceParams,
     RectifiedPair,
     Status,
     find_disparity_seeds,
@@ -78,7 +84,8 @@ def test_rectified_pair_recovers_a_disparity_ramp(rectified, rng):
     d_true = ramp(rectified, pts)
     t0 = d_true + rng.uniform(-1, 1, len(pts))
     for method in ("forward", "inverse"):
-        res = mpgc(rectified.template, rectified.search, pts, t0, RectifiedPair(), method=method)
+        res = mpgc(rectified.template, rectified.search, pts, t0, RectifiedPair(),
+                   params=LSMParams(method=method))
         assert res.ok.mean() > 0.98
         err = (res.t - d_true)[res.ok]
         assert np.median(np.abs(err)) < 0.02 and np.abs(err).max() < 0.15
@@ -93,7 +100,7 @@ def test_row_affine_keeps_rows_and_matches_the_ramp(rectified, rng):
     pts = np.rint(rng.uniform(25, [215, 175], (300, 2)))
     d_true = ramp(rectified, pts)
     res = mpgc(rectified.template, rectified.search, pts, d_true + 0.7, RectifiedPair(),
-               geometry="row-affine", method="inverse")
+               params=LSMParams(geometry="row-affine", method="inverse"))
     assert res.ok.mean() > 0.98
     assert np.allclose(res.A[0][res.ok][:, 1], [0.0, 1.0], atol=1e-12)
     assert np.median(np.abs(res.t - d_true)[res.ok]) < 0.02
@@ -108,7 +115,7 @@ def test_constrained_triplet_against_the_plane(plane_triplet, rng):
     t_true = geometry.parameter(nodes, true_xy)
     start = true_xy + rng.uniform(-0.8, 0.8, true_xy.shape)
     res = mpgc(images[1], [images[0], images[2]], nodes, geometry.parameter(nodes, start),
-               geometry, patch=11)
+               geometry, params=LSMParams(patch=11))
     assert res.ok.mean() > 0.95
     err = np.linalg.norm(res.points - truth, axis=1)[res.ok]
     mm_per_px = 2500.0 / cams[1].f
@@ -120,7 +127,8 @@ def test_constrained_triplet_against_the_plane(plane_triplet, rng):
     z = np.abs(res.t - t_true)[res.ok] / res.sigma_t[res.ok]
     assert 0.6 < np.sqrt(np.mean(z**2)) < 1.5
     # matching the two search images independently and intersecting is not better
-    indep = [lsm(images[1], images[k], nodes, start[:, j], patch=11) for j, k in ((0, 0), (1, 2))]
+    indep = [lsm(images[1], images[k], nodes, start[:, j], params=LSMParams(patch=11))
+             for j, k in ((0, 0), (1, 2))]
     both = indep[0].ok & indep[1].ok & res.ok
     X = triangulate(cams, np.stack([indep[0].xy, nodes, indep[1].xy])).points
     e_indep = np.linalg.norm(X - truth, axis=1)[both]
@@ -136,7 +144,8 @@ def test_joint_growth_over_the_plane(plane_triplet):
     th = LSMThresholds(max_displacement=4.0, max_sigma_xy=0.2, scale_range=(0.5, 2.0),
                        max_shear=0.5)
     grown = grow_joint(images[1], [images[0], images[2]], seeds_t, seeds_s,
-                       CameraGeometry(cams, template=1), step=4, patch=9, thresholds=th)
+                       CameraGeometry(cams, template=1),
+                       params=GrowParams(step=4, patch=9, thresholds=th))
     assert len(grown) == 2 and np.array_equal(grown[0].node_index, grown[1].node_index)
     assert len(grown[0]) > 500 and np.array_equal(grown[0].t, grown[1].t)
     X = CameraGeometry(cams, template=1).points(grown[0].template_xy, grown[0].t)
@@ -145,7 +154,7 @@ def test_joint_growth_over_the_plane(plane_triplet):
 
 
 def test_measure_surface_joint_over_the_plane(plane_triplet):
-    """measure_surface(joint=True): grown jointly, filtered with the joint re-match; the rays
+    """measure_surface with joint=True: grown jointly, filtered with the joint re-match; the rays
     of every tuple meet (positions on the epipolar curves) and the points lie on the plane."""
     cams, images, intersect = plane_triplet
     seeds_t = np.array([[170.0, 130.0], [210.0, 170.0]])
@@ -153,7 +162,8 @@ def test_measure_surface_joint_over_the_plane(plane_triplet):
     seeds = np.stack([cams[k].project(truth) + (0.5 if k != 1 else 0.0) for k in range(3)])
     th = LSMThresholds(max_displacement=4.0, max_sigma_xy=0.2, scale_range=(0.5, 2.0),
                        max_shear=0.5)
-    res = measure_surface(images, cams, seeds, step=4, patch=9, thresholds=th, joint=True)
+    res = measure_surface(images, cams, seeds, params=MeasureSurfaceParams(
+        grow=GrowParams(step=4, patch=9, thresholds=th), joint=True))
     kept = res.neighbourhood_ok & res.intersection.valid
     assert kept.sum() > 500 and kept.mean() > 0.9
     assert np.nanmax(res.intersection.reprojection_error[:, kept]) < 0.01
@@ -167,7 +177,7 @@ def test_constrained_growth_and_measure_disparity_on_the_ramp(rectified):
     assert len(seeds.score) >= 5
     assert np.abs(seeds.disparity - ramp(rectified, seeds.xy[0])).max() < 0.5
     res = grow_matches(rectified.template, rectified.search, seeds.xy[0], seeds.xy[1],
-                       constraint=RectifiedPair(), patch=9)
+                       constraint=RectifiedPair(), params=GrowParams(patch=9))
     assert len(res) > 1500 and np.all(np.isfinite(res.t))
     assert np.median(np.abs(res.t - ramp(rectified, res.template_xy))) < 0.03
     out = measure_disparity(rectified.template, rectified.search, disparity_range=(0, 16))
@@ -184,7 +194,8 @@ def test_partial_patches_match_at_the_border(rectified):
     truth = rectified.true_xy(pts)
     plain = lsm(rectified.template, rectified.search, pts, truth + 0.3)
     assert np.all(plain.status == Status.OUTSIDE)
-    part = lsm(rectified.template, rectified.search, pts, truth + 0.3, partial=True)
+    part = lsm(rectified.template, rectified.search, pts, truth + 0.3,
+               params=LSMParams(partial=True))
     assert part.ok.all() and np.all(part.weight_share < 0.9)
     assert np.abs(part.xy - truth).max() < 0.1
 
@@ -195,7 +206,8 @@ def test_inverse_compositional_near_the_bound(rng):
     sigma = 2.0
     pair = warped_pair(rng=rng, A=[[1.04, 0.06], [-0.05, 0.97]], c=(3.0, 2.0), r0=5.0, r1=0.9,
                        noise_sigma=sigma, quantise=False)
-    trial = run_trial(pair, rng=rng, n_points=600, start_error=0.5, method="inverse")
+    trial = run_trial(pair, rng=rng, n_points=600, start_error=0.5,
+                      params=LSMParams(method="inverse"))
     ok = trial.lsm_result.ok
     assert ok.mean() > 0.97
     e = np.linalg.norm(trial.errors["lsm"], axis=1)[ok]
@@ -209,8 +221,8 @@ def test_support_weights_reduce_the_pull_of_another_surface(rng):
     # background nodes 3 px left of the foreground edge (x = 100): their patch straddles it
     pts = np.stack([np.full(40, 97.0), np.arange(30.0, 70.0)], axis=1)
     start = pts + [3.0, 0.0]
-    plain = lsm(template, search, pts, start, patch=13)
-    weighted = lsm(template, search, pts, start, patch=13, support=15.0)
+    plain = lsm(template, search, pts, start, params=LSMParams(patch=13))
+    weighted = lsm(template, search, pts, start, params=LSMParams(patch=13, support=15.0))
     e_plain = np.abs(plain.xy[:, 0] - pts[:, 0] - 3.0)[plain.ok]
     e_weighted = np.abs(weighted.xy[:, 0] - pts[:, 0] - 3.0)[weighted.ok]
     assert weighted.ok.mean() > plain.ok.mean()
@@ -233,8 +245,9 @@ def test_mpgc_bad_input(rectified, kwargs, match):
                 template_xy=np.array([[50.0, 50.0], [60.0, 60.0]]), t0=np.array([5.0, 5.0]),
                 constraint=RectifiedPair())
     args.update(kwargs)
+    settings = {k: args.pop(k) for k in [f.name for f in fields(LSMParams)] if k in args}
     with pytest.raises(ValueError, match=match):
-        mpgc(**args)
+        mpgc(params=LSMParams(**settings), **args)
 
 
 def test_camera_geometry_and_disparity_bad_input(rectified):
@@ -257,8 +270,9 @@ def test_inputs_not_modified(rectified):
     t0 = np.array([5.0, 6.0])
     A0 = np.tile(np.eye(2), (2, 1, 1))
     keep = (pts.copy(), t0.copy(), A0.copy())
-    mpgc(f, g, pts, t0, RectifiedPair(), initial_A=A0, method="inverse", partial=True)
-    measure_disparity(f, g, disparity_range=(0, 16), n_seeds=5)
+    mpgc(f, g, pts, t0, RectifiedPair(), initial_A=A0,
+         params=LSMParams(method="inverse", partial=True))
+    measure_disparity(f, g, disparity_range=(0, 16), params=DisparityParams(n_seeds=5))
     assert np.array_equal(f, rectified.template) and np.array_equal(g, rectified.search)
     assert all(np.array_equal(a, b) for a, b in zip(keep, (pts, t0, A0)))
 

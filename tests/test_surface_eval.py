@@ -9,7 +9,14 @@ from lsmta.evaluation.surface import (
     score_surface,
     seeds_from_truth,
 )
-from lsmta.matching import LSMThresholds, find_seeds, measure_surface, peers
+from lsmta.matching import (
+    GrowParams,
+    LSMThresholds,
+    MeasureSurfaceParams,
+    find_seeds,
+    measure_surface,
+    peers,
+)
 from lsmta.synth import Renderer, Scene, make_body, triplet_rig, walk
 
 
@@ -33,8 +40,8 @@ def test_seeds_scores_and_sgbm_on_a_small_triplet(triplet):
     assert truth["visible"].sum() > 100 and not truth["visible"][~truth["on_body"]].any()
     th = LSMThresholds(max_displacement=3.0, max_sigma_xy=0.3, scale_range=(0.5, 2.0),
                        max_shear=0.5)
-    res = measure_surface(frame.images, small, seeds, step=3, patch=9, thresholds=th,
-                          voxel=25.0)
+    res = measure_surface(frame.images, small, seeds, params=MeasureSurfaceParams(
+        grow=GrowParams(step=3, patch=9, thresholds=th), voxel=25.0))
     score = score_surface(res, truth)
     assert 0.6 < score["density"] <= 1.0
     assert score["filtered"]["median_mm"] < 4.0

@@ -38,8 +38,15 @@ from scipy.sparse import coo_matrix
 from .._validate import as_array, as_int, as_scalar, freeze
 from ..camera import Camera
 from ..triangulation import triangulate
-from .bundle import (_LOSS_DERIVATIVE, INTRINSIC_NAMES, PARAMETER_NAMES, _levenberg_marquardt,
-                     camera_to_params, params_to_camera, project_params)
+from .bundle import (
+    _LOSS_DERIVATIVE,
+    INTRINSIC_NAMES,
+    PARAMETER_NAMES,
+    _levenberg_marquardt,
+    camera_to_params,
+    params_to_camera,
+    project_params,
+)
 
 _LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 

@@ -29,7 +29,7 @@ from ..body.arm import base_poses
 from ..calibration import track_targets
 from ..calibration.labels import consistent_bar_labels
 from ..camera import scaled_camera
-from ..matching import LSMThresholds, measure_surface
+from ..matching import GrowParams, LSMThresholds, MeasureSurfaceParams, measure_surface
 from ..rigid import fit_rigid
 from ..synth import Scene, arm_wave, make_body, triplet_rig
 from ..synth.body import Motion
@@ -301,8 +301,9 @@ def truth_fed_surface(session: ArmWaveSession, frame: int, *, step: int = 4, pat
                              per_part=per_part)
     thresholds = LSMThresholds(max_sigma0=2.0 * session.noise_sigma, max_displacement=step,
                                max_sigma_xy=0.2, scale_range=(0.5, 2.0), max_shear=0.5)
-    return measure_surface(session.videos[:, frame], session.cameras, seeds, step=step,
-                           patch=patch, retry_patch=retry_patch, thresholds=thresholds)
+    grow = GrowParams(step=step, patch=patch, retry_patch=retry_patch, thresholds=thresholds)
+    return measure_surface(session.videos[:, frame], session.cameras, seeds,
+                           params=MeasureSurfaceParams(grow=grow))
 
 
 # ------------------------------------------------------------------ tracking

@@ -9,27 +9,27 @@ Notebook 02 and ``experiments/lsm_benchmark.py`` are built from these trials.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .._validate import as_rng
-from ..matching import lsm, peers
+from ..matching import LSMParams, lsm, peers
 from ..matching.bounds import cramer_rao_xy, patch_offsets
 from ..synth.patches import WarpedPair
 
-#: method name -> (callable(template, search, template_xy, search_xy, patch) -> result)
+#: method name -> (callable(template, search, template_xy, search_xy, params) -> result);
+#: LSM runs with the trial's :class:`~lsmta.matching.LSMParams`, the peers with its patch
 METHODS = {
-    "lsm": lambda f, g, t, s, patch, **kw: lsm(f, g, t, s, patch=patch, **kw),
-    "lsm_inverse": lambda f, g, t, s, patch, **kw: lsm(f, g, t, s, patch=patch, method="inverse",
-                                                       **kw),
-    "ecc_affine": lambda f, g, t, s, patch, **kw: peers.ecc(f, g, t, s, patch=patch),
-    "ecc_translation": lambda f, g, t, s, patch, **kw: peers.ecc(f, g, t, s, patch=patch,
-                                                                 motion="translation"),
-    "klt": lambda f, g, t, s, patch, **kw: peers.klt(f, g, t, s, patch=patch),
-    "phase_correlation": lambda f, g, t, s, patch, **kw: peers.phase_correlation(f, g, t, s,
-                                                                                 patch=patch),
-    "ilk": lambda f, g, t, s, patch, **kw: peers.ilk(f, g, t, s, patch=patch),
+    "lsm": lambda f, g, t, s, p: lsm(f, g, t, s, params=p),
+    "lsm_inverse": lambda f, g, t, s, p: lsm(f, g, t, s, params=replace(p, method="inverse")),
+    "ecc_affine": lambda f, g, t, s, p: peers.ecc(f, g, t, s, patch=p.patch),
+    "ecc_translation": lambda f, g, t, s, p: peers.ecc(f, g, t, s, patch=p.patch,
+                                                       motion="translation"),
+    "klt": lambda f, g, t, s, p: peers.klt(f, g, t, s, patch=p.patch),
+    "phase_correlation": lambda f, g, t, s, p: peers.phase_correlation(f, g, t, s,
+                                                                       patch=p.patch),
+    "ilk": lambda f, g, t, s, p: peers.ilk(f, g, t, s, patch=p.patch),
 }
 
 
@@ -111,10 +111,9 @@ def unit_bound(pair: WarpedPair, points, *, patch: int, geometry: str, radiometr
 
 
 def run_trial(pair: WarpedPair, *, rng: np.random.Generator | int | None = None, methods=("lsm",),
-              n_points: int = 200, patch: int = 13, start_error: float = 0.5,
-              start_distance: float | None = None, geometry: str = "affine",
-              radiometry: str = "linear", margin: int = 30, bound: bool = True, points=None,
-              bound_unit=None, **lsm_kwargs) -> MatchTrial:
+              n_points: int = 200, start_error: float = 0.5,
+              start_distance: float | None = None, margin: int = 30, bound: bool = True,
+              points=None, bound_unit=None, params: LSMParams | None = None) -> MatchTrial:
     """Run ``methods`` on ``n_points`` whole-pixel patch centres of ``pair``.
 
     Parameters
@@ -124,17 +123,18 @@ def run_trial(pair: WarpedPair, *, rng: np.random.Generator | int | None = None,
         Draws the points and the starts.
     methods : sequence of str
         Keys of :data:`METHODS`.
-    geometry, radiometry : str
-        LSM's parameter set (and the bound's).
     bound : bool
         Compute the Cramér-Rao covariance (needs the noise-free images' gradients).
     points : (N, 2) array, optional
         Patch centres to use instead of drawing ``n_points``.
     bound_unit : (N, 2, 2) array, optional
         :func:`unit_bound` for these points, to save recomputing it.
-    **lsm_kwargs
-        Extra arguments for :func:`~lsmta.matching.lsm`.
+    params : LSMParams, optional
+        LSM's settings (default :class:`~lsmta.matching.LSMParams`); its ``patch`` serves
+        the peers too, and its ``patch``, ``geometry`` and ``radiometry`` the bound.
     """
+    p = LSMParams() if params is None else params
+    patch, geometry, radiometry = p.patch, p.geometry, p.radiometry
     rng = as_rng(rng)
     if points is None:
         pts = draw_points(pair.template.shape, n_points, margin=margin, rng=rng)
@@ -145,9 +145,8 @@ def run_trial(pair: WarpedPair, *, rng: np.random.Generator | int | None = None,
     trial = MatchTrial(truth=truth, start=start)
     for name in methods:
         ours = name.startswith("lsm")
-        kw = dict(geometry=geometry, radiometry=radiometry, **lsm_kwargs) if ours else {}
         t0 = time.perf_counter()
-        res = METHODS[name](pair.template, pair.search, pts, start, patch, **kw)
+        res = METHODS[name](pair.template, pair.search, pts, start, p)
         trial.seconds[name] = time.perf_counter() - t0
         trial.errors[name] = np.where(res.ok[:, None], res.xy - truth, np.nan)
         if ours:
@@ -178,9 +177,9 @@ def noise_sweep(pair: WarpedPair, sigmas, *, rng: np.random.Generator | int | No
             "failure_rate")
     out = {k: [] for k in keys}
     for sigma in sigmas:
-        trial = run_trial(pair.noisy(sigma, rng=rng), rng=rng, patch=patch, geometry=geometry,
-                          radiometry=radiometry, points=pts, bound_unit=unit,
-                          start_error=start_error)
+        trial = run_trial(pair.noisy(sigma, rng=rng), rng=rng, points=pts, bound_unit=unit,
+                          start_error=start_error, params=LSMParams(
+                              patch=patch, geometry=geometry, radiometry=radiometry))
         summ = trial.summary("lsm")
         out["median_px"].append(summ["median_px"])
         out["failure_rate"].append(summ["failure_rate"])
@@ -219,8 +218,8 @@ def success_rate(pair: WarpedPair, *, rng: np.random.Generator | int | None = No
     """Share of points where LSM converges to within ``tol_px`` of the truth when started
     ``start_distance`` pixels away (random direction): the pull-in range's test."""
     rng = as_rng(rng)
-    trial = run_trial(pair, rng=rng, n_points=n_points, patch=patch, geometry=geometry,
-                      radiometry=radiometry, start_distance=start_distance, bound=False,
-                      margin=margin)
+    trial = run_trial(pair, rng=rng, n_points=n_points, start_distance=start_distance,
+                      bound=False, margin=margin, params=LSMParams(
+                          patch=patch, geometry=geometry, radiometry=radiometry))
     e = np.linalg.norm(trial.errors["lsm"], axis=1)
     return float(np.mean(e <= tol_px))

@@ -2,42 +2,50 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from .._validate import as_rng
 from ..matching.masks import backdrop_mask
-from ..matching.surface import SurfaceResult
+from ..matching.surface import MeasureSurfaceParams, SurfaceResult
 from ..synth.render import RenderedFrame, Scene, project_surface_points
 
 
-def beyond_the_paper(noise_sigma: float, template_image, *, backdrop: float = 12.0) -> dict:
-    """Options of :func:`~lsmta.matching.measure_surface` for the "beyond the paper" variant
-    of notebook 03 and ``experiments/surface_benchmark.py``: a robust retry (Tukey cut-off
+def beyond_the_paper(noise_sigma: float, template_image, params: MeasureSurfaceParams, *,
+                     backdrop: float = 12.0) -> dict:
+    """Keywords of :func:`~lsmta.matching.measure_surface` (``params``, ``template_mask``)
+    for the "beyond the paper" variant of notebook 03 and
+    ``experiments/surface_benchmark.py``: ``params`` with a robust retry (Tukey cut-off
     4.7 sqrt(2) ``noise_sigma`` grey levels, 9 x 9 patch), shifted windows (3 px), the median
-    neighbourhood filter with an affine limit of 0.3, the geometric check at 0.2 px and a
+    neighbourhood filter with an affine limit of 0.3 and the geometric check at 0.2 px, and a
     template mask from :func:`~lsmta.matching.backdrop_mask` at grey level ``backdrop``.
     """
-    return dict(robust=4.7 * np.sqrt(2.0) * noise_sigma, robust_patch=9, shift=3,
-                neighbourhood_statistic="median", max_affine=0.3, max_reprojection=0.2,
+    grow = replace(params.grow, robust=4.7 * np.sqrt(2.0) * noise_sigma, robust_patch=9,
+                   shift=3)
+    return dict(params=replace(params, grow=grow, neighbourhood_statistic="median",
+                               max_affine=0.3, max_reprojection=0.2),
                 template_mask=backdrop_mask(template_image, backdrop))
 
 
-def joint_beyond(noise_sigma: float, template_image, *, backdrop: float = 12.0,
-                 border: int = 7) -> dict:
-    """Options of :func:`~lsmta.matching.measure_surface` for the joint variant of notebook 03
-    and ``experiments/surface_benchmark.py``: geometrically constrained matching of the
-    triplet (``joint=True``), growth only at least ``border`` px inside the backdrop mask
-    (no windows across the silhouette), the robust retry, the template mask and the median
-    neighbourhood filter of :func:`beyond_the_paper` with a position limit of 0.4 px. No
+def joint_beyond(noise_sigma: float, template_image, params: MeasureSurfaceParams, *,
+                 backdrop: float = 12.0, border: int = 7) -> dict:
+    """Keywords of :func:`~lsmta.matching.measure_surface` (``params``, ``mask``,
+    ``template_mask``) for the joint variant of notebook 03 and
+    ``experiments/surface_benchmark.py``: ``params`` with geometrically constrained matching
+    of the triplet (``joint=True``), the robust retry and the median neighbourhood filter of
+    :func:`beyond_the_paper` with a position limit of 0.4 px; growth only at least ``border``
+    px inside the backdrop mask (no windows across the silhouette), and its template mask. No
     shifted windows (their carried-back positions leave the epipolar curves) and no
     geometric check (jointly matched rays meet by construction).
     """
     mask = backdrop_mask(template_image, backdrop)
-    return dict(joint=True, mask=ndimage.binary_erosion(mask, iterations=border),
-                robust=4.7 * np.sqrt(2.0) * noise_sigma, robust_patch=9, template_mask=mask,
-                neighbourhood_statistic="median", max_affine=0.3, max_position=0.4)
+    grow = replace(params.grow, robust=4.7 * np.sqrt(2.0) * noise_sigma, robust_patch=9)
+    return dict(params=replace(params, grow=grow, joint=True, neighbourhood_statistic="median",
+                               max_affine=0.3, max_position=0.4),
+                mask=ndimage.binary_erosion(mask, iterations=border), template_mask=mask)
 
 
 def seeds_from_truth(scene: Scene, cameras, frame: int, *,

@@ -10,25 +10,40 @@ frame into 3-D surface points; ``backdrop_mask`` finds an object in front of a d
 matches one template in all search images jointly under the epipolar condition (Gruen &
 Baltsavias 1988; ``RectifiedPair``, ``CameraGeometry``), ``grow_joint`` grows that way, and
 ``measure_disparity`` gives the dense disparity of a rectified pair.
+
+Every matcher takes its settings as one frozen dataclass, ``params=``: ``LSMParams`` (``lsm``,
+``lsm_multi``, ``mpgc``), ``GrowParams`` (``grow_matches``, ``grow_joint``),
+``MeasureSurfaceParams`` (``measure_surface``, holding a ``GrowParams``) and
+``DisparityParams`` (``measure_disparity``).
 """
 
 from .correlation import CorrelationResult, CorrelationStatus, correlation_search
-from .disparity import DisparityResult, measure_disparity
+from .disparity import DisparityParams, DisparityResult, measure_disparity
 from .filters import NeighbourhoodCheck, neighbourhood_filter
-from .grow import GrowResult, grow_joint, grow_matches
-from .lsm import GEOMETRIES, PARAM_NAMES, RADIOMETRIES, LSMResult, LSMThresholds, Status, lsm
+from .grow import GrowParams, GrowResult, grow_joint, grow_matches
+from .lsm import (
+    GEOMETRIES,
+    PARAM_NAMES,
+    RADIOMETRIES,
+    LSMParams,
+    LSMResult,
+    LSMThresholds,
+    Status,
+    lsm,
+)
 from .masks import backdrop_mask
 from .mpgc import CameraGeometry, ConstrainedResult, RectifiedPair, mpgc
 from .multi import lsm_multi
 from .seeds import Seeds, find_disparity_seeds, find_seeds
 from .spline import SplineImage
-from .surface import SurfaceResult, enhance_contrast, measure_surface
+from .surface import MeasureSurfaceParams, SurfaceResult, enhance_contrast, measure_surface
 
 __all__ = [
     "GEOMETRIES", "PARAM_NAMES", "RADIOMETRIES", "CameraGeometry", "ConstrainedResult",
-    "CorrelationResult", "CorrelationStatus", "DisparityResult", "GrowResult", "LSMResult",
-    "LSMThresholds", "NeighbourhoodCheck", "RectifiedPair", "Seeds", "SplineImage", "Status",
-    "SurfaceResult", "backdrop_mask", "correlation_search", "enhance_contrast",
+    "CorrelationResult", "CorrelationStatus", "DisparityParams", "DisparityResult",
+    "GrowParams", "GrowResult", "LSMParams", "LSMResult", "LSMThresholds",
+    "MeasureSurfaceParams", "NeighbourhoodCheck", "RectifiedPair", "Seeds", "SplineImage",
+    "Status", "SurfaceResult", "backdrop_mask", "correlation_search", "enhance_contrast",
     "find_disparity_seeds", "find_seeds", "grow_joint", "grow_matches", "lsm", "lsm_multi",
     "measure_disparity", "measure_surface", "mpgc", "neighbourhood_filter",
 ]

@@ -404,57 +404,58 @@ def _covariance_factor(N, n, fixed, Q, M, W):
                 Q[a, b] = 0.0
 
 
-def solve(coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy, U,
-          geometry, radiometry, inverse, constrained, start_radiometry,
-          c, A, r0, r1, t, base, direction, quad, t_exp,
-          order, active, settings,
-          status, iterations, fixed, Q_out, ee_last, sw_last, ee_img):
+def solve(images, points, spec, unknowns, out):
     """Match every point ``i`` with ``active[i]``, in the sequence ``order``; see the
     module docstring.
 
-    Parameters (arrays are changed in place where marked *in/out* or *out*)
+    The inputs come packed in five tuples by role; the compiled chunks unpack them. Arrays
+    marked *in/out* or *out* are changed in place.
+
+    Parameters
     ----------
-    coef : (K, Hp, Wp) padded spline coefficients of the K search images (``pad``);
-    height, width : search image size.
-    t_coef, t_img : the template's padded coefficients and grey values;
-    t_gx, t_gy : the template spline's gradient at the pixel centres (``(0, 0)`` arrays in
-    the forward mode); t_mask : (H, W) 0/1 template pixel weights, or a ``(0, 0)`` array.
-    t_xy : (n, 2) patch centres in the template; U : (P, 2) patch offsets.
-    geometry : 0 shift, 1 similarity, 2 affine, 3 row-affine (only A's first row moves);
-    radiometry : 0 none, 1 offset, 2 linear.
-    inverse : inverse compositional (else forward additive); constrained : shared ``t``.
-    start_radiometry : start r0, r1 from the patches' mean and spread.
-    c (n, K, 2), A (n, K, 2, 2), r0 (n, K), r1 (n, K), t (n,) : *in/out* start and solution
-    (forward convention ``f = r0 + r1 g``).
-    base, direction, quad : (n, K, 2); t_exp : (n,) the constraint curves (constrained).
-    order : (n,) int, the points in an order that keeps neighbours together (cache reuse).
-    active : (n,) bool, points to match.
-    settings : float array ``[max_iter, tol, max_disp, max_vif, tukey_c, ramp, support,
-    partial]``:
-    iteration limit, convergence (px), divergence distance (px), the adaptive control's
-    variance inflation limit, the Tukey cut-off (0: least squares) and its ramp (cut-off
-    ``(1 + ramp - it) tukey_c`` in the first iterations), and the support weights' grey-level
-    scale (0: none; else template pixels weigh ``exp(-|f - f_centre| / support)``), and
-    whether patches may reach over the image borders (1: pixels outside either image get
-    zero weight).
-    status, iterations : (n,) *out*; fixed : (n, k) bool *out* unknowns fixed by the
-    adaptive control; Q_out : (n, k, k) *out* the inverse of the joint normal matrix of the
-    last iteration over the free unknowns; ee_last, sw_last : (n,) *out* weighted squared
-    residuals and weight sum (in the units of the equations); ee_img : (n, K) *out* each
-    image's share of ee.
+    images : tuple ``(coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask)``
+        ``coef`` (K, Hp, Wp): padded spline coefficients of the K search images (padded by
+        ``pad``); ``height, width``: search image size. ``t_coef, t_img``: the template's
+        padded coefficients and grey values; ``t_gx, t_gy``: the template spline's gradient
+        at the pixel centres (``(0, 0)`` arrays in the forward mode); ``t_mask`` (H, W):
+        0/1 template pixel weights, or a ``(0, 0)`` array.
+    points : tuple ``(t_xy, U, order, active, base, direction, quad, t_exp)``
+        ``t_xy`` (n, 2): patch centres in the template; ``U`` (P, 2): patch offsets;
+        ``order`` (n,) int: the points in an order that keeps neighbours together (cache
+        reuse); ``active`` (n,) bool: points to match; ``base, direction, quad`` (n, K, 2)
+        and ``t_exp`` (n,): the constraint curves (constrained matching).
+    spec : tuple ``(geometry, radiometry, inverse, constrained, start_radiometry, settings)``
+        The model and its settings. ``geometry``: 0 shift, 1 similarity, 2 affine,
+        3 row-affine (only A's first row moves); ``radiometry``: 0 none, 1 offset, 2 linear;
+        ``inverse``: inverse compositional (else forward additive); ``constrained``: shared
+        ``t``; ``start_radiometry``: start r0, r1 from the patches' mean and spread.
+        ``settings``: float array
+        ``[max_iter, tol, max_disp, max_vif, tukey_c, ramp, support, partial]``:
+        iteration limit, convergence (px), divergence distance (px), the adaptive control's
+        variance inflation limit, the Tukey cut-off (0: least squares) and its ramp (cut-off
+        ``(1 + ramp - it) tukey_c`` in the first iterations), and the support weights'
+        grey-level scale (0: none; else template pixels weigh
+        ``exp(-|f - f_centre| / support)``), and whether patches may reach over the image
+        borders (1: pixels outside either image get zero weight).
+    unknowns : tuple ``(c, A, r0, r1, t)``
+        *in/out* start and solution: ``c`` (n, K, 2), ``A`` (n, K, 2, 2), ``r0, r1`` (n, K),
+        ``t`` (n,) (forward convention ``f = r0 + r1 g``).
+    out : tuple ``(status, iterations, fixed, Q_out, ee_last, sw_last, ee_img)``
+        *out*: ``status, iterations`` (n,); ``fixed`` (n, k) bool: unknowns fixed by the
+        adaptive control; ``Q_out`` (n, k, k): the inverse of the joint normal matrix of the
+        last iteration over the free unknowns; ``ee_last, sw_last`` (n,): weighted squared
+        residuals and weight sum (in the units of the equations); ``ee_img`` (n, K): each
+        image's share of ee.
     """
-    n = t_xy.shape[0]
-    args = (coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy, U, geometry,
-            radiometry, inverse, constrained, start_radiometry, c, A, r0, r1, t, base,
-            direction, quad, t_exp, order, active, settings, status, iterations, fixed, Q_out,
-            ee_last, sw_last, ee_img)
+    n = points[0].shape[0]
     threads = nb.config.NUMBA_NUM_THREADS      # (get_num_threads() costs 0.2 ms a call)
     if threads <= 1 or n < MIN_PARALLEL:
-        _chunk(0, 1, *args)
+        _chunk(0, 1, images, points, spec, unknowns, out)
         return
     # a few chunks per thread balance points that need more iterations than others
     n_chunks = min(4 * threads, n)
-    list(_pool(threads).map(lambda ch: _chunk(ch, n_chunks, *args), range(n_chunks)))
+    list(_pool(threads).map(lambda ch: _chunk(ch, n_chunks, images, points, spec, unknowns,
+                                              out), range(n_chunks)))
 
 
 #: fewer points than this are solved on the calling thread (a thread hand-over costs more)
@@ -471,12 +472,15 @@ def _pool(threads: int) -> ThreadPoolExecutor:
 
 
 @nb.njit(cache=True, error_model="numpy", nogil=True)
-def _chunk(ch, n_chunks, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
-           U, geometry, radiometry, inverse, constrained, start_radiometry,
-           c, A, r0, r1, t, base, direction, quad, t_exp, order, active, settings, status,
-           iterations, fixed, Q_out, ee_last, sw_last, ee_img):
+def _chunk(ch, n_chunks, images, points, spec, unknowns, out):
     """The points of chunk ``ch`` of ``n_chunks``, one after the other; they share their
-    work space (few allocations; chunks balance the threads)."""
+    work space (few allocations; chunks balance the threads). The tuples are
+    :func:`solve`'s."""
+    coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask = images
+    t_xy, U, order, active, base, direction, quad, t_exp = points
+    geometry, radiometry, inverse, constrained, start_radiometry, settings = spec
+    c, A, r0, r1, t = unknowns
+    status, iterations, fixed, Q_out, ee_last, sw_last, ee_img = out
     n = t_xy.shape[0]
     K = coef.shape[0]
     P = U.shape[0]

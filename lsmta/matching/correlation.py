@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .._validate import as_point_pairs, check_patch
+from .._validate import as_int, as_point_pairs, check_patch
 from .spline import SplineImage, check_image
 
 
@@ -70,9 +70,7 @@ def correlation_search(template, search, template_xy, predicted_xy, *, patch: in
     CorrelationResult
     """
     patch = check_patch(patch)
-    if isinstance(radius, bool) or int(radius) != radius or radius < 1:
-        raise ValueError(f"radius: expected an integer >= 1 (pixels), got {radius}")
-    radius = int(radius)
+    radius = as_int(radius, "radius", unit="pixels")
     f = check_image(template, "template")
     g = check_image(search, "search").astype(np.float32)
     t_xy, p_xy = as_point_pairs(template_xy, predicted_xy, "template_xy", "predicted_xy")

@@ -12,8 +12,9 @@ the left image. Three stages:
 3. the grid: disparities, their standard deviations and ``sigma0`` as ``(rows, cols)``
    arrays; matches outside ``disparity_range`` are dropped.
 
-The defaults were chosen on Middlebury "Cones" (notebook 16), the only real pair with
-ground truth in the project, so its numbers are not an independent test of them:
+The defaults (:class:`DisparityParams`) were chosen on Middlebury "Cones" (notebook 16), the
+only real pair with ground truth in the project, so its numbers are not an independent test
+of them:
 
 * a 9 x 9 patch, retried at 5 x 5 (closer to depth edges);
 * ``geometry="row-affine"``: between rectified images every patch row stays a row, so only
@@ -27,12 +28,13 @@ ground truth in the project, so its numbers are not an independent test of them:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .grow import GrowResult, grow_matches
-from .lsm import LSMThresholds
+from .._validate import as_int
+from .grow import GrowParams, GrowResult, grow_matches
+from .lsm import LSMThresholds, _params
 from .mpgc import RectifiedPair
 from .seeds import Seeds, find_disparity_seeds
 from .spline import check_image
@@ -72,11 +74,49 @@ class DisparityResult:
         return float(np.isfinite(self.disparity).mean())
 
 
-def measure_disparity(left, right, *, disparity_range, step: int = 4, patch: int = 9,
-                      retry_patch=(5,), geometry: str = "row-affine", method: str = "inverse",
-                      max_iter: int = 15, partial: bool = True,
-                      thresholds: LSMThresholds | None = None, n_seeds: int = 30,
-                      seeds: Seeds | None = None, **grow_options) -> DisparityResult:
+#: the growth's defaults for a rectified pair (see the module docstring)
+_GROW = GrowParams(step=4, patch=9, retry_patch=(5,), geometry="row-affine", method="inverse",
+                   max_iter=15, partial=True)
+
+
+@dataclass(frozen=True)
+class DisparityParams:
+    """Settings of :func:`measure_disparity`. Built by keyword; every field is checked here,
+    and the error names it.
+
+    Attributes
+    ----------
+    grow : GrowParams
+        The constrained growth (:func:`~lsmta.matching.grow.grow_matches`). Default: step 4,
+        patch 9, retry patch 5, ``geometry="row-affine"``, ``method="inverse"``,
+        ``max_iter=15``, ``partial=True`` (see the module docstring); vary it with
+        ``dataclasses.replace(DisparityParams().grow, max_iter=10)``. Its ``thresholds``
+        default here (None) to ``max_displacement = step``, ``max_sigma_xy = 0.2``,
+        ``scale_range = (0.5, 2)``, ``max_shear = 0.5``.
+    n_seeds : int
+        Seeds to look for (:func:`~lsmta.matching.seeds.find_disparity_seeds`).
+    """
+
+    grow: GrowParams = _GROW
+    n_seeds: int = 30
+
+    def __post_init__(self):
+        if not isinstance(self.grow, GrowParams):
+            raise TypeError(f"grow: expected a GrowParams, got {type(self.grow).__name__}")
+        object.__setattr__(self, "n_seeds", as_int(self.n_seeds, "n_seeds"))
+
+    def grow_params(self) -> GrowParams:
+        """``grow`` with its thresholds: given, or the defaults above at its ``step``."""
+        if self.grow.thresholds is not None:
+            return self.grow
+        return replace(self.grow, thresholds=LSMThresholds(
+            max_displacement=float(self.grow.step), max_sigma_xy=0.2, scale_range=(0.5, 2.0),
+            max_shear=0.5))
+
+
+def measure_disparity(left, right, *, disparity_range, seeds: Seeds | None = None, mask=None,
+                      template_mask=None,
+                      params: DisparityParams | None = None) -> DisparityResult:
     """Dense disparities of a rectified pair by constrained region growing.
 
     Parameters
@@ -86,23 +126,19 @@ def measure_disparity(left, right, *, disparity_range, step: int = 4, patch: int
     disparity_range : (int, int)
         Smallest and largest disparity, pixels: where the seeds are searched, and matches
         outside it are dropped.
-    step, patch, retry_patch, geometry, method, max_iter, partial
-        The growth (:func:`~lsmta.matching.grow.grow_matches`); see the module docstring.
-    thresholds : LSMThresholds, optional
-        Default: ``max_displacement = step``, ``max_sigma_xy = 0.2``, ``scale_range =
-        (0.5, 2)``, ``max_shear = 0.5``.
-    n_seeds : int
-        Seeds to look for (:func:`~lsmta.matching.seeds.find_disparity_seeds`).
     seeds : Seeds, optional
         Seeds to start from instead (``xy`` (2, S, 2): left and right positions).
-    **grow_options
-        Further options of :func:`~lsmta.matching.grow.grow_matches` (``robust``,
-        ``support``, ``reach``, ...).
+    mask, template_mask : (H, W) bool arrays, optional
+        Where in the left image to grow, and its pixels on the object (see
+        :func:`~lsmta.matching.grow.grow_matches`).
+    params : DisparityParams, optional
+        The growth and the number of seeds (default :class:`DisparityParams`).
 
     Returns
     -------
     DisparityResult
     """
+    p = _params(params, DisparityParams)
     f = check_image(left, "left")
     g = check_image(right, "right")
     if g.shape != f.shape:
@@ -112,20 +148,16 @@ def measure_disparity(left, right, *, disparity_range, step: int = 4, patch: int
         raise ValueError(f"disparity_range: expected 0 <= smallest < largest (pixels), got "
                          f"{disparity_range}")
     if seeds is None:
-        seeds = find_disparity_seeds(f, g, disparity_range=disparity_range, n_seeds=n_seeds)
+        seeds = find_disparity_seeds(f, g, disparity_range=disparity_range, n_seeds=p.n_seeds)
     if seeds.xy.shape[1] == 0:
         raise ValueError("seeds: none found; give seeds or widen disparity_range")
-    if thresholds is None:
-        thresholds = LSMThresholds(max_displacement=float(step), max_sigma_xy=0.2,
-                                   scale_range=(0.5, 2.0), max_shear=0.5)
-    grown = grow_matches(f, g, seeds.xy[0], seeds.xy[1], step=step, patch=patch,
-                         retry_patch=retry_patch, geometry=geometry, method=method,
-                         max_iter=max_iter, partial=partial, thresholds=thresholds,
-                         constraint=RectifiedPair(), **grow_options)
+    grow = p.grow_params()
+    grown = grow_matches(f, g, seeds.xy[0], seeds.xy[1], mask=mask, template_mask=template_mask,
+                         constraint=RectifiedPair(), params=grow)
     grid = [np.full(grown.grid_shape, np.nan) for _ in range(3)]
     keep = (grown.t >= lo) & (grown.t <= hi)
     r, c = grown.node_index[keep].T
     for out, values in zip(grid, (grown.t, grown.sigma_t, grown.sigma0)):
         out[r, c] = values[keep]
-    return DisparityResult(disparity=grid[0], sigma=grid[1], sigma0=grid[2], step=step,
+    return DisparityResult(disparity=grid[0], sigma=grid[1], sigma0=grid[2], step=grow.step,
                            seeds=seeds, grown=grown)

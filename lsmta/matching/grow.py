@@ -25,22 +25,22 @@ a free 2-D shift — a disparity for a rectified pair, a depth for calibrated ca
 :func:`grow_joint` grows into several search images at once, each node matched in all of
 them jointly (Gruen & Baltsavias 1988).
 
-The driver reads as its stages: check the arguments (``_Options``), lay out the node grid
-(``_grid``), match the seeds and their first nodes (``_start_from_seeds``), grow inside the
-cells and then across them (``_grow``), and freeze the result (``_results``); the state of
-the nodes lives in ``_State`` and every matching attempt goes through ``_Matcher``.
+The settings are a :class:`GrowParams`. The driver reads as its stages: turn the settings
+into the LSM settings of every attempt (``_Options``), lay out the node grid (``_grid``),
+match the seeds and their first nodes (``_start_from_seeds``), grow inside the cells and then
+across them (``_grow``), and freeze the result (``_results``); the state of the nodes lives in
+``_State`` and every matching attempt goes through ``_Matcher``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._validate import as_array, check_patch
-from .lsm import METHODS as LSM_METHODS
-from .lsm import LSMThresholds, Status, _check_robust, lsm
+from .._validate import as_array, as_int, check_patch
+from .lsm import LSMParams, LSMThresholds, Status, _check_model, _params, _positive, lsm
 from .mpgc import _check_constraint, mpgc
 from .spline import SplineImage
 
@@ -122,38 +122,25 @@ def voronoi_cells(seeds_xy: np.ndarray, nodes_xy: np.ndarray) -> np.ndarray:
     return cKDTree(seeds_xy).query(nodes_xy)[1]
 
 
-def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 4,
-                 patch: int = 13, retry_patch: int | None = None,
-                 thresholds: LSMThresholds | None = None, mask=None,
-                 geometry: str = "affine", radiometry: str = "linear", max_attempts: int = 3,
-                 min_texture: float = 2.0, close_holes: bool = True,
-                 shift: int = 0, robust: float | None = None,
-                 robust_patch: int | None = None, template_mask=None,
-                 method: str = "forward", support: float | None = None,
-                 partial: bool = False, max_iter: int | None = None, tol: float = 1e-4,
-                 reach: bool = False, constraint=None) -> GrowResult:
-    """Grow dense matches between two images from a few seed correspondences.
+@dataclass(frozen=True)
+class GrowParams:
+    """Settings of :func:`grow_matches` and :func:`grow_joint`: the node grid, the attempts
+    at a node and their LSM model. Built by keyword; every field is checked here, and the
+    error names it.
 
-    Parameters
+    Attributes
     ----------
-    template, search : (H, W) arrays
-        Grey images (any real dtype).
-    seeds_template : (S, 2) array
-        Seed positions in the template (pixels).
-    seeds_search : (S, 2) array
-        Approximate seed positions in the search image; refined by LSM first.
     step : int
         Grid spacing in pixels.
     patch : int
         LSM patch size (odd, >= 5).
-    retry_patch : int or sequence of int, optional
+    retry_patch : int or tuple of int, optional
         Patch sizes of further attempts at a failed node, in order (default
-        ``patch + 6``). A smaller patch can match closer to an occlusion border.
+        ``patch + 6``). A smaller patch can match closer to an occlusion border. Kept as a
+        tuple.
     thresholds : LSMThresholds, optional
         Quality indicators a match must pass (default :class:`LSMThresholds` with
-        ``max_displacement = step``).
-    mask : (H, W) bool array, optional
-        Where in the template to grow (default: everywhere the patch fits).
+        ``max_displacement = step``; :meth:`lsm_thresholds`).
     geometry, radiometry : str
         LSM model (see :func:`~lsmta.matching.lsm`).
     max_attempts : int
@@ -175,11 +162,6 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         lets the pixels across an occlusion border drop out; before the shifted windows.
     robust_patch : int, optional
         Patch size of the robust attempt (default ``patch``).
-    template_mask : (H, W) bool array, optional
-        Template pixels on the object: every LSM ignores the others (see
-        :func:`~lsmta.matching.lsm`), so a patch next to the silhouette rests on the
-        object alone (a patch with less than ``thresholds.min_weight_share`` of object
-        pixels is rejected). Unlike ``mask``, it does not say where to grow.
     method : {"forward", "inverse"}
         LSM's iterations (see :func:`~lsmta.matching.lsm`).
     support : float, optional
@@ -188,23 +170,102 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         Let patches reach over the image borders (see :func:`~lsmta.matching.lsm`), so that
         nodes next to the border are tried too.
     max_iter : int, optional
-        LSM's iteration limit (default: :func:`~lsmta.matching.lsm`'s). Nodes that need many
-        iterations rarely pass the thresholds; a lower limit saves their time.
+        LSM's iteration limit (default: :class:`~lsmta.matching.lsm.LSMParams`'s). Nodes
+        that need many iterations rarely pass the thresholds; a lower limit saves their time.
     tol : float
         LSM's convergence limit, pixels (see :func:`~lsmta.matching.lsm`).
     reach : bool
         After closing holes, grow once more from diagonal neighbours and from nodes two
         steps away, into open nodes that no direct neighbour could reach (all of theirs
         failed).
+    """
+
+    step: int = 4
+    patch: int = 13
+    retry_patch: int | tuple | None = None
+    thresholds: LSMThresholds | None = None
+    geometry: str = "affine"
+    radiometry: str = "linear"
+    max_attempts: int = 3
+    min_texture: float = 2.0
+    close_holes: bool = True
+    shift: int = 0
+    robust: float | None = None
+    robust_patch: int | None = None
+    method: str = "forward"
+    support: float | None = None
+    partial: bool = False
+    max_iter: int | None = None
+    tol: float = 1e-4
+    reach: bool = False
+
+    def __post_init__(self):
+        _check_model(self)
+        if self.retry_patch is not None:
+            object.__setattr__(self, "retry_patch", tuple(
+                check_patch(p, "retry_patch") for p in np.atleast_1d(self.retry_patch)))
+        if self.robust_patch is not None:
+            object.__setattr__(self, "robust_patch",
+                               check_patch(self.robust_patch, "robust_patch"))
+        object.__setattr__(self, "step", as_int(self.step, "step", unit="pixels"))
+        object.__setattr__(self, "shift", as_int(self.shift, "shift", minimum=0,
+                                                 unit="pixels"))
+        object.__setattr__(self, "max_attempts", as_int(self.max_attempts, "max_attempts"))
+        if isinstance(self.min_texture, bool) or not (_positive(self.min_texture)
+                                                      or self.min_texture == 0):
+            raise ValueError(f"min_texture: expected a grey-value spread >= 0, "
+                             f"got {self.min_texture!r}")
+        for name in ("close_holes", "reach"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name}: expected True or False, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, bool(getattr(self, name)))
+        if not _positive(self.tol):
+            raise ValueError(f"tol: expected a positive convergence limit in pixels, "
+                             f"got {self.tol!r}")
+        if self.thresholds is not None and not isinstance(self.thresholds, LSMThresholds):
+            raise TypeError(f"thresholds: expected an LSMThresholds or None, got "
+                            f"{type(self.thresholds).__name__}")
+
+    def lsm_thresholds(self) -> LSMThresholds:
+        """The thresholds a match must pass: ``thresholds``, or by default
+        :class:`LSMThresholds` with ``max_displacement = step``."""
+        if self.thresholds is not None:
+            return self.thresholds
+        return LSMThresholds(max_displacement=float(self.step))
+
+
+def grow_matches(template, search, seeds_template, seeds_search, *, mask=None,
+                 template_mask=None, constraint=None,
+                 params: GrowParams | None = None) -> GrowResult:
+    """Grow dense matches between two images from a few seed correspondences.
+
+    Parameters
+    ----------
+    template, search : (H, W) arrays
+        Grey images (any real dtype).
+    seeds_template : (S, 2) array
+        Seed positions in the template (pixels).
+    seeds_search : (S, 2) array
+        Approximate seed positions in the search image; refined by LSM first.
+    mask : (H, W) bool array, optional
+        Where in the template to grow (default: everywhere the patch fits).
+    template_mask : (H, W) bool array, optional
+        Template pixels on the object: every LSM ignores the others (see
+        :func:`~lsmta.matching.lsm`), so a patch next to the silhouette rests on the
+        object alone (a patch with less than ``thresholds.min_weight_share`` of object
+        pixels is rejected). Unlike ``mask``, it does not say where to grow.
     constraint : RectifiedPair or CameraGeometry, optional
         Match every node under the epipolar condition (:func:`~lsmta.matching.mpgc.mpgc`):
         one disparity or depth per node instead of a free shift. The geometry must have
         one search image.
+    params : GrowParams, optional
+        The grid, the attempts and their LSM model (default :class:`GrowParams`).
 
     Returns
     -------
     GrowResult
     """
+    p = _params(params, GrowParams)
     seeds_t = as_array(seeds_template, "seeds_template", shape=(None, 2))
     seeds_s = as_array(seeds_search, "seeds_search", shape=(None, 2))
     if len(seeds_t) != len(seeds_s):
@@ -215,17 +276,12 @@ def grow_matches(template, search, seeds_template, seeds_search, *, step: int = 
         if constraint.n_search != 1:
             raise ValueError(f"constraint: expected a geometry with one search image, got "
                              f"{constraint.n_search} (use grow_joint)")
-    return _grow_driver(template, [search], seeds_t, seeds_s[:, None], dict(
-        step=step, patch=patch, retry_patch=retry_patch, thresholds=thresholds, mask=mask,
-        geometry=geometry, radiometry=radiometry, max_attempts=max_attempts,
-        min_texture=min_texture, close_holes=close_holes, shift=shift, robust=robust,
-        robust_patch=robust_patch, template_mask=template_mask, method=method,
-        support=support, partial=partial, max_iter=max_iter, tol=tol, reach=reach,
-        constraint=constraint))[0]
+    return _grow_driver(template, [search], seeds_t, seeds_s[:, None], _options(p, constraint),
+                        mask=mask, template_mask=template_mask)[0]
 
 
-def grow_joint(template, searches, seeds_template, seeds_search, constraint,
-               **options) -> list[GrowResult]:
+def grow_joint(template, searches, seeds_template, seeds_search, constraint, *, mask=None,
+               template_mask=None, params: GrowParams | None = None) -> list[GrowResult]:
     """Grow dense matches into K search images at once, every node matched jointly in all
     of them under the epipolar condition (:func:`~lsmta.matching.mpgc.mpgc`).
 
@@ -238,12 +294,10 @@ def grow_joint(template, searches, seeds_template, seeds_search, constraint,
         Approximate seed positions in every search image.
     constraint : RectifiedPair or CameraGeometry
         With ``constraint.n_search == K``.
-    **options
-        The tuning of :func:`grow_matches` (``step``, ``patch``, ``retry_patch``,
-        ``thresholds``, ``mask``, ``geometry``, ``radiometry``, ``max_attempts``,
-        ``min_texture``, ``close_holes``, ``shift``, ``robust``, ``robust_patch``,
-        ``template_mask``, ``method``, ``support``, ``partial``, ``max_iter``, ``tol``,
-        ``reach``).
+    mask, template_mask
+        As in :func:`grow_matches`.
+    params : GrowParams, optional
+        As in :func:`grow_matches`.
 
     Returns
     -------
@@ -251,9 +305,7 @@ def grow_joint(template, searches, seeds_template, seeds_search, constraint,
         One per search image, over the same nodes (each with the shared ``t``).
     """
     _check_constraint(constraint)
-    unknown = set(options) - set(_DEFAULTS)
-    if unknown:
-        raise TypeError(f"grow_joint: unexpected options {sorted(unknown)}")
+    p = _params(params, GrowParams)
     searches = list(searches)
     K = constraint.n_search
     if len(searches) != K:
@@ -262,68 +314,52 @@ def grow_joint(template, searches, seeds_template, seeds_search, constraint,
     seeds_t = as_array(seeds_template, "seeds_template", shape=(None, 2))
     seeds_s = as_array(seeds_search, "seeds_search", shape=(K, len(seeds_t), 2))
     return _grow_driver(template, searches, seeds_t, seeds_s.transpose(1, 0, 2),
-                        {**_DEFAULTS, **options, "constraint": constraint})
-
-
-_DEFAULTS = dict(step=4, patch=13, retry_patch=None, thresholds=None, mask=None,
-                 geometry="affine", radiometry="linear", max_attempts=3, min_texture=2.0,
-                 close_holes=True, shift=0, robust=None, robust_patch=None,
-                 template_mask=None, method="forward", support=None, partial=False,
-                 max_iter=None, tol=1e-4, reach=False)
+                        _options(p, constraint), mask=mask, template_mask=template_mask)
 
 
 @dataclass(frozen=True)
 class _Options:
-    """The checked tuning of one growth."""
+    """The settings of one growth, with the LSM settings of every attempt."""
 
     step: int
-    patch: int
-    retry_patches: tuple
-    robust: float | None
-    robust_patch: int
+    patch: int                     # the main patch (also the texture test's window)
+    largest_patch: int             # of the main, retry and robust patches (usable nodes)
+    partial: bool
     offsets: np.ndarray            # (8, 2) shifted-window offsets, or empty
     thresholds: LSMThresholds
     max_attempts: int
     min_texture: float
     close_holes: bool
     reach: bool
-    model: dict                    # lsm's geometry, radiometry, template_mask, method, ...
+    seed: LSMParams                # the seeds: the largest patch size, no thresholds
+    attempts: tuple                # ((LSMParams, label), ...): patch, retries, robust
+    shifted: LSMParams             # the shifted windows
     constraint: object
 
-    @property
-    def largest_patch(self) -> int:
-        return max((self.patch, self.robust_patch) + self.retry_patches)
 
-
-def _options(o: dict) -> _Options:
-    patch = check_patch(o["patch"])
-    retry = (patch + 6,) if o["retry_patch"] is None else o["retry_patch"]
-    retry_patches = tuple(check_patch(p, "retry_patch") for p in np.atleast_1d(retry))
-    robust_patch = patch if o["robust_patch"] is None else check_patch(o["robust_patch"],
-                                                                          "robust_patch")
-    _check_robust(o["robust"])
-    step, shift = o["step"], o["shift"]
-    if isinstance(step, bool) or int(step) != step or step < 1:
-        raise ValueError(f"step: expected a positive integer (pixels), got {step}")
-    if isinstance(shift, bool) or int(shift) != shift or shift < 0:
-        raise ValueError(f"shift: expected a non-negative integer (pixels), got {shift}")
-    if o["method"] not in LSM_METHODS:
-        raise ValueError(f"method: expected one of {list(LSM_METHODS)}, got {o['method']!r}")
+def _options(p: GrowParams, constraint) -> _Options:
+    retry_patches = (p.patch + 6,) if p.retry_patch is None else p.retry_patch
+    robust_patch = p.patch if p.robust_patch is None else p.robust_patch
     offsets = np.array([(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1)
-                        if dx or dy], dtype=float) * int(shift) if shift else np.zeros((0, 2))
-    thresholds = o["thresholds"]
-    if thresholds is None:
-        thresholds = LSMThresholds(max_displacement=float(step))
-    return _Options(step=int(step), patch=patch, retry_patches=retry_patches,
-                    robust=o["robust"], robust_patch=robust_patch, offsets=offsets,
-                    thresholds=thresholds, max_attempts=o["max_attempts"],
-                    min_texture=o["min_texture"], close_holes=o["close_holes"],
-                    reach=bool(o["reach"]),
-                    model=dict(geometry=o["geometry"], radiometry=o["radiometry"],
-                               template_mask=o["template_mask"], method=o["method"],
-                               support=o["support"], partial=o["partial"],
-                               max_iter=o["max_iter"], tol=o["tol"]),
-                    constraint=o["constraint"])
+                        if dx or dy], dtype=float) * p.shift if p.shift else np.zeros((0, 2))
+    thresholds = p.lsm_thresholds()
+    model = LSMParams(patch=p.patch, geometry=p.geometry, radiometry=p.radiometry,
+                      method=p.method, support=p.support, partial=p.partial,
+                      max_iter=p.max_iter, tol=p.tol)
+    attempts = [(replace(model, thresholds=thresholds), "patch")]
+    attempts += [(replace(model, patch=size, thresholds=thresholds), "retry")
+                 for size in retry_patches]
+    if p.robust is not None:
+        attempts.append((replace(model, patch=robust_patch, robust=p.robust,
+                                 thresholds=thresholds), "robust"))
+    return _Options(step=p.step, patch=p.patch,
+                    largest_patch=max((p.patch, robust_patch) + retry_patches),
+                    partial=p.partial, offsets=offsets, thresholds=thresholds,
+                    max_attempts=p.max_attempts, min_texture=p.min_texture,
+                    close_holes=p.close_holes, reach=p.reach,
+                    seed=replace(model, patch=max((p.patch,) + retry_patches)),
+                    attempts=tuple(attempts), shifted=replace(model, thresholds=thresholds),
+                    constraint=constraint)
 
 
 @dataclass(frozen=True)
@@ -351,7 +387,7 @@ def _grid(f_img: SplineImage, opts: _Options, mask, seeds_t) -> _Grid:
     rows, cols = (H - 1) // step + 1, (W - 1) // step + 1
     gr, gc = np.mgrid[0:rows, 0:cols]
     nodes = np.stack([gc * step, gr * step], axis=-1).astype(float)
-    usable = f_img.inside(nodes, margin=0 if opts.model["partial"] else opts.largest_patch // 2)
+    usable = f_img.inside(nodes, margin=0 if opts.partial else opts.largest_patch // 2)
     if mask is not None:
         usable &= mask[gr * step, gc * step]
     flat = nodes.reshape(-1, 2)
@@ -453,28 +489,28 @@ class _Matcher:
     """Every matching attempt of the growth: LSM into one search image, or constrained
     matching into all of them (:func:`~lsmta.matching.mpgc.mpgc`)."""
 
-    def __init__(self, f_img, g_imgs, opts: _Options):
+    def __init__(self, f_img, g_imgs, opts: _Options, template_mask):
         self.f_img, self.g_imgs, self.opts = f_img, g_imgs, opts
+        self.template_mask = template_mask
         self.K = len(g_imgs)
         self.n_lsm = 0
 
-    def once(self, t_xy, approx, A0, *, patch, robust=None, thresholds=None) -> _Matches:
+    def once(self, t_xy, approx, A0, params: LSMParams) -> _Matches:
         """One attempt at m template points from approximations ``approx`` (m, K, 2) and
         starting affinities ``A0`` (m, K, 2, 2); ``ok`` means converged and accepted."""
         self.n_lsm += len(t_xy)
         con = self.opts.constraint
         if con is None:
-            res = lsm(self.f_img, self.g_imgs[0], t_xy, approx[:, 0], patch=patch,
-                      initial_A=A0[:, 0], robust=robust, thresholds=thresholds,
-                      **self.opts.model)
+            res = lsm(self.f_img, self.g_imgs[0], t_xy, approx[:, 0], initial_A=A0[:, 0],
+                      template_mask=self.template_mask, params=params)
             nan = np.full(len(t_xy), np.nan)
             return _Matches(ok=res.status == Status.CONVERGED, xy=res.xy[:, None],
                             A=res.A[:, None], sigma0=res.sigma0,
                             sigma_xy=res.sigma_xy[:, None], t=nan, sigma_t=nan.copy(),
                             how=np.zeros(len(t_xy), dtype=np.int8))
         t0 = con.parameter(t_xy, approx)
-        res = mpgc(self.f_img, self.g_imgs, t_xy, t0, con, patch=patch, initial_A=A0,
-                   robust=robust, thresholds=thresholds, **self.opts.model)
+        res = mpgc(self.f_img, self.g_imgs, t_xy, t0, con, initial_A=A0,
+                   template_mask=self.template_mask, params=params)
         return _Matches(ok=res.status == Status.CONVERGED, xy=res.xy.transpose(1, 0, 2),
                         A=res.A.transpose(1, 0, 2, 3), sigma0=res.sigma0,
                         sigma_xy=res.sigma_xy.transpose(1, 0, 2), t=res.t, sigma_t=res.sigma_t,
@@ -485,16 +521,11 @@ class _Matcher:
         the shifted windows; each only for the nodes still unmatched."""
         o = self.opts
         out = _Matches.none(len(t_xy), self.K)
-        attempts = [(o.patch, None, "patch")] + [(size, None, "retry")
-                                                  for size in o.retry_patches]
-        if o.robust is not None:
-            attempts.append((o.robust_patch, o.robust, "robust"))
-        for size, cut, label in attempts:
+        for params, label in o.attempts:
             again = np.flatnonzero(~out.ok)
             if again.size == 0:
                 break
-            out.adopt(again, self.once(t_xy[again], approx[again], A0[again], patch=size,
-                                       robust=cut, thresholds=o.thresholds), label)
+            out.adopt(again, self.once(t_xy[again], approx[again], A0[again], params), label)
         again = np.flatnonzero(~out.ok)
         if len(o.offsets) and again.size:
             out.adopt(again, self._shifted(t_xy[again], approx[again], A0[again]), "shifted")
@@ -509,7 +540,7 @@ class _Matcher:
         A0r = np.repeat(A0, n_o, axis=0)                                      # (.., K, 2, 2)
         res = self.once(np.repeat(t_xy, n_o, axis=0) + off,
                         np.repeat(approx, n_o, axis=0) + np.einsum("nkij,nj->nki", A0r, off),
-                        A0r, patch=o.patch, thresholds=o.thresholds)
+                        A0r, o.shifted)
         passed = res.ok.reshape(n_a, n_o)
         best = np.argmin(np.where(passed, res.sigma0.reshape(n_a, n_o), np.inf), axis=1)
         pick = np.arange(n_a) * n_o + best
@@ -523,16 +554,16 @@ class _Matcher:
         return out
 
 
-def _grow_driver(template, searches, seeds_t, seeds_s, options: dict) -> list[GrowResult]:
-    """Check the arguments, lay out the grid, start from the seeds, grow, freeze."""
-    opts = _options(options)
+def _grow_driver(template, searches, seeds_t, seeds_s, opts: _Options, *, mask,
+                 template_mask) -> list[GrowResult]:
+    """Lay out the grid, start from the seeds, grow, freeze."""
     f_img = template if isinstance(template, SplineImage) else SplineImage(template, "template")
     g_imgs = [g if isinstance(g, SplineImage) else SplineImage(g, "search") for g in searches]
     if len(seeds_t) == 0:
         raise ValueError("seeds_template: expected at least one seed")
-    grid = _grid(f_img, opts, options["mask"], seeds_t)
+    grid = _grid(f_img, opts, mask, seeds_t)
     state = _State.initial(grid.shape, len(g_imgs))
-    matcher = _Matcher(f_img, g_imgs, opts)
+    matcher = _Matcher(f_img, g_imgs, opts, template_mask)
     seeds_ok = _start_from_seeds(state, grid, matcher, seeds_t, seeds_s, opts)
     _grow(state, grid, matcher, opts)
     state.n_lsm = matcher.n_lsm
@@ -545,7 +576,7 @@ def _start_from_seeds(state: _State, grid: _Grid, matcher: _Matcher, seeds_t, se
     of each matched seed's cell, starting from the seed's solution; returns which seeds
     matched."""
     seed = matcher.once(seeds_t, seeds_s, np.broadcast_to(np.eye(2), seeds_s.shape + (2,)),
-                        patch=max((opts.patch,) + opts.retry_patches))
+                        opts.seed)
     start_nodes, start_approx, start_A = [], [], []
     for k in np.flatnonzero(seed.ok):
         cand = np.argwhere(grid.usable & (grid.cell == k) & (state.state == 0))

@@ -82,7 +82,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .._validate import as_array, as_point_pairs, check_patch
+from .._validate import as_array, as_int, as_point_pairs, check_patch
 from . import _solver
 from .spline import PAD, SplineImage
 
@@ -217,14 +217,134 @@ def _singular_values(A: np.ndarray) -> np.ndarray:
     return np.sqrt(np.stack([(q + root) / 2, np.maximum(q - root, 0.0) / 2], axis=1))
 
 
+def _positive(value, *, allow_inf: bool = False) -> bool:
+    """A real number > 0 (``bool`` refused), finite unless ``allow_inf``."""
+    return (not isinstance(value, bool) and isinstance(value, numbers.Real)
+            and (allow_inf or np.isfinite(value)) and value > 0)
+
+
 def _check_robust(robust) -> None:
-    if robust is not None and (isinstance(robust, bool) or not isinstance(robust, numbers.Real)
-                               or not np.isfinite(robust) or robust <= 0):
+    if robust is not None and not _positive(robust):
         raise ValueError(f"robust: expected a positive Tukey cut-off in grey levels or None, "
                          f"got {robust!r}")
 
 
 METHODS = ("forward", "inverse")
+#: iterations of the Tukey cut-off's ramp (4c, 3c, 2c, then c) with ``robust``
+RAMP = 3
+
+
+@dataclass(frozen=True)
+class LSMParams:
+    """Settings of :func:`lsm`: the model, its iterations and the quality thresholds.
+
+    :func:`~lsmta.matching.multi.lsm_multi` and :func:`~lsmta.matching.mpgc.mpgc` take the
+    same settings (one model in every search image). Built by keyword; every field is
+    checked here, and the error names it.
+
+    Attributes
+    ----------
+    patch : int
+        Odd patch size in pixels, at least 5.
+    geometry : {"shift", "similarity", "affine", "row-affine"}
+    radiometry : {"none", "offset", "linear"}
+    method : {"forward", "inverse"}
+        How to iterate (see the module docstring): ``"forward"`` (Gruen's forward additive
+        Gauss-Newton, the search image's gradients in every iteration) or ``"inverse"``
+        (inverse compositional: the template's gradients, once; about three times faster).
+    max_iter : int, optional
+        Iteration limit (default 40, or 100 with ``robust``: reweighting converges
+        linearly, not quadratically).
+    tol : float
+        Convergence: largest change of the position and of ``A u`` over the patch, pixels.
+    max_displacement : float, optional
+        A point moving further than this from its approximation (in any search image) has
+        diverged, pixels (default: the patch size).
+    max_vif : float
+        Variance inflation factor above which a parameter is fixed (adaptive control).
+    robust : float, optional
+        Tukey cut-off ``c`` in grey levels: residuals beyond it get zero weight (see the
+        module docstring). About 4.7 times the residual standard deviation of a good match
+        (for noise ``s`` in both images, roughly ``4.7 * sqrt(2) * s``) keeps 95 %
+        efficiency on clean patches. None (default): ordinary least squares.
+    support : float, optional
+        Adaptive support weights (beyond the paper; Yoon & Kweon 2006): every template
+        pixel weighs ``exp(-|f - f_centre| / support)``, so that the part of a patch that
+        looks unlike its centre — likely another surface, across a depth edge — pulls less.
+        Grey levels; None (default): equal weights.
+    partial : bool
+        Let patches reach over the images' borders (beyond the paper): pixels outside the
+        template or the search image get zero weight, and only the patch centre must lie
+        inside the template. ``weight_share`` then says how much of the patch was inside, and
+        ``thresholds.min_weight_share`` rejects patches that were mostly outside. False
+        (default): a patch must lie inside both images.
+    thresholds : LSMThresholds, optional
+        Applied to the result (:meth:`LSMThresholds.apply`); None (default): none.
+    """
+
+    patch: int = 13
+    geometry: str = "affine"
+    radiometry: str = "linear"
+    method: str = "forward"
+    max_iter: int | None = None
+    tol: float = 1e-4
+    max_displacement: float | None = None
+    max_vif: float = 1e3
+    robust: float | None = None
+    support: float | None = None
+    partial: bool = False
+    thresholds: LSMThresholds | None = None
+
+    def __post_init__(self):
+        _check_model(self)
+        if not _positive(self.tol):
+            raise ValueError(f"tol: expected a positive convergence limit in pixels, "
+                             f"got {self.tol!r}")
+        if self.max_displacement is not None and not _positive(self.max_displacement):
+            raise ValueError(f"max_displacement: expected a positive distance in pixels or "
+                             f"None, got {self.max_displacement!r}")
+        if not _positive(self.max_vif, allow_inf=True):
+            raise ValueError(f"max_vif: expected a positive variance inflation factor, "
+                             f"got {self.max_vif!r}")
+        if self.thresholds is not None and not isinstance(self.thresholds, LSMThresholds):
+            raise TypeError(f"thresholds: expected an LSMThresholds or None, got "
+                            f"{type(self.thresholds).__name__}")
+
+
+def _check_model(p) -> None:
+    """Check (and normalise) the model fields that :class:`LSMParams` and the growth's
+    settings share: ``patch``, ``geometry``, ``radiometry``, ``method``, ``robust``,
+    ``max_iter``, ``support``, ``partial`` of the frozen dataclass ``p``."""
+    if p.geometry not in GEOMETRIES:
+        raise ValueError(f"geometry: expected one of {list(GEOMETRIES)}, got {p.geometry!r}")
+    if p.radiometry not in RADIOMETRIES:
+        raise ValueError(f"radiometry: expected one of {list(RADIOMETRIES)}, "
+                         f"got {p.radiometry!r}")
+    if p.method not in METHODS:
+        raise ValueError(f"method: expected one of {list(METHODS)}, got {p.method!r}")
+    object.__setattr__(p, "patch", check_patch(p.patch))
+    _check_robust(p.robust)
+    max_iter = as_int(p.max_iter, "max_iter", allow_none=True)
+    if p.robust is not None and max_iter is not None and max_iter <= RAMP:
+        raise ValueError(f"max_iter: expected more than {RAMP} iterations with robust, "
+                         f"got {p.max_iter}")
+    object.__setattr__(p, "max_iter", max_iter)
+    if p.support is not None and not _positive(p.support):
+        raise ValueError(f"support: expected a positive grey-level scale or None, "
+                         f"got {p.support!r}")
+    if not isinstance(p.partial, (bool, np.bool_)):
+        raise ValueError(f"partial: expected True or False, got {p.partial!r}")
+    object.__setattr__(p, "partial", bool(p.partial))
+
+
+def _params(params, cls):
+    """``params``, or the defaults of ``cls`` for None; anything else is refused."""
+    if params is None:
+        return cls()
+    if not isinstance(params, cls):
+        raise TypeError(f"params: expected {cls.__name__} or None, got "
+                        f"{type(params).__name__}")
+    return params
 
 
 @dataclass(frozen=True)
@@ -237,13 +357,31 @@ class _Model:
     method: str
     max_iter: int
     robust: float | None
-    support: float | None = None
-    partial: bool = False
+    support: float | None
+    partial: bool
+    tol: float
+    max_disp: float
+    max_vif: float
+
+    @classmethod
+    def of(cls, p: LSMParams) -> _Model:
+        """The model of checked settings, with the defaults that depend on other fields
+        (``max_iter`` 40, or 100 with ``robust``; ``max_displacement`` the patch size)."""
+        max_iter = p.max_iter
+        if max_iter is None:
+            max_iter = 40 if p.robust is None else 100
+        return cls(patch=p.patch, geometry=p.geometry, radiometry=p.radiometry,
+                   method=p.method, max_iter=int(max_iter),
+                   robust=None if p.robust is None else float(p.robust),
+                   support=None if p.support is None else float(p.support),
+                   partial=bool(p.partial), tol=p.tol,
+                   max_disp=float(p.patch) if p.max_displacement is None
+                   else float(p.max_displacement), max_vif=p.max_vif)
 
     @property
     def ramp(self) -> int:
         """Iterations of the Tukey cut-off's ramp (4c, 3c, 2c, then c)."""
-        return 3 if self.robust is not None else 0
+        return RAMP if self.robust is not None else 0
 
     @property
     def U(self) -> np.ndarray:
@@ -263,35 +401,6 @@ def _offsets(patch: int) -> np.ndarray:
     out = np.stack([gx.ravel(), gy.ravel()], axis=1).astype(float)
     out.flags.writeable = False
     return out
-
-
-def _model(patch, geometry, radiometry, method, max_iter, robust, support=None,
-           partial=False) -> _Model:
-    """Check the model arguments shared by :func:`lsm` and constrained matching."""
-    if geometry not in GEOMETRIES:
-        raise ValueError(f"geometry: expected one of {list(GEOMETRIES)}, got {geometry!r}")
-    if radiometry not in RADIOMETRIES:
-        raise ValueError(f"radiometry: expected one of {list(RADIOMETRIES)}, got {radiometry!r}")
-    if method not in METHODS:
-        raise ValueError(f"method: expected one of {list(METHODS)}, got {method!r}")
-    patch = check_patch(patch)
-    _check_robust(robust)
-    if max_iter is None:
-        max_iter = 40 if robust is None else 100
-    if isinstance(max_iter, bool) or int(max_iter) != max_iter or max_iter < 1:
-        raise ValueError(f"max_iter: expected a positive integer, got {max_iter}")
-    if support is not None and (isinstance(support, bool) or not isinstance(support, numbers.Real)
-                                or not np.isfinite(support) or support <= 0):
-        raise ValueError(f"support: expected a positive grey-level scale or None, got {support!r}")
-    if not isinstance(partial, (bool, np.bool_)):
-        raise ValueError(f"partial: expected True or False, got {partial!r}")
-    model = _Model(patch=patch, geometry=geometry, radiometry=radiometry, method=method,
-                   max_iter=int(max_iter), robust=None if robust is None else float(robust),
-                   support=None if support is None else float(support), partial=bool(partial))
-    if model.max_iter <= model.ramp:
-        raise ValueError(f"max_iter: expected more than {model.ramp} iterations with robust, "
-                         f"got {max_iter}")
-    return model
 
 
 def _spline(image, name: str) -> SplineImage:
@@ -367,12 +476,12 @@ class _State:
                    ee_img=np.full((n, K), np.nan))
 
 
-def _solve(state: _State, model: _Model, f_img: SplineImage, g_imgs, weights, *,
-           max_disp: float, tol: float, max_vif: float, active=None,
+def _solve(state: _State, model: _Model, f_img: SplineImage, g_imgs, weights, *, active=None,
            start_radiometry: bool = True) -> None:
     """Gauss-Newton iterations of every point (``active``, default: all that fit) in one
-    compiled call (:func:`lsmta.matching._solver.solve`); the radiometry starts from the
-    patches' means and spreads, or (``start_radiometry=False``) from ``state``."""
+    compiled call (:func:`lsmta.matching._solver.solve`, its inputs packed by role); the
+    radiometry starts from the patches' means and spreads, or (``start_radiometry=False``)
+    from ``state``."""
     if active is None:
         active = state.status != Status.OUTSIDE
     shape = g_imgs[0].shape
@@ -382,20 +491,20 @@ def _solve(state: _State, model: _Model, f_img: SplineImage, g_imgs, weights, *,
         np.stack([g.coefficients for g in g_imgs])
     inverse = model.method == "inverse"
     gx, gy = f_img.pixel_gradients() if inverse else (np.zeros((0, 0)), np.zeros((0, 0)))
-    _solver.solve(coef, PAD, shape[0], shape[1], f_img.coefficients, f_img.image, gx, gy,
-                  weights, state.t_xy, model.U, list(GEOMETRIES).index(model.geometry),
-                  RADIOMETRIES[model.radiometry], inverse, state.constrained,
-                  start_radiometry and model.radiometry != "none", state.c, state.A,
-                  state.r0, state.r1, state.t,
-                  state.base, state.direction, state.quad, state.t_exp,
-                  np.lexsort((state.t_xy[:, 0], np.floor(state.t_xy[:, 1] / 16))), active,
-                  np.array([model.max_iter, tol, max_disp, max_vif,
-                            0.0 if model.robust is None else model.robust, model.ramp,
-                            0.0 if model.support is None else model.support,
-                            float(model.partial)], dtype=float),
-                  state.status,
-                  state.iterations, state.fixed, state.Q, state.ee_last, state.sw_last,
-                  state.ee_img)
+    images = (coef, PAD, shape[0], shape[1], f_img.coefficients, f_img.image, gx, gy, weights)
+    order = np.lexsort((state.t_xy[:, 0], np.floor(state.t_xy[:, 1] / 16)))
+    points = (state.t_xy, model.U, order, active, state.base, state.direction, state.quad,
+              state.t_exp)
+    settings = np.array([model.max_iter, model.tol, model.max_disp, model.max_vif,
+                         0.0 if model.robust is None else model.robust, model.ramp,
+                         0.0 if model.support is None else model.support,
+                         float(model.partial)], dtype=float)
+    spec = (list(GEOMETRIES).index(model.geometry), RADIOMETRIES[model.radiometry], inverse,
+            state.constrained, start_radiometry and model.radiometry != "none", settings)
+    unknowns = (state.c, state.A, state.r0, state.r1, state.t)
+    out = (state.status, state.iterations, state.fixed, state.Q, state.ee_last, state.sw_last,
+           state.ee_img)
+    _solver.solve(images, points, spec, unknowns, out)
 
 
 def _precision(state: _State) -> tuple[np.ndarray, np.ndarray]:
@@ -408,12 +517,8 @@ def _precision(state: _State) -> tuple[np.ndarray, np.ndarray]:
     return sigma0, sigma0[:, None, None] ** 2 * state.Q
 
 
-def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: str = "affine",
-        radiometry: str = "linear", method: str = "forward", initial_A=None,
-        max_iter: int | None = None, tol: float = 1e-4, max_displacement: float | None = None,
-        max_vif: float = 1e3, robust: float | None = None, template_mask=None,
-        support: float | None = None, partial: bool = False,
-        thresholds: LSMThresholds | None = None) -> LSMResult:
+def lsm(template, search, template_xy, search_xy, *, initial_A=None, template_mask=None,
+        params: LSMParams | None = None) -> LSMResult:
     """Least squares matching of N template patches in a search image, all at once.
 
     Parameters
@@ -426,67 +531,33 @@ def lsm(template, search, template_xy, search_xy, *, patch: int = 13, geometry: 
         Patch centres in the template (pixels; sub-pixel allowed).
     search_xy : (N, 2) array
         Approximate positions in the search image (pixels).
-    patch : int
-        Odd patch size in pixels, at least 5.
-    geometry : {"shift", "similarity", "affine", "row-affine"}
-    radiometry : {"none", "offset", "linear"}
-    method : {"forward", "inverse"}
-        How to iterate (see the module docstring): ``"forward"`` (Gruen's forward additive
-        Gauss-Newton, the search image's gradients in every iteration) or ``"inverse"``
-        (inverse compositional: the template's gradients, once; about three times faster).
     initial_A : (N, 2, 2) or (2, 2) array, optional
         Starting affine matrices (default identity), e.g. a neighbour's solution.
-    max_iter : int, optional
-        Iteration limit (default 40, or 100 with ``robust``: reweighting converges
-        linearly, not quadratically).
-    tol : float
-        Convergence: largest change of the position and of ``A u`` over the patch, pixels.
-    max_displacement : float, optional
-        A point moving further than this from its approximation has diverged (default:
-        the patch size).
-    max_vif : float
-        Variance inflation factor above which a parameter is fixed (adaptive control).
-    robust : float, optional
-        Tukey cut-off ``c`` in grey levels: residuals beyond it get zero weight (see the
-        module docstring). About 4.7 times the residual standard deviation of a good match
-        (for noise ``s`` in both images, roughly ``4.7 * sqrt(2) * s``) keeps 95 %
-        efficiency on clean patches. None (default): ordinary least squares.
     template_mask : (H, W) bool array, optional
         Template pixels that belong to the object; the others (e.g. the backdrop around a
         silhouette) get zero weight in every patch (nearest pixel). Without it every patch
         pixel counts. A patch with less than ``thresholds.min_weight_share`` (default 0.5)
         of object pixels is rejected.
-    support : float, optional
-        Adaptive support weights (beyond the paper; Yoon & Kweon 2006): every template
-        pixel weighs ``exp(-|f - f_centre| / support)``, so that the part of a patch that
-        looks unlike its centre — likely another surface, across a depth edge — pulls less.
-        Grey levels; None (default): equal weights.
-    partial : bool
-        Let patches reach over the images' borders (beyond the paper): pixels outside the
-        template or the search image get zero weight, and only the patch centre must lie
-        inside the template. ``weight_share`` then says how much of the patch was inside, and
-        ``thresholds.min_weight_share`` rejects patches that were mostly outside. False
-        (default): a patch must lie inside both images.
-    thresholds : LSMThresholds, optional
-        Applied to the result (:meth:`LSMThresholds.apply`).
+    params : LSMParams, optional
+        The model, its iterations and the thresholds (default :class:`LSMParams`).
 
     Returns
     -------
     LSMResult
         One row per point; a point that fails gets a status code, never an exception.
     """
-    model = _model(patch, geometry, radiometry, method, max_iter, robust, support, partial)
+    p = _params(params, LSMParams)
+    model = _Model.of(p)
     f_img, g_img = _spline(template, "template"), _spline(search, "search")
     t_xy, s_xy = as_point_pairs(template_xy, search_xy, "template_xy", "search_xy")
     n = len(t_xy)
     A0 = _initial_A(initial_A, n)
     weights = _template_weights(template_mask, f_img)
-    max_disp = float(model.patch) if max_displacement is None else float(max_displacement)
 
     state = _State.initial(model, f_img, t_xy, s_xy[:, None], A0[:, None])
-    _solve(state, model, f_img, [g_img], weights, max_disp=max_disp, tol=tol, max_vif=max_vif)
+    _solve(state, model, f_img, [g_img], weights)
     result = _result(state, model, s_xy)
-    return thresholds.apply(result) if thresholds is not None else result
+    return p.thresholds.apply(result) if p.thresholds is not None else result
 
 
 def _result(state: _State, model: _Model, s_xy: np.ndarray) -> LSMResult:

@@ -47,11 +47,13 @@ from .._validate import as_array
 from ..camera import Camera
 from ..triangulation import triangulate
 from .lsm import (
+    LSMParams,
     LSMResult,
     LSMThresholds,
     Status,
     _initial_A,
-    _model,
+    _Model,
+    _params,
     _precision,
     _solve,
     _spline,
@@ -266,12 +268,8 @@ def _search_list(searches, K: int) -> list:
     return [_spline(s, f"searches[{k}]") for k, s in enumerate(searches)]
 
 
-def mpgc(template, searches, template_xy, t0, constraint, *, patch: int = 13,
-         geometry: str = "affine", radiometry: str = "linear", method: str = "forward",
-         initial_A=None, max_iter: int | None = None, tol: float = 1e-4,
-         max_displacement: float | None = None, max_vif: float = 1e3,
-         robust: float | None = None, template_mask=None, support: float | None = None,
-         partial: bool = False, thresholds: LSMThresholds | None = None) -> ConstrainedResult:
+def mpgc(template, searches, template_xy, t0, constraint, *, initial_A=None, template_mask=None,
+         params: LSMParams | None = None) -> ConstrainedResult:
     """Match N template points in K search images jointly under the epipolar condition.
 
     Parameters
@@ -285,23 +283,23 @@ def mpgc(template, searches, template_xy, t0, constraint, *, patch: int = 13,
         Approximate parameters (disparity or inverse depth, see the constraint); e.g. from
         ``constraint.parameter(template_xy, approximate_search_xy)``.
     constraint : RectifiedPair or CameraGeometry
-    patch, geometry, radiometry, method, max_iter, tol, max_vif, robust, template_mask
-    support, partial
-        As in :func:`~lsmta.matching.lsm` (the same model in every search image).
     initial_A : (N, K, 2, 2), (N, 2, 2) or (2, 2) array, optional
         Starting affine matrices (default identity).
-    max_displacement : float, optional
-        A node moving further than this (pixels, in any image) from its approximation has
-        diverged (default: the patch size).
-    thresholds : LSMThresholds, optional
-        Applied to every search image's view; a node must pass in all of them.
+    template_mask : (H, W) bool array, optional
+        As in :func:`~lsmta.matching.lsm`.
+    params : LSMParams, optional
+        The model of :func:`~lsmta.matching.lsm`, the same in every search image. A node
+        moving further than ``max_displacement`` (in any image) from its approximation has
+        diverged; ``thresholds`` apply to every search image's view, and a node must pass
+        in all of them.
 
     Returns
     -------
     ConstrainedResult
     """
     _check_constraint(constraint)
-    model = _model(patch, geometry, radiometry, method, max_iter, robust, support, partial)
+    p = _params(params, LSMParams)
+    model = _Model.of(p)
     K = constraint.n_search
     f_img = _spline(template, "template")
     g_imgs = _search_list(searches, K)
@@ -310,16 +308,15 @@ def mpgc(template, searches, template_xy, t0, constraint, *, patch: int = 13,
     t_start = as_array(t0, "t0", shape=(n,), finite=False)
     A0 = _initial_A_joint(initial_A, n, K)
     weights = _template_weights(template_mask, f_img)
-    max_disp = float(model.patch) if max_displacement is None else float(max_displacement)
 
     c0 = constraint.positions(t_xy, t_start)
     state = _State.initial(model, f_img, t_xy, np.nan_to_num(c0, nan=-1e6), A0,
                          curves=(t_start, *constraint.curves(t_xy, t_start)))
     state.status[~(np.isfinite(t_start) & np.isfinite(c0).all(axis=(1, 2)))] = Status.OUTSIDE
-    _solve(state, model, f_img, g_imgs, weights, max_disp=max_disp, tol=tol, max_vif=max_vif)
-    _refine_curves(state, model, constraint, f_img, g_imgs, weights, c0, max_disp, tol, max_vif)
+    _solve(state, model, f_img, g_imgs, weights)
+    _refine_curves(state, model, constraint, f_img, g_imgs, weights, c0)
     result = _constrained_result(state, model, constraint, c0)
-    return _apply(thresholds, result) if thresholds is not None else result
+    return _apply(p.thresholds, result) if p.thresholds is not None else result
 
 
 def _initial_A_joint(initial_A, n: int, K: int) -> np.ndarray:
@@ -329,8 +326,8 @@ def _initial_A_joint(initial_A, n: int, K: int) -> np.ndarray:
     return np.repeat(_initial_A(initial_A, n)[:, None], K, axis=1)
 
 
-def _refine_curves(state, model, constraint, f_img, g_imgs, weights, c0, max_disp, tol,
-                   max_vif, rounds: int = 3) -> None:
+def _refine_curves(state, model: _Model, constraint, f_img, g_imgs, weights, c0,
+                   rounds: int = 3) -> None:
     """Re-expand the curves of converged nodes whose quadratic model is off the exact
     projection, and solve those again from their solution (keeping their radiometry)."""
     if isinstance(constraint, RectifiedPair):
@@ -346,10 +343,9 @@ def _refine_curves(state, model, constraint, f_img, g_imgs, weights, c0, max_dis
         state.base[again], state.direction[again] = base, direction
         state.quad[again], state.t_exp[again] = quad, t_exp
         state.c[again] = base
-        _solve(state, model, f_img, g_imgs, weights, max_disp=max_disp, tol=tol,
-               max_vif=max_vif, active=again, start_radiometry=False)
+        _solve(state, model, f_img, g_imgs, weights, active=again, start_radiometry=False)
         # the displacement test is against the original approximation
-        far = np.linalg.norm(state.c - c0, axis=2).max(axis=1) > max_disp
+        far = np.linalg.norm(state.c - c0, axis=2).max(axis=1) > model.max_disp
         state.status[again & far] = Status.DIVERGED
 
 

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from .._validate import as_array
-from .lsm import LSMResult, lsm
+from .lsm import LSMParams, LSMResult, lsm
 from .spline import SplineImage
 
 
-def lsm_multi(template, searches, template_xy, search_xys, **kwargs) -> list[LSMResult]:
+def lsm_multi(template, searches, template_xy, search_xys, *, initial_A=None,
+              template_mask=None, params: LSMParams | None = None) -> list[LSMResult]:
     """Match the same template patches in each of K search images.
 
     Parameters
@@ -20,9 +21,10 @@ def lsm_multi(template, searches, template_xy, search_xys, **kwargs) -> list[LSM
         Patch centres in the template.
     search_xys : sequence of K (N, 2) arrays, or a (K, N, 2) array
         Approximations in each search image.
-    **kwargs
-        Passed to :func:`~lsmta.matching.lsm` (``patch``, ``geometry``, ``radiometry``,
-        ``thresholds``, ...).
+    initial_A, template_mask
+        As in :func:`~lsmta.matching.lsm`, the same for every search image.
+    params : LSMParams, optional
+        The settings of every match (:func:`~lsmta.matching.lsm`).
 
     Returns
     -------
@@ -36,4 +38,5 @@ def lsm_multi(template, searches, template_xy, search_xys, **kwargs) -> list[LSM
                          f"(one per search image), got {len(search_xys)}")
     f = template if isinstance(template, SplineImage) else SplineImage(template, "template")
     t_xy = as_array(template_xy, "template_xy", shape=(None, 2))
-    return [lsm(f, g, t_xy, xy, **kwargs) for g, xy in zip(searches, search_xys)]
+    return [lsm(f, g, t_xy, xy, initial_A=initial_A, template_mask=template_mask, params=params)
+            for g, xy in zip(searches, search_xys)]

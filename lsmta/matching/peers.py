@@ -231,8 +231,6 @@ def stereo_sgbm(left, right, *, num_disparities: int = 64, min_disparity: int = 
     by more than ``speckle_range`` are removed) and its left-right check
     (``disp12MaxDiff = 1``); without, both are off. Images are rounded to 8 bits.
     """
-    import time
-
     f8, g8 = _as_uint8(left, "left"), _as_uint8(right, "right")
     if f8.shape != g8.shape:
         raise ValueError(f"right: expected the shape of left {f8.shape}, got {g8.shape}")
@@ -251,8 +249,6 @@ def stereo_sgbm(left, right, *, num_disparities: int = 64, min_disparity: int = 
 def stereo_bm(left, right, *, num_disparities: int = 64, block_size: int = 15) -> DisparityMap:
     """OpenCV's block matching on a rectified pair with its default filters (prefilter,
     texture threshold, uniqueness 15); images rounded to 8 bits."""
-    import time
-
     f8, g8 = _as_uint8(left, "left"), _as_uint8(right, "right")
     if f8.shape != g8.shape:
         raise ValueError(f"right: expected the shape of left {f8.shape}, got {g8.shape}")

@@ -95,10 +95,7 @@ def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: 
         raise ValueError(f"depth_range: expected 0 < near < far (mm), got {depth_range}")
     h = patch // 2
     f = images[template]
-    f8 = np.clip(np.rint(255 * (f - f.min()) / max(np.ptp(f), 1e-9)), 0, 255).astype(np.uint8)
-    m8 = None if mask is None else np.asarray(mask, dtype=np.uint8)
-    corners = cv2.goodFeaturesToTrack(f8, maxCorners=4 * n_seeds, qualityLevel=0.05,
-                                      minDistance=min_distance, mask=m8, blockSize=patch)
+    corners = _corners(f, n_seeds=n_seeds, min_distance=min_distance, mask=mask, patch=patch)
     empty = Seeds(xy=np.zeros((K, 0, 2)), score=np.zeros(0), depth=np.zeros(0))
     if corners is None:
         return empty
@@ -107,13 +104,32 @@ def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: 
     t_xy = t_xy[spline_t.inside(t_xy, margin=h)]
     if len(t_xy) == 0:
         return empty
+    # distance along the ray whose camera depth goes evenly in inverse depth
+    inv = np.linspace(1.0 / near, 1.0 / far, n_depths)
+    score, projected = _ray_scores(images, cameras, template, spline_t, t_xy, inv, h)
+    return _best_seeds(score, projected, t_xy, inv, K, template, n_seeds=n_seeds,
+                       min_score=min_score)
+
+
+def _corners(f, *, n_seeds: int, min_distance, mask, patch: int):
+    """Shi-Tomasi corners ``(C, 1, 2)`` of the grey image ``f`` (scaled to 8 bits), at most
+    ``4 n_seeds``, inside ``mask``; None if there are none."""
+    f8 = np.clip(np.rint(255 * (f - f.min()) / max(np.ptp(f), 1e-9)), 0, 255).astype(np.uint8)
+    m8 = None if mask is None else np.asarray(mask, dtype=np.uint8)
+    return cv2.goodFeaturesToTrack(f8, maxCorners=4 * n_seeds, qualityLevel=0.05,
+                                   minDistance=min_distance, mask=m8, blockSize=patch)
+
+
+def _ray_scores(images, cameras, template: int, spline_t: SplineImage, t_xy, inv, h: int):
+    """The mean correlation ``(C, D)`` over the search images of every candidate's template
+    patch (half-width ``h``) at the inverse depths ``inv`` (D,) along its ray, and the
+    candidates' projections ``(C, D, 2)`` into each search image ``k`` (dict)."""
+    K = len(images)
     gy, gx = np.mgrid[-h:h + 1, -h:h + 1]
     U = np.stack([gx.ravel(), gy.ravel()], axis=1).astype(float)
     tpl = spline_t.patches(t_xy, U)                                   # (C, P)
 
     o, d = cameras[template].rays(t_xy)
-    # distance along the ray whose camera depth goes evenly in inverse depth
-    inv = np.linspace(1.0 / near, 1.0 / far, n_depths)
     along = (1.0 / inv)[None, :] / (d @ cameras[template].R[2])[:, None]    # (C, D)
     X = o[:, None, :] + along[..., None] * d[:, None, :]                   # (C, D, 3)
     score = np.zeros(along.shape)
@@ -131,6 +147,13 @@ def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: 
         score += np.where(ok, ncc, -1.0)
         projected[k] = xy
     score /= K - 1
+    return score, projected
+
+
+def _best_seeds(score, projected, t_xy, inv, K: int, template: int, *, n_seeds: int,
+                min_score: float) -> Seeds:
+    """Every candidate's best depth; the ``n_seeds`` best candidates reaching
+    ``min_score`` as seeds."""
     best = score.argmax(axis=1)
     best_score = score[np.arange(len(best)), best]
     order = np.argsort(-best_score)
@@ -190,11 +213,7 @@ def find_disparity_seeds(left, right, *, disparity_range, n_seeds: int = 30, pat
         raise ValueError(f"disparity_range: expected 0 <= smallest < largest (pixels), got "
                          f"{disparity_range}")
     h = patch // 2
-    H, W = f.shape
-    f8 = np.clip(np.rint(255 * (f - f.min()) / max(np.ptp(f), 1e-9)), 0, 255).astype(np.uint8)
-    m8 = None if mask is None else np.asarray(mask, dtype=np.uint8)
-    corners = cv2.goodFeaturesToTrack(f8, maxCorners=4 * n_seeds, qualityLevel=0.05,
-                                      minDistance=min_distance, mask=m8, blockSize=patch)
+    corners = _corners(f, n_seeds=n_seeds, min_distance=min_distance, mask=mask, patch=patch)
     empty = Seeds(xy=np.zeros((2, 0, 2)), score=np.zeros(0), depth=np.zeros(0),
                   disparity=np.zeros(0))
     if corners is None:
@@ -202,37 +221,10 @@ def find_disparity_seeds(left, right, *, disparity_range, n_seeds: int = 30, pat
     f32, g32 = f.astype(np.float32), g.astype(np.float32)
     found = []
     for x, y in np.rint(corners[:, 0]).astype(int):
-        if not (h <= y < H - h and x - lo + h < W and x - h >= 0):
-            continue
-        x0 = max(x - hi - h, 0)                          # the band's first column
-        x1 = x - lo + h + 1
-        if x1 - x0 < patch + 2:
-            continue
-        tpl = f32[y - h:y + h + 1, x - h:x + h + 1]
-        ncc = cv2.matchTemplate(g32[y - h:y + h + 1, x0:x1], tpl, cv2.TM_CCOEFF_NORMED)[0]
-        best = int(np.argmax(ncc))
-        others = np.abs(np.arange(len(ncc)) - best) > 2
-        second = ncc[others].max() if others.any() else -1.0
-        if ncc[best] < min_score or ncc[best] - second < uniqueness:
-            continue
-        sub = 0.0
-        if 0 < best < len(ncc) - 1:                      # parabola through the peak
-            a, b, c = ncc[best - 1], ncc[best], ncc[best + 1]
-            den = a - 2 * b + c
-            sub = 0.5 * (a - c) / den if den < 0 else 0.0
-        xr = x0 + h + best + sub
-        # left-right check: the right window, correlated back along the left row, must
-        # find the corner again (an occluded corner finds something else)
-        xi = int(round(xr))
-        if not h <= xi < W - h:
-            continue
-        b0 = max(xi + lo - h, 0)
-        b1 = min(xi + hi + h + 1, W)
-        back = cv2.matchTemplate(f32[y - h:y + h + 1, b0:b1],
-                                 g32[y - h:y + h + 1, xi - h:xi + h + 1], cv2.TM_CCOEFF_NORMED)[0]
-        if abs(b0 + h + int(np.argmax(back)) - x) > 1:
-            continue
-        found.append((ncc[best], x, y, xr))
+        match = _row_match(f32, g32, x, y, h=h, lo=lo, hi=hi, min_score=min_score,
+                           uniqueness=uniqueness)
+        if match is not None:
+            found.append(match)
     if not found:
         return empty
     found.sort(key=lambda s: -s[0])
@@ -240,3 +232,43 @@ def find_disparity_seeds(left, right, *, disparity_range, n_seeds: int = 30, pat
     xy = np.stack([found[:, 1:3], np.stack([found[:, 3], found[:, 2]], axis=1)])
     return Seeds(xy=xy, score=found[:, 0], depth=np.full(len(found), np.nan),
                  disparity=found[:, 1] - found[:, 3])
+
+
+def _row_match(f32, g32, x, y, *, h: int, lo: int, hi: int, min_score: float,
+               uniqueness: float):
+    """The left corner ``(x, y)`` found along its row of the right image: ``(score, x, y,
+    x_right)``, or None if its window does not fit, its peak is too low or not unique, or
+    the left-right check fails."""
+    H, W = f32.shape
+    patch = 2 * h + 1
+    if not (h <= y < H - h and x - lo + h < W and x - h >= 0):
+        return None
+    x0 = max(x - hi - h, 0)                          # the band's first column
+    x1 = x - lo + h + 1
+    if x1 - x0 < patch + 2:
+        return None
+    tpl = f32[y - h:y + h + 1, x - h:x + h + 1]
+    ncc = cv2.matchTemplate(g32[y - h:y + h + 1, x0:x1], tpl, cv2.TM_CCOEFF_NORMED)[0]
+    best = int(np.argmax(ncc))
+    others = np.abs(np.arange(len(ncc)) - best) > 2
+    second = ncc[others].max() if others.any() else -1.0
+    if ncc[best] < min_score or ncc[best] - second < uniqueness:
+        return None
+    sub = 0.0
+    if 0 < best < len(ncc) - 1:                      # parabola through the peak
+        a, b, c = ncc[best - 1], ncc[best], ncc[best + 1]
+        den = a - 2 * b + c
+        sub = 0.5 * (a - c) / den if den < 0 else 0.0
+    xr = x0 + h + best + sub
+    # left-right check: the right window, correlated back along the left row, must
+    # find the corner again (an occluded corner finds something else)
+    xi = int(round(xr))
+    if not h <= xi < W - h:
+        return None
+    b0 = max(xi + lo - h, 0)
+    b1 = min(xi + hi + h + 1, W)
+    back = cv2.matchTemplate(f32[y - h:y + h + 1, b0:b1],
+                             g32[y - h:y + h + 1, xi - h:xi + h + 1], cv2.TM_CCOEFF_NORMED)[0]
+    if abs(b0 + h + int(np.argmax(back)) - x) > 1:
+        return None
+    return ncc[best], x, y, xr

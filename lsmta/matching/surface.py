@@ -4,14 +4,15 @@ The centre image is the template; dense matches are grown from the seeds into ea
 image independently (:func:`~lsmta.matching.grow.grow_matches`), merged into n-tuples at
 the common grid nodes, checked by the neighbourhood filter (outliers re-matched once from
 their neighbours' prediction), intersected with the calibrated cameras and thinned by the
-voxel filter. With ``joint=True`` (beyond the paper) every node is matched in all search
-images at once under the epipolar condition (:func:`~lsmta.matching.grow.grow_joint`,
-Gruen & Baltsavias 1988), so the n-tuples' rays meet by construction.
+voxel filter; :class:`MeasureSurfaceParams` holds the settings of every stage. With
+``joint=True`` (beyond the paper) every node is matched in all search images at once under
+the epipolar condition (:func:`~lsmta.matching.grow.grow_joint`, Gruen & Baltsavias 1988),
+so the n-tuples' rays meet by construction.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from skimage.exposure import equalize_adapthist
@@ -20,8 +21,8 @@ from .._validate import as_array
 from ..camera import Camera
 from ..triangulation import Intersection, VoxelCloud, triangulate, voxel_filter
 from .filters import neighbourhood_filter
-from .grow import grow_joint, grow_matches
-from .lsm import LSMThresholds, lsm
+from .grow import GrowParams, grow_joint, grow_matches
+from .lsm import LSMParams, _params, _positive, lsm
 from .mpgc import CameraGeometry, mpgc
 from .spline import check_image
 
@@ -80,32 +81,26 @@ class SurfaceResult:
     points_xy: np.ndarray
 
 
-def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int = 4,
-                    patch: int = 13, thresholds: LSMThresholds | None = None, mask=None,
-                    enhance: bool = False, neighbourhood: bool = True,
-                    max_position: float = 0.5, max_affine: float = 0.1,
-                    neighbourhood_statistic: str = "mean",
-                    max_reprojection: float | None = None, voxel: float | None = None,
-                    joint: bool = False, **grow_kwargs) -> SurfaceResult:
-    """Dense surface points from K >= 2 images of one frame.
+@dataclass(frozen=True)
+class MeasureSurfaceParams:
+    """Settings of :func:`measure_surface`: the growth and the filters after it. Built by
+    keyword; every field is checked here, and the error names it.
 
-    Parameters
+    Attributes
     ----------
-    images : sequence of K (H, W) arrays
-        One frame of the K cameras, all of one size.
-    cameras : sequence of K Camera
-    seeds_xy : (K, S, 2) array
-        Approximate seed correspondences (e.g. picked by hand); NaN seeds are skipped.
-    template : int
-        Index of the template image (the centre camera of the triplet).
-    step, patch, thresholds, mask
-        Passed to :func:`~lsmta.matching.grow.grow_matches`.
+    grow : GrowParams
+        The growth into the search images (:func:`~lsmta.matching.grow.grow_matches`, or
+        :func:`~lsmta.matching.grow.grow_joint` with ``joint``). The neighbourhood filter's
+        re-match uses its patch, its LSM model (not its ``max_iter`` and ``tol``), its
+        robust attempt and its thresholds (default ``max_displacement = step``).
     enhance : bool
         Match on contrast-enhanced images (:func:`enhance_contrast`).
     neighbourhood : bool
         Apply the neighbourhood filter (``max_position`` px, ``max_affine``, combining
         the neighbours by ``neighbourhood_statistic``, "mean" or "median"; see
         :func:`~lsmta.matching.filters.neighbourhood_filter`).
+    max_position, max_affine : float
+    neighbourhood_statistic : {"mean", "median"}
     max_reprojection : float, optional
         Geometric check (beyond the paper, which names geometric constraints as its next
         step): an n-tuple whose intersected point reprojects further than this many pixels
@@ -120,52 +115,84 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
         ray (:func:`~lsmta.matching.grow.grow_joint`, :class:`~lsmta.matching.mpgc.CameraGeometry`).
         The neighbourhood filter's re-match is joint too. False (default): the paper's
         independent matching into each search image.
-    **grow_kwargs
-        Further options of :func:`~lsmta.matching.grow.grow_matches` (``retry_patch``,
-        ``shift``, ``robust``, ...).
+    """
+
+    grow: GrowParams = field(default_factory=GrowParams)
+    enhance: bool = False
+    neighbourhood: bool = True
+    max_position: float = 0.5
+    max_affine: float = 0.1
+    neighbourhood_statistic: str = "mean"
+    max_reprojection: float | None = None
+    voxel: float | None = None
+    joint: bool = False
+
+    def __post_init__(self):
+        if not isinstance(self.grow, GrowParams):
+            raise TypeError(f"grow: expected a GrowParams, got {type(self.grow).__name__}")
+        for name in ("enhance", "neighbourhood", "joint"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name}: expected True or False, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, bool(getattr(self, name)))
+        for name in ("max_position", "max_affine"):
+            if not _positive(getattr(self, name)):
+                raise ValueError(f"{name}: expected a positive number, got "
+                                 f"{getattr(self, name)!r}")
+        if self.neighbourhood_statistic not in ("mean", "median"):
+            raise ValueError(f"neighbourhood_statistic: expected 'mean' or 'median', got "
+                             f"{self.neighbourhood_statistic!r}")
+        if self.max_reprojection is not None and not _positive(self.max_reprojection):
+            raise ValueError(f"max_reprojection: expected a positive number of pixels or None, "
+                             f"got {self.max_reprojection}")
+        if self.voxel is not None and not _positive(self.voxel):
+            raise ValueError(f"voxel: expected a positive voxel size in mm or None, "
+                             f"got {self.voxel!r}")
+
+
+def measure_surface(images, cameras, seeds_xy, *, template: int = 1, mask=None,
+                    template_mask=None,
+                    params: MeasureSurfaceParams | None = None) -> SurfaceResult:
+    """Dense surface points from K >= 2 images of one frame.
+
+    Parameters
+    ----------
+    images : sequence of K (H, W) arrays
+        One frame of the K cameras, all of one size.
+    cameras : sequence of K Camera
+    seeds_xy : (K, S, 2) array
+        Approximate seed correspondences (e.g. picked by hand); NaN seeds are skipped.
+    template : int
+        Index of the template image (the centre camera of the triplet).
+    mask, template_mask : (H, W) bool arrays, optional
+        Where in the template to grow, and the template pixels on the object (see
+        :func:`~lsmta.matching.grow.grow_matches`); ``template_mask`` serves the
+        neighbourhood filter's re-match too.
+    params : MeasureSurfaceParams, optional
+        The growth and the filters (default :class:`MeasureSurfaceParams`).
 
     Returns
     -------
     SurfaceResult
     """
-    imgs, cameras, seeds = _checked(images, cameras, seeds_xy, template, max_reprojection)
+    p = _params(params, MeasureSurfaceParams)
+    imgs, cameras, seeds = _checked(images, cameras, seeds_xy, template)
     K = len(imgs)
-    if enhance:
+    if p.enhance:
         imgs = [enhance_contrast(im) for im in imgs]
-    if thresholds is None:
-        thresholds = LSMThresholds(max_displacement=float(step))
     searches = [k for k in range(K) if k != template]
-    geometry = CameraGeometry(cameras, template) if joint else None
-    grown = _grow(imgs, seeds, template, searches, geometry, step=step, patch=patch,
-                  thresholds=thresholds, mask=mask, grow_kwargs=grow_kwargs)
+    geometry = CameraGeometry(cameras, template) if p.joint else None
+    grown = _grow(imgs, seeds, template, searches, geometry, p.grow, mask, template_mask)
     t_xy, xy, sig, pos = _tuples(grown, template, searches)
-    ok = np.ones(len(t_xy), dtype=bool)
-    rematched = np.zeros(len(t_xy), dtype=bool)
-    if neighbourhood:
-        checks = [neighbourhood_filter(g, max_position=max_position, max_affine=max_affine,
-                                       statistic=neighbourhood_statistic) for g in grown]
-        # the re-match uses the grower's LSM model (and its robust LSM, where it used one)
-        model = _model_of(grow_kwargs)
-        if joint:
-            ok, rematched = _rematch_joint(imgs, template, searches, pos, checks, xy, sig, t_xy,
-                                           geometry, patch=patch, thresholds=thresholds,
-                                           max_position=max_position, model=model)
-        else:
-            robust = grow_kwargs.get("robust")
-            robust_patch = grow_kwargs.get("robust_patch") or patch
-            for check, p, k in zip(checks, pos, searches):
-                ok &= _rematch_outliers(check, p, imgs[template], imgs[k], t_xy, xy[k], sig[k],
-                                        rematched, patch=patch, thresholds=thresholds,
-                                        max_position=max_position, robust=robust,
-                                        robust_patch=robust_patch, model=model)
+    ok, rematched = _neighbourhood(imgs, template, searches, grown, pos, xy, sig, t_xy,
+                                   geometry, p, template_mask)
     intersection = triangulate(cameras, xy)
-    if max_reprojection is not None:
+    if p.max_reprojection is not None:
         worst = np.where(np.isnan(intersection.reprojection_error), -np.inf,
                          intersection.reprojection_error).max(axis=0)
-        ok &= worst <= max_reprojection
+        ok &= worst <= p.max_reprojection
     keep = ok & intersection.valid
-    if voxel is not None:
-        cloud = voxel_filter(np.where(keep[:, None], intersection.points, np.nan), voxel)
+    if p.voxel is not None:
+        cloud = voxel_filter(np.where(keep[:, None], intersection.points, np.nan), p.voxel)
         points = cloud.points
         points_xy = np.stack([cloud.mean_of(xy[k]) for k in range(K)])
     else:
@@ -177,26 +204,48 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, step: int =
                          cloud=cloud, points=points, points_xy=points_xy)
 
 
-def _grow(imgs, seeds, template: int, searches, geometry, *, step, patch, thresholds, mask,
-          grow_kwargs) -> list:
+def _grow(imgs, seeds, template: int, searches, geometry, grow: GrowParams, mask,
+          template_mask) -> list:
     """Growth into each search image: jointly under the epipolar condition (``geometry``
     given) or independently, image by image (the paper)."""
     if geometry is not None:
         return grow_joint(imgs[template], [imgs[k] for k in searches], seeds[template],
-                          seeds[searches], geometry, step=step, patch=patch,
-                          thresholds=thresholds, mask=mask, **grow_kwargs)
-    return [grow_matches(imgs[template], imgs[k], seeds[template], seeds[k], step=step,
-                         patch=patch, thresholds=thresholds, mask=mask, **grow_kwargs)
+                          seeds[searches], geometry, mask=mask, template_mask=template_mask,
+                          params=grow)
+    return [grow_matches(imgs[template], imgs[k], seeds[template], seeds[k], mask=mask,
+                         template_mask=template_mask, params=grow)
             for k in searches]
 
 
-def _model_of(grow_kwargs: dict) -> dict:
-    """The grower's LSM model, for the re-match."""
-    return {k: grow_kwargs[k] for k in ("geometry", "radiometry", "template_mask", "method",
-                                        "support", "partial") if k in grow_kwargs}
+def _neighbourhood(imgs, template: int, searches, grown, pos, xy, sig, t_xy, geometry,
+                   p: MeasureSurfaceParams, template_mask):
+    """The neighbourhood filter of every search image's growth, its rejects re-matched once
+    (``xy`` and ``sig`` take the re-matches). Returns which n-tuples pass and which of them
+    were re-matched."""
+    ok = np.ones(len(t_xy), dtype=bool)
+    rematched = np.zeros(len(t_xy), dtype=bool)
+    if not p.neighbourhood:
+        return ok, rematched
+    checks = [neighbourhood_filter(g, max_position=p.max_position, max_affine=p.max_affine,
+                                   statistic=p.neighbourhood_statistic) for g in grown]
+    # the re-match uses the grower's LSM model (and its robust LSM, where it used one)
+    g = p.grow
+    model = LSMParams(patch=g.patch, geometry=g.geometry, radiometry=g.radiometry,
+                      method=g.method, support=g.support, partial=g.partial,
+                      thresholds=g.lsm_thresholds())
+    if p.joint:
+        return _rematch_joint(imgs, template, searches, pos, checks, xy, sig, t_xy, geometry,
+                              model, max_position=p.max_position, template_mask=template_mask)
+    robust = None if g.robust is None else replace(model, patch=g.robust_patch or g.patch,
+                                                   robust=g.robust)
+    for check, q, k in zip(checks, pos, searches):
+        ok &= _rematch_outliers(check, q, imgs[template], imgs[k], t_xy, xy[k], sig[k],
+                                rematched, model, robust, max_position=p.max_position,
+                                template_mask=template_mask)
+    return ok, rematched
 
 
-def _checked(images, cameras, seeds_xy, template, max_reprojection):
+def _checked(images, cameras, seeds_xy, template):
     """The images (checked, one size), the cameras and the seeds given in every image."""
     images = list(images)
     cameras = list(cameras)
@@ -208,10 +257,6 @@ def _checked(images, cameras, seeds_xy, template, max_reprojection):
     imgs = [check_image(im, f"images[{k}]") for k, im in enumerate(images)]
     if any(im.shape != imgs[0].shape for im in imgs):
         raise ValueError(f"images: expected one size, got {[im.shape for im in imgs]}")
-    if max_reprojection is not None and not (np.isfinite(max_reprojection)
-                                             and max_reprojection > 0):
-        raise ValueError(f"max_reprojection: expected a positive number of pixels or None, "
-                         f"got {max_reprojection}")
     if not 0 <= template < K:
         raise ValueError(f"template: expected an index in [0, {K - 1}], got {template}")
     seeds = as_array(seeds_xy, "seeds_xy", shape=(K, None, 2), allow_nan=True)
@@ -242,24 +287,25 @@ def _tuples(grown, template: int, searches):
     return t_xy, xy, sig, pos
 
 
-def _rematch_outliers(check, p, template_img, search_img, t_xy, xy_k, sig_k, rematched, *,
-                      patch, thresholds, max_position, robust, robust_patch, model):
+def _rematch_outliers(check, p, template_img, search_img, t_xy, xy_k, sig_k, rematched,
+                      model: LSMParams, robust: LSMParams | None, *, max_position,
+                      template_mask):
     """Nodes the neighbourhood filter rejects are matched once more from the neighbours'
-    prediction (by robust LSM too where the grower used it and the plain re-match failed);
-    ``xy_k``, ``sig_k`` and ``rematched`` (this function's own arrays) take the re-matches.
-    Returns which tuples pass in this search image."""
+    prediction with ``model`` (and with ``robust`` where the grower used robust LSM and the
+    plain re-match failed); ``xy_k``, ``sig_k`` and ``rematched`` (this function's own
+    arrays) take the re-matches. Returns which tuples pass in this search image."""
     bad = np.flatnonzero(~check.keep[p] & np.isfinite(check.predicted_xy[p]).all(axis=1))
     passed = check.keep[p].copy()
     if not bad.size:
         return passed
     start, A0 = check.predicted_xy[p][bad], check.mean_A[p][bad]
-    res = lsm(template_img, search_img, t_xy[bad], start, patch=patch, initial_A=A0,
-              thresholds=thresholds, **model)
+    res = lsm(template_img, search_img, t_xy[bad], start, initial_A=A0,
+              template_mask=template_mask, params=model)
     got, new_xy, new_sig = res.ok, res.xy.copy(), res.sigma_xy.copy()
     if robust is not None and not got.all():
         j = np.flatnonzero(~got)
-        res2 = lsm(template_img, search_img, t_xy[bad[j]], start[j], patch=robust_patch,
-                   initial_A=A0[j], robust=robust, thresholds=thresholds, **model)
+        res2 = lsm(template_img, search_img, t_xy[bad[j]], start[j], initial_A=A0[j],
+                   template_mask=template_mask, params=robust)
         got[j], new_xy[j], new_sig[j] = res2.ok, res2.xy, res2.sigma_xy
     fixed = got & (np.linalg.norm(new_xy - start, axis=1) <= max_position)
     xy_k[bad[fixed]] = new_xy[fixed]
@@ -269,8 +315,8 @@ def _rematch_outliers(check, p, template_img, search_img, t_xy, xy_k, sig_k, rem
     return passed
 
 
-def _rematch_joint(imgs, template, searches, pos, checks, xy, sig, t_xy, geometry, *, patch,
-                   thresholds, max_position, model):
+def _rematch_joint(imgs, template, searches, pos, checks, xy, sig, t_xy, geometry,
+                   model: LSMParams, *, max_position, template_mask):
     """The neighbourhood filter for joint matches: a node that fails in any search image is
     re-matched once in all of them jointly (:func:`~lsmta.matching.mpgc.mpgc`), from its
     neighbours' predictions; it passes when every new position stays within
@@ -284,7 +330,7 @@ def _rematch_joint(imgs, template, searches, pos, checks, xy, sig, t_xy, geometr
     if bad.size:
         t0 = geometry.parameter(t_xy[bad], pred[bad])
         res = mpgc(imgs[template], [imgs[k] for k in searches], t_xy[bad], t0, geometry,
-                   patch=patch, initial_A=A0[bad], thresholds=thresholds, **model)
+                   initial_A=A0[bad], template_mask=template_mask, params=model)
         new = res.xy.transpose(1, 0, 2)                                        # (n, K-1, 2)
         fixed = res.ok & (np.linalg.norm(new - pred[bad], axis=2) <= max_position).all(axis=1)
         for j, k in enumerate(searches):

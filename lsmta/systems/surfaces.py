@@ -16,7 +16,14 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .._validate import as_scalar
-from ..matching import LSMThresholds, SurfaceResult, find_seeds, measure_surface
+from ..matching import (
+    GrowParams,
+    LSMThresholds,
+    MeasureSurfaceParams,
+    SurfaceResult,
+    find_seeds,
+    measure_surface,
+)
 from ..triangulation import triangulate
 from .checks import check_cameras, check_videos
 
@@ -99,6 +106,9 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
     thresholds = LSMThresholds(max_sigma0=p.sigma0_factor * sigma, max_displacement=p.step,
                                max_sigma_xy=p.max_sigma_xy, scale_range=(0.5, 2.0),
                                max_shear=0.5)
+    surface = MeasureSurfaceParams(grow=GrowParams(step=p.step, patch=p.patch,
+                                                   retry_patch=p.retry_patch,
+                                                   thresholds=thresholds))
     out: dict[int, SurfaceResult] = {}
     for f in tqdm(frames, desc="surfaces", disable=not progress):
         seeds = find_seeds(v[:, f], cams, template=p.template, n_seeds=p.n_seeds,
@@ -106,7 +116,5 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
         if seeds.xy.shape[1] == 0:
             raise ValueError(f"videos: no seed found in frame {f} (no textured point matches "
                              "along the epipolar curves); check the calibration")
-        out[f] = measure_surface(v[:, f], cams, seeds.xy, template=p.template, step=p.step,
-                                 patch=p.patch, retry_patch=p.retry_patch,
-                                 thresholds=thresholds)
+        out[f] = measure_surface(v[:, f], cams, seeds.xy, template=p.template, params=surface)
     return out

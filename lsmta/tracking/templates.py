@@ -48,7 +48,7 @@ import numba as nb
 import numpy as np
 
 from ..matching.correlation import CorrelationStatus, correlation_search
-from ..matching.lsm import LSMResult, LSMThresholds, Status, lsm
+from ..matching.lsm import LSMParams, LSMResult, LSMThresholds, Status, lsm
 from ..matching.spline import SplineImage
 
 _ARRAYS = ("values", "gx", "gy", "update", "q_xy", "ok")
@@ -248,9 +248,9 @@ def match_templates(templates: Templates, rows, search: SplineImage, start_xy, s
     if not (fallback or not inverse) or not redo.size:
         return result
     tiles, centres = _mosaic(templates, rows[redo])
-    fa = lsm(tiles, search, centres, start[redo], patch=templates.patch,
-             initial_A=np.asarray(start_A, float).reshape(n, 2, 2)[redo], max_iter=max_iter,
-             tol=tol, max_displacement=max_disp, thresholds=thresholds)
+    fa = lsm(tiles, search, centres, start[redo], params=LSMParams(
+        patch=templates.patch, max_iter=max_iter, tol=tol, max_displacement=max_disp,
+        thresholds=thresholds), initial_A=np.asarray(start_A, float).reshape(n, 2, 2)[redo])
     merged = {}
     for name in LSMResult.__dataclass_fields__:
         merged[name] = getattr(result, name).copy()

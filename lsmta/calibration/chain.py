@@ -27,7 +27,7 @@ import numpy as np
 from .._validate import as_array, as_scalar
 from ..camera import Camera
 from ..triangulation import triangulate
-from .approximations import next_camera, relative_orientation_start, resect
+from .approximations import next_camera, relative_orientation_start, resect_pnp
 
 
 @dataclass(frozen=True, eq=False)
@@ -118,7 +118,7 @@ def chain_cameras(cameras, xy, *, first: int = 0, min_shared: int = 12,
         if m.sum() < min_shared:
             raise ValueError(f"xy: camera {cams[k].name or k} sees {int(m.sum())} intersected "
                              f"point(s) of the chain; it needs >= {min_shared} to join")
-        out[k] = resect(out[k], X[m], xy[k, m], max_error_px=2 * threshold_px)
+        out[k] = resect_pnp(out[k], X[m], xy[k, m], max_error_px=2 * threshold_px)
         parent[k] = order[int(np.argmax(shared[k, order]))]
         order.append(k)
     X = triangulate(out, xy, min_angle_deg=0.0).points

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array, as_scalar
+from .._validate import as_array, as_int, as_scalar
 from ..triangulation import triangulate
 from .bundle import (
     INTRINSIC_NAMES,
@@ -440,13 +440,8 @@ class AlternationParams:
     def __post_init__(self):
         _check_triangulation(self.triangulation)
         for key, low in (("n_iter", 0), ("exterior_first", 0), ("joint_steps", 1)):
-            v = getattr(self, key)
-            if int(v) != v or v < low:
-                raise ValueError(f"{key}: expected an integer >= {low}, got {v}")
-        if self.joint_every is not None and (int(self.joint_every) != self.joint_every
-                                             or self.joint_every < 1):
-            raise ValueError(f"joint_every: expected None or a positive integer, "
-                             f"got {self.joint_every}")
+            as_int(getattr(self, key), key, minimum=low)
+        as_int(self.joint_every, "joint_every", allow_none=True)
         if self.joint_every is not None and self.triangulation != "optimal":
             raise ValueError("joint_every: joint steps need triangulation='optimal' (the "
                              "joint adjustment minimises image residuals)")

@@ -18,7 +18,7 @@ from ..face import align_sequence, extreme_basis, fill_missing, learn, pca_basis
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.face import face_cameras, face_sequence, visible
 from ..synth.marker_video import render_marker_video
-from ..tracking.markers import MarkerStatus, track_markers
+from ..tracking.markers import MarkerStatus, MarkerTrackingParams, track_markers
 from ..triangulation import triangulate, triangulate_single_pair
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "animface"
@@ -354,14 +354,15 @@ def observe_tracked(seq, *, rng: np.random.Generator | int | None = None,
                     pose_noise_deg: float = 0.1,
                     min_cos: float = 0.3, cameras=None, blur_frames=(),
                     image_noise: float = 2.0, seed_noise: float = 0.5,
-                    keep_images: bool = False, tracker=None, **camera_kw) -> TrackedCapture:
+                    keep_images: bool = False, tracker: MarkerTrackingParams | None = None,
+                    **camera_kw) -> TrackedCapture:
     """Like :func:`observe`, but the image positions come from tracking rendered video.
 
     Each camera's video is rendered (:func:`lsmta.synth.marker_video.render_marker_video`)
     from cameras aimed at the head in every frame and off by ``pose_noise_deg`` per axis
     and frame (the pan-tilt jitter the tracker's stabilisation removes), with motion blur
     on ``blur_frames``. Markers are tracked with
-    :func:`lsmta.tracking.markers.track_markers` (keyword arguments ``tracker``); a marker
+    :func:`lsmta.tracking.markers.track_markers` (settings ``tracker``); a marker
     is started at its true position plus ``seed_noise`` px of Gaussian noise in frame 0
     and whenever it becomes visible again (a stand-in for identifying it by hand; the
     tracker does not re-acquire markers). Only positions the tracker found are
@@ -390,7 +391,7 @@ def observe_tracked(seq, *, rng: np.random.Generator | int | None = None,
         seeds = np.where(start[..., None], video.xy + rng.normal(0, seed_noise, video.xy.shape),
                          np.nan)
         all_seeds[i] = seeds
-        tr = track_markers(video.images, seeds[0], seeds=seeds, **(tracker or {}))
+        tr = track_markers(video.images, seeds[0], seeds=seeds, params=tracker)
         ok = np.isin(tr.status, (MarkerStatus.TRACKED, MarkerStatus.SECOND_SEARCH))
         ok[0] = False
         found[i][ok] = tr.xy[ok]
@@ -413,23 +414,23 @@ def observe_tracked(seq, *, rng: np.random.Generator | int | None = None,
 
 
 def tracking_errors(capture: TrackedCapture, *, n_frames: int | None = None,
-                    **tracker) -> dict:
+                    params: MarkerTrackingParams | None = None) -> dict:
     """Track the kept videos of ``capture`` again (first ``n_frames``, same start
-    positions) with tracker options ``tracker`` and score against the truth.
+    positions) with the tracker's settings ``params`` and score against the truth.
 
     Returns a dict: ``median``, ``p95`` (px, markers found in frames 1.., crowded markers
     excluded), ``wrong`` (share of those more than 2 px off: jumped to another marker),
     ``found`` (share of drawn, uncrowded marker images in frames 1.. the tracker found).
-    Without keyword arguments (and ``n_frames=None``) it scores the capture as made.
+    Without ``params`` and ``n_frames`` it scores the capture as made.
     """
     if capture.images is None:
         raise ValueError("capture: made without keep_images=True")
     T = capture.truth_xy.shape[1] if n_frames is None else int(n_frames)
     errs, found, drawn = [], 0, 0
     for k, images in enumerate(capture.images):
-        if tracker or n_frames is not None:
+        if params is not None or n_frames is not None:
             tr = track_markers(images[:T], capture.seeds[k, 0],
-                               seeds=capture.seeds[k, :T], **tracker)
+                               seeds=capture.seeds[k, :T], params=params)
             ok = np.isin(tr.status, (MarkerStatus.TRACKED, MarkerStatus.SECOND_SEARCH))
             xy = np.where(ok[..., None], tr.xy, np.nan)
         else:

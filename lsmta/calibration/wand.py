@@ -212,7 +212,7 @@ def _approximations(nominal, xy, bar, pair, threshold_px):
         k, m, X = next_camera(cams, placed, xy, min_angle_deg=1.0)
         if m.sum() >= 6:
             cams[k] = resect_pnp(nominal[k], X[m], xy[k, m], max_error_px=4 * threshold_px,
-                             arg="wand_xy")
+                                 arg="wand_xy")
         else:
             cams[k] = _relative_to_placed(nominal, cams, placed, k, xy, bar, threshold_px)
         placed.append(k)

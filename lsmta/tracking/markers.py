@@ -175,6 +175,7 @@ class MarkerTrackingParams:
         A frame is blurred when its sharpness is below ``blur_ratio`` times the median
         sharpness of the last ``blur_history`` good frames.
     blur_history : int
+        Good frames whose median sharpness the blur test compares with.
     refine : bool
         Move every found and every start position to the dot's brightness centroid
         (:func:`refine_centroid`), so that a start error or LK drift does not persist.

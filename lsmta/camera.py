@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ._validate import as_array, as_points, as_rotation, as_scalar, as_vector
+from ._validate import as_array, as_int, as_points, as_rotation, as_scalar, as_vector
 
 DISTORTION_NAMES = ("k1", "k2", "k3", "p1", "p2", "b1", "b2")
 
@@ -103,10 +103,7 @@ class Camera:
         if self.b1 <= -1:
             raise ValueError(f"b1: expected a number > -1 (x scale 1 + b1 > 0), got {self.b1}")
         for key in ("width", "height"):
-            value = getattr(self, key)
-            if int(value) != value or value < 1:
-                raise ValueError(f"{key}: expected a positive integer (pixels), got {value}")
-            set_(self, key, int(value))
+            set_(self, key, as_int(getattr(self, key), key, unit="pixels"))
         if self.pixel_size is not None:
             set_(self, "pixel_size", as_scalar(self.pixel_size, "pixel_size", positive=True))
         R = as_rotation(self.R, "R").copy()
@@ -119,12 +116,13 @@ class Camera:
     # ------------------------------------------------------------------ constructors
     @classmethod
     def look_at(cls, eye, target, *, f, width, height, up=(0.0, 0.0, 1.0), cx=None, cy=None,
-                **kwargs) -> Camera:
-        """A camera at ``eye`` (mm) whose optical axis points at ``target`` (mm).
+                pixel_size: float | None = None, name: str = "") -> Camera:
+        """A camera at ``eye`` (mm) whose optical axis points at ``target`` (mm), without
+        distortion (add it with :meth:`replace`, e.g. ``.replace(k1=-0.1)``).
 
         ``up`` is the world direction that appears upwards in the image. ``cx, cy``
-        default to the image centre; other keyword arguments are passed to
-        :class:`Camera` (distortion, ``name``, ...).
+        default to the image centre; ``f``, ``width``, ``height``, ``pixel_size`` and
+        ``name`` are :class:`Camera`'s.
         """
         eye = as_vector(eye, "eye", 3)
         target = as_vector(target, "target", 3)
@@ -141,14 +139,16 @@ class Camera:
         cx = (width - 1) / 2 if cx is None else cx
         cy = (height - 1) / 2 if cy is None else cy
         return cls(f=f, cx=cx, cy=cy, width=width, height=height, R=np.stack([x, y, z]), C=eye,
-                   **kwargs)
+                   pixel_size=pixel_size, name=name)
 
     @classmethod
-    def from_opencv(cls, K, dist, rvec, tvec, image_size, **kwargs) -> Camera:
+    def from_opencv(cls, K, dist, rvec, tvec, image_size, *, pixel_size: float | None = None,
+                    name: str = "") -> Camera:
         """A camera from OpenCV's ``(K, dist, rvec, tvec)`` and ``image_size = (width, height)``.
 
         ``dist`` holds ``(k1, k2, p1, p2[, k3[, ...]])``; coefficients beyond k3 (rational,
         thin-prism, tilt) must be zero because this model does not have them.
+        ``pixel_size`` and ``name`` are :class:`Camera`'s.
         """
         K = as_array(K, "K", shape=(3, 3))
         if K[0, 1] != 0 or K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
@@ -168,14 +168,10 @@ class Camera:
             raise ValueError("rvec, tvec: expected 3 numbers each")
         if len(image_size) != 2:
             raise ValueError("image_size: expected (width, height)")
-        taken = {"f", "cx", "cy", "width", "height", "R", "C", *DISTORTION_NAMES} & set(kwargs)
-        if taken:
-            raise ValueError(f"{sorted(taken)}: these come from K, dist, rvec, tvec and "
-                             "image_size; pass only name or pixel_size as extra arguments")
         R, _ = cv2.Rodrigues(rvec)
         return cls(f=K[1, 1], cx=K[0, 2], cy=K[1, 2], width=image_size[0], height=image_size[1],
                    R=R, C=-R.T @ tvec, k1=d[0], k2=d[1], p1=d[2], p2=d[3], k3=d[4],
-                   b1=K[0, 0] / K[1, 1] - 1.0, **kwargs)
+                   b1=K[0, 0] / K[1, 1] - 1.0, pixel_size=pixel_size, name=name)
 
     def to_opencv(self):
         """OpenCV's ``(K, dist, rvec, tvec)``; ``dist`` is ``(k1, k2, p1, p2, k3)``.
@@ -192,7 +188,8 @@ class Camera:
         return K, dist, rvec.ravel(), tvec
 
     def replace(self, **changes) -> Camera:
-        """A copy with some fields changed (``dataclasses.replace``)."""
+        """A copy with some fields changed (``dataclasses.replace``: any of the fields above,
+        checked again as a new camera)."""
         return dataclasses.replace(self, **changes)
 
     # ------------------------------------------------------------------ properties
@@ -344,9 +341,7 @@ class Camera:
 
     def pixel_grid(self, *, supersample: int = 1) -> np.ndarray:
         """Sample positions ``(H*s, W*s, 2)`` on a regular ``s x s`` grid inside every pixel."""
-        if int(supersample) != supersample or supersample < 1:
-            raise ValueError(f"supersample: expected a positive integer, got {supersample}")
-        s = int(supersample)
+        s = as_int(supersample, "supersample")
         offsets = (np.arange(s) + 0.5) / s - 0.5
         xs = (np.arange(self.width)[:, None] + offsets[None, :]).ravel()
         ys = (np.arange(self.height)[:, None] + offsets[None, :]).ravel()

@@ -37,6 +37,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import tomli_w
 
 from ._validate import as_array
 from .camera import Camera
@@ -198,8 +199,6 @@ def write_camera_toml(path, cameras, *, unit: str = "mm", layout: str = "anipose
     false``, ``matrix``, ``distortions``, ``rotation`` (3 x 3) and ``translation``
     (caliscope works in metres: pass ``unit="m"``).
     """
-    import tomli_w
-
     cameras = _cameras(cameras)
     scale = _unit(unit)
     if layout not in ("aniposelib", "caliscope"):

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from ._validate import as_int
+
 # 1 / Phi^-1(3/4): a Gaussian's standard deviation from its median absolute value
 MAD_TO_SIGMA = 1.482602218505602
 
@@ -82,8 +84,7 @@ def temporal_noise(videos, *, max_frames: int = 12) -> NoiseEstimate:
                          f"shape {v.shape}")
     if not (np.issubdtype(v.dtype, np.integer) or np.issubdtype(v.dtype, np.floating)):
         raise TypeError(f"videos: expected grey values (integer or float), got {v.dtype}")
-    if isinstance(max_frames, bool) or int(max_frames) != max_frames or max_frames < 1:
-        raise ValueError(f"max_frames: expected a positive integer, got {max_frames!r}")
+    as_int(max_frames, "max_frames")
     integer = np.issubdtype(v.dtype, np.integer)
     if not integer and not np.isfinite(v).all():
         raise ValueError("videos: expected finite grey values")

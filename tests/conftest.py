@@ -10,10 +10,11 @@ def random_camera(rng: np.random.Generator, *, shear: bool = False, name: str = 
     target = rng.uniform([-300, -300, 700], [300, 300, 1300])
     return Camera.look_at(
         eye, target, f=rng.uniform(700, 1400), width=768, height=576,
-        cx=383.5 + rng.normal(0, 5), cy=287.5 + rng.normal(0, 5),
+        cx=383.5 + rng.normal(0, 5), cy=287.5 + rng.normal(0, 5), name=name,
+    ).replace(
         k1=rng.uniform(-0.15, 0.05), k2=rng.uniform(-0.05, 0.15), k3=rng.uniform(-0.03, 0.03),
         p1=rng.normal(0, 5e-4), p2=rng.normal(0, 5e-4), b1=rng.normal(0, 5e-4),
-        b2=rng.normal(0, 5e-4) if shear else 0.0, name=name,
+        b2=rng.normal(0, 5e-4) if shear else 0.0,
     )
 
 

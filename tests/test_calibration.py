@@ -3,7 +3,13 @@
 import numpy as np
 import pytest
 
-from lsmta.calibration import Bar, bundle_adjust, relative_orientation_start, track_targets
+from lsmta.calibration import (
+    Bar,
+    BundleParams,
+    bundle_adjust,
+    relative_orientation_start,
+    track_targets,
+)
 from lsmta.calibration.approximations import scaled
 from lsmta.calibration.chain import chain_cameras, datum_from_distance, shared_points
 from lsmta.calibration.virtual_object import (
@@ -67,7 +73,8 @@ def test_targets_measured_to_subpixel_in_rendered_images():
 def test_noise_free_bar_recovers_the_interior_orientation():
     rng, truth, track, xy, bar = _bar_data(1, 80, 0.0)
     cams0, X0 = relative_orientation_start(triplet_rig(), xy, bar=bar, pair=(0, 2))
-    res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05, covariance=False)
+    res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05,
+                        params=BundleParams(covariance=False))
     assert res.rms < 1e-4
     for est, true in zip(res.cameras, truth):
         assert abs(est.f - true.f) < 0.05
@@ -101,8 +108,8 @@ def test_outliers_rejected_and_reported():
     xy[1, 10] += [6.0, -4.0]
     xy[2, 33] += [0.0, 8.0]
     cams0, X0 = relative_orientation_start(triplet_rig(), xy, bar=bar, pair=(0, 2))
-    res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05, reject_k=4.0,
-                        covariance=False)
+    res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05,
+                        params=BundleParams(reject_k=4.0, covariance=False))
     assert res.rejected[1, 10] and res.rejected[2, 33]
     assert res.n_rejected <= 4
     assert res.rms < 0.06
@@ -114,7 +121,8 @@ def test_nan_observations_dropped_and_counted():
     xy[0, :7] = np.nan
     xy[1, 20, 0] = np.nan
     cams0, X0 = relative_orientation_start(triplet_rig(), xy, bar=bar, pair=(0, 2))
-    res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05, covariance=False)
+    res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05,
+                        params=BundleParams(covariance=False))
     assert res.n_nan_dropped == 8
     assert np.isnan(res.residuals[0, :7]).all() and res.rms < 0.06
 
@@ -156,7 +164,8 @@ def test_bundle_adjust_leaves_the_callers_arrays_alone():
     rng, truth, track, xy, bar = _bar_data(7, 40, 0.05)
     cams0, X0 = relative_orientation_start(triplet_rig(), xy, bar=bar, pair=(0, 2))
     xy_before, X0_before = xy.copy(), X0.copy()
-    res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05, covariance=False)
+    res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05,
+                        params=BundleParams(covariance=False))
     assert np.array_equal(xy, xy_before, equal_nan=True)
     assert np.array_equal(X0, X0_before, equal_nan=True)
     assert not np.allclose(res.points, X0, equal_nan=True)
@@ -326,8 +335,9 @@ def test_robust_loss_downweights_an_outlier():
     xy = xy.copy()
     xy[0, 5] += [10.0, 10.0]
     cams0, X0 = relative_orientation_start(triplet_rig(), xy, bar=bar, pair=(0, 2))
-    res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05, loss="cauchy", f_scale=3.0,
-                        covariance=False, intrinsics=("f", "cx", "cy", "k1", "k2", "k3"))
+    res = bundle_adjust(cams0, xy, X0, bar=bar, sigma_px=0.05,
+                        intrinsics=("f", "cx", "cy", "k1", "k2", "k3"),
+                        params=BundleParams(loss="cauchy", f_scale=3.0, covariance=False))
     # the outlier keeps (nearly) its full error; the others stay at the noise level
     assert np.linalg.norm(res.residuals[0, 5]) > 10.0
     others = np.delete(res.residuals.reshape(-1, 2), 5, axis=0)

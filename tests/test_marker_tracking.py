@@ -78,7 +78,7 @@ def test_blurred_frame_detected_and_tracks_survive():
         blur_frames=[10], blur_length=15)
     start = video.xy[0]
     a = tm.track_markers(video.images, start)
-    b = tm.track_markers(video.images, start, blur_retry=0)
+    b = tm.track_markers(video.images, start, params=tm.MarkerTrackingParams(blur_retry=0))
     assert a.blurred[10] and not b.blurred.any()
     assert np.isfinite(a.xy[-1]).all(axis=1).sum() > np.isfinite(b.xy[-1]).all(axis=1).sum()
 
@@ -90,9 +90,10 @@ def test_second_search_rescues_fast_marker():
     x = 20 + np.concatenate([[0.0], np.cumsum(steps)])
     truth = np.stack([x, np.full_like(x, 60.0)], axis=1)
     frames = np.stack([_dots(bg.shape, [p], bg) for p in truth])
-    kw = dict(window=7, levels=1, stabilise=False)
-    plain = tm.track_markers(frames, truth[:1], second_search=False, **kw)
-    both = tm.track_markers(frames, truth[:1], **kw)
+    both_p = tm.MarkerTrackingParams(window=7, levels=1, stabilise=False)
+    plain_p = tm.MarkerTrackingParams(window=7, levels=1, stabilise=False, second_search=False)
+    plain = tm.track_markers(frames, truth[:1], params=plain_p)
+    both = tm.track_markers(frames, truth[:1], params=both_p)
     assert (plain.status[:, 0] == tm.MarkerStatus.LOST).any()
     assert (both.status[:, 0] == tm.MarkerStatus.SECOND_SEARCH).any()
     assert not (both.status[:, 0] == tm.MarkerStatus.LOST).any()
@@ -110,7 +111,7 @@ def test_bad_input():
     with pytest.raises(ValueError, match="initial_xy"):
         tm.track_markers(img, [[np.inf, 10.0]])
     with pytest.raises(ValueError, match="window"):
-        tm.track_markers(img, [[10.0, 10.0]], window=8)
+        tm.MarkerTrackingParams(window=8)
     with pytest.raises(ValueError, match="seeds"):
         tm.track_markers(img, [[10.0, 10.0]], seeds=np.zeros((2, 1, 2)))
     with pytest.raises(ValueError, match="visible"):

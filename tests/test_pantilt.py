@@ -77,7 +77,8 @@ def data(head):
 
 
 def ideal_camera(**kw):
-    return Camera.look_at((0, -3000, 1000), (0, 0, 1000), f=800, width=640, height=480, **kw)
+    return Camera.look_at((0, -3000, 1000), (0, 0, 1000), f=800, width=640, height=480).replace(
+        **kw)
 
 
 # ---------------------------------------------------------------------- model

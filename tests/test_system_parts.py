@@ -7,7 +7,7 @@ import pytest
 
 from lsmta.body.joints import functional_joint, segment_axis
 from lsmta.body.start import arm_start, torso_frame
-from lsmta.calibration import Bar, relative_orientation_start, track_targets
+from lsmta.calibration import Bar, TargetParams, relative_orientation_start, track_targets
 from lsmta.calibration.labels import consistent_bar_labels
 from lsmta.calibration.targets import detect_blobs
 from lsmta.noise import temporal_noise
@@ -88,7 +88,7 @@ def test_target_leaving_the_image_is_found_again_far_away():
     cam = cams[1]
     images = render_bar_images(cam, track, rng=rng)
     images[10:14] = 25                       # the bar is out of sight for four frames
-    tracks = track_targets(images, gate=30.0)
+    tracks = track_targets(images, params=TargetParams(gate=30.0))
     truth = cam.project(track.points.reshape(-1, 3)).reshape(-1, 2, 2)
     assert np.isnan(tracks.xy[10:14]).all()
     assert np.isfinite(tracks.xy[14:]).all()           # re-acquired, wherever it came back

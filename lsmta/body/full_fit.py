@@ -60,7 +60,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
-from .._validate import as_array, as_scalar, freeze
+from .._validate import as_array, as_int, as_scalar, freeze
 from .full_body import LIMBS, RATIOS, full_body_model, limits, template_size
 from .metaballs import MetaballModel
 from .silhouette import point_derivatives, silhouette_terms
@@ -141,13 +141,9 @@ class FullBodyFitParams:
 
     def __post_init__(self):
         for name in ("n_rounds", "n_inner", "max_nfev", "min_neighbours"):
-            v = getattr(self, name)
-            if int(v) != v or v < 1:
-                raise ValueError(f"{name}: expected a positive integer, got {v}")
-        if int(self.free_rounds) != self.free_rounds or self.free_rounds < 0:
-            raise ValueError(f"free_rounds: expected an integer >= 0, got {self.free_rounds}")
-        if int(self.n_steps) != self.n_steps or self.n_steps < 3:
-            raise ValueError(f"n_steps: expected an integer >= 3, got {self.n_steps}")
+            as_int(getattr(self, name), name)
+        as_int(self.free_rounds, "free_rounds", minimum=0)
+        as_int(self.n_steps, "n_steps", minimum=3)
         for name in ("sigma_point", "sigma_silhouette", "outlier_k", "depth_margin", "gate",
                      "neighbour_radius", "offset_bound", "size_prior", "offset_prior"):
             as_scalar(getattr(self, name), name, positive=True)

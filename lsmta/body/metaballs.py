@@ -30,6 +30,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from skimage.measure import marching_cubes
 
 from .._validate import as_array, as_scalar
 from .skeleton import Skeleton
@@ -380,8 +381,6 @@ def iso_surface(model: MetaballModel, angles, scales, radii, *, base=None, spaci
     faces : (F, 3) int array
         Vertex indices of each triangle.
     """
-    from skimage.measure import marching_cubes
-
     spacing = as_scalar(spacing, "spacing", positive=True)
     margin = as_scalar(margin, "margin", nonnegative=True)
     threshold = as_scalar(threshold, "threshold", positive=True)

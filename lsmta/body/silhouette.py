@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from .._validate import as_array, as_scalar, freeze
+from .._validate import as_array, as_int, as_scalar, freeze
 from .metaballs import MetaballModel, _radii, surface_distance_terms
 
 _GOLD = (np.sqrt(5.0) - 1.0) / 2.0
@@ -97,9 +97,8 @@ def silhouette_terms(model: MetaballModel, origins, directions, angles, scales, 
     near, far = as_scalar(near, "near", nonnegative=True), as_scalar(far, "far", positive=True)
     if not far > near:
         raise ValueError(f"far: expected a depth beyond near = {near}, got {far}")
-    if int(n_steps) != n_steps or n_steps < 3 or int(n_refine) != n_refine or n_refine < 1:
-        raise ValueError(f"n_steps, n_refine: expected integers >= 3 and >= 1, got {n_steps}, "
-                         f"{n_refine}")
+    as_int(n_steps, "n_steps", minimum=3)
+    as_int(n_refine, "n_refine")
     N = len(origins)
     depths = np.linspace(near, far, int(n_steps))
     grid = origins[:, None, :] + depths[None, :, None] * directions[:, None, :]
@@ -196,17 +195,14 @@ class PoseFitParams:
     gate: float = 30.0
 
     def __post_init__(self):
-        if int(self.n_rounds) != self.n_rounds or self.n_rounds < 1:
-            raise ValueError(f"n_rounds: expected a positive integer, got {self.n_rounds}")
+        as_int(self.n_rounds, "n_rounds")
         for name in ("sigma_point", "sigma_silhouette", "outlier_k", "far", "gate"):
             as_scalar(getattr(self, name), name, positive=True)
         as_scalar(self.near, "near", nonnegative=True)
         if self.loss not in ("linear", "soft_l1", "huber", "cauchy", "arctan"):
             raise ValueError(f"loss: expected a least_squares loss name, got {self.loss!r}")
-        if int(self.n_steps) != self.n_steps or self.n_steps < 3:
-            raise ValueError(f"n_steps: expected an integer >= 3, got {self.n_steps}")
-        if int(self.max_nfev) != self.max_nfev or self.max_nfev < 1:
-            raise ValueError(f"max_nfev: expected a positive integer, got {self.max_nfev}")
+        as_int(self.n_steps, "n_steps", minimum=3)
+        as_int(self.max_nfev, "max_nfev")
 
 
 @dataclass(frozen=True, eq=False)

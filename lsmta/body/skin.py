@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
-from .._validate import as_array, as_scalar, freeze
+from .._validate import as_array, as_int, as_scalar, freeze
 from .metaballs import THRESHOLD, MetaballModel, _radii, field
 
 
@@ -72,9 +72,7 @@ class SkinParams:
     def __post_init__(self):
         for name, low in (("n_sections", 2), ("n_around", 6), ("n_cap", 2), ("n_march", 2),
                           ("n_bisect", 1), ("n_u", 4), ("n_v", 6)):
-            v = getattr(self, name)
-            if int(v) != v or v < low:
-                raise ValueError(f"{name}: expected an integer >= {low}, got {v}")
+            as_int(getattr(self, name), name, minimum=low)
         t = as_scalar(self.threshold, "threshold", positive=True)
         if not t < 1:
             raise ValueError(f"threshold: expected a number in (0, 1), got {t}")
@@ -241,7 +239,7 @@ def model_skin(model: MetaballModel, angles, scales, radii, *, base=None,
 
 def merge_patches(patches):
     """One pyvista ``PolyData`` of all patches (duplicate vertices merged)."""
-    import pyvista as pv
+    import pyvista as pv  # deferred: importing pyvista (VTK) takes ~0.5 s; only this needs it
 
     meshes = []
     for patch in patches:

@@ -1,12 +1,13 @@
 """Multi-camera calibration: reference-bar self-calibrating bundle adjustment (LSMTA §2.1),
 the virtual calibration object (Davis §3.2) and the one-call wand calibration."""
 
-from .approximations import relative_orientation_start, scaled
+from .approximations import relative_orientation_start, resect_pnp, scaled
 from .bundle import (
     DEFAULT_INTRINSICS,
     INTRINSIC_NAMES,
     PARAMETER_NAMES,
     Bar,
+    BundleParams,
     BundleResult,
     bundle_adjust,
     camera_to_params,
@@ -14,7 +15,8 @@ from .bundle import (
     project_params,
 )
 from .chain import ChainStart, chain_cameras, datum_from_distance, shared_points
-from .targets import Blobs, TargetStatus, TargetTracks, detect_blobs, track_targets
+from .result import CalibrationResult
+from .targets import Blobs, TargetParams, TargetStatus, TargetTracks, detect_blobs, track_targets
 from .virtual_object import (
     IMPROVED_ALTERNATION,
     AlternationParams,
@@ -30,10 +32,11 @@ from .wand import WandCalibration, WandStatus, calibrate_wand
 
 __all__ = [
     "DEFAULT_INTRINSICS", "IMPROVED_ALTERNATION", "INTRINSIC_NAMES", "PARAMETER_NAMES",
-    "AlternationParams", "Bar", "Blobs", "BundleResult", "ChainStart", "ConvergenceHistory",
-    "TargetStatus", "TargetTracks", "WandCalibration", "WandStatus", "alternate",
-    "bundle_adjust", "calibrate_wand", "camera_to_params", "chain_cameras",
-    "datum_from_distance", "detect_blobs", "joint_adjustment", "params_to_camera",
-    "project_params", "projection_error", "relative_orientation_start", "resect", "resect_all",
-    "scaled", "shared_points", "track_targets", "triangulate_optimal",
+    "AlternationParams", "Bar", "Blobs", "BundleParams", "BundleResult", "CalibrationResult",
+    "ChainStart", "ConvergenceHistory", "TargetParams", "TargetStatus", "TargetTracks",
+    "WandCalibration", "WandStatus", "alternate", "bundle_adjust", "calibrate_wand",
+    "camera_to_params", "chain_cameras", "datum_from_distance", "detect_blobs",
+    "joint_adjustment", "params_to_camera", "project_params", "projection_error",
+    "relative_orientation_start", "resect", "resect_all", "resect_pnp", "scaled",
+    "shared_points", "track_targets", "triangulate_optimal",
 ]

@@ -51,6 +51,24 @@ def relative_orientation_start(cameras, xy, *, bar: Bar | None = None, pair=(0, 
     xy = as_array(xy, "xy", shape=(K, None, 2), allow_nan=True)
     nominal = [c.replace(R=np.eye(3), C=np.zeros(3), k1=0.0, k2=0.0, k3=0.0, p1=0.0, p2=0.0,
                          b1=0.0, b2=0.0) for c in cameras]
+    i, j = _pair_indices(pair, K)
+    if not (np.isfinite(threshold_px) and threshold_px > 0):
+        raise ValueError(f"threshold_px: expected a positive number of pixels, got "
+                         f"{threshold_px}")
+    cams, X = _relative_pair(cameras, nominal, xy, i, j, threshold_px)
+    scale = 1.0 if bar is None else _bar_scale(X, bar)
+    cams[j] = cams[j].replace(C=cams[j].C * scale)
+    X = X * scale
+    for k in range(K):
+        if k in (i, j):
+            continue
+        cams[k] = _resect_start(cameras[k].name or k, nominal[k], X, xy[k], threshold_px)
+    X = triangulate(cams, xy, min_angle_deg=0.0).points
+    return cams, X
+
+
+def _pair_indices(pair, K: int) -> tuple[int, int]:
+    """The two different camera indices of ``pair``, checked."""
     try:
         i, j = (int(v) for v in pair)
     except (TypeError, ValueError):
@@ -58,9 +76,12 @@ def relative_orientation_start(cameras, xy, *, bar: Bar | None = None, pair=(0, 
     if i == j or not (0 <= i < K and 0 <= j < K):
         raise ValueError(f"pair: expected two different camera indices in [0, {K - 1}], "
                          f"got {pair!r}")
-    if not (np.isfinite(threshold_px) and threshold_px > 0):
-        raise ValueError(f"threshold_px: expected a positive number of pixels, got "
-                         f"{threshold_px}")
+    return i, j
+
+
+def _relative_pair(cameras, nominal, xy, i: int, j: int, threshold_px: float):
+    """Cameras ``i`` (the world frame) and ``j`` (base one unit long) from the essential
+    matrix of the points both see, and those points intersected."""
     both = np.isfinite(xy[i]).all(axis=1) & np.isfinite(xy[j]).all(axis=1)
     if both.sum() < 8:
         raise ValueError(f"xy: cameras {cameras[i].name or i} and {cameras[j].name or j} "
@@ -78,32 +99,33 @@ def relative_orientation_start(cameras, xy, *, bar: Bar | None = None, pair=(0, 
     cams = list(nominal)
     cams[j] = nominal[j].replace(R=R, C=-(R.T @ t.ravel()))
     X = triangulate([cams[i], cams[j]], xy[[i, j]], min_angle_deg=0.0).points
-    scale = 1.0
-    if bar is not None:
-        d = np.linalg.norm(X[bar.pairs[:, 0]] - X[bar.pairs[:, 1]], axis=1)
-        d = d[np.isfinite(d)]
-        if not len(d):
-            raise ValueError("bar: no bar position is seen by both cameras of the pair")
-        scale = bar.length / np.median(d)
-    cams[j] = cams[j].replace(C=cams[j].C * scale)
-    X = X * scale
-    for k in range(K):
-        if k in (i, j):
-            continue
-        m = np.isfinite(xy[k]).all(axis=1) & np.isfinite(X).all(axis=1)
-        if m.sum() < 6:
-            raise ValueError(f"xy: camera {cameras[k].name or k} sees {m.sum()} of the "
-                             "points of the relative orientation; resection needs >= 6")
-        Km = np.array([[nominal[k].f, 0, nominal[k].cx], [0, nominal[k].f, nominal[k].cy],
-                       [0, 0, 1.0]])
-        ok, rvec, tvec, _ = cv2.solvePnPRansac(X[m], xy[k, m], Km, None,
-                                               reprojectionError=threshold_px * 2)
-        if not ok:
-            raise ValueError(f"xy: resection of camera {cameras[k].name or k} failed")
-        Rk, _ = cv2.Rodrigues(rvec)
-        cams[k] = nominal[k].replace(R=Rk, C=-(Rk.T @ tvec.ravel()))
-    X = triangulate(cams, xy, min_angle_deg=0.0).points
     return cams, X
+
+
+def _bar_scale(X, bar: Bar) -> float:
+    """The factor that makes the median bar length of the points ``X`` the bar's."""
+    d = np.linalg.norm(X[bar.pairs[:, 0]] - X[bar.pairs[:, 1]], axis=1)
+    d = d[np.isfinite(d)]
+    if not len(d):
+        raise ValueError("bar: no bar position is seen by both cameras of the pair")
+    return bar.length / np.median(d)
+
+
+def _resect_start(name, nominal: Camera, X, xy_k, threshold_px: float) -> Camera:
+    """One further camera by RANSAC resection from the points of the relative
+    orientation (``name``: the camera's name or index in messages)."""
+    m = np.isfinite(xy_k).all(axis=1) & np.isfinite(X).all(axis=1)
+    if m.sum() < 6:
+        raise ValueError(f"xy: camera {name} sees {m.sum()} of the "
+                         "points of the relative orientation; resection needs >= 6")
+    Km = np.array([[nominal.f, 0, nominal.cx], [0, nominal.f, nominal.cy],
+                   [0, 0, 1.0]])
+    ok, rvec, tvec, _ = cv2.solvePnPRansac(X[m], xy_k[m], Km, None,
+                                           reprojectionError=threshold_px * 2)
+    if not ok:
+        raise ValueError(f"xy: resection of camera {name} failed")
+    Rk, _ = cv2.Rodrigues(rvec)
+    return nominal.replace(R=Rk, C=-(Rk.T @ tvec.ravel()))
 
 
 def scaled(cameras, points, factor: float):
@@ -148,9 +170,11 @@ def next_camera(cameras, placed, xy, *, min_angle_deg: float = 0.0):
     return k, visible[k] & known, X
 
 
-def resect(camera: Camera, points, xy, *, max_error_px: float, arg: str = "xy") -> Camera:
+def resect_pnp(camera: Camera, points, xy, *, max_error_px: float, arg: str = "xy") -> Camera:
     """Exterior orientation of ``camera`` from 3-D points, its interior orientation kept
-    and its distortion ignored: RANSAC PnP, then all points when RANSAC keeps fewer than 6.
+    and its distortion ignored: RANSAC PnP, then all points when RANSAC keeps fewer than 6
+    (an approximation; :func:`~lsmta.calibration.resect` is the least-squares resection
+    that adjusts the interior orientation and the distortion too).
 
     Parameters
     ----------

@@ -31,7 +31,8 @@ from scipy.spatial.transform import Rotation
 from .._validate import as_array, as_scalar
 from ..camera import Camera
 from ..triangulation import triangulate
-from .bundle import Bar, BundleResult, bundle_adjust
+from .bundle import Bar, bundle_adjust
+from .result import CalibrationResult
 
 # what a small board in a few dozen frames determines: with k3, p1, p2 and b1 free as well,
 # the standard deviation of k1 triples and k2, k3 run off (k2 = 25 on caliscope's camera 2)
@@ -40,26 +41,24 @@ MIN_CORNERS = 6
 
 
 @dataclass(frozen=True, eq=False)
-class BoardCalibration:
+class BoardCalibration(CalibrationResult):
     """Result of :func:`calibrate_board`.
 
     Attributes
     ----------
     cameras : list of K Camera
         Calibrated cameras, world frame = camera ``reference``'s, mm.
-    start : list of K Camera
-        The approximations (step 2).
     bundle : BundleResult
         The adjustment; its points are the corners, frame by frame (``F * C``).
+    start : list of K Camera
+        The approximations (step 2).
     reference : int
         The camera that defines the world frame.
     bar : Bar
         The corner pairs one square apart (indices into ``F * C``) and the square size.
     """
 
-    cameras: list
     start: list
-    bundle: BundleResult
     reference: int
     bar: Bar
 
@@ -150,7 +149,22 @@ def calibrate_board(xy, board, image_sizes, *, cameras=None, intrinsics=BOARD_IN
     d = np.linalg.norm(board[:, None] - board[None], axis=2)
     square = float(d[d > 0].min()) if square_mm is None else as_scalar(square_mm, "square_mm",
                                                                         positive=True)
-    # 1. interior orientation
+    start = _interior(xy, board, sizes, cameras, names)
+    cams0, ref = _exterior(start, xy, board, names)
+    flat = xy.reshape(K, F * C, 2)
+    X0 = triangulate(cams0, flat, min_angle_deg=0.0).points
+    # 3. bundle adjustment with the neighbouring corners as bars
+    bar = _corner_bars(d, square, X0, F, C, bar_sigma)
+    bundle = bundle_adjust(cams0, flat, X0, intrinsics=tuple(intrinsics),
+                           fixed_exterior=(ref,), bar=bar, sigma_px=sigma_px)
+    return BoardCalibration(cameras=bundle.cameras, start=cams0, bundle=bundle,
+                            reference=ref, bar=bar)
+
+
+def _interior(xy, board, sizes, cameras, names) -> list:
+    """Step 1, interior orientation: Zhang's plane-board calibration of each camera's own
+    views, or the given cameras (their poses reset)."""
+    K = xy.shape[0]
     if cameras is None:
         start = []
         for k in range(K):
@@ -162,7 +176,13 @@ def calibrate_board(xy, board, image_sizes, *, cameras=None, intrinsics=BOARD_IN
                  for k, c in enumerate(cameras)]
         if len(start) != K:
             raise ValueError(f"cameras: expected {K} cameras, got {len(start)}")
-    # 2. exterior orientation: a spanning tree from the best-connected camera
+    return start
+
+
+def _exterior(start, xy, board, names):
+    """Step 2, exterior orientation: a spanning tree from the best-connected camera (the
+    reference); returns the oriented cameras and the reference."""
+    K = len(start)
     poses = [_board_poses(start[k], xy[k], board) for k in range(K)]
     shared = np.array([[len(set(poses[a]) & set(poses[b])) if a != b else 0
                         for b in range(K)] for a in range(K)])
@@ -179,15 +199,14 @@ def calibrate_board(xy, board, image_sizes, *, cameras=None, intrinsics=BOARD_IN
         R, t = _relative(poses[a], poses[b])
         R_w[b], t_w[b] = R @ R_w[a], R @ t_w[a] + t
     cams0 = [start[k].replace(R=R_w[k], C=-R_w[k].T @ t_w[k]) for k in range(K)]
-    flat = xy.reshape(K, F * C, 2)
-    X0 = triangulate(cams0, flat, min_angle_deg=0.0).points
-    # 3. bundle adjustment with the neighbouring corners as bars
+    return cams0, ref
+
+
+def _corner_bars(d, square, X0, F: int, C: int, bar_sigma: float) -> Bar:
+    """Every pair of corners one square apart (``d``: the board's corner distances) in
+    every frame whose two corners were intersected, as bars of the square's length."""
     ci, cj = np.nonzero(np.triu(np.isclose(d, square, rtol=1e-6)))
     frames = np.arange(F)[:, None] * C
     pairs = np.stack([(frames + ci).ravel(), (frames + cj).ravel()], axis=1)
     ok = np.isfinite(X0[pairs]).all(axis=(1, 2))
-    bar = Bar(pairs=pairs[ok], length=square, sigma=bar_sigma)
-    bundle = bundle_adjust(cams0, flat, X0, intrinsics=tuple(intrinsics),
-                           fixed_exterior=(ref,), bar=bar, sigma_px=sigma_px)
-    return BoardCalibration(cameras=bundle.cameras, start=cams0, bundle=bundle,
-                            reference=ref, bar=bar)
+    return Bar(pairs=pairs[ok], length=square, sigma=bar_sigma)

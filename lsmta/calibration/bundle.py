@@ -47,7 +47,7 @@ from scipy.sparse import coo_matrix, csc_matrix, diags
 from scipy.sparse.linalg import splu
 from scipy.spatial.transform import Rotation
 
-from .._validate import as_array, as_scalar
+from .._validate import as_array, as_int, as_scalar
 from ..camera import Camera
 
 EXTERIOR_NAMES = ("rx", "ry", "rz", "Cx", "Cy", "Cz")
@@ -91,6 +91,53 @@ def project_params(params, X) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------- inputs
+LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
+
+
+@dataclass(frozen=True)
+class BundleParams:
+    """How :func:`bundle_adjust` solves: robust loss, outlier rejection, stopping rules and
+    whether it computes the covariance.
+
+    Attributes
+    ----------
+    loss : str
+        Robust loss on the standardised residuals (the losses of
+        :func:`scipy.optimize.least_squares`: "linear", "huber", "soft_l1", "cauchy",
+        "arctan"), applied by iteratively reweighted least squares.
+    f_scale : float
+        The residual (in units of ``sigma_px``) where the loss starts to bend.
+    reject_k : float, optional
+        After the adjustment, reject observations whose residual vector is longer than
+        ``reject_k * s0 * sigma_px * sqrt(2)`` and adjust again (once). None: no rejection.
+    max_nfev : int, optional
+        Most Levenberg-Marquardt iterations (default 100).
+    ftol, xtol : float
+        Stop when the cost falls by less than ``ftol`` (relative) in an iteration, or the
+        step is below ``xtol`` (relative to the unknowns).
+    covariance : bool
+        Compute standard deviations and correlations (needs a dense ``p x p`` inverse).
+    """
+
+    loss: str = "linear"
+    f_scale: float = 3.0
+    reject_k: float | None = None
+    max_nfev: int | None = None
+    ftol: float = 1e-10
+    xtol: float = 1e-10
+    covariance: bool = True
+
+    def __post_init__(self):
+        if self.loss not in LOSSES:
+            raise ValueError(f"loss: expected one of scipy's losses, got {self.loss!r}")
+        as_scalar(self.f_scale, "f_scale", positive=True)
+        if self.reject_k is not None:
+            as_scalar(self.reject_k, "reject_k", positive=True)
+        as_int(self.max_nfev, "max_nfev", allow_none=True)
+        as_scalar(self.ftol, "ftol", nonnegative=True)
+        as_scalar(self.xtol, "xtol", nonnegative=True)
+
+
 @dataclass(frozen=True)
 class Bar:
     """A reference bar: which points are its two targets at each position.
@@ -228,10 +275,8 @@ def min_points_per_camera(n_free: int) -> int:
 # ---------------------------------------------------------------------- solver
 def bundle_adjust(cameras, xy, points, *, intrinsics=DEFAULT_INTRINSICS, fixed_exterior=(0,),
                   bar: Bar | None = None, scale_camera: int | None = None,
-                  sigma_px: float = 1.0, loss: str = "linear", f_scale: float = 3.0,
-                  reject_k: float | None = None, fix_points: bool = False,
-                  max_nfev: int | None = None, ftol: float = 1e-10,
-                  xtol: float = 1e-10, covariance: bool = True) -> BundleResult:
+                  sigma_px: float = 1.0, fix_points: bool = False,
+                  params: BundleParams | None = None) -> BundleResult:
     """Adjust cameras and object points to image observations (and a reference bar).
 
     Parameters
@@ -254,18 +299,11 @@ def bundle_adjust(cameras, xy, points, *, intrinsics=DEFAULT_INTRINSICS, fixed_e
         fixed camera) is held, which fixes the scale.
     sigma_px : float
         Standard deviation of an image coordinate, px (weights, and the noise limit).
-    loss, f_scale : str, float
-        Robust loss on the standardised residuals (the losses of
-        :func:`scipy.optimize.least_squares`: "huber", "soft_l1", "cauchy", "arctan"),
-        applied by iteratively reweighted least squares; ``f_scale`` is the residual (in
-        units of ``sigma_px``) where the loss starts to bend.
-    reject_k : float, optional
-        After the adjustment, reject observations whose residual vector is longer than
-        ``reject_k * s0 * sigma_px * sqrt(2)`` and adjust again (once).
     fix_points : bool
         Hold the object points (a resection of all cameras at once).
-    covariance : bool
-        Compute standard deviations and correlations (needs a dense ``p x p`` inverse).
+    params : BundleParams, optional
+        Robust loss, outlier rejection, stopping rules, covariance (default:
+        ``BundleParams()``: least squares, no rejection, with the covariance).
 
     Returns
     -------
@@ -277,11 +315,12 @@ def bundle_adjust(cameras, xy, points, *, intrinsics=DEFAULT_INTRINSICS, fixed_e
         For a camera that sees too few points (named, with its count), fewer observations
         than unknowns, a degenerate (collinear) bar track, or no datum.
     """
+    settings = BundleParams() if params is None else params
+    if not isinstance(settings, BundleParams):
+        raise TypeError(f"params: expected a BundleParams, got {type(settings).__name__}")
     pr = _problem(cameras, xy, points, intrinsics=intrinsics, fixed_exterior=fixed_exterior,
-                  bar=bar, scale_camera=scale_camera, sigma_px=sigma_px, loss=loss,
-                  fix_points=fix_points)
-    settings = _Settings(loss=loss, f_scale=f_scale, max_nfev=max_nfev, ftol=ftol, xtol=xtol,
-                         covariance=covariance)
+                  bar=bar, scale_camera=scale_camera, sigma_px=sigma_px, fix_points=fix_points)
+    reject_k = settings.reject_k
     params0 = np.stack([camera_to_params(c) for c in pr.cameras])
     X0 = pr.points
     rejected = np.zeros(pr.seen.shape, bool)
@@ -315,18 +354,8 @@ class _Problem:
     n_nan: int
 
 
-@dataclass(frozen=True)
-class _Settings:
-    loss: str
-    f_scale: float
-    max_nfev: int | None
-    ftol: float
-    xtol: float
-    covariance: bool
-
-
 def _problem(cameras, xy, points, *, intrinsics, fixed_exterior, bar, scale_camera, sigma_px,
-             loss, fix_points) -> _Problem:
+             fix_points) -> _Problem:
     """Check the arguments, choose the free parameters and the datum."""
     cameras = list(cameras)
     if not cameras or not all(isinstance(c, Camera) for c in cameras):
@@ -353,8 +382,6 @@ def _problem(cameras, xy, points, *, intrinsics, fixed_exterior, bar, scale_came
         raise TypeError("bar: expected an lsmta.calibration.Bar")
     if bar is not None and (bar.pairs.min() < 0 or bar.pairs.max() >= N):
         raise ValueError(f"bar.pairs: expected point indices in [0, {N})")
-    if loss not in ("linear", "huber", "soft_l1", "cauchy", "arctan"):
-        raise ValueError(f"loss: expected one of scipy's losses, got {loss!r}")
     seen = np.isfinite(xy).all(axis=2)
     free = _free_parameters(cameras, intrinsics, fixed_exterior, bar, scale_camera, fix_points)
     # cameras must see enough points for their own unknowns
@@ -497,7 +524,7 @@ class _Adjusted:
     history: list
 
 
-def _solve(pr: _Problem, params0, X0, use, st: _Settings) -> _Adjusted:
+def _solve(pr: _Problem, params0, X0, use, st: BundleParams) -> _Adjusted:
     """Adjust the observations ``use`` (K, N) from ``params0`` and ``X0``: Levenberg-Marquardt,
     then iteratively reweighted with the robust loss."""
     lay = _layout(pr, use)

@@ -24,10 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array, as_scalar
+from .._validate import as_array, as_int, as_scalar
 from ..camera import Camera
 from ..triangulation import triangulate
-from .approximations import next_camera, relative_orientation_start, resect
+from .approximations import next_camera, relative_orientation_start, resect_pnp
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,8 +101,7 @@ def chain_cameras(cameras, xy, *, first: int = 0, min_shared: int = 12,
     xy = as_array(xy, "xy", shape=(K, None, 2), allow_nan=True)
     if int(first) != first or not 0 <= first < K:
         raise ValueError(f"first: expected a camera index in [0, {K - 1}], got {first}")
-    if int(min_shared) != min_shared or min_shared < 6:
-        raise ValueError(f"min_shared: expected an integer >= 6, got {min_shared}")
+    as_int(min_shared, "min_shared", minimum=6)
     shared = shared_points(xy)
     others = np.delete(np.arange(K), first)
     second = int(others[np.argmax(shared[first, others])])
@@ -118,7 +117,7 @@ def chain_cameras(cameras, xy, *, first: int = 0, min_shared: int = 12,
         if m.sum() < min_shared:
             raise ValueError(f"xy: camera {cams[k].name or k} sees {int(m.sum())} intersected "
                              f"point(s) of the chain; it needs >= {min_shared} to join")
-        out[k] = resect(out[k], X[m], xy[k, m], max_error_px=2 * threshold_px)
+        out[k] = resect_pnp(out[k], X[m], xy[k, m], max_error_px=2 * threshold_px)
         parent[k] = order[int(np.argmax(shared[k, order]))]
         order.append(k)
     X = triangulate(out, xy, min_angle_deg=0.0).points

@@ -24,7 +24,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.optimize import linear_sum_assignment
 
-from .._validate import as_scalar
+from .._validate import as_int, as_scalar
 
 
 class TargetStatus(enum.IntEnum):
@@ -194,7 +194,44 @@ def detect_blobs(image, *, k: float = 8.0, min_area: int = 3, max_area: int = 40
     return Blobs(xy=xy, centroid=cents, sigma=s, amplitude=a, converged=ok, std=std, noise=s0)
 
 
-def track_targets(images, *, n_targets: int = 2, gate: float = 100.0, **detect) -> TargetTracks:
+@dataclass(frozen=True)
+class TargetParams:
+    """Settings of :func:`track_targets`: the gate of the frame-to-frame assignment and
+    the blob detection of :func:`detect_blobs` in every frame.
+
+    Attributes
+    ----------
+    gate : float
+        Largest distance (px) between a target's constant-velocity prediction and the blob
+        assigned to it. A target with no blob in its gate is lost in that frame (NaN);
+        it takes one of the frame's ``n_targets`` strongest blobs that no other target
+        claimed (left to right when several targets are lost), so a target that leaves the
+        image is found again wherever it comes back.
+    k : float
+        Detection threshold above the background median in units of the noise (1.4826 MAD).
+    min_area, max_area : int
+        Accepted region sizes, pixels.
+    half : int
+        Half-size of the patch of the Gaussian fit, px (patch ``2 half + 1`` square).
+    """
+
+    gate: float = 100.0
+    k: float = 8.0
+    min_area: int = 3
+    max_area: int = 400
+    half: int = 4
+
+    def __post_init__(self):
+        set_ = object.__setattr__
+        set_(self, "gate", as_scalar(self.gate, "gate", positive=True))
+        set_(self, "k", as_scalar(self.k, "k", positive=True))
+        set_(self, "min_area", as_int(self.min_area, "min_area", minimum=0, unit="pixels"))
+        set_(self, "max_area", as_int(self.max_area, "max_area", unit="pixels"))
+        set_(self, "half", as_int(self.half, "half", unit="pixels"))
+
+
+def track_targets(images, *, n_targets: int = 2,
+                  params: TargetParams | None = None) -> TargetTracks:
     """Measure ``n_targets`` bright targets in every frame and track them.
 
     Parameters
@@ -207,14 +244,8 @@ def track_targets(images, *, n_targets: int = 2, gate: float = 100.0, **detect) 
         agree (side-by-side cameras facing one way), and
         :func:`~lsmta.calibration.labels.consistent_bar_labels` corrects the frames where
         they do not.
-    gate : float
-        Largest distance (px) between a target's constant-velocity prediction and the blob
-        assigned to it. A target with no blob in its gate is lost in that frame (NaN);
-        it takes one of the frame's ``n_targets`` strongest blobs that no other target
-        claimed (left to right when several targets are lost), so a target that leaves the
-        image is found again wherever it comes back.
-    **detect
-        Passed to :func:`detect_blobs`.
+    params : TargetParams, optional
+        The assignment's gate and the blob detection (default: ``TargetParams()``).
 
     Returns
     -------
@@ -223,11 +254,11 @@ def track_targets(images, *, n_targets: int = 2, gate: float = 100.0, **detect) 
     images = np.asarray(images)
     if images.ndim != 3:
         raise ValueError(f"images: expected (T, H, W), got shape {images.shape}")
-    gate = as_scalar(gate, "gate", positive=True)
+    p = TargetParams() if params is None else params
+    if not isinstance(p, TargetParams):
+        raise TypeError(f"params: expected a TargetParams, got {type(p).__name__}")
     T = len(images)
-    if isinstance(n_targets, bool) or int(n_targets) != n_targets or n_targets < 1:
-        raise ValueError(f"n_targets: expected a positive integer, got {n_targets!r}")
-    M = int(n_targets)
+    M = as_int(n_targets, "n_targets")
     xy = np.full((T, M, 2), np.nan)
     std = np.full((T, M), np.nan)
     status = np.full((T, M), TargetStatus.LOST, dtype=np.int64)
@@ -235,9 +266,10 @@ def track_targets(images, *, n_targets: int = 2, gate: float = 100.0, **detect) 
     last = np.full((M, 2), np.nan)
     vel = np.zeros((M, 2))
     for t in range(T):
-        b = detect_blobs(images[t], **detect)
+        b = detect_blobs(images[t], k=p.k, min_area=p.min_area, max_area=p.max_area,
+                         half=p.half)
         n_blobs[t] = len(b.xy)
-        pick = _assign(b, last, vel, gate, M)
+        pick = _assign(b, last, vel, p.gate, M)
         for r, c in enumerate(pick):
             if c < 0:
                 vel[r] = 0.0                       # predict from the last position only

@@ -35,10 +35,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array, as_scalar
+from .._validate import as_array, as_int, as_scalar
 from ..triangulation import triangulate
 from .bundle import (
     INTRINSIC_NAMES,
+    BundleParams,
     bundle_adjust,
     camera_to_params,
     min_points_per_camera,
@@ -154,11 +155,7 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
     for _ in range(int(n_iter)):
         if not active.any():
             break
-        J = np.empty((len(kk), 2, 3))
-        for a in range(3):
-            J[:, :, a] = (project_params(params, X[ii] + h * eye[a])
-                          - project_params(params, X[ii] - h * eye[a])) / (2 * h)
-        J = np.nan_to_num(J)
+        J = _jacobian_points(params, X[ii], h)
         A = _sum_by(ii, np.einsum("mji,mjk->mik", J, J), N)
         g = _sum_by(ii, np.einsum("mji,mj->mi", J, r), N)
         A[~active] = eye
@@ -184,6 +181,17 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
         # converged: a tiny step, or no step that lowers the cost
         active &= ~pending & (step >= tol * (1 + np.linalg.norm(X, axis=1)))
     return X
+
+
+def _jacobian_points(params, Xo, h: float) -> np.ndarray:
+    """Central-difference Jacobian ``(M, 2, 3)`` of every observation's projection (camera
+    parameters ``params`` (M, 16)) with respect to its point ``Xo`` (M, 3), step ``h`` mm."""
+    eye = np.eye(3)
+    J = np.empty((len(Xo), 2, 3))
+    for a in range(3):
+        J[:, :, a] = (project_params(params, Xo + h * eye[a])
+                      - project_params(params, Xo - h * eye[a])) / (2 * h)
+    return np.nan_to_num(J)
 
 
 def _sum_by(index, values, n: int) -> np.ndarray:
@@ -432,13 +440,8 @@ class AlternationParams:
     def __post_init__(self):
         _check_triangulation(self.triangulation)
         for key, low in (("n_iter", 0), ("exterior_first", 0), ("joint_steps", 1)):
-            v = getattr(self, key)
-            if int(v) != v or v < low:
-                raise ValueError(f"{key}: expected an integer >= {low}, got {v}")
-        if self.joint_every is not None and (int(self.joint_every) != self.joint_every
-                                             or self.joint_every < 1):
-            raise ValueError(f"joint_every: expected None or a positive integer, "
-                             f"got {self.joint_every}")
+            as_int(getattr(self, key), key, minimum=low)
+        as_int(self.joint_every, "joint_every", allow_none=True)
         if self.joint_every is not None and self.triangulation != "optimal":
             raise ValueError("joint_every: joint steps need triangulation='optimal' (the "
                              "joint adjustment minimises image residuals)")
@@ -517,7 +520,8 @@ def _joint_steps(state: _Alternation, xy, p: AlternationParams, far: int) -> Non
     cameras and (reprojection-optimal) points; each step is one iteration."""
     X = triangulate_optimal(state.cams, xy, points=state.X)
     r = bundle_adjust(state.cams, xy, X, intrinsics=p.intrinsics, fixed_exterior=(0,),
-                      scale_camera=far, max_nfev=p.joint_steps, covariance=False)
+                      scale_camera=far,
+                      params=BundleParams(max_nfev=p.joint_steps, covariance=False))
     K = len(state.cams)
     for q in r.history:
         q = q.reshape(K, 16)
@@ -544,7 +548,8 @@ def joint_adjustment(cameras, xy, *, n_iter: int = 30, intrinsics=DAVIS_INTRINSI
     far = int(np.argmax([np.linalg.norm(c.C - cams[0].C) for c in cams]))
     t0 = time.perf_counter()
     r = bundle_adjust(cams, xy, X0, intrinsics=intrinsics, fixed_exterior=(0,),
-                      scale_camera=far, max_nfev=int(n_iter) + 1, covariance=False)
+                      scale_camera=far,
+                      params=BundleParams(max_nfev=int(n_iter) + 1, covariance=False))
     seconds = time.perf_counter() - t0
     hist = [cams]
     for p in r.history:

@@ -43,9 +43,10 @@ import numpy as np
 from .._validate import as_array, as_scalar
 from ..camera import Camera
 from ..triangulation import triangulate
-from .approximations import next_camera, relative_orientation_start, resect
-from .bundle import Bar, BundleResult, bundle_adjust, min_points_per_camera
+from .approximations import next_camera, relative_orientation_start, resect_pnp
+from .bundle import Bar, BundleParams, BundleResult, bundle_adjust, min_points_per_camera
 from .labels import consistent_bar_labels
+from .result import CalibrationResult
 
 MIN_FRAMES = 10
 DISTORTION_MODELS = {"none": (), "k1": ("k1",), "k1k2": ("k1", "k2")}
@@ -66,13 +67,15 @@ class WandStatus(IntEnum):
 
 
 @dataclass(frozen=True, eq=False)
-class WandCalibration:
+class WandCalibration(CalibrationResult):
     """Result of :func:`calibrate_wand`.
 
     Attributes
     ----------
     cameras : list of K Camera
         Calibrated cameras; world frame = the first camera's, mm.
+    bundle : BundleResult
+        The final adjustment (its frame: the first camera of the relative orientation).
     wand_points : (T, 2, 3) array
         The wand's two ends intersected with the calibrated cameras, mm (NaN in frames
         that were not used).
@@ -93,8 +96,6 @@ class WandCalibration:
         Where a camera's labels of the two ends were exchanged.
     used : (T,) bool array
         Frames in which both ends are seen by at least two cameras.
-    bundle : BundleResult
-        The final adjustment (its frame: the first camera of the relative orientation).
     pair : (int, int)
         The cameras of the relative orientation.
     focal_guessed : bool
@@ -105,7 +106,6 @@ class WandCalibration:
     seconds : float
     """
 
-    cameras: list
     wand_points: np.ndarray
     wand_lengths: np.ndarray
     wand_length_std_percent: float
@@ -114,7 +114,6 @@ class WandCalibration:
     wand_xy: np.ndarray
     swapped: np.ndarray
     used: np.ndarray
-    bundle: BundleResult
     pair: tuple
     focal_guessed: bool
     status: WandStatus
@@ -212,8 +211,8 @@ def _approximations(nominal, xy, bar, pair, threshold_px):
     while len(placed) < K:
         k, m, X = next_camera(cams, placed, xy, min_angle_deg=1.0)
         if m.sum() >= 6:
-            cams[k] = resect(nominal[k], X[m], xy[k, m], max_error_px=4 * threshold_px,
-                             arg="wand_xy")
+            cams[k] = resect_pnp(nominal[k], X[m], xy[k, m], max_error_px=4 * threshold_px,
+                                 arg="wand_xy")
         else:
             cams[k] = _relative_to_placed(nominal, cams, placed, k, xy, bar, threshold_px)
         placed.append(k)
@@ -409,12 +408,13 @@ def _bundle(st: _State, robust: bool) -> None:
     """The bundle adjustment; the ends checked again with its cameras, and once more
     adjusted if that changed any labels."""
     intrinsics = ("f",) + DISTORTION_MODELS[st.distortion]
+    settings = BundleParams(loss="soft_l1" if robust else "linear", f_scale=3.0,
+                            reject_k=REJECT_K if robust else None)
 
     def adjust(cams, X, w):
         return bundle_adjust(cams, st.flat(w), X, intrinsics=intrinsics,
                              fixed_exterior=(st.pair[0],), bar=st.bar, sigma_px=st.sigma_px,
-                             loss="soft_l1" if robust else "linear", f_scale=3.0,
-                             reject_k=REJECT_K if robust else None)
+                             params=settings)
 
     bundle = adjust(st.cams0, st.X0, st.labels.xy)
     try:

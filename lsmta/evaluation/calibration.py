@@ -23,6 +23,7 @@ import numpy as np
 from ..calibration import (
     DEFAULT_INTRINSICS,
     Bar,
+    BundleParams,
     BundleResult,
     bundle_adjust,
     relative_orientation_start,
@@ -177,14 +178,15 @@ def bar_trial(*, seed: int = 0, n_positions: int = 150, n_heldout: int = 40, mod
     times["approximations"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     ours = bundle_adjust(cams0, xy, X0, intrinsics=intrinsics, bar=bar, sigma_px=sigma_px,
-                         reject_k=reject_k)
+                         params=BundleParams(reject_k=reject_k))
     times["ours"] = time.perf_counter() - t0
     X_h = heldout.points.reshape(-1, 3)
     peer = scale = peer_bar = peer_check = None
     if with_peer:
         t0 = time.perf_counter()
         peer = bundle_adjust(cams0, xy, X0, intrinsics=intrinsics, scale_camera=2,
-                             sigma_px=sigma_px, reject_k=reject_k, covariance=False)
+                             sigma_px=sigma_px,
+                             params=BundleParams(reject_k=reject_k, covariance=False))
         d = np.linalg.norm(peer.points[pairs[:, 0]] - peer.points[pairs[:, 1]], axis=1)
         scale = float(length / np.nanmedian(d))
         pc, pX = scaled(peer.cameras, peer.points, scale)

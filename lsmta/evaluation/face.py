@@ -17,7 +17,7 @@ from ..face import align_sequence, extreme_basis, fill_missing, learn, pca_basis
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.face import face_cameras, face_sequence, visible
 from ..synth.marker_video import render_marker_video
-from ..tracking.markers import MarkerStatus, track_markers
+from ..tracking.markers import MarkerStatus, MarkerTrackingParams, track_markers
 from ..triangulation import triangulate, triangulate_single_pair
 
 METHODS = ("extremes, w in [0,1]", "extremes, w free", "PCA mean + k, w free",
@@ -345,7 +345,7 @@ def observe_tracked(seq, *, rng: np.random.Generator | int | None = None,
                     pose_noise_deg: float = 0.1,
                     min_cos: float = 0.3, cameras=None, blur_frames=(),
                     image_noise: float = 2.0, seed_noise: float = 0.5,
-                    keep_images: bool = False, tracker: dict | None = None,
+                    keep_images: bool = False, tracker: MarkerTrackingParams | None = None,
                     positions=None) -> TrackedCapture:
     """Like :func:`observe_face`, but the image positions come from tracking rendered video.
 
@@ -353,7 +353,7 @@ def observe_tracked(seq, *, rng: np.random.Generator | int | None = None,
     from cameras aimed at the head in every frame and off by ``pose_noise_deg`` per axis
     and frame (the pan-tilt jitter the tracker's stabilisation removes), with motion blur
     on ``blur_frames``. Markers are tracked with
-    :func:`lsmta.tracking.markers.track_markers` (keyword arguments ``tracker``); a marker
+    :func:`lsmta.tracking.markers.track_markers` (settings ``tracker``); a marker
     is started at its true position plus ``seed_noise`` px of Gaussian noise in frame 0
     and whenever it becomes visible again (a stand-in for identifying it by hand; the
     tracker does not re-acquire markers). Only positions the tracker found are
@@ -383,7 +383,7 @@ def observe_tracked(seq, *, rng: np.random.Generator | int | None = None,
         seeds = np.where(start[..., None], video.xy + rng.normal(0, seed_noise, video.xy.shape),
                          np.nan)
         all_seeds[i] = seeds
-        tr = track_markers(video.images, seeds[0], seeds=seeds, **(tracker or {}))
+        tr = track_markers(video.images, seeds[0], seeds=seeds, params=tracker)
         ok = np.isin(tr.status, (MarkerStatus.TRACKED, MarkerStatus.SECOND_SEARCH))
         ok[0] = False
         found[i][ok] = tr.xy[ok]
@@ -406,25 +406,23 @@ def observe_tracked(seq, *, rng: np.random.Generator | int | None = None,
 
 
 def tracking_errors(capture: TrackedCapture, *, n_frames: int | None = None,
-                    tracker: dict | None = None) -> dict:
+                    params: MarkerTrackingParams | None = None) -> dict:
     """Track the kept videos of ``capture`` again (first ``n_frames``, same start
-    positions) with the keyword arguments ``tracker`` of
-    :func:`lsmta.tracking.markers.track_markers` and score against the truth.
+    positions) with the tracker's settings ``params`` and score against the truth.
 
     Returns a dict: ``median``, ``p95`` (px, markers found in frames 1.., crowded markers
     excluded), ``wrong`` (share of those more than 2 px off: jumped to another marker),
     ``found`` (share of drawn, uncrowded marker images in frames 1.. the tracker found).
-    Without ``tracker`` options (and ``n_frames=None``) it scores the capture as made.
+    Without ``params`` and ``n_frames`` it scores the capture as made.
     """
     if capture.images is None:
         raise ValueError("capture: made without keep_images=True")
-    tracker = {} if tracker is None else dict(tracker)
     T = capture.truth_xy.shape[1] if n_frames is None else as_int(n_frames, "n_frames")
     errs, found, drawn = [], 0, 0
     for k, images in enumerate(capture.images):
-        if tracker or n_frames is not None:
+        if params is not None or n_frames is not None:
             tr = track_markers(images[:T], capture.seeds[k, 0],
-                               seeds=capture.seeds[k, :T], **tracker)
+                               seeds=capture.seeds[k, :T], params=params)
             ok = np.isin(tr.status, (MarkerStatus.TRACKED, MarkerStatus.SECOND_SEARCH))
             xy = np.where(ok[..., None], tr.xy, np.nan)
         else:

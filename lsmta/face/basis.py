@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import lsq_linear
 
-from .._validate import as_array
+from .._validate import as_array, as_int
 from ..rigid import apply_rigid, fit_rigid
 
 __all__ = [
@@ -239,8 +239,7 @@ def fill_missing(frames, basis, *, constrain: bool | None = None, reference=None
         raise ValueError(f"basis: expected {M} markers like frames, got {B.shape[1]}")
     ref = B.mean(axis=0) if reference is None else as_array(reference, "reference",
                                                             shape=(M, 3))
-    if int(n_iter) != n_iter or n_iter < 1:
-        raise ValueError(f"n_iter: expected an integer >= 1, got {n_iter}")
+    as_int(n_iter, "n_iter")
     K = len(B)
     bounds = (np.zeros(K), np.ones(K)) if constrain else None
     return fit_frames(X, B, ref, bounds=bounds, n_iter=int(n_iter))

@@ -35,7 +35,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.cluster.vq import kmeans2
 
-from .._validate import as_rng, as_scalar
+from .._validate import as_int, as_rng, as_scalar
 from .basis import (
     FaceBasis,
     FaceFit,
@@ -84,14 +84,11 @@ class FaceParams:
     split: str = "clusters"
 
     def __post_init__(self):
-        sizes = tuple(self.sizes)
-        if not sizes or any(isinstance(k, bool) or int(k) != k or k < 1 for k in sizes):
+        if not tuple(self.sizes):
             raise ValueError(f"sizes: expected positive integers, got {self.sizes!r}")
-        object.__setattr__(self, "sizes", tuple(int(k) for k in sizes))
+        object.__setattr__(self, "sizes", tuple(as_int(k, "sizes") for k in self.sizes))
         for name, least in (("folds", 2), ("frames_per_fold", 1), ("n_iter", 1)):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < least:
-                raise ValueError(f"{name}: expected an integer >= {least}, got {v!r}")
+            object.__setattr__(self, name, as_int(getattr(self, name), name, minimum=least))
         h = as_scalar(self.hidden, "hidden", positive=True)
         if h >= 1:
             raise ValueError(f"hidden: expected a share in (0, 1), got {h}")

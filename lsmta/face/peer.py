@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_scalar
+from .._validate import as_int, as_scalar
 from .basis import _as_sequence, _observed
 
 
@@ -120,8 +120,7 @@ def pca_gap_fill(frames, *, training=None, n_components: int | None = None,
     complete = _complete_frames(X, training)
     if not 0 < variance <= 1:
         raise ValueError(f"variance: expected a number in (0, 1], got {variance}")
-    if n_components is not None and (int(n_components) != n_components or n_components < 1):
-        raise ValueError(f"n_components: expected a positive integer, got {n_components}")
+    as_int(n_components, "n_components", allow_none=True)
     if scale not in ("std", "none"):
         raise ValueError(f"scale: expected 'std' or 'none', got {scale!r}")
     if weighting == "none":

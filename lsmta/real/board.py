@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..calibration import bundle_adjust, scaled
+from ..calibration import BundleParams, bundle_adjust, scaled
 from ..calibration.board import BoardCalibration, calibrate_board
 from ..camera import Camera
 from ..camera_files import read_camera_toml, tomllib
@@ -71,7 +71,7 @@ def board_scores(cameras, points: BoardPoints, *, frames=None) -> BoardScores:
     flat = xy.reshape(K, F * C, 2)
     X = triangulate(cameras, flat, min_angle_deg=0.0).points
     opt = bundle_adjust(cameras, flat, X, intrinsics=(), fixed_exterior=range(K),
-                        scale_camera=0, covariance=False)
+                        scale_camera=0, params=BundleParams(covariance=False))
     sq = np.sum(opt.residuals**2, axis=2)
     rms = np.sqrt(np.nanmean(sq, axis=1))
     Xf = X.reshape(F, C, 3)

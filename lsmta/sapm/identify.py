@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .._validate import as_points, as_rng, as_scalar
+from .._validate import as_int, as_points, as_rng, as_scalar
 from ..rigid import apply_rigid, fit_one
 from .configuration import complete_partial, tree_search
 from .model import MarkerModel
@@ -95,9 +95,7 @@ class SAPMParams:
         if self.search not in ("depth_first", "tree"):
             raise ValueError(f"search: expected 'depth_first' or 'tree', got {self.search!r}")
         for name in ("coarse_min_points", "max_alternatives", "max_tables", "max_candidates"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-                raise ValueError(f"{name}: expected a positive integer, got {value!r}")
+            object.__setattr__(self, name, as_int(getattr(self, name), name))
         object.__setattr__(self, "eps", eps)
         object.__setattr__(self, "beta", beta)
         try:

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_points, as_scalar
+from .._validate import as_int, as_points, as_scalar
 from .candidates import segment_candidates
 from .configuration import configure, labelled_points, pair_scores
 from .identify import SAPMParams, checked_params
@@ -81,10 +81,7 @@ def identify_instances(model: MarkerModel, observed, *, n_instances: int | None 
     min_share = as_scalar(min_share, "min_share", positive=True)
     if min_share > 1:
         raise ValueError(f"min_share: expected a share in (0, 1], got {min_share}")
-    if n_instances is not None and (isinstance(n_instances, bool) or
-                                    not isinstance(n_instances, int | np.integer)
-                                    or n_instances < 1):
-        raise ValueError(f"n_instances: expected a positive integer or None, got {n_instances!r}")
+    n_instances = as_int(n_instances, "n_instances", allow_none=True)
     Q = as_points(observed, "observed", allow_nan=True)
     bad = np.isnan(Q).any(axis=1)
     keep = np.flatnonzero(~bad)

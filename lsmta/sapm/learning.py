@@ -31,7 +31,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .._validate import as_array, as_scalar
+from .._validate import as_array, as_int, as_scalar
+from .definition import definition
 
 
 @dataclass(frozen=True)
@@ -80,9 +81,7 @@ class LearnParams:
             raise ValueError(f"eps_min, eps_floor, eps_ceiling: expected 0 < eps_min <= eps_floor "
                              f"<= eps_ceiling < 1, got {self.eps_min}, {self.eps_floor} and "
                              f"{self.eps_ceiling}")
-        if isinstance(self.n_iter, bool) or not isinstance(self.n_iter, int | np.integer) \
-                or self.n_iter < 1:
-            raise ValueError(f"n_iter: expected a positive integer, got {self.n_iter!r}")
+        object.__setattr__(self, "n_iter", as_int(self.n_iter, "n_iter"))
 
 
 # ---------------------------------------------------------------------- checks
@@ -280,9 +279,8 @@ def _model_pose(X, members, parent, order, names, params: LearnParams):
 
 
 def learn_model(cls, labels, points, segments, parents, *, params=None):
-    """The body of :meth:`MarkerModel.from_labelled_frames` (see the module docstring)."""
-    from .model import definition
-
+    """The body of :meth:`MarkerModel.from_labelled_frames` (see the module docstring);
+    ``cls`` is the model class, whose ``_build`` makes the model."""
     params = LearnParams() if params is None else params
     if not isinstance(params, LearnParams):
         raise TypeError(f"params: expected a LearnParams, got {type(params).__name__}")

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from .._validate import as_array, as_scalar, freeze
+from .._validate import as_array, as_int, as_scalar, freeze
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,8 +68,7 @@ class SilhouetteParams:
     def __post_init__(self):
         as_scalar(self.k_sigma, "k_sigma", positive=True)
         as_scalar(self.min_difference, "min_difference", nonnegative=True)
-        if int(self.closing) != self.closing or self.closing < 0:
-            raise ValueError(f"closing: expected an integer >= 0 (pixels), got {self.closing}")
+        as_int(self.closing, "closing", minimum=0, unit="pixels")
 
 
 def learn_background(frames) -> BackgroundModel:

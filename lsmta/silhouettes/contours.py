@@ -20,7 +20,7 @@ from scipy import ndimage
 from skimage.measure import find_contours
 from skimage.segmentation import active_contour
 
-from .._validate import as_array, as_scalar, freeze
+from .._validate import as_array, as_int, as_scalar, freeze
 
 
 @dataclass(frozen=True)
@@ -55,8 +55,7 @@ class SnakeParams:
             as_scalar(getattr(self, name), name, nonnegative=True)
         for name in ("w_line", "w_edge"):
             as_scalar(getattr(self, name), name)
-        if int(self.max_num_iter) != self.max_num_iter or self.max_num_iter < 1:
-            raise ValueError(f"max_num_iter: expected a positive integer, got {self.max_num_iter}")
+        as_int(self.max_num_iter, "max_num_iter")
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,8 +105,7 @@ def mask_contour(mask, *, n_points: int = 200) -> np.ndarray:
     m = np.asarray(mask)
     if m.ndim != 2 or m.dtype != bool:
         raise ValueError(f"mask: expected a 2-D bool array, got {m.dtype} of shape {m.shape}")
-    if int(n_points) != n_points or n_points < 8:
-        raise ValueError(f"n_points: expected an integer >= 8, got {n_points}")
+    as_int(n_points, "n_points", minimum=8)
     if not m.any():
         raise ValueError("mask: is empty; there is no outline")
     lines = find_contours(np.pad(m, 1).astype(float), 0.5)

@@ -151,8 +151,8 @@ def long_room_rig(*, rng: np.random.Generator | int | None = None, n_per_side: i
         for x in row:
             cam = Camera.look_at((x, side * width / 2, camera_height),
                                  (x, -0.1 * side * width, 1000.0), f=f, width=width_px,
-                                 height=height_px, k1=k1, k2=0.5 * abs(k1),
-                                 name=f"cam{len(cams):02d}")
+                                 height=height_px, name=f"cam{len(cams):02d}")
+            cam = cam.replace(k1=k1, k2=0.5 * abs(k1))
             cams.append(_perturbed(cam, rng, pose_mm=20.0, pose_deg=0.5, pp_px=3.0,
                                    distortion_rel=0.1))
     return cams

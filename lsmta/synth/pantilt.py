@@ -119,7 +119,7 @@ def pantilt_head(*, rng: np.random.Generator | int | None = None, misalignment: 
     tilt = np.radians(as_scalar(axis_tilt_deg, "axis_tilt_deg", nonnegative=True)) * misalignment
     cam = Camera.look_at(as_vector(position, "position", 3), as_vector(look_at, "look_at", 3),
                          f=f, width=PANTILT_IMAGE_SIZE[0], height=PANTILT_IMAGE_SIZE[1],
-                         name=name, **PANTILT_DISTORTION)
+                         name=name).replace(**PANTILT_DISTORTION)
     if rng is None:
         pan_off = np.array([0.3, 0.0, -0.95])   # pan axis behind the lens, a little right
         tilt_off = np.array([0.0, 0.6, -0.8])   # tilt axis behind and below

@@ -81,7 +81,7 @@ def triplet_rig(*, rng: np.random.Generator | int | None = None, distance: float
     for name, x in zip(("left", "centre", "right"), (-baseline, 0.0, baseline)):
         cam = Camera.look_at([x, -distance, camera_height], [0.0, 0.0, target_height], f=f,
                              width=width, height=height_px, pixel_size=TRIPLET_PIXEL_SIZE_MM,
-                             name=name, **lens[name])
+                             name=name).replace(**lens[name])
         cams.append(_perturbed(cam, rng, pose_mm=20.0, pose_deg=0.5, pp_px=3.0,
                                distortion_rel=0.1))
     return cams
@@ -109,8 +109,8 @@ def ring_rig(*, n: int = 8, rng: np.random.Generator | int | None = None, radius
     cams = []
     for i, a in enumerate(np.linspace(0, 2 * np.pi, int(n), endpoint=False)):
         eye = [radius * np.sin(a), -radius * np.cos(a), camera_height]
-        cam = Camera.look_at(eye, target, f=f, width=width, height=height_px, k1=k1,
-                             k2=0.5 * abs(k1), name=f"cam{i:02d}")
+        cam = Camera.look_at(eye, target, f=f, width=width, height=height_px,
+                             name=f"cam{i:02d}").replace(k1=k1, k2=0.5 * abs(k1))
         cams.append(_perturbed(cam, rng, pose_mm=20.0, pose_deg=0.5, pp_px=3.0,
                                distortion_rel=0.1))
     return cams

@@ -50,11 +50,11 @@ def wand_rig(*, rng: np.random.Generator | int | None = None, n_cameras: int = 4
         a = np.radians(45.0 + 360.0 * k / n_cameras)
         eye = target + [distance * np.cos(a), distance * np.sin(a),
                         height - target[2] + (300.0 if k % 2 else -300.0)]
-        cams.append(Camera.look_at(
+        cam = Camera.look_at(
             eye, target + vary(150.0, 3), f=840.0 + vary(60.0), width=W, height=H,
-            cx=(W - 1) / 2 + vary(6.0), cy=(H - 1) / 2 + vary(6.0),
-            k1=-0.12 * (1 + vary(0.1)), k2=0.03 * (1 + vary(0.1)), p1=vary(3e-4),
-            p2=vary(3e-4), name=f"cam{k + 1}"))
+            cx=(W - 1) / 2 + vary(6.0), cy=(H - 1) / 2 + vary(6.0), name=f"cam{k + 1}")
+        cams.append(cam.replace(k1=-0.12 * (1 + vary(0.1)), k2=0.03 * (1 + vary(0.1)),
+                                p1=vary(3e-4), p2=vary(3e-4)))
     return cams
 
 

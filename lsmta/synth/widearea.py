@@ -57,8 +57,8 @@ def ceiling_rig(*, rng: np.random.Generator | int | None = None, f: float = 480.
     cams = []
     for i, eye in enumerate(eyes):
         target = (-0.15 * eye[0], -0.15 * eye[1], 800.0)
-        cam = Camera.look_at(eye, target, f=f, width=width, height=height, k1=k1,
-                             k2=0.5 * abs(k1), name=f"cam{i:02d}")
+        cam = Camera.look_at(eye, target, f=f, width=width, height=height,
+                             name=f"cam{i:02d}").replace(k1=k1, k2=0.5 * abs(k1))
         cams.append(_perturbed(cam, rng, pose_mm=10.0, pose_deg=0.5, pp_px=3.0,
                                distortion_rel=0.1))
     return cams

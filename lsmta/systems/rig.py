@@ -31,9 +31,10 @@ from scipy.spatial.transform import Rotation
 from tqdm.auto import tqdm
 
 from .._validate import as_scalar
-from ..calibration import DEFAULT_INTRINSICS, Bar, BundleResult, bundle_adjust
+from ..calibration import DEFAULT_INTRINSICS, Bar, BundleParams, bundle_adjust
 from ..calibration.approximations import relative_orientation_start
 from ..calibration.labels import BarLabels, consistent_bar_labels
+from ..calibration.result import CalibrationResult
 from ..calibration.targets import track_targets
 from .checks import check_cameras, check_videos
 
@@ -41,7 +42,7 @@ MIN_BAR_FRAMES = 10
 
 
 @dataclass(frozen=True, eq=False)
-class RigCalibration:
+class RigCalibration(CalibrationResult):
     """The rig calibrated from a bar video (see the module docstring).
 
     Attributes
@@ -70,8 +71,6 @@ class RigCalibration:
     seconds : float
     """
 
-    cameras: list
-    bundle: BundleResult
     targets: np.ndarray
     labels: BarLabels
     sigma_px: float
@@ -81,12 +80,6 @@ class RigCalibration:
     datum_residual: np.ndarray
     n_positions: int
     seconds: float
-
-    @property
-    def rms_over_limit(self) -> float:
-        """Image RMS residual over the noise limit ``sigma_px sqrt(1 - p/n)`` (1: the
-        residuals are what the targets' own precision predicts)."""
-        return float(self.bundle.rms / self.bundle.noise_limit)
 
 
 def _datum(adjusted, nominal):
@@ -171,7 +164,7 @@ def calibrate_rig(bar_videos, bar_length: float, nominal_cameras, *,
     flat = labels.xy.reshape(K, -1, 2)
     cams0, X0 = relative_orientation_start(nominal, flat, bar=bar, pair=pair)
     bundle = bundle_adjust(cams0, flat, X0, intrinsics=intrinsics, fixed_exterior=(pair[0],),
-                           bar=bar, sigma_px=sigma_px, reject_k=reject_k)
+                           bar=bar, sigma_px=sigma_px, params=BundleParams(reject_k=reject_k))
     Q, t = _datum(bundle.cameras, nominal)
     cameras = [c.replace(R=c.R @ Q.T, C=Q @ c.C + t) for c in bundle.cameras]
     residual = np.array([np.linalg.norm(c.C - n.C) for c, n in zip(cameras, nominal)])

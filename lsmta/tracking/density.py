@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._validate import as_array
+from .._validate import as_array, as_int
 
 
 def sparse_candidates(tracked_xy, candidate_xy, *, cell: float = 16.0, min_per_cell: int = 2,
@@ -40,8 +40,7 @@ def sparse_candidates(tracked_xy, candidate_xy, *, cell: float = 16.0, min_per_c
     cand = as_array(candidate_xy, "candidate_xy", shape=(None, 2), allow_nan=True)
     if not cell > 0:
         raise ValueError(f"cell: expected a positive cell size in pixels, got {cell}")
-    if int(min_per_cell) != min_per_cell or min_per_cell < 1:
-        raise ValueError(f"min_per_cell: expected a positive integer, got {min_per_cell}")
+    as_int(min_per_cell, "min_per_cell")
     tracked = tracked[np.isfinite(tracked).all(axis=1)]
     good = np.flatnonzero(np.isfinite(cand).all(axis=1))
     if good.size == 0:

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._validate import as_scalar
+from .._validate import as_int, as_scalar
 from .trajectories import Trajectories
 
 
@@ -108,8 +108,7 @@ def _check(traj, min_length):
     if not isinstance(traj, Trajectories):
         raise TypeError(f"trajectories: expected lsmta.tracking.Trajectories, got "
                         f"{type(traj).__name__}")
-    if int(min_length) != min_length or min_length < 1:
-        raise ValueError(f"min_length: expected a positive integer (frames), got {min_length}")
+    as_int(min_length, "min_length", unit="frames")
 
 
 def threshold_filter(trajectories: Trajectories, *, max_speed: float = 3000.0,
@@ -158,8 +157,7 @@ def uniformity_filter(trajectories: Trajectories, *, voxel: float = 100.0,
     _check(trajectories, min_length)
     voxel = as_scalar(voxel, "voxel", positive=True)
     max_deviation = as_scalar(max_deviation, "max_deviation", positive=True)
-    if int(window) != window or window < 0:
-        raise ValueError(f"window: expected an integer >= 0 (frames), got {window}")
+    as_int(window, "window", minimum=0, unit="frames")
     x = trajectories.xyz
     v = trajectories.velocity
     T, N, _ = x.shape
@@ -259,10 +257,8 @@ def drift_deviation(trajectories: Trajectories, *, window: int = 10, k: int = 10
     if not isinstance(trajectories, Trajectories):
         raise TypeError(f"trajectories: expected lsmta.tracking.Trajectories, got "
                         f"{type(trajectories).__name__}")
-    for name, val, low in (("window", window, 1), ("k", k, 1),
-                           ("min_neighbours", min_neighbours, 1)):
-        if int(val) != val or val < low:
-            raise ValueError(f"{name}: expected an integer >= {low}, got {val}")
+    for name, val in (("window", window), ("k", k), ("min_neighbours", min_neighbours)):
+        as_int(val, name)
     if min_neighbours > k:
         raise ValueError(f"min_neighbours: expected at most k={k}, got {min_neighbours}")
     radius = as_scalar(radius, "radius", positive=True)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .._validate import as_array, as_scalar
+from .._validate import as_array, as_int, as_scalar
 from .points import Tracks, TrackStatus, as_sequences
 
 
@@ -36,10 +36,8 @@ def track_klt(images, initial_xy, *, window: int = 21, levels: int = 3,
     -------
     Tracks
     """
-    if isinstance(window, bool) or int(window) != window or window < 3 or window % 2 == 0:
-        raise ValueError(f"window: expected an odd integer >= 3 (pixels), got {window}")
-    if isinstance(levels, bool) or int(levels) != levels or levels < 0:
-        raise ValueError(f"levels: expected an integer >= 0 (pyramid levels), got {levels}")
+    as_int(window, "window", minimum=3, odd=True, unit="pixels")
+    as_int(levels, "levels", minimum=0, unit="pyramid levels")
     fb_threshold = as_scalar(fb_threshold, "fb_threshold", positive=True)
     seq = as_sequences(images)
     K, T = seq.shape[:2]

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .._validate import as_array, as_scalar
+from .._validate import as_array, as_int, as_scalar
 
 
 class MarkerStatus(enum.IntEnum):
@@ -151,19 +151,12 @@ def _lk(prev, nxt, p0, guess, lk):
     return p1, (st.ravel() == 1) & (st2.ravel() == 1), fb, err.ravel()
 
 
-def track_markers(images, initial_xy, *, window: int = 11, levels: int = 2,
-                  fb_threshold: float = 0.5, max_error: float = 12.0,
-                  stabilise: bool = True, second_search: bool = True, blur_retry: int = 3,
-                  blur_ratio: float = 0.5, blur_history: int = 10, seeds=None,
-                  refine: bool = True, max_jump: float = 4.0) -> MarkerTracks:
-    """Track markers through a grey video.
+@dataclass(frozen=True)
+class MarkerTrackingParams:
+    """Settings of :func:`track_markers`.
 
-    Parameters
+    Attributes
     ----------
-    images : (T, H, W) array
-        Grey frames (uint8, or numbers in 0..255).
-    initial_xy : (M, 2) array
-        Marker positions in frame 0, px; NaN for markers not tracked.
     window : int
         LK window side, px (odd).
     levels : int
@@ -181,46 +174,78 @@ def track_markers(images, initial_xy, *, window: int = 11, levels: int = 2,
     blur_ratio : float
         A frame is blurred when its sharpness is below ``blur_ratio`` times the median
         sharpness of the last ``blur_history`` good frames.
-    seeds : (T, M, 2) array, optional
-        Positions (px, NaN elsewhere) at which a marker that is not being tracked starts
-        again in that frame (not used in skipped blurred frames).
+    blur_history : int
+        Good frames whose median sharpness the blur test compares with.
     refine : bool
         Move every found and every start position to the dot's brightness centroid
         (:func:`refine_centroid`), so that a start error or LK drift does not persist.
     max_jump : float
         Largest distance (px) between a search's start and its result; a longer jump
         is taken as a jump to a neighbouring marker and the search fails.
+    """
+
+    window: int = 11
+    levels: int = 2
+    fb_threshold: float = 0.5
+    max_error: float = 12.0
+    stabilise: bool = True
+    second_search: bool = True
+    blur_retry: int = 3
+    blur_ratio: float = 0.5
+    blur_history: int = 10
+    refine: bool = True
+    max_jump: float = 4.0
+
+    def __post_init__(self):
+        set_ = object.__setattr__
+        set_(self, "window", as_int(self.window, "window", minimum=3, odd=True, unit="pixels"))
+        set_(self, "levels", as_int(self.levels, "levels", minimum=0))
+        set_(self, "blur_retry", as_int(self.blur_retry, "blur_retry", minimum=0))
+        set_(self, "blur_history", as_int(self.blur_history, "blur_history"))
+        for name in ("fb_threshold", "max_error", "max_jump"):
+            set_(self, name, as_scalar(getattr(self, name), name, positive=True))
+        set_(self, "blur_ratio", as_scalar(self.blur_ratio, "blur_ratio", nonnegative=True))
+
+
+def track_markers(images, initial_xy, *, seeds=None,
+                  params: MarkerTrackingParams | None = None) -> MarkerTracks:
+    """Track markers through a grey video.
+
+    Parameters
+    ----------
+    images : (T, H, W) array
+        Grey frames (uint8, or numbers in 0..255).
+    initial_xy : (M, 2) array
+        Marker positions in frame 0, px; NaN for markers not tracked.
+    seeds : (T, M, 2) array, optional
+        Positions (px, NaN elsewhere) at which a marker that is not being tracked starts
+        again in that frame (not used in skipped blurred frames).
+    params : MarkerTrackingParams, optional
+        The searches, the blur test and the centroid refinement (default:
+        ``MarkerTrackingParams()``).
 
     Returns
     -------
     MarkerTracks
     """
+    p = MarkerTrackingParams() if params is None else params
+    if not isinstance(p, MarkerTrackingParams):
+        raise TypeError(f"params: expected a MarkerTrackingParams, got {type(p).__name__}")
     imgs = _as_images(images)
     T = len(imgs)
     p0 = as_array(initial_xy, "initial_xy", shape=(None, 2), allow_nan=True)
-    if int(window) != window or window < 3 or window % 2 == 0:
-        raise ValueError(f"window: expected an odd integer >= 3, got {window}")
-    if int(levels) != levels or levels < 0:
-        raise ValueError(f"levels: expected an integer >= 0, got {levels}")
-    if int(blur_retry) != blur_retry or blur_retry < 0:
-        raise ValueError(f"blur_retry: expected an integer >= 0, got {blur_retry}")
-    if int(blur_history) != blur_history or blur_history < 1:
-        raise ValueError(f"blur_history: expected an integer >= 1, got {blur_history}")
     search = _Search(
-        lk=dict(winSize=(int(window), int(window)), maxLevel=int(levels),
+        lk=dict(winSize=(p.window, p.window), maxLevel=p.levels,
                 criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)),
-        fb_threshold=as_scalar(fb_threshold, "fb_threshold", positive=True),
-        max_error=as_scalar(max_error, "max_error", positive=True),
-        max_jump=as_scalar(max_jump, "max_jump", positive=True),
-        second_search=bool(second_search), refine=bool(refine))
-    blur_ratio = as_scalar(blur_ratio, "blur_ratio", nonnegative=True)
+        fb_threshold=p.fb_threshold, max_error=p.max_error, max_jump=p.max_jump,
+        second_search=bool(p.second_search), refine=bool(p.refine))
     if seeds is not None:
         seeds = as_array(seeds, "seeds", shape=(T, len(p0), 2), allow_nan=True)
     state = _State.initial(imgs, p0, search.refine)
     for t in range(1, T):
-        if _blurred(state, t, blur_retry, blur_ratio, blur_history):
+        if _blurred(state, t, p.blur_retry, p.blur_ratio, p.blur_history):
             continue
-        shift = dominant_shift(imgs[state.ref], imgs[t]) if stabilise else np.zeros(2)
+        shift = dominant_shift(imgs[state.ref], imgs[t]) if p.stabilise else np.zeros(2)
         state.shift[t] = shift
         if state.alive.any():
             _follow(state, imgs, t, shift, search)

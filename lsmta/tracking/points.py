@@ -65,7 +65,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from tqdm.auto import tqdm
 
-from .._validate import as_array, as_scalar, check_patch
+from .._validate import as_array, as_int, as_scalar, check_patch
 from ..camera import Camera
 from ..matching.lsm import LSMThresholds
 from ..matching.spline import SplineImage, check_image
@@ -311,9 +311,7 @@ def _check_params(p: TrackerParams, K: int) -> None:
     for name, low, unit in (("radius", 1, "pixels"), ("retry_radius", 1, "pixels"),
                             ("density_every", 1, "frames"), ("neighbours", 1, "tracks"),
                             ("max_gap", 0, "frames"), ("max_iter", 1, "iterations")):
-        v = getattr(p, name)
-        if isinstance(v, bool) or int(v) != v or v < low:
-            raise ValueError(f"params.{name}: expected an integer >= {low} ({unit}), got {v}")
+        as_int(getattr(p, name), f"params.{name}", minimum=low, unit=unit)
     if K > 1 and not (isinstance(p.template, int | np.integer) and 0 <= p.template < K):
         raise ValueError(f"params.template: expected a camera index in [0, {K - 1}], "
                          f"got {p.template}")

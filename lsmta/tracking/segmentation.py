@@ -32,7 +32,7 @@ import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
 from scipy.spatial.distance import squareform
 
-from .._validate import as_scalar
+from .._validate import as_int, as_scalar
 from ..rigid import apply_rigid, fit_rigid
 from .trajectories import Trajectories
 
@@ -202,14 +202,22 @@ def rigid_groups(trajectories: Trajectories, *, tolerance: float = 4.0, min_leng
     tolerance = as_scalar(tolerance, "tolerance", positive=True)
     for name, v, lo in (("min_length", min_length, 2), ("min_common", min_common, 2),
                         ("min_size", min_size, 4), ("max_sample", max_sample, 2)):
-        if isinstance(v, bool) or int(v) != v or v < lo:
-            raise ValueError(f"{name}: expected an integer >= {lo}, got {v!r}")
+        as_int(v, name, minimum=lo)
     rng = np.random.default_rng(rng)
     X = np.asarray(trajectories.xyz)
-    T, N = X.shape[:2]
     cand = np.flatnonzero(trajectories.length >= min_length)
     if len(cand) > max_sample:
         cand = np.sort(rng.choice(cand, max_sample, replace=False))
+    groups = _clusters(X, cand, tolerance, min_common, min_size)
+    motions = [_group_motion(X, m, tolerance) for m in groups]
+    _merge_bodies(X, groups, motions, min_common, tolerance)
+    label, loc, dev = _assign(X, motions, min_common, tolerance)
+    return _largest_first(label, loc, dev, motions, min_size, X.shape[0])
+
+
+def _clusters(X, cand, tolerance: float, min_common: int, min_size: int) -> list:
+    """Steps 1 and 2: average-linkage clusters of the candidates ``cand`` by the spread
+    of their pair distances, those with at least ``min_size`` members."""
     groups = []
     if len(cand) >= min_size:
         sd = _pair_spread(X[:, cand], min_common, 10 * tolerance)
@@ -219,8 +227,12 @@ def rigid_groups(trajectories: Trajectories, *, tolerance: float = 4.0, min_leng
             members = cand[cut == c]
             if len(members) >= min_size:
                 groups.append(members)
-    motions = [_group_motion(X, m, tolerance) for m in groups]
-    # merge groups that are one body
+    return groups
+
+
+def _merge_bodies(X, groups: list, motions: list, min_common: int, tolerance: float) -> None:
+    """Step 3: merge (in place) groups that keep a constant relative pose, one pair at a
+    time, until no pair is one body."""
     merged = True
     while merged and len(groups) > 1:
         merged = False
@@ -238,8 +250,14 @@ def rigid_groups(trajectories: Trajectories, *, tolerance: float = 4.0, min_leng
                     break
             if merged:
                 break
-    # assign every trajectory to the group that explains it best
-    G = len(groups)
+
+
+def _assign(X, motions: list, min_common: int, tolerance: float):
+    """Step 4: every trajectory's group (the motion that explains it best, -1 if none
+    within ``tolerance``), and its coordinates ``(G, N, 3)`` and deviations ``(G, N)``
+    under every group's motion."""
+    N = X.shape[1]
+    G = len(motions)
     dev = np.full((G, N), np.inf)
     loc = np.full((G, N, 3), np.nan)
     for g, (R, t, _) in enumerate(motions):
@@ -249,7 +267,13 @@ def rigid_groups(trajectories: Trajectories, *, tolerance: float = 4.0, min_leng
         best = np.argmin(dev, axis=0)
         ok = dev[best, np.arange(N)] < tolerance
         label[ok] = best[ok]
-    # largest group first; groups left without members are dropped
+    return label, loc, dev
+
+
+def _largest_first(label, loc, dev, motions: list, min_size: int, T: int) -> RigidGroups:
+    """The result with the largest group first; groups left with fewer than ``min_size``
+    members are dropped (their trajectories unassigned)."""
+    G, N = dev.shape
     sizes = np.bincount(label[label >= 0], minlength=G)
     order = [g for g in np.argsort(-sizes, kind="stable") if sizes[g] >= min_size]
     remap = np.full(G + 1, -1)

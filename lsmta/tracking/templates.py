@@ -217,31 +217,11 @@ def match_templates(templates: Templates, rows, search: SplineImage, start_xy, s
     """
     rows = np.asarray(rows, np.int64)
     n = len(rows)
-    c = np.array(start_xy, float).reshape(n, 2)
-    A = np.array(start_A, float).reshape(n, 2, 2)
-    status = np.full(n, Status.MAX_ITERATIONS, np.int64)
-    iterations = np.zeros(n, np.int64)
-    ee, r0, r1 = np.full(n, np.nan), np.zeros(n), np.ones(n)
     max_disp = float(templates.patch if max_displacement is None else max_displacement)
-    H, W = search.shape
-    if inverse:
-        _solve(search.coefficients, search.pad, H, W, rows, templates.values, templates.gx,
-               templates.gy, templates.update, templates.ok, offsets(templates.patch), c, A,
-               int(max_iter), float(tol), max_disp, float(templates.patch // 2), status,
-               iterations, ee, r0, r1)
-    P = templates.values.shape[1]
-    sigma0 = np.sqrt(ee / (P - 8))
-    cov = sigma0[:, None, None] ** 2 * (A @ templates.q_xy[rows] @ A.transpose(0, 2, 1))
-    with np.errstate(invalid="ignore"):
-        sigma_xy = np.sqrt(np.diagonal(cov, axis1=1, axis2=2)).copy()
+    result = _inverse_compositional(templates, rows, search, start_xy, start_A, max_iter, tol,
+                                    max_disp, inverse)
     start = np.asarray(start_xy, float).reshape(n, 2)
-    outside = status == Status.OUTSIDE
-    result = LSMResult(
-        xy=c, params=np.concatenate([c, A.reshape(n, 4), r0[:, None], r1[:, None]], axis=1),
-        fixed=np.zeros((n, 8), bool), sigma0=sigma0, sigma_xy=sigma_xy, cov_xy=cov,
-        iterations=iterations,
-        displacement=np.where(outside, np.nan, np.linalg.norm(c - start, axis=1)),
-        status=status, weight_share=np.ones(n))
+    outside = result.status == Status.OUTSIDE
     if thresholds is not None:
         result = thresholds.apply(result)
     redo = np.flatnonzero(~result.ok & templates.ok[rows] & ~outside)
@@ -256,6 +236,38 @@ def match_templates(templates: Templates, rows, search: SplineImage, start_xy, s
         merged[name] = getattr(result, name).copy()
         merged[name][redo] = getattr(fa, name)
     return LSMResult(**merged)
+
+
+def _inverse_compositional(templates: Templates, rows, search: SplineImage, start_xy, start_A,
+                           max_iter, tol, max_disp: float, inverse: bool) -> LSMResult:
+    """The inverse compositional matches of :func:`match_templates` (with ``inverse``
+    False: none, every point left at its start with status MAX_ITERATIONS), before any
+    thresholds."""
+    n = len(rows)
+    c = np.array(start_xy, float).reshape(n, 2)
+    A = np.array(start_A, float).reshape(n, 2, 2)
+    status = np.full(n, Status.MAX_ITERATIONS, np.int64)
+    iterations = np.zeros(n, np.int64)
+    ee, r0, r1 = np.full(n, np.nan), np.zeros(n), np.ones(n)
+    H, W = search.shape
+    if inverse:
+        _solve(search.coefficients, search.pad, H, W, rows, templates.values, templates.gx,
+               templates.gy, templates.update, templates.ok, offsets(templates.patch), c, A,
+               int(max_iter), float(tol), max_disp, float(templates.patch // 2), status,
+               iterations, ee, r0, r1)
+    P = templates.values.shape[1]
+    sigma0 = np.sqrt(ee / (P - 8))
+    cov = sigma0[:, None, None] ** 2 * (A @ templates.q_xy[rows] @ A.transpose(0, 2, 1))
+    with np.errstate(invalid="ignore"):
+        sigma_xy = np.sqrt(np.diagonal(cov, axis1=1, axis2=2)).copy()
+    start = np.asarray(start_xy, float).reshape(n, 2)
+    outside = status == Status.OUTSIDE
+    return LSMResult(
+        xy=c, params=np.concatenate([c, A.reshape(n, 4), r0[:, None], r1[:, None]], axis=1),
+        fixed=np.zeros((n, 8), bool), sigma0=sigma0, sigma_xy=sigma_xy, cov_xy=cov,
+        iterations=iterations,
+        displacement=np.where(outside, np.nan, np.linalg.norm(c - start, axis=1)),
+        status=status, weight_share=np.ones(n))
 
 
 def _mosaic(templates: Templates, rows):

@@ -150,7 +150,10 @@ def test_statuses_are_int_enums():
 MAX_LINES = 80
 MAX_PARAMETERS = 12
 # public functions that keep **kwargs, each with its reason
-EXEMPT_KWARGS: dict = {}
+EXEMPT_KWARGS = {
+    "lsmta.camera.Camera.replace": "mirrors dataclasses.replace over the camera's 16 fields, "
+                                   "each checked again by __post_init__",
+}
 DEFERRED = "# deferred:"  # the marker of an import left inside a function on purpose
 
 

@@ -283,6 +283,81 @@ def _image_residuals(params, X, xy, used):
     return out
 
 
+@dataclass
+class _State:
+    cameras: tuple
+    xy: np.ndarray          # (K, N, 2) tie points seen by >= 2 cameras
+    params0: np.ndarray     # (K, 16) the given cameras
+    sigmas: np.ndarray      # (K, 16) their prior standard deviations
+    X: np.ndarray           # (N, 3) current points (NaN: not triangulated)
+    used: np.ndarray        # (K, N) observations in use
+
+
+def _initial(cameras, xy, params: RefineParams) -> _State:
+    if len(cameras) < 2 or not all(isinstance(c, Camera) for c in cameras):
+        raise ValueError("cameras: expected a sequence of at least two lsmta Camera")
+    xy = as_array(xy, "xy", shape=(len(cameras), None, 2), allow_nan=True)
+    seen = np.isfinite(xy).all(axis=2)
+    keep = seen.sum(axis=0) >= 2
+    xy = np.where(keep[None, :, None], xy, np.nan)
+    seen &= keep[None]
+    counts = seen.sum(axis=1)
+    if (counts < 6).any():
+        k = int(np.argmin(counts))
+        raise ValueError(f"xy: camera {k} ({cameras[k].name or 'unnamed'}) sees {counts[k]} "
+                         "tie points seen by another camera too; at least 6 are needed")
+    X = np.asarray(triangulate(cameras, xy, min_angle_deg=0.0).points, float)
+    if not np.isfinite(X).any():
+        raise ValueError("xy: no tie point can be triangulated with the given cameras")
+    return _State(cameras=cameras, xy=xy, X=X,
+                  params0=np.stack([camera_to_params(c) for c in cameras]),
+                  sigmas=np.stack([params.prior_sigmas(c) for c in cameras]),
+                  used=seen & np.isfinite(X).all(axis=1)[None])
+
+
+def _adjust(st: _State, intrinsics, params: RefineParams):
+    """One adjustment of the observations in use, ``intrinsics[k]`` free in camera k.
+    Returns the (K, 16) cameras, the (N, 3) points, the solution, the free mask and the
+    problem."""
+    sub = np.where(st.used.sum(axis=0) >= 2)[0]
+    cam, pt, obs = _observations(np.where(st.used[:, sub, None], st.xy[:, sub], np.nan))
+    pr = _Problem(params0=st.params0, sigmas=st.sigmas, cam=cam, pt=pt, obs=obs,
+                  n_points=len(sub), sigma_px=params.sigma_px)
+    free = np.zeros(st.params0.shape, bool)
+    free[:, :6] = True
+    for k, names in enumerate(intrinsics):
+        free[k, [PARAMETER_NAMES.index(n) for n in names]] = True
+    cams, Xs, sol, fun = _solve(pr, free, st.X[sub], params)
+    X = np.full_like(st.X, np.nan)
+    X[sub] = Xs
+    return cams, X, sol, fun, free, pr
+
+
+def _choose_intrinsics(st: _State, params: RefineParams):
+    """Adjust with every tried group free and keep, per camera, the groups whose posterior
+    standard deviations are all below ``information_ratio`` times the prior's."""
+    tried = [n for g in params.groups for n in g]
+    _, _, sol, _, free, pr = _adjust(st, [("f", *tried)] * len(st.cameras), params)
+    post = _posterior_sigmas(sol, free, pr.n_points)
+    cols = [PARAMETER_NAMES.index(n) for n in tried]
+    ratios = post[:, cols] / st.sigmas[:, cols]
+    chosen = []
+    for k in range(len(st.cameras)):
+        names = ["f"]
+        for g in params.groups:
+            if all(ratios[k, tried.index(n)] < params.information_ratio for n in g):
+                names += list(g)
+        chosen.append(tuple(names))
+    return tuple(chosen), ratios, tuple(tried)
+
+
+def _drop_outliers(st: _State, cams, X, params: RefineParams) -> None:
+    r = np.linalg.norm(_image_residuals(cams, X, st.xy, st.used), axis=2)
+    scale = max(params.sigma_px, 1.4826 * float(np.nanmedian(r[st.used])))
+    st.used = st.used & ~(r > params.reject_k * scale)
+    st.X = X
+
+
 def refine_cameras(cameras, xy, *, params: RefineParams | None = None) -> CameraRefinement:
     """Refine a rig's cameras from tie points, the given cameras acting as priors.
 
@@ -306,68 +381,15 @@ def refine_cameras(cameras, xy, *, params: RefineParams | None = None) -> Camera
         cannot be triangulated with the given cameras.
     """
     params = RefineParams() if params is None else params
-    cameras = tuple(cameras)
-    if len(cameras) < 2 or not all(isinstance(c, Camera) for c in cameras):
-        raise ValueError("cameras: expected a sequence of at least two lsmta Camera")
-    xy = as_array(xy, "xy", shape=(len(cameras), None, 2), allow_nan=True)
-    seen = np.isfinite(xy).all(axis=2)
-    keep = seen.sum(axis=0) >= 2
-    xy = np.where(keep[None, :, None], xy, np.nan)
-    seen &= keep[None]
-    counts = seen.sum(axis=1)
-    if (counts < 6).any():
-        k = int(np.argmin(counts))
-        raise ValueError(f"xy: camera {k} ({cameras[k].name or 'unnamed'}) sees {counts[k]} "
-                         "tie points seen by another camera too; at least 6 are needed")
-    inter = triangulate(cameras, xy, min_angle_deg=0.0)
-    X0 = np.asarray(inter.points, float)
-    if not np.isfinite(X0).any():
-        raise ValueError("xy: no tie point can be triangulated with the given cameras")
-    params0 = np.stack([camera_to_params(c) for c in cameras])
-    sigmas = np.stack([params.prior_sigmas(c) for c in cameras])
-    before = _image_residuals(params0, X0, xy, seen)
-    good = np.isfinite(X0).all(axis=1)
-    tried = [n for g in params.groups for n in g]
-    index = {n: i for i, n in enumerate(PARAMETER_NAMES)}
-
-    def run(free_intrinsics, used, X_start):
-        sub = np.where(used[:, good].sum(axis=0) >= 2)[0]
-        xy_used = np.where(used[:, :, None], xy, np.nan)[:, good][:, sub]
-        cam, pt, obs = _observations(xy_used)
-        pr = _Problem(params0=params0, sigmas=sigmas, cam=cam, pt=pt, obs=obs,
-                      n_points=len(sub), sigma_px=params.sigma_px)
-        free = np.zeros((len(cameras), 16), bool)
-        free[:, :6] = True
-        for k, names in enumerate(free_intrinsics):
-            free[k, [index[n] for n in names]] = True
-        cams, Xs, sol, fun = _solve(pr, free, X_start[good][sub], params)
-        X = np.full_like(X0, np.nan)
-        X[np.where(good)[0][sub]] = Xs
-        return cams, X, sol, free, pr, fun
-
-    used = seen & good[None]
-    # 1. every tried group free: which does the data determine?
-    cams, X, sol, free, pr, fun = run([("f", *tried)] * len(cameras), used, X0)
-    post = _posterior_sigmas(sol, free, pr.n_points)
-    cols = [index[n] for n in tried]
-    ratios = post[:, cols] / sigmas[:, cols]
-    chosen = []
-    for k in range(len(cameras)):
-        names = ["f"]
-        for g in params.groups:
-            if all(ratios[k, tried.index(n)] < params.information_ratio for n in g):
-                names += list(g)
-        chosen.append(tuple(names))
-    # 2. with the chosen groups; 3. outliers dropped, once more
-    cams, X, sol, free, pr, fun = run(chosen, used, X)
-    r = np.linalg.norm(_image_residuals(cams, X, xy, used), axis=2)
-    scale = max(params.sigma_px, 1.4826 * float(np.nanmedian(r[used])))
-    used = used & ~(r > params.reject_k * scale)
-    cams, X, sol, free, pr, fun = run(chosen, used, X)
-    after = _image_residuals(cams, X, xy, used)
+    st = _initial(tuple(cameras), xy, params)
+    before = _image_residuals(st.params0, st.X, st.xy, st.used)
+    freed, ratios, tried = _choose_intrinsics(st, params)
+    cams, X, _, _, _, _ = _adjust(st, freed, params)
+    _drop_outliers(st, cams, X, params)
+    cams, X, _, fun, _, pr = _adjust(st, freed, params)
     dof = max(1, 2 * len(pr.obs) - 3 * pr.n_points)    # the priors add as many as they fix
-    sigma0 = float(np.sqrt(np.sum(fun ** 2) / dof))
-    refined = tuple(params_to_camera(p, c) for p, c in zip(cams, cameras))
-    return CameraRefinement(cameras=refined, points=X, residuals_before=before,
-                            residuals=after, used=used, freed=tuple(chosen), ratios=ratios,
-                            ratio_names=tuple(tried), sigma0=sigma0)
+    return CameraRefinement(
+        cameras=tuple(params_to_camera(p, c) for p, c in zip(cams, st.cameras)), points=X,
+        residuals_before=before, residuals=_image_residuals(cams, X, st.xy, st.used),
+        used=st.used, freed=freed, ratios=ratios, ratio_names=tried,
+        sigma0=float(np.sqrt(np.sum(fun ** 2) / dof)))

@@ -36,7 +36,7 @@ from ..synth.body import Motion
 from ..synth.calibration import BarTrack, bar_track, poor_guess, render_bar_images
 from ..synth.render import Renderer, cast_body
 from ..synth.sequence import Sequence, render_sequence
-from ..systems import ArmFitSettings, BodyCapture, FilterSettings
+from ..systems import ArmFitParams, BodyCapture, FilterParams
 from ..systems.body import fit_self_consistent, observed_frames
 from ..tracking import TrackerParams, Trajectories, apply_filters, track_points
 from ..tracking.trajectories import trajectories_from_tracks
@@ -371,7 +371,7 @@ class TruthFedTracking:
 
 
 def truth_fed_tracking(session: ArmWaveSession, *, params: TrackerParams | None = None,
-                       filters: FilterSettings | None = None,
+                       filters: FilterParams | None = None,
                        every: int = 4) -> TruthFedTracking:
     """Track all of frame 0's visible grid points with the true cameras (see the class)."""
     seq = session.sequence
@@ -383,7 +383,7 @@ def truth_fed_tracking(session: ArmWaveSession, *, params: TrackerParams | None 
     seconds = time.perf_counter() - t0
     part, local = track_identity(seq, tracks, s0.part, s0.local)
     traj = trajectories_from_tracks(session.cameras, tracks, session.fps)
-    reports = apply_filters(traj, **dataclasses.asdict(filters or FilterSettings()))
+    reports = apply_filters(traj, **dataclasses.asdict(filters or FilterParams()))
     score = score_tracks(seq, tracks, part, local, traj=reports[-1].trajectories)
     return TruthFedTracking(tracks=tracks, trajectories=traj, filters=reports, score=score,
                             part=part, local=local, seconds=seconds)
@@ -453,13 +453,13 @@ class TruthFedArm:
 
 
 def truth_fed_arm(session: ArmWaveSession, tracking: TruthFedTracking, *,
-                  settings: ArmFitSettings | None = None,
+                  settings: ArmFitParams | None = None,
                   joint_noise_mm: float = 0.0) -> TruthFedArm:
     """The arm fit as notebook 07 feeds it (see :class:`TruthFedArm`), with the system's
     settings (the same sigma rule, the same rounds)."""
     truth = session_arm_truth(session)
     init, tracked = eb.initial_state(truth, rng=session.seed, joint_noise_mm=joint_noise_mm)
-    s = settings or ArmFitSettings()
+    s = settings or ArmFitParams()
     body = session.scene.body
     arm = np.isin(tracking.part, [body.index(n) for n in ARM_PARTS])
     X = tracking.filters[-1].trajectories.xyz

@@ -15,10 +15,10 @@ never the generator's truth: nothing here imports :mod:`lsmta.synth` or
 
 from .body import (
     ArmFit,
-    ArmFitSettings,
+    ArmFitParams,
     BodyCapture,
     BodySystemParams,
-    FilterSettings,
+    FilterParams,
     capture_body,
     fit_arm,
     fit_self_consistent,
@@ -41,8 +41,8 @@ from .rig import RigCalibration, calibrate_rig
 from .surfaces import SurfaceParams, measure_surfaces, working_distance
 
 __all__ = [
-    "ArmFit", "ArmFitSettings", "BodyCapture", "BodySystemParams", "CeilingFeed",
-    "FilterSettings", "MixedScaleCapture", "MixedScaleParams", "capture_mixed_scale",
+    "ArmFit", "ArmFitParams", "BodyCapture", "BodySystemParams", "CeilingFeed",
+    "FilterParams", "MixedScaleCapture", "MixedScaleParams", "capture_mixed_scale",
     "body_offsets", "coast_head", "first_settled", "head_target", "lead_displacement",
     "reacquisition_seeds",
     "RigCalibration", "SurfaceParams", "calibrate_rig", "capture_body", "fit_arm",

@@ -48,7 +48,7 @@ from .surfaces import SurfaceParams, measure_surfaces
 
 
 @dataclass(frozen=True)
-class FilterSettings:
+class FilterParams:
     """Trajectory filters (:func:`~lsmta.tracking.apply_filters`; notebook 05's values)."""
 
     max_speed: float = 2000.0
@@ -60,7 +60,7 @@ class FilterSettings:
 
 
 @dataclass(frozen=True)
-class ArmFitSettings:
+class ArmFitParams:
     """The arm model stage (:func:`fit_arm`).
 
     Attributes
@@ -100,8 +100,8 @@ class BodySystemParams:
     density_every : int
         Frames between density checks (and so between measured surfaces).
     tracker : TrackerParams
-    filters : FilterSettings
-    arm : ArmFitSettings
+    filters : FilterParams
+    arm : ArmFitParams
     """
 
     intrinsics: tuple = DEFAULT_INTRINSICS
@@ -110,8 +110,8 @@ class BodySystemParams:
     surface: SurfaceParams = field(default_factory=SurfaceParams)
     density_every: int = 4
     tracker: TrackerParams = field(default_factory=TrackerParams)
-    filters: FilterSettings = field(default_factory=FilterSettings)
-    arm: ArmFitSettings = field(default_factory=ArmFitSettings)
+    filters: FilterParams = field(default_factory=FilterParams)
+    arm: ArmFitParams = field(default_factory=ArmFitParams)
 
 
 @dataclass(frozen=True, eq=False)
@@ -233,7 +233,7 @@ def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None
     return track_points(videos, start, params=params, new_points=new, progress=progress)
 
 
-def fit_arm(trajectories: Trajectories, cameras, *, settings: ArmFitSettings | None = None,
+def fit_arm(trajectories: Trajectories, cameras, *, settings: ArmFitParams | None = None,
             rng: np.random.Generator | int | None = None) -> ArmFit:
     """Fit the arm model to filtered trajectories, started from the data.
 
@@ -246,7 +246,7 @@ def fit_arm(trajectories: Trajectories, cameras, *, settings: ArmFitSettings | N
     trajectories : Trajectories
     cameras : sequence of Camera
         Calibrated cameras in the world of the trajectories.
-    settings : ArmFitSettings, optional
+    settings : ArmFitParams, optional
     rng : numpy.random.Generator, int or None
         For the rigid groups' sample.
 
@@ -255,7 +255,7 @@ def fit_arm(trajectories: Trajectories, cameras, *, settings: ArmFitSettings | N
     ArmFit
     """
     cams = check_cameras(cameras, "cameras")
-    s = settings or ArmFitSettings()
+    s = settings or ArmFitParams()
     X = np.asarray(trajectories.xyz)
     if not np.isfinite(X).all(axis=2).any():
         raise ValueError("trajectories: no trajectory has a position")
@@ -293,7 +293,7 @@ def observed_frames(counts, *, min_points: int = 10) -> np.ndarray:
 
 
 def fit_self_consistent(points, torso_poses, init, *, tracked=None, frames=None,
-                        settings: ArmFitSettings | None = None):
+                        settings: ArmFitParams | None = None):
     """The simplified model, then the full one, with a point sigma the fit agrees with.
 
     The simplified fit runs with ``settings.sigma_prior_mm``; if its own robust residual
@@ -309,13 +309,13 @@ def fit_self_consistent(points, torso_poses, init, *, tracked=None, frames=None,
         Shoulder, elbow and wrist as observations (the wrist is left out: NaN).
     frames : sequence of int, optional
         Fit only these frames (default: all).
-    settings : ArmFitSettings, optional
+    settings : ArmFitParams, optional
 
     Returns
     -------
     (simplified BodyFit, full BodyFit, sigma_mm float)
     """
-    s = settings or ArmFitSettings()
+    s = settings or ArmFitParams()
     model = arm_model()
     if frames is not None:
         frames = np.asarray(frames, int)

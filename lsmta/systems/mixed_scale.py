@@ -66,7 +66,8 @@ class MixedScaleParams:
 
     The steering's fields, ``lead``, ``accel_window``, ``speed_up``, ``lead_height``,
     ``damping``, ``aim_offset``, ``head_margin``, ``coast``, ``body_radius`` and ``tol_px``,
-    are explained at :class:`lsmta.pantilt.SteeringParams` (:attr:`steering` gathers them):
+    are explained at :class:`lsmta.pantilt.SteeringParams`, whose defaults they take
+    (:attr:`steering` gathers them):
     the head predicted ``lead`` s beyond the tick (thesis: 0.3; 0: the newest estimate),
     braking with it (its acceleration over ``accel_window`` s), its height held; damped by
     α = ``damping``; moved by ``aim_offset`` (mm) to the face; the highest target, kept
@@ -110,24 +111,24 @@ class MixedScaleParams:
     """
 
     video_rate: float = 30.0
-    lead: float = 0.3
-    accel_window: float = 0.2
-    speed_up: bool = False
-    lead_height: bool = False
-    damping: float = 1.0
+    lead: float = SteeringParams.lead
+    accel_window: float = SteeringParams.accel_window
+    speed_up: bool = SteeringParams.speed_up
+    lead_height: bool = SteeringParams.lead_height
+    damping: float = SteeringParams.damping
     start: float = 0.9
     stop: float | None = None
-    aim_offset: tuple = (0.0, -80.0, -150.0)
-    head_margin: float = 200.0
+    aim_offset: tuple = SteeringParams.aim_offset
+    head_margin: float = SteeringParams.head_margin
     threshold_sigmas: float = 5.0
     estimator: EstimatorParams = field(
         default_factory=lambda: EstimatorParams(accel_density=1e6, rejoin=0.3))
-    tol_px: float = 0.5
+    tol_px: float = SteeringParams.tol_px
     min_angle_deg: float = 2.0
     max_reprojection_px: float = 1.0
     max_fill_mm: float = 3.0
-    coast: float = 2.0
-    body_radius: float = 600.0
+    coast: float = SteeringParams.coast
+    body_radius: float = SteeringParams.body_radius
     settle: float = 0.5
     reacquire: int = 2
     dot_contrast: float = 30.0

@@ -9,13 +9,7 @@ import pytest
 from lsmta.evaluation import mixed_scale as ms
 from lsmta.pantilt import Motor
 from lsmta.synth.mixed_scale import SimulatedHead, mixed_scale_scene, render_pantilt_video
-from lsmta.systems import (
-    MixedScaleParams,
-    body_offsets,
-    capture_mixed_scale,
-    coast_head,
-    reacquisition_seeds,
-)
+from lsmta.systems import MixedScaleParams, capture_mixed_scale, reacquisition_seeds
 
 
 @pytest.fixture(scope="module")
@@ -175,62 +169,11 @@ def test_reacquisition_seeds_fall_on_drawn_markers_only(tiny, run):
     assert not np.isfinite(none).any()
 
 
-def test_a_dead_head_coasts_on_the_body_with_its_last_offsets():
-    ids = np.array([3, 5, 7])
-    X = np.array([[0.0, 0.0, 1700.0], [-190.0, 0.0, 1300.0], [190.0, 0.0, 1300.0]])
-    off = body_offsets(ids, X, 0, 600.0)
-    assert set(off) == {5, 7} and np.allclose(off[5], [190.0, 0.0, 400.0])
-    assert body_offsets(ids, X, 0, 100.0) == {}
-    # the head LED is gone; one shoulder moved on by (100, 50, 0), the other is gone too
-    moved = X[1:2] + [100.0, 50.0, 0.0]
-    assert np.allclose(coast_head([5], moved, off, [0.0, 0.0, 0.0]), [100.0, 50.0, 1700.0])
-    both = X[1:] + [100.0, 50.0, 0.0]
-    assert np.allclose(coast_head([5, 7], both, off, [0.0, 0.0, 0.0]), [100.0, 50.0, 1700.0])
-    # no body target alive: the head is held where it was last aimed
-    assert np.allclose(coast_head([9], moved, off, [1.0, 2.0, 3.0]), [1.0, 2.0, 3.0])
-    with pytest.raises(ValueError, match="head"):
-        body_offsets(ids, X, 3, 600.0)
-    with pytest.raises(ValueError, match="positions"):
-        coast_head(ids, X[:, :2], off, [0.0, 0.0, 0.0])
-    with pytest.raises(ValueError, match="coast"):
-        MixedScaleParams(coast=-1.0)
-
-
-def test_the_lead_prediction_brakes_with_a_stopping_head_and_never_turns_back():
-    from lsmta.systems import lead_displacement
-
-    # a head walking at 1200 mm/s along X brakes to a stop at 4000 mm/s² (0.3 s ramp)
-    dt = 1 / 240
-    t = np.arange(0, 1.5, dt)
-    v = np.clip(1200.0 - 4000.0 * np.clip(t - 0.5, 0, None), 0, None)
-    x = np.cumsum(v) * dt
-    stop = x[-1]
-    w = int(round(0.2 / dt))                    # velocity change over 0.2 s, as the loop does
-    vel = np.c_[v, np.zeros((len(t), 2))][w:]
-    acc = (vel - np.c_[v, np.zeros((len(t), 2))][:-w]) / 0.2
-    lead = 0.33
-    braked = x[w:] + lead_displacement(vel, acc, lead)[:, 0]
-    constant = x[w:] + lead_displacement(vel, np.zeros_like(acc), lead)[:, 0]
-    # constant velocity leads to where the head would have been had it not stopped; from
-    # 0.1 s into the stop (when the velocity estimate has begun to fall) braking takes at
-    # least half of that overshoot away, and it never predicts behind the head
-    late = t[w:] >= 0.6
-    assert constant.max() - stop > 150.0
-    assert braked[late].max() - stop < 0.5 * (constant[late].max() - stop)
-    assert np.all(braked >= x[w:] - 1e-9) and np.all(braked <= constant + 1e-9)
-    # exact on a constant deceleration: 600 mm/s at -4000 mm/s² stops after 45 mm
-    d = lead_displacement([[600.0, 0.0, 0.0]], [[-4000.0, 0.0, 0.0]], 0.3)
-    assert np.allclose(d, [[45.0, 0.0, 0.0]])
-    # speeding up keeps constant velocity unless asked
-    up = lead_displacement([[600.0, 0.0, 0.0]], [[4000.0, 0.0, 0.0]], 0.3)
-    assert np.allclose(up, [[180.0, 0.0, 0.0]])
-    assert np.allclose(lead_displacement([[600.0, 0.0, 0.0]], [[4000.0, 0.0, 0.0]], 0.3,
-                                         speed_up=True), [[360.0, 0.0, 0.0]])
-    with pytest.raises(ValueError, match="acceleration"):
-        lead_displacement([[1.0, 0.0, 0.0]], [[1.0, 0.0]], 0.3)
-    with pytest.raises(ValueError, match="dt"):
-        lead_displacement([[1.0, 0.0, 0.0]], [[1.0, 0.0, 0.0]], -0.1)
-    with pytest.raises(ValueError, match="accel_window"):
-        MixedScaleParams(accel_window=-0.1)
-    with pytest.raises(TypeError, match="speed_up"):
-        MixedScaleParams(speed_up="yes")
+def test_the_steering_fields_are_checked_by_the_params():
+    for bad, name, error in ((dict(coast=-1.0), "coast", ValueError),
+                             (dict(accel_window=-0.1), "accel_window", ValueError),
+                             (dict(speed_up="yes"), "speed_up", TypeError),
+                             (dict(reacquire=1.5), "reacquire", ValueError)):
+        with pytest.raises(error, match=name):
+            MixedScaleParams(**bad)
+    assert MixedScaleParams(lead=0.2, damping=0.5).steering.damping == 0.5

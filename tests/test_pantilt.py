@@ -18,7 +18,7 @@ from lsmta.pantilt import (
     constant_velocity_filter,
     model_from_params,
     params_from_model,
-    project_params,
+    project_pantilt_params,
     projection_errors,
     sample_posterior,
     simulate_tracking,
@@ -98,13 +98,13 @@ def test_fast_projection_matches_the_model(head, data):
     cam, cal, _ = data
     p = params_from_model(head, start=cam)
     model = model_from_params(cam, p, "general")
-    np.testing.assert_allclose(project_params(cam, p, "general", cal.X, cal.pan, cal.tilt),
+    np.testing.assert_allclose(project_pantilt_params(cam, p, "general", cal.X, cal.pan, cal.tilt),
                                model.project(cal.X, cal.pan, cal.tilt), atol=1e-9)
     # with the true intrinsics, the generator's parameters reproduce the generator's images
     truth = generator_truth(head.camera)
     np.testing.assert_allclose(params_from_model(head), truth, atol=1e-9)
     np.testing.assert_allclose(
-        project_params(head.camera, truth, "general", cal.X_true, cal.pan, cal.tilt),
+        project_pantilt_params(head.camera, truth, "general", cal.X_true, cal.pan, cal.tilt),
         cal.xy_true, atol=1e-6)
 
 

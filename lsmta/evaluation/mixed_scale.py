@@ -30,7 +30,7 @@ from ..synth.mixed_scale import (
     hand_labels,
 )
 from ..synth.pantilt import calibration_sweeps, intrinsic_target
-from ..systems.mixed_scale import CeilingFeed, MixedScaleCapture
+from ..systems import CeilingFeed, MixedScaleCapture
 from .track_scores import score_led_tracks
 
 
@@ -108,12 +108,14 @@ def calibrate_heads(heads, *, rng: np.random.Generator | int | None = None,
 
 
 def calibrate_scene(scene: MixedScaleScene, *, rng: np.random.Generator | int | None = None,
-                    **noise) -> SceneCalibration:
+                    image_sigma: float = 0.3, world_sigma: float = 0.3) -> SceneCalibration:
     """The ceiling rig and the heads of ``scene`` calibrated (:func:`calibrate_ceiling`,
-    :func:`calibrate_heads`; ``noise``: ``image_sigma``, ``world_sigma``)."""
+    :func:`calibrate_heads`, both with ``image_sigma`` px and ``world_sigma`` mm)."""
     rng = as_rng(rng)
-    ceiling, c_rms = calibrate_ceiling(scene, rng=rng, **noise)
-    heads, h_rms = calibrate_heads(scene.heads, rng=rng, **noise)
+    ceiling, c_rms = calibrate_ceiling(scene, rng=rng, image_sigma=image_sigma,
+                                       world_sigma=world_sigma)
+    heads, h_rms = calibrate_heads(scene.heads, rng=rng, image_sigma=image_sigma,
+                                   world_sigma=world_sigma)
     return SceneCalibration(ceiling=ceiling, heads=heads, ceiling_rms_px=c_rms,
                             head_rms_px=h_rms)
 

@@ -60,15 +60,17 @@ class PanTiltTrial:
 
 def three_conditions(head: PanTiltCamera, *, rng: np.random.Generator | int | None = None,
                      loss: str = "linear", f_scale: float = 10.0, points_per_setting: int = 20,
-                     **noise) -> PanTiltTrial:
+                     image_sigma: float = 8.0, world_sigma: float = 25.0) -> PanTiltTrial:
     """The thesis's three calibration conditions on data generated from ``head``.
 
-    ``noise`` (``image_sigma``, ``world_sigma``) applies to the calibration and evaluation
-    observations; ``loss`` and ``f_scale`` to the three pose/axis calibrations.
+    ``image_sigma`` (px) and ``world_sigma`` (mm) are the noise of the calibration and
+    evaluation observations (:func:`lsmta.synth.pantilt.observe`'s defaults);
+    ``loss`` and ``f_scale`` apply to the three pose/axis calibrations.
     """
     rng = as_rng(rng)
     target = intrinsic_target(head, rng=rng)
     intr = calibrate_intrinsics(target.X, target.xy, head.camera.image_size)
+    noise = dict(image_sigma=image_sigma, world_sigma=world_sigma)
     cal = calibration_sweeps(head, rng=rng, points_per_setting=points_per_setting, **noise)
     ev = evaluation_grid(head, rng=rng, **noise)
     h = cal.home
@@ -85,11 +87,13 @@ def three_conditions(head: PanTiltCamera, *, rng: np.random.Generator | int | No
 
 
 def misalignment_sweep(scales, *, rng: np.random.Generator | int | None = None, repeats: int = 1,
-                       **kwargs) -> dict:
+                       loss: str = "linear", f_scale: float = 10.0, points_per_setting: int = 20,
+                       image_sigma: float = 8.0, world_sigma: float = 25.0) -> dict:
     """Median errors of the three conditions for heads with ``misalignment`` in ``scales``.
 
-    ``kwargs`` go to :func:`three_conditions` (noise, loss). Each scale is run ``repeats``
-    times with fresh data; medians are averaged over the repeats.
+    ``loss``, ``f_scale``, ``points_per_setting``, ``image_sigma`` and ``world_sigma`` are
+    :func:`three_conditions`'s. Each scale is run ``repeats`` times with fresh data; medians
+    are averaged over the repeats.
 
     Returns
     -------
@@ -101,7 +105,9 @@ def misalignment_sweep(scales, *, rng: np.random.Generator | int | None = None, 
     out = {k: np.zeros(len(scales)) for k in (*CONDITIONS, "truth")}
     for i, s in enumerate(scales):
         for _ in range(repeats):
-            trial = three_conditions(pantilt_head(misalignment=s), rng=rng, **kwargs)
+            trial = three_conditions(pantilt_head(misalignment=s), rng=rng, loss=loss,
+                                     f_scale=f_scale, points_per_setting=points_per_setting,
+                                     image_sigma=image_sigma, world_sigma=world_sigma)
             for k in out:
                 out[k][i] += trial.median(k) / repeats
     out["scale"] = np.asarray(scales, dtype=float)

@@ -5,6 +5,8 @@
 ``posterior``  emcee samples of the calibration parameters
 ``aiming``     the setting that centres a world point: local search and direct solve
 ``latency``    the control loop with motor latency, Kalman estimate, prediction, damping
+``steering``   the steering policy: lead prediction (braking, height held), head choice
+               with coasting on the body, damped aim of several heads
 
 Angles are in degrees throughout.
 """
@@ -19,7 +21,7 @@ from .fitting import (
     dlt_camera,
     model_from_params,
     params_from_model,
-    project_params,
+    project_pantilt_params,
     projection_errors,
 )
 from .latency import (
@@ -38,11 +40,25 @@ from .model import (
     pose_arrays,
 )
 from .posterior import Posterior, sample_posterior
+from .steering import (
+    HeadChooser,
+    LeadPredictor,
+    Pointer,
+    Steering,
+    SteeringParams,
+    SteeringStep,
+    body_offsets,
+    coast_head,
+    head_target,
+    lead_displacement,
+)
 
 __all__ = [
     "AXIS_NAMES", "Aim", "Control", "EVI_D30_PAN_LIMITS", "EVI_D30_TILT_LIMITS", "Fit",
-    "KalmanCV", "Motor", "POSE_NAMES", "PanTiltCamera", "Posterior", "TrackingRun", "aim",
-    "aim_least_squares", "axis_rotations", "calibrate", "calibrate_intrinsics",
-    "constant_velocity_filter", "dlt_camera", "model_from_params", "params_from_model",
-    "pose_arrays", "project_params", "projection_errors", "sample_posterior", "simulate_tracking",
+    "HeadChooser", "KalmanCV", "LeadPredictor", "Motor", "POSE_NAMES", "PanTiltCamera",
+    "Pointer", "Posterior", "Steering", "SteeringParams", "SteeringStep", "TrackingRun", "aim",
+    "aim_least_squares", "axis_rotations", "body_offsets", "calibrate", "calibrate_intrinsics",
+    "coast_head", "constant_velocity_filter", "dlt_camera", "head_target", "lead_displacement",
+    "model_from_params", "params_from_model", "pose_arrays", "project_pantilt_params",
+    "projection_errors", "sample_posterior", "simulate_tracking",
 ]

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from .._validate import as_points, as_scalar, freeze
+from .._validate import as_int, as_points, as_scalar, freeze
 from .model import PanTiltCamera
 
 _MOVES = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
@@ -111,8 +111,7 @@ def aim(model: PanTiltCamera, X, *, current=(0.0, 0.0), tol_px: float = 0.5,
     X, cur = _targets_and_start(model, X, current)
     tol_px = as_scalar(tol_px, "tol_px", positive=True)
     min_step_deg = as_scalar(min_step_deg, "min_step_deg", positive=True)
-    if int(max_iter) != max_iter or max_iter < 1:
-        raise ValueError(f"max_iter: expected a positive integer, got {max_iter}")
+    as_int(max_iter, "max_iter")
     n = len(X)
     lo = np.array([model.pan_limits[0], model.tilt_limits[0]])
     hi = np.array([model.pan_limits[1], model.tilt_limits[1]])

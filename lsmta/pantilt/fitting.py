@@ -34,7 +34,14 @@ from scipy.optimize import least_squares
 
 from .._validate import as_array, as_points, freeze
 from ..camera import Camera
-from .model import PanTiltCamera, _image, check_angles, pose_arrays
+from .model import (
+    EVI_D30_PAN_LIMITS,
+    EVI_D30_TILT_LIMITS,
+    PanTiltCamera,
+    _image,
+    check_angles,
+    pose_arrays,
+)
 
 POSE_NAMES = ("omega_x", "omega_y", "omega_z", "C_x", "C_y", "C_z")
 AXIS_NAMES = ("pan_dir_x", "pan_dir_z", "pan_off_x", "pan_off_z",
@@ -126,21 +133,24 @@ def _covariance(res, names):
     return cov, np.sqrt(np.clip(np.diag(cov), 0, None)), float(np.sqrt(s2))
 
 
-def model_from_params(start: Camera, params, kind: str, **kwargs) -> PanTiltCamera:
+def model_from_params(start: Camera, params, kind: str, *,
+                      pan_limits=EVI_D30_PAN_LIMITS,
+                      tilt_limits=EVI_D30_TILT_LIMITS) -> PanTiltCamera:
     """The :class:`PanTiltCamera` described by ``params`` (see the module docstring) with
-    intrinsics and starting orientation from ``start``."""
+    intrinsics and starting orientation from ``start``, and the head's range
+    ``pan_limits``, ``tilt_limits`` (degrees)."""
     p = np.asarray(params, dtype=float)
     R0 = np.asarray(start.R) @ _rot(p[:3]).T
     cam = start.replace(R=R0, C=p[3:6])
     if kind == "simple":
-        return PanTiltCamera.simple(cam, **kwargs)
+        return PanTiltCamera.simple(cam, pan_limits=pan_limits, tilt_limits=tilt_limits)
     a, b, ox, oz, c, d, oy, oz2 = p[6:14]
     return PanTiltCamera.from_offsets(cam, pan_axis_cam=(a, 1.0, b), pan_point_cam=(ox, 0.0, oz),
                                       tilt_axis_cam=(1.0, c, d), tilt_point_cam=(0.0, oy, oz2),
-                                      **kwargs)
+                                      pan_limits=pan_limits, tilt_limits=tilt_limits)
 
 
-def project_params(start: Camera, params, kind: str, X, pan, tilt) -> np.ndarray:
+def project_pantilt_params(start: Camera, params, kind: str, X, pan, tilt) -> np.ndarray:
     """``model_from_params(start, params, kind)._project(X, pan, tilt)`` without building
     the model (the inner loop of :func:`calibrate` and the posterior); no argument checks."""
     p = np.asarray(params, dtype=float)
@@ -243,12 +253,10 @@ def calibrate(camera: Camera, pan, tilt, X, xy, *, kind: str = "general",
     if kind not in ("simple", "general"):
         raise ValueError(f"kind: expected 'simple' or 'general', got {kind!r}")
     _check_loss(loss, f_scale)
-    limits = {}
     ref = start if start is not None else PanTiltCamera.simple(camera)
-    limits["pan_limits"] = ref.pan_limits if pan_limits is None else tuple(pan_limits)
-    limits["tilt_limits"] = ref.tilt_limits if tilt_limits is None else tuple(tilt_limits)
-    pan, tilt, X, xy = _observations(pan, tilt, X, xy,
-                                     (limits["pan_limits"], limits["tilt_limits"]))
+    pan_limits = ref.pan_limits if pan_limits is None else tuple(pan_limits)
+    tilt_limits = ref.tilt_limits if tilt_limits is None else tuple(tilt_limits)
+    pan, tilt, X, xy = _observations(pan, tilt, X, xy, (pan_limits, tilt_limits))
     names = POSE_NAMES + (AXIS_NAMES if kind == "general" else ())
     if 2 * len(X) <= len(names):
         raise ValueError(f"X: {len(X)} observations are too few for the {kind} model's "
@@ -261,9 +269,22 @@ def calibrate(camera: Camera, pan, tilt, X, xy, *, kind: str = "general",
                 f"pan, tilt: the general model needs observations at two or more pan settings "
                 f"and two or more tilt settings to determine both axes; got {n_pan} pan and "
                 f"{n_tilt} tilt setting(s)")
+    res = _solve(camera, pan, tilt, X, xy, kind=kind, start=start, loss=loss, f_scale=f_scale)
+    cov, std, sigma = _covariance(res, names)
+    model = model_from_params(camera, res.x, kind, pan_limits=pan_limits,
+                              tilt_limits=tilt_limits)
+    r = (model._project(X, pan, tilt) - xy)
+    return Fit(model=model, names=names, params=res.x, std=std, covariance=cov, residuals=r,
+               sigma_px=sigma, loss=loss, nfev=int(res.nfev))
+
+
+def _solve(camera: Camera, pan, tilt, X, xy, *, kind: str, start, loss: str, f_scale: float):
+    """The least-squares stage of :func:`calibrate` on checked observations: the simple
+    model from the rough home pose, then (``kind="general"``) the general model from it, or
+    from ``start`` when given. Returns SciPy's result."""
 
     def residuals(p, kind_):
-        return (project_params(camera, p, kind_, X, pan, tilt) - xy).ravel()
+        return (project_pantilt_params(camera, p, kind_, X, pan, tilt) - xy).ravel()
 
     def solve(p0, kind_):
         def fun(p):
@@ -279,11 +300,7 @@ def calibrate(camera: Camera, pan, tilt, X, xy, *, kind: str = "general",
         res = simple
     if kind == "general":
         res = solve(p0, "general")
-    cov, std, sigma = _covariance(res, names)
-    model = model_from_params(camera, res.x, kind, **limits)
-    r = (model._project(X, pan, tilt) - xy)
-    return Fit(model=model, names=names, params=res.x, std=std, covariance=cov, residuals=r,
-               sigma_px=sigma, loss=loss, nfev=int(res.nfev))
+    return res
 
 
 def dlt_camera(X, xy, image_size, *, name: str = "") -> Camera:

@@ -10,7 +10,8 @@ A simulation of the thesis's control loop, one function, :func:`simulate_trackin
    estimate, predicts ``P + Δt V`` (``Control.lead`` = Δt; 0 switches prediction off),
    smooths it with the damping filter ``S <- S + α (P' - S)`` (``Control.damping`` = α;
    1 = no damping), and aims the camera at S by the local search of
-   :func:`lsmta.pantilt.aim` from the previous command.
+   :func:`lsmta.pantilt.aim` from the previous command (both by
+   :class:`lsmta.pantilt.steering.Pointer`, which the mixed-scale system steers with too).
 3. The head (:class:`Motor`) starts moving towards a command ``Motor.latency`` seconds after
    it was issued, at a speed proportional to the change still needed (reach it in one
    command period) but at most ``Motor.max_rate``, and its position is quantised to
@@ -31,8 +32,8 @@ import numpy as np
 
 from .._validate import as_array, as_points, as_rng, as_scalar, freeze
 from ..widearea.kalman import process_noise
-from .aiming import aim
 from .model import PanTiltCamera
+from .steering import Pointer
 
 
 @dataclass(frozen=True)
@@ -256,17 +257,13 @@ def _commands(aim_model, t, P, V, available, control: Control, start):
     c_idx = _ticks(t, control.command_rate)
     c_idx = c_idx[t[c_idx] >= available[0]]
     commands = np.empty((len(c_idx), 2))
-    setting = start.copy()
-    smooth = None
+    pointer = Pointer([aim_model], [start.copy()], damping=control.damping)
     unreachable = 0
     for k, i in enumerate(c_idx):
         j = np.searchsorted(available, t[i], side="right") - 1
-        target = P[j] + control.lead * V[j]
-        smooth = target if smooth is None else smooth + control.damping * (target - smooth)
-        a = aim(aim_model, smooth[None], current=setting)
+        (a,) = pointer.point(P[j] + control.lead * V[j])
         unreachable += int(not a.reachable[0])
-        setting = a.settings[0]
-        commands[k] = setting
+        commands[k] = pointer.current[0]
     return c_idx, commands, unreachable
 
 

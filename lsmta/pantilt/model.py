@@ -152,30 +152,35 @@ class PanTiltCamera:
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def simple(cls, camera: Camera, **kwargs) -> PanTiltCamera:
+    def simple(cls, camera: Camera, *, pan_limits=EVI_D30_PAN_LIMITS,
+               tilt_limits=EVI_D30_TILT_LIMITS) -> PanTiltCamera:
         """The simple model (eq. 1): both axes through the projection centre, along the
-        camera's y (pan) and x (tilt) axes."""
+        camera's y (pan) and x (tilt) axes; the head's range in degrees."""
         R = np.asarray(camera.R)
-        return cls(camera, R[1], camera.C, R[0], camera.C, kind="simple", **kwargs)
+        return cls(camera, R[1], camera.C, R[0], camera.C, kind="simple",
+                   pan_limits=pan_limits, tilt_limits=tilt_limits)
 
     @classmethod
     def from_offsets(cls, camera: Camera, *, pan_axis_cam=(0.0, 1.0, 0.0),
                      pan_point_cam=(0.0, 0.0, 0.0), tilt_axis_cam=(1.0, 0.0, 0.0),
-                     tilt_point_cam=(0.0, 0.0, 0.0), **kwargs) -> PanTiltCamera:
+                     tilt_point_cam=(0.0, 0.0, 0.0), pan_limits=EVI_D30_PAN_LIMITS,
+                     tilt_limits=EVI_D30_TILT_LIMITS) -> PanTiltCamera:
         """A general model with axes given in the *camera* frame at home.
 
         Directions and points (mm, relative to the projection centre) are in camera
         coordinates (x right, y down, z forward); the defaults give the ideal head.
+        ``pan_limits``, ``tilt_limits``: the head's range, degrees.
         """
         R = np.asarray(camera.R)
         return cls(camera, as_vector(pan_axis_cam, "pan_axis_cam", 3) @ R,
                    camera.C + as_vector(pan_point_cam, "pan_point_cam", 3) @ R,
                    as_vector(tilt_axis_cam, "tilt_axis_cam", 3) @ R,
                    camera.C + as_vector(tilt_point_cam, "tilt_point_cam", 3) @ R,
-                   kind="general", **kwargs)
+                   kind="general", pan_limits=pan_limits, tilt_limits=tilt_limits)
 
     def replace(self, **changes) -> PanTiltCamera:
-        """A copy with some fields changed."""
+        """A copy with some fields changed (:func:`dataclasses.replace`: unknown names are
+        refused, the new model is checked like any other)."""
         return dataclasses.replace(self, **changes)
 
     # ------------------------------------------------------------------ geometry

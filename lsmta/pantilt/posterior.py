@@ -17,7 +17,7 @@ import numpy as np
 from .._validate import as_rng, as_scalar, freeze
 from ..camera import Camera
 from ..mcmc import sample_ensemble
-from .fitting import Fit, _observations, project_params
+from .fitting import Fit, _observations, project_pantilt_params
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,7 +86,7 @@ def sample_posterior(fit: Fit, camera: Camera, pan, tilt, X, xy, *,
     sigma = fit.sigma_px if sigma_px is None else as_scalar(sigma_px, "sigma_px", positive=True)
 
     def log_prob(p):
-        r = project_params(camera, p, kind, X, pan, tilt) - xy
+        r = project_pantilt_params(camera, p, kind, X, pan, tilt) - xy
         chi2 = float(np.sum(r * r))
         return -0.5 * chi2 / sigma**2 if np.isfinite(chi2) else -np.inf
 

@@ -9,8 +9,12 @@ never the generator's truth: nothing here imports :mod:`lsmta.synth` or
 ``rig``       its first stage: the rig calibrated from a bar video, in the user's world
 ``surfaces``  surfaces of chosen frames from automatic seeds
 ``mixed_scale`` Davis's mixed-scale system, closed: ceiling LED frames, the streaming
-              wide-area tracker, predicted aim of pan-tilt heads, close-up marker video,
-              triangulation at the read-back angles, the face filled per frame
+              wide-area tracker, the pan-tilt heads steered (:mod:`lsmta.pantilt.steering`),
+              close-up marker video, triangulation at the read-back angles, the face filled
+              per frame
+``ceiling``   its ceiling input (CeilingFeed), checked, in arrival order
+``close_up``  pieces of its close-up stages: the first settled frame, re-acquisition seeds
+``checks``    argument checks shared by the systems (cameras, videos, heads as devices)
 """
 
 from .body import (
@@ -25,26 +29,16 @@ from .body import (
     observed_frames,
     track_surface,
 )
-from .mixed_scale import (
-    CeilingFeed,
-    MixedScaleCapture,
-    MixedScaleParams,
-    body_offsets,
-    capture_mixed_scale,
-    coast_head,
-    first_settled,
-    head_target,
-    lead_displacement,
-    reacquisition_seeds,
-)
+from .ceiling import CeilingFeed
+from .close_up import first_settled, reacquisition_seeds
+from .mixed_scale import MixedScaleCapture, MixedScaleParams, capture_mixed_scale
 from .rig import RigCalibration, calibrate_rig
 from .surfaces import SurfaceParams, measure_surfaces, working_distance
 
 __all__ = [
     "ArmFit", "ArmFitParams", "BodyCapture", "BodySystemParams", "CeilingFeed",
     "FilterParams", "MixedScaleCapture", "MixedScaleParams", "capture_mixed_scale",
-    "body_offsets", "coast_head", "first_settled", "head_target", "lead_displacement",
-    "reacquisition_seeds",
+    "first_settled", "reacquisition_seeds",
     "RigCalibration", "SurfaceParams", "calibrate_rig", "capture_body", "fit_arm",
     "fit_self_consistent", "measure_surfaces", "observed_frames", "track_surface",
     "working_distance",

@@ -1,10 +1,11 @@
-"""Argument checks of the systems: cameras and multi-camera videos."""
+"""Argument checks of the systems: cameras, multi-camera videos, pan-tilt heads as devices."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from ..camera import Camera
+from ..pantilt import PanTiltCamera
 
 
 def check_cameras(cameras, name: str) -> list:
@@ -56,3 +57,22 @@ def check_videos(videos, name: str, cameras, *, min_frames: int = 2) -> np.ndarr
     if np.issubdtype(v.dtype, np.floating) and not np.isfinite(v).all():
         raise ValueError(f"{name}: contains non-finite values; expected grey levels")
     return v
+
+
+def check_heads(heads, devices, identify) -> tuple:
+    """Lists of K >= 2 calibrated :class:`~lsmta.pantilt.PanTiltCamera`, K devices (with
+    ``command(t, setting)`` and ``grab(t)``) and K callables ``identify[k](t, setting)``."""
+    heads, devices, identify = list(heads), list(devices), list(identify)
+    if len(heads) < 2 or not all(isinstance(h, PanTiltCamera) for h in heads):
+        raise TypeError("heads: expected at least 2 calibrated lsmta.pantilt.PanTiltCamera")
+    for name, v in (("devices", devices), ("identify", identify)):
+        if len(v) != len(heads):
+            raise ValueError(f"{name}: expected one per head ({len(heads)}), got {len(v)}")
+    for k, d in enumerate(devices):
+        if not (callable(getattr(d, "command", None)) and callable(getattr(d, "grab", None))):
+            raise TypeError(f"devices[{k}]: expected an object with command(t, setting) and "
+                            "grab(t) -> (image, setting)")
+    for k, f in enumerate(identify):
+        if not callable(f):
+            raise TypeError(f"identify[{k}]: expected a callable (t, setting) -> (M, 2) px")
+    return heads, devices, identify

@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from .._validate import as_rng, as_scalar
+from .._validate import as_int, as_rng, as_scalar
 from ..noise import temporal_noise
 from ._kernels import search_kernel
 
@@ -76,9 +76,7 @@ class DetectionParams:
 
     def __post_init__(self):
         for key in ("k", "window", "min_area", "max_area"):
-            v = getattr(self, key)
-            if int(v) != v or v < 1:
-                raise ValueError(f"{key}: expected a positive integer, got {v}")
+            as_int(getattr(self, key), key)
 
 
 @dataclass(frozen=True)
@@ -224,14 +222,12 @@ def relearn_threshold(frames, offset: float, minimum: float, *, spot_px: int = 7
     """
     f = _frames(frames).astype(float)
     spot_level = as_scalar(spot_level, "spot_level", nonnegative=True)
-    if int(spot_px) != spot_px or spot_px < 3:
-        raise ValueError(f"spot_px: expected an integer >= 3, got {spot_px}")
-    if int(grow_px) != grow_px or grow_px < 0:
-        raise ValueError(f"grow_px: expected a non-negative integer, got {grow_px}")
-    opened = np.stack([ndimage.grey_opening(x, size=(int(spot_px),) * 2) for x in f])
+    spot_px = as_int(spot_px, "spot_px", minimum=3, unit="pixels")
+    grow_px = as_int(grow_px, "grow_px", minimum=0, unit="pixels")
+    opened = np.stack([ndimage.grey_opening(x, size=(spot_px,) * 2) for x in f])
     spot = f - opened > spot_level
     if grow_px:
-        spot = np.stack([ndimage.binary_dilation(m, iterations=int(grow_px)) for m in spot])
+        spot = np.stack([ndimage.binary_dilation(m, iterations=grow_px) for m in spot])
     return background_threshold(np.where(spot, opened, f), offset, minimum)
 
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array, as_scalar
+from .._validate import as_array, as_int, as_scalar
 from ..camera import Camera
 from ..triangulation import intersect_rays
 from .management import ray_distance
@@ -83,15 +83,14 @@ def intersect_instants(cameras, frames: Frames, times, *, window: float,
     times = as_array(times, "times", shape=(None,))
     half = 0.5 * as_scalar(window, "window", positive=True)
     tolerance = as_scalar(tolerance, "tolerance", positive=True)
-    if int(min_rays) != min_rays or min_rays < 2:
-        raise ValueError(f"min_rays: expected an integer >= 2, got {min_rays}")
+    min_rays = as_int(min_rays, "min_rays", minimum=2)
     ok = (frames.camera >= 0) & (frames.camera < len(cams)) & np.isfinite(frames.stamp)
     per_cam = [np.flatnonzero(ok & (frames.camera == k)) for k in range(len(cams))]
     per_cam = [f[np.argsort(frames.stamp[f], kind="stable")] for f in per_cam]
     pts, nr, start = [], [], [0]
     for t in times:
         o, d, cam = _rays_at(cams, frames, per_cam, t, half)
-        P, n = _cluster(o, d, cam, tolerance, int(min_rays))
+        P, n = _cluster(o, d, cam, tolerance, min_rays)
         pts.append(P)
         nr.append(n)
         start.append(start[-1] + len(P))

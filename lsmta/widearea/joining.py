@@ -30,7 +30,7 @@ from enum import IntEnum
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .._validate import as_scalar
+from .._validate import as_int, as_scalar
 from ..calibration.virtual_object import resect
 from ..camera import Camera
 
@@ -80,9 +80,7 @@ class JoinParams:
 
     def __post_init__(self):
         for key in ("min_frames", "min_pairs", "rounds"):
-            v = getattr(self, key)
-            if int(v) != v or v < 1:
-                raise ValueError(f"{key}: expected a positive integer, got {v}")
+            as_int(getattr(self, key), key)
         for key in ("search_px", "first_gate_px", "gate_px", "max_rms_px"):
             as_scalar(getattr(self, key), key, positive=True)
 

@@ -5,10 +5,10 @@ model, the extended Kalman predictor and updater, a Mahalanobis-distance hypothe
 global-nearest-neighbour assignment and an update-time deleter. Two pieces are ours
 because Stone Soup has nothing that fits:
 
-* a measurement model for a calibrated camera (:class:`ProjectionModel`: a
+* a measurement model for a calibrated camera (``_ProjectionModel``: a
   ``NonLinearGaussianMeasurement`` whose function is :meth:`lsmta.camera.Camera.project`),
   attached to every detection, so that one tracker takes centroids from 18 cameras;
-* the two-ray initiator of Davis (2002, §3.6) (:class:`TwoRayInitiator`, built on
+* the two-ray initiator of Davis (2002, §3.6) (``_TwoRayInitiator``, built on
   :func:`lsmta.widearea.management.find_birth`): Stone Soup's initiators start a track
   from one detection whose measurement model can be inverted, and one camera gives only
   a ray.
@@ -18,7 +18,6 @@ processed in time-stamp order (an offline re-ordering the thesis's real-time est
 not do); a late frame needs no special treatment here. The loop is that of Stone Soup's
 ``MultiTargetTracker`` written out, so that the initiator sees each frame's camera, and
 missed tracks get no prediction appended (the deleter is given the frame's time instead).
-Stone Soup is imported only when this module's functions run.
 """
 
 from __future__ import annotations
@@ -27,6 +26,24 @@ import datetime
 from dataclasses import dataclass
 
 import numpy as np
+from stonesoup.base import Property
+from stonesoup.dataassociator.neighbour import GNNWith2DAssignment
+from stonesoup.deleter.time import UpdateTimeDeleter
+from stonesoup.hypothesiser.distance import DistanceHypothesiser
+from stonesoup.initiator.base import Initiator
+from stonesoup.measures import Mahalanobis
+from stonesoup.models.measurement.nonlinear import NonLinearGaussianMeasurement
+from stonesoup.models.transition.linear import (
+    CombinedLinearGaussianTransitionModel,
+    ConstantVelocity,
+)
+from stonesoup.predictor.kalman import ExtendedKalmanPredictor
+from stonesoup.types.array import StateVector, StateVectors
+from stonesoup.types.detection import Detection
+from stonesoup.types.hypothesis import SingleHypothesis
+from stonesoup.types.track import Track
+from stonesoup.types.update import GaussianStateUpdate
+from stonesoup.updater.kalman import ExtendedKalmanUpdater
 
 from ..camera import Camera
 from .kalman import projection_jacobian
@@ -43,80 +60,69 @@ def seconds_to_datetime(t: float) -> datetime.datetime:
     return EPOCH + datetime.timedelta(seconds=float(t))
 
 
-def _classes():
-    from stonesoup.base import Property
-    from stonesoup.initiator.base import Initiator
-    from stonesoup.models.measurement.nonlinear import NonLinearGaussianMeasurement
-    from stonesoup.types.array import StateVector, StateVectors
-    from stonesoup.types.hypothesis import SingleHypothesis
-    from stonesoup.types.track import Track
-    from stonesoup.types.update import GaussianStateUpdate
+class _ProjectionModel(NonLinearGaussianMeasurement):
+    """Pixel coordinates of the state's position seen by one :class:`Camera`."""
 
-    class ProjectionModel(NonLinearGaussianMeasurement):
-        """Pixel coordinates of the state's position seen by one :class:`Camera`."""
+    camera: Camera = Property(doc="The calibrated camera.")
 
-        camera: Camera = Property(doc="The calibrated camera.")
+    @property
+    def ndim_meas(self) -> int:
+        return 2
 
-        @property
-        def ndim_meas(self) -> int:
-            return 2
+    def function(self, state, noise=False, **kwargs):
+        sv = np.asarray(state.state_vector, dtype=float)
+        X = sv[list(self.mapping), :].T
+        xy = self.camera.project(X, behind="nan").T
+        if noise is True:
+            xy = xy + self.rvs(num_samples=xy.shape[1], **kwargs)
+        return StateVectors(xy) if xy.shape[1] > 1 else StateVector(xy[:, 0])
 
-        def function(self, state, noise=False, **kwargs):
-            sv = np.asarray(state.state_vector, dtype=float)
-            X = sv[list(self.mapping), :].T
-            xy = self.camera.project(X, behind="nan").T
-            if noise is True:
-                xy = xy + self.rvs(num_samples=xy.shape[1], **kwargs)
-            return StateVectors(xy) if xy.shape[1] > 1 else StateVector(xy[:, 0])
+    def jacobian(self, state, **kwargs):
+        sv = np.asarray(state.state_vector, dtype=float)[:, 0]
+        J = projection_jacobian(self.camera, sv[list(self.mapping)][None])[0]
+        H = np.zeros((2, self.ndim_state))
+        H[:, list(self.mapping)] = np.nan_to_num(J)
+        return H
 
-        def jacobian(self, state, **kwargs):
-            sv = np.asarray(state.state_vector, dtype=float)[:, 0]
-            J = projection_jacobian(self.camera, sv[list(self.mapping)][None])[0]
-            H = np.zeros((2, self.ndim_state))
-            H[:, list(self.mapping)] = np.nan_to_num(J)
-            return H
+class _TwoRayInitiator(Initiator):
+    """Tracks from two cameras' rays passing within a tolerance (Davis 2002, §3.6)."""
 
-    class TwoRayInitiator(Initiator):
-        """Tracks from two cameras' rays passing within a tolerance (Davis 2002, §3.6)."""
+    cameras: list = Property(doc="The K cameras.")
+    tolerance: float = Property(default=15.0, doc="mm")
+    staleness: float = Property(default=0.070, doc="s")
+    sigma: tuple = Property(default=(15.0, 1500.0), doc="initial std of mm, mm/s")
+    volume: tuple = Property(default=None, doc="box where births may happen, mm")
 
-        cameras: list = Property(doc="The K cameras.")
-        tolerance: float = Property(default=15.0, doc="mm")
-        staleness: float = Property(default=0.070, doc="s")
-        sigma: tuple = Property(default=(15.0, 1500.0), doc="initial std of mm, mm/s")
-        volume: tuple = Property(default=None, doc="box where births may happen, mm")
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._pool = RayPool()
 
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            self._pool = RayPool()
-
-        def initiate(self, detections, timestamp, **kwargs):
-            t = (timestamp - EPOCH).total_seconds()
-            cam = kwargs["camera"]
-            dets = list(detections)
-            xy = np.array([np.asarray(d.state_vector, float)[:, 0] for d in dets]).reshape(-1, 2)
-            o, d = (self.cameras[cam].rays(xy) if len(xy)
-                    else (np.zeros((0, 3)), np.zeros((0, 3))))
-            pool = self._pool
-            pool.refresh(t, cam, self.staleness)
-            b = pool.births(o, d, t, cam, tolerance=self.tolerance, staleness=self.staleness,
-                            volume=self.volume)
-            tracks = set()
-            P0 = np.diag([self.sigma[0] ** 2, self.sigma[1] ** 2] * 3)
-            for point, i in zip(b.points, b.new):
-                sv = np.zeros(6)
-                sv[list(POSITION)] = point
-                hyp = SingleHypothesis(None, dets[i])
-                tracks.add(Track([GaussianStateUpdate(StateVector(sv), P0, hypothesis=hyp,
-                                                      timestamp=timestamp)]))
-            keep_new = np.ones(len(o), bool)
-            keep_new[b.new] = False
-            keep_pool = np.ones(len(pool.stamps), bool)
-            keep_pool[b.pool] = False
-            pool.keep(keep_pool)
-            pool.add(o[keep_new], d[keep_new], t, cam)
-            return tracks
-
-    return ProjectionModel, TwoRayInitiator
+    def initiate(self, detections, timestamp, **kwargs):
+        t = (timestamp - EPOCH).total_seconds()
+        cam = kwargs["camera"]
+        dets = list(detections)
+        xy = np.array([np.asarray(d.state_vector, float)[:, 0] for d in dets]).reshape(-1, 2)
+        o, d = (self.cameras[cam].rays(xy) if len(xy)
+                else (np.zeros((0, 3)), np.zeros((0, 3))))
+        pool = self._pool
+        pool.refresh(t, cam, self.staleness)
+        b = pool.births(o, d, t, cam, tolerance=self.tolerance, staleness=self.staleness,
+                        volume=self.volume)
+        tracks = set()
+        P0 = np.diag([self.sigma[0] ** 2, self.sigma[1] ** 2] * 3)
+        for point, i in zip(b.points, b.new):
+            sv = np.zeros(6)
+            sv[list(POSITION)] = point
+            hyp = SingleHypothesis(None, dets[i])
+            tracks.add(Track([GaussianStateUpdate(StateVector(sv), P0, hypothesis=hyp,
+                                                  timestamp=timestamp)]))
+        keep_new = np.ones(len(o), bool)
+        keep_new[b.new] = False
+        keep_pool = np.ones(len(pool.stamps), bool)
+        keep_pool[b.pool] = False
+        pool.keep(keep_pool)
+        pool.add(o[keep_new], d[keep_new], t, cam)
+        return tracks
 
 
 def stonesoup_track(cameras, frames: Frames, *, params: EstimatorParams | None = None,
@@ -141,8 +147,6 @@ def stonesoup_track(cameras, frames: Frames, *, params: EstimatorParams | None =
     TrackingResult
         Tracks in our units and state order; counters as for our tracker (``late_*`` zero).
     """
-    from stonesoup.types.detection import Detection
-
     cameras = list(cameras)
     if not cameras or not all(isinstance(c, Camera) for c in cameras):
         raise TypeError("cameras: expected a non-empty sequence of lsmta.camera.Camera")
@@ -200,20 +204,8 @@ class _Components:
 
 def _components(cameras, p: EstimatorParams, gate_sigma: float) -> _Components:
     """Stone Soup's pieces with our settings, and our camera model and initiator."""
-    from stonesoup.dataassociator.neighbour import GNNWith2DAssignment
-    from stonesoup.deleter.time import UpdateTimeDeleter
-    from stonesoup.hypothesiser.distance import DistanceHypothesiser
-    from stonesoup.measures import Mahalanobis
-    from stonesoup.models.transition.linear import (
-        CombinedLinearGaussianTransitionModel,
-        ConstantVelocity,
-    )
-    from stonesoup.predictor.kalman import ExtendedKalmanPredictor
-    from stonesoup.updater.kalman import ExtendedKalmanUpdater
-
-    ProjectionModel, TwoRayInitiator = _classes()
     R = p.sigma_px**2 * np.eye(2)
-    models = [ProjectionModel(ndim_state=6, mapping=POSITION, noise_covar=R, camera=c)
+    models = [_ProjectionModel(ndim_state=6, mapping=POSITION, noise_covar=R, camera=c)
               for c in cameras]
     transition = CombinedLinearGaussianTransitionModel(
         [ConstantVelocity(p.accel_density)] * 3)
@@ -224,7 +216,7 @@ def _components(cameras, p: EstimatorParams, gate_sigma: float) -> _Components:
     return _Components(
         models=models, updater=updater, associator=GNNWith2DAssignment(hypothesiser),
         deleter=UpdateTimeDeleter(datetime.timedelta(seconds=p.timeout)),
-        initiator=TwoRayInitiator(cameras=cameras, tolerance=p.birth_tolerance,
+        initiator=_TwoRayInitiator(cameras=cameras, tolerance=p.birth_tolerance,
                                   staleness=p.staleness, sigma=tuple(p.birth_sigma),
                                   volume=p.volume))
 

@@ -102,27 +102,7 @@ def schedule(arrival, camera, stamp, policy: str, service_time: float, *,
             queued[by_arrival[nxt]] = True
             nxt += 1
         waiting = np.flatnonzero(queued)
-        if policy == "fifo":
-            pick = waiting[np.argmin(arrival[waiting])]
-            drop = np.zeros(0, np.int64)
-        elif policy == "newest":
-            pick = waiting[np.argmax(stamp[waiting])]
-            drop = waiting
-        elif policy == "round_robin":
-            present = set(cam[waiting].tolist())
-            for step in range(len(cameras)):
-                c = cameras[(rr + step) % len(cameras)]
-                if c in present:
-                    rr = (rr + step + 1) % len(cameras)
-                    break
-            mine = waiting[cam[waiting] == c]
-            pick = mine[np.argmax(stamp[mine])]
-            drop = mine
-        else:  # random_recent
-            c = rng.choice(np.unique(cam[waiting]))
-            mine = waiting[cam[waiting] == c]
-            pick = mine[np.argmax(stamp[mine])]
-            drop = waiting
+        pick, drop, rr = _pick(policy, waiting, arrival, stamp, cam, cameras, rr, rng)
         queued[drop] = False
         queued[pick] = False
         done[pick] = True
@@ -132,3 +112,30 @@ def schedule(arrival, camera, stamp, policy: str, service_time: float, *,
     order = np.asarray(order, dtype=np.int64)
     skipped = ~done
     return Schedule(order=order, started=np.asarray(started, float), skipped=skipped)
+
+
+def _pick(policy: str, waiting, arrival, stamp, cam, cameras, rr: int, rng):
+    """The frame a policy processes among the ``waiting`` ones and the frames it drops from
+    the queues; ``rr`` is the round-robin position in ``cameras`` (returned, moved on)."""
+    if policy == "fifo":
+        pick = waiting[np.argmin(arrival[waiting])]
+        drop = np.zeros(0, np.int64)
+    elif policy == "newest":
+        pick = waiting[np.argmax(stamp[waiting])]
+        drop = waiting
+    elif policy == "round_robin":
+        present = set(cam[waiting].tolist())
+        for step in range(len(cameras)):
+            c = cameras[(rr + step) % len(cameras)]
+            if c in present:
+                rr = (rr + step + 1) % len(cameras)
+                break
+        mine = waiting[cam[waiting] == c]
+        pick = mine[np.argmax(stamp[mine])]
+        drop = mine
+    else:  # random_recent
+        c = rng.choice(np.unique(cam[waiting]))
+        mine = waiting[cam[waiting] == c]
+        pick = mine[np.argmax(stamp[mine])]
+        drop = waiting
+    return pick, drop, rr

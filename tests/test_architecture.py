@@ -153,6 +153,8 @@ MAX_PARAMETERS = 12
 EXEMPT_KWARGS = {
     "lsmta.camera.Camera.replace": "mirrors dataclasses.replace over the camera's 16 fields, "
                                    "each checked again by __post_init__",
+    "lsmta.pantilt.model.PanTiltCamera.replace": "mirrors dataclasses.replace; unknown names "
+                                                 "are refused and the model checked again",
 }
 DEFERRED = "# deferred:"  # the marker of an import left inside a function on purpose
 

@@ -12,6 +12,19 @@ import numpy as np
 from ._validate import as_array, as_rng
 
 
+class SampleMoments:
+    """Mean and sample standard deviation (ddof 1) over the rows of ``self.samples``
+    ``(S, P)``; a base of the posterior results."""
+
+    @property
+    def mean(self) -> np.ndarray:
+        return self.samples.mean(axis=0)
+
+    @property
+    def std(self) -> np.ndarray:
+        return self.samples.std(axis=0, ddof=1)
+
+
 @dataclass(frozen=True, eq=False)
 class Chain:
     """Samples of an ensemble run.

@@ -15,13 +15,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validate import as_array, as_rng, as_scalar
-from ..mcmc import sample_ensemble
+from ..mcmc import SampleMoments, sample_ensemble
 from .fitting import BodyFit, ModelState, _Layout, _residuals
 from .metaballs import MetaballModel
 
 
 @dataclass(frozen=True, eq=False)
-class LimbPosterior:
+class LimbPosterior(SampleMoments):
     """Posterior samples and the least-squares Gaussian of the same parameters.
 
     Attributes
@@ -43,14 +43,6 @@ class LimbPosterior:
     ls_mean: np.ndarray
     ls_std: np.ndarray
     n_points: int
-
-    @property
-    def mean(self) -> np.ndarray:
-        return self.samples.mean(axis=0)
-
-    @property
-    def std(self) -> np.ndarray:
-        return self.samples.std(axis=0, ddof=1)
 
 
 def sample_limb_posterior(model: MetaballModel, fit: BodyFit, points, torso_pose, *,

@@ -30,16 +30,9 @@ from ..calibration import (
     scaled,
     track_targets,
 )
+from ..calibration import virtual_object as vo
 from ..calibration.bundle import INTRINSIC_NAMES
 from ..calibration.chain import ChainStart, chain_cameras, datum_from_distance
-from ..calibration.virtual_object import (
-    IMPROVED_ALTERNATION,
-    AlternationParams,
-    ConvergenceHistory,
-    alternate,
-    joint_adjustment,
-    projection_error,
-)
 from ..camera import Camera
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.calibration import (
@@ -257,7 +250,7 @@ class RingTrial:
 def ring_trial(*, seeds=(0, 1, 2), n_cameras: int = 10, n_path: int = 300, n_check: int = 150,
                sigma_px: float = 0.3, n_alternation: int = 30, n_joint: int = 30,
                intrinsics=("f", "cx", "cy", "k1", "k2"), data_seed: int = 100, n_linear: int = 0,
-               improved: AlternationParams | None = None,
+               improved: vo.AlternationParams | None = None,
                true_fixed: bool = False) -> RingTrial:
     """The alternation and the joint adjustment from the same poor guesses (one per
     seed), scored per iteration on an independent LED path; with ``n_linear`` > 0 also
@@ -279,18 +272,18 @@ def ring_trial(*, seeds=(0, 1, 2), n_cameras: int = 10, n_path: int = 300, n_che
             fixed = [n for n in INTRINSIC_NAMES if n not in intrinsics]
             guess = [g.replace(**{n: getattr(t, n) for n in fixed})
                      for g, t in zip(guess, truth)]
-        alt.append(alternate(guess, xy, xy_check=xy_c, params=AlternationParams(
+        alt.append(vo.alternate(guess, xy, xy_check=xy_c, params=vo.AlternationParams(
             n_iter=n_alternation, intrinsics=intrinsics)))
         if n_linear:
-            lin.append(alternate(guess, xy, xy_check=xy_c, params=AlternationParams(
+            lin.append(vo.alternate(guess, xy, xy_check=xy_c, params=vo.AlternationParams(
                 n_iter=n_linear, intrinsics=intrinsics, triangulation="linear")))
         if improved is not None:
-            imp.append(alternate(guess, xy, xy_check=xy_c,
-                                 params=dataclasses.replace(improved, intrinsics=intrinsics)))
-        jnt.append(joint_adjustment(guess, xy, n_iter=n_joint, intrinsics=intrinsics,
-                                    xy_check=xy_c))
+            imp.append(vo.alternate(guess, xy, xy_check=xy_c,
+                                    params=dataclasses.replace(improved, intrinsics=intrinsics)))
+        jnt.append(vo.joint_adjustment(guess, xy, n_iter=n_joint, intrinsics=intrinsics,
+                                       xy_check=xy_c))
     return RingTrial(truth=truth, path=path, check_path=check, xy=xy, xy_check=xy_c,
-                     alternation=alt, joint=jnt, truth_error=projection_error(truth, xy_c),
+                     alternation=alt, joint=jnt, truth_error=vo.projection_error(truth, xy_c),
                      sigma_px=sigma_px, linear=lin, improved=imp)
 
 
@@ -343,9 +336,9 @@ class OverlapRun:
     guess: list
     chain: ChainStart
     start: list
-    plain: ConvergenceHistory
-    improved: ConvergenceHistory
-    joint: ConvergenceHistory
+    plain: vo.ConvergenceHistory
+    improved: vo.ConvergenceHistory
+    joint: vo.ConvergenceHistory
     calibrated: dict
     floor: float
     error_3d: dict
@@ -358,7 +351,7 @@ CHECK_MARKS = np.array([[-3000.0, -800.0, 600.0], [3000.0, 900.0, 1500.0]])
 
 def partial_overlap_trial(*, seeds=(0, 1, 2), n_path: int = 800, n_check: int = 200,
                           sigma_px: float = 0.3, n_plain: int = 50,
-                          improved: AlternationParams = IMPROVED_ALTERNATION,
+                          improved: vo.AlternationParams = vo.IMPROVED_ALTERNATION,
                           n_joint: int = 40) -> list:
     """The virtual calibration object where no camera sees the whole path: per seed, the
     long room (:func:`lsmta.synth.calibration.long_room_rig`, perturbed), an LED path
@@ -388,10 +381,10 @@ def partial_overlap_trial(*, seeds=(0, 1, 2), n_path: int = 800, n_check: int = 
         guess = poor_guess(truth, rng=rng)
         chain = chain_cameras(guess, xy)
         start = datum_from_distance(chain.cameras, m_xy, distance, pose=guess[0])
-        hist = {"plain": alternate(start, xy, xy_check=xy_c,
-                                   params=AlternationParams(n_iter=n_plain)),
-                "improved": alternate(start, xy, xy_check=xy_c, params=improved),
-                "joint": joint_adjustment(start, xy, n_iter=n_joint, xy_check=xy_c)}
+        hist = {"plain": vo.alternate(start, xy, xy_check=xy_c,
+                                      params=vo.AlternationParams(n_iter=n_plain)),
+                "improved": vo.alternate(start, xy, xy_check=xy_c, params=improved),
+                "joint": vo.joint_adjustment(start, xy, n_iter=n_joint, xy_check=xy_c)}
         calibrated = {k: datum_from_distance(h.cameras[-1], m_xy, distance, pose=guess[0])
                       for k, h in hist.items()}
         true_check = np.linalg.norm(CHECK_MARKS[1] - CHECK_MARKS[0])
@@ -403,11 +396,11 @@ def partial_overlap_trial(*, seeds=(0, 1, 2), n_path: int = 800, n_check: int = 
             seed=seed, truth=truth, path=path, check_path=check, xy=xy, xy_check=xy_c,
             marks=MARKS, marks_xy=m_xy, check_marks=CHECK_MARKS, check_marks_xy=c_xy,
             guess=guess, chain=chain, start=start, calibrated=calibrated,
-            floor=projection_error(truth, xy_c), error_3d=err3, scale_error=scale, **hist))
+            floor=vo.projection_error(truth, xy_c), error_3d=err3, scale_error=scale, **hist))
     return runs
 
 
-__all__ = ["BarTrial", "ConvergenceHistory", "OverlapRun", "RingTrial", "aniposelib_peer",
+__all__ = ["BarTrial", "OverlapRun", "RingTrial", "aniposelib_peer",
            "bar_observations", "bar_trial", "check_point_errors", "heldout_bar_errors",
            "parameter_table", "partial_overlap_trial", "ring_trial"]
 

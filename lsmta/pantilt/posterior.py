@@ -16,12 +16,12 @@ import numpy as np
 
 from .._validate import as_rng, as_scalar, freeze
 from ..camera import Camera
-from ..mcmc import sample_ensemble
+from ..mcmc import SampleMoments, sample_ensemble
 from .fitting import Fit, _observations, project_pantilt_params
 
 
 @dataclass(frozen=True, eq=False)
-class Posterior:
+class Posterior(SampleMoments):
     """Posterior samples.
 
     Attributes
@@ -40,14 +40,6 @@ class Posterior:
 
     def __post_init__(self):
         freeze(self, ("samples",))
-
-    @property
-    def mean(self) -> np.ndarray:
-        return self.samples.mean(axis=0)
-
-    @property
-    def std(self) -> np.ndarray:
-        return self.samples.std(axis=0, ddof=1)
 
 
 def sample_posterior(fit: Fit, camera: Camera, pan, tilt, X, xy, *,

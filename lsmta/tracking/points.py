@@ -59,7 +59,7 @@ points are added where the tracks have thinned out (newly visible surface).
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, make_dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -365,17 +365,12 @@ class _Anchors:
         self.frame[rows], self.sigma_ref[:, rows] = other.frame, other.sigma_ref
 
 
+# the result's arrays (see Tracks), mutable while tracking
+_TrackArrays = make_dataclass("_TrackArrays", [(f.name, np.ndarray) for f in fields(Tracks)])
+
+
 @dataclass
-class _State:
-    xy: np.ndarray            # (T, K, N, 2)
-    start: np.ndarray
-    end: np.ndarray
-    status: np.ndarray
-    retried: np.ndarray
-    added: np.ndarray
-    origin: np.ndarray
-    anchor: np.ndarray        # (T, N) frame of the template that matched frame t
-    recovered: np.ndarray
+class _State(_TrackArrays):
     first: _Anchors           # the first templates: A maps them to the last tracked frame
     fallback: _Anchors        # used where the first ones fail (see the module docstring)
     link: np.ndarray          # (K, N, 2, 2) first template -> the fallback's anchor frame
@@ -432,10 +427,9 @@ class _State:
                               | (self.status == TrackStatus.MISSING))
 
     def result(self) -> Tracks:
-        return Tracks(xy=self.xy, start=self.start, end=self.end,
-                      status=np.asarray(self.status, np.int64), retried=self.retried,
-                      added=self.added, origin=self.origin, anchor=self.anchor,
-                      recovered=self.recovered)
+        arrays = {f.name: getattr(self, f.name) for f in fields(Tracks)}
+        arrays["status"] = np.asarray(self.status, np.int64)
+        return Tracks(**arrays)
 
 
 def _lsm(p: TrackerParams) -> dict:

@@ -369,3 +369,15 @@ def scaled_camera(camera: Camera, factor: float) -> Camera:
                           height=int(round(camera.height * factor)),
                           pixel_size=None if camera.pixel_size is None
                           else camera.pixel_size / factor)
+
+
+def cropped_camera(camera: Camera, x0: int, y0: int, width: int, height: int) -> Camera:
+    """The same camera seeing only the pixel window ``[x0, x0 + width) x [y0, y0 + height)``
+    of its image: the principal point shifts by ``(-x0, -y0)``, the size becomes the
+    window's; lens and pose stay."""
+    x0, y0 = as_int(x0, "x0", minimum=0), as_int(y0, "y0", minimum=0)
+    width, height = as_int(width, "width"), as_int(height, "height")
+    if x0 + width > camera.width or y0 + height > camera.height:
+        raise ValueError(f"width, height: the window ({x0}, {y0}, {width} x {height}) does not "
+                         f"fit the camera's {camera.width} x {camera.height} image")
+    return camera.replace(cx=camera.cx - x0, cy=camera.cy - y0, width=width, height=height)

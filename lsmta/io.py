@@ -16,6 +16,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from ._validate import as_array, as_int, as_scalar
+from .camera import Camera, cropped_camera, scaled_camera
 from .camera_files import read_qca
 
 _UNIT_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
@@ -619,3 +620,52 @@ def read_videos(paths, *, frames=None, scale: float = 1.0, crop=None) -> Videos:
                   for w, h in kept)
     return Videos(paths=paths, frames=_frame_selection(frames, counts[0]), fps=rates[0],
                   file_sizes=file_sizes, sizes=sizes, scale=scale, crop=crops)
+
+
+MISMATCH = ("error", "crop")
+
+
+def cameras_for_videos(cameras, videos: Videos, *, mismatch: str = "error") -> list:
+    """The cameras of a camera file made to fit the frames ``videos`` delivers.
+
+    Each camera's image size must be its video's (as stored). With ``mismatch="crop"``, a
+    video smaller than its camera is taken as the camera's frame with its right and bottom
+    edges cut off (principal point unchanged), the way some tools write narrower videos
+    than the sensor they calibrated. Then the videos' own ``crop`` and ``scale`` are applied
+    (:func:`lsmta.camera.cropped_camera`, :func:`lsmta.camera.scaled_camera`).
+
+    Raises
+    ------
+    ValueError
+        A count that differs from the videos', or a size that does not fit, naming the
+        video, both sizes and the option that fits, e.g. "cam01.mp4 is 1080 x 1920 but
+        its camera is 1088 x 1920".
+    """
+    cameras = list(cameras)
+    if not all(isinstance(c, Camera) for c in cameras):
+        raise TypeError("cameras: expected lsmta Camera objects")
+    if len(cameras) != videos.n_views:
+        raise ValueError(f"cameras: {len(cameras)} cameras for {videos.n_views} videos; the "
+                         "camera file must hold one camera per video, in the videos' order")
+    if mismatch not in MISMATCH:
+        raise ValueError(f"mismatch: expected one of {MISMATCH}, got {mismatch!r}")
+    out = []
+    for k, (cam, (w, h), path) in enumerate(zip(cameras, videos.file_sizes, videos.paths)):
+        if (cam.width, cam.height) != (w, h):
+            smaller = w <= cam.width and h <= cam.height
+            hint = ("if the video is the camera's frame with its right or bottom edge cut "
+                    "off, pass mismatch='crop'" if smaller else
+                    "check the order of the cameras and the videos, and whether the video "
+                    "was resized or turned")
+            if mismatch == "error" or not smaller:
+                raise ValueError(f"cameras[{k}]: {path.name} is {w} x {h} but its camera "
+                                 f"({cam.name or 'unnamed'}) is {cam.width} x {cam.height}; "
+                                 f"{hint}")
+            cam = cropped_camera(cam, 0, 0, w, h)
+        if videos.crop is not None:
+            x0, y0, x1, y1 = videos.crop[k]
+            cam = cropped_camera(cam, x0, y0, x1 - x0, y1 - y0)
+        if videos.scale != 1.0:
+            cam = scaled_camera(cam, videos.scale)
+        out.append(cam)
+    return out

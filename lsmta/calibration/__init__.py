@@ -1,5 +1,6 @@
 """Multi-camera calibration: reference-bar self-calibrating bundle adjustment (LSMTA §2.1),
-the virtual calibration object (Davis §3.2) and the one-call wand calibration."""
+the virtual calibration object (Davis §3.2), the one-call wand calibration, and a given
+rig refined from tie points found in its own frames."""
 
 from .approximations import relative_orientation_start, resect_pnp, scaled
 from .bundle import (
@@ -15,8 +16,10 @@ from .bundle import (
     project_params,
 )
 from .chain import ChainStart, chain_cameras, datum_from_distance, shared_points
+from .refine import CameraRefinement, RefineParams, refine_cameras
 from .result import CalibrationResult
 from .targets import Blobs, TargetParams, TargetStatus, TargetTracks, detect_blobs, track_targets
+from .tie_points import TieParams, TiePoints, find_tie_points
 from .virtual_object import (
     IMPROVED_ALTERNATION,
     AlternationParams,
@@ -33,10 +36,11 @@ from .wand import WandCalibration, WandStatus, calibrate_wand
 __all__ = [
     "DEFAULT_INTRINSICS", "IMPROVED_ALTERNATION", "INTRINSIC_NAMES", "PARAMETER_NAMES",
     "AlternationParams", "Bar", "Blobs", "BundleParams", "BundleResult", "CalibrationResult",
-    "ChainStart", "ConvergenceHistory", "TargetParams", "TargetStatus", "TargetTracks",
-    "WandCalibration", "WandStatus", "alternate", "bundle_adjust", "calibrate_wand",
-    "camera_to_params", "chain_cameras", "datum_from_distance", "detect_blobs",
-    "joint_adjustment", "params_to_camera", "project_params", "projection_error",
+    "CameraRefinement", "ChainStart", "ConvergenceHistory", "RefineParams", "TargetParams",
+    "TargetStatus", "TargetTracks", "TieParams", "TiePoints", "WandCalibration", "WandStatus",
+    "alternate", "bundle_adjust", "calibrate_wand", "camera_to_params", "chain_cameras",
+    "datum_from_distance", "detect_blobs", "find_tie_points", "joint_adjustment",
+    "params_to_camera", "project_params", "projection_error", "refine_cameras",
     "relative_orientation_start", "resect", "resect_all", "resect_pnp", "scaled",
     "shared_points", "track_targets", "triangulate_optimal",
 ]

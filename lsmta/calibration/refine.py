@@ -19,10 +19,13 @@ when every parameter of it has a posterior standard deviation below
 ``information_ratio`` times its prior's, that is when the tie points, not the prior,
 carry most of what is known about it (at the default 0.5, more than three quarters of
 its information). The others are held at the file's values, and the adjustment is
-run again with those choices.
+run again with those choices. A distortion that then stops growing with the radius inside
+the image (it could not be inverted there) is held too: tie points that determine the
+lens do not bend it that way.
 
-Solver: the Levenberg-Marquardt of :mod:`lsmta.calibration.bundle` on the sparse normal
-equations (the Jacobian by SciPy's grouped finite differences over its sparsity pattern),
+Solver: Levenberg-Marquardt with the points eliminated from each step (Schur complement:
+a small dense camera system, then 3 x 3 blocks per point), the Jacobian by SciPy's grouped
+finite differences over its sparsity pattern,
 then iteratively reweighted with one of SciPy's robust losses on the image residuals;
 observations whose residual exceeds ``reject_k`` robust standard deviations are
 dropped and the adjustment run once more.
@@ -33,6 +36,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize._numdiff import approx_derivative, group_columns
 from scipy.sparse import coo_matrix
 
 from .._validate import as_array, as_int, as_scalar, freeze
@@ -42,7 +46,6 @@ from .bundle import (
     _LOSS_DERIVATIVE,
     INTRINSIC_NAMES,
     PARAMETER_NAMES,
-    _levenberg_marquardt,
     camera_to_params,
     params_to_camera,
     project_params,
@@ -77,12 +80,15 @@ class RefineParams:
         its prior's (0 < ratio <= 1).
     loss, f_scale : str, float
         Robust loss of :func:`scipy.optimize.least_squares` on the standardised image
-        residuals, and where it bends (in units of ``sigma_px``).
+        residuals, and where it bends (in units of ``sigma_px``). Cauchy by default: tie
+        points matched in an epipolar band hold gross errors of up to the band's width,
+        and a redescending loss gives them no pull, where soft-l1 still lets each pull
+        with the square root of its size.
     reject_k : float
         Observations farther than ``reject_k`` robust standard deviations (1.4826 MAD of
         the residual lengths, at least ``sigma_px``) are dropped before the last run.
-    max_nfev : int
-        Most residual evaluations per run.
+    max_iter : int
+        Most Levenberg-Marquardt iterations per run.
     """
 
     sigma_px: float = 0.5
@@ -93,10 +99,10 @@ class RefineParams:
     sigma_k: float = 0.1
     groups: tuple = (("cx", "cy"), ("k1", "k2"))
     information_ratio: float = 0.5
-    loss: str = "soft_l1"
+    loss: str = "cauchy"
     f_scale: float = 3.0
     reject_k: float = 4.0
-    max_nfev: int = 200
+    max_iter: int = 100
 
     def __post_init__(self):
         for name in ("sigma_px", "sigma_position", "sigma_angle", "sigma_f",
@@ -107,7 +113,7 @@ class RefineParams:
             raise ValueError(f"information_ratio: expected a number in (0, 1], got {ratio}")
         if self.loss not in _LOSSES:
             raise ValueError(f"loss: expected one of {_LOSSES}, got {self.loss!r}")
-        as_int(self.max_nfev, "max_nfev")
+        as_int(self.max_iter, "max_iter")
         bad = [g for g in self.groups
                if not g or any(n not in INTRINSIC_NAMES or n == "f" for n in g)]
         if bad:
@@ -218,6 +224,76 @@ def _sparsity(pr: _Problem, free: np.ndarray):
     return coo_matrix((np.ones(len(r)), (r, c)), shape=(2 * M + nf, nf + 3 * pr.n_points))
 
 
+@dataclass
+class _LMSolution:
+    x: np.ndarray
+    jac: object
+
+
+def _normal_blocks(J, n_cam: int):
+    """The normal matrix of a Jacobian whose first ``n_cam`` columns are the cameras' and
+    the rest three per point: the dense camera block ``(n_cam, n_cam)``, the camera-point
+    block as ``(n_cam, n_pts, 3)`` and the point blocks ``(n_pts, 3, 3)``."""
+    J = J.tocsc()
+    Jc, Jp = J[:, :n_cam], J[:, n_cam:]
+    n_pts = Jp.shape[1] // 3
+    Hpp = (Jp.T @ Jp).tocoo()
+    same = Hpp.row // 3 == Hpp.col // 3
+    B = np.zeros((n_pts, 3, 3))
+    np.add.at(B, (Hpp.row[same] // 3, Hpp.row[same] % 3, Hpp.col[same] % 3), Hpp.data[same])
+    W = (Jc.T @ Jp).toarray().reshape(n_cam, n_pts, 3)
+    return (Jc.T @ Jc).toarray(), W, B, Jc, Jp
+
+
+def _schur_step(J, r, n_cam: int, lam: float):
+    """Levenberg-Marquardt step with the points eliminated: the reduced camera system is
+    small and dense, then each point's 3 x 3 block."""
+    Hcc, W, B, Jc, Jp = _normal_blocks(J, n_cam)
+    gc, gp = Jc.T @ r, (Jp.T @ r).reshape(-1, 3)
+    Hcc[np.diag_indices(n_cam)] *= 1 + lam
+    B[:, [0, 1, 2], [0, 1, 2]] = B[:, [0, 1, 2], [0, 1, 2]] * (1 + lam) + 1e-12
+    Binv = np.linalg.inv(B)
+    WB = np.einsum("anj,njk->ank", W, Binv, optimize=True)
+    S = Hcc - WB.reshape(n_cam, -1) @ W.reshape(n_cam, -1).T
+    dc = -np.linalg.solve(S, gc - np.einsum("ank,nk->a", WB, gp))
+    dp = -np.einsum("njk,nk->nj", Binv, gp + np.einsum("anj,a->nj", W, dc))
+    return np.concatenate([dc, dp.ravel()])
+
+
+def _levenberg_marquardt_schur(fun, x0, sparsity, n_cam: int, max_iter: int, ftol: float):
+    """Levenberg-Marquardt (Marquardt's diagonal scaling) with the Jacobian by SciPy's
+    grouped finite differences over ``sparsity`` and each step solved by the Schur
+    complement."""
+    groups = group_columns(sparsity)
+    x, r = x0.copy(), fun(x0)
+    cost, lam = r @ r, 1e-3
+    J = None
+    for _ in range(max_iter):
+        J = approx_derivative(fun, x, method="2-point", f0=r, sparsity=(sparsity, groups))
+        improved = False
+        for _ in range(12):
+            try:
+                dx = _schur_step(J, r, n_cam, lam)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            r_new = fun(x + dx)
+            c_new = r_new @ r_new
+            if np.isfinite(c_new) and c_new < cost:
+                improved = True
+                break
+            lam *= 10
+        if not improved:
+            break
+        rel = (cost - c_new) / cost
+        x, r, cost = x + dx, r_new, c_new
+        lam = max(lam / 10, 1e-12)
+        if rel < ftol:
+            break
+    J = approx_derivative(fun, x, method="2-point", f0=r, sparsity=(sparsity, groups))
+    return _LMSolution(x=x, jac=J)
+
+
 def _solve(pr: _Problem, free, X0, params: RefineParams):
     """Levenberg-Marquardt on the sparse normal equations, then iteratively reweighted
     with the robust loss on the image residuals (the priors keep weight 1)."""
@@ -228,41 +304,32 @@ def _solve(pr: _Problem, free, X0, params: RefineParams):
     def fun(x):
         return _residuals(x, pr, free)
 
-    sol = _levenberg_marquardt(fun, x0, sparsity, params.max_nfev, 1e-10, 1e-10, None)
+    nf = int(free.sum())
+    sol = _levenberg_marquardt_schur(fun, x0, sparsity, nf, params.max_iter, 1e-9)
     if params.loss != "linear":
         for _ in range(5):
             z = (fun(sol.x)[:n_image] / params.f_scale) ** 2
             w = np.ones(n_image + int(free.sum()))
             w[:n_image] = np.sqrt(_LOSS_DERIVATIVE[params.loss](z))
             x_prev = sol.x
-            sol = _levenberg_marquardt(lambda x, w=w: fun(x) * w, sol.x, sparsity, 20,
-                                       1e-7, 1e-10, None)
+            sol = _levenberg_marquardt_schur(lambda x, w=w: fun(x) * w, sol.x, sparsity, nf,
+                                             10, 1e-6)
             if np.linalg.norm(sol.x - x_prev) < 1e-8 * (1 + np.linalg.norm(x_prev)):
                 break
-    nf = int(free.sum())
     cams = pr.params0.copy()
     cams[free] = sol.x[:nf]
     return cams, sol.x[nf:].reshape(-1, 3), sol, fun(sol.x)
 
 
-def _posterior_sigmas(sol, free: np.ndarray, n_points: int) -> np.ndarray:
-    """Standard deviations of the free camera parameters, points eliminated (Schur)."""
+def _posterior_sigmas(sol, free: np.ndarray) -> np.ndarray:
+    """Standard deviations of the free camera parameters (unit weight), points eliminated
+    by the Schur complement."""
     nf = int(free.sum())
-    J = sol.jac.tocsc()
-    Jc, Jp = J[:, :nf], J[:, nf:]
-    Hcc = (Jc.T @ Jc).toarray()
-    Hcp = (Jc.T @ Jp).toarray()
-    Hpp = (Jp.T @ Jp).tocoo()
-    same = Hpp.row // 3 == Hpp.col // 3                          # block diagonal
-    blocks = np.zeros((n_points, 3, 3))
-    np.add.at(blocks, (Hpp.row[same] // 3, Hpp.row[same] % 3, Hpp.col[same] % 3),
-              Hpp.data[same])
-    inv = np.linalg.pinv(blocks)
-    Hcp3 = Hcp.reshape(nf, n_points, 3)
-    S = Hcc - np.einsum("anj,njk,bnk->ab", Hcp3, inv, Hcp3)
-    cov = np.linalg.pinv(S)
+    Hcc, W, B, _, _ = _normal_blocks(sol.jac, nf)
+    WB = np.einsum("anj,njk->ank", W, np.linalg.pinv(B), optimize=True)
+    S = Hcc - WB.reshape(nf, -1) @ W.reshape(nf, -1).T
     out = np.full(free.shape, np.nan)
-    out[free] = np.sqrt(np.clip(np.diag(cov), 0, None))
+    out[free] = np.sqrt(np.clip(np.diag(np.linalg.pinv(S)), 0, None))
     return out
 
 
@@ -337,8 +404,8 @@ def _choose_intrinsics(st: _State, params: RefineParams):
     """Adjust with every tried group free and keep, per camera, the groups whose posterior
     standard deviations are all below ``information_ratio`` times the prior's."""
     tried = [n for g in params.groups for n in g]
-    _, _, sol, _, free, pr = _adjust(st, [("f", *tried)] * len(st.cameras), params)
-    post = _posterior_sigmas(sol, free, pr.n_points)
+    _, _, sol, _, free, _ = _adjust(st, [("f", *tried)] * len(st.cameras), params)
+    post = _posterior_sigmas(sol, free)
     cols = [PARAMETER_NAMES.index(n) for n in tried]
     ratios = post[:, cols] / st.sigmas[:, cols]
     chosen = []
@@ -349,6 +416,28 @@ def _choose_intrinsics(st: _State, params: RefineParams):
                 names += list(g)
         chosen.append(tuple(names))
     return tuple(chosen), ratios, tuple(tried)
+
+
+def _folds(params16: np.ndarray, camera: Camera) -> bool:
+    """Whether the radial distortion of ``params16`` stops growing with the radius inside
+    the image (with a 10 % margin), so that it could not be inverted there."""
+    f, cx, cy, k1, k2, k3 = params16[6:12]
+    corners = np.array([[0, 0], [camera.width, 0], [0, camera.height],
+                        [camera.width, camera.height]], float) - [cx, cy]
+    r = np.linspace(0.0, 1.1 * np.max(np.hypot(*corners.T)) / f, 200)
+    return bool(np.any(1 + 3 * k1 * r ** 2 + 5 * k2 * r ** 4 + 7 * k3 * r ** 6 <= 0))
+
+
+def _hold_folding(st: _State, cams, freed, params: RefineParams) -> tuple:
+    """Hold the distortion group of a camera whose adjusted distortion folds inside its
+    image (a sign of tie points that do not determine it), at the given values."""
+    out = []
+    for k, names in enumerate(freed):
+        if _folds(cams[k], st.cameras[k]):
+            held = {n for g in params.groups if {"k1", "k2", "k3"} & set(g) for n in g}
+            names = tuple(n for n in names if n not in held)
+        out.append(names)
+    return tuple(out)
 
 
 def _drop_outliers(st: _State, cams, X, params: RefineParams) -> None:
@@ -385,6 +474,10 @@ def refine_cameras(cameras, xy, *, params: RefineParams | None = None) -> Camera
     before = _image_residuals(st.params0, st.X, st.xy, st.used)
     freed, ratios, tried = _choose_intrinsics(st, params)
     cams, X, _, _, _, _ = _adjust(st, freed, params)
+    held = _hold_folding(st, cams, freed, params)
+    if held != freed:
+        freed = held
+        cams, X, _, _, _, _ = _adjust(st, freed, params)
     _drop_outliers(st, cams, X, params)
     cams, X, _, fun, _, pr = _adjust(st, freed, params)
     dof = max(1, 2 * len(pr.obs) - 3 * pr.n_points)    # the priors add as many as they fix

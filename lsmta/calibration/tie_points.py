@@ -217,6 +217,7 @@ def find_tie_points(frames, cameras, *, params: TieParams | None = None) -> TieP
             pair_guided[a, b] += len(m)
             if len(m) < params.min_matches:
                 continue
+            cv2.setRNGSeed(0)                       # MAGSAC's sampling, reproducible
             _, inl = cv2.findFundamentalMat(ideal[a][m[:, 0]], ideal[b][m[:, 1]],
                                             cv2.USAC_MAGSAC, params.ransac_px, 0.999, 10000)
             if inl is None or inl.sum() < params.min_matches:

@@ -7,6 +7,8 @@ never the generator's truth: nothing here imports :mod:`lsmta.synth` or
 ``body``      the LSMTA system (D'Apuzzo, Plänkers & Fua 2000): bar calibration, image
               noise, surfaces, surface tracking, trajectories and filters, arm model
 ``rig``       its first stage: the rig calibrated from a bar video, in the user's world
+``refinement`` or: a camera file's rig refined from the recording itself (tie points,
+              the file's cameras as priors, held-out frames to check it)
 ``surfaces``  surfaces of chosen frames from automatic seeds
 ``mixed_scale`` Davis's mixed-scale system, closed: ceiling LED frames, the streaming
               wide-area tracker, the pan-tilt heads steered (:mod:`lsmta.pantilt.steering`),
@@ -32,6 +34,7 @@ from .body import (
 from .ceiling import CeilingFeed
 from .close_up import first_settled, reacquisition_seeds
 from .mixed_scale import MixedScaleCapture, MixedScaleParams, capture_mixed_scale
+from .refinement import RigRefinement, RigRefinementParams, refine_rig
 from .rig import RigCalibration, calibrate_rig
 from .surfaces import SurfaceParams, measure_surfaces, working_distance
 
@@ -39,7 +42,8 @@ __all__ = [
     "ArmFit", "ArmFitParams", "BodyCapture", "BodySystemParams", "CeilingFeed",
     "FilterParams", "MixedScaleCapture", "MixedScaleParams", "capture_mixed_scale",
     "first_settled", "reacquisition_seeds",
-    "RigCalibration", "SurfaceParams", "calibrate_rig", "capture_body", "fit_arm",
+    "RigCalibration", "RigRefinement", "RigRefinementParams", "SurfaceParams", "calibrate_rig",
+    "capture_body", "fit_arm", "refine_rig",
     "fit_self_consistent", "measure_surfaces", "observed_frames", "track_surface",
     "working_distance",
 ]

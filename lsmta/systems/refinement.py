@@ -1,0 +1,211 @@
+"""A rig's cameras refined from its own recording: the calibration stage for a user who has
+video files and a camera file from another tool.
+
+Stages: check the cameras against the videos (:func:`lsmta.io.cameras_for_videos`) ->
+read evenly spaced frames -> tie points guided by the given cameras
+(:func:`lsmta.calibration.find_tie_points`) -> a check that the cameras fit the videos at
+all -> cameras adjusted with the given ones as priors
+(:func:`lsmta.calibration.refine_cameras`) on some frames -> the residuals of the tie points
+of the other frames (held out), with the given and with the refined cameras.
+
+The held-out frames say whether the refinement generalises: tie points that took no part
+in the adjustment, triangulated with each set of cameras, are reprojected into every view.
+A refinement that only absorbed its own tie points' errors lowers the adjusted residuals but
+not the held-out ones.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._validate import as_int, as_scalar, freeze
+from ..calibration.refine import CameraRefinement, RefineParams, refine_cameras
+from ..calibration.tie_points import TieParams, TiePoints, find_tie_points
+from ..io import Videos, cameras_for_videos
+from ..triangulation import triangulate
+
+
+@dataclass(frozen=True)
+class RigRefinementParams:
+    """Settings of :func:`refine_rig`.
+
+    Attributes
+    ----------
+    n_frames : int
+        Frames sampled evenly over the recording for tie points (>= 2).
+    hold_out_every : int
+        Every ``hold_out_every``-th sampled frame (the 2nd, 2nd + n, ...) is held out of the
+        adjustment to check it (>= 2).
+    max_points : int
+        Most tie points adjusted; beyond it those seen by the most views are kept (then
+        evenly over the rest), which bounds the adjustment's time.
+    max_median_px : float
+        The given cameras do not fit the videos when the median residual of the tie points
+        with them exceeds this in some camera, px.
+    mismatch : str
+        How a video smaller than its camera is taken (:func:`lsmta.io.cameras_for_videos`).
+    tie : TieParams
+    refine : RefineParams
+    """
+
+    n_frames: int = 6
+    hold_out_every: int = 3
+    max_points: int = 2000
+    max_median_px: float = 25.0
+    mismatch: str = "error"
+    tie: TieParams = field(default_factory=TieParams)
+    refine: RefineParams = field(default_factory=RefineParams)
+
+    def __post_init__(self):
+        as_int(self.n_frames, "n_frames", minimum=2)
+        as_int(self.hold_out_every, "hold_out_every", minimum=2)
+        as_int(self.max_points, "max_points", minimum=6)
+        as_scalar(self.max_median_px, "max_median_px", positive=True)
+        if not isinstance(self.tie, TieParams) or not isinstance(self.refine, RefineParams):
+            raise TypeError("tie, refine: expected TieParams and RefineParams")
+
+
+@dataclass(frozen=True)
+class RigRefinement:
+    """Result of :func:`refine_rig`.
+
+    Attributes
+    ----------
+    cameras : tuple of K Camera
+        The refined cameras, for the frames as the videos deliver them.
+    given : tuple of K Camera
+        The camera file's cameras fitted to the videos (before the refinement).
+    frames : tuple of int
+        The recording's frames the tie points come from.
+    held_out : (F,) bool array
+        Which of those frames were kept out of the adjustment.
+    tie_points : TiePoints
+    adjustment : CameraRefinement
+        The adjustment on the other frames' tie points.
+    held_out_before, held_out_after : (K,) arrays
+        Median residual of the held-out tie points per camera with the given and with the
+        refined cameras, px (NaN: none seen).
+    """
+
+    cameras: tuple
+    given: tuple
+    frames: tuple
+    held_out: np.ndarray
+    tie_points: TiePoints
+    adjustment: CameraRefinement
+    held_out_before: np.ndarray
+    held_out_after: np.ndarray
+
+    def __post_init__(self):
+        freeze(self, ("held_out", "held_out_before", "held_out_after"))
+
+    def summary(self) -> dict:
+        """Per camera: tie points, median residuals (adjusted and held out, before and
+        after), the intrinsics freed; as plain numbers for a JSON file."""
+        seen = np.isfinite(self.tie_points.xy[..., 0])
+        out = {}
+        for k, cam in enumerate(self.cameras):
+            out[cam.name or f"camera {k}"] = {
+                "tie_points": int(seen[k].sum()),
+                "adjusted_before_px": float(self.adjustment.median_residual(before=True)[k]),
+                "adjusted_after_px": float(self.adjustment.median_residual()[k]),
+                "held_out_before_px": float(self.held_out_before[k]),
+                "held_out_after_px": float(self.held_out_after[k]),
+                "freed": list(self.adjustment.freed[k]),
+            }
+        return out
+
+
+def _held_out_residuals(cameras, xy) -> np.ndarray:
+    """Median reprojection residual per camera of tie points triangulated with ``cameras``."""
+    K = len(cameras)
+    out = np.full(K, np.nan)
+    if xy.shape[1] == 0:
+        return out
+    X = triangulate(list(cameras), xy, min_angle_deg=0.0).points
+    for k, cam in enumerate(cameras):
+        ok = np.isfinite(xy[k, :, 0]) & np.isfinite(X).all(axis=1)
+        if ok.any():
+            r = np.linalg.norm(cam.project(X[ok], behind="nan") - xy[k, ok], axis=1)
+            out[k] = np.nanmedian(r) if np.isfinite(r).any() else np.nan
+    return out
+
+
+def _strongest(xy, n: int):
+    """At most ``n`` tie points: most views first, then evenly over each view count."""
+    views = np.isfinite(xy[..., 0]).sum(axis=0)
+    keep = []
+    for v in sorted(set(views.tolist()), reverse=True):
+        idx = np.flatnonzero(views == v)
+        room = n - len(keep)
+        if room <= 0:
+            break
+        keep.extend(idx if len(idx) <= room else
+                    idx[np.linspace(0, len(idx) - 1, room).round().astype(int)])
+    return xy[:, np.sort(np.asarray(keep, int))]
+
+
+def _check_fit(given, tie: TiePoints, params: RigRefinementParams) -> None:
+    """Refuse cameras that do not fit the videos: no view pair with tie points of its own
+    epipolar geometry, or tie points far from where the cameras put them."""
+    if tie.pair_matches.sum() == 0 or tie.xy.shape[1] < 6:
+        raise ValueError(
+            "cameras: the given cameras do not fit the videos: no pair of views has tie "
+            f"points that agree with the cameras' epipolar geometry (band "
+            f"{params.tie.band_px:g} px; matches in the band per pair: "
+            f"{tie.pair_guided[np.triu_indices(len(given), 1)].tolist()}). Check that the "
+            "cameras are in the videos' order, the file's units and image size, and that "
+            "the videos are synchronised")
+    med = _held_out_residuals(given, tie.xy)
+    if np.nanmax(med) > params.max_median_px:
+        listed = ", ".join(f"{c.name or k}: {m:.1f} px" for k, (c, m) in enumerate(zip(given, med)))
+        raise ValueError(f"cameras: the given cameras do not fit the videos: the tie points lie "
+                         f"{listed} (median) from where the cameras put them, more than "
+                         f"max_median_px = {params.max_median_px:g}. Check the cameras' order "
+                         "and the file's units")
+
+
+def refine_rig(videos: Videos, cameras, *,
+               params: RigRefinementParams | None = None) -> RigRefinement:
+    """Refine a camera file's cameras from the recording itself.
+
+    Parameters
+    ----------
+    videos : lsmta.io.Videos
+        The synchronised recording (:func:`lsmta.io.read_videos`), one video per camera.
+    cameras : sequence of K Camera
+        The cameras as read from a camera file (:mod:`lsmta.camera_files`), in the videos'
+        order, for the videos as stored (crop and scale of ``videos`` are applied here).
+    params : RigRefinementParams, optional
+
+    Returns
+    -------
+    RigRefinement
+
+    Raises
+    ------
+    ValueError
+        Cameras that do not fit the videos (sizes, count, or tie points far from where the
+        cameras put them), with what was found.
+    """
+    params = RigRefinementParams() if params is None else params
+    if not isinstance(videos, Videos):
+        raise TypeError("videos: expected lsmta.io.Videos (from lsmta.io.read_videos)")
+    given = tuple(cameras_for_videos(cameras, videos, mismatch=params.mismatch))
+    n = min(params.n_frames, videos.n_frames)
+    picks = np.unique(np.linspace(0, videos.n_frames - 1, n).round().astype(int))
+    images = [videos.read(int(i)) for i in picks]
+    tie = find_tie_points(images, given, params=params.tie)
+    _check_fit(given, tie, params)
+    held = (np.arange(len(picks)) % params.hold_out_every) == 1
+    train = ~held[tie.frame]
+    adjustment = refine_cameras(given, _strongest(tie.xy[:, train], params.max_points),
+                                params=params.refine)
+    test_xy = tie.xy[:, ~train]
+    return RigRefinement(
+        cameras=adjustment.cameras, given=given,
+        frames=tuple(int(videos.frames[i]) for i in picks), held_out=held, tie_points=tie,
+        adjustment=adjustment, held_out_before=_held_out_residuals(given, test_xy),
+        held_out_after=_held_out_residuals(adjustment.cameras, test_xy))

@@ -1,0 +1,171 @@
+"""A camera file's rig refined from its own recording: tie points, the adjustment with the
+given cameras as priors, held-out frames, and the checks of cameras against videos."""
+
+import cv2
+import numpy as np
+import pytest
+
+from lsmta.calibration import RefineParams, TieParams, find_tie_points, refine_cameras
+from lsmta.camera import Camera, cropped_camera
+from lsmta.io import cameras_for_videos, read_videos
+from lsmta.systems import RigRefinementParams, refine_rig
+
+
+def _rig(n=4, width=640, height=480, f=560.0):
+    cams = []
+    for a in np.deg2rad(np.linspace(-35, 35, n)):
+        eye = np.array([3000 * np.sin(a), -3000 * np.cos(a), 1400.0])
+        cams.append(Camera.look_at(eye, (0, 400, 700), f=f, width=width, height=height,
+                                   name=f"cam{len(cams) + 1:02d}").replace(k1=-0.08, k2=0.05))
+    return cams
+
+
+def _disturbed(cams, rng, *, px=6.0):
+    """Cameras a few pixels off: centre moved, principal distance and point changed."""
+    out = []
+    for c in cams:
+        out.append(c.replace(C=c.C + rng.normal(0, 15, 3), f=c.f * (1 + rng.normal(0, 0.008)),
+                             cx=c.cx + rng.normal(0, px), cy=c.cy + rng.normal(0, px)))
+    return out
+
+
+def test_refined_residuals_come_back_to_the_noise(rng):
+    cams = _rig()
+    X = rng.uniform([-1200, -200, 0], [1200, 1200, 1800], (1200, 3))
+    xy = np.stack([c.project(X) for c in cams]) + rng.normal(0, 0.3, (len(cams), 1200, 2))
+    for k, c in enumerate(cams):
+        xy[k, ~c.in_image(xy[k]) | (rng.uniform(size=1200) < 0.3)] = np.nan
+    xy[0, :30] += rng.uniform(8, 20, (30, 2))                     # gross errors
+    given = _disturbed(cams, rng)
+    keep = xy.copy()
+    r = refine_cameras(given, xy)
+    assert np.array_equal(xy, keep, equal_nan=True)
+    before, after = r.median_residual(before=True), r.median_residual()
+    assert (before > 1.5).all(), before
+    # 0.3 px per coordinate: a 2-D residual of median ~0.35 px, less the adjusted share
+    assert (after < 0.4).all(), after
+    assert not r.used[0, :30].all()                              # gross errors dropped
+    for c, t in zip(r.cameras, cams):
+        assert abs(c.f - t.f) < abs(given[0].f - cams[0].f) + 5.0
+    assert all(n[0] == "f" for n in r.freed)
+
+
+def test_intrinsics_are_held_where_the_data_does_not_determine_them(rng):
+    cams = _rig(n=2)
+    # a few points near the image centre say nothing about the distortion
+    X = rng.uniform([-150, 300, 600], [150, 500, 800], (40, 3))
+    xy = np.stack([c.project(X) for c in cams]) + rng.normal(0, 0.3, (2, 40, 2))
+    r = refine_cameras(cams, xy, params=RefineParams(information_ratio=0.5))
+    assert all("k1" not in names for names in r.freed), r.freed
+    assert r.ratios.shape == (2, 4) and r.ratio_names == ("cx", "cy", "k1", "k2")
+
+
+def test_refine_params_are_checked():
+    with pytest.raises(ValueError, match="sigma_px"):
+        RefineParams(sigma_px=0)
+    with pytest.raises(ValueError, match="groups"):
+        RefineParams(groups=(("f",),))
+    with pytest.raises(ValueError, match="information_ratio"):
+        RefineParams(information_ratio=1.5)
+    with pytest.raises(ValueError, match="loss"):
+        RefineParams(loss="l2")
+    with pytest.raises(ValueError, match="ratio"):
+        TieParams(ratio=1.0)
+    with pytest.raises(ValueError, match="hold_out_every"):
+        RigRefinementParams(hold_out_every=1)
+
+
+# ---------------------------------------------------------------------- from pixels
+def _texture(rng, size=1024):
+    t = cv2.GaussianBlur(rng.uniform(0, 255, (size, size)), (0, 0), 2.0)
+    t = cv2.normalize(t, None, 0, 255, cv2.NORM_MINMAX)
+    return t.astype(np.float32)
+
+
+def _render(cam, floor_tex, wall_tex, shift):
+    """A floor (z = 0) and a wall (y = 1500) with random texture, seen by ``cam``; the
+    textures slide by ``shift`` px per frame (a moving scene: frames hold new points)."""
+    xy = cam.pixel_grid().reshape(-1, 2)
+    o, d = cam.rays(xy)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_floor = np.where(d[:, 2] < 0, -o[:, 2] / d[:, 2], np.inf)
+        t_wall = np.where(d[:, 1] > 0, (1500 - o[:, 1]) / d[:, 1], np.inf)
+    P = o + np.minimum(t_floor, t_wall)[:, None] * d
+    on_wall = t_wall < t_floor
+    u = (P[:, 0] / 4 + 512 + shift).reshape(cam.height, cam.width).astype(np.float32)
+    v = (np.where(on_wall, P[:, 2], P[:, 1]) / 4 + 512).reshape(u.shape).astype(np.float32)
+    floor, wall = (cv2.remap(tex, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+                   for tex in (floor_tex, wall_tex))
+    out = np.where(on_wall.reshape(u.shape), wall, floor)
+    return out.reshape(cam.height, cam.width).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    rng = np.random.default_rng(40)
+    cams = _rig(n=3)
+    floor, wall = _texture(rng), _texture(rng)
+    folder = tmp_path_factory.mktemp("rig")
+    paths = []
+    for c in cams:
+        path = folder / f"{c.name}.avi"
+        out = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25.0,
+                              (c.width, c.height))
+        for t in range(6):
+            out.write(cv2.cvtColor(_render(c, floor, wall, 9 * t), cv2.COLOR_GRAY2BGR))
+        out.release()
+        paths.append(path)
+    return paths, cams
+
+
+@pytest.mark.slow
+def test_refine_rig_from_video_files(recording, rng):
+    paths, cams = recording
+    videos = read_videos(paths)
+    given = _disturbed(cams, np.random.default_rng(7))
+    r = refine_rig(videos, given, params=RigRefinementParams(n_frames=6))
+    before = r.adjustment.median_residual(before=True)
+    after = r.adjustment.median_residual()
+    assert (before > 1.5).all(), before
+    assert (after < 0.5).all(), after
+    # the tie points of the held-out frames agree better with the refined cameras
+    assert (r.held_out_after < 0.6 * r.held_out_before).all(), (r.held_out_before,
+                                                                 r.held_out_after)
+    s = r.summary()
+    assert list(s) == ["cam01", "cam02", "cam03"] and s["cam01"]["freed"][0] == "f"
+
+
+@pytest.mark.slow
+def test_cameras_that_do_not_fit_are_refused(recording):
+    paths, cams = recording
+    videos = read_videos(paths)
+    swapped = [cams[2], cams[0], cams[1]]                   # the wrong order
+    with pytest.raises(ValueError, match="do not fit the videos"):
+        refine_rig(videos, swapped, params=RigRefinementParams(n_frames=3))
+
+
+def test_tie_points_need_one_image_per_camera():
+    cams = _rig(n=2, width=64, height=48)
+    with pytest.raises(ValueError, match="frame 0 holds 1 images"):
+        find_tie_points([[np.zeros((48, 64), np.uint8)]], cams)
+    with pytest.raises(ValueError, match="image 1 of frame 0"):
+        find_tie_points([[np.zeros((48, 64), np.uint8), np.zeros((40, 64), np.uint8)]], cams)
+
+
+def test_camera_sizes_are_checked_against_the_videos(recording):
+    paths, cams = recording
+    videos = read_videos(paths, scale=0.5, crop=(0, 0, 600, 480))
+    wide = [c.replace(width=c.width + 8) for c in cams]
+    with pytest.raises(ValueError, match=r"cam01.avi is 640 x 480 but its camera \(cam01\) "
+                                         r"is 648 x 480; .*mismatch='crop'"):
+        cameras_for_videos(wide, videos)
+    fitted = cameras_for_videos(wide, videos, mismatch="crop")
+    assert [(c.width, c.height) for c in fitted] == [(300, 240)] * 3
+    assert fitted[0].cx == pytest.approx((cams[0].cx + 0.5) * 0.5 - 0.5)
+    with pytest.raises(ValueError, match="2 cameras for 3 videos"):
+        cameras_for_videos(cams[:2], videos)
+    narrow = [c.replace(width=c.width - 8) for c in cams]
+    with pytest.raises(ValueError, match="order of the cameras"):
+        cameras_for_videos(narrow, videos, mismatch="crop")
+    with pytest.raises(ValueError, match="window"):
+        cropped_camera(cams[0], 600, 0, 100, 480)

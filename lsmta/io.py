@@ -545,6 +545,8 @@ def _frame_selection(frames, n: int) -> tuple:
     if isinstance(frames, slice):
         if frames.stop is not None and frames.stop > n:
             raise ValueError(f"frames: stop {frames.stop} is past the videos' {n} frames")
+        if not range(n)[frames]:
+            raise ValueError(f"frames: {frames} selects none of the videos' {n} frames")
         return tuple(range(n)[frames])
     sel = [as_int(f, "frames", minimum=0) for f in np.atleast_1d(np.asarray(frames))]
     bad = [f for f in sel if f >= n]
@@ -584,7 +586,8 @@ def read_videos(paths, *, frames=None, scale: float = 1.0, crop=None) -> Videos:
     frames : None, slice, or sequence of int, optional
         Which frames to use (0-based); all by default.
     scale : float
-        Resize factor of the delivered frames (area interpolation), e.g. 0.5.
+        Resize factor of the delivered frames (area interpolation), e.g. 0.5; it must give
+        whole pixels in both directions, so that a camera scaled by it fits the frames.
     crop : (x0, y0, x1, y1), or K of them, optional
         A pixel window of each file to keep (half-open, in file pixels), before scaling.
 
@@ -616,6 +619,12 @@ def read_videos(paths, *, frames=None, scale: float = 1.0, crop=None) -> Videos:
     file_sizes = tuple(s for _, _, s in probes)
     crops = _crops(crop, file_sizes)
     kept = file_sizes if crops is None else tuple((x1 - x0, y1 - y0) for x0, y0, x1, y1 in crops)
+    odd = [(w, h) for w, h in kept if abs(w * scale - round(w * scale)) > 1e-9
+           or abs(h * scale - round(h * scale)) > 1e-9]
+    if odd:
+        raise ValueError(f"scale: {scale:g} x {odd[0][0]} x {odd[0][1]} px is not a whole number "
+                         "of pixels (the cameras could not follow the frames exactly); choose a "
+                         "scale that divides the frame sizes, e.g. 0.5, or crop first")
     sizes = tuple((max(1, int(round(w * scale))), max(1, int(round(h * scale))))
                   for w, h in kept)
     return Videos(paths=paths, frames=_frame_selection(frames, counts[0]), fps=rates[0],

@@ -2,8 +2,8 @@
 
 - **C3D** (written with ezc3d, the library Kinetics Toolkit, OpenSim's tools and most
   motion-capture software read): the ``POINT`` group with ``LABELS``, ``UNITS`` ("mm") and
-  ``RATE`` (frames per second); a missing sample is NaN in the data, which ezc3d writes
-  with residual -1 (the C3D convention for an invalid point) and reads back as NaN.
+  ``RATE`` (frames per second); a missing sample has residual -1 (the C3D convention for
+  an invalid point, which tools that go by the residual need) and NaN coordinates.
 - **TRC** (the tab-separated text of OpenSim and Pose2Sim): a five-line header
   (``PathFileType 4 (X/Y/Z)``; the data rate, frame count, marker count, units), then one
   row per frame, ``Frame#`` (from 1) and ``Time`` (s) before the markers' X, Y, Z. A
@@ -30,7 +30,7 @@ import numpy as np
 from plyfile import PlyData, PlyElement
 
 from ._validate import as_array, as_scalar
-from .io import MarkerData
+from .io import _UNIT_TO_MM, MarkerData
 
 _LABEL = re.compile(r"^[^\t\r\n]+$")
 
@@ -92,7 +92,11 @@ def write_c3d(path, trajectories, *, rate: float, labels=None) -> Path:
     c3d["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
     data = np.ones((4, X.shape[1], X.shape[0]))
     data[:3] = X.transpose(2, 1, 0)
+    missing = np.isnan(data[:3]).any(axis=0)
     c3d["data"]["points"] = data
+    c3d["data"]["meta_points"] = {
+        "residuals": np.where(missing, -1.0, 0.0)[None],
+        "camera_masks": np.zeros((7, X.shape[1], X.shape[0]), bool)}
     c3d.write(str(path))
     return path
 
@@ -111,7 +115,7 @@ def read_trc(path) -> MarkerData:
     keys, values = lines[1].split("\t"), lines[2].split("\t")
     head = dict(zip(keys, values))
     rate = float(head["DataRate"])
-    scale = {"mm": 1.0, "cm": 10.0, "m": 1000.0}.get(head.get("Units", "mm").strip(), None)
+    scale = _UNIT_TO_MM.get(head.get("Units", "mm").strip(), None)
     if scale is None:
         raise ValueError(f"path: unknown Units {head.get('Units')!r} in {path.name}")
     labels = [s for s in lines[3].split("\t")[2:] if s.strip()]
@@ -138,7 +142,7 @@ def write_trc(path, trajectories, *, rate: float, labels=None) -> Path:
     head = [f"PathFileType\t4\t(X/Y/Z)\t{path.name}",
             "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\t"
             "OrigDataStartFrame\tOrigNumFrames",
-            f"{rate:g}\t{rate:g}\t{T}\t{N}\tmm\t{rate:g}\t1\t{T}",
+            f"{rate:.10g}\t{rate:.10g}\t{T}\t{N}\tmm\t{rate:.10g}\t1\t{T}",
             "Frame#\tTime\t" + "\t".join(f"{n}\t\t" for n in names).rstrip("\t"),
             "\t\t" + "\t".join(f"X{i}\tY{i}\tZ{i}" for i in range(1, N + 1)),
             ""]
@@ -169,7 +173,7 @@ def write_ply(path, points, *, scalars=None, faces=None) -> Path:
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
     columns = [X[:, 0], X[:, 1], X[:, 2]]
     for name, values in (scalars or {}).items():
-        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", str(name)) or name in "xyz":
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", str(name)) or name in ("x", "y", "z"):
             raise ValueError(f"scalars: expected identifier names other than x, y, z, "
                              f"got {name!r}")
         v = as_array(values, f"scalars[{name!r}]", shape=(len(X),), finite=False)

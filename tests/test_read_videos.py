@@ -78,5 +78,9 @@ def test_clear_errors(recording, tmp_path):
         read_videos(paths, crop=(0, 0, 64, 48))          # the second video is 60 wide
     with pytest.raises(ValueError, match="scale"):
         read_videos(paths, scale=0)
-    with pytest.raises(IndexError, match="i"):
+    with pytest.raises(IndexError, match="expected 0 <= i < 1"):
         read_videos(paths, frames=[1]).read(1)
+    with pytest.raises(ValueError, match="selects none"):
+        read_videos(paths, frames=slice(5, 5))
+    with pytest.raises(ValueError, match="whole number of pixels"):
+        read_videos(paths, scale=0.3)

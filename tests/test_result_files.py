@@ -1,5 +1,6 @@
 """Results out (C3D, TRC, PLY), read back with the libraries users would use."""
 
+import ezc3d
 import numpy as np
 import pytest
 from plyfile import PlyData
@@ -26,6 +27,9 @@ def test_c3d_round_trip_through_ezc3d(tmp_path, rng):
     assert back.rate == 60.0
     assert np.array_equal(np.isnan(back.points), np.isnan(X))
     np.testing.assert_allclose(back.points, X, rtol=1e-6, atol=1e-3)   # C3D holds float32
+    # a missing sample is an invalid point (residual < 0), as tools that go by it expect
+    residuals = ezc3d.c3d(str(path))["data"]["meta_points"]["residuals"][0].T   # (T, N)
+    assert np.array_equal(residuals < 0, np.isnan(X).any(axis=2))
 
 
 def test_trc_round_trip(tmp_path, rng):

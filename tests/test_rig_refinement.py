@@ -9,6 +9,7 @@ from lsmta.calibration import RefineParams, TieParams, find_tie_points, refine_c
 from lsmta.camera import Camera, cropped_camera
 from lsmta.io import cameras_for_videos, read_videos
 from lsmta.systems import RigRefinementParams, refine_rig
+from lsmta.triangulation import triangulate
 
 
 def _rig(n=4, width=640, height=480, f=560.0):
@@ -44,10 +45,20 @@ def test_refined_residuals_come_back_to_the_noise(rng):
     assert (before > 1.5).all(), before
     # 0.3 px per coordinate: a 2-D residual of median ~0.35 px, less the adjusted share
     assert (after < 0.4).all(), after
-    assert not r.used[0, :30].all()                              # gross errors dropped
-    for c, t in zip(r.cameras, cams):
-        assert abs(c.f - t.f) < abs(given[0].f - cams[0].f) + 5.0
-    assert all(n[0] == "f" for n in r.freed)
+    assert r.used[0, :30].sum() <= 3                            # gross errors dropped
+    assert r.used[0, 30:][np.isfinite(xy[0, 30:, 0])].mean() > 0.97
+    # closer to the truth than the file in principal distance and cx (cy trades with the
+    # cameras' tilt in this rig, and the priors hold the datum, so neither is comparable)
+    for name in ("f", "cx"):
+        was = np.abs([getattr(g, name) - getattr(t, name) for g, t in zip(given, cams)])
+        now = np.abs([getattr(c, name) - getattr(t, name) for c, t in zip(r.cameras, cams)])
+        assert now.mean() < 0.5 * was.mean(), (name, was, now)
+    # what a user needs: points that took no part agree with the refined cameras
+    Y = rng.uniform([-1000, 0, 100], [1000, 1000, 1700], (300, 3))
+    y = np.stack([c.project(Y) for c in cams]) + rng.normal(0, 0.3, (len(cams), 300, 2))
+    for rig, limit in ((given, None), (r.cameras, 0.45)):
+        err = np.nanmedian(triangulate(list(rig), y).reprojection_error, axis=1)
+        assert (err > 1.0).all() if limit is None else (err < limit).all(), err
 
 
 def test_intrinsics_are_held_where_the_data_does_not_determine_them(rng):
@@ -154,14 +165,18 @@ def test_tie_points_need_one_image_per_camera():
 
 def test_camera_sizes_are_checked_against_the_videos(recording):
     paths, cams = recording
-    videos = read_videos(paths, scale=0.5, crop=(0, 0, 600, 480))
+    videos = read_videos(paths, scale=0.5, crop=(20, 10, 620, 470))
     wide = [c.replace(width=c.width + 8) for c in cams]
     with pytest.raises(ValueError, match=r"cam01.avi is 640 x 480 but its camera \(cam01\) "
                                          r"is 648 x 480; .*mismatch='crop'"):
         cameras_for_videos(wide, videos)
     fitted = cameras_for_videos(wide, videos, mismatch="crop")
-    assert [(c.width, c.height) for c in fitted] == [(300, 240)] * 3
-    assert fitted[0].cx == pytest.approx((cams[0].cx + 0.5) * 0.5 - 0.5)
+    assert [(c.width, c.height) for c in fitted] == [(300, 230)] * 3
+    # a point lands where the cropped, halved frame shows it
+    X = np.array([[100.0, 500.0, 900.0]])
+    full = cams[0].project(X)[0]
+    want = ((full[0] - 20 + 0.5) * 0.5 - 0.5, (full[1] - 10 + 0.5) * 0.5 - 0.5)
+    np.testing.assert_allclose(fitted[0].project(X)[0], want, atol=1e-9)
     with pytest.raises(ValueError, match="2 cameras for 3 videos"):
         cameras_for_videos(cams[:2], videos)
     narrow = [c.replace(width=c.width - 8) for c in cams]

@@ -629,10 +629,12 @@ class _Solution:
     nfev: int
 
 
-def _levenberg_marquardt(fun, x0, sparsity, max_iter, ftol, xtol, callback):
+def _levenberg_marquardt(fun, x0, sparsity, max_iter, ftol, xtol, callback, step=None):
     """Levenberg-Marquardt on the sparse normal equations (SuperLU factorisation), with
     the Jacobian by finite differences over the sparsity pattern (scipy's grouped
-    differences, as ``least_squares(jac_sparsity=...)`` uses)."""
+    differences, as ``least_squares(jac_sparsity=...)`` uses). ``step(J, r, lam)``, if
+    given, solves ``(JᵀJ + lam diag(JᵀJ)) dx = -Jᵀr`` instead (e.g. by the Schur complement,
+    :mod:`lsmta.calibration.refine`)."""
     groups = group_columns(sparsity)
     x = x0.copy()
     r = fun(x)
@@ -645,16 +647,17 @@ def _levenberg_marquardt(fun, x0, sparsity, max_iter, ftol, xtol, callback):
         J = approx_derivative(fun, x, method="2-point", f0=r, sparsity=(sparsity, groups))
         nfev += 1
         J = csc_matrix(J)
-        N = (J.T @ J).tocsc()
-        g = J.T @ r
-        d = N.diagonal().copy()
-        d[d == 0] = 1.0
+        if step is None:
+            N = (J.T @ J).tocsc()
+            g = J.T @ r
+            d = N.diagonal().copy()
+            d[d == 0] = 1.0
         improved = False
         for _ in range(12):
-            A = (N + diags(lam * d)).tocsc()
             try:
-                dx = -splu(A).solve(g)
-            except RuntimeError:
+                dx = -splu((N + diags(lam * d)).tocsc()).solve(g) if step is None \
+                    else step(J, r, lam)
+            except (RuntimeError, np.linalg.LinAlgError):
                 lam *= 10
                 continue
             r_new = fun(x + dx)

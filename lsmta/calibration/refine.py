@@ -34,9 +34,9 @@ dropped and the adjustment run once more.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
-from scipy.optimize._numdiff import approx_derivative, group_columns
 from scipy.sparse import coo_matrix
 
 from .._validate import as_array, as_int, as_scalar, freeze
@@ -44,14 +44,16 @@ from ..camera import Camera
 from ..triangulation import triangulate
 from .bundle import (
     _LOSS_DERIVATIVE,
-    INTRINSIC_NAMES,
+    LOSSES,
     PARAMETER_NAMES,
+    _levenberg_marquardt,
     camera_to_params,
     params_to_camera,
     project_params,
 )
 
-_LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
+# the intrinsics that may be freed beyond f (each has a prior, see RefineParams)
+_TRIED = ("cx", "cy", "k1", "k2", "k3", "p1", "p2")
 
 
 @dataclass(frozen=True)
@@ -71,7 +73,9 @@ class RefineParams:
     sigma_principal : float
         Prior standard deviation of the principal point, px.
     sigma_k : float
-        Prior standard deviation of k1 and k2.
+        Prior standard deviation of k1, k2 and k3.
+    sigma_p : float
+        Prior standard deviation of the decentring coefficients p1, p2.
     groups : tuple of tuple of str
         Intrinsic groups tried beyond ``f``, each freed per camera where the data
         determines it (see the module docstring).
@@ -85,8 +89,10 @@ class RefineParams:
         and a redescending loss gives them no pull, where soft-l1 still lets each pull
         with the square root of its size.
     reject_k : float
-        Observations farther than ``reject_k`` robust standard deviations (1.4826 MAD of
-        the residual lengths, at least ``sigma_px``) are dropped before the last run.
+        Observations whose residual is longer than ``reject_k`` times the robust standard
+        deviation of a coordinate (the median residual length over sqrt(2 ln 2), the
+        median of a 2-D Gaussian's length; at least ``sigma_px``) are dropped before the
+        last run.
     max_iter : int
         Most Levenberg-Marquardt iterations per run.
     """
@@ -97,6 +103,7 @@ class RefineParams:
     sigma_f: float = 0.02
     sigma_principal: float = 20.0
     sigma_k: float = 0.1
+    sigma_p: float = 0.01
     groups: tuple = (("cx", "cy"), ("k1", "k2"))
     information_ratio: float = 0.5
     loss: str = "cauchy"
@@ -106,19 +113,17 @@ class RefineParams:
 
     def __post_init__(self):
         for name in ("sigma_px", "sigma_position", "sigma_angle", "sigma_f",
-                     "sigma_principal", "sigma_k", "f_scale", "reject_k"):
+                     "sigma_principal", "sigma_k", "sigma_p", "f_scale", "reject_k"):
             as_scalar(getattr(self, name), name, positive=True)
         ratio = as_scalar(self.information_ratio, "information_ratio", positive=True)
         if ratio > 1:
             raise ValueError(f"information_ratio: expected a number in (0, 1], got {ratio}")
-        if self.loss not in _LOSSES:
-            raise ValueError(f"loss: expected one of {_LOSSES}, got {self.loss!r}")
+        if self.loss not in LOSSES:
+            raise ValueError(f"loss: expected one of {LOSSES}, got {self.loss!r}")
         as_int(self.max_iter, "max_iter")
-        bad = [g for g in self.groups
-               if not g or any(n not in INTRINSIC_NAMES or n == "f" for n in g)]
+        bad = [g for g in self.groups if not g or any(n not in _TRIED for n in g)]
         if bad:
-            raise ValueError(f"groups: expected groups of intrinsic names other than 'f' "
-                             f"(from {INTRINSIC_NAMES}), got {bad}")
+            raise ValueError(f"groups: expected groups of names from {_TRIED}, got {bad}")
 
     def prior_sigmas(self, camera: Camera) -> np.ndarray:
         """The 16 prior standard deviations (:data:`PARAMETER_NAMES` order) of a camera."""
@@ -128,7 +133,8 @@ class RefineParams:
         index = {n: i for i, n in enumerate(PARAMETER_NAMES)}
         s[index["f"]] = self.sigma_f * camera.f
         s[index["cx"]] = s[index["cy"]] = self.sigma_principal
-        s[index["k1"]] = s[index["k2"]] = self.sigma_k
+        s[[index["k1"], index["k2"], index["k3"]]] = self.sigma_k
+        s[[index["p1"], index["p2"]]] = self.sigma_p
         return s
 
 
@@ -224,12 +230,6 @@ def _sparsity(pr: _Problem, free: np.ndarray):
     return coo_matrix((np.ones(len(r)), (r, c)), shape=(2 * M + nf, nf + 3 * pr.n_points))
 
 
-@dataclass
-class _LMSolution:
-    x: np.ndarray
-    jac: object
-
-
 def _normal_blocks(J, n_cam: int):
     """The normal matrix of a Jacobian whose first ``n_cam`` columns are the cameras' and
     the rest three per point: the dense camera block ``(n_cam, n_cam)``, the camera-point
@@ -245,7 +245,7 @@ def _normal_blocks(J, n_cam: int):
     return (Jc.T @ Jc).toarray(), W, B, Jc, Jp
 
 
-def _schur_step(J, r, n_cam: int, lam: float):
+def _schur_step(J, r, lam: float, *, n_cam: int):
     """Levenberg-Marquardt step with the points eliminated: the reduced camera system is
     small and dense, then each point's 3 x 3 block."""
     Hcc, W, B, Jc, Jp = _normal_blocks(J, n_cam)
@@ -260,42 +260,8 @@ def _schur_step(J, r, n_cam: int, lam: float):
     return np.concatenate([dc, dp.ravel()])
 
 
-def _levenberg_marquardt_schur(fun, x0, sparsity, n_cam: int, max_iter: int, ftol: float):
-    """Levenberg-Marquardt (Marquardt's diagonal scaling) with the Jacobian by SciPy's
-    grouped finite differences over ``sparsity`` and each step solved by the Schur
-    complement."""
-    groups = group_columns(sparsity)
-    x, r = x0.copy(), fun(x0)
-    cost, lam = r @ r, 1e-3
-    J = None
-    for _ in range(max_iter):
-        J = approx_derivative(fun, x, method="2-point", f0=r, sparsity=(sparsity, groups))
-        improved = False
-        for _ in range(12):
-            try:
-                dx = _schur_step(J, r, n_cam, lam)
-            except np.linalg.LinAlgError:
-                lam *= 10
-                continue
-            r_new = fun(x + dx)
-            c_new = r_new @ r_new
-            if np.isfinite(c_new) and c_new < cost:
-                improved = True
-                break
-            lam *= 10
-        if not improved:
-            break
-        rel = (cost - c_new) / cost
-        x, r, cost = x + dx, r_new, c_new
-        lam = max(lam / 10, 1e-12)
-        if rel < ftol:
-            break
-    J = approx_derivative(fun, x, method="2-point", f0=r, sparsity=(sparsity, groups))
-    return _LMSolution(x=x, jac=J)
-
-
 def _solve(pr: _Problem, free, X0, params: RefineParams):
-    """Levenberg-Marquardt on the sparse normal equations, then iteratively reweighted
+    """Levenberg-Marquardt, each step by the Schur complement, then iteratively reweighted
     with the robust loss on the image residuals (the priors keep weight 1)."""
     x0 = np.concatenate([pr.params0[free], X0.ravel()])
     sparsity = _sparsity(pr, free).tocsc()
@@ -305,15 +271,16 @@ def _solve(pr: _Problem, free, X0, params: RefineParams):
         return _residuals(x, pr, free)
 
     nf = int(free.sum())
-    sol = _levenberg_marquardt_schur(fun, x0, sparsity, nf, params.max_iter, 1e-9)
+    step = partial(_schur_step, n_cam=nf)
+    sol = _levenberg_marquardt(fun, x0, sparsity, params.max_iter, 1e-9, 1e-12, None, step)
     if params.loss != "linear":
         for _ in range(5):
             z = (fun(sol.x)[:n_image] / params.f_scale) ** 2
             w = np.ones(n_image + int(free.sum()))
             w[:n_image] = np.sqrt(_LOSS_DERIVATIVE[params.loss](z))
             x_prev = sol.x
-            sol = _levenberg_marquardt_schur(lambda x, w=w: fun(x) * w, sol.x, sparsity, nf,
-                                             10, 1e-6)
+            sol = _levenberg_marquardt(lambda x, w=w: fun(x) * w, sol.x, sparsity, 10, 1e-6,
+                                       1e-12, None, step)
             if np.linalg.norm(sol.x - x_prev) < 1e-8 * (1 + np.linalg.norm(x_prev)):
                 break
     cams = pr.params0.copy()
@@ -419,13 +386,18 @@ def _choose_intrinsics(st: _State, params: RefineParams):
 
 
 def _folds(params16: np.ndarray, camera: Camera) -> bool:
-    """Whether the radial distortion of ``params16`` stops growing with the radius inside
-    the image (with a 10 % margin), so that it could not be inverted there."""
+    """Whether the radial distortion of ``params16`` folds over inside the image (with a
+    10 % margin): the distorted radius ``r (1 + k1 r² + k2 r⁴ + k3 r⁶)`` stops growing
+    before it reaches the image's corners, so those pixels could not be undistorted."""
     f, cx, cy, k1, k2, k3 = params16[6:12]
     corners = np.array([[0, 0], [camera.width, 0], [0, camera.height],
                         [camera.width, camera.height]], float) - [cx, cy]
-    r = np.linspace(0.0, 1.1 * np.max(np.hypot(*corners.T)) / f, 200)
-    return bool(np.any(1 + 3 * k1 * r ** 2 + 5 * k2 * r ** 4 + 7 * k3 * r ** 6 <= 0))
+    reach = 1.1 * np.max(np.hypot(*corners.T)) / f          # distorted radius to reach
+    r = np.linspace(0.0, 4.0 * reach, 800)                     # undistorted radii
+    growing = 1 + 3 * k1 * r ** 2 + 5 * k2 * r ** 4 + 7 * k3 * r ** 6 > 0
+    stop = np.argmin(growing) if not growing.all() else len(r) - 1
+    r_d = r[stop] * (1 + k1 * r[stop] ** 2 + k2 * r[stop] ** 4 + k3 * r[stop] ** 6)
+    return bool(not growing.all() and r_d < reach)
 
 
 def _hold_folding(st: _State, cams, freed, params: RefineParams) -> tuple:
@@ -442,8 +414,9 @@ def _hold_folding(st: _State, cams, freed, params: RefineParams) -> tuple:
 
 def _drop_outliers(st: _State, cams, X, params: RefineParams) -> None:
     r = np.linalg.norm(_image_residuals(cams, X, st.xy, st.used), axis=2)
-    scale = max(params.sigma_px, 1.4826 * float(np.nanmedian(r[st.used])))
-    st.used = st.used & ~(r > params.reject_k * scale)
+    scale = max(params.sigma_px, float(np.nanmedian(r[st.used])) / np.sqrt(2 * np.log(2)))
+    used = st.used & ~(r > params.reject_k * scale)
+    st.used = used & (used.sum(axis=0) >= 2)[None]
     st.X = X
 
 

@@ -5,12 +5,13 @@ scale- and rotation-invariant detector and 128-value descriptor) of every view a
 with every other view's. The given cameras guide the matching: a feature of view *b* is a
 candidate for one of view *a* only within ``band_px`` of its epipolar line (so a camera
 file that is a few pixels off still finds its matches, and repeated texture elsewhere in
-the image cannot be chosen). Among the candidates, Lowe's ratio test and a mutual check
-keep unambiguous pairs. Each view pair's matches must then agree with one epipolar
-geometry of their own: a fundamental matrix fitted by MAGSAC++ (``cv2.USAC_MAGSAC``) on
-the features' undistorted positions, with inliers within ``ransac_px``; a pair with fewer
-than ``min_matches`` inliers gives none. The pairs' matches are chained into multi-view
-tie points (union-find); a chain that holds two features of one view is dropped.
+the image cannot be chosen). Among the candidates, Lowe's ratio test (a lone candidate in
+the band passes it) and a mutual check keep unambiguous pairs. Each view pair's matches
+must then agree with one epipolar geometry of their own: a fundamental matrix fitted by
+MAGSAC++ (``cv2.USAC_MAGSAC``) on the features' undistorted positions, with inliers
+within ``ransac_px``; a pair with fewer than ``min_matches`` inliers gives none. The
+pairs' matches are chained into multi-view tie points (union-find); a chain that holds
+two features of one view is dropped.
 
 Features of a still background give the same 3-D point in every frame; features of a
 moving subject give new points in each frame (the views are synchronised), spread through
@@ -107,10 +108,13 @@ def _essential(a: Camera, b: Camera) -> np.ndarray:
 def _band(a: Camera, b: Camera, na, nb, band_px: float) -> np.ndarray:
     """(Na, Nb) uint8 mask: b's features within ``band_px`` of a's epipolar lines."""
     ha = np.c_[na / a.f, np.ones(len(na))]
-    hb = np.c_[nb / b.f, np.ones(len(nb))]
+    hb = np.c_[nb / b.f, np.ones(len(nb))].astype(np.float32)
     lines = ha @ _essential(a, b).T                              # (Na, 3) lines in b
-    d = np.abs(lines @ hb.T) / np.hypot(lines[:, :1], lines[:, 1:2]) * b.f
-    return (d < band_px).astype(np.uint8)
+    lines = (lines * b.f / np.hypot(lines[:, :1], lines[:, 1:2])).astype(np.float32)
+    mask = np.empty((len(na), len(nb)), np.uint8)
+    for i in range(0, len(na), 1024):                             # bounded memory
+        mask[i:i + 1024] = np.abs(lines[i:i + 1024] @ hb.T) < band_px
+    return mask
 
 
 def _mutual(da, db, mask, ratio: float):

@@ -9,7 +9,8 @@ all -> cameras adjusted with the given ones as priors
 of the other frames (held out), with the given and with the refined cameras.
 
 The held-out frames say whether the refinement generalises: tie points that took no part
-in the adjustment, triangulated with each set of cameras, are reprojected into every view.
+in the adjustment (and are not a still background's training points seen again at the same
+pixels), triangulated with each set of cameras, are reprojected into every view.
 A refinement that only absorbed its own tie points' errors lowers the adjusted residuals but
 not the held-out ones.
 """
@@ -19,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .._validate import as_int, as_scalar, freeze
 from ..calibration.refine import CameraRefinement, RefineParams, refine_cameras
@@ -84,9 +86,11 @@ class RigRefinement:
     tie_points : TiePoints
     adjustment : CameraRefinement
         The adjustment on the other frames' tie points.
+    held_out_points : int
+        Tie points of the held-out frames that are not training points seen again.
     held_out_before, held_out_after : (K,) arrays
-        Median residual of the held-out tie points per camera with the given and with the
-        refined cameras, px (NaN: none seen).
+        Median residual of those points per camera with the given and with the refined
+        cameras, px (NaN: none seen).
     """
 
     cameras: tuple
@@ -95,6 +99,7 @@ class RigRefinement:
     held_out: np.ndarray
     tie_points: TiePoints
     adjustment: CameraRefinement
+    held_out_points: int
     held_out_before: np.ndarray
     held_out_after: np.ndarray
 
@@ -120,17 +125,30 @@ class RigRefinement:
 
 def _held_out_residuals(cameras, xy) -> np.ndarray:
     """Median reprojection residual per camera of tie points triangulated with ``cameras``."""
-    K = len(cameras)
-    out = np.full(K, np.nan)
+    out = np.full(len(cameras), np.nan)
     if xy.shape[1] == 0:
         return out
-    X = triangulate(list(cameras), xy, min_angle_deg=0.0).points
-    for k, cam in enumerate(cameras):
-        ok = np.isfinite(xy[k, :, 0]) & np.isfinite(X).all(axis=1)
-        if ok.any():
-            r = np.linalg.norm(cam.project(X[ok], behind="nan") - xy[k, ok], axis=1)
-            out[k] = np.nanmedian(r) if np.isfinite(r).any() else np.nan
+    err = triangulate(list(cameras), xy, min_angle_deg=0.0).reprojection_error
+    for k in range(len(cameras)):
+        if np.isfinite(err[k]).any():
+            out[k] = np.nanmedian(err[k])
     return out
+
+
+def _new_points(train_xy, test_xy, tol_px: float = 2.0):
+    """The held-out tie points that are not training points seen again: a still background
+    gives the same feature at the same pixels in every frame. A point is new where, in some
+    view, it lies farther than ``tol_px`` from every training point."""
+    new = np.zeros(test_xy.shape[1], bool)
+    for k in range(len(test_xy)):
+        seen = np.isfinite(test_xy[k, :, 0])
+        train = train_xy[k][np.isfinite(train_xy[k, :, 0])]
+        if not len(train):
+            new |= seen
+            continue
+        d, _ = cKDTree(train).query(test_xy[k, seen])
+        new[np.flatnonzero(seen)[d > tol_px]] = True
+    return test_xy[:, new]
 
 
 def _strongest(xy, n: int):
@@ -203,9 +221,10 @@ def refine_rig(videos: Videos, cameras, *,
     train = ~held[tie.frame]
     adjustment = refine_cameras(given, _strongest(tie.xy[:, train], params.max_points),
                                 params=params.refine)
-    test_xy = tie.xy[:, ~train]
+    test_xy = _new_points(tie.xy[:, train], tie.xy[:, ~train])
     return RigRefinement(
         cameras=adjustment.cameras, given=given,
         frames=tuple(int(videos.frames[i]) for i in picks), held_out=held, tie_points=tie,
-        adjustment=adjustment, held_out_before=_held_out_residuals(given, test_xy),
+        adjustment=adjustment, held_out_points=int(test_xy.shape[1]),
+        held_out_before=_held_out_residuals(given, test_xy),
         held_out_after=_held_out_residuals(adjustment.cameras, test_xy))

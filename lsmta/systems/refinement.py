@@ -17,6 +17,7 @@ not the held-out ones.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -222,9 +223,16 @@ def refine_rig(videos: Videos, cameras, *,
     adjustment = refine_cameras(given, _strongest(tie.xy[:, train], params.max_points),
                                 params=params.refine)
     test_xy = _new_points(tie.xy[:, train], tie.xy[:, ~train])
+    before = _held_out_residuals(given, test_xy)
+    after = _held_out_residuals(adjustment.cameras, test_xy)
+    worse = [c.name or str(k) for k, (c, b, a) in enumerate(zip(given, before, after)) if a > b]
+    if worse:
+        warnings.warn(f"refine_rig: the refined cameras fit the held-out frames' tie points "
+                      f"worse than the given ones in {', '.join(worse)} (see summary()); the "
+                      "tie points may not determine them: keep the given cameras there",
+                      stacklevel=2)
     return RigRefinement(
         cameras=adjustment.cameras, given=given,
         frames=tuple(int(videos.frames[i]) for i in picks), held_out=held, tie_points=tie,
         adjustment=adjustment, held_out_points=int(test_xy.shape[1]),
-        held_out_before=_held_out_residuals(given, test_xy),
-        held_out_after=_held_out_residuals(adjustment.cameras, test_xy))
+        held_out_before=before, held_out_after=after)

@@ -93,7 +93,9 @@ def test_points_and_silhouettes_beat_points_alone_from_a_perturbed_start():
                                                                     [2500.0, 0, 0]]),
                         look_at=centre)
     free = np.array([True, True, True, True, False])
-    params = PoseFitParams(near=1500.0, far=3500.0)
+    # six gating rounds: with the default three, the far start's outlier set has not
+    # settled and the elbow ends 3.7 degrees off on some processors (0.015 with six; measured)
+    params = PoseFitParams(near=1500.0, far=3500.0, n_rounds=6)
     worst = {}
     starts = {"near": [0.1, -0.1, 0.1, -0.15, 0], "far": [0.15, -0.15, 0.15, -0.2, 0]}
     for name, start in starts.items():

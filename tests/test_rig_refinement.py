@@ -1,6 +1,7 @@
 """A camera file's rig refined from its own recording: tie points, the adjustment with the
 given cameras as priors, held-out frames, and the checks of cameras against videos."""
 
+import json
 import warnings
 
 import cv2
@@ -9,6 +10,7 @@ import pytest
 
 from lsmta.calibration import RefineParams, TieParams, find_tie_points, refine_cameras
 from lsmta.camera import Camera, cropped_camera
+from lsmta.camera_files import read_camera_toml
 from lsmta.io import cameras_for_videos, read_videos
 from lsmta.systems import RigRefinementParams, refine_rig
 from lsmta.triangulation import triangulate
@@ -132,7 +134,7 @@ def recording(tmp_path_factory):
 
 
 @pytest.mark.slow
-def test_refine_rig_from_video_files(recording, rng):
+def test_refine_rig_from_video_files(recording, tmp_path):
     paths, cams = recording
     videos = read_videos(paths)
     given = _disturbed(cams, np.random.default_rng(7))
@@ -149,6 +151,15 @@ def test_refine_rig_from_video_files(recording, rng):
                                                                  r.held_out_after)
     s = r.summary()
     assert list(s) == ["cam01", "cam02", "cam03"] and s["cam01"]["freed"][0] == "f"
+    # written where other tools read it, and read back
+    written = r.save(tmp_path / "out")
+    back = read_camera_toml(written["cameras"], unit="mm")
+    X = np.array([[0.0, 400.0, 700.0], [500.0, 900.0, 100.0]])
+    for a, b in zip(back, r.cameras):
+        np.testing.assert_allclose(a.project(X), b.project(X), atol=1e-6)
+    record = json.loads(written["summary"].read_text())
+    assert record["cameras"] == json.loads(json.dumps(s))
+    assert record["held_out_frames"] == [f for f, h in zip(r.frames, r.held_out) if h]
 
 
 @pytest.mark.slow

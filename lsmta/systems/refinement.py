@@ -17,8 +17,10 @@ not the held-out ones.
 
 from __future__ import annotations
 
+import json
 import warnings
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -26,6 +28,7 @@ from scipy.spatial import cKDTree
 from .._validate import as_int, as_scalar, freeze
 from ..calibration.refine import CameraRefinement, RefineParams, refine_cameras
 from ..calibration.tie_points import TieParams, TiePoints, find_tie_points
+from ..camera_files import write_camera_toml
 from ..io import Videos, cameras_for_videos
 from ..triangulation import triangulate
 
@@ -122,6 +125,31 @@ class RigRefinement:
                 "freed": list(self.adjustment.freed[k]),
             }
         return out
+
+
+    def save(self, directory) -> dict:
+        """Write the refinement where other tools read it: ``cameras.toml`` (the refined
+        cameras in the aniposelib / Pose2Sim layout, mm, read back by
+        :func:`lsmta.camera_files.read_camera_toml`) and ``refinement.json`` (the frames
+        used and held out, and :meth:`summary`; null where a value is not defined). The
+        folder is made as needed; returns the paths written, by name."""
+        folder = Path(directory)
+        folder.mkdir(parents=True, exist_ok=True)
+        cameras = write_camera_toml(folder / "cameras.toml", self.cameras, unit="mm")
+
+        def plain(v):
+            if isinstance(v, dict):
+                return {k: plain(x) for k, x in v.items()}
+            if isinstance(v, list | tuple):
+                return [plain(x) for x in v]
+            return None if isinstance(v, float) and not np.isfinite(v) else v
+
+        record = {"frames": list(self.frames),
+                  "held_out_frames": [f for f, h in zip(self.frames, self.held_out) if h],
+                  "held_out_points": self.held_out_points, "cameras": self.summary()}
+        summary = folder / "refinement.json"
+        summary.write_text(json.dumps(plain(record), indent=2), encoding="utf-8")
+        return {"cameras": cameras, "summary": summary}
 
 
 def _held_out_residuals(cameras, xy) -> np.ndarray:

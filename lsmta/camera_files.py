@@ -20,6 +20,9 @@ DLT (easyWand, Argus)  read,     11 coefficients per camera, one column per came
                                  :func:`dlt_coefficients`
 =====================  ========  =====================================================
 
+:func:`read_camera_file` recognises the format from the file's content, and takes the
+unit from the format's convention where it has one.
+
 All of them hold OpenCV's pinhole camera: ``K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]]``,
 ``x_cam = R X + t``, the five Brown coefficients. In :class:`~lsmta.camera.Camera` terms
 ``fx = f (1 + b1)``, ``fy = f``, ``s = f b2`` (only DLT carries a shear), ``C = -R^T t``.
@@ -416,3 +419,67 @@ def read_dlt(path) -> np.ndarray:
         raise ValueError(f"path: expected 11 rows of coefficients (one column per camera) "
                          f"in {path}, got shape {L.shape}")
     return L.T.copy()
+
+
+# ---------------------------------------------------------------------- any of them
+FORMAT_UNITS = {"qualisys": "mm", "caliscope": "m"}
+
+
+def camera_file_format(path) -> str:
+    """The format of a camera file, from its content: ``"qualisys"``, ``"opencv"``,
+    ``"caliscope"`` or ``"toml"`` (aniposelib / Pose2Sim / this project's).
+
+    Raises
+    ------
+    ValueError
+        A file none of them reads (a DLT coefficient file holds no image size: read it
+        with :func:`read_dlt` and :func:`camera_from_dlt`).
+    """
+    path = _file(path, "camera file")
+    head = path.read_bytes()[:4096].decode("utf-8", errors="replace").lstrip("\ufeff \t\r\n")
+    if head.startswith("<?xml") or "<calibration" in head:
+        return "qualisys"
+    if head.startswith("%YAML") or "opencv-storage" in head:
+        return "opencv"
+    try:
+        with open(path, "rb") as fh:
+            doc = tomllib.load(fh)
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError):
+        doc = None
+    if isinstance(doc, dict):
+        if isinstance(doc.get("cameras"), dict):
+            return "caliscope"
+        if any(isinstance(v, dict) and "matrix" in v for v in doc.values()):
+            return "toml"
+    raise ValueError(f"path: {path.name} is not a camera file this library reads (Qualisys "
+                     "XML, OpenCV YAML, aniposelib / Pose2Sim / caliscope TOML)")
+
+
+def read_camera_file(path, *, unit: str | None = None) -> list[Camera]:
+    """Read cameras from any file :func:`camera_file_format` recognises.
+
+    Parameters
+    ----------
+    path : str or Path
+    unit : {"mm", "cm", "m"}, optional
+        Unit of the file's translations. Qualisys files are in mm and caliscope's in m by
+        the format; an OpenCV YAML or TOML file written by this library states its unit.
+        Other files need it, and a ``unit`` that contradicts the format's is an error.
+    """
+    fmt = camera_file_format(path)
+    fixed = FORMAT_UNITS.get(fmt)
+    if fixed is not None and unit is not None and unit != fixed:
+        raise ValueError(f"unit: {Path(path).name} is a {fmt} file, whose translations are in "
+                         f"{fixed} by the format; got unit={unit!r}")
+    if fmt == "qualisys":
+        return read_qca(path)
+    if fmt == "opencv":
+        return read_opencv_yaml(path, unit=unit)
+    if fmt == "toml" and unit is None:
+        with open(path, "rb") as fh:
+            unit = tomllib.load(fh).get("metadata", {}).get("unit")
+        if unit is None:
+            raise ValueError(f"unit: {Path(path).name} (aniposelib / Pose2Sim TOML) does not "
+                             "state the unit of its translations; give it (mm, cm or m; "
+                             "Pose2Sim writes m)")
+    return read_camera_toml(path, unit=fixed or unit)

@@ -1,4 +1,5 @@
-"""The ``lsmta`` command: ``lsmta reproduce`` re-runs every notebook and gathers the results.
+"""The ``lsmta`` command: ``lsmta reproduce`` re-runs every notebook and gathers the results;
+``lsmta capture`` runs the LSMTA system on a user's recording (:mod:`lsmta.capture_command`).
 
 ``lsmta reproduce`` executes ``notebooks/NN_*.ipynb`` in order (each with its own folder as
 working directory, like nbmake), writes the executed notebooks and their HTML renderings
@@ -33,7 +34,7 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
-from . import report
+from . import capture_command, report
 
 OFFSCREEN_ENV = {
     "PYVISTA_OFF_SCREEN": "true",
@@ -327,9 +328,12 @@ def main(argv=None) -> int:
     rep.add_argument("--build", default="build", help="output folder (default: build)")
     rep.add_argument("--notebooks", default=None, help="folder of the notebooks")
     rep.add_argument("--timeout", type=int, default=1200, help="seconds allowed per cell")
+    capture_command.add_parser(sub)
     args = parser.parse_args(argv)
     if args.command == "reproduce":
         return reproduce(args)
+    if args.command == "capture":
+        return capture_command.run(args)
     return 2  # pragma: no cover
 
 

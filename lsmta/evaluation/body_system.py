@@ -37,7 +37,7 @@ from ..synth.calibration import BarTrack, bar_track, poor_guess, render_bar_imag
 from ..synth.render import Renderer, cast_body
 from ..synth.sequence import Sequence, render_sequence
 from ..systems import ArmFitParams, BodyCapture, FilterParams
-from ..systems.body import fit_self_consistent, observed_frames
+from ..systems.arm import fit_self_consistent, observed_frames
 from ..tracking import TrackerParams, Trajectories, apply_filters, track_points
 from ..tracking.trajectories import trajectories_from_tracks
 from ..triangulation import triangulate

@@ -4,9 +4,14 @@ A system receives what a user has (videos, a bar and its length, the cameras as 
 never the generator's truth: nothing here imports :mod:`lsmta.synth` or
 :mod:`lsmta.evaluation` (a test checks it).
 
-``body``      the LSMTA system (D'Apuzzo, Plänkers & Fua 2000): bar calibration, image
-              noise, surfaces, surface tracking, trajectories and filters, arm model
-``rig``       its first stage: the rig calibrated from a bar video, in the user's world
+``capture``   the LSMTA system on any recording with calibrated cameras: view groups, image
+              noise, surfaces, surface tracking, trajectories and filters, optionally the
+              arm model; BodyCapture
+``views``     which cameras see the same side (the view groups)
+``arm``       the arm model stage (Plänkers' arm fitted to the trajectories)
+``body``      the papers' system (D'Apuzzo, Plänkers & Fua 2000): bar calibration, then
+              capture_recording with the arm model
+``rig``       the rig calibrated from a bar video, in the user's world
 ``refinement`` or: a camera file's rig refined from the recording itself (tie points,
               the file's cameras as priors, held-out frames to check it)
 ``surfaces``  surfaces of chosen frames from automatic seeds
@@ -19,16 +24,14 @@ never the generator's truth: nothing here imports :mod:`lsmta.synth` or
 ``checks``    argument checks shared by the systems (cameras, videos, heads as devices)
 """
 
-from .body import (
-    ArmFit,
-    ArmFitParams,
+from .arm import ArmFit, ArmFitParams, fit_arm, fit_self_consistent, observed_frames
+from .body import BodySystemParams, capture_body
+from .capture import (
     BodyCapture,
-    BodySystemParams,
+    CaptureParams,
     FilterParams,
-    capture_body,
-    fit_arm,
-    fit_self_consistent,
-    observed_frames,
+    ViewCapture,
+    capture_recording,
     track_surface,
 )
 from .ceiling import CeilingFeed
@@ -37,9 +40,12 @@ from .mixed_scale import MixedScaleCapture, MixedScaleParams, capture_mixed_scal
 from .refinement import RigRefinement, RigRefinementParams, refine_rig
 from .rig import RigCalibration, calibrate_rig
 from .surfaces import SurfaceParams, measure_surfaces, working_distance
+from .views import ViewGroup, axis_angles, view_groups
 
 __all__ = [
-    "ArmFit", "ArmFitParams", "BodyCapture", "BodySystemParams", "CeilingFeed",
+    "ArmFit", "ArmFitParams", "BodyCapture", "BodySystemParams", "CaptureParams",
+    "CeilingFeed", "ViewCapture", "ViewGroup", "axis_angles", "capture_recording",
+    "view_groups",
     "FilterParams", "MixedScaleCapture", "MixedScaleParams", "capture_mixed_scale",
     "first_settled", "reacquisition_seeds",
     "RigCalibration", "RigRefinement", "RigRefinementParams", "SurfaceParams", "calibrate_rig",

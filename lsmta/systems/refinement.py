@@ -110,6 +110,19 @@ class RigRefinement:
     def __post_init__(self):
         freeze(self, ("held_out", "held_out_before", "held_out_after"))
 
+    @property
+    def improved(self) -> bool:
+        """Whether the refined cameras fit the held-out tie points at least as well as the
+        given ones in every camera that saw some (the rule for using them)."""
+        seen = np.isfinite(self.held_out_before) & np.isfinite(self.held_out_after)
+        return bool(seen.any() and np.all(self.held_out_after[seen]
+                                          <= self.held_out_before[seen]))
+
+    @property
+    def chosen(self) -> tuple:
+        """The refined cameras where :attr:`improved`, else the given ones."""
+        return self.cameras if self.improved else self.given
+
     def summary(self) -> dict:
         """Per camera: tie points, median residuals (adjusted and held out, before and
         after), the intrinsics freed; as plain numbers for a JSON file."""
@@ -125,7 +138,6 @@ class RigRefinement:
                 "freed": list(self.adjustment.freed[k]),
             }
         return out
-
 
     def save(self, directory) -> dict:
         """Write the refinement where other tools read it: ``cameras.toml`` (the refined

@@ -4,8 +4,21 @@ For each frame: seed correspondences along the epipolar curves of the calibrated
 (:func:`~lsmta.matching.find_seeds`, searched over the depths where the cameras' optical
 axes meet, from 0.6 to 1.6 times that distance), then region-growing LSM and the
 neighbourhood filter (:func:`~lsmta.matching.measure_surface`) with the LSM thresholds of
-notebook 03, whose a-posteriori ``sigma0`` limit is twice the image noise measured in the
-video (:func:`~lsmta.noise.temporal_noise`).
+notebook 03.
+
+The a-posteriori ``sigma0`` limit follows the residual level the frame's images actually
+give, measured two ways, and takes the larger:
+
+* from the image noise ``sigma`` measured in the video (:func:`~lsmta.noise.temporal_noise`):
+  ``sigma0_factor * sigma`` (notebook 03's rule, twice the noise);
+* from the seeds: LSM (no thresholds) at every seed, and the median ``sigma0`` of those
+  that converge, ``s``; the limit is ``sigma0_factor * s / sqrt(2)``.
+
+Both give the same limit for uncompressed video with independent noise in every view (an
+LSM residual holds both images' noise: ``s = sqrt(2) sigma``). A compressed video keeps a
+still background's pixels the same from frame to frame, so its temporal noise says little
+about the differences between two views (coding artefacts, differing sensors); the seeds,
+the frame's best correspondences, measure them.
 """
 
 from __future__ import annotations
@@ -18,10 +31,13 @@ from tqdm.auto import tqdm
 from .._validate import as_scalar
 from ..matching import (
     GrowParams,
+    LSMParams,
     LSMThresholds,
     MeasureSurfaceParams,
+    Status,
     SurfaceResult,
     find_seeds,
+    lsm,
     measure_surface,
 )
 from ..triangulation import triangulate
@@ -68,6 +84,30 @@ def working_distance(cameras, template: int) -> float:
     return float((X - cameras[template].C) @ cameras[template].R[2])
 
 
+def seed_residual(images, seeds_xy, *, template: int, patch: int) -> float:
+    """Median a-posteriori sigma0 of LSM at the seeds (grey levels; NaN if none converged).
+
+    Parameters
+    ----------
+    images : sequence of K (H, W) arrays
+    seeds_xy : (K, S, 2) array
+        The seeds in every image (the template row included).
+    template : int
+    patch : int
+        LSM patch size, px.
+    """
+    f = np.asarray(images[template], float)
+    sigma0 = []
+    for k, g in enumerate(images):
+        if k == template:
+            continue
+        r = lsm(f, np.asarray(g, float), seeds_xy[template], seeds_xy[k],
+                params=LSMParams(patch=patch))
+        sigma0.append(r.sigma0[np.asarray(r.status) == Status.CONVERGED])
+    s = np.concatenate(sigma0)
+    return float(np.median(s)) if len(s) else float("nan")
+
+
 def measure_surfaces(videos, cameras, frames, *, sigma: float,
                      params: SurfaceParams | None = None,
                      progress: bool = False) -> dict:
@@ -103,12 +143,6 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
     if bad:
         raise ValueError(f"frames: expected frame indices in [0, {v.shape[1] - 1}], got {bad}")
     d = working_distance(cams, p.template)
-    thresholds = LSMThresholds(max_sigma0=p.sigma0_factor * sigma, max_displacement=p.step,
-                               max_sigma_xy=p.max_sigma_xy, scale_range=(0.5, 2.0),
-                               max_shear=0.5)
-    surface = MeasureSurfaceParams(grow=GrowParams(step=p.step, patch=p.patch,
-                                                   retry_patch=p.retry_patch,
-                                                   thresholds=thresholds))
     out: dict[int, SurfaceResult] = {}
     for f in tqdm(frames, desc="surfaces", disable=not progress):
         seeds = find_seeds(v[:, f], cams, template=p.template, n_seeds=p.n_seeds,
@@ -116,5 +150,13 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
         if seeds.xy.shape[1] == 0:
             raise ValueError(f"videos: no seed found in frame {f} (no textured point matches "
                              "along the epipolar curves); check the calibration")
+        level = seed_residual(v[:, f], seeds.xy, template=p.template, patch=p.patch)
+        limit = p.sigma0_factor * max(sigma, np.nan_to_num(level / np.sqrt(2)))
+        thresholds = LSMThresholds(max_sigma0=limit, max_displacement=p.step,
+                                   max_sigma_xy=p.max_sigma_xy, scale_range=(0.5, 2.0),
+                                   max_shear=0.5)
+        surface = MeasureSurfaceParams(grow=GrowParams(step=p.step, patch=p.patch,
+                                                       retry_patch=p.retry_patch,
+                                                       thresholds=thresholds))
         out[f] = measure_surface(v[:, f], cams, seeds.xy, template=p.template, params=surface)
     return out

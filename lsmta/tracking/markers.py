@@ -361,18 +361,67 @@ def _seed(state: _State, t: int, seeds, image, refine: bool) -> None:
     state.status[t, new] = MarkerStatus.SEEDED
 
 
+def find_blobs(image, *, sigma: float = 2.5, min_strength: float = 20.0,
+               roundness: float = 0.5, spacing: int = 9) -> np.ndarray:
+    """Small bright round blobs in a grey image (markers, LEDs), to sub-pixel precision.
+
+    A blob is a local maximum of the blob strength ``-sigma^2 lambda_1`` (``lambda_1`` the
+    smaller-magnitude eigenvalue of the Hessian of the image smoothed by ``sigma``: bright,
+    round blobs of radius about ``1.4 sigma`` px), both eigenvalues negative and in a ratio
+    of at least ``roundness``, strongest in its ``spacing`` square and above
+    ``min_strength`` (grey levels: about the blob's contrast to its surrounding). Positions
+    are refined to the brightness-weighted centroid (:func:`refine_centroid`) in a window of
+    half-width ``ceil(2 sigma)``, about three blob radii.
+
+    Parameters
+    ----------
+    image : (H, W) array
+        Grey levels.
+    sigma, min_strength, roundness, spacing
+        As above (px, grey levels, ratio, px).
+
+    Returns
+    -------
+    (M, 2) array
+        Blob positions, px (x, y), strongest first.
+    """
+    grey = as_array(image, "image", finite=True)
+    if grey.ndim != 2:
+        raise ValueError(f"image: expected an (H, W) grey image, got shape {grey.shape}")
+    xy, strength = _blobs(grey.astype(np.float64), sigma, min_strength, roundness, spacing)
+    xy = xy[np.argsort(-strength, kind="stable")]
+    return refine_centroid(grey, xy, radius=int(np.ceil(2 * sigma))) if len(xy) else xy
+
+
+def _blobs(grey, sigma, min_strength, roundness, spacing):
+    """Candidate blob centres (integer px) and their strengths (see :func:`find_blobs`)."""
+    sigma = as_scalar(sigma, "sigma", positive=True)
+    as_int(spacing, "spacing", minimum=1)
+    b = cv2.GaussianBlur(grey, (0, 0), sigma)
+    gxx = cv2.Sobel(b, cv2.CV_64F, 2, 0, ksize=3)
+    gyy = cv2.Sobel(b, cv2.CV_64F, 0, 2, ksize=3)
+    gxy = cv2.Sobel(b, cv2.CV_64F, 1, 1, ksize=3)
+    half = np.sqrt((gxx - gyy) ** 2 / 4 + gxy ** 2)
+    l1 = (gxx + gyy) / 2 + half                      # the larger (less negative) eigenvalue
+    l2 = (gxx + gyy) / 2 - half
+    round_ = (l1 < 0) & (l1 / np.minimum(l2, -1e-12) >= roundness)
+    strength = np.where(round_, -l1 * sigma ** 2, 0.0)
+    peak = (strength == cv2.dilate(strength, np.ones((spacing, spacing)))) & \
+        (strength > min_strength)
+    y, x = np.nonzero(peak)
+    return np.stack([x, y], axis=1).astype(float), strength[y, x]
+
+
 def find_markers(image, *, sigma: float = 2.5, min_strength: float = 20.0,
                  min_dip: float = 20.0, roundness: float = 0.5, min_skin: float = 60.0,
                  max_hue: float = 25.0, spacing: int = 9) -> np.ndarray:
     """Skin markers in a colour image: small round blobs, brighter and greyer than the skin
     around them.
 
-    A candidate is a local maximum of the blob strength ``-sigma^2 lambda_1`` (``lambda_1``
-    the smaller-magnitude eigenvalue of the Hessian of the grey image smoothed by ``sigma``:
-    bright, round blobs of radius about ``1.4 sigma`` px), both eigenvalues negative and in
-    a ratio of at least ``roundness``. It is kept when its saturation lies at least
-    ``min_dip`` below the mean of a 17 px square around it, and that surrounding looks like
-    skin (saturation above ``min_skin``, hue below ``max_hue``, OpenCV's 0-180 hue scale).
+    A candidate is a blob of the grey image (:func:`find_blobs`). It is kept when its
+    saturation lies at least ``min_dip`` below the mean of a 17 px square around it, and that
+    surrounding looks like skin (saturation above ``min_skin``, hue below ``max_hue``,
+    OpenCV's 0-180 hue scale).
     Positions are refined to the brightness-weighted centroid (:func:`refine_centroid`) in a
     window of half-width ``ceil(2 sigma)``, about three blob radii (so that the window's
     median, the centroid's zero, is the surrounding).
@@ -395,20 +444,9 @@ def find_markers(image, *, sigma: float = 2.5, min_strength: float = 20.0,
     if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
         raise ValueError(f"image: expected an (H, W, 3) uint8 BGR image, got {img.dtype} "
                          f"{img.shape}")
-    sigma = as_scalar(sigma, "sigma", positive=True)
     grey = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY).astype(np.float64)
-    b = cv2.GaussianBlur(grey, (0, 0), sigma)
-    gxx = cv2.Sobel(b, cv2.CV_64F, 2, 0, ksize=3)
-    gyy = cv2.Sobel(b, cv2.CV_64F, 0, 2, ksize=3)
-    gxy = cv2.Sobel(b, cv2.CV_64F, 1, 1, ksize=3)
-    half = np.sqrt((gxx - gyy) ** 2 / 4 + gxy ** 2)
-    l1 = (gxx + gyy) / 2 + half                      # the larger (less negative) eigenvalue
-    l2 = (gxx + gyy) / 2 - half
-    round_ = (l1 < 0) & (l1 / np.minimum(l2, -1e-12) >= roundness)
-    strength = np.where(round_, -l1 * sigma ** 2, 0.0)
-    peak = (strength == cv2.dilate(strength, np.ones((spacing, spacing)))) & \
-        (strength > min_strength)
-    y, x = np.nonzero(peak)
+    cand, _ = _blobs(grey, sigma, min_strength, roundness, spacing)
+    x, y = cand[:, 0].astype(int), cand[:, 1].astype(int)
     hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV).astype(np.float64)
     sat = cv2.GaussianBlur(hsv[..., 1], (0, 0), 1.0)
     ring, hue = cv2.blur(sat, (17, 17)), cv2.blur(hsv[..., 0], (17, 17))

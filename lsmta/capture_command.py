@@ -1,0 +1,136 @@
+"""``lsmta capture``: a recording's videos and camera file in, files other tools read out.
+
+Stages: read the camera file (format from its content, unit from the format where it has
+one) -> open the videos (:func:`lsmta.io.read_videos`) -> cameras: refined from the
+recording (:func:`lsmta.systems.refine_rig`; the refined ones are used only where they fit
+held-out frames at least as well as the file's), the file's as given (``--no-refine``), or
+calibrated from a bar recording (``--bar``, the file's cameras as the nominal rig) ->
+:func:`lsmta.systems.capture_recording` -> :meth:`~lsmta.systems.BodyCapture.save`.
+
+Bad input ends with exit status 2 and one line naming what is wrong.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from .camera_files import read_camera_file
+from .io import cameras_for_videos, read_videos
+from .systems import (
+    ArmFitParams,
+    CaptureParams,
+    RigRefinementParams,
+    calibrate_rig,
+    capture_recording,
+    refine_rig,
+)
+
+EXAMPLE = """example (the Pose2Sim demo that ships with lsmta, 100 frames, full size):
+  lsmta capture --videos data/pose2sim_demo/cam0{1,2,3,4}.mp4 \\
+                --cameras data/pose2sim_demo/Calib.qca.txt --mismatch crop \\
+                --frames 0:100 --out capture_demo
+"""
+
+
+def add_parser(sub) -> None:
+    """The ``capture`` subcommand's arguments."""
+    cap = sub.add_parser(
+        "capture", help="run the LSMTA system on your own videos and camera file",
+        description="Run the LSMTA system on a recording: videos and a camera file in, "
+                    "refined cameras, trajectories (C3D, TRC) and surfaces (PLY) out.",
+        epilog=EXAMPLE,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    cap.add_argument("--videos", nargs="+", required=True, metavar="VIDEO",
+                     help="one synchronised video per camera, in the camera file's order")
+    cap.add_argument("--cameras", required=True, metavar="FILE",
+                     help="camera file: Qualisys .qca, OpenCV YAML, aniposelib / Pose2Sim / "
+                          "caliscope TOML")
+    cap.add_argument("--out", required=True, metavar="DIR", help="folder for the results")
+    cap.add_argument("--frames", default=None, metavar="START:STOP",
+                     help="frames to process (0-based, STOP excluded; default: all)")
+    cap.add_argument("--scale", type=float, default=1.0,
+                     help="resize factor of the frames, e.g. 0.5 (default 1)")
+    cap.add_argument("--units", choices=("mm", "cm", "m"), default=None,
+                     help="unit of the camera file's positions where its format has none")
+    cap.add_argument("--mismatch", choices=("error", "crop"), default="error",
+                     help="a video smaller than its camera: an error, or the camera's frame "
+                          "with its right / bottom edge cut off")
+    cap.add_argument("--no-refine", action="store_true",
+                     help="use the camera file as it is (no refinement from the recording)")
+    cap.add_argument("--bar", nargs="+", metavar="VIDEO", default=None,
+                     help="videos of a reference bar: calibrate from them instead")
+    cap.add_argument("--bar-length", type=float, default=None, metavar="MM",
+                     help="distance between the bar's targets, mm (with --bar)")
+    cap.add_argument("--arm", action="store_true",
+                     help="fit the arm model at the end (a person facing the cameras)")
+    cap.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def _frames(text: str | None):
+    if text is None:
+        return None
+    try:
+        start, stop = (int(x) if x else None for x in text.split(":"))
+    except ValueError:
+        raise ValueError(f"--frames: expected START:STOP (e.g. 0:100), got {text!r}") from None
+    return range(start or 0, stop) if stop is not None else slice(start or 0, None)
+
+
+def _cameras(args, videos, given, progress: bool):
+    """(cameras fitting the videos' frames, calibration object or None, one-line note)."""
+    if args.bar:
+        if args.bar_length is None:
+            raise ValueError("--bar-length: the bar's length (mm) is needed with --bar")
+        bar = read_videos(args.bar, scale=args.scale)
+        nominal = cameras_for_videos(given, bar, mismatch=args.mismatch)
+        stacks = bar.load(progress=progress)
+        if len({s.shape for s in stacks}) != 1:
+            raise ValueError("--bar: the bar videos must all have one frame size")
+        cal = calibrate_rig(np.stack(stacks), args.bar_length, nominal, progress=progress)
+        return cal.cameras, cal, f"calibrated from the bar, image RMS {cal.bundle.rms:.3f} px"
+    if args.no_refine:
+        return cameras_for_videos(given, videos, mismatch=args.mismatch), None, "as given"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")       # the choice below says it in one line
+        ref = refine_rig(videos, given, params=RigRefinementParams(mismatch=args.mismatch))
+    b, a = np.nanmedian(ref.held_out_before), np.nanmedian(ref.held_out_after)
+    note = (f"refined from the recording (held-out tie points {b:.2f} -> {a:.2f} px median); "
+            + ("refined cameras used" if ref.improved else
+               "NOT better in every camera on held-out frames: the file's cameras used"))
+    return list(ref.chosen), ref, note
+
+
+def run(args) -> int:
+    """``lsmta capture``; returns the exit status."""
+    progress = not args.quiet
+    t0 = time.perf_counter()
+    try:
+        given = read_camera_file(args.cameras, unit=args.units)
+        videos = read_videos(args.videos, frames=_frames(args.frames), scale=args.scale)
+        cameras, calibration, note = _cameras(args, videos, given, progress)
+        print(f"lsmta capture: cameras {note}", file=sys.stderr)
+        capture = capture_recording(videos, cameras, calibration=calibration,
+                                    params=CaptureParams(arm=ArmFitParams() if args.arm
+                                                         else None),
+                                    progress=progress)
+    except (ValueError, FileNotFoundError, TypeError) as err:
+        message = str(err).replace("pass mismatch='crop'", "pass --mismatch crop")
+        print(f"lsmta capture: {message.splitlines()[0]}", file=sys.stderr)
+        return 2
+    files = capture.save(args.out)
+    record = json.loads(Path(files["summary"]).read_text(encoding="utf-8"))
+    record["cameras_note"] = note
+    record["seconds_total"] = time.perf_counter() - t0
+    Path(files["summary"]).write_text(json.dumps(record, indent=2), encoding="utf-8")
+    for row in capture.summary():
+        print(f"  {row['stage']:<13} {row['seconds']:7.1f} s  {row['result']}", file=sys.stderr)
+    print(f"lsmta capture: wrote {args.out} ({len(files['surfaces'])} surface files) in "
+          f"{record['seconds_total']:.0f} s", file=sys.stderr)
+    return 0

@@ -1,0 +1,482 @@
+"""The LSMTA system on any synchronised recording with calibrated cameras.
+
+What goes in is what a user has: the videos (files opened with :func:`lsmta.io.read_videos`,
+or arrays) and cameras that fit them: from a camera file refined on the recording
+(:func:`~lsmta.systems.refine_rig`), from a bar recording
+(:func:`~lsmta.systems.calibrate_rig`), from a board (:func:`~lsmta.calibration.calibrate_board`)
+or as given. Nothing of a generator's truth enters. The stages (:func:`capture_recording`):
+
+1. *view groups*: which cameras see the same side (:func:`~lsmta.systems.views.view_groups`);
+   every later stage runs once per group, on the group's views;
+2. *image noise* measured in each group's videos (:func:`~lsmta.noise.temporal_noise`), the
+   sigma of every LSM threshold that needs one;
+3. *surfaces* of the first frame and of every ``density_every``-th frame, from automatic
+   seeds (:func:`~lsmta.systems.surfaces.measure_surfaces`);
+4. *surface tracking* (:func:`track_surface`);
+5. *trajectories*: forward intersection per group, all groups' trajectories side by side,
+   then the trajectory filters (:func:`~lsmta.tracking.apply_filters`);
+6. optionally *the arm model* (:func:`~lsmta.systems.arm.fit_arm`).
+
+Videos of one group that differ in size (a tool that cut a few columns off some files) are
+cut to the group's common size at their right and bottom edges, with their cameras
+(:func:`lsmta.camera.cropped_camera`), so every camera keeps its principal point.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import asdict, dataclass, field, replace
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from .._validate import as_int, as_scalar
+from ..camera import cropped_camera
+from ..io import Videos
+from ..noise import NoiseEstimate, temporal_noise
+from ..tracking import (
+    TrackerParams,
+    Tracks,
+    Trajectories,
+    apply_filters,
+    track_points,
+    trajectories_from_tracks,
+)
+from .arm import ArmFit, ArmFitParams, fit_arm
+from .capture_files import save_capture
+from .checks import check_cameras
+from .surfaces import SurfaceParams, measure_surfaces
+from .views import ViewGroup, view_groups
+
+
+@dataclass(frozen=True)
+class FilterParams:
+    """Trajectory filters (:func:`~lsmta.tracking.apply_filters`; notebook 05's values)."""
+
+    max_speed: float = 2000.0
+    max_acceleration: float = 40000.0
+    voxel: float = 150.0
+    max_deviation: float = 400.0
+    window: int = 10
+    max_drift: float = 8.0
+
+
+@dataclass(frozen=True)
+class CaptureParams:
+    """Settings of :func:`capture_recording`, one bundle per stage.
+
+    Attributes
+    ----------
+    max_angle_deg : float
+        Largest angle between the optical axes of a view group's template and its other
+        cameras (:func:`~lsmta.systems.views.view_groups`).
+    surface : SurfaceParams
+        Its ``template`` is replaced by each group's.
+    density_every : int
+        Frames between density checks (and so between measured surfaces).
+    tracker : TrackerParams
+    filters : FilterParams
+    arm : ArmFitParams or None
+        The arm model stage; None leaves it out (any subject).
+    """
+
+    max_angle_deg: float = 75.0
+    surface: SurfaceParams = field(default_factory=SurfaceParams)
+    density_every: int = 4
+    tracker: TrackerParams = field(default_factory=TrackerParams)
+    filters: FilterParams = field(default_factory=FilterParams)
+    arm: ArmFitParams | None = None
+
+    def __post_init__(self):
+        as_scalar(self.max_angle_deg, "max_angle_deg", positive=True)
+        as_int(self.density_every, "density_every", minimum=1)
+        if self.arm is not None and not isinstance(self.arm, ArmFitParams):
+            raise TypeError(f"arm: expected an ArmFitParams or None, got "
+                            f"{type(self.arm).__name__}")
+
+
+@dataclass(frozen=True, eq=False)
+class ViewCapture:
+    """What one view group measured.
+
+    Attributes
+    ----------
+    group : ViewGroup
+    cameras : list of Camera
+        The group's cameras as its frames were processed (cut to a common size).
+    noise : NoiseEstimate
+    surfaces : dict of int -> SurfaceResult
+        Measured surfaces, by processed frame; image positions in the group's views.
+    tracks : Tracks or None
+        Tracked image positions in the group's views; None when the group's first surface
+        had no point to start from (a warning says so).
+    points : slice
+        The group's trajectories within :attr:`BodyCapture.trajectories`.
+    """
+
+    group: ViewGroup
+    cameras: list
+    noise: NoiseEstimate
+    surfaces: dict
+    tracks: Tracks | None
+    points: slice
+
+
+@dataclass(frozen=True, eq=False)
+class BodyCapture:
+    """Everything the LSMTA system measured, stage by stage.
+
+    Attributes
+    ----------
+    cameras : list of Camera
+        The cameras used, user's world, mm.
+    calibration : object or None
+        Where they came from (a RigCalibration, RigRefinement, BoardCalibration ...); None
+        for cameras taken as given.
+    frames : (T,) int array
+        The frames of the input videos that were processed (index 0 here is ``frames[0]``).
+    fps : float
+    views : tuple of ViewCapture
+        One per view group.
+    trajectories : Trajectories
+        Every group's, side by side, before the filters.
+    filters : tuple of FilterReport
+        The three filters in order; the last one's trajectories are the result.
+    arm : ArmFit or None
+    seconds : dict of str -> float
+        Wall time per stage.
+    params : CaptureParams
+        The settings it ran with.
+    """
+
+    cameras: list
+    calibration: object
+    frames: np.ndarray
+    fps: float
+    views: tuple
+    trajectories: Trajectories
+    filters: tuple
+    arm: ArmFit | None
+    seconds: dict
+    params: CaptureParams
+
+    @property
+    def filtered(self) -> Trajectories:
+        """The trajectories after all filters."""
+        return self.filters[-1].trajectories
+
+    @property
+    def group_of(self) -> np.ndarray:
+        """``(N,)`` the view group of every trajectory."""
+        out = np.empty(len(self.trajectories), int)
+        for g, v in enumerate(self.views):
+            out[v.points] = g
+        return out
+
+    def _only(self, name: str):
+        if len(self.views) != 1:
+            raise AttributeError(f"{name}: this capture has {len(self.views)} view groups; use "
+                                 f"views[i].{name}")
+        return getattr(self.views[0], name)
+
+    @property
+    def surfaces(self) -> dict:
+        """The surfaces of the only view group (see :attr:`views` for several)."""
+        return self._only("surfaces")
+
+    @property
+    def tracks(self) -> Tracks:
+        """The tracks of the only view group."""
+        return self._only("tracks")
+
+    @property
+    def noise(self) -> NoiseEstimate:
+        """The image noise of the only view group."""
+        return self._only("noise")
+
+    def save(self, directory, *, report: bool = True) -> dict:
+        """Write the capture where other tools read it: ``cameras.toml``,
+        ``trajectories.c3d`` / ``.trc``, ``surfaces/frame_NNNN.ply``, ``summary.json`` and
+        ``report.html`` (:func:`~lsmta.systems.capture_files.save_capture`); returns the
+        paths written, by kind."""
+        return save_capture(self, directory, report=report)
+
+    def summary(self) -> list:
+        """One row per stage: ``{"stage", "seconds", "result"}``, for a table."""
+        kept = int(self.filtered.present.any(axis=0).sum())
+
+        def per_view(text) -> str:
+            return "; ".join(f"{_names(v)}: {text(v)}" for v in self.views)
+
+        rows = [("calibration", _calibration_text(self.calibration)),
+                ("view groups", per_view(lambda v: f"template {v.group.template}")),
+                ("image noise", per_view(lambda v: f"sigma {v.noise.sigma:.2f} grey levels")),
+                ("surfaces", per_view(lambda v: f"{len(v.surfaces)} frames, first frame "
+                                                f"{_surface_points(v.surfaces)} points")),
+                ("tracking", per_view(lambda v: "none" if v.tracks is None else
+                                      f"{len(v.tracks)} tracks, "
+                                      f"{int(v.tracks.alive[-1].sum())} alive at the end")),
+                ("trajectories", f"{kept} of {len(self.trajectories)} kept by the filters")]
+        if self.arm is not None:
+            full = self.arm.full
+            rows.append(("arm model", f"{full.status.name} after {full.rounds} round(s) in "
+                                      f"{len(self.arm.frames)} of {len(self.frames)} frames "
+                                      f"(both arm segments tracked); bone lengths "
+                                      f"{full.lengths[0]:.1f} / {full.lengths[1]:.1f} mm; sigma "
+                                      f"{self.arm.sigma_mm:.2f} mm"))
+        return [{"stage": s, "seconds": self.seconds.get(s, float("nan")), "result": r}
+                for s, r in rows]
+
+
+def _names(view: ViewCapture) -> str:
+    return "+".join(c.name or str(k) for k, c in zip(view.group.cameras, view.cameras))
+
+
+def _surface_points(surfaces: dict) -> int:
+    return int(surfaces[min(surfaces)].neighbourhood_ok.sum()) if surfaces else 0
+
+
+def _calibration_text(cal) -> str:
+    if cal is None:
+        return "cameras as given"
+    if hasattr(cal, "held_out_after"):                       # a RigRefinement
+        before, after = np.nanmedian(cal.held_out_before), np.nanmedian(cal.held_out_after)
+        return (f"refined from the recording; held-out tie points {before:.2f} px before, "
+                f"{after:.2f} px after (median over cameras)")
+    text = f"image RMS {cal.bundle.rms:.4f} px ({cal.rms_over_limit:.3f} x the noise limit)"
+    if hasattr(cal, "n_positions"):                          # a RigCalibration
+        text = (f"{cal.n_positions} bar positions, {text}, {cal.labels.n_swapped} swapped "
+                "target labels fixed")
+    return text
+
+
+def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None,
+                  progress: bool = False) -> Tracks:
+    """Surface tracking (Fig. 9): every point of the first surface, new points from later ones.
+
+    Parameters
+    ----------
+    videos : (K, T, H, W) array
+    surfaces : dict of int -> SurfaceResult
+        Must hold frame 0; its points that passed the filters start the tracks, and the
+        later frames' feed the density check (every ``params.density_every`` frames).
+    params : TrackerParams, optional
+    progress : bool
+
+    Returns
+    -------
+    Tracks
+    """
+    if 0 not in surfaces:
+        raise ValueError("surfaces: expected the surface of frame 0 (the start points)")
+    first = surfaces[0]
+    start = first.xy[:, first.neighbourhood_ok]
+    if start.shape[1] == 0:
+        raise ValueError("surfaces: frame 0's surface has no point to track")
+    new = {t: s.xy[:, s.neighbourhood_ok] for t, s in surfaces.items() if t > 0}
+    return track_points(videos, start, params=params, new_points=new, progress=progress)
+
+
+# ------------------------------------------------------------------------- arguments
+def _frame_indices(frames, T: int) -> np.ndarray:
+    if frames is None:
+        return np.arange(T)
+    if isinstance(frames, slice):
+        idx = np.arange(T)[frames]
+    else:
+        idx = np.asarray(frames)
+        if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
+            raise ValueError(f"frames: expected a slice or a sequence of frame indices, got "
+                             f"{frames!r}")
+    if len(idx) < 3:
+        raise ValueError(f"frames: expected at least 3 frames, got {len(idx)}")
+    if idx.min() < 0 or idx.max() >= T:
+        raise ValueError(f"frames: expected indices in [0, {T - 1}], got {idx.min()}..{idx.max()}")
+    if np.any(np.diff(idx) != 1):
+        raise ValueError("frames: expected consecutive frames (the tracker follows them one "
+                         "by one)")
+    return idx
+
+
+def _stacks(videos, n_cameras: int, progress: bool) -> tuple[list, float | None]:
+    """K grey ``(T, H_k, W_k)`` arrays (not copied where they are arrays already) and the
+    frame rate a Videos object states."""
+    if isinstance(videos, Videos):
+        return videos.load(progress=progress), videos.fps
+    if isinstance(videos, np.ndarray):
+        if videos.ndim != 4:
+            raise ValueError(f"videos: expected an array of shape (K, T, H, W) (K cameras, T "
+                             f"frames) or K (T, H, W) arrays, got shape {videos.shape}")
+        stacks = list(videos)
+    else:
+        stacks = [np.asarray(v) for v in videos]
+    if len(stacks) != n_cameras:
+        raise ValueError(f"videos: expected {n_cameras} videos, one per camera, got "
+                         f"{len(stacks)}")
+    for k, v in enumerate(stacks):
+        if v.ndim != 3:
+            raise ValueError(f"videos[{k}]: expected (T, H, W) grey frames, got shape {v.shape}")
+        if v.dtype == bool or not (np.issubdtype(v.dtype, np.integer)
+                                   or np.issubdtype(v.dtype, np.floating)):
+            raise TypeError(f"videos[{k}]: expected grey values (uint8 or float), got dtype "
+                            f"{v.dtype}")
+        if np.issubdtype(v.dtype, np.floating) and not np.isfinite(v).all():
+            raise ValueError(f"videos[{k}]: contains non-finite values; expected grey levels")
+    if len({len(v) for v in stacks}) != 1:
+        raise ValueError(f"videos: expected the same number of frames in every video, got "
+                         f"{[len(v) for v in stacks]}")
+    return stacks, None
+
+
+def _check_sizes(stacks, cameras) -> None:
+    for k, (v, cam) in enumerate(zip(stacks, cameras)):
+        if (v.shape[2], v.shape[1]) != (cam.width, cam.height):
+            raise ValueError(f"videos[{k}]: frames are {v.shape[2]} x {v.shape[1]} px but camera "
+                             f"{cam.name or k} is {cam.width} x {cam.height}; fit the cameras "
+                             "to the videos first (lsmta.io.cameras_for_videos)")
+
+
+# ------------------------------------------------------------------------- stages
+@dataclass
+class _State:
+    """What the stages of :func:`capture_recording` hand on."""
+
+    stacks: list
+    cameras: list
+    frames: np.ndarray
+    fps: float
+    params: CaptureParams
+    progress: bool
+    seed: int
+    groups: tuple = ()
+    inputs: list = field(default_factory=list)      # per group: (videos, cameras)
+    noise: list = field(default_factory=list)
+    surfaces: list = field(default_factory=list)
+    tracks: list = field(default_factory=list)
+    trajectories: Trajectories | None = None
+    slices: list = field(default_factory=list)
+    filters: tuple | None = None
+    arm: ArmFit | None = None
+
+
+def _view_groups(st: _State) -> None:
+    st.groups = view_groups(st.cameras, max_angle_deg=st.params.max_angle_deg)
+    for g in st.groups:
+        w = min(st.stacks[k].shape[2] for k in g.cameras)
+        h = min(st.stacks[k].shape[1] for k in g.cameras)
+        videos = np.stack([st.stacks[k][st.frames, :h, :w] for k in g.cameras])
+        cams = [st.cameras[k] if (st.cameras[k].width, st.cameras[k].height) == (w, h)
+                else cropped_camera(st.cameras[k], 0, 0, w, h) for k in g.cameras]
+        st.inputs.append((videos, cams))
+
+
+def _image_noise(st: _State) -> None:
+    st.noise = [temporal_noise(v) for v, _ in st.inputs]
+
+
+def _surfaces(st: _State) -> None:
+    p = st.params
+    for g, (v, cams), noise in zip(st.groups, st.inputs, st.noise):
+        surface = replace(p.surface, template=g.template_position)
+        st.surfaces.append(measure_surfaces(v, cams, range(0, v.shape[1], p.density_every),
+                                            sigma=noise.sigma, params=surface,
+                                            progress=st.progress))
+
+
+def _tracking(st: _State) -> None:
+    p = st.params
+    for g, (v, cams), surfaces in zip(st.groups, st.inputs, st.surfaces):
+        if _surface_points(surfaces) == 0:
+            warnings.warn(f"capture_recording: view group {'+'.join(c.name or '?' for c in cams)}"
+                          " has no surface point in its first frame; it is left out",
+                          stacklevel=3)
+            st.tracks.append(None)
+            continue
+        tracker = replace(p.tracker, density_every=p.density_every,
+                          template=g.template_position)
+        st.tracks.append(track_surface(v, surfaces, params=tracker, progress=st.progress))
+    if all(t is None for t in st.tracks):
+        raise ValueError("videos: no view group found a surface point in the first frame "
+                         "(no seed matched, or every match failed LSM's thresholds); check "
+                         "the cameras and the frames")
+
+
+def _trajectories(st: _State) -> None:
+    parts, n = [], 0
+    for (_, cams), tracks in zip(st.inputs, st.tracks):
+        xyz = (np.empty((len(st.frames), 0, 3)) if tracks is None else
+               trajectories_from_tracks(cams, tracks, st.fps).xyz)
+        parts.append(xyz)
+        st.slices.append(slice(n, n + xyz.shape[1]))
+        n += xyz.shape[1]
+    st.trajectories = Trajectories(xyz=np.concatenate(parts, axis=1), fps=st.fps)
+    st.filters = apply_filters(st.trajectories, **asdict(st.params.filters))
+
+
+def _arm_model(st: _State) -> None:
+    if st.params.arm is not None:
+        st.arm = fit_arm(st.filters[-1].trajectories, st.cameras, settings=st.params.arm,
+                         rng=st.seed)
+
+
+STAGES = (("view groups", _view_groups), ("image noise", _image_noise),
+          ("surfaces", _surfaces), ("tracking", _tracking), ("trajectories", _trajectories),
+          ("arm model", _arm_model))
+
+
+def capture_recording(videos, cameras, *, fps: float | None = None, frames=None,
+                      calibration=None, params: CaptureParams | None = None,
+                      progress: bool = True, seed: int = 0) -> BodyCapture:
+    """Run the LSMTA system on a synchronised recording with calibrated cameras.
+
+    Parameters
+    ----------
+    videos : Videos, (K, T, H, W) array or sequence of K (T, H_k, W_k) arrays
+        Grey frames (uint8 or float) from K >= 2 synchronised cameras, e.g.
+        :func:`lsmta.io.read_videos` (read here, once).
+    cameras : sequence of K Camera
+        Calibrated cameras that fit the frames (:func:`lsmta.io.cameras_for_videos`).
+    fps : float, optional
+        Frame rate, Hz (the trajectory filters' speeds are per second); taken from
+        ``videos`` when it is a Videos object.
+    frames : slice or sequence of int, optional
+        Consecutive frames to process (default: all).
+    calibration : object, optional
+        Where the cameras came from, kept in the result (e.g. a RigRefinement).
+    params : CaptureParams, optional
+    progress : bool
+        Progress bars per stage.
+    seed : int
+        Seeds the only random step (the arm stage's sample of trajectories).
+
+    Returns
+    -------
+    BodyCapture
+        Nothing passed in is modified.
+    """
+    cams = check_cameras(cameras, "cameras")
+    p = params or CaptureParams()
+    if not isinstance(p, CaptureParams):
+        raise TypeError(f"params: expected a CaptureParams, got {type(p).__name__}")
+    stacks, rate = _stacks(videos, len(cams), progress)
+    _check_sizes(stacks, cams)
+    if fps is None and rate is None:
+        raise ValueError("fps: expected the frame rate (Hz) of videos given as arrays")
+    fps = as_scalar(fps if fps is not None else rate, "fps", positive=True)
+    idx = _frame_indices(frames, len(stacks[0]))
+    st = _State(stacks=stacks, cameras=cams, frames=idx, fps=fps, params=p,
+                progress=progress, seed=int(seed))
+    seconds = {}
+    for name, stage in tqdm(STAGES, desc="LSMTA system", disable=not progress):
+        t0 = time.perf_counter()
+        stage(st)
+        seconds[name] = time.perf_counter() - t0
+    if p.arm is None:
+        del seconds["arm model"]
+    views = tuple(ViewCapture(group=g, cameras=c, noise=n, surfaces=s, tracks=t, points=sl)
+                  for g, (_, c), n, s, t, sl in zip(st.groups, st.inputs, st.noise,
+                                                    st.surfaces, st.tracks, st.slices))
+    return BodyCapture(cameras=cams, calibration=calibration, frames=idx, fps=fps, views=views,
+                       trajectories=st.trajectories, filters=st.filters, arm=st.arm,
+                       seconds=seconds, params=p)

@@ -1,0 +1,207 @@
+"""A capture written where other tools read it (:meth:`BodyCapture.save`).
+
+Files, in one folder:
+
+* ``cameras.toml``: the cameras used, aniposelib / Pose2Sim layout, mm
+  (:func:`lsmta.camera_files.write_camera_toml`);
+* ``trajectories.c3d`` and ``trajectories.trc``: the filtered trajectories, mm, at the
+  recording's frame rate, labelled ``G<group>_<n>`` (view group, then the point's number in
+  it); a sample the filters removed is missing (C3D residual -1, an empty TRC field);
+* ``surfaces/frame_NNNN.ply``: each measured frame's surface points of every view group
+  (file frame numbers), with per-point ``group``, ``sigma_px`` (largest LSM standard deviation
+  of the point's image positions) and ``ray_distance_mm`` (RMS distance of the point to its
+  rays);
+* ``summary.json``: the stages with their times and results, counts, the calibration's own
+  summary where it has one;
+* ``report.html``: the summary table and figures of this recording (the views with the
+  tracked points, the trajectories), one file with the images inside it.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from ..camera_files import write_camera_toml
+from ..result_files import write_c3d, write_ply, write_trc
+
+
+def _plain(v):
+    """JSON-ready: NaN and inf -> None, numpy scalars -> Python numbers."""
+    if isinstance(v, dict):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_plain(x) for x in v]
+    if isinstance(v, np.generic):
+        v = v.item()
+    return None if isinstance(v, float) and not np.isfinite(v) else v
+
+
+def trajectory_labels(capture) -> list:
+    """``G<group>_<n>`` for every trajectory (groups and points counted from 1)."""
+    labels = []
+    for g, view in enumerate(capture.views):
+        n = view.points.stop - view.points.start
+        labels += [f"G{g + 1}_{i + 1}" for i in range(n)]
+    return labels
+
+
+def surface_cloud(capture, frame: int):
+    """Every view group's surface points of processed frame ``frame``.
+
+    Returns
+    -------
+    points : (M, 3) array, mm
+    scalars : dict of str -> (M,) array
+        ``group``, ``sigma_px``, ``ray_distance_mm``.
+    """
+    parts, groups, sigma, dist = [], [], [], []
+    for g, view in enumerate(capture.views):
+        s = view.surfaces.get(frame)
+        if s is None:
+            continue
+        ok = s.neighbourhood_ok & s.intersection.valid
+        parts.append(s.intersection.points[ok])
+        groups.append(np.full(int(ok.sum()), g + 1.0))
+        sigma.append(np.linalg.norm(s.sigma_xy, axis=2).max(axis=0)[ok])
+        dist.append(s.intersection.rms_ray_distance[ok])
+    if not parts:
+        return np.empty((0, 3)), {"group": np.empty(0), "sigma_px": np.empty(0),
+                                  "ray_distance_mm": np.empty(0)}
+    return np.concatenate(parts), {"group": np.concatenate(groups),
+                                   "sigma_px": np.concatenate(sigma),
+                                   "ray_distance_mm": np.concatenate(dist)}
+
+
+def capture_record(capture) -> dict:
+    """The numbers of ``summary.json``, as plain Python values."""
+    present = capture.filtered.present
+    record = {
+        "frames": [int(capture.frames[0]), int(capture.frames[-1])],
+        "fps": capture.fps,
+        "stages": capture.summary(),
+        "view_groups": [{
+            "cameras": [c.name or str(k) for k, c in zip(v.group.cameras, v.cameras)],
+            "template": v.cameras[v.group.template_position].name or str(v.group.template),
+            "noise_sigma": float(v.noise.sigma),
+            "surface_points": {int(capture.frames[t]): int(s.neighbourhood_ok.sum())
+                               for t, s in sorted(v.surfaces.items())},
+            "tracks": 0 if v.tracks is None else len(v.tracks),
+            "alive_at_end": 0 if v.tracks is None else int(v.tracks.alive[-1].sum()),
+            "trajectories": v.points.stop - v.points.start,
+        } for v in capture.views],
+        "trajectories": {"total": len(capture.trajectories),
+                         "kept_by_filters": int(present.any(axis=0).sum()),
+                         "samples": int(present.sum())},
+    }
+    if hasattr(capture.calibration, "summary") and callable(capture.calibration.summary):
+        record["calibration"] = capture.calibration.summary()
+    return _plain(record)
+
+
+def _png(fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=80, bbox_inches="tight")
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _figures(capture) -> list:
+    """(caption, base64 PNG) of the report's figures (matplotlib's object interface: no
+    pyplot state is touched)."""
+    out = []
+    for g, view in enumerate(capture.views):
+        tracks, K = view.tracks, len(view.cameras)
+        if tracks is None:
+            continue
+        fig = Figure(figsize=(3.2 * K, 4.2))
+        ax = fig.subplots(1, K, squeeze=False)
+        for k in range(K):
+            cam = view.cameras[k]
+            ax[0, k].set_xlim(0, cam.width)
+            ax[0, k].set_ylim(cam.height, 0)
+            ax[0, k].set_aspect("equal")
+            for t, colour in ((0, "tab:blue"), (tracks.n_frames - 1, "tab:red")):
+                xy = tracks.xy[t, k]
+                ax[0, k].plot(xy[:, 0], xy[:, 1], ".", ms=1.5, color=colour,
+                              label=f"frame {int(capture.frames[t])}")
+            ax[0, k].set_title(cam.name or f"camera {view.group.cameras[k]}", fontsize=9)
+        ax[0, 0].legend(fontsize=7, loc="lower left")
+        out.append((f"View group G{g + 1}: tracked points in the first (blue) and last (red) "
+                    "frame, in image pixels of every view", _png(fig)))
+    X = capture.filtered.xyz
+    if np.isfinite(X).any():
+        fig = Figure(figsize=(12, 3.5))
+        ax = fig.subplots(1, 3)
+        t = np.arange(len(X)) / capture.fps
+        for i, name in enumerate("XYZ"):
+            ax[i].plot(t, X[:, :, i], lw=0.5, alpha=0.6)
+            ax[i].set_xlabel("time (s)")
+            ax[i].set_ylabel(f"{name} (mm)")
+        out.append(("Filtered trajectories over time, one line per point (world X, Y, Z)",
+                    _png(fig)))
+    return out
+
+
+def _report(capture, record: dict) -> str:
+    rows = "".join(f"<tr><td>{html.escape(r['stage'])}</td><td>{r['seconds']:.1f}</td>"
+                   f"<td>{html.escape(r['result'])}</td></tr>" for r in capture.summary())
+    figs = "".join(f'<figure><img alt="{html.escape(c)}" src="data:image/png;base64,{b}">'
+                   f"<figcaption>{html.escape(c)}</figcaption></figure>"
+                   for c, b in _figures(capture))
+    return ("<!DOCTYPE html><html><head><meta charset='utf-8'><title>lsmta capture</title>"
+            "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}"
+            "td,th{border-bottom:1px solid #ccc;padding:4px;text-align:left;"
+            "vertical-align:top}img{max-width:100%}</style></head><body>"
+            f"<h1>lsmta capture</h1><p>frames {record['frames'][0]}–{record['frames'][1]} at "
+            f"{record['fps']:g} Hz; {record['trajectories']['kept_by_filters']} of "
+            f"{record['trajectories']['total']} trajectories kept by the filters.</p>"
+            "<table><tr><th>stage</th><th>s</th><th>result</th></tr>"
+            f"{rows}</table>{figs}</body></html>")
+
+
+def save_capture(capture, directory, *, report: bool = True) -> dict:
+    """Write a :class:`~lsmta.systems.BodyCapture` (see the module docstring).
+
+    Parameters
+    ----------
+    capture : BodyCapture
+    directory : str or Path
+        Made as needed; files already there with these names are replaced.
+    report : bool
+        Also write ``report.html`` (matplotlib figures).
+
+    Returns
+    -------
+    dict of str -> Path
+        The files written, by kind (``surfaces`` maps to a list).
+    """
+    folder = Path(directory)
+    folder.mkdir(parents=True, exist_ok=True)
+    X, labels = capture.filtered.xyz, trajectory_labels(capture)
+    out = {"cameras": write_camera_toml(folder / "cameras.toml", capture.cameras, unit="mm")}
+    if X.shape[1]:
+        out["c3d"] = write_c3d(folder / "trajectories.c3d", X, rate=capture.fps, labels=labels)
+        out["trc"] = write_trc(folder / "trajectories.trc", X, rate=capture.fps, labels=labels)
+    frames = sorted({t for v in capture.views for t in v.surfaces})
+    out["surfaces"] = []
+    for t in frames:
+        points, scalars = surface_cloud(capture, t)
+        if len(points):
+            out["surfaces"].append(write_ply(folder / "surfaces" /
+                                             f"frame_{int(capture.frames[t]):04d}.ply",
+                                             points, scalars=scalars))
+    record = capture_record(capture)
+    record["files"] = {k: ([str(p.relative_to(folder)) for p in v] if isinstance(v, list)
+                           else str(v.relative_to(folder))) for k, v in out.items()}
+    out["summary"] = folder / "summary.json"
+    out["summary"].write_text(json.dumps(record, indent=2), encoding="utf-8")
+    if report:
+        out["report"] = folder / "report.html"
+        out["report"].write_text(_report(capture, record), encoding="utf-8")
+    return out

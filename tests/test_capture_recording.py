@@ -1,0 +1,225 @@
+"""The LSMTA system on any recording with calibrated cameras (lsmta.systems.capture_recording),
+its files (BodyCapture.save, read back with ezc3d and pyvista), camera files recognised by
+content, and the ``lsmta capture`` command."""
+
+import json
+
+import cv2
+import ezc3d
+import numpy as np
+import pytest
+import pyvista as pv
+from plyfile import PlyData
+
+from lsmta.camera import Camera
+from lsmta.camera_files import (
+    camera_file_format,
+    read_camera_file,
+    read_camera_toml,
+    write_camera_toml,
+    write_opencv_yaml,
+)
+from lsmta.cli import main
+from lsmta.data import CALISCOPE_DIR, POSE2SIM_DIR
+from lsmta.evaluation import body_system as bs
+from lsmta.result_files import read_trc
+from lsmta.systems import CaptureParams, axis_angles, capture_recording, view_groups
+
+
+def _ring(n: int, radius: float = 3000.0) -> list:
+    """n cameras evenly round a circle, all looking at its centre."""
+    cams = []
+    for k in range(n):
+        a = 2 * np.pi * k / n
+        C = radius * np.array([np.cos(a), np.sin(a), 0.0])
+        z = -C / np.linalg.norm(C)
+        x = np.cross([0.0, 0.0, 1.0], z)
+        R = np.stack([x, np.cross(z, x), z])
+        cams.append(Camera(f=1000.0, cx=320.0, cy=240.0, width=640, height=480, R=R, C=C,
+                           name=f"c{k}"))
+    return cams
+
+
+def test_view_groups_of_a_ring_and_of_a_triplet():
+    ring = view_groups(_ring(8))                       # 45 degrees between neighbours
+    assert [g.cameras for g in ring] == [tuple(sorted({(k - 1) % 8, k, (k + 1) % 8}))
+                                         for k in range(8)]
+    assert all(g.template in g.cameras for g in ring)
+    four = view_groups(_ring(4), max_angle_deg=100.0)  # 90 degrees: each with both neighbours
+    assert len(four) == 4 and all(len(g.cameras) == 3 for g in four)
+    with pytest.raises(ValueError, match="max_angle_deg|no two cameras"):
+        view_groups(_ring(4))                          # 90 > 75: no group at all
+    with pytest.raises(ValueError, match="max_angle_deg"):
+        view_groups(_ring(4), max_angle_deg=-1.0)
+    A = axis_angles(_ring(4))
+    assert np.allclose(A, A.T) and np.allclose(np.diag(A), 0.0, atol=1e-6)
+    assert np.isclose(A[0, 2], 180.0)
+
+
+def test_the_demo_rig_is_two_groups():
+    groups = view_groups(read_camera_file(POSE2SIM_DIR / "Calib.qca.txt"))
+    assert [g.cameras for g in groups] == [(0, 1), (2, 3)]
+
+
+def test_camera_files_recognised_by_content(tmp_path):
+    cams = read_camera_file(POSE2SIM_DIR / "Calib.qca.txt")
+    assert camera_file_format(POSE2SIM_DIR / "Calib.qca.txt") == "qualisys"
+    assert camera_file_format(CALISCOPE_DIR / "camera_array.toml") == "caliscope"
+    cali = read_camera_file(CALISCOPE_DIR / "camera_array.toml")
+    assert np.allclose([c.C for c in cali],
+                       [c.C for c in read_camera_toml(CALISCOPE_DIR / "camera_array.toml",
+                                                      unit="m")])
+    ours = write_camera_toml(tmp_path / "rig.txt", cams, unit="cm")   # any file name
+    assert camera_file_format(ours) == "toml"
+    back = read_camera_file(ours)
+    assert np.allclose([c.C for c in back], [c.C for c in cams], atol=1e-6)
+    yml = write_opencv_yaml(tmp_path / "rig.yml", cams, unit="m")
+    assert camera_file_format(yml) == "opencv"
+    assert np.allclose([c.C for c in read_camera_file(yml)], [c.C for c in cams], atol=1e-6)
+    with pytest.raises(ValueError, match="unit.*mm by the format"):
+        read_camera_file(POSE2SIM_DIR / "Calib.qca.txt", unit="m")
+    bare = tmp_path / "bare.toml"
+    bare.write_text("\n".join(line for line in ours.read_text().splitlines()
+                              if "unit" not in line and "[metadata]" not in line))
+    with pytest.raises(ValueError, match="unit: .*does not state"):
+        read_camera_file(bare)
+    assert np.allclose(read_camera_file(bare, unit="cm")[0].C, cams[0].C, atol=1e-6)
+    junk = tmp_path / "notes.txt"
+    junk.write_text("hello")
+    with pytest.raises(ValueError, match="not a camera file"):
+        read_camera_file(junk)
+    with pytest.raises(FileNotFoundError, match="no camera file"):
+        read_camera_file(tmp_path / "missing.toml")
+
+
+@pytest.fixture(scope="module")
+def session():
+    return bs.arm_wave_session(seed=7, n_frames=6, first=20, scale=0.5,
+                               params=bs.ArmWaveSessionParams(n_bar=60, n_heldout=20))
+
+
+@pytest.fixture(scope="module")
+def capture(session):
+    """The system on the session with cameras given (the generator's: a calibrated rig),
+    no arm model."""
+    videos = session.videos.copy()
+    cap = capture_recording(session.videos, session.cameras, fps=session.fps, progress=False,
+                            params=CaptureParams(density_every=3))
+    assert np.array_equal(videos, session.videos)
+    return cap
+
+
+@pytest.mark.slow
+def test_capture_recording_any_subject(capture, session):
+    assert capture.arm is None and "arm model" not in capture.seconds
+    assert len(capture.views) == 1 and capture.views[0].group.cameras == (0, 1, 2)
+    assert capture.views[0].group.template == 1          # the centre camera
+    assert capture.tracks is capture.views[0].tracks
+    assert len(capture.trajectories) == len(capture.tracks)
+    assert np.all(capture.group_of == 0)
+    kept = capture.filtered.present.any(axis=0)
+    assert kept.sum() > 0.8 * len(kept)
+    assert capture.surfaces[0].neighbourhood_ok.sum() > 300
+    rows = {r["stage"]: r for r in capture.summary()}
+    assert set(rows) == {"calibration", "view groups", "image noise", "surfaces", "tracking",
+                         "trajectories"}
+    assert rows["calibration"]["result"] == "cameras as given"
+
+
+@pytest.mark.slow
+def test_capture_saved_files_read_back(capture, tmp_path):
+    files = capture.save(tmp_path / "out")
+    X = capture.filtered.xyz
+    c3d = ezc3d.c3d(str(files["c3d"]))
+    assert c3d["parameters"]["POINT"]["RATE"]["value"][0] == pytest.approx(capture.fps)
+    assert c3d["parameters"]["POINT"]["UNITS"]["value"][0] == "mm"
+    pts = np.moveaxis(c3d["data"]["points"][:3], (0, 1, 2), (2, 1, 0))      # (T, N, 3)
+    missing = c3d["data"]["meta_points"]["residuals"][0].T < 0
+    assert np.array_equal(missing, ~np.isfinite(X).all(axis=2))
+    assert np.allclose(pts[~missing], X[~missing], atol=1e-3)
+    assert c3d["parameters"]["POINT"]["LABELS"]["value"][:2] == ["G1_1", "G1_2"]
+    trc = read_trc(files["trc"])
+    assert np.allclose(trc.points[~missing], X[~missing], atol=1e-3)
+    assert np.isnan(trc.points[missing]).all() and trc.labels[0] == "G1_1"
+    ply = pv.read(files["surfaces"][0])
+    s = capture.surfaces[0]
+    ok = s.neighbourhood_ok & s.intersection.valid
+    assert np.allclose(ply.points, s.intersection.points[ok], atol=1e-2)
+    vertex = PlyData.read(str(files["surfaces"][0]))["vertex"]       # pyvista reads no scalars
+    assert np.allclose(vertex["ray_distance_mm"], s.intersection.rms_ray_distance[ok],
+                       rtol=1e-6)
+    assert np.all(vertex["group"] == 1) and np.all(vertex["sigma_px"] > 0)
+    assert files["surfaces"][0].name == f"frame_{int(capture.frames[0]):04d}.ply"
+    back = read_camera_toml(files["cameras"], unit="mm")
+    assert np.allclose([c.C for c in back], [c.C for c in capture.cameras], atol=1e-6)
+    record = json.loads(files["summary"].read_text())
+    assert record["trajectories"]["total"] == X.shape[1]
+    assert record["view_groups"][0]["tracks"] == len(capture.tracks)
+    assert "<img" in files["report"].read_text()
+
+
+def test_capture_recording_bad_input(session):
+    v, cams = session.videos, session.cameras
+    with pytest.raises(ValueError, match="fps"):
+        capture_recording(v, cams, progress=False)
+    with pytest.raises(ValueError, match="expected 3 videos"):
+        capture_recording(v[:2], cams, fps=25.0, progress=False)
+    with pytest.raises(ValueError, match=r"videos\[0\]: frames are"):
+        capture_recording(v[:, :, :-2], cams, fps=25.0, progress=False)
+    with pytest.raises(TypeError, match="grey values"):
+        capture_recording(v.astype(bool), cams, fps=25.0, progress=False)
+    with pytest.raises(ValueError, match="frames"):
+        capture_recording(v, cams, fps=25.0, frames=[0, 2, 3], progress=False)
+    with pytest.raises(TypeError, match="CaptureParams"):
+        capture_recording(v, cams, fps=25.0, params={"density_every": 2}, progress=False)
+    with pytest.raises(ValueError, match="density_every"):
+        CaptureParams(density_every=0)
+
+
+def _write_videos(folder, videos, fps):
+    paths = []
+    for k, frames in enumerate(videos):
+        path = folder / f"cam{k}.avi"
+        h, w = frames.shape[1:]
+        out = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (w, h))
+        for f in frames:
+            out.write(cv2.cvtColor(np.ascontiguousarray(f, np.uint8), cv2.COLOR_GRAY2BGR))
+        out.release()
+        paths.append(str(path))
+    return paths
+
+
+def test_command_help_and_bad_input(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["capture", "--help"])
+    assert exit_.value.code == 0
+    assert "example" in capsys.readouterr().out
+    rig = write_camera_toml(tmp_path / "rig.toml", _ring(2, 2000.0), unit="mm")
+    assert main(["capture", "--videos", "a.mp4", "b.mp4", "--cameras",
+                 str(tmp_path / "none.toml"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no camera file" in err[0]
+    assert main(["capture", "--videos", "a.mp4", "--cameras", str(rig), "--out",
+                 str(tmp_path / "o")]) == 2
+    assert "no video" in capsys.readouterr().err
+    assert main(["capture", "--videos", "a.mp4", "--cameras", str(rig), "--out",
+                 str(tmp_path / "o"), "--frames", "x"]) == 2
+    assert "--frames" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_command_end_to_end(session, tmp_path, capsys):
+    paths = _write_videos(tmp_path, session.videos[:, :6], session.fps)
+    rig = write_camera_toml(tmp_path / "rig.toml", session.cameras, unit="mm")
+    out = tmp_path / "result"
+    assert main(["capture", "--videos", *paths, "--cameras", str(rig), "--out", str(out),
+                 "--no-refine", "--quiet"]) == 0
+    assert "cameras as given" in capsys.readouterr().err
+    record = json.loads((out / "summary.json").read_text())
+    assert record["cameras_note"] == "as given"
+    assert record["trajectories"]["kept_by_filters"] > 100
+    assert (out / "trajectories.c3d").is_file() and (out / "report.html").is_file()
+    wrong = write_camera_toml(tmp_path / "wrong.toml", session.cameras[:2], unit="mm")
+    assert main(["capture", "--videos", *paths, "--cameras", str(wrong), "--out", str(out),
+                 "--no-refine", "--quiet"]) == 2
+    assert "2 cameras for 3 videos" in capsys.readouterr().err

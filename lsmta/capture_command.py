@@ -26,7 +26,9 @@ from .io import cameras_for_videos, read_videos
 from .systems import (
     ArmFitParams,
     CaptureParams,
+    MarkerParams,
     RigRefinementParams,
+    Tracker2D,
     calibrate_rig,
     capture_recording,
     refine_rig,
@@ -68,6 +70,11 @@ def add_parser(sub) -> None:
                      help="videos of a reference bar: calibrate from them instead")
     cap.add_argument("--bar-length", type=float, default=None, metavar="MM",
                      help="distance between the bar's targets, mm (with --bar)")
+    cap.add_argument("--markers", choices=("skin", "blobs"), default=None,
+                     help="also find markers in every view, track and join them: skin "
+                          "markers (small grey blobs on skin) or any small bright blob")
+    cap.add_argument("--tracker", choices=("lsmta", "klt"), default="lsmta",
+                     help="the markers' 2-D tracker (default lsmta; klt: OpenCV's, the peer)")
     cap.add_argument("--arm", action="store_true",
                      help="fit the arm model at the end (a person facing the cameras)")
     cap.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -107,6 +114,14 @@ def _cameras(args, videos, given, progress: bool):
     return list(ref.chosen), ref, note
 
 
+def _params(args) -> CaptureParams:
+    markers = None
+    if args.markers:
+        markers = MarkerParams(detector=args.markers, sigma=2.5 * args.scale,
+                               max_px=4.0 * args.scale, tracker=Tracker2D[args.tracker.upper()])
+    return CaptureParams(arm=ArmFitParams() if args.arm else None, markers=markers)
+
+
 def run(args) -> int:
     """``lsmta capture``; returns the exit status."""
     progress = not args.quiet
@@ -117,8 +132,7 @@ def run(args) -> int:
         cameras, calibration, note = _cameras(args, videos, given, progress)
         print(f"lsmta capture: cameras {note}", file=sys.stderr)
         capture = capture_recording(videos, cameras, calibration=calibration,
-                                    params=CaptureParams(arm=ArmFitParams() if args.arm
-                                                         else None),
+                                    params=_params(args),
                                     progress=progress)
     except (ValueError, FileNotFoundError, TypeError) as err:
         message = str(err).replace("pass mismatch='crop'", "pass --mismatch crop")

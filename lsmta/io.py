@@ -467,8 +467,8 @@ class Videos:
     def n_frames(self) -> int:
         return len(self.frames)
 
-    def _grey(self, frame, k: int) -> np.ndarray:
-        g = cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY) if frame.ndim == 3 else frame
+    def _grey(self, frame, k: int, colour: bool = False) -> np.ndarray:
+        g = frame if colour or frame.ndim == 2 else cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
         if self.crop is not None:
             x0, y0, x1, y1 = self.crop[k]
             g = g[y0:y1, x0:x1]
@@ -476,8 +476,9 @@ class Videos:
             g = cv2.resize(g, self.sizes[k], interpolation=cv2.INTER_AREA)
         return np.ascontiguousarray(g)
 
-    def read(self, i: int) -> list:
-        """Frame ``i`` of the selection: K grey uint8 images ``(H_k, W_k)``."""
+    def read(self, i: int, *, colour: bool = False) -> list:
+        """Frame ``i`` of the selection: K grey uint8 images ``(H_k, W_k)`` (with ``colour``,
+        the files' BGR frames ``(H_k, W_k, 3)``, cropped and scaled alike)."""
         i = as_int(i, "i", minimum=0)
         if i >= self.n_frames:
             raise IndexError(f"i: expected 0 <= i < {self.n_frames}, got {i}")
@@ -489,7 +490,7 @@ class Videos:
             cap.release()
             if not ok:
                 raise ValueError(f"{path.name}: frame {self.frames[i]} cannot be decoded")
-            out.append(self._grey(frame, k))
+            out.append(self._grey(frame, k, colour))
         return out
 
     def __iter__(self):

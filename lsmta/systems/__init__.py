@@ -8,6 +8,7 @@ never the generator's truth: nothing here imports :mod:`lsmta.synth` or
               noise, surfaces, surface tracking, trajectories and filters, optionally the
               arm model; BodyCapture
 ``views``     which cameras see the same side (the view groups)
+``markers``   markers found per view, tracked in 2-D, joined across views by their paths
 ``arm``       the arm model stage (Plänkers' arm fitted to the trajectories)
 ``body``      the papers' system (D'Apuzzo, Plänkers & Fua 2000): bar calibration, then
               capture_recording with the arm model
@@ -36,6 +37,7 @@ from .capture import (
 )
 from .ceiling import CeilingFeed
 from .close_up import first_settled, reacquisition_seeds
+from .markers import MarkerCapture, MarkerParams, Tracker2D, capture_markers
 from .mixed_scale import MixedScaleCapture, MixedScaleParams, capture_mixed_scale
 from .refinement import RigRefinement, RigRefinementParams, refine_rig
 from .rig import RigCalibration, calibrate_rig
@@ -45,7 +47,7 @@ from .views import ViewGroup, axis_angles, view_groups
 __all__ = [
     "ArmFit", "ArmFitParams", "BodyCapture", "BodySystemParams", "CaptureParams",
     "CeilingFeed", "ViewCapture", "ViewGroup", "axis_angles", "capture_recording",
-    "view_groups",
+    "view_groups", "MarkerCapture", "MarkerParams", "Tracker2D", "capture_markers",
     "FilterParams", "MixedScaleCapture", "MixedScaleParams", "capture_mixed_scale",
     "first_settled", "reacquisition_seeds",
     "RigCalibration", "RigRefinement", "RigRefinementParams", "SurfaceParams", "calibrate_rig",

@@ -15,7 +15,9 @@ or as given. Nothing of a generator's truth enters. The stages (:func:`capture_r
 4. *surface tracking* (:func:`track_surface`);
 5. *trajectories*: forward intersection per group, all groups' trajectories side by side,
    then the trajectory filters (:func:`~lsmta.tracking.apply_filters`);
-6. optionally *the arm model* (:func:`~lsmta.systems.arm.fit_arm`).
+6. optionally *markers*: found in every view, tracked in 2-D, joined across views by their
+   paths (:func:`~lsmta.systems.markers.capture_markers`);
+7. optionally *the arm model* (:func:`~lsmta.systems.arm.fit_arm`).
 
 Videos of one group that differ in size (a tool that cut a few columns off some files) are
 cut to the group's common size at their right and bottom edges, with their cameras
@@ -46,6 +48,7 @@ from ..tracking import (
 from .arm import ArmFit, ArmFitParams, fit_arm
 from .capture_files import save_capture
 from .checks import check_cameras
+from .markers import MarkerCapture, MarkerParams, capture_markers
 from .surfaces import SurfaceParams, measure_surfaces
 from .views import ViewGroup, view_groups
 
@@ -79,6 +82,10 @@ class CaptureParams:
     filters : FilterParams
     arm : ArmFitParams or None
         The arm model stage; None leaves it out (any subject).
+    markers : MarkerParams or None
+        The marker stage (:func:`~lsmta.systems.markers.capture_markers`); None leaves it
+        out. Skin markers need the colour first frames: pass videos from
+        :func:`lsmta.io.read_videos`.
     """
 
     max_angle_deg: float = 75.0
@@ -87,6 +94,7 @@ class CaptureParams:
     tracker: TrackerParams = field(default_factory=TrackerParams)
     filters: FilterParams = field(default_factory=FilterParams)
     arm: ArmFitParams | None = None
+    markers: MarkerParams | None = None
 
     def __post_init__(self):
         as_scalar(self.max_angle_deg, "max_angle_deg", positive=True)
@@ -94,6 +102,9 @@ class CaptureParams:
         if self.arm is not None and not isinstance(self.arm, ArmFitParams):
             raise TypeError(f"arm: expected an ArmFitParams or None, got "
                             f"{type(self.arm).__name__}")
+        if self.markers is not None and not isinstance(self.markers, MarkerParams):
+            raise TypeError(f"markers: expected a MarkerParams or None, got "
+                            f"{type(self.markers).__name__}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -144,6 +155,7 @@ class BodyCapture:
     filters : tuple of FilterReport
         The three filters in order; the last one's trajectories are the result.
     arm : ArmFit or None
+    markers : MarkerCapture or None
     seconds : dict of str -> float
         Wall time per stage.
     params : CaptureParams
@@ -158,6 +170,7 @@ class BodyCapture:
     trajectories: Trajectories
     filters: tuple
     arm: ArmFit | None
+    markers: MarkerCapture | None
     seconds: dict
     params: CaptureParams
 
@@ -218,6 +231,14 @@ class BodyCapture:
                                       f"{len(v.tracks)} tracks, "
                                       f"{int(v.tracks.alive[-1].sum())} alive at the end")),
                 ("trajectories", f"{kept} of {len(self.trajectories)} kept by the filters")]
+        if self.markers is not None:
+            m = self.markers
+            share = m.triangulated_share()[m.moving]
+            rows.append(("markers", f"{[len(d) for d in m.detections]} found per view; "
+                                    f"{len(m.members)} joined across views, "
+                                    f"{int(m.moving.sum())} moving (the subject's); those in "
+                                    f"3-D in {np.mean(share) if len(share) else 0:.0%} of "
+                                    "the frames on average"))
         if self.arm is not None:
             full = self.arm.full
             rows.append(("arm model", f"{full.status.name} after {full.rounds} round(s) in "
@@ -329,6 +350,18 @@ def _stacks(videos, n_cameras: int, progress: bool) -> tuple[list, float | None]
     return stacks, None
 
 
+def _first_frames(videos, stacks, idx, markers: MarkerParams | None):
+    """The first processed frame of every view as the marker detector wants it."""
+    if markers is None:
+        return None
+    if isinstance(videos, Videos):
+        return videos.read(int(idx[0]), colour=markers.detector == "skin")
+    if markers.detector == "skin":
+        raise ValueError("params.markers: skin markers are found in colour frames; pass the "
+                         "videos from lsmta.io.read_videos, or use detector='blobs'")
+    return [s[idx[0]] for s in stacks]
+
+
 def _check_sizes(stacks, cameras) -> None:
     for k, (v, cam) in enumerate(zip(stacks, cameras)):
         if (v.shape[2], v.shape[1]) != (cam.width, cam.height):
@@ -358,6 +391,8 @@ class _State:
     slices: list = field(default_factory=list)
     filters: tuple | None = None
     arm: ArmFit | None = None
+    first_frames: list | None = None
+    markers: MarkerCapture | None = None
 
 
 def _view_groups(st: _State) -> None:
@@ -396,7 +431,7 @@ def _tracking(st: _State) -> None:
         tracker = replace(p.tracker, density_every=p.density_every,
                           template=g.template_position)
         st.tracks.append(track_surface(v, surfaces, params=tracker, progress=st.progress))
-    if all(t is None for t in st.tracks):
+    if all(t is None for t in st.tracks) and st.params.markers is None:
         raise ValueError("videos: no view group found a surface point in the first frame "
                          "(no seed matched, or every match failed LSM's thresholds); check "
                          "the cameras and the frames")
@@ -414,6 +449,13 @@ def _trajectories(st: _State) -> None:
     st.filters = apply_filters(st.trajectories, **asdict(st.params.filters))
 
 
+def _markers(st: _State) -> None:
+    if st.params.markers is not None:
+        stacks = [s[st.frames] for s in st.stacks]
+        st.markers = capture_markers(stacks, st.cameras, st.first_frames,
+                                     params=st.params.markers)
+
+
 def _arm_model(st: _State) -> None:
     if st.params.arm is not None:
         st.arm = fit_arm(st.filters[-1].trajectories, st.cameras, settings=st.params.arm,
@@ -422,7 +464,7 @@ def _arm_model(st: _State) -> None:
 
 STAGES = (("view groups", _view_groups), ("image noise", _image_noise),
           ("surfaces", _surfaces), ("tracking", _tracking), ("trajectories", _trajectories),
-          ("arm model", _arm_model))
+          ("markers", _markers), ("arm model", _arm_model))
 
 
 def capture_recording(videos, cameras, *, fps: float | None = None, frames=None,
@@ -466,17 +508,19 @@ def capture_recording(videos, cameras, *, fps: float | None = None, frames=None,
     fps = as_scalar(fps if fps is not None else rate, "fps", positive=True)
     idx = _frame_indices(frames, len(stacks[0]))
     st = _State(stacks=stacks, cameras=cams, frames=idx, fps=fps, params=p,
-                progress=progress, seed=int(seed))
+                progress=progress, seed=int(seed),
+                first_frames=_first_frames(videos, stacks, idx, p.markers))
     seconds = {}
     for name, stage in tqdm(STAGES, desc="LSMTA system", disable=not progress):
         t0 = time.perf_counter()
         stage(st)
         seconds[name] = time.perf_counter() - t0
-    if p.arm is None:
-        del seconds["arm model"]
+    for name, stage_params in (("arm model", p.arm), ("markers", p.markers)):
+        if stage_params is None:
+            del seconds[name]
     views = tuple(ViewCapture(group=g, cameras=c, noise=n, surfaces=s, tracks=t, points=sl)
                   for g, (_, c), n, s, t, sl in zip(st.groups, st.inputs, st.noise,
                                                     st.surfaces, st.tracks, st.slices))
     return BodyCapture(cameras=cams, calibration=calibration, frames=idx, fps=fps, views=views,
                        trajectories=st.trajectories, filters=st.filters, arm=st.arm,
-                       seconds=seconds, params=p)
+                       markers=st.markers, seconds=seconds, params=p)

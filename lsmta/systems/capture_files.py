@@ -7,6 +7,8 @@ Files, in one folder:
 * ``trajectories.c3d`` and ``trajectories.trc``: the filtered trajectories, mm, at the
   recording's frame rate, labelled ``G<group>_<n>`` (view group, then the point's number in
   it); a sample the filters removed is missing (C3D residual -1, an empty TRC field);
+* ``markers.c3d`` and ``markers.trc`` (with the marker stage): the moving markers' 3-D
+  positions, labelled ``M<n>`` in the order of ``summary.json``'s ``markers`` list;
 * ``surfaces/frame_NNNN.ply``: each measured frame's surface points of every view group
   (file frame numbers), with per-point ``group``, ``sigma_px`` (largest LSM standard deviation
   of the point's image positions) and ``ray_distance_mm`` (RMS distance of the point to its
@@ -23,6 +25,7 @@ import base64
 import html
 import io
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -100,6 +103,19 @@ def capture_record(capture) -> dict:
                          "kept_by_filters": int(present.any(axis=0).sum()),
                          "samples": int(present.sum())},
     }
+    if capture.markers is not None:
+        m = capture.markers
+        share = m.triangulated_share()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)      # never intersected
+            med = np.nanmedian(m.residual, axis=0)
+        record["markers"] = [{
+            "label": f"M{i + 1}",
+            "views": [capture.cameras[k].name or str(k) for k in np.flatnonzero(row >= 0)],
+            "triangulated_share": float(share[j]), "median_residual_px": float(med[j]),
+            "motion_mm": float(m.motion_mm[j])}
+            for i, (j, row) in enumerate((j, m.members[j]) for j in np.flatnonzero(m.moving))]
+        record["still_blobs_joined"] = int((~m.moving).sum())
     if hasattr(capture.calibration, "summary") and callable(capture.calibration.summary):
         record["calibration"] = capture.calibration.summary()
     return _plain(record)
@@ -188,6 +204,11 @@ def save_capture(capture, directory, *, report: bool = True) -> dict:
     if X.shape[1]:
         out["c3d"] = write_c3d(folder / "trajectories.c3d", X, rate=capture.fps, labels=labels)
         out["trc"] = write_trc(folder / "trajectories.trc", X, rate=capture.fps, labels=labels)
+    if capture.markers is not None and capture.markers.moving.any():
+        M = capture.markers.xyz[:, capture.markers.moving]
+        names = [f"M{i + 1}" for i in range(M.shape[1])]
+        out["markers_c3d"] = write_c3d(folder / "markers.c3d", M, rate=capture.fps, labels=names)
+        out["markers_trc"] = write_trc(folder / "markers.trc", M, rate=capture.fps, labels=names)
     frames = sorted({t for v in capture.views for t in v.surfaces})
     out["surfaces"] = []
     for t in frames:

@@ -17,6 +17,7 @@ off, where a per-frame epipolar test at that tolerance is ambiguous.
 from __future__ import annotations
 
 import itertools
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -97,7 +98,8 @@ def pair_residuals(camera_a: Camera, camera_b: Camera, xy_a, xy_b, *,
     shared = np.isfinite(err) | np.isinf(err)
     enough = shared.sum(axis=0) >= max(1, min_shared * T)
     behind = np.isinf(err).any(axis=0)
-    with np.errstate(all="ignore"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)          # pairs that share no frame
         med = np.nanmedian(np.where(np.isinf(err), np.nan, err), axis=0)
     return np.where(enough & ~behind, med, np.nan)
 
@@ -199,7 +201,8 @@ def triangulate_joined(cameras, xy, members):
     T, K, M, _ = pos.shape
     res = triangulate(cams, np.moveaxis(pos, 1, 0).reshape(K, T * M, 2), min_angle_deg=1.0)
     xyz = np.where(res.valid[:, None], res.points, np.nan).reshape(T, M, 3)
-    with np.errstate(all="ignore"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)          # points not intersected
         residual = np.where(res.valid, np.nanmax(res.reprojection_error, axis=0),
                             np.nan).reshape(T, M)
     n_views = np.isfinite(pos).all(axis=3).sum(axis=1)

@@ -1,0 +1,192 @@
+"""Markers of a recording in 3-D: found in each view, tracked in 2-D, joined across views by
+their paths, intersected frame by frame.
+
+The stage for what a marker-based recording holds beyond the surfaces: small skin markers
+(or any small bright blobs) that each view sees on its own side of the subject. Stages
+(:func:`capture_markers`):
+
+1. *detection* in the first frame of every view: skin markers
+   (:func:`~lsmta.tracking.markers.find_markers`: small grey blobs on skin, which needs the
+   colour frame) or any bright blob (:func:`~lsmta.tracking.markers.find_blobs`);
+2. *2-D tracking* of every view's markers: LSMTA in 2-D mode
+   (:func:`~lsmta.tracking.track_points`, anchored templates) or, as the peer, pyramidal
+   KLT (:func:`~lsmta.tracking.klt.track_klt`), from the same start points;
+3. *joining* the views' tracks by their whole paths
+   (:func:`~lsmta.tracking.view_tracks.join_view_tracks`);
+4. *intersection* of every frame from the views that hold the marker
+   (:func:`~lsmta.tracking.view_tracks.triangulate_joined`), and each marker's 3-D motion
+   range, which tells the subject's markers (moving) from still blobs of the room.
+"""
+
+from __future__ import annotations
+
+import enum
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._validate import as_int, as_scalar, freeze
+from ..tracking import TrackerParams, track_points
+from ..tracking.klt import track_klt
+from ..tracking.markers import find_blobs, find_markers
+from ..tracking.view_tracks import join_view_tracks, joined_positions, triangulate_joined
+
+
+class Tracker2D(enum.IntEnum):
+    """The 2-D tracker of :func:`capture_markers`."""
+
+    LSMTA = 0   #: least squares matching tracking, 2-D mode, anchored templates
+    KLT = 1     #: pyramidal Lucas-Kanade (OpenCV), the peer
+
+
+@dataclass(frozen=True)
+class MarkerParams:
+    """Settings of :func:`capture_markers`.
+
+    Attributes
+    ----------
+    detector : {"skin", "blobs"}
+        Skin markers (needs colour first frames) or any small bright blob.
+    sigma : float
+        Blob scale at the frames' size, px (a marker's radius is about ``1.4 sigma``).
+    min_strength : float
+        Smallest blob strength, grey levels.
+    tracker : Tracker2D
+    lsmta : TrackerParams
+        LSMTA's settings (2-D mode: its ``template`` is set to 0).
+    klt_window : int
+        KLT's window, px (odd).
+    max_px : float
+        Largest median pair residual of two views' tracks joined as one marker, px.
+    min_shared : float
+        Share of the frames two joined tracks must hold together.
+    min_motion_mm : float
+        A marker whose 3-D positions span less than this is still (the room), mm.
+    """
+
+    detector: str = "skin"
+    sigma: float = 2.5
+    min_strength: float = 20.0
+    tracker: Tracker2D = Tracker2D.LSMTA
+    lsmta: TrackerParams = field(default_factory=lambda: TrackerParams(template=0))
+    klt_window: int = 21
+    max_px: float = 4.0
+    min_shared: float = 0.5
+    min_motion_mm: float = 50.0
+
+    def __post_init__(self):
+        if self.detector not in ("skin", "blobs"):
+            raise ValueError(f"detector: expected 'skin' or 'blobs', got {self.detector!r}")
+        for name in ("sigma", "min_strength", "max_px", "min_shared", "min_motion_mm"):
+            as_scalar(getattr(self, name), name, positive=True)
+        as_int(self.klt_window, "klt_window", minimum=3, odd=True)
+        object.__setattr__(self, "tracker", Tracker2D(self.tracker))
+
+
+@dataclass(frozen=True, eq=False)
+class MarkerCapture:
+    """The markers of a recording (:func:`capture_markers`).
+
+    Attributes
+    ----------
+    detections : tuple of K (N_k, 2) arrays
+        Each view's markers in the first frame, px.
+    view_xy : tuple of K (T, N_k, 2) arrays
+        Each view's 2-D tracks, px (NaN once lost).
+    members : (M, K) int array
+        The track of every view joined into each marker (-1: none).
+    xy : (T, K, M, 2) array
+        The markers' tracked image positions, px.
+    xyz : (T, M, 3) array
+        Their 3-D positions, mm (NaN: fewer than two views).
+    residual : (T, M) array
+        Largest reprojection error of each marker's views, px.
+    motion_mm : (M,) array
+        Span of each marker's 3-D positions (the diagonal of their bounding box), mm.
+    moving : (M,) bool array
+        ``motion_mm >= params.min_motion_mm``: the subject's markers.
+    seconds : float
+        Time of the 2-D tracking, s.
+    """
+
+    detections: tuple
+    view_xy: tuple
+    members: np.ndarray
+    xy: np.ndarray
+    xyz: np.ndarray
+    residual: np.ndarray
+    motion_mm: np.ndarray
+    moving: np.ndarray
+    seconds: float
+
+    def __post_init__(self):
+        freeze(self, ("members", "xy", "xyz", "residual", "motion_mm", "moving"))
+
+    def triangulated_share(self) -> np.ndarray:
+        """``(M,)`` share of the frames in which each marker has a 3-D position."""
+        return np.isfinite(self.xyz).all(axis=2).mean(axis=0)
+
+
+def detect_markers(image, *, params: MarkerParams | None = None) -> np.ndarray:
+    """One view's markers, ``(N, 2)`` px: ``image`` is ``(H, W, 3)`` BGR for skin markers,
+    ``(H, W)`` grey (or BGR) for blobs."""
+    p = params or MarkerParams()
+    img = np.asarray(image)
+    if p.detector == "skin":
+        return find_markers(img, sigma=p.sigma, min_strength=p.min_strength)
+    grey = img if img.ndim == 2 else img.mean(axis=2)
+    return find_blobs(grey, sigma=p.sigma, min_strength=p.min_strength)
+
+
+def track_view(frames, start_xy, *, params: MarkerParams | None = None) -> np.ndarray:
+    """Track one view's points with the chosen 2-D tracker: ``(T, N, 2)`` px."""
+    p = params or MarkerParams()
+    start = np.asarray(start_xy, float)[None]
+    if start.shape[1] == 0:
+        return np.full((len(frames), 0, 2), np.nan)
+    if p.tracker == Tracker2D.KLT:
+        tracks = track_klt([frames], start, window=p.klt_window)
+    else:
+        tracks = track_points([frames], start, params=p.lsmta)
+    return tracks.xy[:, 0]
+
+
+def capture_markers(stacks, cameras, first_frames, *,
+                    params: MarkerParams | None = None) -> MarkerCapture:
+    """Markers of a synchronised recording in 3-D (see the module docstring).
+
+    Parameters
+    ----------
+    stacks : sequence of K (T, H_k, W_k) arrays
+        Grey frames of every view.
+    cameras : sequence of K Camera
+        Calibrated cameras that fit the frames.
+    first_frames : sequence of K arrays
+        The first frame of every view as the detector wants it (BGR for skin markers).
+    params : MarkerParams, optional
+
+    Returns
+    -------
+    MarkerCapture
+    """
+    p = params or MarkerParams()
+    cams = list(cameras)
+    if not len(stacks) == len(cams) == len(first_frames):
+        raise ValueError(f"stacks, cameras, first_frames: expected one per view, got "
+                         f"{len(stacks)}, {len(cams)} and {len(first_frames)}")
+    detections = tuple(detect_markers(f, params=p) for f in first_frames)
+    t0 = time.perf_counter()
+    view_xy = tuple(track_view(s, d, params=p) for s, d in zip(stacks, detections))
+    seconds = time.perf_counter() - t0
+    joined = join_view_tracks(cams, view_xy, max_px=p.max_px, min_shared=p.min_shared)
+    xyz, residual, _ = triangulate_joined(cams, view_xy, joined.members)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)          # never intersected
+        span = np.nanmax(xyz, axis=0) - np.nanmin(xyz, axis=0)
+    motion = np.nan_to_num(np.linalg.norm(span, axis=1))
+    return MarkerCapture(detections=detections, view_xy=view_xy, members=joined.members,
+                         xy=joined_positions(view_xy, joined.members), xyz=xyz,
+                         residual=residual, motion_mm=motion, moving=motion >= p.min_motion_mm,
+                         seconds=seconds)

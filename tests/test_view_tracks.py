@@ -1,0 +1,117 @@
+"""2-D tracks of several views joined into 3-D points by their paths
+(lsmta.tracking.view_tracks), and the marker stage built on it (lsmta.systems.markers)."""
+
+import numpy as np
+import pytest
+
+from lsmta.camera import Camera
+from lsmta.systems import MarkerParams, Tracker2D, capture_markers
+from lsmta.tracking.markers import find_blobs
+from lsmta.tracking.view_tracks import (
+    join_view_tracks,
+    joined_positions,
+    pair_residuals,
+    triangulate_joined,
+)
+
+
+def _rig(n=3, radius=3000.0, spread_deg=40.0):
+    cams = []
+    for k, a in enumerate(np.radians(np.linspace(-spread_deg, spread_deg, n))):
+        C = radius * np.array([np.sin(a), -np.cos(a), 0.0])
+        z = -C / np.linalg.norm(C)
+        x = np.cross([0.0, 0.0, 1.0], z)
+        x /= np.linalg.norm(x)
+        R = np.stack([x, np.cross(z, x), z])
+        cams.append(Camera(f=1200.0, cx=400.0, cy=300.0, width=800, height=600, R=R, C=C,
+                           name=f"v{k}"))
+    return cams
+
+
+def _scene(rng, cams, T=40, M=12, noise=0.2):
+    """M points moving smoothly near the origin; each view's tracks in its own shuffled
+    order, some lost part-way, plus tracks of nothing (random walks)."""
+    t = np.arange(T)[:, None, None]
+    X = rng.uniform(-400, 400, (1, M, 3)) + 150 * np.sin(0.15 * t + rng.uniform(0, 6, (1, M, 3)))
+    views, orders = [], []
+    for cam in cams:
+        xy = cam.project(X.reshape(-1, 3)).reshape(T, M, 2) + rng.normal(0, noise, (T, M, 2))
+        lost = rng.random(M) < 0.3
+        xy[T // 2:, lost] = np.nan
+        walk = np.cumsum(rng.normal(0, 2, (T, 4, 2)), axis=0) + rng.uniform(100, 500, (1, 4, 2))
+        order = rng.permutation(M + 4)
+        views.append(np.concatenate([xy, walk], axis=1)[:, order])
+        orders.append(order)
+    return X, views, orders
+
+
+def test_join_by_paths_finds_every_point_and_nothing_else():
+    rng = np.random.default_rng(3)
+    cams = _rig()
+    X, views, orders = _scene(rng, cams)
+    J = join_view_tracks(cams, views, max_px=2.0)
+    truth = np.stack([o[J.members[:, k]] for k, o in enumerate(orders)], axis=1)
+    assert len(J) == X.shape[1]                           # every point once, no walk joined
+    assert np.all((truth == truth[:, :1]) & (truth < X.shape[1]))
+    assert np.all((J.members >= 0).sum(axis=1) == 3) and np.all(J.pair_px < 2.0)
+    xyz, residual, n_views = triangulate_joined(cams, views, J.members)
+    err = np.linalg.norm(xyz - X[:, truth[:, 0]], axis=2)
+    assert np.nanmedian(err) < 2.0 and np.nanmax(residual) < 2.0
+    assert np.isfinite(xyz).all(axis=2).mean() > 0.8 and n_views.max() == 3
+    pos = joined_positions(views, J.members)
+    assert pos.shape == (X.shape[0], 3, len(J), 2)
+    assert np.array_equal(pos[:, 1, 0], views[1][:, J.members[0, 1]], equal_nan=True)
+
+
+def test_pair_residuals_need_shared_frames_and_points_in_front():
+    cams = _rig(2)
+    a = cams[0].project(np.array([[0.0, 0.0, 0.0]]))[None]           # (1, 1, 2)
+    b = cams[1].project(np.array([[0.0, 0.0, 0.0]]))[None]
+    assert pair_residuals(cams[0], cams[1], a, b)[0, 0] < 1e-6
+    gone = np.full_like(b, np.nan)
+    assert np.isnan(pair_residuals(cams[0], cams[1], a, gone)[0, 0])
+    with pytest.raises(ValueError, match="xy: expected 2 track arrays"):
+        join_view_tracks(cams, [a])
+    with pytest.raises(ValueError, match="min_shared"):
+        join_view_tracks(cams, [a, b], min_shared=2.0)
+    with pytest.raises(ValueError, match="frames"):
+        join_view_tracks(cams, [a, np.concatenate([b, b])])
+
+
+def _dot_video(cams, X, size=(600, 800)):
+    """Grey frames of bright Gaussian dots at the projections of X (T, M, 3)."""
+    H, W = size
+    yy, xx = np.mgrid[:H, :W]
+    out = []
+    for cam in cams:
+        frames = np.full((len(X), H, W), 40.0)
+        for t in range(len(X)):
+            for x, y in cam.project(X[t]):
+                r2 = (xx - x) ** 2 + (yy - y) ** 2
+                frames[t] += 180 * np.exp(-r2 / (2 * 2.5 ** 2)) * (r2 < 200)
+        out.append(np.clip(frames, 0, 255).astype(np.uint8))
+    return out
+
+
+@pytest.mark.parametrize("tracker", [Tracker2D.LSMTA, Tracker2D.KLT])
+def test_capture_markers_on_rendered_dots(tracker):
+    cams = _rig(2, spread_deg=20.0)
+    t = np.arange(8)[:, None, None]
+    grid = np.array([[x, y, z] for x, z in ((-250, -150), (0, -150), (250, -150),
+                                            (-250, 150), (0, 150), (250, 150))
+                     for y in (0.0,)])
+    grid[:, 1] = [0, 120, -80, 60, -40, 100]          # some depth
+    X = grid[None] + np.array([25.0, 0, 15.0]) * np.sin(0.3 * t + np.arange(6)[:, None])
+    X[:, :2] = grid[:2]                                # two still dots
+    stacks = _dot_video(cams, X)
+    assert len(find_blobs(stacks[0][0], min_strength=20.0)) == 6
+    params = MarkerParams(detector="blobs", tracker=tracker, max_px=1.0, min_motion_mm=20.0)
+    m = capture_markers(stacks, cams, [s[0] for s in stacks], params=params)
+    assert len(m.members) == 6 and m.moving.sum() == 4
+    near = [np.min(np.linalg.norm(X[0] - p, axis=1)) for p in m.xyz[0]]
+    assert max(near) < 3.0
+    assert np.all(m.triangulated_share() == 1.0) and np.nanmax(m.residual) < 0.5
+    with pytest.raises(ValueError, match="detector"):
+        MarkerParams(detector="leds")
+    with pytest.raises(ValueError, match="one per view"):
+        capture_markers(stacks, cams[:1], [s[0] for s in stacks], params=params)

@@ -178,7 +178,7 @@ class CharucoParams:
         (caliscope's: :data:`CALISCOPE`).
     subpix_window : int
         Half-size ``w`` of the ``"subpix"`` window, px (``2 w + 1`` square; caliscope's 11
-        reaches the markers' edges once a square is smaller than about 100 px in the image,
+        reaches the markers' edges once a square is smaller than about 90 px in the image,
         and they pull the corner: notebook 19).
     subpix_iterations : int
         Iteration limit of ``cornerSubPix``.

@@ -26,6 +26,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from .._validate import as_array, as_int, pack_windows
@@ -57,6 +58,26 @@ def caliscope_convention(corners: CharucoCorners) -> np.ndarray:
     xy = np.array(corners.xy)
     xy[corners.mirrored, :, 0] += 1.0
     return xy
+
+
+def refined_again(images, xy, mirrored, *, params: CharucoParams = CALISCOPE) -> np.ndarray:
+    """``(K, F, C, 2)`` corners written in caliscope's convention (``xy``, with
+    ``mirrored (K, F)`` frames 1 px right) refined again by ``params``'s ``cornerSubPix``
+    in these frames, in caliscope's convention: corners found in exactly these pixels by
+    that refinement do not move (they are its fixed points)."""
+    stacks = [np.asarray(s) for s in images]
+    xy = as_array(xy, "xy", shape=(len(stacks), None, None, 2), allow_nan=True)
+    out = np.array(xy)
+    shift = np.asarray(mirrored, bool)[..., None] * 1.0
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, params.subpix_iterations,
+            params.subpix_eps)
+    w = (params.subpix_window, params.subpix_window)
+    for k, f in zip(*np.nonzero(np.isfinite(xy[..., 0]).any(axis=-1))):
+        m = np.isfinite(xy[k, f, :, 0])
+        start = (xy[k, f, m] - [shift[k, f, 0], 0]).astype(np.float32).reshape(-1, 1, 2)
+        moved = cv2.cornerSubPix(stacks[k][f], start, w, (-1, -1), crit).reshape(-1, 2)
+        out[k, f, m] = moved + [shift[k, f, 0], 0]
+    return out
 
 
 def corner_differences(xy, reference) -> np.ndarray:
@@ -374,8 +395,9 @@ class CaliscopePixels:
         Caliscope's ``xy.csv`` on the videos' frames.
     differences : dict of str -> (K, F, C) array
         Distances to ``reference``, px: each of ``corners`` (for ``"caliscope style"`` with
-        caliscope's mirror convention), and ``"caliscope style, pixel centres"`` (ours for
-        mirrored frames).
+        caliscope's mirror convention), ``"caliscope style, pixel centres"`` (ours for
+        mirrored frames), and ``"xy.csv refined again"`` (:func:`refined_again`: how far
+        caliscope's corners move under its own refinement in these frames).
     calibration : BoardCalibration
         :func:`calibrate_board` on the ``"symmetry"`` corners (everything from the 48
         frames).
@@ -433,6 +455,8 @@ def caliscope_pixels(*, folder=CALISCOPE_DIR,
     differences["caliscope style, pixel centres"] = differences["caliscope style"]
     differences["caliscope style"] = corner_differences(
         caliscope_convention(corners["caliscope style"]), reference)
+    differences["xy.csv refined again"] = corner_differences(
+        refined_again(images, reference, opencv.mirrored), reference)
     ours = corners["symmetry"]
     calibration = calibrate_board(ours.xy, ours.board, [c.image_size for c in cal_cams],
                                   names=[c.name for c in cal_cams])

@@ -102,6 +102,8 @@ def test_trackers_follow_a_drawn_board():
     step = tr.step["lsmta"][0]
     assert np.isnan(step[:2]).all() and np.isfinite(step[2:, :11]).all()
     assert np.isnan(tr.long["lsmta"][0, :, 11]).all()
+    with pytest.raises(ValueError, match="mode, tracker"):
+        tr.errors("long", "sift")
     with pytest.raises(ValueError, match="images: expected 5 frames"):
         track_board_corners([frames[:4]], detected)
 

@@ -123,10 +123,14 @@ class CornerTracks:
     def errors(self, mode: str, tracker: str) -> np.ndarray:
         """``(K, T, C)`` distance of a tracker's positions to the detections, px (NaN where
         either is missing; the long runs' start frames excluded)."""
+        if mode not in ("long", "step") or tracker not in ("lsmta", "klt"):
+            raise ValueError(f"mode, tracker: expected 'long' or 'step' and 'lsmta' or 'klt', "
+                             f"got {mode!r}, {tracker!r}")
         tracks = {"long": self.long, "step": self.step}[mode][tracker]
         e = np.linalg.norm(tracks - self.detected, axis=-1)
-        for k, s in enumerate(self.start):
-            e[k, :s + 1] = np.nan
+        if mode == "long":
+            for k, s in enumerate(self.start):
+                e[k, :s + 1] = np.nan
         return e
 
 

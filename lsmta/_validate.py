@@ -150,3 +150,19 @@ def freeze(obj, names) -> None:
         a = np.array(getattr(obj, key))
         a.flags.writeable = False
         object.__setattr__(obj, key, a)
+
+
+def pack_windows(sizes, *, width: int = 2048):
+    """Places ``(n, 2)`` (x, y of the top-left pixel) of rectangles ``sizes (n, 2)``
+    (width, height, px) packed row by row into a mosaic ``width`` wide (wider if one
+    rectangle is), and the mosaic's ``(width, height)``: small windows of many images
+    processed as one image (one spline, one batched call) instead of one call each."""
+    sizes = np.asarray(sizes, dtype=int).reshape(-1, 2)
+    width = max(int(width), int(sizes[:, 0].max(initial=1)))
+    places, x, y, row = [], 0, 0, 0
+    for w, h in sizes:
+        if x + w > width:
+            x, y, row = 0, y + row, 0
+        places.append((x, y))
+        x, row = x + int(w), max(row, int(h))
+    return np.array(places, dtype=int).reshape(-1, 2), (width, y + row)

@@ -1,7 +1,7 @@
 """Reading marker data (C3D files through ezc3d, Maya ASCII animation curves), 2-D point
-files (DLTdv / Argus xypts CSV, caliscope's board corners), a Qualisys calibration, one
-video's frames and a multi-camera recording's videos (OpenCV, decoded as needed). The
-project's own recordings under ``data/`` are loaded by :mod:`lsmta.data`."""
+files (DLTdv / Argus xypts CSV, caliscope's board corners and frame times), a Qualisys
+calibration, one video's frames and a multi-camera recording's videos (OpenCV, decoded as
+needed). The project's own recordings under ``data/`` are loaded by :mod:`lsmta.data`."""
 
 from __future__ import annotations
 
@@ -423,6 +423,59 @@ def read_caliscope_points(path, *, unit: str = "m") -> BoardPoints:
     xy = np.full((len(cams), len(frames), len(corners), 2), np.nan)
     xy[k_idx, f_idx, c_idx] = a[:, 3:5]
     return BoardPoints(xy=xy, board=board, frames=frames, camera_ids=cams)
+
+
+@dataclass(frozen=True)
+class FrameTimes:
+    """When each camera took each synchronised frame of a recording whose cameras are not
+    frame-locked.
+
+    Attributes
+    ----------
+    frames : (F,) int array
+        The synchronised frames' numbers (caliscope's ``sync_index``), ascending.
+    camera_ids : (K,) int array
+    seconds : (K, F) array
+        Camera ``k``'s frame time in synchronised frame ``f``, s (one clock for all
+        cameras); NaN where the camera has no frame.
+    """
+
+    frames: np.ndarray
+    camera_ids: np.ndarray
+    seconds: np.ndarray
+
+    @property
+    def spread(self) -> np.ndarray:
+        """``(F,)`` latest minus earliest camera time of each frame, s."""
+        return np.nanmax(self.seconds, axis=0) - np.nanmin(self.seconds, axis=0)
+
+
+def read_caliscope_times(path) -> FrameTimes:
+    """Read the frame times of a caliscope recording (``timestamps.csv`` beside its
+    videos: ``sync_index, cam_id, frame_time`` in seconds, one row per camera and frame).
+
+    Frame ``i`` of every camera's synchronised video is the ``i``-th ``sync_index``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"path: no caliscope time stamp file at {path}")
+    need = ("sync_index", "cam_id", "frame_time")
+    with open(path, newline="", encoding="utf-8-sig") as fh:
+        reader = csv.DictReader(fh)
+        lacking = [c for c in need if c not in (reader.fieldnames or ())]
+        if lacking:
+            raise ValueError(f"path: {path} lacks the columns {lacking}")
+        rows = [[float(r[c]) for c in need] for r in reader]
+    if not rows:
+        raise ValueError(f"path: {path} has no frames")
+    a = np.array(rows)
+    frames, f_idx = np.unique(a[:, 0].astype(int), return_inverse=True)
+    cams, k_idx = np.unique(a[:, 1].astype(int), return_inverse=True)
+    if len(set(zip(k_idx, f_idx))) != len(a):
+        raise ValueError(f"path: {path} has two rows for one camera and sync_index")
+    seconds = np.full((len(cams), len(frames)), np.nan)
+    seconds[k_idx, f_idx] = a[:, 2]
+    return FrameTimes(frames=frames, camera_ids=cams, seconds=seconds)
 
 
 # ---------------------------------------------------------------------- videos

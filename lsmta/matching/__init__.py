@@ -9,7 +9,8 @@ frame into 3-D surface points; ``backdrop_mask`` finds an object in front of a d
 (a ``template_mask`` for matching next to its silhouette). Beyond the paper: ``mpgc``
 matches one template in all search images jointly under the epipolar condition (Gruen &
 Baltsavias 1988; ``RectifiedPair``, ``CameraGeometry``), ``grow_joint`` grows that way, and
-``measure_disparity`` gives the dense disparity of a rectified pair.
+``measure_disparity`` gives the dense disparity of a rectified pair; ``symmetric_corners``
+finds chessboard corners by the point symmetry of their neighbourhood.
 
 Every matcher takes its settings as one frozen dataclass, ``params=``: ``LSMParams`` (``lsm``,
 ``lsm_multi``, ``mpgc``), ``GrowParams`` (``grow_matches``, ``grow_joint``),
@@ -37,13 +38,16 @@ from .multi import lsm_multi
 from .seeds import Seeds, find_disparity_seeds, find_seeds
 from .spline import SplineImage
 from .surface import MeasureSurfaceParams, SurfaceResult, enhance_contrast, measure_surface
+from .symmetry import SymmetricCorners, symmetric_corners
 
 __all__ = [
     "GEOMETRIES", "PARAM_NAMES", "RADIOMETRIES", "CameraGeometry", "ConstrainedResult",
     "CorrelationResult", "CorrelationStatus", "DisparityParams", "DisparityResult",
     "GrowParams", "GrowResult", "LSMParams", "LSMResult", "LSMThresholds",
     "MeasureSurfaceParams", "NeighbourhoodCheck", "RectifiedPair", "Seeds", "SplineImage",
-    "Status", "SurfaceResult", "backdrop_mask", "correlation_search", "enhance_contrast",
+    "Status", "SurfaceResult", "SymmetricCorners", "backdrop_mask", "correlation_search",
+    "enhance_contrast",
     "find_disparity_seeds", "find_seeds", "grow_joint", "grow_matches", "lsm", "lsm_multi",
     "measure_disparity", "measure_surface", "mpgc", "neighbourhood_filter",
+    "symmetric_corners",
 ]

@@ -5,6 +5,8 @@ labels), never against a generator.
 
 * :mod:`lsmta.real.board` — caliscope's board recording: our calibration, caliscope's and
   aniposelib's, scored on the same corners (notebook 19);
+* :mod:`lsmta.real.board_video` — the same recording from its videos: ChArUco corners
+  against caliscope's, calibration, LSMTA and KLT tracking, the board in 3-D (notebook 19);
 * :mod:`lsmta.real.stereo` — the Middlebury measures of a disparity map (notebook 16);
 * :mod:`lsmta.real.marker_captures` — SAPM on real marker captures: the recordings' marker
   sets, models learned from a training clip, later frames labelled (notebooks 08, 18);

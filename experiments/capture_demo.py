@@ -1,0 +1,84 @@
+"""`lsmta capture` on the Pose2Sim demo at full size, and its markers beside KLT's.
+
+    .venv/bin/python experiments/capture_demo.py [--scale 1.0] [--frames 0:100]
+        [--out build/benchmarks/capture_demo]
+
+Runs the command as a user would (the demo's four videos and its Qualisys camera file,
+refined from the recording, skin markers tracked with LSMTA), times it, and reads its files
+back with ezc3d and pyvista. Then, on the same frames, cameras and start points, the markers
+are tracked again with OpenCV's pyramidal KLT and joined and intersected the same way
+(`lsmta.systems.capture_markers`): the peer a user would pick instead. Prints and writes
+``<out>/experiment.json``: the command's time, stages and files; for both trackers the moving
+markers, their coverage, median residual and the rigid-pair distance's spread
+(`lsmta.real.own_recording`), and the ratios LSMTA / KLT. Targets (issue #40): the command
+under 5 minutes on 2 cores; every marker seen by >= 2 views in 3-D in >= 90 % of the frames;
+the rigid pair's distance std <= 3 mm; LSMTA at or below KLT on residual and spread.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import ezc3d
+import pyvista as pv
+
+from lsmta.camera_files import read_camera_toml
+from lsmta.cli import main as lsmta
+from lsmta.data import POSE2SIM_DIR
+from lsmta.io import read_videos
+from lsmta.real.own_recording import marker_scores
+from lsmta.report import write_json
+from lsmta.systems import MarkerParams, Tracker2D, capture_markers
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scale", type=float, default=1.0)
+    parser.add_argument("--frames", default="0:100")
+    parser.add_argument("--out", default="build/benchmarks/capture_demo")
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    videos = [str(POSE2SIM_DIR / f"cam0{k}.mp4") for k in (1, 2, 3, 4)]
+
+    t0 = time.perf_counter()
+    status = lsmta(["capture", "--videos", *videos, "--cameras",
+                    str(POSE2SIM_DIR / "Calib.qca.txt"), "--mismatch", "crop",
+                    "--frames", args.frames, "--scale", str(args.scale), "--markers", "skin",
+                    "--out", str(out / "capture")])
+    seconds = time.perf_counter() - t0
+    if status != 0:
+        raise SystemExit(f"lsmta capture failed with status {status}")
+    summary = json.loads((out / "capture" / "summary.json").read_text())
+    c3d = ezc3d.c3d(str(out / "capture" / "markers.c3d"))
+    plys = sorted((out / "capture" / "surfaces").glob("*.ply"))
+    readback = {"markers_c3d_points": int(c3d["parameters"]["POINT"]["USED"]["value"][0]),
+                "markers_c3d_frames": int(c3d["data"]["points"].shape[2]),
+                "ply_files": len(plys),
+                "ply_points_first": int(pv.read(plys[0]).n_points) if plys else 0}
+
+    # the same markers, cameras and frames through both 2-D trackers
+    start, stop = (int(x) for x in args.frames.split(":"))
+    v = read_videos(videos, frames=range(start, stop), scale=args.scale)
+    cameras = read_camera_toml(out / "capture" / "cameras.toml", unit="mm")
+    stacks = v.load(progress=False)
+    first = v.read(0, colour=True)
+    scores = {}
+    for tracker in (Tracker2D.LSMTA, Tracker2D.KLT):
+        params = MarkerParams(sigma=2.5 * args.scale, max_px=4.0 * args.scale,
+                              tracker=tracker)
+        scores[tracker.name] = marker_scores(capture_markers(stacks, cameras, first,
+                                                             params=params))
+    ratios = {k: scores["LSMTA"][k] / scores["KLT"][k]
+              for k in ("residual_px", "pair_std_mm", "seconds")}
+    record = {"command_seconds": seconds, "scale": args.scale, "frames": args.frames,
+              "cameras_note": summary.get("cameras_note"), "stages": summary["stages"],
+              "readback": readback, "markers": scores, "ratios_lsmta_over_klt": ratios}
+    write_json(out / "experiment.json", record)
+    print(json.dumps(record, indent=1, default=str))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,110 @@
+"""A user's own recording through the LSMTA system, judged without truth (notebook 21,
+``experiments/capture_demo.py``): the Pose2Sim demo's four videos and camera file.
+
+A real recording has no truth, so the markers are judged by what needs none:
+
+* *coverage*: the share of the frames in which each moving marker has a 3-D position;
+* *residual*: how far the intersected marker reprojects from its tracked positions;
+* *rigidity*: the distance between two markers on one rigid segment should not change. The
+  pair is chosen by a rule that does not look at the distance's spread (which is what is
+  scored): of the moving markers in 3-D in at least half of the frames, the pairs whose
+  median distance lies in ``distance_range`` (a foot's heel-to-forefoot span), the one
+  lowest in the room (the feet are the lowest markers of a person standing or walking).
+"""
+
+from __future__ import annotations
+
+import itertools
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validate import as_array
+
+
+@dataclass(frozen=True)
+class RigidPair:
+    """Two markers on one segment and their distance over time.
+
+    Attributes
+    ----------
+    markers : (int, int)
+        Indices into the markers given.
+    distance : (T,) array
+        Their distance per frame, mm (NaN where either is missing).
+    median_mm, std_mm : float
+        Median and standard deviation of the distance over the frames with both.
+    frames : int
+        Frames with both.
+    """
+
+    markers: tuple
+    distance: np.ndarray
+    median_mm: float
+    std_mm: float
+    frames: int
+
+
+def rigid_pair(xyz, *, distance_range=(60.0, 250.0), min_share: float = 0.5,
+               up=(0.0, 0.0, 1.0)) -> RigidPair | None:
+    """The lowest pair of markers at a foot's span (see the module docstring).
+
+    Parameters
+    ----------
+    xyz : (T, M, 3) array
+        Moving markers' positions, mm (NaN where missing).
+    distance_range : (float, float)
+        Accepted median distance, mm.
+    min_share : float
+        Share of the frames each marker of the pair must be in 3-D.
+    up : (3,) array
+        The world's up direction.
+
+    Returns
+    -------
+    RigidPair or None
+        None when no pair qualifies.
+    """
+    X = as_array(xyz, "xyz", shape=(None, None, 3), allow_nan=True)
+    up = np.asarray(up, float) / np.linalg.norm(up)
+    present = np.isfinite(X).all(axis=2)
+    ok = np.flatnonzero(present.mean(axis=0) >= min_share)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)          # markers often missing
+        height = np.nanmedian(X @ up, axis=0)
+        best = None
+        for i, j in itertools.combinations(ok, 2):
+            d = np.linalg.norm(X[:, i] - X[:, j], axis=1)
+            med = np.nanmedian(d)
+            if not distance_range[0] <= med <= distance_range[1]:
+                continue
+            low = height[i] + height[j]
+            if best is None or low < best[0]:
+                best = (low, (int(i), int(j)), d)
+    if best is None:
+        return None
+    _, pair, d = best
+    both = np.isfinite(d)
+    return RigidPair(markers=pair, distance=d, median_mm=float(np.median(d[both])),
+                     std_mm=float(np.std(d[both])), frames=int(both.sum()))
+
+
+def marker_scores(capture) -> dict:
+    """Coverage, residual and rigidity of a :class:`~lsmta.systems.MarkerCapture`'s moving
+    markers, as plain numbers (NaN where undefined)."""
+    m = capture
+    moving = np.flatnonzero(m.moving)
+    share = m.triangulated_share()[moving]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        residual = float(np.nanmedian(m.residual[:, moving])) if len(moving) else np.nan
+    pair = rigid_pair(m.xyz[:, moving])
+    return {"moving": int(len(moving)), "joined": int(len(m.members)),
+            "share_mean": float(share.mean()) if len(share) else np.nan,
+            "share_ge_90": float((share >= 0.9).mean()) if len(share) else np.nan,
+            "residual_px": residual,
+            "pair": None if pair is None else tuple(int(moving[i]) for i in pair.markers),
+            "pair_median_mm": np.nan if pair is None else pair.median_mm,
+            "pair_std_mm": np.nan if pair is None else pair.std_mm,
+            "seconds": m.seconds}

@@ -11,7 +11,8 @@ The stage for what a marker-based recording holds beyond the surfaces: small ski
 2. *2-D tracking* of every view's markers: LSMTA in 2-D mode
    (:func:`~lsmta.tracking.track_points`, anchored templates) or, as the peer, pyramidal
    KLT (:func:`~lsmta.tracking.klt.track_klt`), from the same start points;
-3. *joining* the views' tracks by their whole paths
+3. *joining* the tracks of views that look from one side (optical axes within
+   ``max_angle_deg``) by their whole paths
    (:func:`~lsmta.tracking.view_tracks.join_view_tracks`);
 4. *intersection* of every frame from the views that hold the marker
    (:func:`~lsmta.tracking.view_tracks.triangulate_joined`), and each marker's 3-D motion
@@ -32,6 +33,7 @@ from ..tracking import TrackerParams, track_points
 from ..tracking.klt import track_klt
 from ..tracking.markers import find_blobs, find_markers
 from ..tracking.view_tracks import join_view_tracks, joined_positions, triangulate_joined
+from .views import axis_angles
 
 
 class Tracker2D(enum.IntEnum):
@@ -64,6 +66,9 @@ class MarkerParams:
         Share of the frames two joined tracks must hold together.
     min_motion_mm : float
         A marker whose 3-D positions span less than this is still (the room), mm.
+    max_angle_deg : float
+        Only views whose optical axes are within this angle are joined (a marker on the
+        skin is seen from one side; see :func:`~lsmta.systems.views.axis_angles`).
     """
 
     detector: str = "skin"
@@ -75,11 +80,13 @@ class MarkerParams:
     max_px: float = 4.0
     min_shared: float = 0.5
     min_motion_mm: float = 50.0
+    max_angle_deg: float = 75.0
 
     def __post_init__(self):
         if self.detector not in ("skin", "blobs"):
             raise ValueError(f"detector: expected 'skin' or 'blobs', got {self.detector!r}")
-        for name in ("sigma", "min_strength", "max_px", "min_shared", "min_motion_mm"):
+        for name in ("sigma", "min_strength", "max_px", "min_shared", "min_motion_mm",
+                     "max_angle_deg"):
             as_scalar(getattr(self, name), name, positive=True)
         as_int(self.klt_window, "klt_window", minimum=3, odd=True)
         object.__setattr__(self, "tracker", Tracker2D(self.tracker))
@@ -180,7 +187,11 @@ def capture_markers(stacks, cameras, first_frames, *,
     t0 = time.perf_counter()
     view_xy = tuple(track_view(s, d, params=p) for s, d in zip(stacks, detections))
     seconds = time.perf_counter() - t0
-    joined = join_view_tracks(cams, view_xy, max_px=p.max_px, min_shared=p.min_shared)
+    angles = axis_angles(cams)
+    pairs = [(a, b) for a in range(len(cams)) for b in range(a + 1, len(cams))
+             if angles[a, b] <= p.max_angle_deg]
+    joined = join_view_tracks(cams, view_xy, max_px=p.max_px, min_shared=p.min_shared,
+                              pairs=pairs)
     xyz, residual, _ = triangulate_joined(cams, view_xy, joined.members)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)          # never intersected

@@ -3,8 +3,10 @@
 Stages: read the camera file (format from its content, unit from the format where it has
 one) -> open the videos (:func:`lsmta.io.read_videos`) -> cameras: refined from the
 recording (:func:`lsmta.systems.refine_rig`; the refined ones are used only where they fit
-held-out frames at least as well as the file's), the file's as given (``--no-refine``), or
-calibrated from a bar recording (``--bar``, the file's cameras as the nominal rig) ->
+held-out frames at least as well as the file's), the file's as given (``--no-refine``),
+calibrated from a bar recording (``--bar``, the file's cameras as the nominal rig), or from
+a ChArUco board recording (``--board``: :func:`lsmta.calibration.charuco.detect_charuco`,
+then :func:`lsmta.calibration.board.calibrate_board`) ->
 :func:`lsmta.systems.capture_recording` -> :meth:`~lsmta.systems.BodyCapture.save`.
 
 Bad input ends with exit status 2 and one line naming what is wrong.
@@ -21,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .calibration.board import calibrate_board
+from .calibration.charuco import detect_charuco, read_charuco_toml
 from .camera_files import read_camera_file
 from .io import cameras_for_videos, read_videos
 from .systems import (
@@ -51,9 +55,9 @@ def add_parser(sub) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter)
     cap.add_argument("--videos", nargs="+", required=True, metavar="VIDEO",
                      help="one synchronised video per camera, in the camera file's order")
-    cap.add_argument("--cameras", required=True, metavar="FILE",
+    cap.add_argument("--cameras", default=None, metavar="FILE",
                      help="camera file: Qualisys .qca, OpenCV YAML, aniposelib / Pose2Sim / "
-                          "caliscope TOML")
+                          "caliscope TOML (needed unless --board calibrates the cameras)")
     cap.add_argument("--out", required=True, metavar="DIR", help="folder for the results")
     cap.add_argument("--frames", default=None, metavar="START:STOP",
                      help="frames to process (0-based, STOP excluded; default: all)")
@@ -70,6 +74,10 @@ def add_parser(sub) -> None:
                      help="videos of a reference bar: calibrate from them instead")
     cap.add_argument("--bar-length", type=float, default=None, metavar="MM",
                      help="distance between the bar's targets, mm (with --bar)")
+    cap.add_argument("--board", nargs="+", metavar="VIDEO", default=None,
+                     help="videos of a ChArUco board, one per camera: calibrate from them")
+    cap.add_argument("--board-config", default=None, metavar="FILE",
+                     help="the board (caliscope's charuco.toml layout; with --board)")
     cap.add_argument("--markers", choices=("skin", "blobs"), default=None,
                      help="also find markers in every view, track and join them: skin "
                           "markers (small grey blobs on skin) or any small bright blob")
@@ -90,8 +98,28 @@ def _frames(text: str | None):
     return range(start or 0, stop) if stop is not None else slice(start or 0, None)
 
 
+def _board(args, videos, progress: bool):
+    """Cameras calibrated from ChArUco board videos, fitted to the recording's frames."""
+    if args.board_config is None:
+        raise ValueError("--board-config: the board's description (charuco.toml) is needed "
+                         "with --board")
+    board = read_charuco_toml(args.board_config)
+    bv = read_videos(args.board)
+    if bv.n_views != videos.n_views:
+        raise ValueError(f"--board: {bv.n_views} board videos for {videos.n_views} cameras")
+    corners = detect_charuco(bv.load(progress=progress), board, progress=progress)
+    cal = calibrate_board(corners.xy, corners.board, bv.file_sizes,
+                          names=[Path(p).stem for p in args.board])
+    cams = cameras_for_videos(cal.cameras, videos, mismatch=args.mismatch)
+    return cams, cal, f"calibrated from the board, image RMS {cal.bundle.rms:.3f} px"
+
+
 def _cameras(args, videos, given, progress: bool):
     """(cameras fitting the videos' frames, calibration object or None, one-line note)."""
+    if args.board:
+        return _board(args, videos, progress)
+    if given is None:
+        raise ValueError("--cameras: a camera file is needed (or --board to calibrate)")
     if args.bar:
         if args.bar_length is None:
             raise ValueError("--bar-length: the bar's length (mm) is needed with --bar")
@@ -127,7 +155,7 @@ def run(args) -> int:
     progress = not args.quiet
     t0 = time.perf_counter()
     try:
-        given = read_camera_file(args.cameras, unit=args.units)
+        given = None if args.cameras is None else read_camera_file(args.cameras, unit=args.units)
         videos = read_videos(args.videos, frames=_frames(args.frames), scale=args.scale)
         cameras, calibration, note = _cameras(args, videos, given, progress)
         print(f"lsmta capture: cameras {note}", file=sys.stderr)
@@ -144,7 +172,8 @@ def run(args) -> int:
     record["seconds_total"] = time.perf_counter() - t0
     Path(files["summary"]).write_text(json.dumps(record, indent=2), encoding="utf-8")
     for row in capture.summary():
-        print(f"  {row['stage']:<13} {row['seconds']:7.1f} s  {row['result']}", file=sys.stderr)
+        took = f"{row['seconds']:7.1f} s" if np.isfinite(row["seconds"]) else "      -  "
+        print(f"  {row['stage']:<13} {took}  {row['result']}", file=sys.stderr)
     print(f"lsmta capture: wrote {args.out} ({len(files['surfaces'])} surface files) in "
           f"{record['seconds_total']:.0f} s", file=sys.stderr)
     return 0

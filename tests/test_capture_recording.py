@@ -205,6 +205,12 @@ def test_command_help_and_bad_input(tmp_path, capsys):
     assert main(["capture", "--videos", "a.mp4", "--cameras", str(rig), "--out",
                  str(tmp_path / "o"), "--frames", "x"]) == 2
     assert "--frames" in capsys.readouterr().err
+    videos = _write_videos(tmp_path, np.zeros((2, 3, 48, 64), np.uint8), 25.0)
+    assert main(["capture", "--videos", *videos, "--out", str(tmp_path / "o")]) == 2
+    assert "--cameras: a camera file is needed" in capsys.readouterr().err
+    assert main(["capture", "--videos", *videos, "--board", *videos, "--out",
+                 str(tmp_path / "o")]) == 2
+    assert "--board-config" in capsys.readouterr().err
 
 
 @pytest.mark.slow

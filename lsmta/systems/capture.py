@@ -236,7 +236,7 @@ class BodyCapture:
             share = m.triangulated_share()[m.moving]
             rows.append(("markers", f"{[len(d) for d in m.detections]} found per view; "
                                     f"{len(m.members)} joined across views, "
-                                    f"{int(m.moving.sum())} moving (the subject's); those in "
+                                    f"{int(m.moving.sum())} of them moving; those in "
                                     f"3-D in {np.mean(share) if len(share) else 0:.0%} of "
                                     "the frames on average"))
         if self.arm is not None:
@@ -263,8 +263,9 @@ def _calibration_text(cal) -> str:
         return "cameras as given"
     if hasattr(cal, "held_out_after"):                       # a RigRefinement
         before, after = np.nanmedian(cal.held_out_before), np.nanmedian(cal.held_out_after)
+        used = "refined cameras used" if cal.improved else "the given cameras kept"
         return (f"refined from the recording; held-out tie points {before:.2f} px before, "
-                f"{after:.2f} px after (median over cameras)")
+                f"{after:.2f} px after (median over cameras): {used}")
     text = f"image RMS {cal.bundle.rms:.4f} px ({cal.rms_over_limit:.3f} x the noise limit)"
     if hasattr(cal, "n_positions"):                          # a RigCalibration
         text = (f"{cal.n_positions} bar positions, {text}, {cal.labels.n_swapped} swapped "

@@ -242,6 +242,25 @@ class Camera:
         xy_d = as_points(xy_d, "xy_d", 2)
         if not self.has_distortion:
             return xy_d.copy()
+        xy, err = self._newton_undistort(xy_d, tol, max_iter)
+        if not np.all(err < 1e-10):
+            raise ValueError(
+                f"xy_d: lens distortion cannot be inverted at {np.count_nonzero(~(err < 1e-10))} "
+                "point(s); they lie where the distortion polynomial folds over"
+            )
+        return xy
+
+    def invertible(self, xy) -> np.ndarray:
+        """``(N,)`` bool: the pixel positions ``xy`` ``(N, 2)`` lie where the lens model can be
+        inverted (always, without distortion); :meth:`rays` raises for the others."""
+        xy_d = self.pixel_to_normalized(xy)
+        if not self.has_distortion:
+            return np.isfinite(xy_d).all(axis=1)
+        return self._newton_undistort(xy_d, 1e-14, 30)[1] < 1e-10
+
+    def _newton_undistort(self, xy_d, tol, max_iter):
+        """Newton's iterations of :meth:`undistort`; returns the points and the error of
+        distorting them back."""
         xd, yd = xy_d[:, 0], xy_d[:, 1]
         x, y = xd.copy(), yd.copy()
         k1, k2, k3, p1, p2 = self.k1, self.k2, self.k3, self.p1, self.p2
@@ -262,13 +281,7 @@ class Camera:
             if np.all(np.abs(dx) + np.abs(dy) < tol):
                 break
         back = self._distort(x, y)
-        err = np.hypot(back[:, 0] - xd, back[:, 1] - yd)
-        if not np.all(err < 1e-10):
-            raise ValueError(
-                f"xy_d: lens distortion cannot be inverted at {np.count_nonzero(~(err < 1e-10))} "
-                "point(s); they lie where the distortion polynomial folds over"
-            )
-        return np.stack([x, y], axis=-1)
+        return np.stack([x, y], axis=-1), np.hypot(back[:, 0] - xd, back[:, 1] - yd)
 
     def normalized_to_pixel(self, xy_d) -> np.ndarray:
         """Pixel coordinates of distorted normalised coordinates ``(N, 2)``."""

@@ -254,6 +254,10 @@ def _names(view: ViewCapture) -> str:
     return "+".join(c.name or str(k) for k, c in zip(view.group.cameras, view.cameras))
 
 
+def _joined_names(cameras) -> str:
+    return "+".join(c.name or "?" for c in cameras)
+
+
 def _surface_points(surfaces: dict) -> int:
     return int(surfaces[min(surfaces)].neighbourhood_ok.sum()) if surfaces else 0
 
@@ -415,18 +419,22 @@ def _surfaces(st: _State) -> None:
     p = st.params
     for g, (v, cams), noise in zip(st.groups, st.inputs, st.noise):
         surface = replace(p.surface, template=g.template_position)
-        st.surfaces.append(measure_surfaces(v, cams, range(0, v.shape[1], p.density_every),
-                                            sigma=noise.sigma, params=surface,
-                                            progress=st.progress))
+        try:
+            st.surfaces.append(measure_surfaces(v, cams, range(0, v.shape[1], p.density_every),
+                                                sigma=noise.sigma, params=surface,
+                                                progress=st.progress))
+        except ValueError as err:                   # no seed in some frame: none to grow
+            warnings.warn(f"capture_recording: view group {_joined_names(cams)}: {err}",
+                          stacklevel=3)
+            st.surfaces.append({})
 
 
 def _tracking(st: _State) -> None:
     p = st.params
     for g, (v, cams), surfaces in zip(st.groups, st.inputs, st.surfaces):
         if _surface_points(surfaces) == 0:
-            warnings.warn(f"capture_recording: view group {'+'.join(c.name or '?' for c in cams)}"
-                          " has no surface point in its first frame; it is left out",
-                          stacklevel=3)
+            warnings.warn(f"capture_recording: view group {_joined_names(cams)} has no "
+                          "surface point in its first frame; it is left out", stacklevel=3)
             st.tracks.append(None)
             continue
         tracker = replace(p.tracker, density_every=p.density_every,

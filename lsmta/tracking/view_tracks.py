@@ -7,7 +7,8 @@ the median of its larger reprojection error over those frames. A track pair is a
 when that median is at most ``max_px``, it shares at least ``min_shared`` of the frames,
 its points lie in front of both cameras, and each track is the other's best partner
 (mutual). Matches are chained over the view pairs into multi-view points (union-find); a
-chain that holds two tracks of one view is dropped.
+chain that holds two tracks of one view is dropped. A position outside its image, or where
+the camera's lens model cannot be inverted, is not an observation.
 
 A coincidence along an epipolar line holds in one frame, rarely through a moving path:
 joining by paths is what makes an unlabelled 2-D track usable with cameras a few pixels
@@ -61,7 +62,21 @@ def _checked(cameras, xy) -> tuple[list, list]:
     if len({a.shape[0] for a in arrays}) != 1:
         raise ValueError(f"xy: expected the same number of frames in every view, got "
                          f"{[a.shape[0] for a in arrays]}")
-    return cams, arrays
+    return cams, [_observed(c, a) for c, a in zip(cams, arrays)]
+
+
+def _observed(camera: Camera, xy: np.ndarray) -> np.ndarray:
+    """A copy of ``xy`` with NaN where a position is outside the image or where the lens
+    model cannot be inverted (a track that drifted there is no observation)."""
+    out = np.array(xy, float)
+    flat = out.reshape(-1, 2)
+    inside = (np.isfinite(flat).all(axis=1) & (flat[:, 0] >= -0.5)
+              & (flat[:, 0] <= camera.width - 0.5) & (flat[:, 1] >= -0.5)
+              & (flat[:, 1] <= camera.height - 0.5))
+    idx = np.flatnonzero(inside)
+    inside[idx] = camera.invertible(flat[idx]) if idx.size else inside[idx]
+    flat[~inside] = np.nan
+    return out
 
 
 def pair_residuals(camera_a: Camera, camera_b: Camera, xy_a, xy_b, *,
@@ -92,7 +107,9 @@ def pair_residuals(camera_a: Camera, camera_b: Camera, xy_a, xy_b, *,
                           min_angle_deg=0.0)
         X = res.points
         depth = np.stack([((X - c.C) @ c.R[2]) for c in (camera_a, camera_b)])
-        e = np.nanmax(res.reprojection_error, axis=0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)      # rays that did not meet
+            e = np.nanmax(res.reprojection_error, axis=0)
         err[both] = np.where((depth > 0).all(axis=0) & res.valid, e, np.inf)
     err = err.reshape(T, Na, Nb)
     shared = np.isfinite(err) | np.isinf(err)

@@ -377,6 +377,19 @@ class BoardPoints:
         return int(np.isfinite(self.xy[..., 0]).sum())
 
 
+def _csv_columns(path: Path, need: tuple, what: str) -> np.ndarray:
+    """The ``need`` columns of a CSV file as a float array ``(rows, len(need))``."""
+    with open(path, newline="", encoding="utf-8-sig") as fh:
+        reader = csv.DictReader(fh)
+        lacking = [c for c in need if c not in (reader.fieldnames or ())]
+        if lacking:
+            raise ValueError(f"path: {path} lacks the columns {lacking}")
+        rows = [[float(r[c]) for c in need] for r in reader]
+    if not rows:
+        raise ValueError(f"path: {path} has no {what}")
+    return np.array(rows)
+
+
 def read_caliscope_points(path, *, unit: str = "m") -> BoardPoints:
     """Read the board corners of a caliscope recording (its ``xy.csv``).
 
@@ -401,17 +414,8 @@ def read_caliscope_points(path, *, unit: str = "m") -> BoardPoints:
         raise FileNotFoundError(f"path: no caliscope point file at {path}")
     if unit not in _UNIT_TO_MM:
         raise ValueError(f"unit: expected one of {sorted(_UNIT_TO_MM)}, got {unit!r}")
-    need = ("sync_index", "cam_id", "keypoint_id", "img_loc_x", "img_loc_y", "obj_loc_x",
-            "obj_loc_y")
-    with open(path, newline="", encoding="utf-8-sig") as fh:
-        reader = csv.DictReader(fh)
-        lacking = [c for c in need if c not in (reader.fieldnames or ())]
-        if lacking:
-            raise ValueError(f"path: {path} lacks the columns {lacking}")
-        rows = [[float(r[c]) for c in need] for r in reader]
-    if not rows:
-        raise ValueError(f"path: {path} has no corners")
-    a = np.array(rows)
+    a = _csv_columns(path, ("sync_index", "cam_id", "keypoint_id", "img_loc_x", "img_loc_y",
+                            "obj_loc_x", "obj_loc_y"), "corners")
     frames, f_idx = np.unique(a[:, 0].astype(int), return_inverse=True)
     cams, k_idx = np.unique(a[:, 1].astype(int), return_inverse=True)
     corners, c_idx = np.unique(a[:, 2].astype(int), return_inverse=True)
@@ -459,16 +463,7 @@ def read_caliscope_times(path) -> FrameTimes:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"path: no caliscope time stamp file at {path}")
-    need = ("sync_index", "cam_id", "frame_time")
-    with open(path, newline="", encoding="utf-8-sig") as fh:
-        reader = csv.DictReader(fh)
-        lacking = [c for c in need if c not in (reader.fieldnames or ())]
-        if lacking:
-            raise ValueError(f"path: {path} lacks the columns {lacking}")
-        rows = [[float(r[c]) for c in need] for r in reader]
-    if not rows:
-        raise ValueError(f"path: {path} has no frames")
-    a = np.array(rows)
+    a = _csv_columns(path, ("sync_index", "cam_id", "frame_time"), "frames")
     frames, f_idx = np.unique(a[:, 0].astype(int), return_inverse=True)
     cams, k_idx = np.unique(a[:, 1].astype(int), return_inverse=True)
     if len(set(zip(k_idx, f_idx))) != len(a):

@@ -6,7 +6,8 @@ of views, every pair of their tracks is intersected in every frame both hold, an
 the median of its larger reprojection error over those frames. A track pair is a match
 when that median is at most ``max_px``, it shares at least ``min_shared`` of the frames,
 its points lie in front of both cameras, and each track is the other's best partner
-(mutual). Matches are chained over the view pairs into multi-view points (union-find); a
+(mutual). Matches are chained over the view pairs into multi-view points (the connected
+components of the match graph, :func:`scipy.sparse.csgraph.connected_components`); a
 chain that holds two tracks of one view is dropped. A position outside its image, or where
 the camera's lens model cannot be inverted, is not an observation.
 
@@ -22,6 +23,8 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from .._validate import as_array, as_scalar, freeze
 from ..camera import Camera
@@ -149,14 +152,6 @@ def join_view_tracks(cameras, xy, *, max_px: float = 3.0, min_shared: float = 0.
         raise ValueError(f"min_shared: expected a share in (0, 1], got {min_shared}")
     K = len(cams)
     offsets = np.concatenate([[0], np.cumsum([a.shape[1] for a in arrays])])
-    parent = np.arange(offsets[-1])
-
-    def root(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
     links = []
     for a, b in (pairs if pairs is not None else itertools.combinations(range(K), 2)):
         if arrays[a].shape[1] == 0 or arrays[b].shape[1] == 0:
@@ -167,15 +162,17 @@ def join_view_tracks(cameras, xy, *, max_px: float = 3.0, min_shared: float = 0.
         for i, j in enumerate(best_b):
             if filled[i, j] <= max_px and best_a[j] == i:
                 links.append((offsets[a] + i, offsets[b] + j, r[i, j]))
-    for i, j, _ in links:
-        parent[root(i)] = root(j)
-    view = np.searchsorted(offsets, np.arange(offsets[-1]), side="right") - 1
-    groups: dict[int, list] = {}
-    for i in range(offsets[-1]):
-        groups.setdefault(root(i), []).append(i)
+    n = int(offsets[-1])
+    ij = np.array([(i, j) for i, j, _ in links], int).reshape(-1, 2)
+    graph = coo_matrix((np.ones(len(ij)), (ij[:, 0], ij[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)       # the chains
+    view = np.searchsorted(offsets, np.arange(n), side="right") - 1
     worst = {}
     for i, _, r in links:
-        worst[root(i)] = max(worst.get(root(i), 0.0), r)
+        worst[label[i]] = max(worst.get(label[i], 0.0), r)
+    groups: dict[int, list] = {}
+    for i in range(n):
+        groups.setdefault(label[i], []).append(i)
     members, pair_px = [], []
     for key, idx in groups.items():
         if len(idx) < 2 or len(set(view[idx])) < len(idx):

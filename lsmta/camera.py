@@ -50,6 +50,11 @@ from ._validate import as_array, as_int, as_points, as_rotation, as_scalar, as_v
 DISTORTION_NAMES = ("k1", "k2", "k3", "p1", "p2", "b1", "b2")
 
 
+#: largest error of distorting an undistorted point back, in normalised units: a point
+#: beyond it lies where the distortion polynomial folds over
+_INVERTED = 1e-10
+
+
 @dataclass(frozen=True, eq=False)
 class Camera:
     """A calibrated frame camera (see the module docstring for the conventions).
@@ -243,9 +248,10 @@ class Camera:
         if not self.has_distortion:
             return xy_d.copy()
         xy, err = self._newton_undistort(xy_d, tol, max_iter)
-        if not np.all(err < 1e-10):
+        if not np.all(err < _INVERTED):
+            bad = np.count_nonzero(~(err < _INVERTED))
             raise ValueError(
-                f"xy_d: lens distortion cannot be inverted at {np.count_nonzero(~(err < 1e-10))} "
+                f"xy_d: lens distortion cannot be inverted at {bad} "
                 "point(s); they lie where the distortion polynomial folds over"
             )
         return xy
@@ -256,7 +262,7 @@ class Camera:
         xy_d = self.pixel_to_normalized(xy)
         if not self.has_distortion:
             return np.isfinite(xy_d).all(axis=1)
-        return self._newton_undistort(xy_d, 1e-14, 30)[1] < 1e-10
+        return self._newton_undistort(xy_d, 1e-14, 30)[1] < _INVERTED
 
     def _newton_undistort(self, xy_d, tol, max_iter):
         """Newton's iterations of :meth:`undistort`; returns the points and the error of

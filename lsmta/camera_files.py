@@ -475,9 +475,13 @@ def read_camera_file(path, *, unit: str | None = None) -> list[Camera]:
         return read_qca(path)
     if fmt == "opencv":
         return read_opencv_yaml(path, unit=unit)
-    if fmt == "toml" and unit is None:
+    if fmt == "toml":
         with open(path, "rb") as fh:
-            unit = tomllib.load(fh).get("metadata", {}).get("unit")
+            stated = tomllib.load(fh).get("metadata", {}).get("unit")
+        if stated is not None and unit is not None and unit != stated:
+            raise ValueError(f"unit: {Path(path).name} states its unit as {stated!r}; got "
+                             f"unit={unit!r}")
+        unit = unit or stated
         if unit is None:
             raise ValueError(f"unit: {Path(path).name} (aniposelib / Pose2Sim TOML) does not "
                              "state the unit of its translations; give it (mm, cm or m; "

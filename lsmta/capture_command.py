@@ -116,6 +116,10 @@ def _board(args, videos, progress: bool):
 
 def _cameras(args, videos, given, progress: bool):
     """(cameras fitting the videos' frames, calibration object or None, one-line note)."""
+    if args.board and args.bar:
+        raise ValueError("--board, --bar: give one calibration recording, not both")
+    if args.board and args.bar:
+        raise ValueError("--board, --bar: give one calibration recording, not both")
     if args.board:
         return _board(args, videos, progress)
     if given is None:
@@ -129,6 +133,9 @@ def _cameras(args, videos, given, progress: bool):
         if len({s.shape for s in stacks}) != 1:
             raise ValueError("--bar: the bar videos must all have one frame size")
         cal = calibrate_rig(np.stack(stacks), args.bar_length, nominal, progress=progress)
+        if [(c.width, c.height) for c in cal.cameras] != [tuple(s) for s in videos.sizes]:
+            raise ValueError(f"--bar: the bar videos' frames are {list(bar.sizes)} px but the "
+                             f"recording's are {list(videos.sizes)}; record both at one size")
         return cal.cameras, cal, f"calibrated from the bar, image RMS {cal.bundle.rms:.3f} px"
     if args.no_refine:
         return cameras_for_videos(given, videos, mismatch=args.mismatch), None, "as given"
@@ -162,7 +169,7 @@ def run(args) -> int:
         capture = capture_recording(videos, cameras, calibration=calibration,
                                     params=_params(args),
                                     progress=progress)
-    except (ValueError, FileNotFoundError, TypeError) as err:
+    except (ValueError, FileNotFoundError) as err:
         message = str(err).replace("pass mismatch='crop'", "pass --mismatch crop")
         print(f"lsmta capture: {message.splitlines()[0]}", file=sys.stderr)
         return 2

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from lsmta.camera import Camera
+from lsmta.real.own_recording import rigid_pair
 from lsmta.systems import MarkerParams, Tracker2D, capture_markers
 from lsmta.tracking.markers import find_blobs
 from lsmta.tracking.view_tracks import (
@@ -70,6 +71,12 @@ def test_pair_residuals_need_shared_frames_and_points_in_front():
     assert pair_residuals(cams[0], cams[1], a, b)[0, 0] < 1e-6
     gone = np.full_like(b, np.nan)
     assert np.isnan(pair_residuals(cams[0], cams[1], a, gone)[0, 0])
+    # rays that meet only behind the cameras: a point in front of a, mirrored through b's
+    # centre, is seen by b along the same line from behind
+    X = np.array([[0.0, 0.0, 0.0]])
+    behind = cams[1].project(2 * cams[1].C - X + 1e-3, behind="nan")
+    assert np.isnan(behind).all() or np.isnan(pair_residuals(cams[0], cams[1], a,
+                                                             behind[None])[0, 0])
     with pytest.raises(ValueError, match="xy: expected 2 track arrays"):
         join_view_tracks(cams, [a])
     with pytest.raises(ValueError, match="min_shared"):
@@ -115,3 +122,30 @@ def test_capture_markers_on_rendered_dots(tracker):
         MarkerParams(detector="leds")
     with pytest.raises(ValueError, match="one per view"):
         capture_markers(stacks, cams[:1], [s[0] for s in stacks], params=params)
+
+
+def test_rigid_pair_is_the_lowest_pair_at_a_foot_span():
+    rng = np.random.default_rng(2)
+    T = 50
+    walk = np.cumsum(rng.normal(0, 5, (T, 1, 3)), axis=0)
+    heel, toe = np.array([0.0, 0, 50]), np.array([180.0, 0, 40])
+    hip, knee = np.array([0.0, 0, 950]), np.array([20.0, 0, 500])
+    X = walk + np.stack([hip, knee, heel, toe])[None] + rng.normal(0, 1.0, (T, 4, 3))
+    X[::7, 1] = np.nan
+    p = rigid_pair(X)
+    assert p.markers == (2, 3) and abs(p.median_mm - 180.3) < 2 and p.std_mm < 2.5
+    assert p.frames == T
+    assert rigid_pair(X[:, :2]) is None                  # hip-knee: 450 mm, not a foot
+
+
+def test_camera_invertible_marks_where_the_lens_folds():
+    cam = _rig(1)[0].replace(k1=0.3, k2=-0.5)           # folds some way outside the image
+    grid = np.stack(np.meshgrid(np.linspace(-4000, 4800, 40), np.linspace(-4000, 4600, 40)),
+                    axis=-1).reshape(-1, 2)
+    ok = cam.invertible(grid)
+    assert 0 < (~ok).sum() < len(grid) and ok[np.argmin(np.linalg.norm(grid - 400, axis=1))]
+    cam.rays(grid[ok])                                    # every one it accepts is inverted
+    for xy in grid[~ok][:: max(1, (~ok).sum() // 20)]:
+        with pytest.raises(ValueError, match="cannot be inverted"):
+            cam.rays(xy[None])
+    assert np.all(_rig(1)[0].invertible(grid))           # no distortion: always

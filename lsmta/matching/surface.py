@@ -80,6 +80,11 @@ class SurfaceResult:
     points: np.ndarray
     points_xy: np.ndarray
 
+    @property
+    def kept(self) -> np.ndarray:
+        """``(N,)`` bool: passed the filters and intersected (the surface's points)."""
+        return self.neighbourhood_ok & self.intersection.valid
+
 
 @dataclass(frozen=True)
 class MeasureSurfaceParams:

@@ -98,6 +98,10 @@ def fit_arm(trajectories: Trajectories, cameras, *, settings: ArmFitParams | Non
     if not np.isfinite(X).all(axis=2).any():
         raise ValueError("trajectories: no trajectory has a position")
     facing = -np.mean([c.R[2] for c in cams], axis=0)      # against the viewing direction
+    if np.hypot(facing[0], facing[1]) < 0.3:
+        raise ValueError("cameras: they do not look at the person from one side (their mean "
+                         "horizontal viewing direction nearly cancels), so the person's facing "
+                         "direction is unknown; fit the arm with the cameras in front of it")
     start = arm_start(trajectories, forward=facing, up=(0.0, 0.0, 1.0),
                       tolerance=s.rigidity_mm, rng=rng)
     present = np.isfinite(X).all(axis=2)

@@ -146,7 +146,9 @@ class BodyCapture:
         Where they came from (a RigCalibration, RigRefinement, BoardCalibration ...); None
         for cameras taken as given.
     frames : (T,) int array
-        The frames of the input videos that were processed (index 0 here is ``frames[0]``).
+        The frames of the input videos that were processed (index 0 here is ``frames[0]``):
+        for a :class:`~lsmta.io.Videos`, the frame numbers in its files; for arrays, indices
+        into them.
     fps : float
     views : tuple of ViewCapture
         One per view group.
@@ -259,7 +261,8 @@ def _joined_names(cameras) -> str:
 
 
 def _surface_points(surfaces: dict) -> int:
-    return int(surfaces[min(surfaces)].neighbourhood_ok.sum()) if surfaces else 0
+    """Points of the first frame's surface (0 without one)."""
+    return int(surfaces[0].kept.sum()) if 0 in surfaces else 0
 
 
 def _calibration_text(cal) -> str:
@@ -400,12 +403,17 @@ class _State:
     markers: MarkerCapture | None = None
 
 
+def _span(frames) -> slice:
+    """The consecutive frames as a slice (a view of the stacks, not a copy)."""
+    return slice(int(frames[0]), int(frames[-1]) + 1)
+
+
 def _view_groups(st: _State) -> None:
     st.groups = view_groups(st.cameras, max_angle_deg=st.params.max_angle_deg)
     for g in st.groups:
         w = min(st.stacks[k].shape[2] for k in g.cameras)
         h = min(st.stacks[k].shape[1] for k in g.cameras)
-        videos = np.stack([st.stacks[k][st.frames, :h, :w] for k in g.cameras])
+        videos = np.stack([st.stacks[k][_span(st.frames), :h, :w] for k in g.cameras])
         cams = [st.cameras[k] if (st.cameras[k].width, st.cameras[k].height) == (w, h)
                 else cropped_camera(st.cameras[k], 0, 0, w, h) for k in g.cameras]
         st.inputs.append((videos, cams))
@@ -419,14 +427,9 @@ def _surfaces(st: _State) -> None:
     p = st.params
     for g, (v, cams), noise in zip(st.groups, st.inputs, st.noise):
         surface = replace(p.surface, template=g.template_position)
-        try:
-            st.surfaces.append(measure_surfaces(v, cams, range(0, v.shape[1], p.density_every),
-                                                sigma=noise.sigma, params=surface,
-                                                progress=st.progress))
-        except ValueError as err:                   # no seed in some frame: none to grow
-            warnings.warn(f"capture_recording: view group {_joined_names(cams)}: {err}",
-                          stacklevel=3)
-            st.surfaces.append({})
+        st.surfaces.append(measure_surfaces(v, cams, range(0, v.shape[1], p.density_every),
+                                            sigma=noise.sigma, params=surface,
+                                            progress=st.progress))
 
 
 def _tracking(st: _State) -> None:
@@ -460,7 +463,7 @@ def _trajectories(st: _State) -> None:
 
 def _markers(st: _State) -> None:
     if st.params.markers is not None:
-        stacks = [s[st.frames] for s in st.stacks]
+        stacks = [s[_span(st.frames)] for s in st.stacks]
         st.markers = capture_markers(stacks, st.cameras, st.first_frames,
                                      params=st.params.markers)
 
@@ -512,6 +515,7 @@ def capture_recording(videos, cameras, *, fps: float | None = None, frames=None,
         raise TypeError(f"params: expected a CaptureParams, got {type(p).__name__}")
     stacks, rate = _stacks(videos, len(cams), progress)
     _check_sizes(stacks, cams)
+    file_frames = np.asarray(videos.frames) if isinstance(videos, Videos) else None
     if fps is None and rate is None:
         raise ValueError("fps: expected the frame rate (Hz) of videos given as arrays")
     fps = as_scalar(fps if fps is not None else rate, "fps", positive=True)
@@ -530,6 +534,7 @@ def capture_recording(videos, cameras, *, fps: float | None = None, frames=None,
     views = tuple(ViewCapture(group=g, cameras=c, noise=n, surfaces=s, tracks=t, points=sl)
                   for g, (_, c), n, s, t, sl in zip(st.groups, st.inputs, st.noise,
                                                     st.surfaces, st.tracks, st.slices))
-    return BodyCapture(cameras=cams, calibration=calibration, frames=idx, fps=fps, views=views,
+    frames = idx if file_frames is None else file_frames[idx]
+    return BodyCapture(cameras=cams, calibration=calibration, frames=frames, fps=fps, views=views,
                        trajectories=st.trajectories, filters=st.filters, arm=st.arm,
                        markers=st.markers, seconds=seconds, params=p)

@@ -69,7 +69,7 @@ def surface_cloud(capture, frame: int):
         s = view.surfaces.get(frame)
         if s is None:
             continue
-        ok = s.neighbourhood_ok & s.intersection.valid
+        ok = s.kept
         parts.append(s.intersection.points[ok])
         groups.append(np.full(int(ok.sum()), g + 1.0))
         sigma.append(np.linalg.norm(s.sigma_xy, axis=2).max(axis=0)[ok])
@@ -93,7 +93,7 @@ def capture_record(capture) -> dict:
             "cameras": [c.name or str(k) for k, c in zip(v.group.cameras, v.cameras)],
             "template": v.cameras[v.group.template_position].name or str(v.group.template),
             "noise_sigma": float(v.noise.sigma),
-            "surface_points": {int(capture.frames[t]): int(s.neighbourhood_ok.sum())
+            "surface_points": {int(capture.frames[t]): int(s.kept.sum())
                                for t, s in sorted(v.surfaces.items())},
             "tracks": 0 if v.tracks is None else len(v.tracks),
             "alive_at_end": 0 if v.tracks is None else int(v.tracks.alive[-1].sum()),

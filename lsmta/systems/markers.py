@@ -89,7 +89,12 @@ class MarkerParams:
                      "max_angle_deg"):
             as_scalar(getattr(self, name), name, positive=True)
         as_int(self.klt_window, "klt_window", minimum=3, odd=True)
-        object.__setattr__(self, "tracker", Tracker2D(self.tracker))
+        try:
+            object.__setattr__(self, "tracker", Tracker2D(self.tracker))
+        except ValueError:
+            names = ", ".join(t.name for t in Tracker2D)
+            raise ValueError(f"tracker: expected a Tracker2D ({names}), got "
+                             f"{self.tracker!r}") from None
 
 
 @dataclass(frozen=True, eq=False)

@@ -23,6 +23,7 @@ the frame's best correspondences, measure them.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,7 +60,8 @@ class SurfaceParams:
     retry_patch : tuple of int
         Patches of the retries.
     sigma0_factor : float
-        The LSM's ``max_sigma0`` is this many times the image noise.
+        The LSM's ``max_sigma0`` is this many times the larger of the image noise and the
+        seeds' own residual level over sqrt(2) (see the module docstring).
     max_sigma_xy : float
         Largest accepted standard deviation of a match, px.
     """
@@ -122,7 +124,8 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
     frames : iterable of int
         Frames to measure.
     sigma : float
-        Image noise, grey levels (e.g. :func:`~lsmta.noise.temporal_noise`).
+        Image noise, grey levels (e.g. :func:`~lsmta.noise.temporal_noise`); the sigma0
+        limit is the larger of this rule and the seeds' (module docstring).
     params : SurfaceParams, optional
     progress : bool
         Show a progress bar over the frames.
@@ -130,6 +133,7 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
     Returns
     -------
     dict of int -> SurfaceResult
+        Frames without a seed are left out (with a warning).
     """
     cams = check_cameras(cameras, "cameras")
     v = check_videos(videos, "videos", cams, min_frames=1)
@@ -148,8 +152,10 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
         seeds = find_seeds(v[:, f], cams, template=p.template, n_seeds=p.n_seeds,
                            depth_range=(0.6 * d, 1.6 * d))
         if seeds.xy.shape[1] == 0:
-            raise ValueError(f"videos: no seed found in frame {f} (no textured point matches "
-                             "along the epipolar curves); check the calibration")
+            warnings.warn(f"measure_surfaces: no seed found in frame {f} (no textured point "
+                          "matches along the epipolar curves); the frame is left out",
+                          stacklevel=2)
+            continue
         level = seed_residual(v[:, f], seeds.xy, template=p.template, patch=p.patch)
         limit = p.sigma0_factor * max(sigma, np.nan_to_num(level / np.sqrt(2)))
         thresholds = LSMThresholds(max_sigma0=limit, max_displacement=p.step,

@@ -89,7 +89,7 @@ def capture_body(videos, bar_videos, bar_length: float, nominal_cameras, *, fps:
     """
     nominal = check_cameras(nominal_cameras, "nominal_cameras")
     v = check_videos(videos, "videos", nominal, min_frames=3)
-    _frame_indices(frames, v.shape[1])
+    _frame_indices(frames, v.shape[1])          # refuse bad frames before the calibration
     fps = as_scalar(fps, "fps", positive=True)
     p = params or BodySystemParams()
     if not isinstance(p, BodySystemParams):

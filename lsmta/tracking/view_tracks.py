@@ -82,6 +82,31 @@ def _observed(camera: Camera, xy: np.ndarray) -> np.ndarray:
     return out
 
 
+#: track pairs intersected per call of :func:`pair_residuals` (bounds its memory)
+_CHUNK = 200_000
+
+
+def _pair_errors(camera_a, camera_b, xy_a, xy_b) -> np.ndarray:
+    """``(T, Na, Nb)`` larger reprojection error of every pair in every frame, px: NaN where
+    either is missing, inf where the point lies behind a camera or the rays do not meet."""
+    T, Na, _ = xy_a.shape
+    Nb = xy_b.shape[1]
+    a = np.broadcast_to(xy_a[:, :, None], (T, Na, Nb, 2)).reshape(-1, 2)
+    b = np.broadcast_to(xy_b[:, None], (T, Na, Nb, 2)).reshape(-1, 2)
+    both = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
+    err = np.full(len(a), np.nan)
+    if both.any():
+        res = triangulate([camera_a, camera_b], np.stack([a[both], b[both]]),
+                          min_angle_deg=0.0)
+        X = res.points
+        depth = np.stack([((X - c.C) @ c.R[2]) for c in (camera_a, camera_b)])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)      # rays that did not meet
+            e = np.nanmax(res.reprojection_error, axis=0)
+        err[both] = np.where((depth > 0).all(axis=0) & res.valid, e, np.inf)
+    return err.reshape(T, Na, Nb)
+
+
 def pair_residuals(camera_a: Camera, camera_b: Camera, xy_a, xy_b, *,
                    min_shared: float = 0.5) -> np.ndarray:
     """Median over frames of the larger reprojection error of every track pair, px.
@@ -101,20 +126,11 @@ def pair_residuals(camera_a: Camera, camera_b: Camera, xy_a, xy_b, *,
     """
     T, Na, _ = xy_a.shape
     Nb = xy_b.shape[1]
-    a = np.broadcast_to(xy_a[:, :, None], (T, Na, Nb, 2)).reshape(-1, 2)
-    b = np.broadcast_to(xy_b[:, None], (T, Na, Nb, 2)).reshape(-1, 2)
-    both = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
-    err = np.full(len(a), np.nan)
-    if both.any():
-        res = triangulate([camera_a, camera_b], np.stack([a[both], b[both]]),
-                          min_angle_deg=0.0)
-        X = res.points
-        depth = np.stack([((X - c.C) @ c.R[2]) for c in (camera_a, camera_b)])
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)      # rays that did not meet
-            e = np.nanmax(res.reprojection_error, axis=0)
-        err[both] = np.where((depth > 0).all(axis=0) & res.valid, e, np.inf)
-    err = err.reshape(T, Na, Nb)
+    err = np.full((T, Na, Nb), np.nan)
+    step = max(1, _CHUNK // max(1, Na * Nb))           # frames per intersection call
+    for t0 in range(0, T, step):
+        err[t0:t0 + step] = _pair_errors(camera_a, camera_b, xy_a[t0:t0 + step],
+                                         xy_b[t0:t0 + step])
     shared = np.isfinite(err) | np.isinf(err)
     enough = shared.sum(axis=0) >= max(1, min_shared * T)
     behind = np.isinf(err).any(axis=0)

@@ -1,5 +1,7 @@
 """The suite's order: the longest files first, so that pytest-xdist's workers (one file at a
-time, ``--dist loadfile``) finish together instead of one waiting on a long notebook.
+time, ``--dist loadfile --no-loadscope-reorder``: xdist would otherwise hand out the files
+with the most tests first, and every notebook, one test each, last) finish together instead
+of one waiting on a long notebook.
 
 ``HEAVY`` lists the slowest files as measured by ``pytest --durations`` on 2 cores
 (2026-11-27: notebook 20 about 6 min, 14 about 3 min, then 07, 15, the video refinement

@@ -8,6 +8,6 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/bootstrap.sh
 source scripts/env.sh
-.venv/bin/ruff check lsmta tests experiments notebooks
+.venv/bin/ruff check --no-cache lsmta tests experiments notebooks
 export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 NUMBA_NUM_THREADS=1
 .venv/bin/python -m pytest notebooks tests --nbmake --nbmake-timeout=600 -n auto --dist loadfile --no-loadscope-reorder "$@"

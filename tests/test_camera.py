@@ -1,8 +1,8 @@
 import cv2
 import numpy as np
 import pytest
-from conftest import random_camera
 
+from conftest import random_camera
 from lsmta.camera import Camera
 
 

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import random_camera
 
+from conftest import random_camera
 from lsmta import camera_files as cf
 from lsmta.io import read_caliscope_points, read_xypts, write_xypts
 

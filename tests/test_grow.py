@@ -2,8 +2,8 @@ from dataclasses import fields
 
 import numpy as np
 import pytest
-from conftest import occlusion_pair, smaller
 
+from conftest import occlusion_pair, smaller
 from lsmta.matching import LSMThresholds
 from lsmta.matching.filters import neighbourhood_filter
 from lsmta.matching.grow import GrowParams, grow_matches

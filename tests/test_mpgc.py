@@ -5,8 +5,8 @@ from dataclasses import fields
 
 import numpy as np
 import pytest
-from conftest import smaller
 
+from conftest import smaller
 from lsmta.data import load_cones
 from lsmta.matching import (
     CameraGeometry,

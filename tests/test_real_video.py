@@ -6,8 +6,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from conftest import random_camera
 
+from conftest import random_camera
 from lsmta.data import load_demo
 from lsmta.real import pose2sim_video as rv
 from lsmta.tracking.correspondence import match_views

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
-from conftest import smaller
 
+from conftest import smaller
 from lsmta.evaluation.surface import (
     classify_misses,
     node_truth,

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
-from conftest import random_camera
 
+from conftest import random_camera
 from lsmta.synth import triplet_rig
 from lsmta.triangulation import intersect_rays, triangulate
 

@@ -9,7 +9,11 @@ the records are appended to the file named by the environment variable
 A record has a ``kind``: ``"result"`` (a measured number, the default), ``"setting"`` (a
 number the notebook chose, such as an image size or a noise level picked to match the
 paper: not a result, so it stays out of the paper-against-ours table) or ``"timing"`` (a
-wall-clock time, which differs from run to run). :func:`verdict` writes a target's
+wall-clock time, which differs from run to run). A result also says which ground truth
+of the generator it leaned on (``truth``): ``"none"`` where the number comes from the
+system's own measurements, otherwise the truth inputs in words ("true cameras", "starts
+from truth", "aligned on the true check points", ...); a target judged on such a record is
+a controlled study and says so (``controlled=True``). :func:`verdict` writes a target's
 "met" / "NOT met" from a computed truth value, and :func:`build_dir` says where
 ``lsmta reproduce`` writes (``LSMTA_BUILD_DIR``), for a notebook that quotes a benchmark.
 """
@@ -43,6 +47,8 @@ class Record:
     paper: float | int | str | None = None
     note: str = ""
     kind: str = "result"
+    truth: str = "unstated"
+    controlled: bool = False
 
     def _repr_markdown_(self) -> str:
         return table([self])
@@ -59,7 +65,8 @@ def _check_value(value, name: str):
 
 
 def record(figure: str, quantity: str, value, unit: str = "", *, paper=None,
-           note: str = "", kind: str = "result") -> Record:
+           note: str = "", kind: str = "result", truth: str | None = None,
+           controlled: bool = False) -> Record:
     """Record one headline number of a figure next to the paper's.
 
     Parameters
@@ -79,20 +86,33 @@ def record(figure: str, quantity: str, value, unit: str = "", *, paper=None,
     kind : {"result", "setting", "timing"}
         ``"setting"`` for a number the notebook chose rather than measured (kept out of
         the paper-against-ours table), ``"timing"`` for a wall-clock time.
+    truth : str, optional
+        The generator's ground truth the number leaned on, besides scoring against it:
+        ``"none"`` (the system's own measurements only), or the truth inputs in a few
+        words, e.g. ``"true cameras; starts from truth"``. Settings and timings default to
+        ``"none"``; a result without it is stored as ``"unstated"``.
+    controlled : bool
+        The record is a controlled study: truth inputs on purpose, to isolate one stage.
 
     Returns
     -------
     Record
     """
+    if truth is None:
+        truth = "unstated" if kind == "result" else "none"
     for name, text in (("figure", figure), ("quantity", quantity), ("unit", unit),
-                       ("note", note), ("kind", kind)):
+                       ("note", note), ("kind", kind), ("truth", truth)):
         if not isinstance(text, str):
             raise TypeError(f"{name}: expected a string, got {type(text).__name__}")
     if kind not in KINDS:
         raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
+    if not truth.strip():
+        raise ValueError("truth: expected 'none' or the truth inputs in words, got ''")
+    if not isinstance(controlled, (bool, np.bool_)):
+        raise TypeError(f"controlled: expected a bool, got {type(controlled).__name__}")
     rec = Record(figure=figure, quantity=quantity, value=_check_value(value, "value"),
                  unit=unit, paper=None if paper is None else _check_value(paper, "paper"),
-                 note=note, kind=kind)
+                 note=note, kind=kind, truth=truth, controlled=bool(controlled))
     path = os.environ.get(RECORD_ENV)
     if path:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
@@ -107,7 +127,7 @@ def load_records(path) -> list[Record]:
     with open(path, encoding="utf-8") as fh:
         for line in fh:
             if line.strip():
-                out.append(Record(**json.loads(line)))
+                out.append(Record(**json.loads(line)))   # older files: truth "unstated"
     return out
 
 

@@ -153,7 +153,9 @@ def execute(path: Path, build: Path, timeout: int) -> dict:
               "seed": notebook_seed(nb)}
     start = time.perf_counter()
     try:
-        client.execute()
+        # cleanup_kc: shut the kernel down here (nbclient keeps a kernel it was handed
+        # alive, and the kernels would then stop, one warning each, when lsmta exits)
+        client.execute(cleanup_kc=True)
     except (CellExecutionError, CellTimeoutError) as exc:
         status.update(ok=False, cell=current["index"],
                       error=str(exc).strip().splitlines()[-1] if str(exc).strip() else repr(exc))

@@ -50,9 +50,10 @@ def test_reproduce_writes_summary_and_figures(notebooks, tmp_path, capfd):
     summary = json.loads((build / "summary.json").read_text())
     assert summary["records"] == [
         {"figure": "F0", "quantity": "answer", "value": 42, "unit": "units", "paper": 41,
-         "note": "close", "kind": "result"},
+         "note": "close", "kind": "result", "truth": "unstated", "controlled": False},
         {"figure": "F0", "quantity": "image size", "value": "8x8", "unit": "px",
-         "paper": "8x8", "note": "", "kind": "setting"}]
+         "paper": "8x8", "note": "", "kind": "setting", "truth": "none",
+         "controlled": False}]
     md = (build / "summary.md").read_text()
     assert "| F0 | answer | 41 | 42 | units | close |" in md
     # a setting is listed apart, after the paper-against-ours table
@@ -77,6 +78,24 @@ def test_reproduce_writes_summary_and_figures(notebooks, tmp_path, capfd):
     assert f"numpy {meta['versions']['numpy']}" in page and "00_first 7" in md
     # the kernels run over IPC: no warning about unencrypted TCP
     assert "without encryption" not in capfd.readouterr().err
+    # and are shut down after their notebook (none left to stop, with a warning, at exit)
+    assert not _kernels_left()
+
+
+def _kernels_left() -> list[str]:
+    """Command lines of this process's child processes that are Jupyter kernels (Linux)."""
+    from pathlib import Path
+
+    kids = []
+    for task in Path("/proc/self/task").glob("*/children"):
+        kids += task.read_text().split()
+    lines = []
+    for pid in kids:
+        try:
+            lines.append(Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode())
+        except OSError:       # gone meanwhile
+            pass
+    return [c for c in lines if "ipykernel" in c]
 
 
 def test_provenance_of_a_git_checkout(tmp_path):

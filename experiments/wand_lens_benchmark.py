@@ -37,7 +37,7 @@ def run(seeds: int, frames: int) -> list:
     for seed in range(seeds):
         for sigma in (0.3, 1.0):
             t = wand_trial(seed=seed, n_frames=frames, n_heldout=20, sigma_px=sigma,
-                           rig=WIDE_RIG, half_size=WIDE_VOLUME, swap_fraction=0.1,
+                           rig={**WIDE_RIG, "half_size": WIDE_VOLUME}, swap_fraction=0.1,
                            focal_px=WIDE_RIG["focal_px"])
             r, rec = t.result, t.recording
             radius = [observed_radius_px(g, rec.xy[k]) for k, g in enumerate(rec.cameras)]

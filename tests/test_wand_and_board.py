@@ -116,8 +116,8 @@ def test_lens_distortion_is_recovered_on_a_wide_angle_rig():
     from lsmta.evaluation.wand import distortion_error_px, observed_radius_px
     from lsmta.synth.wand import WIDE_RIG, WIDE_VOLUME
 
-    trial = wand_trial(seed=0, n_frames=40, n_heldout=20, rig=WIDE_RIG,
-                       half_size=WIDE_VOLUME, focal_px=WIDE_RIG["focal_px"])
+    trial = wand_trial(seed=0, n_frames=40, n_heldout=20,
+                       rig={**WIDE_RIG, "half_size": WIDE_VOLUME}, focal_px=WIDE_RIG["focal_px"])
     r, rec = trial.result, trial.recording
     assert r.status == WandStatus.OK
     # "auto" frees k1 and k2 in every camera (the F-test and 3 sigma both pass)

@@ -96,17 +96,20 @@ def length_scatter_percent(cameras, xy, length: float) -> float:
 def wand_trial(*, seed: int = 0, n_frames: int = 25, n_heldout: int = 40,
                sigma_px: float = 0.3, seen_by=(2, 3), swap_fraction: float = 0.1,
                n_tie: int = 0, length: float = 600.0, focal_px=None,
-               distortion: str = "auto", robust: bool = True, rig: dict | None = None,
-               half_size=(900.0, 900.0, 600.0)) -> WandTrial:
+               distortion: str = "auto", robust: bool = True,
+               rig: dict | None = None) -> WandTrial:
     """Generate a wand recording (and held-out frames) and calibrate from it.
 
     The library receives only what a user has: the measured (possibly mislabelled) ends,
     the wand's length, the image sizes and, if given, ``focal_px``. ``rig``: keywords of
-    :func:`~lsmta.synth.wand.wand_rig` (e.g. :data:`~lsmta.synth.wand.WIDE_RIG`);
-    ``half_size``: the volume the wand is waved through, mm.
+    :func:`~lsmta.synth.wand.wand_rig` (e.g. :data:`~lsmta.synth.wand.WIDE_RIG`), and
+    optionally ``half_size``, the volume the wand is waved through (mm; of
+    :func:`~lsmta.synth.wand.wand_recording`).
     """
     rng = np.random.default_rng(seed)
-    cameras = wand_rig(rng=rng, **(rig or {}))
+    rig = dict(rig or {})
+    half_size = rig.pop("half_size", (900.0, 900.0, 600.0))
+    cameras = wand_rig(rng=rng, **rig)
     rec = wand_recording(cameras=cameras, rng=rng, n_frames=n_frames, length=length,
                          sigma_px=sigma_px, seen_by=seen_by, swap_fraction=swap_fraction,
                          n_tie=n_tie, half_size=half_size)
@@ -135,7 +138,7 @@ def wand_trial(*, seed: int = 0, n_frames: int = 25, n_heldout: int = 40,
                      focal_error_percent=focal, labels_consistent=float(np.mean(ok)))
 
 
-def dlt_peer_rms(result: WandCalibration, length: float, tie_xy=None) -> np.ndarray:
+def dlt_peer_rms(result: WandCalibration, length: float, *, tie_xy=None) -> np.ndarray:
     """``(K,)`` the image RMS per coordinate (easyWand's convention), px, of the 11-parameter
     DLT camera fitted to the same observations: the stand-in for easyWand's DLT.
 

@@ -214,6 +214,7 @@ def read_video(path, *, scale: float = 1.0, frames: int | None = None):
 
 # ---------------------------------------------------------------------- 2-D point files
 _XYPTS_COLUMN = re.compile(r"^(?P<point>.+?)_cam_?(?P<camera>\d+)_(?P<axis>[XYxy])$")
+_SPARSE_SHAPE = re.compile(r"^\s*\d+\t\d+\t\d+\s*$")
 
 
 def _image_heights(image_heights, n_cameras: int) -> np.ndarray:
@@ -230,8 +231,18 @@ def read_xypts(path, n_cameras: int, *, image_heights, flip_y: bool = True) -> n
     """Read a DLTdv / Argus "xypts" CSV of digitised 2-D points.
 
     The file has a header row and one row per frame; its columns are ``pt1_cam1_X,
-    pt1_cam1_Y, pt1_cam2_X, ...`` (DLTdv; Argus writes ``<name>_cam_1_x``): for every point
-    the x and y of every camera. An unseen point is ``NaN`` (or an empty cell).
+    pt1_cam1_Y, pt1_cam2_X, ...`` (DLTdv; Argus writes ``<track>_cam_1_x``): for every point
+    the x and y of every camera. An unseen point is ``NaN`` (DLTdv's ``%f`` of a NaN,
+    pandas' ``na_rep="NaN"`` in Argus) or an empty cell. The *sparse* form DLTdv 8 and
+    Argus write for long videos (``*-xypts.tsv``) is read too: the header, a line
+    ``frames<TAB>columns<TAB>count``, then one ``frame<TAB>column<TAB>value`` line (1-based)
+    per stored value; a cell not listed is unseen (DLTdv stores NaN as an absent zero).
+
+    easyWand's wand file and Argus' paired points are such a file with two points (the
+    wand's ends): ``(K, T, 2, 2)``, what :func:`~lsmta.calibration.calibrate_wand` takes.
+    Background (unpaired) points are one or more tracks whose every frame is another
+    point; :func:`~lsmta.calibration.calibrate_wand` takes the ``(K, T, P, 2)`` array as
+    it is (``tie_xy``) and drops the rows seen by one camera.
 
     DLTdv and Argus measure y *upwards from the bottom edge* of the image; this project
     (like OpenCV) measures it downwards from the top. With ``flip_y`` the reader converts::
@@ -271,12 +282,18 @@ def read_xypts(path, n_cameras: int, *, image_heights, flip_y: bool = True) -> n
     K = as_int(n_cameras, "n_cameras")
     heights = _image_heights(image_heights, K) if flip_y else None
     with open(path, newline="", encoding="utf-8-sig") as fh:
-        rows = [r for r in csv.reader(fh) if any(c.strip() for c in r)]
-    if not rows:
+        lines = [ln for ln in fh.read().splitlines() if ln.strip()]
+    if not lines:
         raise ValueError(f"path: {path} is empty")
-    header = [c.strip() for c in rows[0]]
+    sparse = len(lines) > 1 and _SPARSE_SHAPE.match(lines[1]) is not None
+    delimiter = "\t" if sparse or ("\t" in lines[0] and "," not in lines[0]) else ","
+    header = [c.strip() for c in next(csv.reader([lines[0]], delimiter=delimiter))]
     points, slots = _xypts_columns(header, K, path)
-    values = _xypts_values(rows[1:], header, path)
+    if sparse:
+        values = _xypts_sparse(lines[1:], header, path)
+    else:
+        values = _xypts_values(list(csv.reader(lines[1:], delimiter=delimiter)), header,
+                               path)
     xy = np.full((K, len(values), len(points), 2), np.nan)
     for i, p in enumerate(points):
         for k in range(K):
@@ -329,6 +346,30 @@ def _xypts_values(rows, header, path) -> np.ndarray:
                 except ValueError:
                     raise ValueError(f"path: row {t + 2}, column {header[j]} of {path} is "
                                      f"{cell!r}, not a number") from None
+    return values
+
+
+def _xypts_sparse(lines, header, path) -> np.ndarray:
+    """The sparse form (DLTdv 8, Argus ``.tsv``): ``frames columns count``, then 1-based
+    ``frame column value`` lines; cells not listed are NaN."""
+    T, n_cols, count = (int(v) for v in lines[0].split())
+    if n_cols != len(header):
+        raise ValueError(f"path: {path} says {n_cols} columns; its header has {len(header)}")
+    values = np.full((T, n_cols), np.nan)
+    body = lines[1:]
+    if len(body) != count:
+        raise ValueError(f"path: {path} says {count} values and lists {len(body)}")
+    for i, line in enumerate(body):
+        cells = line.split("\t")
+        try:
+            t, j, v = int(cells[0]), int(cells[1]), float(cells[2])
+        except (ValueError, IndexError):
+            raise ValueError(f"path: line {i + 3} of {path} is {line!r}, not "
+                             "frame<TAB>column<TAB>value") from None
+        if not (1 <= t <= T and 1 <= j <= n_cols):
+            raise ValueError(f"path: line {i + 3} of {path} names frame {t}, column {j}; "
+                             f"expected 1..{T}, 1..{n_cols}")
+        values[t - 1, j - 1] = v
     return values
 
 

@@ -142,6 +142,37 @@ def test_xypts_reader_flips_y_to_the_top_left_origin(tmp_path):
     assert out.read_text().splitlines()[0] == XYPTS.splitlines()[0]
 
 
+def test_xypts_reader_takes_argus_columns_and_the_sparse_form(tmp_path):
+    # Argus: <track>_cam_<k>_x, lower case, NaN written by pandas as "NaN"
+    argus = XYPTS.replace("pt1_cam1_X", "wand_a_cam_1_x").replace("pt1_cam1_Y", "wand_a_cam_1_y")
+    argus = argus.replace("pt1_cam2_X", "wand_a_cam_2_x").replace("pt1_cam2_Y", "wand_a_cam_2_y")
+    (tmp_path / "a.csv").write_text(argus)
+    dense = read_xypts(_write(tmp_path, XYPTS), 2,
+                       image_heights=(480, 720))
+    np.testing.assert_array_equal(read_xypts(tmp_path / "a.csv", 2, image_heights=(480, 720)),
+                                  dense)
+    # DLTdv 8 / Argus sparse .tsv: header, "frames columns count", 1-based triplets
+    header = XYPTS.splitlines()[0].split(",")
+    table = np.array([[float(c) if c.strip() else np.nan for c in row.split(",")]
+                      for row in XYPTS.splitlines()[1:]])
+    rows, cols = np.nonzero(np.isfinite(table))
+    lines = ["\t".join(header), f"{table.shape[0]}\t{table.shape[1]}\t{len(rows)}"]
+    lines += [f"{i + 1}\t{j + 1}\t{float(table[i, j])!r}" for i, j in zip(rows, cols)]
+    (tmp_path / "s-xypts.tsv").write_text("\n".join(lines) + "\n")
+    sparse = read_xypts(tmp_path / "s-xypts.tsv", 2, image_heights=(480, 720))
+    np.testing.assert_array_equal(sparse, dense)
+    lines[1] = f"{table.shape[0]}\t{table.shape[1]}\t{len(rows) + 1}"
+    (tmp_path / "s-xypts.tsv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(ValueError, match="values and lists"):
+        read_xypts(tmp_path / "s-xypts.tsv", 2, image_heights=(480, 720))
+
+
+def _write(tmp_path, text):
+    path = tmp_path / "dense.csv"
+    path.write_text(text)
+    return path
+
+
 def test_xypts_reader_refuses_bad_files(tmp_path):
     path = tmp_path / "x.csv"
     path.write_text(XYPTS)

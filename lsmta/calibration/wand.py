@@ -22,14 +22,46 @@ points seen by two or more cameras (tie points). Typical recordings are short an
    step 2 runs again on the corrected labels;
 4. *bundle adjustment* (:func:`~lsmta.calibration.bundle_adjust`) of all cameras, wand
    ends and tie points with the wand length as an observation ``|A_t - B_t| - L = v_t``;
-   per camera the exterior orientation, the focal length and the chosen radial
-   distortion are free, the principal point stays at the image centre; robustly (soft-L1
-   loss, then rejection of residuals beyond four sigma) unless ``robust=False``;
+   per camera the exterior orientation, the focal length and the lens model are free
+   (the principal point stays at the image centre unless the model frees it); robustly
+   (soft-L1 loss, then rejection of residuals beyond four sigma) unless ``robust=False``.
+   The lens model is given (``distortion="none"``, ``"k1"``, ``"k1k2"``, ``"k1k2p1p2"``)
+   or chosen from the data (``"auto"``, the default; see *The lens model* below);
 5. *datum*: the world frame is the first camera's (its centre at the origin, its axes the
    world axes), the scale the wand's;
 6. *scores*: the wand's ends intersected with the calibrated cameras (forward
    intersection; not the adjusted points, which carry the length observation) and their
-   distance per frame: the scatter of the lengths is the wand score easyWand reports.
+   distance per frame: the scatter of the lengths is the wand score easyWand reports;
+   beside it the image RMS per camera (2-D, and per coordinate as easyWand reports it).
+
+Tie points (background points, easyWand's and Argus' "unpaired points") seen by fewer than
+two cameras cannot be intersected: they are dropped and counted (``n_tie_dropped``, and a
+message), not refused; the result keeps the caller's indexing (NaN rows for them). Rows
+seen by no camera at all (the empty frames of a DLTdv / Argus background track) are
+ignored.
+
+The lens model (``distortion="auto"``)
+--------------------------------------
+Forward selection along a fixed ladder of parameter groups, each per camera:
+``k1``, then ``k2``, then the decentring pair ``p1, p2``, then the principal point ``cx,
+cy``. Starting from the pinhole camera with its focal length (``"none"``), each group is
+added to every camera and the network adjusted again (from the previous solution); the
+group is kept where both hold:
+
+* *determined*, per camera: at least one of its parameters moved from the value it was
+  held at by more than ``3`` standard deviations of the adjustment (``|x - x0| > 3
+  sigma_x``; a camera whose observations do not reach far enough from the image centre
+  cannot determine ``k2`` and keeps it at 0); cameras where it is not determined are
+  adjusted again without it;
+* *significant*, for the network: the F-test of the two nested adjustments on the
+  observations both kept, ``F = ((S0 - S1) / dp) / (S1 / r1)`` (``S``: the weighted sums
+  of squared residuals, ``dp``: the parameters added, ``r1``: the larger model's
+  redundancy), rejects "no improvement" at the 1 % level.
+
+A group that fails is left out and the next one tried. Of the accepted models the richest
+whose lenses can be inverted at every observed point is used (``k1`` alone may fold over
+inside the image where ``k1`` and ``k2`` together do not). The result says which parameters
+each camera got (``intrinsics``) and what every step gave (``model_steps``).
 """
 
 from __future__ import annotations
@@ -39,6 +71,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 
 import numpy as np
+from scipy import stats
 
 from .._validate import as_array, as_scalar
 from ..camera import Camera
@@ -49,7 +82,15 @@ from .labels import consistent_bar_labels
 from .result import CalibrationResult
 
 MIN_FRAMES = 10
-DISTORTION_MODELS = {"none": (), "k1": ("k1",), "k1k2": ("k1", "k2")}
+DISTORTION_MODELS = {"none": (), "k1": ("k1",), "k1k2": ("k1", "k2"),
+                     "k1k2p1p2": ("k1", "k2", "p1", "p2")}
+#: the ladder of ``distortion="auto"``: parameter groups tried in this order
+AUTO_LADDER = (("k1",), ("k2",), ("p1", "p2"), ("cx", "cy"))
+#: a group is determined in a camera when one of its parameters moves by more than this
+#: many standard deviations from the value it was held at
+DETERMINED_SIGMA = 3.0
+#: significance level of the F-test that adds a group
+F_TEST_ALPHA = 0.01
 # a wand length observation 10 000 times more precise than the wand is long
 BAR_SIGMA_REL = 1e-4
 # residuals beyond this many (a-posteriori) sigma are rejected in the robust adjustment
@@ -87,9 +128,19 @@ class WandCalibration(CalibrationResult):
     rms_px : (K,) array
         Per camera, the root mean square of the 2-D reprojection error of its
         observations, px (OpenCV's and caliscope's convention: sqrt 2 times the RMS per
-        coordinate); rejected observations left out.
-    tie_points : (N, 3) array or None
-        Adjusted tie points, mm.
+        coordinate, :attr:`rms_px_per_coordinate`); rejected observations left out.
+    tie_points : array (..., 3) or None
+        Adjusted tie points, mm, indexed as the caller's ``tie_xy`` (``(N, 3)``, or ``(T,
+        P, 3)`` for a ``(K, T, P, 2)`` background file); NaN for the points dropped.
+    n_tie_dropped : int
+        Tie points seen by exactly one camera, dropped (points seen by none are ignored).
+    distortion : str
+        The lens model asked for ("auto" or a fixed one).
+    intrinsics : tuple of K tuples of str
+        The interior parameters adjusted per camera (``"f"`` and the lens model's).
+    model_steps : tuple of dict
+        With ``distortion="auto"``: per group of the ladder its parameters, the cameras
+        where it was determined, the F statistic, its p-value and whether it was kept.
     wand_xy : (K, T, 2, 2) array
         The observations with consistent ends (as adjusted; NaN in dropped frames).
     swapped : (K, T) bool array
@@ -111,6 +162,10 @@ class WandCalibration(CalibrationResult):
     wand_length_std_percent: float
     rms_px: np.ndarray
     tie_points: np.ndarray | None
+    n_tie_dropped: int
+    distortion: str
+    intrinsics: tuple
+    model_steps: tuple
     wand_xy: np.ndarray
     swapped: np.ndarray
     used: np.ndarray
@@ -119,6 +174,31 @@ class WandCalibration(CalibrationResult):
     status: WandStatus
     messages: tuple = field(default_factory=tuple)
     seconds: float = 0.0
+
+    @property
+    def rms_px_per_coordinate(self) -> np.ndarray:
+        """``(K,)`` the RMS per image coordinate, px: ``rms_px / sqrt 2`` (easyWand's and
+        DLTdv's convention: ``sqrt(sum(residuals^2) / numel)`` over u and v)."""
+        return self.rms_px / np.sqrt(2.0)
+
+    def summary(self) -> dict:
+        """The wand score beside the image RMS of every camera, the lens model per camera
+        and what was dropped, as plain numbers (for a JSON file or a table)."""
+        names = [c.name or f"camera {k}" for k, c in enumerate(self.cameras)]
+        return {
+            "status": self.status.name,
+            "wand_length_std_percent": float(self.wand_length_std_percent),
+            "frames_used": int(self.used.sum()),
+            "frames": int(len(self.used)),
+            "tie_points_used": 0 if self.tie_points is None else int(
+                np.isfinite(self.tie_points.reshape(-1, 3)).all(axis=1).sum()),
+            "tie_points_dropped": int(self.n_tie_dropped),
+            "distortion": self.distortion,
+            "cameras": {n: {"rms_px": float(self.rms_px[k]),
+                            "rms_px_per_coordinate": float(self.rms_px_per_coordinate[k]),
+                            "intrinsics": list(self.intrinsics[k])}
+                        for k, n in enumerate(names)},
+        }
 
 
 # ---------------------------------------------------------------------- checks
@@ -251,7 +331,7 @@ def _rms_2d(residuals) -> np.ndarray:
 
 
 def calibrate_wand(wand_xy, length: float, image_sizes, *, focal_px=None, tie_xy=None,
-                   distortion: str = "k1", robust: bool = True,
+                   distortion: str = "auto", robust: bool = True,
                    sigma_px: float = 1.0) -> WandCalibration:
     """Calibrate K cameras from a wand of known length (see the module docstring).
 
@@ -259,24 +339,31 @@ def calibrate_wand(wand_xy, length: float, image_sizes, *, focal_px=None, tie_xy
     ----------
     wand_xy : (K, T, 2, 2) array
         Image positions of the wand's two ends in T frames, px (top-left origin; see
-        :func:`lsmta.io.read_xypts`); NaN where a camera does not see an end.
+        :func:`lsmta.io.read_xypts`, which reads a DLTdv / easyWand / Argus wand file in
+        this shape); NaN where a camera does not see an end.
     length : float
         The wand's length (distance between the ends' centres), mm.
     image_sizes : (K, 2) array or (width, height)
         Image sizes in px.
     focal_px : float or (K,) array, optional
         Focal lengths to start from, px; by default ``max(width, height)`` (and a message
-        says so). Adjusted either way.
-    tie_xy : (K, N, 2) array, optional
-        Background points of unknown 3-D position, px, NaN where unseen; each must be seen
-        by at least two cameras.
-    distortion : {"none", "k1", "k1k2"}
-        Radial distortion adjusted per camera.
+        says so). Adjusted either way. Give it for wide-angle lenses (the generated
+        100 degree rig does not converge from the guess).
+    tie_xy : (K, N, 2) or (K, T, P, 2) array, optional
+        Background points of unknown 3-D position, px, NaN where unseen (easyWand's
+        background points, Argus' unpaired points; a ``(K, T, P, 2)`` file as read by
+        :func:`lsmta.io.read_xypts` is taken point by point, each frame of each track
+        one point). Points seen by one camera only are dropped and counted; rows seen by
+        none are ignored.
+    distortion : {"auto", "none", "k1", "k1k2", "k1k2p1p2"}
+        The lens model adjusted per camera: chosen from the data by the rule of the module
+        docstring (``"auto"``), or the one named (radial ``k1``, ``k2``; decentring ``p1,
+        p2``; the principal point stays at the image centre).
     robust : bool
         Soft-L1 loss and rejection of residuals beyond four sigma.
     sigma_px : float
         A-priori standard deviation of an image coordinate, px (the weights of the image
-        against the wand length, and the unit of the robust loss).
+        against the wand length, the unit of the robust loss, and of the F-test's sums).
 
     Returns
     -------
@@ -288,8 +375,7 @@ def calibrate_wand(wand_xy, length: float, image_sizes, *, focal_px=None, tie_xy
     ValueError
         Wrong shapes, a point outside its image (wrong ``image_sizes``), a coordinate
         pair with one NaN, fewer than 10 frames with the wand seen by two cameras, a
-        camera that sees the wand in no such frame (or too few to be resected), a tie
-        point seen by fewer than two cameras.
+        camera that sees the wand in no such frame (or too few to be resected).
     """
     t0 = time.perf_counter()
     st = _State.initial(wand_xy, length, image_sizes, tie_xy, distortion, sigma_px)
@@ -304,7 +390,10 @@ class _State:
     """What the stages of :func:`calibrate_wand` hand on."""
 
     xy: np.ndarray                 # (K, T, 2, 2), frames without two views set to NaN
-    tie: np.ndarray                # (K, N, 2)
+    tie: np.ndarray                # (K, N_kept, 2): the tie points seen by >= 2 cameras
+    tie_kept: np.ndarray           # (N,) bool, which of the caller's points those are
+    tie_shape: tuple               # the caller's point indexing, (N,) or (T, P)
+    n_tie_dropped: int
     sizes: np.ndarray              # (K, 2)
     names: list
     length: float
@@ -319,6 +408,8 @@ class _State:
     X0: np.ndarray | None = None
     labels: object = None
     bundle: BundleResult | None = None
+    intrinsics: list | None = None
+    steps: list = field(default_factory=list)
 
     @property
     def K(self) -> int:
@@ -341,22 +432,39 @@ class _State:
         length = as_scalar(length, "length", positive=True)
         sigma_px = as_scalar(sigma_px, "sigma_px", positive=True)
         sizes = _image_sizes(image_sizes, K)
-        if distortion not in DISTORTION_MODELS:
-            raise ValueError(f"distortion: expected one of {sorted(DISTORTION_MODELS)}, got "
-                             f"{distortion!r}")
+        if distortion != "auto" and distortion not in DISTORTION_MODELS:
+            raise ValueError(f"distortion: expected 'auto' or one of "
+                             f"{sorted(DISTORTION_MODELS)}, got {distortion!r}")
         names = [f"cam{k + 1}" for k in range(K)]
         _check_observations(xy, sizes, "wand_xy", names)
-        if tie_xy is None:
-            tie = np.zeros((K, 0, 2))
-        else:
-            tie = as_array(tie_xy, "tie_xy", shape=(K, None, 2), allow_nan=True)
-            _check_observations(tie, sizes, "tie_xy", names)
-            few = np.isfinite(tie).all(axis=2).sum(axis=0) < 2
-            if few.any():
-                raise ValueError(f"tie_xy: {int(few.sum())} tie point(s) are seen by fewer "
-                                 "than 2 cameras; each must be seen by at least 2")
-        return cls(xy=xy, tie=tie, sizes=sizes, names=names, length=length,
-                   sigma_px=sigma_px, distortion=distortion, messages=[])
+        messages: list = []
+        tie, kept, shape, dropped = _tie_points(tie_xy, K, sizes, names, messages)
+        return cls(xy=xy, tie=tie, tie_kept=kept, tie_shape=shape, n_tie_dropped=dropped,
+                   sizes=sizes, names=names, length=length, sigma_px=sigma_px,
+                   distortion=distortion, messages=messages)
+
+
+def _tie_points(tie_xy, K, sizes, names, messages):
+    """The tie points seen by at least two cameras, which of the caller's they are, the
+    caller's indexing and how many were dropped (seen by one camera)."""
+    if tie_xy is None:
+        return np.zeros((K, 0, 2)), np.zeros(0, bool), (0,), 0
+    arr = np.asarray(tie_xy)
+    if arr.ndim == 4:                        # (K, T, P, 2): a background xypts file
+        tie = as_array(tie_xy, "tie_xy", shape=(K, None, None, 2), allow_nan=True)
+        shape = tie.shape[1:3]
+        tie = tie.reshape(K, -1, 2)
+    else:
+        tie = as_array(tie_xy, "tie_xy", shape=(K, None, 2), allow_nan=True)
+        shape = tie.shape[1:2]
+    _check_observations(tie, sizes, "tie_xy", names)
+    views = np.isfinite(tie).all(axis=2).sum(axis=0)
+    kept = views >= 2
+    dropped = int((views == 1).sum())
+    if dropped:
+        messages.append(f"{dropped} of {int((views > 0).sum())} tie point(s) dropped: seen "
+                        "by one camera only (a point needs two views to be intersected)")
+    return tie[:, kept], kept, tuple(shape), dropped
 
 
 def _usable_frames(st: _State) -> None:
@@ -372,7 +480,8 @@ def _usable_frames(st: _State) -> None:
         st.messages.append(f"{int((~used).sum())} of {st.T} frames dropped: an end seen by "
                            "fewer than two cameras")
     st.xy[:, ~used] = np.nan
-    free = 6 + 1 + len(DISTORTION_MODELS[st.distortion])
+    # "auto" starts from the pinhole camera and adds only what a camera determines
+    free = 6 + 1 + len(DISTORTION_MODELS.get(st.distortion, ()))
     for k in range(st.K):
         n_pts = int(seen_end[k, used].sum() + np.isfinite(st.tie[k]).all(axis=1).sum())
         if n_pts == 0:
@@ -405,28 +514,47 @@ def _approximations_and_ends(st: _State, focal_px) -> None:
 
 
 def _bundle(st: _State, robust: bool) -> None:
-    """The bundle adjustment; the ends checked again with its cameras, and once more
-    adjusted if that changed any labels."""
-    intrinsics = ("f",) + DISTORTION_MODELS[st.distortion]
+    """The bundle adjustment (with the lens model chosen first for "auto"); the ends
+    checked again with its cameras, and once more adjusted if that changed any labels."""
     settings = BundleParams(loss="soft_l1" if robust else "linear", f_scale=3.0,
                             reject_k=REJECT_K if robust else None)
 
-    def adjust(cams, X, w):
+    def adjust(cams, X, w, intrinsics):
+        X = np.where(np.isfinite(X), X, st.X0)          # points a rejection left without
         return bundle_adjust(cams, st.flat(w), X, intrinsics=intrinsics,
                              fixed_exterior=(st.pair[0],), bar=st.bar, sigma_px=st.sigma_px,
                              params=settings)
 
-    bundle = adjust(st.cams0, st.X0, st.labels.xy)
-    try:
-        again = consistent_bar_labels(bundle.cameras, st.xy, st.length)
-    except ValueError as err:            # the lens model folds over inside the image
-        raise ValueError(f"distortion: the adjusted {st.distortion!r} lens model cannot be "
-                         f"inverted at some observed points ({err}); too few points near "
-                         "the image edges for it - try distortion='k1'") from None
-    if not np.array_equal(again.swapped, st.labels.swapped):
+    def settle(fit, intrinsics):
+        """The ends checked with the adjusted cameras; adjusted again if labels changed."""
+        try:
+            again = consistent_bar_labels(fit.cameras, st.xy, st.length)
+        except ValueError as err:        # the lens model folds over inside the image
+            raise ValueError(f"distortion: the adjusted {st.distortion!r} lens model cannot "
+                             f"be inverted at some observed points ({err}); too few points "
+                             "near the image edges for it - try distortion='auto' or "
+                             "'k1'") from None
+        if np.array_equal(again.swapped, st.labels.swapped):
+            return fit
         st.labels = again
-        bundle = adjust(bundle.cameras, _start_points(bundle, again.xy, st.K, st.T, st.tie),
-                        again.xy)
+        return adjust(fit.cameras, _start_points(fit, again.xy, st.K, st.T, st.tie),
+                      again.xy, intrinsics)
+
+    try:
+        if st.distortion == "auto":
+            bundle, st.intrinsics = _choose_lens(st, adjust, settle)
+        else:
+            st.intrinsics = [("f",) + DISTORTION_MODELS[st.distortion]] * st.K
+            bundle = settle(adjust(st.cams0, st.X0, st.labels.xy, st.intrinsics),
+                            st.intrinsics)
+    except ValueError as err:
+        if not str(err).startswith("f:"):
+            raise
+        raise ValueError(
+            "focal_px: the adjustment diverged to a focal length <= 0 from f = "
+            f"{', '.join(f'{c.f:.0f}' for c in st.cams0)} px; give focal_px (a wide-angle "
+            "lens is far from the guess max(width, height), a 53 degree field of view; "
+            "easyWand and Argus ask for it too)") from None
     if st.labels.n_swapped:
         st.messages.append(f"the two ends were exchanged in {st.labels.n_swapped} camera "
                            "frame(s) to agree with the other cameras")
@@ -436,14 +564,101 @@ def _bundle(st: _State, robust: bool) -> None:
     st.bundle = bundle
 
 
+def _choose_lens(st: _State, adjust, settle) -> tuple[BundleResult, list]:
+    """``distortion="auto"``: forward selection along :data:`AUTO_LADDER` (the rule of the
+    module docstring); the ends' labels checked after every model kept (``settle``).
+    Returns the adjustment of the chosen model and its intrinsics."""
+    K = st.K
+    free = [("f",)] * K
+    fit = settle(adjust(st.cams0, st.X0, st.labels.xy, free), free)
+    accepted = [(fit, free)]
+    for group in AUTO_LADDER:
+        xy = st.labels.xy
+        trial = [f + group for f in free]
+        step = {"parameters": group, "determined_in": [], "F": float("nan"),
+                "p_value": float("nan"), "kept": False}
+        st.steps.append(step)
+        try:
+            fit1 = adjust(fit.cameras, fit.points, xy, trial)
+        except ValueError as err:        # too few points for the added parameters
+            step["reason"] = str(err)
+            continue
+        det = [_determined(fit, fit1, k, group) for k in range(K)]
+        step["determined_in"] = [st.names[k] for k in range(K) if det[k]]
+        if not any(det):
+            step["reason"] = "determined in no camera"
+            continue
+        if not all(det):
+            trial = [f + group if det[k] else f for k, f in enumerate(free)]
+            fit1 = adjust(fit.cameras, fit.points, xy, trial)
+        step["F"], step["p_value"] = _f_test(fit, fit1, st.sigma_px, st.bar.sigma)
+        if not step["p_value"] < F_TEST_ALPHA:
+            step["reason"] = f"F-test: p = {step['p_value']:.3g} >= {F_TEST_ALPHA:g}"
+            continue
+        step["kept"] = True
+        try:
+            fit1 = settle(fit1, trial)
+        except ValueError:               # folds over: left to the choice below
+            pass
+        fit, free = fit1, trial
+        accepted.append((fit, free))
+    # the richest accepted model whose lenses can be inverted at every observed point (k1
+    # alone may fold over inside the image where k1 and k2 together do not)
+    obs = st.flat(st.labels.xy)
+    for fit, free in accepted[::-1]:
+        if all(c.invertible(obs[k][np.isfinite(obs[k]).all(axis=1)]).all()
+               for k, c in enumerate(fit.cameras)):
+            break
+        st.messages.append("a lens model the F-test accepted ("
+                           + "; ".join(", ".join(f) for f in free)
+                           + ") folds over at observed points: the one before it is used")
+    chosen = sorted({", ".join(f) for f in free})
+    st.messages.append("lens model chosen from the data (distortion='auto'): "
+                       + "; ".join(f"{st.names[k]}: {', '.join(free[k])}" for k in range(K))
+                       if len(chosen) > 1 else
+                       f"lens model chosen from the data (distortion='auto'): {chosen[0]} "
+                       "for every camera")
+    return fit, free
+
+
+def _determined(fit0: BundleResult, fit1: BundleResult, k: int, group) -> bool:
+    """One of ``group``'s parameters of camera k moved from its held value by more than
+    :data:`DETERMINED_SIGMA` standard deviations."""
+    c0, c1 = fit0.cameras[k], fit1.cameras[k]
+    return any(abs(getattr(c1, n) - getattr(c0, n)) > DETERMINED_SIGMA * fit1.std(k, n)
+               for n in group)
+
+
+def _f_test(fit0: BundleResult, fit1: BundleResult, sigma_px: float,
+            bar_sigma: float) -> tuple[float, float]:
+    """F statistic and p-value of "the larger model ``fit1`` fits no better than
+    ``fit0``", on the image observations both adjustments kept and the wand lengths."""
+    both = np.isfinite(fit0.residuals).all(axis=2) & np.isfinite(fit1.residuals).all(axis=2)
+
+    def ssr(fit):
+        img = np.sum(fit.residuals[both] ** 2) / sigma_px**2
+        return img + np.nansum((fit.bar_residuals / bar_sigma) ** 2)
+
+    n = 2 * int(both.sum()) + int(np.isfinite(fit1.bar_residuals).sum())
+    dp = fit1.n_unknowns - fit0.n_unknowns
+    r1 = n - fit1.n_unknowns
+    s0, s1 = ssr(fit0), ssr(fit1)
+    if dp <= 0 or r1 <= 0 or s1 <= 0:
+        return float("nan"), 1.0
+    F = ((s0 - s1) / dp) / (s1 / r1)
+    return float(F), float(stats.f.sf(F, dp, r1))
+
+
 def _result(st: _State, t0: float) -> WandCalibration:
     """The datum (the first camera's frame), the wand scores and the status."""
     bundle, K, T = st.bundle, st.K, st.T
     R0, C0 = np.asarray(bundle.cameras[0].R), bundle.cameras[0].C
     cameras = [c.replace(R=np.asarray(c.R) @ R0.T, C=R0 @ (c.C - C0)) for c in bundle.cameras]
     tie_points = None
-    if st.tie.shape[1]:
-        tie_points = (bundle.points[2 * T:] - C0) @ R0.T
+    if st.tie_kept.size:
+        tie_points = np.full((st.tie_kept.size, 3), np.nan)
+        tie_points[st.tie_kept] = (bundle.points[2 * T:] - C0) @ R0.T
+        tie_points = tie_points.reshape(st.tie_shape + (3,))
     ends = triangulate(cameras, st.labels.xy.reshape(K, 2 * T, 2), min_angle_deg=0.0).points
     ends = ends.reshape(T, 2, 3)
     lengths = np.linalg.norm(ends[:, 0] - ends[:, 1], axis=1)
@@ -459,6 +674,9 @@ def _result(st: _State, t0: float) -> WandCalibration:
     return WandCalibration(
         cameras=cameras, wand_points=ends, wand_lengths=lengths,
         wand_length_std_percent=std_pct, rms_px=rms, tie_points=tie_points,
+        n_tie_dropped=st.n_tie_dropped, distortion=st.distortion,
+        intrinsics=tuple(tuple(i) for i in st.intrinsics),
+        model_steps=tuple(dict(s) for s in st.steps),
         wand_xy=st.labels.xy, swapped=st.labels.swapped, used=st.used, bundle=bundle,
         pair=st.pair, focal_guessed=st.guessed, status=status, messages=tuple(st.messages),
         seconds=time.perf_counter() - t0)

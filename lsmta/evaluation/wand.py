@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..calibration.bundle import Bar, BundleParams, bundle_adjust
 from ..calibration.wand import WandCalibration, calibrate_wand
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.wand import WandRecording, wand_recording, wand_rig
@@ -54,6 +55,35 @@ class WandTrial:
     labels_consistent: float
 
 
+def distortion_error_px(camera, truth, r_max_px: float, *, n: int = 200) -> float:
+    """Largest difference of the radial lens displacement of ``camera`` and ``truth``, px,
+    at image radii up to ``r_max_px`` (the farthest observation from the centre).
+
+    The displacement of a point at pixel radius ``r`` (ideal image, from the principal
+    point) is ``r (k1 rn^2 + k2 rn^4 + k3 rn^6)`` with ``rn = r / f``. A part of it linear
+    in ``r`` is a change of the focal length, which the adjustment takes into ``f``; it is
+    fitted (least squares over the radii) and left out, so this is the error of the lens
+    *shape*. Decentring and the principal point are not part of it.
+    """
+    r = np.linspace(0.0, float(r_max_px), n)
+
+    def shift(c):
+        rn = r / c.f
+        return r * rn**2 * (c.k1 + rn**2 * (c.k2 + rn**2 * c.k3))
+
+    d = shift(camera) - shift(truth)
+    a = float(r @ d / (r @ r))
+    return float(np.abs(d - a * r).max())
+
+
+def observed_radius_px(camera, xy) -> float:
+    """The largest distance of the observations ``xy`` ``(..., 2)`` from the image centre
+    of ``camera``, px."""
+    p = np.asarray(xy, float).reshape(-1, 2)
+    p = p[np.isfinite(p).all(axis=1)]
+    return float(np.hypot(p[:, 0] - camera.cx, p[:, 1] - camera.cy).max())
+
+
 def length_scatter_percent(cameras, xy, length: float) -> float:
     """Standard deviation of the wand lengths intersected from ``xy`` ``(K, T, 2, 2)`` with
     ``cameras``, in per cent of ``length``."""
@@ -66,19 +96,25 @@ def length_scatter_percent(cameras, xy, length: float) -> float:
 def wand_trial(*, seed: int = 0, n_frames: int = 25, n_heldout: int = 40,
                sigma_px: float = 0.3, seen_by=(2, 3), swap_fraction: float = 0.1,
                n_tie: int = 0, length: float = 600.0, focal_px=None,
-               distortion: str = "k1", robust: bool = True) -> WandTrial:
+               distortion: str = "auto", robust: bool = True,
+               rig: dict | None = None) -> WandTrial:
     """Generate a wand recording (and held-out frames) and calibrate from it.
 
     The library receives only what a user has: the measured (possibly mislabelled) ends,
-    the wand's length, the image sizes and, if given, ``focal_px``.
+    the wand's length, the image sizes and, if given, ``focal_px``. ``rig``: keywords of
+    :func:`~lsmta.synth.wand.wand_rig` (e.g. :data:`~lsmta.synth.wand.WIDE_RIG`), and
+    optionally ``half_size``, the volume the wand is waved through (mm; of
+    :func:`~lsmta.synth.wand.wand_recording`).
     """
     rng = np.random.default_rng(seed)
-    cameras = wand_rig(rng=rng)
+    rig = dict(rig or {})
+    half_size = rig.pop("half_size", (900.0, 900.0, 600.0))
+    cameras = wand_rig(rng=rng, **rig)
     rec = wand_recording(cameras=cameras, rng=rng, n_frames=n_frames, length=length,
                          sigma_px=sigma_px, seen_by=seen_by, swap_fraction=swap_fraction,
-                         n_tie=n_tie)
+                         n_tie=n_tie, half_size=half_size)
     held = wand_recording(cameras=cameras, rng=rng, n_frames=n_heldout, length=length,
-                          sigma_px=sigma_px, seen_by=seen_by)
+                          sigma_px=sigma_px, seen_by=seen_by, half_size=half_size)
     result = calibrate_wand(rec.xy, length, [c.image_size for c in cameras],
                             focal_px=focal_px, tie_xy=rec.tie_xy if n_tie else None,
                             distortion=distortion, robust=robust)
@@ -100,3 +136,33 @@ def wand_trial(*, seed: int = 0, n_frames: int = 25, n_heldout: int = 40,
     return WandTrial(recording=rec, heldout=held, result=result, floor_std_percent=floor,
                      heldout_error_percent=held_err, centre_error=centre,
                      focal_error_percent=focal, labels_consistent=float(np.mean(ok)))
+
+
+def dlt_peer_rms(result: WandCalibration, length: float, *, tie_xy=None) -> np.ndarray:
+    """``(K,)`` the image RMS per coordinate (easyWand's convention), px, of the 11-parameter
+    DLT camera fitted to the same observations: the stand-in for easyWand's DLT.
+
+    A DLT is the projective camera without distortion: exterior orientation, focal length,
+    principal point, affinity and shear (``f, cx, cy, b1, b2``: 11 parameters). Here every
+    camera's 11 parameters and all points are adjusted together (a bundle adjustment with
+    that camera model, the wand length observed, from ``result``'s cameras without their
+    lens), which is the least any DLT fit of these observations can reach; easyWand fits
+    its DLT to the points of its own adjustment, which can only be higher.
+    """
+    cams = [c.replace(k1=0.0, k2=0.0, k3=0.0, p1=0.0, p2=0.0) for c in result.cameras]
+    K, T = result.wand_xy.shape[:2]
+    obs = result.wand_xy.reshape(K, 2 * T, 2)
+    if tie_xy is not None:
+        obs = np.concatenate([obs, np.asarray(tie_xy, float).reshape(K, -1, 2)], axis=1)
+    X = triangulate(cams, obs, min_angle_deg=0.0).points
+    seen = np.isfinite(obs).all(axis=2).sum(axis=0) >= 2
+    obs = np.where(seen[None, :, None], obs, np.nan)
+    X = np.where(seen[:, None], X, 0.0)
+    pairs = np.arange(2 * T).reshape(T, 2)[result.used]
+    bar = Bar(pairs=pairs, length=float(length), sigma=1e-4 * float(length))
+    fit = bundle_adjust(cams, obs, X, intrinsics=("f", "cx", "cy", "b1", "b2"),
+                        fixed_exterior=(0,), bar=bar,
+                        params=BundleParams(loss="soft_l1", f_scale=3.0, reject_k=4.0))
+    res = np.where(fit.rejected[..., None], np.nan, fit.residuals)
+    with np.errstate(invalid="ignore"):
+        return np.sqrt(np.nanmean(res.reshape(K, -1) ** 2, axis=1))

@@ -27,18 +27,21 @@ WAND_IMAGE_SIZE = (1280, 720)
 
 def wand_rig(*, rng: np.random.Generator | int | None = None, n_cameras: int = 4,
              distance: float = 3200.0,
-             height: float = 1900.0, target=(0.0, 0.0, 900.0)) -> list[Camera]:
+             height: float = 1900.0, target=(0.0, 0.0, 900.0), image_size=WAND_IMAGE_SIZE,
+             focal_px: float = 840.0, k1: float = -0.12, k2: float = 0.03) -> list[Camera]:
     """Cameras in the corners of a room, aimed at ``target`` (mm).
 
     Camera k stands at azimuth ``45 + 360 k / n`` degrees, ``distance`` mm from the target
     horizontally and ``height`` mm above the floor (alternately 300 mm higher and lower),
-    with a focal length of 840 px (75 degrees across 1280 px) and barrel distortion (k1 =
-    -0.12, k2 = 0.03); with ``rng`` each camera's focal length (60 px), principal point
-    (6 px), lens (10 % of k1, k2, decentring of 3e-4) and aim (150 mm) vary as in a real
-    rig.
+    with images of ``image_size`` px, a focal length of ``focal_px`` (by default 840 px:
+    75 degrees across 1280 px) and barrel distortion ``k1``, ``k2`` (by default -0.12,
+    0.03); with ``rng`` each camera's focal length (7 % of it), principal point (0.5 % of
+    the image width), lens (10 % of k1, k2, decentring of 3e-4) and aim (150 mm) vary as
+    in a real rig. :data:`WIDE_RIG` is a wide-angle variant.
     """
     rng = None if rng is None else as_rng(rng)
-    W, H = WAND_IMAGE_SIZE
+    W, H = (int(v) for v in image_size)
+    focal_px = as_scalar(focal_px, "focal_px", positive=True)
     target = np.asarray(target, float)
 
     def vary(scale, n=None):
@@ -51,11 +54,22 @@ def wand_rig(*, rng: np.random.Generator | int | None = None, n_cameras: int = 4
         eye = target + [distance * np.cos(a), distance * np.sin(a),
                         height - target[2] + (300.0 if k % 2 else -300.0)]
         cam = Camera.look_at(
-            eye, target + vary(150.0, 3), f=840.0 + vary(60.0), width=W, height=H,
-            cx=(W - 1) / 2 + vary(6.0), cy=(H - 1) / 2 + vary(6.0), name=f"cam{k + 1}")
-        cams.append(cam.replace(k1=-0.12 * (1 + vary(0.1)), k2=0.03 * (1 + vary(0.1)),
+            eye, target + vary(150.0, 3), f=focal_px * (1 + vary(60.0 / 840.0)), width=W,
+            height=H, cx=(W - 1) / 2 + vary(6.0 / 1280 * W),
+            cy=(H - 1) / 2 + vary(6.0 / 1280 * W), name=f"cam{k + 1}")
+        cams.append(cam.replace(k1=k1 * (1 + vary(0.1)), k2=k2 * (1 + vary(0.1)),
                                 p1=vary(3e-4), p2=vary(3e-4)))
     return cams
+
+
+#: a wide-angle rig of the real one's image size (2560 x 1600 px): 100 degrees across the
+#: width, strong barrel distortion (a point at the image corner is pulled in by 28 %),
+#: cameras 2 m (horizontally) from the volume's centre (keywords of :func:`wand_rig`)
+WIDE_RIG = dict(image_size=(2560, 1600), focal_px=1070.0, k1=-0.22, k2=0.05,
+                distance=2000.0)
+#: the wand volume for :data:`WIDE_RIG` (``half_size`` of :func:`wand_recording`, mm): the
+#: wand reaches 60-75 % of the way from the image centre to the corners
+WIDE_VOLUME = (1500.0, 1500.0, 800.0)
 
 
 @dataclass(frozen=True, eq=False)

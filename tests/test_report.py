@@ -20,10 +20,71 @@ def test_record_returns_and_writes_when_asked(tmp_path, monkeypatch):
 
 
 def test_table_lists_paper_next_to_ours():
-    recs = [report.Record("F", "q", 1.23456, "mm", paper=1.2, note="a|b")]
+    recs = [report.Record("F", "q", 1.23456, "mm", paper=1.2, note="a|b", truth="none")]
     text = report.table(recs)
-    assert "| F | q | 1.2 | 1.235 | mm | a\\|b |" in text
+    assert "| figure | quantity | paper | ours | unit | truth | note |" in text
+    assert "| F | q | 1.2 | 1.235 | mm | none | a\\|b |" in text
     assert "—" in report.table([report.Record("F", "q", 1, "")])
+
+
+def test_truth_is_stored_and_shown(tmp_path, monkeypatch):
+    path = tmp_path / "r.jsonl"
+    monkeypatch.setenv(report.RECORD_ENV, str(path))
+    report.record("F", "error", 0.5, "mm", truth="true cameras; seeds from truth (one per part)",
+                  controlled=True)
+    report.record("F", "error", 0.7, "mm", truth="none")
+    report.record("F", "image size", "8x8", "px", kind="setting")
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    assert [r["truth"] for r in rows] == ["true cameras; seeds from truth (one per part)", "none",
+                                          "none"]
+    assert [r["controlled"] for r in rows] == [True, False, False]
+    loaded = report.load_records(path)
+    assert loaded[0].truth.startswith("true cameras") and loaded[0].controlled
+    text = report.table(loaded)
+    assert "| true cameras; seeds from truth (one per part) (controlled) |" in text
+    assert "| none |" in text
+    # a line written before records had a truth loads as "unstated"
+    path.write_text(json.dumps({"figure": "F", "quantity": "q", "value": 1, "unit": "",
+                                "paper": None, "note": "", "kind": "result"}) + "\n")
+    assert report.load_records(path)[0].truth == "unstated"
+
+
+@pytest.mark.parametrize("kwargs, exc", [
+    (dict(truth=""), ValueError),
+    (dict(truth=" "), ValueError),
+    (dict(truth=3), TypeError),
+    (dict(truth="none", controlled="yes"), TypeError),
+])
+def test_truth_bad_input(kwargs, exc):
+    with pytest.raises(exc, match="truth|controlled"):
+        report.record("F", "q", 1.0, **kwargs)
+
+
+def test_truth_phrases_are_the_common_vocabulary():
+    assert len(set(report.TRUTH_PHRASES)) == len(report.TRUTH_PHRASES)
+    assert report.CHECK_POINTS in report.TRUTH_PHRASES
+    assert all(p == p.strip().lower() and ";" not in p for p in report.TRUTH_PHRASES)
+
+
+def test_truth_group_and_unsound_verdicts():
+    R = report.Record
+    recs = {
+        "none": R("F", "a", 1, note="target < 2: met", truth="none"),
+        "check points": R("F", "b", 1, note="NOT met",
+                          truth="aligned on the true check points (held-out bar)"),
+        "controlled": R("F", "c", 1, note="target: met", truth="true cameras", controlled=True),
+        "truth-fed": R("F", "d", "met", truth="labels from truth (the operator's)"),
+        "unstated": R("F", "e", 1, note="NOT met"),
+    }
+    assert {k: report.truth_group(r) for k, r in recs.items()} == {k: k for k in recs}
+    assert report.truth_group(R("F", "f", 1, truth="aligned on the true check points; true "
+                                                  "cameras")) == "truth-fed"
+    assert report.judged(recs["truth-fed"])                          # the verdict as the value
+    assert not report.judged(R("F", "g", 1, note="metres and metadata", truth="none"))
+    assert report.unsound_verdicts(recs.values()) == [recs["truth-fed"], recs["unstated"]]
+    # without a verdict, or as a setting, a truth-fed record is no unsound verdict
+    assert report.unsound_verdicts([R("F", "h", 1, truth="true cameras"),
+                                    R("F", "i", 1, note="met", kind="timing")]) == []
 
 
 @pytest.mark.parametrize("kwargs, exc", [

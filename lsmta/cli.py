@@ -4,10 +4,11 @@
 ``lsmta reproduce`` executes ``notebooks/NN_*.ipynb`` in order (each with its own folder as
 working directory, like nbmake), writes the executed notebooks and their HTML renderings
 to ``build/notebooks/``, every figure to ``build/figures/``, and the headline numbers the
-notebooks record (:mod:`lsmta.report`) to ``build/summary.md``, ``build/summary.json``
-and ``build/index.html``, with the provenance of the run (git commit and whether the tree
-had uncommitted changes, the versions of the main libraries, each notebook's ``SEED``,
-the machine). It exits with status 1, naming the notebook and cell, if any cell fails.
+notebooks record (:mod:`lsmta.report`), each with the truth inputs it used, to
+``build/summary.md``, ``build/summary.json`` and ``build/index.html``, with the results
+counted by their truth inputs and the provenance of the run (git commit and whether the
+tree had uncommitted changes, the versions of the main libraries, each notebook's
+``SEED``, the machine). It exits with status 1, naming the notebook and cell, if any cell fails.
 
 The kernels talk to the command over IPC (Unix sockets in a private temporary folder),
 not over TCP, so nothing listens on the network. ``LSMTA_BUILD_DIR`` is set to the build
@@ -208,12 +209,37 @@ def write_html(nb, target: Path) -> str | None:
     return target.name
 
 
+TRUTH_GROUPS = {
+    "none": "none: the system's own measurements",
+    "check points": "aligned on named true check points only",
+    "controlled": "truth-fed, controlled studies",
+    "truth-fed": "truth-fed, not controlled studies",
+    "unstated": "truth inputs unstated",
+}
+
+
+def truth_summary(records) -> tuple[list[tuple[str, int, int]], list]:
+    """The results among ``records`` counted by their truth inputs
+    (:func:`lsmta.report.truth_group`): ``(label, results, of them judged on a target)`` per
+    group of :data:`TRUTH_GROUPS`, and the records whose target verdicts lean on truth
+    inputs without being controlled studies (:func:`lsmta.report.unsound_verdicts`)."""
+    results = [r for r in records if r.kind == "result"]
+    rows = []
+    for group, label in TRUTH_GROUPS.items():
+        members = [r for r in results if report.truth_group(r) == group]
+        rows.append((label, len(members), sum(report.judged(r) for r in members)))
+    return rows, report.unsound_verdicts(results)
+
+
 def write_summary(build: Path, results: list[dict], *, meta: dict | None = None) -> None:
     """``summary.json``, ``summary.md`` and ``index.html`` from the notebooks' results.
 
-    Results and timings stand next to the papers' numbers; records of kind ``"setting"``
-    (numbers the notebooks chose) are listed apart, under "Settings". ``meta`` is the
-    run's :func:`provenance` (computed here if not given)."""
+    Results and timings stand next to the papers' numbers, each with the truth inputs it
+    used; records of kind ``"setting"`` (numbers the notebooks chose) are listed apart,
+    under "Settings". A section counts the results by their truth inputs and lists the
+    target verdicts judged on truth-fed records that are not controlled studies (there
+    should be none). ``meta`` is the run's :func:`provenance` (computed here if not
+    given)."""
     records = [report.Record(**r) for res in results for r in res["records"]]
     compared = [r for r in records if r.kind != "setting"]
     settings = [r for r in records if r.kind == "setting"]
@@ -224,9 +250,17 @@ def write_summary(build: Path, results: list[dict], *, meta: dict | None = None)
         {"meta": meta, "notebooks": results, "records": [asdict(r) for r in records]},
         indent=2), encoding="utf-8")
     prov = _provenance_lines(meta)
+    groups, unsound = truth_summary(records)
     lines = ["# lsmta — reproduced numbers next to the papers'", "",
-             report.table(compared), "", "## Settings (chosen, not measured)", "",
-             report.table(settings), "", "## Notebooks", "",
+             report.table(compared), "", "## Truth inputs of the results", "",
+             "| truth inputs | results | of them judged on a target |", "|---|---|---|"]
+    lines += [f"| {label} | {n} | {k} |" for label, n, k in groups]
+    lines += ["", "Target verdicts judged on truth-fed records that are not controlled studies:"
+              + ("" if unsound else " none."), ""]
+    if unsound:
+        lines += [report.table(unsound), ""]
+    lines += ["## Settings (chosen, not measured)", "",
+              report.table(settings), "", "## Notebooks", "",
              "| notebook | status | seconds | seed | figures |", "|---|---|---|---|---|"]
     for res in results:
         state = "ok" if res["ok"] else f"FAILED at cell {res['cell']}: {res['error']}"
@@ -241,11 +275,20 @@ def write_summary(build: Path, results: list[dict], *, meta: dict | None = None)
         return "".join(
             "<tr>" + "".join(f"<td>{esc(report.format_value(v))}</td>" for v in
                              (r.figure, r.quantity, r.paper, r.value, r.unit,
+                              report.truth_cell(r),
                               r.note if r.kind == "result" else f"({r.kind}) {r.note}"))
             + "</tr>" for r in recs)
 
     header = ("<tr><th>figure</th><th>quantity</th><th>paper</th><th>ours</th><th>unit</th>"
-              "<th>note</th></tr>")
+              "<th>truth</th><th>note</th></tr>")
+    unsound_text = ("Target verdicts judged on truth-fed records that are not controlled "
+                    "studies:" + ("" if unsound else " none."))
+    truth_html = ("<table><tr><th>truth inputs</th><th>results</th>"
+                  "<th>of them judged on a target</th></tr>"
+                  + "".join(f"<tr><td>{esc(label)}</td><td>{n}</td><td>{k}</td></tr>"
+                            for label, n, k in groups)
+                  + f"</table><p>{esc(unsound_text)}</p>"
+                  + (f"<table>{header}{rows(unsound)}</table>" if unsound else ""))
     sections = []
     for res in results:
         link = (f'<a href="notebooks/{esc(res["html"])}">{esc(res["notebook"])}</a>'
@@ -261,6 +304,7 @@ table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:3px 8px}}
 img{{max-width:100%;margin:6px 0;border:1px solid #eee}}</style></head><body>
 <h1>lsmta — reproduced numbers next to the papers'</h1>
 <table>{header}{rows(compared)}</table>
+<h2>Truth inputs of the results</h2>{truth_html}
 <h2>Settings (chosen, not measured)</h2><table>{header}{rows(settings)}</table>
 {''.join(sections)}
 <h2>Provenance</h2><ul>{prov_html}</ul>

@@ -11,11 +11,14 @@ number the notebook chose, such as an image size or a noise level picked to matc
 paper: not a result, so it stays out of the paper-against-ours table) or ``"timing"`` (a
 wall-clock time, which differs from run to run). A result also says which ground truth
 of the generator it leaned on (``truth``): ``"none"`` where the number comes from the
-system's own measurements, otherwise the truth inputs in words ("true cameras", "starts
-from truth", "aligned on the true check points", ...); a target judged on such a record is
-a controlled study and says so (``controlled=True``). :func:`verdict` writes a target's
-"met" / "NOT met" from a computed truth value, and :func:`build_dir` says where
-``lsmta reproduce`` writes (``LSMTA_BUILD_DIR``), for a notebook that quotes a benchmark.
+system's own measurements, otherwise the truth inputs in words, the phrases of
+:data:`TRUTH_PHRASES` joined by ``"; "`` ("true cameras; seeds from truth"), each with a
+few words in brackets where it helps to say which; a target judged on such a record is a
+controlled study and says so (``controlled=True``). :func:`truth_group` sorts the results
+by it and :func:`unsound_verdicts` lists the targets judged on truth-fed records that are
+not controlled studies. :func:`verdict` writes a target's "met" / "NOT met" from a
+computed truth value, and :func:`build_dir` says where ``lsmta reproduce`` writes
+(``LSMTA_BUILD_DIR``), for a notebook that quotes a benchmark.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import time
 from dataclasses import asdict, dataclass
 from numbers import Real
@@ -33,6 +37,38 @@ import numpy as np
 RECORD_ENV = "LSMTA_RECORD_FILE"
 BUILD_ENV = "LSMTA_BUILD_DIR"
 KINDS = ("result", "setting", "timing")
+
+#: The common phrases of a record's ``truth`` (others are allowed). A truth input is the
+#: generator's truth standing in for what a stage of the system, a device or its data would
+#: give; a user's own measurement of the world simulated with the error it has (a
+#: tape-measured rig, surveyed points, a bar's length) is not one.
+TRUTH_PHRASES = (
+    "true cameras",                        # the generator's cameras instead of a calibration
+    "projected truth plus noise",          # image observations projected from true points
+                                           # (plus noise), not detected in rendered images
+    "true points plus noise",              # 3-D measurements sampled from the true points or
+                                           # surface (plus noise, outliers), not measured
+    "starts from truth",                   # initial positions or values at the truth
+    "starts from perturbed truth",         # ... at the truth moved by a set error, standing
+                                           # in for a stage's output (tracked joints, a search)
+    "seeds from truth",                    # seed points or new points placed from the truth
+    "labels from truth",                   # which observation is which (identities,
+                                           # segments, body parts) from the true labels
+    "noise level from truth",              # a sigma set from the generator or measured
+                                           # against the truth (weights, thresholds, limits)
+    "true pose",                           # a pose the fit is given (the torso's, the head's)
+    "true body model",                     # the generator's body or marker model as the
+                                           # method's model of the subject
+    "aligned on the true check points",    # scored after a rigid alignment on true points
+                                           # (fine for a system's number if named: say which)
+    "model learnt from generated shapes",  # a model trained on the generator's shapes
+    "camera choice from truth",            # cameras picked by the true path they see
+    "mask from truth",                     # an operator's mask drawn where the truth is
+    "exact device read-back",              # a device reports the true value (no noise)
+    "settings tuned on the scored truth",  # parameters chosen by looking at these scores
+)
+#: The truth phrase that alone keeps a record a system's own number (name the points).
+CHECK_POINTS = "aligned on the true check points"
 
 
 @dataclass(frozen=True)
@@ -89,8 +125,9 @@ def record(figure: str, quantity: str, value, unit: str = "", *, paper=None,
     truth : str, optional
         The generator's ground truth the number leaned on, besides scoring against it:
         ``"none"`` (the system's own measurements only), or the truth inputs in a few
-        words, e.g. ``"true cameras; starts from truth"``. Settings and timings default to
-        ``"none"``; a result without it is stored as ``"unstated"``.
+        words, the phrases of :data:`TRUTH_PHRASES` joined by ``"; "``, e.g.
+        ``"true cameras; seeds from truth"``. Settings and timings default to ``"none"``;
+        a result without it is stored as ``"unstated"``.
     controlled : bool
         The record is a controlled study: truth inputs on purpose, to isolate one stage.
 
@@ -173,6 +210,34 @@ def build_dir() -> Path:
     return here / "build"
 
 
+def truth_group(rec: Record) -> str:
+    """Where a result stands by its truth inputs: ``"none"`` (the system's own
+    measurements), ``"check points"`` (those, scored after an alignment on named true check
+    points only), ``"controlled"`` (truth-fed, a controlled study), ``"truth-fed"`` (truth
+    inputs, not a controlled study) or ``"unstated"``. Settings and timings are ``"none"``
+    unless they say otherwise."""
+    truth = rec.truth.strip()
+    if truth in ("none", "unstated"):
+        return truth
+    if all(part.strip().startswith(CHECK_POINTS) for part in truth.split(";")):
+        return "check points"
+    return "controlled" if rec.controlled else "truth-fed"
+
+
+def judged(rec: Record) -> bool:
+    """Whether ``rec`` carries a target's verdict (:func:`verdict`'s "met" / "NOT met", in
+    its note or as its value)."""
+    text = f"{rec.note} {rec.value if isinstance(rec.value, str) else ''}"
+    return re.search(r"\bmet\b", text) is not None
+
+
+def unsound_verdicts(records) -> list[Record]:
+    """The results among ``records`` whose target verdict leans on truth inputs without
+    being a controlled study, or whose truth inputs are unstated."""
+    return [r for r in records if r.kind == "result" and judged(r)
+            and truth_group(r) in ("truth-fed", "unstated")]
+
+
 def format_value(value) -> str:
     """Numbers to four significant digits; strings as they are; None as an em dash."""
     if value is None:
@@ -182,15 +247,21 @@ def format_value(value) -> str:
     return str(value)
 
 
+def truth_cell(rec: Record) -> str:
+    """A record's truth inputs as a table shows them, "(controlled)" after a controlled
+    study's."""
+    return f"{rec.truth} (controlled)" if rec.controlled else rec.truth
+
+
 def table(records) -> str:
-    """A Markdown table (figure, quantity, paper, ours, unit, note) of ``records``; a
-    setting or timing says so in its note."""
-    rows = ["| figure | quantity | paper | ours | unit | note |",
-            "|---|---|---|---|---|---|"]
+    """A Markdown table (figure, quantity, paper, ours, unit, truth, note) of ``records``;
+    a setting or timing says so in its note."""
+    rows = ["| figure | quantity | paper | ours | unit | truth | note |",
+            "|---|---|---|---|---|---|---|"]
     for r in records:
         note = r.note if r.kind == "result" else f"({r.kind}) {r.note}".strip()
         cells = [r.figure, r.quantity, format_value(r.paper), format_value(r.value), r.unit,
-                 note]
+                 truth_cell(r), note]
         rows.append("| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |")
     return "\n".join(rows)
 

@@ -23,8 +23,11 @@ def notebooks(tmp_path):
         "import matplotlib\nimport matplotlib.pyplot as plt\n%matplotlib inline\n"
         "SEED = 7   # the notebook's seed",
         "from lsmta.report import build_dir, record\n"
-        "record('F0', 'answer', 42, 'units', paper=41, note='close')\n"
+        "record('F0', 'answer', 42, 'units', paper=41, note='close', truth='none')\n"
         "record('F0', 'image size', '8x8', 'px', paper='8x8', kind='setting')\n"
+        "record('F0', 'error', 1.5, 'mm', note='target < 2: met', truth='true cameras',\n"
+        "       controlled=True)\n"
+        "record('F0', 'fit', 3.5, 'mm', note='target < 2: NOT met', truth='labels from truth')\n"
         "open('build.txt', 'w').write(str(build_dir()))",
         "plt.plot([0, 1], [1, 0]); plt.xlabel('x [px]'); plt.show()",
         "import os; open('cwd.txt', 'w').write(os.getcwd())",
@@ -48,20 +51,32 @@ def test_reproduce_writes_summary_and_figures(notebooks, tmp_path, capfd):
     build = tmp_path / "build"
     assert cli.main(["reproduce", "--notebooks", str(notebooks), "--build", str(build)]) == 0
     summary = json.loads((build / "summary.json").read_text())
-    assert summary["records"] == [
+    assert summary["records"][:2] == [
         {"figure": "F0", "quantity": "answer", "value": 42, "unit": "units", "paper": 41,
-         "note": "close", "kind": "result", "truth": "unstated", "controlled": False},
+         "note": "close", "kind": "result", "truth": "none", "controlled": False},
         {"figure": "F0", "quantity": "image size", "value": "8x8", "unit": "px",
-         "paper": "8x8", "note": "", "kind": "setting", "truth": "none",
-         "controlled": False}]
+         "paper": "8x8", "note": "", "kind": "setting", "truth": "none", "controlled": False}]
+    assert [(r["truth"], r["controlled"]) for r in summary["records"][2:]] == [
+        ("true cameras", True), ("labels from truth", False)]
     md = (build / "summary.md").read_text()
-    assert "| F0 | answer | 41 | 42 | units | close |" in md
+    assert "| F0 | answer | 41 | 42 | units | none | close |" in md
+    assert "| F0 | error | — | 1.5 | mm | true cameras (controlled) | target < 2: met |" in md
     # a setting is listed apart, after the paper-against-ours table
     assert md.index("image size") > md.index("## Settings") > md.index("answer")
+    # the results counted by their truth inputs; the verdict on a truth-fed record that is
+    # not a controlled study listed, and only that one
+    truth = md[md.index("## Truth inputs"):md.index("## Settings")]
+    assert "| none: the system's own measurements | 1 | 0 |" in truth
+    assert "| truth-fed, controlled studies | 1 | 1 |" in truth
+    assert "| truth-fed, not controlled studies | 1 | 1 |" in truth
+    assert "| F0 | fit | — | 3.5 | mm | labels from truth | target < 2: NOT met |" in truth
+    assert "error" not in truth and "answer" not in truth
     figures = list((build / "figures").glob("00_first_cell*.png"))
     assert len(figures) == 1
     page = (build / "index.html").read_text()
     assert figures[0].name in page and "notebooks/00_first.html" in page
+    assert "<th>truth</th>" in page and "<td>true cameras (controlled)</td>" in page
+    assert "Truth inputs of the results" in page and "<td>labels from truth</td>" in page
     assert (build / "notebooks" / "01_second.ipynb").exists()
     # each notebook runs in its own folder, as under nbmake, told where the build is
     assert (notebooks / "cwd.txt").read_text() == str(notebooks)
@@ -140,3 +155,31 @@ def test_two_runs_of_a_notebook_give_identical_records(tmp_path):
                      if r["kind"] != "timing"])
     assert len(runs[0]) >= 5
     assert runs[0] == runs[1]
+
+
+def test_summary_counts_results_by_their_truth_inputs(tmp_path):
+    """Settings and timings stay out of the counts; check-point alignment alone keeps a
+    verdict sound, and with no unsound verdict the summary says "none"."""
+    from dataclasses import asdict
+
+    from lsmta import report
+
+    recs = [report.Record("F", "a", 1.0, note="target: met", truth="none"),
+            report.Record("F", "b", 2.0, note="target: NOT met",
+                          truth="aligned on the true check points (held-out bar)"),
+            report.Record("F", "c", 3.0, truth="true cameras"),
+            report.Record("F", "d", 4.0, note="met", kind="timing"),
+            report.Record("F", "e", 5.0, kind="setting")]
+    results = [{"notebook": "00_first", "ok": True, "cell": None, "error": None, "seconds": 1.0,
+                "seed": None, "figures": [], "html": None, "records": [asdict(r) for r in recs]}]
+    cli.write_summary(tmp_path, results, meta=cli.provenance(tmp_path))
+    md = (tmp_path / "summary.md").read_text()
+    truth = md[md.index("## Truth inputs"):md.index("## Settings")]
+    assert "| none: the system's own measurements | 1 | 1 |" in truth
+    assert "| aligned on named true check points only | 1 | 1 |" in truth
+    assert "| truth-fed, not controlled studies | 1 | 0 |" in truth
+    assert "| truth inputs unstated | 0 | 0 |" in truth
+    assert "not controlled studies: none." in truth
+    assert "studies: none." in (tmp_path / "index.html").read_text()
+    assert json.loads((tmp_path / "summary.json").read_text())["records"][2]["truth"] == \
+        "true cameras"

@@ -71,7 +71,7 @@ def truth_class(rec: dict) -> str:
     return truth if truth in ("none", "unstated") else "truth inputs"
 
 
-def reading_order(stems, readme: Path | None = None) -> list[str]:
+def reading_order(stems, *, readme: Path | None = None) -> list[str]:
     """``stems`` in the order ``readme`` first names them (``NN_name.ipynb``), the others
     after them by number."""
     stems = sorted(stems)
@@ -476,7 +476,7 @@ def build_book(build, *, readme=None, jobs: int = 1, quiet: bool = True) -> Book
     src = work / "src"
     present = {p.stem: p for p in sorted((build / "notebooks").glob("[0-9][0-9]_*.ipynb"))}
     by_stem = {res["notebook"]: res for res in results}
-    order = reading_order(set(present) | set(by_stem), readme)
+    order = reading_order(set(present) | set(by_stem), readme=readme)
     order = [s for s in order if s in present]
     titles = {}
     for stem in order:

@@ -312,10 +312,9 @@ def notebook_line(res: dict) -> str:
     """One line for a notebook that ran: name, state, time, figures, numbers, targets."""
     state = "ok" if res["ok"] else f"FAILED at cell {res['cell']}"
     met, not_met = _targets(res)
-    views = f" {len(res.get('views', [])):2d} 3-D" if res.get("views") else ""
     return (f"{res['notebook']:<33} {state:<6} {res['seconds']:6.1f} s "
-            f"{len(res['figures']):3d} fig{views} {len(res['records']):3d} numbers "
-            f"{met:3d} met {not_met:2d} NOT met")
+            f"{len(res['figures']):3d} fig {len(res.get('views', [])):2d} 3-D "
+            f"{len(res['records']):3d} numbers {met:3d} met {not_met:2d} NOT met")
 
 
 def make_book(build: Path, readme: Path | None) -> int:

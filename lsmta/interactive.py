@@ -216,5 +216,5 @@ def export_3d_html(*items, title: str = "", path=None, name: str | None = None) 
         legend={"x": 0.01, "y": 0.98})
     fig.write_html(path, include_plotlyjs="directory", full_html=True, include_mathjax=False,
                    config={"displaylogo": False, "responsive": True},
-                   default_width="100%", default_height="96vh")
+                   default_width="100%", default_height="92vh")
     return path

@@ -389,9 +389,10 @@ BOOK_CSS = """
 """
 
 def _copy_mathjax(static: Path) -> None:
-    """MathJax 3's ``tex-svg.js`` (one file: TeX in, SVG out, no web fonts, which Chromium
-    would not load from the file system) from the ``sphinx-mathjax-offline`` package."""
-    target = static / "mathjax" / "tex-svg.js"
+    """MathJax 3's ``tex-svg-full.js`` from the ``sphinx-mathjax-offline`` package: one file
+    with every TeX extension, TeX in, SVG out, so no web fonts (which Chromium would not
+    load from the file system)."""
+    target = static / "mathjax" / "tex-svg-full.js"
     if target.exists():
         return
     from importlib import metadata  # deferred: only to find the package's files
@@ -400,7 +401,7 @@ def _copy_mathjax(static: Path) -> None:
         dist = metadata.distribution("sphinx-mathjax-offline")
     except metadata.PackageNotFoundError:  # pragma: no cover - a dependency
         return
-    src = Path(dist.locate_file("sphinx-mathjax-offline/static/mathjax/tex-svg.js"))
+    src = Path(dist.locate_file("sphinx-mathjax-offline/static/mathjax/tex-svg-full.js"))
     if src.exists():
         target.parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(src, target)
@@ -430,7 +431,7 @@ html_extra_path = ["extra"]
 html_copy_source = False
 html_show_sourcelink = False
 html_last_updated_fmt = None
-mathjax_path = "mathjax/tex-svg.js"
+mathjax_path = "mathjax/tex-svg-full.js"
 mathjax3_config = {{"svg": {{"fontCache": "global"}}}}
 html_show_search_summary = False        # summaries are fetched: not from file://
 html_context = {{"default_mode": "light"}}

@@ -72,7 +72,7 @@ def test_reproduce_builds_the_book(built, capsys):
     assert (build / "book" / "searchindex.js").is_file()
     assert (build / "book" / "views3d" / "01_second_view00.html").is_file()
     assert (build / "book" / "views3d" / "plotly.min.js").is_file()
-    assert (build / "book" / "_static" / "mathjax" / "tex-svg.js").is_file()
+    assert (build / "book" / "_static" / "mathjax" / "tex-svg-full.js").is_file()
     # build/index.html leads to the book
     assert 'url=book/index.html' in (build / "index.html").read_text()
     summary = json.loads((build / "summary.json").read_text())

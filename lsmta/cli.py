@@ -2,13 +2,17 @@
 ``lsmta capture`` runs the LSMTA system on a user's recording (:mod:`lsmta.capture_command`).
 
 ``lsmta reproduce`` executes ``notebooks/NN_*.ipynb`` in order (each with its own folder as
-working directory, like nbmake), writes the executed notebooks and their HTML renderings
-to ``build/notebooks/``, every figure to ``build/figures/``, and the headline numbers the
-notebooks record (:mod:`lsmta.report`), each with the truth inputs it used, to
-``build/summary.md``, ``build/summary.json`` and ``build/index.html``, with the results
-counted by their truth inputs and the provenance of the run (git commit and whether the
-tree had uncommitted changes, the versions of the main libraries, each notebook's
-``SEED``, the machine). It exits with status 1, naming the notebook and cell, if any cell fails.
+working directory, like nbmake), writes the executed notebooks to ``build/notebooks/``,
+every figure to ``build/figures/``, the interactive 3-D views to ``build/views3d/``
+(:mod:`lsmta.interactive`), and the headline numbers the notebooks record
+(:mod:`lsmta.report`), each with the truth inputs it used and the cell that recorded it, to
+``build/summary.md`` and ``build/summary.json``, with the results counted by their truth
+inputs and the provenance of the run (git commit and whether the tree had uncommitted
+changes, the versions of the main libraries, each notebook's ``SEED``, the machine). Then
+it builds the book, ``build/book/`` (:mod:`lsmta.book`); ``build/index.html`` leads to it.
+It prints one line per notebook (time, figures, numbers, targets met / NOT met) and where
+the book is, and exits with status 1, naming the notebook and cell, if any cell fails.
+``lsmta book`` rebuilds the book of an existing build.
 
 The kernels talk to the command over IPC (Unix sockets in a private temporary folder),
 not over TCP, so nothing listens on the network. ``LSMTA_BUILD_DIR`` is set to the build
@@ -33,9 +37,7 @@ from dataclasses import asdict
 from importlib import metadata
 from pathlib import Path
 
-from tqdm.auto import tqdm
-
-from . import capture_command, report
+from . import capture_command, interactive, report
 
 OFFSCREEN_ENV = {
     "PYVISTA_OFF_SCREEN": "true",
@@ -128,20 +130,34 @@ def execute(path: Path, build: Path, timeout: int) -> dict:
     records_file = build / "records" / f"{path.stem}.jsonl"
     records_file.parent.mkdir(parents=True, exist_ok=True)
     records_file.unlink(missing_ok=True)
+    views = build / "views3d"
+    views.mkdir(parents=True, exist_ok=True)
+    for old in views.glob(f"{path.stem}_*.html"):
+        old.unlink()
     os.environ[report.RECORD_ENV] = str(records_file.resolve())
     os.environ[report.BUILD_ENV] = str(build.resolve())
+    os.environ[interactive.VIEWS_ENV] = str(views.resolve())
+    os.environ[interactive.NOTEBOOK_ENV] = path.stem
     for key, value in OFFSCREEN_ENV.items():
         os.environ.setdefault(key, value)
 
-    n_code = sum(c.cell_type == "code" for c in nb.cells)
-    bar = tqdm(total=n_code, desc=path.stem, unit="cell", leave=False, file=sys.stderr)
     current = {"index": None}
+    record_cells: list[int] = []   # the cell of each record, in the records' order
+    view_cells: list[dict] = []    # the 3-D views and the cells that wrote them
 
     def on_execute(cell, cell_index, **_):
         current["index"] = cell_index
 
     def on_executed(cell, cell_index, **_):
-        bar.update(1)
+        # a cell's records and views are written while it runs: what is new is its own
+        if records_file.exists():
+            with open(records_file, encoding="utf-8") as fh:
+                n = sum(1 for line in fh if line.strip())
+            record_cells.extend([cell_index] * (n - len(record_cells)))
+        known = {v["file"] for v in view_cells}
+        for f in sorted(views.glob(f"{path.stem}_*.html"), key=lambda p: p.stat().st_mtime):
+            if f.name not in known:
+                view_cells.append({"file": f.name, "cell": cell_index})
 
     # IPC transport: Unix sockets at an absolute path (the kernel runs in the notebook's
     # folder, so a relative one would not meet), in a short private folder
@@ -163,9 +179,9 @@ def execute(path: Path, build: Path, timeout: int) -> dict:
     except Exception as exc:  # kernel died, etc.
         status.update(ok=False, cell=current["index"], error=f"{type(exc).__name__}: {exc}")
     finally:
-        bar.close()
-        os.environ.pop(report.RECORD_ENV, None)
-        os.environ.pop(report.BUILD_ENV, None)
+        for key in (report.RECORD_ENV, report.BUILD_ENV, interactive.VIEWS_ENV,
+                    interactive.NOTEBOOK_ENV):
+            os.environ.pop(key, None)
         shutil.rmtree(sockets, ignore_errors=True)
     status["seconds"] = round(time.perf_counter() - start, 2)
 
@@ -173,9 +189,12 @@ def execute(path: Path, build: Path, timeout: int) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     nbformat.write(nb, out_dir / path.name)
     status["figures"] = save_figures(nb, path.stem, build / "figures")
-    status["html"] = write_html(nb, out_dir / f"{path.stem}.html")
     status["records"] = ([asdict(r) for r in report.load_records(records_file)]
                          if records_file.exists() else [])
+    # records written after the last cell finished (none expected) get no cell
+    status["record_cells"] = (record_cells + [None] * len(status["records"]))[
+        :len(status["records"])]
+    status["views"] = view_cells
     return status
 
 
@@ -195,18 +214,6 @@ def save_figures(nb, stem: str, folder: Path) -> list[str]:
                 names.append(name)
                 k += 1
     return names
-
-
-def write_html(nb, target: Path) -> str | None:
-    try:
-        from nbconvert import HTMLExporter  # deferred: seconds to import, only for HTML
-
-        body, _ = HTMLExporter().from_notebook_node(nb)
-    except Exception as exc:  # pragma: no cover - nbconvert template problems
-        print(f"lsmta reproduce: could not render {target.name}: {exc}", file=sys.stderr)
-        return None
-    target.write_text(body, encoding="utf-8")
-    return target.name
 
 
 TRUTH_GROUPS = {
@@ -233,6 +240,9 @@ def truth_summary(records) -> tuple[list[tuple[str, int, int]], list]:
 
 def write_summary(build: Path, results: list[dict], *, meta: dict | None = None) -> None:
     """``summary.json``, ``summary.md`` and ``index.html`` from the notebooks' results.
+
+    ``index.html`` is a plain page of the same tables and every figure; once the book is
+    built, :func:`write_index` makes it lead to the book instead.
 
     Results and timings stand next to the papers' numbers, each with the truth inputs it
     used; records of kind ``"setting"`` (numbers the notebooks chose) are listed apart,
@@ -291,8 +301,7 @@ def write_summary(build: Path, results: list[dict], *, meta: dict | None = None)
                   + (f"<table>{header}{rows(unsound)}</table>" if unsound else ""))
     sections = []
     for res in results:
-        link = (f'<a href="notebooks/{esc(res["html"])}">{esc(res["notebook"])}</a>'
-                if res.get("html") else esc(res["notebook"]))
+        link = f'<a href="notebooks/{esc(res["notebook"])}.ipynb">{esc(res["notebook"])}</a>'
         state = "ok" if res["ok"] else f"<b>FAILED</b> at cell {res['cell']}: {esc(res['error'])}"
         seed = f", seed {esc(str(res['seed']))}" if res.get("seed") else ""
         figs = "".join(f'<img src="figures/{esc(f)}" loading="lazy">' for f in res["figures"])
@@ -325,6 +334,52 @@ def _provenance_lines(meta: dict) -> list[tuple[str, str]]:
             ("finished", meta["finished"])]
 
 
+def write_index(build: Path) -> None:
+    """``build/index.html``: a page that leads to the book (``book/index.html``)."""
+    (build / "index.html").write_text(
+        '<!doctype html><html><head><meta charset="utf-8"><title>lsmta results</title>'
+        '<meta http-equiv="refresh" content="0; url=book/index.html"></head><body>'
+        '<p>The results are in <a href="book/index.html">the book</a>; every number is '
+        'also in <a href="summary.md">summary.md</a>.</p></body></html>\n', encoding="utf-8")
+
+
+def _targets(res: dict) -> tuple[int, int]:
+    """(met, NOT met) among a notebook's result records."""
+    from .book import verdict_of  # deferred: the book module is only needed here
+
+    verdicts = [verdict_of(r.get("note", "")) for r in res.get("records", [])
+                if r.get("kind") == "result"]
+    return verdicts.count("met"), verdicts.count("NOT met")
+
+
+def notebook_line(res: dict) -> str:
+    """One line for a notebook that ran: name, state, time, figures, numbers, targets."""
+    state = "ok" if res["ok"] else f"FAILED at cell {res['cell']}"
+    met, not_met = _targets(res)
+    return (f"{res['notebook']:<33} {state:<6} {res['seconds']:6.1f} s "
+            f"{len(res['figures']):3d} fig {len(res.get('views', [])):2d} 3-D "
+            f"{len(res['records']):3d} numbers {met:3d} met {not_met:2d} NOT met")
+
+
+def make_book(build: Path, readme: Path | None) -> int:
+    """Build the book and say where it is (or what went wrong); returns 0 or 1."""
+    from . import book  # deferred: Sphinx is only needed here
+
+    result = book.build_book(build, readme=readme, jobs=min(2, os.cpu_count() or 1))
+    if not result.ok:
+        print(f"lsmta: the book failed to build ({result.seconds:.0f} s):", file=sys.stderr)
+        print("\n".join(result.messages.splitlines()[-15:]), file=sys.stderr)
+        return 1
+    write_index(build)
+    n_warn = len([m for m in result.messages.splitlines() if "WARNING" in m])
+    warned = (f" ({n_warn} Sphinx warnings in {build / '.book' / 'warnings.txt'})"
+              if n_warn else "")
+    print(f"the book ({result.seconds:.0f} s): {result.index}{warned}")
+    print("  open it with: bash scripts/open_book.sh"
+          + ("" if build.resolve() == (Path.cwd() / "build").resolve() else f" {build}"))
+    return 0
+
+
 def reproduce(args) -> int:
     folder = Path(args.notebooks) if args.notebooks else default_notebook_dir()
     notebooks = find_notebooks(folder)
@@ -339,15 +394,15 @@ def reproduce(args) -> int:
     build = Path(args.build)
     build.mkdir(parents=True, exist_ok=True)
     results = []
-    with tqdm(chosen, desc="notebooks", unit="nb", file=sys.stderr) as bar:
-        for path in bar:
-            bar.set_postfix_str(path.stem)
-            res = execute(path, build, args.timeout)
-            results.append(res)
-            state = "ok" if res["ok"] else "FAILED"
-            tqdm.write(f"{path.stem}: {state} in {res['seconds']:.1f} s, "
-                       f"{len(res['figures'])} figure(s), {len(res['records'])} number(s)",
-                       file=sys.stderr)
+    tty = sys.stdout.isatty()
+    start = time.perf_counter()
+    for path in chosen:
+        if tty:
+            print(f"{path.stem:<33} running ...", end="\r", flush=True)
+        res = execute(path, build, args.timeout)
+        results.append(res)
+        print(notebook_line(res) + (" " * 8 if tty else ""), flush=True)
+    ran = results
     if args.only:  # keep the other notebooks' earlier results in the summary
         old = build / "summary.json"
         if old.exists():
@@ -356,12 +411,27 @@ def reproduce(args) -> int:
             results = sorted([r for r in previous if r["notebook"] not in done] + results,
                              key=lambda r: r["notebook"])
     write_summary(build, results, meta=provenance(folder.resolve().parent))
-    print(f"lsmta reproduce: wrote {build / 'index.html'} and {build / 'summary.md'}")
-    failed = [r for r in results if not r["ok"]]
+    totals = [_targets(r) for r in results]
+    met, not_met = sum(t[0] for t in totals), sum(t[1] for t in totals)
+    failed = [r for r in ran if not r["ok"]]
+    print(f"{len(ran)} notebook(s) in {time.perf_counter() - start:.0f} s, {len(failed)} failed;"
+          f" targets of the {len(results)} in the build: {met} met, {not_met} NOT met")
+    print(f"every number: {build / 'summary.md'}")
+    book_failed = make_book(build, folder / "README.md") if not args.no_book else 0
     for r in failed:
         print(f"lsmta reproduce: {r['notebook']}.ipynb failed at cell {r['cell']}: {r['error']}",
               file=sys.stderr)
-    return 1 if failed else 0
+    return 1 if failed or book_failed else 0
+
+
+def book_command(args) -> int:
+    build = Path(args.build)
+    if not (build / "summary.json").is_file():
+        print(f"lsmta book: no summary.json in {build} (run lsmta reproduce first)",
+              file=sys.stderr)
+        return 2
+    folder = Path(args.notebooks) if args.notebooks else default_notebook_dir()
+    return make_book(build, folder / "README.md")
 
 
 def main(argv=None) -> int:
@@ -374,10 +444,17 @@ def main(argv=None) -> int:
     rep.add_argument("--build", default="build", help="output folder (default: build)")
     rep.add_argument("--notebooks", default=None, help="folder of the notebooks")
     rep.add_argument("--timeout", type=int, default=1200, help="seconds allowed per cell")
+    rep.add_argument("--no-book", action="store_true", help="do not build the book")
+    bk = sub.add_parser("book", help="build the book (build/book/) from an earlier reproduce")
+    bk.add_argument("--build", default="build", help="the build folder (default: build)")
+    bk.add_argument("--notebooks", default=None,
+                    help="folder of the notebooks (its README.md gives the reading order)")
     capture_command.add_parser(sub)
     args = parser.parse_args(argv)
     if args.command == "reproduce":
         return reproduce(args)
+    if args.command == "book":
+        return book_command(args)
     if args.command == "capture":
         return capture_command.run(args)
     return 2  # pragma: no cover

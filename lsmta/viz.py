@@ -3,6 +3,11 @@
 pyvista renders off-screen through VTK's EGL window (Mesa's ``libEGL`` must be installed;
 ``scripts/bootstrap.sh`` does it). :func:`scene_image` returns the picture as an array, so a
 notebook shows it with ``plt.imshow`` and needs no interactive 3-D backend.
+
+Under ``lsmta reproduce`` (``LSMTA_VIEWS_DIR`` set) :func:`scene_image`, :func:`cloud_image`
+and :func:`metaball_image` also write the same scene as an interactive view
+(:func:`export_3d_html`, from :mod:`lsmta.interactive`), which the book shows after the
+picture; the PNG stays for print.
 """
 
 from __future__ import annotations
@@ -13,6 +18,11 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import ConnectionPatch
 
+from .interactive import VIEWS_ENV, Lines, Mesh, Points, export_3d_html
+
+__all__ = ["show_images", "draw_correspondences", "part_colours", "scene_image", "cloud_image",
+           "draw_marker_pose", "metaball_image", "export_3d_html", "Mesh", "Points", "Lines"]
+
 
 def _pyvista():
     os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
@@ -21,6 +31,25 @@ def _pyvista():
 
     pv.OFF_SCREEN = True
     return pv
+
+
+def _hex(rgb) -> str:
+    r, g, b = (int(round(255 * float(c))) for c in np.asarray(rgb, float)[:3])
+    return f"#{r:02x}{g:02x}{b:02x}"
+
+
+def _mesh_item(mesh, color, opacity=1.0, name="") -> Mesh:
+    """A pyvista surface as a :class:`Mesh` (triangulated)."""
+    tri = mesh.triangulate()
+    faces = np.asarray(tri.faces).reshape(-1, 4)[:, 1:]
+    return Mesh(np.asarray(tri.points), faces, color=color if isinstance(color, str)
+                else _hex(color), opacity=opacity, name=name)
+
+
+def _export_under_reproduce(items, title: str) -> None:
+    """The interactive twin of a static picture, only under ``lsmta reproduce``."""
+    if os.environ.get(VIEWS_ENV) and items:
+        export_3d_html(*items, title=title)
 
 
 def show_images(images, *, titles=None, axes=None, cmap="gray", vmin=0, vmax=255,
@@ -97,6 +126,7 @@ def scene_image(cameras, *, body=None, poses=None, background=None, frustum_dept
     pv = _pyvista()
     pl = pv.Plotter(off_screen=True, window_size=list(window_size))
     pl.set_background("white")
+    items = []
     for cam in cameras:
         corners = np.array([[-0.5, -0.5], [cam.width - 0.5, -0.5],
                             [cam.width - 0.5, cam.height - 0.5], [-0.5, cam.height - 0.5]])
@@ -108,6 +138,10 @@ def scene_image(cameras, *, body=None, poses=None, background=None, frustum_dept
                            [4, 1, 2, 3, 4]])
         pl.add_mesh(pv.PolyData(pts, faces), color="royalblue", opacity=0.35,
                     show_edges=True, edge_color="navy")
+        items.append(_mesh_item(pv.PolyData(pts, faces), "royalblue", 0.35,
+                                cam.name or "camera"))
+        items.append(Lines(tuple(np.array([cam.C, c]) for c in far)
+                           + (np.vstack([far, far[:1]]),), color="navy", width=2))
         if cam.name:
             pl.add_point_labels(cam.C[None], [cam.name], font_size=14, point_size=8,
                                 shape_opacity=0.6)
@@ -118,22 +152,35 @@ def scene_image(cameras, *, body=None, poses=None, background=None, frustum_dept
             mesh.translate(spec.centre, inplace=True)
             mesh.transform(poses[p], inplace=True)
             pl.add_mesh(mesh, color=palette[p], smooth_shading=True)
+            items.append(_mesh_item(mesh, palette[p]))
     if background is not None:
         if background.floor:
             floor = pv.Plane(center=(0, background.wall_y / 2 - 2500, 0), direction=(0, 0, 1),
                              i_size=7000, j_size=background.wall_y + 5000)
             pl.add_mesh(floor, color="tan", opacity=0.5)
+            items.append(_mesh_item(floor, "tan", 0.5, "floor"))
         wall = pv.Plane(center=(0, background.wall_y, 1500), direction=(0, 1, 0),
                         i_size=3000, j_size=7000)
         pl.add_mesh(wall, color="lightgrey", opacity=0.5)
+        items.append(_mesh_item(wall, "lightgrey", 0.5, "wall"))
     if points is not None:
         pl.add_points(np.asarray(points, float), color="crimson", point_size=6,
                       render_points_as_spheres=True)
+        items.append(Points(np.asarray(points, float), color="crimson", size=3, name="points"))
+    named = [cam for cam in cameras if cam.name]
+    if named:
+        items.append(Points(np.array([cam.C for cam in named]), text=[c.name for c in named],
+                            as_text=True))
+    _export_under_reproduce(items, "rig, cameras and body")
     pl.add_axes()
     pl.camera_position = [tuple(view_from), tuple(focal_point), (0, 0, 1)]
     image = pl.screenshot(return_img=True)
     pl.close()
     return image
+
+
+_PLOTLY_SCALES = {"Viridis", "Plasma", "Inferno", "Magma", "Cividis", "Turbo", "Jet", "Hot",
+                  "Greys", "Blues", "Reds", "Rainbow", "Portland", "Picnic"}
 
 
 def cloud_image(points, *, scalars=None, cmap="viridis", clim=None, scalar_label="",
@@ -158,6 +205,12 @@ def cloud_image(points, *, scalars=None, cmap="viridis", clim=None, scalar_label
     else:
         pl.add_mesh(cloud, color="steelblue", point_size=point_size,
                     render_points_as_spheres=True)
+    _export_under_reproduce([Points(pts, color="steelblue", size=2, values=scalars,
+                                    clim=clim, label=scalar_label,
+                                    colorscale=cmap.capitalize() if isinstance(cmap, str)
+                                    and cmap.capitalize() in _PLOTLY_SCALES else "Viridis")],
+                            "point cloud" + (f", coloured by {scalar_label}"
+                                             if scalar_label else ""))
     eye = view_from if view_from is not None else centre + [0.6 * extent, -2.2 * extent,
                                                              0.5 * extent]
     pl.camera_position = [tuple(eye), tuple(centre if focal_point is None else focal_point),
@@ -243,20 +296,25 @@ def metaball_image(ball_poses, radii, *, threshold_scale: float = 0.589, mesh=No
     poses = np.asarray(ball_poses, float)
     radii = np.asarray(radii, float)
     palette = plt.cm.tab10(np.arange(len(poses)) // 3 % 10)[:, :3]
+    items = []
     for k, (T, r) in enumerate(zip(poses, radii)):
         e = pv.ParametricEllipsoid(*(threshold_scale * r), u_res=24, v_res=24)
         e.transform(T, inplace=True)
         pl.add_mesh(e, color=palette[k], smooth_shading=True, opacity=0.9)
+        items.append(_mesh_item(e, palette[k], 0.9))
     if mesh is not None:
         v, f = mesh
         faces = np.hstack([np.full((len(f), 1), 3), np.asarray(f)]).ravel()
         pl.add_mesh(pv.PolyData(np.asarray(v, float), faces), color="wheat",
                     opacity=mesh_opacity, smooth_shading=True)
+        items.append(Mesh(np.asarray(v, float), np.asarray(f), color="wheat",
+                          opacity=mesh_opacity, name="skin"))
     if points is not None:
         kw = {"color": "crimson"} if point_colors is None else {
             "scalars": np.asarray(point_colors), "rgb": True}
         pl.add_points(np.asarray(points, float), point_size=4, render_points_as_spheres=True,
                       **kw)
+        items.append(Points(np.asarray(points, float), size=2.5, name="points"))
     if lines is not None:
         # one poly-data: a polyline per run of known positions
         verts, cells, n = [], [], 0
@@ -271,6 +329,10 @@ def metaball_image(ball_poses, radii, *, threshold_scale: float = 0.589, mesh=No
         if verts:
             pl.add_mesh(pv.PolyData(np.concatenate(verts), lines=np.concatenate(cells)),
                         color=line_color, line_width=2)
+        items.append(Lines(tuple(np.asarray(line, float) for line in lines),
+                           color=line_color if isinstance(line_color, str)
+                           else _hex(line_color), width=2, name="trajectories"))
+    _export_under_reproduce(items, "fitted model (metaballs)")
     centre = poses[:, :3, 3].mean(axis=0) if focal_point is None else np.asarray(focal_point)
     eye = centre + np.array([250.0, -1000.0, 250.0]) if view_from is None else view_from
     pl.camera_position = [tuple(eye), tuple(centre), (0, 0, 1)]

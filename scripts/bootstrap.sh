@@ -1,16 +1,19 @@
 #!/usr/bin/env bash
 # Build everything lsmta needs on a fresh Debian machine (Python 3.10+; root or sudo for the
-# system libraries): Mesa's EGL for off-screen pyvista, then a virtual environment in .venv
+# system libraries): the packages of apt.txt (Mesa's EGL for off-screen pyvista, Chromium
+# for the book's browser tests), then a virtual environment in .venv
 # with the exact versions of requirements.lock (made by pip-compile, see ENVIRONMENT.md) and
 # the package itself. LSMTA_UNLOCKED=1 installs the newest versions pyproject.toml allows
 # instead. Safe to run again: steps already done are skipped.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-# 1. System libraries for headless 3-D rendering (VTK's EGL render window).
-egl_pkgs="libegl1 libegl-mesa0 libgl1-mesa-dri"
+# 1. System packages, listed in apt.txt (Binder reads the same file): Mesa's EGL for
+#    headless 3-D rendering (VTK's EGL render window) and Chromium, in which the tests open
+#    the book (tests/test_book.py) and a reader can.
+sys_pkgs="$(sed -e 's/#.*//' apt.txt | tr -s ' \n' ' ')"
 missing=""
-for p in $egl_pkgs; do
+for p in $sys_pkgs; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
 done
 if [ -n "$missing" ]; then
@@ -20,7 +23,7 @@ if [ -n "$missing" ]; then
     $SUDO apt-get update -qq
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq $missing >/dev/null
   else
-    echo "bootstrap: please install Mesa's EGL ($egl_pkgs on Debian) for off-screen pyvista" >&2
+    echo "bootstrap: please install$missing (Debian names; apt.txt) for off-screen pyvista and the browser tests" >&2
   fi
 fi
 
@@ -46,7 +49,7 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     pip_q -r requirements.lock
     pip_q --no-deps -e .
   fi
-  .venv/bin/python -c "import lsmta, numpy, scipy, cv2, skimage, pyvista, emcee, nbmake" \
+  .venv/bin/python -c "import lsmta, numpy, scipy, cv2, skimage, pyvista, emcee, nbmake, myst_nb, plotly" \
     || { echo "bootstrap: the install failed" >&2; exit 1; }
   echo "$want" > "$stamp"
 fi

@@ -49,7 +49,8 @@ def test_list(notebooks, capsys):
 
 def test_reproduce_writes_summary_and_figures(notebooks, tmp_path, capfd):
     build = tmp_path / "build"
-    assert cli.main(["reproduce", "--notebooks", str(notebooks), "--build", str(build)]) == 0
+    assert cli.main(["reproduce", "--notebooks", str(notebooks), "--build", str(build),
+                     "--no-book"]) == 0     # the book: tests/test_book.py
     summary = json.loads((build / "summary.json").read_text())
     assert summary["records"][:2] == [
         {"figure": "F0", "quantity": "answer", "value": 42, "unit": "units", "paper": 41,
@@ -74,9 +75,10 @@ def test_reproduce_writes_summary_and_figures(notebooks, tmp_path, capfd):
     figures = list((build / "figures").glob("00_first_cell*.png"))
     assert len(figures) == 1
     page = (build / "index.html").read_text()
-    assert figures[0].name in page and "notebooks/00_first.html" in page
+    assert figures[0].name in page and "notebooks/00_first.ipynb" in page
     assert "<th>truth</th>" in page and "<td>true cameras (controlled)</td>" in page
     assert "Truth inputs of the results" in page and "<td>labels from truth</td>" in page
+    assert summary["notebooks"][0]["record_cells"] == [2, 2, 2, 2]    # the cell of each record
     assert (build / "notebooks" / "01_second.ipynb").exists()
     # each notebook runs in its own folder, as under nbmake, told where the build is
     assert (notebooks / "cwd.txt").read_text() == str(notebooks)
@@ -134,7 +136,7 @@ def test_failing_cell_is_named(notebooks, tmp_path, capsys):
     _notebook(notebooks / "02_broken.ipynb", ["a = 1", "raise RuntimeError('boom')"])
     build = tmp_path / "build"
     code = cli.main(["reproduce", "--notebooks", str(notebooks), "--build", str(build),
-                     "--only", "02"])
+                     "--only", "02", "--no-book"])
     assert code == 1
     err = capsys.readouterr().err
     assert "02_broken.ipynb failed at cell 2" in err and "boom" in err
@@ -150,7 +152,7 @@ def test_two_runs_of_a_notebook_give_identical_records(tmp_path):
     for name in ("a", "b"):
         build = tmp_path / name
         assert cli.main(["reproduce", "--notebooks", str(folder), "--build", str(build),
-                         "--only", "09"]) == 0
+                         "--only", "09", "--no-book"]) == 0
         runs.append([r for r in json.loads((build / "summary.json").read_text())["records"]
                      if r["kind"] != "timing"])
     assert len(runs[0]) >= 5

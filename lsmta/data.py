@@ -35,6 +35,7 @@ RECORDING_FILES = {
     "tennis": DATA_DIR / "kineticstoolkit" / "kinematics_tennis_serve.c3d",
     "two players": DATA_DIR / "kineticstoolkit" / "kinematics_tennis_serve_2players.c3d",
     "racing": DATA_DIR / "kineticstoolkit" / "kinematics_racing_propulsion.c3d",
+    "racing static": DATA_DIR / "kineticstoolkit" / "kinematics_racing_static.c3d",
     "clouthier": DATA_DIR / "clouthier2021" / "KneeltoProne01.c3d",
 }
 

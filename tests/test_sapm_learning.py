@@ -234,3 +234,91 @@ def test_real_recording_protocol_and_scores():
     assert s["correct"] > 0.9 and s["wrong"] < 0.02
     with pytest.raises(ValueError, match="name"):
         load_recording("golf")
+
+
+# ---------------------------------------------------------------------- beyond the clip
+def _definition(model):
+    seg = {n: [model.labels[i] for i in m] for n, m in zip(model.segments, model.members)}
+    par = {n: (model.segments[p] if p >= 0 else None)
+           for n, p in zip(model.segments, model.parent)}
+    return seg, par
+
+
+def _scores(model, frames, params, rng):
+    c = w = n = 0
+    for X in frames:
+        perm = rng.permutation(len(X))
+        r = identify(model, X[perm], params=params)
+        c += int((r.labels == perm).sum())
+        w += int(((r.labels >= 0) & (r.labels != perm)).sum())
+        n += len(perm)
+    return c / n, w / n
+
+
+def test_generalising_search_labels_frames_beyond_the_training_range():
+    truth = human_model(hands=True)
+    seg, par = _definition(truth)
+    clip = marker_clip(truth, 60, rng=1, amplitude=0.3, distortion=0.01)   # arms kept low
+    model = MarkerModel.from_labelled_frames(truth.labels, clip.points, seg, par)
+    # test frames: every joint turns five times as far, and the upper arms' markers slide
+    # (skin over the shoulder) far beyond what the clip showed
+    psi = np.array([0.25 if "upper_arm" in n else 0.04 for n in truth.segments])
+    test = marker_clip(truth, 40, rng=2, amplitude=1.5, distortion=psi)
+    def raised(X):                               # the highest wrist over its shoulder, mm
+        return max((X[:, truth.label_index(f"{S}wrist"), 2]
+                    - X[:, truth.label_index(f"{S}sho"), 2]).max() for S in "LR")
+
+    assert raised(clip.points) < -400 and raised(test.points) > 100     # hands overhead
+    plain = _scores(model, test.points, SAPMParams(search="tree", beta=0.5),
+                    np.random.default_rng(3))
+    ours = _scores(model, test.points, SAPMParams.generalising(), np.random.default_rng(3))
+    assert ours[0] >= 0.97 and ours[1] <= 0.01, ours
+    assert ours[0] > plain[0] + 0.01, (plain, ours)
+
+
+def test_abstains_where_two_labellings_are_equally_good():
+    # a root plate and a child whose three markers form an equilateral triangle with the
+    # joint on its axis: its three rotations fit and join equally well
+    root = {"a0": (0, 0, 0), "a1": (80, 0, 0), "a2": (0, 50, 0), "a3": (30, 20, 40)}
+    ang = np.radians([90, 210, 330])
+    child = {f"b{i}": (60 * np.cos(t), 60 * np.sin(t), -300.0) for i, t in enumerate(ang)}
+    pts = {k: np.array(v, float) for k, v in {**root, **child}.items()}
+    segments = {"a": list(root), "b": list(child)}
+    model = MarkerModel.from_labelled_frame(pts, segments, {"a": None, "b": "a"},
+                                            joints={"b": np.array([0.0, 0.0, -150.0])})
+    X = np.stack([pts[k] for k in model.labels])
+    perm = np.random.default_rng(4).permutation(len(X))
+    careful = identify(model, X[perm], params=SAPMParams.generalising())
+    is_b = np.isin(perm, [model.label_index(k) for k in child])
+    assert (careful.labels[is_b] == -1).all() and careful.abstained[is_b].all()
+    np.testing.assert_array_equal(careful.labels[~is_b], perm[~is_b])     # the plate kept
+    assert (careful.confidence[~is_b] > 0.1).all()
+    bold = identify(model, X[perm], params=SAPMParams.generalising(abstain=0.0))
+    assert (bold.labels[is_b] >= 0).all() and not bold.abstained.any()
+
+
+def test_labels_carried_through_a_recording_with_a_gap():
+    from lsmta.sapm.tracking import TrackParams, label_recording
+
+    truth = human_model(hands=True)
+    seg, par = _definition(truth)
+    clip = marker_clip(truth, 40, rng=5, amplitude=0.6, distortion=0.01)
+    model = MarkerModel.from_labelled_frames(truth.labels, clip.points, seg, par)
+    rec = marker_clip(truth, 400, rng=6, amplitude=0.6, distortion=0.01, speed=2.0).points
+    rec[50:55, 7] = np.nan                                   # a marker hidden for 5 frames
+    rng = np.random.default_rng(7)
+    perms = np.array([rng.permutation(truth.n_points) for _ in rec])
+    X = np.take_along_axis(rec, perms[..., None], axis=1)
+    before = X.copy()
+    out = label_recording(model, X, params=SAPMParams.generalising(), track=TrackParams())
+    np.testing.assert_array_equal(X, before)
+    present = np.isfinite(X).all(axis=2)
+    correct = ((out.labels == perms) & present).sum() / present.sum()
+    wrong = ((out.labels >= 0) & (out.labels != perms)).sum() / present.sum()
+    assert correct >= 0.995 and wrong <= 0.002
+    assert out.sapm_frames[0] == 0 and 55 in out.sapm_frames     # back from the gap
+    assert len(out.sapm_frames) <= 0.1 * len(rec) and out.carried[1:].mean() > 0.95
+    with pytest.raises(TypeError, match="track"):
+        label_recording(model, X, track=3)
+    with pytest.raises(ValueError, match="relax"):
+        SAPMParams(relax=(0.5,))

@@ -22,6 +22,7 @@ from .._validate import as_rng
 from ..data import Recording
 from ..io import read_c3d
 from ..sapm import MarkerModel, SAPMParams, identify, identify_instances, suggest_segments
+from ..sapm.tracking import TrackParams, label_recording
 
 
 # ---------------------------------------------------------------------- marker sets
@@ -150,14 +151,17 @@ def learned_model(rec: Recording) -> tuple[MarkerModel, dict]:
         own = [k.split(":")[-1] for k in rec.labels[:39]]
         clip = np.concatenate([rec.training[:, :39], rec.training[:, 39:]])
         return MarkerModel.from_labelled_frames(own, clip, segments, parents), segments
-    if rec.name == "racing":
-        sug = suggest_segments(rec.labels, rec.training, groups=racing_plates(rec.labels))
+    seen = np.isfinite(rec.training).all(axis=2).any(axis=0)     # markers the clip never
+    labels = [k for k, v in zip(rec.labels, seen) if v]            # sees: left out
+    clip = rec.training[:, seen]
+    if rec.name in ("racing", "racing static"):
+        sug = suggest_segments(labels, clip, groups=racing_plates(labels))
     else:
         groups, parents = clouthier_plates()
-        sug = suggest_segments(rec.labels, rec.training, groups=groups, parents=parents)
-    keep = [i for i, k in enumerate(rec.labels) if k not in sug.unplaced]
-    model = MarkerModel.from_labelled_frames([rec.labels[i] for i in keep],
-                                             rec.training[:, keep], sug.segments, sug.parents)
+        sug = suggest_segments(labels, clip, groups=groups, parents=parents)
+    keep = [i for i, k in enumerate(labels) if k not in sug.unplaced]
+    model = MarkerModel.from_labelled_frames([labels[i] for i in keep], clip[:, keep],
+                                             sug.segments, sug.parents)
     return model, sug.segments
 
 
@@ -203,6 +207,8 @@ class RecordingTrials:
         return {"frames": len(self.frames),
                 "correct": float(self.correct.sum() / max(self.markers.sum(), 1)),
                 "wrong": float(self.wrong.sum() / max(self.points.sum(), 1)),
+                "unlabelled": float(1 - (self.correct.sum() + self.wrong.sum())
+                                    / max(self.points.sum(), 1)),
                 "frames_correct": float(np.mean(self.correct == self.markers)),
                 "median_ms": float(1000 * np.median(self.seconds)),
                 "p95_ms": float(1000 * np.percentile(self.seconds, 95))}
@@ -300,3 +306,77 @@ def player_trials(model: MarkerModel, rec: Recording, *, n_players: int = 2,
                      r.seconds, r.n_instances))
     c, w, m, s, i = (np.array(x) for x in zip(*rows))
     return PlayerTrials(correct=c, wrong=w, markers=m, seconds=s, instances=i)
+
+
+# ---------------------------------------------------------------------- whole recordings
+@dataclass(frozen=True)
+class WholeTrials:
+    """Every frame after the training clip labelled with carried labels
+    (:func:`whole_trials`; :func:`lsmta.sapm.tracking.label_recording`).
+
+    Attributes
+    ----------
+    correct, wrong, markers, points : (F,) int arrays
+        Per frame, as in :class:`RecordingTrials` (for several players a label counts as
+        correct only with its player).
+    sapm_frames : int
+        Frames on which SAPM was called.
+    seconds : (F,) array
+    """
+
+    correct: np.ndarray
+    wrong: np.ndarray
+    markers: np.ndarray
+    points: np.ndarray
+    sapm_frames: int
+    seconds: np.ndarray
+
+    def summary(self) -> dict:
+        return {"frames": len(self.correct),
+                "correct": float(self.correct.sum() / max(self.markers.sum(), 1)),
+                "wrong": float(self.wrong.sum() / max(self.points.sum(), 1)),
+                "unlabelled": float(1 - (self.correct.sum() + self.wrong.sum())
+                                    / max(self.points.sum(), 1)),
+                "sapm_share": self.sapm_frames / max(len(self.correct), 1),
+                "median_ms": float(1000 * np.median(self.seconds))}
+
+
+def whole_trials(model: MarkerModel, rec: Recording, *, params: SAPMParams | None = None,
+                 track: TrackParams | None = None, n_players: int | None = None,
+                 rng: np.random.Generator | int | None = None) -> WholeTrials:
+    """Label every frame after ``rec``'s training clip at once, points shuffled in every
+    frame, labels carried where the markers move continuously. ``n_players``: the
+    two-player file (labels instance · M + marker, instances matched to players by the
+    majority of their points)."""
+    rng = as_rng(rng)
+    X = rec.points[rec.n_train:]
+    T, L = X.shape[:2]
+    perms = np.array([rng.permutation(L) for _ in range(T)])
+    shuffled = np.take_along_axis(X, perms[..., None], axis=1)
+    out = label_recording(model, shuffled, params=params, track=track, n_instances=n_players)
+    M = model.n_points
+    if n_players:
+        own = [k.split(":")[-1] for k in rec.labels]
+        truth_rec = np.array([p * M + model.labels.index(k)
+                              for p, k in zip(np.repeat(np.arange(n_players), L // n_players),
+                                              own)])
+        # instances to players by the majority of their points over the recording
+        lab = out.labels
+        inst = np.where(lab >= 0, lab // M, -1)
+        who = truth_rec[perms] // M
+        votes = np.array([[((inst == i) & (who == p)).sum() for p in range(n_players)]
+                          for i in range(n_players)])
+        owner = votes.argmax(axis=1)
+        given = np.where(lab >= 0, owner[np.maximum(inst, 0)] * M + lab % M, -1)
+    else:
+        truth_rec = np.array([model.labels.index(k) if k in model.labels else -1
+                              for k in rec.labels])
+        given = out.labels
+    truth = truth_rec[perms]
+    present = np.isfinite(shuffled).all(axis=2)
+    ok = (given == truth) & present
+    return WholeTrials(correct=(ok & (truth >= 0)).sum(axis=1),
+                       wrong=((given >= 0) & ~ok & present).sum(axis=1),
+                       markers=((truth >= 0) & present).sum(axis=1),
+                       points=present.sum(axis=1), sapm_frames=len(out.sapm_frames),
+                       seconds=out.seconds)

@@ -42,6 +42,11 @@ class Candidates:
         ē_s of Eq. 2.
     n : (K,) int array
         Markers matched.
+    resid : (K, m) array
+        Each matched marker's distance from where the motion carries it, mm (NaN where
+        none).
+    tol : float
+        The scale of the scores, mm: ``max(ε_s l̄_s, floor)``.
     """
 
     obs: np.ndarray
@@ -49,9 +54,19 @@ class Candidates:
     t: np.ndarray
     err: np.ndarray
     n: np.ndarray
+    resid: np.ndarray
+    tol: float = 1.0
 
     def __len__(self) -> int:
         return len(self.err)
+
+    @property
+    def scores(self) -> np.ndarray:
+        """(K,) each match's score: the sum over its matched markers of
+        ``1 - (r / tol)²``: one for a marker where the motion puts it, less for one off by
+        a share of the tolerance, negative beyond it (down to -3 at the gate 2 ε l̄)."""
+        return np.where(self.obs >= 0, 1.0 - (np.nan_to_num(self.resid) / self.tol) ** 2,
+                        0.0).sum(axis=1)
 
 
 def _triples(D, d, eps):
@@ -228,10 +243,11 @@ def _complete(P, base, tr, Q, free, eps, lbar, beta):
 
 
 def segment_candidates(model: MarkerModel, s: int, Q, D, *, eps: float, beta: float,
-                       limit: int, free=None) -> Candidates:
+                       limit: int, free=None, floor: float = 0.0) -> Candidates:
     """Whole matches of segment ``s`` among the observed points ``Q`` (N, 3) (pairwise
     distances ``D`` (N, N)), at most ``limit``, best first. ``free`` (N,) bool: points
-    that may be used (default all)."""
+    that may be used (default all); ``floor``: the least scale of the scores, mm (see
+    :attr:`Candidates.scores`)."""
     m = model.members[s]
     P = np.ascontiguousarray(model.points[m])
     N = len(Q)
@@ -253,4 +269,8 @@ def segment_candidates(model: MarkerModel, s: int, Q, D, *, eps: float, beta: fl
         _, first = np.unique(key, return_index=True)
         keep = keep[first]
         keep = keep[np.lexsort((err[keep], -n[keep]))][:limit]
-    return Candidates(obs=obs[keep], R=R[keep], t=t[keep], err=err[keep], n=n[keep])
+    obs, R, t = obs[keep], R[keep], t[keep]
+    pred = np.einsum("kij,mj->kmi", R, P) + t[:, None]
+    resid = np.where(obs >= 0, np.linalg.norm(Q[np.maximum(obs, 0)] - pred, axis=2), np.nan)
+    return Candidates(obs=obs, R=R, t=t, err=err[keep], n=n[keep], resid=resid,
+                      tol=max(float(eps * model.mean_length[s]), float(floor)))

@@ -7,15 +7,17 @@ wrong one. Here every segment's matches are found first (:mod:`lsmta.sapm.candid
 and the configuration is chosen over the whole tree at once, by max-sum dynamic programming
 (exact on a tree):
 
-* a segment scores the markers its match labels, less its ē_s / ε_s (a tie-breaker in
-  [0, 1)); leaving a segment out scores 0;
+* a segment's match scores ``1 - (r / τ)²`` per marker it labels (``r`` the marker's
+  residual, ``τ = max(ε_s l̄_s, floor)``; :attr:`Candidates.scores`); leaving a segment
+  out scores 0;
 * two linked segments are compatible when their matches use different points (except the
   markers they share, which must be the same points) and when the joint carried by the
   parent's motion and the joint carried by the child's lie within the joint's tolerance plus
   2 ε l̄ of each segment; a compatible pair costs half its joint gap over that limit.
 
 Points claimed by two segments that are not linked are settled afterwards: the weaker match
-is dropped and the tree is solved again.
+is dropped and the tree is solved again. Each label's margin (:func:`label_margins`) is the
+score lost by the best configuration that labels one segment's points otherwise.
 """
 
 from __future__ import annotations
@@ -83,27 +85,42 @@ def pair_scores(model: MarkerModel, cands: list, eps, *, penalty: float) -> dict
             for c, p in enumerate(model.parent) if p >= 0}
 
 
+def _score(c, eps, s):
+    """(K,) the tree's score of segment ``s``'s matches (:attr:`Candidates.scores`)."""
+    return c.scores
+
+
+def _unary(cands, eps, allowed):
+    """Per segment the (K + 1,) scores of its candidates, the last for "left out"."""
+    out = []
+    for s, c in enumerate(cands):
+        u = np.append(_score(c, eps, s), 0.0)             # last entry: segment left out
+        if allowed is not None:
+            u[:-1][~allowed[s]] = -np.inf
+        out.append(u)
+    return out
+
+
+def _padded(pairs, s, c, ks, kc):
+    phi = np.zeros((ks, kc))
+    phi[:-1, :-1] = pairs[s, c]
+    return phi
+
+
 def best_configuration(model: MarkerModel, cands: list, eps, pairs: dict, *,
                        allowed=None) -> np.ndarray:
     """(S,) chosen candidate of each segment (-1: left out), maximising the tree's score
     (``pairs`` from :func:`pair_scores`). ``allowed``: per segment a (K,) bool mask of
     usable candidates."""
     S = model.n_segments
-    unary = []
-    for s, c in enumerate(cands):
-        u = np.append(c.n - c.err / eps[s], 0.0)          # last entry: segment left out
-        if allowed is not None:
-            u[:-1][~allowed[s]] = -np.inf
-        unary.append(u)
+    unary = _unary(cands, eps, allowed)
     root = model.root_of_tree
     order = model.tree_order(root)
     below = [u.copy() for u in unary]                    # subtree score per choice
     pick = {}
     for s in reversed(order):                            # children before parents
         for c in np.flatnonzero(model.parent == s):
-            phi = np.zeros((len(below[s]), len(below[c])))
-            phi[:-1, :-1] = pairs[s, c]
-            total = phi + below[c][None]
+            total = _padded(pairs, s, c, len(below[s]), len(below[c])) + below[c][None]
             pick[c] = total.argmax(axis=1)
             below[s] = below[s] + total.max(axis=1)
     choice = np.full(S, -1)
@@ -112,6 +129,62 @@ def best_configuration(model: MarkerModel, cands: list, eps, pairs: dict, *,
         for c in np.flatnonzero(model.parent == s):
             choice[c] = pick[c][choice[s]]
     return np.where(choice == np.array([len(c) for c in cands]), -1, choice)
+
+
+def configuration_score(model: MarkerModel, cands: list, eps, pairs: dict, choice) -> float:
+    """The tree's score of a configuration ``choice`` (S,) (-1: left out)."""
+    total = 0.0
+    for s, k in enumerate(choice):
+        if k >= 0:
+            total += float(_score(cands[s], eps, s)[k])
+    for c, p in enumerate(model.parent):
+        if p >= 0 and choice[p] >= 0 and choice[c] >= 0:
+            total += float(pairs[int(p), c][choice[p], choice[c]])
+    return total
+
+
+def label_margins(model: MarkerModel, cands: list, eps, pairs: dict, choice, allowed,
+                  n: int) -> np.ndarray:
+    """(n,) each labelled point's margin, in the score's units (about one per marker): the
+    score of the chosen configuration less that of the best configuration (clashes settled
+    as in :func:`configure`) in which a segment's points are labelled otherwise, taken over
+    the alternatives that change the point's label (another marker) or give its marker
+    another point; ``inf`` where no alternative does, NaN for points left unlabelled.
+    Leaving a point unlabelled is not an alternative that counts: it is never wrong."""
+    chosen = labelled_points(model, cands, choice, n)
+    point_of = np.full(model.n_points, -1)
+    point_of[chosen[chosen >= 0]] = np.flatnonzero(chosen >= 0)
+    best = configuration_score(model, cands, eps, pairs, choice)
+    out = np.where(chosen >= 0, np.inf, np.nan)
+    users = np.zeros((n, model.n_segments), bool)      # segments with a match on a point
+    for s, c in enumerate(cands):
+        if len(c):
+            q = c.obs[c.obs >= 0]
+            users[q, s] = True
+    for s, k in enumerate(choice):
+        if k < 0:
+            continue
+        obs = cands[s].obs
+        mine = obs[k]
+        same = ((obs == mine[None]) | (obs < 0)).all(axis=1)   # nothing of s relabelled
+        rivals = users[mine[mine >= 0]].any(axis=0)
+        rivals[s] = False
+        if same.all() and not rivals.any():            # no match could label s otherwise
+            continue
+        mask = [a.copy() for a in allowed]
+        mask[s] &= ~same
+        alt, _ = configure(model, cands, eps, pairs, allowed=mask)
+        lab = labelled_points(model, cands, alt, n)
+        moved = np.zeros(n, bool)
+        moved |= (lab >= 0) & (chosen >= 0) & (lab != chosen)
+        alt_point = np.full(model.n_points, -1)
+        alt_point[lab[lab >= 0]] = np.flatnonzero(lab >= 0)
+        elsewhere = (alt_point >= 0) & (point_of >= 0) & (alt_point != point_of)
+        moved[point_of[elsewhere]] = True
+        if moved.any():
+            margin = best - configuration_score(model, cands, eps, pairs, alt)
+            out[moved] = np.minimum(out[moved], margin)
+    return out
 
 
 def _clashes(model: MarkerModel, cands, choice):
@@ -133,36 +206,37 @@ def _clashes(model: MarkerModel, cands, choice):
 
 
 def configure(model: MarkerModel, cands: list, eps, pairs: dict, *, allowed=None,
-              max_rounds: int = 8):
+              max_rounds: int = 8, with_allowed: bool = False):
     """The best configuration without clashes: (S,) chosen candidate per segment (-1: left
-    out) and the number of rounds it took."""
+    out) and the number of rounds it took (and, ``with_allowed``, the candidates still
+    allowed at the end, per segment a (K,) bool mask)."""
     allowed = [np.ones(len(c), bool) for c in cands] if allowed is None else \
         [a.copy() for a in allowed]
     for rounds in range(1, max_rounds + 1):
         choice = best_configuration(model, cands, eps, pairs, allowed=allowed)
         clashes = _clashes(model, cands, choice)
         if not clashes:
-            return choice, rounds
+            return (choice, rounds, allowed) if with_allowed else (choice, rounds)
         for a, b in clashes:                             # drop the weaker of the two
-            ua = cands[a].n[choice[a]] - cands[a].err[choice[a]] / eps[a]
-            ub = cands[b].n[choice[b]] - cands[b].err[choice[b]] / eps[b]
+            ua = _score(cands[a], eps, a)[choice[a]]
+            ub = _score(cands[b], eps, b)[choice[b]]
             s = a if ua < ub else b
             allowed[s][choice[s]] = False
     choice = best_configuration(model, cands, eps, pairs, allowed=allowed)
     for _, b in _clashes(model, cands, choice):          # still clashing: leave one out
         choice[b] = -1
-    return choice, max_rounds
+    return (choice, max_rounds, allowed) if with_allowed else (choice, max_rounds)
 
 
 def tree_search(model: MarkerModel, Q, eps, *, beta: float, limit: int, free=None,
-                penalty: float = np.inf):
+                penalty: float = np.inf, floor: float = 0.0):
     """Label the observed points ``Q`` (N, 3) (no NaN) with one instance of ``model``.
 
     Returns (labels (N,) model marker or -1, chosen candidates (S,), the candidates, rounds).
     """
     D = np.linalg.norm(Q[:, None] - Q[None], axis=-1)
-    cands = [segment_candidates(model, s, Q, D, eps=eps[s], beta=beta, limit=limit, free=free)
-             for s in range(model.n_segments)]
+    cands = [segment_candidates(model, s, Q, D, eps=eps[s], beta=beta, limit=limit, free=free,
+                                floor=floor) for s in range(model.n_segments)]
     pairs = pair_scores(model, cands, eps, penalty=penalty)
     choice, rounds = configure(model, cands, eps, pairs)
     return labelled_points(model, cands, choice, len(Q)), choice, cands, rounds

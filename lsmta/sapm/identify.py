@@ -28,8 +28,16 @@ from scipy.optimize import linear_sum_assignment
 
 from .._validate import as_int, as_points, as_rng, as_scalar
 from ..rigid import apply_rigid, fit_one
-from .configuration import complete_partial, tree_search
+from .candidates import segment_candidates
+from .configuration import (
+    complete_partial,
+    configure,
+    label_margins,
+    labelled_points,
+    pair_scores,
+)
 from .model import MarkerModel
+from .relax import relax_markers, relax_segments
 
 
 @dataclass(frozen=True)
@@ -73,6 +81,21 @@ class SAPMParams:
         Tree search: what a link whose joint gap exceeds its limit costs, in markers
         (``inf``: such links are never accepted). A finite cost lets two well-matched
         segments stand together when the joint learned from a still clip was wrong.
+    relax : tuple of float
+        Tree search, ours: factors (> 1, increasing) on ε_s with which what the search left
+        unlabelled is searched again among the free points, next to segments already
+        found (:mod:`lsmta.sapm.relax`): tolerances that grow where the training clip
+        ends. Empty: no second search.
+    abstain : float
+        Tree search, ours: a label whose margin (how much worse the best answer gets if it
+        must change, about one unit per marker; ``Identification.confidence``) is below
+        this is withdrawn: the point is left unlabelled rather than risk a wrong label.
+        0: never abstain (and the margins, which take one more configuration per
+        segment, are not computed: ``Identification.confidence`` is NaN).
+    score_floor : float
+        Tree search, ours: the least scale of a match's score, mm: a matched marker scores
+        ``1 - (r / max(ε_s l̄_s, score_floor))²``, so that a segment whose learned ε_s is
+        tiny (a plate in a clip) does not lose its matches for a millimetre.
     """
 
     eps: float = 0.10
@@ -85,6 +108,17 @@ class SAPMParams:
     search: str = "depth_first"
     max_candidates: int = 100
     link_penalty: float = 3.0
+    relax: tuple = ()
+    abstain: float = 0.0
+    score_floor: float = 10.0
+
+    @classmethod
+    def generalising(cls, *, relax=(1.5, 2.0), abstain: float = 0.1) -> SAPMParams:
+        """Our settings for labelling frames beyond a training clip: the tree search with
+        β = 0.5, the second search at 1.5 and 2 ε_s, abstention below a margin of 0.1.
+        Chosen on the tennis serve and the static wheelchair recording (notebook 18),
+        reported on the others."""
+        return cls(search="tree", beta=0.5, relax=relax, abstain=abstain)
 
     def __post_init__(self):
         eps, beta = as_scalar(self.eps, "eps"), as_scalar(self.beta, "beta")
@@ -106,6 +140,18 @@ class SAPMParams:
         if not penalty >= 0:
             raise ValueError(f"link_penalty: expected a cost >= 0 or inf, got {penalty}")
         object.__setattr__(self, "link_penalty", penalty)
+        try:
+            relax = tuple(float(f) for f in self.relax)
+        except (TypeError, ValueError):
+            raise TypeError(f"relax: expected a sequence of factors > 1, got "
+                            f"{self.relax!r}") from None
+        if any(not f > 1 for f in relax) or list(relax) != sorted(relax):
+            raise ValueError(f"relax: expected increasing factors > 1, got {relax}")
+        object.__setattr__(self, "relax", relax)
+        object.__setattr__(self, "abstain", as_scalar(self.abstain, "abstain",
+                                                      nonnegative=True))
+        object.__setattr__(self, "score_floor", as_scalar(self.score_floor, "score_floor",
+                                                          nonnegative=True))
 
 
 @dataclass(frozen=True)
@@ -133,6 +179,13 @@ class Identification:
         matches it found, 0, and the rounds it took to settle clashes beyond the first.
     seconds : float
         Wall time of the search.
+    confidence : (N,) array
+        Tree search: each label's margin, in the score's units (about one per marker): how
+        much worse the best answer gets if the label must change (another point, or none).
+        NaN where unlabelled, and everywhere for the depth-first search.
+    abstained : (N,) bool array
+        Points whose label was withdrawn for a margin below ``SAPMParams.abstain`` (they
+        are -1 in ``labels``).
     """
 
     labels: np.ndarray
@@ -146,6 +199,15 @@ class Identification:
     fits: int
     backtracks: int
     seconds: float
+    confidence: np.ndarray | None = None
+    abstained: np.ndarray | None = None
+
+    def __post_init__(self):
+        n = len(self.labels)
+        if self.confidence is None:
+            object.__setattr__(self, "confidence", np.full(n, np.nan))
+        if self.abstained is None:
+            object.__setattr__(self, "abstained", np.zeros(n, bool))
 
     @property
     def n_identified(self) -> int:
@@ -554,13 +616,38 @@ def identify(model: MarkerModel, observed, *, params: SAPMParams | None = None,
 
 def _tree_identify(model, Q, keep, bad, params, t0) -> Identification:
     eps = model.segment_eps(params.eps)
-    lab, choice, cands, rounds = tree_search(model, Q[keep], eps, beta=params.beta,
-                                             limit=params.max_candidates,
-                                             penalty=params.link_penalty)
-    lab, partial = complete_partial(model, Q[keep], eps, cands, choice, lab, beta=params.beta)
+    Qk = Q[keep]
+    D = np.linalg.norm(Qk[:, None] - Qk[None], axis=-1)
+    cands = [segment_candidates(model, s, Qk, D, eps=eps[s], beta=params.beta,
+                                limit=params.max_candidates, floor=params.score_floor)
+             for s in range(model.n_segments)]
+    pairs = pair_scores(model, cands, eps, penalty=params.link_penalty)
+    choice, rounds, allowed = configure(model, cands, eps, pairs, with_allowed=True)
+    lab = labelled_points(model, cands, choice, len(Qk))
+    if params.abstain > 0:
+        margins = label_margins(model, cands, eps, pairs, choice, allowed, len(Qk))
+    else:
+        margins = np.where(lab >= 0, np.nan, np.nan)
+    lab, partial = complete_partial(model, Qk, eps, cands, choice, lab, beta=params.beta)
+    found = {s: (cands[s].R[k], cands[s].t[k]) for s, k in enumerate(choice) if k >= 0}
+    for s, (Rs, ts, _, _) in partial.items():
+        found[s] = (Rs, ts)
+    if params.abstain > 0:                            # the unique completions of two markers
+        margins[(lab >= 0) & np.isnan(margins)] = 1.0
+    for f in params.relax:
+        relax_segments(model, Qk, D, eps, lab, margins, found, factor=f, beta=params.beta,
+                       limit=params.max_candidates, floor=params.score_floor)
+        relax_markers(model, Qk, eps, lab, margins, found, factor=f)
+    withdrawn = (lab >= 0) & (margins < params.abstain) if params.abstain > 0 else \
+        np.zeros(len(lab), bool)
+    lab = np.where(withdrawn, -1, lab)
     S = model.n_segments
     labels = np.full(len(Q), -1)
     labels[keep] = lab
+    confidence = np.full(len(Q), np.nan)
+    confidence[keep] = np.where(lab >= 0, margins, np.nan)
+    abstained = np.zeros(len(Q), bool)
+    abstained[keep] = withdrawn
     R, t, err = np.full((S, 3, 3), np.nan), np.full((S, 3), np.nan), np.full(S, np.nan)
     matched = np.zeros(S, int)
     for s, k in enumerate(choice):
@@ -569,7 +656,13 @@ def _tree_identify(model, Q, keep, bad, params, t0) -> Identification:
                 cands[s].n[k]
     for s, (Rs, ts, es, ns) in partial.items():
         R[s], t[s], err[s], matched[s] = Rs, ts, es, ns
+    for s, (Rs, ts) in found.items():
+        if matched[s] == 0:
+            R[s], t[s] = Rs, ts
+    matched = np.array([int(np.isin(m, lab).sum()) if s in found else 0
+                        for s, m in enumerate(model.members)])
     return Identification(labels=labels, found=matched > 0, rotation=R, translation=t,
                           mean_error=err, matched=matched, dropped=np.flatnonzero(bad),
                           tables=sum(len(c) for c in cands), fits=0, backtracks=rounds - 1,
-                          seconds=time.perf_counter() - t0)
+                          seconds=time.perf_counter() - t0, confidence=confidence,
+                          abstained=abstained)

@@ -91,7 +91,7 @@ def identify_instances(model: MarkerModel, observed, *, n_instances: int | None 
     eps = model.segment_eps(params.eps)
     D = np.linalg.norm(Qk[:, None] - Qk[None], axis=-1)
     cands = [segment_candidates(model, s, Qk, D, eps=eps[s], beta=params.beta,
-                                limit=params.max_candidates * most)
+                                limit=params.max_candidates * most, floor=params.score_floor)
              for s in range(model.n_segments)]
     pairs = pair_scores(model, cands, eps, penalty=params.link_penalty)
     used = np.zeros(len(Qk), bool)

@@ -241,15 +241,12 @@ def truth_summary(records) -> tuple[list[tuple[str, int, int]], list]:
 def write_summary(build: Path, results: list[dict], *, meta: dict | None = None) -> None:
     """``summary.json``, ``summary.md`` and ``index.html`` from the notebooks' results.
 
-    ``index.html`` is a plain page of the same tables and every figure; once the book is
-    built, :func:`write_index` makes it lead to the book instead.
-
-    Results and timings stand next to the papers' numbers, each with the truth inputs it
-    used; records of kind ``"setting"`` (numbers the notebooks chose) are listed apart,
-    under "Settings". A section counts the results by their truth inputs and lists the
+    ``index.html`` is a plain page of the same tables and every figure, until
+    :func:`write_index` makes it lead to the book. Results and timings stand next to the
+    papers' numbers, each with its truth inputs; settings (numbers the notebooks chose)
+    are listed apart. A section counts the results by their truth inputs and lists the
     target verdicts judged on truth-fed records that are not controlled studies (there
-    should be none). ``meta`` is the run's :func:`provenance` (computed here if not
-    given)."""
+    should be none). ``meta``: the run's :func:`provenance` (computed if not given)."""
     records = [report.Record(**r) for res in results for r in res["records"]]
     compared = [r for r in records if r.kind != "setting"]
     settings = [r for r in records if r.kind == "setting"]

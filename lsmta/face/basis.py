@@ -128,58 +128,6 @@ def min_observed_markers(n_basis: int) -> int:
 
 
 # ---------------------------------------------------------------- the model fit
-def _skew_rows(Y: np.ndarray) -> np.ndarray:
-    """(m, 3) points -> (3m, 3) stacked matrices [y]_x (so [y]_x d = y x d)."""
-    m = len(Y)
-    S = np.zeros((m, 3, 3))
-    S[:, 0, 1], S[:, 0, 2] = -Y[:, 2], Y[:, 1]
-    S[:, 1, 0], S[:, 1, 2] = Y[:, 2], -Y[:, 0]
-    S[:, 2, 0], S[:, 2, 1] = -Y[:, 1], Y[:, 0]
-    return S.reshape(3 * m, 3)
-
-
-def _rotvec_to_matrix(d: np.ndarray) -> np.ndarray:
-    th = np.linalg.norm(d)
-    if th < 1e-300:
-        return np.eye(3)
-    k = d / th
-    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(th) * Kx + (1 - np.cos(th)) * Kx @ Kx
-
-
-def _gauss_newton_step(Y: np.ndarray, Bo: np.ndarray, bounds=None, prior=None):
-    """One linearised joint step for one frame: minimise over a small rotation ``d``, a
-    translation ``tau`` and the weights ``w`` the norm of
-    ``Y + d x Y + tau - Bo w`` (Y (m, 3) observed markers in the head frame, Bo (3m, K)),
-    plus ``sum_k r_k (w_k - w0_k)^2`` for a ``prior`` (w0 (K,), r (K,)), with the weights
-    within ``bounds`` (lower (K,), upper (K,)) if given.
-    Returns d (3,), tau (3,), w (K,)."""
-    m = len(Y)
-    A = np.hstack([-_skew_rows(Y), np.tile(np.eye(3), (m, 1)), -Bo])
-    rhs = -Y.ravel()
-    # normal equations (tiny: K + 6 unknowns); einsum and Cholesky stay fast on a busy
-    # machine where threaded LAPACK QR / lstsq of these sizes can stall for 0.5 s a call
-    G = np.einsum("ij,ik->jk", A, A)
-    g = np.einsum("ij,i->j", A, rhs)
-    if prior is not None:
-        w0, r = prior
-        G[6:, 6:] += np.diag(r)
-        g[6:] += r * w0
-    try:
-        L = np.linalg.cholesky(G)
-    except np.linalg.LinAlgError:                  # dependent basis vectors: tiny ridge
-        G = G + 1e-10 * np.trace(G) / len(G) * np.eye(len(G))
-        L = np.linalg.cholesky(G)
-    x = np.linalg.solve(L.T, np.linalg.solve(L, g))
-    if bounds is not None and ((x[6:] < bounds[0]).any() or (x[6:] > bounds[1]).any()):
-        lb = np.r_[np.full(6, -np.inf), bounds[0]]
-        ub = np.r_[np.full(6, np.inf), bounds[1]]
-        # min |A x - rhs| == min |L^T x - L^-1 A^T rhs| up to a constant (convex: the free
-        # optimum, when inside the bounds, is the bounded one)
-        x = lsq_linear(L.T, np.linalg.solve(L, g), bounds=(lb, ub), method="bvls").x
-    return x[:3], x[3:6], x[6:]
-
-
 def fill_missing(frames, basis, *, constrain: bool | None = None, reference=None,
                  n_iter: int = 10) -> FaceFit:
     """Fill the missing markers of a sequence from a basis-face model.
@@ -187,8 +135,9 @@ def fill_missing(frames, basis, *, constrain: bool | None = None, reference=None
     For each frame: (1) the rigid motion carrying the observed markers onto the same
     markers of the reference shape is found (Kabsch, :func:`lsmta.rigid.fit_rigid`);
     (2) the weights ``w`` are fitted by least squares on the observed markers only,
-    within ``[0, 1]`` when ``constrain`` (``scipy.optimize.lsq_linear``, bounded-variable
-    least squares), together with a small correction of the rigid motion: each of up to
+    within ``[0, 1]`` when ``constrain`` (bounded least squares: block principal pivoting
+    on the normal equations, ``scipy.optimize.lsq_linear`` for a frame where that does not
+    settle), together with a small correction of the rigid motion: each of up to
     ``n_iter`` Gauss-Newton passes solves one linear problem in a small rotation, a
     translation and the weights, so that alignment and weights end up jointly optimal
     (aligning once to the reference would bias the alignment whenever the expression
@@ -245,39 +194,192 @@ def fill_missing(frames, basis, *, constrain: bool | None = None, reference=None
     return fit_frames(X, B, ref, bounds=bounds, n_iter=int(n_iter))
 
 
+def _masked_kabsch(P, Q, w):
+    """Rigid motions carrying ``P`` (n, M, 3) onto ``Q`` (M, 3) on the markers with weight
+    ``w`` (n, M) 1 (0: left out), all frames at once: R (n, 3, 3), t (n, 3) with
+    ``Q ≈ P @ R.T + t`` (the fit of :func:`lsmta.rigid.fit_rigid` on each frame's markers)."""
+    n_obs = w.sum(axis=1)[:, None]
+    pc = np.einsum("nm,nmi->ni", w, P) / n_obs
+    qc = w @ Q / n_obs
+    H = np.einsum("nm,nmi,nmj->nij", w, P - pc[:, None], Q[None] - qc[:, None])
+    U, _, Vt = np.linalg.svd(H)
+    V = np.swapaxes(Vt, 1, 2)
+    flip = np.linalg.det(V @ np.swapaxes(U, 1, 2)) < 0
+    V[flip, :, 2] *= -1
+    R = V @ np.swapaxes(U, 1, 2)
+    return R, qc - np.einsum("nij,nj->ni", R, pc)
+
+
+def _rotvecs_to_matrices(d):
+    """(n, 3) rotation vectors -> (n, 3, 3) matrices (Rodrigues)."""
+    th = np.linalg.norm(d, axis=1)
+    k = d / np.where(th > 1e-300, th, 1.0)[:, None]
+    Kx = np.zeros((len(d), 3, 3))
+    Kx[:, 0, 1], Kx[:, 0, 2], Kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    Kx = Kx - np.swapaxes(Kx, 1, 2)
+    s, c = np.sin(th)[:, None, None], (1 - np.cos(th))[:, None, None]
+    return np.eye(3) + s * Kx + c * Kx @ Kx
+
+
+def _normal_equations(Y, obs, B2, BB):
+    """The normal equations ``G x = g`` of one linearised joint step (a Gauss-Newton pass of
+    :func:`fill_missing`) for n frames at once, ``x = (d, tau, w)``: minimise over a
+    small rotation ``d``, a translation ``tau`` and the weights ``w`` the norm of
+    ``y + d x y + tau - B w`` over each frame's observed markers. ``Y`` (n, M, 3) markers in
+    the head frame, ``obs`` (n, M) which are observed, ``B2`` (M, 3, K) the basis per marker,
+    ``BB`` (M, K * K) each marker's ``B_m^T B_m``. Returns G (n, K + 6, K + 6), g (n, K + 6).
+
+    Block by block (``[y]_x`` the cross-product matrix of y, sums over observed markers):
+    ``G_dd = sum(|y|² I - y y^T)``, ``G_dt = [sum y]_x``, ``G_dw = sum [y]_x^T B_m``
+    (column k: ``sum B_mk x y``), ``G_tt = m I``, ``G_tw = -sum B_m``,
+    ``G_ww = sum B_m^T B_m``; ``g = (0, -sum y, sum B_m^T y)``."""
+    n, M, _ = Y.shape
+    K = B2.shape[2]
+    o = obs.astype(float)
+    Yo = Y * o[..., None]
+    G = np.empty((n, K + 6, K + 6))
+    G[:, :3, :3] = np.einsum("nm,nmi,nmj->nij", -o, Y, Y)
+    G[:, [0, 1, 2], [0, 1, 2]] += np.einsum("nmi,nmi->n", Yo, Y)[:, None]
+    s = Yo.sum(axis=1)
+    Sx = np.zeros((n, 3, 3))
+    Sx[:, 0, 1], Sx[:, 0, 2], Sx[:, 1, 2] = -s[:, 2], s[:, 1], -s[:, 0]
+    Sx -= np.swapaxes(Sx, 1, 2)
+    G[:, :3, 3:6] = Sx
+    G[:, :3, 6:] = np.stack([Yo[..., 2] @ B2[:, 1] - Yo[..., 1] @ B2[:, 2],
+                             Yo[..., 0] @ B2[:, 2] - Yo[..., 2] @ B2[:, 0],
+                             Yo[..., 1] @ B2[:, 0] - Yo[..., 0] @ B2[:, 1]], axis=1)
+    G[:, 3:6, 3:6] = o.sum(axis=1)[:, None, None] * np.eye(3)
+    G[:, 3:6, 6:] = -(o @ B2.reshape(M, 3 * K)).reshape(n, 3, K)
+    G[:, 6:, 6:] = (o @ BB).reshape(n, K, K)
+    G[:, 3:, :3] = np.swapaxes(G[:, :3, 3:], 1, 2)
+    G[:, 6:, 3:6] = np.swapaxes(G[:, 3:6, 6:], 1, 2)
+    g = np.zeros((n, K + 6))
+    g[:, 3:6] = -s
+    g[:, 6:] = Yo.reshape(n, 3 * M) @ B2.reshape(3 * M, K)
+    return G, g
+
+
+def _box_qp(G, g, lb, ub, x, *, max_iter: int = 30):
+    """``min 0.5 x^T G x - g^T x`` within ``lb <= x <= ub`` for n frames at once (G (n, p, p)
+    positive definite, g (n, p), lb and ub (p,), ``x`` (n, p) the unbounded minima), by
+    block principal pivoting: the variables out of their bounds are fixed there and the rest
+    solved again; a fixed variable whose gradient points inside is released. Returns the
+    minima (n, p) and which frames met the optimality conditions (n,) bool (the others are
+    left to a one-frame solver)."""
+    x = x.copy()
+    at_lo, at_hi = x < lb, x > ub
+    done = np.zeros(len(g), bool)
+    left = np.arange(len(g))                       # frames not yet optimal
+    eye = np.eye(g.shape[1])
+    tol = 1e-10 * (np.abs(g).max(axis=1) + 1.0)
+    for _ in range(max_iter):
+        lo, hi = at_lo[left], at_hi[left]
+        free = ~(lo | hi)
+        xf = np.where(lo, lb, np.where(hi, ub, 0.0))
+        Gl = G[left]
+        Gf = Gl * (free[:, :, None] & free[:, None, :]) + eye * ~free[:, :, None]
+        rhs = np.where(free, g[left] - np.einsum("nij,nj->ni", Gl, xf), xf)
+        x[left] = np.linalg.solve(Gf, rhs[..., None])[..., 0]
+        grad = np.einsum("nij,nj->ni", Gl, x[left]) - g[left]
+        low, high = free & (x[left] < lb), free & (x[left] > ub)
+        t = tol[left, None]
+        release = (lo & (grad < -t)) | (hi & (grad > t))
+        ok = ~(low | high | release).any(axis=1)
+        done[left[ok]] = True
+        at_lo[left] = (lo & ~release) | low
+        at_hi[left] = (hi & ~release) | high
+        left = left[~ok]
+        if not len(left):
+            break
+    return np.clip(x, lb, ub), done
+
+
+def _steps(Y, obs, B2, BB, bounds, prior):
+    """One linearised joint step (see :func:`_normal_equations`) for each of n frames at
+    once, with the ``prior`` (w0 (K,), r (K,)) and the ``bounds`` (lower (K,), upper (K,))
+    of the weights if given. Returns d (n, 3), tau (n, 3), w (n, K)."""
+    G, g = _normal_equations(Y, obs, B2, BB)
+    if prior is not None:
+        w0, r = prior
+        G[:, 6:, 6:] += np.diag(r)
+        g[:, 6:] += r * w0
+    try:
+        x = np.linalg.solve(G, g[..., None])[..., 0]
+    except np.linalg.LinAlgError:                  # one at a time: a tiny ridge where needed
+        x = np.empty_like(g)
+        for f in range(len(G)):
+            try:
+                x[f] = np.linalg.solve(G[f], g[f])
+            except np.linalg.LinAlgError:          # dependent basis vectors
+                G[f] += 1e-10 * np.trace(G[f]) / len(G[f]) * np.eye(len(G[f]))
+                x[f] = np.linalg.solve(G[f], g[f])
+    if bounds is not None:
+        lb = np.r_[np.full(6, -np.inf), bounds[0]]
+        ub = np.r_[np.full(6, np.inf), bounds[1]]
+        out = ((x < lb) | (x > ub)).any(axis=1)
+        if out.any():
+            x[out], done = _box_qp(G[out], g[out], lb, ub, x[out])
+            for f in np.flatnonzero(out)[~done]:
+                # min |A x - rhs| == min |L^T x - L^-1 A^T rhs| up to a constant
+                L = np.linalg.cholesky(G[f])
+                x[f] = lsq_linear(L.T, np.linalg.solve(L, g[f]), bounds=(lb, ub),
+                                  method="bvls").x
+    return x[:, :3], x[:, 3:6], x[:, 6:]
+
+
+#: frames fitted together: (frames, K + 6, K + 6) numbers of normal equations in memory
+_BATCH_NUMBERS = 4_000_000
+
+
 def fit_frames(X, B, ref, *, n_iter: int, bounds=None, prior=None) -> FaceFit:
     """The fit of :func:`fill_missing` on checked arrays: frames ``X`` (T, M, 3), basis
     ``B`` (K, M, 3), reference ``ref`` (M, 3); weights within ``bounds`` (lower (K,),
     upper (K,)) if given; ``prior`` (w0 (K,), r (K,)) adds ``sum_k r_k (w_k - w0_k)^2`` to
-    each frame's least squares (a Gaussian prior on the weights)."""
+    each frame's least squares (a Gaussian prior on the weights).
+
+    All frames are fitted at once (batched normal equations, in chunks of frames); a frame
+    whose weights leave the bounds is solved on its own by bounded-variable least squares;
+    a frame stops when its step vanishes."""
     T, M, _ = X.shape
     K = B.shape[0]
     obs = _observed(X)
     need = min_observed_markers(K)
     fitted = obs.sum(axis=1) >= need
     Bflat = B.reshape(K, M * 3).T                      # (3M, K)
+    B2 = np.ascontiguousarray(np.moveaxis(B, 0, -1))   # (M, 3, K)
+    BB = np.einsum("mik,mil->mkl", B2, B2).reshape(M, K * K)
 
     W = np.full((T, K), np.nan)
     Rs = np.full((T, 3, 3), np.nan)
     ts = np.full((T, 3), np.nan)
     resid = np.full(T, np.nan)
     model = np.full((T, M, 3), np.nan)
-    for f in np.flatnonzero(fitted):
-        o = obs[f]
-        P = np.ascontiguousarray(X[f, o])               # observed markers, frame coords
-        Bo = Bflat[np.repeat(o, 3)]                     # (3m, K)
-        R, t = fit_rigid(P, np.ascontiguousarray(ref[o]))   # frame -> head frame
+    todo = np.flatnonzero(fitted)
+    chunk = max(1, _BATCH_NUMBERS // (K + 6) ** 2)
+    for c in range(0, len(todo), chunk):
+        idx = todo[c:c + chunk]
+        o = obs[idx]
+        P = np.where(o[..., None], X[idx], 0.0)        # observed markers, frame coords
+        R, t = _masked_kabsch(P, ref, o.astype(float))  # frame -> head frame
+        w = np.zeros((len(idx), K))
+        active = np.arange(len(idx))
         for _ in range(n_iter):
-            d, tau, w = _gauss_newton_step(P @ R.T + t, Bo, bounds, prior)
-            dR = _rotvec_to_matrix(d)
-            R, t = dR @ R, dR @ t + tau
-            if np.linalg.norm(d) < 1e-12 and np.linalg.norm(tau) < 1e-9:
+            Y = np.einsum("nij,nmj->nmi", R[active], P[active]) + t[active, None]
+            d, tau, w[active] = _steps(Y, o[active], B2, BB, bounds, prior)
+            dR = _rotvecs_to_matrices(d)
+            R[active] = dR @ R[active]
+            t[active] = np.einsum("nij,nj->ni", dR, t[active]) + tau
+            moving = (np.linalg.norm(d, axis=1) >= 1e-12) | (np.linalg.norm(tau, axis=1) >= 1e-9)
+            active = active[moving]
+            if not len(active):
                 break
-        face = (Bflat @ w).reshape(M, 3)                # head frame
+        face = (w @ Bflat.T).reshape(len(idx), M, 3)   # head frame
         # the rigid motion head frame -> frame is the inverse of (R, t)
-        W[f], Rs[f], ts[f] = w, R.T, -R.T @ t
-        model[f] = (face - t) @ R
-        resid[f] = np.sqrt(np.mean(np.sum((model[f, o] - P) ** 2, axis=1)))
+        W[idx], Rs[idx] = w, np.swapaxes(R, 1, 2)
+        ts[idx] = -np.einsum("nji,nj->ni", R, t)
+        model[idx] = np.einsum("nmj,nji->nmi", face - t[:, None], R)
+        sq = np.where(o, np.sum((model[idx] - X[idx]) ** 2, axis=2), 0.0)
+        resid[idx] = np.sqrt(sq.sum(axis=1) / o.sum(axis=1))
     out = X.copy()
     fill = ~obs & fitted[:, None]
     out[fill] = model[fill]

@@ -199,15 +199,15 @@ def _masked_kabsch(P, Q, w):
     ``w`` (n, M) 1 (0: left out), all frames at once: R (n, 3, 3), t (n, 3) with
     ``Q ≈ P @ R.T + t`` (the fit of :func:`lsmta.rigid.fit_rigid` on each frame's markers)."""
     n_obs = w.sum(axis=1)[:, None]
-    pc = np.einsum("nm,nmi->ni", w, P) / n_obs
+    pc = (w[:, None, :] @ P)[:, 0] / n_obs
     qc = w @ Q / n_obs
-    H = np.einsum("nm,nmi,nmj->nij", w, P - pc[:, None], Q[None] - qc[:, None])
+    H = np.swapaxes((P - pc[:, None]) * w[..., None], 1, 2) @ (Q[None] - qc[:, None])
     U, _, Vt = np.linalg.svd(H)
     V = np.swapaxes(Vt, 1, 2)
     flip = np.linalg.det(V @ np.swapaxes(U, 1, 2)) < 0
     V[flip, :, 2] *= -1
     R = V @ np.swapaxes(U, 1, 2)
-    return R, qc - np.einsum("nij,nj->ni", R, pc)
+    return R, qc - (R @ pc[..., None])[..., 0]
 
 
 def _rotvecs_to_matrices(d):
@@ -221,42 +221,72 @@ def _rotvecs_to_matrices(d):
     return np.eye(3) + s * Kx + c * Kx @ Kx
 
 
-def _normal_equations(Y, obs, B2, BB):
-    """The normal equations ``G x = g`` of one linearised joint step (a Gauss-Newton pass of
-    :func:`fill_missing`) for n frames at once, ``x = (d, tau, w)``: minimise over a
-    small rotation ``d``, a translation ``tau`` and the weights ``w`` the norm of
-    ``y + d x y + tau - B w`` over each frame's observed markers. ``Y`` (n, M, 3) markers in
-    the head frame, ``obs`` (n, M) which are observed, ``B2`` (M, 3, K) the basis per marker,
-    ``BB`` (M, K * K) each marker's ``B_m^T B_m``. Returns G (n, K + 6, K + 6), g (n, K + 6).
+@dataclass(frozen=True)
+class _WeightBlock:
+    """The part of the normal equations of a Gauss-Newton pass that does not change between
+    passes (it depends on which markers are observed, not on the pose), for n frames:
+    ``H = sum B_m^T B_m`` over the observed markers (plus the prior's penalties; a weight a
+    frame does not use has H = 1 and nothing else), its inverse, ``G_tw = -sum B_m``, the
+    observed count, the prior's right-hand side and which weights each frame fits."""
 
-    Block by block (``[y]_x`` the cross-product matrix of y, sums over observed markers):
-    ``G_dd = sum(|y|² I - y y^T)``, ``G_dt = [sum y]_x``, ``G_dw = sum [y]_x^T B_m``
-    (column k: ``sum B_mk x y``), ``G_tt = m I``, ``G_tw = -sum B_m``,
-    ``G_ww = sum B_m^T B_m``; ``g = (0, -sum y, sum B_m^T y)``."""
-    n, M, _ = Y.shape
+    H: np.ndarray           # (n, K, K)
+    Hinv: np.ndarray        # (n, K, K)
+    Gtw: np.ndarray         # (n, 3, K)
+    count: np.ndarray       # (n,)
+    gw0: np.ndarray         # (n, K)
+    keep: np.ndarray        # (n, K) bool
+
+
+def _weight_block(obs, B2, BB, prior, used) -> _WeightBlock:
+    n, M = obs.shape
     K = B2.shape[2]
     o = obs.astype(float)
-    Yo = Y * o[..., None]
-    G = np.empty((n, K + 6, K + 6))
-    G[:, :3, :3] = np.einsum("nm,nmi,nmj->nij", -o, Y, Y)
-    G[:, [0, 1, 2], [0, 1, 2]] += np.einsum("nmi,nmi->n", Yo, Y)[:, None]
-    s = Yo.sum(axis=1)
-    Sx = np.zeros((n, 3, 3))
-    Sx[:, 0, 1], Sx[:, 0, 2], Sx[:, 1, 2] = -s[:, 2], s[:, 1], -s[:, 0]
-    Sx -= np.swapaxes(Sx, 1, 2)
-    G[:, :3, 3:6] = Sx
-    G[:, :3, 6:] = np.stack([Yo[..., 2] @ B2[:, 1] - Yo[..., 1] @ B2[:, 2],
-                             Yo[..., 0] @ B2[:, 2] - Yo[..., 2] @ B2[:, 0],
-                             Yo[..., 1] @ B2[:, 0] - Yo[..., 0] @ B2[:, 1]], axis=1)
-    G[:, 3:6, 3:6] = o.sum(axis=1)[:, None, None] * np.eye(3)
-    G[:, 3:6, 6:] = -(o @ B2.reshape(M, 3 * K)).reshape(n, 3, K)
-    G[:, 6:, 6:] = (o @ BB).reshape(n, K, K)
-    G[:, 3:, :3] = np.swapaxes(G[:, :3, 3:], 1, 2)
-    G[:, 6:, 3:6] = np.swapaxes(G[:, 3:6, 6:], 1, 2)
-    g = np.zeros((n, K + 6))
-    g[:, 3:6] = -s
-    g[:, 6:] = Yo.reshape(n, 3 * M) @ B2.reshape(3 * M, K)
-    return G, g
+    H = (o @ BB).reshape(n, K, K)
+    gw0 = np.zeros((n, K))
+    if prior is not None:
+        w0, r = prior
+        H += np.diag(r)
+        gw0 += r * w0
+    keep = np.arange(K) < used[:, None]
+    Gtw = -(o @ B2.reshape(M, 3 * K)).reshape(n, 3, K)
+    if not keep.all():                                 # the others: w = 0
+        H *= keep[:, :, None] & keep[:, None, :]
+        H[:, np.arange(K), np.arange(K)] += ~keep
+        Gtw *= keep[:, None, :]
+        gw0 *= keep
+    try:
+        Hinv = np.linalg.inv(H)
+    except np.linalg.LinAlgError:                      # one at a time: a tiny ridge if needed
+        Hinv = np.empty_like(H)
+        for f in range(n):
+            try:
+                Hinv[f] = np.linalg.inv(H[f])
+            except np.linalg.LinAlgError:              # dependent basis vectors
+                H[f] += 1e-10 * (np.trace(H[f]) + 2 * o[f].sum()) / (K + 6) * np.eye(K)
+                Hinv[f] = np.linalg.inv(H[f])
+    return _WeightBlock(H=H, Hinv=Hinv, Gtw=Gtw, count=o.sum(axis=1), gw0=gw0, keep=keep)
+
+
+def _pose_blocks(Y, obs, B2, keep):
+    """The parts of the normal equations that change with the pose, for n frames (``Y``
+    (n, M, 3) markers in the head frame, sums over the observed markers, ``[y]_x`` the
+    cross-product matrix): ``G_dd = sum(|y|² I - y y^T)``, ``G_dt = [sum y]_x``,
+    ``G_dw = sum [y]_x^T B_m`` (column k: ``sum B_mk x y``); right-hand sides
+    ``g_t = -sum y``, ``g_w = sum B_m^T y``."""
+    n, M, _ = Y.shape
+    K = B2.shape[2]
+    Yo = Y * obs[..., None]
+    Gdd = -np.swapaxes(Yo, 1, 2) @ Y
+    Gdd[:, [0, 1, 2], [0, 1, 2]] += (Yo * Y).sum(axis=(1, 2))[:, None]
+    sy = Yo.sum(axis=1)
+    Gdt = np.zeros((n, 3, 3))
+    Gdt[:, 0, 1], Gdt[:, 0, 2], Gdt[:, 1, 2] = -sy[:, 2], sy[:, 1], -sy[:, 0]
+    Gdt -= np.swapaxes(Gdt, 1, 2)
+    Gdw = np.stack([Yo[..., 2] @ B2[:, 1] - Yo[..., 1] @ B2[:, 2],
+                    Yo[..., 0] @ B2[:, 2] - Yo[..., 2] @ B2[:, 0],
+                    Yo[..., 1] @ B2[:, 0] - Yo[..., 0] @ B2[:, 1]], axis=1) * keep[:, None]
+    gw = (Yo.reshape(n, 3 * M) @ B2.reshape(3 * M, K)) * keep
+    return Gdd, Gdt, Gdw, -sy, gw
 
 
 def _box_qp(G, g, lb, ub, x, *, max_iter: int = 30):
@@ -278,9 +308,9 @@ def _box_qp(G, g, lb, ub, x, *, max_iter: int = 30):
         xf = np.where(lo, lb, np.where(hi, ub, 0.0))
         Gl = G[left]
         Gf = Gl * (free[:, :, None] & free[:, None, :]) + eye * ~free[:, :, None]
-        rhs = np.where(free, g[left] - np.einsum("nij,nj->ni", Gl, xf), xf)
+        rhs = np.where(free, g[left] - (Gl @ xf[..., None])[..., 0], xf)
         x[left] = np.linalg.solve(Gf, rhs[..., None])[..., 0]
-        grad = np.einsum("nij,nj->ni", Gl, x[left]) - g[left]
+        grad = (Gl @ x[left][..., None])[..., 0] - g[left]
         low, high = free & (x[left] < lb), free & (x[left] > ub)
         t = tol[left, None]
         release = (lo & (grad < -t)) | (hi & (grad > t))
@@ -294,57 +324,73 @@ def _box_qp(G, g, lb, ub, x, *, max_iter: int = 30):
     return np.clip(x, lb, ub), done
 
 
-def _steps(Y, obs, B2, BB, bounds, prior):
-    """One linearised joint step (see :func:`_normal_equations`) for each of n frames at
-    once, with the ``prior`` (w0 (K,), r (K,)) and the ``bounds`` (lower (K,), upper (K,))
-    of the weights if given. Returns d (n, 3), tau (n, 3), w (n, K)."""
-    G, g = _normal_equations(Y, obs, B2, BB)
-    if prior is not None:
-        w0, r = prior
-        G[:, 6:, 6:] += np.diag(r)
-        g[:, 6:] += r * w0
-    try:
-        x = np.linalg.solve(G, g[..., None])[..., 0]
-    except np.linalg.LinAlgError:                  # one at a time: a tiny ridge where needed
-        x = np.empty_like(g)
-        for f in range(len(G)):
-            try:
-                x[f] = np.linalg.solve(G[f], g[f])
-            except np.linalg.LinAlgError:          # dependent basis vectors
-                G[f] += 1e-10 * np.trace(G[f]) / len(G[f]) * np.eye(len(G[f]))
-                x[f] = np.linalg.solve(G[f], g[f])
+def _steps(Y, obs, B2, wb: _WeightBlock, bounds):
+    """One linearised joint step of :func:`fill_missing` for n frames at once: minimise
+    over a small rotation ``d``, a translation ``tau`` and the weights ``w`` the norm of
+    ``y + d x y + tau - B w`` over each frame's observed markers (plus the prior in ``wb``),
+    with the weights within ``bounds`` (lower (K,), upper (K,)) if given. The normal
+    equations ``[[A, C], [C^T, H]] (r, w) = (g_r, g_w)``, r = (d, tau), are solved through
+    the Schur complement on the six pose unknowns (``H^-1`` is fixed between passes); frames
+    whose weights leave the bounds are solved again on the whole system (:func:`_box_qp`,
+    or bounded-variable least squares where that does not settle).
+    Returns d (n, 3), tau (n, 3), w (n, K)."""
+    n = len(Y)
+    K = B2.shape[2]
+    Gdd, Gdt, Gdw, gt, gw = _pose_blocks(Y, obs, B2, wb.keep)
+    A = np.empty((n, 6, 6))
+    A[:, :3, :3], A[:, :3, 3:] = Gdd, Gdt
+    A[:, 3:, :3] = np.swapaxes(Gdt, 1, 2)
+    A[:, 3:, 3:] = wb.count[:, None, None] * np.eye(3)
+    C = np.concatenate([Gdw, wb.Gtw], axis=1)                   # (n, 6, K)
+    g_r = np.concatenate([np.zeros((n, 3)), gt], axis=1)
+    g_w = gw + wb.gw0
+    HC = wb.Hinv @ np.swapaxes(C, 1, 2)                         # (n, K, 6)
+    Hg = wb.Hinv @ g_w[..., None]                               # (n, K, 1)
+    r = np.linalg.solve(A - C @ HC, g_r[..., None] - C @ Hg)    # (n, 6, 1)
+    x = np.concatenate([r, Hg - HC @ r], axis=1)[..., 0]
     if bounds is not None:
         lb = np.r_[np.full(6, -np.inf), bounds[0]]
         ub = np.r_[np.full(6, np.inf), bounds[1]]
-        out = ((x < lb) | (x > ub)).any(axis=1)
-        if out.any():
-            x[out], done = _box_qp(G[out], g[out], lb, ub, x[out])
-            for f in np.flatnonzero(out)[~done]:
+        out = np.flatnonzero(((x < lb) | (x > ub)).any(axis=1))
+        if len(out):
+            G = np.empty((len(out), K + 6, K + 6))
+            G[:, :6, :6], G[:, :6, 6:] = A[out], C[out]
+            G[:, 6:, :6], G[:, 6:, 6:] = np.swapaxes(C[out], 1, 2), wb.H[out]
+            g = np.concatenate([g_r[out], g_w[out]], axis=1)
+            x[out], done = _box_qp(G, g, lb, ub, x[out])
+            for i in np.flatnonzero(~done):
                 # min |A x - rhs| == min |L^T x - L^-1 A^T rhs| up to a constant
-                L = np.linalg.cholesky(G[f])
-                x[f] = lsq_linear(L.T, np.linalg.solve(L, g[f]), bounds=(lb, ub),
-                                  method="bvls").x
+                L = np.linalg.cholesky(G[i])
+                x[out[i]] = lsq_linear(L.T, np.linalg.solve(L, g[i]), bounds=(lb, ub),
+                                       method="bvls").x
     return x[:, :3], x[:, 3:6], x[:, 6:]
+
+
+def _take(wb: _WeightBlock, rows) -> _WeightBlock:
+    return _WeightBlock(**{k: v[rows] for k, v in vars(wb).items()})
 
 
 #: frames fitted together: (frames, K + 6, K + 6) numbers of normal equations in memory
 _BATCH_NUMBERS = 4_000_000
 
 
-def fit_frames(X, B, ref, *, n_iter: int, bounds=None, prior=None) -> FaceFit:
+def fit_frames(X, B, ref, *, n_iter: int, bounds=None, prior=None, used=None) -> FaceFit:
     """The fit of :func:`fill_missing` on checked arrays: frames ``X`` (T, M, 3), basis
     ``B`` (K, M, 3), reference ``ref`` (M, 3); weights within ``bounds`` (lower (K,),
     upper (K,)) if given; ``prior`` (w0 (K,), r (K,)) adds ``sum_k r_k (w_k - w0_k)^2`` to
-    each frame's least squares (a Gaussian prior on the weights).
+    each frame's least squares (a Gaussian prior on the weights). ``used`` (T,) int: frame
+    t is fitted with the first ``used[t]`` basis vectors only (nested bases fitted in one
+    batch, as cross-validation does; default: all K).
 
-    All frames are fitted at once (batched normal equations, in chunks of frames); a frame
-    whose weights leave the bounds is solved on its own by bounded-variable least squares;
-    a frame stops when its step vanishes."""
+    All frames are fitted at once (batched normal equations, in chunks of frames); frames
+    whose weights leave the bounds are solved again by block principal pivoting (by
+    bounded-variable least squares, one at a time, where that does not settle); a frame
+    stops when its step vanishes."""
     T, M, _ = X.shape
     K = B.shape[0]
     obs = _observed(X)
-    need = min_observed_markers(K)
-    fitted = obs.sum(axis=1) >= need
+    used = np.full(T, K) if used is None else np.asarray(used, dtype=int)
+    fitted = obs.sum(axis=1) >= np.maximum(3, -(-(used + 6) // 3))   # min_observed_markers
     Bflat = B.reshape(K, M * 3).T                      # (3M, K)
     B2 = np.ascontiguousarray(np.moveaxis(B, 0, -1))   # (M, 3, K)
     BB = np.einsum("mik,mil->mkl", B2, B2).reshape(M, K * K)
@@ -361,23 +407,27 @@ def fit_frames(X, B, ref, *, n_iter: int, bounds=None, prior=None) -> FaceFit:
         o = obs[idx]
         P = np.where(o[..., None], X[idx], 0.0)        # observed markers, frame coords
         R, t = _masked_kabsch(P, ref, o.astype(float))  # frame -> head frame
+        wb = _weight_block(o, B2, BB, prior, used[idx])
         w = np.zeros((len(idx), K))
         active = np.arange(len(idx))
+        wb_active = wb
         for _ in range(n_iter):
-            Y = np.einsum("nij,nmj->nmi", R[active], P[active]) + t[active, None]
-            d, tau, w[active] = _steps(Y, o[active], B2, BB, bounds, prior)
+            Y = P[active] @ np.swapaxes(R[active], 1, 2) + t[active, None]
+            d, tau, w[active] = _steps(Y, o[active], B2, wb_active, bounds)
             dR = _rotvecs_to_matrices(d)
             R[active] = dR @ R[active]
-            t[active] = np.einsum("nij,nj->ni", dR, t[active]) + tau
+            t[active] = (dR @ t[active][..., None])[..., 0] + tau
             moving = (np.linalg.norm(d, axis=1) >= 1e-12) | (np.linalg.norm(tau, axis=1) >= 1e-9)
-            active = active[moving]
+            if not moving.all():
+                active = active[moving]
+                wb_active = _take(wb, active)
             if not len(active):
                 break
         face = (w @ Bflat.T).reshape(len(idx), M, 3)   # head frame
         # the rigid motion head frame -> frame is the inverse of (R, t)
         W[idx], Rs[idx] = w, np.swapaxes(R, 1, 2)
-        ts[idx] = -np.einsum("nji,nj->ni", R, t)
-        model[idx] = np.einsum("nmj,nji->nmi", face - t[:, None], R)
+        ts[idx] = -(np.swapaxes(R, 1, 2) @ t[..., None])[..., 0]
+        model[idx] = (face - t[:, None]) @ R
         sq = np.where(o, np.sum((model[idx] - X[idx]) ** 2, axis=2), 0.0)
         resid[idx] = np.sqrt(sq.sum(axis=1) / o.sum(axis=1))
     out = X.copy()
@@ -456,6 +506,12 @@ def extreme_basis(training, n_basis: int) -> FaceBasis:
     if K != n_basis or not 1 <= K <= min(T, 3 * M):
         raise ValueError(f"n_basis: expected an integer in [1, {min(T, 3 * M)}], got {n_basis}")
     D, Vt, explained = _principal(aligned, mean)
+    return _extremes_from(aligned, mean, D, Vt, explained, K)
+
+
+def _extremes_from(aligned, mean, D, Vt, explained, K: int) -> FaceBasis:
+    """:func:`extreme_basis` from the aligned training frames, their mean and principal
+    decomposition (:func:`_principal`)."""
     proj = np.abs(D @ Vt[:K].T)                         # (T, K)
     picked: list[int] = []
     for k in range(K):
@@ -492,6 +548,13 @@ def pca_basis(training, n_components: int) -> FaceBasis:
         raise ValueError(f"n_components: expected an integer in [0, {min(T - 1, 3 * M)}], "
                          f"got {n_components}")
     _, Vt, explained = _principal(aligned, mean)
+    return _pca_from(mean, Vt, explained, k)
+
+
+def _pca_from(mean, Vt, explained, k: int) -> FaceBasis:
+    """:func:`pca_basis` from the training mean (M, 3) and principal decomposition
+    (:func:`_principal`)."""
+    M = len(mean)
     vectors = np.concatenate([mean[None], Vt[:k].reshape(k, M, 3)], axis=0)
     return FaceBasis(vectors=vectors, reference=mean, kind="pca", constrain=False,
                      frames=np.full(k + 1, -1), explained=explained[:k])

@@ -57,6 +57,8 @@ def test_default_picks_pca_where_pca_is_the_right_model(model):
     assert c.row(("pca", 5))[0] > score + 3 * se and score < 0.6
     assert "| pca |" in c.table() and "**chosen**" in c.table()
     assert face.learn(train).choice.chosen == c.chosen            # seeded: the same choice
+    # the PCA-only choice runs the same blocks and hidden markers: the same best size
+    assert face.learn(train, method="pca").size == c.best_pca[1]
 
 
 def test_one_standard_error_rule_prefers_pca():
@@ -143,6 +145,10 @@ def test_learn_rejects_bad_input(model):
         face.FaceParams(families=("pca",))
     with pytest.raises(ValueError, match="pca_sizes"):
         face.FaceParams(pca_sizes=())
+    with pytest.raises(ValueError, match="method"):
+        face.build_face_model(train, method="auto", size=3)
+    with pytest.raises(ValueError, match="size"):
+        face.build_face_model(train, method="pca", size=40)
     m = face.learn(train)
     with pytest.raises(ValueError, match="frames: expected 76 markers"):
         m.fill(train[:, :70])

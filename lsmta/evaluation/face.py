@@ -17,13 +17,13 @@ from ..face import (
     FaceChoice,
     FaceParams,
     align_sequence,
+    build_face_model,
     extreme_basis,
     fill_missing,
     learn,
     pca_basis,
     pca_gap_fill,
 )
-from ..face.model import _build
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.face import face_cameras, face_sequence, visible
 from ..synth.marker_video import render_marker_video
@@ -129,15 +129,15 @@ def to_head(points, R, t):
 
 
 def fill_all(gappy, training, *, n_basis: int, n_components: int,
-             peer_components: int | None = None) -> dict:
+             peer_components: int | None = None, learned=None) -> dict:
     """Fill ``gappy`` (T, M, 3) with every method of :data:`METHODS`.
 
     ``n_basis`` extreme faces (constrained and free weights), a PCA basis of
     ``n_components`` (mean + k, free weights), the peer (Gløersen & Federolf's full
     method), which learns from the complete frames of ``training`` (and ``gappy``) with
     ``peer_components`` components (default: as the authors' code chooses), and the
-    default model of :func:`lsmta.face.learn` trained on ``training``. Returns
-    ``{method: (T, M, 3) filled}``.
+    default model of :func:`lsmta.face.learn` trained on ``training`` (``learned``: that
+    model, if already learnt). Returns ``{method: (T, M, 3) filled}``.
     """
     ext = extreme_basis(training, n_basis)
     pca = pca_basis(training, n_components)
@@ -147,7 +147,7 @@ def fill_all(gappy, training, *, n_basis: int, n_components: int,
         METHODS[2]: fill_missing(gappy, pca).frames,
         METHODS[3]: pca_gap_fill(gappy, training=training,
                                  n_components=peer_components).frames,
-        METHODS[4]: learn(training).fill(gappy).frames,
+        METHODS[4]: (learn(training) if learned is None else learned).fill(gappy).frames,
     }
     return out
 
@@ -251,7 +251,8 @@ def held_out_half(sequence, *, n_hidden: int, draws: int = 3,
 
     The first half in time is the training half: :func:`lsmta.face.learn` (the default,
     ``method="auto"``) and plain PCA with its size chosen by the same cross-validation
-    (``method="pca"``) see only it, with ``n_hidden`` markers hidden at random per held-out
+    (the lowest-scoring PCA size of the default's table, which is what ``method="pca"``
+    chooses) see only it, with ``n_hidden`` markers hidden at random per held-out
     frame, as in the test. In every frame of the second half ``n_hidden`` markers are hidden
     at random (``draws`` independent draws, the same for every method) and filled by each
     model; the errors are pooled over the draws. ``fixed``: further (method, size) models
@@ -287,11 +288,15 @@ def held_out_half(sequence, *, n_hidden: int, draws: int = 3,
     rng = as_rng(rng)
     params = replace(FaceParams() if params is None else params, hidden=n_hidden / M)
     train, test = X[:T // 2], X[T // 2:]
-    models = {HALF_DEFAULT: learn(train, params=params),
-              HALF_PCA: learn(train, method="pca", params=params)}
+    default = learn(train, params=params)
+    # plain PCA at the size the same cross-validation scores lowest: what
+    # learn(train, method="pca", params=params) chooses (the same blocks and hidden markers)
+    pca_size = default.choice.best_pca[1]
+    models = {HALF_DEFAULT: default,
+              HALF_PCA: build_face_model(train, method="pca", size=pca_size, n_iter=params.n_iter)}
     for m, k in fixed:
         name = f"plain PCA, {k} components" if m == "pca" else f"{m} {k}"
-        models[name] = _build(train, m, k, params.n_iter)
+        models[name] = build_face_model(train, method=m, size=k, n_iter=params.n_iter)
     parts = {name: [] for name in models}
     for _ in range(draws):
         vis = random_visibility(len(test), M, M - n_hidden, rng=rng)
@@ -299,8 +304,8 @@ def held_out_half(sequence, *, n_hidden: int, draws: int = 3,
         for name, model in models.items():
             e = missing_errors(model.fill(gap).frames, test, vis)
             parts[name].append(e[np.isfinite(e)])
-    return HeldOutHalf(n_train=len(train), n_test=len(test), choice=models[HALF_DEFAULT].choice,
-                       pca_size=models[HALF_PCA].size,
+    return HeldOutHalf(n_train=len(train), n_test=len(test), choice=default.choice,
+                       pca_size=pca_size,
                        errors={k: np.concatenate(v) for k, v in parts.items()})
 
 

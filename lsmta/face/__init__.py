@@ -24,11 +24,18 @@ from .basis import (
                     min_observed_markers,
                     pca_basis,
 )
-from .model import FaceChoice, FaceModel, FaceParams, choose_face_model, learn
+from .model import (
+    FaceChoice,
+    FaceModel,
+    FaceParams,
+    build_face_model,
+    choose_face_model,
+    learn,
+)
 from .peer import GapFill, pca_gap_fill
 
 __all__ = [
     "FaceBasis", "FaceChoice", "FaceFit", "FaceModel", "FaceParams", "GapFill", "align_sequence",
-    "choose_face_model", "distance_deviation", "extreme_basis", "fill_missing", "learn",
-    "min_observed_markers", "pca_basis", "pca_gap_fill",
+    "build_face_model", "choose_face_model", "distance_deviation", "extreme_basis",
+    "fill_missing", "learn", "min_observed_markers", "pca_basis", "pca_gap_fill",
 ]

@@ -322,9 +322,38 @@ def _model(dec: _Decomposition, method: str, size: int, n_iter: int) -> FaceMode
                      scores={}, n_iter=n_iter)
 
 
+def build_face_model(training, *, method: str, size: int, n_iter: int = 5) -> FaceModel:
+    """One face model of a given method and size, without a choice.
+
+    Parameters
+    ----------
+    training : (T, M, 3) array
+        Training sequence, mm; frames with a gap are left out. Not modified.
+    method : {"extremes", "pca", "prior", "box"}
+    size : int
+        K extreme faces (``1 <= K <= min(T, 3M)``) or k principal components
+        (``1 <= k <= min(T - 1, 3M)``; 0 for plain PCA: the mean alone).
+    n_iter : int
+        Gauss-Newton passes per frame when filling.
+
+    Returns
+    -------
+    FaceModel
+        ``scores`` empty and ``choice`` None.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
+    X = _as_sequence(training, "training", allow_nan=True)
+    X = X[_observed(X).all(axis=1)]
+    if len(X) < 2:
+        raise ValueError(f"training: expected at least 2 complete frames, got {len(X)}")
+    return _model(_decompose(X), method, as_int(size, "size", minimum=0),
+                  as_int(n_iter, "n_iter", minimum=1))
+
+
 def _build(training, method: str, size: int, n_iter: int) -> FaceModel:
-    """One candidate model from a complete training sequence (T, M, 3)."""
-    return _model(_decompose(training), method, size, n_iter)
+    """:func:`build_face_model` positionally (notebook 18 and the experiments use it)."""
+    return build_face_model(training, method=method, size=size, n_iter=n_iter)
 
 
 # ---------------------------------------------------------------- cross-validation
@@ -552,4 +581,5 @@ def learn(training, *, method: str = "auto", params: FaceParams | None = None,
                                rng=rng)
     params, X, _ = _checked(training, method, params, observed)
     m, k = choice.chosen
-    return replace(_build(X, m, k, params.n_iter), scores=choice.scores, choice=choice)
+    return replace(_model(_decompose(X), m, k, params.n_iter), scores=choice.scores,
+                   choice=choice)

@@ -6,14 +6,24 @@ marker and its true position, over the markers that were missing only.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from itertools import combinations
 
 import cv2
 import numpy as np
 
 from .._validate import as_int, as_rng
-from ..face import align_sequence, extreme_basis, fill_missing, learn, pca_basis, pca_gap_fill
+from ..face import (
+    FaceChoice,
+    FaceParams,
+    align_sequence,
+    build_face_model,
+    extreme_basis,
+    fill_missing,
+    learn,
+    pca_basis,
+    pca_gap_fill,
+)
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.face import face_cameras, face_sequence, visible
 from ..synth.marker_video import render_marker_video
@@ -119,15 +129,15 @@ def to_head(points, R, t):
 
 
 def fill_all(gappy, training, *, n_basis: int, n_components: int,
-             peer_components: int | None = None) -> dict:
+             peer_components: int | None = None, learned=None) -> dict:
     """Fill ``gappy`` (T, M, 3) with every method of :data:`METHODS`.
 
     ``n_basis`` extreme faces (constrained and free weights), a PCA basis of
     ``n_components`` (mean + k, free weights), the peer (Gløersen & Federolf's full
     method), which learns from the complete frames of ``training`` (and ``gappy``) with
     ``peer_components`` components (default: as the authors' code chooses), and the
-    default model of :func:`lsmta.face.learn` trained on ``training``. Returns
-    ``{method: (T, M, 3) filled}``.
+    default model of :func:`lsmta.face.learn` trained on ``training`` (``learned``: that
+    model, if already learnt). Returns ``{method: (T, M, 3) filled}``.
     """
     ext = extreme_basis(training, n_basis)
     pca = pca_basis(training, n_components)
@@ -137,7 +147,7 @@ def fill_all(gappy, training, *, n_basis: int, n_components: int,
         METHODS[2]: fill_missing(gappy, pca).frames,
         METHODS[3]: pca_gap_fill(gappy, training=training,
                                  n_components=peer_components).frames,
-        METHODS[4]: learn(training).fill(gappy).frames,
+        METHODS[4]: (learn(training) if learned is None else learned).fill(gappy).frames,
     }
     return out
 
@@ -194,6 +204,109 @@ def removal_trials(model, seeds, *, n_train: int, n_test: int, n_removed: int,
             xy[name].append((filled - te)[~observed][:, :2])   # frontal plane of the head
         removed_all.append(removed)
     return RemovalTrials(xy=xy, removed=removed_all)
+
+
+#: what :func:`held_out_half` compares: the default, plain PCA with its size chosen on the
+#: training half (the target's peer), and the fixed models named in ``fixed``
+HALF_DEFAULT = "default: learn(training half)"
+HALF_PCA = "plain PCA, size chosen on the training half"
+
+
+@dataclass(frozen=True)
+class HeldOutHalf:
+    """A face model chosen on the first half of a sequence and scored on the second
+    (:func:`held_out_half`).
+
+    Attributes
+    ----------
+    n_train, n_test : int
+        Frames of the training (first) and test (second) half.
+    choice : FaceChoice
+        The default's cross-validation on the training half (its table and reason).
+    pca_size : int
+        Components of plain PCA chosen on the training half (the lowest CV error).
+    errors : dict
+        Method -> (N,) distances of the hidden test markers from their recorded positions,
+        pooled over the draws, mm.
+    """
+
+    n_train: int
+    n_test: int
+    choice: FaceChoice
+    pca_size: int
+    errors: dict
+
+    def summary(self) -> dict:
+        """Method -> ``{"median": mm, "mean": mm}``."""
+        return {m: {"median": float(np.median(e)), "mean": float(e.mean())}
+                for m, e in self.errors.items()}
+
+
+def held_out_half(sequence, *, n_hidden: int, draws: int = 3,
+                  rng: np.random.Generator | int | None = None,
+                  params: FaceParams | None = None, fixed=(("pca", 10), ("box", 20))
+                  ) -> HeldOutHalf:
+    """The protocol of notebook 13 and ``experiments/face_models.py``: choose on the first
+    half of a sequence, report on the second.
+
+    The first half in time is the training half: :func:`lsmta.face.learn` (the default,
+    ``method="auto"``) and plain PCA with its size chosen by the same cross-validation
+    (the lowest-scoring PCA size of the default's table, which is what ``method="pca"``
+    chooses) see only it, with ``n_hidden`` markers hidden at random per held-out
+    frame, as in the test. In every frame of the second half ``n_hidden`` markers are hidden
+    at random (``draws`` independent draws, the same for every method) and filled by each
+    model; the errors are pooled over the draws. ``fixed``: further (method, size) models
+    built on the training half without a choice (default: plain PCA with 10 components and
+    the earlier fixed default, box with 20).
+
+    Parameters
+    ----------
+    sequence : (T, M, 3) array
+        Complete marker positions, mm (the recorded positions serve as the truth).
+    n_hidden : int
+        Markers hidden per frame, in [1, M - 3].
+    draws : int
+    rng : numpy.random.Generator, int or None
+        The hidden markers of the test half (the cross-validation's own draws are seeded
+        by :func:`lsmta.face.learn`).
+    params : FaceParams, optional
+        The cross-validation's settings; its ``hidden`` is set to ``n_hidden / M``.
+    fixed : sequence of (str, int)
+
+    Returns
+    -------
+    HeldOutHalf
+    """
+    X = np.asarray(sequence, dtype=float)
+    if X.ndim != 3 or X.shape[2] != 3 or not np.isfinite(X).all():
+        raise ValueError(f"sequence: expected a complete (T, M, 3) array, got shape {X.shape}")
+    T, M, _ = X.shape
+    n_hidden = as_int(n_hidden, "n_hidden")
+    if not 1 <= n_hidden <= M - 3:
+        raise ValueError(f"n_hidden: expected an integer in [1, {M - 3}], got {n_hidden}")
+    draws = as_int(draws, "draws")
+    rng = as_rng(rng)
+    params = replace(FaceParams() if params is None else params, hidden=n_hidden / M)
+    train, test = X[:T // 2], X[T // 2:]
+    default = learn(train, params=params)
+    # plain PCA at the size the same cross-validation scores lowest: what
+    # learn(train, method="pca", params=params) chooses (the same blocks and hidden markers)
+    pca_size = default.choice.best_pca[1]
+    models = {HALF_DEFAULT: default,
+              HALF_PCA: build_face_model(train, method="pca", size=pca_size, n_iter=params.n_iter)}
+    for m, k in fixed:
+        name = f"plain PCA, {k} components" if m == "pca" else f"{m} {k}"
+        models[name] = build_face_model(train, method=m, size=k, n_iter=params.n_iter)
+    parts = {name: [] for name in models}
+    for _ in range(draws):
+        vis = random_visibility(len(test), M, M - n_hidden, rng=rng)
+        gap = np.where(vis[..., None], test, np.nan)
+        for name, model in models.items():
+            e = missing_errors(model.fill(gap).frames, test, vis)
+            parts[name].append(e[np.isfinite(e)])
+    return HeldOutHalf(n_train=len(train), n_test=len(test), choice=default.choice,
+                       pca_size=pca_size,
+                       errors={k: np.concatenate(v) for k, v in parts.items()})
 
 
 def missing_errors(filled, truth, observed):

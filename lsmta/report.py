@@ -9,7 +9,7 @@ the records are appended to the file named by the environment variable
 A record has a ``kind``: ``"result"`` (a measured number, the default), ``"setting"`` (a
 number the notebook chose, such as an image size or a noise level picked to match the
 paper: not a result, so it stays out of the paper-against-ours table) or ``"timing"`` (a
-wall-clock time, which differs from run to run). A result also says which ground truth
+wall-clock time, which differs from run to run). A result must also say which ground truth
 of the generator it leaned on (``truth``): ``"none"`` where the number comes from the
 system's own measurements, otherwise the truth inputs in words, the phrases of
 :data:`TRUTH_PHRASES` joined by ``"; "`` ("true cameras; seeds from truth"), each with a
@@ -122,12 +122,13 @@ def record(figure: str, quantity: str, value, unit: str = "", *, paper=None,
     kind : {"result", "setting", "timing"}
         ``"setting"`` for a number the notebook chose rather than measured (kept out of
         the paper-against-ours table), ``"timing"`` for a wall-clock time.
-    truth : str, optional
+    truth : str
         The generator's ground truth the number leaned on, besides scoring against it:
         ``"none"`` (the system's own measurements only), or the truth inputs in a few
         words, the phrases of :data:`TRUTH_PHRASES` joined by ``"; "``, e.g.
-        ``"true cameras; seeds from truth"``. Settings and timings default to ``"none"``;
-        a result without it is stored as ``"unstated"``.
+        ``"true cameras; seeds from truth"``. Required for a result (a ``TypeError``
+        otherwise); settings and timings default to ``"none"``. (``"unstated"`` is left for
+        records read from files written before results had to say it.)
     controlled : bool
         The record is a controlled study: truth inputs on purpose, to isolate one stage.
 
@@ -136,7 +137,11 @@ def record(figure: str, quantity: str, value, unit: str = "", *, paper=None,
     Record
     """
     if truth is None:
-        truth = "unstated" if kind == "result" else "none"
+        if kind == "result":
+            raise TypeError("truth: a result must say which of the generator's truth it "
+                            "leaned on: truth='none', or the truth inputs in words "
+                            "(lsmta.report.TRUTH_PHRASES)")
+        truth = "none"
     for name, text in (("figure", figure), ("quantity", quantity), ("unit", unit),
                        ("note", note), ("kind", kind), ("truth", truth)):
         if not isinstance(text, str):

@@ -10,12 +10,13 @@ from lsmta import report
 
 def test_record_returns_and_writes_when_asked(tmp_path, monkeypatch):
     monkeypatch.delenv(report.RECORD_ENV, raising=False)
-    rec = report.record("Fig. 1", "error", np.float64(0.25), "px", paper=0.3, note="n")
+    rec = report.record("Fig. 1", "error", np.float64(0.25), "px", paper=0.3, note="n",
+                        truth="none")
     assert rec.value == 0.25 and isinstance(rec.value, float)
     path = tmp_path / "r.jsonl"
     monkeypatch.setenv(report.RECORD_ENV, str(path))
-    report.record("Fig. 1", "error", 0.25, "px", paper=0.3)
-    report.record("Fig. 2", "size", "768x576")
+    report.record("Fig. 1", "error", 0.25, "px", paper=0.3, truth="none")
+    report.record("Fig. 2", "size", "768x576", truth="none")
     rows = [json.loads(line) for line in path.read_text().splitlines()]
     assert [r["figure"] for r in rows] == ["Fig. 1", "Fig. 2"]
     assert report.load_records(path)[1].paper is None
@@ -97,13 +98,13 @@ def test_truth_group_and_unsound_verdicts():
 ])
 def test_record_bad_input(kwargs, exc):
     with pytest.raises(exc):
-        report.record("F", "q", unit="", **kwargs)
+        report.record("F", "q", unit="", truth="none", **kwargs)
 
 
-def test_kind_marks_settings_and_old_calls_still_work(tmp_path, monkeypatch):
+def test_kind_marks_settings_and_old_files_still_load(tmp_path, monkeypatch):
     path = tmp_path / "r.jsonl"
     monkeypatch.setenv(report.RECORD_ENV, str(path))
-    assert report.record("F", "q", 1.0).kind == "result"          # an old call
+    assert report.record("F", "q", 1.0, truth="none").kind == "result"
     report.record("F", "image size", "8x8", "px", kind="setting")
     assert [r.kind for r in report.load_records(path)] == ["result", "setting"]
     # a JSON line written before records had a kind still loads, as a result
@@ -113,7 +114,20 @@ def test_kind_marks_settings_and_old_calls_still_work(tmp_path, monkeypatch):
     assert "(setting) chosen" in report.table([report.Record("F", "q", 1, kind="setting",
                                                              note="chosen")])
     with pytest.raises(ValueError, match="kind"):
-        report.record("F", "q", 1.0, kind="guess")
+        report.record("F", "q", 1.0, kind="guess", truth="none")
+
+
+def test_a_result_must_state_its_truth(tmp_path, monkeypatch):
+    path = tmp_path / "r.jsonl"
+    monkeypatch.setenv(report.RECORD_ENV, str(path))
+    with pytest.raises(TypeError, match="truth"):
+        report.record("F", "error", 0.5, "mm")
+    with pytest.raises(TypeError, match="truth"):
+        report.record("F", "error", 0.5, "mm", kind="result", controlled=True)
+    assert not path.exists()                                       # nothing written
+    # settings and timings need none: they default to "none"
+    assert report.record("F", "image size", "8x8", "px", kind="setting").truth == "none"
+    assert report.record("F", "time", 1.5, "s", kind="timing").truth == "none"
 
 
 def test_verdict_is_computed_from_a_truth_value():
@@ -140,10 +154,6 @@ def test_build_dir(tmp_path, monkeypatch):
 
 # ------------------------------------------------------------- the notebooks' record calls
 NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("[0-9][0-9]_*.ipynb"))
-# notebooks whose record calls get their truth= from the work on them this round; the commit
-# that makes truth= required for results empties this set
-TRUTH_PENDING = {"13_face_occlusion_reconstruction", "18_real_marker_captures",
-                 "19_calibration_real_rigs"}
 
 
 def _code_cells(path):
@@ -199,10 +209,7 @@ def test_the_notebook_scan_finds_forwarded_calls(tmp_path):
     assert sorted(found) == [("a", True), ("b", False), ("d", False)]
 
 
-@pytest.mark.parametrize("path", [
-    pytest.param(p, marks=pytest.mark.xfail(reason="truth= comes with this round's work on it",
-                                            strict=False))
-    if p.stem in TRUTH_PENDING else p for p in NOTEBOOKS], ids=lambda p: p.stem)
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_every_result_record_in_the_notebooks_states_its_truth(path):
     calls = list(_result_calls(path))
     missing = [f"cell {i}, line {line}" for i, line, call in calls

@@ -1,8 +1,8 @@
 """The project's bundled recordings (``data/``, each folder with its licence and source),
 loaded into arrays and cameras.
 
-* :func:`load_cones` — the Middlebury "Cones" pair with its disparity truth
-  (``data/middlebury_cones``);
+* :func:`load_stereo_pair` — a Middlebury pair with its disparity truth, one of
+  :data:`STEREO_PAIRS` (``data/middlebury_*``); :func:`load_cones` the "Cones" pair;
 * :func:`load_demo` — the four views of Pose2Sim's demo with their Qualisys calibration
   (``data/pose2sim_demo``);
 * :func:`load_recording` — a real marker recording (C3D) split for the SAPM protocol of
@@ -29,6 +29,15 @@ DATA_DIR = Path(__file__).resolve().parents[1] / "data"
 ANIMFACE_DIR = DATA_DIR / "animface"
 CALISCOPE_DIR = DATA_DIR / "caliscope_4cam"
 CONES_DIR = DATA_DIR / "middlebury_cones"
+#: the real rectified pairs with truth: name -> (folder, ``truth_step`` px). Cones' truth
+#: is quantised to 1/4 px, Teddy's to 1/4, Art's to 1/3; Tsukuba's is stored in 1/16 px but
+#: hand-labelled in whole pixels.
+STEREO_PAIRS = {
+    "cones": ("middlebury_cones", 0.25),
+    "teddy": ("middlebury_teddy", 0.25),
+    "art": ("middlebury_art", 1.0 / 3.0),
+    "tsukuba": ("middlebury_tsukuba", 1.0),
+}
 POSE2SIM_DIR = DATA_DIR / "pose2sim_demo"
 POSE2SIM_VIEWS = ("cam01", "cam02", "cam03", "cam04")
 RECORDING_FILES = {
@@ -40,19 +49,26 @@ RECORDING_FILES = {
 }
 
 
-# ---------------------------------------------------------------------- Middlebury Cones
+# ---------------------------------------------------------------------- Middlebury pairs
 @dataclass(frozen=True)
 class StereoPair:
     """A rectified pair with ground truth for the left image.
 
-    ``left``, ``right`` (H, W) uint8; ``disparity`` (H, W) float, NaN where unknown;
-    ``nonoccluded`` (H, W) bool.
+    ``left``, ``right`` (H, W) uint8 grey; a left pixel ``(x, y)`` appears at ``(x - d, y)``
+    in the right image. ``disparity`` (H, W) float, px, NaN where unknown; ``nonoccluded``
+    (H, W) bool. ``name``; ``truth_step`` (px) the truth's quantisation step;
+    ``disparity_range`` ``(0, largest)`` px: the largest disparity the truth file can encode
+    (255 / its scale), rounded up to a multiple of 16 (OpenCV's matchers need one) — a
+    search range from the file's format, not from the truth's values.
     """
 
     left: np.ndarray
     right: np.ndarray
     disparity: np.ndarray
     nonoccluded: np.ndarray
+    name: str = "cones"
+    truth_step: float = 0.25
+    disparity_range: tuple = (0, 64)
 
     def grid(self, step: int):
         """Truth on the grid of spacing ``step``: ``(disparity, scored)``, both
@@ -61,13 +77,29 @@ class StereoPair:
         return d, self.nonoccluded[::step, ::step] & np.isfinite(d)
 
 
+def load_stereo_pair(name: str, *, path=None) -> StereoPair:
+    """A Middlebury pair of :data:`STEREO_PAIRS` (``"cones"``, ``"teddy"``, ``"art"``,
+    ``"tsukuba"``) from ``data/middlebury_<name>/<name>.npz`` (see each folder's README for
+    the source, licence and how the occlusion mask was made); ``path`` another copy."""
+    if name not in STEREO_PAIRS:
+        raise ValueError(f"name: expected one of {sorted(STEREO_PAIRS)}, got {name!r}")
+    folder, truth_step = STEREO_PAIRS[name]
+    d = np.load(Path(path) if path is not None else DATA_DIR / folder / f"{name}.npz")
+    if "disparity4" in d:                                 # the Cones file (convert_cones.py)
+        raw, scale = d["disparity4"], 4
+    else:
+        raw, scale = d["disparity_raw"], int(d["disparity_scale"])
+    disparity = raw.astype(float) / scale
+    disparity[raw == 0] = np.nan
+    largest = int(np.ceil(255.0 / scale / 16.0)) * 16
+    return StereoPair(left=d["left"], right=d["right"], disparity=disparity,
+                      nonoccluded=d["nonoccluded"].astype(bool), name=name,
+                      truth_step=truth_step, disparity_range=(0, largest))
+
+
 def load_cones(*, path=None) -> StereoPair:
     """The Middlebury "Cones" pair from ``data/middlebury_cones/cones.npz`` (see its README)."""
-    d = np.load(Path(path) if path is not None else CONES_DIR / "cones.npz")
-    disparity = d["disparity4"].astype(float) / 4.0
-    disparity[d["disparity4"] == 0] = np.nan
-    return StereoPair(left=d["left"], right=d["right"], disparity=disparity,
-                      nonoccluded=d["nonoccluded"])
+    return load_stereo_pair("cones", path=path)
 
 
 # ---------------------------------------------------------------------- Pose2Sim demo

@@ -10,7 +10,12 @@ nodes of a grid of spacing ``step``; dense maps are read at the nodes.
 
 from __future__ import annotations
 
+import time
+from dataclasses import dataclass
+
 import numpy as np
+
+from ..matching import DisparityParams, measure_disparity, peers
 
 #: the truth is quantised to this step (px); a perfect estimate is up to half of it off
 TRUTH_STEP = 0.25
@@ -42,3 +47,103 @@ def quantisation_median(*, step: float = TRUTH_STEP) -> float:
     rounding error is uniform on ``[-step/2, step/2]``, so its magnitude's median is
     ``step / 4`` (0.0625 px for Middlebury's 0.25 px)."""
     return step / 4.0
+
+
+# ---------------------------------------------------------------------- one pair, all methods
+#: the methods of :func:`compare_on_pair`, in table order
+METHODS = ("ours", "SGBM, filters on", "SGBM, filters off", "BM")
+
+
+@dataclass(frozen=True)
+class PairComparison:
+    """Ours, SGBM (filters on, off) and BM on one pair's grid nodes.
+
+    Attributes
+    ----------
+    name : str
+    step : int
+        Grid spacing, px.
+    n_scored : int
+        Scored nodes (non-occluded, known truth).
+    maps : dict
+        Method (:data:`METHODS`) -> (rows, cols) disparity at the grid nodes, NaN: none.
+    scores : dict
+        Method -> :func:`scores` of its map.
+    seconds : dict
+        Method -> shortest run time of ``repeats`` runs, s (ours: seeds and growth).
+    """
+
+    name: str
+    step: int
+    n_scored: int
+    maps: dict
+    scores: dict
+    seconds: dict
+
+    @property
+    def time_ratio(self) -> float:
+        """Our time over SGBM's with filters (the SGBM a user runs)."""
+        return self.seconds["ours"] / self.seconds["SGBM, filters on"]
+
+    def targets(self, *, time_limit: float = 5.0) -> dict:
+        """Issue #33's targets, each True (met) or False: ``median`` below the better SGBM's
+        (filters on or off), ``bad1`` at most half of the better SGBM's, ``density`` at
+        least SGBM's with filters (without them SGBM keeps every node by construction),
+        ``time`` at most ``time_limit`` x SGBM's with filters."""
+        ours, on, off = (self.scores[k] for k in METHODS[:3])
+        return {"median": bool(ours["median"] < min(on["median"], off["median"])),
+                "bad1": bool(ours["bad1"] <= 0.5 * min(on["bad1"], off["bad1"])),
+                "density": bool(ours["density"] >= on["density"]),
+                "time": bool(self.time_ratio <= time_limit)}
+
+
+def compare_on_pair(pair, *, repeats: int = 3, params=None, disparity_range=None,
+                    warm_up: bool = True) -> PairComparison:
+    """Run ours (:func:`~lsmta.matching.disparity.measure_disparity`, automatic seeds,
+    ``params`` or its defaults :class:`~lsmta.matching.DisparityParams`) and OpenCV's SGBM
+    (filters on, off) and BM on a :class:`~lsmta.data.StereoPair`, score all on the same
+    grid nodes (our grid, spacing ``params.grow.step``: 4 by default).
+
+    ``disparity_range`` defaults to the pair's own (from its file format), the same for
+    every method; each is timed as the shortest of ``repeats`` runs (with ``warm_up`` ours
+    once more beforehand, untimed, so that numba's compilation is not counted: not needed
+    once it has run in this process). The truth is read only for the scores.
+    """
+    if int(repeats) < 1:
+        raise ValueError(f"repeats: expected a positive integer, got {repeats}")
+    params = DisparityParams() if params is None else params
+    step = params.grow.step
+    lo, hi = pair.disparity_range if disparity_range is None else disparity_range
+    truth, scored = pair.grid(step)
+
+    def ours():
+        return measure_disparity(pair.left, pair.right, disparity_range=(lo, hi),
+                                 params=params).disparity
+
+    runs = {
+        "ours": ours,
+        "SGBM, filters on": lambda: peers.stereo_sgbm(
+            pair.left, pair.right, min_disparity=int(lo), num_disparities=int(hi - lo)),
+        "SGBM, filters off": lambda: peers.stereo_sgbm(
+            pair.left, pair.right, min_disparity=int(lo), num_disparities=int(hi - lo),
+            filters=False),
+        "BM": lambda: peers.stereo_bm(pair.left, pair.right, num_disparities=int(hi - lo)),
+    }
+    if warm_up:
+        ours()                                              # numba compiles once
+    maps, seconds = {}, {}
+    for name, fn in runs.items():
+        best = np.inf
+        for _ in range(int(repeats)):
+            t0 = time.perf_counter()
+            out = fn()
+            best = min(best, time.perf_counter() - t0)
+        if name == "ours":
+            maps[name] = out
+        else:   # OpenCV's own time (its call alone), the map read at the nodes
+            best = min(best, out.seconds)
+            maps[name] = out.disparity[::step, ::step]
+        seconds[name] = best
+    return PairComparison(name=pair.name, step=int(step), n_scored=int(scored.sum()),
+                          maps=maps, scores={k: scores(m, truth, scored) for k, m in maps.items()},
+                          seconds=seconds)

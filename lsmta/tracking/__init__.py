@@ -7,6 +7,8 @@ OpenCV KLT peer;
 accelerations); ``threshold_filter`` and ``uniformity_filter`` (the paper's) and
 ``drift_filter`` (ours) cut false trajectories, ``apply_filters`` chains the three.
 ``markers`` is the small-scale marker tracker of Davis §5.1.
+``guided`` is guided tracking (Davis Fig. 56: tracking state, enlarged view, a lost marker
+placed by hand and tracked on); ``guided_ui`` its ipywidgets interface.
 """
 
 from .filters import (

@@ -224,6 +224,64 @@ def test_windowed_search_finds_what_the_full_search_finds():
     assert one.tested - none.tested == grid_in_window
 
 
+def test_guided_search_at_full_size_matches_the_full_search_where_windows_reach():
+    from lsmta.widearea import DetectionParams, Threshold
+
+    # 640 x 480, uint8: small spots in windows (one across two overlapping windows' edges),
+    # a wide spot the grid always hits, a blob of ~1000 pixels (the fills' set grows), and a
+    # small spot outside every window and off the grid, which only the full search finds
+    H, W = 480, 640
+    yy, xx = np.mgrid[0:H, 0:W]
+    img = np.full((H, W), 40.0)
+    spots = [(100.3, 80.6, 0.8), (139.6, 80.2, 0.9), (300.2, 200.7, 3.0), (500.5, 400.5, 12.0),
+             (20.0, 470.0, 0.5), (401.0, 51.0, 0.3)]
+    for x, y, sig in spots:
+        img += 150.0 * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * sig ** 2))
+    frame = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    bg = np.full((H, W), 40.0)
+    params = DetectionParams(max_area=5000)
+    setup = search_setup(Threshold(background=bg, threshold=bg + 20.0), params=params)
+    full = search_frame(frame, setup, full=True)
+    windows = np.array([[120.0, 80.0], [140.0, 90.0], [500.0, 400.0], [20.0, 470.0],
+                        [np.nan, 3.0]])
+    before = frame.copy()
+    g = search_frame(frame, setup, windows=windows, jitter=(0, 0))   # grid: rows, cols 0 mod 5
+    np.testing.assert_array_equal(frame, before)
+    assert len(full.xy) == 6 and len(g.xy) == 5 and full.area.max() > 500
+    missed = np.linalg.norm(full.xy - (401.0, 51.0), axis=1).argmin()
+    for i in np.flatnonzero(np.arange(6) != missed):
+        j = np.linalg.norm(g.xy - full.xy[i], axis=1).argmin()
+        np.testing.assert_allclose(g.xy[j], full.xy[i], atol=1e-6)
+        assert g.area[j] == full.area[i]
+    # without spots: exactly the grid's and the windows' pixels (each once)
+    empty = search_frame(np.full((H, W), 40, np.uint8), setup, windows=windows, jitter=(2, 3))
+    from lsmta.widearea import search_mask
+    assert empty.tested == search_mask((H, W), 5, (2, 3), windows=windows, window=40).sum()
+    assert empty.tested < 0.06 * H * W
+
+
+def test_tracker_offers_windows_around_centroids_waiting_for_a_partner():
+    cams = [small_camera(c) for c in ceiling_rig(rng=np.random.default_rng(7))[:2]]
+    tracker = WideAreaTracker(cams)
+    seen = []
+
+    def search(found):
+        def detect_(pred):
+            seen.append(pred.waiting)
+            return found
+        return detect_
+
+    tracker.feed_detect(0, 0.00, search(np.array([[100.0, 80.0], [200.5, 150.25]])))
+    tracker.feed_detect(0, 0.02, search(np.zeros((0, 2))))
+    tracker.feed_detect(0, 0.04, search(np.zeros((0, 2))))
+    tracker.feed_detect(0, 0.10, search(np.zeros((0, 2))))
+    assert len(seen[0]) == 0                               # nothing found yet: nothing waits
+    for waiting in seen[1:3]:                               # fresh (within 70 ms): they wait
+        np.testing.assert_allclose(waiting, [[100.0, 80.0], [200.5, 150.25]], atol=1e-6)
+    assert len(seen[3]) == 0                                # stale: forgotten
+    assert len(tracker.predict_image(0, 0.04).waiting) == 0
+
+
 def test_search_refuses_bad_input():
     thr = background_threshold(np.full((1, 20, 30), 50, np.uint8), 20.0, 60.0)
     setup = search_setup(thr)

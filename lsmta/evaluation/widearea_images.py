@@ -441,8 +441,9 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     input: an operator would pick them), with a flickering monitor (masked) and reflections.
     Every frame is searched fully, and by the guided search inside the streaming tracker's
     step, frame by frame in arrival order (40 x 40 windows around the tracker's predictions
-    for that camera and stamp, the jittered 5 x 5 grid for new LEDs). The searches are then
-    timed on the same frames, windows and grid offsets."""
+    for that camera and stamp and around the camera's features still waiting in the birth
+    pool, the jittered 5 x 5 grid for new LEDs). The searches are then timed on the same
+    frames, windows and grid offsets."""
     rng = as_rng(rng)
     params = EstimatorParams() if params is None else params
     det = DetectionParams() if detection is None else detection
@@ -459,8 +460,11 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     def guided_search(c, i):
         def search(pred):
             jit = tuple(int(j) for j in rng.integers(0, det.k, 2))
-            f = search_frame(videos[c].frames[i], setups[c], windows=pred.xy, jitter=jit)
-            runs.append((c, i, pred.xy, pred.gate_px + 3.0, jit))
+            xy = np.concatenate([pred.xy, pred.waiting])
+            f = search_frame(videos[c].frames[i], setups[c], windows=xy, jitter=jit)
+            half = np.concatenate([pred.gate_px + 3.0,
+                                   np.full(len(pred.waiting), det.window / 2)])
+            runs.append((c, i, xy, half, jit))
             guided[c][i] = f.xy
             tested.append(f.tested)
             return f.xy

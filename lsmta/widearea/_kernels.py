@@ -5,12 +5,23 @@ Why compiled: the search visits a few thousand scattered pixels of a frame. NumP
 with index arrays (a gather), which costs more per pixel than comparing the whole frame in
 one contiguous pass, so in NumPy the search that tests 6-10 % of the pixels was slower by
 the clock than the full search. Here windows, grid and flood fill are one loop.
+
+Why no image-sized scratch: the search reads only the windows' rows and the grid's pixels,
+so its cost should follow them, not the image. An ``(H, W)`` array of flags, allocated and
+cleared per frame, cost about as much as the windows' pixels at 640 x 480 (the pages of a
+fresh array are zeroed by the system on first touch). Whether a pixel was tested is instead
+known from the geometry (inside a window, or on the grid), and the few pixels the flood
+fills visit are kept in a small open-addressing hash set that grows with them.
 """
 
 from __future__ import annotations
 
 import numba as nb
 import numpy as np
+
+_EMPTY = -1
+_TESTED = 1          # visited by a flood fill, under threshold
+_FEATURE = 2         # part of a feature
 
 
 @nb.njit(cache=True)
@@ -21,45 +32,29 @@ def search_kernel(img, thr, bg, centres, half, k, jr, jc, min_area, max_area):
     centroids (n, 2) and areas (n,) of the features within the area limits, in the raster
     order of each feature's first pixel, and the number of pixels tested."""
     H, W = img.shape
-    flag = np.zeros(H * W, np.uint8)          # 1: tested, 2: part of a feature
-    bound = ((H + k - 1) // k) * ((W + k - 1) // k)
-    for w in range(centres.shape[0]):
-        bound += 4 * half[w] * half[w]
-    seeds = np.empty(min(bound, H * W), np.int32)
-    n_seeds = 0
-    tested = 0
-    # the windows: every pixel, clipped at the border; row by row, the union of the
-    # windows' column ranges is scanned (each pixel once)
+    box, r_lo, r_hi = _boxes(centres, half, H, W)
     imgf = img.ravel()
     thrf = thr.ravel()
-    n_win = centres.shape[0]
-    box = np.full((n_win, 4), -1, np.int64)
-    r_lo, r_hi = H, 0
-    for w in range(n_win):
-        if not (np.isfinite(centres[w, 0]) and np.isfinite(centres[w, 1])):
-            continue
-        x = int(np.rint(centres[w, 0]))
-        y = int(np.rint(centres[w, 1]))
-        r0, r1 = max(y - half[w], 0), min(y + half[w], H)
-        c0, c1 = max(x - half[w], 0), min(x + half[w], W)
-        if r0 < r1 and c0 < c1:
-            box[w, 0], box[w, 1], box[w, 2], box[w, 3] = r0, r1, c0, c1
-            r_lo, r_hi = min(r_lo, r0), max(r_hi, r1)
-    # one pass down the rows: the union of the windows' column ranges, then the grid pixels
-    # of the row outside them
-    tested += len(range(jr, H, k)) * len(range(jc, W, k))
+    tested = len(range(jr, H, k)) * len(range(jc, W, k))
+    bound = tested
+    for w in range(box.shape[0]):
+        bound += (box[w, 1] - box[w, 0]) * (box[w, 3] - box[w, 2])
+    seeds = np.empty(min(bound, H * W), np.int64)     # not touched beyond the seeds
+    n_seeds = 0
+    # the windows' rows only: per row the union of the windows' column ranges (each pixel
+    # once; the grid's pixels there are counted with the grid)
+    n_win = box.shape[0]
     iv = np.empty((n_win, 2), np.int64)
-    for r in range(H):
+    for r in range(r_lo, r_hi):
         m = 0
-        if r_lo <= r < r_hi:
-            for w in range(n_win):
-                if box[w, 0] <= r < box[w, 1]:
-                    j = m                             # insertion by column start
-                    while j > 0 and iv[j - 1, 0] > box[w, 2]:
-                        iv[j] = iv[j - 1]
-                        j -= 1
-                    iv[j, 0], iv[j, 1] = box[w, 2], box[w, 3]
-                    m += 1
+        for w in range(n_win):
+            if box[w, 0] <= r < box[w, 1]:
+                j = m                             # insertion by column start
+                while j > 0 and iv[j - 1, 0] > box[w, 2]:
+                    iv[j] = iv[j - 1]
+                    j -= 1
+                iv[j, 0], iv[j, 1] = box[w, 2], box[w, 3]
+                m += 1
         on_grid_row = (r - jr) % k == 0
         i = 0
         while i < m:
@@ -68,34 +63,129 @@ def search_kernel(img, thr, bg, centres, half, k, jr, jc, min_area, max_area):
             while i < m and iv[i, 0] <= b:
                 b = max(b, iv[i, 1])
                 i += 1
-            q0, q1 = r * W + a, r * W + b
-            flag[q0:q1] = 1
-            tested += q1 - q0
+            tested += b - a
             if on_grid_row:
-                tested -= _on_grid(a, b, jc, k)       # counted with the grid above
-            for q in range(q0, q1):
-                if imgf[q] > thrf[q]:
-                    seeds[n_seeds] = q
-                    n_seeds += 1
-        if on_grid_row:
-            for q in range(r * W + jc, (r + 1) * W, k):
-                if imgf[q] > thrf[q] and flag[q] == 0:
-                    flag[q] = 1
-                    seeds[n_seeds] = q
-                    n_seeds += 1
+                tested -= _on_grid(a, b, jc, k)
+            if _any_over(imgf, thrf, r * W + a, r * W + b, 1):
+                for q in range(r * W + a, r * W + b):
+                    if imgf[q] > thrf[q]:
+                        seeds[n_seeds] = q
+                        n_seeds += 1
+    # the grid's pixels (those inside a window were seeded above)
+    for r in range(jr, H, k):
+        if not _any_over(imgf, thrf, r * W + jc, (r + 1) * W, k):
+            continue
+        for q in range(r * W + jc, (r + 1) * W, k):
+            if imgf[q] > thrf[q] and not _in_boxes(box, r, q - r * W):
+                seeds[n_seeds] = q
+                n_seeds += 1
     # the features: a flood fill from every seed not yet part of one
+    keys = np.full(256, _EMPTY, np.int64)     # the hash set of the pixels the fills visit
+    vals = np.zeros(256, np.uint8)
+    used = np.zeros(1, np.int64)
     out = np.empty((n_seeds, 3))              # x, y, first pixel in raster order
     area = np.empty(n_seeds, np.int64)
-    stack = np.empty(256, np.int32)
+    stack = np.empty(256, np.int64)
     n_out = 0
     for i in range(n_seeds):
-        if flag[seeds[i]] & 2:
+        if _get(keys, vals, seeds[i]) == _FEATURE:
             continue
-        tested, stack = _fill(img, thr, bg, seeds[i], flag, stack, out, area, n_out, tested,
-                              k, jr, jc)
+        tested, stack, keys, vals = _fill(img, thr, bg, seeds[i], keys, vals, used, stack,
+                                          out, area, n_out, tested, k, jr, jc, box)
         n_out += 1
-    # the features within the area limits, by first pixel (insertion sort: a few features;
-    # NumPy's masks and argsort cost microseconds per call here)
+    return _kept(out, area, n_out, min_area, max_area) + (tested,)
+
+
+@nb.njit(cache=True)
+def _boxes(centres, half, H, W):
+    """The windows' row and column ranges on the image ``(n, 4)`` (r0, r1, c0, c1; windows
+    off the image or around non-finite centres dropped) and the rows they span."""
+    box = np.empty((centres.shape[0], 4), np.int64)
+    n = 0
+    r_lo, r_hi = H, 0
+    for w in range(centres.shape[0]):
+        if not (np.isfinite(centres[w, 0]) and np.isfinite(centres[w, 1])):
+            continue
+        x = int(np.rint(centres[w, 0]))
+        y = int(np.rint(centres[w, 1]))
+        r0, r1 = max(y - half[w], 0), min(y + half[w], H)
+        c0, c1 = max(x - half[w], 0), min(x + half[w], W)
+        if r0 < r1 and c0 < c1:
+            box[n, 0], box[n, 1], box[n, 2], box[n, 3] = r0, r1, c0, c1
+            r_lo, r_hi = min(r_lo, r0), max(r_hi, r1)
+            n += 1
+    return box[:n], r_lo, r_hi
+
+
+@nb.njit(cache=True)
+def _any_over(imgf, thrf, q0, q1, step):
+    """Whether any of the pixels ``q0:q1:step`` is over its threshold (a loop without
+    branches, which the compiler vectorises: most rows have none)."""
+    hit = False
+    for q in range(q0, q1, step):
+        hit |= imgf[q] > thrf[q]
+    return hit
+
+
+@nb.njit(cache=True)
+def _in_boxes(box, r, c):
+    for w in range(box.shape[0]):
+        if box[w, 0] <= r < box[w, 1] and box[w, 2] <= c < box[w, 3]:
+            return True
+    return False
+
+
+@nb.njit(cache=True)
+def _push(a, n, q):
+    """Append ``q`` to the first ``n`` entries of ``a`` (doubled when full)."""
+    if n == a.shape[0]:
+        bigger = np.empty(2 * n, a.dtype)
+        bigger[:n] = a
+        a = bigger
+    a[n] = q
+    return a, n + 1
+
+
+@nb.njit(cache=True)
+def _slot(keys, q):
+    """Where ``q`` is in the hash set, or the empty slot it would take (linear probing)."""
+    mask = keys.shape[0] - 1
+    s = (q * 2654435761) & mask
+    while keys[s] != _EMPTY and keys[s] != q:
+        s = (s + 1) & mask
+    return s
+
+
+@nb.njit(cache=True)
+def _get(keys, vals, q):
+    s = _slot(keys, q)
+    return vals[s] if keys[s] == q else 0
+
+
+@nb.njit(cache=True)
+def _set(keys, vals, used, q, v):
+    """Set ``q``'s value to ``v``; the table doubles when half full. Returns the table."""
+    s = _slot(keys, q)
+    if keys[s] != q:
+        if 2 * (used[0] + 1) > keys.shape[0]:
+            old_k, old_v = keys, vals
+            keys = np.full(2 * old_k.shape[0], _EMPTY, np.int64)
+            vals = np.zeros(2 * old_k.shape[0], np.uint8)
+            for i in range(old_k.shape[0]):
+                if old_k[i] != _EMPTY:
+                    t = _slot(keys, old_k[i])
+                    keys[t], vals[t] = old_k[i], old_v[i]
+            s = _slot(keys, q)
+        keys[s] = q
+        used[0] += 1
+    vals[s] = v
+    return keys, vals
+
+
+@nb.njit(cache=True)
+def _kept(out, area, n_out, min_area, max_area):
+    """The features within the area limits, by first pixel (insertion sort: a few features;
+    NumPy's masks and argsort cost microseconds per call here)."""
     xy = np.empty((n_out, 2))
     kept_area = np.empty(n_out, np.int64)
     n_kept = 0
@@ -112,7 +202,7 @@ def search_kernel(img, thr, bg, centres, half, k, jr, jc, min_area, max_area):
         kept_area[j] = a
         n_kept += 1
     xy[:n_kept] = out[:n_kept, :2]
-    return xy[:n_kept], kept_area[:n_kept], tested
+    return xy[:n_kept], kept_area[:n_kept]
 
 
 @nb.njit(cache=True)
@@ -123,13 +213,15 @@ def _on_grid(a, b, j, k):
 
 
 @nb.njit(cache=True)
-def _fill(img, thr, bg, seed, flag, stack, out, area_out, n_out, tested, k, jr, jc):
+def _fill(img, thr, bg, seed, keys, vals, used, stack, out, area_out, n_out, tested, k, jr,
+          jc, box):
     """Flood-fill the 8-connected pixels over threshold from ``seed`` (flat index, tested
     and over threshold); record the component's weighted centroid, first pixel and area
-    as feature ``n_out``; returns the pixels tested so far and the (possibly grown) stack.
-    Pixels flagged or on the grid (``r = jr``, ``c = jc`` modulo ``k``) were tested before."""
+    as feature ``n_out``; returns the pixels tested so far, the (possibly grown) stack and
+    hash set. Pixels on the grid (``r = jr``, ``c = jc`` modulo ``k``), in a window
+    (``box``) or visited by a fill were tested before."""
     H, W = img.shape
-    flag[seed] |= 2
+    keys, vals = _set(keys, vals, used, seed, _FEATURE)
     stack[0] = seed
     top = 1
     sw = 0.0
@@ -157,22 +249,18 @@ def _fill(img, thr, bg, seed, flag, stack, out, area_out, n_out, tested, k, jr, 
                 if cc < 0 or cc >= W or (dr == 0 and dc == 0):
                     continue
                 n = rr * W + cc
-                if flag[n] & 2:
+                state = _get(keys, vals, n)
+                if state != 0:                    # a feature's, or tested and under
                     continue
-                if not flag[n] & 1:
-                    flag[n] |= 1
-                    if (rr - jr) % k != 0 or (cc - jc) % k != 0:
-                        tested += 1
+                if ((rr - jr) % k != 0 or (cc - jc) % k != 0) and not _in_boxes(box, rr, cc):
+                    tested += 1
                 if img[rr, cc] > thr[rr, cc]:
-                    flag[n] |= 2
-                    if top == stack.shape[0]:
-                        bigger = np.empty(2 * top, np.int32)
-                        bigger[:top] = stack
-                        stack = bigger
-                    stack[top] = n
-                    top += 1
+                    keys, vals = _set(keys, vals, used, n, _FEATURE)
+                    stack, top = _push(stack, top, n)
+                else:
+                    keys, vals = _set(keys, vals, used, n, _TESTED)
     out[n_out, 0] = sx / sw
     out[n_out, 1] = sy / sw
     out[n_out, 2] = first
     area_out[n_out] = area
-    return tested, stack
+    return tested, stack, keys, vals

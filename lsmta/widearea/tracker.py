@@ -280,6 +280,11 @@ class ImagePrediction:
         The association gate the tracker will use for each target in this frame:
         ``gate_sigma`` times the larger semi-axis of the predicted centroid's innovation
         ellipse, within ``[min_gate_px, gate_px]``.
+    waiting : (P, 2) array
+        This camera's centroids, px, that no target explained and that still wait (fresh)
+        for a partner from another camera to start a target (the birth pool): LEDs not yet
+        tracked, where a window keeps finding them until they are (empty from
+        :meth:`WideAreaTracker.predict_image`).
     """
 
     camera: int
@@ -288,6 +293,7 @@ class ImagePrediction:
     xy: np.ndarray
     velocity: np.ndarray
     gate_px: np.ndarray
+    waiting: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
     def windows(self, *, margin_px: float = 3.0):
         """Search windows for :func:`lsmta.widearea.search_frame`: the predicted centroids
@@ -383,7 +389,7 @@ class WideAreaTracker:
         v[~np.isfinite(fm.predicted).all(axis=1)] = np.nan
         xy = s.intake.take_values(c, t, detect(ImagePrediction(
             camera=c, time=t, ids=s.ids.copy(), xy=fm.predicted, velocity=v,
-            gate_px=fm.gate)))
+            gate_px=fm.gate, waiting=_waiting(s, c, t, p.staleness))))
         if len(xy):
             free = update_pairs(s, c, t, xy, fm, p)
             births(s, c, t, xy[free], p)
@@ -542,3 +548,13 @@ def _result(state: EstimatorState) -> TrackingResult:
                           cameras=tuple(state.cameras), camera_status=state.status.copy(),
                           camera_events=tuple(state.events), joins=tuple(state.joins),
                           not_active=state.not_active.copy(), **state.intake.rejected)
+
+
+def _waiting(s, c: int, t: float, staleness: float) -> np.ndarray:
+    """Camera ``c``'s rays in the birth pool stamped within ``staleness`` s of ``t``, as
+    pixels ``(P, 2)`` (a point 1 m along each ray, projected)."""
+    pool = s.pool
+    m = (pool.cameras == c) & (pool.stamps >= t - staleness)
+    if not m.any():
+        return np.zeros((0, 2))
+    return s.cameras[c].project(pool.origins[m] + 1000.0 * pool.directions[m], behind="nan")

@@ -8,7 +8,9 @@ after the fact against the truth.
   :func:`lsmta.pantilt.calibrate` — notebook 11's procedure with a precise target);
 * :func:`walk_inputs` — what the system receives for a walk: the ceiling feed, the heads
   as devices, hand labels of a frame of each, a face model learnt from another capture;
-* :func:`score_capture` — the error budget per stage against the truth.
+* :func:`score_capture` — the error budget per stage against the truth;
+* :func:`exact_readback` — a controlled study: the same marker images triangulated at the
+  angles the heads were at, as if they reported them exactly.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from ..synth.mixed_scale import (
     hand_labels,
 )
 from ..synth.pantilt import calibration_sweeps, intrinsic_target
-from ..systems import CeilingFeed, MixedScaleCapture
+from ..systems import CeilingFeed, MixedScaleCapture, triangulate_frames
 from .track_scores import score_led_tracks
 
 
@@ -122,14 +124,17 @@ def calibrate_scene(scene: MixedScaleScene, *, rng: np.random.Generator | int | 
 
 def head_devices(scene: MixedScaleScene, *, heads=None,
                  rng: np.random.Generator | int | None = None, video_rate: float = 30.0,
-                 fixed: bool = False, start=(0.0, 0.0)):
+                 fixed: bool = False, start=(0.0, 0.0), readback_step: float = 0.1,
+                 readback_noise: float = 0.0):
     """The true heads (default ``scene.heads``) as devices
-    (:class:`lsmta.synth.mixed_scale.SimulatedHead`) and an operator's hand labels of each
+    (:class:`lsmta.synth.mixed_scale.SimulatedHead`, reporting their angles in
+    ``readback_step`` degrees with ``readback_noise``) and an operator's hand labels of each
     (0.5 px). ``fixed``: cameras on fixed mounts at ``start``."""
     rng = as_rng(rng)
     heads = scene.heads if heads is None else heads
     devices = [SimulatedHead(h, scene, period=1.0 / video_rate, rng=rng, fixed=fixed,
-                             start=start) for h in heads]
+                             start=start, readback_step=readback_step,
+                             readback_noise=readback_noise) for h in heads]
     return devices, [hand_labels(d, rng=rng) for d in devices]
 
 
@@ -147,17 +152,21 @@ class WalkInputs:
 
 def walk_inputs(scene: MixedScaleScene, calibration: SceneCalibration, *,
                 rng: np.random.Generator | int | None = None, n_train: int = 300,
-                train_noise: float = 0.2, video_rate: float = 30.0) -> WalkInputs:
+                train_noise: float = 0.2, video_rate: float = 30.0,
+                readback_step: float = 0.1, readback_noise: float = 0.0) -> WalkInputs:
     """Render the ceiling frames, make the heads' devices (the true heads, the motor model
     of :class:`lsmta.pantilt.Motor`), the hand labels (0.5 px) and a face model learnt from
     a separate still capture of ``n_train`` frames (:func:`lsmta.face.learn`), measured with
     ``train_noise`` mm of Gaussian noise per coordinate (the generator's shapes with the
     error of a capture like this one's, not the exact shapes).
 
+    The devices report their angles in ``readback_step`` degrees (the thesis's 0.1°) with
+    ``readback_noise`` degrees of encoder noise (:class:`~lsmta.synth.mixed_scale.
+    SimulatedHead`).
+
     Truth in these inputs, stated: the ceiling cameras' masks cover the renderer's monitor
-    box (an operator's mask); the devices report the angles their motors reached exactly
-    (no encoder noise); the hand labels are the true image positions with 0.5 px noise and
-    no mislabel."""
+    box (an operator's mask); the hand labels are the true image positions with 0.5 px
+    noise and no mislabel."""
     rng = as_rng(rng)
     as_scalar(train_noise, "train_noise", nonnegative=True)
     cv = ceiling_videos(scene, rng=rng)
@@ -170,7 +179,9 @@ def walk_inputs(scene: MixedScaleScene, calibration: SceneCalibration, *,
     feed = CeilingFeed(cameras=calibration.ceiling, frames=[v.frames for v in cv.videos],
                        stamps=cv.stamps, backgrounds=[v.background for v in cv.videos],
                        arrival=cv.arrival, invalid=invalid)
-    devices, identify = head_devices(scene, rng=rng, video_rate=video_rate)
+    devices, identify = head_devices(scene, rng=rng, video_rate=video_rate,
+                                     readback_step=readback_step,
+                                     readback_noise=readback_noise)
     training = face_sequence(scene.face, n_train, rng=rng, moving=False).head
     training = training + rng.normal(0.0, train_noise, training.shape)
     return WalkInputs(ceiling=feed, devices=devices, identify=identify,
@@ -208,6 +219,8 @@ class MixedScaleScores:
     led_rms_mm : float
     marker_px : (K,) array
         Median image error of the markers found, px.
+    readback_deg : (K, F, 2) array
+        The read-back angles the system used minus the angles each head was at, degrees.
     """
 
     face_error: np.ndarray
@@ -219,6 +232,7 @@ class MixedScaleScores:
     led: object
     led_rms_mm: float
     marker_px: np.ndarray
+    readback_deg: np.ndarray
 
     @property
     def face_median_mm(self) -> float:
@@ -239,7 +253,8 @@ class MixedScaleScores:
 
 def score_capture(capture: MixedScaleCapture, scene: MixedScaleScene, devices, *,
                   horizon: float = 0.3) -> MixedScaleScores:
-    """Score a capture of ``scene`` against its truth (the devices give the true heads).
+    """Score a capture of ``scene`` against its truth (the devices give the true heads and
+    the angles they were at, not the read-back the system used).
     ``horizon``: when the heads get where they were sent, s after the command (the motors'
     dead time and about one command period); the aim point is scored against the face
     then."""
@@ -252,15 +267,18 @@ def score_capture(capture: MixedScaleCapture, scene: MixedScaleScene, devices, *
     in_frame = np.zeros((K, F), bool)
     centre_px = np.full((K, F), np.nan)
     marker_px = np.full(K, np.nan)
+    readback = np.full((K, F, 2), np.nan)
     for k, d in enumerate(devices):
         e_all = []
+        true_settings = d.true_settings(t)
+        readback[k] = capture.settings[k] - true_settings
         for f in range(F):
-            cam = d.head.camera_at(*capture.settings[k, f])
+            cam = d.head.camera_at(*true_settings[f])
             p = cam.project(world[f], behind="nan")
             in_frame[k, f] = bool(cam.in_image(p).all())
             c = cam.project(centre[f][None], behind="nan")[0]
             centre_px[k, f] = np.hypot(c[0] - cam.cx, c[1] - cam.cy)
-            tru = d.true_xy(t[f], capture.settings[k, f])
+            tru = d.true_xy(t[f], true_settings[f])
             e_all.append(np.linalg.norm(capture.xy[k, f] - tru, axis=1))
         e = np.concatenate(e_all)
         marker_px[k] = np.nanmedian(e) if np.isfinite(e).any() else np.nan
@@ -272,4 +290,42 @@ def score_capture(capture: MixedScaleCapture, scene: MixedScaleScene, devices, *
                                 np.where(measured[..., None], capture.points, np.nan),
                                 rigid_pairs(scene)),
                             in_frame=in_frame, centre_px=centre_px, aim_error=aim_error,
-                            led=led, led_rms_mm=float(led.rms_mm), marker_px=marker_px)
+                            led=led, led_rms_mm=float(led.rms_mm), marker_px=marker_px,
+                            readback_deg=readback)
+
+
+@dataclass(frozen=True, eq=False)
+class ReadbackStudy:
+    """A capture's marker images triangulated by the system's rule at the read-back angles
+    and again at the angles the heads were at (an exact encoder).
+
+    Attributes
+    ----------
+    rigid_median_mm : (2,) array
+        Median absolute distance deviation of the rigid pairs, mm: read-back, exact.
+    point_median_mm : (2,) array
+        Median 3-D error of the triangulated markers, mm: read-back, exact.
+    """
+
+    rigid_median_mm: np.ndarray
+    point_median_mm: np.ndarray
+
+
+def exact_readback(capture: MixedScaleCapture, scene: MixedScaleScene, devices,
+                   heads) -> ReadbackStudy:
+    """Triangulate ``capture.xy`` with the calibrated ``heads`` by the system's own rule
+    (:func:`lsmta.systems.triangulate_frames` with ``capture.params``; no fill check) at
+    the read-back angles ``capture.settings`` and at the angles the ``devices`` were at
+    (:meth:`~lsmta.synth.mixed_scale.SimulatedHead.true_settings`): what an exact encoder
+    would have given, everything else equal."""
+    t = capture.times
+    world, _, _ = scene.face_at(t)
+    true = np.stack([d.true_settings(t) for d in devices])
+    rigid, point = [], []
+    for settings in (capture.settings, true):
+        pts, _ = triangulate_frames(capture.xy, heads, settings,
+                                    min_angle_deg=capture.params.min_angle_deg,
+                                    max_reprojection_px=capture.params.max_reprojection_px)
+        rigid.append(np.nanmedian(np.abs(distance_deviation(pts, rigid_pairs(scene)))))
+        point.append(np.nanmedian(np.linalg.norm(pts - world, axis=2)))
+    return ReadbackStudy(rigid_median_mm=np.array(rigid), point_median_mm=np.array(point))

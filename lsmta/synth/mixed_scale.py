@@ -8,8 +8,8 @@ face for the pan-tilt heads.
   its motors reached (:func:`lsmta.synth.marker_video.render_marker_video` through
   :meth:`lsmta.pantilt.PanTiltCamera.camera_at`);
 * :class:`SimulatedHead` — one head as a device: it takes commands, its motors follow them
-  (dead time, rate limit, steps: :class:`lsmta.pantilt.Motor`), and it grabs a frame at the
-  angles reached, read back as the head reports them;
+  (dead time, rate limit: :class:`lsmta.pantilt.Motor`), and it grabs a frame at the angles
+  reached, read back as the head reports them (its encoder's 0.1° steps, thesis §5.2);
 * :func:`ceiling_videos` — each ceiling camera's rendered LED frames at its own clock.
 
 The generator only renders: no calibration, detection or estimate is made here.
@@ -61,7 +61,7 @@ class MixedScaleScene:
     t : (S, 3) array
         Head pose, ``world = head @ R.T + t``.
     leds : LedScene
-        The LEDs (always on).
+        The LEDs (always on; the head LED hidden during ``head_hidden``).
     ceiling : list of Camera
         The true ceiling cameras (half size).
     heads : list of PanTiltCamera
@@ -119,16 +119,18 @@ def _walk_path(times, start_x, end_x, walk_start, walk_end, y, height, rng):
 
 def mixed_scale_scene(*, rng: np.random.Generator | int | None = None, travel: float = 4000.0,
                       speed: float = 1200.0, stand: float = 1.0, rate: float = 200.0,
-                      y: float = 300.0, height: float = 1650.0, yaw_deg: float = 12.0,
-                      pitch_deg: float = 5.0, n_ceiling: int = 6,
+                      y: float = 300.0, height: float = 1650.0, turn_deg=(12.0, 5.0),
+                      n_ceiling: int = 6,
                       head_positions=((-1000.0, -2300.0, 1700.0), (1000.0, -2300.0, 1700.0)),
-                      head_f: float = 3000.0) -> MixedScaleScene:
+                      head_f: float = 3000.0, head_hidden=None) -> MixedScaleScene:
     """A person walks ``travel`` mm along X at ``speed`` mm/s, standing ``stand`` s before
     and after, looking towards -Y (the pan-tilt heads) and turning the head a little, with
     expressions (:func:`lsmta.synth.face.expression_weights`).
 
     Parameters
     ----------
+    turn_deg : (2,)
+        Amplitudes of the head's yaw and pitch, degrees (sines at 0.4 and 0.6 Hz).
     n_ceiling : int
         Ceiling cameras kept (those of :func:`lsmta.synth.widearea.ceiling_rig` that see the
         head LED's path best), at half size.
@@ -138,12 +140,22 @@ def mixed_scale_scene(*, rng: np.random.Generator | int | None = None, travel: f
     head_f : float
         The heads' principal distance, px (zoomed in: at 2.5-3.5 m the face is 120-170 px
         wide in the 640 x 480 frame, 1 px about 1 mm).
+    head_hidden : (2,) or None
+        ``(start, end)``, s: the head LED is hidden from every ceiling camera in between (a
+        hand over it; :attr:`LedScene.hidden`); the face stays in view. None: never.
     """
     rng = as_rng(rng)
     travel = as_scalar(travel, "travel", positive=True)
     speed = as_scalar(speed, "speed", positive=True)
     stand = as_scalar(stand, "stand", nonnegative=True)
     rate = as_scalar(rate, "rate", positive=True)
+    turn = as_array(turn_deg, "turn_deg", shape=(2,))
+    hidden = np.full((len(LED_HEAD), 2), np.inf)
+    if head_hidden is not None:
+        hidden[0] = as_array(head_hidden, "head_hidden", shape=(2,))
+        if not hidden[0, 1] > hidden[0, 0] >= 0:
+            raise ValueError(f"head_hidden: expected (start, end) s with 0 <= start < end, "
+                             f"got {tuple(head_hidden)}")
     walk_time = travel / speed + 0.3
     duration = 2 * stand + walk_time
     times = np.arange(int(np.ceil(duration * rate)) + 1) / rate
@@ -152,8 +164,8 @@ def mixed_scale_scene(*, rng: np.random.Generator | int | None = None, travel: f
     head = fm.shapes(w)
     t = _walk_path(times, -travel / 2, travel / 2, stand, stand + walk_time, y, height, rng)
     ph = rng.uniform(0, 2 * np.pi, 3)
-    yaw = yaw_deg * np.sin(2 * np.pi * 0.4 * times + ph[0])
-    pitch = pitch_deg * np.sin(2 * np.pi * 0.6 * times + ph[1])
+    yaw = turn[0] * np.sin(2 * np.pi * 0.4 * times + ph[0])
+    pitch = turn[1] * np.sin(2 * np.pi * 0.6 * times + ph[1])
     roll = 3.0 * np.sin(2 * np.pi * 0.5 * times + ph[2])
     R = _BASE @ Rotation.from_euler("YXZ", np.stack([yaw, pitch, roll], 1),
                                     degrees=True).as_matrix()
@@ -163,9 +175,9 @@ def mixed_scale_scene(*, rng: np.random.Generator | int | None = None, travel: f
     pos[:, 1:] = np.einsum("tij,nj->tni", Ry, LED_HEAD[1:]) + t[:, None]
     normals = np.broadcast_to([0.0, 0.0, 1.0], pos.shape).copy()
     leds = LedScene(name="walk with a face", times=times, positions=pos, normals=normals,
-                    on=np.tile([0.0, np.inf], (len(LED_HEAD), 1)))
+                    on=np.tile([0.0, np.inf], (len(LED_HEAD), 1)), hidden=hidden)
     rig = [small_camera(c) for c in ceiling_rig(rng=rng)]
-    path = pos[::10, 0]
+    path = pos[::10, 0]   # the head LED's path, hidden or not
     seen = [cam.in_image(cam.project(path, behind="nan")).mean() for cam in rig]
     ceiling = [rig[i] for i in np.sort(np.argsort(seen)[::-1][:int(n_ceiling)])]
     middle = np.array([0.0, y, height])
@@ -223,9 +235,14 @@ class SimulatedHead:
     """A pan-tilt head as a device (the system talks to it; the truth stays inside).
 
     :meth:`command` sends a setting at a time; the motors start towards it ``motor.latency``
-    s later at a speed that would reach it in ``period`` s, at most ``motor.max_rate``, in
-    steps of ``motor.quantum`` degrees (a stepper: the angle reached is on the steps).
-    :meth:`grab` returns the frame at a time and the angles the head reports then.
+    s later at a speed that would reach it in ``period`` s, at most ``motor.max_rate``.
+    :meth:`grab` returns the frame at a time, taken at the angles the head has reached, and
+    the angles the head reports then: the reached angle plus ``readback_noise`` (Gaussian,
+    degrees), rounded to the encoder's ``readback_step`` degrees. The thesis's heads "have
+    precision of only 0.1 degree" (§5.2), so the default reports in 0.1° steps, off by up to
+    0.05° from where the head is; ``readback_step=0`` and ``readback_noise=0`` report the
+    angles exactly. The mechanics turn continuously between the steps (the thesis gives
+    no finer mechanical step); ``motor.quantum`` is not used here.
 
     Parameters
     ----------
@@ -241,12 +258,17 @@ class SimulatedHead:
         The setting at time 0, degrees.
     fixed : bool
         A camera on a fixed mount: commands are ignored, it stays at ``start``.
+    readback_step : float
+        The encoder's step, degrees (0: no quantisation).
+    readback_noise : float
+        Standard deviation of the encoder's noise before the rounding, degrees.
     """
 
     def __init__(self, head: PanTiltCamera, scene: MixedScaleScene, *, motor: Motor | None = None,
                  period: float = 1 / 30, rng: np.random.Generator | int | None = None,
                  start=(0.0, 0.0), noise: float = 2.0, step: float = 1e-3,
-                 fixed: bool = False):
+                 fixed: bool = False, readback_step: float = 0.1,
+                 readback_noise: float = 0.0):
         self.head, self.scene = head, scene
         self.motor = Motor() if motor is None else motor
         self.period = as_scalar(period, "period", positive=True)
@@ -261,7 +283,10 @@ class SimulatedHead:
         self._noise = noise
         self._step = step
         self.fixed = bool(fixed)
-        self.settings = []              # (time, pan, tilt) of every frame grabbed
+        self.readback_step = as_scalar(readback_step, "readback_step", nonnegative=True)
+        self.readback_noise = as_scalar(readback_noise, "readback_noise", nonnegative=True)
+        self.settings = []              # (time, pan, tilt) reached at every frame grabbed
+        self.readbacks = []             # (time, pan, tilt) reported at every frame grabbed
 
     def _check_time(self, t, last: float) -> float:
         t = as_scalar(t, "t")
@@ -293,20 +318,43 @@ class SimulatedHead:
             self._now += dt
 
     def reached(self, t: float) -> np.ndarray:
-        """The setting at time ``t`` (s, not before the head's clock), on the motor's
-        steps, degrees."""
+        """The setting the head is at, at time ``t`` (s, not before the head's clock),
+        degrees (the truth, not what it reports)."""
         self._run_to(self._check_time(t, self._now))
-        q = self.motor.quantum
-        return np.round(self._pos / q) * q
+        return self._pos.copy()
+
+    def read_back(self, setting) -> np.ndarray:
+        """What the encoder reports for the head at ``setting`` (2,) degrees: plus
+        ``readback_noise``, rounded to ``readback_step``."""
+        s = np.asarray(setting, float) + self._rng.normal(0.0, self.readback_noise, 2) \
+            if self.readback_noise > 0 else np.array(setting, float)
+        q = self.readback_step
+        return np.round(s / q) * q if q > 0 else s
 
     def grab(self, t: float):
-        """The frame at time ``t``: ``(image (H, W) uint8, setting read back (2,))``."""
+        """The frame at time ``t``, taken at the angles reached: ``(image (H, W) uint8,
+        setting read back (2,) degrees)``."""
         s = self.reached(t)
         world, normals, anchor = self.scene.face_at(t)
         video = render_pantilt_video(self.head, s[None], world, normals, anchor,
                                      rng=self._rng, texture=self._texture, noise=self._noise)
+        r = self.read_back(s)
         self.settings.append((float(t), *s))
-        return video.images[0], s.copy()
+        self.readbacks.append((float(t), *r))
+        return video.images[0], r
+
+    def true_settings(self, times) -> np.ndarray:
+        """The angles the head was at ``(T, 2)``, degrees, in the frames it grabbed at
+        ``times`` (s) — the truth behind the read-back, to score."""
+        rec = np.array(self.settings).reshape(-1, 3)
+        times = np.atleast_1d(np.asarray(times, float))
+        if not len(rec):
+            raise ValueError("times: the head has grabbed no frame yet")
+        gap = np.abs(rec[None, :, 0] - times[:, None])
+        i = gap.argmin(axis=1)
+        if gap[np.arange(len(times)), i].max() > 1e-9:
+            raise ValueError("times: expected times of frames the head grabbed")
+        return rec[i, 1:].copy()
 
     def true_xy(self, t: float, setting) -> np.ndarray:
         """True image positions ``(M, 2)`` of the drawn markers at time ``t`` and a setting
@@ -322,14 +370,16 @@ class SimulatedHead:
 def hand_labels(device: SimulatedHead, *, sigma_px: float = 0.5,
                 rng: np.random.Generator | int | None = None):
     """An operator who identifies the markers in a head's frame by hand: a callable
-    ``(t, setting) -> (M, 2)`` giving the drawn markers' positions with ``sigma_px`` of
-    click noise (NaN for markers not seen) and no mislabel: the true projections, as an
-    operator would click them (the thesis labels the markers once, by hand)."""
+    ``(t, setting) -> (M, 2)`` giving the drawn markers' positions in the frame grabbed at
+    ``t`` with ``sigma_px`` of click noise (NaN for markers not seen) and no mislabel: the
+    true projections at the angles the head was at (the image, not the read-back
+    ``setting``), as an operator would click them (the thesis labels the markers once, by
+    hand)."""
     rng = as_rng(rng)
     sigma_px = as_scalar(sigma_px, "sigma_px", nonnegative=True)
 
     def label(t, setting):
-        xy = device.true_xy(t, setting)
+        xy = device.true_xy(t, device.true_settings(t)[0])
         return xy + rng.normal(0, sigma_px, xy.shape)
 
     return label

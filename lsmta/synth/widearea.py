@@ -115,6 +115,9 @@ class LedScene:
         Unit directions of the LEDs' strongest emission.
     on : (N, 2) array
         Switch-on and switch-off time of each LED, s.
+    hidden : (N, 2) array or None
+        An interval ``[start, end)`` per LED during which it is hidden from every camera
+        (a hand over it), s; ``(inf, inf)`` or None: never.
     occluders : (S, P, 4, 4) array or None
         Body part poses (part frame -> world) for occlusion.
     ellipsoids : (P, 2, 3) array or None
@@ -131,6 +134,7 @@ class LedScene:
     occluders: np.ndarray | None = None
     ellipsoids: np.ndarray | None = None
     led_part: np.ndarray | None = None
+    hidden: np.ndarray | None = None
 
     @property
     def n_leds(self) -> int:
@@ -138,7 +142,7 @@ class LedScene:
 
     def positions_at(self, t, *, only_on: bool = True) -> np.ndarray:
         """LED positions ``(T, N, 3)`` at times ``t`` (linear interpolation); NaN while an
-        LED is off (with ``only_on``)."""
+        LED is off or hidden (with ``only_on``)."""
         t = np.atleast_1d(np.asarray(t, dtype=float))
         dt = self.times[1] - self.times[0]
         u = np.clip((t - self.times[0]) / dt, 0, len(self.times) - 1)
@@ -147,6 +151,8 @@ class LedScene:
         out = (1 - w) * self.positions[i] + w * self.positions[i + 1]
         if only_on:
             off = (t[:, None] < self.on[:, 0]) | (t[:, None] >= self.on[:, 1])
+            if self.hidden is not None:
+                off |= (t[:, None] >= self.hidden[:, 0]) & (t[:, None] < self.hidden[:, 1])
             out[off] = np.nan
         return out
 

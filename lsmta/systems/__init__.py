@@ -38,7 +38,12 @@ from .capture import (
 from .ceiling import CeilingFeed
 from .close_up import first_settled, reacquisition_seeds
 from .markers import MarkerCapture, MarkerParams, Tracker2D, capture_markers
-from .mixed_scale import MixedScaleCapture, MixedScaleParams, capture_mixed_scale
+from .mixed_scale import (
+    MixedScaleCapture,
+    MixedScaleParams,
+    capture_mixed_scale,
+    triangulate_frames,
+)
 from .refinement import RigRefinement, RigRefinementParams, refine_rig
 from .rig import RigCalibration, calibrate_rig
 from .surfaces import SurfaceParams, measure_surfaces, working_distance
@@ -49,6 +54,7 @@ __all__ = [
     "CeilingFeed", "ViewCapture", "ViewGroup", "axis_angles", "capture_recording",
     "view_groups", "MarkerCapture", "MarkerParams", "Tracker2D", "capture_markers",
     "FilterParams", "MixedScaleCapture", "MixedScaleParams", "capture_mixed_scale",
+    "triangulate_frames",
     "first_settled", "reacquisition_seeds",
     "RigCalibration", "RigRefinement", "RigRefinementParams", "SurfaceParams", "calibrate_rig",
     "capture_body", "fit_arm", "refine_rig",

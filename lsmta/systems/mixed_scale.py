@@ -95,6 +95,9 @@ class MixedScaleParams:
     max_reprojection_px : float
         A triangulated marker whose intersection reprojects farther than this from its
         image in either head is dropped (a marker tracked onto its neighbour in one head), px.
+        It must leave room for the heads' read-back: an angle reported to 0.1° (thesis §5.2)
+        is off by up to 0.05°, 2.6 px at a principal distance of 3000 px; 1 px dropped half
+        of notebook 15's markers, 4 px keeps them.
     max_fill_mm : float
         After a first fill, measured markers farther than this from the fitted face are
         dropped as wrong, and the face is filled again, mm.
@@ -125,7 +128,7 @@ class MixedScaleParams:
         default_factory=lambda: EstimatorParams(accel_density=1e6, rejoin=0.3))
     tol_px: float = SteeringParams.tol_px
     min_angle_deg: float = 2.0
-    max_reprojection_px: float = 1.0
+    max_reprojection_px: float = 4.0
     max_fill_mm: float = 3.0
     coast: float = SteeringParams.coast
     body_radius: float = SteeringParams.body_radius
@@ -355,18 +358,47 @@ def _reacquisition(st: _State) -> None:
         _fill(st)
 
 
-def _triangulation(st: _State) -> None:
-    K, F, M = st.xy.shape[:3]
-    st.points = np.full((F, M, 3), np.nan)
-    st.pairs = np.zeros((F, 2), int)
+def triangulate_frames(xy, heads, settings, *, min_angle_deg: float = 2.0,
+                       max_reprojection_px: float = 1.0):
+    """Stage 3 of :func:`capture_mixed_scale`: every frame triangulated from a single pair of
+    heads, each head ``heads[k].camera_at(*settings[k, f])``.
+
+    Parameters
+    ----------
+    xy : (K, F, M, 2) array
+        Marker images, px (NaN: not found).
+    heads : sequence of K PanTiltCamera
+    settings : (K, F, 2) array
+        Pan and tilt of each head and frame, degrees.
+    min_angle_deg, max_reprojection_px
+        As :class:`MixedScaleParams`.
+
+    Returns
+    -------
+    points : (F, M, 3) array
+        mm; NaN where not triangulated or dropped by the reprojection check.
+    pairs : (F, 2) int array
+    """
+    xy = as_array(xy, "xy", shape=(len(heads), None, None, 2), allow_nan=True)
+    settings = as_array(settings, "settings", shape=(len(heads), xy.shape[1], 2))
+    K, F, M = xy.shape[:3]
+    points = np.full((F, M, 3), np.nan)
+    pairs = np.zeros((F, 2), int)
     for f in range(F):
-        cams = [h.camera_at(*st.settings[k, f]) for k, h in enumerate(st.heads)]
-        r = triangulate_single_pair(cams, st.xy[:, f], min_angle_deg=st.params.min_angle_deg)
+        cams = [h.camera_at(*settings[k, f]) for k, h in enumerate(heads)]
+        r = triangulate_single_pair(cams, xy[:, f], min_angle_deg=min_angle_deg)
         with np.errstate(invalid="ignore"):
             bad = np.fmax.reduce(r.intersection.reprojection_error, axis=0) \
-                > st.params.max_reprojection_px
-        st.points[f] = np.where(bad[:, None], np.nan, r.intersection.points)
-        st.pairs[f] = r.pair
+                > max_reprojection_px
+        points[f] = np.where(bad[:, None], np.nan, r.intersection.points)
+        pairs[f] = r.pair
+    return points, pairs
+
+
+def _triangulation(st: _State) -> None:
+    st.points, st.pairs = triangulate_frames(
+        st.xy, st.heads, st.settings, min_angle_deg=st.params.min_angle_deg,
+        max_reprojection_px=st.params.max_reprojection_px)
 
 
 def _fill(st: _State) -> None:

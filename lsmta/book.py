@@ -43,12 +43,14 @@ _MET = re.compile(r"\bmet\b")
 _NB_NAME = re.compile(r"\b(\d\d_[A-Za-z0-9_]+)\.ipynb")
 
 
-def verdict_of(note: str) -> str | None:
-    """``"NOT met"`` if a note states any target NOT met, ``"met"`` if it states one met,
+def verdict_of(note: str, value=None) -> str | None:
+    """``"NOT met"`` if a record's note, or its value when that is a string (a verdict
+    recorded as the number), states any target NOT met; ``"met"`` if it states one met;
     else None (the record is not a target)."""
-    if _NOT_MET.search(note):
+    text = f"{note} {value}" if isinstance(value, str) else note
+    if _NOT_MET.search(text):
         return "NOT met"
-    if _MET.search(note):
+    if _MET.search(text):
         return "met"
     return None
 
@@ -174,7 +176,8 @@ def _records(results: list[dict]) -> list[dict]:
         cells = res.get("record_cells") or [None] * len(res.get("records", []))
         for rec, cell in zip(res.get("records", []), cells):
             r = dict(rec)
-            r.update(notebook=res["notebook"], cell=cell, verdict=verdict_of(r.get("note", "")),
+            r.update(notebook=res["notebook"], cell=cell,
+                     verdict=verdict_of(r.get("note", ""), r.get("value")),
                      group=group_of(r.get("figure", "")), truth_class=truth_class(r))
             out.append(r)
     return out

@@ -43,7 +43,7 @@ _MET = re.compile(r"\bmet\b")
 _NB_NAME = re.compile(r"\b(\d\d_[A-Za-z0-9_]+)\.ipynb")
 
 
-def verdict_of(note: str, value=None) -> str | None:
+def verdict_of(note: str, *, value=None) -> str | None:
     """``"NOT met"`` if a record's note, or its value when that is a string (a verdict
     recorded as the number), states any target NOT met; ``"met"`` if it states one met;
     else None (the record is not a target)."""
@@ -177,7 +177,7 @@ def _records(results: list[dict]) -> list[dict]:
         for rec, cell in zip(res.get("records", []), cells):
             r = dict(rec)
             r.update(notebook=res["notebook"], cell=cell,
-                     verdict=verdict_of(r.get("note", ""), r.get("value")),
+                     verdict=verdict_of(r.get("note", ""), value=r.get("value")),
                      group=group_of(r.get("figure", "")), truth_class=truth_class(r))
             out.append(r)
     return out

@@ -344,7 +344,7 @@ def _targets(res: dict) -> tuple[int, int]:
     """(met, NOT met) among a notebook's result records."""
     from .book import verdict_of  # deferred: the book module is only needed here
 
-    verdicts = [verdict_of(r.get("note", ""), r.get("value"))
+    verdicts = [verdict_of(r.get("note", ""), value=r.get("value"))
                 for r in res.get("records", []) if r.get("kind") == "result"]
     return verdicts.count("met"), verdicts.count("NOT met")
 

@@ -129,8 +129,8 @@ def test_verdicts_and_groups():
     assert book.verdict_of("a: met; b: NOT met") == "NOT met"
     assert book.verdict_of("metres") is None and book.verdict_of("") is None
     # a verdict recorded as the value (notebooks 17 and 20), not in the note
-    assert book.verdict_of("worst 3.1 deg", "NOT met") == "NOT met"
-    assert book.verdict_of("", "met") == "met" and book.verdict_of("", 3.0) is None
+    assert book.verdict_of("worst 3.1 deg", value="NOT met") == "NOT met"
+    assert book.verdict_of("", value="met") == "met" and book.verdict_of("", value=3.0) is None
     assert book.group_of("LSMTA Figs. 3-5 (surface)").endswith("(LSMTA)")
     assert book.group_of("Plaenkers 1999 Figs. 7-11").startswith("Plänkers")
     assert book.group_of("SAPM Fig. 3").startswith("Holstein")

@@ -1,17 +1,27 @@
 """Tie points of a calibrated rig found in its own images.
 
-In each frame of a synchronised recording, SIFT features (OpenCV's ``cv2.SIFT``: a
-scale- and rotation-invariant detector and 128-value descriptor) of every view are matched
-with every other view's. The given cameras guide the matching: a feature of view *b* is a
-candidate for one of view *a* only within ``band_px`` of its epipolar line (so a camera
-file that is a few pixels off still finds its matches, and repeated texture elsewhere in
-the image cannot be chosen). Among the candidates, Lowe's ratio test (a lone candidate in
-the band passes it) and a mutual check keep unambiguous pairs. Each view pair's matches
-must then agree with one epipolar geometry of their own: a fundamental matrix fitted by
-MAGSAC++ (``cv2.USAC_MAGSAC``) on the features' undistorted positions, with inliers
-within ``ransac_px``; a pair with fewer than ``min_matches`` inliers gives none. The
-pairs' matches are chained into multi-view tie points (union-find); a chain that holds
-two features of one view is dropped.
+In each frame of a synchronised recording, features of every view are matched with every
+other view's. The features are SIFT's (OpenCV's ``cv2.SIFT``: a scale- and
+rotation-invariant detector and 128-value descriptor) or, for views far apart, ASIFT's
+(OpenCV's ``cv2.AffineFeature`` around SIFT, Morel & Yu 2009: SIFT run again on the image
+seen under simulated tilts, so that a surface seen obliquely by one camera and head-on by
+another still gives matching descriptors). SIFT's descriptors hold to about 30-40 degrees
+of viewpoint change; the default ``detector="auto"`` takes ASIFT when two of the cameras'
+optical axes are more than ``asift_above_deg`` apart.
+
+The given cameras guide the matching: a feature of view *b* is a candidate for one of
+view *a* only within ``band_px`` of its epipolar line (so a camera file that is some
+pixels off still finds its matches, and repeated texture elsewhere in the image cannot be
+chosen). The search is one compiled pass per view pair (numba, both cores): for each
+feature, the two nearest descriptors among the candidates in the band. Lowe's ratio test
+(a lone candidate in the band passes it) and a mutual check keep unambiguous pairs. Each
+view pair's matches must then agree with one relative orientation of their own: an
+essential matrix fitted by MAGSAC++ (``cv2.findEssentialMat`` with ``cv2.USAC_MAGSAC``) on
+the features' undistorted normalised positions, inliers within ``ransac_px``; a pair with
+fewer than ``min_matches`` inliers gives none. A wrong match that happens to lie in the
+band does not agree with the others' relative orientation, so the band can be wide. The
+pairs' matches are chained into multi-view tie points (union-find); a chain that holds two
+features of one view is dropped.
 
 Features of a still background give the same 3-D point in every frame; features of a
 moving subject give new points in each frame (the views are synchronised), spread through
@@ -24,6 +34,7 @@ import itertools
 from dataclasses import dataclass
 
 import cv2
+import numba as nb
 import numpy as np
 
 from .._validate import as_int, as_scalar, freeze
@@ -36,32 +47,52 @@ class TieParams:
 
     Attributes
     ----------
+    detector : {"auto", "sift", "asift"}
+        The features: SIFT, ASIFT (SIFT under simulated tilts), or ASIFT when two of the
+        cameras' optical axes are more than ``asift_above_deg`` apart.
     n_features : int
         Most SIFT features per view and frame.
+    asift_features : int
+        With ASIFT: most features per simulated view (a view and frame holds about 20
+        simulated views at ``max_tilt=3``).
     contrast : float
         SIFT's contrast threshold (OpenCV's default 0.04; lower finds more in flat light).
+    max_tilt : int
+        ASIFT's highest tilt index: tilts ``sqrt(2) ** k`` for k = 0 .. max_tilt (3: up to
+        2.8, a plane seen about 70 degrees from head-on).
+    asift_above_deg : float
+        Angle between optical axes above which ``"auto"`` takes ASIFT, degrees.
     band_px : float
         Half-width of the epipolar band searched with the given cameras, px.
     ratio : float
         Lowe's ratio: the best candidate's descriptor distance must be below ``ratio``
         times the second best's.
     ransac_px : float
-        Largest distance to a pair's own fitted epipolar line, px.
+        Largest distance to a pair's own epipolar line, px.
     min_matches : int
         Fewest inliers for a view pair to count.
     """
 
+    detector: str = "auto"
     n_features: int = 6000
+    asift_features: int = 800
     contrast: float = 0.02
-    band_px: float = 30.0
+    max_tilt: int = 3
+    asift_above_deg: float = 40.0
+    band_px: float = 50.0
     ratio: float = 0.8
     ransac_px: float = 1.5
     min_matches: int = 15
 
     def __post_init__(self):
+        if self.detector not in ("auto", "sift", "asift"):
+            raise ValueError(f"detector: expected 'auto', 'sift' or 'asift', got "
+                             f"{self.detector!r}")
         as_int(self.n_features, "n_features")
+        as_int(self.asift_features, "asift_features")
+        as_int(self.max_tilt, "max_tilt", minimum=1)
         as_int(self.min_matches, "min_matches", minimum=8)
-        for name in ("contrast", "band_px", "ransac_px"):
+        for name in ("contrast", "band_px", "ransac_px", "asift_above_deg"):
             as_scalar(getattr(self, name), name, positive=True)
         r = as_scalar(self.ratio, "ratio", positive=True)
         if r >= 1:
@@ -82,15 +113,23 @@ class TiePoints:
         Inlier matches per view pair, summed over the frames (upper triangle).
     pair_guided : (K, K) int array
         Matches in the epipolar band before the pair's own geometry was fitted.
+    pair_rotation_deg : (K, K) array
+        Per view pair with inliers, the median over the frames of the angle between the
+        relative rotation of its own essential matrix and the given cameras' relative
+        rotation, degrees (upper triangle; NaN: no own geometry, or matches on one plane
+        only). A camera file a few
+        pixels off differs by a fraction of a degree; cameras in the wrong order or
+        mounted otherwise, by tens of degrees.
     """
 
     xy: np.ndarray
     frame: np.ndarray
     pair_matches: np.ndarray
     pair_guided: np.ndarray
+    pair_rotation_deg: np.ndarray
 
     def __post_init__(self):
-        freeze(self, ("xy", "frame", "pair_matches", "pair_guided"))
+        freeze(self, ("xy", "frame", "pair_matches", "pair_guided", "pair_rotation_deg"))
 
 
 def _ideal(camera: Camera, xy) -> np.ndarray:
@@ -105,42 +144,100 @@ def _essential(a: Camera, b: Camera) -> np.ndarray:
     return tx @ R
 
 
-def _band(a: Camera, b: Camera, na, nb, band_px: float) -> np.ndarray:
-    """(Na, Nb) uint8 mask: b's features within ``band_px`` of a's epipolar lines."""
+def _lines(a: Camera, b: Camera, na) -> np.ndarray:
+    """(Na, 3) epipolar lines in b of a's undistorted positions ``na`` (pixel units), scaled
+    so that ``line . (x_b, y_b, f_b)`` is the distance in b's pixels."""
     ha = np.c_[na / a.f, np.ones(len(na))]
-    hb = np.c_[nb / b.f, np.ones(len(nb))].astype(np.float32)
-    lines = ha @ _essential(a, b).T                              # (Na, 3) lines in b
-    lines = (lines * b.f / np.hypot(lines[:, :1], lines[:, 1:2])).astype(np.float32)
-    mask = np.empty((len(na), len(nb)), np.uint8)
-    for i in range(0, len(na), 1024):                             # bounded memory
-        mask[i:i + 1024] = np.abs(lines[i:i + 1024] @ hb.T) < band_px
-    return mask
+    lines = ha @ _essential(a, b).T
+    lines /= np.hypot(lines[:, :1], lines[:, 1:2])
+    lines[:, 2] *= b.f
+    return lines
 
 
-def _mutual(da, db, mask, ratio: float):
-    matcher = cv2.BFMatcher(cv2.NORM_L2)
+@nb.njit(parallel=True, fastmath=True, cache=True)
+def _nearest_in_band(lines, xb, da, db, band):                      # pragma: no cover
+    """For each row of ``da``: the nearest and second-nearest descriptor of ``db`` among
+    b's features within ``band`` of its line (squared distances; index -1: none)."""
+    na, nb_ = da.shape[0], db.shape[0]
+    best = np.full(na, -1, np.int64)
+    d1 = np.full(na, np.inf)
+    d2 = np.full(na, np.inf)
+    for i in nb.prange(na):
+        l0, l1, l2 = lines[i, 0], lines[i, 1], lines[i, 2]
+        for j in range(nb_):
+            if abs(l0 * xb[j, 0] + l1 * xb[j, 1] + l2) >= band:
+                continue
+            d = np.float32(0.0)
+            for c in range(da.shape[1]):                          # vectorised (SIMD)
+                e = da[i, c] - db[j, c]
+                d += e * e
+            if d < d1[i]:
+                d2[i] = d1[i]
+                d1[i] = d
+                best[i] = j
+            elif d < d2[i]:
+                d2[i] = d
+    return best, d1, d2
 
-    def best(q, t, m):
-        out = {}
-        for pair in matcher.knnMatch(q, t, k=2, mask=m):
-            if pair and (len(pair) == 1 or pair[0].distance < ratio * pair[1].distance):
-                out[pair[0].queryIdx] = pair[0].trainIdx
-        return out
 
-    ab = best(da, db, mask)
-    ba = best(db, da, np.ascontiguousarray(mask.T))
+def _one_way(a, b, ideal_a, ideal_b, da, db, params) -> dict:
+    best, d1, d2 = _nearest_in_band(_lines(a, b, ideal_a), ideal_b,
+                                    da.astype(np.float32), db.astype(np.float32),
+                                    params.band_px)
+    ok = (best >= 0) & (np.sqrt(d1) < params.ratio * np.sqrt(d2))   # a lone candidate: d2 inf
+    return dict(zip(np.flatnonzero(ok).tolist(), best[ok].tolist()))
+
+
+def _mutual(cams, ideal, feats, params) -> np.ndarray:
+    """Matches of two views that are each other's unambiguous nearest in the band."""
+    (a, b), (ia, ib), ((_, da), (_, db)) = cams, ideal, feats
+    ab = _one_way(a, b, ia, ib, da, db, params)
+    ba = _one_way(b, a, ib, ia, db, da, params)
     keep = [(i, j) for i, j in ab.items() if ba.get(j) == i]
     return np.array(keep, int).reshape(-1, 2)
 
 
-def _features(images, params: TieParams):
-    sift = cv2.SIFT_create(nfeatures=params.n_features, contrastThreshold=params.contrast)
+def _detector(cameras, params: TieParams):
+    z = np.stack([np.asarray(c.R)[2] for c in cameras])          # optical axes
+    widest = np.degrees(np.arccos(np.clip(z @ z.T, -1.0, 1.0))).max()
+    wide = (params.detector == "asift"
+            or params.detector == "auto" and widest > params.asift_above_deg)
+    if not wide:
+        return cv2.SIFT_create(nfeatures=params.n_features, contrastThreshold=params.contrast)
+    sift = cv2.SIFT_create(nfeatures=params.asift_features, contrastThreshold=params.contrast)
+    return cv2.AffineFeature_create(sift, maxTilt=params.max_tilt)
+
+
+def _features(images, detector):
     out = []
     for g in images:
-        kp, des = sift.detectAndCompute(g, None)
+        kp, des = detector.detectAndCompute(g, None)
         xy = np.array([k.pt for k in kp], float).reshape(-1, 2)
         out.append((xy, des if des is not None else np.zeros((0, 128), np.float32)))
     return out
+
+
+def _own_geometry(a: Camera, b: Camera, xa, xb, params: TieParams):
+    """Inlier mask of the matches under the pair's own essential matrix (MAGSAC++), and
+    the angle between the relative rotation it holds and the given cameras' (degrees; NaN
+    where one homography explains 80 % of the inliers: matches on one plane leave the
+    essential matrix's rotation undetermined)."""
+    na = a.undistort(a.pixel_to_normalized(xa))
+    nb_ = b.undistort(b.pixel_to_normalized(xb))
+    cv2.setRNGSeed(0)                               # MAGSAC's sampling, reproducible
+    E, inl = cv2.findEssentialMat(na, nb_, np.eye(3), cv2.USAC_MAGSAC, 0.999,
+                                  params.ransac_px / np.sqrt(a.f * b.f))
+    if inl is None or E is None or E.shape != (3, 3):
+        return np.zeros(len(xa), bool), np.nan
+    inl = inl.ravel().astype(bool)
+    thr = params.ransac_px / np.sqrt(a.f * b.f)
+    _, on_plane = cv2.findHomography(na[inl], nb_[inl], cv2.USAC_MAGSAC, thr)
+    if on_plane is not None and on_plane.sum() > 0.8 * inl.sum():
+        return inl, np.nan                # one plane: E's rotation is not determined
+    _, R, _, _ = cv2.recoverPose(E, na[inl], nb_[inl], np.eye(3))
+    given = np.asarray(b.R) @ np.asarray(a.R).T
+    cos = (np.trace(R @ given.T) - 1.0) / 2.0
+    return inl, float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
 
 
 def _chain(n_views: int, offsets, matches):
@@ -196,6 +293,8 @@ def find_tie_points(frames, cameras, *, params: TieParams | None = None) -> TieP
     K = len(cameras)
     if K < 2 or not all(isinstance(c, Camera) for c in cameras):
         raise ValueError("cameras: expected a sequence of at least two lsmta Camera")
+    detector = _detector(cameras, params)
+    turns = {}
     pair_matches = np.zeros((K, K), int)
     pair_guided = np.zeros((K, K), int)
     xy_all, frame_all = [], []
@@ -209,24 +308,23 @@ def find_tie_points(frames, cameras, *, params: TieParams | None = None) -> TieP
             if g.ndim != 2 or g.dtype != np.uint8 or g.shape != (c.height, c.width):
                 raise ValueError(f"frames: image {k} of frame {f} is {g.dtype} {g.shape}; "
                                  f"expected uint8 ({c.height}, {c.width}) like its camera")
-        feats = _features(images, params)
+        feats = _features(images, detector)
         ideal = [_ideal(c, xy) if len(xy) else xy for c, (xy, _) in zip(cameras, feats)]
         matches = {}
         for a, b in itertools.combinations(range(K), 2):
-            (xa, da), (xb, db) = feats[a], feats[b]
-            if len(xa) < 2 or len(xb) < 2:
+            if len(feats[a][0]) < 2 or len(feats[b][0]) < 2:
                 continue
-            mask = _band(cameras[a], cameras[b], ideal[a], ideal[b], params.band_px)
-            m = _mutual(da, db, mask, params.ratio)
+            m = _mutual((cameras[a], cameras[b]), (ideal[a], ideal[b]), (feats[a], feats[b]),
+                        params)
             pair_guided[a, b] += len(m)
             if len(m) < params.min_matches:
                 continue
-            cv2.setRNGSeed(0)                       # MAGSAC's sampling, reproducible
-            _, inl = cv2.findFundamentalMat(ideal[a][m[:, 0]], ideal[b][m[:, 1]],
-                                            cv2.USAC_MAGSAC, params.ransac_px, 0.999, 10000)
-            if inl is None or inl.sum() < params.min_matches:
+            inl, turn = _own_geometry(cameras[a], cameras[b], feats[a][0][m[:, 0]],
+                                      feats[b][0][m[:, 1]], params)
+            if inl.sum() < params.min_matches:
                 continue
-            matches[a, b] = m[inl.ravel().astype(bool)]
+            turns.setdefault((a, b), []).append(turn)
+            matches[a, b] = m[inl]
             pair_matches[a, b] += len(matches[a, b])
         offsets = np.concatenate([[0], np.cumsum([len(x) for x, _ in feats])])
         idx = _chain(K, offsets, matches)
@@ -238,5 +336,10 @@ def find_tie_points(frames, cameras, *, params: TieParams | None = None) -> TieP
         frame_all.append(np.full(idx.shape[1], f))
     if not xy_all:
         raise ValueError("frames: expected at least one frame")
+    rotation = np.full((K, K), np.nan)
+    for (a, b), t in turns.items():
+        if np.isfinite(t).any():
+            rotation[a, b] = np.nanmedian(t)
     return TiePoints(xy=np.concatenate(xy_all, axis=1), frame=np.concatenate(frame_all),
-                     pair_matches=pair_matches, pair_guided=pair_guided)
+                     pair_matches=pair_matches, pair_guided=pair_guided,
+                     pair_rotation_deg=rotation)

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import json
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -50,9 +50,14 @@ class RigRefinementParams:
     max_median_px : float
         The given cameras do not fit the videos when the median residual of the tie points
         with them exceeds this in some camera, px.
+    max_rotation_deg : float
+        ... or when some view pair's own relative rotation (from its matches alone) differs
+        from the given cameras' by more than this, degrees (a file a few pixels off: a
+        degree or two, as its matches give it; cameras in the wrong order: tens).
     mismatch : str
         How a video smaller than its camera is taken (:func:`lsmta.io.cameras_for_videos`).
     tie : TieParams
+        Its ``band_px`` is in pixels of the videos as stored: it is scaled with them.
     refine : RefineParams
     """
 
@@ -60,6 +65,7 @@ class RigRefinementParams:
     hold_out_every: int = 3
     max_points: int = 2000
     max_median_px: float = 25.0
+    max_rotation_deg: float = 10.0
     mismatch: str = "error"
     tie: TieParams = field(default_factory=TieParams)
     refine: RefineParams = field(default_factory=RefineParams)
@@ -69,6 +75,7 @@ class RigRefinementParams:
         as_int(self.hold_out_every, "hold_out_every", minimum=2)
         as_int(self.max_points, "max_points", minimum=6)
         as_scalar(self.max_median_px, "max_median_px", positive=True)
+        as_scalar(self.max_rotation_deg, "max_rotation_deg", positive=True)
         if not isinstance(self.tie, TieParams) or not isinstance(self.refine, RefineParams):
             raise TypeError("tie, refine: expected TieParams and RefineParams")
 
@@ -217,6 +224,14 @@ def _check_fit(given, tie: TiePoints, params: RigRefinementParams) -> None:
             f"{tie.pair_guided[np.triu_indices(len(given), 1)].tolist()}). Check that the "
             "cameras are in the videos' order, the file's units and image size, and that "
             "the videos are synchronised")
+    turn = tie.pair_rotation_deg
+    if np.nanmax(turn, initial=0.0) > params.max_rotation_deg:
+        listed = ", ".join(f"{given[a].name or a}-{given[b].name or b}: {turn[a, b]:.1f} deg"
+                           for a, b in zip(*np.nonzero(turn > params.max_rotation_deg)))
+        raise ValueError(f"cameras: the given cameras do not fit the videos: the views' own "
+                         f"relative rotations differ from the cameras' ({listed}; more than "
+                         f"max_rotation_deg = {params.max_rotation_deg:g}). Check the cameras' "
+                         "order and the file's rotation convention")
     med = _held_out_residuals(given, tie.xy)
     if np.nanmax(med) > params.max_median_px:
         listed = ", ".join(f"{c.name or k}: {m:.1f} px" for k, (c, m) in enumerate(zip(given, med)))
@@ -256,7 +271,8 @@ def refine_rig(videos: Videos, cameras, *,
     n = min(params.n_frames, videos.n_frames)
     picks = np.unique(np.linspace(0, videos.n_frames - 1, n).round().astype(int))
     images = [videos.read(int(i)) for i in picks]
-    tie = find_tie_points(images, given, params=params.tie)
+    tie_params = replace(params.tie, band_px=params.tie.band_px * videos.scale)
+    tie = find_tie_points(images, given, params=tie_params)
     _check_fit(given, tie, params)
     held = (np.arange(len(picks)) % params.hold_out_every) == 1
     train = ~held[tie.frame]

@@ -235,3 +235,13 @@ def test_a_wrong_camera_order_is_refused_by_the_pairs_own_rotation(recording):
     tie = find_tie_points([[read_videos(paths).read(0)[k] for k in range(3)]],
                           [cams[2], cams[0], cams[1]])
     assert np.nanmax(tie.pair_rotation_deg) > 10.0, tie.pair_rotation_deg
+
+
+def test_a_pair_with_few_matches_gives_no_own_rotation():
+    from lsmta.calibration.tie_points import _own_geometry
+    cams = _rig(n=2)
+    X = np.array([[0.0, 400, 700], [100, 500, 800], [-100, 300, 600], [50, 450, 900],
+                  [-80, 380, 650], [120, 420, 750]])
+    xa, xb = cams[0].project(X), cams[1].project(X)
+    inl, turn = _own_geometry(cams[0], cams[1], xa, xb, TieParams())
+    assert inl.shape == (6,) and np.isnan(turn)

@@ -227,9 +227,12 @@ def _own_geometry(a: Camera, b: Camera, xa, xb, params: TieParams):
     cv2.setRNGSeed(0)                               # MAGSAC's sampling, reproducible
     E, inl = cv2.findEssentialMat(na, nb_, np.eye(3), cv2.USAC_MAGSAC, 0.999,
                                   params.ransac_px / np.sqrt(a.f * b.f))
-    if inl is None or E is None or E.shape != (3, 3):
+    if inl is None or E is None or E.shape[0] < 3:
         return np.zeros(len(xa), bool), np.nan
     inl = inl.ravel().astype(bool)
+    if inl.sum() < 8:
+        return inl, np.nan
+    E = E[:3]                                       # the best of several solutions
     thr = params.ransac_px / np.sqrt(a.f * b.f)
     _, on_plane = cv2.findHomography(na[inl], nb_[inl], cv2.USAC_MAGSAC, thr)
     if on_plane is not None and on_plane.sum() > 0.8 * inl.sum():

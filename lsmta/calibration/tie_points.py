@@ -113,23 +113,15 @@ class TiePoints:
         Inlier matches per view pair, summed over the frames (upper triangle).
     pair_guided : (K, K) int array
         Matches in the epipolar band before the pair's own geometry was fitted.
-    pair_rotation_deg : (K, K) array
-        Per view pair with inliers, the median over the frames of the angle between the
-        relative rotation of its own essential matrix and the given cameras' relative
-        rotation, degrees (upper triangle; NaN: no own geometry, or matches on one plane
-        only). A camera file a few
-        pixels off differs by a fraction of a degree; cameras in the wrong order or
-        mounted otherwise, by tens of degrees.
     """
 
     xy: np.ndarray
     frame: np.ndarray
     pair_matches: np.ndarray
     pair_guided: np.ndarray
-    pair_rotation_deg: np.ndarray
 
     def __post_init__(self):
-        freeze(self, ("xy", "frame", "pair_matches", "pair_guided", "pair_rotation_deg"))
+        freeze(self, ("xy", "frame", "pair_matches", "pair_guided"))
 
 
 def _ideal(camera: Camera, xy) -> np.ndarray:
@@ -217,30 +209,14 @@ def _features(images, detector):
     return out
 
 
-def _own_geometry(a: Camera, b: Camera, xa, xb, params: TieParams):
-    """Inlier mask of the matches under the pair's own essential matrix (MAGSAC++), and
-    the angle between the relative rotation it holds and the given cameras' (degrees; NaN
-    where one homography explains 80 % of the inliers: matches on one plane leave the
-    essential matrix's rotation undetermined)."""
+def _own_geometry(a: Camera, b: Camera, xa, xb, params: TieParams) -> np.ndarray:
+    """Inlier mask of the matches under the pair's own essential matrix (MAGSAC++)."""
     na = a.undistort(a.pixel_to_normalized(xa))
     nb_ = b.undistort(b.pixel_to_normalized(xb))
     cv2.setRNGSeed(0)                               # MAGSAC's sampling, reproducible
-    E, inl = cv2.findEssentialMat(na, nb_, np.eye(3), cv2.USAC_MAGSAC, 0.999,
+    _, inl = cv2.findEssentialMat(na, nb_, np.eye(3), cv2.USAC_MAGSAC, 0.999,
                                   params.ransac_px / np.sqrt(a.f * b.f))
-    if inl is None or E is None or E.shape[0] < 3:
-        return np.zeros(len(xa), bool), np.nan
-    inl = inl.ravel().astype(bool)
-    if inl.sum() < 8:
-        return inl, np.nan
-    E = E[:3]                                       # the best of several solutions
-    thr = params.ransac_px / np.sqrt(a.f * b.f)
-    _, on_plane = cv2.findHomography(na[inl], nb_[inl], cv2.USAC_MAGSAC, thr)
-    if on_plane is not None and on_plane.sum() > 0.8 * inl.sum():
-        return inl, np.nan                # one plane: E's rotation is not determined
-    _, R, _, _ = cv2.recoverPose(E, na[inl], nb_[inl], np.eye(3))
-    given = np.asarray(b.R) @ np.asarray(a.R).T
-    cos = (np.trace(R @ given.T) - 1.0) / 2.0
-    return inl, float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    return np.zeros(len(xa), bool) if inl is None else inl.ravel().astype(bool)
 
 
 def _chain(n_views: int, offsets, matches):
@@ -297,7 +273,6 @@ def find_tie_points(frames, cameras, *, params: TieParams | None = None) -> TieP
     if K < 2 or not all(isinstance(c, Camera) for c in cameras):
         raise ValueError("cameras: expected a sequence of at least two lsmta Camera")
     detector = _detector(cameras, params)
-    turns = {}
     pair_matches = np.zeros((K, K), int)
     pair_guided = np.zeros((K, K), int)
     xy_all, frame_all = [], []
@@ -322,11 +297,10 @@ def find_tie_points(frames, cameras, *, params: TieParams | None = None) -> TieP
             pair_guided[a, b] += len(m)
             if len(m) < params.min_matches:
                 continue
-            inl, turn = _own_geometry(cameras[a], cameras[b], feats[a][0][m[:, 0]],
-                                      feats[b][0][m[:, 1]], params)
+            inl = _own_geometry(cameras[a], cameras[b], feats[a][0][m[:, 0]],
+                                feats[b][0][m[:, 1]], params)
             if inl.sum() < params.min_matches:
                 continue
-            turns.setdefault((a, b), []).append(turn)
             matches[a, b] = m[inl]
             pair_matches[a, b] += len(matches[a, b])
         offsets = np.concatenate([[0], np.cumsum([len(x) for x, _ in feats])])
@@ -339,10 +313,5 @@ def find_tie_points(frames, cameras, *, params: TieParams | None = None) -> TieP
         frame_all.append(np.full(idx.shape[1], f))
     if not xy_all:
         raise ValueError("frames: expected at least one frame")
-    rotation = np.full((K, K), np.nan)
-    for (a, b), t in turns.items():
-        if np.isfinite(t).any():
-            rotation[a, b] = np.nanmedian(t)
     return TiePoints(xy=np.concatenate(xy_all, axis=1), frame=np.concatenate(frame_all),
-                     pair_matches=pair_matches, pair_guided=pair_guided,
-                     pair_rotation_deg=rotation)
+                     pair_matches=pair_matches, pair_guided=pair_guided)

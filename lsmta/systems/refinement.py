@@ -5,7 +5,8 @@ Stages: check the cameras against the videos (:func:`lsmta.io.cameras_for_videos
 read evenly spaced frames -> tie points guided by the given cameras
 (:func:`lsmta.calibration.find_tie_points`) -> a check that the cameras fit the videos at
 all -> cameras adjusted with the given ones as priors
-(:func:`lsmta.calibration.refine_cameras`) on some frames -> the residuals of the tie points
+(:func:`lsmta.calibration.refine_cameras`) on some frames -> a check that no camera had
+to turn far from the file's orientation -> the residuals of the tie points
 of the other frames (held out), with the given and with the refined cameras.
 
 The held-out frames say whether the refinement generalises: tie points that took no part
@@ -51,9 +52,9 @@ class RigRefinementParams:
         The given cameras do not fit the videos when the median residual of the tie points
         with them exceeds this in some camera, px.
     max_rotation_deg : float
-        ... or when some view pair's own relative rotation (from its matches alone) differs
-        from the given cameras' by more than this, degrees (a file a few pixels off: a
-        degree or two, as its matches give it; cameras in the wrong order: tens).
+        ... or when the adjustment turns some camera by more than this away from the file's,
+        degrees (a file a few pixels off: a fraction of a degree; cameras in the wrong order
+        or another rotation convention: tens, which the tie points then pull it through).
     mismatch : str
         How a video smaller than its camera is taken (:func:`lsmta.io.cameras_for_videos`).
     tie : TieParams
@@ -224,14 +225,6 @@ def _check_fit(given, tie: TiePoints, params: RigRefinementParams) -> None:
             f"{tie.pair_guided[np.triu_indices(len(given), 1)].tolist()}). Check that the "
             "cameras are in the videos' order, the file's units and image size, and that "
             "the videos are synchronised")
-    turn = tie.pair_rotation_deg
-    if np.nanmax(turn, initial=0.0) > params.max_rotation_deg:
-        listed = ", ".join(f"{given[a].name or a}-{given[b].name or b}: {turn[a, b]:.1f} deg"
-                           for a, b in zip(*np.nonzero(turn > params.max_rotation_deg)))
-        raise ValueError(f"cameras: the given cameras do not fit the videos: the views' own "
-                         f"relative rotations differ from the cameras' ({listed}; more than "
-                         f"max_rotation_deg = {params.max_rotation_deg:g}). Check the cameras' "
-                         "order and the file's rotation convention")
     med = _held_out_residuals(given, tie.xy)
     if np.nanmax(med) > params.max_median_px:
         listed = ", ".join(f"{c.name or k}: {m:.1f} px" for k, (c, m) in enumerate(zip(given, med)))
@@ -239,6 +232,20 @@ def _check_fit(given, tie: TiePoints, params: RigRefinementParams) -> None:
                          f"{listed} (median) from where the cameras put them, more than "
                          f"max_median_px = {params.max_median_px:g}. Check the cameras' order "
                          "and the file's units")
+
+
+def _check_turn(given, refined, limit_deg: float) -> None:
+    """Refuse a refinement that had to turn cameras far from the file's orientation."""
+    turn = np.array([np.degrees(np.arccos(np.clip(
+        (np.trace(np.asarray(r.R) @ np.asarray(g.R).T) - 1.0) / 2.0, -1.0, 1.0)))
+        for g, r in zip(given, refined)])
+    if (turn > limit_deg).any():
+        listed = ", ".join(f"{g.name or k}: {t:.1f} deg" for k, (g, t) in
+                           enumerate(zip(given, turn)) if t > limit_deg)
+        raise ValueError(f"cameras: the given cameras do not fit the videos: the tie points "
+                         f"turn them far from the file's orientation ({listed}; more than "
+                         f"max_rotation_deg = {limit_deg:g}). Check the cameras' order and the "
+                         "file's rotation convention")
 
 
 def refine_rig(videos: Videos, cameras, *,
@@ -261,8 +268,9 @@ def refine_rig(videos: Videos, cameras, *,
     Raises
     ------
     ValueError
-        Cameras that do not fit the videos (sizes, count, or tie points far from where the
-        cameras put them), with what was found.
+        Cameras that do not fit the videos (sizes, count, tie points far from where the
+        cameras put them, or an adjustment that turns a camera far from the file's
+        orientation), with what was found.
     """
     params = RigRefinementParams() if params is None else params
     if not isinstance(videos, Videos):
@@ -278,6 +286,7 @@ def refine_rig(videos: Videos, cameras, *,
     train = ~held[tie.frame]
     adjustment = refine_cameras(given, _strongest(tie.xy[:, train], params.max_points),
                                 params=params.refine)
+    _check_turn(given, adjustment.cameras, params.max_rotation_deg)
     test_xy = _new_points(tie.xy[:, train], tie.xy[:, ~train])
     before = _held_out_residuals(given, test_xy)
     after = _held_out_residuals(adjustment.cameras, test_xy)

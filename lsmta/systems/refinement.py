@@ -23,12 +23,14 @@ import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
 from .._validate import as_int, as_scalar, freeze
 from ..calibration.refine import CameraRefinement, RefineParams, refine_cameras
 from ..calibration.tie_points import TieParams, TiePoints, find_tie_points
+from ..camera import scaled_camera
 from ..camera_files import write_camera_toml
 from ..io import Videos, cameras_for_videos
 from ..triangulation import triangulate
@@ -45,6 +47,12 @@ class RigRefinementParams:
     hold_out_every : int
         Every ``hold_out_every``-th sampled frame (the 2nd, 2nd + n, ...) is held out of the
         adjustment to check it (>= 2).
+    tie_max_side : int
+        Tie points are found in frames halved until their longer side is at most this, px;
+        positions are scaled back. ASIFT's time grows with the pixels, and on the Pose2Sim
+        demo (1920 px) the tie points found at full size did not generalise to held-out
+        frames (median over cameras 4.9 -> 6.0 px) where those found at half size did
+        (8.1 -> 2.4 px; ``experiments/capture_demo.py``).
     max_points : int
         Most tie points adjusted; beyond it those seen by the most views are kept (then
         evenly over the rest), which bounds the adjustment's time.
@@ -64,6 +72,7 @@ class RigRefinementParams:
 
     n_frames: int = 6
     hold_out_every: int = 3
+    tie_max_side: int = 1024
     max_points: int = 2000
     max_median_px: float = 25.0
     max_rotation_deg: float = 10.0
@@ -75,6 +84,7 @@ class RigRefinementParams:
         as_int(self.n_frames, "n_frames", minimum=2)
         as_int(self.hold_out_every, "hold_out_every", minimum=2)
         as_int(self.max_points, "max_points", minimum=6)
+        as_int(self.tie_max_side, "tie_max_side", minimum=64)
         as_scalar(self.max_median_px, "max_median_px", positive=True)
         as_scalar(self.max_rotation_deg, "max_rotation_deg", positive=True)
         if not isinstance(self.tie, TieParams) or not isinstance(self.refine, RefineParams):
@@ -234,6 +244,23 @@ def _check_fit(given, tie: TiePoints, params: RigRefinementParams) -> None:
                          "and the file's units")
 
 
+def _tie_points_at_work_size(videos: Videos, given, picks, params) -> TiePoints:
+    """Tie points of the picked frames, found in frames halved until their longer side is
+    at most ``params.tie_max_side`` and scaled back to the frames as delivered."""
+    longest = max(max(c.width, c.height) for c in given)
+    halvings = max(0, int(np.ceil(np.log2(longest / params.tie_max_side))))
+    factor = 0.5 ** halvings
+    cams = [scaled_camera(c, factor) for c in given] if halvings else list(given)
+    images = []
+    for i in picks:
+        frame = videos.read(int(i))
+        images.append([cv2.resize(g, (c.width, c.height), interpolation=cv2.INTER_AREA)
+                       if halvings else g for g, c in zip(frame, cams)])
+    tie_params = replace(params.tie, band_px=params.tie.band_px * videos.scale * factor)
+    tie = find_tie_points(images, cams, params=tie_params)
+    return replace(tie, xy=(tie.xy + 0.5) / factor - 0.5) if halvings else tie
+
+
 def _check_turn(given, refined, limit_deg: float) -> None:
     """Refuse a refinement that had to turn cameras far from the file's orientation."""
     turn = np.array([np.degrees(np.arccos(np.clip(
@@ -278,9 +305,7 @@ def refine_rig(videos: Videos, cameras, *,
     given = tuple(cameras_for_videos(cameras, videos, mismatch=params.mismatch))
     n = min(params.n_frames, videos.n_frames)
     picks = np.unique(np.linspace(0, videos.n_frames - 1, n).round().astype(int))
-    images = [videos.read(int(i)) for i in picks]
-    tie_params = replace(params.tie, band_px=params.tie.band_px * videos.scale)
-    tie = find_tie_points(images, given, params=tie_params)
+    tie = _tie_points_at_work_size(videos, given, picks, params)
     _check_fit(given, tie, params)
     held = (np.arange(len(picks)) % params.hold_out_every) == 1
     train = ~held[tie.frame]

@@ -7,7 +7,10 @@ held-out frames at least as well as the file's), the file's as given (``--no-ref
 calibrated from a bar recording (``--bar``, the file's cameras as the nominal rig), or from
 a ChArUco board recording (``--board``: :func:`lsmta.calibration.charuco.detect_charuco`,
 then :func:`lsmta.calibration.board.calibrate_board`) ->
-:func:`lsmta.systems.capture_recording` -> :meth:`~lsmta.systems.BodyCapture.save`.
+:func:`lsmta.systems.capture_recording` -> :meth:`~lsmta.systems.BodyCapture.save`, and,
+when the cameras were refined, :meth:`~lsmta.systems.RigRefinement.save` into
+``<out>/refinement/`` (the refined cameras, used or not, and each camera's tie-point
+residuals before and after).
 
 Bad input ends with exit status 2 and one line naming what is wrong.
 """
@@ -31,6 +34,7 @@ from .systems import (
     ArmFitParams,
     CaptureParams,
     MarkerParams,
+    RigRefinement,
     RigRefinementParams,
     Tracker2D,
     calibrate_rig,
@@ -164,7 +168,9 @@ def run(args) -> int:
     try:
         given = None if args.cameras is None else read_camera_file(args.cameras, unit=args.units)
         videos = read_videos(args.videos, frames=_frames(args.frames), scale=args.scale)
+        t_cal = time.perf_counter()
         cameras, calibration, note = _cameras(args, videos, given, progress)
+        t_cal = time.perf_counter() - t_cal
         print(f"lsmta capture: cameras {note}", file=sys.stderr)
         capture = capture_recording(videos, cameras, calibration=calibration,
                                     params=_params(args),
@@ -176,6 +182,10 @@ def run(args) -> int:
     files = capture.save(args.out)
     record = json.loads(Path(files["summary"]).read_text(encoding="utf-8"))
     record["cameras_note"] = note
+    record["calibration_seconds"] = t_cal
+    if isinstance(calibration, RigRefinement):      # per camera, before and after
+        written = calibration.save(Path(args.out) / "refinement")
+        record["refinement"] = {k: str(Path(v).relative_to(args.out)) for k, v in written.items()}
     record["seconds_total"] = time.perf_counter() - t0
     Path(files["summary"]).write_text(json.dumps(record, indent=2), encoding="utf-8")
     for row in capture.summary():

@@ -227,6 +227,15 @@ def test_command_end_to_end(session, tmp_path, capsys):
     assert record["cameras_note"] == "as given"
     assert record["trajectories"]["kept_by_filters"] > 100
     assert (out / "trajectories.c3d").is_file() and (out / "report.html").is_file()
+    assert "refinement" not in record
+    refined = tmp_path / "refined"
+    assert main(["capture", "--videos", *paths, "--cameras", str(rig), "--out", str(refined),
+                 "--quiet"]) == 0
+    record = json.loads((refined / "summary.json").read_text())
+    assert record["cameras_note"].startswith("refined from the recording")
+    per_camera = json.loads((refined / record["refinement"]["summary"]).read_text())["cameras"]
+    assert len(per_camera) == 3 and all(c["tie_points"] > 0 for c in per_camera.values())
+    assert (refined / "refinement" / "cameras.toml").is_file()
     wrong = write_camera_toml(tmp_path / "wrong.toml", session.cameras[:2], unit="mm")
     assert main(["capture", "--videos", *paths, "--cameras", str(wrong), "--out", str(out),
                  "--no-refine", "--quiet"]) == 2

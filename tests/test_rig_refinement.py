@@ -88,6 +88,14 @@ def test_refine_params_are_checked():
         TieParams(ratio=1.0)
     with pytest.raises(ValueError, match="hold_out_every"):
         RigRefinementParams(hold_out_every=1)
+    with pytest.raises(ValueError, match="detector"):
+        TieParams(detector="orb")
+    with pytest.raises(ValueError, match="max_tilt"):
+        TieParams(max_tilt=0)
+    with pytest.raises(ValueError, match="tie_max_side"):
+        RigRefinementParams(tie_max_side=10)
+    with pytest.raises(ValueError, match="max_rotation_deg"):
+        RigRefinementParams(max_rotation_deg=0)
 
 
 # ---------------------------------------------------------------------- from pixels
@@ -224,3 +232,23 @@ def test_asift_ties_views_far_apart_where_sift_does_not(rng):
     auto = TieParams()                                       # 90 degrees apart: ASIFT
     assert find_tie_points(images, cams, params=auto).xy.shape[1] == found["asift"]
 
+
+
+@pytest.mark.slow
+def test_tie_points_found_at_a_working_size_come_back_to_the_frames(recording):
+    """Frames halved (the right and bottom edge cut to an even size first): the tie points,
+    scaled back, lie where the true cameras put them; and a turn limit the adjustment must
+    exceed refuses the cameras with that reason."""
+    from lsmta.systems.refinement import _tie_points_at_work_size
+    paths, cams = recording
+    videos = read_videos(paths, crop=(0, 0, 639, 479))              # odd sizes
+    fitted = cameras_for_videos(cams, videos, mismatch="crop")
+    params = RigRefinementParams(tie_max_side=320, tie=TieParams(n_features=2000))
+    tie = _tie_points_at_work_size(videos, fitted, np.array([0, 3]), params)
+    assert tie.xy.shape[1] > 100
+    err = triangulate(fitted, tie.xy).reprojection_error
+    assert np.nanmedian(err) < 0.3, np.nanmedian(err)
+    given = _disturbed(cams, np.random.default_rng(7))
+    with pytest.raises(ValueError, match="max_rotation_deg"):
+        refine_rig(read_videos(paths), given, params=RigRefinementParams(
+            n_frames=3, max_rotation_deg=0.01, tie=TieParams(n_features=2000)))

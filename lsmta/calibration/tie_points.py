@@ -12,9 +12,10 @@ optical axes are more than ``asift_above_deg`` apart.
 The given cameras guide the matching: a feature of view *b* is a candidate for one of
 view *a* only within ``band_px`` of its epipolar line (so a camera file that is some
 pixels off still finds its matches, and repeated texture elsewhere in the image cannot be
-chosen). The search is one compiled pass per view pair (numba, both cores): for each
-feature, the two nearest descriptors among the candidates in the band. Lowe's ratio test
-(a lone candidate in the band passes it) and a mutual check keep unambiguous pairs. Each
+chosen). The search is compiled (numba, on its threads), one pass each way per view
+pair: for each feature, the two nearest descriptors among the candidates in the band.
+Lowe's ratio test (a lone candidate in the band passes it) and a mutual check keep
+unambiguous pairs. Each
 view pair's matches must then agree with one relative orientation of their own: an
 essential matrix fitted by MAGSAC++ (``cv2.findEssentialMat`` with ``cv2.USAC_MAGSAC``) on
 the features' undistorted normalised positions, inliers within ``ransac_px``; a pair with
@@ -138,7 +139,7 @@ def _essential(a: Camera, b: Camera) -> np.ndarray:
 
 def _lines(a: Camera, b: Camera, na) -> np.ndarray:
     """(Na, 3) epipolar lines in b of a's undistorted positions ``na`` (pixel units), scaled
-    so that ``line . (x_b, y_b, f_b)`` is the distance in b's pixels."""
+    so that ``line . (x_b, y_b, 1)`` is the distance in b's pixels."""
     ha = np.c_[na / a.f, np.ones(len(na))]
     lines = ha @ _essential(a, b).T
     lines /= np.hypot(lines[:, :1], lines[:, 1:2])
@@ -146,7 +147,7 @@ def _lines(a: Camera, b: Camera, na) -> np.ndarray:
     return lines
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+@nb.njit(parallel=True, fastmath={"reassoc", "contract"}, cache=True)
 def _nearest_in_band(lines, xb, da, db, band):                      # pragma: no cover
     """For each row of ``da``: the nearest and second-nearest descriptor of ``db`` among
     b's features within ``band`` of its line (squared distances; index -1: none)."""
@@ -157,7 +158,7 @@ def _nearest_in_band(lines, xb, da, db, band):                      # pragma: no
     for i in nb.prange(na):
         l0, l1, l2 = lines[i, 0], lines[i, 1], lines[i, 2]
         for j in range(nb_):
-            if abs(l0 * xb[j, 0] + l1 * xb[j, 1] + l2) >= band:
+            if not abs(l0 * xb[j, 0] + l1 * xb[j, 1] + l2) < band:   # NaN: not in it
                 continue
             d = np.float32(0.0)
             for c in range(da.shape[1]):                          # vectorised (SIMD)

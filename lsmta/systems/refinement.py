@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 from .._validate import as_int, as_scalar, freeze
 from ..calibration.refine import CameraRefinement, RefineParams, refine_cameras
 from ..calibration.tie_points import TieParams, TiePoints, find_tie_points
-from ..camera import scaled_camera
+from ..camera import cropped_camera, scaled_camera
 from ..camera_files import write_camera_toml
 from ..io import Videos, cameras_for_videos
 from ..triangulation import triangulate
@@ -66,7 +66,8 @@ class RigRefinementParams:
     mismatch : str
         How a video smaller than its camera is taken (:func:`lsmta.io.cameras_for_videos`).
     tie : TieParams
-        Its ``band_px`` is in pixels of the videos as stored: it is scaled with them.
+        Its ``band_px`` is in pixels of the videos as stored: it is scaled with them and with
+        the working size; its ``ransac_px`` is in pixels of the frames searched.
     refine : RefineParams
     """
 
@@ -230,7 +231,8 @@ def _check_fit(given, tie: TiePoints, params: RigRefinementParams) -> None:
     if tie.pair_matches.sum() == 0 or tie.xy.shape[1] < 6:
         raise ValueError(
             "cameras: the given cameras do not fit the videos: no pair of views has tie "
-            f"points that agree with the cameras' epipolar geometry (band "
+            f"points in the cameras' epipolar band that agree with a relative orientation of "
+            f"their own (band "
             f"{params.tie.band_px:g} px; matches in the band per pair: "
             f"{tie.pair_guided[np.triu_indices(len(given), 1)].tolist()}). Check that the "
             "cameras are in the videos' order, the file's units and image size, and that "
@@ -249,13 +251,16 @@ def _tie_points_at_work_size(videos: Videos, given, picks, params) -> TiePoints:
     at most ``params.tie_max_side`` and scaled back to the frames as delivered."""
     longest = max(max(c.width, c.height) for c in given)
     halvings = max(0, int(np.ceil(np.log2(longest / params.tie_max_side))))
-    factor = 0.5 ** halvings
-    cams = [scaled_camera(c, factor) for c in given] if halvings else list(given)
+    factor, m = 0.5 ** halvings, 2 ** halvings
+    # right and bottom edges cut to a multiple of 2^halvings: every scale is exact
+    sizes = [(c.width - c.width % m, c.height - c.height % m) for c in given]
+    cams = [scaled_camera(cropped_camera(c, 0, 0, w, h), factor)
+            for c, (w, h) in zip(given, sizes)] if halvings else list(given)
     images = []
     for i in picks:
         frame = videos.read(int(i))
-        images.append([cv2.resize(g, (c.width, c.height), interpolation=cv2.INTER_AREA)
-                       if halvings else g for g, c in zip(frame, cams)])
+        images.append([cv2.resize(g[:h, :w], (c.width, c.height), interpolation=cv2.INTER_AREA)
+                       if halvings else g for g, c, (w, h) in zip(frame, cams, sizes)])
     tie_params = replace(params.tie, band_px=params.tie.band_px * videos.scale * factor)
     tie = find_tie_points(images, cams, params=tie_params)
     return replace(tie, xy=(tie.xy + 0.5) / factor - 0.5) if halvings else tie
@@ -272,7 +277,8 @@ def _check_turn(given, refined, limit_deg: float) -> None:
         raise ValueError(f"cameras: the given cameras do not fit the videos: the tie points "
                          f"turn them far from the file's orientation ({listed}; more than "
                          f"max_rotation_deg = {limit_deg:g}). Check the cameras' order and the "
-                         "file's rotation convention")
+                         "file's rotation convention; if they are right, the tie points do not "
+                         "hold these cameras (too few, or in one small part of the view)")
 
 
 def refine_rig(videos: Videos, cameras, *,

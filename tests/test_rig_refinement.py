@@ -92,6 +92,8 @@ def test_refine_params_are_checked():
         TieParams(detector="orb")
     with pytest.raises(ValueError, match="max_tilt"):
         TieParams(max_tilt=0)
+    with pytest.raises(ValueError, match="distinct_px"):
+        TieParams(distinct_px=-1.0)
     with pytest.raises(ValueError, match="tie_max_side"):
         RigRefinementParams(tie_max_side=10)
     with pytest.raises(ValueError, match="max_rotation_deg"):
@@ -209,6 +211,28 @@ def test_camera_sizes_are_checked_against_the_videos(recording):
         cameras_for_videos(narrow, videos, mismatch="crop")
     with pytest.raises(ValueError, match="window"):
         cropped_camera(cams[0], 600, 0, 100, 480)
+
+
+def test_a_twin_of_the_best_candidate_is_not_its_rival():
+    """A place found twice (two orientations, or two of ASIFT's tilts) holds two features
+    with nearly the same descriptor. The ratio test compares the best candidate with the
+    best one elsewhere, so the twin does not reject the match; a rival elsewhere does."""
+    from lsmta.calibration.tie_points import _nearest_in_band
+
+    rng = np.random.default_rng(3)
+    desc = rng.uniform(0, 100, (4, 128)).astype(np.float32)
+    da = desc[:1]
+    twin = da[0] + 0.55
+    db = np.stack([da[0] + 0.5, twin, desc[1], desc[2]])
+    xb = np.array([[100.0, 50.0], [100.6, 50.3], [300.0, 50.0], [np.nan, np.nan]])
+    line = np.array([[0.0, 1.0, -50.0]])                    # y = 50: every candidate in the band
+    for distinct, passes in ((2.0, True), (0.0, False)):
+        best, d1, d2 = _nearest_in_band(line, xb, da, db, 5.0, distinct)
+        assert best[0] == 0
+        assert (np.sqrt(d1[0]) < 0.8 * np.sqrt(d2[0])) == passes, (distinct, d1, d2)
+    db[2] = twin                                             # a true rival 200 px away
+    best, d1, d2 = _nearest_in_band(line, xb, da, db, 5.0, 2.0)
+    assert not np.sqrt(d1[0]) < 0.8 * np.sqrt(d2[0])
 
 
 def test_asift_ties_views_far_apart_where_sift_does_not(rng):

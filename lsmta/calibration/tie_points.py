@@ -13,9 +13,10 @@ The given cameras guide the matching: a feature of view *b* is a candidate for o
 view *a* only within ``band_px`` of its epipolar line (so a camera file that is some
 pixels off still finds its matches, and repeated texture elsewhere in the image cannot be
 chosen). The search is compiled (numba, on its threads), one pass each way per view
-pair: for each feature, the two nearest descriptors among the candidates in the band.
-Lowe's ratio test (a lone candidate in the band passes it) and a mutual check keep
-unambiguous pairs. Each
+pair: for each feature, the nearest descriptor among the candidates in the band, and the
+nearest among those not at the same place (a place holds several features: one per
+orientation, and with ASIFT one per simulated tilt). Lowe's ratio test between the two (a
+lone candidate passes it) and a mutual check keep unambiguous pairs. Each
 view pair's matches must then agree with one relative orientation of their own: an
 essential matrix fitted by MAGSAC++ (``cv2.findEssentialMat`` with ``cv2.USAC_MAGSAC``) on
 the features' undistorted normalised positions, inliers within ``ransac_px``; a pair with
@@ -68,6 +69,11 @@ class TieParams:
     ratio : float
         Lowe's ratio: the best candidate's descriptor distance must be below ``ratio``
         times the second best's.
+    distinct_px : float
+        The second best is taken only among candidates farther than this from the best,
+        px. SIFT gives one place several features (one per dominant orientation) and ASIFT
+        finds it again under each simulated tilt: such a twin is not a rival, and counting
+        it as one rejects the match.
     ransac_px : float
         Largest distance to a pair's own epipolar line, px.
     min_matches : int
@@ -82,6 +88,7 @@ class TieParams:
     asift_above_deg: float = 40.0
     band_px: float = 50.0
     ratio: float = 0.8
+    distinct_px: float = 2.0
     ransac_px: float = 1.5
     min_matches: int = 15
 
@@ -93,6 +100,7 @@ class TieParams:
         as_int(self.asift_features, "asift_features")
         as_int(self.max_tilt, "max_tilt", minimum=1)
         as_int(self.min_matches, "min_matches", minimum=8)
+        as_scalar(self.distinct_px, "distinct_px", nonnegative=True)
         for name in ("contrast", "band_px", "ransac_px", "asift_above_deg"):
             as_scalar(getattr(self, name), name, positive=True)
         r = as_scalar(self.ratio, "ratio", positive=True)
@@ -148,15 +156,17 @@ def _lines(a: Camera, b: Camera, na) -> np.ndarray:
 
 
 @nb.njit(parallel=True, fastmath={"reassoc", "contract"}, cache=True)
-def _nearest_in_band(lines, xb, da, db, band):                      # pragma: no cover
-    """For each row of ``da``: the nearest and second-nearest descriptor of ``db`` among
-    b's features within ``band`` of its line (squared distances; index -1: none)."""
+def _nearest_in_band(lines, xb, da, db, band, distinct):            # pragma: no cover
+    """For each row of ``da``: the nearest descriptor of ``db`` among b's features within
+    ``band`` of its line, and the nearest among those farther than ``distinct`` from it
+    (squared distances; index -1: none)."""
     na, nb_ = da.shape[0], db.shape[0]
     best = np.full(na, -1, np.int64)
     d1 = np.full(na, np.inf)
     d2 = np.full(na, np.inf)
     for i in nb.prange(na):
         l0, l1, l2 = lines[i, 0], lines[i, 1], lines[i, 2]
+        dist = np.full(nb_, np.inf, np.float32)
         for j in range(nb_):
             if not abs(l0 * xb[j, 0] + l1 * xb[j, 1] + l2) < band:   # NaN: not in it
                 continue
@@ -164,19 +174,23 @@ def _nearest_in_band(lines, xb, da, db, band):                      # pragma: no
             for c in range(da.shape[1]):                          # vectorised (SIMD)
                 e = da[i, c] - db[j, c]
                 d += e * e
+            dist[j] = d
             if d < d1[i]:
-                d2[i] = d1[i]
                 d1[i] = d
                 best[i] = j
-            elif d < d2[i]:
-                d2[i] = d
+        if best[i] < 0:
+            continue
+        x0, y0 = xb[best[i], 0], xb[best[i], 1]
+        for j in range(nb_):
+            if dist[j] < d2[i] and (xb[j, 0] - x0) ** 2 + (xb[j, 1] - y0) ** 2 > distinct ** 2:
+                d2[i] = dist[j]
     return best, d1, d2
 
 
 def _one_way(a, b, ideal_a, ideal_b, da, db, params) -> dict:
     best, d1, d2 = _nearest_in_band(_lines(a, b, ideal_a), ideal_b,
                                     da.astype(np.float32), db.astype(np.float32),
-                                    params.band_px)
+                                    params.band_px, params.distinct_px)
     ok = (best >= 0) & (np.sqrt(d1) < params.ratio * np.sqrt(d2))   # a lone candidate: d2 inf
     return dict(zip(np.flatnonzero(ok).tolist(), best[ok].tolist()))
 

@@ -92,7 +92,7 @@ def dask_client(scheduler: str | None = None, *, workers: int = 2, processes: bo
         raise ValueError(f"workers: expected a number of workers >= 1, got {workers!r}")
     # the client starts the cluster and so closes it with itself
     return Client(n_workers=int(workers), threads_per_worker=1, processes=processes,
-                  dashboard_address=None)
+                  dashboard_address=":0")
 
 
 def map_seeds(fn, seeds, *, client, failures: str = "raise", **kwargs) -> dict[int, dict]:
@@ -165,14 +165,16 @@ def report(name: str, results: dict[int, dict], headlines, out_dir, *,
     for s, r in results.items():
         if "error" in r:
             print(f"  seed {s} failed: {r['error']}")
+    truths = list(dict.fromkeys(h.truth for h in headlines))
     for h in headlines:
         t = table[h.key]
-        per_seed = "  ".join(_fmt(r.get(h.key)) for r in results.values())
-        unit = f" {h.unit}" if h.unit else ""
-        missing = f"; {t['missing']} seeds without a value" if t["missing"] else ""
-        print(f"  {h.label}{unit}\n    per seed: {per_seed}\n    median {_fmt(t['median'])} "
-              f"[{_fmt(t['min'])}, {_fmt(t['max'])}]{missing}   truth: {h.truth}"
-              + (" (controlled study)" if h.controlled else ""))
+        unit = f" [{h.unit}]" if h.unit else ""
+        tag = f"T{truths.index(h.truth)}" + (", controlled study" if h.controlled else "")
+        per_seed = "  ".join(f"{s}: {_fmt(r.get(h.key))}" for s, r in results.items())
+        missing = f"; {t['missing']} without a value" if t["missing"] else ""
+        print(f"  {h.label}{unit} (truth {tag})\n      {per_seed}   median "
+              f"{_fmt(t['median'])} [{_fmt(t['min'])}, {_fmt(t['max'])}]{missing}")
+    print("  truth inputs: " + "; ".join(f"T{i}: {x}" for i, x in enumerate(truths)))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     doc = {"experiment": name, "seeds": list(results), "settings": settings or {},

@@ -53,8 +53,10 @@ def test_seeds_on_a_local_cluster_give_median_and_range(tmp_path, capsys):
     assert (table["c"]["n"], table["c"]["missing"]) == (4, 1)
 
     printed = capsys.readouterr().out
-    assert "median 24 [20, 28]" in printed
-    assert "truth: true cameras (controlled study)" in printed and "truth: none\n" in printed
+    assert "14: 28  13: 26  12: 24  11: 22  10: 20   median 24 [20, 28]" in printed
+    assert "a draw (truth T1, controlled study)" in printed
+    assert "scaled seed [mm] (truth T0)" in printed
+    assert "truth inputs: T0: none; T1: true cameras" in printed
     doc = json.loads((tmp_path / "toy_seeds.json").read_text(encoding="utf-8"))
     assert doc["seeds"] == seeds[::-1] and doc["settings"] == {"scale": 2.0}
     assert doc["spread"]["a"]["median"] == 24.0

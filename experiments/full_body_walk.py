@@ -2,22 +2,22 @@
 silhouettes (and points from all round), over seeds: notebook 20's headline numbers as
 median and range.
 
-    .venv/bin/python experiments/full_body_walk.py [--frames 1 6] [--walk-frames 12]
+    .venv/bin/python experiments/full_body_walk.py [--frames 1 6 11] [--walk-frames 12]
         [--seed 25] [--seeds 5] [--scheduler ADDRESS] [--workers 2] [--no-around]
 
 For each of ``--seeds`` seeds (from ``--seed``; one Dask task each, on a local cluster of
-``--workers`` processes or on the scheduler at ``--scheduler``), as notebook 20 does: renders
-the walk in one camera of the triplet rig (``--scale`` of 768 x 576) and the empty studio,
-cuts out the silhouettes and tracks their contour with snakes with and without the
+``--workers`` processes or on the scheduler at ``--scheduler``), as notebook 20 does:
+renders the walk in one camera of the triplet rig (``--scale`` of 768 x 576) and the empty
+studio, cuts out the silhouettes and tracks their contour with snakes with and without the
 trajectory prediction (projected true trajectories plus 0.3 px: a truth input), draws noisy
-surface points with 5 % outliers facing that camera (a truth input: the LSMTA system
-measures only the arm), fits the full-body template twice (points alone; points and the
-contours' lines of sight through the generator's exact camera) with the shape shared across
-``--frames``, and, unless ``--no-around``, once more to points from all round the body with
-the free shape. Prints one row per seed and the median [min, max] of each headline with the
-truth inputs its notebook record names; writes ``build/benchmarks/full_body_seeds.json`` /
-``.csv`` and every seed's detail (per-joint angle errors, lengths, skins, outliers, times) to
-``build/benchmarks/full_body.json``.
+surface points (1200 per frame, 1 mm) with 5 % outliers facing that camera (a truth input:
+the LSMTA system measures only the arm), fits the full-body template twice (points alone;
+points and the contours' lines of sight through the generator's exact camera) with the shape
+shared across ``--frames``, and, unless ``--no-around``, once more to points from all round
+the body with the free shape. Prints one row per seed and the median [min, max] of each
+headline with the truth inputs its notebook record names; writes
+``build/benchmarks/full_body_seeds.json`` / ``.csv`` and every seed's detail (per-joint
+angle errors, lengths, skins, outliers, times) to ``build/benchmarks/full_body.json``.
 """
 
 from __future__ import annotations
@@ -159,8 +159,8 @@ def run_seed(seed: int, *, frames, walk_frames: int, scale: float, n_points: int
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, nargs="+", default=[1, 6],
-                        help="frames of the walk fitted together")
+    parser.add_argument("--frames", type=int, nargs="+", default=[1, 6, 11],
+                        help="frames of the walk fitted together (notebook 20: 1 6)")
     parser.add_argument("--walk-frames", type=int, default=12)
     parser.add_argument("--scale", type=float, default=0.5)
     parser.add_argument("--points", type=int, default=1200, help="surface points per frame")

@@ -1,28 +1,134 @@
-"""The LSMTA system from pixels on a longer, full-size arm wave: time per stage and error budget.
+"""The LSMTA system from pixels on an arm wave, over seeds: time per stage and error budget.
 
     .venv/bin/python experiments/lsmta_system.py [--frames 46] [--first 4]
-        [--width 768 --height 576] [--every 4] [--seed 1998] [--no-truth-fed]
+        [--width 768 --height 576] [--every 4] [--seed 1998] [--seeds 5]
+        [--scheduler ADDRESS] [--workers 2] [--no-truth-fed]
 
 Renders the arm-wave session of notebook 14 (`lsmta.evaluation.body_system.arm_wave_session`)
 with the whole 768 x 576 sensor by default, runs `lsmta.systems.capture_body` on it (nothing
 of the truth goes in), then scores every stage after the fact and, unless ``--no-truth-fed``,
-runs each stage fed with the truth as notebooks 01-07 do. Prints and writes
-``build/benchmarks/lsmta_system.json``: per-stage wall times of the system, the
-calibration's check points and residual ratio, the first frame's surface, the trajectories'
-error at the last frame and the arm's joint angles and bone lengths, each next to its
-truth-fed twin. The target for the whole sequence: the system under five minutes on two
-cores.
+runs each stage fed with the truth as notebooks 01-07 do. Each of ``--seeds`` seeds (from
+``--seed``: another session, noise, bar and tape) is one Dask task, on a local cluster of
+``--workers`` processes or on the scheduler at ``--scheduler``. Prints one row per seed and
+the median [min, max] of notebook 14's headline numbers, each with the truth inputs its
+record names, and writes ``build/benchmarks/lsmta_system_seeds.json`` / ``.csv`` and every
+seed's detail (per-stage wall times, the calibration, the first frame's surface, the
+trajectories at the last frame, the arm's joint angles and bone lengths, each next to its
+truth-fed twin) to ``build/benchmarks/lsmta_system.json``. The target for the whole
+sequence: the system under five minutes on two cores. Notebook 14's own settings:
+``--frames 20 --first 14 --width 576 --height 432``.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
-from lsmta.evaluation import body_system as bs
-from lsmta.evaluation.surface import score_surface
+from seed_spread import Headline, add_arguments, run
+
 from lsmta.report import write_json
-from lsmta.systems import capture_body
+
+CHECK_IN = ("aligned on the true check points (a rigid fit onto the true positions of the held-out "
+            "bar video's targets)")
+FED_IN = "; divided by the truth-fed twin's (true cameras; seeds from truth)"
+HEADLINES = [
+    Headline("cal_ratio", "calibration: image RMS / noise limit (sigma from the targets' own "
+             "fits)", "", "none"),
+    Headline("check_rms_mm", "calibration: check-point RMS", "mm", CHECK_IN),
+    Headline("noise_sigma", "image noise estimated from the video", "grey levels", "none"),
+    Headline("surface_median_mm", "surface, frame 0: median 3-D error, system", "mm", CHECK_IN),
+    Headline("surface_density", "surface, frame 0: density, system", "", "none"),
+    Headline("surface_median_ratio", "surface, frame 0: median 3-D error, system / truth-fed",
+             "", CHECK_IN + FED_IN),
+    Headline("surface_density_ratio", "surface, frame 0: density, system / truth-fed", "",
+             "none" + FED_IN),
+    Headline("track_last_mm", "trajectories: median 3-D error at the last frame, system", "mm",
+             CHECK_IN),
+    Headline("track_ratio", "trajectories: median 3-D error at the last frame, system / "
+             "truth-fed", "", CHECK_IN + FED_IN),
+    Headline("angle_simplified_deg", "arm, simplified model: worst joint angle error, system",
+             "deg", CHECK_IN),
+    Headline("angle_full_deg", "arm, full model: worst joint angle error, system", "deg",
+             CHECK_IN),
+    Headline("length_simplified_pct", "arm, simplified model: worst bone length error, system",
+             "%", "none"),
+    Headline("length_full_pct", "arm, full model: worst bone length error, system", "%", "none"),
+    Headline("torso_deg", "arm: system torso frame from the true one (median)", "deg",
+             CHECK_IN),
+    Headline("arm_frames", "arm: frames fitted (both segments tracked)", "", "none"),
+    Headline("system_s", "system time (capture_body, all stages; timing)", "s", "none"),
+]
+
+
+def run_seed(seed: int, *, frames: int, first: int, width: int, height: int, every: int,
+             truth_fed: bool) -> dict:
+    """One session for ``seed``: render, capture_body, scores after the fact (and the
+    truth-fed twin); the headline numbers as flat keys, the rest under ``detail``."""
+    import numba
+    import numpy as np
+
+    from lsmta.evaluation import body_system as bs
+    from lsmta.evaluation.surface import score_surface
+    from lsmta.systems import BodySystemParams, capture_body
+
+    numba.set_num_threads(1)
+    params = BodySystemParams(density_every=every)
+    t0 = time.perf_counter()
+    session = bs.arm_wave_session(seed=seed, n_frames=frames, first=first, every=every,
+                                  params=bs.ArmWaveSessionParams(roi=(width, height)))
+    render_s = time.perf_counter() - t0
+    cap = capture_body(session.videos, session.bar_videos, session.bar_length, session.nominal,
+                       fps=session.fps, params=params, seed=seed)
+    al = bs.world_alignment(cap.cameras, session)
+    cal = bs.calibration_scores(cap.cameras, session)
+    truth0 = bs.surface_truth(session, 0)
+    surf = bs.score_system_surface(cap.surfaces[0], truth0, al)
+    score, part, _ = bs.score_system_tracks(session, cap.tracks, cap.filtered, alignment=al)
+    last, n_last = bs.last_frame_error(score, cap.filtered.present)
+    truth = bs.session_arm_truth(session)
+    start = cap.arm.start
+    out = {"seed": seed, "cal_ratio": cap.calibration.rms_over_limit,
+           "check_rms_mm": cal["check_rms"], "noise_sigma": cap.noise.sigma,
+           "surface_median_mm": surf["filtered"]["median_mm"], "surface_density": surf["density"],
+           "track_last_mm": last, "arm_frames": len(cap.arm.frames),
+           "torso_deg": float(np.median(bs.torso_frame_error(start.torso_poses, truth, al))),
+           "system_s": float(sum(cap.seconds.values()))}
+    detail = {"render_s": render_s, "stage_s": cap.seconds,
+              "swapped_labels": cap.calibration.labels.n_swapped, "trajectories_n": n_last,
+              "groups": bs.group_parts(session, start.groups, part)}
+    fits = {("system", n): (f, start.torso_poses, cap.arm.frames, al)
+            for n, f in (("simplified", cap.arm.simplified), ("full", cap.arm.full))}
+    common = None
+    if truth_fed:
+        t1 = time.perf_counter()
+        fed_surface = score_surface(bs.truth_fed_surface(session, 0), truth0)
+        fed = bs.truth_fed_tracking(session, params=params.tracker, every=every)
+        fed_last, fed_n = bs.last_frame_error(fed.score, fed.filters[-1].trajectories.present)
+        fed_arm = bs.truth_fed_arm(session, fed)
+        common = np.intersect1d(cap.arm.frames, fed_arm.frames)   # as notebook 14 scores
+        fits |= {("truth-fed", n): (f, truth.torso_poses, fed_arm.frames, None)
+                 for n, f in (("simplified", fed_arm.simplified), ("full", fed_arm.full))}
+        out |= {"surface_median_ratio": out["surface_median_mm"]
+                / fed_surface["filtered"]["median_mm"],
+                "surface_density_ratio": out["surface_density"] / fed_surface["density"],
+                "track_ratio": last / fed_last}
+        detail["truth_fed"] = {"seconds": time.perf_counter() - t1,
+                               "surface_median_mm": fed_surface["filtered"]["median_mm"],
+                               "surface_density": fed_surface["density"],
+                               "track_last_mm": fed_last, "trajectories_n": fed_n,
+                               "arm_frames": len(fed_arm.frames),
+                               "arm_frames_both": len(common)}
+    for (feed, name), (f, poses, fr, a) in fits.items():
+        s = bs.score_arm(f, poses, truth, frames=fr, score_frames=common, alignment=a)
+        angle, length = s["max_angle_err_deg"], float(np.abs(s["length_err_pct"]).max())
+        if feed == "system":
+            out[f"angle_{name}_deg"], out[f"length_{name}_pct"] = angle, length
+        detail.setdefault(f"arm_{feed}", {})[name] = {
+            "max_angle_deg": angle, "joint_max_deg": np.asarray(s["joint_max_deg"]).tolist(),
+            "length_err_pct": np.asarray(s["length_err_pct"]).tolist()}
+    out["detail"] = detail
+    return out
 
 
 def main(argv=None):
@@ -32,81 +138,19 @@ def main(argv=None):
     parser.add_argument("--width", type=int, default=768)
     parser.add_argument("--height", type=int, default=576)
     parser.add_argument("--every", type=int, default=4, help="density check, frames")
-    parser.add_argument("--seed", type=int, default=1998)
     parser.add_argument("--no-truth-fed", action="store_true")
     parser.add_argument("--out", default="build/benchmarks/lsmta_system.json")
+    add_arguments(parser, seed=1998)
     args = parser.parse_args(argv)
-
-    t0 = time.perf_counter()
-    session = bs.arm_wave_session(seed=args.seed, n_frames=args.frames, first=args.first,
-                                  every=args.every,
-                                  params=bs.ArmWaveSessionParams(roi=(args.width, args.height)))
-    render_s = time.perf_counter() - t0
-    print(f"rendered {args.frames} frames of {args.width} x {args.height} px in {render_s:.0f} s")
-    cap = capture_body(session.videos, session.bar_videos, session.bar_length, session.nominal,
-                       fps=session.fps, seed=args.seed)
-    total = sum(cap.seconds.values())
-    for r in cap.summary():
-        print(f"{r['stage']:<13} {r['seconds']:7.1f} s  {r['result']}")
-    print(f"system total {total:.0f} s (target < 300 s)")
-
-    al = bs.world_alignment(cap.cameras, session)
-    cal = bs.calibration_scores(cap.cameras, session)
-    truth0 = bs.surface_truth(session, 0)
-    surf = bs.score_system_surface(cap.surfaces[0], truth0, al)
-    score, part, _ = bs.score_system_tracks(session, cap.tracks, cap.filtered, alignment=al)
-    last, n_last = bs.last_frame_error(score, cap.filtered.present)
-    truth = bs.session_arm_truth(session)
-    arm = {n: bs.score_arm(f, cap.arm.start.torso_poses, truth, frames=cap.arm.frames,
-                           alignment=al)
-           for n, f in (("simplified", cap.arm.simplified), ("full", cap.arm.full))}
-    out = {
-        "frames": args.frames, "first": args.first, "image_size": [args.width, args.height],
-        "render_s": render_s, "system_s": total, "stage_s": cap.seconds,
-        "calibration": {"rms_over_limit": cap.calibration.rms_over_limit,
-                        "check_rms_mm": cal["check_rms"],
-                        "swapped_labels": cap.calibration.labels.n_swapped},
-        "noise_sigma": cap.noise.sigma,
-        "surface": {"density": surf["density"], "median_mm": surf["filtered"]["median_mm"]},
-        "trajectories": {"last_frame_median_mm": last, "n": n_last},
-        "groups": bs.group_parts(session, cap.arm.start.groups, part),
-        "arm_frames": len(cap.arm.frames),
-        "arm": {n: {"max_angle_deg": s["max_angle_err_deg"],
-                    "joint_max_deg": s["joint_max_deg"].tolist(),
-                    "length_err_pct": s["length_err_pct"].tolist()} for n, s in arm.items()},
-    }
-    print(f"calibration: RMS / noise limit {cap.calibration.rms_over_limit:.3f}, check points "
-          f"{cal['check_rms']:.3f} mm; noise {cap.noise.sigma:.2f}")
-    print(f"surface frame 0: density {surf['density']:.3f}, median "
-          f"{surf['filtered']['median_mm']:.3f} mm; trajectories at the last frame "
-          f"{last:.2f} mm ({n_last})")
-    print(f"arm fitted in {len(cap.arm.frames)} of {args.frames} frames (both segments tracked)")
-    for n, s in arm.items():
-        print(f"arm {n}: worst angle {s['max_angle_err_deg']:.2f} deg, lengths "
-              f"{s['length_err_pct'].round(2)} %")
-    if not args.no_truth_fed:
-        t1 = time.perf_counter()
-        fed_surface = score_surface(bs.truth_fed_surface(session, 0), truth0)
-        fed = bs.truth_fed_tracking(session, every=args.every)
-        fed_last, fed_n = bs.last_frame_error(fed.score, fed.filters[-1].trajectories.present)
-        fed_arm = bs.truth_fed_arm(session, fed)
-        fed_scores = {n: bs.score_arm(f, truth.torso_poses, truth, frames=fed_arm.frames)
-                      for n, f in (("simplified", fed_arm.simplified), ("full", fed_arm.full))}
-        out["truth_fed"] = {
-            "seconds": time.perf_counter() - t1,
-            "surface": {"density": fed_surface["density"],
-                        "median_mm": fed_surface["filtered"]["median_mm"]},
-            "trajectories": {"last_frame_median_mm": fed_last, "n": fed_n},
-            "arm_frames": len(fed_arm.frames),
-            "arm": {n: {"max_angle_deg": s["max_angle_err_deg"],
-                        "length_err_pct": s["length_err_pct"].tolist()}
-                    for n, s in fed_scores.items()},
-        }
-        print(f"truth-fed: surface density {fed_surface['density']:.3f}, median "
-              f"{fed_surface['filtered']['median_mm']:.3f} mm; trajectories {fed_last:.2f} mm; "
-              + "; ".join(f"arm {n} {s['max_angle_err_deg']:.2f} deg, "
-                          f"{s['length_err_pct'].round(2)} %" for n, s in fed_scores.items()))
-    write_json(args.out, out)
+    settings = {k: getattr(args, k) for k in ("frames", "first", "width", "height", "every")}
+    settings["truth_fed"] = not args.no_truth_fed
+    headlines = [h for h in HEADLINES if settings["truth_fed"] or "ratio" not in h.key]
+    results, table = run("lsmta_system", run_seed, headlines, args, parser=parser,
+                         out_dir=Path(args.out).parent, settings=settings, **settings)
+    print(f"system time: median {table['system_s']['median']:.0f} s "
+          f"[{table['system_s']['min']:.0f}, {table['system_s']['max']:.0f}] (target < 300 s)")
+    write_json(args.out, {**settings, "seeds": {str(s): r for s, r in results.items()},
+                          "spread": table})
 
 
 if __name__ == "__main__":

@@ -1,7 +1,9 @@
-"""LSMTA tracking against OpenCV KLT on a full-size triplet walk: accuracy, survival, time.
+"""LSMTA tracking against OpenCV KLT on a full-size triplet walk: accuracy, survival, time,
+over seeds.
 
     .venv/bin/python experiments/tracking_benchmark.py [--frames 30] [--points 3000]
-        [--scale 1.0] [--step 2] [--patch 15]
+        [--scale 1.0] [--step 2] [--patch 15] [--seed 2000] [--seeds 5]
+        [--scheduler ADDRESS] [--workers 2]
 
 Renders a walk for the triplet rig at ``--scale`` of 768 x 576 pixels, starts both trackers
 on the same ``--points`` visible surface points of frame 0 (grid every ``--step`` px of the
@@ -17,48 +19,59 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
-import numba
-import numpy as np
+from seed_spread import Headline, add_arguments, run
 
-from lsmta.evaluation import tracking as et
 from lsmta.report import write_json
-from lsmta.tracking import TrackerParams
+
+TRACK_IN = ("seeds from truth (start points and the density check's new points on the true "
+            "visible surface); true cameras (the 3-D errors' intersection)")
+HEADLINES = [
+    Headline("lsmta_over_klt_time", "time LSMTA / KLT (timing)", "", "none"),
+    Headline("lsmta_s", "LSMTA tracking time (timing)", "s", "none"),
+    Headline("lsmta_step_error_px", "LSMTA per-frame image error, median", "px", TRACK_IN, True),
+    Headline("klt_step_error_px", "KLT per-frame image error, median", "px", TRACK_IN, True),
+    Headline("lsmta_3d_error_at_oldest_mm", "LSMTA 3-D error at the oldest age", "mm", TRACK_IN,
+             True),
+    Headline("klt_3d_error_at_oldest_mm", "KLT 3-D error at the oldest age", "mm", TRACK_IN,
+             True),
+    Headline("lsmta_survival", "LSMTA start points alive at the end, share", "", TRACK_IN, True),
+    Headline("klt_survival", "KLT points alive at the end, share", "", TRACK_IN, True),
+    Headline("lsmta_false_share", "LSMTA false trajectories (> 10 mm), share", "", TRACK_IN,
+             True),
+    Headline("klt_false_share", "KLT false trajectories (> 10 mm), share", "", TRACK_IN, True),
+]
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=30)
-    parser.add_argument("--points", type=int, default=3000)
-    parser.add_argument("--scale", type=float, default=1.0)
-    parser.add_argument("--step", type=int, default=2)
-    parser.add_argument("--patch", type=int, default=15)
-    parser.add_argument("--threads", type=int, default=1,
-                        help="numba threads (1 on a shared machine: parallel threads spin)")
-    parser.add_argument("--seed", type=int, default=2000)
-    parser.add_argument("--out", default="build/benchmarks/tracking.json")
-    args = parser.parse_args(argv)
-    numba.set_num_threads(args.threads)
+def run_seed(seed: int, *, frames: int, points: int, scale: float, step: int, patch: int,
+             threads: int) -> dict:
+    """One walk for ``seed``: both trackers from the same points, scored after the fact."""
+    import numba
+    import numpy as np
 
+    from lsmta.evaluation import tracking as et
+    from lsmta.tracking import TrackerParams
+
+    numba.set_num_threads(threads)
     t0 = time.perf_counter()
-    seq = et.walk_sequence(seed=args.seed, n_frames=args.frames, scale=args.scale, step=args.step)
+    seq = et.walk_sequence(seed=seed, n_frames=frames, scale=scale, step=step)
     render_s = time.perf_counter() - t0
-    s = args.scale / 0.5            # box sizes scale with the image
-    params = TrackerParams(patch=args.patch, radius=int(round(4 * s)),
+    s = scale / 0.5            # box sizes scale with the image
+    params = TrackerParams(patch=patch, radius=int(round(4 * s)),
                            retry_radius=int(round(10 * s)), cell=16.0 * s,
                            min_distance=3.0 * s)
     # warm-up: load the compiled kernels once, outside the timings
-    et.run_tracking_trial(et.walk_sequence(seed=args.seed, n_frames=2, scale=0.25), 5,
+    et.run_tracking_trial(et.walk_sequence(seed=seed, n_frames=2, scale=0.25), 5,
                           rng=np.random.default_rng(0))
-    trial = et.run_tracking_trial(seq, args.points, rng=np.random.default_rng(args.seed),
-                                  params=params)
+    trial = et.run_tracking_trial(seq, points, rng=np.random.default_rng(seed), params=params)
     sc, ks = trial.score, trial.klt_score
     age, e_ls, n_ls = et.by_age(sc.error_3d, trial.tracks.start)
     _, e_kl, n_kl = et.by_age(ks.error_3d, trial.klt.start)
     last = int(np.max(np.flatnonzero(np.isfinite(e_ls))))
     n0 = int((~trial.tracks.added).sum())
     out = {
-        "frames": args.frames, "image_size": list(seq.images.shape[2:][::-1]),
+        "seed": seed, "frames": frames, "image_size": list(seq.images.shape[2:][::-1]),
         "start_points": n0, "added_points": int(trial.tracks.added.sum()),
         "render_s": render_s,
         "lsmta_s": trial.seconds, "klt_s": trial.klt_seconds,
@@ -73,9 +86,32 @@ def main(argv=None):
         "klt_alive_at_end": int(trial.klt.alive[-1].sum()),
         "lsmta_false_share": float(sc.false.mean()), "klt_false_share": float(ks.false.mean()),
     }
-    for k, v in out.items():
+    out["lsmta_survival"] = out["lsmta_start_points_alive_at_end"] / max(n0, 1)
+    out["klt_survival"] = out["klt_alive_at_end"] / max(int(trial.klt.alive[0].sum()), 1)
+    return out
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=30)
+    parser.add_argument("--points", type=int, default=3000)
+    parser.add_argument("--scale", type=float, default=1.0)
+    parser.add_argument("--step", type=int, default=2)
+    parser.add_argument("--patch", type=int, default=15)
+    parser.add_argument("--threads", type=int, default=1,
+                        help="numba threads (1 on a shared machine: parallel threads spin)")
+    parser.add_argument("--out", default="build/benchmarks/tracking.json")
+    add_arguments(parser, seed=2000)
+    args = parser.parse_args(argv)
+    settings = {k: getattr(args, k) for k in ("frames", "points", "scale", "step", "patch",
+                                              "threads")}
+    results, _ = run("tracking", run_seed, HEADLINES, args, parser=parser,
+                     out_dir=Path(args.out).parent, settings=settings, **settings)
+    first = results[args.seed]
+    print(f"\nseed {args.seed} in full:")
+    for k, v in first.items():
         print(f"{k:>36}: {v:.4g}" if isinstance(v, float) else f"{k:>36}: {v}")
-    write_json(args.out, out)
+    write_json(args.out, first)
 
 
 if __name__ == "__main__":

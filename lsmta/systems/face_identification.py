@@ -5,26 +5,38 @@ which marker of the face model (Davis 2002 labels them once, by hand; issue 39).
 angles:
 
 1. *dots*: bright round blobs in each frame (:func:`~lsmta.tracking.markers.find_blobs`,
-   the detector the marker systems use);
-2. *stereo*: the dots matched across the heads by their rays (the epipolar constraint at
-   the heads' calibrated models, :func:`~lsmta.tracking.correspondence.match_views`) and
-   triangulated: unlabelled 3-D points;
-3. *rigid fit and assignment* (ICP with an optimal assignment): the face model's mean face
-   is placed on the points from their centroid and principal axes (every proper sign and
-   order of the axes tried), each marker assigned to one point by
-   :func:`scipy.optimize.linear_sum_assignment` (pairs farther than ``gate_mm`` are left
-   out), the rigid motion fitted to the pairs (:func:`~lsmta.rigid.fit_rigid`), and again
-   until the assignment no longer changes; the start with the lowest cost is kept;
-4. *shape*: the face model fitted to the labelled points (its expression weights,
-   :meth:`lsmta.face.FaceModel.fill`) and assigned again (``n_shape`` passes), so that
-   markers an expression moves are compared with where the expression puts them;
-5. *labels in the images*: the fitted face projected into each head and each dot given the
-   marker it is assigned to (again an optimal assignment, pairs within ``gate_px``). A dot
-   seen by one head only is labelled too.
+   the detector the marker systems use), and their rays;
+2. *stereo*: the dots of each pair of heads matched one to one by the distance between
+   their rays (the epipolar constraint at the heads' calibrated models; an optimal
+   assignment, :func:`scipy.optimize.linear_sum_assignment`) and triangulated: unlabelled
+   3-D points. With two heads side by side the epipolar lines run along the face's rows of
+   dots, so many of these matches pair a dot with its neighbour (on notebook 15's scene
+   about three in four): they only give where the face is (their median) and how far;
+3. *rigid fit and assignment* (ICP): the face model's mean face (``basis.reference``) is
+   placed there, its thinnest principal axis (the face's normal, either sign) turned
+   towards the heads and turned about it in ``n_angles`` steps. From each start: each
+   head's dots are assigned to the projected markers (an optimal assignment, pairs within
+   a gate), the markers with a dot in two heads triangulated (a pair that reprojects
+   farther than ``max_px`` is two markers' dots and left out), the rigid motion fitted to
+   them (:func:`~lsmta.rigid.fit_rigid`, the farthest left out), and again until the
+   labels no longer change, with the gate shrinking (``gate_steps``). Labels are decided
+   in the images, where the dots are distinct, not among the ambiguous stereo points. The
+   ``n_poses`` best starts after the widest gate are carried on; the lowest cost wins;
+4. *expression*: an expression moves markers by up to 16 mm, twice their spacing, so the
+   mean face alone mislabels the mouth. From the rigid pose, ``n_expressions`` faces along
+   the model's main expression (``±expression_mm`` at the marker it moves most) start the
+   same loop with the face model fitted instead of a rigid motion
+   (:meth:`lsmta.face.FaceModel.fill`: pose and expression weights); the lowest cost wins;
+5. *labels*: each head's dots assigned to the fitted face projected (within ``gate_px``),
+   a dot seen by one head only included.
 
-Why not SAPM (:mod:`lsmta.sapm`): its articulated parts and candidate instances are made for
-a body of rigid segments seen by many cameras; a face is one nearly rigid part whose
-markers differ only in their layout, which a rigid fit plus an assignment uses whole.
+The cost of a labelling is the summed squared image distance of the pairs plus ``gate**2``
+for every dot left without a marker.
+
+Why not SAPM (:mod:`lsmta.sapm`): it is made for a body of articulated rigid parts seen by
+many cameras, with candidate instances per part; a face is one part whose markers differ
+only in their layout and the expression's shift, which a fit of the face model with an
+optimal assignment uses whole, and the face model already describes the expressions.
 """
 
 from __future__ import annotations
@@ -58,18 +70,26 @@ class IdentifyParams:
         Largest distance between the rays of a stereo match, mm (room for the read-back's
         0.05°, 2.6 mm at 3 m).
     max_px : float
-        Largest reprojection error of a stereo match, px.
-    gate_mm : float
-        A marker and a 3-D point farther apart than this are not paired, mm (about the
-        markers' spacing).
+        A labelled marker whose triangulation reprojects farther than this from its dot in
+        a head is left out of the fits, px (as :class:`~lsmta.systems.MixedScaleParams`'s
+        ``max_reprojection_px``).
     gate_px : float
-        A projected marker and a dot farther apart than this are not paired, px.
+        A projected marker and a dot farther apart than this are not paired in the final
+        labels, px (the heads' dots are at least 6 px apart).
+    gate_steps : tuple of float
+        The fits' gates, as multiples of ``gate_px``, widest first (the start may be off by
+        half a step of ``n_angles``, a centimetre at the face's edge).
+    n_angles : int
+        Start angles about the face's normal, for each of its two signs.
     n_iter : int
-        Assignment and rigid-fit passes per start, at most.
-    n_shape : int
-        Passes of the face model's shape fit and assignment after the rigid fit.
+        Assignment and fit passes per gate, at most.
+    n_poses : int
+        Starts carried on from the widest gate to the narrower ones.
+    expression_mm, n_expressions : float, int
+        Faces tried along the model's main expression: ``n_expressions`` evenly from
+        ``-expression_mm`` to ``+expression_mm`` mm at the marker it moves most.
     min_points : int
-        Fewest triangulated dots to identify anything.
+        Fewest triangulated markers a fit needs.
     """
 
     sigma: float = 1.5
@@ -117,7 +137,7 @@ class FaceIdentification:
     dots : list of K (D_k, 2) arrays
         The dots found in each frame, px.
     n_points : int
-        Dots matched across the heads and triangulated.
+        Dots matched across the heads by stereo and triangulated (unlabelled).
     residual_mm : float
         RMS distance of the paired points from the fitted face, mm (NaN: none).
     """
@@ -195,8 +215,12 @@ class _Frame:
         in each head (K, M) int (-1: none) and the summed cost."""
         idx = np.full((len(self.cams), len(face)), -1)
         cost = 0.0
+        on = np.isfinite(face).all(axis=1)
         for k, cam in enumerate(self.cams):
-            m, d, c = _assign(cam.project(face, behind="nan"), self.dots[k], gate)
+            proj = np.full((len(face), 2), np.nan)
+            if on.any():
+                proj[on] = cam.project(face[on], behind="nan")
+            m, d, c = _assign(proj, self.dots[k], gate)
             idx[k, m] = d
             cost += c
         return idx, cost
@@ -214,6 +238,8 @@ class _Frame:
         and where the intersection reprojects farther than ``max_px`` from a dot (dots of
         two different markers)."""
         K, M = idx.shape
+        if not M:
+            return np.zeros((0, 3))
         o = np.full((K, M, 3), np.nan)
         d = np.full((K, M, 3), np.nan)
         for k, (ro, rd) in enumerate(self.rays):
@@ -275,6 +301,8 @@ def _rigid(frame, shape, R, t, gates, n_iter, min_points):
             if ok.sum() < min_points:
                 return R, t, np.inf
             R, t = fit_rigid(shape[ok], X[ok])
+            if not (np.isfinite(R).all() and np.isfinite(t).all()):
+                return R, t, np.inf
     return R, t, cost
 
 
@@ -363,7 +391,8 @@ def identify_face_markers(images, heads, settings, face_model: FaceModel, *,
     -------
     FaceIdentification
         Nothing passed in is modified. When fewer than ``params.min_points`` dots are
-        matched across the heads, nothing is identified (every ``xy`` NaN).
+        matched across the heads, or no fit keeps that many, nothing is identified (every
+        ``xy`` NaN): a frame without the face, or one whose dots merge.
     """
     p = IdentifyParams() if params is None else params
     if not isinstance(p, IdentifyParams):
@@ -381,6 +410,8 @@ def identify_face_markers(images, heads, settings, face_model: FaceModel, *,
         return FaceIdentification(**nothing)
     frame = _Frame(cams, dots, p.max_px)
     X = frame.stereo(p.max_ray_distance)
+    if len(X) < p.min_points:
+        return FaceIdentification(**{**nothing, "n_points": len(X)})
     centre = np.median(X, axis=0)
     towards = np.mean([c.C for c in cams], axis=0) - centre
     towards /= np.linalg.norm(towards)

@@ -324,11 +324,12 @@ class LabelScore:
         return self.correct / n if n else float("nan")
 
 
-def label_score(xy, devices, t: float, *, tol_px: float = 1.5) -> LabelScore:
+def label_score(xy, devices, t: float, *, tol_px: float = 3.0) -> LabelScore:
     """Score labels ``xy`` (K, M, 2) px (NaN: none) of the frames the ``devices`` grabbed at
     time ``t`` against the true images of the markers drawn in them: a label is correct
-    when it lies within ``tol_px`` of its own marker's true image (the heads' dots are at
-    least 6 px apart)."""
+    when its own marker's true image is the drawn one nearest to it, within ``tol_px``
+    (the centroid of a dot that touches another's is pulled towards it by a pixel or
+    two)."""
     tol_px = as_scalar(tol_px, "tol_px", positive=True)
     xy = np.asarray(xy, float)
     if xy.ndim != 3 or xy.shape[0] != len(devices) or xy.shape[2] != 2:
@@ -339,7 +340,10 @@ def label_score(xy, devices, t: float, *, tol_px: float = 1.5) -> LabelScore:
         tru = d.true_xy(t, d.true_settings(t)[0])
         given = np.isfinite(xy[k]).all(axis=1)
         drawn = np.isfinite(tru).all(axis=1)
-        ok = given & drawn & (np.linalg.norm(np.nan_to_num(xy[k] - tru), axis=1) <= tol_px)
+        to_all = np.nan_to_num(np.linalg.norm(xy[k][:, None] - tru[None], axis=2),
+                               nan=np.inf)
+        own = np.arange(len(tru))
+        ok = given & drawn & (to_all.argmin(axis=1) == own) & (to_all[own, own] <= tol_px)
         correct += int(ok.sum())
         wrong += int((given & ~ok).sum())
         missed += int((drawn & ~given).sum())

@@ -14,7 +14,8 @@ angles:
    about three in four): they only give where the face is (their median) and how far;
 3. *rigid fit and assignment* (ICP): the face model's mean face (``basis.reference``) is
    placed there, its thinnest principal axis (the face's normal, either sign) turned
-   towards the heads and turned about it in ``n_angles`` steps. From each start: each
+   towards the heads, and onto the stereo points' own thinnest axis, and turned about it
+   in ``n_angles`` steps. From each start: each
    head's dots are assigned to the projected markers (an optimal assignment, pairs within
    a gate), the markers with a dot in two heads triangulated (a pair that reprojects
    farther than ``max_px`` is two markers' dots and left out), the rigid motion fitted to
@@ -28,7 +29,8 @@ angles:
    same loop with the face model fitted instead of a rigid motion
    (:meth:`lsmta.face.FaceModel.fill`: pose and expression weights); the lowest cost wins;
 5. *labels*: each head's dots assigned to the fitted face projected (within ``gate_px``),
-   a dot seen by one head only included.
+   a dot seen by one head only included; a marker projected within ``crowd_px`` of
+   another that got no dot is left unlabelled (the two dots merged into one blob).
 
 The cost of a labelling is the summed squared image distance of the pairs plus ``gate**2``
 for every dot left without a marker.
@@ -76,6 +78,9 @@ class IdentifyParams:
     gate_px : float
         A projected marker and a dot farther apart than this are not paired in the final
         labels, px (the heads' dots are at least 6 px apart).
+    crowd_px : float
+        A marker whose projection lies closer than this to that of another marker left
+        without a dot is left unlabelled too (their dots merged into one blob), px.
     gate_steps : tuple of float
         The fits' gates, as multiples of ``gate_px``, widest first (the start may be off by
         half a step of ``n_angles``, a centimetre at the face's edge).
@@ -98,8 +103,9 @@ class IdentifyParams:
     max_ray_distance: float = 5.0
     max_px: float = 4.0
     gate_px: float = 4.0
-    gate_steps: tuple = (4.0, 2.0, 1.0)
-    n_angles: int = 24
+    crowd_px: float = 5.0
+    gate_steps: tuple = (12.0, 6.0, 3.0, 1.0)
+    n_angles: int = 12
     n_iter: int = 10
     n_poses: int = 3
     expression_mm: float = 20.0
@@ -109,6 +115,7 @@ class IdentifyParams:
     def __post_init__(self):
         for key in ("sigma", "min_strength", "max_ray_distance", "max_px", "gate_px"):
             as_scalar(getattr(self, key), key, positive=True)
+        as_scalar(self.crowd_px, "crowd_px", nonnegative=True)
         as_int(self.spacing, "spacing", minimum=1)
         as_int(self.n_iter, "n_iter", minimum=1)
         as_int(self.n_angles, "n_angles", minimum=1)
@@ -173,17 +180,22 @@ def _about(axis, angle):
     return np.eye(3) + np.sin(angle) * V + (1 - np.cos(angle)) * V @ V
 
 
-def _starts(ref, centre, towards, n_angles):
+def _thinnest(P):
+    """The unit axis along which points ``P`` (N, 3) vary least."""
+    return np.linalg.svd(P - P.mean(axis=0), full_matrices=False)[2][2]
+
+
+def _starts(ref, normals, n_angles):
     """Start rotations: the reference's thinnest principal axis (the face's normal, either
-    sign) turned onto ``towards`` (the direction from the face to the heads), then turned
-    about it by ``n_angles`` equal steps."""
-    _, _, Vt = np.linalg.svd(ref - ref.mean(axis=0), full_matrices=False)
-    normal = Vt[2]
+    sign) turned onto each of ``normals`` (unit vectors), then turned about it by
+    ``n_angles`` equal steps."""
+    normal = _thinnest(ref)
     out = []
-    for s in (1.0, -1.0):
-        R0 = _rotation_to(s * normal, towards)
-        out += [_about(towards, a) @ R0
-                for a in np.linspace(0, 2 * np.pi, n_angles, endpoint=False)]
+    for towards in normals:
+        for s in (1.0, -1.0):
+            R0 = _rotation_to(s * normal, towards)
+            out += [_about(towards, a) @ R0
+                    for a in np.linspace(0, 2 * np.pi, n_angles, endpoint=False)]
     return out
 
 
@@ -415,9 +427,11 @@ def identify_face_markers(images, heads, settings, face_model: FaceModel, *,
     centre = np.median(X, axis=0)
     towards = np.mean([c.C for c in cams], axis=0) - centre
     towards /= np.linalg.norm(towards)
+    seen = _thinnest(X)                      # the stereo points' own normal, to the heads
+    normals = [towards, seen if seen @ towards >= 0 else -seen]
     gates = tuple(p.gate_px * g for g in p.gate_steps)
     poses = []
-    for R0 in _starts(ref, centre, towards, p.n_angles):
+    for R0 in _starts(ref, normals, p.n_angles):
         t0 = centre - ref.mean(axis=0) @ R0.T
         poses.append(_rigid(frame, ref, R0, t0, gates[:1], p.n_iter, p.min_points))
     poses = [_rigid(frame, ref, R, t, gates, p.n_iter, p.min_points)
@@ -434,6 +448,12 @@ def identify_face_markers(images, heads, settings, face_model: FaceModel, *,
             best = (cost, face)
     face = best[1]
     idx, _ = frame.label(face, p.gate_px)
+    for k, cam in enumerate(cams):               # dots of markers this close merge
+        proj = cam.project(face, behind="nan")
+        d = np.nan_to_num(np.linalg.norm(proj[:, None] - proj[None], axis=2), nan=np.inf)
+        np.fill_diagonal(d, np.inf)
+        d[:, idx[k] >= 0] = np.inf                # a neighbour with its own dot is apart
+        idx[k, d.min(axis=1) < p.crowd_px] = -1
     points, xy = frame.points(idx), frame.xy(idx)
     ok = np.isfinite(points).all(axis=1)
     resid = float(np.sqrt(np.mean(np.sum((face[ok] - points[ok]) ** 2, axis=1)))) \

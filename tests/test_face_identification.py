@@ -96,6 +96,20 @@ def test_labels_survive_a_rigid_motion(setup, yaw, roll, shift):
     assert correct >= 0.97 * distinct and distinct > 80
 
 
+def test_a_face_turned_far_away_is_labelled_right_or_not_at_all(setup):
+    # turned 30 degrees away and rolled, one head sees only about half of the markers: the
+    # identification may find no pose it trusts, but it never gives a wrong label
+    scene, model = setup
+    world, normals, anchor = scene.face_at([0.4])
+    c = world[0].mean(axis=0)
+    R = Rotation.from_euler("zy", [-30.0, -15.0], degrees=True).as_matrix()
+    images, settings, truth = _frames(scene, (world[0] - c) @ R.T + c, normals[0] @ R.T,
+                                      anchor[0])
+    r = identify_face_markers(images, scene.heads, settings, model)
+    correct, wrong, _ = _score(r.xy, truth)
+    assert wrong == 0
+
+
 def test_mirror_or_shuffled_layout_is_not_taken(setup):
     # a face model whose markers are listed in another order labels the dots by that order:
     # the labels follow the model's layout, not the image order

@@ -88,8 +88,10 @@ class IdentifyParams:
         Start angles about the face's normal, for each of its two signs.
     n_iter : int
         Assignment and fit passes per gate, at most.
+    n_iter_start : int
+        Passes per start at the widest gate, to rank the starts.
     n_poses : int
-        Starts carried on from the widest gate to the narrower ones.
+        Starts carried on (best first) from there through every gate.
     expression_mm, n_expressions : float, int
         Faces tried along the model's main expression: ``n_expressions`` evenly from
         ``-expression_mm`` to ``+expression_mm`` mm at the marker it moves most.
@@ -107,6 +109,7 @@ class IdentifyParams:
     gate_steps: tuple = (12.0, 6.0, 3.0, 1.0)
     n_angles: int = 12
     n_iter: int = 10
+    n_iter_start: int = 3
     n_poses: int = 3
     expression_mm: float = 20.0
     n_expressions: int = 9
@@ -120,6 +123,7 @@ class IdentifyParams:
         as_int(self.n_iter, "n_iter", minimum=1)
         as_int(self.n_angles, "n_angles", minimum=1)
         as_int(self.n_poses, "n_poses", minimum=1)
+        as_int(self.n_iter_start, "n_iter_start", minimum=1)
         steps = as_array(self.gate_steps, "gate_steps", shape=(None,))
         if not len(steps) or (steps < 1).any():
             raise ValueError(f"gate_steps: expected factors >= 1 of gate_px, got "
@@ -354,6 +358,19 @@ def _expression(face_model):
     return d / max(np.linalg.norm(d, axis=1).max(), 1e-12)
 
 
+def _uncrowded(idx, cams, face, crowd_px):
+    """Labels ``idx`` (K, M) without the markers projected within ``crowd_px`` of another
+    marker that got no dot in that head (their dots merged into one blob)."""
+    idx = idx.copy()
+    for k, cam in enumerate(cams):
+        proj = cam.project(face, behind="nan")
+        d = np.nan_to_num(np.linalg.norm(proj[:, None] - proj[None], axis=2), nan=np.inf)
+        np.fill_diagonal(d, np.inf)
+        d[:, idx[k] >= 0] = np.inf                # a neighbour with its own dot is apart
+        idx[k, d.min(axis=1) < crowd_px] = -1
+    return idx
+
+
 def _check(images, heads, settings, face_model):
     heads = list(heads)
     if len(heads) < 2 or not all(isinstance(h, PanTiltCamera) for h in heads):
@@ -433,7 +450,7 @@ def identify_face_markers(images, heads, settings, face_model: FaceModel, *,
     poses = []
     for R0 in _starts(ref, normals, p.n_angles):
         t0 = centre - ref.mean(axis=0) @ R0.T
-        poses.append(_rigid(frame, ref, R0, t0, gates[:1], p.n_iter, p.min_points))
+        poses.append(_rigid(frame, ref, R0, t0, gates[:1], p.n_iter_start, p.min_points))
     poses = [_rigid(frame, ref, R, t, gates, p.n_iter, p.min_points)
              for R, t, _ in sorted(poses, key=lambda r: r[2])[:p.n_poses]]
     R, t, cost = min(poses, key=lambda r: r[2])
@@ -448,12 +465,7 @@ def identify_face_markers(images, heads, settings, face_model: FaceModel, *,
             best = (cost, face)
     face = best[1]
     idx, _ = frame.label(face, p.gate_px)
-    for k, cam in enumerate(cams):               # dots of markers this close merge
-        proj = cam.project(face, behind="nan")
-        d = np.nan_to_num(np.linalg.norm(proj[:, None] - proj[None], axis=2), nan=np.inf)
-        np.fill_diagonal(d, np.inf)
-        d[:, idx[k] >= 0] = np.inf                # a neighbour with its own dot is apart
-        idx[k, d.min(axis=1) < p.crowd_px] = -1
+    idx = _uncrowded(idx, cams, face, p.crowd_px)
     points, xy = frame.points(idx), frame.xy(idx)
     ok = np.isfinite(points).all(axis=1)
     resid = float(np.sqrt(np.mean(np.sum((face[ok] - points[ok]) ** 2, axis=1)))) \

@@ -4,10 +4,12 @@ track LEDs on the body, their estimate steers pan-tilt heads, the heads film the
 What goes in is what a user has: the ceiling cameras' frames with their time stamps and
 frames of the empty room, the ceiling cameras and the pan-tilt heads as the library
 calibrated them, the heads themselves as devices (they take commands and return a frame and
-the angles they report), a first-frame identification of the face markers per head (by
-hand), and a face model learnt from an earlier capture. The system sees nothing else; how
-realistic those inputs are is the caller's affair (notebook 15 says what its simulation
-gives). :func:`capture_mixed_scale` runs the stages:
+the angles they report), and a face model learnt from an earlier capture. The face markers
+are identified by the system itself (:mod:`~lsmta.systems.face_identification`), or, for a
+controlled study, by callables that stand for an operator labelling one frame per head by
+hand, as the thesis does. The system sees nothing else; how realistic those inputs are is
+the caller's affair (notebook 15 says what its simulation gives).
+:func:`capture_mixed_scale` runs the stages:
 
 1. *closed loop*, one tick per pan-tilt frame (``params.video_rate``): every ceiling frame
    that has arrived is searched for LEDs (:func:`~lsmta.widearea.detect`, thresholds
@@ -20,8 +22,10 @@ gives). :func:`capture_mixed_scale` runs the stages:
    angles the heads report before any command); each head then grabs its frame at the
    angles its motors reached and reports them;
 2. *marker tracking* in each head's close-up video (:func:`~lsmta.tracking.markers.
-   track_markers`), started from the hand identification of the first frame at which the
-   heads have followed the same target for ``params.settle`` s;
+   track_markers`), started from the identification of the first frame at which the heads
+   have followed the same target for ``params.settle`` s: automatic
+   (:func:`~lsmta.systems.face_identification.identify_face_markers`: dots, the face model's
+   layout fitted and assigned, ``params.identify``) or the ``identify`` callables;
 3. *triangulation* of every frame from a single pair of heads
    (:func:`~lsmta.triangulation.triangulate_single_pair`), each head the calibrated model
    at its read-back angles (:meth:`~lsmta.pantilt.PanTiltCamera.camera_at`);

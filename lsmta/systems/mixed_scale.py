@@ -206,6 +206,8 @@ class MixedScaleCapture:
     identification : FaceIdentification or None
         The automatic identification in that frame (None: ``identify`` callables given).
     seconds : dict of str -> float
+        Seconds per stage (``"identification"``: the automatic identification, a part of
+        ``"marker tracking"``).
     params : MixedScaleParams
     """
 
@@ -277,6 +279,7 @@ class _State:
     starts: list | None = None
     first: int = 0
     identification: FaceIdentification | None = None
+    identify_seconds: float = float("nan")
     xy: np.ndarray | None = None
     points: np.ndarray | None = None
     pairs: np.ndarray | None = None
@@ -350,9 +353,11 @@ def _marker_tracking(st: _State) -> None:
     p = st.params
     st.first = first_settled(st.times, st.head_since, p.settle)
     if st.identify is None:
+        t0 = time.perf_counter()
         st.identification = identify_face_markers(
             st.images[:, st.first], st.heads, st.settings[:, st.first], st.face_model,
             params=p.identify)
+        st.identify_seconds = time.perf_counter() - t0
         st.starts = list(st.identification.xy)
     else:
         st.starts = [as_array(f(st.times[st.first], st.settings[k, st.first]),
@@ -504,6 +509,8 @@ def capture_mixed_scale(ceiling: CeilingFeed, heads, devices, identify, face_mod
         t0 = time.perf_counter()
         stage(st)
         seconds[name] = time.perf_counter() - t0
+    if st.identification is not None:        # part of "marker tracking"
+        seconds["identification"] = st.identify_seconds
     return MixedScaleCapture(times=times, tracking=st.tracker.result(), head_id=st.head_id,
                              coasted=st.coasted, aim_points=st.aim_points, commands=st.commands,
                              settings=st.settings,

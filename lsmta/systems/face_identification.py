@@ -30,7 +30,9 @@ angles:
    (:meth:`lsmta.face.FaceModel.fill`: pose and expression weights); the lowest cost wins;
 5. *labels*: each head's dots assigned to the fitted face projected (within ``gate_px``),
    a dot seen by one head only included; a marker projected within ``crowd_px`` of
-   another that got no dot is left unlabelled (the two dots merged into one blob).
+   another that got no dot is left unlabelled (the two dots merged into one blob). A fit
+   whose labelled markers lie farther than ``max_residual_mm`` (RMS) from the fitted face
+   has wrong labels in it: then nothing is labelled (a face turned far from the heads).
 
 The cost of a labelling is the summed squared image distance of the pairs plus ``gate**2``
 for every dot left without a marker.
@@ -97,6 +99,10 @@ class IdentifyParams:
         ``-expression_mm`` to ``+expression_mm`` mm at the marker it moves most.
     min_points : int
         Fewest triangulated markers a fit needs.
+    max_residual_mm : float
+        The labelled markers' RMS distance from the fitted face above which the
+        identification is refused (nothing labelled), mm: right labels fit to about 1 mm
+        at the heads' 0.1° read-back, a labelling with wrong ones in it to 2 mm and more.
     """
 
     sigma: float = 1.5
@@ -109,11 +115,12 @@ class IdentifyParams:
     gate_steps: tuple = (12.0, 6.0, 3.0, 1.0)
     n_angles: int = 12
     n_iter: int = 10
-    n_iter_start: int = 3
+    n_iter_start: int = 10
     n_poses: int = 3
     expression_mm: float = 20.0
     n_expressions: int = 9
     min_points: int = 6
+    max_residual_mm: float = 1.5
 
     def __post_init__(self):
         for key in ("sigma", "min_strength", "max_ray_distance", "max_px", "gate_px"):
@@ -131,6 +138,7 @@ class IdentifyParams:
         as_int(self.n_expressions, "n_expressions", minimum=1)
         as_scalar(self.expression_mm, "expression_mm", nonnegative=True)
         as_int(self.min_points, "min_points", minimum=3)
+        as_scalar(self.max_residual_mm, "max_residual_mm", positive=True)
 
 
 @dataclass(frozen=True, eq=False)
@@ -150,7 +158,8 @@ class FaceIdentification:
     n_points : int
         Dots matched across the heads by stereo and triangulated (unlabelled).
     residual_mm : float
-        RMS distance of the paired points from the fitted face, mm (NaN: none).
+        RMS distance of the labelled triangulated markers from the fitted face, mm (NaN:
+        none).
     """
 
     xy: np.ndarray
@@ -421,7 +430,9 @@ def identify_face_markers(images, heads, settings, face_model: FaceModel, *,
     FaceIdentification
         Nothing passed in is modified. When fewer than ``params.min_points`` dots are
         matched across the heads, or no fit keeps that many, nothing is identified (every
-        ``xy`` NaN): a frame without the face, or one whose dots merge.
+        ``xy`` NaN): a frame without the face, or one whose dots merge; nor when the best
+        fit's residual exceeds ``params.max_residual_mm`` (its ``face`` and
+        ``residual_mm`` are kept, to see why).
     """
     p = IdentifyParams() if params is None else params
     if not isinstance(p, IdentifyParams):
@@ -470,5 +481,8 @@ def identify_face_markers(images, heads, settings, face_model: FaceModel, *,
     ok = np.isfinite(points).all(axis=1)
     resid = float(np.sqrt(np.mean(np.sum((face[ok] - points[ok]) ** 2, axis=1)))) \
         if ok.any() else float("nan")
+    if not resid <= p.max_residual_mm:          # a fit this poor has wrong labels in it
+        return FaceIdentification(**{**nothing, "n_points": len(X), "face": face,
+                                     "residual_mm": resid})
     return FaceIdentification(xy=xy, points=points, face=face, dots=dots, n_points=len(X),
                               residual_mm=resid)

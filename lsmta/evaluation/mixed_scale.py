@@ -9,6 +9,8 @@ after the fact against the truth.
 * :func:`walk_inputs` — what the system receives for a walk: the ceiling feed, the heads
   as devices, hand labels of a frame of each, a face model learnt from another capture;
 * :func:`score_capture` — the error budget per stage against the truth;
+* :func:`label_score` — the face markers' first-frame labels (automatic or by hand)
+  against the generator's: the share labelled correctly;
 * :func:`exact_readback` — a controlled study: the same marker images triangulated at the
   angles the heads were at, as if they reported them exactly.
 """
@@ -292,6 +294,60 @@ def score_capture(capture: MixedScaleCapture, scene: MixedScaleScene, devices, *
                             in_frame=in_frame, centre_px=centre_px, aim_error=aim_error,
                             led=led, led_rms_mm=float(led.rms_mm), marker_px=marker_px,
                             readback_deg=readback)
+
+
+@dataclass(frozen=True)
+class LabelScore:
+    """First-frame labels against the generator's (:func:`label_score`).
+
+    Attributes
+    ----------
+    correct, wrong, missed : int
+        Marker images (over heads) labelled with the marker's own dot; labelled with any
+        other position (another marker's dot, or none drawn there); drawn but not labelled.
+    """
+
+    correct: int
+    wrong: int
+    missed: int
+
+    @property
+    def share_correct(self) -> float:
+        """Correct labels over all labels given (NaN: none given)."""
+        n = self.correct + self.wrong
+        return self.correct / n if n else float("nan")
+
+    @property
+    def coverage(self) -> float:
+        """Correct labels over the marker images drawn."""
+        n = self.correct + self.wrong + self.missed
+        return self.correct / n if n else float("nan")
+
+
+def label_score(xy, devices, t: float, *, tol_px: float = 3.0) -> LabelScore:
+    """Score labels ``xy`` (K, M, 2) px (NaN: none) of the frames the ``devices`` grabbed at
+    time ``t`` against the true images of the markers drawn in them: a label is correct
+    when its own marker's true image is the drawn one nearest to it, within ``tol_px``
+    (the centroid of a dot that touches another's is pulled towards it by a pixel or
+    two)."""
+    tol_px = as_scalar(tol_px, "tol_px", positive=True)
+    xy = np.asarray(xy, float)
+    if xy.ndim != 3 or xy.shape[0] != len(devices) or xy.shape[2] != 2:
+        raise ValueError(f"xy: expected an array of shape ({len(devices)}, M, 2), got "
+                         f"{xy.shape}")
+    correct = wrong = missed = 0
+    for k, d in enumerate(devices):
+        tru = d.true_xy(t, d.true_settings(t)[0])
+        given = np.isfinite(xy[k]).all(axis=1)
+        drawn = np.isfinite(tru).all(axis=1)
+        to_all = np.nan_to_num(np.linalg.norm(xy[k][:, None] - tru[None], axis=2),
+                               nan=np.inf)
+        own = np.arange(len(tru))
+        ok = given & drawn & (to_all.argmin(axis=1) == own) & (to_all[own, own] <= tol_px)
+        correct += int(ok.sum())
+        wrong += int((given & ~ok).sum())
+        missed += int((drawn & ~given).sum())
+    return LabelScore(correct=correct, wrong=wrong, missed=missed)
 
 
 @dataclass(frozen=True, eq=False)

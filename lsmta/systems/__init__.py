@@ -22,6 +22,9 @@ never the generator's truth: nothing here imports :mod:`lsmta.synth` or
               per frame
 ``ceiling``   its ceiling input (CeilingFeed), checked, in arrival order
 ``close_up``  pieces of its close-up stages: the first settled frame, re-acquisition seeds
+``face_identification`` the face markers identified without an operator: dots, stereo, the
+              face model's layout fitted (rigid ICP with an optimal assignment, then its
+              expressions) and each dot labelled
 ``checks``    argument checks shared by the systems (cameras, videos, heads as devices)
 """
 
@@ -37,6 +40,7 @@ from .capture import (
 )
 from .ceiling import CeilingFeed
 from .close_up import first_settled, reacquisition_seeds
+from .face_identification import FaceIdentification, IdentifyParams, identify_face_markers
 from .markers import MarkerCapture, MarkerParams, Tracker2D, capture_markers
 from .mixed_scale import (
     MixedScaleCapture,
@@ -56,6 +60,7 @@ __all__ = [
     "FilterParams", "MixedScaleCapture", "MixedScaleParams", "capture_mixed_scale",
     "triangulate_frames",
     "first_settled", "reacquisition_seeds",
+    "FaceIdentification", "IdentifyParams", "identify_face_markers",
     "RigCalibration", "RigRefinement", "RigRefinementParams", "SurfaceParams", "calibrate_rig",
     "capture_body", "fit_arm", "refine_rig",
     "fit_self_consistent", "measure_surfaces", "observed_frames", "track_surface",

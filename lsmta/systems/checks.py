@@ -61,18 +61,20 @@ def check_videos(videos, name: str, cameras, *, min_frames: int = 2) -> np.ndarr
 
 def check_heads(heads, devices, identify) -> tuple:
     """Lists of K >= 2 calibrated :class:`~lsmta.pantilt.PanTiltCamera`, K devices (with
-    ``command(t, setting)`` and ``grab(t)``) and K callables ``identify[k](t, setting)``."""
-    heads, devices, identify = list(heads), list(devices), list(identify)
+    ``command(t, setting)`` and ``grab(t)``) and K callables ``identify[k](t, setting)``
+    (or None: identified automatically)."""
+    heads, devices = list(heads), list(devices)
+    identify = None if identify is None else list(identify)
     if len(heads) < 2 or not all(isinstance(h, PanTiltCamera) for h in heads):
         raise TypeError("heads: expected at least 2 calibrated lsmta.pantilt.PanTiltCamera")
     for name, v in (("devices", devices), ("identify", identify)):
-        if len(v) != len(heads):
+        if v is not None and len(v) != len(heads):
             raise ValueError(f"{name}: expected one per head ({len(heads)}), got {len(v)}")
     for k, d in enumerate(devices):
         if not (callable(getattr(d, "command", None)) and callable(getattr(d, "grab", None))):
             raise TypeError(f"devices[{k}]: expected an object with command(t, setting) and "
                             "grab(t) -> (image, setting)")
-    for k, f in enumerate(identify):
+    for k, f in enumerate(identify or ()):
         if not callable(f):
             raise TypeError(f"identify[{k}]: expected a callable (t, setting) -> (M, 2) px")
     return heads, devices, identify

@@ -4,10 +4,12 @@ track LEDs on the body, their estimate steers pan-tilt heads, the heads film the
 What goes in is what a user has: the ceiling cameras' frames with their time stamps and
 frames of the empty room, the ceiling cameras and the pan-tilt heads as the library
 calibrated them, the heads themselves as devices (they take commands and return a frame and
-the angles they report), a first-frame identification of the face markers per head (by
-hand), and a face model learnt from an earlier capture. The system sees nothing else; how
-realistic those inputs are is the caller's affair (notebook 15 says what its simulation
-gives). :func:`capture_mixed_scale` runs the stages:
+the angles they report), and a face model learnt from an earlier capture. The face markers
+are identified by the system itself (:mod:`~lsmta.systems.face_identification`), or, for a
+controlled study, by callables that stand for an operator labelling one frame per head by
+hand, as the thesis does. The system sees nothing else; how realistic those inputs are is
+the caller's affair (notebook 15 says what its simulation gives).
+:func:`capture_mixed_scale` runs the stages:
 
 1. *closed loop*, one tick per pan-tilt frame (``params.video_rate``): every ceiling frame
    that has arrived is searched for LEDs (:func:`~lsmta.widearea.detect`, thresholds
@@ -20,8 +22,10 @@ gives). :func:`capture_mixed_scale` runs the stages:
    angles the heads report before any command); each head then grabs its frame at the
    angles its motors reached and reports them;
 2. *marker tracking* in each head's close-up video (:func:`~lsmta.tracking.markers.
-   track_markers`), started from the hand identification of the first frame at which the
-   heads have followed the same target for ``params.settle`` s;
+   track_markers`), started from the identification of the first frame at which the heads
+   have followed the same target for ``params.settle`` s: automatic
+   (:func:`~lsmta.systems.face_identification.identify_face_markers`: dots, the face model's
+   layout fitted and assigned, ``params.identify``) or the ``identify`` callables;
 3. *triangulation* of every frame from a single pair of heads
    (:func:`~lsmta.triangulation.triangulate_single_pair`), each head the calibrated model
    at its read-back angles (:meth:`~lsmta.pantilt.PanTiltCamera.camera_at`);
@@ -58,6 +62,7 @@ from ..widearea import (
 from .ceiling import CeilingFeed, arrival_order, check_ceiling_feed
 from .checks import check_heads
 from .close_up import first_settled, reacquisition_seeds
+from .face_identification import FaceIdentification, IdentifyParams, identify_face_markers
 
 
 @dataclass(frozen=True)
@@ -111,6 +116,10 @@ class MixedScaleParams:
     dot_contrast : float
         A projected marker starts again only where the image is brighter than its 9 x 9
         neighbourhood's median by this much, grey levels (a dot is there, not skin).
+    identify : IdentifyParams
+        The automatic identification of the face markers in the first settled frame
+        (:func:`~lsmta.systems.face_identification.identify_face_markers`), used when no
+        ``identify`` callables are given.
     """
 
     video_rate: float = 30.0
@@ -135,6 +144,7 @@ class MixedScaleParams:
     settle: float = 0.5
     reacquire: int = 2
     dot_contrast: float = 30.0
+    identify: IdentifyParams = field(default_factory=IdentifyParams)
 
     def __post_init__(self):
         for key in ("video_rate", "threshold_sigmas", "min_angle_deg", "max_reprojection_px",
@@ -148,6 +158,8 @@ class MixedScaleParams:
             raise ValueError(f"stop: expected a time after start={self.start}, got {self.stop}")
         if not isinstance(self.estimator, EstimatorParams):
             raise TypeError("estimator: expected an lsmta.widearea.EstimatorParams")
+        if not isinstance(self.identify, IdentifyParams):
+            raise TypeError("identify: expected an lsmta.systems.IdentifyParams")
 
     @property
     def steering(self) -> SteeringParams:
@@ -189,7 +201,13 @@ class MixedScaleCapture:
         The face per frame, gaps filled from the face model.
     body : (F, N, 3) array
         Every LED track's position at the frame times, mm (NaN when not alive).
+    first : int
+        The frame in which the face markers were identified (the first settled one).
+    identification : FaceIdentification or None
+        The automatic identification in that frame (None: ``identify`` callables given).
     seconds : dict of str -> float
+        Seconds per stage (``"identification"``: the automatic identification, a part of
+        ``"marker tracking"``).
     params : MixedScaleParams
     """
 
@@ -207,6 +225,8 @@ class MixedScaleCapture:
     pairs: np.ndarray
     face: FaceFit
     body: np.ndarray
+    first: int
+    identification: FaceIdentification | None
     seconds: dict
     params: MixedScaleParams
 
@@ -219,7 +239,11 @@ class MixedScaleCapture:
                             f"{int(tr.frames_used.sum())} ceiling frames used; commands in "
                             f"{int((self.head_id >= 0).sum())} ticks "
                             f"({int(self.coasted.sum())} coasted on the body)"),
-            ("marker tracking", f"{found.mean():.1%} of marker images found per head"),
+            ("marker tracking", f"{found.mean():.1%} of marker images found per head; "
+                                + ("identified by the callables" if self.identification
+                                   is None else "identified automatically: "
+                                   f"{int(self.identification.labelled.sum())} marker images")
+                                + f" at t = {self.times[self.first]:.2f} s"),
             ("triangulation", f"{np.isfinite(self.points).all(axis=2).mean():.1%} of markers "
                               "triangulated"),
             ("fill", f"{int(self.face.fitted.sum())} of {len(self.times)} frames fitted"),
@@ -238,7 +262,7 @@ class _State:
     feed: CeilingFeed
     heads: list
     devices: list
-    identify: list
+    identify: list | None
     face_model: FaceModel
     params: MixedScaleParams
     progress: bool
@@ -254,6 +278,8 @@ class _State:
     markers: list | None = None
     starts: list | None = None
     first: int = 0
+    identification: FaceIdentification | None = None
+    identify_seconds: float = float("nan")
     xy: np.ndarray | None = None
     points: np.ndarray | None = None
     pairs: np.ndarray | None = None
@@ -326,9 +352,17 @@ def _grab(device, t: float, k: int):
 def _marker_tracking(st: _State) -> None:
     p = st.params
     st.first = first_settled(st.times, st.head_since, p.settle)
-    st.starts = [as_array(f(st.times[st.first], st.settings[k, st.first]),
-                          f"identify[{k}](...)", shape=(None, 2), allow_nan=True)
-                 for k, f in enumerate(st.identify)]
+    if st.identify is None:
+        t0 = time.perf_counter()
+        st.identification = identify_face_markers(
+            st.images[:, st.first], st.heads, st.settings[:, st.first], st.face_model,
+            params=p.identify)
+        st.identify_seconds = time.perf_counter() - t0
+        st.starts = list(st.identification.xy)
+    else:
+        st.starts = [as_array(f(st.times[st.first], st.settings[k, st.first]),
+                              f"identify[{k}](...)", shape=(None, 2), allow_nan=True)
+                     for k, f in enumerate(st.identify)]
     _track(st, None)
 
 
@@ -418,8 +452,8 @@ STAGES = (("closed loop", _closed_loop), ("marker tracking", _marker_tracking),
           ("re-acquisition", _reacquisition), ("body", _body))
 
 
-def capture_mixed_scale(ceiling: CeilingFeed, heads, devices, identify, face_model: FaceModel, *,
-                        params: MixedScaleParams | None = None, keep_images: bool = True,
+def capture_mixed_scale(ceiling: CeilingFeed, heads, devices, identify, face_model: FaceModel,
+                        *, params: MixedScaleParams | None = None, keep_images: bool = True,
                         progress: bool = True) -> MixedScaleCapture:
     """Run the mixed-scale system: LEDs tracked from the ceiling steer the pan-tilt heads,
     whose close-up videos give the face per frame (see the module).
@@ -434,10 +468,13 @@ def capture_mixed_scale(ceiling: CeilingFeed, heads, devices, identify, face_mod
         The heads themselves: ``command(t, setting)`` sends a (pan, tilt) in degrees at time
         ``t`` (s); ``grab(t)`` returns the frame ``(H, W)`` at ``t`` and the setting the head
         reports (its motors' angles, degrees).
-    identify : sequence of K callables
-        ``identify[k](t, setting)``: the M face markers identified by hand in head k's frame
-        at time ``t`` (the first frame at which the heads have followed the same target
-        for ``params.settle`` s), ``(M, 2)`` px, NaN for markers not seen.
+    identify : sequence of K callables or None
+        None: the face markers are identified automatically in the first frame at which the
+        heads have followed the same target for ``params.settle`` s
+        (:func:`~lsmta.systems.face_identification.identify_face_markers`: dots, stereo,
+        the face model's layout fitted and assigned). Or ``identify[k](t, setting)``: the M
+        face markers identified by hand in head k's frame at time ``t`` (that frame),
+        ``(M, 2)`` px, NaN for markers not seen.
     face_model : lsmta.face.FaceModel
         Learnt from an earlier capture of the same markers (:func:`lsmta.face.learn`).
     params : MixedScaleParams, optional
@@ -472,10 +509,13 @@ def capture_mixed_scale(ceiling: CeilingFeed, heads, devices, identify, face_mod
         t0 = time.perf_counter()
         stage(st)
         seconds[name] = time.perf_counter() - t0
+    if st.identification is not None:        # part of "marker tracking"
+        seconds["identification"] = st.identify_seconds
     return MixedScaleCapture(times=times, tracking=st.tracker.result(), head_id=st.head_id,
                              coasted=st.coasted, aim_points=st.aim_points, commands=st.commands,
                              settings=st.settings,
                              images=st.images if keep_images else None, markers=st.markers,
                              xy=st.xy, points=st.points, pairs=st.pairs, face=st.face,
-                             body=st.body, seconds=seconds, params=p)
+                             body=st.body, first=st.first,
+                             identification=st.identification, seconds=seconds, params=p)
 

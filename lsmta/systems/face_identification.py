@@ -1,0 +1,488 @@
+"""Face markers identified without an operator: which dot in each pan-tilt head's frame is
+which marker of the face model (Davis 2002 labels them once, by hand; issue 39).
+
+:func:`identify_face_markers` works on one frame of every head, at the heads' read-back
+angles:
+
+1. *dots*: bright round blobs in each frame (:func:`~lsmta.tracking.markers.find_blobs`,
+   the detector the marker systems use), and their rays;
+2. *stereo*: the dots of each pair of heads matched one to one by the distance between
+   their rays (the epipolar constraint at the heads' calibrated models; an optimal
+   assignment, :func:`scipy.optimize.linear_sum_assignment`) and triangulated: unlabelled
+   3-D points. With two heads side by side the epipolar lines run along the face's rows of
+   dots, so many of these matches pair a dot with its neighbour (on notebook 15's scene
+   about three in four): they only give where the face is (their median) and how far;
+3. *rigid fit and assignment* (ICP): the face model's mean face (``basis.reference``) is
+   placed there, its thinnest principal axis (the face's normal, either sign) turned
+   towards the heads, and onto the stereo points' own thinnest axis, and turned about it
+   in ``n_angles`` steps. From each start: each
+   head's dots are assigned to the projected markers (an optimal assignment, pairs within
+   a gate), the markers with a dot in two heads triangulated (a pair that reprojects
+   farther than ``max_px`` is two markers' dots and left out), the rigid motion fitted to
+   them (:func:`~lsmta.rigid.fit_rigid`, the farthest left out), and again until the
+   labels no longer change, with the gate shrinking (``gate_steps``). Labels are decided
+   in the images, where the dots are distinct, not among the ambiguous stereo points. The
+   ``n_poses`` best starts after the widest gate are carried on; the lowest cost wins;
+4. *expression*: an expression moves markers by up to 16 mm, twice their spacing, so the
+   mean face alone mislabels the mouth. From the rigid pose, ``n_expressions`` faces along
+   the model's main expression (``±expression_mm`` at the marker it moves most) start the
+   same loop with the face model fitted instead of a rigid motion
+   (:meth:`lsmta.face.FaceModel.fill`: pose and expression weights); the lowest cost wins;
+5. *labels*: each head's dots assigned to the fitted face projected (within ``gate_px``),
+   a dot seen by one head only included; a marker projected within ``crowd_px`` of
+   another that got no dot is left unlabelled (the two dots merged into one blob). A fit
+   whose labelled markers lie farther than ``max_residual_mm`` (RMS) from the fitted face
+   has wrong labels in it: then nothing is labelled (a face turned far from the heads).
+
+The cost of a labelling is the summed squared image distance of the pairs plus ``gate**2``
+for every dot left without a marker.
+
+Why not SAPM (:mod:`lsmta.sapm`): it is made for a body of articulated rigid parts seen by
+many cameras, with candidate instances per part; a face is one part whose markers differ
+only in their layout and the expression's shift, which a fit of the face model with an
+optimal assignment uses whole, and the face model already describes the expressions.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from .._validate import as_array, as_int, as_scalar
+from ..face import FaceModel
+from ..pantilt import PanTiltCamera
+from ..rigid import fit_rigid
+from ..tracking.correspondence import ray_distances
+from ..tracking.markers import find_blobs
+from ..triangulation import intersect_rays
+
+
+@dataclass(frozen=True)
+class IdentifyParams:
+    """Settings of :func:`identify_face_markers`.
+
+    Attributes
+    ----------
+    sigma, min_strength, spacing : float, float, int
+        The dot detector's scale (px), contrast (grey levels) and the square in which a dot
+        is the strongest (px) (:func:`~lsmta.tracking.markers.find_blobs`); the heads' dots
+        are about 1.3 px Gaussians at least 6 px apart.
+    max_ray_distance : float
+        Largest distance between the rays of a stereo match, mm (room for the read-back's
+        0.05°, 2.6 mm at 3 m).
+    max_px : float
+        A labelled marker whose triangulation reprojects farther than this from its dot in
+        a head is left out of the fits, px (as :class:`~lsmta.systems.MixedScaleParams`'s
+        ``max_reprojection_px``).
+    gate_px : float
+        A projected marker and a dot farther apart than this are not paired in the final
+        labels, px (the heads' dots are at least 6 px apart).
+    crowd_px : float
+        A marker whose projection lies closer than this to that of another marker left
+        without a dot is left unlabelled too (their dots merged into one blob), px.
+    gate_steps : tuple of float
+        The fits' gates, as multiples of ``gate_px``, widest first (the start may be off by
+        half a step of ``n_angles``, a centimetre at the face's edge).
+    n_angles : int
+        Start angles about the face's normal, for each of its two signs.
+    n_iter : int
+        Assignment and fit passes per gate, at most.
+    n_iter_start : int
+        Passes per start at the widest gate, to rank the starts.
+    n_poses : int
+        Starts carried on (best first) from there through every gate.
+    expression_mm, n_expressions : float, int
+        Faces tried along the model's main expression: ``n_expressions`` evenly from
+        ``-expression_mm`` to ``+expression_mm`` mm at the marker it moves most.
+    min_points : int
+        Fewest triangulated markers a fit needs.
+    max_residual_mm : float
+        The labelled markers' RMS distance from the fitted face above which the
+        identification is refused (nothing labelled), mm: right labels fit to about 1 mm
+        at the heads' 0.1° read-back, a labelling with wrong ones in it to 2 mm and more.
+    """
+
+    sigma: float = 1.5
+    min_strength: float = 20.0
+    spacing: int = 5
+    max_ray_distance: float = 5.0
+    max_px: float = 4.0
+    gate_px: float = 4.0
+    crowd_px: float = 5.0
+    gate_steps: tuple = (12.0, 6.0, 3.0, 1.0)
+    n_angles: int = 12
+    n_iter: int = 10
+    n_iter_start: int = 10
+    n_poses: int = 3
+    expression_mm: float = 20.0
+    n_expressions: int = 9
+    min_points: int = 6
+    max_residual_mm: float = 1.5
+
+    def __post_init__(self):
+        for key in ("sigma", "min_strength", "max_ray_distance", "max_px", "gate_px"):
+            as_scalar(getattr(self, key), key, positive=True)
+        as_scalar(self.crowd_px, "crowd_px", nonnegative=True)
+        as_int(self.spacing, "spacing", minimum=1)
+        as_int(self.n_iter, "n_iter", minimum=1)
+        as_int(self.n_angles, "n_angles", minimum=1)
+        as_int(self.n_poses, "n_poses", minimum=1)
+        as_int(self.n_iter_start, "n_iter_start", minimum=1)
+        steps = as_array(self.gate_steps, "gate_steps", shape=(None,))
+        if not len(steps) or (steps < 1).any():
+            raise ValueError(f"gate_steps: expected factors >= 1 of gate_px, got "
+                             f"{self.gate_steps}")
+        as_int(self.n_expressions, "n_expressions", minimum=1)
+        as_scalar(self.expression_mm, "expression_mm", nonnegative=True)
+        as_int(self.min_points, "min_points", minimum=3)
+        as_scalar(self.max_residual_mm, "max_residual_mm", positive=True)
+
+
+@dataclass(frozen=True, eq=False)
+class FaceIdentification:
+    """Result of :func:`identify_face_markers`.
+
+    Attributes
+    ----------
+    xy : (K, M, 2) array
+        Each marker's dot in each head's frame, px (NaN: no dot given that marker).
+    points : (M, 3) array
+        The labelled triangulated points, mm (NaN: the marker has no stereo point).
+    face : (M, 3) array
+        The face model fitted to them, every marker, mm (NaN when nothing was identified).
+    dots : list of K (D_k, 2) arrays
+        The dots found in each frame, px.
+    n_points : int
+        Dots matched across the heads by stereo and triangulated (unlabelled).
+    residual_mm : float
+        RMS distance of the labelled triangulated markers from the fitted face, mm (NaN:
+        none).
+    """
+
+    xy: np.ndarray
+    points: np.ndarray
+    face: np.ndarray
+    dots: list
+    n_points: int
+    residual_mm: float
+
+    @property
+    def labelled(self) -> np.ndarray:
+        """(K, M) bool: markers given a dot in each head."""
+        return np.isfinite(self.xy).all(axis=2)
+
+
+def _rotation_to(a, b):
+    """The rotation carrying unit vector ``a`` onto unit vector ``b`` (about their cross
+    product; a half turn about a perpendicular axis when they are opposite)."""
+    v, c = np.cross(a, b), float(a @ b)
+    if c < -1 + 1e-12:
+        u = np.cross(a, [1.0, 0, 0] if abs(a[0]) < 0.9 else [0, 1.0, 0])
+        u /= np.linalg.norm(u)
+        return 2 * np.outer(u, u) - np.eye(3)
+    V = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    return np.eye(3) + V + V @ V / (1 + c)
+
+
+def _about(axis, angle):
+    """Rotation by ``angle`` (radians) about unit vector ``axis``."""
+    V = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * V + (1 - np.cos(angle)) * V @ V
+
+
+def _thinnest(P):
+    """The unit axis along which points ``P`` (N, 3) vary least."""
+    return np.linalg.svd(P - P.mean(axis=0), full_matrices=False)[2][2]
+
+
+def _starts(ref, normals, n_angles):
+    """Start rotations: the reference's thinnest principal axis (the face's normal, either
+    sign) turned onto each of ``normals`` (unit vectors), then turned about it by
+    ``n_angles`` equal steps."""
+    normal = _thinnest(ref)
+    out = []
+    for towards in normals:
+        for s in (1.0, -1.0):
+            R0 = _rotation_to(s * normal, towards)
+            out += [_about(towards, a) @ R0
+                    for a in np.linspace(0, 2 * np.pi, n_angles, endpoint=False)]
+    return out
+
+
+def _assign(Y, X, gate):
+    """Optimal one-to-one pairs of rows of ``Y`` (M, d) and ``X`` (P, d) within ``gate``
+    (NaN rows of ``Y`` take no part). Returns (row of Y, row of X, cost), the cost counting
+    ``gate**2`` for every row of ``X`` left without a partner."""
+    ok = np.flatnonzero(np.isfinite(Y).all(axis=1))
+    if not len(ok) or not len(X):
+        return np.zeros(0, int), np.zeros(0, int), gate**2 * len(X)
+    C = np.minimum(np.sum((Y[ok, None] - X[None]) ** 2, axis=2), gate**2)
+    r, c = linear_sum_assignment(C)
+    keep = C[r, c] < gate**2
+    cost = C[r[keep], c[keep]].sum() + gate**2 * (len(X) - keep.sum())
+    return ok[r[keep]], c[keep], float(cost)
+
+
+class _Frame:
+    """One frame of every head: the cameras at the read-back angles, the dots and their
+    rays, and the largest reprojection error of a labelled marker's triangulation."""
+
+    def __init__(self, cams, dots, max_px):
+        self.cams, self.dots, self.max_px = cams, dots, max_px
+        self.rays = [cam.rays(d) if len(d) else (np.zeros((0, 3)), np.zeros((0, 3)))
+                     for cam, d in zip(cams, dots)]
+
+    def label(self, face, gate):
+        """Each head's dots assigned to ``face`` (M, 3) projected: the dot of each marker
+        in each head (K, M) int (-1: none) and the summed cost."""
+        idx = np.full((len(self.cams), len(face)), -1)
+        cost = 0.0
+        on = np.isfinite(face).all(axis=1)
+        for k, cam in enumerate(self.cams):
+            proj = np.full((len(face), 2), np.nan)
+            if on.any():
+                proj[on] = cam.project(face[on], behind="nan")
+            m, d, c = _assign(proj, self.dots[k], gate)
+            idx[k, m] = d
+            cost += c
+        return idx, cost
+
+    def xy(self, idx):
+        """(K, M, 2) px of labels ``idx`` (NaN: none)."""
+        out = np.full(idx.shape + (2,), np.nan)
+        for k, d in enumerate(self.dots):
+            on = idx[k] >= 0
+            out[k, on] = d[idx[k, on]]
+        return out
+
+    def points(self, idx):
+        """The markers with a dot in at least two heads, triangulated: (M, 3), NaN elsewhere
+        and where the intersection reprojects farther than ``max_px`` from a dot (dots of
+        two different markers)."""
+        K, M = idx.shape
+        if not M:
+            return np.zeros((0, 3))
+        o = np.full((K, M, 3), np.nan)
+        d = np.full((K, M, 3), np.nan)
+        for k, (ro, rd) in enumerate(self.rays):
+            on = idx[k] >= 0
+            o[k, on], d[k, on] = ro[idx[k, on]], rd[idx[k, on]]
+        X = intersect_rays(o, d).points
+        xy = self.xy(idx)
+        for k, cam in enumerate(self.cams):
+            on = np.isfinite(X).all(axis=1) & (idx[k] >= 0)
+            if on.any():
+                e = np.linalg.norm(cam.project(X[on], behind="nan") - xy[k, on], axis=1)
+                bad = np.flatnonzero(on)[~(e <= self.max_px)]
+                X[bad] = np.nan
+        return X
+
+    def stereo(self, max_ray_distance):
+        """Unlabelled 3-D points: the dots of each pair of heads matched one to one by the
+        distance between their rays (the epipolar constraint; an optimal assignment, pairs
+        within ``max_ray_distance`` mm) and intersected."""
+        out = []
+        for a, b in itertools.combinations(range(len(self.cams)), 2):
+            if not len(self.dots[a]) or not len(self.dots[b]):
+                continue
+            D = ray_distances(self.rays[a], self.rays[b])
+            i, j = linear_sum_assignment(np.minimum(D, max_ray_distance))
+            keep = D[i, j] < max_ray_distance
+            idx = np.full((len(self.cams), keep.sum()), -1)
+            idx[a], idx[b] = i[keep], j[keep]
+            out.append(self.points(idx))
+        X = np.concatenate(out) if out else np.zeros((0, 3))
+        return X[np.isfinite(X).all(axis=1)]
+
+
+def _trimmed(X, face):
+    """``X`` with the points farther from ``face`` than three times their median distance
+    (plus 1 mm) set to NaN: wrong labels left out of a fit."""
+    d = np.linalg.norm(X - face, axis=1)
+    if not np.isfinite(d).any():
+        return X
+    with np.errstate(invalid="ignore"):
+        far = d > 3 * np.nanmedian(d) + 1.0
+    return np.where(far[:, None], np.nan, X)
+
+
+def _rigid(frame, shape, R, t, gates, n_iter, min_points):
+    """ICP: alternate labels (each head's dots assigned to ``shape`` posed by R, t) and the
+    rigid motion fitted to the triangulated labelled markers (trimmed), for each gate in
+    turn, until the labels no longer change. Returns R, t, cost at the last gate."""
+    cost = np.inf
+    for gate in gates:
+        last = None
+        for _ in range(n_iter):
+            xy, cost = frame.label(shape @ R.T + t, gate)
+            if last is not None and np.array_equal(xy, last):
+                break
+            last = xy
+            X = _trimmed(frame.points(xy), shape @ R.T + t)
+            ok = np.isfinite(X).all(axis=1)
+            if ok.sum() < min_points:
+                return R, t, np.inf
+            R, t = fit_rigid(shape[ok], X[ok])
+            if not (np.isfinite(R).all() and np.isfinite(t).all()):
+                return R, t, np.inf
+    return R, t, cost
+
+
+def _shaped(frame, face_model, face, gates, n_iter, min_points):
+    """Alternate labels and the face model fitted to the triangulated labelled markers
+    (trimmed), for each gate in turn. Returns the face (M, 3) and the cost."""
+    cost = np.inf
+    for gate in gates:
+        last = None
+        for _ in range(n_iter):
+            xy, cost = frame.label(face, gate)
+            if last is not None and np.array_equal(xy, last):
+                break
+            last = xy
+            X = _trimmed(frame.points(xy), face)
+            if np.isfinite(X).all(axis=1).sum() < min_points:
+                return face, np.inf
+            fit = face_model.fill(X[None])
+            if not fit.fitted[0]:
+                return face, np.inf
+            face = fit.model[0]
+    return face, cost
+
+
+def _expression(face_model):
+    """The face model's main expression direction (M, 3), scaled to 1 mm at the marker it
+    moves most: its first principal direction (or the extreme faces' main variation)."""
+    b = face_model.basis
+    v = np.asarray(b.vectors, float)
+    if b.kind == "pca":
+        if len(v) < 2:
+            return np.zeros_like(v[0])
+        d = v[1]
+    else:
+        D = (v - v.mean(axis=0)).reshape(len(v), -1)
+        d = np.linalg.svd(D, full_matrices=False)[2][0].reshape(v.shape[1:])
+    return d / max(np.linalg.norm(d, axis=1).max(), 1e-12)
+
+
+def _uncrowded(idx, cams, face, crowd_px):
+    """Labels ``idx`` (K, M) without the markers projected within ``crowd_px`` of another
+    marker that got no dot in that head (their dots merged into one blob)."""
+    idx = idx.copy()
+    for k, cam in enumerate(cams):
+        proj = cam.project(face, behind="nan")
+        d = np.nan_to_num(np.linalg.norm(proj[:, None] - proj[None], axis=2), nan=np.inf)
+        np.fill_diagonal(d, np.inf)
+        d[:, idx[k] >= 0] = np.inf                # a neighbour with its own dot is apart
+        idx[k, d.min(axis=1) < crowd_px] = -1
+    return idx
+
+
+def _check(images, heads, settings, face_model):
+    heads = list(heads)
+    if len(heads) < 2 or not all(isinstance(h, PanTiltCamera) for h in heads):
+        raise TypeError("heads: expected at least 2 calibrated lsmta.pantilt.PanTiltCamera")
+    K = len(heads)
+    if not isinstance(face_model, FaceModel):
+        raise TypeError(f"face_model: expected an lsmta.face.FaceModel, got "
+                        f"{type(face_model).__name__}")
+    settings = as_array(settings, "settings", shape=(K, 2))
+    try:
+        imgs = [np.asarray(im) for im in images]
+    except TypeError:
+        raise TypeError("images: expected a sequence of K (H, W) grey frames") from None
+    if len(imgs) != K:
+        raise ValueError(f"images: expected {K} frames, one per head, got {len(imgs)}")
+    for k, (im, h) in enumerate(zip(imgs, heads)):
+        cam = h.camera
+        if im.ndim != 2 or im.shape != (cam.height, cam.width):
+            raise ValueError(f"images: head {k}'s frame has shape {im.shape}; expected "
+                             f"({cam.height}, {cam.width}), the head's grey image")
+        if not (np.issubdtype(im.dtype, np.integer) or np.issubdtype(im.dtype, np.floating)) \
+                or im.dtype == bool:
+            raise TypeError(f"images: head {k}'s frame has dtype {im.dtype}; expected grey "
+                            "levels (uint8 or float)")
+    return imgs, heads, settings
+
+
+def identify_face_markers(images, heads, settings, face_model: FaceModel, *,
+                          params: IdentifyParams | None = None) -> FaceIdentification:
+    """Which dot in each head's frame is which face marker, without an operator (see the
+    module).
+
+    Parameters
+    ----------
+    images : sequence of K (H, W) arrays
+        One frame of each head, grabbed at the same time, grey levels.
+    heads : sequence of K >= 2 PanTiltCamera
+        The heads as calibrated.
+    settings : (K, 2) array
+        The pan and tilt each head reported for its frame, degrees.
+    face_model : lsmta.face.FaceModel
+        The face's markers: its mean face (``basis.reference``, M markers) gives the
+        layout, its basis the expressions.
+    params : IdentifyParams, optional
+
+    Returns
+    -------
+    FaceIdentification
+        Nothing passed in is modified. When fewer than ``params.min_points`` dots are
+        matched across the heads, or no fit keeps that many, nothing is identified (every
+        ``xy`` NaN): a frame without the face, or one whose dots merge; nor when the best
+        fit's residual exceeds ``params.max_residual_mm`` (its ``face`` and
+        ``residual_mm`` are kept, to see why).
+    """
+    p = IdentifyParams() if params is None else params
+    if not isinstance(p, IdentifyParams):
+        raise TypeError(f"params: expected an IdentifyParams, got {type(p).__name__}")
+    imgs, heads, settings = _check(images, heads, settings, face_model)
+    ref = np.asarray(face_model.basis.reference, float)
+    K, M = len(heads), len(ref)
+    cams = [h.camera_at(*settings[k]) for k, h in enumerate(heads)]
+    dots = [find_blobs(im.astype(float), sigma=p.sigma, min_strength=p.min_strength,
+                       spacing=p.spacing) for im in imgs]
+    nothing = dict(xy=np.full((K, M, 2), np.nan), points=np.full((M, 3), np.nan),
+                   face=np.full((M, 3), np.nan), dots=dots, n_points=0,
+                   residual_mm=float("nan"))
+    if sum(len(d) > 0 for d in dots) < 2:
+        return FaceIdentification(**nothing)
+    frame = _Frame(cams, dots, p.max_px)
+    X = frame.stereo(p.max_ray_distance)
+    if len(X) < p.min_points:
+        return FaceIdentification(**{**nothing, "n_points": len(X)})
+    centre = np.median(X, axis=0)
+    towards = np.mean([c.C for c in cams], axis=0) - centre
+    towards /= np.linalg.norm(towards)
+    seen = _thinnest(X)                      # the stereo points' own normal, to the heads
+    normals = [towards, seen if seen @ towards >= 0 else -seen]
+    gates = tuple(p.gate_px * g for g in p.gate_steps)
+    poses = []
+    for R0 in _starts(ref, normals, p.n_angles):
+        t0 = centre - ref.mean(axis=0) @ R0.T
+        poses.append(_rigid(frame, ref, R0, t0, gates[:1], p.n_iter_start, p.min_points))
+    poses = [_rigid(frame, ref, R, t, gates, p.n_iter, p.min_points)
+             for R, t, _ in sorted(poses, key=lambda r: r[2])[:p.n_poses]]
+    R, t, cost = min(poses, key=lambda r: r[2])
+    if not np.isfinite(cost):
+        return FaceIdentification(**{**nothing, "n_points": len(X)})
+    best = (np.inf, ref @ R.T + t)
+    direction = _expression(face_model)
+    for s in np.linspace(-p.expression_mm, p.expression_mm, p.n_expressions):
+        face, cost = _shaped(frame, face_model, (ref + s * direction) @ R.T + t, gates,
+                             p.n_iter, p.min_points)
+        if cost < best[0]:
+            best = (cost, face)
+    face = best[1]
+    idx, _ = frame.label(face, p.gate_px)
+    idx = _uncrowded(idx, cams, face, p.crowd_px)
+    points, xy = frame.points(idx), frame.xy(idx)
+    ok = np.isfinite(points).all(axis=1)
+    resid = float(np.sqrt(np.mean(np.sum((face[ok] - points[ok]) ** 2, axis=1)))) \
+        if ok.any() else float("nan")
+    if not resid <= p.max_residual_mm:          # a fit this poor has wrong labels in it
+        return FaceIdentification(**{**nothing, "n_points": len(X), "face": face,
+                                     "residual_mm": resid})
+    return FaceIdentification(xy=xy, points=points, face=face, dots=dots, n_points=len(X),
+                              residual_mm=resid)

@@ -63,7 +63,7 @@ from scipy.spatial import cKDTree
 from .._validate import as_array, as_int, as_scalar, freeze
 from .full_body import LIMBS, RATIOS, full_body_model, limits, template_size
 from .metaballs import MetaballModel
-from .silhouette import point_derivatives, silhouette_terms
+from .silhouette import point_terms, silhouette_terms
 
 
 @dataclass(frozen=True)
@@ -288,8 +288,8 @@ class _Frame:
             key = x.tobytes()
             if key not in cache:
                 a, b = unpack(x)
-                r = m.distance(self.pts, seg, a, scales, radii, base=b) / p.sigma_point
-                d_th, d_t = point_derivatives(m, self.pts, seg, a, scales, radii, base=b)
+                r, d_th, d_t = point_terms(m, self.pts, seg, a, scales, radii, base=b)
+                r = r / p.sigma_point
                 jac = np.hstack([d_t, d_th[:, free]]) / p.sigma_point
                 if len(origins):
                     s = silhouette_terms(m, origins, dirs, a, scales, radii, near=self.near,
@@ -362,11 +362,15 @@ def _solve_shape(model, frames, angles, base, scales, shape, template, p, *, los
         sparsity = np.vstack([sparsity, np.hstack([np.zeros((L * q, L), bool),
                                                    np.eye(L * q, dtype=bool)])])
 
+    # every frame's points in one call (each point in its own frame)
+    all_pts, all_seg = np.vstack([f.pts for f in frames]), np.concatenate(segs)
+    all_frame = np.concatenate([np.full(len(f.pts), t) for t, f in enumerate(frames)])
+
     def residual(x):
         s, k = x[:L], x[L:].reshape(L, q)
         m, radii = _shaped(model, template, s, k @ basis + keep)
-        r = [m.distance(f.pts, seg, angles[[t]], s, radii, base=base[[t]]) / p.sigma_point
-             for t, (f, seg) in enumerate(zip(frames, segs))]
+        r = [m.distance(all_pts, all_seg, angles, s, radii, base=base, frame=all_frame)
+             / p.sigma_point]
         if free:
             r.append(((k - prior) / prior_sigma).ravel())
         return np.concatenate(r)

@@ -1,5 +1,8 @@
-"""The compiled kernels of the body model, the skin scorer and the renderer against the plain
-numpy code they replaced (issue 35 item 4), on small inputs, to rounding."""
+"""The compiled kernels of the body model, the skin scorer, the renderer and the camera's
+undistortion against the plain numpy code they replaced (issue 35 item 4), on small inputs,
+to rounding."""
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -10,6 +13,7 @@ from lsmta.body.metaballs import field
 from lsmta.body.silhouette import point_derivatives, silhouette_terms
 from lsmta.synth.body import make_body, walk
 from lsmta.synth.render import cast_body
+from lsmta.synth.rigs import triplet_rig
 from lsmta.synth.surface import distance_to_ellipsoid
 
 GOLD = (np.sqrt(5.0) - 1.0) / 2.0
@@ -211,3 +215,30 @@ def test_cast_body_matches_numpy():
         g = poses[p, :3, :3] @ ((x - np.asarray(spec.centre)) / np.asarray(spec.radii) ** 2)
         n[k] = g / np.linalg.norm(g)
     np.testing.assert_allclose(hit.normal[on], n, rtol=0, atol=1e-9)
+
+
+def test_undistort_matches_the_numpy_newton_iterations():
+    cam = dataclasses.replace(triplet_rig(rng=np.random.default_rng(8))[0], k1=-0.35, k2=0.12,
+                              k3=-0.02, p1=0.002, p2=-0.001)
+    xy_d = cam.pixel_to_normalized(cam.pixel_grid(supersample=1)[::9, ::9].reshape(-1, 2))
+    xd, yd = xy_d[:, 0], xy_d[:, 1]
+    x, y = xd.copy(), yd.copy()
+    k1, k2, k3, p1, p2 = cam.k1, cam.k2, cam.k3, cam.p1, cam.p2
+    for _ in range(30):                          # the numpy iterations it replaced
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        g = k1 + r2 * (2 * k2 + 3 * k3 * r2)
+        ex = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x) - xd
+        ey = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y - yd
+        a = radial + 2 * g * x * x + 2 * p1 * y + 6 * p2 * x
+        b = 2 * g * x * y + 2 * p1 * x + 2 * p2 * y
+        d = radial + 2 * g * y * y + 6 * p1 * y + 2 * p2 * x
+        det = a * d - b * b
+        dx, dy = (d * ex - b * ey) / det, (a * ey - b * ex) / det
+        x -= dx
+        y -= dy
+        if np.all(np.abs(dx) + np.abs(dy) < 1e-14):
+            break
+    got = cam.undistort(xy_d)
+    assert np.abs(got - xy_d).max() > 1e-2                  # a strong lens
+    np.testing.assert_allclose(got, np.stack([x, y], axis=-1), rtol=0, atol=1e-15)

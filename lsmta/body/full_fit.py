@@ -61,8 +61,9 @@ from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
 from .._validate import as_array, as_int, as_scalar, freeze
+from ._kernels import segment_distances
 from .full_body import LIMBS, RATIOS, full_body_model, limits, template_size
-from .metaballs import MetaballModel
+from .metaballs import _ROOT_T, MetaballModel
 from .silhouette import point_terms, silhouette_terms
 
 
@@ -363,14 +364,15 @@ def _solve_shape(model, frames, angles, base, scales, shape, template, p, *, los
                                                    np.eye(L * q, dtype=bool)])])
 
     # every frame's points in one call (each point in its own frame)
-    all_pts, all_seg = np.vstack([f.pts for f in frames]), np.concatenate(segs)
-    all_frame = np.concatenate([np.full(len(f.pts), t) for t, f in enumerate(frames)])
+    all_pts, all_seg = np.vstack([f.pts for f in frames]), np.concatenate(segs).astype(np.int64)
+    all_frame = np.concatenate([np.full(len(f.pts), t, np.int64) for t, f in enumerate(frames)])
 
     def residual(x):
         s, k = x[:L], x[L:].reshape(L, q)
         m, radii = _shaped(model, template, s, k @ basis + keep)
-        r = [m.distance(all_pts, all_seg, angles, s, radii, base=base, frame=all_frame)
-             / p.sigma_point]
+        # MetaballModel.distance without its argument checks (done once above)
+        r = [segment_distances(all_pts, all_seg, all_frame, m.frames(angles, s, base=base),
+                               m.centres(s), radii, _ROOT_T) / p.sigma_point]
         if free:
             r.append(((k - prior) / prior_sigma).ravel())
         return np.concatenate(r)

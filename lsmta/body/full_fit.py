@@ -61,9 +61,10 @@ from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
 from .._validate import as_array, as_int, as_scalar, freeze
+from ._kernels import segment_distances
 from .full_body import LIMBS, RATIOS, full_body_model, limits, template_size
-from .metaballs import MetaballModel
-from .silhouette import point_derivatives, silhouette_terms
+from .metaballs import _ROOT_T, MetaballModel
+from .silhouette import point_terms, silhouette_terms
 
 
 @dataclass(frozen=True)
@@ -288,8 +289,8 @@ class _Frame:
             key = x.tobytes()
             if key not in cache:
                 a, b = unpack(x)
-                r = m.distance(self.pts, seg, a, scales, radii, base=b) / p.sigma_point
-                d_th, d_t = point_derivatives(m, self.pts, seg, a, scales, radii, base=b)
+                r, d_th, d_t = point_terms(m, self.pts, seg, a, scales, radii, base=b)
+                r = r / p.sigma_point
                 jac = np.hstack([d_t, d_th[:, free]]) / p.sigma_point
                 if len(origins):
                     s = silhouette_terms(m, origins, dirs, a, scales, radii, near=self.near,
@@ -362,11 +363,16 @@ def _solve_shape(model, frames, angles, base, scales, shape, template, p, *, los
         sparsity = np.vstack([sparsity, np.hstack([np.zeros((L * q, L), bool),
                                                    np.eye(L * q, dtype=bool)])])
 
+    # every frame's points in one call (each point in its own frame)
+    all_pts, all_seg = np.vstack([f.pts for f in frames]), np.concatenate(segs).astype(np.int64)
+    all_frame = np.concatenate([np.full(len(f.pts), t, np.int64) for t, f in enumerate(frames)])
+
     def residual(x):
         s, k = x[:L], x[L:].reshape(L, q)
         m, radii = _shaped(model, template, s, k @ basis + keep)
-        r = [m.distance(f.pts, seg, angles[[t]], s, radii, base=base[[t]]) / p.sigma_point
-             for t, (f, seg) in enumerate(zip(frames, segs))]
+        # MetaballModel.distance without its argument checks (done once above)
+        r = [segment_distances(all_pts, all_seg, all_frame, m.frames(angles, s, base=base),
+                               m.centres(s), radii, _ROOT_T) / p.sigma_point]
         if free:
             r.append(((k - prior) / prior_sigma).ravel())
         return np.concatenate(r)

@@ -28,17 +28,20 @@ Distance to the skin in millimetres
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 from skimage.measure import marching_cubes
 
 from .._validate import as_array, as_scalar
+from ._kernels import all_segment_distances, segment_distances
 from .skeleton import Skeleton
 
 THRESHOLD = 0.5                      # T of eq. 4 / w_t of eq. 13
 FRACTIONS = (1 / 6, 1 / 2, 5 / 6)    # ball positions along the bone (share of its length)
 PROFILE = (0.9, 1.0, 0.9)            # relative size of the three balls (simplified model)
 LENGTH_RADIUS = 0.3                  # ball radius along the bone, share of the bone length
+_ROOT_T = float(np.sqrt(-0.5 * np.log(THRESHOLD)))   # sqrt(psi_T) of the default threshold
 
 
 def _radii(radii, name: str = "radii", shape=None) -> np.ndarray:
@@ -258,29 +261,41 @@ class MetaballModel:
         return np.concatenate([widths, np.broadcast_to(lz[:, None, None],
                                                        (self.n_segments, 3, 1))], axis=2)
 
+    @cached_property
+    def _arrays(self) -> tuple:
+        """The segments as arrays: bone frame -> joint frame ``(S, 4, 4)``, joint ``(S,)``,
+        length ``(S,)`` (mm), limb ``(S,)``, and the offsets ``(S, 3, 2)`` or None."""
+        S = self.n_segments
+        R = np.tile(np.eye(4), (S, 1, 1))
+        R[:, :3, :3] = np.array([seg.rotation for seg in self.segments], float).reshape(S, 3, 3)
+        out = (R, np.array([seg.joint for seg in self.segments], np.int64),
+               np.array([seg.length for seg in self.segments], float),
+               np.array([seg.limb for seg in self.segments], np.int64),
+               None if self.offsets is None else np.array(self.offsets, float))
+        for a in out[:4]:
+            a.flags.writeable = False
+        return out
+
     def frames(self, angles, scales, *, base=None) -> np.ndarray:
         """Bone frame -> world transforms ``(T, S, 4, 4)``."""
         W = self.skeleton.transforms(angles, scales, base=base)
-        out = np.empty(W.shape[:1] + (self.n_segments, 4, 4))
-        for k, seg in enumerate(self.segments):
-            R = np.eye(4)
-            R[:3, :3] = seg.rotation
-            out[:, k] = W[:, seg.joint] @ R
-        return out
+        R, joint = self._arrays[:2]
+        return W[:, joint] @ R
 
     def centres(self, scales) -> np.ndarray:
         """Ball centres in their bone frames, ``(S, 3, 3)`` (mm)."""
         scales = as_array(scales, "scales", shape=(len(self.skeleton.limbs),))
+        _, _, length, limb, offsets = self._arrays
         out = np.zeros((self.n_segments, 3, 3))
-        for k, seg in enumerate(self.segments):
-            out[k, :, 2] = -np.asarray(self.fractions) * seg.length * scales[seg.limb]
-        if self.offsets is not None:
-            out[..., :2] = self.offsets
+        out[:, :, 2] = -np.asarray(self.fractions)[None] * length[:, None] * scales[limb][:, None]
+        if offsets is not None:
+            out[..., :2] = offsets
         return out
 
     def bone_lengths(self, scales) -> np.ndarray:
         """Segment lengths ``(S,)`` in mm."""
-        return np.array([seg.length * scales[seg.limb] for seg in self.segments])
+        _, _, length, limb, _ = self._arrays
+        return length * np.asarray(scales)[limb]
 
     def distance(self, points, segment, angles, scales, radii, *, base=None, frame=None):
         """Signed distance (mm) of world points to their segment's skin.
@@ -301,15 +316,8 @@ class MetaballModel:
         F = self.frames(angles, scales, base=base)
         C = self.centres(scales)
         frame = np.zeros(N, int) if frame is None else self._indices(frame, "frame", N, len(F))
-        out = np.empty(N)
-        for k in range(self.n_segments):
-            sel = segment == k
-            if not sel.any():
-                continue
-            M = F[frame[sel], k]                                      # (n, 4, 4)
-            local = np.einsum("nji,nj->ni", M[:, :3, :3], points[sel] - M[:, :3, 3])
-            out[sel] = surface_distance(local[:, None, :] - C[k][None], radii[k])
-        return out
+        return segment_distances(points, segment.astype(np.int64, copy=False),
+                                 frame.astype(np.int64, copy=False), F, C, radii, _ROOT_T)
 
     @staticmethod
     def _indices(value, name: str, n: int, upper: int) -> np.ndarray:
@@ -327,8 +335,12 @@ class MetaballModel:
         """Distances ``(N, S)`` of every point to every segment's skin (for segmentation)."""
         points = as_array(points, "points", shape=(None, 3), allow_nan=True)
         N = len(points)
-        return np.stack([self.distance(points, np.full(N, k), angles, scales, radii, base=base,
-                                       frame=frame) for k in range(self.n_segments)], axis=1)
+        radii = _radii(radii, shape=(self.n_segments, 3, 3))
+        F = self.frames(angles, scales, base=base)
+        C = self.centres(scales)
+        frame = np.zeros(N, int) if frame is None else self._indices(frame, "frame", N, len(F))
+        return all_segment_distances(points, frame.astype(np.int64, copy=False), F, C, radii,
+                                     _ROOT_T)
 
     def world_field(self, points, angles, scales, radii, *, base=None) -> np.ndarray:
         """The whole model's field ``(N,)`` at world points ``(N, 3)`` (mm) for one frame

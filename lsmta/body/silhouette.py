@@ -28,7 +28,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .._validate import as_array, as_int, as_scalar, freeze
-from .metaballs import MetaballModel, _radii, surface_distance_terms
+from ._kernels import closest_approach, segment_terms
+from .metaballs import _ROOT_T, MetaballModel, _radii
 
 _GOLD = (np.sqrt(5.0) - 1.0) / 2.0
 
@@ -59,11 +60,6 @@ class SilhouetteTerms:
 
     def __post_init__(self):
         freeze(self, ("r", "d_angles", "d_translation", "closest", "segment"))
-
-
-def _distance(model, origins, directions, depth, segment, angles, scales, radii, base):
-    pts = origins + depth[:, None] * directions
-    return model.distance(pts, segment, angles, scales, radii, base=base)
 
 
 def silhouette_terms(model: MetaballModel, origins, directions, angles, scales, radii, *,
@@ -99,33 +95,33 @@ def silhouette_terms(model: MetaballModel, origins, directions, angles, scales, 
         raise ValueError(f"far: expected a depth beyond near = {near}, got {far}")
     as_int(n_steps, "n_steps", minimum=3)
     as_int(n_refine, "n_refine")
-    N = len(origins)
     depths = np.linspace(near, far, int(n_steps))
-    grid = origins[:, None, :] + depths[None, :, None] * directions[:, None, :]
-    D = model.all_distances(grid.reshape(-1, 3), angles, scales, radii, base=base) \
-        .reshape(N, len(depths), model.n_segments)
-    segment = np.argmin(D.min(axis=1), axis=1)
-    k = np.argmin(D[np.arange(N), :, segment], axis=1)
-    step = depths[1] - depths[0]
-    lo, hi = depths[k] - step, depths[k] + step
-    args = (segment, angles, scales, radii, base)
-    a, b = hi - _GOLD * (hi - lo), lo + _GOLD * (hi - lo)
-    fa = _distance(model, origins, directions, a, *args)
-    fb = _distance(model, origins, directions, b, *args)
-    for _ in range(int(n_refine)):
-        left = fa < fb                          # the minimum lies in [lo, b]
-        lo, hi = np.where(left, lo, a), np.where(left, b, hi)
-        a_new, b_new = hi - _GOLD * (hi - lo), lo + _GOLD * (hi - lo)
-        moved = np.where(left, a_new, b_new)
-        f_moved = _distance(model, origins, directions, moved, *args)
-        fa, fb, a, b = (np.where(left, f_moved, fb), np.where(left, fa, f_moved),
-                        np.where(left, a_new, b), np.where(left, a, b_new))
-    depth = 0.5 * (lo + hi)
-    closest = origins + depth[:, None] * directions
-    r = model.distance(closest, segment, angles, scales, radii, base=base)
-    d_th, d_t = point_derivatives(model, closest, segment, angles, scales, radii, base=base)
+    F = model.frames(angles, scales, base=base)[0]
+    C = model.centres(scales)
+    # the depth grid's minimum over every segment, then golden-section search on the nearest
+    segment, closest = closest_approach(origins, directions, depths, F, C, radii, _ROOT_T,
+                                        int(n_refine), _GOLD)
+    r, d_th, d_t = point_terms(model, closest, segment, angles, scales, radii, base=base,
+                               _frames=(F, C))
     return SilhouetteTerms(r=r, d_angles=d_th, d_translation=d_t, closest=closest,
                            segment=segment)
+
+
+def point_terms(model: MetaballModel, x, segment, angles, scales, radii, *, base=None,
+                _frames=None):
+    """Skin distances ``(N,)`` (mm) of world points ``x (N, 3)`` on their segments
+    ``(N,)`` and their derivatives (:func:`point_derivatives`), in one compiled pass;
+    returns ``r, d_angles (N, J), d_translation (N, 3)``. (``_frames``: the one frame's
+    bone frames and ball centres when the caller has them.)"""
+    W = model.skeleton.transforms(angles, scales, base=base)[0]
+    if _frames is None:
+        R, joint = model._arrays[:2]
+        F, C = W[joint] @ R, model.centres(scales)
+    else:
+        F, C = _frames
+    return segment_terms(np.asarray(x, float), np.asarray(segment, np.int64), F, C,
+                         np.asarray(radii, float), W, model.skeleton.arrays[4],
+                         model._arrays[1], _ROOT_T)
 
 
 def point_derivatives(model: MetaballModel, x, segment, angles, scales, radii, *, base=None):
@@ -133,24 +129,8 @@ def point_derivatives(model: MetaballModel, x, segment, angles, scales, radii, *
     ``(N,)`` held fixed while the model moves: by the joint angles, ``-grad_x D_s(x) .
     dX/dtheta`` ``(N, J)`` (mm per radian), and by a translation of the whole model,
     ``-grad_x D_s(x)`` ``(N, 3)``; ``angles (1, J)``, ``base (1, 4, 4)``."""
-    F = model.frames(angles, scales, base=base)[0]
-    W = model.skeleton.transforms(angles, scales, base=base)[0]
-    C = model.centres(scales)
-    out = np.zeros((len(x), model.skeleton.n_joints))
-    out_t = np.zeros((len(x), 3))
-    for s in np.unique(segment):
-        sel = segment == s
-        R, o = F[s, :3, :3], F[s, :3, 3]
-        local = (x[sel] - o) @ R
-        t = surface_distance_terms(local[:, None, :] - C[s][None], radii[s])
-        grad = (t.dr_dpsi[:, None] * t.grad) @ R.T                        # world gradient
-        j = model.segments[s].joint
-        in_joint = (x[sel] - W[j, :3, 3]) @ W[j, :3, :3]
-        d_th, _ = model.skeleton.jacobian(angles, scales, np.full(sel.sum(), j), in_joint,
-                                          base=base)
-        out[sel] = -np.einsum("nk,nkj->nj", grad, d_th[0])
-        out_t[sel] = -grad
-    return out, out_t
+    _, d_th, d_t = point_terms(model, x, segment, angles, scales, radii, base=base)
+    return d_th, d_t
 
 
 @dataclass(frozen=True)
@@ -326,9 +306,8 @@ class _Residuals:
         J = m.skeleton.n_joints
         r_p, j_p = np.zeros(0), np.zeros((0, J))
         if len(self.pts):
-            r_p = m.distance(self.pts, self.seg, a, self.scales, self.radii, base=self.base)
-            j_p = point_derivatives(m, self.pts, self.seg, a, self.scales, self.radii,
-                                    base=self.base)[0]
+            r_p, j_p, _ = point_terms(m, self.pts, self.seg, a, self.scales, self.radii,
+                                      base=self.base)
         r_s, j_s = np.zeros(0), np.zeros((0, J))
         if len(self.origins):
             s = silhouette_terms(m, self.origins, self.directions, a, self.scales, self.radii,

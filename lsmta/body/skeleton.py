@@ -24,10 +24,12 @@ R_parent(j) offset_j`` over the chain's joints whose offset is scaled by limb ``
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from .._validate import as_array
+from ._kernels import chain_transforms
 
 
 @dataclass(frozen=True)
@@ -88,6 +90,23 @@ class Skeleton:
     def names(self) -> list[str]:
         return [j.name for j in self.joints]
 
+    @cached_property
+    def arrays(self) -> tuple:
+        """The joints as arrays for the compiled kernels: ``rotation (J, 3, 3)``,
+        ``offset (J, 3)`` (mm), ``limb (J,)``, ``parent (J,)`` and ``chain (J, J)`` bool
+        (``chain[k, j]``: joint ``j`` lies on the chain from the root to ``k``)."""
+        J = self.n_joints
+        chain = np.zeros((J, J), bool)
+        for k in range(J):
+            chain[k, self.chain(k)] = True
+        out = (np.array([j.rotation for j in self.joints], float).reshape(J, 3, 3),
+               np.array([j.offset for j in self.joints], float).reshape(J, 3),
+               np.array([j.limb for j in self.joints], np.int64),
+               np.array([j.parent for j in self.joints], np.int64), chain)
+        for a in out:
+            a.flags.writeable = False
+        return out
+
     def chain(self, k: int) -> list[int]:
         """Joint indices from the root down to joint ``k`` (inclusive)."""
         out = []
@@ -125,24 +144,8 @@ class Skeleton:
             World pose of the root's parent frame (mm); identity by default.
         """
         th, s, B = self._check(angles, scales, base)
-        T = len(th)
-        out = np.empty((T, self.n_joints, 4, 4))
-        c, sn = np.cos(th), np.sin(th)
-        for j, joint in enumerate(self.joints):
-            A = np.zeros((T, 4, 4))
-            Rz = np.zeros((T, 3, 3))
-            Rz[:, 0, 0] = c[:, j]
-            Rz[:, 0, 1] = -sn[:, j]
-            Rz[:, 1, 0] = sn[:, j]
-            Rz[:, 1, 1] = c[:, j]
-            Rz[:, 2, 2] = 1.0
-            A[:, :3, :3] = np.asarray(joint.rotation, float) @ Rz
-            scale = s[joint.limb] if joint.limb >= 0 else 1.0
-            A[:, :3, 3] = scale * np.asarray(joint.offset, float)
-            A[:, 3, 3] = 1.0
-            parent = B if joint.parent < 0 else out[:, joint.parent]
-            out[:, j] = parent @ A
-        return out
+        rot, offset, limb, parent, _ = self.arrays
+        return chain_transforms(th, s, rot, offset, limb, parent, np.ascontiguousarray(B))
 
     def forward(self, angles, scales, joint, local, *, base=None) -> np.ndarray:
         """World coordinates ``(T, N, 3)`` of points fixed in joint frames.

@@ -35,7 +35,8 @@ import numpy as np
 from scipy.interpolate import make_interp_spline
 
 from .._validate import as_array, as_int, as_scalar, freeze
-from .metaballs import THRESHOLD, MetaballModel, _radii, field
+from ._kernels import ball_field
+from .metaballs import THRESHOLD, MetaballModel, _radii
 
 
 @dataclass(frozen=True)
@@ -226,11 +227,10 @@ def model_skin(model: MetaballModel, angles, scales, radii, *, base=None,
     poses = model.ball_poses(angles, scales, base=base)[0]                   # (S, 3, 4, 4)
     out = []
     for k in range(model.n_segments):
-        P = poses[k]
+        P, r_k = np.ascontiguousarray(poses[k]), np.ascontiguousarray(radii[k])
 
-        def level(x, P=P, r=radii[k]):
-            local = np.einsum("bji,nbj->nbi", P[:, :3, :3], x[:, None, :] - P[None, :, :3, 3])
-            return field(local, r) - p.threshold
+        def level(x, P=P, r=r_k):
+            return ball_field(np.ascontiguousarray(x, float), P, r) - p.threshold
 
         out.append(skin_patch(level, P[0, :3, 3], P[-1, :3, 3], reach=2.0 * float(radii[k].max()),
                               params=p))

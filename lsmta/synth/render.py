@@ -11,13 +11,15 @@ additive Gaussian noise and rounding to 8 bits.
 Ground-truth maps come from the ray through the pixel *centre* (the middle ray of the
 odd supersampling grid): which part it hits (:data:`BACKGROUND` for wall and floor,
 :data:`NOTHING` for no hit), the part-local surface point, the world point and the
-depth (camera z, mm).
+depth (camera z, mm). The rays are cast compiled, one ray per pass of a ``prange`` loop
+over the parts (numba, :func:`cast_body`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numba as nb
 import numpy as np
 
 from .._validate import as_array, as_int, as_rng, as_scalar
@@ -287,57 +289,82 @@ def cast_body(body: Body, poses: np.ndarray, origin: np.ndarray, dirs: np.ndarra
     dirs : (M, 3) array
         Unit ray directions.
     """
-    M = len(dirs)
-    t_best = np.full(M, np.inf)
-    part = np.full(M, -1, dtype=np.int64)
-    local = np.full((M, 3), np.nan)
+    P = len(body.parts)
+    # per part: rotation, translation, centre and radii; the bounding sphere's cone
+    # (cheap test, exact: never misses a hit), and the origin in the unit-sphere frame
+    rot = np.ascontiguousarray(np.asarray(poses, float)[:P, :3, :3])
+    geo = np.zeros((P, 9))           # centre (3), radii (3), use the cone, its cos, |o_s|^2 - 1
+    cone = np.zeros((P, 3))
+    o_unit = np.zeros((P, 3))
     for p, spec in enumerate(body.parts):
         R, T = poses[p, :3, :3], poses[p, :3, 3]
         c = np.asarray(spec.centre, float)
         r = np.asarray(spec.radii, float)
-        # cheap cone test with the bounding sphere, exact (never misses a hit)
         centre_w = R @ c + T
         to_c = centre_w - origin
         dist = np.linalg.norm(to_c)
         rad = r.max()
+        geo[p, :3], geo[p, 3:6] = c, r
         if dist > rad:
-            cos_half = np.sqrt(1 - (rad / dist) ** 2)
-            cand = np.flatnonzero(dirs @ (to_c / dist) >= cos_half - 1e-12)
-        else:
-            cand = np.arange(M)
-        if cand.size == 0:
-            continue
+            geo[p, 6], geo[p, 7] = 1.0, np.sqrt(1 - (rad / dist) ** 2)
+            cone[p] = to_c / dist
         o_s = (R.T @ (origin - T) - c) / r                    # (3,) in unit-sphere frame
-        d_s = (dirs[cand] @ R) / r                             # (m, 3)
-        a = np.einsum("ij,ij->i", d_s, d_s)
-        b = d_s @ o_s
-        cc = o_s @ o_s - 1.0
-        disc = b * b - a * cc
-        ok = disc >= 0
-        if not ok.any():
-            continue
-        cand, a, b, d_s, disc = cand[ok], a[ok], b[ok], d_s[ok], disc[ok]
-        q = -(b + np.copysign(np.sqrt(disc), b))             # stable quadratic roots
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t1, t2 = q / a, cc / q
-        lo, hi = np.minimum(t1, t2), np.maximum(t1, t2)
-        t = np.where(lo > 0, lo, hi)                           # origin inside: far root
-        better = (t > 0) & (t < t_best[cand])
-        if not better.any():
-            continue
-        idx = cand[better]
-        t_best[idx] = t[better]
-        part[idx] = p
-        local[idx] = (o_s + t[better, None] * d_s[better]) * r + c
-    normal = np.full((M, 3), np.nan)
-    hit = np.isfinite(t_best)
-    for p in np.unique(part[hit]):
-        sel = part == p
-        spec = body.parts[p]
-        n_local = (local[sel] - np.asarray(spec.centre)) / np.asarray(spec.radii, float) ** 2
-        n = n_local @ poses[p, :3, :3].T
-        normal[sel] = n / np.linalg.norm(n, axis=1, keepdims=True)
+        o_unit[p] = o_s
+        geo[p, 8] = o_s @ o_s - 1.0
+    t_best, part, local, normal = _cast(np.ascontiguousarray(dirs, float), rot, geo, cone,
+                                        o_unit)
     return BodyHits(t=t_best, part=part, local=local, normal=normal)
+
+
+@nb.njit(cache=True, error_model="numpy", parallel=True)
+def _cast(dirs, rot, geo, cone, o_unit):
+    """Nearest ellipsoid hit of each ray (:func:`cast_body`): ``t (M,)`` (inf: a miss),
+    ``part (M,)`` (-1), the part-local point ``(M, 3)`` and the world unit normal
+    ``(M, 3)`` (NaN for a miss)."""
+    M, P = len(dirs), len(rot)
+    t_best = np.full(M, np.inf)
+    part = np.full(M, -1, np.int64)
+    local = np.full((M, 3), np.nan)
+    normal = np.full((M, 3), np.nan)
+    for m in nb.prange(M):
+        u0, u1, u2 = dirs[m, 0], dirs[m, 1], dirs[m, 2]
+        for p in range(P):
+            if geo[p, 6] > 0 and (u0 * cone[p, 0] + u1 * cone[p, 1] + u2 * cone[p, 2]
+                                  < geo[p, 7] - 1e-12):
+                continue
+            d0 = (u0 * rot[p, 0, 0] + u1 * rot[p, 1, 0] + u2 * rot[p, 2, 0]) / geo[p, 3]
+            d1 = (u0 * rot[p, 0, 1] + u1 * rot[p, 1, 1] + u2 * rot[p, 2, 1]) / geo[p, 4]
+            d2 = (u0 * rot[p, 0, 2] + u1 * rot[p, 1, 2] + u2 * rot[p, 2, 2]) / geo[p, 5]
+            a = d0 * d0 + d1 * d1 + d2 * d2
+            b = d0 * o_unit[p, 0] + d1 * o_unit[p, 1] + d2 * o_unit[p, 2]
+            cc = geo[p, 8]
+            disc = b * b - a * cc
+            if not disc >= 0:
+                continue
+            q = -(b + np.copysign(np.sqrt(disc), b))          # stable quadratic roots
+            t1, t2 = q / a, cc / q
+            if np.isnan(t1) or np.isnan(t2):
+                continue
+            t = min(t1, t2)
+            if not t > 0:
+                t = max(t1, t2)                               # origin inside: far root
+            if t > 0 and t < t_best[m]:
+                t_best[m] = t
+                part[m] = p
+                local[m, 0] = (o_unit[p, 0] + t * d0) * geo[p, 3] + geo[p, 0]
+                local[m, 1] = (o_unit[p, 1] + t * d1) * geo[p, 4] + geo[p, 1]
+                local[m, 2] = (o_unit[p, 2] + t * d2) * geo[p, 5] + geo[p, 2]
+        k = part[m]
+        if k >= 0:                                            # the gradient of |x / r|^2
+            n0 = (local[m, 0] - geo[k, 0]) / geo[k, 3] ** 2
+            n1 = (local[m, 1] - geo[k, 1]) / geo[k, 4] ** 2
+            n2 = (local[m, 2] - geo[k, 2]) / geo[k, 5] ** 2
+            w0 = n0 * rot[k, 0, 0] + n1 * rot[k, 0, 1] + n2 * rot[k, 0, 2]
+            w1 = n0 * rot[k, 1, 0] + n1 * rot[k, 1, 1] + n2 * rot[k, 1, 2]
+            w2 = n0 * rot[k, 2, 0] + n1 * rot[k, 2, 1] + n2 * rot[k, 2, 2]
+            norm = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+            normal[m, 0], normal[m, 1], normal[m, 2] = w0 / norm, w1 / norm, w2 / norm
+    return t_best, part, local, normal
 
 
 def _background_distances(bg: Background | None, origin: np.ndarray, dirs: np.ndarray):

@@ -14,8 +14,10 @@ the library's procedures (`lsmta.evaluation.mixed_scale.calibrate_scene`), runs
 it, scores both after the fact, and triangulates the same marker images at the heads' true
 angles (the read-back's share). The run with prediction identifies the face markers itself
 (``identify=None``: :func:`lsmta.systems.identify_face_markers`); its first-frame labels are
-scored against the generator's after the fact (the run without prediction, whose aim alone
-matters, keeps the simulated operator's). No foveation gain: identified the same way, the
+scored against the generator's after the fact: the share correct of the labels given, the
+coverage (correct over the marker images drawn, 0 when the identification refuses) and the
+refusals (the run without prediction, whose aim alone matters, keeps the simulated
+operator's labels). No foveation gain: identified the same way, the
 wide cameras' merged dots give no labels and no face (notebook 15). Each of ``--seeds``
 seeds (from ``--seed``: another walk, noise and calibration) is one Dask task, on a local
 cluster of ``--workers`` processes or on the scheduler at ``--scheduler``. Prints one row per
@@ -45,6 +47,8 @@ CEILING_IN = f"mask from truth (the ceiling cameras' monitors); {CAL_IN}"
 SYSTEM_IN = ("model learnt from generated shapes (a still capture of this face, "
              f"{TRAIN_NOISE:g} mm noise); {CEILING_IN}")
 LABELS_IN = "scored against the generator's labels after the fact"
+NO_PRED_IN = ("labels from truth (the simulated operator's first frame; only this run's aim is "
+              f"scored); {CEILING_IN}")
 EXACT_IN = "true device angles (the heads' read-back replaced by the angles they were at)"
 HEADLINES = [
     Headline("face_median_mm", "face markers: median 3-D error over the walk", "mm", SYSTEM_IN),
@@ -59,18 +63,26 @@ HEADLINES = [
     Headline("both_in_frame", "face inside both pan-tilt frames, with prediction", "",
              SYSTEM_IN),
     Headline("both_in_frame_no_prediction", "face inside both pan-tilt frames, without "
-             "prediction", "", SYSTEM_IN),
-    Headline("labels_correct_share", "first-frame labels correct without an operator", "",
-             f"{SYSTEM_IN}; {LABELS_IN}"),
+             "prediction", "", NO_PRED_IN),
+    Headline("labels_correct_share", "first-frame labels correct without an operator "
+             "(of the labels given; none when refused)", "", f"{SYSTEM_IN}; {LABELS_IN}"),
+    Headline("labels_coverage", "first-frame labels correct, of the marker images drawn or "
+             "labelled (coverage; 0 when refused)", "", f"{SYSTEM_IN}; {LABELS_IN}"),
+    Headline("labels_refused", "identification refused (nothing labelled)", "", SYSTEM_IN),
     Headline("led_rms_mm", "LED tracks: 3-D RMS", "mm", CEILING_IN),
     Headline("led_identity_changes", "LED tracks: identity changes", "", CEILING_IN),
     Headline("system_s", "system time with prediction (timing)", "s", "none"),
 ]
+LABELS = 0.99     # share of the labels given that are correct (notebook 15's target) ...
+COVERAGE = 0.95   # ... with at least this share of the drawn marker images labelled
+                  # correctly: the floor the closed-loop test holds the identification to
+                  # (tests/test_face_identification.py); a refused identification has 0
 TARGETS = {   # notebook 15's targets, judged per seed
     "face <= 1 mm, fitted in >= 95 % of frames":
         lambda r: r["face_median_mm"] <= 1.0 and r["face_fitted"] >= 0.95,
     "face in both frames >= 98 %": lambda r: r["both_in_frame"] >= 0.98,
-    "labels correct >= 99 %": lambda r: r["labels_correct_share"] >= 0.99,
+    f"labels correct >= {LABELS:.0%}, coverage >= {COVERAGE:.0%}":
+        lambda r: r["labels_correct_share"] >= LABELS and r["labels_coverage"] >= COVERAGE,
     "LEDs <= 10 mm, 0 identity changes":
         lambda r: r["led_rms_mm"] <= 10.0 and r["led_identity_changes"] == 0,
     "coasting: ticks > 0, aim <= 1.5 x tracked, face in frame":
@@ -89,6 +101,7 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
     from lsmta.evaluation import mixed_scale as ms
     from lsmta.synth.mixed_scale import mixed_scale_scene
     from lsmta.systems import MixedScaleParams, capture_mixed_scale
+    from lsmta.systems.mixed_scale import STAGES
 
     numba.set_num_threads(1)
     extra = dict(accel_window=0.0, lead_height=True) if constant_velocity else {}
@@ -121,7 +134,10 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
            "both_in_frame": sc.both_in_frame, "led_rms_mm": sc.led_rms_mm,
            "led_identity_changes": int(sc.led.identity_changes),
            "labels_correct_share": labels.share_correct,
-           "system_s": float(sum(cap.seconds.values()))}
+           "labels_coverage": labels.coverage,
+           "labels_refused": int(not cap.identification.labelled.any()),
+           # the stages only: "identification" is a part of "marker tracking"
+           "system_s": float(sum(cap.seconds[name] for name, _ in STAGES))}
     detail = {"prepare_s": prep_s, "ceiling_rms_px": cal.ceiling_rms_px.tolist(),
               "head_rms_px": cal.head_rms_px.tolist(), "stage_s": cap.seconds,
               "measured_share": float(sc.measured.mean()),
@@ -179,6 +195,8 @@ def main(argv=None):
     print(f"share of the {len(results)} seeds meeting each target of notebook 15:")
     for k, v in met.items():
         print(f"  {k:<58} {v:.0%}")
+    refused = sum(r.get("labels_refused", 0) for r in results.values())
+    print(f"identification refused (nothing labelled) on {refused} of {len(results)} seeds")
     write_json(args.out, {**settings, "seeds": {str(s): r for s, r in results.items()},
                           "spread": table, "seeds_met": met})
 

@@ -17,6 +17,8 @@ import argparse
 import csv
 import json
 import math
+import sys
+import uuid
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -99,7 +101,9 @@ def map_seeds(fn, seeds, *, client, failures: str = "raise", **kwargs) -> dict[i
     """``fn(seed, **kwargs)`` for every seed, one Dask task each, on ``client``.
 
     Returns ``{seed: result}`` in the order of ``seeds`` whatever order the tasks end in.
-    A task's exception is raised here with the seed added to its message
+    Every call submits its tasks under new keys (so a second call on the same client with
+    other ``kwargs`` runs them again). A task's exception is raised here with the seed
+    added to its message
     (``failures="raise"``), or, with ``failures="record"``, kept as that seed's result
     ``{"error": "<type>: <message>"}`` (a system that refuses a session is a result too:
     its headlines count as missing).
@@ -109,8 +113,10 @@ def map_seeds(fn, seeds, *, client, failures: str = "raise", **kwargs) -> dict[i
     seeds = [int(s) for s in seeds]
     if len(set(seeds)) != len(seeds):
         raise ValueError(f"seeds: expected distinct seeds, got {seeds}")
-    futures = [client.submit(fn, s, pure=False, key=f"seed-{s}-{fn.__name__}", **kwargs)
-               for s in seeds]
+    # a key of its own per call: a key the client already holds returns that (old) future
+    run_id = uuid.uuid4().hex
+    futures = [client.submit(fn, s, pure=False, key=f"seed-{s}-{fn.__name__}-{run_id}",
+                             **kwargs) for s in seeds]
     out = {}
     for s, fut in zip(seeds, futures):
         try:
@@ -122,6 +128,13 @@ def map_seeds(fn, seeds, *, client, failures: str = "raise", **kwargs) -> dict[i
             print(f"seed {s} failed: {message}")
             out[s] = {"error": message}
     return out
+
+
+def exit_if_all_failed(results: dict[int, dict]) -> None:
+    """Exit with status 1 (``SystemExit``, naming the first error) when every seed failed."""
+    if results and all("error" in r for r in results.values()):
+        first = next(iter(results.values()))["error"]
+        sys.exit(f"every seed failed ({len(results)}); the first: {first}")
 
 
 def spread(results: dict[int, dict], headlines) -> dict[str, dict]:
@@ -212,7 +225,8 @@ def run(name: str, fn, headlines, args, *, out_dir, settings: dict | None = None
     """The whole sweep of an experiment's ``main``: the seeds from ``args`` (``--seed``,
     ``--seeds``), a client from ``args`` (``--scheduler``, ``--workers``; a bad address is
     reported through ``parser.error``), :func:`map_seeds` with ``kwargs`` (a failing seed
-    recorded as missing by default), :func:`report`.
+    recorded as missing by default), :func:`report`; exits with status 1 after the report
+    when every seed failed (:func:`exit_if_all_failed`).
     Returns ``(results, spread)``."""
     seeds = seed_list(args.seed, args.seeds)
     try:
@@ -225,4 +239,6 @@ def run(name: str, fn, headlines, args, *, out_dir, settings: dict | None = None
     with client:
         print(f"Dask: {client}; seeds {seeds}")
         results = map_seeds(fn, seeds, client=client, failures=failures, **kwargs)
-    return results, report(name, results, headlines, out_dir, settings=settings)
+    table = report(name, results, headlines, out_dir, settings=settings)
+    exit_if_all_failed(results)
+    return results, table

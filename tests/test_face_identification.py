@@ -44,19 +44,18 @@ def _frames(scene, world, normals, anchor):
     return images, np.array(settings), np.array(truth)
 
 
+CROWD_PX = IdentifyParams().crowd_px   # closer dots merge into one blob (the system's value)
+
+
 def _score(xy, truth):
-    """(correct, wrong, distinct) labels against the true images; distinct: the drawn
-    markers with no other drawn within 5 px (closer dots merge into one blob, which no
-    detector splits)."""
-    given = np.isfinite(xy).all(axis=2)
-    drawn = np.isfinite(truth).all(axis=2)
-    # correct: the label's own marker is the drawn one nearest to it, within 3 px
-    to_all = np.nan_to_num(np.linalg.norm(xy[:, :, None] - truth[:, None], axis=3), nan=np.inf)
-    own = np.arange(xy.shape[1])
-    ok = given & drawn & (to_all.argmin(axis=2) == own) & (to_all[:, own, own] <= 3.0)
+    """(correct, wrong, distinct) labels against the true images (the evaluation's rule,
+    :func:`lsmta.evaluation.mixed_scale.label_outcome`); distinct: the drawn markers with
+    no other drawn within ``CROWD_PX`` (closer dots merge into one blob, which no detector
+    splits)."""
+    given, drawn, ok = ms.label_outcome(xy, truth)
     d = np.linalg.norm(truth[:, :, None] - truth[:, None], axis=3)
     d[:, np.arange(d.shape[1]), np.arange(d.shape[1])] = np.inf
-    distinct = drawn & (np.nan_to_num(d, nan=np.inf).min(axis=2) >= 5.0)
+    distinct = drawn & (np.nan_to_num(d, nan=np.inf).min(axis=2) >= CROWD_PX)
     return int(ok.sum()), int((given & ~ok).sum()), int(distinct.sum())
 
 
@@ -153,6 +152,10 @@ def test_bad_input(setup):
         IdentifyParams(gate_px=0.0)
     with pytest.raises(ValueError, match="gate_steps"):
         IdentifyParams(gate_steps=(0.5,))
+    with pytest.raises(ValueError, match="gate_steps: .*non-increasing"):
+        IdentifyParams(gate_steps=(3.0, 6.0, 1.0))
+    with pytest.raises(ValueError, match="n_expressions: expected an odd number"):
+        IdentifyParams(n_expressions=8)
     with pytest.raises(TypeError, match="identify: expected an lsmta.systems.IdentifyParams"):
         MixedScaleParams(identify={})
 
@@ -167,6 +170,32 @@ def test_closed_loop_identifies_the_face_itself():
     assert cap.identification is not None
     score = ms.label_score(cap.identification.xy, inputs.devices, cap.times[cap.first])
     assert score.share_correct >= 0.99 and score.coverage >= 0.95
+    with pytest.raises(ValueError, match="xy: expected 76 markers per head"):
+        ms.label_score(cap.identification.xy[:, :70], inputs.devices, cap.times[cap.first])
     # tracking started from those labels: the face comes out
     assert cap.face.fitted.mean() > 0.9
     assert ms.score_capture(cap, scene, inputs.devices).face_median_mm < 5.0
+    # an identification refused (a residual no fit reaches) is said, not passed over
+    devices, _ = ms.head_devices(scene, rng=8)
+    strict = replace(params, identify=IdentifyParams(max_residual_mm=1e-3))
+    with pytest.warns(RuntimeWarning, match=r"residual \d+\.\d+ mm exceeds params\.identify\."
+                      r"max_residual_mm = 0\.001 mm"):
+        refused = capture_mixed_scale(inputs.ceiling, cal.heads, devices, None,
+                                      inputs.face_model, params=strict, progress=False)
+    assert not refused.identification.labelled.any() and not refused.face.fitted.any()
+    score = ms.label_score(refused.identification.xy, devices, refused.times[refused.first])
+    assert score.coverage == 0.0 and np.isnan(score.share_correct)
+
+
+def test_label_outcome_rule():
+    truth = np.array([[0.0, 0.0], [10.0, 0.0], [np.nan, np.nan], [30.0, 0.0]])
+    xy = np.array([[1.0, 0.0], [1.5, 0.0], [20.0, 0.0], [np.nan, np.nan]])
+    given, drawn, ok = ms.label_outcome(xy, truth)
+    # marker 1's label lies nearest marker 0's image: wrong; marker 2 is not drawn: wrong
+    assert ok.tolist() == [True, False, False, False]
+    assert given.tolist() == [True, True, True, False]
+    assert drawn.tolist() == [True, True, False, True]
+    assert not ms.label_outcome(xy + [3.5, 0.0], truth)[2][0]      # beyond tol_px = 3
+    with pytest.raises(ValueError, match="xy: expected the shape of the true images"):
+        ms.label_outcome(xy[:3], truth)
+    assert ms.LabelScore(correct=0, wrong=0, missed=5).coverage == 0.0

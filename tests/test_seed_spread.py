@@ -84,6 +84,20 @@ def test_a_failing_seed_is_named():
     assert (table["a"]["median"], table["a"]["n"], table["a"]["missing"]) == (1.0, 2, 1)
 
 
+def test_a_second_map_on_the_same_client_runs_again():
+    # the same seeds and function with other kwargs: new results, not the first map's
+    with ss.dask_client(workers=1, processes=False) as client:
+        first = ss.map_seeds(_per_seed, [1, 2], client=client, scale=2.0)
+        second = ss.map_seeds(_per_seed, [1, 2], client=client, scale=3.0)
+    assert (first[2]["a"], second[2]["a"]) == (4.0, 6.0)
+
+
+def test_every_seed_failing_exits_non_zero():
+    ss.exit_if_all_failed({1: {"error": "x"}, 2: {"a": 1.0}})          # one left: no exit
+    with pytest.raises(SystemExit, match="every seed failed \\(2\\); the first: ValueError: a"):
+        ss.exit_if_all_failed({1: {"error": "ValueError: a"}, 2: {"error": "ValueError: b"}})
+
+
 def test_bad_arguments_are_refused_clearly():
     with pytest.raises(ValueError, match="seeds: expected a number of seeds >= 1"):
         ss.seed_list(1, 0)

@@ -10,7 +10,7 @@ after the fact against the truth.
   as devices, hand labels of a frame of each, a face model learnt from another capture;
 * :func:`score_capture` — the error budget per stage against the truth;
 * :func:`label_score` — the face markers' first-frame labels (automatic or by hand)
-  against the generator's: the share labelled correctly;
+  against the generator's: correct, wrong and missed (:func:`label_outcome`, the rule);
 * :func:`exact_readback` — a controlled study: the same marker images triangulated at the
   angles the heads were at, as if they reported them exactly.
 """
@@ -313,41 +313,98 @@ class LabelScore:
 
     @property
     def share_correct(self) -> float:
-        """Correct labels over all labels given (NaN: none given)."""
+        """Correct labels over all labels given (NaN: none given, e.g. a refused
+        identification; read it with :attr:`coverage`)."""
         n = self.correct + self.wrong
         return self.correct / n if n else float("nan")
 
     @property
     def coverage(self) -> float:
-        """Correct labels over the marker images drawn."""
+        """Correct labels over the labels given plus the marker images drawn but not
+        labelled (every drawn image, and any label where no marker is drawn); 0 when
+        nothing was labelled (NaN: no label given and no marker drawn)."""
         n = self.correct + self.wrong + self.missed
         return self.correct / n if n else float("nan")
 
 
+def label_outcome(xy, truth, *, tol_px: float = 3.0):
+    """The scoring rule of labels: which are given, which markers are drawn and which
+    labels are correct.
+
+    A label is correct when its own marker's true image is the drawn one nearest to it,
+    within ``tol_px`` (the centroid of a dot that touches another's is pulled towards it by
+    a pixel or two).
+
+    Parameters
+    ----------
+    xy : (..., M, 2) array
+        The labels: each marker's position in the image, px (NaN: not labelled).
+    truth : (..., M, 2) array
+        The markers' true images, px (NaN: not drawn), the same shape as ``xy``.
+    tol_px : float
+        Largest distance of a correct label from its marker's true image, px.
+
+    Returns
+    -------
+    given, drawn, correct : (..., M) bool arrays
+        Labelled; drawn; labelled with its own marker's dot (``correct`` implies both).
+    """
+    tol_px = as_scalar(tol_px, "tol_px", positive=True)
+    xy, truth = np.asarray(xy, float), np.asarray(truth, float)
+    if truth.ndim < 2 or truth.shape[-1] != 2:
+        raise ValueError(f"truth: expected an array of shape (..., M, 2), got {truth.shape}")
+    if xy.shape != truth.shape:
+        raise ValueError(f"xy: expected the shape of the true images {truth.shape}, got "
+                         f"{xy.shape}")
+    given = np.isfinite(xy).all(axis=-1)
+    drawn = np.isfinite(truth).all(axis=-1)
+    to_all = np.nan_to_num(np.linalg.norm(xy[..., :, None, :] - truth[..., None, :, :],
+                                          axis=-1), nan=np.inf)
+    own = np.arange(xy.shape[-2])
+    correct = (given & drawn & (to_all.argmin(axis=-1) == own)
+               & (to_all[..., own, own] <= tol_px))
+    return given, drawn, correct
+
+
 def label_score(xy, devices, t: float, *, tol_px: float = 3.0) -> LabelScore:
-    """Score labels ``xy`` (K, M, 2) px (NaN: none) of the frames the ``devices`` grabbed at
-    time ``t`` against the true images of the markers drawn in them: a label is correct
-    when its own marker's true image is the drawn one nearest to it, within ``tol_px``
-    (the centroid of a dot that touches another's is pulled towards it by a pixel or
-    two)."""
+    """Score labels of the frames the ``devices`` grabbed at time ``t`` against the true
+    images of the markers drawn in them, by :func:`label_outcome`'s rule.
+
+    Parameters
+    ----------
+    xy : (K, M, 2) array
+        The labels of each device's frame, px (NaN: not labelled); M the markers of the
+        devices' face.
+    devices : sequence of K SimulatedHead
+        The heads that grabbed the frames (their truth: the angles they were at and the
+        markers' true images).
+    t : float
+        When the frames were grabbed, s.
+    tol_px : float
+        Largest distance of a correct label from its marker's true image, px.
+
+    Returns
+    -------
+    LabelScore
+        Correct, wrong and missed marker images, summed over the heads.
+
+    Raises
+    ------
+    ValueError
+        When ``xy`` is not (K, M, 2) with K the devices and M their face's markers.
+    """
     tol_px = as_scalar(tol_px, "tol_px", positive=True)
     xy = np.asarray(xy, float)
     if xy.ndim != 3 or xy.shape[0] != len(devices) or xy.shape[2] != 2:
         raise ValueError(f"xy: expected an array of shape ({len(devices)}, M, 2), got "
                          f"{xy.shape}")
-    correct = wrong = missed = 0
-    for k, d in enumerate(devices):
-        tru = d.true_xy(t, d.true_settings(t)[0])
-        given = np.isfinite(xy[k]).all(axis=1)
-        drawn = np.isfinite(tru).all(axis=1)
-        to_all = np.nan_to_num(np.linalg.norm(xy[k][:, None] - tru[None], axis=2),
-                               nan=np.inf)
-        own = np.arange(len(tru))
-        ok = given & drawn & (to_all.argmin(axis=1) == own) & (to_all[own, own] <= tol_px)
-        correct += int(ok.sum())
-        wrong += int((given & ~ok).sum())
-        missed += int((drawn & ~given).sum())
-    return LabelScore(correct=correct, wrong=wrong, missed=missed)
+    truth = np.stack([d.true_xy(t, d.true_settings(t)[0]) for d in devices])
+    if truth.shape != xy.shape:
+        raise ValueError(f"xy: expected {truth.shape[1]} markers per head (the devices' "
+                         f"face), got an array of shape {xy.shape}")
+    given, drawn, ok = label_outcome(xy, truth, tol_px=tol_px)
+    return LabelScore(correct=int(ok.sum()), wrong=int((given & ~ok).sum()),
+                      missed=int((drawn & ~given).sum()))
 
 
 @dataclass(frozen=True, eq=False)

@@ -84,8 +84,9 @@ class IdentifyParams:
         A marker whose projection lies closer than this to that of another marker left
         without a dot is left unlabelled too (their dots merged into one blob), px.
     gate_steps : tuple of float
-        The fits' gates, as multiples of ``gate_px``, widest first (the start may be off by
-        half a step of ``n_angles``, a centimetre at the face's edge).
+        The fits' gates, as multiples of ``gate_px`` (>= 1), widest first and never
+        widening (the start may be off by half a step of ``n_angles``, a centimetre at the
+        face's edge).
     n_angles : int
         Start angles about the face's normal, for each of its two signs.
     n_iter : int
@@ -95,8 +96,9 @@ class IdentifyParams:
     n_poses : int
         Starts carried on (best first) from there through every gate.
     expression_mm, n_expressions : float, int
-        Faces tried along the model's main expression: ``n_expressions`` evenly from
-        ``-expression_mm`` to ``+expression_mm`` mm at the marker it moves most.
+        Faces tried along the model's main expression: ``n_expressions`` (odd, so that
+        the neutral face is one of them) evenly from ``-expression_mm`` to
+        ``+expression_mm`` mm at the marker it moves most.
     min_points : int
         Fewest triangulated markers a fit needs.
     max_residual_mm : float
@@ -132,10 +134,12 @@ class IdentifyParams:
         as_int(self.n_poses, "n_poses", minimum=1)
         as_int(self.n_iter_start, "n_iter_start", minimum=1)
         steps = as_array(self.gate_steps, "gate_steps", shape=(None,))
-        if not len(steps) or (steps < 1).any():
-            raise ValueError(f"gate_steps: expected factors >= 1 of gate_px, got "
-                             f"{self.gate_steps}")
-        as_int(self.n_expressions, "n_expressions", minimum=1)
+        if not len(steps) or (steps < 1).any() or (np.diff(steps) > 0).any():
+            raise ValueError(f"gate_steps: expected factors >= 1 of gate_px, widest first "
+                             f"(non-increasing), got {self.gate_steps}")
+        if as_int(self.n_expressions, "n_expressions", minimum=1) % 2 == 0:
+            raise ValueError(f"n_expressions: expected an odd number (the middle face is "
+                             f"the neutral one), got {self.n_expressions}")
         as_scalar(self.expression_mm, "expression_mm", nonnegative=True)
         as_int(self.min_points, "min_points", minimum=3)
         as_scalar(self.max_residual_mm, "max_residual_mm", positive=True)
@@ -312,7 +316,9 @@ def _trimmed(X, face):
 def _rigid(frame, shape, R, t, gates, n_iter, min_points):
     """ICP: alternate labels (each head's dots assigned to ``shape`` posed by R, t) and the
     rigid motion fitted to the triangulated labelled markers (trimmed), for each gate in
-    turn, until the labels no longer change. Returns R, t, cost at the last gate."""
+    turn, until the labels no longer change (at most ``n_iter`` fits per gate; when they
+    run out, the last fit's pose is labelled once more, so that the cost is the pose's).
+    Returns R, t, cost at the last gate."""
     cost = np.inf
     for gate in gates:
         last = None
@@ -328,12 +334,15 @@ def _rigid(frame, shape, R, t, gates, n_iter, min_points):
             R, t = fit_rigid(shape[ok], X[ok])
             if not (np.isfinite(R).all() and np.isfinite(t).all()):
                 return R, t, np.inf
+        else:
+            _, cost = frame.label(shape @ R.T + t, gate)
     return R, t, cost
 
 
 def _shaped(frame, face_model, face, gates, n_iter, min_points):
     """Alternate labels and the face model fitted to the triangulated labelled markers
-    (trimmed), for each gate in turn. Returns the face (M, 3) and the cost."""
+    (trimmed), for each gate in turn (as :func:`_rigid`: the last fit labelled once more
+    when ``n_iter`` runs out). Returns the face (M, 3) and the cost."""
     cost = np.inf
     for gate in gates:
         last = None
@@ -349,6 +358,8 @@ def _shaped(frame, face_model, face, gates, n_iter, min_points):
             if not fit.fitted[0]:
                 return face, np.inf
             face = fit.model[0]
+        else:
+            _, cost = frame.label(face, gate)
     return face, cost
 
 

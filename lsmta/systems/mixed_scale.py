@@ -41,6 +41,7 @@ the caller's affair (notebook 15 says what its simulation gives).
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field, fields
 
 import numpy as np
@@ -359,11 +360,25 @@ def _marker_tracking(st: _State) -> None:
             params=p.identify)
         st.identify_seconds = time.perf_counter() - t0
         st.starts = list(st.identification.xy)
+        if not st.identification.labelled.any():
+            _warn_refused(st.identification, p.identify, st.times[st.first])
     else:
         st.starts = [as_array(f(st.times[st.first], st.settings[k, st.first]),
                               f"identify[{k}](...)", shape=(None, 2), allow_nan=True)
                      for k, f in enumerate(st.identify)]
     _track(st, None)
+
+
+def _warn_refused(ident: FaceIdentification, params: IdentifyParams, t: float) -> None:
+    """Warn that the automatic identification labelled nothing: the capture goes on
+    without a face."""
+    why = (f"its fit's residual {ident.residual_mm:.2f} mm exceeds params.identify."
+           f"max_residual_mm = {params.max_residual_mm:g} mm"
+           if np.isfinite(ident.residual_mm) else
+           f"no fit (residual found: none; params.identify.max_residual_mm = "
+           f"{params.max_residual_mm:g} mm; {ident.n_points} stereo points)")
+    warnings.warn(f"identify_face_markers labelled no face marker at t = {t:.3f} s: {why}; "
+                  "the capture continues without a face", RuntimeWarning, stacklevel=4)
 
 
 def _track(st: _State, seeds) -> None:
@@ -472,7 +487,9 @@ def capture_mixed_scale(ceiling: CeilingFeed, heads, devices, identify, face_mod
         None: the face markers are identified automatically in the first frame at which the
         heads have followed the same target for ``params.settle`` s
         (:func:`~lsmta.systems.face_identification.identify_face_markers`: dots, stereo,
-        the face model's layout fitted and assigned). Or ``identify[k](t, setting)``: the M
+        the face model's layout fitted and assigned; when it labels nothing, a
+        ``RuntimeWarning`` names the fit's residual and ``params.identify.max_residual_mm``
+        and the capture goes on without a face). Or ``identify[k](t, setting)``: the M
         face markers identified by hand in head k's frame at time ``t`` (that frame),
         ``(M, 2)`` px, NaN for markers not seen.
     face_model : lsmta.face.FaceModel

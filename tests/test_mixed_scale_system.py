@@ -225,3 +225,42 @@ def test_head_led_hidden_where_asked():
     for bad in ((0.5, 0.3), (-1.0, 0.2), (0.1,)):
         with pytest.raises(ValueError, match="head_hidden"):
             mixed_scale_scene(rng=1, travel=500.0, stand=0.2, n_ceiling=2, head_hidden=bad)
+
+
+def test_ceiling_calibrated_from_the_led_found_in_rendered_frames_is_close_to_the_truth():
+    scene = mixed_scale_scene(rng=5, travel=700.0, stand=0.8, n_ceiling=4)
+    c = ms.calibrate_ceiling(scene, rng=11, n_survey=200, from_images=True)
+    assert c.from_images
+    # most of the 200 positions are found in each camera (one feature per frame)
+    assert (c.n_points >= 100).all()
+    # the detector's centroids are good to a few tenths of a pixel: the fit's own residual
+    assert (c.fit_rms_px < 0.35).all()
+    # the cameras are near the true ones: image RMS on an independent path, centres, focal lengths
+    assert (c.check_rms_px < 0.3).all()
+    for cam, true in zip(c.cameras, scene.ceiling):
+        assert np.linalg.norm(cam.C - true.C) < 20.0
+        assert abs(cam.f - true.f) < 2.0
+    # the tape-measured guess is much worse: the resection did the work
+    from lsmta.synth.calibration import poor_guess
+    guess = poor_guess(scene.ceiling, rng=0, pose_mm=100.0, pose_deg=2.0, f_rel=0.03)
+    assert np.mean([np.linalg.norm(g.C - t.C) for g, t in zip(guess, scene.ceiling)]) > 40.0
+
+
+def test_ceiling_survey_centroids_lie_on_the_true_projections_and_bad_input_errors():
+    scene = mixed_scale_scene(rng=5, travel=700.0, stand=0.8, n_ceiling=2)
+    X = np.array([[0.0, 0.0, 1300.0], [300.0, 200.0, 1100.0], [-400.0, 100.0, 1500.0]])
+    X0 = X.copy()
+    xy = ms.ceiling_survey_centroids(scene, X, rng=0)
+    assert np.array_equal(X, X0)
+    true = np.stack([cam.project(X) for cam in scene.ceiling])
+    found = np.isfinite(xy).all(axis=2)
+    assert found.sum() >= 4
+    assert np.abs(xy[found] - true[found]).max() < 0.2
+    with pytest.raises(TypeError, match="from_images"):
+        ms.calibrate_ceiling(scene, from_images="yes")
+    with pytest.raises(ValueError, match="threshold_sigmas"):
+        ms.ceiling_survey_centroids(scene, X, threshold_sigmas=0.0)
+    with pytest.raises(ValueError, match="X"):
+        ms.ceiling_survey_centroids(scene, X[:, :2])
+    with pytest.raises(ValueError, match="n_survey"):
+        ms.calibrate_ceiling(scene, n_survey=3)

@@ -3,7 +3,9 @@ after the fact against the truth.
 
 * :func:`calibrate_scene` — the ceiling rig and the pan-tilt heads calibrated by the
   library's own procedures from generated observations (the ceiling: resection of a
-  tape-measured guess from surveyed LED positions, :func:`lsmta.calibration.resect_all`;
+  tape-measured guess from surveyed LED positions, :func:`lsmta.calibration.resect_all`,
+  the LED's image points either projected truth plus noise or found by the detector in
+  rendered frames, :func:`ceiling_survey_centroids`;
   each head: intrinsics from one view of a 3-D target, then home pose and axes from sweeps,
   :func:`lsmta.pantilt.calibrate` — notebook 11's procedure with a precise target);
 * :func:`walk_inputs` — what the system receives for a walk: the ceiling feed, the heads
@@ -21,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_rng, as_scalar
+from .._validate import as_array, as_int, as_rng, as_scalar
 from ..calibration import resect_all
 from ..face import distance_deviation, learn
 from ..pantilt import calibrate, calibrate_intrinsics
@@ -34,7 +36,9 @@ from ..synth.mixed_scale import (
     hand_labels,
 )
 from ..synth.pantilt import calibration_sweeps, intrinsic_target
+from ..synth.widearea import LedScene, LedVideoParams, render_led_video
 from ..systems import CeilingFeed, MixedScaleCapture, triangulate_frames
+from ..widearea import detect, noise_threshold
 from .track_scores import score_led_tracks
 
 
@@ -47,37 +51,140 @@ class SceneCalibration:
     ceiling : list of Camera
     heads : list of PanTiltCamera
     ceiling_rms_px : (K,) array
-        Image RMS of each ceiling camera on an independent LED path, px.
+        Image RMS of each ceiling camera on an independent LED path against the true
+        cameras, px (a score that uses the truth).
     head_rms_px : (K,) array
         Image RMS of each head on held-out sweep points (true points, true images), px.
+    ceiling_fit_rms_px : (K,) array
+        Reprojection RMS of each ceiling camera on its own calibration image points, px
+        (the calibration's own residual: no truth beyond the surveyed LED positions).
+    ceiling_from_images : bool
+        True: the ceiling's image points were found in rendered frames
+        (:func:`ceiling_survey_centroids`); False: projected truth plus noise.
     """
 
     ceiling: list
     heads: list
     ceiling_rms_px: np.ndarray
     head_rms_px: np.ndarray
+    ceiling_fit_rms_px: np.ndarray
+    ceiling_from_images: bool
 
 
-def calibrate_ceiling(scene: MixedScaleScene, *, rng: np.random.Generator | int | None = None,
-                      image_sigma: float = 0.3, world_sigma: float = 0.3, n_survey: int = 300):
-    """The ceiling cameras resected from a tape-measured guess
-    (:func:`lsmta.synth.calibration.poor_guess`) with ``n_survey`` LED positions surveyed to
-    ``world_sigma`` mm and seen with ``image_sigma`` px (:func:`lsmta.calibration.resect_all`).
+@dataclass(frozen=True, eq=False)
+class CeilingCalibration:
+    """The ceiling cameras resected by :func:`calibrate_ceiling`.
+
+    Attributes
+    ----------
+    cameras : list of K Camera
+    check_rms_px : (K,) array
+        Image RMS on an independent LED path against the true cameras, px.
+    fit_rms_px : (K,) array
+        Reprojection RMS on the calibration's own image points (surveyed positions), px.
+    n_points : (K,) int array
+        Image points each camera was resected from.
+    from_images : bool
+        Whether the image points were found in rendered frames.
+    """
+
+    cameras: list
+    check_rms_px: np.ndarray
+    fit_rms_px: np.ndarray
+    n_points: np.ndarray
+    from_images: bool
+
+
+def ceiling_survey_centroids(scene: MixedScaleScene, X, *,
+                             rng: np.random.Generator | int | None = None,
+                             threshold_sigmas: float = 5.0) -> np.ndarray:
+    """The calibration LED found in rendered ceiling frames, one frame per position.
+
+    Each ceiling camera of ``scene`` films the LED (facing up, as the body's LEDs) at each
+    of ``X`` (:func:`lsmta.synth.widearea.render_led_video`, the room, monitor and image
+    noise of the walk's ceiling frames, no flicker or reflections, as
+    :func:`lsmta.synth.mixed_scale.ceiling_videos`). The library's detector then finds it
+    as the system does: thresholds ``threshold_sigmas`` times the image noise over the
+    empty room's frames (:func:`lsmta.widearea.noise_threshold`), every pixel tested
+    (:func:`lsmta.widearea.detect`), the monitor masked (the operator's mask of
+    :func:`walk_inputs`). A frame with exactly one feature gives its centroid; none or
+    several (a reflection, a split spot) give NaN.
+
+    Parameters
+    ----------
+    scene : MixedScaleScene
+    X : (N, 3) array
+        The LED's positions, mm.
+    threshold_sigmas : float
+        The detection threshold's offset in units of the measured image noise (> 0).
 
     Returns
     -------
-    (list of Camera, (K,) image RMS on an independent path against the true cameras, px)
+    (K, N, 2) array
+        Intensity centroids, px (NaN: not found or ambiguous).
     """
+    X = as_array(X, "X", shape=(None, 3))
+    if len(X) < 2:
+        raise ValueError(f"X: expected at least 2 LED positions, got {len(X)}")
+    sigmas = as_scalar(threshold_sigmas, "threshold_sigmas", positive=True)
+    rng = as_rng(rng)
+    times = np.arange(len(X), dtype=float)          # one sample per frame: no interpolation
+    normals = np.zeros((len(X), 1, 3))
+    normals[..., 2] = 1.0
+    leds = LedScene(name="calibration LED", times=times, positions=X[:, None].copy(),
+                    normals=normals, on=np.array([[0.0, np.inf]]))
+    params = LedVideoParams(monitor_flicker=0.0, reflections=0.0)
+    out = np.full((len(scene.ceiling), len(X), 2), np.nan)
+    for k, cam in enumerate(scene.ceiling):
+        v = render_led_video(leds, cam, times, rng=rng, params=params)
+        invalid = np.zeros(v.frames.shape[1:], bool)
+        x0, y0, x1, y1 = v.monitor.astype(int)
+        invalid[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = True
+        found = detect(v.frames, noise_threshold(v.background, sigmas=sigmas), invalid=invalid)
+        one = np.flatnonzero(np.diff(found.start) == 1)
+        out[k, one] = found.xy[found.start[one]]
+    return out
+
+
+def calibrate_ceiling(scene: MixedScaleScene, *, rng: np.random.Generator | int | None = None,
+                      image_sigma: float = 0.3, world_sigma: float = 0.3, n_survey: int = 300,
+                      from_images: bool = False,
+                      threshold_sigmas: float = 5.0) -> CeilingCalibration:
+    """The ceiling cameras resected from a tape-measured guess
+    (:func:`lsmta.synth.calibration.poor_guess`) with ``n_survey`` LED positions surveyed to
+    ``world_sigma`` mm (:func:`lsmta.calibration.resect_all`).
+
+    The LED's image points: with ``from_images``, found by the library's detector in
+    rendered frames (:func:`ceiling_survey_centroids` with ``threshold_sigmas``;
+    ``image_sigma`` is then unused); otherwise its true projections plus ``image_sigma`` px
+    of Gaussian noise.
+
+    Returns
+    -------
+    CeilingCalibration
+    """
+    if not isinstance(from_images, (bool, np.bool_)):
+        raise TypeError(f"from_images: expected True or False, got {from_images!r}")
+    n_survey = as_int(n_survey, "n_survey", minimum=10)
+    image_sigma = as_scalar(image_sigma, "image_sigma", nonnegative=True)
+    world_sigma = as_scalar(world_sigma, "world_sigma", nonnegative=True)
     rng = as_rng(rng)
     box = dict(center=(0.0, 0.0, 1300.0), half_size=(1900.0, 2500.0, 500.0))
     X = led_path(n=n_survey, rng=rng, **box)
-    xy = project_observations(scene.ceiling, X, rng=rng, sigma_px=image_sigma)
+    if from_images:
+        xy = ceiling_survey_centroids(scene, X, rng=rng, threshold_sigmas=threshold_sigmas)
+    else:
+        xy = project_observations(scene.ceiling, X, rng=rng, sigma_px=image_sigma)
     Xs = X + rng.normal(0, world_sigma, X.shape)
     guess = poor_guess(scene.ceiling, rng=rng, pose_mm=100.0, pose_deg=2.0, f_rel=0.03)
     ceiling = resect_all(guess, Xs, xy, n_iter=60)
+    fit = project_observations(ceiling, Xs) - xy
     check = led_path(n=100, rng=rng, **box)
     d = project_observations(scene.ceiling, check) - project_observations(ceiling, check)
-    return ceiling, np.sqrt(np.nanmean(np.sum(d**2, axis=2), axis=1))
+    return CeilingCalibration(
+        cameras=ceiling, check_rms_px=np.sqrt(np.nanmean(np.sum(d**2, axis=2), axis=1)),
+        fit_rms_px=np.sqrt(np.nanmean(np.sum(fit**2, axis=2), axis=1)),
+        n_points=np.isfinite(xy).all(axis=2).sum(axis=1), from_images=bool(from_images))
 
 
 def calibrate_heads(heads, *, rng: np.random.Generator | int | None = None,
@@ -112,16 +219,22 @@ def calibrate_heads(heads, *, rng: np.random.Generator | int | None = None,
 
 
 def calibrate_scene(scene: MixedScaleScene, *, rng: np.random.Generator | int | None = None,
-                    image_sigma: float = 0.3, world_sigma: float = 0.3) -> SceneCalibration:
+                    image_sigma: float = 0.3, world_sigma: float = 0.3,
+                    from_images: bool = False) -> SceneCalibration:
     """The ceiling rig and the heads of ``scene`` calibrated (:func:`calibrate_ceiling`,
-    :func:`calibrate_heads`, both with ``image_sigma`` px and ``world_sigma`` mm)."""
+    :func:`calibrate_heads`, both with ``image_sigma`` px and ``world_sigma`` mm).
+
+    ``from_images``: the ceiling's LED found in rendered frames (about 1 s per camera for
+    300 positions) instead of projected truth plus noise; the heads' calibration points
+    are projected truth plus noise either way."""
     rng = as_rng(rng)
-    ceiling, c_rms = calibrate_ceiling(scene, rng=rng, image_sigma=image_sigma,
-                                       world_sigma=world_sigma)
+    c = calibrate_ceiling(scene, rng=rng, image_sigma=image_sigma, world_sigma=world_sigma,
+                          from_images=from_images)
     heads, h_rms = calibrate_heads(scene.heads, rng=rng, image_sigma=image_sigma,
                                    world_sigma=world_sigma)
-    return SceneCalibration(ceiling=ceiling, heads=heads, ceiling_rms_px=c_rms,
-                            head_rms_px=h_rms)
+    return SceneCalibration(ceiling=c.cameras, heads=heads, ceiling_rms_px=c.check_rms_px,
+                            head_rms_px=h_rms, ceiling_fit_rms_px=c.fit_rms_px,
+                            ceiling_from_images=c.from_images)
 
 
 def head_devices(scene: MixedScaleScene, *, heads=None,

@@ -9,7 +9,9 @@ it labels correctly without an operator.
 Builds the walk of notebook 15 (`lsmta.synth.mixed_scale.mixed_scale_scene`, its settings by
 default: 4 m at 1.2 m/s, six ceiling cameras, the head LED hidden from 2.5 to 2.9 s, the heads
 reading their angles back in 0.1 degree steps); calibrates the ceiling rig and the heads by
-the library's procedures (`lsmta.evaluation.mixed_scale.calibrate_scene`), runs
+the library's procedures (`lsmta.evaluation.mixed_scale.calibrate_scene`; the ceiling's
+calibration LED found by the detector in rendered frames, the heads' points projected truth
+plus noise), runs
 `lsmta.systems.capture_mixed_scale` with prediction and, unless ``--no-baseline``, without
 it, scores both after the fact, and triangulates the same marker images at the heads' true
 angles (the read-back's share). The run with prediction identifies the face markers itself
@@ -42,7 +44,8 @@ from seed_spread import Headline, add_arguments, run
 from lsmta.report import write_json
 
 TRAIN_NOISE = 0.2      # mm, the still capture the face model is learnt from (notebook 15)
-CAL_IN = "projected truth plus noise (the ceiling's and the heads' calibration points)"
+CAL_IN = ("projected truth plus noise (the heads' calibration points; the ceiling's LED is "
+          "found in rendered frames)")
 CEILING_IN = f"mask from truth (the ceiling cameras' monitors); {CAL_IN}"
 SYSTEM_IN = ("model learnt from generated shapes (a still capture of this face, "
              f"{TRAIN_NOISE:g} mm noise); {CEILING_IN}")
@@ -109,7 +112,7 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
     t0 = time.perf_counter()
     scene = mixed_scale_scene(rng=seed, travel=travel, speed=speed, n_ceiling=ceiling,
                               head_f=head_f, head_hidden=tuple(hidden) if hidden else None)
-    cal = ms.calibrate_scene(scene, rng=seed + 1)
+    cal = ms.calibrate_scene(scene, rng=seed + 1, from_images=True)
     inputs = ms.walk_inputs(scene, cal, rng=seed + 2, video_rate=params.video_rate,
                             train_noise=TRAIN_NOISE, readback_step=readback_step,
                             readback_noise=readback_noise)
@@ -139,6 +142,7 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
            # the stages only: "identification" is a part of "marker tracking"
            "system_s": float(sum(cap.seconds[name] for name, _ in STAGES))}
     detail = {"prepare_s": prep_s, "ceiling_rms_px": cal.ceiling_rms_px.tolist(),
+              "ceiling_fit_rms_px": cal.ceiling_fit_rms_px.tolist(),
               "head_rms_px": cal.head_rms_px.tolist(), "stage_s": cap.seconds,
               "measured_share": float(sc.measured.mean()),
               "led_tracks": len(cap.tracking.tracks),

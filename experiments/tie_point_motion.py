@@ -39,6 +39,8 @@ def velocities(videos, picks, xy, frame_of) -> np.ndarray:
     frames as indices into ``videos``' selection."""
     vel = np.full(xy.shape, np.nan)
     last = videos.n_frames - 1
+    if last < 1:
+        raise SystemExit("--frames: expected at least two frames (the flow needs a neighbour)")
     for i, f in enumerate(picks):
         lo, hi = max(f - 1, 0), min(f + 1, last)
         a, b = videos.read(lo), videos.read(hi)
@@ -46,7 +48,8 @@ def velocities(videos, picks, xy, frame_of) -> np.ndarray:
         for k in range(len(xy)):
             flow = cv2.calcOpticalFlowFarneback(a[k], b[k], None, 0.5, 4, 21, 3, 7, 1.5, 0)
             ok = np.isfinite(xy[k, sel, 0])
-            ij = np.round(xy[k, sel[ok]]).astype(int)
+            h, w = flow.shape[:2]
+            ij = np.clip(np.round(xy[k, sel[ok]]).astype(int), 0, [w - 1, h - 1])
             vel[k, sel[ok]] = flow[ij[:, 1], ij[:, 0]] / (hi - lo)
     return vel
 

@@ -10,7 +10,7 @@ import pytest
 from lsmta.body import full_body_model, surface_distance, surface_distance_terms, template_size
 from lsmta.body._kernels import ball_field
 from lsmta.body.metaballs import field
-from lsmta.body.silhouette import point_derivatives, silhouette_terms
+from lsmta.body.silhouette import point_derivatives, point_terms, silhouette_terms
 from lsmta.synth.body import make_body, walk
 from lsmta.synth.render import cast_body
 from lsmta.synth.rigs import triplet_rig
@@ -107,6 +107,25 @@ def test_point_derivatives_match_the_skeleton_jacobian(body):
     assert np.abs(want).max() > 1.0              # derivatives that can fail
     np.testing.assert_allclose(d_th, want, rtol=0, atol=1e-8)
     np.testing.assert_allclose(d_t, want_t, rtol=0, atol=1e-12)
+
+
+def test_point_terms_check_what_the_kernel_would_read(body):
+    """Bad indices, radii or points are refused before the compiled pass reads them."""
+    m, angles, scales, radii, base, pts = body
+    a, b = angles[:1], base[:1]
+    seg = np.zeros(len(pts), int)
+    bad = seg.copy()
+    bad[0] = m.n_segments
+    with pytest.raises(ValueError, match="segment"):
+        point_terms(m, pts, bad, a, scales, radii, base=b)
+    with pytest.raises(ValueError, match="radii"):
+        point_terms(m, pts, seg, a, scales, -radii, base=b)
+    with pytest.raises(ValueError, match="x"):
+        point_terms(m, pts[:, :2], seg, a, scales, radii, base=b)
+    nan = pts.copy()
+    nan[0] = np.nan
+    r, _, _ = point_terms(m, nan, seg, a, scales, radii, base=b)
+    assert np.isnan(r[0]) and np.isfinite(r[1:]).all()
 
 
 def test_silhouette_search_matches_the_vectorised_golden_section(body):

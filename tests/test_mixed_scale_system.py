@@ -264,3 +264,16 @@ def test_ceiling_survey_centroids_lie_on_the_true_projections_and_bad_input_erro
         ms.ceiling_survey_centroids(scene, X[:, :2])
     with pytest.raises(ValueError, match="n_survey"):
         ms.calibrate_ceiling(scene, n_survey=3)
+
+
+def test_both_ceiling_routes_draw_the_same_survey_start_and_heads():
+    """The routes differ only in where the LED's image points come from: the survey's
+    noise, the start and the check path are the same draws, and so is everything calibrated
+    after the ceiling (the heads)."""
+    scene = mixed_scale_scene(rng=5, travel=700.0, stand=0.8, n_ceiling=2)
+    a = ms.calibrate_scene(scene, rng=11, from_images=False)
+    b = ms.calibrate_scene(scene, rng=11, from_images=True)
+    assert not a.ceiling_from_images and b.ceiling_from_images
+    np.testing.assert_array_equal(a.head_rms_px, b.head_rms_px)
+    assert not np.array_equal(a.ceiling_fit_rms_px, b.ceiling_fit_rms_px)
+

@@ -109,18 +109,39 @@ def silhouette_terms(model: MetaballModel, origins, directions, angles, scales, 
 
 def point_terms(model: MetaballModel, x, segment, angles, scales, radii, *, base=None,
                 _frames=None):
-    """Skin distances ``(N,)`` (mm) of world points ``x (N, 3)`` on their segments
-    ``(N,)`` and their derivatives (:func:`point_derivatives`), in one compiled pass;
-    returns ``r, d_angles (N, J), d_translation (N, 3)``. (``_frames``: the one frame's
-    bone frames and ball centres when the caller has them.)"""
+    """Skin distances of world points on their segments and their derivatives
+    (:func:`point_derivatives`), in one compiled pass.
+
+    Parameters
+    ----------
+    model : MetaballModel
+    x : (N, 3) array
+        World points, mm (NaN allowed: it propagates).
+    segment : (N,) int array
+        Each point's segment, in ``[0, model.n_segments)``.
+    angles : (1, J) array; scales : (L,); radii : (S, 3, 3), mm; base : (1, 4, 4), optional
+    _frames : (F, C), optional
+        The one frame's bone frames and ball centres when the caller has them.
+
+    Returns
+    -------
+    r : (N,) array
+        Signed skin distances, mm.
+    d_angles : (N, J) array
+        mm per radian.
+    d_translation : (N, 3) array
+    """
+    x = as_array(x, "x", shape=(None, 3), allow_nan=True)
+    segment = MetaballModel._indices(segment, "segment", len(x), model.n_segments)
+    radii = _radii(radii, "radii", shape=(model.n_segments, 3, 3))
     W = model.skeleton.transforms(angles, scales, base=base)[0]
     if _frames is None:
         R, joint = model._arrays[:2]
         F, C = W[joint] @ R, model.centres(scales)
     else:
         F, C = _frames
-    return segment_terms(np.asarray(x, float), np.asarray(segment, np.int64), F, C,
-                         np.asarray(radii, float), W, model.skeleton.arrays[4],
+    return segment_terms(np.ascontiguousarray(x, float), segment.astype(np.int64), F, C,
+                         np.ascontiguousarray(radii, float), W, model.skeleton.arrays[4],
                          model._arrays[1], _ROOT_T)
 
 

@@ -95,6 +95,14 @@ class CeilingCalibration:
     from_images: bool
 
 
+def _monitor_mask(video) -> np.ndarray:
+    """The operator's mask of a ceiling video: its monitor's box and 2 px around it."""
+    m = np.zeros(video.frames.shape[1:], bool)
+    x0, y0, x1, y1 = video.monitor.astype(int)
+    m[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = True
+    return m
+
+
 def ceiling_survey_centroids(scene: MixedScaleScene, X, *,
                              rng: np.random.Generator | int | None = None,
                              threshold_sigmas: float = 5.0) -> np.ndarray:
@@ -115,6 +123,8 @@ def ceiling_survey_centroids(scene: MixedScaleScene, X, *,
     scene : MixedScaleScene
     X : (N, 3) array
         The LED's positions, mm.
+    rng : numpy.random.Generator, int or None
+        The rendered frames' image noise.
     threshold_sigmas : float
         The detection threshold's offset in units of the measured image noise (> 0).
 
@@ -137,10 +147,8 @@ def ceiling_survey_centroids(scene: MixedScaleScene, X, *,
     out = np.full((len(scene.ceiling), len(X), 2), np.nan)
     for k, cam in enumerate(scene.ceiling):
         v = render_led_video(leds, cam, times, rng=rng, params=params)
-        invalid = np.zeros(v.frames.shape[1:], bool)
-        x0, y0, x1, y1 = v.monitor.astype(int)
-        invalid[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = True
-        found = detect(v.frames, noise_threshold(v.background, sigmas=sigmas), invalid=invalid)
+        found = detect(v.frames, noise_threshold(v.background, sigmas=sigmas),
+                       invalid=_monitor_mask(v))
         one = np.flatnonzero(np.diff(found.start) == 1)
         out[k, one] = found.xy[found.start[one]]
     return out
@@ -171,10 +179,12 @@ def calibrate_ceiling(scene: MixedScaleScene, *, rng: np.random.Generator | int 
     rng = as_rng(rng)
     box = dict(center=(0.0, 0.0, 1300.0), half_size=(1900.0, 2500.0, 500.0))
     X = led_path(n=n_survey, rng=rng, **box)
+    # both routes draw the same numbers from rng (the renderer draws from a child of it):
+    # survey noise, start and check path are then the same, and only the route differs
+    xy = project_observations(scene.ceiling, X, rng=rng, sigma_px=image_sigma)
     if from_images:
-        xy = ceiling_survey_centroids(scene, X, rng=rng, threshold_sigmas=threshold_sigmas)
-    else:
-        xy = project_observations(scene.ceiling, X, rng=rng, sigma_px=image_sigma)
+        xy = ceiling_survey_centroids(scene, X, rng=rng.spawn(1)[0],
+                                      threshold_sigmas=threshold_sigmas)
     Xs = X + rng.normal(0, world_sigma, X.shape)
     guess = poor_guess(scene.ceiling, rng=rng, pose_mm=100.0, pose_deg=2.0, f_rel=0.03)
     ceiling = resect_all(guess, Xs, xy, n_iter=60)
@@ -285,12 +295,7 @@ def walk_inputs(scene: MixedScaleScene, calibration: SceneCalibration, *,
     rng = as_rng(rng)
     as_scalar(train_noise, "train_noise", nonnegative=True)
     cv = ceiling_videos(scene, rng=rng)
-    invalid = []
-    for v in cv.videos:
-        m = np.zeros(v.frames.shape[1:], bool)
-        x0, y0, x1, y1 = v.monitor.astype(int)
-        m[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = True
-        invalid.append(m)
+    invalid = [_monitor_mask(v) for v in cv.videos]
     feed = CeilingFeed(cameras=calibration.ceiling, frames=[v.frames for v in cv.videos],
                        stamps=cv.stamps, backgrounds=[v.background for v in cv.videos],
                        arrival=cv.arrival, invalid=invalid)

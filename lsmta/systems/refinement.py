@@ -52,7 +52,8 @@ class RigRefinementParams:
         positions are scaled back. ASIFT's time grows with the pixels, and on the Pose2Sim
         demo (1920 px) the tie points found at full size did not generalise to held-out
         frames (median over cameras 4.9 -> 6.0 px) where those found at half size did
-        (8.1 -> 2.4 px; ``experiments/capture_demo.py``).
+        (8.1 -> 2.4 px; ``experiments/capture_demo.py``, before the ratio test's
+        ``distinct_px``).
     max_points : int
         Most tie points adjusted; beyond it those seen by the most views are kept (then
         evenly over the rest), which bounds the adjustment's time.

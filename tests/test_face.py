@@ -413,3 +413,120 @@ def test_removal_trials_match_the_experiment_by_hand(model):
                                    np.sort(np.linalg.norm(want, axis=1)), rtol=1e-12)
         assert got.xy[name][0].shape == (20 * 11, 2)
     assert np.median(got.errors[ef.METHODS[2]][0]) < 3.0      # PCA basis: a few mm at most
+
+
+# --- self-occlusion: markers hidden by the head itself (Davis section 5.3) ------------------
+
+_BASE = np.stack([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]], axis=1)   # head -> world, facing -Y
+_CAM = np.array([[0.0, -3000.0, 0.0]])                             # in front of the face
+
+
+def _posed(head_points, yaw_deg):
+    """Head-frame points (M, 3) under a head at the origin turned by ``yaw_deg``."""
+    R = _BASE @ Rotation.from_euler("y", yaw_deg, degrees=True).as_matrix()
+    return (head_points @ R.T)[None], R[None], np.zeros((1, 3))
+
+
+def test_self_occlusion_sphere_far_side_hidden_near_side_seen():
+    from lsmta.synth.head_surface import HeadShape, self_occlusion
+    sphere = HeadShape(a=100.0, b=100.0, front=100.0, back=100.0, face=False)
+    near, far = [0.0, 0.0, 100.0], [0.0, 0.0, -100.0]
+    side = [70.0, 0.0, np.sqrt(100.0 ** 2 - 70.0 ** 2)]
+    other = [-70.0, 0.0, np.sqrt(100.0 ** 2 - 70.0 ** 2)]
+    pts, R, t = _posed(np.array([near, far, side, other]), 0.0)
+    seen = self_occlusion(pts, R, t, _CAM, shape=sphere)
+    assert seen.shape == (1, 1, 4)
+    assert seen[0, 0].tolist() == [True, False, True, True]
+    # turning the head by 60 degrees carries the +x side behind the sphere, -x stays in view
+    pts, R, t = _posed(np.array([near, far, side, other]), 60.0)
+    seen = self_occlusion(pts, R, t, _CAM, shape=sphere)[0, 0]
+    assert seen.tolist() == [True, False, False, True]
+
+
+def test_self_occlusion_sphere_agrees_with_the_tangent_plane():
+    # on a sphere, a point is seen exactly when the camera is above its tangent plane
+    from lsmta.synth.head_surface import HeadShape, self_occlusion
+    rng = np.random.default_rng(3)
+    sphere = HeadShape(a=100.0, b=100.0, front=100.0, back=100.0, face=False)
+    n = rng.normal(size=(400, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    n = n[np.abs(n[:, 0] ** 2 + n[:, 1] ** 2 - 1) > 0.02]   # off the outline's rim
+    cams = rng.normal(size=(3, 3))
+    cams = 2000 * cams / np.linalg.norm(cams, axis=1, keepdims=True)
+    pts = 100.0 * n
+    seen = self_occlusion(pts[None], np.eye(3)[None], np.zeros((1, 3)), cams, shape=sphere)[0]
+    cosine = np.einsum("cmk,mk->cm", cams[:, None] - pts[None], n) / np.linalg.norm(
+        cams[:, None] - pts[None], axis=2)
+    clear = np.abs(cosine) > 0.1                         # leave out grazing lines of sight
+    assert clear.sum() > 800
+    np.testing.assert_array_equal(seen[clear], cosine[clear] > 0)
+
+
+def test_self_occlusion_the_nose_hides_markers_that_face_the_camera(model):
+    from lsmta.synth.head_surface import self_occlusion
+    pts, R, t = _posed(model.neutral, 0.0)
+    assert self_occlusion(pts, R, t, _CAM).all()          # the whole face seen from the front
+    pts, R, t = _posed(model.neutral, 50.0)
+    seen = self_occlusion(pts, R, t, _CAM)[0, 0]
+    facing = sf.visible(pts[0], model.normals @ R[0].T, _CAM[0], min_cos=0.0)
+    behind_nose = np.flatnonzero(facing & ~seen)
+    assert {model.labels[i] for i in behind_nose} >= {"under_eye_0", "under_eye_2"}
+    # turned further, one side of the face is lost and the other kept
+    pts, R, t = _posed(model.neutral, 80.0)
+    seen = self_occlusion(pts, R, t, _CAM)[0, 0]
+    x = model.neutral[:, 0]
+    assert seen[x > 20].mean() < 0.2 and seen[x < -20].mean() > 0.95
+
+
+def test_self_occlusion_expressions_do_not_hide_a_marker_from_the_front(model):
+    from lsmta.synth.head_surface import self_occlusion
+    w = np.vstack([np.eye(len(model.mode_names)),
+                   np.random.default_rng(0).uniform(0, 1, (30, len(model.mode_names)))])
+    shapes = model.shapes(w)
+    R = np.broadcast_to(_BASE, (len(w), 3, 3))
+    seen = self_occlusion(shapes @ _BASE.T, R, np.zeros((len(w), 3)), _CAM)
+    assert seen.all()
+
+
+def test_self_occlusion_bad_input_and_inputs_untouched(model):
+    from lsmta.synth.head_surface import HeadShape, self_occlusion
+    pts, R, t = _posed(model.neutral, 30.0)
+    keep = pts.copy()
+    seen = self_occlusion(pts, R, t, np.repeat(_CAM[None], 1, axis=0))   # (T, C, 3) centres
+    np.testing.assert_array_equal(pts, keep)
+    assert seen.shape == (1, 1, len(model.labels))
+    with pytest.raises(ValueError, match="points"):
+        self_occlusion(pts[0], R, t, _CAM)
+    with pytest.raises(ValueError, match="R"):
+        self_occlusion(pts, 2 * R, t, _CAM)
+    with pytest.raises(ValueError, match="t"):
+        self_occlusion(pts, R, np.zeros((2, 3)), _CAM)
+    with pytest.raises(ValueError, match="camera_centres"):
+        self_occlusion(pts, R, t, np.zeros((1, 2)))
+    with pytest.raises(ValueError, match="camera_centres"):
+        self_occlusion(pts, R, t, np.zeros((1, 3)))             # inside the head
+    with pytest.raises(ValueError, match="step"):
+        self_occlusion(pts, R, t, _CAM, step=0)
+    with pytest.raises(TypeError, match="shape"):
+        self_occlusion(pts, R, t, _CAM, shape="sphere")
+    with pytest.raises(ValueError, match="face"):
+        HeadShape(a=100.0, face=True)
+
+
+def test_head_turn_and_observation_with_self_occlusion(model):
+    R, t = sf.head_turn(41, yaw_deg=70.0)
+    turn = np.degrees(np.arccos(np.clip(R[:, :, 2] @ np.array([0.0, -1.0, 0.0]), -1, 1)))
+    assert turn[0] == pytest.approx(0, abs=1e-6) and turn.max() == pytest.approx(70, abs=0.5)
+    assert R[10, 0, 2] > 0 > R[30, 0, 2]                    # towards +X first, then -X
+    seq = sf.face_sequence(model, 41, rng=1, motion=(R, t))
+    np.testing.assert_allclose(seq.R, R)
+    pos = [(-1600.0, -3000.0, 2200.0), (1600.0, -3000.0, 2200.0)]
+    obs = ef.observe_face(seq, rng=2, positions=pos, pose_noise_deg=0.0, occlusion="surface")
+    measured = np.isfinite(obs.points).all(axis=2).sum(axis=1)
+    assert measured[0] >= 70                                # facing the cameras: nearly all
+    assert measured.min() < 0.65 * len(model.labels)
+    assert obs.n_visible.min() < 0.65 * len(model.labels)   # turned: a side hidden
+    with pytest.raises(ValueError, match="occlusion"):
+        ef.observe_face(seq, rng=2, positions=pos, occlusion="rays")
+    with pytest.raises(ValueError, match="motion"):
+        sf.face_sequence(model, 40, rng=1, motion=(R, t))

@@ -26,6 +26,7 @@ from ..face import (
 )
 from ..rigid import apply_rigid, fit_rigid
 from ..synth.face import face_cameras, face_sequence, visible
+from ..synth.head_surface import self_occlusion
 from ..synth.marker_video import render_marker_video
 from ..tracking.markers import MarkerStatus, MarkerTrackingParams, track_markers
 from ..triangulation import triangulate, triangulate_single_pair
@@ -62,7 +63,8 @@ def _perturb(cam, rng, deg):
 
 def observe_face(seq, *, rng: np.random.Generator | int | None = None,
                  pixel_noise: float = 0.5, pose_noise_deg: float = 0.1, min_cos: float = 0.3,
-                 pairing: str = "single", positions=None) -> Observation:
+                 pairing: str = "single", positions=None,
+                 occlusion: str = "normals") -> Observation:
     """Image and triangulate a generated face sequence (:mod:`lsmta.synth.face`).
 
     No marker tracking is simulated here (see :func:`observe_tracked` for the section 5.1
@@ -74,7 +76,10 @@ def observe_face(seq, *, rng: np.random.Generator | int | None = None,
     images come from cameras whose orientation is off by ``pose_noise_deg`` per axis (the
     thesis's 0.1 degree pan-tilt precision) while the triangulation uses the nominal
     ones; tracked image positions carry ``pixel_noise`` px of Gaussian noise; markers
-    facing away (:func:`visible`) or outside the image are not seen.
+    outside the image are not seen, nor markers hidden by the head: with
+    ``occlusion="normals"`` those facing away (:func:`visible` with ``min_cos``), with
+    ``occlusion="surface"`` those whose line of sight passes through the head
+    (:func:`lsmta.synth.head_surface.self_occlusion`, ray casting; ``min_cos`` unused).
 
     ``pairing="single"``: all markers of a frame come from the single pair seeing the most
     of them (the thesis's choice). ``pairing="per_marker"``: each marker comes from a pair
@@ -86,8 +91,14 @@ def observe_face(seq, *, rng: np.random.Generator | int | None = None,
     rng = as_rng(rng)
     if pairing not in ("single", "per_marker"):
         raise ValueError(f"pairing: expected 'single' or 'per_marker', got {pairing!r}")
+    if occlusion not in ("normals", "surface"):
+        raise ValueError(f"occlusion: expected 'normals' or 'surface', got {occlusion!r}")
     choice_rng = np.random.default_rng(rng.integers(2 ** 63))
     T, M, _ = seq.world.shape
+    unhidden = None
+    if occlusion == "surface":      # camera centres do not depend on where they aim
+        centres = np.array([c.C for c in face_cameras(seq.t[0], positions=positions)])
+        unhidden = self_occlusion(seq.world, seq.R, seq.t, centres)
     pts = np.full((T, M, 3), np.nan)
     pairs = np.zeros((T, 2), dtype=int)
     nvis = None
@@ -100,7 +111,10 @@ def observe_face(seq, *, rng: np.random.Generator | int | None = None,
             true_cam = _perturb(cam, rng, pose_noise_deg)
             p = true_cam.project(seq.world[f], behind="nan")
             p = p + rng.normal(0, pixel_noise, p.shape)
-            ok = visible(seq.world[f], seq.normals[f], cam.C, min_cos=min_cos)
+            if unhidden is None:
+                ok = visible(seq.world[f], seq.normals[f], cam.C, min_cos=min_cos)
+            else:
+                ok = unhidden[f, k].copy()
             ok &= cam.in_image(p) & np.isfinite(p).all(axis=1)
             xy[k, ok] = p[ok]
             nvis[f, k] = ok.sum()

@@ -9,7 +9,8 @@ smooth displacement fields: jaw open (a rotation of everything below the mouth a
 hinge behind the cheeks), smile, brows up, pucker, frown and a sideways mouth shift. The
 four markers under the eyes, the eye corners, the temples and the upper two forehead rows
 are never moved by an expression (``MarkedFace.rigid``; the thesis's Fig. 64 uses such
-markers to measure accuracy).
+markers to measure accuracy). The face closed into a head, and markers hidden by it, are in
+:mod:`lsmta.synth.head_surface`.
 
 World frame as in :mod:`lsmta.synth.rigs`: X right, Y away from the cameras, Z up. At zero
 head rotation the face looks along -Y (towards cameras placed at negative Y).
@@ -242,6 +243,30 @@ def head_motion(n_frames: int, *, rng: np.random.Generator | int | None = None,
     return R, t
 
 
+def head_turn(n_frames: int, *, yaw_deg: float = 80.0, turns: float = 1.0,
+              position=(0.0, 0.0, 1650.0)):
+    """A head standing at ``position`` (mm, world) and turning from side to side: yaw
+    ``yaw_deg * sin(2 pi turns s)`` degrees for ``s`` from 0 to 1 over the frames (about
+    the head's vertical axis; positive turns the face towards world +X), no nod or tilt.
+    At zero yaw the face looks along -Y, towards cameras at negative Y.
+
+    Returns
+    -------
+    R : (T, 3, 3) array
+        Head-to-world rotations.
+    t : (T, 3) array
+        Head origin in the world, mm.
+    """
+    T = as_int(n_frames, "n_frames")
+    yaw_deg = as_scalar(yaw_deg, "yaw_deg")
+    turns = as_scalar(turns, "turns", positive=True)
+    pos = as_array(position, "position", shape=(3,))
+    yaw = yaw_deg * np.sin(2 * np.pi * turns * np.linspace(0, 1, T))
+    base = np.stack([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]], axis=1)
+    R = base @ Rotation.from_euler("Y", yaw[:, None], degrees=True).as_matrix()
+    return R, np.tile(pos, (T, 1))
+
+
 @dataclass(frozen=True)
 class FaceSequence:
     """A generated face sequence (ground truth).
@@ -272,14 +297,18 @@ class FaceSequence:
 
 def face_sequence(model: MarkedFace, n_frames: int, *, rng: np.random.Generator | int | None = None,
                   moving: bool = True, hold: float = 25.0, activity: float = 0.5,
-                  modes: int = len(MODES)) -> FaceSequence:
+                  modes: int = len(MODES), motion=None) -> FaceSequence:
     """Expressions (:func:`expression_weights` with ``hold``, ``activity`` and ``modes``)
     on the face, with :func:`head_motion` if ``moving`` else a still head facing the
-    cameras at the room's centre."""
+    cameras at the room's centre; ``motion``, a pair ``(R (T, 3, 3), t (T, 3) mm)`` such
+    as :func:`head_turn` returns, is used instead when given."""
     rng = as_rng(rng)
     w = expression_weights(n_frames, rng=rng, hold=hold, activity=activity, modes=modes)
     head = model.shapes(w)
-    if moving:
+    if motion is not None:
+        R = as_array(motion[0], "motion[0] (R)", shape=(len(w), 3, 3))
+        t = as_array(motion[1], "motion[1] (t)", shape=(len(w), 3))
+    elif moving:
         R, t = head_motion(n_frames, rng=rng)
     else:
         base = np.stack([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]], axis=1)
@@ -306,7 +335,8 @@ def face_cameras(target, *, positions=None, f: float = 2400.0, width: int = 640,
 def visible(points, normals, centre, *, min_cos: float = 0.3) -> np.ndarray:
     """Markers a camera at ``centre`` sees: the surface faces the camera with
     ``cos(angle between normal and line of sight) > min_cos`` (so half the face
-    disappears as the head turns away).
+    disappears as the head turns away). A stand-in: the face itself hiding markers
+    (the nose in front of a cheek) is :func:`lsmta.synth.head_surface.self_occlusion`.
 
     Parameters
     ----------

@@ -47,11 +47,15 @@ class Observation:
         Camera pair used in each frame.
     n_visible : (T, K) int array
         Markers each camera sees.
+    seen : (T, K, M) bool array or None
+        Which markers each camera sees (:func:`observe_face`; None from
+        :func:`observe_tracked`).
     """
 
     points: np.ndarray
     pair: np.ndarray
     n_visible: np.ndarray
+    seen: np.ndarray | None = None
 
 
 def _perturb(cam, rng, deg):
@@ -101,11 +105,11 @@ def observe_face(seq, *, rng: np.random.Generator | int | None = None,
         unhidden = self_occlusion(seq.world, seq.R, seq.t, centres)
     pts = np.full((T, M, 3), np.nan)
     pairs = np.zeros((T, 2), dtype=int)
-    nvis = None
+    seen = None
     for f in range(T):
         cams = face_cameras(seq.t[f], positions=positions)
-        if nvis is None:
-            nvis = np.zeros((T, len(cams)), dtype=int)
+        if seen is None:
+            seen = np.zeros((T, len(cams), M), dtype=bool)
         xy = np.full((len(cams), M, 2), np.nan)
         for k, cam in enumerate(cams):
             true_cam = _perturb(cam, rng, pose_noise_deg)
@@ -117,7 +121,7 @@ def observe_face(seq, *, rng: np.random.Generator | int | None = None,
                 ok = unhidden[f, k].copy()
             ok &= cam.in_image(p) & np.isfinite(p).all(axis=1)
             xy[k, ok] = p[ok]
-            nvis[f, k] = ok.sum()
+            seen[f, k] = ok
         if pairing == "single":
             r = triangulate_single_pair(cams, xy)
             pts[f] = r.intersection.points
@@ -133,7 +137,7 @@ def observe_face(seq, *, rng: np.random.Generator | int | None = None,
         pick = keys.argmax(axis=0)
         has = ok.any(axis=0)
         pts[f, has] = cand[pick[has], np.flatnonzero(has)]
-    return Observation(points=pts, pair=pairs, n_visible=nvis)
+    return Observation(points=pts, pair=pairs, n_visible=seen.sum(axis=2), seen=seen)
 
 
 def to_head(points, R, t):

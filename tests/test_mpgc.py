@@ -189,6 +189,31 @@ def test_constrained_growth_and_measure_disparity_on_the_ramp(rectified):
     assert s["median"] < 0.03 and s["bad1"] == 0.0 and s["density"] == out.density
 
 
+def test_new_seeds_reach_a_region_the_growth_never_came_to(rectified):
+    f, g = rectified.template.copy(), rectified.search.copy()
+    f[:, 100:150] = 128.0                 # a flat band the growth cannot cross
+    g[:, 100:150] = 128.0
+    one = DisparityParams(n_seeds=1, reseed_rounds=0)
+    before = measure_disparity(f, g, disparity_range=(0, 16), params=one)
+    after = measure_disparity(f, g, disparity_range=(0, 16),
+                              params=DisparityParams(n_seeds=1, reseed_rounds=1))
+    cols = np.arange(before.disparity.shape[1]) * before.step
+    sides = [cols < 90, cols >= 160]
+    reached = [np.isfinite(before.disparity[:, s]).mean() for s in sides]
+    assert min(reached) < 0.05 < 0.8 < max(reached)        # one seed: one side only
+    assert len(after.regrown) == 1
+    assert all(np.isfinite(after.disparity[:, s]).mean() > 0.8 for s in sides)
+    kept = np.isfinite(before.disparity)
+    assert np.array_equal(after.disparity[kept], before.disparity[kept])
+    rows, ncols = after.disparity.shape
+    yy, xx = np.mgrid[0:rows, 0:ncols] * after.step
+    truth = ramp(rectified, np.stack([xx.ravel(), yy.ravel()], 1).astype(float))
+    new = np.isfinite(after.disparity) & ~kept
+    assert np.median(np.abs(after.disparity - truth.reshape(rows, ncols))[new]) < 0.05
+    with pytest.raises(ValueError, match="reseed_rounds"):
+        DisparityParams(reseed_rounds=-1)
+
+
 def test_partial_patches_match_at_the_border(rectified):
     pts = np.array([[6.0, 100.0], [238.0, 60.0], [120.0, 0.0]])
     truth = rectified.true_xy(pts)

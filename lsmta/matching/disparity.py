@@ -9,7 +9,12 @@ the left image. Three stages:
    (:func:`~lsmta.matching.seeds.find_disparity_seeds`), unless the caller gives seeds;
 2. growth: :func:`~lsmta.matching.grow.grow_matches` with the constraint, from the seeds
    over the grid;
-3. the grid: disparities, their standard deviations and ``sigma0`` as ``(rows, cols)``
+3. seeds found again where the growth never came (automatic seeds only): corners in the
+   regions at least ``reseed_gap`` nodes away from every measured node, then growth from
+   them over the unmeasured nodes only, ``reseed_rounds`` times or until no new node is
+   measured. A growth stops at a depth edge or a weak-texture band, so a region behind
+   it is reached only from a seed of its own; measured nodes are never matched again;
+4. the grid: disparities, their standard deviations and ``sigma0`` as ``(rows, cols)``
    arrays; matches outside ``disparity_range`` are dropped.
 
 The defaults (:class:`DisparityParams`) were chosen on Middlebury "Cones" (notebook 16), then
@@ -24,7 +29,10 @@ on them; notebook 16 reports them with these defaults):
   the right disparity (on Cones: 0.7 % of the matches more than 1 px off at 10
   iterations, 1.9 % at 15, 2.4 % at 20, for 74 %, 87 % and 88 % density);
 * patches may reach over the image border (``partial``), so border nodes are matched;
-* thresholds: ``sigma_xy`` up to 0.2 px, singular values of ``A`` in 0.5-2, shear up to 0.5.
+* thresholds: ``sigma_xy`` up to 0.2 px, singular values of ``A`` in 0.5-2, shear up to 0.5;
+* one round of new seeds in unreached regions (``reseed_rounds=1``, ``reseed_gap=2``): added
+  for issue #33 item 3, set by rule (a region two nodes clear of the growth), not by scores;
+  ``experiments/dense_misses.py`` shows where the remaining misses are.
 """
 
 from __future__ import annotations
@@ -32,6 +40,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy import ndimage
 
 from .._validate import as_int
 from .grow import GrowParams, GrowResult, grow_matches
@@ -59,7 +68,9 @@ class DisparityResult:
     seeds : Seeds
         The seeds the growth started from.
     grown : GrowResult
-        The growth itself (affine matrices, growth order, ...).
+        The growth from ``seeds`` (affine matrices, growth order, ...).
+    regrown : tuple of (Seeds, GrowResult)
+        The growths from seeds found again in unreached regions, one per round.
     """
 
     disparity: np.ndarray
@@ -68,6 +79,7 @@ class DisparityResult:
     step: int
     seeds: Seeds
     grown: GrowResult
+    regrown: tuple = ()
 
     @property
     def density(self) -> float:
@@ -95,16 +107,27 @@ class DisparityParams:
         default here (None) to ``max_displacement = step``, ``max_sigma_xy = 0.2``,
         ``scale_range = (0.5, 2)``, ``max_shear = 0.5``.
     n_seeds : int
-        Seeds to look for (:func:`~lsmta.matching.seeds.find_disparity_seeds`).
+        Seeds to look for (:func:`~lsmta.matching.seeds.find_disparity_seeds`), in each
+        round.
+    reseed_rounds : int
+        Rounds of new seeds in regions the growth never reached (0: none; automatic seeds
+        only).
+    reseed_gap : int
+        A region is unreached at least this many nodes away from every measured node.
     """
 
     grow: GrowParams = _GROW
     n_seeds: int = 30
+    reseed_rounds: int = 1
+    reseed_gap: int = 2
 
     def __post_init__(self):
         if not isinstance(self.grow, GrowParams):
             raise TypeError(f"grow: expected a GrowParams, got {type(self.grow).__name__}")
         object.__setattr__(self, "n_seeds", as_int(self.n_seeds, "n_seeds"))
+        object.__setattr__(self, "reseed_rounds", as_int(self.reseed_rounds, "reseed_rounds",
+                                                         minimum=0))
+        object.__setattr__(self, "reseed_gap", as_int(self.reseed_gap, "reseed_gap"))
 
     def grow_params(self) -> GrowParams:
         """``grow`` with its thresholds: given, or the defaults above at its ``step``."""
@@ -148,7 +171,8 @@ def measure_disparity(left, right, *, disparity_range, seeds: Seeds | None = Non
     if not 0 <= lo < hi:
         raise ValueError(f"disparity_range: expected 0 <= smallest < largest (pixels), got "
                          f"{disparity_range}")
-    if seeds is None:
+    automatic = seeds is None
+    if automatic:
         seeds = find_disparity_seeds(f, g, disparity_range=disparity_range, n_seeds=p.n_seeds)
     if seeds.xy.shape[1] == 0:
         raise ValueError("seeds: none found; give seeds or widen disparity_range")
@@ -156,9 +180,41 @@ def measure_disparity(left, right, *, disparity_range, seeds: Seeds | None = Non
     grown = grow_matches(f, g, seeds.xy[0], seeds.xy[1], mask=mask, template_mask=template_mask,
                          constraint=RectifiedPair(), params=grow)
     grid = [np.full(grown.grid_shape, np.nan) for _ in range(3)]
+    _put(grid, grown, lo, hi)
+    regrown = []
+    for _ in range(p.reseed_rounds if automatic else 0):
+        unmeasured = _pixels(~np.isfinite(grid[0]), grow.step, f.shape, mask)
+        unreached = _pixels(~ndimage.binary_dilation(np.isfinite(grid[0]),
+                                                     iterations=p.reseed_gap),
+                            grow.step, f.shape, mask)
+        more = find_disparity_seeds(f, g, disparity_range=disparity_range, n_seeds=p.n_seeds,
+                                    mask=unreached)
+        if more.xy.shape[1] == 0:
+            break
+        again = grow_matches(f, g, more.xy[0], more.xy[1], mask=unmeasured,
+                             template_mask=template_mask, constraint=RectifiedPair(),
+                             params=grow)
+        regrown.append((more, again))
+        if not _put(grid, again, lo, hi):
+            break
+    return DisparityResult(disparity=grid[0], sigma=grid[1], sigma0=grid[2], step=grow.step,
+                           seeds=seeds, grown=grown, regrown=tuple(regrown))
+
+
+def _put(grid, grown: GrowResult, lo: float, hi: float) -> int:
+    """Write ``grown``'s matches inside ``[lo, hi]`` into the empty nodes of ``grid``
+    (disparity, sigma, sigma0); returns how many were written."""
     keep = (grown.t >= lo) & (grown.t <= hi)
     r, c = grown.node_index[keep].T
+    new = ~np.isfinite(grid[0][r, c])
     for out, values in zip(grid, (grown.t, grown.sigma_t, grown.sigma0)):
-        out[r, c] = values[keep]
-    return DisparityResult(disparity=grid[0], sigma=grid[1], sigma0=grid[2], step=grow.step,
-                           seeds=seeds, grown=grown)
+        out[r[new], c[new]] = values[keep][new]
+    return int(new.sum())
+
+
+def _pixels(nodes, step: int, shape, mask) -> np.ndarray:
+    """The pixel mask ``shape`` of the grid ``nodes`` (each node's ``step x step`` block),
+    within ``mask`` if given."""
+    px = np.repeat(np.repeat(nodes, step, axis=0), step, axis=1)[:shape[0], :shape[1]]
+    px = np.pad(px, ((0, shape[0] - px.shape[0]), (0, shape[1] - px.shape[1])))
+    return px if mask is None else px & np.asarray(mask, bool)

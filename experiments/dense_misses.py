@@ -71,7 +71,7 @@ def label_misses(pair, ours, sgbm, *, step: int, patch: int, weak_sigmas: float,
     grads = [np.abs(np.diff(d, axis=a, prepend=np.nan)) / step for a in (0, 1)]
     grads += [np.abs(np.diff(d[::-1], axis=0, prepend=np.nan))[::-1] / step,
               np.abs(np.diff(d[:, ::-1], axis=1, prepend=np.nan))[:, ::-1] / step]
-    steep = np.nanmax(np.stack(grads), axis=0) > slant
+    steep = np.nan_to_num(np.stack(grads), nan=0.0).max(axis=0) > slant
     left = miss.copy()
     out = {"misses": int(miss.sum()), "scored": int(scored.sum())}
     right = np.abs(sgbm - truth) <= 1.0

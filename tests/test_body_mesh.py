@@ -68,6 +68,7 @@ def test_volume_matches_the_fields(posed, body):
     model, pose, scales, radii, base = body
     counted = body_volume(model, pose, scales, radii, base=base, voxel_mm=5.0)
     assert abs(posed.volume / counted - 1) < 0.005
+    assert abs(posed.field_volume / counted - 1) < 0.005    # the same count on the mesh's grid
     assert 50e6 < counted < 80e6                             # a person of 1.75 m: 50-80 litres
 
 
@@ -98,13 +99,19 @@ def test_lone_ball_against_the_exact_sphere_and_ellipsoid():
     exact = 4 / 3 * np.pi * np.prod(radii * ROOT_T)
     assert ell.n_open_edges == 0 and abs(ell.volume / exact - 1) < 0.01
     assert abs(metaball_volume(P, radii, voxel_mm=3.0) / exact - 1) < 0.01
+    assert ell.field_volume == metaball_volume(P, radii, voxel_mm=3.0)
 
 
 def test_two_apart_balls_are_two_components():
     P = np.tile(np.eye(4), (2, 1, 1))
     P[1, :3, 3] = [300.0, 0.0, 0.0]
-    mesh = metaball_mesh(P, [[100.0] * 3] * 2, voxel_mm=8.0)
+    radii = [[100.0] * 3, [80.0] * 3]
+    mesh = metaball_mesh(P, radii, voxel_mm=8.0)
     assert mesh.n_components == 2 and mesh.n_open_edges == 0
+    label = mesh.component_labels
+    assert set(label) == {0, 1}                              # 0: the piece with most vertices
+    assert np.all(mesh.vertices[label == 0, 0] < 150) and np.all(mesh.vertices[label == 1, 0] > 150)
+    assert abs(mesh.volume / (4 / 3 * np.pi * ROOT_T ** 3 * (100 ** 3 + 80 ** 3)) - 1) < 0.02
     P[1, :3, 3] = [80.0, 0.0, 0.0]                           # blended into one
     assert metaball_mesh(P, [[100.0] * 3] * 2, voxel_mm=8.0).n_components == 1
 

@@ -18,11 +18,13 @@ The grid
     far below any level).
 What the mesh says about itself (:class:`BodyMesh`)
     Open edges (used by one triangle) and non-manifold edges (by more than two): both 0 for
-    a watertight surface; connected components (SciPy's ``connected_components`` on the
-    vertices joined by the triangles' edges); the enclosed volume from the triangles
-    (divergence theorem: the sum of ``v0 . (v1 x v2) / 6``, positive for outward
-    triangles) and the area. :func:`field_volume` counts the voxels where ``F >= T``,
-    the volume the mesh should enclose, for a check that does not go through the mesh.
+    a watertight surface; connected pieces (SciPy's ``connected_components`` on the
+    vertices joined by the triangles' edges): a model whose field does not join two parts
+    gives two pieces, and a gap narrower than a voxel may be bridged; the enclosed volume
+    from the triangles (divergence theorem: the sum of ``v0 . (v1 x v2) / 6``, positive
+    for outward triangles) and the area. :func:`metaball_volume` / :func:`body_volume`
+    count the grid nodes where ``F >= T``, the volume the mesh should enclose, for a check
+    that does not go through the mesh.
 Files (:func:`write_mesh`)
     PLY (binary) and OBJ through pyvista (VTK's ``vtkPLYWriter`` and ``vtkOBJWriter``,
     no rendering needed): they write the vertices (float32, mm, the body's world) and the
@@ -65,12 +67,16 @@ class BodyMesh:
         Grid step of the field samples, mm (the mesh's resolution).
     level : float
         The level ``T`` of the field.
+    field_volume : float
+        The field's own volume on the same grid: the nodes with ``F >= T`` counted, each
+        one voxel (mm^3; :func:`metaball_volume`).
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     voxel_mm: float
     level: float
+    field_volume: float = float("nan")
 
     def __post_init__(self):
         freeze(self, ("vertices", "faces"))
@@ -88,7 +94,7 @@ class BodyMesh:
         """How many triangles use each distinct undirected edge."""
         f = self.faces
         e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-        _, counts = np.unique(e, axis=0, return_counts=True)
+        _, counts = np.unique(e[:, 0] * np.int64(self.n_vertices) + e[:, 1], return_counts=True)
         return counts
 
     @property
@@ -102,16 +108,29 @@ class BodyMesh:
         return int((self._edge_uses > 2).sum())
 
     @cached_property
-    def n_components(self) -> int:
-        """Connected pieces of the surface (vertices joined by the triangles' edges)."""
-        if not self.n_faces:
-            return 0
+    def component_labels(self) -> np.ndarray:
+        """``(V,)`` the connected piece of every vertex (vertices joined by the triangles'
+        edges), numbered by size: 0 the piece with the most vertices; -1 a vertex no
+        triangle uses."""
         f = self.faces
         i = np.concatenate([f[:, 0], f[:, 1], f[:, 2]])
         j = np.concatenate([f[:, 1], f[:, 2], f[:, 0]])
         graph = coo_matrix((np.ones(len(i)), (i, j)), shape=(self.n_vertices,) * 2)
         _, label = connected_components(graph, directed=False)
-        return len(np.unique(label[np.unique(f)]))
+        used = np.zeros(self.n_vertices, bool)
+        used[f.ravel()] = True
+        sizes = np.bincount(label[used], minlength=label.max() + 1 if len(label) else 0)
+        order = np.argsort(-sizes, kind="stable")
+        rank = np.empty_like(order)
+        rank[order] = np.arange(len(order))
+        out = np.where(used, rank[label], -1)
+        out.flags.writeable = False
+        return out
+
+    @property
+    def n_components(self) -> int:
+        """Connected pieces of the surface (vertices joined by the triangles' edges)."""
+        return int(self.component_labels.max()) + 1 if self.n_faces else 0
 
     @property
     def volume(self) -> float:
@@ -210,6 +229,7 @@ def metaball_mesh(poses, radii, *, voxel_mm: float = 8.0, level: float = THRESHO
     # crop to the inside nodes and one node around them: the cropped grid's faces stay
     # outside, and marching cubes scans fewer cubes
     inside = np.nonzero(values >= level)
+    counted = float(len(inside[0]) * voxel ** 3)
     lo = np.maximum([a.min() - 1 for a in inside], 0)
     hi = np.minimum([a.max() + 2 for a in inside], values.shape)
     values = values[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]]
@@ -219,7 +239,7 @@ def metaball_mesh(poses, radii, *, voxel_mm: float = 8.0, level: float = THRESHO
     # scikit-image orders a triangle clockwise seen from the larger values (inside): turn it
     return BodyMesh(vertices=verts.astype(np.float64) + origin,
                     faces=np.ascontiguousarray(faces[:, [0, 2, 1]], dtype=np.int64),
-                    voxel_mm=voxel, level=level)
+                    voxel_mm=voxel, level=level, field_volume=counted)
 
 
 def metaball_volume(poses, radii, *, voxel_mm: float = 8.0, level: float = THRESHOLD) -> float:

@@ -54,7 +54,8 @@ def add_parser(sub) -> None:
     cap = sub.add_parser(
         "capture", help="run the LSMTA system on your own videos and camera file",
         description="Run the LSMTA system on a recording: videos and a camera file in, "
-                    "refined cameras, trajectories (C3D, TRC) and surfaces (PLY) out.",
+                    "refined cameras, trajectories (C3D, TRC), surfaces (PLY) and, with "
+                    "--arm, one closed mesh of the fitted arm per fitted frame (PLY) out.",
         epilog=EXAMPLE,
         formatter_class=argparse.RawDescriptionHelpFormatter)
     cap.add_argument("--videos", nargs="+", required=True, metavar="VIDEO",
@@ -191,6 +192,7 @@ def run(args) -> int:
     for row in capture.summary():
         took = f"{row['seconds']:7.1f} s" if np.isfinite(row["seconds"]) else "      -  "
         print(f"  {row['stage']:<13} {took}  {row['result']}", file=sys.stderr)
-    print(f"lsmta capture: wrote {args.out} ({len(files['surfaces'])} surface files) in "
+    print(f"lsmta capture: wrote {args.out} ({len(files['surfaces'])} surface files, "
+          f"{len(files['mesh'])} mesh files) in "
           f"{record['seconds_total']:.0f} s", file=sys.stderr)
     return 0

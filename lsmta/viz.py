@@ -4,8 +4,8 @@ pyvista renders off-screen through VTK's EGL window (Mesa's ``libEGL`` must be i
 ``scripts/bootstrap.sh`` does it). :func:`scene_image` returns the picture as an array, so a
 notebook shows it with ``plt.imshow`` and needs no interactive 3-D backend.
 
-Under ``lsmta reproduce`` (``LSMTA_VIEWS_DIR`` set) :func:`scene_image`, :func:`cloud_image`
-and :func:`metaball_image` also write the same scene as an interactive view
+Under ``lsmta reproduce`` (``LSMTA_VIEWS_DIR`` set) :func:`scene_image`, :func:`cloud_image`,
+:func:`metaball_image` and :func:`mesh_image` also write the same scene as an interactive view
 (:func:`export_3d_html`, from :mod:`lsmta.interactive`), which the book shows after the
 picture; the PNG stays for print.
 """
@@ -21,7 +21,8 @@ from matplotlib.patches import ConnectionPatch
 from .interactive import VIEWS_ENV, Lines, Mesh, Points, export_3d_html
 
 __all__ = ["show_images", "draw_correspondences", "part_colours", "scene_image", "cloud_image",
-           "draw_marker_pose", "metaball_image", "export_3d_html", "Mesh", "Points", "Lines"]
+           "draw_marker_pose", "metaball_image", "mesh_image", "export_3d_html", "Mesh", "Points",
+           "Lines"]
 
 
 def _pyvista():
@@ -336,6 +337,50 @@ def metaball_image(ball_poses, radii, *, threshold_scale: float = 0.589, mesh=No
     centre = poses[:, :3, 3].mean(axis=0) if focal_point is None else np.asarray(focal_point)
     eye = centre + np.array([250.0, -1000.0, 250.0]) if view_from is None else view_from
     pl.camera_position = [tuple(eye), tuple(centre), (0, 0, 1)]
+    image = pl.screenshot(return_img=True)
+    pl.close()
+    return image
+
+
+def mesh_image(vertices, faces, *, color="wheat", labels=None, window_size=(450, 600),
+               views=None, title: str = "closed mesh") -> np.ndarray:
+    """Off-screen picture ``(H, W, 3)`` of one triangle mesh (mm), shaded, from one or more
+    viewpoints side by side.
+
+    Parameters
+    ----------
+    vertices : (V, 3) array; faces : (F, 3) int array
+    labels : (V,) int array, optional
+        A label per vertex (e.g. its connected piece): label 0 in ``color``, the others in
+        tab10's colours.
+    views : sequence of (3,) offsets, optional
+        Each viewpoint's direction from the mesh's centre (the camera then backs off until
+        the whole mesh is in view); by default from -Y and from +X of the world (turned
+        by 20 degrees), a little above.
+    """
+    pv = _pyvista()
+    v, f = np.asarray(vertices, float), np.asarray(faces)
+    centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    views = [(-0.6, -1.6, 0.35), (1.6, -0.6, 0.35)] if views is None else views
+    pl = pv.Plotter(off_screen=True, shape=(1, len(views)),
+                    window_size=[window_size[0] * len(views), window_size[1]], border=False)
+    surface = pv.PolyData.from_regular_faces(v, f)
+    kw = {"color": color}
+    if labels is not None:
+        lab = np.asarray(labels, int)
+        rgb = np.asarray(plt.cm.tab10(np.maximum(lab, 0) % 10)[:, :3])
+        rgb[lab == 0] = plt.matplotlib.colors.to_rgb(color)
+        surface["rgb"] = (255 * rgb).astype(np.uint8)
+        kw = {"scalars": "rgb", "rgb": True}
+    for k, eye in enumerate(views):
+        pl.subplot(0, k)
+        pl.set_background("white")
+        pl.add_mesh(surface, smooth_shading=True, **kw)
+        pl.camera_position = [tuple(centre + np.asarray(eye, float)), tuple(centre), (0, 0, 1)]
+        pl.reset_camera()                  # the same direction, the whole mesh in view
+        pl.camera.zoom(1.35)               # reset_camera fits the bounding sphere: too far
+    _export_under_reproduce([Mesh(v, f, color=color if isinstance(color, str) else _hex(color),
+                                  name="mesh")], title)
     image = pl.screenshot(return_img=True)
     pl.close()
     return image

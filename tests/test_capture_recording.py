@@ -3,6 +3,8 @@ its files (BodyCapture.save, read back with ezc3d and pyvista), camera files rec
 content, and the ``lsmta capture`` command."""
 
 import json
+from dataclasses import replace
+from types import SimpleNamespace
 
 import cv2
 import ezc3d
@@ -11,6 +13,7 @@ import pytest
 import pyvista as pv
 from plyfile import PlyData
 
+from lsmta.body import FitStatus, ModelState, arm_model
 from lsmta.camera import Camera
 from lsmta.camera_files import (
     camera_file_format,
@@ -158,6 +161,32 @@ def test_capture_saved_files_read_back(capture, tmp_path):
     assert record["trajectories"]["total"] == X.shape[1]
     assert record["view_groups"][0]["tracks"] == len(capture.tracks)
     assert "<img" in files["report"].read_text()
+    assert files["mesh"] == [] and not (tmp_path / "out" / "mesh").exists()
+    assert record["mesh"]["written"] is False and "no body model" in record["mesh"]["reason"]
+
+
+@pytest.mark.slow
+def test_capture_saved_meshes(capture, tmp_path):
+    """With a body model (a stand-in arm fit: the fields save reads), one closed mesh per
+    fitted frame, named by its file frame number."""
+    model = arm_model()
+    T = len(capture.frames)
+    state = ModelState(angles=np.tile([0.4, 0.3, 0.2, 1.2, 0.1], (2, 1)),
+                       shoulder=np.tile([180.0, 0.0, 400.0], (2, 1)), scales=np.ones(3),
+                       radii=model.simplified_radii([[80, 80], [65, 65], [35, 70]], [1, 1, 1]))
+    full = SimpleNamespace(state=state, status=FitStatus.OK, rounds=1,
+                           lengths=np.array([300.0, 250.0, 100.0]))
+    arm = SimpleNamespace(frames=np.array([0, T - 1]), full=full, sigma_mm=2.0,
+                          start=SimpleNamespace(torso_poses=np.tile(np.eye(4), (T, 1, 1))))
+    files = replace(capture, arm=arm).save(tmp_path / "out", report=False)
+    assert [p.name for p in files["mesh"]] == [f"frame_{int(capture.frames[t]):04d}.ply"
+                                               for t in (0, T - 1)]
+    record = json.loads(files["summary"].read_text())["mesh"]
+    for path, row in zip(files["mesh"], record["frames"]):
+        mesh = pv.read(path)
+        assert mesh.n_open_edges == 0 and row["open_edges"] == 0 and row["components"] == 1
+        assert row["vertices"] == mesh.n_points
+        assert mesh.volume / 1000 == pytest.approx(row["volume_ml"], abs=0.01)
 
 
 def test_capture_recording_bad_input(session):

@@ -20,6 +20,7 @@ from .arm import JOINTS, LIMBS, angles_from_joints, arm_model, base_poses, shoul
 from .fitting import BodyFit, FitParams, FitStatus, ModelState, fit_frame, fit_sequence
 from .full_body import full_body_model, limit_violations, limits, template_size
 from .full_fit import FullBodyFit, FullBodyFitParams, fit_full_body
+from .mesh import BodyMesh, body_mesh, body_volume, metaball_mesh, metaball_volume, write_mesh
 from .metaballs import (
     THRESHOLD,
     MetaballModel,
@@ -47,5 +48,6 @@ __all__ = [
     "merge_patches", "model_skin", "skin_patch", "SilhouetteTerms", "silhouette_terms",
     "PoseFit", "PoseFitParams", "fit_pose", "FullBodyFit", "FullBodyFitParams", "fit_full_body",
     "full_body_model", "limit_violations", "limits",
-    "template_size",
+    "template_size", "BodyMesh", "body_mesh", "body_volume", "metaball_mesh", "metaball_volume",
+    "write_mesh",
 ]

@@ -226,3 +226,43 @@ def ball_field(x, P, radii):
             total += np.exp(-2.0 * (q0 * q0 + q1 * q1 + q2 * q2))
         out[n] = total
     return out
+
+
+
+@nb.njit(cache=True, error_model="numpy", parallel=True)
+def grid_field(origin, step, shape, P, radii, cutoff):
+    """The summed field of balls ``P (B, 4, 4)`` (ball -> world), ``radii (B, 3)`` (mm) on
+    the regular grid ``origin + step * (i, j, k)`` of ``shape (3,)`` nodes, ``(nx, ny, nz)``
+    (:func:`lsmta.body.mesh.metaball_mesh`). A ball adds nothing where its ellipsoidal
+    distance ``d`` exceeds ``cutoff``: along each grid line ``d`` is a quadratic in ``k``,
+    so only the run of nodes with ``d <= cutoff`` is visited."""
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    B = len(P)
+    M = np.empty((B, 3, 3))                 # world offset -> ball coordinates / radii
+    for b in range(B):
+        for r in range(3):
+            for c in range(3):
+                M[b, r, c] = P[b, c, r] / radii[b, r]
+    out = np.zeros((nx, ny, nz))
+    for i in nb.prange(nx):
+        x0 = origin[0] + step * i
+        for j in range(ny):
+            x1 = origin[1] + step * j
+            for b in range(B):
+                d0, d1, d2 = x0 - P[b, 0, 3], x1 - P[b, 1, 3], origin[2] - P[b, 2, 3]
+                q0 = M[b, 0, 0] * d0 + M[b, 0, 1] * d1 + M[b, 0, 2] * d2
+                q1 = M[b, 1, 0] * d0 + M[b, 1, 1] * d1 + M[b, 1, 2] * d2
+                q2 = M[b, 2, 0] * d0 + M[b, 2, 1] * d1 + M[b, 2, 2] * d2
+                m0, m1, m2 = step * M[b, 0, 2], step * M[b, 1, 2], step * M[b, 2, 2]
+                a = m0 * m0 + m1 * m1 + m2 * m2
+                hb = q0 * m0 + q1 * m1 + q2 * m2            # half the linear coefficient
+                c = q0 * q0 + q1 * q1 + q2 * q2
+                disc = hb * hb - a * (c - cutoff)
+                if disc < 0.0:
+                    continue
+                root = np.sqrt(disc)
+                k0 = max(int(np.ceil((-hb - root) / a)), 0)
+                k1 = min(int(np.floor((-hb + root) / a)), nz - 1)
+                for k in range(k0, k1 + 1):
+                    out[i, j, k] += np.exp(-2.0 * (c + k * (2.0 * hb + k * a)))
+    return out

@@ -13,6 +13,11 @@ Files, in one folder:
   (file frame numbers), with per-point ``group``, ``sigma_px`` (largest LSM standard deviation
   of the point's image positions) and ``ray_distance_mm`` (RMS distance of the point to its
   rays);
+* ``mesh/frame_NNNN.ply`` (with the arm model stage): one closed triangle mesh of the fitted
+  body model per fitted frame, the iso-surface of its metaball field by marching cubes
+  (:func:`lsmta.body.mesh.body_mesh`, mm, the cameras' world); ``summary.json``'s ``mesh``
+  entry gives each frame's vertices, open edges, components and volume, or says why no
+  mesh was written (no body model was fitted: the stage is optional);
 * ``summary.json``: the stages with their times and results, counts, the calibration's own
   summary where it has one;
 * ``report.html``: the summary table and figures of this recording (the views with the
@@ -31,6 +36,8 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from ..body import arm_model, base_poses
+from ..body.mesh import body_mesh, write_mesh
 from ..camera_files import write_camera_toml
 from ..result_files import write_c3d, write_ply, write_trc
 
@@ -121,6 +128,51 @@ def capture_record(capture) -> dict:
     return _plain(record)
 
 
+MESH_VOXEL_MM = 6.0      # grid step of the saved meshes, mm
+
+
+def capture_meshes(capture, *, voxel_mm: float = MESH_VOXEL_MM) -> list:
+    """One closed mesh of the fitted body model per fitted frame.
+
+    Parameters
+    ----------
+    capture : BodyCapture
+    voxel_mm : float
+        Grid step of :func:`lsmta.body.mesh.body_mesh`, mm.
+
+    Returns
+    -------
+    list of (int, BodyMesh)
+        The processed frame index and its mesh; empty without a body model (the arm model
+        stage did not run).
+    """
+    arm = capture.arm
+    if arm is None:
+        return []
+    model, state = arm_model(), arm.full.state
+    torso = arm.start.torso_poses
+    out = []
+    for i, t in enumerate(arm.frames):
+        base = base_poses(torso[t:t + 1], state.shoulder[i])
+        out.append((int(t), body_mesh(model, state.angles[i], state.scales, state.radii,
+                                      base=base, voxel_mm=voxel_mm)))
+    return out
+
+
+def mesh_record(meshes) -> dict:
+    """``summary.json``'s ``mesh`` entry from ``(file frame number, BodyMesh)`` pairs: each
+    mesh's counts and volume (ml), or why there is none."""
+    if not meshes:
+        return {"written": False,
+                "reason": "no body model was fitted (the arm model stage is optional and did "
+                          "not run), so no mesh"}
+    return {"written": True, "model": "arm", "voxel_mm": meshes[0][1].voxel_mm,
+            "level": meshes[0][1].level,
+            "frames": [{"frame": f, "vertices": m.n_vertices, "faces": m.n_faces,
+                        "open_edges": m.n_open_edges, "components": m.n_components,
+                        "volume_ml": round(m.volume / 1000.0, 2)} for f, m in meshes]}
+
+
 def _png(fig) -> str:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=80, bbox_inches="tight")
@@ -195,7 +247,8 @@ def save_capture(capture, directory, *, report: bool = True) -> dict:
     Returns
     -------
     dict of str -> Path
-        The files written, by kind (``surfaces`` maps to a list).
+        The files written, by kind (``surfaces`` and ``mesh`` map to lists; ``mesh`` is
+        empty without a body model).
     """
     folder = Path(directory)
     folder.mkdir(parents=True, exist_ok=True)
@@ -217,7 +270,10 @@ def save_capture(capture, directory, *, report: bool = True) -> dict:
             out["surfaces"].append(write_ply(folder / "surfaces" /
                                              f"frame_{int(capture.frames[t]):04d}.ply",
                                              points, scalars=scalars))
+    meshes = [(int(capture.frames[t]), m) for t, m in capture_meshes(capture)]
+    out["mesh"] = [write_mesh(folder / "mesh" / f"frame_{f:04d}.ply", m) for f, m in meshes]
     record = capture_record(capture)
+    record["mesh"] = mesh_record(meshes)
     record["files"] = {k: ([str(p.relative_to(folder)) for p in v] if isinstance(v, list)
                            else str(v.relative_to(folder))) for k, v in out.items()}
     out["summary"] = folder / "summary.json"

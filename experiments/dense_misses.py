@@ -7,7 +7,8 @@ compare_on_pair` runs ours (defaults, automatic seeds) and SGBM (filters on) onc
 scored node (non-occluded, known truth) that SGBM measures and we do not is a *miss*; each
 miss gets the first of these labels that applies:
 
-1. ``border``: within ``patch`` px of the image edge, or so near the left edge that its
+1. ``border``: within a whole ``patch`` of the image edge (generous: the matcher's patches
+   may reach over the border by half a patch), or so near the left edge that its
    match would leave the right image (``x < largest disparity``);
 2. ``occlusion``: within two grid steps of an occluded or unknown node (the truth's mask);
 3. ``weak texture``: the grey values' standard deviation over the node's patch is below

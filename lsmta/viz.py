@@ -349,17 +349,29 @@ def mesh_image(vertices, faces, *, color="wheat", labels=None, window_size=(450,
 
     Parameters
     ----------
-    vertices : (V, 3) array; faces : (F, 3) int array
+    vertices : (V, 3) array
+        mm.
+    faces : (F, 3) int array
+        Vertex indices of each triangle.
+    color : str or RGB tuple
+        The surface's colour (label 0's with ``labels``).
     labels : (V,) int array, optional
         A label per vertex (e.g. its connected piece): label 0 in ``color``, the others in
-        tab10's colours.
+        tab10's colours (the interactive copy for the book is drawn in ``color`` only).
+    window_size : (int, int)
+        Width and height of each view, px.
     views : sequence of (3,) offsets, optional
         Each viewpoint's direction from the mesh's centre (the camera then backs off until
         the whole mesh is in view); by default from -Y and from +X of the world (turned
         by 20 degrees), a little above.
+    title : str
+        Title of the interactive copy written for the book (under ``lsmta reproduce``).
     """
     pv = _pyvista()
     v, f = np.asarray(vertices, float), np.asarray(faces)
+    if labels is not None and np.shape(labels) != (len(v),):
+        raise ValueError(f"labels: expected one label per vertex, shape ({len(v)},), got "
+                         f"{np.shape(labels)}")
     centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
     views = [(-0.6, -1.6, 0.35), (1.6, -0.6, 0.35)] if views is None else views
     pl = pv.Plotter(off_screen=True, shape=(1, len(views)),

@@ -67,7 +67,7 @@ def test_volume_matches_the_fields(posed, body):
     corners by a few 0.1 %; a hand left out would be 0.5 %."""
     model, pose, scales, radii, base = body
     counted = body_volume(model, pose, scales, radii, base=base, voxel_mm=5.0)
-    assert abs(posed.volume / counted - 1) < 0.005
+    assert -0.005 < posed.volume / counted - 1 < 0     # corners cut, never a part lost
     assert abs(posed.field_volume / counted - 1) < 0.005    # the same count on the mesh's grid
     assert 50e6 < counted < 80e6                             # a person of 1.75 m: 50-80 litres
 

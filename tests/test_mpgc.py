@@ -210,6 +210,14 @@ def test_new_seeds_reach_a_region_the_growth_never_came_to(rectified):
     truth = ramp(rectified, np.stack([xx.ravel(), yy.ravel()], 1).astype(float))
     new = np.isfinite(after.disparity) & ~kept
     assert np.median(np.abs(after.disparity - truth.reshape(rows, ncols))[new]) < 0.05
+    given = measure_disparity(f, g, disparity_range=(0, 16), seeds=before.seeds,
+                              params=DisparityParams(n_seeds=1, reseed_rounds=1))
+    assert given.regrown == ()                       # the caller's seeds: no new ones
+    left_only = np.zeros(f.shape, bool)
+    left_only[:, :90] = True
+    masked = measure_disparity(f, g, disparity_range=(0, 16), mask=left_only,
+                               params=DisparityParams(n_seeds=1, reseed_rounds=1))
+    assert not np.isfinite(masked.disparity[:, cols >= 100]).any()   # never outside the mask
     with pytest.raises(ValueError, match="reseed_rounds"):
         DisparityParams(reseed_rounds=-1)
 

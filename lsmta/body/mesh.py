@@ -79,6 +79,13 @@ class BodyMesh:
     field_volume: float = float("nan")
 
     def __post_init__(self):
+        v, f = np.asarray(self.vertices), np.asarray(self.faces)
+        if v.ndim != 2 or v.shape[1:] != (3,) or not np.isfinite(v).all():
+            raise ValueError(f"vertices: expected a finite (V, 3) array, mm; got shape {v.shape}")
+        if (f.ndim != 2 or f.shape[1:] != (3,) or not np.issubdtype(f.dtype, np.integer)
+                or (f.size and (f.min() < 0 or f.max() >= len(v)))):
+            raise ValueError(f"faces: expected an integer (F, 3) array of indices into the "
+                             f"{len(v)} vertices; got {f.dtype} {f.shape}")
         freeze(self, ("vertices", "faces"))
 
     @property
@@ -149,7 +156,7 @@ class BodyMesh:
 
     def polydata(self):
         """The mesh as a ``pyvista.PolyData`` (a copy)."""
-        import pyvista as pv
+        import pyvista as pv  # deferred: VTK loads with pyvista; only the writers need it
 
         return pv.PolyData.from_regular_faces(np.array(self.vertices), np.array(self.faces))
 
@@ -191,7 +198,7 @@ def _sample(P, R, voxel, level):
     voxel = as_scalar(voxel, "voxel_mm", positive=True)
     level = _level(level)
     origin, shape = _grid(P, R, voxel, level)
-    if np.prod(shape.astype(float)) > 2e8:
+    if np.prod(shape.astype(float)) > 3e7:       # 240 MB of float64 before marching cubes
         raise ValueError(f"voxel_mm: a grid of {shape.tolist()} nodes at {voxel} mm is too big; "
                          "expected a coarser voxel")
     values = grid_field(origin, voxel, shape, P, R, CUTOFF)
@@ -266,6 +273,11 @@ def body_balls(model: MetaballModel, angles, scales, radii, *, base=None):
         Ball radii, mm, positive.
     base : (4, 4) or (1, 4, 4) array, optional
         Root frame -> world, mm.
+
+    Returns
+    -------
+    poses : (S * 3, 4, 4) array
+    radii : (S * 3, 3) array
     """
     J = model.skeleton.n_joints
     a = as_array(angles, "angles")

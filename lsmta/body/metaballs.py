@@ -368,6 +368,11 @@ def iso_surface(model: MetaballModel, angles, scales, radii, *, base=None, spaci
                 threshold: float = THRESHOLD, margin: float = 10.0):
     """The skin ``F = T`` of one frame as a triangle mesh (marching cubes, scikit-image).
 
+    For figures and skin distances. Its grid reaches ``max(radii) + margin`` beyond the
+    balls, which closes the skin of the models' usual shapes but is not a bound;
+    :func:`lsmta.body.mesh.body_mesh` sizes its grid so that the mesh is closed in any pose
+    (and counts its open edges, pieces and volume): use it for a mesh to export.
+
     Parameters
     ----------
     model : MetaballModel

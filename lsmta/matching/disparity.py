@@ -10,7 +10,7 @@ the left image. Three stages:
 2. growth: :func:`~lsmta.matching.grow.grow_matches` with the constraint, from the seeds
    over the grid;
 3. seeds found again where the growth never came (automatic seeds only): corners in the
-   regions at least ``reseed_gap`` nodes away from every measured node, then growth from
+   regions more than ``reseed_gap`` nodes (city-block) from every measured node, then growth from
    them over the unmeasured nodes only, ``reseed_rounds`` times or until no new node is
    measured. A growth stops at a depth edge or a weak-texture band, so a region behind
    it is reached only from a seed of its own; measured nodes are never matched again;
@@ -31,7 +31,7 @@ on them; notebook 16 reports them with these defaults):
 * patches may reach over the image border (``partial``), so border nodes are matched;
 * thresholds: ``sigma_xy`` up to 0.2 px, singular values of ``A`` in 0.5-2, shear up to 0.5;
 * one round of new seeds in unreached regions (``reseed_rounds=1``, ``reseed_gap=2``): added
-  for issue #33 item 3, set by rule (a region two nodes clear of the growth), not by scores;
+  for issue #33 item 3, set by rule (more than two nodes clear of the growth), not by scores;
   ``experiments/dense_misses.py`` shows where the remaining misses are.
 """
 
@@ -113,7 +113,8 @@ class DisparityParams:
         Rounds of new seeds in regions the growth never reached (0: none; automatic seeds
         only).
     reseed_gap : int
-        A region is unreached at least this many nodes away from every measured node.
+        A node is unreached more than this many nodes (city-block distance) from every
+        measured node.
     """
 
     grow: GrowParams = _GROW
@@ -213,8 +214,9 @@ def _put(grid, grown: GrowResult, lo: float, hi: float) -> int:
 
 
 def _pixels(nodes, step: int, shape, mask) -> np.ndarray:
-    """The pixel mask ``shape`` of the grid ``nodes`` (each node's ``step x step`` block),
-    within ``mask`` if given."""
+    """The pixel mask ``shape`` of the grid ``nodes`` (each node's ``step x step`` block, the
+    node at its top-left corner, as the growth reads ``mask`` at the node's pixel), within
+    ``mask`` if given."""
     px = np.repeat(np.repeat(nodes, step, axis=0), step, axis=1)[:shape[0], :shape[1]]
     px = np.pad(px, ((0, shape[0] - px.shape[0]), (0, shape[1] - px.shape[1])))
     return px if mask is None else px & np.asarray(mask, bool)

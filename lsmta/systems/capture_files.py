@@ -169,7 +169,9 @@ def mesh_record(meshes) -> dict:
     return {"written": True, "model": "arm", "voxel_mm": meshes[0][1].voxel_mm,
             "level": meshes[0][1].level,
             "frames": [{"frame": f, "vertices": m.n_vertices, "faces": m.n_faces,
-                        "open_edges": m.n_open_edges, "components": m.n_components,
+                        "open_edges": m.n_open_edges,
+                        "nonmanifold_edges": m.n_nonmanifold_edges,
+                        "components": m.n_components,
                         "volume_ml": round(m.volume / 1000.0, 2)} for f, m in meshes]}
 
 
@@ -274,6 +276,8 @@ def save_capture(capture, directory, *, report: bool = True) -> dict:
     out["mesh"] = [write_mesh(folder / "mesh" / f"frame_{f:04d}.ply", m) for f, m in meshes]
     record = capture_record(capture)
     record["mesh"] = mesh_record(meshes)
+    if meshes:
+        record["mesh"]["fit_status"] = capture.arm.full.status.name   # OK, or fit with care
     record["files"] = {k: ([str(p.relative_to(folder)) for p in v] if isinstance(v, list)
                            else str(v.relative_to(folder))) for k, v in out.items()}
     out["summary"] = folder / "summary.json"

@@ -27,9 +27,13 @@ smoothly past the outermost ones), and each column ``(u, v)`` of the head, both 
 moved by ``D(u, v)``: the open jaw carries the chin and the skin around it down and back,
 so no marker hides itself and the closed-jaw chin hides nothing. The neutral places come
 from ``neutral`` (:attr:`lsmta.synth.face.MarkedFace.neutral`); without it each marker is
-taken to have moved along z only, from the sheet nearer to it. The deformation is sampled
-on a grid of ``grid`` mm per frame (a column's neutral ``(u, v)`` is found from its moved
-``(x, y)`` by fixed-point iteration), the neck and the rest of the body are not modelled.
+taken to have moved along z only, from the sheet nearer to it. ``D`` and its derivatives
+are sampled on a grid of ``grid`` mm over the neutral outline, per frame; the neutral column
+``(u, v)`` of a point ``(x, y)`` on a line of sight is found by a Newton step on
+``(u, v) + D_xy(u, v) = (x, y)`` from the previous sample's column (the first from the
+marker's own). Between markers the surface is this interpolation, not the generator's own
+expression fields; a line of sight that grazes the surface can switch between seen and
+hidden as the face moves.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import RBFInterpolator
 
 from .._validate import as_array, as_scalar
 from .face import _A, _B, _C, _depth
@@ -132,12 +137,10 @@ def self_occlusion(points, R, t, camera_centres, *, shape: HeadShape | None = No
         The head; default ``HeadShape()``: the generator's face closed by a half-ellipsoid
         110 mm deep behind it.
     neutral : (M, 3) array, optional
-        The markers on the neutral face, head frame, mm (only x, y are used: each marker's
-        displacement is taken from the front sheet there). Default: each marker moved
-        along z only, from the sheet nearer to it.
+        The markers on the neutral face, head frame, mm (x, y used: displacements from the
+        front sheet there). Default: each marker moved along z from the nearer sheet.
     step : float
-        Sampling interval along the line of sight, mm (> 0; features thinner than this can
-        be missed).
+        Sampling interval along the line of sight, mm (> 0; thinner features can be missed).
     start : float
         First sample's distance from the marker, mm (>= 0).
     tolerance : float
@@ -251,7 +254,6 @@ class _Deformation:
         self.table = None
         if not len(moved):
             return
-        from scipy.interpolate import RBFInterpolator
         us = np.arange(-shape.a - 4 * h, shape.a + 4 * h + h, h)
         vs = np.arange(-shape.b - 4 * h, shape.b + 4 * h + h, h)
         self.lo = np.array([us[0], vs[0]])
@@ -266,18 +268,20 @@ class _Deformation:
                 raise ValueError("points: no smooth surface passes through these displaced "
                                  f"markers ({err})") from None
 
-        field = np.zeros((T, len(us), len(vs), 3), dtype=np.float32)        # D on the grid
+        # D, dD/du, dD/dv on the grid (float32: ample for mm)
+        table = np.zeros((T, len(us), len(vs), 9), dtype=np.float32)
         if neutral is not None:     # the same markers' places: one spline per unit move
-            W = spline(self.uv[0], np.eye(M))                                  # (nodes, M)
-            dm = d[moved].transpose(1, 0, 2).reshape(M, -1)
-            field[moved] = (W @ dm).reshape(len(us), len(vs), len(moved), 3).transpose(
+            W = spline(self.uv[0], np.eye(M)).astype(np.float32)              # (nodes, M)
+            dm = d[moved].transpose(1, 0, 2).reshape(M, -1).astype(np.float32)
+            table[moved, ..., :3] = (W @ dm).reshape(len(us), len(vs), len(moved), 3).transpose(
                 2, 0, 1, 3)
         else:
             for f in moved:
-                field[f] = spline(self.uv[f], d[f]).reshape(len(us), len(vs), 3)
-        du = np.gradient(field, h, axis=1)
-        dv = np.gradient(field, h, axis=2)
-        self.table = np.concatenate([field, du, dv], axis=-1)       # D, dD/du, dD/dv
+                table[f, ..., :3] = spline(self.uv[f], d[f]).reshape(len(us), len(vs), 3)
+        field = table[..., :3]
+        table[..., 3:6] = np.gradient(field, h, axis=1)
+        table[..., 6:9] = np.gradient(field, h, axis=2)
+        self.table = table
         inside = (1 - (gu / shape.a) ** 2 - (gv / shape.b) ** 2) > 0
         reach = field[:, inside]                                            # (T, n, 3)
         self.grow = np.array([np.minimum(reach.min(axis=(0, 1)), 0),

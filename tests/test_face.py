@@ -463,7 +463,7 @@ def test_self_occlusion_sphere_agrees_with_the_tangent_plane():
 
 
 def test_self_occlusion_the_nose_hides_markers_that_face_the_camera(model):
-    from lsmta.synth.head_surface import self_occlusion
+    from lsmta.synth.head_surface import HeadShape, self_occlusion
     pts, R, t = _posed(model.neutral, 0.0)
     assert self_occlusion(pts, R, t, _CAM).all()          # the whole face seen from the front
     pts, R, t = _posed(model.neutral, 50.0)
@@ -471,6 +471,18 @@ def test_self_occlusion_the_nose_hides_markers_that_face_the_camera(model):
     facing = sf.visible(pts[0], model.normals @ R[0].T, _CAM[0], min_cos=0.0)
     behind_nose = np.flatnonzero(facing & ~seen)
     assert {model.labels[i] for i in behind_nose} >= {"under_eye_0", "under_eye_2"}
+    # it is the nose that hides them: their lines of sight enter the head at the nose ...
+    seen, hit = self_occlusion(pts, R, t, _CAM, return_hit=True)
+    assert np.isnan(hit[0, 0][seen[0, 0]]).all()
+    hit = hit[0, 0, behind_nose]
+    assert (np.abs(hit[:, 0]) < 20).all() and (np.abs(hit[:, 1] + 2) < 30).all()
+    # ... and a head without one (a plain half-ellipsoid of the same size, the markers on
+    # it) shows them
+    plain = HeadShape(a=80.0, b=110.0, front=95.0, face=False)
+    on_plain = model.neutral.copy()
+    on_plain[:, 2] = plain.sheets(on_plain[:, 0], on_plain[:, 1])[1]
+    pts, R, t = _posed(on_plain, 50.0)
+    assert self_occlusion(pts, R, t, _CAM, shape=plain)[0, 0, behind_nose].all()
     # turned further, one side of the face is lost and the other kept
     pts, R, t = _posed(model.neutral, 80.0)
     seen = self_occlusion(pts, R, t, _CAM)[0, 0]
@@ -484,22 +496,85 @@ def test_self_occlusion_expressions_do_not_hide_a_marker_from_the_front(model):
                    np.random.default_rng(0).uniform(0, 1, (30, len(model.mode_names)))])
     shapes = model.shapes(w)
     R = np.broadcast_to(_BASE, (len(w), 3, 3))
-    seen = self_occlusion(shapes @ _BASE.T, R, np.zeros((len(w), 3)), _CAM)
+    seen = self_occlusion(shapes @ _BASE.T, R, np.zeros((len(w), 3)), _CAM,
+                          neutral=model.neutral)
     assert seen.all()
+
+
+def _jaw_normals(model, weight):
+    """The neutral normals turned with the jaw (its hinge rotation, 16 degrees at full
+    weight, times each marker's share of it): the expressed face's normals, (M, 3)."""
+    infl = np.clip((-38 - model.neutral[:, 1]) / 14, 0, 1)
+    infl = infl * infl * (3 - 2 * infl)
+    rot = Rotation.from_rotvec(np.radians(16.0) * weight * infl[:, None] * [1.0, 0, 0])
+    return rot.apply(model.normals)
+
+
+def test_self_occlusion_the_open_jaw_hides_nothing_that_faces_the_camera(model):
+    # the rig's outer cameras (pt0, pt3; Z = 2200 mm) and a head at 1650 mm turning; the
+    # jaw opening step by step: a marker that faces a camera strongly (expressed normal,
+    # cos > 0.3) and is seen on the neutral face in the same pose (so not behind the nose
+    # or another feature that hides it without any expression) stays seen, and no marker
+    # is hidden, seen and hidden again as the jaw opens (the occluder used to be the
+    # closed-jaw face: chin markers hid and reappeared as the jaw weight rose)
+    from lsmta.synth.head_surface import self_occlusion
+    cams = np.array([[-1600.0, -3000.0, 2200.0], [1600.0, -3000.0, 2200.0]])
+    head_at = np.array([0.0, 0.0, 1650.0])
+    yaws, jaw = [-40.0, -20.0, 0.0, 20.0, 40.0], np.linspace(0, 1, 21)
+    w = np.zeros((len(jaw), len(model.mode_names)))
+    w[:, model.mode_names.index("jaw_open")] = jaw
+    shapes = model.shapes(w)                                           # (J, M, 3)
+    Rs = np.stack([_BASE @ Rotation.from_euler("y", y, degrees=True).as_matrix() for y in yaws])
+    R = np.repeat(Rs, len(jaw), axis=0)                                # (Y * J, 3, 3)
+    pts = np.einsum("tij,tmj->tmi", R, np.tile(shapes, (len(yaws), 1, 1))) + head_at
+    t = np.broadcast_to(head_at, (len(R), 3))
+    seen = self_occlusion(pts, R, t, cams, neutral=model.neutral).reshape(
+        len(yaws), len(jaw), 2, -1)
+    plain = np.einsum("yij,mj->ymi", Rs, model.neutral) + head_at     # neutral, each yaw
+    seen0 = self_occlusion(plain, Rs, np.broadcast_to(head_at, (len(yaws), 3)), cams)
+    cos = np.zeros(seen.shape)                                         # (Y, J, C, M)
+    for y in range(len(yaws)):
+        for j, wj in enumerate(jaw):
+            n = _jaw_normals(model, wj) @ Rs[y].T
+            v = cams[:, None] - pts[y * len(jaw) + j][None]               # (C, M, 3)
+            cos[y, j] = (n[None] * v).sum(axis=2) / np.linalg.norm(v, axis=2)
+    facing = cos > 0.3
+    must = facing & seen0[:, None]
+    assert must.mean() > 0.5
+    bad = np.argwhere(must & ~seen)
+    assert not len(bad), [(yaws[y], round(jaw[j], 2), c, model.labels[m]) for y, j, c, m in bad]
+    # hiding switches at most once along the sweep, for every marker whose line of sight
+    # does not graze its surface (|cos| > 0.2 all along; grazing ones hang on fractions of
+    # a millimetre of the surface)
+    steady = (cos > 0.2).all(axis=1) | (cos < -0.2).all(axis=1)        # (Y, C, M)
+    assert steady.mean() > 0.8
+    hid = ~seen
+    turns_on = (hid[:, 1:] & ~hid[:, :-1]).sum(axis=1) + hid[:, 0]     # (Y, C, M)
+    flicker = np.argwhere(steady & (turns_on > 1))
+    assert not len(flicker), [(yaws[y], c, model.labels[m]) for y, c, m in flicker]
 
 
 def test_self_occlusion_bad_input_and_inputs_untouched(model):
     from lsmta.synth.head_surface import HeadShape, self_occlusion
     pts, R, t = _posed(model.neutral, 30.0)
-    keep = pts.copy()
-    seen = self_occlusion(pts, R, t, np.repeat(_CAM[None], 1, axis=0))   # (T, C, 3) centres
-    np.testing.assert_array_equal(pts, keep)
+    pts = pts + np.array([0.0, 0.0, 1.0]) * np.linspace(0, 3, len(model.labels))[:, None]
+    cams = np.repeat(_CAM[None], 1, axis=0)                               # (T, C, 3) centres
+    keep = [a.copy() for a in (pts, R, t, cams, model.neutral)]
+    seen = self_occlusion(pts, R, t, cams, neutral=model.neutral)        # deformed surface
+    for a, b in zip((pts, R, t, cams, model.neutral), keep):
+        np.testing.assert_array_equal(a, b)
     assert seen.shape == (1, 1, len(model.labels))
-    with pytest.raises(ValueError, match="points"):
+    with pytest.raises(ValueError, match=r"^points: "):
         self_occlusion(pts[0], R, t, _CAM)
-    with pytest.raises(ValueError, match="R"):
+    with pytest.raises(ValueError, match=r"^R: "):
         self_occlusion(pts, 2 * R, t, _CAM)
-    with pytest.raises(ValueError, match="t"):
+    with pytest.raises(ValueError, match=r"^neutral: "):
+        self_occlusion(pts, R, t, _CAM, neutral=model.neutral[:5])
+    with pytest.raises(ValueError, match=r"^grid: "):
+        self_occlusion(pts, R, t, _CAM, grid=0)
+    with pytest.raises(TypeError, match=r"^return_hit: "):
+        self_occlusion(pts, R, t, _CAM, return_hit="yes")
+    with pytest.raises(ValueError, match=r"^t: "):
         self_occlusion(pts, R, np.zeros((2, 3)), _CAM)
     with pytest.raises(ValueError, match="camera_centres"):
         self_occlusion(pts, R, t, np.zeros((1, 2)))
@@ -509,8 +584,10 @@ def test_self_occlusion_bad_input_and_inputs_untouched(model):
         self_occlusion(pts, R, t, _CAM, step=0)
     with pytest.raises(TypeError, match="shape"):
         self_occlusion(pts, R, t, _CAM, shape="sphere")
-    with pytest.raises(ValueError, match="face"):
+    with pytest.raises(ValueError, match=r"^face: "):
         HeadShape(a=100.0, face=True)
+    with pytest.raises(TypeError, match=r"^face: expected a bool"):
+        HeadShape(face="no")
 
 
 def test_head_turn_and_observation_with_self_occlusion(model):
@@ -530,3 +607,7 @@ def test_head_turn_and_observation_with_self_occlusion(model):
         ef.observe_face(seq, rng=2, positions=pos, occlusion="rays")
     with pytest.raises(ValueError, match="motion"):
         sf.face_sequence(model, 40, rng=1, motion=(R, t))
+    with pytest.raises(ValueError, match=r"^motion: expected a pair"):
+        sf.face_sequence(model, 41, rng=1, motion=R)
+    with pytest.raises(ValueError, match=r"^moving: ignored when motion is given"):
+        sf.face_sequence(model, 41, rng=1, motion=(R, t), moving=False)

@@ -48,14 +48,18 @@ class Observation:
     n_visible : (T, K) int array
         Markers each camera sees.
     seen : (T, K, M) bool array or None
-        Which markers each camera sees (:func:`observe_face`; None from
-        :func:`observe_tracked`).
+        Which markers each camera sees: not hidden by the head and inside its image
+        (:func:`observe_face`; None from :func:`observe_tracked`).
+    unhidden : (T, K, M) bool array or None
+        Which markers the head does not hide from each camera, whether in its image or not
+        (:func:`observe_face`: the surface normal test or the ray casting alone).
     """
 
     points: np.ndarray
     pair: np.ndarray
     n_visible: np.ndarray
     seen: np.ndarray | None = None
+    unhidden: np.ndarray | None = None
 
 
 def _perturb(cam, rng, deg):
@@ -102,14 +106,15 @@ def observe_face(seq, *, rng: np.random.Generator | int | None = None,
     unhidden = None
     if occlusion == "surface":      # camera centres do not depend on where they aim
         centres = np.array([c.C for c in face_cameras(seq.t[0], positions=positions)])
-        unhidden = self_occlusion(seq.world, seq.R, seq.t, centres)
+        unhidden = self_occlusion(seq.world, seq.R, seq.t, centres, neutral=seq.neutral)
     pts = np.full((T, M, 3), np.nan)
     pairs = np.zeros((T, 2), dtype=int)
-    seen = None
+    seen = raw = None
     for f in range(T):
         cams = face_cameras(seq.t[f], positions=positions)
         if seen is None:
             seen = np.zeros((T, len(cams), M), dtype=bool)
+            raw = np.zeros((T, len(cams), M), dtype=bool)
         xy = np.full((len(cams), M, 2), np.nan)
         for k, cam in enumerate(cams):
             true_cam = _perturb(cam, rng, pose_noise_deg)
@@ -119,6 +124,7 @@ def observe_face(seq, *, rng: np.random.Generator | int | None = None,
                 ok = visible(seq.world[f], seq.normals[f], cam.C, min_cos=min_cos)
             else:
                 ok = unhidden[f, k].copy()
+            raw[f, k] = ok
             ok &= cam.in_image(p) & np.isfinite(p).all(axis=1)
             xy[k, ok] = p[ok]
             seen[f, k] = ok
@@ -137,7 +143,8 @@ def observe_face(seq, *, rng: np.random.Generator | int | None = None,
         pick = keys.argmax(axis=0)
         has = ok.any(axis=0)
         pts[f, has] = cand[pick[has], np.flatnonzero(has)]
-    return Observation(points=pts, pair=pairs, n_visible=seen.sum(axis=2), seen=seen)
+    return Observation(points=pts, pair=pairs, n_visible=seen.sum(axis=2), seen=seen,
+                       unhidden=raw)
 
 
 def to_head(points, R, t):

@@ -245,10 +245,21 @@ def head_motion(n_frames: int, *, rng: np.random.Generator | int | None = None,
 
 def head_turn(n_frames: int, *, yaw_deg: float = 80.0, turns: float = 1.0,
               position=(0.0, 0.0, 1650.0)):
-    """A head standing at ``position`` (mm, world) and turning from side to side: yaw
-    ``yaw_deg * sin(2 pi turns s)`` degrees for ``s`` from 0 to 1 over the frames (about
-    the head's vertical axis; positive turns the face towards world +X), no nod or tilt.
-    At zero yaw the face looks along -Y, towards cameras at negative Y.
+    """A head standing still and turning from side to side about its vertical axis, with
+    no nod or tilt: yaw ``yaw_deg * sin(2 pi turns s)`` for ``s`` from 0 to 1 over the
+    frames (positive turns the face towards world +X). At zero yaw the face looks along
+    -Y, towards cameras at negative Y.
+
+    Parameters
+    ----------
+    n_frames : int
+        Number of frames T.
+    yaw_deg : float
+        Largest turn either way, degrees (0 keeps the head facing -Y).
+    turns : float
+        Number of full left-right cycles over the frames (> 0).
+    position : (3,) array_like
+        Head origin in the world, mm (the same in every frame).
 
     Returns
     -------
@@ -285,6 +296,10 @@ class FaceSequence:
     R : (T, 3, 3) array
     t : (T, 3) array
         Head pose, ``world = head @ R.T + t``.
+    neutral : (M, 3) array or None
+        The markers on the neutral face, head frame, mm (:attr:`MarkedFace.neutral`; the
+        head's surface moves from there with the expression in
+        :func:`lsmta.synth.head_surface.self_occlusion`).
     """
 
     head: np.ndarray
@@ -293,6 +308,7 @@ class FaceSequence:
     weights: np.ndarray
     R: np.ndarray
     t: np.ndarray
+    neutral: np.ndarray | None = None
 
 
 def face_sequence(model: MarkedFace, n_frames: int, *, rng: np.random.Generator | int | None = None,
@@ -301,8 +317,23 @@ def face_sequence(model: MarkedFace, n_frames: int, *, rng: np.random.Generator 
     """Expressions (:func:`expression_weights` with ``hold``, ``activity`` and ``modes``)
     on the face, with :func:`head_motion` if ``moving`` else a still head facing the
     cameras at the room's centre; ``motion``, a pair ``(R (T, 3, 3), t (T, 3) mm)`` such
-    as :func:`head_turn` returns, is used instead when given."""
+    as :func:`head_turn` returns, is used instead when given (then leave ``moving`` at its
+    default).
+
+    Raises
+    ------
+    ValueError
+        ``motion`` not a pair of arrays of those shapes, or given together with
+        ``moving=False``.
+    """
     rng = as_rng(rng)
+    if motion is not None:
+        if not moving:
+            raise ValueError("moving: ignored when motion is given; pass one or the other")
+        if not isinstance(motion, (tuple, list)) or len(motion) != 2:
+            raise ValueError("motion: expected a pair (R, t) of arrays of shapes (T, 3, 3) and "
+                             f"(T, 3), such as head_turn returns; got {type(motion).__name__}"
+                             + (f" of length {len(motion)}" if hasattr(motion, "__len__") else ""))
     w = expression_weights(n_frames, rng=rng, hold=hold, activity=activity, modes=modes)
     head = model.shapes(w)
     if motion is not None:
@@ -316,7 +347,8 @@ def face_sequence(model: MarkedFace, n_frames: int, *, rng: np.random.Generator 
         t = np.tile([0.0, 0.0, 1650.0], (n_frames, 1))
     world = np.einsum("tij,tmj->tmi", R, head) + t[:, None]
     normals = np.einsum("tij,mj->tmi", R, model.normals)
-    return FaceSequence(head=head, world=world, normals=normals, weights=w, R=R, t=t)
+    return FaceSequence(head=head, world=world, normals=normals, weights=w, R=R, t=t,
+                        neutral=model.neutral)
 
 
 def face_cameras(target, *, positions=None, f: float = 2400.0, width: int = 640,

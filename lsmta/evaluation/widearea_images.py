@@ -442,8 +442,10 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     Every frame is searched fully, and by the guided search inside the streaming tracker's
     step, frame by frame in arrival order (40 x 40 windows around the tracker's predictions
     for that camera and stamp and around the camera's features still waiting in the birth
-    pool, the jittered 5 x 5 grid for new LEDs). The searches are then timed on the same
-    frames, windows and grid offsets."""
+    pool, a band along the images of the other cameras' waiting rays
+    (:attr:`lsmta.widearea.ImagePrediction.partners`, windows of half-size ``gate_px``),
+    the jittered 5 x 5 grid for new LEDs). The searches are then timed on the same frames,
+    windows and grid offsets."""
     rng = as_rng(rng)
     params = EstimatorParams() if params is None else params
     det = DetectionParams() if detection is None else detection
@@ -460,11 +462,15 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     def guided_search(c, i):
         def search(pred):
             jit = tuple(int(j) for j in rng.integers(0, det.k, 2))
-            xy = np.concatenate([pred.xy, pred.waiting])
-            f = search_frame(videos[c].frames[i], setups[c], windows=xy, jitter=jit)
+            xy = np.concatenate([pred.xy, pred.waiting, pred.partners])
+            band = np.full(len(pred.partners), params.gate_px)
+            fixed = np.concatenate([np.full(len(pred.xy) + len(pred.waiting), det.window / 2),
+                                    band])
+            f = search_frame(videos[c].frames[i], setups[c], windows=xy, half_sizes=fixed,
+                             jitter=jit)
             half = np.concatenate([pred.gate_px + 3.0,
-                                   np.full(len(pred.waiting), det.window / 2)])
-            runs.append((c, i, xy, half, jit))
+                                   np.full(len(pred.waiting), det.window / 2), band])
+            runs.append((c, i, xy, fixed, half, jit))
             guided[c][i] = f.xy
             tested.append(f.tested)
             return f.xy
@@ -507,10 +513,11 @@ def _replay_times(videos, thr, masks, setups, runs, det, repeats: int) -> dict:
             for f in v.frames:
                 search_frame(f, st, full=True)
         t2 = time.perf_counter()
-        for c, i, xy, _, jit in runs:
-            search_frame(videos[c].frames[i], setups[c], windows=xy, jitter=jit)
+        for c, i, xy, fixed, _, jit in runs:
+            search_frame(videos[c].frames[i], setups[c], windows=xy, half_sizes=fixed,
+                         jitter=jit)
         t3 = time.perf_counter()
-        for c, i, xy, half, jit in runs:
+        for c, i, xy, _, half, jit in runs:
             search_frame(videos[c].frames[i], setups[c], windows=xy, half_sizes=half,
                          jitter=jit)
         t4 = time.perf_counter()

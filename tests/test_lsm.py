@@ -308,3 +308,31 @@ def test_backdrop_mask():
         backdrop_mask(template, np.nan)
     with pytest.raises(ValueError, match="smooth"):
         backdrop_mask(template, 30.0, smooth=-1.0)
+
+
+def test_forward_normal_equations_are_those_of_the_design_matrix():
+    # the compiled forward step (design rows from the spline's exact gradients, then
+    # vectorised sums) against J^T W J and J^T W e built here from the spline's samples
+    from lsmta.matching import _solver
+    from lsmta.matching.spline import PAD, SplineImage
+
+    pair = warped_pair(rng=5, shape=(64, 64), A=[[1.03, 0.05], [-0.04, 0.98]], c=(1.7, -0.6),
+                       r0=8.0, r1=0.9, noise_sigma=2.0)
+    g_img, U = SplineImage(pair.search), patch_offsets(13)
+    f = pair.template[26:39, 24:37].astype(float).ravel()      # the patch around (30, 32)
+    fw = np.linspace(0.5, 1.0, len(U))                          # unequal weights
+    cx, cy, A, r0, r1 = 33.2, 30.9, np.array([[1.02, 0.04], [-0.03, 0.99]]), 7.0, 0.92
+    xy = np.array([cx, cy]) + U @ A.T
+    g, gx, gy = g_img.sample(xy, gradient=True)
+    e = f - (r0 + r1 * g)
+    J = np.column_stack([r1 * gx, r1 * gy, r1 * gx * U[:, 0], r1 * gx * U[:, 1],
+                         r1 * gy * U[:, 0], r1 * gy * U[:, 1], np.ones(len(U)), g])
+    N8, b8, row = np.zeros((8, 8)), np.zeros(8), np.zeros(8)
+    Jt, we, wt = np.zeros((8, len(U))), np.zeros(len(U)), np.zeros(len(U))
+    ok, ee, sw = _solver._forward_equations(
+        g_img.coefficients, PAD, 64, 64, f, fw, U, cx, cy, A[0, 0], A[0, 1], A[1, 0], A[1, 1],
+        r0, r1, 2, 2, 0.0, False, N8, b8, row, Jt, np.ones(8, bool), we, wt)
+    assert ok
+    np.testing.assert_allclose(np.triu(N8), np.triu(J.T @ (fw[:, None] * J)), rtol=1e-9)
+    np.testing.assert_allclose(b8, J.T @ (fw * e), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose([ee, sw], [np.sum(fw * e * e), fw.sum()], rtol=1e-9)

@@ -282,6 +282,35 @@ def test_tracker_offers_windows_around_centroids_waiting_for_a_partner():
     assert len(tracker.predict_image(0, 0.04).waiting) == 0
 
 
+def test_tracker_offers_the_line_where_a_waiting_ray_s_partner_must_be():
+    cams = [small_camera(c) for c in ceiling_rig(rng=np.random.default_rng(7))[:2]]
+    gate = EstimatorParams().gate_px
+    X = np.array([[300.0, -200.0, 1200.0]])                # an LED in the birth volume
+    assert all(c.in_image(c.project(X)).all() for c in cams)
+    tracker = WideAreaTracker(cams)
+    seen = {}
+
+    def search(c, found):
+        def detect_(pred):
+            seen[c] = pred.partners
+            return found
+        return detect_
+
+    tracker.feed_detect(0, 0.00, search(0, cams[0].project(X)))  # seen by camera 0 only
+    tracker.feed_detect(1, 0.01, search(1, np.zeros((0, 2))))    # camera 1: where to look
+    assert len(seen[0]) == 0                                       # nothing waited before
+    xy = seen[1]
+    assert cams[1].in_image(xy).all() and len(xy) > 2
+    # the LED's image lies on the line, and the points are at most gate_px apart
+    assert np.linalg.norm(xy - cams[1].project(X), axis=1).min() < gate / 2 + 0.5
+    assert np.linalg.norm(np.diff(xy, axis=0), axis=1).max() <= gate + 1e-6
+    # without a birth volume there is no line
+    tracker = WideAreaTracker(cams, params=EstimatorParams(volume=None))
+    tracker.feed_detect(0, 0.00, search(0, cams[0].project(X)))
+    tracker.feed_detect(1, 0.01, search(1, np.zeros((0, 2))))
+    assert len(seen[1]) == 0
+
+
 def test_search_refuses_bad_input():
     thr = background_threshold(np.full((1, 20, 30), 50, np.uint8), 20.0, 60.0)
     setup = search_setup(thr)

@@ -374,9 +374,9 @@ class GuidedDetectionTrial:
         Wall time of each search over all frames, s, the fastest of ``repeats`` replays of
         the same frames (windows and grid offsets as in the tracked run): ``"full"`` (NumPy
         comparison and OpenCV components, each camera's frames as one batch),
-        ``"compiled full"`` (the compiled loop testing every pixel), ``"guided"`` (the
-        thesis's 40 x 40 windows around the tracker's predictions, as in the tracked run),
-        ``"guided, gate windows"`` (windows of the tracker's gate plus 3 px around the same
+        ``"compiled full"`` (the compiled loop testing every pixel), ``"guided"`` (windows
+        of the tracker's gate plus 3 px around its predictions, as in the tracked run),
+        ``"guided, 40 x 40 windows"`` (the thesis's fixed windows around the same
         predictions); ``"tracker"``: the tracker's own work in the guided run (prediction,
         association, update, births; compilation on first use included).
     tested_fraction : dict
@@ -440,10 +440,13 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     cameras of the rig (``scale``: 0.5 for 320 x 240) that see its path best (truth as
     input: an operator would pick them), with a flickering monitor (masked) and reflections.
     Every frame is searched fully, and by the guided search inside the streaming tracker's
-    step, frame by frame in arrival order (40 x 40 windows around the tracker's predictions
-    for that camera and stamp and around the camera's features still waiting in the birth
-    pool, the jittered 5 x 5 grid for new LEDs). The searches are then timed on the same
-    frames, windows and grid offsets."""
+    step, frame by frame in arrival order (windows of the gate plus 3 px around the tracker's
+    predictions for that camera and stamp, whose gate follows each prediction's uncertainty,
+    40 x 40 windows around the camera's features still waiting in the birth
+    pool, a band along the images of the other cameras' waiting rays
+    (:attr:`lsmta.widearea.ImagePrediction.partners`, windows of half-size ``gate_px``),
+    the jittered 5 x 5 grid for new LEDs). The searches are then timed on the same frames,
+    windows and grid offsets."""
     rng = as_rng(rng)
     params = EstimatorParams() if params is None else params
     det = DetectionParams() if detection is None else detection
@@ -453,18 +456,22 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     full = [detect(v.frames, t_, invalid=m, params=det) for v, t_, m in zip(videos, thr, masks)]
     setups = [search_setup(t_, invalid=m, params=det) for t_, m in zip(thr, masks)]
     tracker = WideAreaTracker(cams, params=params)
-    runs = []                 # (camera, frame, centres, half-sizes, jitter)
+    runs = []          # (camera, frame, centres, half-sizes: gate, 40 x 40; jitter)
     guided = [[np.zeros((0, 2))] * len(v.frames) for v in videos]
     tested = []
 
     def guided_search(c, i):
         def search(pred):
             jit = tuple(int(j) for j in rng.integers(0, det.k, 2))
-            xy = np.concatenate([pred.xy, pred.waiting])
-            f = search_frame(videos[c].frames[i], setups[c], windows=xy, jitter=jit)
+            xy = np.concatenate([pred.xy, pred.waiting, pred.partners])
+            band = np.full(len(pred.partners), params.gate_px)
+            fixed = np.concatenate([np.full(len(pred.xy) + len(pred.waiting), det.window / 2),
+                                    band])
             half = np.concatenate([pred.gate_px + 3.0,
-                                   np.full(len(pred.waiting), det.window / 2)])
-            runs.append((c, i, xy, half, jit))
+                                   np.full(len(pred.waiting), det.window / 2), band])
+            f = search_frame(videos[c].frames[i], setups[c], windows=xy, half_sizes=half,
+                             jitter=jit)
+            runs.append((c, i, xy, half, fixed, jit))
             guided[c][i] = f.xy
             tested.append(f.tested)
             return f.xy
@@ -496,7 +503,7 @@ def _replay_times(videos, thr, masks, setups, runs, det, repeats: int) -> dict:
     """Fastest of ``repeats`` timings of each search over all frames (interleaved). Every
     search goes through one camera's frames after the other, as the full search's batches
     do (and as Davis's cameras, each digitised by its own machine, did)."""
-    out = {"full": [], "compiled full": [], "guided": [], "guided, gate windows": []}
+    out = {"full": [], "compiled full": [], "guided": [], "guided, 40 x 40 windows": []}
     runs = sorted(runs, key=lambda r: (r[0], r[1]))
     for _ in range(int(repeats)):
         t0 = time.perf_counter()
@@ -507,11 +514,12 @@ def _replay_times(videos, thr, masks, setups, runs, det, repeats: int) -> dict:
             for f in v.frames:
                 search_frame(f, st, full=True)
         t2 = time.perf_counter()
-        for c, i, xy, _, jit in runs:
-            search_frame(videos[c].frames[i], setups[c], windows=xy, jitter=jit)
-        t3 = time.perf_counter()
-        for c, i, xy, half, jit in runs:
+        for c, i, xy, half, _, jit in runs:
             search_frame(videos[c].frames[i], setups[c], windows=xy, half_sizes=half,
+                         jitter=jit)
+        t3 = time.perf_counter()
+        for c, i, xy, _, fixed, jit in runs:
+            search_frame(videos[c].frames[i], setups[c], windows=xy, half_sizes=fixed,
                          jitter=jit)
         t4 = time.perf_counter()
         for key, dt in zip(out, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):

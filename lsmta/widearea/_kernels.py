@@ -66,14 +66,16 @@ def search_kernel(img, thr, bg, centres, half, k, jr, jc, min_area, max_area):
             tested += b - a
             if on_grid_row:
                 tested -= _on_grid(a, b, jc, k)
-            if _any_over(imgf, thrf, r * W + a, r * W + b, 1):
+            if _any_over(imgf, thrf, r * W + a, r * W + b):
                 for q in range(r * W + a, r * W + b):
                     if imgf[q] > thrf[q]:
                         seeds[n_seeds] = q
                         n_seeds += 1
-    # the grid's pixels (those inside a window were seeded above)
+    # the grid's pixels (those inside a window were seeded above); a row with no pixel over
+    # threshold has no grid pixel over it either, and one contiguous (vectorised) pass over
+    # the row says so faster than the strided reads of its grid pixels
     for r in range(jr, H, k):
-        if not _any_over(imgf, thrf, r * W + jc, (r + 1) * W, k):
+        if not _any_over(imgf, thrf, r * W, (r + 1) * W):
             continue
         for q in range(r * W + jc, (r + 1) * W, k):
             if imgf[q] > thrf[q] and not _in_boxes(box, r, q - r * W):
@@ -118,12 +120,15 @@ def _boxes(centres, half, H, W):
 
 
 @nb.njit(cache=True)
-def _any_over(imgf, thrf, q0, q1, step):
-    """Whether any of the pixels ``q0:q1:step`` is over its threshold (a loop without
-    branches, which the compiler vectorises: most rows have none)."""
+def _any_over(imgf, thrf, q0, q1):
+    """Whether any of the pixels ``q0:q1`` is over its threshold (a loop without branches
+    over two slices, which the compiler vectorises: most rows have none; indexing the flat
+    arrays by ``q`` itself, or with a stride, is not vectorised and costs 40 times more)."""
+    a = imgf[q0:q1]
+    t = thrf[q0:q1]
     hit = False
-    for q in range(q0, q1, step):
-        hit |= imgf[q] > thrf[q]
+    for i in range(a.shape[0]):
+        hit |= a[i] > t[i]
     return hit
 
 

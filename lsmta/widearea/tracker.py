@@ -285,6 +285,15 @@ class ImagePrediction:
         for a partner from another camera to start a target (the birth pool): LEDs not yet
         tracked, where a window keeps finding them until they are (empty from
         :meth:`WideAreaTracker.predict_image`).
+    partners : (Q, 2) array
+        Points, px, at most ``gate_px`` (the parameter) apart along the images in this
+        camera of the *other* cameras' fresh rays in the birth pool, within the birth
+        volume and the image: where the partner that would start a target must be (its
+        depth along the ray is unknown, so it is anywhere on that line). Windows of
+        half-size ``gate_px`` around them search a band about the line, so that an LED
+        seen by one camera is found by the others in their next frames instead of only
+        when their grids happen to hit it (empty from :meth:`WideAreaTracker.predict_image`
+        and without ``volume``).
     """
 
     camera: int
@@ -294,6 +303,7 @@ class ImagePrediction:
     velocity: np.ndarray
     gate_px: np.ndarray
     waiting: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    partners: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
     def windows(self, *, margin_px: float = 3.0):
         """Search windows for :func:`lsmta.widearea.search_frame`: the predicted centroids
@@ -389,7 +399,8 @@ class WideAreaTracker:
         v[~np.isfinite(fm.predicted).all(axis=1)] = np.nan
         xy = s.intake.take_values(c, t, detect(ImagePrediction(
             camera=c, time=t, ids=s.ids.copy(), xy=fm.predicted, velocity=v,
-            gate_px=fm.gate, waiting=_waiting(s, c, t, p.staleness))))
+            gate_px=fm.gate, waiting=_waiting(s, c, t, p.staleness),
+            partners=_partners(s, c, t, p))))
         if len(xy):
             free = update_pairs(s, c, t, xy, fm, p)
             births(s, c, t, xy[free], p)
@@ -548,6 +559,38 @@ def _result(state: EstimatorState) -> TrackingResult:
                           cameras=tuple(state.cameras), camera_status=state.status.copy(),
                           camera_events=tuple(state.events), joins=tuple(state.joins),
                           not_active=state.not_active.copy(), **state.intake.rejected)
+
+
+def _partners(s, c: int, t: float, p) -> np.ndarray:
+    """Points ``(Q, 2)``, px, at most ``p.gate_px`` apart along the images in camera ``c``
+    of the other cameras' rays in the birth pool stamped within ``p.staleness`` s of ``t``,
+    each ray clipped to ``p.volume`` (sampled in 3-D, so lens distortion bends the line
+    as it should: 64 steps, then the steps with an end in the image finely), in the image
+    only."""
+    pool, cam = s.pool, s.cameras[c]
+    m = (pool.cameras != c) & (pool.stamps >= t - p.staleness)
+    if p.volume is None or not m.any():
+        return np.zeros((0, 2))
+    o, d = pool.origins[m], pool.directions[m]
+    lo, hi = np.asarray(p.volume, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, b = (lo - o) / d, (hi - o) / d           # the slabs of the box along each ray
+        near = np.maximum(np.nanmax(np.minimum(a, b), axis=1), 0.0)
+        far = np.nanmin(np.maximum(a, b), axis=1)
+    out = []
+    for oi, di, l0, l1 in zip(o, d, near, far):
+        if not l1 > l0:
+            continue
+        lam = np.linspace(l0, l1, 65)
+        coarse = cam.project(oi + lam[:, None] * di, behind="nan")
+        gap = np.linalg.norm(np.diff(coarse, axis=0), axis=1)
+        seen = cam.in_image(coarse)
+        for j in np.flatnonzero((seen[:-1] | seen[1:]) & np.isfinite(gap)):
+            # the steps with an end in the image, at most gate_px apart
+            u = np.linspace(lam[j], lam[j + 1], int(np.ceil(gap[j] / p.gate_px)) + 1)
+            xy = cam.project(oi + u[:, None] * di, behind="nan")
+            out.append(xy[cam.in_image(xy)])
+    return np.concatenate(out) if out else np.zeros((0, 2))
 
 
 def _waiting(s, c: int, t: float, staleness: float) -> np.ndarray:

@@ -118,9 +118,9 @@ class BodyFit:
     fixed_segments : tuple of str
         Segments whose shape and scale were held (too few points).
     capped_scales : tuple of str
-        Limbs kept from lengthening past their starting scale (they may shorten) because
-        no segment at or beyond their far joint had enough points: nothing there fixes
-        where the bone ends.
+        Limbs kept from lengthening past their starting scale (they may shorten) in at
+        least one round because no segment at or beyond their far joint had enough
+        points: nothing there fixes where the bone ends.
     unobserved : tuple of (int, str)
         ``(frame, segment)`` pairs with fewer than ``min_points_per_param`` points at the
         end: that segment's pose in that frame rests on its neighbours, the tracked joints

@@ -38,7 +38,8 @@ Checks
     NaN points are dropped and counted; a segment with fewer than ``min_points_per_param``
     points per free shape parameter keeps its shape and scale (named in
     ``fixed_segments``); a limb without such a segment at or beyond its far joint may
-    shorten but not lengthen past its starting scale (named in ``capped_scales``: nothing
+    shorten but not lengthen past its starting scale or its own farthest point, whichever
+    is longer (named in ``capped_scales``: nothing
     beyond the joint fixes where the bone ends, and the one-sided point-to-skin distances
     would let it stretch past every point); if fewer than ``min_inlier_share`` of the
     points lie within ``gate_mm`` of the initial model the fit is not run
@@ -118,9 +119,10 @@ class BodyFit:
     fixed_segments : tuple of str
         Segments whose shape and scale were held (too few points).
     capped_scales : tuple of str
-        Limbs kept from lengthening past their starting scale (they may shorten) in at
-        least one round because no segment at or beyond their far joint had enough
-        points: nothing there fixes where the bone ends.
+        Limbs kept from lengthening past their starting scale or the farthest point of
+        their own segment, whichever is longer (they may shorten), in at least one round
+        because no segment at or beyond their far joint had enough points: nothing there
+        fixes where the bone ends.
     unobserved : tuple of (int, str)
         ``(frame, segment)`` pairs with fewer than ``min_points_per_param`` points at the
         end: that segment's pose in that frame rests on its neighbours, the tracked joints
@@ -428,12 +430,12 @@ class FitParams:
         ``p_joint / p_point = sigma_mm² / sigma_joint_mm²``).
     max_radius_mm : float
         Upper bound of a ball's width and depth; scales are kept in
-        ``SCALE_BOUNDS`` = [0.3, 3] (and capped at their start, see ``min_points_per_param``).
+        ``SCALE_BOUNDS`` = [0.3, 3] (and capped, see ``min_points_per_param``).
     min_points_per_param : int
         A segment with fewer points than this many per free shape parameter keeps its
         shape and scale (the bare minimum would be one point per parameter); a limb none of
         whose segments at or beyond its far joint has that many may not lengthen past its
-        starting scale.
+        starting scale or its own segment's farthest point, whichever is longer.
     """
 
     shape: str = "simplified"
@@ -622,7 +624,8 @@ def _hold_thin_segments(fit: _Fit) -> np.ndarray:
     """Segments with too few points keep their shape and scale: the free parameters.
 
     Also sets ``fit.scale_cap``: a limb none of whose segments at or beyond its far joint
-    has enough points may shorten but not lengthen past its starting scale. A limb's scale
+    has enough points may shorten but not lengthen past its starting scale or past the
+    farthest point of its own segment along the bone, whichever is longer. A limb's scale
     is its bone's length, which places its far joint (the wrist, for the forearm). The
     point-to-skin distances pull the skin out to cover points, so the limb's own points
     stop it from getting shorter than they reach; but nothing pulls the skin back where
@@ -647,11 +650,30 @@ def _hold_thin_segments(fit: _Fit) -> np.ndarray:
             continue                   # the joint's offset is not a limb's length
         beyond = [k for k, sg in enumerate(model.segments) if j in sk.chain(sg.joint)]
         if beyond and thin[beyond].all():
-            fit.scale_cap[joint.limb] = min(fit.scale_cap[joint.limb], max(
-                fit.scale0[joint.limb], SCALE_BOUNDS[0] + 1e-6))
+            reach = max(fit.scale0[joint.limb], _reach(fit, joint.limb))
+            fit.scale_cap[joint.limb] = min(fit.scale_cap[joint.limb],
+                                            max(reach, SCALE_BOUNDS[0] + 1e-6))
             if sk.limbs[joint.limb] not in fit.capped_scales:
                 fit.capped_scales.append(sk.limbs[joint.limb])
     return free
+
+
+def _reach(fit: _Fit, limb: int) -> float:
+    """How far along its bone the points of the segments of ``limb`` reach, as a scale
+    (the farthest point's distance from the segment's joint over the template length;
+    0 without points)."""
+    model, st = fit.model, fit.state
+    W = model.skeleton.transforms(st.angles, st.scales, base=fit.bases(st))
+    out = 0.0
+    for k, sg in enumerate(model.segments):
+        idx = np.flatnonzero(fit.seg == k)
+        if sg.limb != limb or idx.size == 0:
+            continue
+        f = fit.data.frame[idx]
+        R = W[f, sg.joint, :3, :3] @ np.asarray(sg.rotation, float)
+        x = np.einsum("nji,nj->ni", R, fit.data.pts[idx] - W[f, sg.joint, :3, 3])
+        out = max(out, float(np.max(-x[:, 2])) / sg.length)      # the bone runs along -z
+    return out
 
 
 class _Objective:
@@ -743,7 +765,7 @@ def _verdict(fit: _Fit) -> tuple[FitStatus, str]:
         msg += f"; shape held for {', '.join(fit.fixed)} (too few points)"
     if fit.capped_scales:
         msg += (f"; {', '.join(fit.capped_scales)} kept from lengthening past its start "
-                "(too few points beyond its far joint)")
+                "or its farthest point (too few points beyond its far joint)")
     n_nan = int(fit.data.n_nan.sum())
     if n_nan:
         msg += f"; {n_nan} NaN points dropped"

@@ -190,6 +190,39 @@ def test_sequence_recovers_lengths_and_angles(world):
     assert score["max_angle_err_deg"] < 3.0
     assert np.all(np.abs(score["length_err_pct"]) < 2.0)
     assert fit.sigma_mm < 5.0
+    assert fit.capped_scales == ()         # the hand's points fix where the forearm ends
+
+
+def test_forearm_without_points_beyond_the_wrist_does_not_lengthen(world):
+    # the forearm's points stop at 60 % of its length and the hand has none: nothing fixes
+    # where the forearm ends, and a start 30 % too long must not run on to the scale bound
+    # (before the cap it ran to 2.4 in the simplified and 3.0 in the full model, the elbow
+    # turned by about 180 deg)
+    rng = np.random.default_rng(12)
+    frames = [8, 20, 32, 44]
+    truth = eb.arm_truth(*world, frames)
+    pts = []
+    for i, f in enumerate(frames):
+        p = surface_samples(*world, f, rng=rng, n=400, noise_mm=1.0,
+                            parts=("upper_arm_r", "forearm_r"), view_from=RIG)[0]
+        elbow, wrist = truth.joints[i, 1], truth.joints[i, 2]
+        along = (p - elbow) @ ((wrist - elbow) / np.linalg.norm(wrist - elbow))
+        pts.append(p[along < 0.6 * truth.lengths[1]])
+    init, _ = eb.initial_state(truth, rng=rng, joint_noise_mm=5.0)
+    m = arm_model()
+    scales = init.scales * np.array([1.0, 1.3, 1.0])
+    init = ModelState(init.angles, init.shoulder, scales,
+                      m.simplified_radii(init.radii[:, 1, :2] / m.profile[1], scales))
+    simple = fit_sequence(m, pts, truth.torso_poses, init, params=FitParams(sigma_mm=1.0))
+    full = fit_sequence(m, pts, truth.torso_poses, simple.state,
+                        params=FitParams(sigma_mm=1.0, shape="full"))
+    for fit in (simple, full):
+        assert fit.state.scales[1] <= scales[1] + 1e-9
+    assert eb.score_fit(full, truth)["max_angle_err_deg"] < 3.0
+    for fit in (simple, full):
+        assert "forearm" in fit.capped_scales and "lengthening" in fit.message
+    # the upper arm has points beyond its far joint (the forearm's): not capped
+    assert "upper_arm" not in full.capped_scales
 
 
 @pytest.mark.slow

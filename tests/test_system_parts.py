@@ -282,6 +282,12 @@ def test_forearm_length_ends_where_the_forearm_points_end():
     assert forearm_length(forearm) == forearm.max()     # no hand: the distal end
     stray = np.r_[forearm, 300.0, 310.0]                 # two stray points are no hand
     assert forearm_length(stray) == 310.0
+    stray3 = np.r_[forearm, 290.0, 300.0, 310.0]         # nor three near a tapering tip
+    assert forearm_length(stray3) == 310.0
+    # a hand tracked at only a handful of points (under 5 % of the forearm's), far beyond
+    # the last forearm point: still a hand
+    few = np.r_[forearm, 352.0, 359.0, 373.0, 398.0]
+    assert abs(forearm_length(few) - forearm.max()) < 1e-9
     assert forearm_length(forearm[:10]) is None
 
 

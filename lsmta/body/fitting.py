@@ -37,9 +37,14 @@ Alternation
 Checks
     NaN points are dropped and counted; a segment with fewer than ``min_points_per_param``
     points per free shape parameter keeps its shape and scale (named in
-    ``fixed_segments``); if fewer than ``min_inlier_share`` of the points lie within
-    ``gate_mm`` of the initial model the fit is not run (``FitStatus.INIT_FAR``), and a fit
-    that ends with fewer inliers than that is reported as ``FitStatus.POOR_FIT``. Segments without
+    ``fixed_segments``); a limb without such a segment at or beyond its far joint may
+    shorten but not lengthen past its starting scale or its own farthest point, whichever
+    is longer (named in ``capped_scales``: nothing
+    beyond the joint fixes where the bone ends, and the one-sided point-to-skin distances
+    would let it stretch past every point); if fewer than ``min_inlier_share`` of the
+    points lie within ``gate_mm`` of the initial model the fit is not run
+    (``FitStatus.INIT_FAR``), and a fit that ends with fewer inliers than that is reported
+    as ``FitStatus.POOR_FIT``. Segments without
     points of their own in a frame are named in ``unobserved``.
 """
 
@@ -58,6 +63,7 @@ from .arm import base_poses
 from .metaballs import MetaballModel, surface_distance, surface_distance_terms
 
 LOSSES = ("linear", "soft_l1", "huber", "cauchy")
+SCALE_BOUNDS = (0.3, 3.0)   #: lower and upper bound of a limb scale
 
 
 class FitStatus(enum.IntEnum):
@@ -112,6 +118,11 @@ class BodyFit:
         NaN points dropped per frame.
     fixed_segments : tuple of str
         Segments whose shape and scale were held (too few points).
+    capped_scales : tuple of str
+        Limbs kept from lengthening past their starting scale or the farthest point of
+        their own segment, whichever is longer (they may shorten), in at least one round
+        because no segment at or beyond their far joint had enough points: nothing there
+        fixes where the bone ends.
     unobserved : tuple of (int, str)
         ``(frame, segment)`` pairs with fewer than ``min_points_per_param`` points at the
         end: that segment's pose in that frame rests on its neighbours, the tracked joints
@@ -142,6 +153,7 @@ class BodyFit:
     residuals: list
     n_nan: np.ndarray
     fixed_segments: tuple
+    capped_scales: tuple
     unobserved: tuple
     inlier_share: np.ndarray
     sigma_mm: float
@@ -417,10 +429,13 @@ class FitParams:
         A-priori standard deviation of a tracked joint (weight of ``tracked`` by eq. 11,
         ``p_joint / p_point = sigma_mm² / sigma_joint_mm²``).
     max_radius_mm : float
-        Upper bound of a ball's width and depth; scales are kept in [0.3, 3].
+        Upper bound of a ball's width and depth; scales are kept in
+        ``SCALE_BOUNDS`` = [0.3, 3] (and capped, see ``min_points_per_param``).
     min_points_per_param : int
         A segment with fewer points than this many per free shape parameter keeps its
-        shape and scale (the bare minimum would be one point per parameter).
+        shape and scale (the bare minimum would be one point per parameter); a limb none of
+        whose segments at or beyond its far joint has that many may not lengthen past its
+        starting scale or its own segment's farthest point, whichever is longer.
     """
 
     shape: str = "simplified"
@@ -575,6 +590,9 @@ class _Fit:
     x: np.ndarray                # the parameter vector of ``lay``
     seg: np.ndarray              # (N,) segment of each point, -1 outside the gate
     fixed: list = field(default_factory=list)   # segments whose shape was held
+    capped_scales: list = field(default_factory=list)  # limbs kept from lengthening
+    scale0: np.ndarray | None = None   # (L,) the starting scales
+    scale_cap: np.ndarray | None = None   # (L,) upper bound of each scale this round
     nfev: int = 0
     rounds: int = 0
     converged: bool = False
@@ -584,7 +602,7 @@ class _Fit:
     def initial(cls, model, data: _Data, state: ModelState, p: FitParams) -> _Fit:
         lay = _Layout(model, data.T, p.shape, p.share_shoulder, np.asarray(p.free_joints, int))
         fit = cls(model=model, data=data, p=p, lay=lay, state=state, x=lay.pack(state),
-                  seg=np.zeros(0, int))
+                  seg=np.zeros(0, int), scale0=np.array(state.scales, float))
         fit.seg = fit.segment(state)
         return fit
 
@@ -603,20 +621,59 @@ def _inlier_share(seg, data: _Data) -> np.ndarray:
 
 
 def _hold_thin_segments(fit: _Fit) -> np.ndarray:
-    """Segments with too few points keep their shape and scale: the free parameters."""
+    """Segments with too few points keep their shape and scale: the free parameters.
+
+    Also sets ``fit.scale_cap``: a limb none of whose segments at or beyond its far joint
+    has enough points may shorten but not lengthen past its starting scale or past the
+    farthest point of its own segment along the bone, whichever is longer. A limb's scale
+    is its bone's length, which places its far joint (the wrist, for the forearm). The
+    point-to-skin distances pull the skin out to cover points, so the limb's own points
+    stop it from getting shorter than they reach; but nothing pulls the skin back where
+    there are no points, so without points beyond the far joint (a hand with too few
+    points of its own) the bone could stretch, carrying the segments beyond it, far past
+    every point at no cost -- its length is not determined by the data.
+    """
     model, lay = fit.model, fit.lay
+    sk = model.skeleton
     per_segment = 2 if fit.p.shape == "simplified" else 6
     n_on = np.bincount(fit.seg[fit.seg >= 0], minlength=model.n_segments)
-    held = [k for k in range(model.n_segments)
-            if n_on[k] < fit.p.min_points_per_param * per_segment]
+    thin = n_on < fit.p.min_points_per_param * per_segment
     free = np.ones(len(fit.x), bool)
-    for k in held:
+    for k in np.flatnonzero(thin):
         if model.names[k] not in fit.fixed:
             fit.fixed.append(model.names[k])
         free[(lay.kind == "shape") & (lay.seg == k)] = False
-        limb = model.skeleton.limbs[model.segments[k].limb]
-        free[np.array([n == f"scale_{limb}" for n in lay.names])] = False
+        free[lay.i_scale[model.segments[k].limb]] = False
+    fit.scale_cap = np.full(lay.L, SCALE_BOUNDS[1])
+    for j, joint in enumerate(sk.joints):
+        if joint.limb < 0:
+            continue                   # the joint's offset is not a limb's length
+        beyond = [k for k, sg in enumerate(model.segments) if j in sk.chain(sg.joint)]
+        if beyond and thin[beyond].all():
+            reach = max(fit.scale0[joint.limb], _reach(fit, joint.limb))
+            fit.scale_cap[joint.limb] = min(fit.scale_cap[joint.limb],
+                                            max(reach, SCALE_BOUNDS[0] + 1e-6))
+            if sk.limbs[joint.limb] not in fit.capped_scales:
+                fit.capped_scales.append(sk.limbs[joint.limb])
     return free
+
+
+def _reach(fit: _Fit, limb: int) -> float:
+    """How far along its bone the points of the segments of ``limb`` reach, as a scale
+    (the farthest point's distance from the segment's joint over the template length;
+    0 without points)."""
+    model, st = fit.model, fit.state
+    W = model.skeleton.transforms(st.angles, st.scales, base=fit.bases(st))
+    out = 0.0
+    for k, sg in enumerate(model.segments):
+        idx = np.flatnonzero(fit.seg == k)
+        if sg.limb != limb or idx.size == 0:
+            continue
+        f = fit.data.frame[idx]
+        R = W[f, sg.joint, :3, :3] @ np.asarray(sg.rotation, float)
+        x = np.einsum("nji,nj->ni", R, fit.data.pts[idx] - W[f, sg.joint, :3, 3])
+        out = max(out, float(np.max(-x[:, 2])) / sg.length)      # the bone runs along -z
+    return out
 
 
 class _Objective:
@@ -671,7 +728,8 @@ def _solve_group(fit: _Fit, free, group) -> bool:
     is_shape = lay.kind[mask] == "shape"
     is_scale = np.array([n.startswith("scale_") for n in np.array(lay.names)[mask]], bool)
     lower[is_shape], upper[is_shape] = 1.0, p.max_radius_mm
-    lower[is_scale], upper[is_scale] = 0.3, 3.0
+    lower[is_scale] = SCALE_BOUNDS[0]
+    upper[is_scale] = fit.scale_cap[np.searchsorted(lay.i_scale, np.flatnonzero(mask)[is_scale])]
     sol = least_squares(obj.fun, np.clip(fit.x[mask], lower + 1e-9, upper - 1e-9),
                         jac=obj.jac if p.jacobian == "analytic" else "2-point", loss=p.loss,
                         f_scale=2.0, method="trf", x_scale="jac", max_nfev=p.nfev_per_round,
@@ -705,6 +763,9 @@ def _verdict(fit: _Fit) -> tuple[FitStatus, str]:
         status, msg = FitStatus.OK, f"converged in {fit.rounds} rounds ({fit.nfev} evaluations)"
     if fit.fixed:
         msg += f"; shape held for {', '.join(fit.fixed)} (too few points)"
+    if fit.capped_scales:
+        msg += (f"; {', '.join(fit.capped_scales)} kept from lengthening past its start "
+                "or its farthest point (too few points beyond its far joint)")
     n_nan = int(fit.data.n_nan.sum())
     if n_nan:
         msg += f"; {n_nan} NaN points dropped"
@@ -752,7 +813,8 @@ def _finish(fit: _Fit, status: FitStatus, message: str, t0: float) -> BodyFit:
         else ((), np.zeros(0), np.zeros((0, 0)))
     return BodyFit(status=status, message=message, state=st,
                    lengths=model.bone_lengths(st.scales), segment=seg_out, residuals=res_out,
-                   n_nan=data.n_nan, fixed_segments=tuple(fit.fixed), unobserved=unobs,
+                   n_nan=data.n_nan, fixed_segments=tuple(fit.fixed),
+                   capped_scales=tuple(fit.capped_scales), unobserved=unobs,
                    inlier_share=_inlier_share(seg, data),
                    sigma_mm=float(1.4826 * np.median(np.abs(assigned))) if assigned.size
                    else np.nan, nfev=fit.nfev, rounds=fit.rounds,

@@ -188,7 +188,7 @@ def _relative_rotation(groups: RigidGroups, parent: int, child: int) -> np.ndarr
     return Rp @ rel[nearest]
 
 
-def forearm_length(along, *, min_gap: float = 20.0) -> float | None:
+def forearm_length(along, *, min_gap: float = 20.0, wide_gap: float = 60.0) -> float | None:
     """Where a forearm's surface points end, mm from the elbow, or None.
 
     ``along`` are the forearm group's points projected on its axis (mm from the elbow).
@@ -196,8 +196,12 @@ def forearm_length(along, *, min_gap: float = 20.0) -> float | None:
     second cluster beyond a gap: the forearm ends where the widest gap of the distal half
     that is wider than ``min_gap`` and has at least 5 % of the points (and 3) beyond it
     begins (a few stray points near a tapering tip are no hand; sparse points leave gaps
-    of a centimetre by chance, a wrist two or three); without one, at the distal end of
-    the points. None with fewer than 20 points.
+    of a centimetre by chance, a wrist two or three). A hand is often tracked at only a
+    handful of points, fewer than 5 % of the forearm's: failing such a gap, a gap wider
+    than ``wide_gap`` with at least 3 points beyond it counts as well (points that move
+    rigidly with the forearm that far beyond its last point are on the hand). Without
+    either, the forearm ends at the distal end of the points. None with fewer than 20
+    points.
     """
     a = np.sort(np.asarray(along, float))
     if len(a) < 20:
@@ -206,6 +210,8 @@ def forearm_length(along, *, min_gap: float = 20.0) -> float | None:
     gaps = np.diff(a[half:])
     beyond = len(a) - (half + 1 + np.arange(len(gaps)))          # points after each gap
     ok = (gaps > min_gap) & (beyond >= max(3, 0.05 * len(a)))
+    if not ok.any():
+        ok = (gaps > wide_gap) & (beyond >= 3)
     if not ok.any():
         return float(a[-1])
     k = int(np.argmax(np.where(ok, gaps, -np.inf)))

@@ -4,7 +4,7 @@ it labels correctly without an operator.
 
     .venv/bin/python experiments/mixed_scale_system.py [--travel 4000] [--speed 1200]
         [--ceiling 6] [--seed 18] [--seeds 5] [--scheduler ADDRESS] [--workers 2]
-        [--lead 0.3] [--constant-velocity] [--no-baseline] [--reacquire 2]
+        [--lead 0.3] [--constant-velocity] [--no-baseline] [--reacquire 2] [--heads 2 4]
 
 Builds the walk of notebook 15 (`lsmta.synth.mixed_scale.mixed_scale_scene`, its settings by
 default: 4 m at 1.2 m/s, six ceiling cameras, the head LED hidden from 2.5 to 2.9 s, the heads
@@ -30,6 +30,20 @@ names, and each target's share of seeds met; writes
 slower walk with more ceiling cameras: ``--speed 900 --ceiling 8`` (the ceiling cameras stand
 at X = +-2 m: a walk along X beyond 4 m takes the head LED out of the rig's view). A small
 setting, labels only: ``--travel 1500 --no-baseline --reacquire 0``.
+
+``--heads 2 4`` (issue 39): the walk is seen by the four pan-tilt heads of
+``lsmta.synth.mixed_scale.HEAD_LAYOUTS[4]`` (thesis Fig. 54; the first two are the two-head
+layout's, with the same axes and calibration), and the system also runs with the first K
+heads for every K given: each marker measured by the best pair of heads that sees it
+(``lsmta.systems.close_up.best_pairs``), the markers identified by the system. Per K it
+reports the share of marker-frames triangulated, the worst marker's share of frames
+measured or filled (the face model fills a fitted frame's other markers), the face's median
+3-D error, the rigid pairs' deviation and the first-frame labels; and two targets: with four
+heads every marker measured or filled in >= 99 % of frames, and the face's median error no
+worse than with two. The two-head numbers are the main run's (the headlines above); each
+other K is its own run with its own devices (the same walk, calibration, ceiling feed and
+face model; other image noise). Written as ``mixed_scale_system_heads*`` (``--out``).
+Runs at four heads take about twice the system time of two.
 """
 
 from __future__ import annotations
@@ -76,6 +90,7 @@ HEADLINES = [
     Headline("led_identity_changes", "LED tracks: identity changes", "", CEILING_IN),
     Headline("system_s", "system time with prediction (timing)", "s", "none"),
 ]
+COVERED = 0.99    # four heads: every marker measured or filled in this share of frames
 LABELS = 0.99     # share of the labels given that are correct (notebook 15's target) ...
 COVERAGE = 0.95   # ... with at least this share of the drawn marker images labelled
                   # correctly: the floor the closed-loop test holds the identification to
@@ -94,11 +109,57 @@ TARGETS = {   # notebook 15's targets, judged per seed
 }
 
 
+def heads_headlines(heads) -> list:
+    """The per-K headlines of ``--heads``."""
+    out = []
+    for K in heads:
+        out += [Headline(f"face_median_mm_{K}h", f"{K} heads: face markers, median 3-D error",
+                         "mm", SYSTEM_IN),
+                Headline(f"measured_{K}h", f"{K} heads: share of marker-frames triangulated",
+                         "", SYSTEM_IN),
+                Headline(f"covered_{K}h", f"{K} heads: worst marker's share of frames measured "
+                         "or filled", "", SYSTEM_IN),
+                Headline(f"rigid_median_mm_{K}h", f"{K} heads: rigid pairs, median distance "
+                         "deviation", "mm", SYSTEM_IN),
+                Headline(f"labels_correct_{K}h", f"{K} heads: first-frame labels correct (of "
+                         "those given)", "", f"{SYSTEM_IN}; {LABELS_IN}"),
+                Headline(f"system_s_{K}h", f"{K} heads: system time (timing)", "s", "none")]
+    return out
+
+
+def heads_targets(heads) -> dict:
+    """Issue 39's targets for ``--heads`` (when it names 2 and 4)."""
+    if not {2, 4} <= set(heads):
+        return {}
+    return {f"four heads: every marker measured or filled >= {COVERED:.0%}":
+            lambda r: r["covered_4h"] >= COVERED,
+            "four heads: face median <= two heads'":
+            lambda r: r["face_median_mm_4h"] <= r["face_median_mm_2h"]}
+
+
+def _heads_numbers(K, cap, sc, labels) -> dict:
+    """The per-K numbers of ``--heads`` from a capture and its scores."""
+    from lsmta.systems.mixed_scale import STAGES
+
+    covered = np.isfinite(cap.face.frames).all(axis=2) | sc.measured      # (F, M)
+    return {f"face_median_mm_{K}h": sc.face_median_mm,
+            f"measured_{K}h": float(sc.measured.mean()),
+            f"covered_{K}h": float(covered.mean(axis=0).min()),
+            f"rigid_median_mm_{K}h": sc.rigid_median_mm,
+            f"labels_correct_{K}h": labels.share_correct,
+            f"system_s_{K}h": float(sum(cap.seconds[name] for name, _ in STAGES))}
+
+
 def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: float,
              hidden, readback_step: float, readback_noise: float, lead: float,
-             constant_velocity: bool, baseline: bool, reacquire: int) -> dict:
+             constant_velocity: bool, baseline: bool, reacquire: int,
+             heads=(2,)) -> dict:
     """One walk for ``seed``, as notebook 15 runs it: scene, calibration, the loop with
-    prediction and its own identification (and without prediction), the read-back study."""
+    prediction and its own identification (and without prediction), the read-back study;
+    with ``heads`` other than (2,), the same walk seen by the first K of four heads for
+    each K (the main run is the two-head one)."""
+    from dataclasses import replace
+
     import numba
 
     from lsmta.evaluation import mixed_scale as ms
@@ -110,9 +171,14 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
     extra = dict(accel_window=0.0, lead_height=True) if constant_velocity else {}
     params = MixedScaleParams(lead=lead, reacquire=reacquire, **extra)
     t0 = time.perf_counter()
-    scene = mixed_scale_scene(rng=seed, travel=travel, speed=speed, n_ceiling=ceiling,
-                              head_f=head_f, head_hidden=tuple(hidden) if hidden else None)
-    cal = ms.calibrate_scene(scene, rng=seed + 1, from_images=True)
+    heads = sorted(set(int(k) for k in heads))
+    full = mixed_scale_scene(rng=seed, travel=travel, speed=speed, n_ceiling=ceiling,
+                             head_f=head_f, head_hidden=tuple(hidden) if hidden else None,
+                             n_heads=2 if heads == [2] else 4)
+    cal_full = ms.calibrate_scene(full, rng=seed + 1, from_images=True)
+    # the main run: the first two heads (with four in the scene, heads 0 and 1 and their
+    # calibration are the two-head scene's: the generator draws them first)
+    scene, cal = replace(full, heads=full.heads[:2]), replace(cal_full, heads=cal_full.heads[:2])
     inputs = ms.walk_inputs(scene, cal, rng=seed + 2, video_rate=params.video_rate,
                             train_noise=TRAIN_NOISE, readback_step=readback_step,
                             readback_noise=readback_noise)
@@ -160,6 +226,28 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
                                    keep_images=False)
         out["both_in_frame_no_prediction"] = ms.score_capture(cap0, scene,
                                                               devices0).both_in_frame
+    if heads != [2]:
+        for K in heads:
+            if K == 2:
+                out.update(_heads_numbers(2, cap, sc, labels))
+                continue
+            if not 2 <= K <= len(full.heads):
+                raise ValueError(f"heads: expected numbers of heads from 2 to "
+                                 f"{len(full.heads)}, got {K}")
+            devices, _ = ms.head_devices(full, heads=full.heads[:K], rng=seed + 10 + K,
+                                         video_rate=params.video_rate,
+                                         readback_step=readback_step,
+                                         readback_noise=readback_noise)
+            cap_k = capture_mixed_scale(inputs.ceiling, cal_full.heads[:K], devices, None,
+                                        inputs.face_model, params=params, progress=False,
+                                        keep_images=False)
+            sc_k = ms.score_capture(cap_k, full, devices)
+            labels_k = ms.label_score(cap_k.identification.xy, devices,
+                                      cap_k.times[cap_k.first])
+            out.update(_heads_numbers(K, cap_k, sc_k, labels_k))
+            pairs = cap_k.pairs[sc_k.measured]
+            detail[f"pairs_{K}h"] = {f"{a}-{b}": int(n) for (a, b), n in
+                                     zip(*np.unique(pairs, axis=0, return_counts=True))}
     out["detail"] = detail
     return out
 
@@ -182,26 +270,40 @@ def main(argv=None):
                         "prediction")
     parser.add_argument("--reacquire", type=int, default=2,
                         help="re-acquisition passes (0: quicker; the labels do not change)")
-    parser.add_argument("--out", default="build/benchmarks/mixed_scale_system.json")
+    parser.add_argument("--heads", type=int, nargs="+", default=[2],
+                        help="numbers of pan-tilt heads to compare on the same walk (e.g. 2 4; "
+                        "default: 2, the notebook's system)")
+    parser.add_argument("--out", default=None, help="default: build/benchmarks/"
+                        "mixed_scale_system.json (mixed_scale_system_heads.json with --heads)")
     add_arguments(parser, seed=18)
     args = parser.parse_args(argv)
     settings = {"travel": args.travel, "speed": args.speed, "ceiling": args.ceiling,
                 "head_f": args.head_f, "hidden": list(args.hidden),
                 "readback_step": args.readback_step, "readback_noise": args.readback_noise,
                 "lead": args.lead, "constant_velocity": args.constant_velocity,
-                "baseline": not args.no_baseline, "reacquire": args.reacquire}
+                "baseline": not args.no_baseline, "reacquire": args.reacquire,
+                "heads": sorted(set(args.heads))}
+    bad = [k for k in settings["heads"] if k not in (2, 3, 4)]
+    if bad or 2 not in settings["heads"]:
+        parser.error(f"--heads: expected numbers of heads among 2, 3, 4, with 2 (the main "
+                     f"run), got {args.heads}")
+    name = "mixed_scale_system" if settings["heads"] == [2] else "mixed_scale_system_heads"
+    out = args.out or f"build/benchmarks/{name}.json"
     headlines = [h for h in HEADLINES
                  if settings["baseline"] or h.key != "both_in_frame_no_prediction"]
-    results, table = run("mixed_scale_system", run_seed, headlines, args, parser=parser,
-                         out_dir=Path(args.out).parent, settings=settings, **settings)
+    if settings["heads"] != [2]:
+        headlines += heads_headlines(settings["heads"])
+    results, table = run(name, run_seed, headlines, args, parser=parser,
+                         out_dir=Path(out).parent, settings=settings, **settings)
+    targets = {**TARGETS, **heads_targets(settings["heads"])}
     met = {k: float(np.mean([("error" not in r) and bool(f(r)) for r in results.values()]))
-           for k, f in TARGETS.items()}
+           for k, f in targets.items()}
     print(f"share of the {len(results)} seeds meeting each target of notebook 15:")
     for k, v in met.items():
         print(f"  {k:<58} {v:.0%}")
     refused = sum(r.get("labels_refused", 0) for r in results.values())
     print(f"identification refused (nothing labelled) on {refused} of {len(results)} seeds")
-    write_json(args.out, {**settings, "seeds": {str(s): r for s, r in results.items()},
+    write_json(out, {**settings, "seeds": {str(s): r for s, r in results.items()},
                           "spread": table, "seeds_met": met})
 
 

@@ -21,7 +21,8 @@ never the generator's truth: nothing here imports :mod:`lsmta.synth` or
               close-up marker video, triangulation at the read-back angles, the face filled
               per frame
 ``ceiling``   its ceiling input (CeilingFeed), checked, in arrival order
-``close_up``  pieces of its close-up stages: the first settled frame, re-acquisition seeds
+``close_up``  pieces of its close-up stages: the first settled frame, the best pair of heads
+              per marker (any number of heads), re-acquisition seeds
 ``face_identification`` the face markers identified without an operator: dots, stereo, the
               face model's layout fitted (rigid ICP with an optimal assignment, then its
               expressions) and each dot labelled
@@ -39,7 +40,7 @@ from .capture import (
     track_surface,
 )
 from .ceiling import CeilingFeed
-from .close_up import first_settled, reacquisition_seeds
+from .close_up import PairChoice, best_pairs, first_settled, reacquisition_seeds
 from .face_identification import FaceIdentification, IdentifyParams, identify_face_markers
 from .markers import MarkerCapture, MarkerParams, Tracker2D, capture_markers
 from .mixed_scale import (
@@ -59,7 +60,7 @@ __all__ = [
     "view_groups", "MarkerCapture", "MarkerParams", "Tracker2D", "capture_markers",
     "FilterParams", "MixedScaleCapture", "MixedScaleParams", "capture_mixed_scale",
     "triangulate_frames",
-    "first_settled", "reacquisition_seeds",
+    "PairChoice", "best_pairs", "first_settled", "reacquisition_seeds",
     "FaceIdentification", "IdentifyParams", "identify_face_markers",
     "RigCalibration", "RigRefinement", "RigRefinementParams", "SurfaceParams", "calibrate_rig",
     "capture_body", "fit_arm", "refine_rig",

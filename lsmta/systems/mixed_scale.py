@@ -26,9 +26,12 @@ the caller's affair (notebook 15 says what its simulation gives).
    have followed the same target for ``params.settle`` s: automatic
    (:func:`~lsmta.systems.face_identification.identify_face_markers`: dots, the face model's
    layout fitted and assigned, ``params.identify``) or the ``identify`` callables;
-3. *triangulation* of every frame from a single pair of heads
-   (:func:`~lsmta.triangulation.triangulate_single_pair`), each head the calibrated model
-   at its read-back angles (:meth:`~lsmta.pantilt.PanTiltCamera.camera_at`);
+3. *triangulation* of every marker of every frame from one pair of heads, the best pair
+   that sees it (:func:`~lsmta.systems.close_up.best_pairs`: of the pairs whose
+   intersection passes the angle and reprojection checks, the one with the smallest
+   predicted error, σ √(d_a² + d_b²) / sin θ; any number K >= 2 of heads; never the rays
+   of three or more heads mixed in one marker, §5.2), each head the calibrated model at its
+   read-back angles (:meth:`~lsmta.pantilt.PanTiltCamera.camera_at`);
 4. *fill*: occluded and lost markers from the face model
    (:meth:`lsmta.face.FaceModel.fill`), the face per frame; measured markers far from the
    fitted face are dropped as wrong and the face is filled again;
@@ -50,9 +53,8 @@ from tqdm.auto import tqdm
 from .._validate import as_array, as_int, as_scalar
 from ..face import FaceModel
 from ..face.basis import FaceFit
-from ..pantilt import Steering, SteeringParams
+from ..pantilt import PanTiltCamera, Steering, SteeringParams
 from ..tracking.markers import MarkerStatus, track_markers
-from ..triangulation import triangulate_single_pair
 from ..widearea import (
     EstimatorParams,
     TrackingResult,
@@ -62,7 +64,7 @@ from ..widearea import (
 )
 from .ceiling import CeilingFeed, arrival_order, check_ceiling_feed
 from .checks import check_heads
-from .close_up import first_settled, reacquisition_seeds
+from .close_up import best_pairs, first_settled, reacquisition_seeds
 from .face_identification import FaceIdentification, IdentifyParams, identify_face_markers
 
 
@@ -194,10 +196,10 @@ class MixedScaleCapture:
     xy : (K, F, M, 2) array
         Marker positions found (tracked or second search), px; NaN elsewhere.
     points : (F, M, 3) array
-        Triangulated markers, mm (NaN: not seen by both heads of the pair, or dropped by
-        the reprojection or the fill check).
-    pairs : (F, 2) int array
-        The heads used in each frame.
+        Triangulated markers, mm (NaN: no pair of heads saw the marker with a usable
+        intersection, or dropped by the fill check).
+    pairs : (F, M, 2) int array
+        The pair of heads that measured each marker in each frame (``(-1, -1)``: none).
     face : FaceFit
         The face per frame, gaps filled from the face model.
     body : (F, N, 3) array
@@ -409,14 +411,16 @@ def _reacquisition(st: _State) -> None:
 
 def triangulate_frames(xy, heads, settings, *, min_angle_deg: float = 2.0,
                        max_reprojection_px: float = 1.0):
-    """Stage 3 of :func:`capture_mixed_scale`: every frame triangulated from a single pair of
-    heads, each head ``heads[k].camera_at(*settings[k, f])``.
+    """Stage 3 of :func:`capture_mixed_scale`: every marker of every frame triangulated from
+    the best pair of heads that sees it (:func:`~lsmta.systems.close_up.best_pairs`: the
+    usable pair with the smallest predicted error), each head
+    ``heads[k].camera_at(*settings[k, f])``. With two heads every marker has the one pair.
 
     Parameters
     ----------
     xy : (K, F, M, 2) array
         Marker images, px (NaN: not found).
-    heads : sequence of K PanTiltCamera
+    heads : sequence of K >= 2 PanTiltCamera
     settings : (K, F, 2) array
         Pan and tilt of each head and frame, degrees.
     min_angle_deg, max_reprojection_px
@@ -425,22 +429,24 @@ def triangulate_frames(xy, heads, settings, *, min_angle_deg: float = 2.0,
     Returns
     -------
     points : (F, M, 3) array
-        mm; NaN where not triangulated or dropped by the reprojection check.
-    pairs : (F, 2) int array
+        mm; NaN where no pair gives a usable intersection (seen by both, the rays' angle,
+        the reprojection check).
+    pairs : (F, M, 2) int array
+        The heads that measured each marker, ``(-1, -1)`` where none.
     """
+    heads = list(heads)
+    if len(heads) < 2 or not all(isinstance(h, PanTiltCamera) for h in heads):
+        raise TypeError("heads: expected at least 2 calibrated lsmta.pantilt.PanTiltCamera")
     xy = as_array(xy, "xy", shape=(len(heads), None, None, 2), allow_nan=True)
     settings = as_array(settings, "settings", shape=(len(heads), xy.shape[1], 2))
     K, F, M = xy.shape[:3]
     points = np.full((F, M, 3), np.nan)
-    pairs = np.zeros((F, 2), int)
+    pairs = np.full((F, M, 2), -1)
     for f in range(F):
         cams = [h.camera_at(*settings[k, f]) for k, h in enumerate(heads)]
-        r = triangulate_single_pair(cams, xy[:, f], min_angle_deg=min_angle_deg)
-        with np.errstate(invalid="ignore"):
-            bad = np.fmax.reduce(r.intersection.reprojection_error, axis=0) \
-                > max_reprojection_px
-        points[f] = np.where(bad[:, None], np.nan, r.intersection.points)
-        pairs[f] = r.pair
+        r = best_pairs(cams, xy[:, f], min_angle_deg=min_angle_deg,
+                       max_reprojection_px=max_reprojection_px)
+        points[f], pairs[f] = r.points, r.pair
     return points, pairs
 
 
@@ -455,6 +461,7 @@ def _fill(st: _State) -> None:
     with np.errstate(invalid="ignore"):
         wrong = np.linalg.norm(st.points - first.model, axis=2) > st.params.max_fill_mm
     st.points = np.where(wrong[..., None], np.nan, st.points)
+    st.pairs = np.where(wrong[..., None], -1, st.pairs)
     st.face = st.face_model.fill(st.points) if wrong.any() else first
 
 

@@ -174,7 +174,7 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
     heads = sorted(set(int(k) for k in heads))
     full = mixed_scale_scene(rng=seed, travel=travel, speed=speed, n_ceiling=ceiling,
                              head_f=head_f, head_hidden=tuple(hidden) if hidden else None,
-                             n_heads=2 if heads == [2] else 4)
+                             heads=2 if heads == [2] else 4)
     cal_full = ms.calibrate_scene(full, rng=seed + 1, from_images=True)
     # the main run: the first two heads (with four in the scene, heads 0 and 1 and their
     # calibration are the two-head scene's: the generator draws them first)

@@ -72,15 +72,15 @@ def test_best_pairs_bad_input():
         best_pairs(cams, xy, max_reprojection_px=0.0)
     with pytest.raises(TypeError, match="heads"):
         triangulate_frames(np.zeros((1, 2, 4, 2)), [], np.zeros((1, 2, 2)))
-    with pytest.raises(ValueError, match="n_heads"):
-        mixed_scale_scene(rng=1, travel=500.0, stand=0.2, n_ceiling=2, n_heads=3)
+    with pytest.raises(ValueError, match="heads: expected one of"):
+        mixed_scale_scene(rng=1, travel=500.0, stand=0.2, n_ceiling=2, heads=3)
 
 
 @pytest.fixture(scope="module")
 def four():
     """A tiny walk seen by the four heads of HEAD_LAYOUTS[4], the system run with the first
     two and with all four (the markers identified by the system itself)."""
-    scene = mixed_scale_scene(rng=5, travel=700.0, stand=0.8, n_ceiling=4, n_heads=4)
+    scene = mixed_scale_scene(rng=5, travel=700.0, stand=0.8, n_ceiling=4, heads=4)
     cal = ms.calibrate_scene(scene, rng=6)
     inputs = ms.walk_inputs(scene, cal, rng=7, n_train=120)
     params = MixedScaleParams(start=0.7, reacquire=1)

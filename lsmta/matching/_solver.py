@@ -346,7 +346,8 @@ def _forward_equations(coef, pad, height, width, f, fw, U, cx, cy, a11, a12, a21
     the image are left out. The design rows go into ``Jt`` (8, P) and the weights into
     ``wt``, ``we`` (P,) first, and the sums are then taken row by row (:func:`_gram`:
     contiguous dot products, vectorised; summing into the 8 x 8 matrix pixel by pixel, and
-    the spline's weights in work arrays, made the forward iterations 1.7 times slower)."""
+    the spline's weights in work arrays, made the forward iterations about 1.7 times slower
+    in ``experiments/lsm_benchmark.py`` on this project's 2-core machine)."""
     ee = 0.0
     sw = 0.0
     for p in range(U.shape[0]):

@@ -42,7 +42,7 @@ from .widearea import (
 #: and the two shoulders; they shine upwards, to the ceiling.
 LED_HEAD = np.array([[0.0, 140.0, -20.0], [-190.0, -260.0, -60.0], [190.0, -260.0, -60.0]])
 LED_NAMES = ("head", "shoulder_r", "shoulder_l")
-#: Home projection centres of the pan-tilt heads, mm, by their number (``n_heads`` of
+#: Home projection centres of the pan-tilt heads, mm, by their number (``heads`` of
 #: :func:`mixed_scale_scene`). Two: side by side, 2 m apart, 2.6 m in front of the walk's
 #: line. Four (thesis Fig. 54: four heads on one side of the room looking at the same point
 #: from different directions): the same two plus one beyond each end of the walk, lower on
@@ -131,8 +131,8 @@ def _walk_path(times, start_x, end_x, walk_start, walk_end, y, height, rng):
 def mixed_scale_scene(*, rng: np.random.Generator | int | None = None, travel: float = 4000.0,
                       speed: float = 1200.0, stand: float = 1.0, rate: float = 200.0,
                       y: float = 300.0, height: float = 1650.0, turn_deg=(12.0, 5.0),
-                      n_ceiling: int = 6, n_heads: int = 2, head_positions=None,
-                      head_f: float = 3000.0, head_hidden=None) -> MixedScaleScene:
+                      n_ceiling: int = 6, heads=2, head_f: float = 3000.0,
+                      head_hidden=None) -> MixedScaleScene:
     """A person walks ``travel`` mm along X at ``speed`` mm/s, standing ``stand`` s before
     and after, looking towards -Y (the pan-tilt heads) and turning the head a little, with
     expressions (:func:`lsmta.synth.face.expression_weights`).
@@ -144,14 +144,12 @@ def mixed_scale_scene(*, rng: np.random.Generator | int | None = None, travel: f
     n_ceiling : int
         Ceiling cameras kept (those of :func:`lsmta.synth.widearea.ceiling_rig` that see the
         head LED's path best), at half size.
-    n_heads : {2, 4}
-        The pan-tilt heads of :data:`HEAD_LAYOUTS` (used when ``head_positions`` is None).
-        The first two of the four are the two of the two-head layout, with the same
-        misaligned axes (the same ``rng``), so that a walk seen by four heads is the walk
-        seen by two plus two more.
-    head_positions : sequence of (3,), optional
-        Home projection centres of the pan-tilt heads, mm (default: ``HEAD_LAYOUTS[n_heads]``);
-        each looks at the middle of the walk at home and has the misaligned axes of
+    heads : {2, 4} or sequence of (3,)
+        The pan-tilt heads: a layout of :data:`HEAD_LAYOUTS` by its number of heads (the
+        first two of the four are the two of the two-head layout, with the same misaligned
+        axes, the same ``rng``, so that a walk seen by four heads is the walk seen by two
+        plus two more), or the heads' home projection centres, mm. Each looks at the middle
+        of the walk at home and has the misaligned axes of
         :func:`lsmta.synth.pantilt.pantilt_head`.
     head_f : float
         The heads' principal distance, px (zoomed in: at 2.5-3.5 m the face is 120-170 px
@@ -166,13 +164,7 @@ def mixed_scale_scene(*, rng: np.random.Generator | int | None = None, travel: f
     stand = as_scalar(stand, "stand", nonnegative=True)
     rate = as_scalar(rate, "rate", positive=True)
     turn = as_array(turn_deg, "turn_deg", shape=(2,))
-    if head_positions is None:
-        if n_heads not in HEAD_LAYOUTS:
-            raise ValueError(f"n_heads: expected one of {sorted(HEAD_LAYOUTS)}, got {n_heads!r}")
-        head_positions = HEAD_LAYOUTS[n_heads]
-    head_positions = as_array(head_positions, "head_positions", shape=(None, 3))
-    if len(head_positions) < 1:
-        raise ValueError("head_positions: expected at least one (3,) position")
+    head_positions = _head_positions(heads)
     hidden = np.full((len(LED_HEAD), 2), np.inf)
     if head_hidden is not None:
         hidden[0] = as_array(head_hidden, "head_hidden", shape=(2,))
@@ -209,6 +201,19 @@ def mixed_scale_scene(*, rng: np.random.Generator | int | None = None, travel: f
     return MixedScaleScene(times=times, face=fm, head=head, R=R, t=t, leds=leds,
                            ceiling=ceiling, heads=heads, walk_start=stand,
                            walk_end=stand + walk_time)
+
+
+def _head_positions(heads) -> np.ndarray:
+    """``mixed_scale_scene``'s ``heads`` as (K, 3) home positions, mm."""
+    if np.ndim(heads) == 0:
+        if heads not in HEAD_LAYOUTS:
+            raise ValueError(f"heads: expected one of {sorted(HEAD_LAYOUTS)} or (K, 3) "
+                             f"positions, got {heads!r}")
+        heads = HEAD_LAYOUTS[heads]
+    positions = as_array(heads, "heads", shape=(None, 3))
+    if len(positions) < 1:
+        raise ValueError("heads: expected at least one (3,) position")
+    return positions
 
 
 def wide_heads(scene: MixedScaleScene, *, f: float = 270.0,

@@ -465,6 +465,24 @@ def _identify_from_pair(imgs, heads, settings, face_model, p):
                               n_points=r.n_points, residual_mm=r.residual_mm)
 
 
+def _best_pose(frame, X, cams, ref, gates, p: IdentifyParams):
+    """The mean face's rigid pose ``(R, t, cost)`` on the stereo points ``X``: starts
+    turned about the normals towards the heads and of the points themselves, the best
+    ``n_poses`` refined with every gate."""
+    centre = np.median(X, axis=0)
+    towards = np.mean([c.C for c in cams], axis=0) - centre
+    towards /= np.linalg.norm(towards)
+    seen = _thinnest(X)                      # the stereo points' own normal, to the heads
+    normals = [towards, seen if seen @ towards >= 0 else -seen]
+    poses = []
+    for R0 in _starts(ref, normals, p.n_angles):
+        t0 = centre - ref.mean(axis=0) @ R0.T
+        poses.append(_rigid(frame, ref, R0, t0, gates[:1], p.n_iter_start, p.min_points))
+    poses = [_rigid(frame, ref, R, t, gates, p.n_iter, p.min_points)
+             for R, t, _ in sorted(poses, key=lambda r: r[2])[:p.n_poses]]
+    return min(poses, key=lambda r: r[2])
+
+
 def identify_face_markers(images, heads, settings, face_model: FaceModel, *,
                           params: IdentifyParams | None = None) -> FaceIdentification:
     """Which dot in each head's frame is which face marker, without an operator (see the
@@ -516,19 +534,8 @@ def identify_face_markers(images, heads, settings, face_model: FaceModel, *,
     X = frame.stereo(p.max_ray_distance)
     if len(X) < p.min_points:
         return FaceIdentification(**{**nothing, "n_points": len(X)})
-    centre = np.median(X, axis=0)
-    towards = np.mean([c.C for c in cams], axis=0) - centre
-    towards /= np.linalg.norm(towards)
-    seen = _thinnest(X)                      # the stereo points' own normal, to the heads
-    normals = [towards, seen if seen @ towards >= 0 else -seen]
     gates = tuple(p.gate_px * g for g in p.gate_steps)
-    poses = []
-    for R0 in _starts(ref, normals, p.n_angles):
-        t0 = centre - ref.mean(axis=0) @ R0.T
-        poses.append(_rigid(frame, ref, R0, t0, gates[:1], p.n_iter_start, p.min_points))
-    poses = [_rigid(frame, ref, R, t, gates, p.n_iter, p.min_points)
-             for R, t, _ in sorted(poses, key=lambda r: r[2])[:p.n_poses]]
-    R, t, cost = min(poses, key=lambda r: r[2])
+    R, t, cost = _best_pose(frame, X, cams, ref, gates, p)
     if not np.isfinite(cost):
         return FaceIdentification(**{**nothing, "n_points": len(X)})
     best = (np.inf, ref @ R.T + t)

@@ -336,3 +336,49 @@ def test_forward_normal_equations_are_those_of_the_design_matrix():
     np.testing.assert_allclose(np.triu(N8), np.triu(J.T @ (fw[:, None] * J)), rtol=1e-9)
     np.testing.assert_allclose(b8, J.T @ (fw * e), rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose([ee, sw], [np.sum(fw * e * e), fw.sum()], rtol=1e-9)
+
+
+def test_forward_normal_equations_with_edge_cut_and_subset_model():
+    # a patch crossing the image's left edge (partial: outside pixels left out), a Tukey
+    # cut-off that drops some pixels and down-weights the rest, and the shift + offset
+    # model (rows 0, 1 and 6 of the 8-column layout): J restricted to inside pixels
+    from lsmta.matching import _solver
+    from lsmta.matching.spline import PAD, SplineImage
+
+    pair = warped_pair(rng=5, shape=(64, 64), A=[[1.03, 0.05], [-0.04, 0.98]], c=(1.7, -0.6),
+                       r0=8.0, r1=0.9, noise_sigma=2.0)
+    g_img, U = SplineImage(pair.search), patch_offsets(13)
+    f = pair.template[24:37, 0:13].astype(float).ravel()
+    fw = np.linspace(0.5, 1.0, len(U))
+    cx, cy, A, r0, r1 = 3.4, 30.6, np.array([[1.02, 0.04], [-0.03, 0.99]]), 7.0, 1.0
+    xy = np.array([cx, cy]) + U @ A.T
+    inside = (xy[:, 0] >= 0) & (xy[:, 0] <= 63) & (xy[:, 1] >= 0) & (xy[:, 1] <= 63)
+    g, gx, gy = g_img.sample(np.where(inside[:, None], xy, 0.0), gradient=True)
+    e = f - (r0 + r1 * g)
+    cut = 1.5 * np.median(np.abs(e[inside]))
+    w = fw * np.clip(1 - (e / cut) ** 2, 0, None) ** 2 * inside
+    assert 0 < inside.sum() < len(U) and (inside & (np.abs(e) >= cut)).any()
+    assert (inside & (w > 0) & (w < 0.99 * fw)).any()
+    J = np.column_stack([r1 * gx, r1 * gy, np.ones(len(U))])[inside]
+    wi, ei, cols = w[inside], e[inside], [0, 1, 6]
+    used = np.zeros(8, bool)
+    used[cols] = True
+    N8, b8, row = np.full((8, 8), np.nan), np.full(8, np.nan), np.zeros(8)
+    Jt, we, wt = np.full((8, len(U)), np.nan), np.full(len(U), np.nan), np.full(len(U), np.nan)
+    ok, ee, sw = _solver._forward_equations(
+        g_img.coefficients, PAD, 64, 64, f, fw, U, cx, cy, A[0, 0], A[0, 1], A[1, 0], A[1, 1],
+        r0, r1, 0, 1, cut, True, N8, b8, row, Jt, used, we, wt)
+    assert ok
+    N = np.zeros((8, 8))
+    N[np.ix_(cols, cols)] = J.T @ (wi[:, None] * J)
+    b = np.zeros(8)
+    b[cols] = J.T @ (wi * ei)
+    np.testing.assert_allclose(np.triu(N8), np.triu(N), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(b8, b, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose([ee, sw], [np.sum(wi * ei * ei), wi.sum()], rtol=1e-9)
+    np.testing.assert_allclose(wt, w, rtol=1e-9, atol=1e-12)
+    # without partial the patch is refused
+    ok, _, _ = _solver._forward_equations(
+        g_img.coefficients, PAD, 64, 64, f, fw, U, cx, cy, A[0, 0], A[0, 1], A[1, 0], A[1, 1],
+        r0, r1, 0, 1, cut, False, N8, b8, row, Jt, used, we, wt)
+    assert not ok

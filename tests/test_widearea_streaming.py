@@ -5,6 +5,7 @@ the synchronised per-instant intersection (Fig. 33), bad input."""
 import numpy as np
 import pytest
 
+from lsmta.camera import Camera
 from lsmta.evaluation.track_scores import score_led_tracks
 from lsmta.evaluation.widearea import walking_trial
 from lsmta.synth.calibration import poor_guess
@@ -288,27 +289,69 @@ def test_tracker_offers_the_line_where_a_waiting_ray_s_partner_must_be():
     X = np.array([[300.0, -200.0, 1200.0]])                # an LED in the birth volume
     assert all(c.in_image(c.project(X)).all() for c in cams)
     tracker = WideAreaTracker(cams)
-    seen = {}
+    seen, waiting = {}, {}
 
     def search(c, found):
         def detect_(pred):
-            seen[c] = pred.partners
+            seen[c], waiting[c] = pred.partners, pred.waiting
             return found
         return detect_
 
     tracker.feed_detect(0, 0.00, search(0, cams[0].project(X)))  # seen by camera 0 only
     tracker.feed_detect(1, 0.01, search(1, np.zeros((0, 2))))    # camera 1: where to look
-    assert len(seen[0]) == 0                                       # nothing waited before
     xy = seen[1]
     assert cams[1].in_image(xy).all() and len(xy) > 2
+    assert len(np.unique(xy, axis=0)) == len(xy)                   # each point once
     # the LED's image lies on the line, and the points are at most gate_px apart
     assert np.linalg.norm(xy - cams[1].project(X), axis=1).min() < gate / 2 + 0.5
     assert np.linalg.norm(np.diff(xy, axis=0), axis=1).max() <= gate + 1e-6
+    # camera 0's own ray still waits (fresh), but it is not offered to camera 0
+    tracker.feed_detect(0, 0.02, search(0, np.zeros((0, 2))))
+    assert len(waiting[0]) == 1 and len(seen[0]) == 0
+    # a ray older than staleness is left out (it is still in the pool: no frame since)
+    X2 = np.array([[-200.0, 300.0, 900.0]])
+    assert all(c.in_image(c.project(X2)).all() for c in cams)
+    staleness = EstimatorParams().staleness
+    tracker.feed_detect(0, 0.03, search(0, cams[0].project(X2)))
+    tracker.feed_detect(1, 0.04, search(1, np.zeros((0, 2))))
+    assert len(seen[1]) > 2                                        # fresh: offered
+    tracker.feed_detect(1, 0.03 + staleness + 0.005, search(1, np.zeros((0, 2))))
+    assert len(seen[1]) == 0                                       # stale: not offered
     # without a birth volume there is no line
     tracker = WideAreaTracker(cams, params=EstimatorParams(volume=None))
     tracker.feed_detect(0, 0.00, search(0, cams[0].project(X)))
     tracker.feed_detect(1, 0.01, search(1, np.zeros((0, 2))))
     assert len(seen[1]) == 0
+
+
+def test_partner_band_reaches_a_line_that_only_crosses_an_image_corner():
+    # a line whose image in camera 1 cuts off its top-left corner (0.57 px deep), between
+    # two of the 64 coarse samples along the birth volume, both outside the image
+    cam1 = small_camera(ceiling_rig(rng=np.random.default_rng(7))[1])
+    P = np.array([[-0.1, -0.1]])                                 # 0.4 px inside the corner
+    C, r = cam1.rays(np.concatenate([P, P + np.array([[1.0, -1.0]]) / np.sqrt(2)]))
+    depth = 0.3 * (1000.0 - C[0, 2]) / r[0, 2]
+    X = C[0] + depth * r[0]                                     # in the birth volume
+    d = (C[1] + depth * r[1]) - X
+    d /= np.linalg.norm(d)                                      # its image: along (1, -1)
+    cam0 = Camera.look_at(X - 8000.0 * d, X, f=400.0, width=320, height=240)
+    lo, hi = np.asarray(EstimatorParams().volume)
+    with np.errstate(divide="ignore"):
+        a, b = (lo - cam0.C) / d, (hi - cam0.C) / d
+    near, far = np.minimum(a, b).max(), np.maximum(a, b).min()
+    coarse = cam1.project(cam0.C + np.linspace(near, far, 65)[:, None] * d)
+    assert not cam1.in_image(coarse).any()
+    tracker = WideAreaTracker([cam0, cam1])
+    seen = []
+
+    def search(pred):
+        seen.append(pred.partners)
+        return np.array([[cam0.cx, cam0.cy]]) if len(seen) == 1 else np.zeros((0, 2))
+
+    tracker.feed_detect(0, 0.00, search)                        # the ray through X
+    tracker.feed_detect(1, 0.01, search)
+    assert len(seen[1]) >= 1 and cam1.in_image(seen[1]).all()
+    assert np.linalg.norm(seen[1] - P, axis=1).max() < 1.0
 
 
 def test_search_refuses_bad_input():

@@ -6,7 +6,9 @@ its threshold. A pixel over its threshold starts a flood fill (8-connected, over
 over threshold), so each LED spot that has at least one tested pixel is found whole: its
 intensity-weighted centroid and its area are exactly those of the full search
 (:func:`lsmta.widearea.detect` with ``mode="full"``; OpenCV's connected components), up to
-the order of the floating-point sums. Pixels are tested once each and counted.
+the order of the floating-point sums. Pixels are tested once each and counted: the
+count is the grid's, the windows' and the flood fills' pixels, not the pixels read (a grid
+row is first compared whole in one contiguous pass, which is not counted).
 
 The loop over windows, grid and flood fill is compiled (:mod:`lsmta.widearea._kernels`)
 and called once per frame.
@@ -57,7 +59,8 @@ class FrameFeatures:
     area : (n,) int array
         Pixels per feature.
     tested : int
-        Pixels compared with their threshold.
+        Pixels the search decides on (grid, windows, flood fills; each once), not the pixels
+        read: the contiguous pass that first compares each grid row whole is not counted.
     """
 
     xy: np.ndarray

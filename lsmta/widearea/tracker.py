@@ -564,9 +564,12 @@ def _result(state: EstimatorState) -> TrackingResult:
 def _partners(s, c: int, t: float, p) -> np.ndarray:
     """Points ``(Q, 2)``, px, at most ``p.gate_px`` apart along the images in camera ``c``
     of the other cameras' rays in the birth pool stamped within ``p.staleness`` s of ``t``,
-    each ray clipped to ``p.volume`` (sampled in 3-D, so lens distortion bends the line
-    as it should: 64 steps, then the steps with an end in the image finely), in the image
-    only."""
+    each ray clipped to ``p.volume``, in the image only, each point once. Sampled in 3-D,
+    so lens distortion bends the line as it should: 64 equal steps in depth, then every
+    step whose pixel segment meets the image in ``ceil(1.1 * length / gate_px)`` equal
+    sub-steps (1.1: equal steps in depth are not quite equal in pixels). A sub-step that
+    crosses an image corner with both ends outside gives the middle of its part in the
+    image."""
     pool, cam = s.pool, s.cameras[c]
     m = (pool.cameras != c) & (pool.stamps >= t - p.staleness)
     if p.volume is None or not m.any():
@@ -577,20 +580,45 @@ def _partners(s, c: int, t: float, p) -> np.ndarray:
         a, b = (lo - o) / d, (hi - o) / d           # the slabs of the box along each ray
         near = np.maximum(np.nanmax(np.minimum(a, b), axis=1), 0.0)
         far = np.nanmin(np.maximum(a, b), axis=1)
-    out = []
-    for oi, di, l0, l1 in zip(o, d, near, far):
-        if not l1 > l0:
-            continue
-        lam = np.linspace(l0, l1, 65)
-        coarse = cam.project(oi + lam[:, None] * di, behind="nan")
-        gap = np.linalg.norm(np.diff(coarse, axis=0), axis=1)
-        seen = cam.in_image(coarse)
-        for j in np.flatnonzero((seen[:-1] | seen[1:]) & np.isfinite(gap)):
-            # the steps with an end in the image, at most gate_px apart
-            u = np.linspace(lam[j], lam[j + 1], int(np.ceil(gap[j] / p.gate_px)) + 1)
-            xy = cam.project(oi + u[:, None] * di, behind="nan")
-            out.append(xy[cam.in_image(xy)])
-    return np.concatenate(out) if out else np.zeros((0, 2))
+    r = np.flatnonzero(far > near)
+    if len(r) == 0:
+        return np.zeros((0, 2))
+    lam = near[r, None] + (far - near)[r, None] * np.linspace(0.0, 1.0, 65)   # (R, 65)
+    coarse = cam.project((o[r, None] + lam[..., None] * d[r, None]).reshape(-1, 3),
+                         behind="nan").reshape(len(r), 65, 2)
+    gap = np.linalg.norm(np.diff(coarse, axis=1), axis=2)                    # (R, 64)
+    box = np.array([-0.5, -0.5]), np.array([cam.width - 0.5, cam.height - 0.5])
+    keep = _meets_box(coarse[:, :-1], coarse[:, 1:], *box)[0] & np.isfinite(gap)
+    ray, j = np.nonzero(keep)
+    n = np.ceil(1.1 * gap[ray, j] / p.gate_px).astype(int).clip(1)
+    k = np.repeat(np.arange(len(n)), n + 1)          # the sub-steps' ends, of step k
+    frac = np.arange(len(k)) - np.repeat(np.cumsum(n + 1) - (n + 1), n + 1)
+    u = lam[ray, j][k] + (lam[ray, j + 1] - lam[ray, j])[k] * frac / n[k]
+    i = r[ray[k]]
+    xy = cam.project(o[i] + u[:, None] * d[i], behind="nan")      # one call for all rays
+    inside = cam.in_image(xy)
+    # a step's far end is the next step's near end: once
+    then = np.concatenate([keep[:, 1:], np.zeros((len(r), 1), bool)], axis=1)[ray, j]
+    once = (frac < n[k]) | ~then[k]
+    s0 = np.flatnonzero(frac < n[k])                 # sub-steps from s0 to s0 + 1
+    meets, mid = _meets_box(xy[s0], xy[s0 + 1], *box)
+    corner = s0[meets & ~inside[s0] & ~inside[s0 + 1]]
+    mid = mid[meets & ~inside[s0] & ~inside[s0 + 1]]
+    extra = np.clip(xy[corner] + mid[:, None] * (xy[corner + 1] - xy[corner]), *box)
+    return np.concatenate([xy[inside & once], extra])
+
+
+def _meets_box(a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """Whether the segments from ``a`` to ``b`` (``(..., 2)``, px) meet the rectangle
+    ``lo <= xy <= hi`` (boolean ``(...)``; a NaN end: False), and the fraction of the way
+    from ``a`` to ``b`` of the middle of their part in it (Liang-Barsky clipping)."""
+    d = b - a
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_lo, t_hi = (lo - a) / d, (hi - a) / d
+        enter = np.maximum(np.where(d != 0, np.minimum(t_lo, t_hi), -np.inf).max(axis=-1), 0.0)
+        leave = np.minimum(np.where(d != 0, np.maximum(t_lo, t_hi), np.inf).min(axis=-1), 1.0)
+        level = ((d != 0) | ((a >= lo) & (a <= hi))).all(axis=-1)  # no motion: a inside
+        return level & (enter <= leave), (enter + leave) / 2
 
 
 def _waiting(s, c: int, t: float, staleness: float) -> np.ndarray:

@@ -151,7 +151,7 @@ def test_refine_rig_from_video_files(recording, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")          # it generalises: no warning
         r = refine_rig(videos, given, params=RigRefinementParams(
-            n_frames=6, tie=TieParams(n_features=2000)))
+            n_frames=6, tie=TieParams(n_features=2000, asift_features=300)))
     before = r.adjustment.median_residual(before=True)
     after = r.adjustment.median_residual()
     assert (before > 1.5).all(), before
@@ -179,7 +179,7 @@ def test_cameras_that_do_not_fit_are_refused(recording):
     swapped = [cams[2], cams[0], cams[1]]                   # the wrong order
     with pytest.raises(ValueError, match="do not fit the videos"):
         refine_rig(videos, swapped, params=RigRefinementParams(
-            n_frames=3, tie=TieParams(n_features=2000)))
+            n_frames=3, tie=TieParams(n_features=2000, asift_features=300)))
 
 
 def test_tie_points_need_one_image_per_camera():
@@ -267,7 +267,7 @@ def test_tie_points_found_at_a_working_size_come_back_to_the_frames(recording):
     paths, cams = recording
     videos = read_videos(paths, crop=(0, 0, 639, 479))              # odd sizes
     fitted = cameras_for_videos(cams, videos, mismatch="crop")
-    params = RigRefinementParams(tie_max_side=320, tie=TieParams(n_features=2000))
+    params = RigRefinementParams(tie_max_side=320, tie=TieParams(n_features=2000, asift_features=300))
     tie = _tie_points_at_work_size(videos, fitted, np.array([0, 3]), params)
     assert tie.xy.shape[1] > 100
     err = triangulate(fitted, tie.xy).reprojection_error
@@ -275,4 +275,4 @@ def test_tie_points_found_at_a_working_size_come_back_to_the_frames(recording):
     given = _disturbed(cams, np.random.default_rng(7))
     with pytest.raises(ValueError, match="max_rotation_deg"):
         refine_rig(read_videos(paths), given, params=RigRefinementParams(
-            n_frames=3, max_rotation_deg=0.01, tie=TieParams(n_features=2000)))
+            n_frames=3, max_rotation_deg=0.01, tie=TieParams(n_features=2000, asift_features=300)))

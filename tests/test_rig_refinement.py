@@ -267,7 +267,8 @@ def test_tie_points_found_at_a_working_size_come_back_to_the_frames(recording):
     paths, cams = recording
     videos = read_videos(paths, crop=(0, 0, 639, 479))              # odd sizes
     fitted = cameras_for_videos(cams, videos, mismatch="crop")
-    params = RigRefinementParams(tie_max_side=320, tie=TieParams(n_features=2000, asift_features=300))
+    params = RigRefinementParams(tie_max_side=320,
+                                 tie=TieParams(n_features=2000, asift_features=300))
     tie = _tie_points_at_work_size(videos, fitted, np.array([0, 3]), params)
     assert tie.xy.shape[1] > 100
     err = triangulate(fitted, tie.xy).reprojection_error

@@ -21,6 +21,7 @@ by one. Here the same tests run for all pivots together:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numba as nb
 import numpy as np
@@ -60,13 +61,14 @@ class Candidates:
     def __len__(self) -> int:
         return len(self.err)
 
-    @property
+    @cached_property
     def scores(self) -> np.ndarray:
         """(K,) each match's score: the sum over its matched markers of
         ``1 - (r / tol)²``: one for a marker where the motion puts it, less for one off by
-        a share of the tolerance, negative beyond it (down to -3 at the gate 2 ε l̄)."""
-        return np.where(self.obs >= 0, 1.0 - (np.nan_to_num(self.resid) / self.tol) ** 2,
-                        0.0).sum(axis=1)
+        a share of the tolerance, negative beyond it (down to -3 at the gate 2 ε l̄).
+        Computed once per instance; do not modify the array."""
+        r = np.where(np.isnan(self.resid), 0.0, self.resid)
+        return np.where(self.obs >= 0, 1.0 - (r / self.tol) ** 2, 0.0).sum(axis=1)
 
 
 def _triples(D, d, eps):

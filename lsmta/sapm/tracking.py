@@ -94,17 +94,16 @@ def _carry(pred, speed, Q, free, params: TrackParams):
     gate = params.gate + params.speed_gate * speed[rows]
     big = 1e9
     r, c = linear_sum_assignment(np.where(d < gate[:, None], d, big))
-    out = {}
-    for i, j in zip(r, c):
-        if d[i, j] >= gate[i]:
-            continue
-        zone = max(2 * d[i, j], d[i, j] + params.gate)
-        others_pt = np.delete(d[i], j)                   # another point near the prediction
-        others_pr = np.delete(d[:, j], i)                # another prediction near the point
-        if (others_pt < zone).any() or (others_pr < zone).any():
-            continue
-        out[int(cols[j])] = int(rows[i])
-    return out
+    dij = d[r, c]
+    inside = dij < gate[r]
+    r, c, dij = r[inside], c[inside], dij[inside]
+    zone = np.maximum(2 * dij, dij + params.gate)[:, None]
+    k = np.arange(len(r))
+    near_pt = d[r] < zone                                # another point near the prediction
+    near_pr = d[:, c].T < zone                           # another prediction near the point
+    near_pt[k, c] = near_pr[k, r] = False
+    clear = ~(near_pt.any(axis=1) | near_pr.any(axis=1))
+    return dict(zip(cols[c[clear]].tolist(), rows[r[clear]].tolist()))
 
 
 def _aligned(instance, carried, M: int, n: int) -> np.ndarray:

@@ -12,6 +12,8 @@
                analytic derivative by the joint angles (envelope theorem); fit_pose
 ``fitting``    weighted robust least squares over radii, limb scales and joint angles (eq. 14)
 ``posterior``  emcee posterior of one frame's radii and lengths
+``functional_joints`` joint centres (SCoRE) and hinge axes (SARA) from two segments' points,
+               with what the motion determined
 
 Angles are in radians, lengths in mm.
 """
@@ -20,6 +22,14 @@ from .arm import JOINTS, LIMBS, angles_from_joints, arm_model, base_poses, shoul
 from .fitting import BodyFit, FitParams, FitStatus, ModelState, fit_frame, fit_sequence
 from .full_body import full_body_model, limit_violations, limits, template_size
 from .full_fit import FullBodyFit, FullBodyFitParams, fit_full_body
+from .functional_joints import (
+    JointCentre,
+    JointStatus,
+    SegmentMotion,
+    fit_joint,
+    fit_joint_from_points,
+    segment_motion,
+)
 from .mesh import BodyMesh, body_mesh, body_volume, metaball_mesh, metaball_volume, write_mesh
 from .metaballs import (
     THRESHOLD,
@@ -49,5 +59,6 @@ __all__ = [
     "PoseFit", "PoseFitParams", "fit_pose", "FullBodyFit", "FullBodyFitParams", "fit_full_body",
     "full_body_model", "limit_violations", "limits",
     "template_size", "BodyMesh", "body_mesh", "body_volume", "metaball_mesh", "metaball_volume",
-    "write_mesh",
+    "write_mesh", "JointCentre", "JointStatus", "SegmentMotion", "fit_joint",
+    "fit_joint_from_points", "segment_motion",
 ]

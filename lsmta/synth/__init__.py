@@ -2,7 +2,17 @@
 and a ray-cast renderer. Library code outside ``lsmta.synth`` never imports it; notebooks and
 tests use it to make data and to score results."""
 
-from .body import Body, Motion, Part, SolidTexture, arm_wave, make_body, walk
+from .body import (
+    RANGE_OF_MOTION_PHASES,
+    Body,
+    Motion,
+    Part,
+    SolidTexture,
+    arm_wave,
+    make_body,
+    range_of_motion,
+    walk,
+)
 from .pantilt import (
     PanTiltData,
     calibration_sweeps,
@@ -26,8 +36,9 @@ from .render import (
 from .rigs import ring_rig, triplet_rig
 
 __all__ = [
-    "BACKGROUND", "NOTHING", "Background", "Body", "Motion", "PanTiltData", "Part",
-    "RenderedFrame", "Renderer", "Scene", "SolidTexture", "SurfaceProjection", "arm_wave",
+    "BACKGROUND", "NOTHING", "RANGE_OF_MOTION_PHASES", "Background", "Body", "Motion",
+    "PanTiltData", "Part", "RenderedFrame", "Renderer", "Scene", "SolidTexture",
+    "SurfaceProjection", "arm_wave", "range_of_motion",
     "calibration_sweeps", "cast_body", "evaluation_grid", "intrinsic_target", "make_background",
     "make_body", "pantilt_head", "project_surface_points", "ring_rig", "side_to_side",
     "triplet_rig", "walk",

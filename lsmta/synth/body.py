@@ -283,6 +283,9 @@ class Motion:
     joint_angles : (T, P, 3) array
         Angles ``(flexion, abduction, twist)`` per part in radians (module docstring).
     part_names : tuple of str
+    phases : tuple of (str, int, int)
+        Named movements of the clip: ``(name, first frame, stop frame)`` (stop exclusive),
+        in order; empty for a motion of one movement (:func:`range_of_motion` fills it).
     """
 
     name: str
@@ -290,8 +293,11 @@ class Motion:
     root_position: np.ndarray
     joint_angles: np.ndarray
     part_names: tuple
+    phases: tuple = ()
 
     def __post_init__(self):
+        object.__setattr__(self, "phases", tuple((str(n), int(a), int(b))
+                                                  for n, a, b in self.phases))
         # ground truth: keep private, read-only copies
         for key in ("root_position", "joint_angles"):
             arr = np.array(getattr(self, key), dtype=float)
@@ -312,6 +318,14 @@ class Motion:
         if part not in self.part_names:
             raise ValueError(f"part: unknown part {part!r}; parts are {list(self.part_names)}")
         return self.joint_angles[:, self.part_names.index(part)]
+
+    def phase_frames(self, name: str) -> np.ndarray:
+        """Frame indices ``(n,)`` of the movement called ``name`` (:attr:`phases`)."""
+        for phase, start, stop in self.phases:
+            if phase == name:
+                return np.arange(start, stop)
+        raise ValueError(f"name: the motion has no phase {name!r}; its phases are "
+                         f"{[p[0] for p in self.phases]}")
 
     def _frames(self, frames) -> np.ndarray:
         if frames is None:
@@ -444,6 +458,225 @@ def arm_wave(*, n_frames: int = 50, fps: float = 25.0, position=(0.0, 0.0),
     ang[:, i["forearm_l"], 0] = 1.1
     ang[:, i["head"], 2] = 0.15 * np.sin(2 * np.pi * 0.3 * t)
     return Motion(name="arm_wave", fps=fps, root_position=root, joint_angles=ang, part_names=names)
+
+
+RANGE_OF_MOTION_PHASES = ("trunk_bend", "trunk_twist", "arms_sideways", "arms_forward",
+                          "leg_circles", "squat")
+_LEG = (440.0, 430.0)            # thigh and shank lengths of _PARTS (hip-knee, knee-ankle), mm
+_HIP = (95.0, -20.0)             # hip joints in the pelvis frame: (+-x, z), mm
+
+
+def _angles_zyx(R: np.ndarray) -> np.ndarray:
+    """Angles ``(..., 3)`` = (a, b, c) with ``Rz(c) @ Ry(b) @ Rx(a) = R`` (the inverse of
+    :func:`_euler_zyx`; at ``|b| = pi/2`` the split between ``a`` and ``c`` puts a = 0)."""
+    b = -np.arcsin(np.clip(R[..., 2, 0], -1.0, 1.0))
+    cb = np.hypot(R[..., 0, 0], R[..., 1, 0])
+    lock = cb < 1e-9
+    a = np.where(lock, 0.0, np.arctan2(R[..., 2, 1], R[..., 2, 2]))
+    c = np.where(lock, np.arctan2(-R[..., 0, 1], R[..., 1, 1]),
+                 np.arctan2(R[..., 1, 0], R[..., 0, 0]))
+    return np.stack([a, b, c], axis=-1)
+
+
+def _rot(a=0.0, b=0.0, c=0.0, *, n: int) -> np.ndarray:
+    """``(n, 3, 3)`` rotations ``Rz(c) Ry(b) Rx(a)`` from scalars or ``(n,)`` arrays."""
+    return _euler_zyx(np.stack(np.broadcast_arrays(a, b, c, np.zeros(n))[:3], axis=-1))
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _leg(hip: np.ndarray, ankle: np.ndarray, forward: np.ndarray):
+    """World rotations ``(T, 3, 3)`` of a thigh and a shank reaching from ``hip`` ``(T, 3)``
+    to a planted ``ankle`` ``(3,)``, the knee bending towards ``forward`` ``(T, 3)`` (a pure
+    hinge about the thigh's and the shank's common x axis)."""
+    l1, l2 = _LEG
+    d = ankle - hip
+    D = np.linalg.norm(d, axis=1)
+    d = d / D[:, None]
+    cos1 = np.clip((l1 * l1 + D * D - l2 * l2) / (2 * l1 * D), -1.0, 1.0)
+    e = _unit(forward - np.sum(forward * d, axis=1)[:, None] * d)
+    knee = hip + l1 * (cos1[:, None] * d + np.sqrt(1 - cos1 ** 2)[:, None] * e)
+    out = []
+    for z in (_unit(hip - knee), _unit(knee - ankle)):
+        y = _unit(e - np.sum(e * z, axis=1)[:, None] * z)
+        out.append(np.stack([np.cross(y, z), y, z], axis=2))
+    return out
+
+
+def _phase_curves(n_frames: int, movements) -> tuple:
+    """Per movement its frames and an eased 0..1 clock; and the ``phases`` tuple."""
+    edges = np.round(np.linspace(0, n_frames, len(movements) + 1)).astype(int)
+    clocks, phases = {}, []
+    for name, lo, hi in zip(movements, edges[:-1], edges[1:]):
+        u = np.arange(hi - lo) / max(hi - lo, 1)
+        clocks[name] = (slice(lo, hi), u - np.sin(2 * np.pi * u) / (2 * np.pi))
+        phases.append((name, int(lo), int(hi)))
+    return clocks, tuple(phases)
+
+
+def range_of_motion(*, n_frames: int = 200, fps: float = 25.0, position=(0.0, 0.0),
+                    heading_deg: float = -90.0, movements=RANGE_OF_MOTION_PHASES) -> Motion:
+    """A range-of-motion clip, as motion-capture practice records before the take.
+
+    One named phase per movement (frames split evenly, in the order given; each starts and
+    ends standing with the arms hanging; :attr:`Motion.phases`, :meth:`Motion.phase_frames`):
+
+    ``trunk_bend``
+        the trunk bends forward and to either side in one circle (up to 75 deg forward:
+        35 at the hips, the pelvis tilting on the legs, 40 in the spine; 25 deg sideways in
+        the spine and 8 deg of pelvic tilt); the head stays half level.
+    ``trunk_twist``
+        the trunk twists +-35 deg in the spine and +-12 deg at the hips (the pelvis turns on
+        the legs); the head turns back by 14 deg.
+    ``arms_sideways``
+        both arms raised sideways to 150 deg, turning outwards (palms up) by 60 deg.
+    ``arms_forward``
+        both arms raised forwards to 150 deg; the elbows flex to about 110 deg twice and the
+        wrists flex and extend +-50 deg on the way.
+    ``leg_circles``
+        each leg in turn draws a circle from the hip (flexion +-25 deg, abduction to 30
+        deg, the knee bent 15 deg): the functional hip movement of gait laboratories (a
+        star or circumduction; Camomilla et al. 2006, J. Biomech. 39, 1096-1106), not in
+        issue 36's list, added because the trunk's movements turn the pelvis on the legs
+        only a little sideways. The
+        pelvis stays over both feet (a weight shift would tilt the standing shank sideways,
+        which the model's hinge ankle cannot follow).
+    ``squat``
+        a half squat (hips 250 mm down and 180 mm back, pelvis tilted 35 deg forward, the
+        arms forward 70 deg for balance).
+
+    The ankles of the standing legs stay planted and their feet flat: each reaches from
+    its hip to its ankle (the knee bending forwards), the hips lowered where a straight leg
+    would not reach. Every joint stays inside the anatomical limits of
+    :func:`lsmta.body.full_body.limits` (read in that model's angle order); the knees,
+    elbows and wrists move as pure hinges.
+
+    Parameters
+    ----------
+    n_frames : int
+        Frames of the whole clip (at least 4 per movement).
+    fps : float
+        Frame rate in Hz.
+    position : (float, float)
+        (X, Y) of the pelvis on the floor plan, mm.
+    heading_deg : float
+        Facing direction, degrees anticlockwise from +X (-90: facing the rig at -Y).
+    movements : sequence of str
+        Which movements, in which order (names of :data:`RANGE_OF_MOTION_PHASES`).
+    """
+    movements = tuple(movements) if not isinstance(movements, str) else (movements,)
+    unknown = [m for m in movements if m not in RANGE_OF_MOTION_PHASES]
+    if unknown or not movements or len(set(movements)) != len(movements):
+        raise ValueError(f"movements: expected distinct names among {RANGE_OF_MOTION_PHASES}, "
+                         f"got {movements}")
+    T = as_int(n_frames, "n_frames")
+    if T < 4 * len(movements):
+        raise ValueError(f"n_frames: expected at least {4 * len(movements)} frames (4 per "
+                         f"movement), got {T}")
+    fps = as_scalar(fps, "fps", positive=True)
+    position = as_array(position, "position", shape=(2,))
+    heading = np.radians(as_scalar(heading_deg, "heading_deg")) - np.pi / 2
+    clocks, phases = _phase_curves(T, movements)
+    names, _ = _empty_angles(T)
+    curves = _movement_curves(clocks, T)
+    return _assemble_range_of_motion(names, {n: k for k, n in enumerate(names)}, T, fps,
+                                     position, heading, phases, **curves)
+
+
+def _movement_curves(clocks: dict, T: int) -> dict:
+    """The movement curves of :func:`range_of_motion` (its docstring) for the phases'
+    clocks: angles of the pelvis, trunk, head and arms, the hip midpoint's drop, legs in
+    the air."""
+    z = np.zeros(T)
+    # angles of the trunk, pelvis, head and arms; world place of the hip midpoint (body frame)
+    pel = {"a": z.copy(), "b": z.copy(), "c": z.copy()}
+    torso = {"a": z.copy(), "b": z.copy(), "c": z.copy()}
+    head = {"a": z.copy(), "c": z.copy()}
+    hip_back, hip_down = z.copy(), z.copy()
+    free = {side: (np.zeros(T, bool), z.copy(), z.copy(), z.copy()) for side in ("r", "l")}
+    raise_side, turn_out, raise_fwd = z.copy(), z.copy(), z.copy()
+    elbow, wrist = np.full(T, 0.15), z.copy()
+    for name, (f, s) in clocks.items():
+        up, swing = 0.5 - 0.5 * np.cos(2 * np.pi * s), np.sin(2 * np.pi * s)
+        if name == "trunk_bend":
+            pel["a"][f], torso["a"][f] = np.radians(-35) * up, np.radians(-40) * up
+            pel["b"][f], torso["b"][f] = np.radians(8) * swing, np.radians(25) * swing
+            head["a"][f] = np.radians(20) * up
+        elif name == "trunk_twist":
+            pel["c"][f], torso["c"][f] = np.radians(12) * swing, np.radians(35) * swing
+            head["c"][f] = np.radians(-14) * swing
+        elif name == "arms_sideways":
+            raise_side[f], turn_out[f] = np.radians(150) * up, np.radians(60) * up
+        elif name == "arms_forward":
+            raise_fwd[f] = np.radians(150) * up
+            elbow[f] = 0.15 + 1.8 * np.sin(2 * np.pi * s) ** 2
+            wrist[f] = np.radians(50) * np.sin(4 * np.pi * s)
+        elif name == "leg_circles":
+            for half, side, x in ((s < 0.5, "r", 1.0), (s >= 0.5, "l", -1.0)):
+                sub = np.where(half, (2 * s) % 1.0, 0.0)
+                env = np.where(half, np.sin(np.pi * sub) ** 2, 0.0)
+                mask, a, b, knee = free[side]
+                idx = np.arange(T)[f][half & (sub > 0)]
+                mask[idx] = True
+                theta = 2 * np.pi * sub[half & (sub > 0)]
+                a[idx] = np.radians(25) * np.sin(theta)
+                b[idx] = -x * np.radians(15) * (1 - np.cos(theta))
+                knee[idx] = -np.radians(15) * env[half & (sub > 0)]
+        else:                                                  # squat
+            hip_back[f], hip_down[f] = 180.0 * up, 250.0 * up
+            pel["a"][f], torso["a"][f] = np.radians(-35) * up, np.radians(-10) * up
+            raise_fwd[f] = np.radians(70) * up
+    return {"pel": pel, "torso": torso, "head": head, "hip": (hip_back, hip_down), "free": free,
+            "arms": (raise_side, turn_out, raise_fwd, elbow, wrist)}
+
+
+def _assemble_range_of_motion(names, i, T, fps, position, heading, phases, *, pel, torso, head,
+                              hip, free, arms) -> Motion:
+    """Joint angles and root of :func:`range_of_motion` from its movement curves."""
+    ang = np.zeros((T, len(names), 3))
+    Rh = _rot(c=heading, n=T)                                   # the body's heading
+    Rp = _rot(pel["a"], pel["b"], heading + pel["c"], n=T)      # pelvis in the world
+    hip_mid = np.array([0.0, 0.0, _HIP[1]])
+    standing = np.array([position[0], position[1], STANDING_PELVIS_HEIGHT + _HIP[1]])
+    H = standing + np.einsum("tij,tj->ti", Rh, np.stack([0 * hip[0], -hip[0], -hip[1]], 1))
+    root = H - np.einsum("tij,j->ti", Rp, hip_mid)
+    ankles, hips = {}, {}
+    for side, x in (("r", 1.0), ("l", -1.0)):
+        ankles[side] = standing + Rh[0] @ (np.array([x * _HIP[0], 0.0, _HIP[1] - sum(_LEG)])
+                                           - hip_mid)
+        hips[side] = root + np.einsum("tij,j->ti", Rp, [x * _HIP[0], 0.0, _HIP[1]])
+    # lower the hips where a straight leg would not reach its planted ankle
+    excess = np.zeros(T)
+    for side in ("r", "l"):
+        horiz = np.linalg.norm((hips[side] - ankles[side])[:, :2], axis=1)
+        reach = ankles[side][2] + np.sqrt(sum(_LEG) ** 2 - horiz ** 2) - 1e-6
+        excess = np.maximum(excess, np.where(free[side][0], 0.0, hips[side][:, 2] - reach))
+    root[:, 2] -= excess
+    forward = np.einsum("tij,j->ti", Rh, [0.0, 1.0, 0.0])
+    for side in ("r", "l"):
+        hips[side][:, 2] -= excess
+        thigh, shank = _leg(hips[side], ankles[side], forward)
+        ang[:, i[f"thigh_{side}"]] = _angles_zyx(np.swapaxes(Rp, 1, 2) @ thigh)
+        ang[:, i[f"shank_{side}"]] = _angles_zyx(np.swapaxes(thigh, 1, 2) @ shank)
+        ang[:, i[f"foot_{side}"]] = _angles_zyx(np.swapaxes(shank, 1, 2) @ Rh)
+        mask, a, b, knee = free[side]           # a leg in the air: its own angles
+        ang[mask, i[f"thigh_{side}"]] = np.stack([a[mask], b[mask], 0 * a[mask]], axis=1)
+        ang[mask, i[f"shank_{side}"]] = np.stack([knee[mask], 0 * a[mask], 0 * a[mask]], axis=1)
+        ang[mask, i[f"foot_{side}"]] = 0.0
+    ang[:, i["pelvis"]] = np.stack([pel["a"], pel["b"], heading + pel["c"]], axis=1)
+    ang[:, i["torso"]] = np.stack([torso["a"], torso["b"], torso["c"]], axis=1)
+    ang[:, i["head"]] = _angles_zyx(_rot(c=head["c"], n=T) @ _rot(a=head["a"], n=T))
+    raise_side, turn_out, raise_fwd, elbow, wrist = arms
+    for side, x in (("r", 1.0), ("l", -1.0)):
+        arm = (_rot(a=raise_fwd, n=T) @ _rot(b=-x * (0.1 + raise_side), n=T)
+               @ _rot(c=-x * turn_out, n=T))
+        ang[:, i[f"upper_arm_{side}"]] = _angles_zyx(arm)
+        ang[:, i[f"forearm_{side}"], 0] = elbow
+        ang[:, i[f"hand_{side}"], 0] = wrist
+    return Motion(name="range_of_motion", fps=fps, root_position=root, joint_angles=ang,
+                  part_names=names, phases=phases)
 
 
 def inside_parts(body: Body, poses, points, *, exclude=None) -> np.ndarray:

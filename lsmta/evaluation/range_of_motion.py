@@ -1,0 +1,180 @@
+"""Functional joints from a range-of-motion clip: what each movement identifies.
+
+A controlled study on **the generator's points** (a truth input, said here and in every
+result): each body part's measured points are points of the generator's surface
+(:meth:`lsmta.synth.body.Body.sample_surface`), followed through the motion by their
+body-local identity (the tracking is perfect), with Gaussian noise; a point is missing
+(NaN) in a frame where it lies inside another part, and, for the papers' three cameras in
+front (``cameras``), where fewer than two cameras see it (ray-cast occlusion by the body,
+:func:`lsmta.synth.render.project_surface_points`). The system's own surface points are
+another study (issue 36, item 1). The library then finds every joint from the two
+neighbouring segments' points alone (:mod:`lsmta.body.functional_joints`); the truth is
+compared after the fact: the centre against the true joint (the child part's origin) in
+every frame, and the distances between found centres within one segment against the
+generator's.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validate import as_int, as_rng, as_scalar
+from ..body.functional_joints import (
+    JointCentre,
+    JointStatus,
+    fit_joint,
+    segment_motion,
+)
+from ..synth.body import Body, Motion, inside_parts
+from ..synth.render import Scene, project_surface_points
+
+# joint -> (parent part, child part)
+JOINTS = {"spine": ("pelvis", "torso"), "neck": ("torso", "head")} | {
+    f"{j}_{s}": (p.format(s), c.format(s)) for s in ("r", "l") for j, p, c in (
+        ("shoulder", "torso", "upper_arm_{}"), ("elbow", "upper_arm_{}", "forearm_{}"),
+        ("wrist", "forearm_{}", "hand_{}"), ("hip", "pelvis", "thigh_{}"),
+        ("knee", "thigh_{}", "shank_{}"), ("ankle", "shank_{}", "foot_{}"))}
+MAJOR = ("spine", "shoulder_r", "shoulder_l", "elbow_r", "elbow_l", "hip_r", "hip_l", "knee_r",
+         "knee_l")
+# length -> (segment, joint, joint): the distance between two centres in that segment's frame
+LENGTHS = {"trunk": ("torso", "spine", "neck"),
+           "shoulder width": ("torso", "shoulder_r", "shoulder_l"),
+           "hip width": ("pelvis", "hip_r", "hip_l")} | {
+    f"{k}_{s}": (k + f"_{s}", f"{a}_{s}", f"{b}_{s}") for s in ("r", "l") for k, a, b in (
+        ("upper_arm", "shoulder", "elbow"), ("forearm", "elbow", "wrist"),
+        ("thigh", "hip", "knee"), ("shank", "knee", "ankle"))}
+
+
+@dataclass(frozen=True, eq=False)
+class SegmentPoints:
+    """Measured points of every part over a motion (the study's input).
+
+    Attributes
+    ----------
+    points : dict
+        Part name -> ``(T, n, 3)`` world points, mm, NaN where not measured.
+    seen : float
+        Share of (frame, point) entries measured.
+    """
+
+    points: dict
+    seen: float
+
+
+def segment_points(body: Body, motion: Motion, *, n_per_part: int = 100,
+                   noise_mm: float = 1.0, cameras=None,
+                   rng: np.random.Generator | int | None = None) -> SegmentPoints:
+    """Points of the generator's surface per part, as measured (module docstring).
+
+    Parameters
+    ----------
+    n_per_part : int
+        Surface points drawn on each part.
+    noise_mm : float
+        Gaussian noise per coordinate, mm.
+    cameras : sequence of Camera, optional
+        Keep a point only in frames where at least two of them see it (at most two
+        cameras: where all do); default: every point outside the other parts.
+    """
+    rng = as_rng(rng)
+    n = as_int(n_per_part, "n_per_part", minimum=3)
+    noise = as_scalar(noise_mm, "noise_mm", nonnegative=True)
+    part, local = body.sample_surface(n_per_part=n, rng=rng)
+    world = body.to_world(motion, part, local)
+    poses = body.part_poses(motion)
+    hidden = np.stack([inside_parts(body, poses[f], world[f], exclude=part)
+                       for f in range(motion.n_frames)])
+    if cameras is not None:
+        cameras = list(cameras)
+        vis = project_surface_points(Scene(body=body, motion=motion), cameras, part,
+                                     local).visible
+        hidden |= vis.sum(axis=1) < min(2, len(cameras))
+    measured = world + rng.normal(0.0, noise, world.shape)
+    measured[hidden] = np.nan
+    return SegmentPoints(points={name: measured[:, part == k] for k, name in
+                                 enumerate(body.names)},
+                         seen=float(1 - hidden.mean()))
+
+
+def segment_motions(data: SegmentPoints) -> dict:
+    """Each part's rigid motion from its points (:func:`segment_motion`)."""
+    return {name: segment_motion(p) for name, p in data.points.items()}
+
+
+def fit_joints(motions: dict, *, frames=None, max_centre_sd: float = 5.0) -> dict:
+    """Every joint of :data:`JOINTS` from its two segments' motions; a joint whose segments
+    share fewer than 3 posed frames is left out."""
+    out = {}
+    for name, (p, c) in JOINTS.items():
+        try:
+            out[name] = fit_joint(motions[p], motions[c], frames=frames,
+                                  max_centre_sd=max_centre_sd)
+        except ValueError:
+            continue
+    return out
+
+
+def _centre_in(joint: JointCentre, segment: str, parent: str) -> np.ndarray:
+    return joint.parent_centre if segment == parent else joint.child_centre
+
+
+def joint_scores(joints: dict, body: Body, motion: Motion) -> dict:
+    """Per joint: status, determinacy and the centre's error against the true joint (RMS
+    and worst over the frames with a centre, mm); status NOT_SEEN where its segments
+    share fewer than 3 posed frames."""
+    poses = body.part_poses(motion)
+    out = {name: {"status": "NOT_SEEN"} for name in JOINTS if name not in joints}
+    for name, j in joints.items():
+        true = poses[:, body.index(JOINTS[name][1]), :3, 3]
+        err = np.linalg.norm(j.world - true, axis=1)
+        ok = np.isfinite(err)
+        out[name] = {"status": j.status.name, "determinacy": j.determinacy,
+                     "axis_determinacy": j.axis_determinacy, "residual_mm": j.residual,
+                     "centre_sd_mm": j.centre_sd, "n_frames": j.n_frames,
+                     "centre_error_rms_mm": float(np.sqrt(np.mean(err[ok] ** 2)))
+                     if ok.any() else None,
+                     "centre_error_max_mm": float(err[ok].max()) if ok.any() else None}
+    return out
+
+
+def length_scores(joints: dict, body: Body) -> dict:
+    """Per length of :data:`LENGTHS`: (found, true) mm and the error in % of the truth; the
+    found length is None where a centre is missing (UNDETERMINED or not fitted)."""
+    out = {}
+    for name, (segment, a, b) in LENGTHS.items():
+        ends_true = []
+        for j in (a, b):
+            parent, child = JOINTS[j]
+            ends_true.append(np.zeros(3) if segment == child
+                             else np.asarray(body.parts[body.index(child)].joint, float))
+        true = float(np.linalg.norm(ends_true[0] - ends_true[1]))
+        found = None
+        if a in joints and b in joints:
+            ca = _centre_in(joints[a], segment, JOINTS[a][0])
+            cb = _centre_in(joints[b], segment, JOINTS[b][0])
+            d = float(np.linalg.norm(ca - cb))
+            found = d if np.isfinite(d) else None
+        out[name] = {"found_mm": found, "true_mm": true,
+                     "error_pct": None if found is None else 100 * (found - true) / true}
+    return out
+
+
+def identified(joints: dict, *, status: JointStatus = JointStatus.CENTRE) -> list:
+    """Names of the joints whose status is ``status`` or better (CENTRE < AXIS)."""
+    return [k for k, j in joints.items() if j.status <= status]
+
+
+def movement_table(motions: dict, motion: Motion, *, max_centre_sd: float = 5.0) -> dict:
+    """Per phase of ``motion`` (:attr:`Motion.phases`): each joint's status and
+    determinacy from that phase's frames alone (NOT_SEEN as in :func:`joint_scores`)."""
+    out = {}
+    for phase, start, stop in motion.phases:
+        joints = fit_joints(motions, frames=np.arange(start, stop), max_centre_sd=max_centre_sd)
+        out[phase] = {k: {"status": "NOT_SEEN"} if k not in joints else
+                      {"status": joints[k].status.name, "determinacy": joints[k].determinacy,
+                       "axis_determinacy": joints[k].axis_determinacy,
+                       "centre_sd_mm": joints[k].centre_sd} for k in JOINTS}
+    return out
+

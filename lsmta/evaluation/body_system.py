@@ -217,10 +217,17 @@ def arm_wave_session(*, seed: int = 1998, n_frames: int = 24, first: int = 10, e
 # ------------------------------------------------------------------ alignment
 @dataclass(frozen=True)
 class Alignment:
-    """Rigid motion from the system's world to the true world: ``x_true = R x + t``."""
+    """Rigid motion from the system's world to the true world: ``x_true = R x + t``, fitted
+    on ``n_points`` check points (0: not from check points)."""
 
     R: np.ndarray
     t: np.ndarray
+    n_points: int = 0
+
+    @property
+    def tilt_deg(self) -> float:
+        """Angle (degrees) between the system world's up (+Z) and the true world's."""
+        return float(np.degrees(np.arccos(np.clip(self.R[2, 2], -1.0, 1.0))))
 
     def points(self, x) -> np.ndarray:
         return np.asarray(x, float) @ self.R.T + self.t
@@ -246,7 +253,7 @@ def world_alignment(cameras, session: ArmWaveSession) -> Alignment:
     truth = session.heldout.points.reshape(-1, 3)
     ok = np.isfinite(X).all(axis=1)
     R, t = fit_rigid(X[ok], truth[ok])
-    return Alignment(R=R, t=t)
+    return Alignment(R=R, t=t, n_points=int(ok.sum()))
 
 
 # ------------------------------------------------------------------ calibration
@@ -437,6 +444,25 @@ def score_arm(fit, torso_poses, truth: eb.ArmTruth, *, frames=None, score_frames
             "length_err_pct": 100 * (lengths - truth.lengths) / truth.lengths}
 
 
+def score_arm_own_frame(fit, truth: eb.ArmTruth, *, frames, score_frames=None) -> dict:
+    """Angle errors of an arm fit read as a user reads them: the fit's own angles, in the
+    torso frame the system estimated, against the true angles in the true torso frame. No
+    alignment: the system's world and torso frame as they are. ``frames`` are the video
+    frames the fit covers (its frame i is ``frames[i]``); ``score_frames`` (a subset of them)
+    restricts the scores. Returns ``angle_err_deg`` (F, 4), ``max_angle_err_deg`` and
+    per-joint worst ``joint_max_deg`` (4,)."""
+    frames = np.asarray(frames, int)
+    keep = np.ones(len(frames), bool)
+    if score_frames is not None:
+        if not np.isin(score_frames, frames).all():
+            raise ValueError("score_frames: expected a subset of the fit's frames")
+        keep = np.isin(frames, score_frames)
+    a = np.asarray(fit.state.angles)[keep, :4]
+    d = np.degrees(np.angle(np.exp(1j * (a - truth.angles[frames[keep], :4]))))
+    return {"angle_err_deg": d, "max_angle_err_deg": float(np.abs(d).max()),
+            "joint_max_deg": np.abs(d).max(axis=0)}
+
+
 @dataclass(frozen=True, eq=False)
 class TruthFedArm:
     """Notebook 07's arm fit on the truth-fed tracking's arm points: exact torso poses, the
@@ -488,6 +514,22 @@ def torso_frame_error(torso_poses, truth: eb.ArmTruth, alignment: Alignment, *,
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
+def torso_axis_errors(torso_poses, truth: eb.ArmTruth, alignment: Alignment, *,
+                      frames=None) -> tuple[np.ndarray, np.ndarray]:
+    """Where a torso frame's error lies: per frame, the angle (degrees) between its up axis
+    (z) and the true one's, and between its forward axes (y) once both are made horizontal
+    in the true world (the heading). Both after ``alignment``."""
+    P = np.asarray(torso_poses)
+    R_true = truth.torso_poses[:, :3, :3]
+    if frames is not None:
+        P, R_true = P[np.asarray(frames, int)], R_true[np.asarray(frames, int)]
+    R = np.einsum("ij,tjk->tik", alignment.R, P[:, :3, :3])
+    up = np.degrees(np.arccos(np.clip(np.einsum("ti,ti->t", R[:, :, 2], R_true[:, :, 2]),
+                                      -1.0, 1.0)))
+    a = np.arctan2(R[:, 1, 1], R[:, 0, 1]) - np.arctan2(R_true[:, 1, 1], R_true[:, 0, 1])
+    return up, np.abs(np.degrees(np.angle(np.exp(1j * a))))
+
+
 def centre_errors(cameras, true_cameras) -> np.ndarray:
     """``(K,)`` distances (mm) of camera centres from the true ones after the best rigid
     motion of the centres onto them: the rig's own geometry, whatever its datum (the same
@@ -518,7 +560,8 @@ __all__ = [
     "Alignment", "ArmWaveSession", "ArmWaveSessionParams", "TruthFedArm", "TruthFedTracking",
     "arm_wave_session", "calibration_scores", "centre_errors", "group_parts",
     "heldout_points", "joint_position_errors", "last_frame_error", "roi_camera", "score_arm",
-    "score_system_surface", "score_system_tracks", "session_arm_truth", "surface_truth",
-    "target_sigma", "torso_frame_error", "track_identity_from_rays", "truth_fed_arm",
-    "truth_fed_surface", "truth_fed_tracking", "world_alignment",
+    "score_arm_own_frame", "score_system_surface", "score_system_tracks", "session_arm_truth",
+    "surface_truth", "target_sigma", "torso_axis_errors", "torso_frame_error",
+    "track_identity_from_rays", "truth_fed_arm", "truth_fed_surface", "truth_fed_tracking",
+    "world_alignment",
 ]

@@ -33,7 +33,7 @@ from ..matching import GrowParams, LSMThresholds, MeasureSurfaceParams, measure_
 from ..rigid import fit_rigid
 from ..synth import Scene, arm_wave, make_body, triplet_rig
 from ..synth.body import Motion
-from ..synth.calibration import BarTrack, bar_track, poor_guess, render_bar_images
+from ..synth.calibration import BarTrack, bar_track, levelled_bar, poor_guess, render_bar_images
 from ..synth.render import Renderer, cast_body
 from ..synth.sequence import Sequence, render_sequence
 from ..systems import ArmFitParams, BodyCapture, FilterParams
@@ -78,6 +78,11 @@ class ArmWaveSession:
     first : int
         Frame of :func:`lsmta.synth.arm_wave` shown as frame 0.
     seed : int
+    level_videos : (K, Tl, H, W) uint8 array or None
+        The bar stood upright with a spirit level (:func:`lsmta.synth.calibration.levelled_bar`),
+        what the user has to level the world; None without.
+    level : BarTrack or None
+        Its true positions.
     """
 
     videos: np.ndarray
@@ -93,6 +98,8 @@ class ArmWaveSession:
     noise_sigma: float
     first: int
     seed: int
+    level_videos: np.ndarray | None = None
+    level: BarTrack | None = None
 
     @property
     def scene(self) -> Scene:
@@ -132,6 +139,11 @@ class ArmWaveSessionParams:
     tape_mm, tape_deg, lens_rel : float
         The nominal cameras' errors: position per axis (mm), attitude per axis (degrees),
         relative focal length.
+    level_places : int
+        Places the bar is stood upright with a spirit level (three frames each), to level
+        the world; 0: no levelling video.
+    level_deg : float
+        How far from vertical the level leaves the bar each time, per horizontal axis, deg.
     """
 
     roi: tuple = (576, 432)
@@ -148,6 +160,8 @@ class ArmWaveSessionParams:
     tape_mm: float = 30.0
     tape_deg: float = 2.0
     lens_rel: float = 0.01
+    level_places: int = 4
+    level_deg: float = 0.2
 
     def __post_init__(self):
         if len(self.roi) != 2:
@@ -156,12 +170,13 @@ class ArmWaveSessionParams:
             as_int(v, k, unit="px")
         for key in ("distance", "baseline", "height", "bar_length"):
             as_scalar(getattr(self, key), key, positive=True)
-        for key in ("noise", "backdrop", "tape_mm", "tape_deg", "lens_rel"):
+        for key in ("noise", "backdrop", "tape_mm", "tape_deg", "lens_rel", "level_deg"):
             as_scalar(getattr(self, key), key, nonnegative=True)
         as_vector(self.person, "person", 2)
         as_vector(self.bar_half_size, "bar_half_size", 3)
         as_int(self.n_bar, "n_bar")
         as_int(self.n_heldout, "n_heldout")
+        as_int(self.level_places, "level_places", minimum=0)
 
 
 def arm_wave_session(*, seed: int = 1998, n_frames: int = 24, first: int = 10, every: int = 4,
@@ -179,7 +194,10 @@ def arm_wave_session(*, seed: int = 1998, n_frames: int = 24, first: int = 10, e
     black, like a camera's black level. The nominal cameras are the true ones moved by
     ``tape_mm`` per axis and turned by ``tape_deg`` per axis, with the focal length off by
     ``lens_rel`` and no lens model (:func:`~lsmta.synth.calibration.poor_guess`).
-    ``scale`` shrinks the images (fewer, coarser pixels: for quick tests). The settings
+    With ``level_places`` > 0 the bar is also filmed stood upright with a spirit level
+    (:func:`~lsmta.synth.calibration.levelled_bar`, ``level_deg`` off vertical), the video a
+    user levels the world with; it is drawn last, so the rest of the session does not depend
+    on it. ``scale`` shrinks the images (fewer, coarser pixels: for quick tests). The settings
     named here are those of ``params`` (default: ``ArmWaveSessionParams()``).
     """
     p = ArmWaveSessionParams() if params is None else params
@@ -208,10 +226,16 @@ def arm_wave_session(*, seed: int = 1998, n_frames: int = 24, first: int = 10, e
     bar_videos = np.stack([render_bar_images(c, bar, rng=rng, noise=noise) for c in cams])
     held_videos = np.stack([render_bar_images(c, held, rng=rng, noise=noise) for c in cams])
     nominal = poor_guess(cams, rng=rng, pose_mm=tape_mm, pose_deg=tape_deg, f_rel=lens_rel)
+    level, level_videos = None, None
+    if p.level_places:                  # drawn last: the rest of the session stays the same
+        level = levelled_bar(n_places=p.level_places, rng=rng, length=bar_length, center=centre,
+                             half_size=0.5 * np.asarray(bar_half_size), tilt_deg=p.level_deg)
+        level_videos = np.stack([render_bar_images(c, level, rng=rng, noise=noise) for c in cams])
     return ArmWaveSession(videos=seq.images, bar_videos=bar_videos, bar_length=bar_length,
                           nominal=nominal, fps=motion.fps, cameras=cams, sequence=seq,
                           bar=bar, heldout=held, heldout_videos=held_videos,
-                          noise_sigma=noise, first=first, seed=seed)
+                          noise_sigma=noise, first=first, seed=seed,
+                          level_videos=level_videos, level=level)
 
 
 # ------------------------------------------------------------------ alignment

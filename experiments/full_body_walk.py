@@ -36,12 +36,14 @@ N_CONTOUR = 400        # snake vertices
 FB_NOISE, FB_OUTLIERS = 1.0, 0.05
 CONTOUR_IN = ("projected truth plus noise (the trajectories that predict the contour: true "
               f"surface points, {TRACK_NOISE:g} px)")
+# the fits take the generator's points, so they live in the true world: every 3-D error
+# (joint angles, skin distances) is taken there with no alignment
 FB_IN = (f"true points plus noise (surface samples facing the camera, {FB_NOISE:g} mm, "
-         f"{FB_OUTLIERS:.0%} outliers)")
+         f"{FB_OUTLIERS:.0%} outliers, so the fit is in the true world: no alignment)")
 FB_SIL_IN = (f"{FB_IN}; {CONTOUR_IN}; true cameras (the lines of sight: the generator's exact "
              "camera)")
 AROUND_IN = (f"true points plus noise (surface samples all round, {FB_NOISE:g} mm, "
-             f"{FB_OUTLIERS:.0%} outliers)")
+             f"{FB_OUTLIERS:.0%} outliers, so the fit is in the true world: no alignment)")
 HEADLINES = [
     Headline("contour_to_truth_px", "contour -> true outline, median (with prediction)", "px",
              CONTOUR_IN, True),

@@ -67,10 +67,13 @@ def group_of(figure: str) -> str:
 
 
 def truth_class(rec: dict) -> str:
-    """``"none"``, ``"unstated"`` or ``"truth inputs"`` (the record leaned on the
-    generator's truth; its words are in ``rec["truth"]``)."""
+    """``"none"`` (also for ``"none (...)"``, :func:`lsmta.report.no_truth`),
+    ``"unstated"`` or ``"truth inputs"`` (the record leaned on the generator's truth; its
+    words are in ``rec["truth"]``)."""
     truth = rec.get("truth", "unstated")
-    return truth if truth in ("none", "unstated") else "truth inputs"
+    if report.no_truth(truth):
+        return "none"
+    return truth if truth == "unstated" else "truth inputs"
 
 
 def reading_order(stems, *, readme: Path | None = None) -> list[str]:

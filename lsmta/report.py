@@ -11,7 +11,9 @@ number the notebook chose, such as an image size or a noise level picked to matc
 paper: not a result, so it stays out of the paper-against-ours table) or ``"timing"`` (a
 wall-clock time, which differs from run to run). A result must also say which ground truth
 of the generator it leaned on (``truth``): ``"none"`` where the number comes from the
-system's own measurements, otherwise the truth inputs in words, the phrases of
+system's own measurements (``"none (...)"`` with a remark in brackets, such as how a 3-D
+error was aligned: ``"none (no alignment: the system's own frame)"``), otherwise the truth
+inputs in words, the phrases of
 :data:`TRUTH_PHRASES` joined by ``"; "`` ("true cameras; seeds from truth"), each with a
 few words in brackets where it helps to say which; a target judged on such a record is a
 controlled study and says so (``controlled=True``). :func:`truth_group` sorts the results
@@ -124,7 +126,8 @@ def record(figure: str, quantity: str, value, unit: str = "", *, paper=None,
         the paper-against-ours table), ``"timing"`` for a wall-clock time.
     truth : str
         The generator's ground truth the number leaned on, besides scoring against it:
-        ``"none"`` (the system's own measurements only), or the truth inputs in a few
+        ``"none"`` (the system's own measurements only; ``"none (...)"`` with a remark, e.g.
+        how a 3-D error was aligned), or the truth inputs in a few
         words, the phrases of :data:`TRUTH_PHRASES` joined by ``"; "``, e.g.
         ``"true cameras; seeds from truth"``. Required for a result (a ``TypeError``
         otherwise); settings and timings default to ``"none"``. (``"unstated"`` is left for
@@ -215,6 +218,14 @@ def build_dir() -> Path:
     return here / "build"
 
 
+def no_truth(truth: str) -> bool:
+    """Whether a record's ``truth`` says it used none of the generator's truth: ``"none"``,
+    or ``"none"`` followed by a remark in brackets (``"none (no alignment: the system's own
+    frame)"``)."""
+    truth = truth.strip()
+    return truth == "none" or (truth.startswith("none (") and truth.endswith(")"))
+
+
 def truth_group(rec: Record) -> str:
     """Where a result stands by its truth inputs: ``"none"`` (the system's own
     measurements), ``"check points"`` (those, scored after an alignment on named true check
@@ -222,7 +233,9 @@ def truth_group(rec: Record) -> str:
     inputs, not a controlled study) or ``"unstated"``. Settings and timings are ``"none"``
     unless they say otherwise."""
     truth = rec.truth.strip()
-    if truth in ("none", "unstated"):
+    if no_truth(truth):
+        return "none"
+    if truth == "unstated":
         return truth
     if all(part.strip().startswith(CHECK_POINTS) for part in truth.split(";")):
         return "check points"

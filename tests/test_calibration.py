@@ -26,6 +26,7 @@ from lsmta.evaluation.calibration import check_point_errors, heldout_bar_errors
 from lsmta.synth.calibration import (
     bar_track,
     led_path,
+    levelled_bar,
     long_room_rig,
     poor_guess,
     project_observations,
@@ -342,3 +343,27 @@ def test_robust_loss_downweights_an_outlier():
     assert np.linalg.norm(res.residuals[0, 5]) > 10.0
     others = np.delete(res.residuals.reshape(-1, 2), 5, axis=0)
     assert np.sqrt(np.nanmean(others**2)) < 0.06
+
+
+def test_levelled_bar():
+    """The bar stood upright: ``frames_per_place`` still frames per place, its length kept,
+    B on top, off vertical by about the level's error."""
+    bar = levelled_bar(n_places=50, frames_per_place=2, rng=3, length=400.0, tilt_deg=0.5)
+    assert bar.A.shape == (100, 3)
+    assert np.array_equal(bar.A[0::2], bar.A[1::2])
+    assert np.allclose(np.linalg.norm(bar.B - bar.A, axis=1), 400.0)
+    d = (bar.B - bar.A)[::2] / 400.0
+    tilt = np.degrees(np.arccos(d[:, 2]))
+    assert np.all(d[:, 2] > 0) and 0.3 < np.sqrt(np.mean(tilt**2)) / np.sqrt(2) < 0.7
+    assert np.allclose(levelled_bar(n_places=2, rng=0, tilt_deg=0.0).B[:, :2],
+                       levelled_bar(n_places=2, rng=0, tilt_deg=0.0).A[:, :2])
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(n_places=0), "n_places"), (dict(frames_per_place=1.5), "frames_per_place"),
+    (dict(length=-1.0), "length"), (dict(tilt_deg=-0.1), "tilt_deg"),
+    (dict(center=(0.0, 0.0)), "center"), (dict(half_size=(1.0, 2.0)), "half_size"),
+])
+def test_levelled_bar_bad_input(kwargs, match):
+    with pytest.raises((ValueError, TypeError), match=match):
+        levelled_bar(**kwargs)

@@ -82,6 +82,12 @@ def test_truth_group_and_unsound_verdicts():
     assert {k: report.truth_group(r) for k, r in recs.items()} == {k: k for k in recs}
     assert report.truth_group(R("F", "f", 1, truth="aligned on the true check points; true "
                                                   "cameras")) == "truth-fed"
+    # "none" with a remark in brackets (how a 3-D error was aligned) is still none
+    assert report.truth_group(R("F", "j", 1, truth="none (no alignment: the system's own "
+                                                  "frame)")) == "none"
+    assert report.no_truth(" none (lengths need no alignment) ")
+    for other in ("none of the cameras", "nonetheless (true cameras)", "none (", "true cameras"):
+        assert not report.no_truth(other), other
     assert report.judged(recs["truth-fed"])                          # the verdict as the value
     assert not report.judged(R("F", "g", 1, note="metres and metadata", truth="none"))
     assert report.unsound_verdicts(recs.values()) == [recs["truth-fed"], recs["unstated"]]

@@ -3,9 +3,10 @@ scored against the generator's truth after the fact, and bad input for every arg
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from lsmta.evaluation import body_system as bs
-from lsmta.systems import SurfaceParams, calibrate_rig, capture_body, measure_surfaces
+from lsmta.systems import SurfaceParams, calibrate_rig, capture_body, level_rig, measure_surfaces
 
 
 @pytest.fixture(scope="module")
@@ -100,6 +101,13 @@ def test_capture_body_bad_input(small):
         capture_body(v, b[:, :5], L, cams, progress=False)
     with pytest.raises(ValueError, match="bar_length"):
         capture_body(v, b, -400.0, cams, progress=False)
+    lv = s.level_videos
+    with pytest.raises(ValueError, match="level_videos: expected 3 videos"):
+        capture_body(v, b, L, cams, level_videos=lv[:2], progress=False)
+    with pytest.raises(ValueError, match="level_videos: expected at least 3 frames"):
+        capture_body(v, b, L, cams, level_videos=lv[:, :2], progress=False)
+    with pytest.raises(ValueError, match="level_videos: camera .* but its frames are"):
+        capture_body(v, b, L, cams, level_videos=lv[:, :, :10], progress=False)
     blank = np.full_like(b, 25)
     blank[0] = b[0]                          # the bar only in one camera
     with pytest.raises(ValueError, match="seen by at least two cameras in 0 of"):
@@ -116,3 +124,47 @@ def test_stage_functions_bad_input(small):
         measure_surfaces(s.videos, s.cameras, [0], sigma=-1.0)
     with pytest.raises(ValueError, match="params.template"):
         measure_surfaces(s.videos, s.cameras, [0], sigma=2.0, params=SurfaceParams(template=5))
+
+
+def _tilted(cameras, deg, axis=(1.0, 0.0, 0.0)):
+    """The same rig in a world turned by ``deg`` about ``axis`` (a tape's tilted up)."""
+    Q = Rotation.from_rotvec(np.radians(deg) * np.asarray(axis)).as_matrix()
+    return [c.replace(R=c.R @ Q.T, C=Q @ c.C) for c in cameras], Q
+
+
+def test_level_rig_finds_the_vertical(small):
+    """A world tilted by 3 degrees comes back level to the spirit level's error (the bar
+    stands 0.2 degrees per axis off vertical at each of its places)."""
+    s = small
+    tilted, _ = _tilted(s.cameras, 3.0, (0.6, 0.8, 0.0))
+    before = [(c.R.copy(), c.C.copy()) for c in tilted]
+    levelled, lev = level_rig(tilted, s.level_videos, s.bar_length)
+    assert all(np.array_equal(R, c.R) and np.array_equal(C, c.C)       # inputs untouched
+               for (R, C), c in zip(before, tilted))
+    assert lev.n_frames >= 0.8 * s.level_videos.shape[1]
+    assert abs(lev.correction_deg - 3.0) < 0.5
+    assert lev.spread_deg < 1.0
+    # the levelled world's up against the true one: the rig's attitude relative to the truth
+    rel = Rotation.from_matrix(np.stack([t.R.T @ c.R for t, c in zip(s.cameras, levelled)]))
+    up = rel.mean().as_matrix() @ [0.0, 0.0, 1.0]
+    assert np.degrees(np.arccos(np.clip(up[2], -1, 1))) < 0.5
+    # turned, not moved: distances between the cameras are kept
+    d = lambda cams: np.linalg.norm(cams[0].C - cams[2].C)               # noqa: E731
+    assert abs(d(levelled) - d(tilted)) < 1e-9
+
+
+def test_level_rig_bad_input(small):
+    s = small
+    with pytest.raises(ValueError, match="level_videos: expected 3 videos"):
+        level_rig(s.cameras, s.level_videos[:2], s.bar_length)
+    with pytest.raises(ValueError, match="bar_length"):
+        level_rig(s.cameras, s.level_videos, 0.0)
+    with pytest.raises(TypeError, match="cameras"):
+        level_rig(["a", "b", "c"], s.level_videos, s.bar_length)
+    tilted, _ = _tilted(s.cameras, 30.0)
+    with pytest.raises(ValueError, match=r"level_videos: the bar stands \d+\.\d degrees from"):
+        level_rig(tilted, s.level_videos, s.bar_length)
+    blank = np.full_like(s.level_videos, 25)
+    blank[0] = s.level_videos[0]                    # the bar only in one camera
+    with pytest.raises(ValueError, match="level_videos: both targets are intersected in 0"):
+        level_rig(s.cameras, blank, s.bar_length)

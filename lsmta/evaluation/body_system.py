@@ -33,7 +33,7 @@ from ..matching import GrowParams, LSMThresholds, MeasureSurfaceParams, measure_
 from ..rigid import fit_rigid
 from ..synth import Scene, arm_wave, make_body, triplet_rig
 from ..synth.body import Motion
-from ..synth.calibration import BarTrack, bar_track, poor_guess, render_bar_images
+from ..synth.calibration import BarTrack, bar_track, levelled_bar, poor_guess, render_bar_images
 from ..synth.render import Renderer, cast_body
 from ..synth.sequence import Sequence, render_sequence
 from ..systems import ArmFitParams, BodyCapture, FilterParams
@@ -78,6 +78,11 @@ class ArmWaveSession:
     first : int
         Frame of :func:`lsmta.synth.arm_wave` shown as frame 0.
     seed : int
+    level_videos : (K, Tl, H, W) uint8 array or None
+        The bar stood upright with a spirit level (:func:`lsmta.synth.calibration.levelled_bar`),
+        what the user has to level the world; None without.
+    level : BarTrack or None
+        Its true positions.
     """
 
     videos: np.ndarray
@@ -93,6 +98,8 @@ class ArmWaveSession:
     noise_sigma: float
     first: int
     seed: int
+    level_videos: np.ndarray | None = None
+    level: BarTrack | None = None
 
     @property
     def scene(self) -> Scene:
@@ -132,6 +139,11 @@ class ArmWaveSessionParams:
     tape_mm, tape_deg, lens_rel : float
         The nominal cameras' errors: position per axis (mm), attitude per axis (degrees),
         relative focal length.
+    level_places : int
+        Places the bar is stood upright with a spirit level (three frames each), to level
+        the world; 0: no levelling video.
+    level_deg : float
+        How far from vertical the level leaves the bar each time, per horizontal axis, deg.
     """
 
     roi: tuple = (576, 432)
@@ -148,6 +160,8 @@ class ArmWaveSessionParams:
     tape_mm: float = 30.0
     tape_deg: float = 2.0
     lens_rel: float = 0.01
+    level_places: int = 4
+    level_deg: float = 0.2
 
     def __post_init__(self):
         if len(self.roi) != 2:
@@ -156,12 +170,13 @@ class ArmWaveSessionParams:
             as_int(v, k, unit="px")
         for key in ("distance", "baseline", "height", "bar_length"):
             as_scalar(getattr(self, key), key, positive=True)
-        for key in ("noise", "backdrop", "tape_mm", "tape_deg", "lens_rel"):
+        for key in ("noise", "backdrop", "tape_mm", "tape_deg", "lens_rel", "level_deg"):
             as_scalar(getattr(self, key), key, nonnegative=True)
         as_vector(self.person, "person", 2)
         as_vector(self.bar_half_size, "bar_half_size", 3)
         as_int(self.n_bar, "n_bar")
         as_int(self.n_heldout, "n_heldout")
+        as_int(self.level_places, "level_places", minimum=0)
 
 
 def arm_wave_session(*, seed: int = 1998, n_frames: int = 24, first: int = 10, every: int = 4,
@@ -179,7 +194,10 @@ def arm_wave_session(*, seed: int = 1998, n_frames: int = 24, first: int = 10, e
     black, like a camera's black level. The nominal cameras are the true ones moved by
     ``tape_mm`` per axis and turned by ``tape_deg`` per axis, with the focal length off by
     ``lens_rel`` and no lens model (:func:`~lsmta.synth.calibration.poor_guess`).
-    ``scale`` shrinks the images (fewer, coarser pixels: for quick tests). The settings
+    With ``level_places`` > 0 the bar is also filmed stood upright with a spirit level
+    (:func:`~lsmta.synth.calibration.levelled_bar`, ``level_deg`` off vertical), the video a
+    user levels the world with; it is drawn last, so the rest of the session does not depend
+    on it. ``scale`` shrinks the images (fewer, coarser pixels: for quick tests). The settings
     named here are those of ``params`` (default: ``ArmWaveSessionParams()``).
     """
     p = ArmWaveSessionParams() if params is None else params
@@ -208,19 +226,32 @@ def arm_wave_session(*, seed: int = 1998, n_frames: int = 24, first: int = 10, e
     bar_videos = np.stack([render_bar_images(c, bar, rng=rng, noise=noise) for c in cams])
     held_videos = np.stack([render_bar_images(c, held, rng=rng, noise=noise) for c in cams])
     nominal = poor_guess(cams, rng=rng, pose_mm=tape_mm, pose_deg=tape_deg, f_rel=lens_rel)
+    level, level_videos = None, None
+    if p.level_places:                  # drawn last: the rest of the session stays the same
+        level = levelled_bar(n_places=p.level_places, rng=rng, length=bar_length, center=centre,
+                             half_size=0.5 * np.asarray(bar_half_size), tilt_deg=p.level_deg)
+        level_videos = np.stack([render_bar_images(c, level, rng=rng, noise=noise) for c in cams])
     return ArmWaveSession(videos=seq.images, bar_videos=bar_videos, bar_length=bar_length,
                           nominal=nominal, fps=motion.fps, cameras=cams, sequence=seq,
                           bar=bar, heldout=held, heldout_videos=held_videos,
-                          noise_sigma=noise, first=first, seed=seed)
+                          noise_sigma=noise, first=first, seed=seed,
+                          level_videos=level_videos, level=level)
 
 
 # ------------------------------------------------------------------ alignment
 @dataclass(frozen=True)
 class Alignment:
-    """Rigid motion from the system's world to the true world: ``x_true = R x + t``."""
+    """Rigid motion from the system's world to the true world: ``x_true = R x + t``, fitted
+    on ``n_points`` check points (0: not from check points)."""
 
     R: np.ndarray
     t: np.ndarray
+    n_points: int = 0
+
+    @property
+    def tilt_deg(self) -> float:
+        """Angle (degrees) between the system world's up (+Z) and the true world's."""
+        return float(np.degrees(np.arccos(np.clip(self.R[2, 2], -1.0, 1.0))))
 
     def points(self, x) -> np.ndarray:
         return np.asarray(x, float) @ self.R.T + self.t
@@ -246,7 +277,7 @@ def world_alignment(cameras, session: ArmWaveSession) -> Alignment:
     truth = session.heldout.points.reshape(-1, 3)
     ok = np.isfinite(X).all(axis=1)
     R, t = fit_rigid(X[ok], truth[ok])
-    return Alignment(R=R, t=t)
+    return Alignment(R=R, t=t, n_points=int(ok.sum()))
 
 
 # ------------------------------------------------------------------ calibration
@@ -437,6 +468,25 @@ def score_arm(fit, torso_poses, truth: eb.ArmTruth, *, frames=None, score_frames
             "length_err_pct": 100 * (lengths - truth.lengths) / truth.lengths}
 
 
+def score_arm_own_frame(fit, truth: eb.ArmTruth, *, frames, score_frames=None) -> dict:
+    """Angle errors of an arm fit read as a user reads them: the fit's own angles, in the
+    torso frame the system estimated, against the true angles in the true torso frame. No
+    alignment: the system's world and torso frame as they are. ``frames`` are the video
+    frames the fit covers (its frame i is ``frames[i]``); ``score_frames`` (a subset of them)
+    restricts the scores. Returns ``angle_err_deg`` (F, 4), ``max_angle_err_deg`` and
+    per-joint worst ``joint_max_deg`` (4,)."""
+    frames = np.asarray(frames, int)
+    keep = np.ones(len(frames), bool)
+    if score_frames is not None:
+        if not np.isin(score_frames, frames).all():
+            raise ValueError("score_frames: expected a subset of the fit's frames")
+        keep = np.isin(frames, score_frames)
+    a = np.asarray(fit.state.angles)[keep, :4]
+    d = np.degrees(np.angle(np.exp(1j * (a - truth.angles[frames[keep], :4]))))
+    return {"angle_err_deg": d, "max_angle_err_deg": float(np.abs(d).max()),
+            "joint_max_deg": np.abs(d).max(axis=0)}
+
+
 @dataclass(frozen=True, eq=False)
 class TruthFedArm:
     """Notebook 07's arm fit on the truth-fed tracking's arm points: exact torso poses, the
@@ -488,6 +538,22 @@ def torso_frame_error(torso_poses, truth: eb.ArmTruth, alignment: Alignment, *,
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
+def torso_axis_errors(torso_poses, truth: eb.ArmTruth, alignment: Alignment, *,
+                      frames=None) -> tuple[np.ndarray, np.ndarray]:
+    """Where a torso frame's error lies: per frame, the angle (degrees) between its up axis
+    (z) and the true one's, and between its forward axes (y) once both are made horizontal
+    in the true world (the heading). Both after ``alignment``."""
+    P = np.asarray(torso_poses)
+    R_true = truth.torso_poses[:, :3, :3]
+    if frames is not None:
+        P, R_true = P[np.asarray(frames, int)], R_true[np.asarray(frames, int)]
+    R = np.einsum("ij,tjk->tik", alignment.R, P[:, :3, :3])
+    up = np.degrees(np.arccos(np.clip(np.einsum("ti,ti->t", R[:, :, 2], R_true[:, :, 2]),
+                                      -1.0, 1.0)))
+    a = np.arctan2(R[:, 1, 1], R[:, 0, 1]) - np.arctan2(R_true[:, 1, 1], R_true[:, 0, 1])
+    return up, np.abs(np.degrees(np.angle(np.exp(1j * a))))
+
+
 def centre_errors(cameras, true_cameras) -> np.ndarray:
     """``(K,)`` distances (mm) of camera centres from the true ones after the best rigid
     motion of the centres onto them: the rig's own geometry, whatever its datum (the same
@@ -518,7 +584,8 @@ __all__ = [
     "Alignment", "ArmWaveSession", "ArmWaveSessionParams", "TruthFedArm", "TruthFedTracking",
     "arm_wave_session", "calibration_scores", "centre_errors", "group_parts",
     "heldout_points", "joint_position_errors", "last_frame_error", "roi_camera", "score_arm",
-    "score_system_surface", "score_system_tracks", "session_arm_truth", "surface_truth",
-    "target_sigma", "torso_frame_error", "track_identity_from_rays", "truth_fed_arm",
-    "truth_fed_surface", "truth_fed_tracking", "world_alignment",
+    "score_arm_own_frame", "score_system_surface", "score_system_tracks", "session_arm_truth",
+    "surface_truth", "target_sigma", "torso_axis_errors", "torso_frame_error",
+    "track_identity_from_rays", "truth_fed_arm", "truth_fed_surface", "truth_fed_tracking",
+    "world_alignment",
 ]

@@ -96,6 +96,29 @@ def bar_track(*, n: int = 150, rng: np.random.Generator | int | None = None, len
     return BarTrack(A=mid - 0.5 * length * d, B=mid + 0.5 * length * d, length=length)
 
 
+def levelled_bar(*, n_places: int = 4, frames_per_place: int = 3,
+                 rng: np.random.Generator | int | None = None, length: float = 400.0,
+                 center=(0.0, 0.0, 950.0), half_size=(200.0, 150.0, 100.0),
+                 tilt_deg: float = 0.2) -> BarTrack:
+    """The reference bar stood upright on a stand and set vertical with a spirit level, at
+    ``n_places`` places in the box ``center +- half_size`` (uniform), held still for
+    ``frames_per_place`` frames at each: how a studio levels its world (the ground-plane
+    step of motion-capture calibration). Each time it stands ``tilt_deg`` per horizontal
+    axis (Gaussian) off the true vertical, the level's own error; target B is on top."""
+    rng = as_rng(rng)
+    n_places = as_int(n_places, "n_places")
+    frames_per_place = as_int(frames_per_place, "frames_per_place")
+    length = as_scalar(length, "length", positive=True)
+    tilt = np.radians(as_scalar(tilt_deg, "tilt_deg", nonnegative=True))
+    center = as_vector(center, "center", 3)
+    half = as_vector(half_size, "half_size", 3)
+    mid = center + rng.uniform(-1.0, 1.0, (n_places, 3)) * half
+    a, b = rng.normal(0.0, tilt, (2, n_places))            # about X, then about Y
+    d = np.stack([np.sin(b) * np.cos(a), -np.sin(a), np.cos(a) * np.cos(b)], axis=1)
+    mid, d = np.repeat(mid, frames_per_place, axis=0), np.repeat(d, frames_per_place, axis=0)
+    return BarTrack(A=mid - 0.5 * length * d, B=mid + 0.5 * length * d, length=length)
+
+
 def led_path(*, n: int = 300, rng: np.random.Generator | int | None = None,
              center=(0.0, 0.0, 1100.0), half_size=(2600.0, 2600.0, 800.0),
              step: float = 120.0) -> np.ndarray:

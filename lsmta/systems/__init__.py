@@ -50,7 +50,7 @@ from .mixed_scale import (
     triangulate_frames,
 )
 from .refinement import RigRefinement, RigRefinementParams, refine_rig
-from .rig import RigCalibration, calibrate_rig
+from .rig import Levelling, RigCalibration, calibrate_rig, level_rig
 from .surfaces import SurfaceParams, measure_surfaces, working_distance
 from .views import ViewGroup, axis_angles, view_groups
 
@@ -63,7 +63,7 @@ __all__ = [
     "PairChoice", "best_pairs", "first_settled", "reacquisition_seeds",
     "FaceIdentification", "IdentifyParams", "identify_face_markers",
     "RigCalibration", "RigRefinement", "RigRefinementParams", "SurfaceParams", "calibrate_rig",
-    "capture_body", "fit_arm", "refine_rig",
+    "capture_body", "fit_arm", "refine_rig", "Levelling", "level_rig",
     "fit_self_consistent", "measure_surfaces", "observed_frames", "track_surface",
     "working_distance",
 ]

@@ -56,8 +56,8 @@ class BodySystemParams:
 
 
 def capture_body(videos, bar_videos, bar_length: float, nominal_cameras, *, fps: float = 25.0,
-                 frames=None, progress: bool = True, params: BodySystemParams | None = None,
-                 seed: int = 0) -> BodyCapture:
+                 frames=None, level_videos=None, progress: bool = True,
+                 params: BodySystemParams | None = None, seed: int = 0) -> BodyCapture:
     """Run the LSMTA system on synchronised videos: bar calibration to fitted arm model.
 
     Parameters
@@ -76,6 +76,10 @@ def capture_body(videos, bar_videos, bar_length: float, nominal_cameras, *, fps:
         Frame rate, Hz (the trajectory filters' speeds are per second).
     frames : slice or sequence of int, optional
         Consecutive frames of ``videos`` to process (default: all).
+    level_videos : (K, Tl, H, W) array, optional
+        The same cameras' frames of the bar stood upright with a spirit level: the world's
+        up is then the bar's, not the tape's (:func:`~lsmta.systems.rig.level_rig`; the arm's
+        torso frame takes its up from the world).
     progress : bool
         Progress bars per stage.
     params : BodySystemParams, optional
@@ -96,7 +100,8 @@ def capture_body(videos, bar_videos, bar_length: float, nominal_cameras, *, fps:
         raise TypeError(f"params: expected a BodySystemParams, got {type(p).__name__}")
     t0 = time.perf_counter()
     calibration = calibrate_rig(bar_videos, bar_length, nominal, intrinsics=p.intrinsics,
-                                bar_sigma=p.bar_sigma, reject_k=p.reject_k, progress=progress)
+                                bar_sigma=p.bar_sigma, reject_k=p.reject_k,
+                                level_videos=level_videos, progress=progress)
     seconds = time.perf_counter() - t0
     capture = capture_recording(v, calibration.cameras, fps=fps, frames=frames,
                                 calibration=calibration, params=p.capture(),

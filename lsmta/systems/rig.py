@@ -18,7 +18,13 @@ millimetres and a few degrees off). From that, with no ground truth:
    the tape-measured cameras (the rotation that best maps the adjusted camera attitudes
    onto the measured ones, then the mean shift of the centres); the scale stays the bar's.
    So the calibrated rig lives in the user's world (its floor, its up direction), as well
-   as a tape measure fixes that world.
+   as a tape measure fixes that world;
+5. *level* (optional, :func:`level_rig`): a tape-measured attitude is a degree or more off,
+   and the camera centres of a rig in a row cannot fix a turn about the row, so the world's
+   up is as far off as the attitudes' mean error. With a video of the bar stood upright
+   with a spirit level (a studio's ground-plane step), the bar's direction is intersected
+   with the calibrated cameras in each frame, and the world is turned, about the cameras'
+   mean centre and by the smallest rotation, so that its mean is +Z.
 """
 
 from __future__ import annotations
@@ -36,9 +42,40 @@ from ..calibration.approximations import relative_orientation_start
 from ..calibration.labels import BarLabels, consistent_bar_labels
 from ..calibration.result import CalibrationResult
 from ..calibration.targets import track_targets
+from ..triangulation import triangulate
 from .checks import check_cameras, check_videos
 
 MIN_BAR_FRAMES = 10
+MIN_LEVEL_FRAMES = 3
+MAX_LEVEL_DEG = 15.0     # a levelled bar further than this from the tape's up: not upright
+
+
+@dataclass(frozen=True, eq=False)
+class Levelling:
+    """The world levelled with the bar stood upright (:func:`level_rig`).
+
+    Attributes
+    ----------
+    up : (3,) array
+        The bar's mean direction (unit, upwards) in the world before levelling.
+    rotation : (3, 3) array
+        The turn applied to the world: ``x_levelled = rotation @ (x - centre) + centre``.
+    centre : (3,) array
+        The point it turns about (the cameras' mean centre), mm.
+    correction_deg : float
+        Angle between the world's up before levelling and the bar's, degrees.
+    spread_deg : float
+        RMS angle of the single frames' directions from their mean, degrees.
+    n_frames : int
+        Frames whose two targets were intersected.
+    """
+
+    up: np.ndarray
+    rotation: np.ndarray
+    centre: np.ndarray
+    correction_deg: float
+    spread_deg: float
+    n_frames: int
 
 
 @dataclass(frozen=True, eq=False)
@@ -69,6 +106,8 @@ class RigCalibration(CalibrationResult):
     n_positions : int
         Bar positions whose two targets are seen by at least two cameras.
     seconds : float
+    level : Levelling or None
+        How the world was levelled (None: the tape's up kept).
     """
 
     targets: np.ndarray
@@ -80,6 +119,7 @@ class RigCalibration(CalibrationResult):
     datum_residual: np.ndarray
     n_positions: int
     seconds: float
+    level: Levelling | None = None
 
 
 def _datum(adjusted, nominal):
@@ -88,6 +128,66 @@ def _datum(adjusted, nominal):
     Q = Q.mean().as_matrix()
     t = np.mean([n.C - Q @ a.C for a, n in zip(adjusted, nominal)], axis=0)
     return Q, t
+
+
+def level_rig(cameras, level_videos, bar_length: float, *,
+              progress: bool = False) -> tuple[list, Levelling]:
+    """Level the world of calibrated cameras with videos of the bar stood upright.
+
+    Parameters
+    ----------
+    cameras : sequence of K Camera
+        Calibrated cameras, in a world whose +Z is roughly up (the tape-measured one).
+    level_videos : (K, Tl, H, W) array or sequence of K (Tl, H, W) arrays
+        Grey frames of the bar stood vertically (set with a spirit level), at one or more
+        places; every frame counts once.
+    bar_length : float
+        Distance between the bar's two targets, mm (to tell its ends apart across cameras).
+    progress : bool
+        Show a progress bar over the cameras' target measurement.
+
+    Returns
+    -------
+    cameras : list of K Camera
+        The same rig turned so that the bar's mean direction is +Z (module docstring).
+    level : Levelling
+
+    Raises
+    ------
+    ValueError
+        Fewer than 3 frames with both targets intersected, or a bar more than 15 degrees
+        from the world's up (not stood upright, or not this world).
+    """
+    cams = check_cameras(cameras, "cameras")
+    K = len(cams)
+    videos = check_videos(level_videos, "level_videos", cams, min_frames=MIN_LEVEL_FRAMES)
+    length = as_scalar(bar_length, "bar_length", positive=True)
+    xy = np.stack([track_targets(videos[k]).xy for k in tqdm(range(K), desc="level targets",
+                                                              disable=not progress)])
+    xy = consistent_bar_labels(cams, xy, length).xy                  # (K, Tl, 2, 2)
+    X = triangulate(cams, xy.reshape(K, -1, 2)).points.reshape(-1, 2, 3)
+    d = X[:, 1] - X[:, 0]
+    d = d[np.isfinite(d).all(axis=1)]
+    if len(d) < MIN_LEVEL_FRAMES:
+        raise ValueError(f"level_videos: both targets are intersected in {len(d)} frames; "
+                         f"levelling needs >= {MIN_LEVEL_FRAMES}")
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    d = d * np.sign(d[:, 2:3] + (d[:, 2:3] == 0))                    # upwards
+    up = d.mean(axis=0)
+    up /= np.linalg.norm(up)
+    correction = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
+    if correction > MAX_LEVEL_DEG:
+        raise ValueError(f"level_videos: the bar stands {correction:.1f} degrees from the "
+                         f"world's up; expected it stood upright (within {MAX_LEVEL_DEG:g})")
+    spread = float(np.degrees(np.sqrt(np.mean(np.arccos(np.clip(d @ up, -1.0, 1.0))**2))))
+    axis = np.cross(up, [0.0, 0.0, 1.0])
+    turn = np.linalg.norm(axis)
+    rotvec = axis / turn * np.arctan2(turn, up[2]) if turn > 0 else np.zeros(3)
+    Rm = Rotation.from_rotvec(rotvec).as_matrix()
+    centre = np.mean([c.C for c in cams], axis=0)
+    out = [c.replace(R=c.R @ Rm.T, C=Rm @ (c.C - centre) + centre) for c in cams]
+    return out, Levelling(up=up, rotation=Rm, centre=centre, correction_deg=correction,
+                          spread_deg=spread, n_frames=len(d))
 
 
 def _pair(nominal, seen) -> tuple:
@@ -106,7 +206,8 @@ def _pair(nominal, seen) -> tuple:
 
 def calibrate_rig(bar_videos, bar_length: float, nominal_cameras, *,
                   intrinsics=DEFAULT_INTRINSICS, bar_sigma: float = 0.01,
-                  reject_k: float | None = None, progress: bool = False) -> RigCalibration:
+                  reject_k: float | None = None, level_videos=None,
+                  progress: bool = False) -> RigCalibration:
     """Calibrate K cameras from videos of a reference bar (see the module docstring).
 
     Parameters
@@ -125,6 +226,9 @@ def calibrate_rig(bar_videos, bar_length: float, nominal_cameras, *,
         Standard deviation of the bar length, mm.
     reject_k : float, optional
         Outlier rejection of :func:`~lsmta.calibration.bundle_adjust`.
+    level_videos : (K, Tl, H, W) array, optional
+        The bar stood upright with a spirit level: the world is levelled with it
+        (:func:`level_rig`); without, its up stays the tape's.
     progress : bool
         Show a progress bar over the cameras' target measurement.
 
@@ -143,6 +247,9 @@ def calibrate_rig(bar_videos, bar_length: float, nominal_cameras, *,
     K = len(nominal)
     videos = check_videos(bar_videos, "bar_videos", nominal, min_frames=MIN_BAR_FRAMES)
     length = as_scalar(bar_length, "bar_length", positive=True)
+    if level_videos is not None:            # refused before the adjustment, not after
+        level_videos = check_videos(level_videos, "level_videos", nominal,
+                                    min_frames=MIN_LEVEL_FRAMES)
     tracks = [track_targets(videos[k]) for k in tqdm(range(K), desc="bar targets",
                                                       disable=not progress)]
     xy = np.stack([tr.xy for tr in tracks])                         # (K, Tb, 2, 2)
@@ -167,8 +274,11 @@ def calibrate_rig(bar_videos, bar_length: float, nominal_cameras, *,
                            bar=bar, sigma_px=sigma_px, params=BundleParams(reject_k=reject_k))
     Q, t = _datum(bundle.cameras, nominal)
     cameras = [c.replace(R=c.R @ Q.T, C=Q @ c.C + t) for c in bundle.cameras]
+    level = None
+    if level_videos is not None:
+        cameras, level = level_rig(cameras, level_videos, length, progress=progress)
     residual = np.array([np.linalg.norm(c.C - n.C) for c, n in zip(cameras, nominal)])
     return RigCalibration(cameras=cameras, bundle=bundle, targets=labels.xy, labels=labels,
                           sigma_px=sigma_px, pair=pair, datum_rotation=Q,
                           datum_translation=t, datum_residual=residual, n_positions=n_pos,
-                          seconds=time.perf_counter() - t0)
+                          seconds=time.perf_counter() - t0, level=level)

@@ -17,8 +17,19 @@ every new frame; the previous frame's solution is only the start. From frame ``t
    its first template matched, so the fallback starts where no drift has accumulated), or
    the fallback it already holds; matched from the prediction, then, where that fails, from
    the best *correlation* position in a box of half-width ``radius`` around the prediction
-   (the paper's step 2). A track without history is searched in the box with its first
-   template.
+   (the paper's step 2). A track without history, after its match from the prediction, is
+   searched in the box with its first template;
+4. where all that fails (beyond the paper): a fallback template anchored before frame
+   ``t`` is replaced by the track's patch in frame ``t``, and a *coarse-to-fine
+   prediction* is made: the track's patch in its last tracked frame is matched into frame
+   ``t + 1`` at pyramid level ``pyramid_levels`` (images halved ``cv2.pyrDown``-wise, as
+   KLT does) down to level 1, from the prediction (a shift and a grey offset, as KLT's
+   Lucas-Kanade); from there only the first template may match (a frame-to-frame
+   template is not trusted after a jump: it let more tracks go astray on the webcam
+   videos), and a fresh fallback is tried from the prediction. A single-level LSM
+   converges only from within about half a patch; the pyramid reaches
+   ``2**pyramid_levels`` times further;
+5. live tracks still not found are searched in the ``retry_radius`` box.
 
 Matches with the fallback can drift, as the paper's do, until the first template matches
 again (it is tried first in every frame: that is the drift correction). *Re-anchoring
@@ -68,11 +79,11 @@ from tqdm.auto import tqdm
 
 from .._validate import as_array, as_int, as_scalar, check_patch
 from ..camera import Camera
-from ..matching.lsm import LSMThresholds, Status
+from ..matching.lsm import LSMThresholds
 from ..matching.spline import SplineImage, check_image
 from ..triangulation import triangulate
 from .density import sparse_candidates
-from .templates import match_templates, sample_templates, search_templates
+from .templates import match_templates, match_translation, sample_templates, search_templates
 
 ANCHORS = ("first", "previous")
 
@@ -489,7 +500,7 @@ def _advance(state: _State, seq, prev, nxt, t: int, p: TrackerParams, vel0,
             ok[sel] = _attempt(state, seq, prev, nxt, t + 1, idx[sel], start[:, sel],
                                np.where(known[sel], p.radius, p.retry_radius), p,
                                direct=np.ones(sel.size, bool), box=box[sel],
-                               fallback=fallback[sel])
+                               fallback=fallback[sel] & ~moved[sel])
     again = live & ~ok
     if again.any():
         r2 = np.where(known[again], p.retry_radius, 2 * p.retry_radius)
@@ -502,16 +513,17 @@ def _advance(state: _State, seq, prev, nxt, t: int, p: TrackerParams, vel0,
 
 class _Pyramids:
     """Spline interpolants of the pyramid levels 1..``levels`` of the frames ``seq[k, t]``
-    (fewer where the image gets too small), each level halved by ``cv2.pyrDown``: pixel
-    ``i`` of level ``l`` lies at pixel ``2**l i`` of the image. Made when first asked for,
-    kept while a track may still be predicted from that frame."""
+    (fewer where the image gets too small; index 0, the image, is None), each level halved by
+    ``cv2.pyrDown``: pixel ``i`` of level ``l`` lies at pixel ``2**l i`` of the image. Made
+    when first asked for, kept while a track may still be predicted from that frame."""
 
     def __init__(self, seq, levels: int):
         self.seq, self.levels, self.kept = seq, levels, {}
 
     def get(self, k: int, t: int) -> list:
         if (k, t) not in self.kept:
-            out, im = [], np.asarray(self.seq[k, t], np.float32)
+            im = np.asarray(self.seq[k, t], np.float32)
+            out = [None]                    # level 0: the image itself, not needed here
             for _ in range(self.levels):
                 if min(im.shape) < 20:
                     break
@@ -530,10 +542,11 @@ def _coarse_to_fine(state: _State, pyramids: _Pyramids, idx, pred, t: int,
     """Coarse-to-fine predictions ``(K, n, 2)`` at frame ``t`` for the tracks ``idx``.
 
     Each track's patch in its last tracked frame is matched into frame ``t`` at pyramid
-    level ``p.pyramid_levels`` down to level 1 (inverse compositional, affine, no
-    thresholds: the anchored match at full size decides), started at ``pred`` and then at
-    the level above's result; a level that does not converge keeps the estimate from above.
-    NaN where no level converged."""
+    level ``p.pyramid_levels`` down to level 1 (a shift and a grey offset,
+    :func:`~lsmta.tracking.templates.match_translation`, no quality thresholds: the
+    anchored match at full size decides), started at ``pred`` and then at the level
+    above's result; a level that does not converge keeps the estimate from above. NaN
+    where no level converged."""
     K, n = pred.shape[:2]
     out = np.full((K, n, 2), np.nan)
     last = state.end[idx]
@@ -542,18 +555,14 @@ def _coarse_to_fine(state: _State, pyramids: _Pyramids, idx, pred, t: int,
         sources = {f: pyramids.get(k, f) for f in np.unique(last)}
         est = np.array(pred[k], float)
         found = np.zeros(n, bool)
-        for lv in range(len(target), 0, -1):
+        for lv in range(len(target) - 1, 0, -1):
             s = 2.0 ** lv
             for f, src in sources.items():
-                sel = np.flatnonzero((last == f) & np.isfinite(est).all(axis=1))
-                if not sel.size:
-                    continue
-                tm = sample_templates(src[lv - 1], state.xy[f, k, idx[sel]] / s, p.patch)
-                res = match_templates(tm, np.arange(sel.size), target[lv - 1], est[sel] / s,
-                                      _eye(1, sel.size)[0], max_iter=p.max_iter, tol=p.tol,
-                                      fallback=False)
-                conv = res.status == Status.CONVERGED
-                est[sel[conv]] = res.xy[conv] * s
+                sel = np.flatnonzero(last == f)
+                tm = sample_templates(src[lv], state.xy[f, k, idx[sel]] / s, p.patch)
+                xy, conv = match_translation(tm, np.arange(sel.size), target[lv],
+                                             est[sel] / s, max_iter=p.max_iter, tol=p.tol)
+                est[sel[conv]] = xy[conv] * s
                 found[sel[conv]] = True
         out[k, found] = est[found]
     return out

@@ -24,7 +24,19 @@ sigma0, 9 on shape, none on the position precision. The thresholds are not what 
 survival: on three of the videos, letting any one of them go (sigma0, sigma_xy, shape,
 displacement), a search box twice as wide, more iterations, re-anchoring sooner or the
 paper's frame-to-frame template changed the survivors by at most 10 of 384, and never
-closed the gap to KLT.
+closed the gap to KLT. The prediction was the cause (#35 item 2): a track without history
+was never matched from its prediction, a failed fallback template was kept, and nothing
+reached beyond the single-level LSM and the search box. With every track matched from its
+prediction first, a failed fallback re-anchored at the last tracked frame and a
+coarse-to-fine (pyramid) prediction where the match fails (see
+:mod:`lsmta.tracking.points`), the 334 became 169: 37 border, 24 search, 73 no
+convergence, 30 sigma0, 5 shape; survivors 1800 against KLT's 1700 (1628 before), LSMTA
+>= KLT in 5 of 8 videos. Kept but not back within ``--fb-px`` (false tracks): 201
+against KLT's 119 (100 before). One setting was chosen on data, on the half
+{caliscope cam_0, cam_2, pose2sim cam01, cam03}: after a coarse-to-fine jump only the
+first template may match (on cam_0: 158 survivors, 24 astray, against 163 and 37 with
+the fallback too); the other half, {caliscope cam_1, cam_3, pose2sim cam02, cam04}:
+868 survivors against KLT's 828.
 
 Start points: OpenCV's ``goodFeaturesToTrack`` (Shi-Tomasi corners, 8 px apart) in the
 first frame, the same for both trackers. Videos: the four caliscope webcams (1280 x 720, a
@@ -189,7 +201,8 @@ def main(argv=None):
             print("    lost by LSMTA, kept by KLT: " + ", ".join(
                 f"{k} {v}" for k, v in row["why_lost"].items()), flush=True)
     total = {k: sum(r[k]["survived"] for r in rows) for k in ("lsmta", "klt")}
-    summary = {"survived_total": total,
+    astray = {k: sum(r[k]["kept"] - r[k]["survived"] for r in rows) for k in ("lsmta", "klt")}
+    summary = {"survived_total": total, "kept_not_back_total": astray,
                "survival_ratio_total": total["lsmta"] / max(total["klt"], 1),
                "videos_where_lsmta_survives_at_least_klt":
                    int(sum(r["survival_ratio"] >= 1 for r in rows)),
@@ -197,7 +210,8 @@ def main(argv=None):
     print(f"survived in total: LSMTA {total['lsmta']}, KLT {total['klt']} "
           f"(x{summary['survival_ratio_total']:.2f}); LSMTA >= KLT in "
           f"{summary['videos_where_lsmta_survives_at_least_klt']} of {len(rows)} videos; "
-          f"time x{summary['time_ratio_median']:.1f} (median)")
+          f"time x{summary['time_ratio_median']:.1f} (median); kept but not back within "
+          f"{args.fb_px} px (false tracks): LSMTA {astray['lsmta']}, KLT {astray['klt']}")
     write_json(args.out, {"args": vars(args), "summary": summary, "videos": rows})
 
 

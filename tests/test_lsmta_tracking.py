@@ -6,6 +6,7 @@ import pytest
 from scipy import ndimage
 
 from lsmta.evaluation import tracking as et
+from lsmta.matching import SplineImage
 from lsmta.synth import triplet_rig
 from lsmta.tracking import (
     Reason,
@@ -22,6 +23,7 @@ from lsmta.tracking import (
     uniformity_filter,
 )
 from lsmta.tracking.density import sparse_candidates
+from lsmta.tracking.templates import match_translation, sample_templates
 from lsmta.triangulation import triangulate
 
 numba.set_num_threads(1)
@@ -142,6 +144,42 @@ def test_a_point_missing_for_longer_than_max_gap_ends():
     assert tr.status[0] == TrackStatus.MISSING and tr.end[0] == 3
 
 
+def test_the_pyramid_follows_a_jerky_motion_beyond_the_single_level_search():
+    """Back-and-forth steps of about 13 px: the linear prediction is off by about 26 px,
+    beyond the retry box and the single-level LSM; the coarse-to-fine prediction finds it."""
+    rng = np.random.default_rng(11)
+    base = sum(ndimage.gaussian_filter(rng.normal(size=(240, 320)), s) * s ** 0.5
+               for s in (1.5, 3.0, 6.0, 12.0))
+    base = 128 + 50 * base / base.std()
+    steps = np.array([[0, 0], [12, 5], [-13, -4], [12, 6], [-12, -5]], float)
+    pos = np.cumsum(steps, axis=0)
+    frames = np.stack([ndimage.shift(base, (y, x), order=3, mode="reflect") for x, y in pos])
+    g = np.stack(np.meshgrid(np.arange(80, 241, 20.0), np.arange(70, 171, 20.0)),
+                 -1).reshape(-1, 2)
+    alive = {}
+    for levels in (0, 3):
+        tr = track_points(frames[None], g[None], params=TrackerParams(pyramid_levels=levels))
+        ok = tr.status == TrackStatus.ALIVE
+        err = np.linalg.norm(tr.xy[:, 0][:, ok] - (g[ok][None] + pos[:, None]), axis=2)
+        assert np.nanmax(err, initial=0.0) < 0.01          # no false track either way
+        alive[levels] = ok.sum()
+    assert alive[0] < 0.1 * len(g) and alive[3] > 0.6 * len(g)
+
+
+def test_match_translation_recovers_a_shift_and_a_grey_offset():
+    rng = np.random.default_rng(2)
+    img = ndimage.gaussian_filter(rng.normal(size=(80, 80)), 2.0)
+    img = 100 + 40 * img / img.std()
+    moved = ndimage.shift(img, (-1.7, 2.4), order=3, mode="reflect") + 15.0
+    tm = sample_templates(SplineImage(img), np.array([[40.0, 40.0]]), 11)
+    xy, conv = match_translation(tm, [0], SplineImage(moved), np.array([[40.0, 40.0]]))
+    assert conv[0] and np.abs(xy[0] - [42.4, 38.3]).max() < 0.02
+    with pytest.raises(ValueError, match="rows"):
+        match_translation(tm, [1], SplineImage(moved), np.array([[40.0, 40.0]]))
+    with pytest.raises(ValueError, match="start_xy"):
+        match_translation(tm, [0], SplineImage(moved), np.zeros((2, 2)))
+
+
 def _appearance_sequence(rng, n_frames=60, noise=6.0):
     """A texture translating by (0.37, -0.23) px a frame while it blurs (to 0.6 px) and
     fades (to 80 % contrast) slowly: its appearance changes, its position is known."""
@@ -218,7 +256,8 @@ def test_bad_input(translation):
         track_points(images, xy0, params=TrackerParams(min_distance=-1.0))
     for name, bad in (("anchor", "last"), ("max_gap", -1), ("max_gap", 1.5),
                       ("max_reprojection", 0.0), ("reanchor_sigma0", 1.0),
-                      ("reanchor_distortion", -0.1), ("max_iter", 0), ("patch", 8)):
+                      ("reanchor_distortion", -0.1), ("max_iter", 0), ("patch", 8),
+                      ("pyramid_levels", -1), ("pyramid_levels", 1.5)):
         with pytest.raises(ValueError, match=f"params.{name}"):
             track_points(images, xy0, params=TrackerParams(**{name: bad}))
     cams = triplet_rig()

@@ -17,8 +17,19 @@ every new frame; the previous frame's solution is only the start. From frame ``t
    its first template matched, so the fallback starts where no drift has accumulated), or
    the fallback it already holds; matched from the prediction, then, where that fails, from
    the best *correlation* position in a box of half-width ``radius`` around the prediction
-   (the paper's step 2). A track without history is searched in the box with its first
-   template.
+   (the paper's step 2). A track without history, after its match from the prediction, is
+   searched in the box with its first template;
+4. where all that fails (beyond the paper): a fallback template anchored before frame
+   ``t`` is replaced by the track's patch in frame ``t``, and a *coarse-to-fine
+   prediction* is made: the track's patch in its last tracked frame is matched into frame
+   ``t + 1`` at pyramid level ``pyramid_levels`` (images halved ``cv2.pyrDown``-wise, as
+   KLT does) down to level 1, from the prediction (a shift and a grey offset, as KLT's
+   Lucas-Kanade); from there only the first template may match (a frame-to-frame
+   template is not trusted after a jump: it let more tracks go astray on the webcam
+   videos), and a fresh fallback is tried from the prediction. A single-level LSM
+   converges only from within about half a patch; the pyramid reaches
+   ``2**pyramid_levels`` times further;
+5. live tracks still not found are searched in the ``retry_radius`` box.
 
 Matches with the fallback can drift, as the paper's do, until the first template matches
 again (it is tried first in every frame: that is the drift correction). *Re-anchoring
@@ -61,6 +72,7 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass, field, fields, make_dataclass
 
+import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 from tqdm.auto import tqdm
@@ -71,7 +83,7 @@ from ..matching.lsm import LSMThresholds
 from ..matching.spline import SplineImage, check_image
 from ..triangulation import triangulate
 from .density import sparse_candidates
-from .templates import match_templates, sample_templates, search_templates
+from .templates import match_templates, match_translation, sample_templates, search_templates
 
 ANCHORS = ("first", "previous")
 
@@ -118,6 +130,11 @@ class TrackerParams:
         this (spectral norm of ``A - I``).
     max_gap : int
         Frames a track may be missing before it ends (0: it ends when first lost).
+    pyramid_levels : int
+        Levels above the full image of the coarse-to-fine prediction tried where the match
+        from the trajectory's prediction fails (0: none). Each level halves the image, so
+        the prediction may be off by about ``patch * 2**pyramid_levels / 2`` pixels; 3 is
+        the depth of the peer (:func:`~lsmta.tracking.klt.track_klt`).
     max_reprojection : float
         Largest reprojection error of an accepted frame, px (only with ``cameras``).
     density_every : int
@@ -141,6 +158,7 @@ class TrackerParams:
     reanchor_sigma0: float = 2.0
     reanchor_distortion: float = 0.25
     max_gap: int = 10
+    pyramid_levels: int = 3
     max_reprojection: float = 1.0
     density_every: int = 2
     cell: float = 16.0
@@ -295,9 +313,11 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
     first = _Anchors.sampled(splines, xy0, 0, p.patch)
     started &= _spatial_start(first, splines, xy0, p)
     state = _State.initial(xy0, started, T, first, cameras)
+    pyramids = _Pyramids(seq, p.pyramid_levels)
     for t in tqdm(range(T - 1), desc="tracking", disable=not progress):
         nxt = [SplineImage(seq[k, t + 1], "images") for k in range(K)]
-        _advance(state, seq, splines, nxt, t, p, vel0 if t == 0 else None)
+        _advance(state, seq, splines, nxt, t, p, vel0 if t == 0 else None, pyramids)
+        pyramids.forget_before(t + 1 - p.max_gap)
         if new_points is not None and (t + 1) % p.density_every == 0:
             _search_missing(state, seq, nxt, t + 1, p)
             _add_where_sparse(state, new_points, nxt, t + 1, p)
@@ -310,7 +330,8 @@ def _check_params(p: TrackerParams, K: int) -> None:
     check_patch(p.patch, "params.patch")
     for name, low, unit in (("radius", 1, "pixels"), ("retry_radius", 1, "pixels"),
                             ("density_every", 1, "frames"), ("neighbours", 1, "tracks"),
-                            ("max_gap", 0, "frames"), ("max_iter", 1, "iterations")):
+                            ("max_gap", 0, "frames"), ("max_iter", 1, "iterations"),
+                            ("pyramid_levels", 0, "pyramid levels")):
         as_int(getattr(p, name), f"params.{name}", minimum=low, unit=unit)
     if K > 1 and not (isinstance(p.template, int | np.integer) and 0 <= p.template < K):
         raise ValueError(f"params.template: expected a camera index in [0, {K - 1}], "
@@ -444,7 +465,8 @@ def _eye(K, n):
 
 
 # ---------------------------------------------------------------------- stages
-def _advance(state: _State, seq, prev, nxt, t: int, p: TrackerParams, vel0) -> None:
+def _advance(state: _State, seq, prev, nxt, t: int, p: TrackerParams, vel0,
+             pyramids: _Pyramids) -> None:
     """Frame ``t`` -> ``t + 1`` for the tracks in play: prediction, the first templates from
     it (the fallback templates where they fail), the others in the normal box, the live ones
     that still fail in the bigger box; what is not found is missing."""
@@ -454,9 +476,31 @@ def _advance(state: _State, seq, prev, nxt, t: int, p: TrackerParams, vel0) -> N
     pred, known = _predict(state, idx, t + 1, p.neighbours, vel0)
     live = state.end[idx] == t
     first = p.anchor == "first"
+    box = live & (~known | (not first))
+    fallback = live & known & first
     ok = _attempt(state, seq, prev, nxt, t + 1, idx, pred,
-                  np.where(known, p.radius, p.retry_radius), p, direct=known | ~live,
-                  box=live & (~known | (not first)), fallback=live & known & first)
+                  np.where(known, p.radius, p.retry_radius), p, direct=np.ones(idx.size, bool),
+                  box=box, fallback=fallback)
+    # a fallback template anchored before frame t that failed gives way to the track's
+    # patch in frame t (where its first or its fallback template last matched)
+    stale = ~ok & fallback & (state.fallback.frame[idx] < t)
+    _anchor_fallback(state, prev, t, idx[stale], p)
+    if not ok.all():
+        start = pred.copy()
+        moved = np.zeros(idx.size, bool)
+        if p.pyramid_levels:
+            sel = np.flatnonzero(~ok)
+            c2f = _coarse_to_fine(state, pyramids, idx[sel], pred[:, sel], t + 1, p)
+            # where it lands within a pixel of the prediction, the match from there failed
+            far = np.nan_to_num(np.linalg.norm(c2f - pred[:, sel], axis=2), nan=0.0) > 1.0
+            moved[sel] = np.isfinite(c2f).all(axis=(0, 2)) & far.any(axis=0)
+            start[:, sel[moved[sel]]] = c2f[:, moved[sel]]
+        sel = np.flatnonzero(moved | stale)
+        if sel.size:
+            ok[sel] = _attempt(state, seq, prev, nxt, t + 1, idx[sel], start[:, sel],
+                               np.where(known[sel], p.radius, p.retry_radius), p,
+                               direct=np.ones(sel.size, bool), box=box[sel],
+                               fallback=fallback[sel] & ~moved[sel])
     again = live & ~ok
     if again.any():
         r2 = np.where(known[again], p.retry_radius, 2 * p.retry_radius)
@@ -465,6 +509,63 @@ def _advance(state: _State, seq, prev, nxt, t: int, p: TrackerParams, vel0) -> N
                        fallback=known[again] & first)
         state.retried[t + 1, idx[again][ok2]] = True
     state.status[idx[state.end[idx] < t + 1]] = TrackStatus.MISSING
+
+
+class _Pyramids:
+    """Spline interpolants of the pyramid levels 1..``levels`` of the frames ``seq[k, t]``
+    (fewer where the image gets too small; index 0, the image, is None), each level halved by
+    ``cv2.pyrDown``: pixel ``i`` of level ``l`` lies at pixel ``2**l i`` of the image. Made
+    when first asked for, kept while a track may still be predicted from that frame."""
+
+    def __init__(self, seq, levels: int):
+        self.seq, self.levels, self.kept = seq, levels, {}
+
+    def get(self, k: int, t: int) -> list:
+        if (k, t) not in self.kept:
+            im = np.asarray(self.seq[k, t], np.float32)
+            out = [None]                    # level 0: the image itself, not needed here
+            for _ in range(self.levels):
+                if min(im.shape) < 20:
+                    break
+                im = cv2.pyrDown(im)
+                out.append(SplineImage(im))
+            self.kept[(k, t)] = out
+        return self.kept[(k, t)]
+
+    def forget_before(self, t: int) -> None:
+        for key in [key for key in self.kept if key[1] < t]:
+            del self.kept[key]
+
+
+def _coarse_to_fine(state: _State, pyramids: _Pyramids, idx, pred, t: int,
+                    p: TrackerParams) -> np.ndarray:
+    """Coarse-to-fine predictions ``(K, n, 2)`` at frame ``t`` for the tracks ``idx``.
+
+    Each track's patch in its last tracked frame is matched into frame ``t`` at pyramid
+    level ``p.pyramid_levels`` down to level 1 (a shift and a grey offset,
+    :func:`~lsmta.tracking.templates.match_translation`, no quality thresholds: the
+    anchored match at full size decides), started at ``pred`` and then at the level
+    above's result; a level that does not converge keeps the estimate from above. NaN
+    where no level converged."""
+    K, n = pred.shape[:2]
+    out = np.full((K, n, 2), np.nan)
+    last = state.end[idx]
+    for k in range(K):
+        target = pyramids.get(k, t)
+        sources = {f: pyramids.get(k, f) for f in np.unique(last)}
+        est = np.array(pred[k], float)
+        found = np.zeros(n, bool)
+        for lv in range(len(target) - 1, 0, -1):
+            s = 2.0 ** lv
+            for f, src in sources.items():
+                sel = np.flatnonzero(last == f)
+                tm = sample_templates(src[lv], state.xy[f, k, idx[sel]] / s, p.patch)
+                xy, conv = match_translation(tm, np.arange(sel.size), target[lv],
+                                             est[sel] / s, max_iter=p.max_iter, tol=p.tol)
+                est[sel[conv]] = xy[conv] * s
+                found[sel[conv]] = True
+        out[k, found] = est[found]
+    return out
 
 
 def _search_missing(state: _State, seq, nxt, t: int, p: TrackerParams) -> None:

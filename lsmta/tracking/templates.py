@@ -408,3 +408,120 @@ def _solve(coef, pad, height, width, rows, f, fx, fy, update, ok, U, c, A, max_i
         status[j] = st
         c[j, 0], c[j, 1] = cx, cy
         A[j, 0, 0], A[j, 0, 1], A[j, 1, 0], A[j, 1, 1] = a11, a12, a21, a22
+
+
+def match_translation(templates: Templates, rows, search: SplineImage, start_xy, *,
+                      max_iter: int = 30, tol: float = 0.01,
+                      max_displacement: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Translation-only inverse compositional matching (Lucas-Kanade, as pyramidal KLT does
+    on its coarse levels) of the templates ``rows`` into ``search`` from ``start_xy``.
+
+    The model is ``g(c + u) = f(u) + a + e(u)``: a shift and a grey-level offset, no gain,
+    so a start where the patch correlates negatively with the template still moves (the
+    affine model with linear radiometry of :func:`match_templates` refuses it).
+
+    Parameters
+    ----------
+    templates : Templates
+    rows : (n,) int array
+    search : SplineImage
+    start_xy : (n, 2) array
+        Start positions, px.
+    max_iter : int
+    tol : float
+        Convergence: largest change of the position, px.
+    max_displacement : float, optional
+        A point moving further than this from its start has diverged (default: the patch
+        size).
+
+    Returns
+    -------
+    xy : (n, 2) array
+        Positions, px.
+    converged : (n,) bool array
+    """
+    rows = np.asarray(rows, np.int64).reshape(-1)
+    n = len(rows)
+    if n and (rows.min() < 0 or rows.max() >= len(templates)):
+        raise ValueError(f"rows: expected template indices in [0, {len(templates) - 1}], got "
+                         f"{rows.min()}..{rows.max()}")
+    c = np.array(start_xy, float)
+    if c.shape != (n, 2):
+        raise ValueError(f"start_xy: expected shape ({n}, 2) (one position per row), got "
+                         f"{c.shape}")
+    converged = np.zeros(n, bool)
+    max_disp = float(templates.patch if max_displacement is None else max_displacement)
+    H, W = search.shape
+    if n:
+        _solve_translation(search.coefficients, search.pad, H, W, rows, templates.values,
+                           templates.gx, templates.gy, templates.ok, offsets(templates.patch),
+                           c, int(max_iter), float(tol), max_disp, converged)
+    return c, converged
+
+
+@nb.njit(parallel=True, cache=True, fastmath=True)
+def _solve_translation(coef, pad, height, width, rows, f, fx, fy, ok, U, c, max_iter, tol,
+                       max_disp, converged):
+    """Inverse compositional translation + grey offset for every point j; writes ``c`` and
+    ``converged`` in place."""
+    n = rows.shape[0]
+    P = U.shape[0]
+    for j in nb.prange(n):
+        i = rows[j]
+        if not ok[i]:
+            continue
+        mx = 0.0
+        my = 0.0
+        fm = 0.0
+        for p in range(P):
+            mx += fx[i, p]
+            my += fy[i, p]
+            fm += f[i, p]
+        mx /= P
+        my /= P
+        fm /= P
+        hxx = 0.0
+        hxy = 0.0
+        hyy = 0.0
+        for p in range(P):
+            ax = fx[i, p] - mx
+            ay = fy[i, p] - my
+            hxx += ax * ax
+            hxy += ax * ay
+            hyy += ay * ay
+        det = hxx * hyy - hxy * hxy
+        if not det > 1e-12 * (hxx + hyy) * (hxx + hyy):
+            continue
+        sx, sy = c[j, 0], c[j, 1]
+        cx, cy = sx, sy
+        g = np.empty(P)
+        for _it in range(max_iter):
+            gm = 0.0
+            inside = True
+            for p in range(P):
+                x = cx + U[p, 0]
+                y = cy + U[p, 1]
+                if not (x >= 0.0 and x <= width - 1.0 and y >= 0.0 and y <= height - 1.0):
+                    inside = False
+                    break
+                g[p] = _value(coef, pad, x, y)
+                gm += g[p]
+            if not inside:
+                break
+            gm /= P
+            bx = 0.0
+            by = 0.0
+            for p in range(P):
+                e = (g[p] - gm) - (f[i, p] - fm)
+                bx += (fx[i, p] - mx) * e
+                by += (fy[i, p] - my) * e
+            dx = (hyy * bx - hxy * by) / det
+            dy = (hxx * by - hxy * bx) / det
+            cx -= dx
+            cy -= dy
+            if not np.sqrt((cx - sx) ** 2 + (cy - sy) ** 2) <= max_disp:
+                break
+            if max(abs(dx), abs(dy)) < tol:
+                converged[j] = True
+                break
+        c[j, 0], c[j, 1] = cx, cy

@@ -3,7 +3,7 @@
 Stages: read the camera file (format from its content, unit from the format where it has
 one) -> open the videos (:func:`lsmta.io.read_videos`) -> cameras: refined from the
 recording (:func:`lsmta.systems.refine_rig`; the refined ones are used only where they fit
-held-out frames at least as well as the file's), the file's as given (``--no-refine``),
+held-out places at least as well as the file's), the file's as given (``--no-refine``),
 calibrated from a bar recording (``--bar``, the file's cameras as the nominal rig), or from
 a ChArUco board recording (``--board``: :func:`lsmta.calibration.charuco.detect_charuco`,
 then :func:`lsmta.calibration.board.calibrate_board`) ->
@@ -148,9 +148,10 @@ def _cameras(args, videos, given, progress: bool):
         warnings.simplefilter("ignore")       # the choice below says it in one line
         ref = refine_rig(videos, given, params=RigRefinementParams(mismatch=args.mismatch))
     b, a = np.nanmedian(ref.held_out_before), np.nanmedian(ref.held_out_after)
-    note = (f"refined from the recording (held-out tie points {b:.2f} -> {a:.2f} px median); "
+    note = (f"refined from the recording (held-out {ref.held_out_kind} {b:.2f} -> {a:.2f} px "
+            "median); "
             + ("refined cameras used" if ref.improved else
-               "NOT better in every camera on held-out frames: the file's cameras used"))
+               "NOT better in every camera on held-out places: the file's cameras used"))
     return list(ref.chosen), ref, note
 
 

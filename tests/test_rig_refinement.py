@@ -277,3 +277,51 @@ def test_tie_points_found_at_a_working_size_come_back_to_the_frames(recording):
     with pytest.raises(ValueError, match="max_rotation_deg"):
         refine_rig(read_videos(paths), given, params=RigRefinementParams(
             n_frames=3, max_rotation_deg=0.01, tie=TieParams(n_features=2000, asift_features=300)))
+
+
+def test_still_places_are_one_tie_point_and_held_out_by_place(rng):
+    from lsmta.systems.refinement import _hold_out, _merged, _places
+    cams = _rig(n=3)
+    n_frames, n_still, n_moving = 5, 60, 20
+    still_X = rng.uniform([-1000, 0, 100], [1000, 1200, 1600], (n_still, 3))
+    hidden = rng.integers(0, 4, n_still)             # the view a still point is hidden from
+    xy, frame, truth = [], [], []
+    for t in range(n_frames):
+        X = np.r_[still_X, rng.uniform([-300, 200, 200], [300, 600, 1500], (n_moving, 3))]
+        obs = np.stack([c.project(X) for c in cams]) + rng.normal(0, 0.3, (3, len(X), 2))
+        off = np.r_[hidden, rng.integers(0, 4, n_moving)]
+        obs[off[off < 3], np.flatnonzero(off < 3)] = np.nan           # some seen by two
+        keep = rng.uniform(size=len(X)) < 0.8                         # not found every time
+        xy.append(obs[:, keep])
+        frame.append(np.full(keep.sum(), t))
+        truth.append(np.where(np.arange(len(X)) < n_still, np.arange(len(X)),
+                              n_still + t * n_moving + np.arange(len(X)) - n_still)[keep])
+    xy, frame, truth = np.concatenate(xy, 1), np.concatenate(frame), np.concatenate(truth)
+    keep_xy = xy.copy()
+    labels = _places(xy, 2.0)
+    assert np.array_equal(xy, keep_xy, equal_nan=True)
+    # one place per 3-D point: the still ones' repeats joined, moving ones alone
+    pairs = set(zip(labels.tolist(), truth.tolist()))
+    assert len(pairs) == len(set(labels.tolist())) == len(set(truth.tolist()))
+    assert labels[0] == 0 and np.all(np.diff(np.unique(labels, return_index=True)[1]) > 0)
+    merged = _merged(xy, labels)
+    assert merged.shape == (3, labels.max() + 1, 2)
+    p = labels[truth == 7][0]                        # a still point: the median of its repeats
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)               # its hidden view
+        np.testing.assert_allclose(merged[:, p], np.nanmedian(xy[:, truth == 7], axis=1))
+    held_frames = np.arange(n_frames) % 3 == 1
+    held, still = _hold_out(labels, frame, held_frames, 3)
+    first_truth = np.array([truth[labels == q][0] for q in range(labels.max() + 1)])
+    assert np.array_equal(still, first_truth < n_still)
+    # every third still place, all its repeats; moving places exactly those of held frames
+    assert held[still].sum() == len(range(1, still.sum(), 3))
+    moving_frame = np.array([frame[labels == q][0] for q in np.flatnonzero(~still)])
+    assert np.array_equal(held[~still], held_frames[moving_frame])
+
+
+def test_refine_rig_settings_for_places_are_checked():
+    with pytest.raises(ValueError, match="place_px"):
+        RigRefinementParams(place_px=0.0)
+    with pytest.raises(ValueError, match="min_still_held"):
+        RigRefinementParams(min_still_held=0)

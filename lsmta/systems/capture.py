@@ -271,7 +271,7 @@ def _calibration_text(cal) -> str:
     if hasattr(cal, "held_out_after"):                       # a RigRefinement
         before, after = np.nanmedian(cal.held_out_before), np.nanmedian(cal.held_out_after)
         used = "refined cameras used" if cal.improved else "the given cameras kept"
-        return (f"refined from the recording; held-out tie points {before:.2f} px before, "
+        return (f"refined from the recording; held-out {cal.held_out_kind} {before:.2f} px before, "
                 f"{after:.2f} px after (median over cameras): {used}")
     text = f"image RMS {cal.bundle.rms:.4f} px ({cal.rms_over_limit:.3f} x the noise limit)"
     if hasattr(cal, "n_positions"):                          # a RigCalibration

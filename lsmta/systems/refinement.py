@@ -4,16 +4,26 @@ video files and a camera file from another tool.
 Stages: check the cameras against the videos (:func:`lsmta.io.cameras_for_videos`) ->
 read evenly spaced frames -> tie points guided by the given cameras
 (:func:`lsmta.calibration.find_tie_points`) -> a check that the cameras fit the videos at
-all -> cameras adjusted with the given ones as priors
-(:func:`lsmta.calibration.refine_cameras`) on some frames -> a check that no camera had
-to turn far from the file's orientation -> the residuals of the tie points
-of the other frames (held out), with the given and with the refined cameras.
+all -> the tie points grouped into places -> cameras adjusted with the given ones as priors
+(:func:`lsmta.calibration.refine_cameras`) on most places -> a check that no camera had
+to turn far from the file's orientation -> the residuals of the held-out places, with the
+given and with the refined cameras.
 
-The held-out frames say whether the refinement generalises: tie points that took no part
-in the adjustment (and are not a still background's training points seen again at the same
-pixels), triangulated with each set of cameras, are reprojected into every view.
-A refinement that only absorbed its own tie points' errors lowers the adjusted residuals but
-not the held-out ones.
+Places. A still background gives the same feature at the same pixels in every frame: the
+tie points of different frames that agree within ``place_px`` in every view they share are
+one place, adjusted once at its median position (a feature found in six frames is not six
+independent observations). A moving subject's feature is a place of one frame.
+
+Held out. Every ``hold_out_every``-th still place, and the one-frame places of every
+``hold_out_every``-th frame, take no part in the adjustment; triangulated with each set of
+cameras and reprojected into every view, they say whether the refinement generalises. The
+residuals reported are those of the held-out still places where every camera sees at least
+``min_still_held`` of them, else of all held-out places. Holding out frames alone (as
+before) measured only the moving subject's points, since a still place of a held-out frame
+is a training place seen again: on the Pose2Sim demo those stay at 1.2-1.35 px on the
+neighbouring pair cam01-cam02 with the file's and with the refined cameras (they measure
+the moving points, not the cameras), while held-out still places go from 1.0 to 0.8-0.9 px
+there (``experiments/refinement_held_out.py``).
 """
 
 from __future__ import annotations
@@ -25,6 +35,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .._validate import as_int, as_scalar, freeze
@@ -45,7 +57,8 @@ class RigRefinementParams:
     n_frames : int
         Frames sampled evenly over the recording for tie points (>= 2).
     hold_out_every : int
-        Every ``hold_out_every``-th sampled frame (the 2nd, 2nd + n, ...) is held out of the
+        Every ``hold_out_every``-th still place (the 2nd, 2nd + n, ...) and the moving
+        subject's places in every ``hold_out_every``-th sampled frame are held out of the
         adjustment to check it (>= 2).
     tie_max_side : int
         Tie points are found in frames halved until their longer side is at most this, px;
@@ -64,6 +77,12 @@ class RigRefinementParams:
         ... or when the adjustment turns some camera by more than this away from the file's,
         degrees (a file a few pixels off: a fraction of a degree; cameras in the wrong order
         or another rotation convention: tens, which the tie points then pull it through).
+    place_px : float
+        Tie points of different frames within this of each other in every view they share
+        (at least two) are one place, px of the videos as stored (scaled with them).
+    min_still_held : int
+        The held-out residuals are those of the held-out still places where every camera
+        sees at least this many, else of all held-out places.
     mismatch : str
         How a video smaller than its camera is taken (:func:`lsmta.io.cameras_for_videos`).
     tie : TieParams
@@ -78,6 +97,8 @@ class RigRefinementParams:
     max_points: int = 2000
     max_median_px: float = 25.0
     max_rotation_deg: float = 10.0
+    place_px: float = 2.0
+    min_still_held: int = 10
     mismatch: str = "error"
     tie: TieParams = field(default_factory=TieParams)
     refine: RefineParams = field(default_factory=RefineParams)
@@ -89,6 +110,8 @@ class RigRefinementParams:
         as_int(self.tie_max_side, "tie_max_side", minimum=64)
         as_scalar(self.max_median_px, "max_median_px", positive=True)
         as_scalar(self.max_rotation_deg, "max_rotation_deg", positive=True)
+        as_scalar(self.place_px, "place_px", positive=True)
+        as_int(self.min_still_held, "min_still_held", minimum=1)
         if not isinstance(self.tie, TieParams) or not isinstance(self.refine, RefineParams):
             raise TypeError("tie, refine: expected TieParams and RefineParams")
 
@@ -106,14 +129,26 @@ class RigRefinement:
     frames : tuple of int
         The recording's frames the tie points come from.
     held_out : (F,) bool array
-        Which of those frames were kept out of the adjustment.
+        Which of those frames' places of one frame (a moving subject's) were kept out of
+        the adjustment.
     tie_points : TiePoints
+    places : (N,) int array
+        The place of each tie point (:func:`_places`): a still background's feature found
+        again at the same pixels in other frames is one place.
+    still : (P,) bool array
+        Places found in two or more frames.
+    held_out_places : (P,) bool array
+        Places kept out of the adjustment: every ``hold_out_every``-th still place and the
+        one-frame places of the held-out frames.
+    held_out_kind : {"still places", "all places"}
+        Which held-out places the residuals below are of: the still ones where every camera
+        sees at least ``min_still_held`` of them, else all.
     adjustment : CameraRefinement
-        The adjustment on the other frames' tie points.
+        The adjustment on the other places (one tie point per place, its median position).
     held_out_points : int
-        Tie points of the held-out frames that are not training points seen again.
+        Held-out places measured.
     held_out_before, held_out_after : (K,) arrays
-        Median residual of those points per camera with the given and with the refined
+        Median residual of those places per camera with the given and with the refined
         cameras, px (NaN: none seen).
     """
 
@@ -122,17 +157,22 @@ class RigRefinement:
     frames: tuple
     held_out: np.ndarray
     tie_points: TiePoints
+    places: np.ndarray
+    still: np.ndarray
+    held_out_places: np.ndarray
+    held_out_kind: str
     adjustment: CameraRefinement
     held_out_points: int
     held_out_before: np.ndarray
     held_out_after: np.ndarray
 
     def __post_init__(self):
-        freeze(self, ("held_out", "held_out_before", "held_out_after"))
+        freeze(self, ("held_out", "places", "still", "held_out_places", "held_out_before",
+                      "held_out_after"))
 
     @property
     def improved(self) -> bool:
-        """Whether the refined cameras fit the held-out tie points at least as well as the
+        """Whether the refined cameras fit the held-out places at least as well as the
         given ones in every camera that saw some (the rule for using them)."""
         seen = np.isfinite(self.held_out_before) & np.isfinite(self.held_out_after)
         return bool(seen.any() and np.all(self.held_out_after[seen]
@@ -178,7 +218,9 @@ class RigRefinement:
 
         record = {"frames": list(self.frames),
                   "held_out_frames": [f for f, h in zip(self.frames, self.held_out) if h],
-                  "held_out_points": self.held_out_points, "cameras": self.summary()}
+                  "held_out_points": self.held_out_points,
+                  "held_out_kind": self.held_out_kind, "places": int(len(self.still)),
+                  "still_places": int(self.still.sum()), "cameras": self.summary()}
         summary = folder / "refinement.json"
         summary.write_text(json.dumps(plain(record), indent=2), encoding="utf-8")
         return {"cameras": cameras, "summary": summary}
@@ -196,20 +238,56 @@ def _held_out_residuals(cameras, xy) -> np.ndarray:
     return out
 
 
-def _new_points(train_xy, test_xy, tol_px: float = 2.0):
-    """The held-out tie points that are not training points seen again: a still background
-    gives the same feature at the same pixels in every frame. A point is new where, in some
-    view, it lies farther than ``tol_px`` from every training point."""
-    new = np.zeros(test_xy.shape[1], bool)
-    for k in range(len(test_xy)):
-        seen = np.isfinite(test_xy[k, :, 0])
-        train = train_xy[k][np.isfinite(train_xy[k, :, 0])]
-        if not len(train):
-            new |= seen
-            continue
-        d, _ = cKDTree(train).query(test_xy[k, seen])
-        new[np.flatnonzero(seen)[d > tol_px]] = True
-    return test_xy[:, new]
+def _places(xy, tol_px: float) -> np.ndarray:
+    """Label each tie point with its place: points (of any frames) that lie within
+    ``tol_px`` of each other in every view they share, sharing at least two, are one place
+    (connected components). A still background gives the same feature at the same pixels in
+    every frame, so its place holds a point per frame; a moving subject's point is a place
+    of its own. Returns ``(N,)`` labels, numbered in the order of each place's first point."""
+    K, N, _ = xy.shape
+    seen = np.isfinite(xy[..., 0])
+    near = [cKDTree(xy[k, seen[k]]).query_pairs(tol_px, output_type="ndarray")
+            if seen[k].sum() > 1 else np.zeros((0, 2), int) for k in range(K)]
+    pairs = np.unique(np.concatenate([np.flatnonzero(seen[k])[near[k]] for k in range(K)]
+                                     ).reshape(-1, 2), axis=0)
+    i, j = pairs[:, 0], pairs[:, 1]
+    shared = seen[:, i] & seen[:, j]
+    with np.errstate(invalid="ignore"):
+        far = np.linalg.norm(xy[:, i] - xy[:, j], axis=2) > tol_px
+    same = (shared.sum(axis=0) >= 2) & ~(far & shared).any(axis=0)
+    graph = coo_matrix((np.ones(int(same.sum())), (i[same], j[same])), shape=(N, N))
+    _, labels = connected_components(graph, directed=False)
+    _, first = np.unique(labels, return_index=True)        # renumber: first point's order
+    order = np.empty(len(first), int)
+    order[np.argsort(first)] = np.arange(len(first))
+    return order[labels]
+
+
+def _merged(xy, labels) -> np.ndarray:
+    """(K, P, 2) position of each place per view: the median over its points (NaN where no
+    point of it is seen in that view)."""
+    order = np.argsort(labels, kind="stable")
+    groups = np.split(order, np.flatnonzero(np.diff(labels[order])) + 1)
+    out = np.full((xy.shape[0], len(groups), 2), np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)            # all-NaN: not seen
+        for p, g in enumerate(groups):
+            out[:, p] = np.nanmedian(xy[:, g], axis=1)
+    return out
+
+
+def _hold_out(labels, frame, held_frames, every: int):
+    """Which places are held out, and which are still (found in >= 2 frames): every
+    ``every``-th still place (the 2nd, 2nd + every, ...) with all its points, and the
+    places of one frame (a moving subject's) found in a held-out frame."""
+    n = labels.max() + 1
+    frames = np.zeros((n, len(held_frames)), bool)
+    frames[labels, frame] = True
+    still = frames.sum(axis=1) >= 2
+    rank = np.cumsum(still) - 1
+    first = np.argmax(frames, axis=1)
+    held = np.where(still, rank % every == 1, held_frames[first])
+    return held, still
 
 
 def _strongest(xy, n: int):
@@ -314,22 +392,28 @@ def refine_rig(videos: Videos, cameras, *,
     picks = np.unique(np.linspace(0, videos.n_frames - 1, n).round().astype(int))
     tie = _tie_points_at_work_size(videos, given, picks, params)
     _check_fit(given, tie, params)
-    held = (np.arange(len(picks)) % params.hold_out_every) == 1
-    train = ~held[tie.frame]
-    adjustment = refine_cameras(given, _strongest(tie.xy[:, train], params.max_points),
+    held_frames = (np.arange(len(picks)) % params.hold_out_every) == 1
+    labels = _places(tie.xy, params.place_px * videos.scale)
+    places = _merged(tie.xy, labels)
+    held, still = _hold_out(labels, tie.frame, held_frames, params.hold_out_every)
+    adjustment = refine_cameras(given, _strongest(places[:, ~held], params.max_points),
                                 params=params.refine)
     _check_turn(given, adjustment.cameras, params.max_rotation_deg)
-    test_xy = _new_points(tie.xy[:, train], tie.xy[:, ~train])
+    test_xy = places[:, held & still]
+    kind = "still places"
+    if (np.isfinite(test_xy[..., 0]).sum(axis=1) < params.min_still_held).any():
+        test_xy, kind = places[:, held], "all places"
     before = _held_out_residuals(given, test_xy)
     after = _held_out_residuals(adjustment.cameras, test_xy)
     worse = [c.name or str(k) for k, (c, b, a) in enumerate(zip(given, before, after)) if a > b]
     if worse:
-        warnings.warn(f"refine_rig: the refined cameras fit the held-out frames' tie points "
+        warnings.warn(f"refine_rig: the refined cameras fit the held-out places "
                       f"worse than the given ones in {', '.join(worse)} (see summary()); the "
                       "tie points may not determine them: keep the given cameras there",
                       stacklevel=2)
     return RigRefinement(
         cameras=adjustment.cameras, given=given,
-        frames=tuple(int(videos.frames[i]) for i in picks), held_out=held, tie_points=tie,
-        adjustment=adjustment, held_out_points=int(test_xy.shape[1]),
+        frames=tuple(int(videos.frames[i]) for i in picks), held_out=held_frames,
+        tie_points=tie, places=labels, still=still, held_out_places=held,
+        held_out_kind=kind, adjustment=adjustment, held_out_points=int(test_xy.shape[1]),
         held_out_before=before, held_out_after=after)

@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -46,6 +48,13 @@ def test_seeds_scores_and_sgbm_on_a_small_triplet(triplet):
     assert 0.6 < score["density"] <= 1.0
     assert score["filtered"]["median_mm"] < 4.0
     assert score["voxel"]["n"] <= score["filtered"]["n"]
+    # nothing kept (e.g. a poor-texture run): zero counts and NaN errors, not a crash
+    none = replace(res, neighbourhood_ok=np.zeros_like(res.neighbourhood_ok), cloud=None,
+                   intersection=replace(res.intersection,
+                                        valid=np.zeros_like(res.intersection.valid)))
+    empty = score_surface(none, truth)
+    assert empty["density"] == 0 and empty["filtered"]["n"] == empty["raw"]["n"] == 0
+    assert np.isnan(empty["filtered"]["median_mm"]) and np.isnan(empty["raw"]["gross_target"])
     sg = peers.sgbm(frame.images[0], frame.images[1], small[0], small[1])
     assert len(sg.points) > 100 and sg.seconds > 0
     s = score_points(sg.points, sg.xy_first, node_truth(frame, scene, small, template=0,

@@ -118,21 +118,29 @@ def score_surface(result: SurfaceResult, truth: dict) -> dict:
     in_target = target[r, c]
     for name, sel in (("raw", body & result.intersection.valid),
                       ("filtered", body & result.neighbourhood_ok & result.intersection.valid)):
-        e = err[sel]
-        med = float(np.median(e))
-        out[name] = {"n": int(sel.sum()), "median_mm": med,
-                     "p95_mm": float(np.percentile(e, 95)),
-                     "gross": float(np.mean(e > 5 * med)),
-                     "gross_target": float(np.mean(e[in_target[sel]] > 5 * med))}
+        out[name] = _error_stats(err[sel], in_target[sel])
     if result.cloud is not None:
         # a voxel's truth is the mean truth of its nodes; voxels holding an off-body node
         # (no true surface there) get NaN and are left out
         t = result.cloud.mean_of(np.where(body[:, None], world, np.nan))
         good = np.isfinite(t).all(axis=1)
         e = np.linalg.norm(result.cloud.points[good] - t[good], axis=1)
+        out["voxel"] = _error_stats(e)
+    return out
+
+
+def _error_stats(e, in_target=None) -> dict:
+    """Count, median, 95th percentile and gross share (> 5 x the median) of errors ``e``
+    (mm); NaN statistics when there is no error to score (nothing matched)."""
+    if not len(e):
+        out = {"n": 0, "median_mm": np.nan, "p95_mm": np.nan, "gross": np.nan}
+    else:
         med = float(np.median(e))
-        out["voxel"] = {"n": int(good.sum()), "median_mm": med,
-                        "p95_mm": float(np.percentile(e, 95)), "gross": float(np.mean(e > 5 * med))}
+        out = {"n": len(e), "median_mm": med, "p95_mm": float(np.percentile(e, 95)),
+               "gross": float(np.mean(e > 5 * med))}
+    if in_target is not None:
+        out["gross_target"] = (float(np.mean(e[in_target] > out["median_mm"] * 5))
+                               if in_target.any() else np.nan)
     return out
 
 

@@ -31,13 +31,15 @@ from pathlib import Path
 
 from seed_spread import Headline, add_arguments, run
 
+from lsmta.evaluation.body_system import ArmWaveSessionParams
 from lsmta.report import write_json
 
 # how each 3-D error is aligned (notebook 14's records): a rigid fit (no scale) of the system's
 # world onto the true check points, or none at all (the system's own world and torso frame)
+N_HELDOUT = ArmWaveSessionParams().n_heldout          # the session's held-out bar positions
 CHECK_IN = ("aligned on the true check points (a rigid fit, no scale, of the system's world onto "
-            "the true positions of the held-out bar video's targets: both ends of 40 bar "
-            "positions, those the cameras intersect)")
+            "the true positions of the held-out bar video's targets: both ends of "
+            f"{N_HELDOUT} bar positions, those the cameras intersect)")
 TRUE_TORSO_IN = CHECK_IN[:-1] + ", then read in the true torso frame)"
 OWN_IN = "none (no alignment: the system's own world and torso frame)"
 FED_IN = ("; divided by the truth-fed twin's (true cameras, in the true world: no alignment; "

@@ -153,6 +153,10 @@ def record(figure: str, quantity: str, value, unit: str = "", *, paper=None,
         raise ValueError(f"kind: expected one of {KINDS}, got {kind!r}")
     if not truth.strip():
         raise ValueError("truth: expected 'none' or the truth inputs in words, got ''")
+    if truth.strip().startswith("none") and not no_truth(truth):
+        raise ValueError("truth: expected 'none', 'none (<remark>)' (one bracket at the end, "
+                         "no ';', none of TRUTH_PHRASES) or the truth inputs in words, got "
+                         f"{truth!r}")
     if not isinstance(controlled, (bool, np.bool_)):
         raise TypeError(f"controlled: expected a bool, got {type(controlled).__name__}")
     rec = Record(figure=figure, quantity=quantity, value=_check_value(value, "value"),
@@ -220,10 +224,19 @@ def build_dir() -> Path:
 
 def no_truth(truth: str) -> bool:
     """Whether a record's ``truth`` says it used none of the generator's truth: ``"none"``,
-    or ``"none"`` followed by a remark in brackets (``"none (no alignment: the system's own
-    frame)"``)."""
+    or ``"none"`` followed by one remark in brackets (``"none (no alignment: the system's own
+    frame)"``). The remark is a single balanced bracket closing at the very end, holds no
+    ``";"`` and none of :data:`TRUTH_PHRASES` (``"none (x); true cameras"`` and ``"none (true
+    cameras)"`` are not none)."""
     truth = truth.strip()
-    return truth == "none" or (truth.startswith("none (") and truth.endswith(")"))
+    if truth == "none":
+        return True
+    if not (truth.startswith("none (") and truth.endswith(")")):
+        return False
+    remark = truth[len("none ("):-1]
+    if "(" in remark or ")" in remark or ";" in remark:
+        return False
+    return not any(phrase in remark for phrase in TRUTH_PHRASES)
 
 
 def truth_group(rec: Record) -> str:

@@ -86,8 +86,13 @@ def test_truth_group_and_unsound_verdicts():
     assert report.truth_group(R("F", "j", 1, truth="none (no alignment: the system's own "
                                                   "frame)")) == "none"
     assert report.no_truth(" none (lengths need no alignment) ")
-    for other in ("none of the cameras", "nonetheless (true cameras)", "none (", "true cameras"):
+    for other in ("none of the cameras", "nonetheless (true cameras)", "none (", "true cameras",
+                  "none (x); true cameras (exact)", "none (true cameras)", "none (a) (b)",
+                  "none (a (b))", "none (a; b)"):
         assert not report.no_truth(other), other
+        if other.startswith("none"):
+            with pytest.raises(ValueError, match="truth"):
+                report.record("F", "q", 1.0, truth=other)
     assert report.judged(recs["truth-fed"])                          # the verdict as the value
     assert not report.judged(R("F", "g", 1, note="metres and metadata", truth="none"))
     assert report.unsound_verdicts(recs.values()) == [recs["truth-fed"], recs["unstated"]]

@@ -316,3 +316,70 @@ def test_real_frames_are_mostly_identified():
     ft = frame_trials(model, points, [150, 700, 1100, 1600], rng=np.random.default_rng(1),
                       params=SAPMParams(eps=0.1))
     assert ft.trials["sapm"].accuracy.mean() > 0.9
+
+
+# ---------------------------------------------------------------------- cached scores
+def test_candidate_scores_are_read_only(model, rng):
+    from lsmta.sapm.candidates import segment_candidates
+
+    pose = random_pose(model, rng=rng, level=0.5)
+    Q = pose.observed
+    D = np.linalg.norm(Q[:, None] - Q[None], axis=-1)
+    c = segment_candidates(model, 0, Q, D, eps=0.05, beta=0.5, limit=10)
+    assert len(c) > 0
+    s = c.scores
+    assert not s.flags.writeable and c.scores is s            # computed once
+    with pytest.raises(ValueError):
+        s[0] = 0.0
+
+
+# ---------------------------------------------------------------------- label carrying
+def _carry_loop(pred, speed, Q, free, params):
+    """The loop version of ``tracking._carry`` (commit f161c69), the reference."""
+    from scipy.optimize import linear_sum_assignment
+
+    rows = np.flatnonzero(np.isfinite(pred).all(axis=1))
+    cols = np.flatnonzero(free)
+    if not len(rows) or not len(cols):
+        return {}
+    d = np.linalg.norm(pred[rows][:, None] - Q[cols][None], axis=-1)
+    gate = params.gate + params.speed_gate * speed[rows]
+    big = 1e9
+    r, c = linear_sum_assignment(np.where(d < gate[:, None], d, big))
+    out = {}
+    for i, j in zip(r, c):
+        if d[i, j] >= gate[i]:
+            continue
+        zone = max(2 * d[i, j], d[i, j] + params.gate)
+        others_pt = np.delete(d[i], j)
+        others_pr = np.delete(d[:, j], i)
+        if (others_pt < zone).any() or (others_pr < zone).any():
+            continue
+        out[int(cols[j])] = int(rows[i])
+    return out
+
+
+def test_vectorised_carry_matches_the_loop():
+    """Random frames on a coarse grid (ties and zero distances), NaN predictions (rows left
+    out), no free points, a single row or column: the same {point: label} as the loop."""
+    from lsmta.sapm.tracking import TrackParams, _carry
+
+    gen = np.random.default_rng(11)
+    params = TrackParams()
+    cases = 0
+    for trial in range(400):
+        n_pred, n_pts = gen.integers(0, 9), gen.integers(0, 9)
+        scale = [5.0, 10.0, 40.0][trial % 3]
+        pred = gen.integers(0, 6, (n_pred, 3)) * scale        # grid: ties, zero distances
+        Q = np.concatenate([pred[: gen.integers(0, n_pred + 1)],
+                            gen.integers(0, 6, (n_pts, 3)) * scale])
+        Q = Q + (gen.random(Q.shape) < 0.3) * gen.normal(0, 3, Q.shape)
+        pred[gen.random(n_pred) < 0.2] = np.nan              # unknown predictions
+        speed = gen.integers(0, 3, n_pred) * 10.0
+        free = gen.random(len(Q)) < 0.8
+        if trial % 50 == 0:
+            free[:] = False                                  # nothing free
+        got, want = _carry(pred, speed, Q, free, params), _carry_loop(pred, speed, Q, free, params)
+        assert got == want, (trial, got, want)
+        cases += bool(want)
+    assert cases > 100                                       # most cases carry something

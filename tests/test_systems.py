@@ -1,12 +1,21 @@
 """The LSMTA system from pixels (lsmta.systems): a small generated session end to end,
 scored against the generator's truth after the fact, and bad input for every argument."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from lsmta.evaluation import body_system as bs
-from lsmta.systems import SurfaceParams, calibrate_rig, capture_body, level_rig, measure_surfaces
+from lsmta.systems import (
+    SurfaceParams,
+    calibrate_rig,
+    capture_body,
+    level_rig,
+    measure_surfaces,
+    rig,
+)
 
 
 @pytest.fixture(scope="module")
@@ -151,6 +160,72 @@ def test_level_rig_finds_the_vertical(small):
     # turned, not moved: distances between the cameras are kept
     d = lambda cams: np.linalg.norm(cams[0].C - cams[2].C)               # noqa: E731
     assert abs(d(levelled) - d(tilted)) < 1e-9
+
+
+def test_level_rig_drops_a_corrupted_frame(small):
+    """One frame with camera 0's image from another place: its targets no longer meet, the
+    frame is dropped and the up direction stays where the clean frames put it."""
+    s = small
+    _, clean = level_rig(s.cameras, s.level_videos, s.bar_length)
+    bad = s.level_videos.copy()
+    bad[0, 0] = s.level_videos[0, -1]
+    _, lev = level_rig(s.cameras, bad, s.bar_length)
+    assert clean.n_dropped == 0 and lev.n_dropped == 1
+    assert lev.n_frames == clean.n_frames - 1
+    assert np.degrees(np.arccos(np.clip(lev.up @ clean.up, -1, 1))) < 0.1
+
+
+def test_robust_direction_ignores_one_bad_direction():
+    """Eleven directions 0.2 degrees about +Z and one 20 degrees off: the plain mean moves
+    by more than a degree, the robust mean stays with the eleven."""
+    rng = np.random.default_rng(0)
+    good = np.column_stack([rng.normal(0, np.radians(0.2), (11, 2)), np.ones(11)])
+    d = np.vstack([good, [np.sin(np.radians(20.0)), 0.0, np.cos(np.radians(20.0))]])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    unit = lambda v: v / np.linalg.norm(v)                              # noqa: E731
+    deg = lambda a, b: np.degrees(np.arccos(np.clip(a @ b, -1, 1)))     # noqa: E731
+    clean = unit(d[:11].mean(axis=0))
+    assert deg(unit(d.mean(axis=0)), clean) > 1.0
+    up, inside = rig._robust_direction(d)
+    assert deg(up, clean) < 1e-9 and inside.tolist() == [True] * 11 + [False]
+
+
+@pytest.mark.slow
+def test_calibrate_rig_datum_includes_the_levelling():
+    """With level_videos the datum maps the adjustment's frame onto the levelled cameras."""
+    s = bs.arm_wave_session(seed=8, n_frames=3, first=20, scale=0.5,
+                            params=bs.ArmWaveSessionParams(n_bar=60, n_heldout=2))
+    cal = calibrate_rig(s.bar_videos, s.bar_length, s.nominal, level_videos=s.level_videos)
+    assert cal.level is not None
+    Q, t = cal.datum_rotation, cal.datum_translation
+    assert np.allclose(Q @ Q.T, np.eye(3), atol=1e-12)
+    for b, c in zip(cal.bundle.cameras, cal.cameras):
+        assert np.allclose(Q @ b.C + t, c.C, atol=1e-6)
+        assert np.allclose(b.R @ Q.T, c.R, atol=1e-12)
+
+
+def test_score_arm_own_frame_bad_input():
+    fit = SimpleNamespace(state=SimpleNamespace(angles=np.zeros((5, 4))))
+    truth = SimpleNamespace(angles=np.zeros((10, 4)))
+    assert bs.score_arm_own_frame(fit, truth, frames=np.arange(5))["max_angle_err_deg"] == 0.0
+    with pytest.raises(ValueError, match="frames: expected the fit's 5 frame indices"):
+        bs.score_arm_own_frame(fit, truth, frames=np.arange(4))
+    with pytest.raises(ValueError, match=r"frames: expected frame indices in \[0, 9\]"):
+        bs.score_arm_own_frame(fit, truth, frames=np.arange(6, 11))
+    with pytest.raises(ValueError, match="frames: expected integer"):
+        bs.score_arm_own_frame(fit, truth, frames=np.arange(5.0))
+    with pytest.raises(ValueError, match="score_frames"):
+        bs.score_arm_own_frame(fit, truth, frames=np.arange(5), score_frames=[7])
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(level_places=-1), "level_places"), (dict(level_places=1.5), "level_places"),
+    (dict(level_places=True), "level_places"), (dict(level_deg=-0.1), "level_deg"),
+    (dict(level_deg=float("nan")), "level_deg"),
+])
+def test_arm_wave_session_params_level_bad_input(kwargs, match):
+    with pytest.raises((ValueError, TypeError), match=match):
+        bs.ArmWaveSessionParams(**kwargs)
 
 
 def test_level_rig_bad_input(small):

@@ -22,15 +22,21 @@ move rigidly, and the joint is where two segments turn about each other.
    points (the point of the solution line closest to both segments' centroids). With too
    little rotation even the axis is not fixed.
 
-   The decision is statistical: the least-squares standard deviation of the centre along
-   its least-fixed direction is ``sigma / s_min``, with ``sigma`` the RMS gap of the fit per
-   coordinate (never below ``noise_floor``); the centre counts as fixed where that is at
-   most ``max_centre_sd``, the axis where ``sigma / s_5`` is. So a hinge whose poses wobble
-   by noise is not taken for a ball joint, and more frames of a still joint do not undo
-   what one movement fixed. ``determinacy`` (``s_min / sqrt(T)``) describes the motion
-   alone: moving the centre 1 mm in its least-fixed direction changes the two images' gap
-   by that much, RMS over the frames (about the RMS rotation in radians away from the
-   joint's main axis).
+   The decision is statistical. The least-squares covariance of ``x`` is
+   ``sigma^2 V diag(1 / s_i^2) V^T`` (``A = U diag(s) V^T``), with ``sigma`` the RMS gap of
+   the fit per coordinate (never below ``noise_floor``); the centre's standard deviation
+   (``centre_sd``) is the larger of ``c_p``'s and ``c_c``'s, each along its worst direction
+   (the square root of the largest eigenvalue of its 3 x 3 block). Along the least-fixed
+   direction ``v`` of the stacked ``(c_p, c_c)`` that is about ``sigma / s_min`` times
+   ``max(|v[:3]|, |v[3:]|)``, each centre taking about ``1 / sqrt(2)`` of ``v``: not
+   ``sigma / s_min`` itself, the stacked 6-vector's. The centre counts as fixed where
+   ``centre_sd`` is at most ``max_centre_sd``; the axis where the same standard deviation
+   without the least-fixed direction (the centre across the axis) is. So a hinge whose
+   poses wobble by noise is not taken for a ball joint, and more frames of a still joint
+   do not undo what one movement fixed. ``determinacy`` (``s_min / sqrt(T)``) describes
+   the motion alone: moving the stacked ``(c_p, c_c)`` by a unit vector along ``v`` (each
+   centre by about 0.7 mm) changes the gap between the centre's two images by that much,
+   RMS over the frames (about the RMS rotation in radians away from the joint's main axis).
 
 :func:`lsmta.body.joints.functional_joint` solves the same SCoRE system from given poses,
 with priors that pick a hinge's centre (the limb's long axis); this module starts from the
@@ -117,22 +123,27 @@ class JointCentre:
         The least-fixed direction of the centre in each frame: the joint's axis for a
         hinge (AXIS; also reported for CENTRE); NaN (UNDETERMINED).
     world : (T, 3) array
-        The centre in the world per frame (mean of its two images), mm; NaN where a pose
-        is unknown or the status is UNDETERMINED.
+        The centre in the world per frame (mean of its two images), mm; NaN outside the
+        frames used (not chosen, or a pose unknown) and everywhere when UNDETERMINED.
     residual : float
-        RMS distance between the centre's two images over the frames used, mm.
+        RMS distance between the centre's two images over the frames used, mm; NaN when
+        UNDETERMINED (no centre).
     singular_values : (6,) array
         Of SCoRE's design matrix, descending.
     determinacy : float
-        ``s_min / sqrt(n_frames)`` (module docstring): about 0 along a hinge's axis.
+        ``s_min / sqrt(n_frames)``, a property of the motion alone (module docstring): the
+        RMS change of the gap per frame for a unit step of the stacked ``(c_p, c_c)`` along
+        its least-fixed direction; about 0 for a hinge.
     axis_determinacy : float
         The same of the second smallest singular value: whether one axis is fixed.
     condition : float
         ``s_max / s_min`` of the design matrix.
     centre_sd : float
-        Standard deviation of the centre along its least-fixed direction from the
-        residuals, ``sigma / s_min`` with ``sigma^2 = |A x - b|^2 / (3 n - 6)``, mm
-        (``inf`` for a hinge's exact axis).
+        Least-squares standard deviation of the centre along its worst direction, mm: the
+        larger of ``c_p``'s and ``c_c``'s, from the covariance ``sigma^2 (A^T A)^-1`` with
+        ``sigma^2 = |A x - b|^2 / (3 n - 6)`` (at least ``noise_floor^2``); about
+        ``sigma / s_min * max(|v[:3]|, |v[3:]|)`` (module docstring). ``inf`` for a hinge's
+        exact axis. The status compares it with ``max_centre_sd``.
     n_frames : int
         Frames used (both poses known).
     parent, child : SegmentMotion
@@ -243,8 +254,9 @@ def fit_joint(parent: SegmentMotion, child: SegmentMotion, *, frames=None,
         The frames to use (default all; e.g. one movement of a clip). Frames where either
         pose is unknown are left out.
     max_centre_sd : float
-        Largest standard deviation (mm) of the centre along a direction for that direction
-        to count as fixed by the motion (module docstring).
+        Largest standard deviation (mm) of the centre (``JointCentre.centre_sd``: either
+        segment's centre, along its worst direction) for it to count as fixed by the motion;
+        the same without the least-fixed direction, for the axis (module docstring).
     noise_floor : float
         Least gap noise per coordinate assumed, mm: skin, markers and surface points never
         let two segments share one point better than about 1 mm, and noise-free data would
@@ -273,32 +285,45 @@ def fit_joint(parent: SegmentMotion, child: SegmentMotion, *, frames=None,
     U, s, Vt = np.linalg.svd(A, full_matrices=False)
     x = Vt.T @ ((U.T @ b) / np.maximum(s, s[0] * 1e-12))
     sigma = max(np.sqrt(np.sum((A @ x - b) ** 2) / max(3 * n - 6, 1)), floor)
-    status = (JointStatus.CENTRE if sigma <= max_sd * s[-1] else
-              JointStatus.AXIS if sigma <= max_sd * s[-2] else JointStatus.UNDETERMINED)
+    centre_sd = _centre_sd(s, Vt, sigma, 6)
+    status = (JointStatus.CENTRE if centre_sd <= max_sd else
+              JointStatus.AXIS if _centre_sd(s, Vt, sigma, 5) <= max_sd
+              else JointStatus.UNDETERMINED)
     v = Vt[-1]
     if status != JointStatus.CENTRE:         # the point of the axis nearest both segments
         x = Vt[:5].T @ ((U[:, :5].T @ b) / s[:5])
         x = x + v * (v @ (np.concatenate([parent.centroid, child.centroid]) - x))
     cp, cc = x[:3], x[3:]
-    both = parent.known & child.known
-    world = np.full((parent.n_frames, 3), np.nan)
-    world[both] = (np.einsum("tij,j->ti", Rp[both], cp) + tp[both]
-                   + np.einsum("tij,j->ti", Rc[both], cc) + tc[both]) / 2
+    world = np.full((parent.n_frames, 3), np.nan)          # only the frames used
+    world[use] = (np.einsum("tij,j->ti", Rp[use], cp) + tp[use]
+                  + np.einsum("tij,j->ti", Rc[use], cc) + tc[use]) / 2
     gap = (np.einsum("tij,j->ti", Rp[use], cp) + tp[use]
            - np.einsum("tij,j->ti", Rc[use], cc) - tc[use])
+    residual = float(np.sqrt(np.mean(np.sum(gap ** 2, axis=1))))
     axes = [v[:3] / np.linalg.norm(v[:3]), v[3:] / np.linalg.norm(v[3:])]
     if status == JointStatus.UNDETERMINED:
         cp, cc = np.full(3, np.nan), np.full(3, np.nan)
         axes = [np.full(3, np.nan), np.full(3, np.nan)]
         world[:] = np.nan
+        residual = float("nan")
     return JointCentre(status=status, parent_centre=cp, child_centre=cc, parent_axis=axes[0],
-                       child_axis=axes[1], world=world,
-                       residual=float(np.sqrt(np.mean(np.sum(gap ** 2, axis=1)))),
+                       child_axis=axes[1], world=world, residual=residual,
                        singular_values=s, determinacy=float(s[-1] / np.sqrt(n)),
                        axis_determinacy=float(s[-2] / np.sqrt(n)),
                        condition=float(s[0] / s[-1]) if s[-1] > 0 else float("inf"),
-                       centre_sd=float(sigma / s[-1]) if s[-1] > 0 else float("inf"),
+                       centre_sd=centre_sd,
                        n_frames=int(n), parent=parent, child=child)
+
+
+def _centre_sd(s, Vt, sigma: float, k: int) -> float:
+    """Standard deviation (mm) of the worse of the two centres along its worst direction,
+    from the first ``k`` singular directions of the covariance ``sigma^2 V diag(s^-2) V^T``
+    (``k = 6``: all; ``k = 5``: without the least-fixed one). ``inf`` if one is 0."""
+    if s[k - 1] <= 0:
+        return float("inf")
+    V = Vt[:k].T * (sigma / s[:k])                          # (6, k): cov = V V^T
+    return float(max(np.sqrt(np.linalg.eigvalsh(V[i:i + 3] @ V[i:i + 3].T)[-1])
+                     for i in (0, 3)))
 
 
 def fit_joint_from_points(parent_points, child_points, *, frames=None, min_points: int = 6,
@@ -314,6 +339,17 @@ def fit_joint_from_points(parent_points, child_points, *, frames=None, min_point
         As :func:`fit_joint`.
     min_points
         As :func:`segment_motion`.
+
+    Returns
+    -------
+    JointCentre
+        Its ``parent`` and ``child`` motions in the frames of their best-seen frames.
+
+    Raises
+    ------
+    ValueError
+        Points of the wrong shape, too few points, different frame counts, or as
+        :func:`fit_joint`.
     """
     parent = _segment_motion(parent_points, None, min_points, "parent_points")
     child = _segment_motion(child_points, None, min_points, "child_points")

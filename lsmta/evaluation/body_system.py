@@ -471,17 +471,50 @@ def score_arm(fit, torso_poses, truth: eb.ArmTruth, *, frames=None, score_frames
 def score_arm_own_frame(fit, truth: eb.ArmTruth, *, frames, score_frames=None) -> dict:
     """Angle errors of an arm fit read as a user reads them: the fit's own angles, in the
     torso frame the system estimated, against the true angles in the true torso frame. No
-    alignment: the system's world and torso frame as they are. ``frames`` are the video
-    frames the fit covers (its frame i is ``frames[i]``); ``score_frames`` (a subset of them)
-    restricts the scores. Returns ``angle_err_deg`` (F, 4), ``max_angle_err_deg`` and
-    per-joint worst ``joint_max_deg`` (4,)."""
-    frames = np.asarray(frames, int)
+    alignment: the system's world and torso frame as they are.
+
+    Parameters
+    ----------
+    fit : BodyFit
+        The arm fit (:class:`lsmta.body.fitting.BodyFit`); ``fit.state.angles`` is
+        ``(F, >= 4)``, radians.
+    truth : ArmTruth
+        The arm's truth in every video frame (``truth.angles`` ``(T, >= 4)``, radians).
+    frames : (F,) int array_like
+        The video frames the fit covers: its frame i is ``frames[i]``.
+    score_frames : int array_like, optional
+        A subset of ``frames`` the scores are restricted to (default: all of them).
+
+    Returns
+    -------
+    dict
+        ``angle_err_deg`` (F', 4) own minus true angle, wrapped to (-180, 180], degrees
+        (F' the scored frames); ``max_angle_err_deg`` (float) its largest magnitude;
+        ``joint_max_deg`` (4,) each joint's largest magnitude.
+
+    Raises
+    ------
+    ValueError
+        ``frames`` of another length than the fit's frames, outside the truth's, or
+        ``score_frames`` not a subset of them.
+    """
+    frames = np.asarray(frames)
+    angles = np.asarray(fit.state.angles)
+    if frames.ndim != 1 or len(frames) != len(angles):
+        raise ValueError(f"frames: expected the fit's {len(angles)} frame indices, got shape "
+                         f"{frames.shape}")
+    if not np.issubdtype(frames.dtype, np.integer) and len(frames):
+        raise ValueError(f"frames: expected integer frame indices, got dtype {frames.dtype}")
+    frames = frames.astype(int)
+    if len(frames) and (frames.min() < 0 or frames.max() >= len(truth.angles)):
+        raise ValueError(f"frames: expected frame indices in [0, {len(truth.angles) - 1}], "
+                         f"got {frames.min()}..{frames.max()}")
     keep = np.ones(len(frames), bool)
     if score_frames is not None:
         if not np.isin(score_frames, frames).all():
             raise ValueError("score_frames: expected a subset of the fit's frames")
         keep = np.isin(frames, score_frames)
-    a = np.asarray(fit.state.angles)[keep, :4]
+    a = angles[keep, :4]
     d = np.degrees(np.angle(np.exp(1j * (a - truth.angles[frames[keep], :4]))))
     return {"angle_err_deg": d, "max_angle_err_deg": float(np.abs(d).max()),
             "joint_max_deg": np.abs(d).max(axis=0)}
@@ -540,9 +573,28 @@ def torso_frame_error(torso_poses, truth: eb.ArmTruth, alignment: Alignment, *,
 
 def torso_axis_errors(torso_poses, truth: eb.ArmTruth, alignment: Alignment, *,
                       frames=None) -> tuple[np.ndarray, np.ndarray]:
-    """Where a torso frame's error lies: per frame, the angle (degrees) between its up axis
-    (z) and the true one's, and between its forward axes (y) once both are made horizontal
-    in the true world (the heading). Both after ``alignment``."""
+    """Where a torso frame's error lies: per frame, the angle between its up axis (z) and
+    the true one's, and between its forward axes (y) once both are made horizontal in the
+    true world (the heading). Both after ``alignment``.
+
+    Parameters
+    ----------
+    torso_poses : (T, 4, 4) array_like
+        The system's torso poses in its world, every video frame (mm).
+    truth : ArmTruth
+        The arm's truth; ``truth.torso_poses`` (T, 4, 4) in the true world.
+    alignment : Alignment
+        Carries the system's world into the true one (only its rotation is used).
+    frames : int array_like, optional
+        The frames to compare (default: all T).
+
+    Returns
+    -------
+    up_deg : (F,) array
+        Angle between the up axes, degrees.
+    heading_deg : (F,) array
+        Angle between the horizontal forward axes, degrees in [0, 180].
+    """
     P = np.asarray(torso_poses)
     R_true = truth.torso_poses[:, :3, :3]
     if frames is not None:

@@ -24,6 +24,8 @@ from .._validate import as_int, as_rng, as_scalar
 from ..body.functional_joints import (
     JointCentre,
     JointStatus,
+    SegmentMotion,
+    _frame_mask,
     fit_joint,
     segment_motion,
 )
@@ -70,6 +72,10 @@ def segment_points(body: Body, motion: Motion, *, n_per_part: int = 100,
 
     Parameters
     ----------
+    body : Body
+        The generator's body.
+    motion : Motion
+        Its motion, T frames.
     n_per_part : int
         Surface points drawn on each part.
     noise_mm : float
@@ -77,6 +83,13 @@ def segment_points(body: Body, motion: Motion, *, n_per_part: int = 100,
     cameras : sequence of Camera, optional
         Keep a point only in frames where at least two of them see it (at most two
         cameras: where all do); default: every point outside the other parts.
+    rng : Generator, int or None
+        The surface points and the noise.
+
+    Returns
+    -------
+    SegmentPoints
+        ``points[part]`` of shape ``(T, n_per_part, 3)``, mm, NaN where not measured.
     """
     rng = as_rng(rng)
     n = as_int(n_per_part, "n_per_part", minimum=3)
@@ -104,15 +117,51 @@ def segment_motions(data: SegmentPoints) -> dict:
 
 
 def fit_joints(motions: dict, *, frames=None, max_centre_sd: float = 5.0) -> dict:
-    """Every joint of :data:`JOINTS` from its two segments' motions; a joint whose segments
-    share fewer than 3 posed frames is left out."""
+    """Every joint of :data:`JOINTS` from its two segments' motions.
+
+    Parameters
+    ----------
+    motions : dict
+        Part name -> :class:`SegmentMotion` (:func:`segment_motions`), every part of
+        :data:`JOINTS`, all over the same T frames.
+    frames : sequence of int or (T,) bool array, optional
+        The frames to use (default all), as :func:`~lsmta.body.functional_joints.fit_joint`.
+    max_centre_sd : float
+        As :func:`~lsmta.body.functional_joints.fit_joint`, mm.
+
+    Returns
+    -------
+    dict
+        Joint name -> :class:`JointCentre`; a joint whose two segments share fewer than 3
+        posed frames among ``frames`` is left out (and only such a joint).
+
+    Raises
+    ------
+    ValueError
+        ``max_centre_sd`` not positive, ``frames`` not indices or a mask of the T frames,
+        or motions over different frame counts.
+    TypeError
+        A motion that is not a :class:`SegmentMotion`.
+    KeyError
+        A part of :data:`JOINTS` missing from ``motions``.
+    """
+    max_sd = as_scalar(max_centre_sd, "max_centre_sd", positive=True)
+    parts = {p for pair in JOINTS.values() for p in pair}
+    for name in parts:
+        if name not in motions:
+            raise KeyError(f"motions: expected a SegmentMotion of part {name!r}")
+        if not isinstance(motions[name], SegmentMotion):
+            raise TypeError(f"motions[{name!r}]: expected a SegmentMotion, got "
+                            f"{type(motions[name]).__name__}")
+    counts = {motions[name].n_frames for name in parts}
+    if len(counts) != 1:
+        raise ValueError(f"motions: expected one frame count for all parts, got {sorted(counts)}")
+    chosen = _frame_mask(frames, counts.pop())
     out = {}
     for name, (p, c) in JOINTS.items():
-        try:
-            out[name] = fit_joint(motions[p], motions[c], frames=frames,
-                                  max_centre_sd=max_centre_sd)
-        except ValueError:
-            continue
+        if (chosen & motions[p].known & motions[c].known).sum() < 3:
+            continue                                   # too few frames: not seen
+        out[name] = fit_joint(motions[p], motions[c], frames=chosen, max_centre_sd=max_sd)
     return out
 
 
@@ -121,9 +170,28 @@ def _centre_in(joint: JointCentre, segment: str, parent: str) -> np.ndarray:
 
 
 def joint_scores(joints: dict, body: Body, motion: Motion) -> dict:
-    """Per joint: status, determinacy and the centre's error against the true joint (RMS
-    and worst over the frames with a centre, mm); status NOT_SEEN where its segments
-    share fewer than 3 posed frames."""
+    """Per joint: status, determinacy and the centre's error against the true joint.
+
+    Parameters
+    ----------
+    joints : dict
+        Joint name -> :class:`JointCentre` (:func:`fit_joints`).
+    body : Body
+        The generator's body (the truth, after the fact).
+    motion : Motion
+        The motion the joints were fitted on, T frames.
+
+    Returns
+    -------
+    dict
+        Joint name (every one of :data:`JOINTS`) -> dict: ``status`` (a
+        :class:`JointStatus` name, or ``"NOT_SEEN"`` where its segments share fewer than 3
+        posed frames: nothing else then), ``determinacy``, ``axis_determinacy``,
+        ``residual_mm``, ``centre_sd_mm``, ``n_frames``, and ``centre_error_rms_mm`` /
+        ``centre_error_max_mm``: the centre's distance from the true joint (the child
+        part's origin), RMS and worst over the frames the fit used (where ``world`` is
+        finite), mm; None without a centre.
+    """
     poses = body.part_poses(motion)
     out = {name: {"status": "NOT_SEEN"} for name in JOINTS if name not in joints}
     for name, j in joints.items():
@@ -140,8 +208,23 @@ def joint_scores(joints: dict, body: Body, motion: Motion) -> dict:
 
 
 def length_scores(joints: dict, body: Body) -> dict:
-    """Per length of :data:`LENGTHS`: (found, true) mm and the error in % of the truth; the
-    found length is None where a centre is missing (UNDETERMINED or not fitted)."""
+    """Per length of :data:`LENGTHS`: the distance between two found centres in one
+    segment's frame against the generator's.
+
+    Parameters
+    ----------
+    joints : dict
+        Joint name -> :class:`JointCentre` (:func:`fit_joints`).
+    body : Body
+        The generator's body (the true lengths).
+
+    Returns
+    -------
+    dict
+        Length name -> ``{"found_mm", "true_mm", "error_pct"}``: found and true distance,
+        mm, and the error in % of the truth; ``found_mm`` and ``error_pct`` are None where a
+        centre is missing (UNDETERMINED or not fitted).
+    """
     out = {}
     for name, (segment, a, b) in LENGTHS.items():
         ends_true = []
@@ -167,8 +250,23 @@ def identified(joints: dict, *, status: JointStatus = JointStatus.CENTRE) -> lis
 
 
 def movement_table(motions: dict, motion: Motion, *, max_centre_sd: float = 5.0) -> dict:
-    """Per phase of ``motion`` (:attr:`Motion.phases`): each joint's status and
-    determinacy from that phase's frames alone (NOT_SEEN as in :func:`joint_scores`)."""
+    """What each movement identifies: every joint fitted from one phase's frames alone.
+
+    Parameters
+    ----------
+    motions : dict
+        Part name -> :class:`SegmentMotion` over ``motion``'s frames (:func:`segment_motions`).
+    motion : Motion
+        The clip, with named phases (:attr:`Motion.phases`).
+    max_centre_sd : float
+        As :func:`fit_joints`, mm.
+
+    Returns
+    -------
+    dict
+        Phase name -> joint name -> ``{"status", "determinacy", "axis_determinacy",
+        "centre_sd_mm"}`` (``{"status": "NOT_SEEN"}`` as in :func:`joint_scores`).
+    """
     out = {}
     for phase, start, stop in motion.phases:
         joints = fit_joints(motions, frames=np.arange(start, stop), max_centre_sd=max_centre_sd)

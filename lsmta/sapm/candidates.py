@@ -66,9 +66,11 @@ class Candidates:
         """(K,) each match's score: the sum over its matched markers of
         ``1 - (r / tol)²``: one for a marker where the motion puts it, less for one off by
         a share of the tolerance, negative beyond it (down to -3 at the gate 2 ε l̄).
-        Computed once per instance; do not modify the array."""
+        Computed once per instance and read-only (``flags.writeable`` is False)."""
         r = np.where(np.isnan(self.resid), 0.0, self.resid)
-        return np.where(self.obs >= 0, 1.0 - (r / self.tol) ** 2, 0.0).sum(axis=1)
+        out = np.where(self.obs >= 0, 1.0 - (r / self.tol) ** 2, 0.0).sum(axis=1)
+        out.flags.writeable = False
+        return out
 
 
 def _triples(D, d, eps):

@@ -20,6 +20,7 @@ Texture
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -296,13 +297,25 @@ class Motion:
     phases: tuple = ()
 
     def __post_init__(self):
-        object.__setattr__(self, "phases", tuple((str(n), int(a), int(b))
-                                                  for n, a, b in self.phases))
         # ground truth: keep private, read-only copies
         for key in ("root_position", "joint_angles"):
             arr = np.array(getattr(self, key), dtype=float)
             arr.flags.writeable = False
             object.__setattr__(self, key, arr)
+        T = len(self.root_position)
+        try:
+            phases = tuple((n, a, b) for n, a, b in self.phases)
+        except (TypeError, ValueError):
+            raise ValueError(f"phases: expected (name, start, stop) triples, got "
+                             f"{self.phases!r}") from None
+        for n, a, b in phases:
+            if not isinstance(n, str) or not all(
+                    isinstance(v, numbers.Integral) and not isinstance(v, bool) for v in (a, b)):
+                raise ValueError(f"phases: expected (str, int, int) triples, got {(n, a, b)!r}")
+            if not 0 <= a <= b <= T:
+                raise ValueError(f"phases: expected 0 <= start <= stop <= n_frames={T}, got "
+                                 f"{(n, a, b)!r}")
+        object.__setattr__(self, "phases", tuple((n, int(a), int(b)) for n, a, b in phases))
 
     @property
     def n_frames(self) -> int:
@@ -553,6 +566,12 @@ def range_of_motion(*, n_frames: int = 200, fps: float = 25.0, position=(0.0, 0.
     :func:`lsmta.body.full_body.limits` (read in that model's angle order); the knees,
     elbows and wrists move as pure hinges.
 
+    The true joint angles (:attr:`Motion.joint_angles`, ``(a, b, c)`` with ``Rz(c) Ry(b)
+    Rx(a)``, read back by ``_angles_zyx``) jump near gimbal lock: where an arm is raised
+    to about 90 deg and past, ``b`` nears +-90 deg and ``a`` and ``c`` trade large, sudden
+    amounts (a smooth rotation, jumpy angles). Compare such joints as rotations, not angle
+    by angle.
+
     Parameters
     ----------
     n_frames : int
@@ -566,7 +585,13 @@ def range_of_motion(*, n_frames: int = 200, fps: float = 25.0, position=(0.0, 0.
     movements : sequence of str
         Which movements, in which order (names of :data:`RANGE_OF_MOTION_PHASES`).
     """
-    movements = tuple(movements) if not isinstance(movements, str) else (movements,)
+    if isinstance(movements, str):
+        movements = (movements,)
+    try:
+        movements = tuple(movements)
+    except TypeError:
+        raise ValueError(f"movements: expected a sequence of names among "
+                         f"{RANGE_OF_MOTION_PHASES}, got {movements!r}") from None
     unknown = [m for m in movements if m not in RANGE_OF_MOTION_PHASES]
     if unknown or not movements or len(set(movements)) != len(movements):
         raise ValueError(f"movements: expected distinct names among {RANGE_OF_MOTION_PHASES}, "

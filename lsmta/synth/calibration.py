@@ -104,7 +104,31 @@ def levelled_bar(*, n_places: int = 4, frames_per_place: int = 3,
     ``n_places`` places in the box ``center +- half_size`` (uniform), held still for
     ``frames_per_place`` frames at each: how a studio levels its world (the ground-plane
     step of motion-capture calibration). Each time it stands ``tilt_deg`` per horizontal
-    axis (Gaussian) off the true vertical, the level's own error; target B is on top."""
+    axis (Gaussian) off the true vertical, the level's own error; target B is on top.
+
+    Parameters
+    ----------
+    n_places : int
+        Places the bar is stood at (>= 1).
+    frames_per_place : int
+        Frames it is held still for at each place (>= 1).
+    rng : Generator, int or None
+        Random places and tilts.
+    length : float
+        Distance between the two targets, mm.
+    center : (3,) array_like
+        Centre of the box the bar's midpoint is drawn in, mm.
+    half_size : (3,) array_like
+        The box's half sizes, mm.
+    tilt_deg : float
+        Standard deviation of the tilt about each horizontal axis, degrees (>= 0).
+
+    Returns
+    -------
+    BarTrack
+        ``A`` (bottom) and ``B`` (top) of shape ``(n_places * frames_per_place, 3)``, mm,
+        the frames of one place consecutive and equal; ``length``.
+    """
     rng = as_rng(rng)
     n_places = as_int(n_places, "n_places")
     frames_per_place = as_int(frames_per_place, "frames_per_place")

@@ -277,6 +277,10 @@ def _calibration_text(cal) -> str:
     if hasattr(cal, "n_positions"):                          # a RigCalibration
         text = (f"{cal.n_positions} bar positions, {text}, {cal.labels.n_swapped} swapped "
                 "target labels fixed")
+        level = getattr(cal, "level", None)
+        if level is not None:
+            text += (f"; levelled with {level.n_frames} upright-bar frames (world turned by "
+                     f"{level.correction_deg:.2f} deg)")
     return text
 
 

@@ -23,8 +23,9 @@ millimetres and a few degrees off). From that, with no ground truth:
    and the camera centres of a rig in a row cannot fix a turn about the row, so the world's
    up is as far off as the attitudes' mean error. With a video of the bar stood upright
    with a spirit level (a studio's ground-plane step), the bar's direction is intersected
-   with the calibrated cameras in each frame, and the world is turned, about the cameras'
-   mean centre and by the smallest rotation, so that its mean is +Z.
+   with the calibrated cameras in each frame, frames whose bar length or reprojection error
+   is off are dropped, and the world is turned, about the cameras' mean centre and by the
+   smallest rotation, so that the remaining directions' robust mean is +Z.
 """
 
 from __future__ import annotations
@@ -48,6 +49,11 @@ from .checks import check_cameras, check_videos
 MIN_BAR_FRAMES = 10
 MIN_LEVEL_FRAMES = 3
 MAX_LEVEL_DEG = 15.0     # a levelled bar further than this from the tape's up: not upright
+LEVEL_LENGTH_TOL = 0.03  # a levelling frame's bar length off by more (fraction): dropped
+LEVEL_REPROJ_PX = 2.0    # ... or its largest reprojection error above this (and above
+LEVEL_REPROJ_K = 5.0     # this many times the frames' median largest error), px: dropped
+LEVEL_CUT_K = 3.0        # robust mean: directions beyond this many robust SDs are left out
+LEVEL_CUT_MIN_DEG = 0.5  # ... but never a cut below this, degrees (a spirit level's error)
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,7 +73,10 @@ class Levelling:
     spread_deg : float
         RMS angle of the single frames' directions from their mean, degrees.
     n_frames : int
-        Frames whose two targets were intersected.
+        Frames whose direction makes the mean (intersected, kept by the length and
+        reprojection tests and inside the robust mean's cut).
+    n_dropped : int
+        Intersected frames left out (bar length, reprojection error or direction off).
     """
 
     up: np.ndarray
@@ -76,6 +85,7 @@ class Levelling:
     correction_deg: float
     spread_deg: float
     n_frames: int
+    n_dropped: int = 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,9 +108,11 @@ class RigCalibration(CalibrationResult):
     pair : (int, int)
         The cameras of the relative orientation.
     datum_rotation : (3, 3) array
-        Rotation from the adjustment's frame to the user's world.
+        Rotation Q from the adjustment's frame to the user's world (levelled, if it was):
+        a point ``x`` of the adjustment is ``Q @ x + t`` in the world, and each camera is
+        ``R = R_bundle @ Q.T``, ``C = Q @ C_bundle + t``.
     datum_translation : (3,) array
-        Its translation, mm.
+        Its translation t, mm.
     datum_residual : (K,) array
         Distance of each calibrated camera centre from its tape-measured place, mm.
     n_positions : int
@@ -149,14 +161,29 @@ def level_rig(cameras, level_videos, bar_length: float, *,
     Returns
     -------
     cameras : list of K Camera
-        The same rig turned so that the bar's mean direction is +Z (module docstring).
+        The same rig turned so that the bar's robust mean direction is +Z (Notes).
     level : Levelling
+
+    Notes
+    -----
+    A frame is dropped when its intersected bar length is more than 3 % off
+    ``bar_length``, or when the largest reprojection error of its two targets exceeds
+    2 px and 5 times the frames' median of that error (a target mismeasured or mixed up in
+    one camera). The up direction is then a robust mean of the kept frames' unit
+    directions: starting from their normalised component-wise median, the mean of the
+    directions within 3 robust SDs (1.4826 times the median angle from the current mean;
+    the cut at least 0.5 degrees, a spirit level's own error) is taken, until the set stops
+    changing (at most 10 rounds). One bad frame then moves it by nothing, where a plain
+    mean moves it by its angle over the number of frames.
 
     Raises
     ------
+    TypeError
+        ``cameras`` is not a sequence of :class:`~lsmta.camera.Camera`.
     ValueError
-        Fewer than 3 frames with both targets intersected, or a bar more than 15 degrees
-        from the world's up (not stood upright, or not this world).
+        Fewer than 3 frames with both targets intersected (and kept), a bar more than 15
+        degrees from the world's up (not stood upright, or not this world), videos of the
+        wrong number, size or length, or a bar length that is not positive.
     """
     cams = check_cameras(cameras, "cameras")
     K = len(cams)
@@ -165,16 +192,28 @@ def level_rig(cameras, level_videos, bar_length: float, *,
     xy = np.stack([track_targets(videos[k]).xy for k in tqdm(range(K), desc="level targets",
                                                               disable=not progress)])
     xy = consistent_bar_labels(cams, xy, length).xy                  # (K, Tl, 2, 2)
-    X = triangulate(cams, xy.reshape(K, -1, 2)).points.reshape(-1, 2, 3)
+    inter = triangulate(cams, xy.reshape(K, -1, 2))
+    X = inter.points.reshape(-1, 2, 3)
     d = X[:, 1] - X[:, 0]
-    d = d[np.isfinite(d).all(axis=1)]
-    if len(d) < MIN_LEVEL_FRAMES:
-        raise ValueError(f"level_videos: both targets are intersected in {len(d)} frames; "
+    found = np.isfinite(d).all(axis=1)
+    n_found = int(found.sum())
+    if n_found < MIN_LEVEL_FRAMES:
+        raise ValueError(f"level_videos: both targets are intersected in {n_found} frames; "
                          f"levelling needs >= {MIN_LEVEL_FRAMES}")
+    err = np.fmax.reduce(inter.reprojection_error.reshape(K, -1, 2), axis=(0, 2))  # (Tl,)
+    err_cut = max(LEVEL_REPROJ_PX, LEVEL_REPROJ_K * float(np.nanmedian(err[found])))
+    keep = found & (np.abs(np.linalg.norm(np.where(found[:, None], d, 0.0), axis=1) - length)
+                    <= LEVEL_LENGTH_TOL * length) & ~(err > err_cut)
+    d = d[keep]
+    if len(d) < MIN_LEVEL_FRAMES:
+        raise ValueError(f"level_videos: {len(d)} of the {n_found} intersected frames have a "
+                         f"bar length within {LEVEL_LENGTH_TOL:.0%} of bar_length and a "
+                         f"reprojection error below {err_cut:.2g} px; levelling needs "
+                         f">= {MIN_LEVEL_FRAMES}")
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     d = d * np.sign(d[:, 2:3] + (d[:, 2:3] == 0))                    # upwards
-    up = d.mean(axis=0)
-    up /= np.linalg.norm(up)
+    up, inside = _robust_direction(d)
+    d = d[inside]
     correction = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
     if correction > MAX_LEVEL_DEG:
         raise ValueError(f"level_videos: the bar stands {correction:.1f} degrees from the "
@@ -187,7 +226,25 @@ def level_rig(cameras, level_videos, bar_length: float, *,
     centre = np.mean([c.C for c in cams], axis=0)
     out = [c.replace(R=c.R @ Rm.T, C=Rm @ (c.C - centre) + centre) for c in cams]
     return out, Levelling(up=up, rotation=Rm, centre=centre, correction_deg=correction,
-                          spread_deg=spread, n_frames=len(d))
+                          spread_deg=spread, n_frames=len(d), n_dropped=n_found - len(d))
+
+
+def _robust_direction(d):
+    """Robust mean of unit directions ``d`` (N, 3) (see :func:`level_rig`'s Notes): the
+    unit mean and which rows it is the mean of."""
+    up = np.median(d, axis=0)
+    up /= np.linalg.norm(up)
+    inside = np.ones(len(d), bool)
+    for _ in range(10):
+        angle = np.degrees(np.arccos(np.clip(d @ up, -1.0, 1.0)))
+        cut = max(LEVEL_CUT_K * 1.4826 * float(np.median(angle)), LEVEL_CUT_MIN_DEG)
+        now = angle <= cut                       # never empty: the cut is above the median
+        up = d[now].mean(axis=0)
+        up /= np.linalg.norm(up)
+        if np.array_equal(now, inside):
+            break
+        inside = now
+    return up, inside
 
 
 def _pair(nominal, seen) -> tuple:
@@ -238,9 +295,13 @@ def calibrate_rig(bar_videos, bar_length: float, nominal_cameras, *,
 
     Raises
     ------
+    TypeError
+        ``nominal_cameras`` is not a sequence of :class:`~lsmta.camera.Camera`.
     ValueError
         Too few bar frames, a bar never seen by two cameras, or image sizes that do not
-        match the cameras.
+        match the cameras; with ``level_videos``, those of :func:`level_rig`: videos of the
+        wrong number, size or length (refused before the adjustment), fewer than 3 upright
+        frames intersected and kept, or a bar more than 15 degrees from the tape's up.
     """
     t0 = time.perf_counter()
     nominal = check_cameras(nominal_cameras, "nominal_cameras")
@@ -277,6 +338,7 @@ def calibrate_rig(bar_videos, bar_length: float, nominal_cameras, *,
     level = None
     if level_videos is not None:
         cameras, level = level_rig(cameras, level_videos, length, progress=progress)
+        Q, t = level.rotation @ Q, level.rotation @ (t - level.centre) + level.centre
     residual = np.array([np.linalg.norm(c.C - n.C) for c, n in zip(cameras, nominal)])
     return RigCalibration(cameras=cameras, bundle=bundle, targets=labels.xy, labels=labels,
                           sigma_px=sigma_px, pair=pair, datum_rotation=Q,

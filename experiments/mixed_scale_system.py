@@ -42,19 +42,27 @@ measured or filled (the face model fills a fitted frame's other markers), the fa
 heads every marker measured or filled in >= 99 % of frames, and the face's median error no
 worse than with two. The two-head numbers are the main run's (the headlines above); each
 other K is its own run with its own devices (the same walk, calibration, ceiling feed and
-face model; other image noise). Written as ``mixed_scale_system_heads*`` (``--out``).
-Runs at four heads take about twice the system time of two.
+face model; other image noise). Written as ``mixed_scale_system_heads*`` (``--out``), and
+the per-seed numbers notebook 15 quotes (with the command, date, seeds and settings) to the
+committed ``experiments/results/mixed_scale_heads.json``
+(``lsmta.evaluation.mixed_scale.HEADS_RESULT``; ``--results`` for another file). Runs at
+four heads take about twice the system time of two. The committed file comes from
+
+    python experiments/mixed_scale_system.py --heads 2 4 --seeds 5 --no-baseline --workers 1
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 from seed_spread import Headline, add_arguments, run
 
+from lsmta.evaluation.mixed_scale import HEADS_FIELDS, HEADS_RESULT
 from lsmta.report import write_json
 
 TRAIN_NOISE = 0.2      # mm, the still capture the face model is learnt from (notebook 15)
@@ -147,7 +155,27 @@ def _heads_numbers(K, cap, sc, labels) -> dict:
             f"covered_{K}h": float(covered.mean(axis=0).min()),
             f"rigid_median_mm_{K}h": sc.rigid_median_mm,
             f"labels_correct_{K}h": labels.share_correct,
+            f"labels_coverage_{K}h": labels.coverage,
+            f"tries_{K}h": cap.tries,
             f"system_s_{K}h": float(sum(cap.seconds[name] for name, _ in STAGES))}
+
+
+def heads_summary(results: dict, settings: dict, met: dict, argv) -> dict:
+    """What notebook 15 quotes of a ``--heads`` run: the command, date, seeds, settings,
+    each target's share of seeds met and, per number of heads, the
+    :data:`~lsmta.evaluation.mixed_scale.HEADS_FIELDS` one value per seed (None: NaN, or
+    the seed failed)."""
+    seeds = sorted(results)
+
+    def value(r, key):
+        v = r.get(key, np.nan) if "error" not in r else np.nan
+        return None if not np.isfinite(v) else float(v)
+
+    return {"command": " ".join(["python", "experiments/mixed_scale_system.py", *argv]),
+            "date": datetime.now(timezone.utc).date().isoformat(),
+            "seeds": [int(s) for s in seeds], "settings": settings, "seeds_met": met,
+            "heads": {str(K): {f: [value(results[s], f"{f}_{K}h") for s in seeds]
+                               for f in HEADS_FIELDS} for K in settings["heads"]}}
 
 
 def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: float,
@@ -205,6 +233,7 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
            "labels_correct_share": labels.share_correct,
            "labels_coverage": labels.coverage,
            "labels_refused": int(not cap.identification.labelled.any()),
+           "labels_tries": cap.tries,
            # the stages only: "identification" is a part of "marker tracking"
            "system_s": float(sum(cap.seconds[name] for name, _ in STAGES))}
     detail = {"prepare_s": prep_s, "ceiling_rms_px": cal.ceiling_rms_px.tolist(),
@@ -275,7 +304,11 @@ def main(argv=None):
                         "default: 2, the notebook's system)")
     parser.add_argument("--out", default=None, help="default: build/benchmarks/"
                         "mixed_scale_system.json (mixed_scale_system_heads.json with --heads)")
+    parser.add_argument("--results", default=str(HEADS_RESULT), help="with --heads: the "
+                        "per-seed numbers notebook 15 quotes (default: the committed "
+                        "experiments/results/mixed_scale_heads.json)")
     add_arguments(parser, seed=18)
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
     settings = {"travel": args.travel, "speed": args.speed, "ceiling": args.ceiling,
                 "head_f": args.head_f, "hidden": list(args.hidden),
@@ -302,9 +335,13 @@ def main(argv=None):
     for k, v in met.items():
         print(f"  {k:<58} {v:.0%}")
     refused = sum(r.get("labels_refused", 0) for r in results.values())
-    print(f"identification refused (nothing labelled) on {refused} of {len(results)} seeds")
+    retried = sum(r.get("labels_tries", 1) > 1 for r in results.values())
+    print(f"identification refused (nothing labelled) on {refused} of {len(results)} seeds; "
+          f"tried again on a later frame on {retried}")
     write_json(out, {**settings, "seeds": {str(s): r for s, r in results.items()},
                           "spread": table, "seeds_met": met})
+    if settings["heads"] != [2]:
+        write_json(args.results, heads_summary(results, settings, met, argv))
 
 
 if __name__ == "__main__":

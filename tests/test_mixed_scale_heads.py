@@ -138,3 +138,32 @@ def test_heads_and_devices_must_match(four):
         call(cal.heads, devices[:2])
     with pytest.raises(ValueError, match=r"identify: expected one per head \(2\), got 4"):
         call(cal.heads[:2], devices[:2], identify)
+
+
+def test_the_committed_heads_result_has_what_notebook_15_reads():
+    # experiments/mixed_scale_system.py --heads 2 4 wrote it; notebook 15 quotes these fields
+    run = ms.read_heads_result()
+    assert run is not None, f"no committed {ms.HEADS_RESULT}"
+    assert "experiments/mixed_scale_system.py" in run["command"] and "--heads 2 4" in run["command"]
+    assert len(run["date"]) == 10 and len(run["seeds"]) >= 5
+    assert set(run["heads"]) >= {"2", "4"} and run["settings"]["heads"] == [2, 4]
+    for K in ("2", "4"):
+        for key in ms.HEADS_FIELDS:
+            v = run["heads"][K][key]
+            assert v.shape == (len(run["seeds"]),)
+        assert (run["heads"][K]["tries"] >= 1).all()
+        assert ((run["heads"][K]["covered"] >= 0) & (run["heads"][K]["covered"] <= 1)).all()
+    assert all(0.0 <= v <= 1.0 for v in run["seeds_met"].values())
+
+
+def test_heads_result_missing_or_short(tmp_path):
+    assert ms.read_heads_result(tmp_path / "none.json") is None
+    bad = tmp_path / "short.json"
+    bad.write_text('{"command": "x", "date": "2026-01-01", "seeds": [1, 2], "settings": {}, '
+                   '"seeds_met": {}, "heads": {"2": {"measured": [0.5]}}}')
+    with pytest.raises(ValueError, match=r"heads\['2'\]\['measured'\] has 1 values; expected "
+                       r"one per seed \(2\)"):
+        ms.read_heads_result(bad)
+    with pytest.raises(ValueError, match="has no 'seeds_met'"):
+        bad.write_text('{"command": "x", "date": "d", "seeds": [], "settings": {}, "heads": {}}')
+        ms.read_heads_result(bad)

@@ -14,12 +14,17 @@ after the fact against the truth.
 * :func:`label_score` — the face markers' first-frame labels (automatic or by hand)
   against the generator's: correct, wrong and missed (:func:`label_outcome`, the rule);
 * :func:`exact_readback` — a controlled study: the same marker images triangulated at the
-  angles the heads were at, as if they reported them exactly.
+  angles the heads were at, as if they reported them exactly;
+* :data:`HEADS_RESULT`, :func:`read_heads_result` — the committed result of
+  ``experiments/mixed_scale_system.py --heads 2 4`` (two heads against four over seeds),
+  which notebook 15 quotes.
 """
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -40,6 +45,48 @@ from ..synth.widearea import LedScene, LedVideoParams, render_led_video
 from ..systems import CeilingFeed, MixedScaleCapture, triangulate_frames
 from ..widearea import detect, noise_threshold
 from .track_scores import score_led_tracks
+
+# the committed result of `experiments/mixed_scale_system.py --heads ...`, in the repository
+# (written by the experiment, read by notebook 15 and its test; one place for the path)
+HEADS_RESULT = Path(__file__).resolve().parents[2] / "experiments" / "results" \
+    / "mixed_scale_heads.json"
+HEADS_FIELDS = ("measured", "covered", "face_median_mm", "rigid_median_mm", "labels_correct",
+                "labels_coverage", "tries")   # per number of heads, one value per seed
+
+
+def read_heads_result(path=None) -> dict | None:
+    """The committed two-against-four-heads result (:data:`HEADS_RESULT` unless ``path``),
+    or None when there is no such file.
+
+    Returns
+    -------
+    dict or None
+        ``command``, ``date``, ``seeds`` (list of int), ``settings`` (dict) and ``heads``:
+        for each number of heads (a str key, "2", "4"), :data:`HEADS_FIELDS` each as a
+        (S,) float array over the seeds (NaN: none, e.g. no face when the identification
+        refused); ``seeds_met``: each target's share of seeds met.
+
+    Raises
+    ------
+    ValueError
+        When the file lacks a field or a list's length is not the number of seeds.
+    """
+    path = HEADS_RESULT if path is None else Path(path)
+    if not path.is_file():
+        return None
+    data = json.loads(path.read_text(encoding="utf-8"))
+    for key in ("command", "date", "seeds", "settings", "heads", "seeds_met"):
+        if key not in data:
+            raise ValueError(f"path: {path.name} has no {key!r}")
+    n = len(data["seeds"])
+    for K, per in data["heads"].items():
+        for key in HEADS_FIELDS:
+            v = np.array([np.nan if x is None else x for x in per.get(key, [])], float)
+            if v.shape != (n,):
+                raise ValueError(f"path: {path.name}'s heads[{K!r}][{key!r}] has "
+                                 f"{v.size} values; expected one per seed ({n})")
+            per[key] = v
+    return data
 
 
 @dataclass(frozen=True, eq=False)

@@ -5,7 +5,10 @@ which marker of the face model (Davis 2002 labels them once, by hand; issue 39).
 angles:
 
 1. *dots*: bright round blobs in each frame (:func:`~lsmta.tracking.markers.find_blobs`,
-   the detector the marker systems use), and their rays;
+   the detector the marker systems use), and their rays. Two blobs refined to within
+   ``_SAME_BLOB_PX`` of each other are one (two merged dots make a dumbbell with a strength
+   peak on each lobe, and both centroids take the whole blob): kept once, so that the
+   merged pair's markers go unlabelled by step 5's crowding rule instead of both taking it;
 2. *stereo*: the dots of each pair of heads matched one to one by the distance between
    their rays (the epipolar constraint at the heads' calibrated models; an optimal
    assignment, :func:`scipy.optimize.linear_sum_assignment`) and triangulated: unlabelled
@@ -13,9 +16,18 @@ angles:
    dots, so many of these matches pair a dot with its neighbour (on notebook 15's scene
    about three in four): they only give where the face is (their median) and how far;
 3. *rigid fit and assignment* (ICP): the face model's mean face (``basis.reference``) is
-   placed there, its thinnest principal axis (the face's normal, either sign) turned
-   towards the heads, and onto the stereo points' own thinnest axis, and turned about it
-   in ``n_angles`` steps. From each start: each
+   placed there, its outward normal (its thinnest principal axis, on the side to which the
+   face bulges) turned onto each normal of a cone about the direction to the heads, and
+   turned about it in ``n_angles`` steps. The cone's rings stand a step of ``n_angles``
+   apart (30° by default) up to 90° less half a step, with as many normals on a ring as
+   that spacing allows: a face is seen only from the side it faces, and every normal
+   within 75° of the heads' direction lies within about 21° of one of the cone's (before,
+   the starts turned the normal only towards the heads and onto the stereo points'
+   thinnest axis, which their wrong matches turn about 90° away: a face turned 42° from
+   the heads, as at the start of a walk past them, was 42° from every start and refused;
+   seed 21 of ``experiments/mixed_scale_system.py``). Every
+   start is labelled once at the widest gate; the ``n_starts`` cheapest are fitted. From
+   each fitted start: each
    head's dots are assigned to the projected markers (an optimal assignment, pairs within
    a gate), the markers with a dot in two heads triangulated (a pair that reprojects
    farther than ``max_px`` is two markers' dots and left out), the rigid motion fitted to
@@ -88,7 +100,12 @@ class IdentifyParams:
         widening (the start may be off by half a step of ``n_angles``, a centimetre at the
         face's edge).
     n_angles : int
-        Start angles about the face's normal, for each of its two signs.
+        Start angles about the face's normal; their step is also the spacing of the cone
+        of normals (see the module).
+    n_starts : int
+        Starts, of all the cone's, fitted at the widest gate to rank them (the cheapest by
+        their first labelling): 48, as many as the two normals with two signs each fitted
+        before the cone (issue 39).
     n_iter : int
         Assignment and fit passes per gate, at most.
     n_iter_start : int
@@ -116,6 +133,7 @@ class IdentifyParams:
     crowd_px: float = 5.0
     gate_steps: tuple = (12.0, 6.0, 3.0, 1.0)
     n_angles: int = 12
+    n_starts: int = 48
     n_iter: int = 10
     n_iter_start: int = 10
     n_poses: int = 3
@@ -131,6 +149,7 @@ class IdentifyParams:
         as_int(self.spacing, "spacing", minimum=1)
         as_int(self.n_iter, "n_iter", minimum=1)
         as_int(self.n_angles, "n_angles", minimum=1)
+        as_int(self.n_starts, "n_starts", minimum=1)
         as_int(self.n_poses, "n_poses", minimum=1)
         as_int(self.n_iter_start, "n_iter_start", minimum=1)
         steps = as_array(self.gate_steps, "gate_steps", shape=(None,))
@@ -179,6 +198,23 @@ class FaceIdentification:
         return np.isfinite(self.xy).all(axis=2)
 
 
+_SAME_BLOB_PX = 1.0   # blobs refined closer than this are one (px): two dots whose
+                      # centroids stand farther apart (2 px and more) are told apart
+
+
+def _dots(image, p):
+    """The dots of one frame (:func:`~lsmta.tracking.markers.find_blobs`, strongest first),
+    each blob once: a blob refined to within ``_SAME_BLOB_PX`` of a stronger one is that
+    blob again (two merged dots: a peak on each lobe, both centroids the whole blob's)."""
+    d = find_blobs(image.astype(float), sigma=p.sigma, min_strength=p.min_strength,
+                   spacing=p.spacing)
+    keep = []
+    for i in range(len(d)):
+        if not keep or np.linalg.norm(d[keep] - d[i], axis=1).min() >= _SAME_BLOB_PX:
+            keep.append(i)
+    return d[keep]
+
+
 def _rotation_to(a, b):
     """The rotation carrying unit vector ``a`` onto unit vector ``b`` (about their cross
     product; a half turn about a perpendicular axis when they are opposite)."""
@@ -202,16 +238,47 @@ def _thinnest(P):
     return np.linalg.svd(P - P.mean(axis=0), full_matrices=False)[2][2]
 
 
-def _starts(ref, normals, n_angles):
-    """Start rotations: the reference's thinnest principal axis (the face's normal, either
-    sign) turned onto each of ``normals`` (unit vectors), then turned about it by
-    ``n_angles`` equal steps."""
-    normal = _thinnest(ref)
+def _outward(ref):
+    """The reference face's outward normals: its thinnest principal axis on the side to
+    which it bulges (its depth along the axis falls with the squared distance from its
+    centre: the nose stands out, the cheeks fall back); both signs when the layout does
+    not bulge (depth and squared distance correlated by less than 0.5)."""
+    n = _thinnest(ref)
+    c = ref - ref.mean(axis=0)
+    z = c @ n
+    r2 = np.sum(c**2, axis=1) - z**2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho = np.corrcoef(r2, z)[0, 1]
+    if not abs(rho) >= 0.5:
+        return [n, -n]
+    return [n if rho < 0 else -n]
+
+
+def _cone(axis, step):
+    """Unit normals about unit vector ``axis``: the axis and rings tilted by multiples of
+    ``step`` (radians) up to pi/2 - step/2, each ring with ceil(2 pi sin(tilt) / step)
+    normals evenly around it."""
+    u = np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0])
+    u /= np.linalg.norm(u)
+    v = np.cross(axis, u)
+    out = [axis]
+    for tilt in np.arange(step, np.pi / 2 - step / 2 + 1e-9, step):
+        for a in np.linspace(0, 2 * np.pi, int(np.ceil(2 * np.pi * np.sin(tilt) / step)),
+                             endpoint=False):
+            out.append(np.cos(tilt) * axis + np.sin(tilt) * (np.cos(a) * u + np.sin(a) * v))
+    return out
+
+
+def _starts(ref, towards, n_angles):
+    """Start rotations: the reference's outward normal (:func:`_outward`) turned onto each
+    normal of the cone about ``towards`` (unit vector, to the heads; :func:`_cone` with the
+    step of ``n_angles``), then turned about it by ``n_angles`` equal steps."""
+    step = 2 * np.pi / n_angles
     out = []
-    for towards in normals:
-        for s in (1.0, -1.0):
-            R0 = _rotation_to(s * normal, towards)
-            out += [_about(towards, a) @ R0
+    for normal in _outward(ref):
+        for axis in _cone(towards, step):
+            R0 = _rotation_to(normal, axis)
+            out += [_about(axis, a) @ R0
                     for a in np.linspace(0, 2 * np.pi, n_angles, endpoint=False)]
     return out
 
@@ -446,8 +513,7 @@ def _identify_from_pair(imgs, heads, settings, face_model, p):
     against 1.0 mm from a pair, above ``max_residual_mm``)."""
     K = len(heads)
     cams = [h.camera_at(*settings[k]) for k, h in enumerate(heads)]
-    dots = [find_blobs(im.astype(float), sigma=p.sigma, min_strength=p.min_strength,
-                       spacing=p.spacing) for im in imgs]
+    dots = [_dots(im, p) for im in imgs]
     pairs = list(itertools.combinations(range(K), 2))
     a, b = max(pairs, key=lambda ab: (min(len(dots[ab[0]]), len(dots[ab[1]])), -pairs.index(ab)))
     r = identify_face_markers([imgs[a], imgs[b]], [heads[a], heads[b]], settings[[a, b]],
@@ -466,17 +532,22 @@ def _identify_from_pair(imgs, heads, settings, face_model, p):
 
 
 def _best_pose(frame, X, cams, ref, gates, p: IdentifyParams):
-    """The mean face's rigid pose ``(R, t, cost)`` on the stereo points ``X``: starts
-    turned about the normals towards the heads and of the points themselves, the best
-    ``n_poses`` refined with every gate."""
+    """The mean face's rigid pose ``(R, t, cost)`` on the stereo points ``X``: starts on
+    the cone of normals about the direction to the heads (:func:`_starts`), each labelled
+    once at the widest gate, the ``n_starts`` cheapest fitted at that gate, the best
+    ``n_poses`` of those refined with every gate. (The stereo points' own thinnest axis is
+    no normal: their wrong matches spread them in depth, and on notebook 15's walks it
+    stood about 90° from the face's normal.)"""
     centre = np.median(X, axis=0)
     towards = np.mean([c.C for c in cams], axis=0) - centre
     towards /= np.linalg.norm(towards)
-    seen = _thinnest(X)                      # the stereo points' own normal, to the heads
-    normals = [towards, seen if seen @ towards >= 0 else -seen]
-    poses = []
-    for R0 in _starts(ref, normals, p.n_angles):
+    first = []
+    for R0 in _starts(ref, towards, p.n_angles):
         t0 = centre - ref.mean(axis=0) @ R0.T
+        first.append((frame.label(ref @ R0.T + t0, gates[0])[1], R0, t0))
+    first.sort(key=lambda r: r[0])
+    poses = []
+    for _, R0, t0 in first[:p.n_starts]:
         poses.append(_rigid(frame, ref, R0, t0, gates[:1], p.n_iter_start, p.min_points))
     poses = [_rigid(frame, ref, R, t, gates, p.n_iter, p.min_points)
              for R, t, _ in sorted(poses, key=lambda r: r[2])[:p.n_poses]]
@@ -523,8 +594,7 @@ def identify_face_markers(images, heads, settings, face_model: FaceModel, *,
     ref = np.asarray(face_model.basis.reference, float)
     K, M = len(heads), len(ref)
     cams = [h.camera_at(*settings[k]) for k, h in enumerate(heads)]
-    dots = [find_blobs(im.astype(float), sigma=p.sigma, min_strength=p.min_strength,
-                       spacing=p.spacing) for im in imgs]
+    dots = [_dots(im, p) for im in imgs]
     nothing = dict(xy=np.full((K, M, 2), np.nan), points=np.full((M, 3), np.nan),
                    face=np.full((M, 3), np.nan), dots=dots, n_points=0,
                    residual_mm=float("nan"))

@@ -25,7 +25,8 @@ the caller's affair (notebook 15 says what its simulation gives).
    track_markers`), started from the identification of the first frame at which the heads
    have followed the same target for ``params.settle`` s: automatic
    (:func:`~lsmta.systems.face_identification.identify_face_markers`: dots, the face model's
-   layout fitted and assigned, ``params.identify``) or the ``identify`` callables;
+   layout fitted and assigned, ``params.identify``; when it refuses, tried again on later
+   frames, ``params.retry``) or the ``identify`` callables;
 3. *triangulation* of every marker of every frame from one pair of heads, the best pair
    that sees it (:func:`~lsmta.systems.close_up.best_pairs`: of the pairs whose
    intersection passes the angle and reprojection checks, the one with the smallest
@@ -123,6 +124,14 @@ class MixedScaleParams:
         The automatic identification of the face markers in the first settled frame
         (:func:`~lsmta.systems.face_identification.identify_face_markers`), used when no
         ``identify`` callables are given.
+    retry, retry_step : float
+        When the automatic identification refuses (labels nothing), it is tried again on
+        the frames ``retry_step`` s apart after the first settled one, for up to ``retry``
+        s, and tracking starts from the first frame it labels; the frames before it have no
+        face. A refusal is a view the identification does not trust (a face turned far
+        from the heads, merged dots); a walking face turns a few degrees in 0.1 s, so a
+        later frame is another view, at the price of one more identification (about a
+        second) per try. 0: no retry, the capture goes on without a face.
     """
 
     video_rate: float = 30.0
@@ -148,12 +157,14 @@ class MixedScaleParams:
     reacquire: int = 2
     dot_contrast: float = 30.0
     identify: IdentifyParams = field(default_factory=IdentifyParams)
+    retry: float = 0.5
+    retry_step: float = 0.1
 
     def __post_init__(self):
         for key in ("video_rate", "threshold_sigmas", "min_angle_deg", "max_reprojection_px",
-                    "max_fill_mm", "dot_contrast"):
+                    "max_fill_mm", "dot_contrast", "retry_step"):
             as_scalar(getattr(self, key), key, positive=True)
-        for key in ("start", "settle"):
+        for key in ("start", "settle", "retry"):
             as_scalar(getattr(self, key), key, nonnegative=True)
         as_int(self.reacquire, "reacquire", minimum=0)
         _ = self.steering                   # building it checks the steering's fields
@@ -205,9 +216,13 @@ class MixedScaleCapture:
     body : (F, N, 3) array
         Every LED track's position at the frame times, mm (NaN when not alive).
     first : int
-        The frame in which the face markers were identified (the first settled one).
+        The frame in which the face markers were identified (the first settled one, or a
+        later one when the automatic identification refused and was tried again; the last
+        one tried when it always refused).
     identification : FaceIdentification or None
         The automatic identification in that frame (None: ``identify`` callables given).
+    tries : int
+        Frames on which the automatic identification was tried (0: ``identify`` callables).
     seconds : dict of str -> float
         Seconds per stage (``"identification"``: the automatic identification, a part of
         ``"marker tracking"``).
@@ -232,6 +247,7 @@ class MixedScaleCapture:
     identification: FaceIdentification | None
     seconds: dict
     params: MixedScaleParams
+    tries: int = 1
 
     def summary(self) -> list:
         """One row per stage: ``{"stage", "seconds", "result"}``."""
@@ -283,6 +299,7 @@ class _State:
     first: int = 0
     identification: FaceIdentification | None = None
     identify_seconds: float = float("nan")
+    tries: int = 0
     xy: np.ndarray | None = None
     points: np.ndarray | None = None
     pairs: np.ndarray | None = None
@@ -357,13 +374,17 @@ def _marker_tracking(st: _State) -> None:
     st.first = first_settled(st.times, st.head_since, p.settle)
     if st.identify is None:
         t0 = time.perf_counter()
-        st.identification = identify_face_markers(
-            st.images[:, st.first], st.heads, st.settings[:, st.first], st.face_model,
-            params=p.identify)
+        for f in _tries(st.times, st.first, p.retry, p.retry_step):
+            st.first, st.tries = f, st.tries + 1
+            st.identification = identify_face_markers(
+                st.images[:, f], st.heads, st.settings[:, f], st.face_model,
+                params=p.identify)
+            if st.identification.labelled.any():
+                break
         st.identify_seconds = time.perf_counter() - t0
         st.starts = list(st.identification.xy)
         if not st.identification.labelled.any():
-            _warn_refused(st.identification, p.identify, st.times[st.first])
+            _warn_refused(st.identification, p.identify, st.times[st.first], st.tries)
     else:
         st.starts = [as_array(f(st.times[st.first], st.settings[k, st.first]),
                               f"identify[{k}](...)", shape=(None, 2), allow_nan=True)
@@ -371,7 +392,19 @@ def _marker_tracking(st: _State) -> None:
     _track(st, None)
 
 
-def _warn_refused(ident: FaceIdentification, params: IdentifyParams, t: float) -> None:
+def _tries(times, first: int, retry: float, step: float) -> list:
+    """The frames the identification is tried on: ``first``, then the first frame at or
+    after each further ``step`` s, up to ``retry`` s after it (each frame once)."""
+    out = [first]
+    for dt in np.arange(step, retry + 1e-9, step):
+        f = int(np.searchsorted(times, times[first] + dt - 1e-9))
+        if f < len(times) and f > out[-1]:
+            out.append(f)
+    return out
+
+
+def _warn_refused(ident: FaceIdentification, params: IdentifyParams, t: float,
+                  tries: int) -> None:
     """Warn that the automatic identification labelled nothing: the capture goes on
     without a face."""
     why = (f"its fit's residual {ident.residual_mm:.2f} mm exceeds params.identify."
@@ -379,7 +412,8 @@ def _warn_refused(ident: FaceIdentification, params: IdentifyParams, t: float) -
            if np.isfinite(ident.residual_mm) else
            f"no fit (residual found: none; params.identify.max_residual_mm = "
            f"{params.max_residual_mm:g} mm; {ident.n_points} stereo points)")
-    warnings.warn(f"identify_face_markers labelled no face marker at t = {t:.3f} s: {why}; "
+    warnings.warn(f"identify_face_markers labelled no face marker at t = {t:.3f} s "
+                  f"({tries} frame(s) tried): {why}; "
                   "the capture continues without a face", RuntimeWarning, stacklevel=4)
 
 
@@ -540,6 +574,6 @@ def capture_mixed_scale(ceiling: CeilingFeed, heads, devices, identify, face_mod
                              settings=st.settings,
                              images=st.images if keep_images else None, markers=st.markers,
                              xy=st.xy, points=st.points, pairs=st.pairs, face=st.face,
-                             body=st.body, first=st.first,
+                             body=st.body, first=st.first, tries=st.tries,
                              identification=st.identification, seconds=seconds, params=p)
 

@@ -157,13 +157,13 @@ def test_the_committed_heads_result_has_what_notebook_15_reads():
 
 
 def test_heads_result_missing_or_short(tmp_path):
-    assert ms.read_heads_result(tmp_path / "none.json") is None
+    assert ms.read_heads_result(path=tmp_path / "none.json") is None
     bad = tmp_path / "short.json"
     bad.write_text('{"command": "x", "date": "2026-01-01", "seeds": [1, 2], "settings": {}, '
                    '"seeds_met": {}, "heads": {"2": {"measured": [0.5]}}}')
     with pytest.raises(ValueError, match=r"heads\['2'\]\['measured'\] has 1 values; expected "
                        r"one per seed \(2\)"):
-        ms.read_heads_result(bad)
+        ms.read_heads_result(path=bad)
     with pytest.raises(ValueError, match="has no 'seeds_met'"):
         bad.write_text('{"command": "x", "date": "d", "seeds": [], "settings": {}, "heads": {}}')
-        ms.read_heads_result(bad)
+        ms.read_heads_result(path=bad)

@@ -225,7 +225,9 @@ def _segment_motion(points, reference, min_points, name: str) -> SegmentMotion:
                          residual=resid, n_points=counts, centroid=ref[usable].mean(axis=0))
 
 
-def _frame_mask(frames, T: int) -> np.ndarray:
+def frame_mask(frames, T: int) -> np.ndarray:
+    """(T,) bool mask of the chosen frames: ``frames`` None (all), frame indices, or a (T,)
+    boolean mask (copied). Raises ValueError for anything else."""
     if frames is None:
         return np.ones(T, bool)
     f = np.asarray(frames)
@@ -274,7 +276,7 @@ def fit_joint(parent: SegmentMotion, child: SegmentMotion, *, frames=None,
                          f"{child.n_frames}")
     max_sd = as_scalar(max_centre_sd, "max_centre_sd", positive=True)
     floor = as_scalar(noise_floor, "noise_floor", positive=True)
-    use = np.flatnonzero(_frame_mask(frames, parent.n_frames) & parent.known & child.known)
+    use = np.flatnonzero(frame_mask(frames, parent.n_frames) & parent.known & child.known)
     n = use.size
     if n < 3:
         raise ValueError(f"parent, child: the segments share {n} frame(s) with known poses "

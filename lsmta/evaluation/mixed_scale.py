@@ -54,7 +54,7 @@ HEADS_FIELDS = ("measured", "covered", "face_median_mm", "rigid_median_mm", "lab
                 "labels_coverage", "tries")   # per number of heads, one value per seed
 
 
-def read_heads_result(path=None) -> dict | None:
+def read_heads_result(*, path=None) -> dict | None:
     """The committed two-against-four-heads result (:data:`HEADS_RESULT` unless ``path``),
     or None when there is no such file.
 

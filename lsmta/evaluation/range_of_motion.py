@@ -25,8 +25,8 @@ from ..body.functional_joints import (
     JointCentre,
     JointStatus,
     SegmentMotion,
-    _frame_mask,
     fit_joint,
+    frame_mask,
     segment_motion,
 )
 from ..synth.body import Body, Motion, inside_parts
@@ -156,7 +156,7 @@ def fit_joints(motions: dict, *, frames=None, max_centre_sd: float = 5.0) -> dic
     counts = {motions[name].n_frames for name in parts}
     if len(counts) != 1:
         raise ValueError(f"motions: expected one frame count for all parts, got {sorted(counts)}")
-    chosen = _frame_mask(frames, counts.pop())
+    chosen = frame_mask(frames, counts.pop())
     out = {}
     for name, (p, c) in JOINTS.items():
         if (chosen & motions[p].known & motions[c].known).sum() < 3:

@@ -200,17 +200,7 @@ def level_rig(cameras, level_videos, bar_length: float, *,
     if n_found < MIN_LEVEL_FRAMES:
         raise ValueError(f"level_videos: both targets are intersected in {n_found} frames; "
                          f"levelling needs >= {MIN_LEVEL_FRAMES}")
-    err = np.fmax.reduce(inter.reprojection_error.reshape(K, -1, 2), axis=(0, 2))  # (Tl,)
-    err_cut = max(LEVEL_REPROJ_PX, LEVEL_REPROJ_K * float(np.nanmedian(err[found])))
-    keep = found & (np.abs(np.linalg.norm(np.where(found[:, None], d, 0.0), axis=1) - length)
-                    <= LEVEL_LENGTH_TOL * length) & ~(err > err_cut)
-    d = d[keep]
-    if len(d) < MIN_LEVEL_FRAMES:
-        raise ValueError(f"level_videos: {len(d)} of the {n_found} intersected frames have a "
-                         f"bar length within {LEVEL_LENGTH_TOL:.0%} of bar_length and a "
-                         f"reprojection error below {err_cut:.2g} px; levelling needs "
-                         f">= {MIN_LEVEL_FRAMES}")
-    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    d = _kept_directions(d, found, inter.reprojection_error.reshape(K, -1, 2), length)
     d = d * np.sign(d[:, 2:3] + (d[:, 2:3] == 0))                    # upwards
     up, inside = _robust_direction(d)
     d = d[inside]
@@ -221,12 +211,30 @@ def level_rig(cameras, level_videos, bar_length: float, *,
     spread = float(np.degrees(np.sqrt(np.mean(np.arccos(np.clip(d @ up, -1.0, 1.0))**2))))
     axis = np.cross(up, [0.0, 0.0, 1.0])
     turn = np.linalg.norm(axis)
-    rotvec = axis / turn * np.arctan2(turn, up[2]) if turn > 0 else np.zeros(3)
-    Rm = Rotation.from_rotvec(rotvec).as_matrix()
+    Rm = Rotation.from_rotvec(axis / turn * np.arctan2(turn, up[2]) if turn > 0
+                              else np.zeros(3)).as_matrix()
     centre = np.mean([c.C for c in cams], axis=0)
     out = [c.replace(R=c.R @ Rm.T, C=Rm @ (c.C - centre) + centre) for c in cams]
     return out, Levelling(up=up, rotation=Rm, centre=centre, correction_deg=correction,
                           spread_deg=spread, n_frames=len(d), n_dropped=n_found - len(d))
+
+
+def _kept_directions(d, found, reproj, length: float) -> np.ndarray:
+    """Unit bar directions (N, 3) of the frames :func:`level_rig` keeps (its Notes), from
+    the intersected directions ``d`` (Tl, 3), mm, which of them were ``found`` (Tl,), and the
+    targets' reprojection errors ``reproj`` (K, Tl, 2), px."""
+    n_found = int(found.sum())
+    err = np.fmax.reduce(reproj, axis=(0, 2))                                    # (Tl,)
+    err_cut = max(LEVEL_REPROJ_PX, LEVEL_REPROJ_K * float(np.nanmedian(err[found])))
+    keep = found & (np.abs(np.linalg.norm(np.where(found[:, None], d, 0.0), axis=1) - length)
+                    <= LEVEL_LENGTH_TOL * length) & ~(err > err_cut)
+    d = d[keep]
+    if len(d) < MIN_LEVEL_FRAMES:
+        raise ValueError(f"level_videos: {len(d)} of the {n_found} intersected frames have a "
+                         f"bar length within {LEVEL_LENGTH_TOL:.0%} of bar_length and a "
+                         f"reprojection error below {err_cut:.2g} px; levelling needs "
+                         f">= {MIN_LEVEL_FRAMES}")
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
 def _robust_direction(d):
@@ -259,6 +267,22 @@ def _pair(nominal, seen) -> tuple:
             if d > best:
                 best, pair = d, (i, j)
     return pair
+
+
+def _bar_targets(videos, progress: bool):
+    """The bar's targets in every camera, (K, Tb, 2, 2) px; the a-priori sigma of a target
+    coordinate, px; and the positions seen whole by at least two cameras."""
+    tracks = [track_targets(v) for v in tqdm(videos, desc="bar targets",
+                                             disable=not progress)]
+    xy = np.stack([tr.xy for tr in tracks])                         # (K, Tb, 2, 2)
+    both = np.isfinite(xy).all(axis=(2, 3))                          # (K, Tb)
+    n_pos = int((both.sum(axis=0) >= 2).sum())
+    if n_pos < MIN_BAR_FRAMES:
+        raise ValueError(f"bar_videos: both targets are seen by at least two cameras in "
+                         f"{n_pos} of {xy.shape[1]} frames; the calibration needs "
+                         f">= {MIN_BAR_FRAMES}")
+    std = np.concatenate([tr.std.ravel() for tr in tracks])
+    return xy, float(np.sqrt(np.nanmean(std**2))), n_pos
 
 
 def calibrate_rig(bar_videos, bar_length: float, nominal_cameras, *,
@@ -311,18 +335,9 @@ def calibrate_rig(bar_videos, bar_length: float, nominal_cameras, *,
     if level_videos is not None:            # refused before the adjustment, not after
         level_videos = check_videos(level_videos, "level_videos", nominal,
                                     min_frames=MIN_LEVEL_FRAMES)
-    tracks = [track_targets(videos[k]) for k in tqdm(range(K), desc="bar targets",
-                                                      disable=not progress)]
-    xy = np.stack([tr.xy for tr in tracks])                         # (K, Tb, 2, 2)
+    xy, sigma_px, n_pos = _bar_targets(videos, progress)
     Tb = xy.shape[1]
     seen = np.isfinite(xy).all(axis=3)                               # (K, Tb, 2)
-    both = seen.all(axis=2)                                          # (K, Tb)
-    n_pos = int((both.sum(axis=0) >= 2).sum())
-    if n_pos < MIN_BAR_FRAMES:
-        raise ValueError(f"bar_videos: both targets are seen by at least two cameras in "
-                         f"{n_pos} of {Tb} frames; the calibration needs >= {MIN_BAR_FRAMES}")
-    std = np.concatenate([tr.std.ravel() for tr in tracks])
-    sigma_px = float(np.sqrt(np.nanmean(std**2)))
     pair = _pair(nominal, seen.reshape(K, -1))
     if pair is None:
         raise ValueError("bar_videos: no two cameras see 8 or more bar targets in common")

@@ -20,11 +20,10 @@ Held out. Every ``hold_out_every``-th still place, and the one-frame places of e
 ``hold_out_every``-th frame, take no part in the adjustment, nor does any other place with a
 point within ``place_px`` of a held-out place's point in some view (a feature matched in
 different views in different frames splits into several places, which would otherwise land
-on both sides); triangulated with each set of
-cameras and reprojected into every view, they say whether the refinement generalises. The
-residuals reported are those of the held-out still places where every camera sees at least
-``min_still_held`` of them, else (with a warning) of all held-out places. Holding out frames alone (as
-before) measured only the moving subject's points, since a still place of a held-out frame
+on both sides); triangulated with each set of cameras and reprojected into every view, they
+say whether the refinement generalises. The residuals reported are those of the held-out
+still places where every camera sees at least ``min_still_held`` of them, else (with a
+warning) of all held-out places. Holding out frames alone (as before) measured only the moving subject's points, since a still place of a held-out frame
 is a training place seen again: on the Pose2Sim demo those stay at 1.2-1.35 px on the
 neighbouring pair cam01-cam02 with the file's and with the refined cameras (they measure
 the moving points, not the cameras), while held-out still places go from 1.0 to 0.8-0.9 px
@@ -162,8 +161,10 @@ class RigRefinement:
     held_out_before, held_out_after : (K,) arrays
         Median residual of those places per camera with the given and with the refined
         cameras, px (NaN: none seen).
-    held_out_still_before, held_out_still_after, held_out_all_before, held_out_all_after : (K,) arrays
-        The same for the held-out still places alone and for all held-out places, px.
+    held_out_still_before, held_out_still_after : (K,) arrays
+        The same for the held-out still places alone, px.
+    held_out_all_before, held_out_all_after : (K,) arrays
+        The same for all held-out places, px.
     held_out_still_points, held_out_all_points : int
         How many places those are.
     """

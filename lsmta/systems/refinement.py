@@ -23,10 +23,11 @@ different views in different frames splits into several places, which would othe
 on both sides); triangulated with each set of cameras and reprojected into every view, they
 say whether the refinement generalises. The residuals reported are those of the held-out
 still places where every camera sees at least ``min_still_held`` of them, else (with a
-warning) of all held-out places. Holding out frames alone (as before) measured only the moving subject's points, since a still place of a held-out frame
-is a training place seen again: on the Pose2Sim demo those stay at 1.2-1.35 px on the
-neighbouring pair cam01-cam02 with the file's and with the refined cameras (they measure
-the moving points, not the cameras), while held-out still places go from 1.0 to 0.8-0.9 px
+warning) of all held-out places. Holding out frames alone (as before) measured only the
+moving subject's points, since a still place of a held-out frame is a training place seen
+again: on the Pose2Sim demo those stay at 1.2-1.35 px on the neighbouring pair cam01-cam02
+with the file's and with the refined cameras (they measure the moving points, not the
+cameras), while held-out still places go from 1.0 to 0.8-0.9 px
 there (``experiments/refinement_held_out.py``).
 """
 

@@ -14,7 +14,7 @@ tie points of different frames that agree within ``place_px`` in every view they
 one place, adjusted once at its median position (a feature found in six frames is not six
 independent observations). A moving subject's feature is a place of one frame. A place holds
 at most one point per frame and spans at most ``place_px`` in every view; a chain of points
-that breaks this is split into single points (:func:`_places`).
+that breaks this is split into its single points (:func:`_places`).
 
 Held out. Every ``hold_out_every``-th still place, and the one-frame places of every
 ``hold_out_every``-th frame, take no part in the adjustment, nor does any other place with a
@@ -40,11 +40,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-from scipy.cluster.hierarchy import fcluster, linkage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
-from scipy.spatial.distance import squareform
 
 from .._validate import as_int, as_scalar, freeze
 from ..calibration.refine import CameraRefinement, RefineParams, refine_cameras
@@ -290,9 +288,11 @@ def _places(xy, tol_px: float, frame=None) -> np.ndarray:
     (when ``frame`` is given) and its points lie within ``tol_px`` of each other in every
     view (the largest distance between two of its points seen in that view). Joining pairs
     alone would chain a moving point of frame 0 to one of frame 2 and on to frame 4 into one
-    'still' place several ``tol_px`` across; a component that breaks either rule is split by
-    complete linkage at ``tol_px`` (two points of one frame never joined), so every part
-    keeps both rules; a part of one point is a place of one frame.
+    'still' place several ``tol_px`` across. A component that breaks either rule is split
+    into its single points, each a place of one frame: moving points that pass one another's
+    pixels never form a still place (a still feature whose repeats scatter wider than
+    ``tol_px`` is lost as a still place, and its pieces are kept from training next to a
+    held-out one by :func:`_near_held_out`).
 
     Returns ``(N,)`` labels, numbered in the order of each place's first point."""
     K, N, _ = xy.shape
@@ -321,15 +321,9 @@ def _places(xy, tol_px: float, frame=None) -> np.ndarray:
         if frame is not None:
             dist[frame[g][:, None] == frame[g][None]] = np.inf
         np.fill_diagonal(dist, 0.0)
-        if dist.max() <= tol_px:
-            continue
-        # complete linkage: every two points of a part within tol_px in every view they
-        # share, and never two of one frame
-        parts = fcluster(linkage(squareform(np.minimum(dist, 1e12), checks=False),
-                                 method="complete"), tol_px, criterion="distance")
-        for q in np.unique(parts)[1:]:
-            labels[g[parts == q]] = n
-            n += 1
+        if dist.max() > tol_px:                                # split into its points
+            labels[g[1:]] = n + np.arange(len(g) - 1)
+            n += len(g) - 1
     _, first = np.unique(labels, return_index=True)        # renumber: first point's order
     order = np.empty(len(first), int)
     order[np.argsort(first)] = np.arange(len(first))

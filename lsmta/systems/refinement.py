@@ -374,6 +374,21 @@ def _hold_out(labels, frame, held_frames, every: int):
     return held, still
 
 
+def _judged_on(still_xy, min_still_held: int, names) -> str:
+    """Which held-out places judge the refinement: ``"still places"`` when every camera sees
+    at least ``min_still_held`` of the held-out still places ``still_xy`` (K, S, 2), else
+    ``"all places"``, with a warning naming the cameras short of them."""
+    seen = np.isfinite(still_xy[..., 0]).sum(axis=1)
+    if (seen >= min_still_held).all():
+        return "still places"
+    short = [n for n, m in zip(names, seen) if m < min_still_held]
+    warnings.warn(f"refine_rig: {', '.join(short)} see(s) fewer than min_still_held = "
+                  f"{min_still_held} held-out still places ({seen.tolist()} per camera): the "
+                  "refinement is judged on all held-out places, the moving subject's too, a "
+                  "weaker check (both residual sets are in summary())", stacklevel=3)
+    return "all places"
+
+
 def _strongest(xy, n: int):
     """At most ``n`` tie points: most views first, then evenly over each view count."""
     views = np.isfinite(xy[..., 0]).sum(axis=0)
@@ -488,17 +503,8 @@ def refine_rig(videos: Videos, cameras, *,
     sets = {"still places": places[:, held & still], "all places": places[:, held]}
     res = {k: (_held_out_residuals(given, xy), _held_out_residuals(adjustment.cameras, xy))
            for k, xy in sets.items()}
-    seen_still = np.isfinite(sets["still places"][..., 0]).sum(axis=1)
-    kind = "still places"
-    if (seen_still < params.min_still_held).any():
-        kind = "all places"
-        short = [c.name or str(k) for k, (c, m) in enumerate(zip(given, seen_still))
-                 if m < params.min_still_held]
-        warnings.warn(f"refine_rig: {', '.join(short)} see(s) fewer than min_still_held = "
-                      f"{params.min_still_held} held-out still places ({seen_still.tolist()} "
-                      "per camera): the refinement is judged on all held-out places, the "
-                      "moving subject's too, a weaker check (both sets are in summary())",
-                      stacklevel=2)
+    kind = _judged_on(sets["still places"], params.min_still_held,
+                      [c.name or str(k) for k, c in enumerate(given)])
     test_xy = sets[kind]
     before, after = res[kind]
     worse = [c.name or str(k) for k, (c, b, a) in enumerate(zip(given, before, after)) if a > b]

@@ -25,10 +25,10 @@ say whether the refinement generalises. The residuals reported are those of the 
 still places where every camera sees at least ``min_still_held`` of them, else (with a
 warning) of all held-out places. Holding out frames alone (as before) measured only the
 moving subject's points, since a still place of a held-out frame is a training place seen
-again: on the Pose2Sim demo those stay at 1.2-1.35 px on the neighbouring pair cam01-cam02
+again: on the Pose2Sim demo those stay at 0.8-0.9 px on the neighbouring pair cam01-cam02
 with the file's and with the refined cameras (they measure the moving points, not the
-cameras), while held-out still places go from 1.0 to 0.8-0.9 px
-there (``experiments/refinement_held_out.py``).
+cameras), while held-out still places go from 1.2-1.4 to 0.9-1.0 px there
+(``experiments/refinement_held_out.py``).
 """
 
 from __future__ import annotations

@@ -9,8 +9,11 @@ tie points and of the held-out places with the file's and the refined cameras. T
 places are split into the still ones (the background, found again at the same pixels in
 other frames) and the moving subject's (one frame each), each also on the neighbouring pair
 cam01-cam02 alone, whose matches are reliable with plain SIFT: a residual that stays put
-there with any cameras measures the points, not the cameras. Target (issue #40): the tie
-points' median residual <= 0.5 px in every camera.
+there with any cameras measures the points, not the cameras. Also printed: the still places
+per camera pair (both views see them), the places dropped from the adjustment for lying next
+to a held-out one, and the per-camera residuals of ``RigRefinement.summary()``; all written to
+``--out`` (the README's numbers come from that file). Target (issue #40): the tie points'
+median residual <= 0.5 px in every camera.
 """
 
 from __future__ import annotations
@@ -27,7 +30,6 @@ from lsmta.data import POSE2SIM_DIR
 from lsmta.io import read_videos
 from lsmta.report import write_json
 from lsmta.systems import RigRefinementParams, refine_rig
-from lsmta.systems.refinement import _merged
 from lsmta.triangulation import triangulate
 
 
@@ -59,13 +61,20 @@ def main(argv=None):
         ref = refine_rig(videos, read_camera_file(POSE2SIM_DIR / "Calib.qca.txt"),
                          params=RigRefinementParams(mismatch="crop"))
     seconds = time.perf_counter() - t0
-    places = _merged(ref.tie_points.xy, ref.places)
+    places = ref.place_xy
+    seen = np.isfinite(places[..., 0])
+    names = [c.name or str(k) for k, c in enumerate(ref.given)]
+    pairs = {f"{names[a]}-{names[b]}": {
+        "still": int((seen[a] & seen[b] & ref.still).sum()),
+        "held_out_still": int((seen[a] & seen[b] & ref.still & ref.held_out_places).sum())}
+        for a in range(len(names)) for b in range(a + 1, len(names))}
     held = {"still": places[:, ref.held_out_places & ref.still],
             "moving": places[:, ref.held_out_places & ~ref.still]}
     record = {"scale": args.scale, "frames": args.frames, "seconds": seconds,
               "places": int(len(ref.still)), "still_places": int(ref.still.sum()),
+              "dropped_places": int(ref.dropped_places.sum()),
               "held_out_kind": ref.held_out_kind, "used_refined": ref.improved,
-              "cameras": ref.summary(), "held_out": {}}
+              "still_places_per_pair": pairs, "cameras": ref.summary(), "held_out": {}}
     for kind, xy in held.items():
         record["held_out"][kind] = {
             "places": int(xy.shape[1]),

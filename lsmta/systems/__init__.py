@@ -14,7 +14,7 @@ never the generator's truth: nothing here imports :mod:`lsmta.synth` or
               capture_recording with the arm model
 ``rig``       the rig calibrated from a bar video, in the user's world
 ``refinement`` or: a camera file's rig refined from the recording itself (tie points,
-              the file's cameras as priors, held-out frames to check it)
+              the file's cameras as priors, held-out places to check it)
 ``surfaces``  surfaces of chosen frames from automatic seeds
 ``mixed_scale`` Davis's mixed-scale system, closed: ceiling LED frames, the streaming
               wide-area tracker, the pan-tilt heads steered (:mod:`lsmta.pantilt.steering`),

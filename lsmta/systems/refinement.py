@@ -12,18 +12,23 @@ given and with the refined cameras.
 Places. A still background gives the same feature at the same pixels in every frame: the
 tie points of different frames that agree within ``place_px`` in every view they share are
 one place, adjusted once at its median position (a feature found in six frames is not six
-independent observations). A moving subject's feature is a place of one frame.
+independent observations). A moving subject's feature is a place of one frame. A place holds
+at most one point per frame and spans at most ``place_px`` in every view; a chain of points
+that breaks this is split into its single points (:func:`_places`).
 
 Held out. Every ``hold_out_every``-th still place, and the one-frame places of every
-``hold_out_every``-th frame, take no part in the adjustment; triangulated with each set of
-cameras and reprojected into every view, they say whether the refinement generalises. The
-residuals reported are those of the held-out still places where every camera sees at least
-``min_still_held`` of them, else of all held-out places. Holding out frames alone (as
-before) measured only the moving subject's points, since a still place of a held-out frame
-is a training place seen again: on the Pose2Sim demo those stay at 1.2-1.35 px on the
-neighbouring pair cam01-cam02 with the file's and with the refined cameras (they measure
-the moving points, not the cameras), while held-out still places go from 1.0 to 0.8-0.9 px
-there (``experiments/refinement_held_out.py``).
+``hold_out_every``-th frame, take no part in the adjustment, nor does any other place with a
+point within ``place_px`` of a held-out place's point in some view (a feature matched in
+different views in different frames splits into several places, which would otherwise land
+on both sides); triangulated with each set of cameras and reprojected into every view, they
+say whether the refinement generalises. The residuals reported are those of the held-out
+still places where every camera sees at least ``min_still_held`` of them, else (with a
+warning) of all held-out places. Holding out frames alone (as before) measured only the
+moving subject's points, since a still place of a held-out frame is a training place seen
+again: on the Pose2Sim demo those stay at 0.8-0.9 px on the neighbouring pair cam01-cam02
+with the file's and with the refined cameras (they measure the moving points, not the
+cameras), while held-out still places go from 1.2-1.4 to 0.9-1.0 px there
+(``experiments/refinement_held_out.py``).
 """
 
 from __future__ import annotations
@@ -140,9 +145,14 @@ class RigRefinement:
     held_out_places : (P,) bool array
         Places kept out of the adjustment: every ``hold_out_every``-th still place and the
         one-frame places of the held-out frames.
+    dropped_places : (P,) bool array
+        Places kept out of the adjustment though not held out: those with a point within
+        ``place_px``, in some view, of a held-out place's point (a piece of a held-out
+        feature that did not join it; see :func:`_near_held_out`).
     held_out_kind : {"still places", "all places"}
         Which held-out places the residuals below are of: the still ones where every camera
-        sees at least ``min_still_held`` of them, else all.
+        sees at least ``min_still_held`` of them, else all (a weaker judgement: the moving
+        subject's points measure the points more than the cameras; warned).
     adjustment : CameraRefinement
         The adjustment on the other places (one tie point per place, its median position).
     held_out_points : int
@@ -150,6 +160,12 @@ class RigRefinement:
     held_out_before, held_out_after : (K,) arrays
         Median residual of those places per camera with the given and with the refined
         cameras, px (NaN: none seen).
+    held_out_still_before, held_out_still_after : (K,) arrays
+        The same for the held-out still places alone, px.
+    held_out_all_before, held_out_all_after : (K,) arrays
+        The same for all held-out places, px.
+    held_out_still_points, held_out_all_points : int
+        How many places those are.
     """
 
     cameras: tuple
@@ -160,15 +176,29 @@ class RigRefinement:
     places: np.ndarray
     still: np.ndarray
     held_out_places: np.ndarray
+    dropped_places: np.ndarray
     held_out_kind: str
     adjustment: CameraRefinement
     held_out_points: int
     held_out_before: np.ndarray
     held_out_after: np.ndarray
+    held_out_still_before: np.ndarray
+    held_out_still_after: np.ndarray
+    held_out_all_before: np.ndarray
+    held_out_all_after: np.ndarray
+    held_out_still_points: int
+    held_out_all_points: int
 
     def __post_init__(self):
-        freeze(self, ("held_out", "places", "still", "held_out_places", "held_out_before",
-                      "held_out_after"))
+        freeze(self, ("held_out", "places", "still", "held_out_places", "dropped_places",
+                      "held_out_before", "held_out_after", "held_out_still_before",
+                      "held_out_still_after", "held_out_all_before", "held_out_all_after"))
+
+    @property
+    def place_xy(self) -> np.ndarray:
+        """(K, P, 2) position of each place per view, px: the median over its tie points
+        (NaN where none of them is seen in that view)."""
+        return _merged(self.tie_points.xy, self.places)
 
     @property
     def improved(self) -> bool:
@@ -185,7 +215,8 @@ class RigRefinement:
 
     def summary(self) -> dict:
         """Per camera: tie points, median residuals (adjusted and held out, before and
-        after), the intrinsics freed; as plain numbers for a JSON file."""
+        after: those judged by, ``held_out_kind``, and of the held-out still places and of
+        all held-out places), the intrinsics freed; as plain numbers for a JSON file."""
         seen = np.isfinite(self.tie_points.xy[..., 0])
         out = {}
         for k, cam in enumerate(self.cameras):
@@ -195,6 +226,10 @@ class RigRefinement:
                 "adjusted_after_px": float(self.adjustment.median_residual()[k]),
                 "held_out_before_px": float(self.held_out_before[k]),
                 "held_out_after_px": float(self.held_out_after[k]),
+                "held_out_still_before_px": float(self.held_out_still_before[k]),
+                "held_out_still_after_px": float(self.held_out_still_after[k]),
+                "held_out_all_before_px": float(self.held_out_all_before[k]),
+                "held_out_all_after_px": float(self.held_out_all_after[k]),
                 "freed": list(self.adjustment.freed[k]),
             }
         return out
@@ -219,8 +254,12 @@ class RigRefinement:
         record = {"frames": list(self.frames),
                   "held_out_frames": [f for f, h in zip(self.frames, self.held_out) if h],
                   "held_out_points": self.held_out_points,
-                  "held_out_kind": self.held_out_kind, "places": int(len(self.still)),
-                  "still_places": int(self.still.sum()), "cameras": self.summary()}
+                  "held_out_kind": self.held_out_kind,
+                  "held_out_still_points": self.held_out_still_points,
+                  "held_out_all_points": self.held_out_all_points,
+                  "places": int(len(self.still)), "still_places": int(self.still.sum()),
+                  "dropped_places": int(self.dropped_places.sum()),
+                  "cameras": self.summary()}
         summary = folder / "refinement.json"
         summary.write_text(json.dumps(plain(record), indent=2), encoding="utf-8")
         return {"cameras": cameras, "summary": summary}
@@ -238,12 +277,24 @@ def _held_out_residuals(cameras, xy) -> np.ndarray:
     return out
 
 
-def _places(xy, tol_px: float) -> np.ndarray:
+def _places(xy, tol_px: float, frame=None) -> np.ndarray:
     """Label each tie point with its place: points (of any frames) that lie within
-    ``tol_px`` of each other in every view they share, sharing at least two, are one place
+    ``tol_px`` of each other in every view they share, sharing at least two, are joined
     (connected components). A still background gives the same feature at the same pixels in
     every frame, so its place holds a point per frame; a moving subject's point is a place
-    of its own. Returns ``(N,)`` labels, numbered in the order of each place's first point."""
+    of its own.
+
+    Chaining is guarded: a component is a place only if it holds at most one point per frame
+    (when ``frame`` is given) and its points lie within ``tol_px`` of each other in every
+    view (the largest distance between two of its points seen in that view). Joining pairs
+    alone would chain a moving point of frame 0 to one of frame 2 and on to frame 4 into one
+    'still' place several ``tol_px`` across. A component that breaks either rule is split
+    into its single points, each a place of one frame: moving points that pass one another's
+    pixels never form a still place (a still feature whose repeats scatter wider than
+    ``tol_px`` is lost as a still place, and its pieces are kept from training next to a
+    held-out one by :func:`_near_held_out`).
+
+    Returns ``(N,)`` labels, numbered in the order of each place's first point."""
     K, N, _ = xy.shape
     seen = np.isfinite(xy[..., 0])
     near = [cKDTree(xy[k, seen[k]]).query_pairs(tol_px, output_type="ndarray")
@@ -256,11 +307,44 @@ def _places(xy, tol_px: float) -> np.ndarray:
         far = np.linalg.norm(xy[:, i] - xy[:, j], axis=2) > tol_px
     same = (shared.sum(axis=0) >= 2) & ~(far & shared).any(axis=0)
     graph = coo_matrix((np.ones(int(same.sum())), (i[same], j[same])), shape=(N, N))
-    _, labels = connected_components(graph, directed=False)
+    n, labels = connected_components(graph, directed=False)
+    order = np.argsort(labels, kind="stable")
+    groups = np.split(order, np.flatnonzero(np.diff(labels[order])) + 1)
+    for g in groups:
+        if len(g) < 2:
+            continue
+        v = xy[:, g]                                                       # (K, n, 2)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)                # no shared view
+            dist = np.nan_to_num(np.nanmax(np.linalg.norm(v[:, :, None] - v[:, None],
+                                                          axis=-1), axis=0))
+        if frame is not None:
+            dist[frame[g][:, None] == frame[g][None]] = np.inf
+        np.fill_diagonal(dist, 0.0)
+        if dist.max() > tol_px:                                # split into its points
+            labels[g[1:]] = n + np.arange(len(g) - 1)
+            n += len(g) - 1
     _, first = np.unique(labels, return_index=True)        # renumber: first point's order
     order = np.empty(len(first), int)
     order[np.argsort(first)] = np.arange(len(first))
     return order[labels]
+
+
+def _near_held_out(xy, labels, held, tol_px: float) -> np.ndarray:
+    """(P,) bool: the places not held out with a point within ``tol_px``, in any view, of
+    a point of a held-out place. A background feature matched in different views in
+    different frames splits into several places (joining needs two shared views); kept in
+    the adjustment, a piece next to a held-out one would let the held-out place be fitted."""
+    near = np.zeros(len(held), bool)
+    for k in range(xy.shape[0]):
+        seen = np.isfinite(xy[k, :, 0])
+        test = seen & held[labels]
+        train = seen & ~held[labels]
+        if not test.any() or not train.any():
+            continue
+        d, _ = cKDTree(xy[k, test]).query(xy[k, train], distance_upper_bound=tol_px)
+        near[labels[np.flatnonzero(train)[d <= tol_px]]] = True
+    return near
 
 
 def _merged(xy, labels) -> np.ndarray:
@@ -288,6 +372,21 @@ def _hold_out(labels, frame, held_frames, every: int):
     first = np.argmax(frames, axis=1)
     held = np.where(still, rank % every == 1, held_frames[first])
     return held, still
+
+
+def _judged_on(still_xy, min_still_held: int, names) -> str:
+    """Which held-out places judge the refinement: ``"still places"`` when every camera sees
+    at least ``min_still_held`` of the held-out still places ``still_xy`` (K, S, 2), else
+    ``"all places"``, with a warning naming the cameras short of them."""
+    seen = np.isfinite(still_xy[..., 0]).sum(axis=1)
+    if (seen >= min_still_held).all():
+        return "still places"
+    short = [n for n, m in zip(names, seen) if m < min_still_held]
+    warnings.warn(f"refine_rig: {', '.join(short)} see(s) fewer than min_still_held = "
+                  f"{min_still_held} held-out still places ({seen.tolist()} per camera): the "
+                  "refinement is judged on all held-out places, the moving subject's too, a "
+                  "weaker check (both residual sets are in summary())", stacklevel=3)
+    return "all places"
 
 
 def _strongest(xy, n: int):
@@ -393,18 +492,21 @@ def refine_rig(videos: Videos, cameras, *,
     tie = _tie_points_at_work_size(videos, given, picks, params)
     _check_fit(given, tie, params)
     held_frames = (np.arange(len(picks)) % params.hold_out_every) == 1
-    labels = _places(tie.xy, params.place_px * videos.scale)
+    tol = params.place_px * videos.scale
+    labels = _places(tie.xy, tol, tie.frame)
     places = _merged(tie.xy, labels)
     held, still = _hold_out(labels, tie.frame, held_frames, params.hold_out_every)
-    adjustment = refine_cameras(given, _strongest(places[:, ~held], params.max_points),
-                                params=params.refine)
+    dropped = _near_held_out(tie.xy, labels, held, tol)
+    adjustment = refine_cameras(given, _strongest(places[:, ~held & ~dropped],
+                                                  params.max_points), params=params.refine)
     _check_turn(given, adjustment.cameras, params.max_rotation_deg)
-    test_xy = places[:, held & still]
-    kind = "still places"
-    if (np.isfinite(test_xy[..., 0]).sum(axis=1) < params.min_still_held).any():
-        test_xy, kind = places[:, held], "all places"
-    before = _held_out_residuals(given, test_xy)
-    after = _held_out_residuals(adjustment.cameras, test_xy)
+    sets = {"still places": places[:, held & still], "all places": places[:, held]}
+    res = {k: (_held_out_residuals(given, xy), _held_out_residuals(adjustment.cameras, xy))
+           for k, xy in sets.items()}
+    kind = _judged_on(sets["still places"], params.min_still_held,
+                      [c.name or str(k) for k, c in enumerate(given)])
+    test_xy = sets[kind]
+    before, after = res[kind]
     worse = [c.name or str(k) for k, (c, b, a) in enumerate(zip(given, before, after)) if a > b]
     if worse:
         warnings.warn(f"refine_rig: the refined cameras fit the held-out places "
@@ -415,5 +517,9 @@ def refine_rig(videos: Videos, cameras, *,
         cameras=adjustment.cameras, given=given,
         frames=tuple(int(videos.frames[i]) for i in picks), held_out=held_frames,
         tie_points=tie, places=labels, still=still, held_out_places=held,
-        held_out_kind=kind, adjustment=adjustment, held_out_points=int(test_xy.shape[1]),
-        held_out_before=before, held_out_after=after)
+        dropped_places=dropped, held_out_kind=kind, adjustment=adjustment,
+        held_out_points=int(test_xy.shape[1]), held_out_before=before, held_out_after=after,
+        held_out_still_before=res["still places"][0], held_out_still_after=res["still places"][1],
+        held_out_all_before=res["all places"][0], held_out_all_after=res["all places"][1],
+        held_out_still_points=int(sets["still places"].shape[1]),
+        held_out_all_points=int(sets["all places"].shape[1]))

@@ -131,10 +131,13 @@ def offsets(patch: int) -> np.ndarray:
     return np.stack([gx.ravel(), gy.ravel()], axis=1).astype(float)
 
 
-def sample_templates(image: SplineImage, xy, patch: int) -> Templates:
+def sample_templates(image: SplineImage, xy, patch: int, *, normals: bool = True) -> Templates:
     """Anchor ``N`` templates at the positions ``xy`` ``(N, 2)`` of ``image``.
 
     A position whose patch leaves the image, or whose patch is flat, gets ``ok = False``.
+    With ``normals=False`` only the grey levels and gradients are sampled (all that
+    :func:`match_translation` uses); ``update`` and ``q_xy`` are then NaN, so such a store
+    cannot pass :func:`match_templates`' thresholds by mistake.
     """
     xy = np.asarray(xy, float).reshape(-1, 2)
     U = offsets(patch)
@@ -146,6 +149,9 @@ def sample_templates(image: SplineImage, xy, patch: int) -> Templates:
     f = values - values.mean(axis=1, keepdims=True)
     ff = (f * f).sum(axis=1)
     ok &= ff > 1e-9 * P
+    if not normals:
+        return Templates(values=values, gx=gx, gy=gy, update=np.full((n, 6, 6), np.nan),
+                         q_xy=np.full((n, 2, 2), np.nan), ok=ok, patch=patch)
     sd = np.stack([gx, gy, gx * U[:, 0], gx * U[:, 1], gy * U[:, 0], gy * U[:, 1]], axis=2)
     # project out the radiometry: orthogonal to the constant and to the template itself
     sd = sd - sd.mean(axis=1, keepdims=True)

@@ -24,11 +24,13 @@ every new frame; the previous frame's solution is only the start. From frame ``t
    prediction* is made: the track's patch in its last tracked frame is matched into frame
    ``t + 1`` at pyramid level ``pyramid_levels`` (images halved ``cv2.pyrDown``-wise, as
    KLT does) down to level 1, from the prediction (a shift and a grey offset, as KLT's
-   Lucas-Kanade); from there only the first template may match (a frame-to-frame
+   Lucas-Kanade). A track it moves by more than a pixel (in some camera) *jumped*: from
+   the coarse-to-fine position only its first template may match (a frame-to-frame
    template is not trusted after a jump: it let more tracks go astray on the webcam
-   videos), and a fresh fallback is tried from the prediction. A single-level LSM
-   converges only from within about half a patch; the pyramid reaches
-   ``2**pyramid_levels`` times further;
+   videos). A track that did not jump and whose fallback was just re-anchored tries that
+   fresh fallback from the prediction (its first template, which just failed from there,
+   is not matched again). A single-level LSM converges only from within about half a
+   patch; the pyramid reaches ``2**pyramid_levels`` times further;
 5. live tracks still not found are searched in the ``retry_radius`` box.
 
 Matches with the fallback can drift, as the paper's do, until the first template matches
@@ -468,9 +470,14 @@ def _eye(K, n):
 # ---------------------------------------------------------------------- stages
 def _advance(state: _State, seq, prev, nxt, t: int, p: TrackerParams, vel0,
              pyramids: _Pyramids) -> None:
-    """Frame ``t`` -> ``t + 1`` for the tracks in play: prediction, the first templates from
-    it (the fallback templates where they fail), the others in the normal box, the live ones
-    that still fail in the bigger box; what is not found is missing."""
+    """Frame ``t`` -> ``t + 1`` for the tracks in play (steps 1-5 of the module docstring):
+    the prediction; every track's first template matched from it (the fallback template
+    where that fails, for tracks with a history; the box search for those without); a
+    stale failed fallback re-anchored at frame ``t``; for the tracks still failing, the
+    coarse-to-fine prediction, from which a track that jumped matches only its first
+    template, while one that did not jump but was re-anchored tries only its fresh
+    fallback; the live ones that still fail searched in the bigger box. What is not found
+    is missing."""
     idx = state.in_play()
     if not idx.size:
         return

@@ -42,7 +42,11 @@ convergence, 30 sigma0, 5 shape; survivors 1800 against KLT's 1700 (1628 before)
 {caliscope cam_0, cam_2, pose2sim cam01, cam03}: after a coarse-to-fine jump only the
 first template may match (on cam_0: 158 survivors, 24 kept with FB > 0.5 px, against 163
 and 37 with the fallback too); the other half, {caliscope cam_1, cam_3, pose2sim cam02, cam04}:
-868 survivors against KLT's 828.
+868 survivors against KLT's 828. After the review's fixes (a lighter coarse-to-fine
+step, the forward-LSM retry decided per track, no repeated failed match): survivors 1799
+against KLT's 1700, LSMTA >= KLT in 5 of 8 videos; kept, FB > 0.5 px 192 against KLT's
+119; astray (FB > 2 px) 76 against KLT's 11; of the points LSMTA lost and KLT kept, 178:
+37 border, 27 search, 79 no convergence, 29 sigma0, 6 shape.
 
 Start points: OpenCV's ``goodFeaturesToTrack`` (Shi-Tomasi corners, 8 px apart) in the
 first frame, the same for both trackers. Videos: the four caliscope webcams (1280 x 720, a

@@ -178,6 +178,35 @@ def test_match_translation_recovers_a_shift_and_a_grey_offset():
         match_translation(tm, [1], SplineImage(moved), np.array([[40.0, 40.0]]))
     with pytest.raises(ValueError, match="start_xy"):
         match_translation(tm, [0], SplineImage(moved), np.zeros((2, 2)))
+    # the light store (no normal matrices) gives the same match
+    light = sample_templates(SplineImage(img), np.array([[40.0, 40.0]]), 11, normals=False)
+    assert np.isnan(light.update).all() and np.isnan(light.q_xy).all()
+    xy2, conv2 = match_translation(light, [0], SplineImage(moved), np.array([[40.0, 40.0]]))
+    assert conv2[0] and np.array_equal(xy2, xy)
+    # a row that does not converge returns its last iterate
+    xy1, conv1 = match_translation(tm, [0], SplineImage(moved), np.array([[40.0, 40.0]]),
+                                   max_iter=1)
+    assert not conv1[0] and np.abs(xy1[0] - [40.0, 40.0]).max() > 0.5
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(rows=[0.9]), "rows"), (dict(rows=[True]), "rows"),
+    (dict(max_iter=0), "max_iter"), (dict(max_iter=2.5), "max_iter"),
+    (dict(tol=0.0), "tol"), (dict(tol=-0.1), "tol"),
+    (dict(max_displacement=0.0), "max_displacement"),
+    (dict(max_displacement=np.nan), "max_displacement"),
+])
+def test_match_translation_refuses_bad_arguments(kwargs, match):
+    img = 100 + 40 * ndimage.gaussian_filter(np.random.default_rng(3).normal(size=(60, 60)), 2)
+    tm = sample_templates(SplineImage(img), np.array([[30.0, 30.0]]), 11)
+    args = dict(rows=[0], max_iter=30, tol=0.01, max_displacement=None) | kwargs
+    rows = args.pop("rows")
+    with pytest.raises(ValueError, match=match):
+        match_translation(tm, rows, SplineImage(img), np.array([[30.0, 30.0]]), **args)
+    with pytest.raises(TypeError, match="templates"):
+        match_translation(tm.values, [0], SplineImage(img), np.array([[30.0, 30.0]]))
+    with pytest.raises(TypeError, match="search"):
+        match_translation(tm, [0], img, np.array([[30.0, 30.0]]))
 
 
 def _appearance_sequence(rng, n_frames=60, noise=6.0):

@@ -24,11 +24,13 @@ every new frame; the previous frame's solution is only the start. From frame ``t
    prediction* is made: the track's patch in its last tracked frame is matched into frame
    ``t + 1`` at pyramid level ``pyramid_levels`` (images halved ``cv2.pyrDown``-wise, as
    KLT does) down to level 1, from the prediction (a shift and a grey offset, as KLT's
-   Lucas-Kanade); from there only the first template may match (a frame-to-frame
+   Lucas-Kanade). A track it moves by more than a pixel (in some camera) *jumped*: from
+   the coarse-to-fine position only its first template may match (a frame-to-frame
    template is not trusted after a jump: it let more tracks go astray on the webcam
-   videos), and a fresh fallback is tried from the prediction. A single-level LSM
-   converges only from within about half a patch; the pyramid reaches
-   ``2**pyramid_levels`` times further;
+   videos). A track that did not jump and whose fallback was just re-anchored tries that
+   fresh fallback from the prediction (its first template, which just failed from there,
+   is not matched again). A single-level LSM converges only from within about half a
+   patch; the pyramid reaches ``2**pyramid_levels`` times further;
 5. live tracks still not found are searched in the ``retry_radius`` box.
 
 Matches with the fallback can drift, as the paper's do, until the first template matches
@@ -317,11 +319,12 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
     for t in tqdm(range(T - 1), desc="tracking", disable=not progress):
         nxt = [SplineImage(seq[k, t + 1], "images") for k in range(K)]
         _advance(state, seq, splines, nxt, t, p, vel0 if t == 0 else None, pyramids)
-        pyramids.forget_before(t + 1 - p.max_gap)
         if new_points is not None and (t + 1) % p.density_every == 0:
             _search_missing(state, seq, nxt, t + 1, p)
             _add_where_sparse(state, new_points, nxt, t + 1, p)
         _end_missing(state, t + 1, p.max_gap)
+        # a later coarse-to-fine step starts from a track's last tracked frame only
+        pyramids.keep(state.end[state.in_play()])
         splines = nxt
     return state.result()
 
@@ -467,9 +470,14 @@ def _eye(K, n):
 # ---------------------------------------------------------------------- stages
 def _advance(state: _State, seq, prev, nxt, t: int, p: TrackerParams, vel0,
              pyramids: _Pyramids) -> None:
-    """Frame ``t`` -> ``t + 1`` for the tracks in play: prediction, the first templates from
-    it (the fallback templates where they fail), the others in the normal box, the live ones
-    that still fail in the bigger box; what is not found is missing."""
+    """Frame ``t`` -> ``t + 1`` for the tracks in play (steps 1-5 of the module docstring):
+    the prediction; every track's first template matched from it (the fallback template
+    where that fails, for tracks with a history; the box search for those without); a
+    stale failed fallback re-anchored at frame ``t``; for the tracks still failing, the
+    coarse-to-fine prediction, from which a track that jumped matches only its first
+    template, while one that did not jump but was re-anchored tries only its fresh
+    fallback; the live ones that still fail searched in the bigger box. What is not found
+    is missing."""
     idx = state.in_play()
     if not idx.size:
         return
@@ -497,10 +505,12 @@ def _advance(state: _State, seq, prev, nxt, t: int, p: TrackerParams, vel0,
             start[:, sel[moved[sel]]] = c2f[:, moved[sel]]
         sel = np.flatnonzero(moved | stale)
         if sel.size:
+            # a stale track that did not move: its first template was just matched from
+            # this very start and failed; only its re-anchored fallback is new
             ok[sel] = _attempt(state, seq, prev, nxt, t + 1, idx[sel], start[:, sel],
                                np.where(known[sel], p.radius, p.retry_radius), p,
                                direct=np.ones(sel.size, bool), box=box[sel],
-                               fallback=fallback[sel] & ~moved[sel])
+                               fallback=fallback[sel] & ~moved[sel], first=moved[sel])
     again = live & ~ok
     if again.any():
         r2 = np.where(known[again], p.retry_radius, 2 * p.retry_radius)
@@ -515,7 +525,8 @@ class _Pyramids:
     """Spline interpolants of the pyramid levels 1..``levels`` of the frames ``seq[k, t]``
     (fewer where the image gets too small; index 0, the image, is None), each level halved by
     ``cv2.pyrDown``: pixel ``i`` of level ``l`` lies at pixel ``2**l i`` of the image. Made
-    when first asked for, kept while a track may still be predicted from that frame."""
+    only when a coarse-to-fine step asks for them, and kept only for the frames that are
+    some track's last tracked frame (the only sources a later step uses)."""
 
     def __init__(self, seq, levels: int):
         self.seq, self.levels, self.kept = seq, levels, {}
@@ -532,21 +543,25 @@ class _Pyramids:
             self.kept[(k, t)] = out
         return self.kept[(k, t)]
 
-    def forget_before(self, t: int) -> None:
-        for key in [key for key in self.kept if key[1] < t]:
+    def keep(self, frames) -> None:
+        """Forget the pyramids of every frame not in ``frames``."""
+        frames = set(np.unique(frames).tolist())
+        for key in [key for key in self.kept if key[1] not in frames]:
             del self.kept[key]
 
 
 def _coarse_to_fine(state: _State, pyramids: _Pyramids, idx, pred, t: int,
                     p: TrackerParams) -> np.ndarray:
-    """Coarse-to-fine predictions ``(K, n, 2)`` at frame ``t`` for the tracks ``idx``.
+    """Coarse-to-fine predictions ``(K, n, 2)`` px at frame ``t`` for the tracks ``idx``
+    ``(n,)``, started from their predictions ``pred`` ``(K, n, 2)`` px (full-size pixels).
 
     Each track's patch in its last tracked frame is matched into frame ``t`` at pyramid
     level ``p.pyramid_levels`` down to level 1 (a shift and a grey offset,
-    :func:`~lsmta.tracking.templates.match_translation`, no quality thresholds: the
-    anchored match at full size decides), started at ``pred`` and then at the level
-    above's result; a level that does not converge keeps the estimate from above. NaN
-    where no level converged."""
+    :func:`~lsmta.tracking.templates.match_translation`, to ``p.tol`` px of that level
+    (a looser 0.1 px let a track go astray in the jerky-motion test and saved no measurable
+    time), no quality thresholds: the anchored match at full size decides), started at
+    ``pred`` and then at the level above's result; a level that does not converge keeps
+    the estimate from above. NaN where no level converged."""
     K, n = pred.shape[:2]
     out = np.full((K, n, 2), np.nan)
     last = state.end[idx]
@@ -559,7 +574,8 @@ def _coarse_to_fine(state: _State, pyramids: _Pyramids, idx, pred, t: int,
             s = 2.0 ** lv
             for f, src in sources.items():
                 sel = np.flatnonzero(last == f)
-                tm = sample_templates(src[lv], state.xy[f, k, idx[sel]] / s, p.patch)
+                tm = sample_templates(src[lv], state.xy[f, k, idx[sel]] / s, p.patch,
+                                      normals=False)
                 xy, conv = match_translation(tm, np.arange(sel.size), target[lv],
                                              est[sel] / s, max_iter=p.max_iter, tol=p.tol)
                 est[sel[conv]] = xy[conv] * s
@@ -654,7 +670,7 @@ class _Temporal:
 
 
 def _attempt(state: _State, seq, prev, nxt, t: int, idx, pred, radius, p: TrackerParams, *,
-             direct, box, fallback) -> np.ndarray:
+             direct, box, fallback, first=None) -> np.ndarray:
     """One attempt at frame ``t`` for the tracks ``idx``; the accepted tracks are written
     into the state. Returns ``ok (n,)``.
 
@@ -663,9 +679,12 @@ def _attempt(state: _State, seq, prev, nxt, t: int, idx, pred, radius, p: Tracke
     where they fail and ``fallback``, the fallback templates (anchored in frame ``t - 1``
     unless the track holds a fresh one) are matched from the prediction (where ``direct``)
     and in the box. Then the spatial check per template set and (with cameras) the
-    geometric check.
+    geometric check. Where ``first`` ``(n,)`` is False (default: all True) the first
+    templates are not tried at all (an exact repeat of a failed match).
     """
-    st = _temporal(state.first, seq, nxt, t, idx, pred, radius, p, direct=direct, box=box)
+    try_first = np.ones(idx.size, bool) if first is None else first
+    st = _temporal(state.first, seq, nxt, t, idx, pred, radius, p, direct=direct & try_first,
+                   box=box & try_first)
     use_fb = fallback & ~st.ok
     if use_fb.any():
         _anchor_fallback(state, prev, t - 1, idx[use_fb & ~state.on_fallback[idx]], p)
@@ -726,8 +745,10 @@ def _temporal(anchors: _Anchors, seq, nxt, t: int, idx, pred, radius, p: Tracker
 
     for k in range(K):
         got = np.zeros(n, bool)
-        sel = np.flatnonzero(direct & ok)
-        got[match(k, sel, pred[k, sel], bool(box[sel].any()))] = True
+        for group in (True, False):     # the forward LSM retry only where box: per track
+            sel = np.flatnonzero(direct & ok & (box == group))
+            if sel.size:
+                got[match(k, sel, pred[k, sel], group)] = True
         by_pred[k] = got
         for r in np.unique(radius[~got & ok & box]):
             sel = np.flatnonzero(~got & ok & box & (radius == r))

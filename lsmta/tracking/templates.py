@@ -47,6 +47,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from .._validate import as_int, as_scalar
 from ..matching.correlation import CorrelationStatus, correlation_search
 from ..matching.lsm import LSMParams, LSMResult, LSMThresholds, Status, lsm
 from ..matching.spline import SplineImage
@@ -131,10 +132,13 @@ def offsets(patch: int) -> np.ndarray:
     return np.stack([gx.ravel(), gy.ravel()], axis=1).astype(float)
 
 
-def sample_templates(image: SplineImage, xy, patch: int) -> Templates:
+def sample_templates(image: SplineImage, xy, patch: int, *, normals: bool = True) -> Templates:
     """Anchor ``N`` templates at the positions ``xy`` ``(N, 2)`` of ``image``.
 
     A position whose patch leaves the image, or whose patch is flat, gets ``ok = False``.
+    With ``normals=False`` only the grey levels and gradients are sampled (all that
+    :func:`match_translation` uses); ``update`` and ``q_xy`` are then NaN, so such a store
+    cannot pass :func:`match_templates`' thresholds by mistake.
     """
     xy = np.asarray(xy, float).reshape(-1, 2)
     U = offsets(patch)
@@ -146,6 +150,9 @@ def sample_templates(image: SplineImage, xy, patch: int) -> Templates:
     f = values - values.mean(axis=1, keepdims=True)
     ff = (f * f).sum(axis=1)
     ok &= ff > 1e-9 * P
+    if not normals:
+        return Templates(values=values, gx=gx, gy=gy, update=np.full((n, 6, 6), np.nan),
+                         q_xy=np.full((n, 2, 2), np.nan), ok=ok, patch=patch)
     sd = np.stack([gx, gy, gx * U[:, 0], gx * U[:, 1], gy * U[:, 0], gy * U[:, 1]], axis=2)
     # project out the radiometry: orthogonal to the constant and to the template itself
     sd = sd - sd.mean(axis=1, keepdims=True)
@@ -423,24 +430,40 @@ def match_translation(templates: Templates, rows, search: SplineImage, start_xy,
     Parameters
     ----------
     templates : Templates
+        The template store (:func:`sample_templates`; ``normals=False`` is enough: only
+        ``values``, ``gx``, ``gy`` and ``ok`` are used).
     rows : (n,) int array
+        Which templates, indices into ``templates``; a template with ``ok`` False is not
+        matched (not converged, returned at its start).
     search : SplineImage
+        The image the templates are matched into.
     start_xy : (n, 2) array
-        Start positions, px.
+        Start positions in ``search``, px.
     max_iter : int
+        Most iterations per row (>= 1).
     tol : float
-        Convergence: largest change of the position, px.
+        Convergence: an iteration that changes the position by less than this (largest
+        coordinate, px, > 0) ends the row as converged.
     max_displacement : float, optional
-        A point moving further than this from its start has diverged (default: the patch
-        size).
+        A row moving further than this (px, > 0) from its start has diverged and stops
+        (default: the patch size).
 
     Returns
     -------
     xy : (n, 2) array
-        Positions, px.
+        Positions, px. A row that did not converge (too many iterations, diverged, its
+        patch left the image, a flat template) returns its last iterate, not NaN: use
+        ``converged``.
     converged : (n,) bool array
     """
-    rows = np.asarray(rows, np.int64).reshape(-1)
+    if not isinstance(templates, Templates):
+        raise TypeError(f"templates: expected a Templates store, got {type(templates).__name__}")
+    if not isinstance(search, SplineImage):
+        raise TypeError(f"search: expected a SplineImage, got {type(search).__name__}")
+    raw = np.asarray(rows)
+    if raw.size and not np.issubdtype(raw.dtype, np.integer):
+        raise ValueError(f"rows: expected integer template indices, got dtype {raw.dtype}")
+    rows = raw.astype(np.int64).reshape(-1)
     n = len(rows)
     if n and (rows.min() < 0 or rows.max() >= len(templates)):
         raise ValueError(f"rows: expected template indices in [0, {len(templates) - 1}], got "
@@ -449,13 +472,16 @@ def match_translation(templates: Templates, rows, search: SplineImage, start_xy,
     if c.shape != (n, 2):
         raise ValueError(f"start_xy: expected shape ({n}, 2) (one position per row), got "
                          f"{c.shape}")
+    max_iter = as_int(max_iter, "max_iter", minimum=1, unit="iterations")
+    tol = as_scalar(tol, "tol", positive=True)
+    max_disp = as_scalar(templates.patch if max_displacement is None else max_displacement,
+                         "max_displacement", positive=True)
     converged = np.zeros(n, bool)
-    max_disp = float(templates.patch if max_displacement is None else max_displacement)
     H, W = search.shape
     if n:
         _solve_translation(search.coefficients, search.pad, H, W, rows, templates.values,
                            templates.gx, templates.gy, templates.ok, offsets(templates.patch),
-                           c, int(max_iter), float(tol), max_disp, converged)
+                           c, max_iter, tol, max_disp, converged)
     return c, converged
 
 

@@ -423,3 +423,33 @@ def test_too_few_held_out_still_places_judge_on_all_places_with_a_warning(rng):
     assert _judged_on(still_xy, 3, ["a", "b", "c"]) == "still places"
     with pytest.warns(UserWarning, match=r"c see\(s\) fewer than min_still_held = 4"):
         assert _judged_on(still_xy, 4, ["a", "b", "c"]) == "all places"
+
+
+def test_band_search_visits_every_feature_in_the_band():
+    """The cell walk gives what testing every feature against every line gives: the nearest
+    in the band (lowest index among equals) and the nearest farther than ``distinct``."""
+    from lsmta.calibration.tie_points import _nearest_in_band
+
+    rng = np.random.default_rng(11)
+    na, nb_, band, distinct = 150, 200, 20.0, 2.0
+    da = rng.integers(0, 30, (na, 16)).astype(np.float32)           # many equal distances
+    db = rng.integers(0, 30, (nb_, 16)).astype(np.float32)
+    xb = rng.uniform(-300, 300, (nb_, 2))
+    xb[::17] = np.nan
+    ang = rng.uniform(0, 2 * np.pi, na)
+    lines = np.c_[np.cos(ang), np.sin(ang), rng.uniform(-300, 300, na)]
+    lines[::10, :2] = (1.0, 0.0)                                      # vertical and horizontal
+    lines[1::10, :2] = (0.0, -1.0)
+    best, d1, d2 = _nearest_in_band(lines, xb, da, db, band, distinct)
+    with np.errstate(invalid="ignore"):
+        inside = np.abs(lines @ np.c_[xb, np.ones(nb_)].T) < band     # (na, nb)
+    dist = ((da[:, None] - db[None]) ** 2).sum(axis=2)
+    for i in range(na):
+        d = np.where(inside[i], dist[i], np.inf)
+        if not inside[i].any():
+            assert best[i] == -1 and np.isinf(d1[i])
+            continue
+        assert best[i] == int(np.argmin(d)) and d1[i] == d.min()
+        far = np.hypot(*(xb - xb[best[i]]).T) > distinct
+        assert d2[i] == np.where(far, d, np.inf).min()
+    assert (best >= 0).sum() > na / 2

@@ -155,35 +155,91 @@ def _lines(a: Camera, b: Camera, na) -> np.ndarray:
     return lines
 
 
+@nb.njit(cache=True)
+def _cell_index(xb, cell):                                            # pragma: no cover
+    """b's features sorted into square cells of side ``cell`` (at least 1/512 of their
+    spread): the cell side, the grid's origin and shape, each cell's slice of ``order``
+    (``start``), and ``order`` (NaN rows left out)."""
+    n = xb.shape[0]
+    x0, y0, x1, y1 = np.inf, np.inf, -np.inf, -np.inf
+    for j in range(n):
+        if np.isfinite(xb[j, 0]) and np.isfinite(xb[j, 1]):
+            x0, x1 = min(x0, xb[j, 0]), max(x1, xb[j, 0])
+            y0, y1 = min(y0, xb[j, 1]), max(y1, xb[j, 1])
+    if not x0 <= x1:
+        return cell, 0.0, 0.0, 1, 1, np.zeros(2, np.int64), np.zeros(0, np.int64)
+    cell = max(cell, (x1 - x0) / 512.0, (y1 - y0) / 512.0)
+    nx = int((x1 - x0) // cell) + 1
+    ny = int((y1 - y0) // cell) + 1
+    cid = np.full(n, -1, np.int64)
+    count = np.zeros(nx * ny + 1, np.int64)
+    for j in range(n):
+        if np.isfinite(xb[j, 0]) and np.isfinite(xb[j, 1]):
+            cid[j] = int((xb[j, 1] - y0) // cell) * nx + int((xb[j, 0] - x0) // cell)
+            count[cid[j] + 1] += 1
+    start = np.cumsum(count)
+    fill = start[:-1].copy()
+    order = np.empty(start[-1], np.int64)
+    for j in range(n):                                   # ascending j within each cell
+        if cid[j] >= 0:
+            order[fill[cid[j]]] = j
+            fill[cid[j]] += 1
+    return cell, x0, y0, nx, ny, start, order
+
+
 @nb.njit(parallel=True, fastmath={"reassoc", "contract"}, cache=True)
 def _nearest_in_band(lines, xb, da, db, band, distinct):            # pragma: no cover
     """For each row of ``da``: the nearest descriptor of ``db`` among b's features within
     ``band`` of its line, and the nearest among those farther than ``distinct`` from it
-    (squared distances; index -1: none)."""
-    na, nb_ = da.shape[0], db.shape[0]
+    (squared distances; index -1: none; of equal distances the lower index).
+
+    ``lines`` (Na, 3) are normalised (``l0² + l1² = 1``). b's features are put in square
+    cells of side ``band``; each line visits only the cells its band crosses (walking along
+    its longer extent), then tests each feature there exactly."""
+    na = da.shape[0]
     best = np.full(na, -1, np.int64)
     d1 = np.full(na, np.inf)
     d2 = np.full(na, np.inf)
+    cell, x0, y0, nx, ny, start, order = _cell_index(xb, max(band, 1e-3))
     for i in nb.prange(na):
         l0, l1, l2 = lines[i, 0], lines[i, 1], lines[i, 2]
-        dist = np.full(nb_, np.inf, np.float32)
-        for j in range(nb_):
-            if not abs(l0 * xb[j, 0] + l1 * xb[j, 1] + l2) < band:   # NaN: not in it
-                continue
-            d = np.float32(0.0)
-            for c in range(da.shape[1]):                          # vectorised (SIMD)
-                e = da[i, c] - db[j, c]
-                d += e * e
-            dist[j] = d
-            if d < d1[i]:
-                d1[i] = d
-                best[i] = j
+        flat = abs(l1) >= abs(l0)            # walk along x (cells in columns), else along y
+        a, b_ = (l0, l1) if flat else (l1, l0)
+        n_walk, n_across = (nx, ny) if flat else (ny, nx)
+        o_walk, o_across = (x0, y0) if flat else (y0, x0)
+        half = band / abs(b_) + 1e-9 * (1.0 + abs(l2))
+        cand = np.empty(order.shape[0], np.int64)
+        cdist = np.empty(order.shape[0], np.float32)
+        m = 0
+        for w in range(n_walk):
+            u0 = o_walk + w * cell
+            va = -(a * u0 + l2) / b_
+            vb = -(a * (u0 + cell) + l2) / b_
+            lo = int(np.floor((min(va, vb) - half - o_across) / cell))
+            hi = int(np.floor((max(va, vb) + half - o_across) / cell))
+            for c in range(max(lo, 0), min(hi, n_across - 1) + 1):
+                k = c * nx + w if flat else w * nx + c
+                for q in range(start[k], start[k + 1]):
+                    j = order[q]
+                    if not abs(l0 * xb[j, 0] + l1 * xb[j, 1] + l2) < band:
+                        continue
+                    d = np.float32(0.0)
+                    for e_ in range(da.shape[1]):                    # vectorised (SIMD)
+                        e = da[i, e_] - db[j, e_]
+                        d += e * e
+                    cand[m] = j
+                    cdist[m] = d
+                    m += 1
+                    if d < d1[i] or (d == d1[i] and j < best[i]):
+                        d1[i] = d
+                        best[i] = j
         if best[i] < 0:
             continue
-        x0, y0 = xb[best[i], 0], xb[best[i], 1]
-        for j in range(nb_):
-            if dist[j] < d2[i] and (xb[j, 0] - x0) ** 2 + (xb[j, 1] - y0) ** 2 > distinct ** 2:
-                d2[i] = dist[j]
+        px, py = xb[best[i], 0], xb[best[i], 1]
+        for q in range(m):
+            j = cand[q]
+            if cdist[q] < d2[i] and (xb[j, 0] - px) ** 2 + (xb[j, 1] - py) ** 2 > distinct ** 2:
+                d2[i] = cdist[q]
     return best, d1, d2
 
 

@@ -315,6 +315,22 @@ def _value(coef, pad, x, y):
                      + wx2 * coef[r + 3, q + 2] + wx3 * coef[r + 3, q + 3]))
 
 
+@nb.njit(cache=True, inline="always")
+def _sample_warped(coef, pad, height, width, U, cx, cy, a11, a12, a21, a22, g):
+    """Grey values ``g`` (P,) of the template offsets ``U`` (P, 2) warped by the affinity
+    ``a`` and moved to ``(cx, cy)``, px; returns (every sample inside the image, their sum)
+    and stops at the first sample outside."""
+    gm = 0.0
+    for p in range(U.shape[0]):
+        x = cx + a11 * U[p, 0] + a12 * U[p, 1]
+        y = cy + a21 * U[p, 0] + a22 * U[p, 1]
+        if not (x >= 0.0 and x <= width - 1.0 and y >= 0.0 and y <= height - 1.0):
+            return False, gm
+        g[p] = _value(coef, pad, x, y)
+        gm += g[p]
+    return True, gm
+
+
 @nb.njit(parallel=True, cache=True, fastmath=True)
 def _solve(coef, pad, height, width, rows, f, fx, fy, update, ok, U, c, A, max_iter, tol,
            max_disp, h, status, iterations, ee_out, r0_out, r1_out):
@@ -342,16 +358,8 @@ def _solve(coef, pad, height, width, rows, f, fx, fy, update, ok, U, c, A, max_i
         st = 1
         for it in range(max_iter):
             iterations[j] = it + 1
-            gm = 0.0
-            inside = True
-            for p in range(P):
-                x = cx + a11 * U[p, 0] + a12 * U[p, 1]
-                y = cy + a21 * U[p, 0] + a22 * U[p, 1]
-                if not (x >= 0.0 and x <= width - 1.0 and y >= 0.0 and y <= height - 1.0):
-                    inside = False
-                    break
-                g[p] = _value(coef, pad, x, y)
-                gm += g[p]
+            inside, gm = _sample_warped(coef, pad, height, width, U, cx, cy, a11, a12, a21,
+                                        a22, g)
             if not inside:
                 st = 3                                      # OUTSIDE
                 break
@@ -522,16 +530,8 @@ def _solve_translation(coef, pad, height, width, rows, f, fx, fy, ok, U, c, max_
         cx, cy = sx, sy
         g = np.empty(P)
         for _it in range(max_iter):
-            gm = 0.0
-            inside = True
-            for p in range(P):
-                x = cx + U[p, 0]
-                y = cy + U[p, 1]
-                if not (x >= 0.0 and x <= width - 1.0 and y >= 0.0 and y <= height - 1.0):
-                    inside = False
-                    break
-                g[p] = _value(coef, pad, x, y)
-                gm += g[p]
+            inside, gm = _sample_warped(coef, pad, height, width, U, cx, cy, 1.0, 0.0, 0.0, 1.0,
+                                        g)
             if not inside:
                 break
             gm /= P

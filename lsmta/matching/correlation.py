@@ -72,7 +72,7 @@ def correlation_search(template, search, template_xy, predicted_xy, *, patch: in
     patch = check_patch(patch)
     radius = as_int(radius, "radius", unit="pixels")
     f = check_image(template, "template")
-    g = check_image(search, "search").astype(np.float32)
+    g = check_image(search, "search")
     t_xy, p_xy = as_point_pairs(template_xy, predicted_xy, "template_xy", "predicted_xy")
     n = len(t_xy)
     h = patch // 2
@@ -84,18 +84,46 @@ def correlation_search(template, search, template_xy, predicted_xy, *, patch: in
         pts = t_xy[fits, None, None, :] + np.stack([gx, gy], axis=-1)[None].astype(float)
         patches[fits] = spline.sample(pts, gradient=False)
 
+    return search_patches(patches, g, p_xy, radius, valid=fits)
+
+
+def search_patches(patches, search, predicted_xy, radius: int, *, valid=None
+                   ) -> CorrelationResult:
+    """The box search of :func:`correlation_search` for patches already sampled.
+
+    Parameters
+    ----------
+    patches : (N, patch, patch) float32 array
+        Template patches (odd size).
+    search : (H, W) array
+        Search image, real dtype (each box is read as float32, as OpenCV correlates it).
+    predicted_xy : (N, 2) array
+        Predicted positions in ``search``, px.
+    radius : int
+        Half-width of the search box, px.
+    valid : (N,) bool array, optional
+        Patches that exist (the others are OUTSIDE); default all.
+
+    Returns
+    -------
+    CorrelationResult
+    """
+    n, patch = len(patches), patches.shape[1]
+    h = patch // 2
+    valid = np.ones(n, bool) if valid is None else valid
     xy = np.full((n, 2), np.nan)
     score = np.full(n, np.nan)
     status = np.full(n, CorrelationStatus.OUTSIDE, dtype=np.int64)
-    centre = np.rint(p_xy).astype(np.int64)
-    H, W = g.shape
+    centre = np.rint(predicted_xy).astype(np.int64)
+    H, W = search.shape
     reach = radius + h
     box_fits = ((centre[:, 0] - reach >= 0) & (centre[:, 0] + reach <= W - 1)
                 & (centre[:, 1] - reach >= 0) & (centre[:, 1] + reach <= H - 1))
-    for i in np.flatnonzero(fits & box_fits):
+    for i in np.flatnonzero(valid & box_fits):
         cx, cy = centre[i]
-        window = g[cy - reach:cy + reach + 1, cx - reach:cx + reach + 1]
-        if patches[i].std() < 1e-6 or window.std() < 1e-6:
+        window = np.asarray(search[cy - reach:cy + reach + 1, cx - reach:cx + reach + 1],
+                            np.float32)
+        if _flat(patches[i]) or _flat(window):
             status[i] = CorrelationStatus.FLAT
             continue
         r = cv2.matchTemplate(window, patches[i], cv2.TM_CCOEFF_NORMED)   # (2R+1, 2R+1)
@@ -109,6 +137,13 @@ def correlation_search(template, search, template_xy, predicted_xy, *, patch: in
         xy[i] = (cx - radius + ix + dx, cy - radius + iy + dy)
         status[i] = CorrelationStatus.AT_BORDER if border else CorrelationStatus.OK
     return CorrelationResult(xy=xy, score=score, status=status)
+
+
+def _flat(a) -> bool:
+    """Grey levels of ``a`` (float32) with a standard deviation below 1e-6; the standard
+    deviation is computed only when the range is below 1e-2 (a wider range has one far
+    above 1e-6), to save its cost in the search loop."""
+    return bool(a.max() - a.min() < 1e-2) and bool(a.std() < 1e-6)
 
 
 def _parabola(a: float, b: float, c: float) -> float:

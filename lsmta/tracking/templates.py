@@ -48,7 +48,7 @@ import numba as nb
 import numpy as np
 
 from .._validate import as_int, as_scalar
-from ..matching.correlation import CorrelationStatus, correlation_search
+from ..matching.correlation import CorrelationStatus, search_patches
 from ..matching.lsm import LSMParams, LSMResult, LSMThresholds, Status, lsm
 from ..matching.spline import SplineImage
 
@@ -110,16 +110,17 @@ def search_templates(templates: Templates, rows, search, predicted_xy, radius: i
     ``rows`` in a box of half-width ``radius`` around ``predicted_xy`` in ``search`` (an
     ``(H, W)`` image); NaN where the peak is on the box's border or the box leaves the image.
 
-    The stored patches, stacked into one image, are the templates of
-    :func:`~lsmta.matching.correlation_search`.
+    The stored patches are the templates of the search of
+    :func:`~lsmta.matching.correlation_search` (:func:`~lsmta.matching.correlation.search_patches`).
     """
     rows = np.asarray(rows, np.int64)
     xy = np.full((len(rows), 2), np.nan)
     if not len(rows):
         return xy
-    tiles, centres = _mosaic(templates, rows)
-    res = correlation_search(tiles, search, centres, predicted_xy, patch=templates.patch,
-                             radius=int(radius))
+    patch = templates.patch
+    tiles = templates.values[rows].reshape(len(rows), patch, patch).astype(np.float32)
+    res = search_patches(tiles, np.asarray(search), np.asarray(predicted_xy, float),
+                         int(radius))
     good = res.status == CorrelationStatus.OK
     xy[good] = res.xy[good]
     return xy

@@ -40,6 +40,17 @@ def test_spline_matches_scipy_and_finite_differences(rng):
     assert np.allclose(s.sample(ij, gradient=False), img[[4, 20], [3, 10]])
 
 
+@pytest.mark.parametrize("shape, dtype", [((40, 50), np.float64), ((5, 9), np.float32),
+                                          ((72, 128), np.uint8)])
+def test_spline_coefficients_are_scipys(rng, shape, dtype):
+    from scipy import ndimage
+
+    img = (rng.uniform(0, 255, shape)).astype(dtype)
+    ref = np.pad(ndimage.spline_filter(img.astype(float), order=3, mode="mirror"), 2,
+                 mode="reflect")
+    assert np.abs(SplineImage(img).coefficients - ref).max() < 1e-10
+
+
 def test_noise_free_affine_radiometric_warp(rng):
     pair = warped_pair(rng=rng, A=A_TRUE, c=(4.3, -2.6), r0=12.0, r1=0.85, quantise=False)
     pts = _points(rng, 300, margin=40)

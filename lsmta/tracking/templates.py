@@ -42,6 +42,7 @@ normal matrix.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numba as nb
@@ -127,10 +128,18 @@ def search_templates(templates: Templates, rows, search, predicted_xy, radius: i
 
 
 def offsets(patch: int) -> np.ndarray:
-    """``(P, 2)`` pixel offsets ``u`` (x, y) of a square patch, in row order."""
+    """``(P, 2)`` pixel offsets ``u`` (x, y) of a square patch, in row order (one read-only
+    array per patch size, made once)."""
+    return _offsets(int(patch))
+
+
+@functools.lru_cache(maxsize=8)
+def _offsets(patch: int) -> np.ndarray:
     h = patch // 2
     gy, gx = np.mgrid[-h:h + 1, -h:h + 1]
-    return np.stack([gx.ravel(), gy.ravel()], axis=1).astype(float)
+    U = np.stack([gx.ravel(), gy.ravel()], axis=1).astype(float)
+    U.flags.writeable = False
+    return U
 
 
 def sample_templates(image: SplineImage, xy, patch: int, *, normals: bool = True) -> Templates:
@@ -154,14 +163,47 @@ def sample_templates(image: SplineImage, xy, patch: int, *, normals: bool = True
     if not normals:
         return Templates(values=values, gx=gx, gy=gy, update=np.full((n, 6, 6), np.nan),
                          q_xy=np.full((n, 2, 2), np.nan), ok=ok, patch=patch)
-    sd = np.stack([gx, gy, gx * U[:, 0], gx * U[:, 1], gy * U[:, 0], gy * U[:, 1]], axis=2)
-    # project out the radiometry: orthogonal to the constant and to the template itself
-    sd = sd - sd.mean(axis=1, keepdims=True)
     fh = f / np.sqrt(np.maximum(ff, 1e-300))[:, None]
-    sd = sd - fh[:, :, None] * np.einsum("np,npk->nk", fh, sd)[:, None, :]
-    H = np.einsum("npk,npl->nkl", sd, sd)
+    H = np.empty((n, 6, 6))
+    _normals(gx, gy, fh, U, H)
     update, q_xy = _inverses(H, ok)
     return Templates(values=values, gx=gx, gy=gy, update=update, q_xy=q_xy, ok=ok, patch=patch)
+
+
+@nb.njit(cache=True)
+def _normals(gx, gy, fh, U, H):
+    """Normal matrices ``H`` (n, 6, 6) of the steepest-descent images ``gx, gy, gx u_x,
+    gx u_y, gy u_x, gy u_y`` (n, P) with the radiometry projected out: each image minus
+    its mean (orthogonal to the constant), then minus its projection on the unit-norm,
+    zero-mean template ``fh`` (orthogonal to the template itself)."""
+    n, P = gx.shape
+    sd = np.empty((P, 6))
+    for i in range(n):
+        for p in range(P):
+            sd[p, 0] = gx[i, p]
+            sd[p, 1] = gy[i, p]
+            sd[p, 2] = gx[i, p] * U[p, 0]
+            sd[p, 3] = gx[i, p] * U[p, 1]
+            sd[p, 4] = gy[i, p] * U[p, 0]
+            sd[p, 5] = gy[i, p] * U[p, 1]
+        for k in range(6):
+            m = 0.0
+            for p in range(P):
+                m += sd[p, k]
+            m /= P
+            proj = 0.0
+            for p in range(P):
+                sd[p, k] -= m
+                proj += fh[i, p] * sd[p, k]
+            for p in range(P):
+                sd[p, k] -= fh[i, p] * proj
+        for k in range(6):
+            for m in range(k, 6):
+                a = 0.0
+                for p in range(P):
+                    a += sd[p, k] * sd[p, m]
+                H[i, k, m] = a
+                H[i, m, k] = a
 
 
 def _inverses(H, ok):

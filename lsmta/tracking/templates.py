@@ -388,6 +388,7 @@ def _solve(coef, pad, height, width, rows, f, fx, fy, update, ok, U, c, A, max_i
             continue
         g = np.empty(P)
         b = np.zeros(6)
+        d = np.zeros(6)
         fm = 0.0
         for p in range(P):
             fm += f[i, p]
@@ -433,8 +434,8 @@ def _solve(coef, pad, height, width, rows, f, fx, fy, update, ok, U, c, A, max_i
             r1_out[j] = fg / gg
             r0_out[j] = fm - fg / gg * gm
             ee_out[j] = max(ff - fg * fg / gg, 0.0)
-            d = np.zeros(6)
             for k in range(6):
+                d[k] = 0.0
                 for m in range(6):
                     d[k] += update[i, k, m] * b[m]
             # W <- W o W(d)^-1: A' = A (I + dA)^-1, c' = c - A' dc

@@ -119,15 +119,17 @@ def search_patches(patches, search, predicted_xy, radius: int, *, valid=None
     reach = radius + h
     box_fits = ((centre[:, 0] - reach >= 0) & (centre[:, 0] + reach <= W - 1)
                 & (centre[:, 1] - reach >= 0) & (centre[:, 1] + reach <= H - 1))
-    for i in np.flatnonzero(valid & box_fits):
+    todo = np.flatnonzero(valid & box_fits)
+    flat_patch = _flat_rows(patches[todo].reshape(len(todo), patch * patch))
+    for i, patch_flat in zip(todo.tolist(), flat_patch.tolist()):
         cx, cy = centre[i]
         window = np.asarray(search[cy - reach:cy + reach + 1, cx - reach:cx + reach + 1],
                             np.float32)
-        if _flat(patches[i]) or _flat(window):
+        if patch_flat or _flat(window):
             status[i] = CorrelationStatus.FLAT
             continue
         r = cv2.matchTemplate(window, patches[i], cv2.TM_CCOEFF_NORMED)   # (2R+1, 2R+1)
-        iy, ix = np.unravel_index(int(np.argmax(r)), r.shape)
+        iy, ix = divmod(int(np.argmax(r)), r.shape[1])
         score[i] = r[iy, ix]
         dx = dy = 0.0
         border = ix in (0, r.shape[1] - 1) or iy in (0, r.shape[0] - 1)
@@ -143,7 +145,17 @@ def _flat(a) -> bool:
     """Grey levels of ``a`` (float32) with a standard deviation below 1e-6; the standard
     deviation is computed only when the range is below 1e-2 (a wider range has one far
     above 1e-6), to save its cost in the search loop."""
-    return bool(a.max() - a.min() < 1e-2) and bool(a.std() < 1e-6)
+    lo, hi, _, _ = cv2.minMaxLoc(a)
+    return bool(hi - lo < 1e-2) and bool(a.std() < 1e-6)
+
+
+def _flat_rows(a) -> np.ndarray:
+    """:func:`_flat` of every row of ``a`` (n, P) float32, ``(n,)`` bool."""
+    out = np.zeros(len(a), bool)
+    if len(a):
+        narrow = np.flatnonzero(a.max(axis=1) - a.min(axis=1) < 1e-2)
+        out[narrow] = [bool(a[i].std() < 1e-6) for i in narrow]
+    return out
 
 
 def _parabola(a: float, b: float, c: float) -> float:
@@ -151,4 +163,4 @@ def _parabola(a: float, b: float, c: float) -> float:
     d = a - 2 * b + c
     if d >= 0:
         return 0.0
-    return float(np.clip(0.5 * (a - c) / d, -0.5, 0.5))
+    return float(min(max(0.5 * (a - c) / d, -0.5), 0.5))

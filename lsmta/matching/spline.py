@@ -22,6 +22,11 @@ PAD = 2  # coefficient padding, so that the 4 x 4 support never leaves the array
 
 def check_image(image, name: str) -> np.ndarray:
     """A 2-D grey image of finite real values as float64 (a new array if converted)."""
+    return _grey(image, name).astype(np.float64, copy=False)
+
+
+def _grey(image, name: str) -> np.ndarray:
+    """:func:`check_image` without the conversion: the caller's array, of its own dtype."""
     arr = np.asarray(image)
     if arr.ndim == 3 and arr.shape[2] in (3, 4):
         raise ValueError(
@@ -34,9 +39,7 @@ def check_image(image, name: str) -> np.ndarray:
         raise TypeError(f"{name}: expected an image of a real dtype, got {arr.dtype}")
     if min(arr.shape) < 5:
         raise ValueError(f"{name}: expected an image of at least 5 x 5 pixels, got {arr.shape}")
-    integer = np.issubdtype(arr.dtype, np.integer)
-    arr = arr.astype(np.float64, copy=False)
-    if not integer and not np.isfinite(arr).all():
+    if not np.issubdtype(arr.dtype, np.integer) and not np.isfinite(arr).all():
         raise ValueError(f"{name}: contains NaN or infinite grey values")
     return arr
 
@@ -58,12 +61,21 @@ class SplineImage:
     """
 
     def __init__(self, image, name: str = "image"):
-        img = check_image(image, name)
-        self.image = img
-        self.shape = img.shape
-        self._c = np.empty((img.shape[0] + 2 * PAD, img.shape[1] + 2 * PAD))
-        _kernels.prefilter(img, PAD, self._c)
+        raw = _grey(image, name)
+        # kept in its own dtype (a copy: the caller may reuse its buffer), float64 on demand
+        self._raw = raw if raw.dtype == np.float64 else raw.copy()
+        self._image = raw if raw.dtype == np.float64 else None
+        self.shape = raw.shape
+        self._c = np.empty((raw.shape[0] + 2 * PAD, raw.shape[1] + 2 * PAD))
+        _kernels.prefilter(raw, PAD, self._c)
         self._grad = None
+
+    @property
+    def image(self) -> np.ndarray:
+        """The image as float64 (converted when first asked for)."""
+        if self._image is None:
+            self._image = self._raw.astype(np.float64)
+        return self._image
 
     @property
     def coefficients(self) -> np.ndarray:

@@ -85,7 +85,14 @@ from ..matching.lsm import LSMThresholds
 from ..matching.spline import SplineImage, check_image
 from ..triangulation import triangulate
 from .density import sparse_candidates
-from .templates import match_templates, match_translation, sample_templates, search_templates
+from .templates import (
+    Templates,
+    match_templates,
+    match_translation,
+    offsets,
+    sample_templates,
+    search_templates,
+)
 
 ANCHORS = ("first", "previous")
 
@@ -561,27 +568,50 @@ def _coarse_to_fine(state: _State, pyramids: _Pyramids, idx, pred, t: int,
     (a looser 0.1 px let a track go astray in the jerky-motion test and saved no measurable
     time), no quality thresholds: the anchored match at full size decides), started at
     ``pred`` and then at the level above's result; a level that does not converge keeps
-    the estimate from above. NaN where no level converged."""
+    the estimate from above. NaN where no level converged. Each level is one call for all
+    the tracks, whatever their last frames (:func:`_sampled_from` samples each track's
+    patch from its own frame's level); every track is solved on its own, so the result
+    is that of matching the tracks of each last frame separately."""
     K, n = pred.shape[:2]
     out = np.full((K, n, 2), np.nan)
     last = state.end[idx]
+    frames, which = np.unique(last, return_inverse=True)
+    rows = np.arange(n)
     for k in range(K):
         target = pyramids.get(k, t)
-        sources = {f: pyramids.get(k, f) for f in np.unique(last)}
+        sources = [pyramids.get(k, f) for f in frames]
+        at = state.xy[last, k, idx]                                 # (n, 2) full-size px
         est = np.array(pred[k], float)
         found = np.zeros(n, bool)
         for lv in range(len(target) - 1, 0, -1):
             s = 2.0 ** lv
-            for f, src in sources.items():
-                sel = np.flatnonzero(last == f)
-                tm = sample_templates(src[lv], state.xy[f, k, idx[sel]] / s, p.patch,
-                                      normals=False)
-                xy, conv = match_translation(tm, np.arange(sel.size), target[lv],
-                                             est[sel] / s, max_iter=p.max_iter, tol=p.tol)
-                est[sel[conv]] = xy[conv] * s
-                found[sel[conv]] = True
+            tm = _sampled_from([src[lv] for src in sources], which, at / s, p.patch)
+            xy, conv = match_translation(tm, rows, target[lv], est / s, max_iter=p.max_iter,
+                                         tol=p.tol)
+            est[conv] = xy[conv] * s
+            found[conv] = True
         out[k, found] = est[found]
     return out
+
+
+def _sampled_from(images, which, xy, patch: int) -> Templates:
+    """:func:`~lsmta.tracking.templates.sample_templates` (``normals=False``) of the
+    positions ``xy`` ``(n, 2)``, row ``j`` sampled from ``images[which[j]]``."""
+    U = offsets(patch)
+    n, P = len(xy), len(U)
+    values, gx, gy = np.zeros((n, P)), np.zeros((n, P)), np.zeros((n, P))
+    ok = np.zeros(n, bool)
+    for w, image in enumerate(images):
+        sel = np.flatnonzero(which == w)
+        inside = image.inside(xy[sel], margin=patch // 2) & np.isfinite(xy[sel]).all(axis=1)
+        ok[sel] = inside
+        r = sel[inside]
+        if r.size:
+            values[r], gx[r], gy[r] = image.sample(xy[r, None, :] + U, gradient=True)
+    f = values - values.mean(axis=1, keepdims=True)
+    ok &= (f * f).sum(axis=1) > 1e-9 * P
+    return Templates(values=values, gx=gx, gy=gy, update=np.full((n, 6, 6), np.nan),
+                     q_xy=np.full((n, 2, 2), np.nan), ok=ok, patch=patch)
 
 
 def _search_missing(state: _State, seq, nxt, t: int, p: TrackerParams) -> None:

@@ -538,3 +538,58 @@ def test_inverse_compositional_templates_recover_a_known_affinity_and_radiometry
                           inverse=False)
     assert np.abs(fwd.xy - fa.xy).max() < 1e-6
     assert np.array_equal(img, before[0]) and np.array_equal(search, before[1])
+
+
+def _coarse_to_fine_per_frame(state, pyramids, idx, pred, t, p, calls):
+    """The coarse-to-fine step as it was before it was batched: one template sampling and
+    one translation match per level and per last tracked frame (the reference)."""
+    K, n = pred.shape[:2]
+    out = np.full((K, n, 2), np.nan)
+    last = state.end[idx]
+    calls.append(len(np.unique(last)))
+    for k in range(K):
+        target = pyramids.get(k, t)
+        sources = {f: pyramids.get(k, f) for f in np.unique(last)}
+        est = np.array(pred[k], float)
+        found = np.zeros(n, bool)
+        for lv in range(len(target) - 1, 0, -1):
+            s = 2.0 ** lv
+            for f, src in sources.items():
+                sel = np.flatnonzero(last == f)
+                tm = sample_templates(src[lv], state.xy[f, k, idx[sel]] / s, p.patch,
+                                      normals=False)
+                xy, conv = match_translation(tm, np.arange(sel.size), target[lv],
+                                             est[sel] / s, max_iter=p.max_iter, tol=p.tol)
+                est[sel[conv]] = xy[conv] * s
+                found[sel[conv]] = True
+        out[k, found] = est[found]
+    return out
+
+
+def test_batched_coarse_to_fine_gives_the_per_frame_positions_and_statuses(monkeypatch):
+    """Tracks missing since different frames are matched coarse-to-fine in one call per
+    level; the positions (to 1e-6 px) and statuses are those of one call per last frame."""
+    from lsmta.tracking import points
+
+    rng = np.random.default_rng(11)
+    base = sum(ndimage.gaussian_filter(rng.normal(size=(240, 320)), s) * s ** 0.5
+               for s in (1.5, 3.0, 6.0, 12.0))
+    base = 128 + 50 * base / base.std()
+    steps = np.array([[0, 0], [3, 1], [12, 5], [-13, -4], [2, 6], [-12, -5], [9, 9]], float)
+    pos = np.cumsum(steps, axis=0)
+    frames = np.stack([ndimage.shift(base, (y, x), order=3, mode="reflect") for x, y in pos])
+    occluder = _texture(rng, (60, 60), sigma=0.7)
+    for t, (r, c) in ((2, (60, 90)), (3, (120, 180)), (4, (60, 180))):
+        frames[t, r:r + 60, c:c + 60] = occluder       # tracks go missing in different frames
+    g = np.stack(np.meshgrid(np.arange(60, 261, 16.0), np.arange(50, 191, 16.0)),
+                 -1).reshape(-1, 2)
+    batched = track_points(frames[None], g[None])
+    calls = []
+    monkeypatch.setattr(points, "_coarse_to_fine",
+                        lambda *a: _coarse_to_fine_per_frame(*a, calls))
+    reference = track_points(frames[None], g[None])
+    assert max(calls) > 1                                   # several last frames at once
+    assert np.array_equal(batched.status, reference.status)
+    assert np.array_equal(np.isnan(batched.xy), np.isnan(reference.xy))
+    assert np.nanmax(np.abs(batched.xy - reference.xy)) < 1e-6
+    assert (batched.status == TrackStatus.ALIVE).sum() > 0.3 * len(g)

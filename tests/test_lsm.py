@@ -41,14 +41,25 @@ def test_spline_matches_scipy_and_finite_differences(rng):
 
 
 @pytest.mark.parametrize("shape, dtype", [((40, 50), np.float64), ((5, 9), np.float32),
-                                          ((72, 128), np.uint8)])
+                                          ((72, 128), np.uint8), ((40, 50), ">f8"),
+                                          ((40, 50), ">f4"), ((40, 50), ">u2"),
+                                          ((40, 50), np.float16), ((40, 50), np.longdouble),
+                                          ((40, 50), "strided")])
 def test_spline_coefficients_are_scipys(rng, shape, dtype):
     from scipy import ndimage
 
-    img = (rng.uniform(0, 255, shape)).astype(dtype)
+    if dtype == "strided":      # a non-contiguous view (every other column of a wider image)
+        img = rng.uniform(0, 255, (shape[0], 2 * shape[1]))[:, ::2]
+        assert not img.flags.c_contiguous
+    else:
+        img = (rng.uniform(0, 255, shape)).astype(dtype)
+    before = img.copy()
     ref = np.pad(ndimage.spline_filter(img.astype(float), order=3, mode="mirror"), 2,
                  mode="reflect")
-    assert np.abs(SplineImage(img).coefficients - ref).max() < 1e-10
+    s = SplineImage(img)
+    assert np.abs(s.coefficients - ref).max() < 1e-10
+    assert s.image.dtype == np.float64 and np.array_equal(s.image, img.astype(float))
+    assert np.array_equal(img, before) and img.dtype == before.dtype
 
 
 def test_noise_free_affine_radiometric_warp(rng):
@@ -217,6 +228,28 @@ def test_bad_input(rng, kwargs, match):
     with pytest.raises((ValueError, TypeError), match=match):
         lsm(args.pop("template"), args.pop("search"), args.pop("template_xy"),
             args.pop("search_xy"), params=LSMParams(**settings), **args)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(patches=np.zeros((2, 12, 12))), r"patches: expected an array of shape \(N, p, p\)"),
+    (dict(patches=np.zeros((2, 13))), r"patches: expected an array of shape \(N, p, p\)"),
+    (dict(patches=np.full((2, 13, 13), np.nan)), "patches: contains non-finite"),
+    (dict(search=np.zeros((40, 40, 3))), "search: expected a 2-D grey image, got a colour"),
+    (dict(search=np.zeros(40)), "search: expected a 2-D grey image"),
+    (dict(predicted_xy=np.zeros((3, 2))), r"predicted_xy: expected an array of shape \(2, 2\)"),
+    (dict(predicted_xy=np.full((2, 2), np.nan)), "predicted_xy: contains non-finite"),
+    (dict(valid=np.ones(2)), r"valid: expected a bool array of shape \(2,\)"),
+    (dict(valid=np.ones(3, bool)), r"valid: expected a bool array of shape \(2,\)"),
+    (dict(radius=0), r"radius: expected an integer >= 1"),
+])
+def test_search_patches_bad_input(rng, kwargs, match):
+    from lsmta.matching.correlation import search_patches
+
+    args = dict(patches=rng.normal(size=(2, 13, 13)), search=rng.normal(size=(40, 40)),
+                predicted_xy=np.full((2, 2), 20.0), radius=3)
+    assert search_patches(**args).status.shape == (2,)      # the unchanged arguments pass
+    with pytest.raises((ValueError, TypeError), match=match):
+        search_patches(**(args | kwargs))
 
 
 def test_inputs_not_modified(rng):

@@ -209,6 +209,17 @@ def test_match_translation_refuses_bad_arguments(kwargs, match):
         match_translation(tm, [0], img, np.array([[30.0, 30.0]]))
 
 
+def test_search_templates_refuses_a_colour_frame():
+    from lsmta.tracking.templates import search_templates
+
+    img = 100 + 40 * ndimage.gaussian_filter(np.random.default_rng(3).normal(size=(60, 60)), 2)
+    tm = sample_templates(SplineImage(img), np.array([[30.0, 30.0]]), 11)
+    xy = search_templates(tm, [0], img, np.array([[30.0, 30.0]]), 3)
+    assert np.abs(xy - 30.0).max() < 0.05
+    with pytest.raises(ValueError, match="search: expected a 2-D grey image, got a colour"):
+        search_templates(tm, [0], np.dstack([img] * 3), np.array([[30.0, 30.0]]), 3)
+
+
 def _appearance_sequence(rng, n_frames=60, noise=6.0):
     """A texture translating by (0.37, -0.23) px a frame while it blurs (to 0.6 px) and
     fades (to 80 % contrast) slowly: its appearance changes, its position is known."""

@@ -83,7 +83,9 @@ def prefilter(img, pad, out):
     ``sqrt(3) - 2`` (Unser 1999), columns first (vectorised over a row), then rows (16 at
     a time, interleaved); the causal start sums the mirrored line until the pole's power
     is below 1e-18 (SciPy sums the whole line: the terms left out are below round-off).
-    One pass over the image in place of SciPy's two line-buffered passes and the pad.
+    Both line passes (columns, then rows) run in place in ``out``, then the ``pad`` border
+    is filled by reflection: no intermediate arrays, unlike SciPy's line-buffered passes
+    followed by a separate ``np.pad``.
     """
     H, W = img.shape
     z = np.sqrt(3.0) - 2.0

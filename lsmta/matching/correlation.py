@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .._validate import as_int, as_point_pairs, check_patch
-from .spline import SplineImage, check_image
+from .._validate import as_array, as_int, as_point_pairs, check_patch
+from .spline import SplineImage, _grey, check_image
 
 
 class CorrelationStatus(enum.IntEnum):
@@ -84,23 +84,24 @@ def correlation_search(template, search, template_xy, predicted_xy, *, patch: in
         pts = t_xy[fits, None, None, :] + np.stack([gx, gy], axis=-1)[None].astype(float)
         patches[fits] = spline.sample(pts, gradient=False)
 
-    return search_patches(patches, g, p_xy, radius, valid=fits)
+    return _search(patches, g, p_xy, radius, fits)
 
 
-def search_patches(patches, search, predicted_xy, radius: int, *, valid=None
+def search_patches(patches, search, predicted_xy, *, radius: int, valid=None
                    ) -> CorrelationResult:
     """The box search of :func:`correlation_search` for patches already sampled.
 
     Parameters
     ----------
-    patches : (N, patch, patch) float32 array
-        Template patches (odd size).
+    patches : (N, patch, patch) array
+        Template patches (odd size), real dtype (read as float32, as OpenCV correlates
+        them).
     search : (H, W) array
-        Search image, real dtype (each box is read as float32, as OpenCV correlates it).
+        Grey search image, real dtype (each box is read as float32).
     predicted_xy : (N, 2) array
-        Predicted positions in ``search``, px.
+        Predicted positions in ``search``, px (finite).
     radius : int
-        Half-width of the search box, px.
+        Half-width of the search box, px (>= 1).
     valid : (N,) bool array, optional
         Patches that exist (the others are OUTSIDE); default all.
 
@@ -108,9 +109,35 @@ def search_patches(patches, search, predicted_xy, radius: int, *, valid=None
     -------
     CorrelationResult
     """
+    radius = as_int(radius, "radius", unit="pixels")
+    tiles = np.asarray(patches)
+    if tiles.dtype == bool or not (np.issubdtype(tiles.dtype, np.integer)
+                                   or np.issubdtype(tiles.dtype, np.floating)):
+        raise TypeError(f"patches: expected an array of a real dtype, got {tiles.dtype}")
+    if tiles.ndim != 3 or tiles.shape[1] != tiles.shape[2] or tiles.shape[1] % 2 == 0:
+        raise ValueError("patches: expected an array of shape (N, p, p) with p odd, "
+                         f"got shape {tiles.shape}")
+    tiles = tiles.astype(np.float32, copy=False)
+    if not np.isfinite(tiles).all():
+        raise ValueError("patches: contains non-finite values (NaN or inf); "
+                         "expected finite grey levels")
+    g = _grey(search, "search")
+    n = len(tiles)
+    p_xy = as_array(predicted_xy, "predicted_xy", shape=(n, 2))
+    if valid is None:
+        valid = np.ones(n, bool)
+    else:
+        valid = np.asarray(valid)
+        if valid.dtype != bool or valid.shape != (n,):
+            raise ValueError(f"valid: expected a bool array of shape ({n},), got "
+                             f"{valid.dtype} of shape {valid.shape}")
+    return _search(tiles, g, p_xy, radius, valid)
+
+
+def _search(patches, search, predicted_xy, radius: int, valid) -> CorrelationResult:
+    """:func:`search_patches` on checked arguments (``patches`` float32)."""
     n, patch = len(patches), patches.shape[1]
     h = patch // 2
-    valid = np.ones(n, bool) if valid is None else valid
     xy = np.full((n, 2), np.nan)
     score = np.full(n, np.nan)
     status = np.full(n, CorrelationStatus.OUTSIDE, dtype=np.int64)

@@ -18,6 +18,10 @@ import numpy as np
 from . import _kernels
 
 PAD = 2  # coefficient padding, so that the 4 x 4 support never leaves the array
+#: image dtypes that :func:`_kernels.prefilter` reads directly (in native byte order)
+_KERNEL_DTYPES = tuple(np.dtype(t) for t in (np.float32, np.float64, np.int8, np.int16,
+                                             np.int32, np.int64, np.uint8, np.uint16,
+                                             np.uint32, np.uint64))
 
 
 def check_image(image, name: str) -> np.ndarray:
@@ -50,7 +54,10 @@ class SplineImage:
     Parameters
     ----------
     image : (H, W) array
-        Grey image of any real dtype (converted to float64; the caller's array is kept).
+        Grey image of any real dtype. Native-byte-order float32/float64 and (u)int8-64
+        images are read as they are (the coefficients are computed in float64 from their
+        own values); any other dtype (big-endian, float16, longdouble) is first converted
+        to float64. The caller's array is never written.
 
     Attributes
     ----------
@@ -62,7 +69,10 @@ class SplineImage:
 
     def __init__(self, image, name: str = "image"):
         raw = _grey(image, name)
-        # kept in its own dtype (a copy: the caller may reuse its buffer), float64 on demand
+        if not (raw.dtype.isnative and raw.dtype in _KERNEL_DTYPES):
+            raw = raw.astype(np.float64)    # dtypes the compiled kernels cannot read
+        # kept in its own dtype, float64 on demand: a float64 image is kept as it is (no
+        # copy), any other is copied (the caller may reuse its buffer)
         self._raw = raw if raw.dtype == np.float64 else raw.copy()
         self._image = raw if raw.dtype == np.float64 else None
         self.shape = raw.shape

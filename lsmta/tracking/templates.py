@@ -119,9 +119,9 @@ def search_templates(templates: Templates, rows, search, predicted_xy, radius: i
     if not len(rows):
         return xy
     patch = templates.patch
-    tiles = templates.values[rows].reshape(len(rows), patch, patch).astype(np.float32)
-    res = search_patches(tiles, np.asarray(search), np.asarray(predicted_xy, float),
-                         int(radius))
+    tiles = templates.values[rows].reshape(len(rows), patch, patch)
+    # search_patches checks every argument (``search``: a 2-D grey image of finite values)
+    res = search_patches(tiles, search, predicted_xy, radius=radius)
     good = res.status == CorrelationStatus.OK
     xy[good] = res.xy[good]
     return xy
@@ -198,12 +198,12 @@ def _normals(gx, gy, fh, U, H):
             for p in range(P):
                 sd[p, k] -= fh[i, p] * proj
         for k in range(6):
-            for m in range(k, 6):
+            for q in range(k, 6):
                 a = 0.0
                 for p in range(P):
-                    a += sd[p, k] * sd[p, m]
-                H[i, k, m] = a
-                H[i, m, k] = a
+                    a += sd[p, k] * sd[p, q]
+                H[i, k, q] = a
+                H[i, q, k] = a
 
 
 def _inverses(H, ok):
@@ -584,10 +584,15 @@ def match_translation(templates: Templates, rows, search: SplineImage, start_xy,
 def _solve_translation(coef, pad, height, width, rows, f, fx, fy, ok, U, c, max_iter, tol,
                        max_disp, converged):
     """Inverse compositional translation + grey offset for every point j; writes ``c`` and
-    ``converged`` in place."""
+    ``converged`` in place.
+
+    ``U`` must be ``offsets(patch)`` (the square patch's offsets in row order): only its
+    length is read, and the search image is sampled on that grid by :func:`_sample_shifted`,
+    whatever ``U`` holds."""
     n = rows.shape[0]
     P = U.shape[0]
     side = int(np.sqrt(P) + 0.5)
+    assert side * side == P and U[0, 0] == -(side // 2) and U[1, 0] == U[0, 0] + 1
     for j in nb.prange(n):
         i = rows[j]
         if not ok[i]:

@@ -9,17 +9,19 @@ another still gives matching descriptors). SIFT's descriptors hold to about 30-4
 of viewpoint change; the default ``detector="auto"`` takes ASIFT when two of the cameras'
 optical axes are more than ``asift_above_deg`` apart.
 
-The given cameras guide the matching: a feature of view *b* is a candidate for one of
-view *a* only within ``band_px`` of its epipolar line (so a camera file that is some
-pixels off still finds its matches, and repeated texture elsewhere in the image cannot be
-chosen). The search is compiled (numba, on its threads), one pass each way per view
-pair: for each feature, the nearest descriptor among the candidates in the band, and the
-nearest among those not at the same place (a place holds several features: one per
-orientation, and with ASIFT one per simulated tilt). Lowe's ratio test between the two (a
-lone candidate passes it) and a mutual check keep unambiguous pairs. Each
-view pair's matches must then agree with one relative orientation of their own: an
-essential matrix fitted by MAGSAC++ (``cv2.findEssentialMat`` with ``cv2.USAC_MAGSAC``) on
-the features' undistorted normalised positions, inliers within ``ransac_px``; a pair with
+The given cameras guide the matching: a feature of view *b* is a candidate for one of view
+*a* only within ``band_px`` of its epipolar line (so a camera file that is some pixels off
+still finds its matches, and repeated texture elsewhere in the image cannot be chosen).
+The search is compiled (numba, on its threads), one pass each way per view pair, on the
+descriptors as bytes (SIFT's are whole numbers in 0..255, so the distances are exact) and
+with the lines taken in blocks of similar ones, so that each candidate's descriptor is
+read once per block: for each feature, the nearest descriptor among the candidates in the
+band, and the nearest among those not at the same place (a place holds several features:
+one per orientation, and with ASIFT one per simulated tilt). Lowe's ratio test between the
+two (a lone candidate passes it) and a mutual check keep unambiguous pairs. Each view
+pair's matches must then agree with one relative orientation of their own: an essential
+matrix fitted by MAGSAC++ (``cv2.findEssentialMat`` with ``cv2.USAC_MAGSAC``) on the
+features' undistorted normalised positions, inliers within ``ransac_px``; a pair with
 fewer than ``min_matches`` inliers gives none. A wrong match that happens to lie in the
 band does not agree with the others' relative orientation, so the band can be wide. The
 pairs' matches are chained into multi-view tie points (union-find); a chain that holds two

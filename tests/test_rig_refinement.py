@@ -196,6 +196,30 @@ def test_cameras_that_do_not_fit_are_refused(recording):
             n_frames=3, tie=TieParams(n_features=2000, asift_features=300)))
 
 
+@pytest.mark.slow
+def test_frames_in_memory_give_the_same_refinement(recording):
+    """Frames already loaded are used instead of decoding the sampled ones again: the same
+    tie points and cameras; stacks that are not the videos' frames are refused."""
+    paths, cams = recording
+    videos = read_videos(paths)
+    given = _disturbed(cams, np.random.default_rng(7))
+    params = RigRefinementParams(n_frames=3, tie=TieParams(n_features=2000, asift_features=300))
+    stacks = videos.load(progress=False)
+    kept = [s.copy() for s in stacks]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        a = refine_rig(videos, given, params=params)
+        b = refine_rig(videos, given, params=params, stacks=stacks)
+    np.testing.assert_array_equal(a.tie_points.xy, b.tie_points.xy)
+    for ca, cb in zip(a.cameras, b.cameras):
+        assert (ca.f, ca.cx, ca.cy) == (cb.f, cb.cx, cb.cy)
+        np.testing.assert_array_equal(ca.R, cb.R)
+        np.testing.assert_array_equal(ca.C, cb.C)
+    assert all(np.array_equal(s, k) for s, k in zip(stacks, kept))           # unchanged
+    with pytest.raises(ValueError, match="stacks: expected the videos' frames"):
+        refine_rig(videos, given, params=params, stacks=[s[:2] for s in stacks])
+
+
 def test_tie_points_need_one_image_per_camera():
     cams = _rig(n=2, width=64, height=48)
     with pytest.raises(ValueError, match="frame 0 holds 1 images"):
@@ -234,10 +258,10 @@ def test_a_twin_of_the_best_candidate_is_not_its_rival():
     from lsmta.calibration.tie_points import _nearest_in_band
 
     rng = np.random.default_rng(3)
-    desc = rng.uniform(0, 100, (4, 128)).astype(np.float32)
+    desc = rng.integers(0, 100, (4, 128)).astype(np.uint8)          # SIFT's: bytes
     da = desc[:1]
-    twin = da[0] + 0.55
-    db = np.stack([da[0] + 0.5, twin, desc[1], desc[2]])
+    twin = da[0] + np.r_[np.full(20, 2), np.ones(108)].astype(np.uint8)   # squared 188
+    db = np.stack([da[0] + 1, twin, desc[1], desc[2]])                  # the best: 128
     xb = np.array([[100.0, 50.0], [100.6, 50.3], [300.0, 50.0], [np.nan, np.nan]])
     line = np.array([[0.0, 1.0, -50.0]])                    # y = 50: every candidate in the band
     for distinct, passes in ((2.0, True), (0.0, False)):
@@ -432,8 +456,8 @@ def test_band_search_visits_every_feature_in_the_band():
 
     rng = np.random.default_rng(11)
     na, nb_, band, distinct = 150, 200, 20.0, 2.0
-    da = rng.integers(0, 30, (na, 16)).astype(np.float32)           # many equal distances
-    db = rng.integers(0, 30, (nb_, 16)).astype(np.float32)
+    da = rng.integers(0, 30, (na, 16)).astype(np.uint8)             # many equal distances
+    db = rng.integers(0, 30, (nb_, 16)).astype(np.uint8)
     xb = rng.uniform(-300, 300, (nb_, 2))
     xb[::17] = np.nan
     ang = rng.uniform(0, 2 * np.pi, na)
@@ -443,7 +467,7 @@ def test_band_search_visits_every_feature_in_the_band():
     best, d1, d2 = _nearest_in_band(lines, xb, da, db, band, distinct)
     with np.errstate(invalid="ignore"):
         inside = np.abs(lines @ np.c_[xb, np.ones(nb_)].T) < band     # (na, nb)
-    dist = ((da[:, None] - db[None]) ** 2).sum(axis=2)
+    dist = ((da[:, None].astype(int) - db[None]) ** 2).sum(axis=2)
     for i in range(na):
         d = np.where(inside[i], dist[i], np.inf)
         if not inside[i].any():
@@ -453,3 +477,15 @@ def test_band_search_visits_every_feature_in_the_band():
         far = np.hypot(*(xb - xb[best[i]]).T) > distinct
         assert d2[i] == np.where(far, d, np.inf).min()
     assert (best >= 0).sum() > na / 2
+
+
+def test_descriptors_must_be_bytes_to_be_matched_exactly():
+    """SIFT's descriptors are whole numbers in 0..255 (OpenCV rounds them): they are matched
+    as bytes, exactly; anything else is refused rather than rounded."""
+    from lsmta.calibration.tie_points import _bytes
+
+    des = np.array([[0.0, 17.0, 255.0]], np.float32)
+    assert _bytes(des).dtype == np.uint8 and np.array_equal(_bytes(des), des)
+    for bad in ([[0.5, 1.0]], [[-1.0, 3.0]], [[256.0, 0.0]]):
+        with pytest.raises(ValueError, match="whole numbers in 0..255"):
+            _bytes(np.array(bad, np.float32))

@@ -42,8 +42,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
-from scipy.optimize._numdiff import approx_derivative, group_columns
-from scipy.sparse import coo_matrix, csc_matrix, diags
+from scipy.optimize._numdiff import group_columns
+from scipy.sparse import coo_matrix, csc_matrix, diags, find
 from scipy.sparse.linalg import splu
 from scipy.spatial.transform import Rotation
 
@@ -73,11 +73,15 @@ def params_to_camera(p, template: Camera) -> Camera:
     return template.replace(R=R, C=p[3:6], **dict(zip(INTRINSIC_NAMES, p[6:].tolist())))
 
 
-def project_params(params, X) -> np.ndarray:
+def project_params(params, X, *, rows=None) -> np.ndarray:
     """Pixel coordinates ``(n, 2)`` of points ``X`` ``(n, 3)`` (mm) seen by cameras with
     parameters ``params`` ``(n, 16)`` (one row per point; vectorised), or ``(1, 16)`` for
-    one camera and all points."""
+    one camera and all points; or, with ``rows`` ``(n,)`` int, ``params`` ``(K, 16)`` and
+    point i seen by camera ``rows[i]`` (each camera's rotation computed once: the same
+    numbers as ``project_params(params[rows], X)``)."""
     R = Rotation.from_rotvec(params[:, :3]).as_matrix()
+    if rows is not None:
+        R, params = R[rows], params[rows]
     Xc = (R @ (X - params[:, 3:6])[:, :, None])[:, :, 0]
     with np.errstate(divide="ignore", invalid="ignore"):
         x = Xc[:, 0] / Xc[:, 2]
@@ -629,13 +633,48 @@ class _Solution:
     nfev: int
 
 
+class _GroupedDifference:
+    """The Jacobian by 2-point finite differences over a sparsity pattern, columns perturbed
+    together by groups: the numbers of scipy's ``approx_derivative(fun, x, method="2-point",
+    f0=f0, sparsity=(sparsity, groups))`` (unbounded), as a CSC matrix, with the pattern's
+    rows per group and the CSC order found once instead of at every Jacobian."""
+
+    def __init__(self, sparsity, groups):
+        S = csc_matrix(sparsity)
+        self.shape = S.shape
+        self.masks, self.rows, self.cols = [], [], []
+        for g in range(int(np.max(groups)) + 1):
+            e = np.equal(g, groups)
+            cols, = np.nonzero(e)
+            i, j, _ = find(S[:, cols])
+            self.masks.append(e)
+            self.rows.append(i)
+            self.cols.append(cols[j])
+        r, c = np.concatenate(self.rows), np.concatenate(self.cols)
+        self.order = np.lexsort((r, c))                     # column-major, rows ascending
+        self.indices = r[self.order]
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(c, minlength=S.shape[1]))])
+
+    def __call__(self, fun, x0, f0) -> csc_matrix:
+        sign = (x0 >= 0).astype(float) * 2 - 1
+        h = np.finfo(np.float64).eps ** 0.5 * sign * np.maximum(1.0, np.abs(x0))
+        parts = []
+        for e, i, j in zip(self.masks, self.rows, self.cols):
+            x = x0 + h * e
+            dx = x - x0
+            df = np.atleast_1d(fun(x)) - f0
+            parts.append(df[i] / dx[j])
+        data = np.concatenate(parts)[self.order]
+        return csc_matrix((data, self.indices, self.indptr), shape=self.shape)
+
+
 def _levenberg_marquardt(fun, x0, sparsity, max_iter, ftol, xtol, callback, step=None):
     """Levenberg-Marquardt on the sparse normal equations (SuperLU factorisation), with
     the Jacobian by finite differences over the sparsity pattern (scipy's grouped
     differences, as ``least_squares(jac_sparsity=...)`` uses). ``step(J, r, lam)``, if
     given, solves ``(JᵀJ + lam diag(JᵀJ)) dx = -Jᵀr`` instead (e.g. by the Schur complement,
     :mod:`lsmta.calibration.refine`)."""
-    groups = group_columns(sparsity)
+    jacobian = _GroupedDifference(sparsity, group_columns(sparsity))
     x = x0.copy()
     r = fun(x)
     cost = r @ r
@@ -644,9 +683,8 @@ def _levenberg_marquardt(fun, x0, sparsity, max_iter, ftol, xtol, callback, step
     nfev = 1
     J = None
     for _ in range(max_iter):
-        J = approx_derivative(fun, x, method="2-point", f0=r, sparsity=(sparsity, groups))
+        J = jacobian(fun, x, r)
         nfev += 1
-        J = csc_matrix(J)
         if step is None:
             N = (J.T @ J).tocsc()
             g = J.T @ r
@@ -677,8 +715,7 @@ def _levenberg_marquardt(fun, x0, sparsity, max_iter, ftol, xtol, callback, step
             callback(_Solution(x=x, jac=None, nfev=nfev))
         if rel < ftol or np.linalg.norm(dx) < xtol * (xtol + np.linalg.norm(x)):
             break
-    J = csc_matrix(approx_derivative(fun, x, method="2-point", f0=r,
-                                     sparsity=(sparsity, groups)))
+    J = jacobian(fun, x, r)
     return _Solution(x=x, jac=J, nfev=nfev)
 
 

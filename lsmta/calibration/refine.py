@@ -203,7 +203,7 @@ def _residuals(x, pr: _Problem, free: np.ndarray):
     nf = int(free.sum())
     params[free] = x[:nf]
     X = x[nf:].reshape(pr.n_points, 3)
-    proj = project_params(params[pr.cam], X[pr.pt])
+    proj = project_params(params, X[pr.pt], rows=pr.cam)
     image = ((pr.obs - proj) / pr.sigma_px).ravel()
     prior = (params[free] - pr.params0[free]) / pr.sigmas[free]
     return np.concatenate([image, prior])

@@ -9,17 +9,19 @@ another still gives matching descriptors). SIFT's descriptors hold to about 30-4
 of viewpoint change; the default ``detector="auto"`` takes ASIFT when two of the cameras'
 optical axes are more than ``asift_above_deg`` apart.
 
-The given cameras guide the matching: a feature of view *b* is a candidate for one of
-view *a* only within ``band_px`` of its epipolar line (so a camera file that is some
-pixels off still finds its matches, and repeated texture elsewhere in the image cannot be
-chosen). The search is compiled (numba, on its threads), one pass each way per view
-pair: for each feature, the nearest descriptor among the candidates in the band, and the
-nearest among those not at the same place (a place holds several features: one per
-orientation, and with ASIFT one per simulated tilt). Lowe's ratio test between the two (a
-lone candidate passes it) and a mutual check keep unambiguous pairs. Each
-view pair's matches must then agree with one relative orientation of their own: an
-essential matrix fitted by MAGSAC++ (``cv2.findEssentialMat`` with ``cv2.USAC_MAGSAC``) on
-the features' undistorted normalised positions, inliers within ``ransac_px``; a pair with
+The given cameras guide the matching: a feature of view *b* is a candidate for one of view
+*a* only within ``band_px`` of its epipolar line (so a camera file that is some pixels off
+still finds its matches, and repeated texture elsewhere in the image cannot be chosen).
+The search is compiled (numba, on its threads), one pass each way per view pair, on the
+descriptors as bytes (SIFT's are whole numbers in 0..255, so the distances are exact) and
+with the lines taken in blocks of similar ones, so that each candidate's descriptor is
+read once per block: for each feature, the nearest descriptor among the candidates in the
+band, and the nearest among those not at the same place (a place holds several features:
+one per orientation, and with ASIFT one per simulated tilt). Lowe's ratio test between the
+two (a lone candidate passes it) and a mutual check keep unambiguous pairs. Each view
+pair's matches must then agree with one relative orientation of their own: an essential
+matrix fitted by MAGSAC++ (``cv2.findEssentialMat`` with ``cv2.USAC_MAGSAC``) on the
+features' undistorted normalised positions, inliers within ``ransac_px``; a pair with
 fewer than ``min_matches`` inliers gives none. A wrong match that happens to lie in the
 band does not agree with the others' relative orientation, so the band can be wide. The
 pairs' matches are chained into multi-view tie points (union-find); a chain that holds two
@@ -188,64 +190,135 @@ def _cell_index(xb, cell):                                            # pragma: 
 
 
 @nb.njit(parallel=True, fastmath={"reassoc", "contract"}, cache=True)
-def _nearest_in_band(lines, xb, da, db, band, distinct):            # pragma: no cover
-    """For each row of ``da``: the nearest descriptor of ``db`` among b's features within
-    ``band`` of its line, and the nearest among those farther than ``distinct`` from it
-    (squared distances; index -1: none; of equal distances the lower index).
+def _band_kernel(lines, xb, da, db, band, distinct, rank, block):   # pragma: no cover
+    """:func:`_nearest_in_band` on byte descriptors, the lines taken ``block`` at a time in
+    the order ``rank`` (similar lines together).
 
-    ``lines`` (Na, 3) are normalised (``l0² + l1² = 1``). b's features are put in square
-    cells of side ``band``; each line visits only the cells its band crosses (walking along
-    its longer extent), then tests each feature there exactly."""
+    b's features are put in square cells of side ``band`` and copied in cell order (their
+    descriptors contiguous); a block of lines walks the cells that the union of its bands
+    crosses (along its first line's longer extent), so each candidate's descriptor is read
+    once per block, and is tested against each line of the block exactly. Squared
+    distances of byte descriptors are summed in 32-bit integers: exact."""
     na = da.shape[0]
+    dim = da.shape[1]
     best = np.full(na, -1, np.int64)
     d1 = np.full(na, np.inf)
     d2 = np.full(na, np.inf)
     cell, x0, y0, nx, ny, start, order = _cell_index(xb, max(band, 1e-3))
-    for i in nb.prange(na):
-        l0, l1, l2 = lines[i, 0], lines[i, 1], lines[i, 2]
-        flat = abs(l1) >= abs(l0)            # walk along x (cells in columns), else along y
-        a, b_ = (l0, l1) if flat else (l1, l0)
-        n_walk, n_across = (nx, ny) if flat else (ny, nx)
-        o_walk, o_across = (x0, y0) if flat else (y0, x0)
-        half = band / abs(b_) + 1e-9 * (1.0 + abs(l2))
-        cand = np.empty(order.shape[0], np.int64)
-        cdist = np.empty(order.shape[0], np.float32)
-        m = 0
-        for w in range(n_walk):
-            u0 = o_walk + w * cell
-            va = -(a * u0 + l2) / b_
-            vb = -(a * (u0 + cell) + l2) / b_
-            lo = int(np.floor((min(va, vb) - half - o_across) / cell))
-            hi = int(np.floor((max(va, vb) + half - o_across) / cell))
-            for c in range(max(lo, 0), min(hi, n_across - 1) + 1):
-                k = c * nx + w if flat else w * nx + c
-                for q in range(start[k], start[k + 1]):
-                    j = order[q]
-                    if not abs(l0 * xb[j, 0] + l1 * xb[j, 1] + l2) < band:
-                        continue
-                    d = np.float32(0.0)
-                    for e_ in range(da.shape[1]):                    # vectorised (SIMD)
-                        e = da[i, e_] - db[j, e_]
-                        d += e * e
-                    cand[m] = j
-                    cdist[m] = d
-                    m += 1
-                    if d < d1[i] or (d == d1[i] and j < best[i]):
-                        d1[i] = d
-                        best[i] = j
-        if best[i] < 0:
-            continue
-        px, py = xb[best[i], 0], xb[best[i], 1]
-        for q in range(m):
-            j = cand[q]
-            if cdist[q] < d2[i] and (xb[j, 0] - px) ** 2 + (xb[j, 1] - py) ** 2 > distinct ** 2:
-                d2[i] = cdist[q]
+    ns = order.shape[0]
+    xs = np.empty((ns, 2))
+    ds = np.empty((ns, dim), np.uint8)
+    for q in range(ns):
+        xs[q, 0] = xb[order[q], 0]
+        xs[q, 1] = xb[order[q], 1]
+        ds[q] = db[order[q]]
+    big = np.int64(2 ** 31 - 1)
+    n_blocks = (na + block - 1) // block
+    per = 16                                       # blocks per chunk (buffers reused)
+    for ch in nb.prange((n_blocks + per - 1) // per):
+        lb = np.empty((block, 3))
+        ab = np.empty((block, dim), np.uint8)
+        cand = np.empty((block, ns), np.int32)      # each line's candidates (cell order)
+        cdist = np.empty((block, ns), np.int32)
+        m = np.zeros(block, np.int64)
+        bq = np.empty(block, np.int64)
+        bj = np.empty(block, np.int64)
+        bd = np.empty(block, np.int64)
+        for blk in range(ch * per, min(n_blocks, (ch + 1) * per)):
+            ids = rank[blk * block:min(na, (blk + 1) * block)]
+            nl = ids.shape[0]
+            for t in range(nl):
+                lb[t] = lines[ids[t]]
+                ab[t] = da[ids[t]]
+                m[t] = 0
+                bq[t] = -1
+                bj[t] = -1
+                bd[t] = big
+            flat = abs(lb[0, 1]) >= abs(lb[0, 0])   # walk along x (cells in columns)
+            n_walk, n_across = (nx, ny) if flat else (ny, nx)
+            o_walk, o_across = (x0, y0) if flat else (y0, x0)
+            for w in range(n_walk):
+                u0 = o_walk + w * cell
+                lo, hi = n_across, -1
+                for t in range(nl):
+                    l0, l1, l2 = lb[t, 0], lb[t, 1], lb[t, 2]
+                    a, b_ = (l0, l1) if flat else (l1, l0)
+                    if abs(b_) < 1e-12:                 # along the walk: every cell across
+                        lo, hi = 0, n_across - 1
+                        break
+                    half = band / abs(b_) + 1e-9 * (1.0 + abs(l2))
+                    va = -(a * u0 + l2) / b_
+                    vb = -(a * (u0 + cell) + l2) / b_
+                    lo = min(lo, int(np.floor((min(va, vb) - half - o_across) / cell)))
+                    hi = max(hi, int(np.floor((max(va, vb) + half - o_across) / cell)))
+                for c in range(max(lo, 0), min(hi, n_across - 1) + 1):
+                    k = c * nx + w if flat else w * nx + c
+                    for q in range(start[k], start[k + 1]):
+                        qx, qy = xs[q, 0], xs[q, 1]
+                        for t in range(nl):
+                            if not abs(lb[t, 0] * qx + lb[t, 1] * qy + lb[t, 2]) < band:
+                                continue
+                            d = np.int32(0)
+                            for e_ in range(dim):                # vectorised (SIMD)
+                                e = np.int32(ab[t, e_]) - np.int32(ds[q, e_])
+                                d = np.int32(d + e * e)
+                            cand[t, m[t]] = q
+                            cdist[t, m[t]] = d
+                            m[t] += 1
+                            j = order[q]
+                            if d < bd[t] or (d == bd[t] and j < bj[t]):
+                                bd[t] = d
+                                bj[t] = j
+                                bq[t] = q
+            for t in range(nl):
+                if bq[t] < 0:
+                    continue
+                i = ids[t]
+                best[i] = bj[t]
+                d1[i] = bd[t]
+                px, py = xs[bq[t], 0], xs[bq[t], 1]
+                dd = big
+                for r in range(m[t]):
+                    q = cand[t, r]
+                    if cdist[t, r] < dd and (xs[q, 0] - px) ** 2 + (xs[q, 1] - py) ** 2 \
+                            > distinct ** 2:
+                        dd = cdist[t, r]
+                if dd < big:
+                    d2[i] = dd
     return best, d1, d2
 
 
+def _nearest_in_band(lines, xb, da, db, band, distinct):
+    """For each row of ``da``: the nearest descriptor of ``db`` among b's features within
+    ``band`` of its line, and the nearest among those farther than ``distinct`` from it
+    (squared distances; index -1: none; of equal distances the lower index).
+
+    ``lines`` (Na, 3) are normalised (``l0² + l1² = 1``); ``da``, ``db`` are byte
+    descriptors (Na, D), (Nb, D) uint8 (SIFT's, see :func:`_bytes`). The lines are taken
+    in blocks of similar ones (sorted by direction, then offset) so that a candidate is read
+    once per block (:func:`_band_kernel`); the result does not depend on the order."""
+    lines = np.ascontiguousarray(lines, float)
+    canon = np.where(((lines[:, 1] < 0) | ((lines[:, 1] == 0) & (lines[:, 0] < 0)))[:, None],
+                     -lines, lines)
+    rank = np.lexsort((canon[:, 2], np.arctan2(canon[:, 1], canon[:, 0])))
+    return _band_kernel(lines, np.ascontiguousarray(xb, float),
+                        np.ascontiguousarray(da, np.uint8), np.ascontiguousarray(db, np.uint8),
+                        float(band), float(distinct), rank, 32)
+
+
+def _bytes(des) -> np.ndarray:
+    """SIFT's descriptors as bytes: OpenCV rounds them to whole numbers in 0..255 (and
+    returns them as float32), so nothing is lost; distances between them are exact."""
+    des = np.asarray(des)
+    if des.dtype != np.uint8 and (des.size and (des.min() < 0 or des.max() > 255
+                                                or not np.array_equal(des, np.round(des)))):
+        raise ValueError("descriptors: expected whole numbers in 0..255 (SIFT's, as OpenCV "
+                         "returns them)")
+    return des.astype(np.uint8)
+
+
 def _one_way(a, b, ideal_a, ideal_b, da, db, params) -> dict:
-    best, d1, d2 = _nearest_in_band(_lines(a, b, ideal_a), ideal_b,
-                                    da.astype(np.float32), db.astype(np.float32),
+    best, d1, d2 = _nearest_in_band(_lines(a, b, ideal_a), ideal_b, da, db,
                                     params.band_px, params.distinct_px)
     ok = (best >= 0) & (np.sqrt(d1) < params.ratio * np.sqrt(d2))   # a lone candidate: d2 inf
     return dict(zip(np.flatnonzero(ok).tolist(), best[ok].tolist()))
@@ -276,7 +349,7 @@ def _features(images, detector):
     for g in images:
         kp, des = detector.detectAndCompute(g, None)
         xy = np.array([k.pt for k in kp], float).reshape(-1, 2)
-        out.append((xy, des if des is not None else np.zeros((0, 128), np.float32)))
+        out.append((xy, _bytes(des) if des is not None else np.zeros((0, 128), np.uint8)))
     return out
 
 

@@ -424,9 +424,23 @@ def _check_fit(given, tie: TiePoints, params: RigRefinementParams) -> None:
                          "and the file's units")
 
 
-def _tie_points_at_work_size(videos: Videos, given, picks, params) -> TiePoints:
-    """Tie points of the picked frames, found in frames halved until their longer side is
-    at most ``params.tie_max_side`` and scaled back to the frames as delivered."""
+def _loaded(stacks, videos: Videos) -> list:
+    """``stacks`` checked against ``videos``: K arrays (T, H_k, W_k) uint8 as
+    :meth:`lsmta.io.Videos.load` returns them."""
+    stacks = list(stacks)
+    want = [(videos.n_frames, h, w) for w, h in videos.sizes]
+    got = [np.shape(s) for s in stacks]
+    if len(stacks) != videos.n_views or got != want or \
+            any(np.asarray(s).dtype != np.uint8 for s in stacks):
+        raise ValueError(f"stacks: expected the videos' frames as Videos.load() returns them, "
+                         f"{videos.n_views} uint8 arrays of shapes {want}; got shapes {got}")
+    return stacks
+
+
+def _tie_points_at_work_size(videos: Videos, given, picks, params, stacks=None) -> TiePoints:
+    """Tie points of the picked frames (decoded, or taken from ``stacks``), found in frames
+    halved until their longer side is at most ``params.tie_max_side`` and scaled back to
+    the frames as delivered."""
     longest = max(max(c.width, c.height) for c in given)
     halvings = max(0, int(np.ceil(np.log2(longest / params.tie_max_side))))
     factor, m = 0.5 ** halvings, 2 ** halvings
@@ -436,7 +450,7 @@ def _tie_points_at_work_size(videos: Videos, given, picks, params) -> TiePoints:
             for c, (w, h) in zip(given, sizes)] if halvings else list(given)
     images = []
     for i in picks:
-        frame = videos.read(int(i))
+        frame = videos.read(int(i)) if stacks is None else [st[int(i)] for st in stacks]
         images.append([cv2.resize(g[:h, :w], (c.width, c.height), interpolation=cv2.INTER_AREA)
                        if halvings else g for g, c, (w, h) in zip(frame, cams, sizes)])
     tie_params = replace(params.tie, band_px=params.tie.band_px * videos.scale * factor)
@@ -459,8 +473,8 @@ def _check_turn(given, refined, limit_deg: float) -> None:
                          "hold these cameras (too few, or in one small part of the view)")
 
 
-def refine_rig(videos: Videos, cameras, *,
-               params: RigRefinementParams | None = None) -> RigRefinement:
+def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = None,
+               stacks=None) -> RigRefinement:
     """Refine a camera file's cameras from the recording itself.
 
     Parameters
@@ -471,6 +485,10 @@ def refine_rig(videos: Videos, cameras, *,
         The cameras as read from a camera file (:mod:`lsmta.camera_files`), in the videos'
         order, for the videos as stored (crop and scale of ``videos`` are applied here).
     params : RigRefinementParams, optional
+    stacks : sequence of K (T, H_k, W_k) uint8 arrays, optional
+        The videos' frames already in memory (:meth:`lsmta.io.Videos.load`): the sampled
+        frames are taken from them instead of decoded again (seeking into a video decodes
+        from its last key frame; the frames are the same).
 
     Returns
     -------
@@ -489,7 +507,8 @@ def refine_rig(videos: Videos, cameras, *,
     given = tuple(cameras_for_videos(cameras, videos, mismatch=params.mismatch))
     n = min(params.n_frames, videos.n_frames)
     picks = np.unique(np.linspace(0, videos.n_frames - 1, n).round().astype(int))
-    tie = _tie_points_at_work_size(videos, given, picks, params)
+    stacks = None if stacks is None else _loaded(stacks, videos)
+    tie = _tie_points_at_work_size(videos, given, picks, params, stacks)
     _check_fit(given, tie, params)
     held_frames = (np.arange(len(picks)) % params.hold_out_every) == 1
     tol = params.place_px * videos.scale

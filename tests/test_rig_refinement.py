@@ -199,22 +199,23 @@ def test_cameras_that_do_not_fit_are_refused(recording):
 @pytest.mark.slow
 def test_frames_in_memory_give_the_same_refinement(recording):
     """Frames already loaded are used instead of decoding the sampled ones again: the same
-    tie points and cameras; stacks that are not the videos' frames are refused."""
+    frames, so the same tie points (the adjustment after them is deterministic); stacks that
+    are not the videos' frames are refused."""
+    from lsmta.systems.refinement import _tie_points_at_work_size
+
     paths, cams = recording
     videos = read_videos(paths)
     given = _disturbed(cams, np.random.default_rng(7))
     params = RigRefinementParams(n_frames=3, tie=TieParams(n_features=2000, asift_features=300))
     stacks = videos.load(progress=False)
     kept = [s.copy() for s in stacks]
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        a = refine_rig(videos, given, params=params)
-        b = refine_rig(videos, given, params=params, stacks=stacks)
-    np.testing.assert_array_equal(a.tie_points.xy, b.tie_points.xy)
-    for ca, cb in zip(a.cameras, b.cameras):
-        assert (ca.f, ca.cx, ca.cy) == (cb.f, cb.cx, cb.cy)
-        np.testing.assert_array_equal(ca.R, cb.R)
-        np.testing.assert_array_equal(ca.C, cb.C)
+    for i in range(videos.n_frames):
+        assert all(np.array_equal(s[i], f) for s, f in zip(stacks, videos.read(i)))
+    picks = np.array([0, 2, 5])
+    a = _tie_points_at_work_size(videos, given, picks, params)
+    b = _tie_points_at_work_size(videos, given, picks, params, stacks)
+    assert np.isfinite(a.xy).all(axis=-1).sum() > 100                        # not vacuous
+    np.testing.assert_array_equal(a.xy, b.xy)
     assert all(np.array_equal(s, k) for s, k in zip(stacks, kept))           # unchanged
     with pytest.raises(ValueError, match="stacks: expected the videos' frames"):
         refine_rig(videos, given, params=params, stacks=[s[:2] for s in stacks])

@@ -197,7 +197,7 @@ def test_cameras_that_do_not_fit_are_refused(recording):
 
 
 @pytest.mark.slow
-def test_frames_in_memory_give_the_same_refinement(recording):
+def test_frames_in_memory_give_the_same_tie_points(recording):
     """Frames already loaded are used instead of decoding the sampled ones again: the same
     frames, so the same tie points (the adjustment after them is deterministic); stacks that
     are not the videos' frames are refused."""

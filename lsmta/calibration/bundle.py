@@ -665,7 +665,7 @@ class _GroupedDifference:
             df = np.atleast_1d(fun(x)) - f0
             parts.append(df[i] / dx[j])
         data = np.concatenate(parts)[self.order]
-        return csc_matrix((data, self.indices, self.indptr), shape=self.shape)
+        return csc_matrix((data, self.indices.copy(), self.indptr.copy()), shape=self.shape)
 
 
 def _levenberg_marquardt(fun, x0, sparsity, max_iter, ftol, xtol, callback, step=None):

@@ -196,8 +196,8 @@ def _band_kernel(lines, xb, da, db, band, distinct, rank, block):   # pragma: no
 
     b's features are put in square cells of side ``band`` and copied in cell order (their
     descriptors contiguous); a block of lines walks the cells that the union of its bands
-    crosses (along its first line's longer extent), so each candidate's descriptor is read
-    once per block, and is tested against each line of the block exactly. Squared
+    crosses (along its first line's longer extent), so each candidate's descriptor is loaded
+    from memory once per block, and is tested against each line of the block exactly. Squared
     distances of byte descriptors are summed in 32-bit integers: exact."""
     na = da.shape[0]
     dim = da.shape[1]
@@ -295,14 +295,14 @@ def _nearest_in_band(lines, xb, da, db, band, distinct):
 
     ``lines`` (Na, 3) are normalised (``l0² + l1² = 1``); ``da``, ``db`` are byte
     descriptors (Na, D), (Nb, D) uint8 (SIFT's, see :func:`_bytes`). The lines are taken
-    in blocks of similar ones (sorted by direction, then offset) so that a candidate is read
+    in blocks of similar ones (sorted by direction, then offset) so that a candidate is loaded
     once per block (:func:`_band_kernel`); the result does not depend on the order."""
     lines = np.ascontiguousarray(lines, float)
     canon = np.where(((lines[:, 1] < 0) | ((lines[:, 1] == 0) & (lines[:, 0] < 0)))[:, None],
                      -lines, lines)
     rank = np.lexsort((canon[:, 2], np.arctan2(canon[:, 1], canon[:, 0])))
     return _band_kernel(lines, np.ascontiguousarray(xb, float),
-                        np.ascontiguousarray(da, np.uint8), np.ascontiguousarray(db, np.uint8),
+                        np.ascontiguousarray(_bytes(da)), np.ascontiguousarray(_bytes(db)),
                         float(band), float(distinct), rank, 32)
 
 

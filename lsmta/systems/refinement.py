@@ -429,11 +429,11 @@ def _loaded(stacks, videos: Videos) -> list:
     :meth:`lsmta.io.Videos.load` returns them."""
     stacks = list(stacks)
     want = [(videos.n_frames, h, w) for w, h in videos.sizes]
-    got = [np.shape(s) for s in stacks]
-    if len(stacks) != videos.n_views or got != want or \
-            any(np.asarray(s).dtype != np.uint8 for s in stacks):
+    got = [(getattr(s, "shape", None), getattr(s, "dtype", None)) for s in stacks]
+    if len(stacks) != videos.n_views or got != [(w, np.dtype(np.uint8)) for w in want]:
         raise ValueError(f"stacks: expected the videos' frames as Videos.load() returns them, "
-                         f"{videos.n_views} uint8 arrays of shapes {want}; got shapes {got}")
+                         f"{videos.n_views} uint8 arrays of shapes {want}; got "
+                         f"{[(s, str(d)) for s, d in got]}")
     return stacks
 
 
@@ -499,7 +499,7 @@ def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = 
     ValueError
         Cameras that do not fit the videos (sizes, count, tie points far from where the
         cameras put them, or an adjustment that turns a camera far from the file's
-        orientation), with what was found.
+        orientation), with what was found; ``stacks`` that are not the videos' frames.
     """
     params = RigRefinementParams() if params is None else params
     if not isinstance(videos, Videos):

@@ -57,6 +57,14 @@ def test_stabilisation_recovers_camera_shift():
     assert np.abs(tr.shift[1:] - shifts[1:]).max() < 0.1
     assert np.abs(tr.xy - (base + np.round(pos)[:, None])).max() < 0.3
     assert np.array_equal(frames, before)
+    # the shifts of that run given back: the same result without measuring them again;
+    # wrong shifts are used as given (the searches start off and fail)
+    again = tm.track_markers(frames, base, shifts=tr.shift)
+    assert np.array_equal(again.xy, tr.xy, equal_nan=True) and np.array_equal(again.shift, tr.shift)
+    off = tm.track_markers(frames, base, shifts=np.where(np.isfinite(tr.shift), -tr.shift, np.nan))
+    assert not np.array_equal(off.status, tr.status)
+    with pytest.raises(ValueError, match="shifts: expected an array of shape"):
+        tm.track_markers(frames, base, shifts=np.zeros((2, 2)))
 
 
 def test_blurred_frame_detected_and_tracks_survive():

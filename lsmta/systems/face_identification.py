@@ -203,6 +203,9 @@ class FaceIdentification:
         The face model fitted to them, every marker, mm (NaN when nothing was identified).
     dots : list of K (D_k, 2) arrays
         The dots found in each frame, px.
+    split : list of K (D_k,) bool arrays
+        The dots that are one of a merged blob's two
+        (:func:`~lsmta.tracking.markers.split_merged_blobs`).
     n_points : int
         Dots matched across the heads by stereo and triangulated (unlabelled).
     residual_mm : float
@@ -214,6 +217,7 @@ class FaceIdentification:
     points: np.ndarray
     face: np.ndarray
     dots: list
+    split: list
     n_points: int
     residual_mm: float
 
@@ -590,6 +594,7 @@ def _identify_from_pair(imgs, heads, settings, face_model, p):
             _uncrowded(idx, cams, r.face, p.crowd_px, blobs, p.round_px))
         xy[a], xy[b] = r.xy
     return FaceIdentification(xy=xy, points=r.points, face=r.face, dots=dots,
+                              split=[b.split for b in blobs],
                               n_points=r.n_points, residual_mm=r.residual_mm)
 
 
@@ -659,7 +664,8 @@ def identify_face_markers(images, heads, settings, face_model: FaceModel, *,
     blobs = [_blobs(im, p) for im in imgs]
     dots = [b.xy for b in blobs]
     nothing = dict(xy=np.full((K, M, 2), np.nan), points=np.full((M, 3), np.nan),
-                   face=np.full((M, 3), np.nan), dots=dots, n_points=0,
+                   face=np.full((M, 3), np.nan), dots=dots,
+                   split=[b.split for b in blobs], n_points=0,
                    residual_mm=float("nan"))
     if sum(len(d) > 0 for d in dots) < 2:
         return FaceIdentification(**nothing)
@@ -688,5 +694,6 @@ def identify_face_markers(images, heads, settings, face_model: FaceModel, *,
     if not resid <= p.max_residual_mm:          # a fit this poor has wrong labels in it
         return FaceIdentification(**{**nothing, "n_points": len(X), "face": face,
                                      "residual_mm": resid})
-    return FaceIdentification(xy=xy, points=points, face=face, dots=dots, n_points=len(X),
+    return FaceIdentification(xy=xy, points=points, face=face, dots=dots,
+                              split=[b.split for b in blobs], n_points=len(X),
                               residual_mm=resid)

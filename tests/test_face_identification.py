@@ -20,7 +20,7 @@ from lsmta.systems import (
     identify_face_markers,
 )
 from lsmta.systems import face_identification as fi
-from lsmta.tracking.markers import find_blobs
+from lsmta.tracking.markers import SplitBlobs, find_blobs
 
 
 @pytest.fixture(scope="module")
@@ -150,21 +150,65 @@ def test_start_normals_cover_every_face_the_heads_can_see(setup):
     assert len(fi._starts(ref, towards, 12)) == 18 * 12
 
 
-def test_a_blob_found_twice_is_one_dot():
+def test_a_merged_blob_is_split_into_its_two_dots():
     # two dots 3.5 px apart merge into one blob with a strength peak on each lobe; both
-    # centroids refine to the whole blob's: the detector gives it twice, the identification
-    # keeps it once (else both markers of the merged pair take it, one of them wrongly)
+    # centroids refine to the whole blob's: the detector gives it twice, between the dots;
+    # the identification keeps it once and splits it into the two dots (else both markers
+    # of the merged pair take it, one of them wrongly, or neither is labelled)
     yy, xx = np.mgrid[0:64, 0:64].astype(float)
     img = np.full((64, 64), 80.0)
-    for x, y in ((30.0, 30.0), (33.5, 30.4), (45.0, 45.0)):
+    true = ((30.0, 30.0), (33.5, 30.4), (45.0, 45.0))
+    for x, y in true:
         img += 120.0 * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * 1.3 ** 2))
     img = img.astype(np.uint8)
     p = IdentifyParams()
     blobs = find_blobs(img.astype(float), sigma=p.sigma, min_strength=p.min_strength,
                        spacing=p.spacing)
     assert len(blobs) == 3 and np.allclose(blobs[1], blobs[2])
+    assert np.linalg.norm(blobs[:2, None] - np.array(true[:2])[None], axis=2).min() > 1.0
     dots = fi._dots(img, p)
-    assert len(dots) == 2 and np.allclose(dots, blobs[:2])
+    assert len(dots) == 3
+    assert np.linalg.norm(dots[:, None] - np.array(true)[None], axis=2).min(axis=0).max() < 0.5
+
+
+def test_a_round_dot_alone_keeps_its_label_next_to_a_hidden_marker():
+    # the crowding rule: a marker projected near another that got no dot loses its label
+    # (their dots may have merged), unless its dot is round and alone and it faces the head
+    # more than the other (which is then hidden). A spherical cap of markers facing +z, the
+    # head on the z axis; marker a (the cap's centre) and b (its rim) project 3 px apart
+    g = np.arange(-40.0, 41.0, 10.0)
+    x, y = [v.ravel() for v in np.meshgrid(g, g)]
+    face = np.c_[x, y, np.sqrt(100.0**2 - x**2 - y**2)]
+    a, b = int(np.argmin(x**2 + y**2)), int(np.argmax(x + y))
+    proj = np.c_[x * 20, y * 20]                   # every marker far from the others ...
+    proj[b] = proj[a] + [3.0, 0.0]                 # ... but b, 3 px from a
+    cams = [_Cam(proj, C=(0.0, 0.0, 3000.0))]
+    dots = np.delete(proj, b, axis=0)
+    blobs = SplitBlobs(xy=dots, spread=np.full(len(dots), 0.8), split=np.zeros(len(dots), bool))
+    dot_of = np.full(len(face), -1)
+    dot_of[np.arange(len(face)) != b] = np.arange(len(dots))
+    idx = dot_of[None]
+    assert fi._uncrowded(idx, cams, face, 5.0)[0, a] == -1          # no roundness test
+    assert fi._uncrowded(idx, cams, face, 5.0, [blobs], 1.5)[0, a] == dot_of[a]
+    spread = replace(blobs, spread=np.where(np.arange(len(dots)) == dot_of[a], 2.0, 0.8))
+    assert fi._uncrowded(idx, cams, face, 5.0, [spread], 1.5)[0, a] == -1
+    # the other way round: b (turned further from the head) has the dot, a none: b loses it
+    swapped = dot_of.copy()
+    swapped[b], swapped[a] = swapped[a], -1
+    assert fi._uncrowded(swapped[None], cams, face, 5.0, [blobs], 1.5)[0, b] == -1
+    # the others, round and alone, keep theirs
+    kept = fi._uncrowded(idx, cams, face, 5.0, [blobs], 1.5)[0]
+    assert np.array_equal(np.delete(kept, b), np.delete(dot_of, b))
+
+
+class _Cam:
+    """A camera at ``C`` that projects marker m to ``proj[m]``."""
+
+    def __init__(self, proj, C):
+        self.proj, self.C = np.asarray(proj, float), np.asarray(C, float)
+
+    def project(self, X, behind="nan"):
+        return self.proj.copy()
 
 
 def test_no_face_identifies_nothing(setup):

@@ -57,6 +57,14 @@ def test_stabilisation_recovers_camera_shift():
     assert np.abs(tr.shift[1:] - shifts[1:]).max() < 0.1
     assert np.abs(tr.xy - (base + np.round(pos)[:, None])).max() < 0.3
     assert np.array_equal(frames, before)
+    # the shifts of that run given back: the same result without measuring them again;
+    # wrong shifts are used as given (the searches start off and fail)
+    again = tm.track_markers(frames, base, shifts=tr.shift)
+    assert np.array_equal(again.xy, tr.xy, equal_nan=True) and np.array_equal(again.shift, tr.shift)
+    off = tm.track_markers(frames, base, shifts=np.where(np.isfinite(tr.shift), -tr.shift, np.nan))
+    assert not np.array_equal(off.status, tr.status)
+    with pytest.raises(ValueError, match="shifts: expected an array of shape"):
+        tm.track_markers(frames, base, shifts=np.zeros((2, 2)))
 
 
 def test_blurred_frame_detected_and_tracks_survive():
@@ -121,3 +129,42 @@ def test_bad_input():
     start = np.array([[10.0, 10.0]])
     tm.track_markers(img, start)
     assert start.tolist() == [[10.0, 10.0]]
+
+
+def test_merged_blobs_split_into_their_dots():
+    rng = np.random.default_rng(3)
+    bg = np.full((80, 120), 80.0) + rng.normal(0, 2.0, (80, 120))
+    single, pair = (20.3, 20.6), [(60.0, 40.2), (63.6, 41.5)]      # pair 3.8 px apart
+    crowd = [(95.0, 20.0), (98.0, 20.5), (96.2, 23.4)]                # three dots touching
+    img = _dots(bg.shape, [single, *pair, *crowd], bg)
+    blobs = tm.find_blobs(img.astype(float), sigma=1.5, spacing=5)
+    before = blobs.copy()
+    r = tm.split_merged_blobs(img, blobs, radius=3)
+    assert np.array_equal(blobs, before)                # the caller's array untouched
+
+    def near(p):
+        return np.linalg.norm(r.xy - p, axis=1)
+
+    # the single dot: one dot, round (spread well below the 2.5 px that splits)
+    i = int(np.argmin(near(single)))
+    assert near(single)[i] < 0.3 and r.spread[i] < 1.0 and not r.split[i]
+    # the pair: one blob, found as one or two at its centroid, now two dots on the pair
+    assert np.linalg.norm(blobs - pair[0], axis=1).min() > 1.0
+    for p in pair:
+        j = int(np.argmin(near(p)))
+        assert near(p)[j] < 0.5 and r.split[j] and abs(r.spread[j] - 3.8) < 0.8
+    # the crowd of three is not split into halves between its dots
+    in_crowd = np.linalg.norm(r.xy - np.mean(crowd, axis=0), axis=1) < 5
+    assert in_crowd.any() and not r.split[in_crowd].any()
+    assert len(r.xy) == len(r.spread) == len(r.split)
+    # a blob found twice is kept once
+    twice = tm.split_merged_blobs(img, np.r_[blobs[:1], blobs[:1] + 0.3], radius=3)
+    assert len(twice.xy) == 1
+    empty = tm.split_merged_blobs(img, np.zeros((0, 2)))
+    assert empty.xy.shape == (0, 2) and empty.spread.shape == (0,)
+    with pytest.raises(ValueError, match="xy: expected an array of shape"):
+        tm.split_merged_blobs(img, np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="image: expected an \\(H, W\\) grey image"):
+        tm.split_merged_blobs(img[None], blobs)
+    with pytest.raises(ValueError, match="min_separation"):
+        tm.split_merged_blobs(img, blobs, min_separation=0.0)

@@ -418,13 +418,16 @@ def _warn_refused(ident: FaceIdentification, params: IdentifyParams, t: float,
 
 
 def _track(st: _State, seeds) -> None:
+    # a later pass tracks the same videos: the frames' dominant shifts are the first pass's
+    before = st.markers
     st.markers, xy = [], []
     K, F = st.images.shape[:2]
     for k, start in enumerate(st.starts):
         s = np.full((F, len(start), 2), np.nan) if seeds is None else seeds[k].copy()
         s[st.first] = start                     # frame 0's start is its initial position
         initial = start if st.first == 0 else np.full((len(start), 2), np.nan)
-        tr = track_markers(st.images[k], initial, seeds=s)
+        tr = track_markers(st.images[k], initial, seeds=s,
+                           shifts=None if before is None else before[k].shift)
         ok = np.isin(tr.status, (MarkerStatus.TRACKED, MarkerStatus.SECOND_SEARCH))
         st.markers.append(tr)
         xy.append(np.where(ok[..., None], tr.xy, np.nan))

@@ -207,7 +207,7 @@ class MarkerTrackingParams:
         set_(self, "blur_ratio", as_scalar(self.blur_ratio, "blur_ratio", nonnegative=True))
 
 
-def track_markers(images, initial_xy, *, seeds=None,
+def track_markers(images, initial_xy, *, seeds=None, shifts=None,
                   params: MarkerTrackingParams | None = None) -> MarkerTracks:
     """Track markers through a grey video.
 
@@ -220,6 +220,12 @@ def track_markers(images, initial_xy, *, seeds=None,
     seeds : (T, M, 2) array, optional
         Positions (px, NaN elsewhere) at which a marker that is not being tracked starts
         again in that frame (not used in skipped blurred frames).
+    shifts : (T, 2) array, optional
+        The dominant translations of an earlier run on the same ``images`` with the same
+        ``params`` (its :attr:`MarkerTracks.shift`), px: used where finite instead of being
+        measured again (the blur test skips the same frames, so each is measured from the
+        same reference frame); the result is the same, without the phase correlations
+        (a third of the tracker's time on notebook 15's videos).
     params : MarkerTrackingParams, optional
         The searches, the blur test and the centroid refinement (default:
         ``MarkerTrackingParams()``).
@@ -241,11 +247,18 @@ def track_markers(images, initial_xy, *, seeds=None,
         second_search=bool(p.second_search), refine=bool(p.refine))
     if seeds is not None:
         seeds = as_array(seeds, "seeds", shape=(T, len(p0), 2), allow_nan=True)
+    if shifts is not None:
+        shifts = as_array(shifts, "shifts", shape=(T, 2), allow_nan=True)
     state = _State.initial(imgs, p0, search.refine)
     for t in range(1, T):
         if _blurred(state, t, p.blur_retry, p.blur_ratio, p.blur_history):
             continue
-        shift = dominant_shift(imgs[state.ref], imgs[t]) if p.stabilise else np.zeros(2)
+        if not p.stabilise:
+            shift = np.zeros(2)
+        elif shifts is not None and np.isfinite(shifts[t]).all():
+            shift = shifts[t].copy()
+        else:
+            shift = dominant_shift(imgs[state.ref], imgs[t])
         state.shift[t] = shift
         if state.alive.any():
             _follow(state, imgs, t, shift, search)
@@ -391,6 +404,136 @@ def find_blobs(image, *, sigma: float = 2.5, min_strength: float = 20.0,
     xy, strength = _blobs(grey.astype(np.float64), sigma, min_strength, roundness, spacing)
     xy = xy[np.argsort(-strength, kind="stable")]
     return refine_centroid(grey, xy, radius=int(np.ceil(2 * sigma))) if len(xy) else xy
+
+
+@dataclass(frozen=True, eq=False)
+class SplitBlobs:
+    """Result of :func:`split_merged_blobs`.
+
+    Attributes
+    ----------
+    xy : (N, 2) array
+        The dots, px: every blob once, a merged blob as its two dots.
+    spread : (N,) array
+        The blob each dot comes from, its brightness spread along its long axis beyond that
+        across it, as the distance of two equal dots that would spread so,
+        ``2 sqrt(lambda_max - lambda_min)`` (the eigenvalues of its brightness-weighted
+        covariance), px: about 1 px or less for a round dot, the dots' distance for two
+        merged ones (0: a window reaching outside the image, left as it was).
+    split : (N,) bool array
+        The dot is one of a merged blob's two.
+    """
+
+    xy: np.ndarray
+    spread: np.ndarray
+    split: np.ndarray
+
+
+def split_merged_blobs(image, xy, *, radius: int = 3, min_separation: float = 2.5,
+                       same_px: float = 1.0, iterations: int = 2) -> SplitBlobs:
+    """Each blob once, and two touching dots that merged into one blob told apart.
+
+    Two dots a few pixels apart make one elongated blob: :func:`find_blobs` finds it once or
+    twice (a strength peak on each lobe, both refined to the whole blob's centroid, between
+    the two dots). Here a blob within ``same_px`` of a stronger one (earlier in ``xy``) is
+    that blob again and dropped; then each blob's brightness (grey levels above its window's
+    median, as :func:`refine_centroid`) in a ``(2 radius + 1)`` square gives its covariance,
+    eigenvalues ``lambda_min <= lambda_max``. Two equal dots ``s`` px apart spread by
+    ``s**2 / 4`` along their axis beyond a single dot's spread across it, so
+    ``s = 2 sqrt(lambda_max - lambda_min)``; a blob with ``s >= min_separation`` becomes two
+    dots ``s / 2`` either side of its centroid along the long axis, each then moved to the
+    centroid of the window's pixels nearer to it than to the other (``iterations`` times).
+    A blob with another within ``radius`` px is not split, nor one whose halves would fall
+    within ``min_separation`` of another blob: three or more dots crowd there (their tails
+    spread the blob), and a half would fall on another blob's dot or between dots.
+
+    Parameters
+    ----------
+    image : (H, W) array
+        Grey levels.
+    xy : (N, 2) array
+        Blobs, px, strongest first (:func:`find_blobs`).
+    radius : int
+        Half-width of the window, px (:func:`find_blobs` refines in ``ceil(2 sigma)``).
+    min_separation : float
+        Smallest estimated distance of two merged dots that splits a blob, px (a round
+        dot's spread, with image noise and a neighbour's tail, gives up to about 1.5 px).
+    same_px : float
+        Blobs closer than this are one, px.
+    iterations : int
+        Passes moving the two dots of a split blob.
+
+    Returns
+    -------
+    SplitBlobs
+        The dots in the order of the blobs they come from.
+    """
+    grey = as_array(image, "image", finite=True)
+    if grey.ndim != 2:
+        raise ValueError(f"image: expected an (H, W) grey image, got shape {grey.shape}")
+    pts = as_array(xy, "xy", shape=(None, 2))
+    as_int(radius, "radius", minimum=1)
+    as_scalar(min_separation, "min_separation", positive=True)
+    as_scalar(same_px, "same_px", nonnegative=True)
+    as_int(iterations, "iterations", minimum=0)
+    keep = []
+    for i in range(len(pts)):
+        if not keep or np.linalg.norm(pts[keep] - pts[i], axis=1).min() >= same_px:
+            keep.append(i)
+    pts = pts[keep]
+    gap = np.linalg.norm(pts[:, None] - pts[None], axis=2)
+    np.fill_diagonal(gap, np.inf)
+    alone = gap.min(axis=1, initial=np.inf) > radius
+    H, W = grey.shape
+    off = np.arange(-radius, radius + 1, dtype=float)
+    out, spread, split = [], [], []
+    for p, single in zip(pts, alone):
+        c = np.round(p).astype(int)
+        if not (radius <= c[0] < W - radius and radius <= c[1] < H - radius):
+            out.append(p[None])
+            spread.append(0.0)
+            split.append(False)
+            continue
+        win = grey[c[1] - radius:c[1] + radius + 1, c[0] - radius:c[0] + radius + 1]
+        w = np.clip(win - np.median(win), 0, None).ravel()
+        gx = np.broadcast_to(off[None, :] + c[0], win.shape).ravel()
+        gy = np.broadcast_to(off[:, None] + c[1], win.shape).ravel()
+        tot = w.sum()
+        if not tot > 0:
+            out.append(p[None])
+            spread.append(0.0)
+            split.append(False)
+            continue
+        m = np.array([w @ gx, w @ gy]) / tot
+        d = np.stack([gx - m[0], gy - m[1]], axis=1)
+        lam, vec = np.linalg.eigh((d * w[:, None]).T @ d / tot)
+        s = 2 * np.sqrt(max(lam[1] - lam[0], 0.0))
+        if s < min_separation or not single:
+            out.append(p[None])
+            spread.append(s)
+            split.append(False)
+            continue
+        two = m + np.outer([-0.5 * s, 0.5 * s], vec[:, 1])
+        g = np.stack([gx, gy], axis=1)
+        for _ in range(iterations):
+            near = np.linalg.norm(g[:, None] - two[None], axis=2).argmin(axis=1)
+            for j in range(2):
+                wj = w * (near == j)
+                if wj.sum() > 0:
+                    two[j] = wj @ g / wj.sum()
+        others = np.delete(pts, len(out), axis=0)
+        if len(others) and np.linalg.norm(two[:, None] - others[None], axis=2).min() \
+                < min_separation:
+            out.append(p[None])
+            spread.append(s)
+            split.append(False)
+            continue
+        out.append(two)
+        spread += [s, s]
+        split += [True, True]
+    if not out:
+        return SplitBlobs(xy=np.zeros((0, 2)), spread=np.zeros(0), split=np.zeros(0, bool))
+    return SplitBlobs(xy=np.concatenate(out), spread=np.array(spread), split=np.array(split))
 
 
 def _blobs(grey, sigma, min_strength, roundness, spacing):

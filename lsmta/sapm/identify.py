@@ -35,7 +35,7 @@ from .configuration import (
     labelled_points,
     pair_scores,
 )
-from .kernels import complete_match, fit_error, triple_errors
+from .kernels import complete_match, fit_error, triple_fits
 from .model import MarkerModel
 from .relax import relax_markers, relax_segments
 
@@ -306,9 +306,9 @@ class _Search:
         ``fixed`` (a joint marker the parent identified) has its known point as its only
         candidate.
 
-        Returns a list of (pivot observed index, columns), columns a list of (member local
-        index, candidates sorted best first) in the pivotal sequence (non-decreasing model
-        distance from the pivot)."""
+        Yields (pivot observed index, columns), columns a list of (member local index,
+        candidates sorted best first) in the pivotal sequence (non-decreasing model
+        distance from the pivot); a table's columns are sorted only when it is asked for."""
         m = self.model.members[s]
         P = self.model.points[m]
         eps2 = 2.0 * self.eps[s]
@@ -320,7 +320,7 @@ class _Search:
         free = np.flatnonzero(self.state.free)
         free = np.union1d(free, known[known >= 0])
         if len(pivots) == 0 or len(free) == 0:
-            return []
+            return
         ratio = np.abs(dm[None, :, None] - self.D[np.ix_(pivots, free)][:, None, :])
         ratio /= dm[None, :, None]
         ok = (ratio < eps2) & (free[None, None, :] != np.asarray(pivots)[:, None, None])
@@ -342,15 +342,13 @@ class _Search:
         best = np.where(ok, ratio, np.inf).min(axis=2)
         score = np.where(np.isfinite(best), best, 0).sum(axis=1)
         keep = keep[np.lexsort((score[keep], -counts[keep]))][: self.p.max_tables]
-        out = []
         for k in keep:
             cols = []
             for c, i in enumerate(others):
                 js = np.flatnonzero(ok[k, c])
                 if len(js):
                     cols.append((int(i), free[js[np.argsort(ratio[k, c, js])]]))
-            out.append((int(pivots[k]), cols))
-        return out
+            yield int(pivots[k]), cols
 
     def _coarse(self, s, l, k, cols, fixed, gate):
         """Worst-pair replacement on one CT; yields whole matches."""
@@ -401,15 +399,16 @@ class _Search:
             qa, qb = qa[use], qb[use]
             if len(qa) == 0:
                 continue
-            P3 = self.model.points[m[[l, ia, ib]]]
-            errs = triple_errors(P3, self.Q, k, qa, qb, lbar)
-            for q1, q2, err in zip(qa.tolist(), qb.tolist(), errs.tolist()):
-                self.effort.fits += 1        # as counted one fit at a time
-                if err < self.eps[s]:
-                    R, t, _, _ = fit_error(P3, self.Q[[k, q1, q2]], lbar)
-                    match = self._whole(s, R, t, fixed, gate)
-                    if match is not None:
-                        yield match
+            Rs, ts, errs = triple_fits(self.model.points[m[[l, ia, ib]]], self.Q, k, qa, qb,
+                                       lbar)
+            done = 0                         # fits counted as if computed one at a time
+            for h in np.flatnonzero(errs < self.eps[s]).tolist():
+                self.effort.fits += h + 1 - done
+                done = h + 1
+                match = self._whole(s, Rs[h], ts[h], fixed, gate)
+                if match is not None:
+                    yield match
+            self.effort.fits += len(errs) - done
 
     def segment_matches(self, s, via):
         """Whole matches of segment ``s`` (a generator, best first), searched from the

@@ -48,17 +48,20 @@ def fit_error(P, Q, lbar):
 
 
 @nb.njit(cache=True)
-def triple_errors(P3, Q, k, qa, qb, lbar):
-    """ē of the 3-point fits (pivot ``k``, ``qa[i]``, ``qb[i]``) of model points ``P3``
-    (3, 3): (B,) array."""
-    out = np.empty(qa.shape[0])
+def triple_fits(P3, Q, k, qa, qb, lbar):
+    """Rigid fits of model points ``P3`` (3, 3) onto the triples (pivot ``k``, ``qa[i]``,
+    ``qb[i]``): R (B, 3, 3), t (B, 3) and ē (B,)."""
+    B = qa.shape[0]
+    R = np.empty((B, 3, 3))
+    t = np.empty((B, 3))
+    err = np.empty(B)
     Qt = np.empty((3, 3))
-    for i in range(qa.shape[0]):
+    for i in range(B):
         Qt[0] = Q[k]
         Qt[1] = Q[qa[i]]
         Qt[2] = Q[qb[i]]
-        out[i] = fit_error(P3, Qt, lbar)[3]
-    return out
+        R[i], t[i], _, err[i] = fit_error(P3, Qt, lbar)
+    return R, t, err
 
 
 @nb.njit(cache=True)

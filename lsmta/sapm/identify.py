@@ -24,10 +24,9 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from .._validate import as_int, as_points, as_rng, as_scalar
-from ..rigid import apply_rigid, fit_one
+from ..rigid import apply_rigid
 from .candidates import segment_candidates
 from .configuration import (
     complete_partial,
@@ -36,6 +35,7 @@ from .configuration import (
     labelled_points,
     pair_scores,
 )
+from .kernels import complete_match, fit_error, triple_fits
 from .model import MarkerModel
 from .relax import relax_markers, relax_segments
 
@@ -270,9 +270,9 @@ class _Search:
 
     # ------------------------------------------------------------------ local matching
     def _fit(self, model_idx, obs_idx, s):
-        R, t, resid = fit_one(self.model.points[model_idx], self.Q[obs_idx])
         self.effort.fits += 1
-        return R, t, resid, resid.mean() / self.model.mean_length[s]
+        return fit_error(self.model.points[model_idx], self.Q[obs_idx],
+                         self.model.mean_length[s])
 
     def _whole(self, s, R, t, fixed: dict, gate) -> _Match | None:
         """Closest-neighbour completion (Eq. 5) from a partial match's motion, then the
@@ -285,40 +285,14 @@ class _Search:
         allowed = self.state.free.copy()
         allowed[list(fixed.values())] = True
         cand = np.flatnonzero(allowed)
-        obs = np.full(len(m), -1)
-        err = np.inf
-        for _ in range(3):
-            pred = apply_rigid(R, t, self.model.points[m])
-            d = np.linalg.norm(pred[:, None] - self.Q[cand][None], axis=-1)
-            cost = np.where(d < reach, d, 1e6 * reach)
-            rows, cols = linear_sum_assignment(cost)
-            new = np.full(len(m), -1)
-            keep = cost[rows, cols] < reach
-            new[rows[keep]] = cand[cols[keep]]
-            for j, mi in enumerate(m):       # a joint found by the parent stays where it is
-                if mi in fixed:
-                    if new[j] != fixed[mi] and fixed[mi] in new:
-                        new[new == fixed[mi]] = -1
-                    new[j] = fixed[mi]
-            ok = new >= 0
-            if ok.sum() < 3:
-                return None
-            R, t, resid, err = self._fit(m[ok], new[ok], s)
-            if np.array_equal(new, obs):
-                break
-            obs = new
-        # trim: a pair that alone is off by more than the tolerated mean error is let go
-        # while the segment stays big enough (it is more likely another segment's point)
-        while True:
-            ok = np.flatnonzero(obs >= 0)
-            worst = int(np.argmax(resid))
-            if (resid[worst] <= eps * lbar or len(ok) - 1 <= max(2, self.p.beta * len(m))
-                    or m[ok[worst]] in fixed):
-                break
-            obs[ok[worst]] = -1
-            ok = obs >= 0
-            R, t, resid, err = self._fit(m[ok], obs[ok], s)
-        if err >= eps or (obs >= 0).sum() <= self.p.beta * len(m):
+        pinned = [(j, fixed[mi]) for j, mi in enumerate(m.tolist()) if mi in fixed]
+        pin_j = np.array([j for j, _ in pinned], dtype=np.int64)
+        pin_q = np.array([q for _, q in pinned], dtype=np.int64)
+        passed, obs, R, t, err, fits = complete_match(
+            self.model.points[m], self.Q, cand, R, t, reach, pin_j, pin_q, lbar, eps,
+            self.p.beta)
+        self.effort.fits += fits
+        if not passed:
             return None
         if gate is not None and self.p.joint_test:      # our option: the joint must fit too
             V, J, tol = gate
@@ -332,9 +306,9 @@ class _Search:
         ``fixed`` (a joint marker the parent identified) has its known point as its only
         candidate.
 
-        Returns a list of (pivot observed index, columns), columns a list of (member local
-        index, candidates sorted best first) in the pivotal sequence (non-decreasing model
-        distance from the pivot)."""
+        Yields (pivot observed index, columns), columns a list of (member local index,
+        candidates sorted best first) in the pivotal sequence (non-decreasing model
+        distance from the pivot); a table's columns are sorted only when it is asked for."""
         m = self.model.members[s]
         P = self.model.points[m]
         eps2 = 2.0 * self.eps[s]
@@ -346,7 +320,7 @@ class _Search:
         free = np.flatnonzero(self.state.free)
         free = np.union1d(free, known[known >= 0])
         if len(pivots) == 0 or len(free) == 0:
-            return []
+            return
         ratio = np.abs(dm[None, :, None] - self.D[np.ix_(pivots, free)][:, None, :])
         ratio /= dm[None, :, None]
         ok = (ratio < eps2) & (free[None, None, :] != np.asarray(pivots)[:, None, None])
@@ -368,15 +342,13 @@ class _Search:
         best = np.where(ok, ratio, np.inf).min(axis=2)
         score = np.where(np.isfinite(best), best, 0).sum(axis=1)
         keep = keep[np.lexsort((score[keep], -counts[keep]))][: self.p.max_tables]
-        out = []
         for k in keep:
             cols = []
             for c, i in enumerate(others):
                 js = np.flatnonzero(ok[k, c])
                 if len(js):
                     cols.append((int(i), free[js[np.argsort(ratio[k, c, js])]]))
-            out.append((int(pivots[k]), cols))
-        return out
+            yield int(pivots[k]), cols
 
     def _coarse(self, s, l, k, cols, fixed, gate):
         """Worst-pair replacement on one CT; yields whole matches."""
@@ -416,18 +388,27 @@ class _Search:
         n = len(cols)
         pairs = [(a, b) for a in range(min(2, n)) for b in range(n - 1, max(n - 3, -1), -1)
                  if a < b]
+        lbar = self.model.mean_length[s]
         for a, b in pairs:
             (ia, ca), (ib, cb) = cols[a], cols[b]
             dab = np.linalg.norm(P[ia] - P[ib])
-            for qa in ca[:6]:
-                for qb in cb[:6]:
-                    if qa == qb or abs(self.D[qa, qb] - dab) >= eps2 * dab:
-                        continue
-                    R, t, _, err = self._fit(m[[l, ia, ib]], np.array([k, qa, qb]), s)
-                    if err < self.eps[s]:
-                        match = self._whole(s, R, t, fixed, gate)
-                        if match is not None:
-                            yield match
+            # the pairs (qa, qb) that pass the distance test, in the order of the two
+            # candidate lists, and the ē of every triple's fit, in one compiled call
+            qa, qb = np.repeat(ca[:6], len(cb[:6])), np.tile(cb[:6], len(ca[:6]))
+            use = (qa != qb) & ~(np.abs(self.D[qa, qb] - dab) >= eps2 * dab)
+            qa, qb = qa[use], qb[use]
+            if len(qa) == 0:
+                continue
+            Rs, ts, errs = triple_fits(self.model.points[m[[l, ia, ib]]], self.Q, k, qa, qb,
+                                       lbar)
+            done = 0                         # fits counted as if computed one at a time
+            for h in np.flatnonzero(errs < self.eps[s]).tolist():
+                self.effort.fits += h + 1 - done
+                done = h + 1
+                match = self._whole(s, Rs[h], ts[h], fixed, gate)
+                if match is not None:
+                    yield match
+            self.effort.fits += len(errs) - done
 
     def segment_matches(self, s, via):
         """Whole matches of segment ``s`` (a generator, best first), searched from the

@@ -14,7 +14,8 @@ import numpy as np
 @nb.njit(cache=True)
 def fit_one(P, Q):
     """Rigid fit of one correspondence: ``P``, ``Q`` (n, 3) float64 -> R (3, 3), t (3,),
-    distances |q_i - R p_i - t| (n,)."""
+    distances |q_i - R p_i - t| (n,). Compiled into other modules' cached kernels
+    (``lsmta.sapm``): after editing it, clear their ``__pycache__``."""
     n = P.shape[0]
     pc = np.zeros(3)
     qc = np.zeros(3)

@@ -5,7 +5,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from lsmta.rigid import fit_one
-from lsmta.sapm.kernels import _lsap, _np_sum, completion, fit_error
+from lsmta.sapm._kernels import _lsap, _np_sum, completion, fit_error
 
 
 def test_sum_in_numpys_order():

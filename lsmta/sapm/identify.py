@@ -27,6 +27,7 @@ import numpy as np
 
 from .._validate import as_int, as_points, as_rng, as_scalar
 from ..rigid import apply_rigid
+from ._kernels import complete_match, fit_error, triple_fits
 from .candidates import segment_candidates
 from .configuration import (
     complete_partial,
@@ -35,7 +36,6 @@ from .configuration import (
     labelled_points,
     pair_scores,
 )
-from .kernels import complete_match, fit_error, triple_fits
 from .model import MarkerModel
 from .relax import relax_markers, relax_segments
 

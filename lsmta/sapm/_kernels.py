@@ -3,6 +3,9 @@
 Each gives bitwise what the NumPy/SciPy code it replaces gave (sums in NumPy's order, SciPy's
 assignment ported step for step), so that the search labels exactly as before, only without
 the per-call overhead of many small NumPy calls per candidate.
+
+numba's cache (``cache=True``) is keyed on this file only: after editing
+:func:`lsmta.rigid.fit_one`, which these kernels compile in, clear ``__pycache__``.
 """
 
 from __future__ import annotations
@@ -68,7 +71,8 @@ def triple_fits(P3, Q, k, qa, qb, lbar):
 def _lsap(cost):
     """SciPy's ``linear_sum_assignment`` (shortest augmenting paths, Crouse 2016) ported
     step for step, so that ties are broken as SciPy breaks them: (rows, cols) of the
-    assignment of (r, c) ``cost`` with no infinite entries."""
+    assignment of (r, c) ``cost``; +inf entries allowed, NaN and -inf not checked (SciPy
+    refuses them; the callers here never produce them)."""
     nr0, nc0 = cost.shape
     transpose = nc0 < nr0
     C = cost.T.copy() if transpose else cost
@@ -200,6 +204,9 @@ def complete_match(P, Q, cand, R, t, reach, pin_j, pin_q, lbar, eps, beta):
         The segment's model markers, mm.
     Q, cand, reach, pin_j, pin_q
         As :func:`completion`.
+    R : (3, 3) array
+    t : (3,) array
+        The partial match's motion (model to observed, mm).
     lbar, eps, beta : float
         l̄_s (mm), ε_s and β.
 
@@ -209,7 +216,9 @@ def complete_match(P, Q, cand, R, t, reach, pin_j, pin_q, lbar, eps, beta):
         False where fewer than 3 points were assigned or a test failed.
     obs : (m,) int array
         Observed index per member, -1 where none.
-    R, t, err
+    R : (3, 3) array
+    t : (3,) array
+    err : float
         The motion of the last fit and its ē.
     fits : int
         Rigid fits computed.

@@ -330,22 +330,22 @@ def _mosaic(templates: Templates, rows):
 
 
 @nb.njit(cache=True, inline="always")
+def _weights(t):
+    """The four cubic B-spline weights at fraction ``t`` in [0, 1)."""
+    s = 1.0 - t
+    return (s * s * s / 6.0, (3.0 * t * t * t - 6.0 * t * t + 4.0) / 6.0,
+            (-3.0 * t * t * t + 3.0 * t * t + 3.0 * t + 1.0) / 6.0, t * t * t / 6.0)
+
+
+@nb.njit(cache=True, inline="always")
 def _value(coef, pad, x, y):
     """Cubic B-spline value at (x, y) from the padded coefficients."""
     ix = int(np.floor(x))
     iy = int(np.floor(y))
     tx = x - ix
     ty = y - iy
-    sx = 1.0 - tx
-    sy = 1.0 - ty
-    wx0 = sx * sx * sx / 6.0
-    wx1 = (3.0 * tx * tx * tx - 6.0 * tx * tx + 4.0) / 6.0
-    wx2 = (-3.0 * tx * tx * tx + 3.0 * tx * tx + 3.0 * tx + 1.0) / 6.0
-    wx3 = tx * tx * tx / 6.0
-    wy0 = sy * sy * sy / 6.0
-    wy1 = (3.0 * ty * ty * ty - 6.0 * ty * ty + 4.0) / 6.0
-    wy2 = (-3.0 * ty * ty * ty + 3.0 * ty * ty + 3.0 * ty + 1.0) / 6.0
-    wy3 = ty * ty * ty / 6.0
+    wx0, wx1, wx2, wx3 = _weights(tx)
+    wy0, wy1, wy2, wy3 = _weights(ty)
     r = iy + pad - 1
     q = ix + pad - 1
     return (wy0 * (wx0 * coef[r, q] + wx1 * coef[r, q + 1] + wx2 * coef[r, q + 2]
@@ -389,16 +389,8 @@ def _sample_shifted(coef, pad, height, width, side, cx, cy, g, rows_h):
     iy = int(np.floor(cy))
     tx = cx - ix
     ty = cy - iy
-    sx = 1.0 - tx
-    sy = 1.0 - ty
-    wx0 = sx * sx * sx / 6.0
-    wx1 = (3.0 * tx * tx * tx - 6.0 * tx * tx + 4.0) / 6.0
-    wx2 = (-3.0 * tx * tx * tx + 3.0 * tx * tx + 3.0 * tx + 1.0) / 6.0
-    wx3 = tx * tx * tx / 6.0
-    wy0 = sy * sy * sy / 6.0
-    wy1 = (3.0 * ty * ty * ty - 6.0 * ty * ty + 4.0) / 6.0
-    wy2 = (-3.0 * ty * ty * ty + 3.0 * ty * ty + 3.0 * ty + 1.0) / 6.0
-    wy3 = ty * ty * ty / 6.0
+    wx0, wx1, wx2, wx3 = _weights(tx)
+    wy0, wy1, wy2, wy3 = _weights(ty)
     r0 = iy - h + pad - 1
     q0 = ix - h + pad - 1
     for a in range(side + 3):

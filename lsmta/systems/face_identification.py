@@ -56,7 +56,9 @@ angles:
    and the splitting's profile test), first-frame coverage with two heads rose from
    0.89-0.91 to 0.96-1.00 on ``experiments/mixed_scale_system.py``'s seeds 18 to 22
    (``experiments/results/mixed_scale_heads.json``), with four heads from 0.87-0.90 to
-   0.94-0.96, with one wrong label (seed 18) where none was before. A fit
+   0.94-0.96, with one wrong label (seed 18) where none was before (gone with the profile
+   test, in a first-frame diagnosis run of 2026-11-27 on the same seeds; that file predates
+   it). A fit
    whose labelled markers lie farther than ``max_residual_mm`` (RMS) from the fitted face
    has wrong labels in it: then nothing is labelled (a face turned far from the heads).
 

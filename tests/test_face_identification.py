@@ -173,9 +173,10 @@ def test_a_merged_blob_is_split_into_its_two_dots():
 
 def test_a_round_dot_alone_keeps_its_label_next_to_a_hidden_marker():
     # the crowding rule: a marker projected near another that got no dot loses its label
-    # (their dots may have merged), unless its dot is round and alone and it faces the head
-    # more than the other (which is then hidden). A spherical cap of markers facing +z, the
-    # head on the z axis; marker a (the cap's centre) and b (its rim) project 3 px apart
+    # (their dots may have merged), unless its dot is one round dot alone (spread, not as
+    # bright as a merged pair) and it faces the head more than the other (then hidden). A
+    # spherical cap of markers facing +z, the head on the z axis; marker a (the cap's
+    # centre) and b (its rim) project 3 px apart
     g = np.arange(-40.0, 41.0, 10.0)
     x, y = [v.ravel() for v in np.meshgrid(g, g)]
     face = np.c_[x, y, np.sqrt(100.0**2 - x**2 - y**2)]
@@ -184,14 +185,21 @@ def test_a_round_dot_alone_keeps_its_label_next_to_a_hidden_marker():
     proj[b] = proj[a] + [3.0, 0.0]                 # ... but b, 3 px from a
     cams = [_Cam(proj, C=(0.0, 0.0, 3000.0))]
     dots = np.delete(proj, b, axis=0)
-    blobs = SplitBlobs(xy=dots, spread=np.full(len(dots), 0.8), split=np.zeros(len(dots), bool))
+    n = len(dots)
+    blobs = SplitBlobs(xy=dots, spread=np.full(n, 0.8), brightness=np.full(n, 900.0),
+                       split=np.zeros(n, bool))
     dot_of = np.full(len(face), -1)
-    dot_of[np.arange(len(face)) != b] = np.arange(len(dots))
+    dot_of[np.arange(len(face)) != b] = np.arange(n)
     idx = dot_of[None]
     assert fi._uncrowded(idx, cams, face, 5.0)[0, a] == -1          # no roundness test
     assert fi._uncrowded(idx, cams, face, 5.0, [blobs], 1.5)[0, a] == dot_of[a]
-    spread = replace(blobs, spread=np.where(np.arange(len(dots)) == dot_of[a], 2.0, 0.8))
+    mine = np.arange(n) == dot_of[a]
+    spread = replace(blobs, spread=np.where(mine, 2.0, 0.8))
     assert fi._uncrowded(idx, cams, face, 5.0, [spread], 1.5)[0, a] == -1
+    unmeasured = replace(blobs, spread=np.where(mine, np.nan, 0.8))
+    assert fi._uncrowded(idx, cams, face, 5.0, [unmeasured], 1.5)[0, a] == -1
+    bright = replace(blobs, brightness=np.where(mine, 1800.0, 900.0))   # two dots' worth
+    assert fi._uncrowded(idx, cams, face, 5.0, [bright], 1.5)[0, a] == -1
     # the other way round: b (turned further from the head) has the dot, a none: b loses it
     swapped = dot_of.copy()
     swapped[b], swapped[a] = swapped[a], -1
@@ -199,6 +207,17 @@ def test_a_round_dot_alone_keeps_its_label_next_to_a_hidden_marker():
     # the others, round and alone, keep theirs
     kept = fi._uncrowded(idx, cams, face, 5.0, [blobs], 1.5)[0]
     assert np.array_equal(np.delete(kept, b), np.delete(dot_of, b))
+
+
+def test_normals_of_a_flat_face_turn_towards_the_heads():
+    # a flat layout does not bulge: its outward side is the one the heads see
+    g = np.arange(-40.0, 41.0, 10.0)
+    x, y = [v.ravel() for v in np.meshgrid(g, g)]
+    flat = np.c_[x, y, np.zeros_like(x)]
+    assert len(fi._outward(flat)) == 2
+    for sign in (1.0, -1.0):
+        n = fi._normals(flat, np.array([0.3, 0.0, sign]) / np.hypot(0.3, 1.0))
+        assert np.allclose(n, [0.0, 0.0, sign], atol=1e-9)
 
 
 class _Cam:

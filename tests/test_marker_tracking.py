@@ -168,3 +168,38 @@ def test_merged_blobs_split_into_their_dots():
         tm.split_merged_blobs(img[None], blobs)
     with pytest.raises(ValueError, match="min_separation"):
         tm.split_merged_blobs(img, blobs, min_separation=0.0)
+
+
+def test_one_elongated_dot_is_not_split():
+    # a single dot stretched (sigma 2.2 x 1.0 px) or motion-blurred (sigma 1.3 px, 6 px of
+    # motion) spreads like two dots 2.7 px apart, but its profile has one maximum: one dot.
+    # Two dots 3.8 px apart in the same image are still split
+    rng = np.random.default_rng(5)
+    H, W = 60, 150
+    gx, gy = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+    img = np.full((H, W), 80.0) + rng.normal(0, 2.0, (H, W))
+    c, s = np.cos(0.5), np.sin(0.5)
+    u, v = (gx - 30.2) * c + (gy - 29.7) * s, -(gx - 30.2) * s + (gy - 29.7) * c
+    img += 120.0 * np.exp(-u**2 / (2 * 2.2**2) - v**2 / (2 * 1.0**2))
+    blur = sum(np.exp(-((gx - 75.4 - a * np.cos(0.3)) ** 2 + (gy - 30.1 - a * np.sin(0.3)) ** 2)
+                      / (2 * 1.3**2)) for a in np.linspace(-3.0, 3.0, 25))
+    img += 120.0 * blur / blur.max()
+    pair = [(118.0, 30.2), (121.6, 31.5)]                          # 3.8 px apart
+    img = _dots((H, W), pair, img)
+    blobs = tm.find_blobs(img.astype(float), sigma=1.5, spacing=5)
+    r = tm.split_merged_blobs(img, blobs, radius=3)
+    for p in ((30.2, 29.7), (75.4, 30.1)):
+        near = np.linalg.norm(r.xy - p, axis=1)
+        assert (near < 5).sum() == 1 and near.min() < 0.5
+        assert r.spread[near.argmin()] >= 2.5 and not r.split[near.argmin()]  # spread, one max
+    for p in pair:
+        near = np.linalg.norm(r.xy - p, axis=1)
+        assert near.min() < 0.5 and r.split[near.argmin()]
+    # not measured (window outside the image): NaN, not a round 0
+    edge = tm.split_merged_blobs(img, np.array([[1.0, 1.0]]), radius=3)
+    assert np.isnan(edge.spread).all() and np.isnan(edge.brightness).all()
+    with pytest.raises(ValueError, match="radius"):
+        tm.split_merged_blobs(img, blobs, radius=3.5)
+    assert len(tm.split_merged_blobs(img, blobs, radius=3.0, iterations=2.0).xy) == len(r.xy)
+    with pytest.raises(ValueError, match="max_dip"):
+        tm.split_merged_blobs(img, blobs, max_dip=1.5)

@@ -552,7 +552,8 @@ def render_led_video(scene: LedScene, camera: Camera, times, *,
 
 
 def _grey8(x) -> np.ndarray:
-    """Float grey levels rounded and clipped to uint8, in place in ``x`` (a scratch array;
+    """Float grey levels ``x`` (any shape, e.g. (T, H, W) frames or an (H, W) background)
+    rounded and clipped to uint8 (same shape), in place in ``x`` (a scratch array, changed;
     ``np.clip`` into a new array took ten times as long on a walk's frames)."""
     np.rint(x, out=x)
     np.clip(x, 0, 255, out=x)

@@ -9,10 +9,10 @@ angles:
    elongated blob, found once or twice (a strength peak on each lobe, both refined to the
    whole blob's centroid, between the two dots): each blob is kept once and a blob whose
    brightness spreads along one axis as two dots ``split_px`` or more apart would is split
-   into its two dots (:func:`~lsmta.tracking.markers.split_merged_blobs`). Before, a
-   merged blob stayed one dot and both its markers went unlabelled: on
-   ``experiments/mixed_scale_system.py``'s seeds 18, 19 and 21, 9 of the 36 drawn marker
-   images left unlabelled;
+   into its two dots when its profile along that axis has two maxima with a dip between
+   them (:func:`~lsmta.tracking.markers.split_merged_blobs`; one stretched or
+   motion-blurred dot is not split). Before, a merged blob stayed one dot and both its
+   markers went unlabelled;
 2. *stereo*: the dots of each pair of heads matched one to one by the distance between
    their rays (the epipolar constraint at the heads' calibrated models; an optimal
    assignment, :func:`scipy.optimize.linear_sum_assignment`) and triangulated: unlabelled
@@ -47,13 +47,18 @@ angles:
 5. *labels*: each head's dots assigned to the fitted face projected (within ``gate_px``),
    a dot seen by one head only included; a marker projected within ``crowd_px`` of
    another that got no dot is left unlabelled (the two dots may have merged into one blob
-   too close to split), unless its dot is round and alone (spread below ``round_px``, no
-   other dot within ``crowd_px``) and its marker faces the head more than that neighbour
-   (normals from the fitted face): one dot, the other marker turned away, hidden. Before,
-   every such marker went unlabelled: at the edge of a face turned from a head, markers
-   turned away project within ``crowd_px`` of visible ones, which lost 20 of those 36
-   marker images (after both changes 16 of 728 drawn on seeds 17 to 22 are left, and
-   none is wrong: merged dots too close or too crowded to split). A fit
+   too close to split), unless its dot is one round dot alone (spread below ``round_px``,
+   brightness below 1.5 times the median dot's, no other dot within ``crowd_px``) and its
+   marker faces the head more than that neighbour (normals from the fitted face): one
+   dot, the other marker turned away or behind the face, hidden. Before, every such marker
+   went unlabelled: at the edge of a face turned from a head, markers turned away project
+   within ``crowd_px`` of visible ones. With both changes (before the brightness test here
+   and the splitting's profile test), first-frame coverage with two heads rose from
+   0.89-0.91 to 0.96-1.00 on ``experiments/mixed_scale_system.py``'s seeds 18 to 22
+   (``experiments/results/mixed_scale_heads.json``), with four heads from 0.87-0.90 to
+   0.94-0.96, with one wrong label (seed 18) where none was before (gone with the profile
+   test, in a first-frame diagnosis run of 2026-11-27 on the same seeds; that file predates
+   it). A fit
    whose labelled markers lie farther than ``max_residual_mm`` (RMS) from the fitted face
    has wrong labels in it: then nothing is labelled (a face turned far from the heads).
 
@@ -476,12 +481,15 @@ def _expression(face_model):
     return d / max(np.linalg.norm(d, axis=1).max(), 1e-12)
 
 
-def _normals(face, n_neighbours=8):
+def _normals(face, towards, n_neighbours=8):
     """Outward unit normals (M, 3) of a face's markers (M, 3): the thinnest axis of each
     marker and its ``n_neighbours`` nearest, turned away from a point behind the face (its
-    centre set back along its outward normal, :func:`_outward`, by its width)."""
+    centre set back along its outward normal, :func:`_outward`, by its width). When the
+    face does not bulge enough to tell its outward side (:func:`_outward` gives both signs),
+    the side towards ``towards`` (3,) (the heads, which see the face's front) is taken."""
     c = face.mean(axis=0)
-    back = c - _outward(face)[0] * np.ptp(face, axis=0).max()
+    n0 = max(_outward(face), key=lambda n: float(n @ towards))
+    back = c - n0 * np.ptp(face, axis=0).max()
     d = np.linalg.norm(face[:, None] - face[None], axis=2)
     out = np.empty_like(face)
     for m, near in enumerate(np.argsort(d, axis=1)[:, :n_neighbours + 1]):
@@ -490,16 +498,29 @@ def _normals(face, n_neighbours=8):
     return out
 
 
+_MERGED_BRIGHTNESS = 1.5  # a blob this many times the frame's median blob brightness or
+                          # more may be two merged dots (two carry about twice one's)
+
+
 def _uncrowded(idx, cams, face, crowd_px, blobs=None, round_px=0.0):
     """Labels ``idx`` (K, M) without the markers projected within ``crowd_px`` of another
     marker that got no dot in that head (their dots may have merged into one blob), unless
-    the marker's dot is round and alone: of ``blobs[k]`` (a :class:`~lsmta.tracking.
-    markers.SplitBlobs`), its spread below ``round_px`` and no other dot within
-    ``crowd_px``, and the marker faces the head more than every such neighbour (the
-    cosine of its normal, :func:`_normals`, with the line of sight; the dot is the one
-    that faces the head, the other is hidden) (None: no dot is taken for round)."""
+    the marker's dot is one round dot alone: of ``blobs[k]`` (a :class:`~lsmta.tracking.
+    markers.SplitBlobs`), its spread measured and below ``round_px``, its brightness below
+    ``_MERGED_BRIGHTNESS`` times the median dot's (two merged dots carry about twice one's),
+    no other dot within ``crowd_px``; and the marker faces the head more than every such
+    neighbour (the cosine of its normal, :func:`_normals`, with the line of sight; the dot
+    is the one that faces the head, the other is hidden) (None: no dot is taken for round).
+    (Requiring the neighbour to face away, cosine <= 0, left 31 of 728 marker images more
+    unlabelled, with no wrong label either way, on the first frames of
+    ``experiments/mixed_scale_system.py``'s seeds 17 to 22 with two heads, in a diagnosis
+    run of 2026-11-27: the hidden neighbours there are mostly hidden behind the face, not
+    turned away.)"""
     idx = idx.copy()
-    normals = _normals(face) if blobs is not None else None
+    if blobs is not None:
+        centre = face.mean(axis=0)
+        towards = np.mean([c.C for c in cams], axis=0) - centre
+        normals = _normals(face, towards / np.linalg.norm(towards))
     for k, cam in enumerate(cams):
         proj = cam.project(face, behind="nan")
         d = np.nan_to_num(np.linalg.norm(proj[:, None] - proj[None], axis=2), nan=np.inf)
@@ -510,16 +531,24 @@ def _uncrowded(idx, cams, face, crowd_px, blobs=None, round_px=0.0):
             sight = cam.C - face
             cos = np.sum(normals * sight, axis=1) / np.linalg.norm(sight, axis=1)
             faces_more = np.all((d >= crowd_px) | (cos[:, None] > cos[None]), axis=1)
-            b = blobs[k]
-            gap = np.linalg.norm(b.xy[:, None] - b.xy[None], axis=2)
-            np.fill_diagonal(gap, np.inf)
-            single = (b.spread < round_px) & (gap.min(axis=1, initial=np.inf) >= crowd_px)
-            has = idx[k] >= 0
-            round_ = np.zeros(len(idx[k]), bool)
-            round_[has] = single[idx[k, has]]
-            crowded &= ~(round_ & faces_more)
+            crowded &= ~(_one_round_dot(blobs[k], idx[k], crowd_px, round_px) & faces_more)
         idx[k, crowded] = -1
     return idx
+
+
+def _one_round_dot(b, idx, crowd_px, round_px):
+    """(M,) bool: the marker's dot (``idx`` (M,), -1: none) of blobs ``b`` (a
+    :class:`~lsmta.tracking.markers.SplitBlobs`) is one round dot alone (see
+    :func:`_uncrowded`)."""
+    gap = np.linalg.norm(b.xy[:, None] - b.xy[None], axis=2)
+    np.fill_diagonal(gap, np.inf)
+    bright = b.brightness < _MERGED_BRIGHTNESS * np.nanmedian(b.brightness) \
+        if np.isfinite(b.brightness).any() else np.zeros(len(b.xy), bool)
+    single = (b.spread < round_px) & bright & (gap.min(axis=1, initial=np.inf) >= crowd_px)
+    has = idx >= 0
+    out = np.zeros(len(idx), bool)
+    out[has] = single[idx[has]]
+    return out
 
 
 def _check(images, heads, settings, face_model):

@@ -222,7 +222,9 @@ def track_markers(images, initial_xy, *, seeds=None, shifts=None,
         again in that frame (not used in skipped blurred frames).
     shifts : (T, 2) array, optional
         The dominant translations of an earlier run on the same ``images`` with the same
-        ``params`` (its :attr:`MarkerTracks.shift`), px: used where finite instead of being
+        ``params`` and ``stabilise`` on (its :attr:`MarkerTracks.shift`), px; shifts from
+        other images or a run without stabilisation are used as given, wrongly. Used where
+        finite instead of being
         measured again (the blur test skips the same frames, so each is measured from the
         same reference frame); the result is the same, without the phase correlations
         (a third of the tracker's time on notebook 15's videos).
@@ -419,18 +421,24 @@ class SplitBlobs:
         across it, as the distance of two equal dots that would spread so,
         ``2 sqrt(lambda_max - lambda_min)`` (the eigenvalues of its brightness-weighted
         covariance), px: about 1 px or less for a round dot, the dots' distance for two
-        merged ones (0: a window reaching outside the image, left as it was).
+        merged ones; NaN when not measured (a window reaching outside the image, or no
+        brightness above its median: the blob left as it was).
+    brightness : (N,) array
+        The blob each dot comes from, its grey levels above its window's median, summed
+        (NaN when not measured): two merged dots carry about twice one dot's.
     split : (N,) bool array
         The dot is one of a merged blob's two.
     """
 
     xy: np.ndarray
     spread: np.ndarray
+    brightness: np.ndarray
     split: np.ndarray
 
 
 def split_merged_blobs(image, xy, *, radius: int = 3, min_separation: float = 2.5,
-                       same_px: float = 1.0, iterations: int = 2) -> SplitBlobs:
+                       max_dip: float = 0.9, same_px: float = 1.0,
+                       iterations: int = 2) -> SplitBlobs:
     """Each blob once, and two touching dots that merged into one blob told apart.
 
     Two dots a few pixels apart make one elongated blob: :func:`find_blobs` finds it once or
@@ -440,12 +448,16 @@ def split_merged_blobs(image, xy, *, radius: int = 3, min_separation: float = 2.
     median, as :func:`refine_centroid`) in a ``(2 radius + 1)`` square gives its covariance,
     eigenvalues ``lambda_min <= lambda_max``. Two equal dots ``s`` px apart spread by
     ``s**2 / 4`` along their axis beyond a single dot's spread across it, so
-    ``s = 2 sqrt(lambda_max - lambda_min)``; a blob with ``s >= min_separation`` becomes two
-    dots ``s / 2`` either side of its centroid along the long axis, each then moved to the
-    centroid of the window's pixels nearer to it than to the other (``iterations`` times).
-    A blob with another within ``radius`` px is not split, nor one whose halves would fall
-    within ``min_separation`` of another blob: three or more dots crowd there (their tails
-    spread the blob), and a half would fall on another blob's dot or between dots.
+    ``s = 2 sqrt(lambda_max - lambda_min)``. A blob is split when ``s >= min_separation``
+    and its brightness profile along the long axis (summed over a 2 px wide strip) has two
+    maxima with a dip between them below ``max_dip`` times the lower one: one elongated
+    dot (a stretched or motion-blurred marker) spreads too but has one maximum or a flat
+    top. It becomes two dots ``s / 2`` either side of its centroid along the long axis,
+    each then moved to the centroid of the window's pixels nearer to it than to the other
+    (``iterations`` times). A blob with another within ``radius`` px is not split, nor one
+    whose halves would fall within ``min_separation`` of another blob: three or more dots
+    crowd there (their tails spread the blob), and a half would fall on another blob's dot
+    or between dots.
 
     Parameters
     ----------
@@ -458,6 +470,9 @@ def split_merged_blobs(image, xy, *, radius: int = 3, min_separation: float = 2.
     min_separation : float
         Smallest estimated distance of two merged dots that splits a blob, px (a round
         dot's spread, with image noise and a neighbour's tail, gives up to about 1.5 px).
+    max_dip : float
+        Largest ratio of the profile's dip to its lower maximum that splits a blob (0 to
+        1; two dots of sigma 1.3 px 3.5 px apart dip to about 0.8).
     same_px : float
         Blobs closer than this are one, px.
     iterations : int
@@ -472,68 +487,109 @@ def split_merged_blobs(image, xy, *, radius: int = 3, min_separation: float = 2.
     if grey.ndim != 2:
         raise ValueError(f"image: expected an (H, W) grey image, got shape {grey.shape}")
     pts = as_array(xy, "xy", shape=(None, 2))
-    as_int(radius, "radius", minimum=1)
-    as_scalar(min_separation, "min_separation", positive=True)
-    as_scalar(same_px, "same_px", nonnegative=True)
-    as_int(iterations, "iterations", minimum=0)
+    radius = as_int(radius, "radius", minimum=1)
+    min_separation = as_scalar(min_separation, "min_separation", positive=True)
+    max_dip = as_scalar(max_dip, "max_dip", positive=True)
+    if max_dip > 1:
+        raise ValueError(f"max_dip: expected a ratio in (0, 1], got {max_dip}")
+    same_px = as_scalar(same_px, "same_px", nonnegative=True)
+    iterations = as_int(iterations, "iterations", minimum=0)
+    pts = _each_blob_once(pts, same_px)
+    gap = np.linalg.norm(pts[:, None] - pts[None], axis=2)
+    np.fill_diagonal(gap, np.inf)
+    alone = gap.min(axis=1, initial=np.inf) > radius
+    out, spread, bright, split = [], [], [], []
+    for i, (p, single) in enumerate(zip(pts, alone)):
+        two, s, tot = _split_one(grey, p, radius, min_separation if single else np.inf,
+                                 max_dip, iterations)
+        others = np.delete(pts, i, axis=0)
+        if two is not None and len(others) and \
+                np.linalg.norm(two[:, None] - others[None], axis=2).min() < min_separation:
+            two = None                          # a half on or between other blobs' dots
+        n = 1 if two is None else 2
+        out.append(p[None] if two is None else two)
+        spread += [s] * n
+        bright += [tot] * n
+        split += [n == 2] * n
+    if not out:
+        return SplitBlobs(xy=np.zeros((0, 2)), spread=np.zeros(0), brightness=np.zeros(0),
+                          split=np.zeros(0, bool))
+    return SplitBlobs(xy=np.concatenate(out), spread=np.array(spread, float),
+                      brightness=np.array(bright, float), split=np.array(split))
+
+
+def _each_blob_once(pts, same_px):
+    """Blobs ``pts`` (N, 2) px without those within ``same_px`` of an earlier one."""
     keep = []
     for i in range(len(pts)):
         if not keep or np.linalg.norm(pts[keep] - pts[i], axis=1).min() >= same_px:
             keep.append(i)
-    pts = pts[keep]
-    gap = np.linalg.norm(pts[:, None] - pts[None], axis=2)
-    np.fill_diagonal(gap, np.inf)
-    alone = gap.min(axis=1, initial=np.inf) > radius
+    return pts[keep]
+
+
+def _split_one(grey, p, radius, min_separation, max_dip, iterations):
+    """One blob at ``p`` (2,) px: its two dots (2, 2) px or None (not split), its spread px
+    and its brightness (NaN, NaN when its window leaves the image or holds nothing above
+    its median); see :func:`split_merged_blobs`."""
+    c = np.round(p).astype(int)
     H, W = grey.shape
+    if not (radius <= c[0] < W - radius and radius <= c[1] < H - radius):
+        return None, np.nan, np.nan
+    win = grey[c[1] - radius:c[1] + radius + 1, c[0] - radius:c[0] + radius + 1]
+    w2 = np.clip(win - np.median(win), 0, None)
+    tot = float(w2.sum())
+    if not tot > 0:
+        return None, np.nan, np.nan
     off = np.arange(-radius, radius + 1, dtype=float)
-    out, spread, split = [], [], []
-    for p, single in zip(pts, alone):
-        c = np.round(p).astype(int)
-        if not (radius <= c[0] < W - radius and radius <= c[1] < H - radius):
-            out.append(p[None])
-            spread.append(0.0)
-            split.append(False)
-            continue
-        win = grey[c[1] - radius:c[1] + radius + 1, c[0] - radius:c[0] + radius + 1]
-        w = np.clip(win - np.median(win), 0, None).ravel()
-        gx = np.broadcast_to(off[None, :] + c[0], win.shape).ravel()
-        gy = np.broadcast_to(off[:, None] + c[1], win.shape).ravel()
-        tot = w.sum()
-        if not tot > 0:
-            out.append(p[None])
-            spread.append(0.0)
-            split.append(False)
-            continue
-        m = np.array([w @ gx, w @ gy]) / tot
-        d = np.stack([gx - m[0], gy - m[1]], axis=1)
-        lam, vec = np.linalg.eigh((d * w[:, None]).T @ d / tot)
-        s = 2 * np.sqrt(max(lam[1] - lam[0], 0.0))
-        if s < min_separation or not single:
-            out.append(p[None])
-            spread.append(s)
-            split.append(False)
-            continue
-        two = m + np.outer([-0.5 * s, 0.5 * s], vec[:, 1])
-        g = np.stack([gx, gy], axis=1)
-        for _ in range(iterations):
-            near = np.linalg.norm(g[:, None] - two[None], axis=2).argmin(axis=1)
-            for j in range(2):
-                wj = w * (near == j)
-                if wj.sum() > 0:
-                    two[j] = wj @ g / wj.sum()
-        others = np.delete(pts, len(out), axis=0)
-        if len(others) and np.linalg.norm(two[:, None] - others[None], axis=2).min() \
-                < min_separation:
-            out.append(p[None])
-            spread.append(s)
-            split.append(False)
-            continue
-        out.append(two)
-        spread += [s, s]
-        split += [True, True]
-    if not out:
-        return SplitBlobs(xy=np.zeros((0, 2)), spread=np.zeros(0), split=np.zeros(0, bool))
-    return SplitBlobs(xy=np.concatenate(out), spread=np.array(spread), split=np.array(split))
+    g = np.stack([np.broadcast_to(off[None, :] + c[0], win.shape).ravel(),
+                  np.broadcast_to(off[:, None] + c[1], win.shape).ravel()], axis=1)
+    w = w2.ravel()
+    m = w @ g / tot
+    d = g - m
+    lam, vec = np.linalg.eigh((d * w[:, None]).T @ d / tot)
+    s = 2 * np.sqrt(max(lam[1] - lam[0], 0.0))
+    if s < min_separation or not _two_maxima(w2, m - (c - radius), vec[:, 1], radius,
+                                             max_dip):
+        return None, s, tot
+    two = m + np.outer([-0.5 * s, 0.5 * s], vec[:, 1])
+    for _ in range(iterations):
+        near = np.linalg.norm(g[:, None] - two[None], axis=2).argmin(axis=1)
+        for j in range(2):
+            wj = w * (near == j)
+            if wj.sum() > 0:
+                two[j] = wj @ g / wj.sum()
+    return two, s, tot
+
+
+def _two_maxima(w2, m, axis, radius, max_dip):
+    """Whether the brightness ``w2`` (2 r + 1, 2 r + 1) of a window, profiled along unit
+    ``axis`` (2,) through its centroid ``m`` (2,) (window px; bilinear samples every half
+    px, summed across a 2 px strip), has two maxima with a dip between them below
+    ``max_dip`` times the lower one."""
+    t = np.arange(-radius, radius + 0.25, 0.5)
+    u = np.arange(-1.0, 1.25, 0.5)
+    across = np.array([-axis[1], axis[0]])
+    pos = m + t[:, None, None] * axis + u[None, :, None] * across     # (T, U, 2) x, y
+    prof = _bilinear(w2, pos).sum(axis=1)
+    peaks = np.flatnonzero((prof[1:-1] > prof[:-2]) & (prof[1:-1] >= prof[2:])) + 1
+    if len(peaks) < 2:
+        return False
+    a, b = np.sort(peaks[np.argsort(prof[peaks])[-2:]])
+    return bool(prof[a:b + 1].min() < max_dip * min(prof[a], prof[b]))
+
+
+def _bilinear(img, pos):
+    """``img`` (H, W) at ``pos`` (..., 2) x, y px, bilinearly (0 outside)."""
+    H, W = img.shape
+    pad = np.pad(img, 1)
+    x, y = pos[..., 0] + 1, pos[..., 1] + 1
+    inside = (x >= 0) & (x <= W + 1) & (y >= 0) & (y <= H + 1)
+    x, y = np.clip(x, 0, W + 1), np.clip(y, 0, H + 1)
+    x0, y0 = np.minimum(np.floor(x).astype(int), W), np.minimum(np.floor(y).astype(int), H)
+    fx, fy = x - x0, y - y0
+    v = (pad[y0, x0] * (1 - fx) * (1 - fy) + pad[y0, x0 + 1] * fx * (1 - fy)
+         + pad[y0 + 1, x0] * (1 - fx) * fy + pad[y0 + 1, x0 + 1] * fx * fy)
+    return np.where(inside, v, 0.0)
 
 
 def _blobs(grey, sigma, min_strength, roundness, spacing):

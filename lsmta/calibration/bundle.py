@@ -40,6 +40,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import cv2
+import numba as nb
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize._numdiff import group_columns
@@ -79,19 +80,38 @@ def project_params(params, X, *, rows=None) -> np.ndarray:
     one camera and all points; or, with ``rows`` ``(n,)`` int, ``params`` ``(K, 16)`` and
     point i seen by camera ``rows[i]`` (each camera's rotation computed once: the same
     numbers as ``project_params(params[rows], X)``)."""
+    params = np.asarray(params, dtype=float)
     R = Rotation.from_rotvec(params[:, :3]).as_matrix()
-    if rows is not None:
-        R, params = R[rows], params[rows]
-    Xc = (R @ (X - params[:, 3:6])[:, :, None])[:, :, 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x = Xc[:, 0] / Xc[:, 2]
-        y = Xc[:, 1] / Xc[:, 2]
-    f, cx, cy, k1, k2, k3, p1, p2, b1, b2 = params[:, 6:].T
-    r2 = x * x + y * y
-    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-    return np.stack([cx + f * ((1 + b1) * xd + b2 * yd), cy + f * yd], axis=1)
+    if rows is None:
+        rows = np.zeros(len(X), np.intp) if len(params) == 1 else np.arange(len(params))
+    else:
+        rows = np.asarray(rows, dtype=np.intp)
+    X = np.asarray(X, dtype=float)
+    # the rotation by numpy's matmul (BLAS: its rounding), the rest compiled
+    Xc = (R[rows] @ (X - params[rows, 3:6])[:, :, None])[:, :, 0]
+    out = np.empty((len(Xc), 2))
+    _lens(Xc, np.ascontiguousarray(params[:, 6:]), rows, out)
+    return out
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _lens(Xc, intr, rows, out):
+    """Perspective division, lens and affinity of :func:`project_params` per point (in place
+    into ``out`` (n, 2)): the same operations in the same order as the numpy form it
+    replaced (no fused multiply-add), so the same numbers."""
+    for i in range(len(Xc)):
+        q = rows[i]
+        f, cx, cy = intr[q, 0], intr[q, 1], intr[q, 2]
+        k1, k2, k3, p1, p2, b1, b2 = (intr[q, 3], intr[q, 4], intr[q, 5], intr[q, 6],
+                                      intr[q, 7], intr[q, 8], intr[q, 9])
+        x = Xc[i, 0] / Xc[i, 2]
+        y = Xc[i, 1] / Xc[i, 2]
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        out[i, 0] = cx + f * ((1 + b1) * xd + b2 * yd)
+        out[i, 1] = cy + f * yd
 
 
 # ---------------------------------------------------------------------- inputs
@@ -537,7 +557,7 @@ def _solve(pr: _Problem, params0, X0, use, st: BundleParams) -> _Adjusted:
 
     def fun(x):
         params, X = lay.unpack(x, params0, X0)
-        r = (project_params(params[lay.kk], X[lay.ii]) - obs).ravel() / pr.sigma_px
+        r = (project_params(params, X[lay.ii], rows=lay.kk) - obs).ravel() / pr.sigma_px
         if len(lay.pairs):
             d = np.linalg.norm(X[lay.pairs[:, 0]] - X[lay.pairs[:, 1]], axis=1)
             r = np.concatenate([r, (d - bar.length) / bar.sigma])

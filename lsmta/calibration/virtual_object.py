@@ -135,12 +135,12 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
     kk, ii = np.nonzero(seen & np.isfinite(X).all(axis=1)[None, :])
     if len(kk) == 0:
         return X
-    params = np.stack([camera_to_params(c) for c in cams])[kk]
+    params = np.stack([camera_to_params(c) for c in cams])     # (K, 16): rotations once
     obs = xy[kk, ii]
     N = len(X)
 
     def residuals(P):
-        r = project_params(params, P[ii]) - obs
+        r = project_params(params, P[ii], rows=kk) - obs
         return np.where(np.isfinite(r), r, 1e6)        # behind a camera: a large residual
 
     def cost(r):
@@ -155,7 +155,7 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
     for _ in range(int(n_iter)):
         if not active.any():
             break
-        J = _jacobian_points(params, X[ii], h)
+        J = _jacobian_points(params, kk, X[ii], h)
         A = _sum_by(ii, np.einsum("mji,mjk->mik", J, J), N)
         g = _sum_by(ii, np.einsum("mji,mj->mi", J, r), N)
         A[~active] = eye
@@ -183,14 +183,17 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
     return X
 
 
-def _jacobian_points(params, Xo, h: float) -> np.ndarray:
+def _jacobian_points(params, kk, Xo, h: float) -> np.ndarray:
     """Central-difference Jacobian ``(M, 2, 3)`` of every observation's projection (camera
-    parameters ``params`` (M, 16)) with respect to its point ``Xo`` (M, 3), step ``h`` mm."""
+    ``kk`` (M,) of the parameters ``params`` (K, 16)) with respect to its point ``Xo``
+    (M, 3), step ``h`` mm: all six perturbed projections in one call."""
     eye = np.eye(3)
-    J = np.empty((len(Xo), 2, 3))
+    M = len(Xo)
+    Xp = np.concatenate([Xo + s * h * eye[a] for a in range(3) for s in (1, -1)])
+    xy = project_params(params, Xp, rows=np.tile(kk, 6)).reshape(3, 2, M, 2)
+    J = np.empty((M, 2, 3))
     for a in range(3):
-        J[:, :, a] = (project_params(params, Xo + h * eye[a])
-                      - project_params(params, Xo - h * eye[a])) / (2 * h)
+        J[:, :, a] = (xy[a, 0] - xy[a, 1]) / (2 * h)
     return np.nan_to_num(J)
 
 
@@ -225,7 +228,7 @@ def _optimal_rms(cams, xy, X=None):
     ok = np.isfinite(xy).all(axis=2) & np.isfinite(X).all(axis=1)[None, :]
     kk, ii = np.nonzero(ok)
     P = np.stack([camera_to_params(c) for c in cams])
-    d = np.linalg.norm(project_params(P[kk], X[ii]) - xy[kk, ii], axis=1)
+    d = np.linalg.norm(project_params(P, X[ii], rows=kk) - xy[kk, ii], axis=1)
     return float(np.sqrt(np.mean(d**2))), X
 
 
@@ -331,12 +334,14 @@ def _free_mask(intrinsics) -> np.ndarray:
 def _jacobian_cameras(P, cols, step, kk, Xo):
     """Central-difference Jacobian ``(M, 2, len(cols))`` of every observation's projection
     with respect to its camera's parameters ``cols``: all perturbations in one projection."""
-    n, M = len(cols), len(kk)
-    Q = np.repeat(P[kk][None], 2 * n, axis=0)                     # (2n, M, 16)
+    n, M, K = len(cols), len(kk), len(P)
+    Q = np.repeat(P[None], 2 * n, axis=0)                         # (2n, K, 16)
     a = np.arange(n)
     Q[a, :, cols] += step[:, None]
     Q[n + a, :, cols] -= step[:, None]
-    xy = project_params(Q.reshape(-1, 16), np.tile(Xo, (2 * n, 1))).reshape(2 * n, M, 2)
+    rows = (np.arange(2 * n)[:, None] * K + kk[None, :]).ravel()  # each rotation once
+    xy = project_params(Q.reshape(-1, 16), np.tile(Xo, (2 * n, 1)), rows=rows)
+    xy = xy.reshape(2 * n, M, 2)
     J = (xy[:n] - xy[n:]) / (2 * step[:, None, None])             # (n, M, 2)
     return np.nan_to_num(np.transpose(J, (1, 2, 0)))
 
@@ -349,7 +354,7 @@ def _lm_cameras(P, free, kk, Xo, obs, active, n_iter, tol):
     step = np.where(cols < 3, 1e-6, 1e-6 * np.maximum(1.0, np.abs(P[:, cols]).max(axis=0)))
 
     def residuals(Q):
-        r = project_params(Q[kk], Xo) - obs
+        r = project_params(Q, Xo, rows=kk) - obs
         return np.where(np.isfinite(r), r, 1e6)
 
     def cost(r):

@@ -81,17 +81,45 @@ def project_params(params, X, *, rows=None) -> np.ndarray:
     point i seen by camera ``rows[i]`` (each camera's rotation computed once: the same
     numbers as ``project_params(params[rows], X)``)."""
     params = np.asarray(params, dtype=float)
-    R = Rotation.from_rotvec(params[:, :3]).as_matrix()
     if rows is None:
         rows = np.zeros(len(X), np.intp) if len(params) == 1 else np.arange(len(params))
-    else:
-        rows = np.asarray(rows, dtype=np.intp)
-    X = np.asarray(X, dtype=float)
-    # the rotation by numpy's matmul (BLAS: its rounding), the rest compiled
-    Xc = (R[rows] @ (X - params[rows, 3:6])[:, :, None])[:, :, 0]
-    out = np.empty((len(Xc), 2))
-    _lens(Xc, np.ascontiguousarray(params[:, 6:]), rows, out)
-    return out
+    return Projector(params, rows)(X)
+
+
+class Projector:
+    """:func:`project_params` for fixed cameras and fixed camera-of-each-point ``rows``,
+    with the per-point rotations and centres gathered once, for repeated calls with new
+    points (the same numbers as :func:`project_params`).
+
+    Parameters
+    ----------
+    params : (K, 16) array
+        Camera parameters (:data:`PARAMETER_NAMES`).
+    rows : (n,) int array
+        The camera of each point the projector will be called with.
+    """
+
+    def __init__(self, params, rows):
+        params = np.asarray(params, dtype=float)
+        self.rows = np.asarray(rows, dtype=np.intp)
+        self.R = Rotation.from_rotvec(params[:, :3]).as_matrix()[self.rows]
+        self.C = params[self.rows, 3:6]
+        self.intr = np.ascontiguousarray(params[:, 6:])
+
+    def frame(self, X) -> np.ndarray:
+        """Camera coordinates ``(n, 3)`` of the points ``X`` ``(n, 3)``, mm."""
+        # the rotation by numpy's matmul (BLAS: its rounding), the lens compiled
+        return (self.R @ (np.asarray(X, dtype=float) - self.C)[:, :, None])[:, :, 0]
+
+    def lens(self, Xc, intr=None) -> np.ndarray:
+        """Pixel coordinates ``(n, 2)`` of camera coordinates ``Xc``; ``intr`` ``(K', 10)``
+        replaces the interior parameters (row ``rows[i]`` for point i)."""
+        out = np.empty((len(Xc), 2))
+        _lens(Xc, self.intr if intr is None else intr, self.rows, out)
+        return out
+
+    def __call__(self, X) -> np.ndarray:
+        return self.lens(self.frame(X))
 
 
 @nb.njit(cache=True, error_model="numpy")

@@ -40,6 +40,8 @@ from ..triangulation import triangulate
 from .bundle import (
     INTRINSIC_NAMES,
     BundleParams,
+    Projector,
+    _lens,
     bundle_adjust,
     camera_to_params,
     min_points_per_camera,
@@ -135,12 +137,14 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
     kk, ii = np.nonzero(seen & np.isfinite(X).all(axis=1)[None, :])
     if len(kk) == 0:
         return X
-    params = np.stack([camera_to_params(c) for c in cams])     # (K, 16): rotations once
+    params = np.stack([camera_to_params(c) for c in cams])
+    project = Projector(params, kk)                        # rotations gathered once
+    project6 = Projector(params, np.tile(kk, 6))           # the same, for the Jacobian
     obs = xy[kk, ii]
     N = len(X)
 
     def residuals(P):
-        r = project_params(params, P[ii], rows=kk) - obs
+        r = project(P[ii]) - obs
         return np.where(np.isfinite(r), r, 1e6)        # behind a camera: a large residual
 
     def cost(r):
@@ -155,7 +159,7 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
     for _ in range(int(n_iter)):
         if not active.any():
             break
-        J = _jacobian_points(params, kk, X[ii], h)
+        J = _jacobian_points(project6, X[ii], h)
         A = _sum_by(ii, np.einsum("mji,mjk->mik", J, J), N)
         g = _sum_by(ii, np.einsum("mji,mj->mi", J, r), N)
         A[~active] = eye
@@ -183,14 +187,14 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
     return X
 
 
-def _jacobian_points(params, kk, Xo, h: float) -> np.ndarray:
-    """Central-difference Jacobian ``(M, 2, 3)`` of every observation's projection (camera
-    ``kk`` (M,) of the parameters ``params`` (K, 16)) with respect to its point ``Xo``
-    (M, 3), step ``h`` mm: all six perturbed projections in one call."""
+def _jacobian_points(project6: Projector, Xo, h: float) -> np.ndarray:
+    """Central-difference Jacobian ``(M, 2, 3)`` of every observation's projection with
+    respect to its point ``Xo`` (M, 3), step ``h`` mm: all six perturbed projections in one
+    call of ``project6`` (the observations' cameras six times over)."""
     eye = np.eye(3)
     M = len(Xo)
     Xp = np.concatenate([Xo + s * h * eye[a] for a in range(3) for s in (1, -1)])
-    xy = project_params(params, Xp, rows=np.tile(kk, 6)).reshape(3, 2, M, 2)
+    xy = project6(Xp).reshape(3, 2, M, 2)
     J = np.empty((M, 2, 3))
     for a in range(3):
         J[:, :, a] = (xy[a, 0] - xy[a, 1]) / (2 * h)
@@ -339,9 +343,19 @@ def _jacobian_cameras(P, cols, step, kk, Xo):
     a = np.arange(n)
     Q[a, :, cols] += step[:, None]
     Q[n + a, :, cols] -= step[:, None]
-    rows = (np.arange(2 * n)[:, None] * K + kk[None, :]).ravel()  # each rotation once
-    xy = project_params(Q.reshape(-1, 16), np.tile(Xo, (2 * n, 1)), rows=rows)
-    xy = xy.reshape(2 * n, M, 2)
+    ext = np.concatenate([a[cols < 6], n + a[cols < 6]])          # perturbed pose
+    lens = np.concatenate([a[cols >= 6], n + a[cols >= 6]])       # perturbed interior only
+    xy = np.empty((2 * n, M, 2))
+    rows = (np.arange(len(ext))[:, None] * K + kk[None, :]).ravel()
+    xy[ext] = project_params(Q[ext].reshape(-1, 16), np.tile(Xo, (len(ext), 1)),
+                             rows=rows).reshape(len(ext), M, 2)
+    if len(lens):
+        # the pose is unperturbed: the camera coordinates are the same, only the lens runs
+        rows = (np.arange(len(lens))[:, None] * K + kk[None, :]).ravel()
+        Xc = np.tile(Projector(P, kk).frame(Xo), (len(lens), 1))
+        out = np.empty((len(Xc), 2))
+        _lens(Xc, np.ascontiguousarray(Q[lens].reshape(-1, 16)[:, 6:]), rows, out)
+        xy[lens] = out.reshape(len(lens), M, 2)
     J = (xy[:n] - xy[n:]) / (2 * step[:, None, None])             # (n, M, 2)
     return np.nan_to_num(np.transpose(J, (1, 2, 0)))
 

@@ -33,6 +33,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from .._validate import as_array, as_int, as_scalar
@@ -160,8 +161,7 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
         if not active.any():
             break
         J = _jacobian_points(project6, X[ii], h)
-        A = _sum_by(ii, np.einsum("mji,mjk->mik", J, J), N)
-        g = _sum_by(ii, np.einsum("mji,mj->mi", J, r), N)
+        A, g = _normal_sums(ii, J, r, N)
         A[~active] = eye
         g[~active] = 0.0
         diag = np.maximum(np.einsum("nii->ni", A), 1e-12)
@@ -201,11 +201,29 @@ def _jacobian_points(project6: Projector, Xo, h: float) -> np.ndarray:
     return np.nan_to_num(J)
 
 
-def _sum_by(index, values, n: int) -> np.ndarray:
-    """``out[i] = sum of values[m] where index[m] == i``, ``(n, ...)`` (np.add.at, faster)."""
-    flat = values.reshape(len(values), -1)
-    out = np.stack([np.bincount(index, flat[:, c], n) for c in range(flat.shape[1])], axis=1)
-    return out.reshape((n,) + values.shape[1:])
+@nb.njit(cache=True, error_model="numpy")
+def _normal_sums(index, J, r, n: int):
+    """Normal equations of ``n`` small least-squares problems from their observations:
+    ``A[q] = sum of J[m]^T J[m]`` ``(n, p, p)`` and ``g[q] = sum of J[m]^T r[m]`` ``(n, p)``
+    over the observations m with ``index[m] == q``; ``J`` ``(M, 2, p)``, ``r`` ``(M, 2)``.
+    The same numbers as ``np.einsum`` per observation summed by ``np.bincount`` (the
+    same products, added in the same order)."""
+    M, m2, p = J.shape
+    A = np.zeros((n, p, p))
+    g = np.zeros((n, p))
+    for m in range(M):
+        q = index[m]
+        for i in range(p):
+            for k in range(p):
+                s = J[m, 0, i] * J[m, 0, k]
+                for j in range(1, m2):
+                    s = s + J[m, j, i] * J[m, j, k]
+                A[q, i, k] += s
+            s = J[m, 0, i] * r[m, 0]
+            for j in range(1, m2):
+                s = s + J[m, j, i] * r[m, j]
+            g[q, i] += s
+    return A, g
 
 
 def projection_error(cameras, xy, *, triangulation: str = "optimal") -> float:
@@ -387,8 +405,7 @@ def _lm_cameras(P, free, kk, Xo, obs, active, n_iter, tol):
         if not running.any():
             break
         J = _jacobian_cameras(P, cols, step, kk, Xo)
-        A = _sum_by(kk, np.einsum("mji,mjk->mik", J, J), K)
-        g = _sum_by(kk, np.einsum("mji,mj->mi", J, r), K)
+        A, g = _normal_sums(kk, J, r, K)
         A[~running] = eye
         g[~running] = 0.0
         diag = np.maximum(np.einsum("kii->ki", A), 1e-12)

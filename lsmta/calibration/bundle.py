@@ -106,6 +106,13 @@ class Projector:
         self.C = params[self.rows, 3:6]
         self.intr = np.ascontiguousarray(params[:, 6:])
 
+    def subset(self, index) -> Projector:
+        """The projector of the points ``index`` (into ``rows``) only."""
+        out = object.__new__(Projector)
+        out.rows, out.R, out.C, out.intr = (self.rows[index], self.R[index], self.C[index],
+                                            self.intr)
+        return out
+
     def frame(self, X) -> np.ndarray:
         """Camera coordinates ``(n, 3)`` of the points ``X`` ``(n, 3)``, mm."""
         # the rotation by numpy's matmul (BLAS: its rounding), the lens compiled

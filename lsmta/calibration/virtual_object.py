@@ -140,19 +140,21 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
         return X
     params = np.stack([camera_to_params(c) for c in cams])
     project = Projector(params, kk)                        # rotations gathered once
-    project6 = Projector(params, np.tile(kk, 6))           # the same, for the Jacobian
     obs = xy[kk, ii]
-    N = len(X)
+    N, M = len(X), len(kk)
 
-    def residuals(P):
-        r = project(P[ii]) - obs
+    # Every step works on the observations of the points still being solved only (the
+    # others' numbers are not used): the same numbers as solving all points every time.
+    def residuals(P, m, proj):
+        r = proj(P[ii[m]]) - obs[m]
         return np.where(np.isfinite(r), r, 1e6)        # behind a camera: a large residual
 
-    def cost(r):
-        return np.bincount(ii, (r**2).sum(axis=1), N)
+    def cost(r, m):
+        return np.bincount(ii[m], (r**2).sum(axis=1), N)
 
-    r = residuals(X)
-    c = cost(r)
+    everything = np.arange(M)
+    r = residuals(X, everything, project)
+    c = cost(r, everything)
     lam = np.full(N, 1e-6)
     active = np.isfinite(X).all(axis=1) & (seen.sum(axis=0) >= 2)
     h = 1e-3                                            # mm, central differences
@@ -160,18 +162,22 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
     for _ in range(int(n_iter)):
         if not active.any():
             break
-        J = _jacobian_points(project6, X[ii], h)
-        A, g = _normal_sums(ii, J, r, N)
+        ma = np.flatnonzero(active[ii])                  # observations of active points
+        proj_a = project.subset(ma)
+        J = _jacobian_points(project.subset(np.concatenate([ma] * 6)), X[ii[ma]], h)
+        A, g = _normal_sums(ii[ma], J, r[ma], N)
         A[~active] = eye
         g[~active] = 0.0
         diag = np.maximum(np.einsum("nii->ni", A), 1e-12)
         pending = active.copy()
         step = np.zeros(N)
+        mp, proj_p = ma, proj_a
         for _ in range(10):                              # per-point damping
-            dx = -np.linalg.solve(A + lam[:, None, None] * eye * diag[:, :, None],
-                                  g[..., None])[..., 0]
-            dx[~pending] = 0.0
-            cn = cost(residuals(X + dx))
+            p = np.flatnonzero(pending)
+            dx = np.zeros((N, 3))
+            dx[p] = -np.linalg.solve(A[p] + lam[p, None, None] * eye * diag[p, :, None],
+                                     g[p, :, None])[..., 0]
+            cn = cost(residuals(X + dx, mp, proj_p), mp)
             better = pending & (cn <= c)
             X[better] += dx[better]
             c[better] = cn[better]
@@ -181,7 +187,9 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
             pending &= ~better
             if not pending.any():
                 break
-        r = residuals(X)
+            keep = pending[ii[mp]]
+            mp, proj_p = mp[keep], proj_p.subset(np.flatnonzero(keep))
+        r[ma] = residuals(X, ma, proj_a)
         # converged: a tiny step, or no step that lowers the cost
         active &= ~pending & (step >= tol * (1 + np.linalg.norm(X, axis=1)))
     return X
@@ -190,7 +198,7 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
 def _jacobian_points(project6: Projector, Xo, h: float) -> np.ndarray:
     """Central-difference Jacobian ``(M, 2, 3)`` of every observation's projection with
     respect to its point ``Xo`` (M, 3), step ``h`` mm: all six perturbed projections in one
-    call of ``project6`` (the observations' cameras six times over)."""
+    call of ``project6`` (the M observations' cameras six times over)."""
     eye = np.eye(3)
     M = len(Xo)
     Xp = np.concatenate([Xo + s * h * eye[a] for a in range(3) for s in (1, -1)])

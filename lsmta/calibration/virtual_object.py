@@ -383,7 +383,7 @@ def _jacobian_cameras(P, cols, step, kk, Xo):
         _lens(Xc, np.ascontiguousarray(Q[lens].reshape(-1, 16)[:, 6:]), rows, out)
         xy[lens] = out.reshape(len(lens), M, 2)
     J = (xy[:n] - xy[n:]) / (2 * step[:, None, None])             # (n, M, 2)
-    return np.nan_to_num(np.transpose(J, (1, 2, 0)))
+    return np.ascontiguousarray(np.nan_to_num(np.transpose(J, (1, 2, 0))))
 
 
 def _lm_cameras(P, free, kk, Xo, obs, active, n_iter, tol):

@@ -40,6 +40,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import cv2
+import numba as nb
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize._numdiff import group_columns
@@ -79,19 +80,73 @@ def project_params(params, X, *, rows=None) -> np.ndarray:
     one camera and all points; or, with ``rows`` ``(n,)`` int, ``params`` ``(K, 16)`` and
     point i seen by camera ``rows[i]`` (each camera's rotation computed once: the same
     numbers as ``project_params(params[rows], X)``)."""
-    R = Rotation.from_rotvec(params[:, :3]).as_matrix()
-    if rows is not None:
-        R, params = R[rows], params[rows]
-    Xc = (R @ (X - params[:, 3:6])[:, :, None])[:, :, 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x = Xc[:, 0] / Xc[:, 2]
-        y = Xc[:, 1] / Xc[:, 2]
-    f, cx, cy, k1, k2, k3, p1, p2, b1, b2 = params[:, 6:].T
-    r2 = x * x + y * y
-    radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-    return np.stack([cx + f * ((1 + b1) * xd + b2 * yd), cy + f * yd], axis=1)
+    params = np.asarray(params, dtype=float)
+    if rows is None:
+        rows = np.zeros(len(X), np.intp) if len(params) == 1 else np.arange(len(params))
+    return Projector(params, rows)(X)
+
+
+class Projector:
+    """:func:`project_params` for fixed cameras and fixed camera-of-each-point ``rows``,
+    with the per-point rotations and centres gathered once, for repeated calls with new
+    points (the same numbers as :func:`project_params`).
+
+    Parameters
+    ----------
+    params : (K, 16) array
+        Camera parameters (:data:`PARAMETER_NAMES`).
+    rows : (n,) int array
+        The camera of each point the projector will be called with.
+    """
+
+    def __init__(self, params, rows):
+        params = np.asarray(params, dtype=float)
+        self.rows = np.asarray(rows, dtype=np.intp)
+        self.R = Rotation.from_rotvec(params[:, :3]).as_matrix()[self.rows]
+        self.C = params[self.rows, 3:6]
+        self.intr = np.ascontiguousarray(params[:, 6:])
+
+    def subset(self, index) -> Projector:
+        """The projector of the points ``index`` (into ``rows``) only."""
+        out = object.__new__(Projector)
+        out.rows, out.R, out.C, out.intr = (self.rows[index], self.R[index], self.C[index],
+                                            self.intr)
+        return out
+
+    def frame(self, X) -> np.ndarray:
+        """Camera coordinates ``(n, 3)`` of the points ``X`` ``(n, 3)``, mm."""
+        # the rotation by numpy's matmul (BLAS: its rounding), the lens compiled
+        return (self.R @ (np.asarray(X, dtype=float) - self.C)[:, :, None])[:, :, 0]
+
+    def lens(self, Xc, intr=None) -> np.ndarray:
+        """Pixel coordinates ``(n, 2)`` of camera coordinates ``Xc``; ``intr`` ``(K', 10)``
+        replaces the interior parameters (row ``rows[i]`` for point i)."""
+        out = np.empty((len(Xc), 2))
+        _lens(Xc, self.intr if intr is None else intr, self.rows, out)
+        return out
+
+    def __call__(self, X) -> np.ndarray:
+        return self.lens(self.frame(X))
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _lens(Xc, intr, rows, out):
+    """Perspective division, lens and affinity of :func:`project_params` per point (in place
+    into ``out`` (n, 2)): the same operations in the same order as the numpy form it
+    replaced (no fused multiply-add), so the same numbers."""
+    for i in range(len(Xc)):
+        q = rows[i]
+        f, cx, cy = intr[q, 0], intr[q, 1], intr[q, 2]
+        k1, k2, k3, p1, p2, b1, b2 = (intr[q, 3], intr[q, 4], intr[q, 5], intr[q, 6],
+                                      intr[q, 7], intr[q, 8], intr[q, 9])
+        x = Xc[i, 0] / Xc[i, 2]
+        y = Xc[i, 1] / Xc[i, 2]
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        out[i, 0] = cx + f * ((1 + b1) * xd + b2 * yd)
+        out[i, 1] = cy + f * yd
 
 
 # ---------------------------------------------------------------------- inputs
@@ -537,7 +592,7 @@ def _solve(pr: _Problem, params0, X0, use, st: BundleParams) -> _Adjusted:
 
     def fun(x):
         params, X = lay.unpack(x, params0, X0)
-        r = (project_params(params[lay.kk], X[lay.ii]) - obs).ravel() / pr.sigma_px
+        r = (project_params(params, X[lay.ii], rows=lay.kk) - obs).ravel() / pr.sigma_px
         if len(lay.pairs):
             d = np.linalg.norm(X[lay.pairs[:, 0]] - X[lay.pairs[:, 1]], axis=1)
             r = np.concatenate([r, (d - bar.length) / bar.sigma])

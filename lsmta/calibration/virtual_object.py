@@ -33,6 +33,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 from .._validate import as_array, as_int, as_scalar
@@ -40,6 +41,8 @@ from ..triangulation import triangulate
 from .bundle import (
     INTRINSIC_NAMES,
     BundleParams,
+    Projector,
+    _lens,
     bundle_adjust,
     camera_to_params,
     min_points_per_camera,
@@ -135,19 +138,23 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
     kk, ii = np.nonzero(seen & np.isfinite(X).all(axis=1)[None, :])
     if len(kk) == 0:
         return X
-    params = np.stack([camera_to_params(c) for c in cams])[kk]
+    params = np.stack([camera_to_params(c) for c in cams])
+    project = Projector(params, kk)                        # rotations gathered once
     obs = xy[kk, ii]
-    N = len(X)
+    N, M = len(X), len(kk)
 
-    def residuals(P):
-        r = project_params(params, P[ii]) - obs
+    # Every step works on the observations of the points still being solved only (the
+    # others' numbers are not used): the same numbers as solving all points every time.
+    def residuals(P, m, proj):
+        r = proj(P[ii[m]]) - obs[m]
         return np.where(np.isfinite(r), r, 1e6)        # behind a camera: a large residual
 
-    def cost(r):
-        return np.bincount(ii, (r**2).sum(axis=1), N)
+    def cost(r, m):
+        return np.bincount(ii[m], (r**2).sum(axis=1), N)
 
-    r = residuals(X)
-    c = cost(r)
+    everything = np.arange(M)
+    r = residuals(X, everything, project)
+    c = cost(r, everything)
     lam = np.full(N, 1e-6)
     active = np.isfinite(X).all(axis=1) & (seen.sum(axis=0) >= 2)
     h = 1e-3                                            # mm, central differences
@@ -155,19 +162,22 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
     for _ in range(int(n_iter)):
         if not active.any():
             break
-        J = _jacobian_points(params, X[ii], h)
-        A = _sum_by(ii, np.einsum("mji,mjk->mik", J, J), N)
-        g = _sum_by(ii, np.einsum("mji,mj->mi", J, r), N)
+        ma = np.flatnonzero(active[ii])                  # observations of active points
+        proj_a = project.subset(ma)
+        J = _jacobian_points(project.subset(np.concatenate([ma] * 6)), X[ii[ma]], h)
+        A, g = _normal_sums(ii[ma], J, r[ma], N)
         A[~active] = eye
         g[~active] = 0.0
         diag = np.maximum(np.einsum("nii->ni", A), 1e-12)
         pending = active.copy()
         step = np.zeros(N)
+        mp, proj_p = ma, proj_a
         for _ in range(10):                              # per-point damping
-            dx = -np.linalg.solve(A + lam[:, None, None] * eye * diag[:, :, None],
-                                  g[..., None])[..., 0]
-            dx[~pending] = 0.0
-            cn = cost(residuals(X + dx))
+            p = np.flatnonzero(pending)
+            dx = np.zeros((N, 3))
+            dx[p] = -np.linalg.solve(A[p] + lam[p, None, None] * eye * diag[p, :, None],
+                                     g[p, :, None])[..., 0]
+            cn = cost(residuals(X + dx, mp, proj_p), mp)
             better = pending & (cn <= c)
             X[better] += dx[better]
             c[better] = cn[better]
@@ -177,28 +187,51 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
             pending &= ~better
             if not pending.any():
                 break
-        r = residuals(X)
+            keep = pending[ii[mp]]
+            mp, proj_p = mp[keep], proj_p.subset(np.flatnonzero(keep))
+        r[ma] = residuals(X, ma, proj_a)
         # converged: a tiny step, or no step that lowers the cost
         active &= ~pending & (step >= tol * (1 + np.linalg.norm(X, axis=1)))
     return X
 
 
-def _jacobian_points(params, Xo, h: float) -> np.ndarray:
-    """Central-difference Jacobian ``(M, 2, 3)`` of every observation's projection (camera
-    parameters ``params`` (M, 16)) with respect to its point ``Xo`` (M, 3), step ``h`` mm."""
+def _jacobian_points(project6: Projector, Xo, h: float) -> np.ndarray:
+    """Central-difference Jacobian ``(M, 2, 3)`` of every observation's projection with
+    respect to its point ``Xo`` (M, 3), step ``h`` mm: all six perturbed projections in one
+    call of ``project6`` (the M observations' cameras six times over)."""
     eye = np.eye(3)
-    J = np.empty((len(Xo), 2, 3))
+    M = len(Xo)
+    Xp = np.concatenate([Xo + s * h * eye[a] for a in range(3) for s in (1, -1)])
+    xy = project6(Xp).reshape(3, 2, M, 2)
+    J = np.empty((M, 2, 3))
     for a in range(3):
-        J[:, :, a] = (project_params(params, Xo + h * eye[a])
-                      - project_params(params, Xo - h * eye[a])) / (2 * h)
+        J[:, :, a] = (xy[a, 0] - xy[a, 1]) / (2 * h)
     return np.nan_to_num(J)
 
 
-def _sum_by(index, values, n: int) -> np.ndarray:
-    """``out[i] = sum of values[m] where index[m] == i``, ``(n, ...)`` (np.add.at, faster)."""
-    flat = values.reshape(len(values), -1)
-    out = np.stack([np.bincount(index, flat[:, c], n) for c in range(flat.shape[1])], axis=1)
-    return out.reshape((n,) + values.shape[1:])
+@nb.njit(cache=True, error_model="numpy")
+def _normal_sums(index, J, r, n: int):
+    """Normal equations of ``n`` small least-squares problems from their observations:
+    ``A[q] = sum of J[m]^T J[m]`` ``(n, p, p)`` and ``g[q] = sum of J[m]^T r[m]`` ``(n, p)``
+    over the observations m with ``index[m] == q``; ``J`` ``(M, 2, p)``, ``r`` ``(M, 2)``.
+    The same numbers as ``np.einsum`` per observation summed by ``np.bincount`` (the
+    same products, added in the same order)."""
+    M, m2, p = J.shape
+    A = np.zeros((n, p, p))
+    g = np.zeros((n, p))
+    for m in range(M):
+        q = index[m]
+        for i in range(p):
+            for k in range(p):
+                s = J[m, 0, i] * J[m, 0, k]
+                for j in range(1, m2):
+                    s = s + J[m, j, i] * J[m, j, k]
+                A[q, i, k] += s
+            s = J[m, 0, i] * r[m, 0]
+            for j in range(1, m2):
+                s = s + J[m, j, i] * r[m, j]
+            g[q, i] += s
+    return A, g
 
 
 def projection_error(cameras, xy, *, triangulation: str = "optimal") -> float:
@@ -225,7 +258,7 @@ def _optimal_rms(cams, xy, X=None):
     ok = np.isfinite(xy).all(axis=2) & np.isfinite(X).all(axis=1)[None, :]
     kk, ii = np.nonzero(ok)
     P = np.stack([camera_to_params(c) for c in cams])
-    d = np.linalg.norm(project_params(P[kk], X[ii]) - xy[kk, ii], axis=1)
+    d = np.linalg.norm(project_params(P, X[ii], rows=kk) - xy[kk, ii], axis=1)
     return float(np.sqrt(np.mean(d**2))), X
 
 
@@ -331,14 +364,26 @@ def _free_mask(intrinsics) -> np.ndarray:
 def _jacobian_cameras(P, cols, step, kk, Xo):
     """Central-difference Jacobian ``(M, 2, len(cols))`` of every observation's projection
     with respect to its camera's parameters ``cols``: all perturbations in one projection."""
-    n, M = len(cols), len(kk)
-    Q = np.repeat(P[kk][None], 2 * n, axis=0)                     # (2n, M, 16)
+    n, M, K = len(cols), len(kk), len(P)
+    Q = np.repeat(P[None], 2 * n, axis=0)                         # (2n, K, 16)
     a = np.arange(n)
     Q[a, :, cols] += step[:, None]
     Q[n + a, :, cols] -= step[:, None]
-    xy = project_params(Q.reshape(-1, 16), np.tile(Xo, (2 * n, 1))).reshape(2 * n, M, 2)
+    ext = np.concatenate([a[cols < 6], n + a[cols < 6]])          # perturbed pose
+    lens = np.concatenate([a[cols >= 6], n + a[cols >= 6]])       # perturbed interior only
+    xy = np.empty((2 * n, M, 2))
+    rows = (np.arange(len(ext))[:, None] * K + kk[None, :]).ravel()
+    xy[ext] = project_params(Q[ext].reshape(-1, 16), np.tile(Xo, (len(ext), 1)),
+                             rows=rows).reshape(len(ext), M, 2)
+    if len(lens):
+        # the pose is unperturbed: the camera coordinates are the same, only the lens runs
+        rows = (np.arange(len(lens))[:, None] * K + kk[None, :]).ravel()
+        Xc = np.tile(Projector(P, kk).frame(Xo), (len(lens), 1))
+        out = np.empty((len(Xc), 2))
+        _lens(Xc, np.ascontiguousarray(Q[lens].reshape(-1, 16)[:, 6:]), rows, out)
+        xy[lens] = out.reshape(len(lens), M, 2)
     J = (xy[:n] - xy[n:]) / (2 * step[:, None, None])             # (n, M, 2)
-    return np.nan_to_num(np.transpose(J, (1, 2, 0)))
+    return np.ascontiguousarray(np.nan_to_num(np.transpose(J, (1, 2, 0))))
 
 
 def _lm_cameras(P, free, kk, Xo, obs, active, n_iter, tol):
@@ -349,7 +394,7 @@ def _lm_cameras(P, free, kk, Xo, obs, active, n_iter, tol):
     step = np.where(cols < 3, 1e-6, 1e-6 * np.maximum(1.0, np.abs(P[:, cols]).max(axis=0)))
 
     def residuals(Q):
-        r = project_params(Q[kk], Xo) - obs
+        r = project_params(Q, Xo, rows=kk) - obs
         return np.where(np.isfinite(r), r, 1e6)
 
     def cost(r):
@@ -368,8 +413,7 @@ def _lm_cameras(P, free, kk, Xo, obs, active, n_iter, tol):
         if not running.any():
             break
         J = _jacobian_cameras(P, cols, step, kk, Xo)
-        A = _sum_by(kk, np.einsum("mji,mjk->mik", J, J), K)
-        g = _sum_by(kk, np.einsum("mji,mj->mi", J, r), K)
+        A, g = _normal_sums(kk, J, r, K)
         A[~running] = eye
         g[~running] = 0.0
         diag = np.maximum(np.einsum("kii->ki", A), 1e-12)

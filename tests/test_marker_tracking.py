@@ -156,7 +156,11 @@ def test_merged_blobs_split_into_their_dots():
     # the crowd of three is not split into halves between its dots
     in_crowd = np.linalg.norm(r.xy - np.mean(crowd, axis=0), axis=1) < 5
     assert in_crowd.any() and not r.split[in_crowd].any()
-    assert len(r.xy) == len(r.spread) == len(r.split)
+    assert len(r.xy) == len(r.spread) == len(r.brightness) == len(r.split)
+    # the halves of a split blob share its brightness: each carries half
+    halves = np.flatnonzero(r.split)
+    assert np.isfinite(r.brightness[halves]).all()
+    assert r.brightness[halves].sum() < 1.5 * r.brightness[i]
     # a blob found twice is kept once
     twice = tm.split_merged_blobs(img, np.r_[blobs[:1], blobs[:1] + 0.3], radius=3)
     assert len(twice.xy) == 1
@@ -203,3 +207,26 @@ def test_one_elongated_dot_is_not_split():
     assert len(tm.split_merged_blobs(img, blobs, radius=3.0, iterations=2.0).xy) == len(r.xy)
     with pytest.raises(ValueError, match="max_dip"):
         tm.split_merged_blobs(img, blobs, max_dip=1.5)
+
+
+def test_low_contrast_streak_stays_one_dot():
+    # a dim streak (sigma 1.3 px, 10 px long, 25-40 grey levels over noise of 4) has a flat
+    # top whose noise alone makes two maxima with a shallow dip: the dip must be deeper
+    # than three times the profile's noise, so it stays one dot. Two dots 3.8 px apart,
+    # as dim and as noisy, are still split
+    rng = np.random.default_rng(7)
+    gx, gy = np.meshgrid(np.arange(40, dtype=float), np.arange(40, dtype=float))
+
+    def draw(centres, amp):
+        g = sum(np.exp(-((gx - x) ** 2 + (gy - y) ** 2) / (2 * 1.3 ** 2)) for x, y in centres)
+        return 80.0 + amp * g / g.max() + rng.normal(0, 4.0, gx.shape)
+
+    one, two = 0, 0
+    for _ in range(60):
+        c, a = 20 + rng.uniform(-0.5, 0.5, 2), rng.uniform(0, np.pi)
+        d = np.array([np.cos(a), np.sin(a)])
+        img = draw(c + np.linspace(-5, 5, 41)[:, None] * d, rng.uniform(25, 40))
+        one += not tm.split_merged_blobs(img, c[None], radius=3).split.any()
+        img = draw(c + np.array([[-1.9], [1.9]]) * d, rng.uniform(60, 80))
+        two += tm.split_merged_blobs(img, c[None], radius=3).split.all()
+    assert one >= 58 and two >= 58

@@ -9,10 +9,11 @@ angles:
    elongated blob, found once or twice (a strength peak on each lobe, both refined to the
    whole blob's centroid, between the two dots): each blob is kept once and a blob whose
    brightness spreads along one axis as two dots ``split_px`` or more apart would is split
-   into its two dots when its profile along that axis has two maxima with a dip between
-   them (:func:`~lsmta.tracking.markers.split_merged_blobs`; one stretched or
-   motion-blurred dot is not split). Before, a merged blob stayed one dot and both its
-   markers went unlabelled;
+   into its two dots only when its profile along that axis has two maxima of comparable
+   height with a dip between them deeper than the image noise makes
+   (:func:`~lsmta.tracking.markers.split_merged_blobs`; one stretched or motion-blurred
+   dot is not split, nor two dots 3 px apart or closer). Before, a merged blob
+   stayed one dot and both its markers went unlabelled;
 2. *stereo*: the dots of each pair of heads matched one to one by the distance between
    their rays (the epipolar constraint at the heads' calibrated models; an optimal
    assignment, :func:`scipy.optimize.linear_sum_assignment`) and triangulated: unlabelled
@@ -52,15 +53,11 @@ angles:
    marker faces the head more than that neighbour (normals from the fitted face): one
    dot, the other marker turned away or behind the face, hidden. Before, every such marker
    went unlabelled: at the edge of a face turned from a head, markers turned away project
-   within ``crowd_px`` of visible ones. With both changes (before the brightness test here
-   and the splitting's profile test), first-frame coverage with two heads rose from
-   0.89-0.91 to 0.96-1.00 on ``experiments/mixed_scale_system.py``'s seeds 18 to 22
-   (``experiments/results/mixed_scale_heads.json``), with four heads from 0.87-0.90 to
-   0.94-0.96, with one wrong label (seed 18) where none was before (gone with the profile
-   test, in a first-frame diagnosis run of 2026-11-27 on the same seeds; that file predates
-   it). A fit
-   whose labelled markers lie farther than ``max_residual_mm`` (RMS) from the fitted face
-   has wrong labels in it: then nothing is labelled (a face turned far from the heads).
+   within ``crowd_px`` of visible ones (coverage measured in
+   ``experiments/results/mixed_scale_heads.json``, ``experiments/mixed_scale_system.py``'s
+   seeds 18 to 22). A fit whose labelled markers lie farther than ``max_residual_mm``
+   (RMS) from the fitted face has wrong labels in it: then nothing is labelled (a face
+   turned far from the heads).
 
 The cost of a labelling is the summed squared image distance of the pairs plus ``gate**2``
 for every dot left without a marker.
@@ -111,13 +108,16 @@ class IdentifyParams:
     crowd_px : float
         A marker whose projection lies closer than this to that of another marker left
         without a dot is left unlabelled too (their dots may have merged into one blob),
-        px, unless its dot is round (``round_px``), no other dot lies within ``crowd_px``
-        of it and its marker faces the head more than that neighbour.
+        px, unless its dot is round (``round_px``), no brighter than 1.5 times the
+        frame's median dot (two merged dots are brighter), no other dot lies within
+        ``crowd_px`` of it and its marker faces the head more than that neighbour.
     split_px : float
-        A blob whose brightness spreads as two dots this far apart or more is split into
-        two dots (:func:`~lsmta.tracking.markers.split_merged_blobs`), px: a round dot of
-        the heads spreads as 1.5 px at most (with a neighbour's tail), two dots 3 px apart
-        as 3 px.
+        A blob whose brightness spreads less than two dots this far apart is never split
+        (:func:`~lsmta.tracking.markers.split_merged_blobs`), px: a round dot of the heads
+        spreads as 1.5 px at most (with a neighbour's tail). Spreading farther is not
+        enough: the blob's profile must dip between two maxima, which two of the heads'
+        dots (sigma 1.3 px) 2.5-3 px apart do not (they stay one blob), 3.3 px apart do
+        when bright, from about 3.5 px apart nearly always.
     round_px : float
         A dot whose spread is below this, with no other dot within ``crowd_px``, is one dot
         (not two merged ones too close to split), px: its marker keeps its label by the
@@ -499,7 +499,9 @@ def _normals(face, towards, n_neighbours=8):
 
 
 _MERGED_BRIGHTNESS = 1.5  # a blob this many times the frame's median blob brightness or
-                          # more may be two merged dots (two carry about twice one's)
+                          # more may be two merged dots (two carry 1.9-2.1 times one's when
+                          # 1.5 px apart or less, 1.3-1.6 times when 2.5-3 px apart: the
+                          # window cuts off the farther tails)
 
 
 def _uncrowded(idx, cams, face, crowd_px, blobs=None, round_px=0.0):
@@ -507,15 +509,13 @@ def _uncrowded(idx, cams, face, crowd_px, blobs=None, round_px=0.0):
     marker that got no dot in that head (their dots may have merged into one blob), unless
     the marker's dot is one round dot alone: of ``blobs[k]`` (a :class:`~lsmta.tracking.
     markers.SplitBlobs`), its spread measured and below ``round_px``, its brightness below
-    ``_MERGED_BRIGHTNESS`` times the median dot's (two merged dots carry about twice one's),
-    no other dot within ``crowd_px``; and the marker faces the head more than every such
-    neighbour (the cosine of its normal, :func:`_normals`, with the line of sight; the dot
-    is the one that faces the head, the other is hidden) (None: no dot is taken for round).
-    (Requiring the neighbour to face away, cosine <= 0, left 31 of 728 marker images more
-    unlabelled, with no wrong label either way, on the first frames of
-    ``experiments/mixed_scale_system.py``'s seeds 17 to 22 with two heads, in a diagnosis
-    run of 2026-11-27: the hidden neighbours there are mostly hidden behind the face, not
-    turned away.)"""
+    ``_MERGED_BRIGHTNESS`` times the median dot's (two merged dots carry 1.9-2.1 times
+    one's when 1.5 px apart or less, 1.3-1.6 times when 2.5-3 px apart), no other dot
+    within ``crowd_px``; and the marker faces the head more than every such neighbour (the
+    cosine of its normal, :func:`_normals`, with the line of sight; the dot is the one that
+    faces the head, the other is hidden; the neighbour need not face away: hidden
+    neighbours are mostly behind the face, not turned away) (None: no dot is taken for
+    round)."""
     idx = idx.copy()
     if blobs is not None:
         centre = face.mean(axis=0)

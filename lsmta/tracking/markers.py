@@ -424,8 +424,10 @@ class SplitBlobs:
         merged ones; NaN when not measured (a window reaching outside the image, or no
         brightness above its median: the blob left as it was).
     brightness : (N,) array
-        The blob each dot comes from, its grey levels above its window's median, summed
-        (NaN when not measured): two merged dots carry about twice one dot's.
+        Its grey levels above its window's median, summed over the blob's window, half
+        of it for each dot of a split blob (NaN when not measured): two merged dots left
+        as one blob carry 1.9-2.1 times one dot's when 1.5 px apart or less, 1.3-1.6
+        times when 2.5-3 px apart (the window cuts off the farther tails).
     split : (N,) bool array
         The dot is one of a merged blob's two.
     """
@@ -437,8 +439,8 @@ class SplitBlobs:
 
 
 def split_merged_blobs(image, xy, *, radius: int = 3, min_separation: float = 2.5,
-                       max_dip: float = 0.9, same_px: float = 1.0,
-                       iterations: int = 2) -> SplitBlobs:
+                       max_dip: float = 0.9, dip_noise: float = 3.0,
+                       same_px: float = 1.0, iterations: int = 2) -> SplitBlobs:
     """Each blob once, and two touching dots that merged into one blob told apart.
 
     Two dots a few pixels apart make one elongated blob: :func:`find_blobs` finds it once or
@@ -450,14 +452,17 @@ def split_merged_blobs(image, xy, *, radius: int = 3, min_separation: float = 2.
     ``s**2 / 4`` along their axis beyond a single dot's spread across it, so
     ``s = 2 sqrt(lambda_max - lambda_min)``. A blob is split when ``s >= min_separation``
     and its brightness profile along the long axis (summed over a 2 px wide strip) has two
-    maxima with a dip between them below ``max_dip`` times the lower one: one elongated
-    dot (a stretched or motion-blurred marker) spreads too but has one maximum or a flat
-    top. It becomes two dots ``s / 2`` either side of its centroid along the long axis,
-    each then moved to the centroid of the window's pixels nearer to it than to the other
-    (``iterations`` times). A blob with another within ``radius`` px is not split, nor one
-    whose halves would fall within ``min_separation`` of another blob: three or more dots
-    crowd there (their tails spread the blob), and a half would fall on another blob's dot
-    or between dots.
+    maxima, the lower at least half the higher, with a dip between them below ``max_dip``
+    times the lower one and deeper than ``dip_noise`` times the profile's noise (the grey
+    levels' median absolute deviation in a ring up to ``2 radius + 1`` px around the window,
+    scaled to the strip's sum): one elongated dot (stretched or motion-blurred) spreads too
+    but has one maximum or a flat top, on which noise alone makes shallow dips. The dip
+    decides, not ``s``: dots of sigma 1.3 px 2.5-3 px apart stay one blob, 3.3 px apart
+    split when bright (110 grey levels), about half the time when dim (40). A split blob
+    becomes two dots ``s / 2`` either side of its centroid along the long axis, each moved
+    ``iterations`` times to the centroid of the window's pixels nearer to it. A blob with
+    another within ``radius`` px is not split, nor one whose halves would fall within
+    ``min_separation`` of another blob (three or more dots crowd there).
 
     Parameters
     ----------
@@ -468,11 +473,13 @@ def split_merged_blobs(image, xy, *, radius: int = 3, min_separation: float = 2.
     radius : int
         Half-width of the window, px (:func:`find_blobs` refines in ``ceil(2 sigma)``).
     min_separation : float
-        Smallest estimated distance of two merged dots that splits a blob, px (a round
-        dot's spread, with image noise and a neighbour's tail, gives up to about 1.5 px).
+        Smallest spread ``s`` that lets a blob be split, px (a round dot spreads up to about
+        1.5 px); necessary only, the dip decides (above).
     max_dip : float
         Largest ratio of the profile's dip to its lower maximum that splits a blob (0 to
         1; two dots of sigma 1.3 px 3.5 px apart dip to about 0.8).
+    dip_noise : float
+        Smallest depth of the dip below the lower maximum, in units of the profile's noise.
     same_px : float
         Blobs closer than this are one, px.
     iterations : int
@@ -483,17 +490,8 @@ def split_merged_blobs(image, xy, *, radius: int = 3, min_separation: float = 2.
     SplitBlobs
         The dots in the order of the blobs they come from.
     """
-    grey = as_array(image, "image", finite=True)
-    if grey.ndim != 2:
-        raise ValueError(f"image: expected an (H, W) grey image, got shape {grey.shape}")
-    pts = as_array(xy, "xy", shape=(None, 2))
-    radius = as_int(radius, "radius", minimum=1)
-    min_separation = as_scalar(min_separation, "min_separation", positive=True)
-    max_dip = as_scalar(max_dip, "max_dip", positive=True)
-    if max_dip > 1:
-        raise ValueError(f"max_dip: expected a ratio in (0, 1], got {max_dip}")
-    same_px = as_scalar(same_px, "same_px", nonnegative=True)
-    iterations = as_int(iterations, "iterations", minimum=0)
+    grey, pts, radius, min_separation, max_dip, dip_noise, same_px, iterations = \
+        _split_args(image, xy, radius, min_separation, max_dip, dip_noise, same_px, iterations)
     pts = _each_blob_once(pts, same_px)
     gap = np.linalg.norm(pts[:, None] - pts[None], axis=2)
     np.fill_diagonal(gap, np.inf)
@@ -501,7 +499,7 @@ def split_merged_blobs(image, xy, *, radius: int = 3, min_separation: float = 2.
     out, spread, bright, split = [], [], [], []
     for i, (p, single) in enumerate(zip(pts, alone)):
         two, s, tot = _split_one(grey, p, radius, min_separation if single else np.inf,
-                                 max_dip, iterations)
+                                 max_dip, dip_noise, iterations)
         others = np.delete(pts, i, axis=0)
         if two is not None and len(others) and \
                 np.linalg.norm(two[:, None] - others[None], axis=2).min() < min_separation:
@@ -509,13 +507,28 @@ def split_merged_blobs(image, xy, *, radius: int = 3, min_separation: float = 2.
         n = 1 if two is None else 2
         out.append(p[None] if two is None else two)
         spread += [s] * n
-        bright += [tot] * n
+        bright += [tot / n] * n                 # each half of a split blob carries half
         split += [n == 2] * n
     if not out:
         return SplitBlobs(xy=np.zeros((0, 2)), spread=np.zeros(0), brightness=np.zeros(0),
                           split=np.zeros(0, bool))
     return SplitBlobs(xy=np.concatenate(out), spread=np.array(spread, float),
                       brightness=np.array(bright, float), split=np.array(split))
+
+
+def _split_args(image, xy, radius, min_separation, max_dip, dip_noise, same_px, iterations):
+    """The arguments of :func:`split_merged_blobs`, checked."""
+    grey = as_array(image, "image", finite=True)
+    if grey.ndim != 2:
+        raise ValueError(f"image: expected an (H, W) grey image, got shape {grey.shape}")
+    max_dip = as_scalar(max_dip, "max_dip", positive=True)
+    if max_dip > 1:
+        raise ValueError(f"max_dip: expected a ratio in (0, 1], got {max_dip}")
+    return (grey, as_array(xy, "xy", shape=(None, 2)), as_int(radius, "radius", minimum=1),
+            as_scalar(min_separation, "min_separation", positive=True), max_dip,
+            as_scalar(dip_noise, "dip_noise", nonnegative=True),
+            as_scalar(same_px, "same_px", nonnegative=True),
+            as_int(iterations, "iterations", minimum=0))
 
 
 def _each_blob_once(pts, same_px):
@@ -527,7 +540,7 @@ def _each_blob_once(pts, same_px):
     return pts[keep]
 
 
-def _split_one(grey, p, radius, min_separation, max_dip, iterations):
+def _split_one(grey, p, radius, min_separation, max_dip, dip_noise, iterations):
     """One blob at ``p`` (2,) px: its two dots (2, 2) px or None (not split), its spread px
     and its brightness (NaN, NaN when its window leaves the image or holds nothing above
     its median); see :func:`split_merged_blobs`."""
@@ -536,7 +549,9 @@ def _split_one(grey, p, radius, min_separation, max_dip, iterations):
     if not (radius <= c[0] < W - radius and radius <= c[1] < H - radius):
         return None, np.nan, np.nan
     win = grey[c[1] - radius:c[1] + radius + 1, c[0] - radius:c[0] + radius + 1]
-    w2 = np.clip(win - np.median(win), 0, None)
+    med = np.median(win)
+    w2 = np.clip(win - med, 0, None)
+    noise = _noise(grey, c, radius)
     tot = float(w2.sum())
     if not tot > 0:
         return None, np.nan, np.nan
@@ -549,7 +564,7 @@ def _split_one(grey, p, radius, min_separation, max_dip, iterations):
     lam, vec = np.linalg.eigh((d * w[:, None]).T @ d / tot)
     s = 2 * np.sqrt(max(lam[1] - lam[0], 0.0))
     if s < min_separation or not _two_maxima(w2, m - (c - radius), vec[:, 1], radius,
-                                             max_dip):
+                                             max_dip, dip_noise * noise):
         return None, s, tot
     two = m + np.outer([-0.5 * s, 0.5 * s], vec[:, 1])
     for _ in range(iterations):
@@ -561,11 +576,27 @@ def _split_one(grey, p, radius, min_separation, max_dip, iterations):
     return two, s, tot
 
 
-def _two_maxima(w2, m, axis, radius, max_dip):
+def _noise(grey, c, radius):
+    """Grey-level noise of one pixel around the window of half-width ``radius`` at ``c``
+    (2,) integer px: 1.4826 times the median absolute deviation of the ring of pixels up
+    to ``2 radius + 1`` px from ``c`` outside the window (clipped to the image; the window
+    itself, mostly the blob, would measure the blob)."""
+    R = 2 * radius + 1
+    H, W = grey.shape
+    y0, x0 = max(c[1] - R, 0), max(c[0] - R, 0)
+    big = grey[y0:c[1] + R + 1, x0:c[0] + R + 1]
+    yy, xx = np.mgrid[y0:y0 + big.shape[0], x0:x0 + big.shape[1]]
+    ring = big[(np.abs(yy - c[1]) > radius) | (np.abs(xx - c[0]) > radius)]
+    return float(1.4826 * np.median(np.abs(ring - np.median(ring))))
+
+
+def _two_maxima(w2, m, axis, radius, max_dip, min_depth):
     """Whether the brightness ``w2`` (2 r + 1, 2 r + 1) of a window, profiled along unit
     ``axis`` (2,) through its centroid ``m`` (2,) (window px; bilinear samples every half
-    px, summed across a 2 px strip), has two maxima with a dip between them below
-    ``max_dip`` times the lower one."""
+    px, summed across a 2 px strip of five samples), has two maxima, the lower at least
+    half the higher, with a dip between them below ``max_dip`` times the lower one and
+    more than ``min_depth`` (grey levels of one pixel's noise, scaled here to the strip's
+    sum by the square root of its samples) below it."""
     t = np.arange(-radius, radius + 0.25, 0.5)
     u = np.arange(-1.0, 1.25, 0.5)
     across = np.array([-axis[1], axis[0]])
@@ -575,7 +606,9 @@ def _two_maxima(w2, m, axis, radius, max_dip):
     if len(peaks) < 2:
         return False
     a, b = np.sort(peaks[np.argsort(prof[peaks])[-2:]])
-    return bool(prof[a:b + 1].min() < max_dip * min(prof[a], prof[b]))
+    low, dip = min(prof[a], prof[b]), prof[a:b + 1].min()
+    return bool(dip < max_dip * low and low - dip > min_depth * np.sqrt(len(u))
+                and low >= 0.5 * max(prof[a], prof[b]))
 
 
 def _bilinear(img, pos):

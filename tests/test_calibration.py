@@ -11,6 +11,7 @@ from lsmta.calibration import (
     track_targets,
 )
 from lsmta.calibration.approximations import scaled
+from lsmta.calibration.bundle import Projector, project_params
 from lsmta.calibration.chain import chain_cameras, datum_from_distance, shared_points
 from lsmta.calibration.virtual_object import (
     IMPROVED_ALTERNATION,
@@ -367,3 +368,35 @@ def test_levelled_bar():
 def test_levelled_bar_bad_input(kwargs, match):
     with pytest.raises((ValueError, TypeError), match=match):
         levelled_bar(**kwargs)
+
+
+def _random_params(rng, K):
+    return np.column_stack([rng.normal(0, 0.5, (K, 3)), rng.normal(0, 1000, (K, 3)),
+                            rng.uniform(800, 1200, K), rng.normal(0, 1e-3, (K, 9))])
+
+
+def test_project_params_broadcasts_like_the_numpy_form_and_refuses_bad_rows():
+    rng = np.random.default_rng(0)
+    P = _random_params(rng, 7)
+    X = rng.normal(0, 500, (2000, 3))
+    # one camera row for all points, a single (3,) point for one camera: broadcast
+    one = project_params(P, X, rows=np.array([2]))
+    assert one.shape == (2000, 2)
+    assert np.array_equal(one, project_params(P[[2]], X))
+    single = project_params(P[:1], X[0])
+    assert single.shape == (1, 2)
+    assert np.array_equal(single, project_params(P[:1], X[:1]))
+    every = project_params(P, X[0])                   # one point seen by every camera
+    assert np.array_equal(every, project_params(P, np.tile(X[0], (7, 1))))
+    # rows out of range, or a length that does not match the points: refused
+    with pytest.raises(IndexError):
+        project_params(P, X[:3], rows=np.array([0, 1, 9]))
+    with pytest.raises(ValueError, match="X"):
+        project_params(P, X[:3], rows=np.array([0, 1]))
+    project = Projector(P, np.array([0, 1, 2]))
+    with pytest.raises(ValueError, match="Xc"):
+        project.lens(np.ones((2, 3)))
+    with pytest.raises(ValueError, match="X"):
+        project.subset(np.array([0, 1]))(X[:3])
+    with pytest.raises(IndexError):
+        Projector(P, np.array([0, 7]))

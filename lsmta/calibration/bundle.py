@@ -75,15 +75,38 @@ def params_to_camera(p, template: Camera) -> Camera:
 
 
 def project_params(params, X, *, rows=None) -> np.ndarray:
-    """Pixel coordinates ``(n, 2)`` of points ``X`` ``(n, 3)`` (mm) seen by cameras with
-    parameters ``params`` ``(n, 16)`` (one row per point; vectorised), or ``(1, 16)`` for
-    one camera and all points; or, with ``rows`` ``(n,)`` int, ``params`` ``(K, 16)`` and
-    point i seen by camera ``rows[i]`` (each camera's rotation computed once: the same
-    numbers as ``project_params(params[rows], X)``)."""
+    """Pixel coordinates of points seen by cameras given by their parameters.
+
+    Parameters
+    ----------
+    params : (K, 16) array
+        Camera parameters (:data:`PARAMETER_NAMES`).
+    X : (n, 3) or (3,) array
+        Points, mm.
+    rows : (n,) int array, optional
+        The camera (row of ``params``) of each point: point i is seen by camera
+        ``rows[i]`` (each camera's rotation computed once: the same numbers as
+        ``project_params(params[rows], X)``). Default: row i for point i, or camera 0 for
+        every point when K is 1.
+
+    Returns
+    -------
+    (n, 2) array
+        Pixel coordinates, px. ``X`` and the cameras broadcast as numpy arrays do: a
+        single point (``(3,)`` or ``(1, 3)``) is seen by every camera, a single camera
+        (``K`` 1 or ``rows`` of length 1) sees every point.
+    """
     params = np.asarray(params, dtype=float)
+    X = np.atleast_2d(np.asarray(X, dtype=float))
     if rows is None:
-        rows = np.zeros(len(X), np.intp) if len(params) == 1 else np.arange(len(params))
-    return Projector(params, rows)(X)
+        rows = np.arange(len(params))
+    rows = np.arange(len(params))[np.asarray(rows)]      # IndexError when out of range
+    try:
+        n = np.broadcast_shapes((len(X),), (len(rows),))[0]
+    except ValueError:
+        raise ValueError(f"X: expected 1 or {len(rows)} points (one per camera row), "
+                         f"got {len(X)}") from None
+    return Projector(params, np.broadcast_to(rows, (n,)))(np.broadcast_to(X, (n, 3)))
 
 
 class Projector:
@@ -96,21 +119,33 @@ class Projector:
     params : (K, 16) array
         Camera parameters (:data:`PARAMETER_NAMES`).
     rows : (n,) int array
-        The camera of each point the projector will be called with.
+        The camera (row of ``params``, in ``0..K-1``) of each point the projector will be
+        called with.
     """
 
     def __init__(self, params, rows):
         params = np.asarray(params, dtype=float)
-        self.rows = np.asarray(rows, dtype=np.intp)
+        self.rows = np.ascontiguousarray(np.arange(len(params))[np.asarray(rows)])
         self.R = Rotation.from_rotvec(params[:, :3]).as_matrix()[self.rows]
         self.C = params[self.rows, 3:6]
         self.intr = np.ascontiguousarray(params[:, 6:])
 
     def subset(self, index) -> Projector:
-        """The projector of the points ``index`` (into ``rows``) only."""
+        """The projector of some of the points only.
+
+        Parameters
+        ----------
+        index : (m,) int array, or (n,) bool mask
+            The points kept (positions in ``rows``, any numpy index of a 1-D array).
+
+        Returns
+        -------
+        Projector
+            The projector of the m points ``rows[index]``.
+        """
         out = object.__new__(Projector)
-        out.rows, out.R, out.C, out.intr = (self.rows[index], self.R[index], self.C[index],
-                                            self.intr)
+        out.rows = np.ascontiguousarray(self.rows[index])
+        out.R, out.C, out.intr = self.R[index], self.C[index], self.intr
         return out
 
     def frame(self, X) -> np.ndarray:
@@ -118,14 +153,44 @@ class Projector:
         # the rotation by numpy's matmul (BLAS: its rounding), the lens compiled
         return (self.R @ (np.asarray(X, dtype=float) - self.C)[:, :, None])[:, :, 0]
 
-    def lens(self, Xc, intr=None) -> np.ndarray:
-        """Pixel coordinates ``(n, 2)`` of camera coordinates ``Xc``; ``intr`` ``(K', 10)``
-        replaces the interior parameters (row ``rows[i]`` for point i)."""
+    def lens(self, Xc) -> np.ndarray:
+        """Pixel coordinates of camera coordinates.
+
+        Parameters
+        ----------
+        Xc : (n, 3) array
+            Camera coordinates, mm (:meth:`frame`); n must equal ``len(rows)``.
+
+        Returns
+        -------
+        (n, 2) array
+            Pixel coordinates, px.
+        """
+        Xc = np.ascontiguousarray(Xc, dtype=float)
+        if Xc.shape != (len(self.rows), 3):
+            raise ValueError(f"Xc: expected shape ({len(self.rows)}, 3) (one point per "
+                             f"camera row), got {Xc.shape}")
         out = np.empty((len(Xc), 2))
-        _lens(Xc, self.intr if intr is None else intr, self.rows, out)
+        _lens(Xc, self.intr, self.rows, out)
         return out
 
     def __call__(self, X) -> np.ndarray:
+        """Pixel coordinates of points.
+
+        Parameters
+        ----------
+        X : (n, 3) array
+            Points, mm; n must equal ``len(rows)``.
+
+        Returns
+        -------
+        (n, 2) array
+            Pixel coordinates, px.
+        """
+        X = np.asarray(X, dtype=float)
+        if X.shape != (len(self.rows), 3):
+            raise ValueError(f"X: expected shape ({len(self.rows)}, 3) (one point per "
+                             f"camera row), got {X.shape}")
         return self.lens(self.frame(X))
 
 

@@ -139,6 +139,7 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
     if len(kk) == 0:
         return X
     params = np.stack([camera_to_params(c) for c in cams])
+    kk = np.ascontiguousarray(kk)
     project = Projector(params, kk)                        # rotations gathered once
     obs = xy[kk, ii]
     N, M = len(X), len(kk)
@@ -165,34 +166,49 @@ def triangulate_optimal(cameras, xy, *, points=None, n_iter: int = 10,
         ma = np.flatnonzero(active[ii])                  # observations of active points
         proj_a = project.subset(ma)
         J = _jacobian_points(project.subset(np.concatenate([ma] * 6)), X[ii[ma]], h)
-        A, g = _normal_sums(ii[ma], J, r[ma], N)
+        A, g = _normal_sums(np.ascontiguousarray(ii[ma]), J, r[ma], N)
         A[~active] = eye
         g[~active] = 0.0
         diag = np.maximum(np.einsum("nii->ni", A), 1e-12)
-        pending = active.copy()
-        step = np.zeros(N)
-        mp, proj_p = ma, proj_a
-        for _ in range(10):                              # per-point damping
-            p = np.flatnonzero(pending)
-            dx = np.zeros((N, 3))
-            dx[p] = -np.linalg.solve(A[p] + lam[p, None, None] * eye * diag[p, :, None],
-                                     g[p, :, None])[..., 0]
-            cn = cost(residuals(X + dx, mp, proj_p), mp)
-            better = pending & (cn <= c)
-            X[better] += dx[better]
-            c[better] = cn[better]
-            step[better] = np.linalg.norm(dx[better], axis=1)
-            lam[better] /= 10
-            lam[pending & ~better] *= 10
-            pending &= ~better
-            if not pending.any():
-                break
-            keep = pending[ii[mp]]
-            mp, proj_p = mp[keep], proj_p.subset(np.flatnonzero(keep))
+        pending, step = _damped_steps(X, c, lam, A, g, diag, active, ma, proj_a,
+                                      lambda P, m, proj: cost(residuals(P, m, proj), m), ii)
         r[ma] = residuals(X, ma, proj_a)
         # converged: a tiny step, or no step that lowers the cost
         active &= ~pending & (step >= tol * (1 + np.linalg.norm(X, axis=1)))
     return X
+
+
+def _damped_steps(X, c, lam, A, g, diag, active, ma, proj_a, cost_of, ii):
+    """The per-point damping of one Levenberg-Marquardt step of :func:`triangulate_optimal`:
+    up to ten tries per point, the damping ``lam`` (N,) times ten after a try that does not
+    lower the cost ``c`` (N,), divided by ten after one that does (then taken: ``X``, ``c``
+    and ``lam`` are updated in place). ``A`` (N, 3, 3), ``g`` (N, 3) and ``diag`` (N, 3) the
+    normal equations, ``ma`` the observations of the ``active`` points and ``proj_a`` their
+    projector; ``cost_of(P, m, proj)`` the (N,) cost of the points ``P`` over observations
+    ``m``. Returns the (N,) points with no lower-cost step, and the (N,) step lengths, mm."""
+    N = len(X)
+    eye = np.eye(3)
+    pending = active.copy()
+    step = np.zeros(N)
+    mp, proj_p = ma, proj_a
+    for _ in range(10):
+        p = np.flatnonzero(pending)
+        dx = np.zeros((N, 3))
+        dx[p] = -np.linalg.solve(A[p] + lam[p, None, None] * eye * diag[p, :, None],
+                                 g[p, :, None])[..., 0]
+        cn = cost_of(X + dx, mp, proj_p)
+        better = pending & (cn <= c)
+        X[better] += dx[better]
+        c[better] = cn[better]
+        step[better] = np.linalg.norm(dx[better], axis=1)
+        lam[better] /= 10
+        lam[pending & ~better] *= 10
+        pending &= ~better
+        if not pending.any():
+            break
+        keep = pending[ii[mp]]
+        mp, proj_p = mp[keep], proj_p.subset(np.flatnonzero(keep))
+    return pending, step
 
 
 def _jacobian_points(project6: Projector, Xo, h: float) -> np.ndarray:
@@ -390,6 +406,7 @@ def _lm_cameras(P, free, kk, Xo, obs, active, n_iter, tol):
     """Per-camera Levenberg-Marquardt (see :func:`resect_all`); ``kk`` (M,) the camera of
     each observation ``obs`` (M, 2) of point ``Xo`` (M, 3); returns the new (K, 16)."""
     K = len(P)
+    kk = np.ascontiguousarray(kk)                  # one compiled signature of _normal_sums
     cols = np.flatnonzero(free)
     step = np.where(cols < 3, 1e-6, 1e-6 * np.maximum(1.0, np.abs(P[:, cols]).max(axis=0)))
 

@@ -27,7 +27,7 @@ import pyvista as pv
 
 from lsmta.camera_files import read_camera_toml
 from lsmta.cli import main as lsmta
-from lsmta.data import POSE2SIM_DIR
+from lsmta.data import POSE2SIM_CAMERAS, POSE2SIM_VIDEOS
 from lsmta.io import read_videos
 from lsmta.real.own_recording import marker_scores
 from lsmta.report import write_json
@@ -41,11 +41,11 @@ def main(argv=None):
     parser.add_argument("--out", default="build/benchmarks/capture_demo")
     args = parser.parse_args(argv)
     out = Path(args.out)
-    videos = [str(POSE2SIM_DIR / f"cam0{k}.mp4") for k in (1, 2, 3, 4)]
+    videos = [str(v) for v in POSE2SIM_VIDEOS]
 
     t0 = time.perf_counter()
     status = lsmta(["capture", "--videos", *videos, "--cameras",
-                    str(POSE2SIM_DIR / "Calib.qca.txt"), "--mismatch", "crop",
+                    str(POSE2SIM_CAMERAS), "--mismatch", "crop",
                     "--frames", args.frames, "--scale", str(args.scale), "--markers", "skin",
                     "--out", str(out / "capture")])
     seconds = time.perf_counter() - t0

@@ -26,7 +26,7 @@ import warnings
 import numpy as np
 
 from lsmta.camera_files import read_camera_file
-from lsmta.data import POSE2SIM_DIR
+from lsmta.data import POSE2SIM_CAMERAS, POSE2SIM_VIDEOS
 from lsmta.io import read_videos
 from lsmta.report import write_json
 from lsmta.systems import RigRefinementParams, refine_rig
@@ -53,12 +53,12 @@ def main(argv=None):
     parser.add_argument("--out", default="build/benchmarks/refinement_held_out.json")
     args = parser.parse_args(argv)
     start, stop = (int(x) for x in args.frames.split(":"))
-    videos = read_videos([POSE2SIM_DIR / f"cam0{k}.mp4" for k in (1, 2, 3, 4)],
+    videos = read_videos(POSE2SIM_VIDEOS,
                          frames=range(start, stop), scale=args.scale)
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ref = refine_rig(videos, read_camera_file(POSE2SIM_DIR / "Calib.qca.txt"),
+        ref = refine_rig(videos, read_camera_file(POSE2SIM_CAMERAS),
                          params=RigRefinementParams(mismatch="crop"))
     seconds = time.perf_counter() - t0
     places = ref.place_xy

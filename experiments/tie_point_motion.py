@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from lsmta.camera_files import read_camera_file
-from lsmta.data import POSE2SIM_DIR
+from lsmta.data import POSE2SIM_CAMERAS, POSE2SIM_VIDEOS
 from lsmta.io import read_videos
 from lsmta.report import write_json
 from lsmta.systems import RigRefinementParams, refine_rig
@@ -66,9 +66,9 @@ def main(argv=None):
     parser.add_argument("--out", default="build/benchmarks/tie_point_motion.json")
     args = parser.parse_args(argv)
     start, stop = (int(v) for v in args.frames.split(":"))
-    videos = read_videos([POSE2SIM_DIR / f"cam0{k}.mp4" for k in (1, 2, 3, 4)],
+    videos = read_videos(POSE2SIM_VIDEOS,
                          frames=slice(start, stop), scale=args.scale)
-    ref = refine_rig(videos, read_camera_file(POSE2SIM_DIR / "Calib.qca.txt"),
+    ref = refine_rig(videos, read_camera_file(POSE2SIM_CAMERAS),
                      params=RigRefinementParams(mismatch="crop"))
     tie = ref.tie_points
     picks = [int(np.flatnonzero(np.asarray(videos.frames) == f)[0]) for f in ref.frames]

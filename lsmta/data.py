@@ -40,6 +40,9 @@ STEREO_PAIRS = {
 }
 POSE2SIM_DIR = DATA_DIR / "pose2sim_demo"
 POSE2SIM_VIEWS = ("cam01", "cam02", "cam03", "cam04")
+#: the demo's videos, in the views' order, and its camera file
+POSE2SIM_VIDEOS = tuple(POSE2SIM_DIR / f"{v}.mp4" for v in POSE2SIM_VIEWS)
+POSE2SIM_CAMERAS = POSE2SIM_DIR / "Calib.qca.txt"
 RECORDING_FILES = {
     "tennis": DATA_DIR / "kineticstoolkit" / "kinematics_tennis_serve.c3d",
     "two players": DATA_DIR / "kineticstoolkit" / "kinematics_tennis_serve_2players.c3d",
@@ -130,7 +133,7 @@ def load_demo(*, scale: float = 0.5, frames: int | None = None,
               folder: Path | None = None) -> RealVideo:
     """The four views of the demo (``folder`` defaults to the project's copy)."""
     folder = Path(folder) if folder is not None else POSE2SIM_DIR
-    cams = read_qca(folder / "Calib.qca.txt")
+    cams = read_qca(folder / POSE2SIM_CAMERAS.name)
     grey, first, fps = zip(*(read_video(folder / f"{v}.mp4", scale=scale, frames=frames)
                              for v in POSE2SIM_VIEWS))
     if len(set(fps)) != 1:

@@ -322,7 +322,7 @@ def _closed_loop(st: _State) -> None:
     st.aim_points = np.full((F, 3), np.nan)
     st.commands = np.full((K, F, 2), np.nan)
     st.settings = np.full((K, F, 2), np.nan)
-    images = []
+    images = None
     # the loop runs from the first ceiling frame; frames are kept from params.start on
     ticks = np.r_[np.arange(queue[0, 0], st.times[0] - 1e-9, 1.0 / p.video_rate), st.times]
     # the aim's search starts from the angles each head reports before its first command
@@ -347,8 +347,15 @@ def _closed_loop(st: _State) -> None:
             st.commands[:, f] = step.settings
         grabbed = [_grab(device, t, k) for k, device in enumerate(st.devices)]
         st.settings[:, f] = [s for _, s in grabbed]
-        images.append(np.stack([img for img, _ in grabbed]))
-    st.images = np.stack(images, axis=1)
+        if images is None:      # (K, F, H, W), filled in place: no list of frames to stack
+            images = np.empty((K, F, *grabbed[0][0].shape), grabbed[0][0].dtype)
+        for k, (img, _) in enumerate(grabbed):
+            if img.shape != images.shape[2:] or img.dtype != images.dtype:
+                raise ValueError(f"devices: head {k}'s grab({t:.3f}) returned a {img.dtype} "
+                                 f"image of shape {img.shape}; expected {images.dtype} "
+                                 f"{images.shape[2:]} as the first frame")
+            images[k, f] = img
+    st.images = images
 
 
 def _feed_ceiling(st: _State, thresholds: list, k: int, i: int) -> None:

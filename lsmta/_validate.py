@@ -7,6 +7,7 @@ nothing here writes into what the caller passed.
 
 from __future__ import annotations
 
+import math
 import numbers
 
 import numpy as np
@@ -30,18 +31,20 @@ def as_array(value, name: str, *, shape: tuple | None = None, finite: bool = Tru
         With ``finite``, still accept NaN (for "missing" entries) but not infinities.
     """
     arr = np.asarray(value)
-    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
-        raise TypeError(f"{name}: expected a real numeric array, got dtype {arr.dtype}")
-    if np.iscomplexobj(arr):
-        raise TypeError(f"{name}: expected real numbers, got complex dtype {arr.dtype}")
-    arr = arr.astype(np.float64, copy=False)
+    if arr.dtype != np.float64:      # (the checks below pass a float64 array: skipped)
+        if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number)
+                                       or arr.dtype == bool):
+            raise TypeError(f"{name}: expected a real numeric array, got dtype {arr.dtype}")
+        if np.iscomplexobj(arr):
+            raise TypeError(f"{name}: expected real numbers, got complex dtype {arr.dtype}")
+        arr = arr.astype(np.float64, copy=False)
     if shape is not None and (
         arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape))
     ):
         want = "(" + ", ".join("N" if s is None else str(s) for s in shape)
         want += ",)" if len(shape) == 1 else ")"
         raise ValueError(f"{name}: expected an array of shape {want}, got shape {arr.shape}")
-    if finite:
+    if finite and not np.isfinite(arr).all():
         bad = ~np.isfinite(arr)
         if allow_nan:
             bad &= ~np.isnan(arr)
@@ -71,9 +74,15 @@ def as_vector(value, name: str, n: int) -> np.ndarray:
     return as_array(value, name, shape=(n,))
 
 
+_PLAIN_FLOATS = (float, np.float64)
+
+
 def as_scalar(value, name: str, *, positive: bool = False, nonnegative: bool = False) -> float:
     """A finite Python float, optionally > 0 or >= 0."""
-    x = float(as_array(value, name, shape=()))
+    if type(value) in _PLAIN_FLOATS and math.isfinite(value):    # the common case, quickly
+        x = float(value)
+    else:
+        x = float(as_array(value, name, shape=()))
     if positive and not x > 0:
         raise ValueError(f"{name}: expected a positive number, got {x}")
     if nonnegative and not x >= 0:
@@ -113,10 +122,20 @@ def as_int(value, name: str, *, minimum: int | None = 1, odd: bool = False,
     return int(value)
 
 
+_I3 = np.eye(3)
+
+
+def _det3(R) -> float:
+    """The determinant of a 3x3 array (its rows' triple product)."""
+    (a, b, c), (d, e, f), (g, h, i) = R.tolist()
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+
+
 def as_rotation(value, name: str) -> np.ndarray:
     """A proper 3x3 rotation matrix (orthonormal, determinant +1, to 1e-6)."""
     R = as_array(value, name, shape=(3, 3))
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+    # np.allclose(R @ R.T, I, atol=1e-6) (its rtol 1e-5 included) and det(R) >= 0, quicker
+    if not (np.abs(R @ R.T - _I3) <= 1e-6 + 1e-5 * _I3).all() or _det3(R) < 0:
         raise ValueError(f"{name}: expected a proper rotation (R @ R.T == I, det(R) == +1)")
     return R
 

@@ -65,6 +65,15 @@ def test_stabilisation_recovers_camera_shift():
     assert not np.array_equal(off.status, tr.status)
     with pytest.raises(ValueError, match="shifts: expected an array of shape"):
         tm.track_markers(frames, base, shifts=np.zeros((2, 2)))
+    # the sharpness of that run given back: the same result; other numbers are used as given
+    # (a frame called much less sharp than the others is skipped as blurred)
+    same = tm.track_markers(frames, base, shifts=tr.shift, sharpness=tr.sharpness)
+    assert np.array_equal(same.xy, tr.xy, equal_nan=True)
+    assert np.array_equal(same.sharpness, tr.sharpness) and not same.blurred.any()
+    dull = tm.track_markers(frames, base, sharpness=tr.sharpness * [1, 1, 0.01, 1])
+    assert dull.blurred[2] and not np.array_equal(dull.status, tr.status)
+    with pytest.raises(ValueError, match="sharpness: expected an array of shape"):
+        tm.track_markers(frames, base, sharpness=np.ones(3))
 
 
 def test_blurred_frame_detected_and_tracks_survive():

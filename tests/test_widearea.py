@@ -559,6 +559,26 @@ def test_rendered_video_detected_at_truth():
         assert np.linalg.norm(det.centroids(t) - video.true_xy[t, 0], axis=1).min() < 0.3
 
 
+def test_rendered_video_does_not_depend_on_its_block_size(monkeypatch):
+    """render_led_video renders blocks of frames with the random numbers of a whole-video
+    rendering: frame by frame, in blocks, or all at once, the same frames and background."""
+    from lsmta.synth import widearea as sw
+
+    cam = sw.small_camera(ceiling_rig(rng=np.random.default_rng(7))[0])
+    params = sw.LedVideoParams(monitor_flicker=0.5, reflections=0.5, n_background=3)
+    videos = []
+    for block in (1, 4, 100):
+        monkeypatch.setattr(sw, "_BLOCK", block)
+        videos.append(sw.render_led_video(still_led(duration=0.3), cam, np.arange(9) / 30,
+                                          rng=np.random.default_rng(2), lighting_change=5,
+                                          params=params))
+    for v in videos[1:]:
+        assert np.array_equal(v.frames, videos[0].frames)
+        assert np.array_equal(v.background, videos[0].background)
+        assert np.array_equal(v.true_xy, videos[0].true_xy, equal_nan=True)
+    assert (videos[0].frames[5:].mean() > videos[0].frames[:5].mean())   # the lights went up
+
+
 def test_vectorised_subsampled_matches_full_on_wide_spots_and_counts_tests():
     from lsmta.widearea import Threshold, detect
 

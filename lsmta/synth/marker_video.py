@@ -133,9 +133,12 @@ def render_marker_video(cameras, points, visible, anchor, *,
                 d = np.array([1.0, 0.0])
             img = cv2.filter2D(img, -1, _line_kernel(d[0], d[1], blur_length),
                                borderType=cv2.BORDER_REFLECT)
-        if noise > 0:
-            img = img + np.float32(noise) * rng.standard_normal(img.shape, dtype=np.float32)
-        images[f] = np.clip(np.round(img), 0, 255).astype(np.uint8)
+        if noise > 0:       # (in place: the same numbers as img + noise * z, fewer copies)
+            z = rng.standard_normal(img.shape, dtype=np.float32)
+            z *= np.float32(noise)
+            img += z
+        np.rint(img, out=img)
+        images[f] = np.clip(img, 0, 255, out=img)
     return MarkerVideo(images=images, xy=xy, anchor_xy=anchor_xy, blurred=blur)
 
 

@@ -313,6 +313,12 @@ def _closed_loop(st: _State) -> None:
     from ``params.start`` on."""
     p, feed = st.params, st.feed
     thresholds = [noise_threshold(b, sigmas=p.threshold_sigmas) for b in feed.backgrounds]
+    # every pixel of a frame is tested on its own (detect's "full" mode): each camera's
+    # frames are detected in one call (the same features as frame by frame, without
+    # preparing the threshold again for every frame) and fed to the tracker as they arrive
+    detections = [detect(np.asarray(frames), thr,
+                         invalid=None if feed.invalid is None else feed.invalid[k])
+                  for k, (frames, thr) in enumerate(zip(feed.frames, thresholds))]
     st.tracker = WideAreaTracker(feed.cameras, params=p.estimator)
     queue, q = arrival_order(feed), 0
     K, F = len(st.heads), len(st.times)
@@ -322,7 +328,7 @@ def _closed_loop(st: _State) -> None:
     st.aim_points = np.full((F, 3), np.nan)
     st.commands = np.full((K, F, 2), np.nan)
     st.settings = np.full((K, F, 2), np.nan)
-    images = []
+    images = None
     # the loop runs from the first ceiling frame; frames are kept from params.start on
     ticks = np.r_[np.arange(queue[0, 0], st.times[0] - 1e-9, 1.0 / p.video_rate), st.times]
     # the aim's search starts from the angles each head reports before its first command
@@ -332,7 +338,8 @@ def _closed_loop(st: _State) -> None:
     for i, t in enumerate(tqdm(ticks, desc="closed loop", disable=not st.progress,
                                leave=False)):
         while q < len(queue) and queue[q, 0] <= t:
-            _feed_ceiling(st, thresholds, int(queue[q, 1]), int(queue[q, 2]))
+            k, j = int(queue[q, 1]), int(queue[q, 2])
+            st.tracker.feed(k, float(feed.stamps[k][j]), detections[k].centroids(j))
             q += 1
         step = steering.step(st.tracker.estimate(), t)
         if step.settings is not None:
@@ -347,15 +354,15 @@ def _closed_loop(st: _State) -> None:
             st.commands[:, f] = step.settings
         grabbed = [_grab(device, t, k) for k, device in enumerate(st.devices)]
         st.settings[:, f] = [s for _, s in grabbed]
-        images.append(np.stack([img for img, _ in grabbed]))
-    st.images = np.stack(images, axis=1)
-
-
-def _feed_ceiling(st: _State, thresholds: list, k: int, i: int) -> None:
-    feed = st.feed
-    inv = None if feed.invalid is None else feed.invalid[k]
-    xy = detect(feed.frames[k][i], thresholds[k], invalid=inv).centroids(0)
-    st.tracker.feed(k, float(feed.stamps[k][i]), xy)
+        if images is None:      # (K, F, H, W), filled in place: no list of frames to stack
+            images = np.empty((K, F, *grabbed[0][0].shape), grabbed[0][0].dtype)
+        for k, (img, _) in enumerate(grabbed):
+            if img.shape != images.shape[2:] or img.dtype != images.dtype:
+                raise ValueError(f"devices: head {k}'s grab({t:.3f}) returned a {img.dtype} "
+                                 f"image of shape {img.shape}; expected {images.dtype} "
+                                 f"{images.shape[2:]} as the first frame")
+            images[k, f] = img
+    st.images = images
 
 
 def _grab(device, t: float, k: int):
@@ -418,7 +425,8 @@ def _warn_refused(ident: FaceIdentification, params: IdentifyParams, t: float,
 
 
 def _track(st: _State, seeds) -> None:
-    # a later pass tracks the same videos: the frames' dominant shifts are the first pass's
+    # a later pass tracks the same videos: the frames' dominant shifts and sharpness are the
+    # first pass's
     before = st.markers
     st.markers, xy = [], []
     K, F = st.images.shape[:2]
@@ -427,7 +435,8 @@ def _track(st: _State, seeds) -> None:
         s[st.first] = start                     # frame 0's start is its initial position
         initial = start if st.first == 0 else np.full((len(start), 2), np.nan)
         tr = track_markers(st.images[k], initial, seeds=s,
-                           shifts=None if before is None else before[k].shift)
+                           shifts=None if before is None else before[k].shift,
+                           sharpness=None if before is None else before[k].sharpness)
         ok = np.isin(tr.status, (MarkerStatus.TRACKED, MarkerStatus.SECOND_SEARCH))
         st.markers.append(tr)
         xy.append(np.where(ok[..., None], tr.xy, np.nan))

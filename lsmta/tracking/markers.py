@@ -207,7 +207,7 @@ class MarkerTrackingParams:
         set_(self, "blur_ratio", as_scalar(self.blur_ratio, "blur_ratio", nonnegative=True))
 
 
-def track_markers(images, initial_xy, *, seeds=None, shifts=None,
+def track_markers(images, initial_xy, *, seeds=None, shifts=None, sharpness=None,
                   params: MarkerTrackingParams | None = None) -> MarkerTracks:
     """Track markers through a grey video.
 
@@ -228,6 +228,10 @@ def track_markers(images, initial_xy, *, seeds=None, shifts=None,
         measured again (the blur test skips the same frames, so each is measured from the
         same reference frame); the result is the same, without the phase correlations
         (a third of the tracker's time on notebook 15's videos).
+    sharpness : (T,) array, optional
+        The frames' sharpness from an earlier run on the same ``images`` (its
+        :attr:`MarkerTracks.sharpness`), used instead of being measured again (the same
+        numbers: :func:`sharpness` of each frame).
     params : MarkerTrackingParams, optional
         The searches, the blur test and the centroid refinement (default:
         ``MarkerTrackingParams()``).
@@ -251,7 +255,9 @@ def track_markers(images, initial_xy, *, seeds=None, shifts=None,
         seeds = as_array(seeds, "seeds", shape=(T, len(p0), 2), allow_nan=True)
     if shifts is not None:
         shifts = as_array(shifts, "shifts", shape=(T, 2), allow_nan=True)
-    state = _State.initial(imgs, p0, search.refine)
+    if sharpness is not None:
+        sharpness = as_array(sharpness, "sharpness", shape=(T,)).copy()
+    state = _State.initial(imgs, p0, search.refine, sharpness)
     for t in range(1, T):
         if _blurred(state, t, p.blur_retry, p.blur_ratio, p.blur_history):
             continue
@@ -298,13 +304,14 @@ class _State:
     good: list = field(default_factory=list)   # sharpness of the good frames
 
     @classmethod
-    def initial(cls, imgs, p0, refine: bool) -> _State:
+    def initial(cls, imgs, p0, refine: bool, sharp=None) -> _State:
         T, M = len(imgs), len(p0)
         alive = np.isfinite(p0).all(axis=1)
         pos = p0.copy()
         if refine and alive.any():
             pos[alive] = refine_centroid(imgs[0], pos[alive])
-        sharp = np.array([sharpness(im) for im in imgs])
+        if sharp is None:
+            sharp = np.array([sharpness(im) for im in imgs])
         st = cls(xy=np.full((T, M, 2), np.nan),
                  status=np.full((T, M), MarkerStatus.LOST, dtype=np.int64),
                  shift=np.full((T, 2), np.nan), sharp=sharp, blurred=np.zeros(T, bool),

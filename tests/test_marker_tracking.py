@@ -74,6 +74,8 @@ def test_stabilisation_recovers_camera_shift():
     assert dull.blurred[2] and not np.array_equal(dull.status, tr.status)
     with pytest.raises(ValueError, match="sharpness: expected an array of shape"):
         tm.track_markers(frames, base, sharpness=np.ones(3))
+    with pytest.raises(ValueError, match="sharpness: expected non-negative"):
+        tm.track_markers(frames, base, sharpness=-tr.sharpness)
 
 
 def test_blurred_frame_detected_and_tracks_survive():

@@ -133,6 +133,19 @@ def test_bad_input_names_the_argument(tiny):
         call(identify=[ident[0], "by hand"])
     with pytest.raises(TypeError, match="face_model"):
         call(face_model=None)
+
+    class Shrinking:            # a head whose frames change size after the first grab
+        def __init__(self, device):
+            self.device, self.calls = device, 0
+            self.command = device.command
+
+        def grab(self, t):
+            img, s = self.device.grab(t)
+            self.calls += 1
+            return (img if self.calls == 1 else img[:, :-2]), s
+
+    with pytest.raises(ValueError, match=r"devices: head [01]'s grab\(.*as the first frame"):
+        call(devices=[Shrinking(devs[0]), devs[1]])
     with pytest.raises(TypeError, match="params"):
         call(params={"lead": 0.3})
     with pytest.raises(ValueError, match="params.start"):

@@ -257,6 +257,9 @@ def track_markers(images, initial_xy, *, seeds=None, shifts=None, sharpness=None
         shifts = as_array(shifts, "shifts", shape=(T, 2), allow_nan=True)
     if sharpness is not None:
         sharpness = as_array(sharpness, "sharpness", shape=(T,)).copy()
+        if (sharpness < 0).any():
+            raise ValueError("sharpness: expected non-negative numbers (a variance of the "
+                             "frame's Laplacian)")
     state = _State.initial(imgs, p0, search.refine, sharpness)
     for t in range(1, T):
         if _blurred(state, t, p.blur_retry, p.blur_ratio, p.blur_history):

@@ -125,14 +125,15 @@ def triangulate(cameras, xy, *, min_angle_deg: float = 0.5) -> Intersection:
     cameras : sequence of K :class:`~lsmta.camera.Camera`
     xy : (K, N, 2) array
         Image points in pixels, one row per camera; NaN marks a point not seen by that
-        camera.
+        camera, and so does a position where the camera's lens model cannot be inverted
+        (a fitted distortion that folds over; :meth:`~lsmta.camera.Camera.invertible`).
     min_angle_deg : float
         Smallest accepted intersection angle, in degrees (see the module docstring).
 
     Returns
     -------
     Intersection
-        With ``reprojection_error`` filled in.
+        With ``reprojection_error`` filled in (NaN where a camera did not see the point).
     """
     cameras = list(cameras)
     if not cameras or not all(isinstance(c, Camera) for c in cameras):
@@ -141,14 +142,17 @@ def triangulate(cameras, xy, *, min_angle_deg: float = 0.5) -> Intersection:
     K, N, _ = xy.shape
     origins = np.full((K, N, 3), np.nan)
     directions = np.full((K, N, 3), np.nan)
+    seen = np.isfinite(xy).all(axis=2)                                     # (K, N)
     for k, cam in enumerate(cameras):
-        seen = np.isfinite(xy[k]).all(axis=1)
-        if seen.any():
-            origins[k, seen], directions[k, seen] = cam.rays(xy[k, seen])
+        if cam.has_distortion and seen[k].any():      # no ray where the lens model folds
+            idx = np.flatnonzero(seen[k])
+            seen[k, idx] = cam.invertible(xy[k, idx])
+        if seen[k].any():
+            origins[k, seen[k]], directions[k, seen[k]] = cam.rays(xy[k, seen[k]])
     result = intersect_rays(origins, directions, min_angle_deg=min_angle_deg)
     reproj = np.full((K, N), np.nan)
     for k, cam in enumerate(cameras):
-        ok = result.valid & np.isfinite(xy[k]).all(axis=1)
+        ok = result.valid & seen[k]
         if ok.any():
             proj = cam.project(result.points[ok], behind="nan")
             reproj[k, ok] = np.linalg.norm(proj - xy[k, ok], axis=1)

@@ -81,3 +81,12 @@ def test_find_seeds_agree_with_truth(triplet):
         assert np.median(err) < 1.0                 # depth sampling: well inside LSM's pull-in
     with pytest.raises(ValueError, match="depth_range"):
         find_seeds(frame.images, small, depth_range=(3000.0, 1000.0))
+    # a template lens that folds over inside the frame: corners past the fold are passed over
+    c = small[1]
+    r_fold = 0.5 * np.hypot(c.width, c.height) / 2 / c.f     # normalised radius of the fold
+    folded = [c.replace(k1=0.0, k2=-1.0 / (5 * r_fold ** 4)) if k == 1 else cam
+              for k, cam in enumerate(small)]
+    grid = np.stack(np.meshgrid(np.arange(c.width), np.arange(c.height)), -1).reshape(-1, 2)
+    assert not folded[1].invertible(grid.astype(float)).all()
+    seeds = find_seeds(frame.images, folded, n_seeds=8, patch=9, min_distance=12, min_score=-1)
+    assert seeds.xy.shape[1] > 0 and folded[1].invertible(seeds.xy[1]).all()

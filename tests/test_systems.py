@@ -135,6 +135,21 @@ def test_stage_functions_bad_input(small):
         measure_surfaces(s.videos, s.cameras, [0], sigma=2.0, params=SurfaceParams(template=5))
 
 
+def test_surfaces_pass_over_where_a_lens_folds(small):
+    s = small
+    c = s.cameras[1]                                          # the template
+    # r (1 + k3 r^6) folds where 1 + 7 k3 r^6 = 0; nearly no distortion well inside that
+    r_fold = 0.8 * np.hypot(c.width, c.height) / 2 / c.f
+    folded = [cam.replace(k3=cam.k3 - 1.0 / (7 * r_fold ** 6)) if k == 1 else cam
+              for k, cam in enumerate(s.cameras)]
+    grid = np.stack(np.meshgrid(np.arange(c.width), np.arange(c.height)), -1).reshape(-1, 2)
+    inverts = folded[1].invertible(grid.astype(float))
+    assert 0 < inverts.mean() < 1                             # folds inside the frame
+    res = measure_surfaces(s.videos, folded, [0], sigma=2.0)[0]   # raised before
+    assert len(res.points) > 0
+    assert folded[1].invertible(res.template_xy[res.neighbourhood_ok]).all()
+
+
 def _tilted(cameras, deg, axis=(1.0, 0.0, 0.0)):
     """The same rig in a world turned by ``deg`` about ``axis`` (a tape's tilted up)."""
     Q = Rotation.from_rotvec(np.radians(deg) * np.asarray(axis)).as_matrix()

@@ -34,6 +34,19 @@ def test_missing_observations(rng):
     assert np.isnan(res.reprojection_error[0, :20]).all()
 
 
+def test_a_position_where_the_lens_folds_is_not_seen(rng):
+    cams = _rig(rng, 3)
+    X = rng.uniform([-500, -500, 200], [500, 500, 1800], (50, 3))
+    xy = np.stack([c.project(X) for c in cams])
+    c = cams[0]
+    cams[0] = c.replace(k1=0.0, k2=-1.0 / (5 * 0.5 ** 4))     # folds at normalised radius 0.5
+    xy[0, :5] = np.array([c.cx, c.cy]) + c.f * np.array([0.9, 0.0])   # past the fold
+    assert not cams[0].invertible(xy[0, :5]).any()
+    res = triangulate(cams, xy)                                  # raised before
+    assert (res.n_rays[:5] == 2).all() and np.isnan(res.reprojection_error[0, :5]).all()
+    assert res.valid[:5].all() and np.abs(res.points[:5] - X[:5]).max() < 1e-6
+
+
 def test_noise_gives_consistent_residuals(rng):
     cams = triplet_rig()
     X = rng.uniform([-500, -500, 200], [500, 500, 1800], (4000, 3))

@@ -83,6 +83,9 @@ def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: 
         Where in the template to look for corners.
     min_distance : int
         Smallest distance between two candidate corners, pixels.
+
+    Corners where the template camera's lens model cannot be inverted (a fitted distortion
+    that folds over inside the frame) have no ray and are passed over.
     """
     images = [check_image(im, f"images[{k}]") for k, im in enumerate(images)]
     cameras = list(cameras)
@@ -102,6 +105,7 @@ def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: 
     t_xy = corners[:, 0].astype(float)
     spline_t = SplineImage(f)
     t_xy = t_xy[spline_t.inside(t_xy, margin=h)]
+    t_xy = t_xy[cameras[template].invertible(t_xy)] if len(t_xy) else t_xy   # no ray there
     if len(t_xy) == 0:
         return empty
     # distance along the ray whose camera depth goes evenly in inverse depth

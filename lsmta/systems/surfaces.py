@@ -110,6 +110,21 @@ def seed_residual(images, seeds_xy, *, template: int, patch: int) -> float:
     return float(np.median(s)) if len(s) else float("nan")
 
 
+def _lens_mask(camera):
+    """``None`` when the camera's lens model can be inverted over its whole frame (checked
+    every 8 px and along the border), else the ``(H, W)`` bool mask of the pixels where it
+    can (a fitted distortion that folds over inside the frame has no ray past the fold)."""
+    if not camera.has_distortion:
+        return None
+    W, H = camera.width, camera.height
+    xs = np.unique(np.r_[np.arange(0, W, 8), W - 1]).astype(float)
+    ys = np.unique(np.r_[np.arange(0, H, 8), H - 1]).astype(float)
+    if camera.invertible(np.stack(np.meshgrid(xs, ys), -1).reshape(-1, 2)).all():
+        return None
+    grid = np.stack(np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float)), -1)
+    return camera.invertible(grid.reshape(-1, 2)).reshape(H, W)
+
+
 def measure_surfaces(videos, cameras, frames, *, sigma: float,
                      params: SurfaceParams | None = None,
                      progress: bool = False) -> dict:
@@ -133,7 +148,9 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
     Returns
     -------
     dict of int -> SurfaceResult
-        Frames without a seed are left out (with a warning).
+        Frames without a seed are left out (with a warning). Template pixels where its lens
+        model cannot be inverted are not grown into, and a match where a search camera's
+        cannot is not triangulated (:func:`~lsmta.triangulation.triangulate`).
     """
     cams = check_cameras(cameras, "cameras")
     v = check_videos(videos, "videos", cams, min_frames=1)
@@ -147,6 +164,7 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
     if bad:
         raise ValueError(f"frames: expected frame indices in [0, {v.shape[1] - 1}], got {bad}")
     d = working_distance(cams, p.template)
+    mask = _lens_mask(cams[p.template])
     out: dict[int, SurfaceResult] = {}
     for f in tqdm(frames, desc="surfaces", disable=not progress):
         seeds = find_seeds(v[:, f], cams, template=p.template, n_seeds=p.n_seeds,
@@ -164,5 +182,6 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
         surface = MeasureSurfaceParams(grow=GrowParams(step=p.step, patch=p.patch,
                                                        retry_patch=p.retry_patch,
                                                        thresholds=thresholds))
-        out[f] = measure_surface(v[:, f], cams, seeds.xy, template=p.template, params=surface)
+        out[f] = measure_surface(v[:, f], cams, seeds.xy, template=p.template, mask=mask,
+                                 params=surface)
     return out

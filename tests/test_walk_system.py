@@ -1,0 +1,97 @@
+"""The all-round studio rig and the LSMTA system on a tiny generated walk (issue 36, item 1)."""
+
+import numpy as np
+import pytest
+
+from lsmta.camera import scaled_camera
+from lsmta.evaluation import walk_system as ws
+from lsmta.synth import Renderer, Scene, make_body, studio_rig, walk
+from lsmta.systems import BodySystemParams, capture_walk, view_groups
+
+
+def test_studio_rig_cameras_look_at_the_subject():
+    target = np.array([0.0, 0.0, 950.0])
+    cams = studio_rig(target=target)
+    assert len(cams) == 8 and len({c.name for c in cams}) == 8
+    for c in cams:
+        xy = c.project(target[None])[0]
+        assert np.hypot(xy[0] - (c.width - 1) / 2, xy[1] - (c.height - 1) / 2) < 2.0
+        assert np.hypot(*(c.C[:2] - target[:2])) == pytest.approx(3500.0)
+    # two rows on four poles: a pole's cameras stand one above the other
+    assert [round(c.C[2]) for c in cams] == [800, 2000] * 4
+    assert np.allclose(cams[0].C[:2], cams[1].C[:2])
+    # each pole is one view group (neighbouring poles look ~90 degrees apart)
+    groups = view_groups(cams)
+    assert [g.cameras for g in groups] == [(0, 1), (2, 3), (4, 5), (6, 7)]
+    six = studio_rig(n=6, rows=1, rng=3)
+    assert len(six) == 6 and len({tuple(np.round(c.C)) for c in six}) == 6
+
+
+def test_studio_rig_sees_every_body_part_twice():
+    cams = [scaled_camera(c, 0.25) for c in studio_rig(rng=1)]
+    motion = walk(n_frames=21, start=(-650.0, 0.0))
+    scene = Scene(body=make_body(rng=1), motion=motion, backdrop=20.0)
+    renderer = Renderer(scene, cams, noise_sigma=0.0)
+    for t in (0, 10, 20):
+        part_id = renderer.render(t).part_id                    # (K, H, W)
+        seen = [(part_id == p).reshape(len(cams), -1).any(axis=1).sum()
+                for p in range(len(scene.body.parts))]
+        assert min(seen) >= 2, dict(zip(scene.body.names, seen))
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(n=7, rows=2), "rows"), (dict(heights=(800.0,)), "heights"),
+    (dict(heights=("a", "b")), "heights"), (dict(radius=-1.0), "radius"),
+    (dict(n=1), "n"), (dict(f=0.0), "f"), (dict(target=(0, 0)), "target")])
+def test_studio_rig_bad_input(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        studio_rig(**kwargs)
+
+
+def test_walk_session_bad_input():
+    with pytest.raises(ValueError, match="rig"):
+        ws.WalkSessionParams(rig="dome")
+    with pytest.raises(ValueError, match="scale"):
+        ws.WalkSessionParams(scale=0.0)
+    with pytest.raises(ValueError, match="n_frames"):
+        ws.walk_session(n_frames=2)
+    with pytest.raises(TypeError, match="params"):
+        ws.walk_session(params={"rig": "studio"})
+
+
+@pytest.fixture(scope="module")
+def tiny_walk():
+    params = ws.WalkSessionParams(rig="studio", scale=0.5, n_bar=60, n_heldout=12,
+                                  level_places=0)
+    session = ws.walk_session(seed=36, n_frames=4, params=params)
+    cap = capture_walk(session.videos, session.bar_videos, session.bar_length,
+                       session.nominal, fps=session.fps, progress=False,
+                       params=BodySystemParams(density_every=2, reject_k=4.0))
+    return session, cap
+
+
+def test_capture_walk_measures_the_whole_visible_body(tiny_walk):
+    session, cap = tiny_walk
+    assert cap.arm is None and len(cap.views) == 4            # one view group per pole
+    assert list(cap.seconds) == ["calibration", "view groups", "image noise", "surfaces",
+                                 "tracking", "trajectories"]
+    # scored after the fact: the system saw only videos, bar videos and tape-measured cameras
+    al, check = ws.check_alignment(cap.cameras, session)
+    assert np.nanmedian(check) < 1.0
+    score = ws.score_walk(cap, session, al, rng=0)
+    s = score.summary()
+    assert s["points_per_frame_median"] >= 150
+    assert s["to_truth_median_mm"] < 5.0
+    assert s["segments_covered_min"] >= 4
+    # points from more than one side of the body: at least three poles' groups in frame 0
+    pts, group = cap.points_at(0)
+    assert pts.shape == (len(group), 3) and len(np.unique(group)) >= 3
+
+
+def test_capture_walk_bad_input(tiny_walk):
+    session, cap = tiny_walk
+    with pytest.raises(ValueError, match="t: expected"):
+        cap.points_at(len(cap.frames))
+    with pytest.raises(TypeError, match="params"):
+        capture_walk(session.videos, session.bar_videos, session.bar_length, session.nominal,
+                     params={"density_every": 2})

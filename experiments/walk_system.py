@@ -2,7 +2,7 @@
 studio: per-stage times, then the output scored after the fact against the generator's skin.
 
     .venv/bin/python experiments/walk_system.py [--rigs triplet studio] [--frames 8]
-        [--scale 0.5] [--every 2] [--seed 36] [--cameras 8 --rows 2] [--out PATH]
+        [--scale 0.5] [--every 2] [--seed 36] [--n-seeds 40] [--cameras 8 --rows 2] [--out PATH]
     .venv/bin/python experiments/walk_system.py --whole      # 50 frames, 768 x 576
 
 For each rig: :func:`lsmta.evaluation.walk_system.walk_session` renders ``--frames`` of the
@@ -41,13 +41,13 @@ SEEN_IN = CHECK_IN + ("; the seen side: true skin samples seen by two cameras of
 
 
 def run_rig(rig: str, *, frames: int, scale: float, every: int, seed: int, cameras: int,
-            rows: int, progress: bool) -> dict:
+            rows: int, n_seeds: int, progress: bool) -> dict:
     """Render one rig's session, run the system, score it; a dict of records and detail."""
     import numba
     import numpy as np
 
     from lsmta.evaluation import walk_system as ws
-    from lsmta.systems import BodySystemParams, capture_walk
+    from lsmta.systems import BodySystemParams, SurfaceParams, capture_walk
 
     numba.set_num_threads(1)
     t0 = time.perf_counter()
@@ -56,7 +56,8 @@ def run_rig(rig: str, *, frames: int, scale: float, every: int, seed: int, camer
     render_s = time.perf_counter() - t0
     cap = capture_walk(session.videos, session.bar_videos, session.bar_length, session.nominal,
                        fps=session.fps, level_videos=session.level_videos,
-                       params=BodySystemParams(density_every=every, reject_k=REJECT_K),
+                       params=BodySystemParams(density_every=every, reject_k=REJECT_K,
+                                               surface=SurfaceParams(n_seeds=n_seeds)),
                        progress=progress, seed=seed)
     al, check = ws.check_alignment(cap.cameras, session)
     score = ws.score_walk(cap, session, al, rng=seed)
@@ -110,6 +111,8 @@ def main(argv=None):
     parser.add_argument("--scale", type=float, default=0.5, help="of the 768 x 576 images")
     parser.add_argument("--every", type=int, default=2, help="density check, frames")
     parser.add_argument("--seed", type=int, default=36)
+    parser.add_argument("--n-seeds", type=int, default=40,
+                        help="automatic seeds per surface and view group")
     parser.add_argument("--cameras", type=int, default=8, help="the studio's cameras")
     parser.add_argument("--rows", type=int, default=2, help="the studio's cameras per pole")
     parser.add_argument("--whole", action="store_true",
@@ -123,7 +126,7 @@ def main(argv=None):
     from lsmta.report import write_json
 
     settings = {k: getattr(args, k) for k in ("frames", "scale", "every", "seed", "cameras",
-                                               "rows")}
+                                               "rows", "n_seeds")}
     out = {"command": "python experiments/walk_system.py " + " ".join(
                sys.argv[1:] if argv is None else argv),
            "date": date.today().isoformat(), "machine": platform.machine(),
@@ -131,7 +134,7 @@ def main(argv=None):
            "rigs": {}}
     for rig in args.rigs:
         r = run_rig(rig, frames=args.frames, scale=args.scale, every=args.every,
-                    seed=args.seed, cameras=args.cameras, rows=args.rows,
+                    seed=args.seed, cameras=args.cameras, rows=args.rows, n_seeds=args.n_seeds,
                     progress=args.progress)
         out["rigs"][rig] = r
         for x in r["records"]:

@@ -92,6 +92,12 @@ def test_capture_walk_bad_input(tiny_walk):
     session, cap = tiny_walk
     with pytest.raises(ValueError, match="t: expected"):
         cap.points_at(len(cap.frames))
+    with pytest.raises(ValueError, match="t: expected"):
+        cap.points_at(-1)
+    with pytest.raises(ValueError, match="max_angle_deg"):
+        BodySystemParams(max_angle_deg=0.0)
+    with pytest.raises(TypeError, match="arm"):
+        BodySystemParams(arm="none")
     with pytest.raises(TypeError, match="params"):
         capture_walk(session.videos, session.bar_videos, session.bar_length, session.nominal,
                      params={"density_every": 2})

@@ -60,6 +60,12 @@ class BodySystemParams:
     arm: ArmFitParams | None = field(default_factory=ArmFitParams)
     max_angle_deg: float = 75.0
 
+    def __post_init__(self):
+        as_scalar(self.max_angle_deg, "max_angle_deg", positive=True)
+        if self.arm is not None and not isinstance(self.arm, ArmFitParams):
+            raise TypeError(f"arm: expected an ArmFitParams or None, got "
+                            f"{type(self.arm).__name__}")
+
     def capture(self) -> CaptureParams:
         """The settings of the stages after the calibration."""
         return CaptureParams(max_angle_deg=self.max_angle_deg, surface=self.surface,

@@ -186,7 +186,7 @@ class BodyCapture:
         cameras' world) and ``(M,)`` the view group that measured each."""
         traj = self.filtered
         T = len(traj.xyz)
-        if isinstance(t, bool) or not isinstance(t, (int, np.integer)) or not -T <= t < T:
+        if isinstance(t, bool) or not isinstance(t, (int, np.integer)) or not 0 <= t < T:
             raise ValueError(f"t: expected a processed frame index in [0, {T - 1}], got {t!r}")
         present = traj.present[t]
         return traj.xyz[t, present].copy(), self.group_of[present]

@@ -2,7 +2,7 @@
 studio: per-stage times, then the output scored after the fact against the generator's skin.
 
     .venv/bin/python experiments/walk_system.py [--rigs triplet studio] [--frames 8]
-        [--scale 0.5] [--every 2] [--seed 36] [--n-seeds 40] [--cameras 8 --rows 2] [--out PATH]
+        [--scale 1.0] [--every 2] [--seed 36] [--n-seeds 40] [--cameras 8 --rows 2] [--out PATH]
     .venv/bin/python experiments/walk_system.py --whole      # 50 frames, 768 x 576
 
 For each rig: :func:`lsmta.evaluation.walk_system.walk_session` renders ``--frames`` of the
@@ -108,7 +108,8 @@ def main(argv=None):
     parser.add_argument("--rigs", nargs="+", default=["triplet", "studio"],
                         choices=["triplet", "studio"])
     parser.add_argument("--frames", type=int, default=8, help="frames of the walk")
-    parser.add_argument("--scale", type=float, default=0.5, help="of the 768 x 576 images")
+    parser.add_argument("--scale", type=float, default=1.0, help="of the 768 x 576 images "
+                        "(0.5: quicker, but the triplet then finds seeds on few body parts)")
     parser.add_argument("--every", type=int, default=2, help="density check, frames")
     parser.add_argument("--seed", type=int, default=36)
     parser.add_argument("--n-seeds", type=int, default=40,

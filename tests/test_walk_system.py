@@ -1,12 +1,17 @@
 """The all-round studio rig and the LSMTA system on a tiny generated walk (issue 36, item 1)."""
 
+import warnings
+
 import numpy as np
 import pytest
 
 from lsmta.camera import scaled_camera
 from lsmta.evaluation import walk_system as ws
-from lsmta.synth import Renderer, Scene, make_body, studio_rig, walk
-from lsmta.systems import BodySystemParams, capture_walk, view_groups
+from lsmta.synth import Renderer, Scene, make_body, studio_rig, triplet_rig, walk
+from lsmta.synth.calibration import bar_track, poor_guess, render_bar_images
+from lsmta.synth.surface import distance_to_body
+from lsmta.systems import BodySystemParams, SurfaceParams, capture_walk, view_groups
+from lsmta.systems.rig import calibrate_rig
 
 
 def test_studio_rig_cameras_look_at_the_subject():
@@ -61,31 +66,45 @@ def test_walk_session_bad_input():
 
 @pytest.fixture(scope="module")
 def tiny_walk():
+    # the cheapest run that still calibrates the studio well: half-size images, 60 bar
+    # positions, 3 processed frames of 4 (frames= given), 20 seeds per surface
     params = ws.WalkSessionParams(rig="studio", scale=0.5, n_bar=60, n_heldout=12,
                                   level_places=0)
     session = ws.walk_session(seed=36, n_frames=4, params=params)
     cap = capture_walk(session.videos, session.bar_videos, session.bar_length,
-                       session.nominal, fps=session.fps, progress=False,
-                       params=BodySystemParams(density_every=2, reject_k=4.0))
+                       session.nominal, fps=session.fps, progress=False, frames=slice(1, 4),
+                       params=BodySystemParams(density_every=2, reject_k=4.0,
+                                               surface=SurfaceParams(n_seeds=20)))
     return session, cap
 
 
 def test_capture_walk_measures_the_whole_visible_body(tiny_walk):
     session, cap = tiny_walk
     assert cap.arm is None and len(cap.views) == 4            # one view group per pole
+    assert list(cap.frames) == [1, 2, 3]
     assert list(cap.seconds) == ["calibration", "view groups", "image noise", "surfaces",
                                  "tracking", "trajectories"]
     # scored after the fact: the system saw only videos, bar videos and tape-measured cameras
+    # (measured at these settings: check median 0.097 mm, 445 points per frame, to the skin
+    # 2.5 mm, from the seen skin 41 mm, 8 segments covered in every frame)
     al, check = ws.check_alignment(cap.cameras, session)
-    assert np.nanmedian(check) < 1.0
+    assert np.nanmedian(check) < 0.3
     score = ws.score_walk(cap, session, al, rng=0)
     s = score.summary()
-    assert s["points_per_frame_median"] >= 150
-    assert s["to_truth_median_mm"] < 5.0
-    assert s["segments_covered_min"] >= 4
-    # points from more than one side of the body: at least three poles' groups in frame 0
-    pts, group = cap.points_at(0)
-    assert pts.shape == (len(group), 3) and len(np.unique(group)) >= 3
+    assert s["points_per_frame_median"] >= 300
+    assert s["to_truth_median_mm"] < 4.0
+    assert s["from_truth_median_mm"] < 55.0
+    assert s["segments_covered_min"] >= 6
+    # points from every side of the body: all four poles' groups in every processed frame
+    for t in range(len(cap.frames)):
+        pts, group = cap.points_at(t)
+        assert pts.shape == (len(group), 3) and len(np.unique(group)) == 4
+    # processed frame t is the session's frame cap.frames[t]: its points lie on that frame's
+    # skin, not on the next frame's (the body moves ~50 mm a frame)
+    pts = al.points(cap.points_at(0)[0])
+    poses = session.scene.body.part_poses(session.scene.motion, frames=[1, 2])
+    near = [np.median(np.abs(distance_to_body(session.scene.body, p, pts))) for p in poses]
+    assert near[0] < 4.0 < near[1]
 
 
 def test_capture_walk_bad_input(tiny_walk):
@@ -101,3 +120,25 @@ def test_capture_walk_bad_input(tiny_walk):
     with pytest.raises(TypeError, match="params"):
         capture_walk(session.videos, session.bar_videos, session.bar_length, session.nominal,
                      params={"density_every": 2})
+
+
+@pytest.mark.parametrize("rig, seed", [("studio", 0), ("studio", 1), ("studio", 2),
+                                       ("triplet", 0)])
+def test_bar_calibrates_the_studio_and_the_triplet(rig, seed):
+    # cameras facing each other name the bar's ends the other way round (and may rename
+    # them partway): the rig is still calibrated from the bar alone (rms within the LSM's
+    # limit), no body rendered. The studio at full size (its bar targets are too small at
+    # half size for 3.5 m away), the triplet at half size, as notebook 14.
+    rng = np.random.default_rng(seed)
+    if rig == "studio":
+        cams, n = studio_rig(rng=seed), 40
+    else:
+        cams, n = [scaled_camera(c, 0.5) for c in triplet_rig(rng=seed)], 60
+    bar = bar_track(n=n, rng=rng, length=800.0, center=(0.0, 0.0, 950.0),
+                    half_size=(1000.0, 700.0, 500.0))
+    videos = np.stack([render_bar_images(c, bar, rng=rng, noise=2.0) for c in cams])
+    nominal = poor_guess(cams, rng=rng, pose_mm=30.0, pose_deg=2.0, f_rel=0.01)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        cal = calibrate_rig(videos, 800.0, nominal, reject_k=4.0)
+    assert cal.rms_over_limit < 1.5

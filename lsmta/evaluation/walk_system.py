@@ -31,7 +31,7 @@ from ..synth import Scene, make_body, studio_rig, triplet_rig, walk
 from ..synth.body import Motion
 from ..synth.calibration import BarTrack, bar_track, levelled_bar, poor_guess, render_bar_images
 from ..synth.render import Renderer, project_surface_points
-from ..synth.surface import distance_to_ellipsoid
+from ..synth.surface import distance_to_body, distance_to_ellipsoid
 from ..triangulation import triangulate
 from .body_system import Alignment, heldout_points
 
@@ -205,7 +205,8 @@ def check_alignment(cameras, session: WalkSession) -> tuple[Alignment, np.ndarra
     position's measured ends may be the truth's B and A; a first fit on the bar midpoints
     (which do not depend on the names) orders each position's ends by the nearest true end,
     and the fit on all ends follows, then once more without the ends more than ten times
-    the median error off (a position whose ends were mixed up between cameras). Returns the
+    the median error off (so the errors returned include those dropped ends, but the fit
+    does not) (a position whose ends were mixed up between cameras). Returns the
     alignment and every check point's error after it, mm (``(2 Th,)``, NaN where not intersected).
     """
     X = triangulate(cameras, heldout_points(cameras, session)).points.reshape(-1, 2, 3)
@@ -229,13 +230,16 @@ def check_alignment(cameras, session: WalkSession) -> tuple[Alignment, np.ndarra
 
 
 # ------------------------------------------------------------------ scores
-def part_distances(body, poses, points) -> np.ndarray:
-    """Signed distances ``(N, P)`` (mm, negative inside) of world ``points (N, 3)`` to
-    every part's ellipsoid in one frame (``poses (P, 4, 4)``)."""
+def nearest_part(body, poses, points) -> np.ndarray:
+    """The body part ``(N,)`` whose ellipsoid's surface is nearest to each world point of
+    ``points (N, 3)`` in one frame (``poses (P, 4, 4)``)."""
     pts = np.asarray(points, float).reshape(-1, 3)
-    return np.stack([distance_to_ellipsoid((pts - poses[p, :3, 3]) @ poses[p, :3, :3]
-                                           - np.asarray(spec.centre, float), spec.radii)
-                     for p, spec in enumerate(body.parts)], axis=1)
+    if not len(pts):
+        return np.empty(0, int)
+    d = np.stack([distance_to_ellipsoid((pts - poses[p, :3, 3]) @ poses[p, :3, :3]
+                                        - np.asarray(spec.centre, float), spec.radii)
+                  for p, spec in enumerate(body.parts)], axis=1)
+    return np.argmin(np.abs(d), axis=1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -247,7 +251,10 @@ class WalkScore:
     frames : (T,) int array
         Frames of the session scored.
     to_truth : list of (M_t,) arrays
-        Each system point's distance to the true skin (union of the parts), mm.
+        Each system point's distance to the true skin, mm
+        (:func:`~lsmta.synth.surface.distance_to_body`: exact outside the union of the
+        parts; for a point inside it, the distance to the nearest part's surface, not to
+        the union's skin).
     from_truth : list of (S_t,) arrays
         Each true skin sample on the seen side: distance to the nearest system point, mm.
     segment : list of (M_t,) int arrays
@@ -314,10 +321,8 @@ def score_walk(capture, session: WalkSession, alignment: Alignment, *, n_per_par
     for i in range(len(frames)):
         present = traj.present[i]
         pts = alignment.points(traj.xyz[i, present])
-        d = part_distances(body, poses[i], pts)
-        inside = (d < 0).any(axis=1)
-        skin = np.where(inside, -np.abs(d).min(axis=1), d.min(axis=1))
-        seg = np.argmin(np.abs(d), axis=1) if len(pts) else np.empty(0, int)
+        skin = distance_to_body(body, poses[i], pts)
+        seg = nearest_part(body, poses[i], pts)
         vis = proj.visible[i]                                      # (K, N)
         seen = np.zeros(len(part), bool)
         for g in groups:

@@ -12,6 +12,8 @@ millimetres and a few degrees off). From that, with no ground truth:
    baseline, resection of the others (:func:`~lsmta.calibration.relative_orientation_start`,
    RANSAC), then the bar's ends made consistent across cameras
    (:func:`~lsmta.calibration.labels.consistent_bar_labels`) and the approximations again;
+   the ends are first made consistent through the tape-measured cameras, frame by frame,
+   so that cameras facing each other (an all-round studio) start from the same naming;
 3. *bundle adjustment* with the bar length as an observation
    (:func:`~lsmta.calibration.bundle_adjust`);
 4. *datum*: the adjustment's frame (its first camera at the origin) is turned and moved onto
@@ -270,37 +272,6 @@ def _pair(nominal, seen) -> tuple:
     return pair
 
 
-def _facing_labels(nominal, xy, length: float) -> tuple[np.ndarray, tuple]:
-    """Each camera's target labels, swapped as a whole where the tape-measured rig says its
-    ends are the other way round from the first camera's.
-
-    :func:`~lsmta.calibration.track_targets` names the ends left to right at the start, so
-    a camera that faces the first one (an all-round studio) names them the other way round
-    in every frame; the relative orientation and the resections would pair the wrong ends.
-    Each other camera ``k`` is intersected with camera 0 through the nominal cameras, as
-    labelled and swapped, frame by frame; the labels are swapped where more frames fit
-    better swapped (reprojection error plus the bar length's relative error, in units of
-    10 %). A rig whose cameras all face one way (the triplet) keeps its labels. Returns the
-    labels ``(K, Tb, 2, 2)`` and the cameras swapped.
-    """
-    xy = xy.copy()
-    swapped = []
-    for k in range(1, len(nominal)):
-        costs = []
-        for obs in (xy[k], xy[k][:, ::-1]):
-            pts = np.stack([xy[0], obs]).reshape(2, -1, 2)
-            inter = triangulate([nominal[0], nominal[k]], pts, min_angle_deg=0.0)
-            err = np.nanmean(inter.reprojection_error.reshape(2, -1, 2), axis=(0, 2))
-            X = inter.points.reshape(-1, 2, 3)
-            dev = np.abs(np.linalg.norm(X[:, 0] - X[:, 1], axis=1) / length - 1) / 0.1
-            costs.append(err + dev)
-        ok = np.isfinite(costs[0]) & np.isfinite(costs[1])
-        if (costs[1][ok] < costs[0][ok]).sum() > (costs[0][ok] < costs[1][ok]).sum():
-            xy[k] = xy[k][:, ::-1]
-            swapped.append(k)
-    return xy, tuple(swapped)
-
-
 def _bar_targets(videos, progress: bool):
     """The bar's targets in every camera, (K, Tb, 2, 2) px; the a-priori sigma of a target
     coordinate, px; and the positions seen whole by at least two cameras."""
@@ -370,7 +341,10 @@ def calibrate_rig(bar_videos, bar_length: float, nominal_cameras, *,
     xy, sigma_px, n_pos = _bar_targets(videos, progress)
     with np.errstate(invalid="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)       # frames a camera misses
-        xy, _ = _facing_labels(nominal, xy, length)
+        # a camera facing another (an all-round studio) names the ends the other way
+        # round, and track_targets may rename them partway through a video: the ends are
+        # first made consistent frame by frame through the tape-measured cameras
+        xy = consistent_bar_labels(nominal, xy, length).xy
     Tb = xy.shape[1]
     seen = np.isfinite(xy).all(axis=3)                               # (K, Tb, 2)
     pair = _pair(nominal, seen.reshape(K, -1))

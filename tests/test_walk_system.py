@@ -67,14 +67,14 @@ def test_walk_session_bad_input():
 @pytest.fixture(scope="module")
 def tiny_walk():
     # the cheapest run that still calibrates the studio well: half-size images, 60 bar
-    # positions, 3 processed frames of 4 (frames= given), 20 seeds per surface
+    # positions, 3 processed frames of 4 (frames= given), 12 seeds per surface
     params = ws.WalkSessionParams(rig="studio", scale=0.5, n_bar=60, n_heldout=12,
                                   level_places=0)
     session = ws.walk_session(seed=36, n_frames=4, params=params)
     cap = capture_walk(session.videos, session.bar_videos, session.bar_length,
                        session.nominal, fps=session.fps, progress=False, frames=slice(1, 4),
                        params=BodySystemParams(density_every=2, reject_k=4.0,
-                                               surface=SurfaceParams(n_seeds=20)))
+                                               surface=SurfaceParams(n_seeds=12)))
     return session, cap
 
 
@@ -131,7 +131,7 @@ def test_bar_calibrates_the_studio_and_the_triplet(rig, seed):
     # half size for 3.5 m away), the triplet at half size, as notebook 14.
     rng = np.random.default_rng(seed)
     if rig == "studio":
-        cams, n = studio_rig(rng=seed), 40
+        cams, n = studio_rig(rng=seed), 25
     else:
         cams, n = [scaled_camera(c, 0.5) for c in triplet_rig(rng=seed)], 60
     bar = bar_track(n=n, rng=rng, length=800.0, center=(0.0, 0.0, 950.0),

@@ -115,6 +115,8 @@ def test_capture_walk_bad_input(tiny_walk):
         cap.points_at(-1)
     with pytest.raises(ValueError, match="max_angle_deg"):
         BodySystemParams(max_angle_deg=0.0)
+    with pytest.raises(ValueError, match="max_angle_deg"):
+        BodySystemParams(max_angle_deg=200.0)
     with pytest.raises(TypeError, match="arm"):
         BodySystemParams(arm="none")
     with pytest.raises(TypeError, match="params"):

@@ -33,7 +33,7 @@ from .render import (
     make_background,
     project_surface_points,
 )
-from .rigs import ring_rig, triplet_rig
+from .rigs import ring_rig, studio_rig, triplet_rig
 
 __all__ = [
     "BACKGROUND", "NOTHING", "RANGE_OF_MOTION_PHASES", "Background", "Body", "Motion",
@@ -41,5 +41,6 @@ __all__ = [
     "SurfaceProjection", "arm_wave", "range_of_motion",
     "calibration_sweeps", "cast_body", "evaluation_grid", "intrinsic_target", "make_background",
     "make_body", "pantilt_head", "project_surface_points", "ring_rig", "side_to_side",
+    "studio_rig",
     "triplet_rig", "walk",
 ]

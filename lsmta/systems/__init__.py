@@ -30,7 +30,7 @@ never the generator's truth: nothing here imports :mod:`lsmta.synth` or
 """
 
 from .arm import ArmFit, ArmFitParams, fit_arm, fit_self_consistent, observed_frames
-from .body import BodySystemParams, capture_body
+from .body import BodySystemParams, capture_body, capture_walk
 from .capture import (
     BodyCapture,
     CaptureParams,
@@ -63,7 +63,7 @@ __all__ = [
     "PairChoice", "best_pairs", "first_settled", "reacquisition_seeds",
     "FaceIdentification", "IdentifyParams", "identify_face_markers",
     "RigCalibration", "RigRefinement", "RigRefinementParams", "SurfaceParams", "calibrate_rig",
-    "capture_body", "fit_arm", "refine_rig", "Levelling", "level_rig",
+    "capture_body", "capture_walk", "fit_arm", "refine_rig", "Levelling", "level_rig",
     "fit_self_consistent", "measure_surfaces", "observed_frames", "track_surface",
     "working_distance",
 ]

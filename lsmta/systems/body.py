@@ -6,6 +6,12 @@ the generator's truth enters: no true camera, seed, start point, noise level or 
 the calibration from the bar (:func:`~lsmta.systems.rig.calibrate_rig`) followed by
 :func:`~lsmta.systems.capture_recording` with the arm model as its last stage; a user with a
 camera file or a board calibration calls :func:`~lsmta.systems.capture_recording` directly.
+
+:func:`capture_walk` is the same system on a person moving through the whole volume (the
+walk), from the triplet or from an all-round studio: no arm model; the surfaces of the whole
+visible body, from every view group (each pair or triple of cameras that sees one side),
+tracked into trajectories and filtered; :meth:`~lsmta.systems.BodyCapture.points_at` gives
+each frame's points.
 """
 
 from __future__ import annotations
@@ -37,7 +43,11 @@ class BodySystemParams:
         Frames between density checks (and so between measured surfaces).
     tracker : TrackerParams
     filters : FilterParams
-    arm : ArmFitParams
+    arm : ArmFitParams or None
+        The arm model stage; None leaves it out (:func:`capture_walk` does).
+    max_angle_deg : float
+        Largest angle between the optical axes of a view group's cameras
+        (:func:`~lsmta.systems.views.view_groups`).
     """
 
     intrinsics: tuple = DEFAULT_INTRINSICS
@@ -47,18 +57,30 @@ class BodySystemParams:
     density_every: int = 4
     tracker: TrackerParams = field(default_factory=TrackerParams)
     filters: FilterParams = field(default_factory=FilterParams)
-    arm: ArmFitParams = field(default_factory=ArmFitParams)
+    arm: ArmFitParams | None = field(default_factory=ArmFitParams)
+    max_angle_deg: float = 75.0
+
+    def __post_init__(self):
+        angle = as_scalar(self.max_angle_deg, "max_angle_deg", positive=True)
+        if angle > 180.0:
+            raise ValueError(f"max_angle_deg: expected an angle in (0, 180] degrees, got "
+                             f"{angle}")
+        if self.arm is not None and not isinstance(self.arm, ArmFitParams):
+            raise TypeError(f"arm: expected an ArmFitParams or None, got "
+                            f"{type(self.arm).__name__}")
 
     def capture(self) -> CaptureParams:
         """The settings of the stages after the calibration."""
-        return CaptureParams(surface=self.surface, density_every=self.density_every,
-                             tracker=self.tracker, filters=self.filters, arm=self.arm)
+        return CaptureParams(max_angle_deg=self.max_angle_deg, surface=self.surface,
+                             density_every=self.density_every, tracker=self.tracker,
+                             filters=self.filters, arm=self.arm)
 
 
 def capture_body(videos, bar_videos, bar_length: float, nominal_cameras, *, fps: float = 25.0,
                  frames=None, level_videos=None, progress: bool = True,
                  params: BodySystemParams | None = None, seed: int = 0) -> BodyCapture:
-    """Run the LSMTA system on synchronised videos: bar calibration to fitted arm model.
+    """Run the LSMTA system on synchronised videos: bar calibration to fitted arm model
+    (or, with ``params.arm`` None, to filtered trajectories only, as :func:`capture_walk`).
 
     Parameters
     ----------
@@ -109,3 +131,39 @@ def capture_body(videos, bar_videos, bar_length: float, nominal_cameras, *, fps:
     return replace(capture, seconds={"calibration": seconds, **capture.seconds})
 
 
+
+
+def capture_walk(videos, bar_videos, bar_length: float, nominal_cameras, *, fps: float = 25.0,
+                 frames=None, level_videos=None, progress: bool = True,
+                 params: BodySystemParams | None = None, seed: int = 0) -> BodyCapture:
+    """Run the LSMTA system on a person moving through the volume: bar calibration, then
+    the surfaces of the whole visible body tracked into filtered trajectories.
+
+    :func:`capture_body` without the arm model (``params.arm`` is set to None), for the
+    papers' triplet in front (one view group) or an all-round studio (one view group per
+    side, e.g. per pole of two cameras): the bar's ends are made consistent frame by frame
+    through the tape-measured cameras, so cameras facing each other calibrate together
+    (tested on studio seeds 0-2 and 36 with 8 cameras on 4 poles; a studio of only two
+    facing poles, 4 cameras, gave a 20 mm check-point error on seed 36 at half size). Every view
+    group measures its surfaces from automatic seeds in the first frame and every
+    ``params.density_every`` frames, tracks them, and its trajectories are intersected with
+    its own cameras; all groups' trajectories go through the papers' filters together.
+
+    Parameters
+    ----------
+    videos, bar_videos, bar_length, nominal_cameras, fps, frames, level_videos, progress, seed
+        As :func:`capture_body`; ``videos`` from K >= 2 cameras that share bar positions.
+    params : BodySystemParams, optional
+        Its ``arm`` is ignored.
+
+    Returns
+    -------
+    BodyCapture
+        ``arm`` None; the filtered points of frame ``t`` are ``points_at(t)``.
+    """
+    p = params or BodySystemParams()
+    if not isinstance(p, BodySystemParams):
+        raise TypeError(f"params: expected a BodySystemParams, got {type(p).__name__}")
+    return capture_body(videos, bar_videos, bar_length, nominal_cameras, fps=fps,
+                        frames=frames, level_videos=level_videos, progress=progress,
+                        params=replace(p, arm=None), seed=seed)

@@ -181,6 +181,16 @@ class BodyCapture:
         """The trajectories after all filters."""
         return self.filters[-1].trajectories
 
+    def points_at(self, t: int) -> tuple[np.ndarray, np.ndarray]:
+        """The filtered trajectories' points in processed frame ``t``: ``(M, 3)`` mm (the
+        cameras' world) and ``(M,)`` the view group that measured each."""
+        traj = self.filtered
+        T = len(traj.xyz)
+        if isinstance(t, bool) or not isinstance(t, (int, np.integer)) or not 0 <= t < T:
+            raise ValueError(f"t: expected a processed frame index in [0, {T - 1}], got {t!r}")
+        present = traj.present[t]
+        return traj.xyz[t, present].copy(), self.group_of[present]
+
     @property
     def group_of(self) -> np.ndarray:
         """``(N,)`` the view group of every trajectory."""

@@ -12,6 +12,8 @@ millimetres and a few degrees off). From that, with no ground truth:
    baseline, resection of the others (:func:`~lsmta.calibration.relative_orientation_start`,
    RANSAC), then the bar's ends made consistent across cameras
    (:func:`~lsmta.calibration.labels.consistent_bar_labels`) and the approximations again;
+   the ends are first made consistent through the tape-measured cameras, frame by frame,
+   so that cameras facing each other (an all-round studio) start from the same naming;
 3. *bundle adjustment* with the bar length as an observation
    (:func:`~lsmta.calibration.bundle_adjust`);
 4. *datum*: the adjustment's frame (its first camera at the origin) is turned and moved onto
@@ -31,6 +33,7 @@ millimetres and a few degrees off). From that, with no ground truth:
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -336,6 +339,12 @@ def calibrate_rig(bar_videos, bar_length: float, nominal_cameras, *,
         level_videos = check_videos(level_videos, "level_videos", nominal,
                                     min_frames=MIN_LEVEL_FRAMES)
     xy, sigma_px, n_pos = _bar_targets(videos, progress)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)       # frames a camera misses
+        # a camera facing another (an all-round studio) names the ends the other way
+        # round, and track_targets may rename them partway through a video: the ends are
+        # first made consistent frame by frame through the tape-measured cameras
+        xy = consistent_bar_labels(nominal, xy, length).xy
     Tb = xy.shape[1]
     seen = np.isfinite(xy).all(axis=3)                               # (K, Tb, 2)
     pair = _pair(nominal, seen.reshape(K, -1))

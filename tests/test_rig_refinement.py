@@ -8,10 +8,19 @@ import cv2
 import numpy as np
 import pytest
 
-from lsmta.calibration import RefineParams, TieParams, find_tie_points, refine_cameras
+from lsmta.calibration import (
+    RefineParams,
+    TieLSMParams,
+    TieParams,
+    TiePoints,
+    find_tie_points,
+    refine_cameras,
+    refine_tie_points,
+)
 from lsmta.camera import Camera, cropped_camera
 from lsmta.camera_files import read_camera_toml
 from lsmta.io import cameras_for_videos, read_videos
+from lsmta.matching import Status
 from lsmta.systems import RigRefinementParams, refine_rig
 from lsmta.triangulation import triangulate
 
@@ -490,3 +499,76 @@ def test_descriptors_must_be_bytes_to_be_matched_exactly():
     for bad in ([[0.5, 1.0]], [[-1.0, 3.0]], [[256.0, 0.0]]):
         with pytest.raises(ValueError, match="whole numbers in 0..255"):
             _bytes(np.array(bad, np.float32))
+
+
+# ------------------------------------------------------- least squares matching
+def _surface_point(cam, xy):
+    """Where the rays of ``cam`` through ``xy`` meet the floor (z = 0) or the wall
+    (y = 1500) of :func:`_render`."""
+    o, d = cam.rays(xy)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_floor = np.where(d[:, 2] < 0, -o[:, 2] / d[:, 2], np.inf)
+        t_wall = np.where(d[:, 1] > 0, (1500 - o[:, 1]) / d[:, 1], np.inf)
+    return o + np.minimum(t_floor, t_wall)[:, None] * d
+
+
+@pytest.fixture(scope="module")
+def lsm_scene():
+    rng = np.random.default_rng(48)
+    cams = _rig(n=3)
+    floor, wall = _texture(rng), _texture(rng)
+    images = [_render(c, floor, wall, 0) for c in cams]
+    X = np.c_[rng.uniform(-900, 900, 160), rng.uniform(0, 1300, 160), np.zeros(160)]
+    X[80:, 1], X[80:, 2] = 1500.0, rng.uniform(100, 1500, 80)          # half on the wall
+    true = np.stack([c.project(X) for c in cams])
+    inside = np.all((true > 20) & (true < [cams[0].width - 21, cams[0].height - 21]), axis=(0, 2))
+    true = true[:, inside]
+    raw = true + rng.uniform(-1.2, 1.2, true.shape)       # keypoints a pixel or so off
+    return cams, images, raw
+
+
+def test_lsm_moves_tie_points_to_the_template_patch_and_drops_failures(lsm_scene):
+    cams, images, raw = lsm_scene
+    K, N, _ = raw.shape
+    raw = raw.copy()
+    raw[1, :3] = [5.0, 5.0]                # the patch leaves view 1: that view fails ...
+    raw[1:, 3] = [5.0, 5.0]                # ... and a point left with one view is dropped
+    tie = TiePoints(xy=raw, frame=np.zeros(N, int), pair_matches=np.zeros((K, K), int),
+                    pair_guided=np.zeros((K, K), int))
+    kept_in = raw.copy()
+    out, info = refine_tie_points([images], tie, cams)
+    assert np.array_equal(raw, kept_in)                                       # not modified
+    # the template's position stays; every other view is matched to it
+    t = info.template
+    assert set(t.tolist()) <= {0, 1, 2} and (t == 1).mean() > 0.5          # the middle view
+    ok = info.status == Status.CONVERGED
+    matched = info.status >= 0
+    assert info.matched == int(matched.sum()) == N * (K - 1)
+    assert info.failed == int((matched & ~ok).sum()) >= 3
+    assert not ok[1, :4].any() and info.dropped_points == int((~info.kept).sum()) >= 1
+    assert not info.kept[3] and out.xy.shape[1] == info.kept.sum()
+    np.testing.assert_array_equal(out.xy[t[info.kept], np.arange(out.xy.shape[1])],
+                                  raw[t[info.kept], np.flatnonzero(info.kept)])
+    # truth: where the template's pixel's surface point lies in each view
+    err_raw, err_lsm = [], []
+    for j in np.flatnonzero(info.kept):
+        P = _surface_point(cams[t[j]], raw[t[j], j][None])
+        for k in range(K):
+            if k != t[j] and ok[k, j]:
+                want = cams[k].project(P)[0]
+                err_raw.append(np.linalg.norm(raw[k, j] - want))
+                err_lsm.append(np.linalg.norm(out.xy[k, np.sum(info.kept[:j])] - want))
+    assert len(err_lsm) > 0.8 * 2 * N
+    assert np.median(err_raw) > 0.8, np.median(err_raw)
+    assert np.median(err_lsm) < 0.1 * np.median(err_raw), (np.median(err_raw),
+                                                             np.median(err_lsm))
+    assert info.summary()["failed"] == info.failed
+
+
+def test_tie_lsm_settings_are_checked():
+    with pytest.raises(ValueError, match="patch"):
+        TieLSMParams(patch=20)
+    with pytest.raises(ValueError, match="max_scale"):
+        TieLSMParams(max_scale=1.0)
+    with pytest.raises(ValueError, match="max_shift_px"):
+        TieLSMParams(max_shift_px=0)

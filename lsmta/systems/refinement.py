@@ -3,8 +3,10 @@ video files and a camera file from another tool.
 
 Stages: check the cameras against the videos (:func:`lsmta.io.cameras_for_videos`) ->
 read evenly spaced frames -> tie points guided by the given cameras
-(:func:`lsmta.calibration.find_tie_points`) -> a check that the cameras fit the videos at
-all -> the tie points grouped into places -> cameras adjusted with the given ones as priors
+(:func:`lsmta.calibration.find_tie_points`) -> the tie points refined by least squares
+matching in the frames they were found in (:func:`lsmta.calibration.refine_tie_points`;
+``lsm``) -> a check that the cameras fit the videos at all -> the tie points grouped into
+places -> cameras adjusted with the given ones as priors
 (:func:`lsmta.calibration.refine_cameras`) on most places -> a check that no camera had
 to turn far from the file's orientation -> the residuals of the held-out places, with the
 given and with the refined cameras.
@@ -46,6 +48,7 @@ from scipy.spatial import cKDTree
 
 from .._validate import as_int, as_scalar, freeze
 from ..calibration.refine import CameraRefinement, RefineParams, refine_cameras
+from ..calibration.tie_lsm import TieLSM, TieLSMParams, refine_tie_points
 from ..calibration.tie_points import TieParams, TiePoints, find_tie_points
 from ..camera import cropped_camera, scaled_camera
 from ..camera_files import write_camera_toml
@@ -93,6 +96,15 @@ class RigRefinementParams:
     tie : TieParams
         Its ``band_px`` is in pixels of the videos as stored: it is scaled with them and with
         the working size; its ``ransac_px`` is in pixels of the frames searched.
+    lsm : bool
+        Refine the tie points by least squares matching before they are grouped into places
+        (:func:`lsmta.calibration.refine_tie_points`), in the frames they were found in (the
+        working size; see that module for why not the full size): the keypoints' positions
+        move to where each view shows the template view's patch; failed matches are dropped
+        and counted (:attr:`RigRefinement.lsm`). It uses the frames and the given cameras
+        only, never the adjustment: held-out places stay held out.
+    tie_lsm : TieLSMParams
+        Its pixels are those of the frames searched for tie points (the working size).
     refine : RefineParams
     """
 
@@ -106,6 +118,8 @@ class RigRefinementParams:
     min_still_held: int = 10
     mismatch: str = "error"
     tie: TieParams = field(default_factory=TieParams)
+    lsm: bool = True
+    tie_lsm: TieLSMParams = field(default_factory=TieLSMParams)
     refine: RefineParams = field(default_factory=RefineParams)
 
     def __post_init__(self):
@@ -119,6 +133,10 @@ class RigRefinementParams:
         as_int(self.min_still_held, "min_still_held", minimum=1)
         if not isinstance(self.tie, TieParams) or not isinstance(self.refine, RefineParams):
             raise TypeError("tie, refine: expected TieParams and RefineParams")
+        if not isinstance(self.lsm, bool):
+            raise TypeError(f"lsm: expected True or False, got {self.lsm!r}")
+        if not isinstance(self.tie_lsm, TieLSMParams):
+            raise TypeError("tie_lsm: expected TieLSMParams")
 
 
 @dataclass(frozen=True)
@@ -137,6 +155,13 @@ class RigRefinement:
         Which of those frames' places of one frame (a moving subject's) were kept out of
         the adjustment.
     tie_points : TiePoints
+        The tie points adjusted and held out: refined by least squares matching with
+        ``params.lsm`` (the failed ones dropped), else as found.
+    raw_tie_points : TiePoints
+        The tie points as found (the keypoints' positions, scaled back).
+    lsm : TieLSM or None
+        What the least squares matching did (None without ``params.lsm``); its arrays are
+        over ``raw_tie_points``.
     places : (N,) int array
         The place of each tie point (:func:`_places`): a still background's feature found
         again at the same pixels in other frames is one place.
@@ -173,6 +198,8 @@ class RigRefinement:
     frames: tuple
     held_out: np.ndarray
     tie_points: TiePoints
+    raw_tie_points: TiePoints
+    lsm: TieLSM | None
     places: np.ndarray
     still: np.ndarray
     held_out_places: np.ndarray
@@ -201,6 +228,25 @@ class RigRefinement:
         return _merged(self.tie_points.xy, self.places)
 
     @property
+    def raw_place_xy(self) -> np.ndarray:
+        """(K, P, 2) :attr:`place_xy` from the same tie points and views as found, before the
+        least squares matching (the same as :attr:`place_xy` without it): the two side by
+        side say what the matching changed, with any cameras."""
+        if self.lsm is None:
+            return self.place_xy
+        raw = self.raw_tie_points.xy[:, self.lsm.kept]
+        return _merged(np.where(np.isfinite(self.tie_points.xy), raw, np.nan), self.places)
+
+    def held_out_residuals(self, cameras=None, *, raw: bool = False) -> np.ndarray:
+        """(K,) median residual per camera of the held-out places that judge the refinement
+        (``held_out_kind``), intersected with ``cameras`` (default: the refined ones), at
+        their positions refined by least squares matching or (``raw``) as found, px."""
+        sel = self.held_out_places & (self.still if self.held_out_kind == "still places"
+                                      else True)
+        xy = (self.raw_place_xy if raw else self.place_xy)[:, sel]
+        return _held_out_residuals(self.cameras if cameras is None else cameras, xy)
+
+    @property
     def improved(self) -> bool:
         """Whether the refined cameras fit the held-out places at least as well as the
         given ones in every camera that saw some (the rule for using them)."""
@@ -215,9 +261,11 @@ class RigRefinement:
 
     def summary(self) -> dict:
         """Per camera: tie points, median residuals (adjusted and held out, before and
-        after: those judged by, ``held_out_kind``, and of the held-out still places and of
-        all held-out places), the intrinsics freed; as plain numbers for a JSON file."""
+        after: those judged by, ``held_out_kind``, also at the tie points' positions as found
+        (:meth:`held_out_residuals`), and of the held-out still places and of all held-out
+        places), the intrinsics freed; as plain numbers for a JSON file."""
         seen = np.isfinite(self.tie_points.xy[..., 0])
+        raw = self.held_out_residuals(raw=True)
         out = {}
         for k, cam in enumerate(self.cameras):
             out[cam.name or f"camera {k}"] = {
@@ -226,6 +274,7 @@ class RigRefinement:
                 "adjusted_after_px": float(self.adjustment.median_residual()[k]),
                 "held_out_before_px": float(self.held_out_before[k]),
                 "held_out_after_px": float(self.held_out_after[k]),
+                "held_out_after_raw_positions_px": float(raw[k]),
                 "held_out_still_before_px": float(self.held_out_still_before[k]),
                 "held_out_still_after_px": float(self.held_out_still_after[k]),
                 "held_out_all_before_px": float(self.held_out_all_before[k]),
@@ -259,6 +308,7 @@ class RigRefinement:
                   "held_out_all_points": self.held_out_all_points,
                   "places": int(len(self.still)), "still_places": int(self.still.sum()),
                   "dropped_places": int(self.dropped_places.sum()),
+                  "lsm": None if self.lsm is None else self.lsm.summary(),
                   "cameras": self.summary()}
         summary = folder / "refinement.json"
         summary.write_text(json.dumps(plain(record), indent=2), encoding="utf-8")
@@ -437,10 +487,20 @@ def _loaded(stacks, videos: Videos) -> list:
     return stacks
 
 
-def _tie_points_at_work_size(videos: Videos, given, picks, params, stacks=None) -> TiePoints:
-    """Tie points of the picked frames (decoded, or taken from ``stacks``), found in frames
-    halved until their longer side is at most ``params.tie_max_side`` and scaled back to
-    the frames as delivered."""
+def _sampled(videos: Videos, picks, stacks=None) -> list:
+    """The picked frames as delivered (decoded, or taken from ``stacks``): a list of K
+    grey images per frame."""
+    return [videos.read(int(i)) if stacks is None else [st[int(i)] for st in stacks]
+            for i in picks]
+
+
+def _tie_points_at_work_size(videos: Videos, given, picks, params, stacks=None, *,
+                             frames=None, lsm: bool = False):
+    """Tie points of the picked frames (decoded, or taken from ``stacks``, or ``frames`` as
+    :func:`_sampled` gives them), found in frames halved until their longer side is at most
+    ``params.tie_max_side`` and scaled back to the frames as delivered. With ``lsm``, also
+    refined by least squares matching in the frames searched (``params.tie_lsm``) and
+    returned as ``(raw, refined, TieLSM)``."""
     longest = max(max(c.width, c.height) for c in given)
     halvings = max(0, int(np.ceil(np.log2(longest / params.tie_max_side))))
     factor, m = 0.5 ** halvings, 2 ** halvings
@@ -448,14 +508,21 @@ def _tie_points_at_work_size(videos: Videos, given, picks, params, stacks=None) 
     sizes = [(c.width - c.width % m, c.height - c.height % m) for c in given]
     cams = [scaled_camera(cropped_camera(c, 0, 0, w, h), factor)
             for c, (w, h) in zip(given, sizes)] if halvings else list(given)
+    frames = _sampled(videos, picks, stacks) if frames is None else frames
     images = []
-    for i in picks:
-        frame = videos.read(int(i)) if stacks is None else [st[int(i)] for st in stacks]
+    for frame in frames:
         images.append([cv2.resize(g[:h, :w], (c.width, c.height), interpolation=cv2.INTER_AREA)
                        if halvings else g for g, c, (w, h) in zip(frame, cams, sizes)])
     tie_params = replace(params.tie, band_px=params.tie.band_px * videos.scale * factor)
     tie = find_tie_points(images, cams, params=tie_params)
-    return replace(tie, xy=(tie.xy + 0.5) / factor - 0.5) if halvings else tie
+
+    def back(t):
+        return replace(t, xy=(t.xy + 0.5) / factor - 0.5) if halvings else t
+
+    if not lsm:
+        return back(tie)
+    refined, info = refine_tie_points(images, tie, cams, params=params.tie_lsm)
+    return back(tie), back(refined), info
 
 
 def _check_turn(given, refined, limit_deg: float) -> None:
@@ -508,8 +575,12 @@ def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = 
     n = min(params.n_frames, videos.n_frames)
     picks = np.unique(np.linspace(0, videos.n_frames - 1, n).round().astype(int))
     stacks = None if stacks is None else _loaded(stacks, videos)
-    tie = _tie_points_at_work_size(videos, given, picks, params, stacks)
-    _check_fit(given, tie, params)
+    if params.lsm:
+        raw, tie, lsm = _tie_points_at_work_size(videos, given, picks, params, stacks, lsm=True)
+    else:
+        raw = tie = _tie_points_at_work_size(videos, given, picks, params, stacks)
+        lsm = None
+    _check_fit(given, raw, params)
     held_frames = (np.arange(len(picks)) % params.hold_out_every) == 1
     tol = params.place_px * videos.scale
     labels = _places(tie.xy, tol, tie.frame)
@@ -535,7 +606,8 @@ def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = 
     return RigRefinement(
         cameras=adjustment.cameras, given=given,
         frames=tuple(int(videos.frames[i]) for i in picks), held_out=held_frames,
-        tie_points=tie, places=labels, still=still, held_out_places=held,
+        tie_points=tie, raw_tie_points=raw, lsm=lsm, places=labels, still=still,
+        held_out_places=held,
         dropped_places=dropped, held_out_kind=kind, adjustment=adjustment,
         held_out_points=int(test_xy.shape[1]), held_out_before=before, held_out_after=after,
         held_out_still_before=res["still places"][0], held_out_still_after=res["still places"][1],

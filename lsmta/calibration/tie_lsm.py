@@ -1,0 +1,301 @@
+"""Tie points refined by least squares matching (Gruen 1985) in the frames they come from.
+
+:func:`~lsmta.calibration.find_tie_points` gives the positions of feature keypoints: where
+SIFT's (or ASIFT's) scale-space extremum lies in each view, found in each view apart. A
+keypoint is the detector's estimate, not where the same patch of surface lies in the other
+views. Least squares matching puts it there: for each tie point one view is the template,
+and in every other view that holds the point a ``patch x patch`` patch under an affine map
+with linear radiometry is matched to the template's (:func:`lsmta.matching.lsm`, Gruen's
+forward iterations), starting from the tie point's position. The template's position stays
+as found; the others move to where the template's patch lies in them. All points of one
+frame, template view and search view are matched in one call.
+
+The template view of a point is the one nearest its mean viewing direction: the point is
+intersected with the given cameras (nothing here depends on an adjustment of them), and of
+the views holding it, the one whose ray from its camera centre is closest to the mean of
+the rays is the template (the view that sees the surface most like the others do, so the
+affine distortion to each is the smallest on the whole). A point the cameras do not
+intersect takes its first view.
+
+The start of the patch's shape: the identity, and where the tie points of the same frame
+near the point (``neighbours`` nearest in the template view, held by both views) give a
+local affine map by least squares whose singular values lie within ``1 / max_scale ..
+max_scale``, that map too; of the two matches the accepted one is kept, and of two accepted
+the one with the smaller residual (``sigma0``).
+
+A match fails where LSM does not converge, leaves the image, moves further than
+``max_shift_px`` from the tie point's position (another feature), ends with a standard
+deviation of either coordinate above ``max_sigma_px`` or an affine map beyond
+``max_scale``; the view is then dropped from the point, and a point left with fewer than two
+views is dropped. Both are counted (:class:`TieLSM`).
+
+Where to match. :func:`lsmta.systems.refine_rig` matches in the frames the tie points were
+found in (halved until the longer side is at most ``tie_max_side``), the keypoints' own
+scale. On the Pose2Sim demo (a probe on frame 0 of ``experiments/refinement_held_out.py``'s
+frames), matching in the full-size frames from the scaled-back positions converged for
+19-47 % of the cam01-cam02, cam03-cam04 and cam01-cam04 matches (a 21-px patch at full size
+holds a quarter of the texture of one at half size, and the compressed video's fine detail
+is weak), at half size for 55-76 % with the better of the two starts; coarse-to-fine (half
+size, then full size) drifted a further 2-4 px. Gruen's forward iterations kept 366 of 1125
+tie points there against 241 with the inverse compositional ones.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .._validate import as_int, as_scalar, freeze
+from ..matching.lsm import LSMParams, LSMResult, LSMThresholds, Status, lsm
+from ..matching.spline import SplineImage
+from ..triangulation import triangulate
+from .tie_points import TiePoints
+
+#: status of an observation that was not matched: the template view, or a view without the point
+NOT_MATCHED = -1
+
+
+@dataclass(frozen=True)
+class TieLSMParams:
+    """Settings of :func:`refine_tie_points`.
+
+    Attributes
+    ----------
+    patch : int
+        Odd side of the matched patch, px of the frames given. Default 21: the smallest odd
+        patch of at least 400 pixels, the size at which LSM's position on moderate texture
+        reaches a few hundredths of a pixel (a rule of the method, not tuned on any score).
+    max_shift_px : float
+        Largest move from the tie point's position, px. Default 3: twice the tie points' own
+        tolerance to their pair's epipolar geometry (``TieParams.ransac_px``, 1.5 px); a
+        match further off has found another feature.
+    max_sigma_px : float
+        Largest standard deviation of either coordinate of a match, px. Default 0.1: a fifth
+        of the 0.5-px target of issue #40.
+    neighbours : int
+        Tie points of the same frame that give the start of a patch's shape (>= 3).
+    max_scale : float
+        A start map with a singular value above this or below its inverse is not taken (the
+        identity is), and a match whose affine map ends there is refused. Default 3: beyond
+        ASIFT's largest simulated tilt (2.8).
+    max_iter : int
+        LSM's iteration limit.
+    tol_px : float
+        LSM's convergence limit, px. Default 0.01: a fiftieth of the 0.5-px target (a
+        compressed video's patches keep moving by thousandths of a pixel).
+    """
+
+    patch: int = 21
+    max_shift_px: float = 3.0
+    max_sigma_px: float = 0.1
+    neighbours: int = 8
+    max_scale: float = 3.0
+    max_iter: int = 60
+    tol_px: float = 0.01
+
+    def __post_init__(self):
+        as_int(self.patch, "patch", minimum=5, odd=True, unit="pixels")
+        as_scalar(self.max_shift_px, "max_shift_px", positive=True)
+        as_scalar(self.max_sigma_px, "max_sigma_px", positive=True)
+        as_int(self.neighbours, "neighbours", minimum=3)
+        if as_scalar(self.max_scale, "max_scale", positive=True) <= 1:
+            raise ValueError(f"max_scale: expected a number above 1, got {self.max_scale}")
+        as_int(self.max_iter, "max_iter", minimum=1)
+        as_scalar(self.tol_px, "tol_px", positive=True)
+
+    def lsm_params(self) -> LSMParams:
+        """The settings of each :func:`lsmta.matching.lsm` call."""
+        return LSMParams(patch=self.patch, geometry="affine", radiometry="linear",
+                         method="forward", max_iter=self.max_iter, tol=self.tol_px,
+                         thresholds=LSMThresholds(
+                             max_sigma0=np.inf, max_sigma_xy=self.max_sigma_px,
+                             max_displacement=self.max_shift_px,
+                             scale_range=(1.0 / self.max_scale, self.max_scale),
+                             max_shear=1.0))
+
+
+@dataclass(frozen=True)
+class TieLSM:
+    """What :func:`refine_tie_points` did.
+
+    Attributes
+    ----------
+    template : (N,) int array
+        The template view of each tie point (of the tie points given).
+    status : (K, N) int array
+        :class:`lsmta.matching.Status` of each view's match; ``NOT_MATCHED`` (-1) for the
+        template view and the views without the point.
+    shift : (K, N) array
+        How far each match moved from the tie point's position, px (NaN: not matched or
+        failed).
+    kept : (N,) bool array
+        Tie points kept (at least two views left).
+    affine_start : (K, N) bool array
+        Matches that started from the neighbours' affine map (else the identity).
+    matched, failed, dropped_points : int
+        Views matched, views whose match failed (dropped from their point), tie points
+        dropped (fewer than two views left).
+    seconds : float
+        Wall time of the refinement.
+    """
+
+    template: np.ndarray
+    status: np.ndarray
+    shift: np.ndarray
+    kept: np.ndarray
+    affine_start: np.ndarray
+    matched: int
+    failed: int
+    dropped_points: int
+    seconds: float
+
+    def __post_init__(self):
+        freeze(self, ("template", "status", "shift", "kept", "affine_start"))
+
+    def summary(self) -> dict:
+        """The counts and the median shift, as plain numbers."""
+        ok = np.isfinite(self.shift)
+        return {"matched": self.matched, "failed": self.failed,
+                "dropped_points": self.dropped_points, "kept_points": int(self.kept.sum()),
+                "median_shift_px": float(np.median(self.shift[ok])) if ok.any() else None,
+                "affine_start_share": float(self.affine_start[self.status >= 0].mean())
+                if (self.status >= 0).any() else None,
+                "seconds": round(self.seconds, 2)}
+
+
+def _templates(cameras, xy) -> np.ndarray:
+    """(N,) the view of each point nearest its mean viewing direction (intersected with
+    ``cameras``); the first view holding it where the intersection fails."""
+    seen = np.isfinite(xy[..., 0])
+    first = np.argmax(seen, axis=0)
+    X = triangulate(list(cameras), xy, min_angle_deg=0.0).points                 # (N, 3)
+    C = np.stack([np.asarray(c.C, float) for c in cameras])                       # (K, 3)
+    rays = X[None] - C[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rays /= np.linalg.norm(rays, axis=2, keepdims=True)
+    rays[~seen] = 0.0
+    mean = rays.sum(axis=0)
+    score = np.where(seen, np.einsum("knd,nd->kn", rays, mean), -np.inf)
+    best = np.argmax(np.nan_to_num(score, nan=-np.inf), axis=0)
+    return np.where(np.isfinite(X).all(axis=1), best, first)
+
+
+def _affine_starts(t_all, s_all, idx, k: int, max_scale: float):
+    """(n, 2, 2) local affine maps from the template view to the search view at the points
+    ``idx`` (of ``t_all``, ``s_all``: (M, 2) positions of the frame's points held by both
+    views), from their ``k`` nearest neighbours in the template view; and (n,) whether each
+    was taken (else the identity)."""
+    n = len(idx)
+    A = np.broadcast_to(np.eye(2), (n, 2, 2)).copy()
+    taken = np.zeros(n, bool)
+    if len(t_all) < 4 or n == 0:
+        return A, taken
+    kk = min(k + 1, len(t_all))
+    _, nb = cKDTree(t_all).query(t_all[idx], k=kk)
+    nb = nb[:, 1:]                                                     # not the point itself
+    dt = t_all[nb] - t_all[idx][:, None]                               # (n, k, 2)
+    ds = s_all[nb] - s_all[idx][:, None]
+    N = np.einsum("nki,nkj->nij", dt, dt)
+    B = np.einsum("nki,nkj->nij", dt, ds)
+    ok = np.linalg.det(N) > 1e-6 * np.einsum("nii->n", N) ** 2
+    sol = np.linalg.solve(np.where(ok[:, None, None], N, np.eye(2)), B)   # A^T
+    M = sol.transpose(0, 2, 1)
+    sv = np.linalg.svd(M, compute_uv=False)
+    ok &= np.isfinite(sv).all(axis=1) & (sv[:, 0] <= max_scale) & (sv[:, 1] >= 1 / max_scale)
+    A[ok] = M[ok]
+    taken[ok] = True
+    return A, taken
+
+
+def _merge(r: LSMResult, at, other: LSMResult, pick) -> LSMResult:
+    """``r`` with its rows ``at`` replaced by the rows ``pick`` of ``other``."""
+    fields = {}
+    for name in ("xy", "params", "fixed", "sigma0", "sigma_xy", "cov_xy", "iterations",
+                 "displacement", "status", "weight_share"):
+        a = getattr(r, name).copy()
+        a[at] = getattr(other, name)[pick]
+        fields[name] = a
+    return LSMResult(**fields)
+
+
+def refine_tie_points(frames, tie: TiePoints, cameras, *,
+                      params: TieLSMParams | None = None) -> tuple[TiePoints, TieLSM]:
+    """Tie points moved by least squares matching to where each view shows the template
+    view's patch (see the module docstring).
+
+    Parameters
+    ----------
+    frames : sequence of F sequences of K (H_k, W_k) arrays
+        The grey frames the tie points were found in (``tie.frame`` indexes them), at the
+        size of ``tie.xy``'s pixels.
+    tie : TiePoints
+        (K, N) positions, px; NaN where a view does not hold a point.
+    cameras : sequence of K Camera
+        The given cameras (they choose each point's template view only).
+    params : TieLSMParams, optional
+
+    Returns
+    -------
+    TiePoints
+        The kept points (``TieLSM.kept``), the failed views NaN; the template views' positions
+        unchanged. ``pair_matches`` and ``pair_guided`` are those given.
+    TieLSM
+    """
+    params = TieLSMParams() if params is None else params
+    if not isinstance(tie, TiePoints):
+        raise TypeError("tie: expected TiePoints (from find_tie_points)")
+    K, N, _ = tie.xy.shape
+    if len(cameras) != K:
+        raise ValueError(f"cameras: expected {K} cameras (one per view of tie), got "
+                         f"{len(cameras)}")
+    frames = [list(f) for f in frames]
+    if N and int(tie.frame.max()) >= len(frames):
+        raise ValueError(f"frames: tie points come from {int(tie.frame.max()) + 1} frames, "
+                         f"got {len(frames)}")
+    if any(len(f) != K for f in frames):
+        raise ValueError(f"frames: expected {K} images per frame, got "
+                         f"{[len(f) for f in frames]}")
+    t0 = time.perf_counter()
+    xy = np.array(tie.xy, dtype=float)
+    seen = np.isfinite(xy[..., 0])
+    status = np.full((K, N), NOT_MATCHED, np.int64)
+    shift = np.full((K, N), np.nan)
+    affine = np.zeros((K, N), bool)
+    template = _templates(cameras, tie.xy) if N else np.zeros(0, int)
+    lp = params.lsm_params()
+    for f in np.unique(tie.frame):
+        in_frame = tie.frame == f
+        splines = [SplineImage(g, f"frames[{f}][{k}]") for k, g in enumerate(frames[f])]
+        for s in range(K):
+            for t in range(K):
+                idx = np.flatnonzero(in_frame & (template == t) & seen[s] & (s != t))
+                if not len(idx):
+                    continue
+                both = np.flatnonzero(in_frame & seen[t] & seen[s])
+                where = np.searchsorted(both, idx)
+                A0, taken = _affine_starts(tie.xy[t, both], tie.xy[s, both], where,
+                                           params.neighbours, params.max_scale)
+                r = lsm(splines[t], splines[s], tie.xy[t, idx], tie.xy[s, idx], params=lp)
+                if taken.any():                   # the neighbours' map where it does better
+                    ra = lsm(splines[t], splines[s], tie.xy[t, idx[taken]],
+                             tie.xy[s, idx[taken]], initial_A=A0[taken], params=lp)
+                    better = ra.ok & ((~r.ok[taken]) | (ra.sigma0 < r.sigma0[taken]))
+                    r = _merge(r, np.flatnonzero(taken)[better], ra, better)
+                    taken[taken] = better
+                status[s, idx] = r.status
+                affine[s, idx] = taken
+                good = r.status == Status.CONVERGED
+                shift[s, idx[good]] = r.displacement[good]
+                xy[s, idx[good]] = r.xy[good]
+                xy[s, idx[~good]] = np.nan
+    matched = status >= 0
+    failed = matched & (status != Status.CONVERGED)
+    kept = np.isfinite(xy[..., 0]).sum(axis=0) >= 2
+    out = replace(tie, xy=xy[:, kept], frame=np.asarray(tie.frame)[kept])
+    return out, TieLSM(template=template, status=status, shift=shift, kept=kept,
+                       affine_start=affine, matched=int(matched.sum()),
+                       failed=int(failed.sum()), dropped_points=int((~kept).sum()),
+                       seconds=time.perf_counter() - t0)

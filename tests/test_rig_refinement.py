@@ -572,3 +572,7 @@ def test_tie_lsm_settings_are_checked():
         TieLSMParams(max_scale=1.0)
     with pytest.raises(ValueError, match="max_shift_px"):
         TieLSMParams(max_shift_px=0)
+    with pytest.raises(TypeError, match="lsm"):
+        RigRefinementParams(lsm=1)
+    with pytest.raises(TypeError, match="tie_lsm"):
+        RigRefinementParams(tie_lsm=None)

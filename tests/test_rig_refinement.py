@@ -576,3 +576,31 @@ def test_tie_lsm_settings_are_checked():
         RigRefinementParams(lsm=1)
     with pytest.raises(TypeError, match="tie_lsm"):
         RigRefinementParams(tie_lsm=None)
+
+
+def test_the_plane_start_is_the_local_affine_map_between_wide_views(lsm_scene):
+    from lsmta.calibration.tie_lsm import Start, _plane_starts
+    cams, images, raw = lsm_scene
+    P = _surface_point(cams[0], raw[0])                       # on the floor or the wall
+    normal = np.where((np.abs(P[:, 2]) < 1e-6)[:, None], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0])
+    A, taken = _plane_starts(cams[0], cams[2], raw[0], P, normal, 10, 3.0)   # 70 deg apart
+    assert taken.mean() > 0.7
+    # where a pixel 8 px off the point lies in the other view: the map predicts it
+    d = np.array([6.0, -5.0])
+    want = cams[2].project(_surface_point(cams[0], raw[0] + d)) - cams[2].project(P)
+    err = np.linalg.norm(np.einsum("nij,j->ni", A, d) - want, axis=1)[taken]
+    err_identity = np.linalg.norm(d - want, axis=1)[taken]
+    assert np.median(err) < 0.1 * np.median(err_identity), (np.median(err),
+                                                             np.median(err_identity))
+    # in refine_tie_points: some kept matches started from it; without it, none
+    K, N, _ = raw.shape
+    tie = TiePoints(xy=raw, frame=np.zeros(N, int), pair_matches=np.zeros((K, K), int),
+                    pair_guided=np.zeros((K, K), int))
+    _, on = refine_tie_points([images], tie, cams)
+    _, off = refine_tie_points([images], tie, cams, params=TieLSMParams(plane_start=False))
+    ok_on = on.status == Status.CONVERGED
+    assert (on.start[ok_on] == Start.PLANE).sum() > 0.1 * ok_on.sum()
+    assert not (off.start == Start.PLANE).any()
+    assert on.summary()["starts"]["plane"] == int((on.start == Start.PLANE).sum())
+    with pytest.raises(TypeError, match="plane_start"):
+        TieLSMParams(plane_start=1)

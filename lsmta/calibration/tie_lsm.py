@@ -17,11 +17,17 @@ the rays is the template (the view that sees the surface most like the others do
 affine distortion to each is the smallest on the whole). A point the cameras do not
 intersect takes its first view.
 
-The start of the patch's shape: the identity, and where the tie points of the same frame
-near the point (``neighbours`` nearest in the template view, held by both views) give a
-local affine map by least squares whose singular values lie within ``1 / max_scale ..
-max_scale``, that map too; of the two matches the accepted one is kept, and of two accepted
-the one with the smaller residual (``sigma0``).
+The start of the patch's shape (:class:`Start`): the identity; where the tie points of the
+same frame near the point (``neighbours`` nearest in the template view, held by both views)
+give a local affine map by least squares whose singular values lie within ``1 / max_scale ..
+max_scale``, that map; and the wide-baseline start from the geometry (``plane_start``): the
+point intersected with the given cameras (never an adjusted set), a local plane through it
+(the normal of least spread of its ``neighbours`` nearest intersected points of the frame
+where they lie near a plane, spread across it at most ``max_flatness`` times along it; else
+the plane facing the template camera), and the local affine map (the Jacobian at the
+template position) of the homography that plane induces between the two views, where the
+plane faces both cameras and the map lies within ``max_scale``. Every start is matched; of
+the accepted matches the one with the smallest residual (``sigma0``) is kept.
 
 A match fails where LSM does not converge, leaves the image, moves further than
 ``max_shift_px`` from the tie point's position (another feature), ends with a standard
@@ -42,6 +48,7 @@ tie points there against 241 with the inverse compositional ones.
 
 from __future__ import annotations
 
+import enum
 import time
 from dataclasses import dataclass, replace
 
@@ -56,6 +63,14 @@ from .tie_points import TiePoints
 
 #: status of an observation that was not matched: the template view, or a view without the point
 NOT_MATCHED = -1
+
+
+class Start(enum.IntEnum):
+    """Where a match's affine map started (:attr:`TieLSM.start`)."""
+
+    IDENTITY = 0     #: the identity
+    NEIGHBOURS = 1   #: the map fitted to the neighbouring tie points' positions
+    PLANE = 2        #: the local affine map of the homography of the point's local plane
 
 
 @dataclass(frozen=True)
@@ -86,6 +101,13 @@ class TieLSMParams:
     tol_px : float
         LSM's convergence limit, px. Default 0.01: a fiftieth of the 0.5-px target (a
         compressed video's patches keep moving by thousandths of a pixel).
+    plane_start : bool
+        Also start from the local affine map of the homography of the point's local plane
+        (see the module docstring). Default True.
+    max_flatness : float
+        The neighbours' spread across their plane, as a share of their spread along its
+        shorter side, up to which their plane is taken (else the plane facing the template
+        camera). Default 0.5: at most half as thick as wide (a rule, not tuned on a score).
     """
 
     patch: int = 21
@@ -95,6 +117,8 @@ class TieLSMParams:
     max_scale: float = 3.0
     max_iter: int = 60
     tol_px: float = 0.01
+    plane_start: bool = True
+    max_flatness: float = 0.5
 
     def __post_init__(self):
         as_int(self.patch, "patch", minimum=5, odd=True, unit="pixels")
@@ -105,6 +129,9 @@ class TieLSMParams:
             raise ValueError(f"max_scale: expected a number above 1, got {self.max_scale}")
         as_int(self.max_iter, "max_iter", minimum=1)
         as_scalar(self.tol_px, "tol_px", positive=True)
+        if not isinstance(self.plane_start, bool):
+            raise TypeError(f"plane_start: expected True or False, got {self.plane_start!r}")
+        as_scalar(self.max_flatness, "max_flatness", positive=True)
 
     def lsm_params(self) -> LSMParams:
         """The settings of each :func:`lsmta.matching.lsm` call."""
@@ -131,10 +158,14 @@ class TieLSM:
     shift : (K, N) array
         How far each match moved from the tie point's position, px (NaN: not matched or
         failed).
+    sigma : (K, N) array
+        The larger standard deviation of the two coordinates of each view's match as it ended
+        (converged or not), px (NaN: not matched).
     kept : (N,) bool array
         Tie points kept (at least two views left).
-    affine_start : (K, N) bool array
-        Matches that started from the neighbours' affine map (else the identity).
+    start : (K, N) int array
+        The :class:`Start` each view's match was kept from; ``NOT_MATCHED`` (-1) where
+        not matched.
     matched, failed, dropped_points : int
         Views matched, views whose match failed (dropped from their point), tie points
         dropped (fewer than two views left).
@@ -145,15 +176,16 @@ class TieLSM:
     template: np.ndarray
     status: np.ndarray
     shift: np.ndarray
+    sigma: np.ndarray
     kept: np.ndarray
-    affine_start: np.ndarray
+    start: np.ndarray
     matched: int
     failed: int
     dropped_points: int
     seconds: float
 
     def __post_init__(self):
-        freeze(self, ("template", "status", "shift", "kept", "affine_start"))
+        freeze(self, ("template", "status", "shift", "sigma", "kept", "start"))
 
     def summary(self) -> dict:
         """The counts and the median shift, as plain numbers."""
@@ -161,17 +193,16 @@ class TieLSM:
         return {"matched": self.matched, "failed": self.failed,
                 "dropped_points": self.dropped_points, "kept_points": int(self.kept.sum()),
                 "median_shift_px": float(np.median(self.shift[ok])) if ok.any() else None,
-                "affine_start_share": float(self.affine_start[self.status >= 0].mean())
-                if (self.status >= 0).any() else None,
+                "starts": {k.name.lower(): int((self.start == k).sum()) for k in Start},
                 "seconds": round(self.seconds, 2)}
 
 
-def _templates(cameras, xy) -> np.ndarray:
-    """(N,) the view of each point nearest its mean viewing direction (intersected with
-    ``cameras``); the first view holding it where the intersection fails."""
+def _templates(cameras, xy, X) -> np.ndarray:
+    """(N,) the view of each point nearest its mean viewing direction (``X``: (N, 3) the
+    points intersected with ``cameras``, mm); the first view holding it where the
+    intersection fails."""
     seen = np.isfinite(xy[..., 0])
     first = np.argmax(seen, axis=0)
-    X = triangulate(list(cameras), xy, min_angle_deg=0.0).points                 # (N, 3)
     C = np.stack([np.asarray(c.C, float) for c in cameras])                       # (K, 3)
     rays = X[None] - C[:, None]
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -208,6 +239,63 @@ def _affine_starts(t_all, s_all, idx, k: int, max_scale: float):
     A[ok] = M[ok]
     taken[ok] = True
     return A, taken
+
+
+def _normals(X, frame, C_t, k: int, max_flatness: float):
+    """(N, 3) unit normals of the local planes at the points ``X`` (N, 3), mm: the direction
+    of least spread of the point and its ``k`` nearest intersected neighbours of the same
+    frame where their spread across it is at most ``max_flatness`` times that along the
+    plane's shorter side, else the direction towards the template camera's centre ``C_t``
+    (N, 3); turned to face ``C_t``. NaN where ``X`` is."""
+    n = C_t - X
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+    ok = np.isfinite(X).all(axis=1)
+    for f in np.unique(frame):
+        idx = np.flatnonzero((frame == f) & ok)
+        if len(idx) < 4:
+            continue
+        kk = min(k + 1, len(idx))
+        _, nb = cKDTree(X[idx]).query(X[idx], k=kk)
+        P = X[idx][nb] - X[idx][nb].mean(axis=1, keepdims=True)             # (m, kk, 3)
+        w, v = np.linalg.eigh(np.einsum("mki,mkj->mij", P, P))                # ascending
+        flat = np.sqrt(np.maximum(w[:, 0], 0)) <= max_flatness * np.sqrt(w[:, 1])
+        n[idx[flat]] = v[flat, :, 0]
+    n *= np.sign(np.einsum("nd,nd->n", n, C_t - X))[:, None]
+    return n
+
+
+def _plane_starts(cam_t, cam_s, t_xy, X, normal, h: float, max_scale: float):
+    """(n, 2, 2) the local affine maps from the template view to the search view of the
+    homographies induced by the planes through ``X`` (n, 3) with ``normal`` (n, 3) (the
+    homography's Jacobian at the template positions ``t_xy`` (n, 2), by central differences
+    of ``h`` px through the cameras' own projection, distortion included); and (n,) whether
+    each is taken: the plane in front of both cameras and facing the search one, and the
+    map's singular values within ``1 / max_scale .. max_scale`` (else the identity)."""
+    n = len(t_xy)
+    A = np.broadcast_to(np.eye(2), (n, 2, 2)).copy()
+    if n == 0:
+        return A, np.zeros(0, bool)
+    steps = np.array([[h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
+    pix = (t_xy[:, None] + steps).reshape(-1, 2)
+    C, d = cam_t.rays(pix)
+    Xr, nr = np.repeat(X, 4, axis=0), np.repeat(normal, 4, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lam = np.einsum("nd,nd->n", Xr - C, nr) / np.einsum("nd,nd->n", d, nr)
+    P = C + lam[:, None] * d
+    P[~(lam > 0)] = np.nan
+    p = cam_s.project(np.nan_to_num(P, nan=0.0), behind="nan")
+    p[~np.isfinite(P).all(axis=1)] = np.nan
+    p = p.reshape(n, 4, 2)
+    M = np.stack([p[:, 0] - p[:, 1], p[:, 2] - p[:, 3]], axis=2) / (2 * h)   # columns
+    Cs = np.asarray(cam_s.C, float)
+    faces = np.einsum("nd,nd->n", Cs - X, normal) > 0
+    ok = np.isfinite(M).all(axis=(1, 2)) & faces
+    sv = np.linalg.svd(np.where(ok[:, None, None], M, np.eye(2)), compute_uv=False)
+    ok &= (sv[:, 0] <= max_scale) & (sv[:, 1] >= 1 / max_scale) & (np.linalg.det(
+        np.where(ok[:, None, None], M, np.eye(2))) > 0)
+    A[ok] = M[ok]
+    return A, ok
 
 
 def _merge(r: LSMResult, at, other: LSMResult, pick) -> LSMResult:
@@ -261,13 +349,19 @@ def refine_tie_points(frames, tie: TiePoints, cameras, *,
     t0 = time.perf_counter()
     xy = np.array(tie.xy, dtype=float)
     seen = np.isfinite(xy[..., 0])
+    frame = np.asarray(tie.frame)
     status = np.full((K, N), NOT_MATCHED, np.int64)
     shift = np.full((K, N), np.nan)
-    affine = np.zeros((K, N), bool)
-    template = _templates(cameras, tie.xy) if N else np.zeros(0, int)
+    sigma = np.full((K, N), np.nan)
+    start = np.full((K, N), NOT_MATCHED, np.int64)
+    X = triangulate(list(cameras), tie.xy, min_angle_deg=0.0).points if N else np.zeros((0, 3))
+    template = _templates(cameras, tie.xy, X) if N else np.zeros(0, int)
+    C = np.stack([np.asarray(c.C, float) for c in cameras])
+    normal = _normals(X, frame, C[template], params.neighbours, params.max_flatness) \
+        if N else np.zeros((0, 3))
     lp = params.lsm_params()
-    for f in np.unique(tie.frame):
-        in_frame = tie.frame == f
+    for f in np.unique(frame):
+        in_frame = frame == f
         splines = [SplineImage(g, f"frames[{f}][{k}]") for k, g in enumerate(frames[f])]
         for s in range(K):
             for t in range(K):
@@ -276,17 +370,31 @@ def refine_tie_points(frames, tie: TiePoints, cameras, *,
                     continue
                 both = np.flatnonzero(in_frame & seen[t] & seen[s])
                 where = np.searchsorted(both, idx)
-                A0, taken = _affine_starts(tie.xy[t, both], tie.xy[s, both], where,
-                                           params.neighbours, params.max_scale)
-                r = lsm(splines[t], splines[s], tie.xy[t, idx], tie.xy[s, idx], params=lp)
-                if taken.any():                   # the neighbours' map where it does better
-                    ra = lsm(splines[t], splines[s], tie.xy[t, idx[taken]],
-                             tie.xy[s, idx[taken]], initial_A=A0[taken], params=lp)
-                    better = ra.ok & ((~r.ok[taken]) | (ra.sigma0 < r.sigma0[taken]))
-                    r = _merge(r, np.flatnonzero(taken)[better], ra, better)
-                    taken[taken] = better
+                starts = {Start.IDENTITY: (np.broadcast_to(np.eye(2), (len(idx), 2, 2)),
+                                           np.ones(len(idx), bool)),
+                          Start.NEIGHBOURS: _affine_starts(
+                              tie.xy[t, both], tie.xy[s, both], where, params.neighbours,
+                              params.max_scale)}
+                if params.plane_start:
+                    starts[Start.PLANE] = _plane_starts(
+                        cameras[t], cameras[s], tie.xy[t, idx], X[idx], normal[idx],
+                        params.patch // 2, params.max_scale)
+                r, kind = None, np.full(len(idx), Start.IDENTITY, np.int64)
+                for name, (A0, taken) in starts.items():
+                    if not taken.any():
+                        continue
+                    at = np.flatnonzero(taken)
+                    ra = lsm(splines[t], splines[s], tie.xy[t, idx[at]], tie.xy[s, idx[at]],
+                             initial_A=A0[at], params=lp)
+                    if r is None:                                      # the identity: all
+                        r = ra
+                        continue
+                    better = ra.ok & ((~r.ok[at]) | (ra.sigma0 < r.sigma0[at]))
+                    r = _merge(r, at[better], ra, better)
+                    kind[at[better]] = name
                 status[s, idx] = r.status
-                affine[s, idx] = taken
+                start[s, idx] = kind
+                sigma[s, idx] = np.fmax(r.sigma_xy[:, 0], r.sigma_xy[:, 1])
                 good = r.status == Status.CONVERGED
                 shift[s, idx[good]] = r.displacement[good]
                 xy[s, idx[good]] = r.xy[good]
@@ -295,7 +403,7 @@ def refine_tie_points(frames, tie: TiePoints, cameras, *,
     failed = matched & (status != Status.CONVERGED)
     kept = np.isfinite(xy[..., 0]).sum(axis=0) >= 2
     out = replace(tie, xy=xy[:, kept], frame=np.asarray(tie.frame)[kept])
-    return out, TieLSM(template=template, status=status, shift=shift, kept=kept,
-                       affine_start=affine, matched=int(matched.sum()),
+    return out, TieLSM(template=template, status=status, shift=shift, sigma=sigma, kept=kept,
+                       start=start, matched=int(matched.sum()),
                        failed=int(failed.sum()), dropped_points=int((~kept).sum()),
                        seconds=time.perf_counter() - t0)

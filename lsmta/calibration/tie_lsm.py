@@ -10,12 +10,17 @@ forward iterations), starting from the tie point's position. The template's posi
 as found; the others move to where the template's patch lies in them. All points of one
 frame, template view and search view are matched in one call.
 
-The template view of a point is the one nearest its mean viewing direction: the point is
-intersected with the given cameras (nothing here depends on an adjustment of them), and of
-the views holding it, the one whose ray from its camera centre is closest to the mean of
-the rays is the template (the view that sees the surface most like the others do, so the
-affine distortion to each is the smallest on the whole). A point the cameras do not
-intersect takes its first view.
+The template view of a point. The point is intersected with the given cameras (nothing here
+depends on an adjustment of them) and its local plane found (below); the template is the
+view that sees that plane most nearly head-on (the reference view of a patch in
+Furukawa & Ponce's PMVS: the template then holds the most of the surface, and the others
+are matched to a patch of it seen obliquely). Where the neighbours give no plane, it is the
+view whose ray from its camera centre is closest to the mean of the point's rays. Of views
+equally near, the first: a fixed choice keeps one still feature's template the same in
+every frame (both views of a two-view point are exactly as near the mean ray; a choice left
+to rounding took either, the feature's positions then differed between frames by the
+match's shift and no longer formed one place in :func:`lsmta.systems.refine_rig`). A point
+the cameras do not intersect takes its first view.
 
 The start of the patch's shape (:class:`Start`): the identity; where the tie points of the
 same frame near the point (``neighbours`` nearest in the template view, held by both views)
@@ -43,7 +48,12 @@ frames), matching in the full-size frames from the scaled-back positions converg
 holds a quarter of the texture of one at half size, and the compressed video's fine detail
 is weak), at half size for 55-76 % with the better of the two starts; coarse-to-fine (half
 size, then full size) drifted a further 2-4 px. Gruen's forward iterations kept 366 of 1125
-tie points there against 241 with the inverse compositional ones.
+tie points there against 241 with the inverse compositional ones. On the same tie points
+(all six frames), the template chosen by the plane and kept per feature, and the plane's
+start, keep 447 (the plane's start alone: 403); a coarse level (the frames halved once
+more, its match the start here) kept 10 more for 80 % more time and was left out: most
+failures there diverge or stop at the iteration limit from every start, the patch does not
+match, which a wider pull-in does not change.
 """
 
 from __future__ import annotations
@@ -197,9 +207,12 @@ class TieLSM:
                 "seconds": round(self.seconds, 2)}
 
 
-def _templates(cameras, xy, X) -> np.ndarray:
-    """(N,) the view of each point nearest its mean viewing direction (``X``: (N, 3) the
-    points intersected with ``cameras``, mm); the first view holding it where the
+def _templates(cameras, xy, X, normal) -> np.ndarray:
+    """(N,) the template view of each point (``X``: (N, 3) the points intersected with
+    ``cameras``, mm; ``normal``: (N, 3) their local planes' normals, NaN where there is
+    none): the view that sees the plane most nearly head-on, else the view nearest the
+    point's mean viewing direction; of views equally near (within 1e-9: both views of a
+    two-view point are, exactly) the first; the first view holding it where the
     intersection fails."""
     seen = np.isfinite(xy[..., 0])
     first = np.argmax(seen, axis=0)
@@ -209,8 +222,13 @@ def _templates(cameras, xy, X) -> np.ndarray:
         rays /= np.linalg.norm(rays, axis=2, keepdims=True)
     rays[~seen] = 0.0
     mean = rays.sum(axis=0)
-    score = np.where(seen, np.einsum("knd,nd->kn", rays, mean), -np.inf)
-    best = np.argmax(np.nan_to_num(score, nan=-np.inf), axis=0)
+    plane = np.isfinite(normal).all(axis=1)
+    facing = np.where(plane[:, None], -normal * np.sign(np.einsum(
+        "nd,nd->n", np.nan_to_num(normal), mean))[:, None], mean)  # the plane faces the views
+    score = np.where(seen, np.einsum("knd,nd->kn", rays, np.where(plane[:, None], -facing,
+                                                                   mean)), -np.inf)
+    score = np.nan_to_num(score, nan=-np.inf)
+    best = np.argmax(score >= score.max(axis=0) - 1e-9, axis=0)
     return np.where(np.isfinite(X).all(axis=1), best, first)
 
 
@@ -241,15 +259,12 @@ def _affine_starts(t_all, s_all, idx, k: int, max_scale: float):
     return A, taken
 
 
-def _normals(X, frame, C_t, k: int, max_flatness: float):
+def _normals(X, frame, k: int, max_flatness: float):
     """(N, 3) unit normals of the local planes at the points ``X`` (N, 3), mm: the direction
     of least spread of the point and its ``k`` nearest intersected neighbours of the same
     frame where their spread across it is at most ``max_flatness`` times that along the
-    plane's shorter side, else the direction towards the template camera's centre ``C_t``
-    (N, 3); turned to face ``C_t``. NaN where ``X`` is."""
-    n = C_t - X
-    with np.errstate(invalid="ignore", divide="ignore"):
-        n /= np.linalg.norm(n, axis=1, keepdims=True)
+    plane's shorter side; NaN elsewhere (and where ``X`` is)."""
+    n = np.full_like(X, np.nan)
     ok = np.isfinite(X).all(axis=1)
     for f in np.unique(frame):
         idx = np.flatnonzero((frame == f) & ok)
@@ -261,8 +276,17 @@ def _normals(X, frame, C_t, k: int, max_flatness: float):
         w, v = np.linalg.eigh(np.einsum("mki,mkj->mij", P, P))                # ascending
         flat = np.sqrt(np.maximum(w[:, 0], 0)) <= max_flatness * np.sqrt(w[:, 1])
         n[idx[flat]] = v[flat, :, 0]
-    n *= np.sign(np.einsum("nd,nd->n", n, C_t - X))[:, None]
     return n
+
+
+def _facing(normal, X, C_t) -> np.ndarray:
+    """``normal`` (N, 3) turned to face the template cameras' centres ``C_t`` (N, 3); the
+    direction towards ``C_t`` where it is NaN (the plane facing the template camera)."""
+    d = C_t - X
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+    n = np.where(np.isfinite(normal).all(axis=1)[:, None], normal, d)
+    return n * np.sign(np.einsum("nd,nd->n", n, d))[:, None]
 
 
 def _plane_starts(cam_t, cam_s, t_xy, X, normal, h: float, max_scale: float):
@@ -296,6 +320,26 @@ def _plane_starts(cam_t, cam_s, t_xy, X, normal, h: float, max_scale: float):
         np.where(ok[:, None, None], M, np.eye(2))) > 0)
     A[ok] = M[ok]
     return A, ok
+
+
+def _best(t_img, s_img, t_xy, s_xy, starts, lp):
+    """Every start of ``starts`` ({Start: ((n, 2, 2) maps, (n,) taken)}; the first takes
+    all) matched from ``t_xy`` to ``s_xy`` (n, 2), px; of the accepted matches of each
+    point the one with the smallest ``sigma0``. Returns the LSMResult and (n,) the Start
+    kept."""
+    r, kind = None, np.full(len(t_xy), Start.IDENTITY, np.int64)
+    for name, (A0, taken) in starts.items():
+        if not taken.any():
+            continue
+        at = np.flatnonzero(taken)
+        ra = lsm(t_img, s_img, t_xy[at], s_xy[at], initial_A=A0[at], params=lp)
+        if r is None:                                              # the identity: all
+            r = ra
+            continue
+        better = ra.ok & ((~r.ok[at]) | (ra.sigma0 < r.sigma0[at]))
+        r = _merge(r, at[better], ra, better)
+        kind[at[better]] = name
+    return r, kind
 
 
 def _merge(r: LSMResult, at, other: LSMResult, pick) -> LSMResult:
@@ -355,10 +399,10 @@ def refine_tie_points(frames, tie: TiePoints, cameras, *,
     sigma = np.full((K, N), np.nan)
     start = np.full((K, N), NOT_MATCHED, np.int64)
     X = triangulate(list(cameras), tie.xy, min_angle_deg=0.0).points if N else np.zeros((0, 3))
-    template = _templates(cameras, tie.xy, X) if N else np.zeros(0, int)
+    normal = _normals(X, frame, params.neighbours, params.max_flatness)
+    template = _templates(cameras, tie.xy, X, normal) if N else np.zeros(0, int)
     C = np.stack([np.asarray(c.C, float) for c in cameras])
-    normal = _normals(X, frame, C[template], params.neighbours, params.max_flatness) \
-        if N else np.zeros((0, 3))
+    normal = _facing(normal, X, C[template])
     lp = params.lsm_params()
     for f in np.unique(frame):
         in_frame = frame == f
@@ -379,19 +423,8 @@ def refine_tie_points(frames, tie: TiePoints, cameras, *,
                     starts[Start.PLANE] = _plane_starts(
                         cameras[t], cameras[s], tie.xy[t, idx], X[idx], normal[idx],
                         params.patch // 2, params.max_scale)
-                r, kind = None, np.full(len(idx), Start.IDENTITY, np.int64)
-                for name, (A0, taken) in starts.items():
-                    if not taken.any():
-                        continue
-                    at = np.flatnonzero(taken)
-                    ra = lsm(splines[t], splines[s], tie.xy[t, idx[at]], tie.xy[s, idx[at]],
-                             initial_A=A0[at], params=lp)
-                    if r is None:                                      # the identity: all
-                        r = ra
-                        continue
-                    better = ra.ok & ((~r.ok[at]) | (ra.sigma0 < r.sigma0[at]))
-                    r = _merge(r, at[better], ra, better)
-                    kind[at[better]] = name
+                t_xy, s_xy = tie.xy[t, idx], tie.xy[s, idx]
+                r, kind = _best(splines[t], splines[s], t_xy, s_xy, starts, lp)
                 status[s, idx] = r.status
                 start[s, idx] = kind
                 sigma[s, idx] = np.fmax(r.sigma_xy[:, 0], r.sigma_xy[:, 1])

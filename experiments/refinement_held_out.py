@@ -79,6 +79,7 @@ def run(videos, lsm: bool, args) -> dict:
     for kind, xy in held.items():
         record["held_out"][kind] = {
             "places": int(xy.shape[1]),
+            "places_per_camera": np.isfinite(xy[..., 0]).sum(axis=1).tolist(),
             "given_px": medians(ref.given, xy), "refined_px": medians(ref.cameras, xy),
             "cam01_cam02_given_px": medians(ref.given, xy, (0, 1))[:2],
             "cam01_cam02_refined_px": medians(ref.cameras, xy, (0, 1))[:2]}

@@ -36,15 +36,16 @@ Least squares matching (``lsm``, on by default). The tie points are keypoints, e
 own estimate of its feature's position; :func:`lsmta.calibration.refine_tie_points` moves
 them, in the frames they were found in, to where each view shows the template view's patch,
 before they are grouped into places. It uses the frames and the given cameras only (they
-choose each point's template view), not the adjustment, so the held-out places stay held
-out. On the Pose2Sim demo at full size (frames 0-99, ``experiments/refinement_held_out.py``
-with ``--lsm both``) it drops 759 of 1125 tie points (failed matches; 3.6 s of a 244-s
-refinement), the adjusted places' median residual falls from 0.54-0.63 to 0.13-0.47 px, and
-the held-out still places' with the refined cameras to 0.25/0.24/0.64/0.37 px (cam01-cam04;
-0.83/0.71/0.68/0.56 px at their positions as found, same places and cameras; without the
-matching 1.04/0.95/1.10/0.89 px on 44 places). Only 15 held-out still places are left (4 in
-cam03), too few to judge by (``min_still_held``): all held-out places judge it, the moving
-person's too (0.44/0.42/2.10/1.85 px).
+give each point's template view and local plane), not the adjustment, so the held-out
+places stay held out. On the Pose2Sim demo at full size (frames 0-99,
+``experiments/refinement_held_out.py`` with ``--lsm both``) it drops 678 of 1125 tie points
+(failed matches; 1.4-1.7 s of a 94-143-s refinement on a shared machine), the adjusted
+places' median residual falls from 0.54-0.63 to 0.12-0.30 px, and
+the held-out still places' with the refined cameras to 0.27/0.33/0.67/0.25 px (cam01-cam04;
+1.23/1.08/1.52/0.77 px at their positions as found, same places and cameras; without the
+matching 1.04/0.95/1.10/0.89 px on 44 places). Only 19 held-out still places are left (2 in
+cam03, 7 in cam04), too few to judge by (``min_still_held``): all held-out places judge it,
+the moving person's too (0.24/0.24/1.35/0.60 px).
 """
 
 from __future__ import annotations

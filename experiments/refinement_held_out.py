@@ -19,6 +19,15 @@ median residual <= 0.5 px in every camera.
 matching (``RigRefinementParams.lsm=True``, the default) and without (the keypoints'
 positions), each written under ``runs.lsm`` / ``runs.raw`` with the LSM step's counts
 (matched, failed, dropped) and time; the top-level numbers are those of the first run.
+
+``common`` (with ``--lsm both``): the two runs' refined cameras scored on ONE set of places,
+held out of both adjustments: the tie points are the same in both runs (found before the
+matching), so a place of the LSM run is taken where it is a held-out still place there and
+every tie point of it belongs to a held-out place of the raw run (none it was adjusted on).
+The LSM run's cameras are scored at the places' LSM positions, the raw run's at the same
+tie points' and views' positions as found (each run's cameras with the positions it was
+adjusted on), and both sets of cameras also at the other positions. Each number is the
+median reprojection residual per camera of those places triangulated with those cameras.
 """
 
 from __future__ import annotations
@@ -51,11 +60,11 @@ def medians(cameras, xy, views=None) -> list:
                 for e in err]
 
 
-def run(videos, lsm: bool, args) -> dict:
-    """One refinement of the demo and its numbers."""
+def run(videos, lsm: bool, args):
+    """One refinement of the demo: its numbers, and the RigRefinement."""
     t0 = time.perf_counter()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         ref = refine_rig(videos, read_camera_file(POSE2SIM_CAMERAS),
                          params=RigRefinementParams(mismatch="crop", lsm=lsm))
     seconds = time.perf_counter() - t0
@@ -75,6 +84,8 @@ def run(videos, lsm: bool, args) -> dict:
               "places": int(len(ref.still)), "still_places": int(ref.still.sum()),
               "dropped_places": int(ref.dropped_places.sum()),
               "held_out_kind": ref.held_out_kind, "used_refined": ref.improved,
+              "folded": list(ref.folded),
+              "warnings": sorted({str(w.message) for w in caught}),
               "still_places_per_pair": pairs, "cameras": ref.summary(), "held_out": {}}
     for kind, xy in held.items():
         record["held_out"][kind] = {
@@ -99,7 +110,28 @@ def run(videos, lsm: bool, args) -> dict:
         all(v["held_out_after_px"] <= 0.5 for v in record["cameras"].values()))
     record["target_adjusted_le_0.5_px"] = verdict(
         all(v["adjusted_after_px"] <= 0.5 for v in record["cameras"].values()))
-    return record
+    return record, ref
+
+
+def common(lsm_ref, raw_ref) -> dict:
+    """Both runs' refined cameras on one set of held-out places (see the module docstring)."""
+    if not np.array_equal(lsm_ref.raw_tie_points.xy, raw_ref.tie_points.xy, equal_nan=True):
+        return {"error": "the two runs found different tie points"}
+    raw_index = np.flatnonzero(lsm_ref.lsm.kept)               # LSM tie point -> raw tie point
+    raw_held = raw_ref.held_out_places[raw_ref.places[raw_index]]
+    n_places = len(lsm_ref.still)
+    all_raw_held = np.ones(n_places, bool)
+    np.logical_and.at(all_raw_held, lsm_ref.places, raw_held)
+    sel = lsm_ref.held_out_places & lsm_ref.still & all_raw_held
+    at_lsm, at_raw = lsm_ref.place_xy[:, sel], lsm_ref.raw_place_xy[:, sel]
+    return {"places": int(sel.sum()),
+            "places_per_camera": np.isfinite(at_lsm[..., 0]).sum(axis=1).tolist(),
+            "lsm_cameras_at_lsm_positions_px": medians(lsm_ref.cameras, at_lsm),
+            "raw_cameras_at_raw_positions_px": medians(raw_ref.cameras, at_raw),
+            "lsm_cameras_at_raw_positions_px": medians(lsm_ref.cameras, at_raw),
+            "raw_cameras_at_lsm_positions_px": medians(raw_ref.cameras, at_lsm),
+            "given_at_lsm_positions_px": medians(lsm_ref.given, at_lsm),
+            "given_at_raw_positions_px": medians(lsm_ref.given, at_raw)}
 
 
 def main(argv=None):
@@ -112,10 +144,13 @@ def main(argv=None):
     start, stop = (int(x) for x in args.frames.split(":"))
     videos = read_videos(POSE2SIM_VIDEOS, frames=range(start, stop), scale=args.scale)
     runs = {"lsm": True, "raw": False}
-    runs = {k: run(videos, v, args) for k, v in runs.items()
+    done = {k: run(videos, v, args) for k, v in runs.items()
             if args.lsm == "both" or (args.lsm == "on") == v}
+    runs = {k: rec for k, (rec, _) in done.items()}
     record = dict(next(iter(runs.values())))
     record["runs"] = runs
+    if len(done) == 2:
+        record["common"] = common(done["lsm"][1], done["raw"][1])
     write_json(args.out, record)
     print(json.dumps(record, indent=1))
 

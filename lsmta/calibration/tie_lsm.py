@@ -36,24 +36,20 @@ the accepted matches the one with the smallest residual (``sigma0``) is kept.
 
 A match fails where LSM does not converge, leaves the image, moves further than
 ``max_shift_px`` from the tie point's position (another feature), ends with a standard
-deviation of either coordinate above ``max_sigma_px`` or an affine map beyond
-``max_scale``; the view is then dropped from the point, and a point left with fewer than two
-views is dropped. Both are counted (:class:`TieLSM`).
+deviation of either coordinate above ``max_sigma_px`` or an affine map with a singular value
+beyond ``max_scale`` (or below its inverse); the shear of the map is not limited
+(:class:`lsmta.matching.LSMThresholds` ``max_shear`` = 1: any angle between its columns).
+The view is then dropped from the point, and a point left with fewer than two views is
+dropped. Both are counted (:class:`TieLSM`).
 
 Where to match. :func:`lsmta.systems.refine_rig` matches in the frames the tie points were
 found in (halved until the longer side is at most ``tie_max_side``), the keypoints' own
-scale. On the Pose2Sim demo (a probe on frame 0 of ``experiments/refinement_held_out.py``'s
-frames), matching in the full-size frames from the scaled-back positions converged for
-19-47 % of the cam01-cam02, cam03-cam04 and cam01-cam04 matches (a 21-px patch at full size
-holds a quarter of the texture of one at half size, and the compressed video's fine detail
-is weak), at half size for 55-76 % with the better of the two starts; coarse-to-fine (half
-size, then full size) drifted a further 2-4 px. Gruen's forward iterations kept 366 of 1125
-tie points there against 241 with the inverse compositional ones. On the same tie points
-(all six frames), the template chosen by the plane and kept per feature, and the plane's
-start, keep 447 (the plane's start alone: 403); a coarse level (the frames halved once
-more, its match the start here) kept 10 more for 80 % more time and was left out: most
-failures there diverge or stop at the iteration limit from every start, the patch does not
-match, which a wider pull-in does not change.
+scale: a patch of ``patch`` pixels there covers four times the surface of one at full size
+(halved once), where a compressed video's fine detail is weak. Gruen's forward iterations
+are used (not the inverse compositional ones). These were choices made on one-off probes
+of the Pose2Sim demo that no script in this repository reproduces; no number is claimed
+for them here. The counts of one run (matched, failed, dropped, the starts kept) are in
+:class:`TieLSM` and in ``experiments/refinement_held_out.py``'s output.
 """
 
 from __future__ import annotations
@@ -91,8 +87,7 @@ class TieLSMParams:
     ----------
     patch : int
         Odd side of the matched patch, px of the frames given. Default 21: the smallest odd
-        patch of at least 400 pixels, the size at which LSM's position on moderate texture
-        reaches a few hundredths of a pixel (a rule of the method, not tuned on any score).
+        patch of at least 400 pixels (a choice, not tuned on any score).
     max_shift_px : float
         Largest move from the tie point's position, px. Default 3: twice the tie points' own
         tolerance to their pair's epipolar geometry (``TieParams.ransac_px``, 1.5 px); a
@@ -105,7 +100,9 @@ class TieLSMParams:
     max_scale : float
         A start map with a singular value above this or below its inverse is not taken (the
         identity is), and a match whose affine map ends there is refused. Default 3: beyond
-        ASIFT's largest simulated tilt (2.8).
+        ASIFT's largest simulated tilt (2.8). The map's shear is not limited
+        (:class:`lsmta.matching.LSMThresholds` ``max_shear`` = 1, which every map passes: a
+        wide baseline shears a patch, and ``max_scale`` already bounds its shape).
     max_iter : int
         LSM's iteration limit.
     tol_px : float
@@ -377,12 +374,18 @@ def refine_tie_points(frames, tie: TiePoints, cameras, *,
     TieLSM
     """
     params = TieLSMParams() if params is None else params
+    if not isinstance(params, TieLSMParams):
+        raise TypeError(f"params: expected TieLSMParams or None, got {type(params).__name__}")
     if not isinstance(tie, TiePoints):
         raise TypeError("tie: expected TiePoints (from find_tie_points)")
     K, N, _ = tie.xy.shape
     if len(cameras) != K:
         raise ValueError(f"cameras: expected {K} cameras (one per view of tie), got "
                          f"{len(cameras)}")
+    if np.shape(tie.frame) != (N,) or (N and int(np.min(tie.frame)) < 0):
+        raise ValueError(f"tie.frame: expected {N} frame indices >= 0 (one per tie point), "
+                         f"got shape {np.shape(tie.frame)}"
+                         + (f", smallest {int(np.min(tie.frame))}" if np.size(tie.frame) else ""))
     frames = [list(f) for f in frames]
     if N and int(tie.frame.max()) >= len(frames):
         raise ValueError(f"frames: tie points come from {int(tie.frame.max()) + 1} frames, "
@@ -390,6 +393,13 @@ def refine_tie_points(frames, tie: TiePoints, cameras, *,
     if any(len(f) != K for f in frames):
         raise ValueError(f"frames: expected {K} images per frame, got "
                          f"{[len(f) for f in frames]}")
+    want = [(c.height, c.width) for c in cameras]
+    bad = [(i, k) for i, f in enumerate(frames) for k, g in enumerate(f)
+           if np.shape(g)[:2] != want[k]]
+    if bad:
+        i, k = bad[0]
+        raise ValueError(f"frames: image {k} of frame {i} is {np.shape(frames[i][k])[:2]}, "
+                         f"expected {want[k]} (camera {k}'s height, width)")
     t0 = time.perf_counter()
     xy = np.array(tie.xy, dtype=float)
     seen = np.isfinite(xy[..., 0])

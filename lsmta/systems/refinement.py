@@ -38,14 +38,20 @@ them, in the frames they were found in, to where each view shows the template vi
 before they are grouped into places. It uses the frames and the given cameras only (they
 give each point's template view and local plane), not the adjustment, so the held-out
 places stay held out. On the Pose2Sim demo at full size (frames 0-99,
-``experiments/refinement_held_out.py`` with ``--lsm both``) it drops 678 of 1125 tie points
-(failed matches; 1.4-1.7 s of a 94-143-s refinement on a shared machine), the adjusted
-places' median residual falls from 0.54-0.63 to 0.12-0.30 px, and
-the held-out still places' with the refined cameras to 0.27/0.33/0.67/0.25 px (cam01-cam04;
-1.23/1.08/1.52/0.77 px at their positions as found, same places and cameras; without the
-matching 1.04/0.95/1.10/0.89 px on 44 places). Only 19 held-out still places are left (2 in
-cam03, 7 in cam04), too few to judge by (``min_still_held``): all held-out places judge it,
-the moving person's too (0.24/0.24/1.35/0.60 px).
+``experiments/refinement_held_out.py`` with ``--lsm both``; two runs, each adjusted and judged
+on its own places) it drops 678 of 1125 tie points (failed matches), and the adjusted
+places' median residual is 0.25/0.30/0.12/0.15 px (cam01-cam04) with it against
+0.63/0.60/0.60/0.54 without. The held-out still places are another matter: without the
+matching 44 of them, at 1.04/0.95/1.10/0.89 px with that run's cameras; with it only 19
+(18/12/2/7 per camera), at 0.27/0.33/0.67/0.25 px at their matched positions, which that
+run's cameras were fitted to. Different places at different positions: the two do not
+compare the runs' cameras (the experiment's ``common`` scores both on one set). cam03 and
+cam04 see fewer than ``min_still_held`` of them, so that run is judged on all held-out
+places (0.24/0.24/1.35/0.60 px): the 0.5-px target is NOT met there (cam03, cam04).
+
+A refined camera whose lens model cannot be inverted everywhere in its frame
+(:func:`_folds`: the fitted distortion folds over inside it) makes the whole refinement
+unused (:attr:`RigRefinement.folded`; warned): the other cameras were adjusted with it.
 """
 
 from __future__ import annotations
@@ -206,6 +212,12 @@ class RigRefinement:
         The same for all held-out places, px.
     held_out_still_points, held_out_all_points : int
         How many places those are.
+    folded : tuple of str
+        The refined cameras (by name, else index) whose lens model cannot be inverted
+        everywhere in the frame (:func:`_folds`: the fitted distortion folds over inside
+        it, so rays, and every stage after, fail at some pixels). Any at all: the refinement
+        is not used (:attr:`improved` is False, :attr:`chosen` the given cameras); rejecting
+        only that camera's intrinsics would leave the other cameras adjusted against it.
     """
 
     cameras: tuple
@@ -230,6 +242,7 @@ class RigRefinement:
     held_out_all_after: np.ndarray
     held_out_still_points: int
     held_out_all_points: int
+    folded: tuple
 
     def __post_init__(self):
         freeze(self, ("held_out", "places", "still", "held_out_places", "dropped_places",
@@ -252,7 +265,7 @@ class RigRefinement:
         raw = self.raw_tie_points.xy[:, self.lsm.kept]
         return _merged(np.where(np.isfinite(self.tie_points.xy), raw, np.nan), self.places)
 
-    def held_out_residuals(self, cameras=None, *, raw: bool = False) -> np.ndarray:
+    def held_out_residuals(self, *, cameras=None, raw: bool = False) -> np.ndarray:
         """(K,) median residual per camera of the held-out places that judge the refinement
         (``held_out_kind``), intersected with ``cameras`` (default: the refined ones), at
         their positions refined by least squares matching or (``raw``) as found, px."""
@@ -264,9 +277,10 @@ class RigRefinement:
     @property
     def improved(self) -> bool:
         """Whether the refined cameras fit the held-out places at least as well as the
-        given ones in every camera that saw some (the rule for using them)."""
+        given ones in every camera that saw some, and none of them :attr:`folded` (the
+        rule for using them)."""
         seen = np.isfinite(self.held_out_before) & np.isfinite(self.held_out_after)
-        return bool(seen.any() and np.all(self.held_out_after[seen]
+        return bool(not self.folded and seen.any() and np.all(self.held_out_after[seen]
                                           <= self.held_out_before[seen]))
 
     @property
@@ -295,6 +309,7 @@ class RigRefinement:
                 "held_out_all_before_px": float(self.held_out_all_before[k]),
                 "held_out_all_after_px": float(self.held_out_all_after[k]),
                 "freed": list(self.adjustment.freed[k]),
+                "folds": (cam.name or str(k)) in self.folded,
             }
         return out
 
@@ -324,6 +339,7 @@ class RigRefinement:
                   "places": int(len(self.still)), "still_places": int(self.still.sum()),
                   "dropped_places": int(self.dropped_places.sum()),
                   "lsm": None if self.lsm is None else self.lsm.summary(),
+                  "folded": list(self.folded), "used_refined": self.improved,
                   "cameras": self.summary()}
         summary = folder / "refinement.json"
         summary.write_text(json.dumps(plain(record), indent=2), encoding="utf-8")
@@ -331,10 +347,17 @@ class RigRefinement:
 
 
 def _held_out_residuals(cameras, xy) -> np.ndarray:
-    """Median reprojection residual per camera of tie points triangulated with ``cameras``."""
+    """Median reprojection residual per camera of tie points triangulated with ``cameras``
+    (a view's point where that camera's lens model cannot be inverted is left out: a refined
+    camera whose distortion folds over, :func:`_folds`, gives it no ray)."""
     out = np.full(len(cameras), np.nan)
     if xy.shape[1] == 0:
         return out
+    seen = np.isfinite(xy[..., 0])
+    ok = np.zeros_like(seen)
+    for k, cam in enumerate(cameras):
+        ok[k, seen[k]] = cam.invertible(xy[k, seen[k]])
+    xy = np.where(ok[..., None], xy, np.nan)
     err = triangulate(list(cameras), xy, min_angle_deg=0.0).reprojection_error
     for k in range(len(cameras)):
         if np.isfinite(err[k]).any():
@@ -489,6 +512,32 @@ def _check_fit(given, tie: TiePoints, params: RigRefinementParams) -> None:
                          "and the file's units")
 
 
+def _check_lsm_kept(given, raw: TiePoints, tie: TiePoints, lsm: TieLSM) -> None:
+    """Refuse tie points the least squares matching left too few of: fewer than 6, or none
+    in a camera that had some as found (the places and the adjustment need them)."""
+    had = np.isfinite(raw.xy[..., 0]).sum(axis=1)
+    has = np.isfinite(tie.xy[..., 0]).sum(axis=1)
+    if tie.xy.shape[1] >= 6 and not ((had > 0) & (has == 0)).any():
+        return
+    s = lsm.summary()
+    raise ValueError(
+        f"tie_lsm: least squares matching of the tie points kept {tie.xy.shape[1]} of "
+        f"{raw.xy.shape[1]} ({has.tolist()} per camera, {had.tolist()} as found; "
+        f"{s['failed']} of {s['matched']} matches failed): too few to adjust the cameras "
+        "(at least 6, some in every camera). Loosen RigRefinementParams.tie_lsm (max_sigma_px, "
+        "max_shift_px) or set lsm=False to adjust the tie points as found")
+
+
+def _folds(camera, *, step: int = 16) -> bool:
+    """Whether ``camera``'s lens model cannot be inverted somewhere in its frame: checked
+    (:meth:`lsmta.camera.Camera.invertible`) on a grid of pixels ``step`` px apart that
+    takes in the frame's borders and corners (-0.5 and width - 0.5, height - 0.5)."""
+    u = np.unique(np.r_[np.arange(-0.5, camera.width - 0.5, step), camera.width - 0.5])
+    v = np.unique(np.r_[np.arange(-0.5, camera.height - 0.5, step), camera.height - 0.5])
+    grid = np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 2)
+    return not bool(camera.invertible(grid).all())
+
+
 def _loaded(stacks, videos: Videos) -> list:
     """``stacks`` checked against ``videos``: K arrays (T, H_k, W_k) uint8 as
     :meth:`lsmta.io.Videos.load` returns them."""
@@ -513,9 +562,10 @@ def _tie_points_at_work_size(videos: Videos, given, picks, params, stacks=None, 
                              frames=None, lsm: bool = False):
     """Tie points of the picked frames (decoded, or taken from ``stacks``, or ``frames`` as
     :func:`_sampled` gives them), found in frames halved until their longer side is at most
-    ``params.tie_max_side`` and scaled back to the frames as delivered. With ``lsm``, also
-    refined by least squares matching in the frames searched (``params.tie_lsm``) and
-    returned as ``(raw, refined, TieLSM)``."""
+    ``params.tie_max_side`` and scaled back to the frames as delivered. Returns
+    ``(raw, refined, TieLSM)``: with ``lsm`` the tie points refined by least squares matching
+    in the frames searched (``params.tie_lsm``) and what it did; without, ``(raw, raw,
+    None)``."""
     longest = max(max(c.width, c.height) for c in given)
     halvings = max(0, int(np.ceil(np.log2(longest / params.tie_max_side))))
     factor, m = 0.5 ** halvings, 2 ** halvings
@@ -535,7 +585,7 @@ def _tie_points_at_work_size(videos: Videos, given, picks, params, stacks=None, 
         return replace(t, xy=(t.xy + 0.5) / factor - 0.5) if halvings else t
 
     if not lsm:
-        return back(tie)
+        return back(tie), back(tie), None
     refined, info = refine_tie_points(images, tie, cams, params=params.tie_lsm)
     return back(tie), back(refined), info
 
@@ -590,12 +640,13 @@ def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = 
     n = min(params.n_frames, videos.n_frames)
     picks = np.unique(np.linspace(0, videos.n_frames - 1, n).round().astype(int))
     stacks = None if stacks is None else _loaded(stacks, videos)
-    if params.lsm:
-        raw, tie, lsm = _tie_points_at_work_size(videos, given, picks, params, stacks, lsm=True)
-    else:
-        raw = tie = _tie_points_at_work_size(videos, given, picks, params, stacks)
-        lsm = None
+    raw, tie, lsm = _tie_points_at_work_size(videos, given, picks, params, stacks,
+                                             lsm=params.lsm)
+    if lsm is None:
+        tie = raw                                                  # the same object
     _check_fit(given, raw, params)
+    if lsm is not None:
+        _check_lsm_kept(given, raw, tie, lsm)
     held_frames = (np.arange(len(picks)) % params.hold_out_every) == 1
     tol = params.place_px * videos.scale
     labels = _places(tie.xy, tol, tie.frame)
@@ -612,6 +663,12 @@ def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = 
                       [c.name or str(k) for k, c in enumerate(given)])
     test_xy = sets[kind]
     before, after = res[kind]
+    folded = tuple(c.name or str(k) for k, c in enumerate(adjustment.cameras) if _folds(c))
+    if folded:
+        warnings.warn(f"refine_rig: the refined lens model of {', '.join(folded)} cannot be "
+                      "inverted everywhere in its frame (the fitted distortion folds over "
+                      "inside it): the refined cameras are not used (RigRefinement.chosen is "
+                      "the given ones; see folded in summary())", stacklevel=2)
     worse = [c.name or str(k) for k, (c, b, a) in enumerate(zip(given, before, after)) if a > b]
     if worse:
         warnings.warn(f"refine_rig: the refined cameras fit the held-out places "
@@ -628,4 +685,4 @@ def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = 
         held_out_still_before=res["still places"][0], held_out_still_after=res["still places"][1],
         held_out_all_before=res["all places"][0], held_out_all_after=res["all places"][1],
         held_out_still_points=int(sets["still places"].shape[1]),
-        held_out_all_points=int(sets["all places"].shape[1]))
+        held_out_all_points=int(sets["all places"].shape[1]), folded=folded)

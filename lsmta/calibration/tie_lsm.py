@@ -350,30 +350,8 @@ def _merge(r: LSMResult, at, other: LSMResult, pick) -> LSMResult:
     return LSMResult(**fields)
 
 
-def refine_tie_points(frames, tie: TiePoints, cameras, *,
-                      params: TieLSMParams | None = None) -> tuple[TiePoints, TieLSM]:
-    """Tie points moved by least squares matching to where each view shows the template
-    view's patch (see the module docstring).
-
-    Parameters
-    ----------
-    frames : sequence of F sequences of K (H_k, W_k) arrays
-        The grey frames the tie points were found in (``tie.frame`` indexes them), at the
-        size of ``tie.xy``'s pixels.
-    tie : TiePoints
-        (K, N) positions, px; NaN where a view does not hold a point.
-    cameras : sequence of K Camera
-        The given cameras (they choose each point's template view only).
-    params : TieLSMParams, optional
-
-    Returns
-    -------
-    TiePoints
-        The kept points (``TieLSM.kept``), the failed views NaN; the template views' positions
-        unchanged. ``pair_matches`` and ``pair_guided`` are those given.
-    TieLSM
-    """
-    params = TieLSMParams() if params is None else params
+def _checked(frames, tie, cameras, params) -> list:
+    """:func:`refine_tie_points`'s arguments checked; returns ``frames`` as a list of lists."""
     if not isinstance(params, TieLSMParams):
         raise TypeError(f"params: expected TieLSMParams or None, got {type(params).__name__}")
     if not isinstance(tie, TiePoints):
@@ -400,6 +378,35 @@ def refine_tie_points(frames, tie: TiePoints, cameras, *,
         i, k = bad[0]
         raise ValueError(f"frames: image {k} of frame {i} is {np.shape(frames[i][k])[:2]}, "
                          f"expected {want[k]} (camera {k}'s height, width)")
+    return frames
+
+
+def refine_tie_points(frames, tie: TiePoints, cameras, *,
+                      params: TieLSMParams | None = None) -> tuple[TiePoints, TieLSM]:
+    """Tie points moved by least squares matching to where each view shows the template
+    view's patch (see the module docstring).
+
+    Parameters
+    ----------
+    frames : sequence of F sequences of K (H_k, W_k) arrays
+        The grey frames the tie points were found in (``tie.frame`` indexes them), at the
+        size of ``tie.xy``'s pixels.
+    tie : TiePoints
+        (K, N) positions, px; NaN where a view does not hold a point.
+    cameras : sequence of K Camera
+        The given cameras (they choose each point's template view only).
+    params : TieLSMParams, optional
+
+    Returns
+    -------
+    TiePoints
+        The kept points (``TieLSM.kept``), the failed views NaN; the template views' positions
+        unchanged. ``pair_matches`` and ``pair_guided`` are those given.
+    TieLSM
+    """
+    params = TieLSMParams() if params is None else params
+    frames = _checked(frames, tie, cameras, params)
+    K, N, _ = tie.xy.shape
     t0 = time.perf_counter()
     xy = np.array(tie.xy, dtype=float)
     seen = np.isfinite(xy[..., 0])

@@ -45,7 +45,8 @@ places' median residual is 0.25/0.30/0.12/0.15 px (cam01-cam04) with it against
 matching 44 of them, at 1.04/0.95/1.10/0.89 px with that run's cameras; with it only 19
 (18/12/2/7 per camera), at 0.27/0.33/0.67/0.25 px at their matched positions, which that
 run's cameras were fitted to. Different places at different positions: the two do not
-compare the runs' cameras (the experiment's ``common`` scores both on one set). cam03 and
+compare the runs' cameras (the experiment's ``common`` scores both on the places held out
+of both runs: 4, none seen by cam03, too few to compare them). cam03 and
 cam04 see fewer than ``min_still_held`` of them, so that run is judged on all held-out
 places (0.24/0.24/1.35/0.60 px): the 0.5-px target is NOT met there (cam03, cam04).
 
@@ -538,6 +539,17 @@ def _folds(camera, *, step: int = 16) -> bool:
     return not bool(camera.invertible(grid).all())
 
 
+def _folded(cameras) -> tuple:
+    """The names (else indices) of ``cameras`` that :func:`_folds`, with a warning."""
+    folded = tuple(c.name or str(k) for k, c in enumerate(cameras) if _folds(c))
+    if folded:
+        warnings.warn(f"refine_rig: the refined lens model of {', '.join(folded)} cannot be "
+                      "inverted everywhere in its frame (the fitted distortion folds over "
+                      "inside it): the refined cameras are not used (RigRefinement.chosen is "
+                      "the given ones; see folded in summary())", stacklevel=3)
+    return folded
+
+
 def _loaded(stacks, videos: Videos) -> list:
     """``stacks`` checked against ``videos``: K arrays (T, H_k, W_k) uint8 as
     :meth:`lsmta.io.Videos.load` returns them."""
@@ -663,12 +675,7 @@ def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = 
                       [c.name or str(k) for k, c in enumerate(given)])
     test_xy = sets[kind]
     before, after = res[kind]
-    folded = tuple(c.name or str(k) for k, c in enumerate(adjustment.cameras) if _folds(c))
-    if folded:
-        warnings.warn(f"refine_rig: the refined lens model of {', '.join(folded)} cannot be "
-                      "inverted everywhere in its frame (the fitted distortion folds over "
-                      "inside it): the refined cameras are not used (RigRefinement.chosen is "
-                      "the given ones; see folded in summary())", stacklevel=2)
+    folded = _folded(adjustment.cameras)
     worse = [c.name or str(k) for k, (c, b, a) in enumerate(zip(given, before, after)) if a > b]
     if worse:
         warnings.warn(f"refine_rig: the refined cameras fit the held-out places "

@@ -3,16 +3,27 @@ given cameras as priors, held-out places, and the checks of cameras against vide
 
 import json
 import warnings
+from dataclasses import replace
 
 import cv2
 import numpy as np
 import pytest
 
-from lsmta.calibration import RefineParams, TieParams, find_tie_points, refine_cameras
+from lsmta.calibration import (
+    RefineParams,
+    TieLSMParams,
+    TieParams,
+    TiePoints,
+    find_tie_points,
+    refine_cameras,
+    refine_tie_points,
+)
 from lsmta.camera import Camera, cropped_camera
 from lsmta.camera_files import read_camera_toml
 from lsmta.io import cameras_for_videos, read_videos
+from lsmta.matching import Status
 from lsmta.systems import RigRefinementParams, refine_rig
+from lsmta.systems.refinement import _folds
 from lsmta.triangulation import triangulate
 
 
@@ -184,6 +195,21 @@ def test_refine_rig_from_video_files(recording, tmp_path):
     assert not (r.dropped_places & r.held_out_places).any()
     assert record["held_out_all_points"] == r.held_out_all_points >= r.held_out_still_points
     assert s["cam01"]["held_out_all_after_px"] == float(r.held_out_all_after[0])
+    # the positions as found and as matched: the same places, the same views
+    assert r.lsm is not None and r.raw_tie_points.xy.shape[1] >= r.tie_points.xy.shape[1]
+    assert r.raw_place_xy.shape == r.place_xy.shape
+    np.testing.assert_array_equal(np.isfinite(r.raw_place_xy), np.isfinite(r.place_xy))
+    moved = np.linalg.norm(r.raw_place_xy - r.place_xy, axis=-1)
+    assert np.nanmax(moved) > 0.05                                       # LSM moved them
+    # a refinement whose distortion folds over inside the frame is not used
+    assert r.folded == () and not any(v["folds"] for v in s.values()) and r.improved
+    assert record["folded"] == [] and record["used_refined"] is True
+    folding = list(r.cameras)
+    folding[1] = folding[1].replace(k1=-0.5, k2=0.0)
+    assert _folds(folding[1]) and not _folds(r.cameras[1])
+    bad = replace(r, cameras=tuple(folding), folded=("cam02",))
+    assert not bad.improved and bad.chosen is bad.given
+    assert bad.summary()["cam02"]["folds"] and not bad.summary()["cam01"]["folds"]
 
 
 @pytest.mark.slow
@@ -194,6 +220,63 @@ def test_cameras_that_do_not_fit_are_refused(recording):
     with pytest.raises(ValueError, match="do not fit the videos"):
         refine_rig(videos, swapped, params=RigRefinementParams(
             n_frames=3, tie=TieParams(n_features=2000, asift_features=300)))
+
+
+@pytest.mark.slow
+def test_lsm_that_keeps_too_few_tie_points_is_refused(recording):
+    """Least squares matching that fails everywhere leaves nothing to adjust: a clear error
+    naming tie_lsm, not a crash further on."""
+    paths, cams = recording
+    given = _disturbed(cams, np.random.default_rng(7))
+    with pytest.raises(ValueError, match=r"tie_lsm: least squares matching .* kept \d+ of"):
+        refine_rig(read_videos(paths), given, params=RigRefinementParams(
+            n_frames=3, tie=TieParams(n_features=2000, asift_features=300),
+            tie_lsm=TieLSMParams(max_sigma_px=1e-9)))
+
+
+@pytest.mark.slow
+def test_without_lsm_and_with_a_refined_lens_that_folds(recording, monkeypatch):
+    """lsm=False adjusts the tie points as found; a refined camera whose distortion folds
+    over inside its frame (forced here on cam02) is named, recorded, and not used."""
+    import lsmta.systems.refinement as refinement
+
+    adjust = refinement.refine_cameras
+
+    def folding(*args, **kwargs):
+        out = adjust(*args, **kwargs)
+        cams = list(out.cameras)
+        cams[1] = cams[1].replace(k1=-0.5, k2=0.0)
+        return replace(out, cameras=tuple(cams))
+
+    monkeypatch.setattr(refinement, "refine_cameras", folding)
+    paths, cams = recording
+    given = _disturbed(cams, np.random.default_rng(7))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r = refine_rig(read_videos(paths), given, params=RigRefinementParams(
+            n_frames=3, lsm=False, tie=TieParams(n_features=2000, asift_features=300)))
+    assert r.lsm is None and r.raw_tie_points is r.tie_points
+    np.testing.assert_array_equal(r.raw_place_xy, r.place_xy)
+    assert r.folded == ("cam02",)
+    assert any("cam02" in str(w.message) and "cannot be inverted" in str(w.message)
+               for w in caught), [str(w.message) for w in caught]
+    assert not r.improved and r.chosen is r.given
+    assert r.summary()["cam02"]["folds"] and not r.summary()["cam01"]["folds"]
+
+
+def test_a_lens_that_folds_inside_the_frame_is_found():
+    """_folds checks a grid over the whole frame, corners included."""
+    cam = _rig(n=1)[0]                                         # k1 -0.08, k2 0.05: fine
+    assert not _folds(cam)
+    # k1 = -0.5 at f = 560: the model folds at a distorted radius of 0.54 (305 px), inside
+    # the 640 x 480 frame (corners 400 px out) but not in its centre
+    bent = cam.replace(k1=-0.5, k2=0.0)
+    assert _folds(bent)
+    grid = np.stack(np.meshgrid(np.arange(0, 640, 8), np.arange(0, 480, 8)), -1).reshape(-1, 2)
+    r = np.hypot(*(grid - [bent.cx, bent.cy]).T)
+    fails = ~bent.invertible(grid.astype(float))
+    assert fails.any() and r[fails].min() > 300 and not fails[r < 300].any()
+    assert not _folds(bent.replace(width=480, height=360, cx=239.5, cy=179.5))
 
 
 @pytest.mark.slow
@@ -212,8 +295,9 @@ def test_frames_in_memory_give_the_same_tie_points(recording):
     for i in range(videos.n_frames):
         assert all(np.array_equal(s[i], f) for s, f in zip(stacks, videos.read(i)))
     picks = np.array([0, 2, 5])
-    a = _tie_points_at_work_size(videos, given, picks, params)
-    b = _tie_points_at_work_size(videos, given, picks, params, stacks)
+    a, a_same, a_info = _tie_points_at_work_size(videos, given, picks, params)
+    b = _tie_points_at_work_size(videos, given, picks, params, stacks)[0]
+    assert a_same is a and a_info is None                   # without lsm: (raw, raw, None)
     assert np.isfinite(a.xy).all(axis=-1).sum() > 100                        # not vacuous
     np.testing.assert_array_equal(a.xy, b.xy)
     assert all(np.array_equal(s, k) for s, k in zip(stacks, kept))           # unchanged
@@ -308,7 +392,7 @@ def test_tie_points_found_at_a_working_size_come_back_to_the_frames(recording):
     fitted = cameras_for_videos(cams, videos, mismatch="crop")
     params = RigRefinementParams(tie_max_side=320,
                                  tie=TieParams(n_features=2000, asift_features=300))
-    tie = _tie_points_at_work_size(videos, fitted, np.array([0, 3]), params)
+    tie = _tie_points_at_work_size(videos, fitted, np.array([0, 3]), params)[0]
     assert tie.xy.shape[1] > 100
     err = triangulate(fitted, tie.xy).reprojection_error
     assert np.nanmedian(err) < 0.3, np.nanmedian(err)
@@ -490,3 +574,132 @@ def test_descriptors_must_be_bytes_to_be_matched_exactly():
     for bad in ([[0.5, 1.0]], [[-1.0, 3.0]], [[256.0, 0.0]]):
         with pytest.raises(ValueError, match="whole numbers in 0..255"):
             _bytes(np.array(bad, np.float32))
+
+
+# ------------------------------------------------------- least squares matching
+def _surface_point(cam, xy):
+    """Where the rays of ``cam`` through ``xy`` meet the floor (z = 0) or the wall
+    (y = 1500) of :func:`_render`."""
+    o, d = cam.rays(xy)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_floor = np.where(d[:, 2] < 0, -o[:, 2] / d[:, 2], np.inf)
+        t_wall = np.where(d[:, 1] > 0, (1500 - o[:, 1]) / d[:, 1], np.inf)
+    return o + np.minimum(t_floor, t_wall)[:, None] * d
+
+
+@pytest.fixture(scope="module")
+def lsm_scene():
+    rng = np.random.default_rng(48)
+    cams = _rig(n=3)
+    floor, wall = _texture(rng), _texture(rng)
+    images = [_render(c, floor, wall, 0) for c in cams]
+    X = np.c_[rng.uniform(-900, 900, 160), rng.uniform(0, 1300, 160), np.zeros(160)]
+    X[80:, 1], X[80:, 2] = 1500.0, rng.uniform(100, 1500, 80)          # half on the wall
+    true = np.stack([c.project(X) for c in cams])
+    inside = np.all((true > 20) & (true < [cams[0].width - 21, cams[0].height - 21]), axis=(0, 2))
+    true = true[:, inside]
+    raw = true + rng.uniform(-1.2, 1.2, true.shape)       # keypoints a pixel or so off
+    return cams, images, raw
+
+
+def test_lsm_moves_tie_points_to_the_template_patch_and_drops_failures(lsm_scene):
+    cams, images, raw = lsm_scene
+    K, N, _ = raw.shape
+    raw = raw.copy()
+    raw[1, :3] = [5.0, 5.0]                # the patch leaves view 1: that view fails ...
+    raw[1:, 3] = [5.0, 5.0]                # ... and a point left with one view is dropped
+    tie = TiePoints(xy=raw, frame=np.zeros(N, int), pair_matches=np.zeros((K, K), int),
+                    pair_guided=np.zeros((K, K), int))
+    images_in = [g.copy() for g in images]
+    out, info = refine_tie_points([images], tie, cams)
+    assert all(np.array_equal(g, k) for g, k in zip(images, images_in))     # not modified
+    assert np.array_equal(tie.xy, raw, equal_nan=True)
+    # the template is the view that sees the surface most nearly head-on (truth: the floor's
+    # or the wall's normal); its position stays; every other view is matched to it
+    t = info.template
+    P = _surface_point(cams[0], raw[0])
+    normal = np.where((np.abs(P[:, 2]) < 1e-6)[:, None], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0])
+    head_on = np.argmax([np.einsum("nd,nd->n", normal, c.C - P) / np.linalg.norm(c.C - P, axis=1)
+                         for c in cams], axis=0)
+    assert (t == head_on)[4:].mean() > 0.8, (t == head_on).mean()
+    ok = info.status == Status.CONVERGED
+    matched = info.status >= 0
+    assert info.matched == int(matched.sum()) == N * (K - 1)
+    assert info.failed == int((matched & ~ok).sum()) >= 3
+    assert not ok[1, :4].any() and info.dropped_points == int((~info.kept).sum()) >= 1
+    assert not info.kept[3] and out.xy.shape[1] == info.kept.sum()
+    np.testing.assert_array_equal(out.xy[t[info.kept], np.arange(out.xy.shape[1])],
+                                  raw[t[info.kept], np.flatnonzero(info.kept)])
+    # truth: where the template's pixel's surface point lies in each view
+    err_raw, err_lsm = [], []
+    for j in np.flatnonzero(info.kept):
+        P = _surface_point(cams[t[j]], raw[t[j], j][None])
+        for k in range(K):
+            if k != t[j] and ok[k, j]:
+                want = cams[k].project(P)[0]
+                err_raw.append(np.linalg.norm(raw[k, j] - want))
+                err_lsm.append(np.linalg.norm(out.xy[k, np.sum(info.kept[:j])] - want))
+    assert len(err_lsm) > 0.8 * 2 * N
+    assert np.median(err_raw) > 0.8, np.median(err_raw)
+    assert np.median(err_lsm) < 0.1 * np.median(err_raw), (np.median(err_raw),
+                                                             np.median(err_lsm))
+    assert info.summary()["failed"] == info.failed
+
+
+def test_tie_lsm_settings_are_checked():
+    with pytest.raises(ValueError, match="patch"):
+        TieLSMParams(patch=20)
+    with pytest.raises(ValueError, match="max_scale"):
+        TieLSMParams(max_scale=1.0)
+    with pytest.raises(ValueError, match="max_shift_px"):
+        TieLSMParams(max_shift_px=0)
+    with pytest.raises(TypeError, match="lsm"):
+        RigRefinementParams(lsm=1)
+    with pytest.raises(TypeError, match="tie_lsm"):
+        RigRefinementParams(tie_lsm=None)
+
+
+def test_the_plane_start_is_the_local_affine_map_between_wide_views(lsm_scene):
+    from lsmta.calibration.tie_lsm import Start, _plane_starts
+    cams, images, raw = lsm_scene
+    P = _surface_point(cams[0], raw[0])                       # on the floor or the wall
+    normal = np.where((np.abs(P[:, 2]) < 1e-6)[:, None], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0])
+    A, taken = _plane_starts(cams[0], cams[2], raw[0], P, normal, 10, 3.0)   # 70 deg apart
+    assert taken.mean() > 0.7
+    # where a pixel 8 px off the point lies in the other view: the map predicts it
+    d = np.array([6.0, -5.0])
+    want = cams[2].project(_surface_point(cams[0], raw[0] + d)) - cams[2].project(P)
+    err = np.linalg.norm(np.einsum("nij,j->ni", A, d) - want, axis=1)[taken]
+    err_identity = np.linalg.norm(d - want, axis=1)[taken]
+    assert np.median(err) < 0.1 * np.median(err_identity), (np.median(err),
+                                                             np.median(err_identity))
+    # in refine_tie_points: some kept matches started from it; without it, none
+    K, N, _ = raw.shape
+    tie = TiePoints(xy=raw, frame=np.zeros(N, int), pair_matches=np.zeros((K, K), int),
+                    pair_guided=np.zeros((K, K), int))
+    _, on = refine_tie_points([images], tie, cams)
+    _, off = refine_tie_points([images], tie, cams, params=TieLSMParams(plane_start=False))
+    ok_on = on.status == Status.CONVERGED
+    assert (on.start[ok_on] == Start.PLANE).sum() > 0.1 * ok_on.sum()
+    assert not (off.start == Start.PLANE).any()
+    assert on.summary()["starts"]["plane"] == int((on.start == Start.PLANE).sum())
+    with pytest.raises(TypeError, match="plane_start"):
+        TieLSMParams(plane_start=1)
+
+
+def test_refine_tie_points_checks_its_arguments(lsm_scene):
+    cams, images, raw = lsm_scene
+    K, N, _ = raw.shape
+
+    def tie(frame):
+        return TiePoints(xy=raw, frame=frame, pair_matches=np.zeros((K, K), int),
+                         pair_guided=np.zeros((K, K), int))
+
+    with pytest.raises(ValueError, match="tie.frame"):
+        refine_tie_points([images], tie(np.full(N, -1)), cams)
+    with pytest.raises(ValueError, match="tie.frame"):
+        refine_tie_points([images], tie(np.zeros(N - 1, int)), cams)
+    with pytest.raises(TypeError, match="params"):
+        refine_tie_points([images], tie(np.zeros(N, int)), cams, params=RigRefinementParams())
+    with pytest.raises(ValueError, match="frames: image 1 of frame 0"):
+        refine_tie_points([[images[0], images[1][:-2], images[2]]], tie(np.zeros(N, int)), cams)

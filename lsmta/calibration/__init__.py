@@ -19,6 +19,7 @@ from .chain import ChainStart, chain_cameras, datum_from_distance, shared_points
 from .refine import CameraRefinement, RefineParams, refine_cameras
 from .result import CalibrationResult
 from .targets import Blobs, TargetParams, TargetStatus, TargetTracks, detect_blobs, track_targets
+from .tie_lsm import TieLSM, TieLSMParams, refine_tie_points
 from .tie_points import TieParams, TiePoints, find_tie_points
 from .virtual_object import (
     IMPROVED_ALTERNATION,
@@ -37,10 +38,12 @@ __all__ = [
     "DEFAULT_INTRINSICS", "IMPROVED_ALTERNATION", "INTRINSIC_NAMES", "PARAMETER_NAMES",
     "AlternationParams", "Bar", "Blobs", "BundleParams", "BundleResult", "CalibrationResult",
     "CameraRefinement", "ChainStart", "ConvergenceHistory", "RefineParams", "TargetParams",
-    "TargetStatus", "TargetTracks", "TieParams", "TiePoints", "WandCalibration", "WandStatus",
+    "TargetStatus", "TargetTracks", "TieLSM", "TieLSMParams", "TieParams", "TiePoints",
+    "WandCalibration", "WandStatus",
     "alternate", "bundle_adjust", "calibrate_wand", "camera_to_params", "chain_cameras",
     "datum_from_distance", "detect_blobs", "find_tie_points", "joint_adjustment",
     "params_to_camera", "project_params", "projection_error", "refine_cameras",
+    "refine_tie_points",
     "relative_orientation_start", "resect", "resect_all", "resect_pnp", "scaled",
     "shared_points", "track_targets", "triangulate_optimal",
 ]

@@ -3,8 +3,10 @@ video files and a camera file from another tool.
 
 Stages: check the cameras against the videos (:func:`lsmta.io.cameras_for_videos`) ->
 read evenly spaced frames -> tie points guided by the given cameras
-(:func:`lsmta.calibration.find_tie_points`) -> a check that the cameras fit the videos at
-all -> the tie points grouped into places -> cameras adjusted with the given ones as priors
+(:func:`lsmta.calibration.find_tie_points`) -> the tie points refined by least squares
+matching in the frames they were found in (:func:`lsmta.calibration.refine_tie_points`;
+``lsm``) -> a check that the cameras fit the videos at all -> the tie points grouped into
+places -> cameras adjusted with the given ones as priors
 (:func:`lsmta.calibration.refine_cameras`) on most places -> a check that no camera had
 to turn far from the file's orientation -> the residuals of the held-out places, with the
 given and with the refined cameras.
@@ -29,6 +31,28 @@ again: on the Pose2Sim demo those stay at 0.8-0.9 px on the neighbouring pair ca
 with the file's and with the refined cameras (they measure the moving points, not the
 cameras), while held-out still places go from 1.2-1.4 to 0.9-1.0 px there
 (``experiments/refinement_held_out.py``).
+
+Least squares matching (``lsm``, on by default). The tie points are keypoints, each view's
+own estimate of its feature's position; :func:`lsmta.calibration.refine_tie_points` moves
+them, in the frames they were found in, to where each view shows the template view's patch,
+before they are grouped into places. It uses the frames and the given cameras only (they
+give each point's template view and local plane), not the adjustment, so the held-out
+places stay held out. On the Pose2Sim demo at full size (frames 0-99,
+``experiments/refinement_held_out.py`` with ``--lsm both``; two runs, each adjusted and judged
+on its own places) it drops 678 of 1125 tie points (failed matches), and the adjusted
+places' median residual is 0.25/0.30/0.12/0.15 px (cam01-cam04) with it against
+0.63/0.60/0.60/0.54 without. The held-out still places are another matter: without the
+matching 44 of them, at 1.04/0.95/1.10/0.89 px with that run's cameras; with it only 19
+(18/12/2/7 per camera), at 0.27/0.33/0.67/0.25 px at their matched positions, which that
+run's cameras were fitted to. Different places at different positions: the two do not
+compare the runs' cameras (the experiment's ``common`` scores both on the places held out
+of both runs: 4, none seen by cam03, too few to compare them). cam03 and
+cam04 see fewer than ``min_still_held`` of them, so that run is judged on all held-out
+places (0.24/0.24/1.35/0.60 px): the 0.5-px target is NOT met there (cam03, cam04).
+
+A refined camera whose lens model cannot be inverted everywhere in its frame
+(:func:`_folds`: the fitted distortion folds over inside it) makes the whole refinement
+unused (:attr:`RigRefinement.folded`; warned): the other cameras were adjusted with it.
 """
 
 from __future__ import annotations
@@ -46,6 +70,7 @@ from scipy.spatial import cKDTree
 
 from .._validate import as_int, as_scalar, freeze
 from ..calibration.refine import CameraRefinement, RefineParams, refine_cameras
+from ..calibration.tie_lsm import TieLSM, TieLSMParams, refine_tie_points
 from ..calibration.tie_points import TieParams, TiePoints, find_tie_points
 from ..camera import cropped_camera, scaled_camera
 from ..camera_files import write_camera_toml
@@ -93,6 +118,15 @@ class RigRefinementParams:
     tie : TieParams
         Its ``band_px`` is in pixels of the videos as stored: it is scaled with them and with
         the working size; its ``ransac_px`` is in pixels of the frames searched.
+    lsm : bool
+        Refine the tie points by least squares matching before they are grouped into places
+        (:func:`lsmta.calibration.refine_tie_points`), in the frames they were found in (the
+        working size; see that module for why not the full size): the keypoints' positions
+        move to where each view shows the template view's patch; failed matches are dropped
+        and counted (:attr:`RigRefinement.lsm`). It uses the frames and the given cameras
+        only, never the adjustment: held-out places stay held out.
+    tie_lsm : TieLSMParams
+        Its pixels are those of the frames searched for tie points (the working size).
     refine : RefineParams
     """
 
@@ -106,6 +140,8 @@ class RigRefinementParams:
     min_still_held: int = 10
     mismatch: str = "error"
     tie: TieParams = field(default_factory=TieParams)
+    lsm: bool = True
+    tie_lsm: TieLSMParams = field(default_factory=TieLSMParams)
     refine: RefineParams = field(default_factory=RefineParams)
 
     def __post_init__(self):
@@ -119,6 +155,10 @@ class RigRefinementParams:
         as_int(self.min_still_held, "min_still_held", minimum=1)
         if not isinstance(self.tie, TieParams) or not isinstance(self.refine, RefineParams):
             raise TypeError("tie, refine: expected TieParams and RefineParams")
+        if not isinstance(self.lsm, bool):
+            raise TypeError(f"lsm: expected True or False, got {self.lsm!r}")
+        if not isinstance(self.tie_lsm, TieLSMParams):
+            raise TypeError("tie_lsm: expected TieLSMParams")
 
 
 @dataclass(frozen=True)
@@ -137,6 +177,13 @@ class RigRefinement:
         Which of those frames' places of one frame (a moving subject's) were kept out of
         the adjustment.
     tie_points : TiePoints
+        The tie points adjusted and held out: refined by least squares matching with
+        ``params.lsm`` (the failed ones dropped), else as found.
+    raw_tie_points : TiePoints
+        The tie points as found (the keypoints' positions, scaled back).
+    lsm : TieLSM or None
+        What the least squares matching did (None without ``params.lsm``); its arrays are
+        over ``raw_tie_points``.
     places : (N,) int array
         The place of each tie point (:func:`_places`): a still background's feature found
         again at the same pixels in other frames is one place.
@@ -166,6 +213,12 @@ class RigRefinement:
         The same for all held-out places, px.
     held_out_still_points, held_out_all_points : int
         How many places those are.
+    folded : tuple of str
+        The refined cameras (by name, else index) whose lens model cannot be inverted
+        everywhere in the frame (:func:`_folds`: the fitted distortion folds over inside
+        it, so rays, and every stage after, fail at some pixels). Any at all: the refinement
+        is not used (:attr:`improved` is False, :attr:`chosen` the given cameras); rejecting
+        only that camera's intrinsics would leave the other cameras adjusted against it.
     """
 
     cameras: tuple
@@ -173,6 +226,8 @@ class RigRefinement:
     frames: tuple
     held_out: np.ndarray
     tie_points: TiePoints
+    raw_tie_points: TiePoints
+    lsm: TieLSM | None
     places: np.ndarray
     still: np.ndarray
     held_out_places: np.ndarray
@@ -188,6 +243,7 @@ class RigRefinement:
     held_out_all_after: np.ndarray
     held_out_still_points: int
     held_out_all_points: int
+    folded: tuple
 
     def __post_init__(self):
         freeze(self, ("held_out", "places", "still", "held_out_places", "dropped_places",
@@ -201,11 +257,31 @@ class RigRefinement:
         return _merged(self.tie_points.xy, self.places)
 
     @property
+    def raw_place_xy(self) -> np.ndarray:
+        """(K, P, 2) :attr:`place_xy` from the same tie points and views as found, before the
+        least squares matching (the same as :attr:`place_xy` without it): the two side by
+        side say what the matching changed, with any cameras."""
+        if self.lsm is None:
+            return self.place_xy
+        raw = self.raw_tie_points.xy[:, self.lsm.kept]
+        return _merged(np.where(np.isfinite(self.tie_points.xy), raw, np.nan), self.places)
+
+    def held_out_residuals(self, *, cameras=None, raw: bool = False) -> np.ndarray:
+        """(K,) median residual per camera of the held-out places that judge the refinement
+        (``held_out_kind``), intersected with ``cameras`` (default: the refined ones), at
+        their positions refined by least squares matching or (``raw``) as found, px."""
+        sel = self.held_out_places & (self.still if self.held_out_kind == "still places"
+                                      else True)
+        xy = (self.raw_place_xy if raw else self.place_xy)[:, sel]
+        return _held_out_residuals(self.cameras if cameras is None else cameras, xy)
+
+    @property
     def improved(self) -> bool:
         """Whether the refined cameras fit the held-out places at least as well as the
-        given ones in every camera that saw some (the rule for using them)."""
+        given ones in every camera that saw some, and none of them :attr:`folded` (the
+        rule for using them)."""
         seen = np.isfinite(self.held_out_before) & np.isfinite(self.held_out_after)
-        return bool(seen.any() and np.all(self.held_out_after[seen]
+        return bool(not self.folded and seen.any() and np.all(self.held_out_after[seen]
                                           <= self.held_out_before[seen]))
 
     @property
@@ -215,9 +291,11 @@ class RigRefinement:
 
     def summary(self) -> dict:
         """Per camera: tie points, median residuals (adjusted and held out, before and
-        after: those judged by, ``held_out_kind``, and of the held-out still places and of
-        all held-out places), the intrinsics freed; as plain numbers for a JSON file."""
+        after: those judged by, ``held_out_kind``, also at the tie points' positions as found
+        (:meth:`held_out_residuals`), and of the held-out still places and of all held-out
+        places), the intrinsics freed; as plain numbers for a JSON file."""
         seen = np.isfinite(self.tie_points.xy[..., 0])
+        raw = self.held_out_residuals(raw=True)
         out = {}
         for k, cam in enumerate(self.cameras):
             out[cam.name or f"camera {k}"] = {
@@ -226,11 +304,13 @@ class RigRefinement:
                 "adjusted_after_px": float(self.adjustment.median_residual()[k]),
                 "held_out_before_px": float(self.held_out_before[k]),
                 "held_out_after_px": float(self.held_out_after[k]),
+                "held_out_after_raw_positions_px": float(raw[k]),
                 "held_out_still_before_px": float(self.held_out_still_before[k]),
                 "held_out_still_after_px": float(self.held_out_still_after[k]),
                 "held_out_all_before_px": float(self.held_out_all_before[k]),
                 "held_out_all_after_px": float(self.held_out_all_after[k]),
                 "freed": list(self.adjustment.freed[k]),
+                "folds": (cam.name or str(k)) in self.folded,
             }
         return out
 
@@ -259,6 +339,8 @@ class RigRefinement:
                   "held_out_all_points": self.held_out_all_points,
                   "places": int(len(self.still)), "still_places": int(self.still.sum()),
                   "dropped_places": int(self.dropped_places.sum()),
+                  "lsm": None if self.lsm is None else self.lsm.summary(),
+                  "folded": list(self.folded), "used_refined": self.improved,
                   "cameras": self.summary()}
         summary = folder / "refinement.json"
         summary.write_text(json.dumps(plain(record), indent=2), encoding="utf-8")
@@ -266,10 +348,17 @@ class RigRefinement:
 
 
 def _held_out_residuals(cameras, xy) -> np.ndarray:
-    """Median reprojection residual per camera of tie points triangulated with ``cameras``."""
+    """Median reprojection residual per camera of tie points triangulated with ``cameras``
+    (a view's point where that camera's lens model cannot be inverted is left out: a refined
+    camera whose distortion folds over, :func:`_folds`, gives it no ray)."""
     out = np.full(len(cameras), np.nan)
     if xy.shape[1] == 0:
         return out
+    seen = np.isfinite(xy[..., 0])
+    ok = np.zeros_like(seen)
+    for k, cam in enumerate(cameras):
+        ok[k, seen[k]] = cam.invertible(xy[k, seen[k]])
+    xy = np.where(ok[..., None], xy, np.nan)
     err = triangulate(list(cameras), xy, min_angle_deg=0.0).reprojection_error
     for k in range(len(cameras)):
         if np.isfinite(err[k]).any():
@@ -424,6 +513,43 @@ def _check_fit(given, tie: TiePoints, params: RigRefinementParams) -> None:
                          "and the file's units")
 
 
+def _check_lsm_kept(given, raw: TiePoints, tie: TiePoints, lsm: TieLSM) -> None:
+    """Refuse tie points the least squares matching left too few of: fewer than 6, or none
+    in a camera that had some as found (the places and the adjustment need them)."""
+    had = np.isfinite(raw.xy[..., 0]).sum(axis=1)
+    has = np.isfinite(tie.xy[..., 0]).sum(axis=1)
+    if tie.xy.shape[1] >= 6 and not ((had > 0) & (has == 0)).any():
+        return
+    s = lsm.summary()
+    raise ValueError(
+        f"tie_lsm: least squares matching of the tie points kept {tie.xy.shape[1]} of "
+        f"{raw.xy.shape[1]} ({has.tolist()} per camera, {had.tolist()} as found; "
+        f"{s['failed']} of {s['matched']} matches failed): too few to adjust the cameras "
+        "(at least 6, some in every camera). Loosen RigRefinementParams.tie_lsm (max_sigma_px, "
+        "max_shift_px) or set lsm=False to adjust the tie points as found")
+
+
+def _folds(camera, *, step: int = 16) -> bool:
+    """Whether ``camera``'s lens model cannot be inverted somewhere in its frame: checked
+    (:meth:`lsmta.camera.Camera.invertible`) on a grid of pixels ``step`` px apart that
+    takes in the frame's borders and corners (-0.5 and width - 0.5, height - 0.5)."""
+    u = np.unique(np.r_[np.arange(-0.5, camera.width - 0.5, step), camera.width - 0.5])
+    v = np.unique(np.r_[np.arange(-0.5, camera.height - 0.5, step), camera.height - 0.5])
+    grid = np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 2)
+    return not bool(camera.invertible(grid).all())
+
+
+def _folded(cameras) -> tuple:
+    """The names (else indices) of ``cameras`` that :func:`_folds`, with a warning."""
+    folded = tuple(c.name or str(k) for k, c in enumerate(cameras) if _folds(c))
+    if folded:
+        warnings.warn(f"refine_rig: the refined lens model of {', '.join(folded)} cannot be "
+                      "inverted everywhere in its frame (the fitted distortion folds over "
+                      "inside it): the refined cameras are not used (RigRefinement.chosen is "
+                      "the given ones; see folded in summary())", stacklevel=3)
+    return folded
+
+
 def _loaded(stacks, videos: Videos) -> list:
     """``stacks`` checked against ``videos``: K arrays (T, H_k, W_k) uint8 as
     :meth:`lsmta.io.Videos.load` returns them."""
@@ -437,10 +563,21 @@ def _loaded(stacks, videos: Videos) -> list:
     return stacks
 
 
-def _tie_points_at_work_size(videos: Videos, given, picks, params, stacks=None) -> TiePoints:
-    """Tie points of the picked frames (decoded, or taken from ``stacks``), found in frames
-    halved until their longer side is at most ``params.tie_max_side`` and scaled back to
-    the frames as delivered."""
+def _sampled(videos: Videos, picks, stacks=None) -> list:
+    """The picked frames as delivered (decoded, or taken from ``stacks``): a list of K
+    grey images per frame."""
+    return [videos.read(int(i)) if stacks is None else [st[int(i)] for st in stacks]
+            for i in picks]
+
+
+def _tie_points_at_work_size(videos: Videos, given, picks, params, stacks=None, *,
+                             frames=None, lsm: bool = False):
+    """Tie points of the picked frames (decoded, or taken from ``stacks``, or ``frames`` as
+    :func:`_sampled` gives them), found in frames halved until their longer side is at most
+    ``params.tie_max_side`` and scaled back to the frames as delivered. Returns
+    ``(raw, refined, TieLSM)``: with ``lsm`` the tie points refined by least squares matching
+    in the frames searched (``params.tie_lsm``) and what it did; without, ``(raw, raw,
+    None)``."""
     longest = max(max(c.width, c.height) for c in given)
     halvings = max(0, int(np.ceil(np.log2(longest / params.tie_max_side))))
     factor, m = 0.5 ** halvings, 2 ** halvings
@@ -448,14 +585,21 @@ def _tie_points_at_work_size(videos: Videos, given, picks, params, stacks=None) 
     sizes = [(c.width - c.width % m, c.height - c.height % m) for c in given]
     cams = [scaled_camera(cropped_camera(c, 0, 0, w, h), factor)
             for c, (w, h) in zip(given, sizes)] if halvings else list(given)
+    frames = _sampled(videos, picks, stacks) if frames is None else frames
     images = []
-    for i in picks:
-        frame = videos.read(int(i)) if stacks is None else [st[int(i)] for st in stacks]
+    for frame in frames:
         images.append([cv2.resize(g[:h, :w], (c.width, c.height), interpolation=cv2.INTER_AREA)
                        if halvings else g for g, c, (w, h) in zip(frame, cams, sizes)])
     tie_params = replace(params.tie, band_px=params.tie.band_px * videos.scale * factor)
     tie = find_tie_points(images, cams, params=tie_params)
-    return replace(tie, xy=(tie.xy + 0.5) / factor - 0.5) if halvings else tie
+
+    def back(t):
+        return replace(t, xy=(t.xy + 0.5) / factor - 0.5) if halvings else t
+
+    if not lsm:
+        return back(tie), back(tie), None
+    refined, info = refine_tie_points(images, tie, cams, params=params.tie_lsm)
+    return back(tie), back(refined), info
 
 
 def _check_turn(given, refined, limit_deg: float) -> None:
@@ -508,8 +652,13 @@ def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = 
     n = min(params.n_frames, videos.n_frames)
     picks = np.unique(np.linspace(0, videos.n_frames - 1, n).round().astype(int))
     stacks = None if stacks is None else _loaded(stacks, videos)
-    tie = _tie_points_at_work_size(videos, given, picks, params, stacks)
-    _check_fit(given, tie, params)
+    raw, tie, lsm = _tie_points_at_work_size(videos, given, picks, params, stacks,
+                                             lsm=params.lsm)
+    if lsm is None:
+        tie = raw                                                  # the same object
+    _check_fit(given, raw, params)
+    if lsm is not None:
+        _check_lsm_kept(given, raw, tie, lsm)
     held_frames = (np.arange(len(picks)) % params.hold_out_every) == 1
     tol = params.place_px * videos.scale
     labels = _places(tie.xy, tol, tie.frame)
@@ -526,6 +675,7 @@ def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = 
                       [c.name or str(k) for k, c in enumerate(given)])
     test_xy = sets[kind]
     before, after = res[kind]
+    folded = _folded(adjustment.cameras)
     worse = [c.name or str(k) for k, (c, b, a) in enumerate(zip(given, before, after)) if a > b]
     if worse:
         warnings.warn(f"refine_rig: the refined cameras fit the held-out places "
@@ -535,10 +685,11 @@ def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = 
     return RigRefinement(
         cameras=adjustment.cameras, given=given,
         frames=tuple(int(videos.frames[i]) for i in picks), held_out=held_frames,
-        tie_points=tie, places=labels, still=still, held_out_places=held,
+        tie_points=tie, raw_tie_points=raw, lsm=lsm, places=labels, still=still,
+        held_out_places=held,
         dropped_places=dropped, held_out_kind=kind, adjustment=adjustment,
         held_out_points=int(test_xy.shape[1]), held_out_before=before, held_out_after=after,
         held_out_still_before=res["still places"][0], held_out_still_after=res["still places"][1],
         held_out_all_before=res["all places"][0], held_out_all_after=res["all places"][1],
         held_out_still_points=int(sets["still places"].shape[1]),
-        held_out_all_points=int(sets["all places"].shape[1]))
+        held_out_all_points=int(sets["all places"].shape[1]), folded=folded)

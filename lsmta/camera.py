@@ -276,7 +276,23 @@ class Camera:
             if _newton_step(x, y, xd, yd, *coefficients, float(tol)):
                 break
         back = self._distort(x, y)
-        return np.stack([x, y], axis=-1), np.hypot(back[:, 0] - xd, back[:, 1] - yd)
+        err = np.hypot(back[:, 0] - xd, back[:, 1] - yd)
+        return np.stack([x, y], axis=-1), np.where(self._unfolded(x, y), err, np.inf)
+
+    def _unfolded(self, x, y) -> np.ndarray:
+        """Whether undistorted points lie where the lens model is a lens: the radial factor
+        positive and the distortion's Jacobian determinant positive (Newton's method also
+        finds roots past the fold, on the far side of the centre or on the folded-back
+        sheet, which distort to the same point but are not where its ray goes)."""
+        k1, k2, k3, p1, p2 = (float(getattr(self, k)) for k in ("k1", "k2", "k3", "p1", "p2"))
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        slope = k1 + r2 * (2 * k2 + 3 * k3 * r2)                    # d radial / d r2
+        xx = radial + 2 * x * x * slope + 2 * p1 * y + 6 * p2 * x
+        yy = radial + 2 * y * y * slope + 6 * p1 * y + 2 * p2 * x
+        xy = 2 * x * y * slope + 2 * p1 * x + 2 * p2 * y
+        with np.errstate(invalid="ignore"):
+            return (radial > 0) & (xx * yy - xy * xy > 0)
 
     def normalized_to_pixel(self, xy_d) -> np.ndarray:
         """Pixel coordinates of distorted normalised coordinates ``(N, 2)``."""

@@ -18,6 +18,7 @@ from lsmta.calibration import (
     refine_cameras,
     refine_tie_points,
 )
+from lsmta.calibration.tie_lsm import HEAD_ON_MARGIN
 from lsmta.camera import Camera, cropped_camera
 from lsmta.camera_files import read_camera_toml
 from lsmta.io import cameras_for_videos, read_videos
@@ -615,13 +616,18 @@ def test_lsm_moves_tie_points_to_the_template_patch_and_drops_failures(lsm_scene
     assert all(np.array_equal(g, k) for g, k in zip(images, images_in))     # not modified
     assert np.array_equal(tie.xy, raw, equal_nan=True)
     # the template is the view that sees the surface most nearly head-on (truth: the floor's
-    # or the wall's normal); its position stays; every other view is matched to it
+    # or the wall's normal) where it clearly does, else the view nearest the mean ray; its
+    # position stays; every other view is matched to it
     t = info.template
     P = _surface_point(cams[0], raw[0])
     normal = np.where((np.abs(P[:, 2]) < 1e-6)[:, None], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0])
-    head_on = np.argmax([np.einsum("nd,nd->n", normal, c.C - P) / np.linalg.norm(c.C - P, axis=1)
-                         for c in cams], axis=0)
-    assert (t == head_on)[4:].mean() > 0.8, (t == head_on).mean()
+    rays = np.stack([(P - c.C) / np.linalg.norm(P - c.C, axis=1, keepdims=True) for c in cams])
+    near_mean = np.argmax(np.einsum("knd,nd->kn", rays, rays.sum(axis=0)), axis=0)
+    cos = np.einsum("nd,knd->kn", normal, -rays)
+    clear = cos.max(axis=0) >= cos[near_mean, np.arange(N)] + HEAD_ON_MARGIN
+    want = np.where(clear, cos.argmax(axis=0), near_mean)
+    assert 5 <= clear.sum() < N                          # both rules are at work here
+    assert (t == want)[4:].mean() > 0.8, (t == want).mean()
     ok = info.status == Status.CONVERGED
     matched = info.status >= 0
     assert info.matched == int(matched.sum()) == N * (K - 1)
@@ -673,6 +679,13 @@ def test_the_plane_start_is_the_local_affine_map_between_wide_views(lsm_scene):
     err_identity = np.linalg.norm(d - want, axis=1)[taken]
     assert np.median(err) < 0.1 * np.median(err_identity), (np.median(err),
                                                              np.median(err_identity))
+    # a point near where the template's lens model folds: no start there, and no error
+    c = cams[0]
+    folded = c.replace(k1=0.0, k2=-1.0 / (5 * 0.5 ** 4))   # no distorted radius beyond 0.4
+    at = np.array([[c.cx + c.f * 0.4 - 4.0, c.cy]])            # invertible; +10 px is not
+    assert folded.invertible(at).all() and not folded.invertible(at + [10.0, 0.0]).any()
+    A1, taken1 = _plane_starts(folded, cams[2], at, P[:1], normal[:1], 10, 3.0)
+    assert not taken1.any() and np.array_equal(A1[0], np.eye(2))
     # in refine_tie_points: some kept matches started from it; without it, none
     K, N, _ = raw.shape
     tie = TiePoints(xy=raw, frame=np.zeros(N, int), pair_matches=np.zeros((K, K), int),

@@ -149,3 +149,9 @@ def test_camera_invertible_marks_where_the_lens_folds():
         with pytest.raises(ValueError, match="cannot be inverted"):
             cam.rays(xy[None])
     assert np.all(_rig(1)[0].invertible(grid))           # no distortion: always
+    # past the fold Newton's method also lands on roots on the far side of the centre
+    # (radial factor < 0) that distort to the same point: not a ray of this lens
+    bent = _rig(1)[0].replace(k1=-0.25)                   # r_d is at most 0.77 (r = 1.15)
+    r_d = np.linspace(0.0, 2.0, 41)
+    ok = bent.invertible(np.c_[bent.cx + bent.f * r_d, np.full_like(r_d, bent.cy)])
+    assert ok[r_d < 0.76].all() and not ok[r_d > 0.78].any()

@@ -14,13 +14,16 @@ The template view of a point. The point is intersected with the given cameras (n
 depends on an adjustment of them) and its local plane found (below); the template is the
 view that sees that plane most nearly head-on (the reference view of a patch in
 Furukawa & Ponce's PMVS: the template then holds the most of the surface, and the others
-are matched to a patch of it seen obliquely). Where the neighbours give no plane, it is the
-view whose ray from its camera centre is closest to the mean of the point's rays. Of views
-equally near, the first: a fixed choice keeps one still feature's template the same in
-every frame (both views of a two-view point are exactly as near the mean ray; a choice left
-to rounding took either, the feature's positions then differed between frames by the
-match's shift and no longer formed one place in :func:`lsmta.systems.refine_rig`). A point
-the cameras do not intersect takes its first view.
+are matched to a patch of it seen obliquely) where it does so clearly, by ``HEAD_ON_MARGIN``
+in cosine over the view whose ray from its camera centre is closest to the mean of the
+point's rays; else (and where the neighbours give no plane) that view. Of views equally
+near, the first. A still feature should keep one template in every frame: its positions
+otherwise differ between frames by the match's shift and no longer form one place in
+:func:`lsmta.systems.refine_rig`. Both views of a two-view point are exactly as near the
+mean ray (a choice left to rounding took either), and the plane is refitted in each frame
+from that frame's neighbours, the moving subject's included, so it tilts a little from
+frame to frame: the margin keeps such a point on its first view unless a plane clearly
+faces the other. A point the cameras do not intersect takes its first view.
 
 The start of the patch's shape (:class:`Start`): the identity; where the tie points of the
 same frame near the point (``neighbours`` nearest in the template view, held by both views)
@@ -207,8 +210,9 @@ class TieLSM:
 def _templates(cameras, xy, X, normal) -> np.ndarray:
     """(N,) the template view of each point (``X``: (N, 3) the points intersected with
     ``cameras``, mm; ``normal``: (N, 3) their local planes' normals, NaN where there is
-    none): the view that sees the plane most nearly head-on, else the view nearest the
-    point's mean viewing direction; of views equally near (within 1e-9: both views of a
+    none): the view that sees the plane most nearly head-on where it does so by at least
+    ``HEAD_ON_MARGIN`` (cosine) more than the view nearest the point's mean viewing
+    direction, else that view; of views equally near (within 1e-9: both views of a
     two-view point are, exactly) the first; the first view holding it where the
     intersection fails."""
     seen = np.isfinite(xy[..., 0])
@@ -222,11 +226,26 @@ def _templates(cameras, xy, X, normal) -> np.ndarray:
     plane = np.isfinite(normal).all(axis=1)
     facing = np.where(plane[:, None], -normal * np.sign(np.einsum(
         "nd,nd->n", np.nan_to_num(normal), mean))[:, None], mean)  # the plane faces the views
-    score = np.where(seen, np.einsum("knd,nd->kn", rays, np.where(plane[:, None], -facing,
-                                                                   mean)), -np.inf)
-    score = np.nan_to_num(score, nan=-np.inf)
-    best = np.argmax(score >= score.max(axis=0) - 1e-9, axis=0)
+    near_mean = _first_best(np.where(seen, np.einsum("knd,nd->kn", rays, mean), -np.inf))
+    head_on = np.nan_to_num(np.where(seen, np.einsum("knd,nd->kn", rays, -facing), -np.inf),
+                            nan=-np.inf)
+    columns = np.arange(len(first))
+    clearer = head_on.max(axis=0) >= head_on[near_mean, columns] + HEAD_ON_MARGIN
+    best = np.where(plane & clearer, _first_best(head_on), near_mean)
     return np.where(np.isfinite(X).all(axis=1), best, first)
+
+
+#: cosine by which the plane's most head-on view must beat the view nearest the mean ray to
+#: be the template: a plane refitted in each frame tilts by a degree or so with its
+#: neighbours, and a two-view point seen symmetrically would take either view by that tilt
+HEAD_ON_MARGIN = 0.05
+
+
+def _first_best(score) -> np.ndarray:
+    """(N,) the row of the largest of each column of ``score`` (K, N); of rows within 1e-9
+    of it (both views of a two-view point are exactly as near its mean ray), the first."""
+    score = np.nan_to_num(score, nan=-np.inf)
+    return np.argmax(score >= score.max(axis=0) - 1e-9, axis=0)
 
 
 def _affine_starts(t_all, s_all, idx, k: int, max_scale: float):
@@ -299,7 +318,10 @@ def _plane_starts(cam_t, cam_s, t_xy, X, normal, h: float, max_scale: float):
         return A, np.zeros(0, bool)
     steps = np.array([[h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
     pix = (t_xy[:, None] + steps).reshape(-1, 2)
-    C, d = cam_t.rays(pix)
+    C, d = np.full((len(pix), 3), np.nan), np.full((len(pix), 3), np.nan)
+    inv = cam_t.invertible(pix)                  # no ray where the given lens model folds
+    if inv.any():
+        C[inv], d[inv] = cam_t.rays(pix[inv])
     Xr, nr = np.repeat(X, 4, axis=0), np.repeat(normal, 4, axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         lam = np.einsum("nd,nd->n", Xr - C, nr) / np.einsum("nd,nd->n", d, nr)

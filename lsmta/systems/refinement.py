@@ -39,16 +39,16 @@ before they are grouped into places. It uses the frames and the given cameras on
 give each point's template view and local plane), not the adjustment, so the held-out
 places stay held out. On the Pose2Sim demo at full size (frames 0-99,
 ``experiments/refinement_held_out.py`` with ``--lsm both``; two runs, each adjusted and judged
-on its own places) it drops 678 of 1125 tie points (failed matches), and the adjusted
-places' median residual is 0.25/0.30/0.12/0.15 px (cam01-cam04) with it against
+on its own places) it drops 676 of 1125 tie points (failed matches), and the adjusted
+places' median residual is 0.26/0.37/0.10/0.14 px (cam01-cam04) with it against
 0.63/0.60/0.60/0.54 without. The held-out still places are another matter: without the
 matching 44 of them, at 1.04/0.95/1.10/0.89 px with that run's cameras; with it only 19
-(18/12/2/7 per camera), at 0.27/0.33/0.67/0.25 px at their matched positions, which that
+(15/14/4/5 per camera), at 0.30/0.23/0.30/0.24 px at their matched positions, which that
 run's cameras were fitted to. Different places at different positions: the two do not
 compare the runs' cameras (the experiment's ``common`` scores both on the places held out
-of both runs: 4, none seen by cam03, too few to compare them). cam03 and
+of both runs: 4, too few to compare them). cam03 and
 cam04 see fewer than ``min_still_held`` of them, so that run is judged on all held-out
-places (0.24/0.24/1.35/0.60 px): the 0.5-px target is NOT met there (cam03, cam04).
+places (0.25/0.23/0.60/0.46 px): the 0.5-px target is NOT met there (cam03).
 
 A refined camera whose lens model cannot be inverted everywhere in its frame
 (:func:`_folds`: the fitted distortion folds over inside it) makes the whole refinement

@@ -10,8 +10,8 @@ Builds the walk of notebook 15 (`lsmta.synth.mixed_scale.mixed_scale_scene`, its
 default: 4 m at 1.2 m/s, six ceiling cameras, the head LED hidden from 2.5 to 2.9 s, the heads
 reading their angles back in 0.1 degree steps); calibrates the ceiling rig and the heads by
 the library's procedures (`lsmta.evaluation.mixed_scale.calibrate_scene`; the ceiling's
-calibration LED found by the detector in rendered frames, the heads' points projected truth
-plus noise), runs
+calibration LED and the heads' calibration LEDs found by the detector in rendered frames,
+`lsmta.evaluation.head_survey`), runs
 `lsmta.systems.capture_mixed_scale` with prediction and, unless ``--no-baseline``, without
 it, scores both after the fact, and triangulates the same marker images at the heads' true
 angles (the read-back's share). The run with prediction identifies the face markers itself
@@ -66,9 +66,9 @@ from lsmta.evaluation.mixed_scale import HEADS_FIELDS, HEADS_RESULT
 from lsmta.report import write_json
 
 TRAIN_NOISE = 0.2      # mm, the still capture the face model is learnt from (notebook 15)
-CAL_IN = ("projected truth plus noise (the heads' calibration points; the ceiling's LED is "
-          "found in rendered frames)")
-CEILING_IN = f"mask from truth (the ceiling cameras' monitors); {CAL_IN}"
+# the calibrations' image points are found in rendered frames (ceiling and heads): no truth
+# beyond the surveyed target positions, which a user has
+CEILING_IN = "mask from truth (the ceiling cameras' monitors)"
 SYSTEM_IN = ("model learnt from generated shapes (a still capture of this face, "
              f"{TRAIN_NOISE:g} mm noise); {CEILING_IN}")
 LABELS_IN = "scored against the generator's labels after the fact"

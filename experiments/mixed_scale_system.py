@@ -174,6 +174,9 @@ def heads_summary(results: dict, settings: dict, met: dict, argv) -> dict:
     return {"command": " ".join(["python", "experiments/mixed_scale_system.py", *argv]),
             "date": datetime.now(timezone.utc).date().isoformat(),
             "seeds": [int(s) for s in seeds], "settings": settings, "seeds_met": met,
+            # the heads' calibration LEDs found in rendered frames (calibrate_scene's
+            # from_images=True); notebook 15 names the truth its quoted records used from it
+            "heads_from_images": True,
             "heads": {str(K): {f: [value(results[s], f"{f}_{K}h") for s in seeds]
                                for f in HEADS_FIELDS} for K in settings["heads"]}}
 

@@ -166,6 +166,7 @@ def heads_summary(results: dict, settings: dict, met: dict, argv) -> dict:
     :data:`~lsmta.evaluation.mixed_scale.HEADS_FIELDS` one value per seed (None: NaN, or
     the seed failed)."""
     seeds = sorted(results)
+    ok = [r for r in results.values() if "error" not in r]
 
     def value(r, key):
         v = r.get(key, np.nan) if "error" not in r else np.nan
@@ -174,9 +175,11 @@ def heads_summary(results: dict, settings: dict, met: dict, argv) -> dict:
     return {"command": " ".join(["python", "experiments/mixed_scale_system.py", *argv]),
             "date": datetime.now(timezone.utc).date().isoformat(),
             "seeds": [int(s) for s in seeds], "settings": settings, "seeds_met": met,
-            # the heads' calibration LEDs found in rendered frames (calibrate_scene's
-            # from_images=True); notebook 15 names the truth its quoted records used from it
-            "heads_from_images": True,
+            # the heads' calibration route (calibrate_scene's heads_from_images) and the
+            # survey's size (target LEDs plus sweep positions offered per head), read back
+            # from the runs; notebook 15 names the truth its quoted records used from them
+            "heads_from_images": bool(all(r["heads_from_images"] for r in ok)),
+            "head_survey_points": sorted({int(n) for r in ok for n in r["head_survey_points"]}),
             "heads": {str(K): {f: [value(results[s], f"{f}_{K}h") for s in seeds]
                                for f in HEADS_FIELDS} for K in settings["heads"]}}
 
@@ -222,7 +225,9 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
     study = ms.exact_readback(cap, scene, inputs.devices, cal.heads)
     coasted = cap.coasted
     n_coast = int(coasted.sum())
-    out = {"seed": seed, "face_median_mm": sc.face_median_mm,
+    out = {"seed": seed, "heads_from_images": bool(cal_full.heads_from_images),
+           "head_survey_points": [int(n) for n in cal_full.head_points[:, 1]],
+           "face_median_mm": sc.face_median_mm,
            "face_fitted": float(cap.face.fitted.mean()),
            "rigid_median_mm": sc.rigid_median_mm,
            "rigid_true_angles_mm": float(study.rigid_median_mm[1]),

@@ -1,6 +1,7 @@
 """The pan-tilt heads' calibration targets found in rendered images (Davis 2002, §4.2, the
 procedure of notebook 11), for the mixed-scale system's calibration
-(:func:`lsmta.evaluation.mixed_scale.calibrate_heads` with ``from_images=True``).
+(:func:`lsmta.evaluation.mixed_scale.calibrate_scene` and
+:func:`lsmta.evaluation.mixed_scale.calibrate_heads` with ``from_images=True``).
 
 A calibration target of LEDs lit one at a time (one frame per LED, so each spot is known
 to be that LED) is filmed by the head at each setting of its sweeps
@@ -146,8 +147,10 @@ def calibrate_head(head: PanTiltCamera, *, rng: np.random.Generator | int | None
     observations whose LED is not found, or ambiguous, are left out); otherwise the true
     projections plus ``image_sigma`` px of Gaussian noise, the route for controlled
     studies. Both routes draw the same target, survey noise and check points from ``rng``
-    (the renderer draws from a child of it). Defaults: 60 target LEDs and 6 per setting
-    from images (each is a rendered frame), 200 and 20 projected.
+    (the renderer draws from a child of it). Defaults: 200 target LEDs and 20 per setting
+    on both routes, so the image route gets the same survey as the projected one (about
+    580 rendered frames per head; a survey of 60 and 6 left heads up to 0.8 px off over
+    their grid).
 
     Returns
     -------
@@ -158,9 +161,9 @@ def calibrate_head(head: PanTiltCamera, *, rng: np.random.Generator | int | None
                         f"{type(head).__name__}")
     if not isinstance(from_images, (bool, np.bool_)):
         raise TypeError(f"from_images: expected True or False, got {from_images!r}")
-    n_target = as_int((60 if from_images else 200) if n_target is None else n_target,
+    n_target = as_int(200 if n_target is None else n_target,
                       "n_target", minimum=10)
-    per = as_int((6 if from_images else 20) if points_per_setting is None
+    per = as_int(20 if points_per_setting is None
                  else points_per_setting, "points_per_setting", minimum=1)
     rng = as_rng(rng)
     render = rng.spawn(1)[0]

@@ -269,10 +269,16 @@ def calibrate_heads(heads, *, rng: np.random.Generator | int | None = None,
     -------
     (list of PanTiltCamera, (K,) image RMS on held-out sweep settings, true points, px)
     """
-    rng = as_rng(rng)
-    fits = [calibrate_head(h, rng=rng, from_images=from_images, image_sigma=image_sigma,
-                           world_sigma=world_sigma, distortion=distortion) for h in heads]
+    fits = _head_fits(heads, rng=as_rng(rng), image_sigma=image_sigma,
+                      world_sigma=world_sigma, distortion=distortion, from_images=from_images)
     return [f.model for f in fits], np.array([f.check_rms_px for f in fits])
+
+
+def _head_fits(heads, *, rng, image_sigma, world_sigma, distortion, from_images):
+    """Each of ``heads`` calibrated (:func:`lsmta.evaluation.head_survey.calibrate_head`),
+    a list of HeadCalibration."""
+    return [calibrate_head(h, rng=rng, from_images=from_images, image_sigma=image_sigma,
+                           world_sigma=world_sigma, distortion=distortion) for h in heads]
 
 
 def calibrate_scene(scene: MixedScaleScene, *, rng: np.random.Generator | int | None = None,
@@ -284,16 +290,16 @@ def calibrate_scene(scene: MixedScaleScene, *, rng: np.random.Generator | int | 
     ``world_sigma`` mm).
 
     ``from_images``: the calibration targets found in rendered frames, the ceiling's LED
-    (about 1 s per camera for 300 positions) and the heads' LEDs (about 1-2 s per head for
-    174 frames), instead of projected truth plus noise. ``heads_from_images`` (default:
+    (about 1 s per camera for 300 positions) and the heads' LEDs (a few seconds per head
+    for about 580 frames), instead of projected truth plus noise. ``heads_from_images`` (default:
     ``from_images``) sets the heads' route alone, e.g. the projected route for a controlled
     study."""
     rng = as_rng(rng)
     heads_from_images = from_images if heads_from_images is None else heads_from_images
     c = calibrate_ceiling(scene, rng=rng, image_sigma=image_sigma, world_sigma=world_sigma,
                           from_images=from_images)
-    fits = [calibrate_head(h, rng=rng, from_images=heads_from_images, image_sigma=image_sigma,
-                           world_sigma=world_sigma) for h in scene.heads]
+    fits = _head_fits(scene.heads, rng=rng, image_sigma=image_sigma, world_sigma=world_sigma,
+                      distortion=("k1",), from_images=heads_from_images)
     return SceneCalibration(ceiling=c.cameras, heads=[f.model for f in fits],
                             ceiling_rms_px=c.check_rms_px,
                             head_rms_px=np.array([f.check_rms_px for f in fits]),

@@ -33,11 +33,13 @@ def test_head_calibrated_from_rendered_targets_is_close_to_the_true_head(scene):
     for k, head in enumerate(scene.heads):
         c = calibrate_head(head, rng=20 + k, from_images=True)
         assert c.from_images
+        # the default survey is the projected route's: 200 target LEDs, 20 per sweep setting
+        assert c.n_points == 200 + 19 * 20
         # nearly every LED is found (one feature in its frame)
         assert c.n_used >= 0.95 * c.n_points
         # the fit's own residual: the 0.3 mm survey noise at 2-4 m, a few tenths of a pixel
         assert c.fit_rms_px < 0.6
-        # against the true head, on held-out settings: a fifth of a pixel at f = 3000 px
+        # against the true head, on held-out settings: a quarter of a pixel at f = 3000 px
         assert c.check_rms_px < 0.25
         assert np.linalg.norm(c.model.camera.C - head.camera.C) < 5.0
         assert abs(c.model.camera.f - head.camera.f) < 8.0
@@ -73,9 +75,11 @@ def test_both_head_routes_draw_the_same_survey(scene):
     head = scene.heads[1]
     a = calibrate_head(head, rng=9, from_images=False, n_target=60, points_per_setting=6,
                        image_sigma=0.0)
-    b = calibrate_head(head, rng=9, from_images=True)
+    b = calibrate_head(head, rng=9, from_images=True, n_target=60, points_per_setting=6)
     assert not a.from_images and b.from_images
     assert a.n_points == b.n_points == 60 + 19 * 6
+    # by default both routes take the same survey (the rendered one's is checked above)
+    assert calibrate_head(head, rng=9, from_images=False).n_points == 200 + 19 * 20
     assert np.linalg.norm(a.model.camera.C - b.model.camera.C) < 1.0
     assert abs(a.check_rms_px - b.check_rms_px) < 0.05
     # the survey's 0.3 mm noise keeps both off the true head

@@ -32,6 +32,9 @@ from ..synth.pantilt import (
 )
 from ..widearea import detect, noise_threshold
 
+#: the 3-D intrinsics target's survey error, mm per coordinate (a precise target)
+TARGET_SIGMA_MM = 0.1
+
 
 def head_target_centroids(head: PanTiltCamera, pan, tilt, X, *,
                           rng: np.random.Generator | int | None = None,
@@ -135,9 +138,9 @@ def calibrate_head(head: PanTiltCamera, *, rng: np.random.Generator | int | None
                    threshold_sigmas: float = 5.0) -> HeadCalibration:
     """``head`` calibrated by notebook 11's procedure with a precise target: intrinsics
     (``distortion`` terms) from one view at home of a 3-D target of ``n_target`` LEDs
-    measured to 0.1 mm (:func:`lsmta.pantilt.calibrate_intrinsics`), then home pose and
-    axes of the general model from the thesis's sweeps, ``points_per_setting`` LED
-    positions surveyed to ``world_sigma`` mm at each setting
+    measured to :data:`TARGET_SIGMA_MM` mm (:func:`lsmta.pantilt.calibrate_intrinsics`),
+    then home pose and axes of the general model from the thesis's sweeps,
+    ``points_per_setting`` LED positions surveyed to ``world_sigma`` mm at each setting
     (:func:`lsmta.pantilt.calibrate`). A zoomed lens sees only the middle of its
     distortion: one radial term keeps the model monotonic where the aiming search looks
     outside the image.
@@ -168,7 +171,7 @@ def calibrate_head(head: PanTiltCamera, *, rng: np.random.Generator | int | None
     rng = as_rng(rng)
     render = rng.spawn(1)[0]
     target = intrinsic_target(head, rng=rng, n=n_target, image_sigma=image_sigma,
-                              world_sigma=0.1)
+                              world_sigma=TARGET_SIGMA_MM)
     sweeps = calibration_sweeps(head, rng=rng, points_per_setting=per,
                                 image_sigma=image_sigma, world_sigma=world_sigma,
                                 depth=(2000.0, 4000.0))

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtri
 
-from .._validate import as_int, as_rng, as_scalar, as_vector
+from .._validate import as_array, as_int, as_rng, as_scalar, as_vector
 from ..camera import Camera
 from ..pantilt import PanTiltCamera
 
@@ -315,6 +315,16 @@ def render_target_frames(camera: Camera, X, *, rng: np.random.Generator | int | 
     X : (N, 3) array
         The LEDs, mm.
     rng : numpy.random.Generator, int or None
+    led_peak : float
+        An LED's peak, grey levels, at ``led_range`` or farther (up to 1.5 times nearer).
+    led_sigma : float
+        The spot's Gaussian width, px.
+    led_range : float
+        The distance at which the peak is ``led_peak``, mm.
+    noise : float
+        The image noise's standard deviation, grey levels.
+    n_background : int
+        Frames of the view with the LEDs off.
 
     Returns
     -------
@@ -322,9 +332,7 @@ def render_target_frames(camera: Camera, X, *, rng: np.random.Generator | int | 
     """
     if not isinstance(camera, Camera):
         raise TypeError(f"camera: expected an lsmta.Camera, got {type(camera).__name__}")
-    X = np.asarray(X, dtype=float)
-    if X.ndim != 2 or X.shape[1] != 3 or not np.isfinite(X).all():
-        raise ValueError(f"X: expected finite points of shape (N, 3), got {X.shape}")
+    X = as_array(X, "X", shape=(None, 3))
     for key, v in (("led_peak", led_peak), ("noise", noise)):
         as_scalar(v, key, nonnegative=True)
     for key, v in (("led_sigma", led_sigma), ("led_range", led_range)):

@@ -10,8 +10,8 @@ Builds the walk of notebook 15 (`lsmta.synth.mixed_scale.mixed_scale_scene`, its
 default: 4 m at 1.2 m/s, six ceiling cameras, the head LED hidden from 2.5 to 2.9 s, the heads
 reading their angles back in 0.1 degree steps); calibrates the ceiling rig and the heads by
 the library's procedures (`lsmta.evaluation.mixed_scale.calibrate_scene`; the ceiling's
-calibration LED found by the detector in rendered frames, the heads' points projected truth
-plus noise), runs
+calibration LED and the heads' calibration LEDs found by the detector in rendered frames,
+`lsmta.evaluation.head_survey`), runs
 `lsmta.systems.capture_mixed_scale` with prediction and, unless ``--no-baseline``, without
 it, scores both after the fact, and triangulates the same marker images at the heads' true
 angles (the read-back's share). The run with prediction identifies the face markers itself
@@ -66,9 +66,9 @@ from lsmta.evaluation.mixed_scale import HEADS_FIELDS, HEADS_RESULT
 from lsmta.report import write_json
 
 TRAIN_NOISE = 0.2      # mm, the still capture the face model is learnt from (notebook 15)
-CAL_IN = ("projected truth plus noise (the heads' calibration points; the ceiling's LED is "
-          "found in rendered frames)")
-CEILING_IN = f"mask from truth (the ceiling cameras' monitors); {CAL_IN}"
+# the calibrations' image points are found in rendered frames (ceiling and heads): no truth
+# beyond the surveyed target positions, which a user has
+CEILING_IN = "mask from truth (the ceiling cameras' monitors)"
 SYSTEM_IN = ("model learnt from generated shapes (a still capture of this face, "
              f"{TRAIN_NOISE:g} mm noise); {CEILING_IN}")
 LABELS_IN = "scored against the generator's labels after the fact"
@@ -166,6 +166,7 @@ def heads_summary(results: dict, settings: dict, met: dict, argv) -> dict:
     :data:`~lsmta.evaluation.mixed_scale.HEADS_FIELDS` one value per seed (None: NaN, or
     the seed failed)."""
     seeds = sorted(results)
+    ok = [r for r in results.values() if "error" not in r]
 
     def value(r, key):
         v = r.get(key, np.nan) if "error" not in r else np.nan
@@ -174,6 +175,11 @@ def heads_summary(results: dict, settings: dict, met: dict, argv) -> dict:
     return {"command": " ".join(["python", "experiments/mixed_scale_system.py", *argv]),
             "date": datetime.now(timezone.utc).date().isoformat(),
             "seeds": [int(s) for s in seeds], "settings": settings, "seeds_met": met,
+            # the heads' calibration route (calibrate_scene's heads_from_images) and the
+            # survey's size (target LEDs plus sweep positions offered per head), read back
+            # from the runs; notebook 15 names the truth its quoted records used from them
+            "heads_from_images": bool(all(r["heads_from_images"] for r in ok)),
+            "head_survey_points": sorted({int(n) for r in ok for n in r["head_survey_points"]}),
             "heads": {str(K): {f: [value(results[s], f"{f}_{K}h") for s in seeds]
                                for f in HEADS_FIELDS} for K in settings["heads"]}}
 
@@ -219,7 +225,9 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
     study = ms.exact_readback(cap, scene, inputs.devices, cal.heads)
     coasted = cap.coasted
     n_coast = int(coasted.sum())
-    out = {"seed": seed, "face_median_mm": sc.face_median_mm,
+    out = {"seed": seed, "heads_from_images": bool(cal_full.heads_from_images),
+           "head_survey_points": [int(n) for n in cal_full.head_points[:, 1]],
+           "face_median_mm": sc.face_median_mm,
            "face_fitted": float(cap.face.fitted.mean()),
            "rigid_median_mm": sc.rigid_median_mm,
            "rigid_true_angles_mm": float(study.rigid_median_mm[1]),

@@ -6,8 +6,10 @@ after the fact against the truth.
   tape-measured guess from surveyed LED positions, :func:`lsmta.calibration.resect_all`,
   the LED's image points either projected truth plus noise or found by the detector in
   rendered frames, :func:`ceiling_survey_centroids`;
-  each head: intrinsics from one view of a 3-D target, then home pose and axes from sweeps,
-  :func:`lsmta.pantilt.calibrate` — notebook 11's procedure with a precise target);
+  each head: intrinsics from one view of a 3-D target of LEDs, then home pose and axes from
+  sweeps, :func:`lsmta.pantilt.calibrate` — notebook 11's procedure with a precise target,
+  the LEDs' image points either found by the detector in rendered frames or projected
+  truth plus noise, :mod:`lsmta.evaluation.head_survey`);
 * :func:`walk_inputs` — what the system receives for a walk: the ceiling feed, the heads
   as devices, hand labels of a frame of each, a face model learnt from another capture;
 * :func:`score_capture` — the error budget per stage against the truth;
@@ -31,7 +33,6 @@ import numpy as np
 from .._validate import as_array, as_int, as_rng, as_scalar
 from ..calibration import resect_all
 from ..face import distance_deviation, learn
-from ..pantilt import calibrate, calibrate_intrinsics
 from ..synth.calibration import led_path, poor_guess, project_observations
 from ..synth.face import face_sequence
 from ..synth.mixed_scale import (
@@ -40,10 +41,10 @@ from ..synth.mixed_scale import (
     ceiling_videos,
     hand_labels,
 )
-from ..synth.pantilt import calibration_sweeps, intrinsic_target
 from ..synth.widearea import LedScene, LedVideoParams, render_led_video
 from ..systems import CeilingFeed, MixedScaleCapture, triangulate_frames
 from ..widearea import detect, noise_threshold
+from .head_survey import calibrate_head
 from .track_scores import score_led_tracks
 
 # the committed result of `experiments/mixed_scale_system.py --heads ...`, in the repository
@@ -108,6 +109,14 @@ class SceneCalibration:
     ceiling_from_images : bool
         True: the ceiling's image points were found in rendered frames
         (:func:`ceiling_survey_centroids`); False: projected truth plus noise.
+    head_fit_rms_px : (K,) array
+        Reprojection RMS of each head's sweeps fit on its own image points, px (no truth).
+    head_points : (K, 2) int array
+        Per head: calibration image points found, and offered (target and sweeps).
+    heads_from_images : bool
+        True: the heads' image points were found in rendered frames
+        (:func:`lsmta.evaluation.head_survey.head_target_centroids`); False: projected
+        truth plus noise (the route for controlled studies).
     """
 
     ceiling: list
@@ -116,6 +125,9 @@ class SceneCalibration:
     head_rms_px: np.ndarray
     ceiling_fit_rms_px: np.ndarray
     ceiling_from_images: bool
+    head_fit_rms_px: np.ndarray
+    head_points: np.ndarray
+    heads_from_images: bool
 
 
 @dataclass(frozen=True, eq=False)
@@ -246,52 +258,56 @@ def calibrate_ceiling(scene: MixedScaleScene, *, rng: np.random.Generator | int 
 
 def calibrate_heads(heads, *, rng: np.random.Generator | int | None = None,
                     image_sigma: float = 0.3, world_sigma: float = 0.3,
-                    distortion=("k1",)):
-    """Each head calibrated by notebook 11's procedure with a precise target: intrinsics
-    (``distortion`` terms) from one view of a 3-D target
-    (:func:`lsmta.pantilt.calibrate_intrinsics`), then home pose and axes of the general
-    model from the thesis's sweeps (:func:`lsmta.pantilt.calibrate`). A zoomed lens sees
-    only the middle of its distortion: one radial term keeps the model monotonic where
-    the aiming search looks outside the image.
+                    distortion=("k1",), from_images: bool = False):
+    """Each head calibrated by notebook 11's procedure with a precise target
+    (:func:`lsmta.evaluation.head_survey.calibrate_head`): intrinsics (``distortion``
+    terms) from one view of a 3-D target, then home pose and axes of the general model from
+    the thesis's sweeps. The image points: with ``from_images``, the target's LEDs found by
+    the detector in rendered frames; otherwise projected truth plus ``image_sigma`` px.
 
     Returns
     -------
     (list of PanTiltCamera, (K,) image RMS on held-out sweep settings, true points, px)
     """
-    rng = as_rng(rng)
-    models, rms = [], []
-    for head in heads:
-        target = intrinsic_target(head, rng=rng, image_sigma=image_sigma, world_sigma=0.1)
-        intr = calibrate_intrinsics(target.X, target.xy, head.camera.image_size,
-                                    distortion=tuple(distortion))
-        cal = calibration_sweeps(head, rng=rng, image_sigma=image_sigma,
-                                 world_sigma=world_sigma, depth=(2000.0, 4000.0))
-        fit = calibrate(intr.model, cal.pan, cal.tilt, cal.X, cal.xy, kind="general")
-        held = calibration_sweeps(head, rng=rng, points_per_setting=5, image_sigma=0.0,
-                                  world_sigma=0.0, depth=(2000.0, 4000.0))
-        e = fit.model.project(held.X_true, held.pan, held.tilt) - held.xy_true
-        models.append(fit.model)
-        rms.append(float(np.sqrt(np.mean(np.sum(e**2, axis=1)))))
-    return models, np.array(rms)
+    fits = _head_fits(heads, rng=as_rng(rng), image_sigma=image_sigma,
+                      world_sigma=world_sigma, distortion=distortion, from_images=from_images)
+    return [f.model for f in fits], np.array([f.check_rms_px for f in fits])
+
+
+def _head_fits(heads, *, rng, image_sigma, world_sigma, distortion, from_images):
+    """Each of ``heads`` calibrated (:func:`lsmta.evaluation.head_survey.calibrate_head`),
+    a list of HeadCalibration."""
+    return [calibrate_head(h, rng=rng, from_images=from_images, image_sigma=image_sigma,
+                           world_sigma=world_sigma, distortion=distortion) for h in heads]
 
 
 def calibrate_scene(scene: MixedScaleScene, *, rng: np.random.Generator | int | None = None,
                     image_sigma: float = 0.3, world_sigma: float = 0.3,
-                    from_images: bool = False) -> SceneCalibration:
+                    from_images: bool = False,
+                    heads_from_images: bool | None = None) -> SceneCalibration:
     """The ceiling rig and the heads of ``scene`` calibrated (:func:`calibrate_ceiling`,
-    :func:`calibrate_heads`, both with ``image_sigma`` px and ``world_sigma`` mm).
+    :func:`lsmta.evaluation.head_survey.calibrate_head`, both with ``image_sigma`` px and
+    ``world_sigma`` mm).
 
-    ``from_images``: the ceiling's LED found in rendered frames (about 1 s per camera for
-    300 positions) instead of projected truth plus noise; the heads' calibration points
-    are projected truth plus noise either way."""
+    ``from_images``: the calibration targets found in rendered frames, the ceiling's LED
+    (about 1 s per camera for 300 positions) and the heads' LEDs (a few seconds per head
+    for about 580 frames), instead of projected truth plus noise. ``heads_from_images`` (default:
+    ``from_images``) sets the heads' route alone, e.g. the projected route for a controlled
+    study."""
     rng = as_rng(rng)
+    heads_from_images = from_images if heads_from_images is None else heads_from_images
     c = calibrate_ceiling(scene, rng=rng, image_sigma=image_sigma, world_sigma=world_sigma,
                           from_images=from_images)
-    heads, h_rms = calibrate_heads(scene.heads, rng=rng, image_sigma=image_sigma,
-                                   world_sigma=world_sigma)
-    return SceneCalibration(ceiling=c.cameras, heads=heads, ceiling_rms_px=c.check_rms_px,
-                            head_rms_px=h_rms, ceiling_fit_rms_px=c.fit_rms_px,
-                            ceiling_from_images=c.from_images)
+    fits = _head_fits(scene.heads, rng=rng, image_sigma=image_sigma, world_sigma=world_sigma,
+                      distortion=("k1",), from_images=heads_from_images)
+    return SceneCalibration(ceiling=c.cameras, heads=[f.model for f in fits],
+                            ceiling_rms_px=c.check_rms_px,
+                            head_rms_px=np.array([f.check_rms_px for f in fits]),
+                            ceiling_fit_rms_px=c.fit_rms_px,
+                            ceiling_from_images=c.from_images,
+                            head_fit_rms_px=np.array([f.fit_rms_px for f in fits]),
+                            head_points=np.array([[f.n_used, f.n_points] for f in fits]),
+                            heads_from_images=bool(heads_from_images))
 
 
 def head_devices(scene: MixedScaleScene, *, heads=None,

@@ -12,7 +12,9 @@ detection noise. Data sets:
   steps at tilt 0 and tilt -20°..15° in 5° steps at pan 0;
 * :func:`evaluation_grid` — 361 points, one per setting of a 19 x 19 grid over the head's
   full range;
-* :func:`side_to_side` — a target moved rapidly from side to side (Figs. 50, 53).
+* :func:`side_to_side` — a target moved rapidly from side to side (Figs. 50, 53);
+* :func:`render_target_frames` — frames of a calibration target's LEDs, lit one at a
+  time, as a camera (a head at one setting) films them, for the detector.
 
 World frame as in :mod:`lsmta.synth.rigs`: X right, Y into the volume, Z up, mm.
 """
@@ -22,8 +24,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.special import ndtri
 
-from .._validate import as_int, as_rng, as_scalar, as_vector
+from .._validate import as_array, as_int, as_rng, as_scalar, as_vector
 from ..camera import Camera
 from ..pantilt import PanTiltCamera
 
@@ -269,3 +272,97 @@ def side_to_side(*, duration: float = 30.0, rate: float = 240.0,
     out = np.tile(as_vector(centre, "centre", 3), (n, 1))
     out[:, 0] += x
     return out
+
+
+@dataclass(frozen=True, eq=False)
+class TargetFrames:
+    """A camera's frames of a calibration target's LEDs lit one at a time
+    (:func:`render_target_frames`).
+
+    Attributes
+    ----------
+    frames : (N, H, W) uint8 array
+        Frame ``i`` shows LED ``i`` alone.
+    background : (B, H, W) uint8 array
+        Frames of the view with every LED off (for the detector's thresholds).
+    true_xy : (N, 2) array
+        The LEDs' true image points, px (truth: for scoring only).
+    """
+
+    frames: np.ndarray
+    background: np.ndarray
+    true_xy: np.ndarray
+
+
+def render_target_frames(camera: Camera, X, *, rng: np.random.Generator | int | None = None,
+                         led_peak: float = 230.0, led_sigma: float = 0.9,
+                         led_range: float = 4500.0, noise: float = 2.0,
+                         n_background: int = 8) -> TargetFrames:
+    """Frames of the LEDs at ``X`` lit one at a time, each facing ``camera``.
+
+    The backdrop is the wide-area renderer's smooth grey texture
+    (:func:`lsmta.synth.widearea.render_led_video`'s room, without lamp or monitor); each
+    LED is a Gaussian spot of ``led_sigma`` px at its (distorted) projection, of peak
+    ``led_peak * min((led_range / d)**2, 1.5)`` grey levels at distance ``d`` mm, as that
+    renderer's LEDs facing the camera; then Gaussian image noise of ``noise`` grey levels
+    (drawn by its quantiles at 2**16 levels),
+    rounded to uint8. ``n_background`` frames of the view with the LEDs off (0: none)
+    come with it.
+
+    Parameters
+    ----------
+    camera : Camera
+    X : (N, 3) array
+        The LEDs, mm.
+    rng : numpy.random.Generator, int or None
+    led_peak : float
+        An LED's peak, grey levels, at ``led_range`` or farther (up to 1.5 times nearer).
+    led_sigma : float
+        The spot's Gaussian width, px.
+    led_range : float
+        The distance at which the peak is ``led_peak``, mm.
+    noise : float
+        The image noise's standard deviation, grey levels.
+    n_background : int
+        Frames of the view with the LEDs off.
+
+    Returns
+    -------
+    TargetFrames
+    """
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera: expected an lsmta.Camera, got {type(camera).__name__}")
+    X = as_array(X, "X", shape=(None, 3))
+    for key, v in (("led_peak", led_peak), ("noise", noise)):
+        as_scalar(v, key, nonnegative=True)
+    for key, v in (("led_sigma", led_sigma), ("led_range", led_range)):
+        as_scalar(v, key, positive=True)
+    n_background = as_int(n_background, "n_background", minimum=0)
+    rng = as_rng(rng)
+    H, W = camera.height, camera.width
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
+    room = 50 + 15 * np.sin(xx / 23.0 + 1.3 * np.sin(yy / 37.0)) + 10 * np.cos(yy / 17.0)
+    xy = camera.project(X, behind="nan")
+    bright = np.minimum((led_range / np.linalg.norm(X - camera.C, axis=1)) ** 2, 1.5)
+    frames = np.repeat(room[None], len(X), axis=0)
+    r = int(np.ceil(4 * led_sigma))
+    vis = np.isfinite(xy).all(axis=1) & camera.in_image(xy)
+    for i in np.flatnonzero(vis):
+        x, y = xy[i]
+        cs = np.arange(int(round(x)) - r, int(round(x)) + r + 1)
+        rs = np.arange(int(round(y)) - r, int(round(y)) + r + 1)
+        cs, rs = cs[(cs >= 0) & (cs < W)], rs[(rs >= 0) & (rs < H)]
+        g = np.exp(-((cs[None] - x) ** 2 + (rs[:, None] - y) ** 2) / (2 * led_sigma**2))
+        frames[i, rs[0]:rs[-1] + 1, cs[0]:cs[-1] + 1] += led_peak * bright[i] * g
+    background = np.repeat(room[None], n_background, axis=0)
+    # Gaussian noise by its quantiles at 2**16 levels (tails cut at 4.3 sigma): half the
+    # time of drawing it, and indistinguishable to a threshold 5 sigma above the maximum
+    levels = (noise * ndtri((np.arange(2**16) + 0.5) / 2**16)).astype(np.float32)
+    out = []
+    for f in (frames, background):
+        f += levels[rng.integers(0, 2**16, f.shape, dtype=np.uint16)]
+        np.rint(f, out=f)
+        np.clip(f, 0, 255, out=f)
+        out.append(f.astype(np.uint8))
+    return TargetFrames(frames=out[0], background=out[1],
+                        true_xy=np.where(vis[:, None], xy, np.nan))

@@ -33,7 +33,7 @@ from ..matching import GrowParams, LSMThresholds, MeasureSurfaceParams, measure_
 from ..rigid import fit_rigid
 from ..synth import Scene, arm_wave, make_body, triplet_rig
 from ..synth.body import Motion
-from ..synth.calibration import BarTrack, bar_track, levelled_bar, poor_guess, render_bar_images
+from ..synth.calibration import BarTrack, bar_footage
 from ..synth.render import Renderer, cast_body
 from ..synth.sequence import Sequence, render_sequence
 from ..systems import ArmFitParams, BodyCapture, FilterParams
@@ -218,24 +218,15 @@ def arm_wave_session(*, seed: int = 1998, n_frames: int = 24, first: int = 10, e
     scene = Scene(body=body, motion=motion, backdrop=backdrop)
     seq = render_sequence(scene, cams, rng=rng, noise_sigma=noise,
                           surface_frames=range(0, n_frames, every), step=4)
-    centre = (0.0, 0.0, height)
-    bar = bar_track(n=n_bar, rng=rng, length=bar_length, center=centre, half_size=bar_half_size,
-                    step=70.0)
-    held = bar_track(n=n_heldout, rng=rng, length=bar_length, center=centre,
-                     half_size=0.8 * np.asarray(bar_half_size), step=70.0)
-    bar_videos = np.stack([render_bar_images(c, bar, rng=rng, noise=noise) for c in cams])
-    held_videos = np.stack([render_bar_images(c, held, rng=rng, noise=noise) for c in cams])
-    nominal = poor_guess(cams, rng=rng, pose_mm=tape_mm, pose_deg=tape_deg, f_rel=lens_rel)
-    level, level_videos = None, None
-    if p.level_places:                  # drawn last: the rest of the session stays the same
-        level = levelled_bar(n_places=p.level_places, rng=rng, length=bar_length, center=centre,
-                             half_size=0.5 * np.asarray(bar_half_size), tilt_deg=p.level_deg)
-        level_videos = np.stack([render_bar_images(c, level, rng=rng, noise=noise) for c in cams])
-    return ArmWaveSession(videos=seq.images, bar_videos=bar_videos, bar_length=bar_length,
-                          nominal=nominal, fps=motion.fps, cameras=cams, sequence=seq,
-                          bar=bar, heldout=held, heldout_videos=held_videos,
+    f = bar_footage(cams, rng=rng, length=bar_length, center=(0.0, 0.0, height),
+                    half_size=bar_half_size, n=(n_bar, n_heldout), noise=noise,
+                    tape=(tape_mm, tape_deg, lens_rel), level_places=p.level_places, step=70.0,
+                    level_half_size=0.5 * np.asarray(bar_half_size), level_tilt_deg=p.level_deg)
+    return ArmWaveSession(videos=seq.images, bar_videos=f.bar_videos, bar_length=bar_length,
+                          nominal=f.nominal, fps=motion.fps, cameras=cams, sequence=seq,
+                          bar=f.bar, heldout=f.heldout, heldout_videos=f.heldout_videos,
                           noise_sigma=noise, first=first, seed=seed,
-                          level_videos=level_videos, level=level)
+                          level_videos=f.level_videos, level=f.level)
 
 
 # ------------------------------------------------------------------ alignment

@@ -29,7 +29,7 @@ from ..camera import scaled_camera
 from ..rigid import fit_rigid
 from ..synth import Scene, make_body, studio_rig, triplet_rig, walk
 from ..synth.body import Motion
-from ..synth.calibration import BarTrack, bar_track, levelled_bar, poor_guess, render_bar_images
+from ..synth.calibration import BarTrack, bar_footage
 from ..synth.render import Renderer, project_surface_points
 from ..synth.surface import distance_to_body, distance_to_ellipsoid
 from ..triangulation import triangulate
@@ -175,25 +175,13 @@ def walk_session(*, seed: int = 36, n_frames: int = 50,
     scene = Scene(body=body, motion=motion, backdrop=p.backdrop)
     renderer = Renderer(scene, cams, noise_sigma=p.noise)
     videos = np.stack([renderer.render(t, rng=rng).images for t in range(n_frames)], axis=1)
-    centre = (0.0, 0.0, 950.0)
-    bar = bar_track(n=p.n_bar, rng=rng, length=p.bar_length, center=centre,
-                    half_size=p.bar_half_size)
-    held = bar_track(n=p.n_heldout, rng=rng, length=p.bar_length, center=centre,
-                     half_size=0.8 * np.asarray(p.bar_half_size))
-    bar_videos = np.stack([render_bar_images(c, bar, rng=rng, noise=p.noise) for c in cams])
-    held_videos = np.stack([render_bar_images(c, held, rng=rng, noise=p.noise) for c in cams])
-    nominal = poor_guess(cams, rng=rng, pose_mm=p.tape_mm, pose_deg=p.tape_deg,
-                         f_rel=p.lens_rel)
-    level, level_videos = None, None
-    if p.level_places:
-        level = levelled_bar(n_places=p.level_places, rng=rng, length=p.bar_length,
-                             center=centre)
-        level_videos = np.stack([render_bar_images(c, level, rng=rng, noise=p.noise)
-                                 for c in cams])
-    return WalkSession(videos=videos, bar_videos=bar_videos, heldout_videos=held_videos,
-                       level_videos=level_videos, bar_length=p.bar_length, nominal=nominal,
-                       fps=fps, cameras=cams, scene=scene, bar=bar, heldout=held, level=level,
-                       params=p, seed=int(seed))
+    f = bar_footage(cams, rng=rng, length=p.bar_length, center=(0.0, 0.0, 950.0),
+                    half_size=p.bar_half_size, n=(p.n_bar, p.n_heldout), noise=p.noise,
+                    tape=(p.tape_mm, p.tape_deg, p.lens_rel), level_places=p.level_places)
+    return WalkSession(videos=videos, bar_videos=f.bar_videos, heldout_videos=f.heldout_videos,
+                       level_videos=f.level_videos, bar_length=p.bar_length, nominal=f.nominal,
+                       fps=fps, cameras=cams, scene=scene, bar=f.bar, heldout=f.heldout,
+                       level=f.level, params=p, seed=int(seed))
 
 
 # ------------------------------------------------------------------ alignment

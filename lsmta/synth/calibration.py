@@ -273,3 +273,62 @@ def poor_guess(cameras, *, rng: np.random.Generator | int | None = None, pose_mm
                                cx=(cam.width - 1) / 2, cy=(cam.height - 1) / 2, k1=0.0, k2=0.0,
                                k3=0.0, p1=0.0, p2=0.0, b1=0.0, b2=0.0))
     return out
+
+
+@dataclass(frozen=True, eq=False)
+class BarFootage:
+    """A session's calibration footage (:func:`bar_footage`).
+
+    Attributes
+    ----------
+    bar, heldout : BarTrack
+        The bar waved for the calibration, and the positions held out as check points.
+    bar_videos, heldout_videos : (K, T, H, W) uint8 arrays
+        Their videos in each camera.
+    nominal : list of K Camera
+        The tape-measured rig (:func:`poor_guess`).
+    level : BarTrack or None
+        The bar stood upright with a spirit level (None without ``level_places``).
+    level_videos : (K, T, H, W) uint8 array or None
+    """
+
+    bar: BarTrack
+    heldout: BarTrack
+    bar_videos: np.ndarray
+    heldout_videos: np.ndarray
+    nominal: list
+    level: BarTrack | None
+    level_videos: np.ndarray | None
+
+
+def bar_footage(cameras, *, length: float, center, half_size, n, noise: float, tape,
+                level_places: int, step: float = 150.0,
+                level_half_size=(200.0, 150.0, 100.0), level_tilt_deg: float = 0.2,
+                rng: np.random.Generator | int | None = None) -> BarFootage:
+    """The footage a studio calibrates from, rendered in ``cameras``: a bar of ``length`` mm
+    waved ``n[0]`` times through the box ``center`` +- ``half_size`` (mm, moves of about
+    ``step`` mm), ``n[1]`` more positions in 0.8 of that box as check points, the
+    tape-measured rig (``tape`` = (mm per axis, degrees per axis, relative focal length
+    error), :func:`poor_guess`), and with ``level_places`` > 0 the bar stood upright with
+    a spirit level (``level_half_size`` box, ``level_tilt_deg`` off vertical), drawn last
+    so the rest does not depend on it. Every draw comes from ``rng`` in that order (pass
+    the session's generator to continue its stream); images get Gaussian noise of ``noise``
+    grey levels."""
+    rng = as_rng(rng)
+    n_bar, n_heldout = n
+    tape_mm, tape_deg, lens_rel = tape
+    bar = bar_track(n=n_bar, rng=rng, length=length, center=center, half_size=half_size,
+                    step=step)
+    held = bar_track(n=n_heldout, rng=rng, length=length, center=center,
+                     half_size=0.8 * np.asarray(half_size), step=step)
+    bar_videos = np.stack([render_bar_images(c, bar, rng=rng, noise=noise) for c in cameras])
+    held_videos = np.stack([render_bar_images(c, held, rng=rng, noise=noise) for c in cameras])
+    nominal = poor_guess(cameras, rng=rng, pose_mm=tape_mm, pose_deg=tape_deg, f_rel=lens_rel)
+    level, level_videos = None, None
+    if level_places:
+        level = levelled_bar(n_places=level_places, rng=rng, length=length, center=center,
+                             half_size=level_half_size, tilt_deg=level_tilt_deg)
+        level_videos = np.stack([render_bar_images(c, level, rng=rng, noise=noise)
+                                 for c in cameras])
+    return BarFootage(bar=bar, heldout=held, bar_videos=bar_videos, heldout_videos=held_videos,
+                      nominal=nominal, level=level, level_videos=level_videos)

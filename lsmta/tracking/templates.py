@@ -305,10 +305,10 @@ def match_templates(templates: Templates, rows, search: SplineImage, start_xy, s
     partial : bool
         Patches may reach over the search image's border: a partial template (``full``
         False), and a template whose inverse compositional match left the image (status
-        OUTSIDE), are matched with the forward LSM with partial patches
-        (:class:`~lsmta.matching.lsm.LSMParams` ``partial``: the pixels outside the template
-        or the search image get zero weight; ``thresholds.min_weight_share`` rejects a
-        patch mostly outside), whatever ``fallback`` says. False: a partial template is
+        OUTSIDE), or whose forward retry did, are matched with the forward LSM with partial
+        patches (:class:`~lsmta.matching.lsm.LSMParams` ``partial``: the pixels outside the
+        template or the search image get zero weight; ``thresholds.min_weight_share`` rejects
+        a patch mostly outside), whatever ``fallback`` says. False: a partial template is
         never matched (status SINGULAR) and a patch leaving the image is OUTSIDE.
 
     Returns
@@ -333,13 +333,16 @@ def match_templates(templates: Templates, rows, search: SplineImage, start_xy, s
     redo = np.flatnonzero(~result.ok & usable & ~outside & full)
     if not (fallback or not inverse):
         redo = redo[:0]
-    border = np.flatnonzero(usable & (outside | ~full) & np.isfinite(start).all(axis=1)
-                            & np.isfinite(start_A).all(axis=(1, 2))) if partial else redo[:0]
-    for sel, part in ((redo, False), (border, True)):
-        if sel.size:
-            result = _forward(result, templates, rows, sel, search, start, start_A, part,
-                              max_iter=max_iter, tol=tol, max_disp=max_disp,
-                              thresholds=thresholds)
+    kw = dict(max_iter=max_iter, tol=tol, max_disp=max_disp, thresholds=thresholds)
+    if redo.size:
+        result = _forward(result, templates, rows, redo, search, start, start_A, False, **kw)
+    if partial:      # the forward retry may have left the image too
+        outside |= result.status == Status.OUTSIDE
+        border = np.flatnonzero(usable & (outside | ~full) & np.isfinite(start).all(axis=1)
+                                & np.isfinite(start_A).all(axis=(1, 2)))
+        if border.size:
+            result = _forward(result, templates, rows, border, search, start, start_A, True,
+                              **kw)
     return result
 
 
@@ -591,10 +594,10 @@ def match_translation(templates: Templates, rows, search: SplineImage, start_xy,
     ----------
     templates : Templates
         The template store (:func:`sample_templates`; ``normals=False`` is enough: only
-        ``values``, ``gx``, ``gy`` and ``ok`` are used).
+        ``values``, ``gx``, ``gy``, ``ok`` and ``full`` are used).
     rows : (n,) int array
-        Which templates, indices into ``templates``; a template with ``ok`` False is not
-        matched (not converged, returned at its start).
+        Which templates, indices into ``templates``; a template with ``ok`` False, or a
+        partial one (``full`` False), is not matched (not converged, returned at its start).
     search : SplineImage
         The image the templates are matched into.
     start_xy : (n, 2) array
@@ -640,7 +643,8 @@ def match_translation(templates: Templates, rows, search: SplineImage, start_xy,
     H, W = search.shape
     if n:
         _solve_translation(search.coefficients, search.pad, H, W, rows, templates.values,
-                           templates.gx, templates.gy, templates.ok, offsets(templates.patch),
+                           templates.gx, templates.gy, templates.ok & templates.full,
+                           offsets(templates.patch),
                            c, max_iter, tol, max_disp, converged)
     return c, converged
 

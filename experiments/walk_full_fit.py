@@ -36,6 +36,10 @@ from walk_system import CHECK_IN, REJECT_K, SEEN_IN
 
 FIT_IN = ("none (the fit takes only the system's filtered points in the system's own world; "
           "no generator point, pose or camera)")
+LENGTH_IN = "none in the fit; scored against the generator's skeleton (lengths need no alignment)"
+JOINT_IN = ("none in the fit; scored against the generator's part poses (a joint's angle is "
+            "the child in its parent's frame and needs no alignment; the pelvis' is taken "
+            "after the alignment: " + CHECK_IN + ")")
 
 
 def _records(rig, cap, session_s, wf, score_s, check, al, score, verdict):
@@ -61,10 +65,9 @@ def _records(rig, cap, session_s, wf, score_s, check, al, score, verdict):
                CHECK_IN),
            rec("alignment: tilt of the system's up against the true up", al.tilt_deg, "deg",
                CHECK_IN)]
-    out += [rec(f"joint angle error, {k}, worst frame", float(v.max()), "deg", CHECK_IN)
+    out += [rec(f"joint angle error, {k}, worst frame", float(v.max()), "deg", JOINT_IN)
             for k, v in score.joints_deg.items()]
-    out += [rec(f"segment length error, {k}", float(v), "%", "none (lengths need no "
-                "alignment; against the generator's skeleton)") for k, v in pct.items()]
+    out += [rec(f"segment length error, {k}", float(v), "%", LENGTH_IN) for k, v in pct.items()]
     out += [rec("fitted skin -> true skin, median, seen side", s["skin_to_truth_mm"], "mm",
                 SEEN_IN),
             rec("true skin -> fitted skin, median, seen side", s["skin_from_truth_mm"], "mm",
@@ -73,9 +76,11 @@ def _records(rig, cap, session_s, wf, score_s, check, al, score, verdict):
                 CHECK_IN),
             rec("true skin -> fitted skin, median, all round", s["skin_from_truth_all_mm"],
                 "mm", CHECK_IN)]
+    judged_on = {"joints": JOINT_IN, "lengths": LENGTH_IN, "skin_to_truth": SEEN_IN,
+                 "skin_from_truth": SEEN_IN}
     for k, v in verdict.items():
         out.append(rec(f"verdict: {k} (limit {v['limit']:g} {v['unit']})",
-                       "met" if v["met"] else "NOT met", "", CHECK_IN))
+                       "met" if v["met"] else "NOT met", "", judged_on[k]))
     return out
 
 

@@ -85,3 +85,24 @@ def test_bad_input(tiny_fit):
         wf.score_walk_fit(fit.fit, session, fit.frames, groups, n_per_part=0)
     with pytest.raises(ValueError, match="rig"):
         wf.verdicts(None, "dome")
+
+
+def test_verdicts_at_the_limits_and_with_a_missing_frame():
+    def score(joint_errors):
+        joints = {k: np.array([1.0, 2.0]) for k in MAJOR} | joint_errors
+        skin = [np.array([1.0, 2.0])]
+        return wf.WalkFitScore(frames=np.arange(2), joints_deg=joints,
+                               lengths={"thigh": (402.0, 400.0)}, skin_to_truth=skin,
+                               skin_from_truth=skin, skin_to_truth_all=skin,
+                               skin_from_truth_all=skin, open_edges=np.zeros(2, int))
+    knee = next(k for k in MAJOR if k.startswith("knee"))
+    v = wf.verdicts(score({knee: np.array([0.5, 3.0])}), "studio")   # 3 deg: at the limit
+    assert v["joints"]["met"] and v["joints"]["failing"] == []
+    assert v["lengths"]["met"] and abs(v["lengths"]["value"] - 0.5) < 1e-9
+    assert v["skin_to_truth"]["met"] and v["skin_from_truth"]["met"]
+    v = wf.verdicts(score({knee: np.array([np.nan, 1.0])}), "studio")  # a frame not scored
+    assert not v["joints"]["met"] and v["joints"]["failing"] == [knee]
+    assert score({knee: np.array([np.nan, 1.0])}).summary()["worst_joint"] == knee
+    assert not wf.verdicts(score({knee: np.array([0.5, 3.01])}), "studio")["joints"]["met"]
+    with pytest.raises(ValueError, match="rig"):
+        wf.verdicts(score({}), "dome")

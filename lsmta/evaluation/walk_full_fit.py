@@ -151,8 +151,8 @@ class WalkFitScore:
     def summary(self) -> dict:
         """The headline numbers: worst major joint (deg, and which), worst length (%, and
         which), skin medians over all frames (mm)."""
-        major = {k: v for k, v in self.joints_deg.items() if k in MAJOR}
-        worst = max(major, key=lambda k: major[k].max())
+        major = {k: _worst(v) for k, v in self.joints_deg.items() if k in MAJOR}
+        worst = max(major, key=major.get)
         pct = self.length_pct()
         wl = max(pct, key=lambda k: abs(pct[k]))
 
@@ -160,7 +160,7 @@ class WalkFitScore:
             a = np.concatenate(a) if a else np.empty(0)
             return float(np.median(a)) if a.size else float("nan")
 
-        return {"worst_joint_deg": float(major[worst].max()), "worst_joint": worst,
+        return {"worst_joint_deg": major[worst], "worst_joint": worst,
                 "worst_length_pct": float(abs(pct[wl])), "worst_length": wl,
                 "skin_to_truth_mm": med(self.skin_to_truth),
                 "skin_from_truth_mm": med(self.skin_from_truth),
@@ -243,6 +243,11 @@ def score_walk_fit(fit: FullBodyFit, session, frames, groups, *, n_per_part: int
                         open_edges=np.array(edges), **out)
 
 
+def _worst(errors) -> float:
+    """The largest error over the frames; a frame without one (NaN) counts as failed (inf)."""
+    return float(np.nan_to_num(np.asarray(errors, float), nan=np.inf).max())
+
+
 def verdicts(score: WalkFitScore, rig: str) -> dict:
     """Issue 36's targets for ``rig`` ("triplet" or "studio") against ``score``: per target
     the value, the limit and whether it is met, and the joints / lengths that fail."""
@@ -250,7 +255,7 @@ def verdicts(score: WalkFitScore, rig: str) -> dict:
         raise ValueError(f"rig: expected one of {tuple(TARGETS)}, got {rig!r}")
     deg, pct, mm = TARGETS[rig]
     s = score.summary()
-    worst = {k: float(v.max()) for k, v in score.joints_deg.items() if k in MAJOR}
+    worst = {k: _worst(v) for k, v in score.joints_deg.items() if k in MAJOR}
     lengths = score.length_pct()
     return {
         "joints": {"value": s["worst_joint_deg"], "limit": deg, "unit": "deg",

@@ -3,7 +3,7 @@ triplet and from an all-round studio, scored after the fact against issue 36's t
 
     .venv/bin/python experiments/walk_full_fit.py [--rigs triplet studio] [--frames 8]
         [--scale 1.0] [--fit-every 1] [--seed 36] [--n-seeds 40] [--free-rounds 0]
-        [--n-inner 2] [--max-nfev 25] [--out PATH]
+        [--n-inner 2] [--max-nfev 25] [--angular-speed 8] [--out PATH]
 
 For each rig: :func:`lsmta.evaluation.walk_system.walk_session` renders ``--frames`` of the
 walk (the bar, held-out bar positions, the bar stood upright, tape-measured cameras);
@@ -21,7 +21,12 @@ per-stage times (wall) to ``--out`` (default ``build/benchmarks/walk_full_fit.js
 committed runs: ``experiments/results/walk_full_fit_small.json`` (``--frames 8``, both rigs,
 the fit's default iterations) and ``walk_full_fit_studio_converged.json`` (``--rigs studio
 --frames 8 --n-inner 3 --max-nfev 50``: with the defaults some frames' pose solves stop
-before they converge).
+before they converge), both frame by frame, from before the temporal prior
+(``--angular-speed 0`` now); with :func:`~lsmta.evaluation.walk_full_fit.fit_walk`'s
+temporal prior (8 rad/s, the default): ``walk_full_fit_studio_temporal.json`` (the studio,
+``--n-inner 3 --max-nfev 50``) and ``walk_full_fit_triplet_temporal.json`` (``--rigs
+triplet``), beside ``walk_full_fit_studio_alone.json`` (the same studio run with
+``--angular-speed 0``; all three with BLAS on one thread).
 """
 
 from __future__ import annotations
@@ -85,7 +90,7 @@ def _records(rig, cap, session_s, wf, score_s, check, al, score, verdict):
 
 
 def run_rig(rig: str, *, frames: int, scale: float, fit_every: int, seed: int,
-            n_seeds: int, fit_params: dict, progress: bool) -> dict:
+            n_seeds: int, fit_params: dict, angular_speed: float, progress: bool) -> dict:
     """Render one rig's session, run the system, fit the body, score it."""
     import numba
     import numpy as np
@@ -105,7 +110,8 @@ def run_rig(rig: str, *, frames: int, scale: float, fit_every: int, seed: int,
                        params=BodySystemParams(density_every=2, reject_k=REJECT_K,
                                                surface=SurfaceParams(n_seeds=n_seeds)),
                        progress=progress, seed=seed)
-    fit = wf.fit_walk(cap, every=fit_every, params=FullBodyFitParams(**fit_params))
+    fit = wf.fit_walk(cap, every=fit_every, angular_speed=angular_speed or None,
+                      params=FullBodyFitParams(**fit_params))
     # after the fact: the truth enters only from here on
     t1 = time.perf_counter()
     al, check = ws.check_alignment(cap.cameras, session)
@@ -147,6 +153,8 @@ def main(argv=None):
                         help="pose solves per frame and round of the fit")
     parser.add_argument("--max-nfev", type=int, default=25,
                         help="solver evaluations per pose solve")
+    parser.add_argument("--angular-speed", type=float, default=8.0,
+                        help="rad/s of fit_walk's temporal prior; 0: none (frames alone)")
     parser.add_argument("--progress", action="store_true")
     parser.add_argument("--out", default="build/benchmarks/walk_full_fit.json")
     args = parser.parse_args(argv)
@@ -154,7 +162,7 @@ def main(argv=None):
 
     settings = {k: getattr(args, k) for k in ("frames", "scale", "fit_every", "seed",
                                                "n_seeds", "free_rounds", "n_inner",
-                                               "max_nfev")}
+                                               "max_nfev", "angular_speed")}
     out = {"command": "python experiments/walk_full_fit.py " + " ".join(
                sys.argv[1:] if argv is None else argv),
            "date": date.today().isoformat(), "machine": platform.machine(),
@@ -166,6 +174,7 @@ def main(argv=None):
     for rig in args.rigs:
         r = run_rig(rig, frames=args.frames, scale=args.scale, fit_every=args.fit_every,
                     seed=args.seed, n_seeds=args.n_seeds, progress=args.progress,
+                    angular_speed=args.angular_speed,
                     fit_params={k: settings[k] for k in ("free_rounds", "n_inner", "max_nfev")})
         out["rigs"][rig] = r
         for x in r["records"]:

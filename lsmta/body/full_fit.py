@@ -50,6 +50,21 @@ Stages, in ``n_rounds`` rounds with the tied shape, then ``free_rounds`` with th
     The residuals are skin distances over ``sigma_point`` and closest approaches over
     ``sigma_silhouette`` (:mod:`lsmta.body.silhouette`); a weighted residual above
     ``outlier_k`` at the solution counts as an outlier.
+
+A sequence (off by default: ``temporal_sigma=None``, ``warm_start=False``)
+    The frames are taken as evenly spaced in time, in order. With ``warm_start`` the first
+    round's solve of frame ``t > 0`` starts from frame ``t - 1``'s solved joint angles (its
+    pelvis still at its own points' median) instead of the rest pose. With
+    ``temporal_sigma`` (radians) each free joint angle gets the residuals
+    ``(theta_t - theta_{t-1}) / temporal_sigma`` and ``(theta_t - theta_{t+1}) /
+    temporal_sigma`` against its neighbouring frames' current solutions (only neighbours
+    already solved: in the first round the previous frame only), under the same loss as the
+    points. The rule for the value: a plausible largest angular speed of a joint times the
+    frame spacing (:func:`lsmta.evaluation.walk_full_fit.fit_walk`: 8 rad/s, above the
+    knee's swing peak in a walk, ~6 rad/s). A well-seen limb's thousand points outweigh
+    it; a limb with a point or none in a frame rests on it, so it is drawn to its
+    neighbours' angle (its prior residuals are then all it has) instead of flipping. No
+    separate "hold the angle below k points" rule: the prior does that smoothly.
 """
 
 from __future__ import annotations
@@ -114,6 +129,11 @@ class FullBodyFitParams:
         Start of the knees (radians; inside their limits).
     hold : tuple of str
         Joints held at their start.
+    temporal_sigma : float or None
+        Standard deviation (radians) of a joint angle's change between neighbouring frames
+        (module docstring, "A sequence"); None: no temporal prior.
+    warm_start : bool
+        Start each frame's first solve from the previous frame's angles.
     """
 
     sigma_point: float = 3.0
@@ -139,8 +159,14 @@ class FullBodyFitParams:
     min_neighbours: int = 5
     knee_start: float = -0.1
     hold: tuple = ()
+    temporal_sigma: float | None = None
+    warm_start: bool = False
 
     def __post_init__(self):
+        if self.temporal_sigma is not None:
+            as_scalar(self.temporal_sigma, "temporal_sigma", positive=True)
+        if not isinstance(self.warm_start, bool):
+            raise TypeError(f"warm_start: expected a bool, got {type(self.warm_start).__name__}")
         for name in ("n_rounds", "n_inner", "max_nfev", "min_neighbours"):
             as_int(getattr(self, name), name)
         as_int(self.free_rounds, "free_rounds", minimum=0)
@@ -269,8 +295,9 @@ class _Frame:
                                 near=self.near, far=self.far, base=base,
                                 n_steps=self.p.n_steps)
 
-    def solve(self, m, angles, base, scales, radii, free, bounds, use_rays, loss):
-        """Assign, gate, solve; returns the new angles (1, J), base (1, 4, 4), nfev."""
+    def solve(self, m, angles, base, scales, radii, free, bounds, use_rays, loss, near=()):
+        """Assign, gate, solve; returns the new angles (1, J), base (1, 4, 4), nfev.
+        ``near``: neighbouring frames' angles ``(J,)`` the temporal prior draws towards."""
         p = self.p
         seg = np.argmin(m.all_distances(self.pts, angles, scales, radii, base=base), axis=1)
         keep = np.zeros(len(self.origins), bool)
@@ -283,7 +310,7 @@ class _Frame:
             a[0, free] = x[3:]
             return a, _translation(x[:3])[None]
 
-        cache = {}
+        cache, n_free = {}, int(free.sum())
 
         def terms(x):
             key = x.tobytes()
@@ -298,6 +325,11 @@ class _Frame:
                     r = np.concatenate([r, s.r / p.sigma_silhouette])
                     jac = np.vstack([jac, np.hstack([s.d_translation, s.d_angles[:, free]])
                                      / p.sigma_silhouette])
+                if len(near):
+                    eye = np.hstack([np.zeros((n_free, 3)), np.eye(n_free)])
+                    r = np.concatenate([r, *[(x[3:] - q[free]) / p.temporal_sigma
+                                             for q in near]])
+                    jac = np.vstack([jac, *[eye / p.temporal_sigma] * len(near)])
                 cache.clear()
                 cache[key] = (r, jac)
             return cache[key]
@@ -464,9 +496,12 @@ def fit_full_body(points, *, rays=None, camera_centre=None, heading=None,
         m, radii = _shaped(model, template, scales, shape)
         loss = p.loss if k < p.n_rounds else p.free_loss
         for t, f in enumerate(frames):
+            if k == 0 and t > 0 and p.warm_start:
+                angles[t] = angles[t - 1]
+            near = _neighbours(angles, t, k, p)
             for _ in range(int(p.n_inner)):
                 a, b, n = f.solve(m, angles[[t]], base[[t]], scales, radii, free, bounds,
-                                  k >= p.silhouette_from, loss)
+                                  k >= p.silhouette_from, loss, near)
                 angles[t], base[t], nfev = a[0], b[0], nfev + n
         if k == p.n_rounds:
             tied = shape.copy()
@@ -476,6 +511,15 @@ def fit_full_body(points, *, rays=None, camera_centre=None, heading=None,
     model, radii = _shaped(model, template, scales, shape)
     return _finish(model, frames, stature, angles, base, scales, radii, start_angles,
                    start_base, nfev, p)
+
+
+def _neighbours(angles, t, k, p):
+    """The solved neighbours of frame ``t`` in round ``k`` the temporal prior draws
+    towards (module docstring)."""
+    if p.temporal_sigma is None:
+        return []
+    ts = [t - 1] + ([t + 1] if k > 0 else [])
+    return [angles[u].copy() for u in ts if 0 <= u < len(angles)]
 
 
 def _finish(model, frames, stature, angles, base, scales, radii, start_angles, start_base,

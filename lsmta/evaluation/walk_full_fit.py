@@ -4,8 +4,11 @@
 :func:`fit_walk` takes only a :class:`~lsmta.systems.BodyCapture`: every ``every``-th
 processed frame's filtered points (:meth:`~lsmta.systems.BodyCapture.points_at`, the
 system's own world: the tape-measured floor at ``z = 0``, up levelled with the upright bar)
-go into :func:`lsmta.body.full_fit.fit_full_body`, shape shared, pose per frame. No
-generator point, camera or pose goes in.
+go into :func:`lsmta.body.full_fit.fit_full_body`, shape shared, pose per frame, by default
+as a sequence: each frame warm-started from the previous one and its joint angles drawn
+towards its neighbours' by a plausible angular speed (``angular_speed``; without it a
+forearm that carries a point or none in a frame flipped). No generator point, camera or
+pose goes in.
 
 :func:`aligned_fit` then carries the fit into the true world by the rigid motion of
 :func:`~lsmta.evaluation.walk_system.check_alignment` (held-out bar targets, no scale): the
@@ -25,7 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._validate import as_int
+from .._validate import as_int, as_scalar
 from ..body.full_fit import FullBodyFit, FullBodyFitParams, fit_full_body
 from ..body.skin import SkinParams, merge_patches, model_skin
 from ..synth.body import inside_parts
@@ -33,6 +36,9 @@ from ..synth.render import project_surface_points
 from ..synth.surface import distance_to_body
 from .body_system import Alignment
 from .full_body import MAJOR, joint_angle_errors, length_errors
+
+# rad/s: a plausible largest joint angular speed in a walk (the knee's swing peak is ~6)
+ANGULAR_SPEED = 8.0
 
 # issue 36: (every major joint in every frame, deg; segment lengths, %; skin median, mm)
 TARGETS = {"triplet": (5.0, 3.0, 3.0), "studio": (3.0, 2.0, 2.0)}
@@ -64,7 +70,8 @@ class WalkFit:
 
 
 def fit_walk(capture, *, every: int = 1, first: int = 0, last: int | None = None,
-             max_points: int | None = None, params: FullBodyFitParams | None = None) -> WalkFit:
+             max_points: int | None = None, angular_speed: float | None = ANGULAR_SPEED,
+             params: FullBodyFitParams | None = None) -> WalkFit:
     """Fit the full body to the system's points of every ``every``-th processed frame from
     ``first`` up to ``last`` (exclusive; default all) of ``capture``.
 
@@ -78,6 +85,12 @@ def fit_walk(capture, *, every: int = 1, first: int = 0, last: int | None = None
     max_points : int, optional
         At most this many points per frame, evenly spaced in the capture's order (the
         fit's time grows with the points; default all).
+    angular_speed : float or None
+        A plausible largest joint angular speed (rad/s; default 8, above the knee's swing
+        peak in a walk, ~6 rad/s). The fit then runs as a sequence (:mod:`lsmta.body.
+        full_fit`, "A sequence"): ``warm_start`` and ``temporal_sigma`` = this times the
+        median spacing of the fitted frames (``capture.fps``), overriding ``params``'.
+        None: ``params`` as given (each frame from the rest pose, no temporal prior).
     params : FullBodyFitParams, optional
         ``floor`` is the system world's floor height (0: the tape-measured world's).
     """
@@ -94,8 +107,15 @@ def fit_walk(capture, *, every: int = 1, first: int = 0, last: int | None = None
         n = as_int(max_points, "max_points", minimum=10)
         points = [p[np.unique(np.linspace(0, len(p) - 1, n).astype(int))] if len(p) > n else p
                   for p in points]
+    p = FullBodyFitParams() if params is None else params
+    if not isinstance(p, FullBodyFitParams):
+        raise TypeError(f"params: expected FullBodyFitParams, got {type(p).__name__}")
+    if angular_speed is not None:
+        speed = as_scalar(angular_speed, "angular_speed", positive=True)
+        dt = float(np.median(np.diff(np.asarray(capture.frames)[processed]))) / capture.fps
+        p = replace(p, temporal_sigma=speed * dt, warm_start=True)
     t0 = time.perf_counter()
-    fit = fit_full_body(points, params=params)
+    fit = fit_full_body(points, params=p)
     return WalkFit(fit=fit, processed=processed,
                    frames=np.asarray(capture.frames)[processed],
                    n_points=np.array([len(p) for p in points]),

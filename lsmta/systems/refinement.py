@@ -37,18 +37,21 @@ own estimate of its feature's position; :func:`lsmta.calibration.refine_tie_poin
 them, in the frames they were found in, to where each view shows the template view's patch,
 before they are grouped into places. It uses the frames and the given cameras only (they
 give each point's template view and local plane), not the adjustment, so the held-out
-places stay held out. On the Pose2Sim demo at full size (frames 0-99,
-``experiments/refinement_held_out.py`` with ``--lsm both``; two runs, each adjusted and judged
-on its own places) it drops 676 of 1125 tie points (failed matches), and the adjusted
-places' median residual is 0.26/0.37/0.10/0.14 px (cam01-cam04) with it against
-0.63/0.60/0.60/0.54 without. The held-out still places are another matter: without the
-matching 44 of them, at 1.04/0.95/1.10/0.89 px with that run's cameras; with it only 19
-(15/14/4/5 per camera), at 0.30/0.23/0.30/0.24 px at their matched positions, which that
-run's cameras were fitted to. Different places at different positions: the two do not
-compare the runs' cameras (the experiment's ``common`` scores both on the places held out
-of both runs: 4, too few to compare them). cam03 and
-cam04 see fewer than ``min_still_held`` of them, so that run is judged on all held-out
-places (0.25/0.23/0.60/0.46 px): the 0.5-px target is NOT met there (cam03).
+places stay held out. A still feature (tie points of several frames at the same pixels as
+found, ``lsm_still_once``) is matched once over its frames, so its frames stay one place;
+where a 21-px patch fails, 41- and 61-px ones are tried (``TieLSMParams.larger_patches``).
+On the Pose2Sim demo at full size (frames 0-99, ``experiments/refinement_held_out.py`` with
+``--lsm both``; two runs, each adjusted and judged on its own places) the matching drops 503
+of 1125 tie points (failed matches), and the adjusted places' median residual is
+0.31/0.46/0.20/0.16 px (cam01-cam04) with it against 0.63/0.60/0.60/0.54 without. The
+held-out still places: without the matching 44 of them, at 1.04/0.95/1.10/0.89 px with that
+run's cameras; with it 33 (27/20/7/12 per camera; 19, 15/14/4/5, with each tie point matched
+alone and the 21-px patch only), at 0.30/0.33/0.36/0.08 px at their matched positions, which
+that run's cameras were fitted to. Different places at different positions: the two do not
+compare the runs' cameras (the experiment's ``common`` scores both on the places held out of
+both runs: 10, too few to compare them). cam03 sees fewer than ``min_still_held`` of them,
+so that run is judged on all held-out places (0.29/0.26/0.57/0.49 px): the 0.5-px target is
+NOT met there (cam03).
 
 A refined camera whose lens model cannot be inverted everywhere in its frame
 (:func:`_folds`: the fitted distortion folds over inside it) makes the whole refinement
@@ -127,6 +130,13 @@ class RigRefinementParams:
         only, never the adjustment: held-out places stay held out.
     tie_lsm : TieLSMParams
         Its pixels are those of the frames searched for tie points (the working size).
+    lsm_still_once : bool
+        With ``lsm``: a still feature (tie points of different frames within ``place_px`` of
+        each other in every view they share, :func:`_places` on the positions as found) is
+        matched once, with one template position, its best converged match over its frames
+        taken for all of them (``groups`` of :func:`lsmta.calibration.refine_tie_points`);
+        else each tie point alone, and a still feature whose match fails in some frames or
+        lands apart in others breaks into one-frame places. Default True.
     refine : RefineParams
     """
 
@@ -142,6 +152,7 @@ class RigRefinementParams:
     tie: TieParams = field(default_factory=TieParams)
     lsm: bool = True
     tie_lsm: TieLSMParams = field(default_factory=TieLSMParams)
+    lsm_still_once: bool = True
     refine: RefineParams = field(default_factory=RefineParams)
 
     def __post_init__(self):
@@ -159,6 +170,9 @@ class RigRefinementParams:
             raise TypeError(f"lsm: expected True or False, got {self.lsm!r}")
         if not isinstance(self.tie_lsm, TieLSMParams):
             raise TypeError("tie_lsm: expected TieLSMParams")
+        if not isinstance(self.lsm_still_once, bool):
+            raise TypeError(f"lsm_still_once: expected True or False, got "
+                            f"{self.lsm_still_once!r}")
 
 
 @dataclass(frozen=True)
@@ -598,7 +612,9 @@ def _tie_points_at_work_size(videos: Videos, given, picks, params, stacks=None, 
 
     if not lsm:
         return back(tie), back(tie), None
-    refined, info = refine_tie_points(images, tie, cams, params=params.tie_lsm)
+    groups = (_places(tie.xy, params.place_px * videos.scale * factor, tie.frame)
+              if params.lsm_still_once else None)
+    refined, info = refine_tie_points(images, tie, cams, params=params.tie_lsm, groups=groups)
     return back(tie), back(refined), info
 
 

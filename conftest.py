@@ -3,14 +3,16 @@ time, ``--dist loadfile --no-loadscope-reorder``: xdist would otherwise hand out
 with the most tests first, and every notebook, one test each, last) finish together instead
 of one waiting on a long notebook.
 
-``HEAVY`` lists the slowest files as measured by ``pytest --durations`` on 2 cores
-(2026-11-27: notebook 20 about 6 min, 14 about 3 min, then 07, 15, the video refinement
-test, ...); the other notebooks come next, then the other tests, each group in its own order.
-A file missing from the list only runs later; nothing is skipped.
+``HEAVY`` lists the slowest files as measured by ``pytest --durations`` in the suite on 2
+cores (2026-11-28: the video refinement test and the walk's full-body fit about 2 min each,
+then notebooks 21, 15, 18, 14, ... at 40-70 s); the other notebooks come next, then the
+other tests, each group in its own order. A file missing from the list only runs later;
+nothing is skipped.
 """
 
-HEAVY = ("20_", "test_rig_refinement", "14_", "07_", "15_", "test_full_fit", "18_", "01_",
-         "03_", "08_", "17_", "test_systems", "13_", "19_", "21_")
+HEAVY = ("test_rig_refinement", "test_walk_full_fit", "21_", "15_", "18_", "14_", "17_",
+         "13_", "01_", "03_", "08_", "test_walk_system", "20_", "07_", "test_full_fit",
+         "test_systems", "19_", "test_cli")
 
 
 def _rank(item) -> tuple:

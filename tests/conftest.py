@@ -1,3 +1,4 @@
+import cv2
 import numpy as np
 import pytest
 
@@ -44,6 +45,51 @@ def occlusion_pair(rng: np.random.Generator):
     search = np.where(xx >= 109, np.roll(fore, 9, axis=1), np.roll(back, 3, axis=1))
     noise = rng.normal(0, 1.0, (2, 120, 220))
     return template + noise[0], search + noise[1]
+
+
+def rig_cameras(n=4, width=640, height=480, f=560.0):
+    """``n`` cameras 3 m out on an arc of 70 degrees, 1.4 m up, looking at (0, 400, 700) mm,
+    with a little radial distortion (tests/test_rig_refinement*.py)."""
+    cams = []
+    for a in np.deg2rad(np.linspace(-35, 35, n)):
+        eye = np.array([3000 * np.sin(a), -3000 * np.cos(a), 1400.0])
+        cams.append(Camera.look_at(eye, (0, 400, 700), f=f, width=width, height=height,
+                                   name=f"cam{len(cams) + 1:02d}").replace(k1=-0.08, k2=0.05))
+    return cams
+
+
+def disturbed(cams, rng, *, px=6.0):
+    """Cameras a few pixels off: centre moved, principal distance and point changed."""
+    out = []
+    for c in cams:
+        out.append(c.replace(C=c.C + rng.normal(0, 15, 3), f=c.f * (1 + rng.normal(0, 0.008)),
+                             cx=c.cx + rng.normal(0, px), cy=c.cy + rng.normal(0, px)))
+    return out
+
+
+def random_texture(rng, size=1024):
+    """(size, size) float32 texture of blurred noise stretched to 0..255."""
+    t = cv2.GaussianBlur(rng.uniform(0, 255, (size, size)), (0, 0), 2.0)
+    t = cv2.normalize(t, None, 0, 255, cv2.NORM_MINMAX)
+    return t.astype(np.float32)
+
+
+def render_room(cam, floor_tex, wall_tex, shift):
+    """A floor (z = 0) and a wall (y = 1500) with random texture, seen by ``cam``; the
+    textures slide by ``shift`` px per frame (a moving scene: frames hold new points)."""
+    xy = cam.pixel_grid().reshape(-1, 2)
+    o, d = cam.rays(xy)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_floor = np.where(d[:, 2] < 0, -o[:, 2] / d[:, 2], np.inf)
+        t_wall = np.where(d[:, 1] > 0, (1500 - o[:, 1]) / d[:, 1], np.inf)
+    P = o + np.minimum(t_floor, t_wall)[:, None] * d
+    on_wall = t_wall < t_floor
+    u = (P[:, 0] / 4 + 512 + shift).reshape(cam.height, cam.width).astype(np.float32)
+    v = (np.where(on_wall, P[:, 2], P[:, 1]) / 4 + 512).reshape(u.shape).astype(np.float32)
+    floor, wall = (cv2.remap(tex, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+                   for tex in (floor_tex, wall_tex))
+    out = np.where(on_wall.reshape(u.shape), wall, floor)
+    return out.reshape(cam.height, cam.width).astype(np.uint8)
 
 
 def pytest_collection_modifyitems(config, items):

@@ -604,3 +604,46 @@ def test_batched_coarse_to_fine_gives_the_per_frame_positions_and_statuses(monke
     assert np.array_equal(np.isnan(batched.xy), np.isnan(reference.xy))
     assert np.nanmax(np.abs(batched.xy - reference.xy)) < 1e-6
     assert (batched.status == TrackStatus.ALIVE).sum() > 0.3 * len(g)
+
+
+def test_a_patch_over_the_border_is_tracked_with_a_partial_template():
+    """Points whose patch reaches over the image border (at the start, or as they move out)
+    are tracked with partial templates, as KLT keeps such windows; without ``partial`` they
+    are not started or get lost."""
+    rng = np.random.default_rng(21)
+    base = _texture(rng, (120, 160), sigma=2.0)
+    vel = np.array([-0.6, 0.35])                        # towards the left border
+    T = 8
+    frames = np.stack([ndimage.shift(base, (vel[1] * t, vel[0] * t), order=3, mode="reflect")
+                       for t in range(T)])
+    ys = np.arange(30.0, 91.0, 12.0)
+    edge = np.stack([np.full(ys.size, 156.0), ys], axis=1)       # patch over the border
+    near = np.stack([np.full(ys.size, 9.0), ys], axis=1)         # reaches over it later
+    xy0 = np.concatenate([edge, near])
+    truth = xy0[None] + np.arange(T)[:, None, None] * vel
+    tm = sample_templates(SplineImage(frames[0]), edge, 11, partial=True)
+    assert tm.ok.all() and not tm.full.any()
+    assert not tm.mask.reshape(-1, 11, 11)[:, :, -2:].any()       # x 160, 161: outside
+    assert tm.mask.reshape(-1, 11, 11)[:, :, :-2].all()
+    assert not sample_templates(SplineImage(frames[0]), edge, 11).ok.any()
+    # both anchors: with "previous" every match is the forward LSM, whose patch leaves the
+    # image when the point nears the border (then matched again with a partial patch)
+    for anchor in ("first", "previous"):
+        tr = track_points(frames[None], xy0[None],
+                          params=TrackerParams(partial=True, anchor=anchor))
+        assert (tr.status == TrackStatus.ALIVE).all(), anchor
+        err = np.linalg.norm(tr.xy[:, 0] - truth, axis=2)
+        assert np.median(err) < 0.05 and err.max() < 0.2, anchor
+    off = track_points(frames[None], xy0[None], params=TrackerParams(partial=False))
+    assert (off.status[:ys.size] == TrackStatus.NOT_STARTED).all()
+    assert not (off.status[ys.size:] == TrackStatus.ALIVE).any()
+    with pytest.raises(ValueError, match="params.partial"):
+        track_points(frames[None], xy0[None], params=TrackerParams(partial="yes"))
+
+
+def test_partial_templates_change_nothing_away_from_the_border(translation):
+    images, xy0, _ = translation
+    on = track_points(images, xy0, params=TrackerParams(partial=True))
+    off = track_points(images, xy0, params=TrackerParams(partial=False))
+    assert np.array_equal(on.status, off.status)
+    assert np.array_equal(on.xy, off.xy, equal_nan=True)

@@ -452,14 +452,25 @@ def _near_held_out(xy, labels, held, tol_px: float) -> np.ndarray:
 
 def _merged(xy, labels) -> np.ndarray:
     """(K, P, 2) position of each place per view: the median over its points (NaN where no
-    point of it is seen in that view)."""
-    order = np.argsort(labels, kind="stable")
-    groups = np.split(order, np.flatnonzero(np.diff(labels[order])) + 1)
-    out = np.full((xy.shape[0], len(groups), 2), np.nan)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)            # all-NaN: not seen
-        for p, g in enumerate(groups):
-            out[:, p] = np.nanmedian(xy[:, g], axis=1)
+    point of it is seen in that view), places in the order of their labels.
+
+    All places at once: each view's coordinate sorted by place, then by value (NaN last),
+    the median the half-sum of the middle two finite values (of the middle one twice), as
+    ``np.nanmedian`` computes it, so the same numbers bit for bit (one ``np.nanmedian`` call
+    per place took seconds for some thousand places)."""
+    K, N = xy.shape[:2]
+    _, place = np.unique(labels, return_inverse=True)
+    P = int(place.max()) + 1 if N else 0
+    start = np.searchsorted(np.sort(place), np.arange(P))        # each place's first slot
+    out = np.full((K, P, 2), np.nan)
+    for k in range(K):
+        for c in range(2):
+            v = xy[k, :, c]
+            ordered = v[np.lexsort((v, place))]                  # NaN last within a place
+            n = np.bincount(place, weights=np.isfinite(v), minlength=P).astype(int)
+            lo, hi = start + np.maximum(n - 1, 0) // 2, start + n // 2
+            with np.errstate(invalid="ignore"):
+                out[k, :, c] = np.where(n > 0, (ordered[lo] + ordered[hi]) / 2.0, np.nan)
     return out
 
 

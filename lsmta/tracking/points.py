@@ -63,6 +63,13 @@ The missing frames of a recovered track stay NaN.
 
 With one camera (2-D mode, paper Section 2.3.3) there is no spatial check.
 
+*Image border* (beyond the paper; ``partial``): KLT keeps a window that reaches over the
+image border, and so does this tracker. A point whose patch reaches over the border gets a
+*partial* template (its pixels outside the image masked; at least half of them inside), and
+a patch that leaves the image in a later frame is matched with the outside pixels given
+zero weight (the forward LSM with partial patches, see
+:func:`~lsmta.tracking.templates.match_templates`); away from the border nothing changes.
+
 *Surface tracking* (Fig. 9): with ``new_points``, every ``density_every`` frames the live
 tracks are checked for density in the template image
 (:func:`~lsmta.tracking.density.sparse_candidates`), and that frame's measured surface
@@ -144,6 +151,13 @@ class TrackerParams:
         from the trajectory's prediction fails (0: none). Each level halves the image, so
         the prediction may be off by about ``patch * 2**pyramid_levels / 2`` pixels; 3 is
         the depth of the peer (:func:`~lsmta.tracking.klt.track_klt`).
+    partial : bool
+        Patches may reach over the image border, as KLT's windows do: a point whose patch
+        leaves the image gets a *partial* template (its pixels outside masked, at least
+        half of them inside) and a track whose patch leaves the image is matched with the
+        outside pixels given zero weight (forward LSM, ``partial`` of
+        :func:`~lsmta.tracking.templates.match_templates`). False: such points are not
+        started (``NOT_STARTED``) and such matches fail.
     max_reprojection : float
         Largest reprojection error of an accepted frame, px (only with ``cameras``).
     density_every : int
@@ -168,6 +182,7 @@ class TrackerParams:
     reanchor_distortion: float = 0.25
     max_gap: int = 10
     pyramid_levels: int = 3
+    partial: bool = True
     max_reprojection: float = 1.0
     density_every: int = 2
     cell: float = 16.0
@@ -319,7 +334,7 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
             raise ValueError(f"cameras: expected {K} lsmta.camera.Camera (one per image "
                              "sequence, at least 2), or None")
     splines = [SplineImage(seq[k, 0], "images") for k in range(K)]
-    first = _Anchors.sampled(splines, xy0, 0, p.patch)
+    first = _Anchors.sampled(splines, xy0, 0, p)
     started &= _spatial_start(first, splines, xy0, p)
     state = _State.initial(xy0, started, T, first, cameras)
     pyramids = _Pyramids(seq, p.pyramid_levels)
@@ -346,6 +361,8 @@ def _check_params(p: TrackerParams, K: int) -> None:
     if K > 1 and not (isinstance(p.template, int | np.integer) and 0 <= p.template < K):
         raise ValueError(f"params.template: expected a camera index in [0, {K - 1}], "
                          f"got {p.template}")
+    if not isinstance(p.partial, bool | np.bool_):
+        raise ValueError(f"params.partial: expected True or False, got {p.partial!r}")
     if p.anchor not in ANCHORS:
         raise ValueError(f"params.anchor: expected one of {list(ANCHORS)}, got {p.anchor!r}")
     as_scalar(p.max_disagreement, "params.max_disagreement", positive=True)
@@ -371,10 +388,11 @@ class _Anchors:
     sigma_ref: np.ndarray     # (K, N) sigma0 of the first match after anchoring
 
     @classmethod
-    def sampled(cls, splines, xy, frame: int, patch: int) -> _Anchors:
+    def sampled(cls, splines, xy, frame: int, p: TrackerParams) -> _Anchors:
         """Templates at ``xy`` ``(K, n, 2)`` of the images ``splines`` (frame ``frame``)."""
         K, n = xy.shape[:2]
-        return cls(templates=[sample_templates(s, xy[k], patch) for k, s in enumerate(splines)],
+        return cls(templates=[sample_templates(s, xy[k], p.patch, partial=p.partial)
+                              for k, s in enumerate(splines)],
                    A=_eye(K, n), S=_eye(K, n), D=np.zeros((K, n, 2)),
                    frame=np.full(n, frame, np.int64), sigma_ref=np.full((K, n), np.nan))
 
@@ -467,7 +485,7 @@ def _lsm(p: TrackerParams) -> dict:
     """Settings of every template match: the paper's forward additive LSM for templates that
     change every frame (``anchor="previous"``, see :func:`match_templates`)."""
     return dict(thresholds=p.thresholds, max_iter=p.max_iter, tol=p.tol,
-                inverse=p.anchor == "first")
+                inverse=p.anchor == "first", partial=p.partial)
 
 
 def _eye(K, n):
@@ -611,7 +629,8 @@ def _sampled_from(images, which, xy, patch: int) -> Templates:
     f = values - values.mean(axis=1, keepdims=True)
     ok &= (f * f).sum(axis=1) > 1e-9 * P
     return Templates(values=values, gx=gx, gy=gy, update=np.full((n, 6, 6), np.nan),
-                     q_xy=np.full((n, 2, 2), np.nan), ok=ok, patch=patch)
+                     q_xy=np.full((n, 2, 2), np.nan), ok=ok, mask=np.ones((n, P), bool),
+                     full=np.ones(n, bool), patch=patch)
 
 
 def _search_missing(state: _State, seq, nxt, t: int, p: TrackerParams) -> None:
@@ -644,7 +663,7 @@ def _add_where_sparse(state: _State, new_points, nxt, t: int, p: TrackerParams) 
     add = sparse_candidates(alive_now, cand[tmpl], cell=p.cell, min_per_cell=p.min_per_cell,
                             min_distance=p.min_distance)
     if add.size:
-        first = _Anchors.sampled(nxt, cand[:, add], t, p.patch)
+        first = _Anchors.sampled(nxt, cand[:, add], t, p)
         confirmed = _spatial_start(first, nxt, cand[:, add], p)
         if confirmed.any():
             keep = np.flatnonzero(confirmed)
@@ -839,7 +858,7 @@ def _anchor_fallback(state: _State, splines, t: int, rows, p: TrackerParams) -> 
     if not rows.size:
         return
     K = len(splines)
-    new = _Anchors.sampled(splines, state.xy[t][:, rows], t, p.patch)
+    new = _Anchors.sampled(splines, state.xy[t][:, rows], t, p)
     A1 = state.first.A[:, rows]
     if K > 1:
         new.S[:] = A1 @ state.first.S[:, rows] @ np.linalg.inv(A1[p.template])[None]
@@ -884,7 +903,7 @@ def _reanchor(anchors: _Anchors, nxt, t: int, rows, xy, A, M, off, p: TrackerPar
     """New templates at ``xy`` ``(K, n, 2)`` of frame ``t`` for ``rows`` (matched there with
     the affinities ``A``); the spatial relation follows from the spatial results
     (``S_k = M_k A_tm^-1``, ``D = off``), ``A`` restarts at the identity."""
-    new = _Anchors.sampled(nxt, xy, t, p.patch)
+    new = _Anchors.sampled(nxt, xy, t, p)
     if len(nxt) > 1:
         new.S[:] = M @ np.linalg.inv(A[p.template])[None]
         new.D[:] = off
@@ -970,7 +989,7 @@ def track_step(frame, next_frame, xy, predicted, radius, *, params: TrackerParam
         raise ValueError(f"radius: expected integers >= 1 (pixels), got {radius}")
     splines = [SplineImage(seq[k, 0], "frame") for k in range(K)]
     nxt = [SplineImage(seq[k, 1], "next_frame") for k in range(K)]
-    first = _Anchors.sampled(splines, cur, 0, p.patch)
+    first = _Anchors.sampled(splines, cur, 0, p)
     _spatial_start(first, splines, cur, p)
     rows = np.arange(n)
     st = _temporal(first, seq, nxt, 1, rows, pred, r.astype(np.int64), p,

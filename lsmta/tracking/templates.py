@@ -53,8 +53,10 @@ from ..matching.correlation import CorrelationStatus, search_patches
 from ..matching.lsm import LSMParams, LSMResult, LSMThresholds, Status, lsm
 from ..matching.spline import SplineImage
 
-_ARRAYS = ("values", "gx", "gy", "update", "q_xy", "ok")
+_ARRAYS = ("values", "gx", "gy", "update", "q_xy", "ok", "mask", "full")
 MAX_VIF = 1e3  #: eigenvalues below 1 / MAX_VIF of the largest (unit-diagonal scaling) are cut
+#: smallest share of a partial template's pixels that must lie inside its image
+MIN_INSIDE = 0.5
 
 
 @dataclass(frozen=True)
@@ -75,6 +77,12 @@ class Templates:
         Position block of the (full) inverse normal matrix, for the precision.
     ok : (N,) bool array
         Textured enough to be matched (the template's grey levels vary).
+    mask : (N, P) bool array
+        The template pixels inside the image it was sampled from (all, except for a
+        *partial* template, one whose patch reached over the image's border).
+    full : (N,) bool array
+        Every pixel inside (``mask`` all True). A partial template has no normal matrix
+        (``update``, ``q_xy`` NaN): only the forward LSM with partial patches matches it.
     patch : int
     """
 
@@ -84,6 +92,8 @@ class Templates:
     update: np.ndarray
     q_xy: np.ndarray
     ok: np.ndarray
+    mask: np.ndarray
+    full: np.ndarray
     patch: int
 
     def __len__(self) -> int:
@@ -109,7 +119,8 @@ class Templates:
 def search_templates(templates: Templates, rows, search, predicted_xy, radius: int):
     """Best normalised cross-correlation positions ``(n, 2)`` of the (unwarped) templates
     ``rows`` in a box of half-width ``radius`` around ``predicted_xy`` in ``search`` (an
-    ``(H, W)`` image); NaN where the peak is on the box's border or the box leaves the image.
+    ``(H, W)`` image); NaN where the peak is on the box's border, the box leaves the image
+    or the template is partial.
 
     The stored patches are the templates of the search of
     :func:`~lsmta.matching.correlation_search` (:func:`~lsmta.matching.correlation.search_patches`).
@@ -122,7 +133,8 @@ def search_templates(templates: Templates, rows, search, predicted_xy, radius: i
     tiles = templates.values[rows].reshape(len(rows), patch, patch)
     # search_patches checks every argument (``search``: a 2-D grey image of finite values)
     res = search_patches(tiles, search, predicted_xy, radius=radius)
-    good = res.status == CorrelationStatus.OK
+    # a partial template's missing pixels are no texture: it is not searched
+    good = (res.status == CorrelationStatus.OK) & templates.full[rows]
     xy[good] = res.xy[good]
     return xy
 
@@ -142,10 +154,15 @@ def _offsets(patch: int) -> np.ndarray:
     return U
 
 
-def sample_templates(image: SplineImage, xy, patch: int, *, normals: bool = True) -> Templates:
+def sample_templates(image: SplineImage, xy, patch: int, *, normals: bool = True,
+                     partial: bool = False) -> Templates:
     """Anchor ``N`` templates at the positions ``xy`` ``(N, 2)`` of ``image``.
 
     A position whose patch leaves the image, or whose patch is flat, gets ``ok = False``.
+    With ``partial`` a position inside the image whose patch reaches over its border gets
+    a *partial* template instead (as KLT keeps a window that reaches over the border): its
+    pixels outside the image are masked (``mask``; value and gradients 0), and it is
+    ``ok`` when at least ``MIN_INSIDE`` of its pixels are inside and they are not flat.
     With ``normals=False`` only the grey levels and gradients are sampled (all that
     :func:`match_translation` uses); ``update`` and ``q_xy`` are then NaN, so such a store
     cannot pass :func:`match_templates`' thresholds by mistake.
@@ -154,20 +171,47 @@ def sample_templates(image: SplineImage, xy, patch: int, *, normals: bool = True
     U = offsets(patch)
     n, P = len(xy), len(U)
     values, gx, gy = np.zeros((n, P)), np.zeros((n, P)), np.zeros((n, P))
-    ok = image.inside(xy, margin=patch // 2) & np.isfinite(xy).all(axis=1)
+    finite = np.isfinite(xy).all(axis=1)
+    ok = image.inside(xy, margin=patch // 2) & finite
     if ok.any():
         values[ok], gx[ok], gy[ok] = image.sample(xy[ok, None, :] + U, gradient=True)
     f = values - values.mean(axis=1, keepdims=True)
     ff = (f * f).sum(axis=1)
+    full = ok.copy()
     ok &= ff > 1e-9 * P
+    mask = np.broadcast_to(full[:, None], (n, P)).copy()
+    part = np.flatnonzero(partial & ~full & finite & image.inside(np.nan_to_num(xy)))
+    if part.size:
+        ok[part] = _sample_partial(image, xy[part], U, values, gx, gy, mask, part)
     if not normals:
         return Templates(values=values, gx=gx, gy=gy, update=np.full((n, 6, 6), np.nan),
-                         q_xy=np.full((n, 2, 2), np.nan), ok=ok, patch=patch)
+                         q_xy=np.full((n, 2, 2), np.nan), ok=ok, mask=mask, full=full,
+                         patch=patch)
     fh = f / np.sqrt(np.maximum(ff, 1e-300))[:, None]
     H = np.empty((n, 6, 6))
     _normals(gx, gy, fh, U, H)
-    update, q_xy = _inverses(H, ok)
-    return Templates(values=values, gx=gx, gy=gy, update=update, q_xy=q_xy, ok=ok, patch=patch)
+    update, q_xy = _inverses(H, ok & full)
+    update[~full], q_xy[~full] = np.nan, np.nan
+    return Templates(values=values, gx=gx, gy=gy, update=update, q_xy=q_xy, ok=ok, mask=mask,
+                     full=full, patch=patch)
+
+
+def _sample_partial(image: SplineImage, xy, U, values, gx, gy, mask, rows) -> np.ndarray:
+    """Sample the partial templates ``rows`` at ``xy`` ``(m, 2)`` into ``values``, ``gx``,
+    ``gy`` and ``mask`` (pixels inside ``image`` only); returns which are usable ``(m,)``:
+    at least ``MIN_INSIDE`` of the pixels inside, and those not flat."""
+    pts = xy[:, None, :] + U                                      # (m, P, 2)
+    inside = image.inside(pts)
+    mask[rows] = inside
+    v, x, y = image.sample(pts[inside], gradient=True)
+    for a, s in ((values, v), (gx, x), (gy, y)):
+        block = np.zeros(inside.shape)
+        block[inside] = s
+        a[rows] = block
+    cnt = inside.sum(axis=1)
+    mean = (values[rows] * inside).sum(axis=1) / np.maximum(cnt, 1)
+    spread = (((values[rows] - mean[:, None]) * inside) ** 2).sum(axis=1)
+    return (cnt >= MIN_INSIDE * len(U)) & (spread > 1e-9 * np.maximum(cnt, 1))
 
 
 @nb.njit(cache=True)
@@ -228,7 +272,8 @@ def _inverses(H, ok):
 def match_templates(templates: Templates, rows, search: SplineImage, start_xy, start_A, *,
                     thresholds: LSMThresholds | None = None, max_iter: int = 30,
                     tol: float = 0.01, max_displacement: float | None = None,
-                    fallback: bool = True, inverse: bool = True) -> LSMResult:
+                    fallback: bool = True, inverse: bool = True,
+                    partial: bool = False) -> LSMResult:
     """Match the templates ``rows`` into ``search``, started at ``start_xy`` with ``start_A``.
 
     Parameters
@@ -257,6 +302,14 @@ def match_templates(templates: Templates, rows, search: SplineImage, start_xy, s
         iterations, whatever ``fallback`` says). With a template that changes every frame,
         the inverse compositional step, whose Jacobian comes from the noisy template, is
         biased by that noise, and the bias adds up from frame to frame.
+    partial : bool
+        Patches may reach over the search image's border: a partial template (``full``
+        False), and a template whose inverse compositional match left the image (status
+        OUTSIDE), or whose forward retry did, are matched with the forward LSM with partial
+        patches (:class:`~lsmta.matching.lsm.LSMParams` ``partial``: the pixels outside the
+        template or the search image get zero weight; ``thresholds.min_weight_share`` rejects
+        a patch mostly outside), whatever ``fallback`` says. False: a partial template is
+        never matched (status SINGULAR) and a patch leaving the image is OUTSIDE.
 
     Returns
     -------
@@ -271,20 +324,42 @@ def match_templates(templates: Templates, rows, search: SplineImage, start_xy, s
     result = _inverse_compositional(templates, rows, search, start_xy, start_A, max_iter, tol,
                                     max_disp, inverse)
     start = np.asarray(start_xy, float).reshape(n, 2)
+    start_A = np.asarray(start_A, float).reshape(n, 2, 2)
     outside = result.status == Status.OUTSIDE
     if thresholds is not None:
         result = thresholds.apply(result)
-    redo = np.flatnonzero(~result.ok & templates.ok[rows] & ~outside)
-    if not (fallback or not inverse) or not redo.size:
-        return result
-    tiles, centres = _mosaic(templates, rows[redo])
-    fa = lsm(tiles, search, centres, start[redo], params=LSMParams(
+    usable = templates.ok[rows]
+    full = templates.full[rows]
+    redo = np.flatnonzero(~result.ok & usable & ~outside & full)
+    if not (fallback or not inverse):
+        redo = redo[:0]
+    kw = dict(max_iter=max_iter, tol=tol, max_disp=max_disp, thresholds=thresholds)
+    if redo.size:
+        result = _forward(result, templates, rows, redo, search, start, start_A, False, **kw)
+    if partial:      # the forward retry may have left the image too
+        outside |= result.status == Status.OUTSIDE
+        border = np.flatnonzero(usable & (outside | ~full) & np.isfinite(start).all(axis=1)
+                                & np.isfinite(start_A).all(axis=(1, 2)))
+        if border.size:
+            result = _forward(result, templates, rows, border, search, start, start_A, True,
+                              **kw)
+    return result
+
+
+def _forward(result: LSMResult, templates: Templates, rows, sel, search: SplineImage, start,
+             start_A, partial: bool, *, max_iter, tol, max_disp, thresholds) -> LSMResult:
+    """``result`` with the rows ``sel`` replaced by the forward LSM of their templates
+    (stacked into one image) from ``start``, ``start_A``; with ``partial``, patches over
+    the border allowed and each template's masked pixels given zero weight."""
+    tiles, centres = _mosaic(templates, rows[sel])
+    mask = templates.mask[rows[sel]].reshape(tiles.shape) if partial else None
+    fa = lsm(tiles, search, centres, start[sel], params=LSMParams(
         patch=templates.patch, max_iter=max_iter, tol=tol, max_displacement=max_disp,
-        thresholds=thresholds), initial_A=np.asarray(start_A, float).reshape(n, 2, 2)[redo])
+        partial=partial, thresholds=thresholds), initial_A=start_A[sel], template_mask=mask)
     merged = {}
     for name in LSMResult.__dataclass_fields__:
         merged[name] = getattr(result, name).copy()
-        merged[name][redo] = getattr(fa, name)
+        merged[name][sel] = getattr(fa, name)
     return LSMResult(**merged)
 
 
@@ -302,7 +377,8 @@ def _inverse_compositional(templates: Templates, rows, search: SplineImage, star
     H, W = search.shape
     if inverse:
         _solve(search.coefficients, search.pad, H, W, rows, templates.values, templates.gx,
-               templates.gy, templates.update, templates.ok, offsets(templates.patch), c, A,
+               templates.gy, templates.update, templates.ok & templates.full,
+               offsets(templates.patch), c, A,
                int(max_iter), float(tol), max_disp, float(templates.patch // 2), status,
                iterations, ee, r0, r1)
     P = templates.values.shape[1]
@@ -518,10 +594,10 @@ def match_translation(templates: Templates, rows, search: SplineImage, start_xy,
     ----------
     templates : Templates
         The template store (:func:`sample_templates`; ``normals=False`` is enough: only
-        ``values``, ``gx``, ``gy`` and ``ok`` are used).
+        ``values``, ``gx``, ``gy``, ``ok`` and ``full`` are used).
     rows : (n,) int array
-        Which templates, indices into ``templates``; a template with ``ok`` False is not
-        matched (not converged, returned at its start).
+        Which templates, indices into ``templates``; a template with ``ok`` False, or a
+        partial one (``full`` False), is not matched (not converged, returned at its start).
     search : SplineImage
         The image the templates are matched into.
     start_xy : (n, 2) array
@@ -567,7 +643,8 @@ def match_translation(templates: Templates, rows, search: SplineImage, start_xy,
     H, W = search.shape
     if n:
         _solve_translation(search.coefficients, search.pad, H, W, rows, templates.values,
-                           templates.gx, templates.gy, templates.ok, offsets(templates.patch),
+                           templates.gx, templates.gy, templates.ok & templates.full,
+                           offsets(templates.patch),
                            c, max_iter, tol, max_disp, converged)
     return c, converged
 

@@ -1,0 +1,271 @@
+"""The full-body model fitted to the LSMTA system's own points over the walk (issue 36, item
+3), scored against the generator after the fact.
+
+:func:`fit_walk` takes only a :class:`~lsmta.systems.BodyCapture`: every ``every``-th
+processed frame's filtered points (:meth:`~lsmta.systems.BodyCapture.points_at`, the
+system's own world: the tape-measured floor at ``z = 0``, up levelled with the upright bar)
+go into :func:`lsmta.body.full_fit.fit_full_body`, shape shared, pose per frame. No
+generator point, camera or pose goes in.
+
+:func:`aligned_fit` then carries the fit into the true world by the rigid motion of
+:func:`~lsmta.evaluation.walk_system.check_alignment` (held-out bar targets, no scale): the
+pelvis' base of every frame is moved, the joint angles and shape are untouched. And
+:func:`score_walk_fit` scores it with :mod:`lsmta.evaluation.full_body`: each major joint's
+angle per frame, the segment lengths, and the skin both ways on the seen side (true skin
+samples seen by two cameras of one view group of the capture; the fitted skin's outer
+vertices whose nearest true sample is such a one), beside the same distances all round.
+:func:`verdicts` compares them with issue 36's targets.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .._validate import as_int
+from ..body.full_fit import FullBodyFit, FullBodyFitParams, fit_full_body
+from ..body.skin import SkinParams, merge_patches, model_skin
+from ..synth.body import inside_parts
+from ..synth.render import project_surface_points
+from ..synth.surface import distance_to_body
+from .body_system import Alignment
+from .full_body import MAJOR, joint_angle_errors, length_errors
+
+# issue 36: (every major joint in every frame, deg; segment lengths, %; skin median, mm)
+TARGETS = {"triplet": (5.0, 3.0, 3.0), "studio": (3.0, 2.0, 2.0)}
+
+
+@dataclass(frozen=True, eq=False)
+class WalkFit:
+    """The full body fitted to a capture's points.
+
+    Attributes
+    ----------
+    fit : FullBodyFit
+        In the system's world.
+    processed : (T,) int array
+        The capture's processed frames fitted (indices into ``capture.frames``).
+    frames : (T,) int array
+        The same as frames of the input videos.
+    n_points : (T,) int array
+        The system's points per fitted frame (after ``max_points``).
+    seconds : float
+        Wall time of the fit.
+    """
+
+    fit: FullBodyFit
+    processed: np.ndarray
+    frames: np.ndarray
+    n_points: np.ndarray
+    seconds: float
+
+
+def fit_walk(capture, *, every: int = 1, first: int = 0, last: int | None = None,
+             max_points: int | None = None, params: FullBodyFitParams | None = None) -> WalkFit:
+    """Fit the full body to the system's points of every ``every``-th processed frame from
+    ``first`` up to ``last`` (exclusive; default all) of ``capture``.
+
+    Parameters
+    ----------
+    capture : BodyCapture
+        Of the walk (:func:`lsmta.systems.capture_walk`).
+    every, first, last : int
+        Processed frames fitted: ``range(first, last, every)``; at least two (the heading
+        comes from the points' motion).
+    max_points : int, optional
+        At most this many points per frame, evenly spaced in the capture's order (the
+        fit's time grows with the points; default all).
+    params : FullBodyFitParams, optional
+        ``floor`` is the system world's floor height (0: the tape-measured world's).
+    """
+    T = len(capture.frames)
+    every = as_int(every, "every", minimum=1)
+    first = as_int(first, "first", minimum=0)
+    last = T if last is None else as_int(last, "last", minimum=0)
+    processed = np.arange(first, min(last, T), every)
+    if len(processed) < 2:
+        raise ValueError(f"every, first, last: select at least 2 of the {T} processed frames "
+                         f"(got {len(processed)})")
+    points = [capture.points_at(int(t))[0] for t in processed]
+    if max_points is not None:
+        n = as_int(max_points, "max_points", minimum=10)
+        points = [p[np.unique(np.linspace(0, len(p) - 1, n).astype(int))] if len(p) > n else p
+                  for p in points]
+    t0 = time.perf_counter()
+    fit = fit_full_body(points, params=params)
+    return WalkFit(fit=fit, processed=processed,
+                   frames=np.asarray(capture.frames)[processed],
+                   n_points=np.array([len(p) for p in points]),
+                   seconds=time.perf_counter() - t0)
+
+
+def aligned_fit(fit: FullBodyFit, alignment: Alignment) -> FullBodyFit:
+    """The fit carried into the true world: every frame's base (and start base) moved by
+    ``alignment`` (``x_true = R x + t``); angles, scales and shape unchanged."""
+    if not isinstance(fit, FullBodyFit):
+        raise TypeError(f"fit: expected a FullBodyFit, got {type(fit).__name__}")
+    if not isinstance(alignment, Alignment):
+        raise TypeError(f"alignment: expected an Alignment, got {type(alignment).__name__}")
+    A = np.eye(4)
+    A[:3, :3], A[:3, 3] = alignment.R, alignment.t
+    return replace(fit, base=A @ fit.base, start_base=A @ fit.start_base)
+
+
+@dataclass(frozen=True, eq=False)
+class WalkFitScore:
+    """A fit (in the true world) against the generator.
+
+    Attributes
+    ----------
+    frames : (T,) int array
+        Frames of the walk.
+    joints_deg : dict of str -> (T,) array
+        Angle error per major joint and frame, and the pelvis' orientation
+        (:func:`~lsmta.evaluation.full_body.joint_angle_errors`).
+    lengths : dict of str -> (fitted, true)
+        mm (:func:`~lsmta.evaluation.full_body.length_errors`).
+    skin_to_truth, skin_from_truth : list of (V_t,), (S_t,) arrays
+        Seen side, mm (module docstring).
+    skin_to_truth_all, skin_from_truth_all : list of arrays
+        The same all round.
+    open_edges : (T,) int array
+        Of each frame's merged skin.
+    """
+
+    frames: np.ndarray
+    joints_deg: dict
+    lengths: dict
+    skin_to_truth: list
+    skin_from_truth: list
+    skin_to_truth_all: list
+    skin_from_truth_all: list
+    open_edges: np.ndarray
+
+    def length_pct(self) -> dict:
+        """Signed length errors, % of the true length."""
+        return {k: 100.0 * (a / b - 1.0) for k, (a, b) in self.lengths.items()}
+
+    def summary(self) -> dict:
+        """The headline numbers: worst major joint (deg, and which), worst length (%, and
+        which), skin medians over all frames (mm)."""
+        major = {k: _worst(v) for k, v in self.joints_deg.items() if k in MAJOR}
+        worst = max(major, key=major.get)
+        pct = self.length_pct()
+        wl = max(pct, key=lambda k: abs(pct[k]))
+
+        def med(a):
+            a = np.concatenate(a) if a else np.empty(0)
+            return float(np.median(a)) if a.size else float("nan")
+
+        return {"worst_joint_deg": major[worst], "worst_joint": worst,
+                "worst_length_pct": float(abs(pct[wl])), "worst_length": wl,
+                "skin_to_truth_mm": med(self.skin_to_truth),
+                "skin_from_truth_mm": med(self.skin_from_truth),
+                "skin_to_truth_all_mm": med(self.skin_to_truth_all),
+                "skin_from_truth_all_mm": med(self.skin_from_truth_all)}
+
+
+def _seen_samples(session, groups, frames, n_per_part, rng):
+    """True outer skin samples per frame: world ``(N_t, 3)`` and seen ``(N_t,)``."""
+    body, motion = session.scene.body, session.scene.motion
+    part, local = body.sample_surface(n_per_part=n_per_part, rng=rng)
+    proj = project_surface_points(session.scene, session.cameras, part, local, frames=frames)
+    poses = body.part_poses(motion, frames=frames)
+    out = []
+    for i in range(len(frames)):
+        seen = np.zeros(len(part), bool)
+        for g in groups:
+            seen |= proj.visible[i][g].sum(axis=0) >= 2
+        outer = ~inside_parts(body, poses[i], proj.world[i], exclude=part)
+        out.append((proj.world[i][outer], seen[outer]))
+    return out
+
+
+def _skin(fit, t):
+    """Frame ``t``'s skin: merged mesh, outer vertices ``(V, 3)``."""
+    m = fit.model
+    patches = model_skin(m, fit.angles[[t]], fit.scales, fit.radii, base=fit.base[[t]],
+                         params=SkinParams(n_u=36, n_v=28))
+    v = np.vstack([p.vertices for p in patches])
+    seg = np.concatenate([np.full(len(p.vertices), k) for k, p in enumerate(patches)])
+    d = m.all_distances(v, fit.angles[[t]], fit.scales, fit.radii, base=fit.base[[t]])
+    d[np.arange(len(v)), seg] = np.inf
+    return merge_patches(patches), v[d.min(axis=1) >= 0]
+
+
+def score_walk_fit(fit: FullBodyFit, session, frames, groups, *, n_per_part: int = 300,
+                   rng=None) -> WalkFitScore:
+    """Score a fit already in the true world (:func:`aligned_fit`) against the generator.
+
+    Parameters
+    ----------
+    fit : FullBodyFit
+    session : WalkSession
+        The truth (scene, true cameras).
+    frames : (T,) int array
+        The walk's frame of each of the fit's frames.
+    groups : sequence of sequences of int
+        The capture's view groups (camera indices): the seen side is seen by two cameras
+        of one group.
+    n_per_part : int
+        True skin samples per part and frame.
+    rng : numpy.random.Generator, int or None
+        Draws the skin samples.
+    """
+    frames = np.asarray(frames, int).ravel()
+    if len(frames) != len(fit.angles):
+        raise ValueError(f"frames: expected {len(fit.angles)} frames (the fit's), got "
+                         f"{len(frames)}")
+    n_per_part = as_int(n_per_part, "n_per_part", minimum=1)
+    body, motion = session.scene.body, session.scene.motion
+    groups = [np.asarray(g, int) for g in groups]
+    samples = _seen_samples(session, groups, frames, n_per_part, rng)
+    poses = body.part_poses(motion, frames=frames)
+    out = {k: [] for k in ("skin_to_truth", "skin_from_truth", "skin_to_truth_all",
+                           "skin_from_truth_all")}
+    edges = []
+    for t, (world, seen) in enumerate(samples):
+        mesh, v = _skin(fit, t)
+        to = np.abs(distance_to_body(body, poses[t], v))
+        _, near = cKDTree(world).query(v)
+        _, closest = mesh.find_closest_cell(world, return_closest_point=True)
+        fr = np.linalg.norm(world - closest, axis=1)
+        out["skin_to_truth"].append(to[seen[near]])
+        out["skin_from_truth"].append(fr[seen])
+        out["skin_to_truth_all"].append(to)
+        out["skin_from_truth_all"].append(fr)
+        edges.append(int(mesh.n_open_edges))
+    joints = joint_angle_errors(fit, body, motion, frames)
+    return WalkFitScore(frames=frames, joints_deg=joints, lengths=length_errors(fit, body),
+                        open_edges=np.array(edges), **out)
+
+
+def _worst(errors) -> float:
+    """The largest error over the frames; a frame without one (NaN) counts as failed (inf)."""
+    return float(np.nan_to_num(np.asarray(errors, float), nan=np.inf).max())
+
+
+def verdicts(score: WalkFitScore, rig: str) -> dict:
+    """Issue 36's targets for ``rig`` ("triplet" or "studio") against ``score``: per target
+    the value, the limit and whether it is met, and the joints / lengths that fail."""
+    if rig not in TARGETS:
+        raise ValueError(f"rig: expected one of {tuple(TARGETS)}, got {rig!r}")
+    deg, pct, mm = TARGETS[rig]
+    s = score.summary()
+    worst = {k: _worst(v) for k, v in score.joints_deg.items() if k in MAJOR}
+    lengths = score.length_pct()
+    return {
+        "joints": {"value": s["worst_joint_deg"], "limit": deg, "unit": "deg",
+                   "met": s["worst_joint_deg"] <= deg,
+                   "failing": sorted(k for k, v in worst.items() if v > deg)},
+        "lengths": {"value": s["worst_length_pct"], "limit": pct, "unit": "%",
+                    "met": s["worst_length_pct"] <= pct,
+                    "failing": sorted(k for k, v in lengths.items() if abs(v) > pct)},
+        "skin_to_truth": {"value": s["skin_to_truth_mm"], "limit": mm, "unit": "mm",
+                          "met": s["skin_to_truth_mm"] <= mm},
+        "skin_from_truth": {"value": s["skin_from_truth_mm"], "limit": mm, "unit": "mm",
+                            "met": s["skin_from_truth_mm"] <= mm},
+    }

@@ -102,6 +102,8 @@ def capture_record(capture) -> dict:
             "noise_sigma": float(v.noise.sigma),
             "surface_points": {int(capture.frames[t]): int(s.kept.sum())
                                for t, s in sorted(v.surfaces.items())},
+            "tracking_from": (None if v.tracks is None else
+                              int(capture.frames[v.tracking_from])),
             "tracks": 0 if v.tracks is None else len(v.tracks),
             "alive_at_end": 0 if v.tracks is None else int(v.tracks.alive[-1].sum()),
             "trajectories": v.points.stop - v.points.start,

@@ -34,7 +34,6 @@ from lsmta.systems import (
     track_surface,
     view_groups,
 )
-from lsmta.systems.capture_files import capture_record
 
 
 def _ring(n: int, radius: float = 3000.0) -> list:
@@ -198,7 +197,7 @@ def test_capture_saved_meshes(capture, tmp_path):
 
 
 @pytest.mark.slow
-def test_capture_starts_tracking_at_the_first_surface(session):
+def test_capture_starts_tracking_at_the_first_surface(session, tmp_path):
     """Frame 0 blank (no surface point): the tracks start at the next measured surface
     (frame 3), NaN before it, and the trajectories are written from there."""
     videos = session.videos.copy()
@@ -221,7 +220,9 @@ def test_capture_starts_tracking_at_the_first_surface(session):
     assert not present[:3].any() and present[3:].any(axis=0).sum() > 0.8 * len(view.tracks)
     rows = {r["stage"]: r["result"] for r in cap.summary()}
     assert "from frame 3:" in rows["tracking"]
-    assert capture_record(cap)["view_groups"][0]["tracking_from"] == 3
+    files = cap.save(tmp_path / "out")                                 # with the report
+    assert files["c3d"].exists() and files["trc"].exists()
+    assert json.loads(files["summary"].read_text())["view_groups"][0]["tracking_from"] == 3
     with pytest.raises(ValueError, match="no frame's surface"):
         track_surface(videos[:, :3], {})
 

@@ -198,14 +198,14 @@ def _figures(capture) -> list:
             ax[0, k].set_xlim(0, cam.width)
             ax[0, k].set_ylim(cam.height, 0)
             ax[0, k].set_aspect("equal")
-            for t, colour in ((0, "tab:blue"), (tracks.n_frames - 1, "tab:red")):
+            for t, colour in ((view.tracking_from, "tab:blue"), (tracks.n_frames - 1, "tab:red")):
                 xy = tracks.xy[t, k]
                 ax[0, k].plot(xy[:, 0], xy[:, 1], ".", ms=1.5, color=colour,
                               label=f"frame {int(capture.frames[t])}")
             ax[0, k].set_title(cam.name or f"camera {view.group.cameras[k]}", fontsize=9)
         ax[0, 0].legend(fontsize=7, loc="lower left")
-        out.append((f"View group G{g + 1}: tracked points in the first (blue) and last (red) "
-                    "frame, in image pixels of every view", _png(fig)))
+        out.append((f"View group G{g + 1}: tracked points in the first tracked (blue) and "
+                    "last (red) frame, in image pixels of every view", _png(fig)))
     X = capture.filtered.xyz
     if np.isfinite(X).any():
         fig = Figure(figsize=(12, 3.5))

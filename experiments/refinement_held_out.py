@@ -2,7 +2,7 @@
 
     .venv/bin/python experiments/refinement_held_out.py [--scale 1.0] [--frames 0:100]
         [--out build/benchmarks/refinement_held_out.json] [--lsm both|on|off]
-        [--lsm-each] [--larger-patches 41,61|none]
+        [--lsm-each | --lsm-once] [--larger-patches 41,61|none]
 
 Refines the Pose2Sim demo's cameras from the recording as ``lsmta capture`` does
 (`lsmta.systems.refine_rig`) and prints, per camera, the median residual of the adjusted
@@ -22,9 +22,10 @@ positions), each written under ``runs.lsm`` / ``runs.raw`` with the LSM step's c
 (matched, failed, dropped) and time; the top-level numbers are those of the first run.
 
 ``--lsm-each`` matches each tie point alone (``RigRefinementParams.lsm_still_once=False``),
-and ``--larger-patches 41,61`` (or ``none``) sets ``TieLSMParams.larger_patches`` (default:
-the library's): the two steps that keep a still feature of the wide pairs through the
-matching (both off: the matching as before them).
+``--lsm-once`` a still feature once over its frames (``True``; neither: the library's
+default, off), and ``--larger-patches 41,61`` (or ``none``) sets
+``TieLSMParams.larger_patches`` (default: the library's, none): the two optional steps that
+keep a still feature of the wide pairs through the matching.
 
 ``common`` (with ``--lsm both``): the two runs' refined cameras scored on ONE set of places,
 held out of both adjustments: the tie points are the same in both runs (found before the
@@ -67,6 +68,13 @@ def medians(cameras, xy, views=None) -> list:
                 for e in err]
 
 
+def still_once(args) -> bool:
+    """``RigRefinementParams.lsm_still_once`` as the flags set it (else the default)."""
+    if args.lsm_each or args.lsm_once:
+        return bool(args.lsm_once)
+    return RigRefinementParams().lsm_still_once
+
+
 def run(videos, lsm: bool, args):
     """One refinement of the demo: its numbers, and the RigRefinement."""
     larger = ({"larger_patches": tuple(int(p) for p in args.larger_patches.split(",")
@@ -77,7 +85,7 @@ def run(videos, lsm: bool, args):
         warnings.simplefilter("always")
         ref = refine_rig(videos, read_camera_file(POSE2SIM_CAMERAS),
                          params=RigRefinementParams(
-                             mismatch="crop", lsm=lsm, lsm_still_once=not args.lsm_each,
+                             mismatch="crop", lsm=lsm, lsm_still_once=still_once(args),
                              tie_lsm=TieLSMParams(**larger)))
     seconds = time.perf_counter() - t0
     places = ref.place_xy
@@ -89,7 +97,7 @@ def run(videos, lsm: bool, args):
         for a in range(len(names)) for b in range(a + 1, len(names))}
     held = {"still": places[:, ref.held_out_places & ref.still],
             "moving": places[:, ref.held_out_places & ~ref.still]}
-    record = {"lsm": lsm, "lsm_still_once": not args.lsm_each,
+    record = {"lsm": lsm, "lsm_still_once": still_once(args),
               "larger_patches": larger.get("larger_patches", TieLSMParams().larger_patches),
               "scale": args.scale, "frames": args.frames, "seconds": seconds,
               "lsm_step": None if ref.lsm is None else ref.lsm.summary(),
@@ -156,11 +164,16 @@ def main(argv=None):
     parser.add_argument("--lsm", choices=("both", "on", "off"), default="both")
     parser.add_argument("--lsm-each", action="store_true",
                         help="match each tie point alone (RigRefinementParams.lsm_still_once"
-                             "=False), as before the still features were matched once")
+                             "=False)")
+    parser.add_argument("--lsm-once", action="store_true",
+                        help="match a still feature once over its frames "
+                             "(RigRefinementParams.lsm_still_once=True)")
     parser.add_argument("--larger-patches", default="",
                         help="TieLSMParams.larger_patches, comma-separated, or none "
                              "(default: the library's)")
     args = parser.parse_args(argv)
+    if args.lsm_each and args.lsm_once:
+        parser.error("--lsm-each and --lsm-once exclude each other")
     start, stop = (int(x) for x in args.frames.split(":"))
     videos = read_videos(POSE2SIM_VIDEOS, frames=range(start, stop), scale=args.scale)
     runs = {"lsm": True, "raw": False}

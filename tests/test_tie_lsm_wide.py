@@ -145,7 +145,8 @@ def test_groups_are_checked(still_scene):
         refine_tie_points(frames, tie, cams, groups=same_frame)
     with pytest.raises(TypeError, match="lsm_still_once"):
         RigRefinementParams(lsm_still_once=1)
-    assert replace(RigRefinementParams(), lsm_still_once=False).lsm_still_once is False
+    assert RigRefinementParams().lsm_still_once is False      # an option, off by default
+    assert replace(RigRefinementParams(), lsm_still_once=True).lsm_still_once is True
 
 
 def test_a_larger_patch_takes_over_where_the_patch_holds_no_texture():
@@ -169,8 +170,8 @@ def test_a_larger_patch_takes_over_where_the_patch_holds_no_texture():
     small = TieLSMParams(larger_patches=())
     r, _ = _grown(t_img, s_img, t_xy, t_xy.copy(), starts, small.lsm_params(), ())
     assert r.status[0] != Status.CONVERGED
-    grown = TieLSMParams()
-    assert grown.larger_patches == (41, 61)
+    assert TieLSMParams().larger_patches == ()                # an option, off by default
+    grown = TieLSMParams(larger_patches=(41, 61))
     r, _ = _grown(t_img, s_img, t_xy, t_xy.copy(), starts, grown.lsm_params(),
                   grown.larger_patches)
     assert r.status[0] == Status.CONVERGED

@@ -2,6 +2,7 @@
 
     .venv/bin/python experiments/refinement_held_out.py [--scale 1.0] [--frames 0:100]
         [--out build/benchmarks/refinement_held_out.json] [--lsm both|on|off]
+        [--lsm-each | --lsm-once] [--larger-patches 41,61|none]
 
 Refines the Pose2Sim demo's cameras from the recording as ``lsmta capture`` does
 (`lsmta.systems.refine_rig`) and prints, per camera, the median residual of the adjusted
@@ -19,6 +20,12 @@ median residual <= 0.5 px in every camera.
 matching (``RigRefinementParams.lsm=True``, the default) and without (the keypoints'
 positions), each written under ``runs.lsm`` / ``runs.raw`` with the LSM step's counts
 (matched, failed, dropped) and time; the top-level numbers are those of the first run.
+
+``--lsm-each`` matches each tie point alone (``RigRefinementParams.lsm_still_once=False``),
+``--lsm-once`` a still feature once over its frames (``True``; neither: the library's
+default, off), and ``--larger-patches 41,61`` (or ``none``) sets
+``TieLSMParams.larger_patches`` (default: the library's, none): the two optional steps that
+keep a still feature of the wide pairs through the matching.
 
 ``common`` (with ``--lsm both``): the two runs' refined cameras scored on ONE set of places,
 held out of both adjustments: the tie points are the same in both runs (found before the
@@ -39,6 +46,7 @@ import warnings
 
 import numpy as np
 
+from lsmta.calibration import TieLSMParams
 from lsmta.camera_files import read_camera_file
 from lsmta.data import POSE2SIM_CAMERAS, POSE2SIM_VIDEOS
 from lsmta.io import read_videos
@@ -60,13 +68,25 @@ def medians(cameras, xy, views=None) -> list:
                 for e in err]
 
 
+def still_once(args) -> bool:
+    """``RigRefinementParams.lsm_still_once`` as the flags set it (else the default)."""
+    if args.lsm_each or args.lsm_once:
+        return bool(args.lsm_once)
+    return RigRefinementParams().lsm_still_once
+
+
 def run(videos, lsm: bool, args):
     """One refinement of the demo: its numbers, and the RigRefinement."""
+    larger = ({"larger_patches": tuple(int(p) for p in args.larger_patches.split(",")
+                                       if p and p != "none")}
+              if args.larger_patches else {})
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         ref = refine_rig(videos, read_camera_file(POSE2SIM_CAMERAS),
-                         params=RigRefinementParams(mismatch="crop", lsm=lsm))
+                         params=RigRefinementParams(
+                             mismatch="crop", lsm=lsm, lsm_still_once=still_once(args),
+                             tie_lsm=TieLSMParams(**larger)))
     seconds = time.perf_counter() - t0
     places = ref.place_xy
     seen = np.isfinite(places[..., 0])
@@ -77,7 +97,9 @@ def run(videos, lsm: bool, args):
         for a in range(len(names)) for b in range(a + 1, len(names))}
     held = {"still": places[:, ref.held_out_places & ref.still],
             "moving": places[:, ref.held_out_places & ~ref.still]}
-    record = {"lsm": lsm, "scale": args.scale, "frames": args.frames, "seconds": seconds,
+    record = {"lsm": lsm, "lsm_still_once": still_once(args),
+              "larger_patches": larger.get("larger_patches", TieLSMParams().larger_patches),
+              "scale": args.scale, "frames": args.frames, "seconds": seconds,
               "lsm_step": None if ref.lsm is None else ref.lsm.summary(),
               "tie_points": int(ref.tie_points.xy.shape[1]),
               "raw_tie_points": int(ref.raw_tie_points.xy.shape[1]),
@@ -140,7 +162,18 @@ def main(argv=None):
     parser.add_argument("--frames", default="0:100")
     parser.add_argument("--out", default="build/benchmarks/refinement_held_out.json")
     parser.add_argument("--lsm", choices=("both", "on", "off"), default="both")
+    parser.add_argument("--lsm-each", action="store_true",
+                        help="match each tie point alone (RigRefinementParams.lsm_still_once"
+                             "=False)")
+    parser.add_argument("--lsm-once", action="store_true",
+                        help="match a still feature once over its frames "
+                             "(RigRefinementParams.lsm_still_once=True)")
+    parser.add_argument("--larger-patches", default="",
+                        help="TieLSMParams.larger_patches, comma-separated, or none "
+                             "(default: the library's)")
     args = parser.parse_args(argv)
+    if args.lsm_each and args.lsm_once:
+        parser.error("--lsm-each and --lsm-once exclude each other")
     start, stop = (int(x) for x in args.frames.split(":"))
     videos = read_videos(POSE2SIM_VIDEOS, frames=range(start, stop), scale=args.scale)
     runs = {"lsm": True, "raw": False}

@@ -3,6 +3,7 @@ its files (BodyCapture.save, read back with ezc3d and pyvista), camera files rec
 content, and the ``lsmta capture`` command."""
 
 import json
+import warnings
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -26,7 +27,13 @@ from lsmta.cli import main
 from lsmta.data import CALISCOPE_DIR, POSE2SIM_DIR
 from lsmta.evaluation import body_system as bs
 from lsmta.result_files import read_trc
-from lsmta.systems import CaptureParams, axis_angles, capture_recording, view_groups
+from lsmta.systems import (
+    CaptureParams,
+    axis_angles,
+    capture_recording,
+    track_surface,
+    view_groups,
+)
 
 
 def _ring(n: int, radius: float = 3000.0) -> list:
@@ -187,6 +194,37 @@ def test_capture_saved_meshes(capture, tmp_path):
         assert mesh.n_open_edges == 0 and row["open_edges"] == 0 and row["components"] == 1
         assert row["vertices"] == mesh.n_points
         assert mesh.volume / 1000 == pytest.approx(row["volume_ml"], abs=0.01)
+
+
+@pytest.mark.slow
+def test_capture_starts_tracking_at_the_first_surface(session, tmp_path):
+    """Frame 0 blank (no surface point): the tracks start at the next measured surface
+    (frame 3), NaN before it, and the trajectories are written from there."""
+    videos = session.videos.copy()
+    videos[:, 0] = videos[:, 0].mean().astype(videos.dtype)    # nothing to match
+    given = videos.copy()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cap = capture_recording(videos, session.cameras, fps=session.fps, progress=False,
+                                params=CaptureParams(density_every=3))
+    assert np.array_equal(videos, given)
+    said = [str(w.message) for w in caught]
+    assert any("no seed found in frame 0" in m for m in said)        # measure_surfaces'
+    assert not any("view group" in m for m in said)                  # the group is kept
+    view = cap.views[0]
+    assert 0 not in view.surfaces and view.surfaces[3].kept.sum() > 0
+    assert view.tracking_from == 3 and view.tracks.n_frames == len(cap.frames)
+    assert np.isnan(view.tracks.xy[:3]).all() and view.tracks.alive[3].sum() > 0
+    assert np.all(view.tracks.start >= 3) and np.all(view.tracks.anchor[:3] == -1)
+    present = cap.filtered.present
+    assert not present[:3].any() and present[3:].any(axis=0).sum() > 0.8 * len(view.tracks)
+    rows = {r["stage"]: r["result"] for r in cap.summary()}
+    assert "from frame 3:" in rows["tracking"]
+    files = cap.save(tmp_path / "out")                                 # with the report
+    assert files["c3d"].exists() and files["trc"].exists()
+    assert json.loads(files["summary"].read_text())["view_groups"][0]["tracking_from"] == 3
+    with pytest.raises(ValueError, match="no frame's surface"):
+        track_surface(videos[:, :3], {})
 
 
 def test_capture_recording_bad_input(session):

@@ -45,6 +45,18 @@ beyond ``max_scale`` (or below its inverse); the shear of the map is not limited
 The view is then dropped from the point, and a point left with fewer than two views is
 dropped. Both are counted (:class:`TieLSM`).
 
+A still feature. A static background shows the same feature at the same pixels in every
+frame; matched in each frame alone, its frames land apart wherever the match is uncertain
+(weak or one-sided texture: an edge, a cable), and a frame whose match fails loses its
+point, so the feature no longer forms one place of several frames in
+:func:`lsmta.systems.refine_rig` (on the Pose2Sim demo's wide pairs, most of them). Given
+``groups`` (the tie points of one still feature, from their positions as found), each group
+is matched once: one template view (its first member's) at one template position (the
+members' median there), every member's frame matched from its own start, and in each view
+the converged match with the smallest standard deviation taken for every member; a view
+that no member matched is dropped from all of them. The failed matches are still counted
+as failed; :attr:`TieLSM.shared` counts the positions taken from another member.
+
 Where to match. :func:`lsmta.systems.refine_rig` matches in the frames the tie points were
 found in (halved until the longer side is at most ``tie_max_side``), the keypoints' own
 scale: a patch of ``patch`` pixels there covers four times the surface of one at full size
@@ -118,6 +130,15 @@ class TieLSMParams:
         The neighbours' spread across their plane, as a share of their spread along its
         shorter side, up to which their plane is taken (else the plane facing the template
         camera). Default 0.5: at most half as thick as wide (a rule, not tuned on a score).
+    larger_patches : tuple of int
+        Larger odd patches tried in turn, from every start, where every match with the
+        smaller ones failed (the same thresholds): a patch of weak texture (the dark deck of
+        a treadmill, a plain wall) diverges or stays uncertain where a larger one takes in
+        texture around it. Default ``()``: none (off by the rule that a matching rule is on
+        by default only if it worsens no camera's judged held-out residual at full size on
+        the Pose2Sim demo; ``(41, 61)``, about twice and three times the side of ``patch``,
+        gave 0.31/0.30/0.94/0.40 px against 0.25/0.23/0.60/0.46 without, cam01-cam04,
+        ``experiments/refinement_held_out.py --lsm on --larger-patches 41,61``).
     """
 
     patch: int = 21
@@ -129,6 +150,7 @@ class TieLSMParams:
     tol_px: float = 0.01
     plane_start: bool = True
     max_flatness: float = 0.5
+    larger_patches: tuple = ()
 
     def __post_init__(self):
         as_int(self.patch, "patch", minimum=5, odd=True, unit="pixels")
@@ -142,6 +164,11 @@ class TieLSMParams:
         if not isinstance(self.plane_start, bool):
             raise TypeError(f"plane_start: expected True or False, got {self.plane_start!r}")
         as_scalar(self.max_flatness, "max_flatness", positive=True)
+        if not isinstance(self.larger_patches, tuple):
+            raise TypeError(f"larger_patches: expected a tuple of odd sizes, got "
+                            f"{self.larger_patches!r}")
+        for p in self.larger_patches:
+            as_int(p, "larger_patches", minimum=self.patch + 2, odd=True, unit="pixels")
 
     def lsm_params(self) -> LSMParams:
         """The settings of each :func:`lsmta.matching.lsm` call."""
@@ -177,8 +204,11 @@ class TieLSM:
         The :class:`Start` each view's match was kept from; ``NOT_MATCHED`` (-1) where
         not matched.
     matched, failed, dropped_points : int
-        Views matched, views whose match failed (dropped from their point), tie points
-        dropped (fewer than two views left).
+        Views matched, views whose match failed (dropped from their point, unless another
+        frame's match of its group holds), tie points dropped (fewer than two views left).
+    shared : int
+        Views of grouped tie points whose position is another frame's match of the same
+        still feature (the group's best; its own failed or was less certain).
     seconds : float
         Wall time of the refinement.
     """
@@ -192,6 +222,7 @@ class TieLSM:
     matched: int
     failed: int
     dropped_points: int
+    shared: int
     seconds: float
 
     def __post_init__(self):
@@ -202,6 +233,7 @@ class TieLSM:
         ok = np.isfinite(self.shift)
         return {"matched": self.matched, "failed": self.failed,
                 "dropped_points": self.dropped_points, "kept_points": int(self.kept.sum()),
+                "shared": self.shared,
                 "median_shift_px": float(np.median(self.shift[ok])) if ok.any() else None,
                 "starts": {k.name.lower(): int((self.start == k).sum()) for k in Start},
                 "seconds": round(self.seconds, 2)}
@@ -341,6 +373,37 @@ def _plane_starts(cam_t, cam_s, t_xy, X, normal, h: float, max_scale: float):
     return A, ok
 
 
+def _starts(xy, idx, both, views, cameras, X, normal, params) -> dict:
+    """{Start: ((n, 2, 2) maps, (n,) taken)} for matching the points ``idx`` from the
+    template view to the search view (``views``: their indices) of ``xy`` (K, N, 2);
+    ``both``: the points of the frame held by both views (the neighbours)."""
+    t, s = views
+    starts = {Start.IDENTITY: (np.broadcast_to(np.eye(2), (len(idx), 2, 2)),
+                               np.ones(len(idx), bool)),
+              Start.NEIGHBOURS: _affine_starts(xy[t, both], xy[s, both],
+                                               np.searchsorted(both, idx),
+                                               params.neighbours, params.max_scale)}
+    if params.plane_start:
+        starts[Start.PLANE] = _plane_starts(cameras[t], cameras[s], xy[t, idx], X[idx],
+                                            normal[idx], params.patch // 2, params.max_scale)
+    return starts
+
+
+def _grown(t_img, s_img, t_xy, s_xy, starts, lp, larger):
+    """:func:`_best`, then the points whose matches all failed matched again with each
+    patch of ``larger`` in turn (from every start)."""
+    r, kind = _best(t_img, s_img, t_xy, s_xy, starts, lp)
+    for p in larger:
+        at = np.flatnonzero(~r.ok)
+        if not len(at):
+            break
+        sub = {k: (A[at], taken[at]) for k, (A, taken) in starts.items()}
+        ra, ka = _best(t_img, s_img, t_xy[at], s_xy[at], sub, replace(lp, patch=p))
+        r = _merge(r, at[ra.ok], ra, ra.ok)
+        kind[at[ra.ok]] = ka[ra.ok]
+    return r, kind
+
+
 def _best(t_img, s_img, t_xy, s_xy, starts, lp):
     """Every start of ``starts`` ({Start: ((n, 2, 2) maps, (n,) taken)}; the first takes
     all) matched from ``t_xy`` to ``s_xy`` (n, 2), px; of the accepted matches of each
@@ -370,6 +433,67 @@ def _merge(r: LSMResult, at, other: LSMResult, pick) -> LSMResult:
         a[at] = getattr(other, name)[pick]
         fields[name] = a
     return LSMResult(**fields)
+
+
+def _checked_groups(groups, tie: TiePoints):
+    """``groups`` checked: None, or (N,) whole numbers, each at most once per frame."""
+    if groups is None:
+        return None
+    g = np.asarray(groups)
+    N = tie.xy.shape[1]
+    if g.shape != (N,) or (N and not np.issubdtype(g.dtype, np.integer)):
+        raise ValueError(f"groups: expected {N} whole-number labels (one per tie point), got "
+                         f"shape {g.shape} of {g.dtype}")
+    pairs = np.unique(np.c_[g, tie.frame], axis=0) if N else np.zeros((0, 2))
+    if len(pairs) != N:
+        raise ValueError("groups: expected each label at most once per frame (a still "
+                         "feature holds one tie point per frame)")
+    return g
+
+
+def _members(groups):
+    """The index arrays of the groups with two or more tie points."""
+    order = np.argsort(groups, kind="stable")
+    split = np.split(order, np.flatnonzero(np.diff(groups[order])) + 1)
+    return [m for m in split if len(m) > 1]
+
+
+def _group_templates(xy, template, groups):
+    """Each group's template view (its first member's) for all its members that hold it,
+    and ``xy`` (K, N, 2) with those members' positions in it set to their median: one
+    template patch per still feature."""
+    template, xy = template.copy(), np.array(xy, dtype=float)
+    if groups is None:
+        return template, xy
+    for m in _members(groups):
+        t = template[m[0]]
+        held = m[np.isfinite(xy[t, m, 0])]              # a member without that view keeps its own
+        template[held] = t
+        xy[t, held] = np.median(xy[t, held], axis=0)
+    return template, xy
+
+
+def _group_best(xy, status, sigma, template, groups) -> int:
+    """In place: each grouped view's position (``xy`` (K, N, 2); NaN where its match
+    failed) set to that of the group's converged match with the smallest ``sigma`` (K, N),
+    in every member that holds the view; NaN where none converged. Returns how many
+    positions came from another member's match."""
+    if groups is None:
+        return 0
+    shared = 0
+    for m in _members(groups):
+        m = m[template[m] == template[m[0]]]                    # those sharing its template
+        for s in range(xy.shape[0]):
+            own = m[status[s, m] >= 0]                         # matched (not the template)
+            if s == template[m[0]] or not len(own):
+                continue
+            ok = own[status[s, own] == Status.CONVERGED]
+            if not len(ok):
+                continue
+            best = ok[np.argmin(sigma[s, ok])]
+            shared += int(np.sum(own != best))
+            xy[s, own] = xy[s, best]
+    return shared
 
 
 def _checked(frames, tie, cameras, params) -> list:
@@ -403,8 +527,8 @@ def _checked(frames, tie, cameras, params) -> list:
     return frames
 
 
-def refine_tie_points(frames, tie: TiePoints, cameras, *,
-                      params: TieLSMParams | None = None) -> tuple[TiePoints, TieLSM]:
+def refine_tie_points(frames, tie: TiePoints, cameras, *, params: TieLSMParams | None = None,
+                      groups=None) -> tuple[TiePoints, TieLSM]:
     """Tie points moved by least squares matching to where each view shows the template
     view's patch (see the module docstring).
 
@@ -418,20 +542,26 @@ def refine_tie_points(frames, tie: TiePoints, cameras, *,
     cameras : sequence of K Camera
         The given cameras (they choose each point's template view only).
     params : TieLSMParams, optional
+    groups : (N,) int array, optional
+        Tie points of one still feature found in several frames share a label (each label at
+        most once per frame; :func:`lsmta.systems.refinement._places` on the positions as
+        found): such a feature is matched once (see "A still feature" in the module
+        docstring). None: every tie point alone.
 
     Returns
     -------
     TiePoints
-        The kept points (``TieLSM.kept``), the failed views NaN; the template views' positions
-        unchanged. ``pair_matches`` and ``pair_guided`` are those given.
+        The kept points (``TieLSM.kept``), the failed views NaN; the template views'
+        positions unchanged (of a group: its members' median). ``pair_matches`` and
+        ``pair_guided`` are those given.
     TieLSM
     """
     params = TieLSMParams() if params is None else params
     frames = _checked(frames, tie, cameras, params)
     K, N, _ = tie.xy.shape
+    groups = _checked_groups(groups, tie)
     t0 = time.perf_counter()
-    xy = np.array(tie.xy, dtype=float)
-    seen = np.isfinite(xy[..., 0])
+    seen = np.isfinite(tie.xy[..., 0])
     frame = np.asarray(tie.frame)
     status = np.full((K, N), NOT_MATCHED, np.int64)
     shift = np.full((K, N), np.nan)
@@ -440,6 +570,8 @@ def refine_tie_points(frames, tie: TiePoints, cameras, *,
     X = triangulate(list(cameras), tie.xy, min_angle_deg=0.0).points if N else np.zeros((0, 3))
     normal = _normals(X, frame, params.neighbours, params.max_flatness)
     template = _templates(cameras, tie.xy, X, normal) if N else np.zeros(0, int)
+    template, xy = _group_templates(tie.xy, template, groups)
+    tie = replace(tie, xy=xy.copy())                   # the template positions shared
     C = np.stack([np.asarray(c.C, float) for c in cameras])
     normal = _facing(normal, X, C[template])
     lp = params.lsm_params()
@@ -452,18 +584,10 @@ def refine_tie_points(frames, tie: TiePoints, cameras, *,
                 if not len(idx):
                     continue
                 both = np.flatnonzero(in_frame & seen[t] & seen[s])
-                where = np.searchsorted(both, idx)
-                starts = {Start.IDENTITY: (np.broadcast_to(np.eye(2), (len(idx), 2, 2)),
-                                           np.ones(len(idx), bool)),
-                          Start.NEIGHBOURS: _affine_starts(
-                              tie.xy[t, both], tie.xy[s, both], where, params.neighbours,
-                              params.max_scale)}
-                if params.plane_start:
-                    starts[Start.PLANE] = _plane_starts(
-                        cameras[t], cameras[s], tie.xy[t, idx], X[idx], normal[idx],
-                        params.patch // 2, params.max_scale)
+                starts = _starts(tie.xy, idx, both, (t, s), cameras, X, normal, params)
                 t_xy, s_xy = tie.xy[t, idx], tie.xy[s, idx]
-                r, kind = _best(splines[t], splines[s], t_xy, s_xy, starts, lp)
+                r, kind = _grown(splines[t], splines[s], t_xy, s_xy, starts, lp,
+                                 params.larger_patches)
                 status[s, idx] = r.status
                 start[s, idx] = kind
                 sigma[s, idx] = np.fmax(r.sigma_xy[:, 0], r.sigma_xy[:, 1])
@@ -471,6 +595,7 @@ def refine_tie_points(frames, tie: TiePoints, cameras, *,
                 shift[s, idx[good]] = r.displacement[good]
                 xy[s, idx[good]] = r.xy[good]
                 xy[s, idx[~good]] = np.nan
+    shared = _group_best(xy, status, sigma, template, groups)
     matched = status >= 0
     failed = matched & (status != Status.CONVERGED)
     kept = np.isfinite(xy[..., 0]).sum(axis=0) >= 2
@@ -478,4 +603,4 @@ def refine_tie_points(frames, tie: TiePoints, cameras, *,
     return out, TieLSM(template=template, status=status, shift=shift, sigma=sigma, kept=kept,
                        start=start, matched=int(matched.sum()),
                        failed=int(failed.sum()), dropped_points=int((~kept).sum()),
-                       seconds=time.perf_counter() - t0)
+                       shared=shared, seconds=time.perf_counter() - t0)

@@ -120,8 +120,9 @@ class ViewCapture:
     surfaces : dict of int -> SurfaceResult
         Measured surfaces, by processed frame; image positions in the group's views.
     tracks : Tracks or None
-        Tracked image positions in the group's views; None when the group's first surface
-        had no point to start from (a warning says so).
+        Tracked image positions in the group's views, over all processed frames (NaN before
+        :attr:`tracking_from`); None when no surface of the group had a point to start from
+        (a warning says so).
     points : slice
         The group's trajectories within :attr:`BodyCapture.trajectories`.
     """
@@ -132,6 +133,12 @@ class ViewCapture:
     surfaces: dict
     tracks: Tracks | None
     points: slice
+
+    @property
+    def tracking_from(self) -> int | None:
+        """The processed frame the tracks start at: the first with a surface point (None
+        without tracks)."""
+        return None if self.tracks is None else _tracking_start(self.surfaces)
 
 
 @dataclass(frozen=True, eq=False)
@@ -240,6 +247,7 @@ class BodyCapture:
                 ("surfaces", per_view(lambda v: f"{len(v.surfaces)} frames, first frame "
                                                 f"{_surface_points(v.surfaces)} points")),
                 ("tracking", per_view(lambda v: "none" if v.tracks is None else
+                                      f"from frame {int(self.frames[v.tracking_from])}: "
                                       f"{len(v.tracks)} tracks, "
                                       f"{int(v.tracks.alive[-1].sum())} alive at the end")),
                 ("trajectories", f"{kept} of {len(self.trajectories)} kept by the filters")]
@@ -302,23 +310,46 @@ def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None
     ----------
     videos : (K, T, H, W) array
     surfaces : dict of int -> SurfaceResult
-        Must hold frame 0; its points that passed the filters start the tracks, and the
-        later frames' feed the density check (every ``params.density_every`` frames).
+        Surfaces by frame. The tracks start at the first frame whose surface has a kept
+        point, from its points that passed the neighbourhood filter;
+        the later frames' feed the density check (every ``params.density_every`` frames
+        counted from the start frame).
     params : TrackerParams, optional
     progress : bool
 
     Returns
     -------
     Tracks
+        Over all T frames: NaN before the start frame (``start.min()`` is the start frame).
     """
-    if 0 not in surfaces:
-        raise ValueError("surfaces: expected the surface of frame 0 (the start points)")
-    first = surfaces[0]
+    s = _tracking_start(surfaces)
+    if s is None:
+        raise ValueError("surfaces: no frame's surface has a point to track")
+    first = surfaces[s]
     start = first.xy[:, first.neighbourhood_ok]
-    if start.shape[1] == 0:
-        raise ValueError("surfaces: frame 0's surface has no point to track")
-    new = {t: s.xy[:, s.neighbourhood_ok] for t, s in surfaces.items() if t > 0}
-    return track_points(videos, start, params=params, new_points=new, progress=progress)
+    new = {t - s: r.xy[:, r.neighbourhood_ok] for t, r in surfaces.items() if t > s}
+    tracks = track_points(videos[:, s:], start, params=params, new_points=new,
+                          progress=progress)
+    return _delayed(tracks, s)
+
+
+def _tracking_start(surfaces: dict) -> int | None:
+    """The first frame whose surface has a kept point (None when no frame has one)."""
+    return next((t for t in sorted(surfaces) if surfaces[t].kept.any()), None)
+
+
+def _delayed(tracks: Tracks, s: int) -> Tracks:
+    """Tracks of frames ``s:`` as tracks of all frames (untracked before ``s``)."""
+    if s == 0:
+        return tracks
+
+    def pad(a, value):
+        return np.concatenate([np.full((s,) + a.shape[1:], value, a.dtype), a])
+
+    return replace(tracks, xy=pad(tracks.xy, np.nan), start=tracks.start + s,
+                   end=np.where(tracks.end >= 0, tracks.end + s, tracks.end),
+                   retried=pad(tracks.retried, False), recovered=pad(tracks.recovered, False),
+                   anchor=pad(np.where(tracks.anchor >= 0, tracks.anchor + s, -1), -1))
 
 
 # ------------------------------------------------------------------------- arguments
@@ -449,16 +480,16 @@ def _surfaces(st: _State) -> None:
 def _tracking(st: _State) -> None:
     p = st.params
     for g, (v, cams), surfaces in zip(st.groups, st.inputs, st.surfaces):
-        if _surface_points(surfaces) == 0:
+        if _tracking_start(surfaces) is None:
             warnings.warn(f"capture_recording: view group {_joined_names(cams)} has no "
-                          "surface point in its first frame; it is left out", stacklevel=3)
+                          "surface point in any measured frame; it is left out", stacklevel=3)
             st.tracks.append(None)
             continue
         tracker = replace(p.tracker, density_every=p.density_every,
                           template=g.template_position)
         st.tracks.append(track_surface(v, surfaces, params=tracker, progress=st.progress))
     if all(t is None for t in st.tracks) and st.params.markers is None:
-        raise ValueError("videos: no view group found a surface point in the first frame "
+        raise ValueError("videos: no view group found a surface point in any measured frame "
                          "(no seed matched, or every match failed LSM's thresholds); check "
                          "the cameras and the frames")
 

@@ -102,6 +102,8 @@ def capture_record(capture) -> dict:
             "noise_sigma": float(v.noise.sigma),
             "surface_points": {int(capture.frames[t]): int(s.kept.sum())
                                for t, s in sorted(v.surfaces.items())},
+            "tracking_from": (None if v.tracks is None else
+                              int(capture.frames[v.tracking_from])),
             "tracks": 0 if v.tracks is None else len(v.tracks),
             "alive_at_end": 0 if v.tracks is None else int(v.tracks.alive[-1].sum()),
             "trajectories": v.points.stop - v.points.start,
@@ -196,14 +198,14 @@ def _figures(capture) -> list:
             ax[0, k].set_xlim(0, cam.width)
             ax[0, k].set_ylim(cam.height, 0)
             ax[0, k].set_aspect("equal")
-            for t, colour in ((0, "tab:blue"), (tracks.n_frames - 1, "tab:red")):
+            for t, colour in ((view.tracking_from, "tab:blue"), (tracks.n_frames - 1, "tab:red")):
                 xy = tracks.xy[t, k]
                 ax[0, k].plot(xy[:, 0], xy[:, 1], ".", ms=1.5, color=colour,
                               label=f"frame {int(capture.frames[t])}")
             ax[0, k].set_title(cam.name or f"camera {view.group.cameras[k]}", fontsize=9)
         ax[0, 0].legend(fontsize=7, loc="lower left")
-        out.append((f"View group G{g + 1}: tracked points in the first (blue) and last (red) "
-                    "frame, in image pixels of every view", _png(fig)))
+        out.append((f"View group G{g + 1}: tracked points in the first tracked (blue) and "
+                    "last (red) frame, in image pixels of every view", _png(fig)))
     X = capture.filtered.xyz
     if np.isfinite(X).any():
         fig = Figure(figsize=(12, 3.5))

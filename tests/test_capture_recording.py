@@ -223,7 +223,7 @@ def test_capture_starts_tracking_at_the_first_surface(session, tmp_path):
     files = cap.save(tmp_path / "out")                                 # with the report
     assert files["c3d"].exists() and files["trc"].exists()
     assert json.loads(files["summary"].read_text())["view_groups"][0]["tracking_from"] == 3
-    with pytest.raises(ValueError, match="no frame's surface"):
+    with pytest.raises(ValueError, match="no frame before the last"):
         track_surface(videos[:, :3], {})
 
 
@@ -307,3 +307,15 @@ def test_command_end_to_end(session, tmp_path, capsys):
     assert main(["capture", "--videos", *paths, "--cameras", str(wrong), "--out", str(out),
                  "--no-refine", "--quiet"]) == 2
     assert "2 cameras for 3 videos" in capsys.readouterr().err
+
+
+def test_a_surface_only_on_the_last_frame_starts_no_tracks():
+    """A start needs a frame after it: a group whose only surface point lies on the last
+    frame (a subject who walks in at the end) has nothing to track, with a clear error."""
+    empty = SimpleNamespace(kept=np.zeros(0, bool), xy=np.zeros((2, 0, 2)),
+                            neighbourhood_ok=np.zeros(0, bool))
+    last = SimpleNamespace(kept=np.ones(1, bool), xy=np.full((2, 1, 2), 10.0),
+                           neighbourhood_ok=np.ones(1, bool))
+    videos = np.zeros((2, 5, 32, 32), np.float32)
+    with pytest.raises(ValueError, match="surfaces: no frame before the last"):
+        track_surface(videos, {0: empty, 2: empty, 4: last})

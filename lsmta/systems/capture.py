@@ -138,7 +138,8 @@ class ViewCapture:
     def tracking_from(self) -> int | None:
         """The processed frame the tracks start at: the first with a surface point (None
         without tracks)."""
-        return None if self.tracks is None else _tracking_start(self.surfaces)
+        return (None if self.tracks is None else
+                _tracking_start(self.surfaces, self.tracks.xy.shape[0]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -310,8 +311,8 @@ def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None
     ----------
     videos : (K, T, H, W) array
     surfaces : dict of int -> SurfaceResult
-        Surfaces by frame. The tracks start at the first frame whose surface has a kept
-        point, from its points that passed the neighbourhood filter;
+        Surfaces by frame. The tracks start at the first frame before the last whose
+        surface has a kept point, from its points that passed the neighbourhood filter;
         the later frames' feed the density check (every ``params.density_every`` frames
         counted from the start frame).
     params : TrackerParams, optional
@@ -322,9 +323,9 @@ def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None
     Tracks
         Over all T frames: NaN before the start frame (``start.min()`` is the start frame).
     """
-    s = _tracking_start(surfaces)
+    s = _tracking_start(surfaces, len(videos[0]))
     if s is None:
-        raise ValueError("surfaces: no frame's surface has a point to track")
+        raise ValueError("surfaces: no frame before the last has a surface point to track")
     first = surfaces[s]
     start = first.xy[:, first.neighbourhood_ok]
     new = {t - s: r.xy[:, r.neighbourhood_ok] for t, r in surfaces.items() if t > s}
@@ -333,9 +334,11 @@ def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None
     return _delayed(tracks, s)
 
 
-def _tracking_start(surfaces: dict) -> int | None:
-    """The first frame whose surface has a kept point (None when no frame has one)."""
-    return next((t for t in sorted(surfaces) if surfaces[t].kept.any()), None)
+def _tracking_start(surfaces: dict, n_frames: int) -> int | None:
+    """The first frame whose surface has a kept point and that has a frame after it to track
+    into (None when there is none)."""
+    return next((t for t in sorted(surfaces) if t < n_frames - 1 and surfaces[t].kept.any()),
+                None)
 
 
 def _delayed(tracks: Tracks, s: int) -> Tracks:
@@ -480,9 +483,10 @@ def _surfaces(st: _State) -> None:
 def _tracking(st: _State) -> None:
     p = st.params
     for g, (v, cams), surfaces in zip(st.groups, st.inputs, st.surfaces):
-        if _tracking_start(surfaces) is None:
+        if _tracking_start(surfaces, len(v[0])) is None:
             warnings.warn(f"capture_recording: view group {_joined_names(cams)} has no "
-                          "surface point in any measured frame; it is left out", stacklevel=3)
+                          "surface point in any measured frame before the last; it is left "
+                          "out", stacklevel=3)
             st.tracks.append(None)
             continue
         tracker = replace(p.tracker, density_every=p.density_every,

@@ -163,7 +163,7 @@ def test_descriptors_must_be_bytes_to_be_matched_exactly():
 # ------------------------------ least squares matching (refine_tie_points)
 def _surface_point(cam, xy):
     """Where the rays of ``cam`` through ``xy`` meet the floor (z = 0) or the wall
-    (y = 1500) of :func:`_render`."""
+    (y = 1500) of ``conftest.render_room``."""
     o, d = cam.rays(xy)
     with np.errstate(divide="ignore", invalid="ignore"):
         t_floor = np.where(d[:, 2] < 0, -o[:, 2] / d[:, 2], np.inf)

@@ -305,7 +305,8 @@ def _calibration_text(cal) -> str:
 
 def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None,
                   progress: bool = False) -> Tracks:
-    """Surface tracking (Fig. 9): every point of the first surface, new points from later ones.
+    """Surface tracking (Fig. 9): every point of the first surface with a kept point (before
+    the last frame), new points from later ones.
 
     Parameters
     ----------
@@ -494,6 +495,7 @@ def _tracking(st: _State) -> None:
         st.tracks.append(track_surface(v, surfaces, params=tracker, progress=st.progress))
     if all(t is None for t in st.tracks) and st.params.markers is None:
         raise ValueError("videos: no view group found a surface point in any measured frame "
+                         "before the last "
                          "(no seed matched, or every match failed LSM's thresholds); check "
                          "the cameras and the frames")
 

@@ -139,8 +139,9 @@ class RigRefinementParams:
         else each tie point alone, and a still feature whose match fails in some frames or
         lands apart in others breaks into one-frame places. Default False, by the rule that a
         matching rule is on by default only if it worsens no camera's judged held-out
-        residual at full size on the Pose2Sim demo: on, it kept more held-out still places
-        (19/19/3/3 per camera against 15/14/4/5) but the judged residuals went from
+        residual at full size on the Pose2Sim demo: on, it kept more held-out still places in
+        all (22 against 19) but fewer in cam03 and cam04 (19/19/3/3 per camera against
+        15/14/4/5), and the judged residuals went from
         0.25/0.23/0.60/0.46 to 0.24/0.25/0.96/0.73 px (cam01-cam04,
         ``experiments/refinement_held_out.py --lsm on --lsm-once --larger-patches none``).
     refine : RefineParams

@@ -2,7 +2,8 @@
 triplet and from an all-round studio, scored after the fact against issue 36's targets.
 
     .venv/bin/python experiments/walk_full_fit.py [--rigs triplet studio] [--frames 8]
-        [--scale 1.0] [--fit-every 1] [--seed 36] [--n-seeds 40] [--free-rounds 0]
+        [--scale 1.0] [--every 2] [--seed 36] [--n-seeds 40] [--cameras 8 --rows 2]
+        [--fit-every 1] [--free-rounds 0]
         [--n-inner 2] [--max-nfev 25] [--angular-speed 8] [--out PATH]
 
 For each rig: :func:`lsmta.evaluation.walk_system.walk_session` renders ``--frames`` of the
@@ -37,7 +38,7 @@ import sys
 import time
 from datetime import date
 
-from walk_system import CHECK_IN, REJECT_K, SEEN_IN
+from walk_system import CHECK_IN, SEEN_IN, add_session_arguments, session_capture
 
 FIT_IN = ("none (the fit takes only the system's filtered points in the system's own world; "
           "no generator point, pose or camera)")
@@ -89,27 +90,18 @@ def _records(rig, cap, session_s, wf, score_s, check, al, score, verdict):
     return out
 
 
-def run_rig(rig: str, *, frames: int, scale: float, fit_every: int, seed: int,
-            n_seeds: int, fit_params: dict, angular_speed: float, progress: bool) -> dict:
-    """Render one rig's session, run the system, fit the body, score it."""
-    import numba
+def run_rig(rig: str, *, session: dict, fit_every: int, fit_params: dict,
+            angular_speed: float) -> dict:
+    """Render one rig's session, run the system (``session``: the arguments of
+    walk_system.session_capture), fit the body, score it."""
     import numpy as np
 
     from lsmta.body.full_fit import FullBodyFitParams
     from lsmta.evaluation import walk_full_fit as wf
     from lsmta.evaluation import walk_system as ws
-    from lsmta.systems import BodySystemParams, SurfaceParams, capture_walk
 
-    numba.set_num_threads(1)
-    t0 = time.perf_counter()
-    session = ws.walk_session(seed=seed, n_frames=frames, params=ws.WalkSessionParams(
-        rig=rig, scale=scale))
-    session_s = time.perf_counter() - t0
-    cap = capture_walk(session.videos, session.bar_videos, session.bar_length, session.nominal,
-                       fps=session.fps, level_videos=session.level_videos,
-                       params=BodySystemParams(density_every=2, reject_k=REJECT_K,
-                                               surface=SurfaceParams(n_seeds=n_seeds)),
-                       progress=progress, seed=seed)
+    seed = session["seed"]
+    session, cap, session_s = session_capture(rig, **session)
     fit = wf.fit_walk(cap, every=fit_every, angular_speed=angular_speed or None,
                       params=FullBodyFitParams(**fit_params))
     # after the fact: the truth enters only from here on
@@ -138,15 +130,9 @@ def run_rig(rig: str, *, frames: int, scale: float, fit_every: int, seed: int,
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rigs", nargs="+", default=["triplet", "studio"],
-                        choices=["triplet", "studio"])
-    parser.add_argument("--frames", type=int, default=8, help="frames of the walk")
-    parser.add_argument("--scale", type=float, default=1.0, help="of the 768 x 576 images")
+    add_session_arguments(parser)
     parser.add_argument("--fit-every", type=int, default=1,
                         help="fit every n-th processed frame")
-    parser.add_argument("--seed", type=int, default=36)
-    parser.add_argument("--n-seeds", type=int, default=40,
-                        help="automatic seeds per surface and view group")
     parser.add_argument("--free-rounds", type=int, default=0,
                         help="free-shape rounds of the fit")
     parser.add_argument("--n-inner", type=int, default=2,
@@ -155,14 +141,15 @@ def main(argv=None):
                         help="solver evaluations per pose solve")
     parser.add_argument("--angular-speed", type=float, default=8.0,
                         help="rad/s of fit_walk's temporal prior; 0: none (frames alone)")
-    parser.add_argument("--progress", action="store_true")
     parser.add_argument("--out", default="build/benchmarks/walk_full_fit.json")
     args = parser.parse_args(argv)
     from lsmta.report import write_json
 
-    settings = {k: getattr(args, k) for k in ("frames", "scale", "fit_every", "seed",
-                                               "n_seeds", "free_rounds", "n_inner",
-                                               "max_nfev", "angular_speed")}
+    session = {k: getattr(args, k) for k in ("frames", "scale", "every", "seed", "cameras",
+                                              "rows", "n_seeds", "progress")}
+    settings = {k: getattr(args, k) for k in ("frames", "scale", "every", "seed", "cameras",
+                                               "rows", "n_seeds", "fit_every", "free_rounds",
+                                               "n_inner", "max_nfev", "angular_speed")}
     out = {"command": "python experiments/walk_full_fit.py " + " ".join(
                sys.argv[1:] if argv is None else argv),
            "date": date.today().isoformat(), "machine": platform.machine(),
@@ -172,8 +159,7 @@ def main(argv=None):
            "truth": "none in the capture or the fit; scores after the fact, aligned on the "
                     "held-out bar's check points", "rigs": {}}
     for rig in args.rigs:
-        r = run_rig(rig, frames=args.frames, scale=args.scale, fit_every=args.fit_every,
-                    seed=args.seed, n_seeds=args.n_seeds, progress=args.progress,
+        r = run_rig(rig, session=session, fit_every=args.fit_every,
                     angular_speed=args.angular_speed,
                     fit_params={k: settings[k] for k in ("free_rounds", "n_inner", "max_nfev")})
         out["rigs"][rig] = r

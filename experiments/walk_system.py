@@ -43,11 +43,27 @@ SEEN_IN = CHECK_IN + ("; the seen side: true skin samples seen by two cameras of
                       "group (true cameras, true visibility)")
 
 
-def run_rig(rig: str, *, frames: int, scale: float, every: int, seed: int, cameras: int,
-            rows: int, n_seeds: int, progress: bool) -> dict:
-    """Render one rig's session, run the system, score it; a dict of records and detail."""
+def add_session_arguments(parser) -> None:
+    """The walk session's and the system's options (shared with walk_full_fit.py)."""
+    parser.add_argument("--rigs", nargs="+", default=["triplet", "studio"],
+                        choices=["triplet", "studio"])
+    parser.add_argument("--frames", type=int, default=8, help="frames of the walk")
+    parser.add_argument("--scale", type=float, default=1.0, help="of the 768 x 576 images "
+                        "(0.5: quicker, but the triplet then finds seeds on few body parts)")
+    parser.add_argument("--every", type=int, default=2, help="density check, frames")
+    parser.add_argument("--seed", type=int, default=36)
+    parser.add_argument("--n-seeds", type=int, default=40,
+                        help="automatic seeds per surface and view group")
+    parser.add_argument("--cameras", type=int, default=8, help="the studio's cameras")
+    parser.add_argument("--rows", type=int, default=2, help="the studio's cameras per pole")
+    parser.add_argument("--progress", action="store_true")
+
+
+def session_capture(rig: str, *, frames: int, scale: float, every: int, seed: int,
+                    cameras: int, rows: int, n_seeds: int, progress: bool):
+    """Render one rig's walk session and run the LSMTA system on it: (session, capture,
+    render seconds)."""
     import numba
-    import numpy as np
 
     from lsmta.evaluation import walk_system as ws
     from lsmta.systems import BodySystemParams, SurfaceParams, capture_walk
@@ -62,6 +78,19 @@ def run_rig(rig: str, *, frames: int, scale: float, every: int, seed: int, camer
                        params=BodySystemParams(density_every=every, reject_k=REJECT_K,
                                                surface=SurfaceParams(n_seeds=n_seeds)),
                        progress=progress, seed=seed)
+    return session, cap, render_s
+
+
+def run_rig(rig: str, *, frames: int, scale: float, every: int, seed: int, cameras: int,
+            rows: int, n_seeds: int, progress: bool) -> dict:
+    """Render one rig's session, run the system, score it; a dict of records and detail."""
+    import numpy as np
+
+    from lsmta.evaluation import walk_system as ws
+
+    session, cap, render_s = session_capture(rig, frames=frames, scale=scale, every=every,
+                                             seed=seed, cameras=cameras, rows=rows,
+                                             n_seeds=n_seeds, progress=progress)
     al, check = ws.check_alignment(cap.cameras, session)
     score = ws.score_walk(cap, session, al, rng=seed)
     s = score.summary()
@@ -108,21 +137,10 @@ def run_rig(rig: str, *, frames: int, scale: float, every: int, seed: int, camer
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rigs", nargs="+", default=["triplet", "studio"],
-                        choices=["triplet", "studio"])
-    parser.add_argument("--frames", type=int, default=8, help="frames of the walk")
-    parser.add_argument("--scale", type=float, default=1.0, help="of the 768 x 576 images "
-                        "(0.5: quicker, but the triplet then finds seeds on few body parts)")
-    parser.add_argument("--every", type=int, default=2, help="density check, frames")
-    parser.add_argument("--seed", type=int, default=36)
-    parser.add_argument("--n-seeds", type=int, default=40,
-                        help="automatic seeds per surface and view group")
-    parser.add_argument("--cameras", type=int, default=8, help="the studio's cameras")
-    parser.add_argument("--rows", type=int, default=2, help="the studio's cameras per pole")
+    add_session_arguments(parser)
     parser.add_argument("--whole", action="store_true",
                         help="the whole walk: 50 frames at 768 x 576 (overrides --frames, "
                              "--scale)")
-    parser.add_argument("--progress", action="store_true")
     parser.add_argument("--out", default="build/benchmarks/walk_system.json")
     args = parser.parse_args(argv)
     if args.whole:

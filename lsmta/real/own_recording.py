@@ -90,21 +90,38 @@ def rigid_pair(xyz, *, distance_range=(60.0, 250.0), min_share: float = 0.5,
                      std_mm=float(np.std(d[both])), frames=int(both.sum()))
 
 
-def marker_scores(capture) -> dict:
+def marker_scores(capture, *, pair=None) -> dict:
     """Coverage, residual and rigidity of a :class:`~lsmta.systems.MarkerCapture`'s moving
-    markers, as plain numbers (NaN where undefined)."""
+    markers, as plain numbers (NaN where undefined).
+
+    ``pair`` (two indices into the capture's markers, e.g. another capture's ``"pair"`` of
+    the same markers) scores that pair's distance instead of choosing one with
+    :func:`rigid_pair`."""
     m = capture
     moving = np.flatnonzero(m.moving)
     share = m.triangulated_share()[moving]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         residual = float(np.nanmedian(m.residual[:, moving])) if len(moving) else np.nan
-    pair = rigid_pair(m.xyz[:, moving])
+    if pair is None:
+        found = rigid_pair(m.xyz[:, moving])
+        pair = None if found is None else tuple(int(moving[i]) for i in found.markers)
+        d = None if found is None else found.distance
+    else:
+        pair = tuple(int(i) for i in pair)
+        if len(pair) != 2 or not all(0 <= i < len(m.moving) for i in pair):
+            raise ValueError(f"pair: expected two indices of the capture's "
+                             f"{len(m.moving)} markers, got {pair}")
+        d = np.linalg.norm(m.xyz[:, pair[0]] - m.xyz[:, pair[1]], axis=1)
+    both = np.isfinite(d) if d is not None else None
+    has = d is not None and both.any()
     return {"moving": int(len(moving)), "joined": int(len(m.members)),
             "share_mean": float(share.mean()) if len(share) else np.nan,
             "share_ge_90": float((share >= 0.9).mean()) if len(share) else np.nan,
+            "share_min": float(share.min()) if len(share) else np.nan,
             "residual_px": residual,
-            "pair": None if pair is None else tuple(int(moving[i]) for i in pair.markers),
-            "pair_median_mm": np.nan if pair is None else pair.median_mm,
-            "pair_std_mm": np.nan if pair is None else pair.std_mm,
+            "pair": pair,
+            "pair_frames": int(both.sum()) if has else 0,
+            "pair_median_mm": float(np.median(d[both])) if has else np.nan,
+            "pair_std_mm": float(np.std(d[both])) if has else np.nan,
             "seconds": m.seconds}

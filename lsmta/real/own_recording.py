@@ -7,9 +7,13 @@ A real recording has no truth, so the markers are judged by what needs none:
 * *residual*: how far the intersected marker reprojects from its tracked positions;
 * *rigidity*: the distance between two markers on one rigid segment should not change. The
   pair is chosen by a rule that does not look at the distance's spread (which is what is
-  scored): of the moving markers in 3-D in at least half of the frames, the pairs whose
-  median distance lies in ``distance_range`` (a foot's heel-to-forefoot span), the one
-  lowest in the room (the feet are the lowest markers of a person standing or walking).
+  scored): of the moving markers in 3-D in at least half of the frames and above the floor
+  (a median height below 0 is a wrong join), the pairs seen by the same views (one side of
+  the segment: a pair of markers intersected by different cameras adds the two camera
+  groups' disagreement to its distance) whose median distance lies in ``distance_range``
+  (a foot's heel-to-forefoot span), the one with the most frames with both in 3-D, and of
+  those equally many the lowest in the room (the feet are the lowest markers of a person
+  standing or walking). Without ``views`` the same-views condition is left out.
 """
 
 from __future__ import annotations
@@ -46,14 +50,16 @@ class RigidPair:
     frames: int
 
 
-def rigid_pair(xyz, *, distance_range=(60.0, 250.0), min_share: float = 0.5,
+def rigid_pair(xyz, *, views=None, distance_range=(60.0, 250.0), min_share: float = 0.5,
                up=(0.0, 0.0, 1.0)) -> RigidPair | None:
-    """The lowest pair of markers at a foot's span (see the module docstring).
+    """The pair of markers at a foot's span held longest in 3-D (see the module docstring).
 
     Parameters
     ----------
     xyz : (T, M, 3) array
         Moving markers' positions, mm (NaN where missing).
+    views : (M, K) bool array, optional
+        The views that hold each marker; a pair must be held by the same views.
     distance_range : (float, float)
         Accepted median distance, mm.
     min_share : float
@@ -67,21 +73,28 @@ def rigid_pair(xyz, *, distance_range=(60.0, 250.0), min_share: float = 0.5,
         None when no pair qualifies.
     """
     X = as_array(xyz, "xyz", shape=(None, None, 3), allow_nan=True)
+    if views is not None:
+        views = np.asarray(views, bool)
+        if views.ndim != 2 or len(views) != X.shape[1]:
+            raise ValueError(f"views: expected an ({X.shape[1]}, K) bool array (the views "
+                             f"of each marker), got shape {views.shape}")
     up = np.asarray(up, float) / np.linalg.norm(up)
     present = np.isfinite(X).all(axis=2)
-    ok = np.flatnonzero(present.mean(axis=0) >= min_share)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)          # markers often missing
         height = np.nanmedian(X @ up, axis=0)
+        ok = np.flatnonzero((present.mean(axis=0) >= min_share) & (height >= 0))
         best = None
         for i, j in itertools.combinations(ok, 2):
+            if views is not None and not np.array_equal(views[i], views[j]):
+                continue
             d = np.linalg.norm(X[:, i] - X[:, j], axis=1)
             med = np.nanmedian(d)
             if not distance_range[0] <= med <= distance_range[1]:
                 continue
-            low = height[i] + height[j]
-            if best is None or low < best[0]:
-                best = (low, (int(i), int(j)), d)
+            key = (-int(np.isfinite(d).sum()), height[i] + height[j])
+            if best is None or key < best[0]:
+                best = (key, (int(i), int(j)), d)
     if best is None:
         return None
     _, pair, d = best
@@ -104,7 +117,7 @@ def marker_scores(capture, *, pair=None) -> dict:
         warnings.simplefilter("ignore", RuntimeWarning)
         residual = float(np.nanmedian(m.residual[:, moving])) if len(moving) else np.nan
     if pair is None:
-        found = rigid_pair(m.xyz[:, moving])
+        found = rigid_pair(m.xyz[:, moving], views=m.members[moving] >= 0)
         pair = None if found is None else tuple(int(moving[i]) for i in found.markers)
         d = None if found is None else found.distance
     else:

@@ -98,7 +98,7 @@ def main(argv=None):
     scores["KLT own joins"] = marker_scores(runs["KLT own joins"])
     for name, s in scores.items():
         s["cpu_seconds"] = cpu[name]
-        s["share_per_marker"] = runs[name].triangulated_share()[runs[name].moving].round(3)
+        s["share_per_marker"] = runs[name].triangulated_share()[runs[name].moving].round(3).tolist()
     L, K = scores["LSMTA"], scores["KLT"]
     ratios = {k: L[k] / K[k] for k in ("residual_px", "pair_std_mm", "cpu_seconds")}
     lm = runs["LSMTA"]

@@ -124,7 +124,7 @@ def test_capture_markers_on_rendered_dots(tracker):
         capture_markers(stacks, cams[:1], [s[0] for s in stacks], params=params)
 
 
-def test_rigid_pair_is_the_lowest_pair_at_a_foot_span():
+def test_rigid_pair_is_the_longest_held_pair_at_a_foot_span_in_the_same_views():
     rng = np.random.default_rng(2)
     T = 50
     walk = np.cumsum(rng.normal(0, 5, (T, 1, 3)), axis=0)
@@ -136,6 +136,19 @@ def test_rigid_pair_is_the_lowest_pair_at_a_foot_span():
     assert p.markers == (2, 3) and abs(p.median_mm - 180.3) < 2 and p.std_mm < 2.5
     assert p.frames == T
     assert rigid_pair(X[:, :2]) is None                  # hip-knee: 450 mm, not a foot
+    # a second foot pair, held in fewer frames, lower: the longer-held pair still wins
+    Y = np.concatenate([X, X[:, 2:] - [0.0, 400, 30]], axis=1)     # the other foot
+    Y[::3, 4] = np.nan
+    assert rigid_pair(Y).markers == (2, 3)
+    Y[::3, 2] = np.nan                                   # now equally held: the lower wins
+    assert rigid_pair(Y).markers == (4, 5)
+    views = np.array([[1, 1, 0]] * 5 + [[0, 1, 1]], bool)     # marker 5 seen from elsewhere
+    assert rigid_pair(Y, views=views).markers == (2, 3)
+    below = X.copy()
+    below[:, 2:, 2] -= 500.0                             # below the floor: a wrong join
+    assert rigid_pair(below) is None
+    with pytest.raises(ValueError, match="views"):
+        rigid_pair(Y, views=views[:3])
 
 
 def test_camera_invertible_marks_where_the_lens_folds():

@@ -24,12 +24,13 @@ from __future__ import annotations
 import enum
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .._validate import as_int, as_scalar, freeze
-from ..tracking import TrackerParams, track_points
+from ..tracking import TrackerParams, track_points, track_step
+from ..tracking.blob_follow import FollowParams, follow_blobs
 from ..tracking.klt import track_klt
 from ..tracking.markers import find_blobs, find_markers
 from ..tracking.view_tracks import join_view_tracks, joined_positions, triangulate_joined
@@ -69,6 +70,12 @@ class MarkerParams:
     max_angle_deg : float
         Only views whose optical axes are within this angle are joined (a marker on the
         skin is seen from one side; see :func:`~lsmta.systems.views.axis_angles`).
+    follow : FollowParams or None
+        Follow every marker on its blob (:func:`~lsmta.tracking.blob_follow.follow_blobs`:
+        the tracker's step from frame to frame, re-centred on the dot, a lost marker
+        re-acquired from the blobs near its prediction), for either tracker; None: the
+        tracker alone over the whole clip (LSMTA with its anchored templates). The
+        re-acquisition's blob scale and strength are ``sigma`` and ``min_strength``.
     """
 
     detector: str = "skin"
@@ -81,6 +88,7 @@ class MarkerParams:
     min_shared: float = 0.5
     min_motion_mm: float = 50.0
     max_angle_deg: float = 75.0
+    follow: FollowParams | None = field(default_factory=FollowParams)
 
     def __post_init__(self):
         if self.detector not in ("skin", "blobs"):
@@ -89,6 +97,9 @@ class MarkerParams:
                      "max_angle_deg"):
             as_scalar(getattr(self, name), name, positive=True)
         as_int(self.klt_window, "klt_window", minimum=3, odd=True)
+        if self.follow is not None and not isinstance(self.follow, FollowParams):
+            raise TypeError(f"follow: expected a FollowParams or None, got "
+                            f"{type(self.follow).__name__}")
         try:
             object.__setattr__(self, "tracker", Tracker2D(self.tracker))
         except ValueError:
@@ -153,11 +164,15 @@ def detect_markers(image, *, params: MarkerParams | None = None) -> np.ndarray:
 
 
 def track_view(frames, start_xy, *, params: MarkerParams | None = None) -> np.ndarray:
-    """Track one view's points with the chosen 2-D tracker: ``(T, N, 2)`` px."""
+    """Track one view's points with the chosen 2-D tracker: ``(T, N, 2)`` px (followed on
+    their blobs unless ``params.follow`` is None)."""
     p = params or MarkerParams()
     start = np.asarray(start_xy, float)[None]
     if start.shape[1] == 0:
         return np.full((len(frames), 0, 2), np.nan)
+    if p.follow is not None:
+        fp = replace(p.follow, sigma=p.sigma, min_strength=p.min_strength)
+        return follow_blobs(frames, start[0], _step(frames, p), params=fp).xy
     if p.tracker == Tracker2D.KLT:
         tracks = track_klt([frames], start, window=p.klt_window)
     else:
@@ -165,8 +180,34 @@ def track_view(frames, start_xy, *, params: MarkerParams | None = None) -> np.nd
     return tracks.xy[:, 0]
 
 
-def capture_markers(stacks, cameras, first_frames, *,
-                    params: MarkerParams | None = None) -> MarkerCapture:
+def _step(frames, p: MarkerParams):
+    """The chosen tracker's step from frame t to t + 1 (see :func:`follow_blobs`): KLT with
+    its pyramid; LSMTA (:func:`~lsmta.tracking.track_step`) from the prediction in the
+    normal search box, then in the bigger one, then the bigger one around the last position
+    (a marker that stopped)."""
+    if p.tracker == Tracker2D.KLT:
+        def klt(t, xy, predicted):
+            return track_klt([frames[t:t + 2]], xy[None], window=p.klt_window).xy[1, 0]
+        return klt
+    lp = p.lsmta
+
+    def lsmta(t, xy, predicted):
+        out = np.full_like(xy, np.nan)
+        todo = np.arange(len(xy))
+        for radius, pred in ((lp.radius, predicted), (lp.retry_radius, predicted),
+                             (lp.retry_radius, xy)):
+            r = track_step(frames[t][None], frames[t + 1][None], xy[None, todo],
+                           pred[None, todo], radius, params=lp)
+            out[todo[r.ok]] = r.xy[0, r.ok]
+            todo = todo[~r.ok]
+            if not todo.size:
+                break
+        return out
+    return lsmta
+
+
+def capture_markers(stacks, cameras, first_frames, *, params: MarkerParams | None = None,
+                    like: MarkerCapture | None = None) -> MarkerCapture:
     """Markers of a synchronised recording in 3-D (see the module docstring).
 
     Parameters
@@ -178,6 +219,10 @@ def capture_markers(stacks, cameras, first_frames, *,
     first_frames : sequence of K arrays
         The first frame of every view as the detector wants it (BGR for skin markers).
     params : MarkerParams, optional
+    like : MarkerCapture, optional
+        The same markers as this earlier capture of the same recording: its detections are
+        tracked again (with ``params``' tracker) and joined and told moving as it joined and
+        told them, so that two trackers are compared on the same markers.
 
     Returns
     -------
@@ -188,21 +233,30 @@ def capture_markers(stacks, cameras, first_frames, *,
     if not len(stacks) == len(cams) == len(first_frames):
         raise ValueError(f"stacks, cameras, first_frames: expected one per view, got "
                          f"{len(stacks)}, {len(cams)} and {len(first_frames)}")
-    detections = tuple(detect_markers(f, params=p) for f in first_frames)
+    if like is not None and (not isinstance(like, MarkerCapture)
+                             or len(like.detections) != len(cams)):
+        raise ValueError(f"like: expected a MarkerCapture of the same {len(cams)} views, got "
+                         f"{like!r:.60}")
+    detections = (like.detections if like is not None
+                  else tuple(detect_markers(f, params=p) for f in first_frames))
     t0 = time.perf_counter()
     view_xy = tuple(track_view(s, d, params=p) for s, d in zip(stacks, detections))
     seconds = time.perf_counter() - t0
-    angles = axis_angles(cams)
-    pairs = [(a, b) for a in range(len(cams)) for b in range(a + 1, len(cams))
-             if angles[a, b] <= p.max_angle_deg]
-    joined = join_view_tracks(cams, view_xy, max_px=p.max_px, min_shared=p.min_shared,
-                              pairs=pairs)
-    xyz, residual, _ = triangulate_joined(cams, view_xy, joined.members)
+    if like is None:
+        angles = axis_angles(cams)
+        pairs = [(a, b) for a in range(len(cams)) for b in range(a + 1, len(cams))
+                 if angles[a, b] <= p.max_angle_deg]
+        members = join_view_tracks(cams, view_xy, max_px=p.max_px, min_shared=p.min_shared,
+                                   pairs=pairs).members
+    else:
+        members = like.members
+    xyz, residual, _ = triangulate_joined(cams, view_xy, members)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)          # never intersected
         span = np.nanmax(xyz, axis=0) - np.nanmin(xyz, axis=0)
     motion = np.nan_to_num(np.linalg.norm(span, axis=1))
-    return MarkerCapture(detections=detections, view_xy=view_xy, members=joined.members,
-                         xy=joined_positions(view_xy, joined.members), xyz=xyz,
-                         residual=residual, motion_mm=motion, moving=motion >= p.min_motion_mm,
+    moving = motion >= p.min_motion_mm if like is None else like.moving
+    return MarkerCapture(detections=detections, view_xy=view_xy, members=members,
+                         xy=joined_positions(view_xy, members), xyz=xyz,
+                         residual=residual, motion_mm=motion, moving=moving,
                          seconds=seconds)

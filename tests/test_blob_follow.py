@@ -1,0 +1,142 @@
+"""Markers followed on their blobs (lsmta.tracking.blob_follow) and the marker stage's use of
+it with either 2-D tracker (lsmta.systems.markers)."""
+
+import cv2
+import numpy as np
+import pytest
+
+from lsmta.real.own_recording import marker_scores
+from lsmta.systems import MarkerParams, Tracker2D, capture_markers
+from lsmta.systems.markers import track_view
+from lsmta.tracking.blob_follow import FollowParams, FollowStatus, dot_contrast, follow_blobs
+from lsmta.tracking.klt import track_klt
+from tests.test_view_tracks import _dot_video, _rig
+
+
+def _marker_clip(T=40, texture=8.0, seed=0, hide=None):
+    """Two bright dots (sigma 1.6 px) moving over a fixed smooth texture (skin and cloth
+    under a moving marker; the dots stay over 15 px apart), JPEG-compressed; ``hide`` =
+    (first, last) frames in which the second dot is covered. Returns the frames and the
+    dots' true positions (T, 2, 2)."""
+    rng = np.random.default_rng(seed)
+    H, W = 96, 128
+    bg = cv2.GaussianBlur(rng.uniform(0, 255, (H, W)).astype(np.float32), (0, 0), 2.0)
+    bg = (bg - bg.mean()) / bg.std() * texture + 100
+    yy, xx = np.mgrid[:H, :W]
+    t = np.arange(T)
+    truth = np.stack([np.stack([30 + 1.6 * t, 40 + 0.8 * t], 1),
+                      np.stack([90 - 1.2 * t, 20 + 0.3 * t], 1)], axis=1)
+    frames = []
+    for k in range(T):
+        im = bg.copy()
+        for i, (x, y) in enumerate(truth[k]):
+            if hide is not None and i == 1 and hide[0] <= k <= hide[1]:
+                continue
+            im += 110 * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * 1.6 ** 2))
+        im = np.clip(im + rng.normal(0, 2, im.shape), 0, 255).astype(np.uint8)
+        _, buf = cv2.imencode(".jpg", im, [cv2.IMWRITE_JPEG_QUALITY, 70])
+        frames.append(cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE))
+    return np.array(frames), truth
+
+
+def _klt_step(frames):
+    def step(t, xy, predicted):
+        return track_klt([frames[t:t + 2]], xy[None]).xy[1, 0]
+    return step
+
+
+@pytest.mark.parametrize("tracker", [Tracker2D.LSMTA, Tracker2D.KLT])
+def test_following_keeps_the_track_on_the_dot(tracker):
+    frames, truth = _marker_clip()
+    followed = track_view(frames, truth[0], params=MarkerParams(tracker=tracker, sigma=1.2))
+    err = np.linalg.norm(followed - truth, axis=2)
+    assert np.isfinite(err).all() and err.max() < 2.0 and np.median(err) < 0.5
+
+
+def test_plain_klt_drifts_where_following_does_not():
+    frames, truth = _marker_clip()
+    plain = track_view(frames, truth[0], params=MarkerParams(tracker=Tracker2D.KLT,
+                                                             follow=None))
+    err = np.linalg.norm(plain - truth, axis=2)
+    # the template tracker loses a dot or ends pixels off it over the texture
+    assert (~np.isfinite(err)).any() or np.nanmax(err) > 3.0
+
+
+def test_a_covered_marker_is_reacquired_near_its_prediction():
+    frames, truth = _marker_clip(hide=(15, 18))
+    fp = FollowParams(sigma=1.2)
+    r = follow_blobs(frames, truth[0], _klt_step(frames), params=fp)
+    assert np.all(r.status[15:19, 1] == FollowStatus.LOST)
+    back = np.flatnonzero(r.status[19:, 1] == FollowStatus.REACQUIRED)
+    assert back.size and np.isfinite(r.xy[19 + back[0]:, 1]).all()
+    err = np.linalg.norm(r.xy[19:, 1] - truth[19:, 1], axis=1)
+    assert err.max() < 2.0
+    never = follow_blobs(frames, truth[0], _klt_step(frames),
+                         params=FollowParams(sigma=1.2, reacquire_px=0.0))
+    assert not np.isfinite(never.xy[19:, 1]).any()       # without it, lost for good
+
+
+def test_a_step_onto_plain_skin_is_lost_and_two_on_one_dot_keep_one():
+    frames, truth = _marker_clip()
+
+    def away(t, xy, predicted):                          # a tracker that jumps off the dot
+        return xy + 20.0
+
+    r = follow_blobs(frames, truth[0], away, params=FollowParams(reacquire_px=0.0))
+    assert not np.isfinite(r.xy[1:]).any()
+
+    def both_on_first(t, xy, predicted):
+        return xy[:1] + np.array([[0.3, 0.0], [2.0, 0.0]])[:len(xy)]
+
+    r = follow_blobs(frames, truth[0], both_on_first, params=FollowParams(reacquire_px=0.0))
+    assert np.isfinite(r.xy[1, 0]).all() and not np.isfinite(r.xy[1, 1]).any()
+    c = dot_contrast(frames[0], truth[0])
+    assert np.all(c > 60) and np.isnan(dot_contrast(frames[0], [[0.0, 0.0]])).all()
+
+
+def test_bad_input():
+    frames, truth = _marker_clip(T=3)
+    with pytest.raises(ValueError, match="radius"):
+        FollowParams(radius=0)
+    with pytest.raises(ValueError, match="reacquire_px"):
+        FollowParams(reacquire_px=-1.0)
+    with pytest.raises(ValueError, match="max_gap"):
+        FollowParams(max_gap=-2)
+    with pytest.raises(ValueError, match="min_contrast"):
+        FollowParams(min_contrast=0.0)
+    with pytest.raises(ValueError, match="keep_contrast"):
+        FollowParams(keep_contrast=1.0)
+    with pytest.raises(TypeError, match="step"):
+        follow_blobs(frames, truth[0], None)
+    with pytest.raises(TypeError, match="params"):
+        follow_blobs(frames, truth[0], lambda t, xy, p: xy, params={"radius": 3})
+    with pytest.raises(ValueError, match="frames"):
+        follow_blobs(frames[0], truth[0], lambda t, xy, p: xy)
+    with pytest.raises(ValueError, match="start_xy"):
+        follow_blobs(frames, truth[0, 0], lambda t, xy, p: xy)
+    with pytest.raises(TypeError, match="follow"):
+        MarkerParams(follow={"radius": 3})
+    before = frames.copy()
+    follow_blobs(frames, truth[0], lambda t, xy, p: xy)
+    assert np.array_equal(frames, before)
+
+
+def test_the_same_markers_tracked_again_and_their_pair_scored():
+    cams = _rig(2, spread_deg=20.0)
+    t = np.arange(6)[:, None, None]
+    base = np.array([[-250.0, 0, -150], [0, 120, -150], [250, -80, -150], [-250, 60, 150]])
+    X = base[None] + np.array([25.0, 0, 15.0]) * np.sin(0.3 * t)       # one rigid body
+    stacks = _dot_video(cams, X)
+    first = [s[0] for s in stacks]
+    params = MarkerParams(detector="blobs", max_px=1.0, min_motion_mm=5.0)
+    a = capture_markers(stacks, cams, first, params=params)
+    b = capture_markers(stacks, cams, first, like=a,
+                        params=MarkerParams(detector="blobs", tracker=Tracker2D.KLT))
+    assert np.array_equal(a.members, b.members) and np.array_equal(a.moving, b.moving)
+    assert all(np.array_equal(x, y) for x, y in zip(a.detections, b.detections))
+    s = marker_scores(b, pair=(0, 1))
+    assert s["pair"] == (0, 1) and s["pair_frames"] == 6 and s["pair_std_mm"] < 5.0
+    with pytest.raises(ValueError, match="pair"):
+        marker_scores(b, pair=(0, 99))
+    with pytest.raises(ValueError, match="like"):
+        capture_markers(stacks, cams, first, params=params, like="a")

@@ -37,10 +37,20 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from .._validate import as_array, as_int, check_patch
-from .lsm import LSMParams, LSMThresholds, Status, _check_model, _params, _positive, lsm
+from .lsm import (
+    THRESHOLD_TESTS,
+    LSMParams,
+    LSMThresholds,
+    Status,
+    _check_model,
+    _params,
+    _positive,
+    lsm,
+)
 from .mpgc import _check_constraint, mpgc
 from .spline import SplineImage
 
@@ -49,6 +59,14 @@ VERTICAL = ((0, 1), (0, -1))
 #: the reach of the last phase (``reach=True``): diagonal neighbours and nodes two steps away
 FAR = ((1, 1), (-1, 1), (1, -1), (-1, -1), (2, 0), (-2, 0), (0, 2), (0, -2))
 METHODS = ("patch", "retry", "robust", "shifted")
+#: the outcomes an LSM attempt is counted under in :attr:`GrowResult.attempt_census`: accepted,
+#: rejected by the first threshold it fails (:data:`~lsmta.matching.lsm.THRESHOLD_TESTS`), or
+#: not converged (the other :class:`~lsmta.matching.lsm.Status` codes)
+ATTEMPT_OUTCOMES = ("accepted",) + THRESHOLD_TESTS + ("max_iterations", "diverged", "outside",
+                                                      "singular")
+#: what became of the grid's nodes in :attr:`GrowResult.node_census`
+NODE_OUTCOMES = ("outside", "masked", "no_texture", "matched", "given_up", "failed_open",
+                 "never_reached")
 
 
 @dataclass(frozen=True)
@@ -90,6 +108,14 @@ class GrowResult:
         px, or inverse depth in 1/m); NaN without one.
     sigma_t : (N,) array
         Its standard deviation from the joint adjustment (NaN without a constraint).
+    attempt_census : dict
+        Every LSM attempt of the growth (seeds, retries and shifted windows included) by
+        outcome, :data:`ATTEMPT_OUTCOMES` -> count; the counts add up to ``n_lsm``.
+    node_census : dict
+        Every grid node by outcome, :data:`NODE_OUTCOMES` -> count (adding up to the grid's
+        nodes): the patch does not fit the image, outside ``mask``, below ``min_texture``,
+        matched, given up after ``max_attempts``, tried and failed fewer times, never
+        reached from a matched neighbour.
     """
 
     template_xy: np.ndarray
@@ -107,11 +133,16 @@ class GrowResult:
     method: np.ndarray
     t: np.ndarray = field(default=None)
     sigma_t: np.ndarray = field(default=None)
+    attempt_census: dict = field(default=None)
+    node_census: dict = field(default=None)
 
     def __post_init__(self):
         for name in ("t", "sigma_t"):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, np.full(len(self.template_xy), np.nan))
+        for name in ("attempt_census", "node_census"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, {})
 
     def __len__(self) -> int:
         return len(self.template_xy)
@@ -146,7 +177,22 @@ class GrowParams:
     max_attempts : int
         How often a node may be tried from different neighbours.
     min_texture : float
-        Nodes whose template patch's grey-value standard deviation is below this are skipped.
+        Nodes whose template patch's grey-value standard deviation is below this are skipped
+        (unless ``noise`` is given).
+    noise : float, optional
+        The images' noise, grey levels (e.g. :func:`~lsmta.noise.temporal_noise`). Given, it
+        replaces the ``min_texture`` test by the precision rule: a node is tried only if
+        its template patch (the largest patch size tried) could reach the accepted precision
+        ``thresholds.max_sigma_xy`` with residuals no larger than the two images' noise,
+        ``sqrt(2) noise / sqrt(lambda_min) <= max_sigma_xy``, where ``lambda_min`` is the
+        smaller eigenvalue of the patch's gradient tensor ``sum(grad f grad f^T)``
+        (grey levels² / px²). LSM's shift precision is ``sigma0 / sqrt(lambda)`` at best
+        (the shift alone; the shape's parameters only add to it), and ``sigma0`` holds
+        both images' noise, so a node failing the rule fails ``max_sigma_xy`` whatever it
+        matches (up to the scatter of the estimated ``sigma0``): the rule skips only such
+        nodes, at any contrast and noise level, where a fixed ``min_texture`` skips
+        low-contrast patches of a quiet camera that would match and tries edges of a noisy
+        one that cannot.
     close_holes : bool
         After growing inside the cells, grow into the remaining nodes from every side.
     shift : int
@@ -188,6 +234,7 @@ class GrowParams:
     radiometry: str = "linear"
     max_attempts: int = 3
     min_texture: float = 2.0
+    noise: float | None = None
     close_holes: bool = True
     shift: int = 0
     robust: float | None = None
@@ -215,6 +262,9 @@ class GrowParams:
                                                       or self.min_texture == 0):
             raise ValueError(f"min_texture: expected a grey-value spread >= 0, "
                              f"got {self.min_texture!r}")
+        if self.noise is not None and not _positive(self.noise):
+            raise ValueError(f"noise: expected the images' noise in grey levels (> 0) or "
+                             f"None, got {self.noise!r}")
         for name in ("close_holes", "reach"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name}: expected True or False, got {getattr(self, name)!r}")
@@ -329,6 +379,7 @@ class _Options:
     thresholds: LSMThresholds
     max_attempts: int
     min_texture: float
+    noise: float | None
     close_holes: bool
     reach: bool
     seed: LSMParams                # the seeds: the largest patch size, no thresholds
@@ -355,7 +406,7 @@ def _options(p: GrowParams, constraint) -> _Options:
     return _Options(step=p.step, patch=p.patch,
                     largest_patch=max((p.patch, robust_patch) + retry_patches),
                     partial=p.partial, offsets=offsets, thresholds=thresholds,
-                    max_attempts=p.max_attempts, min_texture=p.min_texture,
+                    max_attempts=p.max_attempts, min_texture=p.min_texture, noise=p.noise,
                     close_holes=p.close_holes, reach=p.reach,
                     seed=replace(model, patch=max((p.patch,) + retry_patches)),
                     attempts=tuple(attempts), shifted=replace(model, thresholds=thresholds),
@@ -370,6 +421,7 @@ class _Grid:
     nodes: np.ndarray      # (rows, cols, 2)
     usable: np.ndarray     # (rows, cols) bool
     cell: np.ndarray       # (rows, cols) int
+    unusable: dict         # "outside", "masked", "no_texture" -> count
 
     @property
     def shape(self) -> tuple:
@@ -388,13 +440,46 @@ def _grid(f_img: SplineImage, opts: _Options, mask, seeds_t) -> _Grid:
     gr, gc = np.mgrid[0:rows, 0:cols]
     nodes = np.stack([gc * step, gr * step], axis=-1).astype(float)
     usable = f_img.inside(nodes, margin=0 if opts.partial else opts.largest_patch // 2)
+    unusable = {"outside": int((~usable).sum())}
     if mask is not None:
+        unusable["masked"] = int((usable & ~mask[gr * step, gc * step]).sum())
         usable &= mask[gr * step, gc * step]
+    else:
+        unusable["masked"] = 0
     flat = nodes.reshape(-1, 2)
-    texture = np.zeros(rows * cols)
+    if opts.noise is not None:
+        textured = _precise_enough(f_img.image, opts, gr * step, gc * step)
+    else:
+        textured = _spread(f_img, opts, usable, flat, (rows, cols))
+    unusable["no_texture"] = int((usable & ~textured).sum())
+    usable &= textured
+    return _Grid(nodes=nodes, usable=usable,
+                 cell=voronoi_cells(seeds_t, flat).reshape(rows, cols), unusable=unusable)
+
+
+def _precise_enough(image, opts: _Options, rows, cols) -> np.ndarray:
+    """The precision rule (:class:`GrowParams` ``noise``) at the nodes ``(rows, cols)``:
+    ``sqrt(2) noise / sqrt(lambda_min) <= max_sigma_xy`` over the largest patch."""
+    f = np.asarray(image, float)
+    gy, gx = np.gradient(f)
+    n = opts.largest_patch
+
+    def box(a):
+        return ndimage.uniform_filter(a, n, mode="nearest")[rows, cols] * n * n
+
+    a, b, c = box(gx * gx), box(gx * gy), box(gy * gy)
+    lam = (a + c) / 2 - np.sqrt(((a - c) / 2) ** 2 + b * b)
+    need = (np.sqrt(2.0) * opts.noise / opts.thresholds.max_sigma_xy) ** 2
+    return lam >= need
+
+
+def _spread(f_img: SplineImage, opts: _Options, usable, flat, shape) -> np.ndarray:
+    """The ``min_texture`` test: the grey-value spread of each usable node's patch (the
+    part inside the image)."""
+    H, W = f_img.shape
+    texture = np.zeros(len(flat))
     idx = np.flatnonzero(usable.ravel())
     if idx.size:
-        # the grey-value spread of each node's patch (the part inside the image)
         hp = opts.patch // 2
         yy, xx = np.mgrid[-hp:hp + 1, -hp:hp + 1]
         ix = flat[idx, None, 0].astype(np.intp) + xx.ravel()
@@ -407,9 +492,7 @@ def _grid(f_img: SplineImage, opts: _Options, mask, seeds_t) -> _Grid:
             n = inside.sum(axis=1)
             mean = (v * inside).sum(axis=1) / n
             texture[idx] = np.sqrt((inside * (v - mean[:, None]) ** 2).sum(axis=1) / n)
-    usable &= (texture >= opts.min_texture).reshape(rows, cols)
-    return _Grid(nodes=nodes, usable=usable,
-                 cell=voronoi_cells(seeds_t, flat).reshape(rows, cols))
+    return (texture >= opts.min_texture).reshape(shape)
 
 
 @dataclass
@@ -428,6 +511,7 @@ class _State:
     holes: np.ndarray          # (rows, cols) bool
     method: np.ndarray         # (rows, cols) index into METHODS
     n_lsm: int = 0
+    census: dict = field(default_factory=dict)
 
     @classmethod
     def initial(cls, shape, K: int) -> _State:
@@ -494,6 +578,7 @@ class _Matcher:
         self.template_mask = template_mask
         self.K = len(g_imgs)
         self.n_lsm = 0
+        self.census = dict.fromkeys(ATTEMPT_OUTCOMES, 0)
 
     def once(self, t_xy, approx, A0, params: LSMParams) -> _Matches:
         """One attempt at m template points from approximations ``approx`` (m, K, 2) and
@@ -503,6 +588,7 @@ class _Matcher:
         if con is None:
             res = lsm(self.f_img, self.g_imgs[0], t_xy, approx[:, 0], initial_A=A0[:, 0],
                       template_mask=self.template_mask, params=params)
+            _tally(self.census, res.status, params.thresholds, [res])
             nan = np.full(len(t_xy), np.nan)
             return _Matches(ok=res.status == Status.CONVERGED, xy=res.xy[:, None],
                             A=res.A[:, None], sigma0=res.sigma0,
@@ -511,6 +597,8 @@ class _Matcher:
         t0 = con.parameter(t_xy, approx)
         res = mpgc(self.f_img, self.g_imgs, t_xy, t0, con, initial_A=A0,
                    template_mask=self.template_mask, params=params)
+        _tally(self.census, res.status, params.thresholds,
+               [res.image(k) for k in range(self.K)])
         return _Matches(ok=res.status == Status.CONVERGED, xy=res.xy.transpose(1, 0, 2),
                         A=res.A.transpose(1, 0, 2, 3), sigma0=res.sigma0,
                         sigma_xy=res.sigma_xy.transpose(1, 0, 2), t=res.t, sigma_t=res.sigma_t,
@@ -567,7 +655,28 @@ def _grow_driver(template, searches, seeds_t, seeds_s, opts: _Options, *, mask,
     seeds_ok = _start_from_seeds(state, grid, matcher, seeds_t, seeds_s, opts)
     _grow(state, grid, matcher, opts)
     state.n_lsm = matcher.n_lsm
+    state.census = matcher.census
     return _results(state, grid, seeds_ok)
+
+
+def _tally(census: dict, status, thresholds, views) -> None:
+    """Count one attempt's outcomes into ``census`` (:data:`ATTEMPT_OUTCOMES`): a rejected
+    match under the first test it fails in any search image."""
+    status = np.asarray(status)
+    census["accepted"] += int((status == Status.CONVERGED).sum())
+    for name, code in (("max_iterations", Status.MAX_ITERATIONS), ("diverged", Status.DIVERGED),
+                       ("outside", Status.OUTSIDE), ("singular", Status.SINGULAR)):
+        census[name] += int((status == code).sum())
+    rejected = status == Status.REJECTED
+    if not rejected.any():
+        return
+    fails = [thresholds.failures(v) for v in views]
+    left = rejected.copy()
+    for name in THRESHOLD_TESTS:
+        hit = left & np.any([f[name] for f in fails], axis=0)
+        census[name] += int(hit.sum())
+        left &= ~hit
+    census["sigma0"] += int(left.sum())    # rejected by the joint rule only (mpgc)
 
 
 def _start_from_seeds(state: _State, grid: _Grid, matcher: _Matcher, seeds_t, seeds_s,
@@ -625,6 +734,15 @@ def _grow(state: _State, grid: _Grid, matcher: _Matcher, opts: _Options) -> None
             w += 1
 
 
+def _node_census(state: _State, grid: _Grid) -> dict:
+    """Every grid node by outcome (:data:`NODE_OUTCOMES`)."""
+    u, st = grid.usable, state.state
+    return dict(grid.unusable, matched=int((u & (st == 1)).sum()),
+                given_up=int((u & (st == 2)).sum()),
+                failed_open=int((u & (st == 0) & (state.attempts > 0)).sum()),
+                never_reached=int((u & (st == 0) & (state.attempts == 0)).sum()))
+
+
 def _results(state: _State, grid: _Grid, seeds_ok) -> list[GrowResult]:
     r, c = np.nonzero(state.state == 1)
     common = dict(template_xy=grid.nodes[r, c], sigma0=state.sigma0[r, c], seed=grid.cell[r, c],
@@ -632,7 +750,8 @@ def _results(state: _State, grid: _Grid, seeds_ok) -> list[GrowResult]:
                   seeds_matched=seeds_ok, n_lsm=state.n_lsm, grid_shape=grid.shape,
                   node_index=np.stack([r, c], axis=1),
                   method=np.array(METHODS)[state.method[r, c]], t=state.t[r, c],
-                  sigma_t=state.sigma_t[r, c])
+                  sigma_t=state.sigma_t[r, c], attempt_census=dict(state.census),
+                  node_census=_node_census(state, grid))
     return [GrowResult(search_xy=state.xy[r, c, k], A=state.A[r, c, k],
                        sigma_xy=state.sigma_xy[r, c, k], **common)
             for k in range(state.xy.shape[2])]

@@ -158,6 +158,10 @@ class LSMResult:
         return len(self.xy)
 
 
+#: the tests of :class:`LSMThresholds`, in the order :meth:`LSMThresholds.failures` names them
+THRESHOLD_TESTS = ("sigma0", "sigma_xy", "displacement", "scale", "shear", "weight_share")
+
+
 @dataclass(frozen=True)
 class LSMThresholds:
     """Quality indicators of the LSMTA paper, as thresholds for accepting a match.
@@ -187,19 +191,25 @@ class LSMThresholds:
     max_shear: float = 0.3
     min_weight_share: float = 0.5
 
-    def accept(self, result: LSMResult) -> np.ndarray:
-        """Boolean ``(N,)``: converged and passing every threshold."""
+    def failures(self, result: LSMResult) -> dict:
+        """Which test each match fails: ``{name: (N,) bool}`` for the names of
+        :data:`THRESHOLD_TESTS`, in that order (True: fails it; NaN fails)."""
         sv = _singular_values(result.A)
         cols = result.A.transpose(0, 2, 1)
         with np.errstate(invalid="ignore", divide="ignore"):
             cos = np.abs(np.einsum("ni,ni->n", cols[:, 0], cols[:, 1])) / (
                 np.linalg.norm(cols[:, 0], axis=1) * np.linalg.norm(cols[:, 1], axis=1))
         sxy = np.where(np.isnan(result.sigma_xy), 0.0, result.sigma_xy)
-        return (result.ok & (result.sigma0 <= self.max_sigma0)
-                & (sxy.max(axis=1) <= self.max_sigma_xy)
-                & (result.displacement <= self.max_displacement)
-                & (sv[:, 1] >= self.scale_range[0]) & (sv[:, 0] <= self.scale_range[1])
-                & (cos <= self.max_shear) & (result.weight_share >= self.min_weight_share))
+        return {"sigma0": ~(result.sigma0 <= self.max_sigma0),
+                "sigma_xy": ~(sxy.max(axis=1) <= self.max_sigma_xy),
+                "displacement": ~(result.displacement <= self.max_displacement),
+                "scale": ~((sv[:, 1] >= self.scale_range[0]) & (sv[:, 0] <= self.scale_range[1])),
+                "shear": ~(cos <= self.max_shear),
+                "weight_share": ~(result.weight_share >= self.min_weight_share)}
+
+    def accept(self, result: LSMResult) -> np.ndarray:
+        """Boolean ``(N,)``: converged and passing every threshold."""
+        return result.ok & ~np.any(list(self.failures(result).values()), axis=0)
 
     def apply(self, result: LSMResult) -> LSMResult:
         """A copy of ``result`` whose converged matches failing a threshold are REJECTED."""

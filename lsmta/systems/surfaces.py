@@ -19,6 +19,22 @@ LSM residual holds both images' noise: ``s = sqrt(2) sigma``). A compressed vide
 still background's pixels the same from frame to frame, so its temporal noise says little
 about the differences between two views (coding artefacts, differing sensors); the seeds,
 the frame's best correspondences, measure them.
+
+Which grid nodes are tried: by default (``texture_rule="spread"``) those whose main patch has
+a grey-value spread of at least 2 grey levels, whatever the noise. With
+``texture_rule="precision"`` (:class:`~lsmta.matching.GrowParams` ``noise``) it follows from
+the measured noise and the accepted precision instead: a node is tried where its template
+patch's gradients could give LSM a position standard deviation within ``max_sigma_xy`` with
+residuals as small as the noise, ``sqrt(2) sigma / sqrt(lambda_min) <= max_sigma_xy``
+(``lambda_min``: the smaller eigenvalue of the patch's gradient tensor, over the largest
+patch tried). A node that fails it cannot pass the precision test; one that passes is tried
+whatever its grey-value spread (a quiet camera's faint texture, which the spread rule skips:
+``tests/test_growth_census.py``). It is not the default: with it, the generated walk's surfaces
+changed and the walk fit of ``tests/test_walk_full_fit.py`` got worse (the left hip's worst
+frame 10.6 degrees, the test asks under 7); on the Pose2Sim demo it tries more nodes and
+measures as many points (``experiments/surface_demo.py``). Either way a node counts as measured only
+where LSM converges and passes every threshold. :func:`surface_census` says where a frame's
+nodes were lost.
 """
 
 from __future__ import annotations
@@ -64,6 +80,9 @@ class SurfaceParams:
         seeds' own residual level over sqrt(2) (see the module docstring).
     max_sigma_xy : float
         Largest accepted standard deviation of a match, px.
+    texture_rule : {"spread", "precision"}
+        Which nodes are tried (module docstring): where the patch's grey-value spread is at
+        least 2 grey levels, or where the noise allows the accepted precision.
     """
 
     template: int = 1
@@ -73,6 +92,12 @@ class SurfaceParams:
     retry_patch: tuple = (9, 5)
     sigma0_factor: float = 2.0
     max_sigma_xy: float = 0.2
+    texture_rule: str = "spread"
+
+    def __post_init__(self):
+        if self.texture_rule not in ("precision", "spread"):
+            raise ValueError(f"texture_rule: expected 'precision' or 'spread', got "
+                             f"{self.texture_rule!r}")
 
 
 def working_distance(cameras, template: int) -> float:
@@ -165,6 +190,7 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
         raise ValueError(f"frames: expected frame indices in [0, {v.shape[1] - 1}], got {bad}")
     d = working_distance(cams, p.template)
     mask = _lens_mask(cams[p.template])
+    noise = sigma if p.texture_rule == "precision" else None
     out: dict[int, SurfaceResult] = {}
     for f in tqdm(frames, desc="surfaces", disable=not progress):
         seeds = find_seeds(v[:, f], cams, template=p.template, n_seeds=p.n_seeds,
@@ -181,7 +207,33 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
                                    max_shear=0.5)
         surface = MeasureSurfaceParams(grow=GrowParams(step=p.step, patch=p.patch,
                                                        retry_patch=p.retry_patch,
-                                                       thresholds=thresholds))
+                                                       thresholds=thresholds, noise=noise))
         out[f] = measure_surface(v[:, f], cams, seeds.xy, template=p.template, mask=mask,
                                  params=surface)
     return out
+
+
+def surface_census(result: SurfaceResult) -> dict:
+    """Where a frame's surface lost its nodes, stage by stage (numbers that add up).
+
+    Parameters
+    ----------
+    result : SurfaceResult
+
+    Returns
+    -------
+    dict
+        ``growth``: per search image, ``seeds`` and ``seeds_matched``, ``attempts`` (every
+        LSM attempt by outcome, :data:`~lsmta.matching.grow.ATTEMPT_OUTCOMES`, adding up to
+        its ``n_lsm``) and ``nodes`` (every grid node by outcome,
+        :data:`~lsmta.matching.grow.NODE_OUTCOMES`); then the n-tuples (nodes matched in
+        every search image): ``tuples`` = ``neighbourhood_dropped`` + ``not_intersected``
+        + ``kept``.
+    """
+    ok, valid = result.neighbourhood_ok, result.intersection.valid
+    return {"growth": [{"seeds": int(len(g.seeds_matched)),
+                        "seeds_matched": int(np.sum(g.seeds_matched)),
+                        "attempts": dict(g.attempt_census), "nodes": dict(g.node_census)}
+                       for g in result.grown],
+            "tuples": int(len(ok)), "neighbourhood_dropped": int((~ok).sum()),
+            "not_intersected": int((ok & ~valid).sum()), "kept": int((ok & valid).sum())}

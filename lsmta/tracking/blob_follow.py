@@ -241,9 +241,9 @@ def follow_blobs(frames, start_xy, step, *, params: FollowParams | None = None
                         f"{type(step).__name__}")
     p = replace(p, radius=p.window())
     imgs = np.asarray(frames)
-    if imgs.ndim != 3:
-        raise ValueError(f"frames: expected a (T, H, W) stack of grey frames, got shape "
-                         f"{imgs.shape}")
+    if imgs.ndim != 3 or len(imgs) == 0:
+        raise ValueError(f"frames: expected a (T, H, W) stack of grey frames with T >= 1, got "
+                         f"shape {imgs.shape}")
     start = as_array(start_xy, "start_xy", shape=(None, 2), allow_nan=True)
     T, N = len(imgs), len(start)
     xy = np.full((T, N, 2), np.nan)
@@ -259,6 +259,9 @@ def follow_blobs(frames, start_xy, step, *, params: FollowParams | None = None
         new = np.full((N, 2), np.nan)
         if alive.size:
             moved = np.asarray(step(t, xy[t, alive], xy[t, alive] + vel[alive]), float)
+            if moved.size != 2 * alive.size:
+                raise ValueError(f"step: expected ({alive.size}, 2) positions for frame {t + 1}, "
+                                 f"got shape {moved.shape}")
             new[alive] = _recentre(imgs[t + 1], moved.reshape(-1, 2), xy[t, alive],
                                    least[alive], p)
         gap = t + 1 - last

@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import base64
 import html
-import importlib
 import json
 import os
 import platform
@@ -45,10 +44,6 @@ OFFSCREEN_ENV = {
     "VTK_DEFAULT_OPENGL_WINDOW": "vtkEGLRenderWindow",
     "PYDEVD_DISABLE_FILE_VALIDATION": "1",
 }
-# imported by each kernel :func:`start_kernel` starts, while the notebook before runs (every
-# notebook imports them through lsmta; a second or so of each notebook's start)
-PRELOAD = ("numpy", "matplotlib.pyplot", "numba", "cv2", "scipy.ndimage", "scipy.optimize",
-           "scipy.spatial", "scipy.sparse.linalg")
 
 
 def find_notebooks(folder: Path) -> list[Path]:
@@ -136,17 +131,10 @@ def notebook_env(path: Path, build: Path) -> dict[str, str]:
     return env
 
 
-def load_ipython_extension(ipython) -> None:
-    """IPython's extension hook: :func:`start_kernel` has each kernel load this module, which
-    imports :data:`PRELOAD` into the kernel's modules; it binds no name in the notebook."""
-    for name in PRELOAD:
-        importlib.import_module(name)
-
-
 def start_kernel(path: Path, build: Path):
-    """Start the kernel that will run the notebook ``path`` and return at once (it boots and
-    imports :data:`PRELOAD` while the previous notebook runs); returns ``(kernel manager, its
-    socket folder)``, for :func:`execute`."""
+    """Start the kernel that will run the notebook ``path`` and return at once (it boots
+    while the previous notebook runs); returns ``(kernel manager, its socket folder)``, for
+    :func:`execute`."""
     from jupyter_client.manager import AsyncKernelManager  # deferred: seconds to import
     from jupyter_core.utils import run_sync  # deferred: as above
 
@@ -155,8 +143,7 @@ def start_kernel(path: Path, build: Path):
     sockets = Path(tempfile.mkdtemp(prefix="lsmta-ipc-"))
     km = AsyncKernelManager(kernel_name="python3", transport="ipc", ip=str(sockets / "kernel"))
     run_sync(km.start_kernel)(env=notebook_env(path, build), cwd=str(path.parent.resolve()),
-                              extra_arguments=["--HistoryManager.hist_file=:memory:",
-                                               "--IPKernelApp.extensions=lsmta.cli"])
+                              extra_arguments=["--HistoryManager.hist_file=:memory:"])
     return km, sockets
 
 

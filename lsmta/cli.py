@@ -119,10 +119,51 @@ def default_notebook_dir() -> Path:
     return Path(__file__).resolve().parents[1] / "notebooks"
 
 
-def execute(path: Path, build: Path, timeout: int) -> dict:
-    """Execute one notebook; returns a status dict (never raises for a failing cell)."""
+def notebook_env(path: Path, build: Path) -> dict[str, str]:
+    """The environment of the kernel that runs the notebook ``path``: this process's, the
+    off-screen rendering settings (where not set) and where the notebook writes its records
+    and 3-D views under ``build``."""
+    env = {**OFFSCREEN_ENV, **os.environ}
+    env[report.RECORD_ENV] = str((build / "records" / f"{path.stem}.jsonl").resolve())
+    env[report.BUILD_ENV] = str(build.resolve())
+    env[interactive.VIEWS_ENV] = str((build / "views3d").resolve())
+    env[interactive.NOTEBOOK_ENV] = path.stem
+    return env
+
+
+def start_kernel(path: Path, build: Path):
+    """Start the kernel that will run the notebook ``path`` and return at once (it boots
+    while the previous notebook runs); returns ``(kernel manager, its socket folder)``, for
+    :func:`execute`."""
+    from jupyter_client.manager import AsyncKernelManager  # deferred: seconds to import
+    from jupyter_core.utils import run_sync  # deferred: as above
+
+    # IPC transport: Unix sockets at an absolute path (the kernel runs in the notebook's
+    # folder, so a relative one would not meet), in a short private folder
+    sockets = Path(tempfile.mkdtemp(prefix="lsmta-ipc-"))
+    km = AsyncKernelManager(kernel_name="python3", transport="ipc", ip=str(sockets / "kernel"))
+    run_sync(km.start_kernel)(env=notebook_env(path, build), cwd=str(path.parent.resolve()),
+                              extra_arguments=["--HistoryManager.hist_file=:memory:"])
+    return km, sockets
+
+
+def stop_kernel(kernel) -> None:
+    """Stop a kernel from :func:`start_kernel` that no notebook ran on."""
+    from jupyter_core.utils import run_sync  # deferred: seconds to import
+
+    km, sockets = kernel
+    try:
+        if km.has_kernel:
+            run_sync(km.shutdown_kernel)(now=True)
+    finally:
+        shutil.rmtree(sockets, ignore_errors=True)
+
+
+def execute(path: Path, build: Path, timeout: int, *, kernel=None) -> dict:
+    """Execute one notebook, on ``kernel`` (from :func:`start_kernel`, started for this
+    notebook) or on a new kernel; returns a status dict (never raises for a failing cell).
+    The kernel is stopped afterwards."""
     import nbformat  # deferred: the notebook machinery takes seconds to import
-    from jupyter_client.manager import AsyncKernelManager  # deferred: as above
     from nbclient import NotebookClient  # deferred: as above
     from nbclient.exceptions import CellExecutionError, CellTimeoutError  # deferred: as above
 
@@ -134,12 +175,6 @@ def execute(path: Path, build: Path, timeout: int) -> dict:
     views.mkdir(parents=True, exist_ok=True)
     for old in views.glob(f"{path.stem}_*.html"):
         old.unlink()
-    os.environ[report.RECORD_ENV] = str(records_file.resolve())
-    os.environ[report.BUILD_ENV] = str(build.resolve())
-    os.environ[interactive.VIEWS_ENV] = str(views.resolve())
-    os.environ[interactive.NOTEBOOK_ENV] = path.stem
-    for key, value in OFFSCREEN_ENV.items():
-        os.environ.setdefault(key, value)
 
     current = {"index": None}
     record_cells: list[int] = []   # the cell of each record, in the records' order
@@ -159,16 +194,16 @@ def execute(path: Path, build: Path, timeout: int) -> dict:
             if f.name not in known:
                 view_cells.append({"file": f.name, "cell": cell_index})
 
-    # IPC transport: Unix sockets at an absolute path (the kernel runs in the notebook's
-    # folder, so a relative one would not meet), in a short private folder
-    sockets = Path(tempfile.mkdtemp(prefix="lsmta-ipc-"))
-    km = AsyncKernelManager(kernel_name="python3", transport="ipc", ip=str(sockets / "kernel"))
+    start = time.perf_counter()
+    km, sockets = start_kernel(path, build) if kernel is None else kernel
+    # shutdown "immediate": the kernel is killed once the last cell has run (every record,
+    # view and figure is written by then); a graceful shutdown costs about a second
     client = NotebookClient(nb, km=km, timeout=timeout, kernel_name="python3",
                             resources={"metadata": {"path": str(path.parent)}},
+                            shutdown_kernel="immediate",
                             on_cell_execute=on_execute, on_cell_executed=on_executed)
     status = {"notebook": path.stem, "ok": True, "error": None, "cell": None,
               "seed": notebook_seed(nb)}
-    start = time.perf_counter()
     try:
         # cleanup_kc: shut the kernel down here (nbclient keeps a kernel it was handed
         # alive, and the kernels would then stop, one warning each, when lsmta exits)
@@ -179,9 +214,8 @@ def execute(path: Path, build: Path, timeout: int) -> dict:
     except Exception as exc:  # kernel died, etc.
         status.update(ok=False, cell=current["index"], error=f"{type(exc).__name__}: {exc}")
     finally:
-        for key in (report.RECORD_ENV, report.BUILD_ENV, interactive.VIEWS_ENV,
-                    interactive.NOTEBOOK_ENV):
-            os.environ.pop(key, None)
+        if km.has_kernel:  # e.g. the client failed before it started
+            stop_kernel((km, sockets))
         shutil.rmtree(sockets, ignore_errors=True)
     status["seconds"] = round(time.perf_counter() - start, 2)
 
@@ -393,12 +427,21 @@ def reproduce(args) -> int:
     results = []
     tty = sys.stdout.isatty()
     start = time.perf_counter()
-    for path in chosen:
-        if tty:
-            print(f"{path.stem:<33} running ...", end="\r", flush=True)
-        res = execute(path, build, args.timeout)
-        results.append(res)
-        print(notebook_line(res) + (" " * 8 if tty else ""), flush=True)
+    # each notebook's kernel is started while the one before runs (its boot, about a second,
+    # overlaps that notebook's work); each runs in a fresh kernel as before
+    kernels = {0: start_kernel(chosen[0], build)}
+    try:
+        for i, path in enumerate(chosen):
+            if i + 1 < len(chosen):
+                kernels[i + 1] = start_kernel(chosen[i + 1], build)
+            if tty:
+                print(f"{path.stem:<33} running ...", end="\r", flush=True)
+            res = execute(path, build, args.timeout, kernel=kernels.pop(i))
+            results.append(res)
+            print(notebook_line(res) + (" " * 8 if tty else ""), flush=True)
+    finally:
+        for kernel in kernels.values():  # only if a notebook's run raised
+            stop_kernel(kernel)
     ran = results
     if args.only:  # keep the other notebooks' earlier results in the summary
         old = build / "summary.json"

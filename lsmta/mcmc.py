@@ -6,7 +6,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import emcee
 import numpy as np
 
 from ._validate import as_array, as_rng
@@ -70,6 +69,8 @@ def sample_ensemble(log_prob, centre, spread, *, n_walkers: int, n_steps: int, b
         raise ValueError(f"burn: expected 0 <= burn < n_steps = {n_steps}, got {burn}")
     rng = as_rng(rng)
     start = centre + spread * rng.standard_normal((n_walkers, ndim))
+    import emcee  # deferred: emcee imports scipy.stats (~0.4 s CPU) for every lsmta import
+
     sampler = emcee.EnsembleSampler(n_walkers, ndim, log_prob)
     sampler.random_state = np.random.RandomState(int(rng.integers(2**32))).get_state()
     with np.errstate(invalid="ignore"):       # -inf - -inf for proposals outside the support

@@ -71,7 +71,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 
 import numpy as np
-from scipy import stats
+from scipy.special import fdtrc
 
 from .._validate import as_array, as_scalar
 from ..camera import Camera
@@ -646,7 +646,9 @@ def _f_test(fit0: BundleResult, fit1: BundleResult, sigma_px: float,
     if dp <= 0 or r1 <= 0 or s1 <= 0:
         return float("nan"), 1.0
     F = ((s0 - s1) / dp) / (s1 / r1)
-    return float(F), float(stats.f.sf(F, dp, r1))
+    # the F distribution's survival function (scipy.stats.f.sf, which is 1 below its support),
+    # without importing scipy.stats (~0.4 s)
+    return float(F), 1.0 if F <= 0 else float(fdtrc(dp, r1, F))
 
 
 def _result(st: _State, t0: float) -> WandCalibration:

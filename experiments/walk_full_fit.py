@@ -42,8 +42,9 @@ is fitted again from the clip's build, once started from it (the build still sol
 once with it fixed; which of the two is reported as chosen was decided before any score was
 seen: the smaller median |skin distance| of the system's walk points (the fit's own cost).
 Every record names its variant ("walk alone" is the fit without the clip, on the same
-frames). The committed run: ``walk_full_fit_studio_rom.json`` (``--rigs studio --frames 8
---n-inner 3 --max-nfev 50 --rom-per-phase 4``).
+frames). The committed runs: ``walk_full_fit_studio_rom.json`` (``--rigs studio --frames 8
+--n-inner 3 --max-nfev 50 --rom-per-phase 4``) and ``walk_full_fit_studio_rom8.json`` (the
+same with ``--rom-per-phase 8``).
 """
 
 from __future__ import annotations

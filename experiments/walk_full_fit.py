@@ -4,7 +4,8 @@ triplet and from an all-round studio, scored after the fact against issue 36's t
     .venv/bin/python experiments/walk_full_fit.py [--rigs triplet studio] [--frames 8]
         [--scale 1.0] [--every 2] [--seed 36] [--n-seeds 40] [--cameras 8 --rows 2]
         [--fit-every 1] [--free-rounds 0]
-        [--n-inner 2] [--max-nfev 25] [--angular-speed 8] [--out PATH]
+        [--n-inner 2] [--max-nfev 25] [--angular-speed 8]
+        [--rom-per-phase 0] [--rom-every 1] [--rom-max-points 1000] [--out PATH]
 
 For each rig: :func:`lsmta.evaluation.walk_system.walk_session` renders ``--frames`` of the
 walk (the bar, held-out bar positions, the bar stood upright, tape-measured cameras);
@@ -28,6 +29,22 @@ temporal prior (8 rad/s, the default): ``walk_full_fit_studio_temporal.json`` (t
 ``--n-inner 3 --max-nfev 50``) and ``walk_full_fit_triplet_temporal.json`` (``--rigs
 triplet``), beside ``walk_full_fit_studio_alone.json`` (the same studio run with
 ``--angular-speed 0``; all three with BLAS on one thread).
+
+With ``--rom-per-phase N`` the session also renders the range-of-motion clip
+(:func:`lsmta.synth.range_of_motion`, 200 frames at 25 Hz, the same person and cameras) at
+``N`` frames of each of its six movements (clock ``k / N`` of the movement: the standing
+start, ..., the extreme at 1/2), and the same system runs on it with the walk's own bar
+calibration (walk_system.rom_capture; surfaces every ``--rom-every`` processed frame, the
+frames being far apart). :func:`~lsmta.evaluation.walk_full_fit.fit_rom` fits the full body
+over the clip (the heading from the system's points, the build started from the walk-alone
+fit's, so the stature is the walk's; the system's own numbers alone), and the walk
+is fitted again from the clip's build, once started from it (the build still solved) and
+once with it fixed; which of the two is reported as chosen was decided before any score was
+seen: the smaller median |skin distance| of the system's walk points (the fit's own cost).
+Every record names its variant ("walk alone" is the fit without the clip, on the same
+frames). The committed runs: ``walk_full_fit_studio_rom.json`` (``--rigs studio --frames 8
+--n-inner 3 --max-nfev 50 --rom-per-phase 4``) and ``walk_full_fit_studio_rom8.json`` (the
+same with ``--rom-per-phase 8``).
 """
 
 from __future__ import annotations
@@ -38,7 +55,7 @@ import sys
 import time
 from datetime import date
 
-from walk_system import CHECK_IN, SEEN_IN, add_session_arguments, session_capture
+from walk_system import CHECK_IN, SEEN_IN, add_session_arguments, rom_capture, session_capture
 
 FIT_IN = ("none (the fit takes only the system's filtered points in the system's own world; "
           "no generator point, pose or camera)")
@@ -46,6 +63,7 @@ LENGTH_IN = "none in the fit; scored against the generator's skeleton (lengths n
 JOINT_IN = ("none in the fit; scored against the generator's part poses (a joint's angle is "
             "the child in its parent's frame and needs no alignment; the pelvis' is taken "
             "after the alignment: " + CHECK_IN + ")")
+ROM_JOINT_IN = JOINT_IN.replace("part poses", "part poses in the range-of-motion clip")
 
 
 def _records(rig, cap, session_s, wf, score_s, check, al, score, verdict):
@@ -90,42 +108,142 @@ def _records(rig, cap, session_s, wf, score_s, check, al, score, verdict):
     return out
 
 
-def run_rig(rig: str, *, session: dict, fit_every: int, fit_params: dict,
-            angular_speed: float) -> dict:
-    """Render one rig's session, run the system (``session``: the arguments of
-    walk_system.session_capture), fit the body, score it."""
+def _scored(rig, fit, cap, session, al, seed):
+    """Carry a walk fit into the true world and score it (after the fact)."""
+    from lsmta.evaluation import walk_full_fit as wf
+
+    t1 = time.perf_counter()
+    groups = [v.group.cameras for v in cap.views]
+    score = wf.score_walk_fit(wf.aligned_fit(fit.fit, al), session, fit.frames, groups,
+                              rng=seed)
+    return score, wf.verdicts(score, rig), time.perf_counter() - t1
+
+
+def _detail(fit, score, verdict):
     import numpy as np
 
+    return {"frames_fitted": fit.frames.tolist(), "points_per_frame": fit.n_points.tolist(),
+            "joints_deg_per_frame": {k: np.round(v, 2).tolist()
+                                     for k, v in score.joints_deg.items()},
+            "lengths_mm": {k: [round(a, 1), round(b, 1)] for k, (a, b) in
+                           score.lengths.items()},
+            "skin_to_truth_seen_per_frame_mm": [float(np.median(a)) if len(a) else None
+                                                for a in score.skin_to_truth],
+            "skin_from_truth_seen_per_frame_mm": [float(np.median(a)) if len(a) else None
+                                                  for a in score.skin_from_truth],
+            "open_edges": score.open_edges.tolist(), "verdicts": verdict,
+            "fit_nfev": fit.fit.nfev}
+
+
+def run_rig(rig: str, *, session: dict, fit_every: int, fit_params: dict,
+            angular_speed: float, rom: dict | None = None) -> dict:
+    """Render one rig's session, run the system (``session``: the arguments of
+    walk_system.session_capture), fit the body, score it; with a range-of-motion clip
+    (``session["rom_per_phase"]``) also the clip through the system, its fit, and the walk
+    fitted from its build (started and fixed)."""
     from lsmta.body.full_fit import FullBodyFitParams
     from lsmta.evaluation import walk_full_fit as wf
     from lsmta.evaluation import walk_system as ws
 
-    seed = session["seed"]
+    seed, n_seeds, progress = session["seed"], session["n_seeds"], session["progress"]
     session, cap, session_s = session_capture(rig, **session)
     fit = wf.fit_walk(cap, every=fit_every, angular_speed=angular_speed or None,
                       params=FullBodyFitParams(**fit_params))
     # after the fact: the truth enters only from here on
-    t1 = time.perf_counter()
     al, check = ws.check_alignment(cap.cameras, session)
-    groups = [v.group.cameras for v in cap.views]
-    score = wf.score_walk_fit(wf.aligned_fit(fit.fit, al), session, fit.frames, groups,
-                              rng=seed)
-    score_s = time.perf_counter() - t1
-    verdict = wf.verdicts(score, rig)
+    score, verdict, score_s = _scored(rig, fit, cap, session, al, seed)
     records = _records(rig, cap, session_s, fit, score_s, check, al, score, verdict)
     detail = {"cameras": len(session.cameras), "image": list(session.videos.shape[2:][::-1]),
-              "frames_fitted": fit.frames.tolist(), "points_per_frame": fit.n_points.tolist(),
-              "joints_deg_per_frame": {k: np.round(v, 2).tolist()
-                                       for k, v in score.joints_deg.items()},
-              "lengths_mm": {k: [round(a, 1), round(b, 1)] for k, (a, b) in
-                             score.lengths.items()},
-              "skin_to_truth_seen_per_frame_mm": [float(np.median(a)) if len(a) else None
-                                                  for a in score.skin_to_truth],
-              "skin_from_truth_seen_per_frame_mm": [float(np.median(a)) if len(a) else None
-                                                    for a in score.skin_from_truth],
-              "open_edges": score.open_edges.tolist(), "verdicts": verdict,
-              "alignment_points": al.n_points, "fit_nfev": fit.fit.nfev}
-    return {"records": records, "detail": detail}
+              "alignment_points": al.n_points, **_detail(fit, score, verdict)}
+    for r in records:
+        r["variant"] = "walk alone"
+    out = {"records": records, "detail": detail}
+    if session.rom_videos is not None:
+        rom = run_rom(rig, session, cap, al, check, fit.fit.body_shape(), fit_every=fit_every,
+                      angular_speed=angular_speed, fit_params=fit_params,
+                      n_seeds=n_seeds, progress=progress, **(rom or {}))
+        out["records"] += rom.pop("records")
+        out |= rom
+    return out
+
+
+# chosen before any score was seen: of the walk fitted from the clip's build, started from
+# it or with it fixed, the one whose walk fit leaves the smaller median |skin distance| of
+# the system's points over all walk frames (the fit's own cost, no truth)
+CHOICE = ("the smaller median |skin distance| of the system's walk points over all fitted "
+          "frames (the fit's own residuals; no truth)")
+
+
+def run_rom(rig, session, cap, al, check, walk_build, *, fit_every, angular_speed, fit_params,
+            every=1, max_points=1000, n_seeds, progress) -> dict:
+    """The range-of-motion clip through the system, its fit (started from the walk's own
+    fitted build, ``walk_build``), and the walk from the clip's build."""
+    import numpy as np
+
+    from lsmta.body.full_fit import FullBodyFitParams
+    from lsmta.evaluation import walk_full_fit as wf
+    from lsmta.evaluation.full_body import joint_angle_errors, length_errors
+
+    rc, rom_s = rom_capture(session, cap, every=every, n_seeds=n_seeds, seed=session.seed,
+                            progress=progress)
+    rf = wf.fit_rom(rc, max_points=max_points, shape=walk_build,
+                    params=FullBodyFitParams(**fit_params))
+    build = rf.walk_fit.fit.body_shape()
+    fits = {name: wf.fit_walk(cap, every=fit_every, angular_speed=angular_speed or None,
+                              shape=build, params=FullBodyFitParams(**fit_params,
+                                                                    fit_shape=free))
+            for name, free in (("walk from the clip's build, started", True),
+                               ("walk from the clip's build, fixed", False))}
+    cost = {k: float(np.median(np.abs(np.concatenate(f.fit.point_residuals))))
+            for k, f in fits.items()}
+    chosen = min(cost, key=cost.get)
+    # after the fact
+    records, detail = [], {}
+    for name, f in fits.items():
+        score, verdict, score_s = _scored(rig, f, cap, session, al, session.seed)
+        rs = _records(rig, cap, 0.0, f, score_s, check, al, score, verdict)
+        for r in rs:
+            r["variant"] = name + (" (chosen)" if name == chosen else "")
+        records += [r for r in rs if not r["quantity"].startswith(
+            ("render", "system", "calibration", "alignment: tilt"))]
+        detail[name] = _detail(f, score, verdict) | {"walk_fit_cost_mm": cost[name]}
+    rom_fit = wf.aligned_fit(rf.walk_fit.fit, al)
+    frames = session.rom_frames[rf.walk_fit.frames]
+    joints = joint_angle_errors(rom_fit, session.rom_scene.body, session.rom_scene.motion,
+                                frames)
+    lengths = length_errors(rf.walk_fit.fit, session.rom_scene.body)
+
+    def rec(quantity, value, unit, truth):
+        return {"rig": rig, "variant": "range-of-motion clip", "quantity": quantity,
+                "value": value, "unit": unit, "truth": truth}
+
+    phases = {n: [int(k) for k, f in enumerate(frames) if a <= f < b]
+              for n, a, b in session.rom_scene.motion.phases}
+    records += [
+        rec("clip frames rendered and processed", len(frames), "", "none"),
+        rec("clip system time, all stages (same calibration)", rom_s, "s", "none"),
+        *[rec(f"clip stage time: {k}", float(v), "s", "none") for k, v in rc.seconds.items()],
+        rec("clip full-body fit time", rf.walk_fit.seconds, "s", "none"),
+        rec("clip points per frame, median", float(np.median(rf.walk_fit.n_points)), "",
+            "none"),
+        rec("clip fit's stature (the walk fit's)", rf.walk_fit.fit.stature, "mm", FIT_IN),
+        rec("walk fit cost, started from the clip's build", cost[next(iter(fits))], "mm",
+            FIT_IN),
+        rec("walk fit cost, the clip's build fixed", cost[list(fits)[1]], "mm", FIT_IN),
+        *[rec(f"clip segment length error, {k}", 100.0 * (a / b - 1.0), "%", LENGTH_IN)
+          for k, (a, b) in lengths.items()],
+        *[rec(f"clip joint angle error, {k}, median over the clip", float(np.median(v)),
+              "deg", ROM_JOINT_IN) for k, v in joints.items()]]
+    detail["range-of-motion clip"] = {
+        "clip_frames": frames.tolist(), "frames_per_movement": phases,
+        "heading_rad": rf.heading,
+        "statures_mm": np.round(rf.statures, 1).tolist(),
+        "points_per_frame": rf.walk_fit.n_points.tolist(),
+        "joints_deg_per_frame": {k: np.round(v, 2).tolist() for k, v in joints.items()},
+        "lengths_mm": {k: [round(a, 1), round(b, 1)] for k, (a, b) in lengths.items()},
+        "build": {"stature": build.stature, "scales": np.round(build.scales, 4).tolist()},
+        "choice_rule": CHOICE, "chosen": chosen}
+    return {"records": records, "rom_detail": detail}
 
 
 def main(argv=None):
@@ -141,15 +259,33 @@ def main(argv=None):
                         help="solver evaluations per pose solve")
     parser.add_argument("--angular-speed", type=float, default=8.0,
                         help="rad/s of fit_walk's temporal prior; 0: none (frames alone)")
+    parser.add_argument("--rom-per-phase", type=int, default=0,
+                        help="frames of each movement of the range-of-motion clip through "
+                             "the system; the walk is then also fitted from its build (0: "
+                             "no clip)")
+    parser.add_argument("--rom-max-points", type=int, default=1000,
+                        help="at most this many of the system's points per clip frame in "
+                             "the clip's fit")
+    parser.add_argument("--rom-every", type=int, default=1,
+                        help="the clip's density check, processed frames")
     parser.add_argument("--out", default="build/benchmarks/walk_full_fit.json")
     args = parser.parse_args(argv)
+    if args.rom_per_phase < 0 or args.rom_per_phase == 1:
+        parser.error(f"--rom-per-phase: expected 0 (no clip) or at least 2, got "
+                     f"{args.rom_per_phase}")
+    if args.rom_max_points < 10:
+        parser.error(f"--rom-max-points: expected at least 10, got {args.rom_max_points}")
+    if args.rom_every < 1:
+        parser.error(f"--rom-every: expected at least 1, got {args.rom_every}")
     from lsmta.report import write_json
 
     session = {k: getattr(args, k) for k in ("frames", "scale", "every", "seed", "cameras",
-                                              "rows", "n_seeds", "progress")}
+                                              "rows", "n_seeds", "progress", "rom_per_phase")}
     settings = {k: getattr(args, k) for k in ("frames", "scale", "every", "seed", "cameras",
                                                "rows", "n_seeds", "fit_every", "free_rounds",
-                                               "n_inner", "max_nfev", "angular_speed")}
+                                               "n_inner", "max_nfev", "angular_speed",
+                                               "rom_per_phase", "rom_every",
+                                               "rom_max_points")}
     out = {"command": "python experiments/walk_full_fit.py " + " ".join(
                sys.argv[1:] if argv is None else argv),
            "date": date.today().isoformat(), "machine": platform.machine(),
@@ -161,12 +297,14 @@ def main(argv=None):
     for rig in args.rigs:
         r = run_rig(rig, session=session, fit_every=args.fit_every,
                     angular_speed=args.angular_speed,
+                    rom={"every": args.rom_every, "max_points": args.rom_max_points},
                     fit_params={k: settings[k] for k in ("free_rounds", "n_inner", "max_nfev")})
         out["rigs"][rig] = r
         for x in r["records"]:
             v = x["value"]
             v = f"{v:10.3f}" if isinstance(v, float) else f"{v!s:>10}"
-            print(f"{rig:8s} {x['quantity']:70s} {v} {x['unit']}", flush=True)
+            print(f"{rig:8s} {x['variant'][:22]:22s} {x['quantity'][:70]:70s} {v} {x['unit']}",
+                  flush=True)
         write_json(args.out, out)
 
 

@@ -60,9 +60,11 @@ def add_session_arguments(parser) -> None:
 
 
 def session_capture(rig: str, *, frames: int, scale: float, every: int, seed: int,
-                    cameras: int, rows: int, n_seeds: int, progress: bool):
-    """Render one rig's walk session and run the LSMTA system on it: (session, capture,
-    render seconds)."""
+                    cameras: int, rows: int, n_seeds: int, progress: bool,
+                    rom_per_phase: int = 0):
+    """Render one rig's walk session (with ``rom_per_phase`` frames of each movement of
+    the range-of-motion clip: :class:`~lsmta.evaluation.walk_system.WalkSessionParams`) and
+    run the LSMTA system on the walk: (session, capture, render seconds)."""
     import numba
 
     from lsmta.evaluation import walk_system as ws
@@ -71,7 +73,7 @@ def session_capture(rig: str, *, frames: int, scale: float, every: int, seed: in
     numba.set_num_threads(1)
     t0 = time.perf_counter()
     session = ws.walk_session(seed=seed, n_frames=frames, params=ws.WalkSessionParams(
-        rig=rig, scale=scale, n_cameras=cameras, rows=rows))
+        rig=rig, scale=scale, n_cameras=cameras, rows=rows, rom_per_phase=rom_per_phase))
     render_s = time.perf_counter() - t0
     cap = capture_walk(session.videos, session.bar_videos, session.bar_length, session.nominal,
                        fps=session.fps, level_videos=session.level_videos,
@@ -79,6 +81,26 @@ def session_capture(rig: str, *, frames: int, scale: float, every: int, seed: in
                                                surface=SurfaceParams(n_seeds=n_seeds)),
                        progress=progress, seed=seed)
     return session, cap, render_s
+
+
+def rom_capture(session, capture, *, every: int, n_seeds: int, seed: int, progress: bool):
+    """The same system on the session's range-of-motion clip, with the walk capture's own
+    bar calibration (the cameras do not move between the takes): the surfaces measured
+    every ``every`` processed frames, tracked and filtered as the walk's. The clip's frames
+    are far apart in time (``session.rom_frames``), so the filters get their mean rate.
+    Returns (capture, seconds)."""
+    import numpy as np
+
+    from lsmta.systems import BodySystemParams, SurfaceParams, capture_recording
+
+    gap = float(np.median(np.diff(session.rom_frames)))
+    params = BodySystemParams(density_every=every, reject_k=REJECT_K, arm=None,
+                              surface=SurfaceParams(n_seeds=n_seeds))
+    t0 = time.perf_counter()
+    cap = capture_recording(session.rom_videos, capture.calibration.cameras,
+                            fps=session.fps / gap, calibration=capture.calibration,
+                            params=params.capture(), progress=progress, seed=seed)
+    return cap, time.perf_counter() - t0
 
 
 def run_rig(rig: str, *, frames: int, scale: float, every: int, seed: int, cameras: int,

@@ -1,11 +1,14 @@
 """The full-body fit: stature and start from the data, a fit of the template's own pose,
 bad input (issue 25)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from lsmta.body.full_body import full_body_model, template_size
 from lsmta.body.full_fit import (
+    BodyShape,
     FullBodyFitParams,
     body_start,
     fit_full_body,
@@ -215,3 +218,23 @@ def test_translation_derivative_matches_differences():
         up, down = (model.distance(x, seg, angles, S, radii, base=b[[i]]) for i in (0, 1))
         numeric.append((up - down) / (2 * eps))
     np.testing.assert_allclose(d_t, np.stack(numeric, axis=1), atol=1e-5)
+
+
+def test_a_given_build_is_kept_or_started_from():
+    """``shape`` sets the stature and the start of the build; ``fit_shape=False`` keeps it,
+    and the fit hands its build back (:meth:`FullBodyFit.body_shape`)."""
+    rng = np.random.default_rng(3)
+    pts = rng.uniform([-150, -80, 0], [150, 80, 1700], (600, 3))
+    given = BodyShape.template(1650.0)
+    given = BodyShape(stature=1650.0, scales=given.scales * 1.05, limb_shape=given.limb_shape)
+    p = FullBodyFitParams(n_rounds=1, max_nfev=3, n_inner=1)
+    kept = fit_full_body([pts], heading=0.0, shape=given, params=replace(p, fit_shape=False))
+    assert kept.stature == 1650.0 and np.allclose(kept.scales, given.scales)
+    back = kept.body_shape()
+    assert np.allclose(back.limb_shape, given.limb_shape) and back.stature == 1650.0
+    solved = fit_full_body([pts], heading=0.0, shape=given, params=p)
+    assert solved.stature == 1650.0 and not np.allclose(solved.scales, given.scales)
+    with pytest.raises(TypeError, match="shape"):
+        fit_full_body([pts], heading=0.0, shape=(1650.0,), params=p)
+    with pytest.raises(ValueError, match="limb_shape"):
+        replace(kept, limb_shape=None).body_shape()

@@ -21,7 +21,7 @@ Angles are in radians, lengths in mm.
 from .arm import JOINTS, LIMBS, angles_from_joints, arm_model, base_poses, shoulder_angles
 from .fitting import BodyFit, FitParams, FitStatus, ModelState, fit_frame, fit_sequence
 from .full_body import full_body_model, limit_violations, limits, template_size
-from .full_fit import FullBodyFit, FullBodyFitParams, fit_full_body
+from .full_fit import BodyShape, FullBodyFit, FullBodyFitParams, fit_full_body
 from .functional_joints import (
     JointCentre,
     JointStatus,
@@ -56,7 +56,8 @@ __all__ = [
     "rot_x", "rot_y", "rot_z", "sample_limb_posterior", "shoulder_angles", "surface_distance",
     "surface_distance_terms", "SkinDistance", "FitParams", "SkinParams", "SkinPatch",
     "merge_patches", "model_skin", "skin_patch", "SilhouetteTerms", "silhouette_terms",
-    "PoseFit", "PoseFitParams", "fit_pose", "FullBodyFit", "FullBodyFitParams", "fit_full_body",
+    "PoseFit", "PoseFitParams", "fit_pose", "BodyShape", "FullBodyFit", "FullBodyFitParams",
+    "fit_full_body",
     "full_body_model", "limit_violations", "limits",
     "template_size", "BodyMesh", "body_mesh", "body_volume", "metaball_mesh", "metaball_volume",
     "write_mesh", "JointCentre", "JointStatus", "SegmentMotion", "fit_joint",

@@ -51,6 +51,12 @@ Stages, in ``n_rounds`` rounds with the tied shape, then ``free_rounds`` with th
     ``sigma_silhouette`` (:mod:`lsmta.body.silhouette`); a weighted residual above
     ``outlier_k`` at the solution counts as an outlier.
 
+A shape from elsewhere
+    ``shape`` (a :class:`BodyShape`, e.g. :meth:`FullBodyFit.body_shape` of a fit to a
+    range-of-motion clip of the same person) replaces the stature measured from the points
+    and the start of the limb scales and shape; with ``fit_shape=False`` they stay there
+    (only the poses are solved).
+
 A sequence (off by default: ``temporal_sigma=None``, ``warm_start=False``)
     The frames are taken as evenly spaced in time, in order. With ``warm_start`` the first
     round's solve of frame ``t > 0`` starts from frame ``t - 1``'s solved joint angles (its
@@ -69,7 +75,7 @@ A sequence (off by default: ``temporal_sigma=None``, ``warm_start=False``)
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -134,6 +140,9 @@ class FullBodyFitParams:
         (module docstring, "A sequence"); None: no temporal prior.
     warm_start : bool
         Start each frame's first solve from the previous frame's angles.
+    fit_shape : bool
+        Solve the limb scales and shape after each round's poses (False: they stay at
+        their start, e.g. a given :class:`BodyShape`).
     """
 
     sigma_point: float = 3.0
@@ -161,12 +170,15 @@ class FullBodyFitParams:
     hold: tuple = ()
     temporal_sigma: float | None = None
     warm_start: bool = False
+    fit_shape: bool = True
 
     def __post_init__(self):
         if self.temporal_sigma is not None:
             as_scalar(self.temporal_sigma, "temporal_sigma", positive=True)
-        if not isinstance(self.warm_start, bool):
-            raise TypeError(f"warm_start: expected a bool, got {type(self.warm_start).__name__}")
+        for name in ("warm_start", "fit_shape"):
+            if not isinstance(getattr(self, name), bool):
+                raise TypeError(f"{name}: expected a bool, got "
+                                f"{type(getattr(self, name)).__name__}")
         for name in ("n_rounds", "n_inner", "max_nfev", "min_neighbours"):
             as_int(getattr(self, name), name)
         as_int(self.free_rounds, "free_rounds", minimum=0)
@@ -183,6 +195,39 @@ class FullBodyFitParams:
             lo, hi = getattr(self, name)
             if not 0 < lo < 1 < hi:
                 raise ValueError(f"{name}: expected (low, high) with 0 < low < 1 < high")
+
+
+@dataclass(frozen=True, eq=False)
+class BodyShape:
+    """What :func:`fit_full_body` shares across frames: a person's build.
+
+    Attributes
+    ----------
+    stature : float
+        Builds the template (mm).
+    scales : (L,) array
+        Limb scales (:data:`~lsmta.body.full_body.LIMBS`).
+    limb_shape : (L, 8) array
+        Per limb: three balls' width and depth factors, the length-radius factor and the
+        balls' shift (mm; module docstring).
+    """
+
+    stature: float
+    scales: np.ndarray
+    limb_shape: np.ndarray
+
+    def __post_init__(self):
+        L = len(LIMBS)
+        object.__setattr__(self, "stature", as_scalar(self.stature, "stature", positive=True))
+        object.__setattr__(self, "scales", as_array(self.scales, "scales", shape=(L,)).copy())
+        object.__setattr__(self, "limb_shape",
+                           as_array(self.limb_shape, "limb_shape", shape=(L, _SHAPE)).copy())
+        freeze(self, ("scales", "limb_shape"))
+
+    @classmethod
+    def template(cls, stature: float) -> BodyShape:
+        """The template's build for ``stature`` (mm): scales 1, the tied shape's start."""
+        return cls(stature=stature, scales=np.ones(len(LIMBS)), limb_shape=_shape_start())
 
 
 @dataclass(frozen=True, eq=False)
@@ -215,6 +260,8 @@ class FullBodyFit:
     n_point_outliers, n_silhouette_outliers : int
         Weighted residuals above ``outlier_k`` (all frames).
     nfev : int
+    limb_shape : (L, 8) array or None
+        The per-limb shape (:class:`BodyShape`).
     """
 
     model: MetaballModel
@@ -231,10 +278,17 @@ class FullBodyFit:
     n_point_outliers: int
     n_silhouette_outliers: int
     nfev: int
+    limb_shape: np.ndarray | None = None
 
     def __post_init__(self):
         freeze(self, ("angles", "base", "scales", "size", "radii", "start_angles",
-                      "start_base"))
+                      "start_base") + (() if self.limb_shape is None else ("limb_shape",)))
+
+    def body_shape(self) -> BodyShape:
+        """The fitted build, to start or fix another fit of the same person."""
+        if self.limb_shape is None:
+            raise ValueError("limb_shape: this fit does not carry its per-limb shape")
+        return BodyShape(stature=self.stature, scales=self.scales, limb_shape=self.limb_shape)
 
 
 def measure_stature(points, *, floor: float = 0.0, radius: float = 30.0,
@@ -458,6 +512,7 @@ def _check(points, rays, camera_centre):
 
 
 def fit_full_body(points, *, rays=None, camera_centre=None, heading=None,
+                  shape: BodyShape | None = None,
                   params: FullBodyFitParams | None = None) -> FullBodyFit:
     """Fit the full-body template to a few frames (module docstring).
 
@@ -471,22 +526,31 @@ def fit_full_body(points, *, rays=None, camera_centre=None, heading=None,
         Where the lines of sight come from (mm; needed with ``rays``).
     heading : float, optional
         Walking direction (radians from +x); by default the points' motion.
+    shape : BodyShape, optional
+        The stature and the start of the limb scales and shape (module docstring, "A shape
+        from elsewhere"); by default the stature is measured and the shape starts at the
+        template's.
     params : FullBodyFitParams, optional
     """
     p = FullBodyFitParams() if params is None else params
     if not isinstance(p, FullBodyFitParams):
         raise TypeError(f"params: expected FullBodyFitParams, got {type(p).__name__}")
+    if shape is not None and not isinstance(shape, BodyShape):
+        raise TypeError(f"shape: expected a BodyShape or None, got {type(shape).__name__}")
     pts, rays, centre = _check(points, rays, camera_centre)
-    stature = measure_stature(np.vstack(pts), floor=p.floor, radius=p.neighbour_radius,
-                              min_neighbours=p.min_neighbours)
+    stature = shape.stature if shape is not None else measure_stature(
+        np.vstack(pts), floor=p.floor, radius=p.neighbour_radius,
+        min_neighbours=p.min_neighbours)
     model = full_body_model(stature=stature)
     angles, base = body_start(model, pts, stature=stature, heading=heading,
                               knee_start=p.knee_start)
     start_angles, start_base = angles.copy(), base.copy()
     frames = [_Frame(x, r, centre, p) for x, r in zip(pts, rays)]
     template = template_size(model, stature=stature)
-    L = len(LIMBS)
-    scales, shape = np.ones(L), _shape_start()
+    if shape is None:
+        scales, shape = np.ones(len(LIMBS)), _shape_start()
+    else:
+        scales, shape = shape.scales.copy(), shape.limb_shape.copy()
     bounds = limits(model)
     bounds[[model.skeleton.names.index(n) for n in ("pelvis_b", "pelvis_a", "pelvis_c")]] = \
         [-np.inf, np.inf]
@@ -505,12 +569,13 @@ def fit_full_body(points, *, rays=None, camera_centre=None, heading=None,
                 angles[t], base[t], nfev = a[0], b[0], nfev + n
         if k == p.n_rounds:
             tied = shape.copy()
-        scales, shape, n = _solve_shape(model, frames, angles, base, scales, shape, template, p,
-                                        loss=loss, prior=tied)
-        nfev += n
-    model, radii = _shaped(model, template, scales, shape)
-    return _finish(model, frames, stature, angles, base, scales, radii, start_angles,
-                   start_base, nfev, p)
+        if p.fit_shape:
+            scales, shape, n = _solve_shape(model, frames, angles, base, scales, shape,
+                                            template, p, loss=loss, prior=tied)
+            nfev += n
+    fitted, radii = _shaped(model, template, scales, shape)
+    return replace(_finish(fitted, frames, stature, angles, base, scales, radii, start_angles,
+                           start_base, nfev, p), limb_shape=shape)
 
 
 def _neighbours(angles, t, k, p):

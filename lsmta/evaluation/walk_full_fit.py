@@ -29,7 +29,13 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .._validate import as_int, as_scalar
-from ..body.full_fit import FullBodyFit, FullBodyFitParams, fit_full_body
+from ..body.full_fit import (
+    BodyShape,
+    FullBodyFit,
+    FullBodyFitParams,
+    fit_full_body,
+    measure_stature,
+)
 from ..body.skin import SkinParams, merge_patches, model_skin
 from ..synth.body import inside_parts
 from ..synth.render import project_surface_points
@@ -71,6 +77,7 @@ class WalkFit:
 
 def fit_walk(capture, *, every: int = 1, first: int = 0, last: int | None = None,
              max_points: int | None = None, angular_speed: float | None = ANGULAR_SPEED,
+             shape: BodyShape | None = None, heading: float | None = None,
              params: FullBodyFitParams | None = None) -> WalkFit:
     """Fit the full body to the system's points of every ``every``-th processed frame from
     ``first`` up to ``last`` (exclusive; default all) of ``capture``.
@@ -91,6 +98,12 @@ def fit_walk(capture, *, every: int = 1, first: int = 0, last: int | None = None
         full_fit`, "A sequence"): ``warm_start`` and ``temporal_sigma`` = this times the
         median spacing of the fitted frames (``capture.fps``), overriding ``params``'.
         None: ``params`` as given (each frame from the rest pose, no temporal prior).
+    shape : BodyShape, optional
+        The build to start from (or, with ``params.fit_shape`` False, to keep), e.g.
+        :func:`fit_rom`'s; by default measured from these points.
+    heading : float, optional
+        The direction the person faces (radians from +x, the system's world); by default
+        the direction the points move in.
     params : FullBodyFitParams, optional
         ``floor`` is the system world's floor height (0: the tape-measured world's).
     """
@@ -114,12 +127,111 @@ def fit_walk(capture, *, every: int = 1, first: int = 0, last: int | None = None
         speed = as_scalar(angular_speed, "angular_speed", positive=True)
         dt = float(np.median(np.diff(np.asarray(capture.frames)[processed]))) / capture.fps
         p = replace(p, temporal_sigma=speed * dt, warm_start=True)
+    if heading is not None:
+        heading = as_scalar(heading, "heading")
     t0 = time.perf_counter()
-    fit = fit_full_body(points, params=p)
+    fit = fit_full_body(points, heading=heading, shape=shape, params=p)
     return WalkFit(fit=fit, processed=processed,
                    frames=np.asarray(capture.frames)[processed],
                    n_points=np.array([len(p) for p in points]),
                    seconds=time.perf_counter() - t0)
+
+
+@dataclass(frozen=True, eq=False)
+class RomFit:
+    """The full body fitted to a range-of-motion clip's capture (:func:`fit_rom`).
+
+    Attributes
+    ----------
+    walk_fit : WalkFit
+        The fit over the clip's processed frames (its ``fit.body_shape()`` starts the walk).
+    heading : float
+        The direction the person was found to face (radians from +x, the system's world;
+        :func:`rom_heading`).
+    statures : (T,) array
+        Each processed frame's stature measurement (mm); their median builds the template.
+    """
+
+    walk_fit: WalkFit
+    heading: float
+    statures: np.ndarray
+
+
+def rom_heading(points, *, stature: float, floor: float = 0.0) -> float:
+    """The direction (radians from +x) a person standing still faces, from the points of
+    frames of them ``points`` (sequence of ``(N_t, 3)``): across the widest horizontal axis
+    of the first frame's points (the shoulders and hips are wider than deep), the way the
+    feet point: the side on which the points below the ankles (``z - floor < 0.045
+    stature``) lie, summed over the frames, against those of the shanks (0.10-0.25
+    stature)."""
+    first = np.asarray(points[0], float)
+    xy = first[:, :2] - first[:, :2].mean(axis=0)
+    _, vecs = np.linalg.eigh(xy.T @ xy)
+    ahead = np.array([vecs[1, -1], -vecs[0, -1]])           # the wide axis turned by -90 deg
+    toe = np.zeros(2)
+    for p in points:
+        p = np.asarray(p, float)
+        h = (p[:, 2] - floor) / stature
+        low, mid = p[h < 0.045, :2], p[(h > 0.10) & (h < 0.25), :2]
+        if len(low) >= 5 and len(mid) >= 5:
+            toe += low.mean(axis=0) - mid.mean(axis=0)
+    if not toe.any():
+        raise ValueError("points: no frame shows both the feet and the shanks")
+    if toe @ ahead < 0:
+        ahead = -ahead
+    return float(np.arctan2(ahead[1], ahead[0]))
+
+
+def fit_rom(capture, *, max_points: int | None = None, shape: BodyShape | None = None,
+            params: FullBodyFitParams | None = None) -> RomFit:
+    """Fit the full body over a range-of-motion clip's capture: the build from the system's
+    points of movements that show the joint centres (issue 36, item 2).
+
+    No pose or heading is given, and by default no build: the template's stature is then
+    the median of the frames' stature measurements (a raised arm or a bend moves a frame's
+    highest point; most frames stand upright); the clip starts standing still, so the
+    heading comes from the first frame's points and the feet (:func:`rom_heading`); then every
+    frame is fitted as a sequence (each warm-started from the previous, no temporal prior:
+    the clip's frames are far apart), the build shared.
+
+    Parameters
+    ----------
+    capture : BodyCapture
+        Of the clip (e.g. :func:`lsmta.systems.capture_recording` with the walk's
+        calibration).
+    max_points : int, optional
+        As :func:`fit_walk`.
+    shape : BodyShape, optional
+        A build to start from (its stature builds the template), e.g. the system's own
+        walk fit's: the clip's far-apart frames then start nearer the person.
+    params : FullBodyFitParams, optional
+        Its ``warm_start`` is set, ``temporal_sigma`` cleared.
+    """
+    p = FullBodyFitParams() if params is None else params
+    if not isinstance(p, FullBodyFitParams):
+        raise TypeError(f"params: expected FullBodyFitParams, got {type(p).__name__}")
+    T = len(capture.frames)
+    if T < 2:
+        raise ValueError(f"capture: expected at least 2 processed frames, got {T}")
+    statures = []
+    for t in range(T):
+        try:
+            statures.append(measure_stature(capture.points_at(t)[0], floor=p.floor,
+                                            radius=p.neighbour_radius,
+                                            min_neighbours=p.min_neighbours))
+        except ValueError:
+            statures.append(np.nan)
+    statures = np.array(statures)
+    if not np.isfinite(statures).any():
+        raise ValueError("capture: no frame's points give a stature")
+    if shape is not None and not isinstance(shape, BodyShape):
+        raise TypeError(f"shape: expected a BodyShape or None, got {type(shape).__name__}")
+    start = shape or BodyShape.template(float(np.nanmedian(statures)))
+    heading = rom_heading([capture.points_at(t)[0] for t in range(T)],
+                          stature=start.stature, floor=p.floor)
+    wf = fit_walk(capture, max_points=max_points, angular_speed=None, shape=start,
+                  heading=heading, params=replace(p, warm_start=True, temporal_sigma=None))
+    return RomFit(walk_fit=wf, heading=heading, statures=statures)
 
 
 def aligned_fit(fit: FullBodyFit, alignment: Alignment) -> FullBodyFit:

@@ -27,7 +27,7 @@ from scipy.spatial import cKDTree
 from .._validate import as_int, as_scalar, as_vector
 from ..camera import scaled_camera
 from ..rigid import fit_rigid
-from ..synth import Scene, make_body, studio_rig, triplet_rig, walk
+from ..synth import Scene, make_body, range_of_motion, studio_rig, triplet_rig, walk
 from ..synth.body import Motion
 from ..synth.calibration import BarTrack, bar_footage
 from ..synth.render import Renderer, project_surface_points
@@ -66,6 +66,14 @@ class WalkSessionParams:
         The nominal cameras' errors (:func:`~lsmta.synth.calibration.poor_guess`).
     level_places : int
         Places the bar is stood upright to level the world.
+    rom_per_phase : int
+        Frames rendered of each movement of the range-of-motion clip (0: no clip; else
+        at least 2): the clip :func:`~lsmta.synth.range_of_motion` of ``rom_clip`` frames
+        at 25 Hz, standing at the volume's centre facing -Y, and of each of its six
+        movements the frames at clock ``k / rom_per_phase`` of the movement (``k = 0 ..
+        rom_per_phase - 1``; 0 is the standing start, 1/2 the movement's extreme).
+    rom_clip : int
+        Frames of the whole clip (>= 24).
     """
 
     rig: str = "triplet"
@@ -82,6 +90,8 @@ class WalkSessionParams:
     tape_deg: float = 2.0
     lens_rel: float = 0.01
     level_places: int = 4
+    rom_per_phase: int = 0
+    rom_clip: int = 200
 
     def __post_init__(self):
         if self.rig not in RIGS:
@@ -96,6 +106,10 @@ class WalkSessionParams:
         as_int(self.n_bar, "n_bar", minimum=10)
         as_int(self.n_heldout, "n_heldout")
         as_int(self.level_places, "level_places", minimum=0)
+        if as_int(self.rom_per_phase, "rom_per_phase", minimum=0) == 1:
+            raise ValueError("rom_per_phase: expected 0 (no clip) or at least 2 frames per "
+                             "movement, got 1")
+        as_int(self.rom_clip, "rom_clip", minimum=24)
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,6 +135,13 @@ class WalkSession:
         True bar positions (``level`` None without levelling).
     params : WalkSessionParams
     seed : int
+    rom_videos : (K, R, H, W) uint8 array or None
+        The range-of-motion clip's rendered frames (``params.rom_per_phase``), same cameras.
+    rom_scene : Scene or None
+        The same body in the clip's motion (truth).
+    rom_frames : (R,) int array or None
+        The clip's frame of each of ``rom_videos``' frames (25 Hz; the movements are
+        ``rom_scene.motion.phases``).
     """
 
     videos: np.ndarray
@@ -137,6 +158,9 @@ class WalkSession:
     level: BarTrack | None
     params: WalkSessionParams
     seed: int
+    rom_videos: np.ndarray | None = None
+    rom_scene: Scene | None = None
+    rom_frames: np.ndarray | None = None
 
 
 def _session_cameras(params: WalkSessionParams, rng) -> list:
@@ -178,10 +202,34 @@ def walk_session(*, seed: int = 36, n_frames: int = 50,
     f = bar_footage(cams, rng=rng, length=p.bar_length, center=(0.0, 0.0, 950.0),
                     half_size=p.bar_half_size, n=(p.n_bar, p.n_heldout), noise=p.noise,
                     tape=(p.tape_mm, p.tape_deg, p.lens_rel), level_places=p.level_places)
+    rom = _rom_clip(body, cams, p, seed) if p.rom_per_phase else (None, None, None)
     return WalkSession(videos=videos, bar_videos=f.bar_videos, heldout_videos=f.heldout_videos,
                        level_videos=f.level_videos, bar_length=p.bar_length, nominal=f.nominal,
                        fps=fps, cameras=cams, scene=scene, bar=f.bar, heldout=f.heldout,
-                       level=f.level, params=p, seed=int(seed))
+                       level=f.level, params=p, seed=int(seed), rom_videos=rom[0],
+                       rom_scene=rom[1], rom_frames=rom[2])
+
+
+def rom_clip_frames(motion: Motion, per_phase: int) -> np.ndarray:
+    """The frames of ``motion`` (a range-of-motion clip) at clock ``k / per_phase``
+    (``k = 0 .. per_phase - 1``) of each of its movements, in order ``(6 per_phase,)``."""
+    per_phase = as_int(per_phase, "per_phase", minimum=1)
+    if not motion.phases:
+        raise ValueError("motion: expected a clip with named movements (phases)")
+    return np.array([a + int(round(k * (b - a) / per_phase)) for _, a, b in motion.phases
+                     for k in range(per_phase)])
+
+
+def _rom_clip(body, cams, p: WalkSessionParams, seed: int):
+    """The range-of-motion clip's videos, scene and frames (its own noise stream, so the
+    walk's session is the same with or without it)."""
+    motion = range_of_motion(n_frames=p.rom_clip, fps=25.0)
+    scene = Scene(body=body, motion=motion, backdrop=p.backdrop)
+    frames = rom_clip_frames(motion, p.rom_per_phase)
+    rng = np.random.default_rng([int(seed), 1])
+    renderer = Renderer(scene, cams, noise_sigma=p.noise)
+    videos = np.stack([renderer.render(int(t), rng=rng).images for t in frames], axis=1)
+    return videos, scene, frames
 
 
 # ------------------------------------------------------------------ alignment

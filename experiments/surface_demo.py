@@ -72,7 +72,8 @@ def _cache(path: Path, scale: float, frames: range, capture: str | None) -> dict
     stacks = videos.load(progress=False)
     noise = [float(temporal_noise(_group_inputs(stacks, cameras, g)[0]).sigma)
              for g in view_groups(cameras)]
-    data = {"cameras": cameras, "noise": noise, "scale": scale}
+    data = {"cameras": cameras, "noise": noise, "scale": scale,
+            "frames": [frames.start, frames.stop], "capture": capture}
     path.write_bytes(pickle.dumps(data))
     return data
 
@@ -120,8 +121,11 @@ def main(argv=None):
     args = parser.parse_args(argv)
     start, stop = (int(x) for x in args.frames.split(":"))
     data = _cache(Path(args.cache), args.scale, range(start, stop), args.from_capture)
-    if data["scale"] != args.scale:
-        raise SystemExit(f"--cache: made at scale {data['scale']}, not {args.scale}")
+    made = {"scale": args.scale, "frames": [start, stop], "capture": args.from_capture}
+    for key, value in made.items():   # a cache made with other settings is not reused silently
+        if key in data and data[key] != value:
+            raise SystemExit(f"--cache: made with {key} {data[key]}, not {value}; "
+                             "remove it or give another --cache")
     videos = read_videos([str(v) for v in POSE2SIM_VIDEOS], frames=range(start, start + 1),
                          scale=args.scale)
     stacks = videos.load(progress=False)

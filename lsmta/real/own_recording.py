@@ -122,8 +122,8 @@ def marker_scores(capture, *, pair=None) -> dict:
         d = None if found is None else found.distance
     else:
         pair = tuple(int(i) for i in pair)
-        if len(pair) != 2 or not all(0 <= i < len(m.moving) for i in pair):
-            raise ValueError(f"pair: expected two indices of the capture's "
+        if len(set(pair)) != 2 or not all(0 <= i < len(m.moving) for i in pair):
+            raise ValueError(f"pair: expected two different indices of the capture's "
                              f"{len(m.moving)} markers, got {pair}")
         d = np.linalg.norm(m.xyz[:, pair[0]] - m.xyz[:, pair[1]], axis=1)
     both = np.isfinite(d) if d is not None else None

@@ -142,13 +142,18 @@ def start_kernel(path: Path, build: Path):
     # folder, so a relative one would not meet), in a short private folder
     sockets = Path(tempfile.mkdtemp(prefix="lsmta-ipc-"))
     km = AsyncKernelManager(kernel_name="python3", transport="ipc", ip=str(sockets / "kernel"))
-    run_sync(km.start_kernel)(env=notebook_env(path, build), cwd=str(path.parent.resolve()),
-                              extra_arguments=["--HistoryManager.hist_file=:memory:"])
+    try:
+        run_sync(km.start_kernel)(env=notebook_env(path, build), cwd=str(path.parent.resolve()),
+                                  extra_arguments=["--HistoryManager.hist_file=:memory:"])
+    except BaseException:
+        shutil.rmtree(sockets, ignore_errors=True)
+        raise
     return km, sockets
 
 
 def stop_kernel(kernel) -> None:
-    """Stop a kernel from :func:`start_kernel` that no notebook ran on."""
+    """Stop a kernel from :func:`start_kernel` and remove its socket folder (safe to call
+    again on a stopped kernel)."""
     from jupyter_core.utils import run_sync  # deferred: seconds to import
 
     km, sockets = kernel
@@ -162,7 +167,9 @@ def stop_kernel(kernel) -> None:
 def execute(path: Path, build: Path, timeout: int, *, kernel=None) -> dict:
     """Execute one notebook, on ``kernel`` (from :func:`start_kernel`, started for this
     notebook) or on a new kernel; returns a status dict (never raises for a failing cell).
-    The kernel is stopped afterwards."""
+    The kernel is stopped afterwards. The notebook's ``seconds`` exclude a pre-started
+    kernel's boot (it overlapped the notebook before), so they are about a second shorter
+    than in builds made before kernels were started ahead."""
     import nbformat  # deferred: the notebook machinery takes seconds to import
     from nbclient import NotebookClient  # deferred: as above
     from nbclient.exceptions import CellExecutionError, CellTimeoutError  # deferred: as above
@@ -436,11 +443,12 @@ def reproduce(args) -> int:
                 kernels[i + 1] = start_kernel(chosen[i + 1], build)
             if tty:
                 print(f"{path.stem:<33} running ...", end="\r", flush=True)
-            res = execute(path, build, args.timeout, kernel=kernels.pop(i))
+            res = execute(path, build, args.timeout, kernel=kernels[i])
+            del kernels[i]   # stopped by execute; kept until then so the finally stops it
             results.append(res)
             print(notebook_line(res) + (" " * 8 if tty else ""), flush=True)
     finally:
-        for kernel in kernels.values():  # only if a notebook's run raised
+        for kernel in kernels.values():  # only if a notebook's run raised (or Ctrl-C)
             stop_kernel(kernel)
     ran = results
     if args.only:  # keep the other notebooks' earlier results in the summary

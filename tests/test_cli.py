@@ -32,7 +32,12 @@ def notebooks(tmp_path):
         "plt.plot([0, 1], [1, 0]); plt.xlabel('x [px]'); plt.show()",
         "import os; open('cwd.txt', 'w').write(os.getcwd())",
     ])
-    _notebook(folder / "01_second.ipynb", ["x = 1"])
+    # the second notebook runs on a kernel started while the first ran: its own records, name
+    # and folder
+    _notebook(folder / "01_second.ipynb", [
+        "import os\nfrom lsmta.report import record\n"
+        "record('F1', 'second', 2, kind='setting')\n"
+        "open('second.txt', 'w').write(os.environ['LSMTA_NOTEBOOK'] + ' ' + os.getcwd())"])
     (folder / "notes.ipynb").write_text("{}")  # not numbered: ignored
     return folder
 
@@ -57,7 +62,7 @@ def test_reproduce_writes_summary_and_figures(notebooks, tmp_path, capfd):
          "note": "close", "kind": "result", "truth": "none", "controlled": False},
         {"figure": "F0", "quantity": "image size", "value": "8x8", "unit": "px",
          "paper": "8x8", "note": "", "kind": "setting", "truth": "none", "controlled": False}]
-    assert [(r["truth"], r["controlled"]) for r in summary["records"][2:]] == [
+    assert [(r["truth"], r["controlled"]) for r in summary["records"][2:4]] == [
         ("true cameras", True), ("labels from truth", False)]
     md = (build / "summary.md").read_text()
     assert "| F0 | answer | 41 | 42 | units | none | close |" in md
@@ -80,6 +85,11 @@ def test_reproduce_writes_summary_and_figures(notebooks, tmp_path, capfd):
     assert "Truth inputs of the results" in page and "<td>labels from truth</td>" in page
     assert summary["notebooks"][0]["record_cells"] == [2, 2, 2, 2]    # the cell of each record
     assert (build / "notebooks" / "01_second.ipynb").exists()
+    lines = (build / "records" / "01_second.jsonl").read_text().splitlines()
+    second = [json.loads(line) for line in lines]
+    assert [r["quantity"] for r in second] == ["second"]
+    assert "second" not in (build / "records" / "00_first.jsonl").read_text()
+    assert (notebooks / "second.txt").read_text() == f"01_second {notebooks}"
     # each notebook runs in its own folder, as under nbmake, told where the build is
     assert (notebooks / "cwd.txt").read_text() == str(notebooks)
     assert (notebooks / "build.txt").read_text() == str(build.resolve())
@@ -140,6 +150,17 @@ def test_failing_cell_is_named(notebooks, tmp_path, capsys):
     assert code == 1
     err = capsys.readouterr().err
     assert "02_broken.ipynb failed at cell 2" in err and "boom" in err
+    assert not _kernels_left()
+
+
+def test_unreadable_notebook_leaves_no_kernel(notebooks, tmp_path):
+    (notebooks / "02_bad.ipynb").write_text("not json")
+    from nbformat.reader import NotJSONError
+
+    with pytest.raises(NotJSONError):
+        cli.main(["reproduce", "--notebooks", str(notebooks), "--build", str(tmp_path / "b"),
+                  "--only", "01", "02", "--no-book"])
+    assert not _kernels_left()
 
 
 def test_two_runs_of_a_notebook_give_identical_records(tmp_path):

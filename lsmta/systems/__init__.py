@@ -16,6 +16,7 @@ never the generator's truth: nothing here imports :mod:`lsmta.synth` or
 ``refinement`` or: a camera file's rig refined from the recording itself (tie points,
               the file's cameras as priors, held-out places to check it)
 ``surfaces``  surfaces of chosen frames from automatic seeds
+``rectified`` or: a pair's surface from its rectified images (SurfaceParams(method="rectified"))
 ``mixed_scale`` Davis's mixed-scale system, closed: ceiling LED frames, the streaming
               wide-area tracker, the pan-tilt heads steered (:mod:`lsmta.pantilt.steering`),
               close-up marker video, triangulation at the read-back angles, the face filled

@@ -35,18 +35,22 @@ frame 10.6 degrees, the test asks under 7); on the Pose2Sim demo it tries more n
 measures as many points (``experiments/surface_demo.py``). Either way a node counts as measured only
 where LSM converges and passes every threshold. :func:`surface_census` says where a frame's
 nodes were lost.
+
+``SurfaceParams(method="rectified")`` measures a two-camera group on its rectified images
+instead (:mod:`lsmta.systems.rectified`); the default is unchanged.
 """
 
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from .._validate import as_scalar
 from ..matching import (
+    DisparityParams,
     GrowParams,
     LSMParams,
     LSMThresholds,
@@ -59,6 +63,7 @@ from ..matching import (
 )
 from ..triangulation import triangulate
 from .checks import check_cameras, check_videos
+from .rectified import NoSeedsError, measure_rectified_pair, surface_result
 
 
 @dataclass(frozen=True)
@@ -83,6 +88,16 @@ class SurfaceParams:
     texture_rule : {"spread", "precision"}
         Which nodes are tried (module docstring): where the patch's grey-value spread is at
         least 2 grey levels, or where the noise allows the accepted precision.
+    method : {"grow", "rectified"}
+        ``"grow"`` (default): seeds and LSM growth between the original images, as above.
+        ``"rectified"``: two cameras only; the pair is rectified and its disparities grown
+        (:func:`~lsmta.systems.rectified.measure_rectified_pair`, with
+        :class:`~lsmta.matching.DisparityParams`' defaults and ``max_sigma_xy``; the other
+        fields above are not used), matches mapped back to the original pixels.
+    rectified_depths : (float, float)
+        ``"rectified"`` only: the depths searched for seeds, as multiples of the working
+        distance (narrower than the growth's 0.6-1.6: a wide pair's disparities over that
+        range span more than the image, and the seeds' uniqueness test fails there).
     """
 
     template: int = 1
@@ -93,8 +108,16 @@ class SurfaceParams:
     sigma0_factor: float = 2.0
     max_sigma_xy: float = 0.2
     texture_rule: str = "spread"
+    method: str = "grow"
+    rectified_depths: tuple = (0.8, 1.25)
 
     def __post_init__(self):
+        if self.method not in ("grow", "rectified"):
+            raise ValueError(f"method: expected 'grow' or 'rectified', got {self.method!r}")
+        lo, hi = self.rectified_depths
+        if not 0 < lo < hi:
+            raise ValueError(f"rectified_depths: expected 0 < near < far, got "
+                             f"{self.rectified_depths!r}")
         if self.texture_rule not in ("precision", "spread"):
             raise ValueError(f"texture_rule: expected 'precision' or 'spread', got "
                              f"{self.texture_rule!r}")
@@ -188,6 +211,8 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
     bad = [f for f in frames if not 0 <= f < v.shape[1]]
     if bad:
         raise ValueError(f"frames: expected frame indices in [0, {v.shape[1] - 1}], got {bad}")
+    if p.method == "rectified":
+        return _rectified_surfaces(v, cams, frames, p, progress)
     d = working_distance(cams, p.template)
     mask = _lens_mask(cams[p.template])
     noise = sigma if p.texture_rule == "precision" else None
@@ -210,6 +235,32 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
                                                        thresholds=thresholds, noise=noise))
         out[f] = measure_surface(v[:, f], cams, seeds.xy, template=p.template, mask=mask,
                                  params=surface)
+    return out
+
+
+def _rectified_surfaces(v, cams, frames, p: SurfaceParams, progress: bool) -> dict:
+    """:func:`measure_surfaces` with ``method="rectified"`` (see :class:`SurfaceParams`)."""
+    if len(cams) != 2:
+        raise ValueError(f"cameras: method 'rectified' measures a pair; expected 2 cameras, "
+                         f"got {len(cams)}")
+    xy = np.stack([[[c.cx, c.cy]] for c in cams])
+    point = triangulate(cams, xy, min_angle_deg=0.0).points[0]
+    if not np.isfinite(point).all():
+        raise ValueError("cameras: their optical axes do not meet; cannot find the working "
+                         "volume")
+    grow = replace(DisparityParams().grow_params(), thresholds=replace(
+        DisparityParams().grow_params().thresholds, max_sigma_xy=p.max_sigma_xy))
+    out: dict[int, SurfaceResult] = {}
+    for f in tqdm(frames, desc="surfaces", disable=not progress):
+        try:
+            r = measure_rectified_pair(v[0, f], v[1, f], cams[0], cams[1], working_point=point,
+                                       depth_range=p.rectified_depths,
+                                       params=DisparityParams(grow=grow))
+        except NoSeedsError:
+            warnings.warn(f"measure_surfaces: no seed found in frame {f} on the rectified "
+                          "pair; the frame is left out", stacklevel=3)
+            continue
+        out[f] = surface_result(r, template=p.template)
     return out
 
 

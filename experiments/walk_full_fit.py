@@ -5,7 +5,8 @@ triplet and from an all-round studio, scored after the fact against issue 36's t
         [--scale 1.0] [--every 2] [--seed 36] [--n-seeds 40] [--cameras 8 --rows 2]
         [--fit-every 1] [--free-rounds 0]
         [--n-inner 2] [--max-nfev 25] [--angular-speed 8]
-        [--rom-per-phase 0] [--rom-every 1] [--rom-max-points 1000] [--out PATH]
+        [--rom-per-phase 0] [--rom-every 1] [--rom-max-points 1000] [--cache DIR]
+        [--out PATH]
 
 For each rig: :func:`lsmta.evaluation.walk_system.walk_session` renders ``--frames`` of the
 walk (the bar, held-out bar positions, the bar stood upright, tape-measured cameras);
@@ -44,7 +45,13 @@ seen: the smaller median |skin distance| of the system's walk points (the fit's 
 Every record names its variant ("walk alone" is the fit without the clip, on the same
 frames). The committed runs: ``walk_full_fit_studio_rom.json`` (``--rigs studio --frames 8
 --n-inner 3 --max-nfev 50 --rom-per-phase 4``) and ``walk_full_fit_studio_rom8.json`` (the
-same with ``--rom-per-phase 8``).
+same with ``--rom-per-phase 8``), both before the bad-frame rules; ``..._rom_rerun.json``: the
+first re-run with that code (the clip's capture and fit came out differently: upper arm
++25 % against +19 %), whose cached captures ``..._rom_rules.json`` reuses: the clip's fit
+solves each frame also from the rest pose and leaves frames fitted badly by their own
+residuals out of the shape solve (fit_rom, ROM_DROP_K), and the walk fits from the clip's
+build start each frame also from the walk-alone pose (the lower cost kept). ``--cache
+DIR`` pickles the renders and captures there and reads them back (the render takes minutes).
 """
 
 from __future__ import annotations
@@ -135,8 +142,27 @@ def _detail(fit, score, verdict):
             "fit_nfev": fit.fit.nfev}
 
 
+def _cached(cache, key, fn, *args, **kwargs):
+    """``fn(*args, **kwargs)``, pickled to ``cache/key.pkl`` (read back if there; no cache:
+    computed)."""
+    import pickle
+    from pathlib import Path
+
+    if cache is None:
+        return fn(*args, **kwargs)
+    path = Path(cache) / f"{key}.pkl"
+    if path.exists():
+        with open(path, "rb") as f:
+            return pickle.load(f)
+    out = fn(*args, **kwargs)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as f:
+        pickle.dump(out, f)
+    return out
+
+
 def run_rig(rig: str, *, session: dict, fit_every: int, fit_params: dict,
-            angular_speed: float, rom: dict | None = None) -> dict:
+            angular_speed: float, rom: dict | None = None, cache: str | None = None) -> dict:
     """Render one rig's session, run the system (``session``: the arguments of
     walk_system.session_capture), fit the body, score it; with a range-of-motion clip
     (``session["rom_per_phase"]``) also the clip through the system, its fit, and the walk
@@ -146,7 +172,8 @@ def run_rig(rig: str, *, session: dict, fit_every: int, fit_params: dict,
     from lsmta.evaluation import walk_system as ws
 
     seed, n_seeds, progress = session["seed"], session["n_seeds"], session["progress"]
-    session, cap, session_s = session_capture(rig, **session)
+    key = "-".join(f"{k}{session[k]}" for k in sorted(session) if k != "progress")
+    session, cap, session_s = _cached(cache, f"{rig}-{key}", session_capture, rig, **session)
     fit = wf.fit_walk(cap, every=fit_every, angular_speed=angular_speed or None,
                       params=FullBodyFitParams(**fit_params))
     # after the fact: the truth enters only from here on
@@ -159,9 +186,10 @@ def run_rig(rig: str, *, session: dict, fit_every: int, fit_params: dict,
         r["variant"] = "walk alone"
     out = {"records": records, "detail": detail}
     if session.rom_videos is not None:
-        rom = run_rom(rig, session, cap, al, check, fit.fit.body_shape(), fit_every=fit_every,
+        rom = run_rom(rig, session, cap, al, check, fit, fit_every=fit_every,
                       angular_speed=angular_speed, fit_params=fit_params,
-                      n_seeds=n_seeds, progress=progress, **(rom or {}))
+                      n_seeds=n_seeds, progress=progress,
+                      cache=None if cache is None else (cache, f"{rig}-{key}"), **(rom or {}))
         out["records"] += rom.pop("records")
         out |= rom
     return out
@@ -174,28 +202,34 @@ CHOICE = ("the smaller median |skin distance| of the system's walk points over a
           "frames (the fit's own residuals; no truth)")
 
 
-def run_rom(rig, session, cap, al, check, walk_build, *, fit_every, angular_speed, fit_params,
-            every=1, max_points=1000, n_seeds, progress) -> dict:
-    """The range-of-motion clip through the system, its fit (started from the walk's own
-    fitted build, ``walk_build``), and the walk from the clip's build."""
+def run_rom(rig, session, cap, al, check, alone, *, fit_every, angular_speed, fit_params,
+            every=1, max_points=1000, n_seeds, progress, cache=None) -> dict:
+    """The range-of-motion clip through the system, its fit (started from the walk-alone
+    fit's build, ``alone.fit``; each frame also from the rest pose, the badly fitted
+    frames left out of the shape solve), and the walk from the clip's build (each frame
+    also started from the walk-alone fit's pose, the lower cost kept)."""
     import numpy as np
 
     from lsmta.body.full_fit import FullBodyFitParams
     from lsmta.evaluation import walk_full_fit as wf
     from lsmta.evaluation.full_body import joint_angle_errors, length_errors
 
-    rc, rom_s = rom_capture(session, cap, every=every, n_seeds=n_seeds, seed=session.seed,
-                            progress=progress)
-    rf = wf.fit_rom(rc, max_points=max_points, shape=walk_build,
+    rc, rom_s = _cached(cache and cache[0], f"{cache and cache[1]}-rom{every}", rom_capture,
+                        session, cap, every=every, n_seeds=n_seeds, seed=session.seed,
+                        progress=progress)
+    rf = wf.fit_rom(rc, max_points=max_points, shape=alone.fit.body_shape(),
                     params=FullBodyFitParams(**fit_params))
     build = rf.walk_fit.fit.body_shape()
+    starts = [(alone.fit.angles, alone.fit.base)]
     fits = {name: wf.fit_walk(cap, every=fit_every, angular_speed=angular_speed or None,
-                              shape=build, params=FullBodyFitParams(**fit_params,
-                                                                    fit_shape=free))
+                              shape=build, starts=starts,
+                              params=FullBodyFitParams(**fit_params, fit_shape=free))
             for name, free in (("walk from the clip's build, started", True),
                                ("walk from the clip's build, fixed", False))}
     cost = {k: float(np.median(np.abs(np.concatenate(f.fit.point_residuals))))
             for k, f in fits.items()}
+    q90 = {k: [float(np.percentile(np.abs(r), 90)) for r in f.fit.point_residuals]
+           for k, f in (("walk alone", alone), *fits.items())}
     chosen = min(cost, key=cost.get)
     # after the fact
     records, detail = [], {}
@@ -206,7 +240,8 @@ def run_rom(rig, session, cap, al, check, walk_build, *, fit_every, angular_spee
             r["variant"] = name + (" (chosen)" if name == chosen else "")
         records += [r for r in rs if not r["quantity"].startswith(
             ("render", "system", "calibration", "alignment: tilt"))]
-        detail[name] = _detail(f, score, verdict) | {"walk_fit_cost_mm": cost[name]}
+        detail[name] = _detail(f, score, verdict) | {
+            "walk_fit_cost_mm": cost[name], "frame_cost_q90_mm": np.round(q90[name], 2).tolist()}
     rom_fit = wf.aligned_fit(rf.walk_fit.fit, al)
     frames = session.rom_frames[rf.walk_fit.frames]
     joints = joint_angle_errors(rom_fit, session.rom_scene.body, session.rom_scene.motion,
@@ -230,6 +265,10 @@ def run_rom(rig, session, cap, al, check, walk_build, *, fit_every, angular_spee
         rec("walk fit cost, started from the clip's build", cost[next(iter(fits))], "mm",
             FIT_IN),
         rec("walk fit cost, the clip's build fixed", cost[list(fits)[1]], "mm", FIT_IN),
+        rec("walk fit cost, walk alone",
+            float(np.median(np.abs(np.concatenate(alone.fit.point_residuals)))), "mm", FIT_IN),
+        rec("clip frames left out of the shape solve (drop rule)",
+            int((~rf.walk_fit.fit.shape_frames).sum()), "", FIT_IN),
         *[rec(f"clip segment length error, {k}", 100.0 * (a / b - 1.0), "%", LENGTH_IN)
           for k, (a, b) in lengths.items()],
         *[rec(f"clip joint angle error, {k}, median over the clip", float(np.median(v)),
@@ -242,6 +281,13 @@ def run_rom(rig, session, cap, al, check, walk_build, *, fit_every, angular_spee
         "joints_deg_per_frame": {k: np.round(v, 2).tolist() for k, v in joints.items()},
         "lengths_mm": {k: [round(a, 1), round(b, 1)] for k, (a, b) in lengths.items()},
         "build": {"stature": build.stature, "scales": np.round(build.scales, 4).tolist()},
+        "frame_cost_q90_mm": [round(float(np.percentile(np.abs(r), 90)), 2)
+                              for r in rf.walk_fit.fit.point_residuals],
+        "frames_in_the_shape_solve": rf.walk_fit.fit.shape_frames.tolist(),
+        "drop_rule": f"a clip frame whose 90th-percentile |skin distance| of the system's "
+                     f"points is above {wf.ROM_DROP_K:g} x the clip's median of it is left "
+                     f"out of the shape solve (no truth)",
+        "walk_alone_frame_cost_q90_mm": np.round(q90["walk alone"], 2).tolist(),
         "choice_rule": CHOICE, "chosen": chosen}
     return {"records": records, "rom_detail": detail}
 
@@ -268,6 +314,9 @@ def main(argv=None):
                              "the clip's fit")
     parser.add_argument("--rom-every", type=int, default=1,
                         help="the clip's density check, processed frames")
+    parser.add_argument("--cache", default=None,
+                        help="a folder to pickle the renders and the system's captures to "
+                             "(and read them back from; default none)")
     parser.add_argument("--out", default="build/benchmarks/walk_full_fit.json")
     args = parser.parse_args(argv)
     if args.rom_per_phase < 0 or args.rom_per_phase == 1:
@@ -298,6 +347,7 @@ def main(argv=None):
         r = run_rig(rig, session=session, fit_every=args.fit_every,
                     angular_speed=args.angular_speed,
                     rom={"every": args.rom_every, "max_points": args.rom_max_points},
+                    cache=args.cache,
                     fit_params={k: settings[k] for k in ("free_rounds", "n_inner", "max_nfev")})
         out["rigs"][rig] = r
         for x in r["records"]:

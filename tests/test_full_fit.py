@@ -238,3 +238,68 @@ def test_a_given_build_is_kept_or_started_from():
         fit_full_body([pts], heading=0.0, shape=(1650.0,), params=p)
     with pytest.raises(ValueError, match="limb_shape"):
         replace(kept, limb_shape=None).body_shape()
+
+
+def _own_skin(model, pose, *, rng, n=700, x=0.0):
+    """``n`` noisy points of the template's own skin in ``pose`` (joint -> radians)."""
+    names = model.skeleton.names
+    a = np.zeros((1, model.skeleton.n_joints))
+    a[0, names.index("pelvis_c")] = -np.pi / 2
+    for joint, v in pose.items():
+        a[0, names.index(joint)] = v
+    b = np.eye(4)[None].copy()
+    b[0, :3, 3] = (x, 0.0, 930.0)
+    S = np.ones(len(model.skeleton.limbs))
+    radii = model.simplified_radii(template_size(model), S)
+    patches = model_skin(model, a, S, radii, base=b, params=SkinParams(n_u=16, n_v=12))
+    pts = np.vstack([p.vertices for p in patches])
+    return pts[rng.choice(len(pts), n, replace=False)] + rng.normal(0, 1.0, (n, 3)), a, b
+
+
+def test_a_badly_fitted_frame_is_left_out_of_the_shape_solve():
+    """Four frames of the template's own skin; in the third a cloud of 80 stray points (a fifth)
+    beside the body (no pose fits them, as a flipped limb's points): its cost (90th
+    percentile |skin distance|) is far above the others', so ``drop_k`` leaves it out of
+    the shape solve; without ``drop_k`` every frame is in. No truth goes in."""
+    model = full_body_model(stature=1750.0)
+    rng = np.random.default_rng(11)
+    pts = [_own_skin(model, {"elbow_r": 0.3, "elbow_l": 0.2 + 0.05 * t}, rng=rng, n=400,
+                     x=40.0 * t)[0] for t in range(4)]
+    pts[2] = np.vstack([pts[2][:320], rng.uniform([300, -600, 800], [700, -300, 1400],
+                                                  (80, 3))])
+    p = FullBodyFitParams(n_rounds=1, n_inner=1, max_nfev=15, drop_k=2.0)
+    fit = fit_full_body(pts, params=p)
+    assert fit.shape_frames.tolist() == [True, True, False, True]
+    cost = [np.percentile(np.abs(r), 90) for r in fit.point_residuals]
+    assert cost[2] > 2.0 * np.median(cost)                    # the rule, from the residuals
+    every = fit_full_body(pts, params=replace(p, drop_k=None, max_nfev=2))
+    assert every.shape_frames.all()
+    with pytest.raises(ValueError, match="drop_k"):
+        FullBodyFitParams(drop_k=1.0)
+    with pytest.raises(TypeError, match="rest_start"):
+        FullBodyFitParams(rest_start=1)
+
+
+def test_a_further_start_keeps_the_lower_cost():
+    """One frame with the left arm raised sideways 1.4 rad: from the rest pose alone the
+    solve does not reach it in a few steps; given a further start at another fit's pose
+    near it (here the generator's, as a stand-in), the frame keeps the lower cost, and a
+    start far off is not taken."""
+    model = full_body_model(stature=1750.0)
+    rng = np.random.default_rng(12)
+    pose = {"shoulder_l_a": 1.4, "elbow_l": 0.3}
+    pts, a, b = _own_skin(model, pose, rng=rng)
+    shape = BodyShape.template(1750.0)
+    p = FullBodyFitParams(n_rounds=1, n_inner=1, max_nfev=10, fit_shape=False)
+    rest = fit_full_body([pts], heading=0.0, shape=shape, params=p)
+    near = fit_full_body([pts], heading=0.0, shape=shape, starts=[(a, b)], params=p)
+    both = fit_full_body([pts], heading=0.0, shape=shape, starts=[(rest.angles, rest.base),
+                                                                    (a, b)], params=p)
+
+    def cost(f):
+        return np.percentile(np.abs(f.point_residuals[0]), 90)
+
+    assert cost(near) < cost(rest) - 1.0
+    assert cost(both) <= cost(near) + 1e-9
+    with pytest.raises(ValueError, match=r"starts\[0\]"):
+        fit_full_body([pts], heading=0.0, starts=[(a[:, :3], b)], params=p)

@@ -71,6 +71,17 @@ A sequence (off by default: ``temporal_sigma=None``, ``warm_start=False``)
     it; a limb with a point or none in a frame rests on it, so it is drawn to its
     neighbours' angle (its prior residuals are then all it has) instead of flipping. No
     separate "hold the angle below k points" rule: the prior does that smoothly.
+
+Bad frames (off by default; no truth: the fit's own residuals)
+    A frame's cost is the 90th percentile of its points' |skin distance| (mm): a flipped
+    limb carries a tenth or so of the points, which the median would not see. A warm
+    start can carry a flip from one far-apart frame to the next (a range-of-motion clip).
+    ``rest_start``: the first round also solves each frame from the rest pose; ``starts``
+    (:func:`fit_full_body`): also from given poses (e.g. another fit of the same frames);
+    of the solves the one with the lowest cost is kept. ``drop_k``: before each shape
+    solve, the frames whose cost is above ``drop_k`` times the median cost are left out
+    of it (their poses are still solved); :attr:`FullBodyFit.shape_frames` says which
+    frames the last shape solve used.
 """
 
 from __future__ import annotations
@@ -143,6 +154,12 @@ class FullBodyFitParams:
     fit_shape : bool
         Solve the limb scales and shape after each round's poses (False: they stay at
         their start, e.g. a given :class:`BodyShape`).
+    rest_start : bool
+        With ``warm_start``: the first round also solves each frame from the rest pose and
+        keeps the solve of the lower frame cost (module docstring, "Bad frames").
+    drop_k : float or None
+        Frames whose cost exceeds ``drop_k`` times the median of all frames' costs are left
+        out of the shape solve (module docstring, "Bad frames"); None: none left out.
     """
 
     sigma_point: float = 3.0
@@ -171,11 +188,15 @@ class FullBodyFitParams:
     temporal_sigma: float | None = None
     warm_start: bool = False
     fit_shape: bool = True
+    rest_start: bool = False
+    drop_k: float | None = None
 
     def __post_init__(self):
         if self.temporal_sigma is not None:
             as_scalar(self.temporal_sigma, "temporal_sigma", positive=True)
-        for name in ("warm_start", "fit_shape"):
+        if self.drop_k is not None and as_scalar(self.drop_k, "drop_k", positive=True) <= 1:
+            raise ValueError(f"drop_k: expected above 1 or None, got {self.drop_k}")
+        for name in ("warm_start", "fit_shape", "rest_start"):
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name}: expected a bool, got "
                                 f"{type(getattr(self, name)).__name__}")
@@ -262,6 +283,9 @@ class FullBodyFit:
     nfev : int
     limb_shape : (L, 8) array or None
         The per-limb shape (:class:`BodyShape`).
+    shape_frames : (T,) bool array or None
+        The frames the last shape solve used (module docstring, "Bad frames"); None: no
+        shape solved.
     """
 
     model: MetaballModel
@@ -279,10 +303,12 @@ class FullBodyFit:
     n_silhouette_outliers: int
     nfev: int
     limb_shape: np.ndarray | None = None
+    shape_frames: np.ndarray | None = None
 
     def __post_init__(self):
         freeze(self, ("angles", "base", "scales", "size", "radii", "start_angles",
-                      "start_base") + (() if self.limb_shape is None else ("limb_shape",)))
+                      "start_base") + tuple(k for k in ("limb_shape", "shape_frames")
+                                            if getattr(self, k) is not None))
 
     def body_shape(self) -> BodyShape:
         """The fitted build, to start or fix another fit of the same person."""
@@ -512,7 +538,7 @@ def _check(points, rays, camera_centre):
 
 
 def fit_full_body(points, *, rays=None, camera_centre=None, heading=None,
-                  shape: BodyShape | None = None,
+                  shape: BodyShape | None = None, starts=(),
                   params: FullBodyFitParams | None = None) -> FullBodyFit:
     """Fit the full-body template to a few frames (module docstring).
 
@@ -530,6 +556,9 @@ def fit_full_body(points, *, rays=None, camera_centre=None, heading=None,
         The stature and the start of the limb scales and shape (module docstring, "A shape
         from elsewhere"); by default the stature is measured and the shape starts at the
         template's.
+    starts : sequence of (angles (T, J), base (T, 4, 4)), optional
+        Further starts of each frame's first-round solve, e.g. another fit's poses of the
+        same frames (module docstring, "Bad frames").
     params : FullBodyFitParams, optional
     """
     p = FullBodyFitParams() if params is None else params
@@ -542,6 +571,7 @@ def fit_full_body(points, *, rays=None, camera_centre=None, heading=None,
         np.vstack(pts), floor=p.floor, radius=p.neighbour_radius,
         min_neighbours=p.min_neighbours)
     model = full_body_model(stature=stature)
+    starts = _check_starts(starts, len(pts), model.skeleton.n_joints)
     angles, base = body_start(model, pts, stature=stature, heading=heading,
                               knee_start=p.knee_start)
     start_angles, start_base = angles.copy(), base.copy()
@@ -555,27 +585,72 @@ def fit_full_body(points, *, rays=None, camera_centre=None, heading=None,
     bounds[[model.skeleton.names.index(n) for n in ("pelvis_b", "pelvis_a", "pelvis_c")]] = \
         [-np.inf, np.inf]
     free = ~np.isin(model.skeleton.names, p.hold)
-    nfev, tied = 0, None
+    nfev, tied, used = 0, None, None
     for k in range(int(p.n_rounds) + int(p.free_rounds)):
         m, radii = _shaped(model, template, scales, shape)
         loss = p.loss if k < p.n_rounds else p.free_loss
         for t, f in enumerate(frames):
             if k == 0 and t > 0 and p.warm_start:
                 angles[t] = angles[t - 1]
-            near = _neighbours(angles, t, k, p)
-            for _ in range(int(p.n_inner)):
-                a, b, n = f.solve(m, angles[[t]], base[[t]], scales, radii, free, bounds,
-                                  k >= p.silhouette_from, loss, near)
-                angles[t], base[t], nfev = a[0], b[0], nfev + n
+            others = [] if k else (
+                [(start_angles[t], start_base[t])] * (p.rest_start and p.warm_start and t > 0)
+                + [(a[t], b[t]) for a, b in starts])
+            angles[t], base[t], n = _solve_frame(
+                f, m, [(angles[t], base[t])] + others, scales, radii, free, bounds,
+                (k >= p.silhouette_from, loss, _neighbours(angles, t, k, p)))
+            nfev += n
         if k == p.n_rounds:
             tied = shape.copy()
         if p.fit_shape:
-            scales, shape, n = _solve_shape(model, frames, angles, base, scales, shape,
-                                            template, p, loss=loss, prior=tied)
+            used = _shape_frames(m, frames, angles, base, scales, radii, p.drop_k)
+            i = np.flatnonzero(used)
+            scales, shape, n = _solve_shape(model, [frames[j] for j in i], angles[i], base[i],
+                                            scales, shape, template, p, loss=loss, prior=tied)
             nfev += n
     fitted, radii = _shaped(model, template, scales, shape)
     return replace(_finish(fitted, frames, stature, angles, base, scales, radii, start_angles,
-                           start_base, nfev, p), limb_shape=shape)
+                           start_base, nfev, p), limb_shape=shape, shape_frames=used)
+
+
+def _check_starts(starts, T, J):
+    out = []
+    for i, s in enumerate(starts):
+        if len(s) != 2:
+            raise ValueError(f"starts[{i}]: expected (angles (T, J), base (T, 4, 4))")
+        a = as_array(s[0], f"starts[{i}][0]", shape=(T, J))
+        out.append((a, as_array(s[1], f"starts[{i}][1]", shape=(T, 4, 4))))
+    return out
+
+
+def frame_cost(model, points, angles, scales, radii, *, base) -> float:
+    """A frame's cost (module docstring, "Bad frames"): the 90th percentile of the
+    |skin distance| of ``points (N, 3)`` (mm) at ``angles (J,)``, ``base (4, 4)``."""
+    d = model.all_distances(points, angles[None], scales, radii, base=base[None])
+    return float(np.percentile(np.abs(d).min(axis=1), 90))
+
+
+def _solve_frame(f, m, cands, scales, radii, free, bounds, how):
+    """Solve one frame ``n_inner`` times from each of ``cands`` ((angles, base) pairs);
+    keep the lowest :func:`frame_cost` (the only one without a choice)."""
+    best, nfev = None, 0
+    for a, b in cands:
+        a, b = a[None].copy(), b[None].copy()
+        for _ in range(int(f.p.n_inner)):
+            a, b, n = f.solve(m, a, b, scales, radii, free, bounds, *how)
+            nfev += n
+        c = frame_cost(m, f.pts, a[0], scales, radii, base=b[0]) if len(cands) > 1 else 0.0
+        if best is None or c < best[0]:
+            best = (c, a[0], b[0])
+    return best[1], best[2], nfev
+
+
+def _shape_frames(m, frames, angles, base, scales, radii, drop_k):
+    """(T,) bool: the frames the shape solve uses (module docstring, "Bad frames")."""
+    if drop_k is None:
+        return np.ones(len(frames), bool)
+    cost = np.array([frame_cost(m, f.pts, angles[t], scales, radii, base=base[t])
+                     for t, f in enumerate(frames)])
+    return cost <= drop_k * np.median(cost)
 
 
 def _neighbours(angles, t, k, p):

@@ -46,6 +46,10 @@ from .full_body import MAJOR, joint_angle_errors, length_errors
 # rad/s: a plausible largest joint angular speed in a walk (the knee's swing peak is ~6)
 ANGULAR_SPEED = 8.0
 
+# fit_rom: a clip frame whose cost (90th percentile |skin distance|) is above this many times
+# the clip's median cost is left out of the shared-shape solve (fixed before any run)
+ROM_DROP_K = 2.0
+
 # issue 36: (every major joint in every frame, deg; segment lengths, %; skin median, mm)
 TARGETS = {"triplet": (5.0, 3.0, 3.0), "studio": (3.0, 2.0, 2.0)}
 
@@ -78,7 +82,7 @@ class WalkFit:
 def fit_walk(capture, *, every: int = 1, first: int = 0, last: int | None = None,
              max_points: int | None = None, angular_speed: float | None = ANGULAR_SPEED,
              shape: BodyShape | None = None, heading: float | None = None,
-             params: FullBodyFitParams | None = None) -> WalkFit:
+             starts: tuple = (), params: FullBodyFitParams | None = None) -> WalkFit:
     """Fit the full body to the system's points of every ``every``-th processed frame from
     ``first`` up to ``last`` (exclusive; default all) of ``capture``.
 
@@ -104,6 +108,11 @@ def fit_walk(capture, *, every: int = 1, first: int = 0, last: int | None = None
     heading : float, optional
         The direction the person faces (radians from +x, the system's world); by default
         the direction the points move in.
+    starts : sequence of (angles, base), optional
+        Further starts of each frame's first solve (:func:`~lsmta.body.full_fit.
+        fit_full_body`), e.g. ``(fit.angles, fit.base)`` of the walk-alone fit of the same
+        frames: each frame keeps the solve of the lower cost, so a start from another build
+        cannot flip a limb the other fit had right.
     params : FullBodyFitParams, optional
         ``floor`` is the system world's floor height (0: the tape-measured world's).
     """
@@ -130,7 +139,7 @@ def fit_walk(capture, *, every: int = 1, first: int = 0, last: int | None = None
     if heading is not None:
         heading = as_scalar(heading, "heading")
     t0 = time.perf_counter()
-    fit = fit_full_body(points, heading=heading, shape=shape, params=p)
+    fit = fit_full_body(points, heading=heading, shape=shape, starts=starts, params=p)
     return WalkFit(fit=fit, processed=processed,
                    frames=np.asarray(capture.frames)[processed],
                    n_points=np.array([len(p) for p in points]),
@@ -183,6 +192,7 @@ def rom_heading(points, *, stature: float, floor: float = 0.0) -> float:
 
 
 def fit_rom(capture, *, max_points: int | None = None, shape: BodyShape | None = None,
+            rest_start: bool = True, drop_k: float | None = ROM_DROP_K,
             params: FullBodyFitParams | None = None) -> RomFit:
     """Fit the full body over a range-of-motion clip's capture: the build from the system's
     points of movements that show the joint centres (issue 36, item 2).
@@ -192,7 +202,10 @@ def fit_rom(capture, *, max_points: int | None = None, shape: BodyShape | None =
     highest point; most frames stand upright); the clip starts standing still, so the
     heading comes from the first frame's points and the feet (:func:`rom_heading`); then every
     frame is fitted as a sequence (each warm-started from the previous, no temporal prior:
-    the clip's frames are far apart), the build shared.
+    the clip's frames are far apart), the build shared. A warm start can carry a flipped
+    limb into the next extreme, so by default each frame is also solved from the rest pose
+    and keeps the lower cost, and the frames still fitted badly are left out of the shape
+    solve (:mod:`lsmta.body.full_fit`, "Bad frames"; the fit's own residuals, no truth).
 
     Parameters
     ----------
@@ -204,8 +217,14 @@ def fit_rom(capture, *, max_points: int | None = None, shape: BodyShape | None =
     shape : BodyShape, optional
         A build to start from (its stature builds the template), e.g. the system's own
         walk fit's: the clip's far-apart frames then start nearer the person.
+    rest_start : bool
+        Also solve each frame from the rest pose (``FullBodyFitParams.rest_start``).
+    drop_k : float or None
+        ``FullBodyFitParams.drop_k`` (default :data:`ROM_DROP_K`, 2, fixed before any run);
+        None: every frame in the shape solve.
     params : FullBodyFitParams, optional
-        Its ``warm_start`` is set, ``temporal_sigma`` cleared.
+        Its ``warm_start``, ``rest_start`` and ``drop_k`` are set, ``temporal_sigma``
+        cleared.
     """
     p = FullBodyFitParams() if params is None else params
     if not isinstance(p, FullBodyFitParams):
@@ -230,7 +249,8 @@ def fit_rom(capture, *, max_points: int | None = None, shape: BodyShape | None =
     heading = rom_heading([capture.points_at(t)[0] for t in range(T)],
                           stature=start.stature, floor=p.floor)
     wf = fit_walk(capture, max_points=max_points, angular_speed=None, shape=start,
-                  heading=heading, params=replace(p, warm_start=True, temporal_sigma=None))
+                  heading=heading, params=replace(p, warm_start=True, temporal_sigma=None,
+                                                  rest_start=rest_start, drop_k=drop_k))
     return RomFit(walk_fit=wf, heading=heading, statures=statures)
 
 

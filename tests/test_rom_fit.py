@@ -102,6 +102,12 @@ def test_rom_heading_across_the_widest_axis_the_way_the_feet_point():
     assert abs(np.degrees(wf.rom_heading([flipped], stature=1700.0)) - 90.0) < 5.0
     with pytest.raises(ValueError, match="feet"):
         wf.rom_heading([body], stature=1700.0)
+    with pytest.raises(ValueError, match="stature"):
+        wf.rom_heading([pts], stature=0.0)
+    with pytest.raises(ValueError, match="points"):
+        wf.rom_heading([], stature=1700.0)
+    with pytest.raises(ValueError, match=r"points\[0\]"):
+        wf.rom_heading([pts[:, :2]], stature=1700.0)
 
 
 def test_bad_input_of_the_new_arguments():
@@ -111,6 +117,8 @@ def test_bad_input_of_the_new_arguments():
         ws.WalkSessionParams(rom_per_phase=-2)
     with pytest.raises(ValueError, match="rom_clip"):
         ws.WalkSessionParams(rom_per_phase=2, rom_clip=10)
+    with pytest.raises(ValueError, match="rom_per_phase"):   # a movement's frames twice
+        ws.WalkSessionParams(rom_per_phase=5, rom_clip=24)
     with pytest.raises(TypeError, match="fit_shape"):
         FullBodyFitParams(fit_shape=1)
     with pytest.raises(ValueError, match="stature"):

@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._validate import as_int, as_scalar
+from .._validate import as_array, as_int, as_scalar
 from ..body.full_fit import (
     BodyShape,
     FullBodyFit,
@@ -173,13 +173,18 @@ def rom_heading(points, *, stature: float, floor: float = 0.0) -> float:
     feet point: the side on which the points below the ankles (``z - floor < 0.045
     stature``) lie, summed over the frames, against those of the shanks (0.10-0.25
     stature)."""
-    first = np.asarray(points[0], float)
+    stature = as_scalar(stature, "stature", positive=True)
+    floor = as_scalar(floor, "floor")
+    if len(points) == 0:
+        raise ValueError("points: expected a non-empty sequence of (N, 3) arrays, got none")
+    points = [as_array(p, f"points[{t}]", shape=(None, 3), allow_nan=True)
+              for t, p in enumerate(points)]
+    first = points[0]
     xy = first[:, :2] - first[:, :2].mean(axis=0)
     _, vecs = np.linalg.eigh(xy.T @ xy)
     ahead = np.array([vecs[1, -1], -vecs[0, -1]])           # the wide axis turned by -90 deg
     toe = np.zeros(2)
     for p in points:
-        p = np.asarray(p, float)
         h = (p[:, 2] - floor) / stature
         low, mid = p[h < 0.045, :2], p[(h > 0.10) & (h < 0.25), :2]
         if len(low) >= 5 and len(mid) >= 5:

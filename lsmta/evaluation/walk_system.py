@@ -110,6 +110,9 @@ class WalkSessionParams:
             raise ValueError("rom_per_phase: expected 0 (no clip) or at least 2 frames per "
                              "movement, got 1")
         as_int(self.rom_clip, "rom_clip", minimum=24)
+        if self.rom_per_phase > self.rom_clip // 6:    # six movements: no frame twice
+            raise ValueError(f"rom_per_phase: expected at most rom_clip // 6 = "
+                             f"{self.rom_clip // 6} frames per movement, got {self.rom_per_phase}")
 
 
 @dataclass(frozen=True, eq=False)

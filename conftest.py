@@ -10,8 +10,8 @@ other tests, each group in its own order. A file missing from the list only runs
 nothing is skipped.
 """
 
-HEAVY = ("test_rig_refinement", "test_walk_full_fit", "test_rom_fit", "21_", "15_", "18_", "14_", "17_",
-         "13_", "01_", "03_", "08_", "test_walk_system", "20_", "07_", "test_full_fit",
+HEAVY = ("test_rig_refinement", "test_walk_full_fit", "test_rom_fit", "21_", "15_", "18_", "14_",
+         "17_", "13_", "01_", "03_", "08_", "test_walk_system", "20_", "07_", "test_full_fit",
          "test_systems", "19_", "test_cli")
 
 

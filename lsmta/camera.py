@@ -339,6 +339,15 @@ class Camera:
         xy[~front] = np.nan
         return xy
 
+    def in_lens(self, X) -> np.ndarray:
+        """Whether world points ``X`` ``(N, 3)`` (mm) lie in front of the camera and inside
+        its lens model's fold ``(N,)`` bool: past the fold :meth:`project` still gives a
+        pixel, but that pixel belongs to another ray."""
+        Xc = self.to_camera(X)
+        z = Xc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (z > 0) & self._unfolded(Xc[:, 0] / z, Xc[:, 1] / z)
+
     def rays(self, xy):
         """Viewing rays through pixel coordinates ``xy`` ``(N, 2)``.
 

@@ -130,6 +130,15 @@ def test_undistort_refuses_fold_over():
         cam.undistort([[0.7, 0.0]])
 
 
+def test_in_lens_inside_the_fold_and_in_front():
+    cam = Camera(f=1000, cx=0, cy=0, width=10, height=10, R=np.eye(3), C=np.zeros(3), k1=-0.5)
+    # the radial map x (1 - 0.5 x^2) turns back at x = 0.816 (normalised): beyond, a point
+    # still projects, onto a pixel of another ray
+    X = np.array([[0.5, 0.0, 1.0], [0.8, 0.0, 1.0], [0.9, 0.0, 1.0], [0.5, 0.0, -1.0]])
+    assert cam.in_lens(X).tolist() == [True, True, False, False]
+    assert cam.replace(k1=0.0).in_lens(X).tolist() == [True, True, True, False]
+
+
 def test_field_camera_for_every_other_row(rng):
     # notebook 00's recipe for interlaced cameras processed on one field (rows 0, 2, 4, ...)
     cam = random_camera(rng)

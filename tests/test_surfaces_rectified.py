@@ -57,6 +57,24 @@ def test_rectified_surface_lies_on_the_true_surface(pair):
     d = np.abs(depth - true_depth)
     assert np.isfinite(true_depth).mean() > 0.95
     assert np.nanmedian(d) < 4.0 and np.nanmean(d > 30.0) < 0.05
+    assert abs(np.nanmedian(depth - true_depth)) < 2.0        # no half-pixel bias
+
+
+def test_growth_stays_off_the_rectified_border(pair):
+    """Rectified pixels outside the left image are zero-filled; their step edge must give
+    no match: every match's left pixel lies a patch inside the image."""
+    cams, frame = pair
+    res = measure_surfaces(frame.images[:, None], cams, [0], sigma=1.0,
+                           params=SurfaceParams(method="rectified", template=0))[0]
+    point = triangulate(cams, np.stack([[[c.cx, c.cy]] for c in cams]),
+                        min_angle_deg=0.0).points[0]
+    rect = rectify_pair(cams[0], cams[1], working_point=point, depth_range=(0.8, 1.25))
+    res_xy = res.xy[rect.left]
+    xy = res_xy[np.isfinite(res_xy[:, 0])]
+    half = 4                                                  # the growth's 9 x 9 patch
+    w, h = cams[rect.left].image_size
+    assert len(xy) > 100
+    assert (xy.min(axis=0) >= half - 1).all() and (xy.max(axis=0) <= [w - half, h - half]).all()
 
 
 def test_rectified_method_bad_input(pair):

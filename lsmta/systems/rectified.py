@@ -13,9 +13,10 @@ exactly through :meth:`~lsmta.camera.Camera.project`, distortion included):
   the other is left, so images stay upright), z the mean of the two optical axes made
   orthogonal to x, y = z x x;
 * the principal distance is the mean of the two cameras'; the rectified images are the
-  original size; the working point (where the optical axes meet) sits at the centre row,
-  and its disparity is set so that the searched depths (``depth_range`` times the working
-  distance) give disparities from ``margin`` px up;
+  original height, wide enough to hold the searched depths of both views; the working
+  point (where the optical axes meet) sits at the centre row, and its disparity is set so
+  that the searched depths (``depth_range`` times the working point's depth) give
+  disparities from ``margin`` px up;
 * matches are mapped back to both cameras' original pixels and intersected
   (:func:`~lsmta.triangulation.triangulate`).
 
@@ -135,7 +136,9 @@ def rectify_pair(cam_a: Camera, cam_b: Camera, *, working_point, depth_range=(0.
                     -1).reshape(-1, 2)
     maps = []
     for view, k in enumerate((left, 1 - left)):
-        xy = cams[k].project(cams[k].C + _rays(rect, grid, view), behind="nan")
+        X = cams[k].C + _rays(rect, grid, view)
+        xy = cams[k].project(X, behind="nan")
+        xy[~cams[k].in_lens(X)] = np.nan          # past the lens model's fold: another ray's pixel
         maps.append(np.nan_to_num(xy, nan=-1.0).reshape(h, width, 2).astype(np.float32))
     return Rectification(**{**rect.__dict__, "maps": tuple(maps)})
 
@@ -204,15 +207,21 @@ def measure_rectified_pair(image_a, image_b, cam_a: Camera, cam_b: Camera, *, wo
     """
     rect = rectify_pair(cam_a, cam_b, working_point=working_point, depth_range=depth_range)
     left, right = warp(rect, image_a, image_b)
-    rect_mask = None
+    # grow only where the left view's rectified pixels come from its image, a patch inside
+    # the zero-filled border (its step edges would give false matches)
+    mm = rect.maps[rect.left]
+    inside = ((mm[..., 0] >= 0) & (mm[..., 0] <= cam_a.width - 1)
+              & (mm[..., 1] >= 0) & (mm[..., 1] <= cam_a.height - 1))
+    half = (DisparityParams() if params is None else params).grow.patch // 2
+    rect_mask = cv2.erode(inside.astype(np.uint8), np.ones((2 * half + 1,) * 2, np.uint8),
+                          borderValue=0).astype(bool)
     if masks is not None:
         m = np.asarray(masks[rect.left], bool)
         if m.shape != (cam_a.height, cam_a.width):
             raise ValueError(f"masks: expected two masks of shape "
                              f"{(cam_a.height, cam_a.width)}, got {m.shape}")
-        mm = rect.maps[rect.left]
-        rect_mask = cv2.remap(m.astype(np.uint8), mm[..., 0], mm[..., 1],
-                              cv2.INTER_NEAREST).astype(bool)
+        rect_mask &= cv2.remap(m.astype(np.uint8), mm[..., 0], mm[..., 1],
+                               cv2.INTER_NEAREST).astype(bool)
     try:
         res = measure_disparity(left, right, disparity_range=rect.disparity_range,
                                 mask=rect_mask, params=params)

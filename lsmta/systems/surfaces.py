@@ -95,9 +95,11 @@ class SurfaceParams:
         :class:`~lsmta.matching.DisparityParams`' defaults and ``max_sigma_xy``; the other
         fields above are not used), matches mapped back to the original pixels.
     rectified_depths : (float, float)
-        ``"rectified"`` only: the depths searched for seeds, as multiples of the working
-        distance (narrower than the growth's 0.6-1.6: a wide pair's disparities over that
-        range span more than the image, and the seeds' uniqueness test fails there).
+        ``"rectified"`` only: the depths searched, as multiples of the working point's
+        depth: they set the disparity range, so they bound both the seeds and the matches
+        kept (narrower than :func:`~lsmta.systems.rectified.rectify_pair`'s default
+        0.6-1.6: a wide pair's disparities over that range span more than the image, and
+        the seeds' uniqueness test fails there).
     """
 
     template: int = 1
@@ -114,7 +116,11 @@ class SurfaceParams:
     def __post_init__(self):
         if self.method not in ("grow", "rectified"):
             raise ValueError(f"method: expected 'grow' or 'rectified', got {self.method!r}")
-        lo, hi = self.rectified_depths
+        try:
+            lo, hi = (float(d) for d in self.rectified_depths)
+        except (TypeError, ValueError):
+            raise ValueError(f"rectified_depths: expected two numbers (near, far), got "
+                             f"{self.rectified_depths!r}") from None
         if not 0 < lo < hi:
             raise ValueError(f"rectified_depths: expected 0 < near < far, got "
                              f"{self.rectified_depths!r}")

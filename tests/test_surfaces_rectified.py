@@ -3,6 +3,7 @@ wide pair with known cameras, scored against the renderer's depth after the fact
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from conftest import smaller
 from lsmta.synth import Renderer, Scene, make_body, triplet_rig, walk
@@ -60,6 +61,29 @@ def test_rectified_surface_lies_on_the_true_surface(pair):
     assert abs(np.nanmedian(depth - true_depth)) < 2.0        # no half-pixel bias
 
 
+@pytest.mark.parametrize("geometry", ["row-affine", "shift"])
+def test_sgbm_started_lsm_lies_on_the_true_surface(pair, geometry):
+    """rectified_start="sgbm": LSM at SGBM's nodes; the accepted points lie on the renderer's
+    surface, and none on the background (flat, noise only) away from the silhouette."""
+    cams, frame = pair
+    res = measure_surfaces(frame.images[:, None], cams, [0], sigma=1.0,
+                           params=SurfaceParams(method="rectified", template=0,
+                                                rectified_start="sgbm",
+                                                rectified_geometry=geometry))[0]
+    kept = res.kept
+    ij = np.rint(res.xy[0, kept]).astype(int)
+    true_depth = frame.depth[0][ij[:, 1], ij[:, 0]]
+    body = np.isfinite(frame.depth[0])
+    assert np.isfinite(true_depth).sum() > 0.5 * body[::4, ::4].sum()   # 394 / 453 of 739
+    off = ndimage.distance_transform_edt(~body)[ij[:, 1], ij[:, 0]]
+    assert off.max() < 12.0                     # at most a patch outside the silhouette
+    depth = (res.intersection.points[kept] - cams[0].C) @ cams[0].R[2]
+    d = depth - true_depth
+    assert np.nanmedian(np.abs(d)) < 4.0 and np.nanmean(np.abs(d) > 30.0) < 0.05
+    assert abs(np.nanmedian(d)) < 2.0
+    assert np.median(res.sigma_xy[1, kept, 0]) < 0.1                   # disparity sigma, px
+
+
 def test_growth_stays_off_the_rectified_border(pair):
     """Rectified pixels outside the left image are zero-filled; their step edge must give
     no match: every match's left pixel lies a patch inside the image."""
@@ -82,6 +106,10 @@ def test_rectified_method_bad_input(pair):
     videos = frame.images[:, None]
     with pytest.raises(ValueError, match="method"):
         SurfaceParams(method="sgbm")
+    with pytest.raises(ValueError, match="rectified_start"):
+        SurfaceParams(rectified_start="bm")
+    with pytest.raises(ValueError, match="rectified_geometry"):
+        SurfaceParams(rectified_geometry="affine")
     with pytest.raises(ValueError, match="rectified_depths"):
         SurfaceParams(rectified_depths=(1.2, 0.8))
     with pytest.raises(ValueError, match="expected 2 cameras"):

@@ -37,7 +37,9 @@ where LSM converges and passes every threshold. :func:`surface_census` says wher
 nodes were lost.
 
 ``SurfaceParams(method="rectified")`` measures a two-camera group on its rectified images
-instead (:mod:`lsmta.systems.rectified`); the default is unchanged.
+instead (:mod:`lsmta.systems.rectified`); the default is unchanged. With
+``rectified_start="sgbm"`` LSM starts at OpenCV SGBM's disparities instead of growing from
+seeds (``experiments/surface_rectified_demo.py``).
 """
 
 from __future__ import annotations
@@ -100,6 +102,13 @@ class SurfaceParams:
         kept (narrower than :func:`~lsmta.systems.rectified.rectify_pair`'s default
         0.6-1.6: a wide pair's disparities over that range span more than the image, and
         the seeds' uniqueness test fails there).
+    rectified_start : {"grow", "sgbm"}
+        ``"rectified"`` only: ``"grow"`` (default) grows the disparities from seeds;
+        ``"sgbm"`` starts LSM at every node where OpenCV's SGBM has a disparity (no growth;
+        a node counts only where LSM converges and passes the thresholds).
+    rectified_geometry : {"row-affine", "shift"}
+        ``"rectified"`` only: the LSM's geometric model (``"shift"``: the disparity alone,
+        fewer unknowns for blurred, weakly textured patches).
     """
 
     template: int = 1
@@ -112,6 +121,8 @@ class SurfaceParams:
     texture_rule: str = "spread"
     method: str = "grow"
     rectified_depths: tuple = (0.8, 1.25)
+    rectified_start: str = "grow"
+    rectified_geometry: str = "row-affine"
 
     def __post_init__(self):
         if self.method not in ("grow", "rectified"):
@@ -124,6 +135,12 @@ class SurfaceParams:
         if not 0 < lo < hi:
             raise ValueError(f"rectified_depths: expected 0 < near < far, got "
                              f"{self.rectified_depths!r}")
+        if self.rectified_start not in ("grow", "sgbm"):
+            raise ValueError(f"rectified_start: expected 'grow' or 'sgbm', got "
+                             f"{self.rectified_start!r}")
+        if self.rectified_geometry not in ("row-affine", "shift"):
+            raise ValueError(f"rectified_geometry: expected 'row-affine' or 'shift', got "
+                             f"{self.rectified_geometry!r}")
         if self.texture_rule not in ("precision", "spread"):
             raise ValueError(f"texture_rule: expected 'precision' or 'spread', got "
                              f"{self.texture_rule!r}")
@@ -254,13 +271,15 @@ def _rectified_surfaces(v, cams, frames, p: SurfaceParams, progress: bool) -> di
     if not np.isfinite(point).all():
         raise ValueError("cameras: their optical axes do not meet; cannot find the working "
                          "volume")
-    grow = replace(DisparityParams().grow_params(), thresholds=replace(
-        DisparityParams().grow_params().thresholds, max_sigma_xy=p.max_sigma_xy))
+    base = DisparityParams().grow_params()
+    grow = replace(base, geometry=p.rectified_geometry,
+                   thresholds=replace(base.thresholds, max_sigma_xy=p.max_sigma_xy))
     out: dict[int, SurfaceResult] = {}
     for f in tqdm(frames, desc="surfaces", disable=not progress):
         try:
             r = measure_rectified_pair(v[0, f], v[1, f], cams[0], cams[1], working_point=point,
                                        depth_range=p.rectified_depths,
+                                       start=p.rectified_start,
                                        params=DisparityParams(grow=grow))
         except NoSeedsError:
             warnings.warn(f"measure_surfaces: no seed found in frame {f} on the rectified "

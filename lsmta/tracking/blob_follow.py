@@ -275,7 +275,7 @@ def follow_blobs(frames, start_xy, step, *, params: FollowParams | None = None
             status_new[lost[got]] = FollowStatus.REACQUIRED
         ok = np.flatnonzero(np.isfinite(new[:, 0]))
         own[ok] = dot_contrast(imgs[t + 1], new[ok], radius=p.radius)
-        least[ok] = np.maximum(p.min_contrast, p.keep_contrast * own[ok])
+        least[ok] = np.maximum(p.min_contrast, p.keep_contrast * np.nan_to_num(own[ok]))
         vel[ok] = np.where((last[ok] == t)[:, None], new[ok] - xy[t, ok], 0.0)
         last[ok] = t + 1
         xy[t + 1] = new

@@ -92,6 +92,25 @@ def render_room(cam, floor_tex, wall_tex, shift):
     return out.reshape(cam.height, cam.width).astype(np.uint8)
 
 
+def tiny_studio_walk(*, scale: float, n_frames: int, frames=None, rom_per_phase: int = 0):
+    """A tiny generated studio walk through the LSMTA system, as the walk tests use it (seed
+    36, 60 bar positions, 12 seeds per surface; no arm model): ``(session, capture,
+    system params)``. ``scale``, ``n_frames``, ``frames`` and ``rom_per_phase`` are what the
+    tests choose differently."""
+    from lsmta.evaluation import walk_system as ws
+    from lsmta.systems import BodySystemParams, SurfaceParams, capture_walk
+
+    params = ws.WalkSessionParams(rig="studio", scale=scale, n_bar=60, n_heldout=12,
+                                  level_places=0, rom_per_phase=rom_per_phase)
+    session = ws.walk_session(seed=36, n_frames=n_frames, params=params)
+    system = BodySystemParams(density_every=2, reject_k=4.0, arm=None,
+                              surface=SurfaceParams(n_seeds=12))
+    cap = capture_walk(session.videos, session.bar_videos, session.bar_length,
+                       session.nominal, fps=session.fps, progress=False, frames=frames,
+                       params=system)
+    return session, cap, system
+
+
 def pytest_collection_modifyitems(config, items):
     """Every notebook run (nbmake) is slow: ``-m "not slow"`` leaves the notebooks out."""
     for item in items:

@@ -6,12 +6,13 @@ scored after the fact."""
 import numpy as np
 import pytest
 
+from conftest import tiny_studio_walk
 from lsmta.body.full_fit import BodyShape, FullBodyFitParams
 from lsmta.evaluation import walk_full_fit as wf
 from lsmta.evaluation import walk_system as ws
 from lsmta.evaluation.full_body import length_errors
 from lsmta.synth import range_of_motion, walk
-from lsmta.systems import BodySystemParams, SurfaceParams, capture_recording, capture_walk
+from lsmta.systems import capture_recording
 
 
 @pytest.fixture(scope="module")
@@ -19,13 +20,7 @@ def tiny_rom():
     # the studio at 3/4 size (as tests/test_walk_full_fit.py), three walk frames and two
     # frames of each movement of the clip (standing, the movement's extreme); the capture
     # and the fits see nothing but the videos, the bar and the tape-measured cameras
-    params = ws.WalkSessionParams(rig="studio", scale=0.75, n_bar=60, n_heldout=12,
-                                  level_places=0, rom_per_phase=2)
-    session = ws.walk_session(seed=36, n_frames=3, params=params)
-    system = BodySystemParams(density_every=2, reject_k=4.0, arm=None,
-                              surface=SurfaceParams(n_seeds=12))
-    cap = capture_walk(session.videos, session.bar_videos, session.bar_length,
-                       session.nominal, fps=session.fps, progress=False, params=system)
+    session, cap, system = tiny_studio_walk(scale=0.75, n_frames=3, rom_per_phase=2)
     gap = float(np.median(np.diff(session.rom_frames)))
     rom = capture_recording(session.rom_videos, cap.calibration.cameras,
                             fps=session.fps / gap, calibration=cap.calibration,

@@ -4,12 +4,12 @@
 import numpy as np
 import pytest
 
+from conftest import tiny_studio_walk
 from lsmta.body.full_fit import FullBodyFitParams
 from lsmta.evaluation import walk_full_fit as wf
 from lsmta.evaluation import walk_system as ws
 from lsmta.evaluation.body_system import Alignment
 from lsmta.evaluation.full_body import MAJOR
-from lsmta.systems import BodySystemParams, SurfaceParams, capture_walk
 
 
 @pytest.fixture(scope="module")
@@ -18,13 +18,7 @@ def tiny_fit():
     # stature cannot be measured), three frames; the fit sees nothing but the capture. The
     # points are sparser than at full size: the top of the head needs 2 neighbours within
     # 30 mm, not 5; 400 points a frame keep the fit quick
-    params = ws.WalkSessionParams(rig="studio", scale=0.75, n_bar=60, n_heldout=12,
-                                  level_places=0)
-    session = ws.walk_session(seed=36, n_frames=3, params=params)
-    cap = capture_walk(session.videos, session.bar_videos, session.bar_length,
-                       session.nominal, fps=session.fps, progress=False,
-                       params=BodySystemParams(density_every=2, reject_k=4.0,
-                                               surface=SurfaceParams(n_seeds=12)))
+    session, cap, _ = tiny_studio_walk(scale=0.75, n_frames=3)
     fit = wf.fit_walk(cap, max_points=400,
                       params=FullBodyFitParams(n_rounds=2, min_neighbours=2))
     return session, cap, fit

@@ -5,12 +5,13 @@ import warnings
 import numpy as np
 import pytest
 
+from conftest import tiny_studio_walk
 from lsmta.camera import scaled_camera
 from lsmta.evaluation import walk_system as ws
 from lsmta.synth import Renderer, Scene, make_body, studio_rig, triplet_rig, walk
 from lsmta.synth.calibration import bar_track, poor_guess, render_bar_images
 from lsmta.synth.surface import distance_to_body
-from lsmta.systems import BodySystemParams, SurfaceParams, capture_walk, view_groups
+from lsmta.systems import BodySystemParams, capture_walk, view_groups
 from lsmta.systems.rig import calibrate_rig
 
 
@@ -68,13 +69,7 @@ def test_walk_session_bad_input():
 def tiny_walk():
     # the cheapest run that still calibrates the studio well: half-size images, 60 bar
     # positions, 3 processed frames of 4 (frames= given), 12 seeds per surface
-    params = ws.WalkSessionParams(rig="studio", scale=0.5, n_bar=60, n_heldout=12,
-                                  level_places=0)
-    session = ws.walk_session(seed=36, n_frames=4, params=params)
-    cap = capture_walk(session.videos, session.bar_videos, session.bar_length,
-                       session.nominal, fps=session.fps, progress=False, frames=slice(1, 4),
-                       params=BodySystemParams(density_every=2, reject_k=4.0,
-                                               surface=SurfaceParams(n_seeds=12)))
+    session, cap, _ = tiny_studio_walk(scale=0.5, n_frames=4, frames=slice(1, 4))
     return session, cap
 
 

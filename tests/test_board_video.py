@@ -9,10 +9,12 @@ import pytest
 from lsmta.calibration.charuco import CharucoBoard, CharucoCorners
 from lsmta.camera import Camera
 from lsmta.real.board_video import (
+    CornerTracks,
     at_common_time,
     board_geometry,
     caliscope_convention,
     corner_differences,
+    corner_jumps,
     swept_window,
     track_board_corners,
 )
@@ -120,3 +122,32 @@ def test_small_pieces():
     assert np.all(moved[0, 1, :, 0] == 1.0) and np.all(moved[0, [0, 2]] == 0.0)
     d = corner_differences(moved, xy)
     assert d.shape == (2, 3, 12) and d[0, 1, 0] == 1.0 and d.sum() == 12.0
+
+
+def test_corner_jumps_sorts_far_positions_by_the_lattice():
+    # one camera, two frames, the board seen through a known homography; in frame 1 four
+    # tracks are moved: onto their diagonal neighbour, an adjacent corner, 3 px off (own),
+    # and half a square off (elsewhere)
+    grid = BOARD.corners[:, :2] / BOARD.square_mm
+    h = np.array([[40.0, 3.0, 100.0], [-2.0, 38.0, 80.0], [1e-3, 2e-3, 1.0]])
+    img = cv2.perspectiveTransform(grid[None], h)[0]
+    det = np.stack([img, img])[None]                                  # (1, 2, C, 2)
+    on = cv2.perspectiveTransform(np.array([[grid[0] + [1, 1], grid[1] + [1, 0],
+                                             grid[2] + [0.5, 0.5]]]), h)[0]
+    trk = det.copy()
+    trk[0, 1, 0], trk[0, 1, 1], trk[0, 1, 2] = on
+    trk[0, 1, 3] += [3.0, 0.0]
+    nan = np.full_like(det, np.nan)
+    tracks = CornerTracks(detected=det, start=np.array([0]), window=np.zeros((1, 4), int),
+                          long={"lsmta": trk, "klt": det.copy()}, step={"lsmta": nan, "klt": nan},
+                          seconds={})
+    j = corner_jumps(tracks, BOARD)
+    assert (j.far, j.diagonal, j.other_corner, j.own, j.elsewhere) == (4, 1, 1, 1, 1)
+    assert corner_jumps(tracks, BOARD, tracker="klt").far == 0
+    assert corner_jumps(tracks, BOARD, far_px=5.0).own == 0          # 3 px is no longer far
+    with pytest.raises(ValueError, match="far_px"):
+        corner_jumps(tracks, BOARD, far_px=-1.0)
+    with pytest.raises(ValueError, match="tol"):
+        corner_jumps(tracks, BOARD, tol=0.5)
+    with pytest.raises(ValueError, match="mode, tracker"):
+        corner_jumps(tracks, BOARD, mode="steps")

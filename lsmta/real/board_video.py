@@ -134,6 +134,83 @@ class CornerTracks:
         return e
 
 
+@dataclass(frozen=True)
+class CornerJumps:
+    """Where a tracker's far-off positions lie on the board (:func:`corner_jumps`).
+
+    Attributes
+    ----------
+    far : int
+        Positions more than ``far_px`` from their detected corner (frames with >= 4 corners).
+    own : int
+        Of those, within ``tol`` squares of their own corner (off by the board's scale only).
+    diagonal : int
+        On a diagonal neighbour (one square along both board axes): the corner that looks
+        the same, since the four squares about it are coloured alike.
+    other_corner : int
+        On any other corner of the board's lattice (the adjacent ones included: their
+        squares are coloured the other way round).
+    elsewhere : int
+        Farther than ``tol`` squares from every lattice point: lost, not jumped.
+    """
+
+    far: int
+    own: int
+    diagonal: int
+    other_corner: int
+    elsewhere: int
+
+
+def corner_jumps(tracks: CornerTracks, board: CharucoBoard, *, mode: str = "long",
+                 tracker: str = "lsmta", far_px: float = 2.0, tol: float = 0.2) -> CornerJumps:
+    """Sort a tracker's positions more than ``far_px`` off their corner by where they lie.
+
+    Each far position is mapped into board coordinates (squares) by the homography of the
+    corners detected in its camera and frame; its offset from its own corner is then either
+    near a whole number of squares (a jump to another corner of the lattice, or its own) or
+    not (the track is lost on something else).
+
+    Parameters
+    ----------
+    tracks : CornerTracks
+    board : CharucoBoard
+        The board the corners belong to (their charuco ids index ``board.corners``).
+    mode, tracker : str
+        As in :meth:`CornerTracks.errors`.
+    far_px : float
+        Distance to the detection beyond which a position counts as far, px.
+    tol : float
+        Largest distance from a lattice point, in squares, to count as on it.
+    """
+    if not (np.isfinite(far_px) and far_px > 0):
+        raise ValueError(f"far_px: expected a positive distance in px, got {far_px!r}")
+    if not (0 < tol < 0.5):
+        raise ValueError(f"tol: expected a fraction of a square in (0, 0.5), got {tol!r}")
+    e = tracks.errors(mode, tracker)
+    xy = {"long": tracks.long, "step": tracks.step}[mode][tracker]
+    grid = board.corners[:, :2] / board.square_mm
+    counts = {"far": 0, "own": 0, "diagonal": 0, "other_corner": 0, "elsewhere": 0}
+    for k, t, c in np.argwhere(e > far_px):
+        seen = np.isfinite(tracks.detected[k, t, :, 0])
+        if seen.sum() < 4:
+            continue
+        h, _ = cv2.findHomography(tracks.detected[k, t, seen], grid[seen])
+        if h is None:
+            continue
+        off = cv2.perspectiveTransform(xy[k, t, c][None, None], h)[0, 0] - grid[c]
+        steps = np.round(off)
+        counts["far"] += 1
+        if np.abs(off - steps).max() >= tol:
+            counts["elsewhere"] += 1
+        elif not steps.any():
+            counts["own"] += 1
+        elif np.all(np.abs(steps) == 1):
+            counts["diagonal"] += 1
+        else:
+            counts["other_corner"] += 1
+    return CornerJumps(**counts)
+
+
 def swept_window(xy, size, *, margin: int = MARGIN) -> np.ndarray:
     """``(4,)`` ``x0, y0, x1, y1`` bounding the finite points of ``xy (..., 2)`` plus
     ``margin`` px, inside an image of ``size = (width, height)``."""

@@ -50,11 +50,16 @@ def evaluate(candidate: dict, pairs: dict) -> dict:
     for name, pair in pairs.items():
         truth, scored = pair.grid(4)
         lo, hi = pair.disparity_range
-        d = measure_disparity(pair.left, pair.right, disparity_range=(lo, hi), seeds="sgbm",
-                              params=params_of(candidate)).disparity
+        res = measure_disparity(pair.left, pair.right, disparity_range=(lo, hi), seeds="sgbm",
+                                params=params_of(candidate))
+        d = res.disparity
         sg = peers.stereo_sgbm(pair.left, pair.right, min_disparity=int(lo),
                                num_disparities=int(hi - lo)).disparity[::4, ::4]
-        out[name] = {"ours": scores(d, truth, scored), "sgbm": scores(sg, truth, scored)}
+        out[name] = {"ours": scores(d, truth, scored), "sgbm": scores(sg, truth, scored),
+                     # why SGBM's nodes were lost: LSM's outcome at each try (patch, retry)
+                     "lsm_at_sgbm_nodes": dict(res.grown.attempt_census),
+                     "nodes": dict(res.grown.node_census),
+                     "grown_after": sum(len(g) for _, g in res.regrown)}
     passes = all(s["ours"]["median"] < s["sgbm"]["median"]
                  and s["ours"]["bad1"] <= 0.5 * s["sgbm"]["bad1"] for s in out.values())
     return {"candidate": candidate, "scores": out, "passes": bool(passes),
@@ -77,6 +82,11 @@ def main(argv=None):
     passing = [r for r in rows if r["passes"]]
     chosen = max(passing, key=lambda r: r["min_density"])["candidate"] if passing else None
     print("chosen:", chosen)
+    for r in rows:
+        if r["candidate"] == chosen:
+            for name, sc in r["scores"].items():
+                print(f"{name}: LSM at SGBM's nodes {sc['nodes']}, attempts "
+                      f"{sc['lsm_at_sgbm_nodes']}; grown afterwards {sc['grown_after']}")
     write_json(args.out, {"tuning_pairs": list(TUNING), "held_out_pairs": list(HELD_OUT),
                           "truth": "Middlebury ground-truth disparity (tuning pairs only)",
                           "rows": rows, "chosen": chosen})

@@ -15,7 +15,7 @@ and per view group (cam01+cam02, cam03+cam04):
   original pixels and intersected the same way: points and median residual, CPU time;
 * a variant of ours with shift-only LSM (patch 15, retry 9, 30 iterations, no shape
   parameters: fewer unknowns for blurred, weakly textured patches);
-* SGBM-started LSM (:func:`lsmta.systems.rectified.refine_disparities`): the growth's LSM,
+* SGBM-started LSM (:func:`lsmta.matching.refine_disparities`): the growth's LSM,
   constrained to the row, shift-only and row-affine, started at SGBM's disparity at every
   textured node inside the rectified motion mask, no growth; a node counts where LSM
   converges and passes the thresholds: nodes started, accepted, points, median disparity
@@ -48,14 +48,13 @@ import numpy as np
 
 from lsmta.data import POSE2SIM_VIDEOS
 from lsmta.io import read_videos
-from lsmta.matching import DisparityParams, LSMParams, Status, lsm, peers
+from lsmta.matching import DisparityParams, LSMParams, Status, lsm, peers, refine_disparities
 from lsmta.report import write_json
 from lsmta.systems import SurfaceParams, measure_surfaces, view_groups
 from lsmta.systems.rectified import (
     NoSeedsError,
     measure_rectified_pair,
     rectify_pair,
-    refine_disparities,
     to_original,
     warp,
 )
@@ -154,7 +153,7 @@ def run_group(v0, cams, masks, template: int, params: SurfaceParams) -> dict:
 
 def sgbm_started(left, right, d, rmask, rect, cams, mask, template, *, geometry) -> dict:
     """SGBM-started LSM: the growth's LSM (``geometry``) at SGBM's nodes ``d`` inside the
-    rectified motion mask ``rmask`` (:func:`lsmta.systems.rectified.refine_disparities`),
+    rectified motion mask ``rmask`` (:func:`lsmta.matching.refine_disparities`),
     the accepted nodes intersected."""
     p = DisparityParams(grow=replace(DisparityParams().grow, geometry=geometry))
     t0 = time.process_time()

@@ -75,6 +75,12 @@ def test_compare_on_pair_scores_all_methods_on_the_same_nodes():
         s = run.scores[method]
         assert s["n"] == int((scored & np.isfinite(m)).sum())
     assert run.scores["ours"]["density"] > 0.3 and run.scores["ours"]["bad1"] < 0.1
+    start = run.scores["ours, SGBM start"]
+    assert start["density"] > 0.3 and start["bad1"] < 0.1
     assert set(run.targets()) == {"median", "bad1", "density", "time"}
+    assert set(run.targets(method="ours, SGBM start")) == {"median", "bad1", "density", "time"}
+    assert run.ratio("ours") == run.time_ratio > 0 and run.ratio("BM", cpu=False) > 0
+    with pytest.raises(ValueError, match="method"):
+        run.targets(method="BM")
     with pytest.raises(ValueError, match="repeats"):
         stereo.compare_on_pair(pair, repeats=0)

@@ -9,7 +9,8 @@ frame into 3-D surface points; ``backdrop_mask`` finds an object in front of a d
 (a ``template_mask`` for matching next to its silhouette). Beyond the paper: ``mpgc``
 matches one template in all search images jointly under the epipolar condition (Gruen &
 Baltsavias 1988; ``RectifiedPair``, ``CameraGeometry``), ``grow_joint`` grows that way, and
-``measure_disparity`` gives the dense disparity of a rectified pair; ``symmetric_corners``
+``measure_disparity`` gives the dense disparity of a rectified pair (``seeds="sgbm"``: started
+from OpenCV SGBM's disparities, ``sgbm_start``, ``refine_disparities``); ``symmetric_corners``
 finds chessboard corners by the point symmetry of their neighbourhood.
 
 Every matcher takes its settings as one frozen dataclass, ``params=``: ``LSMParams`` (``lsm``,
@@ -19,7 +20,7 @@ Every matcher takes its settings as one frozen dataclass, ``params=``: ``LSMPara
 """
 
 from .correlation import CorrelationResult, CorrelationStatus, correlation_search
-from .disparity import DisparityParams, DisparityResult, measure_disparity
+from .disparity import DisparityParams, DisparityResult, measure_disparity, refine_disparities
 from .filters import NeighbourhoodCheck, neighbourhood_filter
 from .grow import GrowParams, GrowResult, grow_joint, grow_matches
 from .lsm import (
@@ -35,6 +36,7 @@ from .lsm import (
 from .masks import backdrop_mask
 from .mpgc import CameraGeometry, ConstrainedResult, RectifiedPair, mpgc
 from .multi import lsm_multi
+from .refine import refine_at_nodes, sgbm_start
 from .seeds import Seeds, find_disparity_seeds, find_seeds
 from .spline import SplineImage
 from .surface import MeasureSurfaceParams, SurfaceResult, enhance_contrast, measure_surface
@@ -49,5 +51,5 @@ __all__ = [
     "enhance_contrast",
     "find_disparity_seeds", "find_seeds", "grow_joint", "grow_matches", "lsm", "lsm_multi",
     "measure_disparity", "measure_surface", "mpgc", "neighbourhood_filter",
-    "symmetric_corners",
+    "refine_at_nodes", "refine_disparities", "sgbm_start", "symmetric_corners",
 ]

@@ -17,6 +17,16 @@ the left image. Three stages:
 4. the grid: disparities, their standard deviations and ``sigma0`` as ``(rows, cols)``
    arrays; matches outside ``disparity_range`` are dropped.
 
+Started from SGBM instead (``seeds="sgbm"``, issue #33): OpenCV SGBM's disparity at every
+node starts the growth's LSM there (:func:`~lsmta.matching.refine.refine_at_nodes`); a node
+counts only where the adjustment converges and passes the growth's thresholds, SGBM's value
+is never kept; then the growth continues from the accepted nodes that border the nodes still
+open into them (``sgbm_fill``). Its settings (``sgbm_grow``: the defaults below with a texture
+floor of 1 grey level; ``sgbm_fill="unmeasured"``) were chosen on Art and Teddy by the rule
+of ``experiments/dense_sgbm_tuning.py``, Cones and Tsukuba held out (notebook 16). It is an
+option, not the default: denser than the automatic seeds on all four pairs, still below
+SGBM's density, its share > 1 px up to 0.16 points higher on two of them.
+
 The defaults (:class:`DisparityParams`) were chosen on Middlebury "Cones" (notebook 16), then
 the only real pair with ground truth in the project, so its numbers are not an independent
 test of them; Teddy, Art and Tsukuba were added later and are held out (nothing was chosen
@@ -46,6 +56,7 @@ from .._validate import as_int
 from .grow import GrowParams, GrowResult, grow_matches
 from .lsm import LSMThresholds, _params
 from .mpgc import RectifiedPair
+from .refine import refine_at_nodes, sgbm_start
 from .seeds import Seeds, find_disparity_seeds
 from .spline import check_image
 
@@ -87,9 +98,14 @@ class DisparityResult:
         return float(np.isfinite(self.disparity).mean())
 
 
+#: where the growth continues after LSM at SGBM's nodes (:attr:`DisparityParams.sgbm_fill`)
+SGBM_FILLS = ("unmeasured", "sgbm-empty", "none")
 #: the growth's defaults for a rectified pair (see the module docstring)
 _GROW = GrowParams(step=4, patch=9, retry_patch=(5,), geometry="row-affine", method="inverse",
                    max_iter=15, partial=True)
+#: the growth's settings started from SGBM, chosen on the tuning pairs Art and Teddy by the rule
+#: of experiments/dense_sgbm_tuning.py (Cones and Tsukuba held out)
+_SGBM_GROW = replace(_GROW, min_texture=1.0)
 
 
 @dataclass(frozen=True)
@@ -115,12 +131,21 @@ class DisparityParams:
     reseed_gap : int
         A node is unreached more than this many nodes (city-block distance) from every
         measured node.
+    sgbm_grow : GrowParams, optional
+        The growth's settings when started from SGBM (``seeds="sgbm"``); None: ``grow``.
+        Default: ``grow``'s defaults with ``min_texture=1`` (chosen on Art and Teddy,
+        ``experiments/dense_sgbm_tuning.py``).
+    sgbm_fill : {"unmeasured", "sgbm-empty", "none"}
+        Started from SGBM, where the growth continues from the accepted nodes: into every
+        node still without a disparity, only into the nodes where SGBM had none, or nowhere.
     """
 
     grow: GrowParams = _GROW
     n_seeds: int = 30
     reseed_rounds: int = 1
     reseed_gap: int = 2
+    sgbm_grow: GrowParams | None = _SGBM_GROW
+    sgbm_fill: str = "unmeasured"
 
     def __post_init__(self):
         if not isinstance(self.grow, GrowParams):
@@ -129,18 +154,25 @@ class DisparityParams:
         object.__setattr__(self, "reseed_rounds", as_int(self.reseed_rounds, "reseed_rounds",
                                                          minimum=0))
         object.__setattr__(self, "reseed_gap", as_int(self.reseed_gap, "reseed_gap"))
+        if self.sgbm_grow is not None and not isinstance(self.sgbm_grow, GrowParams):
+            raise TypeError(f"sgbm_grow: expected a GrowParams or None, got "
+                            f"{type(self.sgbm_grow).__name__}")
+        if not isinstance(self.sgbm_fill, str) or self.sgbm_fill not in SGBM_FILLS:
+            raise ValueError(f"sgbm_fill: expected one of {SGBM_FILLS}, got {self.sgbm_fill!r}")
 
-    def grow_params(self) -> GrowParams:
-        """``grow`` with its thresholds: given, or the defaults above at its ``step``."""
-        if self.grow.thresholds is not None:
-            return self.grow
-        return replace(self.grow, thresholds=LSMThresholds(
-            max_displacement=float(self.grow.step), max_sigma_xy=0.2, scale_range=(0.5, 2.0),
+    def grow_params(self, *, sgbm: bool = False) -> GrowParams:
+        """``grow`` (``sgbm_grow`` with ``sgbm`` if given) with its thresholds: given, or the
+        defaults above at its ``step``."""
+        g = self.sgbm_grow if sgbm and self.sgbm_grow is not None else self.grow
+        if g.thresholds is not None:
+            return g
+        return replace(g, thresholds=LSMThresholds(
+            max_displacement=float(g.step), max_sigma_xy=0.2, scale_range=(0.5, 2.0),
             max_shear=0.5))
 
 
-def measure_disparity(left, right, *, disparity_range, seeds: Seeds | None = None, mask=None,
-                      template_mask=None,
+def measure_disparity(left, right, *, disparity_range, seeds: Seeds | str | None = None,
+                      mask=None, template_mask=None,
                       params: DisparityParams | None = None) -> DisparityResult:
     """Dense disparities of a rectified pair by constrained region growing.
 
@@ -151,8 +183,12 @@ def measure_disparity(left, right, *, disparity_range, seeds: Seeds | None = Non
     disparity_range : (int, int)
         Smallest and largest disparity, pixels: where the seeds are searched, and matches
         outside it are dropped.
-    seeds : Seeds, optional
-        Seeds to start from instead (``xy`` (2, S, 2): left and right positions).
+    seeds : Seeds or "sgbm", optional
+        Seeds to start from instead (``xy`` (2, S, 2): left and right positions); or
+        ``"sgbm"``: LSM at every node where OpenCV's SGBM has a disparity, started there
+        (:func:`~lsmta.matching.refine.refine_at_nodes`, settings ``params.sgbm_grow``),
+        then growth from the accepted nodes (``params.sgbm_fill``); a node counts only
+        where the adjustment accepts it, SGBM's value is never kept.
     mask, template_mask : (H, W) bool arrays, optional
         Where in the left image to grow, and its pixels on the object (see
         :func:`~lsmta.matching.grow.grow_matches`).
@@ -172,6 +208,10 @@ def measure_disparity(left, right, *, disparity_range, seeds: Seeds | None = Non
     if not 0 <= lo < hi:
         raise ValueError(f"disparity_range: expected 0 <= smallest < largest (pixels), got "
                          f"{disparity_range}")
+    if isinstance(seeds, str) and seeds == "sgbm":
+        return _from_sgbm(f, g, (lo, hi), mask, template_mask, p)
+    if not (seeds is None or isinstance(seeds, Seeds)):
+        raise ValueError(f"seeds: expected None, a Seeds or 'sgbm', got {seeds!r}")
     automatic = seeds is None
     if automatic:
         seeds = find_disparity_seeds(f, g, disparity_range=disparity_range, n_seeds=p.n_seeds)
@@ -200,6 +240,67 @@ def measure_disparity(left, right, *, disparity_range, seeds: Seeds | None = Non
             break
     return DisparityResult(disparity=grid[0], sigma=grid[1], sigma0=grid[2], step=grow.step,
                            seeds=seeds, grown=grown, regrown=tuple(regrown))
+
+
+def refine_disparities(left, right, start, *, disparity_range, mask=None, template_mask=None,
+                       params: DisparityParams | None = None) -> DisparityResult:
+    """LSM of a rectified pair at every node with a starting disparity (e.g. SGBM's,
+    :func:`~lsmta.matching.refine.sgbm_start`), no growth: a node not started is not measured
+    (:func:`~lsmta.matching.refine.refine_at_nodes` with ``params.grow_params()``).
+
+    Parameters
+    ----------
+    left, right : (H, W) arrays
+        The rectified pair.
+    start : (rows, cols) array
+        Starting disparities at the nodes ``(c * step, r * step)``, px (NaN: not tried).
+    disparity_range : (float, float)
+        Matches outside it are dropped, px.
+    mask, template_mask : (H, W) bool arrays, optional
+        Nodes to try (read at the node's pixel); left pixels on the object.
+    params : DisparityParams, optional
+
+    Returns
+    -------
+    DisparityResult
+        ``seeds`` holds the started nodes (``disparity`` their start), ``grown`` the accepted
+        ones.
+    """
+    grow = _params(params, DisparityParams).grow_params()
+    lo, hi = (float(d) for d in disparity_range)
+    seeds, refined = refine_at_nodes(left, right, start, disparity_range=(lo, hi), grow=grow,
+                                     mask=mask, template_mask=template_mask)
+    grid = [np.full(refined.grid_shape, np.nan) for _ in range(3)]
+    _put(grid, refined, lo, hi)
+    return DisparityResult(disparity=grid[0], sigma=grid[1], sigma0=grid[2], step=grow.step,
+                           seeds=seeds, grown=refined)
+
+
+def _from_sgbm(f, g, span, mask, template_mask, p: DisparityParams) -> DisparityResult:
+    """``seeds="sgbm"``: LSM at SGBM's nodes, then growth from the accepted nodes that border
+    the nodes left open (``p.sgbm_fill``) into them."""
+    grow = p.grow_params(sgbm=True)
+    start = sgbm_start(f, g, disparity_range=span, step=grow.step)
+    res = refine_disparities(f, g, start, disparity_range=span, mask=mask,
+                             template_mask=template_mask, params=replace(p, grow=grow))
+    if p.sgbm_fill == "none":
+        return res
+    got = np.isfinite(res.disparity)
+    open_ = ~got if p.sgbm_fill == "unmeasured" else ~got & ~np.isfinite(start)
+    front = got & ndimage.binary_dilation(open_, structure=ndimage.generate_binary_structure(2, 1))
+    if not front.any():
+        return res
+    r, c = np.nonzero(front)
+    xl = np.stack([c * grow.step, r * grow.step], axis=1).astype(float)
+    xr = xl - np.stack([res.disparity[r, c], np.zeros(len(r))], axis=1)
+    more = Seeds(xy=np.stack([xl, xr]), score=np.full(len(r), np.nan),
+                 depth=np.full(len(r), np.nan), disparity=res.disparity[r, c])
+    again = grow_matches(f, g, xl, xr, mask=_pixels(open_, grow.step, f.shape, mask),
+                         template_mask=template_mask, constraint=RectifiedPair(), params=grow)
+    grid = [res.disparity.copy(), res.sigma.copy(), res.sigma0.copy()]
+    _put(grid, again, *span)
+    return replace(res, disparity=grid[0], sigma=grid[1], sigma0=grid[2],
+                   regrown=((more, again),))
 
 
 def _put(grid, grown: GrowResult, lo: float, hi: float) -> int:

@@ -26,7 +26,8 @@ standard deviation. On a generated wide pair the points lie on the true surface
 (``tests/test_surfaces_rectified.py``); on the Pose2Sim demo the growth stalls (plain
 LSM started at SGBM's disparities rarely converges; ``experiments/surface_rectified_demo.py``).
 
-``start="sgbm"`` (:func:`sgbm_start`, :func:`refine_disparities`) instead starts the growth's
+``start="sgbm"`` (:func:`~lsmta.matching.refine.sgbm_start`,
+:func:`~lsmta.matching.refine_disparities`) instead starts the growth's
 LSM, constrained to the row, at every textured node where OpenCV's SGBM has a disparity, with
 no growth; a node counts only where the adjustment converges and passes the thresholds. On
 the generated pair its points lie on the true surface too; on the demo's frame 0 it keeps
@@ -35,25 +36,19 @@ about 1,000 of SGBM's 8,000-10,000 nodes on the person per pair (shift-only LSM)
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 from ..camera import Camera
 from ..matching import (
     DisparityParams,
     DisparityResult,
-    GrowResult,
-    LSMParams,
-    RectifiedPair,
-    Seeds,
-    Status,
     SurfaceResult,
     measure_disparity,
-    mpgc,
-    peers,
+    refine_disparities,
+    sgbm_start,
 )
 from ..triangulation import Intersection, triangulate
 
@@ -221,7 +216,8 @@ def measure_rectified_pair(image_a, image_b, cam_a: Camera, cam_b: Camera, *, wo
     start : {"grow", "sgbm"}
         ``"grow"``: seeds and the disparity growth (:func:`~lsmta.matching.measure_disparity`);
         ``"sgbm"``: LSM at every node where OpenCV's SGBM has a disparity, started there
-        (:func:`sgbm_start`, :func:`refine_disparities`; no growth).
+        (:func:`~lsmta.matching.refine.sgbm_start`,
+        :func:`~lsmta.matching.refine_disparities`; no growth).
     params : DisparityParams, optional
 
     Returns
@@ -249,9 +245,9 @@ def measure_rectified_pair(image_a, image_b, cam_a: Camera, cam_b: Camera, *, wo
         rect_mask &= cv2.remap(m.astype(np.uint8), mm[..., 0], mm[..., 1],
                                cv2.INTER_NEAREST).astype(bool)
     if start == "sgbm":
-        res = refine_disparities(left, right, sgbm_start(left, right, rect, step=grow.step),
-                                 disparity_range=rect.disparity_range, mask=rect_mask,
-                                 params=params)
+        start = sgbm_start(left, right, disparity_range=rect.disparity_range, step=grow.step)
+        res = refine_disparities(left, right, start, disparity_range=rect.disparity_range,
+                                 mask=rect_mask, params=params)
     else:
         res = _grown(left, right, rect, rect_mask, params)
     r, c = np.nonzero(np.isfinite(res.disparity))
@@ -293,118 +289,3 @@ def surface_result(surface: RectifiedSurface, *, template: int = 0) -> SurfaceRe
                          neighbourhood_ok=np.ones(n, bool), rematched=np.zeros(n, bool),
                          intersection=inter, cloud=None, points=inter.points[inter.valid],
                          points_xy=xy[:, inter.valid])
-
-
-def sgbm_start(left, right, rect: Rectification, *, step: int = 4) -> np.ndarray:
-    """OpenCV SGBM's disparities (:func:`~lsmta.matching.peers.stereo_sgbm`, filters on,
-    block 5) of the rectified pair ``left``, ``right`` over ``rect.disparity_range``, read
-    at the grid nodes ``(c * step, r * step)``: ``(rows, cols)``, NaN where SGBM has none."""
-    lo, hi = rect.disparity_range
-    num = int(np.ceil((hi - lo) / 16) * 16)
-    pad = lo + num           # SGBM leaves its first min + num columns empty: pad them on
-    sg = peers.stereo_sgbm(np.pad(left, ((0, 0), (pad, 0))), np.pad(right, ((0, 0), (pad, 0))),
-                           min_disparity=lo, num_disparities=num)
-    return sg.disparity[:, pad:][::step, ::step]
-
-
-def refine_disparities(left, right, start, *, disparity_range, mask=None,
-                       params: DisparityParams | None = None) -> DisparityResult:
-    """LSM on the rectified pair at every node with a starting disparity (e.g. SGBM's).
-
-    Each node of ``start`` (spacing ``params.grow.step``) with a finite disparity (and in
-    ``mask``, and whose patch's grey-value spread is at least ``grow.min_texture``, the
-    growth's texture test) is matched along its row (:func:`~lsmta.matching.mpgc` with
-    :class:`~lsmta.matching.RectifiedPair`) with the growth's LSM model, the patch and then
-    the retry patches, and counts only where the adjustment converges and passes the growth's
-    thresholds (:meth:`~lsmta.matching.DisparityParams.grow_params`) inside
-    ``disparity_range``. No growth: a node not started is not measured.
-
-    Parameters
-    ----------
-    left, right : (H, W) arrays
-        The rectified pair.
-    start : (rows, cols) array
-        Starting disparities at the nodes ``(c * step, r * step)``, px (NaN: not tried).
-    disparity_range : (float, float)
-        Matches outside it are dropped, px.
-    mask : (H, W) bool array, optional
-        Nodes to try (read at the node's pixel).
-    params : DisparityParams, optional
-
-    Returns
-    -------
-    DisparityResult
-        ``seeds`` holds the started nodes (``disparity`` their start), ``grown`` the accepted
-        ones (``wave`` 0, ``seed`` the started node's index, ``attempt_census`` by status).
-    """
-    grow = (DisparityParams() if params is None else params).grow_params()
-    start = np.asarray(start, float)
-    if start.ndim != 2:
-        raise ValueError(f"start: expected a (rows, cols) array, got shape {start.shape}")
-    try_ = np.isfinite(start)
-    if mask is not None:
-        m = np.asarray(mask, bool)[::grow.step, ::grow.step]
-        try_[:m.shape[0], :m.shape[1]] &= m
-        try_[m.shape[0]:] = False
-        try_[:, m.shape[1]:] = False
-    try_ &= _textured(left, grow.patch, grow.step, start.shape, grow.min_texture)
-    r, c = np.nonzero(try_)
-    xy = np.stack([c * grow.step, r * grow.step], axis=1).astype(float)
-    model = LSMParams(patch=grow.patch, geometry=grow.geometry, radiometry=grow.radiometry,
-                      method=grow.method, support=grow.support, partial=grow.partial,
-                      max_iter=grow.max_iter, tol=grow.tol, thresholds=grow.lsm_thresholds())
-    got = {"t": np.full(len(r), np.nan), "sigma_t": np.full(len(r), np.nan),
-           "sigma0": np.full(len(r), np.nan), "sigma_xy": np.full((len(r), 2), np.nan),
-           "A": np.tile(np.eye(2), (len(r), 1, 1)), "method": np.full(len(r), "patch")}
-    census: dict = {}
-    todo = np.arange(len(r))
-    retries = (grow.patch + 6,) if grow.retry_patch is None else grow.retry_patch
-    for k, size in enumerate((grow.patch,) + tuple(retries)):
-        if todo.size == 0:
-            break
-        res = mpgc(left, right, xy[todo], start[r[todo], c[todo]], RectifiedPair(),
-                   params=replace(model, patch=size))
-        st = np.asarray(res.status)
-        for s_ in Status:
-            census[s_.name.lower()] = census.get(s_.name.lower(), 0) + int((st == s_).sum())
-        ok = (st == Status.CONVERGED) & (res.t >= disparity_range[0]) & \
-            (res.t <= disparity_range[1])
-        for name, value in (("t", res.t), ("sigma_t", res.sigma_t), ("sigma0", res.sigma0),
-                            ("sigma_xy", res.sigma_xy[0]), ("A", res.A[0])):
-            got[name][todo[ok]] = value[ok]
-        got["method"][todo[ok]] = "retry" if k else "patch"
-        todo = todo[~ok]
-    return _refined(start, r, c, xy, got, census, grow.step)
-
-
-def _textured(image, patch: int, step: int, shape, min_texture: float) -> np.ndarray:
-    """The grey-value spread of the ``patch`` x ``patch`` window at every node of the grid
-    ``shape`` (spacing ``step``) is at least ``min_texture``."""
-    f = np.asarray(image, float)
-    mean = ndimage.uniform_filter(f, patch, mode="nearest")
-    var = ndimage.uniform_filter(f * f, patch, mode="nearest") - mean * mean
-    out = np.zeros(shape, bool)
-    sub = np.sqrt(np.maximum(var, 0.0))[::step, ::step] >= min_texture
-    out[:sub.shape[0], :sub.shape[1]] = sub[:shape[0], :shape[1]]
-    return out
-
-
-def _refined(start, r, c, xy, got: dict, census: dict, step: int) -> DisparityResult:
-    """:func:`refine_disparities`' result from the started nodes and their matches."""
-    ok = np.isfinite(got["t"])
-    grids = np.full((3,) + start.shape, np.nan)
-    grids[:, r[ok], c[ok]] = np.stack([got["t"], got["sigma_t"], got["sigma0"]])[:, ok]
-    shift = np.stack([start[r, c], np.zeros(len(r))], axis=1)
-    seeds = Seeds(xy=np.stack([xy, xy - shift]), score=np.full(len(r), np.nan),
-                  depth=np.full(len(r), np.nan), disparity=start[r, c])
-    n = int(ok.sum())
-    grown = GrowResult(
-        template_xy=xy[ok], search_xy=xy[ok] - np.c_[got["t"][ok], np.zeros(n)],
-        A=got["A"][ok], sigma0=got["sigma0"][ok], sigma_xy=got["sigma_xy"][ok],
-        seed=np.flatnonzero(ok), wave=np.zeros(n, int), hole_closing=np.zeros(n, bool),
-        seeds_matched=ok, n_lsm=int(sum(census.values())), grid_shape=start.shape,
-        node_index=np.stack([r[ok], c[ok]], axis=1), method=got["method"][ok],
-        t=got["t"][ok], sigma_t=got["sigma_t"][ok], attempt_census=census,
-        node_census={"started": len(r), "matched": n, "failed": len(r) - n})
-    return DisparityResult(disparity=grids[0], sigma=grids[1], sigma0=grids[2], step=step,
-                           seeds=seeds, grown=grown)

@@ -1,0 +1,149 @@
+"""LSM of a rectified pair started at given disparities, e.g. OpenCV SGBM's, with no growth.
+
+:func:`sgbm_start` reads OpenCV's semi-global matching (a well-kept peer,
+:func:`~lsmta.matching.peers.stereo_sgbm`) at the nodes of the growth's grid;
+:func:`refine_at_nodes` runs the growth's LSM model along the row
+(:func:`~lsmta.matching.mpgc.mpgc` with :class:`~lsmta.matching.mpgc.RectifiedPair`) at every
+node with a starting disparity: the patch, then the retry patches, each node counted only
+where the adjustment converges and passes the growth's thresholds. The start only says where
+to begin; SGBM's value is never kept. :func:`~lsmta.matching.measure_disparity` (``seeds=
+"sgbm"``) and :func:`~lsmta.systems.rectified.measure_rectified_pair` (``start="sgbm"``) use
+both.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from scipy import ndimage
+
+from .grow import GrowParams, GrowResult
+from .lsm import LSMParams, Status
+from .mpgc import RectifiedPair, mpgc
+from .peers import stereo_sgbm
+from .seeds import Seeds
+
+
+def sgbm_start(left, right, *, disparity_range, step: int = 4) -> np.ndarray:
+    """OpenCV SGBM's disparities (filters on, block 5) at the grid nodes.
+
+    Parameters
+    ----------
+    left, right : (H, W) arrays
+        The rectified pair.
+    disparity_range : (int, int)
+        Smallest and largest disparity searched, pixels (SGBM's range is rounded out to a
+        multiple of 16).
+    step : int
+        Grid spacing, pixels.
+
+    Returns
+    -------
+    (rows, cols) array
+        SGBM's disparity at node ``(r, c)``, pixel ``(c * step, r * step)``; NaN where SGBM
+        has none. SGBM leaves its first ``min + num`` columns empty: both images are padded
+        on the left by as much so that the left image's border columns get a disparity too.
+    """
+    lo, hi = int(np.floor(disparity_range[0])), int(np.ceil(disparity_range[1]))
+    num = int(np.ceil(max(hi - lo, 1) / 16) * 16)
+    pad = lo + num
+    sg = stereo_sgbm(np.pad(left, ((0, 0), (pad, 0))), np.pad(right, ((0, 0), (pad, 0))),
+                     min_disparity=lo, num_disparities=num)
+    return sg.disparity[:, pad:][::step, ::step]
+
+
+def refine_at_nodes(left, right, start, *, disparity_range, grow: GrowParams, mask=None,
+                    template_mask=None) -> tuple:
+    """LSM along the row at every node with a starting disparity; no growth.
+
+    Parameters
+    ----------
+    left, right : (H, W) arrays
+        The rectified pair.
+    start : (rows, cols) array
+        Starting disparities at the nodes ``(c * step, r * step)``, px (NaN: not tried).
+    disparity_range : (float, float)
+        Matches outside it are dropped, px.
+    grow : GrowParams
+        The LSM model, the patch and retry patches, ``min_texture`` (a node whose patch's
+        grey-value spread is below it is not tried) and the thresholds
+        (:meth:`~lsmta.matching.GrowParams.lsm_thresholds`).
+    mask : (H, W) bool array, optional
+        Nodes to try (read at the node's pixel).
+    template_mask : (H, W) bool array, optional
+        Left pixels on the object (see :func:`~lsmta.matching.lsm`).
+
+    Returns
+    -------
+    (Seeds, GrowResult)
+        The started nodes (``disparity`` their start) and the accepted ones (``wave`` 0,
+        ``seed`` the started node's index, ``attempt_census`` by status).
+    """
+    start = np.asarray(start, float)
+    if start.ndim != 2:
+        raise ValueError(f"start: expected a (rows, cols) array, got shape {start.shape}")
+    try_ = np.isfinite(start)
+    if mask is not None:
+        m = np.asarray(mask, bool)[::grow.step, ::grow.step]
+        try_[:m.shape[0], :m.shape[1]] &= m
+        try_[m.shape[0]:] = False
+        try_[:, m.shape[1]:] = False
+    try_ &= _textured(left, grow.patch, grow.step, start.shape, grow.min_texture)
+    r, c = np.nonzero(try_)
+    xy = np.stack([c * grow.step, r * grow.step], axis=1).astype(float)
+    model = LSMParams(patch=grow.patch, geometry=grow.geometry, radiometry=grow.radiometry,
+                      method=grow.method, support=grow.support, partial=grow.partial,
+                      max_iter=grow.max_iter, tol=grow.tol, thresholds=grow.lsm_thresholds())
+    got = {"t": np.full(len(r), np.nan), "sigma_t": np.full(len(r), np.nan),
+           "sigma0": np.full(len(r), np.nan), "sigma_xy": np.full((len(r), 2), np.nan),
+           "A": np.tile(np.eye(2), (len(r), 1, 1)), "method": np.full(len(r), "patch")}
+    census: dict = {}
+    todo = np.arange(len(r))
+    retries = (grow.patch + 6,) if grow.retry_patch is None else grow.retry_patch
+    for k, size in enumerate((grow.patch,) + tuple(retries)):
+        if todo.size == 0:
+            break
+        res = mpgc(left, right, xy[todo], start[r[todo], c[todo]], RectifiedPair(),
+                   template_mask=template_mask, params=replace(model, patch=size))
+        st = np.asarray(res.status)
+        for s_ in Status:
+            census[s_.name.lower()] = census.get(s_.name.lower(), 0) + int((st == s_).sum())
+        ok = (st == Status.CONVERGED) & (res.t >= disparity_range[0]) & \
+            (res.t <= disparity_range[1])
+        for name, value in (("t", res.t), ("sigma_t", res.sigma_t), ("sigma0", res.sigma0),
+                            ("sigma_xy", res.sigma_xy[0]), ("A", res.A[0])):
+            got[name][todo[ok]] = value[ok]
+        got["method"][todo[ok]] = "retry" if k else "patch"
+        todo = todo[~ok]
+    return _refined(start, r, c, xy, got, census)
+
+
+def _textured(image, patch: int, step: int, shape, min_texture: float) -> np.ndarray:
+    """The grey-value spread of the ``patch`` x ``patch`` window at every node of the grid
+    ``shape`` (spacing ``step``) is at least ``min_texture``."""
+    f = np.asarray(image, float)
+    mean = ndimage.uniform_filter(f, patch, mode="nearest")
+    var = ndimage.uniform_filter(f * f, patch, mode="nearest") - mean * mean
+    out = np.zeros(shape, bool)
+    sub = np.sqrt(np.maximum(var, 0.0))[::step, ::step] >= min_texture
+    out[:sub.shape[0], :sub.shape[1]] = sub[:shape[0], :shape[1]]
+    return out
+
+
+def _refined(start, r, c, xy, got: dict, census: dict) -> tuple:
+    """:func:`refine_at_nodes`' seeds and matches from the started nodes and their LSM."""
+    ok = np.isfinite(got["t"])
+    shift = np.stack([start[r, c], np.zeros(len(r))], axis=1)
+    seeds = Seeds(xy=np.stack([xy, xy - shift]), score=np.full(len(r), np.nan),
+                  depth=np.full(len(r), np.nan), disparity=start[r, c])
+    n = int(ok.sum())
+    grown = GrowResult(
+        template_xy=xy[ok], search_xy=xy[ok] - np.c_[got["t"][ok], np.zeros(n)],
+        A=got["A"][ok], sigma0=got["sigma0"][ok], sigma_xy=got["sigma_xy"][ok],
+        seed=np.flatnonzero(ok), wave=np.zeros(n, int), hole_closing=np.zeros(n, bool),
+        seeds_matched=ok, n_lsm=int(sum(census.values())), grid_shape=start.shape,
+        node_index=np.stack([r[ok], c[ok]], axis=1), method=got["method"][ok],
+        t=got["t"][ok], sigma_t=got["sigma_t"][ok], attempt_census=census,
+        node_census={"started": len(r), "matched": n, "failed": len(r) - n})
+    return seeds, grown

@@ -1,6 +1,8 @@
 """measure_disparity(seeds="sgbm"): LSM started at OpenCV SGBM's nodes, then growth into the
 nodes left open; on small generated rectified pairs (the truth from the generator)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -103,5 +105,25 @@ def test_bad_input_for_the_sgbm_start(ramp_pair):
         DisparityParams(sgbm_grow=3)
     with pytest.raises(ValueError, match="start"):
         refine_disparities(f, g, np.zeros(10), disparity_range=(0, 16))
+    # a start grid of another step, or a mask of another size, is refused, not read as this one
+    start4 = sgbm_start(f, g, disparity_range=(0, 16), step=4)
+    with pytest.raises(ValueError, match="start"):
+        refine_disparities(f, g, start4, disparity_range=(0, 16),
+                           params=DisparityParams(grow=GrowParams(step=2)))
+    with pytest.raises(ValueError, match="mask"):
+        refine_disparities(f, g, start4, disparity_range=(0, 16), mask=np.ones((10, 10), bool))
+    with pytest.raises(ValueError, match="sgbm_grow"):
+        DisparityParams(sgbm_grow=GrowParams(step=2))
     measure_disparity(f, g, disparity_range=(0, 16), seeds="sgbm")
     assert np.array_equal(f, ramp_pair.template) and np.array_equal(g, ramp_pair.search)
+
+
+def test_sgbm_path_follows_the_callers_step(ramp_pair):
+    # the SGBM start's growth defaults to the caller's grow (texture floor aside): at step 2
+    # its map is on the step-2 grid the automatic path uses
+    f, g = ramp_pair.template, ramp_pair.search
+    p = DisparityParams(grow=replace(DisparityParams().grow, step=2))
+    auto = measure_disparity(f, g, disparity_range=(0, 16), params=p)
+    sg = measure_disparity(f, g, disparity_range=(0, 16), seeds="sgbm", params=p)
+    assert sg.step == auto.step == 2 and sg.disparity.shape == auto.disparity.shape
+    assert p.grow_params(sgbm=True).min_texture == disparity_module.SGBM_MIN_TEXTURE

@@ -21,9 +21,11 @@ Started from SGBM instead (``seeds="sgbm"``, issue #33): OpenCV SGBM's disparity
 node starts the growth's LSM there (:func:`~lsmta.matching.refine.refine_at_nodes`); a node
 counts only where the adjustment converges and passes the growth's thresholds, SGBM's value
 is never kept; then the growth continues from the accepted nodes that border the nodes still
-open into them (``sgbm_fill``). Its settings (``sgbm_grow``: the defaults below with a texture
-floor of 1 grey level; ``sgbm_fill="unmeasured"``) were chosen on Art and Teddy by the rule
-of ``experiments/dense_sgbm_tuning.py``, Cones and Tsukuba held out (notebook 16). It is an
+open into them (``sgbm_fill``). Its own settings (``sgbm_grow``: ``grow`` with a texture floor of
+:data:`SGBM_MIN_TEXTURE` grey levels; ``sgbm_fill="unmeasured"``) were chosen on Art and Teddy
+by the rule of ``experiments/dense_sgbm_tuning.py``; Tsukuba is held out, Cones only partly
+(the growth defaults it inherits were chosen on Cones; notebook 16). SGBM works on 8-bit
+grey levels: give the images in 0–255. It is an
 option, not the default: denser than the automatic seeds on all four pairs, still below
 SGBM's density, its share > 1 px up to 0.16 points higher on two of them.
 
@@ -103,9 +105,9 @@ SGBM_FILLS = ("unmeasured", "sgbm-empty", "none")
 #: the growth's defaults for a rectified pair (see the module docstring)
 _GROW = GrowParams(step=4, patch=9, retry_patch=(5,), geometry="row-affine", method="inverse",
                    max_iter=15, partial=True)
-#: the growth's settings started from SGBM, chosen on the tuning pairs Art and Teddy by the rule
-#: of experiments/dense_sgbm_tuning.py (Cones and Tsukuba held out)
-_SGBM_GROW = replace(_GROW, min_texture=1.0)
+#: the texture floor of the growth started from SGBM (grey levels), chosen on the tuning pairs
+#: Art and Teddy by the rule of experiments/dense_sgbm_tuning.py
+SGBM_MIN_TEXTURE = 1.0
 
 
 @dataclass(frozen=True)
@@ -132,9 +134,10 @@ class DisparityParams:
         A node is unreached more than this many nodes (city-block distance) from every
         measured node.
     sgbm_grow : GrowParams, optional
-        The growth's settings when started from SGBM (``seeds="sgbm"``); None: ``grow``.
-        Default: ``grow``'s defaults with ``min_texture=1`` (chosen on Art and Teddy,
-        ``experiments/dense_sgbm_tuning.py``).
+        The growth's settings when started from SGBM (``seeds="sgbm"``), at ``grow``'s step.
+        None (default): ``grow`` with ``min_texture`` :data:`SGBM_MIN_TEXTURE` (chosen on Art
+        and Teddy, ``experiments/dense_sgbm_tuning.py``; the rest of ``grow``'s defaults
+        were chosen on Cones).
     sgbm_fill : {"unmeasured", "sgbm-empty", "none"}
         Started from SGBM, where the growth continues from the accepted nodes: into every
         node still without a disparity, only into the nodes where SGBM had none, or nowhere.
@@ -144,7 +147,7 @@ class DisparityParams:
     n_seeds: int = 30
     reseed_rounds: int = 1
     reseed_gap: int = 2
-    sgbm_grow: GrowParams | None = _SGBM_GROW
+    sgbm_grow: GrowParams | None = None
     sgbm_fill: str = "unmeasured"
 
     def __post_init__(self):
@@ -157,13 +160,19 @@ class DisparityParams:
         if self.sgbm_grow is not None and not isinstance(self.sgbm_grow, GrowParams):
             raise TypeError(f"sgbm_grow: expected a GrowParams or None, got "
                             f"{type(self.sgbm_grow).__name__}")
+        if self.sgbm_grow is not None and self.sgbm_grow.step != self.grow.step:
+            raise ValueError(f"sgbm_grow: expected grow's step ({self.grow.step} px; the maps are "
+                             f"scored on one grid), got step {self.sgbm_grow.step}")
         if not isinstance(self.sgbm_fill, str) or self.sgbm_fill not in SGBM_FILLS:
             raise ValueError(f"sgbm_fill: expected one of {SGBM_FILLS}, got {self.sgbm_fill!r}")
 
     def grow_params(self, *, sgbm: bool = False) -> GrowParams:
         """``grow`` (``sgbm_grow`` with ``sgbm`` if given) with its thresholds: given, or the
         defaults above at its ``step``."""
-        g = self.sgbm_grow if sgbm and self.sgbm_grow is not None else self.grow
+        g = self.grow
+        if sgbm:
+            g = (self.sgbm_grow if self.sgbm_grow is not None
+                 else replace(g, min_texture=SGBM_MIN_TEXTURE))
         if g.thresholds is not None:
             return g
         return replace(g, thresholds=LSMThresholds(

@@ -81,14 +81,16 @@ def refine_at_nodes(left, right, start, *, disparity_range, grow: GrowParams, ma
         ``seed`` the started node's index, ``attempt_census`` by status).
     """
     start = np.asarray(start, float)
-    if start.ndim != 2:
-        raise ValueError(f"start: expected a (rows, cols) array, got shape {start.shape}")
+    h, w = np.shape(left)
+    grid = ((h - 1) // grow.step + 1, (w - 1) // grow.step + 1)
+    if start.shape != grid:
+        raise ValueError(f"start: expected the {grid} nodes of a {h} x {w} image at step "
+                         f"{grow.step}, got shape {start.shape}")
+    if mask is not None and np.shape(mask) != (h, w):
+        raise ValueError(f"mask: expected the image's shape {(h, w)}, got {np.shape(mask)}")
     try_ = np.isfinite(start)
     if mask is not None:
-        m = np.asarray(mask, bool)[::grow.step, ::grow.step]
-        try_[:m.shape[0], :m.shape[1]] &= m
-        try_[m.shape[0]:] = False
-        try_[:, m.shape[1]:] = False
+        try_ &= np.asarray(mask, bool)[::grow.step, ::grow.step]
     try_ &= _textured(left, grow.patch, grow.step, start.shape, grow.min_texture)
     r, c = np.nonzero(try_)
     xy = np.stack([c * grow.step, r * grow.step], axis=1).astype(float)

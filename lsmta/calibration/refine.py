@@ -23,6 +23,21 @@ run again with those choices. A distortion that then stops growing with the radi
 the image (it could not be inverted there) is held too: tie points that determine the
 lens do not bend it that way.
 
+Time offsets (optional, ``velocities``)
+---------------------------------------
+Views that are not exactly synchronised (free-running or software-synchronised video) see a
+moving point where it was a fraction of a frame earlier or later. Given each tie point's
+image velocity ``v`` in each view (px per frame, from the neighbouring frames), camera k's
+observation is compared with the projection plus ``v d_k``, ``d_k`` its time offset in
+frames, the first camera the time datum (``d_0 = 0``). Each offset is freed by a z-test:
+the adjustment is run with every offset free (a weak prior, ``sigma_offset``, keeps one
+without moving points defined), and an offset is kept free where its estimate is more than
+``offset_z`` standard errors from 0; then the intrinsics are chosen again with those
+offsets free. Where none passes, nothing changes: the result is the one without
+``velocities``, number for number. On the Pose2Sim demo the tie points hold too few moving
+points for it (``experiments/timing_offsets.py``: none freed), so
+:func:`lsmta.systems.refine_rig` does not pass velocities.
+
 Solver: Levenberg-Marquardt with the points eliminated from each step (Schur complement:
 a small dense camera system, then 3 x 3 blocks per point), the Jacobian by SciPy's grouped
 finite differences over its sparsity pattern,
@@ -95,6 +110,15 @@ class RefineParams:
         last run.
     max_iter : int
         Most Levenberg-Marquardt iterations per run.
+    sigma_offset : float
+        Prior standard deviation of a camera's time offset, frames (with ``velocities``; a
+        weak prior that only keeps an offset without moving points defined).
+    offset_z : float
+        With ``velocities``: a camera's time offset is freed where its estimate, with every
+        other camera's free, is more than ``offset_z`` standard errors from 0 (a z-test; the
+        standard error from the covariance, scaled by the a-posteriori standard deviation of
+        unit weight where that exceeds 1). 3 by default: about one camera in 370 freed by
+        chance where there is no offset.
     """
 
     sigma_px: float = 0.5
@@ -110,10 +134,13 @@ class RefineParams:
     f_scale: float = 3.0
     reject_k: float = 4.0
     max_iter: int = 100
+    sigma_offset: float = 1.0
+    offset_z: float = 3.0
 
     def __post_init__(self):
         for name in ("sigma_px", "sigma_position", "sigma_angle", "sigma_f",
-                     "sigma_principal", "sigma_k", "sigma_p", "f_scale", "reject_k"):
+                     "sigma_principal", "sigma_k", "sigma_p", "f_scale", "reject_k",
+                     "sigma_offset", "offset_z"):
             as_scalar(getattr(self, name), name, positive=True)
         ratio = as_scalar(self.information_ratio, "information_ratio", positive=True)
         if ratio > 1:
@@ -161,6 +188,15 @@ class CameraRefinement:
     ratio_names : tuple of str
     sigma0 : float
         Standard deviation of unit weight of the last run (1 when ``sigma_px`` was right).
+    time_offsets : (K,) array or None
+        Each camera's time offset, frames (a view sampling the scene late by ``d`` sees a
+        point moving at image velocity ``v`` at ``x + v d``): the adjusted offset where it
+        was freed, 0 elsewhere (the first camera is the time datum). None without
+        ``velocities``.
+    offset_z : (K,) array or None
+        Each offset's estimate over its standard error in the run with every offset free
+        (NaN for the first camera); an offset is freed where this exceeds
+        :attr:`RefineParams.offset_z` in size. None without ``velocities``.
     """
 
     cameras: tuple
@@ -172,9 +208,21 @@ class CameraRefinement:
     ratios: np.ndarray
     ratio_names: tuple
     sigma0: float
+    time_offsets: np.ndarray | None = None
+    offset_z: np.ndarray | None = None
 
     def __post_init__(self):
         freeze(self, ("points", "residuals_before", "residuals", "used", "ratios"))
+        if self.time_offsets is not None:
+            freeze(self, ("time_offsets", "offset_z"))
+
+    @property
+    def offsets_freed(self) -> np.ndarray:
+        """(K,) bool: the cameras whose time offset was adjusted (all False without
+        ``velocities``)."""
+        if self.time_offsets is None:
+            return np.zeros(len(self.cameras), bool)
+        return np.asarray(self.time_offsets) != 0
 
     def median_residual(self, *, before: bool = False) -> np.ndarray:
         """Median residual length per camera ``(K,)``, px (observations kept, or all the
@@ -196,21 +244,33 @@ class _Problem:
     obs: np.ndarray            # (M, 2) image coordinates
     n_points: int
     sigma_px: float
+    vel: np.ndarray | None = None        # (M, 2) image velocity of each observation, px/frame
+    toff: np.ndarray | None = None       # (K,) bool: cameras whose time offset is free
+    sigma_offset: float = 1.0
+
+    @property
+    def n_off(self) -> int:
+        return 0 if self.toff is None else int(self.toff.sum())
 
 
 def _residuals(x, pr: _Problem, free: np.ndarray):
     params = pr.params0.copy()
-    nf = int(free.sum())
+    nf, nt = int(free.sum()), pr.n_off
     params[free] = x[:nf]
-    X = x[nf:].reshape(pr.n_points, 3)
+    X = x[nf + nt:].reshape(pr.n_points, 3)
     proj = project_params(params, X[pr.pt], rows=pr.cam)
-    image = ((pr.obs - proj) / pr.sigma_px).ravel()
     prior = (params[free] - pr.params0[free]) / pr.sigmas[free]
+    if nt:
+        d = np.zeros(len(pr.toff))
+        d[pr.toff] = x[nf:nf + nt]
+        proj = proj + pr.vel * d[pr.cam][:, None]
+        prior = np.concatenate([prior, x[nf:nf + nt] / pr.sigma_offset])
+    image = ((pr.obs - proj) / pr.sigma_px).ravel()
     return np.concatenate([image, prior])
 
 
 def _sparsity(pr: _Problem, free: np.ndarray):
-    M, nf = len(pr.obs), int(free.sum())
+    M, nf, nt = len(pr.obs), int(free.sum()), pr.n_off
     col = -np.ones(free.shape, int)
     col[free] = np.arange(nf)
     rows, cols = [], []
@@ -220,14 +280,22 @@ def _sparsity(pr: _Problem, free: np.ndarray):
         for axis in (0, 1):
             rows.append(2 * np.nonzero(ok)[0] + axis)
             cols.append(cam_cols[ok, j])
+    if nt:                                       # a camera's offset: its observations
+        off_col = -np.ones(len(pr.toff), int)
+        off_col[pr.toff] = nf + np.arange(nt)
+        ok = off_col[pr.cam] >= 0
+        for axis in (0, 1):
+            rows.append(2 * np.nonzero(ok)[0] + axis)
+            cols.append(off_col[pr.cam[ok]])
     for d in range(3):
         for axis in (0, 1):
             rows.append(2 * np.arange(M) + axis)
-            cols.append(nf + 3 * pr.pt + d)
-    rows.append(2 * M + np.arange(nf))
-    cols.append(np.arange(nf))
+            cols.append(nf + nt + 3 * pr.pt + d)
+    rows.append(2 * M + np.arange(nf + nt))
+    cols.append(np.arange(nf + nt))
     r, c = np.concatenate(rows), np.concatenate(cols)
-    return coo_matrix((np.ones(len(r)), (r, c)), shape=(2 * M + nf, nf + 3 * pr.n_points))
+    return coo_matrix((np.ones(len(r)), (r, c)),
+                      shape=(2 * M + nf + nt, nf + nt + 3 * pr.n_points))
 
 
 def _normal_blocks(J, n_cam: int):
@@ -263,20 +331,20 @@ def _schur_step(J, r, lam: float, *, n_cam: int):
 def _solve(pr: _Problem, free, X0, params: RefineParams):
     """Levenberg-Marquardt, each step by the Schur complement, then iteratively reweighted
     with the robust loss on the image residuals (the priors keep weight 1)."""
-    x0 = np.concatenate([pr.params0[free], X0.ravel()])
+    nf, nt = int(free.sum()), pr.n_off
+    x0 = np.concatenate([pr.params0[free], np.zeros(nt), X0.ravel()])
     sparsity = _sparsity(pr, free).tocsc()
     n_image = 2 * len(pr.obs)
 
     def fun(x):
         return _residuals(x, pr, free)
 
-    nf = int(free.sum())
-    step = partial(_schur_step, n_cam=nf)
+    step = partial(_schur_step, n_cam=nf + nt)
     sol = _levenberg_marquardt(fun, x0, sparsity, params.max_iter, 1e-9, 1e-12, None, step)
     if params.loss != "linear":
         for _ in range(5):
             z = (fun(sol.x)[:n_image] / params.f_scale) ** 2
-            w = np.ones(n_image + int(free.sum()))
+            w = np.ones(n_image + nf + nt)
             w[:n_image] = np.sqrt(_LOSS_DERIVATIVE[params.loss](z))
             x_prev = sol.x
             sol = _levenberg_marquardt(lambda x, w=w: fun(x) * w, sol.x, sparsity, 10, 1e-6,
@@ -285,19 +353,22 @@ def _solve(pr: _Problem, free, X0, params: RefineParams):
                 break
     cams = pr.params0.copy()
     cams[free] = sol.x[:nf]
-    return cams, sol.x[nf:].reshape(-1, 3), sol, fun(sol.x)
+    return cams, sol.x[nf + nt:].reshape(-1, 3), sol, fun(sol.x)
 
 
-def _posterior_sigmas(sol, free: np.ndarray) -> np.ndarray:
+def _posterior_sigmas(sol, free: np.ndarray, n_off: int = 0):
     """Standard deviations of the free camera parameters (unit weight), points eliminated
-    by the Schur complement."""
+    by the Schur complement; with ``n_off`` free time offsets (after the camera parameters)
+    also theirs: ``(K, 16)`` array, and the ``(n_off,)`` array when ``n_off``."""
     nf = int(free.sum())
-    Hcc, W, B, _, _ = _normal_blocks(sol.jac, nf)
+    n = nf + n_off
+    Hcc, W, B, _, _ = _normal_blocks(sol.jac, n)
     WB = np.einsum("anj,njk->ank", W, np.linalg.pinv(B), optimize=True)
-    S = Hcc - WB.reshape(nf, -1) @ W.reshape(nf, -1).T
+    S = Hcc - WB.reshape(n, -1) @ W.reshape(n, -1).T
+    sig = np.sqrt(np.clip(np.diag(np.linalg.pinv(S)), 0, None))
     out = np.full(free.shape, np.nan)
-    out[free] = np.sqrt(np.clip(np.diag(np.linalg.pinv(S)), 0, None))
-    return out
+    out[free] = sig[:nf]
+    return (out, sig[nf:]) if n_off else out
 
 
 def _observations(xy):
@@ -307,8 +378,11 @@ def _observations(xy):
     return cam, pt, xy[cam, pt]
 
 
-def _image_residuals(params, X, xy, used):
+def _image_residuals(params, X, xy, used, shift=None):
+    """(K, N, 2) measured - projected (- ``shift``, the time offsets' displacement), px."""
     K, N, _ = xy.shape
+    if shift is not None:
+        xy = xy - shift
     out = np.full((K, N, 2), np.nan)
     for k in range(K):
         ok = used[k] & np.isfinite(X).all(axis=1)
@@ -325,12 +399,18 @@ class _State:
     sigmas: np.ndarray      # (K, 16) their prior standard deviations
     X: np.ndarray           # (N, 3) current points (NaN: not triangulated)
     used: np.ndarray        # (K, N) observations in use
+    vel: np.ndarray | None = None   # (K, N, 2) image velocities, px/frame (NaN -> 0)
 
 
-def _initial(cameras, xy, params: RefineParams) -> _State:
+def _initial(cameras, xy, params: RefineParams, velocities=None) -> _State:
     if len(cameras) < 2 or not all(isinstance(c, Camera) for c in cameras):
         raise ValueError("cameras: expected a sequence of at least two lsmta Camera")
     xy = as_array(xy, "xy", shape=(len(cameras), None, 2), allow_nan=True)
+    if velocities is not None:
+        velocities = as_array(velocities, "velocities", shape=xy.shape, allow_nan=True)
+        if (np.isinf(velocities)).any():
+            raise ValueError("velocities: expected finite image velocities or NaN (unknown)")
+        velocities = np.nan_to_num(velocities, nan=0.0)
     seen = np.isfinite(xy).all(axis=2)
     keep = seen.sum(axis=0) >= 2
     xy = np.where(keep[None, :, None], xy, np.nan)
@@ -346,17 +426,21 @@ def _initial(cameras, xy, params: RefineParams) -> _State:
     return _State(cameras=cameras, xy=xy, X=X,
                   params0=np.stack([camera_to_params(c) for c in cameras]),
                   sigmas=np.stack([params.prior_sigmas(c) for c in cameras]),
-                  used=seen & np.isfinite(X).all(axis=1)[None])
+                  used=seen & np.isfinite(X).all(axis=1)[None], vel=velocities)
 
 
-def _adjust(st: _State, intrinsics, params: RefineParams):
-    """One adjustment of the observations in use, ``intrinsics[k]`` free in camera k.
-    Returns the (K, 16) cameras, the (N, 3) points, the solution, the free mask and the
-    problem."""
+def _adjust(st: _State, intrinsics, params: RefineParams, offsets=None):
+    """One adjustment of the observations in use, ``intrinsics[k]`` free in camera k and
+    the time offsets of the cameras where ``offsets`` (K,) is True (none: the problem
+    without them). Returns the (K, 16) cameras, the (N, 3) points, the solution, the free
+    mask and the problem."""
     sub = np.where(st.used.sum(axis=0) >= 2)[0]
     cam, pt, obs = _observations(np.where(st.used[:, sub, None], st.xy[:, sub], np.nan))
+    toff = None if offsets is None or not np.any(offsets) else np.asarray(offsets, bool)
     pr = _Problem(params0=st.params0, sigmas=st.sigmas, cam=cam, pt=pt, obs=obs,
-                  n_points=len(sub), sigma_px=params.sigma_px)
+                  n_points=len(sub), sigma_px=params.sigma_px,
+                  vel=None if toff is None else st.vel[cam, sub[pt]], toff=toff,
+                  sigma_offset=params.sigma_offset)
     free = np.zeros(st.params0.shape, bool)
     free[:, :6] = True
     for k, names in enumerate(intrinsics):
@@ -367,12 +451,14 @@ def _adjust(st: _State, intrinsics, params: RefineParams):
     return cams, X, sol, fun, free, pr
 
 
-def _choose_intrinsics(st: _State, params: RefineParams):
-    """Adjust with every tried group free and keep, per camera, the groups whose posterior
-    standard deviations are all below ``information_ratio`` times the prior's."""
+def _choose_intrinsics(st: _State, params: RefineParams, offsets=None):
+    """Adjust with every tried group free (and the time offsets where ``offsets``) and
+    keep, per camera, the groups whose posterior standard deviations are all below
+    ``information_ratio`` times the prior's."""
     tried = [n for g in params.groups for n in g]
-    _, _, sol, _, free, _ = _adjust(st, [("f", *tried)] * len(st.cameras), params)
-    post = _posterior_sigmas(sol, free)
+    _, _, sol, _, free, pr = _adjust(st, [("f", *tried)] * len(st.cameras), params, offsets)
+    post = _posterior_sigmas(sol, free, pr.n_off)
+    post = post[0] if pr.n_off else post
     cols = [PARAMETER_NAMES.index(n) for n in tried]
     ratios = post[:, cols] / st.sigmas[:, cols]
     chosen = []
@@ -383,6 +469,30 @@ def _choose_intrinsics(st: _State, params: RefineParams):
                 names += list(g)
         chosen.append(tuple(names))
     return tuple(chosen), ratios, tuple(tried)
+
+
+def _offsets_of(sol, free, pr: _Problem) -> np.ndarray:
+    """(K,) time offsets of a solution, frames (0 where not free)."""
+    d = np.zeros(len(free))
+    if pr.n_off:
+        nf = int(free.sum())
+        d[pr.toff] = sol.x[nf:nf + pr.n_off]
+    return d
+
+
+def _choose_offsets(st: _State, intrinsics, params: RefineParams):
+    """Adjust with every camera's time offset free but the first's (the time datum) and
+    free those more than ``offset_z`` standard errors from 0. Returns the (K,) bool mask
+    and the (K,) z values (NaN for the first camera)."""
+    trial = np.ones(len(st.cameras), bool)
+    trial[0] = False
+    _, _, sol, fun, free, pr = _adjust(st, intrinsics, params, trial)
+    dof = max(1, 2 * len(pr.obs) - 3 * pr.n_points)
+    sigma0 = float(np.sqrt(np.sum(fun ** 2) / dof))
+    _, se = _posterior_sigmas(sol, free, pr.n_off)
+    z = np.full(len(trial), np.nan)
+    z[trial] = _offsets_of(sol, free, pr)[trial] / (se * max(1.0, sigma0))
+    return np.abs(np.nan_to_num(z)) > params.offset_z, z
 
 
 def _folds(params16: np.ndarray, camera: Camera) -> bool:
@@ -412,15 +522,21 @@ def _hold_folding(st: _State, cams, freed, params: RefineParams) -> tuple:
     return tuple(out)
 
 
-def _drop_outliers(st: _State, cams, X, params: RefineParams) -> None:
-    r = np.linalg.norm(_image_residuals(cams, X, st.xy, st.used), axis=2)
+def _shift(st: _State, d) -> np.ndarray | None:
+    """(K, N, 2) displacement of each observation by its camera's time offset ``d``."""
+    return None if st.vel is None or d is None else st.vel * np.asarray(d)[:, None, None]
+
+
+def _drop_outliers(st: _State, cams, X, params: RefineParams, shift=None) -> None:
+    r = np.linalg.norm(_image_residuals(cams, X, st.xy, st.used, shift), axis=2)
     scale = max(params.sigma_px, float(np.nanmedian(r[st.used])) / np.sqrt(2 * np.log(2)))
     used = st.used & ~(r > params.reject_k * scale)
     st.used = used & (used.sum(axis=0) >= 2)[None]
     st.X = X
 
 
-def refine_cameras(cameras, xy, *, params: RefineParams | None = None) -> CameraRefinement:
+def refine_cameras(cameras, xy, *, params: RefineParams | None = None,
+                   velocities=None) -> CameraRefinement:
     """Refine a rig's cameras from tie points, the given cameras acting as priors.
 
     Parameters
@@ -431,6 +547,12 @@ def refine_cameras(cameras, xy, *, params: RefineParams | None = None) -> Camera
         Tie points' image coordinates, px; NaN where a camera does not see a point. Points
         seen by fewer than two cameras are ignored.
     params : RefineParams, optional
+    velocities : (K, N, 2) array, optional
+        Each tie point's image velocity in each view, px per frame (NaN or 0: still or
+        unknown). Given, a time offset per camera (the first camera the datum) is tried and
+        freed where the data determines it (:attr:`RefineParams.offset_z`): a view that
+        samples the scene ``d`` frames late sees the point at its projection plus
+        ``velocity * d``. Where none is freed the result is that without ``velocities``.
 
     Returns
     -------
@@ -439,23 +561,30 @@ def refine_cameras(cameras, xy, *, params: RefineParams | None = None) -> Camera
     Raises
     ------
     ValueError
-        Fewer than two cameras, a camera with fewer than 6 tie points, or tie points that
-        cannot be triangulated with the given cameras.
+        Fewer than two cameras, a camera with fewer than 6 tie points, tie points that
+        cannot be triangulated with the given cameras, or ``velocities`` not of ``xy``'s
+        shape or not finite (NaN allowed).
     """
     params = RefineParams() if params is None else params
-    st = _initial(tuple(cameras), xy, params)
+    st = _initial(tuple(cameras), xy, params, velocities)
     before = _image_residuals(st.params0, st.X, st.xy, st.used)
     freed, ratios, tried = _choose_intrinsics(st, params)
-    cams, X, _, _, _, _ = _adjust(st, freed, params)
+    offsets, z = (None, None) if st.vel is None else _choose_offsets(st, freed, params)
+    if offsets is not None and offsets.any():
+        freed, ratios, tried = _choose_intrinsics(st, params, offsets)
+    cams, X, sol, _, free, pr = _adjust(st, freed, params, offsets)
     held = _hold_folding(st, cams, freed, params)
     if held != freed:
         freed = held
-        cams, X, _, _, _, _ = _adjust(st, freed, params)
-    _drop_outliers(st, cams, X, params)
-    cams, X, _, fun, _, pr = _adjust(st, freed, params)
+        cams, X, sol, _, free, pr = _adjust(st, freed, params, offsets)
+    _drop_outliers(st, cams, X, params, _shift(st, _offsets_of(sol, free, pr)))
+    cams, X, sol, fun, free, pr = _adjust(st, freed, params, offsets)
+    d = None if st.vel is None else _offsets_of(sol, free, pr)
     dof = max(1, 2 * len(pr.obs) - 3 * pr.n_points)    # the priors add as many as they fix
     return CameraRefinement(
         cameras=tuple(params_to_camera(p, c) for p, c in zip(cams, st.cameras)), points=X,
-        residuals_before=before, residuals=_image_residuals(cams, X, st.xy, st.used),
+        residuals_before=before,
+        residuals=_image_residuals(cams, X, st.xy, st.used, _shift(st, d)),
         used=st.used, freed=freed, ratios=ratios, ratio_names=tried,
-        sigma0=float(np.sqrt(np.sum(fun ** 2) / dof)))
+        sigma0=float(np.sqrt(np.sum(fun ** 2) / dof)),
+        time_offsets=d, offset_z=z)

@@ -14,7 +14,11 @@ recorded beside, for reference. Both trackers are followed on the blobs (``Marke
 unless ``--plain`` (each tracker alone over the clip, as before issue #40's marker fix).
 Prints and writes ``<out>/experiment.json``: the command's time, stages and files; for both
 trackers the moving markers, their coverage, median residual and the rigid-pair distance's
-spread, the 2-D tracking's CPU time, the ratios LSMTA / KLT, and the targets' verdicts.
+spread (the pair's heights and relative motion beside), the join check's counts
+(``MarkerParams.check``: ambiguous joins dropped, views taken out, tracks attached, dots
+found again), the 2-D tracking's CPU time, the ratios LSMTA / KLT, and the targets'
+verdicts; per LSMTA marker its views, 3-D share and the frames only one view (or none)
+holds it.
 Targets (issue #40): the command under 5 minutes on 2 cores; every marker seen by >= 2 views
 in 3-D in >= 90 % of the frames; the rigid pair's distance std <= 3 mm; LSMTA at or below
 KLT on residual and spread.
@@ -113,6 +117,15 @@ def main(argv=None):
         "LSMTA at or below KLT on residual and spread (same markers and pair)": (
             "not measured (no rigid pair)" if pair is None else verdict(
                 L["residual_px"] <= K["residual_px"] and L["pair_std_mm"] <= K["pair_std_mm"]))}
+    per_marker = []
+    for j in np.flatnonzero(lm.moving):
+        views = np.isfinite(lm.xy[:, :, j]).all(axis=2)            # (T, K) views holding it
+        per_marker.append({
+            "marker": int(j), "views": lm.members[j].tolist(),
+            "share_3d": float(np.isfinite(lm.xyz[:, j]).all(axis=1).mean()),
+            "frames_one_view": int((views.sum(axis=1) == 1).sum()),
+            "frames_no_view": int((views.sum(axis=1) == 0).sum()),
+            "median_xyz_mm": np.round(np.nanmedian(lm.xyz[:, j], axis=0)).tolist()})
     pair_info = None if pair is None else {
         "markers": pair, "views": [lm.members[j].tolist() for j in pair],
         "median_height_mm": [float(np.nanmedian(lm.xyz[:, j, 2])) for j in pair]}
@@ -120,6 +133,7 @@ def main(argv=None):
               "plain": args.plain, "reused_capture": args.reuse,
               "cameras_note": summary.get("cameras_note"), "stages": summary["stages"],
               "readback": readback, "markers": scores, "rigid_pair": pair_info,
+              "per_marker_lsmta": per_marker,
               "ratios_lsmta_over_klt": ratios, "verdicts": verdicts}
     write_json(out / "experiment.json", record)
     print(json.dumps(record, indent=1, default=str))

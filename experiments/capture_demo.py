@@ -39,7 +39,7 @@ from lsmta.camera_files import read_camera_toml
 from lsmta.cli import main as lsmta
 from lsmta.data import POSE2SIM_CAMERAS, POSE2SIM_VIDEOS
 from lsmta.io import read_videos
-from lsmta.real.own_recording import marker_scores
+from lsmta.real.own_recording import marker_scores, relative_motion
 from lsmta.report import verdict, write_json
 from lsmta.systems import MarkerParams, Tracker2D, capture_markers
 
@@ -126,6 +126,17 @@ def main(argv=None):
             "frames_one_view": int((views.sum(axis=1) == 1).sum()),
             "frames_no_view": int((views.sum(axis=1) == 0).sum()),
             "median_xyz_mm": np.round(np.nanmedian(lm.xyz[:, j], axis=0)).tolist()})
+    pairs = []                  # what the rigid-pair rule looks at, for every moving pair
+    mv = np.flatnonzero(lm.moving)
+    for a, i in enumerate(mv):
+        for j in mv[a + 1:]:
+            d = np.linalg.norm(lm.xyz[:, i] - lm.xyz[:, j], axis=1)
+            pairs.append({"markers": [int(i), int(j)],
+                          "same_views": bool(np.array_equal(lm.members[i] >= 0,
+                                                            lm.members[j] >= 0)),
+                          "median_mm": float(np.nanmedian(d)),
+                          "relative_motion": relative_motion(lm.xyz[:, i], lm.xyz[:, j]),
+                          "frames_both": int(np.isfinite(d).sum())})
     pair_info = None if pair is None else {
         "markers": pair, "views": [lm.members[j].tolist() for j in pair],
         "median_height_mm": [float(np.nanmedian(lm.xyz[:, j, 2])) for j in pair]}
@@ -133,7 +144,7 @@ def main(argv=None):
               "plain": args.plain, "reused_capture": args.reuse,
               "cameras_note": summary.get("cameras_note"), "stages": summary["stages"],
               "readback": readback, "markers": scores, "rigid_pair": pair_info,
-              "per_marker_lsmta": per_marker,
+              "per_marker_lsmta": per_marker, "pairs_lsmta": pairs,
               "ratios_lsmta_over_klt": ratios, "verdicts": verdicts}
     write_json(out / "experiment.json", record)
     print(json.dumps(record, indent=1, default=str))

@@ -14,7 +14,11 @@ recorded beside, for reference. Both trackers are followed on the blobs (``Marke
 unless ``--plain`` (each tracker alone over the clip, as before issue #40's marker fix).
 Prints and writes ``<out>/experiment.json``: the command's time, stages and files; for both
 trackers the moving markers, their coverage, median residual and the rigid-pair distance's
-spread, the 2-D tracking's CPU time, the ratios LSMTA / KLT, and the targets' verdicts.
+spread (the pair's heights and relative motion beside), the join check's counts
+(``MarkerParams.check``: ambiguous joins dropped, views taken out, tracks attached, dots
+found again), the 2-D tracking's CPU time, the ratios LSMTA / KLT, and the targets'
+verdicts; per LSMTA marker its views, 3-D share and the frames only one view (or none)
+holds it.
 Targets (issue #40): the command under 5 minutes on 2 cores; every marker seen by >= 2 views
 in 3-D in >= 90 % of the frames; the rigid pair's distance std <= 3 mm; LSMTA at or below
 KLT on residual and spread.
@@ -35,7 +39,7 @@ from lsmta.camera_files import read_camera_toml
 from lsmta.cli import main as lsmta
 from lsmta.data import POSE2SIM_CAMERAS, POSE2SIM_VIDEOS
 from lsmta.io import read_videos
-from lsmta.real.own_recording import marker_scores
+from lsmta.real.own_recording import marker_scores, relative_motion
 from lsmta.report import verdict, write_json
 from lsmta.systems import MarkerParams, Tracker2D, capture_markers
 
@@ -113,6 +117,26 @@ def main(argv=None):
         "LSMTA at or below KLT on residual and spread (same markers and pair)": (
             "not measured (no rigid pair)" if pair is None else verdict(
                 L["residual_px"] <= K["residual_px"] and L["pair_std_mm"] <= K["pair_std_mm"]))}
+    per_marker = []
+    for j in np.flatnonzero(lm.moving):
+        views = np.isfinite(lm.xy[:, :, j]).all(axis=2)            # (T, K) views holding it
+        per_marker.append({
+            "marker": int(j), "views": lm.members[j].tolist(),
+            "share_3d": float(np.isfinite(lm.xyz[:, j]).all(axis=1).mean()),
+            "frames_one_view": int((views.sum(axis=1) == 1).sum()),
+            "frames_no_view": int((views.sum(axis=1) == 0).sum()),
+            "median_xyz_mm": np.round(np.nanmedian(lm.xyz[:, j], axis=0)).tolist()})
+    pairs = []                  # what the rigid-pair rule looks at, for every moving pair
+    mv = np.flatnonzero(lm.moving)
+    for a, i in enumerate(mv):
+        for j in mv[a + 1:]:
+            d = np.linalg.norm(lm.xyz[:, i] - lm.xyz[:, j], axis=1)
+            pairs.append({"markers": [int(i), int(j)],
+                          "same_views": bool(np.array_equal(lm.members[i] >= 0,
+                                                            lm.members[j] >= 0)),
+                          "median_mm": float(np.nanmedian(d)),
+                          "relative_motion": relative_motion(lm.xyz[:, i], lm.xyz[:, j]),
+                          "frames_both": int(np.isfinite(d).sum())})
     pair_info = None if pair is None else {
         "markers": pair, "views": [lm.members[j].tolist() for j in pair],
         "median_height_mm": [float(np.nanmedian(lm.xyz[:, j, 2])) for j in pair]}
@@ -120,6 +144,7 @@ def main(argv=None):
               "plain": args.plain, "reused_capture": args.reuse,
               "cameras_note": summary.get("cameras_note"), "stages": summary["stages"],
               "readback": readback, "markers": scores, "rigid_pair": pair_info,
+              "per_marker_lsmta": per_marker, "pairs_lsmta": pairs,
               "ratios_lsmta_over_klt": ratios, "verdicts": verdicts}
     write_json(out / "experiment.json", record)
     print(json.dumps(record, indent=1, default=str))

@@ -7,13 +7,27 @@ A real recording has no truth, so the markers are judged by what needs none:
 * *residual*: how far the intersected marker reprojects from its tracked positions;
 * *rigidity*: the distance between two markers on one rigid segment should not change. The
   pair is chosen by a rule that does not look at the distance's spread (which is what is
-  scored): of the moving markers in 3-D in at least half of the frames and above the floor
-  (a median height below 0 is a wrong join), the pairs seen by the same views (one side of
-  the segment: a pair of markers intersected by different cameras adds the two camera
-  groups' disagreement to its distance) whose median distance lies in ``distance_range``
-  (a foot's heel-to-forefoot span), the one with the most frames with both in 3-D, and of
-  those equally many the lowest in the room (the feet are the lowest markers of a person
-  standing or walking). Without ``views`` the same-views condition is left out.
+  scored), written before the final run (issue #40): of the moving markers in 3-D in at
+  least half of the frames and above the floor (a median height below 0 is a wrong join),
+  the pairs that
+
+  - are seen by the same views (a pair intersected by different cameras adds the two camera
+    groups' disagreement to its distance);
+  - lie ``distance_range`` apart (median; 60-250 mm: a foot's heel to forefoot, the
+    pelvis's markers, a segment's two markers);
+  - *move together*: the RMS of their relative motion (each marker's displacement from its
+    median position, the one's minus the other's) is at most ``max_relative`` (0.5) times
+    the RMS of their common motion (the mean of the two displacements). Markers on one
+    segment share its translation and differ by its rotation times their lever; markers of
+    two segments (the two feet, thigh and shank through a bending knee) swing apart. The
+    threshold is coarse on purpose: it tells segments apart, it does not rank pairs by
+    their noise;
+
+  and of those, the one with the most frames with both in 3-D, then the lowest in the room
+  (a foot's markers are the lowest of a standing or walking person). Without ``views`` the
+  same-views condition is left out. The rule cannot say which segment it found: a marker
+  on a knee and one on the shank below it move together while the knee is nearly
+  straight; the markers' heights are reported so that a reader can judge.
 """
 
 from __future__ import annotations
@@ -24,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array
+from .._validate import as_array, as_scalar
 
 
 @dataclass(frozen=True)
@@ -51,8 +65,9 @@ class RigidPair:
 
 
 def rigid_pair(xyz, *, views=None, distance_range=(60.0, 250.0), min_share: float = 0.5,
-               up=(0.0, 0.0, 1.0)) -> RigidPair | None:
-    """The pair of markers at a foot's span held longest in 3-D (see the module docstring).
+               max_relative: float = 0.5, up=(0.0, 0.0, 1.0)) -> RigidPair | None:
+    """The pair of markers that move together at a segment's span held longest in 3-D (see
+    the module docstring).
 
     Parameters
     ----------
@@ -64,6 +79,8 @@ def rigid_pair(xyz, *, views=None, distance_range=(60.0, 250.0), min_share: floa
         Accepted median distance, mm.
     min_share : float
         Share of the frames each marker of the pair must be in 3-D.
+    max_relative : float
+        Largest ratio of the RMS relative motion to the RMS common motion, > 0.
     up : (3,) array
         The world's up direction.
 
@@ -78,6 +95,7 @@ def rigid_pair(xyz, *, views=None, distance_range=(60.0, 250.0), min_share: floa
         if views.ndim != 2 or len(views) != X.shape[1]:
             raise ValueError(f"views: expected an ({X.shape[1]}, K) bool array (the views "
                              f"of each marker), got shape {views.shape}")
+    max_relative = as_scalar(max_relative, "max_relative", positive=True)
     up = np.asarray(up, float) / np.linalg.norm(up)
     present = np.isfinite(X).all(axis=2)
     with warnings.catch_warnings():
@@ -92,6 +110,8 @@ def rigid_pair(xyz, *, views=None, distance_range=(60.0, 250.0), min_share: floa
             med = np.nanmedian(d)
             if not distance_range[0] <= med <= distance_range[1]:
                 continue
+            if not relative_motion(X[:, i], X[:, j]) <= max_relative:
+                continue
             key = (-int(np.isfinite(d).sum()), height[i] + height[j])
             if best is None or key < best[0]:
                 best = (key, (int(i), int(j)), d)
@@ -101,6 +121,25 @@ def rigid_pair(xyz, *, views=None, distance_range=(60.0, 250.0), min_share: floa
     both = np.isfinite(d)
     return RigidPair(markers=pair, distance=d, median_mm=float(np.median(d[both])),
                      std_mm=float(np.std(d[both])), frames=int(both.sum()))
+
+
+def relative_motion(a, b) -> float:
+    """RMS of two markers' relative motion over the RMS of their common motion, over the
+    frames both are in 3-D (``(T, 3)`` arrays, mm; NaN with fewer than 3 such frames).
+
+    Each marker's displacement is taken from its median position over those frames; the
+    relative motion is the difference of the two displacements, the common motion their
+    mean. 0 for two markers that only translate together."""
+    a = as_array(a, "a", shape=(None, 3), allow_nan=True)
+    b = as_array(b, "b", shape=(len(a), 3), allow_nan=True)
+    both = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
+    if both.sum() < 3:
+        return float("nan")
+    da = a[both] - np.median(a[both], axis=0)
+    db = b[both] - np.median(b[both], axis=0)
+    common = np.sqrt(np.mean(np.sum((0.5 * (da + db)) ** 2, axis=1)))
+    rel = np.sqrt(np.mean(np.sum((da - db) ** 2, axis=1)))
+    return float(rel / common) if common > 0 else float("inf")
 
 
 def marker_scores(capture, *, pair=None) -> dict:
@@ -137,4 +176,9 @@ def marker_scores(capture, *, pair=None) -> dict:
             "pair_frames": int(both.sum()) if has else 0,
             "pair_median_mm": float(np.median(d[both])) if has else np.nan,
             "pair_std_mm": float(np.std(d[both])) if has else np.nan,
+            "pair_relative_motion": (relative_motion(m.xyz[:, pair[0]], m.xyz[:, pair[1]])
+                                     if has else np.nan),
+            "pair_height_mm": ([float(np.nanmedian(m.xyz[:, i, 2])) for i in pair]
+                               if has else None),
+            "joins": dict(m.joins),
             "seconds": m.seconds}

@@ -259,7 +259,9 @@ class BodyCapture:
                                     f"{len(m.members)} joined across views, "
                                     f"{int(m.moving.sum())} of them moving; those in "
                                     f"3-D in {np.mean(share) if len(share) else 0:.0%} of "
-                                    "the frames on average"))
+                                    "the frames on average; join checks "
+                                    + ", ".join(f"{k.replace('_', ' ')} {v}"
+                                                for k, v in m.joins.items())))
         if self.arm is not None:
             full = self.arm.full
             rows.append(("arm model", f"{full.status.name} after {full.rounds} round(s) in "

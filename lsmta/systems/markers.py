@@ -14,7 +14,14 @@ The stage for what a marker-based recording holds beyond the surfaces: small ski
 3. *joining* the tracks of views that look from one side (optical axes within
    ``max_angle_deg``) by their whole paths
    (:func:`~lsmta.tracking.view_tracks.join_view_tracks`);
-4. *intersection* of every frame from the views that hold the marker
+4. *checking and completing the joins* (``MarkerParams.check``, on by default;
+   :mod:`~lsmta.tracking.join_checks`): ambiguous joins and markers below the floor
+   dropped, a view that disagrees with the marker's others taken out
+   (:func:`~lsmta.tracking.join_checks.check_joins`); free tracks of any view attached to
+   the marker whose 3-D path projects onto them
+   (:func:`~lsmta.tracking.join_checks.attach_views`); a marker a view lost looked for at
+   its 3-D position's projection (:func:`~lsmta.tracking.join_checks.fill_gaps`);
+5. *intersection* of every frame from every view that holds the marker
    (:func:`~lsmta.tracking.view_tracks.triangulate_joined`), and each marker's 3-D motion
    range, which tells the subject's markers (moving) from still blobs of the room.
 """
@@ -31,6 +38,7 @@ import numpy as np
 from .._validate import as_int, as_scalar, freeze
 from ..tracking import TrackerParams, track_points, track_step
 from ..tracking.blob_follow import FollowParams, follow_blobs
+from ..tracking.join_checks import attach_views, check_joins, fill_gaps
 from ..tracking.klt import track_klt
 from ..tracking.markers import find_blobs, find_markers
 from ..tracking.view_tracks import join_view_tracks, joined_positions, triangulate_joined
@@ -76,6 +84,18 @@ class MarkerParams:
         re-acquired from the blobs near its prediction), for either tracker; None: the
         tracker alone over the whole clip (LSMTA with its anchored templates). The
         re-acquisition's blob scale and strength are ``sigma`` and ``min_strength``.
+    check : bool
+        Check and complete the joins (stage 4 of the module docstring), with ``max_px``,
+        ``min_shared``, ``min_ratio`` and ``floor_mm``; the gaps are filled with the
+        following's window (also the largest distance of a dot from the projection),
+        contrast floor and ``max_gap`` (``follow``, or its defaults).
+    min_ratio : float
+        A join is ambiguous when a rival partner's median pair residual is less than this
+        times its own (>= 1).
+    floor_mm : float or None
+        Height of the floor (world Z), mm, where the camera file's world frame has one (a
+        Qualisys L-frame on the floor: 0); None (default): not checked, as a world frame
+        need not have its Z up (OpenCV's is the first camera's).
     """
 
     detector: str = "skin"
@@ -89,6 +109,9 @@ class MarkerParams:
     min_motion_mm: float = 50.0
     max_angle_deg: float = 75.0
     follow: FollowParams | None = field(default_factory=FollowParams)
+    check: bool = True
+    min_ratio: float = 2.0
+    floor_mm: float | None = None
 
     def __post_init__(self):
         if self.detector not in ("skin", "blobs"):
@@ -97,6 +120,12 @@ class MarkerParams:
                      "max_angle_deg"):
             as_scalar(getattr(self, name), name, positive=True)
         as_int(self.klt_window, "klt_window", minimum=3, odd=True)
+        if not isinstance(self.check, bool):
+            raise TypeError(f"check: expected True or False, got {self.check!r}")
+        if as_scalar(self.min_ratio, "min_ratio", positive=True) < 1:
+            raise ValueError(f"min_ratio: expected a ratio >= 1, got {self.min_ratio}")
+        if self.floor_mm is not None:
+            as_scalar(self.floor_mm, "floor_mm")
         if self.follow is not None and not isinstance(self.follow, FollowParams):
             raise TypeError(f"follow: expected a FollowParams or None, got "
                             f"{type(self.follow).__name__}")
@@ -132,6 +161,10 @@ class MarkerCapture:
         ``motion_mm >= params.min_motion_mm``: the subject's markers.
     seconds : float
         Time of the 2-D tracking, s.
+    joins : dict
+        What the join check did (``MarkerParams.check``): markers dropped as
+        ``"ambiguous"`` and ``"below_floor"``, ``"views_out"`` taken out, tracks
+        ``"attached"``, dots ``"filled"`` (all 0 without the check).
     """
 
     detections: tuple
@@ -143,6 +176,7 @@ class MarkerCapture:
     motion_mm: np.ndarray
     moving: np.ndarray
     seconds: float
+    joins: dict = field(default_factory=dict)
 
     def __post_init__(self):
         freeze(self, ("members", "xy", "xyz", "residual", "motion_mm", "moving"))
@@ -248,8 +282,17 @@ def capture_markers(stacks, cameras, first_frames, *, params: MarkerParams | Non
                  if angles[a, b] <= p.max_angle_deg]
         members = join_view_tracks(cams, view_xy, max_px=p.max_px, min_shared=p.min_shared,
                                    pairs=pairs).members
+        members, joins = _checked_joins(cams, view_xy, members, p)
     else:
-        members = like.members
+        members, joins = like.members, {k: v for k, v in like.joins.items() if k != "filled"}
+    joins["filled"] = 0
+    if p.check:
+        fp = replace(p.follow or FollowParams(), sigma=p.sigma)
+        view_xy, found = fill_gaps(stacks, cams, view_xy, members, radius=fp.window(),
+                                   search_px=fp.window(),
+                                   min_contrast=fp.min_contrast, max_gap=fp.max_gap,
+                                   max_px=p.max_px)
+        joins["filled"] = int(found.sum())
     xyz, residual, _ = triangulate_joined(cams, view_xy, members)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)          # never intersected
@@ -259,4 +302,16 @@ def capture_markers(stacks, cameras, first_frames, *, params: MarkerParams | Non
     return MarkerCapture(detections=detections, view_xy=view_xy, members=members,
                          xy=joined_positions(view_xy, members), xyz=xyz,
                          residual=residual, motion_mm=motion, moving=moving,
-                         seconds=seconds)
+                         seconds=seconds, joins=joins)
+
+
+def _checked_joins(cams, view_xy, members, p: MarkerParams):
+    """Stage 4's check and attachment (the fill runs for every tracker)."""
+    if not p.check:
+        return members, {"ambiguous": 0, "below_floor": 0, "views_out": 0, "attached": 0}
+    c = check_joins(cams, view_xy, members, max_px=p.max_px, min_ratio=p.min_ratio,
+                    min_shared=p.min_shared, floor_mm=p.floor_mm)
+    members, attached = attach_views(cams, view_xy, c.members, max_px=p.max_px,
+                                     min_shared=p.min_shared)
+    return members, {"ambiguous": c.ambiguous, "below_floor": c.below_floor,
+                     "views_out": c.views_out, "attached": attached}

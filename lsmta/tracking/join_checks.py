@@ -1,0 +1,376 @@
+"""Markers joined across views (:mod:`.view_tracks`), checked, completed and filled.
+
+Three steps on tracks already joined by their paths, each a rule on the data (none looks at
+what a recording is scored on):
+
+1. :func:`check_joins` takes out joins that are wrong, in this order:
+
+   * *a view that disagrees*: in a marker held by three or more views, a view whose track
+     lies more than ``max_px`` (median over the frames) from the projection of the point
+     intersected from the marker's other views is taken out of it (the worst first, until
+     the rest agree or two views are left);
+   * *ambiguous*: a two-view link whose track has another partner nearly as good (the
+     second-best median pair residual of either track less than ``min_ratio`` times the
+     link's own): two tracks whose paths both stay on one epipolar band cannot be told
+     apart by the band (a walker's markers move alike, so the band holds several); the
+     marker is dropped;
+   * *below the floor*: a marker whose median height (along ``up``) lies more than
+     ``floor_margin_mm`` below ``floor_mm`` (a subject's markers are on or above the floor;
+     None: not checked) is dropped.
+
+2. :func:`attach_views` adds a view's free track (never joined, or taken out by step 1) to
+   the marker whose 3-D path projects onto it: the median distance over the frames both
+   have at most ``max_px``, in at least ``min_shared`` of the marker's 3-D frames, each the
+   other's best. The marker's 3-D path is known, so any view can be attached, at any angle
+   to the views that joined it: every view that sees a marker is used.
+
+3. :func:`fill_gaps` looks for a marker where one of its views lost it (motion blur, a
+   short occlusion): frame by frame, forwards then backwards, the marker's 3-D position
+   (intersected in the frame from its other views, or extrapolated at constant velocity
+   from the last two frames with one, at most ``max_gap`` frames back) is projected into
+   each of its views that lacks it; the dot's core is centred there
+   (:func:`~lsmta.tracking.blob_follow.dot_centre`, a window of ``radius`` px moved to the
+   centroid three times) and taken when its contrast is at least ``min_contrast``, it lies
+   within ``search_px`` of the projection (an extrapolation over a few frames of a swinging
+   foot is off by more than a dot's radius) and not within ``radius`` of another marker of
+   that view, and the point intersected with it reprojects within ``max_px`` in every
+   view. A dot so found is a measurement of the frame, not an interpolation: a frame whose
+   dot cannot be found stays empty.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validate import as_array, as_int, as_scalar, freeze
+from ..triangulation import triangulate
+from .blob_follow import dot_centre, dot_contrast
+from .view_tracks import _checked, joined_positions, pair_residuals, triangulate_joined
+
+__all__ = ["JoinCheck", "attach_views", "check_joins", "fill_gaps"]
+
+
+@dataclass(frozen=True)
+class JoinCheck:
+    """Result of :func:`check_joins`.
+
+    Attributes
+    ----------
+    members : (M', K) int array
+        The joins kept (views taken out set to -1).
+    ambiguous : int
+        Markers dropped as ambiguous.
+    views_out : int
+        Views taken out of markers whose other views disagree with them.
+    below_floor : int
+        Markers dropped below the floor.
+    """
+
+    members: np.ndarray
+    ambiguous: int
+    views_out: int
+    below_floor: int
+
+    def __post_init__(self):
+        freeze(self, ("members",))
+
+
+def _members(members, K) -> np.ndarray:
+    m = np.asarray(members)
+    if m.ndim != 2 or m.shape[1] != K or not np.issubdtype(m.dtype, np.integer):
+        raise ValueError(f"members: expected an (M, {K}) int array (-1: no track), got "
+                         f"shape {m.shape} and dtype {m.dtype}")
+    return m.astype(int)
+
+
+def _project(camera, X) -> np.ndarray:
+    """``(N, 2)`` projections of ``(N, 3)`` points, NaN where a point is NaN or behind."""
+    X = np.asarray(X, float).reshape(-1, 3)
+    out = np.full((len(X), 2), np.nan)
+    ok = np.isfinite(X).all(axis=1)
+    if ok.any():
+        out[ok] = camera.project(X[ok], behind="nan")
+    return out
+
+
+def _second_best(r: np.ndarray, i: int, j: int) -> float:
+    """Smallest residual of row i or column j other than (i, j)."""
+    row = np.delete(r[i], j)
+    col = np.delete(r[:, j], i)
+    rest = np.concatenate([row, col])
+    rest = rest[np.isfinite(rest)]
+    return float(rest.min()) if rest.size else np.inf
+
+
+def _ambiguous(cams, arrays, members, min_ratio, min_shared) -> np.ndarray:
+    """``(M,)`` True where a link of the marker has a near-equal rival partner."""
+    out = np.zeros(len(members), bool)
+    cache = {}
+    for j, m in enumerate(members):
+        views = np.flatnonzero(m >= 0)
+        for x, a in enumerate(views):
+            for b in views[x + 1:]:
+                if (a, b) not in cache:
+                    cache[a, b] = pair_residuals(cams[a], cams[b], arrays[a], arrays[b],
+                                                 min_shared=min_shared)
+                r = cache[a, b]
+                own = r[m[a], m[b]]
+                if np.isfinite(own) and _second_best(r, m[a], m[b]) < min_ratio * own:
+                    out[j] = True
+    return out
+
+
+def _leave_one_out(cams, arrays, m) -> np.ndarray:
+    """``(K,)`` median distance of each view's track from the point of the others, px."""
+    out = np.full(len(cams), np.nan)
+    views = np.flatnonzero(m >= 0)
+    for k in views:
+        others = m.copy()
+        others[k] = -1
+        xyz, _, _ = triangulate_joined(cams, arrays, others[None])
+        proj = _project(cams[k], xyz[:, 0])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            out[k] = np.nanmedian(np.linalg.norm(proj - arrays[k][:, m[k]], axis=1))
+    return out
+
+
+def check_joins(cameras, xy, members, *, max_px: float = 3.0, min_ratio: float = 2.0,
+                min_shared: float = 0.5, floor_mm: float | None = None,
+                floor_margin_mm: float = 50.0, up=(0.0, 0.0, 1.0)) -> JoinCheck:
+    """Take out wrong joins (see the module docstring).
+
+    Parameters
+    ----------
+    cameras : sequence of K Camera
+    xy : sequence of K (T, N_k, 2) arrays
+        Each view's tracks, px.
+    members : (M, K) int array
+        The joins (:attr:`~lsmta.tracking.view_tracks.JoinedTracks.members`).
+    max_px : float
+        Largest median distance of a view from its marker's other views, px.
+    min_ratio : float
+        A link's second-best rival must have at least this times its residual, >= 1.
+    min_shared : float
+        Share of the frames a rival pair must hold together (as when joining).
+    floor_mm : float or None
+        Height of the floor along ``up``, mm; None: not checked.
+    floor_margin_mm : float
+        How far below the floor a marker's median height may lie, mm.
+    up : (3,) array
+        The world's up direction.
+
+    Returns
+    -------
+    JoinCheck
+    """
+    cams, arrays = _checked(cameras, xy)
+    m = _members(members, len(cams)).copy()
+    max_px = as_scalar(max_px, "max_px", positive=True)
+    min_ratio = as_scalar(min_ratio, "min_ratio", positive=True)
+    if min_ratio < 1:
+        raise ValueError(f"min_ratio: expected a ratio >= 1, got {min_ratio}")
+    floor_margin_mm = as_scalar(floor_margin_mm, "floor_margin_mm", nonnegative=True)
+    u = as_array(up, "up", shape=(3,))
+    if np.linalg.norm(u) == 0:
+        raise ValueError("up: expected a non-zero direction")
+    u = u / np.linalg.norm(u)
+    views_out = 0
+    for j in range(len(m)):
+        while (m[j] >= 0).sum() >= 3:
+            d = _leave_one_out(cams, arrays, m[j])
+            k = int(np.nanargmax(np.where(np.isfinite(d), d, -np.inf)))
+            if not d[k] > max_px:
+                break
+            m[j, k] = -1
+            views_out += 1
+    ambiguous = _ambiguous(cams, arrays, m, min_ratio, min_shared)
+    m = m[~ambiguous]
+    below = np.zeros(len(m), bool)
+    if floor_mm is not None and len(m):
+        floor = as_scalar(floor_mm, "floor_mm")
+        xyz, _, _ = triangulate_joined(cams, arrays, m)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)      # never intersected
+            height = np.nanmedian(xyz @ u, axis=0)
+        below = height < floor - floor_margin_mm
+    return JoinCheck(members=m[~below], ambiguous=int(ambiguous.sum()), views_out=views_out,
+                     below_floor=int(below.sum()))
+
+
+def attach_views(cameras, xy, members, *, max_px: float = 3.0,
+                 min_shared: float = 0.5) -> tuple[np.ndarray, int]:
+    """Attach free tracks of any view to the markers whose 3-D paths project onto them
+    (see the module docstring).
+
+    Parameters
+    ----------
+    cameras : sequence of K Camera
+    xy : sequence of K (T, N_k, 2) arrays
+    members : (M, K) int array
+    max_px : float
+        Largest median distance of a track from the marker's projection, px.
+    min_shared : float
+        Share of the marker's 3-D frames the track must hold, in (0, 1].
+
+    Returns
+    -------
+    members : (M, K) int array
+        With the attached tracks.
+    attached : int
+        How many tracks were attached.
+    """
+    cams, arrays = _checked(cameras, xy)
+    m = _members(members, len(cams)).copy()
+    max_px = as_scalar(max_px, "max_px", positive=True)
+    min_shared = as_scalar(min_shared, "min_shared", positive=True)
+    if min_shared > 1:
+        raise ValueError(f"min_shared: expected a share in (0, 1], got {min_shared}")
+    if not len(m):
+        return m, 0
+    xyz, _, _ = triangulate_joined(cams, arrays, m)
+    has3d = np.isfinite(xyz).all(axis=2)                              # (T, M)
+    attached = 0
+    for k, cam in enumerate(cams):
+        need = np.flatnonzero((m[:, k] < 0) & has3d.any(axis=0))
+        free = np.setdiff1d(np.arange(arrays[k].shape[1]), m[:, k])
+        if not need.size or not free.size:
+            continue
+        T = len(xyz)
+        proj = _project(cam, xyz[:, need]).reshape(T, len(need), 2)
+        d = np.linalg.norm(proj[:, :, None] - arrays[k][:, None, free], axis=3)   # (T, n, f)
+        shared = np.isfinite(d).sum(axis=0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(d, axis=0)
+        enough = shared >= min_shared * has3d[:, need].sum(axis=0)[:, None]
+        med = np.where(enough & np.isfinite(med), med, np.inf)
+        for i, row in enumerate(med):
+            f = int(np.argmin(row))
+            if row[f] <= max_px and int(np.argmin(med[:, f])) == i:
+                m[need[i], k] = free[f]
+                attached += 1
+    return m, attached
+
+
+def _predict(xyz, t, step, max_gap) -> np.ndarray | None:
+    """The marker's 3-D position in frame t: intersected there, or extrapolated at constant
+    velocity from the last two earlier frames (in the pass's direction) with one."""
+    if np.isfinite(xyz[t]).all():
+        return xyz[t]
+    seen = [s for s in range(t - step, t - step * (max_gap + 2), -step)
+            if 0 <= s < len(xyz) and np.isfinite(xyz[s]).all()]
+    if not seen or abs(t - seen[0]) > max_gap:
+        return None
+    if len(seen) == 1:
+        return xyz[seen[0]]
+    a, b = seen[0], seen[1]
+    return xyz[a] + (xyz[a] - xyz[b]) * (t - a) / (a - b)
+
+
+def _find_dots(cams, stacks, pos, t, j, X, members, radius, search_px, min_contrast):
+    """Dots near X's projection in the marker's views that lack it in frame t:
+    ``{view: (2,) px}``."""
+    found = {}
+    for k in np.flatnonzero(members[j] >= 0):
+        if np.isfinite(pos[t, k, j]).all():
+            continue
+        c = _project(cams[k], X)[0]
+        if not np.isfinite(c).all():
+            continue
+        img = stacks[k][t]
+        q = dot_centre(img, c[None], radius=radius)[0]
+        if not (np.isfinite(q).all() and np.linalg.norm(q - c) <= search_px
+                and dot_contrast(img, q[None], radius=radius)[0] >= min_contrast):
+            continue
+        others = np.delete(pos[t, k], j, axis=0)
+        others = others[np.isfinite(others).all(axis=1)]
+        if others.size and np.linalg.norm(others - q, axis=1).min() <= radius:
+            continue                                # another marker's dot
+        found[int(k)] = q
+    return found
+
+
+def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float = 12.0,
+              min_contrast: float = 15.0, max_gap: int = 10,
+              max_px: float = 3.0) -> tuple[tuple, np.ndarray]:
+    """Find markers again where one of their views lost them (see the module docstring).
+
+    Parameters
+    ----------
+    stacks : sequence of K (T, H_k, W_k) arrays
+        Grey frames of every view.
+    cameras : sequence of K Camera
+    xy : sequence of K (T, N_k, 2) arrays
+        Each view's tracks, px (not modified).
+    members : (M, K) int array
+    radius : int
+        Half-width of the dot's window, and the closest another marker may be, px.
+    search_px : float
+        Largest distance of the dot from the projection, px.
+    min_contrast : float
+        Smallest peak of a dot above its window's median, grey levels.
+    max_gap : int
+        Frames over which a 3-D position is extrapolated.
+    max_px : float
+        Largest reprojection error of the point intersected with the dot, px.
+
+    Returns
+    -------
+    xy : tuple of K (T, N_k, 2) arrays
+        The tracks with the dots found.
+    found : (T, K, M) bool array
+        Where a dot was found.
+    """
+    cams, arrays = _checked(cameras, xy)
+    m = _members(members, len(cams))
+    radius = as_int(radius, "radius", minimum=1, unit="pixels")
+    search_px = as_scalar(search_px, "search_px", positive=True)
+    min_contrast = as_scalar(min_contrast, "min_contrast", positive=True)
+    max_gap = as_int(max_gap, "max_gap", minimum=0, unit="frames")
+    max_px = as_scalar(max_px, "max_px", positive=True)
+    if len(stacks) != len(cams):
+        raise ValueError(f"stacks: expected {len(cams)} frame stacks (one per camera), got "
+                         f"{len(stacks)}")
+    T = arrays[0].shape[0]
+    if any(len(s) != T for s in stacks):
+        raise ValueError(f"stacks: expected {T} frames in every view (as the tracks), got "
+                         f"{[len(s) for s in stacks]}")
+    pos = joined_positions(arrays, m)                               # (T, K, M, 2)
+    xyz, _, _ = triangulate_joined(cams, arrays, m)
+    found = np.zeros(pos.shape[:3], bool)
+    for step, frames in ((1, range(T)), (-1, range(T - 1, -1, -1))):
+        for t in frames:
+            for j in range(len(m)):
+                X = _predict(xyz[:, j], t, step, max_gap)
+                if X is None:
+                    continue
+                dots = _find_dots(cams, stacks, pos, t, j, X, m, radius, search_px,
+                                  min_contrast)
+                if not dots:
+                    continue
+                trial = pos[t, :, j].copy()
+                for k, q in dots.items():
+                    trial[k] = q
+                seen = np.isfinite(trial).all(axis=1)
+                if seen.sum() < 2:
+                    continue
+                res = triangulate([cams[k] for k in np.flatnonzero(seen)],
+                                  trial[seen][:, None], min_angle_deg=1.0)
+                err = res.reprojection_error[:, 0]
+                if not (res.valid[0] and np.all(err <= max_px)):
+                    continue
+                for k, q in dots.items():
+                    pos[t, k, j] = q
+                    found[t, k, j] = True
+                xyz[t, j] = res.points[0]
+    out = []
+    for k, a in enumerate(arrays):
+        a = a.copy()
+        has = m[:, k] >= 0
+        a[:, m[has, k]] = np.where(found[:, k, has, None], pos[:, k, has], a[:, m[has, k]])
+        out.append(a)
+    return tuple(out), found

@@ -1,0 +1,198 @@
+"""Joined markers checked, completed and filled (lsmta.tracking.join_checks), the marker
+stage's use of it (lsmta.systems.markers) and the rigid pair's co-motion rule
+(lsmta.real.own_recording)."""
+
+import numpy as np
+import pytest
+
+from lsmta.real.own_recording import relative_motion, rigid_pair
+from lsmta.systems import MarkerParams, capture_markers
+from lsmta.tracking.join_checks import attach_views, check_joins, fill_gaps
+from lsmta.tracking.view_tracks import join_view_tracks, triangulate_joined
+from tests.test_view_tracks import _dot_video, _rig
+
+
+def _paths(T=30, seed=0):
+    """Five points moving each its own way near the origin, (T, 5, 3) mm."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(T)[:, None, None]
+    base = np.array([[-200.0, 0, -100], [150, 80, 120], [0, -60, 250], [220, 40, -200],
+                     [-120, 100, 180]])
+    return base[None] + 60 * np.sin(0.2 * t + rng.uniform(0, 6, (1, 5, 3)))
+
+
+def _tracks(cams, X, noise=0.1, seed=1):
+    rng = np.random.default_rng(seed)
+    T, M, _ = X.shape
+    return [c.project(X.reshape(-1, 3)).reshape(T, M, 2) + rng.normal(0, noise, (T, M, 2))
+            for c in cams]
+
+
+def test_two_points_on_one_epipolar_plane_moving_alike_are_ambiguous():
+    cams = _rig(2, spread_deg=20.0)                      # a horizontal baseline
+    X = _paths()
+    # point 5 moves exactly as point 0, 300 mm beside it along the baseline: their images
+    # share the epipolar lines in every frame, so either pairing of them meets
+    X = np.concatenate([X, X[:, :1] + [300.0, 0, 0]], axis=1)
+    xy = _tracks(cams, X)
+    J = join_view_tracks(cams, xy, max_px=1.0)
+    assert len(J) == 5                                   # 0 and 5 joined, one way or other
+    c = check_joins(cams, xy, J.members, max_px=1.0)
+    assert c.ambiguous == 1 and len(c.members) == 4 and c.views_out == 0
+    assert not np.isin(c.members, [0, 5]).any()         # the rest kept
+    before = J.members.copy()
+    check_joins(cams, xy, J.members, max_px=1.0)
+    assert np.array_equal(J.members, before)             # input unchanged
+    # with a looser ratio nothing is ambiguous
+    assert check_joins(cams, xy, J.members, max_px=1.0, min_ratio=1.0).ambiguous == 0
+
+
+def test_a_wrong_view_is_taken_out_and_its_track_attached_where_it_belongs():
+    cams = _rig(3, spread_deg=40.0)
+    X = _paths()
+    xy = _tracks(cams, X)
+    members = np.array([[i, i, i] for i in range(5)])
+    members[4, 2] = -1                                   # point 4: views 0 and 1 only
+    wrong = members.copy()
+    wrong[0, 2] = 4                                      # point 0 given point 4's track
+    free = np.delete(wrong, 0, axis=0)                   # (view 2's track 0 now free)
+    assert not np.isin(0, free[:, 2])
+    c = check_joins(cams, xy, wrong, max_px=2.0)
+    assert c.views_out == 1 and c.ambiguous == 0 and c.members[0, 2] == -1
+    m, attached = attach_views(cams, xy, c.members, max_px=2.0)
+    assert attached == 2 and np.array_equal(m, np.array([[i, i, i] for i in range(5)]))
+    # a view never joined (the two others 80 degrees apart joined it) is attached too
+    m2, n2 = attach_views(cams, xy, np.array([[i, i, -1] for i in range(5)]), max_px=2.0)
+    assert n2 == 5 and np.array_equal(m2[:, 2], np.arange(5))
+
+
+def test_markers_below_the_floor_are_dropped_only_when_a_floor_is_given():
+    cams = _rig(2, spread_deg=30.0)
+    X = _paths()
+    X[:, :, 2] += 200.0
+    X[:, 3:, 2] -= 500.0                                 # two points 100-500 mm under z = 0
+    xy = _tracks(cams, X)
+    members = np.array([[i, i] for i in range(5)])
+    c = check_joins(cams, xy, members, max_px=1.0, floor_mm=0.0, floor_margin_mm=50.0)
+    assert c.below_floor == 2 and np.array_equal(c.members[:, 0], [0, 1, 2])
+    assert check_joins(cams, xy, members, max_px=1.0).below_floor == 0
+    up_down = check_joins(cams, xy, members, max_px=1.0, floor_mm=0.0, up=(0, 0, -1))
+    assert up_down.below_floor == 3                      # turned over: the other three
+
+
+def test_a_lost_dot_is_found_at_the_projection_and_a_missing_one_is_not():
+    cams = _rig(2, spread_deg=20.0)
+    T = 16
+    t = np.arange(T)[:, None, None]
+    X = np.array([[-150.0, 0, -80], [120, 60, 100]])[None] + \
+        np.array([6.0, 0, 4.0]) * t                      # steady motion, 7 mm per frame
+    stacks = _dot_video(cams, X, size=(600, 800))
+    stacks[1][12, :, :] = 40                             # frame 12: view 1 shows no dot
+    truth = [c.project(X.reshape(-1, 3)).reshape(T, 2, 2) for c in cams]
+    xy = [a.copy() for a in truth]
+    xy[0][5:9, 0] = np.nan                               # view 0 lost marker 0 (blur)
+    xy[1][11:14, 1] = np.nan                             # view 1 lost marker 1
+    members = np.array([[0, 0], [1, 1]])
+    given = [a.copy() for a in xy]
+    out, found = fill_gaps(stacks, cams, xy, members, radius=4, max_px=1.0)
+    assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(xy, given))
+    assert found[5:9, 0, 0].all() and found[[11, 13], 1, 1].all()
+    assert not found[12, 1, 1] and np.isnan(out[1][12, 1]).all()   # no dot: stays empty
+    err = np.linalg.norm(out[0][5:9, 0] - truth[0][5:9, 0], axis=1)
+    assert err.max() < 0.5
+    assert found.sum() == 6
+    moved = [s.copy() for s in stacks]
+    moved[0][5:9] = np.roll(stacks[0][5:9], 8, axis=2)   # view 0's dots 8 px to the right
+    _, near = fill_gaps(moved, cams, xy, members, radius=4, search_px=4.0, max_px=20.0)
+    _, wide = fill_gaps(moved, cams, xy, members, radius=4, search_px=12.0, max_px=20.0)
+    assert not near[5:9, 0, 0].any() and wide[5:9, 0, 0].all()
+    xyz, _, _ = triangulate_joined(cams, out, members)
+    assert np.isfinite(xyz[:, 0]).all() and np.isnan(xyz[12, 1]).all()
+
+
+def test_the_stage_records_its_checks_and_the_peer_shares_them():
+    cams = _rig(2, spread_deg=20.0)
+    t = np.arange(8)[:, None, None]
+    base = np.array([[-250.0, 0, -150], [0, 120, 140], [250, -80, -20], [-100, 60, 150]])
+    X = base[None] + np.array([25.0, 0, 15.0]) * np.sin(0.3 * t + np.arange(4)[:, None])
+    stacks = _dot_video(cams, X)
+    first = [s[0] for s in stacks]
+    p = MarkerParams(detector="blobs", max_px=1.0, min_motion_mm=5.0)
+    a = capture_markers(stacks, cams, first, params=p)
+    assert set(a.joins) == {"ambiguous", "below_floor", "views_out", "attached", "filled"}
+    assert len(a.members) == 4 and a.joins["ambiguous"] == 0
+    b = capture_markers(stacks, cams, first, params=p, like=a)
+    assert np.array_equal(a.members, b.members) and b.joins["attached"] == a.joins["attached"]
+    off = capture_markers(stacks, cams, first, params=MarkerParams(
+        detector="blobs", max_px=1.0, min_motion_mm=5.0, check=False))
+    assert off.joins == dict.fromkeys(a.joins, 0)
+    floor = capture_markers(stacks, cams, first, params=MarkerParams(
+        detector="blobs", max_px=1.0, min_motion_mm=5.0, floor_mm=0.0))
+    assert floor.joins["below_floor"] == 1 and len(floor.members) == 3   # the z = -150 one
+
+
+def test_the_rigid_pair_must_move_together():
+    rng = np.random.default_rng(4)
+    T = 60
+    s = np.arange(T)
+    swing = np.stack([300 * np.sin(0.2 * s), 0 * s, 80 * np.clip(np.sin(0.2 * s), 0, None)], 1)
+    heel, toe = np.array([0.0, 0, 60]), np.array([180.0, 0, 40])
+    a = heel + swing + rng.normal(0, 1, (T, 3))
+    b = toe + swing + rng.normal(0, 1, (T, 3))
+    other = heel + [0, 120, 0] + 0.2 * swing + rng.normal(0, 1, (T, 3))   # another segment
+    assert relative_motion(a, b) < 0.05 and relative_motion(a, other) > 1.0
+    X = np.stack([a, b, other], axis=1)
+    assert rigid_pair(X).markers == (0, 1)
+    d = np.median(np.linalg.norm(a - other, axis=1))
+    assert 60 < d < 250 and rigid_pair(X[:, [0, 2]]) is None      # a span, not together
+    assert rigid_pair(X[:, [0, 2]], max_relative=5.0).markers == (0, 1)
+    still = np.tile(heel, (T, 1))
+    assert relative_motion(still, still) == np.inf        # no common motion
+    gone = np.full((T, 3), np.nan)
+    assert np.isnan(relative_motion(a, gone))
+
+
+def test_bad_input():
+    cams = _rig(2)
+    X = _paths(T=6)
+    xy = _tracks(cams, X)
+    members = np.array([[i, i] for i in range(5)])
+    with pytest.raises(ValueError, match="members"):
+        check_joins(cams, xy, members[:, :1])
+    with pytest.raises(ValueError, match="members"):
+        attach_views(cams, xy, members.astype(float))
+    with pytest.raises(ValueError, match="min_ratio"):
+        check_joins(cams, xy, members, min_ratio=0.5)
+    with pytest.raises(ValueError, match="floor_margin_mm"):
+        check_joins(cams, xy, members, floor_mm=0.0, floor_margin_mm=-1.0)
+    with pytest.raises(ValueError, match="up"):
+        check_joins(cams, xy, members, up=(0, 0, 0))
+    with pytest.raises((TypeError, ValueError), match="floor_mm"):
+        check_joins(cams, xy, members, floor_mm="floor")
+    with pytest.raises(ValueError, match="max_px"):
+        attach_views(cams, xy, members, max_px=0.0)
+    with pytest.raises(ValueError, match="min_shared"):
+        attach_views(cams, xy, members, min_shared=1.5)
+    stacks = [np.zeros((6, 600, 800), np.uint8)] * 2
+    with pytest.raises(ValueError, match="stacks"):
+        fill_gaps(stacks[:1], cams, xy, members)
+    with pytest.raises(ValueError, match="stacks"):
+        fill_gaps([s[:3] for s in stacks], cams, xy, members)
+    with pytest.raises(ValueError, match="radius"):
+        fill_gaps(stacks, cams, xy, members, radius=0)
+    with pytest.raises(ValueError, match="search_px"):
+        fill_gaps(stacks, cams, xy, members, search_px=0.0)
+    with pytest.raises(ValueError, match="max_gap"):
+        fill_gaps(stacks, cams, xy, members, max_gap=-1)
+    with pytest.raises(ValueError, match="min_contrast"):
+        fill_gaps(stacks, cams, xy, members, min_contrast=0.0)
+    with pytest.raises(TypeError, match="check"):
+        MarkerParams(check="yes")
+    with pytest.raises(ValueError, match="min_ratio"):
+        MarkerParams(min_ratio=0.5)
+    with pytest.raises(ValueError, match="floor_mm"):
+        MarkerParams(floor_mm=float("nan"))
+    with pytest.raises(ValueError, match="max_relative"):
+        rigid_pair(X, max_relative=0.0)
+    with pytest.raises(ValueError, match="b"):
+        relative_motion(X[:, 0], X[:3, 1])

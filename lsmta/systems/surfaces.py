@@ -66,6 +66,7 @@ from ..matching import (
 from ..triangulation import triangulate
 from .checks import check_cameras, check_videos
 from .rectified import NoSeedsError, measure_rectified_pair, surface_result
+from .subject import SubjectMaskParams, on_subject, subject_masks
 
 
 @dataclass(frozen=True)
@@ -109,6 +110,10 @@ class SurfaceParams:
     rectified_geometry : {"row-affine", "shift"}
         ``"rectified"`` only: the LSM's geometric model (``"shift"``: the disparity alone,
         fewer unknowns for blurred, weakly textured patches).
+    subject_mask : SubjectMaskParams or None
+        With it, every measured frame's n-tuples whose template pixel lies off the moving
+        subject (:func:`~lsmta.systems.subject.subject_masks` of the videos given) are
+        dropped and counted (``SurfaceResult.off_subject``). Default None: nothing dropped.
     """
 
     template: int = 1
@@ -123,8 +128,13 @@ class SurfaceParams:
     rectified_depths: tuple = (0.8, 1.25)
     rectified_start: str = "grow"
     rectified_geometry: str = "row-affine"
+    subject_mask: SubjectMaskParams | None = None
 
     def __post_init__(self):
+        if self.subject_mask is not None and not isinstance(self.subject_mask,
+                                                            SubjectMaskParams):
+            raise TypeError(f"subject_mask: expected a SubjectMaskParams or None, got "
+                            f"{type(self.subject_mask).__name__}")
         if self.method not in ("grow", "rectified"):
             raise ValueError(f"method: expected 'grow' or 'rectified', got {self.method!r}")
         try:
@@ -234,8 +244,21 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
     bad = [f for f in frames if not 0 <= f < v.shape[1]]
     if bad:
         raise ValueError(f"frames: expected frame indices in [0, {v.shape[1] - 1}], got {bad}")
+    if p.subject_mask is not None and v.shape[1] < 3:
+        raise ValueError(f"videos: params.subject_mask needs at least 3 frames for the "
+                         f"background median, got {v.shape[1]}")
     if p.method == "rectified":
-        return _rectified_surfaces(v, cams, frames, p, progress)
+        out = _rectified_surfaces(v, cams, frames, p, progress)
+    else:
+        out = _grown_surfaces(v, cams, frames, sigma, p, progress)
+    if p.subject_mask is None:
+        return out
+    return {f: on_subject(r, subject_masks(v, f, params=p.subject_mask).masks[p.template],
+                          template=p.template) for f, r in out.items()}
+
+
+def _grown_surfaces(v, cams, frames, sigma: float, p: SurfaceParams, progress: bool) -> dict:
+    """:func:`measure_surfaces` with ``method="grow"`` (module docstring)."""
     d = working_distance(cams, p.template)
     mask = _lens_mask(cams[p.template])
     noise = sigma if p.texture_rule == "precision" else None
@@ -246,7 +269,7 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
         if seeds.xy.shape[1] == 0:
             warnings.warn(f"measure_surfaces: no seed found in frame {f} (no textured point "
                           "matches along the epipolar curves); the frame is left out",
-                          stacklevel=2)
+                          stacklevel=3)
             continue
         level = seed_residual(v[:, f], seeds.xy, template=p.template, patch=p.patch)
         limit = p.sigma0_factor * max(sigma, np.nan_to_num(level / np.sqrt(2)))

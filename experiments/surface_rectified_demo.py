@@ -2,7 +2,18 @@
 Pose2Sim demo, beside OpenCV's SGBM on the same rectified pairs.
 
     .venv/bin/python experiments/surface_rectified_demo.py [--cache /tmp/surface_demo_cache.pkl]
-        [--out build/benchmarks/surface_rectified_demo] [--mask-frames 0:100:5]
+        [--out build/benchmarks/surface_rectified_demo] [--mask-frames 0:100:5] [--system-only]
+
+First the system's way (``--system-only`` stops after it): per view group
+:func:`lsmta.systems.measure_surfaces` with ``SurfaceParams(method="rectified",
+rectified_start="sgbm", rectified_geometry="shift", subject_mask=SubjectMaskParams(every=1))``
+on frame 0 (the subject mask from the ``--mask-frames`` frames: its pixels, noise and
+threshold per view, the n-tuples dropped off it), then every pair point matched in the other
+pair's cameras (:func:`lsmta.systems.more_views.add_views`, the rectified growth's
+thresholds) and intersected from all its views: per camera the visibility census, the points
+in >= 3 views and their median residual; and whether the other pair could see the surface
+at all (the angle between each point's normal and the direction to each other camera).
+Then the comparisons below.
 
 Reads the refined cameras and noise that ``experiments/surface_demo.py`` caches (run it first),
 and per view group (cam01+cam02, cam03+cam04):
@@ -17,16 +28,15 @@ and per view group (cam01+cam02, cam03+cam04):
   parameters: fewer unknowns for blurred, weakly textured patches);
 * SGBM-started LSM (:func:`lsmta.systems.rectified.refine_disparities`): the growth's LSM,
   constrained to the row, shift-only and row-affine, started at SGBM's disparity at every
-  textured node inside the rectified motion mask, no growth; a node counts where LSM
+  textured node inside the rectified subject mask, no growth; a node counts where LSM
   converges and passes the thresholds: nodes started, accepted, points, median disparity
   sigma, median |LSM - SGBM|; and the wired option (``SurfaceParams(rectified_start="sgbm",
-  rectified_geometry="shift")``, no motion mask) through :func:`measure_surfaces`;
+  rectified_geometry="shift")``, no subject mask) through :func:`measure_surfaces`;
 * how alike the matched 11 x 11 patches are (normalised cross-correlation of the rectified
   patches, the share >= 0.8): a plausibility check of the matches, not the truth;
-* how many of either lie on the person: the template pixel in the motion mask (frame 0's
-  absolute difference to the median of ``--mask-frames`` above 15 grey levels, closed and
-  dilated by 15 px; the system's own data, no truth), and the median |ours - SGBM| disparity
-  where both have one.
+* how many of either lie on the person: the template pixel in the subject mask
+  (:func:`lsmta.systems.subject.subject_masks`, the system's own data, no truth), and the
+  median |ours - SGBM| disparity where both have one.
 
 A rectified match lies on its epipolar line by construction, so its two-view residual is ~0
 for any disparity, right or wrong: the residual target cannot tell a good match from a bad
@@ -72,6 +82,31 @@ SYSTEM = SurfaceParams(method="rectified", rectified_start="sgbm", rectified_geo
                        subject_mask=MASK)
 
 
+def facing(mv, cameras, ref: int, xy) -> dict:
+    """Whether the other cameras could see the pair's surface, per camera outside the pair:
+    over the points with a normal, the median angle between the normal (turned to the
+    reference camera) and the direction to that camera, the share within 75 and 90 degrees,
+    and the median angle between the lines of sight from the reference camera and it."""
+    X = mv.intersection.points
+    ok = np.isfinite(mv.normals).all(axis=1) & np.isfinite(X).all(axis=1)
+    out = {"points_with_normal": int(ok.sum())}
+    given = np.isfinite(xy).all(axis=2).any(axis=1)
+    for k, cam in enumerate(cameras):
+        if given[k] or not ok.any():
+            continue
+        to = cam.C - X[ok]
+        to /= np.linalg.norm(to, axis=1, keepdims=True)
+        ang = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", mv.normals[ok], to), -1, 1)))
+        r = cameras[ref].C - X[ok]
+        r /= np.linalg.norm(r, axis=1, keepdims=True)
+        sight = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", r, to), -1, 1)))
+        out[cam.name] = {"median_normal_angle_deg": float(np.median(ang)),
+                         "share_within_75_deg": float(np.mean(ang <= 75.0)),
+                         "share_within_90_deg": float(np.mean(ang <= 90.0)),
+                         "median_sight_angle_deg": float(np.median(sight))}
+    return out
+
+
 def system_run(stacks, cameras) -> dict:
     """The system's way: per view group ``measure_surfaces(SYSTEM)`` on frame 0 (the subject
     mask from the sampled frames), then every pair point matched in the other cameras
@@ -93,9 +128,13 @@ def system_run(stacks, cameras) -> dict:
         xy = xy[:, s.kept]
         allxy.append(xy)
         refs.append(g.template)
+        sm = subject_masks(v, 0, params=MASK)
         out["groups"].append({"group": "+".join(c.name for c in cams), "points": int(s.kept.sum()),
                               "off_subject": s.off_subject, "cpu_s": t,
-                              "nodes": dict(s.grown[0].node_census)})
+                              "nodes": dict(s.grown[0].node_census),
+                              "mask_pixels": [int(m.sum()) for m in sm.masks],
+                              "mask_share": [float(m.mean()) for m in sm.masks],
+                              "noise": sm.noise.tolist(), "threshold": sm.threshold.tolist()})
     images = [stacks[k][0] for k in range(K)]
     for row, xy, ref in zip(out["groups"], allxy, refs):
         t0 = time.process_time()
@@ -110,6 +149,7 @@ def system_run(stacks, cameras) -> dict:
         row["p90_residual_3plus_px"] = float(np.percentile(mv.residual[three], 90)) \
             if three.any() else None
         row["_mv"] = mv
+        row["facing"] = facing(mv, cameras, ref, xy)
     n3 = sum(r["points_3_views"] for r in out["groups"])
     res = np.concatenate([r["_mv"].residual[r["_mv"].n_views >= 3] for r in out["groups"]])
     out["points"] = sum(r["points"] for r in out["groups"])
@@ -134,7 +174,7 @@ def _summary(xy, cams, mask, template):
 
 def run_group(v0, cams, masks, template: int, params: SurfaceParams) -> dict:
     """Ours and SGBM on one group's frame 0 (``v0`` (2, H, W)); ``masks`` the two views'
-    motion masks."""
+    subject masks."""
     mask = masks[template]
     t0 = time.process_time()
     res = measure_surfaces(v0[:, None], cams, [0], sigma=1.0, params=params)
@@ -177,7 +217,7 @@ def run_group(v0, cams, masks, template: int, params: SurfaceParams) -> dict:
         variant = {"points": 0, "note": "no seed"}
     out = {"disparity_range": [lo, hi], "lsm_at_sgbm_nodes": why,
            "sgbm-started LSM": started,
-           "ours, rectified_start='sgbm', shift (no motion mask)": wired,
+           "ours, rectified_start='sgbm', shift (no subject mask)": wired,
            "ours, shift-only LSM, patch 15, 30 iterations": variant,
            "sgbm": {**_summary(sg_xy, cams, mask, template), "cpu_s": sgbm_s,
                     "patch_similarity": ncc_share(left, right, d)}}
@@ -201,7 +241,7 @@ def run_group(v0, cams, masks, template: int, params: SurfaceParams) -> dict:
 
 def sgbm_started(left, right, d, rmask, rect, cams, mask, template, *, geometry) -> dict:
     """SGBM-started LSM: the growth's LSM (``geometry``) at SGBM's nodes ``d`` inside the
-    rectified motion mask ``rmask`` (:func:`lsmta.systems.rectified.refine_disparities`),
+    rectified subject mask ``rmask`` (:func:`lsmta.systems.rectified.refine_disparities`),
     the accepted nodes intersected."""
     p = DisparityParams(grow=replace(DisparityParams().grow, geometry=geometry))
     t0 = time.process_time()
@@ -237,7 +277,7 @@ def disparity_grid(points, cams, rect, shape, step: int = 4) -> np.ndarray:
 
 
 def rect_mask(rect, mask, template: int) -> np.ndarray | None:
-    """The motion mask on the rectified left image (None if it belongs to the right view)."""
+    """The subject mask on the rectified left image (None if it belongs to the right view)."""
     if rect.left != template:
         return None
     m = rect.maps[rect.left]
@@ -346,12 +386,12 @@ def main(argv=None):
                   f"{x['accepted']} accepted, {x['points']} points, median sigma "
                   f"{x['median_disparity_sigma_px']} px, median |LSM - SGBM| "
                   f"{x['median_abs_lsm_minus_sgbm_px']} px, {x['cpu_s']:.1f} s CPU")
-        w = r["ours, rectified_start='sgbm', shift (no motion mask)"]
+        w = r["ours, rectified_start='sgbm', shift (no subject mask)"]
         print(f"  SurfaceParams(rectified_start='sgbm', rectified_geometry='shift'): "
               f"{w['points']} points ({w['on_person']} on the person), median sigma "
               f"{w['median_disparity_sigma_px']:.3f} px")
     print(f"points {total}: target >= 2,000 {'met' if total >= 2000 else 'NOT met'}")
-    print(f"SGBM-started LSM (shift, in the motion mask): points {started}: target >= 2,000 "
+    print(f"SGBM-started LSM (shift, in the subject mask): points {started}: target >= 2,000 "
           f"{'met' if started >= 2000 else 'NOT met'} (the residual is ~0 by construction; "
           "the disparity's sigma above says the precision)")
     write_json(Path(args.out) / "surface_rectified_demo.json", record)

@@ -12,6 +12,7 @@ from lsmta.matching import DisparityParams
 from lsmta.synth import Renderer, Scene, make_body, triplet_rig, walk
 from lsmta.systems import SurfaceParams, measure_surfaces
 from lsmta.systems.more_views import MoreViewsParams, add_views
+from lsmta.systems.surfaces import grow_failed
 from lsmta.systems.subject import SubjectMaskParams, on_subject, subject_masks
 from lsmta.triangulation import triangulate
 
@@ -137,3 +138,24 @@ def test_bad_input(triplet, pair_points):
         add_views(images, cams, pair_points, reference=1)
     with pytest.raises(ValueError, match="xy"):
         add_views(images, cams, pair_points[:2], reference=0)
+
+
+def test_auto_keeps_a_working_growth_and_replaces_a_failed_one(triplet):
+    """method="auto": where the growth works its result is the growth's, node for node; a
+    rule that calls it failed (auto_min_share near 1) measures the pair by SGBM-started LSM."""
+    cams, videos, _ = triplet
+    pair, v = [cams[0], cams[2]], videos[[0, 2], 1:2]
+    grow = measure_surfaces(v, pair, [0], sigma=1.0, params=SurfaceParams(template=0))
+    assert not grow_failed(grow)
+    auto = measure_surfaces(v, pair, [0], sigma=1.0,
+                            params=SurfaceParams(template=0, method="auto"))
+    assert np.array_equal(auto[0].xy, grow[0].xy)
+    with pytest.warns(UserWarning, match="rectified images"):
+        failed = measure_surfaces(v, pair, [0], sigma=1.0,
+                                  params=SurfaceParams(template=0, method="auto",
+                                                       auto_min_share=0.99))
+    sgbm = measure_surfaces(v, pair, [0], sigma=1.0, params=SGBM)
+    assert np.array_equal(failed[0].xy, sgbm[0].xy)
+    assert grow_failed({})
+    with pytest.raises(ValueError, match="auto_min_share"):
+        SurfaceParams(method="auto", auto_min_share=0.0)

@@ -12,8 +12,8 @@ from lsmta.matching import DisparityParams
 from lsmta.synth import Renderer, Scene, make_body, triplet_rig, walk
 from lsmta.systems import SurfaceParams, measure_surfaces
 from lsmta.systems.more_views import MoreViewsParams, add_views
-from lsmta.systems.surfaces import grow_failed
 from lsmta.systems.subject import SubjectMaskParams, on_subject, subject_masks
+from lsmta.systems.surfaces import grow_failed
 from lsmta.triangulation import triangulate
 
 SGBM = SurfaceParams(method="rectified", template=0, rectified_start="sgbm",

@@ -263,7 +263,7 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
         out = _rectified_surfaces(v, cams, frames, p, progress)
     else:
         out = _grown_surfaces(v, cams, frames, sigma, p, progress)
-        if p.method == "auto" and len(cams) == 2 and grow_failed(out, p.auto_min_share):
+        if p.method == "auto" and len(cams) == 2 and grow_failed(out, min_share=p.auto_min_share):
             warnings.warn("measure_surfaces: the growth kept fewer than "
                           f"{p.auto_min_share:.0%} of the template's textured nodes; the pair "
                           "is measured on its rectified images from SGBM's starts instead",
@@ -276,7 +276,7 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
                           template=p.template) for f, r in out.items()}
 
 
-def grow_failed(surfaces: dict, min_share: float = 0.01) -> bool:
+def grow_failed(surfaces: dict, *, min_share: float = 0.01) -> bool:
     """Whether the growth failed: its first measured frame keeps fewer than ``min_share`` of
     the template's textured nodes (the nodes of the first search image's census that were
     neither outside, masked nor without texture; :func:`surface_census`), or no frame has

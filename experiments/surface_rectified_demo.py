@@ -11,8 +11,9 @@ on frame 0 (the subject mask from the ``--mask-frames`` frames: its pixels, nois
 threshold per view, the n-tuples dropped off it), then every pair point matched in the other
 pair's cameras (:func:`lsmta.systems.more_views.add_views`, the rectified growth's
 thresholds) and intersected from all its views: per camera the visibility census, the points
-in >= 3 views and their median residual; and whether the other pair could see the surface
-at all (the angle between each point's normal and the direction to each other camera).
+in >= 3 views and their median residual; whether the other pair could see the surface at all
+(the angle between each point's normal and the direction to each other camera); and the
+same matching with the visibility rule relaxed (neighbours within 6 spacings, 89 degrees).
 Then the comparisons below.
 
 Reads the refined cameras and noise that ``experiments/surface_demo.py`` caches (run it first),
@@ -150,6 +151,11 @@ def system_run(stacks, cameras) -> dict:
             if three.any() else None
         row["_mv"] = mv
         row["facing"] = facing(mv, cameras, ref, xy)
+        # is the rule the obstacle? the same with a wider neighbourhood and 89 degrees
+        loose = add_views(images, cameras, xy, reference=ref, params=replace(
+            views_params, radius_factor=6.0, max_view_angle_deg=89.0))
+        row["relaxed_rule"] = {c.name: {"tried": x["tried"], "accepted": x["accepted"]}
+                               for c, x in zip(cameras, loose.census) if not x["given"]}
     n3 = sum(r["points_3_views"] for r in out["groups"])
     res = np.concatenate([r["_mv"].residual[r["_mv"].n_views >= 3] for r in out["groups"]])
     out["points"] = sum(r["points"] for r in out["groups"])

@@ -12,7 +12,12 @@ from lsmta.matching import DisparityParams
 from lsmta.synth import Renderer, Scene, make_body, triplet_rig, walk
 from lsmta.systems import SurfaceParams, measure_surfaces
 from lsmta.systems.more_views import MoreViewsParams, add_views
-from lsmta.systems.subject import SubjectMaskParams, on_subject, subject_masks
+from lsmta.systems.subject import (
+    SubjectMaskParams,
+    background,
+    on_subject,
+    subject_masks,
+)
 from lsmta.systems.surfaces import grow_failed
 from lsmta.triangulation import triangulate
 
@@ -48,6 +53,8 @@ def test_subject_mask_covers_the_moving_body(triplet):
     cams, videos, frame = triplet
     sm = subject_masks(videos, 1)
     assert np.all(sm.threshold == 10.0 * sm.noise)
+    reused = subject_masks(videos, 1, median=background(videos))      # the same background
+    assert np.array_equal(reused.masks, sm.masks)
     p = SubjectMaskParams()
     for k in range(3):
         body = np.isfinite(frame.depth[k])
@@ -114,6 +121,8 @@ def test_bad_input(triplet, pair_points):
         subject_masks(videos, 5)
     with pytest.raises(TypeError, match="params"):
         subject_masks(videos, 0, params="strict")
+    with pytest.raises(ValueError, match="median: expected a background"):
+        subject_masks(videos, 0, median=background(videos[:2]))
     with pytest.raises(TypeError, match="subject_mask"):
         SurfaceParams(subject_mask=True)
     with pytest.raises(ValueError, match="subject_mask needs at least 3 frames"):

@@ -112,7 +112,45 @@ def _clean(moving: np.ndarray, p: SubjectMaskParams) -> np.ndarray:
     return m.astype(bool)
 
 
-def subject_masks(videos, frame: int, *, params: SubjectMaskParams | None = None) -> SubjectMasks:
+def _checked(videos, params):
+    p = params or SubjectMaskParams()
+    if not isinstance(p, SubjectMaskParams):
+        raise TypeError(f"params: expected a SubjectMaskParams, got {type(p).__name__}")
+    v = np.asarray(videos)
+    if v.ndim != 4 or v.shape[1] < 3:
+        raise ValueError(f"videos: expected (K, T, H, W) frames with T >= 3, got shape "
+                         f"{v.shape}")
+    return v, p
+
+
+def background(videos, *, params: SubjectMaskParams | None = None) -> tuple:
+    """The static background of every view: the per-pixel median of the sampled frames.
+
+    Parameters
+    ----------
+    videos : (K, T, H, W) array
+        Grey frames of K views (T >= 3).
+    params : SubjectMaskParams, optional
+
+    Returns
+    -------
+    median : (K, H, W) float32 array
+    samples : (S,) int array
+        The frames sampled (every ``params.every``-th, at most ``max_samples``; all when
+        that leaves fewer than 3).
+    """
+    v, p = _checked(videos, params)
+    samples = np.arange(0, v.shape[1], p.every)
+    if len(samples) < 3:
+        samples = np.arange(v.shape[1])
+    if len(samples) > p.max_samples:
+        samples = samples[np.linspace(0, len(samples) - 1, p.max_samples).round().astype(int)]
+    median = np.stack([np.median(v[k, samples], axis=0) for k in range(v.shape[0])])
+    return median.astype(np.float32), samples
+
+
+def subject_masks(videos, frame: int, *, params: SubjectMaskParams | None = None,
+                  median=None) -> SubjectMasks:
     """The moving subject's pixels in ``frame`` of every view (module docstring).
 
     Parameters
@@ -122,30 +160,24 @@ def subject_masks(videos, frame: int, *, params: SubjectMaskParams | None = None
     frame : int
         The frame to mask.
     params : SubjectMaskParams, optional
+    median : (median, samples), optional
+        :func:`background` of the same videos and params, to reuse over several frames.
 
     Returns
     -------
     SubjectMasks
     """
-    p = params or SubjectMaskParams()
-    if not isinstance(p, SubjectMaskParams):
-        raise TypeError(f"params: expected a SubjectMaskParams, got {type(p).__name__}")
-    v = np.asarray(videos)
-    if v.ndim != 4 or v.shape[1] < 3:
-        raise ValueError(f"videos: expected (K, T, H, W) frames with T >= 3, got shape "
-                         f"{v.shape}")
+    v, p = _checked(videos, params)
     frame = as_int(frame, "frame", minimum=0)
     if not 0 <= frame < v.shape[1]:
         raise ValueError(f"frame: expected a frame index in [0, {v.shape[1] - 1}], got {frame}")
-    samples = np.arange(0, v.shape[1], p.every)
-    if len(samples) < 3:
-        samples = np.arange(v.shape[1])
-    if len(samples) > p.max_samples:
-        samples = samples[np.linspace(0, len(samples) - 1, p.max_samples).round().astype(int)]
+    bg, samples = background(v, params=p) if median is None else median
+    if np.shape(bg) != (v.shape[0],) + v.shape[2:]:
+        raise ValueError(f"median: expected a background of shape {(v.shape[0],) + v.shape[2:]}, "
+                         f"got {np.shape(bg)}")
     masks, noise, thresholds = [], [], []
     for k in range(v.shape[0]):
-        median = np.median(v[k, samples], axis=0).astype(np.float32)
-        d = np.abs(v[k, frame].astype(np.float32) - median)
+        d = np.abs(v[k, frame].astype(np.float32) - bg[k])
         s = max(1.4826 * float(np.median(d)), p.min_noise)
         masks.append(_clean(d > p.factor * s, p))
         noise.append(s)

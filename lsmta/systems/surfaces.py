@@ -66,7 +66,7 @@ from ..matching import (
 from ..triangulation import triangulate
 from .checks import check_cameras, check_videos
 from .rectified import NoSeedsError, measure_rectified_pair, surface_result
-from .subject import SubjectMaskParams, on_subject, subject_masks
+from .subject import SubjectMaskParams, background, on_subject, subject_masks
 
 
 @dataclass(frozen=True)
@@ -272,8 +272,9 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
                 p, rectified_start="sgbm", rectified_geometry="shift"), progress)
     if p.subject_mask is None:
         return out
-    return {f: on_subject(r, subject_masks(v, f, params=p.subject_mask).masks[p.template],
-                          template=p.template) for f, r in out.items()}
+    bg = background(v, params=p.subject_mask)            # once for every frame
+    return {f: on_subject(r, subject_masks(v, f, params=p.subject_mask, median=bg)
+                          .masks[p.template], template=p.template) for f, r in out.items()}
 
 
 def grow_failed(surfaces: dict, *, min_share: float = 0.01) -> bool:

@@ -260,14 +260,15 @@ class BodyCapture:
                 ("view groups", per_view(lambda v: f"template {v.group.template}")),
                 ("image noise", per_view(lambda v: f"sigma {v.noise.sigma:.2f} grey levels")),
                 ("surfaces", per_view(lambda v: f"{len(v.surfaces)} frames, first frame "
-                                                f"{_surface_points(v.surfaces)} points")),
+                                                f"{_surface_points(v.surfaces)} points"
+                                                + _off_subject_text(v.surfaces))),
                 ("tracking", per_view(lambda v: "none" if v.tracks is None else
                                       f"from frame {int(self.frames[v.tracking_from])}: "
                                       f"{len(v.tracks)} tracks, "
                                       f"{int(v.tracks.alive[-1].sum())} alive at the end")),
                 ("trajectories", f"{kept} of {len(self.trajectories)} kept by the filters")]
-        if self.params.more_views is not None:
-            rows.append(("more views", per_view(_more_views_text)))
+        if self.params.more_views is not None:        # after the surfaces it extends
+            rows.insert(4, ("more views", per_view(_more_views_text)))
         if self.markers is not None:
             m = self.markers
             share = m.triangulated_share()[m.moving]
@@ -303,6 +304,14 @@ def _more_views_text(view: ViewCapture) -> str:
     three = mv.n_views >= 3
     med = f", median residual {np.median(mv.residual[three]):.2f} px" if three.any() else ""
     return f"first frame {int(three.sum())} of {len(three)} points in >= 3 views{med}"
+
+
+def _off_subject_text(surfaces: dict) -> str:
+    """``" (N off the subject dropped)"`` for the first frame where a subject mask dropped
+    any, else ``""``."""
+    first = surfaces[min(surfaces)] if surfaces else None
+    return f" ({first.off_subject} off the subject dropped)" if first and first.off_subject \
+        else ""
 
 
 def _surface_points(surfaces: dict) -> int:

@@ -2,7 +2,19 @@
 Pose2Sim demo, beside OpenCV's SGBM on the same rectified pairs.
 
     .venv/bin/python experiments/surface_rectified_demo.py [--cache /tmp/surface_demo_cache.pkl]
-        [--out build/benchmarks/surface_rectified_demo] [--mask-frames 0:100:5]
+        [--out build/benchmarks/surface_rectified_demo] [--mask-frames 0:100:5] [--system-only]
+
+First the system's way (``--system-only`` stops after it): per view group
+:func:`lsmta.systems.measure_surfaces` with ``SurfaceParams(method="rectified",
+rectified_start="sgbm", rectified_geometry="shift", subject_mask=SubjectMaskParams(every=1))``
+on frame 0 (the subject mask from the ``--mask-frames`` frames: its pixels, noise and
+threshold per view, the n-tuples dropped off it), then every pair point matched in the other
+pair's cameras (:func:`lsmta.systems.more_views.add_views`, the rectified growth's
+thresholds) and intersected from all its views: per camera the visibility census, the points
+in >= 3 views and their median residual; whether the other pair could see the surface at all
+(the angle between each point's normal and the direction to each other camera); and the
+same matching with the visibility rule relaxed (neighbours within 6 spacings, 89 degrees).
+Then the comparisons below.
 
 Reads the refined cameras and noise that ``experiments/surface_demo.py`` caches (run it first),
 and per view group (cam01+cam02, cam03+cam04):
@@ -17,16 +29,15 @@ and per view group (cam01+cam02, cam03+cam04):
   parameters: fewer unknowns for blurred, weakly textured patches);
 * SGBM-started LSM (:func:`lsmta.matching.refine_disparities`): the growth's LSM,
   constrained to the row, shift-only and row-affine, started at SGBM's disparity at every
-  textured node inside the rectified motion mask, no growth; a node counts where LSM
+  textured node inside the rectified subject mask, no growth; a node counts where LSM
   converges and passes the thresholds: nodes started, accepted, points, median disparity
   sigma, median |LSM - SGBM|; and the wired option (``SurfaceParams(rectified_start="sgbm",
-  rectified_geometry="shift")``, no motion mask) through :func:`measure_surfaces`;
+  rectified_geometry="shift")``, no subject mask) through :func:`measure_surfaces`;
 * how alike the matched 11 x 11 patches are (normalised cross-correlation of the rectified
   patches, the share >= 0.8): a plausibility check of the matches, not the truth;
-* how many of either lie on the person: the template pixel in the motion mask (frame 0's
-  absolute difference to the median of ``--mask-frames`` above 15 grey levels, closed and
-  dilated by 15 px; the system's own data, no truth), and the median |ours - SGBM| disparity
-  where both have one.
+* how many of either lie on the person: the template pixel in the subject mask
+  (:func:`lsmta.systems.subject.subject_masks`, the system's own data, no truth), and the
+  median |ours - SGBM| disparity where both have one.
 
 A rectified match lies on its epipolar line by construction, so its two-view residual is ~0
 for any disparity, right or wrong: the residual target cannot tell a good match from a bad
@@ -51,6 +62,7 @@ from lsmta.io import read_videos
 from lsmta.matching import DisparityParams, LSMParams, Status, lsm, peers, refine_disparities
 from lsmta.report import write_json
 from lsmta.systems import SurfaceParams, measure_surfaces, view_groups
+from lsmta.systems.more_views import MoreViewsParams, add_views
 from lsmta.systems.rectified import (
     NoSeedsError,
     measure_rectified_pair,
@@ -58,18 +70,99 @@ from lsmta.systems.rectified import (
     to_original,
     warp,
 )
+from lsmta.systems.subject import SubjectMaskParams, subject_masks
 from lsmta.triangulation import triangulate
 
 sys.path.insert(0, str(Path(__file__).parent))
 from surface_demo import _group_inputs  # noqa: E402
 
+# the stack is already every fifth frame (--mask-frames): its median uses every frame of it
+MASK = SubjectMaskParams(every=1)
+SYSTEM = SurfaceParams(method="rectified", rectified_start="sgbm", rectified_geometry="shift",
+                       subject_mask=MASK)
 
-def motion_mask(stack, *, threshold: float = 15.0, grow: int = 15) -> np.ndarray:
-    """Frame 0's pixels that differ from the median of the frames of ``stack`` (T, H, W)."""
-    diff = np.abs(stack[0].astype(float) - np.median(stack, axis=0)) > threshold
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))
-    closed = cv2.morphologyEx(diff.astype(np.uint8), cv2.MORPH_CLOSE, kernel)
-    return cv2.dilate(closed, kernel).astype(bool)
+
+def facing(mv, cameras, ref: int, xy) -> dict:
+    """Whether the other cameras could see the pair's surface, per camera outside the pair:
+    over the points with a normal, the median angle between the normal (turned to the
+    reference camera) and the direction to that camera, the share within 75 and 90 degrees,
+    and the median angle between the lines of sight from the reference camera and it."""
+    X = mv.intersection.points
+    ok = np.isfinite(mv.normals).all(axis=1) & np.isfinite(X).all(axis=1)
+    out = {"points_with_normal": int(ok.sum())}
+    given = np.isfinite(xy).all(axis=2).any(axis=1)
+    for k, cam in enumerate(cameras):
+        if given[k] or not ok.any():
+            continue
+        to = cam.C - X[ok]
+        to /= np.linalg.norm(to, axis=1, keepdims=True)
+        ang = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", mv.normals[ok], to), -1, 1)))
+        r = cameras[ref].C - X[ok]
+        r /= np.linalg.norm(r, axis=1, keepdims=True)
+        sight = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", r, to), -1, 1)))
+        out[cam.name] = {"median_normal_angle_deg": float(np.median(ang)),
+                         "share_within_75_deg": float(np.mean(ang <= 75.0)),
+                         "share_within_90_deg": float(np.mean(ang <= 90.0)),
+                         "median_sight_angle_deg": float(np.median(sight))}
+    return out
+
+
+def system_run(stacks, cameras) -> dict:
+    """The system's way: per view group ``measure_surfaces(SYSTEM)`` on frame 0 (the subject
+    mask from the sampled frames), then every pair point matched in the other cameras
+    (:func:`lsmta.systems.more_views.add_views`, the rectified growth's thresholds) and
+    intersected from all its views."""
+    K = len(cameras)
+    out = {"groups": []}
+    thresholds = DisparityParams().grow_params().lsm_thresholds()
+    views_params = MoreViewsParams(thresholds=replace(thresholds, max_sigma_xy=0.2))
+    allxy, refs = [], []
+    for g in view_groups(cameras):
+        v, cams = _group_inputs(stacks, cameras, g)
+        params = replace(SYSTEM, template=g.template_position)
+        t0 = time.process_time()
+        s = measure_surfaces(v, cams, [0], sigma=1.0, params=params)[0]
+        t = time.process_time() - t0
+        xy = np.full((K, s.xy.shape[1], 2), np.nan)
+        xy[list(g.cameras)] = s.xy
+        xy = xy[:, s.kept]
+        allxy.append(xy)
+        refs.append(g.template)
+        sm = subject_masks(v, 0, params=MASK)
+        out["groups"].append({"group": "+".join(c.name for c in cams), "points": int(s.kept.sum()),
+                              "off_subject": s.off_subject, "cpu_s": t,
+                              "nodes": dict(s.grown[0].node_census),
+                              "mask_pixels": [int(m.sum()) for m in sm.masks],
+                              "mask_share": [float(m.mean()) for m in sm.masks],
+                              "noise": sm.noise.tolist(), "threshold": sm.threshold.tolist()})
+    images = [stacks[k][0] for k in range(K)]
+    for row, xy, ref in zip(out["groups"], allxy, refs):
+        t0 = time.process_time()
+        mv = add_views(images, cameras, xy, reference=ref, params=views_params)
+        row["more_views_cpu_s"] = time.process_time() - t0
+        row["census"] = [{"camera": c.name, **x} for c, x in zip(cameras, mv.census)]
+        three = mv.n_views >= 3
+        row["points_3_views"] = int(three.sum())
+        row["points_4_views"] = int((mv.n_views >= 4).sum())
+        row["median_residual_3plus_px"] = float(np.median(mv.residual[three])) if three.any() \
+            else None
+        row["p90_residual_3plus_px"] = float(np.percentile(mv.residual[three], 90)) \
+            if three.any() else None
+        row["_mv"] = mv
+        row["facing"] = facing(mv, cameras, ref, xy)
+        # is the rule the obstacle? the same with a wider neighbourhood and 89 degrees
+        loose = add_views(images, cameras, xy, reference=ref, params=replace(
+            views_params, radius_factor=6.0, max_view_angle_deg=89.0))
+        row["relaxed_rule"] = {c.name: {"tried": x["tried"], "accepted": x["accepted"]}
+                               for c, x in zip(cameras, loose.census) if not x["given"]}
+    n3 = sum(r["points_3_views"] for r in out["groups"])
+    res = np.concatenate([r["_mv"].residual[r["_mv"].n_views >= 3] for r in out["groups"]])
+    out["points"] = sum(r["points"] for r in out["groups"])
+    out["points_3_views"] = n3
+    out["median_residual_3plus_px"] = float(np.median(res)) if res.size else None
+    for r in out["groups"]:
+        del r["_mv"]
+    return out
 
 
 def _summary(xy, cams, mask, template):
@@ -86,7 +179,7 @@ def _summary(xy, cams, mask, template):
 
 def run_group(v0, cams, masks, template: int, params: SurfaceParams) -> dict:
     """Ours and SGBM on one group's frame 0 (``v0`` (2, H, W)); ``masks`` the two views'
-    motion masks."""
+    subject masks."""
     mask = masks[template]
     t0 = time.process_time()
     res = measure_surfaces(v0[:, None], cams, [0], sigma=1.0, params=params)
@@ -129,7 +222,7 @@ def run_group(v0, cams, masks, template: int, params: SurfaceParams) -> dict:
         variant = {"points": 0, "note": "no seed"}
     out = {"disparity_range": [lo, hi], "lsm_at_sgbm_nodes": why,
            "sgbm-started LSM": started,
-           "ours, rectified_start='sgbm', shift (no motion mask)": wired,
+           "ours, rectified_start='sgbm', shift (no subject mask)": wired,
            "ours, shift-only LSM, patch 15, 30 iterations": variant,
            "sgbm": {**_summary(sg_xy, cams, mask, template), "cpu_s": sgbm_s,
                     "patch_similarity": ncc_share(left, right, d)}}
@@ -153,7 +246,7 @@ def run_group(v0, cams, masks, template: int, params: SurfaceParams) -> dict:
 
 def sgbm_started(left, right, d, rmask, rect, cams, mask, template, *, geometry) -> dict:
     """SGBM-started LSM: the growth's LSM (``geometry``) at SGBM's nodes ``d`` inside the
-    rectified motion mask ``rmask`` (:func:`lsmta.matching.refine_disparities`),
+    rectified subject mask ``rmask`` (:func:`lsmta.matching.refine_disparities`),
     the accepted nodes intersected."""
     p = DisparityParams(grow=replace(DisparityParams().grow, geometry=geometry))
     t0 = time.process_time()
@@ -189,7 +282,7 @@ def disparity_grid(points, cams, rect, shape, step: int = 4) -> np.ndarray:
 
 
 def rect_mask(rect, mask, template: int) -> np.ndarray | None:
-    """The motion mask on the rectified left image (None if it belongs to the right view)."""
+    """The subject mask on the rectified left image (None if it belongs to the right view)."""
     if rect.left != template:
         return None
     m = rect.maps[rect.left]
@@ -247,6 +340,8 @@ def main(argv=None):
     parser.add_argument("--cache", default="/tmp/surface_demo_cache.pkl")
     parser.add_argument("--out", default="build/benchmarks/surface_rectified_demo")
     parser.add_argument("--mask-frames", default="0:100:5")
+    parser.add_argument("--system-only", action="store_true",
+                        help="only the system's run (subject mask, more views)")
     args = parser.parse_args(argv)
     if not Path(args.cache).exists():
         raise SystemExit(f"--cache: {args.cache} not found; run experiments/surface_demo.py "
@@ -256,10 +351,20 @@ def main(argv=None):
     videos = read_videos([str(v) for v in POSE2SIM_VIDEOS], frames=range(start, stop, every),
                          scale=data["scale"])
     stacks = videos.load(progress=False)
+    system = system_run(stacks, data["cameras"])
+    print(system, flush=True)
+    n3, med = system["points_3_views"], system["median_residual_3plus_px"]
+    print(f"system (SGBM-started LSM, subject mask, more views): {system['points']} pair points "
+          f"on the subject, {n3} with >= 3 views, median residual over >= 3 views {med} px; "
+          f"target >= 2,000 points with >= 3 views at <= 0.5 px: "
+          f"{'met' if n3 >= 2000 and med is not None and med <= 0.5 else 'NOT met'}")
+    if args.system_only:
+        write_json(Path(args.out) / "surface_rectified_demo_system.json", system)
+        return
     rows = []
     for g in view_groups(data["cameras"]):
         v, cams = _group_inputs(stacks, data["cameras"], g)
-        masks = [motion_mask(v[k]) for k in range(2)]
+        masks = list(subject_masks(v, 0, params=MASK).masks)
         params = SurfaceParams(method="rectified", template=g.template_position)
         row = run_group(v[:, 0], cams, masks, g.template_position, params)
         row["group"] = "+".join(c.name for c in cams)
@@ -268,7 +373,7 @@ def main(argv=None):
         print(row, flush=True)
     total = sum(r["ours"]["points"] for r in rows)
     started = sum(r["sgbm-started LSM"]["shift"]["points"] for r in rows)
-    record = {"groups": rows, "points": total, "target_points_met": total >= 2000,
+    record = {"system": system, "groups": rows, "points": total, "target_points_met": total >= 2000,
               "sgbm_started_shift_points_on_person": started,
               "sgbm_started_target_points_met": started >= 2000}
     for r in rows:
@@ -286,12 +391,12 @@ def main(argv=None):
                   f"{x['accepted']} accepted, {x['points']} points, median sigma "
                   f"{x['median_disparity_sigma_px']} px, median |LSM - SGBM| "
                   f"{x['median_abs_lsm_minus_sgbm_px']} px, {x['cpu_s']:.1f} s CPU")
-        w = r["ours, rectified_start='sgbm', shift (no motion mask)"]
+        w = r["ours, rectified_start='sgbm', shift (no subject mask)"]
         print(f"  SurfaceParams(rectified_start='sgbm', rectified_geometry='shift'): "
               f"{w['points']} points ({w['on_person']} on the person), median sigma "
               f"{w['median_disparity_sigma_px']:.3f} px")
     print(f"points {total}: target >= 2,000 {'met' if total >= 2000 else 'NOT met'}")
-    print(f"SGBM-started LSM (shift, in the motion mask): points {started}: target >= 2,000 "
+    print(f"SGBM-started LSM (shift, in the subject mask): points {started}: target >= 2,000 "
           f"{'met' if started >= 2000 else 'NOT met'} (the residual is ~0 by construction; "
           "the disparity's sigma above says the precision)")
     write_json(Path(args.out) / "surface_rectified_demo.json", record)

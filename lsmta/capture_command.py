@@ -36,11 +36,14 @@ from .systems import (
     MarkerParams,
     RigRefinement,
     RigRefinementParams,
+    SurfaceParams,
     Tracker2D,
     calibrate_rig,
     capture_recording,
     refine_rig,
 )
+from .systems.more_views import MoreViewsParams
+from .systems.subject import SubjectMaskParams
 
 EXAMPLE = """example (the Pose2Sim demo that ships with lsmta, 100 frames, full size):
   lsmta capture --videos data/pose2sim_demo/cam0{1,2,3,4}.mp4 \\
@@ -88,6 +91,20 @@ def add_parser(sub) -> None:
                           "markers (small grey blobs on skin) or any small bright blob")
     cap.add_argument("--tracker", choices=("lsmta", "klt"), default="lsmta",
                      help="the markers' 2-D tracker (default lsmta; klt: OpenCV's, the peer)")
+    cap.add_argument("--surface-method", choices=("growth", "rectified-sgbm", "auto"),
+                     default="growth",
+                     help="how surfaces are measured: growth (default: seeds and LSM region "
+                          "growing), rectified-sgbm (a two-camera view group on its rectified "
+                          "images, LSM started at OpenCV SGBM's disparities; for wide, blurred "
+                          "pairs) or auto (growth, and rectified-sgbm for a pair where the "
+                          "growth keeps fewer than 1%% of its textured nodes)")
+    cap.add_argument("--subject-mask", action="store_true",
+                     help="drop surface points off the moving subject (each frame against "
+                          "the median of every fifth frame, threshold 10 x the robust noise)")
+    cap.add_argument("--more-views", action="store_true",
+                     help="match every surface point in the cameras outside its view group "
+                          "that see it and intersect it from all its views (the summary gives "
+                          "the points in >= 3 views and their residual)")
     cap.add_argument("--arm", action="store_true",
                      help="fit the arm model at the end (a person facing the cameras)")
     cap.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -160,7 +177,15 @@ def _params(args) -> CaptureParams:
     if args.markers:
         markers = MarkerParams(detector=args.markers, sigma=2.5 * args.scale,
                                max_px=4.0 * args.scale, tracker=Tracker2D[args.tracker.upper()])
-    return CaptureParams(arm=ArmFitParams() if args.arm else None, markers=markers)
+    surface = SurfaceParams(
+        method={"growth": "grow", "rectified-sgbm": "rectified", "auto": "auto"}[
+            args.surface_method],
+        rectified_start="sgbm" if args.surface_method == "rectified-sgbm" else "grow",
+        rectified_geometry="shift" if args.surface_method == "rectified-sgbm" else "row-affine",
+        subject_mask=SubjectMaskParams() if args.subject_mask else None)
+    return CaptureParams(arm=ArmFitParams() if args.arm else None, markers=markers,
+                         surface=surface,
+                         more_views=MoreViewsParams() if args.more_views else None)
 
 
 def run(args) -> int:

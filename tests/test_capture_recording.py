@@ -319,3 +319,33 @@ def test_a_surface_only_on_the_last_frame_starts_no_tracks():
     videos = np.zeros((2, 5, 32, 32), np.float32)
     with pytest.raises(ValueError, match="surfaces: no frame before the last"):
         track_surface(videos, {0: empty, 2: empty, 4: last})
+
+
+@pytest.mark.slow
+def test_command_surface_options(session, tmp_path, capsys):
+    """--subject-mask and --more-views end to end; --surface-method rectified-sgbm refuses a
+    three-camera view group with one line; a method not offered is an argparse error."""
+    paths = _write_videos(tmp_path, session.videos[:, :6], session.fps)
+    rig = write_camera_toml(tmp_path / "rig.toml", session.cameras, unit="mm")
+    out = tmp_path / "result"
+    assert main(["capture", "--videos", *paths, "--cameras", str(rig), "--out", str(out),
+                 "--no-refine", "--quiet", "--subject-mask", "--more-views"]) == 0
+    record = json.loads((out / "summary.json").read_text())
+    group = record["view_groups"][0]
+    first = str(record["frames"][0])
+    assert group["off_subject"][first] >= 0
+    # one group of all three cameras: its points are in three views already
+    assert group["points_in_3_or_more_views"][first] == group["surface_points"][first] > 0
+    assert group["median_residual_3_or_more_views_px"][first] < 0.5
+    assert any(row["stage"] == "more views" for row in record["stages"])
+    capsys.readouterr()
+    assert main(["capture", "--videos", *paths, "--cameras", str(rig), "--out", str(out),
+                 "--no-refine", "--quiet", "--surface-method", "rectified-sgbm"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[0] == "lsmta capture: cameras as given"
+    assert len(err) == 2 and "measures a pair" in err[1]
+    with pytest.raises(SystemExit) as exit_:
+        main(["capture", "--videos", *paths, "--cameras", str(rig), "--out", str(out),
+              "--surface-method", "sgbm"])
+    assert exit_.value.code == 2
+    assert "--surface-method" in capsys.readouterr().err

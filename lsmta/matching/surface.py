@@ -67,6 +67,9 @@ class SurfaceResult:
         The final points: voxel centres, or the filtered intersected points.
     points_xy : (K, M, 2) array
         Image positions of the final points (means within a voxel).
+    off_subject : int
+        n-tuples dropped afterwards because their template pixel lay off a subject mask
+        (:class:`lsmta.systems.SurfaceParams` ``subject_mask``; 0 without one).
     """
 
     grown: list
@@ -79,6 +82,7 @@ class SurfaceResult:
     cloud: VoxelCloud | None
     points: np.ndarray
     points_xy: np.ndarray
+    off_subject: int = 0
 
     @property
     def kept(self) -> np.ndarray:

@@ -17,6 +17,8 @@ never the generator's truth: nothing here imports :mod:`lsmta.synth` or
               the file's cameras as priors, held-out places to check it)
 ``surfaces``  surfaces of chosen frames from automatic seeds
 ``rectified`` or: a pair's surface from its rectified images (SurfaceParams(method="rectified"))
+``subject``   the moving subject's pixels from the recording (SurfaceParams(subject_mask))
+``more_views`` a pair's points matched in every other camera that sees them (add_views)
 ``mixed_scale`` Davis's mixed-scale system, closed: ceiling LED frames, the streaming
               wide-area tracker, the pan-tilt heads steered (:mod:`lsmta.pantilt.steering`),
               close-up marker video, triangulation at the read-back angles, the face filled

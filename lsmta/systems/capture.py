@@ -12,6 +12,8 @@ or as given. Nothing of a generator's truth enters. The stages (:func:`capture_r
    sigma of every LSM threshold that needs one;
 3. *surfaces* of the first frame and of every ``density_every``-th frame, from automatic
    seeds (:func:`~lsmta.systems.surfaces.measure_surfaces`);
+   optionally *more views*: every surface point matched in the cameras outside its group
+   that see it, and intersected from all its views (:func:`~lsmta.systems.more_views.add_views`);
 4. *surface tracking* (:func:`track_surface`);
 5. *trajectories*: forward intersection per group, all groups' trajectories side by side,
    then the trajectory filters (:func:`~lsmta.tracking.apply_filters`);
@@ -49,6 +51,7 @@ from .arm import ArmFit, ArmFitParams, fit_arm
 from .capture_files import save_capture
 from .checks import check_cameras
 from .markers import MarkerCapture, MarkerParams, capture_markers
+from .more_views import MoreViewsParams, add_views
 from .surfaces import SurfaceParams, measure_surfaces
 from .views import ViewGroup, view_groups
 
@@ -86,6 +89,9 @@ class CaptureParams:
         The marker stage (:func:`~lsmta.systems.markers.capture_markers`); None leaves it
         out. Skin markers need the colour first frames: pass videos from
         :func:`lsmta.io.read_videos`.
+    more_views : MoreViewsParams or None
+        The more-views stage (:func:`~lsmta.systems.more_views.add_views`, the reference
+        being each group's template); None leaves it out.
     """
 
     max_angle_deg: float = 75.0
@@ -95,6 +101,7 @@ class CaptureParams:
     filters: FilterParams = field(default_factory=FilterParams)
     arm: ArmFitParams | None = None
     markers: MarkerParams | None = None
+    more_views: MoreViewsParams | None = None
 
     def __post_init__(self):
         as_scalar(self.max_angle_deg, "max_angle_deg", positive=True)
@@ -105,6 +112,9 @@ class CaptureParams:
         if self.markers is not None and not isinstance(self.markers, MarkerParams):
             raise TypeError(f"markers: expected a MarkerParams or None, got "
                             f"{type(self.markers).__name__}")
+        if self.more_views is not None and not isinstance(self.more_views, MoreViewsParams):
+            raise TypeError(f"more_views: expected a MoreViewsParams or None, got "
+                            f"{type(self.more_views).__name__}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,6 +135,9 @@ class ViewCapture:
         (a warning says so).
     points : slice
         The group's trajectories within :attr:`BodyCapture.trajectories`.
+    more_views : dict of int -> MultiViewPoints
+        With ``CaptureParams.more_views``: each measured frame's kept surface points matched
+        in every camera that sees them (all K cameras' rows, the capture's order); else empty.
     """
 
     group: ViewGroup
@@ -133,6 +146,7 @@ class ViewCapture:
     surfaces: dict
     tracks: Tracks | None
     points: slice
+    more_views: dict = field(default_factory=dict)
 
     @property
     def tracking_from(self) -> int | None:
@@ -246,12 +260,15 @@ class BodyCapture:
                 ("view groups", per_view(lambda v: f"template {v.group.template}")),
                 ("image noise", per_view(lambda v: f"sigma {v.noise.sigma:.2f} grey levels")),
                 ("surfaces", per_view(lambda v: f"{len(v.surfaces)} frames, first frame "
-                                                f"{_surface_points(v.surfaces)} points")),
+                                                f"{_surface_points(v.surfaces)} points"
+                                                + _off_subject_text(v.surfaces))),
                 ("tracking", per_view(lambda v: "none" if v.tracks is None else
                                       f"from frame {int(self.frames[v.tracking_from])}: "
                                       f"{len(v.tracks)} tracks, "
                                       f"{int(v.tracks.alive[-1].sum())} alive at the end")),
                 ("trajectories", f"{kept} of {len(self.trajectories)} kept by the filters")]
+        if self.params.more_views is not None:        # after the surfaces it extends
+            rows.insert(4, ("more views", per_view(_more_views_text)))
         if self.markers is not None:
             m = self.markers
             share = m.triangulated_share()[m.moving]
@@ -279,6 +296,24 @@ def _names(view: ViewCapture) -> str:
 
 def _joined_names(cameras) -> str:
     return "+".join(c.name or "?" for c in cameras)
+
+
+def _more_views_text(view: ViewCapture) -> str:
+    """First measured frame's points in 3 or more views and their median residual."""
+    if not view.more_views:
+        return "no surface"
+    mv = view.more_views[min(view.more_views)]
+    three = mv.n_views >= 3
+    med = f", median residual {np.median(mv.residual[three]):.2f} px" if three.any() else ""
+    return f"first frame {int(three.sum())} of {len(three)} points in >= 3 views{med}"
+
+
+def _off_subject_text(surfaces: dict) -> str:
+    """``" (N off the subject dropped)"`` for the first frame where a subject mask dropped
+    any, else ``""``."""
+    first = surfaces[min(surfaces)] if surfaces else None
+    return f" ({first.off_subject} off the subject dropped)" if first and first.off_subject \
+        else ""
 
 
 def _surface_points(surfaces: dict) -> int:
@@ -445,6 +480,7 @@ class _State:
     inputs: list = field(default_factory=list)      # per group: (videos, cameras)
     noise: list = field(default_factory=list)
     surfaces: list = field(default_factory=list)
+    more_views: list = field(default_factory=list)
     tracks: list = field(default_factory=list)
     trajectories: Trajectories | None = None
     slices: list = field(default_factory=list)
@@ -481,6 +517,19 @@ def _surfaces(st: _State) -> None:
         st.surfaces.append(measure_surfaces(v, cams, range(0, v.shape[1], p.density_every),
                                             sigma=noise.sigma, params=surface,
                                             progress=st.progress))
+
+
+def _more_views(st: _State) -> None:
+    p = st.params.more_views
+    for g, surfaces in zip(st.groups, st.surfaces):
+        got = {}
+        if p is not None:
+            for f, r in surfaces.items():
+                xy = np.full((len(st.cameras), int(r.kept.sum()), 2), np.nan)
+                xy[list(g.cameras)] = r.xy[:, r.kept]
+                images = [s[st.frames[f]] for s in st.stacks]
+                got[f] = add_views(images, st.cameras, xy, reference=g.template, params=p)
+        st.more_views.append(got)
 
 
 def _tracking(st: _State) -> None:
@@ -528,7 +577,8 @@ def _arm_model(st: _State) -> None:
 
 
 STAGES = (("view groups", _view_groups), ("image noise", _image_noise),
-          ("surfaces", _surfaces), ("tracking", _tracking), ("trajectories", _trajectories),
+          ("surfaces", _surfaces), ("more views", _more_views), ("tracking", _tracking),
+          ("trajectories", _trajectories),
           ("markers", _markers), ("arm model", _arm_model))
 
 
@@ -581,12 +631,15 @@ def capture_recording(videos, cameras, *, fps: float | None = None, frames=None,
         t0 = time.perf_counter()
         stage(st)
         seconds[name] = time.perf_counter() - t0
-    for name, stage_params in (("arm model", p.arm), ("markers", p.markers)):
+    for name, stage_params in (("arm model", p.arm), ("markers", p.markers),
+                               ("more views", p.more_views)):
         if stage_params is None:
             del seconds[name]
-    views = tuple(ViewCapture(group=g, cameras=c, noise=n, surfaces=s, tracks=t, points=sl)
-                  for g, (_, c), n, s, t, sl in zip(st.groups, st.inputs, st.noise,
-                                                    st.surfaces, st.tracks, st.slices))
+    views = tuple(ViewCapture(group=g, cameras=c, noise=n, surfaces=s, tracks=t, points=sl,
+                              more_views=m)
+                  for g, (_, c), n, s, t, sl, m in zip(st.groups, st.inputs, st.noise,
+                                                       st.surfaces, st.tracks, st.slices,
+                                                       st.more_views))
     frames = idx if file_frames is None else file_frames[idx]
     return BodyCapture(cameras=cams, calibration=calibration, frames=frames, fps=fps, views=views,
                        trajectories=st.trajectories, filters=st.filters, arm=st.arm,

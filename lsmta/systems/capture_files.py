@@ -102,6 +102,14 @@ def capture_record(capture) -> dict:
             "noise_sigma": float(v.noise.sigma),
             "surface_points": {int(capture.frames[t]): int(s.kept.sum())
                                for t, s in sorted(v.surfaces.items())},
+            "off_subject": {int(capture.frames[t]): int(s.off_subject)
+                            for t, s in sorted(v.surfaces.items())},
+            "points_in_3_or_more_views": {int(capture.frames[t]): int((m.n_views >= 3).sum())
+                                          for t, m in sorted(v.more_views.items())},
+            "median_residual_3_or_more_views_px": {
+                int(capture.frames[t]): (float(np.median(m.residual[m.n_views >= 3]))
+                                         if (m.n_views >= 3).any() else None)
+                for t, m in sorted(v.more_views.items())},
             "tracking_from": (None if v.tracks is None else
                               int(capture.frames[v.tracking_from])),
             "tracks": 0 if v.tracks is None else len(v.tracks),

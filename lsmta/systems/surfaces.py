@@ -66,6 +66,7 @@ from ..matching import (
 from ..triangulation import triangulate
 from .checks import check_cameras, check_videos
 from .rectified import NoSeedsError, measure_rectified_pair, surface_result
+from .subject import SubjectMaskParams, background, on_subject, subject_masks
 
 
 @dataclass(frozen=True)
@@ -90,8 +91,12 @@ class SurfaceParams:
     texture_rule : {"spread", "precision"}
         Which nodes are tried (module docstring): where the patch's grey-value spread is at
         least 2 grey levels, or where the noise allows the accepted precision.
-    method : {"grow", "rectified"}
+    method : {"grow", "rectified", "auto"}
         ``"grow"`` (default): seeds and LSM growth between the original images, as above.
+        ``"auto"``: the growth, and where it failed for a two-camera group (:func:`grow_failed`:
+        its first measured frame keeps fewer than ``auto_min_share`` of the template's
+        textured nodes) the pair again with ``"rectified"``, ``rectified_start="sgbm"`` and
+        ``rectified_geometry="shift"`` (with a warning saying so).
         ``"rectified"``: two cameras only; the pair is rectified and its disparities grown
         (:func:`~lsmta.systems.rectified.measure_rectified_pair`, with
         :class:`~lsmta.matching.DisparityParams`' defaults and ``max_sigma_xy``; the other
@@ -109,6 +114,13 @@ class SurfaceParams:
     rectified_geometry : {"row-affine", "shift"}
         ``"rectified"`` only: the LSM's geometric model (``"shift"``: the disparity alone,
         fewer unknowns for blurred, weakly textured patches).
+    auto_min_share : float
+        ``"auto"`` only: the growth failed where it keeps fewer than this share of the
+        template's textured nodes.
+    subject_mask : SubjectMaskParams or None
+        With it, every measured frame's n-tuples whose template pixel lies off the moving
+        subject (:func:`~lsmta.systems.subject.subject_masks` of the videos given) are
+        dropped and counted (``SurfaceResult.off_subject``). Default None: nothing dropped.
     """
 
     template: int = 1
@@ -123,10 +135,20 @@ class SurfaceParams:
     rectified_depths: tuple = (0.8, 1.25)
     rectified_start: str = "grow"
     rectified_geometry: str = "row-affine"
+    subject_mask: SubjectMaskParams | None = None
+    auto_min_share: float = 0.01
 
     def __post_init__(self):
-        if self.method not in ("grow", "rectified"):
-            raise ValueError(f"method: expected 'grow' or 'rectified', got {self.method!r}")
+        if not 0.0 < self.auto_min_share < 1.0:
+            raise ValueError(f"auto_min_share: expected a share in (0, 1), got "
+                             f"{self.auto_min_share!r}")
+        if self.subject_mask is not None and not isinstance(self.subject_mask,
+                                                            SubjectMaskParams):
+            raise TypeError(f"subject_mask: expected a SubjectMaskParams or None, got "
+                            f"{type(self.subject_mask).__name__}")
+        if self.method not in ("grow", "rectified", "auto"):
+            raise ValueError(f"method: expected 'grow', 'rectified' or 'auto', got "
+                             f"{self.method!r}")
         try:
             lo, hi = (float(d) for d in self.rectified_depths)
         except (TypeError, ValueError):
@@ -234,8 +256,49 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
     bad = [f for f in frames if not 0 <= f < v.shape[1]]
     if bad:
         raise ValueError(f"frames: expected frame indices in [0, {v.shape[1] - 1}], got {bad}")
+    if p.subject_mask is not None and v.shape[1] < 3:
+        raise ValueError(f"videos: params.subject_mask needs at least 3 frames for the "
+                         f"background median, got {v.shape[1]}")
     if p.method == "rectified":
-        return _rectified_surfaces(v, cams, frames, p, progress)
+        out = _rectified_surfaces(v, cams, frames, p, progress)
+    else:
+        out = _grown_surfaces(v, cams, frames, sigma, p, progress)
+        if p.method == "auto" and len(cams) == 2 and grow_failed(out, min_share=p.auto_min_share):
+            warnings.warn("measure_surfaces: the growth kept fewer than "
+                          f"{p.auto_min_share:.0%} of the template's textured nodes; the pair "
+                          "is measured on its rectified images from SGBM's starts instead",
+                          stacklevel=2)
+            out = _rectified_surfaces(v, cams, frames, replace(
+                p, rectified_start="sgbm", rectified_geometry="shift"), progress)
+    if p.subject_mask is None:
+        return out
+    bg = background(v, params=p.subject_mask)            # once for every frame
+    return {f: on_subject(r, subject_masks(v, f, params=p.subject_mask, median=bg)
+                          .masks[p.template], template=p.template) for f, r in out.items()}
+
+
+def grow_failed(surfaces: dict, *, min_share: float = 0.01) -> bool:
+    """Whether the growth failed: its first measured frame keeps fewer than ``min_share`` of
+    the template's textured nodes (the nodes of the first search image's census that were
+    neither outside, masked nor without texture; :func:`surface_census`), or no frame has
+    a seed.
+
+    Parameters
+    ----------
+    surfaces : dict of int -> SurfaceResult
+        :func:`measure_surfaces`' growth results.
+    min_share : float
+    """
+    if not surfaces:
+        return True
+    first = surfaces[min(surfaces)]
+    nodes = first.grown[0].node_census
+    textured = sum(v for k, v in nodes.items() if k not in ("outside", "masked", "no_texture"))
+    return int(first.kept.sum()) < min_share * max(textured, 1)
+
+
+def _grown_surfaces(v, cams, frames, sigma: float, p: SurfaceParams, progress: bool) -> dict:
+    """:func:`measure_surfaces` with ``method="grow"`` (module docstring)."""
     d = working_distance(cams, p.template)
     mask = _lens_mask(cams[p.template])
     noise = sigma if p.texture_rule == "precision" else None
@@ -246,7 +309,7 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
         if seeds.xy.shape[1] == 0:
             warnings.warn(f"measure_surfaces: no seed found in frame {f} (no textured point "
                           "matches along the epipolar curves); the frame is left out",
-                          stacklevel=2)
+                          stacklevel=3)
             continue
         level = seed_residual(v[:, f], seeds.xy, template=p.template, patch=p.patch)
         limit = p.sigma0_factor * max(sigma, np.nan_to_num(level / np.sqrt(2)))

@@ -177,6 +177,60 @@ def test_thresholds_reject(rng):
     assert np.array_equal(thresholds.accept(plain), np.arange(200) < 100)
 
 
+def _failures_in_numpy(th, result):
+    """LSMThresholds.failures as it was before it was compiled (the reference)."""
+    A = result.A
+    q = np.einsum("nij,nij->n", A, A)
+    det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
+    root = np.sqrt(np.maximum(q * q - 4 * det * det, 0.0))
+    sv = np.sqrt(np.stack([(q + root) / 2, np.maximum(q - root, 0.0) / 2], axis=1))
+    cols = A.transpose(0, 2, 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos = np.abs(np.einsum("ni,ni->n", cols[:, 0], cols[:, 1])) / (
+            np.linalg.norm(cols[:, 0], axis=1) * np.linalg.norm(cols[:, 1], axis=1))
+    sxy = np.where(np.isnan(result.sigma_xy), 0.0, result.sigma_xy)
+    return {"sigma0": ~(result.sigma0 <= th.max_sigma0),
+            "sigma_xy": ~(sxy.max(axis=1) <= th.max_sigma_xy),
+            "displacement": ~(result.displacement <= th.max_displacement),
+            "scale": ~((sv[:, 1] >= th.scale_range[0]) & (sv[:, 0] <= th.scale_range[1])),
+            "shear": ~(cos <= th.max_shear),
+            "weight_share": ~(result.weight_share >= th.min_weight_share)}
+
+
+def test_compiled_threshold_tests_decide_as_the_numpy_formulas(rng):
+    """Every test of LSMThresholds.failures, compiled, gives the NumPy formulas' verdicts:
+    on random matches around every threshold, on the thresholds themselves, and with NaN,
+    inf and zero columns (a degenerate A)."""
+    from lsmta.matching import LSMResult
+
+    th = LSMThresholds(max_sigma0=15.0, max_sigma_xy=0.4, max_displacement=3.0,
+                       scale_range=(0.5, 2.0), max_shear=0.6)
+    n = 4000
+    A = np.eye(2) + rng.normal(0, 0.5, (n, 2, 2))
+    sigma0, disp, share = rng.uniform(0, 30, n), rng.uniform(0, 6, n), rng.uniform(0, 1, n)
+    sxy = rng.uniform(0, 0.8, (n, 2))
+    sigma0[:50], disp[50:100], sxy[100:150, 1], share[150:200] = 15.0, 3.0, 0.4, 0.5
+    A[200:250] = np.diag([0.5, 2.0])                      # singular values on the range's ends
+    A[250:300] = np.nan
+    A[300:320, :, 1] = 0.0                                # a zero column: shear 0 / 0
+    A[320:340, 0, 0] = np.inf
+    sigma0[340:360], sxy[360:380], disp[380:400], share[400:420] = np.nan, np.nan, np.nan, np.nan
+    params = np.zeros((n, 8))
+    params[:, 2:6] = A.reshape(n, 4)
+    res = LSMResult(xy=np.zeros((n, 2)), params=params, fixed=np.zeros((n, 8), bool),
+                    sigma0=sigma0, sigma_xy=sxy, cov_xy=np.zeros((n, 2, 2)),
+                    iterations=np.ones(n, np.int64), displacement=disp,
+                    status=np.zeros(n, np.int64), weight_share=share)
+    with np.errstate(invalid="ignore"):
+        ref = _failures_in_numpy(th, res)
+    got = th.failures(res)
+    assert list(got) == list(ref)
+    for name in ref:
+        assert np.array_equal(got[name], ref[name]), name
+        assert 0 < got[name].sum() < n, name             # both verdicts occur in every test
+    assert np.array_equal(th.accept(res), ~np.any(list(ref.values()), axis=0))
+
+
 @pytest.mark.slow
 def test_multi_image_returns_one_result_per_search(rng):
     left = warped_pair(rng=rng, c=(1.5, 0.0), quantise=False)

@@ -169,7 +169,8 @@ def by_age(values, start, *, reduce=np.nanmedian, min_count: int = 5):
 
 @dataclass(frozen=True)
 class Trial:
-    """Both trackers on one sequence from the same start points (see :func:`run_tracking_trial`)."""
+    """Both trackers on one sequence from the same start points (see :func:`run_tracking_trial`);
+    ``seconds`` are wall-clock, ``cpu_seconds`` the process's CPU time (every thread)."""
 
     sequence: Sequence
     tracks: Tracks
@@ -182,6 +183,8 @@ class Trial:
     klt_seconds: float | None
     part: np.ndarray
     local: np.ndarray
+    cpu_seconds: float = float("nan")
+    klt_cpu_seconds: float | None = None
 
 
 def run_tracking_trial(seq: Sequence, n_points: int, *,
@@ -193,24 +196,25 @@ def run_tracking_trial(seq: Sequence, n_points: int, *,
     ``geometric``) and, if ``klt``, with KLT; score both."""
     rng = as_rng(rng)
     xy0, part0, local0 = start_points(seq, n_points, rng=rng)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     tracks = track_points(seq.images, xy0, params=params,
                           new_points=candidates(seq) if density else None,
                           cameras=seq.cameras if geometric else None)
-    seconds = time.perf_counter() - t0
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     part, local = track_identity(seq, tracks, part0, local0)
     traj = trajectories_from_tracks(seq.cameras, tracks, seq.fps)
     score = score_tracks(seq, tracks, part, local, traj=traj, false_mm=false_mm)
-    peer = peer_traj = peer_score = peer_seconds = None
+    peer = peer_traj = peer_score = peer_seconds = peer_cpu = None
     if klt:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         peer = track_klt(seq.images, xy0)
-        peer_seconds = time.perf_counter() - t0
+        peer_seconds, peer_cpu = time.perf_counter() - t0, time.process_time() - c0
         peer_traj = trajectories_from_tracks(seq.cameras, peer, seq.fps)
         peer_score = score_tracks(seq, peer, part0, local0, traj=peer_traj, false_mm=false_mm)
     return Trial(sequence=seq, tracks=tracks, traj=traj, score=score, klt=peer,
                  klt_traj=peer_traj, klt_score=peer_score, seconds=seconds,
-                 klt_seconds=peer_seconds, part=part, local=local)
+                 klt_seconds=peer_seconds, part=part, local=local, cpu_seconds=cpu,
+                 klt_cpu_seconds=peer_cpu)
 
 
 def score_filter(before: Trajectories, after: Trajectories, score: TrackScore) -> dict:

@@ -839,3 +839,33 @@ def _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
             status[i] = CONVERGED
             break
     _covariance_factor(N_keep, kj, fx_i, Q_out[i], M, W)
+
+
+@nb.njit(cache=True, error_model="numpy")
+def threshold_failures(A, sigma0, sigma_xy, displacement, weight_share, limits, out):
+    """The tests of :meth:`lsmta.matching.LSMThresholds.failures` for every match, in one
+    pass: ``out`` (6, n) bool, rows in the order of ``THRESHOLD_TESTS`` (True: fails; NaN
+    fails). ``A`` (n, 2, 2), ``sigma0`` (n,), ``sigma_xy`` (n, 2) (NaN counts as 0),
+    ``displacement``, ``weight_share`` (n,); ``limits``: max_sigma0, max_sigma_xy,
+    max_displacement, the scale range's low and high end, max_shear, min_weight_share.
+    The singular values in closed form, ``s² = (q ± sqrt(q² - 4 det²)) / 2`` with ``q``
+    the squared Frobenius norm, and the shear as ``|cos|`` of the angle between the
+    columns."""
+    for i in range(A.shape[0]):
+        a, b, c, d = A[i, 0, 0], A[i, 0, 1], A[i, 1, 0], A[i, 1, 1]
+        q = a * a + b * b + c * c + d * d
+        det = a * d - b * c
+        disc = q * q - 4 * det * det
+        root = np.sqrt(disc if disc != disc or disc > 0.0 else 0.0)    # NaN stays NaN
+        small = q - root
+        s_hi = np.sqrt((q + root) / 2)
+        s_lo = np.sqrt((small if small != small or small > 0.0 else 0.0) / 2)
+        cos = abs(a * b + c * d) / (np.sqrt(a * a + c * c) * np.sqrt(b * b + d * d))
+        sx = 0.0 if np.isnan(sigma_xy[i, 0]) else sigma_xy[i, 0]
+        sy = 0.0 if np.isnan(sigma_xy[i, 1]) else sigma_xy[i, 1]
+        out[0, i] = not sigma0[i] <= limits[0]
+        out[1, i] = not max(sx, sy) <= limits[1]
+        out[2, i] = not displacement[i] <= limits[2]
+        out[3, i] = not (s_lo >= limits[3] and s_hi <= limits[4])
+        out[4, i] = not cos <= limits[5]
+        out[5, i] = not weight_share[i] >= limits[6]

@@ -193,19 +193,19 @@ class LSMThresholds:
 
     def failures(self, result: LSMResult) -> dict:
         """Which test each match fails: ``{name: (N,) bool}`` for the names of
-        :data:`THRESHOLD_TESTS`, in that order (True: fails it; NaN fails)."""
-        sv = _singular_values(result.A)
-        cols = result.A.transpose(0, 2, 1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cos = np.abs(np.einsum("ni,ni->n", cols[:, 0], cols[:, 1])) / (
-                np.linalg.norm(cols[:, 0], axis=1) * np.linalg.norm(cols[:, 1], axis=1))
-        sxy = np.where(np.isnan(result.sigma_xy), 0.0, result.sigma_xy)
-        return {"sigma0": ~(result.sigma0 <= self.max_sigma0),
-                "sigma_xy": ~(sxy.max(axis=1) <= self.max_sigma_xy),
-                "displacement": ~(result.displacement <= self.max_displacement),
-                "scale": ~((sv[:, 1] >= self.scale_range[0]) & (sv[:, 0] <= self.scale_range[1])),
-                "shear": ~(cos <= self.max_shear),
-                "weight_share": ~(result.weight_share >= self.min_weight_share)}
+        :data:`THRESHOLD_TESTS`, in that order (True: fails it; NaN fails). One compiled
+        pass over the matches (:func:`lsmta.matching._solver.threshold_failures`)."""
+        n = len(result.status)
+        out = np.empty((len(THRESHOLD_TESTS), n), bool)
+        limits = np.array([self.max_sigma0, self.max_sigma_xy, self.max_displacement,
+                           self.scale_range[0], self.scale_range[1], self.max_shear,
+                           self.min_weight_share], float)
+        _solver.threshold_failures(
+            np.ascontiguousarray(result.A, float).reshape(n, 2, 2),
+            np.asarray(result.sigma0, float), np.asarray(result.sigma_xy, float).reshape(n, 2),
+            np.asarray(result.displacement, float), np.asarray(result.weight_share, float),
+            limits, out)
+        return dict(zip(THRESHOLD_TESTS, out))
 
     def accept(self, result: LSMResult) -> np.ndarray:
         """Boolean ``(N,)``: converged and passing every threshold."""
@@ -216,15 +216,6 @@ class LSMThresholds:
         status = result.status.copy()
         status[result.ok & ~self.accept(result)] = Status.REJECTED
         return replace(result, status=status)
-
-
-def _singular_values(A: np.ndarray) -> np.ndarray:
-    """Singular values ``(N, 2)`` (larger first) of ``(N, 2, 2)`` matrices, in closed form:
-    ``s² = (q ± sqrt(q² - 4 det²)) / 2`` with ``q`` the squared Frobenius norm."""
-    q = np.einsum("nij,nij->n", A, A)
-    det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
-    root = np.sqrt(np.maximum(q * q - 4 * det * det, 0.0))
-    return np.sqrt(np.stack([(q + root) / 2, np.maximum(q - root, 0.0) / 2], axis=1))
 
 
 def _positive(value, *, allow_inf: bool = False) -> bool:

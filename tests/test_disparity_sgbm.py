@@ -14,6 +14,7 @@ from lsmta.matching import (
     sgbm_start,
 )
 from lsmta.matching import disparity as disparity_module
+from lsmta.matching.peers import sgbm_hh_bytes, stereo_sgbm
 from lsmta.synth.patches import warped_pair
 
 # x_right = 0.96 x + 0.03 y - 4.3 on the same row: the disparity is the ramp
@@ -127,3 +128,19 @@ def test_sgbm_path_follows_the_callers_step(ramp_pair):
     sg = measure_disparity(f, g, disparity_range=(0, 16), seeds="sgbm", params=p)
     assert sg.step == auto.step == 2 and sg.disparity.shape == auto.disparity.shape
     assert p.grow_params(sgbm=True).min_texture == disparity_module.SGBM_MIN_TEXTURE
+
+
+def test_sgbm_start_bounds_its_memory(ramp_pair):
+    # above max_bytes the start runs SGBM's 5-path single-pass mode instead of the 8-path one
+    f, g = ramp_pair.template, ramp_pair.search
+    assert sgbm_hh_bytes((120, 160), 16) == 4 * 120 * (160 - 16) * 16
+    hh = sgbm_start(f, g, disparity_range=(0, 16), step=4)
+    five = sgbm_start(f, g, disparity_range=(0, 16), step=4, max_bytes=1)
+    assert hh.shape == five.shape and np.isfinite(five).mean() > 0.5
+    assert not np.array_equal(hh, five, equal_nan=True)          # another mode ran
+    truth = truth_grid(ramp_pair, five.shape, 4)
+    assert np.nanmedian(np.abs(five - truth)) < 0.5
+    with pytest.raises(ValueError, match="max_bytes"):
+        sgbm_start(f, g, disparity_range=(0, 16), max_bytes=0)
+    with pytest.raises(ValueError, match="mode"):
+        stereo_sgbm(f, g, num_disparities=16, mode="3way")

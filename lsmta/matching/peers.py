@@ -220,25 +220,42 @@ def _as_uint8(image, name: str) -> np.ndarray:
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
 
+_SGBM_MODES = {"hh": cv2.STEREO_SGBM_MODE_HH, "sgbm": cv2.STEREO_SGBM_MODE_SGBM}
+
+
+def sgbm_hh_bytes(shape, num_disparities: int, *, min_disparity: int = 0) -> int:
+    """Memory of OpenCV SGBM's full 8-path mode on images of ``shape = (H, W)``, bytes: its
+    cost and path-sum volumes, two 16-bit values per disparity ``D`` and pixel of the columns
+    it matches (``4 H (W - min - D) D``, OpenCV's ``calcSGBM``)."""
+    h, w = (int(v) for v in shape)
+    d = int(num_disparities)
+    return 4 * h * max(w - int(min_disparity) - d, 0) * d
+
+
 def stereo_sgbm(left, right, *, num_disparities: int = 64, min_disparity: int = 0,
                 block_size: int = 5, uniqueness: int = 5, filters: bool = True,
-                speckle_window: int = 100, speckle_range: int = 2) -> DisparityMap:
+                speckle_window: int = 100, speckle_range: int = 2,
+                mode: str = "hh") -> DisparityMap:
     """OpenCV's semi-global matching on a rectified pair, run as a user would.
 
     ``P1 = 8 block_size²``, ``P2 = 32 block_size²`` (OpenCV's recommendation for grey
-    images), full 8-path mode (``MODE_HH``). With ``filters`` the usual post-filters are on:
-    OpenCV's speckle filter (regions under ``speckle_window`` pixels whose disparity varies
-    by more than ``speckle_range`` are removed) and its left-right check
-    (``disp12MaxDiff = 1``); without, both are off. Images are rounded to 8 bits.
+    images), full 8-path mode (``mode="hh"``, ``MODE_HH``: about
+    :func:`sgbm_hh_bytes` of memory) or OpenCV's default single-pass 5-path mode
+    (``mode="sgbm"``, ``MODE_SGBM``: a few image rows of costs). With ``filters`` the usual
+    post-filters are on: OpenCV's speckle filter (regions under ``speckle_window`` pixels
+    whose disparity varies by more than ``speckle_range`` are removed) and its left-right
+    check (``disp12MaxDiff = 1``); without, both are off. Images are rounded to 8 bits.
     """
     f8, g8 = _as_uint8(left, "left"), _as_uint8(right, "right")
     if f8.shape != g8.shape:
         raise ValueError(f"right: expected the shape of left {f8.shape}, got {g8.shape}")
+    if mode not in _SGBM_MODES:
+        raise ValueError(f"mode: expected one of {tuple(_SGBM_MODES)}, got {mode!r}")
     matcher = cv2.StereoSGBM_create(
         minDisparity=min_disparity, numDisparities=num_disparities, blockSize=block_size,
         P1=8 * block_size**2, P2=32 * block_size**2, uniquenessRatio=uniqueness,
         disp12MaxDiff=1 if filters else -1, speckleWindowSize=speckle_window if filters else 0,
-        speckleRange=speckle_range if filters else 0, mode=cv2.STEREO_SGBM_MODE_HH)
+        speckleRange=speckle_range if filters else 0, mode=_SGBM_MODES[mode])
     t0 = time.perf_counter()
     raw = matcher.compute(f8, g8)
     seconds = time.perf_counter() - t0

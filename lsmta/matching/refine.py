@@ -21,11 +21,16 @@ from scipy import ndimage
 from .grow import GrowParams, GrowResult
 from .lsm import LSMParams, Status
 from .mpgc import RectifiedPair, mpgc
-from .peers import stereo_sgbm
+from .peers import sgbm_hh_bytes, stereo_sgbm
 from .seeds import Seeds
 
+#: memory allowed for SGBM's full 8-path mode in :func:`sgbm_start`, bytes (above it, the 5-path
+#: single-pass mode): a full-size video pair with a wide disparity range needs 10 GB or more
+SGBM_START_MAX_BYTES = 2**31
 
-def sgbm_start(left, right, *, disparity_range, step: int = 4) -> np.ndarray:
+
+def sgbm_start(left, right, *, disparity_range, step: int = 4,
+               max_bytes: float = SGBM_START_MAX_BYTES) -> np.ndarray:
     """OpenCV SGBM's disparities (filters on, block 5) at the grid nodes.
 
     Parameters
@@ -37,6 +42,11 @@ def sgbm_start(left, right, *, disparity_range, step: int = 4) -> np.ndarray:
         multiple of 16).
     step : int
         Grid spacing, pixels.
+    max_bytes : float
+        Memory allowed for SGBM's full 8-path mode (:func:`~lsmta.matching.peers.sgbm_hh_bytes`
+        of the padded pair), bytes; a larger pair is matched in OpenCV's single-pass 5-path
+        mode, whose memory does not grow with the image's height (a little less smooth:
+        5 paths instead of 8). The Middlebury pairs stay far below the default.
 
     Returns
     -------
@@ -48,8 +58,12 @@ def sgbm_start(left, right, *, disparity_range, step: int = 4) -> np.ndarray:
     lo, hi = int(np.floor(disparity_range[0])), int(np.ceil(disparity_range[1]))
     num = int(np.ceil(max(hi - lo, 1) / 16) * 16)
     pad = lo + num
+    if not max_bytes > 0:
+        raise ValueError(f"max_bytes: expected a positive number of bytes, got {max_bytes!r}")
+    h, w = np.shape(left)
+    mode = "hh" if sgbm_hh_bytes((h, w + pad), num, min_disparity=lo) <= max_bytes else "sgbm"
     sg = stereo_sgbm(np.pad(left, ((0, 0), (pad, 0))), np.pad(right, ((0, 0), (pad, 0))),
-                     min_disparity=lo, num_disparities=num)
+                     min_disparity=lo, num_disparities=num, mode=mode)
     return sg.disparity[:, pad:][::step, ::step]
 
 

@@ -15,8 +15,9 @@ the points on frame 0, the median multi-view
 residual (the largest reprojection error of each kept point over its views, px, the median
 over the points), the stage's CPU time, and the census: every LSM attempt of the growth by
 outcome, every grid node by outcome, and the n-tuples through the filters
-(:func:`lsmta.systems.surfaces.surface_census`). Target (issue #40): >= 2,000 points at a
-median residual <= 0.5 px.
+(:func:`lsmta.systems.surfaces.surface_census`). Target (issue #40): >= 2,000 points from
+>= 3 views at a median residual <= 0.5 px (this rig's view groups are pairs, so the points
+here have two views).
 """
 
 from __future__ import annotations

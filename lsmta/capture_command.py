@@ -22,6 +22,7 @@ import json
 import sys
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -96,15 +97,24 @@ def add_parser(sub) -> None:
                      help="how surfaces are measured: growth (default: seeds and LSM region "
                           "growing), rectified-sgbm (a two-camera view group on its rectified "
                           "images, LSM started at OpenCV SGBM's disparities; for wide, blurred "
-                          "pairs) or auto (growth, and rectified-sgbm for a pair where the "
-                          "growth keeps fewer than 1%% of its textured nodes)")
+                          "pairs; a group of 3 or more cameras falls back to the growth, "
+                          "with a warning) or auto (the growth decides on the first measured "
+                          "frame: rectified-sgbm for a pair where it matched fewer than 1%% "
+                          "of its textured nodes). Cost: with rectified-sgbm every measured "
+                          "frame (every 4th) runs SGBM + LSM, about 10-20 s CPU per pair per "
+                          "frame at full size, so 100 full-size frames take far longer than "
+                          "the growth; SGBM's memory is bounded (2 GiB: OpenCV's 5-path mode "
+                          "above it)")
     cap.add_argument("--subject-mask", action="store_true",
                      help="drop surface points off the moving subject (each frame against "
-                          "the median of every fifth frame, threshold 10 x the robust noise)")
+                          "the median of every fifth frame, threshold 10 x the robust noise; "
+                          "its 15-px radii scale with --scale); a recording where nothing "
+                          "moves has no mask (a warning says so)")
     cap.add_argument("--more-views", action="store_true",
                      help="match every surface point in the cameras outside its view group "
                           "that see it and intersect it from all its views (the summary gives "
-                          "the points in >= 3 views and their residual)")
+                          "the points in >= 3 views and their residual; its 13- and 21-px "
+                          "patches scale with --scale)")
     cap.add_argument("--arm", action="store_true",
                      help="fit the arm model at the end (a person facing the cameras)")
     cap.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -182,10 +192,27 @@ def _params(args) -> CaptureParams:
             args.surface_method],
         rectified_start="sgbm" if args.surface_method == "rectified-sgbm" else "grow",
         rectified_geometry="shift" if args.surface_method == "rectified-sgbm" else "row-affine",
-        subject_mask=SubjectMaskParams() if args.subject_mask else None)
+        subject_mask=_scaled_mask(args.scale) if args.subject_mask else None)
     return CaptureParams(arm=ArmFitParams() if args.arm else None, markers=markers,
                          surface=surface,
-                         more_views=MoreViewsParams() if args.more_views else None)
+                         more_views=_scaled_views(args.scale) if args.more_views else None)
+
+
+def _scaled_mask(scale: float) -> SubjectMaskParams:
+    """The subject mask's closing and growing radii (px of full-size frames) at ``scale``."""
+    p = SubjectMaskParams()
+    return replace(p, close_px=max(1, round(p.close_px * scale)),
+                   grow_px=max(1, round(p.grow_px * scale)))
+
+
+def _scaled_views(scale: float) -> MoreViewsParams:
+    """The more-views patches (px of full-size frames) at ``scale``, odd and at least 5."""
+    p = MoreViewsParams()
+
+    def odd(n: int) -> int:
+        return max(5, 2 * round((n - 1) / 2 * scale) + 1)
+
+    return replace(p, patch=odd(p.patch), retry_patch=tuple(odd(n) for n in p.retry_patch))
 
 
 def run(args) -> int:

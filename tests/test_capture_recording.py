@@ -323,8 +323,9 @@ def test_a_surface_only_on_the_last_frame_starts_no_tracks():
 
 @pytest.mark.slow
 def test_command_surface_options(session, tmp_path, capsys):
-    """--subject-mask and --more-views end to end; --surface-method rectified-sgbm refuses a
-    three-camera view group with one line; a method not offered is an argparse error."""
+    """--subject-mask and --more-views end to end; --surface-method rectified-sgbm measures a
+    three-camera view group by the growth, with a warning naming the group and the option;
+    a method not offered is an argparse error."""
     paths = _write_videos(tmp_path, session.videos[:, :6], session.fps)
     rig = write_camera_toml(tmp_path / "rig.toml", session.cameras, unit="mm")
     out = tmp_path / "result"
@@ -339,11 +340,14 @@ def test_command_surface_options(session, tmp_path, capsys):
     assert group["median_residual_3_or_more_views_px"][first] < 0.5
     assert any(row["stage"] == "more views" for row in record["stages"])
     capsys.readouterr()
-    assert main(["capture", "--videos", *paths, "--cameras", str(rig), "--out", str(out),
-                 "--no-refine", "--quiet", "--surface-method", "rectified-sgbm"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err[0] == "lsmta capture: cameras as given"
-    assert len(err) == 2 and "measures a pair" in err[1]
+    with pytest.warns(UserWarning, match="view group left\\+centre\\+right has 3 cameras.*"
+                                         "--surface-method rectified-sgbm.*by the growth"):
+        assert main(["capture", "--videos", *paths, "--cameras", str(rig), "--out",
+                     str(tmp_path / "fallback"), "--no-refine", "--quiet",
+                     "--surface-method", "rectified-sgbm"]) == 0
+    fallback = json.loads((tmp_path / "fallback" / "summary.json").read_text())
+    # the growth's points, before the subject mask of the first run drops any
+    assert fallback["view_groups"][0]["surface_points"][first] >= group["surface_points"][first]
     with pytest.raises(SystemExit) as exit_:
         main(["capture", "--videos", *paths, "--cameras", str(rig), "--out", str(out),
               "--surface-method", "sgbm"])

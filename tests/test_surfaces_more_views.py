@@ -2,16 +2,25 @@
 (lsmta.systems.more_views) on a generated walking body seen by a triplet, scored against the
 renderer's silhouettes and depth after the fact (truth only here)."""
 
+from dataclasses import replace
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from scipy import ndimage
 
+import lsmta.systems.surfaces as surfaces_module
 from conftest import smaller
 from lsmta.camera import Camera
 from lsmta.matching import DisparityParams
 from lsmta.synth import Renderer, Scene, make_body, triplet_rig, walk
-from lsmta.systems import SurfaceParams, measure_surfaces
-from lsmta.systems.more_views import MoreViewsParams, add_views
+from lsmta.systems import CaptureParams, SurfaceParams, capture_recording, measure_surfaces
+from lsmta.systems.more_views import (
+    MoreViewsParams,
+    add_views,
+    group_xy,
+    normal_angles,
+)
 from lsmta.systems.subject import (
     SubjectMaskParams,
     background,
@@ -19,7 +28,7 @@ from lsmta.systems.subject import (
     subject_masks,
 )
 from lsmta.systems.surfaces import grow_failed
-from lsmta.triangulation import triangulate
+from lsmta.triangulation import triangulate, voxel_filter
 
 SGBM = SurfaceParams(method="rectified", template=0, rectified_start="sgbm",
                      rectified_geometry="shift")
@@ -44,8 +53,8 @@ def pair_points(triplet):
     """The outer pair's SGBM-started LSM points of frame 1, as a (3, N, 2) array."""
     cams, videos, _ = triplet
     res = measure_surfaces(videos[[0, 2]], [cams[0], cams[2]], [1], sigma=1.0, params=SGBM)[1]
-    xy = np.full((3, int(res.kept.sum()), 2), np.nan)
-    xy[[0, 2]] = res.xy[:, res.kept]
+    xy = group_xy(res, (0, 2), 3)
+    assert np.array_equal(xy[[0, 2]], res.xy[:, res.kept]) and np.isnan(xy[1]).all()
     return xy
 
 
@@ -53,7 +62,7 @@ def test_subject_mask_covers_the_moving_body(triplet):
     cams, videos, frame = triplet
     sm = subject_masks(videos, 1)
     assert np.all(sm.threshold == 10.0 * sm.noise)
-    reused = subject_masks(videos, 1, median=background(videos))      # the same background
+    reused = subject_masks(videos, 1, background=background(videos))      # the same background
     assert np.array_equal(reused.masks, sm.masks)
     p = SubjectMaskParams()
     for k in range(3):
@@ -121,8 +130,8 @@ def test_bad_input(triplet, pair_points):
         subject_masks(videos, 5)
     with pytest.raises(TypeError, match="params"):
         subject_masks(videos, 0, params="strict")
-    with pytest.raises(ValueError, match="median: expected a background"):
-        subject_masks(videos, 0, median=background(videos[:2]))
+    with pytest.raises(ValueError, match="background: expected a median"):
+        subject_masks(videos, 0, background=background(videos[:2]))
     with pytest.raises(TypeError, match="subject_mask"):
         SurfaceParams(subject_mask=True)
     with pytest.raises(ValueError, match="subject_mask needs at least 3 frames"):
@@ -168,3 +177,80 @@ def test_auto_keeps_a_working_growth_and_replaces_a_failed_one(triplet):
     assert grow_failed({})
     with pytest.raises(ValueError, match="auto_min_share"):
         SurfaceParams(method="auto", auto_min_share=0.0)
+
+
+def test_grow_failed_counts_the_growths_matched_nodes():
+    """The rule reads the growth's own census of the first measured frame: nodes matched
+    against the textured ones (not the points kept after the filters)."""
+    def result(matched, kept):
+        census = {"outside": 50, "masked": 10, "no_texture": 40, "matched": matched,
+                  "given_up": 900 - matched, "failed_open": 60, "never_reached": 40}
+        return SimpleNamespace(grown=[SimpleNamespace(node_census=census)],
+                               kept=np.arange(100) < kept)
+    # 1,000 textured nodes: 1 % is 10 matched, whatever the filters kept afterwards
+    assert not grow_failed({3: result(10, 0), 7: result(0, 0)})
+    assert grow_failed({3: result(9, 100), 7: result(500, 100)})
+    assert not grow_failed({3: result(9, 0)}, min_share=0.005)
+
+
+def test_a_still_clip_has_no_mask_and_says_so(triplet):
+    """Nothing moves: the mask is empty, every point is dropped with a warning naming the
+    option, and the capture's error names the mask."""
+    cams, videos, _ = triplet
+    still = np.repeat(videos[:, 1:2], 4, axis=1)
+    assert not subject_masks(still, 0).masks.any()
+    masked = SurfaceParams(**{**SGBM.__dict__, "subject_mask": SubjectMaskParams()})
+    with pytest.warns(UserWarning, match="subject_mask.*--subject-mask\\) is empty"):
+        r = measure_surfaces(still[[0, 2]], [cams[0], cams[2]], [0], sigma=1.0,
+                             params=masked)[0]
+    assert r.kept.sum() == 0 and r.off_subject > 0
+    with pytest.warns(UserWarning, match="subject mask"), \
+            pytest.raises(ValueError, match="subject mask .*--subject-mask\\) dropped"):
+        capture_recording(still[[0, 2]], [cams[0], cams[2]], fps=25.0, progress=False,
+                          params=CaptureParams(surface=masked))
+
+
+def test_on_subject_refuses_a_voxel_cloud(triplet):
+    cams, videos, _ = triplet
+    res = measure_surfaces(videos[[0, 2]], [cams[0], cams[2]], [1], sigma=1.0, params=SGBM)[1]
+    thinned = replace(res, cloud=voxel_filter(res.intersection.points, 10.0))
+    with pytest.raises(ValueError, match="result: a surface thinned to a voxel cloud"):
+        on_subject(thinned, np.ones((cams[0].height, cams[0].width), bool), template=0)
+
+
+def test_auto_decides_on_the_first_frame_and_keeps_the_growth_if_rectified_fails(
+        triplet, monkeypatch):
+    cams, videos, _ = triplet
+    pair, v = [cams[0], cams[2]], videos[[0, 2], :3]
+    grown = []
+    real = surfaces_module._grown_surfaces
+
+    def counting(v_, cams_, frames, *args):
+        grown.extend(frames)
+        return real(v_, cams_, frames, *args)
+
+    def broken(*args):
+        raise ValueError("rectify_pair: no overlap")
+
+    monkeypatch.setattr(surfaces_module, "_grown_surfaces", counting)
+    monkeypatch.setattr(surfaces_module, "_rectified_surfaces", broken)
+    failing = SurfaceParams(template=0, method="auto", auto_min_share=0.99)
+    with pytest.warns(UserWarning, match="rectified pair failed.*keeps the growth"):
+        out = measure_surfaces(v, pair, [0, 2], sigma=1.0, params=failing)
+    assert sorted(out) == [0, 2] and grown == [0, 2]
+    grown.clear()
+    monkeypatch.setattr(surfaces_module, "_rectified_surfaces", lambda *a: {})
+    with pytest.warns(UserWarning, match="rectified images"):
+        measure_surfaces(v, pair, [0, 2], sigma=1.0, params=failing)
+    assert grown == [0], "the growth runs on the first measured frame only"
+
+
+def test_normal_angles(triplet, pair_points):
+    cams, videos, _ = triplet
+    mv = add_views(list(videos[:, 1]), cams, pair_points, reference=0)
+    ang = normal_angles(mv.normals, mv.intersection.points, cams)
+    has = np.isfinite(mv.normals).all(axis=1)
+    assert ang.shape == (3, len(has)) and np.isnan(ang[:, ~has]).all()
+    assert np.all(ang[0, has] <= 90.0), "normals are turned to the reference camera"
+    tried = mv.tried[1]
+    assert np.all(ang[1, tried] <= MoreViewsParams().max_view_angle_deg + 1e-9)

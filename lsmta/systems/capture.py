@@ -11,7 +11,9 @@ or as given. Nothing of a generator's truth enters. The stages (:func:`capture_r
 2. *image noise* measured in each group's videos (:func:`~lsmta.noise.temporal_noise`), the
    sigma of every LSM threshold that needs one;
 3. *surfaces* of the first frame and of every ``density_every``-th frame, from automatic
-   seeds (:func:`~lsmta.systems.surfaces.measure_surfaces`);
+   seeds (:func:`~lsmta.systems.surfaces.measure_surfaces`); a group of three or more
+   cameras with ``SurfaceParams(method="rectified")`` (which measures pairs) is measured
+   by the growth, with a warning naming it;
    optionally *more views*: every surface point matched in the cameras outside its group
    that see it, and intersected from all its views (:func:`~lsmta.systems.more_views.add_views`);
 4. *surface tracking* (:func:`track_surface`);
@@ -51,7 +53,7 @@ from .arm import ArmFit, ArmFitParams, fit_arm
 from .capture_files import save_capture
 from .checks import check_cameras
 from .markers import MarkerCapture, MarkerParams, capture_markers
-from .more_views import MoreViewsParams, add_views
+from .more_views import MoreViewsParams, add_views, group_xy
 from .surfaces import SurfaceParams, measure_surfaces
 from .views import ViewGroup, view_groups
 
@@ -309,16 +311,16 @@ def _more_views_text(view: ViewCapture) -> str:
 
 
 def _off_subject_text(surfaces: dict) -> str:
-    """``" (N off the subject dropped)"`` for the first frame where a subject mask dropped
-    any, else ``""``."""
+    """``" (N off the subject dropped)"`` where a subject mask dropped any in the first
+    measured frame (the frame :func:`_surface_points` counts), else ``""``."""
     first = surfaces[min(surfaces)] if surfaces else None
     return f" ({first.off_subject} off the subject dropped)" if first and first.off_subject \
         else ""
 
 
 def _surface_points(surfaces: dict) -> int:
-    """Points of the first frame's surface (0 without one)."""
-    return int(surfaces[0].kept.sum()) if 0 in surfaces else 0
+    """Points of the first measured frame's surface (0 without one)."""
+    return int(surfaces[min(surfaces)].kept.sum()) if surfaces else 0
 
 
 def _calibration_text(cal) -> str:
@@ -514,6 +516,12 @@ def _surfaces(st: _State) -> None:
     p = st.params
     for g, (v, cams), noise in zip(st.groups, st.inputs, st.noise):
         surface = replace(p.surface, template=g.template_position)
+        if surface.method == "rectified" and len(cams) != 2:
+            warnings.warn(f"capture_recording: view group {_joined_names(cams)} has "
+                          f"{len(cams)} cameras, and SurfaceParams(method='rectified') "
+                          "(lsmta capture --surface-method rectified-sgbm) measures pairs "
+                          "only; this group is measured by the growth", stacklevel=3)
+            surface = replace(surface, method="grow")
         st.surfaces.append(measure_surfaces(v, cams, range(0, v.shape[1], p.density_every),
                                             sigma=noise.sigma, params=surface,
                                             progress=st.progress))
@@ -525,8 +533,7 @@ def _more_views(st: _State) -> None:
         got = {}
         if p is not None:
             for f, r in surfaces.items():
-                xy = np.full((len(st.cameras), int(r.kept.sum()), 2), np.nan)
-                xy[list(g.cameras)] = r.xy[:, r.kept]
+                xy = group_xy(r, g.cameras, len(st.cameras))
                 images = [s[st.frames[f]] for s in st.stacks]
                 got[f] = add_views(images, st.cameras, xy, reference=g.template, params=p)
         st.more_views.append(got)
@@ -545,10 +552,14 @@ def _tracking(st: _State) -> None:
                           template=g.template_position)
         st.tracks.append(track_surface(v, surfaces, params=tracker, progress=st.progress))
     if all(t is None for t in st.tracks) and st.params.markers is None:
+        off = sum(r.off_subject for s in st.surfaces for r in s.values())
+        why = (f"the subject mask (SurfaceParams.subject_mask, --subject-mask) dropped {off} "
+               "n-tuples off the moving subject; try without it, or " if off else "")
         raise ValueError("videos: no view group found a surface point in any measured frame "
                          "before the last "
-                         "(no seed matched, or every match failed LSM's thresholds); check "
-                         "the cameras and the frames")
+                         "(no seed matched, or every match failed LSM's thresholds"
+                         + (", or the subject mask dropped them" if off else "") + "); "
+                         + why + "check the cameras and the frames")
 
 
 def _trajectories(st: _State) -> None:

@@ -17,7 +17,9 @@ three or more views can judge it:
 3. *LSM* (:func:`~lsmta.matching.lsm`, affine) of the reference camera's patch at the
    point's reference pixel into that camera, started at the projection with the affine map
    the local plane induces between the two views, the patch and then the retry patches; a
-   view counts only where LSM converges and passes ``thresholds`` (pass the growth's own);
+   view counts only where LSM converges and passes ``thresholds`` (the default: the
+   rectified pairs' growth's, ``max_sigma0`` 20 grey levels; a growth group's own
+   ``max_sigma0`` follows its noise, pass it to match it);
 4. all counted views intersected (:func:`~lsmta.triangulation.triangulate`); the residual of
    a point is its largest reprojection error over its views.
 """
@@ -51,7 +53,7 @@ class MoreViewsParams:
         LSM patch, px; ``retry_patch`` the retries' patches.
     retry_patch : tuple of int
     thresholds : LSMThresholds
-        Acceptance of a match (pass the growth's own).
+        Acceptance of a match (default: the rectified pairs' growth's, ``max_sigma0`` 20).
     """
 
     neighbours: int = 8
@@ -107,9 +109,78 @@ class MultiViewPoints:
     census: list
 
 
+def group_xy(result, cameras, n_cameras: int) -> np.ndarray:
+    """A view group's surface points as rows of all K cameras, for :func:`add_views`.
+
+    Parameters
+    ----------
+    result : SurfaceResult
+        The group's surface (:func:`~lsmta.systems.measure_surfaces`); its kept points.
+    cameras : sequence of int
+        The group's cameras among the K, in ``result.xy``'s row order.
+    n_cameras : int
+        K.
+
+    Returns
+    -------
+    (K, N, 2) array
+        The kept points' pixels in the group's rows, NaN in the other cameras' rows.
+    """
+    rows = [as_int(k, "cameras", minimum=0) for k in cameras]
+    K = as_int(n_cameras, "n_cameras", minimum=1)
+    if len(rows) != result.xy.shape[0] or max(rows) >= K:
+        raise ValueError(f"cameras: expected {result.xy.shape[0]} camera indices in "
+                         f"[0, {K - 1}] (one per row of result.xy), got {list(cameras)}")
+    xy = np.full((K, int(result.kept.sum()), 2), np.nan)
+    xy[rows] = result.xy[:, result.kept]
+    return xy
+
+
+def normal_angles(normals, points, cameras) -> np.ndarray:
+    """Angles between each point's normal and the direction from it to each camera.
+
+    Parameters
+    ----------
+    normals : (N, 3) array
+        Unit normals (e.g. :attr:`MultiViewPoints.normals`); NaN rows: no normal.
+    points : (N, 3) array
+        The points, mm.
+    cameras : sequence of C Camera
+
+    Returns
+    -------
+    (C, N) array
+        Degrees in [0, 180]; a camera faces a point's surface within ``a`` degrees where
+        the angle is at most ``a`` (the visibility rule, module docstring). NaN without a
+        normal or a point.
+    """
+    n, X = np.asarray(normals, float), np.asarray(points, float)
+    out = []
+    for cam in cameras:
+        to = cam.C - X
+        with np.errstate(invalid="ignore"):
+            cos = np.einsum("ij,ij->i", n, to) / np.linalg.norm(to, axis=1)
+        out.append(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    return np.stack(out) if out else np.empty((0, len(X)))
+
+
 def local_normals(points, *, neighbours: int = 8, radius_factor: float = 3.0) -> np.ndarray:
-    """Normals ``(N, 3)`` of planes fitted to each point's neighbours (module docstring);
-    NaN where fewer than 5 lie within the radius. Not oriented."""
+    """Normals of planes fitted to each point's neighbours (module docstring).
+
+    Parameters
+    ----------
+    points : (N, 3) array
+        Points, mm; non-finite rows get no normal.
+    neighbours : int
+        Nearest points for the plane.
+    radius_factor : float
+        Neighbours count within this many median nearest-neighbour spacings.
+
+    Returns
+    -------
+    (N, 3) array
+        Unit normals, not oriented; NaN where fewer than 5 neighbours lie within the radius.
+    """
     X = np.asarray(points, float)
     out = np.full(X.shape, np.nan)
     good = np.isfinite(X).all(axis=1)

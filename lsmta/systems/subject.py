@@ -17,6 +17,13 @@ The moving pixels are cleaned morphologically: opened (``open_px``: specks go), 
 inside, is filled), components smaller than ``min_share`` of the largest dropped, then
 dilated by ``grow_px`` (the subject's rim, where a patch still rests on it). Anything else
 that moves (a treadmill belt, a shadow) is kept too: the mask says "moving", not "person".
+
+Where it fails: a recording where nothing moves gives an empty mask, and a subject that
+fills more than half the frame inflates the median-based noise (the threshold rises, the
+mask shrinks); either can drop every surface point, so
+:func:`~lsmta.systems.surfaces.measure_surfaces` warns per view group when a mask is empty
+or drops every point. The radii are in pixels of the frames given: for frames resized by
+``s`` scale ``close_px`` and ``grow_px`` by ``s`` (``lsmta capture --scale`` does).
 """
 
 from __future__ import annotations
@@ -123,6 +130,16 @@ def _checked(videos, params):
     return v, p
 
 
+def _median_of(v, p: SubjectMaskParams) -> tuple:
+    samples = np.arange(0, v.shape[1], p.every)
+    if len(samples) < 3:
+        samples = np.arange(v.shape[1])
+    if len(samples) > p.max_samples:
+        samples = samples[np.linspace(0, len(samples) - 1, p.max_samples).round().astype(int)]
+    median = np.stack([np.median(v[k, samples], axis=0) for k in range(v.shape[0])])
+    return median.astype(np.float32), samples
+
+
 def background(videos, *, params: SubjectMaskParams | None = None) -> tuple:
     """The static background of every view: the per-pixel median of the sampled frames.
 
@@ -140,17 +157,11 @@ def background(videos, *, params: SubjectMaskParams | None = None) -> tuple:
         that leaves fewer than 3).
     """
     v, p = _checked(videos, params)
-    samples = np.arange(0, v.shape[1], p.every)
-    if len(samples) < 3:
-        samples = np.arange(v.shape[1])
-    if len(samples) > p.max_samples:
-        samples = samples[np.linspace(0, len(samples) - 1, p.max_samples).round().astype(int)]
-    median = np.stack([np.median(v[k, samples], axis=0) for k in range(v.shape[0])])
-    return median.astype(np.float32), samples
+    return _median_of(v, p)
 
 
 def subject_masks(videos, frame: int, *, params: SubjectMaskParams | None = None,
-                  median=None) -> SubjectMasks:
+                  background=None) -> SubjectMasks:
     """The moving subject's pixels in ``frame`` of every view (module docstring).
 
     Parameters
@@ -160,8 +171,9 @@ def subject_masks(videos, frame: int, *, params: SubjectMaskParams | None = None
     frame : int
         The frame to mask.
     params : SubjectMaskParams, optional
-    median : (median, samples), optional
-        :func:`background` of the same videos and params, to reuse over several frames.
+    background : (median, samples), optional
+        What :func:`background` returns for the same videos and params, to reuse over
+        several frames.
 
     Returns
     -------
@@ -171,9 +183,9 @@ def subject_masks(videos, frame: int, *, params: SubjectMaskParams | None = None
     frame = as_int(frame, "frame", minimum=0)
     if not 0 <= frame < v.shape[1]:
         raise ValueError(f"frame: expected a frame index in [0, {v.shape[1] - 1}], got {frame}")
-    bg, samples = background(v, params=p) if median is None else median
+    bg, samples = _median_of(v, p) if background is None else background
     if np.shape(bg) != (v.shape[0],) + v.shape[2:]:
-        raise ValueError(f"median: expected a background of shape {(v.shape[0],) + v.shape[2:]}, "
+        raise ValueError(f"background: expected a median of shape {(v.shape[0],) + v.shape[2:]}, "
                          f"got {np.shape(bg)}")
     masks, noise, thresholds = [], [], []
     for k in range(v.shape[0]):
@@ -202,7 +214,17 @@ def on_subject(result: SurfaceResult, mask, *, template: int) -> SurfaceResult:
     SurfaceResult
         A new result; ``off_subject`` counts the n-tuples dropped (kept ones among them
         included), ``grown`` is left as measured.
+
+    Raises
+    ------
+    ValueError
+        For a result thinned to a voxel cloud (``result.cloud``): its voxels average
+        n-tuples on and off the mask, so it is refused rather than left indexing n-tuples
+        that are gone (measure without ``voxel``, then thin).
     """
+    if result.cloud is not None:
+        raise ValueError("result: a surface thinned to a voxel cloud (result.cloud is set) "
+                         "cannot be filtered by a subject mask; measure it without voxel")
     m = np.asarray(mask, bool)
     if m.ndim != 2:
         raise ValueError(f"mask: expected an (H, W) bool array, got shape {m.shape}")
@@ -226,6 +248,6 @@ def on_subject(result: SurfaceResult, mask, *, template: int) -> SurfaceResult:
                          xy=result.xy[:, keep], sigma_xy=result.sigma_xy[:, keep],
                          neighbourhood_ok=result.neighbourhood_ok[keep],
                          rematched=result.rematched[keep], intersection=inter,
-                         cloud=None if result.cloud is None else result.cloud,
+                         cloud=None,
                          points=result.points[pts], points_xy=result.points_xy[:, pts],
                          off_subject=result.off_subject + int((~keep).sum()))

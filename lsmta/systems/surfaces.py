@@ -39,7 +39,11 @@ nodes were lost.
 ``SurfaceParams(method="rectified")`` measures a two-camera group on its rectified images
 instead (:mod:`lsmta.systems.rectified`); the default is unchanged. With
 ``rectified_start="sgbm"`` LSM starts at OpenCV SGBM's disparities instead of growing from
-seeds (``experiments/surface_rectified_demo.py``).
+seeds (``experiments/surface_rectified_demo.py``). It costs more than the growth: every
+measured frame runs SGBM and LSM (on the demo's full-size pairs about 10-20 s CPU per pair
+per frame); SGBM's memory is bounded (:func:`~lsmta.matching.refine.sgbm_start`,
+``max_bytes``). ``method="auto"`` decides per pair on the first measured frame
+(:func:`grow_failed`).
 """
 
 from __future__ import annotations
@@ -47,6 +51,7 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
@@ -93,10 +98,12 @@ class SurfaceParams:
         least 2 grey levels, or where the noise allows the accepted precision.
     method : {"grow", "rectified", "auto"}
         ``"grow"`` (default): seeds and LSM growth between the original images, as above.
-        ``"auto"``: the growth, and where it failed for a two-camera group (:func:`grow_failed`:
-        its first measured frame keeps fewer than ``auto_min_share`` of the template's
-        textured nodes) the pair again with ``"rectified"``, ``rectified_start="sgbm"`` and
-        ``rectified_geometry="shift"`` (with a warning saying so).
+        ``"auto"``: for a two-camera group the growth on the first measured frame decides
+        (:func:`grow_failed`: it matched fewer than ``auto_min_share`` of the template's
+        textured nodes); where it failed every frame is measured with ``"rectified"``,
+        ``rectified_start="sgbm"`` and ``rectified_geometry="shift"`` (with a warning;
+        if that raises, the growth's result is kept, with a warning), else the growth
+        measures the rest. Groups of three or more cameras: the growth.
         ``"rectified"``: two cameras only; the pair is rectified and its disparities grown
         (:func:`~lsmta.systems.rectified.measure_rectified_pair`, with
         :class:`~lsmta.matching.DisparityParams`' defaults and ``max_sigma_xy``; the other
@@ -115,12 +122,13 @@ class SurfaceParams:
         ``"rectified"`` only: the LSM's geometric model (``"shift"``: the disparity alone,
         fewer unknowns for blurred, weakly textured patches).
     auto_min_share : float
-        ``"auto"`` only: the growth failed where it keeps fewer than this share of the
-        template's textured nodes.
+        ``"auto"`` only: the growth failed where it matches fewer than this share of the
+        template's textured nodes (the growth's census, :func:`grow_failed`).
     subject_mask : SubjectMaskParams or None
         With it, every measured frame's n-tuples whose template pixel lies off the moving
         subject (:func:`~lsmta.systems.subject.subject_masks` of the videos given) are
-        dropped and counted (``SurfaceResult.off_subject``). Default None: nothing dropped.
+        dropped and counted (``SurfaceResult.off_subject``), with a warning per frame where
+        the template's mask is empty or drops every point. Default None: nothing dropped.
     """
 
     template: int = 1
@@ -261,40 +269,84 @@ def measure_surfaces(videos, cameras, frames, *, sigma: float,
                          f"background median, got {v.shape[1]}")
     if p.method == "rectified":
         out = _rectified_surfaces(v, cams, frames, p, progress)
+    elif p.method == "auto" and len(cams) == 2:
+        out = _auto_surfaces(v, cams, frames, sigma, p, progress)
     else:
         out = _grown_surfaces(v, cams, frames, sigma, p, progress)
-        if p.method == "auto" and len(cams) == 2 and grow_failed(out, min_share=p.auto_min_share):
-            warnings.warn("measure_surfaces: the growth kept fewer than "
-                          f"{p.auto_min_share:.0%} of the template's textured nodes; the pair "
-                          "is measured on its rectified images from SGBM's starts instead",
-                          stacklevel=2)
-            out = _rectified_surfaces(v, cams, frames, replace(
-                p, rectified_start="sgbm", rectified_geometry="shift"), progress)
-    if p.subject_mask is None:
+    return out if p.subject_mask is None else _masked(v, out, p)
+
+
+def _auto_surfaces(v, cams, frames, sigma: float, p: SurfaceParams, progress: bool) -> dict:
+    """``method="auto"`` for a pair: the growth until a frame is measured; where it failed
+    there (:func:`grow_failed`) every frame on the rectified pair from SGBM's starts, else
+    the growth for the rest. A rectified run that raises keeps the growth's result."""
+    out: dict[int, SurfaceResult] = {}
+    i = 0
+    while i < len(frames) and not out:
+        out = _grown_surfaces(v, cams, frames[i:i + 1], sigma, p, False)
+        i += 1
+    if not grow_failed(out, min_share=p.auto_min_share):
+        out.update(_grown_surfaces(v, cams, frames[i:], sigma, p, progress))
         return out
+    warnings.warn("measure_surfaces: the growth matched fewer than "
+                  f"{p.auto_min_share:.0%} of the template's textured nodes in its first "
+                  "measured frame (SurfaceParams(method='auto')); the pair is measured on its "
+                  "rectified images from SGBM's starts instead", stacklevel=3)
+    try:
+        return _rectified_surfaces(v, cams, frames, replace(
+            p, rectified_start="sgbm", rectified_geometry="shift"), progress)
+    except (ValueError, cv2.error, np.linalg.LinAlgError, MemoryError) as err:
+        warnings.warn(f"measure_surfaces: the rectified pair failed ({type(err).__name__}: "
+                      f"{str(err).splitlines()[0] if str(err) else ''}); "
+                      "SurfaceParams(method='auto') keeps the growth's result", stacklevel=3)
+        out.update(_grown_surfaces(v, cams, frames[i:], sigma, p, progress))
+        return out
+
+
+def _masked(v, out: dict, p: SurfaceParams) -> dict:
+    """Every frame's result on the template's subject mask, with a warning where the mask
+    is empty or drops every point (subject.py's docstring: where it fails)."""
     bg = background(v, params=p.subject_mask)            # once for every frame
-    return {f: on_subject(r, subject_masks(v, f, params=p.subject_mask, median=bg)
-                          .masks[p.template], template=p.template) for f, r in out.items()}
+    masked = {}
+    for f, r in out.items():
+        mask = subject_masks(v, f, params=p.subject_mask, background=bg).masks[p.template]
+        masked[f] = m = on_subject(r, mask, template=p.template)
+        if not mask.any():
+            why = "is empty (nothing moves against the background)"
+        elif r.kept.any() and not m.kept.any():
+            why = f"drops every point ({int(r.kept.sum())})"
+        else:
+            continue
+        warnings.warn(f"measure_surfaces: frame {f}: the template view's subject mask "
+                      f"(SurfaceParams.subject_mask, lsmta capture --subject-mask) {why}; a "
+                      "still recording, or a subject filling most of the frame, has no mask "
+                      "to find: measure without it", stacklevel=3)
+    return masked
 
 
 def grow_failed(surfaces: dict, *, min_share: float = 0.01) -> bool:
-    """Whether the growth failed: its first measured frame keeps fewer than ``min_share`` of
-    the template's textured nodes (the nodes of the first search image's census that were
-    neither outside, masked nor without texture; :func:`surface_census`), or no frame has
-    a seed.
+    """Whether the growth failed: in its first measured frame it matched fewer than
+    ``min_share`` of the template's textured nodes (the growth's own census of the first
+    search image, :func:`surface_census`: ``matched`` against the nodes that were neither
+    outside, masked nor without texture), or no frame has a seed.
 
     Parameters
     ----------
     surfaces : dict of int -> SurfaceResult
         :func:`measure_surfaces`' growth results.
     min_share : float
+        The share of textured nodes below which the growth failed.
+
+    Returns
+    -------
+    bool
+        True where the growth failed (or nothing was measured).
     """
     if not surfaces:
         return True
-    first = surfaces[min(surfaces)]
-    nodes = first.grown[0].node_census
+    nodes = surfaces[min(surfaces)].grown[0].node_census
     textured = sum(v for k, v in nodes.items() if k not in ("outside", "masked", "no_texture"))
-    return int(first.kept.sum()) < min_share * max(textured, 1)
+    return nodes["matched"] < min_share * max(textured, 1)
 
 
 def _grown_surfaces(v, cams, frames, sigma: float, p: SurfaceParams, progress: bool) -> dict:
@@ -327,8 +379,10 @@ def _grown_surfaces(v, cams, frames, sigma: float, p: SurfaceParams, progress: b
 def _rectified_surfaces(v, cams, frames, p: SurfaceParams, progress: bool) -> dict:
     """:func:`measure_surfaces` with ``method="rectified"`` (see :class:`SurfaceParams`)."""
     if len(cams) != 2:
-        raise ValueError(f"cameras: method 'rectified' measures a pair; expected 2 cameras, "
-                         f"got {len(cams)}")
+        raise ValueError(f"cameras: SurfaceParams(method='rectified') (lsmta capture "
+                         f"--surface-method rectified-sgbm) measures a pair; expected 2 "
+                         f"cameras, got {len(cams)} (capture_recording measures such a view "
+                         "group by the growth)")
     xy = np.stack([[[c.cx, c.cy]] for c in cams])
     point = triangulate(cams, xy, min_angle_deg=0.0).points[0]
     if not np.isfinite(point).all():

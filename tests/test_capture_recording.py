@@ -353,3 +353,23 @@ def test_command_surface_options(session, tmp_path, capsys):
               "--surface-method", "sgbm"])
     assert exit_.value.code == 2
     assert "--surface-method" in capsys.readouterr().err
+
+
+def test_command_scales_the_mask_and_patches_with_the_frames():
+    """--scale resizes the frames: the subject mask's radii and the more-views patches (px of
+    full-size frames) follow; at scale 1 they are the library's defaults."""
+    from lsmta.capture_command import _params
+    from lsmta.systems.more_views import MoreViewsParams
+    from lsmta.systems.subject import SubjectMaskParams
+
+    def params(scale):
+        args = SimpleNamespace(markers=None, surface_method="growth", subject_mask=True,
+                               more_views=True, arm=False, scale=scale, tracker="lsmta")
+        return _params(args)
+
+    full, half = params(1.0), params(0.5)
+    assert full.surface.subject_mask == SubjectMaskParams()
+    assert full.more_views == MoreViewsParams()
+    assert (half.surface.subject_mask.close_px, half.surface.subject_mask.grow_px) == (8, 8)
+    assert (half.more_views.patch, half.more_views.retry_patch) == (7, (11,))
+    assert params(0.1).more_views.patch == 5, "the smallest patch"

@@ -3,6 +3,7 @@
     .venv/bin/python experiments/refinement_held_out.py [--scale 1.0] [--frames 0:100]
         [--out build/benchmarks/refinement_held_out.json] [--lsm both|on|off]
         [--lsm-each | --lsm-once] [--larger-patches 41,61|none]
+        [--no-recording-geometry]
 
 Refines the Pose2Sim demo's cameras from the recording as ``lsmta capture`` does
 (`lsmta.systems.refine_rig`) and prints, per camera, the median residual of the adjusted
@@ -25,7 +26,9 @@ positions), each written under ``runs.lsm`` / ``runs.raw`` with the LSM step's c
 ``--lsm-once`` a still feature once over its frames (``True``; neither: the library's
 default, off), and ``--larger-patches 41,61`` (or ``none``) sets
 ``TieLSMParams.larger_patches`` (default: the library's, none): the two optional steps that
-keep a still feature of the wide pairs through the matching.
+keep a still feature of the wide pairs through the matching. ``--no-recording-geometry``
+checks each view pair's matches against its own frame's relative orientation only
+(``TieParams.recording_geometry=False``), not also against one for all frames.
 
 ``common`` (with ``--lsm both``): the two runs' refined cameras scored on ONE set of places,
 held out of both adjustments: the tie points are the same in both runs (found before the
@@ -46,7 +49,7 @@ import warnings
 
 import numpy as np
 
-from lsmta.calibration import TieLSMParams
+from lsmta.calibration import TieLSMParams, TieParams
 from lsmta.camera_files import read_camera_file
 from lsmta.data import POSE2SIM_CAMERAS, POSE2SIM_VIDEOS
 from lsmta.io import read_videos
@@ -86,7 +89,8 @@ def run(videos, lsm: bool, args):
         ref = refine_rig(videos, read_camera_file(POSE2SIM_CAMERAS),
                          params=RigRefinementParams(
                              mismatch="crop", lsm=lsm, lsm_still_once=still_once(args),
-                             tie_lsm=TieLSMParams(**larger)))
+                             tie_lsm=TieLSMParams(**larger),
+                             tie=TieParams(recording_geometry=not args.no_recording_geometry)))
     seconds = time.perf_counter() - t0
     places = ref.place_xy
     seen = np.isfinite(places[..., 0])
@@ -98,6 +102,7 @@ def run(videos, lsm: bool, args):
     held = {"still": places[:, ref.held_out_places & ref.still],
             "moving": places[:, ref.held_out_places & ~ref.still]}
     record = {"lsm": lsm, "lsm_still_once": still_once(args),
+              "recording_geometry": not args.no_recording_geometry,
               "larger_patches": larger.get("larger_patches", TieLSMParams().larger_patches),
               "scale": args.scale, "frames": args.frames, "seconds": seconds,
               "lsm_step": None if ref.lsm is None else ref.lsm.summary(),
@@ -171,6 +176,9 @@ def main(argv=None):
     parser.add_argument("--larger-patches", default="",
                         help="TieLSMParams.larger_patches, comma-separated, or none "
                              "(default: the library's)")
+    parser.add_argument("--no-recording-geometry", action="store_true",
+                        help="TieParams.recording_geometry=False: each pair's matches checked "
+                             "per frame only")
     args = parser.parse_args(argv)
     if args.lsm_each and args.lsm_once:
         parser.error("--lsm-each and --lsm-once exclude each other")

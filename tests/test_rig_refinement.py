@@ -431,3 +431,43 @@ def test_too_few_held_out_still_places_judge_on_all_places_with_a_warning(rng):
     assert _judged_on(still_xy, 3, ["a", "b", "c"]) == "still places"
     with pytest.warns(UserWarning, match=r"c see\(s\) fewer than min_still_held = 4"):
         assert _judged_on(still_xy, 4, ["a", "b", "c"]) == "all places"
+
+
+def test_a_feature_found_twice_in_a_frame_is_one_place(rng):
+    """ASIFT finds a feature again under several tilts (SIFT: one keypoint per orientation),
+    so one frame may hold a point's tie point twice, a pixel or so apart. Twins (one frame,
+    within twin_px in every view they share) are one feature: every 3-D point is one place,
+    a still point's frames stay one still place; without joining them the one-point-per-frame
+    guard breaks those still places into one-frame places."""
+    from lsmta.systems.refinement import _feature_places, _hold_out, _places, _twins
+    cams = rig_cameras(n=3)
+    n_frames, n_still, n_moving = 4, 60, 20
+    still_X = rng.uniform([-1000, 0, 100], [1000, 1200, 1600], (n_still, 3))
+    xy, frame, truth = [], [], []
+    for t in range(n_frames):
+        X = np.r_[still_X, rng.uniform([-300, 200, 200], [300, 600, 1500], (n_moving, 3))]
+        ids = np.arange(len(X))
+        twin = rng.uniform(size=len(X)) < 0.3                       # found twice
+        ids = np.r_[ids, ids[twin]]
+        obs = np.stack([c.project(X[ids]) for c in cams])
+        obs += rng.normal(0, 0.2, obs.shape)
+        obs[:, len(X):] += rng.uniform(-0.5, 0.5, (3, twin.sum(), 2))     # the twins
+        xy.append(obs)
+        frame.append(np.full(len(ids), t))
+        truth.append(np.where(ids < n_still, ids, n_still + t * n_moving + ids - n_still))
+    xy, frame, truth = np.concatenate(xy, 1), np.concatenate(frame), np.concatenate(truth)
+    keep = xy.copy()
+    twins = _twins(xy, frame, 4.0)
+    assert len(np.unique(twins)) == len(np.unique(np.c_[truth, frame], axis=0))
+    labels = _feature_places(xy, frame, 2.0, 4.0)
+    assert np.array_equal(xy, keep, equal_nan=True)
+    pairs = set(zip(labels.tolist(), truth.tolist()))
+    assert len(pairs) == len(set(labels.tolist())) == len(set(truth.tolist()))
+    _, still = _hold_out(labels, frame, np.zeros(n_frames, bool), 3)
+    assert still.sum() == n_still
+    # the guard alone: the twinned still points fall apart into places of one frame
+    _, still_alone = _hold_out(_places(xy, 2.0, frame), frame, np.zeros(n_frames, bool), 3)
+    assert still_alone.sum() < n_still - 20, still_alone.sum()
+    # two points of one frame farther apart than twin_px stay two features
+    far = np.concatenate([xy[:, :1], xy[:, :1] + 5.0], axis=1)
+    assert len(np.unique(_twins(far, np.zeros(2, int), 4.0))) == 2

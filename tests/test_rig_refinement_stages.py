@@ -299,3 +299,33 @@ def test_refine_tie_points_checks_its_arguments(lsm_scene):
         refine_tie_points([images], tie(np.zeros(N, int)), cams, params=RigRefinementParams())
     with pytest.raises(ValueError, match="frames: image 1 of frame 0"):
         refine_tie_points([[images[0], images[1][:-2], images[2]]], tie(np.zeros(N, int)), cams)
+
+
+def test_a_pair_matches_of_all_frames_agree_with_one_geometry(rng):
+    """The cameras do not move during a recording: a pair's matches of every frame are
+    checked against one essential matrix fitted to them all. A wrong match (8 px off its
+    epipolar line) is dropped, the true ones kept; a pair matched in one frame only is left
+    as it is."""
+    from lsmta.calibration.tie_points import _one_geometry
+    cams = rig_cameras(n=3)
+    found = []
+    for t in range(3):
+        X = rng.uniform([-800, 0, 200], [800, 1000, 1500], (40, 3))
+        feats = []
+        for c in cams:
+            xy = c.project(X) + rng.normal(0, 0.2, (40, 2))
+            feats.append((xy, np.zeros((40, 128), np.uint8)))
+        feats[1][0][5] += [6.0, -6.0]                             # frame t's wrong match
+        m = np.c_[np.arange(40), np.arange(40)]
+        matches = {(0, 1): m.copy()}
+        if t == 0:
+            matches[(0, 2)] = m.copy()
+        found.append((feats, matches))
+    out = _one_geometry(found, cams, TieParams())
+    for t, (_, matches) in enumerate(out):
+        kept = set(matches[0, 1][:, 0].tolist())
+        assert 5 not in kept and len(kept) >= 37, (t, sorted(set(range(40)) - kept))
+    assert np.array_equal(out[0][1][0, 2], found[0][1][0, 2])
+    assert np.array_equal(found[0][1][0, 1], np.c_[np.arange(40), np.arange(40)])   # unchanged
+    with pytest.raises(TypeError, match="recording_geometry"):
+        TieParams(recording_geometry=1)

@@ -23,9 +23,11 @@ pair's matches must then agree with one relative orientation of their own: an es
 matrix fitted by MAGSAC++ (``cv2.findEssentialMat`` with ``cv2.USAC_MAGSAC``) on the
 features' undistorted normalised positions, inliers within ``ransac_px``; a pair with
 fewer than ``min_matches`` inliers gives none. A wrong match that happens to lie in the
-band does not agree with the others' relative orientation, so the band can be wide. The
-pairs' matches are chained into multi-view tie points (union-find); a chain that holds two
-features of one view is dropped.
+band does not agree with the others' relative orientation, so the band can be wide. Then
+(``recording_geometry``) a pair's matches of all frames must agree with one relative
+orientation: the cameras do not move, and one frame's few matches of a wide pair let a
+wrong match of repeated structure pass. The pairs' matches are chained into multi-view tie
+points (union-find); a chain that holds two features of one view is dropped.
 
 Features of a still background give the same 3-D point in every frame; features of a
 moving subject give new points in each frame (the views are synchronised), spread through
@@ -80,6 +82,14 @@ class TieParams:
         Largest distance to a pair's own epipolar line, px.
     min_matches : int
         Fewest inliers for a view pair to count.
+    recording_geometry : bool
+        After each frame's own check, a pair's inlier matches of all frames together must
+        agree with ONE relative orientation (an essential matrix fitted to them all, inliers
+        within ``ransac_px``): the cameras do not move during a recording, and a pair's
+        matches of one frame (on a wide pair, some tens) let a wrong match of repeated
+        structure pass their own fit. On the Pose2Sim demo's rear pair it dropped a treadmill
+        post matched to its twin post (9-11 px off the refined cameras' epipolar geometry).
+        Only with matches in two or more frames.
     """
 
     detector: str = "auto"
@@ -93,6 +103,7 @@ class TieParams:
     distinct_px: float = 2.0
     ransac_px: float = 1.5
     min_matches: int = 15
+    recording_geometry: bool = True
 
     def __post_init__(self):
         if self.detector not in ("auto", "sift", "asift"):
@@ -108,6 +119,9 @@ class TieParams:
         r = as_scalar(self.ratio, "ratio", positive=True)
         if r >= 1:
             raise ValueError(f"ratio: expected a number in (0, 1), got {r}")
+        if not isinstance(self.recording_geometry, bool):
+            raise TypeError(f"recording_geometry: expected True or False, got "
+                            f"{self.recording_geometry!r}")
 
 
 @dataclass(frozen=True)
@@ -395,6 +409,54 @@ def _chain(n_views: int, offsets, matches):
     return np.array(out, int).reshape(-1, n_views).T
 
 
+def _frame_matches(f, images, cameras, detector, params):
+    """One frame's features per view, its pairs' matches that agree with the pair's own
+    relative orientation, and the (K, K) matches in the band before it."""
+    K = len(cameras)
+    if len(images) != K:
+        raise ValueError(f"frames: frame {f} holds {len(images)} images, expected {K} "
+                         "(one per camera)")
+    for k, (g, c) in enumerate(zip(images, cameras)):
+        g = np.asarray(g)
+        if g.ndim != 2 or g.dtype != np.uint8 or g.shape != (c.height, c.width):
+            raise ValueError(f"frames: image {k} of frame {f} is {g.dtype} {g.shape}; "
+                             f"expected uint8 ({c.height}, {c.width}) like its camera")
+    feats = _features(images, detector)
+    ideal = [_ideal(c, xy) if len(xy) else xy for c, (xy, _) in zip(cameras, feats)]
+    matches, guided = {}, np.zeros((K, K), int)
+    for a, b in itertools.combinations(range(K), 2):
+        if len(feats[a][0]) < 2 or len(feats[b][0]) < 2:
+            continue
+        m = _mutual((cameras[a], cameras[b]), (ideal[a], ideal[b]), (feats[a], feats[b]),
+                    params)
+        guided[a, b] += len(m)
+        if len(m) < params.min_matches:
+            continue
+        inl = _own_geometry(cameras[a], cameras[b], feats[a][0][m[:, 0]],
+                            feats[b][0][m[:, 1]], params)
+        if inl.sum() >= params.min_matches:
+            matches[a, b] = m[inl]
+    return feats, matches, guided
+
+
+def _one_geometry(found, cameras, params):
+    """``found`` with each pair's matches kept only where they agree with one relative
+    orientation fitted to the pair's matches of all frames (pairs matched in >= 2 frames)."""
+    pairs = {p for _, matches in found for p in matches}
+    out = [(feats, dict(matches)) for feats, matches in found]
+    for a, b in sorted(pairs):
+        frames = [f for f, (_, matches) in enumerate(found) if (a, b) in matches]
+        if len(frames) < 2:
+            continue
+        xa = np.concatenate([found[f][0][a][0][found[f][1][a, b][:, 0]] for f in frames])
+        xb = np.concatenate([found[f][0][b][0][found[f][1][a, b][:, 1]] for f in frames])
+        inl = _own_geometry(cameras[a], cameras[b], xa, xb, params)
+        split = np.cumsum([len(found[f][1][a, b]) for f in frames])[:-1]
+        for f, keep in zip(frames, np.split(inl, split)):
+            out[f][1][a, b] = found[f][1][a, b][keep]
+    return out
+
+
 def find_tie_points(frames, cameras, *, params: TieParams | None = None) -> TiePoints:
     """Tie points of K calibrated views in frames of a synchronised recording.
 
@@ -419,34 +481,19 @@ def find_tie_points(frames, cameras, *, params: TieParams | None = None) -> TieP
     detector = _detector(cameras, params)
     pair_matches = np.zeros((K, K), int)
     pair_guided = np.zeros((K, K), int)
-    xy_all, frame_all = [], []
+    found = []                                  # per frame: features, the pairs' matches
     for f, images in enumerate(frames):
-        images = list(images)
-        if len(images) != K:
-            raise ValueError(f"frames: frame {f} holds {len(images)} images, expected {K} "
-                             "(one per camera)")
-        for k, (g, c) in enumerate(zip(images, cameras)):
-            g = np.asarray(g)
-            if g.ndim != 2 or g.dtype != np.uint8 or g.shape != (c.height, c.width):
-                raise ValueError(f"frames: image {k} of frame {f} is {g.dtype} {g.shape}; "
-                                 f"expected uint8 ({c.height}, {c.width}) like its camera")
-        feats = _features(images, detector)
-        ideal = [_ideal(c, xy) if len(xy) else xy for c, (xy, _) in zip(cameras, feats)]
-        matches = {}
-        for a, b in itertools.combinations(range(K), 2):
-            if len(feats[a][0]) < 2 or len(feats[b][0]) < 2:
-                continue
-            m = _mutual((cameras[a], cameras[b]), (ideal[a], ideal[b]), (feats[a], feats[b]),
-                        params)
-            pair_guided[a, b] += len(m)
-            if len(m) < params.min_matches:
-                continue
-            inl = _own_geometry(cameras[a], cameras[b], feats[a][0][m[:, 0]],
-                                feats[b][0][m[:, 1]], params)
-            if inl.sum() < params.min_matches:
-                continue
-            matches[a, b] = m[inl]
-            pair_matches[a, b] += len(matches[a, b])
+        feats, matches, guided = _frame_matches(f, list(images), cameras, detector, params)
+        pair_guided += guided
+        found.append((feats, matches))
+    if not found:
+        raise ValueError("frames: expected at least one frame")
+    if params.recording_geometry:
+        found = _one_geometry(found, cameras, params)
+    xy_all, frame_all = [], []
+    for f, (feats, matches) in enumerate(found):
+        for (a, b), m in matches.items():
+            pair_matches[a, b] += len(m)
         offsets = np.concatenate([[0], np.cumsum([len(x) for x, _ in feats])])
         idx = _chain(K, offsets, matches)
         xy = np.full((K, idx.shape[1], 2), np.nan)
@@ -455,7 +502,5 @@ def find_tie_points(frames, cameras, *, params: TieParams | None = None) -> TieP
             xy[k, ok] = feats[k][0][idx[k, ok]]
         xy_all.append(xy)
         frame_all.append(np.full(idx.shape[1], f))
-    if not xy_all:
-        raise ValueError("frames: expected at least one frame")
     return TiePoints(xy=np.concatenate(xy_all, axis=1), frame=np.concatenate(frame_all),
                      pair_matches=pair_matches, pair_guided=pair_guided)

@@ -10,7 +10,9 @@ are tracked again under the same pipeline (`lsmta.systems.capture_markers`): LSM
 OpenCV's pyramidal KLT (the peer a user would pick instead) on the SAME markers (LSMTA's
 detections, joins and moving set, ``like=``) and the same rigid pair (chosen by
 `lsmta.real.own_recording.rigid_pair`'s rule on LSMTA's markers); KLT joined on its own is
-recorded beside, for reference. Both trackers are followed on the blobs (``MarkerParams.follow``)
+recorded beside, for reference. The join checks (``MarkerParams.check``) decide on LSMTA's
+tracks by the residual that is then scored, and KLT is scored on the markers they kept:
+that favours LSMTA's residual. Both trackers are followed on the blobs (``MarkerParams.follow``)
 unless ``--plain`` (each tracker alone over the clip, as before issue #40's marker fix).
 Prints and writes ``<out>/experiment.json``: the command's time, stages and files; for both
 trackers the moving markers, their coverage, median residual and the rigid-pair distance's
@@ -39,25 +41,14 @@ from lsmta.camera_files import read_camera_toml
 from lsmta.cli import main as lsmta
 from lsmta.data import POSE2SIM_CAMERAS, POSE2SIM_VIDEOS
 from lsmta.io import read_videos
-from lsmta.real.own_recording import marker_scores, relative_motion
+from lsmta.real.own_recording import marker_scores, moving_pairs
 from lsmta.report import verdict, write_json
 from lsmta.systems import MarkerParams, Tracker2D, capture_markers
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scale", type=float, default=1.0)
-    parser.add_argument("--frames", default="0:100")
-    parser.add_argument("--out", default="build/benchmarks/capture_demo")
-    parser.add_argument("--reuse", action="store_true",
-                        help="reuse <out>/capture of an earlier run (its cameras) and run "
-                             "only the marker comparison")
-    parser.add_argument("--plain", action="store_true",
-                        help="track the markers without following them on their blobs")
-    args = parser.parse_args(argv)
-    out = Path(args.out)
-    videos = [str(v) for v in POSE2SIM_VIDEOS]
-
+def _command(args, out, videos):
+    """Run `lsmta capture` (unless --reuse finds its files): its time (None when reused),
+    summary and the files read back."""
     t0 = time.perf_counter()
     if args.reuse and (out / "capture" / "summary.json").exists():
         status = 0
@@ -77,13 +68,18 @@ def main(argv=None):
                 "markers_c3d_frames": int(c3d["data"]["points"].shape[2]),
                 "ply_files": len(plys),
                 "ply_points_first": int(pv.read(plys[0]).n_points) if plys else 0}
+    return seconds, summary, readback
 
-    # the same markers, cameras and frames through both 2-D trackers
+
+def _trackers(args, out, videos):
+    """The same markers, cameras and frames through both 2-D trackers: the captures and
+    their CPU times."""
     start, stop = (int(x) for x in args.frames.split(":"))
     v = read_videos(videos, frames=range(start, stop), scale=args.scale)
     cameras = read_camera_toml(out / "capture" / "cameras.toml", unit="mm")
     stacks = v.load(progress=False)
     first = v.read(0, colour=True)
+
     def params(tracker):
         extra = {"follow": None} if args.plain else {}
         return MarkerParams(sigma=2.5 * args.scale, max_px=4.0 * args.scale, tracker=tracker,
@@ -96,6 +92,11 @@ def main(argv=None):
         runs[name] = capture_markers(stacks, cameras, first, params=params(tracker),
                                      like=runs.get(like))
         cpu[name] = time.process_time() - c0
+    return runs, cpu
+
+
+def _scores(runs, cpu):
+    """Both trackers' scores on LSMTA's markers and rigid pair (KLT's own joins beside)."""
     scores = {"LSMTA": marker_scores(runs["LSMTA"])}
     pair = scores["LSMTA"]["pair"]
     # without LSMTA's pair, KLT's spread is not measured (its own pair would not compare)
@@ -106,6 +107,41 @@ def main(argv=None):
     for name, s in scores.items():
         s["cpu_seconds"] = cpu[name]
         s["share_per_marker"] = runs[name].triangulated_share()[runs[name].moving].round(3).tolist()
+    return scores
+
+
+def _per_marker(lm):
+    """Per moving LSMTA marker: its views, 3-D share and the frames one view (or none)
+    holds it."""
+    out = []
+    for j in np.flatnonzero(lm.moving):
+        views = np.isfinite(lm.xy[:, :, j]).all(axis=2)            # (T, K) views holding it
+        out.append({
+            "marker": int(j), "views": lm.members[j].tolist(),
+            "share_3d": float(np.isfinite(lm.xyz[:, j]).all(axis=1).mean()),
+            "frames_one_view": int((views.sum(axis=1) == 1).sum()),
+            "frames_no_view": int((views.sum(axis=1) == 0).sum()),
+            "median_xyz_mm": np.round(np.nanmedian(lm.xyz[:, j], axis=0)).tolist()})
+    return out
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scale", type=float, default=1.0)
+    parser.add_argument("--frames", default="0:100")
+    parser.add_argument("--out", default="build/benchmarks/capture_demo")
+    parser.add_argument("--reuse", action="store_true",
+                        help="reuse <out>/capture of an earlier run (its cameras) and run "
+                             "only the marker comparison")
+    parser.add_argument("--plain", action="store_true",
+                        help="track the markers without following them on their blobs")
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    videos = [str(v) for v in POSE2SIM_VIDEOS]
+    seconds, summary, readback = _command(args, out, videos)
+    runs, cpu = _trackers(args, out, videos)
+    scores = _scores(runs, cpu)
+    pair = scores["LSMTA"]["pair"]
     L, K = scores["LSMTA"], scores["KLT"]
     ratios = {k: L[k] / K[k] for k in ("residual_px", "pair_std_mm", "cpu_seconds")}
     lm = runs["LSMTA"]
@@ -117,26 +153,6 @@ def main(argv=None):
         "LSMTA at or below KLT on residual and spread (same markers and pair)": (
             "not measured (no rigid pair)" if pair is None else verdict(
                 L["residual_px"] <= K["residual_px"] and L["pair_std_mm"] <= K["pair_std_mm"]))}
-    per_marker = []
-    for j in np.flatnonzero(lm.moving):
-        views = np.isfinite(lm.xy[:, :, j]).all(axis=2)            # (T, K) views holding it
-        per_marker.append({
-            "marker": int(j), "views": lm.members[j].tolist(),
-            "share_3d": float(np.isfinite(lm.xyz[:, j]).all(axis=1).mean()),
-            "frames_one_view": int((views.sum(axis=1) == 1).sum()),
-            "frames_no_view": int((views.sum(axis=1) == 0).sum()),
-            "median_xyz_mm": np.round(np.nanmedian(lm.xyz[:, j], axis=0)).tolist()})
-    pairs = []                  # what the rigid-pair rule looks at, for every moving pair
-    mv = np.flatnonzero(lm.moving)
-    for a, i in enumerate(mv):
-        for j in mv[a + 1:]:
-            d = np.linalg.norm(lm.xyz[:, i] - lm.xyz[:, j], axis=1)
-            pairs.append({"markers": [int(i), int(j)],
-                          "same_views": bool(np.array_equal(lm.members[i] >= 0,
-                                                            lm.members[j] >= 0)),
-                          "median_mm": float(np.nanmedian(d)),
-                          "relative_motion": relative_motion(lm.xyz[:, i], lm.xyz[:, j]),
-                          "frames_both": int(np.isfinite(d).sum())})
     pair_info = None if pair is None else {
         "markers": pair, "views": [lm.members[j].tolist() for j in pair],
         "median_height_mm": [float(np.nanmedian(lm.xyz[:, j, 2])) for j in pair]}
@@ -144,7 +160,7 @@ def main(argv=None):
               "plain": args.plain, "reused_capture": args.reuse,
               "cameras_note": summary.get("cameras_note"), "stages": summary["stages"],
               "readback": readback, "markers": scores, "rigid_pair": pair_info,
-              "per_marker_lsmta": per_marker, "pairs_lsmta": pairs,
+              "per_marker_lsmta": _per_marker(lm), "pairs_lsmta": moving_pairs(lm),
               "ratios_lsmta_over_klt": ratios, "verdicts": verdicts}
     write_json(out / "experiment.json", record)
     print(json.dumps(record, indent=1, default=str))

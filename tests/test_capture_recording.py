@@ -373,3 +373,25 @@ def test_command_scales_the_mask_and_patches_with_the_frames():
     assert (half.surface.subject_mask.close_px, half.surface.subject_mask.grow_px) == (8, 8)
     assert (half.more_views.patch, half.more_views.retry_patch) == (7, (11,))
     assert params(0.1).more_views.patch == 5, "the smallest patch"
+
+
+@pytest.mark.slow
+def test_summary_carries_the_marker_join_checks_as_numbers(capture):
+    """summary.json's markers: the join checks' counts as a structured entry."""
+    from lsmta.systems.capture_files import capture_record
+    from lsmta.systems.markers import MarkerCapture
+
+    T = len(capture.frames)
+    xyz = np.zeros((T, 1, 3))
+    xyz[:, 0, 0] = np.arange(T) * 30.0
+    joins = {"ambiguous": 2, "ambiguous_views": 1, "below_floor": 0, "views_out": 3,
+             "attached": 1, "filled": np.int64(7)}
+    markers = MarkerCapture(detections=(np.zeros((1, 2)),) * 3,
+                            view_xy=(np.zeros((T, 1, 2)),) * 3,
+                            members=np.array([[0, 0, -1]]), xy=np.zeros((T, 3, 1, 2)),
+                            xyz=xyz, residual=np.zeros((T, 1)), motion_mm=np.array([150.0]),
+                            moving=np.array([True]), seconds=0.1, joins=joins)
+    record = capture_record(replace(capture, markers=markers))
+    assert record["marker_join_checks"] == {k: int(v) for k, v in joins.items()}
+    assert all(type(v) is int for v in record["marker_join_checks"].values())
+    json.dumps(record)                                     # plain values

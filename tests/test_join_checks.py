@@ -2,11 +2,15 @@
 stage's use of it (lsmta.systems.markers) and the rigid pair's co-motion rule
 (lsmta.real.own_recording)."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
-from lsmta.real.own_recording import relative_motion, rigid_pair
+from lsmta.camera import Camera
+from lsmta.real.own_recording import moving_pairs, relative_motion, rigid_pair
 from lsmta.systems import MarkerParams, capture_markers
+from lsmta.tracking import join_checks
 from lsmta.tracking.join_checks import attach_views, check_joins, fill_gaps
 from lsmta.tracking.view_tracks import join_view_tracks, triangulate_joined
 from tests.test_view_tracks import _dot_video, _rig
@@ -47,6 +51,46 @@ def test_two_points_on_one_epipolar_plane_moving_alike_are_ambiguous():
     assert check_joins(cams, xy, J.members, max_px=1.0, min_ratio=1.0).ambiguous == 0
 
 
+def _side_by_side_and_above():
+    """Two cameras side by side (a horizontal baseline along x) and one above them."""
+    cams = _rig(2, spread_deg=20.0)
+    top = Camera.look_at([0.0, -2400.0, 1800.0], [0.0, 0.0, 0.0], f=1200.0, width=800,
+                         height=600, name="top")
+    return [*cams, top]
+
+
+def test_a_third_view_confirms_a_marker_whose_pair_is_ambiguous():
+    cams = _side_by_side_and_above()
+    X = _paths()
+    # point 5 moves as point 0, 300 mm beside it along the side-by-side pair's baseline:
+    # that pair alone cannot tell them apart, the view above can
+    X = np.concatenate([X, X[:, :1] + [300.0, 0, 0]], axis=1)
+    xy = _tracks(cams, X)
+    right = np.array([[i, i, i] for i in range(6)])
+    c = check_joins(cams, xy, right, max_px=1.0)
+    assert c.ambiguous == 0 and c.ambiguous_views == 0 and c.views_out == 0
+    assert np.array_equal(c.members, right)                # all six kept, with all views
+    # without the view above, the pair's rule drops both
+    two = check_joins(cams[:2], xy[:2], right[:, :2], max_px=1.0)
+    assert two.ambiguous == 2 and not np.isin(two.members, [0, 5]).any()
+
+
+def test_an_ambiguous_view_of_a_three_view_marker_is_taken_out_not_the_marker():
+    cams = _side_by_side_and_above()
+    X = _paths()
+    # point 5 moves as point 0, 500 mm further along the view above's ray through it: the
+    # view above sees the two at one place; the side-by-side pair tells them apart
+    ray = X[:, :1] - cams[2].C
+    X = np.concatenate([X, X[:, :1] + 500.0 * ray / np.linalg.norm(ray, axis=2,
+                                                                   keepdims=True)], axis=1)
+    xy = _tracks(cams, X)
+    right = np.array([[i, i, i] for i in range(6)])
+    c = check_joins(cams, xy, right, max_px=1.0)
+    assert c.ambiguous_views == 2 and c.ambiguous == 0 and len(c.members) == 6
+    assert np.array_equal(c.members[[0, 5], 2], [-1, -1])     # the view above out of both
+    assert np.array_equal(c.members[1:5], right[1:5])          # the rest untouched
+
+
 def test_a_wrong_view_is_taken_out_and_its_track_attached_where_it_belongs():
     cams = _rig(3, spread_deg=40.0)
     X = _paths()
@@ -64,6 +108,16 @@ def test_a_wrong_view_is_taken_out_and_its_track_attached_where_it_belongs():
     # a view never joined (the two others 80 degrees apart joined it) is attached too
     m2, n2 = attach_views(cams, xy, np.array([[i, i, -1] for i in range(5)]), max_px=2.0)
     assert n2 == 5 and np.array_equal(m2[:, 2], np.arange(5))
+
+
+def test_attaching_in_chunks_of_markers_gives_the_same(monkeypatch):
+    cams = _rig(3, spread_deg=40.0)
+    xy = _tracks(cams, _paths())
+    members = np.array([[i, i, -1] for i in range(5)])
+    whole = attach_views(cams, xy, members, max_px=2.0)
+    monkeypatch.setattr(join_checks, "_CHUNK", 1)          # one marker at a time
+    parts = attach_views(cams, xy, members, max_px=2.0)
+    assert whole[1] == parts[1] == 5 and np.array_equal(whole[0], parts[0])
 
 
 def test_markers_below_the_floor_are_dropped_only_when_a_floor_is_given():
@@ -106,6 +160,11 @@ def test_a_lost_dot_is_found_at_the_projection_and_a_missing_one_is_not():
     _, near = fill_gaps(moved, cams, xy, members, radius=4, search_px=4.0, max_px=20.0)
     _, wide = fill_gaps(moved, cams, xy, members, radius=4, search_px=12.0, max_px=20.0)
     assert not near[5:9, 0, 0].any() and wide[5:9, 0, 0].all()
+    # a free track of view 0 (joined to no marker) holds marker 0's dot: not taken
+    extra = [np.concatenate([xy[0], np.full((T, 1, 2), np.nan)], axis=1), xy[1]]
+    extra[0][5:9, 2] = truth[0][5:9, 0]
+    _, taken = fill_gaps(stacks, cams, extra, members, radius=4, max_px=1.0)
+    assert not taken[5:9, 0, 0].any() and taken[[11, 13], 1, 1].all()
     xyz, _, _ = triangulate_joined(cams, out, members)
     assert np.isfinite(xyz[:, 0]).all() and np.isnan(xyz[12, 1]).all()
 
@@ -119,7 +178,8 @@ def test_the_stage_records_its_checks_and_the_peer_shares_them():
     first = [s[0] for s in stacks]
     p = MarkerParams(detector="blobs", max_px=1.0, min_motion_mm=5.0)
     a = capture_markers(stacks, cams, first, params=p)
-    assert set(a.joins) == {"ambiguous", "below_floor", "views_out", "attached", "filled"}
+    assert set(a.joins) == {"ambiguous", "ambiguous_views", "below_floor", "views_out",
+                            "attached", "filled"}
     assert len(a.members) == 4 and a.joins["ambiguous"] == 0
     b = capture_markers(stacks, cams, first, params=p, like=a)
     assert np.array_equal(a.members, b.members) and b.joins["attached"] == a.joins["attached"]
@@ -150,6 +210,15 @@ def test_the_rigid_pair_must_move_together():
     assert relative_motion(still, still) == np.inf        # no common motion
     gone = np.full((T, 3), np.nan)
     assert np.isnan(relative_motion(a, gone))
+    # every moving pair with what the rule looks at: the still marker 3 is left out
+    capture = SimpleNamespace(moving=np.array([True, True, True, False]),
+                              xyz=np.stack([a, b, other, still], axis=1),
+                              members=np.array([[0, 1], [1, 2], [2, -1], [3, 3]]))
+    pairs = moving_pairs(capture)
+    assert [p["markers"] for p in pairs] == [[0, 1], [0, 2], [1, 2]]
+    assert [p["same_views"] for p in pairs] == [True, False, False]
+    assert pairs[0]["relative_motion"] == relative_motion(a, b) and pairs[0]["frames_both"] == T
+    assert abs(pairs[0]["median_mm"] - np.median(np.linalg.norm(a - b, axis=1))) < 1e-9
 
 
 def test_bad_input():
@@ -169,6 +238,11 @@ def test_bad_input():
         check_joins(cams, xy, members, up=(0, 0, 0))
     with pytest.raises((TypeError, ValueError), match="floor_mm"):
         check_joins(cams, xy, members, floor_mm="floor")
+    with pytest.raises((TypeError, ValueError), match="floor_mm"):
+        check_joins(cams, xy, members[:0], floor_mm=float("nan"))    # checked up front
+    for share in (0.0, 1.5):
+        with pytest.raises(ValueError, match="min_shared"):
+            check_joins(cams, xy, members, min_shared=share)
     with pytest.raises(ValueError, match="max_px"):
         attach_views(cams, xy, members, max_px=0.0)
     with pytest.raises(ValueError, match="min_shared"):
@@ -178,6 +252,8 @@ def test_bad_input():
         fill_gaps(stacks[:1], cams, xy, members)
     with pytest.raises(ValueError, match="stacks"):
         fill_gaps([s[:3] for s in stacks], cams, xy, members)
+    with pytest.raises(ValueError, match=r"stacks\[1\]: expected \(T, 600, 800\)"):
+        fill_gaps([stacks[0], np.zeros((6, 300, 400), np.uint8)], cams, xy, members)
     with pytest.raises(ValueError, match="radius"):
         fill_gaps(stacks, cams, xy, members, radius=0)
     with pytest.raises(ValueError, match="search_px"):
@@ -192,6 +268,8 @@ def test_bad_input():
         MarkerParams(min_ratio=0.5)
     with pytest.raises(ValueError, match="floor_mm"):
         MarkerParams(floor_mm=float("nan"))
+    with pytest.raises(ValueError, match="fill_search_px"):
+        MarkerParams(fill_search_px=0.0)
     with pytest.raises(ValueError, match="max_relative"):
         rigid_pair(X, max_relative=0.0)
     with pytest.raises(ValueError, match="b"):

@@ -1,5 +1,5 @@
-"""A user's own recording through the LSMTA system, judged without truth (notebook 21,
-``experiments/capture_demo.py``): the Pose2Sim demo's four videos and camera file.
+"""A user's own recording through the LSMTA system, judged without truth (notebooks 17 and
+21, ``experiments/capture_demo.py``): the Pose2Sim demo's four videos and camera file.
 
 A real recording has no truth, so the markers are judged by what needs none:
 
@@ -7,9 +7,11 @@ A real recording has no truth, so the markers are judged by what needs none:
 * *residual*: how far the intersected marker reprojects from its tracked positions;
 * *rigidity*: the distance between two markers on one rigid segment should not change. The
   pair is chosen by a rule that does not look at the distance's spread (which is what is
-  scored), written before the final run (issue #40): of the moving markers in 3-D in at
-  least half of the frames and above the floor (a median height below 0 is a wrong join),
-  the pairs that
+  scored). The rule, and its ``max_relative`` threshold in particular, was set in the same
+  change as the first full-size score of the Pose2Sim demo (issue #40's marker fix), so it
+  cannot be shown to have been fixed before that result was seen. Of the moving markers in
+  3-D in at least half of the frames and above the floor (a median height below 0 is a
+  wrong join), the pairs that
 
   - are seen by the same views (a pair intersected by different cameras adds the two camera
     groups' disagreement to its distance);
@@ -140,6 +142,26 @@ def relative_motion(a, b) -> float:
     common = np.sqrt(np.mean(np.sum((0.5 * (da + db)) ** 2, axis=1)))
     rel = np.sqrt(np.mean(np.sum((da - db) ** 2, axis=1)))
     return float(rel / common) if common > 0 else float("inf")
+
+
+def moving_pairs(capture) -> list[dict]:
+    """Every pair of a :class:`~lsmta.systems.MarkerCapture`'s moving markers with what
+    :func:`rigid_pair`'s rule looks at (not the distance's spread): ``"markers"`` (two
+    indices into the capture's markers), ``"same_views"``, ``"median_mm"``,
+    ``"relative_motion"`` and ``"frames_both"``."""
+    m = capture
+    out = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)          # pairs never both in 3-D
+        for i, j in itertools.combinations(np.flatnonzero(m.moving), 2):
+            d = np.linalg.norm(m.xyz[:, i] - m.xyz[:, j], axis=1)
+            out.append({"markers": [int(i), int(j)],
+                        "same_views": bool(np.array_equal(m.members[i] >= 0,
+                                                          m.members[j] >= 0)),
+                        "median_mm": float(np.nanmedian(d)),
+                        "relative_motion": relative_motion(m.xyz[:, i], m.xyz[:, j]),
+                        "frames_both": int(np.isfinite(d).sum())})
+    return out
 
 
 def marker_scores(capture, *, pair=None) -> dict:

@@ -133,6 +133,7 @@ def capture_record(capture) -> dict:
             "motion_mm": float(m.motion_mm[j])}
             for i, (j, row) in enumerate((j, m.members[j]) for j in np.flatnonzero(m.moving))]
         record["still_blobs_joined"] = int((~m.moving).sum())
+        record["marker_join_checks"] = {k: int(v) for k, v in m.joins.items()}
     if hasattr(capture.calibration, "summary") and callable(capture.calibration.summary):
         record["calibration"] = capture.calibration.summary()
     return _plain(record)

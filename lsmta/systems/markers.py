@@ -15,8 +15,9 @@ The stage for what a marker-based recording holds beyond the surfaces: small ski
    ``max_angle_deg``) by their whole paths
    (:func:`~lsmta.tracking.view_tracks.join_view_tracks`);
 4. *checking and completing the joins* (``MarkerParams.check``, on by default;
-   :mod:`~lsmta.tracking.join_checks`): ambiguous joins and markers below the floor
-   dropped, a view that disagrees with the marker's others taken out
+   :mod:`~lsmta.tracking.join_checks`): a view that disagrees with the marker's others
+   taken out, an ambiguous view of a marker of three or more views taken out, ambiguous
+   two-view markers and markers below the floor dropped
    (:func:`~lsmta.tracking.join_checks.check_joins`); free tracks of any view attached to
    the marker whose 3-D path projects onto them
    (:func:`~lsmta.tracking.join_checks.attach_views`); a marker a view lost looked for at
@@ -87,8 +88,8 @@ class MarkerParams:
     check : bool
         Check and complete the joins (stage 4 of the module docstring), with ``max_px``,
         ``min_shared``, ``min_ratio`` and ``floor_mm``; the gaps are filled with the
-        following's window (also the largest distance of a dot from the projection),
-        contrast floor and ``max_gap`` (``follow``, or its defaults).
+        following's window, contrast floor and ``max_gap`` (``follow``, or its defaults)
+        and ``fill_search_px``.
     min_ratio : float
         A join is ambiguous when a rival partner's median pair residual is less than this
         times its own (>= 1).
@@ -96,6 +97,12 @@ class MarkerParams:
         Height of the floor (world Z), mm, where the camera file's world frame has one (a
         Qualisys L-frame on the floor: 0); None (default): not checked, as a world frame
         need not have its Z up (OpenCV's is the first camera's).
+    fill_search_px : float or None
+        Largest distance of a dot found by the fill from the marker's projection, px
+        (:func:`~lsmta.tracking.join_checks.fill_gaps`' ``search_px``); None:
+        ``4.8 sigma`` (fill_gaps' default 12 px at the default ``sigma`` 2.5, scaled with
+        the frames): an extrapolated position over a few frames is off by more than a
+        dot's radius, so the search reaches beyond the re-centring window.
     """
 
     detector: str = "skin"
@@ -112,6 +119,7 @@ class MarkerParams:
     check: bool = True
     min_ratio: float = 2.0
     floor_mm: float | None = None
+    fill_search_px: float | None = None
 
     def __post_init__(self):
         if self.detector not in ("skin", "blobs"):
@@ -126,6 +134,8 @@ class MarkerParams:
             raise ValueError(f"min_ratio: expected a ratio >= 1, got {self.min_ratio}")
         if self.floor_mm is not None:
             as_scalar(self.floor_mm, "floor_mm")
+        if self.fill_search_px is not None:
+            as_scalar(self.fill_search_px, "fill_search_px", positive=True)
         if self.follow is not None and not isinstance(self.follow, FollowParams):
             raise TypeError(f"follow: expected a FollowParams or None, got "
                             f"{type(self.follow).__name__}")
@@ -162,9 +172,11 @@ class MarkerCapture:
     seconds : float
         Time of the 2-D tracking, s.
     joins : dict
-        What the join check did (``MarkerParams.check``): markers dropped as
-        ``"ambiguous"`` and ``"below_floor"``, ``"views_out"`` taken out, tracks
-        ``"attached"``, dots ``"filled"`` (all 0 without the check).
+        What the join check did (``MarkerParams.check``): two-view markers dropped as
+        ``"ambiguous"``, ambiguous views of markers of three or more views taken out
+        (``"ambiguous_views"``), markers dropped ``"below_floor"``, disagreeing
+        ``"views_out"`` taken out, tracks ``"attached"``, dots ``"filled"`` (all 0 without
+        the check).
     """
 
     detections: tuple
@@ -288,10 +300,10 @@ def capture_markers(stacks, cameras, first_frames, *, params: MarkerParams | Non
     joins["filled"] = 0
     if p.check:
         fp = replace(p.follow or FollowParams(), sigma=p.sigma)
+        search = p.fill_search_px if p.fill_search_px is not None else 4.8 * p.sigma
         view_xy, found = fill_gaps(stacks, cams, view_xy, members, radius=fp.window(),
-                                   search_px=fp.window(),
-                                   min_contrast=fp.min_contrast, max_gap=fp.max_gap,
-                                   max_px=p.max_px)
+                                   search_px=search, min_contrast=fp.min_contrast,
+                                   max_gap=fp.max_gap, max_px=p.max_px)
         joins["filled"] = int(found.sum())
     xyz, residual, _ = triangulate_joined(cams, view_xy, members)
     with warnings.catch_warnings():
@@ -308,10 +320,12 @@ def capture_markers(stacks, cameras, first_frames, *, params: MarkerParams | Non
 def _checked_joins(cams, view_xy, members, p: MarkerParams):
     """Stage 4's check and attachment (the fill runs for every tracker)."""
     if not p.check:
-        return members, {"ambiguous": 0, "below_floor": 0, "views_out": 0, "attached": 0}
+        return members, {"ambiguous": 0, "ambiguous_views": 0, "below_floor": 0,
+                         "views_out": 0, "attached": 0}
     c = check_joins(cams, view_xy, members, max_px=p.max_px, min_ratio=p.min_ratio,
                     min_shared=p.min_shared, floor_mm=p.floor_mm)
     members, attached = attach_views(cams, view_xy, c.members, max_px=p.max_px,
                                      min_shared=p.min_shared)
-    return members, {"ambiguous": c.ambiguous, "below_floor": c.below_floor,
-                     "views_out": c.views_out, "attached": attached}
+    return members, {"ambiguous": c.ambiguous, "ambiguous_views": c.ambiguous_views,
+                     "below_floor": c.below_floor, "views_out": c.views_out,
+                     "attached": attached}

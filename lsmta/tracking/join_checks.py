@@ -9,11 +9,16 @@ what a recording is scored on):
      lies more than ``max_px`` (median over the frames) from the projection of the point
      intersected from the marker's other views is taken out of it (the worst first, until
      the rest agree or two views are left);
-   * *ambiguous*: a two-view link whose track has another partner nearly as good (the
-     second-best median pair residual of either track less than ``min_ratio`` times the
-     link's own): two tracks whose paths both stay on one epipolar band cannot be told
-     apart by the band (a walker's markers move alike, so the band holds several); the
-     marker is dropped;
+   * *ambiguous*: two tracks whose paths both stay on one epipolar band cannot be told
+     apart by the band (a walker's markers move alike, so the band holds several). In a
+     marker held by three or more views, a view whose track has a rival in that view
+     nearly as close to the projection of the point intersected from the marker's other
+     views (the rival's median distance less than ``min_ratio`` times the track's own) is
+     taken out of it (the most ambiguous first, until none is or two views are left): a
+     third view that confirms the marker keeps it. A marker left with two views (a
+     two-view link) whose track has another partner nearly as good (the second-best
+     median pair residual of either track less than ``min_ratio`` times the link's own)
+     is dropped;
    * *below the floor*: a marker whose median height (along ``up``) lies more than
      ``floor_margin_mm`` below ``floor_mm`` (a subject's markers are on or above the floor;
      None: not checked) is dropped.
@@ -32,10 +37,10 @@ what a recording is scored on):
    (:func:`~lsmta.tracking.blob_follow.dot_centre`, a window of ``radius`` px moved to the
    centroid three times) and taken when its contrast is at least ``min_contrast``, it lies
    within ``search_px`` of the projection (an extrapolation over a few frames of a swinging
-   foot is off by more than a dot's radius) and not within ``radius`` of another marker of
-   that view, and the point intersected with it reprojects within ``max_px`` in every
-   view. A dot so found is a measurement of the frame, not an interpolation: a frame whose
-   dot cannot be found stays empty.
+   foot is off by more than a dot's radius) and not within ``radius`` of another marker or
+   any other track of that view, and the point intersected with it reprojects within
+   ``max_px`` in every view. A dot so found is a measurement of the frame, not an
+   interpolation: a frame whose dot cannot be found stays empty.
 """
 
 from __future__ import annotations
@@ -48,7 +53,13 @@ import numpy as np
 from .._validate import as_array, as_int, as_scalar, freeze
 from ..triangulation import triangulate
 from .blob_follow import dot_centre, dot_contrast
-from .view_tracks import _checked, joined_positions, pair_residuals, triangulate_joined
+from .view_tracks import (
+    _CHUNK,
+    _checked,
+    joined_positions,
+    pair_residuals,
+    triangulate_joined,
+)
 
 __all__ = ["JoinCheck", "attach_views", "check_joins", "fill_gaps"]
 
@@ -62,20 +73,30 @@ class JoinCheck:
     members : (M', K) int array
         The joins kept (views taken out set to -1).
     ambiguous : int
-        Markers dropped as ambiguous.
+        Two-view markers dropped as ambiguous.
     views_out : int
         Views taken out of markers whose other views disagree with them.
     below_floor : int
         Markers dropped below the floor.
+    ambiguous_views : int
+        Views taken out of markers of three or more views as ambiguous.
     """
 
     members: np.ndarray
     ambiguous: int
     views_out: int
     below_floor: int
+    ambiguous_views: int = 0
 
     def __post_init__(self):
         freeze(self, ("members",))
+
+
+def _share(min_shared) -> float:
+    min_shared = as_scalar(min_shared, "min_shared", positive=True)
+    if min_shared > 1:
+        raise ValueError(f"min_shared: expected a share in (0, 1], got {min_shared}")
+    return min_shared
 
 
 def _members(members, K) -> np.ndarray:
@@ -106,21 +127,51 @@ def _second_best(r: np.ndarray, i: int, j: int) -> float:
 
 
 def _ambiguous(cams, arrays, members, min_ratio, min_shared) -> np.ndarray:
-    """``(M,)`` True where a link of the marker has a near-equal rival partner."""
+    """``(M,)`` True where a two-view marker's link has a near-equal rival partner (markers
+    of three or more views are judged view by view, :func:`_ambiguous_view`)."""
     out = np.zeros(len(members), bool)
     cache = {}
     for j, m in enumerate(members):
         views = np.flatnonzero(m >= 0)
-        for x, a in enumerate(views):
-            for b in views[x + 1:]:
-                if (a, b) not in cache:
-                    cache[a, b] = pair_residuals(cams[a], cams[b], arrays[a], arrays[b],
-                                                 min_shared=min_shared)
-                r = cache[a, b]
-                own = r[m[a], m[b]]
-                if np.isfinite(own) and _second_best(r, m[a], m[b]) < min_ratio * own:
-                    out[j] = True
+        if len(views) != 2:
+            continue
+        a, b = views
+        if (a, b) not in cache:
+            cache[a, b] = pair_residuals(cams[a], cams[b], arrays[a], arrays[b],
+                                         min_shared=min_shared)
+        r = cache[a, b]
+        own = r[m[a], m[b]]
+        if np.isfinite(own) and _second_best(r, m[a], m[b]) < min_ratio * own:
+            out[j] = True
     return out
+
+
+def _ambiguous_view(cams, arrays, m, min_ratio, min_shared) -> int | None:
+    """The view of a marker of three or more views whose track has the nearest rival
+    (another track of that view, holding at least ``min_shared`` of the frames, whose
+    median distance from the projection of the point of the marker's other views is less
+    than ``min_ratio`` times the track's own), or None."""
+    worst, worst_ratio = None, min_ratio
+    T = arrays[0].shape[0]
+    for k in np.flatnonzero(m >= 0):
+        others = m.copy()
+        others[k] = -1
+        xyz, _, _ = triangulate_joined(cams, arrays, others[None])
+        proj = _project(cams[k], xyz[:, 0])                                   # (T, 2)
+        d = np.linalg.norm(arrays[k] - proj[:, None], axis=2)                  # (T, N_k)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(d, axis=0)
+        med = np.where(np.isfinite(d).sum(axis=0) >= max(1, min_shared * T), med, np.nan)
+        own = med[m[k]]
+        rivals = np.delete(med, m[k])
+        rivals = rivals[np.isfinite(rivals)]
+        if not (np.isfinite(own) and rivals.size):
+            continue
+        ratio = rivals.min() / own if own > 0 else np.inf
+        if ratio < worst_ratio:
+            worst, worst_ratio = int(k), ratio
+    return worst
 
 
 def _leave_one_out(cams, arrays, m) -> np.ndarray:
@@ -155,7 +206,8 @@ def check_joins(cameras, xy, members, *, max_px: float = 3.0, min_ratio: float =
     min_ratio : float
         A link's second-best rival must have at least this times its residual, >= 1.
     min_shared : float
-        Share of the frames a rival pair must hold together (as when joining).
+        Share of the frames a rival must hold (together with its partner, or with the
+        projection of the marker's other views), in (0, 1] (as when joining).
     floor_mm : float or None
         Height of the floor along ``up``, mm; None: not checked.
     floor_margin_mm : float
@@ -173,12 +225,14 @@ def check_joins(cameras, xy, members, *, max_px: float = 3.0, min_ratio: float =
     min_ratio = as_scalar(min_ratio, "min_ratio", positive=True)
     if min_ratio < 1:
         raise ValueError(f"min_ratio: expected a ratio >= 1, got {min_ratio}")
+    min_shared = _share(min_shared)
+    floor = None if floor_mm is None else as_scalar(floor_mm, "floor_mm")
     floor_margin_mm = as_scalar(floor_margin_mm, "floor_margin_mm", nonnegative=True)
     u = as_array(up, "up", shape=(3,))
     if np.linalg.norm(u) == 0:
         raise ValueError("up: expected a non-zero direction")
     u = u / np.linalg.norm(u)
-    views_out = 0
+    views_out = ambiguous_views = 0
     for j in range(len(m)):
         while (m[j] >= 0).sum() >= 3:
             d = _leave_one_out(cams, arrays, m[j])
@@ -187,18 +241,23 @@ def check_joins(cameras, xy, members, *, max_px: float = 3.0, min_ratio: float =
                 break
             m[j, k] = -1
             views_out += 1
+        while (m[j] >= 0).sum() >= 3:
+            k = _ambiguous_view(cams, arrays, m[j], min_ratio, min_shared)
+            if k is None:
+                break
+            m[j, k] = -1
+            ambiguous_views += 1
     ambiguous = _ambiguous(cams, arrays, m, min_ratio, min_shared)
     m = m[~ambiguous]
     below = np.zeros(len(m), bool)
-    if floor_mm is not None and len(m):
-        floor = as_scalar(floor_mm, "floor_mm")
+    if floor is not None and len(m):
         xyz, _, _ = triangulate_joined(cams, arrays, m)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)      # never intersected
             height = np.nanmedian(xyz @ u, axis=0)
         below = height < floor - floor_margin_mm
     return JoinCheck(members=m[~below], ambiguous=int(ambiguous.sum()), views_out=views_out,
-                     below_floor=int(below.sum()))
+                     below_floor=int(below.sum()), ambiguous_views=ambiguous_views)
 
 
 def attach_views(cameras, xy, members, *, max_px: float = 3.0,
@@ -226,9 +285,7 @@ def attach_views(cameras, xy, members, *, max_px: float = 3.0,
     cams, arrays = _checked(cameras, xy)
     m = _members(members, len(cams)).copy()
     max_px = as_scalar(max_px, "max_px", positive=True)
-    min_shared = as_scalar(min_shared, "min_shared", positive=True)
-    if min_shared > 1:
-        raise ValueError(f"min_shared: expected a share in (0, 1], got {min_shared}")
+    min_shared = _share(min_shared)
     if not len(m):
         return m, 0
     xyz, _, _ = triangulate_joined(cams, arrays, m)
@@ -239,21 +296,36 @@ def attach_views(cameras, xy, members, *, max_px: float = 3.0,
         free = np.setdiff1d(np.arange(arrays[k].shape[1]), m[:, k])
         if not need.size or not free.size:
             continue
-        T = len(xyz)
-        proj = _project(cam, xyz[:, need]).reshape(T, len(need), 2)
-        d = np.linalg.norm(proj[:, :, None] - arrays[k][:, None, free], axis=3)   # (T, n, f)
-        shared = np.isfinite(d).sum(axis=0)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            med = np.nanmedian(d, axis=0)
-        enough = shared >= min_shared * has3d[:, need].sum(axis=0)[:, None]
-        med = np.where(enough & np.isfinite(med), med, np.inf)
+        med = _attach_medians(cam, xyz[:, need], arrays[k][:, free],
+                              min_shared * has3d[:, need].sum(axis=0))
         for i, row in enumerate(med):
             f = int(np.argmin(row))
             if row[f] <= max_px and int(np.argmin(med[:, f])) == i:
                 m[need[i], k] = free[f]
                 attached += 1
     return m, attached
+
+
+def _attach_medians(cam, xyz, tracks, need_frames) -> np.ndarray:
+    """``(n, f)`` median distance of f tracks ``(T, f, 2)`` from the projections of n
+    markers' 3-D paths ``(T, n, 3)``, inf where they share fewer than ``need_frames``
+    ``(n,)`` frames. The ``(T, rows, f)`` distances are built for a few markers at a time
+    (at most about ``_CHUNK`` values)."""
+    T, n, _ = xyz.shape
+    f = tracks.shape[1]
+    med = np.full((n, f), np.inf)
+    rows = max(1, _CHUNK // max(1, T * f))
+    for i0 in range(0, n, rows):
+        i1 = min(n, i0 + rows)
+        proj = _project(cam, xyz[:, i0:i1]).reshape(T, i1 - i0, 2)
+        d = np.linalg.norm(proj[:, :, None] - tracks[:, None], axis=3)    # (T, rows, f)
+        shared = np.isfinite(d).sum(axis=0)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            m = np.nanmedian(d, axis=0)
+        enough = shared >= need_frames[i0:i1, None]
+        med[i0:i1] = np.where(enough & np.isfinite(m), m, np.inf)
+    return med
 
 
 def _predict(xyz, t, step, max_gap) -> np.ndarray | None:
@@ -271,7 +343,8 @@ def _predict(xyz, t, step, max_gap) -> np.ndarray | None:
     return xyz[a] + (xyz[a] - xyz[b]) * (t - a) / (a - b)
 
 
-def _find_dots(cams, stacks, pos, t, j, X, members, radius, search_px, min_contrast):
+def _find_dots(cams, stacks, arrays, pos, t, j, X, members, radius, search_px,
+               min_contrast):
     """Dots near X's projection in the marker's views that lack it in frame t:
     ``{view: (2,) px}``."""
     found = {}
@@ -286,12 +359,27 @@ def _find_dots(cams, stacks, pos, t, j, X, members, radius, search_px, min_contr
         if not (np.isfinite(q).all() and np.linalg.norm(q - c) <= search_px
                 and dot_contrast(img, q[None], radius=radius)[0] >= min_contrast):
             continue
-        others = np.delete(pos[t, k], j, axis=0)
+        others = np.concatenate([np.delete(pos[t, k], j, axis=0),
+                                 np.delete(arrays[k][t], members[j, k], axis=0)])
         others = others[np.isfinite(others).all(axis=1)]
         if others.size and np.linalg.norm(others - q, axis=1).min() <= radius:
-            continue                                # another marker's dot
+            continue                                # another marker's or track's dot
         found[int(k)] = q
     return found
+
+
+def _check_stacks(stacks, cams, T) -> None:
+    """One ``(T, H_k, W_k)`` stack per camera, each of its camera's frame size."""
+    if len(stacks) != len(cams):
+        raise ValueError(f"stacks: expected {len(cams)} frame stacks (one per camera), got "
+                         f"{len(stacks)}")
+    if any(len(s) != T for s in stacks):
+        raise ValueError(f"stacks: expected {T} frames in every view (as the tracks), got "
+                         f"{[len(s) for s in stacks]}")
+    for k, (s, c) in enumerate(zip(stacks, cams)):
+        if np.ndim(s) != 3 or tuple(np.shape(s)[1:]) != (c.height, c.width):
+            raise ValueError(f"stacks[{k}]: expected (T, {c.height}, {c.width}) frames (camera "
+                             f"{c.name!r} is {c.width} x {c.height}), got shape {np.shape(s)}")
 
 
 def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float = 12.0,
@@ -332,13 +420,8 @@ def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float
     min_contrast = as_scalar(min_contrast, "min_contrast", positive=True)
     max_gap = as_int(max_gap, "max_gap", minimum=0, unit="frames")
     max_px = as_scalar(max_px, "max_px", positive=True)
-    if len(stacks) != len(cams):
-        raise ValueError(f"stacks: expected {len(cams)} frame stacks (one per camera), got "
-                         f"{len(stacks)}")
     T = arrays[0].shape[0]
-    if any(len(s) != T for s in stacks):
-        raise ValueError(f"stacks: expected {T} frames in every view (as the tracks), got "
-                         f"{[len(s) for s in stacks]}")
+    _check_stacks(stacks, cams, T)
     pos = joined_positions(arrays, m)                               # (T, K, M, 2)
     xyz, _, _ = triangulate_joined(cams, arrays, m)
     found = np.zeros(pos.shape[:3], bool)
@@ -348,7 +431,7 @@ def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float
                 X = _predict(xyz[:, j], t, step, max_gap)
                 if X is None:
                     continue
-                dots = _find_dots(cams, stacks, pos, t, j, X, m, radius, search_px,
+                dots = _find_dots(cams, stacks, arrays, pos, t, j, X, m, radius, search_px,
                                   min_contrast)
                 if not dots:
                     continue

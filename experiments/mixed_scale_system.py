@@ -5,6 +5,7 @@ it labels correctly without an operator.
     .venv/bin/python experiments/mixed_scale_system.py [--travel 4000] [--speed 1200]
         [--ceiling 6] [--seed 18] [--seeds 5] [--scheduler ADDRESS] [--workers 2]
         [--lead 0.3] [--constant-velocity] [--no-baseline] [--reacquire 2] [--heads 2 4]
+        [--no-motor-fit]
 
 Builds the walk of notebook 15 (`lsmta.synth.mixed_scale.mixed_scale_scene`, its settings by
 default: 4 m at 1.2 m/s, six ceiling cameras, the head LED hidden from 2.5 to 2.9 s, the heads
@@ -14,8 +15,12 @@ calibration LED and the heads' calibration LEDs found by the detector in rendere
 `lsmta.evaluation.head_survey`), runs
 `lsmta.systems.capture_mixed_scale` with prediction and, unless ``--no-baseline``, without
 it, scores both after the fact, and triangulates the same marker images at the heads' true
-angles (the read-back's share). The run with prediction identifies the face markers itself
-(``identify=None``: :func:`lsmta.systems.identify_face_markers`); its first-frame labels are
+angles (the read-back's share; the filled face's error at the read-back, the true angles and
+the angles the system used, ``readback_face_median_mm`` in the detail). The system
+recovers the heads' angles from their read-back and its commands
+(``MixedScaleParams.motor_fit``; ``--no-motor-fit``: at the read-back). The run with
+prediction identifies the face markers itself (``identify=None``:
+:func:`lsmta.systems.identify_face_markers`); its first-frame labels are
 scored against the generator's after the fact: the share correct of the labels given, the
 coverage (correct over the marker images drawn, 0 when the identification refuses) and the
 refusals (the run without prediction, whose aim alone matters, keeps the simulated
@@ -187,7 +192,7 @@ def heads_summary(results: dict, settings: dict, met: dict, argv) -> dict:
 def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: float,
              hidden, readback_step: float, readback_noise: float, lead: float,
              constant_velocity: bool, baseline: bool, reacquire: int,
-             heads=(2,)) -> dict:
+             heads=(2,), motor_fit: bool = True) -> dict:
     """One walk for ``seed``, as notebook 15 runs it: scene, calibration, the loop with
     prediction and its own identification (and without prediction), the read-back study;
     with ``heads`` other than (2,), the same walk seen by the first K of four heads for
@@ -203,7 +208,9 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
 
     numba.set_num_threads(1)
     extra = dict(accel_window=0.0, lead_height=True) if constant_velocity else {}
-    params = MixedScaleParams(lead=lead, reacquire=reacquire, **extra)
+    params = MixedScaleParams(lead=lead, reacquire=reacquire, motor_fit=motor_fit,
+                              encoder_step=readback_step if readback_step > 0 else 0.1,
+                              **extra)
     t0 = time.perf_counter()
     heads = sorted(set(int(k) for k in heads))
     full = mixed_scale_scene(rng=seed, travel=travel, speed=speed, n_ceiling=ceiling,
@@ -222,7 +229,8 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
                               keep_images=False)
     labels = ms.label_score(cap.identification.xy, inputs.devices, cap.times[cap.first])
     sc = ms.score_capture(cap, scene, inputs.devices)
-    study = ms.exact_readback(cap, scene, inputs.devices, cal.heads)
+    study = ms.exact_readback(cap, scene, inputs.devices, cal.heads,
+                              face_model=inputs.face_model)
     coasted = cap.coasted
     n_coast = int(coasted.sum())
     out = {"seed": seed, "heads_from_images": bool(cal_full.heads_from_images),
@@ -251,6 +259,9 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
               "led_tracks": len(cap.tracking.tracks),
               "marker_px_median": np.asarray(sc.marker_px).tolist(),
               "readback_point_median_mm": study.point_median_mm.tolist(),
+              # the filled face (all, measured, filled markers) at the read-back, the true
+              # angles and the system's angles (the read-back, or with --motor-fit its own)
+              "readback_face_median_mm": study.face_median_mm.tolist(),
               "walk_s": float(scene.times[-1]), "labels_correct": labels.correct,
               "labels_wrong": labels.wrong, "labels_missed": labels.missed}
     if baseline:
@@ -307,6 +318,10 @@ def main(argv=None):
                         "prediction")
     parser.add_argument("--reacquire", type=int, default=2,
                         help="re-acquisition passes (0: quicker; the labels do not change)")
+    parser.add_argument("--no-motor-fit", action="store_true",
+                        help="triangulate at the heads' read-back (default: at the angles "
+                        "recovered from the read-back and the commands, "
+                        "MixedScaleParams.motor_fit)")
     parser.add_argument("--heads", type=int, nargs="+", default=[2],
                         help="numbers of pan-tilt heads to compare on the same walk (e.g. 2 4; "
                         "default: 2, the notebook's system)")
@@ -323,7 +338,7 @@ def main(argv=None):
                 "readback_step": args.readback_step, "readback_noise": args.readback_noise,
                 "lead": args.lead, "constant_velocity": args.constant_velocity,
                 "baseline": not args.no_baseline, "reacquire": args.reacquire,
-                "heads": sorted(set(args.heads))}
+                "heads": sorted(set(args.heads)), "motor_fit": not args.no_motor_fit}
     bad = [k for k in settings["heads"] if k not in (2, 3, 4)]
     if bad or 2 not in settings["heads"]:
         parser.error(f"--heads: expected numbers of heads among 2, 3, 4, with 2 (the main "

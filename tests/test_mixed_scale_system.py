@@ -297,3 +297,26 @@ def test_both_ceiling_routes_draw_the_same_survey_start_and_heads():
     np.testing.assert_array_equal(a.head_rms_px, b.head_rms_px)
     assert not np.array_equal(a.ceiling_fit_rms_px, b.ceiling_fit_rms_px)
 
+
+
+def test_motor_fit_recovers_the_heads_angles_within_the_encoder_step(tiny, run):
+    # issue 39: heads reading back in 0.1° steps; the system recovers their angles from the
+    # read-back and its commands (the truth only to score)
+    scene, cal, inputs = tiny
+    # an exact encoder (the run's read-back off the 0.1° grid): the read-back as it is
+    cap0 = run[0]
+    assert cap0.params.motor_fit and np.array_equal(cap0.angles, cap0.settings)
+    devices, identify = ms.head_devices(scene, rng=11, readback_step=0.1)
+    cap = capture_mixed_scale(inputs.ceiling, cal.heads, devices, identify,
+                              inputs.face_model, progress=False, keep_images=False,
+                              params=MixedScaleParams(start=0.7, reacquire=0, motor_fit=True))
+    true = np.stack([d.true_settings(cap.times) for d in devices])
+    assert np.allclose(cap.settings / 0.1, np.round(cap.settings / 0.1), atol=1e-9)
+    assert np.abs(cap.angles - cap.settings).max() <= 0.05 + 1e-9
+    assert np.median(np.abs(cap.angles - true)) < 0.5 * np.median(np.abs(cap.settings - true))
+    # the angles it triangulated at are the recovered ones (the read-back study's third row)
+    study = ms.exact_readback(cap, scene, devices, cal.heads, face_model=inputs.face_model)
+    assert study.face_median_mm[2, 0] < study.face_median_mm[0, 0]
+    with pytest.raises(ValueError, match="devices, heads"):
+        ms.angle_error_parts(cap, scene, devices * 2, cal.heads * 2,
+                             face_model=inputs.face_model)

@@ -15,8 +15,12 @@ after the fact against the truth.
 * :func:`score_capture` — the error budget per stage against the truth;
 * :func:`label_score` — the face markers' first-frame labels (automatic or by hand)
   against the generator's: correct, wrong and missed (:func:`label_outcome`, the rule);
-* :func:`exact_readback` — a controlled study: the same marker images triangulated at the
-  angles the heads were at, as if they reported them exactly;
+* :func:`exact_readback` — a controlled study: the same marker images triangulated (and
+  filled) at the read-back, at the angles the heads were at, as if they reported them
+  exactly, and at the angles the system used;
+* :func:`face_at_angles` — the same marker images triangulated and filled at any angles;
+* :func:`angle_error_parts` — the face's error when only the common or the differential
+  part of two heads' pan or tilt error is left;
 * :data:`HEADS_RESULT`, :func:`read_heads_result` — the committed result of
   ``experiments/mixed_scale_system.py --heads 2 4`` (two heads against four over seeds),
   which notebook 15 quotes.
@@ -42,7 +46,7 @@ from ..synth.mixed_scale import (
     hand_labels,
 )
 from ..synth.widearea import LedScene, LedVideoParams, render_led_video
-from ..systems import CeilingFeed, MixedScaleCapture, triangulate_frames
+from ..systems import CeilingFeed, MixedScaleCapture, fill_face, triangulate_frames
 from ..widearea import detect, noise_threshold
 from .head_survey import calibrate_head
 from .track_scores import score_led_tracks
@@ -590,36 +594,124 @@ def label_score(xy, devices, t: float, *, tol_px: float = 3.0) -> LabelScore:
 
 @dataclass(frozen=True, eq=False)
 class ReadbackStudy:
-    """A capture's marker images triangulated by the system's rule at the read-back angles
-    and again at the angles the heads were at (an exact encoder).
+    """A capture's marker images triangulated by the system's rule at the read-back angles,
+    again at the angles the heads were at (an exact encoder), and at the angles the system
+    used (``capture.angles``: the read-back, or with ``params.motor_fit`` the angles it
+    recovered), and each filled from the face model by the system's rule.
 
     Attributes
     ----------
-    rigid_median_mm : (2,) array
-        Median absolute distance deviation of the rigid pairs, mm: read-back, exact.
-    point_median_mm : (2,) array
-        Median 3-D error of the triangulated markers, mm: read-back, exact.
+    rigid_median_mm : (3,) array
+        Median absolute distance deviation of the rigid pairs, mm: read-back, exact, the
+        system's angles.
+    point_median_mm : (3,) array
+        Median 3-D error of the triangulated markers, mm (before the fill's check).
+    face_median_mm : (3, 3) array
+        Median 3-D error of the filled face, mm, per angle source (rows) over all markers,
+        the measured ones and the filled ones (columns), in the frames fitted (NaN: no
+        ``face_model`` given).
+    frame_median_mm : (3, F) array
+        Median 3-D error of the filled face per frame, mm (NaN: not fitted).
     """
 
     rigid_median_mm: np.ndarray
     point_median_mm: np.ndarray
+    face_median_mm: np.ndarray
+    frame_median_mm: np.ndarray
 
 
 def exact_readback(capture: MixedScaleCapture, scene: MixedScaleScene, devices,
-                   heads) -> ReadbackStudy:
+                   heads, *, face_model=None) -> ReadbackStudy:
     """Triangulate ``capture.xy`` with the calibrated ``heads`` by the system's own rule
-    (:func:`lsmta.systems.triangulate_frames` with ``capture.params``; no fill check) at
-    the read-back angles ``capture.settings`` and at the angles the ``devices`` were at
+    (:func:`lsmta.systems.triangulate_frames` with ``capture.params``) at the read-back
+    angles ``capture.settings``, at the angles the ``devices`` were at
     (:meth:`~lsmta.synth.mixed_scale.SimulatedHead.true_settings`): what an exact encoder
-    would have given, everything else equal."""
+    would have given, everything else equal; and at ``capture.angles``. With
+    ``face_model``, each is filled by the system's rule (:func:`lsmta.systems.fill_face`)
+    and scored over all markers, measured and filled."""
     t = capture.times
-    world, _, _ = scene.face_at(t)
     true = np.stack([d.true_settings(t) for d in devices])
-    rigid, point = [], []
-    for settings in (capture.settings, true):
-        pts, _ = triangulate_frames(capture.xy, heads, settings,
-                                    min_angle_deg=capture.params.min_angle_deg,
-                                    max_reprojection_px=capture.params.max_reprojection_px)
-        rigid.append(np.nanmedian(np.abs(distance_deviation(pts, rigid_pairs(scene)))))
-        point.append(np.nanmedian(np.linalg.norm(pts - world, axis=2)))
-    return ReadbackStudy(rigid_median_mm=np.array(rigid), point_median_mm=np.array(point))
+    used = capture.settings if capture.angles is None else capture.angles
+    rows = [face_at_angles(capture, scene, heads, settings, face_model=face_model)
+            for settings in (capture.settings, true, used)]
+    rigid, point = [r[0] for r in rows], [r[1] for r in rows]
+    face = np.array([r[2] for r in rows])
+    frame = np.array([r[3] for r in rows])
+    return ReadbackStudy(rigid_median_mm=np.array(rigid), point_median_mm=np.array(point),
+                         face_median_mm=face, frame_median_mm=frame)
+
+
+
+def face_at_angles(capture: MixedScaleCapture, scene: MixedScaleScene, heads, angles, *,
+                   face_model=None):
+    """``capture.xy`` triangulated at ``angles`` (K, F, 2) degrees by the system's rule
+    (:func:`lsmta.systems.triangulate_frames` with ``capture.params``) and, with
+    ``face_model``, filled by its rule (:func:`lsmta.systems.fill_face`), scored against
+    the truth.
+
+    Returns
+    -------
+    rigid_mm, point_mm : float
+        Median absolute distance deviation of the rigid pairs and median 3-D error of the
+        triangulated markers (before the fill's check), mm.
+    face_mm : (3,) array
+        Median 3-D error of the filled face over all markers, the measured ones and the
+        filled ones, in the frames fitted, mm (NaN without ``face_model``).
+    frame_mm : (F,) array
+        Median 3-D error of the filled face per frame, mm (NaN: not fitted).
+    """
+    world, _, _ = scene.face_at(capture.times)
+    pts, _ = triangulate_frames(capture.xy, heads, angles,
+                                min_angle_deg=capture.params.min_angle_deg,
+                                max_reprojection_px=capture.params.max_reprojection_px)
+    rigid = float(np.nanmedian(np.abs(distance_deviation(pts, rigid_pairs(scene)))))
+    point = float(np.nanmedian(np.linalg.norm(pts - world, axis=2)))
+    face, frame = np.full(3, np.nan), np.full(len(world), np.nan)
+    if face_model is not None:
+        pts, fit = fill_face(pts, face_model, max_fill_mm=capture.params.max_fill_mm)
+        err = np.where(fit.fitted[:, None], np.linalg.norm(fit.frames - world, axis=2), np.nan)
+        measured = np.isfinite(pts).all(axis=2)
+        face = np.array([np.nanmedian(err), np.nanmedian(err[measured]),
+                         np.nanmedian(err[~measured])])
+        frame[fit.fitted] = np.nanmedian(err[fit.fitted], axis=1)
+    return rigid, point, face, frame
+
+
+ANGLE_PARTS = ("common pan", "differential pan", "common tilt", "differential tilt")
+
+
+def angle_error_parts(capture: MixedScaleCapture, scene: MixedScaleScene, devices, heads, *,
+                      face_model, angles=None) -> dict:
+    """The face's median 3-D error when only one part of two heads' angle error is left.
+
+    The error of ``angles`` (default ``capture.settings``, the read-back) against the angles
+    the two ``devices`` were at is split, per frame and axis, into the heads' common part
+    ``(e0 + e1) / 2`` and their differential part ``(e0 - e1) / 2``; each of the four parts
+    (:data:`ANGLE_PARTS`) alone is added to the true angles, and ``capture.xy`` is
+    triangulated and filled by the system's rules (:func:`lsmta.systems.triangulate_frames`,
+    :func:`lsmta.systems.fill_face`) and scored over all markers in the frames fitted.
+
+    Returns
+    -------
+    dict of str -> float
+        Median 3-D error of the face per part, mm.
+    """
+    if len(devices) != 2 or len(heads) != 2:
+        raise ValueError(f"devices, heads: expected two heads (a common and a differential "
+                         f"part), got {len(devices)} and {len(heads)}")
+    true = np.stack([d.true_settings(capture.times) for d in devices])
+    used = capture.settings if angles is None else as_array(angles, "angles",
+                                                              shape=true.shape)
+    err = used - true
+    common, diff = (err[0] + err[1]) / 2, (err[0] - err[1]) / 2
+    out = {}
+    for name in ANGLE_PARTS:
+        axis = 0 if name.endswith("pan") else 1
+        part = np.zeros_like(err)
+        if name.startswith("common"):
+            part[:, :, axis] = common[:, axis]
+        else:
+            part[0, :, axis], part[1, :, axis] = diff[:, axis], -diff[:, axis]
+        out[name] = float(face_at_angles(capture, scene, heads, true + part,
+                                         face_model=face_model)[2][0])
+    return out

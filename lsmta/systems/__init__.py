@@ -50,8 +50,10 @@ from .mixed_scale import (
     MixedScaleCapture,
     MixedScaleParams,
     capture_mixed_scale,
+    fill_face,
     triangulate_frames,
 )
+from .readback import ReadbackRefinement, refine_readback
 from .refinement import RigRefinement, RigRefinementParams, refine_rig
 from .rig import Levelling, RigCalibration, calibrate_rig, level_rig
 from .surfaces import SurfaceParams, measure_surfaces, working_distance
@@ -62,7 +64,7 @@ __all__ = [
     "CeilingFeed", "ViewCapture", "ViewGroup", "axis_angles", "capture_recording",
     "view_groups", "MarkerCapture", "MarkerParams", "Tracker2D", "capture_markers",
     "FilterParams", "MixedScaleCapture", "MixedScaleParams", "capture_mixed_scale",
-    "triangulate_frames",
+    "triangulate_frames", "fill_face", "ReadbackRefinement", "refine_readback",
     "PairChoice", "best_pairs", "first_settled", "reacquisition_seeds",
     "FaceIdentification", "IdentifyParams", "identify_face_markers",
     "RigCalibration", "RigRefinement", "RigRefinementParams", "SurfaceParams", "calibrate_rig",

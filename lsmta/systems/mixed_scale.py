@@ -32,7 +32,10 @@ the caller's affair (notebook 15 says what its simulation gives).
    intersection passes the angle and reprojection checks, the one with the smallest
    predicted error, σ √(d_a² + d_b²) / sin θ; any number K >= 2 of heads; never the rays
    of three or more heads mixed in one marker, §5.2), each head the calibrated model at its
-   read-back angles (:meth:`~lsmta.pantilt.PanTiltCamera.camera_at`);
+   read-back angles (:meth:`~lsmta.pantilt.PanTiltCamera.camera_at`), or with
+   ``params.motor_fit`` at the angles recovered from the read-back and the commands
+   (:func:`~lsmta.systems.readback.refine_readback`; identification and re-acquisition
+   use them too);
 4. *fill*: occluded and lost markers from the face model
    (:meth:`lsmta.face.FaceModel.fill`), the face per frame; measured markers far from the
    fitted face are dropped as wrong and the face is filled again;
@@ -67,6 +70,7 @@ from .ceiling import CeilingFeed, arrival_order, check_ceiling_feed
 from .checks import check_heads
 from .close_up import best_pairs, first_settled, reacquisition_seeds
 from .face_identification import FaceIdentification, IdentifyParams, identify_face_markers
+from .readback import refine_readback
 
 
 @dataclass(frozen=True)
@@ -132,6 +136,24 @@ class MixedScaleParams:
         from the heads, merged dots); a walking face turns a few degrees in 0.1 s, so a
         later frame is another view, at the price of one more identification (about a
         second) per try. 0: no retry, the capture goes on without a face.
+    motor_fit : bool
+        Triangulate, identify and re-acquire at the heads' angles recovered from their
+        read-back and their commands (:func:`~lsmta.systems.readback.refine_readback`: each
+        head's response to its commands fitted to its read-back over the recording, clipped
+        into the encoder's interval) instead of at the read-back itself; only when every
+        read-back lies on the ``encoder_step`` grid (an encoder of that step: the interval
+        holds), else the read-back as it is (an exact or finer encoder). Notebook 15's walk:
+        the face's median error 0.93 mm instead of 3.19 mm at the read-back, 0.66-1.12 mm
+        instead of 2.84-3.56 mm on nine other walks (``experiments/mixed_scale_system.py``):
+        the read-back's 0.1° sets most of it, and the marker rays cannot repair it (a
+        difference of the heads' pans moves the face along the rays, and they still meet).
+        False: the read-back, as before.
+    motor_taps : int
+        Ticks of commands before a frame that its angle depends on (``motor_fit``), enough
+        for the motor's dead time and ramp.
+    encoder_step : float
+        The heads' encoder step, degrees (thesis §5.2: 0.1): the head is within half a step
+        of its read-back (``motor_fit``).
     """
 
     video_rate: float = 30.0
@@ -159,6 +181,9 @@ class MixedScaleParams:
     identify: IdentifyParams = field(default_factory=IdentifyParams)
     retry: float = 0.5
     retry_step: float = 0.1
+    motor_fit: bool = True
+    motor_taps: int = 12
+    encoder_step: float = 0.1
 
     def __post_init__(self):
         for key in ("video_rate", "threshold_sigmas", "min_angle_deg", "max_reprojection_px",
@@ -167,6 +192,10 @@ class MixedScaleParams:
         for key in ("start", "settle", "retry"):
             as_scalar(getattr(self, key), key, nonnegative=True)
         as_int(self.reacquire, "reacquire", minimum=0)
+        as_int(self.motor_taps, "motor_taps", minimum=0)
+        as_scalar(self.encoder_step, "encoder_step", positive=True)
+        if not isinstance(self.motor_fit, bool):
+            raise TypeError(f"motor_fit: expected a bool, got {self.motor_fit!r}")
         _ = self.steering                   # building it checks the steering's fields
         if self.stop is not None and not as_scalar(self.stop, "stop") > self.start:
             raise ValueError(f"stop: expected a time after start={self.start}, got {self.stop}")
@@ -200,6 +229,9 @@ class MixedScaleCapture:
         Where the heads were aimed (predicted head + offset), mm; NaN without a command.
     commands, settings : (K, F, 2) arrays
         Commanded and read-back pan and tilt per head and frame, degrees.
+    angles : (K, F, 2) array
+        The pan and tilt the system triangulated at, degrees: ``settings``, or with
+        ``params.motor_fit`` the angles recovered from the read-back and the commands.
     images : (K, F, H, W) uint8 array or None
         The close-up videos (``keep_images``).
     markers : list of K MarkerTracks
@@ -248,6 +280,7 @@ class MixedScaleCapture:
     seconds: dict
     params: MixedScaleParams
     tries: int = 1
+    angles: np.ndarray | None = None
 
     def summary(self) -> list:
         """One row per stage: ``{"stage", "seconds", "result"}``."""
@@ -293,6 +326,9 @@ class _State:
     aim_points: np.ndarray | None = None
     commands: np.ndarray | None = None
     settings: np.ndarray | None = None
+    angles: np.ndarray | None = None
+    tick_commands: np.ndarray | None = None
+    start_settings: np.ndarray | None = None
     images: np.ndarray | None = None
     markers: list | None = None
     starts: list | None = None
@@ -333,6 +369,8 @@ def _closed_loop(st: _State) -> None:
     ticks = np.r_[np.arange(queue[0, 0], st.times[0] - 1e-9, 1.0 / p.video_rate), st.times]
     # the aim's search starts from the angles each head reports before its first command
     start = [_grab(device, ticks[0], k)[1] for k, device in enumerate(st.devices)]
+    st.start_settings = np.array(start)
+    st.tick_commands = np.full((K, len(ticks), 2), np.nan)
     steering = Steering(st.heads, start, params=p.steering)
     first = len(ticks) - F
     for i, t in enumerate(tqdm(ticks, desc="closed loop", disable=not st.progress,
@@ -343,6 +381,7 @@ def _closed_loop(st: _State) -> None:
             q += 1
         step = steering.step(st.tracker.estimate(), t)
         if step.settings is not None:
+            st.tick_commands[:, i] = step.settings
             for device, setting in zip(st.devices, step.settings):
                 device.command(t, setting)
         if i < first:
@@ -363,6 +402,11 @@ def _closed_loop(st: _State) -> None:
                                  f"{images.shape[2:]} as the first frame")
             images[k, f] = img
     st.images = images
+    st.angles = st.settings
+    steps = st.settings / p.encoder_step
+    if p.motor_fit and np.allclose(steps, np.round(steps), rtol=0, atol=1e-6):
+        st.angles = refine_readback(st.tick_commands, st.settings, st.start_settings,
+                                    step=p.encoder_step, taps=p.motor_taps).angles
 
 
 def _grab(device, t: float, k: int):
@@ -384,7 +428,7 @@ def _marker_tracking(st: _State) -> None:
         for f in _tries(st.times, st.first, p.retry, p.retry_step):
             st.first, st.tries = f, st.tries + 1
             st.identification = identify_face_markers(
-                st.images[:, f], st.heads, st.settings[:, f], st.face_model,
+                st.images[:, f], st.heads, st.angles[:, f], st.face_model,
                 params=p.identify)
             if st.identification.labelled.any():
                 break
@@ -445,7 +489,7 @@ def _track(st: _State, seeds) -> None:
 
 def _reacquisition(st: _State) -> None:
     for _ in range(st.params.reacquire):
-        seeds = reacquisition_seeds(st.images, st.heads, st.settings, st.face.frames,
+        seeds = reacquisition_seeds(st.images, st.heads, st.angles, st.face.frames,
                                     np.isfinite(st.xy).all(axis=3),
                                     dot_contrast=st.params.dot_contrast)
         if not np.isfinite(seeds).any():
@@ -498,17 +542,43 @@ def triangulate_frames(xy, heads, settings, *, min_angle_deg: float = 2.0,
 
 def _triangulation(st: _State) -> None:
     st.points, st.pairs = triangulate_frames(
-        st.xy, st.heads, st.settings, min_angle_deg=st.params.min_angle_deg,
+        st.xy, st.heads, st.angles, min_angle_deg=st.params.min_angle_deg,
         max_reprojection_px=st.params.max_reprojection_px)
 
 
-def _fill(st: _State) -> None:
-    first = st.face_model.fill(st.points)
+def fill_face(points, face_model: FaceModel, *, max_fill_mm: float = 3.0):
+    """Stage 4 of :func:`capture_mixed_scale`: the face per frame filled from the face
+    model; measured markers farther than ``max_fill_mm`` (mm) from that first fitted face
+    are dropped as wrong and the face is filled again.
+
+    Parameters
+    ----------
+    points : (F, M, 3) array
+        Triangulated markers, mm (NaN: not measured).
+    face_model : lsmta.face.FaceModel
+    max_fill_mm : float
+
+    Returns
+    -------
+    points : (F, M, 3) array
+        ``points`` with the dropped markers NaN (a new array).
+    face : FaceFit
+    """
+    if not isinstance(face_model, FaceModel):
+        raise TypeError(f"face_model: expected an lsmta.face.FaceModel, got "
+                        f"{type(face_model).__name__}")
+    points = as_array(points, "points", shape=(None, None, 3), allow_nan=True)
+    max_fill_mm = as_scalar(max_fill_mm, "max_fill_mm", positive=True)
+    first = face_model.fill(points)
     with np.errstate(invalid="ignore"):
-        wrong = np.linalg.norm(st.points - first.model, axis=2) > st.params.max_fill_mm
-    st.points = np.where(wrong[..., None], np.nan, st.points)
-    st.pairs = np.where(wrong[..., None], -1, st.pairs)
-    st.face = st.face_model.fill(st.points) if wrong.any() else first
+        wrong = np.linalg.norm(points - first.model, axis=2) > max_fill_mm
+    points = np.where(wrong[..., None], np.nan, points)
+    return points, (face_model.fill(points) if wrong.any() else first)
+
+
+def _fill(st: _State) -> None:
+    st.points, st.face = fill_face(st.points, st.face_model, max_fill_mm=st.params.max_fill_mm)
+    st.pairs = np.where(np.isnan(st.points).any(axis=2)[..., None], -1, st.pairs)
 
 
 def _body(st: _State) -> None:
@@ -587,5 +657,6 @@ def capture_mixed_scale(ceiling: CeilingFeed, heads, devices, identify, face_mod
                              images=st.images if keep_images else None, markers=st.markers,
                              xy=st.xy, points=st.points, pairs=st.pairs, face=st.face,
                              body=st.body, first=st.first, tries=st.tries,
-                             identification=st.identification, seconds=seconds, params=p)
+                             identification=st.identification, seconds=seconds, params=p,
+                             angles=st.angles)
 

@@ -1,9 +1,9 @@
 """The demo's refinement checked on held-out places: still background and moving subject apart.
 
     .venv/bin/python experiments/refinement_held_out.py [--scale 1.0] [--frames 0:100]
-        [--out build/benchmarks/refinement_held_out.json] [--lsm both|on|off]
+        [--n-frames 6] [--out FILE] [--lsm both|on|off]
         [--lsm-each | --lsm-once] [--larger-patches 41,61|none]
-        [--no-recording-geometry]
+        [--recording-geometry]
 
 Refines the Pose2Sim demo's cameras from the recording as ``lsmta capture`` does
 (`lsmta.systems.refine_rig`) and prints, per camera, the median residual of the adjusted
@@ -14,7 +14,10 @@ cam01-cam02 alone, whose matches are reliable with plain SIFT: a residual that s
 there with any cameras measures the points, not the cameras. Also printed: the still places
 per camera pair (both views see them), the places dropped from the adjustment for lying next
 to a held-out one, and the per-camera residuals of ``RigRefinement.summary()``; all written to
-``--out`` (the README's numbers come from that file). Target (issue #40): the tie points'
+``--out`` (the README's numbers come from that file; default
+``build/benchmarks/refinement_held_out.json`` for the defaults, and for other settings a
+name that carries them, e.g. ``refinement_held_out_lsm-on_n-frames-7.json``, so that one
+configuration does not overwrite another's numbers). Target (issue #40): the tie points'
 median residual <= 0.5 px in every camera.
 
 ``--lsm`` (default ``both``): the refinement with the tie points refined by least squares
@@ -26,9 +29,14 @@ positions), each written under ``runs.lsm`` / ``runs.raw`` with the LSM step's c
 ``--lsm-once`` a still feature once over its frames (``True``; neither: the library's
 default, off), and ``--larger-patches 41,61`` (or ``none``) sets
 ``TieLSMParams.larger_patches`` (default: the library's, none): the two optional steps that
-keep a still feature of the wide pairs through the matching. ``--no-recording-geometry``
-checks each view pair's matches against its own frame's relative orientation only
-(``TieParams.recording_geometry=False``), not also against one for all frames.
+keep a still feature of the wide pairs through the matching. ``--recording-geometry``
+checks the adjusted places of each view pair against one relative orientation for the
+recording too (``TieParams.recording_geometry=True``; default off: each frame's pairs against
+their own only); it is checked after the hold-out split, on the adjusted places only: the
+held-out places are judged as matched per frame. ``--n-frames`` sets
+``RigRefinementParams.n_frames``: another number of sampled frames is another frame split
+(with 7 over frames 0-99: frames 0, 16, 33, 50, 66, 82, 99, held out 16 and 66, none of the
+default split's held-out frames 20 and 79).
 
 ``common`` (with ``--lsm both``): the two runs' refined cameras scored on ONE set of places,
 held out of both adjustments: the tie points are the same in both runs (found before the
@@ -88,9 +96,10 @@ def run(videos, lsm: bool, args):
         warnings.simplefilter("always")
         ref = refine_rig(videos, read_camera_file(POSE2SIM_CAMERAS),
                          params=RigRefinementParams(
-                             mismatch="crop", lsm=lsm, lsm_still_once=still_once(args),
+                             mismatch="crop", lsm=lsm, n_frames=args.n_frames,
+                             lsm_still_once=still_once(args),
                              tie_lsm=TieLSMParams(**larger),
-                             tie=TieParams(recording_geometry=not args.no_recording_geometry)))
+                             tie=TieParams(recording_geometry=args.recording_geometry)))
     seconds = time.perf_counter() - t0
     places = ref.place_xy
     seen = np.isfinite(places[..., 0])
@@ -102,9 +111,12 @@ def run(videos, lsm: bool, args):
     held = {"still": places[:, ref.held_out_places & ref.still],
             "moving": places[:, ref.held_out_places & ~ref.still]}
     record = {"lsm": lsm, "lsm_still_once": still_once(args),
-              "recording_geometry": not args.no_recording_geometry,
+              "recording_geometry": args.recording_geometry,
               "larger_patches": larger.get("larger_patches", TieLSMParams().larger_patches),
-              "scale": args.scale, "frames": args.frames, "seconds": seconds,
+              "scale": args.scale, "frames": args.frames, "n_frames": args.n_frames,
+              "sampled_frames": list(ref.frames),
+              "held_out_frames": [f for f, h in zip(ref.frames, ref.held_out) if h],
+              "seconds": seconds, "inconsistent_places": int(ref.inconsistent_places.sum()),
               "lsm_step": None if ref.lsm is None else ref.lsm.summary(),
               "tie_points": int(ref.tie_points.xy.shape[1]),
               "raw_tie_points": int(ref.raw_tie_points.xy.shape[1]),
@@ -161,11 +173,22 @@ def common(lsm_ref, raw_ref) -> dict:
             "given_at_raw_positions_px": medians(lsm_ref.given, at_raw)}
 
 
+def default_out(args, parser) -> str:
+    """The output file for ``args``: the settings that differ from the defaults in its
+    name (the defaults alone: ``refinement_held_out.json``)."""
+    parts = [f"{k.replace('_', '-')}-{str(v).replace(':', '-').replace(',', '-')}"
+             if not isinstance(v, bool) else k.replace("_", "-")
+             for k, v in vars(args).items() if k != "out" and v != parser.get_default(k)]
+    return "build/benchmarks/refinement_held_out" + "".join("_" + p for p in parts) + ".json"
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scale", type=float, default=1.0)
     parser.add_argument("--frames", default="0:100")
-    parser.add_argument("--out", default="build/benchmarks/refinement_held_out.json")
+    parser.add_argument("--n-frames", type=int, default=RigRefinementParams().n_frames)
+    parser.add_argument("--out", default=None,
+                        help="default: build/benchmarks/refinement_held_out[_SETTINGS].json")
     parser.add_argument("--lsm", choices=("both", "on", "off"), default="both")
     parser.add_argument("--lsm-each", action="store_true",
                         help="match each tie point alone (RigRefinementParams.lsm_still_once"
@@ -176,13 +199,15 @@ def main(argv=None):
     parser.add_argument("--larger-patches", default="",
                         help="TieLSMParams.larger_patches, comma-separated, or none "
                              "(default: the library's)")
-    parser.add_argument("--no-recording-geometry", action="store_true",
-                        help="TieParams.recording_geometry=False: each pair's matches checked "
-                             "per frame only")
+    parser.add_argument("--recording-geometry", action="store_true",
+                        help="TieParams.recording_geometry=True: the adjusted places of each "
+                             "pair also checked against one relative orientation")
     args = parser.parse_args(argv)
     if args.lsm_each and args.lsm_once:
         parser.error("--lsm-each and --lsm-once exclude each other")
     start, stop = (int(x) for x in args.frames.split(":"))
+    if args.out is None:
+        args.out = default_out(args, parser)
     videos = read_videos(POSE2SIM_VIDEOS, frames=range(start, stop), scale=args.scale)
     runs = {"lsm": True, "raw": False}
     done = {k: run(videos, v, args) for k, v in runs.items()

@@ -329,3 +329,43 @@ def test_a_pair_matches_of_all_frames_agree_with_one_geometry(rng):
     assert np.array_equal(found[0][1][0, 1], np.c_[np.arange(40), np.arange(40)])   # unchanged
     with pytest.raises(TypeError, match="recording_geometry"):
         TieParams(recording_geometry=1)
+
+
+def test_a_frame_pair_left_with_too_few_matches_gives_none(rng):
+    """After the recording's one geometry, a frame's pair with fewer than min_matches
+    inliers left gives no matches at all (as a pair's own fit does): frame 1's 20 matches
+    hold 10 wrong ones, 10 true ones are too few."""
+    from lsmta.calibration.tie_points import _one_geometry
+    cams = rig_cameras(n=2)
+    found = []
+    for t, n in enumerate((40, 20)):
+        X = rng.uniform([-800, 0, 200], [800, 1000, 1500], (n, 3))
+        feats = [(c.project(X) + rng.normal(0, 0.2, (n, 2)), np.zeros((n, 128), np.uint8))
+                 for c in cams]
+        if t == 1:
+            feats[1][0][:10] += rng.choice([-1, 1], (10, 2)) * rng.uniform(6, 12, (10, 2))
+        found.append((feats, {(0, 1): np.c_[np.arange(n), np.arange(n)]}))
+    out = _one_geometry(found, cams, TieParams())
+    assert (0, 1) not in out[1][1]
+    assert len(out[0][1][0, 1]) >= 38
+    out = _one_geometry(found, cams, TieParams(min_matches=8))
+    assert 8 <= len(out[1][1][0, 1]) <= 10
+
+
+def test_recording_inliers_of_chained_tie_points(rng):
+    """recording_inliers: a point off its pair's one geometry fails, the true ones pass; a
+    pair with fewer than min_matches points gives none; inputs unchanged, shapes checked."""
+    from lsmta.calibration import recording_inliers
+    cams = rig_cameras(n=3)
+    X = rng.uniform([-800, 0, 200], [800, 1000, 1500], (60, 3))
+    xy = np.stack([c.project(X) for c in cams]) + rng.normal(0, 0.2, (3, 60, 2))
+    xy[2, :50] = np.nan                                 # view 2 shares 10 points only
+    xy[1, 3] += [7.0, -7.0]
+    keep = xy.copy()
+    ok = recording_inliers(cams, xy)
+    assert np.array_equal(xy, keep, equal_nan=True)
+    assert not ok[3] and not ok[50:].any()              # pairs with view 2: too few
+    assert ok[:50].sum() >= 47
+    assert recording_inliers(cams, xy, params=TieParams(min_matches=8))[50:].sum() >= 9
+    with pytest.raises(ValueError, match=r"xy: expected \(3, N, 2\)"):
+        recording_inliers(cams, xy[:2])

@@ -20,7 +20,7 @@ from .refine import CameraRefinement, RefineParams, refine_cameras
 from .result import CalibrationResult
 from .targets import Blobs, TargetParams, TargetStatus, TargetTracks, detect_blobs, track_targets
 from .tie_lsm import TieLSM, TieLSMParams, refine_tie_points
-from .tie_points import TieParams, TiePoints, find_tie_points
+from .tie_points import TieParams, TiePoints, find_tie_points, recording_inliers
 from .virtual_object import (
     IMPROVED_ALTERNATION,
     AlternationParams,
@@ -43,7 +43,7 @@ __all__ = [
     "alternate", "bundle_adjust", "calibrate_wand", "camera_to_params", "chain_cameras",
     "datum_from_distance", "detect_blobs", "find_tie_points", "joint_adjustment",
     "params_to_camera", "project_params", "projection_error", "refine_cameras",
-    "refine_tie_points",
+    "recording_inliers", "refine_tie_points",
     "relative_orientation_start", "resect", "resect_all", "resect_pnp", "scaled",
     "shared_points", "track_targets", "triangulate_optimal",
 ]

@@ -44,9 +44,9 @@ import time
 import warnings
 from pathlib import Path
 
-import cv2
 import numpy as np
 from scipy.optimize import least_squares
+from tie_point_motion import velocities  # this folder's experiment: the same image velocities
 
 from lsmta.calibration import refine_cameras
 from lsmta.camera_files import read_camera_file
@@ -55,24 +55,6 @@ from lsmta.io import read_videos
 from lsmta.report import write_json
 from lsmta.systems import MarkerParams, RigRefinementParams, capture_markers, refine_rig
 from lsmta.triangulation import triangulate
-
-
-def velocities(videos, picks, xy, frame_of) -> np.ndarray:
-    """(K, N, 2) image velocity of every tie point, px per frame (central difference of the
-    dense flow); NaN where a view does not hold the point."""
-    vel = np.full(xy.shape, np.nan)
-    last = videos.n_frames - 1
-    for i, f in enumerate(picks):
-        lo, hi = max(f - 1, 0), min(f + 1, last)
-        a, b = videos.read(lo), videos.read(hi)
-        sel = np.flatnonzero(frame_of == i)
-        for k in range(len(xy)):
-            flow = cv2.calcOpticalFlowFarneback(a[k], b[k], None, 0.5, 4, 21, 3, 7, 1.5, 0)
-            ok = np.isfinite(xy[k, sel, 0])
-            h, w = flow.shape[:2]
-            ij = np.clip(np.round(xy[k, sel[ok]]).astype(int), 0, [w - 1, h - 1])
-            vel[k, sel[ok]] = flow[ij[:, 1], ij[:, 0]] / (hi - lo)
-    return vel
 
 
 def residual_vectors(cameras, xy) -> np.ndarray:

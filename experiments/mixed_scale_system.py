@@ -53,7 +53,7 @@ committed ``experiments/results/mixed_scale_heads.json``
 (``lsmta.evaluation.mixed_scale.HEADS_RESULT``; ``--results`` for another file). Runs at
 four heads take about twice the system time of two. The committed file comes from
 
-    python experiments/mixed_scale_system.py --heads 2 4 --seeds 5 --no-baseline --workers 1
+    python experiments/mixed_scale_system.py --heads 2 4 --seeds 5 --no-baseline --workers 2
 
 The written file records its command (without ``--out`` and ``--results``, which say only
 where the files go) and date. Notebook 15 quotes the face error over ten walks, with the

@@ -299,6 +299,20 @@ def test_both_ceiling_routes_draw_the_same_survey_start_and_heads():
 
 
 
+class _Recording:
+    """A head device that notes the times of the commands sent to it."""
+
+    def __init__(self, device):
+        self.device, self.sent = device, []
+
+    def command(self, t, setting):
+        self.sent.append(float(t))
+        self.device.command(t, setting)
+
+    def grab(self, t):
+        return self.device.grab(t)
+
+
 def test_motor_fit_recovers_the_heads_angles_within_the_encoder_step(tiny, run):
     # issue 39: heads reading back in 0.1° steps; the system recovers their angles from the
     # read-back and its commands (the truth only to score)
@@ -308,9 +322,15 @@ def test_motor_fit_recovers_the_heads_angles_within_the_encoder_step(tiny, run):
     assert cap0.params.motor_fit and np.array_equal(cap0.angles, cap0.settings)
     assert cap0.readback_fit is None and "motor_fit not tried" in str(cap0.summary())
     devices, identify = ms.head_devices(scene, rng=11, readback_step=0.1)
-    cap = capture_mixed_scale(inputs.ceiling, cal.heads, devices, identify,
+    recording = [_Recording(d) for d in devices]
+    cap = capture_mixed_scale(inputs.ceiling, cal.heads, recording, identify,
                               inputs.face_model, progress=False, keep_images=False,
                               params=MixedScaleParams(start=0.7, reacquire=0, motor_fit=True))
+    # every tick, before the frames too, is 1 / video_rate from the next: the commands'
+    # times lie on the frames' grid (the motor's history the fit reads is evenly spaced)
+    sent = np.array(recording[0].sent)
+    ticks = (sent - cap.times[0]) * cap.params.video_rate
+    assert (sent < cap.times[0]).sum() > 12 and np.allclose(ticks, np.round(ticks), atol=1e-6)
     true = np.stack([d.true_settings(cap.times) for d in devices])
     assert np.allclose(cap.settings / 0.1, np.round(cap.settings / 0.1), atol=1e-9)
     assert np.abs(cap.angles - cap.settings).max() <= 0.05 + 1e-9

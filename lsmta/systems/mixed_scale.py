@@ -391,7 +391,10 @@ def _closed_loop(st: _State) -> None:
     st.settings = np.full((K, F, 2), np.nan)
     images = None
     # the loop runs from the first ceiling frame; frames are kept from params.start on
-    ticks = np.r_[np.arange(queue[0, 0], st.times[0] - 1e-9, 1.0 / p.video_rate), st.times]
+    # (counted back from the first frame, 1 / video_rate apart, the earliest at or after the
+    # first ceiling frame)
+    early = int(np.floor((st.times[0] - queue[0, 0]) * p.video_rate + 1e-9))
+    ticks = np.r_[st.times[0] - np.arange(early, 0, -1) / p.video_rate, st.times]
     # the aim's search starts from the angles each head reports before its first command
     start = [_grab(device, ticks[0], k)[1] for k, device in enumerate(st.devices)]
     st.start_settings = np.array(start)

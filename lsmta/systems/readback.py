@@ -28,7 +28,7 @@ The design (a 0.4 s window, 12 taps at 30 Hz; the soft-L1 loss with a half-step 
 the refusal rule) and the choice to have it on by default in
 :class:`~lsmta.systems.MixedScaleParams` were made on two walks of notebook 15's setting,
 seeds 18 (the notebook's scored walk) and 20: designed on seeds 18 and 20; fresh: 19 and
-21-27: 6 of 8 within 1 mm (``experiments/results/mixed_scale_motor_fit.json``, quoted by
+21-27: 7 of 8 within 1 mm (``experiments/results/mixed_scale_motor_fit.json``, quoted by
 notebook 15).
 
 What this cannot fix: frames where the motor does not answer linearly (rate limits,

@@ -53,7 +53,16 @@ committed ``experiments/results/mixed_scale_heads.json``
 (``lsmta.evaluation.mixed_scale.HEADS_RESULT``; ``--results`` for another file). Runs at
 four heads take about twice the system time of two. The committed file comes from
 
-    python experiments/mixed_scale_system.py --heads 2 4 --seeds 5 --no-baseline --workers 1
+    python experiments/mixed_scale_system.py --heads 2 4 --seeds 5 --no-baseline --workers 2
+
+The written file records its command (without ``--out`` and ``--results``, which say only
+where the files go) and date. Notebook 15 quotes the face error over ten walks, with the
+heads' angles recovered (``motor_fit``, designed on seeds 18 and 20; the others fresh) and
+at the read-back, from the committed ``experiments/results/mixed_scale_motor_fit.json``
+(``lsmta.evaluation.mixed_scale.MOTOR_FIT_RESULT``): this run's ``--out`` file (written to
+``build/benchmarks/motor_fit/`` and copied there):
+
+    python experiments/mixed_scale_system.py --seed 18 --seeds 10 --no-baseline
 """
 
 from __future__ import annotations
@@ -74,14 +83,22 @@ TRAIN_NOISE = 0.2      # mm, the still capture the face model is learnt from (no
 # the calibrations' image points are found in rendered frames (ceiling and heads): no truth
 # beyond the surveyed target positions, which a user has
 CEILING_IN = "mask from truth (the ceiling cameras' monitors)"
+# the heads' read-back is the true angle rounded (plus --readback-noise, 0 by default), and the
+# simulated motor is exactly linear in its commands: the class motor_fit's model assumes
+READBACK_IN = ("exact device read-back (the heads' true angles rounded to the encoder steps; a "
+               "motor exactly linear in its commands, dead time then a one-period ramp, no "
+               "backlash or friction: the class motor_fit's model assumes)")
 SYSTEM_IN = ("model learnt from generated shapes (a still capture of this face, "
-             f"{TRAIN_NOISE:g} mm noise); {CEILING_IN}")
+             f"{TRAIN_NOISE:g} mm noise); {CEILING_IN}; {READBACK_IN}")
+# motor_fit's design (window, loss, refusal rule, on by default) was chosen on seeds 18 and 20
+FACE_IN = (f"{SYSTEM_IN}; settings tuned on the scored truth (motor_fit designed on seeds 18 "
+           "and 20; the other seeds are fresh)")
 LABELS_IN = "scored against the generator's labels after the fact"
 NO_PRED_IN = ("labels from truth (the simulated operator's first frame; only this run's aim is "
               f"scored); {CEILING_IN}")
 EXACT_IN = "true device angles (the heads' read-back replaced by the angles they were at)"
 HEADLINES = [
-    Headline("face_median_mm", "face markers: median 3-D error over the walk", "mm", SYSTEM_IN),
+    Headline("face_median_mm", "face markers: median 3-D error over the walk", "mm", FACE_IN),
     Headline("face_fitted", "face reconstructed: share of frames", "", SYSTEM_IN),
     Headline("rigid_median_mm", "rigid pairs: median distance deviation", "mm", SYSTEM_IN),
     Headline("rigid_true_angles_mm", "rigid pairs: median distance deviation, heads' true "
@@ -165,6 +182,23 @@ def _heads_numbers(K, cap, sc, labels) -> dict:
             f"system_s_{K}h": float(sum(cap.seconds[name] for name, _ in STAGES))}
 
 
+def recorded_command(argv) -> str:
+    """The command line that reproduces a run's numbers: ``argv`` without ``--out`` and
+    ``--results`` (where the files go, not what is in them) and their values."""
+    argv, kept, skip = list(argv), [], False
+    for a in argv:
+        if skip:
+            skip = False
+            continue
+        if a in ("--out", "--results"):
+            skip = True
+            continue
+        if a.startswith(("--out=", "--results=")):
+            continue
+        kept.append(a)
+    return " ".join(["python", "experiments/mixed_scale_system.py", *kept])
+
+
 def heads_summary(results: dict, settings: dict, met: dict, argv) -> dict:
     """What notebook 15 quotes of a ``--heads`` run: the command, date, seeds, settings,
     each target's share of seeds met and, per number of heads, the
@@ -177,7 +211,7 @@ def heads_summary(results: dict, settings: dict, met: dict, argv) -> dict:
         v = r.get(key, np.nan) if "error" not in r else np.nan
         return None if not np.isfinite(v) else float(v)
 
-    return {"command": " ".join(["python", "experiments/mixed_scale_system.py", *argv]),
+    return {"command": recorded_command(argv),
             "date": datetime.now(timezone.utc).date().isoformat(),
             "seeds": [int(s) for s in seeds], "settings": settings, "seeds_met": met,
             # the heads' calibration route (calibrate_scene's heads_from_images) and the
@@ -187,6 +221,74 @@ def heads_summary(results: dict, settings: dict, met: dict, argv) -> dict:
             "head_survey_points": sorted({int(n) for r in ok for n in r["head_survey_points"]}),
             "heads": {str(K): {f: [value(results[s], f"{f}_{K}h") for s in seeds]
                                for f in HEADS_FIELDS} for K in settings["heads"]}}
+
+
+def _without_prediction(scene, cal, inputs, seed, params, extra, readback_step,
+                        readback_noise) -> float:
+    """The run without prediction (the simulated operator's labels; only its aim is used):
+    the share of frames with the face inside both pan-tilt frames."""
+    from lsmta.evaluation import mixed_scale as ms
+    from lsmta.systems import MixedScaleParams, capture_mixed_scale
+
+    devices0, identify0 = ms.head_devices(scene, rng=seed + 3, video_rate=params.video_rate,
+                                          readback_step=readback_step,
+                                          readback_noise=readback_noise)
+    params0 = MixedScaleParams(lead=0.0, reacquire=0, **extra)   # only its aim is used
+    cap0 = capture_mixed_scale(inputs.ceiling, cal.heads, devices0, identify0,
+                               inputs.face_model, params=params0, progress=False,
+                               keep_images=False)
+    return ms.score_capture(cap0, scene, devices0).both_in_frame
+
+
+def _more_heads(heads, full, cal_full, inputs, seed, params, readback_step, readback_noise,
+                main, out, detail) -> None:
+    """``--heads``: the same walk seen by the first K heads for each K, into ``out`` and
+    ``detail``; ``main`` (capture, scores, labels) is the two-head run."""
+    from lsmta.evaluation import mixed_scale as ms
+    from lsmta.systems import capture_mixed_scale
+
+    for K in heads:
+        if K == 2:
+            out.update(_heads_numbers(2, *main))
+            continue
+        if not 2 <= K <= len(full.heads):
+            raise ValueError(f"heads: expected numbers of heads from 2 to "
+                             f"{len(full.heads)}, got {K}")
+        devices, _ = ms.head_devices(full, heads=full.heads[:K], rng=seed + 10 + K,
+                                     video_rate=params.video_rate,
+                                     readback_step=readback_step,
+                                     readback_noise=readback_noise)
+        cap_k = capture_mixed_scale(inputs.ceiling, cal_full.heads[:K], devices, None,
+                                    inputs.face_model, params=params, progress=False,
+                                    keep_images=False)
+        sc_k = ms.score_capture(cap_k, full, devices)
+        labels_k = ms.label_score(cap_k.identification.xy, devices, cap_k.times[cap_k.first])
+        out.update(_heads_numbers(K, cap_k, sc_k, labels_k))
+        pairs = cap_k.pairs[sc_k.measured]
+        detail[f"pairs_{K}h"] = {f"{a}-{b}": int(n) for (a, b), n in
+                                 zip(*np.unique(pairs, axis=0, return_counts=True))}
+
+
+def _detail(prep_s, cal, cap, sc, study, scene, labels) -> dict:
+    """A seed's detail: calibration, stage times, the read-back study, the labels."""
+    return {"prepare_s": prep_s, "ceiling_rms_px": cal.ceiling_rms_px.tolist(),
+            "ceiling_fit_rms_px": cal.ceiling_fit_rms_px.tolist(),
+            "head_rms_px": cal.head_rms_px.tolist(), "stage_s": cap.seconds,
+            "measured_share": float(sc.measured.mean()),
+            "led_tracks": len(cap.tracking.tracks),
+            "marker_px_median": np.asarray(sc.marker_px).tolist(),
+            "readback_point_median_mm": study.point_median_mm.tolist(),
+            # the filled face (all, measured, filled markers) at the read-back, the true
+            # angles and the system's angles (the read-back, or with --motor-fit its own)
+            "readback_face_median_mm": study.face_median_mm.tolist(),
+            "walk_s": float(scene.times[-1]), "labels_correct": labels.correct,
+            "labels_wrong": labels.wrong, "labels_missed": labels.missed,
+            # motor_fit: per head and axis, fitted in every frame (else the read-back kept
+            # somewhere) and the fit's residual median, degrees (None: not tried)
+            "motor_fitted": (None if cap.readback_fit is None
+                             else cap.readback_fit.fitted.all(axis=1).tolist()),
+            "motor_residual_deg": (None if cap.readback_fit is None
+                                   else cap.readback_fit.residual_median.tolist())}
 
 
 def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: float,
@@ -252,50 +354,14 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
            "labels_tries": cap.tries,
            # the stages only: "identification" is a part of "marker tracking"
            "system_s": float(sum(cap.seconds[name] for name, _ in STAGES))}
-    detail = {"prepare_s": prep_s, "ceiling_rms_px": cal.ceiling_rms_px.tolist(),
-              "ceiling_fit_rms_px": cal.ceiling_fit_rms_px.tolist(),
-              "head_rms_px": cal.head_rms_px.tolist(), "stage_s": cap.seconds,
-              "measured_share": float(sc.measured.mean()),
-              "led_tracks": len(cap.tracking.tracks),
-              "marker_px_median": np.asarray(sc.marker_px).tolist(),
-              "readback_point_median_mm": study.point_median_mm.tolist(),
-              # the filled face (all, measured, filled markers) at the read-back, the true
-              # angles and the system's angles (the read-back, or with --motor-fit its own)
-              "readback_face_median_mm": study.face_median_mm.tolist(),
-              "walk_s": float(scene.times[-1]), "labels_correct": labels.correct,
-              "labels_wrong": labels.wrong, "labels_missed": labels.missed}
+    detail = _detail(prep_s, cal, cap, sc, study, scene, labels)
     if baseline:
-        devices0, identify0 = ms.head_devices(scene, rng=seed + 3, video_rate=params.video_rate,
-                                              readback_step=readback_step,
-                                              readback_noise=readback_noise)
-        params0 = MixedScaleParams(lead=0.0, reacquire=0, **extra)   # only its aim is used
-        cap0 = capture_mixed_scale(inputs.ceiling, cal.heads, devices0, identify0,
-                                   inputs.face_model, params=params0, progress=False,
-                                   keep_images=False)
-        out["both_in_frame_no_prediction"] = ms.score_capture(cap0, scene,
-                                                              devices0).both_in_frame
+        out["both_in_frame_no_prediction"] = _without_prediction(scene, cal, inputs, seed,
+                                                                 params, extra, readback_step,
+                                                                 readback_noise)
     if heads != [2]:
-        for K in heads:
-            if K == 2:
-                out.update(_heads_numbers(2, cap, sc, labels))
-                continue
-            if not 2 <= K <= len(full.heads):
-                raise ValueError(f"heads: expected numbers of heads from 2 to "
-                                 f"{len(full.heads)}, got {K}")
-            devices, _ = ms.head_devices(full, heads=full.heads[:K], rng=seed + 10 + K,
-                                         video_rate=params.video_rate,
-                                         readback_step=readback_step,
-                                         readback_noise=readback_noise)
-            cap_k = capture_mixed_scale(inputs.ceiling, cal_full.heads[:K], devices, None,
-                                        inputs.face_model, params=params, progress=False,
-                                        keep_images=False)
-            sc_k = ms.score_capture(cap_k, full, devices)
-            labels_k = ms.label_score(cap_k.identification.xy, devices,
-                                      cap_k.times[cap_k.first])
-            out.update(_heads_numbers(K, cap_k, sc_k, labels_k))
-            pairs = cap_k.pairs[sc_k.measured]
-            detail[f"pairs_{K}h"] = {f"{a}-{b}": int(n) for (a, b), n in
-                                     zip(*np.unique(pairs, axis=0, return_counts=True))}
+        _more_heads(heads, full, cal_full, inputs, seed, params, readback_step, readback_noise,
+                    (cap, sc, labels), out, detail)
     out["detail"] = detail
     return out
 
@@ -361,7 +427,9 @@ def main(argv=None):
     retried = sum(r.get("labels_tries", 1) > 1 for r in results.values())
     print(f"identification refused (nothing labelled) on {refused} of {len(results)} seeds; "
           f"tried again on a later frame on {retried}")
-    write_json(out, {**settings, "seeds": {str(s): r for s, r in results.items()},
+    write_json(out, {"command": recorded_command(argv),
+                     "date": datetime.now(timezone.utc).date().isoformat(),
+                     **settings, "seeds": {str(s): r for s, r in results.items()},
                           "spread": table, "seeds_met": met})
     if settings["heads"] != [2]:
         write_json(args.results, heads_summary(results, settings, met, argv))

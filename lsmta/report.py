@@ -309,7 +309,7 @@ def write_json(path, data) -> Path:
     return the path; used by the benchmarks in ``experiments/``."""
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(data, indent=2), encoding="utf-8")
+    out.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
     print(f"wrote {out}")
     return out
 

@@ -1,7 +1,10 @@
 """Any number of pan-tilt heads in the mixed-scale system (issue 39, item 4): each face
 marker measured by the best pair of heads that sees it, the four-head scene, and bad input."""
 
+import importlib.util
+import sys
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -154,6 +157,45 @@ def test_the_committed_heads_result_has_what_notebook_15_reads():
         assert (run["heads"][K]["tries"] >= 1).all()
         assert ((run["heads"][K]["covered"] >= 0) & (run["heads"][K]["covered"] <= 1)).all()
     assert all(0.0 <= v <= 1.0 for v in run["seeds_met"].values())
+    # the command says what made the numbers, not where the files went
+    assert "--out" not in run["command"] and "--results" not in run["command"]
+    assert ms.HEADS_RESULT.read_text(encoding="utf-8").endswith("}\n")
+
+
+def test_the_committed_motor_fit_result_has_what_notebook_15_reads():
+    # experiments/mixed_scale_system.py --seed 18 --seeds 10 --no-baseline wrote it
+    run = ms.read_motor_fit_result()
+    assert run is not None, f"no committed {ms.MOTOR_FIT_RESULT}"
+    assert "--seeds 10" in run["command"] and "--out" not in run["command"]
+    assert run["motor_fit"] and len(run["date"]) == 10
+    assert {18, 20} <= set(run["seeds"].tolist()) and len(run["seeds"]) == 10
+    for key in ("face_median_mm", "readback_face_mm", "true_angles_face_mm"):
+        assert run[key].shape == run["seeds"].shape and (run[key] > 0).all()
+    assert ms.MOTOR_FIT_RESULT.read_text(encoding="utf-8").endswith("}\n")
+    assert ms.read_motor_fit_result(path=ms.MOTOR_FIT_RESULT.with_name("none.json")) is None
+
+
+def _experiment():
+    """experiments/mixed_scale_system.py as a module (its seed_spread import from there)."""
+    pytest.importorskip("dask.distributed")
+    folder = Path(__file__).resolve().parents[1] / "experiments"
+    mods = {}
+    for name in ("seed_spread", "mixed_scale_system"):
+        spec = importlib.util.spec_from_file_location(name, folder / f"{name}.py")
+        mods[name] = importlib.util.module_from_spec(spec)
+        sys.modules.setdefault(name, mods[name])
+        spec.loader.exec_module(mods[name])
+    return mods["mixed_scale_system"]
+
+
+def test_the_recorded_command_leaves_out_where_the_files_go():
+    exp = _experiment()
+    argv = ["--heads", "2", "4", "--out", "/tmp/a.json", "--seeds", "5",
+            "--results=/tmp/b.json", "--no-baseline"]
+    before = list(argv)
+    assert exp.recorded_command(argv) == ("python experiments/mixed_scale_system.py --heads 2 4 "
+                                          "--seeds 5 --no-baseline")
+    assert argv == before
 
 
 def test_heads_result_missing_or_short(tmp_path):

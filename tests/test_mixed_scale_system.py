@@ -299,6 +299,20 @@ def test_both_ceiling_routes_draw_the_same_survey_start_and_heads():
 
 
 
+class _Recording:
+    """A head device that notes the times of the commands sent to it."""
+
+    def __init__(self, device):
+        self.device, self.sent = device, []
+
+    def command(self, t, setting):
+        self.sent.append(float(t))
+        self.device.command(t, setting)
+
+    def grab(self, t):
+        return self.device.grab(t)
+
+
 def test_motor_fit_recovers_the_heads_angles_within_the_encoder_step(tiny, run):
     # issue 39: heads reading back in 0.1° steps; the system recovers their angles from the
     # read-back and its commands (the truth only to score)
@@ -306,14 +320,32 @@ def test_motor_fit_recovers_the_heads_angles_within_the_encoder_step(tiny, run):
     # an exact encoder (the run's read-back off the 0.1° grid): the read-back as it is
     cap0 = run[0]
     assert cap0.params.motor_fit and np.array_equal(cap0.angles, cap0.settings)
+    assert cap0.readback_fit is None and "motor_fit not tried" in str(cap0.summary())
     devices, identify = ms.head_devices(scene, rng=11, readback_step=0.1)
-    cap = capture_mixed_scale(inputs.ceiling, cal.heads, devices, identify,
+    recording = [_Recording(d) for d in devices]
+    cap = capture_mixed_scale(inputs.ceiling, cal.heads, recording, identify,
                               inputs.face_model, progress=False, keep_images=False,
                               params=MixedScaleParams(start=0.7, reacquire=0, motor_fit=True))
+    # every tick, before the frames too, is 1 / video_rate from the next: the commands'
+    # times lie on the frames' grid (the motor's history the fit reads is evenly spaced)
+    sent = np.array(recording[0].sent)
+    ticks = (sent - cap.times[0]) * cap.params.video_rate
+    assert (sent < cap.times[0]).sum() > 12 and np.allclose(ticks, np.round(ticks), atol=1e-6)
     true = np.stack([d.true_settings(cap.times) for d in devices])
     assert np.allclose(cap.settings / 0.1, np.round(cap.settings / 0.1), atol=1e-9)
     assert np.abs(cap.angles - cap.settings).max() <= 0.05 + 1e-9
     assert np.median(np.abs(cap.angles - true)) < 0.5 * np.median(np.abs(cap.settings - true))
+    # the fit is kept: which head and axis were fitted, and its residual medians (summary())
+    fit = cap.readback_fit
+    assert fit.fitted.shape == cap.settings.shape and np.array_equal(fit.angles, cap.angles)
+    assert fit.fitted.any(axis=1).all() and np.isfinite(fit.residual_median).all()
+    row = next(r["result"] for r in cap.summary() if r["stage"] == "triangulation")
+    assert "recovered" in row and "read-back kept" not in row
+    # a refused fit is named: the read-back kept on that head and axis
+    refused = replace(fit, fitted=fit.fitted & (np.arange(2) == 0))
+    row = next(r["result"] for r in replace(cap, readback_fit=refused).summary()
+               if r["stage"] == "triangulation")
+    assert "read-back kept (fit refused) on head 0 tilt, head 1 tilt" in row
     # the angles it triangulated at are the recovered ones (the read-back study's third row)
     study = ms.exact_readback(cap, scene, devices, cal.heads, face_model=inputs.face_model)
     assert study.face_median_mm[2, 0] < study.face_median_mm[0, 0]

@@ -61,6 +61,21 @@ def test_frames_a_rate_limit_bends_do_not_spoil_the_others():
     assert np.median(err) < np.median(np.abs(back - true)) / 2.5
 
 
+def test_the_window_in_seconds_fits_at_another_frame_rate():
+    # the window is in seconds: 12 ticks at the notebook's 30 Hz, 24 at 60 Hz, both 0.4 s,
+    # enough for the motor's 0.25 s dead time and one command period
+    assert MixedScaleParams().motor_taps == 12
+    taps = MixedScaleParams(video_rate=60.0).motor_taps
+    assert taps == 24
+    cmd, back, start, true = _drive(n_ticks=400, n_frames=300, rate=60.0, seed=3)
+    # 12 ticks at 60 Hz (0.2 s) miss the dead time: the fit is refused, the read-back kept
+    assert not refine_readback(cmd, back, start, step=0.1, taps=12).fitted.any()
+    r = refine_readback(cmd, back, start, step=0.1, taps=taps)
+    assert r.fitted.all() and np.abs(r.angles - back).max() <= 0.05 + 1e-12
+    err_back = np.sqrt(np.mean((back - true) ** 2))
+    assert np.sqrt(np.mean((r.angles - true) ** 2)) < err_back / 2.5
+
+
 def test_a_response_the_commands_do_not_explain_keeps_the_read_back():
     cmd, back, start, _ = _drive(seed=1)
     rng = np.random.default_rng(2)
@@ -88,7 +103,7 @@ def test_bad_input_names_the_argument():
     with pytest.raises(ValueError, match="readback"):
         refine_readback(cmd, np.where(back > 0, np.nan, back), start)
     for bad, name, error in ((dict(motor_fit="yes"), "motor_fit", TypeError),
-                             (dict(motor_taps=-1), "motor_taps", ValueError),
+                             (dict(motor_window=-0.1), "motor_window", ValueError),
                              (dict(encoder_step=0.0), "encoder_step", ValueError)):
         with pytest.raises(error, match=name):
             MixedScaleParams(**bad)

@@ -21,6 +21,8 @@ after the fact against the truth.
 * :func:`face_at_angles` — the same marker images triangulated and filled at any angles;
 * :func:`angle_error_parts` — the face's error when only the common or the differential
   part of two heads' pan or tilt error is left;
+* :data:`MOTOR_FIT_RESULT`, :func:`read_motor_fit_result` — the committed face errors
+  over ten walks with the angles recovered (``motor_fit``) and at the read-back;
 * :data:`HEADS_RESULT`, :func:`read_heads_result` — the committed result of
   ``experiments/mixed_scale_system.py --heads 2 4`` (two heads against four over seeds),
   which notebook 15 quotes.
@@ -55,6 +57,10 @@ from .track_scores import score_led_tracks
 # (written by the experiment, read by notebook 15 and its test; one place for the path)
 HEADS_RESULT = Path(__file__).resolve().parents[2] / "experiments" / "results" \
     / "mixed_scale_heads.json"
+# the committed result of `experiments/mixed_scale_system.py --seed 18 --seeds 10
+# --no-baseline`: the face error with motor_fit (and at the read-back) per walk, quoted by
+# notebook 15 (seeds 18 and 20 are the walks motor_fit was designed on)
+MOTOR_FIT_RESULT = HEADS_RESULT.with_name("mixed_scale_motor_fit.json")
 HEADS_FIELDS = ("measured", "covered", "face_median_mm", "rigid_median_mm", "labels_correct",
                 "labels_coverage", "tries")   # per number of heads, one value per seed
 
@@ -92,6 +98,53 @@ def read_heads_result(*, path=None) -> dict | None:
                                  f"{v.size} values; expected one per seed ({n})")
             per[key] = v
     return data
+
+
+def read_motor_fit_result(*, path=None) -> dict | None:
+    """The committed face errors over walks (:data:`MOTOR_FIT_RESULT` unless ``path``), or
+    None when there is no such file.
+
+    Returns
+    -------
+    dict or None
+        ``command``, ``date``, ``motor_fit`` (bool: the system's angles were recovered),
+        ``seeds`` (S,) int array, and (S,) float arrays in mm (NaN: the seed failed or had
+        no face): ``face_median_mm`` (the system's), ``readback_face_mm`` (the same images
+        at the read-back angles) and ``true_angles_face_mm`` (at the heads' true angles).
+
+    Raises
+    ------
+    ValueError
+        When the file lacks a field.
+    """
+    path = MOTOR_FIT_RESULT if path is None else Path(path)
+    if not path.is_file():
+        return None
+    data = json.loads(path.read_text(encoding="utf-8"))
+    for key in ("command", "date", "seeds", "motor_fit"):
+        if key not in data:
+            raise ValueError(f"path: {path.name} has no {key!r}")
+    seeds = sorted(data["seeds"], key=int)
+
+    def value(seed, get):
+        r = data["seeds"][seed]
+        try:
+            v = get(r)
+        except (KeyError, IndexError, TypeError):
+            return np.nan
+        return np.nan if v is None else float(v)
+
+    return {"command": data["command"], "date": data["date"],
+            "motor_fit": bool(data["motor_fit"]),
+            "seeds": np.array([int(s) for s in seeds]),
+            "face_median_mm": np.array([value(s, lambda r: r["face_median_mm"])
+                                        for s in seeds]),
+            "readback_face_mm": np.array([value(s, lambda r: r["detail"]
+                                                ["readback_face_median_mm"][0][0])
+                                          for s in seeds]),
+            "true_angles_face_mm": np.array([value(s, lambda r: r["detail"]
+                                                   ["readback_face_median_mm"][1][0])
+                                             for s in seeds])}
 
 
 @dataclass(frozen=True, eq=False)
@@ -648,6 +701,20 @@ def face_at_angles(capture: MixedScaleCapture, scene: MixedScaleScene, heads, an
     (:func:`lsmta.systems.triangulate_frames` with ``capture.params``) and, with
     ``face_model``, filled by its rule (:func:`lsmta.systems.fill_face`), scored against
     the truth.
+
+    Parameters
+    ----------
+    capture : MixedScaleCapture
+        The system's run: its marker images ``xy`` (K, F, M, 2) px, frame ``times`` (F,) s
+        and ``params`` (the triangulation's and the fill's rules).
+    scene : MixedScaleScene
+        The generated walk: the truth to score against.
+    heads : sequence of K calibrated pan-tilt head models
+        The heads as the system has them (``calibrate_scene(...).heads``).
+    angles : (K, F, 2) array
+        Pan and tilt of each head at each frame to triangulate at, degrees.
+    face_model : FaceModel, optional
+        Fill the markers not triangulated from it (None: no fill, ``face_mm`` NaN).
 
     Returns
     -------

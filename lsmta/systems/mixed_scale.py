@@ -70,7 +70,7 @@ from .ceiling import CeilingFeed, arrival_order, check_ceiling_feed
 from .checks import check_heads
 from .close_up import best_pairs, first_settled, reacquisition_seeds
 from .face_identification import FaceIdentification, IdentifyParams, identify_face_markers
-from .readback import refine_readback
+from .readback import ReadbackRefinement, refine_readback
 
 
 @dataclass(frozen=True)
@@ -142,15 +142,16 @@ class MixedScaleParams:
         head's response to its commands fitted to its read-back over the recording, clipped
         into the encoder's interval) instead of at the read-back itself; only when every
         read-back lies on the ``encoder_step`` grid (an encoder of that step: the interval
-        holds), else the read-back as it is (an exact or finer encoder). Notebook 15's walk:
-        the face's median error 0.93 mm instead of 3.19 mm at the read-back, 0.66-1.12 mm
-        instead of 2.84-3.56 mm on nine other walks (``experiments/mixed_scale_system.py``):
-        the read-back's 0.1° sets most of it, and the marker rays cannot repair it (a
-        difference of the heads' pans moves the face along the rays, and they still meet).
-        False: the read-back, as before.
-    motor_taps : int
-        Ticks of commands before a frame that its angle depends on (``motor_fit``), enough
-        for the motor's dead time and ramp.
+        holds), else the read-back as it is (an exact or finer encoder). It assumes a motor
+        linear in its commands (see :mod:`lsmta.systems.readback`). Its design (the window,
+        the robust loss, the refusal rule) and the choice to have it on by default were made
+        on two walks of notebook 15's setting, seeds 18 (the notebook's scored walk) and 20;
+        the face error with and without it, on those and on fresh walks: notebook 15 and
+        ``experiments/results/mixed_scale_motor_fit.json``. False: the read-back, as before.
+    motor_window : float
+        Seconds of commands before a frame that its angle depends on (``motor_fit``),
+        enough for the motor's dead time and ramp (the thesis's dead time is 0.25-0.3 s);
+        ``round(motor_window * video_rate)`` ticks (12 at 30 Hz).
     encoder_step : float
         The heads' encoder step, degrees (thesis §5.2: 0.1): the head is within half a step
         of its read-back (``motor_fit``).
@@ -182,7 +183,7 @@ class MixedScaleParams:
     retry: float = 0.5
     retry_step: float = 0.1
     motor_fit: bool = True
-    motor_taps: int = 12
+    motor_window: float = 0.4
     encoder_step: float = 0.1
 
     def __post_init__(self):
@@ -192,7 +193,7 @@ class MixedScaleParams:
         for key in ("start", "settle", "retry"):
             as_scalar(getattr(self, key), key, nonnegative=True)
         as_int(self.reacquire, "reacquire", minimum=0)
-        as_int(self.motor_taps, "motor_taps", minimum=0)
+        as_scalar(self.motor_window, "motor_window", nonnegative=True)
         as_scalar(self.encoder_step, "encoder_step", positive=True)
         if not isinstance(self.motor_fit, bool):
             raise TypeError(f"motor_fit: expected a bool, got {self.motor_fit!r}")
@@ -203,6 +204,12 @@ class MixedScaleParams:
             raise TypeError("estimator: expected an lsmta.widearea.EstimatorParams")
         if not isinstance(self.identify, IdentifyParams):
             raise TypeError("identify: expected an lsmta.systems.IdentifyParams")
+
+    @property
+    def motor_taps(self) -> int:
+        """``motor_window`` in ticks of ``video_rate``: the commands before a frame that
+        :func:`~lsmta.systems.readback.refine_readback` fits its angle to."""
+        return int(round(self.motor_window * self.video_rate))
 
     @property
     def steering(self) -> SteeringParams:
@@ -232,6 +239,10 @@ class MixedScaleCapture:
     angles : (K, F, 2) array
         The pan and tilt the system triangulated at, degrees: ``settings``, or with
         ``params.motor_fit`` the angles recovered from the read-back and the commands.
+    readback_fit : ReadbackRefinement or None
+        The recovery of the angles (``params.motor_fit``): which head and axis were fitted
+        (``fitted``; a refused fit keeps the read-back) and the fit's residual median. None:
+        not tried (``motor_fit`` off, or a read-back off the ``encoder_step`` grid).
     images : (K, F, H, W) uint8 array or None
         The close-up videos (``keep_images``).
     markers : list of K MarkerTracks
@@ -281,6 +292,7 @@ class MixedScaleCapture:
     params: MixedScaleParams
     tries: int = 1
     angles: np.ndarray | None = None
+    readback_fit: ReadbackRefinement | None = None
 
     def summary(self) -> list:
         """One row per stage: ``{"stage", "seconds", "result"}``."""
@@ -297,7 +309,7 @@ class MixedScaleCapture:
                                    f"{int(self.identification.labelled.sum())} marker images")
                                 + f" at t = {self.times[self.first]:.2f} s"),
             ("triangulation", f"{np.isfinite(self.points).all(axis=2).mean():.1%} of markers "
-                              "triangulated"),
+                              f"triangulated, {_angles_text(self.readback_fit)}"),
             ("fill", f"{int(self.face.fitted.sum())} of {len(self.times)} frames fitted"),
             ("re-acquisition", f"{self.params.reacquire} pass(es): lost markers restarted "
                                "from the filled face"),
@@ -305,6 +317,18 @@ class MixedScaleCapture:
         ]
         return [{"stage": s, "seconds": self.seconds.get(s, float("nan")), "result": r}
                 for s, r in rows]
+
+
+def _angles_text(fit: ReadbackRefinement | None) -> str:
+    """Which angles the heads were triangulated at, per head and axis (for summary())."""
+    if fit is None:
+        return "at the read-back angles (motor_fit not tried)"
+    used = fit.fitted.any(axis=1)                                        # (K, 2)
+    names = [f"head {k} {('pan', 'tilt')[a]}" for k, a in np.argwhere(~used)]
+    res = ", ".join(f"{v:.4f}" for v in fit.residual_median.ravel())
+    return ("at the angles recovered from the read-back and the commands"
+            + (f", the read-back kept (fit refused) on {', '.join(names)}" if names else "")
+            + f" (residual medians {res} deg)")
 
 
 @dataclass
@@ -327,6 +351,7 @@ class _State:
     commands: np.ndarray | None = None
     settings: np.ndarray | None = None
     angles: np.ndarray | None = None
+    readback_fit: ReadbackRefinement | None = None
     tick_commands: np.ndarray | None = None
     start_settings: np.ndarray | None = None
     images: np.ndarray | None = None
@@ -366,7 +391,10 @@ def _closed_loop(st: _State) -> None:
     st.settings = np.full((K, F, 2), np.nan)
     images = None
     # the loop runs from the first ceiling frame; frames are kept from params.start on
-    ticks = np.r_[np.arange(queue[0, 0], st.times[0] - 1e-9, 1.0 / p.video_rate), st.times]
+    # (counted back from the first frame, 1 / video_rate apart, the earliest at or after the
+    # first ceiling frame)
+    early = int(np.floor((st.times[0] - queue[0, 0]) * p.video_rate + 1e-9))
+    ticks = np.r_[st.times[0] - np.arange(early, 0, -1) / p.video_rate, st.times]
     # the aim's search starts from the angles each head reports before its first command
     start = [_grab(device, ticks[0], k)[1] for k, device in enumerate(st.devices)]
     st.start_settings = np.array(start)
@@ -405,8 +433,9 @@ def _closed_loop(st: _State) -> None:
     st.angles = st.settings
     steps = st.settings / p.encoder_step
     if p.motor_fit and np.allclose(steps, np.round(steps), rtol=0, atol=1e-6):
-        st.angles = refine_readback(st.tick_commands, st.settings, st.start_settings,
-                                    step=p.encoder_step, taps=p.motor_taps).angles
+        st.readback_fit = refine_readback(st.tick_commands, st.settings, st.start_settings,
+                                          step=p.encoder_step, taps=p.motor_taps)
+        st.angles = st.readback_fit.angles
 
 
 def _grab(device, t: float, k: int):
@@ -658,5 +687,5 @@ def capture_mixed_scale(ceiling: CeilingFeed, heads, devices, identify, face_mod
                              xy=st.xy, points=st.points, pairs=st.pairs, face=st.face,
                              body=st.body, first=st.first, tries=st.tries,
                              identification=st.identification, seconds=seconds, params=p,
-                             angles=st.angles)
+                             angles=st.angles, readback_fit=st.readback_fit)
 

@@ -4,22 +4,36 @@ A head reports its angles in encoder steps (the thesis's 0.1°, §5.2), off by u
 step from where it is. Marker rays through the two heads cannot repair that: the error that
 matters, a difference of the two heads' pans, moves the intersection along the rays (the
 face's depth), and a common turn of both heads moves the whole face; the rays still meet.
-What the system also knows is what it asked of each head: its commands. A motor answers its
-commands the same way every time (a dead time, then a ramp), so the angle it is at is a
-fixed linear combination of the commands of the last ``taps`` ticks. :func:`refine_readback`
-fits those weights per head and axis to the read-back over the whole recording (the
-rounding error is nearly white while the head moves and averages out of a fit of a few
-weights over a hundred frames or more) and takes the fitted response at each frame,
-clipped into the encoder's interval about the read-back (the head is there for certain).
+What the system also knows is what it asked of each head: its commands. The model assumes
+a motor answers its commands the same way every time (a dead time, then a ramp: linear in
+the commands), so that the angle it is at is a fixed linear combination of the commands of
+the last ``taps`` ticks. :func:`refine_readback` fits those weights per head and axis to the
+read-back over the whole recording (the rounding error is nearly white while the head moves
+and averages out of a fit of a few weights over a hundred frames or more) and takes the
+fitted response at each frame, clipped into the encoder's interval about the read-back
+(for an encoder that only rounds, the head is there for certain; with encoder noise before
+the rounding, e.g. the simulator's ``readback_noise`` > 0, it may lie outside it).
 The fit is robust (:func:`scipy.optimize.least_squares`, ``loss="soft_l1"`` with a scale of
 half a step, the largest residual rounding alone leaves): a command jump that drives a
 motor into its rate limit is not linear, and those frames must not bend the weights of the
 others. Where the history of commands is too short, or the fit too poor (the residuals'
 median above 1.5 times a quarter step, the rounding's own median), the read-back is kept.
 
+The simulator's motor (:class:`lsmta.synth.mixed_scale.SimulatedHead`) is exactly of this
+model's class: a dead time, then a ramp to each command over one command period, with no
+backlash, friction or encoder noise; only its rate limit leaves the class. A real motor is
+not, and how far the recovery carries over to one is not measured.
+
+The design (a 0.4 s window, 12 taps at 30 Hz; the soft-L1 loss with a half-step scale;
+the refusal rule) and the choice to have it on by default in
+:class:`~lsmta.systems.MixedScaleParams` were made on two walks of notebook 15's setting,
+seeds 18 (the notebook's scored walk) and 20: designed on seeds 18 and 20; fresh: 19 and
+21-27: 7 of 8 within 1 mm (``experiments/results/mixed_scale_motor_fit.json``, quoted by
+notebook 15).
+
 What this cannot fix: frames where the motor does not answer linearly (rate limits,
 backlash) keep the fitted response's error there; the clip keeps it within the step, never
-more than a step from the truth.
+more than a step from the truth (for an encoder that only rounds).
 """
 
 from __future__ import annotations
@@ -84,7 +98,8 @@ def refine_readback(commands, readback, start, *, step: float = 0.1, taps: int =
     start : (K, 2) array
         The angles each head reported before its first command, degrees.
     step : float
-        The encoder's step, degrees: the head is within ``step / 2`` of its read-back.
+        The encoder's step, degrees: an encoder that only rounds puts the head within
+        ``step / 2`` of its read-back.
     taps : int
         Commands before each frame that its angle depends on (with the frame's own tick:
         ``taps + 1`` weights), enough to span the motor's dead time and ramp (12 ticks at

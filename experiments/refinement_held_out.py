@@ -16,7 +16,7 @@ per camera pair (both views see them), the places dropped from the adjustment fo
 to a held-out one, and the per-camera residuals of ``RigRefinement.summary()``; all written to
 ``--out`` (the README's numbers come from that file; default
 ``build/benchmarks/refinement_held_out.json`` for the defaults, and for other settings a
-name that carries them, e.g. ``refinement_held_out_lsm-on_n-frames-7.json``, so that one
+name that carries them, e.g. ``refinement_held_out_n-frames-7_lsm-on.json``, so that one
 configuration does not overwrite another's numbers). Target (issue #40): the tie points'
 median residual <= 0.5 px in every camera.
 

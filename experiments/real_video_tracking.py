@@ -115,6 +115,20 @@ def pose2sim_clips(frames: int, scale: float):
         yield f"pose2sim {view}", _grey_frames(data.POSE2SIM_DIR / f"{view}.mp4", frames, scale)
 
 
+def clips_and_tracker(videos, frames: int, pose2sim_scale: float):
+    """The chosen recordings' clips (``[(name, (T, H, W) grey frames)]``) and LSMTA's tracker
+    end, its compiled kernels loaded on a few frames so that no timing includes them."""
+    clips = []
+    if "caliscope" in videos:
+        clips += list(caliscope_clips(frames))
+    if "pose2sim" in videos:
+        clips += list(pose2sim_clips(frames, pose2sim_scale))
+    lsmta = lsmta_end(TrackerParams())
+    warm = clips[0][1][:3]
+    lsmta(warm, np.array([[warm.shape[2] / 2, warm.shape[1] / 2]]))
+    return clips, lsmta
+
+
 def _grey_frames(path, frames: int, scale: float) -> np.ndarray:
     videos = read_videos([path])
     out = []
@@ -207,14 +221,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     numba.set_num_threads(args.threads)
 
-    clips = []
-    if "caliscope" in args.videos:
-        clips += list(caliscope_clips(args.frames))
-    if "pose2sim" in args.videos:
-        clips += list(pose2sim_clips(args.frames, args.pose2sim_scale))
-    lsmta = lsmta_end(TrackerParams())
-    warm = clips[0][1][:3]              # load the compiled kernels outside the timings
-    lsmta(warm, np.array([[warm.shape[2] / 2, warm.shape[1] / 2]]))
+    clips, lsmta = clips_and_tracker(args.videos, args.frames, args.pose2sim_scale)
     rows = []
     for name, seq in clips:
         corners = cv2.goodFeaturesToTrack(seq[0], args.points, 0.01, 8, blockSize=7)

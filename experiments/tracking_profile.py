@@ -37,17 +37,9 @@ from collections import Counter
 
 import cv2
 import numba
-import numpy as np
-from real_video_tracking import (
-    caliscope_clips,
-    forward_backward,
-    klt_end,
-    lsmta_end,
-    pose2sim_clips,
-)
+from real_video_tracking import clips_and_tracker, forward_backward, klt_end
 
 from lsmta.report import write_json
-from lsmta.tracking import TrackerParams
 
 #: (module, attribute, stage): the functions timed; a class attribute as "Class.method"
 STAGES = [
@@ -106,14 +98,7 @@ def main(argv=None):
     parser.add_argument("--out", default="build/benchmarks/tracking_profile.json")
     args = parser.parse_args(argv)
     numba.set_num_threads(1)
-    clips = []
-    if "caliscope" in args.videos:
-        clips += list(caliscope_clips(args.frames))
-    if "pose2sim" in args.videos:
-        clips += list(pose2sim_clips(args.frames, args.pose2sim_scale))
-    lsmta = lsmta_end(TrackerParams())
-    warm = clips[0][1][:3]              # load the compiled kernels outside the timings
-    lsmta(warm, np.array([[warm.shape[2] / 2, warm.shape[1] / 2]]))
+    clips, lsmta = clips_and_tracker(args.videos, args.frames, args.pose2sim_scale)
     clock = StageClock()
     clock.install()
     cpu = {"lsmta": 0.0, "klt": 0.0}

@@ -110,6 +110,14 @@ def test_track_step_is_the_trackers_first_step(translation):
         track_step(images[:, 0], images[:2, 1], xy0, xy0, 4)
     with pytest.raises(ValueError, match="radius"):
         track_step(images[:, 0], images[:, 1], xy0, xy0, 0)
+    # the caller's interpolants of the same images: the same step, to the bit
+    own = ([SplineImage(im) for im in images[:, 0]], [SplineImage(im) for im in images[:, 1]])
+    st3 = track_step(images[:, 0], images[:, 1], xy0, xy0 + vel[:, None], p.radius, params=p,
+                     splines=own)
+    for name, value in vars(st).items():
+        np.testing.assert_array_equal(getattr(st3, name), value)    # NaNs in the same places
+    with pytest.raises(ValueError, match="splines"):
+        track_step(images[:, 0], images[:, 1], xy0, xy0, 4, splines=(own[0][:2], own[1]))
 
 
 def _occluded_sequence(rng, frames, n_frames=9, K=3, vel=(0.6, -0.3)):

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .._validate import as_int, as_scalar, freeze
+from ..matching.spline import SplineImage
 from ..tracking import TrackerParams, track_points, track_step
 from ..tracking.blob_follow import FollowParams, follow_blobs
 from ..tracking.join_checks import attach_views, check_joins, fill_gaps
@@ -236,14 +237,23 @@ def _step(frames, p: MarkerParams):
             return track_klt([frames[t:t + 2]], xy[None], window=p.klt_window).xy[1, 0]
         return klt
     lp = p.lsmta
+    built: dict[int, SplineImage] = {}      # frame -> its interpolant: each prefiltered once
+
+    def spline(t):
+        if t not in built:
+            if len(built) > 2:
+                built.pop(max(built, key=lambda u: abs(u - t)))    # the farthest frame
+            built[t] = SplineImage(frames[t], "frame")
+        return built[t]
 
     def lsmta(t, xy, predicted):
         out = np.full_like(xy, np.nan)
         todo = np.arange(len(xy))
+        pair = ([spline(t)], [spline(t + 1)])
         for radius, pred in ((lp.radius, predicted), (lp.retry_radius, predicted),
                              (lp.retry_radius, xy)):
             r = track_step(frames[t][None], frames[t + 1][None], xy[None, todo],
-                           pred[None, todo], radius, params=lp)
+                           pred[None, todo], radius, params=lp, splines=pair)
             out[todo[r.ok]] = r.xy[0, r.ok]
             todo = todo[~r.ok]
             if not todo.size:

@@ -946,7 +946,7 @@ class StepResult:
 
 
 def track_step(frame, next_frame, xy, predicted, radius, *, params: TrackerParams | None = None,
-               direct: bool = True) -> StepResult:
+               direct: bool = True, splines=None) -> StepResult:
     """One temporal step of tracks anchored in ``frame``, exactly as :func:`track_points`
     makes its first step (Fig. 7).
 
@@ -969,6 +969,9 @@ def track_step(frame, next_frame, xy, predicted, radius, *, params: TrackerParam
     direct : bool
         Try the anchored LSM from the prediction first (the tracker does for every track
         with a history).
+    splines : (frame's, next_frame's) sequences of K SplineImage, optional
+        The interpolants of these same images, built by the caller (who calls again with
+        an image: each is prefiltered once); built here when None.
 
     Returns
     -------
@@ -987,8 +990,15 @@ def track_step(frame, next_frame, xy, predicted, radius, *, params: TrackerParam
     r = np.broadcast_to(np.asarray(radius), (n,))
     if r.size and (r.dtype == bool or np.any(r != np.rint(r)) or np.any(r < 1)):
         raise ValueError(f"radius: expected integers >= 1 (pixels), got {radius}")
-    splines = [SplineImage(seq[k, 0], "frame") for k in range(K)]
-    nxt = [SplineImage(seq[k, 1], "next_frame") for k in range(K)]
+    if splines is None:
+        splines = [SplineImage(seq[k, 0], "frame") for k in range(K)]
+        nxt = [SplineImage(seq[k, 1], "next_frame") for k in range(K)]
+    else:
+        splines, nxt = (list(s) for s in splines)
+        if not len(splines) == len(nxt) == K or any(
+                s.shape != seq.shape[2:] for s in splines + nxt):
+            raise ValueError(f"splines: expected two sequences of {K} SplineImage of shape "
+                             f"{seq.shape[2:]} (the images'), got {splines!r:.60}, {nxt!r:.60}")
     first = _Anchors.sampled(splines, cur, 0, p)
     _spatial_start(first, splines, cur, p)
     rows = np.arange(n)

@@ -47,6 +47,7 @@ import numba as nb
 import numpy as np
 
 from .._validate import as_int, as_scalar, freeze
+from ..build_cache import cached_arrays, content_key
 from ..camera import Camera
 
 
@@ -361,17 +362,28 @@ def _detector(cameras, params: TieParams):
     wide = (params.detector == "asift"
             or params.detector == "auto" and widest > params.asift_above_deg)
     if not wide:
-        return cv2.SIFT_create(nfeatures=params.n_features, contrastThreshold=params.contrast)
+        return (cv2.SIFT_create(nfeatures=params.n_features, contrastThreshold=params.contrast),
+                ("sift", params.n_features, params.contrast))
     sift = cv2.SIFT_create(nfeatures=params.asift_features, contrastThreshold=params.contrast)
-    return cv2.AffineFeature_create(sift, maxTilt=params.max_tilt)
+    return (cv2.AffineFeature_create(sift, maxTilt=params.max_tilt),
+            ("asift", params.asift_features, params.contrast, params.max_tilt))
 
 
 def _features(images, detector):
+    """Each image's features ``(xy, descriptors)`` from ``detector`` (``(cv2 detector, its
+    settings)``); kept for the next notebook of a ``lsmta reproduce`` build (the same frames
+    in notebooks 17 and 21: :mod:`lsmta.build_cache`)."""
+    det, settings = detector
     out = []
     for g in images:
-        kp, des = detector.detectAndCompute(g, None)
-        xy = np.array([k.pt for k in kp], float).reshape(-1, 2)
-        out.append((xy, _bytes(des) if des is not None else np.zeros((0, 128), np.uint8)))
+        def compute(g=g):
+            kp, des = det.detectAndCompute(g, None)
+            xy = np.array([k.pt for k in kp], float).reshape(-1, 2)
+            return {"xy": xy, "des": _bytes(des) if des is not None
+                    else np.zeros((0, 128), np.uint8)}
+        key = content_key("tie features", cv2.__version__, settings, np.asarray(g))
+        f = cached_arrays("tie_features", key, compute)
+        out.append((f["xy"], f["des"]))
     return out
 
 

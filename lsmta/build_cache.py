@@ -6,7 +6,8 @@ the Pose2Sim demo). :func:`cached_arrays` keeps such a result under the build fo
 ``cache/<kind>/<key>.npz``, and the next notebook reads it instead of computing it again.
 The key must hash everything the result depends on (the inputs' bytes, the settings, the
 library versions); the caller builds it (see :func:`content_key`). Only under ``lsmta
-reproduce`` (which sets ``LSMTA_BUILD_DIR``): anywhere else every result is computed.
+reproduce`` (which sets ``LSMTA_BUILD_DIR`` and empties ``cache/`` when it starts, so a
+run never reads an earlier run's arrays): anywhere else every result is computed.
 A file that cannot be read is computed again and written anew.
 """
 

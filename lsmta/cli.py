@@ -431,6 +431,8 @@ def reproduce(args) -> int:
         return 0
     build = Path(args.build)
     build.mkdir(parents=True, exist_ok=True)
+    # arrays kept between this run's notebooks (lsmta.build_cache); never an earlier run's
+    shutil.rmtree(build / "cache", ignore_errors=True)
     results = []
     tty = sys.stdout.isatty()
     start = time.perf_counter()

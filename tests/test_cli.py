@@ -206,3 +206,13 @@ def test_summary_counts_results_by_their_truth_inputs(tmp_path):
     assert "studies: none." in (tmp_path / "index.html").read_text()
     assert json.loads((tmp_path / "summary.json").read_text())["records"][2]["truth"] == \
         "true cameras"
+
+
+def test_reproduce_empties_an_earlier_runs_cache(notebooks, tmp_path):
+    build = tmp_path / "build"
+    stale = build / "cache" / "tie_features" / "0123abcd.npz"
+    stale.parent.mkdir(parents=True)
+    stale.write_bytes(b"an earlier run's arrays")
+    assert cli.main(["reproduce", "--notebooks", str(notebooks), "--build", str(build),
+                     "--only", "second", "--no-book"]) == 0
+    assert not stale.exists()

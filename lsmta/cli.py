@@ -16,7 +16,9 @@ the book is, and exits with status 1, naming the notebook and cell, if any cell 
 
 The kernels talk to the command over IPC (Unix sockets in a private temporary folder),
 not over TCP, so nothing listens on the network. ``LSMTA_BUILD_DIR`` is set to the build
-folder while the notebooks run (:func:`lsmta.report.build_dir`).
+folder while the notebooks run (:func:`lsmta.report.build_dir`), and ``LSMTA_BUILD_CACHE``
+to a folder of this run (``build/run-*``, removed when it ends) where notebooks keep arrays
+that a later notebook of the same run computes again (:mod:`lsmta.build_cache`).
 """
 
 from __future__ import annotations
@@ -37,7 +39,7 @@ from dataclasses import asdict
 from importlib import metadata
 from pathlib import Path
 
-from . import capture_command, interactive, report
+from . import build_cache, capture_command, interactive, report
 
 OFFSCREEN_ENV = {
     "PYVISTA_OFF_SCREEN": "true",
@@ -119,11 +121,15 @@ def default_notebook_dir() -> Path:
     return Path(__file__).resolve().parents[1] / "notebooks"
 
 
-def notebook_env(path: Path, build: Path) -> dict[str, str]:
+def notebook_env(path: Path, build: Path, *, cache: Path | None = None) -> dict[str, str]:
     """The environment of the kernel that runs the notebook ``path``: this process's, the
-    off-screen rendering settings (where not set) and where the notebook writes its records
-    and 3-D views under ``build``."""
+    off-screen rendering settings (where not set), where the notebook writes its records
+    and 3-D views under ``build`` and, if given, the run's ``cache`` folder
+    (:mod:`lsmta.build_cache`; without it nothing is kept between notebooks)."""
     env = {**OFFSCREEN_ENV, **os.environ}
+    env.pop(build_cache.CACHE_ENV, None)
+    if cache is not None:
+        env[build_cache.CACHE_ENV] = str(cache.resolve())
     env[report.RECORD_ENV] = str((build / "records" / f"{path.stem}.jsonl").resolve())
     env[report.BUILD_ENV] = str(build.resolve())
     env[interactive.VIEWS_ENV] = str((build / "views3d").resolve())
@@ -131,10 +137,10 @@ def notebook_env(path: Path, build: Path) -> dict[str, str]:
     return env
 
 
-def start_kernel(path: Path, build: Path):
+def start_kernel(path: Path, build: Path, *, cache: Path | None = None):
     """Start the kernel that will run the notebook ``path`` and return at once (it boots
     while the previous notebook runs); returns ``(kernel manager, its socket folder)``, for
-    :func:`execute`."""
+    :func:`execute`. ``cache``: as in :func:`notebook_env`."""
     from jupyter_client.manager import AsyncKernelManager  # deferred: seconds to import
     from jupyter_core.utils import run_sync  # deferred: as above
 
@@ -143,7 +149,8 @@ def start_kernel(path: Path, build: Path):
     sockets = Path(tempfile.mkdtemp(prefix="lsmta-ipc-"))
     km = AsyncKernelManager(kernel_name="python3", transport="ipc", ip=str(sockets / "kernel"))
     try:
-        run_sync(km.start_kernel)(env=notebook_env(path, build), cwd=str(path.parent.resolve()),
+        run_sync(km.start_kernel)(env=notebook_env(path, build, cache=cache),
+                                  cwd=str(path.parent.resolve()),
                                   extra_arguments=["--HistoryManager.hist_file=:memory:"])
     except BaseException:
         shutil.rmtree(sockets, ignore_errors=True)
@@ -431,18 +438,18 @@ def reproduce(args) -> int:
         return 0
     build = Path(args.build)
     build.mkdir(parents=True, exist_ok=True)
-    # arrays kept between this run's notebooks (lsmta.build_cache); never an earlier run's
-    shutil.rmtree(build / "cache", ignore_errors=True)
+    # arrays kept between this run's notebooks only (lsmta.build_cache), removed at its end
+    cache = Path(tempfile.mkdtemp(prefix="run-", dir=build))
     results = []
     tty = sys.stdout.isatty()
     start = time.perf_counter()
     # each notebook's kernel is started while the one before runs (its boot, about a second,
     # overlaps that notebook's work); each runs in a fresh kernel as before
-    kernels = {0: start_kernel(chosen[0], build)}
+    kernels = {0: start_kernel(chosen[0], build, cache=cache)}
     try:
         for i, path in enumerate(chosen):
             if i + 1 < len(chosen):
-                kernels[i + 1] = start_kernel(chosen[i + 1], build)
+                kernels[i + 1] = start_kernel(chosen[i + 1], build, cache=cache)
             if tty:
                 print(f"{path.stem:<33} running ...", end="\r", flush=True)
             res = execute(path, build, args.timeout, kernel=kernels[i])
@@ -452,6 +459,7 @@ def reproduce(args) -> int:
     finally:
         for kernel in kernels.values():  # only if a notebook's run raised (or Ctrl-C)
             stop_kernel(kernel)
+        shutil.rmtree(cache, ignore_errors=True)
     ran = results
     if args.only:  # keep the other notebooks' earlier results in the summary
         old = build / "summary.json"

@@ -1,4 +1,5 @@
 import json
+from pathlib import Path
 
 import nbformat
 import pytest
@@ -208,11 +209,14 @@ def test_summary_counts_results_by_their_truth_inputs(tmp_path):
         "true cameras"
 
 
-def test_reproduce_empties_an_earlier_runs_cache(notebooks, tmp_path):
+def test_reproduce_keeps_arrays_for_its_own_run_only(notebooks, tmp_path):
+    """The notebooks of one run share a cache folder; it is gone when the run ends."""
+    _notebook(notebooks / "02_third.ipynb", [
+        "import os\nfrom pathlib import Path\n"
+        "Path('cache.txt').write_text(os.environ.get('LSMTA_BUILD_CACHE', ''))"])
     build = tmp_path / "build"
-    stale = build / "cache" / "tie_features" / "0123abcd.npz"
-    stale.parent.mkdir(parents=True)
-    stale.write_bytes(b"an earlier run's arrays")
     assert cli.main(["reproduce", "--notebooks", str(notebooks), "--build", str(build),
-                     "--only", "second", "--no-book"]) == 0
-    assert not stale.exists()
+                     "--only", "third", "--no-book"]) == 0
+    used = Path((notebooks / "cache.txt").read_text())
+    assert used.parent == build.resolve() and used.name.startswith("run-")
+    assert not used.exists()

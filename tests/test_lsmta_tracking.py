@@ -116,8 +116,9 @@ def test_track_step_is_the_trackers_first_step(translation):
                      splines=own)
     for name, value in vars(st).items():
         np.testing.assert_array_equal(getattr(st3, name), value)    # NaNs in the same places
-    with pytest.raises(ValueError, match="splines"):
-        track_step(images[:, 0], images[:, 1], xy0, xy0, 4, splines=(own[0][:2], own[1]))
+    for bad in ((own[0][:2], own[1]), own[0], (own[0],), ([im for im in images[:, 0]], own[1])):
+        with pytest.raises(ValueError, match="splines"):
+            track_step(images[:, 0], images[:, 1], xy0, xy0, 4, splines=bad)
 
 
 def _occluded_sequence(rng, frames, n_frames=9, K=3, vel=(0.6, -0.3)):

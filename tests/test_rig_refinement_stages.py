@@ -304,22 +304,26 @@ def test_refine_tie_points_checks_its_arguments(lsm_scene):
 def test_tie_points_under_a_build_read_their_features_back(rng, monkeypatch, tmp_path):
     """Under ``lsmta reproduce`` a frame's features are kept for the next notebook: the same
     frames give the same tie points, to the bit, from the kept features (one file per
-    image); other settings are other features."""
-    from lsmta.report import BUILD_ENV
+    image), which are read (emptied, they give no tie points); other settings are other
+    features."""
+    from lsmta.build_cache import CACHE_ENV
     cams = rig_cameras(n=2)
     floor, wall = random_texture(rng), random_texture(rng)
     images = [[render_room(c, floor, wall, 0) for c in cams]]
-    monkeypatch.delenv(BUILD_ENV, raising=False)
+    monkeypatch.delenv(CACHE_ENV, raising=False)
     plain = find_tie_points(images, cams, params=TieParams(detector="sift"))
-    monkeypatch.setenv(BUILD_ENV, str(tmp_path))
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path))
     kept = [find_tie_points(images, cams, params=TieParams(detector="sift")) for _ in range(2)]
-    files = sorted((tmp_path / "cache" / "tie_features").glob("*.npz"))
+    files = sorted((tmp_path / "tie_features").glob("*.npz"))
     assert len(files) == 2 and plain.xy.shape[1] > 0
     for t in kept:
         for name in ("xy", "frame", "pair_matches", "pair_guided"):
             assert np.array_equal(getattr(t, name), getattr(plain, name), equal_nan=True)
+    for f in files:
+        np.savez(f, xy=np.zeros((0, 2)), des=np.zeros((0, 128), np.uint8))
+    assert find_tie_points(images, cams, params=TieParams(detector="sift")).xy.shape[1] == 0
     find_tie_points(images, cams, params=TieParams(detector="sift", n_features=500))
-    assert len(list((tmp_path / "cache" / "tie_features").glob("*.npz"))) == 4
+    assert len(list((tmp_path / "tie_features").glob("*.npz"))) == 4
 
 
 def test_a_pair_matches_of_all_frames_agree_with_one_geometry(rng):

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numba as nb
@@ -374,6 +375,7 @@ def _features(images, detector):
     settings)``); kept for the next notebook of a ``lsmta reproduce`` build (the same frames
     in notebooks 17 and 21: :mod:`lsmta.build_cache`)."""
     det, settings = detector
+    code = Path(__file__).read_bytes()      # this module's code makes them too
     out = []
     for g in images:
         def compute(g=g):
@@ -381,7 +383,7 @@ def _features(images, detector):
             xy = np.array([k.pt for k in kp], float).reshape(-1, 2)
             return {"xy": xy, "des": _bytes(des) if des is not None
                     else np.zeros((0, 128), np.uint8)}
-        key = content_key("tie features", cv2.__version__, settings, np.asarray(g))
+        key = content_key("tie features", cv2.__version__, settings, code, np.asarray(g))
         f = cached_arrays("tie_features", key, compute)
         out.append((f["xy"], f["des"]))
     return out
@@ -412,7 +414,7 @@ def _chain(n_views: int, offsets, matches):
             ra, rb = find(offsets[a] + i), find(offsets[b] + j)
             if ra != rb:
                 parent[ra] = rb
-    roots = np.array([find(i) for i in range(offsets[-1])])
+    roots = np.array([find(i) for i in range(offsets[-1])], dtype=np.int64)
     view = np.repeat(np.arange(n_views), np.diff(offsets))
     local = np.arange(offsets[-1]) - offsets[view]
     tracks = {}

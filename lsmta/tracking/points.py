@@ -971,7 +971,8 @@ def track_step(frame, next_frame, xy, predicted, radius, *, params: TrackerParam
         with a history).
     splines : (frame's, next_frame's) sequences of K SplineImage, optional
         The interpolants of these same images, built by the caller (who calls again with
-        an image: each is prefiltered once); built here when None.
+        an image: each is prefiltered once); built here when None. Interpolants of other
+        images of the same size are not detected and give wrong tracks.
 
     Returns
     -------
@@ -994,9 +995,14 @@ def track_step(frame, next_frame, xy, predicted, radius, *, params: TrackerParam
         splines = [SplineImage(seq[k, 0], "frame") for k in range(K)]
         nxt = [SplineImage(seq[k, 1], "next_frame") for k in range(K)]
     else:
-        splines, nxt = (list(s) for s in splines)
+        pair = list(splines) if isinstance(splines, (tuple, list)) else []
+        if len(pair) == 2 and all(isinstance(s, (tuple, list)) for s in pair):
+            splines, nxt = (list(s) for s in pair)
+        else:
+            splines, nxt = [], []
         if not len(splines) == len(nxt) == K or any(
-                s.shape != seq.shape[2:] for s in splines + nxt):
+                not isinstance(s, SplineImage) or s.shape != seq.shape[2:]
+                for s in splines + nxt):
             raise ValueError(f"splines: expected two sequences of {K} SplineImage of shape "
                              f"{seq.shape[2:]} (the images'), got {splines!r:.60}, {nxt!r:.60}")
     first = _Anchors.sampled(splines, cur, 0, p)

@@ -21,6 +21,15 @@ trajectories at the last frame, the arm's joint angles and bone lengths, each ne
 truth-fed twin) to ``build/benchmarks/lsmta_system.json``. The target for the whole
 sequence: the system under five minutes on two cores. Notebook 14's own settings:
 ``--frames 20 --first 14 --width 576 --height 432``.
+
+The trajectories' ratio to the truth-fed twin comes with notebook 14's explanation of it,
+per seed: the first frame's surface error carried along (in quadrature with the twin's
+tracking error) against the system's trajectory error, in the medians and track by track.
+Each seed's detail also holds, per video frame, the arm groups' points by their true part
+(upper arm, forearm, hand) and each arm fit's per-frame joint angle errors, from which
+notebook 14 reads why a seed's worst angle misses. The run at notebook 14's settings is
+committed as ``experiments/results/lsmta_system_seeds.json`` (a copy of the
+``_seeds.json``; ``lsmta.evaluation.body_system.read_system_seeds`` reads it).
 """
 
 from __future__ import annotations
@@ -59,6 +68,12 @@ HEADLINES = [
              CHECK_IN),
     Headline("track_ratio", "trajectories: median 3-D error at the last frame, system / "
              "truth-fed", "", CHECK_IN + FED_IN),
+    Headline("track_carried_ratio", "trajectories: the first frame's surface error carried "
+             "along (in quadrature with the truth-fed tracking's) / the system's, last frame",
+             "", CHECK_IN + FED_IN),
+    Headline("track_carried_tracks_ratio", "trajectories: the same, track by track on the tracks "
+             "present at both ends (each track's own start error) / their median error", "",
+             CHECK_IN + FED_IN),
     Headline("angle_simplified_own_deg", "arm, simplified model: worst joint angle error, "
              "system, in its own torso frame", "deg", OWN_IN),
     Headline("angle_full_own_deg", "arm, full model: worst joint angle error, system, in its "
@@ -120,6 +135,16 @@ def run_seed(seed: int, *, frames: int, first: int, width: int, height: int, eve
     detail = {"render_s": render_s, "stage_s": cap.seconds, "check_points_n": al.n_points,
               "swapped_labels": cap.calibration.labels.n_swapped, "trajectories_n": n_last,
               "groups": bs.group_parts(session, start.groups, part)}
+    # the arm groups' points per video frame, by their true part (the explanation of a bad
+    # angle: a limb barely seen), and which limbs the fit kept from lengthening
+    in_arm = np.isin(start.groups.label, [start.upper_arm, start.forearm])
+    body = session.scene.body
+    detail["arm_points"] = {name: (cap.filtered.present & in_arm
+                                   & (part == body.index(name))).sum(axis=1).tolist()
+                            for name in ("upper_arm_r", "forearm_r", "hand_r")}
+    detail["arm_fit_frames"] = np.asarray(cap.arm.frames).tolist()
+    detail["capped_scales"] = {"simplified": list(cap.arm.simplified.capped_scales),
+                               "full": list(cap.arm.full.capped_scales)}
     fits = {("system", n): (f, start.torso_poses, cap.arm.frames, al)
             for n, f in (("simplified", cap.arm.simplified), ("full", cap.arm.full))}
     common = None
@@ -132,16 +157,28 @@ def run_seed(seed: int, *, frames: int, first: int, width: int, height: int, eve
         common = np.intersect1d(cap.arm.frames, fed_arm.frames)   # as notebook 14 scores
         fits |= {("truth-fed", n): (f, truth.torso_poses, fed_arm.frames, None)
                  for n, f in (("simplified", fed_arm.simplified), ("full", fed_arm.full))}
+        # notebook 14's explanation of the ratio: the anchored tracker keeps the error of the
+        # point a track started from, so the surface's error carried along (in quadrature with
+        # the truth-fed tracking's own) accounts for the system's trajectory error
+        e3 = score.error_3d
+        ends = np.isfinite(e3[0]) & np.isfinite(e3[-1]) & cap.filtered.present[-1]
+        carried = float(np.median(np.hypot(e3[0][ends], fed_last)))
         out |= {"surface_median_ratio": out["surface_median_mm"]
                 / fed_surface["filtered"]["median_mm"],
                 "surface_density_ratio": out["surface_density"] / fed_surface["density"],
-                "track_ratio": last / fed_last}
+                "track_ratio": last / fed_last,
+                "track_carried_ratio": float(np.hypot(out["surface_median_mm"], fed_last)) / last,
+                "track_carried_tracks_ratio": carried / float(np.median(e3[-1][ends]))}
         detail["truth_fed"] = {"seconds": time.perf_counter() - t1,
                                "surface_median_mm": fed_surface["filtered"]["median_mm"],
                                "surface_density": fed_surface["density"],
                                "track_last_mm": fed_last, "trajectories_n": fed_n,
                                "arm_frames": len(fed_arm.frames),
-                               "arm_frames_both": len(common)}
+                               "arm_frames_both": len(common),
+                               "tracks_both_ends": int(ends.sum())}
+        hand = (np.isfinite(fed.filters[-1].trajectories.xyz).all(axis=2)
+                & (fed.part == session.scene.body.index("hand_r"))).sum(axis=1)
+        detail["truth_fed"]["hand_points"] = hand.tolist()          # per video frame
     for (feed, name), (f, poses, fr, a) in fits.items():
         s = bs.score_arm(f, poses, truth, frames=fr, score_frames=common, alignment=a)
         angle, length = s["max_angle_err_deg"], float(np.abs(s["length_err_pct"]).max())
@@ -149,9 +186,15 @@ def run_seed(seed: int, *, frames: int, first: int, width: int, height: int, eve
             out[f"angle_{name}_deg"], out[f"length_{name}_pct"] = angle, length
             own = bs.score_arm_own_frame(f, truth, frames=fr, score_frames=common)
             out[f"angle_{name}_own_deg"] = own["max_angle_err_deg"]
+            detail.setdefault("arm_system_own", {})[name] = {
+                "joint_max_deg": np.asarray(own["joint_max_deg"]).tolist(),
+                "angle_err_deg": np.asarray(own["angle_err_deg"]).tolist(),
+                "frames": np.asarray(fr if common is None else common).tolist()}
         detail.setdefault(f"arm_{feed}", {})[name] = {
             "max_angle_deg": angle, "joint_max_deg": np.asarray(s["joint_max_deg"]).tolist(),
-            "length_err_pct": np.asarray(s["length_err_pct"]).tolist()}
+            "length_err_pct": np.asarray(s["length_err_pct"]).tolist(),
+            "angle_err_deg": np.asarray(s["angle_err_deg"]).tolist(),
+            "scales": np.asarray(f.state.scales).tolist()}
     out["detail"] = detail
     return out
 

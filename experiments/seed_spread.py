@@ -20,6 +20,7 @@ import math
 import sys
 import uuid
 from dataclasses import asdict, dataclass
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -168,7 +169,8 @@ def _fmt(v) -> str:
 def report(name: str, results: dict[int, dict], headlines, out_dir, *,
            settings: dict | None = None) -> dict:
     """Print one row per seed and the median [min, max] of every headline; write
-    ``<out_dir>/<name>_seeds.json`` (settings, headlines, per-seed values, spread, and each
+    ``<out_dir>/<name>_seeds.json`` (the command line and date, settings, headlines,
+    per-seed values, spread, and each
     seed's whole result) and
     ``<out_dir>/<name>_seeds.csv`` (one row per seed and three rows median, min, max).
     Returns the spread (:func:`spread`)."""
@@ -190,7 +192,9 @@ def report(name: str, results: dict[int, dict], headlines, out_dir, *,
     print("  truth inputs: " + "; ".join(f"T{i}: {x}" for i, x in enumerate(truths)))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    doc = {"experiment": name, "seeds": list(results), "settings": settings or {},
+    doc = {"experiment": name, "command": " ".join(["python", *sys.argv]),
+           "date": datetime.now(timezone.utc).date().isoformat(),
+           "seeds": list(results), "settings": settings or {},
            "headlines": [asdict(h) for h in headlines],
            "failed": {str(s): r["error"] for s, r in results.items() if "error" in r},
            "per_seed": {str(s): {h.key: r.get(h.key) for h in headlines}

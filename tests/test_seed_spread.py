@@ -60,6 +60,8 @@ def test_seeds_on_a_local_cluster_give_median_and_range(tmp_path, capsys):
     doc = json.loads((tmp_path / "toy_seeds.json").read_text(encoding="utf-8"))
     assert doc["seeds"] == seeds[::-1] and doc["settings"] == {"scale": 2.0}
     assert doc["spread"]["a"]["median"] == 24.0
+    # the command that made the numbers, and when (a committed copy says what to re-run)
+    assert doc["command"].startswith("python ") and len(doc["date"]) == 10
     with open(tmp_path / "toy_seeds.csv", encoding="utf-8") as fh:
         rows = list(csv.reader(fh))
     assert rows[0] == ["seed", "a", "b", "c"]

@@ -18,8 +18,10 @@ scale is left as the bar made it).
 from __future__ import annotations
 
 import dataclasses
+import json
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -47,6 +49,10 @@ from .surface import node_truth, score_surface, seeds_from_truth
 from .tracking import TrackScore, score_tracks, track_identity
 
 ARM_PARTS = eb.ARM_PARTS
+# the committed result of `experiments/lsmta_system.py --seeds 5 --frames 20 --first 14
+# --width 576 --height 432` (notebook 14's settings over seeds), quoted by notebook 14
+SYSTEM_SEEDS_RESULT = Path(__file__).resolve().parents[2] / "experiments" / "results" \
+    / "lsmta_system_seeds.json"
 
 
 @dataclass(frozen=True, eq=False)
@@ -632,3 +638,41 @@ __all__ = [
     "track_identity_from_rays", "truth_fed_arm", "truth_fed_surface", "truth_fed_tracking",
     "world_alignment",
 ]
+
+
+def read_system_seeds(*, path=None) -> dict | None:
+    """The committed sweep of notebook 14's system over seeds (:data:`SYSTEM_SEEDS_RESULT`
+    unless ``path``), or None when there is no such file.
+
+    Returns
+    -------
+    dict or None
+        ``command``, ``date``, ``settings`` (dict), ``seeds`` (S,) int array, ``values``:
+        each headline key (``experiments/lsmta_system.py``'s ``HEADLINES``) as an (S,) float
+        array over the seeds (NaN: the seed could not measure it), and ``detail``: each
+        seed's detail dictionary (per-stage times, per-frame arm errors and points), keyed
+        by the int seed.
+
+    Raises
+    ------
+    ValueError
+        When the file lacks a field, or a seed has no values or no detail.
+    """
+    path = SYSTEM_SEEDS_RESULT if path is None else Path(path)
+    if not path.is_file():
+        return None
+    data = json.loads(path.read_text(encoding="utf-8"))
+    for key in ("command", "date", "seeds", "settings", "per_seed", "results"):
+        if key not in data:
+            raise ValueError(f"path: {path.name} has no {key!r}")
+    seeds = [int(s) for s in data["seeds"]]
+    for s in seeds:
+        if str(s) not in data["per_seed"] or "detail" not in data["results"].get(str(s), {}):
+            raise ValueError(f"path: {path.name} has no values or no detail for seed {s}")
+    keys = list(data["per_seed"][str(seeds[0])]) if seeds else []
+    values = {k: np.array([np.nan if data["per_seed"][str(s)].get(k) is None
+                           else data["per_seed"][str(s)][k] for s in seeds], float)
+              for k in keys}
+    return {"command": data["command"], "date": data["date"], "settings": data["settings"],
+            "seeds": np.array(seeds, int), "values": values,
+            "detail": {s: data["results"][str(s)]["detail"] for s in seeds}}

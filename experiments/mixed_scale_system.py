@@ -51,19 +51,24 @@ face model; other image noise). Written as ``mixed_scale_system_heads*`` (``--ou
 the per-seed numbers notebook 15 quotes (with the command, date, seeds and settings) to the
 committed ``experiments/results/mixed_scale_heads.json``
 (``lsmta.evaluation.mixed_scale.HEADS_RESULT``; ``--results`` for another file). Runs at
-four heads take about twice the system time of two. The committed file comes from
+four heads take about twice the system time of two. The committed file comes from (with
+notebook 15's self-occlusion and view gate)
 
-    python experiments/mixed_scale_system.py --heads 2 4 --seeds 5 --no-baseline --workers 2
+    python experiments/mixed_scale_system.py --heads 2 4 --seeds 5 --no-baseline --workers 2 \
+        --occlusion surface --min-view-cos 0.4
 
 ``--occlusion`` (issue 39): which face markers the heads see
-(``lsmta.synth.mixed_scale.MixedScaleScene``'s ``occlusion``): ``normals`` (the default, every
-committed file's), ``surface`` (ray casting against the head surface: notebook 15's walk)
-or ``both``. Each walk also records the share of its grabbed marker-frames each rule hides
-(``hidden_normals``, ``hidden_ray_cast``) and the face's error split into measured and
-filled markers (``face_measured_mm``, ``face_filled_mm``). ``--min-view-cos C``: the
+(``lsmta.synth.mixed_scale.MixedScaleScene``'s ``occlusion``): ``normals`` (the default;
+``mixed_scale_motor_fit.json``'s), ``surface`` (ray casting against the head surface:
+notebook 15's walk) or ``both``. Each walk also records the share of its grabbed
+marker-frames each rule hides (``hidden_normals``, ``hidden_ray_cast``) and the face's
+error split into measured and filled markers (``face_measured_mm``, ``face_filled_mm``).
+``--min-view-cos C``: the
 system drops (and fills) measured markers a head of their pair sees at a grazing angle to
 the fitted face (``MixedScaleParams.min_view_cos``; -1, the default: none). Notebook 15's
-walk and the fresh walks with self-occlusion on, with the rule and without:
+walk and the fresh walks with self-occlusion on, with the rule (copied to the committed
+``experiments/results/mixed_scale_occlusion.json``, ``lsmta.evaluation.mixed_scale.
+OCCLUSION_RESULT``, which notebook 15 quotes) and without:
 
     python experiments/mixed_scale_system.py --seed 18 --seeds 10 --no-baseline \
         --occlusion surface --min-view-cos 0.4 --out build/benchmarks/occlusion/gate.json

@@ -156,3 +156,16 @@ def test_the_fill_drops_markers_a_head_of_their_pair_sees_edge_on():
     assert 0.1 < dropped.mean() < 0.7 and fit.fitted.all()
     with pytest.raises(ValueError, match="views"):
         fill_face(pts, model, min_view_cos=0.3)
+
+
+def test_the_committed_occlusion_result_has_what_notebook_15_reads():
+    run = ms.read_motor_fit_result(path=ms.OCCLUSION_RESULT)
+    assert run is not None, f"no committed {ms.OCCLUSION_RESULT}"
+    assert "--occlusion surface" in run["command"] and "--out" not in run["command"]
+    assert run["occlusion"] == "surface" and run["min_view_cos"] > -1 and run["motor_fit"]
+    assert {18, 20} <= set(run["seeds"].tolist()) and len(run["seeds"]) >= 10
+    for key in ("face_median_mm", "face_measured_mm", "face_filled_mm", "face_fitted"):
+        assert run[key].shape == run["seeds"].shape and np.isfinite(run[key]).all()
+    # the normals rule's committed run records neither: it read as the defaults
+    plain = ms.read_motor_fit_result()
+    assert plain["occlusion"] == "normals" and plain["min_view_cos"] == -1

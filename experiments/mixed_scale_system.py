@@ -5,7 +5,7 @@ it labels correctly without an operator.
     .venv/bin/python experiments/mixed_scale_system.py [--travel 4000] [--speed 1200]
         [--ceiling 6] [--seed 18] [--seeds 5] [--scheduler ADDRESS] [--workers 2]
         [--lead 0.3] [--constant-velocity] [--no-baseline] [--reacquire 2] [--heads 2 4]
-        [--no-motor-fit]
+        [--no-motor-fit] [--occlusion normals|surface|both] [--min-view-cos -1]
 
 Builds the walk of notebook 15 (`lsmta.synth.mixed_scale.mixed_scale_scene`, its settings by
 default: 4 m at 1.2 m/s, six ceiling cameras, the head LED hidden from 2.5 to 2.9 s, the heads
@@ -51,9 +51,29 @@ face model; other image noise). Written as ``mixed_scale_system_heads*`` (``--ou
 the per-seed numbers notebook 15 quotes (with the command, date, seeds and settings) to the
 committed ``experiments/results/mixed_scale_heads.json``
 (``lsmta.evaluation.mixed_scale.HEADS_RESULT``; ``--results`` for another file). Runs at
-four heads take about twice the system time of two. The committed file comes from
+four heads take about twice the system time of two. The committed file comes from (with
+notebook 15's self-occlusion and view gate)
 
-    python experiments/mixed_scale_system.py --heads 2 4 --seeds 5 --no-baseline --workers 2
+    python experiments/mixed_scale_system.py --heads 2 4 --seeds 5 --no-baseline --workers 2 \
+        --occlusion surface --min-view-cos 0.4
+
+``--occlusion`` (issue 39): which face markers the heads see
+(``lsmta.synth.mixed_scale.MixedScaleScene``'s ``occlusion``): ``normals`` (the default;
+``mixed_scale_motor_fit.json``'s), ``surface`` (ray casting against the head surface:
+notebook 15's walk) or ``both``. Each walk also records the share of its grabbed
+marker-frames each rule hides (``hidden_normals``, ``hidden_ray_cast``) and the face's
+error split into measured and filled markers (``face_measured_mm``, ``face_filled_mm``).
+``--min-view-cos C``: the
+system drops (and fills) measured markers a head of their pair sees at a grazing angle to
+the fitted face (``MixedScaleParams.min_view_cos``; -1, the default: none). Notebook 15's
+walk and the fresh walks with self-occlusion on, with the rule (copied to the committed
+``experiments/results/mixed_scale_occlusion.json``, ``lsmta.evaluation.mixed_scale.
+OCCLUSION_RESULT``, which notebook 15 quotes) and without:
+
+    python experiments/mixed_scale_system.py --seed 18 --seeds 10 --no-baseline \
+        --occlusion surface --min-view-cos 0.4 --out build/benchmarks/occlusion/gate.json
+    python experiments/mixed_scale_system.py --seed 18 --seeds 10 --no-baseline \
+        --occlusion surface --out build/benchmarks/occlusion/mixed_scale_system.json
 
 The written file records its command (without ``--out`` and ``--results``, which say only
 where the files go) and date. Notebook 15 quotes the face error over ten walks, with the
@@ -78,6 +98,7 @@ from seed_spread import Headline, add_arguments, run
 
 from lsmta.evaluation.mixed_scale import HEADS_FIELDS, HEADS_RESULT
 from lsmta.report import write_json
+from lsmta.synth.mixed_scale import OCCLUSION_RULES
 
 TRAIN_NOISE = 0.2      # mm, the still capture the face model is learnt from (notebook 15)
 # the calibrations' image points are found in rendered frames (ceiling and heads): no truth
@@ -294,7 +315,8 @@ def _detail(prep_s, cal, cap, sc, study, scene, labels) -> dict:
 def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: float,
              hidden, readback_step: float, readback_noise: float, lead: float,
              constant_velocity: bool, baseline: bool, reacquire: int,
-             heads=(2,), motor_fit: bool = True) -> dict:
+             heads=(2,), motor_fit: bool = True, occlusion: str = "normals",
+             min_view_cos: float = -1.0) -> dict:
     """One walk for ``seed``, as notebook 15 runs it: scene, calibration, the loop with
     prediction and its own identification (and without prediction), the read-back study;
     with ``heads`` other than (2,), the same walk seen by the first K of four heads for
@@ -312,12 +334,12 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
     extra = dict(accel_window=0.0, lead_height=True) if constant_velocity else {}
     params = MixedScaleParams(lead=lead, reacquire=reacquire, motor_fit=motor_fit,
                               encoder_step=readback_step if readback_step > 0 else 0.1,
-                              **extra)
+                              min_view_cos=min_view_cos, **extra)
     t0 = time.perf_counter()
     heads = sorted(set(int(k) for k in heads))
-    full = mixed_scale_scene(rng=seed, travel=travel, speed=speed, n_ceiling=ceiling,
-                             head_f=head_f, head_hidden=tuple(hidden) if hidden else None,
-                             heads=2 if heads == [2] else 4)
+    full = replace(mixed_scale_scene(rng=seed, travel=travel, speed=speed, n_ceiling=ceiling,
+                                     head_f=head_f, head_hidden=tuple(hidden) if hidden else None,
+                                     heads=2 if heads == [2] else 4), occlusion=occlusion)
     cal_full = ms.calibrate_scene(full, rng=seed + 1, from_images=True)
     # the main run: the first two heads (with four in the scene, heads 0 and 1 and their
     # calibration are the two-head scene's: the generator draws them first)
@@ -339,6 +361,7 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
            "head_survey_points": [int(n) for n in cal_full.head_points[:, 1]],
            "face_median_mm": sc.face_median_mm,
            "face_fitted": float(cap.face.fitted.mean()),
+           **ms.face_split(sc, cap), **ms.hidden_shares(cap, scene, inputs.devices),
            "rigid_median_mm": sc.rigid_median_mm,
            "rigid_true_angles_mm": float(study.rigid_median_mm[1]),
            "coast_ticks": n_coast,
@@ -391,6 +414,10 @@ def main(argv=None):
     parser.add_argument("--heads", type=int, nargs="+", default=[2],
                         help="numbers of pan-tilt heads to compare on the same walk (e.g. 2 4; "
                         "default: 2, the notebook's system)")
+    parser.add_argument("--occlusion", default="normals", choices=OCCLUSION_RULES,
+                        help="which face markers the heads see (default %(default)s)")
+    parser.add_argument("--min-view-cos", type=float, default=-1.0,
+                        help="MixedScaleParams.min_view_cos (default %(default)s: no gate)")
     parser.add_argument("--out", default=None, help="default: build/benchmarks/"
                         "mixed_scale_system.json (mixed_scale_system_heads.json with --heads)")
     parser.add_argument("--results", default=str(HEADS_RESULT), help="with --heads: the "
@@ -404,7 +431,8 @@ def main(argv=None):
                 "readback_step": args.readback_step, "readback_noise": args.readback_noise,
                 "lead": args.lead, "constant_velocity": args.constant_velocity,
                 "baseline": not args.no_baseline, "reacquire": args.reacquire,
-                "heads": sorted(set(args.heads)), "motor_fit": not args.no_motor_fit}
+                "heads": sorted(set(args.heads)), "motor_fit": not args.no_motor_fit,
+                "occlusion": args.occlusion, "min_view_cos": args.min_view_cos}
     bad = [k for k in settings["heads"] if k not in (2, 3, 4)]
     if bad or 2 not in settings["heads"]:
         parser.error(f"--heads: expected numbers of heads among 2, 3, 4, with 2 (the main "

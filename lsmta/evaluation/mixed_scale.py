@@ -13,6 +13,8 @@ after the fact against the truth.
 * :func:`walk_inputs` — what the system receives for a walk: the ceiling feed, the heads
   as devices, hand labels of a frame of each, a face model learnt from another capture;
 * :func:`score_capture` — the error budget per stage against the truth;
+* :func:`face_split` — the face's median error over measured and over filled markers;
+* :func:`hidden_shares` — the share of the face's marker-frames each occlusion rule hides;
 * :func:`label_score` — the face markers' first-frame labels (automatic or by hand)
   against the generator's: correct, wrong and missed (:func:`label_outcome`, the rule);
 * :func:`exact_readback` — a controlled study: the same marker images triangulated (and
@@ -22,7 +24,8 @@ after the fact against the truth.
 * :func:`angle_error_parts` — the face's error when only the common or the differential
   part of two heads' pan or tilt error is left;
 * :data:`MOTOR_FIT_RESULT`, :func:`read_motor_fit_result` — the committed face errors
-  over ten walks with the angles recovered (``motor_fit``) and at the read-back;
+  over ten walks with the angles recovered (``motor_fit``) and at the read-back
+  (:data:`OCCLUSION_RESULT`: the same walks with the ray-cast self-occlusion on);
 * :data:`HEADS_RESULT`, :func:`read_heads_result` — the committed result of
   ``experiments/mixed_scale_system.py --heads 2 4`` (two heads against four over seeds),
   which notebook 15 quotes.
@@ -40,7 +43,7 @@ from .._validate import as_array, as_int, as_rng, as_scalar
 from ..calibration import resect_all
 from ..face import distance_deviation, learn
 from ..synth.calibration import led_path, poor_guess, project_observations
-from ..synth.face import face_sequence
+from ..synth.face import face_sequence, visible
 from ..synth.mixed_scale import (
     MixedScaleScene,
     SimulatedHead,
@@ -61,6 +64,10 @@ HEADS_RESULT = Path(__file__).resolve().parents[2] / "experiments" / "results" \
 # --no-baseline`: the face error with motor_fit (and at the read-back) per walk, quoted by
 # notebook 15 (seeds 18 and 20 are the walks motor_fit was designed on)
 MOTOR_FIT_RESULT = HEADS_RESULT.with_name("mixed_scale_motor_fit.json")
+# the committed result of `experiments/mixed_scale_system.py --seed 18 --seeds 10 --no-baseline
+# --occlusion surface --min-view-cos 0.4`: the same walks with the ray-cast self-occlusion on
+# and the system's view gate (designed on seeds 18 and 20), quoted by notebook 15
+OCCLUSION_RESULT = HEADS_RESULT.with_name("mixed_scale_occlusion.json")
 HEADS_FIELDS = ("measured", "covered", "face_median_mm", "rigid_median_mm", "labels_correct",
                 "labels_coverage", "tries")   # per number of heads, one value per seed
 
@@ -110,7 +117,10 @@ def read_motor_fit_result(*, path=None) -> dict | None:
         ``command``, ``date``, ``motor_fit`` (bool: the system's angles were recovered),
         ``seeds`` (S,) int array, and (S,) float arrays in mm (NaN: the seed failed or had
         no face): ``face_median_mm`` (the system's), ``readback_face_mm`` (the same images
-        at the read-back angles) and ``true_angles_face_mm`` (at the heads' true angles).
+        at the read-back angles) and ``true_angles_face_mm`` (at the heads' true angles);
+        ``face_measured_mm``, ``face_filled_mm`` and ``face_fitted`` (the share of frames
+        with a face); ``occlusion`` and ``min_view_cos``, the run's rule and gate ("normals"
+        and -1 for runs that recorded none).
 
     Raises
     ------
@@ -136,6 +146,10 @@ def read_motor_fit_result(*, path=None) -> dict | None:
 
     return {"command": data["command"], "date": data["date"],
             "motor_fit": bool(data["motor_fit"]),
+            "occlusion": data.get("occlusion", "normals"),
+            "min_view_cos": float(data.get("min_view_cos", -1.0)),
+            **{key: np.array([value(s, lambda r, key=key: r[key]) for s in seeds])
+               for key in ("face_measured_mm", "face_filled_mm", "face_fitted")},
             "seeds": np.array([int(s) for s in seeds]),
             "face_median_mm": np.array([value(s, lambda r: r["face_median_mm"])
                                         for s in seeds]),
@@ -534,6 +548,41 @@ def score_capture(capture: MixedScaleCapture, scene: MixedScaleScene, devices, *
                             readback_deg=readback)
 
 
+def face_split(scores: MixedScaleScores, capture: MixedScaleCapture) -> dict:
+    """The face's median 3-D error, mm, over the markers both heads measured
+    (``face_measured_mm``) and over those filled from the face model in fitted frames
+    (``face_filled_mm``); NaN where there are none."""
+    def median(e):
+        return float(np.nanmedian(e)) if np.isfinite(e).any() else float("nan")
+
+    filled = ~scores.measured & capture.face.fitted[:, None]
+    return {"face_measured_mm": median(scores.face_error[scores.measured]),
+            "face_filled_mm": median(scores.face_error[filled])}
+
+
+def hidden_shares(capture: MixedScaleCapture, scene: MixedScaleScene, devices) -> dict:
+    """Of the face's marker-frames the heads grabbed (every head, frame and marker, at the
+    angles the heads were at): the share the normals rule hides
+    (:func:`lsmta.synth.face.visible`, ``hidden_normals``), the share the head's surface
+    hides (ray casting, :meth:`lsmta.synth.mixed_scale.SimulatedHead.clear_of_head`,
+    ``hidden_ray_cast``; NaN when the scene casts no rays, ``occlusion="normals"``) and the
+    share only the ray cast hides (``hidden_ray_cast_only``). Which rule the images
+    followed is the scene's ``occlusion``."""
+    t = capture.times
+    world, normals, _ = scene.face_at(t)
+    faces, clear = [], []
+    for d in devices:
+        centres = d.head.poses(*d.true_settings(t).T)[1]
+        faces.append(visible(world, normals, centres[:, None]))
+        clear.append([d.clear_of_head(t[f], centres[f]) for f in range(len(t))])
+    faces, clear = np.array(faces), np.array(clear)
+    cast = scene.occlusion != "normals"
+    nan = float("nan")
+    return {"hidden_normals": float((~faces).mean()),
+            "hidden_ray_cast": float((~clear).mean()) if cast else nan,
+            "hidden_ray_cast_only": float((faces & ~clear).mean()) if cast else nan}
+
+
 @dataclass(frozen=True)
 class LabelScore:
     """First-frame labels against the generator's (:func:`label_score`).
@@ -699,8 +748,8 @@ def face_at_angles(capture: MixedScaleCapture, scene: MixedScaleScene, heads, an
                    face_model=None):
     """``capture.xy`` triangulated at ``angles`` (K, F, 2) degrees by the system's rule
     (:func:`lsmta.systems.triangulate_frames` with ``capture.params``) and, with
-    ``face_model``, filled by its rule (:func:`lsmta.systems.fill_face`), scored against
-    the truth.
+    ``face_model``, filled by its rule (:func:`lsmta.systems.fill_face`, with
+    ``capture.params.min_view_cos`` at these angles), scored against the truth.
 
     Parameters
     ----------
@@ -728,14 +777,18 @@ def face_at_angles(capture: MixedScaleCapture, scene: MixedScaleScene, heads, an
         Median 3-D error of the filled face per frame, mm (NaN: not fitted).
     """
     world, _, _ = scene.face_at(capture.times)
-    pts, _ = triangulate_frames(capture.xy, heads, angles,
+    pts, pairs = triangulate_frames(capture.xy, heads, angles,
                                 min_angle_deg=capture.params.min_angle_deg,
                                 max_reprojection_px=capture.params.max_reprojection_px)
     rigid = float(np.nanmedian(np.abs(distance_deviation(pts, rigid_pairs(scene)))))
     point = float(np.nanmedian(np.linalg.norm(pts - world, axis=2)))
     face, frame = np.full(3, np.nan), np.full(len(world), np.nan)
     if face_model is not None:
-        pts, fit = fill_face(pts, face_model, max_fill_mm=capture.params.max_fill_mm)
+        gate = capture.params.min_view_cos
+        views = None if gate <= -1 else (
+            np.array([[h.camera_at(*a).C for a in ang] for h, ang in zip(heads, angles)]), pairs)
+        pts, fit = fill_face(pts, face_model, max_fill_mm=capture.params.max_fill_mm,
+                             views=views, min_view_cos=gate)
         err = np.where(fit.fitted[:, None], np.linalg.norm(fit.frames - world, axis=2), np.nan)
         measured = np.isfinite(pts).all(axis=2)
         face = np.array([np.nanmedian(err), np.nanmedian(err[measured]),

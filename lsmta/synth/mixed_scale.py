@@ -12,6 +12,12 @@ face for the pan-tilt heads.
   reached, read back as the head reports them (its encoder's 0.1° steps, thesis §5.2);
 * :func:`ceiling_videos` — each ceiling camera's rendered LED frames at its own clock.
 
+Which face markers a head sees (``occlusion`` of :class:`MixedScaleScene`): with
+``"normals"`` those whose surface faces the head (:func:`lsmta.synth.face.visible`); with
+``"surface"`` those whose line of sight clears the head itself (ray casting,
+:func:`lsmta.synth.head_surface.self_occlusion`: the nose hides a cheek, the far cheek
+hides behind the face; thesis §5.3, Fig. 59); with ``"both"`` only those both draw.
+
 The generator only renders: no calibration, detection or estimate is made here.
 World frame as in :mod:`lsmta.synth.widearea`: X along the room, Y across, Z up, mm, s.
 """
@@ -25,7 +31,9 @@ from scipy.spatial.transform import Rotation
 
 from .._validate import as_array, as_rng, as_scalar
 from ..pantilt import Motor, PanTiltCamera
+from ..pantilt.aiming import aim
 from .face import MarkedFace, expression_weights, face_model, visible
+from .head_surface import self_occlusion
 from .marker_video import MarkerVideo, render_marker_video, skin_texture
 from .pantilt import pantilt_head
 from .widearea import (
@@ -53,6 +61,9 @@ HEAD_LAYOUTS = {
     4: ((-1000.0, -2300.0, 1700.0), (1000.0, -2300.0, 1700.0),
         (-2600.0, -1900.0, 1350.0), (2600.0, -1900.0, 2050.0)),
 }
+#: The rules for which face markers a pan-tilt head sees (``occlusion`` of
+#: :class:`MixedScaleScene`).
+OCCLUSION_RULES = ("normals", "surface", "both")
 #: The face looks along world -Y (towards the pan-tilt heads): head x -> X, y -> Z, z -> -Y.
 _BASE = np.stack([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]], axis=1)
 
@@ -79,6 +90,17 @@ class MixedScaleScene:
         The true pan-tilt heads.
     walk_start, walk_end : float
         When the person starts and stops walking, s.
+    occlusion : {"normals", "surface", "both"}
+        Which face markers a pan-tilt head sees (:data:`OCCLUSION_RULES`). ``"normals"``
+        (the default, and every number made before the others existed): those whose
+        surface faces it, ``cos > 0.3`` between the normal and the line of sight
+        (:func:`lsmta.synth.face.visible`, a stand-in). ``"surface"``: those whose line of
+        sight clears the head itself (ray casting against the head surface,
+        :func:`lsmta.synth.head_surface.self_occlusion`; thesis §5.3; as
+        :func:`lsmta.evaluation.face.observe_face` with ``occlusion="surface"``): the nose
+        can hide a cheek, and a marker seen at a grazing angle is drawn. ``"both"``: only
+        markers both rules draw. The rules use no random numbers: the walk is the same under
+        each (``dataclasses.replace(scene, occlusion=...)``).
     """
 
     times: np.ndarray
@@ -91,6 +113,12 @@ class MixedScaleScene:
     heads: list
     walk_start: float
     walk_end: float
+    occlusion: str = "normals"
+
+    def __post_init__(self):
+        if self.occlusion not in OCCLUSION_RULES:
+            raise ValueError(f"occlusion: expected one of {OCCLUSION_RULES}, got "
+                             f"{self.occlusion!r}")
 
     def _index(self, t):
         u = np.clip((np.atleast_1d(np.asarray(t, float)) - self.times[0])
@@ -104,6 +132,25 @@ class MixedScaleScene:
         world = np.einsum("tij,tmj->tmi", self.R[i], self.head[i]) + self.t[i, None]
         normals = np.einsum("tij,mj->tmi", self.R[i], self.face.normals)
         return world, normals, self.t[i].copy()
+
+    def pose_at(self, t):
+        """Head pose at times ``t`` (nearest sample): rotations ``(T, 3, 3)`` and origins
+        ``(T, 3)`` mm, ``world = head @ R.T + t``."""
+        i = self._index(t)
+        return self.R[i].copy(), self.t[i].copy()
+
+    def unhidden(self, t, centres) -> np.ndarray:
+        """``(T, C, M)`` bool: the face markers at times ``t`` (``(T,)`` s, nearest sample)
+        whose line of sight to each camera centre (``(C, 3)`` or ``(T, C, 3)`` mm) clears the
+        head itself (:func:`lsmta.synth.head_surface.self_occlusion`, one call vectorised
+        over frames, cameras and markers); all True with ``occlusion="normals"``."""
+        i = self._index(t)
+        c = np.asarray(centres, float)
+        n_cams = c.shape[-2] if c.ndim >= 2 else 1
+        if self.occlusion == "normals":
+            return np.ones((len(i), n_cams, self.head.shape[1]), dtype=bool)
+        world, _, _ = self.face_at(self.times[i])
+        return self_occlusion(world, self.R[i], self.t[i], c, neutral=self.face.neutral)
 
     def head_led_at(self, t) -> np.ndarray:
         """The head LED's position ``(T, 3)`` at times ``t``, mm."""
@@ -157,6 +204,12 @@ def mixed_scale_scene(*, rng: np.random.Generator | int | None = None, travel: f
     head_hidden : (2,) or None
         ``(start, end)``, s: the head LED is hidden from every ceiling camera in between (a
         hand over it; :attr:`LedScene.hidden`); the face stays in view. None: never.
+
+    Returns
+    -------
+    MixedScaleScene
+        With ``occlusion="normals"``; ``dataclasses.replace(scene, occlusion="surface")``
+        is the same walk with the face hiding its own markers (:class:`MixedScaleScene`).
     """
     rng = as_rng(rng)
     travel = as_scalar(travel, "travel", positive=True)
@@ -230,7 +283,7 @@ def wide_heads(scene: MixedScaleScene, *, f: float = 270.0,
 
 def render_pantilt_video(head: PanTiltCamera, settings, points, normals, anchor, *,
                          rng: np.random.Generator | int | None = None, min_cos: float = 0.3,
-                         texture=None, noise: float = 2.0) -> MarkerVideo:
+                         texture=None, noise: float = 2.0, drawn=None) -> MarkerVideo:
     """The face-marker video of a pan-tilt camera at the settings its motors reached.
 
     Parameters
@@ -246,6 +299,9 @@ def render_pantilt_video(head: PanTiltCamera, settings, points, normals, anchor,
     min_cos : float
         A marker is drawn where its surface faces the camera
         (:func:`lsmta.synth.face.visible`).
+    drawn : (T, M) bool array, optional
+        The markers to draw, in place of the ``min_cos`` rule (e.g.
+        :meth:`SimulatedHead.drawn`, which follows the scene's ``occlusion``).
     texture, noise, rng
         As :func:`lsmta.synth.marker_video.render_marker_video`.
     """
@@ -255,7 +311,14 @@ def render_pantilt_video(head: PanTiltCamera, settings, points, normals, anchor,
     pts = as_array(points, "points", shape=(len(s), None, 3))
     nrm = as_array(normals, "normals", shape=pts.shape)
     cams = [head.camera_at(p, q) for p, q in s]
-    vis = np.stack([visible(pts[f], nrm[f], cams[f].C, min_cos=min_cos) for f in range(len(s))])
+    if drawn is None:
+        vis = np.stack([visible(pts[f], nrm[f], cams[f].C, min_cos=min_cos)
+                        for f in range(len(s))])
+    else:
+        vis = np.asarray(drawn)
+        if vis.dtype != bool or vis.shape != pts.shape[:2]:
+            raise ValueError(f"drawn: expected a bool array of shape {pts.shape[:2]}, got "
+                             f"{vis.dtype} {vis.shape}")
     return render_marker_video(cams, pts, vis, anchor, rng=rng, noise=noise, texture=texture)
 
 
@@ -290,7 +353,23 @@ class SimulatedHead:
         The encoder's step, degrees (0: no quantisation).
     readback_noise : float
         Standard deviation of the encoder's noise before the rounding, degrees.
+
+    Notes
+    -----
+    With the scene's ``occlusion="surface"`` a frame draws only the markers whose line of
+    sight clears the head (:meth:`MixedScaleScene.unhidden`). The ray cast runs in batches:
+    at a frame not yet cast, for it and the next ``occlusion_batch - 1`` frames one command
+    period apart, each from the projection centre at the setting that centres the face
+    (:func:`lsmta.pantilt.aiming.aim`: the head's centre moves a few tens of mm with its
+    angles; a ``fixed`` head's from where it stands); a frame whose head stands more than
+    ``centre_tol`` mm from that centre is cast again from where it is. :meth:`grab` and
+    :meth:`true_xy` read the same casts.
     """
+
+    #: frames cast together, and how far (mm) a head's centre may stand from the one a frame
+    #: was cast from (5 mm: 0.1 degree at the walk's 2.5-3.5 m)
+    occlusion_batch = 64
+    centre_tol = 5.0
 
     def __init__(self, head: PanTiltCamera, scene: MixedScaleScene, *, motor: Motor | None = None,
                  period: float = 1 / 30, rng: np.random.Generator | int | None = None,
@@ -315,6 +394,7 @@ class SimulatedHead:
         self.readback_noise = as_scalar(readback_noise, "readback_noise", nonnegative=True)
         self.settings = []              # (time, pan, tilt) reached at every frame grabbed
         self.readbacks = []             # (time, pan, tilt) reported at every frame grabbed
+        self._cast = {}                 # scene sample -> (centre (3,), clear (M,)): ray casts
 
     def _check_time(self, t, last: float) -> float:
         t = as_scalar(t, "t")
@@ -359,13 +439,47 @@ class SimulatedHead:
         q = self.readback_step
         return np.round(s / q) * q if q > 0 else s
 
+    def clear_of_head(self, t: float, centre) -> np.ndarray:
+        """``(M,)`` bool: the face markers at time ``t`` (s) whose line of sight to the
+        camera centre ``centre`` (3,) mm clears the head itself, within ``centre_tol``
+        (class notes); all True with the scene's ``occlusion="normals"``."""
+        scene = self.scene
+        if scene.occlusion == "normals":
+            return np.ones(scene.head.shape[1], dtype=bool)
+        centre = np.asarray(centre, float)
+        i = int(scene._index(t)[0])
+        if i not in self._cast:
+            ahead = scene._index(float(t) + self.period * np.arange(self.occlusion_batch))
+            todo = np.unique([j for j in ahead if j not in self._cast])
+            if self.fixed:              # it stays where it is
+                centres = np.tile(self.head.camera_at(*self._pos).C, (len(todo), 1))
+            else:
+                world, _, _ = scene.face_at(scene.times[todo])
+                towards = aim(self.head, world.mean(axis=1), current=self._pos, tol_px=2.0)
+                _, centres = self.head.poses(towards.pan, towards.tilt)
+            clear = scene.unhidden(scene.times[todo], centres[:, None])[:, 0]
+            self._cast.update((j, (c, v)) for j, c, v in zip(todo.tolist(), centres, clear))
+        if np.linalg.norm(self._cast[i][0] - centre) > self.centre_tol:
+            self._cast[i] = (centre, scene.unhidden(scene.times[[i]], centre[None])[0, 0])
+        return self._cast[i][1]
+
+    def drawn(self, t: float, points, normals, centre) -> np.ndarray:
+        """``(M,)`` bool: the face markers ``points``, ``normals`` ``(M, 3)`` at time ``t``
+        that the scene's ``occlusion`` rule draws for a camera centre ``centre`` (3,) mm (the
+        image bounds are not checked here)."""
+        occ = self.scene.occlusion
+        faces = visible(points, normals, centre) if occ != "surface" else True
+        return faces & self.clear_of_head(t, centre)
+
     def grab(self, t: float):
         """The frame at time ``t``, taken at the angles reached: ``(image (H, W) uint8,
         setting read back (2,) degrees)``."""
         s = self.reached(t)
         world, normals, anchor = self.scene.face_at(t)
+        drawn = self.drawn(t, world[0], normals[0], self.head.camera_at(*s).C)
         video = render_pantilt_video(self.head, s[None], world, normals, anchor,
-                                     rng=self._rng, texture=self._texture, noise=self._noise)
+                                     rng=self._rng, texture=self._texture, noise=self._noise,
+                                     drawn=drawn[None])
         r = self.read_back(s)
         self.settings.append((float(t), *s))
         self.readbacks.append((float(t), *r))
@@ -390,7 +504,7 @@ class SimulatedHead:
         world, normals, _ = self.scene.face_at(t)
         cam = self.head.camera_at(*setting)
         p = cam.project(world[0], behind="nan")
-        ok = visible(world[0], normals[0], cam.C) & np.isfinite(p).all(axis=1) \
+        ok = self.drawn(t, world[0], normals[0], cam.C) & np.isfinite(p).all(axis=1) \
             & cam.in_image(p)
         return np.where(ok[:, None], p, np.nan)
 

@@ -114,6 +114,14 @@ class MixedScaleParams:
     max_fill_mm : float
         After a first fill, measured markers farther than this from the fitted face are
         dropped as wrong, and the face is filled again, mm.
+    min_view_cos : float
+        After the first fill, a measured marker is also dropped (and filled) where a head
+        of its pair sees the fitted face's surface there at a grazing angle: the cosine
+        between the surface's normal (the plane through the marker and its
+        ``VIEW_NEIGHBOURS`` nearest neighbours in the fitted face, turned away from the
+        face's centroid) and the line of sight to the head's centre below this. A dot seen
+        edge-on crowds its neighbours in the image and is tracked onto them. -1 (the
+        default): none dropped so.
     settle : float
         The markers are identified in the first frame at which the same head target has
         been aimed at for this long (its motors have caught up), s.
@@ -174,6 +182,7 @@ class MixedScaleParams:
     min_angle_deg: float = 2.0
     max_reprojection_px: float = 4.0
     max_fill_mm: float = 3.0
+    min_view_cos: float = -1.0
     coast: float = SteeringParams.coast
     body_radius: float = SteeringParams.body_radius
     settle: float = 0.5
@@ -193,6 +202,8 @@ class MixedScaleParams:
         for key in ("start", "settle", "retry"):
             as_scalar(getattr(self, key), key, nonnegative=True)
         as_int(self.reacquire, "reacquire", minimum=0)
+        if not -1.0 <= as_scalar(self.min_view_cos, "min_view_cos") <= 1.0:
+            raise ValueError(f"min_view_cos: expected a cosine in [-1, 1], got {self.min_view_cos}")
         as_scalar(self.motor_window, "motor_window", nonnegative=True)
         as_scalar(self.encoder_step, "encoder_step", positive=True)
         if not isinstance(self.motor_fit, bool):
@@ -575,10 +586,42 @@ def _triangulation(st: _State) -> None:
         max_reprojection_px=st.params.max_reprojection_px)
 
 
-def fill_face(points, face_model: FaceModel, *, max_fill_mm: float = 3.0):
+#: Neighbours of a marker in the fitted face whose plane gives its surface normal
+#: (``MixedScaleParams.min_view_cos``)
+VIEW_NEIGHBOURS = 6
+
+
+def _view_cosines(model, centres, pairs):
+    """(F, M) smallest cosine, over the heads of each marker's pair, between the fitted
+    face's surface normal at the marker (``model`` (F, M, 3) mm; the plane through it and
+    its nearest neighbours, turned away from the face's centroid) and its line of sight to
+    the head (``centres`` (K, F, 3) mm); NaN where no pair or no fitted face."""
+    ref = np.nanmean(model, axis=0)
+    gap = np.linalg.norm(ref[:, None] - ref[None], axis=2)
+    near = np.argsort(np.nan_to_num(gap, nan=np.inf), axis=1)[:, :VIEW_NEIGHBOURS + 1]
+    patch = model[:, near]                                                   # (F, M, k, 3)
+    patch = patch - patch.mean(axis=2, keepdims=True)
+    cov = np.einsum("fmki,fmkj->fmij", patch, patch)
+    ok = np.isfinite(cov).all(axis=(2, 3))
+    normal = np.full(model.shape, np.nan)
+    normal[ok] = np.linalg.eigh(cov[ok])[1][..., 0]
+    out = model - np.nanmean(model, axis=1, keepdims=True)
+    normal *= np.where(np.einsum("fmi,fmi->fm", normal, out) < 0, -1.0, 1.0)[..., None]
+    cosine = np.full(pairs.shape, np.nan)
+    for j in range(2):
+        k = np.clip(pairs[..., j], 0, None)
+        ray = centres[k, np.arange(len(k))[:, None]] - model                 # (F, M, 3)
+        cosine[..., j] = np.einsum("fmi,fmi->fm", normal, ray) / np.linalg.norm(ray, axis=2)
+    return np.where((pairs >= 0).all(axis=2), cosine.min(axis=2), np.nan)
+
+
+def fill_face(points, face_model: FaceModel, *, max_fill_mm: float = 3.0, views=None,
+              min_view_cos: float = -1.0):
     """Stage 4 of :func:`capture_mixed_scale`: the face per frame filled from the face
-    model; measured markers farther than ``max_fill_mm`` (mm) from that first fitted face
-    are dropped as wrong and the face is filled again.
+    model; measured markers farther than ``max_fill_mm`` (mm) from that first fitted face,
+    or seen by a head of their pair at a grazing angle to it (``views``,
+    ``min_view_cos``: :class:`MixedScaleParams`), are dropped as wrong and the face is
+    filled again.
 
     Parameters
     ----------
@@ -586,6 +629,10 @@ def fill_face(points, face_model: FaceModel, *, max_fill_mm: float = 3.0):
         Triangulated markers, mm (NaN: not measured).
     face_model : lsmta.face.FaceModel
     max_fill_mm : float
+    views : tuple ``(centres (K, F, 3) mm, pairs (F, M, 2) int)``, optional
+        The heads' projection centres per frame and the pair that measured each marker
+        (:func:`triangulate_frames`); needed when ``min_view_cos > -1``.
+    min_view_cos : float
 
     Returns
     -------
@@ -598,15 +645,30 @@ def fill_face(points, face_model: FaceModel, *, max_fill_mm: float = 3.0):
                         f"{type(face_model).__name__}")
     points = as_array(points, "points", shape=(None, None, 3), allow_nan=True)
     max_fill_mm = as_scalar(max_fill_mm, "max_fill_mm", positive=True)
+    min_view_cos = as_scalar(min_view_cos, "min_view_cos")
+    if min_view_cos > -1 and views is None:
+        raise ValueError("views: expected (centres, pairs) with min_view_cos > -1")
     first = face_model.fill(points)
     with np.errstate(invalid="ignore"):
         wrong = np.linalg.norm(points - first.model, axis=2) > max_fill_mm
+        if min_view_cos > -1:
+            centres = as_array(views[0], "views[0]", shape=(None, len(points), 3))
+            pairs = np.asarray(views[1])
+            if pairs.shape != points.shape[:2] + (2,):
+                raise ValueError(f"views[1]: expected pairs of shape {points.shape[:2] + (2,)}, "
+                                 f"got {pairs.shape}")
+            wrong |= _view_cosines(first.model, centres, pairs) < min_view_cos
     points = np.where(wrong[..., None], np.nan, points)
     return points, (face_model.fill(points) if wrong.any() else first)
 
 
 def _fill(st: _State) -> None:
-    st.points, st.face = fill_face(st.points, st.face_model, max_fill_mm=st.params.max_fill_mm)
+    views = None
+    if st.params.min_view_cos > -1:
+        views = (np.array([[h.camera_at(*a).C for a in angles]
+                           for h, angles in zip(st.heads, st.angles)]), st.pairs)
+    st.points, st.face = fill_face(st.points, st.face_model, max_fill_mm=st.params.max_fill_mm,
+                                   views=views, min_view_cos=st.params.min_view_cos)
     st.pairs = np.where(np.isnan(st.points).any(axis=2)[..., None], -1, st.pairs)
 
 

@@ -649,30 +649,55 @@ def read_system_seeds(*, path=None) -> dict | None:
     dict or None
         ``command``, ``date``, ``settings`` (dict), ``seeds`` (S,) int array, ``values``:
         each headline key (``experiments/lsmta_system.py``'s ``HEADLINES``) as an (S,) float
-        array over the seeds (NaN: the seed could not measure it), and ``detail``: each
-        seed's detail dictionary (per-stage times, per-frame arm errors and points), keyed
-        by the int seed.
+        array over the seeds (NaN: the seed could not measure it, or failed), ``failed``:
+        ``{seed: the error recorded for it}`` for the seeds that failed (all their values
+        NaN), and ``detail``: each other seed's detail dictionary (per-stage times,
+        per-frame arm errors and points), keyed by the int seed.
 
     Raises
     ------
     ValueError
-        When the file lacks a field, or a seed has no values or no detail.
+        When the file is not the ``lsmta_system`` experiment's, lacks a field, has no seeds,
+        a seed has no values or (not failed) no detail, the seeds' headline keys differ, or
+        a value is neither a number nor null (naming the file, the seed and the key).
     """
     path = SYSTEM_SEEDS_RESULT if path is None else Path(path)
     if not path.is_file():
         return None
     data = json.loads(path.read_text(encoding="utf-8"))
-    for key in ("command", "date", "seeds", "settings", "per_seed", "results"):
+    for key in ("experiment", "command", "date", "seeds", "settings", "per_seed", "results"):
         if key not in data:
             raise ValueError(f"path: {path.name} has no {key!r}")
+    if data["experiment"] != "lsmta_system":
+        raise ValueError(f"path: {path.name} is the {data['experiment']!r} experiment's, "
+                         "expected 'lsmta_system'")
     seeds = [int(s) for s in data["seeds"]]
+    if not seeds:
+        raise ValueError(f"path: {path.name} has no seeds")
+    failed = {int(s): str(e) for s, e in data.get("failed", {}).items()}
     for s in seeds:
-        if str(s) not in data["per_seed"] or "detail" not in data["results"].get(str(s), {}):
+        if str(s) not in data["per_seed"] or (
+                s not in failed and "detail" not in data["results"].get(str(s), {})):
             raise ValueError(f"path: {path.name} has no values or no detail for seed {s}")
-    keys = list(data["per_seed"][str(seeds[0])]) if seeds else []
-    values = {k: np.array([np.nan if data["per_seed"][str(s)].get(k) is None
-                           else data["per_seed"][str(s)][k] for s in seeds], float)
-              for k in keys}
+    values = _seed_values(data["per_seed"], seeds, failed, path.name)
     return {"command": data["command"], "date": data["date"], "settings": data["settings"],
             "seeds": np.array(seeds, int), "values": values,
-            "detail": {s: data["results"][str(s)]["detail"] for s in seeds}}
+            "failed": {s: failed[s] for s in seeds if s in failed},
+            "detail": {s: data["results"][str(s)]["detail"] for s in seeds if s not in failed}}
+
+
+def _seed_values(per_seed: dict, seeds: list, failed: dict, name: str) -> dict:
+    # each headline key as an (S,) float array over the seeds; a failed seed's are NaN
+    keys = set(per_seed[str(seeds[0])])
+    for s in seeds[1:]:
+        if set(per_seed[str(s)]) != keys:
+            raise ValueError(f"path: {name}: seed {s}'s headline keys differ from seed "
+                             f"{seeds[0]}'s: {sorted(keys ^ set(per_seed[str(s)]))}")
+    for s in seeds:
+        for k, v in per_seed[str(s)].items():
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
+                raise ValueError(f"path: {name}: seed {s}'s {k!r} is {v!r}, expected a number "
+                                 "or null")
+    return {k: np.array([np.nan if s in failed or per_seed[str(s)][k] is None
+                         else per_seed[str(s)][k] for s in seeds], float)
+            for k in per_seed[str(seeds[0])]}

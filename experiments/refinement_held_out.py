@@ -46,6 +46,21 @@ The LSM run's cameras are scored at the places' LSM positions, the raw run's at 
 tie points' and views' positions as found (each run's cameras with the positions it was
 adjusted on), and both sets of cameras also at the other positions. Each number is the
 median reprojection residual per camera of those places triangulated with those cameras.
+
+The judgement (``verdicts``; rule written and committed before any run with it, and before
+the ``--still-subdivide`` search was measured). A held-out place judges a camera only if it is
+a still place: its feature matched in two or more sampled frames at the same pixels (within
+``place_px`` in every view the frames share). Why: a moving subject's place is one match per
+view pair in one frame; a wrong match that the frame's own relative orientation lets through
+(on a wide pair a few tens of matches fit it) and a camera that is off give the same residual
+there, so it cannot tell them apart. A random wrong match is not repeated at the same pixels
+in another frame, so a still place's residual is a camera's (a wrong match of repeated
+structure that recurs in every frame passes this too: the rule's limit). A camera counts as
+judged only if it sees at least ``min_still_held`` (10, the library's default, not changed)
+held-out still places; one with fewer is "too few to judge" and its target is NOT met (not
+claimed). Target met in a camera: judged, and its held-out still places' median residual with
+the refined cameras <= 0.5 px. Beside it, unchanged, the issue's old number: all held-out
+places (still and moving), and the moving places alone, per camera with their counts.
 """
 
 from __future__ import annotations

@@ -95,8 +95,10 @@ same few features again. All held-out places went from 0.27/0.25/2.59/0.71 to
 the options above), and it costs 6-9 s of CPU per frame added at full size. On a split not
 inspected while designing it (8 sampled frames, held out 14, 57 and 99) it gave cam03 10
 held-out still places (4 without) at 0.60 px, the others 0.45/0.40/0.47 px. With 4 between
-(6 sampled frames) all held-out places came to 0.25/0.19/0.39/0.39 px, cam03 still with 7
-held-out still places (README).
+(6 sampled frames) all held-out places came to 0.25/0.19/0.39/0.39 px (cam03 with 7
+held-out still places), but at 7 and 8 sampled frames cam03 had 15 and 13 held-out still
+places, at 1.33 and 1.80 px: its residual is not only the moving subject's wrong matches
+(README).
 
 A refined camera whose lens model cannot be inverted everywhere in its frame
 (:func:`_folds`: the fitted distortion folds over inside it) makes the whole refinement

@@ -144,6 +144,8 @@ def test_refine_rig_from_video_files(recording, tmp_path):
     assert not (r.dropped_places & r.held_out_places).any()
     assert record["held_out_all_points"] == r.held_out_all_points >= r.held_out_still_points
     assert s["cam01"]["held_out_all_after_px"] == float(r.held_out_all_after[0])
+    assert [v["held_out_still_places"] for v in s.values()] == held_still.tolist()
+    assert record["still_search_frames"] == [] and record["unused_places"] == 0
     # the positions as found and as matched: the same places, the same views
     assert r.lsm is not None and r.raw_tie_points.xy.shape[1] >= r.tie_points.xy.shape[1]
     assert r.raw_place_xy.shape == r.place_xy.shape
@@ -536,3 +538,63 @@ def test_recording_geometry_is_fitted_on_the_adjusted_places_only(rng, monkeypat
         assert np.array_equal(a.C, b.C) and np.array_equal(a.R, b.R) and a.f == b.f
     judged = [r.place_xy[:, r.held_out_places] for r in (ref, ref20)]
     assert not np.array_equal(*judged, equal_nan=True)          # judged where matched
+
+
+def test_frames_between_the_sampled_ones_are_searched_for_still_places_only(rng, monkeypatch):
+    """``still_between``: frames between the sampled ones (none of them a sampled one) give
+    tie points that join places like any other, so more still points are matched in two
+    frames; a place of one of those frames alone (the moving subject's) is neither adjusted
+    nor held out, so where its points lie changes nothing in the adjustment, and the moving
+    subject's hold-out split is that of the sampled frames. Ground truth: the generator's
+    points."""
+    import lsmta.systems.refinement as refinement
+    from lsmta.calibration import TiePoints
+    from lsmta.io import Videos
+    from lsmta.systems.refinement import _between
+    assert _between(np.array([0, 4, 7, 11]), 1).tolist() == [2, 6, 9]
+    assert _between(np.array([0, 2, 3, 10]), 2).tolist() == [1, 5, 8]     # narrow gaps
+    assert _between(np.array([0, 33, 66, 99]), 0).tolist() == []
+    with pytest.raises(ValueError, match="still_between"):
+        RigRefinementParams(still_between=-1)
+    cams = rig_cameras(n=4)
+    xy, frame, truth = _still_and_moving(rng, cams, n_frames=7, noise=0.2)
+    search_frame = frame >= 4                       # frames 2, 6, 9 (after 0, 4, 7, 11)
+    moving_search = (truth >= 150) & search_frame
+    direction = rng.normal(size=(len(frame), 2))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    videos = Videos(paths=tuple(f"cam{k}.mp4" for k in range(4)), frames=tuple(range(12)),
+                    fps=30.0, file_sizes=((640, 480),) * 4, sizes=((640, 480),) * 4,
+                    scale=1.0, crop=None)
+
+    def run(off_px, between=1, keep=None):
+        keep = np.ones(len(frame), bool) if keep is None else keep
+        moved = xy.copy()
+        moved[1, moving_search] += off_px * direction[moving_search]
+        fr = frame[keep]
+        tie = TiePoints(xy=moved[:, keep], frame=fr, pair_matches=np.ones((4, 4), int),
+                        pair_guided=np.ones((4, 4), int))
+        monkeypatch.setattr(refinement, "_tie_points_at_work_size",
+                            lambda *a, **k: (tie, tie, None))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            return refine_rig(videos, cams, params=RigRefinementParams(
+                lsm=False, n_frames=4, still_between=between))
+
+    ref = run(0.0)
+    assert ref.frames == (0, 4, 7, 11, 2, 6, 9)
+    assert ref.still_search.tolist() == [False] * 4 + [True] * 3
+    assert ref.held_out.tolist() == [False, True] + [False] * 5       # the sampled split
+    frames_of = [set(frame[ref.places == p].tolist()) for p in range(len(ref.still))]
+    assert ref.unused_places.tolist() == [len(f) == 1 and min(f) >= 4 for f in frames_of]
+    assert ref.unused_places[ref.places[moving_search]].all()
+    assert ref.unused_places.sum() > 50
+    assert not (ref.unused_places & (ref.held_out_places | ref.dropped_places)).any()
+    # still points seen in one sampled frame and some frames between are still places now
+    alone = run(0.0, between=0, keep=~search_frame)
+    assert alone.frames == (0, 4, 7, 11) and not alone.unused_places.any()
+    assert ref.still.sum() > alone.still.sum() + 5, (ref.still.sum(), alone.still.sum())
+    # the moving places of the frames between move 30 px in one view: the same adjustment
+    ref30 = run(30.0)
+    assert np.array_equal(ref30.held_out_places, ref.held_out_places)
+    for a, b in zip(ref30.cameras, ref.cameras):
+        assert np.array_equal(a.C, b.C) and np.array_equal(a.R, b.R) and a.f == b.f

@@ -78,6 +78,28 @@ matched once over its frames; ``TieLSMParams.larger_patches``: failed matches re
 larger patches) but each made some camera's judged held-out residual worse there, so both
 are off by default (the numbers in their docstrings).
 
+More frames for still places (``still_between``, off by default). A still place needs its
+feature matched at the same pixels in two frames; on a wide pair each frame keeps some tens of
+matches, so among ``n_frames`` few features are matched twice. ``still_between`` frames
+between each two sampled ones are searched too; their tie points join places like any other,
+and a place of one of them alone (the moving subject's) is neither adjusted nor held out, so
+the moving subject's hold-out split stays that of the sampled frames. On the Pose2Sim demo at
+full size (``experiments/refinement_held_out.py --lsm on --still-between 2``, 10 or 12 more
+frames) the still places grew from 63 to 97 (frames 0-99 in 6, held out 20 and 79), the rear
+pair's from 11 to 17 (4 held out in both), cam03's held-out still places from 5 to 7 and
+cam04's from 5 to 14; at 7 sampled frames (held out 16 and 66) the rear pair had 19 (6 held
+out), cam03 8 held-out still places. The rear pair grows slowly: more frames mostly find the
+same few features again. All held-out places went from 0.27/0.25/2.59/0.71 to
+0.32/0.27/1.18/0.63 px (cam01-cam04) and, at 7 frames, from 0.29/0.28/1.29/0.78 to
+0.36/0.38/1.40/0.49 px: worse in some camera on both splits, so off by default (the rule of
+the options above), and it costs 6-9 s of CPU per frame added at full size. On a split not
+inspected while designing it (8 sampled frames, held out 14, 57 and 99) it gave cam03 10
+held-out still places (4 without) at 0.60 px, the others 0.45/0.40/0.47 px. With 4 between
+(6 sampled frames) all held-out places came to 0.25/0.19/0.39/0.39 px (cam03 with 7
+held-out still places), but at 7 and 8 sampled frames cam03 had 15 and 13 held-out still
+places, at 1.33 and 1.80 px: its residual is not only the moving subject's wrong matches
+(README).
+
 A refined camera whose lens model cannot be inverted everywhere in its frame
 (:func:`_folds`: the fitted distortion folds over inside it) makes the whole refinement
 unused (:attr:`RigRefinement.folded`; warned): the other cameras were adjusted with it.
@@ -175,6 +197,18 @@ class RigRefinementParams:
         15/14/4/5), and the judged residuals went from
         0.25/0.23/0.60/0.46 to 0.24/0.25/0.96/0.73 px (cam01-cam04,
         ``experiments/refinement_held_out.py --lsm on --lsm-once --larger-patches none``).
+    still_between : int
+        Frames searched for still places only, between each two sampled frames (evenly, at
+        least one frame from either; 0: none). A still place needs its feature matched at
+        the same pixels in two frames, and on a wide pair each frame's own relative
+        orientation keeps only some tens of matches, so few features are matched twice among
+        ``n_frames``; more frames give more still places without changing the moving
+        subject's hold-out split. Their tie points join places like any other; a place of one
+        of these frames alone (the moving subject's) is neither adjusted nor held out
+        (:attr:`RigRefinement.unused_places`). Each costs a frame's tie-point search and
+        matching. Default 0: on the Pose2Sim demo 2 gave more still places, the rear pair's
+        too, but a worse held-out residual in some camera on both splits measured (module
+        docstring).
     refine : RefineParams
     """
 
@@ -191,6 +225,7 @@ class RigRefinementParams:
     lsm: bool = True
     tie_lsm: TieLSMParams = field(default_factory=TieLSMParams)
     lsm_still_once: bool = False
+    still_between: int = 0
     refine: RefineParams = field(default_factory=RefineParams)
 
     def __post_init__(self):
@@ -202,6 +237,7 @@ class RigRefinementParams:
         as_scalar(self.max_rotation_deg, "max_rotation_deg", positive=True)
         as_scalar(self.place_px, "place_px", positive=True)
         as_int(self.min_still_held, "min_still_held", minimum=1)
+        as_int(self.still_between, "still_between", minimum=0)
         if not isinstance(self.tie, TieParams) or not isinstance(self.refine, RefineParams):
             raise TypeError("tie, refine: expected TieParams and RefineParams")
         if not isinstance(self.lsm, bool):
@@ -224,10 +260,13 @@ class RigRefinement:
     given : tuple of K Camera
         The camera file's cameras fitted to the videos (before the refinement).
     frames : tuple of int
-        The recording's frames the tie points come from.
+        The recording's frames the tie points come from: the ``n_frames`` sampled ones, then
+        those searched for still places only (``still_between``).
     held_out : (F,) bool array
         Which of those frames' places of one frame (a moving subject's) were kept out of
         the adjustment.
+    still_search : (F,) bool array
+        Which of those frames were searched for still places only.
     tie_points : TiePoints
         The tie points adjusted and held out: refined by least squares matching with
         ``params.lsm`` (the failed ones dropped), else as found.
@@ -245,6 +284,9 @@ class RigRefinement:
     held_out_places : (P,) bool array
         Places kept out of the adjustment: every ``hold_out_every``-th still place and the
         one-frame places of the held-out frames.
+    unused_places : (P,) bool array
+        Places of one frame searched for still places only (``still_search``): neither
+        adjusted nor held out.
     dropped_places : (P,) bool array
         Places kept out of the adjustment though not held out: those with a point within
         ``place_px``, in some view, of a held-out place's point (a piece of a held-out
@@ -283,12 +325,14 @@ class RigRefinement:
     given: tuple
     frames: tuple
     held_out: np.ndarray
+    still_search: np.ndarray
     tie_points: TiePoints
     raw_tie_points: TiePoints
     lsm: TieLSM | None
     places: np.ndarray
     still: np.ndarray
     held_out_places: np.ndarray
+    unused_places: np.ndarray
     dropped_places: np.ndarray
     inconsistent_places: np.ndarray
     held_out_kind: str
@@ -305,7 +349,8 @@ class RigRefinement:
     folded: tuple
 
     def __post_init__(self):
-        freeze(self, ("held_out", "places", "still", "held_out_places", "dropped_places",
+        freeze(self, ("held_out", "still_search", "places", "still", "held_out_places",
+                      "unused_places", "dropped_places",
                       "inconsistent_places",
                       "held_out_before", "held_out_after", "held_out_still_before",
                       "held_out_still_after", "held_out_all_before", "held_out_all_after"))
@@ -353,9 +398,11 @@ class RigRefinement:
         """Per camera: tie points, median residuals (adjusted and held out, before and
         after: those judged by, ``held_out_kind``, also at the tie points' positions as found
         (:meth:`held_out_residuals`), and of the held-out still places and of all held-out
-        places), the intrinsics freed; as plain numbers for a JSON file."""
+        places), the held-out still places it sees, the intrinsics freed; as plain numbers
+        for a JSON file."""
         seen = np.isfinite(self.tie_points.xy[..., 0])
         raw = self.held_out_residuals(raw=True)
+        held_still = np.isfinite(self.place_xy[:, self.held_out_places & self.still, 0])
         out = {}
         for k, cam in enumerate(self.cameras):
             out[cam.name or f"camera {k}"] = {
@@ -367,6 +414,7 @@ class RigRefinement:
                 "held_out_after_raw_positions_px": float(raw[k]),
                 "held_out_still_before_px": float(self.held_out_still_before[k]),
                 "held_out_still_after_px": float(self.held_out_still_after[k]),
+                "held_out_still_places": int(held_still[k].sum()),
                 "held_out_all_before_px": float(self.held_out_all_before[k]),
                 "held_out_all_after_px": float(self.held_out_all_after[k]),
                 "freed": list(self.adjustment.freed[k]),
@@ -397,7 +445,10 @@ class RigRefinement:
                   "held_out_kind": self.held_out_kind,
                   "held_out_still_points": self.held_out_still_points,
                   "held_out_all_points": self.held_out_all_points,
+                  "still_search_frames": [f for f, s in zip(self.frames, self.still_search)
+                                          if s],
                   "places": int(len(self.still)), "still_places": int(self.still.sum()),
+                  "unused_places": int(self.unused_places.sum()),
                   "dropped_places": int(self.dropped_places.sum()),
                   "inconsistent_places": int(self.inconsistent_places.sum()),
                   "lsm": None if self.lsm is None else self.lsm.summary(),
@@ -575,6 +626,40 @@ def _hold_out(labels, frame, held_frames, every: int):
     first = np.argmax(frames, axis=1)
     held = np.where(still, rank % every == 1, held_frames[first])
     return held, still
+
+
+def _warn_worse(given, before, after) -> None:
+    """Warn where the refined cameras fit the held-out places worse than the given ones."""
+    worse = [c.name or str(k) for k, (c, b, a) in enumerate(zip(given, before, after)) if a > b]
+    if worse:
+        warnings.warn(f"refine_rig: the refined cameras fit the held-out places "
+                      f"worse than the given ones in {', '.join(worse)} (see summary()); the "
+                      "tie points may not determine them: keep the given cameras there",
+                      stacklevel=3)
+
+
+def _between(picks, m: int) -> np.ndarray:
+    """Frames searched for still places only: ``m`` evenly between each two consecutive
+    ``picks`` (sorted frame indices), rounded; none that is a pick, fewer where a gap is
+    narrower than ``m + 1`` frames."""
+    out = []
+    for a, b in zip(picks[:-1], picks[1:]):
+        take = np.unique(np.round(a + (b - a) * np.arange(1, m + 1) / (m + 1)).astype(int))
+        out.extend(int(t) for t in take if a < t < b)
+    return np.asarray(out, int)
+
+
+def _split(tie: TiePoints, labels, held_frames, search, tol_px: float, every: int):
+    """(P,) bool masks ``(held, still, unused, dropped)`` of the places ``labels``:
+    :func:`_hold_out`; the places of one frame searched for still places only (``search``,
+    (F,) bool), neither adjusted nor held out; and the others next to a held-out place
+    (:func:`_near_held_out`)."""
+    held, still = _hold_out(labels, tie.frame, held_frames, every)
+    frame_of = np.empty(len(held), int)
+    frame_of[labels] = tie.frame                          # one-frame places: their frame
+    unused = ~still & search[frame_of]
+    dropped = _near_held_out(tie.xy, labels, held, tol_px) & ~unused
+    return held, still, unused, dropped
 
 
 def _judged_on(still_xy, min_still_held: int, names) -> str:
@@ -794,6 +879,9 @@ def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = 
     given = tuple(cameras_for_videos(cameras, videos, mismatch=params.mismatch))
     n = min(params.n_frames, videos.n_frames)
     picks = np.unique(np.linspace(0, videos.n_frames - 1, n).round().astype(int))
+    extra = _between(picks, params.still_between)          # for still places only
+    search = np.r_[np.zeros(len(picks), bool), np.ones(len(extra), bool)]
+    picks = np.r_[picks, extra]
     stacks = None if stacks is None else _loaded(stacks, videos)
     raw, tie, lsm = _tie_points_at_work_size(videos, given, picks, params, stacks,
                                              lsm=params.lsm)
@@ -802,15 +890,16 @@ def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = 
     _check_fit(given, raw, params)
     if lsm is not None:
         _check_lsm_kept(given, raw, tie, lsm)
-    held_frames = (np.arange(len(picks)) % params.hold_out_every) == 1
+    held_frames = ((np.arange(len(picks)) % params.hold_out_every) == 1) & ~search
     tol = params.place_px * videos.scale
     labels = _feature_places(tie.xy, tie.frame, tol, _twin_px(given, params))
     places = _merged(tie.xy, labels)
-    held, still = _hold_out(labels, tie.frame, held_frames, params.hold_out_every)
-    dropped = _near_held_out(tie.xy, labels, held, tol)
-    inconsistent = _off_geometry(given, places, ~held & ~dropped, params)
-    adjustment = refine_cameras(given, _strongest(places[:, ~held & ~dropped & ~inconsistent],
-                                                  params.max_points), params=params.refine)
+    held, still, unused, dropped = _split(tie, labels, held_frames, search, tol,
+                                          params.hold_out_every)
+    inconsistent = _off_geometry(given, places, ~held & ~dropped & ~unused, params)
+    adjustment = refine_cameras(given, _strongest(
+        places[:, ~held & ~dropped & ~unused & ~inconsistent], params.max_points),
+        params=params.refine)
     _check_turn(given, adjustment.cameras, params.max_rotation_deg)
     sets = {"still places": places[:, held & still], "all places": places[:, held]}
     res = {k: (_held_out_residuals(given, xy), _held_out_residuals(adjustment.cameras, xy))
@@ -820,17 +909,13 @@ def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = 
     test_xy = sets[kind]
     before, after = res[kind]
     folded = _folded(adjustment.cameras)
-    worse = [c.name or str(k) for k, (c, b, a) in enumerate(zip(given, before, after)) if a > b]
-    if worse:
-        warnings.warn(f"refine_rig: the refined cameras fit the held-out places "
-                      f"worse than the given ones in {', '.join(worse)} (see summary()); the "
-                      "tie points may not determine them: keep the given cameras there",
-                      stacklevel=2)
+    _warn_worse(given, before, after)
     return RigRefinement(
         cameras=adjustment.cameras, given=given,
         frames=tuple(int(videos.frames[i]) for i in picks), held_out=held_frames,
-        tie_points=tie, raw_tie_points=raw, lsm=lsm, places=labels, still=still,
-        held_out_places=held, dropped_places=dropped, inconsistent_places=inconsistent,
+        still_search=search, tie_points=tie, raw_tie_points=raw, lsm=lsm, places=labels,
+        still=still, held_out_places=held, unused_places=unused, dropped_places=dropped,
+        inconsistent_places=inconsistent,
         held_out_kind=kind, adjustment=adjustment,
         held_out_points=int(test_xy.shape[1]), held_out_before=before, held_out_after=after,
         held_out_still_before=res["still places"][0], held_out_still_after=res["still places"][1],

@@ -2,6 +2,7 @@
 marker measured by the best pair of heads that sees it, the four-head scene, and bad input."""
 
 import importlib.util
+import json
 import sys
 import warnings
 from pathlib import Path
@@ -186,6 +187,17 @@ def _experiment():
         sys.modules.setdefault(name, mods[name])
         spec.loader.exec_module(mods[name])
     return mods["mixed_scale_system"]
+
+
+def test_the_face_truth_names_the_view_gates_design_when_it_is_on():
+    exp = _experiment()
+    assert "min_view_cos designed on seeds 18 and 20" in exp.face_in(0.4)
+    assert "min_view_cos" not in exp.face_in(-1.0) and exp.FACE_IN == exp.face_in(-1.0)
+    # the committed runs' face truth is what the experiment writes for their gate
+    for path in (ms.OCCLUSION_RESULT, ms.OCCLUSION_NO_GATE_RESULT, ms.MOTOR_FIT_RESULT):
+        data = json.loads(path.read_text(encoding="utf-8"))
+        gate = float(data.get("min_view_cos", -1.0))
+        assert data["spread"]["face_median_mm"]["truth"] == exp.face_in(gate), path.name
 
 
 def test_the_recorded_command_leaves_out_where_the_files_go():

@@ -164,8 +164,26 @@ def test_the_committed_occlusion_result_has_what_notebook_15_reads():
     assert "--occlusion surface" in run["command"] and "--out" not in run["command"]
     assert run["occlusion"] == "surface" and run["min_view_cos"] > -1 and run["motor_fit"]
     assert {18, 20} <= set(run["seeds"].tolist()) and len(run["seeds"]) >= 10
-    for key in ("face_median_mm", "face_measured_mm", "face_filled_mm", "face_fitted"):
+    for key in ("face_median_mm", "face_measured_mm", "face_filled_mm", "face_fitted",
+                "labels_correct", "labels_coverage"):
         assert run[key].shape == run["seeds"].shape and np.isfinite(run[key]).all()
+    assert ((run["labels_coverage"] > 0) & (run["labels_coverage"] <= 1)).all()
+    # the same walks without the gate: the same rule, no gate, the same seeds
+    free = ms.read_motor_fit_result(path=ms.OCCLUSION_NO_GATE_RESULT)
+    assert free is not None and free["occlusion"] == "surface" and free["min_view_cos"] == -1
+    assert "--min-view-cos" not in free["command"] and np.array_equal(free["seeds"], run["seeds"])
     # the normals rule's committed run records neither: it read as the defaults
     plain = ms.read_motor_fit_result()
     assert plain["occlusion"] == "normals" and plain["min_view_cos"] == -1
+
+
+def test_the_committed_view_gate_design_has_what_notebook_15_reads():
+    design = ms.read_view_gate_design()
+    assert design is not None, f"no committed {ms.VIEW_GATE_DESIGN_RESULT}"
+    assert design["occlusion"] == "surface" and set(design["seeds"].tolist()) == {18, 20}
+    assert design["chosen"] in design["min_view_cos"] and -1 in design["min_view_cos"]
+    n = (len(design["seeds"]), len(design["min_view_cos"]))
+    for key in ("face_median_mm", "face_measured_mm", "face_filled_mm", "measured"):
+        assert design[key].shape == n and np.isfinite(design[key]).all()
+    assert "min_view_cos" in design["script"] and len(design["commands"]) >= 2
+    assert ms.read_view_gate_design(path=ms.VIEW_GATE_DESIGN_RESULT.with_name("none.json")) is None

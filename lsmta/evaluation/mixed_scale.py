@@ -25,7 +25,10 @@ after the fact against the truth.
   part of two heads' pan or tilt error is left;
 * :data:`MOTOR_FIT_RESULT`, :func:`read_motor_fit_result` — the committed face errors
   over ten walks with the angles recovered (``motor_fit``) and at the read-back
-  (:data:`OCCLUSION_RESULT`: the same walks with the ray-cast self-occlusion on);
+  (:data:`OCCLUSION_RESULT`: the same walks with the ray-cast self-occlusion on and the
+  view gate; :data:`OCCLUSION_NO_GATE_RESULT`: on, without the gate);
+* :data:`VIEW_GATE_DESIGN_RESULT`, :func:`read_view_gate_design` — the runs the view
+  gate's ``min_view_cos`` was chosen on;
 * :data:`HEADS_RESULT`, :func:`read_heads_result` — the committed result of
   ``experiments/mixed_scale_system.py --heads 2 4`` (two heads against four over seeds),
   which notebook 15 quotes.
@@ -68,6 +71,10 @@ MOTOR_FIT_RESULT = HEADS_RESULT.with_name("mixed_scale_motor_fit.json")
 # --occlusion surface --min-view-cos 0.4`: the same walks with the ray-cast self-occlusion on
 # and the system's view gate (designed on seeds 18 and 20), quoted by notebook 15
 OCCLUSION_RESULT = HEADS_RESULT.with_name("mixed_scale_occlusion.json")
+# the same command without --min-view-cos: self-occlusion on, no view gate
+OCCLUSION_NO_GATE_RESULT = HEADS_RESULT.with_name("mixed_scale_occlusion_no_gate.json")
+# the view gate's design runs: notebook 15's walk at each min_view_cos tried, seeds 18 and 20
+VIEW_GATE_DESIGN_RESULT = HEADS_RESULT.with_name("mixed_scale_view_gate_design.json")
 HEADS_FIELDS = ("measured", "covered", "face_median_mm", "rigid_median_mm", "labels_correct",
                 "labels_coverage", "tries")   # per number of heads, one value per seed
 
@@ -119,8 +126,10 @@ def read_motor_fit_result(*, path=None) -> dict | None:
         no face): ``face_median_mm`` (the system's), ``readback_face_mm`` (the same images
         at the read-back angles) and ``true_angles_face_mm`` (at the heads' true angles);
         ``face_measured_mm``, ``face_filled_mm`` and ``face_fitted`` (the share of frames
-        with a face); ``occlusion`` and ``min_view_cos``, the run's rule and gate ("normals"
-        and -1 for runs that recorded none).
+        with a face); ``labels_correct`` and ``labels_coverage``, the first frame's labels
+        correct of those given and of the marker images drawn (shares; NaN: not recorded);
+        ``occlusion`` and ``min_view_cos``, the run's rule and gate ("normals" and -1 for
+        runs that recorded none).
 
     Raises
     ------
@@ -149,7 +158,10 @@ def read_motor_fit_result(*, path=None) -> dict | None:
             "occlusion": data.get("occlusion", "normals"),
             "min_view_cos": float(data.get("min_view_cos", -1.0)),
             **{key: np.array([value(s, lambda r, key=key: r[key]) for s in seeds])
-               for key in ("face_measured_mm", "face_filled_mm", "face_fitted")},
+               for key in ("face_measured_mm", "face_filled_mm", "face_fitted",
+                           "labels_coverage")},
+            "labels_correct": np.array([value(s, lambda r: r["labels_correct_share"])
+                                        for s in seeds]),
             "seeds": np.array([int(s) for s in seeds]),
             "face_median_mm": np.array([value(s, lambda r: r["face_median_mm"])
                                         for s in seeds]),
@@ -159,6 +171,43 @@ def read_motor_fit_result(*, path=None) -> dict | None:
             "true_angles_face_mm": np.array([value(s, lambda r: r["detail"]
                                                    ["readback_face_median_mm"][1][0])
                                              for s in seeds])}
+
+
+def read_view_gate_design(*, path=None) -> dict | None:
+    """The committed design runs of the view gate (:data:`VIEW_GATE_DESIGN_RESULT` unless
+    ``path``), or None when there is no such file.
+
+    Returns
+    -------
+    dict or None
+        The file's fields; ``min_view_cos`` (C,) array (the gates tried), ``seeds`` (S,) int
+        array and, per field of ``runs``, an (S, C) float array (``face_median_mm``,
+        ``face_measured_mm``, ``face_filled_mm`` in mm; ``measured``, ``fitted`` shares;
+        ``rigid_median_mm``).
+
+    Raises
+    ------
+    ValueError
+        When the file lacks a field or a run's length is not the number of gates.
+    """
+    path = VIEW_GATE_DESIGN_RESULT if path is None else Path(path)
+    if not path.is_file():
+        return None
+    data = json.loads(path.read_text(encoding="utf-8"))
+    for key in ("commands", "date", "occlusion", "min_view_cos", "chosen", "runs"):
+        if key not in data:
+            raise ValueError(f"path: {path.name} has no {key!r}")
+    gates = np.array(data["min_view_cos"], float)
+    seeds = sorted(data["runs"], key=int)
+    fields = sorted({k for s in seeds for k in data["runs"][s]})
+    out = {**data, "min_view_cos": gates, "seeds": np.array([int(s) for s in seeds])}
+    for key in fields:
+        v = np.array([data["runs"][s].get(key, [np.nan] * len(gates)) for s in seeds], float)
+        if v.shape != (len(seeds), len(gates)):
+            raise ValueError(f"path: {path.name}'s runs[...][{key!r}] has shape {v.shape}; "
+                             f"expected one value per gate ({len(gates)})")
+        out[key] = v
+    return out
 
 
 @dataclass(frozen=True, eq=False)

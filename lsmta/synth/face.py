@@ -364,7 +364,12 @@ def face_cameras(target, *, positions=None, f: float = 2400.0, width: int = 640,
             for i, p in enumerate(positions)]
 
 
-def visible(points, normals, centre, *, min_cos: float = 0.3) -> np.ndarray:
+#: :func:`visible`'s default ``min_cos``: the normals rule's cosine between a marker's normal and
+#: its line of sight (above it, the marker is seen)
+VISIBLE_MIN_COS = 0.3
+
+
+def visible(points, normals, centre, *, min_cos: float = VISIBLE_MIN_COS) -> np.ndarray:
     """Markers a camera at ``centre`` sees: the surface faces the camera with
     ``cos(angle between normal and line of sight) > min_cos`` (so half the face
     disappears as the head turns away). A stand-in: the face itself hiding markers

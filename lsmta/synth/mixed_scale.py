@@ -32,7 +32,7 @@ from scipy.spatial.transform import Rotation
 from .._validate import as_array, as_rng, as_scalar
 from ..pantilt import Motor, PanTiltCamera
 from ..pantilt.aiming import aim
-from .face import MarkedFace, expression_weights, face_model, visible
+from .face import VISIBLE_MIN_COS, MarkedFace, expression_weights, face_model, visible
 from .head_surface import self_occlusion
 from .marker_video import MarkerVideo, render_marker_video, skin_texture
 from .pantilt import pantilt_head
@@ -282,8 +282,9 @@ def wide_heads(scene: MixedScaleScene, *, f: float = 270.0,
 
 
 def render_pantilt_video(head: PanTiltCamera, settings, points, normals, anchor, *,
-                         rng: np.random.Generator | int | None = None, min_cos: float = 0.3,
-                         texture=None, noise: float = 2.0, drawn=None) -> MarkerVideo:
+                         rng: np.random.Generator | int | None = None,
+                         min_cos: float = VISIBLE_MIN_COS, texture=None, noise: float = 2.0,
+                         drawn=None) -> MarkerVideo:
     """The face-marker video of a pan-tilt camera at the settings its motors reached.
 
     Parameters

@@ -50,8 +50,9 @@ adjusted on), and both sets of cameras also at the other positions. Each number 
 median reprojection residual per camera of those places triangulated with those cameras.
 
 The judgement (``verdicts``; rule written and committed before any run with it, and before
-the ``--still-subdivide`` search was measured). A held-out place judges a camera only if it is
-a still place: its feature matched in two or more sampled frames at the same pixels (within
+the ``--still-between`` search was measured). A held-out place judges a camera only if it is
+a still place: its feature matched in two or more frames (sampled or, with
+``--still-between``, in between) at the same pixels (within
 ``place_px`` in every view the frames share). Why: a moving subject's place is one match per
 view pair in one frame; a wrong match that the frame's own relative orientation lets through
 (on a wide pair a few tens of matches fit it) and a camera that is off give the same residual
@@ -166,6 +167,9 @@ def run(videos, lsm: bool, args):
                  "refined_px": medians(ref.cameras, xy[:, views == v])}
         for v in sorted(set(views.tolist()))}
     record["verdicts"] = judged(record, ref)
+    for rule in ("target_still_rule", "target_issue_all_places"):   # every camera, both rules
+        record[f"{rule}_every_camera"] = verdict(
+            all(v[rule] == verdict(True) for v in record["verdicts"].values()))
     record["target_held_out_le_0.5_px"] = verdict(
         all(v["held_out_after_px"] <= 0.5 for v in record["cameras"].values()))
     record["target_adjusted_le_0.5_px"] = verdict(
@@ -175,7 +179,7 @@ def run(videos, lsm: bool, args):
 
 def judged(record, ref) -> dict:
     """Per camera the judgement of the module docstring (held-out still places, at least
-    ``min_still_held`` of them) beside the issue's old one (all held-out places)."""
+    ``min_still_held`` of them) beside the issue's own (all held-out places)."""
     need = RigRefinementParams().min_still_held
     still, moving = record["held_out"]["still"], record["held_out"]["moving"]
     out = {}
@@ -188,7 +192,7 @@ def judged(record, ref) -> dict:
                      "held_out_all_px": round(float(ref.held_out_all_after[k]), 2),
                      "target_still_rule": verdict(ok) if n >= need else
                      f"NOT met (too few to judge: {n} < {need} held-out still places)",
-                     "target_all_places_old": verdict(
+                     "target_issue_all_places": verdict(
                          bool(ref.held_out_all_after[k] <= 0.5))}
     return out
 

@@ -83,7 +83,8 @@ feature matched at the same pixels in two frames; on a wide pair each frame keep
 matches, so among ``n_frames`` few features are matched twice. ``still_between`` frames
 between each two sampled ones are searched too; their tie points join places like any other,
 and a place of one of them alone (the moving subject's) is neither adjusted nor held out, so
-the moving subject's hold-out split stays that of the sampled frames. On the Pose2Sim demo at
+the held-out frames stay the sampled frames' (which places are held out is drawn again:
+the in-between frames' points join the labels the draw ranks). On the Pose2Sim demo at
 full size (``experiments/refinement_held_out.py --lsm on --still-between 2``, 10 or 12 more
 frames) the still places grew from 63 to 97 (frames 0-99 in 6, held out 20 and 79), the rear
 pair's from 11 to 17 (4 held out in both), cam03's held-out still places from 5 to 7 and
@@ -94,7 +95,8 @@ same few features again. All held-out places went from 0.27/0.25/2.59/0.71 to
 0.36/0.38/1.40/0.49 px: worse in some camera on both splits, so off by default (the rule of
 the options above), and it costs 6-9 s of CPU per frame added at full size. On a split not
 inspected while designing it (8 sampled frames, held out 14, 57 and 99) it gave cam03 10
-held-out still places (4 without) at 0.60 px, the others 0.45/0.40/0.47 px. With 4 between
+held-out still places (4 without) at 0.60 px (NOT met), the others 0.45/0.40/0.47 px; all
+its held-out places 0.42/0.37/0.91/0.62 px (NOT met). With 4 between
 (6 sampled frames) all held-out places came to 0.25/0.19/0.39/0.39 px (cam03 with 7
 held-out still places), but at 7 and 8 sampled frames cam03 had 15 and 13 held-out still
 places, at 1.33 and 1.80 px: its residual is not only the moving subject's wrong matches

@@ -76,9 +76,8 @@ def features_once():
             return kp, None if des is None else des.copy()
 
     def detector(cameras, params):
-        found = detector_of(cameras, params)
-        return Once(found, (type(found).__name__, params.n_features, params.asift_features,
-                            params.contrast, params.max_tilt))
+        found, setting = detector_of(cameras, params)     # (OpenCV detector, its settings)
+        return Once(found, setting), setting
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(tie_points, "_detector", detector)

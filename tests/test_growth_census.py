@@ -31,6 +31,17 @@ def test_census_adds_up_and_names_the_test_that_rejects():
     assert sum(res.node_census.values()) == rows * cols
     assert res.node_census["matched"] == len(res)
     assert res.node_census["masked"] > 0
+    # the same census node by node: the grid of outcomes, and why the tried ones failed
+    assert res.node_outcome.shape == (rows, cols)
+    for i, name in enumerate(NODE_OUTCOMES):
+        assert (res.node_outcome == i).sum() == res.node_census[name]
+    matched = res.node_outcome == NODE_OUTCOMES.index("matched")
+    assert set(zip(*np.nonzero(matched))) == set(map(tuple, res.node_index))
+    failed = np.isin(res.node_outcome, [NODE_OUTCOMES.index("given_up"),
+                                        NODE_OUTCOMES.index("failed_open")])
+    assert (res.node_failure[failed] > 0).all()          # a reason other than "accepted"
+    assert (res.node_failure[~failed] == -1).all()
+    assert (res.node_outcome[:, 100 // 4 + 1:] == NODE_OUTCOMES.index("masked")).any()
     # a sigma0 limit below the images' noise (2 grey levels each) rejects nearly every match,
     # and the census says so
     tight = GrowParams(step=4, patch=13, thresholds=LSMThresholds(max_sigma0=1.0,
@@ -38,6 +49,9 @@ def test_census_adds_up_and_names_the_test_that_rejects():
     res = grow_matches(pair.template, pair.search, seeds, pair.true_xy(seeds), params=tight)
     c = res.attempt_census
     assert c["sigma0"] > 0.9 * (res.n_lsm - c["accepted"])
+    sigma0 = ATTEMPT_OUTCOMES.index("sigma0")
+    failed = res.node_failure >= 0
+    assert (res.node_failure[failed] == sigma0).mean() > 0.9
     assert sum(c.values()) == res.n_lsm
 
 

@@ -116,6 +116,12 @@ class GrowResult:
         nodes): the patch does not fit the image, outside ``mask``, below ``min_texture``,
         matched, given up after ``max_attempts``, tried and failed fewer times, never
         reached from a matched neighbour.
+    node_outcome : (rows, cols) int8 array
+        Every grid node's outcome, an index into :data:`NODE_OUTCOMES` (the census per node).
+    node_failure : (rows, cols) int8 array
+        For nodes tried and not matched: why the first attempt (the main patch) failed at
+        the node's last try, an index into :data:`ATTEMPT_OUTCOMES` (the first threshold
+        test failed, or the non-convergence status); -1 elsewhere.
     """
 
     template_xy: np.ndarray
@@ -135,6 +141,8 @@ class GrowResult:
     sigma_t: np.ndarray = field(default=None)
     attempt_census: dict = field(default=None)
     node_census: dict = field(default=None)
+    node_outcome: np.ndarray = field(default=None)
+    node_failure: np.ndarray = field(default=None)
 
     def __post_init__(self):
         for name in ("t", "sigma_t"):
@@ -422,6 +430,7 @@ class _Grid:
     usable: np.ndarray     # (rows, cols) bool
     cell: np.ndarray       # (rows, cols) int
     unusable: dict         # "outside", "masked", "no_texture" -> count
+    why: np.ndarray        # (rows, cols) int8: index into NODE_OUTCOMES of unusable nodes, -1
 
     @property
     def shape(self) -> tuple:
@@ -440,9 +449,11 @@ def _grid(f_img: SplineImage, opts: _Options, mask, seeds_t) -> _Grid:
     gr, gc = np.mgrid[0:rows, 0:cols]
     nodes = np.stack([gc * step, gr * step], axis=-1).astype(float)
     usable = f_img.inside(nodes, margin=0 if opts.partial else opts.largest_patch // 2)
+    why = np.where(usable, -1, NODE_OUTCOMES.index("outside")).astype(np.int8)
     unusable = {"outside": int((~usable).sum())}
     if mask is not None:
         unusable["masked"] = int((usable & ~mask[gr * step, gc * step]).sum())
+        why[usable & ~mask[gr * step, gc * step]] = NODE_OUTCOMES.index("masked")
         usable &= mask[gr * step, gc * step]
     else:
         unusable["masked"] = 0
@@ -452,9 +463,11 @@ def _grid(f_img: SplineImage, opts: _Options, mask, seeds_t) -> _Grid:
     else:
         textured = _spread(f_img, opts, usable, flat, (rows, cols))
     unusable["no_texture"] = int((usable & ~textured).sum())
+    why[usable & ~textured] = NODE_OUTCOMES.index("no_texture")
     usable &= textured
     return _Grid(nodes=nodes, usable=usable,
-                 cell=voronoi_cells(seeds_t, flat).reshape(rows, cols), unusable=unusable)
+                 cell=voronoi_cells(seeds_t, flat).reshape(rows, cols), unusable=unusable,
+                 why=why)
 
 
 def _precise_enough(image, opts: _Options, rows, cols) -> np.ndarray:
@@ -510,6 +523,7 @@ class _State:
     wave: np.ndarray           # (rows, cols)
     holes: np.ndarray          # (rows, cols) bool
     method: np.ndarray         # (rows, cols) index into METHODS
+    failure: np.ndarray        # (rows, cols) int8: index into ATTEMPT_OUTCOMES, -1
     n_lsm: int = 0
     census: dict = field(default_factory=dict)
 
@@ -521,7 +535,8 @@ class _State:
                    A=np.full((rows, cols, K, 2, 2), np.nan), sigma0=np.full(shape, np.nan),
                    sigma_xy=np.full((rows, cols, K, 2), np.nan), t=np.full(shape, np.nan),
                    sigma_t=np.full(shape, np.nan), wave=np.full(shape, -1),
-                   holes=np.zeros(shape, dtype=bool), method=np.zeros(shape, dtype=np.int8))
+                   holes=np.zeros(shape, dtype=bool), method=np.zeros(shape, dtype=np.int8),
+                   failure=np.full(shape, -1, dtype=np.int8))
 
     def store(self, rc, m: _Matches, wave: int, hole: bool, max_attempts: int) -> None:
         """Keep the accepted matches; count an attempt at the others (given up after
@@ -535,6 +550,7 @@ class _State:
         self.t[rg, cg], self.sigma_t[rg, cg] = m.t[g], m.sigma_t[g]
         self.wave[rg, cg], self.holes[rg, cg], self.method[rg, cg] = wave, hole, m.how[g]
         b = np.flatnonzero(~m.ok)
+        self.failure[r[b], c[b]] = m.failure[b]
         self.attempts[r[b], c[b]] += 1
         self.state[r[b], c[b]] = np.where(self.attempts[r[b], c[b]] >= max_attempts, 2, 0)
 
@@ -551,13 +567,15 @@ class _Matches:
     t: np.ndarray              # (m,)
     sigma_t: np.ndarray        # (m,)
     how: np.ndarray            # (m,) index into METHODS
+    failure: np.ndarray = None  # (m,) the first attempt's outcome, index into ATTEMPT_OUTCOMES
 
     @classmethod
     def none(cls, m: int, K: int) -> _Matches:
         return cls(ok=np.zeros(m, dtype=bool), xy=np.full((m, K, 2), np.nan),
                    A=np.full((m, K, 2, 2), np.nan), sigma0=np.full(m, np.nan),
                    sigma_xy=np.full((m, K, 2), np.nan), t=np.full(m, np.nan),
-                   sigma_t=np.full(m, np.nan), how=np.zeros(m, dtype=np.int8))
+                   sigma_t=np.full(m, np.nan), how=np.zeros(m, dtype=np.int8),
+                   failure=np.full(m, -1, dtype=np.int8))
 
     def adopt(self, again, res: _Matches, label: str) -> None:
         """Take the converged ``res`` rows for the nodes ``again``."""
@@ -588,32 +606,35 @@ class _Matcher:
         if con is None:
             res = lsm(self.f_img, self.g_imgs[0], t_xy, approx[:, 0], initial_A=A0[:, 0],
                       template_mask=self.template_mask, params=params)
-            _tally(self.census, res.status, params.thresholds, [res])
+            code = _tally(self.census, res.status, params.thresholds, [res])
             nan = np.full(len(t_xy), np.nan)
             return _Matches(ok=res.status == Status.CONVERGED, xy=res.xy[:, None],
                             A=res.A[:, None], sigma0=res.sigma0,
                             sigma_xy=res.sigma_xy[:, None], t=nan, sigma_t=nan.copy(),
-                            how=np.zeros(len(t_xy), dtype=np.int8))
+                            how=np.zeros(len(t_xy), dtype=np.int8), failure=code)
         t0 = con.parameter(t_xy, approx)
         res = mpgc(self.f_img, self.g_imgs, t_xy, t0, con, initial_A=A0,
                    template_mask=self.template_mask, params=params)
-        _tally(self.census, res.status, params.thresholds,
-               [res.image(k) for k in range(self.K)])
+        code = _tally(self.census, res.status, params.thresholds,
+                      [res.image(k) for k in range(self.K)])
         return _Matches(ok=res.status == Status.CONVERGED, xy=res.xy.transpose(1, 0, 2),
                         A=res.A.transpose(1, 0, 2, 3), sigma0=res.sigma0,
                         sigma_xy=res.sigma_xy.transpose(1, 0, 2), t=res.t, sigma_t=res.sigma_t,
-                        how=np.zeros(len(t_xy), dtype=np.int8))
+                        how=np.zeros(len(t_xy), dtype=np.int8), failure=code)
 
     def match(self, t_xy, approx, A0) -> _Matches:
         """The attempts in turn: the patch, the retry patch sizes, the robust attempt and
         the shifted windows; each only for the nodes still unmatched."""
         o = self.opts
         out = _Matches.none(len(t_xy), self.K)
-        for params, label in o.attempts:
+        for i, (params, label) in enumerate(o.attempts):
             again = np.flatnonzero(~out.ok)
             if again.size == 0:
                 break
-            out.adopt(again, self.once(t_xy[again], approx[again], A0[again], params), label)
+            res = self.once(t_xy[again], approx[again], A0[again], params)
+            if i == 0:
+                out.failure[again] = res.failure
+            out.adopt(again, res, label)
         again = np.flatnonzero(~out.ok)
         if len(o.offsets) and again.size:
             out.adopt(again, self._shifted(t_xy[again], approx[again], A0[again]), "shifted")
@@ -659,24 +680,30 @@ def _grow_driver(template, searches, seeds_t, seeds_s, opts: _Options, *, mask,
     return _results(state, grid, seeds_ok)
 
 
-def _tally(census: dict, status, thresholds, views) -> None:
+def _tally(census: dict, status, thresholds, views) -> np.ndarray:
     """Count one attempt's outcomes into ``census`` (:data:`ATTEMPT_OUTCOMES`): a rejected
-    match under the first test it fails in any search image."""
+    match under the first test it fails in any search image. Returns every point's outcome,
+    an index into :data:`ATTEMPT_OUTCOMES` (int8)."""
     status = np.asarray(status)
+    code = np.zeros(len(status), dtype=np.int8)
     census["accepted"] += int((status == Status.CONVERGED).sum())
-    for name, code in (("max_iterations", Status.MAX_ITERATIONS), ("diverged", Status.DIVERGED),
-                       ("outside", Status.OUTSIDE), ("singular", Status.SINGULAR)):
-        census[name] += int((status == code).sum())
+    for name, st in (("max_iterations", Status.MAX_ITERATIONS), ("diverged", Status.DIVERGED),
+                     ("outside", Status.OUTSIDE), ("singular", Status.SINGULAR)):
+        census[name] += int((status == st).sum())
+        code[status == st] = ATTEMPT_OUTCOMES.index(name)
     rejected = status == Status.REJECTED
     if not rejected.any():
-        return
+        return code
     fails = [thresholds.failures(v) for v in views]
     left = rejected.copy()
     for name in THRESHOLD_TESTS:
         hit = left & np.any([f[name] for f in fails], axis=0)
         census[name] += int(hit.sum())
+        code[hit] = ATTEMPT_OUTCOMES.index(name)
         left &= ~hit
     census["sigma0"] += int(left.sum())    # rejected by the joint rule only (mpgc)
+    code[left] = ATTEMPT_OUTCOMES.index("sigma0")
+    return code
 
 
 def _start_from_seeds(state: _State, grid: _Grid, matcher: _Matcher, seeds_t, seeds_s,
@@ -734,24 +761,33 @@ def _grow(state: _State, grid: _Grid, matcher: _Matcher, opts: _Options) -> None
             w += 1
 
 
-def _node_census(state: _State, grid: _Grid) -> dict:
-    """Every grid node by outcome (:data:`NODE_OUTCOMES`)."""
+def _node_outcome(state: _State, grid: _Grid) -> np.ndarray:
+    """Every grid node's outcome, an index into :data:`NODE_OUTCOMES` (int8 grid)."""
     u, st = grid.usable, state.state
-    return dict(grid.unusable, matched=int((u & (st == 1)).sum()),
-                given_up=int((u & (st == 2)).sum()),
-                failed_open=int((u & (st == 0) & (state.attempts > 0)).sum()),
-                never_reached=int((u & (st == 0) & (state.attempts == 0)).sum()))
+    out = grid.why.copy()
+    for name, sel in (("matched", st == 1), ("given_up", st == 2),
+                      ("failed_open", (st == 0) & (state.attempts > 0)),
+                      ("never_reached", (st == 0) & (state.attempts == 0))):
+        out[u & sel] = NODE_OUTCOMES.index(name)
+    return out
+
+
+def _node_census(outcome: np.ndarray) -> dict:
+    """Every grid node by outcome (:data:`NODE_OUTCOMES`) -> count."""
+    return {name: int((outcome == i).sum()) for i, name in enumerate(NODE_OUTCOMES)}
 
 
 def _results(state: _State, grid: _Grid, seeds_ok) -> list[GrowResult]:
     r, c = np.nonzero(state.state == 1)
+    outcome = _node_outcome(state, grid)
     common = dict(template_xy=grid.nodes[r, c], sigma0=state.sigma0[r, c], seed=grid.cell[r, c],
                   wave=state.wave[r, c], hole_closing=state.holes[r, c],
                   seeds_matched=seeds_ok, n_lsm=state.n_lsm, grid_shape=grid.shape,
                   node_index=np.stack([r, c], axis=1),
                   method=np.array(METHODS)[state.method[r, c]], t=state.t[r, c],
                   sigma_t=state.sigma_t[r, c], attempt_census=dict(state.census),
-                  node_census=_node_census(state, grid))
+                  node_census=_node_census(outcome), node_outcome=outcome,
+                  node_failure=np.where(state.state == 1, -1, state.failure).astype(np.int8))
     return [GrowResult(search_xy=state.xy[r, c, k], A=state.A[r, c, k],
                        sigma_xy=state.sigma_xy[r, c, k], **common)
             for k in range(state.xy.shape[2])]

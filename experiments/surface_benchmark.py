@@ -56,18 +56,13 @@ METRICS = (("density", "density", ""), ("median_mm", "median 3-D error", "mm"),
            ("gross", "gross-error share", ""))
 
 
-def run_seed(seed: int, *, frames, steps, contrast, noise: float, methods) -> dict:
-    """The generated part for ``seed`` (rig, texture, noise, seeds): one row per contrast,
-    frame and method, and per contrast and method the median over the frames of each metric
-    (keys ``"<method> c<contrast> <metric>"``)."""
-    import numba
-
-    numba.set_num_threads(1)
+def rendered_frames(seed: int, *, frames, contrast, noise: float):
+    """The benchmark's generated frames, in its random stream: ``(contrast, frame number,
+    frame, seeds, scene, cams)`` for each contrast and frame (the triplet rig, the walk, the
+    body at each contrast, then per frame the rendering and the seed points from the truth
+    drawn from one generator; experiments/surface_census.py reads the same frames)."""
     rng = np.random.default_rng(seed)
     cams = triplet_rig(rng=rng, distance=2500.0, baseline=700.0)
-    th = LSMThresholds(max_sigma0=2 * noise, max_displacement=4.0, max_sigma_xy=0.2,
-                       scale_range=(0.5, 2.0), max_shear=0.5)
-    rows = []
     for c in contrast:
         body = make_body(rng=np.random.default_rng(seed), contrast=c, wavelength=(12.0, 50.0))
         scene = Scene(body, walk(n_frames=30, start=(-300.0, 0.0)), None)
@@ -75,29 +70,44 @@ def run_seed(seed: int, *, frames, steps, contrast, noise: float, methods) -> di
         for f in frames:
             frame = renderer.render(f, rng=rng)
             seeds = evaluate.seeds_from_truth(scene, cams, f, rng=rng)
-            for step in steps:
-                truth = evaluate.node_truth(frame, scene, cams, step=step, patch=13)
-                for name in methods:
-                    paper = MeasureSurfaceParams(grow=GrowParams(step=step, patch=7,
-                                                                 thresholds=th))
-                    call = dict(params=paper)
-                    if name != "lsm":
-                        options = (evaluate.beyond_the_paper if name == "beyond"
-                                   else evaluate.joint_beyond)
-                        retry = replace(paper, grow=replace(paper.grow, retry_patch=(9, 5)))
-                        call = options(noise, frame.images[1], retry)
-                    t0 = time.perf_counter()
-                    res = measure_surface(frame.images, cams, seeds, **call)
-                    seconds = time.perf_counter() - t0
-                    sc = evaluate.score_surface(res, truth)
-                    rows.append({"contrast": c, "frame": f, "method": f"{name} step {step}",
-                                 "density": sc["density"], **sc["filtered"],
-                                 "seconds": seconds})
-            truth = evaluate.node_truth(frame, scene, cams, template=0, step=4, patch=13)
-            sg = peers.sgbm(frame.images[0], frame.images[1], cams[0], cams[1])
-            sc = evaluate.score_points(sg.points, sg.xy_first, truth, frame, template=0)
-            rows.append({"contrast": c, "frame": f, "method": "sgbm", **sc,
-                         "seconds": sg.seconds})
+            yield c, f, frame, seeds, scene, cams
+
+
+def run_seed(seed: int, *, frames, steps, contrast, noise: float, methods) -> dict:
+    """The generated part for ``seed`` (rig, texture, noise, seeds): one row per contrast,
+    frame and method, and per contrast and method the median over the frames of each metric
+    (keys ``"<method> c<contrast> <metric>"``)."""
+    import numba
+
+    numba.set_num_threads(1)
+    th = LSMThresholds(max_sigma0=2 * noise, max_displacement=4.0, max_sigma_xy=0.2,
+                       scale_range=(0.5, 2.0), max_shear=0.5)
+    rows = []
+    for c, f, frame, seeds, scene, cams in rendered_frames(seed, frames=frames,
+                                                             contrast=contrast, noise=noise):
+        for step in steps:
+            truth = evaluate.node_truth(frame, scene, cams, step=step, patch=13)
+            for name in methods:
+                paper = MeasureSurfaceParams(grow=GrowParams(step=step, patch=7,
+                                                             thresholds=th))
+                call = dict(params=paper)
+                if name != "lsm":
+                    options = (evaluate.beyond_the_paper if name == "beyond"
+                               else evaluate.joint_beyond)
+                    retry = replace(paper, grow=replace(paper.grow, retry_patch=(9, 5)))
+                    call = options(noise, frame.images[1], retry)
+                t0 = time.perf_counter()
+                res = measure_surface(frame.images, cams, seeds, **call)
+                seconds = time.perf_counter() - t0
+                sc = evaluate.score_surface(res, truth)
+                rows.append({"contrast": c, "frame": f, "method": f"{name} step {step}",
+                             "density": sc["density"], **sc["filtered"],
+                             "seconds": seconds})
+        truth = evaluate.node_truth(frame, scene, cams, template=0, step=4, patch=13)
+        sg = peers.sgbm(frame.images[0], frame.images[1], cams[0], cams[1])
+        sc = evaluate.score_points(sg.points, sg.xy_first, truth, frame, template=0)
+        rows.append({"contrast": c, "frame": f, "method": "sgbm", **sc,
+                     "seconds": sg.seconds})
     out = {"seed": seed, "rows": rows}
     for r in rows:
         for key, _, _ in METRICS:

@@ -40,13 +40,13 @@ from dataclasses import replace
 
 import numpy as np
 from scipy import ndimage
+from surface_benchmark import rendered_frames
 
 from lsmta.evaluation import surface as evaluate
 from lsmta.matching import GrowParams, LSMThresholds, MeasureSurfaceParams, measure_surface
 from lsmta.matching.grow import ATTEMPT_OUTCOMES, NODE_OUTCOMES
 from lsmta.matching.masks import backdrop_mask
 from lsmta.report import write_json
-from lsmta.synth import Renderer, Scene, make_body, triplet_rig, walk
 
 LABELS = ("silhouette", "occlusion", "grazing", "weak texture", "other")
 NOISE = 2.0
@@ -59,15 +59,10 @@ VARIANTS = {"joint": {}, "reach": {"reach": True}, "border 4": {"border": 4},
 
 
 def frames_as_benchmark(seed: int, frames, *, contrast: float = 0.3):
-    """``(frame, seeds, truth, scene, cams)`` per frame, from the benchmark's random stream."""
-    rng = np.random.default_rng(seed)
-    cams = triplet_rig(rng=rng, distance=2500.0, baseline=700.0)
-    body = make_body(rng=np.random.default_rng(seed), contrast=contrast, wavelength=(12.0, 50.0))
-    scene = Scene(body, walk(n_frames=30, start=(-300.0, 0.0)), None)
-    renderer = Renderer(scene, cams, noise_sigma=NOISE)
-    for f in frames:
-        frame = renderer.render(f, rng=rng)
-        seeds = evaluate.seeds_from_truth(scene, cams, f, rng=rng)
+    """``(frame, seeds, truth, scene, cams)`` per frame, the benchmark's own frames
+    (:func:`surface_benchmark.rendered_frames`, same random stream)."""
+    for _, _, frame, seeds, scene, cams in rendered_frames(seed, frames=frames,
+                                                           contrast=(contrast,), noise=NOISE):
         truth = evaluate.node_truth(frame, scene, cams, step=STEP, patch=13)
         yield frame, seeds, truth, scene, cams
 

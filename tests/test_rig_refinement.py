@@ -474,6 +474,19 @@ def test_a_feature_found_twice_in_a_frame_is_one_place(rng):
     assert len(np.unique(_twins(far, np.zeros(2, int), 4.0))) == 2
 
 
+
+def _refined_on(monkeypatch, videos, cams, xy, frame, params):
+    """``refine_rig`` on the given tie points ``xy`` (K, N, 2) of frames ``frame`` (N,) in
+    place of those it would find (no LSM), its warnings silenced."""
+    import lsmta.systems.refinement as refinement
+    from lsmta.calibration import TiePoints
+    tie = TiePoints(xy=xy, frame=frame, pair_matches=np.ones((4, 4), int),
+                    pair_guided=np.ones((4, 4), int))
+    monkeypatch.setattr(refinement, "_tie_points_at_work_size", lambda *a, **k: (tie, tie, None))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return refine_rig(videos, cams, params=params)
+
 def test_recording_geometry_is_fitted_on_the_adjusted_places_only(rng, monkeypatch):
     """refine_rig checks each view pair against one relative orientation for the recording
     AFTER the hold-out split, fitted on the places it adjusts only: wrong matches (8 px off,
@@ -483,7 +496,6 @@ def test_recording_geometry_is_fitted_on_the_adjusted_places_only(rng, monkeypat
     places are of one frame each, a pair's wrong matches among them too. Ground truth: the
     generator's points."""
     import lsmta.systems.refinement as refinement
-    from lsmta.calibration import TiePoints
     from lsmta.io import Videos
     cams = rig_cameras(n=4)
     xy, frame, truth = _still_and_moving(rng, cams)
@@ -500,14 +512,8 @@ def test_recording_geometry_is_fitted_on_the_adjusted_places_only(rng, monkeypat
         moved = xy.copy()
         off = np.where(held_frames, held_off_px, 8.0)[:, None] * direction
         moved[1, wrong] += off[wrong]
-        tie = TiePoints(xy=moved, frame=frame, pair_matches=np.ones((4, 4), int),
-                        pair_guided=np.ones((4, 4), int))
-        monkeypatch.setattr(refinement, "_tie_points_at_work_size",
-                            lambda *a, **k: (tie, tie, None))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)
-            return refine_rig(videos, cams, params=RigRefinementParams(
-                lsm=False, tie=TieParams(recording_geometry=True)))
+        return _refined_on(monkeypatch, videos, cams, moved, frame,
+                           RigRefinementParams(lsm=False, tie=TieParams(recording_geometry=True)))
 
     ref = run(8.0)
     bad = np.zeros(len(ref.still), bool)
@@ -546,8 +552,6 @@ def test_frames_between_the_sampled_ones_are_searched_for_still_places_only(rng,
     nor held out, so where its points lie changes nothing in the adjustment, and the moving
     subject's hold-out split is that of the sampled frames. Ground truth: the generator's
     points."""
-    import lsmta.systems.refinement as refinement
-    from lsmta.calibration import TiePoints
     from lsmta.io import Videos
     from lsmta.systems.refinement import _between
     assert _between(np.array([0, 4, 7, 11]), 1).tolist() == [2, 6, 9]
@@ -570,14 +574,8 @@ def test_frames_between_the_sampled_ones_are_searched_for_still_places_only(rng,
         moved = xy.copy()
         moved[1, moving_search] += off_px * direction[moving_search]
         fr = frame[keep]
-        tie = TiePoints(xy=moved[:, keep], frame=fr, pair_matches=np.ones((4, 4), int),
-                        pair_guided=np.ones((4, 4), int))
-        monkeypatch.setattr(refinement, "_tie_points_at_work_size",
-                            lambda *a, **k: (tie, tie, None))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)
-            return refine_rig(videos, cams, params=RigRefinementParams(
-                lsm=False, n_frames=4, still_between=between))
+        return _refined_on(monkeypatch, videos, cams, moved[:, keep], fr, RigRefinementParams(
+            lsm=False, n_frames=4, still_between=between))
 
     ref = run(0.0)
     assert ref.frames == (0, 4, 7, 11, 2, 6, 9)

@@ -79,6 +79,18 @@ HEADS_FIELDS = ("measured", "covered", "face_median_mm", "rigid_median_mm", "lab
                 "labels_coverage", "tries")   # per number of heads, one value per seed
 
 
+def _result_file(path: Path, keys) -> dict | None:
+    """A committed result file's fields (None when it is absent); refuses one that lacks any
+    of ``keys``."""
+    if not path.is_file():
+        return None
+    data = json.loads(path.read_text(encoding="utf-8"))
+    for key in keys:
+        if key not in data:
+            raise ValueError(f"path: {path.name} has no {key!r}")
+    return data
+
+
 def read_heads_result(*, path=None) -> dict | None:
     """The committed two-against-four-heads result (:data:`HEADS_RESULT` unless ``path``),
     or None when there is no such file.
@@ -97,12 +109,9 @@ def read_heads_result(*, path=None) -> dict | None:
         When the file lacks a field or a list's length is not the number of seeds.
     """
     path = HEADS_RESULT if path is None else Path(path)
-    if not path.is_file():
+    data = _result_file(path, ("command", "date", "seeds", "settings", "heads", "seeds_met"))
+    if data is None:
         return None
-    data = json.loads(path.read_text(encoding="utf-8"))
-    for key in ("command", "date", "seeds", "settings", "heads", "seeds_met"):
-        if key not in data:
-            raise ValueError(f"path: {path.name} has no {key!r}")
     n = len(data["seeds"])
     for K, per in data["heads"].items():
         for key in HEADS_FIELDS:
@@ -137,12 +146,9 @@ def read_motor_fit_result(*, path=None) -> dict | None:
         When the file lacks a field.
     """
     path = MOTOR_FIT_RESULT if path is None else Path(path)
-    if not path.is_file():
+    data = _result_file(path, ("command", "date", "seeds", "motor_fit"))
+    if data is None:
         return None
-    data = json.loads(path.read_text(encoding="utf-8"))
-    for key in ("command", "date", "seeds", "motor_fit"):
-        if key not in data:
-            raise ValueError(f"path: {path.name} has no {key!r}")
     seeds = sorted(data["seeds"], key=int)
 
     def value(seed, get):
@@ -191,12 +197,9 @@ def read_view_gate_design(*, path=None) -> dict | None:
         When the file lacks a field or a run's length is not the number of gates.
     """
     path = VIEW_GATE_DESIGN_RESULT if path is None else Path(path)
-    if not path.is_file():
+    data = _result_file(path, ("commands", "date", "occlusion", "min_view_cos", "chosen", "runs"))
+    if data is None:
         return None
-    data = json.loads(path.read_text(encoding="utf-8"))
-    for key in ("commands", "date", "occlusion", "min_view_cos", "chosen", "runs"):
-        if key not in data:
-            raise ValueError(f"path: {path.name} has no {key!r}")
     gates = np.array(data["min_view_cos"], float)
     seeds = sorted(data["runs"], key=int)
     fields = sorted({k for s in seeds for k in data["runs"][s]})

@@ -14,11 +14,13 @@ its 13 x 13 window on the body: the population of the density) twice:
   never_reached) with, for nodes tried and failed, why the main patch failed at the last try
   (``GrowResult.node_failure``: the first threshold test failed, or the non-convergence
   status); matched nodes that are missing were dropped by the neighbourhood filter;
-* by **scene label**, the first that applies, from the truth (read only to label):
-  ``silhouette`` (within ``border`` + 2 px of the backdrop mask's edge), ``occlusion``
-  (a depth jump > 20 mm within 9 x 9 px), ``grazing`` (the surface seen at cos < 0.3 by
-  some camera), ``weak texture`` (the precision rule of :class:`~lsmta.matching.GrowParams`
-  ``noise`` fails for the 7 x 7 patch: sqrt(2) noise / sqrt(lambda_min) > 0.2 px), ``other``.
+* by **scene label**, the first that applies: ``silhouette`` (within ``border`` + 2 px of
+  the backdrop mask's edge in image 1), ``occlusion`` (a depth jump > 20 mm within 9 x 9 px
+  of the generator's depth: occlusion borders, and steep slopes too), ``grazing`` (the
+  truth's surface seen at cos < 0.3 by some camera), ``weak texture`` (in image 1 the
+  precision rule of :class:`~lsmta.matching.GrowParams` ``noise`` fails for the 7 x 7
+  patch: sqrt(2) noise / sqrt(lambda_min) > 0.2 px), ``other``. The matcher's seeds are the
+  benchmark's simulated clicks from the truth (``seeds_from_truth``).
 
 The gross errors (> 5 x the median 3-D error, among the filtered points, as
 ``score_surface``) are labelled the same way and counted by the attempt that matched them

@@ -42,6 +42,13 @@ def test_census_adds_up_and_names_the_test_that_rejects():
     assert (res.node_failure[failed] > 0).all()          # a reason other than "accepted"
     assert (res.node_failure[~failed] == -1).all()
     assert (res.node_outcome[:, 100 // 4 + 1:] == NODE_OUTCOMES.index("masked")).any()
+    # the mask, worked out here: nodes right of column 100 px are masked unless outside the
+    # image's usable part, and no node left of it is
+    cols_px = np.arange(cols) * 4
+    outcome_right = res.node_outcome[:, cols_px >= 100]
+    assert np.isin(outcome_right, [NODE_OUTCOMES.index("masked"),
+                                   NODE_OUTCOMES.index("outside")]).all()
+    assert not (res.node_outcome[:, cols_px < 100] == NODE_OUTCOMES.index("masked")).any()
     # a sigma0 limit below the images' noise (2 grey levels each) rejects nearly every match,
     # and the census says so
     tight = GrowParams(step=4, patch=13, thresholds=LSMThresholds(max_sigma0=1.0,

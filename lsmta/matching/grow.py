@@ -429,7 +429,6 @@ class _Grid:
     nodes: np.ndarray      # (rows, cols, 2)
     usable: np.ndarray     # (rows, cols) bool
     cell: np.ndarray       # (rows, cols) int
-    unusable: dict         # "outside", "masked", "no_texture" -> count
     why: np.ndarray        # (rows, cols) int8: index into NODE_OUTCOMES of unusable nodes, -1
 
     @property
@@ -450,24 +449,18 @@ def _grid(f_img: SplineImage, opts: _Options, mask, seeds_t) -> _Grid:
     nodes = np.stack([gc * step, gr * step], axis=-1).astype(float)
     usable = f_img.inside(nodes, margin=0 if opts.partial else opts.largest_patch // 2)
     why = np.where(usable, -1, NODE_OUTCOMES.index("outside")).astype(np.int8)
-    unusable = {"outside": int((~usable).sum())}
     if mask is not None:
-        unusable["masked"] = int((usable & ~mask[gr * step, gc * step]).sum())
         why[usable & ~mask[gr * step, gc * step]] = NODE_OUTCOMES.index("masked")
         usable &= mask[gr * step, gc * step]
-    else:
-        unusable["masked"] = 0
     flat = nodes.reshape(-1, 2)
     if opts.noise is not None:
         textured = _precise_enough(f_img.image, opts, gr * step, gc * step)
     else:
         textured = _spread(f_img, opts, usable, flat, (rows, cols))
-    unusable["no_texture"] = int((usable & ~textured).sum())
     why[usable & ~textured] = NODE_OUTCOMES.index("no_texture")
     usable &= textured
     return _Grid(nodes=nodes, usable=usable,
-                 cell=voronoi_cells(seeds_t, flat).reshape(rows, cols), unusable=unusable,
-                 why=why)
+                 cell=voronoi_cells(seeds_t, flat).reshape(rows, cols), why=why)
 
 
 def _precise_enough(image, opts: _Options, rows, cols) -> np.ndarray:

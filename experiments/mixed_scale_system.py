@@ -333,7 +333,7 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
              hidden, readback_step: float, readback_noise: float, lead: float,
              constant_velocity: bool, baseline: bool, reacquire: int,
              heads=(2,), motor_fit: bool = True, occlusion: str = "normals",
-             min_view_cos: float = -1.0) -> dict:
+             min_view_cos: float = -1.0, merge_px: float = 0.0) -> dict:
     """One walk for ``seed``, as notebook 15 runs it: scene, calibration, the loop with
     prediction and its own identification (and without prediction), the read-back study;
     with ``heads`` other than (2,), the same walk seen by the first K of four heads for
@@ -349,7 +349,7 @@ def run_seed(seed: int, *, travel: float, speed: float, ceiling: int, head_f: fl
     extra = dict(accel_window=0.0, lead_height=True) if constant_velocity else {}
     params = MixedScaleParams(lead=lead, reacquire=reacquire, motor_fit=motor_fit,
                               encoder_step=readback_step if readback_step > 0 else 0.1,
-                              min_view_cos=min_view_cos, **extra)
+                              min_view_cos=min_view_cos, merge_px=merge_px, **extra)
     t0 = time.perf_counter()
     heads = sorted(set(int(k) for k in heads))
     full = replace(mixed_scale_scene(rng=seed, travel=travel, speed=speed, n_ceiling=ceiling,
@@ -433,6 +433,9 @@ def main(argv=None):
                         help="which face markers the heads see (default %(default)s)")
     parser.add_argument("--min-view-cos", type=float, default=-1.0,
                         help="MixedScaleParams.min_view_cos (default %(default)s: no gate)")
+    parser.add_argument("--merge-px", type=float, default=0.0,
+                        help="MixedScaleParams.merge_px (default %(default)s: markers tracked "
+                        "onto one dot kept)")
     parser.add_argument("--out", default=None, help="default: build/benchmarks/"
                         "mixed_scale_system.json (mixed_scale_system_heads.json with --heads)")
     parser.add_argument("--results", default=str(HEADS_RESULT), help="with --heads: the "
@@ -447,7 +450,8 @@ def main(argv=None):
                 "lead": args.lead, "constant_velocity": args.constant_velocity,
                 "baseline": not args.no_baseline, "reacquire": args.reacquire,
                 "heads": sorted(set(args.heads)), "motor_fit": not args.no_motor_fit,
-                "occlusion": args.occlusion, "min_view_cos": args.min_view_cos}
+                "occlusion": args.occlusion, "min_view_cos": args.min_view_cos,
+                "merge_px": args.merge_px}
     bad = [k for k in settings["heads"] if k not in (2, 3, 4)]
     if bad or 2 not in settings["heads"]:
         parser.error(f"--heads: expected numbers of heads among 2, 3, 4, with 2 (the main "

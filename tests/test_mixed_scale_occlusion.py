@@ -187,3 +187,21 @@ def test_the_committed_view_gate_design_has_what_notebook_15_reads():
         assert design[key].shape == n and np.isfinite(design[key]).all()
     assert "min_view_cos" in design["script"] and len(design["commands"]) >= 2
     assert ms.read_view_gate_design(path=ms.VIEW_GATE_DESIGN_RESULT.with_name("none.json")) is None
+
+
+def test_markers_tracked_onto_one_dot_are_both_dropped():
+    # MixedScaleParams.merge_px: two labels on one dot (seed 22's head 1: 12 markers)
+    from lsmta.systems import MixedScaleParams
+    from lsmta.systems.mixed_scale import coinciding_markers
+
+    xy = np.array([[[10.0, 10.0], [10.3, 10.0], [30.0, 10.0], [np.nan, np.nan]],
+                   [[10.0, 10.0], [15.0, 10.0], [30.0, 10.0], [30.0, 10.0]]])
+    before = xy.copy()
+    np.testing.assert_array_equal(coinciding_markers(xy, tol_px=1.0),
+                                  [[True, True, False, False], [False, False, True, True]])
+    assert not coinciding_markers(xy, tol_px=0.1)[0].any()
+    np.testing.assert_array_equal(xy, before)
+    with pytest.raises(ValueError, match="tol_px"):
+        coinciding_markers(xy, tol_px=0.0)
+    with pytest.raises(ValueError, match="merge_px"):
+        MixedScaleParams(merge_px=-1.0)

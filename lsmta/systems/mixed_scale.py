@@ -114,6 +114,10 @@ class MixedScaleParams:
     max_fill_mm : float
         After a first fill, measured markers farther than this from the fitted face are
         dropped as wrong, and the face is filled again, mm.
+    merge_px : float
+        A marker image tracked to within this distance of another marker's image in the
+        same head and frame is dropped, both of them (two markers tracked onto one dot: at
+        most one is right; re-acquisition may restart them), px. 0: none dropped so.
     min_view_cos : float
         After the first fill, a measured marker is also dropped (and filled) where a head
         of its pair sees the fitted face's surface there at a grazing angle: the cosine
@@ -182,6 +186,7 @@ class MixedScaleParams:
     min_angle_deg: float = 2.0
     max_reprojection_px: float = 4.0
     max_fill_mm: float = 3.0
+    merge_px: float = 0.0
     min_view_cos: float = -1.0
     coast: float = SteeringParams.coast
     body_radius: float = SteeringParams.body_radius
@@ -199,7 +204,7 @@ class MixedScaleParams:
         for key in ("video_rate", "threshold_sigmas", "min_angle_deg", "max_reprojection_px",
                     "max_fill_mm", "dot_contrast", "retry_step"):
             as_scalar(getattr(self, key), key, positive=True)
-        for key in ("start", "settle", "retry"):
+        for key in ("start", "settle", "retry", "merge_px"):
             as_scalar(getattr(self, key), key, nonnegative=True)
         as_int(self.reacquire, "reacquire", minimum=0)
         if not -1.0 <= as_scalar(self.min_view_cos, "min_view_cos") <= 1.0:
@@ -522,9 +527,23 @@ def _track(st: _State, seeds) -> None:
                            shifts=None if before is None else before[k].shift,
                            sharpness=None if before is None else before[k].sharpness)
         ok = np.isin(tr.status, (MarkerStatus.TRACKED, MarkerStatus.SECOND_SEARCH))
+        if st.params.merge_px > 0:
+            ok &= ~coinciding_markers(np.where(ok[..., None], tr.xy, np.nan),
+                                      tol_px=st.params.merge_px)
         st.markers.append(tr)
         xy.append(np.where(ok[..., None], tr.xy, np.nan))
     st.xy = np.stack(xy)
+
+
+def coinciding_markers(xy, *, tol_px: float = 1.0) -> np.ndarray:
+    """``(F, M)`` bool: the marker images ``xy`` (F, M, 2) px (NaN: not found) within
+    ``tol_px`` px of another marker's image in the same frame (markers tracked onto one
+    dot); not modified."""
+    xy = as_array(xy, "xy", shape=(None, None, 2), allow_nan=True)
+    tol_px = as_scalar(tol_px, "tol_px", positive=True)
+    gap = np.linalg.norm(xy[:, :, None] - xy[:, None], axis=3)           # (F, M, M)
+    gap[:, np.arange(xy.shape[1]), np.arange(xy.shape[1])] = np.inf
+    return (np.nan_to_num(gap, nan=np.inf) <= tol_px).any(axis=2)
 
 
 def _reacquisition(st: _State) -> None:

@@ -3,7 +3,7 @@
     .venv/bin/python experiments/refinement_held_out.py [--scale 1.0] [--frames 0:100]
         [--n-frames 6] [--out FILE] [--lsm both|on|off]
         [--lsm-each | --lsm-once] [--larger-patches 41,61|none]
-        [--recording-geometry] [--still-between N]
+        [--recording-geometry] [--still-between N] [--tie KEY=VALUE,...]
 
 Refines the Pose2Sim demo's cameras from the recording as ``lsmta capture`` does
 (`lsmta.systems.refine_rig`) and prints, per camera, the median residual of the adjusted
@@ -38,7 +38,9 @@ held-out places are judged as matched per frame. ``--n-frames`` sets
 (with 7 over frames 0-99: frames 0, 16, 33, 50, 66, 82, 99, held out 16 and 66, none of the
 default split's held-out frames 20 and 79). ``--still-between N`` sets
 ``RigRefinementParams.still_between``: N frames between each two sampled ones searched for
-still places only (the moving subject's split unchanged).
+still places only (the moving subject's split unchanged). ``--tie`` sets the tie-point
+detector's settings (`lsmta.calibration.TieParams` fields, e.g.
+``--tie asift_features=1600,n_features=12000``; default: the library's).
 
 ``common`` (with ``--lsm both``): the two runs' refined cameras scored on ONE set of places,
 held out of both adjustments: the tie points are the same in both runs (found before the
@@ -72,6 +74,7 @@ import argparse
 import json
 import time
 import warnings
+from dataclasses import fields
 
 import numpy as np
 
@@ -104,6 +107,18 @@ def still_once(args) -> bool:
     return RigRefinementParams().lsm_still_once
 
 
+def tie_settings(text: str) -> dict:
+    """``--tie`` as keyword arguments of ``TieParams``, each of its default's type."""
+    defaults = {f.name: f.default for f in fields(TieParams)}
+    out = {}
+    for item in filter(None, text.split(",")):
+        key, _, value = item.partition("=")
+        if key not in defaults or key == "recording_geometry" or not value:
+            raise ValueError(f"--tie: expected KEY=VALUE with KEY a TieParams field, got {item!r}")
+        out[key] = type(defaults[key])(value)
+    return out
+
+
 def run(videos, lsm: bool, args):
     """One refinement of the demo: its numbers, and the RigRefinement."""
     larger = ({"larger_patches": tuple(int(p) for p in args.larger_patches.split(",")
@@ -118,7 +133,8 @@ def run(videos, lsm: bool, args):
                              lsm_still_once=still_once(args),
                              still_between=args.still_between,
                              tie_lsm=TieLSMParams(**larger),
-                             tie=TieParams(recording_geometry=args.recording_geometry)))
+                             tie=TieParams(recording_geometry=args.recording_geometry,
+                                           **tie_settings(args.tie))))
     seconds = time.perf_counter() - t0
     places = ref.place_xy
     seen = np.isfinite(places[..., 0])
@@ -130,6 +146,8 @@ def run(videos, lsm: bool, args):
     held = {"still": places[:, ref.held_out_places & ref.still],
             "moving": places[:, ref.held_out_places & ~ref.still]}
     record = {"lsm": lsm, "lsm_still_once": still_once(args),
+              "tie": {f.name: getattr(TieParams(**tie_settings(args.tie)), f.name)
+                      for f in fields(TieParams)},
               "recording_geometry": args.recording_geometry,
               "larger_patches": larger.get("larger_patches", TieLSMParams().larger_patches),
               "scale": args.scale, "frames": args.frames, "n_frames": args.n_frames,
@@ -251,7 +269,11 @@ def main(argv=None):
                         default=RigRefinementParams().still_between,
                         help="RigRefinementParams.still_between: frames between each two "
                              "sampled ones searched for still places only")
+    parser.add_argument("--tie", default="",
+                        help="TieParams settings, KEY=VALUE comma-separated (e.g. "
+                             "asift_features=1600,n_features=12000; default: the library's)")
     args = parser.parse_args(argv)
+    tie_settings(args.tie)                                      # a bad --tie fails here
     if args.lsm_each and args.lsm_once:
         parser.error("--lsm-each and --lsm-once exclude each other")
     start, stop = (int(x) for x in args.frames.split(":"))

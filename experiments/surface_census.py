@@ -46,7 +46,7 @@ from surface_benchmark import rendered_frames
 
 from lsmta.evaluation import surface as evaluate
 from lsmta.matching import GrowParams, LSMThresholds, MeasureSurfaceParams, measure_surface
-from lsmta.matching.grow import ATTEMPT_OUTCOMES, NODE_OUTCOMES
+from lsmta.matching.grow import ATTEMPT_OUTCOMES, NODE_OUTCOMES, NodeOutcome
 from lsmta.matching.masks import backdrop_mask
 from lsmta.report import write_json
 
@@ -122,7 +122,7 @@ def census(res, truth, labels) -> dict:
     fail = g.node_failure
     tried = fail >= 0
     stage[tried] = [f"{s}: {ATTEMPT_OUTCOMES[k]}" for s, k in zip(stage[tried], fail[tried])]
-    stage[(g.node_outcome == NODE_OUTCOMES.index("matched")) & ~kept] = "neighbourhood filter"
+    stage[(g.node_outcome == NodeOutcome.MATCHED) & ~kept] = "neighbourhood filter"
     miss = target & ~kept
     by_stage = Counter(stage[miss])
     by_label = Counter(LABELS[k] for k in labels[miss])

@@ -6,13 +6,30 @@ import pytest
 
 from conftest import smaller
 from lsmta.matching import LSMThresholds, MeasureSurfaceParams, measure_surface
-from lsmta.matching.grow import ATTEMPT_OUTCOMES, NODE_OUTCOMES, GrowParams, grow_matches
+from lsmta.matching.grow import (
+    ATTEMPT_OUTCOMES,
+    NODE_OUTCOMES,
+    AttemptOutcome,
+    GrowParams,
+    NodeOutcome,
+    grow_matches,
+)
+from lsmta.matching.lsm import THRESHOLD_TESTS, Status
 from lsmta.synth import Renderer, Scene, make_body, project_surface_points, triplet_rig, walk
 from lsmta.synth.patches import warped_pair
 from lsmta.systems import SurfaceParams
 from lsmta.systems.surfaces import surface_census
 
 A_TRUE = np.array([[1.03, 0.05], [-0.04, 0.98]])
+
+
+def test_outcomes_are_int_enums_in_the_census_order():
+    # the attempt outcomes follow the threshold tests and LSM's failure statuses by name
+    assert ATTEMPT_OUTCOMES == ("accepted",) + THRESHOLD_TESTS + tuple(
+        s.name.lower() for s in (Status.MAX_ITERATIONS, Status.DIVERGED, Status.OUTSIDE,
+                                 Status.SINGULAR))
+    assert [int(o) for o in AttemptOutcome] == list(range(len(ATTEMPT_OUTCOMES)))
+    assert NODE_OUTCOMES[NodeOutcome.NEVER_REACHED] == "never_reached"
 
 
 def test_census_adds_up_and_names_the_test_that_rejects():
@@ -35,20 +52,18 @@ def test_census_adds_up_and_names_the_test_that_rejects():
     assert res.node_outcome.shape == (rows, cols)
     for i, name in enumerate(NODE_OUTCOMES):
         assert (res.node_outcome == i).sum() == res.node_census[name]
-    matched = res.node_outcome == NODE_OUTCOMES.index("matched")
+    matched = res.node_outcome == NodeOutcome.MATCHED
     assert set(zip(*np.nonzero(matched))) == set(map(tuple, res.node_index))
-    failed = np.isin(res.node_outcome, [NODE_OUTCOMES.index("given_up"),
-                                        NODE_OUTCOMES.index("failed_open")])
+    failed = np.isin(res.node_outcome, [NodeOutcome.GIVEN_UP, NodeOutcome.FAILED_OPEN])
     assert (res.node_failure[failed] > 0).all()          # a reason other than "accepted"
     assert (res.node_failure[~failed] == -1).all()
-    assert (res.node_outcome[:, 100 // 4 + 1:] == NODE_OUTCOMES.index("masked")).any()
+    assert (res.node_outcome[:, 100 // 4 + 1:] == NodeOutcome.MASKED).any()
     # the mask, worked out here: nodes right of column 100 px are masked unless outside the
     # image's usable part, and no node left of it is
     cols_px = np.arange(cols) * 4
     outcome_right = res.node_outcome[:, cols_px >= 100]
-    assert np.isin(outcome_right, [NODE_OUTCOMES.index("masked"),
-                                   NODE_OUTCOMES.index("outside")]).all()
-    assert not (res.node_outcome[:, cols_px < 100] == NODE_OUTCOMES.index("masked")).any()
+    assert np.isin(outcome_right, [NodeOutcome.MASKED, NodeOutcome.OUTSIDE]).all()
+    assert not (res.node_outcome[:, cols_px < 100] == NodeOutcome.MASKED).any()
     # a sigma0 limit below the images' noise (2 grey levels each) rejects nearly every match,
     # and the census says so
     tight = GrowParams(step=4, patch=13, thresholds=LSMThresholds(max_sigma0=1.0,
@@ -56,7 +71,7 @@ def test_census_adds_up_and_names_the_test_that_rejects():
     res = grow_matches(pair.template, pair.search, seeds, pair.true_xy(seeds), params=tight)
     c = res.attempt_census
     assert c["sigma0"] > 0.9 * (res.n_lsm - c["accepted"])
-    sigma0 = ATTEMPT_OUTCOMES.index("sigma0")
+    sigma0 = AttemptOutcome.SIGMA0
     failed = res.node_failure >= 0
     assert (res.node_failure[failed] == sigma0).mean() > 0.9
     assert sum(c.values()) == res.n_lsm

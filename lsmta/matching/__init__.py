@@ -22,7 +22,7 @@ Every matcher takes its settings as one frozen dataclass, ``params=``: ``LSMPara
 from .correlation import CorrelationResult, CorrelationStatus, correlation_search
 from .disparity import DisparityParams, DisparityResult, measure_disparity, refine_disparities
 from .filters import NeighbourhoodCheck, neighbourhood_filter
-from .grow import GrowParams, GrowResult, grow_joint, grow_matches
+from .grow import AttemptOutcome, GrowParams, GrowResult, NodeOutcome, grow_joint, grow_matches
 from .lsm import (
     GEOMETRIES,
     PARAM_NAMES,
@@ -43,10 +43,12 @@ from .surface import MeasureSurfaceParams, SurfaceResult, enhance_contrast, meas
 from .symmetry import SymmetricCorners, symmetric_corners
 
 __all__ = [
-    "GEOMETRIES", "PARAM_NAMES", "RADIOMETRIES", "CameraGeometry", "ConstrainedResult",
+    "GEOMETRIES", "PARAM_NAMES", "RADIOMETRIES", "AttemptOutcome", "CameraGeometry",
+    "ConstrainedResult",
     "CorrelationResult", "CorrelationStatus", "DisparityParams", "DisparityResult",
     "GrowParams", "GrowResult", "LSMParams", "LSMResult", "LSMThresholds",
-    "MeasureSurfaceParams", "NeighbourhoodCheck", "RectifiedPair", "Seeds", "SplineImage",
+    "MeasureSurfaceParams", "NeighbourhoodCheck", "NodeOutcome", "RectifiedPair", "Seeds",
+    "SplineImage",
     "Status", "SurfaceResult", "SymmetricCorners", "backdrop_mask", "correlation_search",
     "enhance_contrast",
     "find_disparity_seeds", "find_seeds", "grow_joint", "grow_matches", "lsm", "lsm_multi",

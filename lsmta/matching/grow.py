@@ -34,6 +34,7 @@ across them (``_grow``), and freeze the result (``_results``); the state of the 
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -59,14 +60,42 @@ VERTICAL = ((0, 1), (0, -1))
 #: the reach of the last phase (``reach=True``): diagonal neighbours and nodes two steps away
 FAR = ((1, 1), (-1, 1), (1, -1), (-1, -1), (2, 0), (-2, 0), (0, 2), (0, -2))
 METHODS = ("patch", "retry", "robust", "shifted")
-#: the outcomes an LSM attempt is counted under in :attr:`GrowResult.attempt_census`: accepted,
-#: rejected by the first threshold it fails (:data:`~lsmta.matching.lsm.THRESHOLD_TESTS`), or
-#: not converged (the other :class:`~lsmta.matching.lsm.Status` codes)
-ATTEMPT_OUTCOMES = ("accepted",) + THRESHOLD_TESTS + ("max_iterations", "diverged", "outside",
-                                                      "singular")
-#: what became of the grid's nodes in :attr:`GrowResult.node_census`
-NODE_OUTCOMES = ("outside", "masked", "no_texture", "matched", "given_up", "failed_open",
-                 "never_reached")
+class AttemptOutcome(enum.IntEnum):
+    """What became of one LSM attempt (:attr:`GrowResult.attempt_census`,
+    :attr:`GrowResult.node_failure`): accepted, rejected by the first threshold it fails
+    (:data:`~lsmta.matching.lsm.THRESHOLD_TESTS`, in that order), or not converged (the other
+    :class:`~lsmta.matching.lsm.Status` codes)."""
+
+    ACCEPTED = 0
+    SIGMA0 = 1
+    SIGMA_XY = 2
+    DISPLACEMENT = 3
+    SCALE = 4
+    SHEAR = 5
+    WEIGHT_SHARE = 6
+    MAX_ITERATIONS = 7
+    DIVERGED = 8
+    OUTSIDE = 9
+    SINGULAR = 10
+
+
+class NodeOutcome(enum.IntEnum):
+    """What became of a grid node (:attr:`GrowResult.node_census`,
+    :attr:`GrowResult.node_outcome`)."""
+
+    OUTSIDE = 0
+    MASKED = 1
+    NO_TEXTURE = 2
+    MATCHED = 3
+    GIVEN_UP = 4
+    FAILED_OPEN = 5
+    NEVER_REACHED = 6
+
+
+#: the census keys of :class:`AttemptOutcome`, in its order (lower-case member names)
+ATTEMPT_OUTCOMES = tuple(o.name.lower() for o in AttemptOutcome)
+#: the census keys of :class:`NodeOutcome`, in its order (lower-case member names)
+NODE_OUTCOMES = tuple(o.name.lower() for o in NodeOutcome)
 
 
 @dataclass(frozen=True)
@@ -117,11 +146,11 @@ class GrowResult:
         matched, given up after ``max_attempts``, tried and failed fewer times, never
         reached from a matched neighbour.
     node_outcome : (rows, cols) int8 array
-        Every grid node's outcome, an index into :data:`NODE_OUTCOMES` (the census per node).
+        Every grid node's outcome, a :class:`NodeOutcome` value (the census per node).
     node_failure : (rows, cols) int8 array
         For nodes tried and not matched: why the first attempt (the main patch) failed at
-        the node's last try, an index into :data:`ATTEMPT_OUTCOMES` (the first threshold
-        test failed, or the non-convergence status); -1 elsewhere.
+        the node's last try, an :class:`AttemptOutcome` value (the first threshold test
+        failed, or the non-convergence status); -1 elsewhere.
     """
 
     template_xy: np.ndarray
@@ -429,7 +458,7 @@ class _Grid:
     nodes: np.ndarray      # (rows, cols, 2)
     usable: np.ndarray     # (rows, cols) bool
     cell: np.ndarray       # (rows, cols) int
-    why: np.ndarray        # (rows, cols) int8: index into NODE_OUTCOMES of unusable nodes, -1
+    why: np.ndarray        # (rows, cols) int8: NodeOutcome of unusable nodes, -1
 
     @property
     def shape(self) -> tuple:
@@ -448,16 +477,16 @@ def _grid(f_img: SplineImage, opts: _Options, mask, seeds_t) -> _Grid:
     gr, gc = np.mgrid[0:rows, 0:cols]
     nodes = np.stack([gc * step, gr * step], axis=-1).astype(float)
     usable = f_img.inside(nodes, margin=0 if opts.partial else opts.largest_patch // 2)
-    why = np.where(usable, -1, NODE_OUTCOMES.index("outside")).astype(np.int8)
+    why = np.where(usable, -1, NodeOutcome.OUTSIDE).astype(np.int8)
     if mask is not None:
-        why[usable & ~mask[gr * step, gc * step]] = NODE_OUTCOMES.index("masked")
+        why[usable & ~mask[gr * step, gc * step]] = NodeOutcome.MASKED
         usable &= mask[gr * step, gc * step]
     flat = nodes.reshape(-1, 2)
     if opts.noise is not None:
         textured = _precise_enough(f_img.image, opts, gr * step, gc * step)
     else:
         textured = _spread(f_img, opts, usable, flat, (rows, cols))
-    why[usable & ~textured] = NODE_OUTCOMES.index("no_texture")
+    why[usable & ~textured] = NodeOutcome.NO_TEXTURE
     usable &= textured
     return _Grid(nodes=nodes, usable=usable,
                  cell=voronoi_cells(seeds_t, flat).reshape(rows, cols), why=why)
@@ -516,7 +545,7 @@ class _State:
     wave: np.ndarray           # (rows, cols)
     holes: np.ndarray          # (rows, cols) bool
     method: np.ndarray         # (rows, cols) index into METHODS
-    failure: np.ndarray        # (rows, cols) int8: index into ATTEMPT_OUTCOMES, -1
+    failure: np.ndarray        # (rows, cols) int8: AttemptOutcome, -1
     n_lsm: int = 0
     census: dict = field(default_factory=dict)
 
@@ -560,7 +589,7 @@ class _Matches:
     t: np.ndarray              # (m,)
     sigma_t: np.ndarray        # (m,)
     how: np.ndarray            # (m,) index into METHODS
-    failure: np.ndarray = None  # (m,) the first attempt's outcome, index into ATTEMPT_OUTCOMES
+    failure: np.ndarray = None  # (m,) the first attempt's outcome, AttemptOutcome
 
     @classmethod
     def none(cls, m: int, K: int) -> _Matches:
@@ -676,14 +705,14 @@ def _grow_driver(template, searches, seeds_t, seeds_s, opts: _Options, *, mask,
 def _tally(census: dict, status, thresholds, views) -> np.ndarray:
     """Count one attempt's outcomes into ``census`` (:data:`ATTEMPT_OUTCOMES`): a rejected
     match under the first test it fails in any search image. Returns every point's outcome,
-    an index into :data:`ATTEMPT_OUTCOMES` (int8)."""
+    an :class:`AttemptOutcome` value (int8)."""
     status = np.asarray(status)
     code = np.zeros(len(status), dtype=np.int8)
     census["accepted"] += int((status == Status.CONVERGED).sum())
     for name, st in (("max_iterations", Status.MAX_ITERATIONS), ("diverged", Status.DIVERGED),
                      ("outside", Status.OUTSIDE), ("singular", Status.SINGULAR)):
         census[name] += int((status == st).sum())
-        code[status == st] = ATTEMPT_OUTCOMES.index(name)
+        code[status == st] = AttemptOutcome[name.upper()]
     rejected = status == Status.REJECTED
     if not rejected.any():
         return code
@@ -692,10 +721,10 @@ def _tally(census: dict, status, thresholds, views) -> np.ndarray:
     for name in THRESHOLD_TESTS:
         hit = left & np.any([f[name] for f in fails], axis=0)
         census[name] += int(hit.sum())
-        code[hit] = ATTEMPT_OUTCOMES.index(name)
+        code[hit] = AttemptOutcome[name.upper()]
         left &= ~hit
     census["sigma0"] += int(left.sum())    # rejected by the joint rule only (mpgc)
-    code[left] = ATTEMPT_OUTCOMES.index("sigma0")
+    code[left] = AttemptOutcome.SIGMA0
     return code
 
 
@@ -755,13 +784,13 @@ def _grow(state: _State, grid: _Grid, matcher: _Matcher, opts: _Options) -> None
 
 
 def _node_outcome(state: _State, grid: _Grid) -> np.ndarray:
-    """Every grid node's outcome, an index into :data:`NODE_OUTCOMES` (int8 grid)."""
+    """Every grid node's outcome, a :class:`NodeOutcome` value (int8 grid)."""
     u, st = grid.usable, state.state
     out = grid.why.copy()
-    for name, sel in (("matched", st == 1), ("given_up", st == 2),
-                      ("failed_open", (st == 0) & (state.attempts > 0)),
-                      ("never_reached", (st == 0) & (state.attempts == 0))):
-        out[u & sel] = NODE_OUTCOMES.index(name)
+    for outcome, sel in ((NodeOutcome.MATCHED, st == 1), (NodeOutcome.GIVEN_UP, st == 2),
+                         (NodeOutcome.FAILED_OPEN, (st == 0) & (state.attempts > 0)),
+                         (NodeOutcome.NEVER_REACHED, (st == 0) & (state.attempts == 0))):
+        out[u & sel] = outcome
     return out
 
 

@@ -29,7 +29,8 @@ def test_outcomes_are_int_enums_in_the_census_order():
         s.name.lower() for s in (Status.MAX_ITERATIONS, Status.DIVERGED, Status.OUTSIDE,
                                  Status.SINGULAR))
     assert [int(o) for o in AttemptOutcome] == list(range(len(ATTEMPT_OUTCOMES)))
-    assert NODE_OUTCOMES[NodeOutcome.NEVER_REACHED] == "never_reached"
+    assert NODE_OUTCOMES == ("outside", "masked", "no_texture", "matched", "given_up",
+                             "failed_open", "never_reached")
 
 
 def test_census_adds_up_and_names_the_test_that_rejects():

@@ -49,6 +49,9 @@ from ..widearea import (
 from .track_scores import longest_track_estimate, score_led_tracks
 from .widearea import trial_rig
 
+#: pixels by which the operator's mask grows the monitor's true rectangle on every side
+MONITOR_MASK_GROWTH_PX = 2
+
 
 def match_features(det, true_xy, *, radius: float = 2.0):
     """Per frame of detections ``det``: which true LEDs ``true_xy`` (T, N, 2) were found
@@ -119,7 +122,8 @@ def detection_trial(*, rng: np.random.Generator | int | None = None, rig=None, c
     thr = background_threshold(video.background, offset, minimum)
     inv = np.zeros(video.frames.shape[1:], bool)
     x0, y0, x1, y1 = video.monitor.astype(int)
-    inv[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = True
+    g = MONITOR_MASK_GROWTH_PX
+    inv[max(y0 - g, 0):y1 + g, max(x0 - g, 0):x1 + g] = True
     runs = {}
     detect(video.frames[:1], thr, params=params, invalid=inv, mode="subsampled",
            rng=0)                                   # compile the search before timing it
@@ -320,7 +324,8 @@ def rendered_tracking_trial(*, rng: np.random.Generator | int | None = None, rig
             thr = background_threshold(video.background, 20.0, 60.0)
             inv = np.zeros(video.frames.shape[1:], bool)
             x0, y0, x1, y1 = video.monitor.astype(int)
-            inv[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = True
+            g = MONITOR_MASK_GROWTH_PX
+            inv[max(y0 - g, 0):y1 + g, max(x0 - g, 0):x1 + g] = True
             t0 = time.perf_counter()
             det = detect(video.frames, thr, invalid=inv, mode=mode, rng=rng,
                          predicted="previous" if mode == "subsampled" else None)
@@ -407,7 +412,7 @@ class GuidedDetectionTrial:
 def _walk_videos(rng, rig, n_cameras, duration, scale):
     """The walking person rendered in the cameras that see its path best, each at its own
     rate, phase, clock offset and latency; per video its invalid mask (the monitor, grown
-    by 2 px); the frames in arrival order as (arrival, camera, frame)."""
+    by ``MONITOR_MASK_GROWTH_PX``); the frames in arrival order as (arrival, camera, frame)."""
     k = np.arange(8)
     scene = walking_person(duration=duration + 0.1,
                            on=np.stack([0.1 + 0.05 * k, np.full(8, np.inf)], axis=1))
@@ -423,7 +428,8 @@ def _walk_videos(rng, rig, n_cameras, duration, scale):
         v = render_led_video(scene, cam, tt, rng=rng)
         inv = np.zeros(v.frames.shape[1:], bool)
         x0, y0, x1, y1 = v.monitor.astype(int)
-        inv[max(y0 - 2, 0):y1 + 2, max(x0 - 2, 0):x1 + 2] = True
+        g = MONITOR_MASK_GROWTH_PX
+        inv[max(y0 - g, 0):y1 + g, max(x0 - g, 0):x1 + g] = True
         videos.append(v)
         masks.append(inv)
         arrival = tt + clocks.latency[c] + clocks.jitter * np.abs(rng.normal(size=len(tt)))

@@ -121,6 +121,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .._validate import as_int, as_scalar, freeze
+from ..build_cache import cached_result
 from ..calibration.refine import CameraRefinement, RefineParams, refine_cameras
 from ..calibration.tie_lsm import TieLSM, TieLSMParams, refine_tie_points
 from ..calibration.tie_points import (
@@ -874,7 +875,18 @@ def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = 
         Cameras that do not fit the videos (sizes, count, tie points far from where the
         cameras put them, or an adjustment that turns a camera far from the file's
         orientation), with what was found; ``stacks`` that are not the videos' frames.
+
+    Notes
+    -----
+    Under ``lsmta reproduce`` a call with the same arguments as an earlier one of the run
+    (notebooks 17 and 21) returns that call's result (:func:`lsmta.build_cache.cached_result`;
+    its ``lsm.seconds`` are then the earlier call's).
     """
+    return cached_result("rig_refinement", _refine_rig, (videos, cameras),
+                         kwargs={"params": params, "stacks": stacks})
+
+
+def _refine_rig(videos, cameras, *, params, stacks) -> RigRefinement:
     params = RigRefinementParams() if params is None else params
     if not isinstance(videos, Videos):
         raise TypeError("videos: expected lsmta.io.Videos (from lsmta.io.read_videos)")

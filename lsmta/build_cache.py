@@ -18,6 +18,7 @@ import io
 import os
 import pickle
 import re
+import warnings
 import zipfile
 from collections.abc import Callable
 from importlib import metadata
@@ -211,7 +212,8 @@ def cached_result(kind: str, compute: Callable, args: tuple, *, kwargs: dict | N
     object
         The result; from the run's cache folder (``<kind>/<key>.pkl``, written by this
         run's own kernels) equal to the computed one field by field, arrays bit for bit and
-        with their ``writeable`` flags, and a line added to :data:`READS_FILE` there.
+        with their ``writeable`` flags, and a line added to :data:`READS_FILE` there; the
+        warnings the computation gave are given again.
         Computed when not run by ``lsmta reproduce``, when
         the arguments do not pickle or when the file cannot be read or written.
     """
@@ -231,18 +233,30 @@ def cached_result(kind: str, compute: Callable, args: tuple, *, kwargs: dict | N
     if path.is_file():
         try:
             with open(path, "rb") as fh:
-                out = pickle.load(fh)    # this run's own file (a private folder of the run)
+                out, warned = pickle.load(fh)   # this run's own file (its private folder)
             with open(folder / READS_FILE, "a", encoding="utf-8") as fh:
                 fh.write(f"{key} {os.getpid()}\n")   # a reader can say what was not computed
+            _warn_again(warned)
             return out
-        except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError):
+        except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError,
+                TypeError, ValueError):
             pass                                   # unreadable: computed again
-    out = compute(*args, **kwargs)
+    with warnings.catch_warnings(record=True) as caught:   # the filters as they are
+        out = compute(*args, **kwargs)
+    warned = [(w.message, w.category, w.filename, w.lineno) for w in caught]
+    _warn_again(warned)
     try:
         folder.mkdir(parents=True, exist_ok=True)
         tmp = folder / f"{key}.{os.getpid()}.tmp"   # written whole, then moved into place
-        tmp.write_bytes(_dumps(out))
+        tmp.write_bytes(_dumps((out, warned)))
         os.replace(tmp, path)
     except (OSError, pickle.PicklingError, TypeError, AttributeError):
         pass                                       # not kept: the next call computes it
     return out
+
+
+def _warn_again(warned) -> None:
+    """Issue the warnings a computation gave (kept with its result: a call that reads it
+    warns as the computing one did)."""
+    for message, category, filename, lineno in warned:
+        warnings.warn_explicit(message, category, filename, lineno)

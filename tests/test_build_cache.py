@@ -153,3 +153,16 @@ def test_a_result_read_back_and_passed_on_gives_the_same_key(monkeypatch, tmp_pa
         cached_result("some_call", compute, ([1.0],), kwargs={"scale": arg["every_third"][1]})
         cached_result("other_call", lambda like: compute(like["a"]), (arg,))
     assert len(calls) == 2
+
+
+def test_a_result_read_back_warns_as_the_computed_one(monkeypatch, tmp_path):
+    import warnings
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path))
+
+    def compute(x):
+        warnings.warn(f"few places: {x}", UserWarning, stacklevel=2)
+        return np.array([x])
+    for _ in range(2):
+        with pytest.warns(UserWarning, match="few places: 3"):
+            assert cached_result("warning_call", compute, (3,))[0] == 3
+    assert len((tmp_path / "warning_call" / READS_FILE).read_text().splitlines()) == 1

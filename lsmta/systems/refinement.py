@@ -638,7 +638,7 @@ def _warn_worse(given, before, after) -> None:
         warnings.warn(f"refine_rig: the refined cameras fit the held-out places "
                       f"worse than the given ones in {', '.join(worse)} (see summary()); the "
                       "tie points may not determine them: keep the given cameras there",
-                      stacklevel=3)
+                      stacklevel=5)
 
 
 def _between(picks, m: int) -> np.ndarray:
@@ -676,7 +676,7 @@ def _judged_on(still_xy, min_still_held: int, names) -> str:
     warnings.warn(f"refine_rig: {', '.join(short)} see(s) fewer than min_still_held = "
                   f"{min_still_held} held-out still places ({seen.tolist()} per camera): the "
                   "refinement is judged on all held-out places, the moving subject's too, a "
-                  "weaker check (both residual sets are in summary())", stacklevel=3)
+                  "weaker check (both residual sets are in summary())", stacklevel=5)
     return "all places"
 
 
@@ -748,7 +748,7 @@ def _folded(cameras) -> tuple:
         warnings.warn(f"refine_rig: the refined lens model of {', '.join(folded)} cannot be "
                       "inverted everywhere in its frame (the fitted distortion folds over "
                       "inside it): the refined cameras are not used (RigRefinement.chosen is "
-                      "the given ones; see folded in summary())", stacklevel=3)
+                      "the given ones; see folded in summary())", stacklevel=5)
     return folded
 
 

@@ -220,3 +220,47 @@ def test_reproduce_keeps_arrays_for_its_own_run_only(notebooks, tmp_path):
     used = Path((notebooks / "cache.txt").read_text())
     assert used.parent == build.resolve() and used.name.startswith("run-")
     assert not used.exists()
+
+
+def test_preamble_of_a_notebook():
+    """The top of the first code cell: its imports and os.environ.setdefault, up to the first
+    other statement or magic."""
+    nb = nbformat.v4.new_notebook()
+    nb.cells = [nbformat.v4.new_markdown_cell("import nothing"), nbformat.v4.new_code_cell(
+        "import os\n\nos.environ.setdefault('OPENBLAS_NUM_THREADS', '1')  # BLAS\n"
+        "import json, time\nfrom pathlib import Path\n"
+        "from lsmta import (\n    cli,\n    report,\n)\n"
+        "\n%matplotlib inline\nimport numba\n")]
+    imports, env = cli.notebook_preamble(nb)
+    assert imports == [("os", ()), ("json", ()), ("time", ()), ("pathlib", ("Path",)),
+                       ("lsmta", ("cli", "report"))]
+    assert env == {"OPENBLAS_NUM_THREADS": "1"}
+    nb.cells[1].source = "import os\nx = 1\nimport numba\nos.environ.setdefault('A', 'b')"
+    assert cli.notebook_preamble(nb) == ([("os", ())], {})
+    nb.cells[1].source = "import os\nos.environ.setdefault('A', name)\nimport numba"
+    assert cli.notebook_preamble(nb) == ([("os", ())], {})
+    nb.cells[1].source = "import (\n"
+    assert cli.notebook_preamble(nb) == ([], {})
+
+
+def test_kernel_does_the_preamble_ahead_and_binds_nothing(notebooks, tmp_path):
+    """The kernel imports the notebook's first modules and sets its environment while it
+    boots; the notebook still starts at execution count 1 with only its own names."""
+    # imported while the kernel boots: before any cell (IPython counts 1 until the first)
+    (notebooks / "probe_import.py").write_text(
+        "from IPython import get_ipython\n"
+        "open('probe.txt', 'w').write(str(get_ipython().execution_count))\n")
+    _notebook(notebooks / "02_third.ipynb", [
+        "import os\n\nos.environ.setdefault('LSMTA_TEST_PREAMBLE', 'from the notebook')\n"
+        "import json\nfrom probe_import import get_ipython\n%matplotlib inline\n"
+        "open('third.txt', 'w').write(json.dumps([os.environ['LSMTA_TEST_PREAMBLE'],\n"
+        "                                         'pathlib' in dir()]))",
+        "import pathlib  # not in the preamble"])
+    build = tmp_path / "build"
+    assert cli.main(["reproduce", "--notebooks", str(notebooks), "--build", str(build),
+                     "--only", "third", "--no-book"]) == 0
+    env_value, leaked = json.loads((notebooks / "third.txt").read_text())
+    assert env_value == "from the notebook" and not leaked
+    assert (notebooks / "probe.txt").read_text() == "1"
+    ran = nbformat.read(build / "notebooks" / "02_third.ipynb", 4)
+    assert [c.execution_count for c in ran.cells if c.cell_type == "code"] == [1, 2]

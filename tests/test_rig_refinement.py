@@ -5,7 +5,7 @@ checks of cameras against videos, places and held-out places, lens models that f
 import hashlib
 import json
 import warnings
-from dataclasses import replace
+from dataclasses import fields, replace
 
 import cv2
 import numpy as np
@@ -595,3 +595,28 @@ def test_frames_between_the_sampled_ones_are_searched_for_still_places_only(rng,
     assert np.array_equal(ref30.held_out_places, ref.held_out_places)
     for a, b in zip(ref30.cameras, ref.cameras):
         assert np.array_equal(a.C, b.C) and np.array_equal(a.R, b.R) and a.f == b.f
+
+
+@pytest.mark.slow
+def test_refine_rig_under_a_build_reads_the_kept_result(recording, monkeypatch, tmp_path):
+    """Under ``lsmta reproduce`` a second call with the same arguments (notebook 21 after 17)
+    reads the first call's result: the same cameras and residuals to the bit, read-only
+    arrays still read-only, shared parts still shared; other settings are another call."""
+    from lsmta.build_cache import CACHE_ENV
+    paths, cams = recording
+    given = disturbed(cams, np.random.default_rng(7))
+    params = RigRefinementParams(n_frames=3, lsm=False,
+                                 tie=TieParams(n_features=2000, asift_features=300))
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path))
+    first, again = (refine_rig(read_videos(paths), given, params=params) for _ in range(2))
+    assert len(list((tmp_path / "rig_refinement").glob("*.pkl"))) == 1
+    assert first is not again and again.raw_tie_points is again.tie_points
+    for name in ("held_out_before", "held_out_after", "place_xy", "still", "held_out_places"):
+        a, b = getattr(first, name), getattr(again, name)
+        assert np.array_equal(a, b, equal_nan=a.dtype.kind == "f"), name
+        assert a.flags.writeable == b.flags.writeable, name
+    for a, b in zip(first.chosen, again.chosen, strict=True):       # every camera field
+        for f in fields(a):
+            assert np.array_equal(getattr(a, f.name), getattr(b, f.name)), f.name
+    refine_rig(read_videos(paths), given, params=replace(params, hold_out_every=4))
+    assert len(list((tmp_path / "rig_refinement").glob("*.pkl"))) == 2

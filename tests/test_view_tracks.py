@@ -124,6 +124,39 @@ def test_capture_markers_on_rendered_dots(tracker):
         capture_markers(stacks, cams[:1], [s[0] for s in stacks], params=params)
 
 
+def test_capture_markers_under_a_build_reads_the_kept_result(monkeypatch, tmp_path):
+    """Under ``lsmta reproduce`` a second call with the same arguments (notebook 21 after 17)
+    reads the first call's result: every field equal, arrays bit for bit and as read-only;
+    another tracker on the same markers (``like=``) is another call."""
+    from dataclasses import fields
+
+    from lsmta.build_cache import CACHE_ENV
+    cams = _rig(2, spread_deg=20.0)
+    t = np.arange(6)[:, None, None]
+    X = np.array([[-250.0, 0, -150], [0, 120, -150], [250, -80, 150]])[None] + np.array(
+        [25.0, 0, 15.0]) * np.sin(0.3 * t + np.arange(3)[:, None])
+    stacks = _dot_video(cams, X)
+    params = MarkerParams(detector="blobs", max_px=1.0, min_motion_mm=20.0)
+    monkeypatch.delenv(CACHE_ENV, raising=False)
+    plain = capture_markers(stacks, cams, [s[0] for s in stacks], params=params)
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path))
+    first, again = (capture_markers(stacks, cams, [s[0] for s in stacks], params=params)
+                    for _ in range(2))
+    assert len(list((tmp_path / "marker_capture").glob("*.pkl"))) == 1
+    for f in fields(plain):
+        a, b, c = (getattr(m, f.name) for m in (plain, first, again))
+        if isinstance(a, np.ndarray):
+            assert a.dtype == c.dtype and np.array_equal(a, c, equal_nan=a.dtype.kind == "f")
+            assert a.flags.writeable == c.flags.writeable, f.name
+        elif f.name != "seconds":                  # the kept call's time, not this one's
+            assert repr(a) == repr(b) == repr(c), f.name
+    klt = MarkerParams(detector="blobs", max_px=1.0, min_motion_mm=20.0, tracker=Tracker2D.KLT)
+    # like= the computed result (notebook 17), then like= the one read back (notebook 21)
+    for like in (first, again):
+        capture_markers(stacks, cams, [s[0] for s in stacks], params=klt, like=like)
+    assert len(list((tmp_path / "marker_capture").glob("*.pkl"))) == 2
+
+
 def test_rigid_pair_is_the_longest_held_pair_at_a_foot_span_in_the_same_views():
     rng = np.random.default_rng(2)
     T = 50

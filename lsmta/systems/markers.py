@@ -37,6 +37,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .._validate import as_int, as_scalar, freeze
+from ..build_cache import cached_result
 from ..matching.spline import SplineImage
 from ..tracking import TrackerParams, track_points, track_step
 from ..tracking.blob_follow import FollowParams, follow_blobs
@@ -283,7 +284,18 @@ def capture_markers(stacks, cameras, first_frames, *, params: MarkerParams | Non
     Returns
     -------
     MarkerCapture
+
+    Notes
+    -----
+    Under ``lsmta reproduce`` a call with the same arguments as an earlier one of the run
+    (notebooks 17 and 21) returns that call's result (:func:`lsmta.build_cache.cached_result`;
+    its ``seconds`` are then the earlier call's).
     """
+    return cached_result("marker_capture", _capture_markers, (stacks, cameras, first_frames),
+                         kwargs={"params": params, "like": like})
+
+
+def _capture_markers(stacks, cameras, first_frames, *, params, like) -> MarkerCapture:
     p = params or MarkerParams()
     cams = list(cameras)
     if not len(stacks) == len(cams) == len(first_frames):

@@ -121,6 +121,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .._validate import as_int, as_scalar, freeze
+from ..build_cache import cached_result
 from ..calibration.refine import CameraRefinement, RefineParams, refine_cameras
 from ..calibration.tie_lsm import TieLSM, TieLSMParams, refine_tie_points
 from ..calibration.tie_points import (
@@ -637,7 +638,7 @@ def _warn_worse(given, before, after) -> None:
         warnings.warn(f"refine_rig: the refined cameras fit the held-out places "
                       f"worse than the given ones in {', '.join(worse)} (see summary()); the "
                       "tie points may not determine them: keep the given cameras there",
-                      stacklevel=3)
+                      stacklevel=5)
 
 
 def _between(picks, m: int) -> np.ndarray:
@@ -675,7 +676,7 @@ def _judged_on(still_xy, min_still_held: int, names) -> str:
     warnings.warn(f"refine_rig: {', '.join(short)} see(s) fewer than min_still_held = "
                   f"{min_still_held} held-out still places ({seen.tolist()} per camera): the "
                   "refinement is judged on all held-out places, the moving subject's too, a "
-                  "weaker check (both residual sets are in summary())", stacklevel=3)
+                  "weaker check (both residual sets are in summary())", stacklevel=5)
     return "all places"
 
 
@@ -747,7 +748,7 @@ def _folded(cameras) -> tuple:
         warnings.warn(f"refine_rig: the refined lens model of {', '.join(folded)} cannot be "
                       "inverted everywhere in its frame (the fitted distortion folds over "
                       "inside it): the refined cameras are not used (RigRefinement.chosen is "
-                      "the given ones; see folded in summary())", stacklevel=3)
+                      "the given ones; see folded in summary())", stacklevel=5)
     return folded
 
 
@@ -874,7 +875,18 @@ def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = 
         Cameras that do not fit the videos (sizes, count, tie points far from where the
         cameras put them, or an adjustment that turns a camera far from the file's
         orientation), with what was found; ``stacks`` that are not the videos' frames.
+
+    Notes
+    -----
+    Under ``lsmta reproduce`` a call with the same arguments as an earlier one of the run
+    (notebooks 17 and 21) returns that call's result (:func:`lsmta.build_cache.cached_result`;
+    its ``lsm.seconds`` are then the earlier call's).
     """
+    return cached_result("rig_refinement", _refine_rig, (videos, cameras),
+                         kwargs={"params": params, "stacks": stacks})
+
+
+def _refine_rig(videos, cameras, *, params, stacks) -> RigRefinement:
     params = RigRefinementParams() if params is None else params
     if not isinstance(videos, Videos):
         raise TypeError("videos: expected lsmta.io.Videos (from lsmta.io.read_videos)")

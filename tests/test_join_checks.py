@@ -290,6 +290,8 @@ def test_bad_input():
         silhouette_hits(cams[0], X[..., :2], np.ones((6, 600, 800), bool))
     with pytest.raises(ValueError, match="inside, seen"):
         silhouette_share(np.ones((2, 6, 5), bool), np.ones((2, 6, 4), bool))
+    with pytest.raises(ValueError, match="stacks: expected 2 frame stacks"):
+        silhouette_shares(stacks[:1], cams, xy, members)
     with pytest.raises(ValueError, match="min_seen"):
         silhouette_share(np.ones((2, 6, 5), bool), np.ones((2, 6, 5), bool), min_seen=0.0)
     with pytest.raises(ValueError, match="max_relative"):

@@ -418,6 +418,9 @@ def silhouette_shares(stacks, cameras, xy, members, *,
         markers no view judges.
     """
     p = params or MarkerParams()
+    if len(stacks) != len(cameras):
+        raise ValueError(f"stacks: expected {len(cameras)} frame stacks (one per camera), got "
+                         f"{len(stacks)}")
     xyz, _, _ = triangulate_joined(cameras, xy, members)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)          # never intersected

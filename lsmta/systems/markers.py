@@ -20,9 +20,10 @@ The stage for what a marker-based recording holds beyond the surfaces: small ski
    two-view markers and markers below the floor dropped
    (:func:`~lsmta.tracking.join_checks.check_joins`); free tracks of any view attached to
    the marker whose 3-D path projects onto them
-   (:func:`~lsmta.tracking.join_checks.attach_views`); moving markers off the subject's
-   silhouette dropped (``MarkerParams.silhouette``, below); a marker a view lost looked for
-   at its 3-D position's projection (:func:`~lsmta.tracking.join_checks.fill_gaps`);
+   (:func:`~lsmta.tracking.join_checks.attach_views`); a marker a view lost looked for at
+   its 3-D position's projection (:func:`~lsmta.tracking.join_checks.fill_gaps`); then
+   moving markers off the subject's silhouette dropped (``MarkerParams.silhouette``,
+   below);
 5. *intersection* of every frame from every view that holds the marker
    (:func:`~lsmta.tracking.view_tracks.triangulate_joined`), and each marker's 3-D motion
    range, which tells the subject's markers (moving) from still blobs of the room.
@@ -36,7 +37,7 @@ silhouette is the moving subject's mask found in the recording itself
 (:func:`~lsmta.systems.subject.subject_masks`: each sampled frame against the median of
 the sampled frames, every 5th, at most 21), closed and grown by ``silhouette_px``, its holes
 filled (a body's silhouette has none; a torso that barely moves leaves only its moving
-outline). For every moving marker (by the motion rule of stage 5, on the joined tracks) and
+outline). For every moving marker (by the motion rule of stage 5, on the filled tracks) and
 every view whose frame holds its projection in at least half of the sampled frames in which
 any view does (its own views too: a join of two tracks of the room is off the subject there),
 the share of those positions that land on the mask; the least of these shares
@@ -352,7 +353,7 @@ def capture_markers(stacks, cameras, first_frames, *, params: MarkerParams | Non
                  if angles[a, b] <= p.max_angle_deg]
         members = join_view_tracks(cams, view_xy, max_px=p.max_px, min_shared=p.min_shared,
                                    pairs=pairs).members
-        members, joins = _checked_joins(cams, view_xy, members, p, stacks)
+        members, joins = _checked_joins(cams, view_xy, members, p)
     else:
         members, joins = like.members, {k: v for k, v in like.joins.items() if k != "filled"}
     joins["filled"] = 0
@@ -363,6 +364,10 @@ def capture_markers(stacks, cameras, first_frames, *, params: MarkerParams | Non
                                    search_px=search, min_contrast=fp.min_contrast,
                                    max_gap=fp.max_gap, max_px=p.max_px)
         joins["filled"] = int(found.sum())
+        if like is None and p.silhouette is not None and len(members):
+            off = silhouette_shares(stacks, cams, view_xy, members, params=p) < p.silhouette
+            members = members[~off]                         # NaN (not judged): kept
+            joins["off_subject"] = int(off.sum())
     xyz, residual, _ = triangulate_joined(cams, view_xy, members)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)          # never intersected
@@ -375,8 +380,9 @@ def capture_markers(stacks, cameras, first_frames, *, params: MarkerParams | Non
                          seconds=seconds, joins=joins)
 
 
-def _checked_joins(cams, view_xy, members, p: MarkerParams, stacks):
-    """Stage 4's check, attachment and silhouette check (the fill runs for every tracker)."""
+def _checked_joins(cams, view_xy, members, p: MarkerParams):
+    """Stage 4's check and attachment (the fill, then the silhouette check, follow in
+    :func:`capture_markers`; the fill runs for every tracker)."""
     if not p.check:
         return members, {"ambiguous": 0, "ambiguous_views": 0, "below_floor": 0,
                          "views_out": 0, "attached": 0, "off_subject": 0}
@@ -384,13 +390,9 @@ def _checked_joins(cams, view_xy, members, p: MarkerParams, stacks):
                     min_shared=p.min_shared, floor_mm=p.floor_mm)
     members, attached = attach_views(cams, view_xy, c.members, max_px=p.max_px,
                                      min_shared=p.min_shared)
-    off = np.zeros(len(members), bool)
-    if p.silhouette is not None and len(members):
-        share = silhouette_shares(stacks, cams, view_xy, members, params=p)
-        off = share < p.silhouette                          # NaN (not judged): kept
-    return members[~off], {"ambiguous": c.ambiguous, "ambiguous_views": c.ambiguous_views,
-                           "below_floor": c.below_floor, "views_out": c.views_out,
-                           "attached": attached, "off_subject": int(off.sum())}
+    return members, {"ambiguous": c.ambiguous, "ambiguous_views": c.ambiguous_views,
+                     "below_floor": c.below_floor, "views_out": c.views_out,
+                     "attached": attached, "off_subject": 0}
 
 
 def silhouette_shares(stacks, cameras, xy, members, *,

@@ -10,8 +10,15 @@ import pytest
 from lsmta.camera import Camera
 from lsmta.real.own_recording import moving_pairs, relative_motion, rigid_pair
 from lsmta.systems import MarkerParams, capture_markers
+from lsmta.systems.markers import silhouette_shares
 from lsmta.tracking import join_checks
-from lsmta.tracking.join_checks import attach_views, check_joins, fill_gaps
+from lsmta.tracking.join_checks import (
+    attach_views,
+    check_joins,
+    fill_gaps,
+    silhouette_hits,
+    silhouette_share,
+)
 from lsmta.tracking.view_tracks import join_view_tracks, triangulate_joined
 from tests.test_view_tracks import _dot_video, _rig
 
@@ -179,7 +186,7 @@ def test_the_stage_records_its_checks_and_the_peer_shares_them():
     p = MarkerParams(detector="blobs", max_px=1.0, min_motion_mm=5.0)
     a = capture_markers(stacks, cams, first, params=p)
     assert set(a.joins) == {"ambiguous", "ambiguous_views", "below_floor", "views_out",
-                            "attached", "filled"}
+                            "attached", "off_subject", "filled"}
     assert len(a.members) == 4 and a.joins["ambiguous"] == 0
     b = capture_markers(stacks, cams, first, params=p, like=a)
     assert np.array_equal(a.members, b.members) and b.joins["attached"] == a.joins["attached"]
@@ -270,7 +277,84 @@ def test_bad_input():
         MarkerParams(floor_mm=float("nan"))
     with pytest.raises(ValueError, match="fill_search_px"):
         MarkerParams(fill_search_px=0.0)
+    for share in (0.0, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="silhouette"):
+            MarkerParams(silhouette=share)
+    with pytest.raises(ValueError, match="silhouette_px"):
+        MarkerParams(silhouette_px=-1.0)
+    with pytest.raises(ValueError, match=r"masks: expected a \(6, 600, 800\) bool"):
+        silhouette_hits(cams[0], X, np.ones((6, 300, 400), bool))
+    with pytest.raises(ValueError, match="masks"):
+        silhouette_hits(cams[0], X, np.ones((6, 600, 800)))          # not bool
+    with pytest.raises(ValueError, match="xyz"):
+        silhouette_hits(cams[0], X[..., :2], np.ones((6, 600, 800), bool))
+    with pytest.raises(ValueError, match="inside, seen"):
+        silhouette_share(np.ones((2, 6, 5), bool), np.ones((2, 6, 4), bool))
+    with pytest.raises(ValueError, match="stacks: expected 2 frame stacks"):
+        silhouette_shares(stacks[:1], cams, xy, members)
+    with pytest.raises(ValueError, match="min_seen"):
+        silhouette_share(np.ones((2, 6, 5), bool), np.ones((2, 6, 5), bool), min_seen=0.0)
     with pytest.raises(ValueError, match="max_relative"):
         rigid_pair(X, max_relative=0.0)
     with pytest.raises(ValueError, match="b"):
         relative_motion(X[:, 0], X[:3, 1])
+
+
+def test_silhouette_hits_see_only_what_the_frame_holds():
+    cam = _rig(1, spread_deg=0.0)[0]                        # at (0, -3000, 0), looking at 0
+    masks = np.zeros((2, cam.height, cam.width), bool)
+    masks[:, 280:320, 380:420] = True                       # the subject around the centre
+    masks[1] = False                                        # frame 1: the mask lost it
+    X = np.array([[[0.0, 0, 0], [600.0, 0, 0], [3000.0, 0, 0], [0, -4000.0, 0],
+                   [np.nan, 0, 0]]] * 2)                    # on, off, out of frame, behind, none
+    inside, seen = silhouette_hits(cam, X, masks)
+    assert np.array_equal(seen, [[True, True, False, False, False]] * 2)
+    assert np.array_equal(inside, [[True, False, False, False, False], [False] * 5])
+    # the least share over the views that see a marker in >= min_seen of its frames
+    other = np.zeros_like(inside)
+    i2, s2 = np.stack([inside, other]), np.stack([seen, seen])
+    s2[1, 0] = False                                         # view 1 sees marker 0 in frame 1 only
+    share = silhouette_share(i2, s2)
+    assert share[0] == 0.0 and share[1] == 0.0 and np.isnan(share[2:]).all()
+    assert silhouette_share(i2, s2, min_seen=0.6)[0] == 0.5   # view 1 no longer judges marker 0
+    assert np.array_equal(X, np.array([[[0.0, 0, 0], [600.0, 0, 0], [3000.0, 0, 0],
+                                        [0, -4000.0, 0], [np.nan, 0, 0]]] * 2), equal_nan=True)
+
+
+def _off_subject_scene():
+    """Three views of four dots moving together (the subject) and a fifth dot at W, 800 mm
+    off them, shown by views 0 and 1 only: their tracks meet at W as a wrong join of two
+    dots whose rays cross off the subject would, and view 2 sees background there."""
+    cams = _rig(3, spread_deg=40.0)
+    t = np.arange(16)[:, None, None]
+    sway = np.array([40.0, 0, 25.0]) * np.sin(0.3 * t)
+    S = np.array([[-120.0, 0, -100], [0, 60, 120], [120, -40, -20], [-60, 30, 140]])[None] + sway
+    W = np.array([[-300.0, -600, -250]])[None] + sway[:, :1] * [1, 0, -1]
+    both = np.concatenate([S, W], axis=1)
+    stacks = [_dot_video([c], X)[0] for c, X in zip(cams, (both, both, S))]
+    return cams, stacks, S, W
+
+
+def test_a_moving_marker_off_the_subject_is_dropped_and_the_right_ones_kept():
+    cams, stacks, S, W = _off_subject_scene()
+    w2 = cams[2].project(W[:, 0])
+    assert ((w2 >= 0) & (w2 < [800, 600])).all()               # view 2's frame holds it
+    assert np.linalg.norm(w2[:, None] - cams[2].project(S.reshape(-1, 3)).reshape(
+        len(S), -1, 2), axis=2).min() > 80                     # on its background
+    first = [s[0] for s in stacks]
+    base = dict(detector="blobs", max_px=1.0, min_motion_mm=5.0)
+    off = capture_markers(stacks, cams, first, params=MarkerParams(**base, silhouette=None))
+    xyz = np.nanmedian(off.xyz, axis=0)
+    wrong = np.flatnonzero(np.linalg.norm(xyz - W[0, 0], axis=1) < 20)
+    assert len(wrong) == 1 and off.moving[wrong[0]] and off.joins["off_subject"] == 0
+    assert np.array_equal(off.members[wrong[0]] >= 0, [True, True, False])
+    shares = silhouette_shares(stacks, cams, off.view_xy, off.members,
+                               params=MarkerParams(**base))
+    right = np.setdiff1d(np.flatnonzero(off.moving), wrong)
+    assert len(right) == 4 and shares[wrong[0]] < 0.5 and np.all(shares[right] >= 0.9)
+    on = capture_markers(stacks, cams, first, params=MarkerParams(**base))
+    assert on.joins["off_subject"] == 1 and len(on.members) == len(off.members) - 1
+    assert np.array_equal(on.members, np.delete(off.members, wrong, axis=0))
+    # the peer shares the check's outcome and count
+    klt = capture_markers(stacks, cams, first, params=MarkerParams(**base), like=on)
+    assert klt.joins["off_subject"] == 1 and np.array_equal(klt.members, on.members)

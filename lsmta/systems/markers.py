@@ -21,10 +21,31 @@ The stage for what a marker-based recording holds beyond the surfaces: small ski
    (:func:`~lsmta.tracking.join_checks.check_joins`); free tracks of any view attached to
    the marker whose 3-D path projects onto them
    (:func:`~lsmta.tracking.join_checks.attach_views`); a marker a view lost looked for at
-   its 3-D position's projection (:func:`~lsmta.tracking.join_checks.fill_gaps`);
+   its 3-D position's projection (:func:`~lsmta.tracking.join_checks.fill_gaps`); then
+   moving markers off the subject's silhouette dropped (``MarkerParams.silhouette``,
+   below);
 5. *intersection* of every frame from every view that holds the marker
    (:func:`~lsmta.tracking.view_tracks.triangulate_joined`), and each marker's 3-D motion
    range, which tells the subject's markers (moving) from still blobs of the room.
+
+The silhouette check is for the kind of recording this stage is for: one moving subject
+carries the markers. A point on the subject projects inside the subject's silhouette in
+every view whose frame holds the projection, whatever hides it there (the silhouette is
+the projection of the whole body, so a marker on the back lands inside the front view's
+silhouette too), while a wrong join's point, metres off, lands on the background. The
+silhouette is the moving subject's mask found in the recording itself
+(:func:`~lsmta.systems.subject.subject_masks`: each sampled frame against the median of
+the sampled frames, every 5th, at most 21), closed and grown by ``silhouette_px``, its holes
+filled (a body's silhouette has none; a torso that barely moves leaves only its moving
+outline). For every moving marker (by the motion rule of stage 5, on the filled tracks) and
+every view whose frame holds its projection in at least half of the sampled frames in which
+any view does (its own views too: a join of two tracks of the room is off the subject there),
+the share of those positions that land on the mask; the least of these shares
+(:func:`~lsmta.tracking.join_checks.silhouette_share`) below ``silhouette`` drops the marker
+(counted as ``"off_subject"``). Still markers (the room's) are not judged. Where the mask
+misses the subject (a part still in more than half of the sampled frames is in the median,
+so off the mask unless the outline around it closes) a right marker's share falls: hence a
+majority of the positions, not every one.
 """
 
 from __future__ import annotations
@@ -35,16 +56,24 @@ import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy import ndimage
 
 from .._validate import as_int, as_scalar, freeze
 from ..build_cache import cached_result
 from ..matching.spline import SplineImage
 from ..tracking import TrackerParams, track_points, track_step
 from ..tracking.blob_follow import FollowParams, follow_blobs
-from ..tracking.join_checks import attach_views, check_joins, fill_gaps
+from ..tracking.join_checks import (
+    attach_views,
+    check_joins,
+    fill_gaps,
+    silhouette_hits,
+    silhouette_share,
+)
 from ..tracking.klt import track_klt
 from ..tracking.markers import find_blobs, find_markers
 from ..tracking.view_tracks import join_view_tracks, joined_positions, triangulate_joined
+from .subject import SubjectMaskParams, background, subject_masks
 from .views import axis_angles
 
 
@@ -91,7 +120,7 @@ class MarkerParams:
         Check and complete the joins (stage 4 of the module docstring), with ``max_px``,
         ``min_shared``, ``min_ratio`` and ``floor_mm``; the gaps are filled with the
         following's window, contrast floor and ``max_gap`` (``follow``, or its defaults)
-        and ``fill_search_px``.
+        and ``fill_search_px``; and the silhouette check (``silhouette``).
     min_ratio : float
         A join is ambiguous when a rival partner's median pair residual is less than this
         times its own (>= 1).
@@ -105,6 +134,17 @@ class MarkerParams:
         ``4.8 sigma`` (fill_gaps' default 12 px at the default ``sigma`` 2.5, scaled with
         the frames): an extrapolated position over a few frames is off by more than a
         dot's radius, so the search reaches beyond the re-centring window.
+    silhouette : float or None
+        With ``check``: a moving marker whose positions land on the subject's silhouette in
+        less than this share of the sampled frames in some view whose frame holds them is
+        dropped (module docstring), in (0, 1]; default 0.5, a majority: a marker on the
+        subject lands inside wherever the mask holds the subject, and the mask can miss
+        parts of it. None: not checked (markers on several
+        subjects, or on something that does not move against the room).
+    silhouette_px : float or None
+        Radius of the silhouette's closing and growth, px (the subject mask's ``close_px``
+        and ``grow_px``); None: ``6 sigma`` (15 px at the default ``sigma`` 2.5:
+        :class:`~lsmta.systems.subject.SubjectMaskParams`' radii, scaled with the frames).
     """
 
     detector: str = "skin"
@@ -122,6 +162,8 @@ class MarkerParams:
     min_ratio: float = 2.0
     floor_mm: float | None = None
     fill_search_px: float | None = None
+    silhouette: float | None = 0.5
+    silhouette_px: float | None = None
 
     def __post_init__(self):
         if self.detector not in ("skin", "blobs"):
@@ -138,6 +180,12 @@ class MarkerParams:
             as_scalar(self.floor_mm, "floor_mm")
         if self.fill_search_px is not None:
             as_scalar(self.fill_search_px, "fill_search_px", positive=True)
+        if self.silhouette is not None and not 0 < as_scalar(self.silhouette,
+                                                             "silhouette") <= 1:
+            raise ValueError(f"silhouette: expected a share in (0, 1] or None, got "
+                             f"{self.silhouette}")
+        if self.silhouette_px is not None:
+            as_scalar(self.silhouette_px, "silhouette_px", nonnegative=True)
         if self.follow is not None and not isinstance(self.follow, FollowParams):
             raise TypeError(f"follow: expected a FollowParams or None, got "
                             f"{type(self.follow).__name__}")
@@ -178,7 +226,8 @@ class MarkerCapture:
         ``"ambiguous"``, ambiguous views of markers of three or more views taken out
         (``"ambiguous_views"``), markers dropped ``"below_floor"``, disagreeing
         ``"views_out"`` taken out, tracks ``"attached"``, dots ``"filled"`` (all 0 without
-        the check).
+        the check), moving markers dropped ``"off_subject"`` (their positions off the
+        subject's silhouette, ``MarkerParams.silhouette``).
     """
 
     detections: tuple
@@ -327,6 +376,10 @@ def _capture_markers(stacks, cameras, first_frames, *, params, like) -> MarkerCa
                                    search_px=search, min_contrast=fp.min_contrast,
                                    max_gap=fp.max_gap, max_px=p.max_px)
         joins["filled"] = int(found.sum())
+        if like is None and p.silhouette is not None and len(members):
+            off = silhouette_shares(stacks, cams, view_xy, members, params=p) < p.silhouette
+            members = members[~off]                         # NaN (not judged): kept
+            joins["off_subject"] = int(off.sum())
     xyz, residual, _ = triangulate_joined(cams, view_xy, members)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)          # never intersected
@@ -340,14 +393,68 @@ def _capture_markers(stacks, cameras, first_frames, *, params, like) -> MarkerCa
 
 
 def _checked_joins(cams, view_xy, members, p: MarkerParams):
-    """Stage 4's check and attachment (the fill runs for every tracker)."""
+    """Stage 4's check and attachment (the fill, then the silhouette check, follow in
+    :func:`capture_markers`; the fill runs for every tracker)."""
     if not p.check:
         return members, {"ambiguous": 0, "ambiguous_views": 0, "below_floor": 0,
-                         "views_out": 0, "attached": 0}
+                         "views_out": 0, "attached": 0, "off_subject": 0}
     c = check_joins(cams, view_xy, members, max_px=p.max_px, min_ratio=p.min_ratio,
                     min_shared=p.min_shared, floor_mm=p.floor_mm)
     members, attached = attach_views(cams, view_xy, c.members, max_px=p.max_px,
                                      min_shared=p.min_shared)
     return members, {"ambiguous": c.ambiguous, "ambiguous_views": c.ambiguous_views,
                      "below_floor": c.below_floor, "views_out": c.views_out,
-                     "attached": attached}
+                     "attached": attached, "off_subject": 0}
+
+
+def silhouette_shares(stacks, cameras, xy, members, *,
+                      params: MarkerParams | None = None) -> np.ndarray:
+    """Each moving marker's share of positions on the subject's silhouette (the module
+    docstring's silhouette check).
+
+    Parameters
+    ----------
+    stacks : sequence of K (T, H_k, W_k) arrays
+        Grey frames of every view (fewer than 3: nothing judged).
+    cameras : sequence of K Camera
+    xy : sequence of K (T, N_k, 2) arrays
+        Each view's tracks, px.
+    members : (M, K) int array
+        The joins.
+    params : MarkerParams, optional
+        Its ``sigma``, ``silhouette_px`` and ``min_motion_mm``.
+
+    Returns
+    -------
+    (M,) array
+        The least share over the judging views in [0, 1]
+        (:func:`~lsmta.tracking.join_checks.silhouette_share`); NaN for still markers and
+        markers no view judges.
+    """
+    p = params or MarkerParams()
+    if len(stacks) != len(cameras):
+        raise ValueError(f"stacks: expected {len(cameras)} frame stacks (one per camera), got "
+                         f"{len(stacks)}")
+    xyz, _, _ = triangulate_joined(cameras, xy, members)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)          # never intersected
+        span = np.nan_to_num(np.linalg.norm(np.nanmax(xyz, axis=0) - np.nanmin(xyz, axis=0),
+                                            axis=1))
+    moving = np.flatnonzero(span >= p.min_motion_mm)
+    share = np.full(len(members), np.nan)
+    if not moving.size or len(stacks[0]) < 3:        # a median needs 3 frames
+        return share
+    radius = max(1, round(p.silhouette_px if p.silhouette_px is not None else 6 * p.sigma))
+    mp = SubjectMaskParams(close_px=radius, grow_px=radius)
+    hits, seen = [], []
+    for stack, cam in zip(stacks, cameras):
+        v = np.asarray(stack)[None]
+        bg = background(v, params=mp)                     # once per view
+        masks = np.stack([ndimage.binary_fill_holes(
+            subject_masks(v, int(t), params=mp, background=bg).masks[0])
+            for t in bg[1]])                              # (S, H, W): one view at a time
+        i, s = silhouette_hits(cam, xyz[bg[1]][:, moving], masks)
+        hits.append(i)
+        seen.append(s)
+    share[moving] = silhouette_share(np.stack(hits), np.stack(seen), min_seen=0.5)
+    return share

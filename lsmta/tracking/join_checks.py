@@ -41,6 +41,16 @@ what a recording is scored on):
    any other track of that view, and the point intersected with it reprojects within
    ``max_px`` in every view. A dot so found is a measurement of the frame, not an
    interpolation: a frame whose dot cannot be found stays empty.
+
+4. :func:`silhouette_hits` says, for one view, where markers' 3-D positions project inside
+   that view's silhouette of the moving subject (masks of some frames, e.g.
+   :func:`lsmta.systems.subject.subject_masks`): a point on the subject projects inside
+   the subject's silhouette in every view whose frame holds its projection, whatever
+   hides it there (the silhouette is the projection of the whole body), while a wrong
+   join's point, metres off, projects onto the background. :func:`silhouette_share` is a
+   marker's least share of hits over the views that see it in at least ``min_seen`` of
+   its frames; the marker stage drops the moving markers below a share
+   (``MarkerParams.silhouette``).
 """
 
 from __future__ import annotations
@@ -61,7 +71,8 @@ from .view_tracks import (
     triangulate_joined,
 )
 
-__all__ = ["JoinCheck", "attach_views", "check_joins", "fill_gaps"]
+__all__ = ["JoinCheck", "attach_views", "check_joins", "fill_gaps", "silhouette_hits",
+           "silhouette_share"]
 
 
 @dataclass(frozen=True)
@@ -457,3 +468,80 @@ def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float
         a[:, m[has, k]] = np.where(found[:, k, has, None], pos[:, k, has], a[:, m[has, k]])
         out.append(a)
     return tuple(out), found
+
+
+def silhouette_hits(camera, xyz, masks) -> tuple[np.ndarray, np.ndarray]:
+    """Where markers' 3-D positions project inside one view's silhouettes of the subject.
+
+    Parameters
+    ----------
+    camera : Camera
+        The view.
+    xyz : (S, M, 3) array
+        The markers' positions in S frames, mm (NaN: none).
+    masks : (S, H, W) bool array
+        The view's silhouette (subject mask) in the same S frames, at the camera's size.
+
+    Returns
+    -------
+    inside : (S, M) bool array
+        The projection lies on the mask (only where ``seen``).
+    seen : (S, M) bool array
+        The position is known, in front of the camera and inside its lens model, and its
+        projection (rounded) inside the frame: the view can judge it.
+    """
+    X = as_array(xyz, "xyz", shape=(None, None, 3), allow_nan=True)
+    m = np.asarray(masks)
+    if m.dtype != bool or m.shape != (X.shape[0], camera.height, camera.width):
+        raise ValueError(f"masks: expected a ({X.shape[0]}, {camera.height}, {camera.width}) "
+                         f"bool array (one mask per frame of xyz, camera {camera.name!r}'s "
+                         f"size), got shape {m.shape} and dtype {m.dtype}")
+    S, M, _ = X.shape
+    flat = X.reshape(-1, 3)
+    seen = np.isfinite(flat).all(axis=1)
+    if seen.any():
+        seen[seen] = camera.in_lens(flat[seen])
+    ij = np.full((len(flat), 2), -1)
+    if seen.any():
+        ij[seen] = np.rint(camera.project(flat[seen])).astype(int)
+    seen &= (ij[:, 0] >= 0) & (ij[:, 0] < m.shape[2]) & (ij[:, 1] >= 0) & (ij[:, 1] < m.shape[1])
+    frame = np.repeat(np.arange(S), M)
+    inside = np.zeros(len(flat), bool)
+    inside[seen] = m[frame[seen], ij[seen, 1], ij[seen, 0]]
+    return inside.reshape(S, M), seen.reshape(S, M)
+
+
+def silhouette_share(inside, seen, *, min_seen: float = 0.5) -> np.ndarray:
+    """Each marker's least share of positions inside the silhouettes over the views that
+    judge it.
+
+    A view judges a marker when it sees (:func:`silhouette_hits`' ``seen``) at least
+    ``min_seen`` of the frames in which any view sees it; its share is its hits over the
+    positions it sees. A point on the subject lands inside in every view (where the mask
+    holds the subject), so the least share over the judging views is the one that tells.
+
+    Parameters
+    ----------
+    inside, seen : (V, S, M) bool arrays
+        :func:`silhouette_hits` of V views, stacked.
+    min_seen : float
+        Share of the frames a view must see, in (0, 1].
+
+    Returns
+    -------
+    (M,) array
+        The least share over the judging views, in [0, 1]; NaN where no view judges.
+    """
+    i, s = np.asarray(inside, bool), np.asarray(seen, bool)
+    if i.shape != s.shape or i.ndim != 3:
+        raise ValueError(f"inside, seen: expected two (V, S, M) bool arrays of one shape, got "
+                         f"shapes {i.shape} and {s.shape}")
+    min_seen = as_scalar(min_seen, "min_seen", positive=True)
+    if min_seen > 1:
+        raise ValueError(f"min_seen: expected a share in (0, 1], got {min_seen}")
+    n = s.sum(axis=1)                                               # (V, M)
+    frames = s.any(axis=0).sum(axis=0)                              # (M,)
+    judges = (n > 0) & (n >= min_seen * frames)
+    share = np.where(judges, (i & s).sum(axis=1) / np.maximum(n, 1), np.inf)
+    least = share.min(axis=0) if len(share) else np.full(i.shape[2], np.inf)
+    return np.where(np.isfinite(least), least, np.nan)

@@ -1,14 +1,21 @@
-"""Arrays kept between the notebooks of one ``lsmta reproduce`` run.
+"""Results kept between the notebooks of one ``lsmta reproduce`` run.
 
 Two notebooks of the compendium compute some of the same deterministic results from the
 same inputs (notebooks 17 and 21 find the same tie-point features in the same frames of
-the Pose2Sim demo). :func:`cached_arrays` keeps such a result in the run's cache folder,
-``<kind>/<key>.npz``, and a later notebook of the same run reads it instead of computing it
-again. The key must hash everything the result depends on (the inputs' bytes, the
-settings, the library versions, the code that computes it); the caller builds it (see
-:func:`content_key`). Only under ``lsmta reproduce``, which sets ``LSMTA_BUILD_CACHE`` to a
-folder of its own run and removes it when the run ends: anywhere else every result is
-computed. A file that cannot be read or written is computed again.
+the Pose2Sim demo, refine the same rig and capture the same markers). Two ways to keep one
+in the run's cache folder, so that a later notebook of the same run reads it instead of
+computing it again:
+
+* :func:`cached_arrays` keeps a dict of arrays, ``<kind>/<key>.npz``; the caller builds the
+  key, which must hash everything the result depends on (the inputs' bytes, the settings,
+  the library versions, the code that computes it; see :func:`content_key`);
+* :func:`cached_result` keeps a library call's whole result, ``<kind>/<key>.pkl``, under a
+  key of its own: the call's arguments, the package's code, the library versions and the
+  thread settings.
+
+Only under ``lsmta reproduce``, which sets ``LSMTA_BUILD_CACHE`` to a folder of its own run
+and removes it when the run ends: anywhere else every result is computed. A file that
+cannot be read or written is computed again.
 """
 
 from __future__ import annotations
@@ -149,8 +156,8 @@ class _KeyPickler(pickle.Pickler):
     flags), no memo (an object shared twice is written twice, as its unpickled copy is)."""
 
     def reducer_override(self, obj):
-        if isinstance(obj, np.ndarray):
-            return np.ndarray, (), (obj.dtype.str, obj.shape,
+        if type(obj) is np.ndarray:           # subclasses (masked arrays) by their own reduce
+            return np.ndarray, (), (obj.dtype.descr, obj.shape,
                                     np.ascontiguousarray(obj).tobytes()
                                     if obj.dtype != object else obj.tolist())
         return NotImplemented
@@ -202,8 +209,9 @@ def cached_result(kind: str, compute: Callable, args: tuple, *, kwargs: dict | N
         package's code (:func:`package_digest`), the versions of :data:`KEY_VERSIONS` and
         the thread settings (numba's thread count, :data:`KEY_ENV`), all in the key.
     args : tuple
+        Its positional arguments.
     kwargs : dict, optional
-        Its arguments; the key hashes their pickle (arrays by dtype, shape and bytes; an
+        Its keyword arguments. The key hashes their pickle (arrays by dtype, shape and bytes; an
         object referred to twice hashed twice, so that a result read back from the cache,
         passed on, gives the same key as the computed one).
 
@@ -226,8 +234,7 @@ def cached_result(kind: str, compute: Callable, args: tuple, *, kwargs: dict | N
         key = content_key(kind, getattr(compute, "__qualname__", repr(compute)), versions,
                           package_digest(), _threads(),
                           _key_digest((args, sorted(kwargs.items()))))
-    except (pickle.PicklingError, TypeError, AttributeError, ValueError, RecursionError,
-            metadata.PackageNotFoundError):
+    except Exception:                              # not keyable (or no version): computed
         return compute(*args, **kwargs)
     path = folder / f"{key}.pkl"
     if path.is_file():
@@ -236,21 +243,24 @@ def cached_result(kind: str, compute: Callable, args: tuple, *, kwargs: dict | N
                 out, warned = pickle.load(fh)   # this run's own file (its private folder)
             with open(folder / READS_FILE, "a", encoding="utf-8") as fh:
                 fh.write(f"{key} {os.getpid()}\n")   # a reader can say what was not computed
+        except Exception:
+            pass                                   # unreadable: computed again
+        else:
             _warn_again(warned)
             return out
-        except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError,
-                TypeError, ValueError):
-            pass                                   # unreadable: computed again
-    with warnings.catch_warnings(record=True) as caught:   # the filters as they are
-        out = compute(*args, **kwargs)
-    warned = [(w.message, w.category, w.filename, w.lineno) for w in caught]
-    _warn_again(warned)
+    caught = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:   # the filters as they are
+            out = compute(*args, **kwargs)
+    finally:                                       # given again also when it raises
+        warned = [(w.message, w.category, w.filename, w.lineno) for w in caught]
+        _warn_again(warned)
     try:
         folder.mkdir(parents=True, exist_ok=True)
         tmp = folder / f"{key}.{os.getpid()}.tmp"   # written whole, then moved into place
         tmp.write_bytes(_dumps((out, warned)))
         os.replace(tmp, path)
-    except (OSError, pickle.PicklingError, TypeError, AttributeError):
+    except Exception:
         pass                                       # not kept: the next call computes it
     return out
 

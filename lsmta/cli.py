@@ -154,7 +154,9 @@ def notebook_preamble(nb) -> tuple[list[tuple[str, tuple[str, ...]]], dict[str, 
     there with ``os.environ.setdefault("NAME", "value")`` (before an import, as notebooks 13,
     15 and 18 limit BLAS threads). :func:`start_kernel` does both ahead, while the previous
     notebook runs; the notebook then finds its modules imported (``[]``, ``{}`` when the
-    first code cell does not parse as Python up to its first IPython magic)."""
+    first code cell does not parse as Python up to its first IPython magic). A setting after
+    an import other than ``os`` ends the preamble: in the notebook it comes too late for
+    that import, ahead it would not."""
     code = next((c.source for c in nb.cells if c.cell_type == "code"), "")
     head = []
     for line in code.splitlines():
@@ -171,8 +173,8 @@ def notebook_preamble(nb) -> tuple[list[tuple[str, tuple[str, ...]]], dict[str, 
             imports += [(a.name, ()) for a in node.names]
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
             imports.append((node.module, tuple(a.name for a in node.names)))
-        elif _setdefault_env(node) is not None:
-            env.setdefault(*_setdefault_env(node))
+        elif _setdefault_env(node) is not None and all(m == "os" for m, _ in imports):
+            env.setdefault(*_setdefault_env(node))   # set before any import it could affect
         else:
             break
     return imports, env
@@ -195,7 +197,10 @@ def start_kernel(path: Path, build: Path, *, cache: Path | None = None):
     from jupyter_client.manager import AsyncKernelManager  # deferred: as above
     from jupyter_core.utils import run_sync  # deferred: as above
 
-    imports, preamble_env = notebook_preamble(nbformat.read(path, as_version=4))
+    try:
+        imports, preamble_env = notebook_preamble(nbformat.read(path, as_version=4))
+    except Exception:                      # unreadable: :func:`execute` says so in its turn
+        imports, preamble_env = [], {}
     env = notebook_env(path, build, cache=cache)
     for name, value in preamble_env.items():   # as the notebook's os.environ.setdefault
         env.setdefault(name, value)

@@ -166,3 +166,29 @@ def test_a_result_read_back_warns_as_the_computed_one(monkeypatch, tmp_path):
         with pytest.warns(UserWarning, match="few places: 3"):
             assert cached_result("warning_call", compute, (3,))[0] == 3
     assert len((tmp_path / "warning_call" / READS_FILE).read_text().splitlines()) == 1
+
+
+def test_warnings_before_an_error_are_given(monkeypatch, tmp_path):
+    import warnings
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path))
+
+    def compute(x):
+        warnings.warn(f"about to fail: {x}", UserWarning, stacklevel=2)
+        raise ValueError("x: bad")
+    with pytest.warns(UserWarning, match="about to fail: 4"), pytest.raises(ValueError):
+        cached_result("failing_call", compute, (4,))
+
+
+def test_key_tells_masks_and_record_fields_apart(monkeypatch, tmp_path):
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path))
+    calls = []
+
+    def compute(a):
+        calls.append(1)
+        return a.copy()
+    data = np.arange(4.0)
+    for mask in ([0, 0, 0, 0], [0, 1, 0, 0]):
+        cached_result("some_call", compute, (np.ma.array(data, mask=mask),))
+    for names in (("a", "b"), ("c", "d")):
+        cached_result("some_call", compute, (np.zeros(2, dtype=[(n, "f8") for n in names]),))
+    assert len(calls) == 4

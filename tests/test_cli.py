@@ -264,3 +264,13 @@ def test_kernel_does_the_preamble_ahead_and_binds_nothing(notebooks, tmp_path):
     assert (notebooks / "probe.txt").read_text() == "1"
     ran = nbformat.read(build / "notebooks" / "02_third.ipynb", 4)
     assert [c.execution_count for c in ran.cells if c.cell_type == "code"] == [1, 2]
+
+
+def test_preamble_keeps_no_setting_after_an_import():
+    """A setting after an import other than os comes too late in the notebook for that
+    import, so the preamble stops there (ahead it would not be too late)."""
+    nb = nbformat.v4.new_notebook()
+    nb.cells = [nbformat.v4.new_code_cell(
+        "import os\nimport numpy as np\nos.environ.setdefault('OPENBLAS_NUM_THREADS', '1')\n"
+        "import scipy\n")]
+    assert cli.notebook_preamble(nb) == ([("os", ()), ("numpy", ())], {})

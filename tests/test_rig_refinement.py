@@ -602,14 +602,19 @@ def test_refine_rig_under_a_build_reads_the_kept_result(recording, monkeypatch, 
     """Under ``lsmta reproduce`` a second call with the same arguments (notebook 21 after 17)
     reads the first call's result: the same cameras and residuals to the bit, read-only
     arrays still read-only, shared parts still shared; other settings are another call."""
-    from lsmta.build_cache import CACHE_ENV
+    from lsmta.build_cache import CACHE_ENV, READS_FILE
     paths, cams = recording
     given = disturbed(cams, np.random.default_rng(7))
     params = RigRefinementParams(n_frames=3, lsm=False,
                                  tie=TieParams(n_features=2000, asift_features=300))
     monkeypatch.setenv(CACHE_ENV, str(tmp_path))
-    first, again = (refine_rig(read_videos(paths), given, params=params) for _ in range(2))
+    videos = read_videos(paths)
+    refine_rig(videos, given, params=params)       # from the files: never kept (paths only)
+    assert not (tmp_path / "rig_refinement").exists()
+    stacks = videos.load()
+    first, again = (refine_rig(videos, given, params=params, stacks=stacks) for _ in range(2))
     assert len(list((tmp_path / "rig_refinement").glob("*.pkl"))) == 1
+    assert len((tmp_path / "rig_refinement" / READS_FILE).read_text().splitlines()) == 1
     assert first is not again and again.raw_tie_points is again.tie_points
     for name in ("held_out_before", "held_out_after", "place_xy", "still", "held_out_places"):
         a, b = getattr(first, name), getattr(again, name)
@@ -618,5 +623,5 @@ def test_refine_rig_under_a_build_reads_the_kept_result(recording, monkeypatch, 
     for a, b in zip(first.chosen, again.chosen, strict=True):       # every camera field
         for f in fields(a):
             assert np.array_equal(getattr(a, f.name), getattr(b, f.name)), f.name
-    refine_rig(read_videos(paths), given, params=replace(params, hold_out_every=4))
+    refine_rig(videos, given, params=replace(params, hold_out_every=4), stacks=stacks)
     assert len(list((tmp_path / "rig_refinement").glob("*.pkl"))) == 2

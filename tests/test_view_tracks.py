@@ -130,7 +130,7 @@ def test_capture_markers_under_a_build_reads_the_kept_result(monkeypatch, tmp_pa
     another tracker on the same markers (``like=``) is another call."""
     from dataclasses import fields
 
-    from lsmta.build_cache import CACHE_ENV
+    from lsmta.build_cache import CACHE_ENV, READS_FILE
     cams = _rig(2, spread_deg=20.0)
     t = np.arange(6)[:, None, None]
     X = np.array([[-250.0, 0, -150], [0, 120, -150], [250, -80, 150]])[None] + np.array(
@@ -143,6 +143,7 @@ def test_capture_markers_under_a_build_reads_the_kept_result(monkeypatch, tmp_pa
     first, again = (capture_markers(stacks, cams, [s[0] for s in stacks], params=params)
                     for _ in range(2))
     assert len(list((tmp_path / "marker_capture").glob("*.pkl"))) == 1
+    assert len((tmp_path / "marker_capture" / READS_FILE).read_text().splitlines()) == 1
     for f in fields(plain):
         a, b, c = (getattr(m, f.name) for m in (plain, first, again))
         if isinstance(a, np.ndarray):

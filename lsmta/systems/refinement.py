@@ -879,9 +879,13 @@ def refine_rig(videos: Videos, cameras, *, params: RigRefinementParams | None = 
     Notes
     -----
     Under ``lsmta reproduce`` a call with the same arguments as an earlier one of the run
-    (notebooks 17 and 21) returns that call's result (:func:`lsmta.build_cache.cached_result`;
-    its ``lsm.seconds`` are then the earlier call's).
+    (notebooks 17 and 21) with ``stacks`` returns that call's result
+    (:func:`lsmta.build_cache.cached_result`; its ``lsm.seconds`` are then the earlier
+    call's). Without ``stacks`` it is always computed: the key would hold the files' paths,
+    not their bytes.
     """
+    if stacks is None:
+        return _refine_rig(videos, cameras, params=params, stacks=None)
     return cached_result("rig_refinement", _refine_rig, (videos, cameras),
                          kwargs={"params": params, "stacks": stacks})
 

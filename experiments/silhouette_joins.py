@@ -7,15 +7,19 @@ view whose frame holds them? (issue #40: wrong joins metres off the person survi
 As notebook 17 runs it (cameras refined from the recording with 3 tie-point frames, skin
 markers tracked with LSMTA, ``MarkerParams`` with ``sigma = 2.5 s``, ``max_px = 4 s`` at
 scale ``s``, the join checks on, the silhouette check OFF so that every marker the other
-checks keep is measured). For each moving marker: its median 3-D distance from the
-person's centre (the medoid of the moving markers' median positions), its median height,
-and for every view (``*``: one that holds it) the share of the sampled frames (every
-``--every``-th) whose projection lies inside the subject mask
+checks keep is measured). For each moving marker: the distance of its median 3-D position
+from the person's centre (the medoid of the moving markers' median positions; notebook
+17's measure), its median height, and for every view (``*``: one that holds it) the share
+of the sampled frames (every ``--every``-th, at most 21 spread over the clip: the library's
+``background`` sampling) whose projection lies inside the subject mask
 (``lsmta.systems.subject.subject_masks``, radii ``round(15 s)``, holes filled, grown by
-each ``--grow`` px more) among those in which the view's frame holds the projection, and
-pooled over the views. Then the library's share, the least over the views that see the marker in at
-least half of its frames (``lsmta.systems.markers.silhouette_shares``) and the
-capture with the silhouette check at its default. Writes a figure of the masks and the
+each ``--grow`` px more) among those in which the view's frame holds the projection and
+the mask is not empty (``lsmta.tracking.join_checks.silhouette_hits``), and pooled over
+the views. Then the library's share, the least over the views that judge the marker
+(``lsmta.systems.markers.silhouette_shares``) and the capture with the silhouette check
+at its default. Verdict on the claim: every marker more than 1 m from the person's centre
+(a wrong join) has a library share below ``MarkerParams().silhouette`` and every other
+one at least that (exit status 1 if not). Writes a figure of the masks and the
 projections and ``<out>/experiment_<s>.json``. The refined cameras are kept in ``<out>``
 and reused.
 """
@@ -43,7 +47,7 @@ from lsmta.io import read_videos  # noqa: E402
 from lsmta.systems import MarkerParams, RigRefinementParams, capture_markers, refine_rig  # noqa: E402
 from lsmta.systems.markers import silhouette_shares  # noqa: E402
 from lsmta.systems.subject import SubjectMaskParams, background, subject_masks  # noqa: E402
-from lsmta.tracking.join_checks import _project  # noqa: E402
+from lsmta.tracking.join_checks import silhouette_hits  # noqa: E402
 
 
 def main(argv=None):
@@ -73,19 +77,23 @@ def main(argv=None):
     t0 = time.process_time()
     m = capture_markers(stacks, cams, first, params=p)
     t_mark = time.process_time() - t0
+    default = MarkerParams().silhouette
     t0 = time.process_time()
-    lib = silhouette_shares(stacks, cams, m.view_xy, m.members, params=replace(p, silhouette=0.5))
+    lib = silhouette_shares(stacks, cams, m.view_xy, m.members,
+                            params=replace(p, silhouette=default))
     t_lib = time.process_time() - t0
-    on = capture_markers(stacks, cams, first, params=replace(p, silhouette=0.5))
+    on = capture_markers(stacks, cams, first, params=replace(p, silhouette=default))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         heights = np.nanmedian(on.xyz[:, on.moving, 2], axis=0)
-    print(f"with the silhouette check (default 0.5): joins {on.joins}; {int(on.moving.sum())} "
-          f"moving markers, median heights {np.round(heights).tolist()} mm; the library's "
+    print(f"with the silhouette check (default {default}): joins {on.joins}; "
+          f"{int(on.moving.sum())} moving markers, median heights "
+          f"{np.round(heights).tolist()} mm; the library's "
           f"least shares of the markers below {np.round(lib[m.moving], 2).tolist()} "
           f"({t_lib:.1f} s CPU)")
     moving = np.flatnonzero(m.moving)
-    K, T = len(cams), len(stacks[0])
+    K = len(cams)
+    frames = background(stacks[0][None], params=SubjectMaskParams(every=args.every))[1]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         med = np.nanmedian(m.xyz[:, moving], axis=0)                         # (n, 3)
@@ -93,8 +101,8 @@ def main(argv=None):
     # the person's centre: the medoid of the moving markers' median positions (the marker
     # nearest the others, by its median distance to them; a few far wrong joins do not move it)
     centre = med[int(np.argmin(np.nanmedian(apart, axis=1)))]
-    mp = SubjectMaskParams(close_px=round(15 * s), grow_px=round(15 * s))
-    frames = np.arange(0, T, args.every)
+    mp = SubjectMaskParams(every=args.every, close_px=round(15 * s), grow_px=round(15 * s))
+    min_area = int(np.ceil(np.pi * mp.grow_px ** 2))    # the library's empty-mask rule
     grows = [int(g) for g in args.grow.split(",")]
     t0 = time.process_time()
     inside = np.zeros((len(grows), K, len(frames), len(moving)), bool)
@@ -103,26 +111,20 @@ def main(argv=None):
     for k in range(K):
         v = stacks[k][None]
         bg = background(v, params=mp)
-        for i, t in enumerate(frames):
-            mask = ndimage.binary_fill_holes(
-                subject_masks(v, int(t), params=mp, background=bg).masks[0])
-            if t in (frames[0], frames[len(frames) // 2]):
-                keep_masks[k, int(t)] = mask
-            X = m.xyz[t, moving]
-            ok = np.isfinite(X).all(axis=1)
-            xy = np.full((len(moving), 2), np.nan)
-            if ok.any():
-                xy[ok] = _project(cams[k], X[ok])
-                ok &= cams[k].in_lens(np.nan_to_num(X))
-            ij = np.rint(np.nan_to_num(xy, nan=-1)).astype(int)
-            ok &= (ij[:, 0] >= 0) & (ij[:, 0] < mask.shape[1]) & (ij[:, 1] >= 0) & \
-                (ij[:, 1] < mask.shape[0])
-            seen[k, i] = ok
-            for g, grow in enumerate(grows):
-                mg = mask if grow == 0 else cv2.dilate(
-                    mask.astype(np.uint8), cv2.getStructuringElement(
-                        cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))).astype(bool)
-                inside[g, k, i, ok] = mg[ij[ok, 1], ij[ok, 0]]
+        masks = np.stack([ndimage.binary_fill_holes(
+            subject_masks(v, int(t), params=mp, background=bg).masks[0]) for t in frames])
+        for i in (0, len(frames) // 2):
+            keep_masks[k, int(frames[i])] = masks[i]
+        X = m.xyz[frames][:, moving]
+        for g, grow in enumerate(grows):
+            mg = masks if grow == 0 else np.stack([cv2.dilate(
+                a.astype(np.uint8), cv2.getStructuringElement(
+                    cv2.MORPH_ELLIPSE, (2 * grow + 1, 2 * grow + 1))).astype(bool)
+                for a in masks])
+            hit, ok = silhouette_hits(cams[k], X, mg, min_area=min_area)
+            inside[g, k] = hit
+            if grow == 0:
+                seen[k] = ok
     t_mask = time.process_time() - t0
     rows = []
     print(f"scale {s:g}: {len(moving)} moving markers after the checks; joins {m.joins}; "
@@ -134,7 +136,7 @@ def main(argv=None):
     for i, j in enumerate(moving):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            dist = float(np.nanmedian(np.linalg.norm(m.xyz[:, j] - centre, axis=1)))
+            dist = float(np.linalg.norm(med[i] - centre))
             height = float(np.nanmedian(m.xyz[:, j, 2]))
         views = np.flatnonzero(m.members[j] >= 0)
         per = {}
@@ -158,6 +160,21 @@ def main(argv=None):
                         for k in range(K))
         print(f"  M{i + 1}: {dist / 1000:.2f} m from the person's centre, height {height:.0f} mm; "
               f"all views pooled {[None if x is None else round(x, 2) for x in pooled]} | {txt}")
+    # the claim: the wrong joins (> 1 m from the person's centre) below the default share,
+    # the right ones at or above it (NaN: not judged, kept)
+    share = lib[moving]
+    wrong = np.array([r["dist_mm"] > 1000 for r in rows], bool)
+    holds = bool(np.all(share[wrong] < default) and not np.any(share[~wrong] < default))
+
+    def span(x):
+        x = x[np.isfinite(x)]
+        return f"{x.min():.2f}-{x.max():.2f}" if x.size else "none"
+    off_m = [round(r["dist_mm"] / 1000, 2) for r, w in zip(rows, wrong) if w]
+    print(f"claim (wrong joins, > 1 m from the centre, least share < {default}; the others >= "
+          f"{default}): {'holds' if holds else 'NOT met'}; wrong {int(wrong.sum())} "
+          f"({span(share[wrong])}, {off_m} m "
+          f"off), right {int((~wrong).sum())} ({span(share[~wrong])}, NaN "
+          f"{int(np.isnan(share[~wrong]).sum())})")
     # figure: two frames, every view, mask and projections (member views: circles)
     fig, ax = plt.subplots(2, K, figsize=(3.2 * K, 10))
     for r, t in enumerate(sorted({t for _, t in keep_masks})):
@@ -169,7 +186,7 @@ def main(argv=None):
                 X = m.xyz[t, j]
                 if not np.isfinite(X).all():
                     continue
-                xy = _project(cams[k], X[None])[0]
+                xy = cams[k].project(X[None], behind="nan")[0]
                 H, W = stacks[k].shape[1:]
                 if not (np.isfinite(xy).all() and 0 <= xy[0] < W and 0 <= xy[1] < H):
                     continue
@@ -192,8 +209,9 @@ def main(argv=None):
          "with_check": on.joins, "moving_with_check": int(on.moving.sum()),
          "joins": m.joins, "markers": rows,
          "cpu_s": {"refine": t_ref, "markers": t_mark, "masks": t_mask,
-                   "library_check": t_lib}}, indent=1, default=str))
+                   "library_check": t_lib}, "claim_holds": holds}, indent=1, default=str))
+    return 0 if holds else 1
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

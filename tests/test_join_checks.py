@@ -302,37 +302,63 @@ def test_bad_input():
 
 def test_silhouette_hits_see_only_what_the_frame_holds():
     cam = _rig(1, spread_deg=0.0)[0]                        # at (0, -3000, 0), looking at 0
-    masks = np.zeros((2, cam.height, cam.width), bool)
-    masks[:, 280:320, 380:420] = True                       # the subject around the centre
-    masks[1] = False                                        # frame 1: the mask lost it
+    masks = np.zeros((4, cam.height, cam.width), bool)
+    masks[[0, 2], 280:320, 380:420] = True                  # the subject around the centre
+    masks[1, 10:12, 10:12] = True                           # frame 1: a 4-px speck elsewhere
+    before = masks.copy()                                   # frame 3: empty (nothing moved)
     X = np.array([[[0.0, 0, 0], [600.0, 0, 0], [3000.0, 0, 0], [0, -4000.0, 0],
-                   [np.nan, 0, 0]]] * 2)                    # on, off, out of frame, behind, none
+                   [np.nan, 0, 0]]] * 4)                    # on, off, out of frame, behind, none
     inside, seen = silhouette_hits(cam, X, masks)
-    assert np.array_equal(seen, [[True, True, False, False, False]] * 2)
-    assert np.array_equal(inside, [[True, False, False, False, False], [False] * 5])
-    # the least share over the views that see a marker in >= min_seen of its frames
+    assert np.array_equal(seen, [[True, True, False, False, False]] * 3 + [[False] * 5])
+    assert np.array_equal(inside, [[True] + [False] * 4, [False] * 5, [True] + [False] * 4,
+                                   [False] * 5])
+    # a mask below min_area is not judged either
+    assert not silhouette_hits(cam, X, masks, min_area=5)[1][1].any()
+    # the least share over the views that see a marker in >= min_seen of its frames and in
+    # >= min_positions frames
     other = np.zeros_like(inside)
     i2, s2 = np.stack([inside, other]), np.stack([seen, seen])
-    s2[1, 0] = False                                         # view 1 sees marker 0 in frame 1 only
+    s2[1, :2, 0] = False                                     # view 1 sees marker 0 in frame 2 only
     share = silhouette_share(i2, s2)
-    assert share[0] == 0.0 and share[1] == 0.0 and np.isnan(share[2:]).all()
-    assert silhouette_share(i2, s2, min_seen=0.6)[0] == 0.5   # view 1 no longer judges marker 0
+    assert share[0] == 2 / 3 and share[1] == 0.0 and np.isnan(share[2:]).all()
+    assert silhouette_share(i2, s2, min_seen=0.3, min_positions=1)[0] == 0.0   # view 1 judges
+    # a marker seen in only 2 frames is not judged (NaN: kept)
+    assert np.isnan(silhouette_share(i2[:, :2], s2[:, :2])).all()
     assert np.array_equal(X, np.array([[[0.0, 0, 0], [600.0, 0, 0], [3000.0, 0, 0],
-                                        [0, -4000.0, 0], [np.nan, 0, 0]]] * 2), equal_nan=True)
+                                        [0, -4000.0, 0], [np.nan, 0, 0]]] * 4), equal_nan=True)
+    assert np.array_equal(masks, before)
 
 
-def _off_subject_scene():
+def _off_subject_scene(T=16, still_from=None, view2_shift=(0.0, 0.0, 0.0)):
     """Three views of four dots moving together (the subject) and a fifth dot at W, 800 mm
     off them, shown by views 0 and 1 only: their tracks meet at W as a wrong join of two
-    dots whose rays cross off the subject would, and view 2 sees background there."""
+    dots whose rays cross off the subject would, and view 2 sees background there. From
+    frame ``still_from`` on, everything stands still; view 2 shows the subject shifted by
+    ``view2_shift`` mm (its masks then miss the others' subject)."""
     cams = _rig(3, spread_deg=40.0)
-    t = np.arange(16)[:, None, None]
+    t = np.arange(T)[:, None, None]
+    t = t if still_from is None else np.minimum(t, still_from)
     sway = np.array([40.0, 0, 25.0]) * np.sin(0.3 * t)
     S = np.array([[-120.0, 0, -100], [0, 60, 120], [120, -40, -20], [-60, 30, 140]])[None] + sway
     W = np.array([[-300.0, -600, -250]])[None] + sway[:, :1] * [1, 0, -1]
     both = np.concatenate([S, W], axis=1)
-    stacks = [_dot_video([c], X)[0] for c, X in zip(cams, (both, both, S))]
+    stacks = [_dot_video([c], X)[0] for c, X in zip(cams, (both, both, S + view2_shift))]
     return cams, stacks, S, W
+
+
+def _right_and_wrong(cams, stacks, S, W):
+    """The markers (checked without the silhouette) at the subject's dots and at W."""
+    base = dict(detector="blobs", max_px=1.0, min_motion_mm=5.0)
+    first = [s[0] for s in stacks]
+    off = capture_markers(stacks, cams, first, params=MarkerParams(**base, silhouette=None))
+    xyz = np.nanmedian(off.xyz, axis=0)
+    right = [off.members[np.argmin(np.linalg.norm(xyz - X, axis=1))] for X in S[-1]]
+    wrong = off.members[np.linalg.norm(xyz - W[-1, 0], axis=1) < 20]
+    return base, first, off, right, wrong
+
+
+def _kept(on, rows) -> bool:
+    return all(any(np.array_equal(r, row) for row in on.members) for r in rows)
 
 
 def test_a_moving_marker_off_the_subject_is_dropped_and_the_right_ones_kept():
@@ -358,3 +384,78 @@ def test_a_moving_marker_off_the_subject_is_dropped_and_the_right_ones_kept():
     # the peer shares the check's outcome and count
     klt = capture_markers(stacks, cams, first, params=MarkerParams(**base), like=on)
     assert klt.joins["off_subject"] == 1 and np.array_equal(klt.members, on.members)
+
+
+def test_a_still_subject_or_a_frozen_view_keeps_the_right_markers():
+    # the subject stands still from frame 12 on: 5 of the 8 sampled frames (0, 5, ..., 35)
+    # have empty masks in every view; they are not judged (before: the right markers' share
+    # fell to 3/8 and all were dropped), the 3 moving ones still catch the wrong join
+    cams, stacks, S, W = _off_subject_scene(T=40, still_from=12)
+    base, first, off, right, wrong = _right_and_wrong(cams, stacks, S, W)
+    assert len(right) == 4 and len(wrong) == 1
+    with pytest.warns(RuntimeWarning, match=r"view 'v2'.s subject mask is empty .* in 5 of its 8"):
+        on = capture_markers(stacks, cams, first, params=MarkerParams(**base))
+    assert _kept(on, right) and not _kept(on, wrong) and on.joins["off_subject"] == 1
+    # view 2 frozen (its first frame throughout): no mask there, its frames not judged; the
+    # right markers are kept (before: all dropped), and the wrong join too: views 0 and 1
+    # hold it on a moving dot, only view 2 could tell (the check's limit)
+    cams, stacks, S, W = _off_subject_scene()
+    stacks[2] = np.repeat(stacks[2][:1], len(stacks[2]), axis=0)
+    base, first, off, right, wrong = _right_and_wrong(cams, stacks, S, W)
+    with pytest.warns(RuntimeWarning, match=r"view 'v2'.s subject mask is empty"):
+        on = capture_markers(stacks, cams, first, params=MarkerParams(**base))
+    assert _kept(on, right) and on.joins["off_subject"] == 0
+
+
+def test_a_check_that_drops_most_moving_markers_warns():
+    # view 2's subject 400 mm aside: every marker lands off its masks
+    cams, stacks, S, W = _off_subject_scene(view2_shift=(400.0, 0.0, 0.0))
+    first = [s[0] for s in stacks]
+    with pytest.warns(RuntimeWarning, match=r"silhouette check: 5 of the 5 moving markers .*"
+                                            r"more than half"):
+        on = capture_markers(stacks, cams, first, params=MarkerParams(
+            detector="blobs", max_px=1.0, min_motion_mm=5.0))
+    assert on.joins["off_subject"] == 5 and not on.moving.any()
+
+
+def _square_scene(d, T=31):
+    """Two views of a moving point X and a 60-px square of the subject beside it: in view 0
+    the point lies ``d`` px right of the square's right edge, in view 1 at its centre.
+    Markers: 0 X; 1 a still point; 2 never seen; 3 a moving point 400 mm above X seen in
+    the first two sampled frames only (off the squares there)."""
+    cams = _rig(2, spread_deg=20.0)
+    t = np.arange(T, dtype=float)
+    X = np.stack([-300 + 20 * t, 0 * t, 0 * t], axis=1)
+    pts = np.stack([X, np.tile([0.0, 0, 300], (T, 1)), np.full((T, 3), np.nan),
+                    X + [0, 0, 400]], axis=1)                        # (T, 4, 3)
+    xy, stacks = [], []
+    for k, cam in enumerate(cams):
+        p = cam.project(np.nan_to_num(pts).reshape(-1, 3)).reshape(T, 4, 2)
+        p[:, 2] = np.nan
+        p[:, 3][np.r_[0:2, 7:T]] = np.nan                              # seen in frames 2..6
+        xy.append(p)
+        v = np.zeros((T, cam.height, cam.width), np.uint8)
+        for i, (x, y) in enumerate(np.rint(p[:, 0]).astype(int)):
+            if k == 0:
+                v[i, y - 30:y + 31, x - d - 60:x - d] = 200
+            else:
+                v[i, y - 40:y + 41, x - 40:x + 41] = 200
+        stacks.append(v)
+    return cams, stacks, xy, np.array([[j, j] for j in range(4)])
+
+
+def test_the_silhouette_radius_is_used_and_unjudged_markers_kept():
+    for d, r, share in ((7, 10, 1.0), (12, 10, 0.0), (12, 14, 1.0)):
+        cams, stacks, xy, members = _square_scene(d)
+        for p in (MarkerParams(silhouette_px=r), MarkerParams(sigma=r / 6)):   # px, 6 sigma
+            got = silhouette_shares(stacks, cams, xy, members, params=p)
+            assert got[0] == share, (d, r, p.silhouette_px, got)
+            # still, never seen, and seen in 2 sampled frames (0 and 5): not judged, kept
+            assert np.isnan(got[1:]).all()
+    got = silhouette_shares(stacks, cams, xy, members, params=p, min_positions=1)
+    assert got[3] == 0.0                                   # judged on its 2 positions
+    # a clip of 2 frames (fewer than 3 sampled): nothing judged
+    two = silhouette_shares([s[:2] for s in stacks], cams, [a[:2] for a in xy], members)
+    assert np.isnan(two).all()
+    with pytest.raises(ValueError, match="silhouette_px"):
+        MarkerParams(silhouette_px=0.0)

@@ -37,15 +37,27 @@ silhouette is the moving subject's mask found in the recording itself
 (:func:`~lsmta.systems.subject.subject_masks`: each sampled frame against the median of
 the sampled frames, every 5th, at most 21), closed and grown by ``silhouette_px``, its holes
 filled (a body's silhouette has none; a torso that barely moves leaves only its moving
-outline). For every moving marker (by the motion rule of stage 5, on the filled tracks) and
-every view whose frame holds its projection in at least half of the sampled frames in which
-any view does (its own views too: a join of two tracks of the room is off the subject there),
+outline). A sampled frame whose mask covers fewer pixels than one growth disc
+(π r², r the radius: any mask that holds a pixel away from the frame's
+edge covers that much) is empty: nothing moved there (a still subject, a frozen view), and
+it is not judged in that view (a warning names a view whose masks are empty in more than
+half of the sampled frames). For every moving marker (by the motion rule of stage 5, on
+the filled tracks) and every view whose frame holds its projection, in a sampled frame
+with a mask, in at least half of the sampled frames in which any view does and in at least
+3 of them (its own views too: a join of two tracks of the room is off the subject there),
 the share of those positions that land on the mask; the least of these shares
 (:func:`~lsmta.tracking.join_checks.silhouette_share`) below ``silhouette`` drops the marker
-(counted as ``"off_subject"``). Still markers (the room's) are not judged. Where the mask
-misses the subject (a part still in more than half of the sampled frames is in the median,
-so off the mask unless the outline around it closes) a right marker's share falls: hence a
-majority of the positions, not every one.
+(counted as ``"off_subject"``). Still markers (the room's), markers without a position and
+markers no view judges are kept. Where the mask misses the subject (a part still in more
+than half of the sampled frames is in the median, so off the mask unless the outline around
+it closes) a right marker's share falls: hence a majority of the positions, not every one.
+A check that drops more than half of the moving markers it judges warns: the masks may
+miss the subject, or the markers are not on one moving subject. The limit: a wrong join
+whose two tracks both lie on the subject lands on the silhouette in its own views; only
+another view whose frame holds the point where the subject is not can catch it. The rule
+and its settings (0.5, the radius ``6 sigma``, holes filled, half of the frames, the least
+over the views, after the fill) were chosen on the one real recording at hand (notebook
+17's demo), with no held-out recording.
 """
 
 from __future__ import annotations
@@ -136,15 +148,16 @@ class MarkerParams:
         dot's radius, so the search reaches beyond the re-centring window.
     silhouette : float or None
         With ``check``: a moving marker whose positions land on the subject's silhouette in
-        less than this share of the sampled frames in some view whose frame holds them is
+        less than this share of the sampled frames in some view that judges it is
         dropped (module docstring), in (0, 1]; default 0.5, a majority: a marker on the
         subject lands inside wherever the mask holds the subject, and the mask can miss
         parts of it. None: not checked (markers on several
         subjects, or on something that does not move against the room).
     silhouette_px : float or None
-        Radius of the silhouette's closing and growth, px (the subject mask's ``close_px``
-        and ``grow_px``); None: ``6 sigma`` (15 px at the default ``sigma`` 2.5:
-        :class:`~lsmta.systems.subject.SubjectMaskParams`' radii, scaled with the frames).
+        Radius of the silhouette's closing and growth, px, > 0, rounded to whole pixels (at
+        least 1; the subject mask's ``close_px`` and ``grow_px``); None: ``6 sigma`` (15 px
+        at the default ``sigma`` 2.5: :class:`~lsmta.systems.subject.SubjectMaskParams`'
+        radii, scaled with the frames).
     """
 
     detector: str = "skin"
@@ -185,7 +198,7 @@ class MarkerParams:
             raise ValueError(f"silhouette: expected a share in (0, 1] or None, got "
                              f"{self.silhouette}")
         if self.silhouette_px is not None:
-            as_scalar(self.silhouette_px, "silhouette_px", nonnegative=True)
+            as_scalar(self.silhouette_px, "silhouette_px", positive=True)
         if self.follow is not None and not isinstance(self.follow, FollowParams):
             raise TypeError(f"follow: expected a FollowParams or None, got "
                             f"{type(self.follow).__name__}")
@@ -225,9 +238,9 @@ class MarkerCapture:
         What the join check did (``MarkerParams.check``): two-view markers dropped as
         ``"ambiguous"``, ambiguous views of markers of three or more views taken out
         (``"ambiguous_views"``), markers dropped ``"below_floor"``, disagreeing
-        ``"views_out"`` taken out, tracks ``"attached"``, dots ``"filled"`` (all 0 without
-        the check), moving markers dropped ``"off_subject"`` (their positions off the
-        subject's silhouette, ``MarkerParams.silhouette``).
+        ``"views_out"`` taken out, tracks ``"attached"``, dots ``"filled"`` of the markers
+        returned (all 0 without the check), moving markers dropped ``"off_subject"`` (their
+        positions off the subject's silhouette, ``MarkerParams.silhouette``).
     """
 
     detections: tuple
@@ -375,11 +388,20 @@ def _capture_markers(stacks, cameras, first_frames, *, params, like) -> MarkerCa
         view_xy, found = fill_gaps(stacks, cams, view_xy, members, radius=fp.window(),
                                    search_px=search, min_contrast=fp.min_contrast,
                                    max_gap=fp.max_gap, max_px=p.max_px)
-        joins["filled"] = int(found.sum())
+        off = np.zeros(len(members), bool)
         if like is None and p.silhouette is not None and len(members):
-            off = silhouette_shares(stacks, cams, view_xy, members, params=p) < p.silhouette
-            members = members[~off]                         # NaN (not judged): kept
+            share = silhouette_shares(stacks, cams, view_xy, members, params=p)
+            off = share < p.silhouette                      # NaN (not judged): kept
+            if off.sum() > np.isfinite(share).sum() / 2:
+                warnings.warn(f"silhouette check: {int(off.sum())} of the "
+                              f"{int(np.isfinite(share).sum())} moving markers it judged are off "
+                              f"the subject's masks and dropped (more than half): the masks may "
+                              f"miss the subject, or the markers are not on one moving subject "
+                              f"(MarkerParams(silhouette=None) turns the check off)",
+                              RuntimeWarning, stacklevel=4)
+            members = members[~off]
             joins["off_subject"] = int(off.sum())
+        joins["filled"] = int(found[..., ~off].sum())       # of the markers kept
     xyz, residual, _ = triangulate_joined(cams, view_xy, members)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)          # never intersected
@@ -407,8 +429,8 @@ def _checked_joins(cams, view_xy, members, p: MarkerParams):
                      "attached": attached, "off_subject": 0}
 
 
-def silhouette_shares(stacks, cameras, xy, members, *,
-                      params: MarkerParams | None = None) -> np.ndarray:
+def silhouette_shares(stacks, cameras, xy, members, *, params: MarkerParams | None = None,
+                      min_positions: int = 3) -> np.ndarray:
     """Each moving marker's share of positions on the subject's silhouette (the module
     docstring's silhouette check).
 
@@ -423,13 +445,17 @@ def silhouette_shares(stacks, cameras, xy, members, *,
         The joins.
     params : MarkerParams, optional
         Its ``sigma``, ``silhouette_px`` and ``min_motion_mm``.
+    min_positions : int
+        A view judges a marker only on at least this many sampled frames
+        (:func:`~lsmta.tracking.join_checks.silhouette_share`).
 
     Returns
     -------
     (M,) array
         The least share over the judging views in [0, 1]
         (:func:`~lsmta.tracking.join_checks.silhouette_share`); NaN for still markers and
-        markers no view judges.
+        markers no view judges. Warns for a view whose masks are empty (fewer than
+        π r² pixels, r the radius) in more than half of the sampled frames.
     """
     p = params or MarkerParams()
     if len(stacks) != len(cameras):
@@ -446,6 +472,7 @@ def silhouette_shares(stacks, cameras, xy, members, *,
         return share
     radius = max(1, round(p.silhouette_px if p.silhouette_px is not None else 6 * p.sigma))
     mp = SubjectMaskParams(close_px=radius, grow_px=radius)
+    min_area = int(np.ceil(np.pi * radius ** 2))          # one growth disc
     hits, seen = [], []
     for stack, cam in zip(stacks, cameras):
         v = np.asarray(stack)[None]
@@ -453,8 +480,15 @@ def silhouette_shares(stacks, cameras, xy, members, *,
         masks = np.stack([ndimage.binary_fill_holes(
             subject_masks(v, int(t), params=mp, background=bg).masks[0])
             for t in bg[1]])                              # (S, H, W): one view at a time
-        i, s = silhouette_hits(cam, xyz[bg[1]][:, moving], masks)
+        empty = int((masks.sum(axis=(1, 2)) < min_area).sum())
+        if empty > len(masks) / 2:
+            warnings.warn(f"silhouette check: view {cam.name!r}'s subject mask is empty (fewer "
+                          f"than {min_area} px) in {empty} of its {len(masks)} sampled frames "
+                          f"(a still subject or a frozen view?): those frames are not judged "
+                          f"in it", RuntimeWarning, stacklevel=2)
+        i, s = silhouette_hits(cam, xyz[bg[1]][:, moving], masks, min_area=min_area)
         hits.append(i)
         seen.append(s)
-    share[moving] = silhouette_share(np.stack(hits), np.stack(seen), min_seen=0.5)
+    share[moving] = silhouette_share(np.stack(hits), np.stack(seen), min_seen=0.5,
+                                     min_positions=min_positions)
     return share

@@ -47,10 +47,15 @@ what a recording is scored on):
    :func:`lsmta.systems.subject.subject_masks`): a point on the subject projects inside
    the subject's silhouette in every view whose frame holds its projection, whatever
    hides it there (the silhouette is the projection of the whole body), while a wrong
-   join's point, metres off, projects onto the background. :func:`silhouette_share` is a
-   marker's least share of hits over the views that see it in at least ``min_seen`` of
-   its frames; the marker stage drops the moving markers below a share
-   (``MarkerParams.silhouette``).
+   join's point, metres off, projects onto the background. A frame whose mask is empty
+   (fewer than ``min_area`` pixels) is not judged in that view: a still subject or a frozen
+   view leaves the mask empty, which says nothing about the markers.
+   :func:`silhouette_share` is a marker's least share of hits over the views that see it
+   in at least ``min_seen`` of its frames and in at least ``min_positions`` frames; the
+   marker stage drops the moving markers below a share (``MarkerParams.silhouette``). The
+   limit: a wrong join whose two tracks both lie on the subject lands inside in its own
+   views; only another view whose frame holds its point where the subject is not can tell
+   it.
 """
 
 from __future__ import annotations
@@ -470,7 +475,7 @@ def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float
     return tuple(out), found
 
 
-def silhouette_hits(camera, xyz, masks) -> tuple[np.ndarray, np.ndarray]:
+def silhouette_hits(camera, xyz, masks, *, min_area: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Where markers' 3-D positions project inside one view's silhouettes of the subject.
 
     Parameters
@@ -481,14 +486,19 @@ def silhouette_hits(camera, xyz, masks) -> tuple[np.ndarray, np.ndarray]:
         The markers' positions in S frames, mm (NaN: none).
     masks : (S, H, W) bool array
         The view's silhouette (subject mask) in the same S frames, at the camera's size.
+    min_area : int
+        A frame whose mask has fewer pixels than this is not judged (``seen`` False there):
+        an empty mask (a still subject, a frozen view) says nothing about the markers;
+        >= 1 (default 1: only empty masks).
 
     Returns
     -------
     inside : (S, M) bool array
         The projection lies on the mask (only where ``seen``).
     seen : (S, M) bool array
-        The position is known, in front of the camera and inside its lens model, and its
-        projection (rounded) inside the frame: the view can judge it.
+        The position is known, in front of the camera and inside its lens model, its
+        projection (rounded) inside the frame, and the frame's mask holds at least
+        ``min_area`` pixels: the view can judge it.
     """
     X = as_array(xyz, "xyz", shape=(None, None, 3), allow_nan=True)
     m = np.asarray(masks)
@@ -496,9 +506,10 @@ def silhouette_hits(camera, xyz, masks) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"masks: expected a ({X.shape[0]}, {camera.height}, {camera.width}) "
                          f"bool array (one mask per frame of xyz, camera {camera.name!r}'s "
                          f"size), got shape {m.shape} and dtype {m.dtype}")
+    min_area = as_int(min_area, "min_area", minimum=1)
     S, M, _ = X.shape
     flat = X.reshape(-1, 3)
-    seen = np.isfinite(flat).all(axis=1)
+    seen = np.isfinite(flat).all(axis=1) & np.repeat(m.sum(axis=(1, 2)) >= min_area, M)
     if seen.any():
         seen[seen] = camera.in_lens(flat[seen])
     ij = np.full((len(flat), 2), -1)
@@ -511,13 +522,16 @@ def silhouette_hits(camera, xyz, masks) -> tuple[np.ndarray, np.ndarray]:
     return inside.reshape(S, M), seen.reshape(S, M)
 
 
-def silhouette_share(inside, seen, *, min_seen: float = 0.5) -> np.ndarray:
+def silhouette_share(inside, seen, *, min_seen: float = 0.5,
+                     min_positions: int = 3) -> np.ndarray:
     """Each marker's least share of positions inside the silhouettes over the views that
     judge it.
 
     A view judges a marker when it sees (:func:`silhouette_hits`' ``seen``) at least
-    ``min_seen`` of the frames in which any view sees it; its share is its hits over the
-    positions it sees. A point on the subject lands inside in every view (where the mask
+    ``min_seen`` of the frames in which any view sees it, and at least ``min_positions``
+    frames; its share is its hits over the positions it sees. A marker no view judges
+    (seen in fewer than ``min_positions`` frames, say) gets NaN: too few positions to
+    judge it on. A point on the subject lands inside in every view (where the mask
     holds the subject), so the least share over the judging views is the one that tells.
 
     Parameters
@@ -526,6 +540,8 @@ def silhouette_share(inside, seen, *, min_seen: float = 0.5) -> np.ndarray:
         :func:`silhouette_hits` of V views, stacked.
     min_seen : float
         Share of the frames a view must see, in (0, 1].
+    min_positions : int
+        Fewest frames a view must see, >= 1.
 
     Returns
     -------
@@ -539,9 +555,10 @@ def silhouette_share(inside, seen, *, min_seen: float = 0.5) -> np.ndarray:
     min_seen = as_scalar(min_seen, "min_seen", positive=True)
     if min_seen > 1:
         raise ValueError(f"min_seen: expected a share in (0, 1], got {min_seen}")
+    min_positions = as_int(min_positions, "min_positions", minimum=1)
     n = s.sum(axis=1)                                               # (V, M)
     frames = s.any(axis=0).sum(axis=0)                              # (M,)
-    judges = (n > 0) & (n >= min_seen * frames)
+    judges = (n >= min_positions) & (n >= min_seen * frames)
     share = np.where(judges, (i & s).sum(axis=1) / np.maximum(n, 1), np.inf)
     least = share.min(axis=0) if len(share) else np.full(i.shape[2], np.inf)
     return np.where(np.isfinite(least), least, np.nan)

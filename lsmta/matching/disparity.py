@@ -44,7 +44,21 @@ on them; notebook 16 reports them with these defaults):
 * thresholds: ``sigma_xy`` up to 0.2 px, singular values of ``A`` in 0.5-2, shear up to 0.5;
 * one round of new seeds in unreached regions (``reseed_rounds=1``, ``reseed_gap=2``): added
   for issue #33 item 3, set by rule (more than two nodes clear of the growth), not by scores;
-  ``experiments/dense_misses.py`` shows where the remaining misses are.
+  ``experiments/dense_misses.py`` shows where the remaining misses are;
+* no adaptive window (``wide_patch=None``). An option for real pairs:
+  ``replace(DisparityParams().grow, wide_patch=WIDE_PATCH)`` (:data:`WIDE_PATCH`, 13 px,
+  after Kanade & Okutomi 1994): a node whose 9 x 9 patch is below the texture floor but whose
+  13 x 13 patch is not is matched with the wide patch, and a node rejected by a precision
+  test is tried once more with it (not after non-convergence, a depth edge). Its size was
+  chosen on Cones (``experiments/dense_adaptive_window.py``); on the held-out Teddy, Art and
+  Tsukuba it raised the automatic seeds' density by 0.043, 0.041 and 0.013 with the median
+  and bad-1.0 verdicts unchanged (``experiments/dense_real_pairs.py --wide-patch 13``
+  against ``--wide-patch 0``; notebook 16); the SGBM start's changed by 0.004 at most. Not the
+  default: these defaults are also the rectified surface stage's
+  (:mod:`lsmta.systems.rectified`), and on a generated body before a flat background the
+  wide window lends the silhouette's texture to background nodes beside it, which then
+  match at the body's disparity (``tests/test_surfaces_rectified.py``: 5.6 % of the kept
+  points off the body with it, the test allows 5 %).
 """
 
 from __future__ import annotations
@@ -105,6 +119,9 @@ SGBM_FILLS = ("unmeasured", "sgbm-empty", "none")
 #: the growth's defaults for a rectified pair (see the module docstring)
 _GROW = GrowParams(step=4, patch=9, retry_patch=(5,), geometry="row-affine", method="inverse",
                    max_iter=15, partial=True)
+#: the adaptive window's size (``GrowParams.wide_patch``, an option, px), chosen on Cones by the
+#: rule of experiments/dense_adaptive_window.py
+WIDE_PATCH = 13
 #: the texture floor of the growth started from SGBM (grey levels), chosen on the tuning pairs
 #: Art and Teddy by the rule of experiments/dense_sgbm_tuning.py
 SGBM_MIN_TEXTURE = 1.0
@@ -120,10 +137,10 @@ class DisparityParams:
     grow : GrowParams
         The constrained growth (:func:`~lsmta.matching.grow.grow_matches`). Default: step 4,
         patch 9, retry patch 5, ``geometry="row-affine"``, ``method="inverse"``,
-        ``max_iter=15``, ``partial=True`` (see the module docstring); vary it with
-        ``dataclasses.replace(DisparityParams().grow, max_iter=10)``. Its ``thresholds``
-        default here (None) to ``max_displacement = step``, ``max_sigma_xy = 0.2``,
-        ``scale_range = (0.5, 2)``, ``max_shear = 0.5``.
+        ``max_iter=15``, ``partial=True``, no adaptive window (see the module docstring);
+        vary it with ``dataclasses.replace(DisparityParams().grow, max_iter=10)``. Its
+        ``thresholds`` default here (None) to ``max_displacement = step``,
+        ``max_sigma_xy = 0.2``, ``scale_range = (0.5, 2)``, ``max_shear = 0.5``.
     n_seeds : int
         Seeds to look for (:func:`~lsmta.matching.seeds.find_disparity_seeds`), in each
         round.

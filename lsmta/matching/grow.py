@@ -59,7 +59,9 @@ HORIZONTAL = ((1, 0), (-1, 0))
 VERTICAL = ((0, 1), (0, -1))
 #: the reach of the last phase (``reach=True``): diagonal neighbours and nodes two steps away
 FAR = ((1, 1), (-1, 1), (1, -1), (-1, -1), (2, 0), (-2, 0), (0, 2), (0, -2))
-METHODS = ("patch", "retry", "robust", "shifted")
+METHODS = ("patch", "retry", "robust", "shifted", "wide")
+
+
 class AttemptOutcome(enum.IntEnum):
     """What became of one LSM attempt (:attr:`GrowResult.attempt_census`,
     :attr:`GrowResult.node_failure`): accepted, rejected by the first threshold it fails
@@ -96,6 +98,9 @@ class NodeOutcome(enum.IntEnum):
 ATTEMPT_OUTCOMES = tuple(o.name.lower() for o in AttemptOutcome)
 #: the census keys of :class:`NodeOutcome`, in its order (lower-case member names)
 NODE_OUTCOMES = tuple(o.name.lower() for o in NodeOutcome)
+#: the first attempt's failures that the adaptive window (``wide_patch``) retries: too little
+#: signal for the precision, not a model that does not fit (non-convergence, shape)
+IMPRECISE = (AttemptOutcome.SIGMA0, AttemptOutcome.SIGMA_XY)
 
 
 @dataclass(frozen=True)
@@ -131,7 +136,8 @@ class GrowResult:
         Grid row and column of each match.
     method : (N,) str array
         Which attempt matched the node: ``"patch"`` (the main patch), ``"retry"`` (a retry
-        patch size), ``"robust"`` or ``"shifted"``.
+        patch size), ``"robust"``, ``"shifted"`` or ``"wide"`` (the adaptive window,
+        :class:`GrowParams` ``wide_patch``).
     t : (N,) array
         With a ``constraint``: the node's parameter along the epipolar curve (disparity in
         px, or inverse depth in 1/m); NaN without one.
@@ -261,6 +267,15 @@ class GrowParams:
         After closing holes, grow once more from diagonal neighbours and from nodes two
         steps away, into open nodes that no direct neighbour could reach (all of theirs
         failed).
+    wide_patch : int, optional
+        Adaptive window (after Kanade & Okutomi 1994: a larger window where the signal is too
+        weak for the precision, not where the model fails): a node whose ``patch`` fails the
+        texture test (``min_texture``, or the precision rule with ``noise``) but whose
+        ``wide_patch`` passes it is matched with ``wide_patch`` alone; a node whose main
+        patch was rejected by a precision test (``sigma0`` or ``sigma_xy``,
+        :data:`IMPRECISE`) and that no retry matched is tried once more with it. Same
+        thresholds; nodes that did not converge are not widened (a depth edge, where a
+        wider window would straddle more of it). None (default): off.
     """
 
     step: int = 4
@@ -282,6 +297,7 @@ class GrowParams:
     max_iter: int | None = None
     tol: float = 1e-4
     reach: bool = False
+    wide_patch: int | None = None
 
     def __post_init__(self):
         _check_model(self)
@@ -291,6 +307,8 @@ class GrowParams:
         if self.robust_patch is not None:
             object.__setattr__(self, "robust_patch",
                                check_patch(self.robust_patch, "robust_patch"))
+        if self.wide_patch is not None:
+            object.__setattr__(self, "wide_patch", check_patch(self.wide_patch, "wide_patch"))
         object.__setattr__(self, "step", as_int(self.step, "step", unit="pixels"))
         object.__setattr__(self, "shift", as_int(self.shift, "shift", minimum=0,
                                                  unit="pixels"))
@@ -423,6 +441,7 @@ class _Options:
     attempts: tuple                # ((LSMParams, label), ...): patch, retries, robust
     shifted: LSMParams             # the shifted windows
     constraint: object
+    wide: LSMParams | None = None  # the adaptive window (``wide_patch``), or None
 
 
 def _options(p: GrowParams, constraint) -> _Options:
@@ -447,7 +466,9 @@ def _options(p: GrowParams, constraint) -> _Options:
                     close_holes=p.close_holes, reach=p.reach,
                     seed=replace(model, patch=max((p.patch,) + retry_patches)),
                     attempts=tuple(attempts), shifted=replace(model, thresholds=thresholds),
-                    constraint=constraint)
+                    constraint=constraint,
+                    wide=None if p.wide_patch is None else replace(
+                        model, patch=p.wide_patch, thresholds=thresholds))
 
 
 @dataclass(frozen=True)
@@ -459,6 +480,7 @@ class _Grid:
     usable: np.ndarray     # (rows, cols) bool
     cell: np.ndarray       # (rows, cols) int
     why: np.ndarray        # (rows, cols) int8: NodeOutcome of unusable nodes, -1
+    wide: np.ndarray       # (rows, cols) bool: usable through the wide patch alone
 
     @property
     def shape(self) -> tuple:
@@ -482,22 +504,34 @@ def _grid(f_img: SplineImage, opts: _Options, mask, seeds_t) -> _Grid:
         why[usable & ~mask[gr * step, gc * step]] = NodeOutcome.MASKED
         usable &= mask[gr * step, gc * step]
     flat = nodes.reshape(-1, 2)
-    if opts.noise is not None:
-        textured = _precise_enough(f_img.image, opts, gr * step, gc * step)
-    else:
-        textured = _spread(f_img, opts, usable, flat, (rows, cols))
-    why[usable & ~textured] = NodeOutcome.NO_TEXTURE
-    usable &= textured
+    textured = _textured(f_img, opts, usable, gr * step, gc * step, opts.largest_patch
+                         if opts.noise is not None else opts.patch)
+    wide = np.zeros_like(usable)
+    if opts.wide is not None:
+        n = opts.wide.patch
+        fits = usable & (opts.partial | f_img.inside(nodes, margin=n // 2))
+        wide = fits & ~textured & _textured(f_img, opts, fits & ~textured, gr * step,
+                                            gc * step, n)
+    why[usable & ~textured & ~wide] = NodeOutcome.NO_TEXTURE
+    usable &= textured | wide
     return _Grid(nodes=nodes, usable=usable,
-                 cell=voronoi_cells(seeds_t, flat).reshape(rows, cols), why=why)
+                 cell=voronoi_cells(seeds_t, flat).reshape(rows, cols), why=why, wide=wide)
 
 
-def _precise_enough(image, opts: _Options, rows, cols) -> np.ndarray:
+def _textured(f_img: SplineImage, opts: _Options, usable, rows, cols, size: int):
+    """The texture test over ``size`` x ``size`` patches: the precision rule with ``noise``,
+    else the ``min_texture`` spread (False where not ``usable``)."""
+    if opts.noise is not None:
+        return _precise_enough(f_img.image, opts, rows, cols, size) & usable
+    flat = np.stack([cols, rows], axis=-1).reshape(-1, 2).astype(float)
+    return _spread(f_img, opts, usable, flat, usable.shape, size)
+
+
+def _precise_enough(image, opts: _Options, rows, cols, n: int) -> np.ndarray:
     """The precision rule (:class:`GrowParams` ``noise``) at the nodes ``(rows, cols)``:
-    ``sqrt(2) noise / sqrt(lambda_min) <= max_sigma_xy`` over the largest patch."""
+    ``sqrt(2) noise / sqrt(lambda_min) <= max_sigma_xy`` over ``n`` x ``n`` patches."""
     f = np.asarray(image, float)
     gy, gx = np.gradient(f)
-    n = opts.largest_patch
 
     def box(a):
         return ndimage.uniform_filter(a, n, mode="nearest")[rows, cols] * n * n
@@ -508,14 +542,14 @@ def _precise_enough(image, opts: _Options, rows, cols) -> np.ndarray:
     return lam >= need
 
 
-def _spread(f_img: SplineImage, opts: _Options, usable, flat, shape) -> np.ndarray:
-    """The ``min_texture`` test: the grey-value spread of each usable node's patch (the
-    part inside the image)."""
+def _spread(f_img: SplineImage, opts: _Options, usable, flat, shape, size: int) -> np.ndarray:
+    """The ``min_texture`` test: the grey-value spread of each usable node's ``size`` x
+    ``size`` patch (the part inside the image)."""
     H, W = f_img.shape
     texture = np.zeros(len(flat))
     idx = np.flatnonzero(usable.ravel())
     if idx.size:
-        hp = opts.patch // 2
+        hp = size // 2
         yy, xx = np.mgrid[-hp:hp + 1, -hp:hp + 1]
         ix = flat[idx, None, 0].astype(np.intp) + xx.ravel()
         iy = flat[idx, None, 1].astype(np.intp) + yy.ravel()
@@ -644,20 +678,29 @@ class _Matcher:
                         sigma_xy=res.sigma_xy.transpose(1, 0, 2), t=res.t, sigma_t=res.sigma_t,
                         how=np.zeros(len(t_xy), dtype=np.int8), failure=code)
 
-    def match(self, t_xy, approx, A0) -> _Matches:
-        """The attempts in turn: the patch, the retry patch sizes, the robust attempt and
-        the shifted windows; each only for the nodes still unmatched."""
+    def match(self, t_xy, approx, A0, wide=None) -> _Matches:
+        """The attempts in turn: the patch, the retry patch sizes, the robust attempt, the
+        wide patch and the shifted windows; each only for the nodes still unmatched. The
+        nodes ``wide`` ((m,) bool, textured in the wide patch only) get the wide patch
+        alone."""
         o = self.opts
         out = _Matches.none(len(t_xy), self.K)
+        wide = np.zeros(len(t_xy), bool) if wide is None else np.asarray(wide, bool)
         for i, (params, label) in enumerate(o.attempts):
-            again = np.flatnonzero(~out.ok)
+            again = np.flatnonzero(~out.ok & ~wide)
             if again.size == 0:
                 break
             res = self.once(t_xy[again], approx[again], A0[again], params)
             if i == 0:
                 out.failure[again] = res.failure
             out.adopt(again, res, label)
-        again = np.flatnonzero(~out.ok)
+        again = np.flatnonzero(~out.ok & (wide | np.isin(out.failure, IMPRECISE)))
+        if o.wide is not None and again.size:
+            res = self.once(t_xy[again], approx[again], A0[again], o.wide)
+            first = wide[again]
+            out.failure[again[first]] = res.failure[first]
+            out.adopt(again, res, "wide")
+        again = np.flatnonzero(~out.ok & ~wide)
         if len(o.offsets) and again.size:
             out.adopt(again, self._shifted(t_xy[again], approx[again], A0[again]), "shifted")
         return out
@@ -749,7 +792,8 @@ def _start_from_seeds(state: _State, grid: _Grid, matcher: _Matcher, seeds_t, se
     if start_nodes:
         rc = np.array(start_nodes)
         state.store(rc, matcher.match(grid.nodes[rc[:, 0], rc[:, 1]], np.array(start_approx),
-                                      np.array(start_A)), 0, False, opts.max_attempts)
+                                      np.array(start_A), grid.wide[rc[:, 0], rc[:, 1]]),
+                    0, False, opts.max_attempts)
     return seed.ok
 
 
@@ -776,7 +820,8 @@ def _grow(state: _State, grid: _Grid, matcher: _Matcher, opts: _Options) -> None
                 offset = grid.nodes[cand[:, 0], cand[:, 1]] - grid.nodes[pr, pc]
                 A_par = state.A[pr, pc]
                 approx = state.xy[pr, pc] + np.einsum("nkij,nj->nki", A_par, offset)
-                m = matcher.match(grid.nodes[cand[:, 0], cand[:, 1]], approx, A_par)
+                m = matcher.match(grid.nodes[cand[:, 0], cand[:, 1]], approx, A_par,
+                                  grid.wide[cand[:, 0], cand[:, 1]])
                 state.store(cand, m, w, across, opts.max_attempts)
                 grown[cand[m.ok, 0], cand[m.ok, 1]] = True
             frontier = grown

@@ -18,7 +18,7 @@ from dataclasses import replace
 import numpy as np
 from scipy import ndimage
 
-from .grow import GrowParams, GrowResult
+from .grow import ATTEMPT_OUTCOMES, IMPRECISE, GrowParams, GrowResult, _tally
 from .lsm import LSMParams, Status
 from .mpgc import RectifiedPair, mpgc
 from .peers import sgbm_hh_bytes, stereo_sgbm
@@ -81,7 +81,10 @@ def refine_at_nodes(left, right, start, *, disparity_range, grow: GrowParams, ma
         Matches outside it are dropped, px.
     grow : GrowParams
         The LSM model, the patch and retry patches, ``min_texture`` (a node whose patch's
-        grey-value spread is below it is not tried) and the thresholds
+        grey-value spread is below it is not tried), the adaptive window ``wide_patch`` (as
+        in the growth: a node textured only in the wide patch is tried with it alone, and a
+        node whose patch was rejected by a precision test and that no retry matched is tried
+        once more with it) and the thresholds
         (:meth:`~lsmta.matching.GrowParams.lsm_thresholds`).
     mask : (H, W) bool array, optional
         Nodes to try (read at the node's pixel).
@@ -105,7 +108,12 @@ def refine_at_nodes(left, right, start, *, disparity_range, grow: GrowParams, ma
     try_ = np.isfinite(start)
     if mask is not None:
         try_ &= np.asarray(mask, bool)[::grow.step, ::grow.step]
-    try_ &= _textured(left, grow.patch, grow.step, start.shape, grow.min_texture)
+    textured = _textured(left, grow.patch, grow.step, start.shape, grow.min_texture)
+    wide_only = np.zeros_like(textured)
+    if grow.wide_patch is not None:
+        wide_only = ~textured & _textured(left, grow.wide_patch, grow.step, start.shape,
+                                          grow.min_texture)
+    try_ &= textured | wide_only
     r, c = np.nonzero(try_)
     xy = np.stack([c * grow.step, r * grow.step], axis=1).astype(float)
     model = LSMParams(patch=grow.patch, geometry=grow.geometry, radiometry=grow.radiometry,
@@ -115,24 +123,43 @@ def refine_at_nodes(left, right, start, *, disparity_range, grow: GrowParams, ma
            "sigma0": np.full(len(r), np.nan), "sigma_xy": np.full((len(r), 2), np.nan),
            "A": np.tile(np.eye(2), (len(r), 1, 1)), "method": np.full(len(r), "patch")}
     census: dict = {}
-    todo = np.arange(len(r))
+    wide = wide_only[r, c]
+    todo = np.flatnonzero(~wide)
+    first = np.full(len(r), -1, np.int8)
     retries = (grow.patch + 6,) if grow.retry_patch is None else grow.retry_patch
+    run = (left, right, template_mask, xy, start[r, c], disparity_range, got, census)
     for k, size in enumerate((grow.patch,) + tuple(retries)):
         if todo.size == 0:
             break
-        res = mpgc(left, right, xy[todo], start[r[todo], c[todo]], RectifiedPair(),
-                   template_mask=template_mask, params=replace(model, patch=size))
-        st = np.asarray(res.status)
-        for s_ in Status:
-            census[s_.name.lower()] = census.get(s_.name.lower(), 0) + int((st == s_).sum())
-        ok = (st == Status.CONVERGED) & (res.t >= disparity_range[0]) & \
-            (res.t <= disparity_range[1])
-        for name, value in (("t", res.t), ("sigma_t", res.sigma_t), ("sigma0", res.sigma0),
-                            ("sigma_xy", res.sigma_xy[0]), ("A", res.A[0])):
-            got[name][todo[ok]] = value[ok]
-        got["method"][todo[ok]] = "retry" if k else "patch"
+        ok, code = _attempt(*run, todo, replace(model, patch=size), "retry" if k else "patch")
+        if k == 0:
+            first[todo] = code
         todo = todo[~ok]
+    if grow.wide_patch is not None:
+        todo = np.union1d(todo[np.isin(first[todo], IMPRECISE)], np.flatnonzero(wide))
+        if todo.size:
+            _attempt(*run, todo, replace(model, patch=grow.wide_patch), "wide")
     return _refined(start, r, c, xy, got, census)
+
+
+def _attempt(left, right, template_mask, xy, t0, disparity_range, got: dict, census: dict,
+             todo, model, label: str) -> tuple:
+    """One LSM attempt along the row at the nodes ``todo``; the accepted ones (inside
+    ``disparity_range``) go into ``got`` under ``label``. Returns which were accepted and every
+    node's outcome (:class:`~lsmta.matching.grow.AttemptOutcome`)."""
+    res = mpgc(left, right, xy[todo], t0[todo], RectifiedPair(), params=model,
+               template_mask=template_mask)
+    st = np.asarray(res.status)
+    for s_ in Status:
+        census[s_.name.lower()] = census.get(s_.name.lower(), 0) + int((st == s_).sum())
+    code = _tally(dict.fromkeys(ATTEMPT_OUTCOMES, 0), st, model.thresholds, [res.image(0)])
+    ok = (st == Status.CONVERGED) & (res.t >= disparity_range[0]) & \
+        (res.t <= disparity_range[1])
+    for name, value in (("t", res.t), ("sigma_t", res.sigma_t), ("sigma0", res.sigma0),
+                        ("sigma_xy", res.sigma_xy[0]), ("A", res.A[0])):
+        got[name][todo[ok]] = value[ok]
+    got["method"][todo[ok]] = label
+    return ok, code
 
 
 def _textured(image, patch: int, step: int, shape, min_texture: float) -> np.ndarray:

@@ -88,7 +88,14 @@ def test_wide_is_a_method_label():
     assert METHODS[-1] == "wide"
 
 
-@pytest.mark.parametrize("bad", [4, 8, 12.5, True])
+@pytest.mark.parametrize("bad", [4, 8, 12.5, True, 5, 9])
 def test_wide_patch_bad_input(bad):
+    """Not an odd integer, or not wider than the main patch (9 px)."""
     with pytest.raises(ValueError, match="wide_patch"):
-        GrowParams(wide_patch=bad)
+        GrowParams(patch=9, wide_patch=bad)
+
+
+def test_wide_patch_must_be_wider_than_the_patch():
+    with pytest.raises(ValueError, match=r"wide_patch: expected an odd integer > patch"):
+        GrowParams(patch=15, wide_patch=13)
+    assert GrowParams(patch=15, wide_patch=17).wide_patch == 17

@@ -154,9 +154,10 @@ class GrowResult:
     node_outcome : (rows, cols) int8 array
         Every grid node's outcome, a :class:`NodeOutcome` value (the census per node).
     node_failure : (rows, cols) int8 array
-        For nodes tried and not matched: why the first attempt (the main patch) failed at
-        the node's last try, an :class:`AttemptOutcome` value (the first threshold test
-        failed, or the non-convergence status); -1 elsewhere.
+        For nodes tried and not matched: why the first attempt (the main patch; the wide
+        patch at nodes textured in it only, ``wide_patch``) failed at the node's last try,
+        an :class:`AttemptOutcome` value (the first threshold test failed, or the
+        non-convergence status); -1 elsewhere.
     """
 
     template_xy: np.ndarray
@@ -268,6 +269,7 @@ class GrowParams:
         steps away, into open nodes that no direct neighbour could reach (all of theirs
         failed).
     wide_patch : int, optional
+        Side of the adaptive window's square patch, pixels: odd and larger than ``patch``.
         Adaptive window (after Kanade & Okutomi 1994: a larger window where the signal is too
         weak for the precision, not where the model fails): a node whose ``patch`` fails the
         texture test (``min_texture``, or the precision rule with ``noise``) but whose
@@ -309,6 +311,9 @@ class GrowParams:
                                check_patch(self.robust_patch, "robust_patch"))
         if self.wide_patch is not None:
             object.__setattr__(self, "wide_patch", check_patch(self.wide_patch, "wide_patch"))
+            if self.wide_patch <= self.patch:
+                raise ValueError(f"wide_patch: expected an odd integer > patch, i.e. > "
+                                 f"{self.patch} pixels, got {self.wide_patch}")
         object.__setattr__(self, "step", as_int(self.step, "step", unit="pixels"))
         object.__setattr__(self, "shift", as_int(self.shift, "shift", minimum=0,
                                                  unit="pixels"))
@@ -623,7 +628,8 @@ class _Matches:
     t: np.ndarray              # (m,)
     sigma_t: np.ndarray        # (m,)
     how: np.ndarray            # (m,) index into METHODS
-    failure: np.ndarray = None  # (m,) the first attempt's outcome, AttemptOutcome
+    failure: np.ndarray = None  # (m,) AttemptOutcome of the main patch (of the wide patch
+    #                             at nodes textured in the wide patch only), -1 untried
 
     @classmethod
     def none(cls, m: int, K: int) -> _Matches:

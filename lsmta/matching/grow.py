@@ -486,6 +486,7 @@ class _Grid:
     cell: np.ndarray       # (rows, cols) int
     why: np.ndarray        # (rows, cols) int8: NodeOutcome of unusable nodes, -1
     wide: np.ndarray       # (rows, cols) bool: usable through the wide patch alone
+    wide_fits: np.ndarray  # (rows, cols) bool: usable, and the wide patch may be tried there
 
     @property
     def shape(self) -> tuple:
@@ -511,7 +512,7 @@ def _grid(f_img: SplineImage, opts: _Options, mask, seeds_t) -> _Grid:
     flat = nodes.reshape(-1, 2)
     textured = _textured(f_img, opts, usable, gr * step, gc * step, opts.largest_patch
                          if opts.noise is not None else opts.patch)
-    wide = np.zeros_like(usable)
+    wide, fits = np.zeros_like(usable), np.zeros_like(usable)
     if opts.wide is not None:
         n = opts.wide.patch
         fits = usable & (opts.partial | f_img.inside(nodes, margin=n // 2))
@@ -520,7 +521,8 @@ def _grid(f_img: SplineImage, opts: _Options, mask, seeds_t) -> _Grid:
     why[usable & ~textured & ~wide] = NodeOutcome.NO_TEXTURE
     usable &= textured | wide
     return _Grid(nodes=nodes, usable=usable,
-                 cell=voronoi_cells(seeds_t, flat).reshape(rows, cols), why=why, wide=wide)
+                 cell=voronoi_cells(seeds_t, flat).reshape(rows, cols), why=why, wide=wide,
+                 wide_fits=fits & usable)
 
 
 def _textured(f_img: SplineImage, opts: _Options, usable, rows, cols, size: int):
@@ -684,14 +686,15 @@ class _Matcher:
                         sigma_xy=res.sigma_xy.transpose(1, 0, 2), t=res.t, sigma_t=res.sigma_t,
                         how=np.zeros(len(t_xy), dtype=np.int8), failure=code)
 
-    def match(self, t_xy, approx, A0, wide=None) -> _Matches:
+    def match(self, t_xy, approx, A0, wide=None, wide_fits=None) -> _Matches:
         """The attempts in turn: the patch, the retry patch sizes, the robust attempt, the
-        wide patch and the shifted windows; each only for the nodes still unmatched. The
-        nodes ``wide`` ((m,) bool, textured in the wide patch only) get the wide patch
-        alone."""
+        wide patch (:func:`wide_window_nodes`, only where ``wide_fits``) and the shifted
+        windows; each only for the nodes still unmatched. The nodes ``wide`` ((m,) bool,
+        textured in the wide patch only) get the wide patch alone."""
         o = self.opts
         out = _Matches.none(len(t_xy), self.K)
         wide = np.zeros(len(t_xy), bool) if wide is None else np.asarray(wide, bool)
+        wide_fits = wide if wide_fits is None else wide_fits
         for i, (params, label) in enumerate(o.attempts):
             again = np.flatnonzero(~out.ok & ~wide)
             if again.size == 0:
@@ -700,12 +703,14 @@ class _Matcher:
             if i == 0:
                 out.failure[again] = res.failure
             out.adopt(again, res, label)
-        again = np.flatnonzero(~out.ok & (wide | np.isin(out.failure, IMPRECISE)))
-        if o.wide is not None and again.size:
-            res = self.once(t_xy[again], approx[again], A0[again], o.wide)
-            first = wide[again]
-            out.failure[again[first]] = res.failure[first]
-            out.adopt(again, res, "wide")
+        if o.wide is not None:
+            again = np.flatnonzero(wide_window_nodes(out.failure, matched=out.ok,
+                                                     wide_only=wide, fits=wide_fits))
+            if again.size:
+                res = self.once(t_xy[again], approx[again], A0[again], o.wide)
+                first = wide[again]
+                out.failure[again[first]] = res.failure[first]
+                out.adopt(again, res, "wide")
         again = np.flatnonzero(~out.ok & ~wide)
         if len(o.offsets) and again.size:
             out.adopt(again, self._shifted(t_xy[again], approx[again], A0[again]), "shifted")
@@ -749,6 +754,50 @@ def _grow_driver(template, searches, seeds_t, seeds_s, opts: _Options, *, mask,
     state.n_lsm = matcher.n_lsm
     state.census = matcher.census
     return _results(state, grid, seeds_ok)
+
+
+def wide_window_nodes(first_failure, *, matched, wide_only, fits) -> np.ndarray:
+    """The nodes the adaptive window (:class:`GrowParams` ``wide_patch``) tries, after the main
+    patch and its retries (and the robust attempt): those textured in the wide patch only, and
+    those whose main patch was rejected by a precision test (:data:`IMPRECISE`) and that no
+    later attempt matched; in both
+    cases only where the wide patch may be tried (``fits``). The growth and
+    :func:`~lsmta.matching.refine.refine_at_nodes` share this rule.
+
+    Parameters
+    ----------
+    first_failure : (m,) int array
+        The main patch's :class:`AttemptOutcome` at each node (-1: not tried).
+    matched, wide_only, fits : (m,) bool arrays
+        Matched by an earlier attempt; textured in the wide patch but not in the main one;
+        the wide patch may be tried there (inside the image, or ``partial`` patches).
+
+    Returns
+    -------
+    (m,) bool array
+    """
+    return (np.asarray(fits, bool) & ~np.asarray(matched, bool)
+            & (np.asarray(wide_only, bool) | np.isin(first_failure, IMPRECISE)))
+
+
+def attempt_outcomes(status, thresholds, views) -> np.ndarray:
+    """Every point's :class:`AttemptOutcome` after one LSM attempt (int8): accepted, the first
+    threshold test it fails in any search image, or its non-convergence status.
+
+    Parameters
+    ----------
+    status : (m,) int array
+        :class:`~lsmta.matching.lsm.Status` of each point.
+    thresholds : LSMThresholds
+        The attempt's thresholds.
+    views : list of LSMResult
+        The attempt's result in each search image (``thresholds.failures`` of each).
+
+    Returns
+    -------
+    (m,) int8 array
+    """
+    return _tally(dict.fromkeys(ATTEMPT_OUTCOMES, 0), status, thresholds, views)
 
 
 def _tally(census: dict, status, thresholds, views) -> np.ndarray:
@@ -798,7 +847,8 @@ def _start_from_seeds(state: _State, grid: _Grid, matcher: _Matcher, seeds_t, se
     if start_nodes:
         rc = np.array(start_nodes)
         state.store(rc, matcher.match(grid.nodes[rc[:, 0], rc[:, 1]], np.array(start_approx),
-                                      np.array(start_A), grid.wide[rc[:, 0], rc[:, 1]]),
+                                      np.array(start_A), grid.wide[rc[:, 0], rc[:, 1]],
+                                      grid.wide_fits[rc[:, 0], rc[:, 1]]),
                     0, False, opts.max_attempts)
     return seed.ok
 
@@ -827,7 +877,8 @@ def _grow(state: _State, grid: _Grid, matcher: _Matcher, opts: _Options) -> None
                 A_par = state.A[pr, pc]
                 approx = state.xy[pr, pc] + np.einsum("nkij,nj->nki", A_par, offset)
                 m = matcher.match(grid.nodes[cand[:, 0], cand[:, 1]], approx, A_par,
-                                  grid.wide[cand[:, 0], cand[:, 1]])
+                                  grid.wide[cand[:, 0], cand[:, 1]],
+                                  grid.wide_fits[cand[:, 0], cand[:, 1]])
                 state.store(cand, m, w, across, opts.max_attempts)
                 grown[cand[m.ok, 0], cand[m.ok, 1]] = True
             frontier = grown

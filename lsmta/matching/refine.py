@@ -18,7 +18,7 @@ from dataclasses import replace
 import numpy as np
 from scipy import ndimage
 
-from .grow import ATTEMPT_OUTCOMES, IMPRECISE, GrowParams, GrowResult, _tally
+from .grow import GrowParams, GrowResult, attempt_outcomes, wide_window_nodes
 from .lsm import LSMParams, Status
 from .mpgc import RectifiedPair, mpgc
 from .peers import sgbm_hh_bytes, stereo_sgbm
@@ -81,10 +81,13 @@ def refine_at_nodes(left, right, start, *, disparity_range, grow: GrowParams, ma
         Matches outside it are dropped, px.
     grow : GrowParams
         The LSM model, the patch and retry patches, ``min_texture`` (a node whose patch's
-        grey-value spread is below it is not tried), the adaptive window ``wide_patch`` (as
-        in the growth: a node textured only in the wide patch is tried with it alone, and a
-        node whose patch was rejected by a precision test and that no retry matched is tried
-        once more with it) and the thresholds
+        grey-value spread is below it is not tried; here the window is padded with its
+        nearest pixel at the image's border, where the growth takes the spread of the part
+        inside), the adaptive window ``wide_patch`` (the growth's rule,
+        :func:`~lsmta.matching.grow.wide_window_nodes`: a node textured only in the wide
+        patch is tried with it alone, and a node whose patch was rejected by a precision test
+        and that no retry matched is tried once more with it; with ``partial`` False, only
+        where the wide patch lies inside the image) and the thresholds
         (:meth:`~lsmta.matching.GrowParams.lsm_thresholds`).
     mask : (H, W) bool array, optional
         Nodes to try (read at the node's pixel).
@@ -109,10 +112,7 @@ def refine_at_nodes(left, right, start, *, disparity_range, grow: GrowParams, ma
     if mask is not None:
         try_ &= np.asarray(mask, bool)[::grow.step, ::grow.step]
     textured = _textured(left, grow.patch, grow.step, start.shape, grow.min_texture)
-    wide_only = np.zeros_like(textured)
-    if grow.wide_patch is not None:
-        wide_only = ~textured & _textured(left, grow.wide_patch, grow.step, start.shape,
-                                          grow.min_texture)
+    wide_only, fits = _wide_only(left, grow, textured)
     try_ &= textured | wide_only
     r, c = np.nonzero(try_)
     xy = np.stack([c * grow.step, r * grow.step], axis=1).astype(float)
@@ -131,28 +131,31 @@ def refine_at_nodes(left, right, start, *, disparity_range, grow: GrowParams, ma
     for k, size in enumerate((grow.patch,) + tuple(retries)):
         if todo.size == 0:
             break
-        ok, code = _attempt(*run, todo, replace(model, patch=size), "retry" if k else "patch")
-        if k == 0:
+        ok, code = _attempt(*run, todo, replace(model, patch=size), "retry" if k else "patch",
+                            outcomes=k == 0 and grow.wide_patch is not None)
+        if code is not None:
             first[todo] = code
         todo = todo[~ok]
     if grow.wide_patch is not None:
-        todo = np.union1d(todo[np.isin(first[todo], IMPRECISE)], np.flatnonzero(wide))
+        todo = np.flatnonzero(wide_window_nodes(first, matched=np.isfinite(got["t"]),
+                                                wide_only=wide, fits=fits[r, c]))
         if todo.size:
             _attempt(*run, todo, replace(model, patch=grow.wide_patch), "wide")
     return _refined(start, r, c, xy, got, census)
 
 
 def _attempt(left, right, template_mask, xy, t0, disparity_range, got: dict, census: dict,
-             todo, model, label: str) -> tuple:
+             todo, model, label: str, outcomes: bool = False) -> tuple:
     """One LSM attempt along the row at the nodes ``todo``; the accepted ones (inside
-    ``disparity_range``) go into ``got`` under ``label``. Returns which were accepted and every
-    node's outcome (:class:`~lsmta.matching.grow.AttemptOutcome`)."""
+    ``disparity_range``) go into ``got`` under ``label``. Returns which were accepted and,
+    with ``outcomes``, every node's :class:`~lsmta.matching.grow.AttemptOutcome` (else
+    None)."""
     res = mpgc(left, right, xy[todo], t0[todo], RectifiedPair(), params=model,
                template_mask=template_mask)
     st = np.asarray(res.status)
     for s_ in Status:
         census[s_.name.lower()] = census.get(s_.name.lower(), 0) + int((st == s_).sum())
-    code = _tally(dict.fromkeys(ATTEMPT_OUTCOMES, 0), st, model.thresholds, [res.image(0)])
+    code = attempt_outcomes(st, model.thresholds, [res.image(0)]) if outcomes else None
     ok = (st == Status.CONVERGED) & (res.t >= disparity_range[0]) & \
         (res.t <= disparity_range[1])
     for name, value in (("t", res.t), ("sigma_t", res.sigma_t), ("sigma0", res.sigma0),
@@ -160,6 +163,22 @@ def _attempt(left, right, template_mask, xy, t0, disparity_range, got: dict, cen
         got[name][todo[ok]] = value[ok]
     got["method"][todo[ok]] = label
     return ok, code
+
+
+def _wide_only(left, grow: GrowParams, textured) -> tuple:
+    """The nodes textured in the wide patch but not in the main one (``textured``), and where
+    the wide patch may be tried (everywhere with ``partial``, else inside the image); both
+    (rows, cols) bool, all False without ``wide_patch``."""
+    if grow.wide_patch is None:
+        return np.zeros_like(textured), np.zeros_like(textured)
+    h, w = np.shape(left)
+    gr, gc = np.indices(textured.shape) * grow.step
+    half = grow.wide_patch // 2
+    fits = grow.partial | ((gc >= half) & (gc <= w - 1 - half) & (gr >= half)
+                           & (gr <= h - 1 - half))
+    wide_only = fits & ~textured & _textured(left, grow.wide_patch, grow.step,
+                                             textured.shape, grow.min_texture)
+    return wide_only, fits
 
 
 def _textured(image, patch: int, step: int, shape, min_texture: float) -> np.ndarray:

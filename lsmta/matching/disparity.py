@@ -50,7 +50,8 @@ on them; notebook 16 reports them with these defaults):
   after Kanade & Okutomi 1994): a node whose 9 x 9 patch is below the texture floor but whose
   13 x 13 patch is not is matched with the wide patch, and a node rejected by a precision
   test is tried once more with it (not after non-convergence, a depth edge). Its size was
-  chosen on Cones (``experiments/dense_adaptive_window.py``); on the held-out Teddy, Art and
+  chosen on Cones (``experiments/dense_adaptive_window.py``, its run committed as
+  ``experiments/results/dense_adaptive_window.json``); on the held-out Teddy, Art and
   Tsukuba it raised the automatic seeds' density by 0.043, 0.041 and 0.013 with the median
   and bad-1.0 verdicts unchanged (``experiments/dense_real_pairs.py --wide-patch 13``
   against ``--wide-patch 0``; notebook 16); the SGBM start's changed by 0.004 at most. Not the

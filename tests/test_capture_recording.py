@@ -167,7 +167,11 @@ def test_capture_saved_files_read_back(capture, tmp_path):
     record = json.loads(files["summary"].read_text())
     assert record["trajectories"]["total"] == X.shape[1]
     assert record["view_groups"][0]["tracks"] == len(capture.tracks)
-    assert "<img" in files["report"].read_text()
+    # the tracked samples' median reprojection error (px), from the group's tracks
+    assert 0 < record["view_groups"][0]["track_residual_px"] < 1.0
+    page = files["report"].read_text()
+    assert "<img" in page
+    assert "<td>nan</td>" not in page and "<td>calibration</td><td>-</td>" in page
     assert files["mesh"] == [] and not (tmp_path / "out" / "mesh").exists()
     assert record["mesh"]["written"] is False and "no body model" in record["mesh"]["reason"]
 

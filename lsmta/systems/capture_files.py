@@ -91,6 +91,11 @@ def surface_cloud(capture, frame: int):
                                    "ray_distance_mm": np.concatenate(dist)}
 
 
+def _seconds(value) -> str:
+    """A stage's time for the report: one decimal, or a dash where it was not timed."""
+    return f"{value:.1f}" if value is not None and np.isfinite(value) else "-"
+
+
 def _track_residual(view) -> float | None:
     """Median reprojection error (px) of a view group's tracked samples intersected from
     all its cameras (None without tracks)."""
@@ -248,7 +253,7 @@ def _figures(capture) -> list:
 
 
 def _report(capture, record: dict) -> str:
-    rows = "".join(f"<tr><td>{html.escape(r['stage'])}</td><td>{r['seconds']:.1f}</td>"
+    rows = "".join(f"<tr><td>{html.escape(r['stage'])}</td><td>{_seconds(r['seconds'])}</td>"
                    f"<td>{html.escape(r['result'])}</td></tr>" for r in capture.summary())
     figs = "".join(f'<figure><img alt="{html.escape(c)}" src="data:image/png;base64,{b}">'
                    f"<figcaption>{html.escape(c)}</figcaption></figure>"

@@ -171,6 +171,10 @@ def _cameras(args, videos, given, progress: bool):
         return cal.cameras, cal, f"calibrated from the bar, image RMS {cal.bundle.rms:.3f} px"
     if args.no_refine:
         return cameras_for_videos(given, videos, mismatch=args.mismatch), None, "as given"
+    if progress:
+        print("lsmta capture: refining the cameras from the recording (tie points in "
+              "evenly spaced frames; no progress bar; --no-refine skips it) ...",
+              file=sys.stderr, flush=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")       # the choice below says it in one line
         ref = refine_rig(videos, given, params=RigRefinementParams(mismatch=args.mismatch))

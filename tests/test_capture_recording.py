@@ -167,7 +167,11 @@ def test_capture_saved_files_read_back(capture, tmp_path):
     record = json.loads(files["summary"].read_text())
     assert record["trajectories"]["total"] == X.shape[1]
     assert record["view_groups"][0]["tracks"] == len(capture.tracks)
-    assert "<img" in files["report"].read_text()
+    # the tracked samples' median reprojection error (px), from the group's tracks
+    assert 0 < record["view_groups"][0]["track_residual_px"] < 1.0
+    page = files["report"].read_text()
+    assert "<img" in page
+    assert "<td>nan</td>" not in page and "<td>calibration</td><td>-</td>" in page
     assert files["mesh"] == [] and not (tmp_path / "out" / "mesh").exists()
     assert record["mesh"]["written"] is False and "no body model" in record["mesh"]["reason"]
 
@@ -395,3 +399,33 @@ def test_summary_carries_the_marker_join_checks_as_numbers(capture):
     assert record["marker_join_checks"] == {k: int(v) for k, v in joins.items()}
     assert all(type(v) is int for v in record["marker_join_checks"].values())
     json.dumps(record)                                     # plain values
+
+
+@pytest.mark.slow
+def test_a_group_that_does_not_see_one_side_is_measured_as_pairs(session):
+    """A camera of the triplet that sees nothing the others see (blank frames): the group
+    holds no surface point, so it is measured as pairs of its template with each other
+    camera (CaptureParams.min_group_share), with a warning; the pair that sees the surface
+    is tracked. With min_group_share=0 the group stays whole and nothing is measured."""
+    videos = session.videos.copy()
+    assert [g.template for g in view_groups(session.cameras)] == [1]   # one group, centre
+    blank = 2
+    videos[blank] = videos[blank].mean().astype(videos.dtype)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cap = capture_recording(videos, session.cameras, fps=session.fps, progress=False,
+                                params=CaptureParams(density_every=3))
+    said = [str(w.message) for w in caught]
+    assert any("measured as pairs" in m for m in said)
+    assert all(len(v.group.cameras) == 2 for v in cap.views) and len(cap.views) == 2
+    seeing = [v for v in cap.views if blank not in v.group.cameras]
+    assert len(seeing) == 1 and seeing[0].tracks is not None
+    assert sum(s.kept.sum() for s in seeing[0].surfaces.values()) > 100
+    assert cap.filtered.present.any(axis=0).sum() > 50
+    with pytest.raises(ValueError, match="no view group found a surface point"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            capture_recording(videos, session.cameras, fps=session.fps, progress=False,
+                              params=CaptureParams(density_every=3, min_group_share=0.0))
+    with pytest.raises(ValueError, match="min_group_share"):
+        CaptureParams(min_group_share=1.5)

@@ -345,7 +345,7 @@ class GrowParams:
 
 
 def grow_matches(template, search, seeds_template, seeds_search, *, mask=None,
-                 template_mask=None, constraint=None,
+                 template_mask=None, constraint=None, seeds_A=None,
                  params: GrowParams | None = None) -> GrowResult:
     """Grow dense matches between two images from a few seed correspondences.
 
@@ -368,6 +368,9 @@ def grow_matches(template, search, seeds_template, seeds_search, *, mask=None,
         Match every node under the epipolar condition (:func:`~lsmta.matching.mpgc.mpgc`):
         one disparity or depth per node instead of a free shift. The geometry must have
         one search image.
+    seeds_A : (S, 2, 2) array, optional
+        The seeds' starting affine maps from the template's patch to the search image's
+        (e.g. :attr:`~lsmta.matching.Seeds.A`; default: identity).
     params : GrowParams, optional
         The grid, the attempts and their LSM model (default :class:`GrowParams`).
 
@@ -386,12 +389,15 @@ def grow_matches(template, search, seeds_template, seeds_search, *, mask=None,
         if constraint.n_search != 1:
             raise ValueError(f"constraint: expected a geometry with one search image, got "
                              f"{constraint.n_search} (use grow_joint)")
+    A0 = None if seeds_A is None else as_array(seeds_A, "seeds_A",
+                                                shape=(len(seeds_t), 2, 2))[:, None]
     return _grow_driver(template, [search], seeds_t, seeds_s[:, None], _options(p, constraint),
-                        mask=mask, template_mask=template_mask)[0]
+                        mask=mask, template_mask=template_mask, seeds_A=A0)[0]
 
 
 def grow_joint(template, searches, seeds_template, seeds_search, constraint, *, mask=None,
-               template_mask=None, params: GrowParams | None = None) -> list[GrowResult]:
+               template_mask=None, seeds_A=None,
+               params: GrowParams | None = None) -> list[GrowResult]:
     """Grow dense matches into K search images at once, every node matched jointly in all
     of them under the epipolar condition (:func:`~lsmta.matching.mpgc.mpgc`).
 
@@ -406,6 +412,8 @@ def grow_joint(template, searches, seeds_template, seeds_search, constraint, *, 
         With ``constraint.n_search == K``.
     mask, template_mask
         As in :func:`grow_matches`.
+    seeds_A : (K, S, 2, 2) array, optional
+        The seeds' starting affine maps into every search image (default: identity).
     params : GrowParams, optional
         As in :func:`grow_matches`.
 
@@ -423,8 +431,11 @@ def grow_joint(template, searches, seeds_template, seeds_search, constraint, *, 
                          f"got {len(searches)}")
     seeds_t = as_array(seeds_template, "seeds_template", shape=(None, 2))
     seeds_s = as_array(seeds_search, "seeds_search", shape=(K, len(seeds_t), 2))
+    A0 = None if seeds_A is None else as_array(seeds_A, "seeds_A",
+                                                shape=(K, len(seeds_t), 2, 2)).transpose(1, 0, 2, 3)
     return _grow_driver(template, searches, seeds_t, seeds_s.transpose(1, 0, 2),
-                        _options(p, constraint), mask=mask, template_mask=template_mask)
+                        _options(p, constraint), mask=mask, template_mask=template_mask,
+                        seeds_A=A0)
 
 
 @dataclass(frozen=True)
@@ -740,7 +751,7 @@ class _Matcher:
 
 
 def _grow_driver(template, searches, seeds_t, seeds_s, opts: _Options, *, mask,
-                 template_mask) -> list[GrowResult]:
+                 template_mask, seeds_A=None) -> list[GrowResult]:
     """Lay out the grid, start from the seeds, grow, freeze."""
     f_img = template if isinstance(template, SplineImage) else SplineImage(template, "template")
     g_imgs = [g if isinstance(g, SplineImage) else SplineImage(g, "search") for g in searches]
@@ -749,7 +760,7 @@ def _grow_driver(template, searches, seeds_t, seeds_s, opts: _Options, *, mask,
     grid = _grid(f_img, opts, mask, seeds_t)
     state = _State.initial(grid.shape, len(g_imgs))
     matcher = _Matcher(f_img, g_imgs, opts, template_mask)
-    seeds_ok = _start_from_seeds(state, grid, matcher, seeds_t, seeds_s, opts)
+    seeds_ok = _start_from_seeds(state, grid, matcher, seeds_t, seeds_s, opts, seeds_A)
     _grow(state, grid, matcher, opts)
     state.n_lsm = matcher.n_lsm
     state.census = matcher.census
@@ -827,12 +838,12 @@ def _tally(census: dict, status, thresholds, views) -> np.ndarray:
 
 
 def _start_from_seeds(state: _State, grid: _Grid, matcher: _Matcher, seeds_t, seeds_s,
-                      opts: _Options) -> np.ndarray:
-    """LSM at every seed (the largest patch, no thresholds), then at the nearest usable node
-    of each matched seed's cell, starting from the seed's solution; returns which seeds
-    matched."""
-    seed = matcher.once(seeds_t, seeds_s, np.broadcast_to(np.eye(2), seeds_s.shape + (2,)),
-                        opts.seed)
+                      opts: _Options, seeds_A=None) -> np.ndarray:
+    """LSM at every seed (the largest patch, no thresholds; from ``seeds_A`` (S, K, 2, 2),
+    default identity), then at the nearest usable node of each matched seed's cell,
+    starting from the seed's solution; returns which seeds matched."""
+    A0 = np.broadcast_to(np.eye(2), seeds_s.shape + (2,)) if seeds_A is None else seeds_A
+    seed = matcher.once(seeds_t, seeds_s, A0, opts.seed)
     start_nodes, start_approx, start_A = [], [], []
     for k in np.flatnonzero(seed.ok):
         cand = np.argwhere(grid.usable & (grid.cell == k) & (state.state == 0))

@@ -13,6 +13,16 @@ the true curve) and the template patch is compared there by normalised cross-cor
 The depth that maximises the *mean* correlation over all search images wins; requiring
 all images to agree at one depth is what removes most false seeds. The best-scoring
 candidates become seeds; :func:`~lsmta.matching.grow.grow_matches` refines them by LSM.
+
+The search patch is the template's square patch (``warp="identity"``), or sampled through
+the map from the template to the search image that a surface at the sample's depth facing
+both cameras alike induces (``warp="predicted"``: the cameras' roll about their axes and
+the scale from their distances and focal lengths; :func:`predicted_maps`). A camera mounted
+on its side sees the template's patch turned by 90°, where the square patch correlates with
+nothing. ``warp="auto"`` predicts the map for a search camera whose map at the working
+point (the template's principal ray at the middle inverse depth) turns by more than
+``AUTO_TURN_DEG`` or scales by more than ``AUTO_SCALE``, and keeps the square patch for the
+others. The seeds carry the map they were found with (``Seeds.A``) for LSM's start.
 """
 
 from __future__ import annotations
@@ -25,6 +35,13 @@ import numpy as np
 from .._validate import check_patch
 from ..camera import Camera
 from .spline import SplineImage, check_image
+
+#: ``warp="auto"``: a search image whose predicted map at the working point turns by more
+#: than this (degrees) or scales by more than ``AUTO_SCALE`` (or less than its inverse) is
+#: searched through the predicted map
+AUTO_TURN_DEG = 30.0
+AUTO_SCALE = 1.5
+WARPS = ("identity", "predicted", "auto")
 
 
 @dataclass(frozen=True)
@@ -41,12 +58,16 @@ class Seeds:
         Chosen distance along the template camera's ray, mm (NaN for a rectified pair).
     disparity : (S,) array or None
         For a rectified pair (:func:`find_disparity_seeds`): ``x_left - x_right``, pixels.
+    A : (K, S, 2, 2) array or None
+        The map from the template's patch to each image's that the seed was found with
+        (identity for the template and where the square patch was used); None: identity.
     """
 
     xy: np.ndarray
     score: np.ndarray
     depth: np.ndarray
     disparity: np.ndarray | None = None
+    A: np.ndarray | None = None
 
 
 def _ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -60,7 +81,7 @@ def _ncc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: int = 11,
                depth_range=(1500.0, 4000.0), n_depths: int = 400, min_score: float = 0.8,
-               mask=None, min_distance: int = 25) -> Seeds:
+               mask=None, min_distance: int = 25, warp: str = "identity") -> Seeds:
     """Find seed correspondences in K >= 2 calibrated images without a user.
 
     Parameters
@@ -83,6 +104,9 @@ def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: 
         Where in the template to look for corners.
     min_distance : int
         Smallest distance between two candidate corners, pixels.
+    warp : {"identity", "predicted", "auto"}
+        The search patch: the template's square patch, or sampled through the predicted
+        map (module docstring).
 
     Corners where the template camera's lens model cannot be inverted (a fitted distortion
     that folds over inside the frame) have no ray and are passed over.
@@ -96,10 +120,13 @@ def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: 
     near, far = (float(d) for d in depth_range)
     if not 0 < near < far:
         raise ValueError(f"depth_range: expected 0 < near < far (mm), got {depth_range}")
+    if warp not in WARPS:
+        raise ValueError(f"warp: expected one of {list(WARPS)}, got {warp!r}")
     h = patch // 2
     f = images[template]
     corners = _corners(f, n_seeds=n_seeds, min_distance=min_distance, mask=mask, patch=patch)
-    empty = Seeds(xy=np.zeros((K, 0, 2)), score=np.zeros(0), depth=np.zeros(0))
+    empty = Seeds(xy=np.zeros((K, 0, 2)), score=np.zeros(0), depth=np.zeros(0),
+                  A=np.zeros((K, 0, 2, 2)))
     if corners is None:
         return empty
     t_xy = corners[:, 0].astype(float)
@@ -110,9 +137,79 @@ def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: 
         return empty
     # distance along the ray whose camera depth goes evenly in inverse depth
     inv = np.linspace(1.0 / near, 1.0 / far, n_depths)
-    score, projected = _ray_scores(images, cameras, template, spline_t, t_xy, inv, h)
-    return _best_seeds(score, projected, t_xy, inv, K, template, n_seeds=n_seeds,
+    warped = warped_images(cameras, template, 2.0 / (1.0 / near + 1.0 / far), warp=warp)
+    score, projected, maps = _ray_scores(images, cameras, template, spline_t, t_xy, inv, h,
+                                         warped)
+    return _best_seeds(score, projected, maps, t_xy, inv, K, template, n_seeds=n_seeds,
                        min_score=min_score)
+
+
+def predicted_maps(cameras, template: int, X, depth) -> dict:
+    """The local map from the template's pixels to each search image's at points ``X`` on a
+    surface facing both cameras alike (its normal halves the angle between the two rays):
+    the cameras' roll about their axes and the scale from their distances and focal
+    lengths, the foreshortening shared evenly between the two views.
+
+    Parameters
+    ----------
+    cameras : sequence of K Camera
+    template : int
+    X : (..., 3) array
+        Points, mm.
+    depth : (...) array
+        Their depth in the template camera, mm (one template pixel spans ``depth / f``).
+
+    Returns
+    -------
+    dict of int -> (..., 2, 2) array
+        Per search image ``k``: columns = the image of a one-pixel step along the template's
+        x and y; NaN where a point or its steps fall behind camera ``k``.
+    """
+    t = cameras[template]
+    X = np.asarray(X, float)
+    step = (np.asarray(depth, float) / t.f)[..., None]
+    to_t = t.C - X
+    to_t = to_t / np.linalg.norm(to_t, axis=-1, keepdims=True)
+    shape = X.shape[:-1] + (2,)
+    out = {}
+    for k, cam in enumerate(cameras):
+        if k == template:
+            continue
+        n = to_t + (cam.C - X) / np.linalg.norm(cam.C - X, axis=-1, keepdims=True)
+        n = n / np.linalg.norm(n, axis=-1, keepdims=True)
+        at = cam.project(X.reshape(-1, 3), behind="nan").reshape(shape)
+        cols = []
+        for i in (0, 1):
+            e = step * t.R[i]                       # a template pixel, square to its axis
+            along = (e * n).sum(-1, keepdims=True) / (to_t * n).sum(-1, keepdims=True)
+            on_plane = X + e - along * to_t         # slid along the ray onto the plane
+            cols.append(cam.project(on_plane.reshape(-1, 3), behind="nan").reshape(shape)
+                        - at)
+        out[k] = np.stack(cols, axis=-1)
+    return out
+
+
+def warped_images(cameras, template: int, depth: float, *, warp: str = "auto") -> set:
+    """The search images matched through the predicted map (:func:`predicted_maps`):
+    none (``"identity"``), all (``"predicted"``), or (``"auto"``) those whose map at the
+    template's principal ray at ``depth`` (mm) turns by more than ``AUTO_TURN_DEG`` or
+    scales by more than ``AUTO_SCALE`` (module docstring)."""
+    if warp == "identity":
+        return set()
+    others = {k for k in range(len(cameras)) if k != template}
+    if warp == "predicted":
+        return others
+    t = cameras[template]
+    X = t.C + depth * t.R[2]
+    chosen = set()
+    for k, A in predicted_maps(cameras, template, X, depth).items():
+        if not np.isfinite(A).all():
+            continue
+        turn = np.degrees(abs(np.arctan2(A[1, 0] - A[0, 1], A[0, 0] + A[1, 1])))
+        scale = np.sqrt(abs(np.linalg.det(A)))
+        if turn > AUTO_TURN_DEG or not 1 / AUTO_SCALE <= scale <= AUTO_SCALE:
+            chosen.add(k)
+    return chosen
 
 
 def _corners(f, *, n_seeds: int, min_distance, mask, patch: int):
@@ -124,10 +221,13 @@ def _corners(f, *, n_seeds: int, min_distance, mask, patch: int):
                                    minDistance=min_distance, mask=m8, blockSize=patch)
 
 
-def _ray_scores(images, cameras, template: int, spline_t: SplineImage, t_xy, inv, h: int):
+def _ray_scores(images, cameras, template: int, spline_t: SplineImage, t_xy, inv, h: int,
+                warped: set):
     """The mean correlation ``(C, D)`` over the search images of every candidate's template
-    patch (half-width ``h``) at the inverse depths ``inv`` (D,) along its ray, and the
-    candidates' projections ``(C, D, 2)`` into each search image ``k`` (dict)."""
+    patch (half-width ``h``) at the inverse depths ``inv`` (D,) along its ray, the
+    candidates' projections ``(C, D, 2)`` into each search image ``k`` (dict), and the
+    maps ``(C, D, 2, 2)`` the patches were sampled through (dict; the images in ``warped``
+    through the predicted map, the others square)."""
     K = len(images)
     gy, gx = np.mgrid[-h:h + 1, -h:h + 1]
     U = np.stack([gx.ravel(), gy.ravel()], axis=1).astype(float)
@@ -137,24 +237,31 @@ def _ray_scores(images, cameras, template: int, spline_t: SplineImage, t_xy, inv
     along = (1.0 / inv)[None, :] / (d @ cameras[template].R[2])[:, None]    # (C, D)
     X = o[:, None, :] + along[..., None] * d[:, None, :]                   # (C, D, 3)
     score = np.zeros(along.shape)
-    projected = {}
+    projected, maps = {}, {}
+    depth = np.broadcast_to(1.0 / inv, along.shape)
+    predicted = predicted_maps(cameras, template, X, depth) if warped else {}
     for k, cam in enumerate(cameras):
         if k == template:
             continue
         xy = cam.project(X.reshape(-1, 3), behind="nan").reshape(X.shape[:2] + (2,))
+        A = predicted[k] if k in warped else np.broadcast_to(np.eye(2), along.shape + (2, 2))
         spline = SplineImage(images[k])
-        ok = np.isfinite(xy).all(axis=-1)
-        ok &= spline.inside(np.nan_to_num(xy), margin=h)
-        vals = spline.sample(np.where(ok[..., None], xy, 0.0)[:, :, None, :] + U,
-                             gradient=False)                                  # (C, D, P)
+        ok = np.isfinite(xy).all(axis=-1) & np.isfinite(A).all(axis=(-2, -1))
+        reach = h * np.abs(np.nan_to_num(A)).sum(axis=-1).max(axis=-1)       # (C, D)
+        ok &= spline.inside(np.nan_to_num(xy) - reach[..., None], margin=0.0)
+        ok &= spline.inside(np.nan_to_num(xy) + reach[..., None], margin=0.0)
+        at = np.where(ok[..., None], xy, 0.0)[:, :, None, :]
+        offsets = (np.einsum("cdij,pj->cdpi", np.where(ok[..., None, None], A, 0.0), U)
+                   if k in warped else U)
+        vals = spline.sample(at + offsets, gradient=False)                    # (C, D, P)
         ncc = _ncc(tpl[:, None, :], vals)
         score += np.where(ok, ncc, -1.0)
-        projected[k] = xy
+        projected[k], maps[k] = xy, A
     score /= K - 1
-    return score, projected
+    return score, projected, maps
 
 
-def _best_seeds(score, projected, t_xy, inv, K: int, template: int, *, n_seeds: int,
+def _best_seeds(score, projected, maps, t_xy, inv, K: int, template: int, *, n_seeds: int,
                 min_score: float) -> Seeds:
     """Every candidate's best depth; the ``n_seeds`` best candidates reaching
     ``min_score`` as seeds."""
@@ -163,11 +270,13 @@ def _best_seeds(score, projected, t_xy, inv, K: int, template: int, *, n_seeds: 
     order = np.argsort(-best_score)
     order = order[best_score[order] >= min_score][:n_seeds]
     xy = np.zeros((K, len(order), 2))
+    A = np.broadcast_to(np.eye(2), (K, len(order), 2, 2)).copy()
     xy[template] = t_xy[order]
     for k, p in projected.items():
         xy[k] = p[order, best[order]]
+        A[k] = maps[k][order, best[order]]
     depth = 1.0 / inv[best[order]]
-    return Seeds(xy=xy, score=best_score[order], depth=depth)
+    return Seeds(xy=xy, score=best_score[order], depth=depth, A=A)
 
 
 def find_disparity_seeds(left, right, *, disparity_range, n_seeds: int = 30, patch: int = 11,

@@ -159,7 +159,7 @@ class MeasureSurfaceParams:
 
 
 def measure_surface(images, cameras, seeds_xy, *, template: int = 1, mask=None,
-                    template_mask=None,
+                    template_mask=None, seeds_A=None,
                     params: MeasureSurfaceParams | None = None) -> SurfaceResult:
     """Dense surface points from K >= 2 images of one frame.
 
@@ -176,6 +176,9 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, mask=None,
         Where in the template to grow, and the template pixels on the object (see
         :func:`~lsmta.matching.grow.grow_matches`); ``template_mask`` serves the
         neighbourhood filter's re-match too.
+    seeds_A : (K, S, 2, 2) array, optional
+        The seeds' starting affine maps from the template's patch into every image (e.g.
+        :attr:`~lsmta.matching.Seeds.A`; the template's row is not used); default identity.
     params : MeasureSurfaceParams, optional
         The growth and the filters (default :class:`MeasureSurfaceParams`).
 
@@ -184,13 +187,14 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, mask=None,
     SurfaceResult
     """
     p = _params(params, MeasureSurfaceParams)
-    imgs, cameras, seeds = _checked(images, cameras, seeds_xy, template)
+    imgs, cameras, seeds, seeds_A = _checked(images, cameras, seeds_xy, template, seeds_A)
     K = len(imgs)
     if p.enhance:
         imgs = [enhance_contrast(im) for im in imgs]
     searches = [k for k in range(K) if k != template]
     geometry = CameraGeometry(cameras, template) if p.joint else None
-    grown = _grow(imgs, seeds, template, searches, geometry, p.grow, mask, template_mask)
+    grown = _grow(imgs, seeds, template, searches, geometry, p.grow, mask, template_mask,
+                  seeds_A)
     t_xy, xy, sig, pos = _tuples(grown, template, searches)
     ok, rematched = _neighbourhood(imgs, template, searches, grown, pos, xy, sig, t_xy,
                                    geometry, p, template_mask)
@@ -214,15 +218,17 @@ def measure_surface(images, cameras, seeds_xy, *, template: int = 1, mask=None,
 
 
 def _grow(imgs, seeds, template: int, searches, geometry, grow: GrowParams, mask,
-          template_mask) -> list:
+          template_mask, seeds_A=None) -> list:
     """Growth into each search image: jointly under the epipolar condition (``geometry``
     given) or independently, image by image (the paper)."""
     if geometry is not None:
         return grow_joint(imgs[template], [imgs[k] for k in searches], seeds[template],
                           seeds[searches], geometry, mask=mask, template_mask=template_mask,
+                          seeds_A=None if seeds_A is None else seeds_A[searches],
                           params=grow)
     return [grow_matches(imgs[template], imgs[k], seeds[template], seeds[k], mask=mask,
-                         template_mask=template_mask, params=grow)
+                         template_mask=template_mask,
+                         seeds_A=None if seeds_A is None else seeds_A[k], params=grow)
             for k in searches]
 
 
@@ -254,8 +260,9 @@ def _neighbourhood(imgs, template: int, searches, grown, pos, xy, sig, t_xy, geo
     return ok, rematched
 
 
-def _checked(images, cameras, seeds_xy, template):
-    """The images (checked, one size), the cameras and the seeds given in every image."""
+def _checked(images, cameras, seeds_xy, template, seeds_A=None):
+    """The images (checked, one size), the cameras, the seeds given in every image and
+    their maps (or None)."""
     images = list(images)
     cameras = list(cameras)
     K = len(images)
@@ -272,7 +279,9 @@ def _checked(images, cameras, seeds_xy, template):
     good_seeds = np.isfinite(seeds).all(axis=(0, 2))
     if not good_seeds.any():
         raise ValueError("seeds_xy: no seed is given in all images")
-    return imgs, cameras, seeds[:, good_seeds]
+    if seeds_A is not None:
+        seeds_A = as_array(seeds_A, "seeds_A", shape=(K, seeds.shape[1], 2, 2))[:, good_seeds]
+    return imgs, cameras, seeds[:, good_seeds], seeds_A
 
 
 def _tuples(grown, template: int, searches):

@@ -94,6 +94,11 @@ class CaptureParams:
     more_views : MoreViewsParams or None
         The more-views stage (:func:`~lsmta.systems.more_views.add_views`, the reference
         being each group's template); None leaves it out.
+    min_group_share : float
+        A view group of three or more cameras whose surfaces hold points in fewer than this
+        share of its measured frames (a point must be seen by all of them: a rig whose
+        cameras do not all see the same side of the subject) is measured again as pairs of
+        its template with each other camera, with a warning; 0 never splits a group.
     """
 
     max_angle_deg: float = 75.0
@@ -104,9 +109,13 @@ class CaptureParams:
     arm: ArmFitParams | None = None
     markers: MarkerParams | None = None
     more_views: MoreViewsParams | None = None
+    min_group_share: float = 0.5
 
     def __post_init__(self):
         as_scalar(self.max_angle_deg, "max_angle_deg", positive=True)
+        if not 0.0 <= self.min_group_share <= 1.0:
+            raise ValueError(f"min_group_share: expected a share in [0, 1], got "
+                             f"{self.min_group_share!r}")
         as_int(self.density_every, "density_every", minimum=1)
         if self.arm is not None and not isinstance(self.arm, ArmFitParams):
             raise TypeError(f"arm: expected an ArmFitParams or None, got "
@@ -343,7 +352,7 @@ def _calibration_text(cal) -> str:
 
 
 def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None,
-                  progress: bool = False) -> Tracks:
+                  cameras=None, progress: bool = False) -> Tracks:
     """Surface tracking (Fig. 9): every point of the first surface with a kept point (before
     the last frame), new points from later ones.
 
@@ -356,6 +365,10 @@ def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None
         the later frames' feed the density check (every ``params.density_every`` frames
         counted from the start frame).
     params : TrackerParams, optional
+    cameras : sequence of K Camera, optional
+        Start the spatial LSM from the map the cameras predict where a camera sees the
+        template's patch turned or scaled (:func:`~lsmta.tracking.track_points`'
+        ``start_cameras``; a camera mounted on its side).
     progress : bool
 
     Returns
@@ -370,7 +383,7 @@ def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None
     start = first.xy[:, first.neighbourhood_ok]
     new = {t - s: r.xy[:, r.neighbourhood_ok] for t, r in surfaces.items() if t > s}
     tracks = track_points(videos[:, s:], start, params=params, new_points=new,
-                          progress=progress)
+                          start_cameras=cameras, progress=progress)
     return _delayed(tracks, s)
 
 
@@ -513,18 +526,47 @@ def _image_noise(st: _State) -> None:
 
 
 def _surfaces(st: _State) -> None:
-    p = st.params
+    groups, inputs, noises = [], [], []
     for g, (v, cams), noise in zip(st.groups, st.inputs, st.noise):
-        surface = replace(p.surface, template=g.template_position)
-        if surface.method == "rectified" and len(cams) != 2:
-            warnings.warn(f"capture_recording: view group {_joined_names(cams)} has "
-                          f"{len(cams)} cameras, and SurfaceParams(method='rectified') "
-                          "(lsmta capture --surface-method rectified-sgbm) measures pairs "
-                          "only; this group is measured by the growth", stacklevel=3)
-            surface = replace(surface, method="grow")
-        st.surfaces.append(measure_surfaces(v, cams, range(0, v.shape[1], p.density_every),
-                                            sigma=noise.sigma, params=surface,
-                                            progress=st.progress))
+        measured = _group_surfaces(st, g, v, cams, noise)
+        frames = range(0, v.shape[1], st.params.density_every)
+        held = sum(1 for r in measured.values() if r.kept.any())
+        if len(cams) < 3 or held >= st.params.min_group_share * len(frames):
+            groups.append(g)
+            inputs.append((v, cams))
+            noises.append(noise)
+            st.surfaces.append(measured)
+            continue
+        warnings.warn(f"capture_recording: view group {_joined_names(cams)} holds surface "
+                      f"points in {held} of its {len(frames)} measured frames (a point must "
+                      "be seen by all its cameras); it is measured as pairs of its template "
+                      "with each other camera (CaptureParams.min_group_share)", stacklevel=3)
+        for j in range(len(cams)):
+            if j == g.template_position:
+                continue
+            pos = sorted((j, g.template_position))
+            pair = ViewGroup(cameras=tuple(g.cameras[i] for i in pos), template=g.template)
+            pv, pc = v[pos], [cams[i] for i in pos]
+            pn = temporal_noise(pv)
+            groups.append(pair)
+            inputs.append((pv, pc))
+            noises.append(pn)
+            st.surfaces.append(_group_surfaces(st, pair, pv, pc, pn))
+    st.groups, st.inputs, st.noise = tuple(groups), inputs, noises
+
+
+def _group_surfaces(st: _State, g, v, cams, noise) -> dict:
+    """One view group's surfaces (:func:`measure_surfaces`) in every measured frame."""
+    p = st.params
+    surface = replace(p.surface, template=g.template_position)
+    if surface.method == "rectified" and len(cams) != 2:
+        warnings.warn(f"capture_recording: view group {_joined_names(cams)} has "
+                      f"{len(cams)} cameras, and SurfaceParams(method='rectified') "
+                      "(lsmta capture --surface-method rectified-sgbm) measures pairs "
+                      "only; this group is measured by the growth", stacklevel=4)
+        surface = replace(surface, method="grow")
+    return measure_surfaces(v, cams, range(0, v.shape[1], p.density_every),
+                            sigma=noise.sigma, params=surface, progress=st.progress)
 
 
 def _more_views(st: _State) -> None:
@@ -550,7 +592,8 @@ def _tracking(st: _State) -> None:
             continue
         tracker = replace(p.tracker, density_every=p.density_every,
                           template=g.template_position)
-        st.tracks.append(track_surface(v, surfaces, params=tracker, progress=st.progress))
+        st.tracks.append(track_surface(v, surfaces, params=tracker, cameras=cams,
+                                       progress=st.progress))
     if all(t is None for t in st.tracks) and st.params.markers is None:
         off = sum(r.off_subject for s in st.surfaces for r in s.values())
         why = (f"the subject mask (SurfaceParams.subject_mask, --subject-mask) dropped {off} "

@@ -18,8 +18,9 @@ Files, in one folder:
   (:func:`lsmta.body.mesh.body_mesh`, mm, the cameras' world); ``summary.json``'s ``mesh``
   entry gives each frame's vertices, open edges, components and volume, or says why no
   mesh was written (no body model was fitted: the stage is optional);
-* ``summary.json``: the stages with their times and results, counts, the calibration's own
-  summary where it has one;
+* ``summary.json``: the stages with their times and results, counts (per view group also
+  ``track_residual_px``: the median reprojection error of its tracked samples intersected
+  from all its cameras), the calibration's own summary where it has one;
 * ``report.html``: the summary table and figures of this recording (the views with the
   tracked points, the trajectories), one file with the images inside it.
 """
@@ -40,6 +41,7 @@ from ..body import arm_model, base_poses
 from ..body.mesh import body_mesh, write_mesh
 from ..camera_files import write_camera_toml
 from ..result_files import write_c3d, write_ply, write_trc
+from ..triangulation import triangulate
 
 
 def _plain(v):
@@ -89,6 +91,26 @@ def surface_cloud(capture, frame: int):
                                    "ray_distance_mm": np.concatenate(dist)}
 
 
+def _seconds(value) -> str:
+    """A stage's time for the report: one decimal, or a dash where it was not timed."""
+    return f"{value:.1f}" if value is not None and np.isfinite(value) else "-"
+
+
+def _track_residual(view) -> float | None:
+    """Median reprojection error (px) of a view group's tracked samples intersected from
+    all its cameras (None without tracks)."""
+    if view.tracks is None:
+        return None
+    errors = []
+    for xy in view.tracks.xy:
+        alive = np.isfinite(xy).all(axis=(0, 2))
+        if alive.any():
+            e = triangulate(view.cameras, xy[:, alive]).reprojection_error
+            errors.append(e[np.isfinite(e)])
+    errors = np.concatenate(errors) if errors else np.empty(0)
+    return float(np.median(errors)) if len(errors) else None
+
+
 def capture_record(capture) -> dict:
     """The numbers of ``summary.json``, as plain Python values."""
     present = capture.filtered.present
@@ -115,6 +137,7 @@ def capture_record(capture) -> dict:
             "tracks": 0 if v.tracks is None else len(v.tracks),
             "alive_at_end": 0 if v.tracks is None else int(v.tracks.alive[-1].sum()),
             "trajectories": v.points.stop - v.points.start,
+            "track_residual_px": _track_residual(v),
         } for v in capture.views],
         "trajectories": {"total": len(capture.trajectories),
                          "kept_by_filters": int(present.any(axis=0).sum()),
@@ -230,7 +253,7 @@ def _figures(capture) -> list:
 
 
 def _report(capture, record: dict) -> str:
-    rows = "".join(f"<tr><td>{html.escape(r['stage'])}</td><td>{r['seconds']:.1f}</td>"
+    rows = "".join(f"<tr><td>{html.escape(r['stage'])}</td><td>{_seconds(r['seconds'])}</td>"
                    f"<td>{html.escape(r['result'])}</td></tr>" for r in capture.summary())
     figs = "".join(f'<figure><img alt="{html.escape(c)}" src="data:image/png;base64,{b}">'
                    f"<figcaption>{html.escape(c)}</figcaption></figure>"

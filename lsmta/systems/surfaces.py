@@ -68,6 +68,7 @@ from ..matching import (
     lsm,
     measure_surface,
 )
+from ..matching.seeds import WARPS
 from ..triangulation import triangulate
 from .checks import check_cameras, check_videos
 from .rectified import NoSeedsError, measure_rectified_pair, surface_result
@@ -124,6 +125,12 @@ class SurfaceParams:
     auto_min_share : float
         ``"auto"`` only: the growth failed where it matches fewer than this share of the
         template's textured nodes (the growth's census, :func:`grow_failed`).
+    seed_warp : {"auto", "identity", "predicted"}
+        The growth's seeds: the search patch :func:`~lsmta.matching.find_seeds` correlates
+        and LSM starts from. ``"auto"`` (default): the map the cameras predict for a search
+        camera that sees the template's patch turned by more than 30° (a camera mounted on
+        its side) or scaled by more than 1.5, the square patch for the others (a rig whose
+        cameras all stand the same way and see the subject at similar scales: as before).
     subject_mask : SubjectMaskParams or None
         With it, every measured frame's n-tuples whose template pixel lies off the moving
         subject (:func:`~lsmta.systems.subject.subject_masks` of the videos given) are
@@ -145,8 +152,12 @@ class SurfaceParams:
     rectified_geometry: str = "row-affine"
     subject_mask: SubjectMaskParams | None = None
     auto_min_share: float = 0.01
+    seed_warp: str = "auto"
 
     def __post_init__(self):
+        if self.seed_warp not in WARPS:
+            raise ValueError(f"seed_warp: expected one of {list(WARPS)}, got "
+                             f"{self.seed_warp!r}")
         if not 0.0 < self.auto_min_share < 1.0:
             raise ValueError(f"auto_min_share: expected a share in (0, 1), got "
                              f"{self.auto_min_share!r}")
@@ -187,7 +198,7 @@ def working_distance(cameras, template: int) -> float:
     return float((X - cameras[template].C) @ cameras[template].R[2])
 
 
-def seed_residual(images, seeds_xy, *, template: int, patch: int) -> float:
+def seed_residual(images, seeds_xy, *, template: int, patch: int, seeds_A=None) -> float:
     """Median a-posteriori sigma0 of LSM at the seeds (grey levels; NaN if none converged).
 
     Parameters
@@ -198,6 +209,8 @@ def seed_residual(images, seeds_xy, *, template: int, patch: int) -> float:
     template : int
     patch : int
         LSM patch size, px.
+    seeds_A : (K, S, 2, 2) array, optional
+        LSM's starting affine maps (:attr:`~lsmta.matching.Seeds.A`); default identity.
     """
     f = np.asarray(images[template], float)
     sigma0 = []
@@ -205,6 +218,7 @@ def seed_residual(images, seeds_xy, *, template: int, patch: int) -> float:
         if k == template:
             continue
         r = lsm(f, np.asarray(g, float), seeds_xy[template], seeds_xy[k],
+                initial_A=None if seeds_A is None else seeds_A[k],
                 params=LSMParams(patch=patch))
         sigma0.append(r.sigma0[np.asarray(r.status) == Status.CONVERGED])
     s = np.concatenate(sigma0)
@@ -355,15 +369,15 @@ def _grown_surfaces(v, cams, frames, sigma: float, p: SurfaceParams, progress: b
     mask = _lens_mask(cams[p.template])
     noise = sigma if p.texture_rule == "precision" else None
     out: dict[int, SurfaceResult] = {}
+    missed = []
     for f in tqdm(frames, desc="surfaces", disable=not progress):
         seeds = find_seeds(v[:, f], cams, template=p.template, n_seeds=p.n_seeds,
-                           depth_range=(0.6 * d, 1.6 * d))
+                           depth_range=(0.6 * d, 1.6 * d), warp=p.seed_warp)
         if seeds.xy.shape[1] == 0:
-            warnings.warn(f"measure_surfaces: no seed found in frame {f} (no textured point "
-                          "matches along the epipolar curves); the frame is left out",
-                          stacklevel=3)
+            missed.append(f)
             continue
-        level = seed_residual(v[:, f], seeds.xy, template=p.template, patch=p.patch)
+        level = seed_residual(v[:, f], seeds.xy, template=p.template, patch=p.patch,
+                              seeds_A=seeds.A)
         limit = p.sigma0_factor * max(sigma, np.nan_to_num(level / np.sqrt(2)))
         thresholds = LSMThresholds(max_sigma0=limit, max_displacement=p.step,
                                    max_sigma_xy=p.max_sigma_xy, scale_range=(0.5, 2.0),
@@ -372,7 +386,14 @@ def _grown_surfaces(v, cams, frames, sigma: float, p: SurfaceParams, progress: b
                                                        retry_patch=p.retry_patch,
                                                        thresholds=thresholds, noise=noise))
         out[f] = measure_surface(v[:, f], cams, seeds.xy, template=p.template, mask=mask,
-                                 params=surface)
+                                 seeds_A=seeds.A, params=surface)
+    if missed:                                  # one warning for all of them
+        where = (f"frame {missed[0]}" if len(missed) == 1 else
+                 f"frames {', '.join(map(str, missed))} ({len(missed)} of {len(frames)})")
+        warnings.warn(f"measure_surfaces: no seed found in {where}: no textured point "
+                      "matches along the epipolar curves in every camera; "
+                      + ("the frame is" if len(missed) == 1 else "they are") + " left out",
+                      stacklevel=3)
     return out
 
 

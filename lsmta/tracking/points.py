@@ -89,6 +89,7 @@ from tqdm.auto import tqdm
 from .._validate import as_array, as_int, as_scalar, check_patch
 from ..camera import Camera
 from ..matching.lsm import LSMThresholds
+from ..matching.seeds import predicted_maps, warped_images
 from ..matching.spline import SplineImage, check_image
 from ..triangulation import triangulate
 from .density import sparse_candidates
@@ -286,7 +287,7 @@ def as_sequences(images) -> np.ndarray:
 
 
 def track_points(images, initial_xy, *, params: TrackerParams | None = None,
-                 new_points=None, initial_velocity=None, cameras=None,
+                 new_points=None, initial_velocity=None, cameras=None, start_cameras=None,
                  progress: bool = False) -> Tracks:
     """Track points through K synchronised image sequences (LSMTA, Fig. 7 and Fig. 9).
 
@@ -309,6 +310,12 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
         The calibrated cameras (K > 1): a frame is accepted only if its K positions
         intersect with every reprojection error at most ``params.max_reprojection`` px
         (a geometric check beyond the paper's spatial LSM).
+    start_cameras : sequence of K Camera, optional
+        Calibrated cameras used only to start the spatial LSM of a new track: into a camera
+        that sees the template camera's patch turned by more than 30° or scaled by more than
+        1.5 (a camera mounted on its side), from the map they predict
+        (:func:`~lsmta.matching.seeds.warped_images`, ``"auto"``) instead of the identity.
+        No reprojection check (that is ``cameras``).
     progress : bool
         Show a progress bar over the frames.
 
@@ -333,10 +340,17 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
         if K < 2 or len(cameras) != K or not all(isinstance(c, Camera) for c in cameras):
             raise ValueError(f"cameras: expected {K} lsmta.camera.Camera (one per image "
                              "sequence, at least 2), or None")
+    if start_cameras is not None:
+        start_cameras = list(start_cameras)
+        if K < 2 or len(start_cameras) != K or not all(isinstance(c, Camera)
+                                                       for c in start_cameras):
+            raise ValueError(f"start_cameras: expected {K} lsmta.camera.Camera (one per image "
+                             "sequence, at least 2), or None")
     splines = [SplineImage(seq[k, 0], "images") for k in range(K)]
     first = _Anchors.sampled(splines, xy0, 0, p)
-    started &= _spatial_start(first, splines, xy0, p)
+    started &= _spatial_start(first, splines, xy0, p, start_cameras)
     state = _State.initial(xy0, started, T, first, cameras)
+    state.start_cameras = start_cameras
     pyramids = _Pyramids(seq, p.pyramid_levels)
     for t in tqdm(range(T - 1), desc="tracking", disable=not progress):
         nxt = [SplineImage(seq[k, t + 1], "images") for k in range(K)]
@@ -425,6 +439,7 @@ class _State(_TrackArrays):
     link: np.ndarray          # (K, N, 2, 2) first template -> the fallback's anchor frame
     on_fallback: np.ndarray   # (N,) the last tracked frame was matched with the fallback
     cameras: list | None      # for the geometric check
+    start_cameras: list | None = None   # predict the spatial LSM's starting maps
 
     @classmethod
     def initial(cls, xy0, started, T: int, first: _Anchors, cameras=None) -> _State:
@@ -664,7 +679,7 @@ def _add_where_sparse(state: _State, new_points, nxt, t: int, p: TrackerParams) 
                             min_distance=p.min_distance)
     if add.size:
         first = _Anchors.sampled(nxt, cand[:, add], t, p)
-        confirmed = _spatial_start(first, nxt, cand[:, add], p)
+        confirmed = _spatial_start(first, nxt, cand[:, add], p, state.start_cameras)
         if confirmed.any():
             keep = np.flatnonzero(confirmed)
             state.append(cand[:, add[keep]], t, add[keep], first.take(keep))
@@ -833,18 +848,44 @@ def _spatial(anchors: _Anchors, nxt, idx, xy, A, p: TrackerParams):
     return agree, M, pos
 
 
-def _spatial_start(anchors: _Anchors, splines, xy, p: TrackerParams) -> np.ndarray:
+def _start_maps(template: int, xy, cams) -> np.ndarray:
+    """The spatial LSM's starting maps ``(K, n, 2, 2)`` at the points ``xy`` ``(K, n, 2)``:
+    the identity, or (cameras ``cams``) the predicted map into the cameras that need it."""
+    K, n = xy.shape[:2]
+    A = _eye(K, n)
+    if cams is None or not n:
+        return A
+    t = cams[template]
+    X = triangulate(cams, xy, min_angle_deg=0.0).points
+    depth = (X - t.C) @ t.R[2]
+    good = np.isfinite(depth) & (depth > 0)
+    if not good.any():
+        return A
+    warped = warped_images(cams, template, float(np.median(depth[good])), warp="auto")
+    if not warped:
+        return A
+    maps = predicted_maps(cams, template, np.nan_to_num(X), np.where(good, depth, 1.0))
+    for k in warped:
+        ok = good & np.isfinite(maps[k]).all(axis=(1, 2))
+        A[k, ok] = maps[k][ok]
+    return A
+
+
+def _spatial_start(anchors: _Anchors, splines, xy, p: TrackerParams,
+                   start_cameras=None) -> np.ndarray:
     """Spatial relation ``S``, ``D`` of freshly sampled templates (all rows of ``anchors``)
-    at their positions ``xy`` ``(K, n, 2)``. Returns ``confirmed (n,)``: every template is
-    textured and (K > 1) the spatial LSM lands within ``max_disagreement`` of each
-    camera's start position."""
+    at their positions ``xy`` ``(K, n, 2)``, the LSM started from the identity or from the
+    map ``start_cameras`` predict (:func:`_start_maps`). Returns ``confirmed (n,)``: every
+    template is textured and (K > 1) the spatial LSM lands within ``max_disagreement`` of
+    each camera's start position."""
     K, n = xy.shape[:2]
     confirmed = np.all([tm.ok for tm in anchors.templates], axis=0)
     tm, rows = p.template, np.arange(n)
+    start = _start_maps(tm, xy, start_cameras) if K > 1 and n else None
     for k in range(K if K > 1 and n else 0):
         if k == tm:
             continue
-        res = match_templates(anchors.templates[tm], rows, splines[k], xy[k], _eye(1, n)[0],
+        res = match_templates(anchors.templates[tm], rows, splines[k], xy[k], start[k],
                               **_lsm(p))
         anchors.S[k, res.ok] = res.A[res.ok]
         anchors.D[k, res.ok] = res.xy[res.ok] - xy[k, res.ok]

@@ -473,8 +473,8 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
             band = np.full(len(pred.partners), params.gate_px)
             fixed = np.concatenate([np.full(len(pred.xy) + len(pred.waiting), det.window / 2),
                                     band])
-            half = np.concatenate([pred.gate_px + 3.0,
-                                   np.full(len(pred.waiting), det.window / 2), band])
+            _, near = pred.windows(margin_px=3.0, unobserved_px=det.window / 2)
+            half = np.concatenate([near, np.full(len(pred.waiting), det.window / 2), band])
             f = search_frame(videos[c].frames[i], setups[c], windows=xy, half_sizes=half,
                              jitter=jit)
             runs.append((c, i, xy, half, fixed, jit))

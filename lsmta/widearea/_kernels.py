@@ -21,12 +21,12 @@ its loop. So the per-pixel and per-row loops (the windows' rows, the grid, the f
 nothing with array arguments; helpers are called once per frame or on rare events (the
 hash set or a stack growing).
 
-Why prefetch: the frames come from memory (not the cache), and the search reads them in
-short pieces (a window's row, a grid row, a spot's neighbourhood), too scattered for the
-processor's own prefetching; the time goes to waiting for memory, not to comparing. The
-search asks for the pieces it reads next (LLVM's ``prefetch``, :func:`_prefetch`) while it
-compares the current ones: the next grid row, the windows' rows a few rows ahead, a
-seed's neighbourhood.
+Why prefetch: the frames come from memory (not the cache), and the windows' rows are short
+pieces a row apart, too scattered for the processor's own prefetching: the search asks for
+each window's row ``_AHEAD`` rows down (LLVM's ``prefetch``, :func:`_prefetch`) while it
+compares the current one. At 640 x 480 that saved about a sixth of the guided search's time
+(measured on the frames of ``experiments/widearea_detection_benchmark.py``); asking for the
+next grid row or a seed's neighbourhood as well saved nothing measurable.
 """
 
 from __future__ import annotations
@@ -191,14 +191,8 @@ def _grid_seeds(imgf, thrf, box, H, W, jr, jc, k, seeds, n_seeds):
     and one contiguous (vectorised) pass over the row says so faster than the strided
     reads of its grid pixels (indexing the flat arrays by ``q`` itself, or with a stride,
     is not vectorised: about 40 times slower per row when measured for
-    ``experiments/widearea_detection_benchmark.py``); the next grid row is asked for while
-    one is compared."""
-    step = _LINE // imgf.itemsize
+    ``experiments/widearea_detection_benchmark.py``)."""
     for r in range(jr, H, k):
-        if r + k < H:
-            for q in range((r + k) * W, (r + k + 1) * W, step):
-                _prefetch(imgf, q)
-                _prefetch(thrf, q)
         x = imgf[r * W:(r + 1) * W]
         t = thrf[r * W:(r + 1) * W]
         hit = False
@@ -264,7 +258,6 @@ def _fills(imgf, thrf, bgf, H, W, seeds, n_seeds, box, k, jr, jc, tested):
     area_out = np.empty(n_seeds, np.int64)
     stack = np.empty(64, np.int64)
     n_out = 0
-    step = _LINE // imgf.itemsize
     for i in range(n_seeds):
         seed = seeds[i]
         mask = keys.shape[0] - 1
@@ -275,14 +268,6 @@ def _fills(imgf, thrf, bgf, H, W, seeds, n_seeds, box, k, jr, jc, tested):
             continue
         keys[s], vals[s] = seed, _FEATURE
         used += 1
-        r0, c0 = seed // W, seed % W      # the spot's rows, asked for at once
-        for rr in range(max(r0 - 1, 0), min(r0 + 4, H)):
-            a, b = rr * W + max(c0 - 8, 0), rr * W + min(c0 + 9, W)
-            for q in range(a, b + step, step):
-                _prefetch(imgf, min(q, b - 1))
-                _prefetch(thrf, min(q, b - 1))
-            for q in range(a, b + 8, 8):
-                _prefetch(bgf, min(q, b - 1))
         stack[0] = seed
         top = 1
         sw = sx = sy = 0.0

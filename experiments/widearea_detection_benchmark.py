@@ -82,6 +82,7 @@ def main(argv=None):
                "same_detections": g.guided_found / g.full_found}
         row["image"] = f"{g.cameras[0].width}x{g.cameras[0].height}"
         row["missed"] = g.full_found - g.guided_found
+        row["missed_before_first_find"] = g.missed_new
         guided.append(row)
         print(f"guided, scale {scale}: full / guided {row['full_over_guided']:.2f} (40 x 40 "
               f"windows {row['full_over_guided_40x40_windows']:.2f}), tested "
@@ -96,7 +97,9 @@ def main(argv=None):
         print(f"  {row['image']:8s} full {row['ms_per_frame_min']['full']:.4f} ms, guided "
               f"{row['ms_per_frame_min']['guided']:.4f} ms per frame: full / guided = "
               f"{speed:.2f} ({verdict(speed >= 3, '>= 3')}); LEDs at the same place "
-              f"{100 * same:.2f} %, {row['missed']} missed ({verdict(same >= 0.99, '>= 99 %')})")
+              f"{100 * same:.2f} %, {row['missed']} missed, {row['missed_before_first_find']} of "
+              f"them before the LED's first find in that camera "
+              f"({verdict(same >= 0.99, '>= 99 %')})")
     write_json(args.out, {"repeats": args.repeats, "load_average": list(load), "rows": rows,
                           "guided": guided})
 

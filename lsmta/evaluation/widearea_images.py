@@ -391,6 +391,10 @@ class GuidedDetectionTrial:
         LEDs the full search found (a feature within 3 px of the LED's true projection).
     guided_found : int
         Of those, the ones the guided search found at the same place (within 0.01 px).
+    missed_new : int
+        Of the misses, those of an LED the guided search had not yet found in that camera
+        in any earlier frame (an LED just switched on or come into view: nothing predicts
+        it yet, only the grid can find it).
     scores : dict
         ``"full"`` (the full search's features tracked by the batch tracker) and
         ``"guided"`` (the streaming run): LedTrackScore against the LEDs.
@@ -402,6 +406,7 @@ class GuidedDetectionTrial:
     tested_fraction: dict
     full_found: int
     guided_found: int
+    missed_new: int
     scores: dict
 
     @property
@@ -494,7 +499,7 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     seconds = {"tracker + guided": time.perf_counter() - t0}
     seconds.update(_replay_times(videos, thr, masks, setups, runs, det, repeats))
     seconds["tracker"] = seconds.pop("tracker + guided") - seconds["guided"]
-    full_found, guided_found = _same_detections(videos, full, guided)
+    full_found, guided_found, missed_new = _same_detections(videos, full, guided)
     stamps = [v.times + clocks.offset[c] for c, v in enumerate(videos)]
     fr = Frames.from_lists([c for _, c, _ in order], [stamps[c][i] for _, c, i in order],
                            [full[c].centroids(i) for _, c, i in order])
@@ -505,7 +510,8 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     return GuidedDetectionTrial(
         cameras=cams, n_frames=len(order), seconds=seconds,
         tested_fraction={"full": 1.0, "guided": float(np.mean(tested)) / size},
-        full_found=full_found, guided_found=guided_found, scores=scores)
+        full_found=full_found, guided_found=guided_found, missed_new=missed_new,
+        scores=scores)
 
 
 def _replay_times(videos, thr, masks, setups, runs, det, repeats: int) -> dict:
@@ -537,15 +543,20 @@ def _replay_times(videos, thr, masks, setups, runs, det, repeats: int) -> dict:
 
 
 def _same_detections(videos, full, guided):
-    """LEDs the full search found (within 3 px of the truth), and how many of them the
-    guided search found at the same place (0.01 px)."""
-    n_full = n_same = 0
+    """LEDs the full search found (within 3 px of the truth), how many of them the guided
+    search found at the same place (0.01 px), and how many of the misses came before the
+    guided search's first find of that LED in that camera."""
+    n_full = n_same = n_new = 0
     for c, v in enumerate(videos):
         found, _, _ = match_features(full[c], v.true_xy, radius=3.0)
+        seen = np.zeros(v.true_xy.shape[1], bool)       # found by the guided search before
         for i in range(len(v.frames)):
             fx, g = full[c].centroids(i), guided[c][i]
             for n in np.flatnonzero(found[i]):
                 j = np.argmin(np.linalg.norm(fx - v.true_xy[i, n], axis=1))
+                same = len(g) > 0 and np.linalg.norm(g - fx[j], axis=1).min() < 0.01
                 n_full += 1
-                n_same += int(len(g) > 0 and np.linalg.norm(g - fx[j], axis=1).min() < 0.01)
-    return n_full, n_same
+                n_same += int(same)
+                n_new += int(not same and not seen[n])
+                seen[n] |= same
+    return n_full, n_same, n_new

@@ -296,7 +296,8 @@ class ImagePrediction:
         and without ``volume``).
     observed : (M,) bool array or None
         Whether this camera has observed each target (updated it, or started it) since the
-        target was born or the camera (re)joined. A target it has not observed is
+        target was born and since the camera was last removed or dropped as silent. A
+        target it has not observed is
         projected here from the other cameras' measurements only, unchecked in this image:
         an error of its birth's triangulation shows here beyond the gate, which measures
         the filter's own uncertainty (None: unknown, treated as observed).

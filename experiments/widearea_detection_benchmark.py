@@ -10,19 +10,21 @@ sub-sampled search is faster). Then the guided search of notebook 09 at each sca
 (:func:`lsmta.evaluation.widearea_images.guided_detection_trial`: eight cameras, windows of
 the gate around the streaming tracker's predictions and along the other cameras' waiting
 rays, replayed ``repeats`` times): full / guided time
-(issue 26's target: at least 3) and the share of the full search's LEDs found at the same
-place (target: at least 99 %). Writes build/benchmarks/widearea_detection.json.
+(issue 35's target at 640 x 480: at least 3) and the share of the full search's LEDs found at
+the same place (target: at least 99 %), printed at the end with their verdicts and the
+machine's load. Writes build/benchmarks/widearea_detection.json.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import numpy as np
 
 from lsmta.evaluation.widearea_images import guided_detection_trial
-from lsmta.report import write_json
+from lsmta.report import verdict, write_json
 from lsmta.synth.widearea import ceiling_rig, render_led_video, small_camera, walking_person
 from lsmta.widearea import background_threshold, detect
 
@@ -78,12 +80,28 @@ def main(argv=None):
                    g.seconds["full"] / g.seconds["guided, 40 x 40 windows"],
                "tested_fraction": g.tested_fraction["guided"],
                "same_detections": g.guided_found / g.full_found}
+        row["image"] = f"{g.cameras[0].width}x{g.cameras[0].height}"
+        row["missed"] = g.full_found - g.guided_found
+        row["missed_before_first_find"] = g.missed_new
         guided.append(row)
         print(f"guided, scale {scale}: full / guided {row['full_over_guided']:.2f} (40 x 40 "
               f"windows {row['full_over_guided_40x40_windows']:.2f}), tested "
               f"{100 * row['tested_fraction']:.1f} %, same detections "
               f"{100 * row['same_detections']:.2f} %")
-    write_json(args.out, {"repeats": args.repeats, "rows": rows, "guided": guided})
+    load = os.getloadavg()
+    print(f"\nGuided detection (issue 35, item 3; fastest of {args.repeats} replays; machine load "
+          f"{load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f} over 1 / 5 / 15 min, {os.cpu_count()} "
+          f"cores):")
+    for row in guided:
+        speed, same = row["full_over_guided"], row["same_detections"]
+        print(f"  {row['image']:8s} full {row['ms_per_frame_min']['full']:.4f} ms, guided "
+              f"{row['ms_per_frame_min']['guided']:.4f} ms per frame: full / guided = "
+              f"{speed:.2f} ({verdict(speed >= 3, '>= 3')}); LEDs at the same place "
+              f"{100 * same:.2f} %, {row['missed']} missed, {row['missed_before_first_find']} of "
+              f"them before the LED's first find in that camera "
+              f"({verdict(same >= 0.99, '>= 99 %')})")
+    write_json(args.out, {"repeats": args.repeats, "load_average": list(load), "rows": rows,
+                          "guided": guided})
 
 
 if __name__ == "__main__":

@@ -4,6 +4,7 @@ the synchronised per-instant intersection (Fig. 33), bad input."""
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from lsmta.camera import Camera
 from lsmta.evaluation.track_scores import score_led_tracks
@@ -475,3 +476,104 @@ def test_a_target_that_dies_for_a_moment_rejoins_under_its_own_identity():
     assert len(run(rejoin=0.01).tracks) == 2
     with pytest.raises(ValueError, match="rejoin"):
         EstimatorParams(rejoin=-1.0)
+
+
+def _reference_mask(shape, k, jitter, centres, half):
+    """The pixels a search with windows of half-sizes ``half`` tests, in NumPy."""
+    H, W = shape
+    m = np.zeros((H, W), bool)
+    m[jitter[0]::k, jitter[1]::k] = True
+    for (x, y), h in zip(centres, half):
+        if np.isfinite([x, y]).all():
+            x, y, h = int(np.rint(x)), int(np.rint(y)), int(np.ceil(h))
+            m[max(y - h, 0):max(y + h, 0), max(x - h, 0):max(x + h, 0)] = True
+    return m
+
+
+def test_guided_search_equals_the_full_search_inside_overlapping_windows():
+    # many windows of mixed (fractional) sizes, overlapping, cut by the image's edges, one
+    # around a NaN: every spot with a tested pixel over threshold is found whole, at the
+    # full search's centroid and area; no other feature; the pixels tested counted once
+    from lsmta.widearea import DetectionParams, Threshold
+
+    rng = np.random.default_rng(5)
+    H, W = 240, 320
+    yy, xx = np.mgrid[0:H, 0:W]
+    img = np.full((H, W), 40.0)
+    for x, y, sig in zip(rng.uniform(-2, W + 2, 40), rng.uniform(-2, H + 2, 40),
+                         rng.uniform(0.3, 2.5, 40)):
+        img += 150.0 * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * sig ** 2))
+    frame = np.clip(np.rint(img + rng.normal(0, 2, (H, W))), 0, 255).astype(np.uint8)
+    bg = np.full((H, W), 45.0)
+    setup = search_setup(Threshold(background=bg, threshold=bg + 20.0),
+                         params=DetectionParams(max_area=5000))
+    full = search_frame(frame, setup, full=True)
+    over = frame > 65
+    lab, _ = ndimage.label(over, structure=np.ones((3, 3)))
+    for _ in range(5):
+        centres = np.column_stack([rng.uniform(-10, W + 10, 25), rng.uniform(-10, H + 10, 25)])
+        centres[3] = np.nan
+        half = rng.uniform(1.0, 30.0, 25)
+        jit = tuple(int(j) for j in rng.integers(0, 5, 2))
+        g = search_frame(frame, setup, windows=centres, half_sizes=half, jitter=jit)
+        reached = np.unique(lab[_reference_mask((H, W), 5, jit, centres, half) & over])
+        assert len(g.xy) == len(reached) > 5
+        for label in reached:                  # each reached spot: the full search's
+            ys, xs = np.nonzero(lab == label)
+            i = np.argmin(np.hypot(full.xy[:, 0] - xs.mean(), full.xy[:, 1] - ys.mean()))
+            j = np.argmin(np.linalg.norm(g.xy - full.xy[i], axis=1))
+            np.testing.assert_allclose(g.xy[j], full.xy[i], atol=1e-9)
+            assert g.area[j] == full.area[i] == len(xs)
+        empty = search_frame(np.full((H, W), 40, np.uint8), setup, windows=centres,
+                             half_sizes=half, jitter=jit)
+        assert empty.tested == _reference_mask((H, W), 5, jit, centres, half).sum()
+        assert len(empty.xy) == 0
+
+
+def test_search_refuses_windows_under_a_pixel():
+    thr = background_threshold(np.full((1, 20, 30), 50, np.uint8), 20.0, 60.0)
+    setup = search_setup(thr)
+    frame = np.zeros((20, 30), np.uint8)
+    with pytest.raises(ValueError, match="half_sizes"):
+        search_frame(frame, setup, windows=np.full((2, 2), 5.0), half_sizes=[3.0, 0.5])
+    with pytest.raises(ValueError, match="half_sizes"):
+        search_frame(frame, setup, windows=np.full((1, 2), 5.0), half_sizes=[np.nan])
+    # a window around a position that is not finite needs no size
+    f = search_frame(frame, setup, windows=np.array([[np.nan, 1.0]]), half_sizes=[0.0],
+                     jitter=(0, 0))
+    assert f.tested == len(range(0, 20, 5)) * len(range(0, 30, 5))
+
+
+def test_prediction_says_which_targets_a_camera_has_observed():
+    cams = [small_camera(c) for c in ceiling_rig(rng=np.random.default_rng(7))[:3]]
+    X = np.array([[300.0, -200.0, 1200.0]])                # an LED in the birth volume
+    assert all(c.in_image(c.project(X)).all() for c in cams)
+    tracker = WideAreaTracker(cams)
+    seen = {}
+
+    def search(c, found):
+        def detect_(pred):
+            seen[c] = pred
+            return found
+        return detect_
+
+    tracker.feed_detect(0, 0.00, search(0, cams[0].project(X)))
+    tracker.feed_detect(1, 0.01, search(1, cams[1].project(X)))      # born: cameras 0, 1
+    tracker.feed_detect(2, 0.02, search(2, np.zeros((0, 2))))
+    tracker.feed_detect(0, 0.03, search(0, cams[0].project(X)))
+    assert len(seen[2].ids) == 1
+    assert not seen[2].observed[0] and seen[0].observed[0]
+    assert tracker.predict_image(1, 0.03).observed.tolist() == [True]
+    assert tracker.predict_image(2, 0.03).observed.tolist() == [False]
+    # windows: the gate plus the margin; at least unobserved_px where not observed
+    xy, half = seen[2].windows(margin_px=3.0, unobserved_px=20.0)
+    assert half[0] == max(seen[2].gate_px[0] + 3.0, 20.0) == 20.0
+    _, half0 = seen[0].windows(margin_px=3.0, unobserved_px=20.0)
+    np.testing.assert_allclose(half0, seen[0].gate_px + 3.0)
+    np.testing.assert_array_equal(seen[2].windows()[1], seen[2].gate_px + 3.0)
+    tracker.feed_detect(2, 0.04, search(2, cams[2].project(X)))      # now camera 2 sees it
+    assert tracker.predict_image(2, 0.05).observed.tolist() == [True]
+    with pytest.raises(ValueError, match="margin_px"):
+        seen[0].windows(margin_px=-1.0)
+    with pytest.raises(ValueError, match="unobserved_px"):
+        seen[0].windows(unobserved_px=0.0)

@@ -380,7 +380,8 @@ class GuidedDetectionTrial:
         the same frames (windows and grid offsets as in the tracked run): ``"full"`` (NumPy
         comparison and OpenCV components, each camera's frames as one batch),
         ``"compiled full"`` (the compiled loop testing every pixel), ``"guided"`` (windows
-        of the tracker's gate plus 3 px around its predictions, as in the tracked run),
+        of the tracker's gate plus 3 px around its predictions, at least 40 x 40 where the
+        camera has not observed the target, as in the tracked run),
         ``"guided, 40 x 40 windows"`` (the thesis's fixed windows around the same
         predictions); ``"tracker"``: the tracker's own work in the guided run (prediction,
         association, update, births; compilation on first use included).
@@ -390,6 +391,10 @@ class GuidedDetectionTrial:
         LEDs the full search found (a feature within 3 px of the LED's true projection).
     guided_found : int
         Of those, the ones the guided search found at the same place (within 0.01 px).
+    missed_new : int
+        Of the misses, those of an LED the guided search had not yet found in that camera
+        in any earlier frame (an LED just switched on or come into view: nothing predicts
+        it yet, only the grid can find it).
     scores : dict
         ``"full"`` (the full search's features tracked by the batch tracker) and
         ``"guided"`` (the streaming run): LedTrackScore against the LEDs.
@@ -401,6 +406,7 @@ class GuidedDetectionTrial:
     tested_fraction: dict
     full_found: int
     guided_found: int
+    missed_new: int
     scores: dict
 
     @property
@@ -448,6 +454,8 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     Every frame is searched fully, and by the guided search inside the streaming tracker's
     step, frame by frame in arrival order (windows of the gate plus 3 px around the tracker's
     predictions for that camera and stamp, whose gate follows each prediction's uncertainty,
+    at least 40 x 40 around a target the camera has not observed yet
+    (:meth:`lsmta.widearea.ImagePrediction.windows`: its prediction there is unchecked),
     40 x 40 windows around the camera's features still waiting in the birth
     pool, a band along the images of the other cameras' waiting rays
     (:attr:`lsmta.widearea.ImagePrediction.partners`, windows of half-size ``gate_px``),
@@ -473,8 +481,8 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
             band = np.full(len(pred.partners), params.gate_px)
             fixed = np.concatenate([np.full(len(pred.xy) + len(pred.waiting), det.window / 2),
                                     band])
-            half = np.concatenate([pred.gate_px + 3.0,
-                                   np.full(len(pred.waiting), det.window / 2), band])
+            _, near = pred.windows(margin_px=3.0, unobserved_px=det.window / 2)
+            half = np.concatenate([near, np.full(len(pred.waiting), det.window / 2), band])
             f = search_frame(videos[c].frames[i], setups[c], windows=xy, half_sizes=half,
                              jitter=jit)
             runs.append((c, i, xy, half, fixed, jit))
@@ -491,7 +499,7 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     seconds = {"tracker + guided": time.perf_counter() - t0}
     seconds.update(_replay_times(videos, thr, masks, setups, runs, det, repeats))
     seconds["tracker"] = seconds.pop("tracker + guided") - seconds["guided"]
-    full_found, guided_found = _same_detections(videos, full, guided)
+    full_found, guided_found, missed_new = _same_detections(videos, full, guided)
     stamps = [v.times + clocks.offset[c] for c, v in enumerate(videos)]
     fr = Frames.from_lists([c for _, c, _ in order], [stamps[c][i] for _, c, i in order],
                            [full[c].centroids(i) for _, c, i in order])
@@ -502,7 +510,8 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     return GuidedDetectionTrial(
         cameras=cams, n_frames=len(order), seconds=seconds,
         tested_fraction={"full": 1.0, "guided": float(np.mean(tested)) / size},
-        full_found=full_found, guided_found=guided_found, scores=scores)
+        full_found=full_found, guided_found=guided_found, missed_new=missed_new,
+        scores=scores)
 
 
 def _replay_times(videos, thr, masks, setups, runs, det, repeats: int) -> dict:
@@ -534,15 +543,20 @@ def _replay_times(videos, thr, masks, setups, runs, det, repeats: int) -> dict:
 
 
 def _same_detections(videos, full, guided):
-    """LEDs the full search found (within 3 px of the truth), and how many of them the
-    guided search found at the same place (0.01 px)."""
-    n_full = n_same = 0
+    """LEDs the full search found (within 3 px of the truth), how many of them the guided
+    search found at the same place (0.01 px), and how many of the misses came before the
+    guided search's first find of that LED in that camera."""
+    n_full = n_same = n_new = 0
     for c, v in enumerate(videos):
         found, _, _ = match_features(full[c], v.true_xy, radius=3.0)
+        seen = np.zeros(v.true_xy.shape[1], bool)       # found by the guided search before
         for i in range(len(v.frames)):
             fx, g = full[c].centroids(i), guided[c][i]
             for n in np.flatnonzero(found[i]):
                 j = np.argmin(np.linalg.norm(fx - v.true_xy[i, n], axis=1))
+                same = len(g) > 0 and np.linalg.norm(g - fx[j], axis=1).min() < 0.01
                 n_full += 1
-                n_same += int(len(g) > 0 and np.linalg.norm(g - fx[j], axis=1).min() < 0.01)
-    return n_full, n_same
+                n_same += int(same)
+                n_new += int(not same and not seen[n])
+                seen[n] |= same
+    return n_full, n_same, n_new

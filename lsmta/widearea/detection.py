@@ -400,8 +400,9 @@ def _search_subsampled(found: _Found, rng, predicted, previous: bool) -> None:
     for t in range(T):
         centres = ((found.xy[-1] if found.xy else None) if previous
                    else None if predicted is None else predicted[t])
-        c = np.zeros((0, 2)) if centres is None else np.asarray(centres, float).reshape(-1, 2)
-        half = np.full(len(c), p.window // 2, np.int64)
+        c = (np.zeros((0, 2)) if centres is None or p.window < 2    # narrower than 2 px: none
+             else np.asarray(centres, float).reshape(-1, 2))
+        half = np.full(len(c), float(p.window // 2))
         xy, area, tested = search_kernel(np.ascontiguousarray(f[t]), found.thr,
                                          found.background, c, half, p.k,
                                          int(jit[t, 0]), int(jit[t, 1]), p.min_area,

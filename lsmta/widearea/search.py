@@ -111,7 +111,8 @@ def search_frame(frame, setup: SearchSetup, *, windows=None, half_sizes=None,
     windows : (n, 2) array, optional
         Predicted positions (x, y), px; non-finite rows are ignored.
     half_sizes : (n,) array, optional
-        Half the side of each window, px (rounded up): for example the tracker's gate plus
+        Half the side of each window, px (rounded up; at least 1 where the position is
+        finite): for example the tracker's gate plus
         the spot's radius (:meth:`lsmta.widearea.ImagePrediction.windows`). Default: half
         of ``params.window`` (the thesis's 40 x 40) for every window.
     rng : numpy.random.Generator, int or None
@@ -145,13 +146,14 @@ def search_frame(frame, setup: SearchSetup, *, windows=None, half_sizes=None,
     if centres.ndim != 2 or centres.shape[1] != 2:
         raise ValueError(f"windows: expected an (n, 2) array of positions, got shape "
                          f"{centres.shape}")
-    if half_sizes is None:
-        half = np.full(len(centres), p.window // 2, np.int64)
+    if half_sizes is None:                 # windows narrower than 2 px: none
+        centres = centres if p.window >= 2 else np.zeros((0, 2))
+        half = np.full(len(centres), float(p.window // 2))
     else:
-        half = np.ceil(half_sizes).astype(np.int64)
-        if half.shape != (len(centres),) or (len(half) and half.min() < 1):
-            raise ValueError(f"half_sizes: expected {len(centres)} positive sizes (px), got "
-                             f"{np.asarray(half_sizes)}")
+        half = np.asarray(half_sizes, float)          # >= 1: checked by the kernel
+        if half.shape != (len(centres),):
+            raise ValueError(f"half_sizes: expected {len(centres)} sizes (px), got shape "
+                             f"{half.shape}")
     xy, area, tested = search_kernel(img, setup.threshold, setup.background, centres,
                                      half, k, int(jr), int(jc), p.min_area, p.max_area)
     return FrameFeatures(xy=xy, area=area, tested=int(tested))

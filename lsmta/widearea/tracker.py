@@ -294,6 +294,13 @@ class ImagePrediction:
         seen by one camera is found by the others in their next frames instead of only
         when their grids happen to hit it (empty from :meth:`WideAreaTracker.predict_image`
         and without ``volume``).
+    observed : (M,) bool array or None
+        Whether this camera has observed each target (updated it, or started it) since the
+        target was born and since the camera was last removed or dropped as silent. A
+        target it has not observed is
+        projected here from the other cameras' measurements only, unchecked in this image:
+        an error of its birth's triangulation shows here beyond the gate, which measures
+        the filter's own uncertainty (None: unknown, treated as observed).
     """
 
     camera: int
@@ -304,11 +311,19 @@ class ImagePrediction:
     gate_px: np.ndarray
     waiting: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     partners: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    observed: np.ndarray | None = None
 
-    def windows(self, *, margin_px: float = 3.0):
+    def windows(self, *, margin_px: float = 3.0, unobserved_px: float | None = None):
         """Search windows for :func:`lsmta.widearea.search_frame`: the predicted centroids
-        and half-sizes of the gate plus ``margin_px`` (a spot's radius), px."""
-        return self.xy, self.gate_px + margin_px
+        ``(M, 2)`` and half-sizes ``(M,)`` of the gate plus ``margin_px`` (a spot's radius),
+        px; for a target this camera has not observed (:attr:`observed`), at least
+        ``unobserved_px`` (None: no least), since its prediction here is unchecked."""
+        margin = as_scalar(margin_px, "margin_px", nonnegative=True)
+        half = self.gate_px + margin
+        if unobserved_px is not None and self.observed is not None:
+            least = as_scalar(unobserved_px, "unobserved_px", positive=True)
+            half = np.where(self.observed, half, np.maximum(half, least))
+        return self.xy, half
 
 
 class WideAreaTracker:
@@ -400,7 +415,7 @@ class WideAreaTracker:
         xy = s.intake.take_values(c, t, detect(ImagePrediction(
             camera=c, time=t, ids=s.ids.copy(), xy=fm.predicted, velocity=v,
             gate_px=fm.gate, waiting=_waiting(s, c, t, p.staleness),
-            partners=_partners(s, c, t, p))))
+            partners=_partners(s, c, t, p), observed=s.last_seen[:, c] > -np.inf)))
         if len(xy):
             free = update_pairs(s, c, t, xy, fm, p)
             births(s, c, t, xy[free], p)
@@ -409,7 +424,8 @@ class WideAreaTracker:
     def _no_prediction(self, c: int, t: float) -> ImagePrediction:
         z = np.zeros((0, 2))
         return ImagePrediction(camera=c, time=t, ids=np.zeros(0, np.int64), xy=z,
-                               velocity=z.copy(), gate_px=np.zeros(0))
+                               velocity=z.copy(), gate_px=np.zeros(0),
+                               observed=np.zeros(0, bool))
 
     def _camera_gate(self, c: int, t: float, xy) -> FrameStatus | None:
         """Frames of removed and joining cameras; a silent camera is back."""
@@ -476,7 +492,7 @@ class WideAreaTracker:
         v = np.einsum("aij,aj->ai", H[:, :, :3], e.states[:, 3:])
         v[~np.isfinite(h).all(axis=1)] = np.nan
         return ImagePrediction(camera=int(camera), time=e.time, ids=e.ids, xy=h, velocity=v,
-                               gate_px=gate)
+                               gate_px=gate, observed=s.last_seen[:, camera] > -np.inf)
 
     def add_camera(self, camera: Camera, *, calibrated: bool = True,
                    join: JoinParams | None = None) -> int:

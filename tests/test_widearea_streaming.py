@@ -2,6 +2,8 @@
 batch tracker, reads that change nothing, guided detection, cameras that join and leave,
 the synchronised per-instant intersection (Fig. 33), bad input."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -595,3 +597,28 @@ def test_prediction_says_which_targets_a_camera_has_observed():
         seen[0].windows(margin_px=-1.0)
     with pytest.raises(ValueError, match="unobserved_px"):
         seen[0].windows(unobserved_px=0.0)
+    with pytest.raises(ValueError, match="observed"):
+        replace(seen[0], observed=np.ones(2, bool)).windows(unobserved_px=20.0)
+
+
+def test_observed_flags_reset_when_a_camera_is_dropped_or_removed():
+    cams = [small_camera(c) for c in ceiling_rig(rng=np.random.default_rng(7))[:3]]
+    X = np.array([[300.0, -200.0, 1200.0]])
+    tracker = WideAreaTracker(cams, params=EstimatorParams(camera_timeout=0.1))
+    t = 0.0
+    for _ in range(3):                                       # all three cameras see it
+        for c in range(3):
+            tracker.feed(c, t, cams[c].project(X))
+            t += 0.01
+    assert tracker.predict_image(2, t).observed.tolist() == [True]
+    while t < 0.3:                                           # camera 2 falls silent
+        for c in range(2):
+            tracker.feed(c, t, cams[c].project(X))
+            t += 0.01
+    res = tracker.result()
+    assert res.camera_status[2] == CameraStatus.SILENT and len(res.tracks) == 1
+    assert tracker.predict_image(2, t).observed.tolist() == [False]
+    assert tracker.predict_image(0, t).observed.tolist() == [True]
+    tracker.remove_camera(0)
+    assert tracker.predict_image(0, t).observed.tolist() == [False]
+    assert tracker.predict_image(1, t).observed.tolist() == [True]

@@ -380,8 +380,8 @@ class GuidedDetectionTrial:
         the same frames (windows and grid offsets as in the tracked run): ``"full"`` (NumPy
         comparison and OpenCV components, each camera's frames as one batch),
         ``"compiled full"`` (the compiled loop testing every pixel), ``"guided"`` (windows
-        of the tracker's gate plus 3 px around its predictions, at least 40 x 40 where the
-        camera has not observed the target, as in the tracked run),
+        of the tracker's gate plus 3 px around its predictions, at least ``2 unobserved_px``
+        wide where the camera has not observed the target, as in the tracked run),
         ``"guided, 40 x 40 windows"`` (the thesis's fixed windows around the same
         predictions); ``"tracker"``: the tracker's own work in the guided run (prediction,
         association, update, births; compilation on first use included).
@@ -460,7 +460,7 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     Every frame is searched fully, and by the guided search inside the streaming tracker's
     step, frame by frame in arrival order (windows of the gate plus 3 px around the tracker's
     predictions for that camera and stamp, whose gate follows each prediction's uncertainty,
-    at least 40 x 40 around a target the camera has not observed yet
+    at least 40 x 40 (``unobserved_px``) around a target the camera has not observed yet
     (:meth:`lsmta.widearea.ImagePrediction.windows`: its prediction there is unchecked),
     40 x 40 windows around the camera's features still waiting in the birth
     pool, a band along the images of the other cameras' waiting rays

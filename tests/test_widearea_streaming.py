@@ -2,6 +2,8 @@
 batch tracker, reads that change nothing, guided detection, cameras that join and leave,
 the synchronised per-instant intersection (Fig. 33), bad input."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -509,7 +511,14 @@ def test_guided_search_equals_the_full_search_inside_overlapping_windows():
                          params=DetectionParams(max_area=5000))
     full = search_frame(frame, setup, full=True)
     over = frame > 65
-    lab, _ = ndimage.label(over, structure=np.ones((3, 3)))
+    lab, n_lab = ndimage.label(over, structure=np.ones((3, 3)))
+    # an independent reference (the "full" search is the same kernel with k = 1): each
+    # spot's centroid weighted by the intensity over the background (+ 1e-9), from labels
+    weight = np.maximum(frame - 45.0, 0.0) + 1e-9
+    idx = np.arange(1, n_lab + 1)
+    total = ndimage.sum(weight, lab, idx)
+    ref = np.column_stack([ndimage.sum(weight * xx, lab, idx) / total,
+                           ndimage.sum(weight * yy, lab, idx) / total])
     for _ in range(5):
         centres = np.column_stack([rng.uniform(-10, W + 10, 25), rng.uniform(-10, H + 10, 25)])
         centres[3] = np.nan
@@ -523,6 +532,7 @@ def test_guided_search_equals_the_full_search_inside_overlapping_windows():
             i = np.argmin(np.hypot(full.xy[:, 0] - xs.mean(), full.xy[:, 1] - ys.mean()))
             j = np.argmin(np.linalg.norm(g.xy - full.xy[i], axis=1))
             np.testing.assert_allclose(g.xy[j], full.xy[i], atol=1e-9)
+            np.testing.assert_allclose(g.xy[j], ref[label - 1], atol=1e-9)
             assert g.area[j] == full.area[i] == len(xs)
         empty = search_frame(np.full((H, W), 40, np.uint8), setup, windows=centres,
                              half_sizes=half, jitter=jit)
@@ -538,6 +548,16 @@ def test_search_refuses_windows_under_a_pixel():
         search_frame(frame, setup, windows=np.full((2, 2), 5.0), half_sizes=[3.0, 0.5])
     with pytest.raises(ValueError, match="half_sizes"):
         search_frame(frame, setup, windows=np.full((1, 2), 5.0), half_sizes=[np.nan])
+    with pytest.raises(ValueError, match="half_sizes: expected finite"):
+        search_frame(frame, setup, windows=np.full((1, 2), 5.0), half_sizes=[np.inf])
+    # huge sizes and positions: clipped to the image, not wrapped by the integer conversion
+    grid = len(range(0, 20, 5)) * len(range(0, 30, 5))
+    f = search_frame(frame, setup, windows=np.full((1, 2), 5.0), half_sizes=[1e300],
+                     jitter=(0, 0))
+    assert f.tested == frame.size
+    f = search_frame(frame, setup, windows=np.array([[1e300, -1e300]]), half_sizes=[2.0],
+                     jitter=(0, 0))
+    assert f.tested == grid
     # a window around a position that is not finite needs no size
     f = search_frame(frame, setup, windows=np.array([[np.nan, 1.0]]), half_sizes=[0.0],
                      jitter=(0, 0))
@@ -577,3 +597,28 @@ def test_prediction_says_which_targets_a_camera_has_observed():
         seen[0].windows(margin_px=-1.0)
     with pytest.raises(ValueError, match="unobserved_px"):
         seen[0].windows(unobserved_px=0.0)
+    with pytest.raises(ValueError, match="observed"):
+        replace(seen[0], observed=np.ones(2, bool)).windows(unobserved_px=20.0)
+
+
+def test_observed_flags_reset_when_a_camera_is_dropped_or_removed():
+    cams = [small_camera(c) for c in ceiling_rig(rng=np.random.default_rng(7))[:3]]
+    X = np.array([[300.0, -200.0, 1200.0]])
+    tracker = WideAreaTracker(cams, params=EstimatorParams(camera_timeout=0.1))
+    t = 0.0
+    for _ in range(3):                                       # all three cameras see it
+        for c in range(3):
+            tracker.feed(c, t, cams[c].project(X))
+            t += 0.01
+    assert tracker.predict_image(2, t).observed.tolist() == [True]
+    while t < 0.3:                                           # camera 2 falls silent
+        for c in range(2):
+            tracker.feed(c, t, cams[c].project(X))
+            t += 0.01
+    res = tracker.result()
+    assert res.camera_status[2] == CameraStatus.SILENT and len(res.tracks) == 1
+    assert tracker.predict_image(2, t).observed.tolist() == [False]
+    assert tracker.predict_image(0, t).observed.tolist() == [True]
+    tracker.remove_camera(0)
+    assert tracker.predict_image(0, t).observed.tolist() == [False]
+    assert tracker.predict_image(1, t).observed.tolist() == [True]

@@ -380,8 +380,8 @@ class GuidedDetectionTrial:
         the same frames (windows and grid offsets as in the tracked run): ``"full"`` (NumPy
         comparison and OpenCV components, each camera's frames as one batch),
         ``"compiled full"`` (the compiled loop testing every pixel), ``"guided"`` (windows
-        of the tracker's gate plus 3 px around its predictions, at least 40 x 40 where the
-        camera has not observed the target, as in the tracked run),
+        of the tracker's gate plus 3 px around its predictions, at least ``2 unobserved_px``
+        wide where the camera has not observed the target, as in the tracked run),
         ``"guided, 40 x 40 windows"`` (the thesis's fixed windows around the same
         predictions); ``"tracker"``: the tracker's own work in the guided run (prediction,
         association, update, births; compilation on first use included).
@@ -392,9 +392,13 @@ class GuidedDetectionTrial:
     guided_found : int
         Of those, the ones the guided search found at the same place (within 0.01 px).
     missed_new : int
-        Of the misses, those of an LED the guided search had not yet found in that camera
-        in any earlier frame (an LED just switched on or come into view: nothing predicts
-        it yet, only the grid can find it).
+        Of the misses, those before the guided search's first find of that LED in that
+        camera (in any earlier frame of that camera). Other cameras may track the LED by
+        then: their windows reach this camera only through the tracker's prediction.
+    missed_unfound : int
+        Of ``missed_new``, those before any camera's guided search had found that LED
+        (earlier in arrival order): an LED new to every camera, which nothing predicts yet
+        and only the grid can find.
     scores : dict
         ``"full"`` (the full search's features tracked by the batch tracker) and
         ``"guided"`` (the streaming run): LedTrackScore against the LEDs.
@@ -407,6 +411,7 @@ class GuidedDetectionTrial:
     full_found: int
     guided_found: int
     missed_new: int
+    missed_unfound: int
     scores: dict
 
     @property
@@ -447,20 +452,25 @@ def _walk_videos(rng, rig, n_cameras, duration, scale):
 def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=None,
                            n_cameras: int = 8, duration: float = 1.6, scale: float = 0.5,
                            repeats: int = 3, params: EstimatorParams | None = None,
-                           detection: DetectionParams | None = None) -> GuidedDetectionTrial:
+                           detection: DetectionParams | None = None,
+                           unobserved_px: float | None = 20.0) -> GuidedDetectionTrial:
     """The walking person (eight LEDs, on from 0.1-0.45 s) rendered in the ``n_cameras``
     cameras of the rig (``scale``: 0.5 for 320 x 240) that see its path best (truth as
     input: an operator would pick them), with a flickering monitor (masked) and reflections.
     Every frame is searched fully, and by the guided search inside the streaming tracker's
     step, frame by frame in arrival order (windows of the gate plus 3 px around the tracker's
     predictions for that camera and stamp, whose gate follows each prediction's uncertainty,
-    at least 40 x 40 around a target the camera has not observed yet
+    at least 40 x 40 (``unobserved_px``) around a target the camera has not observed yet
     (:meth:`lsmta.widearea.ImagePrediction.windows`: its prediction there is unchecked),
     40 x 40 windows around the camera's features still waiting in the birth
     pool, a band along the images of the other cameras' waiting rays
     (:attr:`lsmta.widearea.ImagePrediction.partners`, windows of half-size ``gate_px``),
     the jittered 5 x 5 grid for new LEDs). The searches are then timed on the same frames,
-    windows and grid offsets."""
+    windows and grid offsets.
+
+    ``unobserved_px``: the least half-size, px, of the window around a target the camera
+    has not observed yet (20: the thesis's 40 x 40 as a minimum; None: the gate plus 3 px
+    for every target, as for the observed ones)."""
     rng = as_rng(rng)
     params = EstimatorParams() if params is None else params
     det = DetectionParams() if detection is None else detection
@@ -481,7 +491,7 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
             band = np.full(len(pred.partners), params.gate_px)
             fixed = np.concatenate([np.full(len(pred.xy) + len(pred.waiting), det.window / 2),
                                     band])
-            _, near = pred.windows(margin_px=3.0, unobserved_px=det.window / 2)
+            _, near = pred.windows(margin_px=3.0, unobserved_px=unobserved_px)
             half = np.concatenate([near, np.full(len(pred.waiting), det.window / 2), band])
             f = search_frame(videos[c].frames[i], setups[c], windows=xy, half_sizes=half,
                              jitter=jit)
@@ -499,7 +509,8 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     seconds = {"tracker + guided": time.perf_counter() - t0}
     seconds.update(_replay_times(videos, thr, masks, setups, runs, det, repeats))
     seconds["tracker"] = seconds.pop("tracker + guided") - seconds["guided"]
-    full_found, guided_found, missed_new = _same_detections(videos, full, guided)
+    full_found, guided_found, missed_new, missed_unfound = _same_detections(
+        videos, full, guided, order)
     stamps = [v.times + clocks.offset[c] for c, v in enumerate(videos)]
     fr = Frames.from_lists([c for _, c, _ in order], [stamps[c][i] for _, c, i in order],
                            [full[c].centroids(i) for _, c, i in order])
@@ -511,7 +522,7 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
         cameras=cams, n_frames=len(order), seconds=seconds,
         tested_fraction={"full": 1.0, "guided": float(np.mean(tested)) / size},
         full_found=full_found, guided_found=guided_found, missed_new=missed_new,
-        scores=scores)
+        missed_unfound=missed_unfound, scores=scores)
 
 
 def _replay_times(videos, thr, masks, setups, runs, det, repeats: int) -> dict:
@@ -542,21 +553,24 @@ def _replay_times(videos, thr, masks, setups, runs, det, repeats: int) -> dict:
     return {k: float(min(v)) for k, v in out.items()}
 
 
-def _same_detections(videos, full, guided):
+def _same_detections(videos, full, guided, order):
     """LEDs the full search found (within 3 px of the truth), how many of them the guided
     search found at the same place (0.01 px), and how many of the misses came before the
-    guided search's first find of that LED in that camera."""
-    n_full = n_same = n_new = 0
-    for c, v in enumerate(videos):
-        found, _, _ = match_features(full[c], v.true_xy, radius=3.0)
-        seen = np.zeros(v.true_xy.shape[1], bool)       # found by the guided search before
-        for i in range(len(v.frames)):
-            fx, g = full[c].centroids(i), guided[c][i]
-            for n in np.flatnonzero(found[i]):
-                j = np.argmin(np.linalg.norm(fx - v.true_xy[i, n], axis=1))
-                same = len(g) > 0 and np.linalg.norm(g - fx[j], axis=1).min() < 0.01
-                n_full += 1
-                n_same += int(same)
-                n_new += int(not same and not seen[n])
-                seen[n] |= same
-    return n_full, n_same, n_new
+    guided search's first find of that LED in that camera, and before any camera's (the
+    frames taken in arrival ``order``)."""
+    n_full = n_same = n_new = n_unfound = 0
+    found = [match_features(full[c], v.true_xy, radius=3.0)[0] for c, v in enumerate(videos)]
+    seen = [np.zeros(v.true_xy.shape[1], bool) for v in videos]   # found in that camera
+    anywhere = np.zeros(videos[0].true_xy.shape[1], bool)          # found in any camera
+    for _, c, i in order:
+        fx, g, v = full[c].centroids(i), guided[c][i], videos[c]
+        for n in np.flatnonzero(found[c][i]):
+            j = np.argmin(np.linalg.norm(fx - v.true_xy[i, n], axis=1))
+            same = len(g) > 0 and np.linalg.norm(g - fx[j], axis=1).min() < 0.01
+            n_full += 1
+            n_same += int(same)
+            n_new += int(not same and not seen[c][n])
+            n_unfound += int(not same and not anywhere[n])
+            seen[c][n] |= same
+            anywhere[n] |= same
+    return n_full, n_same, n_new, n_unfound

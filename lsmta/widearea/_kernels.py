@@ -24,9 +24,11 @@ hash set or a stack growing).
 Why prefetch: the frames come from memory (not the cache), and the windows' rows are short
 pieces a row apart, too scattered for the processor's own prefetching: the search asks for
 each window's row ``_AHEAD`` rows down (LLVM's ``prefetch``, :func:`_prefetch`) while it
-compares the current one. At 640 x 480 that saved about a sixth of the guided search's time
-(measured on the frames of ``experiments/widearea_detection_benchmark.py``); asking for the
-next grid row or a seed's neighbourhood as well saved nothing measurable.
+compares the current one. When it was added (commit a1ccb7b), the guided search at
+640 x 480 took roughly a sixth less time with it in replays of the frames of
+``experiments/widearea_detection_benchmark.py`` on our shared two-core machine (load about
+4); a hint, whose gain depends on the processor and the load, not re-measured since. Asking
+for the next grid row or a seed's neighbourhood as well saved nothing measurable there.
 """
 
 from __future__ import annotations
@@ -64,7 +66,7 @@ def _prefetch(typingctx, arr, idx):
 
 @nb.njit(cache=True)
 def search_kernel(img, thr, bg, centres, half, k, jr, jc, min_area, max_area):
-    """Windows of ``2 h`` x ``2 h`` pixels, ``h = ceil(half[i])`` (float, >= 1), around the
+    """Windows of ``2 h`` x ``2 h`` pixels, ``h = ceil(half[i])`` (finite, >= 1), around the
     finite ``centres`` (n, 2) (x, y, rounded half to even; rows and columns ``y - h`` to
     ``y + h - 1``),
     then the grid; every pixel over threshold found there seeds a flood fill. Returns the
@@ -93,19 +95,21 @@ def search_kernel(img, thr, bg, centres, half, k, jr, jc, min_area, max_area):
 @nb.njit(cache=True)
 def _boxes(centres, half, H, W):
     """The windows' row and column ranges on the image ``(n, 4)`` (r0, r1, c0, c1; windows
-    off the image or around non-finite centres dropped), sorted by first row."""
+    off the image or around non-finite centres dropped), sorted by first row. The edges are
+    clipped to the image as floats before ``int()`` (which wraps a huge value)."""
     box = np.empty((centres.shape[0], 4), np.int64)
     n = 0
     for w in range(centres.shape[0]):
         if not (np.isfinite(centres[w, 0]) and np.isfinite(centres[w, 1])):
             continue
-        if not half[w] >= 1.0:
-            raise ValueError("half_sizes: expected sizes of at least 1 px")
-        x = int(np.rint(centres[w, 0]))
-        y = int(np.rint(centres[w, 1]))
-        h = int(np.ceil(half[w]))
-        r0, r1 = max(y - h, 0), min(y + h, H)
-        c0, c1 = max(x - h, 0), min(x + h, W)
+        if not (half[w] >= 1.0 and np.isfinite(half[w])):
+            raise ValueError("half_sizes: expected finite sizes of at least 1 px where the "
+                             "position is finite")
+        x, y, h = np.rint(centres[w, 0]), np.rint(centres[w, 1]), np.ceil(half[w])
+        r0 = int(min(max(y - h, 0.0), float(H)))
+        r1 = int(min(max(y + h, 0.0), float(H)))
+        c0 = int(min(max(x - h, 0.0), float(W)))
+        c1 = int(min(max(x + h, 0.0), float(W)))
         if r0 < r1 and c0 < c1:
             j = n                                 # insertion by first row
             while j > 0 and box[j - 1, 0] > r0:
@@ -130,15 +134,19 @@ def _window_rows(imgf, thrf, box, W, jr, jc, k, seeds, tested):
     nxt = 0
     n_seeds = 0
     r = 0
-    step = _LINE // imgf.itemsize
+    step = _LINE // imgf.itemsize        # elements per cache line: image
+    step_t = _LINE // thrf.itemsize      # and thresholds (their own dtype)
     while nxt < n or m > 0:
         if m == 0:
             r = max(r, box[nxt, 0])       # skip rows no window covers
         while nxt < n and box[nxt, 0] <= r:
             for rr in range(r, min(r + _AHEAD, box[nxt, 1])):     # its first rows
-                for q in range(rr * W + box[nxt, 2], rr * W + box[nxt, 3] + step, step):
-                    _prefetch(imgf, min(q, rr * W + box[nxt, 3] - 1))
-                    _prefetch(thrf, min(q, rr * W + box[nxt, 3] - 1))
+                # the prefetch of one window row; kept in step with the copy below
+                first, last = rr * W + box[nxt, 2], rr * W + box[nxt, 3] - 1
+                for q in range(first, last + step, step):
+                    _prefetch(imgf, min(q, last))
+                for q in range(first, last + step_t, step_t):
+                    _prefetch(thrf, min(q, last))
             j = m                             # insertion by first column
             while j > 0 and box[act[j - 1], 2] > box[nxt, 2]:
                 act[j] = act[j - 1]
@@ -149,9 +157,11 @@ def _window_rows(imgf, thrf, box, W, jr, jc, k, seeds, tested):
         ra = r + _AHEAD
         for i in range(m):
             if ra < box[act[i], 1]:
-                last = ra * W + box[act[i], 3] - 1
-                for q in range(ra * W + box[act[i], 2], last + step, step):
+                # the prefetch of one window row; kept in step with the copy above
+                first, last = ra * W + box[act[i], 2], ra * W + box[act[i], 3] - 1
+                for q in range(first, last + step, step):
                     _prefetch(imgf, min(q, last))
+                for q in range(first, last + step_t, step_t):
                     _prefetch(thrf, min(q, last))
         on_grid_row = (r - jr) % k == 0
         i = 0
@@ -203,7 +213,7 @@ def _grid_seeds(imgf, thrf, box, H, W, jr, jc, k, seeds, n_seeds):
         for c in range(jc, W, k):
             q = r * W + c
             if imgf[q] > thrf[q]:
-                inside = False
+                inside = False       # inside a window? kept in step with _fills's copy
                 for w in range(box.shape[0]):
                     inside |= box[w, 0] <= r < box[w, 1] and box[w, 2] <= c < box[w, 3]
                 if not inside:
@@ -228,7 +238,7 @@ def _grown(keys, vals):
     mask = new_k.shape[0] - 1
     for i in range(keys.shape[0]):
         if keys[i] != _EMPTY:
-            s = _hash(keys[i], mask)
+            s = _hash(keys[i], mask)     # the probe; kept in step with _fills's two
             while new_k[s] != _EMPTY:
                 s = (s + 1) & mask
             new_k[s], new_v[s] = keys[i], vals[i]
@@ -261,8 +271,8 @@ def _fills(imgf, thrf, bgf, H, W, seeds, n_seeds, box, k, jr, jc, tested):
     for i in range(n_seeds):
         seed = seeds[i]
         mask = keys.shape[0] - 1
-        s = _hash(seed, mask)
-        while keys[s] != _EMPTY and keys[s] != seed:
+        s = _hash(seed, mask)        # the hash set's probe; kept in step with the
+        while keys[s] != _EMPTY and keys[s] != seed:      # neighbours' below and _grown
             s = (s + 1) & mask
         if keys[s] == seed:               # part of a feature found before
             continue
@@ -292,7 +302,7 @@ def _fills(imgf, thrf, bgf, H, W, seeds, n_seeds, box, k, jr, jc, tested):
             for rr in range(max(r - 1, 0), min(r + 2, H)):
                 for cc in range(max(c - 1, 0), min(c + 2, W)):
                     n = rr * W + cc
-                    s = _hash(n, mask)
+                    s = _hash(n, mask)   # the probe; kept in step with the seed's above
                     while keys[s] != _EMPTY and keys[s] != n:
                         s = (s + 1) & mask
                     if keys[s] == n:              # a feature's, or tested and under
@@ -300,7 +310,7 @@ def _fills(imgf, thrf, bgf, H, W, seeds, n_seeds, box, k, jr, jc, tested):
                     keys[s] = n
                     used += 1
                     if (rr - jr) % k != 0 or (cc - jc) % k != 0:
-                        inside = False
+                        inside = False   # kept in step with _grid_seeds's copy
                         for b in range(box.shape[0]):
                             inside |= (box[b, 0] <= rr < box[b, 1]
                                        and box[b, 2] <= cc < box[b, 3])

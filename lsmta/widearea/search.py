@@ -111,8 +111,8 @@ def search_frame(frame, setup: SearchSetup, *, windows=None, half_sizes=None,
     windows : (n, 2) array, optional
         Predicted positions (x, y), px; non-finite rows are ignored.
     half_sizes : (n,) array, optional
-        Half the side of each window, px (rounded up; at least 1 where the position is
-        finite): for example the tracker's gate plus
+        Half the side of each window, px (rounded up; finite and at least 1 where the
+        position is finite): for example the tracker's gate plus
         the spot's radius (:meth:`lsmta.widearea.ImagePrediction.windows`). Default: half
         of ``params.window`` (the thesis's 40 x 40) for every window.
     rng : numpy.random.Generator, int or None

@@ -314,13 +314,32 @@ class ImagePrediction:
     observed: np.ndarray | None = None
 
     def windows(self, *, margin_px: float = 3.0, unobserved_px: float | None = None):
-        """Search windows for :func:`lsmta.widearea.search_frame`: the predicted centroids
-        ``(M, 2)`` and half-sizes ``(M,)`` of the gate plus ``margin_px`` (a spot's radius),
-        px; for a target this camera has not observed (:attr:`observed`), at least
-        ``unobserved_px`` (None: no least), since its prediction here is unchecked."""
+        """Search windows for :func:`lsmta.widearea.search_frame` around the predicted
+        centroids: the gate plus a spot's radius; wider where the prediction is unchecked.
+
+        Parameters
+        ----------
+        margin_px : float
+            Added to each target's ``gate_px``, px (a spot's radius; >= 0).
+        unobserved_px : float or None
+            The least half-size, px (> 0), of the window around a target this camera has
+            not observed (:attr:`observed`): its prediction here comes from the other
+            cameras only. For example 20, the thesis's window size (Davis 2002: 40 x 40),
+            our rule as a minimum for unobserved targets. None: no least.
+
+        Returns
+        -------
+        xy : (M, 2) array
+            The predicted centroids, px (:attr:`xy`; NaN rows: no window).
+        half : (M,) array
+            Half the side of each window, px.
+        """
         margin = as_scalar(margin_px, "margin_px", nonnegative=True)
         half = self.gate_px + margin
         if unobserved_px is not None and self.observed is not None:
+            if np.shape(self.observed) != (len(self.xy),):
+                raise ValueError(f"observed: expected one flag per target ({len(self.xy)}), "
+                                 f"got shape {np.shape(self.observed)}")
             least = as_scalar(unobserved_px, "unobserved_px", positive=True)
             half = np.where(self.observed, half, np.maximum(half, least))
         return self.xy, half

@@ -89,7 +89,7 @@ from tqdm.auto import tqdm
 from .._validate import as_array, as_int, as_scalar, check_patch
 from ..camera import Camera
 from ..matching.lsm import LSMThresholds
-from ..matching.spline import SplineImage, check_image
+from ..matching.spline import SplineImage, check_grey
 from ..triangulation import triangulate
 from .density import sparse_candidates
 from .templates import (
@@ -271,9 +271,12 @@ def as_sequences(images) -> np.ndarray:
         raise ValueError(f"images: expected at least 2 frames, got {lengths[0]}")
     out = []
     for k, s in enumerate(seqs):
-        frames = [np.asarray(im) for im in s]
-        for t, im in enumerate(frames):        # checked one at a time: 8-bit video stays 8-bit
-            check_image(im, f"images[{k}][{t}]")
+        # checked one at a time, not converted: 8-bit video stays 8-bit; a (T, H, W) array
+        # is used as it is (stacked once, below)
+        frames = s if isinstance(s, np.ndarray) and s.ndim == 3 else \
+            [np.asarray(im) for im in s]
+        for t, im in enumerate(frames):
+            check_grey(im, f"images[{k}][{t}]")
         sizes = {f.shape for f in frames}
         out.append(frames)
         if len(sizes) != 1:
@@ -282,7 +285,7 @@ def as_sequences(images) -> np.ndarray:
     if len(set(sizes)) != 1:
         raise ValueError(f"images: the cameras' images have unequal sizes {sizes}; "
                          "expected one size")
-    return np.stack([np.stack(o) for o in out])
+    return np.stack([o if isinstance(o, np.ndarray) else np.stack(o) for o in out])
 
 
 def track_points(images, initial_xy, *, params: TrackerParams | None = None,
@@ -794,10 +797,9 @@ def _temporal(anchors: _Anchors, seq, nxt, t: int, idx, pred, radius, p: Tracker
 
     for k in range(K):
         got = np.zeros(n, bool)
-        for group in (True, False):     # the forward LSM retry only where box: per track
-            sel = np.flatnonzero(direct & ok & (box == group))
-            if sel.size:
-                got[match(k, sel, pred[k, sel], group)] = True
+        sel = np.flatnonzero(direct & ok)
+        if sel.size:                    # the forward LSM retry only where box: per track
+            got[match(k, sel, pred[k, sel], box[sel])] = True
         by_pred[k] = got
         for r in np.unique(radius[~got & ok & box]):
             sel = np.flatnonzero(~got & ok & box & (radius == r))

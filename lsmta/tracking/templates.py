@@ -294,9 +294,10 @@ def match_templates(templates: Templates, rows, search: SplineImage, start_xy, s
     max_displacement : float, optional
         A point moving further than this from its start has diverged (default: the patch
         size).
-    fallback : bool
+    fallback : bool or (n,) bool array
         Where the inverse compositional match fails (or fails ``thresholds``), run the
-        forward additive :func:`~lsmta.matching.lsm` from the same start.
+        forward additive :func:`~lsmta.matching.lsm` from the same start (per row with an
+        array: one call for rows that differ in it).
     inverse : bool
         False: the forward additive LSM for every match (no inverse compositional
         iterations, whatever ``fallback`` says). With a template that changes every frame,
@@ -330,9 +331,8 @@ def match_templates(templates: Templates, rows, search: SplineImage, start_xy, s
         result = thresholds.apply(result)
     usable = templates.ok[rows]
     full = templates.full[rows]
-    redo = np.flatnonzero(~result.ok & usable & ~outside & full)
-    if not (fallback or not inverse):
-        redo = redo[:0]
+    retry = np.broadcast_to(np.asarray(fallback, bool), (n,)) | (not inverse)
+    redo = np.flatnonzero(~result.ok & usable & ~outside & full & retry)
     kw = dict(max_iter=max_iter, tol=tol, max_disp=max_disp, thresholds=thresholds)
     if redo.size:
         result = _forward(result, templates, rows, redo, search, start, start_A, False, **kw)

@@ -79,6 +79,38 @@ videos (caliscope cam_3: 0.108 px, KLT's 0.097 px). Time in that run (load 8 to 
 cores): median 1.9x wall, 2.7x CPU (per video, CPU: caliscope 6.3, 3.7, 3.2, 3.0; pose2sim
 2.4, 1.9, 2.3, 2.2): the CPU ratio is NOT <= 2x.
 
+Where the time goes (#35 items 1-2, profiled on caliscope cam_0 with cProfile, forward and
+back, 1 thread, CPU seconds of a warm run): LSMTA 1.5 s against KLT's 0.27 s. The inverse
+compositional matches 0.30 s (36 000 matches, 212 000 iterations of 1.4 us each; a third
+of the iterations are spent by the 10 % of the matches that reach ``max_iter``), the forward
+LSM retries 0.33 s (7 600 matches, about 40 us each), the splines of the 80 frames and
+their pyramid levels 0.22 s (2.1 ms a 1280 x 720 frame, where KLT's whole step, both
+directions and its check, costs 3.5 ms), the correlation search 0.13 s (6 500 boxes), the
+coarse-to-fine step 0.19 s (its templates' sampling and the translation matches), the
+re-anchored templates 0.09 s, and the Python between these calls about 0.25 s (78 steps).
+The compiled work alone is about 3.5x KLT's: neither the per-frame Python nor the compile
+time keeps the webcam videos above 2x. Most of that work is spent on the tracks whose
+anchored match fails (a fallback template, its forward retry, the search, the
+coarse-to-fine step and a retry in the bigger box, each with its own matches), and the
+webcam videos' large steps make many such tracks. Compile time: the old warm-up (one point
+on three frames) did not reach the forward LSM, the search or the coarse-to-fine step, so
+the first video's ratio held numba's loading of those kernels (0.15 s CPU from a warm
+cache, 2.7 s from a stale one) and OpenCV's first calls; the warm-up now tracks the first
+clip's corners over its first 8 frames with both trackers. Threads: ``--threads 1`` left
+OpenCV on 2 threads (KLT's CPU time 1.6x its wall time) and the forward LSM on a 2-thread
+pool (the solver read ``NUMBA_NUM_THREADS``, not ``numba.set_num_threads``); both now run
+on ``--threads``. Three exact changes (the solver on the set threads, one
+``match_templates`` call with a per-row forward retry, 8-bit frames checked without a
+float64 copy) left every track as it was (to 7e-13 px, the same statuses, the eight videos
+forward and back) and gave no measurable speed-up. Fair harness, same code as above
+(load 3 to 6 on 2 cores): median 2.4x wall, 2.6x CPU; per video, CPU: caliscope cam_0 5.8,
+cam_1 3.8, cam_2 3.1, cam_3 3.8; pose2sim 1.8, 1.9, 1.9, 2.1 (the old harness gave 5.0,
+3.7, 3.1, 3.5 and 1.9, 1.7, 1.9, 2.1). The target (<= 2x) is NOT met on the webcam videos
+(3.1x to 5.8x) nor on pose2sim cam04; survival and the forward-backward medians are those
+above. Of caliscope cam_3's 105 survivors, the 91 whose forward run ended on their first
+template come back with a median of 0.089 px and the 14 that ended on a fallback
+(frame-to-frame) template with 0.285 px: the fallback's drift puts the median over 0.1 px.
+
 Start points: OpenCV's ``goodFeaturesToTrack`` (Shi-Tomasi corners, 8 px apart) in the
 first frame, the same for both trackers. Videos: the four caliscope webcams (1280 x 720, a
 person moving a ChArUco board, about 6 fps: large steps between frames) and the four

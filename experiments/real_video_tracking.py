@@ -111,6 +111,33 @@ above. Of caliscope cam_3's 105 survivors, the 91 whose forward run ended on the
 template come back with a median of 0.089 px and the 14 that ended on a fallback
 (frame-to-frame) template with 0.285 px: the fallback's drift puts the median over 0.1 px.
 
+Fewer forward retries (#35, ``TrackerParams.retry_rejected``, now False). Split for every
+change that moves tracks: chosen on {caliscope cam_0, cam_2, pose2sim cam01, cam03}, held
+out {caliscope cam_1, cam_3, pose2sim cam02, cam04}. On caliscope cam_0 a third of the first
+templates' matches from the prediction fail (6 170 of 17 808), and each failing track runs
+the fallback chain; 6 859 forward LSM retries (about 40 us each) rescued 794: 28 % of those
+after an inverse compositional match that kept moving, 13 % after one that diverged, but 4 %
+after one that converged and was rejected and 1 % after one that found no positive
+correlation. Retrying only the first two: survivors on the chosen half 168, 246, 292, 265
+(were 167, 243, 292, 265), kept with FB > 0.5 px 29, 18, 21, 27 (29, 19, 23, 29), FB medians
+unchanged to 0.001 px; held out 195, 106, 310, 277 (were 195, 105, 311, 277; pose2sim cam02
+lost one, still above KLT's 305), caliscope cam_3's FB median 0.106 px (0.108): still over
+0.1. In total 1859 survivors (1855), kept with FB > 0.5 px 187 (196), astray 67 (77). CPU
+time, the two settings interleaved in one process (min of 3 runs, 1 thread, load 4-5): -9 %
+on cam_0, -6 % cam_1, -2 % cam_2, -4 % cam_3, -7 % pose2sim cam01, 0 to -3 % the others;
+ratio to KLT's CPU 5.8, 3.6, 3.0, 3.5 on the webcams, 1.8, 1.7, 2.0, 2.0 on Pose2Sim (the
+harness, one run at load 5 to 6: 5.5, 3.6, 2.9, 4.1; 1.8, 1.6, 2.0, 2.1): the target (<= 2x)
+is still NOT met on the webcams. Tried and not kept (chosen half): a *shared-motion
+prediction* (where the first template fails from the trajectory's prediction, match it again
+from the median step of the 8 nearest tracks that matched this frame) rescued about 800 of
+cam_0's 6 170 failures but cost as much as it saved (CPU +3 %; survivors +1 on cam_2 only):
+most failures are the template's appearance, not the prediction; stopping the inverse
+compositional iterations after 5 without a smaller step (a fifth of the converged matches
+need 10 to 20 iterations, so no cut at a fixed count): no measurable time, survivors -1 on
+pose2sim cam03; the coarse-to-fine step only for tracks missing at most 3 frames: CPU about
+-15 % on cam_0 (one unpaired run) but survivors -4 on cam_2, -1 on cam01, cam03 (recovering
+missing tracks is what the step buys).
+
 Start points: OpenCV's ``goodFeaturesToTrack`` (Shi-Tomasi corners, 8 px apart) in the
 first frame, the same for both trackers. Videos: the four caliscope webcams (1280 x 720, a
 person moving a ChArUco board, about 6 fps: large steps between frames) and the four

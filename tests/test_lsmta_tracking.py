@@ -593,6 +593,42 @@ def test_a_per_row_forward_retry_gives_the_two_calls_positions_and_statuses():
     assert ref[True].ok.mean() > ref[False].ok.mean()          # the retry did something
 
 
+def test_without_retry_rejected_only_diverged_or_unfinished_matches_are_retried():
+    """The tracker's matches with ``retry_rejected=False``: where the inverse compositional match
+    converged but was rejected, or found no positive correlation (REJECTED, SINGULAR), the
+    result is the inverse compositional one (no forward retry); everywhere else it is the
+    result with the retry. The tracker's default, and ``retry_rejected`` is checked."""
+    from lsmta.matching.lsm import Status
+    from lsmta.synth.patches import warped_pair
+    from lsmta.tracking.templates import _match, match_templates
+
+    rng = np.random.default_rng(3)
+    pair = warped_pair(rng=rng, A=((1.12, 0.15), (-0.1, 0.9)), c=(3.2, -1.7), r0=8.0,
+                       r1=0.9, noise_sigma=2.0)
+    pts = rng.uniform(40, 216, (300, 2))
+    start = pair.true_xy(pts) + rng.uniform(-6.0, 6.0, (300, 2))   # many too far
+    tm = sample_templates(SplineImage(pair.template), pts, 11, partial=True)
+    search, eye = SplineImage(pair.search), np.broadcast_to(np.eye(2), (300, 2, 2)).copy()
+    rows = np.arange(300)
+    kw = dict(thresholds=TrackerParams().thresholds, partial=True)
+    ic = match_templates(tm, rows, search, start, eye, fallback=False, **kw)
+    full = match_templates(tm, rows, search, start, eye, fallback=True, **kw)
+    new = _match(tm, rows, search, start, eye, fallback=True, retry_rejected=False,
+                 max_iter=30, tol=0.01, max_displacement=None, inverse=True, **kw)
+    hopeless = np.isin(ic.status, [Status.REJECTED, Status.SINGULAR])
+    retried = ~ic.ok & ~hopeless
+    assert hopeless.sum() > 30 and retried.sum() > 30
+    assert (full.status[hopeless] != ic.status[hopeless]).any()     # the flag does something
+    for sel, ref in ((hopeless, ic), (~hopeless, full)):
+        assert np.array_equal(new.status[sel], ref.status[sel])
+        assert np.array_equal(np.isnan(new.xy[sel]), np.isnan(ref.xy[sel]))
+        assert np.nanmax(np.abs(new.xy[sel] - ref.xy[sel])) < 1e-9
+    assert TrackerParams().retry_rejected is False
+    with pytest.raises(ValueError, match="params.retry_rejected"):
+        track_points(np.zeros((1, 2, 40, 40)), np.full((1, 1, 2), 20.0),
+                     params=TrackerParams(retry_rejected="no"))
+
+
 def test_the_lsm_solver_runs_on_the_threads_numba_is_set_to(monkeypatch):
     """With ``numba.set_num_threads(1)`` the forward LSM runs on the calling thread (no
     thread pool), and with 2 threads it gives the same matches."""

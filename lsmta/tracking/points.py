@@ -94,6 +94,7 @@ from ..triangulation import triangulate
 from .density import sparse_candidates
 from .templates import (
     Templates,
+    _match,
     match_templates,
     match_translation,
     offsets,
@@ -158,6 +159,12 @@ class TrackerParams:
         outside pixels given zero weight (forward LSM, ``partial`` of
         :func:`~lsmta.tracking.templates.match_templates`). False: such points are not
         started (``NOT_STARTED``) and such matches fail.
+    retry_rejected : bool
+        Temporal matches: retry a failed inverse compositional match with the forward LSM
+        also where it converged but failed the thresholds, or found no positive
+        correlation at its start. False (the default): only where it diverged or kept
+        moving (on caliscope cam_0 the retry rescued 28 % and 13 % of those, 4 % and 1 %
+        of the others, each retry a forward LSM).
     max_reprojection : float
         Largest reprojection error of an accepted frame, px (only with ``cameras``).
     density_every : int
@@ -183,6 +190,7 @@ class TrackerParams:
     max_gap: int = 10
     pyramid_levels: int = 3
     partial: bool = True
+    retry_rejected: bool = False
     max_reprojection: float = 1.0
     density_every: int = 2
     cell: float = 16.0
@@ -364,8 +372,10 @@ def _check_params(p: TrackerParams, K: int) -> None:
     if K > 1 and not (isinstance(p.template, int | np.integer) and 0 <= p.template < K):
         raise ValueError(f"params.template: expected a camera index in [0, {K - 1}], "
                          f"got {p.template}")
-    if not isinstance(p.partial, bool | np.bool_):
-        raise ValueError(f"params.partial: expected True or False, got {p.partial!r}")
+    for name in ("partial", "retry_rejected"):
+        if not isinstance(getattr(p, name), bool | np.bool_):
+            raise ValueError(f"params.{name}: expected True or False, got "
+                             f"{getattr(p, name)!r}")
     if p.anchor not in ANCHORS:
         raise ValueError(f"params.anchor: expected one of {list(ANCHORS)}, got {p.anchor!r}")
     as_scalar(p.max_disagreement, "params.max_disagreement", positive=True)
@@ -788,8 +798,9 @@ def _temporal(anchors: _Anchors, seq, nxt, t: int, idx, pred, radius, p: Tracker
     ok = np.ones(n, bool)
 
     def match(k, sel, start, fallback):
-        res = match_templates(anchors.templates[k], idx[sel], nxt[k], start,
-                              anchors.A[k, idx[sel]], fallback=fallback, **_lsm(p))
+        res = _match(anchors.templates[k], idx[sel], nxt[k], start, anchors.A[k, idx[sel]],
+                     fallback=fallback, retry_rejected=p.retry_rejected,
+                     max_displacement=None, **_lsm(p))
         good = res.ok
         xy[k, sel[good]], A[k, sel[good]] = res.xy[good], res.A[good]
         sigma0[k, sel[good]] = res.sigma0[good]

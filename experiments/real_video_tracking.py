@@ -127,16 +127,19 @@ time, the two settings interleaved in one process (min of 3 runs, 1 thread, load
 on cam_0, -6 % cam_1, -2 % cam_2, -4 % cam_3, -7 % pose2sim cam01, 0 to -3 % the others;
 ratio to KLT's CPU 5.8, 3.6, 3.0, 3.5 on the webcams, 1.8, 1.7, 2.0, 2.0 on Pose2Sim (the
 harness, one run at load 5 to 6: 5.5, 3.6, 2.9, 4.1; 1.8, 1.6, 2.0, 2.1): the target (<= 2x)
-is still NOT met on the webcams. Tried and not kept (chosen half): a *shared-motion
-prediction* (where the first template fails from the trajectory's prediction, match it again
-from the median step of the 8 nearest tracks that matched this frame) rescued about 800 of
-cam_0's 6 170 failures but cost as much as it saved (CPU +3 %; survivors +1 on cam_2 only):
-most failures are the template's appearance, not the prediction; stopping the inverse
-compositional iterations after 5 without a smaller step (a fifth of the converged matches
-need 10 to 20 iterations, so no cut at a fixed count): no measurable time, survivors -1 on
-pose2sim cam03; the coarse-to-fine step only for tracks missing at most 3 frames: CPU about
--15 % on cam_0 (one unpaired run) but survivors -4 on cam_2, -1 on cam01, cam03 (recovering
-missing tracks is what the step buys).
+is still NOT met on the webcams. On the generated triplet walk (3-D mode,
+``tracking_benchmark.py --seeds 1``, seed 2000) 1176 of 3000 start points survive (1191
+before), the median per-frame error is 0.0427 px (0.0429), the 3-D error at the oldest age
+0.921 mm (0.925) and the false share 3.26 % (3.72 %). Tried and not kept (chosen half): a
+*shared-motion prediction* (where the first template fails from the trajectory's prediction,
+match it again from the median step of the 8 nearest tracks that matched this frame) rescued
+about 800 of cam_0's 6 170 failures but cost as much as it saved (CPU +3 %; survivors +1 on
+cam_2 only): most failures are the template's appearance, not the prediction; stopping the
+inverse compositional iterations after 5 without a smaller step (a fifth of the converged
+matches need 10 to 20 iterations, so no cut at a fixed count): no measurable time, survivors
+-1 on pose2sim cam03; the coarse-to-fine step only for tracks missing at most 3 frames: CPU
+about -15 % on cam_0 (one unpaired run) but survivors -4 on cam_2, -1 on cam01, cam03
+(recovering missing tracks is what the step buys).
 
 Start points: OpenCV's ``goodFeaturesToTrack`` (Shi-Tomasi corners, 8 px apart) in the
 first frame, the same for both trackers. Videos: the four caliscope webcams (1280 x 720, a

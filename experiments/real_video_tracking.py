@@ -79,6 +79,68 @@ videos (caliscope cam_3: 0.108 px, KLT's 0.097 px). Time in that run (load 8 to 
 cores): median 1.9x wall, 2.7x CPU (per video, CPU: caliscope 6.3, 3.7, 3.2, 3.0; pose2sim
 2.4, 1.9, 2.3, 2.2): the CPU ratio is NOT <= 2x.
 
+Where the time goes (#35 items 1-2, profiled on caliscope cam_0 with cProfile, forward and
+back, 1 thread, CPU seconds of a warm run): LSMTA 1.5 s against KLT's 0.27 s. The inverse
+compositional matches 0.30 s (36 000 matches, 212 000 iterations of 1.4 us each; a third
+of the iterations are spent by the 10 % of the matches that reach ``max_iter``), the forward
+LSM retries 0.33 s (7 600 matches, about 40 us each), the splines of the 80 frames and
+their pyramid levels 0.22 s (2.1 ms a 1280 x 720 frame, where KLT's whole step, both
+directions and its check, costs 3.5 ms), the correlation search 0.13 s (6 500 boxes), the
+coarse-to-fine step 0.19 s (its templates' sampling and the translation matches), the
+re-anchored templates 0.09 s, and the Python between these calls about 0.25 s (78 steps).
+The compiled work alone is about 3.5x KLT's: neither the per-frame Python nor the compile
+time keeps the webcam videos above 2x. Most of that work is spent on the tracks whose
+anchored match fails (a fallback template, its forward retry, the search, the
+coarse-to-fine step and a retry in the bigger box, each with its own matches), and the
+webcam videos' large steps make many such tracks. Compile time: the old warm-up (one point
+on three frames) did not reach the forward LSM, the search or the coarse-to-fine step, so
+the first video's ratio held numba's loading of those kernels (0.15 s CPU from a warm
+cache, 2.7 s from a stale one) and OpenCV's first calls; the warm-up now tracks the first
+clip's corners over its first 8 frames with both trackers. Threads: ``--threads 1`` left
+OpenCV on 2 threads (KLT's CPU time 1.6x its wall time) and the forward LSM on a 2-thread
+pool (the solver read ``NUMBA_NUM_THREADS``, not ``numba.set_num_threads``); both now run
+on ``--threads``. Three exact changes (the solver on the set threads, one
+``match_templates`` call with a per-row forward retry, 8-bit frames checked without a
+float64 copy) left every track as it was (to 7e-13 px, the same statuses, the eight videos
+forward and back) and gave no measurable speed-up. Fair harness, same code as above
+(load 3 to 6 on 2 cores): median 2.4x wall, 2.6x CPU; per video, CPU: caliscope cam_0 5.8,
+cam_1 3.8, cam_2 3.1, cam_3 3.8; pose2sim 1.8, 1.9, 1.9, 2.1 (the old harness gave 5.0,
+3.7, 3.1, 3.5 and 1.9, 1.7, 1.9, 2.1). The target (<= 2x) is NOT met on the webcam videos
+(3.1x to 5.8x) nor on pose2sim cam04; survival and the forward-backward medians are those
+above. Of caliscope cam_3's 105 survivors, the 91 whose forward run ended on their first
+template come back with a median of 0.089 px and the 14 that ended on a fallback
+(frame-to-frame) template with 0.285 px: the fallback's drift puts the median over 0.1 px.
+
+Fewer forward retries (#35, ``TrackerParams.retry_rejected``, now False). Split for every
+change that moves tracks: chosen on {caliscope cam_0, cam_2, pose2sim cam01, cam03}, held
+out {caliscope cam_1, cam_3, pose2sim cam02, cam04}. On caliscope cam_0 a third of the first
+templates' matches from the prediction fail (6 170 of 17 808), and each failing track runs
+the fallback chain; 6 859 forward LSM retries (about 40 us each) rescued 794: 28 % of those
+after an inverse compositional match that kept moving, 13 % after one that diverged, but 4 %
+after one that converged and was rejected and 1 % after one that found no positive
+correlation. Retrying only the first two: survivors on the chosen half 168, 246, 292, 265
+(were 167, 243, 292, 265), kept with FB > 0.5 px 29, 18, 21, 27 (29, 19, 23, 29), FB medians
+unchanged to 0.001 px; held out 195, 106, 310, 277 (were 195, 105, 311, 277; pose2sim cam02
+lost one, still above KLT's 305), caliscope cam_3's FB median 0.106 px (0.108): still over
+0.1. In total 1859 survivors (1855), kept with FB > 0.5 px 187 (196), astray 67 (77). CPU
+time, the two settings interleaved in one process (min of 3 runs, 1 thread, load 4-5): -9 %
+on cam_0, -6 % cam_1, -2 % cam_2, -4 % cam_3, -7 % pose2sim cam01, 0 to -3 % the others;
+ratio to KLT's CPU 5.8, 3.6, 3.0, 3.5 on the webcams, 1.8, 1.7, 2.0, 2.0 on Pose2Sim (the
+harness, one run at load 5 to 6: 5.5, 3.6, 2.9, 4.1; 1.8, 1.6, 2.0, 2.1): the target (<= 2x)
+is still NOT met on the webcams. On the generated triplet walk (3-D mode,
+``tracking_benchmark.py --seeds 1``, seed 2000) 1176 of 3000 start points survive (1191
+before), the median per-frame error is 0.0427 px (0.0429), the 3-D error at the oldest age
+0.921 mm (0.925) and the false share 3.26 % (3.72 %). Tried and not kept (chosen half): a
+*shared-motion prediction* (where the first template fails from the trajectory's prediction,
+match it again from the median step of the 8 nearest tracks that matched this frame) rescued
+about 800 of cam_0's 6 170 failures but cost as much as it saved (CPU +3 %; survivors +1 on
+cam_2 only): most failures are the template's appearance, not the prediction; stopping the
+inverse compositional iterations after 5 without a smaller step (a fifth of the converged
+matches need 10 to 20 iterations, so no cut at a fixed count): no measurable time, survivors
+-1 on pose2sim cam03; the coarse-to-fine step only for tracks missing at most 3 frames: CPU
+about -15 % on cam_0 (one unpaired run) but survivors -4 on cam_2, -1 on cam01, cam03
+(recovering missing tracks is what the step buys).
+
 Start points: OpenCV's ``goodFeaturesToTrack`` (Shi-Tomasi corners, 8 px apart) in the
 first frame, the same for both trackers. Videos: the four caliscope webcams (1280 x 720, a
 person moving a ChArUco board, about 6 fps: large steps between frames) and the four
@@ -117,16 +179,26 @@ def pose2sim_clips(frames: int, scale: float):
 
 def clips_and_tracker(videos, frames: int, pose2sim_scale: float):
     """The chosen recordings' clips (``[(name, (T, H, W) grey frames)]``) and LSMTA's tracker
-    end, its compiled kernels loaded on a few frames so that no timing includes them."""
+    end, its compiled kernels loaded (and OpenCV's first calls made) on the first clip's
+    first frames so that no timing includes them: every stage of the tracker (the forward
+    LSM, the search, the coarse-to-fine step, the partial templates) runs there."""
     clips = []
     if "caliscope" in videos:
         clips += list(caliscope_clips(frames))
     if "pose2sim" in videos:
         clips += list(pose2sim_clips(frames, pose2sim_scale))
     lsmta = lsmta_end(TrackerParams())
-    warm = clips[0][1][:3]
-    lsmta(warm, np.array([[warm.shape[2] / 2, warm.shape[1] / 2]]))
+    warm = clips[0][1][:8]
+    start = start_points(warm[0], 384)
+    for track in (lsmta, klt_end):
+        forward_backward(track, warm, start)
     return clips, lsmta
+
+
+def start_points(image: np.ndarray, points: int) -> np.ndarray:
+    """Shi-Tomasi corners ``(n, 2)`` px, at most ``points``, 8 px apart."""
+    corners = cv2.goodFeaturesToTrack(image, points, 0.01, 8, blockSize=7)
+    return corners[:, 0].astype(float)
 
 
 def _grey_frames(path, frames: int, scale: float) -> np.ndarray:
@@ -220,12 +292,12 @@ def main(argv=None):
     parser.add_argument("--out", default="build/benchmarks/real_video_tracking.json")
     args = parser.parse_args(argv)
     numba.set_num_threads(args.threads)
+    cv2.setNumThreads(args.threads)     # KLT on as many threads as LSMTA
 
     clips, lsmta = clips_and_tracker(args.videos, args.frames, args.pose2sim_scale)
     rows = []
     for name, seq in clips:
-        corners = cv2.goodFeaturesToTrack(seq[0], args.points, 0.01, 8, blockSize=7)
-        start = corners[:, 0].astype(float)
+        start = start_points(seq[0], args.points)
         row = {"video": name, "frames": int(len(seq)), "size": list(seq.shape[1:][::-1]),
                "points": int(len(start))}
         timing = {}     # unrounded (wall, CPU) seconds for the ratios

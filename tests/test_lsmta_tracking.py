@@ -560,6 +560,98 @@ def test_inverse_compositional_templates_recover_a_known_affinity_and_radiometry
     assert np.array_equal(img, before[0]) and np.array_equal(search, before[1])
 
 
+def test_a_per_row_forward_retry_gives_the_two_calls_positions_and_statuses():
+    """``match_templates`` with a per-row ``fallback`` (one call for the tracks with and
+    without the forward retry, as the tracker makes it) gives the positions (to 1e-6 px)
+    and statuses of one call per group; the retry rescues some rows, so the groups differ."""
+    from lsmta.synth.patches import warped_pair
+    from lsmta.tracking.templates import match_templates
+
+    rng = np.random.default_rng(3)
+    pair = warped_pair(rng=rng, A=((1.12, 0.15), (-0.1, 0.9)), c=(3.2, -1.7), r0=8.0,
+                       r1=0.9, noise_sigma=2.0)
+    pts = rng.uniform(40, 216, (200, 2))
+    truth = pair.true_xy(pts)
+    start = truth + rng.uniform(-4.0, 4.0, truth.shape)       # some too far for the IC step
+    tm = sample_templates(SplineImage(pair.template), pts, 11, partial=True)
+    search, eye = SplineImage(pair.search), np.broadcast_to(np.eye(2), (200, 2, 2)).copy()
+    th = TrackerParams().thresholds
+    retry = rng.random(200) < 0.5
+    rows = np.arange(200)
+    both = match_templates(tm, rows, search, start, eye, thresholds=th, fallback=retry,
+                           partial=True)
+    ref = {}
+    for group in (True, False):
+        sel = rows[retry == group]
+        ref[group] = match_templates(tm, sel, search, start[sel], eye[sel], thresholds=th,
+                                     fallback=group, partial=True)
+    for group, res in ref.items():
+        sel = rows[retry == group]
+        assert np.array_equal(both.status[sel], res.status)
+        assert np.array_equal(np.isnan(both.xy[sel]), np.isnan(res.xy))
+        assert np.nanmax(np.abs(both.xy[sel] - res.xy)) < 1e-6
+    assert ref[True].ok.mean() > ref[False].ok.mean()          # the retry did something
+
+
+def test_without_retry_rejected_only_diverged_or_unfinished_matches_are_retried():
+    """The tracker's matches with ``retry_rejected=False``: where the inverse compositional match
+    converged but was rejected, or found no positive correlation (REJECTED, SINGULAR), the
+    result is the inverse compositional one (no forward retry); everywhere else it is the
+    result with the retry. The tracker's default, and ``retry_rejected`` is checked."""
+    from lsmta.matching.lsm import Status
+    from lsmta.synth.patches import warped_pair
+    from lsmta.tracking.templates import _match, match_templates
+
+    rng = np.random.default_rng(3)
+    pair = warped_pair(rng=rng, A=((1.12, 0.15), (-0.1, 0.9)), c=(3.2, -1.7), r0=8.0,
+                       r1=0.9, noise_sigma=2.0)
+    pts = rng.uniform(40, 216, (300, 2))
+    start = pair.true_xy(pts) + rng.uniform(-6.0, 6.0, (300, 2))   # many too far
+    tm = sample_templates(SplineImage(pair.template), pts, 11, partial=True)
+    search, eye = SplineImage(pair.search), np.broadcast_to(np.eye(2), (300, 2, 2)).copy()
+    rows = np.arange(300)
+    kw = dict(thresholds=TrackerParams().thresholds, partial=True)
+    ic = match_templates(tm, rows, search, start, eye, fallback=False, **kw)
+    full = match_templates(tm, rows, search, start, eye, fallback=True, **kw)
+    new = _match(tm, rows, search, start, eye, fallback=True, retry_rejected=False,
+                 max_iter=30, tol=0.01, max_displacement=None, inverse=True, **kw)
+    hopeless = np.isin(ic.status, [Status.REJECTED, Status.SINGULAR])
+    retried = ~ic.ok & ~hopeless
+    assert hopeless.sum() > 30 and retried.sum() > 30
+    assert (full.status[hopeless] != ic.status[hopeless]).any()     # the flag does something
+    for sel, ref in ((hopeless, ic), (~hopeless, full)):
+        assert np.array_equal(new.status[sel], ref.status[sel])
+        assert np.array_equal(np.isnan(new.xy[sel]), np.isnan(ref.xy[sel]))
+        assert np.nanmax(np.abs(new.xy[sel] - ref.xy[sel])) < 1e-9
+    assert TrackerParams().retry_rejected is False
+    with pytest.raises(ValueError, match="params.retry_rejected"):
+        track_points(np.zeros((1, 2, 40, 40)), np.full((1, 1, 2), 20.0),
+                     params=TrackerParams(retry_rejected="no"))
+
+
+def test_the_lsm_solver_runs_on_the_threads_numba_is_set_to(monkeypatch):
+    """With ``numba.set_num_threads(1)`` the forward LSM runs on the calling thread (no
+    thread pool), and with 2 threads it gives the same matches."""
+    from lsmta.matching import LSMParams, _solver, lsm
+    from lsmta.synth.patches import warped_pair
+
+    rng = np.random.default_rng(4)
+    pair = warped_pair(rng=rng, A=((1.03, 0.05), (-0.04, 0.98)), c=(1.2, 0.7))
+    pts = rng.uniform(30, 226, (64, 2))
+    start = pair.true_xy(pts) + rng.uniform(-1, 1, (64, 2))
+    runs = {}
+    for threads in (2, 1) if numba.config.NUMBA_NUM_THREADS >= 2 else (1,):
+        numba.set_num_threads(threads)
+        if threads == 1:
+            monkeypatch.setattr(_solver, "_pool", lambda n: pytest.fail("pool used"))
+        runs[threads] = lsm(pair.template, pair.search, pts, start, params=LSMParams(patch=11))
+    numba.set_num_threads(1)
+    assert (runs[1].status == 0).mean() > 0.9
+    for other in runs.values():
+        assert np.array_equal(other.status, runs[1].status)
+        assert np.abs(other.xy - runs[1].xy).max() < 1e-12
+
+
 def _coarse_to_fine_per_frame(state, pyramids, idx, pred, t, p, calls):
     """The coarse-to-fine step as it was before it was batched: one template sampling and
     one translation match per level and per last tracked frame (the reference)."""

@@ -29,6 +29,12 @@ def check_image(image, name: str) -> np.ndarray:
     return _grey(image, name).astype(np.float64, copy=False)
 
 
+def check_grey(image, name: str) -> np.ndarray:
+    """:func:`check_image` without the conversion: the caller's array, of its own dtype
+    (no copy of an 8-bit frame that is only checked)."""
+    return _grey(image, name)
+
+
 def _grey(image, name: str) -> np.ndarray:
     """:func:`check_image` without the conversion: the caller's array, of its own dtype."""
     arr = np.asarray(image)

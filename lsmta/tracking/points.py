@@ -90,11 +90,12 @@ from .._validate import as_array, as_int, as_scalar, check_patch
 from ..camera import Camera
 from ..matching.lsm import LSMThresholds
 from ..matching.seeds import predicted_maps, warped_images
-from ..matching.spline import SplineImage, check_image
+from ..matching.spline import SplineImage, check_grey
 from ..triangulation import triangulate
 from .density import sparse_candidates
 from .templates import (
     Templates,
+    _match,
     match_templates,
     match_translation,
     offsets,
@@ -159,6 +160,12 @@ class TrackerParams:
         outside pixels given zero weight (forward LSM, ``partial`` of
         :func:`~lsmta.tracking.templates.match_templates`). False: such points are not
         started (``NOT_STARTED``) and such matches fail.
+    retry_rejected : bool
+        Temporal matches: retry a failed inverse compositional match with the forward LSM
+        also where it converged but failed the thresholds, or found no positive
+        correlation at its start. False (the default): only where it diverged or kept
+        moving (on caliscope cam_0 the retry rescued 28 % and 13 % of those, 4 % and 1 %
+        of the others, each retry a forward LSM).
     max_reprojection : float
         Largest reprojection error of an accepted frame, px (only with ``cameras``).
     density_every : int
@@ -184,6 +191,7 @@ class TrackerParams:
     max_gap: int = 10
     pyramid_levels: int = 3
     partial: bool = True
+    retry_rejected: bool = False
     max_reprojection: float = 1.0
     density_every: int = 2
     cell: float = 16.0
@@ -272,9 +280,12 @@ def as_sequences(images) -> np.ndarray:
         raise ValueError(f"images: expected at least 2 frames, got {lengths[0]}")
     out = []
     for k, s in enumerate(seqs):
-        frames = [np.asarray(im) for im in s]
-        for t, im in enumerate(frames):        # checked one at a time: 8-bit video stays 8-bit
-            check_image(im, f"images[{k}][{t}]")
+        # checked one at a time, not converted: 8-bit video stays 8-bit; a (T, H, W) array
+        # is used as it is (stacked once, below)
+        frames = s if isinstance(s, np.ndarray) and s.ndim == 3 else \
+            [np.asarray(im) for im in s]
+        for t, im in enumerate(frames):
+            check_grey(im, f"images[{k}][{t}]")
         sizes = {f.shape for f in frames}
         out.append(frames)
         if len(sizes) != 1:
@@ -283,7 +294,7 @@ def as_sequences(images) -> np.ndarray:
     if len(set(sizes)) != 1:
         raise ValueError(f"images: the cameras' images have unequal sizes {sizes}; "
                          "expected one size")
-    return np.stack([np.stack(o) for o in out])
+    return np.stack([o if isinstance(o, np.ndarray) else np.stack(o) for o in out])
 
 
 def track_points(images, initial_xy, *, params: TrackerParams | None = None,
@@ -375,8 +386,10 @@ def _check_params(p: TrackerParams, K: int) -> None:
     if K > 1 and not (isinstance(p.template, int | np.integer) and 0 <= p.template < K):
         raise ValueError(f"params.template: expected a camera index in [0, {K - 1}], "
                          f"got {p.template}")
-    if not isinstance(p.partial, bool | np.bool_):
-        raise ValueError(f"params.partial: expected True or False, got {p.partial!r}")
+    for name in ("partial", "retry_rejected"):
+        if not isinstance(getattr(p, name), bool | np.bool_):
+            raise ValueError(f"params.{name}: expected True or False, got "
+                             f"{getattr(p, name)!r}")
     if p.anchor not in ANCHORS:
         raise ValueError(f"params.anchor: expected one of {list(ANCHORS)}, got {p.anchor!r}")
     as_scalar(p.max_disagreement, "params.max_disagreement", positive=True)
@@ -800,8 +813,9 @@ def _temporal(anchors: _Anchors, seq, nxt, t: int, idx, pred, radius, p: Tracker
     ok = np.ones(n, bool)
 
     def match(k, sel, start, fallback):
-        res = match_templates(anchors.templates[k], idx[sel], nxt[k], start,
-                              anchors.A[k, idx[sel]], fallback=fallback, **_lsm(p))
+        res = _match(anchors.templates[k], idx[sel], nxt[k], start, anchors.A[k, idx[sel]],
+                     fallback=fallback, retry_rejected=p.retry_rejected,
+                     max_displacement=None, **_lsm(p))
         good = res.ok
         xy[k, sel[good]], A[k, sel[good]] = res.xy[good], res.A[good]
         sigma0[k, sel[good]] = res.sigma0[good]
@@ -809,10 +823,9 @@ def _temporal(anchors: _Anchors, seq, nxt, t: int, idx, pred, radius, p: Tracker
 
     for k in range(K):
         got = np.zeros(n, bool)
-        for group in (True, False):     # the forward LSM retry only where box: per track
-            sel = np.flatnonzero(direct & ok & (box == group))
-            if sel.size:
-                got[match(k, sel, pred[k, sel], group)] = True
+        sel = np.flatnonzero(direct & ok)
+        if sel.size:                    # the forward LSM retry only where box: per track
+            got[match(k, sel, pred[k, sel], box[sel])] = True
         by_pred[k] = got
         for r in np.unique(radius[~got & ok & box]):
             sel = np.flatnonzero(~got & ok & box & (radius == r))

@@ -294,9 +294,10 @@ def match_templates(templates: Templates, rows, search: SplineImage, start_xy, s
     max_displacement : float, optional
         A point moving further than this from its start has diverged (default: the patch
         size).
-    fallback : bool
+    fallback : bool or (n,) bool array
         Where the inverse compositional match fails (or fails ``thresholds``), run the
-        forward additive :func:`~lsmta.matching.lsm` from the same start.
+        forward additive :func:`~lsmta.matching.lsm` from the same start (per row with an
+        array: one call for rows that differ in it).
     inverse : bool
         False: the forward additive LSM for every match (no inverse compositional
         iterations, whatever ``fallback`` says). With a template that changes every frame,
@@ -318,6 +319,19 @@ def match_templates(templates: Templates, rows, search: SplineImage, start_xy, s
         ``fixed`` is all False and ``weight_share`` 1. ``displacement`` is measured from
         ``start_xy``.
     """
+    return _match(templates, rows, search, start_xy, start_A, thresholds=thresholds,
+                  max_iter=max_iter, tol=tol, max_displacement=max_displacement,
+                  fallback=fallback, inverse=inverse, partial=partial, retry_rejected=True)
+
+
+def _match(templates: Templates, rows, search: SplineImage, start_xy, start_A, *, thresholds,
+           max_iter, tol, max_displacement, fallback, inverse, partial,
+           retry_rejected) -> LSMResult:
+    """:func:`match_templates`; with ``retry_rejected`` False, no forward retry
+    (``fallback``) where the inverse compositional match converged but failed
+    ``thresholds`` (REJECTED) or found no positive correlation with the template
+    (SINGULAR): only where it diverged or kept moving (the tracker's choice,
+    ``TrackerParams.retry_rejected``)."""
     rows = np.asarray(rows, np.int64)
     n = len(rows)
     max_disp = float(templates.patch if max_displacement is None else max_displacement)
@@ -330,9 +344,11 @@ def match_templates(templates: Templates, rows, search: SplineImage, start_xy, s
         result = thresholds.apply(result)
     usable = templates.ok[rows]
     full = templates.full[rows]
-    redo = np.flatnonzero(~result.ok & usable & ~outside & full)
-    if not (fallback or not inverse):
-        redo = redo[:0]
+    retry = np.broadcast_to(np.asarray(fallback, bool), (n,)) | (not inverse)
+    if inverse and not retry_rejected:
+        retry = retry & ((result.status == Status.MAX_ITERATIONS)
+                         | (result.status == Status.DIVERGED))
+    redo = np.flatnonzero(~result.ok & usable & ~outside & full & retry)
     kw = dict(max_iter=max_iter, tol=tol, max_disp=max_disp, thresholds=thresholds)
     if redo.size:
         result = _forward(result, templates, rows, redo, search, start, start_A, False, **kw)

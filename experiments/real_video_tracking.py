@@ -1,7 +1,7 @@
 """LSMTA (2-D mode) against OpenCV's KLT on the project's real videos: survival, accuracy, time.
 
     .venv/bin/python experiments/real_video_tracking.py [--frames 40] [--points 384]
-        [--pose2sim-scale 0.5] [--videos caliscope pose2sim]
+        [--pose2sim-scale 0.5] [--videos caliscope pose2sim] [--no-retry-rejected]
 
 No truth exists on real video, so each tracker is judged by its own forward-backward
 error: the points are tracked ``--frames`` frames forward, then from where they ended back
@@ -111,7 +111,8 @@ above. Of caliscope cam_3's 105 survivors, the 91 whose forward run ended on the
 template come back with a median of 0.089 px and the 14 that ended on a fallback
 (frame-to-frame) template with 0.285 px: the fallback's drift puts the median over 0.1 px.
 
-Fewer forward retries (#35, ``TrackerParams.retry_rejected``, now False). Split for every
+Fewer forward retries (#35, ``TrackerParams(retry_rejected=False)``, ``--no-retry-rejected``;
+an option, not the default: see the triplet walk at the end of this paragraph). Split for every
 change that moves tracks: chosen on {caliscope cam_0, cam_2, pose2sim cam01, cam03}, held
 out {caliscope cam_1, cam_3, pose2sim cam02, cam04}. On caliscope cam_0 a third of the first
 templates' matches from the prediction fail (6 170 of 17 808), and each failing track runs
@@ -177,7 +178,7 @@ def pose2sim_clips(frames: int, scale: float):
         yield f"pose2sim {view}", _grey_frames(data.POSE2SIM_DIR / f"{view}.mp4", frames, scale)
 
 
-def clips_and_tracker(videos, frames: int, pose2sim_scale: float):
+def clips_and_tracker(videos, frames: int, pose2sim_scale: float, params=None):
     """The chosen recordings' clips (``[(name, (T, H, W) grey frames)]``) and LSMTA's tracker
     end, its compiled kernels loaded (and OpenCV's first calls made) on the first clip's
     first frames so that no timing includes them: every stage of the tracker (the forward
@@ -187,7 +188,7 @@ def clips_and_tracker(videos, frames: int, pose2sim_scale: float):
         clips += list(caliscope_clips(frames))
     if "pose2sim" in videos:
         clips += list(pose2sim_clips(frames, pose2sim_scale))
-    lsmta = lsmta_end(TrackerParams())
+    lsmta = lsmta_end(TrackerParams() if params is None else params)
     warm = clips[0][1][:8]
     start = start_points(warm[0], 384)
     for track in (lsmta, klt_end):
@@ -289,12 +290,15 @@ def main(argv=None):
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--why", action="store_true",
                         help="also count why LSMTA lost the points KLT kept (forward run)")
+    parser.add_argument("--no-retry-rejected", action="store_true",
+                        help="TrackerParams(retry_rejected=False): fewer forward LSM retries")
     parser.add_argument("--out", default="build/benchmarks/real_video_tracking.json")
     args = parser.parse_args(argv)
     numba.set_num_threads(args.threads)
     cv2.setNumThreads(args.threads)     # KLT on as many threads as LSMTA
 
-    clips, lsmta = clips_and_tracker(args.videos, args.frames, args.pose2sim_scale)
+    params = TrackerParams(retry_rejected=not args.no_retry_rejected)
+    clips, lsmta = clips_and_tracker(args.videos, args.frames, args.pose2sim_scale, params)
     rows = []
     for name, seq in clips:
         start = start_points(seq[0], args.points)
@@ -317,7 +321,7 @@ def main(argv=None):
         row["time_ratio"] = timing["lsmta"][0] / timing["klt"][0]
         row["cpu_time_ratio"] = timing["lsmta"][1] / timing["klt"][1]
         if args.why:
-            row["why_lost"] = why_lost(seq, start, TrackerParams())
+            row["why_lost"] = why_lost(seq, start, params)
         rows.append(row)
         ls, kl = row["lsmta"], row["klt"]
         print(f"{name:18s} {row['points']:4d} pts | survived LSMTA {ls['survived']:4d} "

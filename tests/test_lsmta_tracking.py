@@ -597,7 +597,7 @@ def test_without_retry_rejected_only_diverged_or_unfinished_matches_are_retried(
     """The tracker's matches with ``retry_rejected=False``: where the inverse compositional match
     converged but was rejected, or found no positive correlation (REJECTED, SINGULAR), the
     result is the inverse compositional one (no forward retry); everywhere else it is the
-    result with the retry. The tracker's default, and ``retry_rejected`` is checked."""
+    result with the retry. The default keeps every retry, and ``retry_rejected`` is checked."""
     from lsmta.matching.lsm import Status
     from lsmta.synth.patches import warped_pair
     from lsmta.tracking.templates import _match, match_templates
@@ -623,7 +623,7 @@ def test_without_retry_rejected_only_diverged_or_unfinished_matches_are_retried(
         assert np.array_equal(new.status[sel], ref.status[sel])
         assert np.array_equal(np.isnan(new.xy[sel]), np.isnan(ref.xy[sel]))
         assert np.nanmax(np.abs(new.xy[sel] - ref.xy[sel])) < 1e-9
-    assert TrackerParams().retry_rejected is False
+    assert TrackerParams().retry_rejected is True
     with pytest.raises(ValueError, match="params.retry_rejected"):
         track_points(np.zeros((1, 2, 40, 40)), np.full((1, 1, 2), 20.0),
                      params=TrackerParams(retry_rejected="no"))

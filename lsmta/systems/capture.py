@@ -360,7 +360,7 @@ def _calibration_text(cal) -> str:
 
 
 def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None,
-                  cameras=None, progress: bool = False) -> Tracks:
+                  start_cameras=None, progress: bool = False) -> Tracks:
     """Surface tracking (Fig. 9): every point of the first surface with a kept point (before
     the last frame), new points from later ones.
 
@@ -373,10 +373,11 @@ def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None
         the later frames' feed the density check (every ``params.density_every`` frames
         counted from the start frame).
     params : TrackerParams, optional
-    cameras : sequence of K Camera, optional
-        Start the spatial LSM from the map the cameras predict where a camera sees the
-        template's patch turned or scaled (:func:`~lsmta.tracking.track_points`'
-        ``start_cameras``; a camera mounted on its side).
+    start_cameras : sequence of K Camera, optional
+        Only to start the spatial LSM of each new track from the map the cameras predict
+        where a camera sees the template's patch turned or scaled (a camera mounted on its
+        side; :func:`~lsmta.tracking.track_points`' ``start_cameras``); no reprojection
+        check.
     progress : bool
 
     Returns
@@ -391,7 +392,7 @@ def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None
     start = first.xy[:, first.neighbourhood_ok]
     new = {t - s: r.xy[:, r.neighbourhood_ok] for t, r in surfaces.items() if t > s}
     tracks = track_points(videos[:, s:], start, params=params, new_points=new,
-                          start_cameras=cameras, progress=progress)
+                          start_cameras=start_cameras, progress=progress)
     return _delayed(tracks, s)
 
 
@@ -622,7 +623,7 @@ def _tracking(st: _State) -> None:
             continue
         tracker = replace(p.tracker, density_every=p.density_every,
                           template=g.template_position)
-        st.tracks.append(track_surface(v, surfaces, params=tracker, cameras=cams,
+        st.tracks.append(track_surface(v, surfaces, params=tracker, start_cameras=cams,
                                        progress=st.progress))
     if all(t is None for t in st.tracks) and st.params.markers is None:
         off = sum(r.off_subject for s in st.surfaces for r in s.values())

@@ -14,10 +14,17 @@ numbers a user can check without truth are printed and written to ``<out>.json``
 
 * the tie-point residuals on held-out places per camera, before and after the refinement,
   and whether the refined cameras were used;
-* per surface file (measured frame): the points, the board's points among them (those whose
-  image in the view group's template camera lies inside the hull of the ChArUco corners
-  lsmta finds in that frame, :func:`lsmta.calibration.charuco.detect_charuco`), and the
-  board points' flatness: the RMS distance to their best-fit plane, mm (the board is flat);
+* per surface file (measured frame): the board's plane, from lsmta's own ChArUco corners
+  (:func:`lsmta.calibration.charuco.detect_charuco`) in cameras 0, 2 and 3 (which see the
+  board's face; 3 only in the second half, when 2 loses most of it), each corner intersected
+  with the capture's cameras from every one that finds it, at least 6 corners in 2 cameras
+  (their flatness: notebook 19 finds the corners flat to 0.23 mm RMS, the floor of what
+  this check can show); every surface point's
+  distance to that plane, for all points and for the board points (those whose image in
+  their view group's template camera lies inside the hull of the corners found there):
+  median |distance|, RMS and the share within 2 mm. The sheet is transparent: what is seen
+  through it falls inside the hull but off the plane, so the share within 2 mm, not a
+  best-fit plane of the points inside the hull, says how many points lie on the board;
 * the trajectories in the C3D file, the frames each holds, the share kept by the filters
   and the tracked points' median reprojection error (``summary.json``);
 * the command's wall and CPU time (this process, all threads).
@@ -33,13 +40,14 @@ from pathlib import Path
 import cv2
 import ezc3d
 import numpy as np
-import pyvista as pv
+from plyfile import PlyData
 
 from lsmta.calibration.charuco import detect_charuco, read_charuco_toml
 from lsmta.camera_files import read_camera_toml
 from lsmta.cli import main as lsmta
 from lsmta.data import CALISCOPE_DIR
 from lsmta.io import read_videos
+from lsmta.triangulation import triangulate
 
 VIDEOS = [CALISCOPE_DIR / "videos" / f"cam_{k}.mp4" for k in range(4)]
 CAMERAS = CALISCOPE_DIR / "camera_array.toml"
@@ -49,6 +57,10 @@ BOARD = CALISCOPE_DIR / "charuco.toml"
 def run_command(args, out: Path) -> dict:
     """``lsmta capture`` (unless ``--reuse`` finds its summary): exit status and times."""
     if args.reuse and (out / "summary.json").exists():
+        earlier = args.out.with_suffix(".json")
+        if earlier.exists():                       # the times of the run that wrote them
+            c = json.loads(earlier.read_text())["command"]
+            return {**c, "reused": True}
         return {"status": 0, "wall_s": None, "cpu_s": None, "reused": True}
     argv = ["capture", "--videos", *map(str, VIDEOS), "--cameras", str(CAMERAS),
             "--scale", str(args.scale), "--out", str(out), "--quiet"]
@@ -75,54 +87,83 @@ def refinement(out: Path) -> dict:
                         for k, c in r["cameras"].items()}}
 
 
-def _plane_rms(points: np.ndarray) -> float:
-    """RMS distance (mm) of the points to their least-squares plane."""
-    centred = points - points.mean(axis=0)
-    return float(np.linalg.svd(centred, compute_uv=False)[-1] / np.sqrt(len(points)))
+NEAR_MM = 2.0                   # "on the board": within this distance of its plane
+BOARD_CAMERAS = (0, 2, 3)       # the cameras that see the board's face (3: second half)
 
 
-def board_hulls(args, out: Path, summary: dict, frames: list[int]) -> dict:
-    """Per frame: the hull (int32 polygon) of the board's corners lsmta detects in the first
-    view group's template camera (at the command's scale), or None."""
-    group = summary["view_groups"][0]
-    k = group["cameras"].index(group["template"])
-    cam_index = [int(c) for c in group["cameras"]][k]
-    videos = read_videos([VIDEOS[cam_index]], scale=args.scale)
-    stack = videos.load(progress=False)[0]
-    corners = detect_charuco([stack[frames]], read_charuco_toml(BOARD))
-    hulls = {}
-    for i, f in enumerate(frames):
-        xy = corners.xy[0, i]
-        xy = xy[np.isfinite(xy).all(axis=1)]
-        hulls[f] = (cv2.convexHull(xy.astype(np.float32)) if len(xy) >= 4 else None)
-    return {"template_camera": cam_index, "hulls": hulls}
+def _plane(points: np.ndarray):
+    """Least-squares plane of (N, 3) points: centroid, unit normal, RMS distance (mm)."""
+    centre = points.mean(axis=0)
+    _, sv, vt = np.linalg.svd(points - centre, full_matrices=False)
+    return centre, vt[-1], float(sv[-1] / np.sqrt(len(points)))
+
+
+def _distances(d: np.ndarray) -> dict:
+    """Median |d|, RMS and share within NEAR_MM of distances d (mm) to the board's plane."""
+    if not len(d):
+        return {"n": 0, "median_abs_mm": None, "rms_mm": None, "share_near": None}
+    return {"n": int(len(d)), "median_abs_mm": float(np.median(np.abs(d))),
+            "rms_mm": float(np.sqrt(np.mean(d ** 2))),
+            "share_near": float(np.mean(np.abs(d) <= NEAR_MM))}
+
+
+def board_corners(args, frames: list[int], cameras: list[int]) -> dict:
+    """lsmta's ChArUco corners (K, F, N, 2) in ``cameras`` at the measured ``frames`` (at the
+    command's scale), by camera index."""
+    videos = read_videos([VIDEOS[k] for k in cameras], scale=args.scale)
+    stacks = videos.load(progress=False)
+    corners = detect_charuco([s[frames] for s in stacks], read_charuco_toml(BOARD))
+    return {k: corners.xy[i] for i, k in enumerate(cameras)}
+
+
+def _hull(xy: np.ndarray):
+    """Convex hull (int32 polygon) of the finite corners, or None below 4."""
+    xy = xy[np.isfinite(xy).all(axis=1)]
+    return cv2.convexHull(xy.astype(np.float32)) if len(xy) >= 4 else None
+
+
+def _inside(hull, xy: np.ndarray) -> np.ndarray:
+    return np.array([hull is not None and np.isfinite(p).all() and cv2.pointPolygonTest(
+        hull, (float(p[0]), float(p[1])), False) >= 0 for p in xy], bool)
 
 
 def surfaces(args, out: Path, summary: dict) -> dict:
-    """Per PLY file: points, board points and the board points' plane RMS (mm)."""
+    """Per PLY file: the board's plane from the corners, all points' and the board points'
+    distances to it."""
     plys = sorted((out / "surfaces").glob("frame_*.ply"))
     frames = [int(p.stem.split("_")[1]) for p in plys]
     if not plys:
         return {"files": 0, "frames": {}}
-    board = board_hulls(args, out, summary, frames)
+    groups = [[int(c) for c in g["cameras"]] for g in summary["view_groups"]]
+    templates = [int(g["template"]) for g in summary["view_groups"]]
+    corners = board_corners(args, frames, sorted(set(BOARD_CAMERAS) | set(templates)))
     cams = read_camera_toml(out / "cameras.toml", unit="mm")
-    tmpl = cams[board["template_camera"]]
     rows = {}
-    for path, f in zip(plys, frames):
-        cloud = pv.read(path)
-        pts = np.asarray(cloud.points, float)
-        row = {"points": len(pts), "board_points": 0, "board_plane_rms_mm": None,
-               "board_found": board["hulls"][f] is not None}
-        if len(pts) and row["board_found"]:
-            xy = tmpl.project(pts, behind="nan")
-            inside = np.array([np.isfinite(p).all() and cv2.pointPolygonTest(
-                board["hulls"][f], (float(p[0]), float(p[1])), False) >= 0 for p in xy])
-            row["board_points"] = int(inside.sum())
-            if inside.sum() >= 10:
-                row["board_plane_rms_mm"] = _plane_rms(pts[inside])
-        row["all_plane_rms_mm"] = _plane_rms(pts) if len(pts) >= 3 else None
+    for i, (path, f) in enumerate(zip(plys, frames)):
+        vertex = PlyData.read(str(path))["vertex"]
+        pts = np.stack([vertex["x"], vertex["y"], vertex["z"]], axis=1).astype(float)
+        group = np.asarray(vertex["group"], int) - 1 if len(pts) else np.zeros(0, int)
+        row = {"points": len(pts), "board": None}
+        xy = np.stack([corners[k][i] for k in BOARD_CAMERAS])           # (3, N, 2)
+        seen = np.isfinite(xy).all(axis=2)
+        both = seen.sum(axis=0) >= 2
+        if both.sum() >= 6:
+            tri = triangulate([cams[k] for k in BOARD_CAMERAS], xy[:, both])
+            centre, normal, flat = _plane(tri.points)
+            d = (pts - centre) @ normal
+            on = np.zeros(len(pts), bool)
+            for g, t in enumerate(templates):
+                sel = group == g
+                on[sel] = _inside(_hull(corners[t][i]), cams[t].project(pts[sel], behind="nan"))
+            row["board"] = {"corners": int(both.sum()), "corner_plane_rms_mm": flat,
+                            "corner_views": int(seen[:, both].sum()),
+                            "corner_reprojection_px": float(np.nanmedian(
+                                tri.reprojection_error))}
+            row["all"] = _distances(d)
+            row["inside_hull"] = _distances(d[on])
         rows[f] = row
-    return {"files": len(plys), "template_camera": board["template_camera"], "frames": rows}
+    return {"files": len(plys), "groups": groups, "templates": templates,
+            "board_cameras": list(BOARD_CAMERAS), "near_mm": NEAR_MM, "frames": rows}
 
 
 def trajectories(out: Path, summary: dict) -> dict:
@@ -184,16 +225,32 @@ def _print(r: dict) -> None:
             print(f"  camera {k}: held-out tie points {cam['held_out_before_px']:.2f} -> "
                   f"{cam['held_out_after_px']:.2f} px ({cam['tie_points']} tie points)")
     s = r["surfaces"]
-    print(f"surfaces: {s['files']} files (template camera {s.get('template_camera')})")
+    print("view groups: " + ", ".join(f"{'+'.join(g['cameras'])} (template {g['template']})"
+                                      for g in r["view_groups"]))
+    print(f"surfaces: {s['files']} files; distance to the board's plane (lsmta's corners in "
+          f"cameras {s.get('board_cameras')}; notebook 19: corners flat to 0.23 mm): "
+          f"median |d| / RMS mm / share within {s.get('near_mm')} mm")
     for f, row in s["frames"].items():
-        rms = row["board_plane_rms_mm"]
-        print(f"  frame {f:3d}: {row['points']:5d} points, {row['board_points']:5d} on the "
-              f"board, board plane RMS " + ("-" if rms is None else f"{rms:.2f} mm"))
+        b = row["board"]
+        if b is None:
+            print(f"  frame {f:3d}: {row['points']:5d} points; < 6 corners in two cameras")
+            continue
+        print(f"  frame {f:3d}: corners {b['corners']:3d} flat to "
+              f"{b['corner_plane_rms_mm']:.2f} mm | all {_d(row['all'])} | inside the hull "
+              f"{_d(row['inside_hull'])}")
     t = r["trajectories"]
     print(f"trajectories: {t['total']} ({t['kept_by_filters']} kept by the filters), C3D "
           f"{t['c3d_points']} points x {t['c3d_frames']} frames at {t['c3d_rate_hz']:g} Hz, "
           f"median {t['frames_per_point_median']:.0f} frames each; tracked points' median "
           f"reprojection error {t['track_residual_px']} px")
+
+
+
+def _d(x: dict) -> str:
+    if not x["n"]:
+        return "    0 points"
+    return (f"{x['n']:4d} points {x['median_abs_mm']:6.2f} / {x['rms_mm']:6.2f} / "
+            f"{100 * x['share_near']:3.0f} %")
 
 
 if __name__ == "__main__":

@@ -429,3 +429,30 @@ def test_a_group_that_does_not_see_one_side_is_measured_as_pairs(session):
                               params=CaptureParams(density_every=3, min_group_share=0.0))
     with pytest.raises(ValueError, match="min_group_share"):
         CaptureParams(min_group_share=1.5)
+
+
+@pytest.mark.slow
+def test_a_group_whose_subject_is_absent_in_half_the_frames_stays_whole(session):
+    """The subject gone from the second half of the recording (blank frames in every camera):
+    the triplet holds points in 1 of its 2 measured frames, below min_group_share=0.75, so
+    its pairs are measured too; they hold points in no more frames than the whole group, so
+    it is not split and keeps its points seen by all three cameras."""
+    videos = session.videos.copy()
+    half = videos.shape[1] // 2
+    videos[:, half:] = videos[:, half:].mean().astype(videos.dtype)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cap = capture_recording(videos, session.cameras, fps=session.fps, progress=False,
+                                params=CaptureParams(density_every=3, min_group_share=0.75))
+    assert not any("measured as pairs" in str(w.message) for w in caught)
+    assert len(cap.views) == 1 and cap.views[0].group.cameras == (0, 1, 2)
+    held = {f for f, s in cap.views[0].surfaces.items() if s.kept.any()}
+    assert held == {0}
+    assert cap.views[0].surfaces[0].kept.sum() > 100
+
+
+def test_min_group_share_is_a_share():
+    for bad in (True, 1.5, -0.1, "half"):
+        with pytest.raises((TypeError, ValueError), match="min_group_share"):
+            CaptureParams(min_group_share=bad)
+    assert CaptureParams(min_group_share=np.float32(0.25)).min_group_share == 0.25

@@ -32,13 +32,18 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .._validate import check_patch
+from .._validate import as_array, as_scalar, check_patch
 from ..camera import Camera
 from .spline import SplineImage, check_image
 
 #: ``warp="auto"``: a search image whose predicted map at the working point turns by more
 #: than this (degrees) or scales by more than ``AUTO_SCALE`` (or less than its inverse) is
-#: searched through the predicted map
+#: searched through the predicted map. Beyond them the square patch's corners land
+#: ``(patch - 1) * sqrt(2) * sin(turn / 2)`` or ``(patch - 1) / sqrt(2) * (scale - 1)`` px
+#: off (about 3 px at the thresholds for a 9 px patch), past the grain of a texture of a
+#: couple of pixels, so its correlation, and LSM's pull-in that starts from it, are lost
+#: (tests/test_seed_warp.py: a 9 px patch holds at 20 deg and scale 1.25, not at 45 deg or
+#: scale 2; a finer texture is lost earlier).
 AUTO_TURN_DEG = 30.0
 AUTO_SCALE = 1.5
 WARPS = ("identity", "predicted", "auto")
@@ -144,7 +149,13 @@ def find_seeds(images, cameras, *, template: int = 1, n_seeds: int = 12, patch: 
                        min_score=min_score)
 
 
-def predicted_maps(cameras, template: int, X, depth) -> dict:
+def camera_depth(camera: Camera, X) -> np.ndarray:
+    """Depth (mm) of points ``X`` ``(..., 3)`` (mm) along ``camera``'s optical axis: shape
+    ``(...)``, negative behind it."""
+    return (np.asarray(X, float) - camera.C) @ np.asarray(camera.R)[2]
+
+
+def predicted_maps(cameras, template: int, X) -> dict:
     """The local map from the template's pixels to each search image's at points ``X`` on a
     surface facing both cameras alike (its normal halves the angle between the two rays):
     the cameras' roll about their axes and the scale from their distances and focal
@@ -152,12 +163,13 @@ def predicted_maps(cameras, template: int, X, depth) -> dict:
 
     Parameters
     ----------
-    cameras : sequence of K Camera
+    cameras : sequence of K >= 2 Camera
     template : int
+        Index into ``cameras`` of the template camera: the maps take a step of one of its
+        pixels to the search images.
     X : (..., 3) array
-        Points, mm.
-    depth : (...) array
-        Their depth in the template camera, mm (one template pixel spans ``depth / f``).
+        Finite points in front of the template camera, mm (one template pixel spans
+        ``camera_depth(cameras[template], X) / f`` there).
 
     Returns
     -------
@@ -165,9 +177,21 @@ def predicted_maps(cameras, template: int, X, depth) -> dict:
         Per search image ``k``: columns = the image of a one-pixel step along the template's
         x and y; NaN where a point or its steps fall behind camera ``k``.
     """
+    cameras = list(cameras)
+    if len(cameras) < 2 or not all(isinstance(c, Camera) for c in cameras):
+        raise TypeError("cameras: expected a sequence of at least 2 Camera")
+    if isinstance(template, bool) or not isinstance(template, int | np.integer) \
+            or not 0 <= template < len(cameras):
+        raise ValueError(f"template: expected an index into the {len(cameras)} cameras, got "
+                         f"{template!r}")
+    X = as_array(X, "X")
+    if X.ndim < 1 or X.shape[-1] != 3:
+        raise ValueError(f"X: expected an array of shape (..., 3), got shape {X.shape}")
     t = cameras[template]
-    X = np.asarray(X, float)
-    step = (np.asarray(depth, float) / t.f)[..., None]
+    depth = camera_depth(t, X)
+    if not (depth > 0).all():
+        raise ValueError("X: expected points in front of the template camera (depth > 0)")
+    step = (depth / t.f)[..., None]
     to_t = t.C - X
     to_t = to_t / np.linalg.norm(to_t, axis=-1, keepdims=True)
     shape = X.shape[:-1] + (2,)
@@ -194,15 +218,17 @@ def warped_images(cameras, template: int, depth: float, *, warp: str = "auto") -
     none (``"identity"``), all (``"predicted"``), or (``"auto"``) those whose map at the
     template's principal ray at ``depth`` (mm) turns by more than ``AUTO_TURN_DEG`` or
     scales by more than ``AUTO_SCALE`` (module docstring)."""
+    if warp not in WARPS:
+        raise ValueError(f"warp: expected one of {list(WARPS)}, got {warp!r}")
     if warp == "identity":
         return set()
     others = {k for k in range(len(cameras)) if k != template}
     if warp == "predicted":
         return others
     t = cameras[template]
-    X = t.C + depth * t.R[2]
+    X = t.C + as_scalar(depth, "depth", positive=True) * np.asarray(t.R)[2]
     chosen = set()
-    for k, A in predicted_maps(cameras, template, X, depth).items():
+    for k, A in predicted_maps(cameras, template, X).items():
         if not np.isfinite(A).all():
             continue
         turn = np.degrees(abs(np.arctan2(A[1, 0] - A[0, 1], A[0, 0] + A[1, 1])))
@@ -238,8 +264,7 @@ def _ray_scores(images, cameras, template: int, spline_t: SplineImage, t_xy, inv
     X = o[:, None, :] + along[..., None] * d[:, None, :]                   # (C, D, 3)
     score = np.zeros(along.shape)
     projected, maps = {}, {}
-    depth = np.broadcast_to(1.0 / inv, along.shape)
-    predicted = predicted_maps(cameras, template, X, depth) if warped else {}
+    predicted = predicted_maps(cameras, template, X) if warped else {}
     for k, cam in enumerate(cameras):
         if k == template:
             continue

@@ -97,8 +97,12 @@ class CaptureParams:
     min_group_share : float
         A view group of three or more cameras whose surfaces hold points in fewer than this
         share of its measured frames (a point must be seen by all of them: a rig whose
-        cameras do not all see the same side of the subject) is measured again as pairs of
-        its template with each other camera, with a warning; 0 never splits a group.
+        cameras do not all see the same side of the subject, or a subject absent in many
+        frames) has its pairs of its template with each other camera measured too. It is
+        split into them, with a warning, only if the pairs together hold points in clearly
+        more measured frames than the whole group: at least twice as many, and at least
+        one more (a subject simply absent leaves the pairs empty too, and the group, with
+        its points seen by all its cameras, whole). 0 never splits a group.
     """
 
     max_angle_deg: float = 75.0
@@ -113,7 +117,11 @@ class CaptureParams:
 
     def __post_init__(self):
         as_scalar(self.max_angle_deg, "max_angle_deg", positive=True)
-        if not 0.0 <= self.min_group_share <= 1.0:
+        if isinstance(self.min_group_share, bool | np.bool_):
+            raise TypeError(f"min_group_share: expected a share in [0, 1], got "
+                            f"{self.min_group_share!r}")
+        share = as_scalar(self.min_group_share, "min_group_share")
+        if not 0.0 <= share <= 1.0:
             raise ValueError(f"min_group_share: expected a share in [0, 1], got "
                              f"{self.min_group_share!r}")
         as_int(self.density_every, "density_every", minimum=1)
@@ -352,7 +360,7 @@ def _calibration_text(cal) -> str:
 
 
 def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None,
-                  cameras=None, progress: bool = False) -> Tracks:
+                  start_cameras=None, progress: bool = False) -> Tracks:
     """Surface tracking (Fig. 9): every point of the first surface with a kept point (before
     the last frame), new points from later ones.
 
@@ -365,10 +373,11 @@ def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None
         the later frames' feed the density check (every ``params.density_every`` frames
         counted from the start frame).
     params : TrackerParams, optional
-    cameras : sequence of K Camera, optional
-        Start the spatial LSM from the map the cameras predict where a camera sees the
-        template's patch turned or scaled (:func:`~lsmta.tracking.track_points`'
-        ``start_cameras``; a camera mounted on its side).
+    start_cameras : sequence of K Camera, optional
+        Only to start the spatial LSM of each new track from the map the cameras predict
+        where a camera sees the template's patch turned or scaled (a camera mounted on its
+        side; :func:`~lsmta.tracking.track_points`' ``start_cameras``); no reprojection
+        check.
     progress : bool
 
     Returns
@@ -383,7 +392,7 @@ def track_surface(videos, surfaces: dict, *, params: TrackerParams | None = None
     start = first.xy[:, first.neighbourhood_ok]
     new = {t - s: r.xy[:, r.neighbourhood_ok] for t, r in surfaces.items() if t > s}
     tracks = track_points(videos[:, s:], start, params=params, new_points=new,
-                          start_cameras=cameras, progress=progress)
+                          start_cameras=start_cameras, progress=progress)
     return _delayed(tracks, s)
 
 
@@ -526,47 +535,69 @@ def _image_noise(st: _State) -> None:
 
 
 def _surfaces(st: _State) -> None:
+    """Every view group's surfaces; a group of >= 3 cameras split into pairs by the rule of
+    :class:`CaptureParams` (``min_group_share``)."""
     groups, inputs, noises = [], [], []
     for g, (v, cams), noise in zip(st.groups, st.inputs, st.noise):
-        measured = _group_surfaces(st, g, v, cams, noise)
-        frames = range(0, v.shape[1], st.params.density_every)
-        held = sum(1 for r in measured.values() if r.kept.any())
-        if len(cams) < 3 or held >= st.params.min_group_share * len(frames):
-            groups.append(g)
-            inputs.append((v, cams))
-            noises.append(noise)
-            st.surfaces.append(measured)
-            continue
-        warnings.warn(f"capture_recording: view group {_joined_names(cams)} holds surface "
-                      f"points in {held} of its {len(frames)} measured frames (a point must "
-                      "be seen by all its cameras); it is measured as pairs of its template "
-                      "with each other camera (CaptureParams.min_group_share)", stacklevel=3)
-        for j in range(len(cams)):
-            if j == g.template_position:
-                continue
-            pos = sorted((j, g.template_position))
-            pair = ViewGroup(cameras=tuple(g.cameras[i] for i in pos), template=g.template)
-            pv, pc = v[pos], [cams[i] for i in pos]
-            pn = temporal_noise(pv)
-            groups.append(pair)
-            inputs.append((pv, pc))
+        measured, frames = _group_surfaces(st, g, v, cams, noise)
+        held = _held(measured)
+        pairs = []
+        if len(cams) >= 3 and len(held) < st.params.min_group_share * len(frames):
+            pairs = _pairs(st, g, v, cams)
+            by_pairs = set().union(*(_held(m) for *_, m in pairs))
+            if len(by_pairs) < max(2 * len(held), len(held) + 1):
+                pairs = []                    # not clearly more: the group stays whole
+            else:
+                warnings.warn(
+                    f"capture_recording: view group {_joined_names(cams)} holds surface "
+                    f"points in {len(held)} of its {len(frames)} measured frames (a point "
+                    f"must be seen by all its cameras), its pairs in {len(by_pairs)}; it is "
+                    "measured as pairs of its template with each other camera "
+                    "(CaptureParams.min_group_share)", stacklevel=3)
+        if not pairs:
+            pairs = [(g, (v, cams), noise, measured)]
+        for pg, pin, pn, pm in pairs:
+            groups.append(pg)
+            inputs.append(pin)
             noises.append(pn)
-            st.surfaces.append(_group_surfaces(st, pair, pv, pc, pn))
+            st.surfaces.append(pm)
     st.groups, st.inputs, st.noise = tuple(groups), inputs, noises
 
 
-def _group_surfaces(st: _State, g, v, cams, noise) -> dict:
-    """One view group's surfaces (:func:`measure_surfaces`) in every measured frame."""
+def _held(measured: dict) -> set:
+    """The measured frames whose surface holds a kept point."""
+    return {f for f, r in measured.items() if r.kept.any()}
+
+
+def _pairs(st: _State, g, v, cams) -> list:
+    """A view group's pairs of its template with each other camera, measured: (group,
+    (videos, cameras), noise, surfaces) each."""
+    out = []
+    for j in range(len(cams)):
+        if j == g.template_position:
+            continue
+        pos = sorted((j, g.template_position))
+        pair = ViewGroup(cameras=tuple(g.cameras[i] for i in pos), template=g.template)
+        pv, pc = v[pos], [cams[i] for i in pos]
+        pn = temporal_noise(pv)
+        out.append((pair, (pv, pc), pn, _group_surfaces(st, pair, pv, pc, pn)[0]))
+    return out
+
+
+def _group_surfaces(st: _State, g, v, cams, noise) -> tuple[dict, range]:
+    """One view group's surfaces (:func:`measure_surfaces`) in every measured frame, and
+    those frames."""
     p = st.params
     surface = replace(p.surface, template=g.template_position)
     if surface.method == "rectified" and len(cams) != 2:
         warnings.warn(f"capture_recording: view group {_joined_names(cams)} has "
                       f"{len(cams)} cameras, and SurfaceParams(method='rectified') "
                       "(lsmta capture --surface-method rectified-sgbm) measures pairs "
-                      "only; this group is measured by the growth", stacklevel=4)
+                      "only; this group is measured by the growth", stacklevel=5)
         surface = replace(surface, method="grow")
-    return measure_surfaces(v, cams, range(0, v.shape[1], p.density_every),
-                            sigma=noise.sigma, params=surface, progress=st.progress)
+    frames = range(0, v.shape[1], p.density_every)
+    return measure_surfaces(v, cams, frames, sigma=noise.sigma, params=surface,
+                            progress=st.progress), frames
 
 
 def _more_views(st: _State) -> None:
@@ -592,7 +623,7 @@ def _tracking(st: _State) -> None:
             continue
         tracker = replace(p.tracker, density_every=p.density_every,
                           template=g.template_position)
-        st.tracks.append(track_surface(v, surfaces, params=tracker, cameras=cams,
+        st.tracks.append(track_surface(v, surfaces, params=tracker, start_cameras=cams,
                                        progress=st.progress))
     if all(t is None for t in st.tracks) and st.params.markers is None:
         off = sum(r.off_subject for s in st.surfaces for r in s.values())

@@ -55,7 +55,7 @@ import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
-from .._validate import as_scalar
+from .._validate import as_array, as_scalar
 from ..matching import (
     DisparityParams,
     GrowParams,
@@ -68,7 +68,7 @@ from ..matching import (
     lsm,
     measure_surface,
 )
-from ..matching.seeds import WARPS
+from ..matching.seeds import WARPS, camera_depth
 from ..triangulation import triangulate
 from .checks import check_cameras, check_videos
 from .rectified import NoSeedsError, measure_rectified_pair, surface_result
@@ -128,9 +128,12 @@ class SurfaceParams:
     seed_warp : {"auto", "identity", "predicted"}
         The growth's seeds: the search patch :func:`~lsmta.matching.find_seeds` correlates
         and LSM starts from. ``"auto"`` (default): the map the cameras predict for a search
-        camera that sees the template's patch turned by more than 30° (a camera mounted on
-        its side) or scaled by more than 1.5, the square patch for the others (a rig whose
-        cameras all stand the same way and see the subject at similar scales: as before).
+        camera that sees the template's patch turned by more than
+        :data:`~lsmta.matching.seeds.AUTO_TURN_DEG` (a camera mounted on its side) or scaled
+        by more than :data:`~lsmta.matching.seeds.AUTO_SCALE` (beyond them the square patch
+        no longer correlates, nor LSM pulls in from it), the square patch for the others (a
+        rig whose cameras all stand the same way and see the subject at similar scales: as
+        before).
     subject_mask : SubjectMaskParams or None
         With it, every measured frame's n-tuples whose template pixel lies off the moving
         subject (:func:`~lsmta.systems.subject.subject_masks` of the videos given) are
@@ -195,7 +198,7 @@ def working_distance(cameras, template: int) -> float:
     if not np.isfinite(X).all():
         raise ValueError("cameras: their optical axes do not meet; cannot find the working "
                          "volume")
-    return float((X - cameras[template].C) @ cameras[template].R[2])
+    return float(camera_depth(cameras[template], X))
 
 
 def seed_residual(images, seeds_xy, *, template: int, patch: int, seeds_A=None) -> float:
@@ -212,6 +215,9 @@ def seed_residual(images, seeds_xy, *, template: int, patch: int, seeds_A=None) 
     seeds_A : (K, S, 2, 2) array, optional
         LSM's starting affine maps (:attr:`~lsmta.matching.Seeds.A`); default identity.
     """
+    seeds_xy = as_array(seeds_xy, "seeds_xy", shape=(len(images), None, 2), allow_nan=True)
+    if seeds_A is not None:
+        seeds_A = as_array(seeds_A, "seeds_A", shape=(len(images), seeds_xy.shape[1], 2, 2))
     f = np.asarray(images[template], float)
     sigma0 = []
     for k, g in enumerate(images):

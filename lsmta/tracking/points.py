@@ -89,7 +89,7 @@ from tqdm.auto import tqdm
 from .._validate import as_array, as_int, as_scalar, check_patch
 from ..camera import Camera
 from ..matching.lsm import LSMThresholds
-from ..matching.seeds import predicted_maps, warped_images
+from ..matching.seeds import camera_depth, predicted_maps, warped_images
 from ..matching.spline import SplineImage, check_grey
 from ..triangulation import triangulate
 from .density import sparse_candidates
@@ -325,8 +325,10 @@ def track_points(images, initial_xy, *, params: TrackerParams | None = None,
         (a geometric check beyond the paper's spatial LSM).
     start_cameras : sequence of K Camera, optional
         Calibrated cameras used only to start the spatial LSM of a new track: into a camera
-        that sees the template camera's patch turned by more than 30° or scaled by more than
-        1.5 (a camera mounted on its side), from the map they predict
+        that sees the template camera's patch turned by more than
+        :data:`~lsmta.matching.seeds.AUTO_TURN_DEG` or scaled by more than
+        :data:`~lsmta.matching.seeds.AUTO_SCALE` (a camera mounted on its side; beyond them
+        LSM does not pull in from the identity), from the map they predict
         (:func:`~lsmta.matching.seeds.warped_images`, ``"auto"``) instead of the identity.
         No reprojection check (that is ``cameras``).
     progress : bool
@@ -870,19 +872,18 @@ def _start_maps(template: int, xy, cams) -> np.ndarray:
     A = _eye(K, n)
     if cams is None or not n:
         return A
-    t = cams[template]
     X = triangulate(cams, xy, min_angle_deg=0.0).points
-    depth = (X - t.C) @ t.R[2]
+    depth = camera_depth(cams[template], X)
     good = np.isfinite(depth) & (depth > 0)
     if not good.any():
         return A
     warped = warped_images(cams, template, float(np.median(depth[good])), warp="auto")
     if not warped:
         return A
-    maps = predicted_maps(cams, template, np.nan_to_num(X), np.where(good, depth, 1.0))
+    maps = predicted_maps(cams, template, X[good])
     for k in warped:
-        ok = good & np.isfinite(maps[k]).all(axis=(1, 2))
-        A[k, ok] = maps[k][ok]
+        ok = np.isfinite(maps[k]).all(axis=(1, 2))
+        A[k, np.flatnonzero(good)[ok]] = maps[k][ok]
     return A
 
 

@@ -92,6 +92,10 @@ def add_parser(sub) -> None:
                           "markers (small grey blobs on skin) or any small bright blob")
     cap.add_argument("--tracker", choices=("lsmta", "klt"), default="lsmta",
                      help="the markers' 2-D tracker (default lsmta; klt: OpenCV's, the peer)")
+    cap.add_argument("--marker-filter-hz", type=float, default=6.0, metavar="HZ",
+                     help="cut-off of the zero-lag Butterworth low-pass (order 4) of the "
+                          "markers' 3-D positions written to markers.c3d / .trc, Hz (default "
+                          "6, Pose2Sim's; below half the frame rate); 0: not filtered")
     cap.add_argument("--surface-method", choices=("growth", "rectified-sgbm", "auto"),
                      default="growth",
                      help="how surfaces are measured: growth (default: seeds and LSM region "
@@ -190,7 +194,8 @@ def _params(args) -> CaptureParams:
     markers = None
     if args.markers:
         markers = MarkerParams(detector=args.markers, sigma=2.5 * args.scale,
-                               max_px=4.0 * args.scale, tracker=Tracker2D[args.tracker.upper()])
+                               max_px=4.0 * args.scale, tracker=Tracker2D[args.tracker.upper()],
+                               filter_hz=args.marker_filter_hz or None)
     surface = SurfaceParams(
         method={"growth": "grow", "rectified-sgbm": "rectified", "auto": "auto"}[
             args.surface_method],
@@ -234,7 +239,9 @@ def run(args) -> int:
                                     params=_params(args),
                                     progress=progress)
     except (ValueError, FileNotFoundError) as err:
-        message = str(err).replace("pass mismatch='crop'", "pass --mismatch crop")
+        message = (str(err).replace("pass mismatch='crop'", "pass --mismatch crop")
+                   .replace("params.filter_hz: cutoff_hz:", "--marker-filter-hz:")
+                   .replace("filter_hz:", "--marker-filter-hz:"))
         print(f"lsmta capture: {message.splitlines()[0]}", file=sys.stderr)
         return 2
     files = capture.save(args.out)

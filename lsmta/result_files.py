@@ -2,7 +2,8 @@
 
 - **C3D** (written with ezc3d, the library Kinetics Toolkit, OpenSim's tools and most
   motion-capture software read): the ``POINT`` group with ``LABELS``, ``UNITS`` ("mm") and
-  ``RATE`` (frames per second); a missing sample has residual -1 (the C3D convention for
+  ``RATE`` (frames per second), optionally ``DESCRIPTIONS`` (what the points are, e.g. how
+  they were filtered); a missing sample has residual -1 (the C3D convention for
   an invalid point, which tools that go by the residual need) and NaN coordinates.
 - **TRC** (the tab-separated text of OpenSim and Pose2Sim): a five-line header
   (``PathFileType 4 (X/Y/Z)``; the data rate, frame count, marker count, units), then one
@@ -68,7 +69,7 @@ def _target(path, suffix: str) -> Path:
     return path
 
 
-def write_c3d(path, trajectories, *, rate: float, labels=None) -> Path:
+def write_c3d(path, trajectories, *, rate: float, labels=None, description=None) -> Path:
     """Write labelled trajectories to a C3D file with ezc3d.
 
     Parameters
@@ -81,15 +82,22 @@ def write_c3d(path, trajectories, *, rate: float, labels=None) -> Path:
         Frames per second (> 0).
     labels : sequence of N str, optional
         Point labels (default ``P1 .. PN``).
+    description : str, optional
+        Written as every point's ``POINT:DESCRIPTIONS`` entry (e.g. the filter applied).
     """
     X = _trajectories(trajectories)
     rate = as_scalar(rate, "rate", positive=True)
     names = _labels(labels, X.shape[1])
+    if description is not None and not isinstance(description, str):
+        raise TypeError(f"description: expected a str or None, got "
+                        f"{type(description).__name__}")
     path = _target(path, ".c3d")
     c3d = ezc3d.c3d()
     c3d["parameters"]["POINT"]["RATE"]["value"] = [rate]
     c3d["parameters"]["POINT"]["LABELS"]["value"] = names
     c3d["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
+    if description is not None:
+        c3d.add_parameter("POINT", "DESCRIPTIONS", [description] * X.shape[1])
     data = np.ones((4, X.shape[1], X.shape[0]))
     data[:3] = X.transpose(2, 1, 0)
     missing = np.isnan(data[:3]).any(axis=0)

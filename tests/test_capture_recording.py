@@ -2,6 +2,7 @@
 its files (BodyCapture.save, read back with ezc3d and pyvista), camera files recognised by
 content, and the ``lsmta capture`` command."""
 
+import argparse
 import json
 import warnings
 from dataclasses import replace
@@ -379,6 +380,23 @@ def test_command_scales_the_mask_and_patches_with_the_frames():
     assert params(0.1).more_views.patch == 5, "the smallest patch"
 
 
+def test_command_marker_filter_option():
+    """--marker-filter-hz sets the markers' low-pass cut-off (default Pose2Sim's 6 Hz); 0
+    turns it off; a negative one is refused naming the option."""
+    from lsmta.capture_command import _params, add_parser
+
+    parser = argparse.ArgumentParser()
+    add_parser(parser.add_subparsers())
+    base = ["capture", "--videos", "a.mp4", "--out", "o", "--markers", "skin"]
+    for extra, hz in (([], 6.0), (["--marker-filter-hz", "8"], 8.0),
+                      (["--marker-filter-hz", "0"], None)):
+        args = parser.parse_args(base + extra)
+        assert _params(args).markers.filter_hz == hz
+        assert _params(args).markers.filter_order == 4
+    with pytest.raises(ValueError, match="filter_hz"):
+        _params(parser.parse_args(base + ["--marker-filter-hz", "-1"]))
+
+
 @pytest.mark.slow
 def test_summary_carries_the_marker_join_checks_as_numbers(capture):
     """summary.json's markers: the join checks' counts as a structured entry."""
@@ -399,6 +417,41 @@ def test_summary_carries_the_marker_join_checks_as_numbers(capture):
     assert record["marker_join_checks"] == {k: int(v) for k, v in joins.items()}
     assert all(type(v) is int for v in record["marker_join_checks"].values())
     json.dumps(record)                                     # plain values
+
+
+@pytest.mark.slow
+def test_saved_markers_are_the_filtered_positions(capture, tmp_path):
+    """markers.c3d / .trc hold the low-pass filtered positions and say so (C3D
+    POINT:DESCRIPTIONS, summary.json's marker_filter); without the filter, the raw ones."""
+    from lsmta.systems.markers import MarkerCapture
+
+    T = len(capture.frames)
+    raw = np.zeros((T, 2, 3))
+    raw[:, :, 0] = np.arange(T)[:, None] * 30.0 + [0.0, 100.0]
+    raw[2, 1] = np.nan
+    smooth = raw + 0.5                       # stands for the filter's output (NaN kept)
+    record = {"applied": True, "cutoff_hz": 6.0, "order": 4, "fps": capture.fps, "runs": 1,
+              "short_runs": 2, "raw_samples": 5}
+    common = dict(detections=(np.zeros((2, 2)),) * 3, view_xy=(np.zeros((T, 2, 2)),) * 3,
+                  members=np.array([[0, 0, -1], [1, 1, -1]]), xy=np.zeros((T, 3, 2, 2)),
+                  xyz=raw, residual=np.zeros((T, 2)), motion_mm=np.array([150.0, 150.0]),
+                  moving=np.array([True, True]), seconds=0.1)
+    for filtered, rec, want, words in (
+            (smooth, record, smooth, "low-pass 6 Hz"),
+            (None, {"applied": False, "reason": "MarkerParams.filter_hz is None"}, raw,
+             "not filtered")):
+        markers = MarkerCapture(**common, xyz_filtered=filtered, filter=rec)
+        files = replace(capture, markers=markers).save(tmp_path / words, report=False)
+        c3d = ezc3d.c3d(str(files["markers_c3d"]))
+        pts = np.moveaxis(c3d["data"]["points"][:3], (0, 1, 2), (2, 1, 0))      # (T, N, 3)
+        missing = c3d["data"]["meta_points"]["residuals"][0].T < 0
+        assert np.array_equal(missing, np.isnan(want).any(axis=2))
+        assert np.allclose(pts[~missing], want[~missing], atol=1e-3)
+        assert all(words in d for d in c3d["parameters"]["POINT"]["DESCRIPTIONS"]["value"])
+        trc = read_trc(files["markers_trc"])
+        assert np.allclose(trc.points[~missing], want[~missing], atol=1e-3)
+        summary = json.loads(files["summary"].read_text())
+        assert summary["marker_filter"] == rec
 
 
 @pytest.mark.slow

@@ -118,6 +118,19 @@ def test_capture_markers_on_rendered_dots(tracker):
     near = [np.min(np.linalg.norm(X[0] - p, axis=1)) for p in m.xyz[0]]
     assert max(near) < 3.0
     assert np.all(m.triangulated_share() == 1.0) and np.nanmax(m.residual) < 0.5
+    # no frame rate: not low-pass filtered, and the capture says why
+    assert m.xyz_filtered is None and m.filter["applied"] is False and m.xyz_written is m.xyz
+    # with one: 8 frames are a run too short for the zero-lag filter (10): left raw, counted
+    f = capture_markers(stacks, cams, [s[0] for s in stacks], params=params, fps=30.0)
+    assert f.filter == {"applied": True, "cutoff_hz": 6.0, "order": 4, "fps": 30.0, "runs": 0,
+                        "short_runs": 6, "raw_samples": 48}
+    assert np.array_equal(f.xyz_filtered, f.xyz) and np.array_equal(f.xyz, m.xyz)
+    with pytest.raises(ValueError, match="filter_hz: cutoff_hz: .*Nyquist"):
+        capture_markers(stacks, cams, [s[0] for s in stacks], fps=10.0, params=params)
+    with pytest.raises(ValueError, match="filter_order: expected an even"):
+        MarkerParams(filter_order=3)
+    with pytest.raises(ValueError, match="filter_hz"):
+        MarkerParams(filter_hz=-6.0)
     with pytest.raises(ValueError, match="detector"):
         MarkerParams(detector="leds")
     with pytest.raises(ValueError, match="one per view"):

@@ -297,7 +297,8 @@ class BodyCapture:
                                     f"3-D in {np.mean(share) if len(share) else 0:.0%} of "
                                     "the frames on average; join checks "
                                     + ", ".join(f"{k.replace('_', ' ')} {v}"
-                                                for k, v in m.joins.items())))
+                                                for k, v in m.joins.items())
+                                    + "; " + _filter_text(m.filter)))
         if self.arm is not None:
             full = self.arm.full
             rows.append(("arm model", f"{full.status.name} after {full.rounds} round(s) in "
@@ -652,7 +653,7 @@ def _markers(st: _State) -> None:
     if st.params.markers is not None:
         stacks = [s[_span(st.frames)] for s in st.stacks]
         st.markers = capture_markers(stacks, st.cameras, st.first_frames,
-                                     params=st.params.markers)
+                                     params=st.params.markers, fps=st.fps)
 
 
 def _arm_model(st: _State) -> None:
@@ -665,6 +666,14 @@ STAGES = (("view groups", _view_groups), ("image noise", _image_noise),
           ("surfaces", _surfaces), ("more views", _more_views), ("tracking", _tracking),
           ("trajectories", _trajectories),
           ("markers", _markers), ("arm model", _arm_model))
+
+
+def _filter_text(record: dict) -> str:
+    """The marker stage's low-pass filter in a few words."""
+    if not record.get("applied"):
+        return f"not low-pass filtered ({record.get('reason', 'no filter')})"
+    return (f"low-pass filtered at {record['cutoff_hz']:g} Hz (zero-lag Butterworth, order "
+            f"{record['order']}; {record['short_runs']} short runs left raw)")
 
 
 def capture_recording(videos, cameras, *, fps: float | None = None, frames=None,

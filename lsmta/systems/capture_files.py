@@ -8,7 +8,11 @@ Files, in one folder:
   recording's frame rate, labelled ``G<group>_<n>`` (view group, then the point's number in
   it); a sample the filters removed is missing (C3D residual -1, an empty TRC field);
 * ``markers.c3d`` and ``markers.trc`` (with the marker stage): the moving markers' 3-D
-  positions, labelled ``M<n>`` in the order of ``summary.json``'s ``markers`` list;
+  positions, labelled ``M<n>`` in the order of ``summary.json``'s ``markers`` list, low-pass
+  filtered (``MarkerParams.filter_hz``: zero-lag Butterworth, 6 Hz, order 4 by default,
+  per gap-free run; gaps stay missing) unless the filter is off; the C3D's
+  ``POINT:DESCRIPTIONS`` and ``summary.json``'s ``marker_filter`` say which (the
+  residuals in ``summary.json`` are those of the raw intersections);
 * ``surfaces/frame_NNNN.ply``: each measured frame's surface points of every view group
   (file frame numbers), with per-point ``group``, ``sigma_px`` (largest LSM standard deviation
   of the point's image positions) and ``ray_distance_mm`` (RMS distance of the point to its
@@ -157,9 +161,19 @@ def capture_record(capture) -> dict:
             for i, (j, row) in enumerate((j, m.members[j]) for j in np.flatnonzero(m.moving))]
         record["still_blobs_joined"] = int((~m.moving).sum())
         record["marker_join_checks"] = {k: int(v) for k, v in m.joins.items()}
+        record["marker_filter"] = dict(m.filter)
     if hasattr(capture.calibration, "summary") and callable(capture.calibration.summary):
         record["calibration"] = capture.calibration.summary()
     return _plain(record)
+
+
+def marker_description(record: dict) -> str:
+    """The markers' C3D description: how their positions were filtered (``record``:
+    :attr:`~lsmta.systems.MarkerCapture.filter`)."""
+    if not record.get("applied"):
+        return "lsmta marker, raw intersection (not filtered)"
+    return (f"lsmta marker, low-pass {record['cutoff_hz']:g} Hz (zero-lag Butterworth, order "
+            f"{record['order']}, per gap-free run)")
 
 
 MESH_VOXEL_MM = 6.0      # grid step of the saved meshes, mm
@@ -294,9 +308,10 @@ def save_capture(capture, directory, *, report: bool = True) -> dict:
         out["c3d"] = write_c3d(folder / "trajectories.c3d", X, rate=capture.fps, labels=labels)
         out["trc"] = write_trc(folder / "trajectories.trc", X, rate=capture.fps, labels=labels)
     if capture.markers is not None and capture.markers.moving.any():
-        M = capture.markers.xyz[:, capture.markers.moving]
+        M = capture.markers.xyz_written[:, capture.markers.moving]
         names = [f"M{i + 1}" for i in range(M.shape[1])]
-        out["markers_c3d"] = write_c3d(folder / "markers.c3d", M, rate=capture.fps, labels=names)
+        out["markers_c3d"] = write_c3d(folder / "markers.c3d", M, rate=capture.fps, labels=names,
+                                       description=marker_description(capture.markers.filter))
         out["markers_trc"] = write_trc(folder / "markers.trc", M, rate=capture.fps, labels=names)
     frames = sorted({t for v in capture.views for t in v.surfaces})
     out["surfaces"] = []

@@ -26,7 +26,11 @@ The stage for what a marker-based recording holds beyond the surfaces: small ski
    below);
 5. *intersection* of every frame from every view that holds the marker
    (:func:`~lsmta.tracking.view_tracks.triangulate_joined`), and each marker's 3-D motion
-   range, which tells the subject's markers (moving) from still blobs of the room.
+   range, which tells the subject's markers (moving) from still blobs of the room;
+6. *low-pass filter* of the intersected positions (``MarkerParams.filter_hz``, given the
+   frame rate; :func:`~lsmta.tracking.lowpass.lowpass_trajectories`: zero-lag Butterworth,
+   per gap-free run, Pose2Sim's default 6 Hz, order 4, not tuned on any recording). The
+   raw positions are kept: the residuals and the motion range are theirs.
 
 The silhouette check is for the kind of recording this stage is for: one moving subject
 carries the markers. A point on the subject projects inside the subject's silhouette in
@@ -83,6 +87,7 @@ from ..tracking.join_checks import (
     silhouette_share,
 )
 from ..tracking.klt import track_klt
+from ..tracking.lowpass import lowpass_trajectories
 from ..tracking.markers import find_blobs, find_markers
 from ..tracking.view_tracks import join_view_tracks, joined_positions, triangulate_joined
 from .subject import SubjectMaskParams, background, subject_masks
@@ -158,6 +163,12 @@ class MarkerParams:
         least 1; the subject mask's ``close_px`` and ``grow_px``); None: ``6 sigma`` (15 px
         at the default ``sigma`` 2.5: :class:`~lsmta.systems.subject.SubjectMaskParams`'
         radii, scaled with the frames).
+    filter_hz : float or None
+        Cut-off of the low-pass filter of the 3-D positions, Hz (stage 6 of the module
+        docstring; below the recording's Nyquist frequency); default 6 (Pose2Sim's and
+        Winter's for gait); None: not filtered.
+    filter_order : int
+        Order of the zero-lag filter (both passes together, even; Pose2Sim's ``order``).
     """
 
     detector: str = "skin"
@@ -177,6 +188,8 @@ class MarkerParams:
     fill_search_px: float | None = None
     silhouette: float | None = 0.5
     silhouette_px: float | None = None
+    filter_hz: float | None = 6.0
+    filter_order: int = 4
 
     def __post_init__(self):
         if self.detector not in ("skin", "blobs"):
@@ -199,6 +212,11 @@ class MarkerParams:
                              f"{self.silhouette}")
         if self.silhouette_px is not None:
             as_scalar(self.silhouette_px, "silhouette_px", positive=True)
+        if self.filter_hz is not None:
+            as_scalar(self.filter_hz, "filter_hz", positive=True)
+        if as_int(self.filter_order, "filter_order", minimum=2) % 2:
+            raise ValueError(f"filter_order: expected an even order (the two passes "
+                             f"together), got {self.filter_order}")
         if self.follow is not None and not isinstance(self.follow, FollowParams):
             raise TypeError(f"follow: expected a FollowParams or None, got "
                             f"{type(self.follow).__name__}")
@@ -225,7 +243,7 @@ class MarkerCapture:
     xy : (T, K, M, 2) array
         The markers' tracked image positions, px.
     xyz : (T, M, 3) array
-        Their 3-D positions, mm (NaN: fewer than two views).
+        Their 3-D positions as intersected (raw), mm (NaN: fewer than two views).
     residual : (T, M) array
         Largest reprojection error of each marker's views, px.
     motion_mm : (M,) array
@@ -241,6 +259,14 @@ class MarkerCapture:
         ``"views_out"`` taken out, tracks ``"attached"``, dots ``"filled"`` of the markers
         returned (all 0 without the check), moving markers dropped ``"off_subject"`` (their
         positions off the subject's silhouette, ``MarkerParams.silhouette``).
+    xyz_filtered : (T, M, 3) array or None
+        ``xyz`` low-pass filtered (``MarkerParams.filter_hz``), mm; samples in runs too
+        short to filter are raw. None: not filtered (``filter_hz`` None, or no frame rate
+        given to :func:`capture_markers`).
+    filter : dict
+        The filter applied: ``cutoff_hz``, ``order``, ``fps``, ``runs`` filtered,
+        ``short_runs`` and ``raw_samples`` left raw; or ``{"applied": False, "reason":
+        ...}``.
     """
 
     detections: tuple
@@ -253,9 +279,18 @@ class MarkerCapture:
     moving: np.ndarray
     seconds: float
     joins: dict = field(default_factory=dict)
+    xyz_filtered: np.ndarray | None = None
+    filter: dict = field(default_factory=dict)
 
     def __post_init__(self):
         freeze(self, ("members", "xy", "xyz", "residual", "motion_mm", "moving"))
+        if self.xyz_filtered is not None:
+            freeze(self, ("xyz_filtered",))
+
+    @property
+    def xyz_written(self) -> np.ndarray:
+        """The positions a file holds: ``xyz_filtered``, or ``xyz`` where not filtered."""
+        return self.xyz if self.xyz_filtered is None else self.xyz_filtered
 
     def triangulated_share(self) -> np.ndarray:
         """``(M,)`` share of the frames in which each marker has a 3-D position."""
@@ -326,7 +361,8 @@ def _step(frames, p: MarkerParams):
 
 
 def capture_markers(stacks, cameras, first_frames, *, params: MarkerParams | None = None,
-                    like: MarkerCapture | None = None) -> MarkerCapture:
+                    like: MarkerCapture | None = None,
+                    fps: float | None = None) -> MarkerCapture:
     """Markers of a synchronised recording in 3-D (see the module docstring).
 
     Parameters
@@ -342,6 +378,10 @@ def capture_markers(stacks, cameras, first_frames, *, params: MarkerParams | Non
         The same markers as this earlier capture of the same recording: its detections are
         tracked again (with ``params``' tracker) and joined and told moving as it joined and
         told them, so that two trackers are compared on the same markers.
+    fps : float, optional
+        The recording's frame rate, Hz: needed by the low-pass filter
+        (``params.filter_hz``); without it the positions are not filtered
+        (``xyz_filtered`` None, ``filter`` says why).
 
     Returns
     -------
@@ -354,10 +394,10 @@ def capture_markers(stacks, cameras, first_frames, *, params: MarkerParams | Non
     its ``seconds`` are then the earlier call's).
     """
     return cached_result("marker_capture", _capture_markers, (stacks, cameras, first_frames),
-                         kwargs={"params": params, "like": like})
+                         kwargs={"params": params, "like": like, "fps": fps})
 
 
-def _capture_markers(stacks, cameras, first_frames, *, params, like) -> MarkerCapture:
+def _capture_markers(stacks, cameras, first_frames, *, params, like, fps) -> MarkerCapture:
     p = params or MarkerParams()
     cams = list(cameras)
     if not len(stacks) == len(cams) == len(first_frames):
@@ -408,10 +448,36 @@ def _capture_markers(stacks, cameras, first_frames, *, params, like) -> MarkerCa
         span = np.nanmax(xyz, axis=0) - np.nanmin(xyz, axis=0)
     motion = np.nan_to_num(np.linalg.norm(span, axis=1))
     moving = motion >= p.min_motion_mm if like is None else like.moving
+    filtered, record = marker_lowpass(xyz, fps, params=p)
     return MarkerCapture(detections=detections, view_xy=view_xy, members=members,
                          xy=joined_positions(view_xy, members), xyz=xyz,
                          residual=residual, motion_mm=motion, moving=moving,
-                         seconds=seconds, joins=joins)
+                         seconds=seconds, joins=joins, xyz_filtered=filtered, filter=record)
+
+
+def marker_lowpass(xyz, fps: float | None, *, params: MarkerParams | None = None):
+    """Stage 6: ``(T, M, 3)`` positions (mm) low-pass filtered as ``params`` says.
+
+    Returns
+    -------
+    filtered : (T, M, 3) array or None
+        None where not filtered (``params.filter_hz`` None, or ``fps`` None).
+    record : dict
+        :attr:`MarkerCapture.filter`.
+    """
+    p = params or MarkerParams()
+    if p.filter_hz is None:
+        return None, {"applied": False, "reason": "MarkerParams.filter_hz is None"}
+    if fps is None:
+        return None, {"applied": False, "reason": "no frame rate given (fps=None)"}
+    fps = as_scalar(fps, "fps", positive=True)
+    try:
+        lp = lowpass_trajectories(xyz, fps, cutoff_hz=p.filter_hz, order=p.filter_order)
+    except ValueError as err:
+        raise ValueError(f"params.filter_hz: {err}") from None
+    return lp.xyz, {"applied": True, "cutoff_hz": lp.cutoff_hz, "order": lp.order,
+                    "fps": lp.fps, "runs": lp.runs, "short_runs": lp.short_runs,
+                    "raw_samples": int(lp.raw.sum())}
 
 
 def _checked_joins(cams, view_xy, members, p: MarkerParams):

@@ -5,7 +5,8 @@ tracking, 2-D mode with one camera; ``track_step``: one step of it); ``track_klt
 OpenCV KLT peer;
 ``trajectories_from_tracks`` intersects tracks into :class:`Trajectories` (velocities,
 accelerations); ``threshold_filter`` and ``uniformity_filter`` (the paper's) and
-``drift_filter`` (ours) cut false trajectories, ``apply_filters`` chains the three.
+``drift_filter`` (ours) cut false trajectories, ``apply_filters`` chains the three;
+``lowpass_trajectories`` smooths trajectories with gaps (zero-lag Butterworth, per run).
 ``markers`` is the small-scale marker tracker of Davis §5.1.
 ``guided`` is guided tracking (Davis Fig. 56: tracking state, enlarged view, a lost marker
 placed by hand and tracked on); ``guided_ui`` its ipywidgets interface.
@@ -21,12 +22,14 @@ from .filters import (
     uniformity_filter,
 )
 from .klt import track_klt
+from .lowpass import Lowpass, lowpass_trajectories
 from .points import StepResult, TrackerParams, Tracks, TrackStatus, track_points, track_step
 from .trajectories import Trajectories, trajectories_from_tracks
 
 __all__ = [
-    "FilterReport", "Reason", "StepResult", "TrackStatus", "TrackerParams", "Tracks",
+    "FilterReport", "Lowpass", "Reason", "StepResult", "TrackStatus", "TrackerParams", "Tracks",
     "Trajectories",
-    "apply_filters", "drift_deviation", "drift_filter", "threshold_filter", "track_klt",
+    "apply_filters", "drift_deviation", "drift_filter", "lowpass_trajectories", "threshold_filter",
+    "track_klt",
     "track_points", "track_step", "trajectories_from_tracks", "uniformity_filter",
 ]

@@ -15,14 +15,17 @@ rays, replayed ``repeats`` times): full / guided time
 the same place (target: at least 99 %), printed at the end with their verdicts and the
 machine's load. Each seed (``--seeds``) renders its own scenes; the rule for the windows
 around targets a camera has not observed yet (``--unobserved-px``) was designed on seed 2002,
-so other seeds are held out. Writes build/benchmarks/widearea_detection.json.
+so other seeds are held out. Writes build/benchmarks/widearea_detection.json (``--out``; the
+run notebook 09 quotes is committed as experiments/results/widearea_detection.json).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
+from datetime import datetime, timezone
 
 import numpy as np
 
@@ -67,7 +70,10 @@ def main(argv=None):
               f"{100 * same:.2f} % ({verdict(same >= 0.99, '>= 99 %')}), {row['missed']} "
               f"missed: {row['missed_before_first_find']} before that camera's first find "
               f"of the LED, {row['missed_before_any_find']} of them before any camera's")
-    write_json(args.out, {"repeats": args.repeats, "seeds": args.seeds,
+    write_json(args.out, {"command": " ".join(["experiments/widearea_detection_benchmark.py",
+                                               *(argv if argv is not None else sys.argv[1:])]),
+                          "date": datetime.now(timezone.utc).date().isoformat(),
+                          "repeats": args.repeats, "seeds": args.seeds,
                           "unobserved_px": args.unobserved_px, "load_average": list(load),
                           "rows": rows, "guided": guided})
 

@@ -175,6 +175,33 @@ def test_the_pyramid_follows_a_jerky_motion_beyond_the_single_level_search():
     assert alive[0] < 0.1 * len(g) and alive[3] > 0.6 * len(g)
 
 
+def test_return_to_first_brings_a_track_found_by_its_fallback_back_to_its_first_template():
+    """A jerk of 3 px on a fine texture: from the linear prediction the first template does
+    not converge, the fallback template is found by the correlation search. By default
+    the track holds the fallback in those frames; with ``return_to_first`` its first
+    template, matched again from the fallback's position, passes, and every frame is
+    the first template's (``anchor`` 0), at the same positions."""
+    rng = np.random.default_rng(3)
+    base = ndimage.gaussian_filter(rng.normal(size=(120, 160)), 1.0)
+    base = 128 + 50 * base / base.std()
+    steps = np.array([[0, 0], [1, 0.5], [1, 0.5], [1, 0.5], [4, 0.5], [1, 0.5], [1, 0.5]])
+    pos = np.cumsum(steps, axis=0)
+    frames = np.stack([ndimage.shift(base, (y, x), order=3, mode="reflect") for x, y in pos])
+    g = np.stack(np.meshgrid(np.arange(30, 111, 16.0), np.arange(30, 91, 16.0)),
+                 -1).reshape(-1, 2)
+    on_fallback = {}
+    for back in (False, True):
+        tr = track_points(frames[None], g[None], params=TrackerParams(return_to_first=back))
+        assert (tr.status == TrackStatus.ALIVE).all()
+        err = np.linalg.norm(tr.xy[:, 0] - (g[None] + pos[:, None]), axis=2)
+        assert err.max() < 0.02
+        on_fallback[back] = int((tr.anchor > 0).sum())
+    assert on_fallback[False] > len(g) and on_fallback[True] == 0
+    assert TrackerParams().return_to_first is False
+    with pytest.raises(ValueError, match="params.return_to_first"):
+        track_points(frames[None], g[None], params=TrackerParams(return_to_first=1))
+
+
 def test_match_translation_recovers_a_shift_and_a_grey_offset():
     rng = np.random.default_rng(2)
     img = ndimage.gaussian_filter(rng.normal(size=(80, 80)), 2.0)

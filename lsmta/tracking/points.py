@@ -18,7 +18,8 @@ every new frame; the previous frame's solution is only the start. From frame ``t
    the fallback it already holds; matched from the prediction, then, where that fails, from
    the best *correlation* position in a box of half-width ``radius`` around the prediction
    (the paper's step 2). A track without history, after its match from the prediction, is
-   searched in the box with its first template;
+   searched in the box with its first template. With ``return_to_first`` a track the
+   fallback found tries its first template again from there;
 4. where all that fails (beyond the paper): a fallback template anchored before frame
    ``t`` is replaced by the track's patch in frame ``t``, and a *coarse-to-fine
    prediction* is made: the track's patch in its last tracked frame is matched into frame
@@ -168,6 +169,15 @@ class TrackerParams:
         of the others, each retry a forward LSM): 2-9 % less CPU on the real videos, but
         1.3 % fewer survivors on the generated triplet walk, so not the default
         (``experiments/real_video_tracking.py``).
+    return_to_first : bool
+        A track found with its fallback template tries its first template again, from
+        where the fallback found it (the inverse compositional match, the forward LSM
+        retry, then the correlation search in the same box around it); where that passes,
+        the frame is the first template's and the fallback's drift ends there. False (the
+        default): the first template is tried only from the prediction. On the eight real
+        videos 1882 survivors against 1855, kept with FB > 0.5 px 177 against 196, but
+        pose2sim cam03 265 -> 262, so not the default
+        (``experiments/real_video_tracking.py``).
     max_reprojection : float
         Largest reprojection error of an accepted frame, px (only with ``cameras``).
     density_every : int
@@ -194,6 +204,7 @@ class TrackerParams:
     pyramid_levels: int = 3
     partial: bool = True
     retry_rejected: bool = True
+    return_to_first: bool = False
     max_reprojection: float = 1.0
     density_every: int = 2
     cell: float = 16.0
@@ -390,7 +401,7 @@ def _check_params(p: TrackerParams, K: int) -> None:
     if K > 1 and not (isinstance(p.template, int | np.integer) and 0 <= p.template < K):
         raise ValueError(f"params.template: expected a camera index in [0, {K - 1}], "
                          f"got {p.template}")
-    for name in ("partial", "retry_rejected"):
+    for name in ("partial", "retry_rejected", "return_to_first"):
         if not isinstance(getattr(p, name), bool | np.bool_):
             raise ValueError(f"params.{name}: expected True or False, got "
                              f"{getattr(p, name)!r}")
@@ -759,7 +770,9 @@ def _attempt(state: _State, seq, prev, nxt, t: int, idx, pred, radius, p: Tracke
     the box of ``radius`` where ``box`` (where the direct match failed or was not tried);
     where they fail and ``fallback``, the fallback templates (anchored in frame ``t - 1``
     unless the track holds a fresh one) are matched from the prediction (where ``direct``)
-    and in the box. Then the spatial check per template set and (with cameras) the
+    and in the box (with ``p.return_to_first``, a track they found then tries its first
+    templates from there, and keeps them where they pass). Then the spatial check per
+    template set and (with cameras) the
     geometric check. Where ``first`` ``(n,)`` is False (default: all True) the first
     templates are not tried at all (an exact repeat of a failed match).
     """
@@ -773,6 +786,14 @@ def _attempt(state: _State, seq, prev, nxt, t: int, idx, pred, radius, p: Tracke
         st = _merge(st, sel, _temporal(state.fallback, seq, nxt, t, idx[sel], pred[:, sel],
                                        radius[sel], p, direct=direct[sel],
                                        box=np.ones(sel.size, bool)))
+    back = np.flatnonzero(use_fb & st.ok) if p.return_to_first else np.zeros(0, np.int64)
+    if back.size:
+        # the first template again, from where the fallback found the track
+        st1 = _temporal(state.first, seq, nxt, t, idx[back], st.xy[:, back], radius[back], p,
+                        direct=np.ones(back.size, bool), box=np.ones(back.size, bool))
+        got = np.flatnonzero(st1.ok)
+        st = _merge(st, back[got], _take(st1, got))
+        use_fb = use_fb & ~np.isin(np.arange(idx.size), back[got])
     ok = st.ok.copy()
     M, off = st.temporal_A.copy(), np.zeros(st.xy.shape)
     if len(nxt) > 1:
@@ -791,6 +812,15 @@ def _attempt(state: _State, seq, prev, nxt, t: int, idx, pred, radius, p: Tracke
         _accept(state, nxt, t, idx[ok], st.xy[:, ok], st.temporal_A[:, ok], st.sigma0[:, ok],
                 M[:, ok], off[:, ok], use_fb[ok], p)
     return ok
+
+
+def _take(st: _Temporal, rows) -> _Temporal:
+    """``st``'s tracks ``rows``."""
+    fields = {}
+    for name in _Temporal.__dataclass_fields__:
+        a = getattr(st, name)
+        fields[name] = a[(slice(None),) * (a.ndim > 1) + (rows,)]
+    return _Temporal(**fields)
 
 
 def _merge(st: _Temporal, sel, other: _Temporal) -> _Temporal:

@@ -155,8 +155,10 @@ patches differ by more than the threshold there (a person moving): an appearance
 not the prediction or the search. The 14: their forward runs held 1 to 16 successive
 fallback templates each, and the chain's frame-to-frame drift took them off. With sigma0
 up to 30 grey levels, 322 of cam01's points are kept (315) but 286 survive (292): the
-points kept through the change do not come back. On cam_3, judging the 14 survivors that
-end on a fallback by a tighter test would leave 91 (at 0.089 px), fewer than KLT's 104.
+points kept through the change do not come back; re-anchoring the fallback later
+(``reanchor_sigma0`` 4 or 8, not 2) leaves 288 (cam_3 unchanged). On cam_3, judging the
+14 survivors that end on a fallback by a tighter test would leave 91 (at 0.089 px), fewer
+than KLT's 104.
 
 *Return to the first template* (``TrackerParams(return_to_first=True)``,
 ``--return-to-first``; an option, not the default): a track found with its fallback

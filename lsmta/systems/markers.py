@@ -29,8 +29,9 @@ The stage for what a marker-based recording holds beyond the surfaces: small ski
    range, which tells the subject's markers (moving) from still blobs of the room;
 6. *low-pass filter* of the intersected positions (``MarkerParams.filter_hz``, given the
    frame rate; :func:`~lsmta.tracking.lowpass.lowpass_trajectories`: zero-lag Butterworth,
-   per gap-free run, Pose2Sim's default 6 Hz, order 4, not tuned on any recording). The
-   raw positions are kept: the residuals and the motion range are theirs.
+   per gap-free run, Pose2Sim's nominal 6 Hz, order 4, not tuned on any recording; as
+   Pose2Sim does it: no correction for the second pass, -3 dB at about 4.9 Hz at 60
+   fps). The raw positions are kept: the residuals and the motion range are theirs.
 
 The silhouette check is for the kind of recording this stage is for: one moving subject
 carries the markers. A point on the subject projects inside the subject's silhouette in

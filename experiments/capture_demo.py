@@ -17,12 +17,14 @@ unless ``--plain`` (each tracker alone over the clip, as before issue #40's mark
 Prints and writes ``<out>/experiment.json``: the command's time, stages and files; for both
 trackers the moving markers, their coverage, median residual and the rigid-pair distance's
 spread (the pair's heights and relative motion beside), raw (the intersections) and
-low-pass filtered (``MarkerParams``' default, Pose2Sim's: zero-lag Butterworth, 6 Hz, order
-4; what markers.c3d / .trc hold; the same pair, chosen on the raw positions), the join
+low-pass filtered (``MarkerParams``' default, Pose2Sim's: zero-lag Butterworth, nominal 6 Hz,
+order 4; what markers.c3d / .trc hold; the same pair, chosen on the raw positions), the join
 check's counts (``MarkerParams.check``: ambiguous joins dropped, views taken out, tracks
 attached, moving markers off the subject's silhouette dropped, dots found again), the 2-D
 tracking's CPU time, the ratios LSMTA / KLT, and the targets' verdicts; per LSMTA marker
-its views, 3-D share and the frames only one view (or none) holds it.
+its views, 3-D share and the frames only one view (or none) holds it. The idle run the
+README and notebooks 17 and 21 quote is committed as ``experiments/results/capture_demo.json``
+(with its command, date and commit).
 Targets (issue #40): the command under 5 minutes on 2 cores; every marker seen by >= 2 views
 in 3-D in >= 90 % of the frames; the rigid pair's distance std <= 3 mm; LSMTA at or below
 KLT on residual and spread (spread judged raw and filtered, each verdict labelled; the

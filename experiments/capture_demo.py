@@ -17,12 +17,14 @@ unless ``--plain`` (each tracker alone over the clip, as before issue #40's mark
 Prints and writes ``<out>/experiment.json``: the command's time, stages and files; for both
 trackers the moving markers, their coverage, median residual and the rigid-pair distance's
 spread (the pair's heights and relative motion beside), raw (the intersections) and
-low-pass filtered (``MarkerParams``' default, Pose2Sim's: zero-lag Butterworth, 6 Hz, order
-4; what markers.c3d / .trc hold; the same pair, chosen on the raw positions), the join
+low-pass filtered (``MarkerParams``' default, Pose2Sim's: zero-lag Butterworth, nominal 6 Hz,
+order 4; what markers.c3d / .trc hold; the same pair, chosen on the raw positions), the join
 check's counts (``MarkerParams.check``: ambiguous joins dropped, views taken out, tracks
 attached, moving markers off the subject's silhouette dropped, dots found again), the 2-D
 tracking's CPU time, the ratios LSMTA / KLT, and the targets' verdicts; per LSMTA marker
-its views, 3-D share and the frames only one view (or none) holds it.
+its views, 3-D share and the frames only one view (or none) holds it. The idle run the
+README and notebooks 17 and 21 quote is committed as ``experiments/results/capture_demo.json``
+(with its command, date and commit).
 Targets (issue #40): the command under 5 minutes on 2 cores; every marker seen by >= 2 views
 in 3-D in >= 90 % of the frames; the rigid pair's distance std <= 3 mm; LSMTA at or below
 KLT on residual and spread (spread judged raw and filtered, each verdict labelled; the
@@ -111,19 +113,22 @@ def _scores(runs, cpu):
     scores["KLT own joins"] = marker_scores(runs["KLT own joins"])
     for name, s in scores.items():
         m = runs[name]
-        s["pair_std_filtered_mm"] = _pair_std(m.xyz_filtered, s["pair"])
+        measured = (m.xyz_filtered is not None and s["pair"] is not None
+                    and not (name == "KLT" and pair is None))
+        s["pair_std_filtered_mm"] = (marker_scores(m, pair=s["pair"], xyz=m.xyz_filtered)
+                                     ["pair_std_mm"] if measured else float("nan"))
         s["filter"] = dict(m.filter)
         s["cpu_seconds"] = cpu[name]
         s["share_per_marker"] = runs[name].triangulated_share()[runs[name].moving].round(3).tolist()
     return scores
 
 
-def _pair_std(xyz, pair) -> float:
-    """Std of a pair's distance (mm) over the frames with both (NaN without a pair)."""
-    if pair is None or xyz is None:
-        return float("nan")
-    d = np.linalg.norm(xyz[:, pair[0]] - xyz[:, pair[1]], axis=1)
-    return float(np.std(d[np.isfinite(d)])) if np.isfinite(d).any() else float("nan")
+def _filtered(record: dict) -> tuple:
+    """The filter's words for the labels (``"6.0 Hz"``, or ``"filter off"``) and, when off,
+    the verdict of every filtered target (else None)."""
+    if not record.get("applied"):
+        return "filter off", f"not measured (filter off: {record.get('reason', '?')})"
+    return f"{record['cutoff_hz']} Hz", None
 
 
 def _per_marker(lm):
@@ -161,19 +166,19 @@ def main(argv=None):
     L, K = scores["LSMTA"], scores["KLT"]
     ratios = {k: L[k] / K[k] for k in ("residual_px", "pair_std_mm", "pair_std_filtered_mm",
                                        "cpu_seconds")}
-    hz = L["filter"].get("cutoff_hz")
+    hz, off = _filtered(L["filter"])
     lm = runs["LSMTA"]
     verdicts = {
         "command under 5 minutes": ("not run (--reuse)" if seconds is None
                                     else verdict(seconds < 300)),
         "every moving marker in 3-D in >= 90 % of the frames": verdict(L["share_min"] >= 0.9),
         "rigid pair std <= 3 mm (raw intersections)": verdict(L["pair_std_mm"] <= 3.0),
-        f"rigid pair std <= 3 mm (filtered, {hz} Hz: the files' positions)": verdict(
+        f"rigid pair std <= 3 mm (filtered, {hz}: the files' positions)": off or verdict(
             L["pair_std_filtered_mm"] <= 3.0),
         "LSMTA at or below KLT on residual and spread (raw; same markers and pair)": (
             "not measured (no rigid pair)" if pair is None else verdict(
                 L["residual_px"] <= K["residual_px"] and L["pair_std_mm"] <= K["pair_std_mm"])),
-        f"LSMTA at or below KLT on residual (raw) and spread (filtered, {hz} Hz)": (
+        f"LSMTA at or below KLT on residual (raw) and spread (filtered, {hz})": off or (
             "not measured (no rigid pair)" if pair is None else verdict(
                 L["residual_px"] <= K["residual_px"]
                 and L["pair_std_filtered_mm"] <= K["pair_std_filtered_mm"]))}
@@ -190,7 +195,7 @@ def main(argv=None):
     print(json.dumps(record, indent=1, default=str))
     for name in ("LSMTA", "KLT"):
         print(f"{name}: rigid pair {pair} distance std {scores[name]['pair_std_mm']:.2f} mm raw, "
-              f"{scores[name]['pair_std_filtered_mm']:.2f} mm filtered ({hz} Hz)")
+              f"{scores[name]['pair_std_filtered_mm']:.2f} mm filtered ({hz})")
     for target, v in verdicts.items():
         print(f"target {target}: {v}")
 

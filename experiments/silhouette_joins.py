@@ -7,7 +7,8 @@ view whose frame holds them? (issue #40: wrong joins metres off the person survi
 As notebook 17 runs it (cameras refined from the recording with 3 tie-point frames, skin
 markers tracked with LSMTA, ``MarkerParams`` with ``sigma = 2.5 s``, ``max_px = 4 s`` at
 scale ``s``, the join checks on, the silhouette check OFF so that every marker the other
-checks keep is measured). For each moving marker: the distance of its median 3-D position
+checks keep is measured; no ``fps``, so the positions are the raw intersections, no
+filter). For each moving marker: the distance of its median 3-D position
 from the person's centre (the medoid of the moving markers' median positions; notebook
 17's measure), its median height, and for every view (``*``: one that holds it) the share
 of the sampled frames (every ``--every``-th, at most 21 spread over the clip: the library's

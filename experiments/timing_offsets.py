@@ -29,7 +29,8 @@ frame rate, line delays in microseconds per row.
 4. The adjustment of ``refine_rig`` run again with the places' velocities
    (``refine_cameras(..., velocities=...)``): the offsets its z-test frees.
 5. The moving markers (``lsmta.systems.capture_markers`` with the refined cameras, every
-   frame; velocities from their tracks): the same regression, and per camera pair the
+   frame, raw intersections, no filter; velocities from their tracks): the same
+   regression, and per camera pair the
    second camera's offset fitted with the points re-triangulated from the two views.
    Each marker is seen by two views only, so only offsets within a pair are determined;
    its standard error assumes independent frames (a track's errors are not: too small).

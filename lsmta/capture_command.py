@@ -41,6 +41,7 @@ from .systems import (
     Tracker2D,
     calibrate_rig,
     capture_recording,
+    nyquist_checked,
     refine_rig,
 )
 from .systems.more_views import MoreViewsParams
@@ -92,10 +93,11 @@ def add_parser(sub) -> None:
                           "markers (small grey blobs on skin) or any small bright blob")
     cap.add_argument("--tracker", choices=("lsmta", "klt"), default="lsmta",
                      help="the markers' 2-D tracker (default lsmta; klt: OpenCV's, the peer)")
-    cap.add_argument("--marker-filter-hz", type=float, default=6.0, metavar="HZ",
+    cap.add_argument("--marker-filter-hz", type=float, default=None, metavar="HZ",
                      help="cut-off of the zero-lag Butterworth low-pass (order 4) of the "
                           "markers' 3-D positions written to markers.c3d / .trc, Hz (default "
-                          "6, Pose2Sim's; below half the frame rate); 0: not filtered")
+                          "6, Pose2Sim's, turned off with a warning at 12 fps or less; a "
+                          "given one must be below half the frame rate); 0: not filtered")
     cap.add_argument("--surface-method", choices=("growth", "rectified-sgbm", "auto"),
                      default="growth",
                      help="how surfaces are measured: growth (default: seeds and LSM region "
@@ -195,7 +197,7 @@ def _params(args) -> CaptureParams:
     if args.markers:
         markers = MarkerParams(detector=args.markers, sigma=2.5 * args.scale,
                                max_px=4.0 * args.scale, tracker=Tracker2D[args.tracker.upper()],
-                               filter_hz=args.marker_filter_hz or None)
+                               **_filter_hz(args.marker_filter_hz))
     surface = SurfaceParams(
         method={"growth": "grow", "rectified-sgbm": "rectified", "auto": "auto"}[
             args.surface_method],
@@ -205,6 +207,11 @@ def _params(args) -> CaptureParams:
     return CaptureParams(arm=ArmFitParams() if args.arm else None, markers=markers,
                          surface=surface,
                          more_views=_scaled_views(args.scale) if args.more_views else None)
+
+
+def _filter_hz(hz: float | None) -> dict:
+    """MarkerParams' ``filter_hz`` from ``--marker-filter-hz`` (None: the default; 0: off)."""
+    return {} if hz is None else {"filter_hz": hz or None}
 
 
 def _scaled_mask(scale: float) -> SubjectMaskParams:
@@ -231,16 +238,19 @@ def run(args) -> int:
     try:
         given = None if args.cameras is None else read_camera_file(args.cameras, unit=args.units)
         videos = read_videos(args.videos, frames=_frames(args.frames), scale=args.scale)
+        params = _params(args)
+        if params.markers is not None and args.marker_filter_hz:        # before any stage
+            nyquist_checked(params.markers, videos.fps, explicit=True)
         t_cal = time.perf_counter()
         cameras, calibration, note = _cameras(args, videos, given, progress)
         t_cal = time.perf_counter() - t_cal
         print(f"lsmta capture: cameras {note}", file=sys.stderr)
         capture = capture_recording(videos, cameras, calibration=calibration,
-                                    params=_params(args),
+                                    params=params,
                                     progress=progress)
     except (ValueError, FileNotFoundError) as err:
         message = (str(err).replace("pass mismatch='crop'", "pass --mismatch crop")
-                   .replace("params.filter_hz: cutoff_hz:", "--marker-filter-hz:")
+                   .replace("params.markers.filter_hz:", "--marker-filter-hz:")
                    .replace("filter_hz:", "--marker-filter-hz:"))
         print(f"lsmta capture: {message.splitlines()[0]}", file=sys.stderr)
         return 2

@@ -140,7 +140,22 @@ def read_trc(path) -> MarkerData:
 def write_trc(path, trajectories, *, rate: float, labels=None) -> Path:
     """Write labelled trajectories as a TRC file (mm), the text format OpenSim reads.
 
-    Parameters are those of :func:`write_c3d`; a missing sample is an empty field.
+    Parameters
+    ----------
+    path : str or Path
+        A ``.trc`` file name (folders are made).
+    trajectories : (T, N, 3) array
+        Positions, mm; NaN for a missing sample (written as an empty field).
+    rate : float
+        Frames per second (> 0).
+    labels : sequence of N str, optional
+        Point labels (default ``P1 .. PN``).
+
+    Notes
+    -----
+    Unlike :func:`write_c3d` there is no ``description``: the header's lines are the fixed
+    ones OpenSim and Pose2Sim read (file type and name, then rates, counts and units, then
+    labels and coordinate names), with no field for a note.
     """
     X = _trajectories(trajectories)
     rate = as_scalar(rate, "rate", positive=True)

@@ -138,5 +138,16 @@ def test_the_same_markers_tracked_again_and_their_pair_scored():
     assert s["pair"] == (0, 1) and s["pair_frames"] == 6 and s["pair_std_mm"] < 5.0
     with pytest.raises(ValueError, match="pair"):
         marker_scores(b, pair=(0, 99))
+    # other positions of the same markers (e.g. the filtered ones): their pair's spread
+    moved = b.xyz.copy()
+    moved[:, 0, 0] += [0.0, 4.0, 0.0, 4.0, 0.0, 4.0]                 # marker 0 jitters 4 mm
+    d = np.linalg.norm(moved[:, 0] - moved[:, 1], axis=1)
+    o = marker_scores(b, pair=(0, 1), xyz=moved)
+    assert o["pair_std_mm"] == pytest.approx(np.std(d)) and o["pair_std_mm"] > s["pair_std_mm"]
+    assert o["residual_px"] == s["residual_px"] and o["share_min"] == s["share_min"]
+    assert marker_scores(b, pair=(0, 1), xyz=b.xyz) == s
+    assert not np.array_equal(moved, b.xyz)                          # b.xyz not modified
+    with pytest.raises(ValueError, match="xyz"):
+        marker_scores(b, xyz=moved[:, :2])
     with pytest.raises(ValueError, match="like"):
         capture_markers(stacks, cams, first, params=params, like="a")

@@ -397,6 +397,47 @@ def test_command_marker_filter_option():
         _params(parser.parse_args(base + ["--marker-filter-hz", "-1"]))
 
 
+def test_a_cutoff_above_nyquist_is_decided_before_any_stage(tmp_path, capsys, monkeypatch):
+    """At 12 fps or less the default 6 Hz cut-off is at or above the Nyquist frequency: a
+    chosen cut-off is refused at once (naming the argument and fps / 2); the default one is
+    turned off with a warning, and the capture records why."""
+    import lsmta.systems.capture as capture_module
+    from lsmta.systems import MarkerParams, nyquist_checked
+
+    blobs = MarkerParams(detector="blobs")
+    assert nyquist_checked(blobs, 13.0) == (blobs, None)             # 6 < 6.5: kept
+    assert nyquist_checked(None, 6.0) == (None, None)
+    with pytest.warns(RuntimeWarning, match="Nyquist frequency 3 Hz"):
+        off, reason = nyquist_checked(blobs, 6.0)
+    assert off.filter_hz is None and off.detector == "blobs" and "6 fps" in reason
+    assert blobs.filter_hz == 6.0                                     # not modified
+    for params, explicit in ((MarkerParams(filter_hz=5.0), None), (blobs, True)):
+        with pytest.raises(ValueError, match=r"^params.markers.filter_hz: .* fps / 2 = 3 Hz"):
+            nyquist_checked(params, 6.0, explicit=explicit)
+    cams, v = _ring(8)[:2], np.zeros((2, 12, 480, 640), np.uint8)
+    with pytest.raises(ValueError, match="filter_hz: .*Nyquist"):
+        capture_recording(v, cams, fps=6.0, progress=False,
+                          params=CaptureParams(markers=MarkerParams(filter_hz=4.0)))
+    ran = []
+    stages = dict(capture_module.STAGES)
+    monkeypatch.setattr(capture_module, "STAGES", tuple(
+        (name, (lambda st, n=name: ran.append(n) or stages[n](st)))
+        for name in ("more views", "markers", "arm model")))
+    with pytest.warns(RuntimeWarning, match="default cut-off 6 Hz"):
+        cap = capture_recording(v, cams, fps=6.0, progress=False,
+                                params=CaptureParams(markers=blobs))
+    assert ran == ["more views", "markers", "arm model"]
+    assert cap.markers.filter == {"applied": False, "reason": reason}
+    assert cap.markers.xyz_filtered is None
+    # the command: a chosen --marker-filter-hz is refused before the cameras are read
+    videos = _write_videos(tmp_path, np.zeros((2, 3, 48, 64), np.uint8), 6.0)
+    assert main(["capture", "--videos", *videos, "--out", str(tmp_path / "o"), "--markers",
+                 "blobs", "--marker-filter-hz", "6"]) == 2
+    err = capsys.readouterr().err
+    assert "--marker-filter-hz: expected a cut-off below the Nyquist frequency fps / 2 = 3 Hz" \
+        in err
+
+
 @pytest.mark.slow
 def test_summary_carries_the_marker_join_checks_as_numbers(capture):
     """summary.json's markers: the join checks' counts as a structured entry."""

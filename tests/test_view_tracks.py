@@ -125,7 +125,7 @@ def test_capture_markers_on_rendered_dots(tracker):
     assert f.filter == {"applied": True, "cutoff_hz": 6.0, "order": 4, "fps": 30.0, "runs": 0,
                         "short_runs": 6, "raw_samples": 48}
     assert np.array_equal(f.xyz_filtered, f.xyz) and np.array_equal(f.xyz, m.xyz)
-    with pytest.raises(ValueError, match="filter_hz: cutoff_hz: .*Nyquist"):
+    with pytest.raises(ValueError, match=r"^params.filter_hz: .*Nyquist .* 5 Hz, got 6 Hz$"):
         capture_markers(stacks, cams, [s[0] for s in stacks], fps=10.0, params=params)
     with pytest.raises(ValueError, match="filter_order: expected an even"):
         MarkerParams(filter_order=3)

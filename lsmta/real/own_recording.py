@@ -164,21 +164,25 @@ def moving_pairs(capture) -> list[dict]:
     return out
 
 
-def marker_scores(capture, *, pair=None) -> dict:
+def marker_scores(capture, *, pair=None, xyz=None) -> dict:
     """Coverage, residual and rigidity of a :class:`~lsmta.systems.MarkerCapture`'s moving
     markers, as plain numbers (NaN where undefined).
 
     ``pair`` (two indices into the capture's markers, e.g. another capture's ``"pair"`` of
     the same markers) scores that pair's distance instead of choosing one with
-    :func:`rigid_pair`."""
+    :func:`rigid_pair`. ``xyz`` ((T, M, 3) array, mm; default the capture's raw
+    intersections ``capture.xyz``) are the positions whose pair is chosen and scored (its
+    distance, relative motion and heights), e.g. ``capture.xyz_filtered``; the coverage and
+    residual are the capture's own."""
     m = capture
+    X = m.xyz if xyz is None else as_array(xyz, "xyz", shape=m.xyz.shape, allow_nan=True)
     moving = np.flatnonzero(m.moving)
     share = m.triangulated_share()[moving]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
         residual = float(np.nanmedian(m.residual[:, moving])) if len(moving) else np.nan
     if pair is None:
-        found = rigid_pair(m.xyz[:, moving], views=m.members[moving] >= 0)
+        found = rigid_pair(X[:, moving], views=m.members[moving] >= 0)
         pair = None if found is None else tuple(int(moving[i]) for i in found.markers)
         d = None if found is None else found.distance
     else:
@@ -186,7 +190,7 @@ def marker_scores(capture, *, pair=None) -> dict:
         if len(set(pair)) != 2 or not all(0 <= i < len(m.moving) for i in pair):
             raise ValueError(f"pair: expected two different indices of the capture's "
                              f"{len(m.moving)} markers, got {pair}")
-        d = np.linalg.norm(m.xyz[:, pair[0]] - m.xyz[:, pair[1]], axis=1)
+        d = np.linalg.norm(X[:, pair[0]] - X[:, pair[1]], axis=1)
     both = np.isfinite(d) if d is not None else None
     has = d is not None and both.any()
     return {"moving": int(len(moving)), "joined": int(len(m.members)),
@@ -198,9 +202,9 @@ def marker_scores(capture, *, pair=None) -> dict:
             "pair_frames": int(both.sum()) if has else 0,
             "pair_median_mm": float(np.median(d[both])) if has else np.nan,
             "pair_std_mm": float(np.std(d[both])) if has else np.nan,
-            "pair_relative_motion": (relative_motion(m.xyz[:, pair[0]], m.xyz[:, pair[1]])
+            "pair_relative_motion": (relative_motion(X[:, pair[0]], X[:, pair[1]])
                                      if has else np.nan),
-            "pair_height_mm": ([float(np.nanmedian(m.xyz[:, i, 2])) for i in pair]
+            "pair_height_mm": ([float(np.nanmedian(X[:, i, 2])) for i in pair]
                                if has else None),
             "joins": dict(m.joins),
             "seconds": m.seconds}

@@ -45,7 +45,13 @@ from .capture import (
 from .ceiling import CeilingFeed
 from .close_up import PairChoice, best_pairs, first_settled, reacquisition_seeds
 from .face_identification import FaceIdentification, IdentifyParams, identify_face_markers
-from .markers import MarkerCapture, MarkerParams, Tracker2D, capture_markers
+from .markers import (
+    MarkerCapture,
+    MarkerParams,
+    Tracker2D,
+    capture_markers,
+    nyquist_checked,
+)
 from .mixed_scale import (
     MixedScaleCapture,
     MixedScaleParams,
@@ -63,6 +69,7 @@ __all__ = [
     "ArmFit", "ArmFitParams", "BodyCapture", "BodySystemParams", "CaptureParams",
     "CeilingFeed", "ViewCapture", "ViewGroup", "axis_angles", "capture_recording",
     "view_groups", "MarkerCapture", "MarkerParams", "Tracker2D", "capture_markers",
+    "nyquist_checked",
     "FilterParams", "MixedScaleCapture", "MixedScaleParams", "capture_mixed_scale",
     "triangulate_frames", "fill_face", "ReadbackRefinement", "refine_readback",
     "PairChoice", "best_pairs", "first_settled", "reacquisition_seeds",

@@ -52,7 +52,7 @@ from ..tracking import (
 from .arm import ArmFit, ArmFitParams, fit_arm
 from .capture_files import save_capture
 from .checks import check_cameras
-from .markers import MarkerCapture, MarkerParams, capture_markers
+from .markers import MarkerCapture, MarkerParams, capture_markers, nyquist_checked
 from .more_views import MoreViewsParams, add_views, group_xy
 from .surfaces import SurfaceParams, measure_surfaces
 from .views import ViewGroup, view_groups
@@ -513,6 +513,7 @@ class _State:
     arm: ArmFit | None = None
     first_frames: list | None = None
     markers: MarkerCapture | None = None
+    filter_off: str | None = None                   # why the markers' filter was turned off
 
 
 def _span(frames) -> slice:
@@ -654,6 +655,9 @@ def _markers(st: _State) -> None:
         stacks = [s[_span(st.frames)] for s in st.stacks]
         st.markers = capture_markers(stacks, st.cameras, st.first_frames,
                                      params=st.params.markers, fps=st.fps)
+        if st.filter_off is not None:
+            st.markers = replace(st.markers, filter={"applied": False,
+                                                     "reason": st.filter_off})
 
 
 def _arm_model(st: _State) -> None:
@@ -696,6 +700,10 @@ def capture_recording(videos, cameras, *, fps: float | None = None, frames=None,
     calibration : object, optional
         Where the cameras came from, kept in the result (e.g. a RigRefinement).
     params : CaptureParams, optional
+        A marker cut-off (``params.markers.filter_hz``) not below ``fps / 2`` is decided
+        on before any stage (:func:`~lsmta.systems.markers.nyquist_checked`): a chosen one
+        raises ValueError, the default one is turned off with a warning (``summary.json``'s
+        ``marker_filter`` gives the reason).
     progress : bool
         Progress bars per stage.
     seed : int
@@ -716,10 +724,11 @@ def capture_recording(videos, cameras, *, fps: float | None = None, frames=None,
     if fps is None and rate is None:
         raise ValueError("fps: expected the frame rate (Hz) of videos given as arrays")
     fps = as_scalar(fps if fps is not None else rate, "fps", positive=True)
+    markers, off = nyquist_checked(p.markers, fps)          # before minutes of stages
     idx = _frame_indices(frames, len(stacks[0]))
-    st = _State(stacks=stacks, cameras=cams, frames=idx, fps=fps, params=p,
-                progress=progress, seed=int(seed),
-                first_frames=_first_frames(videos, stacks, idx, p.markers))
+    st = _State(stacks=stacks, cameras=cams, frames=idx, fps=fps,
+                params=replace(p, markers=markers), progress=progress, seed=int(seed),
+                first_frames=_first_frames(videos, stacks, idx, p.markers), filter_off=off)
     seconds = {}
     for name, stage in tqdm(STAGES, desc="LSMTA system", disable=not progress):
         t0 = time.perf_counter()

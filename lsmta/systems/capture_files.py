@@ -9,10 +9,11 @@ Files, in one folder:
   it); a sample the filters removed is missing (C3D residual -1, an empty TRC field);
 * ``markers.c3d`` and ``markers.trc`` (with the marker stage): the moving markers' 3-D
   positions, labelled ``M<n>`` in the order of ``summary.json``'s ``markers`` list, low-pass
-  filtered (``MarkerParams.filter_hz``: zero-lag Butterworth, 6 Hz, order 4 by default,
-  per gap-free run; gaps stay missing) unless the filter is off; the C3D's
-  ``POINT:DESCRIPTIONS`` and ``summary.json``'s ``marker_filter`` say which (the
-  residuals in ``summary.json`` are those of the raw intersections);
+  filtered (``MarkerParams.filter_hz``: zero-lag Butterworth, Pose2Sim's nominal 6 Hz,
+  order 4 by default, per gap-free run; gaps stay missing) unless the filter is off; the
+  C3D's ``POINT:DESCRIPTIONS`` and ``summary.json``'s ``marker_filter`` say which, while
+  ``markers.trc`` carries no filter note (its header has no field for one; the residuals
+  in ``summary.json`` are those of the raw intersections);
 * ``surfaces/frame_NNNN.ply``: each measured frame's surface points of every view group
   (file frame numbers), with per-point ``group``, ``sigma_px`` (largest LSM standard deviation
   of the point's image positions) and ``ray_distance_mm`` (RMS distance of the point to its

@@ -29,8 +29,9 @@ The stage for what a marker-based recording holds beyond the surfaces: small ski
    range, which tells the subject's markers (moving) from still blobs of the room;
 6. *low-pass filter* of the intersected positions (``MarkerParams.filter_hz``, given the
    frame rate; :func:`~lsmta.tracking.lowpass.lowpass_trajectories`: zero-lag Butterworth,
-   per gap-free run, Pose2Sim's default 6 Hz, order 4, not tuned on any recording). The
-   raw positions are kept: the residuals and the motion range are theirs.
+   per gap-free run, Pose2Sim's nominal 6 Hz, order 4, not tuned on any recording; as
+   Pose2Sim does it: no correction for the second pass, -3 dB at about 4.9 Hz at 60
+   fps). The raw positions are kept: the residuals and the motion range are theirs.
 
 The silhouette check is for the kind of recording this stage is for: one moving subject
 carries the markers. A point on the subject projects inside the subject's silhouette in
@@ -165,8 +166,11 @@ class MarkerParams:
         radii, scaled with the frames).
     filter_hz : float or None
         Cut-off of the low-pass filter of the 3-D positions, Hz (stage 6 of the module
-        docstring; below the recording's Nyquist frequency); default 6 (Pose2Sim's and
-        Winter's for gait); None: not filtered.
+        docstring; below the recording's Nyquist frequency); default Pose2Sim's nominal 6
+        (as Pose2Sim does it: no correction for the second pass; -3 dB at about 4.9 Hz at
+        60 fps); None: not filtered. Applied only when :func:`capture_markers` is given
+        ``fps``: without it the positions stay raw, silently (no warning;
+        ``MarkerCapture.filter`` says why).
     filter_order : int
         Order of the zero-lag filter (both passes together, even; Pose2Sim's ``order``).
     """
@@ -289,7 +293,9 @@ class MarkerCapture:
 
     @property
     def xyz_written(self) -> np.ndarray:
-        """The positions a file holds: ``xyz_filtered``, or ``xyz`` where not filtered."""
+        """The positions a file holds: ``xyz_filtered``, or ``xyz`` where not filtered
+        (also when :func:`capture_markers` was called without ``fps``: then these are the
+        raw intersections, whatever ``MarkerParams.filter_hz`` says)."""
         return self.xyz if self.xyz_filtered is None else self.xyz_filtered
 
     def triangulated_share(self) -> np.ndarray:
@@ -471,13 +477,56 @@ def marker_lowpass(xyz, fps: float | None, *, params: MarkerParams | None = None
     if fps is None:
         return None, {"applied": False, "reason": "no frame rate given (fps=None)"}
     fps = as_scalar(fps, "fps", positive=True)
-    try:
-        lp = lowpass_trajectories(xyz, fps, cutoff_hz=p.filter_hz, order=p.filter_order)
-    except ValueError as err:
-        raise ValueError(f"params.filter_hz: {err}") from None
+    if p.filter_hz >= fps / 2:
+        raise ValueError(f"params.filter_hz: expected a cut-off below the Nyquist frequency "
+                         f"fps / 2 = {fps / 2:g} Hz, got {p.filter_hz:g} Hz")
+    lp = lowpass_trajectories(xyz, fps, cutoff_hz=p.filter_hz, order=p.filter_order)
     return lp.xyz, {"applied": True, "cutoff_hz": lp.cutoff_hz, "order": lp.order,
                     "fps": lp.fps, "runs": lp.runs, "short_runs": lp.short_runs,
                     "raw_samples": int(lp.raw.sum())}
+
+
+def nyquist_checked(params: MarkerParams | None, fps: float, *,
+                    explicit: bool | None = None):
+    """The marker stage's parameters for a recording at ``fps``, decided before any stage.
+
+    A cut-off at or above the Nyquist frequency ``fps / 2`` (e.g. the default 6 Hz at
+    12 fps or less) is refused when it was chosen (``explicit``), and turned off with a
+    warning when it is the default (``MarkerParams.filter_hz`` 6).
+
+    Parameters
+    ----------
+    params : MarkerParams or None
+        None: no marker stage (returned as is).
+    fps : float
+        Frame rate, Hz (> 0).
+    explicit : bool, optional
+        Whether the cut-off was chosen by the caller; None: chosen when it is not the
+        default.
+
+    Returns
+    -------
+    params : MarkerParams or None
+        ``params``, or a copy with ``filter_hz`` None.
+    reason : str or None
+        Why the filter was turned off (for ``MarkerCapture.filter``), or None.
+
+    Raises
+    ------
+    ValueError
+        ``fps`` not positive; a chosen cut-off not below ``fps / 2``.
+    """
+    fps = as_scalar(fps, "fps", positive=True)
+    if params is None or params.filter_hz is None or params.filter_hz < fps / 2:
+        return params, None
+    default = MarkerParams.__dataclass_fields__["filter_hz"].default
+    if explicit or (explicit is None and params.filter_hz != default):
+        raise ValueError(f"params.markers.filter_hz: expected a cut-off below the Nyquist "
+                         f"frequency fps / 2 = {fps / 2:g} Hz, got {params.filter_hz:g} Hz")
+    reason = (f"default cut-off {params.filter_hz:g} Hz not below the Nyquist frequency "
+              f"{fps / 2:g} Hz ({fps:g} fps): filter off")
+    warnings.warn(f"markers: {reason} (positions written raw)", RuntimeWarning, stacklevel=3)
+    return replace(params, filter_hz=None), reason
 
 
 def _checked_joins(cams, view_xy, members, p: MarkerParams):

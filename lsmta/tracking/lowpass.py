@@ -1,11 +1,13 @@
 """Zero-lag Butterworth low-pass of 3-D trajectories with gaps.
 
 The filter that biomechanics tools apply to marker trajectories before writing them
-(Pose2Sim's default: ``butterworth``, ``order = 4``, ``cut_off_frequency = 6`` Hz; Winter's
-usual choice for gait). As in Pose2Sim, ``order`` is the order of the two passes together:
-a Butterworth filter of order ``order / 2`` run forwards and backwards
-(:func:`scipy.signal.sosfiltfilt`: no phase lag), its cut-off the single pass's -3 dB
-frequency (the two passes attenuate it by 6 dB; no correction for the second pass).
+(Pose2Sim's default: ``butterworth``, ``order = 4``, ``cut_off_frequency = 6`` Hz). As in
+Pose2Sim, ``order`` is the order of the two passes together: a Butterworth filter of order
+``order / 2`` run forwards and backwards (:func:`scipy.signal.sosfiltfilt`: no phase lag),
+its cut-off the single pass's -3 dB frequency. So 6 Hz is Pose2Sim's nominal 6 Hz (as
+Pose2Sim does it: no correction for the second pass, unlike Winter's; the two passes
+attenuate 6 Hz by 6 dB, and their -3 dB point is at about 4.9 Hz at 60 fps, 5.0 Hz at
+30 fps).
 
 A trajectory is filtered per *run*: each stretch of consecutive frames in which all three of
 its coordinates are finite. A gap is never bridged (nothing is interpolated; missing
@@ -30,7 +32,8 @@ class Lowpass:
     Attributes
     ----------
     xyz : (T, M, 3) array
-        The filtered positions, mm (NaN where the input is missing in any coordinate).
+        The filtered positions, in the input's unit (NaN where the input is missing in any
+        coordinate).
     raw : (T, M) bool array
         Samples left raw: present, but in a run too short to filter.
     runs : int
@@ -57,7 +60,9 @@ def min_run(order: int) -> int:
     """Shortest run (frames) that :func:`lowpass_trajectories` filters at ``order``
     (``sosfiltfilt``'s default padding plus one)."""
     order = as_int(order, "order", minimum=2)
-    sos = signal.butter(order // 2, 0.5, btype="low", output="sos")   # zeros: any cut-off
+    # the padding counts the sections and their zero trailing coefficients, set by the
+    # order alone: any cut-off (here half the Nyquist frequency) gives the same length
+    sos = signal.butter(order // 2, 0.5, btype="low", output="sos")
     origin = min((sos[:, 2] == 0).sum(), (sos[:, 5] == 0).sum())
     return 3 * (2 * len(sos) + 1 - int(origin)) + 1
 
@@ -69,7 +74,8 @@ def lowpass_trajectories(xyz, fps: float, *, cutoff_hz: float = 6.0,
     Parameters
     ----------
     xyz : (T, M, 3) array
-        Positions of M points in T frames, mm (any unit; NaN: missing). Not modified.
+        Positions of M points in T frames, any unit (mm in lsmta; NaN: missing). Not
+        modified.
     fps : float
         Frame rate, Hz (> 0).
     cutoff_hz : float

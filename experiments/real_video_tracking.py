@@ -110,7 +110,8 @@ cam_1 3.8, cam_2 3.1, cam_3 3.8; pose2sim 1.8, 1.9, 1.9, 2.1 (the old harness ga
 (3.1x to 5.8x) nor on pose2sim cam04; survival and the forward-backward medians are those
 above. On the idle machine (2026-11-28, load under 1, the defaults, this harness): CPU
 ratios caliscope cam_0 6.2, cam_1 3.8, cam_2 3.0, cam_3 3.5; pose2sim 1.8, 1.6, 1.9, 2.0
-(cam04 2.05); median 2.5x: NOT met on the webcams and cam04. Of caliscope cam_3's 105 survivors, the 91 whose forward run ended on their first
+(cam04 2.05); median 2.5x: NOT met on the webcams and cam04. Of caliscope cam_3's 105
+survivors, the 91 whose forward run ended on their first
 template come back with a median of 0.089 px and the 14 that ended on a fallback
 (frame-to-frame) template with 0.285 px: the fallback's drift puts the median over 0.1 px.
 

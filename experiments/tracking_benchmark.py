@@ -3,6 +3,7 @@ over seeds.
 
     .venv/bin/python experiments/tracking_benchmark.py [--frames 30] [--points 3000]
         [--scale 1.0] [--step 2] [--patch 15] [--seed 2000] [--seeds 5]
+        [--no-retry-rejected] [--return-to-first]
         [--scheduler ADDRESS] [--workers 2]
 
 Renders a walk for the triplet rig at ``--scale`` of 768 x 576 pixels, starts both trackers
@@ -47,7 +48,7 @@ HEADLINES = [
 
 
 def run_seed(seed: int, *, frames: int, points: int, scale: float, step: int, patch: int,
-             threads: int) -> dict:
+             threads: int, retry_rejected: bool = True, return_to_first: bool = False) -> dict:
     """One walk for ``seed``: both trackers from the same points, scored after the fact."""
     import numba
     import numpy as np
@@ -62,7 +63,8 @@ def run_seed(seed: int, *, frames: int, points: int, scale: float, step: int, pa
     s = scale / 0.5            # box sizes scale with the image
     params = TrackerParams(patch=patch, radius=int(round(4 * s)),
                            retry_radius=int(round(10 * s)), cell=16.0 * s,
-                           min_distance=3.0 * s)
+                           min_distance=3.0 * s, retry_rejected=retry_rejected,
+                           return_to_first=return_to_first)
     # warm-up: load the compiled kernels once, outside the timings
     et.run_tracking_trial(et.walk_sequence(seed=seed, n_frames=2, scale=0.25), 5,
                           rng=np.random.default_rng(0))
@@ -104,11 +106,15 @@ def main(argv=None):
     parser.add_argument("--patch", type=int, default=15)
     parser.add_argument("--threads", type=int, default=1,
                         help="numba threads (1 on a shared machine: parallel threads spin)")
+    parser.add_argument("--no-retry-rejected", dest="retry_rejected", action="store_false",
+                        help="TrackerParams(retry_rejected=False): fewer forward LSM retries")
+    parser.add_argument("--return-to-first", action="store_true",
+                        help="TrackerParams(return_to_first=True)")
     parser.add_argument("--out", default="build/benchmarks/tracking.json")
     add_arguments(parser, seed=2000)
     args = parser.parse_args(argv)
     settings = {k: getattr(args, k) for k in ("frames", "points", "scale", "step", "patch",
-                                              "threads")}
+                                              "threads", "retry_rejected", "return_to_first")}
     results, _ = run("tracking", run_seed, HEADLINES, args, parser=parser,
                      out_dir=Path(args.out).parent, settings=settings, **settings)
     first = results[args.seed]

@@ -133,8 +133,8 @@ on cam_0, -6 % cam_1, -2 % cam_2, -4 % cam_3, -7 % pose2sim cam01, 0 to -3 % the
 ratio to KLT's CPU 5.8, 3.6, 3.0, 3.5 on the webcams, 1.8, 1.7, 2.0, 2.0 on Pose2Sim (the
 harness, one run at load 5 to 6: 5.5, 3.6, 2.9, 4.1; 1.8, 1.6, 2.0, 2.1): the target (<= 2x)
 is still NOT met on the webcams. On the generated triplet walk (3-D mode,
-``tracking_benchmark.py --seeds 1 --no-retry-rejected``, seed 2000) 1176 of 3000 start points survive (1191
-before), the median per-frame error is 0.0427 px (0.0429), the 3-D error at the oldest age
+``tracking_benchmark.py --seeds 1 --no-retry-rejected``, seed 2000) 1176 of 3000 start
+points survive (1191 before), the median per-frame error is 0.0427 px (0.0429), the 3-D error at the oldest age
 0.921 mm (0.925) and the false share 3.26 % (3.72 %). Tried and not kept (chosen half): a
 *shared-motion prediction* (where the first template fails from the trajectory's prediction,
 match it again from the median step of the 8 nearest tracks that matched this frame) rescued
@@ -177,7 +177,8 @@ pose2sim cam01 292 -> 295 (0.009; KLT 309), cam02 311 -> 311 (0.005), cam03 265 
 above), and on cam_3 the survivors that end on their first template rise from 91 to 109 but
 their median from 0.089 to 0.101 px (the tracks brought back are the less precise ones);
 pose2sim cam03 loses 3 (still = KLT's). On the triplet walk (``tracking_benchmark.py
---seeds 1 --return-to-first``) 1149 of 3000 start points survive (1191), the median per-frame error is
+--seeds 1 --return-to-first``) 1149 of 3000 start points survive (1191), the median
+per-frame error is
 0.0423 px (0.0429), the 3-D error at the oldest age 0.913 mm (0.925), the false share
 3.88 % (3.72 %): fewer survivors, hence not the default. Two lighter variants (all 8
 videos): the first template from the fallback's position by the inverse compositional

@@ -134,7 +134,8 @@ ratio to KLT's CPU 5.8, 3.6, 3.0, 3.5 on the webcams, 1.8, 1.7, 2.0, 2.0 on Pose
 harness, one run at load 5 to 6: 5.5, 3.6, 2.9, 4.1; 1.8, 1.6, 2.0, 2.1): the target (<= 2x)
 is still NOT met on the webcams. On the generated triplet walk (3-D mode,
 ``tracking_benchmark.py --seeds 1 --no-retry-rejected``, seed 2000) 1176 of 3000 start
-points survive (1191 before), the median per-frame error is 0.0427 px (0.0429), the 3-D error at the oldest age
+points survive (1191 before), the median per-frame error is 0.0427 px (0.0429), the 3-D
+error at the oldest age
 0.921 mm (0.925) and the false share 3.26 % (3.72 %). Tried and not kept (chosen half): a
 *shared-motion prediction* (where the first template fails from the trajectory's prediction,
 match it again from the median step of the 8 nearest tracks that matched this frame) rescued

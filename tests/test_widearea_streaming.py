@@ -644,7 +644,7 @@ def test_row_grid_finds_a_new_spot_the_point_grid_skips_on_its_first_frame():
     rows = search_setup(thr, params=DetectionParams(grid="rows"))
     points = search_setup(thr, params=DetectionParams(grid="points"))
     full = search_frame(frame, rows, full=True)
-    tall = np.argmin(full.xy[:, 0] - 203.0)
+    tall = np.argmin(np.abs(full.xy[:, 0] - 203.0))
     assert len(full.xy) == 2 and full.area[tall] == 5
     for jr in range(5):
         for jc in range(5):
@@ -670,18 +670,26 @@ def test_row_grid_finds_a_new_spot_the_point_grid_skips_on_its_first_frame():
 
 def test_subsampled_detect_with_the_row_grid_finds_every_tall_spot():
     # the batch search (detect, mode="subsampled") with the row grid: a spot at least 5 rows
-    # tall is found in every frame, whatever the jitter; the point grid misses some
-    from lsmta.widearea import DetectionParams, Threshold
+    # tall is found in every frame, whatever the jitter, also in column 1 (the row grid
+    # tests every column of its rows, whatever column offset was drawn), and the pixels
+    # tested are the grid rows whole plus the fills' rim; the point grid misses some
+    from lsmta.widearea import DetectionParams, Threshold, search_mask
 
     T, H, W = 12, 60, 80
     frames = np.full((T, H, W), 40, np.uint8)
     frames[:, 20:26, 33] = 200
+    frames[:, 40:46, 1] = 200
     bg = np.full((H, W), 40.0)
     thr = Threshold(background=bg, threshold=bg + 20.0)
     before = frames.copy()
     rows = detect(frames, thr, mode="subsampled", rng=0, params=DetectionParams(grid="rows"))
     points = detect(frames, thr, mode="subsampled", rng=0)
     np.testing.assert_array_equal(frames, before)
-    assert np.all(np.diff(rows.start) == 1)
-    np.testing.assert_allclose(rows.xy, np.tile([33.0, 22.5], (T, 1)), atol=1e-9)
-    assert np.diff(points.start).sum() < T
+    assert np.all(np.diff(rows.start) == 2)
+    np.testing.assert_allclose(rows.xy, np.tile([[33.0, 22.5], [1.0, 42.5]], (T, 1)),
+                               atol=1e-9)
+    assert np.diff(points.start).sum() < 2 * T
+    visited = ndimage.binary_dilation(frames[0] > 60, structure=np.ones((3, 3)))
+    expected = {int((search_mask((H, W), 5, (jr, 0), grid="rows") | visited).sum())
+                for jr in range(5)}               # whichever row offset a frame drew
+    assert set(rows.tested.tolist()) <= expected

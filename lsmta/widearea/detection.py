@@ -421,9 +421,7 @@ def _search_subsampled(found: _Found, rng, predicted, previous: bool) -> None:
     compiled search of :mod:`lsmta.widearea._kernels`)."""
     f, p = found.frames, found.p
     T = len(f)
-    jit = rng.integers(0, p.k, (T, 2))
-    if p.grid == "rows":
-        jit[:, 1] = 0
+    jit = rng.integers(0, p.k, (T, 2))     # "rows": the kernel ignores the column offset
     for t in range(T):
         centres = ((found.xy[-1] if found.xy else None) if previous
                    else None if predicted is None else predicted[t])
@@ -431,9 +429,9 @@ def _search_subsampled(found: _Found, rng, predicted, previous: bool) -> None:
              else np.asarray(centres, float).reshape(-1, 2))
         half = np.full(len(c), float(p.window // 2))
         xy, area, tested = search_kernel(np.ascontiguousarray(f[t]), found.thr,
-                                         found.background, c, half, p.k,
+                                         found.background, c, half, p.k, p.column_step,
                                          int(jit[t, 0]), int(jit[t, 1]), p.min_area,
-                                         p.max_area, p.column_step)
+                                         p.max_area)
         found.add(xy, area, int(tested))
 
 

@@ -159,8 +159,7 @@ def search_frame(frame, setup: SearchSetup, *, windows=None, half_sizes=None,
             raise ValueError(f"half_sizes: expected {len(centres)} sizes (px), got shape "
                              f"{half.shape}")
     kc = 1 if full else p.column_step          # "rows": every pixel of a grid row
-    jc = 0 if kc == 1 else jc
     xy, area, tested = search_kernel(img, setup.threshold, setup.background, centres,
-                                     half, k, int(jr), int(jc), p.min_area, p.max_area, kc)
+                                     half, k, kc, int(jr), int(jc), p.min_area, p.max_area)
     return FrameFeatures(xy=xy, area=area, tested=int(tested))
 

@@ -415,7 +415,7 @@ class GuidedDetectionTrial:
     missed_new: int
     missed_unfound: int
     scores: dict
-    grid: str = "rows"
+    grid: str
 
     @property
     def speedup(self) -> float:

@@ -1,22 +1,32 @@
-"""LED detection: full search against the jittered sub-sampled search, by the clock.
+"""LED detection: full search against the jittered sub-sampled search, in CPU time.
 
     .venv/bin/python experiments/widearea_detection_benchmark.py [--repeats 7] [--scales 0.5 1]
-        [--seeds 2002 7 11] [--unobserved-px 20 | none] [--out FILE]
+        [--seeds 2002 7 11] [--grid rows | points] [--design-seeds 2002 7 11]
+        [--unobserved-px 20 | none] [--out FILE]
 
 The walking person (eight LEDs) rendered for 2 s at 30 Hz in camera 3 of the rig (with its
 monitor masked and reflections), at each image scale (0.5: 320 x 240, 1: 640 x 480).
-Each search runs ``repeats`` times, interleaved; we report the fastest and the median time
-per frame, the fraction of pixels tested, and the ratio sub-sampled / full (below 1: the
-sub-sampled search is faster). Then the guided search of notebook 09 at each scale
+Each search runs ``repeats`` times, interleaved; we report the fastest and the median CPU
+time per frame (``time.process_time``: the machine is shared), the fraction of pixels
+tested, and the ratio sub-sampled / full (below 1: the sub-sampled search is faster); these
+single-camera searches (``rows`` in the output) always use the thesis's 5 x 5 point grid,
+whatever ``--grid``. Then the guided search of notebook 09 at each scale
 (:func:`lsmta.evaluation.widearea_images.guided_detection_trial`: eight cameras, windows of
 the gate around the streaming tracker's predictions and along the other cameras' waiting
-rays, replayed ``repeats`` times): full / guided time
-(issue 35's target at 640 x 480: at least 3) and the share of the full search's LEDs found at
-the same place (target: at least 99 %), printed at the end with their verdicts and the
-machine's load. Each seed (``--seeds``) renders its own scenes; the rule for the windows
-around targets a camera has not observed yet (``--unobserved-px``) was designed on seed 2002,
-so other seeds are held out. Writes build/benchmarks/widearea_detection.json (``--out``; the
-run notebook 09 quotes is committed as experiments/results/widearea_detection.json).
+rays, and for new LEDs the grid ``--grid`` (``grid`` in the output; it applies to the
+guided search only): ``rows``, every pixel of one row in 5, jittered, or ``points``, the
+thesis's jittered 5 x 5 grid; replayed ``repeats`` times):
+full / guided time (issue 35's target at 640 x 480: at least 3) and the share of the full
+search's LEDs found at the same place (target: at least 99 %), printed at the end with their
+verdicts and the machine's load. Each seed (``--seeds``) renders its own scenes; the rule
+for the windows around targets a camera has not observed yet (``--unobserved-px``) was
+designed on seed 2002, the row grid on seeds 2002, 7 and 11 (``--design-seeds``, by default
+those of the grid: 2002 for ``points``, 2002, 7 and 11 for ``rows``; recorded in the
+output); the other seeds are held out (101, 202, 303, 404 and 505 were chosen before the
+row grid was tried). The output's ``clock`` says which clock timed the run (runs before
+``clock`` was recorded: the wall clock). Writes build/benchmarks/widearea_detection.json
+(``--out``; the run notebook 09 quotes is committed as
+experiments/results/widearea_detection.json).
 """
 
 from __future__ import annotations
@@ -32,10 +42,12 @@ import numpy as np
 from lsmta.evaluation.widearea_images import guided_detection_trial
 from lsmta.report import verdict, write_json
 from lsmta.synth.widearea import ceiling_rig, render_led_video, small_camera, walking_person
-from lsmta.widearea import background_threshold, detect
+from lsmta.widearea import GRIDS, DetectionParams, background_threshold, detect
 
 SEARCHES = {"full": ("full", None), "subsampled, previous windows": ("subsampled", "previous"),
             "subsampled, no windows": ("subsampled", None)}
+POINTS = DetectionParams(grid="points")     # the single-camera searches' grid, always
+DESIGN_SEEDS = {"points": [2002], "rows": [2002, 7, 11]}    # what each grid was designed on
 TARGET_IMAGE = "640x480"        # the size issue 35's speed target is set at
 
 
@@ -44,26 +56,35 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--scales", type=float, nargs="+", default=[0.5, 1.0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[2002],
-                        help="seeds of the scenes (2002: the one the guided windows' rule "
-                             "was designed on; others are held out)")
+                        help="seeds of the scenes")
+    parser.add_argument("--grid", choices=GRIDS, default="rows",
+                        help="the guided search's grid for new LEDs (the single-camera "
+                             "searches always use the point grid)")
+    parser.add_argument("--design-seeds", type=int, nargs="*", default=None,
+                        help="the seeds the guided search's rules were designed on (the "
+                             "others in --seeds are held out; default: the grid's, "
+                             "2002 for points, 2002 7 11 for rows)")
     parser.add_argument("--unobserved-px", type=_half_or_none, default=20.0,
                         help="least half-size of the windows around targets a camera has "
                              "not observed yet, px ('none': the gate plus 3 px)")
     parser.add_argument("--out", default="build/benchmarks/widearea_detection.json")
     args = parser.parse_args(argv)
+    if args.design_seeds is None:
+        args.design_seeds = DESIGN_SEEDS[args.grid]
     rows = [row for seed in args.seeds for scale in args.scales
             for row in _single_camera(seed, scale, args.repeats)]
-    guided = [_guided(seed, scale, args.repeats, args.unobserved_px)
+    guided = [_guided(seed, scale, args.repeats, args.unobserved_px, args.grid)
               for seed in args.seeds for scale in args.scales]
     load = os.getloadavg()
     print(f"\nGuided detection (issue 35, item 3; fastest of {args.repeats} replays; machine load "
           f"{load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f} over 1 / 5 / 15 min, {os.cpu_count()} "
           f"cores; windows around targets not observed yet at least "
-          f"{_size(args.unobserved_px)}):")
+          f"{_size(args.unobserved_px)}; grid for new LEDs: {args.grid}):")
     for row in guided:
         speed, same = row["full_over_guided"], row["same_detections"]
         where = "" if row["image"] == TARGET_IMAGE else " (target set at 640x480)"
-        print(f"  seed {row['seed']:5d} {row['image']:8s} full "
+        kind = "design" if row["seed"] in args.design_seeds else "fresh"
+        print(f"  seed {row['seed']:5d} ({kind:6s}) {row['image']:8s} full "
               f"{row['ms_per_frame_min']['full']:.4f} ms, guided "
               f"{row['ms_per_frame_min']['guided']:.4f} ms per frame: full / guided = "
               f"{speed:.2f} ({verdict(speed >= 3, '>= 3')}{where}); LEDs at the same place "
@@ -74,6 +95,9 @@ def main(argv=None):
                                                *(argv if argv is not None else sys.argv[1:])]),
                           "date": datetime.now(timezone.utc).date().isoformat(),
                           "repeats": args.repeats, "seeds": args.seeds,
+                          "design_seeds": args.design_seeds, "grid": args.grid,
+                          "single_camera_grid": "points",
+                          "clock": "process_time",
                           "unobserved_px": args.unobserved_px, "load_average": list(load),
                           "rows": rows, "guided": guided})
 
@@ -100,10 +124,10 @@ def _single_camera(seed: int, scale: float, repeats: int) -> list:
     tested = {}
     for rep in range(repeats):
         for name, (mode, pred) in SEARCHES.items():
-            t0 = time.perf_counter()
+            t0 = time.process_time()
             det = detect(video.frames, thr, invalid=inv, mode=mode, predicted=pred,
-                         rng=np.random.default_rng(rep))
-            times[name].append(1e3 * (time.perf_counter() - t0) / len(video.frames))
+                         params=POINTS, rng=np.random.default_rng(rep))
+            times[name].append(1e3 * (time.process_time() - t0) / len(video.frames))
             tested[name] = float(det.tested.mean() / inv.size)
     full = np.min(times["full"])
     rows = []
@@ -120,13 +144,14 @@ def _single_camera(seed: int, scale: float, repeats: int) -> list:
     return rows
 
 
-def _guided(seed: int, scale: float, repeats: int, unobserved_px) -> dict:
+def _guided(seed: int, scale: float, repeats: int, unobserved_px, grid: str) -> dict:
     """Notebook 09's guided detection trial at one seed and scale."""
     g = guided_detection_trial(rng=np.random.default_rng(seed), scale=scale, repeats=repeats,
-                               unobserved_px=unobserved_px)
+                               unobserved_px=unobserved_px,
+                               detection=DetectionParams(grid=grid))
     per = {k: 1e3 * v / g.n_frames for k, v in g.seconds.items()}
     row = {"seed": seed, "scale": scale, "image": f"{g.cameras[0].width}x{g.cameras[0].height}",
-           "unobserved_px": unobserved_px, "ms_per_frame_min": per,
+           "unobserved_px": unobserved_px, "grid": grid, "ms_per_frame_min": per,
            "full_over_guided": g.seconds["full"] / g.seconds["guided"],
            "full_over_guided_40x40_windows":
                g.seconds["full"] / g.seconds["guided, 40 x 40 windows"],

@@ -480,11 +480,11 @@ def test_a_target_that_dies_for_a_moment_rejoins_under_its_own_identity():
         EstimatorParams(rejoin=-1.0)
 
 
-def _reference_mask(shape, k, jitter, centres, half):
+def _reference_mask(shape, k, jitter, centres, half, grid="points"):
     """The pixels a search with windows of half-sizes ``half`` tests, in NumPy."""
     H, W = shape
     m = np.zeros((H, W), bool)
-    m[jitter[0]::k, jitter[1]::k] = True
+    m[jitter[0]::k, slice(jitter[1], None, k) if grid == "points" else slice(None)] = True
     for (x, y), h in zip(centres, half):
         if np.isfinite([x, y]).all():
             x, y, h = int(np.rint(x)), int(np.rint(y)), int(np.ceil(h))
@@ -492,10 +492,12 @@ def _reference_mask(shape, k, jitter, centres, half):
     return m
 
 
-def test_guided_search_equals_the_full_search_inside_overlapping_windows():
+@pytest.mark.parametrize("grid", ["points", "rows"])
+def test_guided_search_equals_the_full_search_inside_overlapping_windows(grid):
     # many windows of mixed (fractional) sizes, overlapping, cut by the image's edges, one
     # around a NaN: every spot with a tested pixel over threshold is found whole, at the
     # full search's centroid and area; no other feature; the pixels tested counted once
+    # (with either grid for new LEDs: one pixel per 5 x 5 block, or one row in 5)
     from lsmta.widearea import DetectionParams, Threshold
 
     rng = np.random.default_rng(5)
@@ -508,7 +510,7 @@ def test_guided_search_equals_the_full_search_inside_overlapping_windows():
     frame = np.clip(np.rint(img + rng.normal(0, 2, (H, W))), 0, 255).astype(np.uint8)
     bg = np.full((H, W), 45.0)
     setup = search_setup(Threshold(background=bg, threshold=bg + 20.0),
-                         params=DetectionParams(max_area=5000))
+                         params=DetectionParams(max_area=5000, grid=grid))
     full = search_frame(frame, setup, full=True)
     over = frame > 65
     lab, n_lab = ndimage.label(over, structure=np.ones((3, 3)))
@@ -525,7 +527,7 @@ def test_guided_search_equals_the_full_search_inside_overlapping_windows():
         half = rng.uniform(1.0, 30.0, 25)
         jit = tuple(int(j) for j in rng.integers(0, 5, 2))
         g = search_frame(frame, setup, windows=centres, half_sizes=half, jitter=jit)
-        reached = np.unique(lab[_reference_mask((H, W), 5, jit, centres, half) & over])
+        reached = np.unique(lab[_reference_mask((H, W), 5, jit, centres, half, grid) & over])
         assert len(g.xy) == len(reached) > 5
         for label in reached:                  # each reached spot: the full search's
             ys, xs = np.nonzero(lab == label)
@@ -536,7 +538,7 @@ def test_guided_search_equals_the_full_search_inside_overlapping_windows():
             assert g.area[j] == full.area[i] == len(xs)
         empty = search_frame(np.full((H, W), 40, np.uint8), setup, windows=centres,
                              half_sizes=half, jitter=jit)
-        assert empty.tested == _reference_mask((H, W), 5, jit, centres, half).sum()
+        assert empty.tested == _reference_mask((H, W), 5, jit, centres, half, grid).sum()
         assert len(empty.xy) == 0
 
 
@@ -622,3 +624,72 @@ def test_observed_flags_reset_when_a_camera_is_dropped_or_removed():
     tracker.remove_camera(0)
     assert tracker.predict_image(0, t).observed.tolist() == [False]
     assert tracker.predict_image(1, t).observed.tolist() == [True]
+
+
+def test_row_grid_finds_a_new_spot_the_point_grid_skips_on_its_first_frame():
+    # a new LED (no window) one column wide and 5 rows tall at column 203, and a one-pixel
+    # LED at (402, 100): with every one of the 25 jitters the row grid (every pixel of one
+    # row in 5) finds the tall one on its first frame, at the full search's centroid and
+    # area, and the small one whenever its row is a grid row; the thesis's 5 x 5 point grid
+    # skips the tall one unless its column is a grid column, and the small one on grid rows
+    # off grid columns
+    from lsmta.widearea import DetectionParams, Threshold, search_mask
+
+    H, W = 120, 480
+    frame = np.full((H, W), 40, np.uint8)
+    frame[40:45, 203] = [120, 180, 200, 170, 110]
+    frame[100, 402] = 150
+    bg = np.full((H, W), 40.0)
+    thr = Threshold(background=bg, threshold=bg + 20.0)
+    rows = search_setup(thr, params=DetectionParams(grid="rows"))
+    points = search_setup(thr, params=DetectionParams(grid="points"))
+    full = search_frame(frame, rows, full=True)
+    tall = np.argmin(np.abs(full.xy[:, 0] - 203.0))
+    assert len(full.xy) == 2 and full.area[tall] == 5
+    for jr in range(5):
+        for jc in range(5):
+            r = search_frame(frame, rows, jitter=(jr, jc))
+            p = search_frame(frame, points, jitter=(jr, jc))
+            on_row = 100 % 5 == jr
+            assert len(r.xy) == 1 + on_row
+            np.testing.assert_allclose(r.xy[0], full.xy[tall], atol=1e-9)
+            assert r.area[0] == 5
+            assert len(p.xy) == (203 % 5 == jc) + (on_row and 402 % 5 == jc)
+            mask = search_mask((H, W), 5, (jr, jc), grid="rows")
+            assert mask.sum() == len(range(jr, H, 5)) * W
+            spots = np.zeros((H, W), bool)       # the found spots' pixels and neighbours,
+            spots[40:45, 203] = True              # which the flood fills visit
+            spots[100, 402] = on_row
+            visited = ndimage.binary_dilation(spots, structure=np.ones((3, 3)))
+            assert r.tested == (mask | visited).sum()
+    with pytest.raises(ValueError, match="grid"):
+        DetectionParams(grid="row")
+    with pytest.raises(ValueError, match="grid"):
+        search_mask((H, W), 5, (0, 0), grid="lines")
+
+
+def test_subsampled_detect_with_the_row_grid_finds_every_tall_spot():
+    # the batch search (detect, mode="subsampled") with the row grid: a spot at least 5 rows
+    # tall is found in every frame, whatever the jitter, also in column 1 (the row grid
+    # tests every column of its rows, whatever column offset was drawn), and the pixels
+    # tested are the grid rows whole plus the fills' rim; the point grid misses some
+    from lsmta.widearea import DetectionParams, Threshold, search_mask
+
+    T, H, W = 12, 60, 80
+    frames = np.full((T, H, W), 40, np.uint8)
+    frames[:, 20:26, 33] = 200
+    frames[:, 40:46, 1] = 200
+    bg = np.full((H, W), 40.0)
+    thr = Threshold(background=bg, threshold=bg + 20.0)
+    before = frames.copy()
+    rows = detect(frames, thr, mode="subsampled", rng=0, params=DetectionParams(grid="rows"))
+    points = detect(frames, thr, mode="subsampled", rng=0)
+    np.testing.assert_array_equal(frames, before)
+    assert np.all(np.diff(rows.start) == 2)
+    np.testing.assert_allclose(rows.xy, np.tile([[33.0, 22.5], [1.0, 42.5]], (T, 1)),
+                               atol=1e-9)
+    assert np.diff(points.start).sum() < 2 * T
+    visited = ndimage.binary_dilation(frames[0] > 60, structure=np.ones((3, 3)))
+    expected = {int((search_mask((H, W), 5, (jr, 0), grid="rows") | visited).sum())
+                for jr in range(5)}               # whichever row offset a frame drew
+    assert set(rows.tested.tolist()) <= expected

@@ -376,7 +376,7 @@ class GuidedDetectionTrial:
         The cameras used (as the tracker knows them).
     n_frames : int
     seconds : dict
-        Wall time of each search over all frames, s, the fastest of ``repeats`` replays of
+        CPU time of each search over all frames, s, the fastest of ``repeats`` replays of
         the same frames (windows and grid offsets as in the tracked run): ``"full"`` (NumPy
         comparison and OpenCV components, each camera's frames as one batch),
         ``"compiled full"`` (the compiled loop testing every pixel), ``"guided"`` (windows
@@ -384,7 +384,7 @@ class GuidedDetectionTrial:
         wide where the camera has not observed the target, as in the tracked run),
         ``"guided, 40 x 40 windows"`` (the thesis's fixed windows around the same
         predictions); ``"tracker"``: the tracker's own work in the guided run (prediction,
-        association, update, births; compilation on first use included).
+        association, update, births; compilation on first use included; CPU time).
     tested_fraction : dict
         Mean fraction of the pixels tested per frame, per search.
     full_found : int
@@ -402,6 +402,8 @@ class GuidedDetectionTrial:
     scores : dict
         ``"full"`` (the full search's features tracked by the batch tracker) and
         ``"guided"`` (the streaming run): LedTrackScore against the LEDs.
+    grid : str
+        The guided search's grid for new LEDs (:attr:`lsmta.widearea.DetectionParams.grid`).
     """
 
     cameras: list
@@ -413,6 +415,7 @@ class GuidedDetectionTrial:
     missed_new: int
     missed_unfound: int
     scores: dict
+    grid: str
 
     @property
     def speedup(self) -> float:
@@ -465,15 +468,16 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     40 x 40 windows around the camera's features still waiting in the birth
     pool, a band along the images of the other cameras' waiting rays
     (:attr:`lsmta.widearea.ImagePrediction.partners`, windows of half-size ``gate_px``),
-    the jittered 5 x 5 grid for new LEDs). The searches are then timed on the same frames,
-    windows and grid offsets.
+    and for new LEDs the grid of ``detection``: by default every pixel of one row in 5,
+    jittered, ``DetectionParams(grid="rows")``; ``grid="points"`` is the thesis's jittered
+    5 x 5 grid). The searches are then timed on the same frames, windows and grid offsets.
 
     ``unobserved_px``: the least half-size, px, of the window around a target the camera
     has not observed yet (20: the thesis's 40 x 40 as a minimum; None: the gate plus 3 px
     for every target, as for the observed ones)."""
     rng = as_rng(rng)
     params = EstimatorParams() if params is None else params
-    det = DetectionParams() if detection is None else detection
+    det = DetectionParams(grid="rows") if detection is None else detection
     scene, cams, clocks, videos, masks, order = _walk_videos(rng, rig, n_cameras, duration,
                                                               scale)
     thr = [background_threshold(v.background, 20.0, 60.0) for v in videos]
@@ -503,10 +507,10 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
 
     for v, st in zip(videos, setups):                         # compile before timing
         search_frame(v.frames[0], st, windows=np.zeros((1, 2)), jitter=(0, 0))
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     for _, c, i in order:
         tracker.feed_detect(c, videos[c].times[i] + clocks.offset[c], guided_search(c, i))
-    seconds = {"tracker + guided": time.perf_counter() - t0}
+    seconds = {"tracker + guided": time.process_time() - t0}
     seconds.update(_replay_times(videos, thr, masks, setups, runs, det, repeats))
     seconds["tracker"] = seconds.pop("tracker + guided") - seconds["guided"]
     full_found, guided_found, missed_new, missed_unfound = _same_detections(
@@ -522,32 +526,34 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
         cameras=cams, n_frames=len(order), seconds=seconds,
         tested_fraction={"full": 1.0, "guided": float(np.mean(tested)) / size},
         full_found=full_found, guided_found=guided_found, missed_new=missed_new,
-        missed_unfound=missed_unfound, scores=scores)
+        missed_unfound=missed_unfound, scores=scores, grid=det.grid)
 
 
 def _replay_times(videos, thr, masks, setups, runs, det, repeats: int) -> dict:
-    """Fastest of ``repeats`` timings of each search over all frames (interleaved). Every
-    search goes through one camera's frames after the other, as the full search's batches
-    do (and as Davis's cameras, each digitised by its own machine, did)."""
+    """Fastest of ``repeats`` timings (CPU time of this process, ``time.process_time``: on a
+    shared machine the wall clock also counts the waits) of each search over all frames
+    (interleaved). Every search goes through one camera's frames after the other, as the
+    full search's batches do (and as Davis's cameras, each digitised by its own machine,
+    did)."""
     out = {"full": [], "compiled full": [], "guided": [], "guided, 40 x 40 windows": []}
     runs = sorted(runs, key=lambda r: (r[0], r[1]))
     for _ in range(int(repeats)):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         for v, t_, m in zip(videos, thr, masks):
             detect(v.frames, t_, invalid=m, params=det)
-        t1 = time.perf_counter()
+        t1 = time.process_time()
         for v, st in zip(videos, setups):
             for f in v.frames:
                 search_frame(f, st, full=True)
-        t2 = time.perf_counter()
+        t2 = time.process_time()
         for c, i, xy, half, _, jit in runs:
             search_frame(videos[c].frames[i], setups[c], windows=xy, half_sizes=half,
                          jitter=jit)
-        t3 = time.perf_counter()
+        t3 = time.process_time()
         for c, i, xy, _, fixed, jit in runs:
             search_frame(videos[c].frames[i], setups[c], windows=xy, half_sizes=fixed,
                          jitter=jit)
-        t4 = time.perf_counter()
+        t4 = time.process_time()
         for key, dt in zip(out, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):
             out[key].append(dt)
     return {k: float(min(v)) for k, v in out.items()}

@@ -4,6 +4,7 @@ cameras, association, the late-observation and queue policies, track birth and d
 
 from .association import Association, associate, innovation_gate
 from .detection import (
+    GRIDS,
     DetectionParams,
     Detections,
     Threshold,
@@ -41,7 +42,7 @@ from .tracker import (
 )
 
 __all__ = [
-    "POLICIES", "Association", "Birth", "CameraJoin", "CameraStatus", "DetectionParams",
+    "GRIDS", "POLICIES", "Association", "Birth", "CameraJoin", "CameraStatus", "DetectionParams",
     "Detections", "EstimatorParams", "FrameFeatures", "FrameIntake", "FrameStatus", "Frames",
     "ImagePrediction", "JoinParams", "JoinStatus", "RayPool", "Schedule", "Screened",
     "SearchSetup", "TargetEstimate", "Threshold", "TrackingResult", "WideAreaTrack",

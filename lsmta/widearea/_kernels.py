@@ -6,7 +6,7 @@ with index arrays (a gather), which costs more per pixel than comparing the whol
 one contiguous pass, so in NumPy the search that tests 6-10 % of the pixels was slower by
 the clock than the full search. Here windows, grid and flood fill are one loop.
 
-Why no image-sized scratch: the search reads only the windows' rows and the grid's pixels,
+Why no image-sized scratch: the search reads only the windows' rows and the grid's rows,
 so its cost should follow them, not the image. An ``(H, W)`` array of flags, allocated and
 cleared per frame, cost about as much as the windows' pixels at 640 x 480 (the pages of a
 fresh array are zeroed by the system on first touch). Whether a pixel was tested is instead
@@ -65,11 +65,14 @@ def _prefetch(typingctx, arr, idx):
 
 
 @nb.njit(cache=True)
-def search_kernel(img, thr, bg, centres, half, k, jr, jc, min_area, max_area):
+def search_kernel(img, thr, bg, centres, half, k, kc, jr, jc, min_area, max_area):
     """Windows of ``2 h`` x ``2 h`` pixels, ``h = ceil(half[i])`` (finite, >= 1), around the
     finite ``centres`` (n, 2) (x, y, rounded half to even; rows and columns ``y - h`` to
     ``y + h - 1``),
-    then the grid; every pixel over threshold found there seeds a flood fill. Returns the
+    then the grid (rows ``jr`` modulo ``k``, columns ``jc`` modulo ``kc``: ``kc = k`` one
+    pixel per ``k x k`` block, ``kc = 1`` every pixel of one row in ``k``; ``jc`` is reduced
+    modulo ``kc`` here, so with ``kc = 1`` every column is on the grid whatever ``jc``); every
+    pixel over threshold found there seeds a flood fill. Returns the
     centroids (n, 2) and areas (n,) of the features within the area limits, in the raster
     order of each feature's first pixel, and ``tested``: the pixels the search decides on
     (the grid's, the windows', and those the flood fills visit; each once), not the pixels
@@ -77,18 +80,19 @@ def search_kernel(img, thr, bg, centres, half, k, jr, jc, min_area, max_area):
     (cheaper than its strided grid pixels); those reads are not counted, so ``tested``
     measures the sub-sampled design (Davis's Fig. 32), not the memory traffic."""
     H, W = img.shape
+    jc = jc % kc                  # the only place the column offset is reduced to the step
     box = _boxes(centres, half, H, W)
     imgf = img.ravel()
     thrf = thr.ravel()
-    tested = len(range(jr, H, k)) * len(range(jc, W, k))
+    tested = len(range(jr, H, k)) * len(range(jc, W, kc))
     bound = tested
     for w in range(box.shape[0]):
         bound += (box[w, 1] - box[w, 0]) * (box[w, 3] - box[w, 2])
     seeds = np.empty(min(bound, H * W), np.int64)     # not touched beyond the seeds
-    n_seeds, tested = _window_rows(imgf, thrf, box, W, jr, jc, k, seeds, tested)
-    n_seeds = _grid_seeds(imgf, thrf, box, H, W, jr, jc, k, seeds, n_seeds)
+    n_seeds, tested = _window_rows(imgf, thrf, box, W, k, kc, jr, jc, seeds, tested)
+    n_seeds = _grid_seeds(imgf, thrf, box, H, W, k, kc, jr, jc, seeds, n_seeds)
     out, area, n_out, tested = _fills(imgf, thrf, bg.ravel(), H, W, seeds, n_seeds, box, k,
-                                      jr, jc, tested)
+                                      kc, jr, jc, tested)
     return _kept(out, area, n_out, min_area, max_area) + (tested,)
 
 
@@ -121,7 +125,7 @@ def _boxes(centres, half, H, W):
 
 
 @nb.njit(cache=True)
-def _window_rows(imgf, thrf, box, W, jr, jc, k, seeds, tested):
+def _window_rows(imgf, thrf, box, W, k, kc, jr, jc, seeds, tested):
     """Seed every pixel over threshold in the windows ``box`` (sorted by first row), row by
     row over the rows they cover only; per row the windows that cover it (kept sorted by
     first column as the sweep enters and leaves them) give the union of their column
@@ -173,7 +177,7 @@ def _window_rows(imgf, thrf, box, W, jr, jc, k, seeds, tested):
                 i += 1
             tested += b - a
             if on_grid_row:
-                tested -= _on_grid(a, b, jc, k)
+                tested -= _on_grid(a, b, jc, kc)
             x = imgf[r * W + a:r * W + b]     # any over? (a loop the compiler vectorises)
             t = thrf[r * W + a:r * W + b]
             hit = False
@@ -195,7 +199,7 @@ def _window_rows(imgf, thrf, box, W, jr, jc, k, seeds, tested):
 
 
 @nb.njit(cache=True)
-def _grid_seeds(imgf, thrf, box, H, W, jr, jc, k, seeds, n_seeds):
+def _grid_seeds(imgf, thrf, box, H, W, k, kc, jr, jc, seeds, n_seeds):
     """Seed the grid's pixels over threshold outside the windows (those inside were seeded
     with the windows). A row with no pixel over threshold has no grid pixel over it either,
     and one contiguous (vectorised) pass over the row says so faster than the strided
@@ -210,7 +214,7 @@ def _grid_seeds(imgf, thrf, box, H, W, jr, jc, k, seeds, n_seeds):
             hit |= x[p] > t[p]
         if not hit:
             continue
-        for c in range(jc, W, k):
+        for c in range(jc, W, kc):
             q = r * W + c
             if imgf[q] > thrf[q]:
                 inside = False       # inside a window? kept in step with _fills's copy
@@ -254,13 +258,13 @@ def _bigger(a):
 
 
 @nb.njit(cache=True)
-def _fills(imgf, thrf, bgf, H, W, seeds, n_seeds, box, k, jr, jc, tested):
+def _fills(imgf, thrf, bgf, H, W, seeds, n_seeds, box, k, kc, jr, jc, tested):
     """Flood-fill the 8-connected pixels over threshold from every seed not yet part of a
     feature; per feature its weighted centroid, first pixel (raster order) and area.
     The pixels the fills visit are kept in an open-addressing hash set (linear probing;
-    doubled before it is half full). Pixels on the grid (``r = jr``, ``c = jc`` modulo
-    ``k``), in a window (``box``) or visited by a fill were tested before; the others add
-    to ``tested``. Returns (x, y, first) (n, 3), areas (n,), n and ``tested``."""
+    doubled before it is half full). Pixels on the grid (``r = jr`` modulo ``k``, ``c = jc``
+    modulo ``kc``), in a window (``box``) or visited by a fill were tested before; the others
+    add to ``tested``. Returns (x, y, first) (n, 3), areas (n,), n and ``tested``."""
     keys = np.full(256, _EMPTY, np.int64)
     vals = np.zeros(256, np.uint8)
     used = 0
@@ -309,7 +313,7 @@ def _fills(imgf, thrf, bgf, H, W, seeds, n_seeds, box, k, jr, jc, tested):
                         continue
                     keys[s] = n
                     used += 1
-                    if (rr - jr) % k != 0 or (cc - jc) % k != 0:
+                    if (rr - jr) % k != 0 or (cc - jc) % kc != 0:
                         inside = False   # kept in step with _grid_seeds's copy
                         for b in range(box.shape[0]):
                             inside |= (box[b, 0] <= rr < box[b, 1]

@@ -1,14 +1,17 @@
 """The sub-sampled, windowed LED search of one frame (Davis 2002, §3.3, Fig. 32), compiled.
 
 Per frame: every pixel of a ``window`` x ``window`` square around each predicted position,
-and one pixel per ``k`` x ``k`` block on a grid jittered anew every frame, is compared with
-its threshold. A pixel over its threshold starts a flood fill (8-connected, over the pixels
-over threshold), so each LED spot that has at least one tested pixel is found whole: its
-intensity-weighted centroid and its area are exactly those of the full search
-(:func:`lsmta.widearea.detect` with ``mode="full"``; OpenCV's connected components), up to
-the order of the floating-point sums. Pixels are tested once each and counted: the
-count is the grid's, the windows' and the flood fills' pixels, not the pixels read (a grid
-row is first compared whole in one contiguous pass, which is not counted).
+and a grid jittered anew every frame (``params.grid``: one pixel per ``k`` x ``k`` block, or
+every pixel of one row in ``k``), is compared with its threshold. A pixel over its
+threshold starts a flood fill (8-connected, over the pixels over threshold), so each LED
+spot that has at least one tested pixel is found whole: its intensity-weighted centroid
+and its area are exactly those of the full search (:func:`lsmta.widearea.detect` with
+``mode="full"``; OpenCV's connected components), up to the order of the floating-point
+sums. Pixels are tested once each and counted: the count is the grid's, the windows' and
+the flood fills' pixels, not the pixels read (a grid row is first compared whole in one
+contiguous pass, which is not counted for the point grid; the row grid tests those pixels,
+so it finds a new spot ``h`` rows tall with probability ``min(h / k, 1)`` per frame,
+instead of about ``area / k**2``, for about the same time).
 
 The loop over windows, grid and flood fill is compiled (:mod:`lsmta.widearea._kernels`)
 and called once per frame.
@@ -120,7 +123,8 @@ def search_frame(frame, setup: SearchSetup, *, windows=None, half_sizes=None,
     full : bool
         Test every pixel (the same compiled loop with ``k = 1``), for comparison.
     jitter : (int, int), optional
-        The grid's offsets, instead of drawing them.
+        The grid's offsets, instead of drawing them (with ``params.grid == "rows"`` the
+        column offset is not used).
 
     Returns
     -------
@@ -154,7 +158,8 @@ def search_frame(frame, setup: SearchSetup, *, windows=None, half_sizes=None,
         if half.shape != (len(centres),):
             raise ValueError(f"half_sizes: expected {len(centres)} sizes (px), got shape "
                              f"{half.shape}")
+    kc = 1 if full else p.column_step          # "rows": every pixel of a grid row
     xy, area, tested = search_kernel(img, setup.threshold, setup.background, centres,
-                                     half, k, int(jr), int(jc), p.min_area, p.max_area)
+                                     half, k, kc, int(jr), int(jc), p.min_area, p.max_area)
     return FrameFeatures(xy=xy, area=area, tested=int(tested))
 

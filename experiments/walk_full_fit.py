@@ -3,7 +3,7 @@ triplet and from an all-round studio, scored after the fact against issue 36's t
 
     .venv/bin/python experiments/walk_full_fit.py [--rigs triplet studio] [--frames 8]
         [--scale 1.0] [--every 2] [--seed 36] [--n-seeds 40] [--cameras 8 --rows 2]
-        [--fit-every 1] [--free-rounds 0]
+        [--fit-every 1] [--free-rounds 0] [--build-starts]
         [--n-inner 2] [--max-nfev 25] [--angular-speed 8]
         [--rom-per-phase 0] [--rom-every 1] [--rom-max-points 1000] [--cache DIR]
         [--out PATH]
@@ -305,6 +305,9 @@ def main(argv=None):
                         help="solver evaluations per pose solve")
     parser.add_argument("--angular-speed", type=float, default=8.0,
                         help="rad/s of fit_walk's temporal prior; 0: none (frames alone)")
+    parser.add_argument("--build-starts", action="store_true",
+                        help="also start the fit's first round from the builds of "
+                             "lsmta.body.full_body.BUILDS, keeping the lower cost")
     parser.add_argument("--rom-per-phase", type=int, default=0,
                         help="frames of each movement of the range-of-motion clip through "
                              "the system; the walk is then also fitted from its build (0: "
@@ -326,6 +329,7 @@ def main(argv=None):
         parser.error(f"--rom-max-points: expected at least 10, got {args.rom_max_points}")
     if args.rom_every < 1:
         parser.error(f"--rom-every: expected at least 1, got {args.rom_every}")
+    from lsmta.body.full_body import BUILDS
     from lsmta.report import write_json
 
     session = {k: getattr(args, k) for k in ("frames", "scale", "every", "seed", "cameras",
@@ -334,7 +338,7 @@ def main(argv=None):
                                                "rows", "n_seeds", "fit_every", "free_rounds",
                                                "n_inner", "max_nfev", "angular_speed",
                                                "rom_per_phase", "rom_every",
-                                               "rom_max_points")}
+                                               "rom_max_points", "build_starts")}
     out = {"command": "python experiments/walk_full_fit.py " + " ".join(
                sys.argv[1:] if argv is None else argv),
            "date": date.today().isoformat(), "machine": platform.machine(),
@@ -348,7 +352,8 @@ def main(argv=None):
                     angular_speed=args.angular_speed,
                     rom={"every": args.rom_every, "max_points": args.rom_max_points},
                     cache=args.cache,
-                    fit_params={k: settings[k] for k in ("free_rounds", "n_inner", "max_nfev")})
+                    fit_params={k: settings[k] for k in ("free_rounds", "n_inner", "max_nfev")}
+                    | {"build_starts": BUILDS if args.build_starts else ()})
         out["rigs"][rig] = r
         for x in r["records"]:
             v = x["value"]

@@ -303,3 +303,38 @@ def test_a_further_start_keeps_the_lower_cost():
     assert cost(both) <= cost(near) + 1e-9
     with pytest.raises(ValueError, match=r"starts\[0\]"):
         fit_full_body([pts], heading=0.0, starts=[(a[:, :3], b)], params=p)
+
+
+def test_a_build_start_is_kept_when_it_fits_better():
+    """Points of the template's own skin with a longer trunk, shorter head, narrower
+    shoulders and shorter upper arms: started from the template alone and from that
+    build too (``build_starts``), the first round keeps the build of the lower cost (two
+    solver steps, so that the template alone cannot walk there)."""
+    from lsmta.body.full_body import BUILDS, LIMBS
+
+    model = full_body_model(stature=1750.0)
+    factors = np.ones(len(LIMBS))
+    for name, f in BUILDS[0]:
+        factors[LIMBS.index(name)] = f
+    a = np.zeros((1, model.skeleton.n_joints))
+    a[0, model.skeleton.names.index("pelvis_c")] = -np.pi / 2
+    b = np.eye(4)[None].copy()
+    b[0, :3, 3] = (0.0, 0.0, 930.0)
+    radii = model.simplified_radii(template_size(model), factors)
+    patches = model_skin(model, a, factors, radii, base=b, params=SkinParams(n_u=16, n_v=12))
+    rng = np.random.default_rng(6)
+    pts = np.vstack([p.vertices for p in patches])
+    pts = pts[rng.choice(len(pts), 900, replace=False)]
+    p = FullBodyFitParams(n_rounds=1, n_inner=1, max_nfev=2)
+    shape = BodyShape.template(1750.0)
+    alone = fit_full_body([pts], heading=0.0, shape=shape, params=p)
+    both = fit_full_body([pts], heading=0.0, shape=shape,
+                         params=replace(p, build_starts=(BUILDS[1], BUILDS[0])))
+    trunk = LIMBS.index("trunk")
+    assert both.scales[trunk] > 1.1 > alone.scales[trunk]
+    assert (np.median(np.abs(both.point_residuals[0]))
+            < np.median(np.abs(alone.point_residuals[0])))
+    for bad in ((("trunk", 1.1),), ((("tail", 1.0),),), [((("trunk", 1.1),))],
+                ((("trunk", -1.0),),)):
+        with pytest.raises(ValueError, match="build_starts"):
+            FullBodyFitParams(build_starts=bad)

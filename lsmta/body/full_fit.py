@@ -51,6 +51,21 @@ Stages, in ``n_rounds`` rounds with the tied shape, then ``free_rounds`` with th
     ``sigma_silhouette`` (:mod:`lsmta.body.silhouette`); a weighted residual above
     ``outlier_k`` at the solution counts as an outlier.
 
+Build starts (off by default: ``build_starts=()``; no truth: the fit's own residuals)
+    The rounds do not leave the valley of builds a start lies in: on the generated studio
+    walk, with the generator's noise-free skin all round, the template's build stayed at a
+    trunk 16 % short under a longer head, the clavicles raised 23 deg to lift the shoulders,
+    set 11 % wider on upper arms 8 % long (median |skin distance| 2.95 mm), while started
+    from the true joint centres the same fit kept those three within 3 % (2.41 mm;
+    experiments/walk_full_fit_ladder.py). With ``build_starts`` (e.g.
+    :data:`lsmta.body.full_body.BUILDS`) the first round also runs from each of those
+    builds (the start's limb scales times the factors) and the round whose median |skin
+    distance| of all frames' points is lowest goes on. On the generator's skin it took
+    :data:`~lsmta.body.full_body.BUILDS`' first and kept the trunk, shoulder width and
+    upper arm within 3.3 %; on the LSMTA system's points of the same walk and of another
+    seed's, it set the shoulder width right but the upper arm 10-11 % short and flipped an
+    elbow (walk_full_fit.py --build-starts), so it stays off by default.
+
 A shape from elsewhere
     ``shape`` (a :class:`BodyShape`, e.g. :meth:`FullBodyFit.body_shape` of a fit to a
     range-of-motion clip of the same person) replaces the stature measured from the points
@@ -160,6 +175,9 @@ class FullBodyFitParams:
     drop_k : float or None
         Frames whose cost exceeds ``drop_k`` times the median of all frames' costs are left
         out of the shape solve (module docstring, "Bad frames"); None: none left out.
+    build_starts : tuple of tuples of (str, float)
+        Further builds of the first round, each as (limb, factor of the start's limb scale)
+        pairs (module docstring, "Build starts"; needs ``fit_shape``).
     """
 
     sigma_point: float = 3.0
@@ -190,6 +208,7 @@ class FullBodyFitParams:
     fit_shape: bool = True
     rest_start: bool = False
     drop_k: float | None = None
+    build_starts: tuple = ()
 
     def __post_init__(self):
         if self.temporal_sigma is not None:
@@ -208,6 +227,7 @@ class FullBodyFitParams:
                      "neighbour_radius", "offset_bound", "size_prior", "offset_prior"):
             as_scalar(getattr(self, name), name, positive=True)
         as_scalar(self.floor, "floor")
+        _check_builds(self.build_starts)
         for name in ("loss", "free_loss"):
             if getattr(self, name) not in ("linear", "soft_l1", "huber", "cauchy", "arctan"):
                 raise ValueError(f"{name}: expected a least_squares loss name, got "
@@ -424,6 +444,18 @@ class _Frame:
         return a, b, int(sol.nfev)
 
 
+def _check_builds(builds):
+    msg = ("build_starts: expected a tuple of builds, each a tuple of (limb name, positive "
+           f"factor) pairs with limb names of {LIMBS}")
+    if not isinstance(builds, tuple):
+        raise ValueError(f"{msg}; got {builds!r}")
+    for b in builds:
+        if not isinstance(b, tuple) or not all(
+                isinstance(e, tuple) and len(e) == 2 and e[0] in LIMBS
+                and isinstance(e[1], (int, float)) and e[1] > 0 for e in b):
+            raise ValueError(f"{msg}; got {b!r}")
+
+
 _SHAPE = 8          # per limb: 3 balls x (width, depth) factors, length-radius factor, shift
 
 
@@ -586,30 +618,67 @@ def fit_full_body(points, *, rays=None, camera_centre=None, heading=None,
         [-np.inf, np.inf]
     free = ~np.isin(model.skeleton.names, p.hold)
     nfev, tied, used = 0, None, None
+    how = (model, frames, template, (start_angles, start_base), starts, free, bounds, p)
     for k in range(int(p.n_rounds) + int(p.free_rounds)):
-        m, radii = _shaped(model, template, scales, shape)
-        loss = p.loss if k < p.n_rounds else p.free_loss
-        for t, f in enumerate(frames):
-            if k == 0 and t > 0 and p.warm_start:
-                angles[t] = angles[t - 1]
-            others = [] if k else (
-                [(start_angles[t], start_base[t])] * (p.rest_start and p.warm_start and t > 0)
-                + [(a[t], b[t]) for a, b in starts])
-            angles[t], base[t], n = _solve_frame(
-                f, m, [(angles[t], base[t])] + others, scales, radii, free, bounds,
-                (k >= p.silhouette_from, loss, _neighbours(angles, t, k, p)))
-            nfev += n
         if k == p.n_rounds:
             tied = shape.copy()
-        if p.fit_shape:
-            used = _shape_frames(m, frames, angles, base, scales, radii, p.drop_k)
-            i = np.flatnonzero(used)
-            scales, shape, n = _solve_shape(model, [frames[j] for j in i], angles[i], base[i],
-                                            scales, shape, template, p, loss=loss, prior=tied)
-            nfev += n
+        builds = [scales] + ([scales * _build_factors(b) for b in p.build_starts]
+                             if k == 0 and p.fit_shape
+                             else [])
+        best = None
+        for s in builds:
+            out = _round(k, angles.copy(), base.copy(), s, shape, tied, how)
+            nfev += out[-1]
+            c = _cost(model, frames, template, *out[:4]) if len(builds) > 1 else 0.0
+            if best is None or c < best[0]:
+                best = (c, out)
+        angles, base, scales, shape, used = best[1][:5]
     fitted, radii = _shaped(model, template, scales, shape)
     return replace(_finish(fitted, frames, stature, angles, base, scales, radii, start_angles,
                            start_base, nfev, p), limb_shape=shape, shape_frames=used)
+
+
+def _round(k, angles, base, scales, shape, tied, how):
+    """Round ``k`` of :func:`fit_full_body` from ``angles``, ``base`` (changed in place),
+    ``scales`` and ``shape``: every frame's pose, then the shape; returns angles, base,
+    scales, shape, the frames of the shape solve and nfev."""
+    model, frames, template, (start_angles, start_base), starts, free, bounds, p = how
+    m, radii = _shaped(model, template, scales, shape)
+    loss = p.loss if k < p.n_rounds else p.free_loss
+    nfev, used = 0, None
+    for t, f in enumerate(frames):
+        if k == 0 and t > 0 and p.warm_start:
+            angles[t] = angles[t - 1]
+        others = [] if k else (
+            [(start_angles[t], start_base[t])] * (p.rest_start and p.warm_start and t > 0)
+            + [(a[t], b[t]) for a, b in starts])
+        angles[t], base[t], n = _solve_frame(
+            f, m, [(angles[t], base[t])] + others, scales, radii, free, bounds,
+            (k >= p.silhouette_from, loss, _neighbours(angles, t, k, p)))
+        nfev += n
+    if p.fit_shape:
+        used = _shape_frames(m, frames, angles, base, scales, radii, p.drop_k)
+        i = np.flatnonzero(used)
+        scales, shape, n = _solve_shape(model, [frames[j] for j in i], angles[i], base[i],
+                                        scales, shape, template, p, loss=loss, prior=tied)
+        nfev += n
+    return angles, base, scales, shape, used, nfev
+
+
+def _build_factors(build) -> np.ndarray:
+    """``(L,)`` limb-scale factors of one of ``FullBodyFitParams.build_starts``."""
+    out = np.ones(len(LIMBS))
+    for name, factor in build:
+        out[LIMBS.index(name)] = factor
+    return out
+
+
+def _cost(model, frames, template, angles, base, scales, shape) -> float:
+    """The median |skin distance| (mm) of all frames' points: what picks a build start."""
+    m, radii = _shaped(model, template, scales, shape)
+    return float(np.median(np.concatenate([
+        np.abs(m.all_distances(f.pts, angles[[t]], scales, radii, base=base[[t]])).min(axis=1)
+        for t, f in enumerate(frames)])))
 
 
 def _check_starts(starts, T, J):

@@ -325,8 +325,11 @@ class WalkFitScore:
                 "skin_from_truth_all_mm": med(self.skin_from_truth_all)}
 
 
-def _seen_samples(session, groups, frames, n_per_part, rng):
-    """True outer skin samples per frame: world ``(N_t, 3)`` and seen ``(N_t,)``."""
+def seen_samples(session, groups, frames, *, n_per_part: int = 300, rng=None) -> list:
+    """True outer skin samples of ``frames`` of ``session``'s walk (truth): per frame the
+    world points ``(N_t, 3)`` (mm) and whether two cameras of one of ``groups`` (camera
+    indices) see each, ``(N_t,)`` bool; ``n_per_part`` samples per part before the outer
+    and seen tests, drawn by ``rng``."""
     body, motion = session.scene.body, session.scene.motion
     part, local = body.sample_surface(n_per_part=n_per_part, rng=rng)
     proj = project_surface_points(session.scene, session.cameras, part, local, frames=frames)
@@ -379,7 +382,7 @@ def score_walk_fit(fit: FullBodyFit, session, frames, groups, *, n_per_part: int
     n_per_part = as_int(n_per_part, "n_per_part", minimum=1)
     body, motion = session.scene.body, session.scene.motion
     groups = [np.asarray(g, int) for g in groups]
-    samples = _seen_samples(session, groups, frames, n_per_part, rng)
+    samples = seen_samples(session, groups, frames, n_per_part=n_per_part, rng=rng)
     poses = body.part_poses(motion, frames=frames)
     out = {k: [] for k in ("skin_to_truth", "skin_from_truth", "skin_to_truth_all",
                            "skin_from_truth_all")}

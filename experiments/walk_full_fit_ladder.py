@@ -1,0 +1,181 @@
+"""A controlled ladder of the full-body fit on the studio walk (issue 36): which error comes
+from the measurement, which from the start, which from the model's form.
+
+    .venv/bin/python experiments/walk_full_fit_ladder.py --cache DIR [--rungs a b c d ds]
+        [--free-rounds 0] [--build-starts] [--n-points 2000] [--out PATH]
+
+The same frames as ``experiments/walk_full_fit.py --rigs studio`` (its ``--cache DIR``
+must hold that run's session and capture pickle; the session settings are fixed to the
+committed run's: 8 frames, every 2, seed 36, 8 cameras in 2 rows, scale 1), the same fit
+(:func:`lsmta.evaluation.walk_full_fit.fit_walk`'s sequence settings, ``--n-inner 3
+--max-nfev 50``), scored the same way (:func:`~lsmta.evaluation.walk_full_fit.
+score_walk_fit`). The rungs differ in what goes in, and each record says which truth:
+
+* ``a``: the generator's noise-free skin samples all round
+  (:func:`lsmta.synth.body.surface_samples`, every part, ``--n-points`` per frame);
+* ``b``: the same, only samples that two cameras of one view group see
+  (:func:`~lsmta.evaluation.walk_full_fit.seen_samples`);
+* ``c``: the LSMTA system's own points (no truth in the fit; aligned after the fact on the
+  held-out bar's check points);
+* ``d``: as ``a``, the build started at the true joint centres (limb scales that give the
+  generator's segment lengths at its stature, 1780 mm) and each frame also started from
+  the true pose (the model's joint angles whose segment rotations equal the generator's);
+* ``ds``: as ``a``, only the build started at the true joint centres;
+* ``dp``: as ``a``, only each frame also started from the true pose.
+
+``--build-starts``: every rung's fit also starts its first round from
+:data:`lsmta.body.full_body.BUILDS` (the lower cost kept). Writes ``--out`` (default
+``build/benchmarks/walk_full_fit_ladder.json``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import pickle
+import sys
+import time
+from dataclasses import replace
+from datetime import date
+from pathlib import Path
+
+import numpy as np
+
+KEY = "studio-cameras8-every2-frames8-n_seeds40-rom_per_phase4-rows2-scale1.0-seed36"
+TRUE_STATURE = 1780.0     # the generator's standard adult, head top at rest (mm)
+# the generator's joint-to-joint lengths (lsmta.synth.body._PARTS, mm), per limb scale
+TRUE_LENGTHS = {"upper_arm": 300.0, "forearm": 265.0, "thigh": 440.0, "shank": 430.0,
+                "trunk": 480.0, "shoulders": 410.0 / 2, "pelvis": 190.0 / 2}
+
+
+def true_shape():
+    """The build whose joint centres are the generator's (truth)."""
+    from lsmta.body.full_body import LIMBS, template_lengths
+    from lsmta.body.full_fit import BodyShape
+
+    L = template_lengths(stature=TRUE_STATURE)
+    key = {"shoulders": "shoulder_x", "pelvis": "hip_x"}
+    shape = BodyShape.template(TRUE_STATURE)
+    s = shape.scales.copy()
+    for k, v in TRUE_LENGTHS.items():
+        s[LIMBS.index(k)] = v / L[key.get(k, k)]
+    return replace(shape, scales=s)
+
+
+def true_pose(model, scales, body, motion, frames):
+    """The model's angles ``(T, J)`` and bases whose segment rotations are the generator's
+    part rotations (truth; the base at the midpoint of the true hip joints)."""
+    from scipy.optimize import least_squares
+
+    G = body.part_poses(motion, frames=frames)
+    J = model.skeleton.n_joints
+    F0 = model.frames(np.zeros((1, J)), scales)[0, :, :3, :3]
+    part = [body.index("torso" if s == "trunk" else s) for s in model.names]
+    hip = np.mean([body.parts[body.index(f"thigh_{s}")].joint for s in "rl"], axis=0)
+    angles, bases, x = [], [], np.zeros(J)
+    for t in range(len(frames)):
+        b = np.eye(4)
+        b[:3, 3] = G[t, 0, :3, :3] @ hip + G[t, 0, :3, 3]
+
+        def res(a, b=b, t=t):
+            F = model.frames(a[None], scales, base=b[None])[0, :, :3, :3]
+            return (F @ np.swapaxes(F0, -1, -2) - G[t, part, :3, :3]).ravel()
+
+        x = least_squares(res, x, method="lm").x
+        angles.append(x)
+        bases.append(b)
+    return np.array(angles), np.array(bases)
+
+
+def run_rung(rung, session, cap, params, n_points, seed):
+    """One rung's fit (in the true world) and what went in."""
+    from lsmta.body.full_body import full_body_model
+    from lsmta.body.full_fit import fit_full_body, measure_stature
+    from lsmta.evaluation import walk_full_fit as wf
+    from lsmta.evaluation import walk_system as ws
+    from lsmta.synth.body import surface_samples
+
+    body, motion = session.scene.body, session.scene.motion
+    frames = np.asarray(cap.frames)
+    if rung == "c":
+        al, _ = ws.check_alignment(cap.cameras, session)
+        w = wf.fit_walk(cap, params=params)
+        return wf.aligned_fit(w.fit, al), w.n_points.tolist(), (
+            "none in the fit (the system's filtered points); scored after the rigid fit of the "
+            "held-out bar's check points")
+    if rung == "b":
+        groups = [np.asarray(v.group.cameras) for v in cap.views]
+        rng = np.random.default_rng(seed)
+        pts = []
+        for world, seen in wf.seen_samples(session, groups, frames, n_per_part=400, rng=seed):
+            w = world[seen]
+            pts.append(w[rng.choice(len(w), min(n_points, len(w)), replace=False)])
+        truth = "the generator's noise-free skin samples seen by two cameras of one view group"
+    else:
+        pts = [surface_samples(body, motion, int(t), rng=seed + int(t), parts=body.names,
+                               n=n_points)[0] for t in frames]
+        truth = "the generator's noise-free skin samples all round"
+    dt = float(np.median(np.diff(frames))) / cap.fps
+    p = replace(params, temporal_sigma=wf.ANGULAR_SPEED * dt, warm_start=True)
+    kw = {}
+    if rung in ("d", "ds"):
+        kw["shape"] = true_shape()
+        truth += "; the build started at the true joint centres (stature 1780 mm)"
+    if rung in ("d", "dp"):
+        shape = kw.get("shape")
+        stature = TRUE_STATURE if shape else measure_stature(np.vstack(pts))
+        scales = shape.scales if shape else np.ones(len(true_shape().scales))
+        kw["starts"] = [true_pose(full_body_model(stature=stature), scales, body, motion,
+                                  frames)]
+        truth += "; each frame also started from the true pose"
+    return fit_full_body(pts, params=p, **kw), [len(x) for x in pts], truth
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cache", required=True)
+    parser.add_argument("--rungs", nargs="+", default=["a", "b", "c", "d", "ds"],
+                        choices=["a", "b", "c", "d", "ds", "dp"])
+    parser.add_argument("--free-rounds", type=int, default=0)
+    parser.add_argument("--build-starts", action="store_true",
+                        help="every rung's first round also from lsmta.body.full_body.BUILDS")
+    parser.add_argument("--n-points", type=int, default=2000)
+    parser.add_argument("--out", default="build/benchmarks/walk_full_fit_ladder.json")
+    args = parser.parse_args(argv)
+    from lsmta.body.full_body import BUILDS
+    from lsmta.body.full_fit import FullBodyFitParams
+    from lsmta.evaluation import walk_full_fit as wf
+    from lsmta.report import write_json
+
+    with open(Path(args.cache) / f"{KEY}.pkl", "rb") as f:
+        session, cap, _ = pickle.load(f)
+    params = FullBodyFitParams(n_inner=3, max_nfev=50, free_rounds=args.free_rounds,
+                               build_starts=BUILDS if args.build_starts else ())
+    groups = [v.group.cameras for v in cap.views]
+    out = {"command": "python experiments/walk_full_fit_ladder.py " + " ".join(
+               sys.argv[1:] if argv is None else argv),
+           "date": date.today().isoformat(), "frames": np.asarray(cap.frames).tolist(),
+           "scored": "after the fact against the generator (lsmta.evaluation.walk_full_fit."
+                     "score_walk_fit, seen side: two cameras of one view group)",
+           "rungs": {}}
+    for rung in args.rungs:
+        t0 = time.perf_counter()
+        fit, n, truth = run_rung(rung, session, cap, params, args.n_points, session.seed)
+        secs = time.perf_counter() - t0
+        score = wf.score_walk_fit(fit, session, np.asarray(cap.frames), groups,
+                                  rng=session.seed)
+        out["rungs"][rung] = {
+            "truth": truth, "points_per_frame": n, "fit_seconds": secs,
+            "stature_mm": fit.stature,
+            "scales": dict(zip(fit.model.skeleton.limbs, np.round(fit.scales, 4).tolist())),
+            "length_error_pct": score.length_pct(),
+            "lengths_mm": score.lengths, "skin": score.summary(),
+            "worst_joint_deg": {k: float(np.max(v)) for k, v in score.joints_deg.items()},
+            "fit_cost_median_abs_mm": float(np.median(np.abs(np.concatenate(
+                fit.point_residuals))))}
+        print(rung, json.dumps(out["rungs"][rung], default=float)[:400], flush=True)
+        write_json(args.out, out)
+
+
+if __name__ == "__main__":
+    main()

@@ -21,7 +21,13 @@ score_walk_fit`). The rungs differ in what goes in, and each record says which t
   generator's segment lengths at its stature, 1780 mm) and each frame also started from
   the true pose (the model's joint angles whose segment rotations equal the generator's);
 * ``ds``: as ``a``, only the build started at the true joint centres;
-* ``dp``: as ``a``, only each frame also started from the true pose.
+* ``dp``: as ``a``, only each frame also started from the true pose;
+* ``e``: as ``b``, only samples with a point of the system within 15 mm (the system's
+  coverage with the truth's accuracy).
+
+With rung ``c`` the record also holds the system's coverage: per part, the share of its
+seen outer skin samples with no point of the system within 15 mm, and the points' distance
+to the true skin.
 
 ``--build-starts``: every rung's fit also starts its first round from
 :data:`lsmta.body.full_body.BUILDS` (the lower cost kept). Writes ``--out`` (default
@@ -42,6 +48,7 @@ from pathlib import Path
 import numpy as np
 
 KEY = "studio-cameras8-every2-frames8-n_seeds40-rom_per_phase4-rows2-scale1.0-seed36"
+COVER_MM = 15.0           # rung e and the coverage record: "a system point near"
 TRUE_STATURE = 1780.0     # the generator's standard adult, head top at rest (mm)
 # the generator's joint-to-joint lengths (lsmta.synth.body._PARTS, mm), per limb scale
 TRUE_LENGTHS = {"upper_arm": 300.0, "forearm": 265.0, "thigh": 440.0, "shank": 430.0,
@@ -87,8 +94,35 @@ def true_pose(model, scales, body, motion, frames):
     return np.array(angles), np.array(bases)
 
 
+def coverage(session, cap, seed):
+    """The share of the seen outer skin samples (all frames) with no point of the system
+    within COVER_MM, and the points' |distance| to the true skin (after the fact)."""
+    from scipy.spatial import cKDTree
+
+    from lsmta.evaluation import walk_full_fit as wf
+    from lsmta.evaluation import walk_system as ws
+    from lsmta.synth.surface import distance_to_body
+
+    body, frames = session.scene.body, np.asarray(cap.frames)
+    groups = [np.asarray(v.group.cameras) for v in cap.views]
+    al, _ = ws.check_alignment(cap.cameras, session)
+    poses = body.part_poses(session.scene.motion, frames=frames)
+    far, dist = [], []
+    for t, (world, seen) in enumerate(wf.seen_samples(session, groups, frames,
+                                                      n_per_part=400, rng=seed)):
+        p = cap.points_at(t)[0] @ al.R.T + al.t
+        dist.append(np.abs(distance_to_body(body, poses[t], p)))
+        far.append(cKDTree(p).query(world[seen])[0] > COVER_MM)
+    d = np.concatenate(dist)
+    return {"points_to_true_skin_median_mm": float(np.median(d)),
+            "points_to_true_skin_q90_mm": float(np.percentile(d, 90)),
+            "seen_skin_without_a_point_share": float(np.mean(np.concatenate(far)))}
+
+
 def run_rung(rung, session, cap, params, n_points, seed):
     """One rung's fit (in the true world) and what went in."""
+    from scipy.spatial import cKDTree
+
     from lsmta.body.full_body import full_body_model
     from lsmta.body.full_fit import fit_full_body, measure_stature
     from lsmta.evaluation import walk_full_fit as wf
@@ -103,14 +137,22 @@ def run_rung(rung, session, cap, params, n_points, seed):
         return wf.aligned_fit(w.fit, al), w.n_points.tolist(), (
             "none in the fit (the system's filtered points); scored after the rigid fit of the "
             "held-out bar's check points")
-    if rung == "b":
+    if rung in ("b", "e"):
         groups = [np.asarray(v.group.cameras) for v in cap.views]
         rng = np.random.default_rng(seed)
+        al, _ = ws.check_alignment(cap.cameras, session)
         pts = []
-        for world, seen in wf.seen_samples(session, groups, frames, n_per_part=400, rng=seed):
+        for t, (world, seen) in enumerate(wf.seen_samples(session, groups, frames,
+                                                          n_per_part=400, rng=seed)):
+            if rung == "e":         # where the system has a point within COVER_MM
+                near, _ = cKDTree(cap.points_at(t)[0] @ al.R.T + al.t).query(world)
+                seen &= near <= COVER_MM
             w = world[seen]
             pts.append(w[rng.choice(len(w), min(n_points, len(w)), replace=False)])
         truth = "the generator's noise-free skin samples seen by two cameras of one view group"
+        if rung == "e":
+            truth += (f" with a point of the system (aligned on the check points) within "
+                      f"{COVER_MM:g} mm: the system's coverage, the truth's accuracy")
     else:
         pts = [surface_samples(body, motion, int(t), rng=seed + int(t), parts=body.names,
                                n=n_points)[0] for t in frames]
@@ -135,7 +177,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cache", required=True)
     parser.add_argument("--rungs", nargs="+", default=["a", "b", "c", "d", "ds"],
-                        choices=["a", "b", "c", "d", "ds", "dp"])
+                        choices=["a", "b", "c", "d", "ds", "dp", "e"])
     parser.add_argument("--free-rounds", type=int, default=0)
     parser.add_argument("--build-starts", action="store_true",
                         help="every rung's first round also from lsmta.body.full_body.BUILDS")
@@ -173,6 +215,8 @@ def main(argv=None):
             "worst_joint_deg": {k: float(np.max(v)) for k, v in score.joints_deg.items()},
             "fit_cost_median_abs_mm": float(np.median(np.abs(np.concatenate(
                 fit.point_residuals))))}
+        if rung == "c":
+            out["rungs"][rung]["coverage"] = coverage(session, cap, session.seed)
         print(rung, json.dumps(out["rungs"][rung], default=float)[:400], flush=True)
         write_json(args.out, out)
 

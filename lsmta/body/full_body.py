@@ -46,13 +46,6 @@ RATIOS = {"upper_arm": 0.186, "forearm": 0.146, "hand": 0.108, "thigh": 0.245, "
           "foot": 0.152, "shoulder_x": 0.259 / 2, "hip_x": 0.191 / 4, "lower_trunk": 0.0837,
           "shoulder_z": 0.818 - 0.530 - 0.0837, "trunk": (0.818 + 0.870) / 2 - 0.530 - 0.0837,
           "head": 1.0 - (0.818 + 0.870) / 2, "pelvis": 0.1}
-# builds to start a fit from besides the template (FullBodyFitParams.build_starts): limb
-# scale factors either way along a valley of the fit found on the generated studio walk
-# (experiments/walk_full_fit_ladder.py): a trunk too short (its neck low) under a longer
-# head, the shoulders raised by the clavicles, set wider and on longer upper arms, fits the
-# points nearly as well as the right build, and the rounds do not leave it
-BUILDS = ((("trunk", 1.15), ("head", 0.8), ("shoulders", 0.9), ("upper_arm", 0.9)),
-          (("trunk", 0.85), ("head", 1.2), ("shoulders", 1.1), ("upper_arm", 1.1)))
 STATURE = 1750.0                 # mm, the default stature of the template
 # ball widths and depths (mm) of each segment's middle ball at STATURE (the skin lies at
 # about 0.6 of a lone ball's radii); scaled with the stature

@@ -3,7 +3,7 @@ triplet and from an all-round studio, scored after the fact against issue 36's t
 
     .venv/bin/python experiments/walk_full_fit.py [--rigs triplet studio] [--frames 8]
         [--scale 1.0] [--every 2] [--seed 36] [--n-seeds 40] [--cameras 8 --rows 2]
-        [--fit-every 1] [--free-rounds 0]
+        [--fit-every 1] [--free-rounds 0] [--build-starts]
         [--n-inner 2] [--max-nfev 25] [--angular-speed 8]
         [--rom-per-phase 0] [--rom-every 1] [--rom-max-points 1000] [--cache DIR]
         [--out PATH]
@@ -52,16 +52,21 @@ solves each frame also from the rest pose and leaves frames fitted badly by thei
 residuals out of the shape solve (fit_rom, ROM_DROP_K), and the walk fits from the clip's
 build start each frame also from the walk-alone pose (the lower cost kept). ``--cache
 DIR`` pickles the renders and captures there and reads them back (the render takes minutes).
+``--build-starts``: the fit's first round also from walk_full_fit_ladder.BUILDS, which were
+read off the generator's true build (a controlled study, not the system alone: every record's
+truth says so); which build went on is a record.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import sys
 import time
 from datetime import date
 
+from walk_full_fit_ladder import BUILDS, BUILDS_TRUTH
 from walk_system import CHECK_IN, SEEN_IN, add_session_arguments, rom_capture, session_capture
 
 FIT_IN = ("none (the fit takes only the system's filtered points in the system's own world; "
@@ -92,6 +97,8 @@ def _records(rig, cap, session_s, wf, score_s, check, al, score, verdict):
                "none"),
            rec("stature measured from the system's points", wf.fit.stature, "mm", FIT_IN),
            rec("point outliers at the solution", wf.fit.n_point_outliers, "", FIT_IN),
+           rec("first round's build that went on (0: the start's; i: build_starts[i - 1])",
+               wf.fit.build, "", FIT_IN),
            rec("calibration: check-point RMS", float(np.sqrt(np.nanmean(check ** 2))), "mm",
                CHECK_IN),
            rec("alignment: tilt of the system's up against the true up", al.tilt_deg, "deg",
@@ -305,6 +312,10 @@ def main(argv=None):
                         help="solver evaluations per pose solve")
     parser.add_argument("--angular-speed", type=float, default=8.0,
                         help="rad/s of fit_walk's temporal prior; 0: none (frames alone)")
+    parser.add_argument("--build-starts", action="store_true",
+                        help="also start the fit's first round from the builds of "
+                             "walk_full_fit_ladder.BUILDS (derived from the generator's true "
+                             "build: every record's truth says so), keeping the lower cost")
     parser.add_argument("--rom-per-phase", type=int, default=0,
                         help="frames of each movement of the range-of-motion clip through "
                              "the system; the walk is then also fitted from its build (0: "
@@ -334,21 +345,27 @@ def main(argv=None):
                                                "rows", "n_seeds", "fit_every", "free_rounds",
                                                "n_inner", "max_nfev", "angular_speed",
                                                "rom_per_phase", "rom_every",
-                                               "rom_max_points")}
+                                               "rom_max_points", "build_starts")}
     out = {"command": "python experiments/walk_full_fit.py " + " ".join(
                sys.argv[1:] if argv is None else argv),
            "date": date.today().isoformat(), "machine": platform.machine(),
-           "settings": settings,
+           "load_average_1_5_15min": list(os.getloadavg()), "settings": settings,
            "targets": "issue 36: triplet every major joint <= 5 deg in every frame, lengths "
                       "within 3 %, skin <= 3 mm (seen side); studio 3 deg, 2 %, 2 mm",
            "truth": "none in the capture or the fit; scores after the fact, aligned on the "
-                    "held-out bar's check points", "rigs": {}}
+                    "held-out bar's check points"
+                    + (BUILDS_TRUTH if args.build_starts else ""), "rigs": {}}
     for rig in args.rigs:
         r = run_rig(rig, session=session, fit_every=args.fit_every,
                     angular_speed=args.angular_speed,
                     rom={"every": args.rom_every, "max_points": args.rom_max_points},
                     cache=args.cache,
-                    fit_params={k: settings[k] for k in ("free_rounds", "n_inner", "max_nfev")})
+                    fit_params={k: settings[k] for k in ("free_rounds", "n_inner", "max_nfev")}
+                    | {"build_starts": BUILDS if args.build_starts else ()})
+        if args.build_starts:
+            for x in r["records"]:
+                x["truth"] += BUILDS_TRUTH
+        r["load_average_1_5_15min_after"] = list(os.getloadavg())
         out["rigs"][rig] = r
         for x in r["records"]:
             v = x["value"]

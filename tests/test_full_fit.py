@@ -303,3 +303,70 @@ def test_a_further_start_keeps_the_lower_cost():
     assert cost(both) <= cost(near) + 1e-9
     with pytest.raises(ValueError, match=r"starts\[0\]"):
         fit_full_body([pts], heading=0.0, starts=[(a[:, :3], b)], params=p)
+
+
+# two builds to try (limb, factor of the template's limb scale); any pair either way does
+LONG_TRUNK = (("trunk", 1.15), ("head", 0.8), ("shoulders", 0.9), ("upper_arm", 0.9))
+SHORT_TRUNK = (("trunk", 0.85), ("head", 1.2), ("shoulders", 1.1), ("upper_arm", 1.1))
+
+
+def _skin_points(build, n=900, seed=6):
+    """``(n, 3)`` points of the template's own skin (stature 1750 mm) with ``build``."""
+    from lsmta.body.full_body import LIMBS
+
+    model = full_body_model(stature=1750.0)
+    factors = np.ones(len(LIMBS))
+    for name, f in build:
+        factors[LIMBS.index(name)] = f
+    a = np.zeros((1, model.skeleton.n_joints))
+    a[0, model.skeleton.names.index("pelvis_c")] = -np.pi / 2
+    b = np.eye(4)[None].copy()
+    b[0, :3, 3] = (0.0, 0.0, 930.0)
+    radii = model.simplified_radii(template_size(model), factors)
+    patches = model_skin(model, a, factors, radii, base=b, params=SkinParams(n_u=16, n_v=12))
+    pts = np.vstack([p.vertices for p in patches])
+    return pts[np.random.default_rng(seed).choice(len(pts), n, replace=False)]
+
+
+def test_a_build_start_is_kept_when_it_fits_better():
+    """Points of the template's own skin with a longer trunk, shorter head, narrower
+    shoulders and shorter upper arms: started from the template alone and from builds too
+    (``build_starts``), the first round keeps the build of the lowest cost whatever its
+    place (two solver steps, so that the template alone cannot walk there); on the
+    template's own build the template wins."""
+    from lsmta.body.full_body import LIMBS
+
+    pts = _skin_points(LONG_TRUNK)
+    p = FullBodyFitParams(n_rounds=1, n_inner=1, max_nfev=2)
+    shape = BodyShape.template(1750.0)
+    alone = fit_full_body([pts], heading=0.0, shape=shape, params=p)
+    last = fit_full_body([pts], heading=0.0, shape=shape,
+                         params=replace(p, build_starts=(SHORT_TRUNK, LONG_TRUNK)))
+    first = fit_full_body([pts], heading=0.0, shape=shape,
+                          params=replace(p, build_starts=(LONG_TRUNK, SHORT_TRUNK)))
+    trunk = LIMBS.index("trunk")
+    assert alone.build == 0 and last.build == 2 and first.build == 1
+    for both in (last, first):
+        assert both.scales[trunk] > 1.1 > alone.scales[trunk]
+        assert (np.median(np.abs(both.point_residuals[0]))
+                < np.median(np.abs(alone.point_residuals[0])))
+    own = fit_full_body([_skin_points(())], heading=0.0, shape=shape, params=replace(
+        p, build_starts=(LONG_TRUNK, (("trunk", 1.3), ("upper_arm", 0.75)))))
+    assert own.build == 0 and abs(own.scales[trunk] - 1.0) < 0.05
+
+
+@pytest.mark.parametrize("bad", [
+    (("trunk", 1.1),), ((("tail", 1.0),),), [(("trunk", 1.1),)], ((("trunk", -1.0),),),
+    ((("trunk", float("nan")),),), ((("trunk", float("inf")),),), ((("trunk", True),),),
+    ((),), ((("trunk", 1.5),),), ((("trunk", 0.5),),), ((("trunk", "1.1"),),)])
+def test_bad_build_starts_are_refused(bad):
+    with pytest.raises(ValueError, match="build_starts"):
+        FullBodyFitParams(build_starts=bad)
+
+
+def test_build_starts_take_numpy_floats_and_need_the_shape_fit():
+    p = FullBodyFitParams(build_starts=((("trunk", np.float32(1.1)), ("head", np.float64(0.9))),))
+    assert p.build_starts[0][0][1] == np.float32(1.1)
+    with pytest.raises(ValueError, match="build_starts.*fit_shape"):
+        FullBodyFitParams(build_starts=(LONG_TRUNK,), fit_shape=False)
+    assert FullBodyFitParams(fit_shape=False).build_starts == ()

@@ -107,3 +107,29 @@ def test_verdicts_at_the_limits_and_with_a_missing_frame():
     assert not wf.verdicts(score({knee: np.array([0.5, 3.01])}), "studio")["joints"]["met"]
     with pytest.raises(ValueError, match="rig"):
         wf.verdicts(score({}), "dome")
+
+
+def test_seen_samples_refuses_bad_arguments():
+    from types import SimpleNamespace
+
+    session = SimpleNamespace(cameras=[None] * 4)     # the checks come before any render
+    for kw in ({"n_per_part": 0}, {"n_per_part": 2.5}):
+        with pytest.raises((ValueError, TypeError), match="n_per_part"):
+            wf.seen_samples(session, [[0, 1]], [0], **kw)
+    for groups, name in (([], "groups"), ([[0]], r"groups\[0\]"),
+                         ([[0, 1], [2, 4]], r"groups\[1\]"), ([[-1, 0]], r"groups\[0\]")):
+        with pytest.raises(ValueError, match=name):
+            wf.seen_samples(session, groups, [0])
+
+
+def test_sequence_params_are_fit_walks():
+    p = wf.sequence_params(FullBodyFitParams(), [0, 2, 4, 6], 25.0)
+    assert p.warm_start and p.temporal_sigma == pytest.approx(wf.ANGULAR_SPEED * 2 / 25)
+    assert wf.sequence_params(FullBodyFitParams(), [0, 1], 25.0, angular_speed=4.0
+                              ).temporal_sigma == pytest.approx(4.0 / 25)
+    with pytest.raises(ValueError, match="frames"):
+        wf.sequence_params(FullBodyFitParams(), [3], 25.0)
+    with pytest.raises(TypeError, match="params"):
+        wf.sequence_params(None, [0, 1], 25.0)
+    with pytest.raises(ValueError, match="fps"):
+        wf.sequence_params(FullBodyFitParams(), [0, 1], 0.0)

@@ -133,9 +133,8 @@ def fit_walk(capture, *, every: int = 1, first: int = 0, last: int | None = None
     if not isinstance(p, FullBodyFitParams):
         raise TypeError(f"params: expected FullBodyFitParams, got {type(p).__name__}")
     if angular_speed is not None:
-        speed = as_scalar(angular_speed, "angular_speed", positive=True)
-        dt = float(np.median(np.diff(np.asarray(capture.frames)[processed]))) / capture.fps
-        p = replace(p, temporal_sigma=speed * dt, warm_start=True)
+        p = sequence_params(p, np.asarray(capture.frames)[processed], capture.fps,
+                            angular_speed=angular_speed)
     if heading is not None:
         heading = as_scalar(heading, "heading")
     t0 = time.perf_counter()
@@ -144,6 +143,22 @@ def fit_walk(capture, *, every: int = 1, first: int = 0, last: int | None = None
                    frames=np.asarray(capture.frames)[processed],
                    n_points=np.array([len(p) for p in points]),
                    seconds=time.perf_counter() - t0)
+
+
+def sequence_params(params: FullBodyFitParams, frames, fps: float, *,
+                    angular_speed: float = ANGULAR_SPEED) -> FullBodyFitParams:
+    """:func:`fit_walk`'s sequence settings: ``params`` with each frame warm-started from
+    the previous one and the temporal prior's ``temporal_sigma`` = ``angular_speed``
+    (rad/s) times the median step of ``frames (T,)`` (the walk's frame numbers) at ``fps``
+    (frames/s)."""
+    if not isinstance(params, FullBodyFitParams):
+        raise TypeError(f"params: expected FullBodyFitParams, got {type(params).__name__}")
+    frames = as_array(frames, "frames", shape=(None,))
+    if len(frames) < 2:
+        raise ValueError(f"frames: expected at least 2 frame numbers, got {len(frames)}")
+    speed = as_scalar(angular_speed, "angular_speed", positive=True)
+    dt = float(np.median(np.diff(frames))) / as_scalar(fps, "fps", positive=True)
+    return replace(params, temporal_sigma=speed * dt, warm_start=True)
 
 
 @dataclass(frozen=True, eq=False)
@@ -325,8 +340,21 @@ class WalkFitScore:
                 "skin_from_truth_all_mm": med(self.skin_from_truth_all)}
 
 
-def _seen_samples(session, groups, frames, n_per_part, rng):
-    """True outer skin samples per frame: world ``(N_t, 3)`` and seen ``(N_t,)``."""
+def seen_samples(session, groups, frames, *, n_per_part: int = 300, rng=None) -> list:
+    """True outer skin samples of ``frames`` of ``session``'s walk (truth): per frame the
+    world points ``(N_t, 3)`` (mm) and whether two cameras of one of ``groups`` (camera
+    indices) see each, ``(N_t,)`` bool; ``n_per_part`` samples per part before the outer
+    and seen tests, drawn by ``rng``."""
+    n_per_part = as_int(n_per_part, "n_per_part", minimum=1)
+    frames = np.asarray(frames, int).ravel()
+    if not isinstance(groups, (list, tuple)) or not groups:
+        raise ValueError("groups: expected a non-empty list of view groups (camera indices)")
+    n_cam = len(session.cameras)
+    groups = [np.asarray(g, int).ravel() for g in groups]
+    for i, g in enumerate(groups):
+        if len(g) < 2 or g.min() < 0 or g.max() >= n_cam:
+            raise ValueError(f"groups[{i}]: expected at least 2 camera indices in 0..{n_cam - 1}, "
+                             f"got {g.tolist()}")
     body, motion = session.scene.body, session.scene.motion
     part, local = body.sample_surface(n_per_part=n_per_part, rng=rng)
     proj = project_surface_points(session.scene, session.cameras, part, local, frames=frames)
@@ -379,7 +407,7 @@ def score_walk_fit(fit: FullBodyFit, session, frames, groups, *, n_per_part: int
     n_per_part = as_int(n_per_part, "n_per_part", minimum=1)
     body, motion = session.scene.body, session.scene.motion
     groups = [np.asarray(g, int) for g in groups]
-    samples = _seen_samples(session, groups, frames, n_per_part, rng)
+    samples = seen_samples(session, groups, frames, n_per_part=n_per_part, rng=rng)
     poses = body.part_poses(motion, frames=frames)
     out = {k: [] for k in ("skin_to_truth", "skin_from_truth", "skin_to_truth_all",
                            "skin_from_truth_all")}

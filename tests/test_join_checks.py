@@ -459,3 +459,57 @@ def test_the_silhouette_radius_is_used_and_unjudged_markers_kept():
     assert np.isnan(two).all()
     with pytest.raises(ValueError, match="silhouette_px"):
         MarkerParams(silhouette_px=0.0)
+
+
+def _turning_dots():
+    """Two views; marker 0 turns sharply at frame 10, after which view 0 lost it (view 1
+    holds it), so that an extrapolation is about 17 px off in view 0."""
+    cams = _rig(2, spread_deg=20.0)
+    T = 16
+    t = np.arange(T, dtype=float)
+    v = np.where(t[:, None] < 10, [[6.0, 0, 4.0]], [[-40.0, 0, 4.0]])
+    X = np.stack([np.array([-150.0, 0, -80]) + np.cumsum(v, axis=0) - v[0],
+                  np.array([120.0, 60, 100]) + 6.0 * t[:, None] * [1, 0, 0]], axis=1)
+    stacks = _dot_video(cams, X, size=(600, 800))
+    truth = [c.project(X.reshape(-1, 3)).reshape(T, 2, 2) for c in cams]
+    xy = [a.copy() for a in truth]
+    xy[0][10:, 0] = np.nan
+    return cams, X, stacks, truth, xy, np.array([[0, 0], [1, 1]])
+
+
+def test_a_dot_one_view_holds_is_found_along_the_epipolar_line_only():
+    cams, X, stacks, truth, xy, members = _turning_dots()
+    given = [a.copy() for a in xy]
+    _, near = fill_gaps(stacks, cams, xy, members, radius=4, max_px=1.0)
+    out, line = fill_gaps(stacks, cams, xy, members, radius=4, max_px=1.0, line_px=48.0)
+    assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(xy, given))
+    assert not near[10:, 0, 0].any()                     # the projection is too far off
+    assert line[10:, 0, 0].all()
+    assert np.linalg.norm(out[0][10:, 0] - truth[0][10:, 0], axis=1).max() < 0.5
+    # frame 12 of view 0: its dot moved 10 px across the epipolar line: not taken
+    o, d = cams[1].rays(truth[1][12, :1])
+    ends = cams[0].project(np.concatenate([o + 2500 * d, o + 3500 * d]))
+    u = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])
+    off = truth[0][12, 0] + 10.0 * np.array([-u[1], u[0]])
+    moved = [s.copy() for s in stacks]
+    moved[0][12] = _dot_video(cams[:1], np.array([[X[12, 1], X[12, 1]]]))[0][0]   # only 1
+    yy, xx = np.mgrid[:600, :800]
+    r2 = (xx - off[0]) ** 2 + (yy - off[1]) ** 2
+    moved[0][12] = np.clip(moved[0][12] + 180 * np.exp(-r2 / 12.5) * (r2 < 200), 0, 255)
+    _, across = fill_gaps(moved, cams, xy, members, radius=4, max_px=1.0, line_px=48.0)
+    assert line[12, 0, 0] and not across[12, 0, 0]
+    # a short reach along the line misses the turn's first frame as the plain search does
+    _, short = fill_gaps(stacks, cams, xy, members, radius=4, max_px=1.0, line_px=1.0)
+    assert not short[10, 0, 0]
+
+
+def test_fill_gaps_refuses_a_bad_line_reach():
+    cams, _, stacks, _, xy, members = _turning_dots()
+    for bad in (0.0, -5.0, float("nan")):
+        with pytest.raises(ValueError, match="line_px"):
+            fill_gaps(stacks, cams, xy, members, line_px=bad)
+    for bad in (0.0, -1.0):
+        with pytest.raises(ValueError, match="fill_line"):
+            MarkerParams(fill_line=bad)
+    with pytest.raises((TypeError, ValueError), match="fill_line"):
+        MarkerParams(fill_line="wide")

@@ -21,7 +21,8 @@ The stage for what a marker-based recording holds beyond the surfaces: small ski
    (:func:`~lsmta.tracking.join_checks.check_joins`); free tracks of any view attached to
    the marker whose 3-D path projects onto them
    (:func:`~lsmta.tracking.join_checks.attach_views`); a marker a view lost looked for at
-   its 3-D position's projection (:func:`~lsmta.tracking.join_checks.fill_gaps`); then
+   its 3-D position's projection (:func:`~lsmta.tracking.join_checks.fill_gaps`; where
+   one view holds it, along that view's epipolar line, ``MarkerParams.fill_line``); then
    moving markers off the subject's silhouette dropped (``MarkerParams.silhouette``,
    below);
 5. *intersection* of every frame from every view that holds the marker
@@ -152,6 +153,18 @@ class MarkerParams:
         ``4.8 sigma`` (fill_gaps' default 12 px at the default ``sigma`` 2.5, scaled with
         the frames): an extrapolated position over a few frames is off by more than a
         dot's radius, so the search reaches beyond the re-centring window.
+    fill_line : float or None
+        With ``check``: in a frame where one view holds a marker, the fill looks for its
+        dot in another view along the holding view's epipolar line, up to this many times
+        the fill's search radius (``fill_search_px`` or its default) from the extrapolated
+        position's projection (:func:`~lsmta.tracking.join_checks.fill_gaps`' ``line_px``;
+        the line's width is ``max_px``), > 0; None: searched around the projection only,
+        as in the other frames. The default 4 (48 px at the default ``sigma`` 2.5) is a
+        rule set before scoring it: an extrapolation over ``max_gap`` (10) frames of a
+        limb that moves a few pixels a frame is off by tens of pixels in depth, which the
+        line leaves free; it was written after looking at the Pose2Sim demo's frames held
+        by one view (their dots lay up to about 40 px along the line from a stale
+        prediction), so it is not independent of that recording.
     silhouette : float or None
         With ``check``: a moving marker whose positions land on the subject's silhouette in
         less than this share of the sampled frames in some view that judges it is
@@ -190,6 +203,7 @@ class MarkerParams:
     min_ratio: float = 2.0
     floor_mm: float | None = None
     fill_search_px: float | None = None
+    fill_line: float | None = 4.0
     silhouette: float | None = 0.5
     silhouette_px: float | None = None
     filter_hz: float | None = 6.0
@@ -210,6 +224,8 @@ class MarkerParams:
             as_scalar(self.floor_mm, "floor_mm")
         if self.fill_search_px is not None:
             as_scalar(self.fill_search_px, "fill_search_px", positive=True)
+        if self.fill_line is not None:
+            as_scalar(self.fill_line, "fill_line", positive=True)
         if self.silhouette is not None and not 0 < as_scalar(self.silhouette,
                                                              "silhouette") <= 1:
             raise ValueError(f"silhouette: expected a share in (0, 1] or None, got "
@@ -433,7 +449,9 @@ def _capture_markers(stacks, cameras, first_frames, *, params, like, fps) -> Mar
         search = p.fill_search_px if p.fill_search_px is not None else 4.8 * p.sigma
         view_xy, found = fill_gaps(stacks, cams, view_xy, members, radius=fp.window(),
                                    search_px=search, min_contrast=fp.min_contrast,
-                                   max_gap=fp.max_gap, max_px=p.max_px)
+                                   max_gap=fp.max_gap, max_px=p.max_px,
+                                   line_px=None if p.fill_line is None
+                                   else p.fill_line * search)
         off = np.zeros(len(members), bool)
         if like is None and p.silhouette is not None and len(members):
             share = silhouette_shares(stacks, cams, view_xy, members, params=p)

@@ -40,7 +40,14 @@ what a recording is scored on):
    foot is off by more than a dot's radius) and not within ``radius`` of another marker or
    any other track of that view, and the point intersected with it reprojects within
    ``max_px`` in every view. A dot so found is a measurement of the frame, not an
-   interpolation: a frame whose dot cannot be found stays empty.
+   interpolation: a frame whose dot cannot be found stays empty. With ``line_px``, a frame
+   in which exactly one view holds the marker is searched along that view's epipolar line:
+   the extrapolated position is moved onto the holding view's ray (its projection then
+   lies on the line, and only its depth is unknown), and the dot is the blob within
+   ``max_px`` of the line and ``line_px`` along it from the projection, nearest to it, the
+   next such blob at least twice as far (else ambiguous: none taken). An extrapolation
+   over a few frames of a swinging limb is off mostly in depth, tens of pixels along the
+   line, while the line itself is exact (the holding view sees the marker).
 
 4. :func:`silhouette_hits` says, for one view, where markers' 3-D positions project inside
    that view's silhouette of the moving subject (masks of some frames, e.g.
@@ -68,6 +75,7 @@ import numpy as np
 from .._validate import as_array, as_int, as_scalar, freeze
 from ..triangulation import triangulate
 from .blob_follow import dot_centre, dot_contrast
+from .markers import find_blobs
 from .view_tracks import (
     _CHUNK,
     _checked,
@@ -359,22 +367,70 @@ def _predict(xyz, t, step, max_gap) -> np.ndarray | None:
     return xyz[a] + (xyz[a] - xyz[b]) * (t - a) / (a - b)
 
 
+def _on_ray(camera, xy, X) -> np.ndarray:
+    """The point of ``camera``'s ray through pixel ``xy`` nearest to ``X`` (mm)."""
+    o, d = camera.rays(np.asarray(xy, float)[None])
+    return o[0] + d[0] * float(np.dot(X - o[0], d[0]))
+
+
+def _line_dot(cam_k, img, held_cam, held_xy, X, radius, line_px, max_px, min_contrast):
+    """The dot of a view on the epipolar line of the one view that holds the marker
+    (:func:`fill_gaps`' ``line_px``), px, or None."""
+    Xr = _on_ray(held_cam, held_xy, X)
+    ray = _on_ray(held_cam, held_xy, Xr + 50.0 * (Xr - held_cam.C) / np.linalg.norm(
+        Xr - held_cam.C))                                   # 50 mm deeper on the ray
+    c, c2 = _project(cam_k, np.stack([Xr, ray]))
+    if not (np.isfinite(c).all() and np.isfinite(c2).all()) or np.allclose(c, c2):
+        return None
+    u = (c2 - c) / np.linalg.norm(c2 - c)
+    H, W = img.shape
+    half = int(np.ceil(line_px + 2 * radius))
+    x0, y0 = max(0, int(c[0]) - half), max(0, int(c[1]) - half)
+    x1, y1 = min(W, int(c[0]) + half + 1), min(H, int(c[1]) + half + 1)
+    if x1 - x0 < 8 or y1 - y0 < 8:
+        return None
+    blobs = find_blobs(np.asarray(img[y0:y1, x0:x1], float), sigma=radius / 1.6,
+                       min_strength=min_contrast) + [x0, y0]
+    if not len(blobs):
+        return None
+    blobs = dot_centre(img, blobs, radius=radius)
+    rel = blobs - c
+    along = np.abs(rel @ u)
+    perp = np.abs(rel[:, 0] * u[1] - rel[:, 1] * u[0])
+    ok = (perp <= max_px) & (along <= line_px) & (
+        dot_contrast(img, blobs, radius=radius) >= min_contrast)
+    if not ok.any():
+        return None
+    order = np.argsort(along[ok])
+    if order.size > 1 and along[ok][order[1]] < 2 * along[ok][order[0]]:
+        return None                                         # two dots on the line
+    return blobs[ok][order[0]]
+
+
 def _find_dots(cams, stacks, arrays, pos, t, j, X, members, radius, search_px,
-               min_contrast):
+               min_contrast, line=None):
     """Dots near X's projection in the marker's views that lack it in frame t:
-    ``{view: (2,) px}``."""
+    ``{view: (2,) px}``; ``line``: ``(line_px, max_px)`` of the search along the epipolar
+    line of a marker one view holds."""
     found = {}
+    held = [k for k in np.flatnonzero(members[j] >= 0) if np.isfinite(pos[t, k, j]).all()]
     for k in np.flatnonzero(members[j] >= 0):
         if np.isfinite(pos[t, k, j]).all():
             continue
-        c = _project(cams[k], X)[0]
-        if not np.isfinite(c).all():
-            continue
         img = stacks[k][t]
-        q = dot_centre(img, c[None], radius=radius)[0]
-        if not (np.isfinite(q).all() and np.linalg.norm(q - c) <= search_px
-                and dot_contrast(img, q[None], radius=radius)[0] >= min_contrast):
-            continue
+        if line is not None and len(held) == 1:
+            q = _line_dot(cams[k], img, cams[held[0]], pos[t, held[0], j], X, radius,
+                          line[0], line[1], min_contrast)
+            if q is None:
+                continue
+        else:
+            c = _project(cams[k], X)[0]
+            if not np.isfinite(c).all():
+                continue
+            q = dot_centre(img, c[None], radius=radius)[0]
+            if not (np.isfinite(q).all() and np.linalg.norm(q - c) <= search_px
+                    and dot_contrast(img, q[None], radius=radius)[0] >= min_contrast):
+                continue
         others = np.concatenate([np.delete(pos[t, k], j, axis=0),
                                  np.delete(arrays[k][t], members[j, k], axis=0)])
         others = others[np.isfinite(others).all(axis=1)]
@@ -399,8 +455,8 @@ def _check_stacks(stacks, cams, T) -> None:
 
 
 def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float = 12.0,
-              min_contrast: float = 15.0, max_gap: int = 10,
-              max_px: float = 3.0) -> tuple[tuple, np.ndarray]:
+              min_contrast: float = 15.0, max_gap: int = 10, max_px: float = 3.0,
+              line_px: float | None = None) -> tuple[tuple, np.ndarray]:
     """Find markers again where one of their views lost them (see the module docstring).
 
     Parameters
@@ -420,7 +476,11 @@ def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float
     max_gap : int
         Frames over which a 3-D position is extrapolated.
     max_px : float
-        Largest reprojection error of the point intersected with the dot, px.
+        Largest reprojection error of the point intersected with the dot, px; with
+        ``line_px`` also the largest distance of a dot from the epipolar line.
+    line_px : float or None
+        Reach along the epipolar line of the search in frames where one view holds the
+        marker (module docstring), px (> 0); None: searched as the other frames.
 
     Returns
     -------
@@ -436,6 +496,7 @@ def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float
     min_contrast = as_scalar(min_contrast, "min_contrast", positive=True)
     max_gap = as_int(max_gap, "max_gap", minimum=0, unit="frames")
     max_px = as_scalar(max_px, "max_px", positive=True)
+    line = None if line_px is None else (as_scalar(line_px, "line_px", positive=True), max_px)
     T = arrays[0].shape[0]
     _check_stacks(stacks, cams, T)
     pos = joined_positions(arrays, m)                               # (T, K, M, 2)
@@ -448,7 +509,7 @@ def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float
                 if X is None:
                     continue
                 dots = _find_dots(cams, stacks, arrays, pos, t, j, X, m, radius, search_px,
-                                  min_contrast)
+                                  min_contrast, line)
                 if not dots:
                     continue
                 trial = pos[t, :, j].copy()

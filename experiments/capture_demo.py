@@ -1,7 +1,7 @@
 """`lsmta capture` on the Pose2Sim demo at full size, and its markers beside KLT's.
 
     .venv/bin/python experiments/capture_demo.py [--scale 1.0] [--frames 0:100]
-        [--out build/benchmarks/capture_demo] [--plain] [--reuse] [--redetect N]
+        [--out build/benchmarks/capture_demo] [--plain] [--reuse]
 
 Runs the command as a user would (the demo's four videos and its Qualisys camera file,
 refined from the recording, skin markers tracked with LSMTA), times it, and reads its files
@@ -14,9 +14,6 @@ recorded beside, for reference. The join checks (``MarkerParams.check``) decide 
 tracks by the residual that is then scored, and KLT is scored on the markers they kept:
 that favours LSMTA's residual. Both trackers are followed on the blobs (``MarkerParams.follow``)
 unless ``--plain`` (each tracker alone over the clip, as before issue #40's marker fix).
-``--redetect N`` detects the markers again every N frames (``MarkerParams.redetect``; off by
-default, as in ``lsmta capture``; 25 was chosen on frames 0-49, ``--frames 0:50``, and is to
-be reported on frames 50-99); KLT tracks from the same pieces' starts.
 Prints and writes ``<out>/experiment.json``: the command's time, stages and files; for both
 trackers the moving markers, their coverage, median residual and the rigid-pair distance's
 spread (the pair's heights and relative motion beside), raw (the intersections) and
@@ -93,15 +90,14 @@ def _trackers(args, out, videos):
     def params(tracker):
         extra = {"follow": None} if args.plain else {}
         return MarkerParams(sigma=2.5 * args.scale, max_px=4.0 * args.scale, tracker=tracker,
-                            redetect=args.redetect, **extra)
+                            **extra)
 
     runs, cpu = {}, {}
     for name, tracker, like in (("LSMTA", Tracker2D.LSMTA, None), ("KLT", Tracker2D.KLT, "LSMTA"),
                                 ("KLT own joins", Tracker2D.KLT, None)):
         c0 = time.process_time()
         runs[name] = capture_markers(stacks, cameras, first, params=params(tracker),
-                                     like=runs.get(like), fps=v.fps,
-                                     colour=lambda t: v.read(t, colour=True))
+                                     like=runs.get(like), fps=v.fps)
         cpu[name] = time.process_time() - c0
     return runs, cpu
 
@@ -160,9 +156,6 @@ def main(argv=None):
                              "only the marker comparison")
     parser.add_argument("--plain", action="store_true",
                         help="track the markers without following them on their blobs")
-    parser.add_argument("--redetect", type=int, default=None, metavar="N",
-                        help="detect the markers again every N frames (default: first frame "
-                             "only)")
     args = parser.parse_args(argv)
     out = Path(args.out)
     videos = [str(v) for v in POSE2SIM_VIDEOS]
@@ -193,7 +186,7 @@ def main(argv=None):
         "markers": pair, "views": [lm.members[j].tolist() for j in pair],
         "median_height_mm": [float(np.nanmedian(lm.xyz[:, j, 2])) for j in pair]}
     record = {"command_seconds": seconds, "scale": args.scale, "frames": args.frames,
-              "plain": args.plain, "redetect": args.redetect, "reused_capture": args.reuse,
+              "plain": args.plain, "reused_capture": args.reuse,
               "cameras_note": summary.get("cameras_note"), "stages": summary["stages"],
               "readback": readback, "markers": scores, "rigid_pair": pair_info,
               "per_marker_lsmta": _per_marker(lm), "pairs_lsmta": moving_pairs(lm),

@@ -93,10 +93,6 @@ def add_parser(sub) -> None:
                           "markers (small grey blobs on skin) or any small bright blob")
     cap.add_argument("--tracker", choices=("lsmta", "klt"), default="lsmta",
                      help="the markers' 2-D tracker (default lsmta; klt: OpenCV's, the peer)")
-    cap.add_argument("--marker-redetect", type=int, default=None, metavar="N",
-                     help="detect the markers again every N frames and track the new ones "
-                          "both ways (markers not seen in the first frame, or lost; default: "
-                          "the first frame only; 25 on the Pose2Sim demo)")
     cap.add_argument("--marker-filter-hz", type=float, default=None, metavar="HZ",
                      help="cut-off of the zero-lag Butterworth low-pass (order 4) of the "
                           "markers' 3-D positions written to markers.c3d / .trc, Hz (default "
@@ -201,7 +197,6 @@ def _params(args) -> CaptureParams:
     if args.markers:
         markers = MarkerParams(detector=args.markers, sigma=2.5 * args.scale,
                                max_px=4.0 * args.scale, tracker=Tracker2D[args.tracker.upper()],
-                               redetect=args.marker_redetect,
                                **_filter_hz(args.marker_filter_hz))
     surface = SurfaceParams(
         method={"growth": "grow", "rectified-sgbm": "rectified", "auto": "auto"}[
@@ -256,7 +251,6 @@ def run(args) -> int:
     except (ValueError, FileNotFoundError) as err:
         message = (str(err).replace("pass mismatch='crop'", "pass --mismatch crop")
                    .replace("params.markers.filter_hz:", "--marker-filter-hz:")
-                   .replace("redetect:", "--marker-redetect:")
                    .replace("filter_hz:", "--marker-filter-hz:"))
         print(f"lsmta capture: {message.splitlines()[0]}", file=sys.stderr)
         return 2

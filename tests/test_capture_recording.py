@@ -397,25 +397,6 @@ def test_command_marker_filter_option():
         _params(parser.parse_args(base + ["--marker-filter-hz", "-1"]))
 
 
-def test_command_marker_redetect_option(tmp_path, capsys):
-    """--marker-redetect N detects the markers again every N frames (default: the first frame
-    only); a bad N is refused, exit code 2 and a line naming the option."""
-    from lsmta.capture_command import _params, add_parser
-
-    parser = argparse.ArgumentParser()
-    add_parser(parser.add_subparsers())
-    base = ["capture", "--videos", "a.mp4", "--out", "o", "--markers", "skin"]
-    assert _params(parser.parse_args(base)).markers.redetect is None
-    assert _params(parser.parse_args(base + ["--marker-redetect", "25"])).markers.redetect == 25
-    videos = _write_videos(tmp_path, np.zeros((2, 3, 48, 64), np.uint8), 25.0)
-    rig = write_camera_toml(tmp_path / "rig.toml", _ring(2, 2000.0), unit="mm")
-    assert main(["capture", "--videos", *videos, "--cameras", str(rig), "--out",
-                 str(tmp_path / "o"), "--no-refine", "--markers", "skin",
-                 "--marker-redetect", "0"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("lsmta capture: --marker-redetect: expected")
-
-
 def test_a_cutoff_above_nyquist_is_decided_before_any_stage(tmp_path, capsys, monkeypatch):
     """At 12 fps or less the default 6 Hz cut-off is at or above the Nyquist frequency: a
     chosen cut-off is refused at once (naming the argument and fps / 2); the default one is

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
@@ -482,14 +481,6 @@ def _first_frames(videos, stacks, idx, markers: MarkerParams | None):
     return [s[idx[0]] for s in stacks]
 
 
-def _colour(videos, idx, markers: MarkerParams | None):
-    """``colour(t)``: processed frame t of every view in colour, for the markers' key frames
-    (``MarkerParams.redetect``, skin markers, videos from :func:`lsmta.io.read_videos`)."""
-    if markers is None or markers.redetect is None or not isinstance(videos, Videos):
-        return None
-    return lambda t: videos.read(int(idx[t]), colour=True)
-
-
 def _check_sizes(stacks, cameras) -> None:
     for k, (v, cam) in enumerate(zip(stacks, cameras)):
         if (v.shape[2], v.shape[1]) != (cam.width, cam.height):
@@ -521,7 +512,6 @@ class _State:
     filters: tuple | None = None
     arm: ArmFit | None = None
     first_frames: list | None = None
-    colour: Callable | None = None                  # frame t of every view in colour
     markers: MarkerCapture | None = None
     filter_off: str | None = None                   # why the markers' filter was turned off
 
@@ -664,7 +654,7 @@ def _markers(st: _State) -> None:
     if st.params.markers is not None:
         stacks = [s[_span(st.frames)] for s in st.stacks]
         st.markers = capture_markers(stacks, st.cameras, st.first_frames,
-                                     params=st.params.markers, fps=st.fps, colour=st.colour)
+                                     params=st.params.markers, fps=st.fps)
         if st.filter_off is not None:
             st.markers = replace(st.markers, filter={"applied": False,
                                                      "reason": st.filter_off})
@@ -738,8 +728,7 @@ def capture_recording(videos, cameras, *, fps: float | None = None, frames=None,
     idx = _frame_indices(frames, len(stacks[0]))
     st = _State(stacks=stacks, cameras=cams, frames=idx, fps=fps,
                 params=replace(p, markers=markers), progress=progress, seed=int(seed),
-                first_frames=_first_frames(videos, stacks, idx, p.markers), filter_off=off,
-                colour=_colour(videos, idx, p.markers))
+                first_frames=_first_frames(videos, stacks, idx, p.markers), filter_off=off)
     seconds = {}
     for name, stage in tqdm(STAGES, desc="LSMTA system", disable=not progress):
         t0 = time.perf_counter()

@@ -5,8 +5,7 @@ The stage for what a marker-based recording holds beyond the surfaces: small ski
 (or any small bright blobs) that each view sees on its own side of the subject. Stages
 (:func:`capture_markers`):
 
-1. *detection* in the first frame of every view (and, with ``MarkerParams.redetect``, in
-   key frames: :mod:`~lsmta.tracking.redetect`): skin markers
+1. *detection* in the first frame of every view: skin markers
    (:func:`~lsmta.tracking.markers.find_markers`: small grey blobs on skin, which needs the
    colour frame) or any bright blob (:func:`~lsmta.tracking.markers.find_blobs`);
 2. *2-D tracking* of every view's markers: LSMTA in 2-D mode
@@ -92,7 +91,6 @@ from ..tracking.join_checks import (
 from ..tracking.klt import track_klt
 from ..tracking.lowpass import lowpass_trajectories
 from ..tracking.markers import find_blobs, find_markers
-from ..tracking.redetect import redetected_tracks, tracks_from_starts
 from ..tracking.view_tracks import join_view_tracks, joined_positions, triangulate_joined
 from .subject import SubjectMaskParams, background, subject_masks
 from .views import axis_angles
@@ -179,16 +177,6 @@ class MarkerParams:
         least 1; the subject mask's ``close_px`` and ``grow_px``); None: ``6 sigma`` (15 px
         at the default ``sigma`` 2.5: :class:`~lsmta.systems.subject.SubjectMaskParams`'
         radii, scaled with the frames).
-    redetect : int or None
-        Detect the markers again every this many frames and track the new ones both ways,
-        merged into the tracks they meet (:func:`~lsmta.tracking.redetect.redetected_tracks`,
-        with the following's re-centring window as the radius): a marker not seen in the
-        first frame, or lost for good, gets a track where it is seen again. None (default):
-        the first frame only. Needs every frame in colour for the skin detector
-        (:func:`capture_markers`' ``colour``). Costs about one more 2-D tracking of the
-        clip per key frame's new markers. 25 for the Pose2Sim demo was chosen on its frames
-        0-49 (10 and 25 gave the same markers there; 25 a third of the tracking time) and
-        is reported on frames 50-99 (``experiments/capture_demo.py --redetect``).
     filter_hz : float or None
         Cut-off of the low-pass filter of the 3-D positions, Hz (stage 6 of the module
         docstring; below the recording's Nyquist frequency); default Pose2Sim's nominal 6
@@ -218,7 +206,6 @@ class MarkerParams:
     fill_line: float | None = 4.0
     silhouette: float | None = 0.5
     silhouette_px: float | None = None
-    redetect: int | None = None
     filter_hz: float | None = 6.0
     filter_order: int = 4
 
@@ -247,8 +234,6 @@ class MarkerParams:
             as_scalar(self.silhouette_px, "silhouette_px", positive=True)
         if self.filter_hz is not None:
             as_scalar(self.filter_hz, "filter_hz", positive=True)
-        if self.redetect is not None:
-            as_int(self.redetect, "redetect", minimum=1, unit="frames")
         if as_int(self.filter_order, "filter_order", minimum=2) % 2:
             raise ValueError(f"filter_order: expected an even order (the two passes "
                              f"together), got {self.filter_order}")
@@ -302,10 +287,6 @@ class MarkerCapture:
         The filter applied: ``cutoff_hz``, ``order``, ``fps``, ``runs`` filtered,
         ``short_runs`` and ``raw_samples`` left raw; or ``{"applied": False, "reason":
         ...}``.
-    starts : tuple of K (S_k, 4) arrays or None
-        With ``MarkerParams.redetect``: each view's track pieces (track, frame, x, y px;
-        :func:`~lsmta.tracking.redetect.redetected_tracks`); None: every track starts at
-        ``detections``.
     """
 
     detections: tuple
@@ -320,7 +301,6 @@ class MarkerCapture:
     joins: dict = field(default_factory=dict)
     xyz_filtered: np.ndarray | None = None
     filter: dict = field(default_factory=dict)
-    starts: tuple | None = None
 
     def __post_init__(self):
         freeze(self, ("members", "xy", "xyz", "residual", "motion_mm", "moving"))
@@ -403,8 +383,8 @@ def _step(frames, p: MarkerParams):
 
 
 def capture_markers(stacks, cameras, first_frames, *, params: MarkerParams | None = None,
-                    like: MarkerCapture | None = None, fps: float | None = None,
-                    colour=None) -> MarkerCapture:
+                    like: MarkerCapture | None = None,
+                    fps: float | None = None) -> MarkerCapture:
     """Markers of a synchronised recording in 3-D (see the module docstring).
 
     Parameters
@@ -424,11 +404,6 @@ def capture_markers(stacks, cameras, first_frames, *, params: MarkerParams | Non
         The recording's frame rate, Hz: needed by the low-pass filter
         (``params.filter_hz``); without it the positions are not filtered
         (``xyz_filtered`` None, ``filter`` says why).
-    colour : callable, optional
-        ``colour(t) -> K frames``: frame ``t`` of every view as the detector wants it (as
-        ``first_frames``; e.g. ``lambda t: videos.read(t, colour=True)``), for
-        ``params.redetect`` with the skin detector (the blob detector takes the grey
-        ``stacks``). Not used otherwise.
 
     Returns
     -------
@@ -441,35 +416,10 @@ def capture_markers(stacks, cameras, first_frames, *, params: MarkerParams | Non
     its ``seconds`` are then the earlier call's).
     """
     return cached_result("marker_capture", _capture_markers, (stacks, cameras, first_frames),
-                         kwargs={"params": params, "like": like, "fps": fps, "colour": colour})
+                         kwargs={"params": params, "like": like, "fps": fps})
 
 
-def _view_tracks(stacks, detections, p: MarkerParams, like, colour):
-    """Stage 2 (and 1 in the key frames): each view's tracks and (with ``p.redetect``) their
-    pieces."""
-    if like is not None and like.starts is not None:
-        return tuple(tracks_from_starts(s, st, _tracker(p)) for s, st in
-                     zip(stacks, like.starts)), like.starts
-    if p.redetect is None or like is not None:
-        return tuple(track_view(s, d, params=p) for s, d in zip(stacks, detections)), None
-    radius = replace(p.follow or FollowParams(), sigma=p.sigma).window()
-    out = []
-    for k, s in enumerate(stacks):
-        def detect(t, k=k, s=s):
-            if t == 0:
-                return detections[k]
-            return detect_markers(s[t] if p.detector == "blobs" else colour(t)[k], params=p)
-        out.append(redetected_tracks(s, detect, _tracker(p), every=p.redetect, radius=radius))
-    return tuple(o[0] for o in out), tuple(o[1] for o in out)
-
-
-def _tracker(p: MarkerParams):
-    """``track(frames, xy)`` with ``p``'s 2-D tracker (:func:`track_view`)."""
-    return lambda frames, xy: track_view(frames, xy, params=p)
-
-
-def _capture_markers(stacks, cameras, first_frames, *, params, like, fps,
-                     colour) -> MarkerCapture:
+def _capture_markers(stacks, cameras, first_frames, *, params, like, fps) -> MarkerCapture:
     p = params or MarkerParams()
     cams = list(cameras)
     if not len(stacks) == len(cams) == len(first_frames):
@@ -479,16 +429,10 @@ def _capture_markers(stacks, cameras, first_frames, *, params, like, fps,
                              or len(like.detections) != len(cams)):
         raise ValueError(f"like: expected a MarkerCapture of the same {len(cams)} views, got "
                          f"{like!r:.60}")
-    if p.redetect is not None and like is None and p.detector == "skin" and colour is None:
-        raise ValueError("colour: expected a callable colour(t) -> every view's frame t in "
-                         "colour, which MarkerParams.redetect needs with the skin detector, "
-                         "got None")
-    if colour is not None and not callable(colour):
-        raise TypeError(f"colour: expected a callable colour(t), got {type(colour).__name__}")
     detections = (like.detections if like is not None
                   else tuple(detect_markers(f, params=p) for f in first_frames))
     t0 = time.perf_counter()
-    view_xy, starts = _view_tracks(stacks, detections, p, like, colour)
+    view_xy = tuple(track_view(s, d, params=p) for s, d in zip(stacks, detections))
     seconds = time.perf_counter() - t0
     if like is None:
         angles = axis_angles(cams)
@@ -532,8 +476,7 @@ def _capture_markers(stacks, cameras, first_frames, *, params, like, fps,
     return MarkerCapture(detections=detections, view_xy=view_xy, members=members,
                          xy=joined_positions(view_xy, members), xyz=xyz,
                          residual=residual, motion_mm=motion, moving=moving,
-                         seconds=seconds, joins=joins, xyz_filtered=filtered, filter=record,
-                         starts=starts)
+                         seconds=seconds, joins=joins, xyz_filtered=filtered, filter=record)
 
 
 def marker_lowpass(xyz, fps: float | None, *, params: MarkerParams | None = None):

@@ -132,10 +132,10 @@ def main(argv=None):
                           min_shared=p.min_shared).members
     att, _ = attach_views(cams, xy, checked, max_px=p.max_px, min_shared=p.min_shared)
     fp = replace(p.follow, sigma=p.sigma)
-    search = 4.8 * p.sigma
+    search, line = p.fill_search()
     filled, _ = fill_gaps(stacks, cams, xy, att, radius=fp.window(), search_px=search,
                           min_contrast=fp.min_contrast, max_gap=fp.max_gap, max_px=p.max_px,
-                          line_px=p.fill_line * search)
+                          line_px=line)
     share = silhouette_shares(stacks, cams, filled, att, params=p)
     final = att[~(share < p.silhouette)]
     xyz, _, nv = triangulate_joined(cams, filled, final)

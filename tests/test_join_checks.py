@@ -13,6 +13,7 @@ from lsmta.systems import MarkerParams, capture_markers
 from lsmta.systems.markers import silhouette_shares
 from lsmta.tracking import join_checks
 from lsmta.tracking.join_checks import (
+    Filled,
     attach_views,
     check_joins,
     fill_gaps,
@@ -162,6 +163,9 @@ def test_a_lost_dot_is_found_at_the_projection_and_a_missing_one_is_not():
     err = np.linalg.norm(out[0][5:9, 0] - truth[0][5:9, 0], axis=1)
     assert err.max() < 0.5
     assert found.sum() == 6
+    # the search near the projection comes first: the line is not searched where it finds
+    _, first = fill_gaps(stacks, cams, xy, members, radius=4, max_px=1.0, line_px=48.0)
+    assert np.array_equal(first, found) and (first[[11, 13], 1, 1] == Filled.NEAR).all()
     moved = [s.copy() for s in stacks]
     moved[0][5:9] = np.roll(stacks[0][5:9], 8, axis=2)   # view 0's dots 8 px to the right
     _, near = fill_gaps(moved, cams, xy, members, radius=4, search_px=4.0, max_px=20.0)
@@ -186,7 +190,7 @@ def test_the_stage_records_its_checks_and_the_peer_shares_them():
     p = MarkerParams(detector="blobs", max_px=1.0, min_motion_mm=5.0)
     a = capture_markers(stacks, cams, first, params=p)
     assert set(a.joins) == {"ambiguous", "ambiguous_views", "below_floor", "views_out",
-                            "attached", "off_subject", "filled"}
+                            "attached", "off_subject", "filled", "filled_line"}
     assert len(a.members) == 4 and a.joins["ambiguous"] == 0
     b = capture_markers(stacks, cams, first, params=p, like=a)
     assert np.array_equal(a.members, b.members) and b.joins["attached"] == a.joins["attached"]
@@ -459,3 +463,128 @@ def test_the_silhouette_radius_is_used_and_unjudged_markers_kept():
     assert np.isnan(two).all()
     with pytest.raises(ValueError, match="silhouette_px"):
         MarkerParams(silhouette_px=0.0)
+
+
+def _turning_dots():
+    """Two views; marker 0 turns sharply at frame 10, after which view 0 lost it (view 1
+    holds it), so that an extrapolation is about 17 px off in view 0."""
+    cams = _rig(2, spread_deg=20.0)
+    T = 16
+    t = np.arange(T, dtype=float)
+    v = np.where(t[:, None] < 10, [[6.0, 0, 4.0]], [[-40.0, 0, 4.0]])
+    X = np.stack([np.array([-150.0, 0, -80]) + np.cumsum(v, axis=0) - v[0],
+                  np.array([120.0, 60, 100]) + 6.0 * t[:, None] * [1, 0, 0]], axis=1)
+    stacks = _dot_video(cams, X, size=(600, 800))
+    truth = [c.project(X.reshape(-1, 3)).reshape(T, 2, 2) for c in cams]
+    xy = [a.copy() for a in truth]
+    xy[0][10:, 0] = np.nan
+    return cams, X, stacks, truth, xy, np.array([[0, 0], [1, 1]])
+
+
+def test_a_dot_one_view_holds_is_found_along_the_epipolar_line_only():
+    cams, X, stacks, truth, xy, members = _turning_dots()
+    given = [a.copy() for a in xy]
+    _, near = fill_gaps(stacks, cams, xy, members, radius=4, max_px=1.0)
+    out, line = fill_gaps(stacks, cams, xy, members, radius=4, max_px=1.0, line_px=48.0)
+    assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(xy, given))
+    assert not near[10:, 0, 0].any()                     # the projection is too far off
+    assert line[10:, 0, 0].all() and line[10, 0, 0] == Filled.LINE   # then near (velocity)
+    assert np.linalg.norm(out[0][10:, 0] - truth[0][10:, 0], axis=1).max() < 0.5
+    # frame 12 of view 0: its dot moved 10 px across the epipolar line: not taken
+    o, d = cams[1].rays(truth[1][12, :1])
+    ends = cams[0].project(np.concatenate([o + 2500 * d, o + 3500 * d]))
+    u = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])
+    off = truth[0][12, 0] + 10.0 * np.array([-u[1], u[0]])
+    moved = [s.copy() for s in stacks]
+    moved[0][12] = _dot_video(cams[:1], np.array([[X[12, 1], X[12, 1]]]))[0][0]   # only 1
+    yy, xx = np.mgrid[:600, :800]
+    r2 = (xx - off[0]) ** 2 + (yy - off[1]) ** 2
+    moved[0][12] = np.clip(moved[0][12] + 180 * np.exp(-r2 / 12.5) * (r2 < 200), 0, 255)
+    _, across = fill_gaps(moved, cams, xy, members, radius=4, max_px=1.0, line_px=48.0)
+    assert line[12, 0, 0] and not across[12, 0, 0]
+    # a short reach along the line misses the turn's first frame as the plain search does
+    _, short = fill_gaps(stacks, cams, xy, members, radius=4, max_px=1.0, line_px=1.0)
+    assert not short[10, 0, 0]
+
+
+def test_fill_gaps_refuses_a_bad_line_reach():
+    cams, _, stacks, _, xy, members = _turning_dots()
+    for bad in (0.0, -5.0, float("nan")):
+        with pytest.raises(ValueError, match="line_px"):
+            fill_gaps(stacks, cams, xy, members, line_px=bad)
+    for bad in (0.0, -1.0):
+        with pytest.raises(ValueError, match="fill_line"):
+            MarkerParams(fill_line=bad)
+    with pytest.raises((TypeError, ValueError), match="fill_line"):
+        MarkerParams(fill_line="wide")
+    for bad in (True, False):
+        with pytest.raises(TypeError, match="fill_line"):
+            MarkerParams(fill_line=bad)
+    assert MarkerParams().fill_search() == (12.0, 48.0)
+    assert MarkerParams(fill_line=None, fill_search_px=5.0).fill_search() == (5.0, None)
+
+
+def test_capture_markers_searches_the_line_by_default(monkeypatch):
+    """The stage passes the line's reach to the fill: with ``fill_line=None`` the turned
+    marker's dots in view 0 stay lost, by default they are found (on the line)."""
+    cams, X, stacks, truth, xy, members = _turning_dots()
+    tracks = {id(s): a for s, a in zip(stacks, xy)}
+    monkeypatch.setattr("lsmta.systems.markers.track_view",
+                        lambda s, d, params=None: tracks[id(s)].copy())
+    first = [s[0] for s in stacks]
+    p = dict(detector="blobs", silhouette=None, min_motion_mm=5.0)
+    off = capture_markers(stacks, cams, first, params=MarkerParams(fill_line=None, **p))
+    on = capture_markers(stacks, cams, first, params=MarkerParams(**p))
+    assert MarkerParams().fill_line is not None
+    j = [i for i, m in enumerate(on.members) if m[0] == 0][0]
+    assert np.isnan(off.xy[10:, 0, j]).all() and off.joins["filled_line"] == 0
+    assert np.linalg.norm(on.xy[10:, 0, j] - truth[0][10:, 0], axis=1).max() < 0.5
+    assert on.joins["filled_line"] >= 1 and on.joins["filled"] >= 6
+
+
+def _line_scene(pred_off=(30.0, 0.0, 20.0)):
+    """Two views, a marker view 1 holds at ``held``, a prediction off its ray; returns the
+    cameras, the held pixel, the prediction, and the line in view 0 (start ``c`` at the
+    prediction moved onto the ray, unit direction ``u``, unit normal ``n``)."""
+    cams = _rig(2, spread_deg=20.0)
+    X0 = np.array([-40.0, 20.0, 30.0])
+    held = cams[1].project(X0[None])[0]
+    pred = X0 + np.array(pred_off)
+    o, d = cams[1].rays(held[None])
+    d = d[0] / np.linalg.norm(d[0])
+    on = o[0] + d * np.dot(pred - o[0], d)
+    c, c2 = cams[0].project(np.stack([on, on + 50.0 * d]))
+    u = (c2 - c) / np.linalg.norm(c2 - c)
+    return cams, held, pred, c, u, np.array([-u[1], u[0]])
+
+
+def _dots_image(points, size=(600, 800)):
+    yy, xx = np.mgrid[:size[0], :size[1]]
+    img = np.full(size, 40.0)
+    for x, y in points:
+        r2 = (xx - x) ** 2 + (yy - y) ** 2
+        img += 180 * np.exp(-r2 / (2 * 2.5 ** 2)) * (r2 < 200)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def test_the_line_takes_the_nearest_dot_only_with_a_clear_lead_on_the_line():
+    cams, held, pred, c, u, n = _line_scene()
+
+    def dot(points, others=None, max_px=2.0):
+        return join_checks._line_dot(cams[0], _dots_image(points), cams[1], held, pred,
+                                     np.zeros((0, 2)) if others is None else others, 4, 48.0,
+                                     max_px, 15.0)
+
+    q = dot([c + 10 * u, c + 25 * u])                     # the next at 2.5 times: taken
+    assert q is not None and np.linalg.norm(q - (c + 10 * u)) < 0.5
+    assert dot([c + 12 * u, c + 22 * u]) is None          # the next within twice: none
+    assert dot([c - 12 * u, c + 22 * u]) is None          # either side of the projection
+    # a decoy 5 px across the line, nearer than the dot on it: not taken
+    q = dot([c + 5 * u + 5 * n, c + 20 * u])
+    assert q is not None and np.linalg.norm(q - (c + 20 * u)) < 0.5
+    q = dot([c + 3 * u - 6 * n, c + 20 * u])
+    assert q is not None and np.linalg.norm(q - (c + 20 * u)) < 0.5
+    # another marker's known dot on the line is set aside before the nearest is chosen
+    q = dot([c + 12 * u, c + 22 * u], others=(c + 12 * u)[None])
+    assert q is not None and np.linalg.norm(q - (c + 22 * u)) < 0.5
+    assert dot([c + 60 * u]) is None                      # beyond the reach

@@ -21,7 +21,8 @@ The stage for what a marker-based recording holds beyond the surfaces: small ski
    (:func:`~lsmta.tracking.join_checks.check_joins`); free tracks of any view attached to
    the marker whose 3-D path projects onto them
    (:func:`~lsmta.tracking.join_checks.attach_views`); a marker a view lost looked for at
-   its 3-D position's projection (:func:`~lsmta.tracking.join_checks.fill_gaps`); then
+   its 3-D position's projection (:func:`~lsmta.tracking.join_checks.fill_gaps`; where
+   one view holds it, along that view's epipolar line, ``MarkerParams.fill_line``); then
    moving markers off the subject's silhouette dropped (``MarkerParams.silhouette``,
    below);
 5. *intersection* of every frame from every view that holds the marker
@@ -81,6 +82,7 @@ from ..matching.spline import SplineImage
 from ..tracking import TrackerParams, track_points, track_step
 from ..tracking.blob_follow import FollowParams, follow_blobs
 from ..tracking.join_checks import (
+    Filled,
     attach_views,
     check_joins,
     fill_gaps,
@@ -152,6 +154,23 @@ class MarkerParams:
         ``4.8 sigma`` (fill_gaps' default 12 px at the default ``sigma`` 2.5, scaled with
         the frames): an extrapolated position over a few frames is off by more than a
         dot's radius, so the search reaches beyond the re-centring window.
+    fill_line : float or None
+        With ``check``: in a frame where one view holds a marker, the fill looks for its
+        dot in another view along the holding view's epipolar line, up to this many times
+        the fill's search radius (``fill_search_px`` or its default) from the extrapolated
+        position's projection (:func:`~lsmta.tracking.join_checks.fill_gaps`' ``line_px``;
+        the line's width is ``max_px``), > 0; None: searched around the projection only,
+        as in the other frames. The default 4 (48 px at the default ``sigma`` 2.5) is a
+        rule set before scoring it: an extrapolation over ``max_gap`` (10) frames of a
+        limb that moves a few pixels a frame is off by tens of pixels in depth, which the
+        line leaves free; it was written after looking at the Pose2Sim demo's frames held
+        by one view (their dots lay up to about 40 px along the line from a stale
+        prediction), so it is not independent of that recording. The line is searched
+        only where the search around the projection finds nothing; for a marker of two
+        views a dot found on it is checked by the line's width, its reach, the nearest
+        blob's lead (the next at least twice as far) and the other markers' dots only, not
+        by reprojection (which any depth on the line passes). :meth:`fill_search` gives
+        both radii.
     silhouette : float or None
         With ``check``: a moving marker whose positions land on the subject's silhouette in
         less than this share of the sampled frames in some view that judges it is
@@ -190,6 +209,7 @@ class MarkerParams:
     min_ratio: float = 2.0
     floor_mm: float | None = None
     fill_search_px: float | None = None
+    fill_line: float | None = 4.0
     silhouette: float | None = 0.5
     silhouette_px: float | None = None
     filter_hz: float | None = 6.0
@@ -210,6 +230,11 @@ class MarkerParams:
             as_scalar(self.floor_mm, "floor_mm")
         if self.fill_search_px is not None:
             as_scalar(self.fill_search_px, "fill_search_px", positive=True)
+        if self.fill_line is not None:
+            if isinstance(self.fill_line, bool):
+                raise TypeError(f"fill_line: expected a number > 0 or None, got "
+                                f"{self.fill_line!r}")
+            as_scalar(self.fill_line, "fill_line", positive=True)
         if self.silhouette is not None and not 0 < as_scalar(self.silhouette,
                                                              "silhouette") <= 1:
             raise ValueError(f"silhouette: expected a share in (0, 1] or None, got "
@@ -230,6 +255,13 @@ class MarkerParams:
             names = ", ".join(t.name for t in Tracker2D)
             raise ValueError(f"tracker: expected a Tracker2D ({names}), got "
                              f"{self.tracker!r}") from None
+
+    def fill_search(self) -> tuple[float, float | None]:
+        """The fill's search radii, px: around the projection (``fill_search_px``, or
+        ``4.8 sigma``) and along the epipolar line (``fill_line`` times the first; None
+        without ``fill_line``)."""
+        search = self.fill_search_px if self.fill_search_px is not None else 4.8 * self.sigma
+        return search, None if self.fill_line is None else self.fill_line * search
 
 
 @dataclass(frozen=True, eq=False)
@@ -261,8 +293,10 @@ class MarkerCapture:
         ``"ambiguous"``, ambiguous views of markers of three or more views taken out
         (``"ambiguous_views"``), markers dropped ``"below_floor"``, disagreeing
         ``"views_out"`` taken out, tracks ``"attached"``, dots ``"filled"`` of the markers
-        returned (all 0 without the check), moving markers dropped ``"off_subject"`` (their
-        positions off the subject's silhouette, ``MarkerParams.silhouette``).
+        returned and of them ``"filled_line"`` found along an epipolar line
+        (``MarkerParams.fill_line``) (all 0 without the check), moving markers dropped
+        ``"off_subject"`` (their positions off the subject's silhouette,
+        ``MarkerParams.silhouette``).
     xyz_filtered : (T, M, 3) array or None
         ``xyz`` low-pass filtered (``MarkerParams.filter_hz``), mm; samples in runs too
         short to filter are raw. None: not filtered (``filter_hz`` None, or no frame rate
@@ -426,14 +460,15 @@ def _capture_markers(stacks, cameras, first_frames, *, params, like, fps) -> Mar
                                    pairs=pairs).members
         members, joins = _checked_joins(cams, view_xy, members, p)
     else:
-        members, joins = like.members, {k: v for k, v in like.joins.items() if k != "filled"}
-    joins["filled"] = 0
+        members, joins = like.members, {k: v for k, v in like.joins.items()
+                                        if k not in ("filled", "filled_line")}
+    joins["filled"] = joins["filled_line"] = 0
     if p.check:
         fp = replace(p.follow or FollowParams(), sigma=p.sigma)
-        search = p.fill_search_px if p.fill_search_px is not None else 4.8 * p.sigma
+        search, line = p.fill_search()
         view_xy, found = fill_gaps(stacks, cams, view_xy, members, radius=fp.window(),
                                    search_px=search, min_contrast=fp.min_contrast,
-                                   max_gap=fp.max_gap, max_px=p.max_px)
+                                   max_gap=fp.max_gap, max_px=p.max_px, line_px=line)
         off = np.zeros(len(members), bool)
         if like is None and p.silhouette is not None and len(members):
             share = silhouette_shares(stacks, cams, view_xy, members, params=p)
@@ -447,7 +482,8 @@ def _capture_markers(stacks, cameras, first_frames, *, params, like, fps) -> Mar
                               RuntimeWarning, stacklevel=4)
             members = members[~off]
             joins["off_subject"] = int(off.sum())
-        joins["filled"] = int(found[..., ~off].sum())       # of the markers kept
+        joins["filled"] = int((found[..., ~off] > 0).sum())         # of the markers kept
+        joins["filled_line"] = int((found[..., ~off] == Filled.LINE).sum())   # of those
     xyz, residual, _ = triangulate_joined(cams, view_xy, members)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)          # never intersected

@@ -182,26 +182,37 @@ def _recentre(image, moved, start, least, p: FollowParams) -> np.ndarray:
     return q
 
 
+def _free_blobs(img, c, half, taken, *, sigma, min_strength, radius):
+    """Blobs (:func:`~lsmta.tracking.markers.find_blobs`) of ``img`` within ``half`` px (a
+    square) of ``c``, px, less those within ``radius`` of a ``taken`` dot; None where the
+    crop is under 8 px wide."""
+    H, W = img.shape
+    x0, y0 = max(0, int(c[0]) - half), max(0, int(c[1]) - half)
+    x1, y1 = min(W, int(c[0]) + half + 1), min(H, int(c[1]) + half + 1)
+    if x1 - x0 < 8 or y1 - y0 < 8:
+        return None
+    blobs = find_blobs(np.asarray(img[y0:y1, x0:x1], np.float64), sigma=sigma,
+                       min_strength=min_strength) + [x0, y0]
+    if len(taken) and len(blobs):
+        free = np.linalg.norm(blobs[:, None] - np.asarray(taken)[None], axis=2).min(axis=1)
+        blobs = blobs[free > radius]
+    return blobs
+
+
 def _reacquire(image, pred, held, own, p: FollowParams) -> np.ndarray:
     """Nearest free blob within ``reacquire_px`` of each prediction whose contrast is within
     a factor ``1 / keep_contrast`` of the marker's ``own``, px (NaN: none)."""
     img = np.asarray(image, np.float64)
-    H, W = img.shape
     out = np.full_like(pred, np.nan)
     taken = [h for h in held if np.isfinite(h).all()]
     half = int(np.ceil(p.reacquire_px + 3 * p.sigma + 2))
     for i, c in enumerate(pred):
         if not np.isfinite(c).all():
             continue
-        x0, y0 = max(0, int(c[0]) - half), max(0, int(c[1]) - half)
-        x1, y1 = min(W, int(c[0]) + half + 1), min(H, int(c[1]) + half + 1)
-        if x1 - x0 < 8 or y1 - y0 < 8:
+        blobs = _free_blobs(img, c, half, taken, sigma=p.sigma, min_strength=p.min_strength,
+                            radius=p.radius)
+        if blobs is None:
             continue
-        blobs = find_blobs(img[y0:y1, x0:x1], sigma=p.sigma, min_strength=p.min_strength)
-        blobs = blobs + [x0, y0]
-        if taken:
-            free = np.linalg.norm(blobs[:, None] - np.array(taken)[None], axis=2).min(axis=1)
-            blobs = blobs[free > p.radius]
         if len(blobs) and p.keep_contrast > 0:
             ratio = dot_contrast(img, blobs, radius=p.radius) / own[i]
             blobs = blobs[(ratio >= p.keep_contrast) & (ratio <= 1 / p.keep_contrast)]

@@ -19,6 +19,14 @@ isotropic 2-D noise of the size of the residuals would give (the pair re-interse
 noise added, 30 draws), and the correlation of each frame's distance error with its
 residual. Prints and writes ``<out>/stages.json``. No truth: the subject is the moving
 mask, "physical markers" are not labelled.
+
+Tried from this diagnosis and not kept: the markers detected again every N frames and
+tracked both ways (N = 25 chosen on frames 0-49). Held out on frames 50-99 it moved the
+moving markers 10 -> 11, the share of them in 3-D in >= 90 % of the frames 0.40 -> 0.45,
+but the least share 0.58 -> 0.52 and the residual 0.739 -> 0.747 px; over frames 0-99 the
+residual rose 0.564 -> 0.777 px, above KLT's 0.738 (LSMTA <= KLT NOT met with it), on the
+loaded machine. Its merge of a new piece into a track on one close frame could also hand a
+crossing dot's positions to the wrong marker. Removed in commit bcff8c3.
 """
 
 from __future__ import annotations

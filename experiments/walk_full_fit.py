@@ -230,7 +230,9 @@ def run_rom(rig, session, cap, al, check, alone, *, fit_every, angular_speed, fi
     starts = [(alone.fit.angles, alone.fit.base)]
     fits = {name: wf.fit_walk(cap, every=fit_every, angular_speed=angular_speed or None,
                               shape=build, starts=starts,
-                              params=FullBodyFitParams(**fit_params, fit_shape=free))
+                              params=FullBodyFitParams(  # a fixed build takes no starts
+                                  **(fit_params | {"fit_shape": free}
+                                     | ({} if free else {"build_starts": ()}))))
             for name, free in (("walk from the clip's build, started", True),
                                ("walk from the clip's build, fixed", False))}
     cost = {k: float(np.median(np.abs(np.concatenate(f.fit.point_residuals))))

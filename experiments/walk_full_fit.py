@@ -343,11 +343,14 @@ def main(argv=None):
 
     session = {k: getattr(args, k) for k in ("frames", "scale", "every", "seed", "cameras",
                                               "rows", "n_seeds", "progress", "rom_per_phase")}
+    if args.walking:                      # the cache key of the runs without it unchanged
+        session["walking"] = True
     settings = {k: getattr(args, k) for k in ("frames", "scale", "every", "seed", "cameras",
                                                "rows", "n_seeds", "fit_every", "free_rounds",
                                                "n_inner", "max_nfev", "angular_speed",
                                                "rom_per_phase", "rom_every",
-                                               "rom_max_points", "build_starts")}
+                                               "rom_max_points", "build_starts",
+                                               "walking")}
     out = {"command": "python experiments/walk_full_fit.py " + " ".join(
                sys.argv[1:] if argv is None else argv),
            "date": date.today().isoformat(), "machine": platform.machine(),

@@ -2,7 +2,8 @@
 studio: per-stage times, then the output scored after the fact against the generator's skin.
 
     .venv/bin/python experiments/walk_system.py [--rigs triplet studio] [--frames 8]
-        [--scale 1.0] [--every 2] [--seed 36] [--n-seeds 40] [--cameras 8 --rows 2] [--out PATH]
+        [--scale 1.0] [--every 2] [--seed 36] [--n-seeds 40] [--cameras 8 --rows 2] [--walking]
+        [--out PATH]
     .venv/bin/python experiments/walk_system.py --whole \
         --out experiments/results/walk_system_whole.json      # 50 frames, 768 x 576
 
@@ -30,6 +31,7 @@ import argparse
 import platform
 import sys
 import time
+from dataclasses import replace
 from datetime import date
 
 REJECT_K = 4.0      # the bundle adjustment's outlier rejection (a bar end-on to a camera)
@@ -57,14 +59,21 @@ def add_session_arguments(parser) -> None:
     parser.add_argument("--cameras", type=int, default=8, help="the studio's cameras")
     parser.add_argument("--rows", type=int, default=2, help="the studio's cameras per pole")
     parser.add_argument("--progress", action="store_true")
+    parser.add_argument("--walking", action="store_true",
+                        help="the system with BodySystemParams.walking() (a walking "
+                             "person's filters, seeds 50 mm apart, up to 200: --n-seeds is "
+                             "not used), capture_walk's default; without it, the settings "
+                             "of the committed results (notebook 05's filters, --n-seeds "
+                             "seeds 25 px apart)")
 
 
 def session_capture(rig: str, *, frames: int, scale: float, every: int, seed: int,
                     cameras: int, rows: int, n_seeds: int, progress: bool,
-                    rom_per_phase: int = 0):
+                    rom_per_phase: int = 0, walking: bool = False):
     """Render one rig's walk session (with ``rom_per_phase`` frames of each movement of
     the range-of-motion clip: :class:`~lsmta.evaluation.walk_system.WalkSessionParams`) and
-    run the LSMTA system on the walk: (session, capture, render seconds)."""
+    run the LSMTA system on the walk (``walking``: with ``BodySystemParams.walking()``):
+    (session, capture, render seconds)."""
     import numba
 
     from lsmta.evaluation import walk_system as ws
@@ -75,10 +84,12 @@ def session_capture(rig: str, *, frames: int, scale: float, every: int, seed: in
     session = ws.walk_session(seed=seed, n_frames=frames, params=ws.WalkSessionParams(
         rig=rig, scale=scale, n_cameras=cameras, rows=rows, rom_per_phase=rom_per_phase))
     render_s = time.perf_counter() - t0
+    params = (replace(BodySystemParams.walking(), density_every=every, reject_k=REJECT_K)
+              if walking else
+              BodySystemParams(density_every=every, reject_k=REJECT_K,
+                               surface=SurfaceParams(n_seeds=n_seeds)))
     cap = capture_walk(session.videos, session.bar_videos, session.bar_length, session.nominal,
-                       fps=session.fps, level_videos=session.level_videos,
-                       params=BodySystemParams(density_every=every, reject_k=REJECT_K,
-                                               surface=SurfaceParams(n_seeds=n_seeds)),
+                       fps=session.fps, level_videos=session.level_videos, params=params,
                        progress=progress, seed=seed)
     return session, cap, render_s
 
@@ -104,7 +115,7 @@ def rom_capture(session, capture, *, every: int, n_seeds: int, seed: int, progre
 
 
 def run_rig(rig: str, *, frames: int, scale: float, every: int, seed: int, cameras: int,
-            rows: int, n_seeds: int, progress: bool) -> dict:
+            rows: int, n_seeds: int, progress: bool, walking: bool = False) -> dict:
     """Render one rig's session, run the system, score it; a dict of records and detail."""
     import numpy as np
 
@@ -112,7 +123,8 @@ def run_rig(rig: str, *, frames: int, scale: float, every: int, seed: int, camer
 
     session, cap, render_s = session_capture(rig, frames=frames, scale=scale, every=every,
                                              seed=seed, cameras=cameras, rows=rows,
-                                             n_seeds=n_seeds, progress=progress)
+                                             n_seeds=n_seeds, progress=progress,
+                                             walking=walking)
     al, check = ws.check_alignment(cap.cameras, session)
     score = ws.score_walk(cap, session, al, rng=seed)
     s = score.summary()
@@ -170,7 +182,7 @@ def main(argv=None):
     from lsmta.report import write_json
 
     settings = {k: getattr(args, k) for k in ("frames", "scale", "every", "seed", "cameras",
-                                               "rows", "n_seeds")}
+                                               "rows", "n_seeds", "walking")}
     out = {"command": "python experiments/walk_system.py " + " ".join(
                sys.argv[1:] if argv is None else argv),
            "date": date.today().isoformat(), "machine": platform.machine(),
@@ -179,7 +191,7 @@ def main(argv=None):
     for rig in args.rigs:
         r = run_rig(rig, frames=args.frames, scale=args.scale, every=args.every,
                     seed=args.seed, cameras=args.cameras, rows=args.rows, n_seeds=args.n_seeds,
-                    progress=args.progress)
+                    progress=args.progress, walking=args.walking)
         out["rigs"][rig] = r
         for x in r["records"]:
             v = x["value"]

@@ -69,6 +69,17 @@ class BodySystemParams:
             raise TypeError(f"arm: expected an ArmFitParams or None, got "
                             f"{type(self.arm).__name__}")
 
+    @classmethod
+    def walking(cls) -> BodySystemParams:
+        """:func:`capture_walk`'s default, for the whole body of a walking person: the
+        filters of :meth:`FilterParams.walking` (the swinging limbs kept) and seeds 50 mm
+        apart on the subject, up to 200 per frame and view group
+        (:class:`SurfaceParams` ``seed_spacing_mm``: half a hand's or a foot's width, so
+        that the growth reaches them); no arm model. Change fields with
+        :func:`dataclasses.replace`."""
+        return cls(filters=FilterParams.walking(), arm=None,
+                   surface=SurfaceParams(n_seeds=200, seed_spacing_mm=50.0))
+
     def capture(self) -> CaptureParams:
         """The settings of the stages after the calibration."""
         return CaptureParams(max_angle_deg=self.max_angle_deg, surface=self.surface,
@@ -147,21 +158,25 @@ def capture_walk(videos, bar_videos, bar_length: float, nominal_cameras, *, fps:
     facing poles, 4 cameras, gave a 20 mm check-point error on seed 36 at half size). Every view
     group measures its surfaces from automatic seeds in the first frame and every
     ``params.density_every`` frames, tracks them, and its trajectories are intersected with
-    its own cameras; all groups' trajectories go through the papers' filters together.
+    its own cameras; all groups' trajectories go through the papers' filters together,
+    by default with a walking person's limits and seeds spaced for the hands and feet
+    (:meth:`BodySystemParams.walking`).
 
     Parameters
     ----------
     videos, bar_videos, bar_length, nominal_cameras, fps, frames, level_videos, progress, seed
         As :func:`capture_body`; ``videos`` from K >= 2 cameras that share bar positions.
     params : BodySystemParams, optional
-        Its ``arm`` is ignored.
+        Its ``arm`` is ignored. Default: :meth:`BodySystemParams.walking` (your own params
+        keep what they hold: notebook 05's filters and seeds 25 px apart unless you start
+        from ``BodySystemParams.walking()``).
 
     Returns
     -------
     BodyCapture
         ``arm`` None; the filtered points of frame ``t`` are ``points_at(t)``.
     """
-    p = params or BodySystemParams()
+    p = params or BodySystemParams.walking()
     if not isinstance(p, BodySystemParams):
         raise TypeError(f"params: expected a BodySystemParams, got {type(p).__name__}")
     return capture_body(videos, bar_videos, bar_length, nominal_cameras, fps=fps,

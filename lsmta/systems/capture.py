@@ -60,7 +60,11 @@ from .views import ViewGroup, view_groups
 
 @dataclass(frozen=True)
 class FilterParams:
-    """Trajectory filters (:func:`~lsmta.tracking.apply_filters`; notebook 05's values)."""
+    """Trajectory filters (:func:`~lsmta.tracking.apply_filters`; notebook 05's values).
+
+    Speeds in mm/s, accelerations in mm/s², the uniformity filter's ``voxel`` in mm.
+    :meth:`walking` gives the values for a whole walking person.
+    """
 
     max_speed: float = 2000.0
     max_acceleration: float = 40000.0
@@ -68,6 +72,22 @@ class FilterParams:
     max_deviation: float = 400.0
     window: int = 10
     max_drift: float = 8.0
+
+    @classmethod
+    def walking(cls) -> FilterParams:
+        """The filters for the whole body of a walking person (:func:`~lsmta.systems.
+        capture_walk`'s default).
+
+        Notebook 05's values cut the swinging limbs: a walking person's swing foot and
+        shank move at up to about 4.5-5 m/s (some 3.5 times a 1.3-1.4 m/s walking speed;
+        Winter's gait data) and a swinging limb accelerates at several g. So: speeds up to
+        6 m/s and accelerations up to 100 m/s² (about 10 g) pass (a rule written down
+        before scoring), and the uniformity filter compares a velocity with its
+        neighbours in a 75 mm voxel, about a limb's thickness, so that a forearm's points
+        are not judged against the trunk's beside it (chosen on the generated walk, seed
+        36; held out: seed 37, ``experiments/results/walk_cover.json``).
+        """
+        return cls(max_speed=6000.0, max_acceleration=100000.0, voxel=75.0)
 
 
 @dataclass(frozen=True)

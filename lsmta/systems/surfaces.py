@@ -134,6 +134,14 @@ class SurfaceParams:
         no longer correlates, nor LSM pulls in from it), the square patch for the others (a
         rig whose cameras all stand the same way and see the subject at similar scales: as
         before).
+    seed_spacing_mm : float or None
+        Least distance between two seed candidates (Shi-Tomasi corners,
+        :func:`~lsmta.matching.find_seeds`' ``min_distance``), as a length on the subject at
+        the working distance: ``seed_spacing_mm * f / d`` px (the template camera's focal
+        length ``f``, px, and the working distance ``d``, mm; at least 3 px). The growth
+        reaches only what a matched seed's region connects to, so a part the corners
+        skip (a hand or a foot smaller than their spacing) stays empty. None (default):
+        25 px, whatever the scale (as before).
     subject_mask : SubjectMaskParams or None
         With it, every measured frame's n-tuples whose template pixel lies off the moving
         subject (:func:`~lsmta.systems.subject.subject_masks` of the videos given) are
@@ -156,8 +164,11 @@ class SurfaceParams:
     subject_mask: SubjectMaskParams | None = None
     auto_min_share: float = 0.01
     seed_warp: str = "auto"
+    seed_spacing_mm: float | None = None
 
     def __post_init__(self):
+        if self.seed_spacing_mm is not None:
+            as_scalar(self.seed_spacing_mm, "seed_spacing_mm", positive=True)
         if self.seed_warp not in WARPS:
             raise ValueError(f"seed_warp: expected one of {list(WARPS)}, got "
                              f"{self.seed_warp!r}")
@@ -199,6 +210,17 @@ def working_distance(cameras, template: int) -> float:
         raise ValueError("cameras: their optical axes do not meet; cannot find the working "
                          "volume")
     return float(camera_depth(cameras[template], X))
+
+
+def seed_spacing_px(camera, distance: float, spacing_mm: float | None) -> int:
+    """Least distance between seed candidates, px: ``spacing_mm`` on the subject at
+    ``distance`` mm from ``camera`` (``spacing_mm * f / distance``, at least 3 px); 25 px
+    for None (:class:`SurfaceParams` ``seed_spacing_mm``)."""
+    if spacing_mm is None:
+        return 25
+    spacing_mm = as_scalar(spacing_mm, "spacing_mm", positive=True)
+    distance = as_scalar(distance, "distance", positive=True)
+    return max(3, int(round(spacing_mm * camera.f / distance)))
 
 
 def seed_residual(images, seeds_xy, *, template: int, patch: int, seeds_A=None) -> float:
@@ -372,13 +394,15 @@ def grow_failed(surfaces: dict, *, min_share: float = 0.01) -> bool:
 def _grown_surfaces(v, cams, frames, sigma: float, p: SurfaceParams, progress: bool) -> dict:
     """:func:`measure_surfaces` with ``method="grow"`` (module docstring)."""
     d = working_distance(cams, p.template)
+    spacing = seed_spacing_px(cams[p.template], d, p.seed_spacing_mm)
     mask = _lens_mask(cams[p.template])
     noise = sigma if p.texture_rule == "precision" else None
     out: dict[int, SurfaceResult] = {}
     missed = []
     for f in tqdm(frames, desc="surfaces", disable=not progress):
         seeds = find_seeds(v[:, f], cams, template=p.template, n_seeds=p.n_seeds,
-                           depth_range=(0.6 * d, 1.6 * d), warp=p.seed_warp)
+                           depth_range=(0.6 * d, 1.6 * d), warp=p.seed_warp,
+                           min_distance=spacing)
         if seeds.xy.shape[1] == 0:
             missed.append(f)
             continue

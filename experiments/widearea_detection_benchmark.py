@@ -8,9 +8,10 @@ The walking person (eight LEDs) rendered for 2 s at 30 Hz in camera 3 of the rig
 monitor masked and reflections), at each image scale (0.5: 320 x 240, 1: 640 x 480).
 Each search runs ``repeats`` times, interleaved; we report the fastest and the median CPU
 time per frame (``time.process_time``, OpenCV on one thread (``opencv_threads`` in the
-output): the machine is shared, and on two threads OpenCV's idle workers count as CPU time), the fraction of pixels
-tested, and the ratio sub-sampled / full (below 1: the sub-sampled search is faster); these
-single-camera searches (``rows`` in the output) always use the thesis's 5 x 5 point grid,
+output): the machine is shared, and on two threads OpenCV's idle workers count as CPU time),
+the fraction of pixels tested, and the ratio sub-sampled / full (below 1: the sub-sampled
+search is faster); these single-camera searches (``rows`` in the output) always use the
+thesis's 5 x 5 point grid,
 whatever ``--grid``. Then the guided search of notebook 09 at each scale
 (:func:`lsmta.evaluation.widearea_images.guided_detection_trial`: eight cameras, windows of
 the gate around the streaming tracker's predictions and along the other cameras' waiting

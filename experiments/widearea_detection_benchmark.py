@@ -11,8 +11,7 @@ time per frame (``time.process_time``, OpenCV on one thread (``opencv_threads`` 
 output): the machine is shared, and on two threads OpenCV's idle workers count as CPU time),
 the fraction of pixels tested, and the ratio sub-sampled / full (below 1: the sub-sampled
 search is faster); these single-camera searches (``rows`` in the output) always use the
-thesis's 5 x 5 point grid,
-whatever ``--grid``. Then the guided search of notebook 09 at each scale
+thesis's 5 x 5 point grid, whatever ``--grid``. Then the guided search of notebook 09 at each scale
 (:func:`lsmta.evaluation.widearea_images.guided_detection_trial`: eight cameras, windows of
 the gate around the streaming tracker's predictions and along the other cameras' waiting
 rays, and for new LEDs the grid ``--grid`` (``grid`` in the output; it applies to the

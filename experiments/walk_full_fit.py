@@ -5,8 +5,8 @@ triplet and from an all-round studio, scored after the fact against issue 36's t
         [--scale 1.0] [--every 2] [--seed 36] [--n-seeds 40] [--cameras 8 --rows 2]
         [--fit-every 1] [--free-rounds 0] [--build-starts]
         [--n-inner 2] [--max-nfev 25] [--angular-speed 8]
-        [--rom-per-phase 0] [--rom-every 1] [--rom-max-points 1000] [--cache DIR]
-        [--out PATH]
+        [--rom-per-phase 0] [--rom-every 1] [--rom-max-points 1000] [--walking]
+        [--cache DIR] [--out PATH]
 
 For each rig: :func:`lsmta.evaluation.walk_system.walk_session` renders ``--frames`` of the
 walk (the bar, held-out bar positions, the bar stood upright, tape-measured cameras);

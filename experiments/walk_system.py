@@ -62,7 +62,9 @@ def add_session_arguments(parser) -> None:
     parser.add_argument("--walking", action="store_true",
                         help="the system with BodySystemParams.walking() (a walking "
                              "person's filters, seeds 50 mm apart, up to 200: --n-seeds is "
-                             "not used), capture_walk's default; without it, the settings "
+                             "not used for the walk), capture_walk's default (the "
+                             "range-of-motion clip of walk_full_fit.py keeps the settings "
+                             "of the committed results); without it, the settings "
                              "of the committed results (notebook 05's filters, --n-seeds "
                              "seeds 25 px apart)")
 

@@ -111,6 +111,11 @@ def test_walking_settings_bad_input():
             SurfaceParams(seed_spacing_mm=bad)
     with pytest.raises((TypeError, ValueError), match="seed_spacing_mm"):
         SurfaceParams(seed_spacing_mm="wide")
+    with pytest.raises(TypeError, match="seed_spacing_mm"):
+        SurfaceParams(seed_spacing_mm=True)
+    for given in (np.float32(50.0), np.array(50.0)):              # stored as a float
+        got = SurfaceParams(seed_spacing_mm=given).seed_spacing_mm
+        assert type(got) is float and got == 50.0
     cams = _pair()
     with pytest.raises(ValueError, match="spacing_mm"):
         seed_spacing_px(cams[0], 3500.0, -1.0)

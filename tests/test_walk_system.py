@@ -122,8 +122,10 @@ def test_capture_walk_defaults_to_the_walking_settings(tiny_walk, monkeypatch):
 
 
 def test_walking_settings_on_the_tiny_walk(tiny_walk):
-    # the walking settings with the fixture's calibration and density check, on the same
-    # tiny walk (half size, 3 frames): more points, still on the skin (after the fact).
+    # BodySystemParams.walking() (its filters, seeds 50 mm apart, up to 200) against the
+    # fixture's settings (notebook 05's filters, its own seed count), both calibrated from
+    # the same bar video, on the same tiny walk (half size, 3 frames): more points (from the
+    # filters and the seeds together), still on the skin (after the fact).
     # Measured: 488 points per frame against 445, to the skin 2.45 mm against 2.53, but
     # from the seen skin 42.3 mm against 41.0 (at half size a forearm is ~10 px wide; the
     # full-size gains are experiments/results/walk_cover.json's), so no claim on that.

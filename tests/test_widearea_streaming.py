@@ -693,3 +693,19 @@ def test_subsampled_detect_with_the_row_grid_finds_every_tall_spot():
     expected = {int((search_mask((H, W), 5, (jr, 0), grid="rows") | visited).sum())
                 for jr in range(5)}               # whichever row offset a frame drew
     assert set(rows.tested.tolist()) <= expected
+
+
+def test_one_opencv_thread_restores_the_count_after_an_error():
+    import cv2
+
+    from lsmta.evaluation.widearea_images import one_opencv_thread
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(2)
+    try:
+        with pytest.raises(RuntimeError, match="inside"):
+            with one_opencv_thread():
+                assert cv2.getNumThreads() == 1
+                raise RuntimeError("inside")
+        assert cv2.getNumThreads() == 2
+    finally:
+        cv2.setNumThreads(before)

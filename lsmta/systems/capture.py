@@ -85,7 +85,8 @@ class FilterParams:
         before scoring), and the uniformity filter compares a velocity with its
         neighbours in a 75 mm voxel, about a limb's thickness, so that a forearm's points
         are not judged against the trunk's beside it (chosen on the generated walk, seed
-        36; held out: seed 37, ``experiments/results/walk_cover.json``).
+        36; held out: seed 37, the same body and walk with other camera jitter, texture and
+        noise, ``experiments/results/walk_cover.json``).
         """
         return cls(max_speed=6000.0, max_acceleration=100000.0, voxel=75.0)
 

@@ -168,7 +168,11 @@ class SurfaceParams:
 
     def __post_init__(self):
         if self.seed_spacing_mm is not None:
-            as_scalar(self.seed_spacing_mm, "seed_spacing_mm", positive=True)
+            if isinstance(self.seed_spacing_mm, bool):
+                raise TypeError("seed_spacing_mm: expected a length in mm or None, got a bool")
+            object.__setattr__(self, "seed_spacing_mm",
+                               as_scalar(self.seed_spacing_mm, "seed_spacing_mm",
+                                         positive=True))
         if self.seed_warp not in WARPS:
             raise ValueError(f"seed_warp: expected one of {list(WARPS)}, got "
                              f"{self.seed_warp!r}")

@@ -1,6 +1,7 @@
-"""The committed results of the whole-walk full-body fits (issue 36), read back for notebook 22.
+"""The committed results of the experiments' 8-frame walk full-body fits (issue 36), read back
+for notebook 22.
 
-The whole walk takes minutes to tens of minutes, so the notebook quotes what
+The 8-frame walk takes minutes to tens of minutes, so the notebook quotes what
 ``experiments/walk_full_fit.py`` and ``experiments/walk_full_fit_ladder.py`` wrote to
 ``experiments/results/``:
 
@@ -38,11 +39,17 @@ _VARIANT_KEYS = ("frames_fitted", "joints_deg_per_frame", "lengths_mm", "verdict
 _RUNG_KEYS = ("truth", "worst_joint_deg", "length_error_pct", "skin")
 
 
-def _load(path, keys) -> dict | None:
+def _load(path, keys) -> dict:
     path = Path(path)
     if not path.is_file():
-        return None
-    data = json.loads(path.read_text(encoding="utf-8"))
+        raise FileNotFoundError(f"path: expected a committed result file, {path} does not "
+                                "exist")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as err:
+        raise ValueError(f"path: {path} is not valid JSON ({err})") from err
+    if not isinstance(data, dict):
+        raise ValueError(f"path: {path} holds a {type(data).__name__}, expected a JSON object")
     for key in keys:
         if key not in data:
             raise ValueError(f"path: {path.name} has no {key!r}")
@@ -74,8 +81,8 @@ def _variant(detail: dict, where: str) -> dict:
             "file_verdicts": detail["verdicts"]}
 
 
-def read_walk_fit_result(path) -> dict | None:
-    """A committed ``experiments/walk_full_fit.py`` result, or None when there is no file.
+def read_walk_fit_result(path) -> dict:
+    """A committed ``experiments/walk_full_fit.py`` result.
 
     Parameters
     ----------
@@ -84,26 +91,29 @@ def read_walk_fit_result(path) -> dict | None:
 
     Returns
     -------
-    dict or None
+    dict
         ``command``, ``date``, ``settings``, ``note`` (``""`` if none) and ``rigs``: per rig
-        ``{"variants": {name: variant}, "chosen": name, "times": {quantity: s}}``. A variant
-        holds ``frames`` (T,) int, ``joints_deg`` (major joint -> (T,) deg, NaN: a frame not
-        scored), ``lengths_mm`` (name -> (fitted, true) mm), ``skin_to_truth_mm`` and
+        ``{"variants": {name: variant}, "chosen": name, "times": {variant: {quantity: s}}}``. A
+        variant holds ``frames`` (T,) int, ``joints_deg`` (major joint -> (T,) deg, NaN: a frame
+        not scored), ``lengths_mm`` (name -> (fitted, true) mm), ``skin_to_truth_mm`` and
         ``skin_from_truth_mm`` (medians over all frames, seen side), their per-frame medians
-        ``skin_to_per_frame_mm`` / ``skin_from_per_frame_mm`` (T,), ``open_edges`` (T,) and
-        the file's own ``file_verdicts``. ``"walk alone"`` is the fit without the clip;
-        ``chosen`` the variant the experiment reported (its rule: the fit's own cost).
-        ``times`` are the records in seconds of the walk alone (wall, as the file says).
+        ``skin_to_per_frame_mm`` / ``skin_from_per_frame_mm`` (T,), ``open_edges`` (T,) and the
+        file's own ``file_verdicts``. ``"walk alone"`` is the fit without the clip; ``chosen``
+        the variant the experiment reported (its rule: the fit's own cost). ``times`` maps each
+        record's variant (``"walk alone"`` when the record names none; ``"range-of-motion
+        clip"``; a walk variant with `` (chosen)`` when chosen) to its records in seconds,
+        ``{quantity: s}`` (wall, as the file records them; its ``note`` says whether they are
+        comparable).
 
     Raises
     ------
+    FileNotFoundError
+        When there is no file at ``path``.
     ValueError
-        When a field is missing or a joint's list is not one value per fitted frame (naming
-        the file and the field).
+        When the file is not JSON, a field is missing or a joint's list is not one value per
+        fitted frame (naming the file and the field).
     """
     data = _load(path, ("command", "date", "settings", "rigs"))
-    if data is None:
-        return None
     name = Path(path).name
     rigs = {}
     for rig, r in data["rigs"].items():
@@ -115,46 +125,106 @@ def read_walk_fit_result(path) -> dict | None:
             if "joints_deg_per_frame" in d and "frames_fitted" in d:
                 variants[v] = _variant(d, f"{name}[{rig}][{v}]")
             chosen = d.get("chosen", chosen)
-        times = {x["quantity"]: float(x["value"]) for x in r["records"]
-                 if x.get("unit") == "s" and x.get("variant", "walk alone") == "walk alone"}
+        times = {}
+        for x in r["records"]:
+            if x.get("unit") == "s":
+                times.setdefault(x.get("variant", "walk alone"), {})[x["quantity"]] = \
+                    float(x["value"])
         rigs[rig] = {"variants": variants, "chosen": chosen, "times": times}
     return {"command": data["command"], "date": data["date"], "settings": data["settings"],
             "note": data.get("note", ""), "rigs": rigs}
 
 
 def length_pct(variant: dict) -> dict:
-    """Signed length errors of a variant (:func:`read_walk_fit_result`), % of the truth."""
+    """Signed length errors of a variant.
+
+    Parameters
+    ----------
+    variant : dict
+        A variant of :func:`read_walk_fit_result`; its ``lengths_mm`` maps a segment's name
+        to (fitted, true) lengths in mm.
+
+    Returns
+    -------
+    dict
+        Segment name -> (fitted / true - 1) in % of the true length (signed: + too long).
+    """
+    _require(variant, ("lengths_mm",))
     return {k: 100.0 * (a / b - 1.0) for k, (a, b) in variant["lengths_mm"].items()}
 
 
+def _require(variant, keys) -> None:
+    if not isinstance(variant, dict):
+        raise ValueError(f"variant: expected a dict of read_walk_fit_result, got "
+                         f"{type(variant).__name__}")
+    missing = [k for k in keys if k not in variant]
+    if missing:
+        raise ValueError(f"variant: expected a variant of read_walk_fit_result, it has no "
+                         f"{missing}")
+
+
 def result_verdicts(variant: dict, rig: str) -> dict:
-    """Issue 36's targets for ``rig`` against a variant of :func:`read_walk_fit_result`:
-    :func:`~lsmta.evaluation.walk_full_fit.target_verdicts` of its worst angle per major
-    joint over the frames (a NaN frame fails), its lengths and its skin medians."""
+    """Issue 36's targets for ``rig`` against a variant of :func:`read_walk_fit_result`.
+
+    Parameters
+    ----------
+    variant : dict
+        A variant of :func:`read_walk_fit_result`: ``joints_deg`` (major joint -> (T,) angle
+        errors, deg; NaN: a frame not scored), ``lengths_mm`` (name -> (fitted, true) mm),
+        ``skin_to_truth_mm`` and ``skin_from_truth_mm`` (medians, mm).
+    rig : {"triplet", "studio"}
+        Whose targets (:data:`~lsmta.evaluation.walk_full_fit.TARGETS`).
+
+    Returns
+    -------
+    dict
+        :func:`~lsmta.evaluation.walk_full_fit.target_verdicts` of the worst angle per major
+        joint over the frames (deg; a NaN frame fails, as inf), the signed lengths (%) and
+        the skin medians (mm): per target ``value``, ``limit``, ``unit``, ``met`` and for the
+        joints and lengths the ``failing`` names.
+
+    Raises
+    ------
+    ValueError
+        When ``rig`` is not one of the targets' rigs, or ``variant`` lacks a key (named).
+    """
     if rig not in TARGETS:
         raise ValueError(f"rig: expected one of {tuple(TARGETS)}, got {rig!r}")
-    worst = {k: float(np.nan_to_num(v, nan=np.inf).max())
+    _require(variant, ("joints_deg", "lengths_mm", "skin_to_truth_mm", "skin_from_truth_mm"))
+    worst = {k: float(np.nan_to_num(v, nan=np.inf, posinf=np.inf).max())
              for k, v in variant["joints_deg"].items() if k in MAJOR}
     return target_verdicts(worst, length_pct(variant), variant["skin_to_truth_mm"],
                            variant["skin_from_truth_mm"], rig)
 
 
-def read_ladder(path) -> dict | None:
-    """A committed ``experiments/walk_full_fit_ladder.py`` result, or None when there is no
-    file: ``command``, ``date``, ``note``, ``frames`` and ``rungs``, per rung ``truth`` (the
-    truth in its fit's input, in words), ``worst_joint_deg`` (major joint -> its worst frame,
-    deg), ``length_error_pct`` (signed, %), ``skin`` (the score's summary: medians in mm,
-    worst joint and length), and ``worst_joint`` / ``worst_length`` (the largest of each,
-    deg / |%|).
+def read_ladder(path) -> dict:
+    """A committed ``experiments/walk_full_fit_ladder.py`` result.
+
+    Parameters
+    ----------
+    path : str or Path
+        E.g. ``LADDER_RESULTS[0]``.
+
+    Returns
+    -------
+    dict
+        ``command``, ``date``, ``note``, ``frames`` (list of int, the walk frames fitted) and
+        ``rungs``: per rung ``truth`` (the truth in its fit's input, in words),
+        ``worst_joint_deg`` (major joint -> its worst frame, deg), ``length_error_pct``
+        (segment -> signed error, % of the true length), ``skin`` (the experiment's score
+        summary as the file holds it: ``skin_to_truth_mm`` / ``skin_from_truth_mm`` medians
+        in mm, ``worst_joint_deg``, ``worst_length_pct`` and their names), and
+        ``worst_joint`` (deg) / ``worst_length`` (|%|): the largest of each, computed here.
 
     Raises
     ------
+    FileNotFoundError
+        When there is no file at ``path``.
     ValueError
-        When a field is missing (naming the file, the rung and the field).
+        When the file is not JSON, a field is missing or a rung has no major joint or length
+        (naming the file, the rung and the field).
     """
     data = _load(path, ("command", "date", "note", "frames", "rungs"))
-    if data is None:
-        return None
     name = Path(path).name
     rungs = {}
     for rung, r in data["rungs"].items():

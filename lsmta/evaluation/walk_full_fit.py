@@ -430,7 +430,7 @@ def score_walk_fit(fit: FullBodyFit, session, frames, groups, *, n_per_part: int
 
 def _worst(errors) -> float:
     """The largest error over the frames; a frame without one (NaN) counts as failed (inf)."""
-    return float(np.nan_to_num(np.asarray(errors, float), nan=np.inf).max())
+    return float(np.nan_to_num(np.asarray(errors, float), nan=np.inf, posinf=np.inf).max())
 
 
 def verdicts(score: WalkFitScore, rig: str) -> dict:
@@ -446,16 +446,38 @@ def verdicts(score: WalkFitScore, rig: str) -> dict:
 
 def target_verdicts(worst_joints: dict, length_pct: dict, skin_to: float, skin_from: float,
                     rig: str) -> dict:
-    """Issue 36's targets for ``rig`` ("triplet" or "studio") from the headline numbers: the
-    worst angle error of each major joint over the frames (deg; NaN or inf: a frame not
-    fitted, failed), the signed length errors (%) and the skin medians both ways (mm). Per
-    target the value, the limit, whether it is met and the joints / lengths that fail (as
-    :func:`verdicts`, which calls it; a result file's numbers go in here directly)."""
+    """Issue 36's targets for ``rig`` from the headline numbers (as :func:`verdicts`, which
+    calls it; a result file's numbers go in here directly).
+
+    Parameters
+    ----------
+    worst_joints : dict
+        Major joint -> its worst angle error over the frames, deg (NaN or inf: a frame not
+        fitted, failed); joints not in ``MAJOR`` are ignored.
+    length_pct : dict
+        Segment -> signed length error, % of the true length.
+    skin_to, skin_from : float
+        The skin medians, fitted -> true and true -> fitted, mm.
+    rig : {"triplet", "studio"}
+        Whose limits (:data:`TARGETS`).
+
+    Returns
+    -------
+    dict
+        ``"joints"``, ``"lengths"``, ``"skin_to_truth"``, ``"skin_from_truth"``: each the
+        ``value`` (deg, |%|, mm), ``limit``, ``unit`` and ``met``; the joints and lengths also
+        the ``failing`` names, sorted.
+
+    Raises
+    ------
+    ValueError
+        When ``rig`` is unknown, or there is no major joint or no length.
+    """
     if rig not in TARGETS:
         raise ValueError(f"rig: expected one of {tuple(TARGETS)}, got {rig!r}")
     deg, pct, mm = TARGETS[rig]
-    worst = {k: float(np.nan_to_num(float(v), nan=np.inf)) for k, v in worst_joints.items()
-             if k in MAJOR}
+    worst = {k: float(np.nan_to_num(float(v), nan=np.inf, posinf=np.inf))
+             for k, v in worst_joints.items() if k in MAJOR}
     if not worst or not length_pct:
         raise ValueError("worst_joints, length_pct: expected the major joints' and the "
                          "lengths' errors, got none")

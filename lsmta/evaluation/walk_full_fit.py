@@ -430,7 +430,7 @@ def score_walk_fit(fit: FullBodyFit, session, frames, groups, *, n_per_part: int
 
 def _worst(errors) -> float:
     """The largest error over the frames; a frame without one (NaN) counts as failed (inf)."""
-    return float(np.nan_to_num(np.asarray(errors, float), nan=np.inf).max())
+    return float(np.nan_to_num(np.asarray(errors, float), nan=np.inf, posinf=np.inf).max())
 
 
 def verdicts(score: WalkFitScore, rig: str) -> dict:
@@ -438,19 +438,59 @@ def verdicts(score: WalkFitScore, rig: str) -> dict:
     the value, the limit and whether it is met, and the joints / lengths that fail."""
     if rig not in TARGETS:
         raise ValueError(f"rig: expected one of {tuple(TARGETS)}, got {rig!r}")
-    deg, pct, mm = TARGETS[rig]
     s = score.summary()
     worst = {k: _worst(v) for k, v in score.joints_deg.items() if k in MAJOR}
-    lengths = score.length_pct()
+    return target_verdicts(worst, score.length_pct(), s["skin_to_truth_mm"],
+                           s["skin_from_truth_mm"], rig)
+
+
+def target_verdicts(worst_joints: dict, length_pct: dict, skin_to: float, skin_from: float,
+                    rig: str) -> dict:
+    """Issue 36's targets for ``rig`` from the headline numbers (as :func:`verdicts`, which
+    calls it; a result file's numbers go in here directly).
+
+    Parameters
+    ----------
+    worst_joints : dict
+        Major joint -> its worst angle error over the frames, deg (NaN or inf: a frame not
+        fitted, failed); joints not in ``MAJOR`` are ignored.
+    length_pct : dict
+        Segment -> signed length error, % of the true length.
+    skin_to, skin_from : float
+        The skin medians, fitted -> true and true -> fitted, mm.
+    rig : {"triplet", "studio"}
+        Whose limits (:data:`TARGETS`).
+
+    Returns
+    -------
+    dict
+        ``"joints"``, ``"lengths"``, ``"skin_to_truth"``, ``"skin_from_truth"``: each the
+        ``value`` (deg, |%|, mm), ``limit``, ``unit`` and ``met``; the joints and lengths also
+        the ``failing`` names, sorted.
+
+    Raises
+    ------
+    ValueError
+        When ``rig`` is unknown, or there is no major joint or no length.
+    """
+    if rig not in TARGETS:
+        raise ValueError(f"rig: expected one of {tuple(TARGETS)}, got {rig!r}")
+    deg, pct, mm = TARGETS[rig]
+    worst = {k: float(np.nan_to_num(float(v), nan=np.inf, posinf=np.inf))
+             for k, v in worst_joints.items() if k in MAJOR}
+    if not worst or not length_pct:
+        raise ValueError("worst_joints, length_pct: expected the major joints' and the "
+                         "lengths' errors, got none")
+    wj = max(worst, key=worst.get)
+    wl = max(length_pct, key=lambda k: abs(length_pct[k]))
+    skin_to, skin_from = float(skin_to), float(skin_from)
     return {
-        "joints": {"value": s["worst_joint_deg"], "limit": deg, "unit": "deg",
-                   "met": s["worst_joint_deg"] <= deg,
+        "joints": {"value": worst[wj], "limit": deg, "unit": "deg", "met": worst[wj] <= deg,
                    "failing": sorted(k for k, v in worst.items() if v > deg)},
-        "lengths": {"value": s["worst_length_pct"], "limit": pct, "unit": "%",
-                    "met": s["worst_length_pct"] <= pct,
-                    "failing": sorted(k for k, v in lengths.items() if abs(v) > pct)},
-        "skin_to_truth": {"value": s["skin_to_truth_mm"], "limit": mm, "unit": "mm",
-                          "met": s["skin_to_truth_mm"] <= mm},
-        "skin_from_truth": {"value": s["skin_from_truth_mm"], "limit": mm, "unit": "mm",
-                            "met": s["skin_from_truth_mm"] <= mm},
+        "lengths": {"value": float(abs(length_pct[wl])), "limit": pct, "unit": "%",
+                    "met": abs(length_pct[wl]) <= pct,
+                    "failing": sorted(k for k, v in length_pct.items() if abs(v) > pct)},
+        "skin_to_truth": {"value": skin_to, "limit": mm, "unit": "mm", "met": skin_to <= mm},
+        "skin_from_truth": {"value": skin_from, "limit": mm, "unit": "mm",
+                            "met": skin_from <= mm},
     }

@@ -709,3 +709,58 @@ def test_one_opencv_thread_restores_the_count_after_an_error():
         assert cv2.getNumThreads() == 2
     finally:
         cv2.setNumThreads(before)
+
+
+def test_band_windows_of_the_rule_find_every_spot_near_the_line():
+    # DetectionParams.band_px's rule, gate_px / 2 + 3 = 10.5 for points 15 px apart along a
+    # line (as ImagePrediction.partners samples the other cameras' rays): windows of that
+    # half-size around the points find every spot whose centre is 6 px off the line, halfway
+    # between two points (the worst place), whatever the line's direction, as the full
+    # search does; windows of half-size 5 miss them (the check can fail)
+    from lsmta.widearea import DetectionParams, Threshold
+
+    H, W, spacing, off = 200, 200, 15.0, 6.0
+    rule = DetectionParams(grid="rows", k=1000, band_px=spacing / 2 + 3)
+    narrow = DetectionParams(grid="rows", k=1000, band_px=5.0)
+    bg = np.full((H, W), 40.0)
+    thr = Threshold(background=bg, threshold=bg + 20.0)
+    yy, xx = np.mgrid[0:H, 0:W]
+    narrow_found = 0
+    for angle in (0.0, 30.0, 45.0, 60.0, 90.0, 135.0):
+        u = np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle))])
+        n = np.array([-u[1], u[0]])
+        origin = np.array([100.0, 100.0]) - 4 * spacing * u
+        points = origin + spacing * np.arange(9)[:, None] * u        # the band's centres
+        spots = np.concatenate([origin + spacing * (np.arange(8)[:, None] + 0.5) * u + off * n,
+                                origin + spacing * (np.arange(8)[:, None] + 0.5) * u - off * n])
+        img = np.full((H, W), 40.0)
+        for x, y in spots:
+            img += 150.0 * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * 0.6 ** 2))
+        frame = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+        full = search_frame(frame, search_setup(thr, params=rule), full=True)
+        assert len(full.xy) == len(spots)
+        for p in (rule, narrow):
+            half = np.full(len(points), p.band_px)
+            g = search_frame(frame, search_setup(thr, params=p), windows=points,
+                             half_sizes=half, jitter=(0, 0))      # grid: row 0 only
+            if p is narrow:
+                narrow_found += len(g.xy)
+                continue
+            assert len(g.xy) == len(full.xy)
+            d = np.linalg.norm(g.xy[:, None] - full.xy[None], axis=2)
+            assert d.min(axis=0).max() < 1e-9
+    assert narrow_found < 6 * 16
+
+
+def test_detection_params_refuse_a_bad_band():
+    from lsmta.widearea import DetectionParams
+
+    assert DetectionParams().band_px is None
+    p = DetectionParams(band_px=10)
+    assert p.band_px == 10.0 and isinstance(p.band_px, float)
+    for bad in (0.0, -3.0, np.nan, np.inf):
+        with pytest.raises(ValueError, match="band_px"):
+            DetectionParams(band_px=bad)
+    for bad in (True, "wide"):
+        with pytest.raises(TypeError, match="band_px"):
+            DetectionParams(band_px=bad)

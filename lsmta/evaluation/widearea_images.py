@@ -469,14 +469,16 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     (:meth:`lsmta.widearea.ImagePrediction.windows`: its prediction there is unchecked),
     40 x 40 windows around the camera's features still waiting in the birth
     pool, a band along the images of the other cameras' waiting rays
-    (:attr:`lsmta.widearea.ImagePrediction.partners`, windows of half-size ``gate_px``),
+    (:attr:`lsmta.widearea.ImagePrediction.partners`, windows of half-size
+    ``detection.band_px``, by default ``gate_px``),
     and for new LEDs the grid of ``detection``: by default every pixel of one row in 5,
     jittered, ``DetectionParams(grid="rows")``; ``grid="points"`` is the thesis's jittered
     5 x 5 grid). The searches are then timed on the same frames, windows and grid offsets.
 
     ``unobserved_px``: the least half-size, px, of the window around a target the camera
     has not observed yet (20: the thesis's 40 x 40 as a minimum; None: the gate plus 3 px
-    for every target, as for the observed ones)."""
+    for every target, as for the observed ones; with ``DetectionParams(band_px=10.5)``
+    the lean window rule, see ``experiments/widearea_detection_benchmark.py``)."""
     rng = as_rng(rng)
     params = EstimatorParams() if params is None else params
     det = DetectionParams(grid="rows") if detection is None else detection
@@ -494,7 +496,8 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
         def search(pred):
             jit = tuple(int(j) for j in rng.integers(0, det.k, 2))
             xy = np.concatenate([pred.xy, pred.waiting, pred.partners])
-            band = np.full(len(pred.partners), params.gate_px)
+            band = np.full(len(pred.partners),
+                           params.gate_px if det.band_px is None else det.band_px)
             fixed = np.concatenate([np.full(len(pred.xy) + len(pred.waiting), det.window / 2),
                                     band])
             _, near = pred.windows(margin_px=3.0, unobserved_px=unobserved_px)

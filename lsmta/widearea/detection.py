@@ -76,27 +76,6 @@ class DetectionParams:
         each grid row whole anyway (one contiguous pass), so ``"rows"`` costs about the same
         time, and a spot ``h`` rows tall is hit with probability ``min(h / k, 1)`` per frame
         instead of about ``area / k**2``.
-    band_px : float or None
-        Half the side, px, of the windows a tracker-guided search places around the points
-        along the other cameras' waiting rays (:attr:`lsmta.widearea.ImagePrediction.partners`,
-        at most the tracker's ``gate_px`` apart; used by
-        :func:`lsmta.evaluation.widearea_images.guided_detection_trial`). None: the
-        tracker's ``gate_px`` (15 px by default), as before this option. The rule it was
-        added for, 10.5 for the default gate: ``gate_px / 2 + 3``, half the spacing of the
-        points (to reach the middle between two of them along the line) plus a spot's
-        radius (3 px, as the targets' ``margin_px``). Such windows cover at least
-        ``sqrt(2) * 10.5 - 7.5 = 7.3`` px on either side of the line whatever its direction
-        (where it runs diagonally, halfway between two points; 10.5 px along a row or
-        column). Why less than the gate: the guided search's time at 640 x 480 goes
-        mostly to reading the frame from memory (a frame searched again, from the cache,
-        took about a third of the time), and with the gate these windows (4 to 11 per frame,
-        overlapping along the line) read 10 to 23 % of the cache lines the windows read
-        off the grid rows. Measured on the tracked runs of the design seeds 2002, 7 and 11
-        (``experiments/widearea_detection_benchmark.py``, 640 x 480, row grid): the
-        features that only the band found lay within 1.4 px of a band point, and (with
-        ``unobserved_px=None``) the LEDs found at the same place as the full search were
-        the same with 10.5 as with 15 (5, 8 and 4 missed, all before any camera had found
-        that LED).
     """
 
     k: int = 5
@@ -104,19 +83,12 @@ class DetectionParams:
     min_area: int = 1
     max_area: int = 400
     grid: str = "points"
-    band_px: float | None = None
 
     def __post_init__(self):
         for key in ("k", "window", "min_area", "max_area"):
             as_int(getattr(self, key), key)
         if self.grid not in GRIDS:
             raise ValueError(f"grid: expected one of {GRIDS}, got {self.grid!r}")
-        if self.band_px is not None:
-            if isinstance(self.band_px, bool):
-                raise TypeError("band_px: expected a positive number of pixels or None, "
-                                "got a bool")
-            object.__setattr__(self, "band_px",
-                               as_scalar(self.band_px, "band_px", positive=True))
 
     @property
     def column_step(self) -> int:

@@ -709,3 +709,98 @@ def test_one_opencv_thread_restores_the_count_after_an_error():
         assert cv2.getNumThreads() == 2
     finally:
         cv2.setNumThreads(before)
+
+
+def _band_found(angle, off, half, spacing=15.0):
+    """Spots ``off`` px either side of a line of band points ``spacing`` apart at ``angle``
+    deg, halfway between two points (the worst place): (spots, found by the full search,
+    found by windows of half-size ``half`` around the points)."""
+    from lsmta.widearea import DetectionParams, Threshold
+
+    H = W = 200
+    bg = np.full((H, W), 40.0)
+    setup = search_setup(Threshold(background=bg, threshold=bg + 20.0),
+                         params=DetectionParams(grid="rows", k=1000))
+    yy, xx = np.mgrid[0:H, 0:W]
+    u = np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle))])
+    n = np.array([-u[1], u[0]])
+    origin = np.array([100.0, 100.0]) - 4 * spacing * u
+    points = origin + spacing * np.arange(9)[:, None] * u        # the band's centres
+    mid = origin + spacing * (np.arange(8)[:, None] + 0.5) * u
+    spots = np.concatenate([mid + off * n, mid - off * n])
+    img = np.full((H, W), 40.0)
+    for x, y in spots:
+        img += 150.0 * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * 0.6 ** 2))
+    frame = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    full = search_frame(frame, setup, full=True)
+    g = search_frame(frame, setup, windows=points, half_sizes=np.full(len(points), half),
+                     jitter=(0, 0))                               # grid: row 0 only
+    return spots, full.xy, g.xy
+
+
+def _same_place(a, b) -> bool:
+    return len(a) == len(b) and np.linalg.norm(a[:, None] - b[None], axis=2).min(0).max() < 1e-9
+
+
+def test_band_windows_of_the_rule_find_every_spot_near_the_line():
+    # the lean rule's band, gate_px / 2 + 3 = 10.5 for points 15 px apart along a line (as
+    # ImagePrediction.partners samples the other cameras' rays): windows of that half-size
+    # around the points find every spot whose centre is 6 px off the line, halfway between
+    # two points (the worst place), whatever the line's direction, as the full search does;
+    # windows of half-size 5 find none of them (the check can fail)
+    narrow_found = 0
+    for angle in (0.0, 30.0, 45.0, 60.0, 90.0, 135.0):
+        spots, full, rule = _band_found(angle, 6.0, 15.0 / 2 + 3)
+        assert len(full) == len(spots)
+        assert _same_place(rule, full)
+        narrow_found += len(_band_found(angle, 6.0, 5.0)[2])
+    assert narrow_found == 0
+
+
+def test_band_windows_of_the_rule_reach_7_px_at_45_degrees():
+    # the stated reach at the worst direction, sqrt(2) * 10.5 - 7.5 = 7.3 px: spots whose
+    # centres are 7 px off a 45-degree line, halfway between two points, all found
+    spots, full, rule = _band_found(45.0, 7.0, 15.0 / 2 + 3)
+    assert len(full) == len(spots)
+    assert _same_place(rule, full)
+
+
+def test_guided_search_windows_use_the_band():
+    # the trial's windows: band_px sets the windows along the waiting rays (None: the gate),
+    # in the guided search and in its fixed 40 x 40 comparison alike
+    from lsmta.evaluation.widearea_images import guided_search_windows
+    from lsmta.widearea import ImagePrediction
+
+    pred = ImagePrediction(camera=0, time=0.0, ids=np.array([1, 2]),
+                           xy=np.array([[50.0, 60.0], [90.0, 30.0]]),
+                           velocity=np.zeros((2, 2)), gate_px=np.array([4.0, 6.0]),
+                           waiting=np.array([[10.0, 10.0]]),
+                           partners=np.array([[100.0, 100.0], [110.0, 110.0], [120.0, 120.0]]),
+                           observed=np.array([True, False]))
+    for band, expect in ((None, 15.0), (10.5, 10.5)):
+        xy, half, fixed = guided_search_windows(pred, window=40, gate_px=15.0, band_px=band,
+                                                unobserved_px=20.0)
+        assert np.array_equal(xy, np.concatenate([pred.xy, pred.waiting, pred.partners]))
+        assert np.array_equal(half, [7.0, 20.0, 20.0, expect, expect, expect])
+        assert np.array_equal(fixed, [20.0, 20.0, 20.0, expect, expect, expect])
+    _, half, _ = guided_search_windows(pred, window=40, gate_px=15.0, band_px=10.5,
+                                       unobserved_px=None)
+    assert np.array_equal(half[:2], [7.0, 9.0])
+
+
+def test_guided_search_refuses_a_bad_band():
+    from lsmta.evaluation.widearea_images import guided_detection_trial, guided_search_windows
+    from lsmta.widearea import ImagePrediction
+
+    pred = ImagePrediction(camera=0, time=0.0, ids=np.zeros(0, int), xy=np.zeros((0, 2)),
+                           velocity=np.zeros((0, 2)), gate_px=np.zeros(0))
+    assert len(guided_search_windows(pred, window=40, gate_px=15.0, band_px=10)[0]) == 0
+    for bad, error in ((0.0, ValueError), (-3.0, ValueError), (np.nan, ValueError),
+                       (np.inf, ValueError), (True, TypeError), (np.bool_(True), TypeError),
+                       ("wide", TypeError)):
+        with pytest.raises(error, match="band_px"):
+            guided_search_windows(pred, window=40, gate_px=15.0, band_px=bad)
+        with pytest.raises(error, match="band_px"):          # before any rendering
+            guided_detection_trial(rng=0, band_px=bad)
+    with pytest.raises(TypeError, match="unobserved_px"):
+        guided_detection_trial(rng=0, unobserved_px=np.bool_(False))

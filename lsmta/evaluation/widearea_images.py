@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .._validate import as_rng
+from .._validate import as_rng, as_scalar
 from ..synth.widearea import (
     LedCentroidParams,
     LedVideoParams,
@@ -385,8 +385,10 @@ class GuidedDetectionTrial:
         of the tracker's gate plus 3 px around its predictions, at least ``2 unobserved_px``
         wide where the camera has not observed the target, as in the tracked run),
         ``"guided, 40 x 40 windows"`` (the thesis's fixed windows around the same
-        predictions); ``"tracker"``: the tracker's own work in the guided run (prediction,
-        association, update, births; compilation on first use included; CPU time).
+        predictions and waiting features; along the waiting rays the same windows as
+        ``"guided"``, of half-size ``band_px``); ``"tracker"``: the tracker's own work in
+        the guided run (prediction, association, update, births; compilation on first use
+        included; CPU time).
     tested_fraction : dict
         Mean fraction of the pixels tested per frame, per search.
     full_found : int
@@ -406,6 +408,12 @@ class GuidedDetectionTrial:
         ``"guided"`` (the streaming run): LedTrackScore against the LEDs.
     grid : str
         The guided search's grid for new LEDs (:attr:`lsmta.widearea.DetectionParams.grid`).
+    unobserved_px : float or None
+        The trial's ``unobserved_px``: least half-size, px, of the windows around targets a
+        camera has not observed yet (None: no least).
+    band_px : float or None
+        The trial's ``band_px``: half-size, px, of the windows along the other cameras'
+        waiting rays (None: the tracker's ``gate_px``).
     """
 
     cameras: list
@@ -418,6 +426,8 @@ class GuidedDetectionTrial:
     missed_unfound: int
     scores: dict
     grid: str
+    unobserved_px: float | None = 20.0
+    band_px: float | None = None
 
     @property
     def speedup(self) -> float:
@@ -458,7 +468,8 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
                            n_cameras: int = 8, duration: float = 1.6, scale: float = 0.5,
                            repeats: int = 3, params: EstimatorParams | None = None,
                            detection: DetectionParams | None = None,
-                           unobserved_px: float | None = 20.0) -> GuidedDetectionTrial:
+                           unobserved_px: float | None = 20.0,
+                           band_px: float | None = None) -> GuidedDetectionTrial:
     """The walking person (eight LEDs, on from 0.1-0.45 s) rendered in the ``n_cameras``
     cameras of the rig (``scale``: 0.5 for 320 x 240) that see its path best (truth as
     input: an operator would pick them), with a flickering monitor (masked) and reflections.
@@ -467,16 +478,21 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     predictions for that camera and stamp, whose gate follows each prediction's uncertainty,
     at least 40 x 40 (``unobserved_px``) around a target the camera has not observed yet
     (:meth:`lsmta.widearea.ImagePrediction.windows`: its prediction there is unchecked),
-    40 x 40 windows around the camera's features still waiting in the birth
-    pool, a band along the images of the other cameras' waiting rays
-    (:attr:`lsmta.widearea.ImagePrediction.partners`, windows of half-size ``gate_px``),
-    and for new LEDs the grid of ``detection``: by default every pixel of one row in 5,
-    jittered, ``DetectionParams(grid="rows")``; ``grid="points"`` is the thesis's jittered
-    5 x 5 grid). The searches are then timed on the same frames, windows and grid offsets.
+    40 x 40 windows around the camera's features still waiting in the birth pool, a band
+    along the images of the other cameras' waiting rays (``ImagePrediction.partners``;
+    :func:`guided_search_windows`), and for new LEDs the grid of ``detection``: by default
+    every pixel of one row in 5, jittered, ``DetectionParams(grid="rows")``; ``"points"``:
+    the thesis's jittered 5 x 5 grid), then timed on the same frames, windows and offsets.
 
     ``unobserved_px``: the least half-size, px, of the window around a target the camera
     has not observed yet (20: the thesis's 40 x 40 as a minimum; None: the gate plus 3 px
-    for every target, as for the observed ones)."""
+    for every target). ``band_px``: the half-size, px, of the windows along the rays (None:
+    the tracker's ``gate_px``). ``unobserved_px=None, band_px=10.5``: the lean window rule
+    (``gate_px / 2 + 3``) designed on seeds 2002, 7 and 11; seeds 101, 202, 303, 404 and
+    505 were reported before it was designed and 303 was profiled while designing it;
+    held out: 606, 707, 808, 909 and 1111 (``experiments/widearea_detection_benchmark.py``)."""
+    unobserved_px = _half_px(unobserved_px, "unobserved_px")
+    band_px = _half_px(band_px, "band_px")
     rng = as_rng(rng)
     params = EstimatorParams() if params is None else params
     det = DetectionParams(grid="rows") if detection is None else detection
@@ -493,12 +509,9 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
     def guided_search(c, i):
         def search(pred):
             jit = tuple(int(j) for j in rng.integers(0, det.k, 2))
-            xy = np.concatenate([pred.xy, pred.waiting, pred.partners])
-            band = np.full(len(pred.partners), params.gate_px)
-            fixed = np.concatenate([np.full(len(pred.xy) + len(pred.waiting), det.window / 2),
-                                    band])
-            _, near = pred.windows(margin_px=3.0, unobserved_px=unobserved_px)
-            half = np.concatenate([near, np.full(len(pred.waiting), det.window / 2), band])
+            xy, half, fixed = guided_search_windows(
+                pred, window=det.window, gate_px=params.gate_px, band_px=band_px,
+                unobserved_px=unobserved_px)
             f = search_frame(videos[c].frames[i], setups[c], windows=xy, half_sizes=half,
                              jitter=jit)
             runs.append((c, i, xy, half, fixed, jit))
@@ -528,7 +541,56 @@ def guided_detection_trial(*, rng: np.random.Generator | int | None = None, rig=
         cameras=cams, n_frames=len(order), seconds=seconds,
         tested_fraction={"full": 1.0, "guided": float(np.mean(tested)) / size},
         full_found=full_found, guided_found=guided_found, missed_new=missed_new,
-        missed_unfound=missed_unfound, scores=scores, grid=det.grid)
+        missed_unfound=missed_unfound, scores=scores, grid=det.grid,
+        unobserved_px=unobserved_px, band_px=band_px)
+
+
+def guided_search_windows(pred, *, window: float, gate_px: float,
+                          band_px: float | None = None, unobserved_px: float | None = 20.0):
+    """The guided search's windows in one frame (:func:`guided_detection_trial`).
+
+    Parameters
+    ----------
+    pred : lsmta.widearea.ImagePrediction
+        The tracker's prediction into the frame's camera (M targets, P waiting features,
+        Q points along the other cameras' waiting rays).
+    window : float
+        The thesis's window side, px (:attr:`lsmta.widearea.DetectionParams.window`, 40).
+    gate_px : float
+        The tracker's largest gate, px (:attr:`lsmta.widearea.EstimatorParams.gate_px`).
+    band_px : float or None
+        Half-size, px (> 0), of the windows around the Q points along the waiting rays
+        (None: ``gate_px``).
+    unobserved_px : float or None
+        Least half-size, px, of the window around a target the camera has not observed
+        (:meth:`lsmta.widearea.ImagePrediction.windows`; None: no least).
+
+    Returns
+    -------
+    xy : (M + P + Q, 2) array
+        The windows' centres, px: targets, waiting features, points along the rays.
+    half : (M + P + Q,) array
+        Half-sizes, px: the gate plus 3 px around targets (at least ``unobserved_px``
+        where unobserved), ``window / 2`` around waiting features, ``band_px`` along rays.
+    fixed : (M + P + Q,) array
+        The same with ``window / 2`` around the targets too (the thesis's fixed windows).
+    """
+    band_px = _half_px(band_px, "band_px")
+    band = np.full(len(pred.partners), gate_px if band_px is None else band_px)
+    xy = np.concatenate([pred.xy, pred.waiting, pred.partners])
+    fixed = np.concatenate([np.full(len(pred.xy) + len(pred.waiting), window / 2), band])
+    _, near = pred.windows(margin_px=3.0, unobserved_px=unobserved_px)
+    half = np.concatenate([near, np.full(len(pred.waiting), window / 2), band])
+    return xy, half, fixed
+
+
+def _half_px(value, name: str):
+    """None, or a positive finite float (bools, NumPy's too, refused), naming ``name``."""
+    if value is None:
+        return None
+    if isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name}: expected a positive number of pixels or None, got a bool")
+    return as_scalar(value, name, positive=True)
 
 
 @contextmanager

@@ -289,8 +289,10 @@ class ImagePrediction:
         Points, px, at most ``gate_px`` (the parameter) apart along the images in this
         camera of the *other* cameras' fresh rays in the birth pool, within the birth
         volume and the image: where the partner that would start a target must be (its
-        depth along the ray is unknown, so it is anywhere on that line). Windows of
-        half-size ``gate_px`` around them search a band about the line, so that an LED
+        depth along the ray is unknown, so it is anywhere on that line). Windows around
+        them (half-size ``gate_px``, or the lean rule's 10.5 px:
+        :func:`lsmta.evaluation.widearea_images.guided_search_windows`) search a band
+        about the line, so that an LED
         seen by one camera is found by the others in their next frames instead of only
         when their grids happen to hit it (empty from :meth:`WideAreaTracker.predict_image`
         and without ``volume``).

@@ -594,10 +594,12 @@ class _Pyramids:
     (fewer where the image gets too small; index 0, the image, is None), each level halved by
     ``cv2.pyrDown``: pixel ``i`` of level ``l`` lies at pixel ``2**l i`` of the image. Made
     only when a coarse-to-fine step asks for them, and kept only for the frames that are
-    some track's last tracked frame (the only sources a later step uses)."""
+    some track's last tracked frame (the only sources a later step uses). Also keeps each
+    track's patches sampled from its last frame's levels (:meth:`templates`): a missing
+    track's patches are sampled once, not in every frame it is missing."""
 
     def __init__(self, seq, levels: int):
-        self.seq, self.levels, self.kept = seq, levels, {}
+        self.seq, self.levels, self.kept, self.patches = seq, levels, {}, {}
 
     def get(self, k: int, t: int) -> list:
         if (k, t) not in self.kept:
@@ -617,6 +619,39 @@ class _Pyramids:
         for key in [key for key in self.kept if key[1] not in frames]:
             del self.kept[key]
 
+    def templates(self, k: int, lv: int, idx, last, xy, patch: int) -> Templates:
+        """:func:`_sampled_from` of the tracks ``idx``'s patches at pyramid level ``lv`` of
+        camera ``k``'s frames ``last`` ``(n,)``, centred at ``xy`` ``(n, 2)`` (full-size
+        px): each track's patch is sampled once for a (frame, position) and kept (every
+        row is sampled on its own, so a kept row equals a fresh one)."""
+        P = patch * patch
+        size = int(idx.max()) + 1 if idx.size else 0
+        store = self.patches.get((k, lv))
+        if store is None or len(store["frame"]) < size:
+            old, grown = store, max(size, 2 * len(store["frame"]) if store else 0)
+            store = {"frame": np.full(grown, -1, np.int64), "xy": np.full((grown, 2), np.nan),
+                     "values": np.zeros((grown, P)), "gx": np.zeros((grown, P)),
+                     "gy": np.zeros((grown, P)), "ok": np.zeros(grown, bool)}
+            if old is not None:
+                for name, a in old.items():
+                    store[name][:len(a)] = a
+            self.patches[(k, lv)] = store
+        hit = (store["frame"][idx] == last) & (store["xy"][idx] == xy).all(axis=1)
+        miss = np.flatnonzero(~hit)
+        if miss.size:
+            frames, which = np.unique(last[miss], return_inverse=True)
+            tm = _sampled_from([self.get(k, f)[lv] for f in frames], which,
+                               xy[miss] / 2.0 ** lv, patch)
+            r = idx[miss]
+            for name in ("values", "gx", "gy", "ok"):
+                store[name][r] = getattr(tm, name)
+            store["frame"][r], store["xy"][r] = last[miss], xy[miss]
+        n = len(idx)
+        return Templates(values=store["values"][idx], gx=store["gx"][idx],
+                         gy=store["gy"][idx], update=np.full((n, 6, 6), np.nan),
+                         q_xy=np.full((n, 2, 2), np.nan), ok=store["ok"][idx],
+                         mask=np.ones((n, P), bool), full=np.ones(n, bool), patch=patch)
+
 
 def _coarse_to_fine(state: _State, pyramids: _Pyramids, idx, pred, t: int,
                     p: TrackerParams) -> np.ndarray:
@@ -630,23 +665,22 @@ def _coarse_to_fine(state: _State, pyramids: _Pyramids, idx, pred, t: int,
     time), no quality thresholds: the anchored match at full size decides), started at
     ``pred`` and then at the level above's result; a level that does not converge keeps
     the estimate from above. NaN where no level converged. Each level is one call for all
-    the tracks, whatever their last frames (:func:`_sampled_from` samples each track's
-    patch from its own frame's level); every track is solved on its own, so the result
+    the tracks, whatever their last frames (each track's patch sampled from its own
+    frame's level, once while it stays missing: :meth:`_Pyramids.templates`); every
+    track is solved on its own, so the result
     is that of matching the tracks of each last frame separately."""
     K, n = pred.shape[:2]
     out = np.full((K, n, 2), np.nan)
     last = state.end[idx]
-    frames, which = np.unique(last, return_inverse=True)
     rows = np.arange(n)
     for k in range(K):
         target = pyramids.get(k, t)
-        sources = [pyramids.get(k, f) for f in frames]
         at = state.xy[last, k, idx]                                 # (n, 2) full-size px
         est = np.array(pred[k], float)
         found = np.zeros(n, bool)
         for lv in range(len(target) - 1, 0, -1):
             s = 2.0 ** lv
-            tm = _sampled_from([src[lv] for src in sources], which, at / s, p.patch)
+            tm = pyramids.templates(k, lv, idx, last, at, p.patch)
             xy, conv = match_translation(tm, rows, target[lv], est / s, max_iter=p.max_iter,
                                          tol=p.tol)
             est[conv] = xy[conv] * s

@@ -144,7 +144,7 @@ def _search(patches, search, predicted_xy, radius: int, valid) -> CorrelationRes
     h = patch // 2
     xy = np.full((n, 2), np.nan)
     score = np.full(n, np.nan)
-    status = np.full(n, CorrelationStatus.OUTSIDE, dtype=np.int64)
+    status = np.full(n, int(CorrelationStatus.OUTSIDE), dtype=np.int64)
     centre = np.rint(predicted_xy).astype(np.int64)
     H, W = search.shape
     reach = radius + h
@@ -157,7 +157,7 @@ def _search(patches, search, predicted_xy, radius: int, valid) -> CorrelationRes
                                 (centre[todo, 0, None] + span)[:, None, :]], np.float32)
     flat = _flat_rows(patches[todo].reshape(len(todo), patch * patch)) | \
         _flat_rows(windows.reshape(len(todo), side * side), wide=True)
-    status[todo[flat]] = CorrelationStatus.FLAT
+    status[todo[flat]] = int(CorrelationStatus.FLAT)
     todo, windows = todo[~flat], windows[~flat]
     m, w = len(todo), 2 * radius + 1
     r = np.empty((m, w, w), np.float32)
@@ -174,7 +174,7 @@ def _search(patches, search, predicted_xy, radius: int, valid) -> CorrelationRes
     dy[inner] = _parabolas(r[inner, jy - 1, jx], b, r[inner, jy + 1, jx])
     xy[todo, 0] = (centre[todo, 0] - radius + ix) + dx
     xy[todo, 1] = (centre[todo, 1] - radius + iy) + dy
-    status[todo] = np.where(border, CorrelationStatus.AT_BORDER, CorrelationStatus.OK)
+    status[todo] = np.where(border, int(CorrelationStatus.AT_BORDER), int(CorrelationStatus.OK))
     return CorrelationResult(xy=xy, score=score, status=status)
 
 

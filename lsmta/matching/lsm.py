@@ -102,6 +102,12 @@ class Status(enum.IntEnum):
     REJECTED = 5        #: converged, but rejected by quality thresholds
 
 
+# plain ints for array comparisons and fills: numpy converts an IntEnum member slowly
+# (about 5 us a comparison, thousands of them per tracked video)
+_CONVERGED, _MAX_ITERATIONS, _OUTSIDE, _REJECTED = (
+    int(s) for s in (Status.CONVERGED, Status.MAX_ITERATIONS, Status.OUTSIDE, Status.REJECTED))
+
+
 @dataclass(frozen=True)
 class LSMResult:
     """Least squares matching of N points (see the module docstring for the model).
@@ -147,7 +153,7 @@ class LSMResult:
     @property
     def ok(self) -> np.ndarray:
         """``status == CONVERGED``."""
-        return self.status == Status.CONVERGED
+        return self.status == _CONVERGED
 
     @property
     def A(self) -> np.ndarray:
@@ -214,7 +220,7 @@ class LSMThresholds:
     def apply(self, result: LSMResult) -> LSMResult:
         """A copy of ``result`` whose converged matches failing a threshold are REJECTED."""
         status = result.status.copy()
-        status[result.ok & ~self.accept(result)] = Status.REJECTED
+        status[result.ok & ~self.accept(result)] = _REJECTED
         return replace(result, status=status)
 
 
@@ -459,9 +465,9 @@ class _State:
         """Starting values; points whose template patch does not fit are OUTSIDE."""
         n, K = c0.shape[:2]
         k = model.unknowns(K, curves is not None)
-        status = np.full(n, Status.MAX_ITERATIONS, dtype=np.int64)
+        status = np.full(n, _MAX_ITERATIONS, dtype=np.int64)
         status[~f_img.inside(t_xy, margin=0 if model.partial else model.patch // 2)] = \
-            Status.OUTSIDE
+            _OUTSIDE
         zeros = np.zeros((n, K, 2))
         t, base, direction, quad, t_exp = (np.zeros(n), zeros, zeros, zeros, np.zeros(n)) \
             if curves is None else curves
@@ -484,7 +490,7 @@ def _solve(state: _State, model: _Model, f_img: SplineImage, g_imgs, weights, *,
     radiometry starts from the patches' means and spreads, or (``start_radiometry=False``)
     from ``state``."""
     if active is None:
-        active = state.status != Status.OUTSIDE
+        active = state.status != _OUTSIDE
     shape = g_imgs[0].shape
     if any(g.shape != shape for g in g_imgs):
         raise ValueError(f"searches: expected images of one size, got {[g.shape for g in g_imgs]}")
@@ -589,7 +595,7 @@ def _result(state: _State, model: _Model, s_xy: np.ndarray) -> LSMResult:
     with np.errstate(invalid="ignore"):
         sigma_xy = np.sqrt(np.diagonal(cov_xy, axis1=1, axis2=2)).copy()
     sigma_xy[fixed[:, :2]] = np.nan
-    failed = state.status == Status.OUTSIDE
+    failed = state.status == _OUTSIDE
     params = np.concatenate([c, A.reshape(n, 4), r0[:, None], r1[:, None]], axis=1)
     return LSMResult(xy=c.copy(), params=params, fixed=fixed8, sigma0=sigma0,
                      sigma_xy=sigma_xy, cov_xy=cov_xy, iterations=state.iterations,

@@ -116,6 +116,12 @@ class TrackStatus(enum.IntEnum):
     MISSING = 3      #: not found in the last frame, missing for at most ``max_gap`` frames
 
 
+# plain ints for array comparisons and fills: numpy converts an IntEnum member slowly
+# (about 5 us a comparison, thousands of them per tracked video)
+_ALIVE, _LOST, _MISSING = (int(s) for s in (TrackStatus.ALIVE, TrackStatus.LOST,
+                                               TrackStatus.MISSING))
+
+
 @dataclass(frozen=True)
 class TrackerParams:
     """Parameters of :func:`track_points`.
@@ -515,8 +521,7 @@ class _State(_TrackArrays):
         return np.arange(N, N + M)
 
     def in_play(self) -> np.ndarray:
-        return np.flatnonzero((self.status == TrackStatus.ALIVE)
-                              | (self.status == TrackStatus.MISSING))
+        return np.flatnonzero((self.status == _ALIVE) | (self.status == _MISSING))
 
     def result(self) -> Tracks:
         arrays = {f.name: getattr(self, f.name) for f in fields(Tracks)}
@@ -586,7 +591,7 @@ def _advance(state: _State, seq, prev, nxt, t: int, p: TrackerParams, vel0,
                        direct=np.zeros(again.sum(), bool), box=~(known[again] & first),
                        fallback=known[again] & first)
         state.retried[t + 1, idx[again][ok2]] = True
-    state.status[idx[state.end[idx] < t + 1]] = TrackStatus.MISSING
+    state.status[idx[state.end[idx] < t + 1]] = _MISSING
 
 
 class _Pyramids:
@@ -714,7 +719,7 @@ def _search_missing(state: _State, seq, nxt, t: int, p: TrackerParams) -> None:
     """Density check at frame ``t``, first part: the missing tracks are searched in the
     ``retry_radius`` box around their predicted positions before sparse cells get new
     points."""
-    idx = np.flatnonzero(state.status == TrackStatus.MISSING)
+    idx = np.flatnonzero(state.status == _MISSING)
     if idx.size:
         n = idx.size
         pred, _ = _predict(state, idx, t, p.neighbours, None)
@@ -724,8 +729,8 @@ def _search_missing(state: _State, seq, nxt, t: int, p: TrackerParams) -> None:
 
 
 def _end_missing(state: _State, t: int, max_gap: int) -> None:
-    gone = (state.status == TrackStatus.MISSING) & (t - state.end > max_gap)
-    state.status[gone] = TrackStatus.LOST
+    gone = (state.status == _MISSING) & (t - state.end > max_gap)
+    state.status[gone] = _LOST
 
 
 def _add_where_sparse(state: _State, new_points, nxt, t: int, p: TrackerParams) -> None:
@@ -996,7 +1001,7 @@ def _accept(state: _State, nxt, t: int, rows, xy, A, sigma0, M, off, fb,
     state.recovered[t, rows] = state.end[rows] < t - 1
     state.xy[t][:, rows] = xy
     state.end[rows] = t
-    state.status[rows] = TrackStatus.ALIVE
+    state.status[rows] = _ALIVE
     state.on_fallback[rows] = fb
     r1, r2 = rows[~fb], rows[fb]
     state.first.A[:, r1] = A[:, ~fb]

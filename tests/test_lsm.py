@@ -338,11 +338,16 @@ def _search_per_box(patches, search, predicted_xy, radius):
     return xy, score, status
 
 
-def test_search_patches_equals_the_search_one_box_at_a_time(rng):
-    """The boxes' peaks and parabolas found for all boxes at once are those of one box at
-    a time, exactly (8-bit and float images, flat patches and boxes, boxes over the
-    border, peaks on the box's edge)."""
+@pytest.mark.parametrize("block_pixels", [None, 3000])
+def test_search_patches_equals_the_search_one_box_at_a_time(rng, monkeypatch, block_pixels):
+    """The boxes' peaks and parabolas found for all boxes at once (or in blocks) are those
+    of one box at a time, exactly (8-bit and float images, flat patches and boxes, boxes
+    over the border, peaks on the box's edge)."""
+    from lsmta.matching import correlation
     from lsmta.matching.correlation import search_patches
+
+    if block_pixels:
+        monkeypatch.setattr(correlation, "_BLOCK_PIXELS", block_pixels)
 
     image = rng.normal(128, 40, size=(90, 120))
     image[20:50, 30:70] = 77.0                                   # a flat region

@@ -134,14 +134,18 @@ def search_patches(patches, search, predicted_xy, *, radius: int, valid=None
     return _search(tiles, g, p_xy, radius, valid)
 
 
+#: most box pixels cut out at once (float32): a bound on the search's memory, about 16 MB
+_BLOCK_PIXELS = 1 << 22
+
+
 def _search(patches, search, predicted_xy, radius: int, valid) -> CorrelationResult:
     """:func:`search_patches` on checked arguments (``patches`` float32).
 
-    The boxes are cut out and converted to float32 in one gather, OpenCV correlates each
-    box with its patch, and the peaks and their parabolas are found for all boxes at once
-    (in float32, as the scores are): only ``matchTemplate`` runs per point."""
-    n, patch = len(patches), patches.shape[1]
-    h = patch // 2
+    The boxes are cut out and converted to float32 in one gather (in blocks of at most
+    ``_BLOCK_PIXELS`` pixels), OpenCV correlates each box with its patch, and the peaks
+    and their parabolas are found for all boxes at once (in float32, as the scores are):
+    only ``matchTemplate`` runs per point."""
+    n, h = len(patches), patches.shape[1] // 2
     xy = np.full((n, 2), np.nan)
     score = np.full(n, np.nan)
     status = np.full(n, int(CorrelationStatus.OUTSIDE), dtype=np.int64)
@@ -151,6 +155,17 @@ def _search(patches, search, predicted_xy, radius: int, valid) -> CorrelationRes
     box_fits = ((centre[:, 0] - reach >= 0) & (centre[:, 0] + reach <= W - 1)
                 & (centre[:, 1] - reach >= 0) & (centre[:, 1] + reach <= H - 1))
     todo = np.flatnonzero(valid & box_fits)
+    block = max(1, _BLOCK_PIXELS // (2 * reach + 1) ** 2)
+    for b in range(0, len(todo), block):
+        _search_boxes(patches, search, centre, radius, todo[b:b + block], xy, score, status)
+    return CorrelationResult(xy=xy, score=score, status=status)
+
+
+def _search_boxes(patches, search, centre, radius: int, todo, xy, score, status) -> None:
+    """The boxes of the points ``todo`` (all inside ``search``): their results written
+    into ``xy``, ``score`` and ``status``."""
+    patch = patches.shape[1]
+    reach = radius + patch // 2
     side = 2 * reach + 1
     span = np.arange(-reach, reach + 1)
     windows = np.asarray(search[(centre[todo, 1, None] + span)[:, :, None],
@@ -164,18 +179,16 @@ def _search(patches, search, predicted_xy, radius: int, valid) -> CorrelationRes
     for j, i in enumerate(todo.tolist()):
         r[j] = cv2.matchTemplate(windows[j], patches[i], cv2.TM_CCOEFF_NORMED)
     iy, ix = np.divmod(np.argmax(r.reshape(m, w * w), axis=1), w)
-    rows = np.arange(m)
-    score[todo] = r[rows, iy, ix]
+    score[todo] = r[np.arange(m), iy, ix]
     border = (ix == 0) | (ix == w - 1) | (iy == 0) | (iy == w - 1)
     inner = np.flatnonzero(~border)
     dx, dy = np.zeros(m), np.zeros(m)
-    jy, jx, b = iy[inner], ix[inner], r[inner, iy[inner], ix[inner]]
-    dx[inner] = _parabolas(r[inner, jy, jx - 1], b, r[inner, jy, jx + 1])
-    dy[inner] = _parabolas(r[inner, jy - 1, jx], b, r[inner, jy + 1, jx])
+    jy, jx, peak = iy[inner], ix[inner], r[inner, iy[inner], ix[inner]]
+    dx[inner] = _parabolas(r[inner, jy, jx - 1], peak, r[inner, jy, jx + 1])
+    dy[inner] = _parabolas(r[inner, jy - 1, jx], peak, r[inner, jy + 1, jx])
     xy[todo, 0] = (centre[todo, 0] - radius + ix) + dx
     xy[todo, 1] = (centre[todo, 1] - radius + iy) + dy
     status[todo] = np.where(border, int(CorrelationStatus.AT_BORDER), int(CorrelationStatus.OK))
-    return CorrelationResult(xy=xy, score=score, status=status)
 
 
 def _flat_rows(a, *, wide: bool = False) -> np.ndarray:

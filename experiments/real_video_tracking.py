@@ -204,10 +204,12 @@ Harness, base and new alternated in one sitting (load 1.6 to 2.2 on 2 cores), CP
 base -> new (two runs each): caliscope 6.10/6.06 -> 6.02/5.85, 3.94/3.78 -> 3.60/3.60,
 2.86/2.93 -> 2.78/2.88, 3.52/3.62 -> 3.58/3.43;
 pose2sim 1.75/1.79 -> 1.65/1.70, 1.55/1.60 -> 1.49/1.45, 1.83/1.88 -> 1.88/1.78,
-2.02/2.04 -> 1.94/1.93; median 2.44/2.49 -> 2.36/2.40. NOT met (<= 2x): the median is set
-by the webcams (2.8x to 6x), whose compiled work alone is above 2x KLT's; every Pose2Sim
-view is now below 2x. Tried and dropped: the prefilter's row pass through a transposed
-buffer (slower: 2.3 against 1.8 ms a frame) or in blocks of 4 to 64 rows (no gain).
+2.02/2.04 -> 1.94/1.93; median 2.44/2.49 -> 2.36/2.40 (two more pairs at load 4.8 to 6.8:
+2.56/2.64 -> 2.32/2.45, pose2sim cam04 2.17/2.25 -> 2.02/2.05). NOT met (<= 2x): the
+median is set by the webcams (2.6x to 6x), whose compiled work alone is above 2x KLT's;
+the Pose2Sim views are at 1.4x to 2.05x. Tried and dropped: the prefilter's row pass
+through a transposed buffer (slower: 2.3 against 1.8 ms a frame) or in blocks of 4 to 64
+rows (no gain).
 
 Survival on pose2sim cam01 (#35 item 2, session 56). ``--why``: of the 18 points LSMTA
 lost and KLT kept, 10 fail sigma0 and 8 do not converge from KLT's position (none search,

@@ -725,22 +725,28 @@ def _occluded_walk():
 
 def test_batched_coarse_to_fine_gives_the_per_frame_positions_and_statuses(monkeypatch):
     """Tracks missing since different frames are matched coarse-to-fine in one call per
-    level, each missing track's patches sampled once (kept while it stays missing); the
-    positions (to 1e-6 px) and statuses are those of sampling and matching per frame and
-    per last frame."""
+    level, each missing track's patches sampled once (kept from one frame's call to the
+    next, and only the last call's tracks); the positions (to 1e-6 px) and statuses are
+    those of sampling and matching per frame and per last frame."""
     from lsmta.tracking import points
 
     frames, g = _occluded_walk()
-    asked, sampled = [], []
+    asked, sampled, kept = [], [], []
     templates, sampled_from = points._Pyramids.templates, points._sampled_from
-    monkeypatch.setattr(points._Pyramids, "templates",
-                        lambda self, k, lv, idx, *a: asked.append(len(idx))
-                        or templates(self, k, lv, idx, *a))
+
+    def ask(self, k, lv, idx, *a, **kw):
+        asked.append(len(idx))
+        out = templates(self, k, lv, idx, *a, **kw)
+        kept.append(len(self.patches[(k, lv)]["idx"]))
+        return out
+
+    monkeypatch.setattr(points._Pyramids, "templates", ask)
     monkeypatch.setattr(points, "_sampled_from",
                         lambda im, which, xy, patch: sampled.append(len(xy))
                         or sampled_from(im, which, xy, patch))
     batched = track_points(frames[None], g[None])
     assert sum(sampled) < 0.8 * sum(asked)                  # the kept patches were reused
+    assert kept == asked                    # only the last call's tracks are kept, no more
     calls = []
     monkeypatch.setattr(points, "_coarse_to_fine",
                         lambda *a: _coarse_to_fine_per_frame(*a, calls))

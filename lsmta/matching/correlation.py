@@ -19,7 +19,10 @@ from .spline import SplineImage, _grey, check_image
 
 
 class CorrelationStatus(enum.IntEnum):
-    """Outcome of the search for one point."""
+    """Outcome of the search for one point.
+
+    Arrays are compared with ``.value`` (see :class:`~lsmta.matching.lsm.Status`).
+    """
 
     OK = 0          #: peak inside the box, refined to sub-pixel
     AT_BORDER = 1   #: best score on the edge of the box: the true peak may lie outside
@@ -134,7 +137,9 @@ def search_patches(patches, search, predicted_xy, *, radius: int, valid=None
     return _search(tiles, g, p_xy, radius, valid)
 
 
-#: most box pixels cut out at once (float32): a bound on the search's memory, about 16 MB
+#: most box pixels cut out at once (4M): the gather holds them in the image's dtype and then
+#: in float32, at most 48 MB for a float64 image (20 MB for 8 bits); one box larger than
+#: that (a radius above about 1000 px) is still cut out whole
 _BLOCK_PIXELS = 1 << 22
 
 
@@ -148,7 +153,7 @@ def _search(patches, search, predicted_xy, radius: int, valid) -> CorrelationRes
     n, h = len(patches), patches.shape[1] // 2
     xy = np.full((n, 2), np.nan)
     score = np.full(n, np.nan)
-    status = np.full(n, int(CorrelationStatus.OUTSIDE), dtype=np.int64)
+    status = np.full(n, CorrelationStatus.OUTSIDE.value, dtype=np.int64)
     centre = np.rint(predicted_xy).astype(np.int64)
     H, W = search.shape
     reach = radius + h
@@ -172,12 +177,13 @@ def _search_boxes(patches, search, centre, radius: int, todo, xy, score, status)
                                 (centre[todo, 0, None] + span)[:, None, :]], np.float32)
     flat = _flat_rows(patches[todo].reshape(len(todo), patch * patch)) | \
         _flat_rows(windows.reshape(len(todo), side * side), wide=True)
-    status[todo[flat]] = int(CorrelationStatus.FLAT)
-    todo, windows = todo[~flat], windows[~flat]
+    status[todo[flat]] = CorrelationStatus.FLAT.value
+    box = np.flatnonzero(~flat)                 # the textured boxes (windows not copied)
+    todo = todo[box]
     m, w = len(todo), 2 * radius + 1
     r = np.empty((m, w, w), np.float32)
-    for j, i in enumerate(todo.tolist()):
-        r[j] = cv2.matchTemplate(windows[j], patches[i], cv2.TM_CCOEFF_NORMED)
+    for j, (b, i) in enumerate(zip(box.tolist(), todo.tolist())):
+        r[j] = cv2.matchTemplate(windows[b], patches[i], cv2.TM_CCOEFF_NORMED)
     iy, ix = np.divmod(np.argmax(r.reshape(m, w * w), axis=1), w)
     score[todo] = r[np.arange(m), iy, ix]
     border = (ix == 0) | (ix == w - 1) | (iy == 0) | (iy == w - 1)
@@ -188,7 +194,8 @@ def _search_boxes(patches, search, centre, radius: int, todo, xy, score, status)
     dy[inner] = _parabolas(r[inner, jy - 1, jx], peak, r[inner, jy + 1, jx])
     xy[todo, 0] = (centre[todo, 0] - radius + ix) + dx
     xy[todo, 1] = (centre[todo, 1] - radius + iy) + dy
-    status[todo] = np.where(border, int(CorrelationStatus.AT_BORDER), int(CorrelationStatus.OK))
+    status[todo] = np.where(border, CorrelationStatus.AT_BORDER.value,
+                            CorrelationStatus.OK.value)
 
 
 def _flat_rows(a, *, wide: bool = False) -> np.ndarray:

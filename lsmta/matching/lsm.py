@@ -92,7 +92,11 @@ RADIOMETRIES = {"none": 0, "offset": 1, "linear": 2}
 
 
 class Status(enum.IntEnum):
-    """Outcome of matching one point."""
+    """Outcome of matching one point.
+
+    Array code compares and fills with ``Status.X.value`` (a plain int): numpy converts an
+    IntEnum member 1 to 2 us more slowly, thousands of times per tracked video.
+    """
 
     CONVERGED = 0       #: the update fell below ``tol``
     MAX_ITERATIONS = 1  #: still moving after ``max_iter`` iterations
@@ -100,12 +104,6 @@ class Status(enum.IntEnum):
     OUTSIDE = 3         #: the patch left the search image (or did not fit the template)
     SINGULAR = 4        #: too few determinable parameters (no texture)
     REJECTED = 5        #: converged, but rejected by quality thresholds
-
-
-# plain ints for array comparisons and fills: numpy converts an IntEnum member slowly
-# (about 5 us a comparison, thousands of them per tracked video)
-_CONVERGED, _MAX_ITERATIONS, _OUTSIDE, _REJECTED = (
-    int(s) for s in (Status.CONVERGED, Status.MAX_ITERATIONS, Status.OUTSIDE, Status.REJECTED))
 
 
 @dataclass(frozen=True)
@@ -153,7 +151,7 @@ class LSMResult:
     @property
     def ok(self) -> np.ndarray:
         """``status == CONVERGED``."""
-        return self.status == _CONVERGED
+        return self.status == Status.CONVERGED.value
 
     @property
     def A(self) -> np.ndarray:
@@ -220,7 +218,7 @@ class LSMThresholds:
     def apply(self, result: LSMResult) -> LSMResult:
         """A copy of ``result`` whose converged matches failing a threshold are REJECTED."""
         status = result.status.copy()
-        status[result.ok & ~self.accept(result)] = _REJECTED
+        status[result.ok & ~self.accept(result)] = Status.REJECTED.value
         return replace(result, status=status)
 
 
@@ -465,9 +463,9 @@ class _State:
         """Starting values; points whose template patch does not fit are OUTSIDE."""
         n, K = c0.shape[:2]
         k = model.unknowns(K, curves is not None)
-        status = np.full(n, _MAX_ITERATIONS, dtype=np.int64)
+        status = np.full(n, Status.MAX_ITERATIONS.value, dtype=np.int64)
         status[~f_img.inside(t_xy, margin=0 if model.partial else model.patch // 2)] = \
-            _OUTSIDE
+            Status.OUTSIDE.value
         zeros = np.zeros((n, K, 2))
         t, base, direction, quad, t_exp = (np.zeros(n), zeros, zeros, zeros, np.zeros(n)) \
             if curves is None else curves
@@ -490,7 +488,7 @@ def _solve(state: _State, model: _Model, f_img: SplineImage, g_imgs, weights, *,
     radiometry starts from the patches' means and spreads, or (``start_radiometry=False``)
     from ``state``."""
     if active is None:
-        active = state.status != _OUTSIDE
+        active = state.status != Status.OUTSIDE.value
     shape = g_imgs[0].shape
     if any(g.shape != shape for g in g_imgs):
         raise ValueError(f"searches: expected images of one size, got {[g.shape for g in g_imgs]}")
@@ -595,7 +593,7 @@ def _result(state: _State, model: _Model, s_xy: np.ndarray) -> LSMResult:
     with np.errstate(invalid="ignore"):
         sigma_xy = np.sqrt(np.diagonal(cov_xy, axis1=1, axis2=2)).copy()
     sigma_xy[fixed[:, :2]] = np.nan
-    failed = state.status == _OUTSIDE
+    failed = state.status == Status.OUTSIDE.value
     params = np.concatenate([c, A.reshape(n, 4), r0[:, None], r1[:, None]], axis=1)
     return LSMResult(xy=c.copy(), params=params, fixed=fixed8, sigma0=sigma0,
                      sigma_xy=sigma_xy, cov_xy=cov_xy, iterations=state.iterations,

@@ -306,6 +306,70 @@ def test_search_patches_bad_input(rng, kwargs, match):
         search_patches(**(args | kwargs))
 
 
+def _search_per_box(patches, search, predicted_xy, radius):
+    """The box search as it was, one box at a time (the reference)."""
+    import cv2
+
+    n, h = len(patches), patches.shape[1] // 2
+    xy, status = np.full((n, 2), np.nan), np.full(n, CorrelationStatus.OUTSIDE)
+    score = np.full(n, np.nan)
+    reach = radius + h
+    for i, (cx, cy) in enumerate(np.rint(predicted_xy).astype(int)):
+        if not (reach <= cx <= search.shape[1] - 1 - reach
+                and reach <= cy <= search.shape[0] - 1 - reach):
+            continue
+        window = np.asarray(search[cy - reach:cy + reach + 1, cx - reach:cx + reach + 1],
+                            np.float32)
+        if patches[i].std() < 1e-6 or window.std() < 1e-6:
+            status[i] = CorrelationStatus.FLAT
+            continue
+        r = cv2.matchTemplate(window, patches[i], cv2.TM_CCOEFF_NORMED)
+        iy, ix = divmod(int(np.argmax(r)), r.shape[1])
+        score[i] = r[iy, ix]
+        border = ix in (0, r.shape[1] - 1) or iy in (0, r.shape[0] - 1)
+        d = [0.0, 0.0]
+        for k, (a, b, c) in enumerate(() if border else (
+                (r[iy, ix - 1], r[iy, ix], r[iy, ix + 1]),
+                (r[iy - 1, ix], r[iy, ix], r[iy + 1, ix]))):
+            den = a - 2 * b + c
+            d[k] = 0.0 if den >= 0 else float(min(max(0.5 * (a - c) / den, -0.5), 0.5))
+        xy[i] = (cx - radius + ix + d[0], cy - radius + iy + d[1])
+        status[i] = CorrelationStatus.AT_BORDER if border else CorrelationStatus.OK
+    return xy, score, status
+
+
+@pytest.mark.parametrize("block_pixels", [None, 3000])
+def test_search_patches_equals_the_search_one_box_at_a_time(rng, monkeypatch, block_pixels):
+    """The boxes' peaks and parabolas found for all boxes at once (or in blocks) are those
+    of one box at a time, exactly (8-bit and float images, flat patches and boxes, boxes
+    over the border, peaks on the box's edge)."""
+    from lsmta.matching import correlation
+    from lsmta.matching.correlation import search_patches
+
+    if block_pixels:
+        monkeypatch.setattr(correlation, "_BLOCK_PIXELS", block_pixels)
+
+    image = rng.normal(128, 40, size=(90, 120))
+    image[20:50, 30:70] = 77.0                                   # a flat region
+    pts = rng.uniform(-3, [123, 93], size=(300, 2))
+    inner = np.clip(np.rint(pts), 6, [113, 83]).astype(int)
+    tiles = np.stack([image[y - 6:y + 7, x - 6:x + 7] for x, y in inner]).astype(np.float32)
+    tiles[:4] = 5.0                                              # flat patches
+    found = 0
+    for search in (image, np.clip(np.rint(image + rng.normal(0, 8, image.shape)), 0, 255)
+                   .astype(np.uint8)):
+        for radius in (1, 3, 7):
+            pred = pts + rng.normal(0, 2, pts.shape)
+            res = search_patches(tiles, search, pred, radius=radius)
+            xy, score, status = _search_per_box(tiles, search, pred, radius)
+            assert np.array_equal(res.status, status)
+            assert np.array_equal(res.xy, xy, equal_nan=True)
+            assert np.array_equal(res.score, score, equal_nan=True)
+            found += (status == CorrelationStatus.OK).sum()
+    assert found > 300
+    assert {CorrelationStatus.FLAT, CorrelationStatus.AT_BORDER} <= set(res.status.tolist())
+
+
 def test_inputs_not_modified(rng):
     pair = warped_pair(rng=rng, A=A_TRUE, noise_sigma=1.0)
     pts = _points(rng, 30)

@@ -705,11 +705,9 @@ def _coarse_to_fine_per_frame(state, pyramids, idx, pred, t, p, calls):
     return out
 
 
-def test_batched_coarse_to_fine_gives_the_per_frame_positions_and_statuses(monkeypatch):
-    """Tracks missing since different frames are matched coarse-to-fine in one call per
-    level; the positions (to 1e-6 px) and statuses are those of one call per last frame."""
-    from lsmta.tracking import points
-
+def _occluded_walk():
+    """Frames of a texture moving in jerks, parts occluded in frames 2-4 (tracks go
+    missing in different frames), and a grid of start points."""
     rng = np.random.default_rng(11)
     base = sum(ndimage.gaussian_filter(rng.normal(size=(240, 320)), s) * s ** 0.5
                for s in (1.5, 3.0, 6.0, 12.0))
@@ -722,7 +720,33 @@ def test_batched_coarse_to_fine_gives_the_per_frame_positions_and_statuses(monke
         frames[t, r:r + 60, c:c + 60] = occluder       # tracks go missing in different frames
     g = np.stack(np.meshgrid(np.arange(60, 261, 16.0), np.arange(50, 191, 16.0)),
                  -1).reshape(-1, 2)
+    return frames, g
+
+
+def test_batched_coarse_to_fine_gives_the_per_frame_positions_and_statuses(monkeypatch):
+    """Tracks missing since different frames are matched coarse-to-fine in one call per
+    level, each missing track's patches sampled once (kept from one frame's call to the
+    next, and only the last call's tracks); the positions (to 1e-6 px) and statuses are
+    those of sampling and matching per frame and per last frame."""
+    from lsmta.tracking import points
+
+    frames, g = _occluded_walk()
+    asked, sampled, kept = [], [], []
+    templates, sampled_from = points._Pyramids.templates, points._sampled_from
+
+    def ask(self, k, lv, idx, *a, **kw):
+        asked.append(len(idx))
+        out = templates(self, k, lv, idx, *a, **kw)
+        kept.append(len(self.patches[(k, lv)]["idx"]))
+        return out
+
+    monkeypatch.setattr(points._Pyramids, "templates", ask)
+    monkeypatch.setattr(points, "_sampled_from",
+                        lambda im, which, xy, patch: sampled.append(len(xy))
+                        or sampled_from(im, which, xy, patch))
     batched = track_points(frames[None], g[None])
+    assert sum(sampled) < 0.8 * sum(asked)                  # the kept patches were reused
+    assert kept == asked                    # only the last call's tracks are kept, no more
     calls = []
     monkeypatch.setattr(points, "_coarse_to_fine",
                         lambda *a: _coarse_to_fine_per_frame(*a, calls))

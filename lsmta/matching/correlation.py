@@ -19,7 +19,10 @@ from .spline import SplineImage, _grey, check_image
 
 
 class CorrelationStatus(enum.IntEnum):
-    """Outcome of the search for one point."""
+    """Outcome of the search for one point.
+
+    Arrays are compared with ``.value`` (see :class:`~lsmta.matching.lsm.Status`).
+    """
 
     OK = 0          #: peak inside the box, refined to sub-pixel
     AT_BORDER = 1   #: best score on the edge of the box: the true peak may lie outside
@@ -134,60 +137,87 @@ def search_patches(patches, search, predicted_xy, *, radius: int, valid=None
     return _search(tiles, g, p_xy, radius, valid)
 
 
+#: most box pixels cut out at once (4M): the gather holds them in the image's dtype and then
+#: in float32, at most 48 MB for a float64 image (20 MB for 8 bits); one box larger than
+#: that (a radius above about 1000 px) is still cut out whole
+_BLOCK_PIXELS = 1 << 22
+
+
 def _search(patches, search, predicted_xy, radius: int, valid) -> CorrelationResult:
-    """:func:`search_patches` on checked arguments (``patches`` float32)."""
-    n, patch = len(patches), patches.shape[1]
-    h = patch // 2
+    """:func:`search_patches` on checked arguments (``patches`` float32).
+
+    The boxes are cut out and converted to float32 in one gather (in blocks of at most
+    ``_BLOCK_PIXELS`` pixels), OpenCV correlates each box with its patch, and the peaks
+    and their parabolas are found for all boxes at once (in float32, as the scores are):
+    only ``matchTemplate`` runs per point."""
+    n, h = len(patches), patches.shape[1] // 2
     xy = np.full((n, 2), np.nan)
     score = np.full(n, np.nan)
-    status = np.full(n, CorrelationStatus.OUTSIDE, dtype=np.int64)
+    status = np.full(n, CorrelationStatus.OUTSIDE.value, dtype=np.int64)
     centre = np.rint(predicted_xy).astype(np.int64)
     H, W = search.shape
     reach = radius + h
     box_fits = ((centre[:, 0] - reach >= 0) & (centre[:, 0] + reach <= W - 1)
                 & (centre[:, 1] - reach >= 0) & (centre[:, 1] + reach <= H - 1))
     todo = np.flatnonzero(valid & box_fits)
-    flat_patch = _flat_rows(patches[todo].reshape(len(todo), patch * patch))
-    for i, patch_flat in zip(todo.tolist(), flat_patch.tolist()):
-        cx, cy = centre[i]
-        window = np.asarray(search[cy - reach:cy + reach + 1, cx - reach:cx + reach + 1],
-                            np.float32)
-        if patch_flat or _flat(window):
-            status[i] = CorrelationStatus.FLAT
-            continue
-        r = cv2.matchTemplate(window, patches[i], cv2.TM_CCOEFF_NORMED)   # (2R+1, 2R+1)
-        iy, ix = divmod(int(np.argmax(r)), r.shape[1])
-        score[i] = r[iy, ix]
-        dx = dy = 0.0
-        border = ix in (0, r.shape[1] - 1) or iy in (0, r.shape[0] - 1)
-        if not border:
-            dx = _parabola(r[iy, ix - 1], r[iy, ix], r[iy, ix + 1])
-            dy = _parabola(r[iy - 1, ix], r[iy, ix], r[iy + 1, ix])
-        xy[i] = (cx - radius + ix + dx, cy - radius + iy + dy)
-        status[i] = CorrelationStatus.AT_BORDER if border else CorrelationStatus.OK
+    block = max(1, _BLOCK_PIXELS // (2 * reach + 1) ** 2)
+    for b in range(0, len(todo), block):
+        _search_boxes(patches, search, centre, radius, todo[b:b + block], xy, score, status)
     return CorrelationResult(xy=xy, score=score, status=status)
 
 
-def _flat(a) -> bool:
-    """Grey levels of ``a`` (float32) with a standard deviation below 1e-6; the standard
-    deviation is computed only when the range is below 1e-2 (a wider range has one far
-    above 1e-6), to save its cost in the search loop."""
-    lo, hi, _, _ = cv2.minMaxLoc(a)
-    return bool(hi - lo < 1e-2) and bool(a.std() < 1e-6)
+def _search_boxes(patches, search, centre, radius: int, todo, xy, score, status) -> None:
+    """The boxes of the points ``todo`` (all inside ``search``): their results written
+    into ``xy``, ``score`` and ``status``."""
+    patch = patches.shape[1]
+    reach = radius + patch // 2
+    side = 2 * reach + 1
+    span = np.arange(-reach, reach + 1)
+    windows = np.asarray(search[(centre[todo, 1, None] + span)[:, :, None],
+                                (centre[todo, 0, None] + span)[:, None, :]], np.float32)
+    flat = _flat_rows(patches[todo].reshape(len(todo), patch * patch)) | \
+        _flat_rows(windows.reshape(len(todo), side * side), wide=True)
+    status[todo[flat]] = CorrelationStatus.FLAT.value
+    box = np.flatnonzero(~flat)                 # the textured boxes (windows not copied)
+    todo = todo[box]
+    m, w = len(todo), 2 * radius + 1
+    r = np.empty((m, w, w), np.float32)
+    for j, (b, i) in enumerate(zip(box.tolist(), todo.tolist())):
+        r[j] = cv2.matchTemplate(windows[b], patches[i], cv2.TM_CCOEFF_NORMED)
+    iy, ix = np.divmod(np.argmax(r.reshape(m, w * w), axis=1), w)
+    score[todo] = r[np.arange(m), iy, ix]
+    border = (ix == 0) | (ix == w - 1) | (iy == 0) | (iy == w - 1)
+    inner = np.flatnonzero(~border)
+    dx, dy = np.zeros(m), np.zeros(m)
+    jy, jx, peak = iy[inner], ix[inner], r[inner, iy[inner], ix[inner]]
+    dx[inner] = _parabolas(r[inner, jy, jx - 1], peak, r[inner, jy, jx + 1])
+    dy[inner] = _parabolas(r[inner, jy - 1, jx], peak, r[inner, jy + 1, jx])
+    xy[todo, 0] = (centre[todo, 0] - radius + ix) + dx
+    xy[todo, 1] = (centre[todo, 1] - radius + iy) + dy
+    status[todo] = np.where(border, CorrelationStatus.AT_BORDER.value,
+                            CorrelationStatus.OK.value)
 
 
-def _flat_rows(a) -> np.ndarray:
-    """:func:`_flat` of every row of ``a`` (n, P) float32, ``(n,)`` bool."""
+def _flat_rows(a, *, wide: bool = False) -> np.ndarray:
+    """Rows of ``a`` (n, P) float32 whose grey levels have a standard deviation below 1e-6,
+    ``(n,)`` bool; the standard deviation is computed only where the range is below 1e-2
+    (a wider range has one far above 1e-6). With ``wide`` the range is taken in float64
+    (as ``cv2.minMaxLoc`` reports it), else in float32."""
     out = np.zeros(len(a), bool)
     if len(a):
-        narrow = np.flatnonzero(a.max(axis=1) - a.min(axis=1) < 1e-2)
+        hi, lo = a.max(axis=1), a.min(axis=1)
+        if wide:
+            hi, lo = hi.astype(np.float64), lo.astype(np.float64)
+        narrow = np.flatnonzero(hi - lo < 1e-2)
         out[narrow] = [bool(a[i].std() < 1e-6) for i in narrow]
     return out
 
 
-def _parabola(a: float, b: float, c: float) -> float:
-    """Offset of the vertex of the parabola through (-1, a), (0, b), (1, c), within +-0.5."""
+def _parabolas(a, b, c) -> np.ndarray:
+    """Offsets ``(n,)`` of the vertices of the parabolas through (-1, a), (0, b), (1, c)
+    (float32 ``(n,)`` scores, computed in float32), within +-0.5; 0 where not a maximum."""
     d = a - 2 * b + c
-    if d >= 0:
-        return 0.0
-    return float(min(max(0.5 * (a - c) / d, -0.5), 0.5))
+    up = d >= 0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        v = np.clip(0.5 * (a - c) / np.where(up, np.float32(-1), d), -0.5, 0.5)
+    return np.where(up, np.float32(0), v).astype(np.float64)

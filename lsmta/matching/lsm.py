@@ -92,7 +92,11 @@ RADIOMETRIES = {"none": 0, "offset": 1, "linear": 2}
 
 
 class Status(enum.IntEnum):
-    """Outcome of matching one point."""
+    """Outcome of matching one point.
+
+    Array code compares and fills with ``Status.X.value`` (a plain int): numpy converts an
+    IntEnum member 1 to 2 us more slowly, thousands of times per tracked video.
+    """
 
     CONVERGED = 0       #: the update fell below ``tol``
     MAX_ITERATIONS = 1  #: still moving after ``max_iter`` iterations
@@ -147,7 +151,7 @@ class LSMResult:
     @property
     def ok(self) -> np.ndarray:
         """``status == CONVERGED``."""
-        return self.status == Status.CONVERGED
+        return self.status == Status.CONVERGED.value
 
     @property
     def A(self) -> np.ndarray:
@@ -214,7 +218,7 @@ class LSMThresholds:
     def apply(self, result: LSMResult) -> LSMResult:
         """A copy of ``result`` whose converged matches failing a threshold are REJECTED."""
         status = result.status.copy()
-        status[result.ok & ~self.accept(result)] = Status.REJECTED
+        status[result.ok & ~self.accept(result)] = Status.REJECTED.value
         return replace(result, status=status)
 
 
@@ -459,9 +463,9 @@ class _State:
         """Starting values; points whose template patch does not fit are OUTSIDE."""
         n, K = c0.shape[:2]
         k = model.unknowns(K, curves is not None)
-        status = np.full(n, Status.MAX_ITERATIONS, dtype=np.int64)
+        status = np.full(n, Status.MAX_ITERATIONS.value, dtype=np.int64)
         status[~f_img.inside(t_xy, margin=0 if model.partial else model.patch // 2)] = \
-            Status.OUTSIDE
+            Status.OUTSIDE.value
         zeros = np.zeros((n, K, 2))
         t, base, direction, quad, t_exp = (np.zeros(n), zeros, zeros, zeros, np.zeros(n)) \
             if curves is None else curves
@@ -484,7 +488,7 @@ def _solve(state: _State, model: _Model, f_img: SplineImage, g_imgs, weights, *,
     radiometry starts from the patches' means and spreads, or (``start_radiometry=False``)
     from ``state``."""
     if active is None:
-        active = state.status != Status.OUTSIDE
+        active = state.status != Status.OUTSIDE.value
     shape = g_imgs[0].shape
     if any(g.shape != shape for g in g_imgs):
         raise ValueError(f"searches: expected images of one size, got {[g.shape for g in g_imgs]}")
@@ -589,7 +593,7 @@ def _result(state: _State, model: _Model, s_xy: np.ndarray) -> LSMResult:
     with np.errstate(invalid="ignore"):
         sigma_xy = np.sqrt(np.diagonal(cov_xy, axis1=1, axis2=2)).copy()
     sigma_xy[fixed[:, :2]] = np.nan
-    failed = state.status == Status.OUTSIDE
+    failed = state.status == Status.OUTSIDE.value
     params = np.concatenate([c, A.reshape(n, 4), r0[:, None], r1[:, None]], axis=1)
     return LSMResult(xy=c.copy(), params=params, fixed=fixed8, sigma0=sigma0,
                      sigma_xy=sigma_xy, cov_xy=cov_xy, iterations=state.iterations,

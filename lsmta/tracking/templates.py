@@ -134,7 +134,7 @@ def search_templates(templates: Templates, rows, search, predicted_xy, radius: i
     # search_patches checks every argument (``search``: a 2-D grey image of finite values)
     res = search_patches(tiles, search, predicted_xy, radius=radius)
     # a partial template's missing pixels are no texture: it is not searched
-    good = (res.status == CorrelationStatus.OK) & templates.full[rows]
+    good = (res.status == CorrelationStatus.OK.value) & templates.full[rows]
     xy[good] = res.xy[good]
     return xy
 
@@ -339,21 +339,21 @@ def _match(templates: Templates, rows, search: SplineImage, start_xy, start_A, *
                                     max_disp, inverse)
     start = np.asarray(start_xy, float).reshape(n, 2)
     start_A = np.asarray(start_A, float).reshape(n, 2, 2)
-    outside = result.status == Status.OUTSIDE
+    outside = result.status == Status.OUTSIDE.value
     if thresholds is not None:
         result = thresholds.apply(result)
     usable = templates.ok[rows]
     full = templates.full[rows]
     retry = np.broadcast_to(np.asarray(fallback, bool), (n,)) | (not inverse)
     if inverse and not retry_rejected:
-        retry = retry & ((result.status == Status.MAX_ITERATIONS)
-                         | (result.status == Status.DIVERGED))
+        retry = retry & ((result.status == Status.MAX_ITERATIONS.value)
+                         | (result.status == Status.DIVERGED.value))
     redo = np.flatnonzero(~result.ok & usable & ~outside & full & retry)
     kw = dict(max_iter=max_iter, tol=tol, max_disp=max_disp, thresholds=thresholds)
     if redo.size:
         result = _forward(result, templates, rows, redo, search, start, start_A, False, **kw)
     if partial:      # the forward retry may have left the image too
-        outside |= result.status == Status.OUTSIDE
+        outside |= result.status == Status.OUTSIDE.value
         border = np.flatnonzero(usable & (outside | ~full) & np.isfinite(start).all(axis=1)
                                 & np.isfinite(start_A).all(axis=(1, 2)))
         if border.size:
@@ -387,7 +387,7 @@ def _inverse_compositional(templates: Templates, rows, search: SplineImage, star
     n = len(rows)
     c = np.array(start_xy, float).reshape(n, 2)
     A = np.array(start_A, float).reshape(n, 2, 2)
-    status = np.full(n, Status.MAX_ITERATIONS, np.int64)
+    status = np.full(n, Status.MAX_ITERATIONS.value, np.int64)
     iterations = np.zeros(n, np.int64)
     ee, r0, r1 = np.full(n, np.nan), np.zeros(n), np.ones(n)
     H, W = search.shape
@@ -403,7 +403,7 @@ def _inverse_compositional(templates: Templates, rows, search: SplineImage, star
     with np.errstate(invalid="ignore"):
         sigma_xy = np.sqrt(np.diagonal(cov, axis1=1, axis2=2)).copy()
     start = np.asarray(start_xy, float).reshape(n, 2)
-    outside = status == Status.OUTSIDE
+    outside = status == Status.OUTSIDE.value
     return LSMResult(
         xy=c, params=np.concatenate([c, A.reshape(n, 4), r0[:, None], r1[:, None]], axis=1),
         fixed=np.zeros((n, 8), bool), sigma0=sigma0, sigma_xy=sigma_xy, cov_xy=cov,

@@ -12,6 +12,7 @@ from lsmta.real.own_recording import moving_pairs, relative_motion, rigid_pair
 from lsmta.systems import MarkerParams, capture_markers
 from lsmta.systems.markers import silhouette_shares
 from lsmta.tracking import join_checks
+from lsmta.tracking.blob_follow import FollowParams
 from lsmta.tracking.join_checks import (
     Filled,
     attach_views,
@@ -618,3 +619,29 @@ def test_the_line_takes_the_nearest_dot_only_with_a_clear_lead_on_the_line():
     q = dot([c + 12 * u, c + 22 * u], others=(c + 12 * u)[None])
     assert q is not None and np.linalg.norm(q - (c + 22 * u)) < 0.5
     assert dot([c + 60 * u]) is None                      # beyond the reach
+
+
+def test_the_marker_stage_tests_its_fills_for_dots_by_default(monkeypatch):
+    """``MarkerParams.fill_dot`` (default True) passes the follower's contrast floor to the
+    fill as ``min_surround``; False passes None; a non-bool is refused."""
+    cams, X, stacks, truth, xy, members = _turning_dots()
+    tracks = {id(s): a for s, a in zip(stacks, xy)}
+    monkeypatch.setattr("lsmta.systems.markers.track_view",
+                        lambda s, d, params=None: tracks[id(s)].copy())
+    seen = []
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["min_surround"])
+        return fill_gaps(*args, **kwargs)
+
+    monkeypatch.setattr("lsmta.systems.markers.fill_gaps", spy)
+    first = [s[0] for s in stacks]
+    p = dict(detector="blobs", silhouette=None, min_motion_mm=5.0)
+    on = capture_markers(stacks, cams, first, params=MarkerParams(**p))
+    capture_markers(stacks, cams, first, params=MarkerParams(fill_dot=False, **p))
+    assert MarkerParams().fill_dot is True
+    assert seen == [FollowParams().min_contrast, None]
+    assert on.joins["filled_line"] >= 1                 # the rendered dots pass the test
+    for bad in (1, None, "yes"):
+        with pytest.raises(TypeError, match="fill_dot"):
+            MarkerParams(fill_dot=bad)

@@ -178,11 +178,12 @@ class MarkerParams:
         :func:`~lsmta.tracking.join_checks.fill_gaps`' ``min_surround``), not only its peak
         above its window's median: default True. An edge, a bright fold or flat bright skin
         near a lost marker's projection passes the peak test but not this one. On the
-        Pose2Sim demo (notebook 17) the peak test alone made 28 fills, at least 14 of them
-        on no dot (by eye: skin, edges); this test refuses those (and a dot half out from
-        behind an edge, and one beside a bright stripe), and the dots the fill had reached
-        only through them are no longer reached: 2 fills are left. False: the peak test
-        alone, as before (more fills, some on no dot).
+        Pose2Sim demo at full size the peak test alone made 28 fills; by eye 10 of them
+        lay on no dot (skin, edges) and this test refuses them, and also 7 it should
+        perhaps have kept (a dot beside a bright stripe, and six frames of a faint spot at
+        an edge where a dot comes back); the 9 dots the fill had reached only through those
+        are no longer reached: 2 fills are left. False: the peak test alone, as before
+        (more fills, some on no dot).
     silhouette : float or None
         With ``check``: a moving marker whose positions land on the subject's silhouette in
         less than this share of the sampled frames in some view that judges it is

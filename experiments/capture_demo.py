@@ -41,7 +41,6 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import ezc3d
@@ -55,7 +54,6 @@ from lsmta.io import read_videos
 from lsmta.real.own_recording import marker_scores, moving_pairs
 from lsmta.report import verdict, write_json
 from lsmta.systems import MarkerParams, Tracker2D, capture_markers
-from lsmta.tracking.blob_follow import FollowParams
 from lsmta.tracking.second_view import hidden_frames
 
 
@@ -108,7 +106,7 @@ def _trackers(args, out, videos):
                                      like=runs.get(like), fps=v.fps)
         cpu[name] = time.process_time() - c0
     p = params(Tracker2D.LSMTA)
-    fp = replace(p.follow or FollowParams(), sigma=p.sigma)      # the fill's dot settings
+    fp = p.fill_follow()                                          # the fill's dot settings
     lm = runs["LSMTA"]
     hidden = hidden_frames(stacks, cameras, lm.view_xy, lm.members, radius=fp.window(),
                            min_contrast=fp.min_contrast, max_px=p.max_px)

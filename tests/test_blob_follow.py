@@ -204,3 +204,31 @@ def test_dot_surround_refuses_bad_input():
         dot_surround(img, [[40.0, 30.0]], rays=3)
     with pytest.raises(TypeError, match="xy"):
         dot_surround(img, [["a", "b"]])
+
+
+def test_a_real_dot_beside_a_bright_stripe_is_refused():
+    """The documented limit of dot_surround: anything as bright as the dot within its
+    surround's ring (here a stripe 5-6 px from a dot's centre) brings the score below the
+    marker stage's floor (15); 8 px away the dot scores most of its contrast again."""
+    yy, xx = np.mgrid[:60, :80]
+    dot = 40 + 100 * np.exp(-((xx - 40.3) ** 2 + (yy - 30.6) ** 2) / (2 * 1.5 ** 2))
+    q = dot_centre(dot, [[40.0, 30.0]], radius=4)
+    alone = dot_surround(dot, q, radius=4)[0]
+    assert alone > 60
+    for gap, refused in ((5.0, True), (6.0, True), (8.0, False)):
+        img = dot + 100 * np.exp(-((xx - 40.3 - gap) ** 2) / (2 * 1.2 ** 2))
+        assert dot_contrast(img, q, radius=4)[0] > 15       # the peak test still passes
+        assert (dot_surround(img, q, radius=4)[0] < 15) == refused, gap
+
+
+@pytest.mark.parametrize("rays", [5, 6, 16])
+def test_dot_surround_core_is_centred_whatever_rays(rays):
+    """On a plane of grey levels (bilinear exact there) the core's mean is the level at the
+    position, so the score is minus the steepest direction's rise to the ring's mean
+    distance, 1.25 radius (a core leaning towards some directions would move it)."""
+    yy, xx = np.mgrid[:60, :80]
+    img = 100 + 2.0 * yy + 0.5 * xx
+    ang = 2 * np.pi * np.arange(rays) / rays
+    rise = 1.25 * 4 * np.max(0.5 * np.cos(ang) + 2.0 * np.sin(ang))
+    got = dot_surround(img, [[40.2, 30.7]], radius=4, rays=rays)[0]
+    assert got == pytest.approx(-rise, abs=1e-9)

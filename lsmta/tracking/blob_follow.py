@@ -137,14 +137,22 @@ def dot_surround(image, xy, *, radius: int = 4, rays: int = 16) -> np.ndarray:
     direction, grey levels: a dot test that an edge, a bright line or flat bright skin fails.
 
     The core is the mean grey level (bilinear) at the position and at four points
-    ``radius / 4`` px from it; each of ``rays`` directions' surround is the mean over five
-    points from ``radius`` to ``1.5 radius`` px out along it; the result is the core less
-    the brightest direction's surround. A small bright dot (about ``radius`` px across, as
-    :func:`dot_centre`'s window is set for) is darker around it in every direction, so it
+    ``radius / 4`` px from it (right, down, left, up, whatever ``rays``); each of ``rays``
+    directions' surround is the mean over five points from ``radius`` to ``1.5 radius`` px
+    out along it; the result is the core less the brightest direction's surround. A small
+    bright dot (about ``2 radius`` px across: ``radius`` is a little more than the dot's
+    radius, as :class:`FollowParams` sets it) is darker around it in every direction, so it
     scores its contrast; beside an edge the directions into the bright side are as bright
     as the core, along a bright line or fold the directions along it are, and flat skin is
     as bright everywhere, so these score about 0 or less, whatever their peak over the
     window's median (:func:`dot_contrast`, which all of them can pass).
+
+    The limits: anything as bright as the dot within the surround's ring scores as that
+    ring, so a real dot beside a bright stripe is refused too (``radius`` 4, a dot of
+    sigma 1.5 px and 100 grey levels scoring 77 alone, a 3 px wide stripe as bright 5 px
+    from its centre: below 0; 6 px: 14; 8 px: 68; :func:`~lsmta.tracking.join_checks.fill_gaps`
+    refuses below its floor, 15 by default in the marker stage). A position within
+    ``1.5 radius`` px of the image's border scores NaN, which a floor refuses.
 
     Parameters
     ----------
@@ -156,7 +164,8 @@ def dot_surround(image, xy, *, radius: int = 4, rays: int = 16) -> np.ndarray:
         The dot's window half-width, px (>= 1): the surround starts there.
     rays : int
         Directions of the surround, >= 4 (default 16: 22.5 degrees apart, so that a bright
-        line of a dot's width has a direction along it).
+        line of a dot's width has a direction along it); the core's four points do not
+        depend on it.
 
     Returns
     -------
@@ -181,7 +190,7 @@ def dot_surround(image, xy, *, radius: int = 4, rays: int = 16) -> np.ndarray:
     ang = 2 * np.pi * np.arange(rays) / rays
     u = np.stack([np.cos(ang), np.sin(ang)], axis=1)                       # (rays, 2)
     ring = u[:, None] * np.linspace(radius, reach, 5)[None, :, None]       # (rays, 5, 2)
-    core = np.concatenate([[[0.0, 0.0]], 0.25 * radius * u[::max(1, rays // 4)][:4]])
+    core = 0.25 * radius * np.array([[0.0, 0.0], [1, 0], [0, 1], [-1, 0], [0, -1]])
     q = p[ok]
     core_v = _bilinear(img, q[:, None] + core[None]).mean(axis=1)           # (n,)
     ring_v = _bilinear(img, q[:, None, None] + ring[None]).mean(axis=2)     # (n, rays)

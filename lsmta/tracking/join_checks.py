@@ -61,7 +61,16 @@ what a recording is scored on):
    directions' surround from ``radius`` to ``1.5 radius`` px out): a small bright marker
    is darker around it everywhere, while an edge (into its bright side), a bright fold
    (along it) or flat bright skin is not, though each can stand ``min_contrast`` above a
-   window's median (the peak test alone took such spots on the Pose2Sim demo).
+   window's median (the peak test alone took such spots on the Pose2Sim demo). A real dot
+   beside anything as bright within ``1.5 radius`` px (a bright stripe) fails it too, and
+   one within ``1.5 radius`` px of the frame's border is not tested and so refused. The
+   cost on the demo: the fill follows a lost dot from each frame's find to the next, so a
+   refused fill also cuts off the real dots after it. The marker of cam01's track 65 and
+   cam02's track 101 shows clear dots at frames 92-99, and another marker (3-D share
+   0.91 -> 0.82) one at frame 97, that the fill no longer reaches, because the fills of
+   frames 85-91 (a faint spot at an edge, now refused) had carried it there; most of the
+   first marker's fall in 3-D share, 0.92 -> 0.77, is these real dots. A line reach that
+   grows with the gap, or a backward pass, might reach them again: not done.
 
 4. :func:`silhouette_hits` says, for one view, where markers' 3-D positions project inside
    that view's silhouette of the moving subject (masks of some frames, e.g.
@@ -537,7 +546,13 @@ def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float
         surround in every direction (:func:`~lsmta.tracking.blob_follow.dot_surround`, at
         ``radius``), grey levels (> 0), in both searches: an edge, a bright fold or flat
         bright skin passes ``min_contrast`` (a peak over the window's median) but not this
-        (module docstring); None (default): not tested.
+        (module docstring); None (default): not tested. Its cost: a real dot beside a
+        stripe as bright (with ``radius`` 4, 5-6 px from its centre) scores below 15 and is
+        refused, as is one within ``1.5 radius`` px of the frame's border (NaN); and a
+        refused fill cuts off the fills after it, which a later real dot needed to be
+        reached (on the Pose2Sim demo most of one marker's fall in 3-D share, 0.92 ->
+        0.77: clear dots at frames 92-99 no longer reached once the fills of 85-91 were
+        refused; a line reach growing with the gap, or a backward pass: not done).
 
     Returns
     -------

@@ -10,19 +10,26 @@ can show the marker: a dot (a blob of at least ``min_contrast`` above its window
 centred on its core, as :func:`~lsmta.tracking.join_checks.fill_gaps` finds them) within
 ``max_px`` of the projected piece. A frame in which no other view shows any dot there is
 *hidden* (:func:`hidden_frames`): no view but one shows the marker, by the pictures. Any dot
-counts, another marker's too (a dot on the line may be this marker's), so the test errs
-towards "shown": a frame is called hidden only where the pictures hold no candidate at all.
+within reach counts, another marker's too (a dot on the line may be this marker's); a dot
+beyond the reach, farther than ``max_px`` from the line, or fainter than ``min_contrast``
+does not, so a frame can be called hidden where a view shows the marker's dot (as on the
+demo, below); and another marker's dot within reach makes a hidden frame count as shown.
+The count errs both ways: it is neither the hidden frames nor a bound on them, a rough
+count to look at the pictures by.
 Frames no view holds, frames of markers that are never intersected or have no two
 consecutive 3-D frames, and frames where the holding view's ray misses the reach, are not
-judged (False). No truth: the frames, the cameras and the marker's own tracks only.
+judged (False). No truth: the frames, the cameras and the marker's own tracks only. The
+count is for the lead to judge beside the target, not the target: the marker stage's 3-D
+share is scored on all frames, hidden or not.
 
 The limit: the reach is the fastest step the marker was *seen* to make; a marker that moves
 faster while lost (a limb swinging behind another) lies beyond it, and its frame can be
 called hidden while its dot shows farther along the line. A wrong 3-D position (a wrong
-dot filled) makes the step, and so the reach, longer. On the Pose2Sim demo (marker 4, the
-knee, frames 75-99 held by cam02 alone) the pictures agree with the test: frames 76-83
-hidden by the other leg, called hidden; from frame 84 on the dot shows on the line in cam01,
-called shown.
+dot filled) makes the step, and so the reach, longer. On the Pose2Sim demo (with the
+fill's dot test, ``MarkerParams().fill_dot``) the test calls marker 5 (the knee, views
+cam01 and cam02) hidden at frames 74, 76-83, 87-89 and 95-96, and marker 7 (cam01 and
+cam02) at 78-82, 84, 88, 92 and 93; in frames 92 and 93 cam01 shows marker 7's dot by eye,
+so those two at least are called hidden wrongly.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ import numpy as np
 
 from .._validate import as_int, as_scalar
 from .blob_follow import dot_centre, dot_contrast
+from .join_checks import _check_stacks, _members
 from .markers import find_blobs
 from .view_tracks import _checked, joined_positions, triangulate_joined
 
@@ -107,7 +115,8 @@ def _shows_dot(cam, img, ends, radius, min_contrast, max_px) -> bool:
 def hidden_frames(stacks, cameras, xy, members, *, radius: int = 4,
                   min_contrast: float = 15.0, max_px: float = 3.0) -> np.ndarray:
     """Frames in which one view holds a marker and no other view shows a dot where the
-    marker can be (see the module docstring).
+    marker can be (see the module docstring): a rough count of its hidden frames (it errs
+    both ways), to judge beside the target, not the target.
 
     Parameters
     ----------
@@ -131,17 +140,12 @@ def hidden_frames(stacks, cameras, xy, members, *, radius: int = 4,
         True: hidden (one view holds the marker, no other view shows a dot there).
     """
     cams, arrays = _checked(cameras, xy)
-    m = np.asarray(members)
-    if m.ndim != 2 or m.shape[1] != len(cams) or not np.issubdtype(m.dtype, np.integer):
-        raise ValueError(f"members: expected an (M, {len(cams)}) int array, got shape "
-                         f"{m.shape} and dtype {m.dtype}")
+    m = _members(members, len(cams))
     radius = as_int(radius, "radius", minimum=1, unit="pixels")
     min_contrast = as_scalar(min_contrast, "min_contrast", positive=True)
     max_px = as_scalar(max_px, "max_px", positive=True)
     T = arrays[0].shape[0]
-    if len(stacks) != len(cams) or any(len(s) != T for s in stacks):
-        raise ValueError(f"stacks: expected {len(cams)} stacks of {T} frames (one per camera, "
-                         f"as the tracks), got {[len(s) for s in stacks]}")
+    _check_stacks(stacks, cams, T)
     pos = joined_positions(arrays, m)                               # (T, K, M, 2)
     xyz, _, _ = triangulate_joined(cams, arrays, m)
     held = np.isfinite(pos).all(axis=3)                             # (T, K, M)

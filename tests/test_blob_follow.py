@@ -4,11 +4,19 @@ it with either 2-D tracker (lsmta.systems.markers)."""
 import cv2
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from lsmta.real.own_recording import marker_scores
 from lsmta.systems import MarkerParams, Tracker2D, capture_markers
 from lsmta.systems.markers import track_view
-from lsmta.tracking.blob_follow import FollowParams, FollowStatus, dot_contrast, follow_blobs
+from lsmta.tracking.blob_follow import (
+    FollowParams,
+    FollowStatus,
+    dot_centre,
+    dot_contrast,
+    dot_surround,
+    follow_blobs,
+)
 from lsmta.tracking.klt import track_klt
 from tests.test_view_tracks import _dot_video, _rig
 
@@ -151,3 +159,76 @@ def test_the_same_markers_tracked_again_and_their_pair_scored():
         marker_scores(b, xyz=moved[:, :2])
     with pytest.raises(ValueError, match="like"):
         capture_markers(stacks, cams, first, params=params, like="a")
+
+
+def _scene(kind):
+    """60 x 80 grey frame of one shape at x = 40.3 (y = 30.6 for the dot)."""
+    yy, xx = np.mgrid[:60, :80]
+    if kind == "dot":                                    # sigma 2.5 px, 180 above 40
+        return 40 + 180 * np.exp(-((xx - 40.3) ** 2 + (yy - 30.6) ** 2) / (2 * 2.5 ** 2))
+    if kind == "edge":                                   # blurred step, 40 | 200
+        return ndimage.gaussian_filter(np.where(xx >= 40, 200.0, 40.0), 1.5)
+    if kind == "line":                                   # a bright fold, 3 px wide
+        return 40 + 180 * np.exp(-((xx - 40.3) ** 2) / (2 * 1.2 ** 2))
+    return np.full((60, 80), 200.0)                      # flat bright skin
+
+
+def test_dot_surround_takes_a_dot_and_not_an_edge_a_fold_or_flat_skin():
+    dot = _scene("dot")
+    q = dot_centre(dot, [[40.0, 30.0]], radius=4)
+    assert dot_surround(dot, q, radius=4)[0] > 100       # its contrast, about 135
+    for kind in ("edge", "line", "flat"):
+        img = _scene(kind)
+        given = img.copy()
+        # anywhere across it, 3 px either side of the edge or fold
+        xy = np.stack([np.linspace(37.0, 43.0, 13), np.full(13, 30.0)], axis=1)
+        assert np.all(dot_surround(img, xy, radius=4) <= 1.0), kind
+        assert np.array_equal(img, given)
+    # the fold passes the peak-over-median test the fill used alone
+    fold = _scene("line")
+    assert dot_contrast(fold, dot_centre(fold, [[40.0, 30.0]], radius=4), radius=4)[0] > 100
+    # no surround inside the frame, or no position: NaN
+    assert np.isnan(dot_surround(dot, [[3.0, 30.0], [np.nan, 30.0]], radius=4)).all()
+    assert dot_surround(dot, np.zeros((0, 2))).shape == (0,)
+
+
+def test_dot_surround_refuses_bad_input():
+    img = _scene("dot")
+    with pytest.raises(ValueError, match="xy"):
+        dot_surround(img, [[1.0, 2.0, 3.0]])
+    with pytest.raises(ValueError, match="image"):
+        dot_surround(np.zeros((2, 60, 80)), [[40.0, 30.0]])
+    with pytest.raises(ValueError, match="radius"):
+        dot_surround(img, [[40.0, 30.0]], radius=0)
+    with pytest.raises(ValueError, match="rays"):
+        dot_surround(img, [[40.0, 30.0]], rays=3)
+    with pytest.raises(TypeError, match="xy"):
+        dot_surround(img, [["a", "b"]])
+
+
+def test_a_real_dot_beside_a_bright_stripe_is_refused():
+    """The documented limit of dot_surround: anything as bright as the dot within its
+    surround's ring (here a stripe 5-6 px from a dot's centre) brings the score below the
+    marker stage's floor (15); 8 px away the dot scores most of its contrast again."""
+    yy, xx = np.mgrid[:60, :80]
+    dot = 40 + 100 * np.exp(-((xx - 40.3) ** 2 + (yy - 30.6) ** 2) / (2 * 1.5 ** 2))
+    q = dot_centre(dot, [[40.0, 30.0]], radius=4)
+    alone = dot_surround(dot, q, radius=4)[0]
+    assert alone > 60
+    for gap, refused in ((5.0, True), (6.0, True), (8.0, False)):
+        img = dot + 100 * np.exp(-((xx - 40.3 - gap) ** 2) / (2 * 1.2 ** 2))
+        assert dot_contrast(img, q, radius=4)[0] > 15       # the peak test still passes
+        assert (dot_surround(img, q, radius=4)[0] < 15) == refused, gap
+
+
+@pytest.mark.parametrize("rays", [5, 6, 16])
+def test_dot_surround_core_is_centred_whatever_rays(rays):
+    """On a plane of grey levels (bilinear exact there) the core's mean is the level at the
+    position, so the score is minus the steepest direction's rise to the ring's mean
+    distance, 1.25 radius (a core leaning towards some directions would move it)."""
+    yy, xx = np.mgrid[:60, :80]
+    img = 100 + 2.0 * yy + 0.5 * xx
+    ang = 2 * np.pi * np.arange(rays) / rays
+    rise = 1.25 * 4 * np.max(0.5 * np.cos(ang) + 2.0 * np.sin(ang))
+    got = dot_surround(img, [[40.2, 30.7]], radius=4, rays=rays)[0]
+    assert got == pytest.approx(-rise, abs=1e-9)

@@ -12,6 +12,7 @@ from lsmta.real.own_recording import moving_pairs, relative_motion, rigid_pair
 from lsmta.systems import MarkerParams, capture_markers
 from lsmta.systems.markers import silhouette_shares
 from lsmta.tracking import join_checks
+from lsmta.tracking.blob_follow import FollowParams
 from lsmta.tracking.join_checks import (
     Filled,
     attach_views,
@@ -481,6 +482,36 @@ def _turning_dots():
     return cams, X, stacks, truth, xy, np.array([[0, 0], [1, 1]])
 
 
+def test_the_surround_test_keeps_a_dot_and_refuses_a_fold():
+    """A bright fold (3 px wide) through the projection passes the peak-over-median floor
+    but not ``min_surround``; the real dots are taken either way."""
+    cams = _rig(2, spread_deg=20.0)
+    T = 16
+    X = np.array([[-150.0, 0, -80], [120, 60, 100]])[None] + \
+        np.array([6.0, 0, 4.0]) * np.arange(T)[:, None, None]
+    stacks = _dot_video(cams, X, size=(600, 800))
+    truth = [c.project(X.reshape(-1, 3)).reshape(T, 2, 2) for c in cams]
+    xy = [a.copy() for a in truth]
+    xy[0][5:9, 0] = np.nan                               # view 0 lost marker 0
+    xy[1][11:14, 1] = np.nan                             # view 1 lost marker 1 (its dot there)
+    yy, xx = np.mgrid[:600, :800]
+    for t in range(5, 9):                                # view 0: its dot gone, a fold there
+        x, y = truth[0][t, 0]
+        fold = 40 + 180 * np.exp(-((xx - x) ** 2) / (2 * 1.2 ** 2)) * (np.abs(yy - y) < 40)
+        stacks[0][t] = np.where(np.hypot(xx - x, yy - y) < 45, fold, stacks[0][t])
+    members = np.array([[0, 0], [1, 1]])
+    given = [s.copy() for s in stacks]
+    _, plain = fill_gaps(stacks, cams, xy, members, radius=4, max_px=1.0)
+    out, strict = fill_gaps(stacks, cams, xy, members, radius=4, max_px=1.0, min_surround=15.0)
+    assert plain[5:9, 0, 0].all()                        # the old floor takes the fold
+    assert not strict[5:9, 0, 0].any() and np.isnan(out[0][5:9, 0]).all()
+    assert strict[11:14, 1, 1].all() and np.array_equal(strict[11:14], plain[11:14])
+    assert all(np.array_equal(a, b) for a, b in zip(stacks, given))
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="min_surround"):
+            fill_gaps(stacks, cams, xy, members, min_surround=bad)
+
+
 def test_a_dot_one_view_holds_is_found_along_the_epipolar_line_only():
     cams, X, stacks, truth, xy, members = _turning_dots()
     given = [a.copy() for a in xy]
@@ -573,7 +604,7 @@ def test_the_line_takes_the_nearest_dot_only_with_a_clear_lead_on_the_line():
     def dot(points, others=None, max_px=2.0):
         return join_checks._line_dot(cams[0], _dots_image(points), cams[1], held, pred,
                                      np.zeros((0, 2)) if others is None else others, 4, 48.0,
-                                     max_px, 15.0)
+                                     max_px, (15.0, None))
 
     q = dot([c + 10 * u, c + 25 * u])                     # the next at 2.5 times: taken
     assert q is not None and np.linalg.norm(q - (c + 10 * u)) < 0.5
@@ -588,3 +619,29 @@ def test_the_line_takes_the_nearest_dot_only_with_a_clear_lead_on_the_line():
     q = dot([c + 12 * u, c + 22 * u], others=(c + 12 * u)[None])
     assert q is not None and np.linalg.norm(q - (c + 22 * u)) < 0.5
     assert dot([c + 60 * u]) is None                      # beyond the reach
+
+
+def test_the_marker_stage_tests_its_fills_for_dots_by_default(monkeypatch):
+    """``MarkerParams.fill_dot`` (default True) passes the follower's contrast floor to the
+    fill as ``min_surround``; False passes None; a non-bool is refused."""
+    cams, X, stacks, truth, xy, members = _turning_dots()
+    tracks = {id(s): a for s, a in zip(stacks, xy)}
+    monkeypatch.setattr("lsmta.systems.markers.track_view",
+                        lambda s, d, params=None: tracks[id(s)].copy())
+    seen = []
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["min_surround"])
+        return fill_gaps(*args, **kwargs)
+
+    monkeypatch.setattr("lsmta.systems.markers.fill_gaps", spy)
+    first = [s[0] for s in stacks]
+    p = dict(detector="blobs", silhouette=None, min_motion_mm=5.0)
+    on = capture_markers(stacks, cams, first, params=MarkerParams(**p))
+    capture_markers(stacks, cams, first, params=MarkerParams(fill_dot=False, **p))
+    assert MarkerParams().fill_dot is True
+    assert seen == [FollowParams().min_contrast, None]
+    assert on.joins["filled_line"] >= 1                 # the rendered dots pass the test
+    for bad in (1, None, "yes"):
+        with pytest.raises(TypeError, match="fill_dot"):
+            MarkerParams(fill_dot=bad)

@@ -132,6 +132,82 @@ def dot_contrast(image, xy, *, radius: int = 4) -> np.ndarray:
     return out
 
 
+def dot_surround(image, xy, *, radius: int = 4, rays: int = 16) -> np.ndarray:
+    """``(N,)`` how far each position's core stands above its surround in its brightest
+    direction, grey levels: a dot test that an edge, a bright line or flat bright skin fails.
+
+    The core is the mean grey level (bilinear) at the position and at four points
+    ``radius / 4`` px from it (right, down, left, up, whatever ``rays``); each of ``rays``
+    directions' surround is the mean over five points from ``radius`` to ``1.5 radius`` px
+    out along it; the result is the core less the brightest direction's surround. A small
+    bright dot (about ``2 radius`` px across: ``radius`` is a little more than the dot's
+    radius, as :class:`FollowParams` sets it) is darker around it in every direction, so it
+    scores its contrast; beside an edge the directions into the bright side are as bright
+    as the core, along a bright line or fold the directions along it are, and flat skin is
+    as bright everywhere, so these score about 0 or less, whatever their peak over the
+    window's median (:func:`dot_contrast`, which all of them can pass).
+
+    The limits: anything as bright as the dot within the surround's ring scores as that
+    ring, so a real dot beside a bright stripe is refused too (``radius`` 4, a dot of
+    sigma 1.5 px and 100 grey levels scoring 77 alone, a 3 px wide stripe as bright 5 px
+    from its centre: below 0; 6 px: 14; 8 px: 68; :func:`~lsmta.tracking.join_checks.fill_gaps`
+    refuses below its floor, 15 by default in the marker stage). A position within
+    ``1.5 radius`` px of the image's border scores NaN, which a floor refuses.
+
+    Parameters
+    ----------
+    image : (H, W) array
+        Grey frame.
+    xy : (N, 2) array
+        Positions (a dot's centre, e.g. from :func:`dot_centre`), px; NaN allowed.
+    radius : int
+        The dot's window half-width, px (>= 1): the surround starts there.
+    rays : int
+        Directions of the surround, >= 4 (default 16: 22.5 degrees apart, so that a bright
+        line of a dot's width has a direction along it); the core's four points do not
+        depend on it.
+
+    Returns
+    -------
+    (N,) array
+        Core less the brightest surround, grey levels; NaN where the surround leaves the
+        image or the position is NaN.
+    """
+    img = np.asarray(image, np.float64)
+    if img.ndim != 2:
+        raise ValueError(f"image: expected an (H, W) grey frame, got shape {img.shape}")
+    p = as_array(xy, "xy", shape=(None, 2), allow_nan=True)
+    radius = as_int(radius, "radius", minimum=1, unit="pixels")
+    rays = as_int(rays, "rays", minimum=4)
+    H, W = img.shape
+    reach = 1.5 * radius
+    out = np.full(len(p), np.nan)
+    ok = np.isfinite(p).all(axis=1)
+    ok[ok] = ((p[ok, 0] >= reach) & (p[ok, 0] <= W - 1 - reach) & (p[ok, 1] >= reach)
+              & (p[ok, 1] <= H - 1 - reach))
+    if not ok.any():
+        return out
+    ang = 2 * np.pi * np.arange(rays) / rays
+    u = np.stack([np.cos(ang), np.sin(ang)], axis=1)                       # (rays, 2)
+    ring = u[:, None] * np.linspace(radius, reach, 5)[None, :, None]       # (rays, 5, 2)
+    core = 0.25 * radius * np.array([[0.0, 0.0], [1, 0], [0, 1], [-1, 0], [0, -1]])
+    q = p[ok]
+    core_v = _bilinear(img, q[:, None] + core[None]).mean(axis=1)           # (n,)
+    ring_v = _bilinear(img, q[:, None, None] + ring[None]).mean(axis=2)     # (n, rays)
+    out[ok] = core_v - ring_v.max(axis=1)
+    return out
+
+
+def _bilinear(img, pts) -> np.ndarray:
+    """Grey levels of ``img`` at ``(..., 2)`` points inside it (x, y), bilinear."""
+    x, y = pts[..., 0], pts[..., 1]
+    x0 = np.clip(np.floor(x).astype(int), 0, img.shape[1] - 2)
+    y0 = np.clip(np.floor(y).astype(int), 0, img.shape[0] - 2)
+    fx, fy = x - x0, y - y0
+    return ((1 - fx) * (1 - fy) * img[y0, x0] + fx * (1 - fy) * img[y0, x0 + 1]
+            + (1 - fx) * fy * img[y0 + 1, x0] + fx * fy * img[y0 + 1, x0 + 1])
+
+
 def dot_centre(image, xy, *, radius: int = 4, iterations: int = 3) -> np.ndarray:
     """``(N, 2)`` centroid of each dot's core, px: in the ``(2 radius + 1)`` window around
     the position, the grey levels above half-way from the window's median to its peak,

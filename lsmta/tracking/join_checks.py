@@ -55,7 +55,22 @@ what a recording is scored on):
    0.008 px). For a marker of two views such a dot is checked by nothing more than those
    rules: the point intersected with it reprojects within about its distance from the line
    whatever its depth, so the reprojection test adds nothing, and the depth is bounded only
-   by ``line_px``. :class:`Filled` says which search found a dot.
+   by ``line_px``. :class:`Filled` says which search found a dot. With ``min_surround``,
+   a dot of either search must also stand that far above its surround in every direction
+   (:func:`~lsmta.tracking.blob_follow.dot_surround`: its core less the brightest of 16
+   directions' surround from ``radius`` to ``1.5 radius`` px out): a small bright marker
+   is darker around it everywhere, while an edge (into its bright side), a bright fold
+   (along it) or flat bright skin is not, though each can stand ``min_contrast`` above a
+   window's median (the peak test alone took such spots on the Pose2Sim demo). A real dot
+   beside anything as bright within ``1.5 radius`` px (a bright stripe) fails it too, and
+   one within ``1.5 radius`` px of the frame's border is not tested and so refused. The
+   cost on the demo: the fill follows a lost dot from each frame's find to the next, so a
+   refused fill also cuts off the real dots after it. The marker of cam01's track 65 and
+   cam02's track 101 shows clear dots at frames 92-99, and another marker (3-D share
+   0.91 -> 0.82) one at frame 97, that the fill no longer reaches, because the fills of
+   frames 85-91 (a faint spot at an edge, now refused) had carried it there; most of the
+   first marker's fall in 3-D share, 0.92 -> 0.77, is these real dots. A line reach that
+   grows with the gap, or a backward pass, might reach them again: not done.
 
 4. :func:`silhouette_hits` says, for one view, where markers' 3-D positions project inside
    that view's silhouette of the moving subject (masks of some frames, e.g.
@@ -83,7 +98,7 @@ import numpy as np
 
 from .._validate import as_array, as_int, as_scalar, freeze
 from ..triangulation import triangulate
-from .blob_follow import _free_blobs, dot_centre, dot_contrast
+from .blob_follow import _free_blobs, dot_centre, dot_contrast, dot_surround
 from .view_tracks import (
     _CHUNK,
     _checked,
@@ -383,11 +398,11 @@ def _predict(xyz, t, step, max_gap) -> np.ndarray | None:
     return xyz[a] + (xyz[a] - xyz[b]) * (t - a) / (a - b)
 
 
-def _line_dot(cam_k, img, held_cam, held_xy, X, others, radius, line_px, max_px,
-              min_contrast):
+def _line_dot(cam_k, img, held_cam, held_xy, X, others, radius, line_px, max_px, floor):
     """The dot of a view on the epipolar line of the one view that holds the marker
     (:func:`fill_gaps`' ``line_px``; ``others``: other markers' and tracks' dots of the view,
-    set aside), px, or None."""
+    set aside; ``floor``: ``(min_contrast, min_surround)``), px, or None."""
+    min_contrast = floor[0]
     o, d = held_cam.rays(np.asarray(held_xy, float)[None])
     o, d = o[0], d[0] / np.linalg.norm(d[0])
     Xr = o + d * float(np.dot(X - o, d))                    # X moved onto the ray
@@ -403,8 +418,7 @@ def _line_dot(cam_k, img, held_cam, held_xy, X, others, radius, line_px, max_px,
     rel = blobs - c
     along = np.abs(rel @ u)
     perp = np.abs(rel[:, 0] * u[1] - rel[:, 1] * u[0])
-    ok = (perp <= max_px) & (along <= line_px) & (
-        dot_contrast(img, blobs, radius=radius) >= min_contrast)
+    ok = (perp <= max_px) & (along <= line_px) & _is_dot(img, blobs, radius, floor)
     if not ok.any():
         return None
     order = np.argsort(along[ok])
@@ -413,20 +427,29 @@ def _line_dot(cam_k, img, held_cam, held_xy, X, others, radius, line_px, max_px,
     return blobs[ok][order[0]]
 
 
-def _near_dot(cam_k, img, X, radius, search_px, min_contrast):
+def _is_dot(img, xy, radius, floor) -> np.ndarray:
+    """``(N,)`` whether each position's dot passes the fill's floors ``(min_contrast,
+    min_surround)`` (:func:`fill_gaps`)."""
+    ok = dot_contrast(img, xy, radius=radius) >= floor[0]
+    if floor[1] is not None and ok.any():
+        ok[ok] = dot_surround(img, xy[ok], radius=radius) >= floor[1]
+    return ok
+
+
+def _near_dot(cam_k, img, X, radius, search_px, floor):
     """The dot centred from X's projection within ``search_px`` of it, px, or None."""
     c = _project(cam_k, X)[0]
     if not np.isfinite(c).all():
         return None
     q = dot_centre(img, c[None], radius=radius)[0]
     if not (np.isfinite(q).all() and np.linalg.norm(q - c) <= search_px
-            and dot_contrast(img, q[None], radius=radius)[0] >= min_contrast):
+            and _is_dot(img, q[None], radius, floor)[0]):
         return None
     return q
 
 
 def _find_dots(cams, stacks, arrays, pos, t, j, X, members, radius, search_px,
-               min_contrast, line=None):
+               floor, line=None):
     """Dots near X's projection in the marker's views that lack it in frame t, else (with
     ``line``: ``(line_px, max_px)``, a marker one view holds) along the holding view's
     epipolar line: ``{view: ((2,) px, Filled)}``."""
@@ -440,12 +463,12 @@ def _find_dots(cams, stacks, arrays, pos, t, j, X, members, radius, search_px,
         others = np.concatenate([np.delete(pos[t, k], j, axis=0),
                                  np.delete(arrays[k][t], members[j, k], axis=0)])
         others = others[np.isfinite(others).all(axis=1)]
-        q, how = _near_dot(cams[k], img, X, radius, search_px, min_contrast), Filled.NEAR
+        q, how = _near_dot(cams[k], img, X, radius, search_px, floor), Filled.NEAR
         if _taken(q, others, radius):
             q = None                                # another marker's or track's dot
         if q is None and line is not None and len(held) == 1:
             q, how = _line_dot(cams[k], img, cams[held[0]], pos[t, held[0], j], X, others,
-                               radius, line[0], line[1], min_contrast), Filled.LINE
+                               radius, line[0], line[1], floor), Filled.LINE
         if q is not None and not _taken(q, others, radius):
             found[int(k)] = (q, how)
     return found
@@ -471,9 +494,29 @@ def _check_stacks(stacks, cams, T) -> None:
                              f"{c.name!r} is {c.width} x {c.height}), got shape {np.shape(s)}")
 
 
+def _take(cams, pos, found, xyz, t, j, dots, max_px) -> None:
+    """Write the dots found for marker j in frame t into ``pos``, ``found`` and ``xyz`` (in
+    place) when the point intersected with them reprojects within ``max_px`` in every view."""
+    trial = pos[t, :, j].copy()
+    for k, (q, _) in dots.items():
+        trial[k] = q
+    seen = np.isfinite(trial).all(axis=1)
+    if seen.sum() < 2:
+        return
+    res = triangulate([cams[k] for k in np.flatnonzero(seen)], trial[seen][:, None],
+                      min_angle_deg=1.0)
+    if not (res.valid[0] and np.all(res.reprojection_error[:, 0] <= max_px)):
+        return
+    for k, (q, how) in dots.items():
+        pos[t, k, j] = q
+        found[t, k, j] = how
+    xyz[t, j] = res.points[0]
+
+
 def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float = 12.0,
               min_contrast: float = 15.0, max_gap: int = 10, max_px: float = 3.0,
-              line_px: float | None = None) -> tuple[tuple, np.ndarray]:
+              line_px: float | None = None,
+              min_surround: float | None = None) -> tuple[tuple, np.ndarray]:
     """Find markers again where one of their views lost them (see the module docstring).
 
     Parameters
@@ -498,6 +541,18 @@ def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float
     line_px : float or None
         Reach along the epipolar line of the second search (where one view holds the
         marker and the first found nothing; module docstring), px (> 0); None: none.
+    min_surround : float or None
+        With it, a dot is taken only where it also stands at least this far above its
+        surround in every direction (:func:`~lsmta.tracking.blob_follow.dot_surround`, at
+        ``radius``), grey levels (> 0), in both searches: an edge, a bright fold or flat
+        bright skin passes ``min_contrast`` (a peak over the window's median) but not this
+        (module docstring); None (default): not tested. Its cost: a real dot beside a
+        stripe as bright (with ``radius`` 4, 5-6 px from its centre) scores below 15 and is
+        refused, as is one within ``1.5 radius`` px of the frame's border (NaN); and a
+        refused fill cuts off the fills after it, which a later real dot needed to be
+        reached (on the Pose2Sim demo most of one marker's fall in 3-D share, 0.92 ->
+        0.77: clear dots at frames 92-99 no longer reached once the fills of 85-91 were
+        refused; a line reach growing with the gap, or a backward pass: not done).
 
     Returns
     -------
@@ -514,6 +569,8 @@ def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float
     max_gap = as_int(max_gap, "max_gap", minimum=0, unit="frames")
     max_px = as_scalar(max_px, "max_px", positive=True)
     line = None if line_px is None else (as_scalar(line_px, "line_px", positive=True), max_px)
+    floor = (min_contrast, None if min_surround is None
+             else as_scalar(min_surround, "min_surround", positive=True))
     T = arrays[0].shape[0]
     _check_stacks(stacks, cams, T)
     pos = joined_positions(arrays, m)                               # (T, K, M, 2)
@@ -526,24 +583,9 @@ def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float
                 if X is None:
                     continue
                 dots = _find_dots(cams, stacks, arrays, pos, t, j, X, m, radius, search_px,
-                                  min_contrast, line)
-                if not dots:
-                    continue
-                trial = pos[t, :, j].copy()
-                for k, (q, _) in dots.items():
-                    trial[k] = q
-                seen = np.isfinite(trial).all(axis=1)
-                if seen.sum() < 2:
-                    continue
-                res = triangulate([cams[k] for k in np.flatnonzero(seen)],
-                                  trial[seen][:, None], min_angle_deg=1.0)
-                err = res.reprojection_error[:, 0]
-                if not (res.valid[0] and np.all(err <= max_px)):
-                    continue
-                for k, (q, how) in dots.items():
-                    pos[t, k, j] = q
-                    found[t, k, j] = how
-                xyz[t, j] = res.points[0]
+                                  floor, line)
+                if dots:
+                    _take(cams, pos, found, xyz, t, j, dots, max_px)
     out = []
     for k, a in enumerate(arrays):
         a = a.copy()

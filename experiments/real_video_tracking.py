@@ -197,7 +197,8 @@ warm forward-backward run after the timed ones, 1 thread; its total, 2.2 s, incl
 cProfile's own cost): LSMTA 1.55 s against KLT's 0.25 s (timed, unprofiled); compiled work
 about 1.1 s (inverse compositional 0.27, forward LSM retries 0.25, spline prefilter of the
 80 frames and their pyramid levels 0.21, template sampling 0.08, matchTemplate 0.07,
-coarse-to-fine translation 0.07), Python about 0.4 s spread over some 500 000 calls (the
+coarse-to-fine translation 0.07: 0.95 s listed), Python about 0.4 s spread over some
+500 000 calls (the
 forward LSM's wrapper 0.1, the correlation loop 0.07); the coarse-to-fine step's template
 sampling (0.12 s) re-sampled the same patches of missing tracks (47 % of its rows) in
 every frame they stayed missing. Three exact cuts: the correlation search's peaks and
@@ -212,6 +213,10 @@ cores), CPU ratio base -> new (two runs each): caliscope 6.10/6.06 -> 6.02/5.85,
 2.32/2.45, pose2sim cam04 2.17/2.25 -> 2.02/2.05). The gain is clear on the median only,
 not per video: 2 of the 16 run-by-run comparisons are slower (caliscope cam_3 3.52 ->
 3.58, pose2sim cam03 1.83 -> 1.88), and two runs of the same code differ by up to 0.17.
+On the idle machine after the merge
+(load 1.5, main at 02f38ff, the defaults) the median was 2.5 (CPU 6.0, 3.6, 2.9, 3.5 on
+caliscope, 1.8, 1.6, 1.9, 2.1 on pose2sim), as in the idle run before the cuts (2.5): no
+gain in the median reproduced idle.
 NOT met (<= 2x): the median is set by the webcams (2.78 to 6.10), whose compiled work
 alone is above 2x KLT's; the Pose2Sim views are at 1.45 to 2.04 in that sitting. Tried and
 dropped: the prefilter's row pass through a transposed buffer (slower: 2.3 against 1.8 ms

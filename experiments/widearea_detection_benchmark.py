@@ -31,15 +31,18 @@ on seeds 2002, 7 and 11; 101, 202, 303, 404 and 505 were chosen before the row g
 tried, held out for it.
 
 The lean window rule, ``--unobserved-px none --band-px 10.5`` (the trial's
-``unobserved_px=None, band_px=10.5``): windows of the gate plus 3 px around every target
-(no least for unobserved ones), and windows of half-size 10.5 px (21 x 21 px) along the
-other cameras' waiting rays instead of the gate's 15 px (``--band-px``; 'none', the
-default: the gate). 10.5 = ``gate_px / 2 + 3``: half the spacing of the band's points
-(``ImagePrediction.partners``, at most ``gate_px`` apart along the line) plus a spot's
-radius (3 px); such windows cover at least ``sqrt(2) * 10.5 - 7.5 = 7.3`` px either side
-of the line whatever its direction (diagonal lines, halfway between two points, are the
-worst; 10.5 px along a row or column). With it, the ``guided, 40 x 40 windows``
-comparison keeps the 21 x 21 px windows along the rays too (only the targets' windows
+``unobserved_px=None, band_px=10.5``): windows of the gate plus 3 px around every target (no
+least for unobserved ones), and windows of half-size 10.5 px along the other cameras'
+waiting rays instead of the gate's 15 px (the kernel rounds a half-size up: 22 x 22 px
+instead of 30 x 30, rows and columns -11 to +10 around the rounded centre; ``--band-px``;
+'none', the default: the gate). 10.5 = ``gate_px / 2 + 3``: half the spacing of the band's
+points (``ImagePrediction.partners``, at most ``gate_px`` apart along the line) plus a
+spot's radius (3 px); windows of half-size 10.5 cover at least ``sqrt(2) * 10.5 - 7.5 =
+7.3`` px either side of the line whatever its direction (the kernel's windows reach 10 px on
+one side of the rounded centre, 11 on the other; a test finds spots 7 px off a 45-degree
+line; diagonal lines, halfway between two points, are the worst; 10.5 px along a row or
+column). With it, the ``guided, 40 x 40 windows``
+comparison keeps the 22 x 22 px windows along the rays too (only the targets' windows
 become 40 x 40). Its protocol: designed on seeds 2002, 7 and 11; seeds 101, 202, 303, 404
 and 505 had been run and reported (with the least window and the gate's band) before this
 rule was designed, and seed 303 was profiled while designing it, so they are not held

@@ -68,7 +68,7 @@ what a recording is scored on):
    refused fill also cuts off the real dots after it. The marker of cam01's track 65 and
    cam02's track 101 shows clear dots at frames 92-99, and another marker (3-D share
    0.91 -> 0.82) one at frame 97, that the fill no longer reaches, because the fills of
-   frames 85-91 (a faint spot at an edge, now refused) had carried it there; most of the
+   frames 85-87 and 89-91 (a faint spot at an edge, now refused) had carried it there; most of the
    first marker's fall in 3-D share, 0.92 -> 0.77, is these real dots. A line reach that
    grows with the gap, or a backward pass, might reach them again: not done.
 
@@ -551,7 +551,7 @@ def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float
         refused, as is one within ``1.5 radius`` px of the frame's border (NaN); and a
         refused fill cuts off the fills after it, which a later real dot needed to be
         reached (on the Pose2Sim demo most of one marker's fall in 3-D share, 0.92 ->
-        0.77: clear dots at frames 92-99 no longer reached once the fills of 85-91 were
+        0.77: clear dots at frames 92-99 no longer reached once the fills of 85-87 and 89-91 were
         refused; a line reach growing with the gap, or a backward pass: not done).
 
     Returns

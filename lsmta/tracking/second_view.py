@@ -26,8 +26,8 @@ The limit: the reach is the fastest step the marker was *seen* to make; a marker
 faster while lost (a limb swinging behind another) lies beyond it, and its frame can be
 called hidden while its dot shows farther along the line. A wrong 3-D position (a wrong
 dot filled) makes the step, and so the reach, longer. On the Pose2Sim demo (with the
-fill's dot test, ``MarkerParams().fill_dot``) the test calls marker 5 (the knee, views
-cam01 and cam02) hidden at frames 74, 76-83, 87-89 and 95-96, and marker 7 (cam01 and
+fill's dot test, ``MarkerParams().fill_dot``) the test calls marker 5 (above the knee,
+views cam01 and cam02) hidden at frames 74, 76-83, 87-89 and 95-96, and marker 7 (cam01 and
 cam02) at 78-82, 84, 88, 92 and 93; in frames 92 and 93 cam01 shows marker 7's dot by eye,
 so those two at least are called hidden wrongly.
 """

@@ -20,7 +20,9 @@ spread (the pair's heights and relative motion beside), raw (the intersections) 
 low-pass filtered (``MarkerParams``' default, Pose2Sim's: zero-lag Butterworth, nominal 6 Hz,
 order 4; what markers.c3d / .trc hold; the same pair, chosen on the raw positions), the join
 check's counts (``MarkerParams.check``: ambiguous joins dropped, views taken out, tracks
-attached, moving markers off the subject's silhouette dropped, dots found again), the 2-D
+attached, tracks not on a dot taken out and markers dropped for it (``not_dot_views``,
+``not_dots``: ``MarkerParams.dot_share``), moving markers off the subject's silhouette
+dropped, dots found again), the 2-D
 tracking's CPU time, the ratios LSMTA / KLT, and the targets' verdicts; per LSMTA marker
 its views, 3-D share and the frames only one view (or none) holds it, and of those the
 frames no other view shows a dot where the marker can be (`lsmta.tracking.second_view`'s

@@ -16,6 +16,7 @@ from lsmta.tracking.blob_follow import FollowParams
 from lsmta.tracking.join_checks import (
     Filled,
     attach_views,
+    check_dots,
     check_joins,
     fill_gaps,
     silhouette_hits,
@@ -191,7 +192,9 @@ def test_the_stage_records_its_checks_and_the_peer_shares_them():
     p = MarkerParams(detector="blobs", max_px=1.0, min_motion_mm=5.0)
     a = capture_markers(stacks, cams, first, params=p)
     assert set(a.joins) == {"ambiguous", "ambiguous_views", "below_floor", "views_out",
-                            "attached", "off_subject", "filled", "filled_line"}
+                            "attached", "not_dot_views", "not_dots", "off_subject", "filled",
+                            "filled_line"}
+    assert a.joins["not_dots"] == a.joins["not_dot_views"] == 0     # rendered dots
     assert len(a.members) == 4 and a.joins["ambiguous"] == 0
     b = capture_markers(stacks, cams, first, params=p, like=a)
     assert np.array_equal(a.members, b.members) and b.joins["attached"] == a.joins["attached"]
@@ -645,3 +648,101 @@ def test_the_marker_stage_tests_its_fills_for_dots_by_default(monkeypatch):
     for bad in (1, None, "yes"):
         with pytest.raises(TypeError, match="fill_dot"):
             MarkerParams(fill_dot=bad)
+
+
+def _patch(img, kind, x, y):
+    """Draw a non-dot at (x, y) in place: ``"edge"`` (bright to the right of a vertical
+    edge through it) or ``"skin"`` (a bright patch 50 px across, slightly shaded)."""
+    yy, xx = np.mgrid[:img.shape[0], :img.shape[1]]
+    near = np.hypot(xx - x, yy - y) < 25
+    if kind == "edge":
+        img[near & (xx >= x)] = 200
+    else:
+        img[near] = np.clip(190 + 0.3 * (xx - x) + 0.2 * (yy - y), 0, 255)[near]
+
+
+def _dots_and_patches(T=10, skin_frames=()):
+    """Three views (two side by side, one above); marker 0 a dot in every view, 1 an edge
+    and 2 skin in views 0 and 1, 3 a dot in views 0 and 1 but skin in view 2; marker 0's
+    dot in view 0 replaced by skin in ``skin_frames``."""
+    cams = _side_by_side_and_above()
+    t = np.arange(T)[:, None, None]
+    base = np.array([[-200.0, 0, -100], [150, 80, 120], [0, -60, 250], [220, 40, -200]])
+    X = base[None] + np.array([8.0, 0, 5.0]) * t
+    stacks = _dot_video(cams, X[:, [0, 3]], size=(600, 800))
+    xy = [c.project(X.reshape(-1, 3)).reshape(T, 4, 2) for c in cams]
+    for k in range(3):
+        for f in range(T):
+            for j, kind in ((1, "edge"), (2, "skin"), (3, "skin") if k == 2 else (None, None)):
+                if j is not None and (k < 2 or j == 3):
+                    _patch(stacks[k][f], kind, *xy[k][f, j])
+    for f in skin_frames:
+        _patch(stacks[0][f], "skin", *xy[0][f, 0])
+    members = np.array([[0, 0, 0], [1, 1, -1], [2, 2, -1], [3, 3, 3]])
+    return cams, stacks, xy, members
+
+
+def test_tracks_on_dots_are_kept_and_on_edges_or_skin_taken_out():
+    cams, stacks, xy, members = _dots_and_patches()
+    given = ([s.copy() for s in stacks], [a.copy() for a in xy], members.copy())
+    d = check_dots(stacks, cams, xy, members, radius=4, min_surround=15.0)
+    assert np.array_equal(d.members, [[0, 0, 0], [3, 3, -1]])   # skin view of 3 taken out
+    assert d.dropped == 2 and d.views_out == 1                  # the edge and the skin
+    assert np.allclose(d.shares[0], 1.0) and np.allclose(d.shares[3], [1, 1, 0])
+    assert np.allclose(d.shares[1:3, :2], 0.0) and np.isnan(d.shares[1:3, 2]).all()
+    assert all(np.array_equal(a, b) for a, b in zip(stacks, given[0]))
+    assert all(np.array_equal(a, b) for a, b in zip(xy, given[1]))
+    assert np.array_equal(members, given[2])                    # inputs unchanged
+
+
+def test_a_dot_track_must_be_on_its_dot_in_at_least_the_share_of_its_frames():
+    """Marker 0's view 0 on skin in 4 of 10 frames: kept at 0.5; in 6 of 10: taken out (the
+    marker keeps its two other views); a lost frame is not counted."""
+    cams, stacks, xy, members = _dots_and_patches(skin_frames=range(4))
+    d = check_dots(stacks, cams, xy, members)
+    assert d.shares[0, 0] == pytest.approx(0.6) and d.members[0, 0] == 0
+    assert check_dots(stacks, cams, xy, members, min_share=0.7).members[0, 0] == -1
+    cams, stacks, xy, members = _dots_and_patches(skin_frames=range(6))
+    d = check_dots(stacks, cams, xy, members)
+    assert d.shares[0, 0] == pytest.approx(0.4) and np.array_equal(d.members[0], [-1, 0, 0])
+    xy[0][6:8, 0] = np.nan                                     # lost in two dot frames
+    assert check_dots(stacks, cams, xy, members).shares[0, 0] == pytest.approx(2 / 8)
+
+
+def test_check_dots_names_its_bad_input():
+    cams, stacks, xy, members = _dots_and_patches(T=3)
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="min_share"):
+            check_dots(stacks, cams, xy, members, min_share=bad)
+    with pytest.raises(ValueError, match="min_surround"):
+        check_dots(stacks, cams, xy, members, min_surround=0.0)
+    with pytest.raises(ValueError, match="radius"):
+        check_dots(stacks, cams, xy, members, radius=0)
+    with pytest.raises(ValueError, match="stacks"):
+        check_dots(stacks[:2], cams, xy, members)
+    with pytest.raises(ValueError, match="stacks"):
+        check_dots([s[:2] for s in stacks], cams, xy, members)
+    with pytest.raises(ValueError, match="members"):
+        check_dots(stacks, cams, xy, members[:, :2])
+    for bad in (0.0, 1.5):
+        with pytest.raises(ValueError, match="dot_share"):
+            MarkerParams(dot_share=bad)
+
+
+def test_the_marker_stage_drops_a_marker_on_skin_and_counts_it(monkeypatch):
+    """``MarkerParams.dot_share`` (default 0.5): the stage drops the skin and edge markers
+    and takes out the skin view, counted; None keeps them."""
+    cams, stacks, xy, members = _dots_and_patches()
+    tracks = {id(s): a for s, a in zip(stacks, xy)}
+    monkeypatch.setattr("lsmta.systems.markers.track_view",
+                        lambda s, d, params=None: tracks[id(s)].copy())
+    monkeypatch.setattr("lsmta.systems.markers.join_view_tracks",
+                        lambda *a, **k: SimpleNamespace(members=members.copy()))
+    first = [s[0] for s in stacks]
+    p = dict(detector="blobs", silhouette=None, min_motion_mm=5.0, max_px=1.0)
+    on = capture_markers(stacks, cams, first, params=MarkerParams(**p))
+    assert MarkerParams().dot_share == 0.5
+    assert on.joins["not_dots"] == 2 and on.joins["not_dot_views"] == 1
+    assert np.array_equal(on.members, [[0, 0, 0], [3, 3, -1]])
+    off = capture_markers(stacks, cams, first, params=MarkerParams(dot_share=None, **p))
+    assert off.joins["not_dots"] == off.joins["not_dot_views"] == 0 and len(off.members) == 4

@@ -20,9 +20,12 @@ The stage for what a marker-based recording holds beyond the surfaces: small ski
    two-view markers and markers below the floor dropped
    (:func:`~lsmta.tracking.join_checks.check_joins`); free tracks of any view attached to
    the marker whose 3-D path projects onto them
-   (:func:`~lsmta.tracking.join_checks.attach_views`); a marker a view lost looked for at
-   its 3-D position's projection (:func:`~lsmta.tracking.join_checks.fill_gaps`; where
-   one view holds it, along that view's epipolar line, ``MarkerParams.fill_line``); then
+   (:func:`~lsmta.tracking.join_checks.attach_views`); a view whose track is not on a dot
+   in most of its frames taken out, and a marker left with fewer than two views dropped
+   (``MarkerParams.dot_share``, :func:`~lsmta.tracking.join_checks.check_dots`); a
+   marker a view lost looked for at its 3-D position's projection
+   (:func:`~lsmta.tracking.join_checks.fill_gaps`; where one view holds it, along that
+   view's epipolar line, ``MarkerParams.fill_line``); then
    moving markers off the subject's silhouette dropped (``MarkerParams.silhouette``,
    below);
 5. *intersection* of every frame from every view that holds the marker
@@ -84,6 +87,7 @@ from ..tracking.blob_follow import FollowParams, follow_blobs
 from ..tracking.join_checks import (
     Filled,
     attach_views,
+    check_dots,
     check_joins,
     fill_gaps,
     silhouette_hits,
@@ -188,6 +192,19 @@ class MarkerParams:
         3-D share falls 0.92 -> 0.77, mostly real dots no longer reached (see
         :func:`~lsmta.tracking.join_checks.fill_gaps`' ``min_surround``). False: the peak
         test alone, as before (more fills, some on no dot).
+    dot_share : float or None
+        With ``check``: a view's track of a joined marker whose positions stand the
+        follower's contrast floor (``FollowParams.min_contrast``, 15 grey levels by
+        default) above their surround in every direction
+        (:func:`~lsmta.tracking.blob_follow.dot_surround`, as ``fill_dot``) in less than
+        this share of the frames it holds is not on a dot and is taken out of the marker;
+        a marker left with fewer than two views is dropped
+        (:func:`~lsmta.tracking.join_checks.check_dots`; counted as ``"not_dot_views"``
+        and ``"not_dots"``), in (0, 1]. Default 0.5, a majority, set before looking: the
+        skin detector takes a pale highlight on the skin for a marker, and the follower
+        keeps it (its peak stands above its window's median); on the Pose2Sim demo one
+        moving "marker" was such a patch of a foot's skin in both its views. None: not
+        checked.
     silhouette : float or None
         With ``check``: a moving marker whose positions land on the subject's silhouette in
         less than this share of the sampled frames in some view that judges it is
@@ -228,6 +245,7 @@ class MarkerParams:
     fill_search_px: float | None = None
     fill_line: float | None = 4.0
     fill_dot: bool = True
+    dot_share: float | None = 0.5
     silhouette: float | None = 0.5
     silhouette_px: float | None = None
     filter_hz: float | None = 6.0
@@ -254,6 +272,10 @@ class MarkerParams:
                 raise TypeError(f"fill_line: expected a number > 0 or None, got "
                                 f"{self.fill_line!r}")
             as_scalar(self.fill_line, "fill_line", positive=True)
+        if self.dot_share is not None and not 0 < as_scalar(self.dot_share,
+                                                            "dot_share") <= 1:
+            raise ValueError(f"dot_share: expected a share in (0, 1] or None, got "
+                             f"{self.dot_share}")
         if self.silhouette is not None and not 0 < as_scalar(self.silhouette,
                                                              "silhouette") <= 1:
             raise ValueError(f"silhouette: expected a share in (0, 1] or None, got "
@@ -316,7 +338,9 @@ class MarkerCapture:
         What the join check did (``MarkerParams.check``): two-view markers dropped as
         ``"ambiguous"``, ambiguous views of markers of three or more views taken out
         (``"ambiguous_views"``), markers dropped ``"below_floor"``, disagreeing
-        ``"views_out"`` taken out, tracks ``"attached"``, dots ``"filled"`` of the markers
+        ``"views_out"`` taken out, tracks ``"attached"``, tracks not on a dot taken out
+        (``"not_dot_views"``) and markers dropped for it (``"not_dots"``,
+        ``MarkerParams.dot_share``), dots ``"filled"`` of the markers
         returned and of them ``"filled_line"`` found along an epipolar line
         (``MarkerParams.fill_line``) (all 0 without the check), moving markers dropped
         ``"off_subject"`` (their positions off the subject's silhouette,
@@ -482,7 +506,7 @@ def _capture_markers(stacks, cameras, first_frames, *, params, like, fps) -> Mar
                  if angles[a, b] <= p.max_angle_deg]
         members = join_view_tracks(cams, view_xy, max_px=p.max_px, min_shared=p.min_shared,
                                    pairs=pairs).members
-        members, joins = _checked_joins(cams, view_xy, members, p)
+        members, joins = _checked_joins(stacks, cams, view_xy, members, p)
     else:
         members, joins = like.members, {k: v for k, v in like.joins.items()
                                         if k not in ("filled", "filled_line")}
@@ -590,19 +614,27 @@ def nyquist_checked(params: MarkerParams | None, fps: float, *,
     return replace(params, filter_hz=None), reason
 
 
-def _checked_joins(cams, view_xy, members, p: MarkerParams):
-    """Stage 4's check and attachment (the fill, then the silhouette check, follow in
-    :func:`capture_markers`; the fill runs for every tracker)."""
+def _checked_joins(stacks, cams, view_xy, members, p: MarkerParams):
+    """Stage 4's check, attachment and dot check (the fill, then the silhouette check,
+    follow in :func:`capture_markers`; the fill runs for every tracker)."""
     if not p.check:
         return members, {"ambiguous": 0, "ambiguous_views": 0, "below_floor": 0,
-                         "views_out": 0, "attached": 0, "off_subject": 0}
+                         "views_out": 0, "attached": 0, "not_dot_views": 0, "not_dots": 0,
+                         "off_subject": 0}
     c = check_joins(cams, view_xy, members, max_px=p.max_px, min_ratio=p.min_ratio,
                     min_shared=p.min_shared, floor_mm=p.floor_mm)
     members, attached = attach_views(cams, view_xy, c.members, max_px=p.max_px,
                                      min_shared=p.min_shared)
+    out = dropped = 0
+    if p.dot_share is not None and len(members):
+        fp = p.fill_follow()
+        d = check_dots(stacks, cams, view_xy, members, radius=fp.window(),
+                       min_surround=fp.min_contrast, min_share=p.dot_share)
+        members, out, dropped = d.members, d.views_out, d.dropped
     return members, {"ambiguous": c.ambiguous, "ambiguous_views": c.ambiguous_views,
                      "below_floor": c.below_floor, "views_out": c.views_out,
-                     "attached": attached, "off_subject": 0}
+                     "attached": attached, "not_dot_views": out, "not_dots": dropped,
+                     "off_subject": 0}
 
 
 def silhouette_shares(stacks, cameras, xy, members, *, params: MarkerParams | None = None,

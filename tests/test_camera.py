@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from conftest import random_camera
-from lsmta.camera import Camera
+from lsmta.camera import Camera, _undistort_error
 
 
 def _points_in_front(rng, cam, n=500):
@@ -153,3 +153,21 @@ def test_from_opencv_takes_no_field_that_comes_from_opencv(rng):
     cam = random_camera(rng)
     with pytest.raises(TypeError, match="k1"):
         Camera.from_opencv(*cam.to_opencv(), cam.image_size, k1=0.1)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_undistort_error_is_the_numpy_forms(seed):
+    # the compiled check of Newton's result: _distort's distance and _unfolded's test, bit
+    # for bit, on points inside and past the fold and on non-finite ones
+    rng = np.random.default_rng(seed)
+    cam = random_camera(rng).replace(k1=-0.3, k2=0.01 * seed, k3=-0.01, p1=1e-3, p2=-2e-3)
+    xy = np.concatenate([rng.uniform(-2.0, 2.0, (2000, 2)), [[np.nan, 0.0], [np.inf, 1.0]]])
+    xd = rng.uniform(-0.5, 0.5, len(xy))
+    yd = rng.uniform(-0.5, 0.5, len(xy))
+    x, y = np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1])
+    back = cam._distort(x, y)
+    with np.errstate(invalid="ignore"):
+        want = np.where(cam._unfolded(x, y), np.hypot(back[:, 0] - xd, back[:, 1] - yd), np.inf)
+    got = _undistort_error(x, y, xd, yd, cam.k1, cam.k2, cam.k3, cam.p1, cam.p2)
+    assert np.isinf(want).sum() > 2 and np.isfinite(want).sum() > 100
+    assert np.array_equal(got, want)

@@ -44,7 +44,14 @@ on them; notebook 16 reports them with these defaults):
 * thresholds: ``sigma_xy`` up to 0.2 px, singular values of ``A`` in 0.5-2, shear up to 0.5;
 * one round of new seeds in unreached regions (``reseed_rounds=1``, ``reseed_gap=2``): added
   for issue #33 item 3, set by rule (more than two nodes clear of the growth), not by scores;
-  ``experiments/dense_misses.py`` shows where the remaining misses are;
+  ``experiments/dense_misses.py`` shows where the remaining misses are, and
+  ``experiments/dense_reject_census.py`` which of the growth's tests loses them;
+* no slow nodes' attempt (``GrowParams.slow=False``). An option (issue #33 item 3): a node
+  still moving after ``max_iter`` iterations is tried once more with a convergence limit of
+  a tenth of ``max_sigma_xy`` and kept only as good a fit and as precise as the median
+  accepted match; on Cones, Art and Teddy (its tuning pairs) it raised the density by 0.007
+  at most, with the median and bad-1.0 verdicts unchanged, for 13-16 % more CPU time
+  (``experiments/dense_real_pairs.py --slow``);
 * no adaptive window (``wide_patch=None``). An option for real pairs:
   ``replace(DisparityParams().grow, wide_patch=WIDE_PATCH)`` (:data:`WIDE_PATCH`, 13 px,
   after Kanade & Okutomi 1994): a node whose 9 x 9 patch is below the texture floor but whose

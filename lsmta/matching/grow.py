@@ -59,7 +59,9 @@ HORIZONTAL = ((1, 0), (-1, 0))
 VERTICAL = ((0, 1), (0, -1))
 #: the reach of the last phase (``reach=True``): diagonal neighbours and nodes two steps away
 FAR = ((1, 1), (-1, 1), (1, -1), (-1, -1), (2, 0), (-2, 0), (0, 2), (0, -2))
-METHODS = ("patch", "retry", "robust", "shifted", "wide")
+METHODS = ("patch", "retry", "robust", "shifted", "wide", "slow")
+#: the slow nodes' convergence limit as a share of ``max_sigma_xy`` (:class:`GrowParams` ``slow``)
+SLOW_TOL_SHARE = 0.1
 
 
 class AttemptOutcome(enum.IntEnum):
@@ -136,8 +138,8 @@ class GrowResult:
         Grid row and column of each match.
     method : (N,) str array
         Which attempt matched the node: ``"patch"`` (the main patch), ``"retry"`` (a retry
-        patch size), ``"robust"``, ``"shifted"`` or ``"wide"`` (the adaptive window,
-        :class:`GrowParams` ``wide_patch``).
+        patch size), ``"robust"``, ``"shifted"``, ``"wide"`` (the adaptive window,
+        :class:`GrowParams` ``wide_patch``) or ``"slow"`` (:class:`GrowParams` ``slow``).
     t : (N,) array
         With a ``constraint``: the node's parameter along the epipolar curve (disparity in
         px, or inverse depth in 1/m); NaN without one.
@@ -278,6 +280,18 @@ class GrowParams:
         :data:`IMPRECISE`) and that no retry matched is tried once more with it. Same
         thresholds; nodes that did not converge are not widened (a depth edge, where a
         wider window would straddle more of it). None (default): off.
+    slow : bool
+        Slow nodes (issue #33 item 3; the largest class of the nodes SGBM measures and the
+        growth does not on Cones, Art and Teddy, ``experiments/dense_reject_census.py``): a
+        node whose main patch was still moving after ``max_iter`` iterations
+        (``MAX_ITERATIONS``) and that no retry matched is tried once more with the main patch
+        and a convergence limit set by the accepted precision, ``tol = SLOW_TOL_SHARE *
+        max_sigma_xy`` (an update of a tenth of the precision a match may have does not
+        change whether it is accepted), and accepted only if it fits and is as precise as a
+        typical match: ``sigma0`` and ``sigma_xy`` at most the medians of the matches
+        accepted so far (:func:`slow_limit`; the adjustment's own measure of the pair's
+        noise, model error and texture: a patch straddling a depth edge, the usual slow
+        node, fits worse). False (default): off.
     """
 
     step: int = 4
@@ -300,6 +314,7 @@ class GrowParams:
     tol: float = 1e-4
     reach: bool = False
     wide_patch: int | None = None
+    slow: bool = False
 
     def __post_init__(self):
         _check_model(self)
@@ -325,7 +340,7 @@ class GrowParams:
         if self.noise is not None and not _positive(self.noise):
             raise ValueError(f"noise: expected the images' noise in grey levels (> 0) or "
                              f"None, got {self.noise!r}")
-        for name in ("close_holes", "reach"):
+        for name in ("close_holes", "reach", "slow"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name}: expected True or False, got {getattr(self, name)!r}")
             object.__setattr__(self, name, bool(getattr(self, name)))
@@ -458,6 +473,7 @@ class _Options:
     shifted: LSMParams             # the shifted windows
     constraint: object
     wide: LSMParams | None = None  # the adaptive window (``wide_patch``), or None
+    slow: LSMParams | None = None  # the slow nodes' attempt (``slow``), or None
 
 
 def _options(p: GrowParams, constraint) -> _Options:
@@ -484,7 +500,50 @@ def _options(p: GrowParams, constraint) -> _Options:
                     attempts=tuple(attempts), shifted=replace(model, thresholds=thresholds),
                     constraint=constraint,
                     wide=None if p.wide_patch is None else replace(
-                        model, patch=p.wide_patch, thresholds=thresholds))
+                        model, patch=p.wide_patch, thresholds=thresholds),
+                    slow=slow_params(replace(model, thresholds=thresholds)) if p.slow else None)
+
+
+def slow_params(model: LSMParams) -> LSMParams:
+    """The slow nodes' attempt (:class:`GrowParams` ``slow``) of the main patch's ``model``:
+    its convergence limit ``SLOW_TOL_SHARE * max_sigma_xy`` (px); the ``sigma0`` and
+    ``sigma_xy`` limits are set per call (:func:`slow_limit`)."""
+    if model.thresholds is None:
+        raise ValueError("model: expected LSMParams with thresholds (their max_sigma_xy sets "
+                         "the slow nodes' convergence limit)")
+    return replace(model, tol=SLOW_TOL_SHARE * model.thresholds.max_sigma_xy)
+
+
+def slow_limit(slow: LSMParams, accepted_sigma0, accepted_sigma_xy) -> LSMParams | None:
+    """``slow`` with its ``max_sigma0`` and ``max_sigma_xy`` lowered to the medians of the
+    matches accepted so far (NaN ignored), or None if there is none yet: a slow node must
+    fit and be as precise as a typical match.
+
+    Parameters
+    ----------
+    slow : LSMParams
+        The slow nodes' attempt (:func:`slow_params`).
+    accepted_sigma0 : (n,) array
+        ``sigma0`` of the accepted matches, grey levels.
+    accepted_sigma_xy : (n,) array
+        Their position's standard deviation (the larger coordinate's), px.
+
+    Returns
+    -------
+    LSMParams or None
+    """
+    s0 = np.asarray(accepted_sigma0, float).ravel()
+    sxy = np.asarray(accepted_sigma_xy, float).ravel()
+    if s0.shape != sxy.shape:
+        raise ValueError(f"accepted_sigma_xy: expected one value per match of accepted_sigma0 "
+                         f"({s0.size}), got {sxy.size}")
+    keep = np.isfinite(s0) & np.isfinite(sxy)
+    if not keep.any():
+        return None
+    th = slow.thresholds
+    return replace(slow, thresholds=replace(
+        th, max_sigma0=min(th.max_sigma0, float(np.median(s0[keep]))),
+        max_sigma_xy=min(th.max_sigma_xy, float(np.median(sxy[keep])))))
 
 
 @dataclass(frozen=True)
@@ -672,6 +731,8 @@ class _Matcher:
         self.K = len(g_imgs)
         self.n_lsm = 0
         self.census = dict.fromkeys(ATTEMPT_OUTCOMES, 0)
+        self.accepted = []   # (sigma0, sigma_xy) of the accepted matches (``slow_limit``)
+        self.pending = []    # the slow nodes' tries (template xy, approximation, A) to come
 
     def once(self, t_xy, approx, A0, params: LSMParams) -> _Matches:
         """One attempt at m template points from approximations ``approx`` (m, K, 2) and
@@ -700,7 +761,8 @@ class _Matcher:
     def match(self, t_xy, approx, A0, wide=None, wide_fits=None) -> _Matches:
         """The attempts in turn: the patch, the retry patch sizes, the robust attempt, the
         wide patch (:func:`wide_window_nodes`, only where ``wide_fits``) and the shifted
-        windows; each only for the nodes still unmatched. The nodes ``wide`` ((m,) bool,
+        windows; each only for the nodes still unmatched (the slow nodes' attempt comes
+        later, :meth:`slow`). The nodes ``wide`` ((m,) bool,
         textured in the wide patch only) get the wide patch alone."""
         o = self.opts
         out = _Matches.none(len(t_xy), self.K)
@@ -714,6 +776,13 @@ class _Matcher:
             if i == 0:
                 out.failure[again] = res.failure
             out.adopt(again, res, label)
+            if o.slow is not None:
+                self.accepted.append((res.sigma0[res.ok],
+                                      np.nanmax(res.sigma_xy[res.ok], axis=(1, 2))))
+        if o.slow is not None:    # tried later, all at once (:meth:`slow`)
+            slow = np.flatnonzero(~out.ok & ~wide
+                                  & (out.failure == AttemptOutcome.MAX_ITERATIONS))
+            self.pending.append((t_xy[slow], approx[slow], A0[slow]))
         if o.wide is not None:
             again = np.flatnonzero(wide_window_nodes(out.failure, matched=out.ok,
                                                      wide_only=wide, fits=wide_fits))
@@ -726,6 +795,25 @@ class _Matcher:
         if len(o.offsets) and again.size:
             out.adopt(again, self._shifted(t_xy[again], approx[again], A0[again]), "shifted")
         return out
+
+    def slow(self, keep) -> tuple:
+        """The slow nodes' attempt (:class:`GrowParams` ``slow``) at the tries collected since
+        the last call (a node tried from several neighbours is in it once for each) whose
+        template points pass ``keep`` ((n, 2) -> (n,) bool), its limits from the matches
+        accepted so far (:func:`slow_limit`): those points (n, 2) and their matches (None if
+        there was nothing to try)."""
+        tries = [np.concatenate(a) for a in zip(*self.pending)] if self.pending else None
+        self.pending = []
+        if tries is not None:
+            sel = keep(tries[0])
+            tries = [a[sel] for a in tries]
+        params = None if tries is None or len(tries[0]) == 0 else slow_limit(
+            self.opts.slow, *(np.concatenate(a) for a in zip(*self.accepted)))
+        if params is None:
+            return np.zeros((0, 2)), None
+        res = self.once(*tries, params)
+        res.how[:] = METHODS.index("slow")
+        return tries[0], res
 
     def _shifted(self, t_xy, approx, A0) -> _Matches:
         """Every node in every shifted window, in one call; a node's match is its best
@@ -894,6 +982,37 @@ def _grow(state: _State, grid: _Grid, matcher: _Matcher, opts: _Options) -> None
                 grown[cand[m.ok, 0], cand[m.ok, 1]] = True
             frontier = grown
             w += 1
+            if not frontier.any() and matcher.pending:
+                # the slow nodes at the end of the front, in one call; growth goes on from them
+                frontier = _slow_nodes(state, grid, matcher, w, across)
+
+
+def _slow_nodes(state: _State, grid: _Grid, matcher: _Matcher, wave: int,
+                across: bool) -> np.ndarray:
+    """The slow nodes' attempt (:meth:`_Matcher.slow`) at the nodes still unmatched; a node
+    tried from several neighbours takes its passing try with the smallest ``sigma0``.
+    Returns the matched nodes as a (rows, cols) mask. A failure is not counted as a try."""
+    grown = np.zeros(grid.shape, bool)
+
+    def node(xy):                           # grid row and column of template points
+        return np.rint(xy[:, ::-1] / matcher.opts.step).astype(int)
+
+    t_xy, m = matcher.slow(lambda xy: state.state[tuple(node(xy).T)] != 1)
+    if m is None:
+        return grown
+    rc = node(t_xy)
+    flat = rc[:, 0] * grid.shape[1] + rc[:, 1]
+    ok = np.flatnonzero(m.ok)
+    ok = ok[np.lexsort((m.sigma0[ok], flat[ok]))]             # by node, then by sigma0
+    ok = ok[np.r_[True, flat[ok][1:] != flat[ok][:-1]]] if ok.size else ok   # each node's best
+    r, c = rc[ok, 0], rc[ok, 1]
+    state.state[r, c] = 1
+    state.xy[r, c], state.A[r, c] = m.xy[ok], m.A[ok]
+    state.sigma0[r, c], state.sigma_xy[r, c] = m.sigma0[ok], m.sigma_xy[ok]
+    state.t[r, c], state.sigma_t[r, c] = m.t[ok], m.sigma_t[ok]
+    state.wave[r, c], state.holes[r, c], state.method[r, c] = wave, across, m.how[ok]
+    grown[r, c] = True
+    return grown
 
 
 def _node_outcome(state: _State, grid: _Grid) -> np.ndarray:

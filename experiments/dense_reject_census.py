@@ -83,6 +83,8 @@ def main(argv=None):
     parser.add_argument("--max-sigma-xy", type=float, default=None)
     parser.add_argument("--slow", action="store_true", help="the slow nodes' attempt "
                         "(GrowParams.slow) in both variants")
+    parser.add_argument("--precision-fill", action="store_true", help="the automatic seeds' "
+                        "texture test by a rule (DisparityParams.precision_fill)")
     parser.add_argument("--out", default="build/benchmarks/dense_reject_census.json")
     args = parser.parse_args(argv)
     if "tsukuba" in args.pairs:
@@ -92,6 +94,7 @@ def main(argv=None):
         th = replace(params.grow_params().thresholds, max_sigma_xy=args.max_sigma_xy)
         params = DisparityParams(grow=replace(params.grow, thresholds=th),
                                  sgbm_grow=replace(params.grow_params(sgbm=True), thresholds=th))
+    params = replace(params, precision_fill=args.precision_fill)
     if args.slow:
         params = replace(params, grow=replace(params.grow, slow=True),
                          sgbm_grow=None if params.sgbm_grow is None

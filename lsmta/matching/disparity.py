@@ -96,7 +96,7 @@ from .lsm import LSMThresholds, _params
 from .mpgc import RectifiedPair
 from .refine import refine_at_nodes, sgbm_start
 from .seeds import Seeds, find_disparity_seeds
-from .spline import check_image
+from .spline import SplineImage, check_image
 
 
 @dataclass(frozen=True)
@@ -279,7 +279,8 @@ def measure_disparity(left, right, *, disparity_range, seeds: Seeds | str | None
     if seeds.xy.shape[1] == 0:
         raise ValueError("seeds: none found; give seeds or widen disparity_range")
     grow = p.grow_params()
-    grown = grow_matches(f, g, seeds.xy[0], seeds.xy[1], mask=mask, template_mask=template_mask,
+    fs, gs = SplineImage(f, "left"), SplineImage(g, "right")     # prefiltered once
+    grown = grow_matches(fs, gs, seeds.xy[0], seeds.xy[1], mask=mask, template_mask=template_mask,
                          constraint=RectifiedPair(), params=grow)
     grid = [np.full(grown.grid_shape, np.nan) for _ in range(3)]
     _put(grid, grown, lo, hi)
@@ -293,7 +294,7 @@ def measure_disparity(left, right, *, disparity_range, seeds: Seeds | str | None
                                     mask=unreached)
         if more.xy.shape[1] == 0:
             break
-        again = grow_matches(f, g, more.xy[0], more.xy[1], mask=unmeasured,
+        again = grow_matches(fs, gs, more.xy[0], more.xy[1], mask=unmeasured,
                              template_mask=template_mask, constraint=RectifiedPair(),
                              params=grow)
         regrown.append((more, again))

@@ -32,6 +32,7 @@ from .lsm import LSMParams, Status
 from .mpgc import RectifiedPair, mpgc
 from .peers import sgbm_hh_bytes, stereo_sgbm
 from .seeds import Seeds
+from .spline import SplineImage
 
 #: memory allowed for SGBM's full 8-path mode in :func:`sgbm_start`, bytes (above it, the 5-path
 #: single-pass mode): a full-size video pair with a wide disparity range needs 10 GB or more
@@ -131,7 +132,8 @@ def refine_at_nodes(left, right, start, *, disparity_range, grow: GrowParams, ma
     todo = np.flatnonzero(~wide)
     first = np.full(len(r), -1, np.int8)
     retries = (grow.patch + 6,) if grow.retry_patch is None else grow.retry_patch
-    run = (left, right, template_mask, xy, start[r, c], disparity_range, got, census)
+    run = (SplineImage(left, "left"), SplineImage(right, "right"), template_mask, xy,
+           start[r, c], disparity_range, got, census)     # prefiltered once for every attempt
     for k, size in enumerate((grow.patch,) + tuple(retries)):
         if todo.size == 0:
             break

@@ -61,6 +61,17 @@ Protocol, a split per method:
   on any pair; CPU time +3/+16/+22/+4 % (interleaved, the shortest of 5; 9.9/8.9/6.6/35.4 ->
   10.3/11.6/7.9/37.4 x SGBM in these runs). The SGBM start is not changed by it. Not the
   default yet (:mod:`lsmta.matching.disparity` says why).
+
+Speed (issue #33 item 4; nothing chosen, the matches unchanged): the growth's Python half made
+leaner (the rectified pair's LSM without mpgc's result object, the front's candidates and the
+seeds' first nodes in one pass each, the texture test by box filters, each image prefiltered
+once). The grids, scores and verdicts other than time are bitwise those of 8b579a6 on all four
+pairs; CPU time as x SGBM, 8b579a6 -> now, three interleaved pairs of runs (--repeats 3, load
+4.1-6.6): ours 9.2-9.3/7.9-9.3/6.0-7.0/33.6-39.1 -> 7.4-7.9/6.7-6.8/4.7-4.8/27.0-27.3
+(Cones/Teddy/Art/Tsukuba; Art's time target met, the others NOT), SGBM start
+7.8-8.3/8.0-8.9/6.9-7.7/32.7-36.3 -> 7.0-7.4/7.1-7.4/5.9-6.1/28.2-28.3 (NOT met). What is
+left is mostly LSM itself (one thread, Cones: 175-185 ms of 260-290 ms, about 4.5-5 x SGBM on its
+own), so 5 x needs a faster solver or fewer LSM attempts, not less bookkeeping.
 """
 
 from __future__ import annotations

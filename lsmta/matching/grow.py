@@ -12,7 +12,10 @@ side, across cell borders.
 
 Batched: each growth step sends the whole front (all candidate nodes of all cells) through
 one :func:`~lsmta.matching.lsm` call, so the number of calls grows with the width of the
-region in grid steps, not with the number of points.
+region in grid steps, not with the number of points. What a step costs besides LSM is kept
+small (issue #33 item 4): for a rectified pair the step calls the solver without building
+:func:`~lsmta.matching.mpgc.mpgc`'s result (``mpgc._rectified_once``, the same matches), the
+front's candidates are found by a compiled pass, and the texture test reads box filters.
 
 Choices where the paper is vague: the retry changes the patch size only (a smaller step
 would leave the grid); a node may be tried up to ``max_attempts`` times from different

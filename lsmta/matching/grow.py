@@ -629,10 +629,11 @@ def _spread(f_img: SplineImage, opts: _Options, usable, flat, shape, size: int) 
     """The ``min_texture`` test: the grey-value spread of each usable node's ``size`` x
     ``size`` patch (the part inside the image).
 
-    Decided by the patches' moments from box filters where they are clear of the limit
-    (their round-off, below 1e-12 of ``max f^2`` per pixel of the image's side, is far
-    inside the margin); the patches near it and those over the border by
-    :func:`_patch_spread`, the reference (a pass over each patch's pixels)."""
+    Decided by the patches' moments from box filters where the variance is further than
+    ``1e-9 max f^2`` from the limit (the filters' running sums err by about ``1e-16 max f^2``
+    per pixel of a line, far inside that margin); the patches within the margin and those
+    over the border by :func:`_patch_spread`, the reference (a pass over each patch's
+    pixels), so the test's outcome is the reference's."""
     H, W = f_img.shape
     ok = np.full(len(flat), 0.0 >= opts.min_texture)      # (the nodes not usable: spread 0)
     idx = np.flatnonzero(usable.ravel())

@@ -6,7 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from lsmta.matching import DisparityParams, measure_disparity
+from lsmta.matching import DisparityParams, disparity, measure_disparity
 from lsmta.matching.disparity import row_precision_nodes
 from lsmta.synth.patches import warped_pair
 
@@ -68,6 +68,36 @@ def test_precision_fill_grows_into_nodes_below_the_texture_floor():
     assert len(on.regrown) == len(off.regrown) + 1
     # the fill is the automatic seeds' only: the SGBM start keeps its own texture floor
     sg = [measure_disparity(f, g, disparity_range=(0, 16), seeds="sgbm",
-                            params=DisparityParams(grow=grow, precision_fill=pf))
-          for pf in (False, True)]
+                            params=DisparityParams(grow=grow, precision_fill=False))]
+    with pytest.warns(UserWarning, match="precision_fill"):
+        sg.append(measure_disparity(f, g, disparity_range=(0, 16), seeds="sgbm",
+                                    params=DisparityParams(grow=grow, precision_fill=True)))
     assert np.array_equal(sg[0].disparity, sg[1].disparity, equal_nan=True)
+
+
+def test_precision_fill_leaves_a_flat_strip_and_takes_the_pairs_median(monkeypatch):
+    pair = warped_pair(rng=0, shape=(120, 160), A=A_RECT, c=(-4.3, 0.0), r0=5.0, r1=0.9,
+                       noise_sigma=2.0)
+    f, g = pair.template.copy(), pair.search.copy()
+    f[40:80], g[40:80] = 100.0, 100.0                 # a flat strip across both images
+    grow = replace(DisparityParams().grow, min_texture=25.0)
+    seen = []
+
+    def spy(image, **kw):                             # the sigma0 the fill uses
+        seen.append(kw["sigma0"])
+        return row_precision_nodes(image, **kw)
+
+    monkeypatch.setattr(disparity, "row_precision_nodes", spy)
+    off = measure_disparity(f, g, disparity_range=(0, 16), params=DisparityParams(grow=grow))
+    on = measure_disparity(f, g, disparity_range=(0, 16),
+                           params=DisparityParams(grow=grow, precision_fill=True))
+    assert on.density > off.density + 0.2             # the fill works beside the strip
+    # nodes whose 9 x 9 patch lies inside the strip (rows 44..75 px: node rows 11..18) have no
+    # row gradient: no sigma0 passes them, and they stay unmeasured
+    assert np.isnan(on.disparity[11:19]).all()
+    # sigma0 is the pair's: the median of the matches before the fill (a constant fails)
+    assert seen == [pytest.approx(np.median(off.sigma0[np.isfinite(off.sigma0)]), rel=1e-12)]
+    # and the nodes it added pass the rule at that sigma0
+    added = np.isfinite(on.disparity) & ~np.isfinite(off.disparity)
+    rule = row_precision_nodes(f, patch=grow.patch, step=4, sigma0=seen[0], max_sigma=0.2)
+    assert added.any() and rule[added].all()

@@ -16,6 +16,7 @@ from lsmta.matching import (
     sgbm_start,
 )
 from lsmta.matching.grow import (
+    SLOW_MIN_MATCHES,
     SLOW_TOL_SHARE,
     AttemptOutcome,
     NodeOutcome,
@@ -51,18 +52,20 @@ def test_slow_limits_follow_the_accepted_matches():
     model = LSMParams(patch=9, thresholds=LSMThresholds(max_sigma_xy=0.2, max_sigma0=20.0))
     slow = slow_params(model)
     assert slow.tol == pytest.approx(SLOW_TOL_SHARE * 0.2) and slow.patch == 9
-    s0 = np.array([1.0, 2.0, 3.0, np.nan, 50.0])
-    sxy = np.array([0.05, 0.01, 0.03, 0.02, 0.5])
+    s0 = np.repeat([1.0, 2.0, 3.0, np.nan, 50.0], 10)
+    sxy = np.repeat([0.05, 0.01, 0.03, 0.02, 0.5], 10)
     kept = s0.copy(), sxy.copy()
     lim = slow_limit(slow, s0, sxy).thresholds
     assert lim.max_sigma0 == pytest.approx(2.5)           # the median of 1, 2, 3, 50
     assert lim.max_sigma_xy == pytest.approx(0.04)        # of 0.05, 0.01, 0.03, 0.5
     assert np.array_equal(s0, kept[0], equal_nan=True) and np.array_equal(sxy, kept[1])
     # the limits only ever tighten the thresholds
-    lim = slow_limit(slow, [100.0], [1.0]).thresholds
+    n = SLOW_MIN_MATCHES
+    lim = slow_limit(slow, [100.0] * n, [1.0] * n).thresholds
     assert (lim.max_sigma0, lim.max_sigma_xy) == (20.0, 0.2)
+    # too few matches (NaN not counted) set no limits: no slow node is tried
+    assert slow_limit(slow, [1.0] * (n - 1) + [np.nan], [0.1] * n) is None
     assert slow_limit(slow, [], []) is None
-    assert slow_limit(slow, [np.nan], [0.1]) is None
 
 
 def test_bad_input_for_the_slow_nodes():
@@ -89,6 +92,28 @@ def test_slow_nodes_are_matched_accurately_and_only_with_the_option(ramp_pair):
         r, c = on.grown.node_index[on.grown.method == "slow"].T
         assert np.abs(on.disparity[r, c] - truth[r, c]).max() < 0.2
         assert sum(on.grown.attempt_census.values()) == on.grown.n_lsm
+
+
+def test_grown_slow_nodes_pass_the_medians_of_the_matches_before_them(ramp_pair):
+    # in the growth the limits are the medians of the call's main and retry matches accepted
+    # before the slow attempt: those of an earlier wave (the slow nodes take the next wave's
+    # number); each growth call (the first, the reseed round, the SGBM start's front) its own
+    f, g = ramp_pair.template, ramp_pair.search
+    checked = 0
+    for seeds in (None, "sgbm"):
+        res = measure_disparity(f, g, disparity_range=(0, 16), seeds=seeds, params=short(True))
+        growths = [a for _, a in res.regrown] + ([res.grown] if seeds is None else [])
+        for gr in growths:
+            slow = gr.method == "slow"
+            for w in np.unique(gr.wave[slow]):
+                before = ~slow & (gr.wave < w)
+                assert before.sum() >= SLOW_MIN_MATCHES
+                now = slow & (gr.wave == w)
+                assert gr.sigma0[now].max() <= np.median(gr.sigma0[before])
+                assert (np.nanmax(gr.sigma_xy[now], axis=1).max()
+                        <= np.median(np.nanmax(gr.sigma_xy[before], axis=1)))
+                checked += now.sum()
+    assert checked > 5
 
 
 def test_refined_slow_nodes_fit_and_are_as_precise_as_a_typical_match(ramp_pair):

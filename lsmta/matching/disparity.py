@@ -85,13 +85,14 @@ on them; notebook 16 reports them with these defaults):
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import ndimage
 
 from .._validate import as_int, as_scalar, check_patch
-from .grow import GrowParams, GrowResult, NodeOutcome, grow_matches
+from .grow import GrowParams, GrowResult, NodeOutcome, _gradient_sums, grow_matches
 from .lsm import LSMThresholds, _params
 from .mpgc import RectifiedPair
 from .refine import refine_at_nodes, sgbm_start
@@ -119,7 +120,9 @@ class DisparityResult:
     grown : GrowResult
         The growth from ``seeds`` (affine matrices, growth order, ...).
     regrown : tuple of (Seeds, GrowResult)
-        The growths from seeds found again in unreached regions, one per round.
+        The growths after ``grown``: from seeds found again in unreached regions, one per
+        round; then, with ``precision_fill``, the fill's growth (one more); started from
+        SGBM (``seeds="sgbm"``), the growth from the accepted nodes' front (``sgbm_fill``).
     """
 
     disparity: np.ndarray
@@ -187,7 +190,8 @@ class DisparityParams:
         nodes beside them, with no texture floor (:func:`row_precision_nodes`: ``sigma0 /
         sqrt(sum g_x^2) <= max_sigma_xy`` over the patch, ``sigma0`` the median of the
         matches of the growths before, the adjustment's own measure of the pair's noise and
-        model error). False (default): off.
+        model error). Ignored, with a warning, when ``seeds`` are given or ``"sgbm"``.
+        False (default): off.
     """
 
     grow: GrowParams = _GROW
@@ -269,6 +273,9 @@ def measure_disparity(left, right, *, disparity_range, seeds: Seeds | str | None
     if not 0 <= lo < hi:
         raise ValueError(f"disparity_range: expected 0 <= smallest < largest (pixels), got "
                          f"{disparity_range}")
+    if p.precision_fill and seeds is not None:
+        warnings.warn("precision_fill: ignored (automatic seeds only), seeds were given",
+                      stacklevel=2)
     if isinstance(seeds, str) and seeds == "sgbm":
         return _from_sgbm(f, g, (lo, hi), mask, template_mask, p)
     if not (seeds is None or isinstance(seeds, Seeds)):
@@ -426,8 +433,7 @@ def row_precision_nodes(image, *, patch: int, step: int, sigma0: float,
     step = as_int(step, "step", unit="pixels")
     sigma0 = as_scalar(sigma0, "sigma0", positive=True)
     max_sigma = as_scalar(max_sigma, "max_sigma", positive=True)
-    gx = np.gradient(f, axis=1)
-    energy = ndimage.uniform_filter(gx * gx, patch, mode="nearest") * patch * patch
+    energy, = _gradient_sums(f, patch, row_only=True)
     return energy[::step, ::step] * max_sigma**2 >= sigma0**2
 
 

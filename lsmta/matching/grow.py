@@ -68,6 +68,10 @@ FAR = ((1, 1), (-1, 1), (1, -1), (-1, -1), (2, 0), (-2, 0), (0, 2), (0, -2))
 METHODS = ("patch", "retry", "robust", "shifted", "wide", "slow")
 #: the slow nodes' convergence limit as a share of ``max_sigma_xy`` (:class:`GrowParams` ``slow``)
 SLOW_TOL_SHARE = 0.1
+#: the fewest accepted matches whose medians may set the slow nodes' limits (:func:`slow_limit`):
+#: the median of n values scatters by about 1.25 s / sqrt(n) (s their spread), from 25 on by a
+#: quarter of the spread at most, so a few matches of one small growth do not set the limits
+SLOW_MIN_MATCHES = 25
 
 
 class AttemptOutcome(enum.IntEnum):
@@ -287,17 +291,24 @@ class GrowParams:
         thresholds; nodes that did not converge are not widened (a depth edge, where a
         wider window would straddle more of it). None (default): off.
     slow : bool
-        Slow nodes (issue #33 item 3; the largest class of the nodes SGBM measures and the
-        growth does not on Cones, Art and Teddy, ``experiments/dense_reject_census.py``): a
-        node whose main patch was still moving after ``max_iter`` iterations
-        (``MAX_ITERATIONS``) and that no retry matched is tried once more with the main patch
-        and a convergence limit set by the accepted precision, ``tol = SLOW_TOL_SHARE *
-        max_sigma_xy`` (an update of a tenth of the precision a match may have does not
-        change whether it is accepted), and accepted only if it fits and is as precise as a
-        typical match: ``sigma0`` and ``sigma_xy`` at most the medians of the matches
-        accepted so far (:func:`slow_limit`; the adjustment's own measure of the pair's
-        noise, model error and texture: a patch straddling a depth edge, the usual slow
-        node, fits worse). False (default): off.
+        Slow nodes (issue #33 item 3; ``experiments/dense_reject_census.py``: of the nodes
+        SGBM measures and the growth does not, the largest class for the SGBM start on Cones,
+        Art and Teddy, for the automatic seeds on Cones only; on Art never reached, on Teddy
+        below the texture floor come first): a node whose main patch was still moving after
+        ``max_iter`` iterations (``MAX_ITERATIONS``) and that no retry matched is tried once
+        more with the main patch and a convergence limit set by the accepted precision,
+        ``tol = SLOW_TOL_SHARE * max_sigma_xy`` (an update of a tenth of the precision a
+        match may have does not change whether it is accepted), and accepted only if it fits
+        and is as precise as a typical match: ``sigma0`` and ``sigma_xy`` at most the
+        medians (:func:`slow_limit`; the adjustment's own measure of the pair's noise, model
+        error and texture; that a slow node straddles a depth edge and so fits worse was
+        not measured) of the matches accepted so far by the main, retry and robust
+        attempts of this call only (:func:`grow_matches`; each of
+        :func:`~lsmta.matching.measure_disparity`'s reseed rounds, its precision fill and
+        the SGBM start's growth from the front is a call of its own, with its own matches,
+        possibly few; :func:`~lsmta.matching.refine.refine_at_nodes`: all its main and
+        retry matches). No slow node is tried before :data:`SLOW_MIN_MATCHES` matches are
+        accepted. False (default): off.
     """
 
     step: int = 4
@@ -511,9 +522,19 @@ def _options(p: GrowParams, constraint) -> _Options:
 
 
 def slow_params(model: LSMParams) -> LSMParams:
-    """The slow nodes' attempt (:class:`GrowParams` ``slow``) of the main patch's ``model``:
-    its convergence limit ``SLOW_TOL_SHARE * max_sigma_xy`` (px); the ``sigma0`` and
-    ``sigma_xy`` limits are set per call (:func:`slow_limit`)."""
+    """The slow nodes' attempt (:class:`GrowParams` ``slow``) of the main patch's ``model``.
+
+    Parameters
+    ----------
+    model : LSMParams
+        The main patch's LSM settings, with thresholds.
+
+    Returns
+    -------
+    LSMParams
+        ``model`` with the convergence limit ``tol = SLOW_TOL_SHARE * max_sigma_xy`` (px);
+        the ``sigma0`` and ``sigma_xy`` limits are set per call (:func:`slow_limit`).
+    """
     if model.thresholds is None:
         raise ValueError("model: expected LSMParams with thresholds (their max_sigma_xy sets "
                          "the slow nodes' convergence limit)")
@@ -522,8 +543,8 @@ def slow_params(model: LSMParams) -> LSMParams:
 
 def slow_limit(slow: LSMParams, accepted_sigma0, accepted_sigma_xy) -> LSMParams | None:
     """``slow`` with its ``max_sigma0`` and ``max_sigma_xy`` lowered to the medians of the
-    matches accepted so far (NaN ignored), or None if there is none yet: a slow node must
-    fit and be as precise as a typical match.
+    matches accepted so far (NaN ignored), or None if fewer than :data:`SLOW_MIN_MATCHES`
+    are: a slow node must fit and be as precise as a typical match.
 
     Parameters
     ----------
@@ -544,7 +565,7 @@ def slow_limit(slow: LSMParams, accepted_sigma0, accepted_sigma_xy) -> LSMParams
         raise ValueError(f"accepted_sigma_xy: expected one value per match of accepted_sigma0 "
                          f"({s0.size}), got {sxy.size}")
     keep = np.isfinite(s0) & np.isfinite(sxy)
-    if not keep.any():
+    if keep.sum() < SLOW_MIN_MATCHES:
         return None
     th = slow.thresholds
     return replace(slow, thresholds=replace(
@@ -613,16 +634,25 @@ def _textured(f_img: SplineImage, opts: _Options, usable, rows, cols, size: int)
 def _precise_enough(image, opts: _Options, rows, cols, n: int) -> np.ndarray:
     """The precision rule (:class:`GrowParams` ``noise``) at the nodes ``(rows, cols)``:
     ``sqrt(2) noise / sqrt(lambda_min) <= max_sigma_xy`` over ``n`` x ``n`` patches."""
-    f = np.asarray(image, float)
-    gy, gx = np.gradient(f)
-
-    def box(a):
-        return ndimage.uniform_filter(a, n, mode="nearest")[rows, cols] * n * n
-
-    a, b, c = box(gx * gx), box(gx * gy), box(gy * gy)
+    a, b, c = (s[rows, cols] for s in _gradient_sums(image, n))
     lam = (a + c) / 2 - np.sqrt(((a - c) / 2) ** 2 + b * b)
     need = (np.sqrt(2.0) * opts.noise / opts.thresholds.max_sigma_xy) ** 2
     return lam >= need
+
+
+def _gradient_sums(image, n: int, *, row_only: bool = False) -> tuple:
+    """Sums over every pixel's ``n`` x ``n`` window (the border repeated) of ``g_x^2``,
+    ``g_x g_y`` and ``g_y^2`` (``row_only``: ``g_x^2`` alone), the gradient by central
+    differences (``np.gradient``); (H, W) arrays, grey levels² / px². Shared by the precision
+    rule (:func:`_precise_enough`) and :func:`~lsmta.matching.disparity.row_precision_nodes`."""
+    f = np.asarray(image, float)
+    if row_only:
+        gx = np.gradient(f, axis=1)
+        products = (gx * gx,)
+    else:
+        gy, gx = np.gradient(f)
+        products = (gx * gx, gx * gy, gy * gy)
+    return tuple(ndimage.uniform_filter(a, n, mode="nearest") * n * n for a in products)
 
 
 def _spread(f_img: SplineImage, opts: _Options, usable, flat, shape, size: int) -> np.ndarray:
@@ -744,6 +774,11 @@ class _Matches:
                    sigma_xy=np.full((m, K, 2), np.nan), t=np.full(m, np.nan),
                    sigma_t=np.full(m, np.nan), how=np.zeros(m, dtype=np.int8),
                    failure=np.full(m, -1, dtype=np.int8))
+
+    def take(self, idx) -> _Matches:
+        """The rows ``idx``."""
+        return _Matches(**{name: None if v is None else v[idx]
+                           for name, v in vars(self).items()})
 
     def adopt(self, again, res: _Matches, label: str) -> None:
         """Take the converged ``res`` rows for the nodes ``again``."""
@@ -1080,13 +1115,8 @@ def _slow_nodes(state: _State, grid: _Grid, matcher: _Matcher, wave: int,
     ok = np.flatnonzero(m.ok)
     ok = ok[np.lexsort((m.sigma0[ok], flat[ok]))]             # by node, then by sigma0
     ok = ok[np.r_[True, flat[ok][1:] != flat[ok][:-1]]] if ok.size else ok   # each node's best
-    r, c = rc[ok, 0], rc[ok, 1]
-    state.state[r, c] = 1
-    state.xy[r, c], state.A[r, c] = m.xy[ok], m.A[ok]
-    state.sigma0[r, c], state.sigma_xy[r, c] = m.sigma0[ok], m.sigma_xy[ok]
-    state.t[r, c], state.sigma_t[r, c] = m.t[ok], m.sigma_t[ok]
-    state.wave[r, c], state.holes[r, c], state.method[r, c] = wave, across, m.how[ok]
-    grown[r, c] = True
+    state.store(rc[ok], m.take(ok), wave, across, matcher.opts.max_attempts)  # all accepted
+    grown[rc[ok, 0], rc[ok, 1]] = True
     return grown
 
 

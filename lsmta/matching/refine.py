@@ -95,7 +95,8 @@ def refine_at_nodes(left, right, start, *, disparity_range, grow: GrowParams, ma
         nearest pixel at the image's border, where the growth takes the spread of the part
         inside), the slow nodes' attempt ``slow`` (the growth's rule: at the nodes whose
         patch was still moving after ``max_iter`` iterations and that no retry matched, its
-        ``sigma0`` limit the median of the nodes accepted before it), the adaptive window
+        ``sigma0`` and ``sigma_xy`` limits the medians of the main and retry patches'
+        matches, :func:`~lsmta.matching.grow.slow_limit`), the adaptive window
         ``wide_patch`` (the growth's rule,
         :func:`~lsmta.matching.grow.wide_window_nodes`: a node textured only in the wide
         patch is tried with it alone, and a node whose patch was rejected by a precision test
@@ -137,16 +138,14 @@ def refine_at_nodes(left, right, start, *, disparity_range, grow: GrowParams, ma
     for k, size in enumerate((grow.patch,) + tuple(retries)):
         if todo.size == 0:
             break
+        # the main patch's outcomes always (a cheap pass over its results): node_failure
         ok, code = _attempt(*run, todo, replace(model, patch=size), "retry" if k else "patch",
                             outcomes=k == 0)
         if code is not None:
             first[todo] = code
         todo = todo[~ok]
-    slow = (slow_limit(slow_params(model), got["sigma0"], np.max(got["sigma_xy"], axis=1))
-            if grow.slow else None)
-    todo = np.flatnonzero(~np.isfinite(got["t"]) & (first == AttemptOutcome.MAX_ITERATIONS))
-    if slow is not None and todo.size:
-        _attempt(*run, todo, slow, "slow")
+    if grow.slow:
+        _slow_attempt(run, model, first)
     if grow.wide_patch is not None:
         todo = np.flatnonzero(wide_window_nodes(first, matched=np.isfinite(got["t"]),
                                                 wide_only=wide, fits=fits[r, c]))
@@ -200,6 +199,20 @@ def _attempt(left, right, template_mask, xy, t0, disparity_range, got: dict, cen
         got[name][todo[ok]] = value[ok]
     got["method"][todo[ok]] = label
     return ok, code
+
+
+def _slow_attempt(run: tuple, model, first) -> None:
+    """:func:`refine_at_nodes`' slow nodes' attempt (:class:`~lsmta.matching.GrowParams`
+    ``slow``) at the unmatched nodes whose main patch ended at ``MAX_ITERATIONS``
+    (``first``), its limits the medians of the matches so far; ``run``: :func:`_attempt`'s
+    first arguments (``got`` updated)."""
+    got = run[6]
+    matched = np.isfinite(got["t"])
+    slow = slow_limit(slow_params(model), got["sigma0"][matched],
+                      np.nanmax(got["sigma_xy"][matched], axis=1))
+    todo = np.flatnonzero(~matched & (first == AttemptOutcome.MAX_ITERATIONS))
+    if slow is not None and todo.size:
+        _attempt(*run, todo, slow, "slow")
 
 
 def _wide_only(left, grow: GrowParams, textured) -> tuple:

@@ -44,12 +44,14 @@ the options run, :func:`tuning_pairs`):
   runs one after the other, --repeats 3): the SGBM start's density 0.879/0.828/0.698/0.677
   -> 0.880/0.835/0.701/0.693 (Cones/Teddy/Art/Tsukuba), bad 1.0 1.88/3.66/4.40/2.66 % ->
   1.83/3.69/4.40/2.60 % (Teddy's target is 3.69 %: met by 0.002 points); the automatic
-  seeds' density 0.866/0.757/0.547/0.629 -> 0.866/0.758/0.547/0.633, bad 1.0
-  1.98/3.50/4.46/2.50 % -> 1.98/3.50/4.45/2.55 %; no verdict changed, density NOT met on any
-  pair either way; CPU time +13-16 % (interleaved runs on the tuning pairs, the shortest of
-  4), 7.0-9.1 -> 8.0-10.9 x SGBM in these runs on a loaded machine (Tsukuba 32 -> 43 x,
-  SGBM's 8 ms there). Not the default: a gain of 0.7 points at most for that time, and
-  Teddy's bad-1.0 margin gone;
+  seeds' density 0.866/0.757/0.547/0.629 -> 0.866/0.758/0.547/0.633 (Teddy 0.757 since the
+  minimum of SLOW_MIN_MATCHES accepted matches, added after: its reseed round no longer
+  tries its 2 slow nodes; the grids recomputed without timing, every other pair and the SGBM
+  start unchanged), bad 1.0 1.98/3.50/4.46/2.50 % -> 1.98/3.50/4.45/2.55 %; no verdict
+  changed, density NOT met on any pair either way; CPU time +13-16 % (interleaved runs on
+  the tuning pairs, the shortest of 4), 7.0-9.1 -> 8.0-10.9 x SGBM in these runs on a loaded
+  machine (Tsukuba 32 -> 43 x, SGBM's 8 ms there). Not the default: a gain of 0.7 points at
+  most for that time, and Teddy's bad-1.0 margin gone;
 * the automatic seeds' texture test by a rule (``DisparityParams.precision_fill``, an
   option; ``--precision-fill``), issue #33 item 1: the nodes never tried (below the texture
   floor, or never reached) that pass ``sigma0 / sqrt(sum g_x^2) <= max_sigma_xy`` over the

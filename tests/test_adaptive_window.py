@@ -125,7 +125,15 @@ def test_wide_window_only_where_it_fits(band_pair, monkeypatch):
             return mpgc(f, g, t_xy, *args, params=params, **kw)
         return wrapped
 
+    def spy_lean(once):      # the growth's own path for a rectified pair
+        def wrapped(f, g, t_xy, t0, A0, weights, model, *args):
+            if model.patch == WIDE_PATCH:
+                tried.append(np.array(t_xy))
+            return once(f, g, t_xy, t0, A0, weights, model, *args)
+        return wrapped
+
     monkeypatch.setattr(grow_module, "mpgc", spy(grow_module.mpgc))
+    monkeypatch.setattr(grow_module, "_rectified_once", spy_lean(grow_module._rectified_once))
     monkeypatch.setattr(refine_module, "mpgc", spy(refine_module.mpgc))
     f, g, truth_pair = band_pair
     p = params(WIDE_PATCH, thresholds=tight(0.01), partial=False, patch=7)

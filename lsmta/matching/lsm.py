@@ -199,17 +199,23 @@ class LSMThresholds:
         """Which test each match fails: ``{name: (N,) bool}`` for the names of
         :data:`THRESHOLD_TESTS`, in that order (True: fails it; NaN fails). One compiled
         pass over the matches (:func:`lsmta.matching._solver.threshold_failures`)."""
-        n = len(result.status)
+        return dict(zip(THRESHOLD_TESTS, self._failures(
+            result.A, result.sigma0, result.sigma_xy, result.displacement,
+            result.weight_share)))
+
+    def _failures(self, A, sigma0, sigma_xy, displacement, weight_share) -> np.ndarray:
+        """:meth:`failures` from the arrays ((n, 2, 2), (n,), (n, 2), (n,), (n,)), as a
+        (len(THRESHOLD_TESTS), n) bool array."""
+        n = len(sigma0)
         out = np.empty((len(THRESHOLD_TESTS), n), bool)
         limits = np.array([self.max_sigma0, self.max_sigma_xy, self.max_displacement,
                            self.scale_range[0], self.scale_range[1], self.max_shear,
                            self.min_weight_share], float)
         _solver.threshold_failures(
-            np.ascontiguousarray(result.A, float).reshape(n, 2, 2),
-            np.asarray(result.sigma0, float), np.asarray(result.sigma_xy, float).reshape(n, 2),
-            np.asarray(result.displacement, float), np.asarray(result.weight_share, float),
-            limits, out)
-        return dict(zip(THRESHOLD_TESTS, out))
+            np.ascontiguousarray(A, float).reshape(n, 2, 2),
+            np.asarray(sigma0, float), np.asarray(sigma_xy, float).reshape(n, 2),
+            np.asarray(displacement, float), np.asarray(weight_share, float), limits, out)
+        return out
 
     def accept(self, result: LSMResult) -> np.ndarray:
         """Boolean ``(N,)``: converged and passing every threshold."""

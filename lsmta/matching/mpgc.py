@@ -387,3 +387,61 @@ def _apply(thresholds: LSMThresholds, result: ConstrainedResult) -> ConstrainedR
     status = result.status.copy()
     status[result.ok & ~accept] = Status.REJECTED
     return replace(result, status=status)
+
+
+def _rectified_once(f_img: SplineImage, g_img: SplineImage, t_xy, t0, A0, weights,
+                    model: _Model, thresholds: LSMThresholds | None,
+                    constraint: RectifiedPair) -> tuple:
+    """:func:`mpgc` of a :class:`RectifiedPair` as the growth calls it in every step
+    (:meth:`lsmta.matching.grow._Matcher.once`), without building a
+    :class:`ConstrainedResult`: the same state, solver call and formulas, with the thresholds'
+    tests computed once.
+
+    Parameters
+    ----------
+    f_img, g_img : SplineImage
+    t_xy : (n, 2) float array
+    t0 : (n,) array
+        Starting disparities, px.
+    A0 : (n, 1, 2, 2) array
+    weights : array
+        :func:`~lsmta.matching.lsm._template_weights`.
+    model : _Model
+    thresholds : LSMThresholds or None
+    constraint : RectifiedPair
+
+    Returns
+    -------
+    tuple
+        ``(status (n,), c (n, 1, 2), A (n, 1, 2, 2), t (n,), sigma_t (n,), sigma0 (n,),
+        sigma_xy (n, 1, 2), failures)``: the status with the thresholds applied (REJECTED),
+        and their failures ``(len(THRESHOLD_TESTS), n)`` bool (None without thresholds).
+    """
+    t_start = np.asarray(t0, dtype=float)
+    c0 = constraint.positions(t_xy, t_start)
+    direction = np.zeros_like(c0)       # constraint.curves(t_xy, t_start), c0 its base
+    direction[..., 0] = -1.0 if constraint.template_left else 1.0
+    curves = (c0.copy(), direction, np.zeros_like(c0), t_start.copy())
+    finite = np.isfinite(c0).all(axis=(1, 2))
+    start = c0 if finite.all() else np.nan_to_num(c0, nan=-1e6)
+    state = _State.initial(model, f_img, t_xy, start, np.array(A0, dtype=float),
+                           curves=(t_start, *curves))
+    state.status[~(np.isfinite(t_start) & finite)] = Status.OUTSIDE.value
+    _solve(state, model, f_img, [g_img], weights)
+    # _constrained_result's formulas, one search image
+    sigma0, cov = _precision(state)
+    with np.errstate(invalid="ignore"):
+        sigma_t = np.sqrt(cov[:, 0, 0])
+    tangent = np.stack([state.direction[..., j] + 2 * state.quad[..., j]
+                        * (state.t - state.t_exp)[:, None] for j in (0, 1)], axis=-1)
+    sigma_xy = np.abs(tangent) * sigma_t[:, None, None]
+    status = state.status
+    fails = None
+    if thresholds is not None:
+        disp = np.where((status == Status.OUTSIDE.value)[:, None], np.nan,
+                        np.linalg.norm(state.c - c0, axis=2))
+        fails = thresholds._failures(state.A[:, 0], sigma0, sigma_xy[:, 0], disp[:, 0],
+                                     state.sw_last / model.patch**2)
+        status = status.copy()
+        status[(status == Status.CONVERGED.value) & fails.any(axis=0)] = Status.REJECTED.value
+    return status, state.c, state.A, state.t, sigma_t, sigma0, sigma_xy, fails

@@ -18,11 +18,21 @@ from dataclasses import replace
 import numpy as np
 from scipy import ndimage
 
-from .grow import GrowParams, GrowResult, attempt_outcomes, wide_window_nodes
+from .grow import (
+    AttemptOutcome,
+    GrowParams,
+    GrowResult,
+    NodeOutcome,
+    attempt_outcomes,
+    slow_limit,
+    slow_params,
+    wide_window_nodes,
+)
 from .lsm import LSMParams, Status
 from .mpgc import RectifiedPair, mpgc
 from .peers import sgbm_hh_bytes, stereo_sgbm
 from .seeds import Seeds
+from .spline import SplineImage
 
 #: memory allowed for SGBM's full 8-path mode in :func:`sgbm_start`, bytes (above it, the 5-path
 #: single-pass mode): a full-size video pair with a wide disparity range needs 10 GB or more
@@ -83,7 +93,11 @@ def refine_at_nodes(left, right, start, *, disparity_range, grow: GrowParams, ma
         The LSM model, the patch and retry patches, ``min_texture`` (a node whose patch's
         grey-value spread is below it is not tried; here the window is padded with its
         nearest pixel at the image's border, where the growth takes the spread of the part
-        inside), the adaptive window ``wide_patch`` (the growth's rule,
+        inside), the slow nodes' attempt ``slow`` (the growth's rule: at the nodes whose
+        patch was still moving after ``max_iter`` iterations and that no retry matched, its
+        ``sigma0`` and ``sigma_xy`` limits the medians of the main and retry patches'
+        matches, :func:`~lsmta.matching.grow.slow_limit`), the adaptive window
+        ``wide_patch`` (the growth's rule,
         :func:`~lsmta.matching.grow.wide_window_nodes`: a node textured only in the wide
         patch is tried with it alone, and a node whose patch was rejected by a precision test
         and that no retry matched is tried once more with it; with ``partial`` False, only
@@ -98,22 +112,14 @@ def refine_at_nodes(left, right, start, *, disparity_range, grow: GrowParams, ma
     -------
     (Seeds, GrowResult)
         The started nodes (``disparity`` their start) and the accepted ones (``wave`` 0,
-        ``seed`` the started node's index, ``attempt_census`` by status).
+        ``seed`` the started node's index, ``attempt_census`` by status; ``node_outcome``
+        per node: matched, given up after every patch, ``NO_TEXTURE``, ``MASKED``, or
+        ``NEVER_REACHED`` where ``start`` is NaN; ``node_failure`` the main patch's
+        :class:`~lsmta.matching.grow.AttemptOutcome` at the nodes tried and not matched,
+        the wide patch's at nodes textured in it only).
     """
     start = np.asarray(start, float)
-    h, w = np.shape(left)
-    grid = ((h - 1) // grow.step + 1, (w - 1) // grow.step + 1)
-    if start.shape != grid:
-        raise ValueError(f"start: expected the {grid} nodes of a {h} x {w} image at step "
-                         f"{grow.step}, got shape {start.shape}")
-    if mask is not None and np.shape(mask) != (h, w):
-        raise ValueError(f"mask: expected the image's shape {(h, w)}, got {np.shape(mask)}")
-    try_ = np.isfinite(start)
-    if mask is not None:
-        try_ &= np.asarray(mask, bool)[::grow.step, ::grow.step]
-    textured = _textured(left, grow.patch, grow.step, start.shape, grow.min_texture)
-    wide_only, fits = _wide_only(left, grow, textured)
-    try_ &= textured | wide_only
+    try_, outcome, wide_only, fits = _nodes_to_try(left, start, grow, mask)
     r, c = np.nonzero(try_)
     xy = np.stack([c * grow.step, r * grow.step], axis=1).astype(float)
     model = LSMParams(patch=grow.patch, geometry=grow.geometry, radiometry=grow.radiometry,
@@ -127,21 +133,51 @@ def refine_at_nodes(left, right, start, *, disparity_range, grow: GrowParams, ma
     todo = np.flatnonzero(~wide)
     first = np.full(len(r), -1, np.int8)
     retries = (grow.patch + 6,) if grow.retry_patch is None else grow.retry_patch
-    run = (left, right, template_mask, xy, start[r, c], disparity_range, got, census)
+    run = (SplineImage(left, "left"), SplineImage(right, "right"), template_mask, xy,
+           start[r, c], disparity_range, got, census)     # prefiltered once for every attempt
     for k, size in enumerate((grow.patch,) + tuple(retries)):
         if todo.size == 0:
             break
+        # the main patch's outcomes always (a cheap pass over its results): node_failure
         ok, code = _attempt(*run, todo, replace(model, patch=size), "retry" if k else "patch",
-                            outcomes=k == 0 and grow.wide_patch is not None)
+                            outcomes=k == 0)
         if code is not None:
             first[todo] = code
         todo = todo[~ok]
+    if grow.slow:
+        _slow_attempt(run, model, first)
     if grow.wide_patch is not None:
         todo = np.flatnonzero(wide_window_nodes(first, matched=np.isfinite(got["t"]),
                                                 wide_only=wide, fits=fits[r, c]))
         if todo.size:
-            _attempt(*run, todo, replace(model, patch=grow.wide_patch), "wide")
-    return _refined(start, r, c, xy, got, census)
+            _, code = _attempt(*run, todo, replace(model, patch=grow.wide_patch), "wide",
+                               outcomes=True)
+            first[todo[wide[todo]]] = code[wide[todo]]
+    return _refined(start, r, c, xy, got, census, outcome, first)
+
+
+def _nodes_to_try(left, start, grow: GrowParams, mask) -> tuple:
+    """:func:`refine_at_nodes`' nodes to try ((rows, cols) bool: started, in ``mask``,
+    textured), every node's :class:`~lsmta.matching.grow.NodeOutcome` so far (``GIVEN_UP``
+    at those to try until matched) and :func:`_wide_only`'s two masks; checks ``start``
+    and ``mask`` against the image."""
+    h, w = np.shape(left)
+    grid = ((h - 1) // grow.step + 1, (w - 1) // grow.step + 1)
+    if start.shape != grid:
+        raise ValueError(f"start: expected the {grid} nodes of a {h} x {w} image at step "
+                         f"{grow.step}, got shape {start.shape}")
+    if mask is not None and np.shape(mask) != (h, w):
+        raise ValueError(f"mask: expected the image's shape {(h, w)}, got {np.shape(mask)}")
+    try_ = np.isfinite(start)
+    outcome = np.where(try_, NodeOutcome.GIVEN_UP, NodeOutcome.NEVER_REACHED).astype(np.int8)
+    if mask is not None:
+        inside = np.asarray(mask, bool)[::grow.step, ::grow.step]
+        outcome[try_ & ~inside] = NodeOutcome.MASKED
+        try_ &= inside
+    textured = _textured(left, grow.patch, grow.step, start.shape, grow.min_texture)
+    wide_only, fits = _wide_only(left, grow, textured)
+    outcome[try_ & ~(textured | wide_only)] = NodeOutcome.NO_TEXTURE
+    return try_ & (textured | wide_only), outcome, wide_only, fits
 
 
 def _attempt(left, right, template_mask, xy, t0, disparity_range, got: dict, census: dict,
@@ -163,6 +199,20 @@ def _attempt(left, right, template_mask, xy, t0, disparity_range, got: dict, cen
         got[name][todo[ok]] = value[ok]
     got["method"][todo[ok]] = label
     return ok, code
+
+
+def _slow_attempt(run: tuple, model, first) -> None:
+    """:func:`refine_at_nodes`' slow nodes' attempt (:class:`~lsmta.matching.GrowParams`
+    ``slow``) at the unmatched nodes whose main patch ended at ``MAX_ITERATIONS``
+    (``first``), its limits the medians of the matches so far; ``run``: :func:`_attempt`'s
+    first arguments (``got`` updated)."""
+    got = run[6]
+    matched = np.isfinite(got["t"])
+    slow = slow_limit(slow_params(model), got["sigma0"][matched],
+                      np.nanmax(got["sigma_xy"][matched], axis=1))
+    todo = np.flatnonzero(~matched & (first == AttemptOutcome.MAX_ITERATIONS))
+    if slow is not None and todo.size:
+        _attempt(*run, todo, slow, "slow")
 
 
 def _wide_only(left, grow: GrowParams, textured) -> tuple:
@@ -193,9 +243,15 @@ def _textured(image, patch: int, step: int, shape, min_texture: float) -> np.nda
     return out
 
 
-def _refined(start, r, c, xy, got: dict, census: dict) -> tuple:
-    """:func:`refine_at_nodes`' seeds and matches from the started nodes and their LSM."""
+def _refined(start, r, c, xy, got: dict, census: dict, outcome, first) -> tuple:
+    """:func:`refine_at_nodes`' seeds and matches from the started nodes and their LSM
+    (``outcome``: the nodes' :class:`~lsmta.matching.grow.NodeOutcome` before LSM, ``first``
+    the first attempt's outcome at the tried ones)."""
     ok = np.isfinite(got["t"])
+    outcome = outcome.copy()
+    outcome[r[ok], c[ok]] = NodeOutcome.MATCHED
+    failure = np.full(start.shape, -1, np.int8)
+    failure[r[~ok], c[~ok]] = first[~ok]
     shift = np.stack([start[r, c], np.zeros(len(r))], axis=1)
     seeds = Seeds(xy=np.stack([xy, xy - shift]), score=np.full(len(r), np.nan),
                   depth=np.full(len(r), np.nan), disparity=start[r, c])
@@ -207,5 +263,6 @@ def _refined(start, r, c, xy, got: dict, census: dict) -> tuple:
         seeds_matched=ok, n_lsm=int(sum(census.values())), grid_shape=start.shape,
         node_index=np.stack([r[ok], c[ok]], axis=1), method=got["method"][ok],
         t=got["t"][ok], sigma_t=got["sigma_t"][ok], attempt_census=census,
-        node_census={"started": len(r), "matched": n, "failed": len(r) - n})
+        node_census={"started": len(r), "matched": n, "failed": len(r) - n},
+        node_outcome=outcome, node_failure=failure)
     return seeds, grown

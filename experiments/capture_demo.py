@@ -22,7 +22,8 @@ order 4; what markers.c3d / .trc hold; the same pair, chosen on the raw position
 check's counts (``MarkerParams.check``: ambiguous joins dropped, views taken out, tracks
 attached, tracks not on a dot taken out and markers dropped for it (``not_dot_views``,
 ``not_dots``: ``MarkerParams.dot_share``), moving markers off the subject's silhouette
-dropped, dots found again), the 2-D
+dropped, dots found again, of them along an epipolar line and by the reach search after a
+long gap, ``MarkerParams.fill_reach``), the 2-D
 tracking's CPU time, the ratios LSMTA / KLT, and the targets' verdicts; per LSMTA marker
 its views, 3-D share and the frames only one view (or none) holds it, and of those the
 frames no other view shows a dot where the marker can be (`lsmta.tracking.second_view`'s

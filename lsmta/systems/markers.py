@@ -191,7 +191,7 @@ class MarkerParams:
         follower's, 15 grey levels), but the test was designed and judged by eye on this
         recording's 28 fills only, with no held-out recording. Its cost there: one marker's
         3-D share falls 0.92 -> 0.77, mostly real dots no longer reached (see
-        :func:`~lsmta.tracking.join_checks.fill_gaps`' ``min_surround``). False: the peak
+        :mod:`~lsmta.tracking.join_checks`, step 3). False: the peak
         test alone, as before (more fills, some on no dot).
     fill_reach : bool
         With ``check`` and ``fill_line``: where one view holds a marker and the fill's

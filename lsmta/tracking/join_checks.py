@@ -65,7 +65,8 @@ what a recording is scored on):
    beside anything as bright within ``1.5 radius`` px (a bright stripe) fails it too, and
    one within ``1.5 radius`` px of the frame's border is not tested and so refused. A
    refused fill also cuts off the dots after it (the fill follows a lost dot from each
-   frame's find to the next), and a gap longer than ``max_gap`` is not searched at all.
+   frame's find to the next), and a gap is searched only up to ``max_gap`` frames from
+   its ends.
 
    With ``grow`` (the *reach search*, :attr:`Filled.REACH`), where one view holds the
    marker and the searches above find nothing, the holding view's epipolar line is
@@ -80,21 +81,23 @@ what a recording is scored on):
    shows again, and on by the searches above. The bound was first the marker's fastest
    step in the searched view's image (px per frame) times the frames since the view last
    held it; on the Pose2Sim demo it both took another marker's dot on a pelvis marker's
-   line (frame 86 of cam01, and from it frames 78-99: their points lie 310 mm from the
-   marker's point one frame before, its fastest 3-D step 16 mm) and refused the one right
+   line (frame 86 of cam01, and from it frames 78-99; the first point lies 310 mm from
+   the marker's one frame before, its fastest 3-D step 16 mm) and refused the one right
    find (a thigh marker swinging at 10 px a frame in cam01 after its gap, 4.3 at most
    before it: image speeds change with the phase of a motion, and differ between views).
    With the 3-D bound, at full size: 1 dot found by the reach (frame 84 of cam01) and 16
    followed from it (frame 83 backwards, 85-99 forwards), every one on a dot in both
    views by eye; that marker's 3-D share 0.74 -> 0.91. All the demo's gaps of moving
    markers held by one view lie in frames 50-99 (none in 0-49), so the rule was designed
-   looking at the frames it is reported on: nothing held out. Limits: a dot at the
-   subject's edge against a bright background fails the dot test whatever the reach (the
-   demo's pelvis marker of cam01's track 65 in frames 78-99, which the peak test alone
-   had followed at 85-99 on a path continuing its own; the clear dot on its line there is
-   another marker's, its point about 300 mm off); the reach grows
-   with the gap, and with it the room for another marker's dot on the line; a marker
-   seen only moving slowly gets a small reach.
+   looking at the frames it is reported on: nothing held out. Limits: two dots on the
+   line within the reach, the nearer not half as far from the last point's place on the
+   ray as the next, are ambiguous and neither is taken. The demo's pelvis marker of cam01's
+   track 65 is faint at the body's edge in frames 78-91 (the dot test refuses it there;
+   the peak test alone had followed it) and a clear dot again from frame 92, but from 94,
+   when it comes within the reach, another marker's clear dot lies on the same line about
+   as far on the other side (its point several hundred mm from the marker's path), so
+   none is taken. The reach grows with the gap, and with it the room for another marker's
+   dot on the line; a marker seen only moving slowly gets a small reach.
 
 4. :func:`check_dots` takes out a view whose track is not on a dot: a track of a joined
    marker whose positions stand ``min_surround`` above their surround in every direction

@@ -193,8 +193,10 @@ def test_the_stage_records_its_checks_and_the_peer_shares_them():
     a = capture_markers(stacks, cams, first, params=p)
     assert set(a.joins) == {"ambiguous", "ambiguous_views", "below_floor", "views_out",
                             "attached", "not_dot_views", "not_dots", "off_subject", "filled",
-                            "filled_line", "filled_reach"}
+                            "filled_line", "filled_reach", "residual_out",
+                            "residual_views_out"}
     assert a.joins["not_dots"] == a.joins["not_dot_views"] == 0     # rendered dots
+    assert a.joins["residual_out"] == a.joins["residual_views_out"] == 0
     assert len(a.members) == 4 and a.joins["ambiguous"] == 0
     b = capture_markers(stacks, cams, first, params=p, like=a)
     assert np.array_equal(a.members, b.members) and b.joins["attached"] == a.joins["attached"]

@@ -210,11 +210,12 @@ class MarkerParams:
         own fastest 3-D step times the frames since), however long the gap, forwards and
         backwards (:func:`~lsmta.tracking.join_checks.fill_gaps`' ``grow``; the dot test
         ``fill_dot`` and the line's lead rule kept; the point found must lie within that
-        reach); default True, no setting of its own. Designed looking at the Pose2Sim
-        demo's gaps, all in frames 50-99, with no held-out frames or recording: at full
-        size one dot found by it and 16 followed from it, all on dots by eye, one thigh
-        marker's 3-D share 0.74 -> 0.91 (:mod:`~lsmta.tracking.join_checks`). False: gaps
-        longer than the follower's ``max_gap`` are not searched.
+        reach; run after the other searches, on their result, so it only adds to them);
+        default True, no setting of its own. Designed looking at the Pose2Sim demo's gaps,
+        all in frames 50-99, with no held-out frames or recording: in a full run at
+        15a0092 (loaded) one dot found by it and 16 followed from it, all on dots by eye,
+        one thigh marker's 3-D share 0.74 -> 0.91 (:mod:`~lsmta.tracking.join_checks`).
+        False: gaps longer than the follower's ``max_gap`` are not searched.
     dot_share : float or None
         With ``check``: a view's track of a joined marker whose positions stand the
         follower's contrast floor (``FollowParams.min_contrast``, 15 grey levels by

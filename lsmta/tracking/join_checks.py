@@ -68,36 +68,42 @@ what a recording is scored on):
    frame's find to the next), and a gap is searched only up to ``max_gap`` frames from
    its ends.
 
-   With ``grow`` (the *reach search*, :attr:`Filled.REACH`), where one view holds the
-   marker and the searches above find nothing, the holding view's epipolar line is
-   searched whatever the gap, on the part of its ray within the marker's own reach of its
-   last intersected point: the marker's fastest 3-D step between two consecutive
-   intersected frames (:func:`marker_speeds`, measured on the recording itself) times the
-   frames since (in the view: a disc around the projected segment's middle, half its
-   length plus ``radius``). The line's rules (its width ``max_px``, the nearest dot with a
-   clear lead, other markers' and tracks' dots set aside) and the dot test hold, and the
-   point intersected with the dot must lie within the reach. The passes run forwards and
-   backwards, so a dot found after a gap is followed back into it from where the marker
-   shows again, and on by the searches above. The bound was first the marker's fastest
-   step in the searched view's image (px per frame) times the frames since the view last
-   held it; on the Pose2Sim demo it both took another marker's dot on a pelvis marker's
-   line (frame 86 of cam01, and from it frames 78-99; the first point lies 310 mm from
-   the marker's one frame before, its fastest 3-D step 16 mm) and refused the one right
-   find (a thigh marker swinging at 10 px a frame in cam01 after its gap, 4.3 at most
-   before it: image speeds change with the phase of a motion, and differ between views).
-   With the 3-D bound, at full size: 1 dot found by the reach (frame 84 of cam01) and 16
-   followed from it (frame 83 backwards, 85-99 forwards), every one on a dot in both
-   views by eye; that marker's 3-D share 0.74 -> 0.91. All the demo's gaps of moving
-   markers held by one view lie in frames 50-99 (none in 0-49), so the rule was designed
-   looking at the frames it is reported on: nothing held out. Limits: two dots on the
-   line within the reach, the nearer not half as far from the last point's place on the
-   ray as the next, are ambiguous and neither is taken. The demo's pelvis marker of cam01's
-   track 65 is faint at the body's edge in frames 78-91 (the dot test refuses it there;
-   the peak test alone had followed it) and a clear dot again from frame 92, but from 94,
-   when it comes within the reach, another marker's clear dot lies on the same line about
-   as far on the other side (its point several hundred mm from the marker's path), so
-   none is taken. The reach grows with the gap, and with it the room for another marker's
-   dot on the line; a marker seen only moving slowly gets a small reach.
+   With ``grow`` (the *reach search*, :attr:`Filled.REACH`), once the searches above have
+   filled what they can, they run again on their result with one more: where one view
+   holds the marker and they find nothing, the holding view's epipolar line is searched
+   whatever the gap, on the part of its ray (:func:`ray_piece`, which stops at the camera)
+   within the marker's own reach of its last intersected 3-D point: the marker's fastest
+   3-D step between two consecutive frames intersected from the joined tracks, before the
+   fill (:func:`marker_speeds`), times the frames since that point (in the view: a disc
+   around the projected piece's middle, half its length plus ``radius``). The line's rules
+   (its width ``max_px``, the nearest dot with a clear lead, other markers' and tracks'
+   dots set aside) and the dot test hold, and the point intersected with the dot must lie
+   within the reach.
+   Run after the others and only adding to their result, the reach search keeps every
+   fill they make. Its passes run forwards and backwards, so a dot found after a gap is
+   followed back into it from where the marker shows again, and on by the searches above.
+   An image-speed bound (the marker's fastest step in the searched view's image times the
+   frames since) was tried first and took another marker's dot on the Pose2Sim demo.
+   All the demo's gaps of moving markers held by one view lie in frames 50-99 (none in
+   0-49), so the rule was designed looking at the frames it is reported on: nothing held
+   out. Limits: two dots on the line within the reach, the nearer not half as far from the
+   last point's place on the ray as the next, are ambiguous and neither is taken. The
+   reach is the largest raw step, so one wrong intersection (a wrong join, a dot of
+   another marker) sets it for the whole recording, and it grows with the gap, and with it
+   the room for another marker's dot on the line; a marker seen only moving slowly gets a
+   small reach. A robust quantile of the steps (after the residual gate, which runs later
+   in the marker stage) or a cap on the reach was not chosen: either changes what the
+   demo's one reach find needs, which only the full demo can judge. The cost: the searched
+   window grows with the reach's projected length (its area with the square, up to the
+   frame), per frame of a gap and per view lacking the marker; the second round of passes
+   visits only the markers one view holds in some frame another of their views lacks.
+   On the demo (a full run at 15a0092, loaded, before the second round: 1 dot found by the
+   reach, frame 84 of cam01, and 16 followed from it, each on a dot in both views by eye)
+   the pelvis marker of cam01's track 65 is faint at the body's edge in frames 78-91 (the
+   dot test refuses it there; the peak test alone had followed it) and a clear dot again
+   from frame 92, but from 94, when it comes within the reach, another marker's clear dot
+   lies on the same line about as far on the other side (its point several hundred mm
+   from the marker's path), so none is taken.
 
 4. :func:`check_dots` takes out a view whose track is not on a dot: a track of a joined
    marker whose positions stand ``min_surround`` above their surround in every direction
@@ -144,7 +150,7 @@ from .view_tracks import (
 )
 
 __all__ = ["DotCheck", "Filled", "JoinCheck", "attach_views", "check_dots", "check_joins",
-           "fill_gaps", "marker_speeds", "silhouette_hits", "silhouette_share"]
+           "fill_gaps", "marker_speeds", "ray_piece", "silhouette_hits", "silhouette_share"]
 
 
 class Filled(enum.IntEnum):
@@ -153,8 +159,8 @@ class Filled(enum.IntEnum):
     NONE = 0         #: none (held by the view's track, or not found)
     NEAR = 1         #: near the projection of the 3-D position (``search_px``)
     LINE = 2         #: along the epipolar line of the one view that holds it (``line_px``)
-    REACH = 3        #: along that line, within the marker's own reach since the view last
-    #: held it (``grow``)
+    REACH = 3        #: along that line, within the marker's own reach of its last
+    #: intersected 3-D point (``grow``)
 
 
 @dataclass(frozen=True)
@@ -494,18 +500,55 @@ def _near_dot(cam_k, img, X, radius, search_px, floor):
     return q
 
 
-def _reach_disc(cam_k, held_cam, held_xy, reach, radius):
-    """The part of the holding view's ray within ``reach``'s r of its last point, as a disc
-    in view k (``((2,) centre, radius)`` px: the projected segment's middle, half its
-    length plus ``radius``), or None where the ray passes farther than r."""
-    o, d = held_cam.rays(np.asarray(held_xy, float)[None])
+def ray_piece(camera, xy, centre, r) -> np.ndarray | None:
+    """The piece of a view's ray within a ball: where a marker that view holds can be, given
+    how far it can have moved from a known position (the reach search of :func:`fill_gaps`,
+    :func:`~lsmta.tracking.second_view.hidden_frames`).
+
+    Parameters
+    ----------
+    camera : Camera
+        The view that holds the marker.
+    xy : (2,) array
+        Its pixel in that view, px.
+    centre : (3,) array
+        The ball's centre (the marker's known position), mm.
+    r : float
+        The ball's radius, mm (>= 0).
+
+    Returns
+    -------
+    (2, 3) array or None
+        The piece's ends, mm, nearer first; clamped at the camera's centre (no point behind
+        the camera). None where the ray misses the ball or the ball lies wholly behind the
+        camera.
+    """
+    xy = np.asarray(xy, float)
+    centre = np.asarray(centre, float)
+    if xy.shape != (2,) or centre.shape != (3,):
+        raise ValueError(f"xy, centre: expected a (2,) pixel and a (3,) point, got shapes "
+                         f"{xy.shape} and {centre.shape}")
+    if not (np.isfinite(r) and r >= 0):
+        raise ValueError(f"r: expected a radius >= 0 mm, got {r}")
+    o, d = camera.rays(xy[None])
     o, d = o[0], d[0] / np.linalg.norm(d[0])
-    along = float(np.dot(reach[0] - o, d))
-    off = float(np.linalg.norm(o + along * d - reach[0]))
-    if not reach[1] > off:
+    s0 = float(np.dot(centre - o, d))
+    p2 = float(np.sum((centre - o - s0 * d) ** 2))
+    if p2 > r * r or s0 + np.sqrt(r * r - p2) <= 0:
         return None
-    w = np.sqrt(reach[1] ** 2 - off ** 2)
-    ends = _project(cam_k, np.stack([o + (along - w) * d, o + (along + w) * d]))
+    half = np.sqrt(r * r - p2)
+    return np.stack([o + d * max(s0 - half, 0.0), o + d * (s0 + half)])
+
+
+def _reach_disc(cam_k, held_cam, held_xy, reach, radius):
+    """The part of the holding view's ray within ``reach``'s r of its last point
+    (:func:`ray_piece`), as a disc in view k (``((2,) centre, radius)`` px: the projected
+    segment's middle, half its length plus ``radius``), or None where the ray passes farther
+    than r (or the segment does not project)."""
+    piece = ray_piece(held_cam, held_xy, reach[0], reach[1])
+    if piece is None:
+        return None
+    ends = _project(cam_k, piece)
     if not np.isfinite(ends).all():
         return None
     return ends.mean(axis=0), 0.5 * float(np.linalg.norm(ends[1] - ends[0])) + radius
@@ -516,8 +559,8 @@ def _find_dots(cams, stacks, arrays, pos, t, j, X, members, radius, search_px,
     """Dots near X's projection in the marker's views that lack it in frame t, else (with
     ``line``: ``(line_px, max_px)``, a marker one view holds) along the holding view's
     epipolar line, else (with ``reach``: ``((3,) last point mm, r mm, stale)``) along it
-    where the ray lies within r of the last point (only this where ``stale``: X is the
-    last point, beyond ``max_gap``): ``{view: ((2,) px, Filled)}``."""
+    where the ray lies within r of the last point (only this where ``stale``: no position
+    was predicted for frame t, X is the last point): ``{view: ((2,) px, Filled)}``."""
     found = {}
     views = np.flatnonzero(members[j] >= 0)
     held = [k for k in views if np.isfinite(pos[t, k, j]).all()]
@@ -616,33 +659,48 @@ def _last_seen(a, t, step) -> int | None:
     return int(before[-1] if step > 0 else before[0])
 
 
-def _fill_passes(cams, stacks, arrays, m, sizes, floor, line, grow):
-    """:func:`fill_gaps`' forward and backward passes: the joined positions with the dots
-    found ``(T, K, M, 2)`` and where (``(T, K, M)`` :class:`Filled` codes). ``sizes``:
-    ``(radius, search_px, max_gap, max_px)``; ``grow``: the reach search too."""
+def _passes(cams, stacks, arrays, m, state, sizes, floor, line, markers, fastest=None):
+    """One forward and one backward pass over the frames of ``markers``, writing the dots
+    found into ``state`` ``(pos, found, xyz)`` (in place); with ``fastest`` ((M,) mm per
+    frame) the reach search too."""
+    pos, found, xyz = state
     radius, search_px, max_gap, max_px = sizes
-    T = arrays[0].shape[0]
-    pos = joined_positions(arrays, m)                               # (T, K, M, 2)
-    xyz, _, _ = triangulate_joined(cams, arrays, m)
-    fastest = marker_speeds(xyz)                                    # (M,) mm per frame
-    found = np.zeros(pos.shape[:3], np.int8)
+    T = len(xyz)
     for step, frames in ((1, range(T)), (-1, range(T - 1, -1, -1))):
         for t in frames:
-            for j in range(len(m)):
+            for j in markers:
                 X, reach = _predict(xyz[:, j], t, step, max_gap), None
-                s = _last_seen(xyz[:, j], t, step) if grow else None
+                s = None if fastest is None else _last_seen(xyz[:, j], t, step)
                 if s is not None and np.isfinite(fastest[j]):    # the last intersected frame
-                    reach = (xyz[s, j], fastest[j] * abs(t - s), abs(t - s) > max_gap)
+                    reach = (xyz[s, j], fastest[j] * abs(t - s), X is None)
                     X = xyz[s, j] if X is None else X
                 if X is None:
                     continue
                 dots = _find_dots(cams, stacks, arrays, pos, t, j, X, m, radius, search_px,
                                   floor, line, reach)
-                sphere = None
-                if any(h == Filled.REACH for _, h in dots.values()):
-                    sphere = reach[:2]
+                far = any(h == Filled.REACH for _, h in dots.values())
                 if dots:
-                    _take(cams, pos, found, xyz, t, j, dots, max_px, sphere)
+                    _take(cams, pos, found, xyz, t, j, dots, max_px, reach[:2] if far else None)
+
+
+def _fill_passes(cams, stacks, arrays, m, sizes, floor, line, grow):
+    """:func:`fill_gaps`' passes: the joined positions with the dots found ``(T, K, M, 2)``
+    and where (``(T, K, M)`` :class:`Filled` codes). ``sizes``: ``(radius, search_px,
+    max_gap, max_px)``; ``grow``: then the reach search, on the fill's result (so that it
+    only adds to it), for the markers one view holds in some frame another of their views
+    lacks."""
+    pos = joined_positions(arrays, m)                               # (T, K, M, 2)
+    xyz, _, _ = triangulate_joined(cams, arrays, m)
+    fastest = marker_speeds(xyz)                      # (M,) mm per frame, before the fill
+    found = np.zeros(pos.shape[:3], np.int8)
+    state = (pos, found, xyz)
+    _passes(cams, stacks, arrays, m, state, sizes, floor, line, range(len(m)))
+    if grow:
+        held = np.isfinite(pos).all(axis=3)                         # (T, K, M)
+        own = (m >= 0).T[None]                                      # (1, K, M)
+        one = ((held & own).sum(axis=1) == 1) & (~held & own).any(axis=1)
+        _passes(cams, stacks, arrays, m, state, sizes, floor, line,
+                np.flatnonzero(one.any(axis=0)), fastest)
     return pos, found
 
 
@@ -684,12 +742,14 @@ def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float
         refused, as is one within ``1.5 radius`` px of the frame's border (NaN); and a
         refused fill cuts off the fills after it (module docstring; ``grow``).
     grow : bool
-        With ``line_px``: where one view holds the marker and the other searches found
-        nothing, search the holding view's epipolar line where its ray lies within the
-        marker's own reach of its last intersected point (its fastest 3-D step,
-        :func:`marker_speeds`, times the frames since), whatever the gap, in both passes;
-        the point intersected with the dot must lie within that reach (module docstring).
-        Default False.
+        With ``line_px`` (without it ``grow`` adds nothing): after the other searches, run
+        them again on their result with the reach search too: where one view holds the
+        marker and they found nothing, search the holding view's epipolar line where its
+        ray lies within the marker's own reach of its last intersected point (its fastest
+        3-D step, :func:`marker_speeds`, times the frames since), whatever the gap, in both
+        passes; the point intersected with the dot must lie within that reach (module
+        docstring). It only adds: every fill made without it is made with it. Default
+        False.
 
     Returns
     -------

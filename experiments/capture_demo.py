@@ -22,9 +22,10 @@ order 4; what markers.c3d / .trc hold; the same pair, chosen on the raw position
 check's counts (``MarkerParams.check``: ambiguous joins dropped, views taken out, tracks
 attached, tracks not on a dot taken out and markers dropped for it (``not_dot_views``,
 ``not_dots``: ``MarkerParams.dot_share``), moving markers off the subject's silhouette
-dropped, dots found again, of them along an epipolar line and by the reach search after a
-long gap, ``MarkerParams.fill_reach``; 3-D positions dropped by the residual gate and kept
-without a view, ``MarkerParams.residual_k``, with the gate's bound), the 2-D
+dropped, dots found again, of them along an epipolar line and by the reach search (a gap
+of any length, once the other searches find nothing), ``MarkerParams.fill_reach``; 3-D
+positions dropped by the residual gate and kept without a view, ``MarkerParams.residual_k``,
+with the gate's bound), the 2-D
 tracking's CPU time, the ratios LSMTA / KLT, and the targets' verdicts; per LSMTA marker
 its views, 3-D share, the frames only one view (or none) holds it, the frames two or more
 hold it but the residual gate dropped it, and of the one-view frames the

@@ -22,9 +22,13 @@ order 4; what markers.c3d / .trc hold; the same pair, chosen on the raw position
 check's counts (``MarkerParams.check``: ambiguous joins dropped, views taken out, tracks
 attached, tracks not on a dot taken out and markers dropped for it (``not_dot_views``,
 ``not_dots``: ``MarkerParams.dot_share``), moving markers off the subject's silhouette
-dropped, dots found again), the 2-D
+dropped, dots found again, of them along an epipolar line and by the reach search (a gap
+of any length, once the other searches find nothing), ``MarkerParams.fill_reach``; 3-D
+positions dropped by the residual gate and kept without a view, ``MarkerParams.residual_k``,
+with the gate's bound), the 2-D
 tracking's CPU time, the ratios LSMTA / KLT, and the targets' verdicts; per LSMTA marker
-its views, 3-D share and the frames only one view (or none) holds it, and of those the
+its views, 3-D share, the frames only one view (or none) holds it, the frames two or more
+hold it but the residual gate dropped it, and of the one-view frames the
 frames no other view shows a dot where the marker can be (`lsmta.tracking.second_view`'s
 image test on LSMTA's tracks: on the holding view's epipolar line, within the marker's own
 fastest 3-D step times the frames to its nearest 3-D position); beside the target, and
@@ -32,6 +36,19 @@ labelled apart from it, each moving marker's share of 3-D frames with those fram
 (a count for the lead to judge, not the target's verdict). The idle run the
 README and notebooks 17 and 21 quote is committed as ``experiments/results/capture_demo.json``
 (with its command, date and commit).
+The residual gate (``MarkerParams.residual_k`` = 4, on by default; this script's run at
+full size, load about 4 with other jobs, the command 314 s, CPU 213 s for the whole
+script): bound 2.29 px (4 x 1.4826 x the median residual of all markers' positions, above
+its 0.5 px floor); the shank marker's cam01 track, picked up again at frame 77 on another
+dot (residual 3.3 -> 16 px, under 2.3 px in frames 79-83), is taken out as a run; a
+three-view marker's cam04 track, on something else in frames 0-14 (about 80 px), is left
+out there and in 5 other frames, and 13 of its two-view frames (cam02 + cam04, 5-7 px) are
+dropped. Per moving marker the 3-D share goes 1.00 / 0.91 / 0.77 / 0.93 -> 0.87 / 0.91 /
+0.76 / 0.70 (>= 90 %: 0.75 -> 0.25); the rigid-pair rule finds the thigh/shank pair again
+(574 and 396 mm high, 187 mm apart, relative motion 0.85 -> 0.37), distance std 3.81 mm
+raw and 3.84 mm filtered with LSMTA, 3.80 and 3.84 with KLT; residual LSMTA 0.557 ->
+0.497 px, KLT 0.564 -> 0.494 px (each gated with its own bound, 2.29 and 2.31 px): LSMTA
+now above KLT by 0.003 px.
 Targets (issue #40): the command under 5 minutes on 2 cores; every marker seen by >= 2 views
 in 3-D in >= 90 % of the frames; the rigid pair's distance std <= 3 mm; LSMTA at or below
 KLT on residual and spread (spread judged raw and filtered, each verdict labelled; the
@@ -133,6 +150,7 @@ def _scores(runs, cpu):
         s["filter"] = dict(m.filter)
         s["cpu_seconds"] = cpu[name]
         s["share_per_marker"] = runs[name].triangulated_share()[runs[name].moving].round(3).tolist()
+        s["residual_bound_px"] = m.residual_bound_px
     return scores
 
 
@@ -146,7 +164,8 @@ def _filtered(record: dict) -> tuple:
 
 def _per_marker(lm, hidden):
     """Per moving LSMTA marker: its views, 3-D share, the frames one view (or none) holds
-    it, and of those the frames the image test calls hidden (``hidden``, (T, M) bool)."""
+    it, the frames two or more hold it but the residual gate dropped it, and of the first
+    the frames the image test calls hidden (``hidden``, (T, M) bool)."""
     out = []
     for j in np.flatnonzero(lm.moving):
         views = np.isfinite(lm.xy[:, :, j]).all(axis=2)            # (T, K) views holding it
@@ -156,6 +175,7 @@ def _per_marker(lm, hidden):
             "share_3d": float(np.isfinite(lm.xyz[:, j]).all(axis=1).mean()),
             "frames_one_view": int((views.sum(axis=1) == 1).sum()),
             "frames_no_view": int((views.sum(axis=1) == 0).sum()),
+            "frames_gated": int(((views.sum(axis=1) >= 2) & ~in3d).sum()),
             "frames_hidden_image_test": np.flatnonzero(hidden[:, j]).tolist(),
             "share_3d_without_hidden": float(in3d.sum() / max(1, (~hidden[:, j]).sum())),
             "median_xyz_mm": np.round(np.nanmedian(lm.xyz[:, j], axis=0)).tolist()})

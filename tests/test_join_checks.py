@@ -193,8 +193,10 @@ def test_the_stage_records_its_checks_and_the_peer_shares_them():
     a = capture_markers(stacks, cams, first, params=p)
     assert set(a.joins) == {"ambiguous", "ambiguous_views", "below_floor", "views_out",
                             "attached", "not_dot_views", "not_dots", "off_subject", "filled",
-                            "filled_line"}
+                            "filled_line", "filled_reach", "residual_out",
+                            "residual_views_out"}
     assert a.joins["not_dots"] == a.joins["not_dot_views"] == 0     # rendered dots
+    assert a.joins["residual_out"] == a.joins["residual_views_out"] == 0
     assert len(a.members) == 4 and a.joins["ambiguous"] == 0
     b = capture_markers(stacks, cams, first, params=p, like=a)
     assert np.array_equal(a.members, b.members) and b.joins["attached"] == a.joins["attached"]
@@ -746,3 +748,187 @@ def test_the_marker_stage_drops_a_marker_on_skin_and_counts_it(monkeypatch):
     assert np.array_equal(on.members, [[0, 0, 0], [3, 3, -1]])
     off = capture_markers(stacks, cams, first, params=MarkerParams(dot_share=None, **p))
     assert off.joins["not_dots"] == off.joins["not_dot_views"] == 0 and len(off.members) == 4
+
+
+def _reappearing_dot(decoy_mm=None):
+    """Two views; marker 0 moves 8 mm a frame, turning while view 0 cannot see it (frames
+    10-23, longer than the fill's ``max_gap``), and shows again in view 0 from frame 24
+    (its track there stays lost); view 1 holds it throughout. With ``decoy_mm``, view 0
+    shows instead, from frame 24, a dot that far along view 1's ray: on the epipolar line,
+    beyond the marker's reach."""
+    cams = _rig(2, spread_deg=20.0)
+    T = 30
+    t = np.arange(T, dtype=float)
+    v = np.where(t[:, None] < 10, [[8.0, 0, 0]], [[0.0, 0, 8.0]])
+    v = np.where(t[:, None] >= 17, [[-8.0, 0, 0]], v)
+    X = np.stack([np.array([-150.0, 0, -80]) + np.cumsum(v, axis=0) - v[0],
+                  np.array([120.0, 60, 100]) + 6.0 * t[:, None] * [1, 0, 0]], axis=1)
+    stacks = _dot_video(cams, X, size=(600, 800))
+    truth = [c.project(X.reshape(-1, 3)).reshape(T, 2, 2) for c in cams]
+    shown = X.copy()
+    shown[10:24, 0] = X[10:24, 1]                       # view 0: marker 0's dot hidden
+    if decoy_mm is not None:
+        o, d = cams[1].rays(truth[1][24:, 0])
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        shown[24:, 0] = X[24:, 0] + decoy_mm * d
+    stacks[0] = _dot_video(cams[:1], shown, size=(600, 800))[0]
+    xy = [a.copy() for a in truth]
+    xy[0][10:, 0] = np.nan
+    return cams, X, stacks, truth, xy, np.array([[0, 0], [1, 1]])
+
+
+def test_the_reach_search_finds_a_dot_back_after_a_long_gap_and_nothing_beyond_it():
+    cams, X, stacks, truth, xy, members = _reappearing_dot()
+    given = [a.copy() for a in xy]
+    kw = dict(radius=4, max_px=1.0, line_px=48.0, min_surround=15.0)
+    _, plain = fill_gaps(stacks, cams, xy, members, **kw)
+    out, grown = fill_gaps(stacks, cams, xy, members, grow=True, **kw)
+    assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(xy, given))
+    assert not plain[10:, 0, 0].any()                   # 14 frames on: out of reach
+    assert not grown[10:24, 0, 0].any()                 # no dot there: stays empty
+    assert grown[24, 0, 0] == Filled.REACH and grown[25:, 0, 0].all()
+    assert np.linalg.norm(out[0][24:, 0] - truth[0][24:, 0], axis=1).max() < 0.5
+    assert np.array_equal(grown[:, 1], plain[:, 1])     # the held marker untouched
+    # a dot on the line 300 mm deeper than the marker: farther than 8 mm x 14 frames
+    cams, X, stacks, truth, xy, members = _reappearing_dot(decoy_mm=300.0)
+    _, decoy = fill_gaps(stacks, cams, xy, members, grow=True, **kw)
+    assert not decoy[:, 0, 0].any()
+    # within reach (60 mm along the ray, less than 8 mm x 14) it would be taken: the
+    # reach is what refuses it, not the image
+    cams, X, stacks, truth, xy, members = _reappearing_dot(decoy_mm=60.0)
+    _, near = fill_gaps(stacks, cams, xy, members, grow=True, **kw)
+    assert near[24, 0, 0] == Filled.REACH
+    with pytest.raises(TypeError, match="grow"):
+        fill_gaps(stacks, cams, xy, members, grow="yes")
+
+
+def test_the_reach_search_keeps_every_fill_the_other_searches_make():
+    """A three-view marker intersected in frame 20 only, between gaps of 15 and 14 frames
+    (longer than ``max_gap``): view 2's dot there is found near the projection with or
+    without the reach search (the reach search only adds)."""
+    cams = _rig(3, spread_deg=20.0)
+    T = 40
+    t = np.arange(T, dtype=float)[:, None]
+    X = np.stack([np.array([-150.0, 0, -80]) + t * [6.0, 0, 4.0],
+                  np.array([120.0, 60, 100]) + t * [6.0, 0, 0]], axis=1)
+    truth = [c.project(X.reshape(-1, 3)).reshape(T, 2, 2) for c in cams]
+    shown = X.copy()
+    shown[5:35, 0] = X[5:35, 1]                         # views 1, 2: marker 0's dot hidden ...
+    shown[20, 0] = X[20, 0]                             # ... but in frame 20
+    stacks = [_dot_video(cams[:1], X)[0]] + [_dot_video([c], shown)[0] for c in cams[1:]]
+    xy = [a.copy() for a in truth]
+    for k in (1, 2):
+        xy[k][5:35, 0] = np.nan
+    xy[1][20, 0] = truth[1][20, 0]                      # view 1 holds it in frame 20
+    members = np.array([[0, 0, 0], [1, 1, 1]])
+    kw = dict(radius=4, max_px=1.0, line_px=48.0, min_surround=15.0)
+    _, plain = fill_gaps(stacks, cams, xy, members, **kw)
+    out, grown = fill_gaps(stacks, cams, xy, members, grow=True, **kw)
+    assert plain[20, 2, 0] == Filled.NEAR and grown[20, 2, 0] == Filled.NEAR
+    assert np.array_equal(grown[plain > 0], plain[plain > 0])
+    assert np.linalg.norm(out[2][20, 0] - truth[2][20, 0]) < 0.5
+
+
+def _edge_of_reach(mm):
+    """The reappearing dot's scene with view 0 showing, in frame 24 only, a dot on view 1's
+    ray ``mm`` from the marker's last intersected point (frame 9): 15 frames of its fastest
+    step (8 mm) make a reach of 120 mm."""
+    cams, X, stacks, truth, xy, members = _reappearing_dot()
+    o, d = cams[1].rays(truth[1][24, :1])
+    o, d = o[0], d[0] / np.linalg.norm(d[0])
+    s0 = float(np.dot(X[9, 0] - o, d))
+    p2 = float(np.sum((X[9, 0] - o - s0 * d) ** 2))
+    P = o + d * (s0 + np.sqrt(mm ** 2 - p2))
+    shown = X.copy()
+    shown[10:, 0] = X[10:, 1]                           # view 0: marker 0's dot hidden ...
+    shown[24, 0] = P                                    # ... but this one in frame 24
+    stacks[0] = _dot_video(cams[:1], shown, size=(600, 800))[0]
+    return cams, stacks, xy, members, cams[0].project(P[None])[0]
+
+
+def test_the_reach_is_the_fastest_step_times_the_frames_since_the_last_point():
+    kw = dict(radius=4, max_px=1.0, line_px=48.0, min_surround=15.0, grow=True)
+    cams, stacks, xy, members, q = _edge_of_reach(116.0)      # 14 steps would miss it
+    assert 20 < q[0] < 780 and 20 < q[1] < 580
+    out, inside = fill_gaps(stacks, cams, xy, members, **kw)
+    assert inside[24, 0, 0] == Filled.REACH and np.linalg.norm(out[0][24, 0] - q) < 0.5
+    assert not inside[:24, 0, 0].any() and not inside[25:, 0, 0].any()
+    # 4 mm beyond the reach (16 steps would take it): its dot lies in the searched disc
+    # (1 px beyond the projected piece's end, the disc reaches 4 px beyond), the point
+    # intersected with it is refused as out of reach
+    cams, stacks, xy, members, q = _edge_of_reach(124.0)
+    _, beyond = fill_gaps(stacks, cams, xy, members, **kw)
+    assert not beyond[:, 0, 0].any()
+
+
+def test_the_reach_search_finds_a_dot_in_the_backward_pass():
+    """The reappearing dot's scene played backwards: the marker is intersected only after
+    its gap, so only the backward pass can reach its dot (frame 5, 15 frames before)."""
+    cams, X, stacks, truth, xy, members = _reappearing_dot()
+    stacks = [s[::-1].copy() for s in stacks]
+    xy = [a[::-1].copy() for a in xy]
+    truth = [a[::-1] for a in truth]
+    kw = dict(radius=4, max_px=1.0, line_px=48.0, min_surround=15.0)
+    _, plain = fill_gaps(stacks, cams, xy, members, **kw)
+    out, grown = fill_gaps(stacks, cams, xy, members, grow=True, **kw)
+    assert not plain[:20, 0, 0].any()
+    assert grown[5, 0, 0] == Filled.REACH and grown[:5, 0, 0].all()
+    assert not grown[6:20, 0, 0].any()
+    assert np.linalg.norm(out[0][:6, 0] - truth[0][:6, 0], axis=1).max() < 0.5
+
+
+def test_the_reach_search_needs_the_line():
+    """``grow`` without ``line_px`` searches nothing more (as documented)."""
+    cams, X, stacks, truth, xy, members = _reappearing_dot()
+    kw = dict(radius=4, max_px=1.0, min_surround=15.0)
+    _, plain = fill_gaps(stacks, cams, xy, members, **kw)
+    _, grown = fill_gaps(stacks, cams, xy, members, grow=True, **kw)
+    assert np.array_equal(plain, grown) and not (grown == Filled.REACH).any()
+
+
+def test_the_piece_of_a_ray_within_a_ball_stops_at_the_camera():
+    cam = _rig(2, spread_deg=20.0)[0]
+    xy = np.array([400.0, 300.0])                       # the principal point: the axis
+    o, d = cam.rays(xy[None])
+    o, d = o[0], d[0] / np.linalg.norm(d[0])
+    ends = join_checks.ray_piece(cam, xy, o + 3000 * d + [0, 0, 30.0], 50.0)
+    assert np.allclose(np.linalg.norm(ends - (o + 3000 * d), axis=1), 40.0)
+    near = join_checks.ray_piece(cam, xy, o + 100 * d, 300.0)   # the ball holds the camera
+    assert np.allclose(near, [o, o + 400 * d])
+    assert join_checks.ray_piece(cam, xy, o + 3000 * d + [0, 0, 60.0], 50.0) is None
+    assert join_checks.ray_piece(cam, xy, o - 500 * d, 300.0) is None   # behind it
+    with pytest.raises(ValueError, match="r:"):
+        join_checks.ray_piece(cam, xy, o, -1.0)
+    with pytest.raises(ValueError, match="centre"):
+        join_checks.ray_piece(cam, xy, o[:2], 1.0)
+
+
+def test_marker_speeds_are_the_fastest_step_of_each_marker():
+    t = np.arange(6, dtype=float)[:, None]
+    X = np.stack([t * [3.0, 4.0, 0.0], t * [1.0, 0, 0] + [0, 0, 5.0]], axis=1)   # 5, 1 mm
+    X[3, 1] = [5.0, 0, 5.0]                             # a step of 3 mm, from frame 2
+    X[:, 1][[4]] = np.nan                               # frames 3-5 held only 3 and 5
+    speeds = join_checks.marker_speeds(X)
+    assert np.allclose(speeds, [5.0, 3.0])
+    assert np.isnan(join_checks.marker_speeds(np.full((4, 1, 3), np.nan))).all()
+    assert np.isnan(join_checks.marker_speeds(X[:1])).all()
+    given = X.copy()
+    join_checks.marker_speeds(X)
+    assert np.array_equal(X, given, equal_nan=True)
+    with pytest.raises(ValueError, match="xyz"):
+        join_checks.marker_speeds(X[..., :2])
+
+
+def test_the_marker_stage_searches_the_reach_by_default(monkeypatch):
+    cams, X, stacks, truth, xy, members = _reappearing_dot()
+    tracks = {id(s): a for s, a in zip(stacks, xy)}
+    monkeypatch.setattr("lsmta.systems.markers.track_view",
+                        lambda s, d, params=None: tracks[id(s)].copy())
+    first = [s[0] for s in stacks]
+    p = dict(detector="blobs", silhouette=None, min_motion_mm=5.0, min_shared=0.3)
+    off = capture_markers(stacks, cams, first, params=MarkerParams(fill_reach=False, **p))
+    on = capture_markers(stacks, cams, first, params=MarkerParams(**p))
+    assert MarkerParams().fill_reach and off.joins["filled_reach"] == 0
+    assert on.joins["filled_reach"] >= 1 and on.joins["filled"] >= off.joins["filled"] + 6
+    with pytest.raises(TypeError, match="fill_reach"):
+        MarkerParams(fill_reach=1)

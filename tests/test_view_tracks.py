@@ -12,6 +12,8 @@ from lsmta.tracking.view_tracks import (
     join_view_tracks,
     joined_positions,
     pair_residuals,
+    residual_gate,
+    triangulate_gated,
     triangulate_joined,
 )
 
@@ -118,6 +120,8 @@ def test_capture_markers_on_rendered_dots(tracker):
     near = [np.min(np.linalg.norm(X[0] - p, axis=1)) for p in m.xyz[0]]
     assert max(near) < 3.0
     assert np.all(m.triangulated_share() == 1.0) and np.nanmax(m.residual) < 0.5
+    # the residual gate: every residual far below its floor's bound (4 x 0.2 sigma), none out
+    assert m.joins["residual_out"] == 0 and m.residual_bound_px == pytest.approx(2.0)
     # no frame rate: not low-pass filtered, and the capture says why
     assert m.xyz_filtered is None and m.filter["applied"] is False and m.xyz_written is m.xyz
     # with one: 8 frames are a run too short for the zero-lag filter (10): left raw, counted
@@ -215,3 +219,93 @@ def test_camera_invertible_marks_where_the_lens_folds():
     r_d = np.linspace(0.0, 2.0, 41)
     ok = bent.invertible(np.c_[bent.cx + bent.f * r_d, np.full_like(r_d, bent.cy)])
     assert ok[r_d < 0.76].all() and not ok[r_d > 0.78].any()
+
+
+def _gap_scene(rng, T=40, M=6, noise=0.2):
+    """Two views' tracks of M moving points (px noise ``noise``); in view 1 points 0 and 1
+    are lost for frames 10-16 and picked up again at 17: point 0 on another dot (the
+    projection of a point 40 mm above it, off the epipolar line), point 1 on its own."""
+    cams = _rig(2, spread_deg=20.0)
+    t = np.arange(T)[:, None, None]
+    X = rng.uniform(-300, 300, (1, M, 3)) + 120 * np.sin(0.1 * t + rng.uniform(0, 6, (1, M, 3)))
+    views = [c.project(X.reshape(-1, 3)).reshape(T, M, 2) + rng.normal(0, noise, (T, M, 2))
+             for c in cams]
+    views[1][10:17, :2] = np.nan
+    other = cams[1].project((X[17:, 0] + [0.0, 0.0, 40.0]))
+    views[1][17:, 0] = other + rng.normal(0, noise, other.shape)
+    return cams, X, views
+
+
+def test_residual_gate_drops_a_wrong_dot_after_a_gap_and_keeps_the_right_ones():
+    cams, X, views = _gap_scene(np.random.default_rng(5))
+    members = np.stack([np.arange(6)] * 2, axis=1)
+    xyz, residual, _ = triangulate_joined(cams, views, members)
+    assert np.nanmin(residual[17:, 0]) > 4.0                  # the wrong dot: many px off
+    before = [v.copy() for v in views]
+    g = triangulate_gated(cams, views, members)
+    assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(views, before))
+    assert 1.0 < g.bound_px < 4.0                             # 4 sigma of 0.2 px noise, floored
+    assert np.isnan(g.xyz[17:, 0]).all() and np.isnan(g.residual[17:, 0]).all()
+    assert g.dropped == 40 - 17 and g.views_out == 0          # only those frames
+    assert (g.n_views[17:, 0] == 0).all() and (g.n_views[:10] == 2).all()
+    assert np.array_equal(g.xyz[:10, 0], xyz[:10, 0])         # the same track before the gap
+    assert np.isfinite(g.xyz[17:, 1]).all()                   # a right dot after its gap
+    assert np.array_equal(g.xyz[:, 1:], xyz[:, 1:], equal_nan=True)
+    assert np.allclose(g.xyz[:, 2:], X[:, 2:], atol=5.0)
+    none = triangulate_gated(cams, [v[:, 1:] for v in views], members[1:] - 1)
+    assert none.dropped == 0 and np.array_equal(none.xyz, xyz[:, 1:], equal_nan=True)
+
+
+def test_residual_gate_takes_out_a_wrong_run_of_a_view_even_where_it_is_near_the_line():
+    """A third view's wrong run: the point is intersected from the other two; the run's
+    frames near the epipolar line (within the bound) go with it."""
+    rng = np.random.default_rng(6)
+    cams = _rig(3, spread_deg=20.0)
+    T, M = 40, 6
+    t = np.arange(T)[:, None, None]
+    X = rng.uniform(-300, 300, (1, M, 3)) + 120 * np.sin(0.1 * t + rng.uniform(0, 6, (1, M, 3)))
+    views = [c.project(X.reshape(-1, 3)).reshape(T, M, 2) + rng.normal(0, 0.2, (T, M, 2))
+             for c in cams]
+    views[2][10:17, 0] = np.nan
+    # after its gap view 2 is on another dot whose offset from the right one grows from 0
+    off = np.zeros((T - 17, 3))
+    off[:, 2] = np.linspace(0.0, 60.0, T - 17)
+    views[2][17:, 0] = cams[2].project(X[17:, 0] + off)
+    members = np.stack([np.arange(M)] * 3, axis=1)
+    g = triangulate_gated(cams, views, members)
+    assert np.isfinite(g.xyz[:, 0]).all() and (g.n_views[17:, 0] == 2).all()
+    assert (g.n_views[:10, 0] == 3).all() and g.dropped == 0 and g.views_out == T - 17
+    assert np.nanmax(g.residual) <= g.bound_px
+    # from frame 17 the point is the right two views' intersection, before it all three's
+    xyz, _, _ = triangulate_joined(cams, views, members)
+    two, _, _ = triangulate_joined(cams[:2], views[:2], members[:, :2])
+    assert np.allclose(g.xyz[17:, 0], two[17:, 0]) and np.array_equal(g.xyz[:10], xyz[:10])
+    assert np.array_equal(g.xyz[:, 1:], xyz[:, 1:])            # the other points untouched
+
+
+def test_residual_gate_scale_floor_and_bad_input():
+    r = np.array([[0.5, 0.5, 0.5, 20.0], [0.5, np.nan, np.inf, 0.5]])
+    keep, bound = residual_gate(r, k=4.0, floor_px=0.1)
+    assert bound == pytest.approx(4 * 1.4826 * 0.5)
+    assert keep.tolist() == [[True, True, True, False], [True, True, False, True]]
+    keep, bound = residual_gate(r, k=4.0, floor_px=1.0)        # the floor rules
+    assert bound == pytest.approx(4.0)
+    keep, bound = residual_gate(np.full((3, 2), np.nan))
+    assert keep.all() and np.isnan(bound)
+    with pytest.raises(ValueError, match="k: "):
+        residual_gate(r, k=0.0)
+    with pytest.raises(ValueError, match="floor_px"):
+        residual_gate(r, floor_px=-1.0)
+    with pytest.raises(ValueError, match="residual: expected reprojection errors >= 0"):
+        residual_gate(-r)
+    with pytest.raises(ValueError, match="residual: expected an array of shape"):
+        residual_gate(r[0])
+    for bad in (0.0, -3.0, float("nan")):
+        with pytest.raises(ValueError, match="residual_k"):
+            MarkerParams(residual_k=bad)
+    with pytest.raises(TypeError, match="residual_k: expected a number"):
+        MarkerParams(residual_k=True)
+    with pytest.raises(ValueError, match="residual_floor_px"):
+        MarkerParams(residual_floor_px=-0.5)
+    assert MarkerParams(sigma=1.25).residual_floor() == pytest.approx(0.25)
+    assert MarkerParams(residual_floor_px=0.0).residual_floor() == 0.0

@@ -25,12 +25,18 @@ The stage for what a marker-based recording holds beyond the surfaces: small ski
    (``MarkerParams.dot_share``, :func:`~lsmta.tracking.join_checks.check_dots`); a
    marker a view lost looked for at its 3-D position's projection
    (:func:`~lsmta.tracking.join_checks.fill_gaps`; where one view holds it, along that
-   view's epipolar line, ``MarkerParams.fill_line``); then
+   view's epipolar line, ``MarkerParams.fill_line``, and after a gap of any length as far
+   along it as the marker's own fastest 3-D step allows, ``MarkerParams.fill_reach``); then
    moving markers off the subject's silhouette dropped (``MarkerParams.silhouette``,
    below);
 5. *intersection* of every frame from every view that holds the marker
    (:func:`~lsmta.tracking.view_tracks.triangulate_joined`), and each marker's 3-D motion
-   range, which tells the subject's markers (moving) from still blobs of the room;
+   range, which tells the subject's markers (moving) from still blobs of the room; a
+   position whose reprojection residual is far out of line with the recording's (a view's
+   track on another dot, e.g. picked up again on a neighbour after a gap) is gated first:
+   intersected without the view to blame where three or more hold it, else dropped, and a
+   view's run of frames (a track between gaps) out in most of them taken out throughout
+   (``MarkerParams.residual_k``, :func:`~lsmta.tracking.view_tracks.triangulate_gated`);
 6. *low-pass filter* of the intersected positions (``MarkerParams.filter_hz``, given the
    frame rate; :func:`~lsmta.tracking.lowpass.lowpass_trajectories`: zero-lag Butterworth,
    per gap-free run, Pose2Sim's nominal 6 Hz, order 4, not tuned on any recording; as
@@ -96,7 +102,12 @@ from ..tracking.join_checks import (
 from ..tracking.klt import track_klt
 from ..tracking.lowpass import lowpass_trajectories
 from ..tracking.markers import find_blobs, find_markers
-from ..tracking.view_tracks import join_view_tracks, joined_positions, triangulate_joined
+from ..tracking.view_tracks import (
+    join_view_tracks,
+    joined_positions,
+    triangulate_gated,
+    triangulate_joined,
+)
 from .subject import SubjectMaskParams, background, subject_masks
 from .views import axis_angles
 
@@ -190,8 +201,21 @@ class MarkerParams:
         follower's, 15 grey levels), but the test was designed and judged by eye on this
         recording's 28 fills only, with no held-out recording. Its cost there: one marker's
         3-D share falls 0.92 -> 0.77, mostly real dots no longer reached (see
-        :func:`~lsmta.tracking.join_checks.fill_gaps`' ``min_surround``). False: the peak
+        :mod:`~lsmta.tracking.join_checks`, step 3). False: the peak
         test alone, as before (more fills, some on no dot).
+    fill_reach : bool
+        With ``check`` and ``fill_line``: where one view holds a marker and the fill's
+        other searches find nothing, its dot is also looked for along the holding view's
+        epipolar line as far as the marker can have gone since its last 3-D position (its
+        own fastest 3-D step times the frames since), however long the gap, forwards and
+        backwards (:func:`~lsmta.tracking.join_checks.fill_gaps`' ``grow``; the dot test
+        ``fill_dot`` and the line's lead rule kept; the point found must lie within that
+        reach; run after the other searches, on their result, so it only adds to them);
+        default True, no setting of its own. Designed looking at the Pose2Sim demo's gaps,
+        all in frames 50-99, with no held-out frames or recording: in a full run at
+        15a0092 (loaded) one dot found by it and 16 followed from it, all on dots by eye,
+        one thigh marker's 3-D share 0.74 -> 0.91 (:mod:`~lsmta.tracking.join_checks`).
+        False: gaps longer than the follower's ``max_gap`` are not searched.
     dot_share : float or None
         With ``check``: a view's track of a joined marker whose positions stand the
         follower's contrast floor (``FollowParams.min_contrast``, 15 grey levels by
@@ -217,6 +241,35 @@ class MarkerParams:
         least 1; the subject mask's ``close_px`` and ``grow_px``); None: ``6 sigma`` (15 px
         at the default ``sigma`` 2.5: :class:`~lsmta.systems.subject.SubjectMaskParams`'
         radii, scaled with the frames).
+    residual_k : float or None
+        Stage 5's residual gate (:func:`~lsmta.tracking.view_tracks.residual_gate`): a
+        marker's 3-D position in a frame whose reprojection residual exceeds ``residual_k``
+        times the recording's residual scale (``1.4826 *`` the median residual of all its
+        markers' positions, the MAD of a zero-mean error, held at no less than
+        ``residual_floor_px``) is out: intersected again without one of its views where it
+        has three or more, else dropped (NaN, its residual too); a view's run of frames
+        (its track between gaps) out in most of them is taken out of the marker throughout
+        (:func:`~lsmta.tracking.view_tracks.triangulate_gated`; counted as
+        ``joins["residual_out"]`` and ``joins["residual_views_out"]``), > 0. Default 4, set
+        before the gate was first run on any recording (the customary 3-5 sigma): under a
+        normal error 4 sigma drops about 6 in 100 000 right positions (3 sigma: 3 in 1000,
+        a few per recording of a few hundred marker frames), while a track on another dot
+        is off by its distance from the epipolar line, many sigma. The run rule and the
+        view left out were added after a first run on the Pose2Sim demo (a per-frame gate
+        alone kept a wrong track's frames near the line and dropped a three-view marker's
+        frames one view spoilt). There, at full size: bound 2.29 px; the shank marker's
+        cam01 track picked up again at frame 77 on another dot taken out (its 3-D share
+        0.93 -> 0.70), a three-view marker kept without one view in 20 frames (its cam04
+        track in frames 0-14 is on something else, residual about 80 px) and dropped in 13
+        (1.00 -> 0.87), one two-view frame of another dropped; the thigh/shank pair
+        passes the rigid-pair rule again (relative motion 0.37, std 3.81 mm). None: not
+        gated (every intersection kept, as before).
+    residual_floor_px : float or None
+        Least residual scale of the gate, px, >= 0: the cameras' own reprojection residual
+        (below it the cameras cannot tell a right position from a wrong one); None:
+        ``0.2 sigma`` (0.5 px at the default ``sigma`` 2.5, scaled with the frames: the
+        refined demo cameras' held-out residual, 0.27-0.49 px per camera at full size,
+        rounded up).
     filter_hz : float or None
         Cut-off of the low-pass filter of the 3-D positions, Hz (stage 6 of the module
         docstring; below the recording's Nyquist frequency); default Pose2Sim's nominal 6
@@ -245,9 +298,12 @@ class MarkerParams:
     fill_search_px: float | None = None
     fill_line: float | None = 4.0
     fill_dot: bool = True
+    fill_reach: bool = True
     dot_share: float | None = 0.5
     silhouette: float | None = 0.5
     silhouette_px: float | None = None
+    residual_k: float | None = 4.0
+    residual_floor_px: float | None = None
     filter_hz: float | None = 6.0
     filter_order: int = 4
 
@@ -258,7 +314,7 @@ class MarkerParams:
                      "max_angle_deg"):
             as_scalar(getattr(self, name), name, positive=True)
         as_int(self.klt_window, "klt_window", minimum=3, odd=True)
-        for name in ("check", "fill_dot"):
+        for name in ("check", "fill_dot", "fill_reach"):
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name}: expected True or False, got {getattr(self, name)!r}")
         if as_scalar(self.min_ratio, "min_ratio", positive=True) < 1:
@@ -282,6 +338,13 @@ class MarkerParams:
                              f"{self.silhouette}")
         if self.silhouette_px is not None:
             as_scalar(self.silhouette_px, "silhouette_px", positive=True)
+        if self.residual_k is not None:
+            if isinstance(self.residual_k, bool):
+                raise TypeError(f"residual_k: expected a number > 0 or None, got "
+                                f"{self.residual_k!r}")
+            as_scalar(self.residual_k, "residual_k", positive=True)
+        if self.residual_floor_px is not None:
+            as_scalar(self.residual_floor_px, "residual_floor_px", nonnegative=True)
         if self.filter_hz is not None:
             as_scalar(self.filter_hz, "filter_hz", positive=True)
         if as_int(self.filter_order, "filter_order", minimum=2) % 2:
@@ -303,6 +366,11 @@ class MarkerParams:
         without ``fill_line``)."""
         search = self.fill_search_px if self.fill_search_px is not None else 4.8 * self.sigma
         return search, None if self.fill_line is None else self.fill_line * search
+
+    def residual_floor(self) -> float:
+        """The residual gate's least scale, px: ``residual_floor_px``, or ``0.2 sigma``."""
+        return (self.residual_floor_px if self.residual_floor_px is not None
+                else 0.2 * self.sigma)
 
     def fill_follow(self) -> FollowParams:
         """The follower's settings the fill uses (its window, contrast floor and
@@ -327,7 +395,8 @@ class MarkerCapture:
     xyz : (T, M, 3) array
         Their 3-D positions as intersected (raw), mm (NaN: fewer than two views).
     residual : (T, M) array
-        Largest reprojection error of each marker's views, px.
+        Largest reprojection error of each marker's views, px (NaN where not intersected
+        or dropped by the residual gate).
     motion_mm : (M,) array
         Span of each marker's 3-D positions (the diagonal of their bounding box), mm.
     moving : (M,) bool array
@@ -344,7 +413,10 @@ class MarkerCapture:
         returned and of them ``"filled_line"`` found along an epipolar line
         (``MarkerParams.fill_line``) (all 0 without the check), moving markers dropped
         ``"off_subject"`` (their positions off the subject's silhouette,
-        ``MarkerParams.silhouette``).
+        ``MarkerParams.silhouette``), and 3-D positions dropped by the residual gate
+        (``"residual_out"``, ``MarkerParams.residual_k``; with or without the check) and
+        positions kept with a view (in a frame, or a run of frames) taken out by it
+        (``"residual_views_out"``).
     xyz_filtered : (T, M, 3) array or None
         ``xyz`` low-pass filtered (``MarkerParams.filter_hz``), mm; samples in runs too
         short to filter are raw. None: not filtered (``filter_hz`` None, or no frame rate
@@ -353,6 +425,8 @@ class MarkerCapture:
         The filter applied: ``cutoff_hz``, ``order``, ``fps``, ``runs`` filtered,
         ``short_runs`` and ``raw_samples`` left raw; or ``{"applied": False, "reason":
         ...}``.
+    residual_bound_px : float
+        The residual gate's bound, px (NaN: not gated).
     """
 
     detections: tuple
@@ -367,6 +441,7 @@ class MarkerCapture:
     joins: dict = field(default_factory=dict)
     xyz_filtered: np.ndarray | None = None
     filter: dict = field(default_factory=dict)
+    residual_bound_px: float = float("nan")
 
     def __post_init__(self):
         freeze(self, ("members", "xy", "xyz", "residual", "motion_mm", "moving"))
@@ -509,15 +584,17 @@ def _capture_markers(stacks, cameras, first_frames, *, params, like, fps) -> Mar
         members, joins = _checked_joins(stacks, cams, view_xy, members, p)
     else:
         members, joins = like.members, {k: v for k, v in like.joins.items()
-                                        if k not in ("filled", "filled_line")}
-    joins["filled"] = joins["filled_line"] = 0
+                                        if k not in ("filled", "filled_line", "filled_reach",
+                                                     "residual_out", "residual_views_out")}
+    joins["filled"] = joins["filled_line"] = joins["filled_reach"] = 0
     if p.check:
         fp = p.fill_follow()
         search, line = p.fill_search()
         view_xy, found = fill_gaps(stacks, cams, view_xy, members, radius=fp.window(),
                                    search_px=search, min_contrast=fp.min_contrast,
                                    max_gap=fp.max_gap, max_px=p.max_px, line_px=line,
-                                   min_surround=fp.min_contrast if p.fill_dot else None)
+                                   min_surround=fp.min_contrast if p.fill_dot else None,
+                                   grow=p.fill_reach)
         off = np.zeros(len(members), bool)
         if like is None and p.silhouette is not None and len(members):
             share = silhouette_shares(stacks, cams, view_xy, members, params=p)
@@ -533,7 +610,8 @@ def _capture_markers(stacks, cameras, first_frames, *, params, like, fps) -> Mar
             joins["off_subject"] = int(off.sum())
         joins["filled"] = int((found[..., ~off] > 0).sum())         # of the markers kept
         joins["filled_line"] = int((found[..., ~off] == Filled.LINE).sum())   # of those
-    xyz, residual, _ = triangulate_joined(cams, view_xy, members)
+        joins["filled_reach"] = int((found[..., ~off] == Filled.REACH).sum())
+    xyz, residual, bound = _intersected(cams, view_xy, members, p, joins)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)          # never intersected
         span = np.nanmax(xyz, axis=0) - np.nanmin(xyz, axis=0)
@@ -543,7 +621,21 @@ def _capture_markers(stacks, cameras, first_frames, *, params, like, fps) -> Mar
     return MarkerCapture(detections=detections, view_xy=view_xy, members=members,
                          xy=joined_positions(view_xy, members), xyz=xyz,
                          residual=residual, motion_mm=motion, moving=moving,
-                         seconds=seconds, joins=joins, xyz_filtered=filtered, filter=record)
+                         seconds=seconds, joins=joins, xyz_filtered=filtered, filter=record,
+                         residual_bound_px=bound)
+
+
+def _intersected(cams, view_xy, members, p: MarkerParams, joins: dict):
+    """Stage 5's intersection, gated by the residual unless ``residual_k`` is None
+    (:func:`~lsmta.tracking.view_tracks.triangulate_gated`): positions, residuals and the
+    bound (NaN: not gated); counts the gate's work into ``joins``."""
+    if p.residual_k is None:
+        xyz, residual, _ = triangulate_joined(cams, view_xy, members)
+        joins["residual_out"] = joins["residual_views_out"] = 0
+        return xyz, residual, float("nan")
+    g = triangulate_gated(cams, view_xy, members, k=p.residual_k, floor_px=p.residual_floor())
+    joins["residual_out"], joins["residual_views_out"] = g.dropped, g.views_out
+    return np.array(g.xyz), np.array(g.residual), g.bound_px
 
 
 def marker_lowpass(xyz, fps: float | None, *, params: MarkerParams | None = None):

@@ -63,14 +63,47 @@ what a recording is scored on):
    (along it) or flat bright skin is not, though each can stand ``min_contrast`` above a
    window's median (the peak test alone took such spots on the Pose2Sim demo). A real dot
    beside anything as bright within ``1.5 radius`` px (a bright stripe) fails it too, and
-   one within ``1.5 radius`` px of the frame's border is not tested and so refused. The
-   cost on the demo: the fill follows a lost dot from each frame's find to the next, so a
-   refused fill also cuts off the real dots after it. The marker of cam01's track 65 and
-   cam02's track 101 shows clear dots at frames 92-99, and another marker (3-D share
-   0.91 -> 0.82) one at frame 97, that the fill no longer reaches, because the fills of
-   frames 85-87 and 89-91 (a faint spot at an edge, now refused) had carried it there; most of the
-   first marker's fall in 3-D share, 0.92 -> 0.77, is these real dots. A line reach that
-   grows with the gap, or a backward pass, might reach them again: not done.
+   one within ``1.5 radius`` px of the frame's border is not tested and so refused. A
+   refused fill also cuts off the dots after it (the fill follows a lost dot from each
+   frame's find to the next), and a gap is searched only up to ``max_gap`` frames from
+   its ends.
+
+   With ``grow`` (the *reach search*, :attr:`Filled.REACH`), once the searches above have
+   filled what they can, they run again on their result with one more: where one view
+   holds the marker and they find nothing, the holding view's epipolar line is searched
+   whatever the gap, on the part of its ray (:func:`ray_piece`, which stops at the camera)
+   within the marker's own reach of its last intersected 3-D point: the marker's fastest
+   3-D step between two consecutive frames intersected from the joined tracks, before the
+   fill (:func:`marker_speeds`), times the frames since that point (in the view: a disc
+   around the projected piece's middle, half its length plus ``radius``). The line's rules
+   (its width ``max_px``, the nearest dot with a clear lead, other markers' and tracks'
+   dots set aside) and the dot test hold, and the point intersected with the dot must lie
+   within the reach.
+   Run after the others and only adding to their result, the reach search keeps every
+   fill they make. Its passes run forwards and backwards, so a dot found after a gap is
+   followed back into it from where the marker shows again, and on by the searches above.
+   An image-speed bound (the marker's fastest step in the searched view's image times the
+   frames since) was tried first and took another marker's dot on the Pose2Sim demo.
+   All the demo's gaps of moving markers held by one view lie in frames 50-99 (none in
+   0-49), so the rule was designed looking at the frames it is reported on: nothing held
+   out. Limits: two dots on the line within the reach, the nearer not half as far from the
+   last point's place on the ray as the next, are ambiguous and neither is taken. The
+   reach is the largest raw step, so one wrong intersection (a wrong join, a dot of
+   another marker) sets it for the whole recording, and it grows with the gap, and with it
+   the room for another marker's dot on the line; a marker seen only moving slowly gets a
+   small reach. A robust quantile of the steps (after the residual gate, which runs later
+   in the marker stage) or a cap on the reach was not chosen: either changes what the
+   demo's one reach find needs, which only the full demo can judge. The cost: the searched
+   window grows with the reach's projected length (its area with the square, up to the
+   frame), per frame of a gap and per view lacking the marker; the second round of passes
+   visits only the markers one view holds in some frame another of their views lacks.
+   On the demo (a full run at 15a0092, loaded, before the second round: 1 dot found by the
+   reach, frame 84 of cam01, and 16 followed from it, each on a dot in both views by eye)
+   the pelvis marker of cam01's track 65 is faint at the body's edge in frames 78-91 (the
+   dot test refuses it there; the peak test alone had followed it) and a clear dot again
+   from frame 92, but from 94, when it comes within the reach, another marker's clear dot
+   lies on the same line about as far on the other side (its point several hundred mm
+   from the marker's path), so none is taken.
 
 4. :func:`check_dots` takes out a view whose track is not on a dot: a track of a joined
    marker whose positions stand ``min_surround`` above their surround in every direction
@@ -117,7 +150,7 @@ from .view_tracks import (
 )
 
 __all__ = ["DotCheck", "Filled", "JoinCheck", "attach_views", "check_dots", "check_joins",
-           "fill_gaps", "silhouette_hits", "silhouette_share"]
+           "fill_gaps", "marker_speeds", "ray_piece", "silhouette_hits", "silhouette_share"]
 
 
 class Filled(enum.IntEnum):
@@ -126,6 +159,8 @@ class Filled(enum.IntEnum):
     NONE = 0         #: none (held by the view's track, or not found)
     NEAR = 1         #: near the projection of the 3-D position (``search_px``)
     LINE = 2         #: along the epipolar line of the one view that holds it (``line_px``)
+    REACH = 3        #: along that line, within the marker's own reach of its last
+    #: intersected 3-D point (``grow``)
 
 
 @dataclass(frozen=True)
@@ -407,10 +442,13 @@ def _predict(xyz, t, step, max_gap) -> np.ndarray | None:
     return xyz[a] + (xyz[a] - xyz[b]) * (t - a) / (a - b)
 
 
-def _line_dot(cam_k, img, held_cam, held_xy, X, others, radius, line_px, max_px, floor):
+def _line_dot(cam_k, img, held_cam, held_xy, X, others, radius, line_px, max_px, floor,
+              disc=None):
     """The dot of a view on the epipolar line of the one view that holds the marker
-    (:func:`fill_gaps`' ``line_px``; ``others``: other markers' and tracks' dots of the view,
-    set aside; ``floor``: ``(min_contrast, min_surround)``), px, or None."""
+    (:func:`fill_gaps`' ``line_px``, None: no reach along the line; ``others``: other
+    markers' and tracks' dots of the view, set aside; ``floor``: ``(min_contrast,
+    min_surround)``; ``disc``: ``((2,) centre, r)`` px, the dot within r of the centre
+    too), px, or None."""
     min_contrast = floor[0]
     o, d = held_cam.rays(np.asarray(held_xy, float)[None])
     o, d = o[0], d[0] / np.linalg.norm(d[0])
@@ -419,7 +457,8 @@ def _line_dot(cam_k, img, held_cam, held_xy, X, others, radius, line_px, max_px,
     if not (np.isfinite(c).all() and np.isfinite(c2).all()) or np.allclose(c, c2):
         return None
     u = (c2 - c) / np.linalg.norm(c2 - c)
-    blobs = _free_blobs(img, c, int(np.ceil(line_px + 2 * radius)), others,
+    centre, half = (c, line_px) if disc is None else disc
+    blobs = _free_blobs(img, centre, int(np.ceil(half + 2 * radius)), others,
                         sigma=radius / 1.6, min_strength=min_contrast, radius=radius)
     if blobs is None or not len(blobs):
         return None
@@ -427,7 +466,11 @@ def _line_dot(cam_k, img, held_cam, held_xy, X, others, radius, line_px, max_px,
     rel = blobs - c
     along = np.abs(rel @ u)
     perp = np.abs(rel[:, 0] * u[1] - rel[:, 1] * u[0])
-    ok = (perp <= max_px) & (along <= line_px) & _is_dot(img, blobs, radius, floor)
+    ok = (perp <= max_px) & _is_dot(img, blobs, radius, floor)
+    if line_px is not None:
+        ok &= along <= line_px
+    if disc is not None:
+        ok &= np.linalg.norm(blobs - disc[0], axis=1) <= disc[1]
     if not ok.any():
         return None
     order = np.argsort(along[ok])
@@ -457,11 +500,67 @@ def _near_dot(cam_k, img, X, radius, search_px, floor):
     return q
 
 
+def ray_piece(camera, xy, centre, r) -> np.ndarray | None:
+    """The piece of a view's ray within a ball: where a marker that view holds can be, given
+    how far it can have moved from a known position (the reach search of :func:`fill_gaps`,
+    :func:`~lsmta.tracking.second_view.hidden_frames`).
+
+    Parameters
+    ----------
+    camera : Camera
+        The view that holds the marker.
+    xy : (2,) array
+        Its pixel in that view, px.
+    centre : (3,) array
+        The ball's centre (the marker's known position), mm.
+    r : float
+        The ball's radius, mm (>= 0).
+
+    Returns
+    -------
+    (2, 3) array or None
+        The piece's ends, mm, nearer first; clamped at the camera's centre (no point behind
+        the camera). None where the ray misses the ball or the ball lies wholly behind the
+        camera.
+    """
+    xy = np.asarray(xy, float)
+    centre = np.asarray(centre, float)
+    if xy.shape != (2,) or centre.shape != (3,):
+        raise ValueError(f"xy, centre: expected a (2,) pixel and a (3,) point, got shapes "
+                         f"{xy.shape} and {centre.shape}")
+    if not (np.isfinite(r) and r >= 0):
+        raise ValueError(f"r: expected a radius >= 0 mm, got {r}")
+    o, d = camera.rays(xy[None])
+    o, d = o[0], d[0] / np.linalg.norm(d[0])
+    s0 = float(np.dot(centre - o, d))
+    p2 = float(np.sum((centre - o - s0 * d) ** 2))
+    if p2 > r * r or s0 + np.sqrt(r * r - p2) <= 0:
+        return None
+    half = np.sqrt(r * r - p2)
+    return np.stack([o + d * max(s0 - half, 0.0), o + d * (s0 + half)])
+
+
+def _reach_disc(cam_k, held_cam, held_xy, reach, radius):
+    """The part of the holding view's ray within ``reach``'s r of its last point
+    (:func:`ray_piece`), as a disc in view k (``((2,) centre, radius)`` px: the projected
+    segment's middle, half its length plus ``radius``), or None where the ray passes farther
+    than r (or the segment does not project)."""
+    piece = ray_piece(held_cam, held_xy, reach[0], reach[1])
+    if piece is None:
+        return None
+    ends = _project(cam_k, piece)
+    if not np.isfinite(ends).all():
+        return None
+    return ends.mean(axis=0), 0.5 * float(np.linalg.norm(ends[1] - ends[0])) + radius
+
+
 def _find_dots(cams, stacks, arrays, pos, t, j, X, members, radius, search_px,
-               floor, line=None):
+               floor, line=None, reach=None):
     """Dots near X's projection in the marker's views that lack it in frame t, else (with
     ``line``: ``(line_px, max_px)``, a marker one view holds) along the holding view's
-    epipolar line: ``{view: ((2,) px, Filled)}``."""
+    epipolar line, else (with ``reach``: ``((3,) last point mm, r mm, stale)``) along it
+    where the ray lies within r of the last point (only this where ``stale``: no position
+    was predicted for frame t, X is the last point): ``{view: ((2,) px, Filled)}``."""
     found = {}
     views = np.flatnonzero(members[j] >= 0)
     held = [k for k in views if np.isfinite(pos[t, k, j]).all()]
@@ -472,12 +571,19 @@ def _find_dots(cams, stacks, arrays, pos, t, j, X, members, radius, search_px,
         others = np.concatenate([np.delete(pos[t, k], j, axis=0),
                                  np.delete(arrays[k][t], members[j, k], axis=0)])
         others = others[np.isfinite(others).all(axis=1)]
-        q, how = _near_dot(cams[k], img, X, radius, search_px, floor), Filled.NEAR
+        stale = reach is not None and reach[2]
+        q, how = None if stale else _near_dot(cams[k], img, X, radius, search_px,
+                                              floor), Filled.NEAR
         if _taken(q, others, radius):
             q = None                                # another marker's or track's dot
-        if q is None and line is not None and len(held) == 1:
+        if q is None and line is not None and len(held) == 1 and not stale:
             q, how = _line_dot(cams[k], img, cams[held[0]], pos[t, held[0], j], X, others,
                                radius, line[0], line[1], floor), Filled.LINE
+        if q is None and reach is not None and len(held) == 1:
+            disc = _reach_disc(cams[k], cams[held[0]], pos[t, held[0], j], reach, radius)
+            q, how = None if disc is None else _line_dot(
+                cams[k], img, cams[held[0]], pos[t, held[0], j], X, others, radius, None,
+                line[1], floor, disc), Filled.REACH
         if q is not None and not _taken(q, others, radius):
             found[int(k)] = (q, how)
     return found
@@ -503,9 +609,10 @@ def _check_stacks(stacks, cams, T) -> None:
                              f"{c.name!r} is {c.width} x {c.height}), got shape {np.shape(s)}")
 
 
-def _take(cams, pos, found, xyz, t, j, dots, max_px) -> None:
+def _take(cams, pos, found, xyz, t, j, dots, max_px, sphere=None) -> None:
     """Write the dots found for marker j in frame t into ``pos``, ``found`` and ``xyz`` (in
-    place) when the point intersected with them reprojects within ``max_px`` in every view."""
+    place) when the point intersected with them reprojects within ``max_px`` in every view
+    (and, with ``sphere``: ``((3,) centre, r)`` mm, lies within r of the centre)."""
     trial = pos[t, :, j].copy()
     for k, (q, _) in dots.items():
         trial[k] = q
@@ -516,16 +623,91 @@ def _take(cams, pos, found, xyz, t, j, dots, max_px) -> None:
                       min_angle_deg=1.0)
     if not (res.valid[0] and np.all(res.reprojection_error[:, 0] <= max_px)):
         return
+    if sphere is not None and not np.linalg.norm(res.points[0] - sphere[0]) <= sphere[1]:
+        return                                      # faster than the marker ever moved
     for k, (q, how) in dots.items():
         pos[t, k, j] = q
         found[t, k, j] = how
     xyz[t, j] = res.points[0]
 
 
+def marker_speeds(xyz) -> np.ndarray:
+    """``(M,)`` each marker's fastest 3-D step, mm per frame: the largest distance between
+    its positions in two consecutive frames both intersected (NaN: no such two frames).
+
+    Parameters
+    ----------
+    xyz : (T, M, 3) array
+        The markers' positions, mm (NaN: not intersected).
+    """
+    a = as_array(xyz, "xyz", shape=(None, None, 3), allow_nan=True)
+    if a.shape[0] < 2:
+        return np.full(a.shape[1], np.nan)
+    steps = np.linalg.norm(np.diff(a, axis=0), axis=2)                   # (T - 1, M)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)              # no step held
+        return np.nanmax(steps, axis=0)
+
+
+def _last_seen(a, t, step) -> int | None:
+    """The frame nearest to t before it in the pass's direction (``step`` +-1) where ``a``
+    ((T, d)) is finite, or None."""
+    held = np.isfinite(a).all(axis=1)
+    before = np.flatnonzero(held[:t]) if step > 0 else t + 1 + np.flatnonzero(held[t + 1:])
+    if not before.size:
+        return None
+    return int(before[-1] if step > 0 else before[0])
+
+
+def _passes(cams, stacks, arrays, m, state, sizes, floor, line, markers, fastest=None):
+    """One forward and one backward pass over the frames of ``markers``, writing the dots
+    found into ``state`` ``(pos, found, xyz)`` (in place); with ``fastest`` ((M,) mm per
+    frame) the reach search too."""
+    pos, found, xyz = state
+    radius, search_px, max_gap, max_px = sizes
+    T = len(xyz)
+    for step, frames in ((1, range(T)), (-1, range(T - 1, -1, -1))):
+        for t in frames:
+            for j in markers:
+                X, reach = _predict(xyz[:, j], t, step, max_gap), None
+                s = None if fastest is None else _last_seen(xyz[:, j], t, step)
+                if s is not None and np.isfinite(fastest[j]):    # the last intersected frame
+                    reach = (xyz[s, j], fastest[j] * abs(t - s), X is None)
+                    X = xyz[s, j] if X is None else X
+                if X is None:
+                    continue
+                dots = _find_dots(cams, stacks, arrays, pos, t, j, X, m, radius, search_px,
+                                  floor, line, reach)
+                far = any(h == Filled.REACH for _, h in dots.values())
+                if dots:
+                    _take(cams, pos, found, xyz, t, j, dots, max_px, reach[:2] if far else None)
+
+
+def _fill_passes(cams, stacks, arrays, m, sizes, floor, line, grow):
+    """:func:`fill_gaps`' passes: the joined positions with the dots found ``(T, K, M, 2)``
+    and where (``(T, K, M)`` :class:`Filled` codes). ``sizes``: ``(radius, search_px,
+    max_gap, max_px)``; ``grow``: then the reach search, on the fill's result (so that it
+    only adds to it), for the markers one view holds in some frame another of their views
+    lacks."""
+    pos = joined_positions(arrays, m)                               # (T, K, M, 2)
+    xyz, _, _ = triangulate_joined(cams, arrays, m)
+    fastest = marker_speeds(xyz)                      # (M,) mm per frame, before the fill
+    found = np.zeros(pos.shape[:3], np.int8)
+    state = (pos, found, xyz)
+    _passes(cams, stacks, arrays, m, state, sizes, floor, line, range(len(m)))
+    if grow:
+        held = np.isfinite(pos).all(axis=3)                         # (T, K, M)
+        own = (m >= 0).T[None]                                      # (1, K, M)
+        one = ((held & own).sum(axis=1) == 1) & (~held & own).any(axis=1)
+        _passes(cams, stacks, arrays, m, state, sizes, floor, line,
+                np.flatnonzero(one.any(axis=0)), fastest)
+    return pos, found
+
+
 def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float = 12.0,
               min_contrast: float = 15.0, max_gap: int = 10, max_px: float = 3.0,
-              line_px: float | None = None,
-              min_surround: float | None = None) -> tuple[tuple, np.ndarray]:
+              line_px: float | None = None, min_surround: float | None = None,
+              grow: bool = False) -> tuple[tuple, np.ndarray]:
     """Find markers again where one of their views lost them (see the module docstring).
 
     Parameters
@@ -558,10 +740,16 @@ def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float
         (module docstring); None (default): not tested. Its cost: a real dot beside a
         stripe as bright (with ``radius`` 4, 5-6 px from its centre) scores below 15 and is
         refused, as is one within ``1.5 radius`` px of the frame's border (NaN); and a
-        refused fill cuts off the fills after it, which a later real dot needed to be
-        reached (on the Pose2Sim demo most of one marker's fall in 3-D share, 0.92 ->
-        0.77: clear dots at frames 92-99 no longer reached once the fills of 85-87 and 89-91 were
-        refused; a line reach growing with the gap, or a backward pass: not done).
+        refused fill cuts off the fills after it (module docstring; ``grow``).
+    grow : bool
+        With ``line_px`` (without it ``grow`` adds nothing): after the other searches, run
+        them again on their result with the reach search too: where one view holds the
+        marker and they found nothing, search the holding view's epipolar line where its
+        ray lies within the marker's own reach of its last intersected point (its fastest
+        3-D step, :func:`marker_speeds`, times the frames since), whatever the gap, in both
+        passes; the point intersected with the dot must lie within that reach (module
+        docstring). It only adds: every fill made without it is made with it. Default
+        False.
 
     Returns
     -------
@@ -580,21 +768,12 @@ def fill_gaps(stacks, cameras, xy, members, *, radius: int = 4, search_px: float
     line = None if line_px is None else (as_scalar(line_px, "line_px", positive=True), max_px)
     floor = (min_contrast, None if min_surround is None
              else as_scalar(min_surround, "min_surround", positive=True))
+    if not isinstance(grow, bool):
+        raise TypeError(f"grow: expected True or False, got {grow!r}")
     T = arrays[0].shape[0]
     _check_stacks(stacks, cams, T)
-    pos = joined_positions(arrays, m)                               # (T, K, M, 2)
-    xyz, _, _ = triangulate_joined(cams, arrays, m)
-    found = np.zeros(pos.shape[:3], np.int8)
-    for step, frames in ((1, range(T)), (-1, range(T - 1, -1, -1))):
-        for t in frames:
-            for j in range(len(m)):
-                X = _predict(xyz[:, j], t, step, max_gap)
-                if X is None:
-                    continue
-                dots = _find_dots(cams, stacks, arrays, pos, t, j, X, m, radius, search_px,
-                                  floor, line)
-                if dots:
-                    _take(cams, pos, found, xyz, t, j, dots, max_px)
+    pos, found = _fill_passes(cams, stacks, arrays, m, (radius, search_px, max_gap, max_px),
+                              floor, line, grow and line is not None)
     out = []
     for k, a in enumerate(arrays):
         a = a.copy()

@@ -38,7 +38,7 @@ import numpy as np
 
 from .._validate import as_int, as_scalar
 from .blob_follow import dot_centre, dot_contrast
-from .join_checks import _check_stacks, _members
+from .join_checks import _check_stacks, _members, marker_speeds, ray_piece
 from .markers import find_blobs
 from .view_tracks import _checked, joined_positions, triangulate_joined
 
@@ -56,23 +56,7 @@ def _reach(xyz) -> tuple[np.ndarray, float]:
     if not idx.size:
         return np.full(T, np.inf), np.nan
     near = idx[np.abs(np.arange(T)[:, None] - idx[None]).argmin(axis=1)]
-    both = has[:-1] & has[1:]
-    speed = (float(np.linalg.norm(np.diff(xyz, axis=0)[both], axis=1).max())
-             if both.any() else np.nan)
-    return near, speed
-
-
-def _piece(cam_h, xy_h, X_n, r) -> np.ndarray | None:
-    """``(2, 3)`` ends of the piece of the ray through ``xy_h`` within ``r`` mm of
-    ``X_n``, or None where the ray misses that ball."""
-    o, d = cam_h.rays(np.asarray(xy_h, float)[None])
-    o, d = o[0], d[0] / np.linalg.norm(d[0])
-    s0 = float(np.dot(X_n - o, d))
-    p2 = float(np.sum((X_n - o - s0 * d) ** 2))
-    if p2 > r * r:
-        return None
-    half = np.sqrt(r * r - p2)
-    return np.stack([o + d * max(s0 - half, 0.0), o + d * (s0 + half)])
+    return near, float(marker_speeds(xyz[:, None])[0])
 
 
 def _shows_dot(cam, img, ends, radius, min_contrast, max_px) -> bool:
@@ -156,8 +140,8 @@ def hidden_frames(stacks, cameras, xy, members, *, radius: int = 4,
             if not np.isfinite(speed) or not np.isfinite(near[t]):
                 continue
             h = int(np.flatnonzero(held[t, :, j])[0])
-            ends = _piece(cams[h], pos[t, h, j], xyz[int(near[t]), j],
-                          speed * abs(t - int(near[t])))
+            ends = ray_piece(cams[h], pos[t, h, j], xyz[int(near[t]), j],
+                             speed * abs(t - int(near[t])))
             if ends is None:
                 continue
             out[t, j] = not any(_shows_dot(cams[k], np.asarray(stacks[k][t]), ends, radius,

@@ -14,6 +14,13 @@ the camera's lens model cannot be inverted, is not an observation.
 A coincidence along an epipolar line holds in one frame, rarely through a moving path:
 joining by paths is what makes an unlabelled 2-D track usable with cameras a few pixels
 off, where a per-frame epipolar test at that tolerance is ambiguous.
+
+A join right over its whole path can still be wrong in some frames: a view's track picked
+up again on a neighbouring dot after a gap. :func:`triangulate_gated` gates the positions
+by their residual (:func:`residual_gate`: ``k`` times a robust scale of all the
+positions' residuals, floored by the cameras' own residual), leaves out the view to blame
+where three or more views hold the point, and takes out a view's run of frames (its track
+between gaps) that is out in most of them, throughout.
 """
 
 from __future__ import annotations
@@ -228,6 +235,12 @@ def triangulate_joined(cameras, xy, members):
     """
     cams, arrays = _checked(cameras, xy)
     pos = joined_positions(arrays, members)
+    xyz, residual = _intersect(cams, pos)
+    return xyz, residual, np.isfinite(pos).all(axis=3).sum(axis=1)
+
+
+def _intersect(cams, pos):
+    """``(T, M, 3)`` points and ``(T, M)`` residuals of ``(T, K, M, 2)`` positions."""
     T, K, M, _ = pos.shape
     res = triangulate(cams, np.moveaxis(pos, 1, 0).reshape(K, T * M, 2), min_angle_deg=1.0)
     xyz = np.where(res.valid[:, None], res.points, np.nan).reshape(T, M, 3)
@@ -235,5 +248,184 @@ def triangulate_joined(cameras, xy, members):
         warnings.simplefilter("ignore", RuntimeWarning)          # points not intersected
         residual = np.where(res.valid, np.nanmax(res.reprojection_error, axis=0),
                             np.nan).reshape(T, M)
-    n_views = np.isfinite(pos).all(axis=3).sum(axis=1)
-    return xyz, residual, n_views
+    return xyz, residual
+
+
+#: the residual's robust scale: sigma of a zero-mean normal error from the median of its size
+_MAD_SIGMA = 1.4826
+
+
+def residual_gate(residual, *, k: float = 4.0, floor_px: float = 0.5):
+    """Which intersected positions have a reprojection residual in line with the recording's.
+
+    The residual of a right intersection is the size of a zero-mean image error (the
+    trackers' and the cameras'), so its scale is measured robustly on all of them
+    together: ``sigma = 1.4826 * median(residual)`` (the median absolute deviation about
+    zero, which a minority of wrong positions hardly moves), held at no less than
+    ``floor_px`` (the cameras' own residual: below it the cameras cannot tell right from
+    wrong). A position whose residual exceeds ``k * sigma`` is out: a track on another
+    dot than its partners, a view's dot mistaken after a gap.
+
+    Parameters
+    ----------
+    residual : (T, M) array
+        Largest reprojection error of each point's views in each frame, px, >= 0 (NaN
+        where not intersected; :func:`triangulate_joined`).
+    k : float
+        The bound in units of sigma, > 0.
+    floor_px : float
+        Least sigma, px, >= 0.
+
+    Returns
+    -------
+    keep : (T, M) bool array
+        False where the residual exceeds the bound (an infinite one too; NaN residuals
+        are kept: nothing to judge).
+    bound_px : float
+        ``k * sigma``, px (NaN when no residual is finite).
+    """
+    r = as_array(residual, "residual", shape=(None, None), finite=False)
+    if (r < 0).any():
+        raise ValueError("residual: expected reprojection errors >= 0 (NaN where none), got "
+                         f"{r[r < 0].min():g}")
+    k = as_scalar(k, "k", positive=True)
+    floor_px = as_scalar(floor_px, "floor_px", nonnegative=True)
+    finite = np.isfinite(r)
+    if not finite.any():
+        return np.ones(r.shape, bool), float("nan")
+    bound = k * max(_MAD_SIGMA * float(np.median(r[finite])), floor_px)
+    with np.errstate(invalid="ignore"):
+        return ~(r > bound), bound                  # NaN: kept; inf (no meeting): out
+
+
+@dataclass(frozen=True)
+class GatedPoints:
+    """Joined points intersected with the residual gate (:func:`triangulate_gated`).
+
+    Attributes
+    ----------
+    xyz : (T, M, 3) array
+        mm; NaN where fewer than two views hold the point or its residual is out.
+    residual : (T, M) array
+        Largest reprojection error of the views used, px (NaN likewise).
+    n_views : (T, M) int array
+        The views used.
+    dropped : int
+        Positions dropped (held by two or more views, out of the bound).
+    views_out : int
+        Positions kept with one view left out (in frames) or a view's run of frames taken
+        out (counted per position).
+    bound_px : float
+        The gate's bound, px (:func:`residual_gate`; NaN: nothing intersected).
+    """
+
+    xyz: np.ndarray
+    residual: np.ndarray
+    n_views: np.ndarray
+    dropped: int
+    views_out: int
+    bound_px: float
+
+    def __post_init__(self):
+        freeze(self, ("xyz", "residual", "n_views"))
+
+
+def _leave_one_out(cams, pos, bound):
+    """The points of ``(T, K, M, 2)`` positions, the residual gate applied at ``bound``:
+    a position out of it held by three or more views intersected with each view left out
+    in turn, the least residual kept where it is within the bound. Returns the points,
+    residuals, the positions still out (``(T, M)``; their points not yet NaN), and per
+    ``(T, K, M)`` the views to blame (the one left out; every view of a position still
+    out: two views cannot say which of them is wrong)."""
+    xyz, residual = _intersect(cams, pos)
+    with np.errstate(invalid="ignore"):
+        still = residual > bound                                 # NaN: not judged
+    blame = np.zeros(pos.shape[:3], bool)
+    held = np.isfinite(pos).all(axis=3)                          # (T, K, M)
+    for t, j in zip(*np.nonzero(still)):
+        views = np.flatnonzero(held[t, :, j])
+        best = (np.inf, None, None)
+        for k in views if len(views) >= 3 else ():
+            one = pos[t:t + 1, :, j:j + 1].copy()
+            one[0, k] = np.nan
+            X, r = _intersect(cams, one)
+            if r[0, 0] <= min(bound, best[0]):
+                best = (r[0, 0], X[0, 0], k)
+        if best[2] is None:
+            blame[t, views, j] = True
+            continue
+        xyz[t, j], residual[t, j] = best[1], best[0]
+        blame[t, best[2], j] = True
+        still[t, j] = False
+    return xyz, residual, still, blame
+
+
+def _worst_run(held, blame):
+    """``(start, stop, view, point)`` of the run of a view's frames (``held[:, k, j]``
+    True between gaps) blamed in the largest share of its frames, if more than half; else
+    None."""
+    best, worst = 0.5, None
+    for k in range(held.shape[1]):
+        for j in range(held.shape[2]):
+            d = np.diff(np.concatenate([[0], held[:, k, j].astype(int), [0]]))
+            for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
+                share = blame[a:b, k, j].mean()
+                if share > best:
+                    best, worst = share, (a, b, k, j)
+    return worst
+
+
+def triangulate_gated(cameras, xy, members, *, k: float = 4.0,
+                      floor_px: float = 0.5) -> GatedPoints:
+    """Every frame's 3-D position of the joined points (:func:`triangulate_joined`), with
+    the residual gate (:func:`residual_gate`, its bound set once on all the positions).
+
+    A position out of the bound held by three or more views is intersected again with each
+    view left out in turn and kept, from the others, where the least of these residuals is
+    within the bound; otherwise it is dropped. A view is blamed in such a frame: the view
+    left out, or every view of a dropped position (two views cannot say which is wrong).
+    A run of a view's frames (its track between gaps, e.g. one picked up again on another
+    dot after a gap) blamed in more than half of its frames is wrong throughout, also where
+    it happens to lie near the epipolar line: the run blamed in the largest share is taken
+    out of the point, the points are intersected and gated again, and so on until no run
+    is blamed in more than half of its frames. A right view's run is blamed only in the
+    frames it shares with a wrong one; taking the worst run first clears those.
+
+    Parameters
+    ----------
+    cameras : sequence of K Camera
+    xy : sequence of K (T, N_k, 2) arrays
+        Each view's tracks, px.
+    members : (M, K) int array
+        The joins.
+    k, floor_px : float
+        :func:`residual_gate`'s.
+
+    Returns
+    -------
+    GatedPoints
+    """
+    cams, arrays = _checked(cameras, xy)
+    pos = joined_positions(arrays, members)
+    held0 = np.isfinite(pos).all(axis=3)                         # (T, K, M)
+    xyz, residual = _intersect(cams, pos)
+    keep, bound = residual_gate(residual, k=k, floor_px=floor_px)
+    first = np.isfinite(residual)                                # intersected at all
+    if np.isnan(bound) or keep.all():
+        return GatedPoints(xyz=xyz, residual=residual, n_views=held0.sum(axis=1), dropped=0,
+                           views_out=0, bound_px=bound)
+    while True:
+        xyz, residual, still, blame = _leave_one_out(cams, pos, bound)
+        worst = _worst_run(np.isfinite(pos).all(axis=3), blame)
+        if worst is None:
+            break
+        a, b, v, j = worst
+        pos[a:b, v, j] = np.nan                             # the run: wrong throughout
+    xyz[still], residual[still] = np.nan, np.nan
+    kept = np.isfinite(residual)
+    left = kept & (blame.sum(axis=1) > 0)                   # a view left out in the frame
+    n_views = np.where(kept, np.isfinite(pos).all(axis=3).sum(axis=1) - left, 0)
+    return GatedPoints(xyz=xyz, residual=residual, n_views=n_views,
+                       dropped=int((first & ~kept).sum()),
+                       views_out=int((kept & (n_views < held0.sum(axis=1))).sum()),
+                       bound_px=bound)

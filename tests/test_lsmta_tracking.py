@@ -202,6 +202,32 @@ def test_return_to_first_brings_a_track_found_by_its_fallback_back_to_its_first_
         track_points(frames[None], g[None], params=TrackerParams(return_to_first=1))
 
 
+def test_return_to_first_in_three_cameras_passes_the_spatial_check_with_the_first_templates():
+    """The jerk of the test above seen by three cameras (each its own offset of the texture):
+    with ``return_to_first`` the first templates, matched from where the fallbacks found
+    the track, pass the temporal LSM and the spatial check in every camera, so every frame
+    is the first templates' (``anchor`` 0), at the true positions."""
+    rng = np.random.default_rng(3)
+    base = ndimage.gaussian_filter(rng.normal(size=(140, 180)), 1.0)
+    base = 128 + 50 * base / base.std()
+    steps = np.array([[0, 0], [1, 0.5], [1, 0.5], [1, 0.5], [4, 0.5], [1, 0.5], [1, 0.5]])
+    pos = np.cumsum(steps, axis=0)
+    images = np.stack([np.stack([ndimage.shift(base, (y + 3 * k, x + 3 * k), order=3,
+                                               mode="reflect") for x, y in pos])
+                       for k in range(3)])
+    g = np.stack(np.meshgrid(np.arange(30, 111, 16.0), np.arange(30, 91, 16.0)),
+                 -1).reshape(-1, 2)
+    xy0 = np.stack([g + 3 * k for k in range(3)])
+    on_fallback = {}
+    for back in (False, True):
+        tr = track_points(images, xy0, params=TrackerParams(return_to_first=back))
+        assert (tr.status == TrackStatus.ALIVE).all()
+        err = np.linalg.norm(tr.xy - (xy0[None] + pos[:, None, None]), axis=3)
+        assert err.max() < 0.02
+        on_fallback[back] = int((tr.anchor > 0).sum())
+    assert on_fallback[False] > len(g) and on_fallback[True] == 0
+
+
 def test_match_translation_recovers_a_shift_and_a_grey_offset():
     rng = np.random.default_rng(2)
     img = ndimage.gaussian_filter(rng.normal(size=(80, 80)), 2.0)

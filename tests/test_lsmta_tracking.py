@@ -784,6 +784,47 @@ def test_batched_coarse_to_fine_gives_the_per_frame_positions_and_statuses(monke
     assert (batched.status == TrackStatus.ALIVE).sum() > 0.3 * len(g)
 
 
+def test_skipping_the_cameras_after_a_failed_one_changes_no_track(monkeypatch):
+    """Three cameras: a track that disagrees in one camera's spatial LSM, a start point not
+    confirmed in one camera and a track whose coarse-to-fine step found nothing in one
+    camera are not matched in the later cameras; the tracks (positions, statuses, anchors)
+    are those of matching every camera."""
+    import functools
+
+    from lsmta.tracking import points
+
+    seq = et.walk_sequence(seed=7, n_frames=8, scale=0.5)
+    xy0, _, _ = et.start_points(seq, 300, rng=np.random.default_rng(1))
+    cand = et.candidates(seq)
+    failed = {"spatial": 0, "coarse_to_fine": 0}
+    spatial, coarse = points._spatial, points._coarse_to_fine
+
+    def spatial_counted(*a, **kw):
+        out = spatial(*a, **kw)
+        failed["spatial"] += int((~out[0]).sum())
+        return out
+
+    def coarse_counted(*a, **kw):
+        out = coarse(*a, **kw)
+        failed["coarse_to_fine"] += int(np.isnan(out[0]).any(axis=1).sum())
+        return out
+
+    monkeypatch.setattr(points, "_spatial", spatial_counted)
+    monkeypatch.setattr(points, "_coarse_to_fine", coarse_counted)
+    skipped = track_points(seq.images, xy0, new_points=cand)
+    assert failed["spatial"] > 5 and failed["coarse_to_fine"] > 5   # the skips happened
+    monkeypatch.setattr(points, "_spatial", functools.partial(spatial, every=True))
+    monkeypatch.setattr(points, "_coarse_to_fine", functools.partial(coarse, every=True))
+    monkeypatch.setattr(points, "_spatial_start",
+                        functools.partial(points._spatial_start, every=True))
+    every = track_points(seq.images, xy0, new_points=cand)
+    assert skipped.added.sum() > 0 and (skipped.status == TrackStatus.ALIVE).sum() > 50
+    for name in ("status", "end", "anchor", "retried", "recovered", "origin"):
+        assert np.array_equal(getattr(skipped, name), getattr(every, name)), name
+    assert np.array_equal(np.isnan(skipped.xy), np.isnan(every.xy))
+    assert np.nanmax(np.abs(skipped.xy - every.xy)) < 1e-9
+
+
 def test_a_patch_over_the_border_is_tracked_with_a_partial_template():
     """Points whose patch reaches over the image border (at the start, or as they move out)
     are tracked with partial templates, as KLT keeps such windows; without ``partial`` they

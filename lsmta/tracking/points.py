@@ -662,7 +662,7 @@ class _Pyramids:
 
 
 def _coarse_to_fine(state: _State, pyramids: _Pyramids, idx, pred, t: int,
-                    p: TrackerParams) -> np.ndarray:
+                    p: TrackerParams, *, every: bool = False) -> np.ndarray:
     """Coarse-to-fine predictions ``(K, n, 2)`` px at frame ``t`` for the tracks ``idx``
     ``(n,)``, started from their predictions ``pred`` ``(K, n, 2)`` px (full-size pixels).
 
@@ -676,24 +676,29 @@ def _coarse_to_fine(state: _State, pyramids: _Pyramids, idx, pred, t: int,
     the tracks, whatever their last frames (each track's patch sampled from its own
     frame's level, once while it stays missing: :meth:`_Pyramids.templates`); every
     track is solved on its own, so the result is that of matching the tracks of each last
-    frame separately."""
+    frame separately. Unless ``every``, a track NaN in one camera is not matched in the
+    later ones (NaN there too): the caller moves only tracks found in every camera."""
     K, n = pred.shape[:2]
     out = np.full((K, n, 2), np.nan)
-    last = state.end[idx]
-    rows = np.arange(n)
+    todo = np.arange(n)                         # found in every camera so far
     for k in range(K):
+        if not todo.size:
+            break
         target = pyramids.get(k, t)
-        at = state.xy[last, k, idx]                                 # (n, 2) full-size px
-        est = np.array(pred[k], float)
-        found = np.zeros(n, bool)
+        sub, last = idx[todo], state.end[idx[todo]]
+        at = state.xy[last, k, sub]                                 # (m, 2) full-size px
+        est = np.array(pred[k, todo], float)
+        found = np.zeros(todo.size, bool)
+        rows = np.arange(todo.size)
         for lv in range(len(target) - 1, 0, -1):
             s = 2.0 ** lv
-            tm = pyramids.templates(k, lv, idx, last, at, patch=p.patch)
+            tm = pyramids.templates(k, lv, sub, last, at, patch=p.patch)
             xy, conv = match_translation(tm, rows, target[lv], est / s, max_iter=p.max_iter,
                                          tol=p.tol)
             est[conv] = xy[conv] * s
             found[conv] = True
-        out[k, found] = est[found]
+        out[k, todo[found]] = est[found]
+        todo = todo if every else todo[found]
     return out
 
 
@@ -959,26 +964,29 @@ def _temporal(anchors: _Anchors, seq, nxt, t: int, idx, pred, radius, p: Tracker
                      direct=by_pred)
 
 
-def _spatial(anchors: _Anchors, nxt, idx, xy, A, p: TrackerParams):
+def _spatial(anchors: _Anchors, nxt, idx, xy, A, p: TrackerParams, *, every: bool = False):
     """Spatial LSM: the template camera's template into every other camera's frame, started
     where the spatial relation at the anchor (``S``, ``D``) puts it. Returns ``agree (m,)``
     (within ``max_disagreement`` of that), the affinities ``M (K, m, 2, 2)`` from the
     template camera's template into each camera's frame and the positions ``(K, m, 2)``
-    (NaN for the template camera)."""
+    (NaN for the template camera). A track that disagrees in one camera is not matched in
+    the later ones (``M`` there is ``A``, the position NaN) unless ``every``; each track
+    is matched on its own, so the others' results do not change."""
     K, m = xy.shape[:2]
     tm = p.template
     agree = np.ones(m, bool)
     M = A.copy()
     pos = np.full((K, m, 2), np.nan)
     for k in range(K):
-        if k == tm:
+        rows = np.arange(m) if every else np.flatnonzero(agree)
+        if k == tm or not rows.size:
             continue
-        expect = xy[k] + np.einsum("nij,nj->ni", A[k], anchors.D[k, idx])
-        res = match_templates(anchors.templates[tm], idx, nxt[k], expect,
-                              A[k] @ anchors.S[k, idx], **_lsm(p))
-        pos[k] = res.xy
-        agree &= res.ok & (np.linalg.norm(res.xy - expect, axis=1) <= p.max_disagreement)
-        M[k] = res.A
+        expect = xy[k, rows] + np.einsum("nij,nj->ni", A[k, rows], anchors.D[k, idx[rows]])
+        res = match_templates(anchors.templates[tm], idx[rows], nxt[k], expect,
+                              A[k, rows] @ anchors.S[k, idx[rows]], **_lsm(p))
+        pos[k, rows] = res.xy
+        agree[rows] &= res.ok & (np.linalg.norm(res.xy - expect, axis=1) <= p.max_disagreement)
+        M[k, rows] = res.A
     return agree, M, pos
 
 
@@ -1005,24 +1013,27 @@ def _start_maps(template: int, xy, cams) -> np.ndarray:
 
 
 def _spatial_start(anchors: _Anchors, splines, xy, p: TrackerParams,
-                   start_cameras=None) -> np.ndarray:
+                   start_cameras=None, *, every: bool = False) -> np.ndarray:
     """Spatial relation ``S``, ``D`` of freshly sampled templates (all rows of ``anchors``)
     at their positions ``xy`` ``(K, n, 2)``, the LSM started from the identity or from the
     map ``start_cameras`` predict (:func:`_start_maps`). Returns ``confirmed (n,)``: every
     template is textured and (K > 1) the spatial LSM lands within ``max_disagreement`` of
-    each camera's start position."""
+    each camera's start position. Unless ``every``, a row not confirmed is not matched in
+    the later cameras (its ``S``, ``D`` there stay as they were: it is not tracked)."""
     K, n = xy.shape[:2]
     confirmed = np.all([tm.ok for tm in anchors.templates], axis=0)
-    tm, rows = p.template, np.arange(n)
+    tm = p.template
     start = _start_maps(tm, xy, start_cameras) if K > 1 and n else None
     for k in range(K if K > 1 and n else 0):
-        if k == tm:
+        rows = np.arange(n) if every else np.flatnonzero(confirmed)
+        if k == tm or not rows.size:
             continue
-        res = match_templates(anchors.templates[tm], rows, splines[k], xy[k], start[k],
-                              **_lsm(p))
-        anchors.S[k, res.ok] = res.A[res.ok]
-        anchors.D[k, res.ok] = res.xy[res.ok] - xy[k, res.ok]
-        confirmed &= res.ok & (np.linalg.norm(res.xy - xy[k], axis=1) <= p.max_disagreement)
+        res = match_templates(anchors.templates[tm], rows, splines[k], xy[k, rows],
+                              start[k, rows], **_lsm(p))
+        anchors.S[k, rows[res.ok]] = res.A[res.ok]
+        anchors.D[k, rows[res.ok]] = res.xy[res.ok] - xy[k, rows[res.ok]]
+        confirmed[rows] &= res.ok & (np.linalg.norm(res.xy - xy[k, rows], axis=1)
+                                     <= p.max_disagreement)
     return confirmed
 
 
@@ -1180,7 +1191,7 @@ def track_step(frame, next_frame, xy, predicted, radius, *, params: TrackerParam
             raise ValueError(f"splines: expected two sequences of {K} SplineImage of shape "
                              f"{seq.shape[2:]} (the images'), got {splines!r:.60}, {nxt!r:.60}")
     first = _Anchors.sampled(splines, cur, 0, p)
-    _spatial_start(first, splines, cur, p)
+    _spatial_start(first, splines, cur, p, every=True)
     rows = np.arange(n)
     st = _temporal(first, seq, nxt, 1, rows, pred, r.astype(np.int64), p,
                    direct=np.full(n, bool(direct)), box=np.ones(n, bool))
@@ -1189,7 +1200,7 @@ def track_step(frame, next_frame, xy, predicted, radius, *, params: TrackerParam
     if K > 1 and ok.any():
         sel = np.flatnonzero(ok)
         agree, _, sp_xy[:, sel] = _spatial(first, nxt, sel, st.xy[:, sel], st.temporal_A[:, sel],
-                                           p)
+                                           p, every=True)
         ok[sel[~agree]] = False
     return StepResult(ok=ok, direct=st.direct, correlation_xy=st.correlation_xy, xy=st.xy,
                       temporal_A=st.temporal_A, spatial_xy=sp_xy, spatial_A=first.S.copy())

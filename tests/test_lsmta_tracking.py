@@ -202,11 +202,9 @@ def test_return_to_first_brings_a_track_found_by_its_fallback_back_to_its_first_
         track_points(frames[None], g[None], params=TrackerParams(return_to_first=1))
 
 
-def test_return_to_first_in_three_cameras_passes_the_spatial_check_with_the_first_templates():
-    """The jerk of the test above seen by three cameras (each its own offset of the texture):
-    with ``return_to_first`` the first templates, matched from where the fallbacks found
-    the track, pass the temporal LSM and the spatial check in every camera, so every frame
-    is the first templates' (``anchor`` 0), at the true positions."""
+def _three_camera_jerk():
+    """The jerk of the test above seen by three cameras (each its own offset of the
+    texture): images ``(3, 7, H, W)``, start points ``(3, n, 2)``, true shifts ``(7, 2)``."""
     rng = np.random.default_rng(3)
     base = ndimage.gaussian_filter(rng.normal(size=(140, 180)), 1.0)
     base = 128 + 50 * base / base.std()
@@ -217,7 +215,15 @@ def test_return_to_first_in_three_cameras_passes_the_spatial_check_with_the_firs
                        for k in range(3)])
     g = np.stack(np.meshgrid(np.arange(30, 111, 16.0), np.arange(30, 91, 16.0)),
                  -1).reshape(-1, 2)
-    xy0 = np.stack([g + 3 * k for k in range(3)])
+    return images, np.stack([g + 3 * k for k in range(3)]), pos
+
+
+def test_return_to_first_in_three_cameras_returns_every_track_to_its_first_templates():
+    """Three cameras, the jerk: the first templates fail from the prediction in frames 4
+    and 5. With ``return_to_first`` they are matched from where the fallbacks found the
+    tracks and pass there (the temporal LSM and the spatial check), so every frame is the
+    first templates' (``anchor`` 0), at the true positions."""
+    images, xy0, pos = _three_camera_jerk()
     on_fallback = {}
     for back in (False, True):
         tr = track_points(images, xy0, params=TrackerParams(return_to_first=back))
@@ -225,7 +231,58 @@ def test_return_to_first_in_three_cameras_passes_the_spatial_check_with_the_firs
         err = np.linalg.norm(tr.xy - (xy0[None] + pos[:, None, None]), axis=3)
         assert err.max() < 0.02
         on_fallback[back] = int((tr.anchor > 0).sum())
-    assert on_fallback[False] > len(g) and on_fallback[True] == 0
+    assert on_fallback[False] > len(xy0[0]) and on_fallback[True] == 0
+
+
+def test_a_return_the_spatial_check_rejects_leaves_the_fallback_standing(monkeypatch):
+    """The jerk in three cameras, the spatial LSM of a return made to disagree: for one
+    third of the tracks at every return, for another third at every return but the first
+    (frame 4's). A rejected return changes nothing: the first third's tracks are those of
+    the defaults (positions, anchors); those of the second third whose first templates
+    fail from the prediction in frame 5 as well return in frame 4 and in frame 5 hold the
+    fallback kept for them (anchored in frame 3, not re-anchored in frame 4); the last
+    third return every time (``anchor`` 0)."""
+    from lsmta.tracking import points
+
+    images, xy0, pos = _three_camera_jerk()
+    spatial, ret = points._spatial, points._return_to_first
+    returning, seen, rejected = [], {}, []
+
+    def in_return(*a, **kw):
+        returning.append(True)
+        try:
+            return ret(*a, **kw)
+        finally:
+            returning.pop()
+
+    def spatial_rejecting(anchors, nxt, idx, *a, **kw):
+        agree, M, at = spatial(anchors, nxt, idx, *a, **kw)
+        if returning:
+            for j, i in enumerate(idx):
+                n, seen[i] = seen.get(i, 0), seen.get(i, 0) + 1
+                if i % 3 == 0 or (i % 3 == 1 and n >= 1):
+                    agree[j] = False
+                    rejected.append(i)
+        return agree, M, at
+
+    monkeypatch.setattr(points, "_spatial", spatial_rejecting)
+    monkeypatch.setattr(points, "_return_to_first", in_return)
+    default = track_points(images, xy0)
+    tr = track_points(images, xy0, params=TrackerParams(return_to_first=True))
+    n = len(xy0[0])
+    group = np.arange(n) % 3
+    assert (tr.status == TrackStatus.ALIVE).all()
+    twice = default.anchor[5] > 0          # their first templates fail in frame 5 too
+    assert set(rejected) == set(np.flatnonzero((group == 0) | ((group == 1) & twice)))
+    err = np.linalg.norm(tr.xy - (xy0[None] + pos[:, None, None]), axis=3)
+    assert err.max() < 0.02
+    a = group == 0
+    assert np.array_equal(tr.anchor[:, a], default.anchor[:, a])
+    assert np.array_equal(tr.xy[:, :, a], default.xy[:, :, a])
+    assert (tr.anchor[4:6, a] == 3).all()                         # the fallback stood
+    b = (group == 1) & twice
+    assert b.sum() >= 5 and (tr.anchor[4, b] == 0).all() and (tr.anchor[5, b] == 3).all()
+    assert (tr.anchor[:, group == 2] == 0).all()
 
 
 def test_match_translation_recovers_a_shift_and_a_grey_offset():

@@ -20,8 +20,10 @@ every new frame; the previous frame's solution is only the start. From frame ``t
    (the paper's step 2). A track without history, after its match from the prediction, is
    searched in the box with its first template. With ``return_to_first`` a track accepted
    on its fallback tries its first template again from there, and takes it where it
-   passes (the drift correction without waiting for the prediction), keeping its fallback
-   template for its next failure;
+   passes (the drift correction without waiting for the prediction); it keeps that
+   fallback for the next frame: where its first template fails from the prediction there,
+   the fallback is matched without being re-anchored (once its first template matches
+   otherwise than by a return, its next failure re-anchors as usual);
 4. where all that fails (beyond the paper): a fallback template anchored before frame
    ``t`` is replaced by the track's patch in frame ``t``, and a *coarse-to-fine
    prediction* is made: the track's patch in its last tracked frame is matched into frame
@@ -179,13 +181,19 @@ class TrackerParams:
         where the fallback found it and with the affinity the fallback implies (the
         inverse compositional match, then the forward LSM retry; no box search), with the
         usual thresholds and (K > 1) the spatial and geometric checks; where all pass, the
-        frame is the first template's and the fallback's drift ends there, and the track
-        keeps its fallback template for its next failure (not re-anchored). False (the
-        default): the first template is tried only from the prediction. On the real
-        videos' design half 978 survivors against 967, on the generated triplet walk 1198
-        of 3000 start points against 1191, and caliscope cam_3's forward-backward median
-        0.092 px against 0.108, but 7-34 % more CPU time on the real videos, so not the
-        default (``experiments/real_video_tracking.py``).
+        frame is the first template's and the fallback's drift ends there. The track keeps
+        that fallback for the next frame (where its first template fails from the
+        prediction there, the fallback is matched without being re-anchored; once its
+        first template matches otherwise than by a return, its next failure re-anchors as
+        usual). False (the default): the first template is tried only from the prediction.
+        Measured on design data (what the design was chosen or motivated on): the real
+        videos' design half 978 survivors against 967; the generated triplet walk 1198 of
+        3000 start points against 1191 (it decided against re-anchoring after a return);
+        caliscope cam_3 (which motivated the option) 106 against 105, forward-backward
+        median 0.092 px against 0.108. The other three videos (not used in the choice):
+        792 against 783. Not better on every measure than the variant it replaced (all
+        eight videos: 1876 survivors against 1882), and 7-34 % more CPU time on the real
+        videos, so not the default (``experiments/real_video_tracking.py``).
     max_reprojection : float
         Largest reprojection error of an accepted frame, px (only with ``cameras``).
     density_every : int
@@ -842,19 +850,8 @@ def _attempt(state: _State, seq, prev, nxt, t: int, idx, pred, radius, p: Tracke
         st = _merge(st, sel, _temporal(state.fallback, seq, nxt, t, idx[sel], pred[:, sel],
                                        radius[sel], p, direct=direct[sel],
                                        box=np.ones(sel.size, bool)))
-    ok = st.ok.copy()
-    M, off = st.temporal_A.copy(), np.zeros(st.xy.shape)
-    if len(nxt) > 1:
-        for anchors, mask in ((state.first, ok & ~use_fb), (state.fallback, ok & use_fb)):
-            sel = np.flatnonzero(mask)
-            if sel.size:
-                agree, M[:, sel], pos = _spatial(anchors, nxt, idx[sel], st.xy[:, sel],
-                                                 st.temporal_A[:, sel], p)
-                off[:, sel] = np.nan_to_num(pos - st.xy[:, sel])
-                ok[sel[~agree]] = False
-    if state.cameras is not None and ok.any():
-        sel = np.flatnonzero(ok)
-        ok[sel] = _geometric(state.cameras, st.xy[:, sel], p)
+    ok, M, off = _checks(state, ((state.first, st.ok & ~use_fb), (state.fallback, st.ok & use_fb)),
+                         nxt, idx, st.xy, st.temporal_A, p)
     back = np.zeros(0, np.int64)
     if p.return_to_first and (ok & use_fb).any():
         back = np.flatnonzero(ok & use_fb)
@@ -867,13 +864,37 @@ def _attempt(state: _State, seq, prev, nxt, t: int, idx, pred, radius, p: Tracke
         _accept(state, nxt, t, idx[ok], st.xy[:, ok], st.temporal_A[:, ok], st.sigma0[:, ok],
                 M[:, ok], off[:, ok], use_fb[ok], p)
     if back.size:
-        # a track back on its first templates keeps its fallback for its next failure (not
-        # re-anchored there: re-anchoring after every return lost tracks on the triplet
-        # walk), with the affinity the first templates' match implies for it
+        # a track back on its first templates keeps its fallback, with the affinity the
+        # first templates' match implies for it, for the next frame: matched there without
+        # re-anchoring where the first templates fail from the prediction (_accept ends
+        # that once they match other than by a return). Re-anchoring after every return lost
+        # tracks on the triplet walk (design data: the walk helped choose this)
         r = idx[back]
         state.on_fallback[r] = True
         state.fallback.A[:, r] = state.first.A[:, r] @ np.linalg.inv(state.link[:, r])
     return ok
+
+
+def _checks(state: _State, sets, nxt, idx, xy, A, p: TrackerParams):
+    """The spatial check (K > 1) of each template set ``(anchors, rows)`` in ``sets`` on its
+    tracks ``rows`` ``(n,)`` bool (of ``idx``, found at ``xy`` ``(K, n, 2)`` with the
+    temporal affinities ``A`` ``(K, n, 2, 2)``), then (with ``state.cameras``) the geometric
+    check of all that passed it. Returns ``ok`` ``(n,)`` (False outside every set's rows),
+    the spatial affinities ``M`` ``(K, n, 2, 2)`` (``A`` where not matched) and the spatial
+    offsets ``off`` ``(K, n, 2)`` px (0 where not matched)."""
+    ok = np.zeros(len(idx), bool)
+    M, off = A.copy(), np.zeros(xy.shape)
+    for anchors, rows in sets:
+        sel = np.flatnonzero(rows)
+        ok[sel] = True
+        if len(nxt) > 1 and sel.size:
+            agree, M[:, sel], pos = _spatial(anchors, nxt, idx[sel], xy[:, sel], A[:, sel], p)
+            off[:, sel] = np.nan_to_num(pos - xy[:, sel])
+            ok[sel[~agree]] = False
+    if state.cameras is not None and ok.any():
+        sel = np.flatnonzero(ok)
+        ok[sel] = _geometric(state.cameras, xy[:, sel], p)
+    return ok, M, off
 
 
 def _geometric(cameras, xy, p: TrackerParams) -> np.ndarray:
@@ -883,36 +904,41 @@ def _geometric(cameras, xy, p: TrackerParams) -> np.ndarray:
     return res.valid & (np.nanmax(res.reprojection_error, axis=0) <= p.max_reprojection)
 
 
+def _anchored_match(templates, idx, image, start, A, p: TrackerParams, *, fallback):
+    """:func:`_match` of the anchored ``templates`` of the tracks ``idx`` into ``image`` from
+    ``start`` with the affinities ``A``, with the tracker's settings (the forward LSM retry
+    where ``fallback``)."""
+    return _match(templates, idx, image, start, A, fallback=fallback,
+                  retry_rejected=p.retry_rejected, max_displacement=None, **_lsm(p))
+
+
 def _return_to_first(state: _State, nxt, idx, xy, A, p: TrackerParams):
     """The first templates of the tracks ``idx`` ``(m,)``, which their fallback templates
     found at ``xy`` ``(K, m, 2)`` with the affinities ``A`` ``(K, m, 2, 2)`` (accepted, the
     checks passed), matched from there: the inverse compositional match started with the
     first template's affinity the fallback implies (``A`` times ``link``), then the
-    forward LSM retry where it fails (no box search: a track is not moved to another
-    correlation peak), and (K > 1) the spatial check with the first templates and the
-    geometric check. Returns ``got`` ``(m,)`` (every test passed: the frame is the first
-    templates' and the fallback's drift ends there) and, for the ``got`` rows, the
-    positions, affinities, ``sigma0``, spatial affinities ``M`` and offsets (as
-    :func:`_attempt` computes them). Where a test fails the fallback's result stands."""
+    forward LSM retry where it fails (no box search; nothing but the thresholds and the
+    checks bounds how far the match moves from the fallback's position), a track that
+    failed in one camera not matched in the later ones; then (K > 1) the spatial check
+    with the first templates and (with cameras) the geometric check (:func:`_checks`).
+    Returns ``got`` ``(m,)`` (every test passed: the frame is the first templates' and the
+    fallback's drift ends there) and, for the ``got`` rows, the positions, affinities,
+    ``sigma0``, spatial affinities ``M`` and offsets. Where a test fails the fallback's
+    result stands."""
     K, m = xy.shape[:2]
     got = np.ones(m, bool)
     xy1, A1, s0 = np.full((K, m, 2), np.nan), np.full((K, m, 2, 2), np.nan), np.full((K, m), np.nan)
     for k in range(K):
-        res = _match(state.first.templates[k], idx, nxt[k], xy[k], A[k] @ state.link[k, idx],
-                     fallback=True, retry_rejected=p.retry_rejected, max_displacement=None,
-                     **_lsm(p))
-        got &= res.ok
-        xy1[k], A1[k], s0[k] = res.xy, res.A, res.sigma0
-    sel = np.flatnonzero(got)
-    M, off = A1[:, sel].copy(), np.zeros((K, sel.size, 2))
-    if K > 1 and sel.size:
-        agree, M, pos = _spatial(state.first, nxt, idx[sel], xy1[:, sel], A1[:, sel], p)
-        off = np.nan_to_num(pos - xy1[:, sel])
-        if state.cameras is not None:
-            agree &= _geometric(state.cameras, xy1[:, sel], p)
-        got[sel[~agree]] = False
-        M, off = M[:, agree], off[:, agree]
-    return got, xy1[:, got], A1[:, got], s0[:, got], M, off
+        rows = np.flatnonzero(got)
+        if not rows.size:
+            break
+        res = _anchored_match(state.first.templates[k], idx[rows], nxt[k], xy[k, rows],
+                              A[k, rows] @ state.link[k, idx[rows]], p, fallback=True)
+        got[rows] = res.ok
+        xy1[k, rows], A1[k, rows], s0[k, rows] = res.xy, res.A, res.sigma0
+    ok, M, off = _checks(state, ((state.first, got),), nxt, idx, xy1, A1, p)
+    got &= ok
+    return got, xy1[:, got], A1[:, got], s0[:, got], M[:, got], off[:, got]
 
 
 def _merge(st: _Temporal, sel, other: _Temporal) -> _Temporal:
@@ -939,9 +965,8 @@ def _temporal(anchors: _Anchors, seq, nxt, t: int, idx, pred, radius, p: Tracker
     ok = np.ones(n, bool)
 
     def match(k, sel, start, fallback):
-        res = _match(anchors.templates[k], idx[sel], nxt[k], start, anchors.A[k, idx[sel]],
-                     fallback=fallback, retry_rejected=p.retry_rejected,
-                     max_displacement=None, **_lsm(p))
+        res = _anchored_match(anchors.templates[k], idx[sel], nxt[k], start,
+                              anchors.A[k, idx[sel]], p, fallback=fallback)
         good = res.ok
         xy[k, sel[good]], A[k, sel[good]] = res.xy[good], res.A[good]
         sigma0[k, sel[good]] = res.sigma0[good]

@@ -285,6 +285,53 @@ def test_a_return_the_spatial_check_rejects_leaves_the_fallback_standing(monkeyp
     assert (tr.anchor[:, group == 2] == 0).all()
 
 
+def _rejected_in_returns(points, name: str):
+    """Wrappers of ``points._return_to_first`` and of the check ``points.<name>``
+    (``_spatial`` or ``_geometric``) that make the check reject every track while a return
+    is tried, and the list of how many it would have passed, per call."""
+    ret, check, returning, passed = points._return_to_first, getattr(points, name), [], []
+
+    def in_return(*a, **kw):
+        returning.append(True)
+        try:
+            return ret(*a, **kw)
+        finally:
+            returning.pop()
+
+    def rejecting(*a, **kw):
+        out = check(*a, **kw)
+        if returning:
+            agree = out[0] if name == "_spatial" else out
+            passed.append(int(agree.sum()))
+            agree[:] = False
+        return out
+
+    return in_return, rejecting, passed
+
+
+def test_returns_the_checks_reject_on_a_walk_with_cameras_change_no_track(monkeypatch):
+    """The triplet walk with its cameras: about 50 returns are tried, about half pass. With
+    the spatial LSM (then: the geometric check) made to reject every return, the tracks
+    are the defaults' (positions, statuses, anchors): the fallback stands."""
+    from lsmta.tracking import points
+
+    seq = et.walk_sequence(seed=7, n_frames=8, scale=0.5)
+    xy0, _, _ = et.start_points(seq, 300, rng=np.random.default_rng(1))
+    cand = et.candidates(seq)
+    default = track_points(seq.images, xy0, new_points=cand, cameras=seq.cameras)
+    for name in ("_spatial", "_geometric"):
+        in_return, rejecting, passed = _rejected_in_returns(points, name)
+        with monkeypatch.context() as mp:
+            mp.setattr(points, "_return_to_first", in_return)
+            mp.setattr(points, name, rejecting)
+            tr = track_points(seq.images, xy0, new_points=cand, cameras=seq.cameras,
+                              params=TrackerParams(return_to_first=True))
+        assert sum(passed) > 5, name                   # returns that would have passed it
+        for field in ("status", "end", "anchor", "retried", "recovered", "origin"):
+            assert np.array_equal(getattr(tr, field), getattr(default, field)), (name, field)
+        assert np.array_equal(tr.xy, default.xy, equal_nan=True), name
+
+
 def test_match_translation_recovers_a_shift_and_a_grey_offset():
     rng = np.random.default_rng(2)
     img = ndimage.gaussian_filter(rng.normal(size=(80, 80)), 2.0)

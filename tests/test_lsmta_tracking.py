@@ -202,6 +202,136 @@ def test_return_to_first_brings_a_track_found_by_its_fallback_back_to_its_first_
         track_points(frames[None], g[None], params=TrackerParams(return_to_first=1))
 
 
+def _three_camera_jerk():
+    """The jerk of the test above seen by three cameras (each its own offset of the
+    texture): images ``(3, 7, H, W)``, start points ``(3, n, 2)``, true shifts ``(7, 2)``."""
+    rng = np.random.default_rng(3)
+    base = ndimage.gaussian_filter(rng.normal(size=(140, 180)), 1.0)
+    base = 128 + 50 * base / base.std()
+    steps = np.array([[0, 0], [1, 0.5], [1, 0.5], [1, 0.5], [4, 0.5], [1, 0.5], [1, 0.5]])
+    pos = np.cumsum(steps, axis=0)
+    images = np.stack([np.stack([ndimage.shift(base, (y + 3 * k, x + 3 * k), order=3,
+                                               mode="reflect") for x, y in pos])
+                       for k in range(3)])
+    g = np.stack(np.meshgrid(np.arange(30, 111, 16.0), np.arange(30, 91, 16.0)),
+                 -1).reshape(-1, 2)
+    return images, np.stack([g + 3 * k for k in range(3)]), pos
+
+
+def test_return_to_first_in_three_cameras_returns_every_track_to_its_first_templates():
+    """Three cameras, the jerk: the first templates fail from the prediction in frames 4
+    and 5. With ``return_to_first`` they are matched from where the fallbacks found the
+    tracks and pass there (the temporal LSM and the spatial check), so every frame is the
+    first templates' (``anchor`` 0), at the true positions."""
+    images, xy0, pos = _three_camera_jerk()
+    on_fallback = {}
+    for back in (False, True):
+        tr = track_points(images, xy0, params=TrackerParams(return_to_first=back))
+        assert (tr.status == TrackStatus.ALIVE).all()
+        err = np.linalg.norm(tr.xy - (xy0[None] + pos[:, None, None]), axis=3)
+        assert err.max() < 0.02
+        on_fallback[back] = int((tr.anchor > 0).sum())
+    assert on_fallback[False] > len(xy0[0]) and on_fallback[True] == 0
+
+
+def test_a_return_the_spatial_check_rejects_leaves_the_fallback_standing(monkeypatch):
+    """The jerk in three cameras, the spatial LSM of a return made to disagree: for one
+    third of the tracks at every return, for another third at every return but the first
+    (frame 4's). A rejected return changes nothing: the first third's tracks are those of
+    the defaults (positions, anchors); those of the second third whose first templates
+    fail from the prediction in frame 5 as well return in frame 4 and in frame 5 hold the
+    fallback kept for them (anchored in frame 3, not re-anchored in frame 4); the last
+    third return every time (``anchor`` 0)."""
+    from lsmta.tracking import points
+
+    images, xy0, pos = _three_camera_jerk()
+    spatial, ret = points._spatial, points._return_to_first
+    returning, seen, rejected = [], {}, []
+
+    def in_return(*a, **kw):
+        returning.append(True)
+        try:
+            return ret(*a, **kw)
+        finally:
+            returning.pop()
+
+    def spatial_rejecting(anchors, nxt, idx, *a, **kw):
+        agree, M, at = spatial(anchors, nxt, idx, *a, **kw)
+        if returning:
+            for j, i in enumerate(idx):
+                n, seen[i] = seen.get(i, 0), seen.get(i, 0) + 1
+                if i % 3 == 0 or (i % 3 == 1 and n >= 1):
+                    agree[j] = False
+                    rejected.append(i)
+        return agree, M, at
+
+    monkeypatch.setattr(points, "_spatial", spatial_rejecting)
+    monkeypatch.setattr(points, "_return_to_first", in_return)
+    default = track_points(images, xy0)
+    tr = track_points(images, xy0, params=TrackerParams(return_to_first=True))
+    n = len(xy0[0])
+    group = np.arange(n) % 3
+    assert (tr.status == TrackStatus.ALIVE).all()
+    twice = default.anchor[5] > 0          # their first templates fail in frame 5 too
+    assert set(rejected) == set(np.flatnonzero((group == 0) | ((group == 1) & twice)))
+    err = np.linalg.norm(tr.xy - (xy0[None] + pos[:, None, None]), axis=3)
+    assert err.max() < 0.02
+    a = group == 0
+    assert np.array_equal(tr.anchor[:, a], default.anchor[:, a])
+    assert np.array_equal(tr.xy[:, :, a], default.xy[:, :, a])
+    assert (tr.anchor[4:6, a] == 3).all()                         # the fallback stood
+    b = (group == 1) & twice
+    assert b.sum() >= 5 and (tr.anchor[4, b] == 0).all() and (tr.anchor[5, b] == 3).all()
+    assert (tr.anchor[:, group == 2] == 0).all()
+
+
+def _rejected_in_returns(points, name: str):
+    """Wrappers of ``points._return_to_first`` and of the check ``points.<name>``
+    (``_spatial`` or ``_geometric``) that make the check reject every track while a return
+    is tried, and the list of how many it would have passed, per call."""
+    ret, check, returning, passed = points._return_to_first, getattr(points, name), [], []
+
+    def in_return(*a, **kw):
+        returning.append(True)
+        try:
+            return ret(*a, **kw)
+        finally:
+            returning.pop()
+
+    def rejecting(*a, **kw):
+        out = check(*a, **kw)
+        if returning:
+            agree = out[0] if name == "_spatial" else out
+            passed.append(int(agree.sum()))
+            agree[:] = False
+        return out
+
+    return in_return, rejecting, passed
+
+
+def test_returns_the_checks_reject_on_a_walk_with_cameras_change_no_track(monkeypatch):
+    """The triplet walk with its cameras: about 50 returns are tried, about half pass. With
+    the spatial LSM (then: the geometric check) made to reject every return, the tracks
+    are the defaults' (positions, statuses, anchors): the fallback stands."""
+    from lsmta.tracking import points
+
+    seq = et.walk_sequence(seed=7, n_frames=8, scale=0.5)
+    xy0, _, _ = et.start_points(seq, 300, rng=np.random.default_rng(1))
+    cand = et.candidates(seq)
+    default = track_points(seq.images, xy0, new_points=cand, cameras=seq.cameras)
+    for name in ("_spatial", "_geometric"):
+        in_return, rejecting, passed = _rejected_in_returns(points, name)
+        with monkeypatch.context() as mp:
+            mp.setattr(points, "_return_to_first", in_return)
+            mp.setattr(points, name, rejecting)
+            tr = track_points(seq.images, xy0, new_points=cand, cameras=seq.cameras,
+                              params=TrackerParams(return_to_first=True))
+        assert sum(passed) > 5, name                   # returns that would have passed it
+        for field in ("status", "end", "anchor", "retried", "recovered", "origin"):
+            assert np.array_equal(getattr(tr, field), getattr(default, field)), (name, field)
+        assert np.array_equal(tr.xy, default.xy, equal_nan=True), name
+
+
 def test_match_translation_recovers_a_shift_and_a_grey_offset():
     rng = np.random.default_rng(2)
     img = ndimage.gaussian_filter(rng.normal(size=(80, 80)), 2.0)
@@ -756,6 +886,47 @@ def test_batched_coarse_to_fine_gives_the_per_frame_positions_and_statuses(monke
     assert np.array_equal(np.isnan(batched.xy), np.isnan(reference.xy))
     assert np.nanmax(np.abs(batched.xy - reference.xy)) < 1e-6
     assert (batched.status == TrackStatus.ALIVE).sum() > 0.3 * len(g)
+
+
+def test_skipping_the_cameras_after_a_failed_one_changes_no_track(monkeypatch):
+    """Three cameras: a track that disagrees in one camera's spatial LSM, a start point not
+    confirmed in one camera and a track whose coarse-to-fine step found nothing in one
+    camera are not matched in the later cameras; the tracks (positions, statuses, anchors)
+    are those of matching every camera."""
+    import functools
+
+    from lsmta.tracking import points
+
+    seq = et.walk_sequence(seed=7, n_frames=8, scale=0.5)
+    xy0, _, _ = et.start_points(seq, 300, rng=np.random.default_rng(1))
+    cand = et.candidates(seq)
+    failed = {"spatial": 0, "coarse_to_fine": 0}
+    spatial, coarse = points._spatial, points._coarse_to_fine
+
+    def spatial_counted(*a, **kw):
+        out = spatial(*a, **kw)
+        failed["spatial"] += int((~out[0]).sum())
+        return out
+
+    def coarse_counted(*a, **kw):
+        out = coarse(*a, **kw)
+        failed["coarse_to_fine"] += int(np.isnan(out[0]).any(axis=1).sum())
+        return out
+
+    monkeypatch.setattr(points, "_spatial", spatial_counted)
+    monkeypatch.setattr(points, "_coarse_to_fine", coarse_counted)
+    skipped = track_points(seq.images, xy0, new_points=cand)
+    assert failed["spatial"] > 5 and failed["coarse_to_fine"] > 5   # the skips happened
+    monkeypatch.setattr(points, "_spatial", functools.partial(spatial, every=True))
+    monkeypatch.setattr(points, "_coarse_to_fine", functools.partial(coarse, every=True))
+    monkeypatch.setattr(points, "_spatial_start",
+                        functools.partial(points._spatial_start, every=True))
+    every = track_points(seq.images, xy0, new_points=cand)
+    assert skipped.added.sum() > 0 and (skipped.status == TrackStatus.ALIVE).sum() > 50
+    for name in ("status", "end", "anchor", "retried", "recovered", "origin"):
+        assert np.array_equal(getattr(skipped, name), getattr(every, name)), name
+    assert np.array_equal(np.isnan(skipped.xy), np.isnan(every.xy))
+    assert np.nanmax(np.abs(skipped.xy - every.xy)) < 1e-9
 
 
 def test_a_patch_over_the_border_is_tracked_with_a_partial_template():

@@ -137,6 +137,7 @@ def test_enhance_contrast_keeps_input(pair):
     (dict(patch=4), "patch"),
     (dict(template_mask=np.ones((5, 5), bool)), "template_mask"),
     (dict(robust=-1.0), "robust"),
+    (dict(stall=2), r"stall: expected None or an integer >= 4 \(iterations\)"),
 ])
 def test_grow_bad_input(pair, kwargs, match):
     args = dict(seeds_template=np.array([[50.0, 50.0]]), seeds_search=np.array([[50.0, 50.0]]))

@@ -163,6 +163,36 @@ def test_far_start_does_not_raise_and_is_flagged(rng):
     assert np.all(np.linalg.norm(res.xy[res.ok] - truth[res.ok], axis=1) > 1.0)
 
 
+def test_stall_stops_points_still_moving_and_leaves_converging_ones(rng):
+    # converging: a clean warped pair from starts 1 px off (Gauss-Newton's update shrinks
+    # far faster than halving in three iterations): the rule changes nothing
+    pair = warped_pair(rng=rng, quantise=False)
+    pts = _points(rng, 30, margin=40)
+    start = pair.true_xy(pts) + rng.uniform(-1.0, 1.0, (30, 2))
+    off = lsm(pair.template, pair.search, pts, start, params=LSMParams(patch=13))
+    on = lsm(pair.template, pair.search, pts, start, params=LSMParams(patch=13, stall=4))
+    assert np.all(off.status == Status.CONVERGED)
+    np.testing.assert_array_equal(on.status, off.status)
+    np.testing.assert_array_equal(on.iterations, off.iterations)
+    np.testing.assert_array_equal(on.xy, off.xy)
+    # cannot converge: the search image is unrelated noise; points still moving after
+    # max_iter without the rule stop early with it, as MAX_ITERATIONS, and each equals the run
+    # without the rule cut at the same iteration (the rule only ends the iterations)
+    t, g = rng.normal(0, 20, (80, 80)), rng.normal(0, 20, (80, 80))
+    pts = rng.uniform(25, 55, (40, 2))
+    base = dict(patch=9, max_iter=40, max_displacement=1e3)
+    off = lsm(t, g, pts, pts, params=LSMParams(**base))
+    on = lsm(t, g, pts, pts, params=LSMParams(**base, stall=6))
+    moving = off.status == Status.MAX_ITERATIONS
+    assert moving.sum() >= 5
+    assert np.all(on.status[moving] == Status.MAX_ITERATIONS)
+    assert np.all((on.iterations[moving] >= 6) & (on.iterations[moving] < 40))
+    for k in np.unique(on.iterations[moving]):
+        sel = moving & (on.iterations == k)
+        cut = lsm(t, g, pts[sel], pts[sel], params=LSMParams(**{**base, "max_iter": int(k)}))
+        np.testing.assert_array_equal(cut.xy, on.xy[sel])
+
+
 def test_thresholds_reject(rng):
     pair = warped_pair(rng=rng, A=A_TRUE, noise_sigma=2.0)
     pts = _points(rng, 200)
@@ -273,6 +303,9 @@ def test_correlation_search(rng):
     (dict(robust=True), "robust: expected a positive"),
     (dict(robust="12"), "robust: expected a positive"),
     (dict(robust=12.0, max_iter=3), "max_iter: expected more than 3"),
+    (dict(stall=3), r"stall: expected None or an integer >= 4 \(iterations\)"),
+    (dict(stall=5.5), "stall: expected None or an integer >= 4"),
+    (dict(stall=True), "stall: expected None or an integer >= 4"),
 ])
 def test_bad_input(rng, kwargs, match):
     args = dict(template=rng.normal(size=(30, 30)), search=rng.normal(size=(30, 30)),

@@ -38,6 +38,9 @@ from ._kernels import _spline_at
 
 # status codes (lsm.Status)
 CONVERGED, MAX_ITERATIONS, DIVERGED, OUTSIDE, SINGULAR = 0, 1, 2, 3, 4
+#: the early stop (``stall``): an update not below ``1 / STALL_FACTOR`` of the one
+#: ``STALL_WINDOW`` iterations before stops the point (the kernel keeps the last three)
+STALL_FACTOR, STALL_WINDOW = 2.0, 3
 
 
 @nb.njit(cache=True, error_model="numpy", inline="always")
@@ -490,13 +493,16 @@ def solve(images, points, spec, unknowns, out):
         ``inverse``: inverse compositional (else forward additive); ``constrained``: shared
         ``t``; ``start_radiometry``: start r0, r1 from the patches' mean and spread.
         ``settings``: float array
-        ``[max_iter, tol, max_disp, max_vif, tukey_c, ramp, support, partial]``:
+        ``[max_iter, tol, max_disp, max_vif, tukey_c, ramp, support, partial, stall]``:
         iteration limit, convergence (px), divergence distance (px), the adaptive control's
         variance inflation limit, the Tukey cut-off (0: least squares) and its ramp (cut-off
         ``(1 + ramp - it) tukey_c`` in the first iterations), and the support weights'
         grey-level scale (0: none; else template pixels weigh
         ``exp(-|f - f_centre| / support)``), and whether patches may reach over the image
-        borders (1: pixels outside either image get zero weight).
+        borders (1: pixels outside either image get zero weight), and the early stop
+        (0: off; else from iteration ``stall`` on, a point whose update is not below
+        ``1 / STALL_FACTOR`` of its update ``STALL_WINDOW`` iterations before stops, status
+        ``MAX_ITERATIONS``).
     unknowns : tuple ``(c, A, r0, r1, t)``
         *in/out* start and solution: ``c`` (n, K, 2), ``A`` (n, K, 2, 2), ``r0, r1`` (n, K),
         ``t`` (n,) (forward convention ``f = r0 + r1 g``).
@@ -593,6 +599,7 @@ def _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
     ramp = int(settings[5])
     support = settings[6]
     partial = settings[7] > 0.0
+    stall = int(settings[8])
     nr = radiometry
     nshift = 1 if constrained else 2
     f, fw, gv, we, ins, fwi = fv[0], fv[1], fv[2], fv[3], fv[4], fv[5]
@@ -670,6 +677,7 @@ def _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
     if inverse and tukey_c <= 0.0:
         _gram(Jt, used, fw, H0)      # the template's normal matrix (gain column: per iteration)
     status[i] = MAX_ITERATIONS
+    s1 = s2 = s3 = np.inf           # the updates of the last three iterations (``stall``)
     for it in range(max_iter):
         cut = 0.0
         if tukey_c > 0.0:
@@ -838,6 +846,11 @@ def _point(i, coef, pad, height, width, t_coef, t_img, t_gx, t_gy, t_mask, t_xy,
         if step < tol and it >= ramp:
             status[i] = CONVERGED
             break
+        if stall > 0 and it + 1 >= stall and step >= tol and STALL_FACTOR * step > s3:
+            break                   # still moving: the update has not fallen enough (stall)
+        s3 = s2
+        s2 = s1
+        s1 = step
     _covariance_factor(N_keep, kj, fx_i, Q_out[i], M, W)
 
 

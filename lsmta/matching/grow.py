@@ -309,6 +309,12 @@ class GrowParams:
         possibly few; :func:`~lsmta.matching.refine.refine_at_nodes`: all its main and
         retry matches). No slow node is tried before :data:`SLOW_MIN_MATCHES` matches are
         accepted. False (default): off.
+    stall : int, optional
+        LSM's early stop, iterations (:class:`~lsmta.matching.lsm.LSMParams` ``stall``): from
+        iteration ``stall`` on, an attempt whose update has not halved over the last three
+        iterations stops as ``MAX_ITERATIONS``, in every LSM of the growth (its seeds'
+        too). None (default): off; ``experiments/dense_real_pairs.py`` ``--stall`` measures it
+        (7: about a fifth less LSM work on Cones, but a region lost there).
     """
 
     step: int = 4
@@ -332,6 +338,7 @@ class GrowParams:
     reach: bool = False
     wide_patch: int | None = None
     slow: bool = False
+    stall: int | None = None
 
     def __post_init__(self):
         _check_model(self)
@@ -501,7 +508,7 @@ def _options(p: GrowParams, constraint) -> _Options:
     thresholds = p.lsm_thresholds()
     model = LSMParams(patch=p.patch, geometry=p.geometry, radiometry=p.radiometry,
                       method=p.method, support=p.support, partial=p.partial,
-                      max_iter=p.max_iter, tol=p.tol)
+                      max_iter=p.max_iter, tol=p.tol, stall=p.stall)
     attempts = [(replace(model, thresholds=thresholds), "patch")]
     attempts += [(replace(model, patch=size, thresholds=thresholds), "retry")
                  for size in retry_patches]

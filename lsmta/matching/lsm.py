@@ -99,7 +99,7 @@ class Status(enum.IntEnum):
     """
 
     CONVERGED = 0       #: the update fell below ``tol``
-    MAX_ITERATIONS = 1  #: still moving after ``max_iter`` iterations
+    MAX_ITERATIONS = 1  #: still moving after ``max_iter`` iterations (or stopped by ``stall``)
     DIVERGED = 2        #: moved further than ``max_displacement`` or ``A`` degenerated
     OUTSIDE = 3         #: the patch left the search image (or did not fit the template)
     SINGULAR = 4        #: too few determinable parameters (no texture)
@@ -291,6 +291,13 @@ class LSMParams:
         (default): a patch must lie inside both images.
     thresholds : LSMThresholds, optional
         Applied to the result (:meth:`LSMThresholds.apply`); None (default): none.
+    stall : int, optional
+        Early stop of points that will not converge, an iteration count (>=
+        ``STALL_WINDOW + 1`` = 4): from iteration ``stall`` on, a point whose update (the
+        measure ``tol`` is compared with, px) has not fallen by ``STALL_FACTOR`` = 2 over the
+        last ``STALL_WINDOW`` = 3 iterations stops as ``MAX_ITERATIONS`` (a converging
+        Gauss-Newton iteration mostly shrinks it faster; slow ones are stopped too, see
+        ``experiments/dense_real_pairs.py``). None (default): off.
     """
 
     patch: int = 13
@@ -305,6 +312,7 @@ class LSMParams:
     support: float | None = None
     partial: bool = False
     thresholds: LSMThresholds | None = None
+    stall: int | None = None
 
     def __post_init__(self):
         _check_model(self)
@@ -325,7 +333,7 @@ class LSMParams:
 def _check_model(p) -> None:
     """Check (and normalise) the model fields that :class:`LSMParams` and the growth's
     settings share: ``patch``, ``geometry``, ``radiometry``, ``method``, ``robust``,
-    ``max_iter``, ``support``, ``partial`` of the frozen dataclass ``p``."""
+    ``max_iter``, ``stall``, ``support``, ``partial`` of the frozen dataclass ``p``."""
     if p.geometry not in GEOMETRIES:
         raise ValueError(f"geometry: expected one of {list(GEOMETRIES)}, got {p.geometry!r}")
     if p.radiometry not in RADIOMETRIES:
@@ -340,6 +348,8 @@ def _check_model(p) -> None:
         raise ValueError(f"max_iter: expected more than {RAMP} iterations with robust, "
                          f"got {p.max_iter}")
     object.__setattr__(p, "max_iter", max_iter)
+    object.__setattr__(p, "stall", as_int(p.stall, "stall", minimum=_solver.STALL_WINDOW + 1,
+                                          allow_none=True, unit="iterations"))
     if p.support is not None and not _positive(p.support):
         raise ValueError(f"support: expected a positive grey-level scale or None, "
                          f"got {p.support!r}")
@@ -373,6 +383,7 @@ class _Model:
     tol: float
     max_disp: float
     max_vif: float
+    stall: int = 0      # 0: off
 
     @classmethod
     def of(cls, p: LSMParams) -> _Model:
@@ -387,7 +398,8 @@ class _Model:
                    support=None if p.support is None else float(p.support),
                    partial=bool(p.partial), tol=p.tol,
                    max_disp=float(p.patch) if p.max_displacement is None
-                   else float(p.max_displacement), max_vif=p.max_vif)
+                   else float(p.max_displacement), max_vif=p.max_vif,
+                   stall=0 if p.stall is None else p.stall)
 
     @property
     def ramp(self) -> int:
@@ -509,7 +521,7 @@ def _solve(state: _State, model: _Model, f_img: SplineImage, g_imgs, weights, *,
     settings = np.array([model.max_iter, model.tol, model.max_disp, model.max_vif,
                          0.0 if model.robust is None else model.robust, model.ramp,
                          0.0 if model.support is None else model.support,
-                         float(model.partial)], dtype=float)
+                         float(model.partial), model.stall], dtype=float)
     spec = (list(GEOMETRIES).index(model.geometry), RADIOMETRIES[model.radiometry], inverse,
             state.constrained, start_radiometry and model.radiometry != "none", settings)
     unknowns = (state.c, state.A, state.r0, state.r1, state.t)

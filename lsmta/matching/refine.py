@@ -124,7 +124,8 @@ def refine_at_nodes(left, right, start, *, disparity_range, grow: GrowParams, ma
     xy = np.stack([c * grow.step, r * grow.step], axis=1).astype(float)
     model = LSMParams(patch=grow.patch, geometry=grow.geometry, radiometry=grow.radiometry,
                       method=grow.method, support=grow.support, partial=grow.partial,
-                      max_iter=grow.max_iter, tol=grow.tol, thresholds=grow.lsm_thresholds())
+                      max_iter=grow.max_iter, tol=grow.tol, stall=grow.stall,
+                      thresholds=grow.lsm_thresholds())
     got = {"t": np.full(len(r), np.nan), "sigma_t": np.full(len(r), np.nan),
            "sigma0": np.full(len(r), np.nan), "sigma_xy": np.full((len(r), 2), np.nan),
            "A": np.tile(np.eye(2), (len(r), 1, 1)), "method": np.full(len(r), "patch")}

@@ -33,12 +33,14 @@ frames no other view shows a dot where the marker can be (`lsmta.tracking.second
 image test on LSMTA's tracks: on the holding view's epipolar line, within the marker's own
 fastest 3-D step times the frames to its nearest 3-D position); beside the target, and
 labelled apart from it, each moving marker's share of 3-D frames with those frames left out
-(a count for the lead to judge, not the target's verdict). The idle run the
-README and notebooks 17 and 21 quote is committed as ``experiments/results/capture_demo.json``
-(with its command, date and commit).
-The residual gate (``MarkerParams.residual_k`` = 4, on by default; this script's run at
-full size, load about 4 with other jobs, the command 314 s, CPU 213 s for the whole
-script): bound 2.29 px (4 x 1.4826 x the median residual of all markers' positions, above
+(a count for the lead to judge, not the target's verdict). The run the README quotes
+last is committed as ``experiments/results/capture_demo.json`` (with its command, date,
+commit and load: at 5e1e7b9, load 4.4, the command 183 s; no idle run of this code).
+The residual gate (``MarkerParams.residual_k`` = 4, on by default; at 3e8617b, uncommitted,
+run 5 in the README: this script's run at full size, load about 4 with other jobs, the
+command 314 s, CPU 213 s for the whole script; the committed run at 5e1e7b9 gives the same
+markers and numbers): bound 2.29 px (4 x 1.4826 x the median residual of all markers' positions,
+above
 its 0.5 px floor); the shank marker's cam01 track, picked up again at frame 77 on another
 dot (residual 3.3 -> 16 px, under 2.3 px in frames 79-83), is taken out as a run; a
 three-view marker's cam04 track, on something else in frames 0-14 (about 80 px), is left

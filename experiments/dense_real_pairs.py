@@ -25,7 +25,8 @@ the options run, :func:`tuning_pairs`):
   density 0.866/0.757/0.547/0.629 -> 0.872/0.800/0.588/0.642 (Cones/Teddy/Art/Tsukuba),
   bad 1.0 1.98/3.50/4.46/2.50 % -> 2.02/3.38/4.42/2.57 %, no median or bad-1.0 verdict
   changed; the SGBM start's density changed by 0.004 at most; CPU time 9.6/8.8/6.5/34.3 ->
-  10.4/9.6/8.4/34.8 x SGBM (the shortest of 3 runs, loaded machine); density NOT met on any
+  10.4/9.6/8.4/34.8 x SGBM (the shortest of 3 runs, loaded machine; before e580a3f's leaner
+  growth); density NOT met on any
   pair either way;
 * SGBM start: its own settings (its texture floor, ``sgbm_fill``) were chosen on Art and Teddy
   by the rule of experiments/dense_sgbm_tuning.py; Tsukuba is held out; Cones only partly: the
@@ -44,13 +45,14 @@ the options run, :func:`tuning_pairs`):
   runs one after the other, --repeats 3): the SGBM start's density 0.879/0.828/0.698/0.677
   -> 0.880/0.835/0.701/0.693 (Cones/Teddy/Art/Tsukuba), bad 1.0 1.88/3.66/4.40/2.66 % ->
   1.83/3.69/4.40/2.60 % (Teddy's target is 3.69 %: met by 0.002 points); the automatic
-  seeds' density 0.866/0.757/0.547/0.629 -> 0.866/0.758/0.547/0.633 (Teddy 0.757 since the
+  seeds' density 0.866/0.757/0.547/0.629 -> 0.866/0.757/0.547/0.633 (Teddy 0.758 before the
   minimum of SLOW_MIN_MATCHES accepted matches, added after: its reseed round no longer
   tries its 2 slow nodes; the grids recomputed without timing, every other pair and the SGBM
   start unchanged), bad 1.0 1.98/3.50/4.46/2.50 % -> 1.98/3.50/4.45/2.55 %; no verdict
   changed, density NOT met on any pair either way; CPU time +13-16 % (interleaved runs on
   the tuning pairs, the shortest of 4), 7.0-9.1 -> 8.0-10.9 x SGBM in these runs on a loaded
-  machine (Tsukuba 32 -> 43 x, SGBM's 8 ms there). Not the default: a gain of 0.7 points at
+  machine, before e580a3f's leaner growth (Tsukuba 32 -> 43 x, SGBM's 8 ms there). Not the
+  default: a gain of 0.7 points at
   most for that time, and Teddy's bad-1.0 margin gone;
 * the automatic seeds' texture test by a rule (``DisparityParams.precision_fill``, an
   option; ``--precision-fill``), issue #33 item 1: the nodes never tried (below the texture
@@ -63,7 +65,8 @@ the options run, :func:`tuning_pairs`):
   (Cones/Teddy/Art/Tsukuba), bad 1.0 1.98/3.50/4.46/2.50 % -> 1.97/3.29/4.25/2.49 %, median
   0.108/0.121/0.135/0.175 -> 0.108/0.118/0.134/0.174 px, no verdict changed, density NOT met
   on any pair; CPU time +3/+16/+22/+4 % (interleaved, the shortest of 5; 9.9/8.9/6.6/35.4 ->
-  10.3/11.6/7.9/37.4 x SGBM in these runs). The SGBM start is not changed by it. Not the
+  10.3/11.6/7.9/37.4 x SGBM in these runs, before e580a3f's leaner growth). The SGBM start is not
+  changed by it. Not the
   default yet (:mod:`lsmta.matching.disparity` says why);
 * LSM's early stop (``GrowParams.stall``, an option; ``--stall 7`` runs both methods with
   it, no flag without it, the library's default), issue #33 item 4: the rule, stated before
@@ -83,7 +86,8 @@ the options run, :func:`tuning_pairs`):
   counts attempts, not the growth they carry; for information, not chosen: ``stall`` 9 loses
   the same region, 11 leaves Cones' grid unchanged), the SGBM start's Art 0.698 -> 0.695
   and Teddy's bad 1.0 3.66 -> 3.73 % (its target, 3.69 %, NOT met). Not the default (the
-  rule's constant fixed, not raised after). Held out: the automatic seeds' Teddy 0.757 ->
+  rule's constant fixed, not raised after). Not tuned on, but seen node by node by
+  dense_reject_census.py (so spent for the automatic seeds): their Teddy 0.757 ->
   0.753, Art 0.547 both; Tsukuba 0.629 -> 0.628 and 0.677 -> 0.676; no verdict changed there.
 
 Speed (issue #33 item 4; nothing chosen, the matches unchanged): the growth's Python half made

@@ -411,7 +411,8 @@ class MarkerCapture:
         (``"not_dot_views"``) and markers dropped for it (``"not_dots"``,
         ``MarkerParams.dot_share``), dots ``"filled"`` of the markers
         returned and of them ``"filled_line"`` found along an epipolar line
-        (``MarkerParams.fill_line``) (all 0 without the check), moving markers dropped
+        (``MarkerParams.fill_line``) and ``"filled_reach"`` by the reach search
+        (``MarkerParams.fill_reach``) (all 0 without the check), moving markers dropped
         ``"off_subject"`` (their positions off the subject's silhouette,
         ``MarkerParams.silhouette``), and 3-D positions dropped by the residual gate
         (``"residual_out"``, ``MarkerParams.residual_k``; with or without the check) and

@@ -2,8 +2,7 @@
 
     .venv/bin/python experiments/real_video_tracking.py [--frames 40] [--points 384]
         [--pose2sim-scale 0.5] [--videos caliscope pose2sim] [--no-retry-rejected]
-        [--return-to-first] [--missing-backoff] [--why] [--max-sigma0 S] [--image-stats]
-        [--profile]
+        [--return-to-first] [--why] [--max-sigma0 S] [--image-stats] [--profile]
 
 No truth exists on real video, so each tracker is judged by its own forward-backward
 error: the points are tracked ``--frames`` frames forward, then from where they ended back
@@ -241,22 +240,6 @@ and the triplet walk 1161 (1145 without the spatial check fix); the fallback's o
 kept after a return instead of the implied one 976, 98, and cam_3's FB median 0.101 px
 (cam_3's median is that close to 0.1); the fallback matched before the first template for
 tracks holding one: 978, 98, astray 52 (46), no time saved.
-
-A budget for the missing tracks (#35 item 1, session 57; ``--missing-backoff``,
-``TrackerParams(missing_backoff=True)``; an option, not the default): a track that has
-missed ``m`` frames is tried only where ``m`` is 0 or a power of two (the rule and the
-criterion, fixed before measuring, in ``tracking_benchmark.py``). It failed the criterion
-there (the triplet walk, design data: 993 survivors against 1191), before these videos were
-run; all eight were then run to report the option. Survivors, defaults -> option (CPU ratio
-to KLT, two alternated runs each, load 2 to 5): design half caliscope cam_0 167 -> 112 (6.0,
-6.0 -> 5.5, 5.2), cam_2 243 -> 231 (2.9, 2.8 -> 2.7, 2.7), pose2sim cam01 292 -> 291 (1.7,
-1.6 -> 1.7, 1.7), cam03 265 -> 264 (1.9, 1.8 -> 1.8, 1.7): 967 -> 898, kept with FB > 0.5 px
-100 -> 95, FB medians unchanged to 0.001 px but cam_0's (0.007 -> 0.014 px). Held out:
-caliscope cam_1 195 -> 188, cam_3 105 -> 92 (below KLT's 104), pose2sim cam02 311 -> 312,
-cam04 277 -> 275. All eight: 1855 -> 1765. Without a density check (this harness) the option
-skips only the missing tracks' match from the prediction and coarse-to-fine step: little
-time (caliscope cam_0's LSMTA CPU 1.45, 1.47 s -> 1.50, 1.34 s; the others within the runs'
-spread) for many survivors on the webcams (all four lose some, cam_0 55).
 
 Time, exact changes (#35, session 57): those of ``tracking_benchmark.py`` (1ac7d58). In 2-D
 mode only one applies: the inverse compositional sampler checks a patch's positions before
@@ -501,9 +484,6 @@ def main(argv=None):
     parser.add_argument("--return-to-first", action="store_true",
                         help="TrackerParams(return_to_first=True): a track accepted on its "
                              "fallback template tries its first template again from there")
-    parser.add_argument("--missing-backoff", action="store_true",
-                        help="TrackerParams(missing_backoff=True): missing tracks tried after "
-                             "1, 2, 4, 8 ... missed frames only")
     parser.add_argument("--max-sigma0", type=float, default=None,
                         help="LSMThresholds.max_sigma0 (grey levels; default the tracker's)")
     parser.add_argument("--image-stats", action="store_true",
@@ -518,8 +498,7 @@ def main(argv=None):
     cv2.setNumThreads(args.threads)     # KLT on as many threads as LSMTA
 
     params = TrackerParams(retry_rejected=not args.no_retry_rejected,
-                           return_to_first=args.return_to_first,
-                           missing_backoff=args.missing_backoff)
+                           return_to_first=args.return_to_first)
     if args.max_sigma0 is not None:
         params = replace(params, thresholds=replace(params.thresholds,
                                                     max_sigma0=args.max_sigma0))

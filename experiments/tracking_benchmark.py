@@ -3,7 +3,7 @@ over seeds.
 
     .venv/bin/python experiments/tracking_benchmark.py [--frames 30] [--points 3000]
         [--scale 1.0] [--step 2] [--patch 15] [--seed 2000] [--seeds 5]
-        [--no-retry-rejected] [--return-to-first] [--missing-backoff]
+        [--no-retry-rejected] [--return-to-first]
         [--scheduler ADDRESS] [--workers 2]
 
 Renders a walk for the triplet rig at ``--scale`` of 768 x 576 pixels, starts both trackers
@@ -39,27 +39,6 @@ about 3): LSMTA/KLT CPU 8.3x before, 7.4x after; at 30 frames and 1000 points 3.
 s. The target (<= 2x) is NOT met: the temporal inverse compositional matches alone cost more
 than KLT's whole run, so it asks for fewer matches or iterations (not exact), not for less
 overhead.
-
-A budget for the missing tracks (#35 item 1; ``--missing-backoff``,
-``TrackerParams(missing_backoff=True)``; an option, not the default). The rule, fixed before
-measuring (exponential back-off, the usual re-detection schedule): a track that has missed
-``m`` frames is tried in the next frame (its match from the prediction, the coarse-to-fine
-step, the density check's box search) only where ``m`` is 0 or a power of two (1, 2, 4, 8);
-with ``max_gap`` 10, in 4 of its 10 missing frames. The criterion for the default, fixed
-before measuring: survivors at most 0.5 % fewer and the false share not higher. Seed 2000,
-the defaults and the option alternated, three runs each (load 2 to 5 on 2 cores): LSMTA CPU
-8.4 s against 10.4 s (medians; -19 %), CPU ratio to KLT 6.8x against 7.7x (KLT's CPU time
-varies 1.2 to 1.7 s); start points alive at the end 993 of 3000 against 1191 (-17 %), median
-per-frame error 0.0428 px (0.0429), 3-D error at the oldest age 0.862 mm (0.925; 993 tracks
-at that age, not 1191), false share 3.15 % (3.72 %). The survivors decide: not the default.
-Why: the defaults' 1020 recoveries came after 1 to 10 missed frames (293, 175, 120, 108,
-123, 78, 86, 21, 12, 4), half of them after 3 to 7, and 494 of them by the density check's
-box search; with the back-off 614: a skipped try's recoveries are lost, not delayed (after 4
-missed frames it finds 109, where the defaults find 108 and 120 more after 3; after 8 it
-finds 71, the defaults 21 and 287 after 5 to 7), 754 start points lost against 555. The
-<= 2x target stays NOT met with it too. Not measured: a per-frame cap on the tries (at most N %
-of the tracks); with the recoveries spread over the whole gap it is expected to trade
-survivors for time likewise.
 """
 
 from __future__ import annotations
@@ -93,8 +72,7 @@ HEADLINES = [
 
 
 def run_seed(seed: int, *, frames: int, points: int, scale: float, step: int, patch: int,
-             threads: int, retry_rejected: bool = True, return_to_first: bool = False,
-             missing_backoff: bool = False) -> dict:
+             threads: int, retry_rejected: bool = True, return_to_first: bool = False) -> dict:
     """One walk for ``seed``: both trackers from the same points, scored after the fact."""
     import numba
     import numpy as np
@@ -110,7 +88,7 @@ def run_seed(seed: int, *, frames: int, points: int, scale: float, step: int, pa
     params = TrackerParams(patch=patch, radius=int(round(4 * s)),
                            retry_radius=int(round(10 * s)), cell=16.0 * s,
                            min_distance=3.0 * s, retry_rejected=retry_rejected,
-                           return_to_first=return_to_first, missing_backoff=missing_backoff)
+                           return_to_first=return_to_first)
     # warm-up: load the compiled kernels once, outside the timings
     et.run_tracking_trial(et.walk_sequence(seed=seed, n_frames=2, scale=0.25), 5,
                           rng=np.random.default_rng(0))
@@ -156,15 +134,11 @@ def main(argv=None):
                         help="TrackerParams(retry_rejected=False): fewer forward LSM retries")
     parser.add_argument("--return-to-first", action="store_true",
                         help="TrackerParams(return_to_first=True)")
-    parser.add_argument("--missing-backoff", action="store_true",
-                        help="TrackerParams(missing_backoff=True): missing tracks tried after "
-                             "1, 2, 4, 8 ... missed frames only")
     parser.add_argument("--out", default="build/benchmarks/tracking.json")
     add_arguments(parser, seed=2000)
     args = parser.parse_args(argv)
     settings = {k: getattr(args, k) for k in ("frames", "points", "scale", "step", "patch",
-                                              "threads", "retry_rejected", "return_to_first",
-                                              "missing_backoff")}
+                                              "threads", "retry_rejected", "return_to_first")}
     results, _ = run("tracking", run_seed, HEADLINES, args, parser=parser,
                      out_dir=Path(args.out).parent, settings=settings, **settings)
     first = results[args.seed]

@@ -153,54 +153,6 @@ def test_a_point_missing_for_longer_than_max_gap_ends():
     assert tr.status[0] == TrackStatus.MISSING and tr.end[0] == 3
 
 
-def test_missing_backoff_tries_a_missing_track_after_1_2_4_8_missed_frames_only():
-    # occluded in frames 4-6 (last tracked frame 3): every frame's try finds it in frame 7,
-    # after 3 missed frames; the back-off skips that frame and tries it again after 4
-    images, xy0, truth = _occluded_sequence(np.random.default_rng(8), frames=(4, 5, 6))
-    every = track_points(images, xy0, params=TrackerParams(max_gap=4))
-    assert every.recovered[7, 0]
-    tr = track_points(images, xy0, params=TrackerParams(max_gap=4, missing_backoff=True))
-    assert np.isnan(tr.xy[4:8, :, 0]).all() and np.isfinite(tr.xy[8, :, 0]).all()
-    assert tr.recovered[8, 0] and tr.recovered.sum() == 1
-    assert tr.status[0] == TrackStatus.ALIVE and tr.end[0] == 8
-    assert np.linalg.norm(tr.xy[8, :, 0] - truth[8, :, 0], axis=1).max() < 0.05
-    # the tracks never missing are untouched, to the bit
-    np.testing.assert_array_equal(tr.xy[:, :, 1], every.xy[:, :, 1])
-    # occluded in frames 4-5: found in frame 6 after 2 missed frames (a power of two)
-    images, xy0, _ = _occluded_sequence(np.random.default_rng(8), frames=(4, 5))
-    tr = track_points(images, xy0, params=TrackerParams(max_gap=4, missing_backoff=True))
-    assert tr.recovered[6, 0] and np.isfinite(tr.xy[6:, :, 0]).all()
-
-
-def test_missing_backoff_skips_every_try_of_a_missing_track_off_its_schedule(monkeypatch):
-    # occluded in frames 4-8 (last tracked frame 3), a density check (and so the box search
-    # of the missing tracks) in every frame: with the back-off, no attempt of any kind at
-    # the occluded track in frames 7 and 9 (3 and 5 missed frames); without it, every frame
-    from lsmta.tracking import points
-
-    images, xy0, _ = _occluded_sequence(np.random.default_rng(8), frames=(4, 5, 6, 7, 8),
-                                        n_frames=10)
-    attempt, calls = points._attempt, []
-
-    def recorded(state, seq, prev, nxt, t, idx, *args, **kwargs):
-        calls.append((t, prev is None, idx.copy()))
-        return attempt(state, seq, prev, nxt, t, idx, *args, **kwargs)
-
-    monkeypatch.setattr(points, "_attempt", recorded)
-    for backoff, frames in ((False, set(range(1, 10))), (True, {1, 2, 3, 4, 5, 6, 8})):
-        calls.clear()
-        p = TrackerParams(max_gap=6, density_every=1, missing_backoff=backoff)
-        tr = track_points(images, xy0, params=p, new_points={})
-        assert {t for t, _, idx in calls if 0 in idx} == frames
-        # the box search of the density check (no previous frame given) included
-        searched = {t for t, box, idx in calls if box and 0 in idx}
-        assert searched == ({4, 5, 6, 8} if backoff else {4, 5, 6, 7, 8})
-        # visible again in frame 9: found there by every frame's try; not tried there
-        # with the back-off, so still missing at the end
-        assert tr.end[0] == (3 if backoff else 9)
-        assert tr.status[0] == (TrackStatus.MISSING if backoff else TrackStatus.ALIVE)
-
-
 def test_the_pyramid_follows_a_jerky_motion_beyond_the_single_level_search():
     """Back-and-forth steps of about 13 px: the linear prediction is off by about 26 px,
     beyond the retry box and the single-level LSM; the coarse-to-fine prediction finds it."""
@@ -508,9 +460,6 @@ def test_bad_input(translation):
             track_points(images, xy0, params=TrackerParams(max_disagreement=v))
     with pytest.raises(ValueError, match="params.min_distance"):
         track_points(images, xy0, params=TrackerParams(min_distance=-1.0))
-    for bad in (1, "yes", None):
-        with pytest.raises(ValueError, match="params.missing_backoff"):
-            track_points(images, xy0, params=TrackerParams(missing_backoff=bad))
     for name, bad in (("anchor", "last"), ("max_gap", -1), ("max_gap", 1.5),
                       ("max_reprojection", 0.0), ("reanchor_sigma0", 1.0),
                       ("reanchor_distortion", -0.1), ("max_iter", 0), ("patch", 8),

@@ -64,8 +64,7 @@ its first template is matched at the position its trajectory predicts, and at ea
 density check it is searched in the ``retry_radius`` box there (before the check adds new
 points, so a recovered point is not tracked twice); it ends (status LOST; later positions
 NaN, never a made-up position) when it has been missing for more than ``max_gap`` frames.
-The missing frames of a recovered track stay NaN. With ``missing_backoff`` a missing track
-is tried (all of the above) only after 1, 2, 4, 8, ... missed frames.
+The missing frames of a recovered track stay NaN.
 
 With one camera (2-D mode, paper Section 2.3.3) there is no spatial check.
 
@@ -195,20 +194,6 @@ class TrackerParams:
         792 against 783. Not better on every measure than the variant it replaced (all
         eight videos: 1876 survivors against 1882), and 7-34 % more CPU time on the real
         videos, so not the default (``experiments/real_video_tracking.py``).
-    missing_backoff : bool
-        A budget for the missing tracks (exponential back-off, the usual re-detection
-        schedule): a track that has missed ``m`` frames since its last tracked one is tried
-        in the next frame (its match from the prediction, the coarse-to-fine step and, at a
-        density check, the box search) only where ``m`` is 0 or a power of two (1, 2, 4,
-        8, ...); in the other frames it is not matched and stays missing. With ``max_gap``
-        10 a missing track is tried in 4 of its 10 frames (``m`` = 1, 2, 4, 8) instead of
-        all. False (the default): every missing track is tried in every frame. Measured
-        (rule fixed before measuring; ``experiments/tracking_benchmark.py``,
-        ``experiments/real_video_tracking.py``): on the generated triplet walk (seed 2000)
-        993 of 3000 start points survive against 1191 (recoveries 614 against 1020, of
-        which 515 came after 3 to 7 missed frames) for 19 % less LSMTA CPU time (8.4
-        against 10.4 s); on the real videos' design half 898 survivors against 967
-        (caliscope cam_0 112 against 167). Not the default.
     max_reprojection : float
         Largest reprojection error of an accepted frame, px (only with ``cameras``).
     density_every : int
@@ -236,7 +221,6 @@ class TrackerParams:
     partial: bool = True
     retry_rejected: bool = True
     return_to_first: bool = False
-    missing_backoff: bool = False
     max_reprojection: float = 1.0
     density_every: int = 2
     cell: float = 16.0
@@ -433,7 +417,7 @@ def _check_params(p: TrackerParams, K: int) -> None:
     if K > 1 and not (isinstance(p.template, int | np.integer) and 0 <= p.template < K):
         raise ValueError(f"params.template: expected a camera index in [0, {K - 1}], "
                          f"got {p.template}")
-    for name in ("partial", "retry_rejected", "return_to_first", "missing_backoff"):
+    for name in ("partial", "retry_rejected", "return_to_first"):
         if not isinstance(getattr(p, name), bool | np.bool_):
             raise ValueError(f"params.{name}: expected True or False, got "
                              f"{getattr(p, name)!r}")
@@ -579,7 +563,7 @@ def _advance(state: _State, seq, prev, nxt, t: int, p: TrackerParams, vel0,
     template, while one that did not jump but was re-anchored tries only its fresh
     fallback; the live ones that still fail searched in the bigger box. What is not found
     is missing."""
-    idx = _scheduled(state, state.in_play(), t + 1, p)
+    idx = state.in_play()
     if not idx.size:
         return
     pred, known = _predict(state, idx, t + 1, p.neighbours, vel0)
@@ -760,22 +744,13 @@ def _search_missing(state: _State, seq, nxt, t: int, p: TrackerParams) -> None:
     """Density check at frame ``t``, first part: the missing tracks are searched in the
     ``retry_radius`` box around their predicted positions before sparse cells get new
     points."""
-    idx = _scheduled(state, np.flatnonzero(state.status == TrackStatus.MISSING.value), t, p)
+    idx = np.flatnonzero(state.status == TrackStatus.MISSING.value)
     if idx.size:
         n = idx.size
         pred, _ = _predict(state, idx, t, p.neighbours, None)
         ok = _attempt(state, seq, None, nxt, t, idx, pred, np.full(n, p.retry_radius), p,
                       direct=np.zeros(n, bool), box=np.ones(n, bool), fallback=np.zeros(n, bool))
         state.retried[t, idx[ok]] = True
-
-
-def _scheduled(state: _State, idx, t: int, p: TrackerParams) -> np.ndarray:
-    """The tracks of ``idx`` tried in frame ``t``: all of them, or with
-    ``p.missing_backoff`` those whose missed frames ``t - 1 - end`` are 0 or a power of 2."""
-    if not p.missing_backoff:
-        return idx
-    m = t - 1 - state.end[idx]
-    return idx[(m & (m - 1)) == 0]          # m = 0 (live), 1, 2, 4, 8, ...
 
 
 def _end_missing(state: _State, t: int, max_gap: int) -> None:

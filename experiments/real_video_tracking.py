@@ -164,8 +164,8 @@ points kept through the change do not come back; re-anchoring the fallback later
 14 survivors that end on a fallback by a tighter test would leave 91 (at 0.089 px), fewer
 than KLT's 104.
 
-*Return to the first template* (session 56's variant of ``return_to_first``, replaced in
-session 57: see the next paragraph; an option, not the default): a track found with its fallback
+*Return to the first template* (``TrackerParams(return_to_first=True)``,
+``--return-to-first``; an option, not the default): a track found with its fallback
 template tries its first template again from where the fallback found it (the inverse
 compositional match, the forward LSM retry, the correlation search in the same box), every
 frame, and keeps it where it passes. Motivated by cam_3 and cam01 (so neither is held out:
@@ -187,74 +187,6 @@ match alone: 1848 survivors, cam_3 102 at 0.101 px, cam_0 163, cam_1 193; with t
 retry but no search: 1872, cam_3 107 at 0.101 px, cam01 295, cam03 263, cam_0 166. Time
 not measured fairly (the runs shared the machine with other jobs); the option adds matches
 only for the tracks their fallback found.
-
-*Return to the first template, revised* (#35 item 2, session 57;
-``TrackerParams(return_to_first=True)``, ``--return-to-first``; an option, not the default).
-Split: the variants below were compared on {caliscope cam_0, cam_2, pose2sim cam01, cam03}
-(the design half). Caliscope cam_3 is design data too, not held out: it motivated the option
-(above), the session-56 variant this revision builds on was measured on it, and the cam_3
-results of two rejected variants (below) were looked at while choosing. So is the generated
-triplet walk: it decided against re-anchoring after a return (below). Only caliscope cam_1,
-pose2sim cam02 and cam04 were not used in the choice (their session-56 results were known).
-What the old variant cost: after every return the track's fallback was re-anchored at its
-next failure (frame to frame again), and in 3-D mode a track whose first templates failed
-the spatial check after a return was rejected although its fallback had passed. The
-revision: a track accepted on its fallback (every check passed) tries its first template
-from the fallback's position, started with the affinity the fallback implies (``A`` times
-``link``): the inverse compositional match, then the forward LSM retry, no box search; with
-K > 1 also the spatial and geometric checks with the first templates; where any test fails
-the fallback's result stands. A returned track keeps its fallback template (with the
-affinity the first template's match implies for it) for the next frame: where its first
-template fails from the prediction there, the fallback is matched without being re-anchored;
-once its first template matches otherwise than by a return, its next failure re-anchors as
-usual. Survivors, defaults -> option, design half: caliscope cam_0 167 -> 170, cam_2 243 ->
-247, pose2sim cam01 292 -> 294, cam03 265 -> 267 (in all 967 -> 978; kept with FB > 0.5 px
-100 -> 95). Caliscope cam_3 (design data): 105 -> 106 (KLT 104) with its FB median 0.108 ->
-0.092 px (KLT 0.097). Not used in the choice: caliscope cam_1 195 -> 203 (FB median 0.072 ->
-0.074 px), pose2sim cam02 311 -> 311, cam04 277 -> 278. The harness (``--return-to-first``):
-1876 survivors (1855), kept with FB > 0.5 px 187 (196), astray 82 (77), LSMTA >= KLT in 7 of
-8 videos (cam01 294 against 309), every FB median <= 0.1 px. Triplet walk (design data;
-``tracking_benchmark.py --seeds 1 --return-to-first``, seed 2000): 1198 of 3000 start points
-survive (1191), per-frame error 0.0429 px (0.0429), 3-D error at the oldest age 0.920 mm
-(0.925), false share 3.62 % (3.72 %). Against session 56's variant it replaces (the same
-harness, eight videos; session 56's numbers above): 1876 survivors against 1882, kept with
-FB > 0.5 px 187 against 177, caliscope cam_3 106 against 113 survivors (FB median 0.092
-against 0.104 px), the design half 978 against 979, the triplet walk 1198 against 1149: the
-revision is not better on every measure; it keeps fewer survivors on the real videos and
-more of them come back more than 0.5 px away; it gains on the walk and on cam_3's median.
-The price is time: CPU, option against the defaults interleaved in one process (min of 2
-runs, 1 thread, load 3 to 5, two sittings): caliscope +7 to +10 %, +23 to +25 %, +17 to +21
-%, +19 to +23 %; pose2sim +25 %, +25 to +30 %, +24 to +34 %, +22 to +30 % (CPU ratio to KLT,
-one sitting: 6.19, 4.60, 3.41, 4.15 and 2.10, 1.95, 2.33, 2.45 against 5.79, 3.74, 2.81,
-3.48 and 1.68, 1.50, 1.88, 2.00). cProfile of caliscope cam_1: forward LSM 0.22 -> 0.39 s,
-inverse compositional 0.42 -> 0.52 s: a returned track whose appearance changed fails its
-first template from the prediction again in the next frame, so the return (its forward
-retry) is paid in every frame. Hence not the default: the time target is NOT met already.
-Tried on the design half and not kept (survivors, kept with FB > 0.5 px; the revision: 978,
-95): the inverse compositional match alone (no forward retry) 967, 98, CPU +8 % against the
-defaults, and cam_3 99 (below KLT); the forward retry only after a diverged or unfinished
-match 976, 93, CPU -1 % against the revision; a return tried at most every 2nd / 3rd frame
-per track 963 / 967; after a failed return, none for 2 / 4 frames 976 / 971 (CPU -2 / -5 %);
-the fallback re-anchored after a return (the old behaviour) 975, 90, but pose2sim cam03 263
-and the triplet walk 1161 (1145 without the spatial check fix); the fallback's own affinity
-kept after a return instead of the implied one 976, 98, and cam_3's FB median 0.101 px
-(cam_3's median is that close to 0.1); the fallback matched before the first template for
-tracks holding one: 978, 98, astray 52 (46), no time saved.
-
-Time, exact changes (#35, session 57): those of ``tracking_benchmark.py`` (1ac7d58). In 2-D
-mode only one applies: the inverse compositional sampler checks a patch's positions before
-sampling it (its kernel about 10 % faster, in 2-D too); the cameras skipped after a failed
-one are a 3-D cut. Same tracks: caliscope cam_0 and pose2sim cam01 forward and back, to
-6e-10 px, statuses identical. The real-video CPU ratios to KLT above were not re-timed after
-it. Before it, cProfile of caliscope cam_0 (process time, a warm forward-backward run):
-inverse compositional 0.29 s, forward LSM 0.26 s, spline prefilter 0.22 s (768 calls: 78
-frames, their pyramid levels, the forward retries' mosaics), correlation search 0.22 s
-(matchTemplate 0.07 s), coarse-to-fine step 0.35 s (cumulative). Prefiltering only where
-tracks are does not pay: on the eight videos' forward runs, 96-100 % of a frame's rows lie
-within 30 px of a track in play (mean over the frames), so row bands save nothing; the 32 px
-tiles within 30 px of one are 43-52 % of a webcam frame (63-73 % within 60 px), which saves
-at most about 0.09 s of cam_0's 1.5 s (its 80 frames' prefilter: about 0.17 s) before the
-recursions' warm-up margins.
 
 Overhead cut (#35, session 56; every track unchanged: the eight videos forward and back
 give the same statuses and bit-identical positions. The 7e-13 px first reported here were
@@ -482,8 +414,8 @@ def main(argv=None):
     parser.add_argument("--no-retry-rejected", action="store_true",
                         help="TrackerParams(retry_rejected=False): fewer forward LSM retries")
     parser.add_argument("--return-to-first", action="store_true",
-                        help="TrackerParams(return_to_first=True): a track accepted on its "
-                             "fallback template tries its first template again from there")
+                        help="TrackerParams(return_to_first=True): a track its fallback "
+                             "template found tries its first template again from there")
     parser.add_argument("--max-sigma0", type=float, default=None,
                         help="LSMThresholds.max_sigma0 (grey levels; default the tracker's)")
     parser.add_argument("--image-stats", action="store_true",

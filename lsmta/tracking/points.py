@@ -18,12 +18,8 @@ every new frame; the previous frame's solution is only the start. From frame ``t
    the fallback it already holds; matched from the prediction, then, where that fails, from
    the best *correlation* position in a box of half-width ``radius`` around the prediction
    (the paper's step 2). A track without history, after its match from the prediction, is
-   searched in the box with its first template. With ``return_to_first`` a track accepted
-   on its fallback tries its first template again from there, and takes it where it
-   passes (the drift correction without waiting for the prediction); it keeps that
-   fallback for the next frame: where its first template fails from the prediction there,
-   the fallback is matched without being re-anchored (once its first template matches
-   otherwise than by a return, its next failure re-anchors as usual);
+   searched in the box with its first template. With ``return_to_first`` a track the
+   fallback found tries its first template again from there;
 4. where all that fails (beyond the paper): a fallback template anchored before frame
    ``t`` is replaced by the track's patch in frame ``t``, and a *coarse-to-fine
    prediction* is made: the track's patch in its last tracked frame is matched into frame
@@ -177,23 +173,14 @@ class TrackerParams:
         1.3 % fewer survivors on the generated triplet walk, so not the default
         (``experiments/real_video_tracking.py``).
     return_to_first : bool
-        A track accepted on its fallback template tries its first template again, from
-        where the fallback found it and with the affinity the fallback implies (the
-        inverse compositional match, then the forward LSM retry; no box search), with the
-        usual thresholds and (K > 1) the spatial and geometric checks; where all pass, the
-        frame is the first template's and the fallback's drift ends there. The track keeps
-        that fallback for the next frame (where its first template fails from the
-        prediction there, the fallback is matched without being re-anchored; once its
-        first template matches otherwise than by a return, its next failure re-anchors as
-        usual). False (the default): the first template is tried only from the prediction.
-        Measured on design data (what the design was chosen or motivated on): the real
-        videos' design half 978 survivors against 967; the generated triplet walk 1198 of
-        3000 start points against 1191 (it decided against re-anchoring after a return);
-        caliscope cam_3 (which motivated the option) 106 against 105, forward-backward
-        median 0.092 px against 0.108. The other three videos (not used in the choice):
-        792 against 783. Not better on every measure than the variant it replaced (all
-        eight videos: 1876 survivors against 1882), and 7-34 % more CPU time on the real
-        videos, so not the default (``experiments/real_video_tracking.py``).
+        A track found with its fallback template tries its first template again, from
+        where the fallback found it (the inverse compositional match, the forward LSM
+        retry, then the correlation search in the same box around it); where that passes,
+        the frame is the first template's and the fallback's drift ends there. False (the
+        default): the first template is tried only from the prediction. On the eight real
+        videos 1882 survivors against 1855, kept with FB > 0.5 px 177 against 196, but
+        pose2sim cam03 265 -> 262, so not the default
+        (``experiments/real_video_tracking.py``).
     max_reprojection : float
         Largest reprojection error of an accepted frame, px (only with ``cameras``).
     density_every : int
@@ -481,8 +468,7 @@ class _State(_TrackArrays):
     first: _Anchors           # the first templates: A maps them to the last tracked frame
     fallback: _Anchors        # used where the first ones fail (see the module docstring)
     link: np.ndarray          # (K, N, 2, 2) first template -> the fallback's anchor frame
-    on_fallback: np.ndarray   # (N,) the fallback is in use: it matched the last tracked
-    #                           frame, or found it and the first template returned there
+    on_fallback: np.ndarray   # (N,) the last tracked frame was matched with the fallback
     cameras: list | None      # for the geometric check
     start_cameras: list | None = None   # predict the spatial LSM's starting maps
 
@@ -670,7 +656,7 @@ class _Pyramids:
 
 
 def _coarse_to_fine(state: _State, pyramids: _Pyramids, idx, pred, t: int,
-                    p: TrackerParams, *, every: bool = False) -> np.ndarray:
+                    p: TrackerParams) -> np.ndarray:
     """Coarse-to-fine predictions ``(K, n, 2)`` px at frame ``t`` for the tracks ``idx``
     ``(n,)``, started from their predictions ``pred`` ``(K, n, 2)`` px (full-size pixels).
 
@@ -684,29 +670,24 @@ def _coarse_to_fine(state: _State, pyramids: _Pyramids, idx, pred, t: int,
     the tracks, whatever their last frames (each track's patch sampled from its own
     frame's level, once while it stays missing: :meth:`_Pyramids.templates`); every
     track is solved on its own, so the result is that of matching the tracks of each last
-    frame separately. Unless ``every``, a track NaN in one camera is not matched in the
-    later ones (NaN there too): the caller moves only tracks found in every camera."""
+    frame separately."""
     K, n = pred.shape[:2]
     out = np.full((K, n, 2), np.nan)
-    todo = np.arange(n)                         # found in every camera so far
+    last = state.end[idx]
+    rows = np.arange(n)
     for k in range(K):
-        if not todo.size:
-            break
         target = pyramids.get(k, t)
-        sub, last = idx[todo], state.end[idx[todo]]
-        at = state.xy[last, k, sub]                                 # (m, 2) full-size px
-        est = np.array(pred[k, todo], float)
-        found = np.zeros(todo.size, bool)
-        rows = np.arange(todo.size)
+        at = state.xy[last, k, idx]                                 # (n, 2) full-size px
+        est = np.array(pred[k], float)
+        found = np.zeros(n, bool)
         for lv in range(len(target) - 1, 0, -1):
             s = 2.0 ** lv
-            tm = pyramids.templates(k, lv, sub, last, at, patch=p.patch)
+            tm = pyramids.templates(k, lv, idx, last, at, patch=p.patch)
             xy, conv = match_translation(tm, rows, target[lv], est / s, max_iter=p.max_iter,
                                          tol=p.tol)
             est[conv] = xy[conv] * s
             found[conv] = True
-        out[k, todo[found]] = est[found]
-        todo = todo if every else todo[found]
+        out[k, found] = est[found]
     return out
 
 
@@ -834,11 +815,11 @@ def _attempt(state: _State, seq, prev, nxt, t: int, idx, pred, radius, p: Tracke
     the box of ``radius`` where ``box`` (where the direct match failed or was not tried);
     where they fail and ``fallback``, the fallback templates (anchored in frame ``t - 1``
     unless the track holds a fresh one) are matched from the prediction (where ``direct``)
-    and in the box. Then the spatial check per template set and (with cameras) the
-    geometric check; with ``p.return_to_first`` a track accepted on its fallback then
-    tries its first templates from there (:func:`_return_to_first`). Where ``first``
-    ``(n,)`` is False (default: all True) the first templates are not tried at all (an
-    exact repeat of a failed match).
+    and in the box (with ``p.return_to_first``, a track they found then tries its first
+    templates from there, and keeps them where they pass). Then the spatial check per
+    template set and (with cameras) the
+    geometric check. Where ``first`` ``(n,)`` is False (default: all True) the first
+    templates are not tried at all (an exact repeat of a failed match).
     """
     try_first = np.ones(idx.size, bool) if first is None else first
     st = _temporal(state.first, seq, nxt, t, idx, pred, radius, p, direct=direct & try_first,
@@ -850,95 +831,41 @@ def _attempt(state: _State, seq, prev, nxt, t: int, idx, pred, radius, p: Tracke
         st = _merge(st, sel, _temporal(state.fallback, seq, nxt, t, idx[sel], pred[:, sel],
                                        radius[sel], p, direct=direct[sel],
                                        box=np.ones(sel.size, bool)))
-    ok, M, off = _checks(state, ((state.first, st.ok & ~use_fb), (state.fallback, st.ok & use_fb)),
-                         nxt, idx, st.xy, st.temporal_A, p)
-    back = np.zeros(0, np.int64)
-    if p.return_to_first and (ok & use_fb).any():
-        back = np.flatnonzero(ok & use_fb)
-        got, xy, A, s0, M1, off1 = _return_to_first(state, nxt, idx[back], st.xy[:, back],
-                                                    st.temporal_A[:, back], p)
-        back = back[got]
-        st.xy[:, back], st.temporal_A[:, back], st.sigma0[:, back] = xy, A, s0
-        M[:, back], off[:, back], use_fb[back] = M1, off1, False
+    back = np.flatnonzero(use_fb & st.ok) if p.return_to_first else np.zeros(0, np.int64)
+    if back.size:
+        # the first template again, from where the fallback found the track
+        st1 = _temporal(state.first, seq, nxt, t, idx[back], st.xy[:, back], radius[back], p,
+                        direct=np.ones(back.size, bool), box=np.ones(back.size, bool))
+        got = np.flatnonzero(st1.ok)
+        st = _merge(st, back[got], _take(st1, got))
+        use_fb = use_fb & ~np.isin(np.arange(idx.size), back[got])
+    ok = st.ok.copy()
+    M, off = st.temporal_A.copy(), np.zeros(st.xy.shape)
+    if len(nxt) > 1:
+        for anchors, mask in ((state.first, ok & ~use_fb), (state.fallback, ok & use_fb)):
+            sel = np.flatnonzero(mask)
+            if sel.size:
+                agree, M[:, sel], pos = _spatial(anchors, nxt, idx[sel], st.xy[:, sel],
+                                                 st.temporal_A[:, sel], p)
+                off[:, sel] = np.nan_to_num(pos - st.xy[:, sel])
+                ok[sel[~agree]] = False
+    if state.cameras is not None and ok.any():
+        sel = np.flatnonzero(ok)
+        res = triangulate(state.cameras, st.xy[:, sel])
+        ok[sel] = res.valid & (np.nanmax(res.reprojection_error, axis=0) <= p.max_reprojection)
     if ok.any():
         _accept(state, nxt, t, idx[ok], st.xy[:, ok], st.temporal_A[:, ok], st.sigma0[:, ok],
                 M[:, ok], off[:, ok], use_fb[ok], p)
-    if back.size:
-        # a track back on its first templates keeps its fallback, with the affinity the
-        # first templates' match implies for it, for the next frame: matched there without
-        # re-anchoring where the first templates fail from the prediction (_accept ends
-        # that once they match other than by a return). Re-anchoring after every return lost
-        # tracks on the triplet walk (design data: the walk helped choose this)
-        r = idx[back]
-        state.on_fallback[r] = True
-        state.fallback.A[:, r] = state.first.A[:, r] @ np.linalg.inv(state.link[:, r])
     return ok
 
 
-def _checks(state: _State, sets, nxt, idx, xy, A, p: TrackerParams):
-    """The spatial check (K > 1) of each template set ``(anchors, rows)`` in ``sets`` on its
-    tracks ``rows`` ``(n,)`` bool (of ``idx``, found at ``xy`` ``(K, n, 2)`` with the
-    temporal affinities ``A`` ``(K, n, 2, 2)``), then (with ``state.cameras``) the geometric
-    check of all that passed it. Returns ``ok`` ``(n,)`` (False outside every set's rows),
-    the spatial affinities ``M`` ``(K, n, 2, 2)`` (``A`` where not matched) and the spatial
-    offsets ``off`` ``(K, n, 2)`` px (0 where not matched)."""
-    ok = np.zeros(len(idx), bool)
-    M, off = A.copy(), np.zeros(xy.shape)
-    for anchors, rows in sets:
-        sel = np.flatnonzero(rows)
-        ok[sel] = True
-        if len(nxt) > 1 and sel.size:
-            agree, M[:, sel], pos = _spatial(anchors, nxt, idx[sel], xy[:, sel], A[:, sel], p)
-            off[:, sel] = np.nan_to_num(pos - xy[:, sel])
-            ok[sel[~agree]] = False
-    if state.cameras is not None and ok.any():
-        sel = np.flatnonzero(ok)
-        ok[sel] = _geometric(state.cameras, xy[:, sel], p)
-    return ok, M, off
-
-
-def _geometric(cameras, xy, p: TrackerParams) -> np.ndarray:
-    """The geometric check ``(m,)``: the positions ``xy`` ``(K, m, 2)`` intersect with every
-    reprojection error at most ``p.max_reprojection`` px."""
-    res = triangulate(cameras, xy)
-    return res.valid & (np.nanmax(res.reprojection_error, axis=0) <= p.max_reprojection)
-
-
-def _anchored_match(templates, idx, image, start, A, p: TrackerParams, *, fallback):
-    """:func:`_match` of the anchored ``templates`` of the tracks ``idx`` into ``image`` from
-    ``start`` with the affinities ``A``, with the tracker's settings (the forward LSM retry
-    where ``fallback``)."""
-    return _match(templates, idx, image, start, A, fallback=fallback,
-                  retry_rejected=p.retry_rejected, max_displacement=None, **_lsm(p))
-
-
-def _return_to_first(state: _State, nxt, idx, xy, A, p: TrackerParams):
-    """The first templates of the tracks ``idx`` ``(m,)``, which their fallback templates
-    found at ``xy`` ``(K, m, 2)`` with the affinities ``A`` ``(K, m, 2, 2)`` (accepted, the
-    checks passed), matched from there: the inverse compositional match started with the
-    first template's affinity the fallback implies (``A`` times ``link``), then the
-    forward LSM retry where it fails (no box search; nothing but the thresholds and the
-    checks bounds how far the match moves from the fallback's position), a track that
-    failed in one camera not matched in the later ones; then (K > 1) the spatial check
-    with the first templates and (with cameras) the geometric check (:func:`_checks`).
-    Returns ``got`` ``(m,)`` (every test passed: the frame is the first templates' and the
-    fallback's drift ends there) and, for the ``got`` rows, the positions, affinities,
-    ``sigma0``, spatial affinities ``M`` and offsets. Where a test fails the fallback's
-    result stands."""
-    K, m = xy.shape[:2]
-    got = np.ones(m, bool)
-    xy1, A1, s0 = np.full((K, m, 2), np.nan), np.full((K, m, 2, 2), np.nan), np.full((K, m), np.nan)
-    for k in range(K):
-        rows = np.flatnonzero(got)
-        if not rows.size:
-            break
-        res = _anchored_match(state.first.templates[k], idx[rows], nxt[k], xy[k, rows],
-                              A[k, rows] @ state.link[k, idx[rows]], p, fallback=True)
-        got[rows] = res.ok
-        xy1[k, rows], A1[k, rows], s0[k, rows] = res.xy, res.A, res.sigma0
-    ok, M, off = _checks(state, ((state.first, got),), nxt, idx, xy1, A1, p)
-    got &= ok
-    return got, xy1[:, got], A1[:, got], s0[:, got], M[:, got], off[:, got]
+def _take(st: _Temporal, rows) -> _Temporal:
+    """``st``'s tracks ``rows``."""
+    fields = {}
+    for name in _Temporal.__dataclass_fields__:
+        a = getattr(st, name)
+        fields[name] = a[(slice(None),) * (a.ndim > 1) + (rows,)]
+    return _Temporal(**fields)
 
 
 def _merge(st: _Temporal, sel, other: _Temporal) -> _Temporal:
@@ -965,8 +892,9 @@ def _temporal(anchors: _Anchors, seq, nxt, t: int, idx, pred, radius, p: Tracker
     ok = np.ones(n, bool)
 
     def match(k, sel, start, fallback):
-        res = _anchored_match(anchors.templates[k], idx[sel], nxt[k], start,
-                              anchors.A[k, idx[sel]], p, fallback=fallback)
+        res = _match(anchors.templates[k], idx[sel], nxt[k], start, anchors.A[k, idx[sel]],
+                     fallback=fallback, retry_rejected=p.retry_rejected,
+                     max_displacement=None, **_lsm(p))
         good = res.ok
         xy[k, sel[good]], A[k, sel[good]] = res.xy[good], res.A[good]
         sigma0[k, sel[good]] = res.sigma0[good]
@@ -989,29 +917,26 @@ def _temporal(anchors: _Anchors, seq, nxt, t: int, idx, pred, radius, p: Tracker
                      direct=by_pred)
 
 
-def _spatial(anchors: _Anchors, nxt, idx, xy, A, p: TrackerParams, *, every: bool = False):
+def _spatial(anchors: _Anchors, nxt, idx, xy, A, p: TrackerParams):
     """Spatial LSM: the template camera's template into every other camera's frame, started
     where the spatial relation at the anchor (``S``, ``D``) puts it. Returns ``agree (m,)``
     (within ``max_disagreement`` of that), the affinities ``M (K, m, 2, 2)`` from the
     template camera's template into each camera's frame and the positions ``(K, m, 2)``
-    (NaN for the template camera). A track that disagrees in one camera is not matched in
-    the later ones (``M`` there is ``A``, the position NaN) unless ``every``; each track
-    is matched on its own, so the others' results do not change."""
+    (NaN for the template camera)."""
     K, m = xy.shape[:2]
     tm = p.template
     agree = np.ones(m, bool)
     M = A.copy()
     pos = np.full((K, m, 2), np.nan)
     for k in range(K):
-        rows = np.arange(m) if every else np.flatnonzero(agree)
-        if k == tm or not rows.size:
+        if k == tm:
             continue
-        expect = xy[k, rows] + np.einsum("nij,nj->ni", A[k, rows], anchors.D[k, idx[rows]])
-        res = match_templates(anchors.templates[tm], idx[rows], nxt[k], expect,
-                              A[k, rows] @ anchors.S[k, idx[rows]], **_lsm(p))
-        pos[k, rows] = res.xy
-        agree[rows] &= res.ok & (np.linalg.norm(res.xy - expect, axis=1) <= p.max_disagreement)
-        M[k, rows] = res.A
+        expect = xy[k] + np.einsum("nij,nj->ni", A[k], anchors.D[k, idx])
+        res = match_templates(anchors.templates[tm], idx, nxt[k], expect,
+                              A[k] @ anchors.S[k, idx], **_lsm(p))
+        pos[k] = res.xy
+        agree &= res.ok & (np.linalg.norm(res.xy - expect, axis=1) <= p.max_disagreement)
+        M[k] = res.A
     return agree, M, pos
 
 
@@ -1038,27 +963,24 @@ def _start_maps(template: int, xy, cams) -> np.ndarray:
 
 
 def _spatial_start(anchors: _Anchors, splines, xy, p: TrackerParams,
-                   start_cameras=None, *, every: bool = False) -> np.ndarray:
+                   start_cameras=None) -> np.ndarray:
     """Spatial relation ``S``, ``D`` of freshly sampled templates (all rows of ``anchors``)
     at their positions ``xy`` ``(K, n, 2)``, the LSM started from the identity or from the
     map ``start_cameras`` predict (:func:`_start_maps`). Returns ``confirmed (n,)``: every
     template is textured and (K > 1) the spatial LSM lands within ``max_disagreement`` of
-    each camera's start position. Unless ``every``, a row not confirmed is not matched in
-    the later cameras (its ``S``, ``D`` there stay as they were: it is not tracked)."""
+    each camera's start position."""
     K, n = xy.shape[:2]
     confirmed = np.all([tm.ok for tm in anchors.templates], axis=0)
-    tm = p.template
+    tm, rows = p.template, np.arange(n)
     start = _start_maps(tm, xy, start_cameras) if K > 1 and n else None
     for k in range(K if K > 1 and n else 0):
-        rows = np.arange(n) if every else np.flatnonzero(confirmed)
-        if k == tm or not rows.size:
+        if k == tm:
             continue
-        res = match_templates(anchors.templates[tm], rows, splines[k], xy[k, rows],
-                              start[k, rows], **_lsm(p))
-        anchors.S[k, rows[res.ok]] = res.A[res.ok]
-        anchors.D[k, rows[res.ok]] = res.xy[res.ok] - xy[k, rows[res.ok]]
-        confirmed[rows] &= res.ok & (np.linalg.norm(res.xy - xy[k, rows], axis=1)
-                                     <= p.max_disagreement)
+        res = match_templates(anchors.templates[tm], rows, splines[k], xy[k], start[k],
+                              **_lsm(p))
+        anchors.S[k, res.ok] = res.A[res.ok]
+        anchors.D[k, res.ok] = res.xy[res.ok] - xy[k, res.ok]
+        confirmed &= res.ok & (np.linalg.norm(res.xy - xy[k], axis=1) <= p.max_disagreement)
     return confirmed
 
 
@@ -1216,7 +1138,7 @@ def track_step(frame, next_frame, xy, predicted, radius, *, params: TrackerParam
             raise ValueError(f"splines: expected two sequences of {K} SplineImage of shape "
                              f"{seq.shape[2:]} (the images'), got {splines!r:.60}, {nxt!r:.60}")
     first = _Anchors.sampled(splines, cur, 0, p)
-    _spatial_start(first, splines, cur, p, every=True)
+    _spatial_start(first, splines, cur, p)
     rows = np.arange(n)
     st = _temporal(first, seq, nxt, 1, rows, pred, r.astype(np.int64), p,
                    direct=np.full(n, bool(direct)), box=np.ones(n, bool))
@@ -1225,7 +1147,7 @@ def track_step(frame, next_frame, xy, predicted, radius, *, params: TrackerParam
     if K > 1 and ok.any():
         sel = np.flatnonzero(ok)
         agree, _, sp_xy[:, sel] = _spatial(first, nxt, sel, st.xy[:, sel], st.temporal_A[:, sel],
-                                           p, every=True)
+                                           p)
         ok[sel[~agree]] = False
     return StepResult(ok=ok, direct=st.direct, correlation_xy=st.correlation_xy, xy=st.xy,
                       temporal_A=st.temporal_A, spatial_xy=sp_xy, spatial_A=first.S.copy())

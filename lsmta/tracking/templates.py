@@ -451,26 +451,17 @@ def _value(coef, pad, x, y):
 
 
 @nb.njit(cache=True, inline="always")
-def _sample_warped(coef, pad, height, width, U, cx, cy, a11, a12, a21, a22, g, xy):
+def _sample_warped(coef, pad, height, width, U, cx, cy, a11, a12, a21, a22, g):
     """Grey values ``g`` (P,) of the template offsets ``U`` (P, 2) warped by the affinity
-    ``a`` and moved to ``(cx, cy)``, px; returns (every sample inside the image, their sum).
-    The positions are computed and checked first (into ``xy``, (2, P) work space), then
-    sampled only if all are inside: two branch-free loops (about 20 % faster than one
-    with a test per sample; the same values, the sum to rounding)."""
-    P = U.shape[0]
-    inside = True
-    for p in range(P):
+    ``a`` and moved to ``(cx, cy)``, px; returns (every sample inside the image, their sum)
+    and stops at the first sample outside."""
+    gm = 0.0
+    for p in range(U.shape[0]):
         x = cx + a11 * U[p, 0] + a12 * U[p, 1]
         y = cy + a21 * U[p, 0] + a22 * U[p, 1]
-        xy[0, p] = x
-        xy[1, p] = y
-        inside &= (x >= 0.0) & (x <= width - 1.0) & (y >= 0.0) & (y <= height - 1.0)
-    if not inside:
-        return False, 0.0
-    gm = 0.0
-    for p in range(P):
-        g[p] = _value(coef, pad, xy[0, p], xy[1, p])
-    for p in range(P):
+        if not (x >= 0.0 and x <= width - 1.0 and y >= 0.0 and y <= height - 1.0):
+            return False, gm
+        g[p] = _value(coef, pad, x, y)
         gm += g[p]
     return True, gm
 
@@ -523,7 +514,6 @@ def _solve(coef, pad, height, width, rows, f, fx, fy, update, ok, U, c, A, max_i
             status[j] = 4                                   # SINGULAR: flat template
             continue
         g = np.empty(P)
-        xy = np.empty((2, P))
         b = np.zeros(6)
         d = np.zeros(6)
         fm = 0.0
@@ -540,7 +530,7 @@ def _solve(coef, pad, height, width, rows, f, fx, fy, update, ok, U, c, A, max_i
         for it in range(max_iter):
             iterations[j] = it + 1
             inside, gm = _sample_warped(coef, pad, height, width, U, cx, cy, a11, a12, a21,
-                                        a22, g, xy)
+                                        a22, g)
             if not inside:
                 st = 3                                      # OUTSIDE
                 break

@@ -40,8 +40,8 @@ s. Those cuts are NOT in this code: they were reverted (branch s57-rv keeps them
 on the tiny studio walk of tests/test_rom_fit.py (one thread) they change the fitted body
 (the drop rule keeps all 12 clip frames, not 9-11), so they are not exact there; the
 profile above was taken with them. The target (<= 2x) is NOT met: the temporal inverse
-compositional matches alone cost more than KLT's whole run, so it asks for fewer matches or iterations (not exact), not for less
-overhead.
+compositional matches alone cost more than KLT's whole run, so it asks for fewer matches or
+iterations (not exact), not for less overhead.
 """
 
 from __future__ import annotations
